@@ -1,0 +1,81 @@
+"""Command-line interface ``diag``.
+
+Each area of the product contributes its sub-commands through a module-level
+``add_commands(subparsers)`` function; this module only assembles them, sets up
+logging and turns errors into a clear message and a non-zero exit status.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import os
+import sys
+from collections.abc import Sequence
+
+log = logging.getLogger("diag")
+
+#: modules that contribute sub-commands (each has ``add_commands(subparsers)``)
+COMMAND_MODULES: tuple[str, ...] = (
+    "diag_plugin.simulate.cli",
+    "diag_plugin.rulebase_cli",
+    "diag_plugin.demo",
+    "historian.cli",
+    "diag_plugin.workbench.cli",
+)
+
+
+class UserError(Exception):
+    """An error caused by input the user can fix; printed without a traceback."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="diag", description="Fuzzy-model diagnostics for process plants."
+    )
+    parser.add_argument(
+        "--db",
+        default=os.environ.get("DIAG_DB", "sqlite:///diag.db"),
+        help="historian database URL (env DIAG_DB; default sqlite:///diag.db)",
+    )
+    parser.add_argument(
+        "--rulebases",
+        default=os.environ.get("DIAG_RULEBASES", "rulebases"),
+        help="rule-base folder (env DIAG_RULEBASES; default ./rulebases)",
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:  # an area not built yet
+            if exc.name and name.startswith(exc.name):
+                continue
+            raise
+        module.add_commands(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.WARNING - 10 * min(args.verbose, 2),
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        rc = args.func(args)
+    except UserError as exc:
+        print(f"diag: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    return int(rc or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
