@@ -1,0 +1,536 @@
+"""Rule-base files: one TOML file per model that plant experts edit by hand.
+
+Layout (see ``docs/rulebase.md``)::
+
+    [model]        name, description, method, shape
+    [output]       spec, label, unit, span = [lo, hi], sets
+    [[inputs]]     one table per input, same keys, in model order
+    [training]     provenance: source, from, to, samples, dropped
+    [rules]
+    list = [
+        { if = ["U17", "P04"], then = 63.2, n = 5231, sd = 0.8, lock = false },
+    ]
+
+A rule's ``if`` names the premise set of each input (label + set index), ``then``
+is the conclusion in the output's engineering units, ``n``/``sd`` its training
+support, ``lock`` keeps ``then`` through retraining. ``then = nan`` with
+``lock = true`` is a *locked-deleted* rule: that cell never gets a rule.
+
+The file is read and written with tomlkit: loading then saving an unedited
+file gives identical bytes, comments survive, and when the rules change (say
+after retraining) the rule list is rewritten in premise order carrying each
+rule's comments with it. Every problem is reported as ``file:line: what``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import tomlkit
+from tomlkit.exceptions import ParseError
+
+from diag_plugin.fuzzy.partition import SHAPES
+from diag_plugin.fuzzy.wang_mendel import METHODS, WangMendelRegressor
+from diag_plugin.regressors import InputSpec
+
+HEADER = """\
+# Rule base of a fuzzy model (diag-plugin). Edit by hand, then run `diag rules check FILE`.
+# One rule per line: if = premise set of each input (label + set index, in [[inputs]] order),
+# then = conclusion in the output's unit, n / sd = training samples in the cell and their
+# standard deviation, lock = true keeps `then` through retraining (then = nan with
+# lock = true keeps the cell empty). Comments on or above a rule stay with it.
+"""
+
+
+class RuleBaseError(Exception):
+    """A rule-base file has problems; ``problems`` lists ``file:line: what``."""
+
+    def __init__(self, problems: list[str]):
+        self.problems = problems
+        super().__init__("\n".join(problems))
+
+
+@dataclass
+class Variable:
+    """One model variable: its spec and fuzzy partition in engineering units."""
+
+    spec: str
+    label: str
+    unit: str
+    span: tuple[float, float]
+    sets: int = 31
+
+    @property
+    def width(self) -> int:
+        return max(2, len(str(self.sets - 1)))
+
+    def set_label(self, i: int) -> str:
+        return f"{self.label}{i:0{self.width}d}"
+
+    def parse_label(self, text: str) -> int | None:
+        if not text.startswith(self.label):
+            return None
+        rest = text[len(self.label) :]
+        if not rest.isdigit():
+            return None
+        i = int(rest)
+        return i if 0 <= i < self.sets else None
+
+
+@dataclass
+class Rule:
+    premise: tuple[int, ...]
+    then: float
+    n: int = 0
+    sd: float = 0.0
+    lock: bool = False
+    line: int = 0
+    comments: list[str] = field(default_factory=list)
+    trailing: str = ""
+
+
+def default_label(spec: str) -> str:
+    """Set-label prefix for a spec: the tag letters, e.g. ``CV``, ``dirCV``."""
+    s = InputSpec.parse(spec)
+    base = s.fn + "".join(s.tags) if s.fn else s.tags[0]
+    base = re.sub(r"[^A-Za-z0-9]", "", base) or "X"
+    if s.lag:
+        base += f"L{s.lag}"
+    return base + "_" if base[-1].isdigit() else base
+
+
+class RuleBase:
+    """A rule-base file in memory: spec, provenance and rules (see module doc)."""
+
+    def __init__(self, text: str, path: str | Path = "<rulebase>"):
+        self.path = Path(path)
+        self.text = text
+        self.problems: list[str] = []
+        self._dirty_rules = False
+        try:
+            self.doc = tomlkit.parse(text)
+        except ParseError as exc:
+            raise RuleBaseError([f"{self.path}:{exc.line}: TOML syntax error: {exc}"]) from None
+        self._lines = text.splitlines()
+        self._read()
+        if self.problems:
+            raise RuleBaseError(self.problems)
+
+    # ------------------------------------------------------------------ load
+    @classmethod
+    def load(cls, path: str | Path) -> RuleBase:
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise RuleBaseError([f"{path}:0: cannot read: {exc}"]) from None
+        return cls(text, path)
+
+    def _err(self, line: int, msg: str) -> None:
+        self.problems.append(f"{self.path}:{line}: {msg}")
+
+    def _line_of(self, section: str, key: str | None = None, nth: int = 0) -> int:
+        """Line (1-based) of a section header or of ``key =`` inside it."""
+        hdr = re.compile(r"^\s*\[\[?\s*" + re.escape(section) + r"\s*\]\]?")
+        anyhdr = re.compile(r"^\s*\[")
+        seen = -1
+        start = None
+        for i, line in enumerate(self._lines):
+            if hdr.match(line):
+                seen += 1
+                if seen == nth:
+                    start = i
+                    if key is None:
+                        return i + 1
+                    continue
+            if start is not None and i > start:
+                if anyhdr.match(line):
+                    break
+                if re.match(r"^\s*" + re.escape(key) + r"\s*=", line):
+                    return i + 1
+        return start + 1 if start is not None else 1
+
+    def _rules_extent(self) -> tuple[int, int, list[tuple[int, list[str], str]]]:
+        """First and last line index of ``rules.list`` and, per rule, its line
+        number, the comment lines above it and its trailing comment."""
+        start = self._line_of("rules", "list") - 1
+        rules: list[tuple[int, list[str], str]] = []
+        comments: list[str] = []
+        sq = brace = 0
+        for i in range(start, len(self._lines)):
+            line = self._lines[i]
+            code, _, trail = _split_comment(line)
+            if i == start:
+                code = code.split("=", 1)[1] if "=" in code else ""
+            elif not code.strip() and trail:
+                comments.append(line.strip())
+                continue
+            for ch in code:
+                if ch == "[":
+                    sq += 1
+                elif ch == "]":
+                    sq -= 1
+                elif ch == "{":
+                    if brace == 0 and sq == 1:
+                        rules.append((i + 1, comments, ""))
+                        comments = []
+                    brace += 1
+                elif ch == "}":
+                    brace -= 1
+            if trail and rules and rules[-1][0] == i + 1:
+                rules[-1] = (rules[-1][0], rules[-1][1], "#" + trail)
+            if sq <= 0 and i >= start and "[" in "".join(self._lines[start : i + 1]):
+                return start, i, rules
+        return start, len(self._lines) - 1, rules
+
+    def _rule_lines(self) -> list[tuple[int, list[str], str]]:
+        return self._rules_extent()[2]
+
+    def _read(self) -> None:
+        doc = self.doc
+        for section in ("model", "output", "inputs", "rules"):
+            if section not in doc:
+                self._err(len(self._lines) or 1, f"missing section [{section}]")
+        model = doc.get("model", {})
+        self.name = self._get(model, "model", "name", str, default=self.path.stem)
+        self.description = self._get(model, "model", "description", str, default="")
+        self.method = self._get(model, "model", "method", str, default="wm-avg")
+        if self.method not in METHODS:
+            self._err(self._line_of("model", "method"),
+                      f"method must be one of {', '.join(METHODS)}, got {self.method!r}")  # fmt: skip
+        self.shape = self._get(model, "model", "shape", str, default="trapezoidal")
+        if self.shape not in SHAPES:
+            self._err(self._line_of("model", "shape"),
+                      f"shape must be one of {', '.join(SHAPES)}, got {self.shape!r}")  # fmt: skip
+        self.output = self._variable(doc.get("output"), "output", 0)
+        inputs = doc.get("inputs", [])
+        if "inputs" in doc and not isinstance(inputs, list):
+            self._err(self._line_of("inputs"), "[[inputs]] must be an array of tables")
+            inputs = []
+        self.inputs = [self._variable(t, "inputs", i) for i, t in enumerate(inputs)]
+        self.training = dict(doc.get("training", {}))
+        self.rules = self._read_rules() if None not in self.inputs and self.output else []
+
+    def _get(self, table, section, key, typ, default=None, required=False):
+        if not isinstance(table, Mapping) or key not in table:
+            if required:
+                self._err(self._line_of(section), f"[{section}] is missing {key!r}")
+            return default
+        v = table[key]
+        v = v.unwrap() if hasattr(v, "unwrap") else v
+        ok = isinstance(v, typ) and not (typ in (int, float) and isinstance(v, bool))
+        if typ is float and isinstance(v, int) and not isinstance(v, bool):
+            v, ok = float(v), True
+        if not ok:
+            name = typ.__name__ if isinstance(typ, type) else "/".join(t.__name__ for t in typ)
+            self._err(self._line_of(section, key), f"{key} must be {name}, got {v!r}")
+            return default
+        return v
+
+    def _variable(self, table, section: str, nth: int) -> Variable | None:
+        if table is None:
+            return None
+        line = self._line_of(section, None, nth)
+        n0 = len(self.problems)
+        spec = self._get(table, section, "spec", str, required=True)
+        if spec is not None:
+            try:
+                InputSpec.parse(spec)
+            except ValueError as exc:
+                self._err(self._line_of(section, "spec", nth), str(exc))
+                spec = None
+        unit = self._get(table, section, "unit", str, default="")
+        sets = self._get(table, section, "sets", int, default=31)
+        if sets is not None and sets < 2:
+            self._err(self._line_of(section, "sets", nth), f"sets must be at least 2, got {sets}")
+        span = self._get(table, section, "span", list, required=True)
+        if span is not None:
+            if len(span) != 2 or not all(
+                isinstance(v, int | float) and not isinstance(v, bool) for v in span
+            ):
+                self._err(self._line_of(section, "span", nth), "span must be [lo, hi] numbers")
+                span = None
+            elif not (math.isfinite(span[0]) and math.isfinite(span[1]) and span[0] < span[1]):
+                self._err(self._line_of(section, "span", nth), f"span needs lo < hi, got {span}")
+                span = None
+        label = self._get(table, section, "label", str, default=None)
+        if spec and label is None:
+            label = default_label(spec)
+        if len(self.problems) > n0 or spec is None or span is None:
+            if spec is None and len(self.problems) == n0:
+                self._err(line, f"[{section}] has no spec")
+            return None
+        return Variable(spec, label, unit, (float(span[0]), float(span[1])), int(sets))
+
+    def _read_rules(self) -> list[Rule]:
+        table = self.doc.get("rules", {})
+        if not isinstance(table, Mapping):
+            self._err(self._line_of("rules"), "[rules] must be a table")
+            return []
+        items = table.get("list")
+        if items is None:
+            self._err(self._line_of("rules"), "[rules] is missing 'list'")
+            return []
+        if not isinstance(items, list):
+            self._err(self._line_of("rules", "list"), "rules.list must be an array of rules")
+            return []
+        positions = self._rule_lines()
+        lo, hi = self.output.span
+        rules: list[Rule] = []
+        seen: dict[tuple[int, ...], int] = {}
+        for i, item in enumerate(items):
+            line, comments, trail = (
+                positions[i] if i < len(positions) else (self._line_of("rules", "list"), [], "")
+            )
+            where = f"rule {i + 1}"
+            if not isinstance(item, Mapping):
+                self._err(line, f"{where}: expected {{ if = [...], then = ... }}")
+                continue
+            n0 = len(self.problems)
+            unknown = set(item) - {"if", "then", "n", "sd", "lock"}
+            if unknown:
+                self._err(line, f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+            prem = item.get("if")
+            premise: list[int] = []
+            if not isinstance(prem, list) or not all(isinstance(p, str) for p in prem):
+                self._err(line, f"{where}: 'if' must be a list of set labels")
+            elif len(prem) != len(self.inputs):
+                self._err(line, f"{where}: 'if' has {len(prem)} labels for "
+                                f"{len(self.inputs)} inputs")  # fmt: skip
+            else:
+                for var, lab in zip(self.inputs, prem, strict=True):
+                    idx = var.parse_label(str(lab))
+                    if idx is None:
+                        self._err(line, f"{where}: unknown set label {str(lab)!r} for input "
+                                        f"{var.spec} (expected {var.set_label(0)}…"
+                                        f"{var.set_label(var.sets - 1)})")  # fmt: skip
+                    premise.append(-1 if idx is None else idx)
+            then = item.get("then")
+            lock = item.get("lock", False)
+            if not isinstance(lock, bool):
+                self._err(line, f"{where}: lock must be true or false, got {lock!r}")
+                lock = False
+            if isinstance(then, bool) or not isinstance(then, int | float):
+                self._err(line, f"{where}: then must be a number, got {then!r}")
+                then = math.nan
+            then = float(then)
+            if math.isnan(then) and not lock:
+                self._err(line, f"{where}: then = nan is only allowed on a locked rule "
+                                "(locked-deleted cell); delete the line to drop the rule")  # fmt: skip
+            elif not math.isnan(then) and not (lo <= then <= hi):
+                self._err(line, f"{where}: then = {then:g} is outside the output span "
+                                f"[{lo:g}, {hi:g}] {self.output.unit}".rstrip())  # fmt: skip
+            n = item.get("n", 0)
+            if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+                self._err(line, f"{where}: n must be a non-negative integer, got {n!r}")
+                n = 0
+            sd = item.get("sd", 0.0)
+            if isinstance(sd, bool) or not isinstance(sd, int | float) or not sd >= 0:
+                if not (isinstance(sd, float) and math.isnan(sd)):
+                    self._err(line, f"{where}: sd must be a non-negative number, got {sd!r}")
+                sd = 0.0
+            if len(self.problems) > n0:
+                continue
+            key = tuple(premise)
+            if key in seen:
+                self._err(line, f"{where}: duplicate premise {list(prem)} "
+                                f"(first at line {seen[key]})")  # fmt: skip
+                continue
+            seen[key] = line
+            rules.append(Rule(key, then, int(n), float(sd), bool(lock), line, comments, trail))
+        return rules
+
+    # ----------------------------------------------------------------- model
+    def new_model(self) -> WangMendelRegressor:
+        """An untrained model with this file's partitions and method."""
+        return WangMendelRegressor(
+            input_spans=[v.span for v in self.inputs],
+            output_span=self.output.span,
+            n_sets=[v.sets for v in self.inputs],
+            output_sets=self.output.sets,
+            shape=self.shape,
+            method=self.method,
+        )
+
+    def to_model(self) -> WangMendelRegressor:
+        """The model this file describes; expert edits are used as written."""
+        m = self.new_model()
+        d = len(self.inputs)
+        m._init_partitions(np.zeros((1, d)), np.zeros(1))
+        active = [r for r in self.rules if not math.isnan(r.then)]
+        idx = np.array([r.premise for r in active], np.int64).reshape(-1, d)
+        m.set_rules(
+            m.cell_keys(idx),
+            [r.then for r in active],
+            counts=[r.n for r in active],
+            sds=[r.sd for r in active],
+        )
+        return m
+
+    def apply_training(
+        self, model: WangMendelRegressor, provenance: Mapping[str, object] | None = None
+    ) -> None:
+        """Take the rules of a freshly trained model, keeping the experts' locks.
+
+        A locked rule keeps its conclusion (its support is updated); a
+        locked-deleted cell stays empty; a rule without new data is kept as it
+        was; every other cell gets the trained average (eq. 5).
+        """
+        old = {r.premise: r for r in self.rules}
+        idx = model.cell_indices()
+        conc, sd, cnt = model.conclusions_, model.sd_, model.count_
+        new: dict[tuple[int, ...], Rule] = {}
+        for j in range(idx.shape[0]):
+            p = tuple(int(v) for v in idx[j])
+            prev = old.get(p)
+            r = Rule(p, float(conc[j]), int(cnt[j]), float(sd[j]))
+            if prev is not None:
+                r.comments, r.trailing = prev.comments, prev.trailing
+                if prev.lock:
+                    r.then, r.lock = prev.then, True
+            new[p] = r
+        for p, prev in old.items():
+            new.setdefault(p, prev)
+        self.rules = [new[p] for p in sorted(new)]
+        self._dirty_rules = True
+        if provenance is not None:
+            self.set_training(provenance)
+
+    def set_training(self, provenance: Mapping[str, object]) -> None:
+        if "training" not in self.doc:
+            self.doc.add("training", tomlkit.table())
+        t = self.doc["training"]
+        for k, v in provenance.items():
+            t[k] = v
+        self.training = dict(t)
+
+    # ------------------------------------------------------------------ save
+    def dumps(self) -> str:
+        """File text: unchanged bytes if nothing changed, else rules rewritten."""
+        text = tomlkit.dumps(self.doc)
+        if not self._dirty_rules:
+            return text
+        lines = text.splitlines(keepends=True)
+        self._lines = [ln.rstrip("\r\n") for ln in lines]
+        start, end, _ = self._rules_extent()
+        body = self.format_rules()
+        return "".join(lines[:start]) + body + "".join(lines[end + 1 :])
+
+    def format_rules(self) -> str:
+        dec_y = _decimals(self.output.span)
+        out = ["list = [\n"]
+        for r in self.rules:
+            for c in r.comments:
+                out.append(f"    {c}\n")
+            labels = ", ".join(
+                f'"{v.set_label(i)}"' for v, i in zip(self.inputs, r.premise, strict=True)
+            )
+            then = "nan" if math.isnan(r.then) else f"{r.then:.{dec_y}f}"
+            sd = "nan" if math.isnan(r.sd) else f"{r.sd:.{dec_y}f}"
+            lock = "true" if r.lock else "false"
+            line = f"    {{ if = [{labels}], then = {then}, n = {r.n}, sd = {sd}, lock = {lock} }},"
+            out.append(line + (f"  {r.trailing}" if r.trailing else "") + "\n")
+        out.append("]\n")
+        return "".join(out)
+
+    def save(self, path: str | Path | None = None) -> Path:
+        """Write the file atomically (temp file + rename): a crash never leaves half a file."""
+        path = Path(path) if path is not None else self.path
+        text = self.dumps()
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(path)
+        self.path, self.text = path, text
+        self.doc = tomlkit.parse(text)
+        self._lines = text.splitlines()
+        self._dirty_rules = False
+        return path
+
+    # ------------------------------------------------------------ create new
+    @classmethod
+    def new(
+        cls,
+        name: str,
+        output: Variable,
+        inputs: Sequence[Variable],
+        *,
+        method: str = "wm-avg",
+        shape: str = "trapezoidal",
+        description: str = "",
+        path: str | Path | None = None,
+    ) -> RuleBase:
+        """A fresh rule base with no rules (train it next)."""
+        doc = tomlkit.document()
+        for line in HEADER.splitlines():
+            doc.add(tomlkit.comment(line[2:] if line.startswith("# ") else line))
+        doc.add(tomlkit.nl())
+        model = tomlkit.table()
+        model["name"] = name
+        model["description"] = description
+        model["method"] = method
+        model["shape"] = shape
+        doc["model"] = model
+        doc["output"] = _var_table(output)
+        aot = tomlkit.aot()
+        for v in inputs:
+            aot.append(_var_table(v))
+        doc["inputs"] = aot
+        doc["training"] = tomlkit.table()
+        rules = tomlkit.table()
+        rules["list"] = tomlkit.array()
+        doc["rules"] = rules
+        rb = cls(tomlkit.dumps(doc), path or f"{name}.toml")
+        rb._dirty_rules = True
+        return rb
+
+
+def _var_table(v: Variable) -> tomlkit.items.Table:
+    t = tomlkit.table()
+    t["spec"] = v.spec
+    t["label"] = v.label
+    t["unit"] = v.unit
+    t["span"] = [float(v.span[0]), float(v.span[1])]
+    t["sets"] = int(v.sets)
+    return t
+
+
+def _decimals(span: tuple[float, float]) -> int:
+    """Decimals that resolve 1e-4 of the span."""
+    width = span[1] - span[0]
+    return max(0, 4 - math.floor(math.log10(width))) if width > 0 else 4
+
+
+def _split_comment(line: str) -> tuple[str, str, str]:
+    """Split a TOML line into code and comment, respecting strings."""
+    in_str = None
+    for i, ch in enumerate(line):
+        if in_str:
+            if ch == in_str:
+                in_str = None
+        elif ch in "\"'":
+            in_str = ch
+        elif ch == "#":
+            return line[:i], "#", line[i + 1 :]
+    return line, "", ""
+
+
+def check(path: str | Path) -> list[str]:
+    """All problems of a rule-base file as ``file:line: what`` (empty if fine)."""
+    try:
+        RuleBase.load(path)
+    except RuleBaseError as exc:
+        return exc.problems
+    return []
+
+
+def resolve(name_or_path: str, folder: str | Path = "rulebases") -> Path:
+    """A model name (``valve_a``) or a path to its file."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    return Path(folder) / f"{name_or_path}.toml"
