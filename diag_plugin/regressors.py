@@ -62,8 +62,9 @@ class InputSpec:
             return cls("", (m["tag"],), lag)
         fn = m["fn"]
         if fn not in FUNCTIONS:
-            raise ValueError(f"bad input spec {text!r}: unknown function {fn!r} "
-                             f"(known: {', '.join(FUNCTIONS)})")  # fmt: skip
+            raise ValueError(
+                f"bad input spec {text!r}: unknown function {fn!r} (known: {', '.join(FUNCTIONS)})"
+            )
         args = [a.strip() for a in m["args"].split(",")] if m["args"].strip() else []
         param = None
         if fn == "dir" and len(args) == 2:

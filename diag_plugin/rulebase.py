@@ -201,12 +201,16 @@ class RuleBase:
         self.description = self._get(model, "model", "description", str, default="")
         self.method = self._get(model, "model", "method", str, default="wm-avg")
         if self.method not in METHODS:
-            self._err(self._line_of("model", "method"),
-                      f"method must be one of {', '.join(METHODS)}, got {self.method!r}")  # fmt: skip
+            self._err(
+                self._line_of("model", "method"),
+                f"method must be one of {', '.join(METHODS)}, got {self.method!r}",
+            )
         self.shape = self._get(model, "model", "shape", str, default="trapezoidal")
         if self.shape not in SHAPES:
-            self._err(self._line_of("model", "shape"),
-                      f"shape must be one of {', '.join(SHAPES)}, got {self.shape!r}")  # fmt: skip
+            self._err(
+                self._line_of("model", "shape"),
+                f"shape must be one of {', '.join(SHAPES)}, got {self.shape!r}",
+            )
         self.output = self._variable(doc.get("output"), "output", 0)
         inputs = doc.get("inputs", [])
         if "inputs" in doc and not isinstance(inputs, list):
@@ -300,15 +304,19 @@ class RuleBase:
             if not isinstance(prem, list) or not all(isinstance(p, str) for p in prem):
                 self._err(line, f"{where}: 'if' must be a list of set labels")
             elif len(prem) != len(self.inputs):
-                self._err(line, f"{where}: 'if' has {len(prem)} labels for "
-                                f"{len(self.inputs)} inputs")  # fmt: skip
+                self._err(
+                    line, f"{where}: 'if' has {len(prem)} labels for {len(self.inputs)} inputs"
+                )
             else:
                 for var, lab in zip(self.inputs, prem, strict=True):
                     idx = var.parse_label(str(lab))
                     if idx is None:
-                        self._err(line, f"{where}: unknown set label {str(lab)!r} for input "
-                                        f"{var.spec} (expected {var.set_label(0)}…"
-                                        f"{var.set_label(var.sets - 1)})")  # fmt: skip
+                        self._err(
+                            line,
+                            f"{where}: unknown set label {str(lab)!r} for input "
+                            f"{var.spec} (expected {var.set_label(0)}…"
+                            f"{var.set_label(var.sets - 1)})",
+                        )
                     premise.append(-1 if idx is None else idx)
             then = item.get("then")
             lock = item.get("lock", False)
@@ -320,11 +328,17 @@ class RuleBase:
                 then = math.nan
             then = float(then)
             if math.isnan(then) and not lock:
-                self._err(line, f"{where}: then = nan is only allowed on a locked rule "
-                                "(locked-deleted cell); delete the line to drop the rule")  # fmt: skip
+                self._err(
+                    line,
+                    f"{where}: then = nan is only allowed on a locked rule "
+                    "(locked-deleted cell); delete the line to drop the rule",
+                )
             elif not math.isnan(then) and not (lo <= then <= hi):
-                self._err(line, f"{where}: then = {then:g} is outside the output span "
-                                f"[{lo:g}, {hi:g}] {self.output.unit}".rstrip())  # fmt: skip
+                self._err(
+                    line,
+                    f"{where}: then = {then:g} is outside the output span "
+                    f"[{lo:g}, {hi:g}] {self.output.unit}".rstrip(),
+                )
             n = item.get("n", 0)
             if isinstance(n, bool) or not isinstance(n, int) or n < 0:
                 self._err(line, f"{where}: n must be a non-negative integer, got {n!r}")
@@ -338,8 +352,9 @@ class RuleBase:
                 continue
             key = tuple(premise)
             if key in seen:
-                self._err(line, f"{where}: duplicate premise {list(prem)} "
-                                f"(first at line {seen[key]})")  # fmt: skip
+                self._err(
+                    line, f"{where}: duplicate premise {list(prem)} (first at line {seen[key]})"
+                )
                 continue
             seen[key] = line
             rules.append(Rule(key, then, int(n), float(sd), bool(lock), line, comments, trail))

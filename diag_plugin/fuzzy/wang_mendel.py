@@ -200,9 +200,21 @@ class WangMendelRegressor:
             w = np.empty(n, np.float64)
             yset = np.empty(n, np.int64)
             K.classic_weights(
-                X, y, lo, step, core, nsets, self.radix_,
-                op.lo, op.step, op.core_halfwidth, op.n, keys, w, yset,
-            )  # fmt: skip
+                X,
+                y,
+                lo,
+                step,
+                core,
+                nsets,
+                self.radix_,
+                op.lo,
+                op.step,
+                op.core_halfwidth,
+                op.n,
+                keys,
+                w,
+                yset,
+            )
             ok = keys >= 0
             skipped = int(n - ok.sum())
             keys, w, yset = keys[ok], w[ok], yset[ok]
@@ -287,9 +299,14 @@ class WangMendelRegressor:
         ):
             raise ValueError("cannot merge models with different partitions or methods")
         self._merge_state(
-            other.keys_, other.count_, other.qsum_, other.qsq_,
-            other.best_w_, other.best_set_, other.n_skipped_,
-        )  # fmt: skip
+            other.keys_,
+            other.count_,
+            other.qsum_,
+            other.qsq_,
+            other.best_w_,
+            other.best_set_,
+            other.n_skipped_,
+        )
         self._lut = None
         return self
 
@@ -381,8 +398,20 @@ class WangMendelRegressor:
         conc = np.ascontiguousarray(self.conclusions_, dtype=np.float64)
         for s in range(0, X.shape[0], CHUNK_ROWS):
             e = s + CHUNK_ROWS
-            K.infer(X[s:e], lo, step, plateau, nsets, self.radix_, self.keys_, conc, lut,
-                    out[s:e], sup[s:e], reason[s:e])  # fmt: skip
+            K.infer(
+                X[s:e],
+                lo,
+                step,
+                plateau,
+                nsets,
+                self.radix_,
+                self.keys_,
+                conc,
+                lut,
+                out[s:e],
+                sup[s:e],
+                reason[s:e],
+            )
         return Prediction(out, sup, reason)
 
     def predict(self, X) -> np.ndarray:
