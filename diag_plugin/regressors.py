@@ -229,7 +229,7 @@ def build_design(
 
     Rows where any needed value is NaN, of bad quality (``quality`` non-zero,
     same shape as ``frame``), or before the history the lags need, are
-    dropped and counted per reason.
+    dropped and counted per reason (a row missing two tags counts under both).
     """
     check_regular(frame.index)
     specs = parse_specs(inputs)
@@ -255,13 +255,20 @@ def build_design(
     warm = max_lag(all_specs)
     if warm:
         dropped["history for the lags"] = min(warm, n)
-    missing_any = ~ok
-    missing_any[: min(warm, n)] = False
+    in_warmup = np.zeros(n, bool)
+    in_warmup[: min(warm, n)] = True
+    attributed = in_warmup.copy()
     for tag in needed_tags(all_specs):
-        miss = frame[tag].isna().to_numpy() & missing_any
+        raw = frame[tag].isna().to_numpy()
+        miss = np.zeros(n, bool)
+        for s in all_specs:
+            if tag in s.tags:
+                miss[s.lag :] |= raw[: n - s.lag] if s.lag < n else False
+        miss &= ~ok & ~in_warmup
         if miss.any():
             dropped[f"{tag} missing or bad"] = int(miss.sum())
-    other = int((~ok).sum()) - sum(dropped.values())
+            attributed |= miss
+    other = int((~ok & ~attributed).sum())
     if other > 0:
         dropped["derived value undefined"] = other
     Mok = M[ok]

@@ -394,11 +394,14 @@ class RuleBase:
 
         A locked rule keeps its conclusion (its support is updated); a
         locked-deleted cell stays empty; a rule without new data is kept as it
-        was; every other cell gets the trained average (eq. 5).
+        was; every other cell gets the trained average (eq. 5), clipped to the
+        output's nominal span.
         """
         old = {r.premise: r for r in self.rules}
         idx = model.cell_indices()
-        conc, sd, cnt = model.conclusions_, model.sd_, model.count_
+        # averages of noisy measurements may sit a hair outside the nominal span
+        conc = np.clip(model.conclusions_, *self.output.span)
+        sd, cnt = model.sd_, model.count_
         new: dict[tuple[int, ...], Rule] = {}
         for j in range(idx.shape[0]):
             p = tuple(int(v) for v in idx[j])

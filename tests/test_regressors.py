@@ -1,0 +1,92 @@
+"""Input specs (Kościelny et al., eqs. 7–9) and lagged design matrices."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from diag_plugin.regressors import InputSpec, build_design, direction, max_lag, needed_tags
+
+
+def frame(n=10, freq="10s"):
+    idx = pd.date_range("2026-01-01", periods=n, freq=freq, tz="UTC", name="ts")
+    return pd.DataFrame(
+        {"CV": np.arange(n, dtype=float), "F": 100 + np.arange(n, dtype=float), "P1": 5.0},
+        index=idx,
+    )
+
+
+@pytest.mark.parametrize(
+    "text,fn,tags,lag",
+    [
+        ("CV[k]", "", ("CV",), 0),
+        ("CV[k-1]", "", ("CV",), 1),
+        (" LC51_03.CV [ k - 12 ] ", "", ("LC51_03.CV",), 12),
+        ("diff(P1,P2)[k]", "diff", ("P1", "P2"), 0),
+        ("dir(CV)[k-1]", "dir", ("CV",), 1),
+        ("rate(X)[k-2]", "rate", ("X",), 2),
+        ("hour()[k]", "hour", (), 0),
+    ],
+)
+def test_parse_specs(text, fn, tags, lag):
+    s = InputSpec.parse(text)
+    assert (s.fn, s.tags, s.lag) == (fn, tags, lag)
+    assert InputSpec.parse(str(s)) == s
+
+
+@pytest.mark.parametrize(
+    "text,msg",
+    [("CV", "expected TAG"), ("CV[k+1]", "expected TAG"), ("foo(CV)[k]", "unknown function"),
+     ("diff(P1)[k]", "takes 2"), ("dir(CV,abc)[k]", "threshold")],
+)  # fmt: skip
+def test_bad_specs_say_what_is_wrong(text, msg):
+    with pytest.raises(ValueError, match=msg):
+        InputSpec.parse(text)
+
+
+def test_lagged_design_matrix_aligns_and_counts_drops():
+    f = frame()
+    f.loc[f.index[5], "CV"] = np.nan
+    d = build_design(f, ["CV[k-1]", "P1[k]"], "F[k]")
+    # row k uses CV[k-1]: row 0 has no history, row 6 needs the NaN at 5
+    assert list(d.index) == [f.index[i] for i in (1, 2, 3, 4, 5, 7, 8, 9)]
+    np.testing.assert_array_equal(d.X[:, 0], [0, 1, 2, 3, 4, 6, 7, 8])
+    np.testing.assert_array_equal(d.y, [101, 102, 103, 104, 105, 107, 108, 109])
+    assert d.dropped == {"history for the lags": 1, "CV missing or bad": 1}
+    assert d.n_dropped == 2
+
+
+def test_bad_quality_values_are_dropped():
+    f = frame()
+    q = pd.DataFrame(0, index=f.index, columns=f.columns)
+    q.loc[f.index[3], "F"] = 2
+    d = build_design(f, ["CV[k]"], "F[k]", quality=q)
+    assert f.index[3] not in d.index
+    assert d.dropped == {"F missing or bad": 1}
+
+
+def test_irregular_grid_is_refused():
+    f = frame().drop(frame().index[4])
+    with pytest.raises(ValueError, match="regular"):
+        build_design(f, ["CV[k-1]"], "F[k]")
+
+
+def test_missing_tag_is_named():
+    with pytest.raises(KeyError, match="P2"):
+        build_design(frame(), ["diff(P1,P2)[k]"], "F[k]")
+
+
+def test_direction_is_a_play_operator():
+    x = np.array([0, 0.2, 1.5, 3, 2.9, 2.0, 1.0, 1.2, np.nan, 5, 7])
+    d = direction(x, 1.0)
+    np.testing.assert_array_equal(d[:8], [np.nan, np.nan, 1, 1, 1, 1, -1, -1][:8])
+    assert np.isnan(d[8]) and np.isnan(d[9]) and d[10] == 1
+
+
+def test_derived_features_and_helpers():
+    f = frame(n=5)
+    d = build_design(f, ["rate(CV)[k]", "diff(F,CV)[k]", "hour()[k]"], None)
+    np.testing.assert_array_equal(d.X[:, 0], 1.0)
+    np.testing.assert_array_equal(d.X[:, 1], 100.0)
+    assert d.X[0, 2] == pytest.approx(10 / 3600)
+    assert needed_tags(["diff(P1,P2)[k]", "P1[k-2]", "CV[k]"]) == ["P1", "P2", "CV"]
+    assert max_lag(["rate(CV)[k-2]", "P1[k]"]) == 3

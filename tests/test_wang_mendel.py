@@ -1,0 +1,188 @@
+"""Wang–Mendel models: partitions, training (eq. 2, eq. 5), chunking, merge, inference."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from diag_plugin.fuzzy.partition import UniformPartition
+from diag_plugin.fuzzy.wang_mendel import (
+    REASON_NAN,
+    REASON_OK,
+    REASON_OUTSIDE,
+    REASON_UNSUPPORTED,
+    WangMendelRegressor,
+)
+
+
+def plant(n, seed, d=2):
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(0, 100, (n, d))
+    y = 40 * (X[:, 0] / 100) ** 2 * np.sqrt(X[:, 1:].mean(axis=1) / 100) + rng.normal(0, 0.2, n)
+    return X, y
+
+
+@pytest.mark.parametrize("shape", ["triangular", "trapezoidal"])
+def test_partition_is_ruspini_and_max_membership(shape):
+    p = UniformPartition(-5.0, 15.0, 11, shape)
+    x = np.linspace(-7, 17, 2001)
+    mus = np.array([p.membership(x, i) for i in range(p.n)])
+    np.testing.assert_allclose(mus.sum(axis=0), 1.0, atol=1e-12)
+    # eq. 3: the fuzzified set is the one with maximal membership
+    best = mus.argmax(axis=0)
+    near = p.nearest(x)
+    agree = mus[near, np.arange(x.size)] >= mus[best, np.arange(x.size)] - 1e-12
+    assert agree.all()
+    j, w = p.upper_weight(x)
+    np.testing.assert_allclose(w, p.membership(x, j + 1), atol=1e-12)
+    assert p.labels("U")[:2] == ["U00", "U01"]
+
+
+def test_partition_rejects_bad_spans():
+    with pytest.raises(ValueError, match="lo < hi"):
+        UniformPartition(1.0, 1.0)
+    with pytest.raises(ValueError, match="at least 2"):
+        UniformPartition(0.0, 1.0, 1)
+
+
+def test_averaged_method_is_mean_of_cell_outputs():
+    """Modified Wang–Mendel (eq. 5): a cell's conclusion is the average output."""
+    X = np.array([[10.0], [10.4], [9.8], [50.0]])
+    y = np.array([1.0, 2.0, 6.0, 7.0])
+    m = WangMendelRegressor([(0, 100)], (0, 10), n_sets=11).fit(X, y)
+    assert m.n_rules_ == 2
+    np.testing.assert_allclose(m.conclusions_, [3.0, 7.0], atol=1e-3)
+    np.testing.assert_allclose(m.sd_[0], np.std([1.0, 2.0, 6.0]), atol=1e-3)
+    np.testing.assert_array_equal(m.count_, [3, 1])
+
+
+def test_classic_method_keeps_heaviest_rule():
+    """Classic Wang–Mendel (eq. 2, step 4): the heaviest conflicting rule wins."""
+    X = np.array([[10.0], [11.9], [10.0]])
+    y = np.array([2.0, 8.0, 3.6])  # sample 1 is near the set centre, y near a set centre
+    m = WangMendelRegressor([(0, 100)], (0, 10), n_sets=11, output_sets=11, method="wm")
+    m.fit(X, y)
+    assert m.n_rules_ == 1
+    assert m.conclusions_[0] == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("method", ["wm-avg", "wm"])
+@pytest.mark.parametrize("seed", [3, 11])
+def test_partial_fit_and_merge_equal_one_fit(method, seed):
+    X, y = plant(50_000, seed)
+    spans = [(0, 100), (0, 100)]
+    full = WangMendelRegressor(spans, (0, 45), n_sets=17, method=method).fit(X, y)
+    rng = np.random.default_rng(seed)
+    cuts = np.sort(rng.choice(np.arange(1, len(y)), size=7, replace=False))
+    chunked = WangMendelRegressor(spans, (0, 45), n_sets=17, method=method)
+    parts = []
+    for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(y)], strict=True):
+        chunked.partial_fit(X[a:b], y[a:b])
+        parts.append(
+            WangMendelRegressor(spans, (0, 45), n_sets=17, method=method).fit(X[a:b], y[a:b])
+        )
+    merged = parts[0]
+    for p in parts[1:]:
+        merged.merge(p)
+    for other in (chunked, merged):
+        np.testing.assert_array_equal(full.keys_, other.keys_)
+        np.testing.assert_array_equal(full.count_, other.count_)
+        np.testing.assert_array_equal(full.conclusions_, other.conclusions_)
+        np.testing.assert_array_equal(full.sd_, other.sd_)
+        np.testing.assert_array_equal(full.predict(X[:1000]), other.predict(X[:1000]))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.integers(1, 399))
+def test_chunk_boundaries_property(seed, cut):
+    X, y = plant(400, seed, d=3)
+    a = WangMendelRegressor([(0, 100)] * 3, (0, 45), n_sets=7).fit(X, y)
+    b = WangMendelRegressor([(0, 100)] * 3, (0, 45), n_sets=7)
+    b.partial_fit(X[:cut], y[:cut]).partial_fit(X[cut:], y[cut:])
+    np.testing.assert_array_equal(a.qsum_, b.qsum_)
+    np.testing.assert_array_equal(a.qsq_, b.qsq_)
+
+
+@pytest.mark.parametrize("shape", ["triangular", "trapezoidal"])
+def test_inference_interpolates_a_smooth_function(shape):
+    X, y = plant(200_000, 5)
+    m = WangMendelRegressor([(0, 100), (0, 100)], (0, 45), shape=shape).fit(X, y)
+    Xt, yt = plant(20_000, 6)  # fresh data the model has not seen
+    err = m.predict(Xt) - yt
+    assert np.isfinite(err).all()
+    # 31 sets over a smooth surface: error near the noise level (0.2), < 2 % of span
+    assert np.sqrt(np.mean(err**2)) < 0.02 * 45
+
+
+def test_triangular_inference_is_multilinear_interpolation():
+    rng = np.random.default_rng(0)
+    m = WangMendelRegressor([(0, 10), (0, 20)], (0, 100), n_sets=[11, 5], shape="triangular")
+    m.fit(np.zeros((1, 2)), np.zeros(1))
+    grid = np.array([[i, j] for i in range(11) for j in range(5)])
+    vals = rng.uniform(0, 100, len(grid))
+    m.set_rules(m.cell_keys(grid), vals)
+    x = np.array([[3.25, 7.0]])  # between sets 3–4 of input 1 and 1–2 of input 2 (step 5)
+    v = {tuple(g): vals[i] for i, g in enumerate(grid)}
+    fx, fy = 0.25, 0.4
+    expected = (
+        v[(3, 1)] * (1 - fx) * (1 - fy)
+        + v[(4, 1)] * fx * (1 - fy)
+        + v[(3, 2)] * (1 - fx) * fy
+        + v[(4, 2)] * fx * fy
+    )
+    assert m.predict(x)[0] == pytest.approx(expected)
+
+
+def test_unsupported_samples_are_nan_with_reason():
+    X = np.c_[np.linspace(0, 40, 500), np.linspace(0, 40, 500)]
+    m = WangMendelRegressor([(0, 100), (0, 100)], (0, 100), n_sets=11).fit(X, X[:, 0])
+    det = m.predict_detail(np.array([[20, 20], [90, 90], [np.nan, 5], [-10, -10], [20, 60]]))
+    assert np.isfinite(det.y[0]) and det.reason[0] == REASON_OK
+    assert np.isnan(det.y[1]) and det.reason[1] == REASON_UNSUPPORTED
+    assert np.isnan(det.y[2]) and det.reason[2] == REASON_NAN
+    assert np.isfinite(det.y[3]) and det.reason[3] == REASON_OUTSIDE
+    assert np.isnan(det.y[4])
+    assert det.coverage == pytest.approx(2 / 5)
+
+
+def test_nan_training_rows_are_skipped_and_counted():
+    X, y = plant(1000, 1)
+    X[5, 0] = np.nan
+    y[7] = np.nan
+    m = WangMendelRegressor([(0, 100)] * 2, (0, 45)).fit(X, y)
+    assert m.n_skipped_ == 2 and m.n_samples_seen_ == 998
+
+
+@pytest.mark.parametrize("d", [6, 9])
+def test_many_inputs_stay_sparse(d):
+    """Seed 000's regression vectors have 8–10 entries: 31^d cells are never allocated."""
+    rng = np.random.default_rng(d)
+    X = rng.uniform(0, 1, (20_000, d))
+    y = X @ np.linspace(1, 2, d)
+    m = WangMendelRegressor([(0, 1)] * d, (0, 2 * d)).fit(X, y)
+    assert m.n_cells_ == 31**d
+    assert m.keys_.size <= 20_000
+    assert np.allclose(m.predict(X[:200]), y[:200], atol=0.05 * d)
+    merged = WangMendelRegressor([(0, 1)] * d, (0, 2 * d)).fit(X[:7000], y[:7000])
+    merged.merge(WangMendelRegressor([(0, 1)] * d, (0, 2 * d)).fit(X[7000:], y[7000:]))
+    np.testing.assert_array_equal(merged.qsum_, m.qsum_)
+
+
+def test_merge_rejects_different_partitions():
+    X, y = plant(100, 2)
+    a = WangMendelRegressor([(0, 100)] * 2, (0, 45), n_sets=7).fit(X, y)
+    b = WangMendelRegressor([(0, 100)] * 2, (0, 45), n_sets=9).fit(X, y)
+    with pytest.raises(ValueError, match="different partitions"):
+        a.merge(b)
+
+
+def test_estimator_conventions():
+    m = WangMendelRegressor(n_sets=5)
+    assert not hasattr(m, "keys_")
+    with pytest.raises(RuntimeError, match="not trained"):
+        m.predict(np.zeros((1, 1)))
+    X, y = plant(100, 4)
+    assert m.fit(X, y) is m
+    assert m.n_features_in_ == 2
+    with pytest.raises(ValueError, match="2 inputs"):
+        m.predict(np.zeros((3, 3)))
