@@ -1,0 +1,130 @@
+"""``diag rules check|show|export-fcl``: the plant expert's tools for rule-base files."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from diag_plugin.cli import UserError
+from diag_plugin.rulebase import RuleBase, RuleBaseError, check, resolve
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    rules = sub.add_parser("rules", help="check, show and export rule-base files")
+    rsub = rules.add_subparsers(dest="rules_command", metavar="ACTION", required=True)
+
+    p = rsub.add_parser("check", help="validate rule-base files; prints file:line: problem")
+    p.add_argument("files", nargs="+", metavar="FILE")
+    p.set_defaults(func=cmd_check)
+
+    p = rsub.add_parser("show", help="print the rule grid of a model")
+    p.add_argument("name", metavar="NAME", help="model name in the rule-base folder, or a file")
+    p.set_defaults(func=cmd_show)
+
+    p = rsub.add_parser("export-fcl", help="write the model as IEC 61131-7 FCL")
+    p.add_argument("name", metavar="NAME")
+    p.add_argument("--out", "-o", help="output file (default: stdout)")
+    p.set_defaults(func=cmd_export_fcl)
+
+
+def load(name: str, folder: str) -> RuleBase:
+    path = resolve(name, folder)
+    if not path.exists():
+        raise UserError(f"no rule base {name!r}: {path} does not exist")
+    try:
+        return RuleBase.load(path)
+    except RuleBaseError as exc:
+        raise UserError(f"{path} has problems:\n" + "\n".join(exc.problems)) from None
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    bad = 0
+    for f in args.files:
+        problems = check(resolve(f, args.rulebases))
+        for p in problems:
+            print(p)
+        if problems:
+            bad += 1
+        else:
+            print(f"{f}: ok")
+    return 1 if bad else 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    rb = load(args.name, args.rulebases)
+    con = Console()
+    n_live = sum(not math.isnan(r.then) for r in rb.rules)
+    con.print(
+        f"[bold]{rb.name}[/]: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)}), "
+        f"method {rb.method}, {len(rb.rules)} rules ({n_live} live), "
+        f"locked {sum(r.lock for r in rb.rules)}"
+    )
+    if rb.description:
+        con.print(rb.description)
+    unit = f" [{rb.output.unit}]" if rb.output.unit else ""
+    if len(rb.inputs) == 1:
+        v = rb.inputs[0]
+        t = Table(title=f"{rb.output.spec}{unit} per set of {v.spec}")
+        for col in ("set", "centre", "then", "n", "sd", "lock"):
+            t.add_column(col, justify="right")
+        by = {r.premise[0]: r for r in rb.rules}
+        step = (v.span[1] - v.span[0]) / (v.sets - 1)
+        for i in range(v.sets):
+            r = by.get(i)
+            cells = (
+                ["·", "", "", ""]
+                if r is None
+                else [_fmt(r.then), str(r.n), _fmt(r.sd), "🔒" if r.lock else ""]
+            )
+            t.add_row(v.set_label(i), f"{v.span[0] + i * step:g}", *cells)
+        con.print(t)
+    elif len(rb.inputs) == 2:
+        a, b = rb.inputs
+        title = f"{rb.output.spec}{unit}: rows {a.spec}, columns {b.spec}"
+        t = Table(title=title + " (· = no rule, * = locked)")
+        t.add_column("", justify="right", style="bold")
+        cols = sorted({r.premise[1] for r in rb.rules}) or [0]
+        cols = list(range(min(cols), max(cols) + 1))
+        for j in cols:
+            t.add_column(b.set_label(j), justify="right")
+        by = {r.premise: r for r in rb.rules}
+        for i in range(a.sets):
+            row = []
+            for j in cols:
+                r = by.get((i, j))
+                row.append("·" if r is None else _fmt(r.then) + ("*" if r.lock else ""))
+            t.add_row(a.set_label(i), *row)
+        con.print(t)
+    else:
+        t = Table(title=f"{len(rb.rules)} rules ({len(rb.inputs)} inputs)")
+        for v in rb.inputs:
+            t.add_column(v.spec)
+        for col in ("then", "n", "sd", "lock"):
+            t.add_column(col, justify="right")
+        for r in rb.rules:
+            labels = [v.set_label(i) for v, i in zip(rb.inputs, r.premise, strict=True)]
+            t.add_row(*labels, _fmt(r.then), str(r.n), _fmt(r.sd), "yes" if r.lock else "")
+        con.print(t)
+    return 0
+
+
+def cmd_export_fcl(args: argparse.Namespace) -> int:
+    from diag_plugin.fuzzy.fcl import to_fcl
+
+    rb = load(args.name, args.rulebases)
+    text = to_fcl(rb)
+    if args.out:
+        Path(args.out).write_text(text, encoding="utf-8")
+        print(f"wrote {args.out}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def _fmt(v: float) -> str:
+    return "nan" if math.isnan(v) else f"{v:.4g}"
