@@ -224,12 +224,15 @@ def build_design(
     *,
     quality: pd.DataFrame | None = None,
     spans: Mapping[str, tuple[float, float]] | None = None,
+    context: int = 0,
 ) -> Design:
     """Lagged design matrix from a timestamp-indexed frame (Kościelny et al., eqs. 7–9).
 
     Rows where any needed value is NaN, of bad quality (``quality`` non-zero,
     same shape as ``frame``), or before the history the lags need, are
     dropped and counted per reason (a row missing two tags counts under both).
+    The first ``context`` rows are history only (the tail of the previous
+    chunk): they feed the lags but are neither returned nor counted.
     """
     check_regular(frame.index)
     specs = parse_specs(inputs)
@@ -251,26 +254,30 @@ def build_design(
         cols.append(v)
     M = np.column_stack(cols) if cols else np.empty((n, 0))
     ok = ~np.isnan(M).any(axis=1)
+    is_ctx = np.zeros(n, bool)
+    is_ctx[: min(context, n)] = True
     dropped: dict[str, int] = {}
     warm = max_lag(all_specs)
-    if warm:
-        dropped["history for the lags"] = min(warm, n)
     in_warmup = np.zeros(n, bool)
     in_warmup[: min(warm, n)] = True
-    attributed = in_warmup.copy()
+    in_warmup &= ~is_ctx
+    if in_warmup.any():
+        dropped["history for the lags"] = int(in_warmup.sum())
+    attributed = in_warmup | is_ctx
     for tag in needed_tags(all_specs):
         raw = frame[tag].isna().to_numpy()
         miss = np.zeros(n, bool)
         for s in all_specs:
-            if tag in s.tags:
-                miss[s.lag :] |= raw[: n - s.lag] if s.lag < n else False
-        miss &= ~ok & ~in_warmup
+            if tag in s.tags and s.lag < n:
+                miss[s.lag :] |= raw[: n - s.lag]
+        miss &= ~ok & ~attributed
         if miss.any():
             dropped[f"{tag} missing or bad"] = int(miss.sum())
             attributed |= miss
     other = int((~ok & ~attributed).sum())
     if other > 0:
         dropped["derived value undefined"] = other
+    ok &= ~is_ctx
     Mok = M[ok]
     d = len(specs)
     return Design(
@@ -279,6 +286,6 @@ def build_design(
         index=pd.DatetimeIndex(frame.index[ok]),
         inputs=[str(s) for s in specs],
         output=None if out_spec is None else str(out_spec),
-        n_rows=n,
+        n_rows=n - int(is_ctx.sum()),
         dropped=dropped,
     )

@@ -35,6 +35,7 @@ from diag_plugin.fuzzy import _kernels as K
 from diag_plugin.fuzzy.partition import UniformPartition
 
 METHODS = ("wm-avg", "wm")
+PARAMS = ("input_spans", "output_span", "n_sets", "output_sets", "shape", "method")
 #: grids up to this many cells train and infer through dense arrays
 DENSE_LIMIT = 1 << 20
 #: rows per compiled pass; bounds the memory of fit/predict
@@ -112,6 +113,17 @@ class WangMendelRegressor:
         self.output_sets = output_sets
         self.shape = shape
         self.method = method
+
+    def get_params(self, deep: bool = True) -> dict:
+        """Constructor parameters (scikit-learn convention)."""
+        return {k: getattr(self, k) for k in PARAMS}
+
+    def set_params(self, **params) -> WangMendelRegressor:
+        for k, v in params.items():
+            if k not in PARAMS:
+                raise ValueError(f"unknown parameter {k!r}")
+            setattr(self, k, v)
+        return self
 
     # ------------------------------------------------------------------ set-up
     def _init_partitions(self, X: np.ndarray, y: np.ndarray) -> None:
