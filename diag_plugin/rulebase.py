@@ -2,7 +2,7 @@
 
 Layout (see ``docs/rulebase.md``)::
 
-    [model]        name, description, method, shape
+    [model]        name, description, method, shape, period (lags count samples)
     [output]       spec, label, unit, span = [lo, hi], sets
     [[inputs]]     one table per input, same keys, in model order
     [training]     provenance: source, from, to, samples, dropped
@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import tomlkit
 from tomlkit.exceptions import ParseError
 
@@ -205,6 +206,16 @@ class RuleBase:
                 self._line_of("model", "method"),
                 f"method must be one of {', '.join(METHODS)}, got {self.method!r}",
             )
+        self.period = self._get(model, "model", "period", str, default="10s")
+        try:
+            if pd.Timedelta(self.period) <= pd.Timedelta(0):
+                raise ValueError
+        except ValueError:
+            self._err(
+                self._line_of("model", "period"),
+                f'period must be a positive duration like "10s", got {self.period!r}',
+            )
+            self.period = "10s"
         self.shape = self._get(model, "model", "shape", str, default="trapezoidal")
         if self.shape not in SHAPES:
             self._err(
@@ -480,6 +491,7 @@ class RuleBase:
         method: str = "wm-avg",
         shape: str = "trapezoidal",
         description: str = "",
+        period: str = "10s",
         path: str | Path | None = None,
     ) -> RuleBase:
         """A fresh rule base with no rules (train it next)."""
@@ -492,6 +504,8 @@ class RuleBase:
         model["description"] = description
         model["method"] = method
         model["shape"] = shape
+        model["period"] = period
+        model["period"].comment("sample period of the aligned data; lags count these samples")
         doc["model"] = model
         doc["output"] = _var_table(output)
         aot = tomlkit.aot()

@@ -1,0 +1,262 @@
+"""Workbench commands: ``diag model``, ``diag compare``, ``diag explain``, ``diag report``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import pandas as pd
+from rich.console import Console
+from rich.table import Table
+
+from diag_plugin.cli import UserError
+from diag_plugin.regressors import needed_tags
+from diag_plugin.rulebase import RuleBase, RuleBaseError, resolve
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    model = sub.add_parser("model", help="create a model or change its inputs")
+    msub = model.add_subparsers(dest="model_command", metavar="ACTION", required=True)
+    p = msub.add_parser("new", help="write rulebases/NAME.toml for a new model")
+    p.add_argument("name")
+    p.add_argument("--output", required=True, metavar="TAG", help="output tag or spec, e.g. F")
+    p.add_argument("--input", action="append", required=True, metavar="SPEC", dest="inputs")
+    p.add_argument("--sets", type=int, default=31)
+    p.add_argument("--method", default="wm-avg", choices=["wm-avg", "wm"])
+    p.add_argument("--shape", default="trapezoidal", choices=["trapezoidal", "triangular"])
+    p.add_argument("--period", default="10s", help="sample period of the aligned data")
+    p.add_argument("--description", default="")
+    p.set_defaults(func=cmd_model_new)
+    p = msub.add_parser("add-input", help="add an input (or replace one with --replace)")
+    p.add_argument("name")
+    p.add_argument("spec")
+    p.add_argument("--replace", metavar="SPEC", help="input the new one replaces")
+    p.add_argument("--sets", type=int)
+    p.set_defaults(func=cmd_add_input)
+    p = msub.add_parser("remove-input", help="remove an input")
+    p.add_argument("name")
+    p.add_argument("spec")
+    p.set_defaults(func=cmd_remove_input)
+
+    for name, fn, helptext in (
+        ("compare", cmd_compare, "model against measurements: where it fails"),
+        ("explain", cmd_explain, "rank candidate missing effects"),
+        ("report", cmd_report, "self-contained HTML report"),
+    ):
+        p = sub.add_parser(name, help=helptext)
+        p.add_argument("name")
+        p.add_argument("--from", dest="start", help="start time (default: all data)")
+        p.add_argument("--to", dest="end", help="end time")
+        if name == "compare":
+            p.add_argument("--report", metavar="FILE.html")
+            p.add_argument("--json", action="store_true")
+        elif name == "explain":
+            p.add_argument("--top", type=int, default=10)
+            p.add_argument("--max-lag", type=int, default=10)
+            p.add_argument("--json", action="store_true")
+        else:
+            p.add_argument("--out", required=True, metavar="FILE.html")
+        p.set_defaults(func=fn)
+
+
+def _load(args) -> RuleBase:
+    path = resolve(args.name, args.rulebases)
+    if not path.exists():
+        raise UserError(f"no model {args.name!r}: {path} does not exist (diag model new …)")
+    try:
+        return RuleBase.load(path)
+    except RuleBaseError as exc:
+        raise UserError(f"{path} has problems:\n" + "\n".join(exc.problems)) from None
+
+
+def _data(args, tags: list[str] | None, period: str):
+    from historian.access import open_data
+
+    try:
+        return open_data(args.db, tags, args_start(args), args_end(args), period)
+    except (KeyError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+
+
+def args_start(args):
+    return pd.Timestamp(args.start, tz="UTC") if getattr(args, "start", None) else None
+
+
+def args_end(args):
+    return pd.Timestamp(args.end, tz="UTC") if getattr(args, "end", None) else None
+
+
+def cmd_model_new(args) -> int:
+    from diag_plugin.workbench.model_edit import new_model
+
+    path = Path(args.rulebases) / f"{args.name}.toml"
+    Path(args.rulebases).mkdir(parents=True, exist_ok=True)
+    out = args.output if "[" in args.output else f"{args.output}[k]"
+    tags = needed_tags([out, *args.inputs])
+    frame, info = _data(args, tags, args.period)
+    try:
+        rb = new_model(
+            path,
+            args.name,
+            out,
+            args.inputs,
+            frame=frame,
+            tag_info=info,
+            sets=args.sets,
+            method=args.method,
+            shape=args.shape,
+            period=args.period,
+            description=args.description,
+        )
+    except (FileExistsError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    print(f"wrote {path}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)})")
+    print(f"next: diag train {args.name}")
+    return 0
+
+
+def cmd_add_input(args) -> int:
+    from diag_plugin.workbench.model_edit import add_input
+
+    rb = _load(args)
+    frame, info = _data(args, needed_tags([args.spec]) or None, rb.period)
+    try:
+        rb = add_input(
+            rb, args.spec, frame=frame, tag_info=info, sets=args.sets, replace=args.replace
+        )
+    except (ValueError, KeyError) as exc:
+        raise UserError(str(exc)) from None
+    print(f"{rb.path}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)})")
+    print(f"rules cleared; next: diag train {rb.name}")
+    return 0
+
+
+def cmd_remove_input(args) -> int:
+    from diag_plugin.workbench.model_edit import remove_input
+
+    try:
+        rb = remove_input(_load(args), args.spec)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    print(f"{rb.path}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)})")
+    print(f"rules cleared; next: diag train {rb.name}")
+    return 0
+
+
+def _model_frame(args, rb: RuleBase):
+    if not rb.rules:
+        raise UserError(f"{rb.name} has no rules yet: run diag train {rb.name}")
+    return _data(args, None, rb.period)
+
+
+def cmd_compare(args) -> int:
+    from diag_plugin.workbench.compare import compare
+
+    rb = _load(args)
+    frame, info = _model_frame(args, rb)
+    try:
+        c = compare(rb, frame)
+    except (KeyError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    if args.report:
+        from diag_plugin.workbench.report import write_report
+
+        write_report(args.report, rb, c, None, _experiments(args, rb))
+    if args.json:
+        print(json.dumps(c.as_dict(), indent=2, allow_nan=False, default=str))
+        return 0
+    con = Console()
+    m = c.metrics
+    con.print(
+        f"[bold]{rb.name}[/] {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)}) on "
+        f"{len(c.y):,} samples {c.index[0]:%Y-%m-%d} … {c.index[-1]:%Y-%m-%d}"
+        if len(c.y)
+        else f"{rb.name}: no samples"
+    )
+    con.print(
+        f"RMSE {m['rmse_pct']:.2f} %  MAE {m['mae_pct']:.2f} %  bias {m['bias_pct']:+.2f} %  "
+        f"max {m['max_abs_pct']:.1f} % of span; coverage {m['coverage']:.1%}"
+    )
+    d = c.as_dict()
+    t = Table(title="worst operating regions (rule cells)")
+    for col in [v.spec for v in rb.inputs] + ["count", "mean %", "RMSE %"]:
+        t.add_column(col, justify="right")
+    for r in d["worst_regions"]:
+        t.add_row(
+            *[str(r[v.spec]) for v in rb.inputs],
+            str(r["count"]),
+            f"{r['mean_pct']:+.2f}",
+            f"{r['rmse_pct']:.2f}",
+        )
+    con.print(t)
+    t = Table(title="worst time windows")
+    for col in ("start", "end", "RMSE %", "mean %"):
+        t.add_column(col)
+    for r in d["worst_periods"]:
+        t.add_row(r["start"][:16], r["end"][:16], f"{r['rmse_pct']:.2f}", f"{r['mean_pct']:+.2f}")
+    con.print(t)
+    if d["tags"]:
+        t = Table(title="residual against the other tags of the plant")
+        for col in ("tag", "explains % of residual variance", "correlation"):
+            t.add_column(col)
+        for r in d["tags"]:
+            t.add_row(r["tag"], f"{r['explained_pct']:.1f}", f"{r['corr']:+.2f}")
+        con.print(t)
+    con.print(f"next: diag explain {rb.name}")
+    return 0
+
+
+def cmd_explain(args) -> int:
+    from diag_plugin.workbench.explain import explain
+
+    rb = _load(args)
+    frame, info = _data(args, None, rb.period)
+    try:
+        e = explain(rb, frame, tag_info=info, max_lag=args.max_lag, top=args.top)
+    except (KeyError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    if args.json:
+        print(json.dumps(e.as_dict(), indent=2))
+        return 0
+    con = Console()
+    con.print(
+        f"[bold]{rb.name}[/]: held-out error {e.baseline_rmse_pct:.2f} % of span "
+        f"(validation from {e.validation_from:%Y-%m-%d %H:%M})"
+    )
+    t = Table(title="candidate missing effects, best first")
+    t.add_column("#", justify="right")
+    t.add_column("effect")
+    t.add_column("error %", justify="right")
+    t.add_column("next command")
+    for i, c in enumerate(e.candidates, 1):
+        effect = c.effect + "".join(f"\n  ⚠ {n}" for n in c.notes)
+        err = "n/a" if not math.isfinite(c.rmse_pct_if_added) else f"{c.rmse_pct_if_added:.2f}"
+        t.add_row(str(i), effect, err, c.command)
+    con.print(t)
+    return 0
+
+
+def _experiments(args, rb):
+    from historian.access import experiments
+
+    try:
+        return experiments(args.db, rb.name)
+    except Exception:  # noqa: BLE001 - the report shows what it has
+        return None
+
+
+def cmd_report(args) -> int:
+    from diag_plugin.workbench.compare import compare
+    from diag_plugin.workbench.explain import explain
+    from diag_plugin.workbench.report import write_report
+
+    rb = _load(args)
+    frame, info = _model_frame(args, rb)
+    c = compare(rb, frame)
+    e = explain(rb, frame, tag_info=info)
+    write_report(args.out, rb, c, e, _experiments(args, rb))
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0

@@ -1,0 +1,201 @@
+"""Compare a model with measurements and show where it fails.
+
+Residuals are in % of the output's nominal span (Kościelny et al., eq. 6).
+*Where it fails* is answered three ways: over the input space (per rule cell:
+mean, RMSE and count of the residual, and the cells the model has no rule
+for), over time (the worst windows), and against every tag of the plant
+(how much of the residual each tag explains) — the last points at effects the
+model is missing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from diag_plugin.regressors import build_design
+from diag_plugin.rulebase import RuleBase
+from diag_plugin.training import residual_pct
+
+
+@dataclass
+class Comparison:
+    """Model against measurement: aligned series, metrics and failure maps."""
+
+    name: str
+    index: pd.DatetimeIndex
+    y: np.ndarray
+    yhat: np.ndarray
+    residual: np.ndarray  # % of span, NaN where unsupported
+    reason: np.ndarray
+    metrics: dict[str, float]
+    regions: pd.DataFrame  # per rule cell
+    periods: pd.DataFrame  # per time window
+    tags: pd.DataFrame  # residual against each plant tag
+    dropped: dict[str, int] = field(default_factory=dict)
+
+    def as_dict(self, top: int = 5) -> dict:
+        worst_r = self.regions[self.regions["count"] > 0].nlargest(top, "rmse_pct")
+        unsupported = self.regions[self.regions["rule"] == False]  # noqa: E712
+        return {
+            "model": self.name,
+            **self.metrics,
+            "samples": int(len(self.y)),
+            "dropped": self.dropped,
+            "worst_regions": _records(worst_r),
+            "unsupported_regions": _records(
+                unsupported.nlargest(top, "count") if len(unsupported) else unsupported
+            ),
+            "worst_periods": _records(self.periods.nlargest(top, "rmse_pct")),
+            "tags": _records(self.tags.head(top)),
+        }
+
+
+def _records(df: pd.DataFrame) -> list[dict]:
+    out = []
+    for rec in df.to_dict("records"):
+        clean = {}
+        for k, v in rec.items():
+            if isinstance(v, pd.Timestamp):
+                v = v.isoformat()
+            elif isinstance(v, np.generic):
+                v = v.item()
+            if isinstance(v, float) and not np.isfinite(v):
+                v = None
+            clean[k] = v
+        out.append(clean)
+    return out
+
+
+def metrics(residual: np.ndarray) -> dict[str, float]:
+    """RMSE, MAE, bias and max |error| in % of span, and coverage."""
+    r = residual[np.isfinite(residual)]
+    if r.size == 0:
+        nan = float("nan")
+        return dict(rmse_pct=nan, mae_pct=nan, bias_pct=nan, max_abs_pct=nan, coverage=0.0)
+    return {
+        "rmse_pct": float(np.sqrt(np.mean(r**2))),
+        "mae_pct": float(np.mean(np.abs(r))),
+        "bias_pct": float(np.mean(r)),
+        "max_abs_pct": float(np.max(np.abs(r))),
+        "coverage": float(r.size / residual.size) if residual.size else 0.0,
+    }
+
+
+def compare(
+    rb: RuleBase,
+    frame: pd.DataFrame,
+    *,
+    window: pd.Timedelta | None = None,
+    spans: Mapping[str, tuple[float, float]] | None = None,
+) -> Comparison:
+    """Run ``rb``'s model over an aligned frame and locate its errors."""
+    model = rb.to_model()
+    d = build_design(frame, [v.spec for v in rb.inputs], rb.output.spec, spans=spans)
+    det = model.predict_detail(d.X)
+    span = rb.output.span[1] - rb.output.span[0]
+    res = residual_pct(d.y, det.y, span)
+    return Comparison(
+        name=rb.name,
+        index=d.index,
+        y=d.y,
+        yhat=det.y,
+        residual=res,
+        reason=det.reason,
+        metrics=metrics(res),
+        regions=error_by_cell(rb, model, d.X, res),
+        periods=worst_periods(d.index, res, window),
+        tags=residual_vs_tags(frame, d.index, res, exclude=_model_tags(rb)),
+        dropped=d.dropped,
+    )
+
+
+def _model_tags(rb: RuleBase) -> set[str]:
+    from diag_plugin.regressors import needed_tags
+
+    return set(needed_tags([v.spec for v in rb.inputs] + [rb.output.spec]))
+
+
+def error_by_cell(rb: RuleBase, model, X: np.ndarray, res: np.ndarray) -> pd.DataFrame:
+    """Residual per rule cell of the inputs (max-membership sets, eq. 3)."""
+    cells = np.column_stack([p.nearest(X[:, k]) for k, p in enumerate(model.partitions_)])
+    keys = model.cell_keys(cells) if len(cells) else np.empty(0, np.int64)
+    ok = np.isfinite(res)
+    df = pd.DataFrame({"key": keys, "r": np.where(ok, res, 0.0), "ok": ok})
+    df["r2"] = df["r"] ** 2
+    g = df.groupby("key", sort=True).agg(
+        count=("ok", "size"), supported=("ok", "sum"), s=("r", "sum"), s2=("r2", "sum")
+    )
+    n = g["supported"].clip(lower=1)
+    out = pd.DataFrame(index=g.index)
+    labels = model.cell_indices(g.index.to_numpy())
+    for k, v in enumerate(rb.inputs):
+        out[v.spec] = [v.set_label(int(i)) for i in labels[:, k]]
+        centers = model.partitions_[k].centers
+        out[f"{v.spec} centre"] = centers[labels[:, k]]
+    out["count"] = g["count"].to_numpy()
+    out["mean_pct"] = np.where(g["supported"] > 0, g["s"] / n, np.nan)
+    out["rmse_pct"] = np.where(g["supported"] > 0, np.sqrt(g["s2"] / n), np.nan)
+    out["rule"] = np.isin(g.index.to_numpy(), model.keys_)
+    return out.reset_index(drop=True)
+
+
+def worst_periods(
+    index: pd.DatetimeIndex, res: np.ndarray, window: pd.Timedelta | None = None
+) -> pd.DataFrame:
+    """RMSE of the residual per time window (default: 1/60 of the range, ≥ 1 h)."""
+    if len(index) == 0:
+        return pd.DataFrame(columns=["start", "end", "rmse_pct", "mean_pct", "count"])
+    if window is None:
+        rng = index[-1] - index[0]
+        window = max(pd.Timedelta(hours=1), (rng / 60).ceil("h"))
+    s = pd.Series(res, index=index)
+    ok = s.notna()
+    g = pd.DataFrame({"r2": s.pow(2), "r": s, "ok": ok}).resample(window)
+    agg = g.agg({"r2": "sum", "r": "sum", "ok": "sum"})
+    n = agg["ok"].clip(lower=1)
+    out = pd.DataFrame(
+        {
+            "start": agg.index,
+            "end": agg.index + window,
+            "rmse_pct": np.sqrt(agg["r2"] / n),
+            "mean_pct": agg["r"] / n,
+            "count": agg["ok"].astype(int),
+        }
+    )
+    return out[out["count"] > 0].reset_index(drop=True)
+
+
+def residual_vs_tags(
+    frame: pd.DataFrame, index: pd.DatetimeIndex, res: np.ndarray, exclude: set[str]
+) -> pd.DataFrame:
+    """How much of the residual each other plant tag explains.
+
+    ``explained_pct`` is the share of the residual's variance explained by a
+    piecewise-constant fit on deciles of the tag (a model-free, non-linear
+    measure); ``corr`` is the plain correlation.
+    """
+    rows = []
+    r = pd.Series(res, index=index)
+    ok = r.notna()
+    for tag in frame.columns:
+        if tag in exclude or not np.issubdtype(frame[tag].dtype, np.number):
+            continue
+        x = frame[tag].reindex(index)
+        m = ok & x.notna()
+        if m.sum() < 20 or x[m].nunique() < 2:
+            continue
+        xv, rv = x[m].to_numpy(float), r[m].to_numpy(float)
+        bins = np.unique(np.quantile(xv, np.linspace(0, 1, 11)))
+        which = np.clip(np.searchsorted(bins, xv, side="right") - 1, 0, max(len(bins) - 2, 0))
+        means = np.bincount(which, rv) / np.maximum(np.bincount(which), 1)
+        resid = rv - means[which]
+        var = rv.var()
+        explained = 1 - resid.var() / var if var > 0 else 0.0
+        corr = float(np.corrcoef(xv, rv)[0, 1]) if xv.std() > 0 and rv.std() > 0 else 0.0
+        rows.append({"tag": tag, "explained_pct": 100 * explained, "corr": corr})
+    df = pd.DataFrame(rows, columns=["tag", "explained_pct", "corr"])
+    return df.sort_values("explained_pct", ascending=False).reset_index(drop=True)

@@ -1,0 +1,162 @@
+"""Create a model's rule-base file and add or remove inputs in place.
+
+Edits go through tomlkit, so comments and expert edits elsewhere in the file
+survive. A change of the inputs changes the rule grid, so the rules are
+cleared (the file says so) and the next ``diag train`` fills them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import tomlkit
+
+from diag_plugin.regressors import InputSpec, feature
+from diag_plugin.rulebase import RuleBase, Variable, default_label
+
+
+def variable_for(
+    spec: str,
+    *,
+    frame: pd.DataFrame | None,
+    tag_info: Mapping[str, Mapping[str, object]],
+    sets: int | None = None,
+    default_sets: int = 31,
+) -> Variable:
+    """A variable with its nominal span: tag metadata first, else the observed range."""
+    s = InputSpec.parse(spec)
+    unit = ""
+    span: tuple[float, float] | None = None
+    n_sets = sets or default_sets
+    if s.fn == "dir":
+        span, n_sets = (-1.0, 1.0), 2
+    elif s.fn == "hour":
+        span, unit, n_sets = (0.0, 24.0), "h", sets or 25
+    elif s.fn == "" or s.fn == "diff":
+        info = tag_info.get(s.tags[0]) or {}
+        unit = str(info.get("unit") or "")
+        if s.fn == "" and info.get("lo") is not None and info.get("hi") is not None:
+            lo, hi = float(info["lo"]), float(info["hi"])
+            if hi > lo:
+                span = (lo, hi)
+    if s.fn == "days":
+        unit, n_sets = "d", sets or 12
+    if span is None:
+        if frame is None:
+            raise ValueError(f"no nominal range known for {spec}: give the tag a range")
+        v = feature(frame, s)
+        v = v[np.isfinite(v)]
+        if v.size == 0:
+            raise ValueError(f"no data for {spec} to take its range from")
+        lo, hi = np.quantile(v, [0.001, 0.999]) if s.fn in ("rate", "diff") else (v.min(), v.max())
+        lo, hi = float(lo), float(hi)
+        if hi <= lo:
+            hi = lo + max(abs(lo), 1.0) * 0.01
+        pad = 0.02 * (hi - lo)
+        span = (_nice(lo - pad), _nice(hi + pad))
+    return Variable(spec, default_label(spec), unit, span, int(n_sets))
+
+
+def _nice(v: float) -> float:
+    return float(f"{v:.4g}")
+
+
+def new_model(
+    path: Path,
+    name: str,
+    output: str,
+    inputs: Sequence[str],
+    *,
+    frame: pd.DataFrame | None,
+    tag_info: Mapping[str, Mapping[str, object]],
+    sets: int = 31,
+    method: str = "wm-avg",
+    shape: str = "trapezoidal",
+    period: str = "10s",
+    description: str = "",
+) -> RuleBase:
+    if path.exists():
+        raise FileExistsError(f"{path} exists already; edit it or choose another name")
+    out = variable_for(output, frame=frame, tag_info=tag_info, sets=sets)
+    ins = [variable_for(s, frame=frame, tag_info=tag_info, sets=sets) for s in inputs]
+    rb = RuleBase.new(
+        name,
+        out,
+        ins,
+        method=method,
+        shape=shape,
+        description=description,
+        period=period,
+        path=path,
+    )
+    rb.save()
+    return RuleBase.load(path)
+
+
+def _clear_rules(doc, why: str) -> None:
+    rules = doc["rules"]
+    rules["list"] = tomlkit.array()
+    if "training" in doc:
+        doc["training"]["status"] = why
+
+
+def add_input(
+    rb: RuleBase,
+    spec: str,
+    *,
+    frame: pd.DataFrame | None,
+    tag_info: Mapping[str, Mapping[str, object]],
+    sets: int | None = None,
+    replace: str | None = None,
+) -> RuleBase:
+    """Add ``spec`` as an input (or let it replace input ``replace``) and save."""
+    new = str(InputSpec.parse(spec))
+    specs = [v.spec for v in rb.inputs]
+    if new in specs:
+        raise ValueError(f"{new} is already an input of {rb.name}")
+    default_sets = rb.inputs[0].sets if rb.inputs else 31
+    var = variable_for(new, frame=frame, tag_info=tag_info, sets=sets, default_sets=default_sets)
+    doc = rb.doc
+    table = tomlkit.table()
+    for k, v in (
+        ("spec", var.spec),
+        ("label", var.label),
+        ("unit", var.unit),
+        ("span", [var.span[0], var.span[1]]),
+        ("sets", var.sets),
+    ):
+        table[k] = v
+    if replace is not None:
+        old = str(InputSpec.parse(replace))
+        if old not in specs:
+            raise ValueError(f"{old} is not an input of {rb.name} (inputs: {', '.join(specs)})")
+        i = specs.index(old)
+        doc["inputs"][i]["spec"] = var.spec
+        doc["inputs"][i]["label"] = var.label
+        _clear_rules(doc, f"input {old} replaced by {new}: rules cleared, run diag train")
+    else:
+        doc["inputs"].append(table)
+        _clear_rules(doc, f"input {new} added: rules cleared, run diag train")
+    return _save(rb, doc)
+
+
+def remove_input(rb: RuleBase, spec: str) -> RuleBase:
+    old = str(InputSpec.parse(spec))
+    specs = [v.spec for v in rb.inputs]
+    if old not in specs:
+        raise ValueError(f"{old} is not an input of {rb.name} (inputs: {', '.join(specs)})")
+    if len(specs) == 1:
+        raise ValueError(f"{old} is the only input of {rb.name}; a model needs one")
+    del rb.doc["inputs"][specs.index(old)]
+    _clear_rules(rb.doc, f"input {old} removed: rules cleared, run diag train")
+    return _save(rb, rb.doc)
+
+
+def _save(rb: RuleBase, doc) -> RuleBase:
+    text = tomlkit.dumps(doc)
+    fresh = RuleBase(text, rb.path)  # validates before anything is written
+    fresh.save()
+    return RuleBase.load(rb.path)
