@@ -1,0 +1,131 @@
+"""Workbench core on synthetic plants: compare, explain, model edits (no database)."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from diag_plugin.rulebase import RuleBase
+from diag_plugin.training import train
+from diag_plugin.workbench.compare import compare
+from diag_plugin.workbench.explain import explain
+from diag_plugin.workbench.model_edit import add_input, new_model, remove_input
+
+INFO = {
+    "CV": {"unit": "%", "lo": 0, "hi": 100, "description": "controller output"},
+    "P1": {"unit": "kPa", "lo": 0, "hi": 1000, "description": "upstream pressure"},
+    "P2": {"unit": "kPa", "lo": 0, "hi": 1000, "description": "downstream pressure"},
+    "T1": {"unit": "°C", "lo": 0, "hi": 100, "description": "water temperature"},
+    "F": {"unit": "t/h", "lo": 0, "hi": 40, "description": "flow"},
+}
+
+
+def plant(days, seed, dead_time=1):
+    """Flow through a valve: F = Kv(CV[k-d]) · sqrt(P1 − P2), pressures wander independently."""
+    rng = np.random.default_rng(seed)
+    n = int(days * 8640)
+    idx = pd.date_range("2026-02-01", periods=n, freq="10s", tz="UTC", name="ts")
+    steps = rng.uniform(5, 95, n // 300 + 1).repeat(300)[:n]
+    cv = np.clip(steps + rng.normal(0, 1, n), 0, 100)
+    walk = lambda s: np.cumsum(rng.normal(0, s, n))  # noqa: E731
+    p1 = np.clip(600 + 80 * np.tanh(walk(2) / 80) + rng.normal(0, 2, n), 300, 900)
+    p2 = np.clip(250 + 60 * np.tanh(walk(2) / 60) + rng.normal(0, 2, n), 50, 450)
+    lagged = np.r_[np.full(dead_time, cv[0]), cv[:-dead_time]] if dead_time else cv
+    f = 38 * (lagged / 100) ** 1.5 * np.sqrt((p1 - p2) / 600) + rng.normal(0, 0.05, n)
+    t1 = 60 + rng.normal(0, 1, n)
+    return pd.DataFrame({"CV": cv, "P1": p1, "P2": p2, "T1": t1, "F": f}, index=idx)
+
+
+def trained(tmp_path, frame, inputs):
+    rb = new_model(tmp_path / "m.toml", "m", "F[k]", inputs, frame=frame, tag_info=INFO)
+    a, b = frame.index[0], frame.index[-1] + pd.Timedelta("10s")
+    res = train(rb, lambda x, y: frame[(frame.index >= x) & (frame.index < y)], a, b)
+    rb.apply_training(res.model)
+    rb.save()
+    return RuleBase.load(rb.path), res
+
+
+@pytest.mark.parametrize("seed", [101, 202])
+def test_explain_ranks_the_pressure_effect_first_and_adding_it_cuts_error(tmp_path, seed):
+    f = plant(20, seed)
+    rb, before = trained(tmp_path, f, ["CV[k-1]"])
+    e = explain(rb, f, tag_info=INFO)
+    best = e.candidates[0]
+    assert best.input in ("diff(P1,P2)[k]", "P1[k]", "P2[k]") or best.input.startswith(
+        ("P1[", "P2[", "diff(P1,P2)")
+    ), [c.input for c in e.candidates[:3]]
+    assert best.command == f"diag model add-input m '{best.input}'" or "--sets" in best.command
+    assert "would cut the error" in best.effect
+    json.dumps(e.as_dict())
+    rb = add_input(rb, best.input, frame=f, tag_info=INFO)
+    assert [v.spec for v in rb.inputs] == ["CV[k-1]", best.input] and rb.rules == []
+    _, after = trained_again(rb, f)
+    assert after.validation["rmse_pct"] < before.validation["rmse_pct"] / 3
+
+
+def trained_again(rb, frame):
+    a, b = frame.index[0], frame.index[-1] + pd.Timedelta("10s")
+    res = train(rb, lambda x, y: frame[(frame.index >= x) & (frame.index < y)], a, b)
+    rb.apply_training(res.model)
+    rb.save()
+    return RuleBase.load(rb.path), res
+
+
+def test_explain_finds_a_hidden_dead_time(tmp_path):
+    f = plant(15, 7, dead_time=4)
+    f["P1"] = 600.0 + np.random.default_rng(0).normal(0, 1, len(f))  # constant pressures
+    f["P2"] = 250.0 + np.random.default_rng(1).normal(0, 1, len(f))
+    rb, _ = trained(tmp_path, f, ["CV[k-1]"])
+    e = explain(rb, f, tag_info=INFO)
+    best = e.candidates[0]
+    assert best.input == "CV[k-4]" and best.kind == "dead time", e.as_dict(top=3)
+    assert best.command == "diag model add-input m 'CV[k-4]' --replace 'CV[k-1]'"
+
+
+def test_compare_locates_errors(tmp_path):
+    f = plant(10, 3)
+    rb, _ = trained(tmp_path, f, ["CV[k-1]", "diff(P1,P2)[k]"])
+    g = f.copy()
+    hit = (g.index >= "2026-02-05") & (g.index < "2026-02-05 06:00")
+    g.loc[hit, "F"] += 4.0  # a fault: 10 % of span for six hours
+    c = compare(rb, g)
+    d = c.as_dict()
+    assert d["rmse_pct"] > 0 and 0.99 < d["coverage"] <= 1
+    worst = pd.Timestamp(d["worst_periods"][0]["start"])
+    assert (
+        pd.Timestamp("2026-02-04 22:00", tz="UTC")
+        <= worst
+        <= pd.Timestamp("2026-02-05 06:00", tz="UTC")
+    )
+    assert d["worst_periods"][0]["mean_pct"] > 3
+    assert set(d["worst_regions"][0]) >= {"CV[k-1]", "count", "mean_pct", "rmse_pct"}
+    json.dumps(d, allow_nan=False, default=str)
+
+
+def test_compare_shows_the_missing_tag(tmp_path):
+    f = plant(10, 4)
+    rb, _ = trained(tmp_path, f, ["CV[k-1]"])
+    c = compare(rb, f)
+    assert c.tags["tag"].iloc[0] in ("P1", "P2")
+    assert c.tags.set_index("tag").loc["T1", "explained_pct"] < 5
+
+
+def test_model_edits_keep_comments(tmp_path):
+    f = plant(3, 5)
+    rb = new_model(tmp_path / "v.toml", "v", "F[k]", ["CV[k-1]"], frame=f, tag_info=INFO)
+    text = rb.path.read_text().replace("[model]", "# owner: JK\n[model]")
+    rb.path.write_text(text)
+    rb = add_input(RuleBase.load(rb.path), "dir(CV)[k-1]", frame=f, tag_info=INFO)
+    assert rb.inputs[1].span == (-1.0, 1.0) and rb.inputs[1].sets == 2
+    rb = add_input(rb, "P1[k]", frame=f, tag_info=INFO)
+    assert rb.inputs[2].span == (0.0, 1000.0) and rb.inputs[2].unit == "kPa"
+    rb = remove_input(rb, "dir(CV)[k-1]")
+    assert [v.spec for v in rb.inputs] == ["CV[k-1]", "P1[k]"]
+    assert "# owner: JK" in rb.path.read_text()
+    with pytest.raises(ValueError, match="already an input"):
+        add_input(rb, "P1[k]", frame=f, tag_info=INFO)
+    with pytest.raises(ValueError, match="not an input"):
+        remove_input(rb, "P2[k]")
+    with pytest.raises(FileExistsError):
+        new_model(tmp_path / "v.toml", "v", "F[k]", ["CV[k-1]"], frame=f, tag_info=INFO)
