@@ -210,7 +210,8 @@ def train(
     vdesigner = Designer(rb, spans)
     if designer._tail is None:  # training ran elsewhere: read the context before the cut
         designer(read(max(start, cut - PRIME), cut))
-        designer.dropped, designer.rows = {}, 0
+        designer.dropped = dict(getattr(model, "dropped_", {}))
+        designer.rows = int(getattr(model, "rows_", 0))
     vdesigner._tail = designer._tail
     for a, b in val_iv:
         X, y, _ = vdesigner(read(a, b))

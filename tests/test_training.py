@@ -83,3 +83,44 @@ def test_error_stats_merge():
     c.update(y, np.r_[y[:4] + 1, y[4:] - 1])
     assert a.merge(b).result() == c.result()
     assert c.result()["rmse_pct"] == pytest.approx(10.0)
+
+
+def test_dask_training_equals_in_process(tmp_path):
+    """The Dask engine on a LocalCluster gives exactly the in-process rule base."""
+    from distributed import LocalCluster
+
+    from historian.dask_engine import dask_fitter
+
+    f = plant_frame(4, seed=33)
+    f.iloc[::997, 1] = np.nan
+    path = tmp_path / "frame.parquet"
+    f.to_parquet(path)
+    rb = rulebase(tmp_path, ("CV[k-1]", "P1[k]"))
+    a, b = f.index[0], f.index[-1] + pd.Timedelta("10s")
+    chunk = pd.Timedelta(hours=9)
+    local = train(rb, reader(f), a, b, chunk=chunk)
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None, processes=True
+    ) as cluster:
+        fitter = dask_fitter(cluster.scheduler_address, ParquetReader(str(path)), a)
+        remote = train(rb, reader(f), a, b, chunk=chunk, fit_chunks=fitter)
+    for attr in ("keys_", "count_", "qsum_", "qsq_"):
+        np.testing.assert_array_equal(getattr(local.model, attr), getattr(remote.model, attr))
+    rb_local = rulebase(tmp_path, ("CV[k-1]", "P1[k]"))
+    rb_remote = rulebase(tmp_path, ("CV[k-1]", "P1[k]"))
+    rb_local.apply_training(local.model)
+    rb_remote.apply_training(remote.model)
+    assert rb_local.dumps() == rb_remote.dumps()
+    assert local.samples == remote.samples and local.dropped == remote.dropped
+    assert local.validation == pytest.approx(remote.validation)
+
+
+class ParquetReader:
+    """A picklable reader a Dask worker can run: the worker reads the data itself."""
+
+    def __init__(self, path):
+        self.path = path
+
+    def __call__(self, a, b):
+        f = pd.read_parquet(self.path)
+        return f[(f.index >= a) & (f.index < b)]
