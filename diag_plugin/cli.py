@@ -22,6 +22,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "diag_plugin.rulebase_cli",
     "diag_plugin.demo",
     "historian.cli",
+    "historian.jobs",
     "diag_plugin.workbench.cli",
 )
 
@@ -49,8 +50,9 @@ def build_parser() -> argparse.ArgumentParser:
     for name in COMMAND_MODULES:
         try:
             module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:  # an area not built yet
-            if exc.name and name.startswith(exc.name):
+        except ModuleNotFoundError as exc:  # an area of the product not built yet
+            if exc.name and exc.name.split(".")[0] in ("diag_plugin", "historian", "connectors"):
+                log.debug("commands of %s unavailable: %s", name, exc)
                 continue
             raise
         module.add_commands(sub)

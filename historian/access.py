@@ -1,0 +1,115 @@
+"""Historian access for the workbench and training jobs.
+
+Small functions that open the historian, read an aligned window with the
+tags' metadata, and log experiments; the callers (CLI commands) stay free of
+database code.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import pandas as pd
+
+from historian.store import Historian
+
+
+def tag_info(h: Historian) -> dict[str, dict]:
+    """Tag → {"unit", "lo", "hi", "description"} from the tags table."""
+    t = h.tags()
+    out = {}
+    for _, row in t.iterrows():
+        out[str(row["name"])] = {
+            "unit": _clean(row.get("unit")),
+            "lo": _clean(row.get("lo")),
+            "hi": _clean(row.get("hi")),
+            "description": _clean(row.get("description")),
+        }
+    return out
+
+
+def _clean(v):
+    return None if v is None or (isinstance(v, float) and v != v) else v
+
+
+def open_data(
+    url: str,
+    tags: Sequence[str] | None,
+    start: pd.Timestamp | None,
+    end: pd.Timestamp | None,
+    period: str,
+) -> tuple[pd.DataFrame, dict[str, dict]]:
+    """Aligned frame of ``tags`` (all tags if None) on a ``period`` grid, plus tag metadata."""
+    with Historian.open(url) as h:
+        info = tag_info(h)
+        names = list(tags) if tags else sorted(info)
+        unknown = [t for t in names if t not in info]
+        if unknown:
+            raise KeyError(
+                f"tag(s) {', '.join(unknown)} not in the historian {url} "
+                f"(it has: {', '.join(sorted(info)) or 'no tags'}); diag import a file first"
+            )
+        if not names:
+            raise ValueError(f"the historian {url} holds no tags: diag import a file first")
+        a, b = h.time_range(names)
+        if a is None:
+            raise ValueError(f"no samples of {', '.join(names)} in {url}")
+        start = start or a
+        end = end or (b + pd.Timedelta(period))
+        frame = h.window(names, start, end, period)
+    return frame, info
+
+
+@dataclass
+class WindowReader:
+    """A picklable ``read(a, b)`` over the historian (Dask workers open their own connection)."""
+
+    url: str
+    tags: tuple[str, ...]
+    period: str
+
+    def __call__(self, a: pd.Timestamp, b: pd.Timestamp) -> pd.DataFrame:
+        with Historian.open(self.url) as h:
+            return h.window(list(self.tags), a, b, self.period)
+
+
+def experiments(url: str, model: str) -> pd.DataFrame:
+    """The experiment log of a model, one row per version, metrics as columns."""
+    with Historian.open(url) as h:
+        df = h.experiments(model)
+    if df is None or len(df) == 0:
+        return pd.DataFrame(columns=["version", "created_at", "inputs", "rmse_pct"])
+    df = df.copy()
+    if "metrics" in df.columns:
+        m = pd.DataFrame([_as_dict(v) for v in df["metrics"]], index=df.index)
+        for c in m.columns:
+            if c not in df.columns:
+                df[c] = m[c]
+    if "inputs" in df.columns:
+        df["inputs"] = [_as_list(v) for v in df["inputs"]]
+    return df
+
+
+def _as_dict(v) -> dict:
+    if isinstance(v, dict):
+        return v
+    if isinstance(v, str):
+        try:
+            return json.loads(v)
+        except ValueError:
+            return {}
+    return {}
+
+
+def _as_list(v) -> list:
+    if isinstance(v, list | tuple):
+        return list(v)
+    if isinstance(v, str):
+        try:
+            out = json.loads(v)
+            return out if isinstance(out, list) else [v]
+        except ValueError:
+            return [v]
+    return []

@@ -1,0 +1,285 @@
+"""Training jobs: ``diag train NAME|--all`` and ``diag experiments NAME``.
+
+A training job reads the model's rule-base file, streams the historian
+window in chunks (memory flat in the length of the range), trains with
+``partial_fit`` (or on a Dask cluster), validates on a time-ordered held-out
+block, writes the rule base keeping the experts' locked rules, and records
+an experiment so the user can watch the error fall version by version.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+from sqlalchemy.engine import make_url
+
+from diag_plugin.cli import UserError
+from diag_plugin.regressors import needed_tags
+from diag_plugin.rulebase import RuleBase, RuleBaseError, resolve
+from diag_plugin.training import DEFAULT_CHUNK, train
+from historian.access import WindowReader, experiments
+from historian.store import Historian
+
+log = logging.getLogger(__name__)
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("train", help="train a model (or --all) from the historian")
+    p.add_argument("name", nargs="?", help="model name in the rule-base folder, or a file")
+    p.add_argument("--all", action="store_true", help="retrain every model in the folder")
+    p.add_argument("--from", dest="start", help="start of the training range (default: all)")
+    p.add_argument("--to", dest="end", help="end of the training range")
+    p.add_argument("--holdout", type=float, default=0.2, help="held-out share (last part)")
+    p.add_argument("--chunk", default="7D", help="time span read at once (default 7D)")
+    p.add_argument("--engine", choices=["local", "dask"], default="local")
+    p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=cmd_train)
+    p = sub.add_parser("experiments", help="versions of a model with inputs and error")
+    p.add_argument("name")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_experiments)
+
+
+def safe_url(url: str) -> str:
+    """The database URL without its password, for provenance and messages."""
+    try:
+        return make_url(url).render_as_string(hide_password=True)
+    except Exception:  # noqa: BLE001 - not a URL SQLAlchemy knows; keep as given
+        return url
+
+
+def train_one(
+    path: Path,
+    url: str,
+    *,
+    start: str | None = None,
+    end: str | None = None,
+    holdout: float = 0.2,
+    chunk: pd.Timedelta = DEFAULT_CHUNK,
+    engine: str = "local",
+    scheduler: str | None = None,
+    progress=None,
+) -> dict:
+    """Train the model in ``path`` and record the experiment; returns the result dict."""
+    rb = RuleBase.load(path)
+    tags = needed_tags([*(v.spec for v in rb.inputs), rb.output.spec])
+    with Historian.open(url) as h:
+        known = set(h.tags()["name"])
+        missing = [t for t in tags if t not in known]
+        if missing:
+            raise KeyError(f"tag(s) {', '.join(missing)} of model {rb.name} not in {safe_url(url)}")
+        a, b = h.time_range(tags)
+    if a is None:
+        raise ValueError(f"no samples of {', '.join(tags)} in {safe_url(url)}")
+    t0 = pd.Timestamp(start, tz="UTC") if start else a
+    t1 = pd.Timestamp(end, tz="UTC") if end else b + pd.Timedelta(rb.period)
+    reader = WindowReader(url, tuple(tags), rb.period)
+    fit_chunks = None
+    if engine == "dask":
+        from historian.dask_engine import dask_fitter
+
+        fit_chunks = dask_fitter(scheduler, reader, t0)
+    started = time.perf_counter()
+    res = train(
+        rb, reader, t0, t1, holdout=holdout, chunk=chunk, progress=progress, fit_chunks=fit_chunks
+    )
+    rb.apply_training(
+        res.model,
+        {
+            "source": safe_url(url),
+            "from": t0.isoformat(),
+            "to": t1.isoformat(),
+            "samples": res.samples,
+            "dropped": sum(res.dropped.values()),
+            "validation_rmse_pct": round(res.validation["rmse_pct"], 4)
+            if math.isfinite(res.validation["rmse_pct"])
+            else "n/a",
+            "trained_at": pd.Timestamp.now(tz="UTC").floor("s").isoformat(),
+        },
+    )
+    rb.save()
+    metrics = {k: v for k, v in res.validation.items() if not _is_nan(v)}
+    with Historian.open(url) as h:
+        version = h.record_experiment(
+            rb.name,
+            [v.spec for v in rb.inputs],
+            t0,
+            t1,
+            metrics,
+            rulebase=rb.dumps(),
+        )
+    out = {"model": rb.name, "version": version, **res.as_dict()}
+    out["seconds"] = round(time.perf_counter() - started, 3)
+    out["rulebase"] = str(path)
+    return out
+
+
+def _is_nan(v) -> bool:
+    return isinstance(v, float) and not math.isfinite(v)
+
+
+def cmd_train(args) -> int:
+    if args.all == bool(args.name):
+        raise UserError("give a model NAME or --all")
+    paths = (
+        sorted(Path(args.rulebases).glob("*.toml"))
+        if args.all
+        else [resolve(args.name, args.rulebases)]
+    )
+    if not paths:
+        raise UserError(f"no rule-base files in {args.rulebases}")
+    try:
+        chunk = pd.Timedelta(args.chunk)
+    except ValueError:
+        raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D or 12h") from None
+    results, failures = [], []
+    con = Console(stderr=True)
+    for path in paths:
+        if not path.exists():
+            failures.append({"rulebase": str(path), "error": "file does not exist"})
+            continue
+        try:
+            with _progress(con, path.stem) as cb:
+                results.append(
+                    train_one(
+                        path,
+                        args.db,
+                        start=args.start,
+                        end=args.end,
+                        holdout=args.holdout,
+                        chunk=chunk,
+                        engine=args.engine,
+                        scheduler=args.scheduler,
+                        progress=cb,
+                    )
+                )
+        except RuleBaseError as exc:
+            failures.append({"rulebase": str(path), "error": "\n".join(exc.problems)})
+        except (KeyError, ValueError, OSError) as exc:
+            failures.append({"rulebase": str(path), "error": str(exc).strip("'\"")})
+        except Exception as exc:  # noqa: BLE001 - one model's failure must not stop the others
+            log.exception("training %s failed", path)
+            failures.append({"rulebase": str(path), "error": f"{type(exc).__name__}: {exc}"})
+    if args.json:
+        doc = results[0] if (len(paths) == 1 and results) else {"results": results}
+        if failures:
+            doc = {**doc, "failures": failures} if results else {"failures": failures}
+        print(json.dumps(doc, indent=2, default=str))
+    else:
+        for r in results:
+            v = r["validation"]
+            print(
+                f"{r['model']} v{r['version']}: held-out RMSE {v['rmse_pct']:.2f} % of span, "
+                f"MAE {v['mae_pct']:.2f} %, coverage {v['coverage']:.1%}; "
+                f"{r['samples']:,} samples, {r['rules']} rules, {r['seconds']:.1f} s"
+            )
+        for f in failures:
+            print(f"{f['rulebase']}: training failed: {f['error']}", file=sys.stderr)
+    return 1 if failures else 0
+
+
+class _progress:
+    """A rich progress bar on a terminal, nothing otherwise."""
+
+    def __init__(self, console: Console, name: str):
+        self.console, self.name = console, name
+        self.bar = None
+
+    def __enter__(self):
+        if not self.console.is_terminal:
+            return None
+        self.bar = Progress(
+            TextColumn(f"training {self.name}"),
+            BarColumn(),
+            TextColumn("{task.completed}/{task.total} chunks"),
+            TimeRemainingColumn(),
+            console=self.console,
+            transient=True,
+        )
+        self.bar.start()
+        task = self.bar.add_task(self.name, total=None)
+
+        def cb(done: int, total: int) -> None:
+            self.bar.update(task, completed=done, total=total)
+
+        return cb
+
+    def __exit__(self, *exc):
+        if self.bar is not None:
+            self.bar.stop()
+        return False
+
+
+def cmd_experiments(args) -> int:
+    name = (
+        RuleBase.load(resolve(args.name, args.rulebases)).name
+        if resolve(args.name, args.rulebases).exists()
+        else args.name
+    )
+    df = experiments(args.db, name)
+    cols = [
+        c
+        for c in (
+            "version",
+            "created_at",
+            "inputs",
+            "rmse_pct",
+            "mae_pct",
+            "coverage",
+            "samples",
+            "data_from",
+            "data_to",
+        )
+        if c in df.columns
+    ]
+    if args.json:
+        rows = []
+        for rec in df[cols].to_dict("records"):
+            rows.append({k: _jsonable(v) for k, v in rec.items()})
+        print(json.dumps({"model": name, "experiments": rows}, indent=2))
+        return 0
+    if not len(df):
+        print(f"no experiments recorded for {name}: run diag train {name}")
+        return 0
+    t = Table(title=f"experiments of {name}")
+    for c in ("version", "created", "inputs", "held-out RMSE %", "MAE %", "coverage"):
+        t.add_column(c)
+    for rec in df.to_dict("records"):
+        t.add_row(
+            str(rec.get("version")),
+            str(rec.get("created_at"))[:19],
+            ", ".join(rec.get("inputs") or []),
+            _fmt(rec.get("rmse_pct"), ".2f"),
+            _fmt(rec.get("mae_pct"), ".2f"),
+            _fmt(rec.get("coverage"), ".1%"),
+        )
+    Console().print(t)
+    return 0
+
+
+def _fmt(v, spec: str) -> str:
+    try:
+        return format(float(v), spec)
+    except (TypeError, ValueError):
+        return ""
+
+
+def _jsonable(v):
+    if isinstance(v, pd.Timestamp):
+        return v.isoformat()
+    if hasattr(v, "item"):
+        v = v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
