@@ -1,0 +1,7 @@
+"""Historian: storage of plant samples (SQLite default, PostgreSQL), import, aligned windows,
+Parquet cold store, model registry, experiment log and diagnostic events."""
+
+from .quality import BAD, GOOD, UNCERTAIN, from_opcua_status
+from .store import Historian
+
+__all__ = ["BAD", "GOOD", "UNCERTAIN", "Historian", "from_opcua_status"]

@@ -111,13 +111,15 @@ def train_one(
     rb.save()
     metrics = {k: v for k, v in res.validation.items() if not _is_nan(v)}
     with Historian.open(url) as h:
-        version = h.record_experiment(
+        version = len(h.experiments(rb.name)) + 1
+        h.record_model_version(rb.name, str(version), rb.dumps())
+        h.record_experiment(
             rb.name,
+            str(version),
             [v.spec for v in rb.inputs],
             t0,
             t1,
-            metrics,
-            rulebase=rb.dumps(),
+            {**metrics, "rules": res.model.n_rules_, "trained_samples": res.samples},
         )
     out = {"model": rb.name, "version": version, **res.as_dict()}
     out["seconds"] = round(time.perf_counter() - started, 3)

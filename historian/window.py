@@ -1,0 +1,157 @@
+"""Alignment of raw samples on a regular grid, and the per-tag data-quality summary.
+
+Pure numpy on the stored representation (int64 µs UTC times), so the same functions serve
+:meth:`historian.store.Historian.window`, its chunked iterator and ``diag tags``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from .quality import BAD, UNCERTAIN
+from .times import US, from_us
+
+SUMMARY_COLUMNS = [
+    "samples",
+    "good",
+    "uncertain",
+    "bad",
+    "coverage",
+    "gaps",
+    "gap_s",
+    "stale",
+    "flat",
+    "flat_s",
+    "out_of_range",
+    "first",
+    "last",
+]
+
+
+def align(ts, value, quality, t0: int, period: int, n: int, how: str = "mean") -> np.ndarray:
+    """Values on the grid ``t0 + k·period`` (k < n), each bin [left, left+period) labelled by
+    its left edge. Bad-quality and NaN samples are ignored, so a bin holding only those is NaN.
+
+    ``how="mean"``: the mean of the usable samples in the bin; ``how="last"``: the last one.
+    """
+    out = np.full(n, np.nan)
+    usable = (quality < BAD) & np.isfinite(value)
+    if not usable.all():
+        ts, value = ts[usable], value[usable]
+    if len(ts) == 0:
+        return out
+    b = (ts - t0) // period
+    keep = (b >= 0) & (b < n)
+    if not keep.all():
+        b, value = b[keep], value[keep]
+    if how == "mean":
+        s = np.bincount(b, weights=value, minlength=n)
+        c = np.bincount(b, minlength=n)
+        has = c > 0
+        out[has] = s[has] / c[has]
+    elif how == "last":
+        # times are sorted, so bins are non-decreasing: the last sample of each bin is where
+        # the next bin starts
+        ends = np.flatnonzero(np.r_[b[1:] != b[:-1], True])
+        out[b[ends]] = value[ends]
+    else:
+        raise ValueError(f"how must be 'mean' or 'last', not {how!r}")
+    return out
+
+
+def _runs(mask: np.ndarray):
+    """Start and end (exclusive) indices of the runs of True in a boolean array."""
+    if not mask.any():
+        return np.empty(0, np.int64), np.empty(0, np.int64)
+    d = np.diff(np.r_[0, mask.astype(np.int8), 0])
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+
+
+def summarize(
+    ts,
+    value,
+    quality,
+    start: int,
+    end: int,
+    period: int,
+    *,
+    lo: float | None = None,
+    hi: float | None = None,
+    gap: int | None = None,
+    flat: int | None = None,
+    aligned: np.ndarray | None = None,
+) -> dict:
+    """Data-quality summary of one tag's raw samples over [start, end).
+
+    - ``coverage``: fraction of grid periods holding a usable value.
+    - ``gaps`` / ``gap_s``: stretches without any sample longer than ``gap`` µs (default
+      1.5 × the larger of the period and the median sampling interval), the window edges
+      included; ``stale``: the tag stopped reporting before the end (a trailing gap).
+    - ``flat`` / ``flat_s``: runs of an unchanged good value lasting at least ``flat`` µs
+      (default 30 min): a frozen transmitter or a stale value repeated by the gateway.
+    - ``out_of_range``: good/uncertain values outside the tag's nominal range [lo, hi].
+    """
+    n_samples = len(ts)
+    bad = int(np.count_nonzero(quality >= BAD))
+    unc = int(np.count_nonzero(quality == UNCERTAIN))
+    usable = (quality < BAD) & np.isfinite(value)
+    dt_med = int(np.median(np.diff(ts))) if n_samples > 2 else period
+    gap_us = int(gap) if gap is not None else int(1.5 * max(period, dt_med))
+    flat_us = int(flat) if flat is not None else 30 * 60 * US
+    # gaps, edges included
+    edges = np.r_[start, ts, end] if n_samples else np.array([start, end])
+    d = np.diff(edges)
+    # a sample exactly at `start` means no leading gap; one period after the last sample is
+    # still "on time"
+    big = d > gap_us
+    gaps = int(np.count_nonzero(big))
+    gap_s = float(d[big].sum()) / US
+    stale = bool(n_samples == 0 or (end - ts[-1]) > gap_us)
+    # flat-lined stretches among usable values
+    flat_n, flat_s = 0, 0.0
+    if np.count_nonzero(usable) > 1:
+        t_u, v_u = ts[usable], value[usable]
+        same = v_u[1:] == v_u[:-1]
+        s_idx, e_idx = _runs(same)
+        if len(s_idx):
+            dur = t_u[e_idx] - t_u[s_idx]
+            long = dur >= flat_us
+            flat_n = int(np.count_nonzero(long))
+            flat_s = float(dur[long].sum()) / US
+    oor = 0
+    if lo is not None or hi is not None:
+        v_u = value[usable]
+        m = np.zeros(len(v_u), bool)
+        if lo is not None and np.isfinite(lo):
+            m |= v_u < lo
+        if hi is not None and np.isfinite(hi):
+            m |= v_u > hi
+        oor = int(np.count_nonzero(m))
+    if aligned is not None and len(aligned):
+        coverage = float(np.count_nonzero(np.isfinite(aligned))) / len(aligned)
+    else:
+        n_bins = max(1, -(-(end - start) // period))
+        filled = np.unique((ts[usable] - start) // period) if n_samples else []
+        coverage = min(1.0, len(filled) / n_bins)
+    return {
+        "samples": n_samples,
+        "good": int(n_samples - bad - unc),
+        "uncertain": unc,
+        "bad": bad,
+        "coverage": coverage,
+        "gaps": gaps,
+        "gap_s": gap_s,
+        "stale": stale,
+        "flat": flat_n,
+        "flat_s": flat_s,
+        "out_of_range": oor,
+        "first": from_us(ts[0]) if n_samples else pd.NaT,
+        "last": from_us(ts[-1]) if n_samples else pd.NaT,
+    }
+
+
+def summary_frame(rows: dict[str, dict]) -> pd.DataFrame:
+    frame = pd.DataFrame.from_dict(rows, orient="index", columns=SUMMARY_COLUMNS)
+    frame.index.name = "tag"
+    return frame
