@@ -8,6 +8,7 @@ Both classes move plain numpy arrays: ``tag_id`` (int), ``ts`` (int64 µs UTC), 
 from __future__ import annotations
 
 import struct
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -44,15 +45,18 @@ class SqliteBulk:
     def __init__(self, path: Path, busy_timeout_ms: int = 60_000):
         self.path = Path(path)
         self.busy_timeout_ms = busy_timeout_ms
-        self._conn = None
+        self._local = threading.local()  # one connection per thread (parallel tag reads)
+        self._all: list = []
+        self._lock = threading.Lock()
 
     @property
     def conn(self):
-        if self._conn is None:
+        conn = getattr(self._local, "conn", None)
+        if conn is None:
             import adbc_driver_sqlite.dbapi as adbc
 
-            self._conn = adbc.connect(str(self.path), autocommit=True)
-            cur = self._conn.cursor()
+            conn = adbc.connect(str(self.path), autocommit=True)
+            cur = conn.cursor()
             for pragma in (
                 f"PRAGMA busy_timeout={int(self.busy_timeout_ms)}",
                 "PRAGMA journal_mode=WAL",
@@ -63,12 +67,17 @@ class SqliteBulk:
                 cur.execute(pragma)
                 cur.fetchall()
             cur.close()
-        return self._conn
+            self._local.conn = conn
+            with self._lock:
+                self._all.append(conn)
+        return conn
 
     def close(self) -> None:
-        if self._conn is not None:
-            self._conn.close()
-            self._conn = None
+        with self._lock:
+            conns, self._all = self._all, []
+        for conn in conns:
+            conn.close()
+        self._local = threading.local()
 
     def insert(self, tag_id, ts, value, quality, policy: str = "ignore") -> int:
         """Insert one batch in one transaction; returns rows inserted (or updated)."""

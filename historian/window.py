@@ -45,7 +45,11 @@ def align(ts, value, quality, t0: int, period: int, n: int, how: str = "mean") -
     keep = (b >= 0) & (b < n)
     if not keep.all():
         b, value = b[keep], value[keep]
-    if how == "mean":
+    if how not in ("mean", "last"):
+        raise ValueError(f"how must be 'mean' or 'last', not {how!r}")
+    if len(b) < 2 or np.all(b[1:] != b[:-1]):  # at most one sample per bin: mean == last
+        out[b] = value
+    elif how == "mean":
         s = np.bincount(b, weights=value, minlength=n)
         c = np.bincount(b, minlength=n)
         has = c > 0
@@ -55,8 +59,6 @@ def align(ts, value, quality, t0: int, period: int, n: int, how: str = "mean") -
         # the next bin starts
         ends = np.flatnonzero(np.r_[b[1:] != b[:-1], True])
         out[b[ends]] = value[ends]
-    else:
-        raise ValueError(f"how must be 'mean' or 'last', not {how!r}")
     return out
 
 
