@@ -1,0 +1,166 @@
+"""``diag import`` and ``diag tags``."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+PROGRESS_MIN_BYTES = 5_000_000
+
+
+def add_commands(subparsers) -> None:
+    p = subparsers.add_parser(
+        "import",
+        help="import a wide CSV or Parquet file (time column + one column per tag)",
+        description="Import samples: a time column (ts/time/timestamp/datetime, else the "
+        "first) plus one column per tag. Bad rows are reported as file:line and skipped; "
+        "re-importing the same file adds nothing.",
+    )
+    p.add_argument("file", help="CSV or Parquet file")
+    p.add_argument("--time-column", help="name of the time column")
+    p.add_argument("--tz", default="UTC", help="time zone of naive times (default UTC)")
+    p.add_argument("--tags", dest="tags_csv", help="tags CSV: name, unit, lo, hi, description")
+    p.add_argument("--strict", action="store_true", help="refuse the file if any row is bad")
+    p.add_argument(
+        "--update", action="store_true", help="overwrite stored samples at the same times"
+    )
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_import)
+
+    t = subparsers.add_parser(
+        "tags", help="list tags with ranges, coverage and data quality", description=None
+    )
+    t.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    t.add_argument("--start", help="summarise from this time (default: each tag's first)")
+    t.add_argument("--end", help="summarise up to this time (default: each tag's last)")
+    t.set_defaults(func=cmd_tags)
+
+
+def _user_error(msg: str):
+    from diag_plugin.cli import UserError
+
+    return UserError(msg)
+
+
+def _open(args):
+    from .store import Historian
+
+    try:
+        return Historian.open(args.db)
+    except ValueError as exc:
+        raise _user_error(str(exc)) from None
+
+
+def cmd_import(args) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from .importer import ImportRefused, import_file
+
+    path = Path(args.file)
+    if not path.is_file():
+        raise _user_error(f"{path}: no such file")
+    err = Console(stderr=True)
+    show = not args.no_progress and path.stat().st_size >= PROGRESS_MIN_BYTES
+    columns = [TextColumn(f"importing {path.name}"), BarColumn(), TimeRemainingColumn()]
+    if path.suffix.lower() not in (".parquet", ".pq"):
+        columns.insert(2, DownloadColumn())
+    with _open(args) as h, Progress(*columns, console=err, disable=not show) as bar:
+        task = bar.add_task("import", total=None)
+
+        def progress(done, total):
+            bar.update(task, completed=done, total=total)
+
+        try:
+            report = import_file(
+                h,
+                path,
+                time_column=args.time_column,
+                tz=args.tz,
+                tags_csv=args.tags_csv,
+                strict=args.strict,
+                policy="update" if args.update else "ignore",
+                progress=progress,
+            )
+        except ImportRefused as exc:
+            for msg in exc.messages[:20]:
+                print(msg, file=sys.stderr)
+            more = exc.n_bad - min(20, len(exc.messages))
+            if more > 0:
+                print(f"... and {more} more", file=sys.stderr)
+            msg = f"{path}: {exc.n_bad} bad row(s); nothing imported (--strict)"
+            raise _user_error(msg) from None
+        except (ValueError, FileNotFoundError) as exc:
+            raise _user_error(str(exc)) from None
+    for msg in report.bad[:20]:
+        print(msg, file=sys.stderr)
+    if report.n_bad > 20:
+        print(f"... and {report.n_bad - 20} more", file=sys.stderr)
+    span = f"{report.first} .. {report.last}" if report.first is not None else "no data"
+    print(
+        f"{path}: {report.rows} rows, {len(report.tags)} tags, {span}; "
+        f"{report.written} new samples, {report.samples - report.written} already stored"
+        + (f"; {report.n_bad} bad rows skipped" if report.n_bad else "")
+    )
+    return 0
+
+
+def _jsonable(v):
+    if v is None:
+        return None
+    if hasattr(v, "isoformat"):
+        return None if str(v) == "NaT" else v.isoformat()
+    if isinstance(v, float) and math.isnan(v):
+        return None
+    if hasattr(v, "item"):
+        return _jsonable(v.item())
+    return v
+
+
+def cmd_tags(args) -> int:
+    with _open(args) as h:
+        report = h.tag_report(args.start, args.end)
+    if args.json:
+        rows = [{k: _jsonable(v) for k, v in r.items()} for r in report.to_dict("records")]
+        print(json.dumps(rows, indent=2))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"tags in {args.db}")
+    for col in ("tag", "unit", "range", "samples", "first", "last", "interval", "coverage"):
+        table.add_column(col, justify="right" if col in ("samples", "coverage") else "left")
+    for col in ("bad", "gaps", "flat", "out of range"):
+        table.add_column(col, justify="right")
+    for r in report.to_dict("records"):
+        lo, hi = _jsonable(r["lo"]), _jsonable(r["hi"])
+        rng = "" if lo is None and hi is None else f"{_fmt(lo)} .. {_fmt(hi)}"
+        table.add_row(
+            r["tag"],
+            r["unit"] or "",
+            rng,
+            f"{r['samples']:,}",
+            _when(r["first"]),
+            _when(r["last"]),
+            "" if _jsonable(r["interval_s"]) is None else f"{r['interval_s']:g} s",
+            f"{100 * r['coverage']:.1f} %",
+            f"{r['bad']:,}",
+            f"{r['gaps']} ({r['gap_s'] / 3600:.1f} h)" if r["gaps"] else "0",
+            f"{r['flat']} ({r['flat_s'] / 3600:.1f} h)" if r["flat"] else "0",
+            f"{r['out_of_range']:,}",
+        )
+    console = Console()
+    if not console.is_terminal:
+        console = Console(width=160)
+    console.print(table)
+    return 0
+
+
+def _fmt(x):
+    return "" if x is None else f"{x:g}"
+
+
+def _when(t):
+    return "" if _jsonable(t) is None else t.strftime("%Y-%m-%d %H:%M:%S")
