@@ -30,19 +30,19 @@ _S_P1, _S_P2, _S_T, _S_SP, _S_FNOISE, _S_P1EV, _S_P2EV, _S_PHASE = range(8)
 class ProcessParams:
     """Process conditions (all pressures absolute)."""
 
-    p1_mean_kpa: float = 3400.0  # valve inlet pressure (feed pump delivery)
+    p1_mean_kpa: float = 3300.0  # valve inlet pressure (feed pump delivery)
     p1_daily_kpa: float = 70.0  # amplitude of the daily cycle
-    p1_ou_sd_kpa: float = 110.0  # slow random wandering, standard deviation
+    p1_ou_sd_kpa: float = 150.0  # slow random wandering, standard deviation
     p1_ou_tau_s: float = 3 * 3600.0  # … and its correlation time
-    p1_step_sd_kpa: float = 90.0  # pump switching: size of level steps
+    p1_step_sd_kpa: float = 120.0  # pump switching: size of level steps
     p1_step_rate_per_day: float = 2.0  # … and how often they happen
     p1_fast_sd_kpa: float = 12.0  # pump pulsation
     p1_fast_tau_s: float = 4.0
-    p2_mean_kpa: float = 2450.0  # valve outlet pressure (boiler drum)
+    p2_mean_kpa: float = 2350.0  # valve outlet pressure (boiler drum)
     p2_daily_kpa: float = 60.0
-    p2_ou_sd_kpa: float = 120.0
+    p2_ou_sd_kpa: float = 170.0
     p2_ou_tau_s: float = 6 * 3600.0
-    p2_step_sd_kpa: float = 70.0
+    p2_step_sd_kpa: float = 100.0
     p2_step_rate_per_day: float = 1.0
     p2_fast_sd_kpa: float = 8.0
     p2_fast_tau_s: float = 6.0
@@ -87,15 +87,22 @@ class _OU:
 class _Steps:
     """Piecewise-constant level with random steps at Poisson times (1 s grid)."""
 
-    def __init__(self, rng: np.random.Generator, sd: float, rate_per_day: float) -> None:
-        self.rng = rng
+    def __init__(
+        self,
+        rng: np.random.Generator,
+        rng_size: np.random.Generator,
+        sd: float,
+        rate_per_day: float,
+    ) -> None:
+        self.rng = rng  # when the steps happen
+        self.rng_size = rng_size  # how big they are (a separate stream keeps runs prefix-stable)
         self.sd = sd
         self.p = rate_per_day / DAY_S
         self.level = 0.0
 
     def next(self, n: int) -> np.ndarray:
         u = self.rng.random(n)
-        z = self.rng.standard_normal(n)
+        z = self.rng_size.standard_normal(n)
         if self.sd <= 0 or self.p <= 0:
             return np.zeros(n)
         jumps = u < self.p
@@ -158,10 +165,14 @@ class ProcessGenerator:
         self.phase = ph
         self.p1_ou = _OU(rng(_S_P1), pp.p1_ou_sd_kpa, pp.p1_ou_tau_s)
         self.p1_fast = _OU(rng(_S_P1 + 100), pp.p1_fast_sd_kpa, pp.p1_fast_tau_s)
-        self.p1_steps = _Steps(rng(_S_P1EV), pp.p1_step_sd_kpa, pp.p1_step_rate_per_day)
+        self.p1_steps = _Steps(
+            rng(_S_P1EV), rng(_S_P1EV + 100), pp.p1_step_sd_kpa, pp.p1_step_rate_per_day
+        )
         self.p2_ou = _OU(rng(_S_P2), pp.p2_ou_sd_kpa, pp.p2_ou_tau_s)
         self.p2_fast = _OU(rng(_S_P2 + 100), pp.p2_fast_sd_kpa, pp.p2_fast_tau_s)
-        self.p2_steps = _Steps(rng(_S_P2EV), pp.p2_step_sd_kpa, pp.p2_step_rate_per_day)
+        self.p2_steps = _Steps(
+            rng(_S_P2EV), rng(_S_P2EV + 100), pp.p2_step_sd_kpa, pp.p2_step_rate_per_day
+        )
         self.t_ou = _OU(rng(_S_T), pp.t_ou_sd_c, pp.t_ou_tau_s)
         self.sched = _Schedule(rng(_S_SP), pp)
         self.fnoise_rng = rng(_S_FNOISE)

@@ -110,7 +110,7 @@ class ValveParams:
     moving_mass_kg: float = 15.0  # rod, plug and diaphragm plate, kg (weight only)
     unbalanced_area_m2: float = 4e-4  # plug area the pressure drop pushes open, m²
     # --- friction (2003 "Model of friction", Karnopp stick–slip)
-    hysteresis: float = 0.15  # open-loop hysteresis width Db0, fraction of travel
+    hysteresis: float = 0.12  # open-loop hysteresis width Db0, fraction of travel
     stick_ratio: float = 1.3  # static / Coulomb friction force
     rest_speed: float = 0.002  # below this speed (travel/s) the rod sticks again, 1/s
     # --- valve (2003 eqs. 7–9)
