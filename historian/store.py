@@ -24,7 +24,7 @@ from . import coldstore, schema
 from .backends import PostgresBulk, SqliteBulk
 from .quality import GOOD
 from .times import from_us, index_us, period_us, to_us, us_index
-from .window import align, summarize, summary_frame
+from .window import align, summarize, summary_attrs, summary_frame
 
 DEFAULT_BATCH_ROWS = 500_000
 #: parallel per-tag reads in window()
@@ -286,8 +286,10 @@ class Historian:
         Each row is labelled by the left edge of its period and holds the mean (``how="mean"``)
         or the last (``how="last"``) usable sample in it; bad-quality samples count as missing,
         so a period without a usable sample is NaN. Index: tz-aware UTC, named ``ts``; one
-        float column per tag. ``frame.attrs["quality"]`` is the per-tag data-quality summary
-        (see :func:`historian.window.summarize`; ``gap``/``flat`` as Timedelta-likes).
+        float column per tag. ``frame.attrs["quality"]`` holds the per-tag data-quality
+        summary as ``{tag: {field: value}}`` (fields in :func:`historian.window.summarize`;
+        ``historian.quality_table(frame)`` gives it as a DataFrame); ``gap``/``flat`` are
+        Timedelta-likes overriding the defaults.
         """
         tags = list(tags)
         s, e, t0, p = self._grid(tags, start, end, period)
@@ -319,7 +321,7 @@ class Historian:
             summary[name] = summ
         index = us_index(t0 + p * np.arange(n, dtype=np.int64))
         frame = pd.DataFrame(cols, index=index, columns=tags)
-        frame.attrs["quality"] = summary_frame(summary)
+        frame.attrs["quality"] = summary_attrs(summary)
         return frame
 
     def iter_windows(

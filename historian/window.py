@@ -157,3 +157,29 @@ def summary_frame(rows: dict[str, dict]) -> pd.DataFrame:
     frame = pd.DataFrame.from_dict(rows, orient="index", columns=SUMMARY_COLUMNS)
     frame.index.name = "tag"
     return frame
+
+
+def _plain(v):
+    if v is None or v is pd.NaT:
+        return None
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+def summary_attrs(rows: dict[str, dict]) -> dict[str, dict]:
+    """The summary as plain dicts (what ``frame.attrs["quality"]`` holds: safe for
+    ``pd.concat`` and cheap for pandas to copy)."""
+    return {tag: {k: _plain(row[k]) for k in SUMMARY_COLUMNS} for tag, row in rows.items()}
+
+
+def quality_table(frame: pd.DataFrame) -> pd.DataFrame:
+    """Per-tag data-quality summary of a window as a DataFrame (index ``tag``, columns
+    :data:`SUMMARY_COLUMNS`)."""
+    rows = frame.attrs.get("quality")
+    if rows is None:
+        raise ValueError("this frame carries no quality summary (not from Historian.window?)")
+    table = summary_frame(rows)
+    for col in ("first", "last"):
+        table[col] = pd.to_datetime(table[col], utc=True)
+    return table

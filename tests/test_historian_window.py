@@ -1,0 +1,110 @@
+"""Aligned windows, chunked iteration, quality summary and the Parquet cold store."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from historian import BAD, UNCERTAIN, quality_table
+
+T0 = pd.Timestamp("2024-01-01", tz="UTC")
+
+
+def test_window_mean_and_last(historian):
+    idx = T0 + pd.to_timedelta(np.arange(12) * 10, unit="s")
+    historian.write_samples(pd.DataFrame({"A": np.arange(12.0)}, index=idx))
+    w = historian.window(["A"], T0, T0 + pd.Timedelta("2min"), period="1min")
+    assert w.index.name == "ts" and str(w.index.tz) == "UTC"
+    assert w.index.tolist() == [T0, T0 + pd.Timedelta("1min")]
+    assert w["A"].tolist() == [2.5, 8.5]
+    w = historian.window(["A"], T0, T0 + pd.Timedelta("2min"), period="1min", how="last")
+    assert w["A"].tolist() == [5.0, 11.0]
+
+
+def test_bad_quality_is_nan_and_uncertain_kept(historian):
+    idx = T0 + pd.to_timedelta(np.arange(6) * 10, unit="s")
+    q = pd.DataFrame({"A": [0, 0, BAD, BAD, UNCERTAIN, 0]}, index=idx)
+    historian.write_samples(pd.DataFrame({"A": np.arange(6.0)}, index=idx), quality=q)
+    w = historian.window(["A"], T0, T0 + pd.Timedelta("60s"), period="20s")
+    assert w["A"].iloc[0] == 0.5
+    assert np.isnan(w["A"].iloc[1])  # only bad samples in that period
+    assert w["A"].iloc[2] == 4.5
+    last = historian.window(["A"], T0, T0 + pd.Timedelta("60s"), period="20s", how="last")
+    assert np.isnan(last["A"].iloc[1])
+    summary = quality_table(w).loc["A"]
+    assert (summary["bad"], summary["uncertain"], summary["good"]) == (2, 1, 3)
+    assert summary["coverage"] == 2 / 3
+
+
+def test_unaligned_start_and_missing_tag_data(historian):
+    idx = T0 + pd.to_timedelta(np.arange(30) * 10, unit="s")
+    historian.write_samples(pd.DataFrame({"A": np.ones(30), "B": np.ones(30)}, index=idx))
+    historian.ensure_tag("EMPTY")
+    w = historian.window(["A", "EMPTY"], T0 + pd.Timedelta("25s"), T0 + pd.Timedelta("100s"), 10)
+    assert w.index[0] == T0 + pd.Timedelta("20s")  # grid anchored on the epoch
+    assert list(w.columns) == ["A", "EMPTY"]
+    assert w["EMPTY"].isna().all()
+    assert w.attrs["quality"]["EMPTY"]["stale"] is True
+    assert w.attrs["quality"]["EMPTY"]["first"] is None
+
+
+def test_quality_summary_gaps_flat_out_of_range(historian):
+    historian.ensure_tag("F", lo=0, hi=100)
+    n = 720  # 2 h at 10 s
+    v = np.sin(np.arange(n) / 10.0) * 10 + 50
+    v[100:400] = 42.0  # 50 min flat-lined
+    v[500:505] = 150.0  # 5 out of range
+    idx = T0 + pd.to_timedelta(np.arange(n) * 10, unit="s")
+    keep = np.ones(n, bool)
+    keep[600:660] = False  # a 10-min gap
+    historian.write_samples(pd.DataFrame({"F": v[keep]}, index=idx[keep]))
+    w = historian.window(["F"], T0, T0 + pd.Timedelta("2h"), period="10s")
+    s = quality_table(w).loc["F"]
+    assert s["first"] == T0
+    assert s["gaps"] == 1
+    assert s["gap_s"] == 610.0
+    assert s["flat"] == 1 and s["flat_s"] == 299 * 10
+    assert s["out_of_range"] == 5
+    assert not s["stale"]
+    assert s["coverage"] == (n - 60) / n
+
+
+def test_iter_windows_concat_equals_window(historian):
+    rng = np.random.default_rng(3)
+    n = 5000
+    ts = T0 + pd.to_timedelta(np.sort(rng.choice(n * 7, n, replace=False)), unit="s")
+    frame = pd.DataFrame({"A": rng.normal(size=n), "B": rng.normal(size=n)}, index=ts)
+    historian.write_samples(frame)
+    start, end = T0 + pd.Timedelta("13s"), T0 + pd.Timedelta(seconds=n * 7)
+    for how in ("mean", "last"):
+        whole = historian.window(["A", "B"], start, end, "30s", how)
+        parts = list(historian.iter_windows(["A", "B"], start, end, "30s", how, chunk="1h"))
+        assert len(parts) > 5
+        pd.testing.assert_frame_equal(pd.concat(parts), whole, check_freq=False)
+
+
+def test_roll_months_to_parquet_reads_the_same(historian, tmp_path):
+    idx = pd.date_range("2024-01-30", "2024-03-02", freq="1h", inclusive="left", tz="UTC")
+    frame = pd.DataFrame({"A": np.arange(len(idx), dtype=float), "B": 1.0}, index=idx)
+    q = pd.DataFrame({"A": 0, "B": 0}, index=idx)
+    q.iloc[5, 0] = BAD
+    historian.write_samples(frame, quality=q)
+    before = historian.read_samples("A", with_quality=True)
+    w_before = historian.window(["A", "B"], idx[0], idx[-1], "1h")
+    rolled = historian.roll_months(before="2024-03-01")
+    assert rolled == ["2024-01", "2024-02"]
+    assert historian.cold_months() == ["2024-01", "2024-02"]
+    assert list((tmp_path / "cold").glob("*.parquet"))
+    after = historian.read_samples("A", with_quality=True)
+    pd.testing.assert_frame_equal(after, before)
+    pd.testing.assert_frame_equal(historian.window(["A", "B"], idx[0], idx[-1], "1h"), w_before)
+    assert historian.time_range(["A"]) == (idx[0], idx[-1])
+    # idempotent writes still hold for rolled months, and a late sample is merged
+    assert historian.write_samples(frame) >= 0
+    late = pd.Series([7.0], index=[pd.Timestamp("2024-02-10 00:30", tz="UTC")], name="A")
+    historian.write_samples(late)
+    got = historian.read_samples("A", "2024-01-30", "2024-03-01")
+    assert got.index.is_unique and len(got) == len(before) - 24 + 1
+    assert historian.roll_months(before="2024-03-01") == ["2024-01", "2024-02"]
+    pd.testing.assert_series_equal(historian.read_samples("A", "2024-01-30", "2024-03-01"), got)
+    assert historian.integrity_check() == []
