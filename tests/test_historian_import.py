@@ -1,0 +1,109 @@
+"""diag import / diag tags: bad rows with file:line, --strict, idempotent re-import."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from diag_plugin.cli import main
+from historian import Historian
+from historian.importer import ImportRefused, import_file, pick_time_column
+
+CSV = """ts,U17,F17
+2024-01-01 00:00:00,1.5,10
+2024-01-01 00:00:10,oops,11
+
+nonsense,3,12
+2024-01-01 00:00:30,,13
+2024-01-01 00:00:40,5,14
+"""
+
+
+def test_time_column_choice():
+    assert pick_time_column(["a", "Timestamp", "b"]) == "Timestamp"
+    assert pick_time_column(["when", "b"]) == "when"
+    assert pick_time_column(["a", "b"], "b") == "b"
+    with pytest.raises(ValueError):
+        pick_time_column(["a"], "zz")
+
+
+def test_bad_rows_reported_and_skipped(historian, tmp_path):
+    f = tmp_path / "data.csv"
+    f.write_text(CSV)
+    r = import_file(historian, f)
+    assert r.bad == [
+        f"{f}:3: non-numeric value 'oops' in column 'U17'",
+        f"{f}:5: unparseable time 'nonsense'",
+    ]
+    assert r.rows == 5 and r.written == 5
+    assert historian.read_samples("F17").tolist() == [10.0, 13.0, 14.0]
+    assert historian.read_samples("U17").tolist() == [1.5, 5.0]
+    again = import_file(historian, f)  # idempotent
+    assert again.written == 0 and again.samples == 5
+
+
+def test_strict_refuses_and_leaves_db_untouched(historian, tmp_path):
+    good = tmp_path / "good.csv"
+    good.write_text("time,U17\n2023-12-31 23:59:50,7\n")
+    import_file(historian, good)
+    before = historian.read_samples("U17")
+    f = tmp_path / "data.csv"
+    f.write_text(CSV)
+    with pytest.raises(ImportRefused) as exc:
+        import_file(historian, f, strict=True)
+    assert exc.value.n_bad == 2
+    pd.testing.assert_series_equal(historian.read_samples("U17"), before)
+    assert "F17" not in set(historian.tags()["name"])
+
+
+def test_tz_and_tags_csv(historian, tmp_path):
+    f = tmp_path / "local.csv"
+    f.write_text("Datetime,X\n2024-07-01 12:00,1\n2024-07-01 12:00:10,2\n")
+    tags = tmp_path / "tags.csv"
+    tags.write_text("name,unit,lo,hi,description\nX,kPa,0,600,inlet pressure P1\n")
+    r = import_file(historian, f, tz="Europe/Warsaw", tags_csv=tags)
+    s = historian.read_samples("X")
+    assert r.n_bad == 0
+    assert s.index[0] == pd.Timestamp("2024-07-01 10:00", tz="UTC")  # CEST = UTC+2
+    assert s.index[1] == pd.Timestamp("2024-07-01 10:00:10", tz="UTC")
+    g = tmp_path / "offsets.csv"
+    g.write_text("ts,Y\n2024-07-01T12:00:00+02:00,1\n")
+    import_file(historian, g, tz="America/New_York")  # explicit offsets win over --tz
+    assert historian.read_samples("Y").index[0] == pd.Timestamp("2024-07-01 10:00", tz="UTC")
+    t = historian.tags().set_index("name").loc["X"]
+    assert (t["unit"], t["lo"], t["hi"]) == ("kPa", 0.0, 600.0)
+
+
+def test_parquet_import(historian, tmp_path):
+    idx = pd.date_range("2024-01-01", periods=50, freq="10s", tz="UTC")
+    df = pd.DataFrame({"time": idx, "A": np.arange(50.0), "B": ["1"] * 49 + ["x"]})
+    f = tmp_path / "d.parquet"
+    df.to_parquet(f)
+    r = import_file(historian, f)
+    assert r.bad == [f"{f}:50: non-numeric value 'x' in column 'B'"]
+    assert len(historian.read_samples("A")) == 49
+    assert import_file(historian, f).written == 0
+
+
+def test_cli_import_and_tags(tmp_path, capsys):
+    db = f"sqlite:///{tmp_path / 'cli.db'}"
+    f = tmp_path / "data.csv"
+    f.write_text(CSV)
+    assert main(["--db", db, "import", str(f), "--strict"]) == 2
+    err = capsys.readouterr().err
+    assert f"{f}:3: non-numeric value 'oops'" in err and "nothing imported" in err
+    assert main(["--db", db, "import", str(f)]) == 0
+    out, err = capsys.readouterr()
+    assert "5 new samples" in out and f"{f}:5: unparseable time" in err
+    assert main(["--db", db, "import", str(f)]) == 0
+    assert "0 new samples, 5 already stored" in capsys.readouterr().out
+    assert main(["--db", db, "tags", "--json"]) == 0
+    rows = {r["tag"]: r for r in json.loads(capsys.readouterr().out)}
+    assert rows["F17"]["samples"] == 3 and rows["U17"]["samples"] == 2
+    assert main(["--db", db, "tags"]) == 0
+    assert "F17" in capsys.readouterr().out
+    with Historian(db) as h:
+        assert h.integrity_check() == []
