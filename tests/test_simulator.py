@@ -365,3 +365,28 @@ def test_cli_rejects_bad_input(tmp_path, capsys):
         main(["simulate", "--days", "1", "--out", str(tmp_path / "x.csv"), "--period", "0.33"]) == 2
     )
     assert not (tmp_path / "x.csv").exists()
+
+
+# ---------------------------------------------------------------- real data (plausibility)
+
+REAL = "/work/shared/data/damadics/OneHourTestData_ExampleII.mat"
+
+
+def test_lag_and_ranges_match_the_real_actuator():
+    """The Lublin hour: X follows CV about 1 s later; P1, P2, T1, F inside our spans."""
+    import os
+
+    if not os.path.exists(REAL):
+        pytest.skip(f"real DAMADICS data not present ({REAL})")
+    from scipy.io import loadmat
+
+    m = loadmat(REAL)["OneHourTestData_ExampleII"]
+    real = pd.DataFrame({"CV": m[5], "X": m[6]})
+    assert _best_lag(real, 6) == 1
+    # the simulated CV is far smoother than the real one (6 %/s jitter), so compare
+    # without transducer noise, which would otherwise hide the 1 s lag
+    sim = simulate_valve(0.1, period_s=1, seed=0, params=QUIET)
+    assert _best_lag(sim, 6) == 1
+    for row, tag in ((1, "P1"), (2, "P2"), (3, "T1"), (4, "F")):
+        lo, hi = TAGS[tag]["range"]
+        assert lo <= m[row].min() and m[row].max() <= hi, tag

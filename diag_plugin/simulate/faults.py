@@ -10,6 +10,32 @@ Table 28: *abrupt* — the full strength from the onset; *incipient* — the
 strength rises linearly from 0 at the onset to its full value after ``ramp_s``
 (DABLib Table 29 presets: 1 day "low", 1 hour "medium", 15 min "high" speed).
 
+Where each fault enters (fs = signed strength; X = relative opening; DAMADICS
+writes X as relative *closing*, converted with 1 - X where it matters):
+
+====  =========  ==============================================================
+f1    Table 4    upper travel bound H = H0 (1 - fs)
+f2    Table 5    H = H0 (1 - 0.2 fs); opening seen by the flow X - 0.2 fs; Kv (1 - 0.2 fs)
+f3    Table 6    H = H0 (1 + 0.1 fs); opening seen by the flow X + 0.1 fs; Kv (1 + 0.1 fs)
+f4    Table 7    open-loop hysteresis Db = max(0, Db0 + fs) → Coulomb friction Db (ks+kd) L / 2
+f5    Table 8    flow reaching the meter F (1 - 0.05 fs)
+f6    Table 9    Kv (1 + 0.1 fs)
+f7    Table 10   fluid temperature T + ΔT0 + ΔT1 fs (Table: 200 + 100 fs) → vapour
+                 pressure, choked flow (Bartyś & de las Heras 2003 eqs. 8–9); T1 shows it
+f8    Table 11   Db (1 + 0.5 fs X), limited to the full travel
+f9    Table 12   chamber leak: outflow conductance 2·10⁻⁶ fs Ps[Pa] × the positioner's
+f10   Table 13   leak as f9 and diaphragm area Ae (1 - fs)
+f11   Table 14   spring constant ks (1 - fs)
+f12   Table 15   E/P transducer current i0 (1 - fs)
+f13   Table 16   positioner displacement sensor X (1 + 1.25 fs), limited to 0..1
+f14   Table 17   E/P output pressure reading P0' (1 + fs), limited to 0..1 (reading only)
+f15   Table 18   backlash of width fs (× nominal travel) in the positioner feedback
+f16   Table 19   supply pressure Pz0 (1 - fs) caps the E/P output
+f17   Table 20   fs < 0: P1 (1 + fs); fs > 0: P2 (1 - fs) (the table's interpretation row)
+f18   Table 21   bypass valve opening fs (closing 1 - fs)
+f19   Table 22   flow reading F' (1 + fs), limited to 0..1; the flow controller uses it
+====  =========  ==============================================================
+
 CLI syntax (``diag simulate --fault …``)::
 
     NAME:STRENGTH[@ONSET][/abrupt | /incipient[=DURATION]]
