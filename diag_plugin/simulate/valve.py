@@ -52,9 +52,11 @@ __all__ = [
     "simulate_valve",
 ]
 
-#: metadata of the output tags: unit, nominal (transducer) range, description
+#: metadata of the output tags: unit, nominal (transducer) range as ``range`` and
+#: ``lo``/``hi``, description. Ranges: DABLib Table 2 (P1, P2 0–4 MPa, T1 0–200 °C,
+#: X 0–100 %, F 0–40 t/h) and Table 23 (chamber and supply pressure 0–0.6 MPa).
 TAGS: dict[str, dict] = {
-    tag: {"unit": unit, "range": (lo, hi), "description": text}
+    tag: {"unit": unit, "range": (lo, hi), "lo": lo, "hi": hi, "description": text}
     for tag, unit, lo, hi, text in (
         ("CV", "%", 0.0, 100.0, "controller output to the positioner"),
         ("P1", "kPa", 0.0, 4000.0, "valve inlet pressure (absolute)"),
