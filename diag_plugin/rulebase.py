@@ -96,12 +96,14 @@ class Rule:
 
 
 def default_label(spec: str) -> str:
-    """Set-label prefix for a spec: the tag letters, e.g. ``CV``, ``dirCV``."""
+    """Set-label prefix for a spec: the tag letters, e.g. ``CV``, ``dirCV``, ``P1_``.
+
+    Labels only need to be unique within a variable (the position in ``if``
+    says which input a label belongs to), so lags are not part of them.
+    """
     s = InputSpec.parse(spec)
     base = s.fn + "".join(s.tags) if s.fn else s.tags[0]
     base = re.sub(r"[^A-Za-z0-9]", "", base) or "X"
-    if s.lag:
-        base += f"L{s.lag}"
     return base + "_" if base[-1].isdigit() else base
 
 

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from diag_plugin.cli import UserError
@@ -60,16 +61,17 @@ def cmd_show(args: argparse.Namespace) -> int:
     con = Console()
     n_live = sum(not math.isnan(r.then) for r in rb.rules)
     con.print(
-        f"[bold]{rb.name}[/]: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)}), "
-        f"method {rb.method}, {len(rb.rules)} rules ({n_live} live), "
+        f"[bold]{escape(rb.name)}[/]: "
+        + escape(f"{rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)}), ")
+        + f"method {rb.method}, {len(rb.rules)} rules ({n_live} live), "
         f"locked {sum(r.lock for r in rb.rules)}"
     )
     if rb.description:
-        con.print(rb.description)
+        con.print(rb.description, markup=False)
     unit = f" [{rb.output.unit}]" if rb.output.unit else ""
     if len(rb.inputs) == 1:
         v = rb.inputs[0]
-        t = Table(title=f"{rb.output.spec}{unit} per set of {v.spec}")
+        t = Table(title=escape(f"{rb.output.spec}{unit} per set of {v.spec}"))
         for col in ("set", "centre", "then", "n", "sd", "lock"):
             t.add_column(col, justify="right")
         by = {r.premise[0]: r for r in rb.rules}
@@ -86,7 +88,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     elif len(rb.inputs) == 2:
         a, b = rb.inputs
         title = f"{rb.output.spec}{unit}: rows {a.spec}, columns {b.spec}"
-        t = Table(title=title + " (· = no rule, * = locked)")
+        t = Table(title=escape(title + " (· = no rule, * = locked)"))
         t.add_column("", justify="right", style="bold")
         cols = sorted({r.premise[1] for r in rb.rules}) or [0]
         cols = list(range(min(cols), max(cols) + 1))
@@ -103,7 +105,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     else:
         t = Table(title=f"{len(rb.rules)} rules ({len(rb.inputs)} inputs)")
         for v in rb.inputs:
-            t.add_column(v.spec)
+            t.add_column(escape(v.spec))
         for col in ("then", "n", "sd", "lock"):
             t.add_column(col, justify="right")
         for r in rb.rules:

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pandas as pd
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 from sqlalchemy.engine import make_url
@@ -254,14 +255,14 @@ def cmd_experiments(args) -> int:
     if not len(df):
         print(f"no experiments recorded for {name}: run diag train {name}")
         return 0
-    t = Table(title=f"experiments of {name}")
+    t = Table(title=escape(f"experiments of {name}"))
     for c in ("version", "created", "inputs", "held-out RMSE %", "MAE %", "coverage"):
         t.add_column(c)
     for rec in df.to_dict("records"):
         t.add_row(
             str(rec.get("version")),
             str(rec.get("created_at"))[:19],
-            ", ".join(rec.get("inputs") or []),
+            escape(", ".join(rec.get("inputs") or [])),
             _fmt(rec.get("rmse_pct"), ".2f"),
             _fmt(rec.get("mae_pct"), ".2f"),
             _fmt(rec.get("coverage"), ".1%"),

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pandas as pd
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from diag_plugin.cli import UserError
@@ -171,10 +172,11 @@ def cmd_compare(args) -> int:
     con = Console()
     m = c.metrics
     con.print(
-        f"[bold]{rb.name}[/] {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)}) on "
+        f"{rb.name}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)}) on "
         f"{len(c.y):,} samples {c.index[0]:%Y-%m-%d} … {c.index[-1]:%Y-%m-%d}"
         if len(c.y)
-        else f"{rb.name}: no samples"
+        else f"{rb.name}: no samples",
+        markup=False,
     )
     con.print(
         f"RMSE {m['rmse_pct']:.2f} %  MAE {m['mae_pct']:.2f} %  bias {m['bias_pct']:+.2f} %  "
@@ -183,7 +185,7 @@ def cmd_compare(args) -> int:
     d = c.as_dict()
     t = Table(title="worst operating regions (rule cells)")
     for col in [v.spec for v in rb.inputs] + ["count", "mean %", "RMSE %"]:
-        t.add_column(col, justify="right")
+        t.add_column(escape(col), justify="right")
     for r in d["worst_regions"]:
         t.add_row(
             *[str(r[v.spec]) for v in rb.inputs],
@@ -223,7 +225,7 @@ def cmd_explain(args) -> int:
         return 0
     con = Console()
     con.print(
-        f"[bold]{rb.name}[/]: held-out error {e.baseline_rmse_pct:.2f} % of span "
+        f"[bold]{escape(rb.name)}[/]: held-out error {e.baseline_rmse_pct:.2f} % of span "
         f"(validation from {e.validation_from:%Y-%m-%d %H:%M})"
     )
     t = Table(title="candidate missing effects, best first")
@@ -234,7 +236,7 @@ def cmd_explain(args) -> int:
     for i, c in enumerate(e.candidates, 1):
         effect = c.effect + "".join(f"\n  ⚠ {n}" for n in c.notes)
         err = "n/a" if not math.isfinite(c.rmse_pct_if_added) else f"{c.rmse_pct_if_added:.2f}"
-        t.add_row(str(i), effect, err, c.command)
+        t.add_row(str(i), escape(effect), err, escape(c.command))
     con.print(t)
     return 0
 

@@ -250,7 +250,8 @@ def explain(
             Candidate(
                 input=str(spec),
                 kind=kind,
-                effect=_wording(kind, spec, replaces, base_rmse, rmse, tag_info),
+                effect=_wording(kind, spec, replaces, base_rmse, rmse, tag_info)
+                + (f" (on the {cov:.0%} of samples it covers)" if cov < 0.95 * base_cov else ""),
                 rmse_pct_if_added=rmse,
                 coverage=cov,
                 command=cmd,
