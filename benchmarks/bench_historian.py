@@ -70,25 +70,32 @@ def main(argv=None) -> int:
                 written += h.write_samples(frame)
                 busy += time.perf_counter() - t
             rate = written / busy
-            print(f"ingest: {written:,} samples in {busy:.1f} s = {rate:,.0f} samples/s "
-                  f"(target {TARGET_INGEST:,})")
+            print(
+                f"ingest: {written:,} samples in {busy:.1f} s = {rate:,.0f} samples/s "
+                f"(target {TARGET_INGEST:,})"
+            )
             ok &= rate >= TARGET_INGEST
             m0, m1 = months[1] if len(months) > 1 else months[0], None
             m1 = m0 + pd.offsets.MonthBegin(1)
             dt, s = timed(lambda: h.read_samples(tags[0], m0, m1))
-            print(f"read one tag-month (SQLite): {len(s):,} rows in {dt:.3f} s "
-                  f"(target {TARGET_TAG_MONTH})")
+            print(
+                f"read one tag-month (SQLite): {len(s):,} rows in {dt:.3f} s "
+                f"(target {TARGET_TAG_MONTH})"
+            )
             ok &= dt < TARGET_TAG_MONTH
             start, end = months[0], months[-1] + pd.offsets.MonthBegin(1)
             three = tags[:3]
             dt, w = timed(lambda: h.window(three, start, end, "10s"), repeat=2)
-            print(f"window 3 tags × {args.months} months (SQLite): {w.shape[0]:,} rows "
-                  f"in {dt:.3f} s (target {TARGET_WINDOW3})")
+            print(
+                f"window 3 tags × {args.months} months (SQLite): {w.shape[0]:,} rows "
+                f"in {dt:.3f} s (target {TARGET_WINDOW3})"
+            )
             ok &= dt < TARGET_WINDOW3
             t = time.perf_counter()
             n = sum(len(c) for c in h.iter_windows(three, start, end, "10s", chunk="30D"))
-            print(f"iter_windows 3 tags, 30-day chunks: {n:,} rows in "
-                  f"{time.perf_counter() - t:.3f} s")
+            print(
+                f"iter_windows 3 tags, 30-day chunks: {n:,} rows in {time.perf_counter() - t:.3f} s"
+            )
             t = time.perf_counter()
             rolled = h.roll_months(before=end)
             print(f"roll {len(rolled)} months to Parquet: {time.perf_counter() - t:.1f} s")
