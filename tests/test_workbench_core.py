@@ -117,10 +117,10 @@ def test_model_edits_keep_comments(tmp_path):
     text = rb.path.read_text().replace("[model]", "# owner: JK\n[model]")
     rb.path.write_text(text)
     rb = add_input(RuleBase.load(rb.path), "dir(CV)[k-1]", frame=f, tag_info=INFO)
-    assert rb.inputs[1].span == (-1.0, 1.0) and rb.inputs[1].sets == 2
+    assert rb.inputs[1].spec == "dir(CV,0.5)[k-1]" and rb.inputs[1].span == (-1.0, 1.0)
     rb = add_input(rb, "P1[k]", frame=f, tag_info=INFO)
     assert rb.inputs[2].span == (0.0, 1000.0) and rb.inputs[2].unit == "kPa"
-    rb = remove_input(rb, "dir(CV)[k-1]")
+    rb = remove_input(rb, "dir(CV,0.5)[k-1]")
     assert [v.spec for v in rb.inputs] == ["CV[k-1]", "P1[k]"]
     assert "# owner: JK" in rb.path.read_text()
     with pytest.raises(ValueError, match="already an input"):

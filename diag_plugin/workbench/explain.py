@@ -97,6 +97,22 @@ class _Features:
         return v
 
 
+def dir_threshold(tag: str, spans, frame: pd.DataFrame) -> float:
+    """Move threshold of ``dir(TAG)``: 0.5 % of the tag's span (nominal, else observed).
+
+    Written into the spec (``dir(CV,0.5)``) so training, inference and the
+    live plug-in use the same value.
+    """
+    from diag_plugin.regressors import DIR_THRESHOLD_SHARE
+
+    if tag in spans:
+        lo, hi = spans[tag]
+    else:
+        v = frame[tag].to_numpy(float)
+        lo, hi = np.nanmin(v), np.nanmax(v)
+    return float(f"{DIR_THRESHOLD_SHARE * (hi - lo):.3g}")
+
+
 def _span_and_sets(spec: InputSpec, col: np.ndarray, spans, default_sets: int):
     if spec.fn == "dir":
         return (-1.0, 1.0), 2
@@ -262,13 +278,16 @@ def explain(
 
     numeric = [c for c in frame.columns if np.issubdtype(frame[c].dtype, np.number)]
     # every plant tag that is not in the model, at its best lag
+    tag_rmse: dict[str, float] = {}
     for tag in numeric:
         if tag in model_tags or tag in out_tags:
             continue
         r = best_lag(InputSpec("", (tag,)), range(0, max_lag + 1))
         if r is not None:
             add(InputSpec("", (tag,), r[0]), "tag", r)
-    # differences of tags sharing a unit (pressure drop across the valve)
+            tag_rmse[tag] = r[1]
+    # differences of tags with the same unit (a pressure drop), kept only when the
+    # difference explains more than either tag alone
     units: dict[str, list[str]] = {}
     for t in numeric:
         u = str((tag_info.get(t) or {}).get("unit") or "")
@@ -279,7 +298,8 @@ def explain(
             for b in group[i + 1 :]:
                 spec = InputSpec("diff", (a, b))
                 r = evaluate(spec)
-                if r is not None:
+                alone = min(tag_rmse.get(a, base_rmse), tag_rmse.get(b, base_rmse))
+                if r is not None and math.isfinite(r[0]) and r[0] < alone:
                     add(spec, "difference", (0, *r))
     # dead time / more lags, direction of travel, rate of change of each input
     for k, s in enumerate(in_specs):
@@ -294,7 +314,8 @@ def explain(
         if r is not None:
             add(s.with_lag(r[0]), "dynamics", r)
         for fn, kind in (("dir", "direction"), ("rate", "rate of change")):
-            spec = InputSpec(fn, s.tags, s.lag)
+            th = dir_threshold(s.tags[0], spans, frame) if fn == "dir" else None
+            spec = InputSpec(fn, s.tags, s.lag, th)
             r = evaluate(spec)
             if r is not None:
                 add(spec, kind, (0, *r))

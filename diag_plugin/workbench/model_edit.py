@@ -113,7 +113,24 @@ def add_input(
     replace: str | None = None,
 ) -> RuleBase:
     """Add ``spec`` as an input (or let it replace input ``replace``) and save."""
-    new = str(InputSpec.parse(spec))
+    parsed = InputSpec.parse(spec)
+    if parsed.fn == "dir" and parsed.param is None:  # make the move threshold explicit
+        from diag_plugin.workbench.explain import dir_threshold
+
+        spans = {
+            k: (float(i["lo"]), float(i["hi"]))
+            for k, i in tag_info.items()
+            if i.get("lo") is not None and i.get("hi") is not None
+        }
+        for v in rb.inputs:
+            s = InputSpec.parse(v.spec)
+            if s.fn == "" and s.tags[0] not in spans:
+                spans[s.tags[0]] = v.span
+        if parsed.tags[0] not in spans and frame is None:
+            raise ValueError(f"no span known for {parsed.tags[0]}: give dir() a threshold")
+        th = dir_threshold(parsed.tags[0], spans, frame)
+        parsed = InputSpec("dir", parsed.tags, parsed.lag, th)
+    new = str(parsed)
     specs = [v.spec for v in rb.inputs]
     if new in specs:
         raise ValueError(f"{new} is already an input of {rb.name}")
