@@ -23,6 +23,7 @@ run: $(STAMP)
 	$(BIN)/diag demo
 
 test: $(DEVSTAMP)
+	bash .ci/sysdeps
 	$(BIN)/python -m pytest -q
 
 lint: $(DEVSTAMP)
