@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import re
+import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -115,14 +116,62 @@ class RuleBase:
         self.text = text
         self.problems: list[str] = []
         self._dirty_rules = False
-        try:
-            self.doc = tomlkit.parse(text)
-        except ParseError as exc:
-            raise RuleBaseError([f"{self.path}:{exc.line}: TOML syntax error: {exc}"]) from None
+        self._dirty_head = False
         self._lines = text.splitlines()
+        # The rule list is read with the fast stdlib parser; tomlkit keeps the rest of the
+        # file (comments, order, formatting) with an empty placeholder list in its place.
+        self._list_span = self._find_list(self._lines)
+        self._list_items = None
+        head = text
+        if self._list_span is not None:
+            a, b = self._list_span
+            head_lines = self._lines[:a] + ["list = []"] + self._lines[b + 1 :]
+            head = "\n".join(head_lines) + ("\n" if text.endswith("\n") else "")
+            try:
+                self._list_items = tomllib.loads("\n".join(self._lines[a : b + 1]))["list"]
+            except tomllib.TOMLDecodeError as exc:
+                m = re.search(r"at line (\d+)", str(exc))
+                line = a + int(m.group(1)) if m else a + 1
+                raise RuleBaseError([f"{self.path}:{line}: TOML syntax error: {exc}"]) from None
+        try:
+            self.doc = tomlkit.parse(head)
+        except ParseError as exc:
+            line = exc.line
+            if self._list_span is not None and line > self._list_span[0] + 1:
+                line += self._list_span[1] - self._list_span[0]
+            raise RuleBaseError([f"{self.path}:{line}: TOML syntax error: {exc}"]) from None
         self._read()
         if self.problems:
             raise RuleBaseError(self.problems)
+
+    @staticmethod
+    def _find_list(lines: list[str]) -> tuple[int, int] | None:
+        """First and last line of ``list = [...]`` in the ``[rules]`` table, if any."""
+        in_rules = False
+        for i, line in enumerate(lines):
+            if re.match(r"^\s*\[", line):
+                in_rules = bool(re.match(r"^\s*\[\s*rules\s*\]", line))
+                continue
+            if in_rules and re.match(r"^\s*list\s*=", line):
+                depth = 0
+                for j in range(i, len(lines)):
+                    code = _split_comment(lines[j])[0]
+                    if j == i:
+                        code = code.split("=", 1)[1]
+                    in_str = None
+                    for ch in code:
+                        if in_str:
+                            in_str = None if ch == in_str else in_str
+                        elif ch in "\"'":
+                            in_str = ch
+                        elif ch == "[":
+                            depth += 1
+                        elif ch == "]":
+                            depth -= 1
+                    if depth <= 0 and "[" in code + "".join(lines[i:j]):
+                        return i, j
+                return i, len(lines) - 1
+        return None
 
     # ------------------------------------------------------------------ load
     @classmethod
@@ -289,7 +338,7 @@ class RuleBase:
         if not isinstance(table, Mapping):
             self._err(self._line_of("rules"), "[rules] must be a table")
             return []
-        items = table.get("list")
+        items = self._list_items if self._list_items is not None else table.get("list")
         if items is None:
             self._err(self._line_of("rules"), "[rules] is missing 'list'")
             return []
@@ -439,18 +488,39 @@ class RuleBase:
         for k, v in provenance.items():
             t[k] = v
         self.training = dict(t)
+        self._dirty_head = True
+
+    def clear_rules(self, why: str) -> None:
+        """Drop every rule (the inputs changed); the training section says why."""
+        self.rules = []
+        self._dirty_rules = True
+        self.set_training({"status": why})
+
+    def edited(self) -> None:
+        """Call after changing ``doc`` directly: the next save writes it."""
+        self._dirty_head = True
 
     # ------------------------------------------------------------------ save
     def dumps(self) -> str:
-        """File text: unchanged bytes if nothing changed, else rules rewritten."""
-        text = tomlkit.dumps(self.doc)
-        if not self._dirty_rules:
-            return text
-        lines = text.splitlines(keepends=True)
-        self._lines = [ln.rstrip("\r\n") for ln in lines]
-        start, end, _ = self._rules_extent()
-        body = self.format_rules()
-        return "".join(lines[:start]) + body + "".join(lines[end + 1 :])
+        """File text: unchanged bytes if nothing changed; else the edited parts rewritten."""
+        if not self._dirty_rules and not self._dirty_head:
+            return self.text
+        head = tomlkit.dumps(self.doc)
+        lines = head.splitlines(keepends=True)
+        span = self._find_list([ln.rstrip("\r\n") for ln in lines])
+        if self._dirty_rules:
+            body = self.format_rules()
+        elif self._list_span is not None:
+            a, b = self._list_span
+            body = "".join(ln + "\n" for ln in self._lines[a : b + 1])
+        else:
+            return head
+        if span is None:  # no rule list in the file yet
+            if "rules" not in self.doc:
+                return head.rstrip("\n") + "\n\n[rules]\n" + body
+            raise ValueError("[rules] without a list")  # pragma: no cover
+        a, b = span
+        return "".join(lines[:a]) + body + "".join(lines[b + 1 :])
 
     def format_rules(self) -> str:
         dec_y = _decimals(self.output.span)
@@ -476,10 +546,7 @@ class RuleBase:
         tmp = path.with_suffix(path.suffix + ".tmp")
         tmp.write_text(text, encoding="utf-8")
         tmp.replace(path)
-        self.path, self.text = path, text
-        self.doc = tomlkit.parse(text)
-        self._lines = text.splitlines()
-        self._dirty_rules = False
+        self.__init__(text, path)
         return path
 
     # ------------------------------------------------------------ create new

@@ -96,13 +96,6 @@ def new_model(
     return RuleBase.load(path)
 
 
-def _clear_rules(doc, why: str) -> None:
-    rules = doc["rules"]
-    rules["list"] = tomlkit.array()
-    if "training" in doc:
-        doc["training"]["status"] = why
-
-
 def add_input(
     rb: RuleBase,
     spec: str,
@@ -153,11 +146,11 @@ def add_input(
         i = specs.index(old)
         doc["inputs"][i]["spec"] = var.spec
         doc["inputs"][i]["label"] = var.label
-        _clear_rules(doc, f"input {old} replaced by {new}: rules cleared, run diag train")
+        rb.clear_rules(f"input {old} replaced by {new}: rules cleared, run diag train")
     else:
         doc["inputs"].append(table)
-        _clear_rules(doc, f"input {new} added: rules cleared, run diag train")
-    return _save(rb, doc)
+        rb.clear_rules(f"input {new} added: rules cleared, run diag train")
+    return _save(rb)
 
 
 def remove_input(rb: RuleBase, spec: str) -> RuleBase:
@@ -168,12 +161,12 @@ def remove_input(rb: RuleBase, spec: str) -> RuleBase:
     if len(specs) == 1:
         raise ValueError(f"{old} is the only input of {rb.name}; a model needs one")
     del rb.doc["inputs"][specs.index(old)]
-    _clear_rules(rb.doc, f"input {old} removed: rules cleared, run diag train")
-    return _save(rb, rb.doc)
+    rb.clear_rules(f"input {old} removed: rules cleared, run diag train")
+    return _save(rb)
 
 
-def _save(rb: RuleBase, doc) -> RuleBase:
-    text = tomlkit.dumps(doc)
+def _save(rb: RuleBase) -> RuleBase:
+    text = rb.dumps()
     fresh = RuleBase(text, rb.path)  # validates before anything is written
     fresh.save()
     return RuleBase.load(rb.path)
