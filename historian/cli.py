@@ -67,6 +67,11 @@ def cmd_import(args) -> int:
     columns = [TextColumn(f"importing {path.name}"), BarColumn(), TimeRemainingColumn()]
     if path.suffix.lower() not in (".parquet", ".pq"):
         columns.insert(2, DownloadColumn())
+    if args.tags_csv is None:  # tag metadata written beside the data (diag simulate does)
+        side = Path(str(path) + ".tags.csv")
+        if side.exists():
+            args.tags_csv = str(side)
+            print(f"tag metadata from {side}", file=sys.stderr)
     with _open(args) as h, Progress(*columns, console=err, disable=not show) as bar:
         task = bar.add_task("import", total=None)
 

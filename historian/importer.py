@@ -158,7 +158,7 @@ def _parquet_chunks(path: Path, chunk_rows: int, advance) -> Iterator:
     pf = pq.ParquetFile(path)
     base = 0
     for batch in pf.iter_batches(batch_size=chunk_rows):
-        chunk = batch.to_pandas()
+        chunk = batch.to_pandas(ignore_metadata=True)  # a DatetimeIndex stays a column
         start = base
 
         def line_of(i, start=start):

@@ -37,6 +37,20 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_simulate)
 
 
+def write_tags_csv(path: Path, columns) -> None:
+    """Tag metadata beside the data (name, unit, lo, hi, description): ``diag import``
+    picks it up, so the historian knows units and nominal ranges."""
+    from diag_plugin.simulate.valve import TAGS
+
+    rows = ["name,unit,lo,hi,description"]
+    for c in columns:
+        m = TAGS.get(c)
+        if m:
+            desc = str(m.get("description", "")).replace('"', "'")
+            rows.append(f'{c},{m["unit"]},{m["lo"]:g},{m["hi"]:g},"{desc}"')
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     """Run the simulation described by ``args`` and write the file; returns 0."""
     from diag_plugin.cli import UserError
@@ -73,6 +87,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             side.write_text(json.dumps(df.attrs["faults"], indent=1) + "\n")
     else:
         df.to_parquet(out)  # pandas keeps df.attrs (the fault truth) in the file metadata
+    write_tags_csv(out.with_name(out.name + ".tags.csv"), df.columns)
     secs = time.perf_counter() - t0
     print(
         f"wrote {len(df)} samples ({args.days:g} days at {args.period:g} s, "

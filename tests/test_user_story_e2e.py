@@ -1,0 +1,86 @@
+"""The user story end to end, run exactly as a user would: `diag` commands in a fresh folder."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+
+def diag(cwd: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")}
+    p = subprocess.run(
+        [sys.executable, "-m", "diag_plugin", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    if check and p.returncode != 0:
+        raise AssertionError(f"diag {' '.join(args)} failed ({p.returncode}):\n{p.stderr}")
+    return p
+
+
+@pytest.mark.slow
+def test_error_staircase_from_the_command_line(tmp_path):
+    diag(tmp_path, "simulate", "--days", "45", "--seed", "31", "--out", "plant.parquet")
+    diag(tmp_path, "import", "plant.parquet")
+    tags = json.loads(diag(tmp_path, "tags", "--json").stdout)
+    assert {"CV", "P1", "P2", "F"} <= {t["tag"] for t in tags}
+
+    diag(tmp_path, "model", "new", "valve", "--output", "F", "--input", "CV[k-1]")
+    assert (tmp_path / "rulebases" / "valve.toml").exists()
+    first = json.loads(diag(tmp_path, "train", "valve", "--json").stdout)
+    assert set(first["validation"]) >= {"rmse_pct", "mae_pct", "coverage"}
+    assert first["samples"] > 0.9 * 45 * 8640
+
+    cmp_ = json.loads(diag(tmp_path, "compare", "valve", "--json").stdout)
+    assert {"rmse_pct", "coverage", "worst_regions", "worst_periods"} <= set(cmp_)
+
+    ex = json.loads(diag(tmp_path, "explain", "valve", "--json").stdout)
+    assert ex["baseline_rmse_pct"] == pytest.approx(first["validation"]["rmse_pct"], rel=0.02)
+    best = ex["candidates"][0]
+    assert set(best) >= {"input", "kind", "effect", "rmse_pct_if_added", "command"}
+    rates = [c["rmse_pct_if_added"] for c in ex["candidates"] if c["rmse_pct_if_added"] is not None]
+    assert rates[0] == min(rates[: len(rates)]) or ex["candidates"][0]["coverage"] > 0.9
+    # run the suggested command exactly as printed
+    cmd = best["command"]
+    assert cmd.startswith("diag model add-input valve ")
+    subprocess.run(
+        [sys.executable, "-m", "diag_plugin", *_split(cmd)[1:]],
+        cwd=tmp_path,
+        check=True,
+        capture_output=True,
+        timeout=600,
+    )
+    second = json.loads(diag(tmp_path, "train", "valve", "--json").stdout)
+    assert second["validation"]["rmse_pct"] < first["validation"]["rmse_pct"] / 3
+
+    log = json.loads(diag(tmp_path, "experiments", "valve", "--json").stdout)["experiments"]
+    assert [e["version"] for e in log] == ["1", "2"]
+    assert log[0]["inputs"] == ["CV[k-1]"] and log[1]["inputs"] == ["CV[k-1]", best["input"]]
+    assert log[1]["rmse_pct"] < log[0]["rmse_pct"] / 3  # the staircase
+
+    shown = diag(tmp_path, "rules", "show", "valve").stdout
+    assert "CV[k-1]" in shown and best["input"] in shown
+    assert diag(tmp_path, "rules", "check", "rulebases/valve.toml").returncode == 0
+
+
+def _split(cmd: str) -> list[str]:
+    import shlex
+
+    return shlex.split(cmd)
+
+
+def test_bad_input_gets_a_clear_error(tmp_path):
+    p = diag(tmp_path, "train", "nosuchmodel", check=False)
+    assert p.returncode != 0 and "nosuchmodel" in (p.stderr + p.stdout)
+    p = diag(tmp_path, "model", "add-input", "nosuchmodel", "P1[k]", check=False)
+    assert p.returncode == 2 and "does not exist" in p.stderr
+    (tmp_path / "rulebases").mkdir()
+    (tmp_path / "rulebases" / "bad.toml").write_text("[model]\nname = 'bad'\n")
+    p = diag(tmp_path, "rules", "check", "rulebases/bad.toml", check=False)
+    assert p.returncode == 1 and "bad.toml:" in p.stdout and "missing section [output]" in p.stdout
