@@ -7,6 +7,7 @@ import math
 import sys
 from pathlib import Path
 
+from rich import box
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
@@ -87,19 +88,25 @@ def cmd_show(args: argparse.Namespace) -> int:
         con.print(t)
     elif len(rb.inputs) == 2:
         a, b = rb.inputs
-        title = f"{rb.output.spec}{unit}: rows {a.spec}, columns {b.spec}"
-        t = Table(title=escape(title + " (· = no rule, * = locked)"))
+        title = f"{rb.output.spec}{unit}: rows {a.spec}, columns {b.spec} set {b.label}NN"
+        t = Table(
+            title=escape(title + " (· = no rule, * = locked)"),
+            box=box.SIMPLE_HEAD,
+            padding=(0, 0, 0, 1),
+            pad_edge=False,
+        )
         t.add_column("", justify="right", style="bold")
         cols = sorted({r.premise[1] for r in rb.rules}) or [0]
         cols = list(range(min(cols), max(cols) + 1))
         for j in cols:
-            t.add_column(b.set_label(j), justify="right")
+            t.add_column(f"{j:02d}", justify="right")
         by = {r.premise: r for r in rb.rules}
-        for i in range(a.sets):
+        rows = sorted({r.premise[0] for r in rb.rules}) or [0]
+        for i in range(min(rows), max(rows) + 1):
             row = []
             for j in cols:
                 r = by.get((i, j))
-                row.append("·" if r is None else _fmt(r.then) + ("*" if r.lock else ""))
+                row.append("·" if r is None else f"{r.then:.3g}" + ("*" if r.lock else ""))
             t.add_row(a.set_label(i), *row)
         con.print(t)
     else:
