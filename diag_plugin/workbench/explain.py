@@ -293,10 +293,13 @@ def explain(
         u = str((tag_info.get(t) or {}).get("unit") or "")
         if u and t not in out_tags:
             units.setdefault(u, []).append(t)
+    have = {(s.fn, frozenset(s.tags)) for s in in_specs}
     for group in units.values():
         for i, a in enumerate(group):
             for b in group[i + 1 :]:
                 spec = InputSpec("diff", (a, b))
+                if ("diff", frozenset((a, b))) in have:
+                    continue
                 r = evaluate(spec)
                 alone = min(tag_rmse.get(a, base_rmse), tag_rmse.get(b, base_rmse))
                 if r is not None and math.isfinite(r[0]) and r[0] < alone:
@@ -373,7 +376,7 @@ def _wording(kind, spec: InputSpec, replaces, base, rmse, tag_info) -> str:
             what = f"the pressure drop {spec.tags[0]} − {spec.tags[1]}"
     verb = "using" if replaces else "adding"
     tail = f" instead of {replaces}" if replaces else ""
-    if math.isfinite(rmse) and rmse < base:
+    if math.isfinite(rmse) and rmse < 0.97 * base:
         head = KIND_WORDS[kind].format(what=what, tag=tag, old=replaces)
         return (
             f"{head}: {verb} {spec}{tail} would cut the error "
@@ -382,4 +385,9 @@ def _wording(kind, spec: InputSpec, replaces, base, rmse, tag_info) -> str:
     label = KIND_LABELS[kind].format(what=what, tag=tag)
     if not math.isfinite(rmse):
         return f"{label}: {verb} {spec}{tail} could not be scored"
+    if rmse < base:
+        return (
+            f"{label}: {verb} {spec}{tail} would barely change the error "
+            f"({base:.1f} % → {rmse:.1f} %)"
+        )
     return f"{label}: {verb} {spec}{tail} would not cut the error ({base:.1f} % → {rmse:.1f} %)"
