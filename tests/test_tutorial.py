@@ -1,0 +1,61 @@
+"""docs/tutorial.md reproduces: its commands run as written and print its numbers."""
+
+import json
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "tutorial.md"
+
+
+def commands(text: str) -> list[list[str]]:
+    return [shlex.split(m) for m in re.findall(r"^\$ diag (.+)$", text, flags=re.M)]
+
+
+def staircase(text: str) -> list[tuple[str, list[str], float]]:
+    rows = re.findall(r"^\| (\d+) \| ([^|]+) \| ([\d.]+) \|$", text, flags=re.M)
+    return [(v, [s.strip() for s in inputs.split(", ")], float(e)) for v, inputs, e in rows]
+
+
+@pytest.mark.slow
+def test_tutorial_reproduces(tmp_path):
+    text = DOC.read_text()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")}
+    out = {}
+    for args in commands(text):
+        p = subprocess.run(
+            [sys.executable, "-m", "diag_plugin", *args],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        assert p.returncode == 0, (args, p.stderr)
+        out.setdefault(args[0], []).append(p.stdout + p.stderr)
+    assert "valve v1: held-out RMSE 7.72 % of span, MAE 5.68 %" in out["train"][0]
+    assert "777,599 samples, 21 rules" in out["train"][0]
+    log = subprocess.run(
+        [sys.executable, "-m", "diag_plugin", "experiments", "valve", "--json"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    got = json.loads(log.stdout)["experiments"]
+    want = staircase(text)
+    assert len(want) == 2 == len(got)
+    for (v, inputs, err), g in zip(want, got, strict=True):
+        assert (g["version"], g["inputs"]) == (v, inputs)
+        assert round(g["rmse_pct"], 2) == err
+    explained = out["explain"][0]
+    assert (
+        "diff(P1,P2)[k] would cut the error" in explained and "7.7 % to 1.7 % of span" in explained
+    )
+    assert (tmp_path / "valve.html").exists() or "report" not in out
