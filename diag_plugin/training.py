@@ -28,8 +28,6 @@ from diag_plugin.rulebase import RuleBase
 
 #: rows of the previous chunk kept as context for lags and dir() state
 CONTEXT_ROWS = 360
-#: history read before the held-out block when training ran elsewhere
-PRIME = pd.Timedelta(hours=2)
 #: time span read and trained at once
 DEFAULT_CHUNK = pd.Timedelta(days=7)
 #: trains the model on a list of chunk intervals (e.g. on a Dask cluster)
@@ -148,15 +146,28 @@ class Designer:
             raise KeyError(f"tag(s) {', '.join(missing)} needed by the model are not in the data")
         frame = frame[self.tags]
         n_ctx = 0
-        if self._tail is not None and len(self._tail) and len(frame):
-            n_ctx = len(self._tail)
-            frame = pd.concat([self._tail, frame])
+        tail = trim_context(self._tail) if self._tail is not None else None
+        if tail is not None and len(tail) and len(frame):
+            n_ctx = len(tail)
+            frame = pd.concat([tail, frame])
         d = build_design(frame, self.inputs, self.output, spans=self.spans, context=n_ctx)
         self._tail = frame.iloc[-self.context :] if len(frame) else self._tail
         for k, v in d.dropped.items():
             self.dropped[k] = self.dropped.get(k, 0) + v
         self.rows += d.n_rows
         return d.X, d.y, d.index
+
+    def prime(self, history: pd.DataFrame) -> None:
+        """Use the data just before the first chunk as context (lags, dir() state)."""
+        if len(history):
+            self._tail = history[self.tags].iloc[-self.context :]
+
+
+def trim_context(tail: pd.DataFrame) -> pd.DataFrame:
+    """Context without its leading rows where every tag is missing (before the data start)."""
+    has = tail.notna().any(axis=1).to_numpy()
+    first = int(np.argmax(has)) if has.any() else len(tail)
+    return tail.iloc[first:]
 
 
 def train(
@@ -187,6 +198,7 @@ def train(
     done = 0
 
     designer = Designer(rb, spans)
+    period = pd.Timedelta(rb.period)
     if fit_chunks is not None:
         model = fit_chunks(rb, train_iv)
         done += len(train_iv)
@@ -194,6 +206,7 @@ def train(
             progress(done, total)
     else:
         model = rb.new_model()
+        designer.prime(read(start - designer.context * period, start))
         for a, b in train_iv:
             X, y, _ = designer(read(a, b))
             if len(y):
@@ -209,7 +222,7 @@ def train(
     held = rb.new_model()
     vdesigner = Designer(rb, spans)
     if designer._tail is None:  # training ran elsewhere: read the context before the cut
-        designer(read(max(start, cut - PRIME), cut))
+        designer.prime(read(cut - designer.context * period, cut))
         designer.dropped = dict(getattr(model, "dropped_", {}))
         designer.rows = int(getattr(model, "rows_", 0))
     vdesigner._tail = designer._tail

@@ -21,7 +21,7 @@ import pandas as pd
 from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
 from diag_plugin.regressors import build_design, max_lag, needed_tags
 from diag_plugin.rulebase import RuleBase
-from diag_plugin.training import CONTEXT_ROWS
+from diag_plugin.training import CONTEXT_ROWS, trim_context
 
 Reader = Callable[[pd.Timestamp, pd.Timestamp], pd.DataFrame]
 
@@ -37,14 +37,12 @@ def fit_interval(
     rb = RuleBase(rb_text)
     period = pd.Timedelta(rb.period)
     ctx = _context_rows(rb)
-    lo = max(start, a - ctx * period)
-    frame = reader(lo, b)
+    frame = reader(a - ctx * period, b)
     tags = needed_tags([*(v.spec for v in rb.inputs), rb.output.spec])
     frame = frame[tags]
-    n_ctx = int((frame.index < a).sum())
-    if n_ctx > ctx:
-        frame = frame.iloc[n_ctx - ctx :]
-        n_ctx = ctx
+    context = trim_context(frame[frame.index < a].iloc[-ctx:])
+    frame = pd.concat([context, frame[frame.index >= a]])
+    n_ctx = len(context)
     d = build_design(frame, [v.spec for v in rb.inputs], rb.output.spec, context=n_ctx)
     if len(d.y) == 0:
         return {"empty": True, "dropped": d.dropped, "rows": d.n_rows}
