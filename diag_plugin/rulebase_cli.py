@@ -37,7 +37,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 def load(name: str, folder: str) -> RuleBase:
     path = resolve(name, folder)
     if not path.exists():
-        raise UserError(f"no rule base {name!r}: {path} does not exist")
+        raise UserError(f"no model {name!r}: {path} does not exist (diag model new …)")
     try:
         return RuleBase.load(path)
     except RuleBaseError as exc:

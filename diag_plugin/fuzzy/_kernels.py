@@ -28,7 +28,7 @@ QUANT = 65536
 QCLIP = 2 * QUANT
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, inline="always")
 def _cell_of(x, lo, step, n):
     t = math.floor((x - lo) / step + 0.5)
     if t < 0:
@@ -38,36 +38,42 @@ def _cell_of(x, lo, step, n):
     return int(t)
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _row_key(X, r, lo, step, nsets, radix):
+    """Rule-cell key of row ``r`` (max-membership set per input, eq. 3); -1 if a NaN."""
+    key = 0
+    for k in range(X.shape[1]):
+        xv = X[r, k]
+        if math.isnan(xv):
+            return -1
+        key += _cell_of(xv, lo[k], step[k], nsets[k]) * radix[k]
+    return key
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _quantum(yr, ylo, yq):
+    """Output in integer units of ``yq`` above ``ylo``, clipped to one span outside."""
+    q = math.floor((yr - ylo) / yq + 0.5)
+    if q < -QCLIP // 2:
+        q = -QCLIP // 2
+    elif q > QCLIP // 2 + QUANT:
+        q = QCLIP // 2 + QUANT
+    return np.int64(q)
+
+
 @nb.njit(cache=True, nogil=True)
 def accumulate_dense(X, y, lo, step, nsets, radix, ylo, yq, count, ysum, ysq):
     """Averaged Wang–Mendel accumulation into dense per-cell arrays (eq. 5).
 
     Returns the number of rows skipped because of NaN.
     """
-    n, d = X.shape
     skipped = 0
-    for r in range(n):
-        yr = y[r]
-        if math.isnan(yr):
+    for r in range(X.shape[0]):
+        key = -1 if math.isnan(y[r]) else _row_key(X, r, lo, step, nsets, radix)
+        if key < 0:
             skipped += 1
             continue
-        key = 0
-        bad = False
-        for k in range(d):
-            xv = X[r, k]
-            if math.isnan(xv):
-                bad = True
-                break
-            key += _cell_of(xv, lo[k], step[k], nsets[k]) * radix[k]
-        if bad:
-            skipped += 1
-            continue
-        q = math.floor((yr - ylo) / yq + 0.5)
-        if q < -QCLIP // 2:
-            q = -QCLIP // 2
-        elif q > QCLIP // 2 + QUANT:
-            q = QCLIP // 2 + QUANT
-        qi = np.int64(q)
+        qi = _quantum(y[r], ylo, yq)
         count[key] += 1
         ysum[key] += qi
         ysq[key] += qi * qi
@@ -77,30 +83,10 @@ def accumulate_dense(X, y, lo, step, nsets, radix, ylo, yq, count, ysum, ysq):
 @nb.njit(cache=True, nogil=True)
 def keys_and_quanta(X, y, lo, step, nsets, radix, ylo, yq, keys, qy):
     """Rule-cell key and quantised output per row (sparse path); NaN rows get key -1."""
-    n, d = X.shape
-    for r in range(n):
-        yr = y[r]
-        key = 0
-        bad = math.isnan(yr)
-        for k in range(d):
-            if bad:
-                break
-            xv = X[r, k]
-            if math.isnan(xv):
-                bad = True
-                break
-            key += _cell_of(xv, lo[k], step[k], nsets[k]) * radix[k]
-        if bad:
-            keys[r] = -1
-            qy[r] = 0
-            continue
-        q = math.floor((yr - ylo) / yq + 0.5)
-        if q < -QCLIP // 2:
-            q = -QCLIP // 2
-        elif q > QCLIP // 2 + QUANT:
-            q = QCLIP // 2 + QUANT
-        keys[r] = np.int64(key)
-        qy[r] = np.int64(q)
+    for r in range(X.shape[0]):
+        key = -1 if math.isnan(y[r]) else _row_key(X, r, lo, step, nsets, radix)
+        keys[r] = key
+        qy[r] = 0 if key < 0 else _quantum(y[r], ylo, yq)
 
 
 @nb.njit(cache=True, nogil=True)

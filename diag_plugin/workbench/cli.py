@@ -15,7 +15,7 @@ from rich.table import Table
 
 from diag_plugin.cli import UserError
 from diag_plugin.regressors import needed_tags
-from diag_plugin.rulebase import RuleBase, RuleBaseError, resolve
+from diag_plugin.rulebase import RuleBase
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -64,13 +64,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def _load(args) -> RuleBase:
-    path = resolve(args.name, args.rulebases)
-    if not path.exists():
-        raise UserError(f"no model {args.name!r}: {path} does not exist (diag model new …)")
-    try:
-        return RuleBase.load(path)
-    except RuleBaseError as exc:
-        raise UserError(f"{path} has problems:\n" + "\n".join(exc.problems)) from None
+    from diag_plugin.rulebase_cli import load
+
+    return load(args.name, args.rulebases)
 
 
 def _data(args, tags: list[str] | None, period: str):
