@@ -76,7 +76,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+    except Exception as exc:
+        if type(exc).__module__.startswith(("sqlalchemy", "psycopg", "adbc")):
+            # an unreachable or broken database: say which, without a traceback
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            print(f"diag: database error ({_safe(args.db)}): {first}", file=sys.stderr)
+            return 3
+        raise
     return int(rc or 0)
+
+
+def _safe(url: str) -> str:
+    try:
+        from sqlalchemy.engine import make_url
+
+        return make_url(url).render_as_string(hide_password=True)
+    except Exception:  # noqa: BLE001 - not a URL: show nothing of it
+        return "the --db URL"
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -84,3 +84,12 @@ def test_bad_input_gets_a_clear_error(tmp_path):
     (tmp_path / "rulebases" / "bad.toml").write_text("[model]\nname = 'bad'\n")
     p = diag(tmp_path, "rules", "check", "rulebases/bad.toml", check=False)
     assert p.returncode == 1 and "bad.toml:" in p.stdout and "missing section [output]" in p.stdout
+
+
+def test_unreachable_database_is_a_clear_error(tmp_path):
+    rules = Path(__file__).resolve().parents[1] / "rulebases"
+    url = "postgresql://postgres:secret@127.0.0.1:1/nope"  # nothing listens on port 1
+    p = diag(tmp_path, "--db", url, "--rulebases", str(rules), "compare", "valve_b", check=False)
+    assert p.returncode == 3
+    assert "database error (postgresql://postgres:***@127.0.0.1:1/nope)" in p.stderr
+    assert "secret" not in p.stderr and "Traceback" not in p.stderr
