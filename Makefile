@@ -4,6 +4,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEVSTAMP := $(VENV)/.installed-dev
+PEERS := .venv-peers
+PEERSTAMP := $(PEERS)/.installed
 
 .PHONY: run test lint bench clean
 
@@ -19,10 +21,16 @@ $(DEVSTAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP) $@
 
+# test-only peers in their own venv (pyfuzzylite pins numpy<2), from pyproject's `peers` extra
+$(PEERSTAMP): pyproject.toml
+	$(PY) -m venv $(PEERS)
+	$(PEERS)/bin/python -m pip install --quiet $$($(PY) -c "import tomllib; print(*tomllib.load(open('pyproject.toml', 'rb'))['project']['optional-dependencies']['peers'])")
+	touch $@
+
 run: $(STAMP)
 	$(BIN)/diag demo
 
-test: $(DEVSTAMP)
+test: $(DEVSTAMP) $(PEERSTAMP)
 	bash .ci/sysdeps
 	$(BIN)/python -m pytest -q
 
@@ -33,4 +41,4 @@ bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) .pytest_cache
+	rm -rf $(VENV) $(PEERS) .pytest_cache

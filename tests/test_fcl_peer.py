@@ -17,6 +17,7 @@ import math
 import re
 import shutil
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -118,13 +119,34 @@ def _run_fuzzylite(tmp_path, rb: RuleBase, X: np.ndarray) -> np.ndarray:
     return table[:, -1]
 
 
-def _run_pyfuzzylite(fll: str, X: np.ndarray, rules: bool = True) -> np.ndarray:
-    fl = pytest.importorskip("fuzzylite", reason="pyfuzzylite (a test dependency) is missing")
-    engine = fl.FllImporter().from_string(fll)
-    assert engine.is_ready() or not rules  # an output without terms is "not ready"
-    engine.input_values = X  # 2-D: one column per input variable, evaluated at once
-    engine.process()
-    return np.asarray(engine.output_values)[:, 0]
+PEER_PYTHON = Path(__file__).resolve().parents[1] / ".venv-peers" / "bin" / "python"
+PYFUZZYLITE = r"""
+import sys, numpy as np, fuzzylite as fl
+engine = fl.FllImporter().from_string(open(sys.argv[1]).read())
+ready = engine.is_ready()  # an output without terms is "not ready" but still evaluates
+engine.input_values = np.loadtxt(sys.argv[2], ndmin=2)  # one column per input, all at once
+engine.process()
+np.savetxt(sys.argv[3], np.asarray(engine.output_values)[:, 0], fmt="%.17g")
+print("ready" if ready else "not ready")
+"""
+
+
+def _run_pyfuzzylite(fll: str, X: np.ndarray, tmp_path: Path, rules: bool = True) -> np.ndarray:
+    """pyfuzzylite in its own venv (it pins numpy<2; ours is numpy 2): FLL in, outputs out."""
+    if not PEER_PYTHON.exists():
+        pytest.skip("pyfuzzylite peer venv .venv-peers is missing: `make test` creates it")
+    (tmp_path / "model.fll").write_text(fll, encoding="utf-8")
+    np.savetxt(tmp_path / "in.txt", X, fmt="%.17g")
+    res = subprocess.run(
+        [str(PEER_PYTHON), "-c", PYFUZZYLITE, "model.fll", "in.txt", "out.txt"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "ready" or not rules
+    return np.loadtxt(tmp_path / "out.txt", ndmin=1)
 
 
 CASES = [(2, "trapezoidal"), (2, "triangular"), (1, "trapezoidal")]
@@ -145,9 +167,9 @@ def test_fuzzylite_cli_reads_fcl_and_agrees(tmp_path, n_inputs, shape):
 def test_pyfuzzylite_reads_fll_and_agrees(tmp_path, n_inputs, shape):
     rb = _rulebase(tmp_path, n_inputs, shape)
     X = _points(rb)
-    _compare(rb, X, _run_pyfuzzylite(to_fll(rb), X), min_finite=900)
+    _compare(rb, X, _run_pyfuzzylite(to_fll(rb), X, tmp_path), min_finite=900)
     Xo = _points(rb, seed=2, n=300, outside=0.3)
-    _compare(rb, Xo, _run_pyfuzzylite(to_fll(rb), Xo), min_finite=250, mixed=False)
+    _compare(rb, Xo, _run_pyfuzzylite(to_fll(rb), Xo, tmp_path), min_finite=250, mixed=False)
 
 
 def test_fcl_text_structure(tmp_path):
@@ -223,5 +245,5 @@ def test_untrained_rule_base_and_labels_that_are_no_identifiers(tmp_path):
     if FUZZYLITE is not None:  # no rule fires anywhere: no value
         y = _run_fuzzylite(tmp_path, rb, np.array([[-2.0], [0.3], [1.0]]))
         assert np.isnan(y).all()
-    y = _run_pyfuzzylite(to_fll(rb), np.array([[-2.0], [0.3], [1.0]]), rules=False)
+    y = _run_pyfuzzylite(to_fll(rb), np.array([[-2.0], [0.3], [1.0]]), tmp_path, rules=False)
     assert np.isnan(y).all()
