@@ -38,8 +38,20 @@ def test_tutorial_reproduces(tmp_path):
         )
         assert p.returncode == 0, (args, p.stderr)
         out.setdefault(args[0], []).append(p.stdout + p.stderr)
-    assert "valve v1: held-out RMSE 7.72 % of span, MAE 5.68 %" in out["train"][0]
-    assert "777,599 samples, 21 rules" in out["train"][0]
+    stated = re.search(
+        r"valve v1: held-out RMSE ([\d.]+) % of span, MAE ([\d.]+) %.*; "
+        r"([\d,]+) samples, (\d+) rules",
+        text,
+    )
+    printed = re.search(
+        r"valve v1: held-out RMSE ([\d.]+) % of span, MAE ([\d.]+) %.*; "
+        r"([\d,]+) samples, (\d+) rules",
+        out["train"][0],
+    )
+    assert printed, out["train"][0]
+    for a, b in zip(stated.groups()[:2], printed.groups()[:2], strict=True):
+        assert float(b) == pytest.approx(float(a), abs=0.05)
+    assert printed.groups()[2:] == stated.groups()[2:]
     log = subprocess.run(
         [sys.executable, "-m", "diag_plugin", "experiments", "valve", "--json"],
         cwd=tmp_path,
@@ -53,7 +65,7 @@ def test_tutorial_reproduces(tmp_path):
     assert len(want) == 2 == len(got)
     for (v, inputs, err), g in zip(want, got, strict=True):
         assert (g["version"], g["inputs"]) == (v, inputs)
-        assert round(g["rmse_pct"], 2) == err
+        assert g["rmse_pct"] == pytest.approx(err, abs=0.05)
     explained = out["explain"][0]
     assert (
         "diff(P1,P2)[k] would cut the error" in explained and "7.7 % to 1.7 % of span" in explained
