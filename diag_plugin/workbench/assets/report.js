@@ -1,0 +1,582 @@
+/* diag report page: charts from the embedded data (see diag_plugin/workbench/report.py). */
+(function () {
+  "use strict";
+
+  // ---- errors are shown on the page and mark it, so a headless test can read them
+  const errors = [];
+  const errBox = document.getElementById("errors");
+  function report(msg) {
+    errors.push(String(msg));
+    if (errBox) {
+      errBox.hidden = false;
+      errBox.textContent = "Errors while drawing this page:\n" + errors.join("\n");
+    }
+    document.body.dataset.rendered = "error";
+  }
+  window.addEventListener("error", (ev) =>
+    report("error: " + ev.message + " (" + ev.filename + ":" + ev.lineno + ")"));
+  window.addEventListener("unhandledrejection", (ev) => report("unhandled rejection: " + ev.reason));
+  // the page must need nothing from outside: anything it tries to load is a bug
+  document.addEventListener("securitypolicyviolation", (ev) =>
+    report("blocked by the page's Content-Security-Policy: " + ev.blockedURI));
+  const consoleError = console.error.bind(console);
+  console.error = function (...args) {
+    report("console.error: " + args.map(String).join(" "));
+    consoleError(...args);
+  };
+  function guard(name, fn) {
+    try {
+      fn();
+    } catch (err) {
+      report(name + ": " + (err && err.stack ? err.stack : err));
+    }
+  }
+
+  const D = JSON.parse(document.getElementById("report-data").textContent);
+  const UTC = (ts) => uPlot.tzDate(new Date(ts * 1e3), "Etc/UTC");
+  const charts = [];
+
+  function fmt(v, d) {
+    return v == null || !isFinite(v) ? "—" : Number(v).toFixed(d === undefined ? 3 : d);
+  }
+  function short(v) {
+    if (v == null) return "";
+    const a = Math.abs(v);
+    if (a >= 1000 || a === 0) return String(Math.round(v));
+    return String(+v.toPrecision(3));
+  }
+  function widthOf(el) {
+    return Math.max(320, Math.floor(el.getBoundingClientRect().width) || 1200);
+  }
+  function decode(b64) {
+    const bin = atob(b64);
+    const u8 = new Uint8Array(bin.length);
+    for (let i = 0; i < bin.length; i++) u8[i] = bin.charCodeAt(i);
+    return new Float32Array(u8.buffer);
+  }
+  const nn = (v) => (Number.isNaN(v) ? null : v);
+
+  // ---- measured vs model and the residual trend, two resolution levels
+  function timeCharts() {
+    const elY = document.getElementById("chart-y");
+    const elR = document.getElementById("chart-r");
+    if (!elY || !D.levels.length) return;
+    const L = D.levels.map((l) => ({
+      x0: l.x0, w: l.w, n: l.n, per: l.per_bucket,
+      y: decode(l.y), yhat: decode(l.yhat), r: decode(l.r), rmean: decode(l.rmean),
+    }));
+    const full = [L[0].x0, L[0].x0 + L[0].n * L[0].w];
+    const finest = L[L.length - 1];
+    const minSpan = Math.max(finest.w * 8, 1);
+
+    function pick(span) {
+      for (const l of L) if (span / l.w >= 900) return l;
+      return finest;
+    }
+    function slice(l, a, b) {
+      const i0 = Math.max(0, Math.floor((a - l.x0) / l.w) - 1);
+      const i1 = Math.min(l.n, Math.ceil((b - l.x0) / l.w) + 1);
+      const m = Math.max(0, i1 - i0) * 2;
+      const x = new Float64Array(m);
+      const y = new Array(m), yh = new Array(m), r = new Array(m), rm = new Array(m);
+      for (let i = i0, j = 0; i < i1; i++) {
+        for (let h = 0; h < 2; h++, j++) {
+          // a bucket's two extremes sit at its first and third quarter
+          x[j] = l.x0 + (i + (h ? 0.75 : 0.25)) * l.w;
+          const k = 2 * i + h;
+          y[j] = nn(l.y[k]);
+          yh[j] = nn(l.yhat[k]);
+          r[j] = nn(l.r[k]);
+          rm[j] = nn(l.rmean[i]);
+        }
+      }
+      return { x, y, yh, r, rm };
+    }
+    const unit = D.output.unit ? " [" + D.output.unit + "]" : "";
+    const cursor = () => ({
+      sync: { key: "time", setSeries: true },
+      drag: { x: true, y: false, setScale: false },
+      bind: {
+        dblclick: () => () => {
+          zoomTo(full[0], full[1]);
+          return null;
+        },
+      },
+    });
+    const zoomHook = {
+      setSelect: [
+        (u) => {
+          if (u.select.width > 3) {
+            const a = u.posToVal(u.select.left, "x");
+            const b = u.posToVal(u.select.left + u.select.width, "x");
+            u.setSelect({ left: 0, top: 0, width: 0, height: 0 }, false);
+            zoomTo(a, b);
+          }
+        },
+      ],
+    };
+    const common = (el, height, draw) => ({
+      width: widthOf(el),
+      height,
+      tzDate: UTC,
+      cursor: cursor(),
+      scales: { x: { time: true } },
+      hooks: Object.assign({}, zoomHook, draw ? { draw: [draw] } : {}),
+    });
+    const zeroLine = (u) => {
+      const y = u.valToPos(0, "y", true);
+      if (y < u.bbox.top || y > u.bbox.top + u.bbox.height) return;
+      const ctx = u.ctx;
+      ctx.save();
+      ctx.strokeStyle = "#555";
+      ctx.setLineDash([4, 4]);
+      ctx.lineWidth = 1;
+      ctx.beginPath();
+      ctx.moveTo(u.bbox.left, y);
+      ctx.lineTo(u.bbox.left + u.bbox.width, y);
+      ctx.stroke();
+      ctx.restore();
+    };
+    const s0 = slice(L[0], full[0], full[1]);
+    const cy = new uPlot(
+      Object.assign(common(elY, 330), {
+        series: [
+          { label: "time (UTC)" },
+          { label: "measured " + D.output.spec + unit, stroke: "#1f5fa8", width: 1,
+            value: (u, v) => fmt(v) },
+          { label: "model", stroke: "#e07b00", width: 1, value: (u, v) => fmt(v) },
+        ],
+        axes: [{}, { label: D.output.spec + unit, size: 60 }],
+      }),
+      [s0.x, s0.y, s0.yh],
+      elY,
+    );
+    const cr = new uPlot(
+      Object.assign(common(elR, 230, zeroLine), {
+        series: [
+          { label: "time (UTC)" },
+          { label: "residual, min/max per bucket [% of span]", stroke: "rgba(198,40,40,0.6)",
+            width: 1, value: (u, v) => fmt(v) },
+          { label: "bucket mean", stroke: "#4a148c", width: 1.5, value: (u, v) => fmt(v) },
+        ],
+        axes: [{}, { label: "% of span", size: 60 }],
+      }),
+      [s0.x, s0.r, s0.rm],
+      elR,
+    );
+    charts.push(cy, cr);
+    const resEl = document.getElementById("resolution");
+
+    function zoomTo(a, b) {
+      a = Math.max(a, full[0]);
+      b = Math.min(b, full[1]);
+      if (!(b > a)) return;
+      if (b - a < minSpan) {
+        const c = (a + b) / 2;
+        a = Math.max(full[0], c - minSpan / 2);
+        b = Math.min(full[1], c + minSpan / 2);
+      }
+      const l = pick(b - a);
+      const s = slice(l, a, b);
+      cy.batch(() => {
+        cy.setData([s.x, s.y, s.yh], false);
+        cy.setScale("x", { min: a, max: b });
+      });
+      cr.batch(() => {
+        cr.setData([s.x, s.r, s.rm], false);
+        cr.setScale("x", { min: a, max: b });
+      });
+      const li = L.indexOf(l);
+      try {
+        const iso = (v) => new Date(v * 1e3).toISOString().replace(".000Z", "Z");
+        const whole = a <= full[0] && b >= full[1];
+        history.replaceState(null, "", whole ? location.pathname + location.search :
+          "#zoom=" + iso(a) + "/" + iso(b));
+      } catch (err) {
+        // a page opened from some viewers cannot change its address: zoom still works
+      }
+      if (resEl) {
+        resEl.dataset.level = String(li);
+        resEl.dataset.points = String(s.x.length);
+        const per = l.per <= 1 ? "raw samples" :
+          "min/max of ~" + Math.round(l.per).toLocaleString("en") + " samples per bucket";
+        const buckets = Math.round((b - a) / l.w).toLocaleString("en");
+        resEl.textContent = "Showing " + buckets + " buckets, " + per + ".";
+      }
+    }
+    window.diagZoom = zoomTo;
+    const m = /zoom=([^/&]+)\/([^&]+)/.exec(decodeURIComponent(location.hash));
+    const a0 = m ? Date.parse(m[1]) / 1e3 : NaN, b0 = m ? Date.parse(m[2]) / 1e3 : NaN;
+    if (b0 > a0) zoomTo(a0, b0);
+    else zoomTo(full[0], full[1]);
+    const reset = document.getElementById("zoom-reset");
+    if (reset) reset.addEventListener("click", () => zoomTo(full[0], full[1]));
+    for (const tr of document.querySelectorAll("tr.zoom")) {
+      tr.addEventListener("click", () => {
+        const a = Date.parse(tr.dataset.start) / 1e3, b = Date.parse(tr.dataset.end) / 1e3;
+        const pad = (b - a) * 0.25;
+        zoomTo(a - pad, b + pad);
+        elY.scrollIntoView({ behavior: "smooth", block: "start" });
+      });
+    }
+  }
+
+  // ---- residual histogram
+  function histogram() {
+    const el = document.getElementById("chart-h");
+    const h = D.hist;
+    if (!el || !h.counts.length) return;
+    const x = [];
+    for (let i = 0; i < h.counts.length; i++) x.push((h.edges[i] + h.edges[i + 1]) / 2);
+    const lo = h.edges[0], hi = h.edges[h.edges.length - 1];
+    const u = new uPlot(
+      {
+        width: widthOf(el),
+        height: 260,
+        scales: { x: { time: false, range: () => [lo, hi] }, y: { range: (u, a, b) => [0, b * 1.05] } },
+        cursor: { drag: { x: false, y: false } },
+        series: [
+          { label: "residual [% of span]", value: (u, v) => fmt(v) },
+          { label: "samples", stroke: "#1f5fa8", fill: "rgba(31,95,168,0.35)", width: 1,
+            paths: uPlot.paths.bars({ size: [1, Infinity], gap: 1 }), points: { show: false } },
+          { label: "normal, same mean and sd", stroke: "#e07b00", width: 1.5, dash: [5, 4],
+            points: { show: false }, value: (u, v) => fmt(v, 0) },
+        ],
+        axes: [{ label: "residual [% of span]" }, { label: "samples", size: 70 }],
+      },
+      [x, h.counts, h.normal],
+      el,
+    );
+    charts.push(u);
+  }
+
+  // ---- error over the input space
+  const VIRIDIS = [
+    [68, 1, 84], [72, 40, 120], [62, 74, 137], [49, 104, 142], [38, 130, 142],
+    [31, 158, 137], [53, 183, 121], [110, 206, 88], [181, 222, 43], [253, 231, 37],
+  ];
+  function colour(t) {
+    t = Math.min(1, Math.max(0, t)) * (VIRIDIS.length - 1);
+    const i = Math.min(VIRIDIS.length - 2, Math.floor(t)), f = t - i;
+    const a = VIRIDIS[i], b = VIRIDIS[i + 1];
+    return "rgb(" + [0, 1, 2].map((k) => Math.round(a[k] + f * (b[k] - a[k]))).join(",") + ")";
+  }
+  function hatch(ctx, x, y, w, h, fill) {
+    ctx.save();
+    if (fill) {
+      ctx.fillStyle = fill;
+      ctx.fillRect(x, y, w, h);
+    }
+    ctx.beginPath();
+    ctx.rect(x, y, w, h);
+    ctx.clip();
+    ctx.strokeStyle = "#c62828";
+    ctx.lineWidth = 1;
+    ctx.beginPath();
+    for (let k = -h; k < w; k += 5) {
+      ctx.moveTo(x + k, y + h);
+      ctx.lineTo(x + k + h, y);
+    }
+    ctx.stroke();
+    ctx.restore();
+  }
+
+  function heatmap() {
+    const box = document.getElementById("heatmap");
+    const M = D.map;
+    if (!box || M.dims !== 2) return;
+    const [ax, ay] = M.axes;
+    const canvas = box.querySelector("canvas"), tip = box.querySelector(".tip");
+    // show the sets that hold samples, one set of margin around them
+    let i0 = ax.sets, i1 = -1, j0 = ay.sets, j1 = -1;
+    for (const c of M.cells) {
+      i0 = Math.min(i0, c.i[0]); i1 = Math.max(i1, c.i[0]);
+      j0 = Math.min(j0, c.i[1]); j1 = Math.max(j1, c.i[1]);
+    }
+    if (i1 < 0) return;
+    i0 = Math.max(0, i0 - 1); i1 = Math.min(ax.sets - 1, i1 + 1);
+    j0 = Math.max(0, j0 - 1); j1 = Math.min(ay.sets - 1, j1 + 1);
+    const nx = i1 - i0 + 1, ny = j1 - j0 + 1;
+    const left = 78, bottom = 54, top = 8, right = 12;
+    const avail = Math.min(widthOf(box), 1000) - left - right;
+    const cw = Math.max(6, Math.min(34, Math.floor(avail / nx)));
+    const ch = Math.max(6, Math.min(26, Math.floor(620 / ny)));
+    const W = left + cw * nx + right, H = top + ch * ny + bottom;
+    const dpr = window.devicePixelRatio || 1;
+    canvas.width = W * dpr;
+    canvas.height = H * dpr;
+    canvas.style.width = W + "px";
+    canvas.style.height = H + "px";
+    const ctx = canvas.getContext("2d");
+    ctx.scale(dpr, dpr);
+    const grid = new Map();
+    const vals = [];
+    for (const c of M.cells) {
+      grid.set(c.i[0] + "," + c.i[1], c);
+      if (c.rmse != null && c.count >= 5) vals.push(c.rmse);
+    }
+    vals.sort((a, b) => a - b);
+    const vmax = vals.length ? vals[vals.length - 1] || 1 : 1;
+    const X = (i) => left + (i - i0) * cw, Y = (j) => top + (ny - 1 - (j - j0)) * ch;
+    ctx.fillStyle = "#f5f7fa";
+    ctx.fillRect(left, top, cw * nx, ch * ny);
+    for (const c of M.cells) {
+      const x = X(c.i[0]), y = Y(c.i[1]);
+      if (c.rmse == null) hatch(ctx, x, y, cw, ch, "#fde0e0");
+      else {
+        ctx.fillStyle = colour(c.rmse / vmax);
+        ctx.fillRect(x, y, cw, ch);
+        if (!c.rule) hatch(ctx, x, y, cw, ch, null);
+      }
+    }
+    ctx.strokeStyle = "rgba(255,255,255,0.7)";
+    ctx.lineWidth = 1;
+    ctx.beginPath();
+    for (let i = 0; i <= nx; i++) {
+      ctx.moveTo(left + i * cw + 0.5, top);
+      ctx.lineTo(left + i * cw + 0.5, top + ny * ch);
+    }
+    for (let j = 0; j <= ny; j++) {
+      ctx.moveTo(left, top + j * ch + 0.5);
+      ctx.lineTo(left + nx * cw, top + j * ch + 0.5);
+    }
+    ctx.stroke();
+    ctx.strokeStyle = "#8a96a3";
+    ctx.strokeRect(left + 0.5, top + 0.5, cw * nx, ch * ny);
+    // ticks: centre values, thinned so they do not overlap
+    ctx.fillStyle = "#1d2430";
+    ctx.font = "11px system-ui, sans-serif";
+    ctx.textAlign = "center";
+    const sx = Math.max(1, Math.ceil(34 / cw)), sy = Math.max(1, Math.ceil(16 / ch));
+    for (let i = i0; i <= i1; i += sx) {
+      ctx.fillText(short(ax.centres[i]), X(i) + cw / 2, top + ny * ch + 14);
+    }
+    ctx.textAlign = "right";
+    for (let j = j0; j <= j1; j += sy) ctx.fillText(short(ay.centres[j]), left - 6, Y(j) + ch / 2 + 4);
+    ctx.textAlign = "center";
+    ctx.font = "600 12px system-ui, sans-serif";
+    ctx.fillText(ax.spec + (ax.unit ? " [" + ax.unit + "]" : ""), left + (nx * cw) / 2, H - 10);
+    ctx.save();
+    ctx.translate(16, top + (ny * ch) / 2);
+    ctx.rotate(-Math.PI / 2);
+    ctx.fillText(ay.spec + (ay.unit ? " [" + ay.unit + "]" : ""), 0, 0);
+    ctx.restore();
+    // legend
+    const leg = box.querySelector(".legend");
+    const lc = document.createElement("canvas");
+    lc.width = 220;
+    lc.height = 12;
+    const lx = lc.getContext("2d");
+    for (let i = 0; i < 220; i++) {
+      lx.fillStyle = colour(i / 219);
+      lx.fillRect(i, 0, 1, 12);
+    }
+    const sw = document.createElement("canvas");
+    sw.width = 24;
+    sw.height = 12;
+    const swc = sw.getContext("2d");
+    swc.fillStyle = colour(0.3);
+    swc.fillRect(0, 0, 12, 12);
+    hatch(swc, 0, 0, 12, 12, null);
+    hatch(swc, 12, 0, 12, 12, "#fde0e0");
+    const t0 = document.createElement("span"), t1 = document.createElement("span");
+    const t2 = document.createElement("span");
+    t0.textContent = "RMSE 0 %";
+    t1.textContent = fmt(vmax, 2) + " % and above";
+    t2.textContent = "no rule in the cell (light red: no model value at all)";
+    const t3 = document.createElement("span");
+    t3.textContent = "· sets " + ax.labels[i0] + "–" + ax.labels[i1] + " of " + ax.sets + ", " +
+      ay.labels[j0] + "–" + ay.labels[j1] + " of " + ay.sets + " (the rest hold no samples)";
+    leg.append(t0, lc, t1, sw, t2, t3);
+    canvas.addEventListener("mousemove", (ev) => {
+      const r = canvas.getBoundingClientRect();
+      const px = ev.clientX - r.left, py = ev.clientY - r.top;
+      const i = i0 + Math.floor((px - left) / cw), j = j0 + ny - 1 - Math.floor((py - top) / ch);
+      if (i < i0 || i > i1 || j < j0 || j > j1) {
+        tip.hidden = true;
+        return;
+      }
+      const c = grid.get(i + "," + j);
+      const head = ax.labels[i] + " (" + short(ax.centres[i]) + ") × " +
+        ay.labels[j] + " (" + short(ay.centres[j]) + ")";
+      tip.textContent = c
+        ? head + "\n" + c.count.toLocaleString("en") + " samples\nRMSE " + fmt(c.rmse, 2) +
+          " %, mean " + fmt(c.mean, 2) + " %" + (c.rule ? "" : "\nno rule: unsupported")
+        : head + "\nno samples";
+      tip.hidden = false;
+      tip.style.left = px + 14 + "px";
+      tip.style.top = py + 10 + "px";
+    });
+    canvas.addEventListener("mouseleave", () => (tip.hidden = true));
+  }
+
+  function mapBars() {
+    const el = document.getElementById("chart-map");
+    const M = D.map;
+    if (!el || M.dims !== 1) return;
+    const ax = M.axes[0];
+    const byI = new Map(M.cells.map((c) => [c.i[0], c]));
+    const x = [], rmse = [], mean = [], unsup = [];
+    let first = ax.sets, last = -1;
+    for (let i = 0; i < ax.sets; i++) {
+      const c = byI.get(i);
+      x.push(ax.centres[i]);
+      rmse.push(c && c.rmse != null ? c.rmse : null);
+      mean.push(c && c.mean != null ? c.mean : null);
+      unsup.push(c && !c.rule ? 0 : null);
+      if (c) {
+        first = Math.min(first, i);
+        last = Math.max(last, i);
+      }
+    }
+    if (last < 0) return;
+    first = Math.max(0, first - 1);
+    last = Math.min(ax.sets - 1, last + 1);
+    const step = ax.sets > 1 ? ax.centres[1] - ax.centres[0] : 1;
+    const lo = ax.centres[first] - step / 2, hi = ax.centres[last] + step / 2;
+    const u = new uPlot(
+      {
+        width: widthOf(el),
+        height: 280,
+        scales: { x: { time: false, range: () => [lo, hi] } },
+        cursor: { drag: { x: false, y: false } },
+        series: [
+          { label: ax.spec + (ax.unit ? " [" + ax.unit + "]" : ""), value: (u, v) => fmt(v, 3) },
+          { label: "RMSE [% of span]", stroke: "#1f5fa8", fill: "rgba(31,95,168,0.35)",
+            paths: uPlot.paths.bars({ size: [0.8, 60] }), points: { show: false },
+            value: (u, v) => fmt(v, 2) },
+          { label: "mean [% of span]", stroke: "#4a148c", width: 1.5, value: (u, v) => fmt(v, 2) },
+          { label: "no rule in the set", stroke: "#c62828", width: 0,
+            points: { show: true, size: 10, fill: "#c62828" }, paths: () => null,
+            value: (u, v) => (v == null ? "" : "no rule") },
+        ],
+        axes: [{ label: ax.spec + (ax.unit ? " [" + ax.unit + "]" : "") },
+          { label: "% of span", size: 60 }],
+      },
+      [x, rmse, mean, unsup],
+      el,
+    );
+    charts.push(u);
+  }
+
+  // ---- experiment history: the error falling version by version
+  function experiments() {
+    const el = document.getElementById("chart-x");
+    const rows = D.experiments;
+    if (!el || !rows.length) return;
+    const x = rows.map((r, i) => i + 1);
+    const rmse = rows.map((r) => r.rmse_pct);
+    const mae = rows.map((r) => r.mae_pct);
+    const hasMae = mae.some((v) => v != null);
+    const n = rows.length;
+    const labels = rows.map((r) => {
+      const s = r.inputs.join(", ");
+      return s.length > 44 ? s.slice(0, 43) + "…" : s;
+    });
+    const series = [
+      { label: "version", value: (u, v) => (v == null ? "" : "v" + rows[v - 1].version) },
+      { label: "validation RMSE [% of span]", stroke: "#c62828", width: 2,
+        points: { show: true, size: 8, fill: "#c62828" }, value: (u, v) => fmt(v, 2) },
+    ];
+    const data = [x, rmse];
+    if (hasMae) {
+      series.push({ label: "validation MAE [% of span]", stroke: "#8a96a3", width: 1.5,
+        dash: [5, 4], value: (u, v) => fmt(v, 2) });
+      data.push(mae);
+    }
+    const u = new uPlot(
+      {
+        width: widthOf(el),
+        height: 300,
+        padding: [28, 30, 0, 10],
+        scales: {
+          x: { time: false, range: () => [0.5, n + 0.5] },
+          y: { range: (u, a, b) => [0, (b || 1) * 1.25] },
+        },
+        cursor: { drag: { x: false, y: false } },
+        series,
+        axes: [
+          {
+            label: "version (inputs)",
+            splits: () => x.filter((v, i) => n <= 24 || i % Math.ceil(n / 24) === 0),
+            values: (u, vals) => vals.map((v) => (rows[v - 1] ? "v" + rows[v - 1].version : "")),
+          },
+          { label: "% of span", size: 60 },
+        ],
+        hooks: {
+          draw: [
+            (u) => {
+              const ctx = u.ctx;
+              ctx.save();
+              ctx.fillStyle = "#1d2430";
+              ctx.font = Math.round(11 * uPlot.pxRatio) + "px system-ui, sans-serif";
+              const rot = n > 6;
+              for (let i = 0; i < n; i++) {
+                if (rmse[i] == null) continue;
+                const px = u.valToPos(x[i], "x", true), py = u.valToPos(rmse[i], "y", true);
+                ctx.save();
+                ctx.translate(px, py - 10 * uPlot.pxRatio);
+                if (rot) ctx.rotate(-Math.PI / 9);
+                ctx.textAlign = rot ? "left" : "center";
+                ctx.fillText(labels[i] + "  " + fmt(rmse[i], 2) + " %", 0, 0);
+                ctx.restore();
+              }
+              ctx.restore();
+            },
+          ],
+        },
+      },
+      data,
+      el,
+    );
+    charts.push(u);
+  }
+
+  // ---- copy buttons of the candidate commands
+  function copyButtons() {
+    for (const b of document.querySelectorAll("button.copy")) {
+      b.addEventListener("click", () => {
+        const code = b.parentElement.querySelector("code");
+        const done = () => {
+          b.textContent = "copied";
+          setTimeout(() => (b.textContent = "copy"), 1500);
+        };
+        const select = () => {
+          const range = document.createRange();
+          range.selectNodeContents(code);
+          const sel = window.getSelection();
+          sel.removeAllRanges();
+          sel.addRange(range);
+          b.textContent = "selected: Ctrl+C";
+        };
+        if (navigator.clipboard && navigator.clipboard.writeText) {
+          navigator.clipboard.writeText(code.textContent).then(done, select);
+        } else select();
+      });
+    }
+  }
+
+  guard("time charts", timeCharts);
+  guard("histogram", histogram);
+  guard("heat map", heatmap);
+  guard("error map", mapBars);
+  guard("experiments", experiments);
+  guard("copy buttons", copyButtons);
+
+  let resizing = null;
+  window.addEventListener("resize", () => {
+    clearTimeout(resizing);
+    resizing = setTimeout(() => {
+      for (const u of charts) {
+        const w = widthOf(u.root.parentElement);
+        if (w !== u.width) u.setSize({ width: w, height: u.height });
+      }
+    }, 150);
+  });
+
+  // uPlot commits its drawing in a microtask: mark the page once that has run
+  setTimeout(() => {
+    if (!errors.length) document.body.dataset.rendered = "ok";
+    document.body.dataset.charts = String(charts.length);
+  }, 0);
+})();

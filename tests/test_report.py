@@ -1,0 +1,369 @@
+"""``diag report``: one self-contained page, rendered in headless Chromium.
+
+The page is built from a synthetic valve (flow from controller output and
+upstream pressure, 24 days of 10 s samples) without a database. Chromium
+(Debian package ``chromium``) loads it with the network off; the page's own
+script marks ``<body data-rendered="ok">`` once every chart is drawn and lists
+any script error in ``#errors``; Chromium's console log is checked too.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+import shutil
+import struct
+import subprocess
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from diag_plugin.regressors import build_design
+from diag_plugin.rulebase import RuleBase, Variable
+from diag_plugin.workbench.compare import Comparison, compare, metrics, worst_periods
+from diag_plugin.workbench.explain import explain
+from diag_plugin.workbench.report import (
+    OVERVIEW_BUCKETS,
+    experiment_rows,
+    time_levels,
+    write_report,
+)
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+needs_chromium = pytest.mark.skipif(
+    CHROMIUM is None,
+    reason="headless Chromium not installed (Debian package 'chromium'; .ci/run installs it)",
+)
+SPANS = {"CV": (0.0, 100.0, "%"), "P1": (0.0, 1000.0, "kPa")}
+TAG_INFO = {
+    "CV": {"unit": "%", "lo": 0, "hi": 100, "description": "controller output"},
+    "P1": {"unit": "kPa", "lo": 0, "hi": 1000, "description": "upstream pressure"},
+    "F": {"unit": "t/h", "lo": 0, "hi": 40, "description": "feed-water flow"},
+}
+SPIKE = 37.5  # t/h: one sample of the measured flow, far above everything else
+NAN = float("nan")
+
+
+def valve_frame(days: float, seed: int) -> pd.DataFrame:
+    """Flow through a valve from the controller output (1 sample late) and upstream pressure."""
+    rng = np.random.default_rng(seed)
+    n = int(days * 8640)
+    idx = pd.date_range("2026-01-01", periods=n, freq="10s", tz="UTC", name="ts")
+    cv = np.clip(50 + np.cumsum(rng.normal(0, 1.5, n)) % 100, 0, 100)
+    p1 = 500 + 150 * np.sin(np.arange(n) / 8640 * 2 * np.pi) + rng.normal(0, 5, n)
+    f = np.r_[0, 30 * (cv[:-1] / 100) ** 2 * np.sqrt(p1[1:] / 650)] + rng.normal(0, 0.1, n)
+    frame = pd.DataFrame({"CV": cv, "P1": p1, "F": f}, index=idx)
+    frame.iloc[rng.choice(n, 50, replace=False), 0] = np.nan
+    return frame
+
+
+def _rulebase(path: Path, inputs) -> RuleBase:
+    return RuleBase.new(
+        "valve",
+        Variable("F[k]", "F", "t/h", (0.0, 40.0), 31),
+        [Variable(s, s.split("[")[0], SPANS[s[:2]][2], SPANS[s[:2]][:2], 31) for s in inputs],
+        path=path / "valve.toml",
+        description='Feed-water valve <script>alert("x")</script> & flow',
+    )
+
+
+def _story(path: Path, days: float, inputs):
+    """A trained model (rules only below 600 kPa, so some cells are unsupported)."""
+    f = valve_frame(days, seed=3)
+    rb = _rulebase(path, inputs)
+    d = build_design(f, [v.spec for v in rb.inputs], rb.output.spec)
+    keep = d.X[:, -1] < 600 if "P1[k]" in inputs else d.X[:, 0] < 90
+    rb.apply_training(rb.new_model().fit(d.X[keep], d.y[keep]))
+    f.iloc[len(f) // 3, f.columns.get_loc("F")] = SPIKE
+    return rb, f
+
+
+def _experiments() -> pd.DataFrame:
+    # the historian's shape: metrics as dicts or JSON text, inputs as lists or JSON text
+    return pd.DataFrame(
+        {
+            "version": ["1", "2", "3"],
+            "created_at": pd.to_datetime(
+                ["2026-02-03 09:00", "2026-02-01 09:00", "2026-02-02 09:00"], utc=True
+            ),
+            "inputs": ['["CV[k-1]", "P1[k]"]', ["CV[k]"], ["CV[k-1]"]],
+            "metrics": [
+                {"rmse_pct": 0.52, "mae_pct": 0.41, "coverage": 0.81},
+                '{"rmse_pct": 7.9, "mae_pct": 6.1, "coverage": 1.0}',
+                {"rmse_pct": 6.02, "mae_pct": 5.0, "coverage": NAN},
+            ],
+        }
+    )
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    """The user-story page: two inputs, ≥ 200k samples, explanation and history."""
+    tmp = tmp_path_factory.mktemp("report")
+    rb, f = _story(tmp, 24, ("CV[k-1]", "P1[k]"))
+    assert len(f) >= 200_000
+    c = compare(rb, f)
+    e = explain(rb, f, tag_info=TAG_INFO, max_lag=3)
+    path = write_report(tmp / "valve.html", rb, c, e, _experiments())
+    return path, c, e
+
+
+def _data(page: str) -> dict:
+    m = re.search(r'<script type="application/json" id="report-data">(.*?)</script>', page, re.S)
+    assert m, "no embedded data"
+
+    def bad(token):
+        raise AssertionError(f"{token} in the embedded JSON")
+
+    return json.loads(m.group(1), parse_constant=bad)
+
+
+def _f32(b64: str) -> np.ndarray:
+    return np.frombuffer(base64.b64decode(b64), "<f4")
+
+
+# --------------------------------------------------------------------- the page itself
+def test_page_is_self_contained_and_escaped(report):
+    path, c, e = report
+    page = path.read_text("utf-8")
+    assert path.stat().st_size < 5_000_000
+    # nothing is fetched: no external src/href, no <link>, and a CSP that forbids it anyway
+    assert not re.search(r"""(?:src|href)\s*=\s*["']?\s*(?:https?:)?//""", page, re.I)
+    assert not re.search(r"<link\b", page, re.I)
+    assert "default-src 'none'" in page
+    assert not re.search(r"<script[^>]*\bsrc\s*=", page, re.I)
+    # uPlot and its MIT licence are inlined
+    assert "uPlot" in page and "Permission is hereby granted" in page
+    # text is escaped: the description's markup shows as text
+    assert '<script>alert("x")</script>' not in page
+    assert "&lt;script&gt;alert(&quot;x&quot;)&lt;/script&gt; &amp; flow" in page
+    d = _data(page)  # no NaN / Infinity tokens
+    assert d["model"] == "valve" and d["map"]["dims"] == 2
+    # every section is there, with the exact command of the best candidate
+    for section in ("metrics", "time", "hist", "map", "windows", "candidates", "experiments"):
+        assert f'id="{section}"' in page
+    best = e.candidates[0]
+    assert f"<code>{best.command.replace(chr(39), '&#x27;')}</code>" in page
+    assert "cells with samples but no rule" in page  # the untrained high-pressure cells
+    assert f"{c.metrics['rmse_pct']:.2f} %" in page
+
+
+def test_downsampling_is_honest(report):
+    path, c, _ = report
+    d = _data(path.read_text("utf-8"))
+    levels = d["levels"]
+    assert levels[0]["n"] == OVERVIEW_BUCKETS and len(levels) == 2
+    assert levels[1]["n"] > 10 * OVERVIEW_BUCKETS
+    assert "downsampled" in path.read_text("utf-8")
+    for lv in levels:
+        y, r = _f32(lv["y"]), _f32(lv["r"])
+        assert y.size == 2 * lv["n"]
+        # the one-sample spike survives at every level, in the measurement and the residual
+        assert np.nanmax(y) == pytest.approx(SPIKE, rel=1e-6)
+        assert np.nanmax(r) == pytest.approx(np.nanmax(c.residual), rel=1e-5)
+        assert np.nanmin(r) == pytest.approx(np.nanmin(c.residual), rel=1e-5)
+        # the bucket means of the residual average to its overall mean (weighted by samples)
+        assert np.isfinite(_f32(lv["rmean"])).any()
+
+
+def test_min_max_order_and_gaps():
+    idx = pd.date_range("2026-01-01", periods=12, freq="10s", tz="UTC")
+    y = np.array([1, 5, 2, 9, 0, 3, 4, 4, 4, NAN, NAN, NAN], float)
+    lv = time_levels(idx, y, y, y, overview=4, detail=4)
+    assert len(lv) == 1 and lv[0]["n"] == 4 and lv[0]["per_bucket"] == 3
+    got = _f32(lv[0]["y"]).reshape(4, 2)
+    np.testing.assert_array_equal(got[0], [1, 5])  # min came first
+    np.testing.assert_array_equal(got[1], [9, 0])  # max came first
+    np.testing.assert_array_equal(got[2], [4, 4])
+    assert np.isnan(got[3]).all()  # an unsupported stretch stays a gap
+    assert lv[0]["x0"] == pytest.approx(idx[0].timestamp())
+
+
+def test_page_size_for_months_of_data(report, tmp_path):
+    """1.5 M samples (half a year of 10 s data) stay well under 5 MB."""
+    _, small, _ = report
+    n = 1_500_000
+    rng = np.random.default_rng(1)
+    idx = pd.date_range("2026-01-01", periods=n, freq="10s", tz="UTC")
+    y = 20 + 10 * np.sin(np.arange(n) / 8640 * 2 * np.pi) + rng.normal(0, 0.2, n)
+    yhat = y - rng.normal(0, 0.2, n)
+    yhat[200_000:230_000] = np.nan  # an unsupported stretch
+    y[777_777] = 39.0
+    res = (y - yhat) / 40 * 100
+    big = Comparison(
+        name="valve",
+        index=idx,
+        y=y,
+        yhat=yhat,
+        residual=res,
+        reason=np.zeros(n, np.int8),
+        metrics=metrics(res),
+        regions=small.regions,
+        periods=worst_periods(idx, res),
+        tags=small.tags,
+    )
+    rb = _rulebase(tmp_path, ("CV[k-1]", "P1[k]"))
+    path = write_report(tmp_path / "months.html", rb, big, None, None)
+    size = path.stat().st_size
+    assert size < 5_000_000, size
+    d = _data(path.read_text("utf-8"))
+    assert [lv["n"] for lv in d["levels"]] == [2_000, 50_000]
+    assert all(np.nanmax(_f32(lv["y"])) == pytest.approx(39.0) for lv in d["levels"])
+    print(f"1.5 M samples: {size / 1e6:.2f} MB")
+
+
+def test_experiment_rows_are_tolerant():
+    rows = experiment_rows(_experiments())
+    assert [r["version"] for r in rows] == ["2", "3", "1"]  # oldest first
+    assert [r["rmse_pct"] for r in rows] == [7.9, 6.02, 0.52]
+    assert rows[2]["inputs"] == ["CV[k-1]", "P1[k]"] and rows[1]["coverage"] is None
+    assert experiment_rows(None) == [] and experiment_rows(pd.DataFrame()) == []
+    # metrics as columns, no created_at, the job's key name, inputs as plain text
+    odd = pd.DataFrame({"version": [1, 2], "inputs": ["CV[k]", "CV[k-1], P1[k]"]})
+    odd["metrics"] = ['{"validation_rmse_pct": 3.0}', "not json"]
+    rows = experiment_rows(odd)
+    assert [r["rmse_pct"] for r in rows] == [3.0, None]
+    assert rows[1]["inputs"] == ["CV[k-1]", "P1[k]"]
+
+
+# ------------------------------------------------------------------------- Chromium
+def _chromium(url: str, profile: Path, *extra: str) -> subprocess.CompletedProcess:
+    cmd = [
+        CHROMIUM,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--hide-scrollbars",
+        f"--user-data-dir={profile}",
+        "--enable-logging=stderr",
+        "--v=0",
+        "--virtual-time-budget=10000",
+        *extra,
+        url,
+    ]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
+
+
+def _render(path: Path, tmp: Path, fragment: str = "") -> str:
+    """The DOM after the page's scripts ran; fails on any console error."""
+    res = _chromium(path.as_uri() + fragment, tmp / "profile-dom", "--dump-dom")
+    assert res.returncode == 0, res.stderr[-2000:]
+    console = [ln for ln in res.stderr.splitlines() if ":CONSOLE" in ln]
+    bad_words = r"Uncaught|Refused|Content Security Policy|error"
+    bad = [ln for ln in console if re.search(bad_words, ln, re.I)]
+    assert not bad, "\n".join(bad)
+    dom = res.stdout
+    errors = re.search(r'<div id="errors"[^>]*>(.*?)</div>', dom, re.S)
+    assert errors is not None and errors.group(1).strip() == "", errors.group(1)
+    assert 'data-rendered="ok"' in dom, dom[:500]
+    return dom
+
+
+def _png_pixels(path: Path, max_rows: int = 1200) -> np.ndarray:
+    """Decode the top rows of an 8-bit RGB(A) PNG (enough to see the charts)."""
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, idat, hdr = 8, [], None
+    while pos < len(data):
+        n, kind = struct.unpack(">I4s", data[pos : pos + 8])
+        body = data[pos + 8 : pos + 8 + n]
+        if kind == b"IHDR":
+            hdr = struct.unpack(">IIBBBBB", body)
+        elif kind == b"IDAT":
+            idat.append(body)
+        pos += 12 + n
+    w, h, depth, ctype, _, _, interlace = hdr
+    assert depth == 8 and ctype in (2, 6) and interlace == 0, hdr
+    bpp = 3 if ctype == 2 else 4
+    raw = zlib.decompress(b"".join(idat))
+    stride = w * bpp
+    assert len(raw) == h * (stride + 1)
+    rows = min(h, max_rows)
+    out = np.zeros((rows, stride), np.uint8)
+    prev = np.zeros(stride, np.uint8)
+    for y in range(rows):
+        f = raw[y * (stride + 1)]
+        r = np.frombuffer(raw, np.uint8, stride, y * (stride + 1) + 1)
+        if f == 0:
+            cur = r.copy()
+        elif f == 1:
+            cur = np.cumsum(r.reshape(w, bpp), axis=0, dtype=np.uint8).ravel()
+        elif f == 2:
+            cur = r + prev
+        else:  # average / Paeth: sequential along the row
+            cur, p = bytearray(r.tobytes()), prev.tobytes()
+            for i in range(stride):
+                a = cur[i - bpp] if i >= bpp else 0
+                b = p[i]
+                if f == 3:
+                    cur[i] = (cur[i] + ((a + b) >> 1)) & 255
+                    continue
+                c = p[i - bpp] if i >= bpp else 0
+                pa, pb, pc = abs(b - c), abs(a - c), abs(a + b - 2 * c)
+                pred = a if pa <= pb and pa <= pc else (b if pb <= pc else c)
+                cur[i] = (cur[i] + pred) & 255
+            cur = np.frombuffer(bytes(cur), np.uint8)
+        out[y] = cur
+        prev = cur
+    return out.reshape(rows, w, bpp)[..., :3]
+
+
+@needs_chromium
+def test_renders_in_headless_chromium_with_a_screenshot(report, tmp_path):
+    path, _, _ = report
+    dom = _render(path, tmp_path)
+    assert 'data-charts="4"' in dom  # time, residual, histogram, experiments
+    shot = tmp_path / "report.png"
+    res = _chromium(
+        path.as_uri(), tmp_path / "profile-shot", f"--screenshot={shot}", "--window-size=1400,3000"
+    )
+    assert res.returncode == 0 and shot.exists(), res.stderr[-2000:]
+    assert shot.stat().st_size > 100_000
+    px = _png_pixels(shot)
+    colours = np.unique(px.reshape(-1, 3), axis=0)
+    assert len(colours) > 500  # text, lines, bars: not a blank page
+    # the measured (blue) and model (orange) lines are drawn
+    blue = (px[..., 2] > 140) & (px[..., 0] < 80)
+    orange = (px[..., 0] > 200) & (px[..., 1] > 90) & (px[..., 1] < 160) & (px[..., 2] < 60)
+    assert blue.sum() > 2000 and orange.sum() > 2000
+    keep = Path(path).with_suffix(".png")
+    shutil.copy(shot, keep)
+    print(f"screenshot: {keep}")
+
+
+@needs_chromium
+def test_zoom_from_the_address_uses_the_detail_level(report, tmp_path):
+    path, _, _ = report
+    dom = _render(path, tmp_path, "#zoom=2026-01-05T00:00:00Z/2026-01-05T06:00:00Z")
+    m = re.search(r'<span id="resolution"[^>]*data-level="(\d)"[^>]*data-points="(\d+)"', dom)
+    assert m and m.group(1) == "1", dom[:300]
+    assert 500 < int(m.group(2)) < 5000  # 6 h of a 50,000-bucket level
+
+
+@needs_chromium
+@pytest.mark.parametrize(
+    ("inputs", "charts", "with_explanation"),
+    [(("CV[k-1]",), 5, True), (("CV[k-1]", "P1[k]", "CV[k-2]"), 3, False)],
+)
+def test_one_and_three_inputs_render(tmp_path, inputs, charts, with_explanation):
+    rb, f = _story(tmp_path, 3, inputs)
+    c = compare(rb, f)
+    e = explain(rb, f, tag_info=TAG_INFO, max_lag=2) if with_explanation else None
+    path = write_report(tmp_path / "r.html", rb, c, e, _experiments() if e else None)
+    page = path.read_text("utf-8")
+    if len(inputs) == 1:
+        assert 'id="chart-map"' in page
+    else:
+        assert "cells with the largest error" in page and 'id="heatmap"' not in page
+        assert "No experiments recorded" in page
+    dom = _render(path, tmp_path)
+    assert f'data-charts="{charts}"' in dom
