@@ -26,6 +26,7 @@ def staircase(text: str) -> list[tuple[str, list[str], float]]:
 def test_tutorial_reproduces(tmp_path):
     text = DOC.read_text()
     env = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")}
+    env["COLUMNS"] = "200"  # the explain table on one line per candidate
     out = {}
     for args in commands(text):
         p = subprocess.run(
