@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from plants import valve_frame
 
 from diag_plugin.regressors import build_design
 from diag_plugin.rulebase import RuleBase, Variable
@@ -46,19 +47,6 @@ TAG_INFO = {
 }
 SPIKE = 37.5  # t/h: one sample of the measured flow, far above everything else
 NAN = float("nan")
-
-
-def valve_frame(days: float, seed: int) -> pd.DataFrame:
-    """Flow through a valve from the controller output (1 sample late) and upstream pressure."""
-    rng = np.random.default_rng(seed)
-    n = int(days * 8640)
-    idx = pd.date_range("2026-01-01", periods=n, freq="10s", tz="UTC", name="ts")
-    cv = np.clip(50 + np.cumsum(rng.normal(0, 1.5, n)) % 100, 0, 100)
-    p1 = 500 + 150 * np.sin(np.arange(n) / 8640 * 2 * np.pi) + rng.normal(0, 5, n)
-    f = np.r_[0, 30 * (cv[:-1] / 100) ** 2 * np.sqrt(p1[1:] / 650)] + rng.normal(0, 0.1, n)
-    frame = pd.DataFrame({"CV": cv, "P1": p1, "F": f}, index=idx)
-    frame.iloc[rng.choice(n, 50, replace=False), 0] = np.nan
-    return frame
 
 
 def _rulebase(path: Path, inputs) -> RuleBase:

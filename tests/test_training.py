@@ -3,21 +3,10 @@
 import numpy as np
 import pandas as pd
 import pytest
+from plants import valve_frame as plant_frame
 
 from diag_plugin.rulebase import RuleBase, Variable
 from diag_plugin.training import ErrorStats, train
-
-
-def plant_frame(days, seed):
-    rng = np.random.default_rng(seed)
-    n = int(days * 8640)
-    idx = pd.date_range("2026-01-01", periods=n, freq="10s", tz="UTC", name="ts")
-    cv = np.clip(50 + np.cumsum(rng.normal(0, 1.5, n)) % 100, 0, 100)
-    p1 = 500 + 150 * np.sin(np.arange(n) / 8640 * 2 * np.pi) + rng.normal(0, 5, n)
-    f = np.r_[0, 30 * (cv[:-1] / 100) ** 2 * np.sqrt(p1[1:] / 650)] + rng.normal(0, 0.1, n)
-    frame = pd.DataFrame({"CV": cv, "P1": p1, "F": f}, index=idx)
-    frame.iloc[rng.choice(n, 50, replace=False), 0] = np.nan
-    return frame
 
 
 def rulebase(tmp_path, inputs=("CV[k-1]",)):
