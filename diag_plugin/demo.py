@@ -118,6 +118,13 @@ def cmd_demo(args) -> int:
     for rec in ex.to_dict("records"):
         tab.add_row(str(rec["version"]), escape(", ".join(rec["inputs"])), f"{rec['rmse_pct']:.2f}")
     con.print(tab)
+    from diag_plugin.workbench.report import write_report
+
+    rb = RuleBase.load(rb.path)
+    html = write_report(
+        work / "valve.html", rb, compare(rb, data), explain(rb, data, tag_info=info), ex
+    )
+    con.print(f"[bold]8. report[/] {html} (open it in a browser; works offline)")
     con.print(
         f"files: {work}/rulebases/valve.toml, database {url}. Try: diag --db {url} "
         f"--rulebases {work}/rulebases rules show valve",

@@ -93,3 +93,11 @@ def test_unreachable_database_is_a_clear_error(tmp_path):
     assert p.returncode == 3
     assert "database error (postgresql://postgres:***@127.0.0.1:1/nope)" in p.stderr
     assert "secret" not in p.stderr and "Traceback" not in p.stderr
+
+
+def test_demo_runs_end_to_end(tmp_path):
+    """`make run` runs `diag demo`: simulate, historian, train, compare, explain, add, report."""
+    p = diag(tmp_path, "demo", "--days", "6", "--workdir", "demo")
+    assert "7. experiments: the error falls" in p.stdout
+    assert (tmp_path / "demo" / "valve.html").stat().st_size > 100_000
+    assert (tmp_path / "demo" / "rulebases" / "valve.toml").exists()
