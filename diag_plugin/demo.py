@@ -78,9 +78,7 @@ def cmd_demo(args) -> int:
         tag_info=info,
         description=desc,
     )
-    steps = []
     r = train_one(rb.path, url, chunk=DEFAULT_CHUNK)
-    steps.append(r)
     con.print(
         f"[bold]3. train[/] {r['model']} F = f(CV\\[k-1]): held-out RMSE "
         f"{r['validation']['rmse_pct']:.2f} % of span, {r['rules']} rules ({r['seconds']:.1f} s)"
@@ -106,7 +104,6 @@ def cmd_demo(args) -> int:
     best = e.candidates[0]
     rb = add_input(rb, best.input, frame=data, tag_info=info, replace=best.replaces)
     r = train_one(rb.path, url, chunk=DEFAULT_CHUNK)
-    steps.append(r)
     con.print(
         f"[bold]6. add-input + train[/] {escape(best.input)}: held-out RMSE "
         f"{r['validation']['rmse_pct']:.2f} % of span"

@@ -120,6 +120,24 @@ def max_lag(specs: Sequence[str | InputSpec]) -> int:
     )
 
 
+def dir_threshold(
+    tag: str, spans: Mapping[str, tuple[float, float]], frame: pd.DataFrame | None
+) -> float:
+    """Move threshold of ``dir(TAG)``: 0.5 % of the tag's span (nominal, else observed).
+
+    Written into the spec (``dir(CV,0.5)``) so training, inference and the
+    live plug-in use the same value.
+    """
+    if tag in spans:
+        lo, hi = spans[tag]
+    elif frame is None:
+        raise ValueError(f"no span known for {tag}: give dir() a threshold, e.g. dir({tag},0.5)")
+    else:
+        v = frame[tag].to_numpy(float)
+        lo, hi = np.nanmin(v), np.nanmax(v)
+    return float(f"{DIR_THRESHOLD_SHARE * (hi - lo):.3g}")
+
+
 @nb.njit(cache=True)
 def _direction(x: np.ndarray, threshold: float) -> np.ndarray:  # pragma: no cover - compiled
     out = np.empty(x.shape[0])
@@ -210,10 +228,12 @@ def check_regular(index: pd.Index) -> None:
     """Lags count samples, so the frame must sit on a regular time grid."""
     if len(index) > 2:
         d = np.diff(np.asarray(index, dtype="datetime64[ns]").astype(np.int64))
-        if d.min() != d.max() or d.min() <= 0:
+        bad = np.flatnonzero((d != d[0]) | (d <= 0))
+        if bad.size:
             raise ValueError(
-                "data are not on a regular, increasing time grid (lags count samples): "
-                "align them first, e.g. with the historian's window()"
+                f"data are not on a regular, increasing time grid at {index[bad[0] + 1]} "
+                f"(after {index[bad[0]]}; lags count samples): align them first, "
+                "e.g. with the historian's window()"
             )
 
 

@@ -207,18 +207,20 @@ class RuleBase:
                     return i + 1
         return start + 1 if start is not None else 1
 
-    def _rules_extent(self) -> tuple[int, int, list[tuple[int, list[str], str]]]:
-        """First and last line index of ``rules.list`` and, per rule, its line
-        number, the comment lines above it and its trailing comment."""
-        start = self._line_of("rules", "list") - 1
+    def _rule_lines(self) -> list[tuple[int, list[str], str]]:
+        """Per rule of ``rules.list``: its line number, the comment lines above it and
+        its trailing comment (one rule per line; a rule starts at a top-level ``{``)."""
+        if self._list_span is None:
+            return []
+        a, b = self._list_span
         rules: list[tuple[int, list[str], str]] = []
         comments: list[str] = []
         sq = brace = 0
-        for i in range(start, len(self._lines)):
+        for i in range(a, b + 1):
             line = self._lines[i]
             code, _, trail = _split_comment(line)
-            if i == start:
-                code = code.split("=", 1)[1] if "=" in code else ""
+            if i == a:
+                code = code.split("=", 1)[1]
             elif not code.strip() and trail:
                 comments.append(line.strip())
                 continue
@@ -236,12 +238,7 @@ class RuleBase:
                     brace -= 1
             if trail and rules and rules[-1][0] == i + 1:
                 rules[-1] = (rules[-1][0], rules[-1][1], "#" + trail)
-            if sq <= 0 and i >= start and "[" in "".join(self._lines[start : i + 1]):
-                return start, i, rules
-        return start, len(self._lines) - 1, rules
-
-    def _rule_lines(self) -> list[tuple[int, list[str], str]]:
-        return self._rules_extent()[2]
+        return rules
 
     def _read(self) -> None:
         doc = self.doc
@@ -306,10 +303,19 @@ class RuleBase:
         spec = self._get(table, section, "spec", str, required=True)
         if spec is not None:
             try:
-                InputSpec.parse(spec)
+                parsed = InputSpec.parse(spec)
             except ValueError as exc:
                 self._err(self._line_of(section, "spec", nth), str(exc))
                 spec = None
+            else:
+                if parsed.fn == "dir" and parsed.param is None:
+                    example = InputSpec("dir", parsed.tags, parsed.lag, 0.5)
+                    self._err(
+                        self._line_of(section, "spec", nth),
+                        f"{spec}: give dir() its move threshold in {parsed.tags[0]}'s unit, "
+                        f"e.g. {example}, so every run uses the same one",
+                    )
+                    spec = None
         unit = self._get(table, section, "unit", str, default="")
         sets = self._get(table, section, "sets", int, default=31)
         if sets is not None and sets < 2:

@@ -17,7 +17,7 @@ while the reported error stays out-of-sample.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -112,7 +112,6 @@ class TrainResult:
     dropped: dict[str, int]
     train_range: tuple[pd.Timestamp, pd.Timestamp]
     validation_range: tuple[pd.Timestamp, pd.Timestamp]
-    skipped_chunks: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {

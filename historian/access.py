@@ -70,9 +70,21 @@ class WindowReader:
     tags: tuple[str, ...]
     period: str
 
+    def __post_init__(self) -> None:
+        self._h: Historian | None = None
+
     def __call__(self, a: pd.Timestamp, b: pd.Timestamp) -> pd.DataFrame:
-        with Historian.open(self.url) as h:
-            return h.window(list(self.tags), a, b, self.period)
+        if self._h is None:  # one connection per process, opened on first use
+            self._h = Historian.open(self.url)
+        return self._h.window(list(self.tags), a, b, self.period)
+
+    def close(self) -> None:
+        if self._h is not None:
+            self._h.close()
+            self._h = None
+
+    def __getstate__(self) -> dict:  # a Dask worker opens its own connection
+        return {"url": self.url, "tags": self.tags, "period": self.period, "_h": None}
 
 
 def experiments(url: str, model: str) -> pd.DataFrame:

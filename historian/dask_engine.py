@@ -31,7 +31,7 @@ def _context_rows(rb: RuleBase) -> int:
 
 
 def fit_interval(
-    rb_text: str, reader: Reader, start: pd.Timestamp, a: pd.Timestamp, b: pd.Timestamp
+    rb_text: str, reader: Reader, a: pd.Timestamp, b: pd.Timestamp
 ) -> dict[str, object]:
     """Train one chunk ``[a, b)`` with the history before it as context (runs on a worker)."""
     rb = RuleBase(rb_text)
@@ -79,7 +79,7 @@ def merge_states(rb: RuleBase, parts: Iterable[dict | None]) -> WangMendelRegres
     return model
 
 
-def dask_fitter(scheduler: str | None, reader: Reader, start: pd.Timestamp):
+def dask_fitter(scheduler: str | None, reader: Reader):
     """A ``fit_chunks`` callable for :func:`diag_plugin.training.train` using Dask."""
     from distributed import Client
 
@@ -91,8 +91,7 @@ def dask_fitter(scheduler: str | None, reader: Reader, start: pd.Timestamp):
             else Client(processes=False, dashboard_address=None) as client
         ):
             futures = [
-                client.submit(fit_interval, text, reader, start, a, b, pure=False)
-                for a, b in intervals
+                client.submit(fit_interval, text, reader, a, b, pure=False) for a, b in intervals
             ]
             parts = client.gather(futures)
         return merge_states(rb, parts)

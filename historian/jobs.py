@@ -90,11 +90,21 @@ def train_one(
     if engine == "dask":
         from historian.dask_engine import dask_fitter
 
-        fit_chunks = dask_fitter(scheduler, reader, t0)
+        fit_chunks = dask_fitter(scheduler, reader)
     started = time.perf_counter()
-    res = train(
-        rb, reader, t0, t1, holdout=holdout, chunk=chunk, progress=progress, fit_chunks=fit_chunks
-    )
+    try:
+        res = train(
+            rb,
+            reader,
+            t0,
+            t1,
+            holdout=holdout,
+            chunk=chunk,
+            progress=progress,
+            fit_chunks=fit_chunks,
+        )
+    finally:
+        reader.close()
     rb.apply_training(
         res.model,
         {
@@ -225,11 +235,8 @@ class _progress:
 
 
 def cmd_experiments(args) -> int:
-    name = (
-        RuleBase.load(resolve(args.name, args.rulebases)).name
-        if resolve(args.name, args.rulebases).exists()
-        else args.name
-    )
+    path = resolve(args.name, args.rulebases)
+    name = RuleBase.load(path).name if path.exists() else args.name
     df = experiments(args.db, name)
     cols = [
         c

@@ -230,7 +230,7 @@ def test_untrained_rule_base_and_labels_that_are_no_identifiers(tmp_path):
     rb = RuleBase.new(
         "2nd model",
         Variable("F[k]", "F", "t/h", (0.0, 40.0), 5),
-        [Variable("dir(CV)[k-1]", "d-", "", (-1.0, 1.0), 3)],
+        [Variable("dir(CV,0.5)[k-1]", "d-", "", (-1.0, 1.0), 3)],
         shape="triangular",
         path=tmp_path / "m.toml",
     )
@@ -238,7 +238,7 @@ def test_untrained_rule_base_and_labels_that_are_no_identifiers(tmp_path):
     rb = RuleBase.load(tmp_path / "m.toml")
     text = to_fcl(rb)
     assert "FUNCTION_BLOCK v_2nd_model" in text
-    assert "dir_CV_k_1 : REAL; // dir(CV)[k-1] (sets d-00..d-02)" in text
+    assert "dir_CV_0_5_k_1 : REAL; // dir(CV,0.5)[k-1] (sets d-00..d-02)" in text
     assert "TERM d_00 := (-1.0, 1.0) (0.0, 0.0);" in text
     assert "TERM d_01 := (-1.0, 0.0) (0.0, 1.0) (1.0, 0.0);" in text
     assert "RULE " not in text

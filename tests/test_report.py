@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from plants import valve_frame
+from helpers import valve_frame
 
 from diag_plugin.regressors import build_design
 from diag_plugin.rulebase import RuleBase, Variable

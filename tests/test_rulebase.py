@@ -167,6 +167,11 @@ def test_duplicate_premise_names_both_lines(rb_path):
             "bad input spec",
         ),
         (
+            lambda t: t.replace('spec = "P1[k]"', 'spec = "dir(P1)[k-1]"'),
+            'spec = "dir(P1)[k-1]"',
+            "give dir() its move threshold in P1's unit, e.g. dir(P1,0.5)[k-1]",
+        ),
+        (
             lambda t: t.replace("lock = false }", "lock = false", 1),
             "lock = false",
             "TOML syntax error",

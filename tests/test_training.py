@@ -3,7 +3,7 @@
 import numpy as np
 import pandas as pd
 import pytest
-from plants import valve_frame as plant_frame
+from helpers import valve_frame as plant_frame
 
 from diag_plugin.rulebase import RuleBase, Variable
 from diag_plugin.training import ErrorStats, train
@@ -91,7 +91,7 @@ def test_dask_training_equals_in_process(tmp_path):
     with LocalCluster(
         n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None, processes=True
     ) as cluster:
-        fitter = dask_fitter(cluster.scheduler_address, ParquetReader(str(path)), a)
+        fitter = dask_fitter(cluster.scheduler_address, ParquetReader(str(path)))
         remote = train(rb, reader(f), a, b, chunk=chunk, fit_chunks=fitter)
     for attr in ("keys_", "count_", "qsum_", "qsq_"):
         np.testing.assert_array_equal(getattr(local.model, attr), getattr(remote.model, attr))

@@ -113,6 +113,8 @@ def test_compare_shows_the_missing_tag(tmp_path):
 
 def test_model_edits_keep_comments(tmp_path):
     f = plant(3, 5)
+    rb = new_model(tmp_path / "d.toml", "d", "F[k]", ["dir(CV)[k-1]"], frame=f, tag_info=INFO)
+    assert rb.inputs[0].spec == "dir(CV,0.5)[k-1]"  # the threshold is written into the file
     rb = new_model(tmp_path / "v.toml", "v", "F[k]", ["CV[k-1]"], frame=f, tag_info=INFO)
     text = rb.path.read_text().replace("[model]", "# owner: JK\n[model]")
     rb.path.write_text(text)
@@ -120,6 +122,13 @@ def test_model_edits_keep_comments(tmp_path):
     assert rb.inputs[1].spec == "dir(CV,0.5)[k-1]" and rb.inputs[1].span == (-1.0, 1.0)
     rb = add_input(rb, "P1[k]", frame=f, tag_info=INFO)
     assert rb.inputs[2].span == (0.0, 1000.0) and rb.inputs[2].unit == "kPa"
+    rb = add_input(rb, "T1[k]", frame=f, tag_info=INFO, replace="P1[k]")
+    assert (rb.inputs[2].spec, rb.inputs[2].span, rb.inputs[2].unit) == (
+        "T1[k]",
+        (0.0, 100.0),
+        "°C",
+    )
+    rb = add_input(rb, "P1[k]", frame=f, tag_info=INFO, replace="T1[k]")
     rb = remove_input(rb, "dir(CV,0.5)[k-1]")
     assert [v.spec for v in rb.inputs] == ["CV[k-1]", "P1[k]"]
     assert "# owner: JK" in rb.path.read_text()

@@ -182,9 +182,7 @@ class WangMendelRegressor:
     # ---------------------------------------------------------------- training
     def fit(self, X, y) -> WangMendelRegressor:
         """Train from scratch on ``X`` (samples × inputs) and ``y``."""
-        for attr in ("partitions_",):
-            if hasattr(self, attr):
-                delattr(self, attr)
+        self.__dict__.pop("partitions_", None)  # partial_fit then starts afresh
         return self.partial_fit(X, y)
 
     def partial_fit(self, X, y) -> WangMendelRegressor:

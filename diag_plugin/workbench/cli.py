@@ -126,9 +126,7 @@ def cmd_add_input(args) -> int:
         )
     except (ValueError, KeyError) as exc:
         raise UserError(str(exc)) from None
-    print(f"{rb.path}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)})")
-    print(f"rules cleared; next: diag train {rb.name}")
-    return 0
+    return _changed(rb)
 
 
 def cmd_remove_input(args) -> int:
@@ -138,6 +136,10 @@ def cmd_remove_input(args) -> int:
         rb = remove_input(_load(args), args.spec)
     except ValueError as exc:
         raise UserError(str(exc)) from None
+    return _changed(rb)
+
+
+def _changed(rb: RuleBase) -> int:
     print(f"{rb.path}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)})")
     print(f"rules cleared; next: diag train {rb.name}")
     return 0

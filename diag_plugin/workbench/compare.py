@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from diag_plugin.regressors import build_design
+from diag_plugin.regressors import build_design, needed_tags
 from diag_plugin.rulebase import RuleBase
 from diag_plugin.training import residual_pct
 
@@ -114,8 +114,6 @@ def compare(
 
 
 def _model_tags(rb: RuleBase) -> set[str]:
-    from diag_plugin.regressors import needed_tags
-
     return set(needed_tags([v.spec for v in rb.inputs] + [rb.output.spec]))
 
 

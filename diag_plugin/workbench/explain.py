@@ -19,7 +19,13 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
-from diag_plugin.regressors import InputSpec, check_regular, feature, needed_tags
+from diag_plugin.regressors import (
+    InputSpec,
+    check_regular,
+    dir_threshold,
+    feature,
+    needed_tags,
+)
 from diag_plugin.rulebase import RuleBase
 
 #: |correlation| with a model input above which a candidate is flagged
@@ -95,22 +101,6 @@ class _Features:
         if spec.lag:
             v = np.r_[np.full(min(spec.lag, v.size), np.nan), v[: max(v.size - spec.lag, 0)]]
         return v
-
-
-def dir_threshold(tag: str, spans, frame: pd.DataFrame) -> float:
-    """Move threshold of ``dir(TAG)``: 0.5 % of the tag's span (nominal, else observed).
-
-    Written into the spec (``dir(CV,0.5)``) so training, inference and the
-    live plug-in use the same value.
-    """
-    from diag_plugin.regressors import DIR_THRESHOLD_SHARE
-
-    if tag in spans:
-        lo, hi = spans[tag]
-    else:
-        v = frame[tag].to_numpy(float)
-        lo, hi = np.nanmin(v), np.nanmax(v)
-    return float(f"{DIR_THRESHOLD_SHARE * (hi - lo):.3g}")
 
 
 def _span_and_sets(spec: InputSpec, col: np.ndarray, spans, default_sets: int):

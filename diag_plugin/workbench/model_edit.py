@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 import tomlkit
 
-from diag_plugin.regressors import InputSpec, feature
+from diag_plugin.regressors import InputSpec, dir_threshold, feature
 from diag_plugin.rulebase import RuleBase, Variable, default_label
 
 
@@ -25,9 +25,21 @@ def variable_for(
     tag_info: Mapping[str, Mapping[str, object]],
     sets: int | None = None,
     default_sets: int = 31,
+    known_spans: Mapping[str, tuple[float, float]] | None = None,
 ) -> Variable:
-    """A variable with its nominal span: tag metadata first, else the observed range."""
+    """A variable with its nominal span: tag metadata first, else the observed range.
+
+    A ``dir()`` input gets its move threshold written into the spec, so training,
+    inference and the live plug-in all use the same value.
+    """
     s = InputSpec.parse(spec)
+    if s.fn == "dir" and s.param is None:
+        spans = dict(known_spans or {})
+        for tag, i in tag_info.items():
+            if i.get("lo") is not None and i.get("hi") is not None:
+                spans[tag] = (float(i["lo"]), float(i["hi"]))
+        s = InputSpec("dir", s.tags, s.lag, dir_threshold(s.tags[0], spans, frame))
+        spec = str(s)
     unit = ""
     span: tuple[float, float] | None = None
     n_sets = sets or default_sets
@@ -106,48 +118,39 @@ def add_input(
     replace: str | None = None,
 ) -> RuleBase:
     """Add ``spec`` as an input (or let it replace input ``replace``) and save."""
-    parsed = InputSpec.parse(spec)
-    if parsed.fn == "dir" and parsed.param is None:  # make the move threshold explicit
-        from diag_plugin.workbench.explain import dir_threshold
-
-        spans = {
-            k: (float(i["lo"]), float(i["hi"]))
-            for k, i in tag_info.items()
-            if i.get("lo") is not None and i.get("hi") is not None
-        }
-        for v in rb.inputs:
-            s = InputSpec.parse(v.spec)
-            if s.fn == "" and s.tags[0] not in spans:
-                spans[s.tags[0]] = v.span
-        if parsed.tags[0] not in spans and frame is None:
-            raise ValueError(f"no span known for {parsed.tags[0]}: give dir() a threshold")
-        th = dir_threshold(parsed.tags[0], spans, frame)
-        parsed = InputSpec("dir", parsed.tags, parsed.lag, th)
-    new = str(parsed)
     specs = [v.spec for v in rb.inputs]
+    default_sets = rb.inputs[0].sets if rb.inputs else 31
+    known = {s.tags[0]: v.span for v in rb.inputs if (s := InputSpec.parse(v.spec)).fn == ""}
+    var = variable_for(
+        spec,
+        frame=frame,
+        tag_info=tag_info,
+        sets=sets,
+        default_sets=default_sets,
+        known_spans=known,
+    )
+    new = var.spec
     if new in specs:
         raise ValueError(f"{new} is already an input of {rb.name}")
-    default_sets = rb.inputs[0].sets if rb.inputs else 31
-    var = variable_for(new, frame=frame, tag_info=tag_info, sets=sets, default_sets=default_sets)
+    fields = {
+        "spec": var.spec,
+        "label": var.label,
+        "unit": var.unit,
+        "span": [var.span[0], var.span[1]],
+        "sets": var.sets,
+    }
     doc = rb.doc
-    table = tomlkit.table()
-    for k, v in (
-        ("spec", var.spec),
-        ("label", var.label),
-        ("unit", var.unit),
-        ("span", [var.span[0], var.span[1]]),
-        ("sets", var.sets),
-    ):
-        table[k] = v
     if replace is not None:
         old = str(InputSpec.parse(replace))
         if old not in specs:
             raise ValueError(f"{old} is not an input of {rb.name} (inputs: {', '.join(specs)})")
-        i = specs.index(old)
-        doc["inputs"][i]["spec"] = var.spec
-        doc["inputs"][i]["label"] = var.label
+        table = doc["inputs"][specs.index(old)]  # edited in place: its comments stay
+        for k, v in fields.items():
+            table[k] = v
         rb.clear_rules(f"input {old} replaced by {new}: rules cleared, run diag train")
     else:
+        table = tomlkit.table()
+        table.update(fields)
         doc["inputs"].append(table)
         rb.clear_rules(f"input {new} added: rules cleared, run diag train")
     return _save(rb)

@@ -1,7 +1,25 @@
 """Small synthetic plants shared by tests (not tests themselves)."""
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
+
+
+def run_diag(cwd: Path, *args: str, **env: str) -> subprocess.CompletedProcess:
+    """`diag ARGS` as a user runs it: a subprocess in ``cwd``, no DIAG_* from the caller."""
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")} | env
+    return subprocess.run(
+        [sys.executable, "-m", "diag_plugin", *args],
+        cwd=cwd,
+        env=clean,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
 
 
 def valve_frame(days: float, seed: int) -> pd.DataFrame:
