@@ -14,6 +14,8 @@ import os
 import sys
 from collections.abc import Sequence
 
+from historian.errors import UserError
+
 log = logging.getLogger("diag")
 
 #: modules that contribute sub-commands (each has ``add_commands(subparsers)``)
@@ -25,10 +27,6 @@ COMMAND_MODULES: tuple[str, ...] = (
     "historian.jobs",
     "diag_plugin.workbench.cli",
 )
-
-
-class UserError(Exception):
-    """An error caused by input the user can fix; printed without a traceback."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -48,14 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:  # an area of the product not built yet
-            if exc.name and exc.name.split(".")[0] in ("diag_plugin", "historian", "connectors"):
-                log.debug("commands of %s unavailable: %s", name, exc)
-                continue
-            raise
-        module.add_commands(sub)
+        # an import error here is a bug, never a reason to drop a command group silently
+        importlib.import_module(name).add_commands(sub)
     return parser
 
 

@@ -7,6 +7,8 @@ import math
 import sys
 from pathlib import Path
 
+from historian.errors import UserError
+
 PROGRESS_MIN_BYTES = 5_000_000
 
 
@@ -38,19 +40,13 @@ def add_commands(subparsers) -> None:
     t.set_defaults(func=cmd_tags)
 
 
-def _user_error(msg: str):
-    from diag_plugin.cli import UserError
-
-    return UserError(msg)
-
-
 def _open(args):
     from .store import Historian
 
     try:
         return Historian.open(args.db)
     except ValueError as exc:
-        raise _user_error(str(exc)) from None
+        raise UserError(str(exc)) from None
 
 
 def cmd_import(args) -> int:
@@ -61,7 +57,7 @@ def cmd_import(args) -> int:
 
     path = Path(args.file)
     if not path.is_file():
-        raise _user_error(f"{path}: no such file")
+        raise UserError(f"{path}: no such file")
     err = Console(stderr=True)
     show = not args.no_progress and path.stat().st_size >= PROGRESS_MIN_BYTES
     columns = [TextColumn(f"importing {path.name}"), BarColumn(), TimeRemainingColumn()]
@@ -96,9 +92,9 @@ def cmd_import(args) -> int:
             if more > 0:
                 print(f"... and {more} more", file=sys.stderr)
             msg = f"{path}: {exc.n_bad} bad row(s); nothing imported (--strict)"
-            raise _user_error(msg) from None
+            raise UserError(msg) from None
         except (ValueError, FileNotFoundError) as exc:
-            raise _user_error(str(exc)) from None
+            raise UserError(str(exc)) from None
     for msg in report.bad[:20]:
         print(msg, file=sys.stderr)
     if report.n_bad > 20:

@@ -24,11 +24,11 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 from sqlalchemy.engine import make_url
 
-from diag_plugin.cli import UserError
 from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase import RuleBase, RuleBaseError, resolve
 from diag_plugin.training import DEFAULT_CHUNK, train
 from historian.access import WindowReader, experiments
+from historian.errors import UserError
 from historian.store import Historian
 
 log = logging.getLogger(__name__)

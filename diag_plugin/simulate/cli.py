@@ -53,7 +53,7 @@ def write_tags_csv(path: Path, columns) -> None:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     """Run the simulation described by ``args`` and write the file; returns 0."""
-    from diag_plugin.cli import UserError
+    from historian.errors import UserError
 
     out = Path(args.out)
     suffix = out.suffix.lower()

@@ -13,9 +13,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from diag_plugin.cli import UserError
 from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase import RuleBase
+from historian.errors import UserError
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
