@@ -15,10 +15,14 @@ import numpy as np
 import pyarrow as pa
 from sqlalchemy.engine import Engine
 
+#: ``update`` leaves a row holding the same value and quality alone, so the row count the
+#: database reports is the rows added or changed (``IS DISTINCT FROM`` is NULL-safe; SQLite
+#: has it since 3.39, the ADBC driver bundles a newer one)
 _INSERT_POLICY = {
     "ignore": "ON CONFLICT (tag_id, ts) DO NOTHING",
     "update": "ON CONFLICT (tag_id, ts) DO UPDATE SET value = excluded.value, "
-    "quality = excluded.quality",
+    "quality = excluded.quality WHERE samples.value IS DISTINCT FROM excluded.value "
+    "OR samples.quality IS DISTINCT FROM excluded.quality",
 }
 
 
@@ -80,7 +84,7 @@ class SqliteBulk:
         self._local = threading.local()
 
     def insert(self, tag_id, ts, value, quality, policy: str = "ignore") -> int:
-        """Insert one batch in one transaction; returns rows inserted (or updated)."""
+        """Insert one batch in one transaction; returns rows inserted (or changed)."""
         clause = _policy(policy)
         table = pa.table(
             {

@@ -4,8 +4,8 @@ One file per month, ``samples-YYYY-MM-<stamp>.parquet``, columns ``tag_id, ts, v
 quality`` sorted by (tag_id, ts), one row group per tag, so a read of one tag touches one row
 group (min/max statistics prune the rest). The database keeps the list of rolled months
 (table ``cold_segments``); reads combine the cold file and any hot rows written later for that
-month, and hot rows never override cold ones (the same "first write wins" rule as the
-idempotent writer).
+month. The writer checks rolled months before inserting, so a hot row at a (tag, ts) the cold
+file holds is an overwrite (``policy="update"``): the hot row wins on read and on the next roll.
 """
 
 from __future__ import annotations
@@ -74,10 +74,13 @@ def write_segment(path: Path, tag_id, ts, value, quality) -> int:
     return table.num_rows
 
 
-def read_segment(path: Path, tag_id: int | None = None, start: int | None = None, end=None):
-    """Rows of one file (optionally one tag and [start, end)) as numpy arrays."""
+def read_segment(path: Path, tag_id=None, start: int | None = None, end=None):
+    """Rows of one file (optionally one tag id or a sequence of them, and [start, end)) as
+    numpy arrays, in file order: sorted by (tag_id, ts)."""
     filters = []
-    if tag_id is not None:
+    if np.ndim(tag_id) == 1:
+        filters.append(("tag_id", "in", [int(t) for t in tag_id]))
+    elif tag_id is not None:
         filters.append(("tag_id", "=", int(tag_id)))
     if start is not None:
         filters.append(("ts", ">=", int(start)))

@@ -149,9 +149,15 @@ class Historian:
         batch_rows: int = DEFAULT_BATCH_ROWS,
         create_tags: bool = True,
     ) -> int:
-        """Store samples; returns the number of rows inserted (``policy="update"``: inserted or
-        replaced). Idempotent: a re-sent sample with a stored (tag, ts) is left alone
-        (``policy="ignore"``, the default) or overwrites it (``"update"``).
+        """Store samples; returns the number of rows added (``policy="update"``: added or
+        changed). Idempotent: a re-sent sample with a stored (tag, ts) is left alone
+        (``policy="ignore"``, the default) or overwrites it (``"update"``; one holding the same
+        value and quality is left alone and not counted).
+
+        This holds for months rolled to the cold store too: the rolled (tag, ts) of the
+        affected months are looked up in their Parquet file first. A new (late) sample, or
+        with ``"update"`` a changed one, goes to the database; it wins over the cold file on
+        read and is merged into the month at its next roll.
 
         Accepted shapes:
 
@@ -163,9 +169,16 @@ class Historian:
         Naive times are taken as UTC. Rows go in batches of ``batch_rows``, one transaction
         each, so an interrupted write keeps every completed batch.
         """
+        if policy not in ("ignore", "update"):
+            raise ValueError(f"policy must be 'ignore' or 'update', not {policy!r}")
+        rolled = self._segments(None, None)
         total = 0
         for tag_id, ts, value, q in self._batches(data, quality, batch_rows, create_tags):
-            total += self._bulk.insert(tag_id, ts, value, q, policy=policy)
+            if rolled:
+                new = self._not_in_cold(rolled, tag_id, ts, value, q, policy)
+                tag_id, ts, value, q = tag_id[new], ts[new], value[new], q[new]
+            if len(ts):
+                total += self._bulk.insert(tag_id, ts, value, q, policy=policy)
         return total
 
     def _batches(self, data, quality, batch_rows, create_tags):
@@ -205,8 +218,8 @@ class Historian:
         if len(parts) > 1 and len(hot[0]):
             order = np.argsort(ts, kind="stable")  # cold before hot at equal times
             ts, v, q = ts[order], v[order], q[order]
-            first = np.r_[True, ts[1:] != ts[:-1]]
-            ts, v, q = ts[first], v[first], q[first]
+            last = np.r_[ts[1:] != ts[:-1], True]  # the hot row wins: an update
+            ts, v, q = ts[last], v[last], q[last]
         return ts, v, q
 
     def read_samples(
@@ -367,6 +380,36 @@ class Historian:
                 out.append(dict(r))
         return out
 
+    def _not_in_cold(self, rolled, tag_id, ts, value, q, policy: str) -> np.ndarray:
+        """Mask of the batch rows the database still needs: rows in a rolled month whose
+        (tag, ts) the cold file holds are dropped (with ``"update"``: only when it holds the
+        same value and quality). Reads, per affected month, only the batch's tags and span."""
+        keep = np.ones(len(ts), bool)
+        for seg in rolled:
+            m0, m1 = coldstore.month_bounds(seg["month"])
+            rows = np.flatnonzero((ts >= m0) & (ts < m1))
+            if not len(rows):
+                continue
+            tids = np.unique(tag_id[rows])
+            c_tid, c_ts, c_v, c_q = coldstore.read_segment(
+                self._cold_path(seg["path"]), tids, int(ts[rows].min()), int(ts[rows].max()) + 1
+            )
+            starts = np.searchsorted(c_tid, tids, "left")
+            ends = np.searchsorted(c_tid, tids, "right")
+            for tid, a, b in zip(tids, starts, ends, strict=True):
+                if a == b:
+                    continue
+                mine = rows[tag_id[rows] == tid]
+                pos = np.minimum(np.searchsorted(c_ts[a:b], ts[mine]), b - a - 1) + a
+                stored = c_ts[pos] == ts[mine]
+                if policy == "update":
+                    same_value = (c_v[pos] == value[mine]) | (
+                        np.isnan(c_v[pos]) & np.isnan(value[mine])
+                    )
+                    stored &= same_value & (c_q[pos] == q[mine])
+                keep[mine[stored]] = False
+        return keep
+
     def cold_months(self) -> list[str]:
         return [r["month"] for r in self._segments(None, None)]
 
@@ -406,14 +449,14 @@ class Historian:
         if not parts:
             return False
         old = self._segments(m0, m1)
-        if old:  # merge: the cold rows win over later hot rows at the same (tag, ts)
+        if old:  # merge: hot rows at a (tag, ts) of the cold file are updates, they win
             parts = [coldstore.read_segment(self._cold_path(old[0]["path"]))] + parts
         tid, ts, v, q = (np.concatenate(col) for col in zip(*parts, strict=True))
         if old:
-            order = np.lexsort((ts, tid))
+            order = np.lexsort((ts, tid))  # stable: cold before hot at an equal key
             tid, ts, v, q = tid[order], ts[order], v[order], q[order]
-            first = np.r_[True, (tid[1:] != tid[:-1]) | (ts[1:] != ts[:-1])]
-            tid, ts, v, q = tid[first], ts[first], v[first], q[first]
+            last = np.r_[(tid[1:] != tid[:-1]) | (ts[1:] != ts[:-1]), True]
+            tid, ts, v, q = tid[last], ts[last], v[last], q[last]
         name = f"samples-{month}-{_now_us()}.parquet"
         rows = coldstore.write_segment(self._cold_path(name), tid, ts, v, q)
         with self.engine.begin() as c:

@@ -33,6 +33,7 @@ def test_ignore_keeps_first_update_replaces(historian):
     assert historian.read_samples("U17").iloc[0] == 0.0
     assert historian.write_samples(changed, policy="update") == 20
     assert (historian.read_samples("U17") == 99.0).all()
+    assert historian.write_samples(changed, policy="update") == 0  # nothing left to change
 
 
 def test_small_batches_store_everything(historian):
