@@ -136,10 +136,15 @@ class SqliteBulk:
         return ts, value, quality
 
     def integrity_check(self) -> list[str]:
+        """``PRAGMA integrity_check``; a file too damaged for it to run is reported too."""
+        import adbc_driver_sqlite.dbapi as adbc
+
         cur = self.conn.cursor()
         try:
             cur.execute("PRAGMA integrity_check")
             rows = [str(r[0]) for r in cur.fetchall()]
+        except adbc.Error as exc:
+            return [f"PRAGMA integrity_check failed: {exc}"]
         finally:
             cur.close()
         return [] if rows == ["ok"] else rows

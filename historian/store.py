@@ -481,10 +481,15 @@ class Historian:
 
     # -- checks --------------------------------------------------------------------------
     def integrity_check(self) -> list[str]:
-        """Problems found (empty when sound): SQLite ``PRAGMA integrity_check``; for
-        PostgreSQL duplicate keys, NULL keys and the primary-key index; cold files readable."""
+        """Problems found (empty when sound), never raised: SQLite ``PRAGMA integrity_check``
+        (or that it cannot run); for PostgreSQL duplicate keys, NULL keys and the primary-key
+        index; each cold file readable and holding the row count recorded for its month."""
         problems = list(self._bulk.integrity_check())
-        for seg in self._segments(None, None):
+        try:
+            segments = self._segments(None, None)
+        except Exception as exc:  # noqa: BLE001 - report, do not raise
+            return [*problems, f"cold segment list unreadable: {exc}"]
+        for seg in segments:
             try:
                 import pyarrow.parquet as pq
 

@@ -76,3 +76,106 @@ def test_update_of_rolled_month_wins_on_read_and_on_next_roll(rolled):
     q = rolled.read_samples("B", "2024-02-10", "2024-02-11", with_quality=True)["quality"]
     assert (q == 1).all()
     assert rolled.integrity_check() == []
+
+
+# -- integrity_check on broken stores ---------------------------------------------------------
+
+
+def segment_file(h: Historian, month: str):
+    (path,) = h.cold_dir.glob(f"samples-{month}-*.parquet")
+    return path
+
+
+def test_integrity_check_reports_a_cold_file_overwritten_with_garbage(rolled):
+    path = segment_file(rolled, "2024-02")
+    path.write_bytes(np.random.default_rng(0).bytes(path.stat().st_size))
+    problems = rolled.integrity_check()
+    assert len(problems) == 1 and problems[0].startswith("cold segment 2024-02: ")
+
+
+def test_integrity_check_reports_a_truncated_cold_file(rolled):
+    path = segment_file(rolled, "2024-01")
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    problems = rolled.integrity_check()
+    assert len(problems) == 1 and problems[0].startswith("cold segment 2024-01: ")
+
+
+def test_integrity_check_reports_a_missing_cold_file(rolled):
+    segment_file(rolled, "2024-02").unlink()
+    problems = rolled.integrity_check()
+    assert len(problems) == 1 and problems[0].startswith("cold segment 2024-02: ")
+
+
+def test_integrity_check_reports_a_cold_file_with_other_rows(rolled):
+    """A readable Parquet file that does not hold the rows recorded for its month."""
+    from historian import coldstore
+
+    path = segment_file(rolled, "2024-02")
+    tag_id, ts, value, quality = coldstore.read_segment(path)
+    coldstore.write_segment(path, tag_id[:-5], ts[:-5], value[:-5], quality[:-5])
+    assert rolled.integrity_check() == ["cold segment 2024-02: row count differs"]
+
+
+def sqlite_with_samples(tmp_path):
+    """A closed SQLite historian holding frame(); its page size and the pages of the samples
+    B-tree: the root (an interior page) and its right-most child (a leaf)."""
+    import sqlite3
+
+    db = tmp_path / "diag.db"
+    with Historian(f"sqlite:///{db}") as h:
+        h.write_samples(frame())
+        assert h.integrity_check() == []
+    assert not db.with_name("diag.db-wal").exists()  # checkpointed on close: all in the file
+    c = sqlite3.connect(db)
+    page_size = c.execute("PRAGMA page_size").fetchone()[0]
+    root = c.execute("SELECT rootpage FROM sqlite_master WHERE name = 'samples'").fetchone()[0]
+    c.close()
+    with open(db, "rb") as fh:
+        fh.seek((root - 1) * page_size)
+        header = fh.read(12)
+    assert header[0] == 2  # interior index B-tree page (the table is WITHOUT ROWID)
+    return db, page_size, root, int.from_bytes(header[8:12], "big")
+
+
+def overwrite(path, offset, data):
+    with open(path, "r+b") as fh:
+        fh.seek(offset)
+        fh.write(data)
+
+
+def test_integrity_check_reports_a_damaged_sqlite_leaf_page(tmp_path):
+    """Garbage over the cell contents of a leaf page of a closed database (header intact)."""
+    db, page_size, _, leaf = sqlite_with_samples(tmp_path)
+    rng = np.random.default_rng(1)
+    overwrite(db, leaf * page_size - page_size // 2, rng.bytes(page_size // 2))
+    with Historian(f"sqlite:///{db}") as h:
+        problems = h.integrity_check()
+    assert any(f"page {leaf} cell" in p for p in problems), problems
+
+
+def test_integrity_check_reports_a_sqlite_page_it_cannot_read(tmp_path):
+    """Garbage over the whole root page: SQLite cannot even run the check; that is reported,
+    not raised."""
+    db, page_size, root, _ = sqlite_with_samples(tmp_path)
+    overwrite(db, (root - 1) * page_size, np.random.default_rng(1).bytes(page_size))
+    with Historian(f"sqlite:///{db}") as h:
+        problems = h.integrity_check()
+    assert len(problems) == 1 and "malformed" in problems[0], problems
+
+
+@pytest.mark.postgres
+def test_integrity_check_reports_duplicate_keys_on_postgres(pg_url, tmp_path):
+    """The primary key dropped and a (tag, ts) stored twice: both are reported."""
+    with Historian(pg_url, cold_dir=tmp_path / "cold") as h:
+        h.write_samples(frame())
+        assert h.integrity_check() == []
+        with h.engine.begin() as c:
+            c.exec_driver_sql("ALTER TABLE samples DROP CONSTRAINT samples_pkey")
+            c.exec_driver_sql(
+                "INSERT INTO samples SELECT * FROM samples WHERE ts < 1706576400000000"
+            )
+        assert h.integrity_check() == [
+            "2 duplicated (tag_id, ts) keys in samples",
+            "primary-key index of samples missing or invalid",
+        ]
