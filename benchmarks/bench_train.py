@@ -13,9 +13,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from diag_plugin.jobs import train_one
 from diag_plugin.simulate.valve import TAGS, simulate_valve
 from diag_plugin.workbench.model_edit import new_model
-from historian.jobs import train_one
 from historian.store import Historian
 
 BUDGET_S = 3.0

@@ -24,7 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "diag_plugin.rulebase_cli",
     "diag_plugin.demo",
     "historian.cli",
-    "historian.jobs",
+    "diag_plugin.jobs",
     "diag_plugin.workbench.cli",
 )
 

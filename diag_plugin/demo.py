@@ -29,13 +29,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_demo(args) -> int:
+    from diag_plugin.jobs import train_one
     from diag_plugin.simulate.valve import TAGS, simulate_valve
     from diag_plugin.training import DEFAULT_CHUNK
     from diag_plugin.workbench.compare import compare
     from diag_plugin.workbench.explain import explain
     from diag_plugin.workbench.model_edit import add_input, new_model
     from historian.access import experiments, open_data
-    from historian.jobs import train_one
     from historian.store import Historian
 
     con = Console()

@@ -139,10 +139,10 @@ def dir_threshold(
 
 
 @nb.njit(cache=True)
-def _direction(x: np.ndarray, threshold: float) -> np.ndarray:  # pragma: no cover - compiled
+def _direction(x, threshold, carry):  # pragma: no cover - compiled
     out = np.empty(x.shape[0])
-    ref = np.nan
-    state = np.nan
+    ref = carry[0]
+    state = carry[1]
     for i in range(x.shape[0]):
         v = x[i]
         if np.isnan(v):
@@ -159,48 +159,78 @@ def _direction(x: np.ndarray, threshold: float) -> np.ndarray:  # pragma: no cov
             state = -1.0
             ref = v
         out[i] = state
+    carry[0] = ref
+    carry[1] = state
     return out
 
 
-def direction(x: np.ndarray, threshold: float) -> np.ndarray:
+def direction(x: np.ndarray, threshold: float, carry: np.ndarray | None = None) -> np.ndarray:
     """Direction of the last move larger than ``threshold``: +1 up, −1 down.
 
     A backlash/hysteresis play operator: the reference follows the signal only
     once it has moved by more than the threshold. NaN until the first move
-    and after a gap (the direction is unknown then).
+    and after a gap (the direction is unknown then). ``carry`` (reference,
+    direction), NaN for a fresh start, is read and updated in place, so a
+    signal fed in pieces gives the same values as one pass.
     """
-    return _direction(np.ascontiguousarray(x, dtype=np.float64), float(threshold))
+    if carry is None:
+        carry = np.full(2, np.nan)
+    return _direction(np.ascontiguousarray(x, dtype=np.float64), float(threshold), carry)
 
 
 def feature(
     frame: pd.DataFrame, spec: InputSpec, spans: Mapping[str, tuple[float, float]] | None = None
 ) -> np.ndarray:
-    """Unlagged values of one spec over the frame (NaN where undefined)."""
-    for t in spec.tags:
-        if t not in frame.columns:
-            raise KeyError(f"tag {t!r} (needed by {spec}) is not in the data")
-    if spec.fn == "":
-        return frame[spec.tags[0]].to_numpy(dtype=float)
-    if spec.fn == "diff":
-        return frame[spec.tags[0]].to_numpy(float) - frame[spec.tags[1]].to_numpy(float)
-    if spec.fn == "rate":
-        x = frame[spec.tags[0]].to_numpy(float)
-        return np.r_[np.nan, np.diff(x)]
-    if spec.fn == "dir":
-        x = frame[spec.tags[0]].to_numpy(float)
-        th = spec.param
-        if th is None:
-            lo, hi = (spans or {}).get(spec.tags[0]) or (np.nanmin(x), np.nanmax(x))
-            th = DIR_THRESHOLD_SHARE * (hi - lo)
-        return direction(x, th)
-    idx = pd.DatetimeIndex(frame.index)
-    if idx.tz is None:
-        idx = idx.tz_localize("UTC")
-    if spec.fn == "hour":
-        return ((idx - idx.normalize()) / pd.Timedelta(hours=1)).to_numpy(float)
-    if spec.fn == "days":
-        return ((idx - EPOCH) / pd.Timedelta(days=1)).to_numpy(float)
-    raise AssertionError(spec.fn)
+    """Unlagged values of one spec over the frame (NaN where undefined), from a fresh start."""
+    return _FeatureState(spec, spans).compute(frame)
+
+
+class _FeatureState:
+    """One unlagged feature (a spec's base) with the state it carries between pieces.
+
+    Plain tags, differences and clock features need none; ``rate`` carries the
+    previous sample of its tag, ``dir`` its play-operator reference and
+    direction (unbounded memory: a valve that holds still for days keeps its
+    last direction).
+    """
+
+    def __init__(self, spec: InputSpec, spans: Mapping[str, tuple[float, float]] | None):
+        self.spec = spec.with_lag(0)
+        self.threshold = spec.param
+        if spec.fn == "dir" and spec.param is None and spec.tags[0] in (spans or {}):
+            lo, hi = spans[spec.tags[0]]
+            self.threshold = DIR_THRESHOLD_SHARE * (hi - lo)
+        self.carry = np.full(2, np.nan)  # rate: (previous sample, –); dir: (reference, dir)
+
+    def compute(self, frame: pd.DataFrame) -> np.ndarray:
+        spec = self.spec
+        for t in spec.tags:
+            if t not in frame.columns:
+                raise KeyError(f"tag {t!r} (needed by {spec}) is not in the data")
+        if spec.fn == "":
+            return frame[spec.tags[0]].to_numpy(dtype=float)
+        if spec.fn == "diff":
+            return frame[spec.tags[0]].to_numpy(float) - frame[spec.tags[1]].to_numpy(float)
+        if spec.fn == "rate":
+            x = frame[spec.tags[0]].to_numpy(float)
+            out = np.diff(x, prepend=self.carry[0]) if x.size else x
+            if x.size:
+                self.carry[0] = x[-1]
+            return out
+        if spec.fn == "dir":
+            x = frame[spec.tags[0]].to_numpy(float)
+            if self.threshold is None:  # frozen at the first piece: the same for all pieces
+                v = x[np.isfinite(x)]
+                self.threshold = DIR_THRESHOLD_SHARE * float(np.ptp(v)) if v.size else 0.0
+            return direction(x, self.threshold, self.carry)
+        idx = pd.DatetimeIndex(frame.index)
+        if idx.tz is None:
+            idx = idx.tz_localize("UTC")
+        if spec.fn == "hour":
+            return ((idx - idx.normalize()) / pd.Timedelta(hours=1)).to_numpy(float)
+        if spec.fn == "days":
+            return ((idx - EPOCH) / pd.Timedelta(days=1)).to_numpy(float)
+        raise AssertionError(spec.fn)
 
 
 @dataclass
@@ -237,6 +267,163 @@ def check_regular(index: pd.Index) -> None:
             )
 
 
+class DesignBuilder:
+    """Design matrices from consecutive pieces of one time series of frames.
+
+    Every derived feature's state (``dir`` direction, ``rate``'s previous
+    sample) and the recent history the lags need are carried from piece to
+    piece, so training chunk by chunk, validating after training and the live
+    loop cycle by cycle give exactly the rows one pass over all data gives
+    (Kościelny et al., eqs. 7–9). :meth:`to_state` / :meth:`from_state` carry
+    it between processes as plain numbers (JSON-able).
+    """
+
+    def __init__(
+        self,
+        inputs: Sequence[str | InputSpec],
+        output: str | InputSpec | None = None,
+        spans: Mapping[str, tuple[float, float]] | None = None,
+    ) -> None:
+        self.specs = parse_specs(inputs)
+        self.out_spec = None if output is None else parse_specs([output])[0]
+        self.all_specs = self.specs + ([self.out_spec] if self.out_spec is not None else [])
+        self.tags = needed_tags(self.all_specs)
+        self.history = max_lag(self.all_specs)
+        self.features: dict[str, _FeatureState] = {}
+        self.depth: dict[str, int] = {}  # lag history kept per feature
+        for s in self.all_specs:
+            self.features.setdefault(s.base, _FeatureState(s, spans))
+            self.depth[s.base] = max(self.depth.get(s.base, 0), s.lag)
+        self.tag_depth = {t: max(s.lag for s in self.all_specs if t in s.tags) for t in self.tags}
+        self.tails = {b: np.full(h, np.nan) for b, h in self.depth.items()}
+        self.nan_tails = {t: np.zeros(h, bool) for t, h in self.tag_depth.items()}
+        self.seen = 0
+
+    @property
+    def unbounded(self) -> bool:
+        """True when a feature's state depends on all history (``dir``), not just the lags."""
+        return any(f.spec.fn == "dir" for f in self.features.values())
+
+    def _columns(self, frame: pd.DataFrame) -> dict[str, np.ndarray]:
+        return {b: f.compute(frame) for b, f in self.features.items()}
+
+    def transform(self, frame: pd.DataFrame, quality: pd.DataFrame | None = None) -> Design:
+        """The design matrix of the next piece; rows needing data before the first piece
+        ever seen, or a NaN, bad-quality or undefined value, are dropped and counted."""
+        check_regular(frame.index)
+        missing = [t for t in self.tags if t not in frame.columns]
+        if missing:
+            raise KeyError(f"tag(s) {', '.join(missing)} needed by the model are not in the data")
+        if quality is not None:
+            bad = quality.reindex(index=frame.index, columns=frame.columns).fillna(0).to_numpy()
+            frame = frame.mask(bad != 0)
+        n = len(frame)
+        feats = self._columns(frame)
+        cols = [_lagged(self.tails[s.base], feats[s.base], s.lag) for s in self.all_specs]
+        M = np.column_stack(cols) if cols else np.empty((n, 0))
+        ok = ~np.isnan(M).any(axis=1)
+        pos = self.seen + np.arange(n)
+        dropped: dict[str, int] = {}
+        attributed = pos < self.history
+        if attributed.any():
+            dropped["history for the lags"] = int(attributed.sum())
+        raw_nan = {}
+        for tag in self.tags:
+            raw = frame[tag].isna().to_numpy()
+            raw_nan[tag] = raw
+            miss = np.zeros(n, bool)
+            for s in self.all_specs:
+                if tag in s.tags:
+                    miss |= _lagged(self.nan_tails[tag], raw, s.lag)
+            miss &= ~ok & ~attributed
+            if miss.any():
+                dropped[f"{tag} missing or bad"] = int(miss.sum())
+                attributed |= miss
+        other = int((~ok & ~attributed).sum())
+        if other > 0:
+            dropped["derived value undefined"] = other
+        for b, v in feats.items():
+            self.tails[b] = _keep_tail(self.tails[b], v)
+        for t, v in raw_nan.items():
+            self.nan_tails[t] = _keep_tail(self.nan_tails[t], v)
+        self.seen += n
+        Mok = M[ok]
+        d = len(self.specs)
+        return Design(
+            X=np.ascontiguousarray(Mok[:, :d]),
+            y=Mok[:, d].copy() if self.out_spec is not None else None,
+            index=pd.DatetimeIndex(frame.index[ok]),
+            inputs=[str(s) for s in self.specs],
+            output=None if self.out_spec is None else str(self.out_spec),
+            n_rows=n,
+            dropped=dropped,
+        )
+
+    def advance(self, frame: pd.DataFrame) -> None:
+        """Take a piece as history only (carried state and lags), building no rows."""
+        missing = [t for t in self.tags if t not in frame.columns]
+        if missing:
+            raise KeyError(f"tag(s) {', '.join(missing)} needed by the model are not in the data")
+        for b, v in self._columns(frame).items():
+            self.tails[b] = _keep_tail(self.tails[b], v)
+        for t in self.tags:
+            self.nan_tails[t] = _keep_tail(self.nan_tails[t], frame[t].isna().to_numpy())
+        self.seen += len(frame)
+
+    def prime(self, history: pd.DataFrame) -> None:
+        """Take the data just before the first piece as history, without the leading rows
+        where every tag is missing (before the data start)."""
+        if len(history):
+            has = history[self.tags].notna().any(axis=1).to_numpy()
+            if has.any():
+                self.advance(history.iloc[int(np.argmax(has)) :])
+
+    def to_state(self) -> dict:
+        """The carried state as plain numbers and lists (JSON-able)."""
+        return {
+            "seen": self.seen,
+            "features": {
+                b: {
+                    "tail": _plain(self.tails[b]),
+                    "carry": _plain(f.carry),
+                    "threshold": f.threshold,
+                }
+                for b, f in self.features.items()
+            },
+            "missing": {t: v.astype(int).tolist() for t, v in self.nan_tails.items()},
+        }
+
+    def load_state(self, state: Mapping) -> DesignBuilder:
+        """Continue from a state of :meth:`to_state` (same specs)."""
+        self.seen = int(state["seen"])
+        for b, f in self.features.items():
+            st = state["features"][b]
+            self.tails[b] = np.array(st["tail"], float).reshape(-1)
+            f.carry = np.array(st["carry"], float)
+            f.threshold = st["threshold"]
+        for t in self.tags:
+            self.nan_tails[t] = np.array(state["missing"][t], bool).reshape(-1)
+        return self
+
+
+def _plain(v: np.ndarray) -> list:
+    return [None if not np.isfinite(x) else float(x) for x in v]
+
+
+def _lagged(tail: np.ndarray, v: np.ndarray, lag: int) -> np.ndarray:
+    """``v`` shifted by ``lag`` samples, the first ``lag`` taken from the carried tail."""
+    if lag == 0:
+        return v
+    return np.concatenate([tail[tail.size - lag :], v])[: v.size]
+
+
+def _keep_tail(tail: np.ndarray, v: np.ndarray) -> np.ndarray:
+    h = tail.size
+    if h == 0:
+        return tail
+    return np.concatenate([tail, v])[-h:]
+
+
 def build_design(
     frame: pd.DataFrame,
     inputs: Sequence[str | InputSpec],
@@ -244,68 +431,12 @@ def build_design(
     *,
     quality: pd.DataFrame | None = None,
     spans: Mapping[str, tuple[float, float]] | None = None,
-    context: int = 0,
 ) -> Design:
-    """Lagged design matrix from a timestamp-indexed frame (Kościelny et al., eqs. 7–9).
+    """Lagged design matrix of one frame taken alone (Kościelny et al., eqs. 7–9).
 
     Rows where any needed value is NaN, of bad quality (``quality`` non-zero,
     same shape as ``frame``), or before the history the lags need, are
     dropped and counted per reason (a row missing two tags counts under both).
-    The first ``context`` rows are history only (the tail of the previous
-    chunk): they feed the lags but are neither returned nor counted.
+    For consecutive pieces use one :class:`DesignBuilder`.
     """
-    check_regular(frame.index)
-    specs = parse_specs(inputs)
-    out_spec = None if output is None else parse_specs([output])[0]
-    if quality is not None:
-        bad = quality.reindex(index=frame.index, columns=frame.columns).fillna(0).to_numpy() != 0
-        frame = frame.mask(bad)
-    n = len(frame)
-    all_specs = specs + ([out_spec] if out_spec is not None else [])
-    cols = []
-    cache: dict[str, np.ndarray] = {}
-    for s in all_specs:
-        base = s.base
-        if base not in cache:
-            cache[base] = feature(frame, s, spans)
-        v = cache[base]
-        if s.lag:
-            v = np.r_[np.full(min(s.lag, n), np.nan), v[: max(n - s.lag, 0)]]
-        cols.append(v)
-    M = np.column_stack(cols) if cols else np.empty((n, 0))
-    ok = ~np.isnan(M).any(axis=1)
-    is_ctx = np.zeros(n, bool)
-    is_ctx[: min(context, n)] = True
-    dropped: dict[str, int] = {}
-    warm = max_lag(all_specs)
-    in_warmup = np.zeros(n, bool)
-    in_warmup[: min(warm, n)] = True
-    in_warmup &= ~is_ctx
-    if in_warmup.any():
-        dropped["history for the lags"] = int(in_warmup.sum())
-    attributed = in_warmup | is_ctx
-    for tag in needed_tags(all_specs):
-        raw = frame[tag].isna().to_numpy()
-        miss = np.zeros(n, bool)
-        for s in all_specs:
-            if tag in s.tags and s.lag < n:
-                miss[s.lag :] |= raw[: n - s.lag]
-        miss &= ~ok & ~attributed
-        if miss.any():
-            dropped[f"{tag} missing or bad"] = int(miss.sum())
-            attributed |= miss
-    other = int((~ok & ~attributed).sum())
-    if other > 0:
-        dropped["derived value undefined"] = other
-    ok &= ~is_ctx
-    Mok = M[ok]
-    d = len(specs)
-    return Design(
-        X=np.ascontiguousarray(Mok[:, :d]),
-        y=Mok[:, d].copy() if out_spec is not None else None,
-        index=pd.DatetimeIndex(frame.index[ok]),
-        inputs=[str(s) for s in specs],
-        output=None if out_spec is None else str(out_spec),
-        n_rows=n - int(is_ctx.sum()),
-        dropped=dropped,
-    )
+    return DesignBuilder(inputs, output, spans).transform(frame, quality)

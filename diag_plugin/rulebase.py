@@ -11,10 +11,14 @@ Layout (see ``docs/rulebase.md``)::
         { if = ["U17", "P04"], then = 63.2, n = 5231, sd = 0.8, lock = false },
     ]
 
-A rule's ``if`` names the premise set of each input (label + set index), ``then``
-is the conclusion in the output's engineering units, ``n``/``sd`` its training
-support, ``lock`` keeps ``then`` through retraining. ``then = nan`` with
-``lock = true`` is a *locked-deleted* rule: that cell never gets a rule.
+This module is the *shell* every method shares (name, period, output, inputs,
+training provenance) and the file mechanics (byte-exact round trip, comments,
+``file:line`` errors). What the ``[rules]`` list means, how a model is built
+from it and how locks survive retraining belongs to the method's codec, found
+through :mod:`diag_plugin.models.registry` (Wang–Mendel:
+:mod:`diag_plugin.fuzzy.wm_codec`): a rule's ``if`` names the premise set of
+each input, ``then`` is the conclusion in the output's engineering units,
+``n``/``sd`` its training support, ``lock`` keeps ``then`` through retraining.
 
 The file is read and written with tomlkit: loading then saving an unedited
 file gives identical bytes, comments survive, and when the rules change (say
@@ -28,17 +32,18 @@ import math
 import re
 import tomllib
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import tomlkit
 from tomlkit.exceptions import ParseError
 
 from diag_plugin.fuzzy.partition import SHAPES
-from diag_plugin.fuzzy.wang_mendel import METHODS, WangMendelRegressor
+from diag_plugin.models.registry import METHODS, get_method
+from diag_plugin.models.spec import ModelSpec, Variable
 from diag_plugin.regressors import InputSpec
+
+__all__ = ["RuleBase", "RuleBaseError", "Variable", "check", "default_label", "resolve"]
 
 HEADER = """\
 # Rule base of a fuzzy model (diag-plugin). Edit by hand, then run `diag rules check FILE`.
@@ -55,45 +60,6 @@ class RuleBaseError(Exception):
     def __init__(self, problems: list[str]):
         self.problems = problems
         super().__init__("\n".join(problems))
-
-
-@dataclass
-class Variable:
-    """One model variable: its spec and fuzzy partition in engineering units."""
-
-    spec: str
-    label: str
-    unit: str
-    span: tuple[float, float]
-    sets: int = 31
-
-    @property
-    def width(self) -> int:
-        return max(2, len(str(self.sets - 1)))
-
-    def set_label(self, i: int) -> str:
-        return f"{self.label}{i:0{self.width}d}"
-
-    def parse_label(self, text: str) -> int | None:
-        if not text.startswith(self.label):
-            return None
-        rest = text[len(self.label) :]
-        if not rest.isdigit():
-            return None
-        i = int(rest)
-        return i if 0 <= i < self.sets else None
-
-
-@dataclass
-class Rule:
-    premise: tuple[int, ...]
-    then: float
-    n: int = 0
-    sd: float = 0.0
-    lock: bool = False
-    line: int = 0
-    comments: list[str] = field(default_factory=list)
-    trailing: str = ""
 
 
 def default_label(spec: str) -> str:
@@ -183,10 +149,11 @@ class RuleBase:
             raise RuleBaseError([f"{path}:0: cannot read: {exc}"]) from None
         return cls(text, path)
 
-    def _err(self, line: int, msg: str) -> None:
+    def error(self, line: int, msg: str) -> None:
+        """Record a problem at ``line`` (1-based) of the file."""
         self.problems.append(f"{self.path}:{line}: {msg}")
 
-    def _line_of(self, section: str, key: str | None = None, nth: int = 0) -> int:
+    def line_of(self, section: str, key: str | None = None, nth: int = 0) -> int:
         """Line (1-based) of a section header or of ``key =`` inside it."""
         hdr = re.compile(r"^\s*\[\[?\s*" + re.escape(section) + r"\s*\]\]?")
         anyhdr = re.compile(r"^\s*\[")
@@ -244,14 +211,14 @@ class RuleBase:
         doc = self.doc
         for section in ("model", "output", "inputs", "rules"):
             if section not in doc:
-                self._err(len(self._lines) or 1, f"missing section [{section}]")
+                self.error(len(self._lines) or 1, f"missing section [{section}]")
         model = doc.get("model", {})
         self.name = self._get(model, "model", "name", str, default=self.path.stem)
         self.description = self._get(model, "model", "description", str, default="")
         self.method = self._get(model, "model", "method", str, default="wm-avg")
         if self.method not in METHODS:
-            self._err(
-                self._line_of("model", "method"),
+            self.error(
+                self.line_of("model", "method"),
                 f"method must be one of {', '.join(METHODS)}, got {self.method!r}",
             )
         self.period = self._get(model, "model", "period", str, default="10s")
@@ -259,21 +226,21 @@ class RuleBase:
             if pd.Timedelta(self.period) <= pd.Timedelta(0):
                 raise ValueError
         except ValueError:
-            self._err(
-                self._line_of("model", "period"),
+            self.error(
+                self.line_of("model", "period"),
                 f'period must be a positive duration like "10s", got {self.period!r}',
             )
             self.period = "10s"
         self.shape = self._get(model, "model", "shape", str, default="trapezoidal")
         if self.shape not in SHAPES:
-            self._err(
-                self._line_of("model", "shape"),
+            self.error(
+                self.line_of("model", "shape"),
                 f"shape must be one of {', '.join(SHAPES)}, got {self.shape!r}",
             )
         self.output = self._variable(doc.get("output"), "output", 0)
         inputs = doc.get("inputs", [])
         if "inputs" in doc and not isinstance(inputs, list):
-            self._err(self._line_of("inputs"), "[[inputs]] must be an array of tables")
+            self.error(self.line_of("inputs"), "[[inputs]] must be an array of tables")
             inputs = []
         self.inputs = [self._variable(t, "inputs", i) for i, t in enumerate(inputs)]
         self.training = dict(doc.get("training", {}))
@@ -282,7 +249,7 @@ class RuleBase:
     def _get(self, table, section, key, typ, default=None, required=False):
         if not isinstance(table, Mapping) or key not in table:
             if required:
-                self._err(self._line_of(section), f"[{section}] is missing {key!r}")
+                self.error(self.line_of(section), f"[{section}] is missing {key!r}")
             return default
         v = table[key]
         v = v.unwrap() if hasattr(v, "unwrap") else v
@@ -291,27 +258,27 @@ class RuleBase:
             v, ok = float(v), True
         if not ok:
             name = typ.__name__ if isinstance(typ, type) else "/".join(t.__name__ for t in typ)
-            self._err(self._line_of(section, key), f"{key} must be {name}, got {v!r}")
+            self.error(self.line_of(section, key), f"{key} must be {name}, got {v!r}")
             return default
         return v
 
     def _variable(self, table, section: str, nth: int) -> Variable | None:
         if table is None:
             return None
-        line = self._line_of(section, None, nth)
+        line = self.line_of(section, None, nth)
         n0 = len(self.problems)
         spec = self._get(table, section, "spec", str, required=True)
         if spec is not None:
             try:
                 parsed = InputSpec.parse(spec)
             except ValueError as exc:
-                self._err(self._line_of(section, "spec", nth), str(exc))
+                self.error(self.line_of(section, "spec", nth), str(exc))
                 spec = None
             else:
                 if parsed.fn == "dir" and parsed.param is None:
                     example = InputSpec("dir", parsed.tags, parsed.lag, 0.5)
-                    self._err(
-                        self._line_of(section, "spec", nth),
+                    self.error(
+                        self.line_of(section, "spec", nth),
                         f"{spec}: give dir() its move threshold in {parsed.tags[0]}'s unit, "
                         f"e.g. {example}, so every run uses the same one",
                     )
@@ -319,170 +286,75 @@ class RuleBase:
         unit = self._get(table, section, "unit", str, default="")
         sets = self._get(table, section, "sets", int, default=31)
         if sets is not None and sets < 2:
-            self._err(self._line_of(section, "sets", nth), f"sets must be at least 2, got {sets}")
+            self.error(self.line_of(section, "sets", nth), f"sets must be at least 2, got {sets}")
         span = self._get(table, section, "span", list, required=True)
         if span is not None:
             if len(span) != 2 or not all(
                 isinstance(v, int | float) and not isinstance(v, bool) for v in span
             ):
-                self._err(self._line_of(section, "span", nth), "span must be [lo, hi] numbers")
+                self.error(self.line_of(section, "span", nth), "span must be [lo, hi] numbers")
                 span = None
             elif not (math.isfinite(span[0]) and math.isfinite(span[1]) and span[0] < span[1]):
-                self._err(self._line_of(section, "span", nth), f"span needs lo < hi, got {span}")
+                self.error(self.line_of(section, "span", nth), f"span needs lo < hi, got {span}")
                 span = None
         label = self._get(table, section, "label", str, default=None)
         if spec and label is None:
             label = default_label(spec)
         if len(self.problems) > n0 or spec is None or span is None:
             if spec is None and len(self.problems) == n0:
-                self._err(line, f"[{section}] has no spec")
+                self.error(line, f"[{section}] has no spec")
             return None
         return Variable(spec, label, unit, (float(span[0]), float(span[1])), int(sets))
 
-    def _read_rules(self) -> list[Rule]:
+    def _read_rules(self) -> list:
         table = self.doc.get("rules", {})
         if not isinstance(table, Mapping):
-            self._err(self._line_of("rules"), "[rules] must be a table")
+            self.error(self.line_of("rules"), "[rules] must be a table")
             return []
         items = self._list_items if self._list_items is not None else table.get("list")
         if items is None:
-            self._err(self._line_of("rules"), "[rules] is missing 'list'")
+            self.error(self.line_of("rules"), "[rules] is missing 'list'")
             return []
         if not isinstance(items, list):
-            self._err(self._line_of("rules", "list"), "rules.list must be an array of rules")
+            self.error(self.line_of("rules", "list"), "rules.list must be an array of rules")
             return []
-        positions = self._rule_lines()
-        lo, hi = self.output.span
-        rules: list[Rule] = []
-        seen: dict[tuple[int, ...], int] = {}
-        for i, item in enumerate(items):
-            line, comments, trail = (
-                positions[i] if i < len(positions) else (self._line_of("rules", "list"), [], "")
-            )
-            where = f"rule {i + 1}"
-            if not isinstance(item, Mapping):
-                self._err(line, f"{where}: expected {{ if = [...], then = ... }}")
-                continue
-            n0 = len(self.problems)
-            unknown = set(item) - {"if", "then", "n", "sd", "lock"}
-            if unknown:
-                self._err(line, f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
-            prem = item.get("if")
-            premise: list[int] = []
-            if not isinstance(prem, list) or not all(isinstance(p, str) for p in prem):
-                self._err(line, f"{where}: 'if' must be a list of set labels")
-            elif len(prem) != len(self.inputs):
-                self._err(
-                    line, f"{where}: 'if' has {len(prem)} labels for {len(self.inputs)} inputs"
-                )
-            else:
-                for var, lab in zip(self.inputs, prem, strict=True):
-                    idx = var.parse_label(str(lab))
-                    if idx is None:
-                        self._err(
-                            line,
-                            f"{where}: unknown set label {str(lab)!r} for input "
-                            f"{var.spec} (expected {var.set_label(0)}…"
-                            f"{var.set_label(var.sets - 1)})",
-                        )
-                    premise.append(-1 if idx is None else idx)
-            then = item.get("then")
-            lock = item.get("lock", False)
-            if not isinstance(lock, bool):
-                self._err(line, f"{where}: lock must be true or false, got {lock!r}")
-                lock = False
-            if isinstance(then, bool) or not isinstance(then, int | float):
-                self._err(line, f"{where}: then must be a number, got {then!r}")
-                then = math.nan
-            then = float(then)
-            if math.isnan(then) and not lock:
-                self._err(
-                    line,
-                    f"{where}: then = nan is only allowed on a locked rule "
-                    "(locked-deleted cell); delete the line to drop the rule",
-                )
-            elif not math.isnan(then) and not (lo <= then <= hi):
-                self._err(
-                    line,
-                    f"{where}: then = {then:g} is outside the output span "
-                    f"[{lo:g}, {hi:g}] {self.output.unit}".rstrip(),
-                )
-            n = item.get("n", 0)
-            if isinstance(n, bool) or not isinstance(n, int) or n < 0:
-                self._err(line, f"{where}: n must be a non-negative integer, got {n!r}")
-                n = 0
-            sd = item.get("sd", 0.0)
-            if isinstance(sd, bool) or not isinstance(sd, int | float) or not sd >= 0:
-                if not (isinstance(sd, float) and math.isnan(sd)):
-                    self._err(line, f"{where}: sd must be a non-negative number, got {sd!r}")
-                sd = 0.0
-            if len(self.problems) > n0:
-                continue
-            key = tuple(premise)
-            if key in seen:
-                self._err(
-                    line, f"{where}: duplicate premise {list(prem)} (first at line {seen[key]})"
-                )
-                continue
-            seen[key] = line
-            rules.append(Rule(key, then, int(n), float(sd), bool(lock), line, comments, trail))
-        return rules
+        if self.method not in METHODS:
+            return []
+        return self.codec.read_rules(self, items, self._rule_lines())
 
     # ----------------------------------------------------------------- model
-    def new_model(self) -> WangMendelRegressor:
-        """An untrained model with this file's partitions and method."""
-        return WangMendelRegressor(
-            input_spans=[v.span for v in self.inputs],
-            output_span=self.output.span,
-            n_sets=[v.sets for v in self.inputs],
-            output_sets=self.output.sets,
-            shape=self.shape,
+    @property
+    def codec(self):
+        """The method's codec (estimator factory, rule I/O and locks), from the registry."""
+        return get_method(self.method)
+
+    @property
+    def spec(self) -> ModelSpec:
+        """What the model is, apart from its rules."""
+        return ModelSpec(
+            name=self.name,
+            output=self.output,
+            inputs=list(self.inputs),
             method=self.method,
+            shape=self.shape,
+            period=self.period,
         )
 
-    def to_model(self) -> WangMendelRegressor:
+    def new_model(self):
+        """An untrained estimator of this file's method, spans and sets."""
+        return self.codec.new_estimator(self.spec)
+
+    def to_model(self):
         """The model this file describes; expert edits are used as written."""
-        m = self.new_model()
-        d = len(self.inputs)
-        m._init_partitions(np.zeros((1, d)), np.zeros(1))
-        active = [r for r in self.rules if not math.isnan(r.then)]
-        idx = np.array([r.premise for r in active], np.int64).reshape(-1, d)
-        m.set_rules(
-            m.cell_keys(idx),
-            [r.then for r in active],
-            counts=[r.n for r in active],
-            sds=[r.sd for r in active],
-        )
-        return m
+        return self.codec.to_model(self)
 
-    def apply_training(
-        self, model: WangMendelRegressor, provenance: Mapping[str, object] | None = None
-    ) -> None:
-        """Take the rules of a freshly trained model, keeping the experts' locks.
+    def predictor(self, model):
+        """A freshly trained ``model`` as this file would predict with it (locks applied)."""
+        return self.codec.predictor(self, model)
 
-        A locked rule keeps its conclusion (its support is updated); a
-        locked-deleted cell stays empty; a rule without new data is kept as it
-        was; every other cell gets the trained average (eq. 5), clipped to the
-        output's nominal span.
-        """
-        old = {r.premise: r for r in self.rules}
-        idx = model.cell_indices()
-        # averages of noisy measurements may sit a hair outside the nominal span
-        conc = np.clip(model.conclusions_, *self.output.span)
-        sd, cnt = model.sd_, model.count_
-        new: dict[tuple[int, ...], Rule] = {}
-        for j in range(idx.shape[0]):
-            p = tuple(int(v) for v in idx[j])
-            prev = old.get(p)
-            r = Rule(p, float(conc[j]), int(cnt[j]), float(sd[j]))
-            if prev is not None:
-                r.comments, r.trailing = prev.comments, prev.trailing
-                if prev.lock:
-                    r.then, r.lock = prev.then, True
-            new[p] = r
-        for p, prev in old.items():
-            new.setdefault(p, prev)
-        self.rules = [new[p] for p in sorted(new)]
+    def apply_training(self, model, provenance: Mapping[str, object] | None = None) -> None:
+        """Take the rules of a freshly trained model, keeping the experts' locks."""
+        self.rules = self.codec.apply_training(self, model)
         self._dirty_rules = True
         if provenance is not None:
             self.set_training(provenance)
@@ -529,21 +401,7 @@ class RuleBase:
         return "".join(lines[:a]) + body + "".join(lines[b + 1 :])
 
     def format_rules(self) -> str:
-        dec_y = _decimals(self.output.span)
-        out = ["list = [\n"]
-        for r in self.rules:
-            for c in r.comments:
-                out.append(f"    {c}\n")
-            labels = ", ".join(
-                f'"{v.set_label(i)}"' for v, i in zip(self.inputs, r.premise, strict=True)
-            )
-            then = "nan" if math.isnan(r.then) else f"{r.then:.{dec_y}f}"
-            sd = "nan" if math.isnan(r.sd) else f"{r.sd:.{dec_y}f}"
-            lock = "true" if r.lock else "false"
-            line = f"    {{ if = [{labels}], then = {then}, n = {r.n}, sd = {sd}, lock = {lock} }},"
-            out.append(line + (f"  {r.trailing}" if r.trailing else "") + "\n")
-        out.append("]\n")
-        return "".join(out)
+        return self.codec.format_rules(self)
 
     def save(self, path: str | Path | None = None) -> Path:
         """Write the file atomically (temp file + rename): a crash never leaves half a file."""
@@ -604,12 +462,6 @@ def _var_table(v: Variable) -> tomlkit.items.Table:
     t["span"] = [float(v.span[0]), float(v.span[1])]
     t["sets"] = int(v.sets)
     return t
-
-
-def _decimals(span: tuple[float, float]) -> int:
-    """Decimals that resolve 1e-4 of the span."""
-    width = span[1] - span[0]
-    return max(0, 4 - math.floor(math.log10(width))) if width > 0 else 4
 
 
 def _split_comment(line: str) -> tuple[str, str, str]:

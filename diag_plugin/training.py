@@ -1,10 +1,12 @@
-"""Chunked training and time-ordered validation of a rule-base model.
+"""Chunked training and time-ordered validation of a model file's model.
 
 The data arrive as consecutive, timestamp-indexed chunks of an aligned frame
 (the historian's window, or a simulator frame). Memory stays flat in the length
-of the range: each chunk is turned into a design matrix and folded into the
-model with ``partial_fit``. Lagged inputs see across chunk boundaries because
-the tail of the previous chunk is carried over as context.
+of the range: each chunk is turned into a design matrix by one
+:class:`~diag_plugin.regressors.DesignBuilder`, which carries every derived
+input's state (direction, rate, lag history) from chunk to chunk and on into
+the validation block, and is folded into the model with ``partial_fit``. The
+rule base does not depend on the chunking.
 
 Validation is a *time-ordered held-out block* (never shuffled samples): the
 model trained on the first part of the range predicts the last part
@@ -17,71 +19,44 @@ while the reported error stays out-of-sample.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-import numpy as np
 import pandas as pd
 
-from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
-from diag_plugin.regressors import build_design, max_lag, needed_tags
+from diag_plugin.metrics import ErrorStats, residual_pct
+from diag_plugin.models.protocol import Model
+from diag_plugin.regressors import Design, DesignBuilder
 from diag_plugin.rulebase import RuleBase
 
-#: rows of the previous chunk kept as context for lags and dir() state
-CONTEXT_ROWS = 360
+#: samples before the range read to start the state of unbounded-memory inputs (dir())
+WARMUP_ROWS = 360
 #: time span read and trained at once
 DEFAULT_CHUNK = pd.Timedelta(days=7)
-#: trains the model on a list of chunk intervals (e.g. on a Dask cluster)
-ChunkFitter = Callable[[RuleBase, Iterable[tuple[pd.Timestamp, pd.Timestamp]]], WangMendelRegressor]
+Reader = Callable[[pd.Timestamp, pd.Timestamp], pd.DataFrame]
+Interval = tuple[pd.Timestamp, pd.Timestamp]
 
 
 @dataclass
-class ErrorStats:
-    """Streaming residual statistics in % of span (eq. 6), mergeable."""
+class Tally:
+    """Rows read and rows dropped per reason, summed over chunks."""
 
-    span: float
-    n: int = 0
-    n_total: int = 0
-    s1: float = 0.0
-    s2: float = 0.0
-    sabs: float = 0.0
-    maxabs: float = 0.0
+    rows: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
 
-    def update(self, y: np.ndarray, yhat: np.ndarray) -> None:
-        r = residual_pct(y, yhat, self.span)
-        self.n_total += r.size
-        r = r[np.isfinite(r)]
-        self.n += r.size
-        self.s1 += float(r.sum())
-        self.s2 += float(r @ r)
-        self.sabs += float(np.abs(r).sum())
-        if r.size:
-            self.maxabs = max(self.maxabs, float(np.abs(r).max()))
-
-    def merge(self, other: ErrorStats) -> ErrorStats:
-        self.n += other.n
-        self.n_total += other.n_total
-        self.s1 += other.s1
-        self.s2 += other.s2
-        self.sabs += other.sabs
-        self.maxabs = max(self.maxabs, other.maxabs)
+    def add(self, rows: int, dropped: Mapping[str, int]) -> Tally:
+        self.rows += rows
+        for k, v in dropped.items():
+            self.dropped[k] = self.dropped.get(k, 0) + v
         return self
 
-    def result(self) -> dict[str, float | int]:
-        n = max(self.n, 1)
-        nan = float("nan")
-        return {
-            "rmse_pct": float(np.sqrt(self.s2 / n)) if self.n else nan,
-            "mae_pct": self.sabs / n if self.n else nan,
-            "bias_pct": self.s1 / n if self.n else nan,
-            "max_abs_pct": self.maxabs if self.n else nan,
-            "coverage": self.n / self.n_total if self.n_total else nan,
-            "samples": self.n_total,
-        }
+    def add_design(self, d: Design) -> Tally:
+        return self.add(d.n_rows, d.dropped)
 
 
-def residual_pct(y: np.ndarray, yhat: np.ndarray, span: float) -> np.ndarray:
-    """Residual in % of the nominal span: ``(y − ŷ) / (y_max − y_min) · 100`` (eq. 6)."""
-    return (np.asarray(y, float) - np.asarray(yhat, float)) / span * 100.0
+#: trains a model on chunk intervals elsewhere (e.g. a Dask cluster): gets the file, the
+#: intervals, the design builder at the start of the first one and the reader; returns the
+#: trained model and the tally, leaving the builder at the end of the last interval
+ChunkFitter = Callable[[RuleBase, list[Interval], DesignBuilder, Reader], tuple[Model, Tally]]
 
 
 def time_chunks(
@@ -96,7 +71,8 @@ def time_chunks(
 
 
 def split_time(start: pd.Timestamp, end: pd.Timestamp, holdout: float) -> pd.Timestamp:
-    """Start of the held-out block: the last ``holdout`` share of the range."""
+    """Start of the held-out block: the last ``holdout`` share of the range (the one hold-out
+    cut of the product: training, compare and explain all cut by time)."""
     if not 0.0 < holdout < 1.0:
         raise ValueError(f"holdout must be between 0 and 1, got {holdout}")
     return start + (end - start) * (1.0 - holdout)
@@ -104,7 +80,8 @@ def split_time(start: pd.Timestamp, end: pd.Timestamp, holdout: float) -> pd.Tim
 
 @dataclass
 class TrainResult:
-    model: WangMendelRegressor
+    model: Model
+    size: int
     validation: dict[str, float | int]
     training: dict[str, float | int]
     samples: int
@@ -120,58 +97,31 @@ class TrainResult:
             "samples": self.samples,
             "rows": self.rows,
             "dropped": self.dropped,
-            "rules": self.model.n_rules_,
+            "rules": self.size,
             "train_range": [t.isoformat() for t in self.train_range],
             "validation_range": [t.isoformat() for t in self.validation_range],
         }
 
 
-class Designer:
-    """Turns consecutive frame chunks into design matrices, carrying context."""
-
-    def __init__(self, rb: RuleBase, spans: Mapping[str, tuple[float, float]] | None = None):
-        self.inputs = [v.spec for v in rb.inputs]
-        self.output = rb.output.spec
-        self.tags = needed_tags([*self.inputs, self.output])
-        self.spans = spans
-        self.context = max(CONTEXT_ROWS, max_lag([*self.inputs, self.output]) + 1)
-        self._tail: pd.DataFrame | None = None
-        self.dropped: dict[str, int] = {}
-        self.rows = 0
-
-    def __call__(self, frame: pd.DataFrame):
-        missing = [t for t in self.tags if t not in frame.columns]
-        if missing:
-            raise KeyError(f"tag(s) {', '.join(missing)} needed by the model are not in the data")
-        frame = frame[self.tags]
-        n_ctx = 0
-        tail = trim_context(self._tail) if self._tail is not None else None
-        if tail is not None and len(tail) and len(frame):
-            n_ctx = len(tail)
-            frame = pd.concat([tail, frame])
-        d = build_design(frame, self.inputs, self.output, spans=self.spans, context=n_ctx)
-        self._tail = frame.iloc[-self.context :] if len(frame) else self._tail
-        for k, v in d.dropped.items():
-            self.dropped[k] = self.dropped.get(k, 0) + v
-        self.rows += d.n_rows
-        return d.X, d.y, d.index
-
-    def prime(self, history: pd.DataFrame) -> None:
-        """Use the data just before the first chunk as context (lags, dir() state)."""
-        if len(history):
-            self._tail = history[self.tags].iloc[-self.context :]
+def design_builder(rb: RuleBase, spans: Mapping[str, tuple[float, float]] | None = None):
+    """The design builder of a model file's inputs and output."""
+    return DesignBuilder([v.spec for v in rb.inputs], rb.output.spec, spans)
 
 
-def trim_context(tail: pd.DataFrame) -> pd.DataFrame:
-    """Context without its leading rows where every tag is missing (before the data start)."""
-    has = tail.notna().any(axis=1).to_numpy()
-    first = int(np.argmax(has)) if has.any() else len(tail)
-    return tail.iloc[first:]
+def warmup_rows(builder: DesignBuilder) -> int:
+    """Samples before a range that start the builder's state: the lags, and for inputs with
+    unbounded memory (dir()) a longer stretch."""
+    return max(builder.history, WARMUP_ROWS if builder.unbounded else 0)
+
+
+def prime(builder: DesignBuilder, read: Reader, at: pd.Timestamp, period: pd.Timedelta) -> None:
+    """Start the builder's state from the data just before ``at``."""
+    builder.prime(read(at - warmup_rows(builder) * period, at))
 
 
 def train(
     rb: RuleBase,
-    read: Callable[[pd.Timestamp, pd.Timestamp], pd.DataFrame],
+    read: Reader,
     start: pd.Timestamp,
     end: pd.Timestamp,
     *,
@@ -195,77 +145,102 @@ def train(
     total = len(train_iv) + len(val_iv)
     span = rb.output.span[1] - rb.output.span[0]
     done = 0
+    model = rb.new_model()
+    caps = model.capabilities
+    if not (caps.incremental and caps.mergeable):
+        raise ValueError(f"method {rb.method} cannot be trained chunk by chunk")
 
-    designer = Designer(rb, spans)
-    period = pd.Timedelta(rb.period)
+    builder = design_builder(rb, spans)
+    prime(builder, read, start, pd.Timedelta(rb.period))
     if fit_chunks is not None:
-        model = fit_chunks(rb, train_iv)
+        model, tally = fit_chunks(rb, train_iv, builder, read)
         done += len(train_iv)
         if progress:
             progress(done, total)
     else:
-        model = rb.new_model()
-        designer.prime(read(start - designer.context * period, start))
+        tally = Tally()
         for a, b in train_iv:
-            X, y, _ = designer(read(a, b))
-            if len(y):
-                model.partial_fit(X, y)
+            d = builder.transform(read(a, b))
+            tally.add_design(d)
+            if len(d.y):
+                model.partial_fit(d.X, d.y)
             done += 1
             if progress:
                 progress(done, total)
-    if not hasattr(model, "partitions_"):
+    n_train = int(getattr(model, "n_samples_seen_", 0))
+    if n_train == 0:
         raise ValueError(f"no usable training samples between {start} and {cut}")
-    predictor = with_locks(rb, model)
+    predictor = rb.predictor(model)
 
-    val_stats = ErrorStats(span)
+    val_stats = ErrorStats()
     held = rb.new_model()
-    vdesigner = Designer(rb, spans)
-    if designer._tail is None:  # training ran elsewhere: read the context before the cut
-        designer.prime(read(cut - designer.context * period, cut))
-        designer.dropped = dict(getattr(model, "dropped_", {}))
-        designer.rows = int(getattr(model, "rows_", 0))
-    vdesigner._tail = designer._tail
     for a, b in val_iv:
-        X, y, _ = vdesigner(read(a, b))
-        if len(y):
-            val_stats.update(y, predictor.predict(X))
-            held.partial_fit(X, y)
+        d = builder.transform(read(a, b))
+        tally.add_design(d)
+        if len(d.y):
+            val_stats.update(residual_pct(d.y, predictor.predict(d.X), span))
+            held.partial_fit(d.X, d.y)
         done += 1
         if progress:
             progress(done, total)
-    dropped = dict(designer.dropped)
-    for k, v in vdesigner.dropped.items():
-        dropped[k] = dropped.get(k, 0) + v
-    n_train = int(model.n_samples_seen_)
     model.merge(held)
     return TrainResult(
         model=model,
+        size=rb.codec.size(model),
         validation=val_stats.result(),
         training={"samples": n_train},
         samples=int(model.n_samples_seen_),
-        rows=designer.rows + vdesigner.rows,
-        dropped=dropped,
+        rows=tally.rows,
+        dropped=tally.dropped,
         train_range=(start, cut),
         validation_range=(cut, end),
     )
 
 
-def with_locks(rb: RuleBase, model: WangMendelRegressor) -> WangMendelRegressor:
-    """A copy of a trained model with the experts' locked rules applied.
+def chunk_starts(
+    builder: DesignBuilder, read: Reader, intervals: Iterable[Interval], period: pd.Timedelta
+) -> list[tuple[dict | None, pd.Timestamp]]:
+    """Where each chunk's design starts, for training the chunks independently (workers).
 
-    The trained model itself keeps its exact statistics (for ``merge``); the
-    rule base applies the locks again when it takes the training.
+    Per interval ``[a, b)``: a builder state to load (or None for a fresh one)
+    and the time from which to read history up to ``a``. Inputs with bounded
+    memory (lags, rate) are exact from the last ``history`` samples, read by
+    the worker; with an unbounded one (dir()) the states are carried here by a
+    pass over the data, so every chunk starts exactly where one pass would be.
+    ``builder`` is left at the end of the last interval.
     """
-    locked = [r for r in rb.rules if r.lock]
-    if not locked:
-        return model
-    out = WangMendelRegressor(**model.get_params()).merge(model)
-    conc = dict(zip(out.keys_.tolist(), out.conclusions_.tolist(), strict=True))
-    for r in locked:
-        k = int(out.cell_keys(np.array([r.premise]))[0])
-        if np.isnan(r.then):
-            conc.pop(k, None)
-        else:
-            conc[k] = r.then
-    ks = sorted(conc)
-    return out.set_rules(ks, [conc[k] for k in ks])
+    out: list[tuple[dict | None, pd.Timestamp]] = []
+    intervals = list(intervals)
+    if builder.unbounded:
+        for a, b in intervals:
+            out.append((builder.to_state(), a))
+            builder.advance(read(a, b))
+        return out
+    for i, (a, _) in enumerate(intervals):
+        out.append((builder.to_state(), a) if i == 0 else (None, a - builder.history * period))
+    if intervals and builder.history:
+        b = intervals[-1][1]
+        builder.advance(read(b - builder.history * period, b))
+    return out
+
+
+def fit_interval(
+    rb: RuleBase,
+    read: Reader,
+    a: pd.Timestamp,
+    b: pd.Timestamp,
+    state: dict | None,
+    history_from: pd.Timestamp,
+) -> tuple[dict | None, Tally]:
+    """Train one chunk ``[a, b)`` from where :func:`chunk_starts` says it starts; returns the
+    model's state (None if no usable rows) and the tally."""
+    builder = design_builder(rb)
+    if state is not None:
+        builder.load_state(state)
+    if history_from < a:
+        builder.advance(read(history_from, a))
+    d = builder.transform(read(a, b))
+    tally = Tally().add_design(d)
+    if not len(d.y):
+        return None, tally
+    return rb.new_model().partial_fit(d.X, d.y).to_state(), tally

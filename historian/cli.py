@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
-import math
 import sys
 from pathlib import Path
 
 from historian.errors import UserError
+from historian.jsonable import to_jsonable
 
 PROGRESS_MIN_BYTES = 5_000_000
 
@@ -108,23 +108,11 @@ def cmd_import(args) -> int:
     return 0
 
 
-def _jsonable(v):
-    if v is None:
-        return None
-    if hasattr(v, "isoformat"):
-        return None if str(v) == "NaT" else v.isoformat()
-    if isinstance(v, float) and math.isnan(v):
-        return None
-    if hasattr(v, "item"):
-        return _jsonable(v.item())
-    return v
-
-
 def cmd_tags(args) -> int:
     with _open(args) as h:
         report = h.tag_report(args.start, args.end)
     if args.json:
-        rows = [{k: _jsonable(v) for k, v in r.items()} for r in report.to_dict("records")]
+        rows = [{k: to_jsonable(v) for k, v in r.items()} for r in report.to_dict("records")]
         print(json.dumps(rows, indent=2))
         return 0
     from rich.console import Console
@@ -136,7 +124,7 @@ def cmd_tags(args) -> int:
     for col in ("bad", "gaps", "flat", "out of range"):
         table.add_column(col, justify="right")
     for r in report.to_dict("records"):
-        lo, hi = _jsonable(r["lo"]), _jsonable(r["hi"])
+        lo, hi = to_jsonable(r["lo"]), to_jsonable(r["hi"])
         rng = "" if lo is None and hi is None else f"{_fmt(lo)} .. {_fmt(hi)}"
         table.add_row(
             r["tag"],
@@ -145,7 +133,7 @@ def cmd_tags(args) -> int:
             f"{r['samples']:,}",
             _when(r["first"]),
             _when(r["last"]),
-            "" if _jsonable(r["interval_s"]) is None else f"{r['interval_s']:g} s",
+            "" if to_jsonable(r["interval_s"]) is None else f"{r['interval_s']:g} s",
             f"{100 * r['coverage']:.1f} %",
             f"{r['bad']:,}",
             f"{r['gaps']} ({r['gap_s'] / 3600:.1f} h)" if r["gaps"] else "0",
@@ -164,4 +152,4 @@ def _fmt(x):
 
 
 def _when(t):
-    return "" if _jsonable(t) is None else t.strftime("%Y-%m-%d %H:%M:%S")
+    return "" if to_jsonable(t) is None else t.strftime("%Y-%m-%d %H:%M:%S")

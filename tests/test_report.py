@@ -23,9 +23,10 @@ import pandas as pd
 import pytest
 from helpers import valve_frame
 
+from diag_plugin.metrics import error_figures
 from diag_plugin.regressors import build_design
 from diag_plugin.rulebase import RuleBase, Variable
-from diag_plugin.workbench.compare import Comparison, compare, metrics, worst_periods
+from diag_plugin.workbench.compare import Comparison, compare, worst_periods
 from diag_plugin.workbench.explain import explain
 from diag_plugin.workbench.report import (
     OVERVIEW_BUCKETS,
@@ -189,7 +190,7 @@ def test_page_size_for_months_of_data(report, tmp_path):
         yhat=yhat,
         residual=res,
         reason=np.zeros(n, np.int8),
-        metrics=metrics(res),
+        metrics=error_figures(res),
         regions=small.regions,
         periods=worst_periods(idx, res),
         tags=small.tags,

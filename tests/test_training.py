@@ -5,8 +5,9 @@ import pandas as pd
 import pytest
 from helpers import valve_frame as plant_frame
 
+from diag_plugin.metrics import ErrorStats, residual_pct
 from diag_plugin.rulebase import RuleBase, Variable
-from diag_plugin.training import ErrorStats, train
+from diag_plugin.training import train
 
 
 def rulebase(tmp_path, inputs=("CV[k-1]",)):
@@ -66,10 +67,10 @@ def test_locked_rules_are_used_in_validation(tmp_path):
 
 def test_error_stats_merge():
     y = np.arange(10.0)
-    a, b, c = ErrorStats(10.0), ErrorStats(10.0), ErrorStats(10.0)
-    a.update(y[:4], y[:4] + 1)
-    b.update(y[4:], y[4:] - 1)
-    c.update(y, np.r_[y[:4] + 1, y[4:] - 1])
+    a, b, c = ErrorStats(), ErrorStats(), ErrorStats()
+    a.update(residual_pct(y[:4], y[:4] + 1, 10.0))
+    b.update(residual_pct(y[4:], y[4:] - 1, 10.0))
+    c.update(residual_pct(y, np.r_[y[:4] + 1, y[4:] - 1], 10.0))
     assert a.merge(b).result() == c.result()
     assert c.result()["rmse_pct"] == pytest.approx(10.0)
 
@@ -78,7 +79,7 @@ def test_dask_training_equals_in_process(tmp_path):
     """The Dask engine on a LocalCluster gives exactly the in-process rule base."""
     from distributed import LocalCluster
 
-    from historian.dask_engine import dask_fitter
+    from diag_plugin.dask_engine import dask_fitter
 
     f = plant_frame(4, seed=33)
     f.iloc[::997, 1] = np.nan

@@ -27,14 +27,24 @@ inference on small grids.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from diag_plugin.fuzzy import _kernels as K
 from diag_plugin.fuzzy.partition import UniformPartition
+from diag_plugin.models.protocol import (  # noqa: F401 - re-exported for callers
+    REASON_NAN,
+    REASON_OK,
+    REASON_OUTSIDE,
+    REASON_UNSUPPORTED,
+    REASONS,
+    Capabilities,
+    Prediction,
+)
 
 METHODS = ("wm-avg", "wm")
+#: the exact training state (see :meth:`WangMendelRegressor.to_state`)
+STATE_ARRAYS = ("keys_", "count_", "qsum_", "qsq_", "best_w_", "best_set_")
 PARAMS = ("input_spans", "output_span", "n_sets", "output_sets", "shape", "method")
 #: grids up to this many cells train and infer through dense arrays
 DENSE_LIMIT = 1 << 20
@@ -42,33 +52,6 @@ DENSE_LIMIT = 1 << 20
 CHUNK_ROWS = 1 << 20
 #: no cell may hold more samples than this (integer sum of squares stays exact)
 MAX_CELL_COUNT = 1 << 29
-
-REASON_OK = 0
-REASON_NAN = 1
-REASON_UNSUPPORTED = 2
-REASON_OUTSIDE = 3
-REASONS = {
-    REASON_OK: "",
-    REASON_NAN: "an input is missing (NaN or bad quality)",
-    REASON_UNSUPPORTED: "no trained rule covers this operating point",
-    REASON_OUTSIDE: "an input is outside its nominal span (clipped to the span)",
-}
-
-
-@dataclass(frozen=True)
-class Prediction:
-    """Model output with its support: ``y`` (NaN where unsupported), the firing
-    weight carried by existing rules ``support`` (0–1), and a ``reason`` code
-    per sample (see :data:`REASONS`)."""
-
-    y: np.ndarray
-    support: np.ndarray
-    reason: np.ndarray
-
-    @property
-    def coverage(self) -> float:
-        """Share of samples that got a prediction."""
-        return float(np.isfinite(self.y).mean()) if self.y.size else float("nan")
 
 
 def _as_2d(X) -> np.ndarray:
@@ -97,6 +80,8 @@ class WangMendelRegressor:
     shape : {"trapezoidal", "triangular"}
     method : {"wm-avg", "wm"}
     """
+
+    capabilities = Capabilities(incremental=True, mergeable=True, rule_regions=True)
 
     def __init__(
         self,
@@ -320,6 +305,39 @@ class WangMendelRegressor:
         self._lut = None
         return self
 
+    def to_state(self) -> dict:
+        """Parameters and exact training state as plain numbers and integer arrays (no pickle):
+        ``from_state(m.to_state())`` predicts and merges exactly like ``m``."""
+        self._check_fitted()
+        params = self.get_params()
+        params["input_spans"] = [[p.lo, p.hi] for p in self.partitions_]
+        params["output_span"] = [self.output_partition_.lo, self.output_partition_.hi]
+        params["n_sets"] = [p.n for p in self.partitions_]
+        return {
+            "params": params,
+            **{k: getattr(self, k).copy() for k in STATE_ARRAYS},
+            "n_samples_seen": int(self.n_samples_seen_),
+            "n_skipped": int(self.n_skipped_),
+        }
+
+    @classmethod
+    def from_state(cls, state: dict) -> WangMendelRegressor:
+        """The model a :meth:`to_state` describes."""
+        m = cls(**state["params"])
+        m.init(len(state["params"]["n_sets"]))
+        for k in STATE_ARRAYS:
+            setattr(m, k, np.asarray(state[k], dtype=getattr(m, k).dtype))
+        m.n_samples_seen_ = int(state["n_samples_seen"])
+        m.n_skipped_ = int(state["n_skipped"])
+        return m
+
+    def init(self, n_features: int) -> WangMendelRegressor:
+        """An empty trained state (no rules) for ``n_features`` inputs; needs explicit spans."""
+        if self.input_spans is None or self.output_span is None:
+            raise ValueError("init needs input_spans and output_span")
+        self._init_partitions(np.zeros((1, n_features)), np.zeros(1))
+        return self
+
     # ----------------------------------------------------------- rule access
     @property
     def conclusions_(self) -> np.ndarray:
@@ -351,6 +369,13 @@ class WangMendelRegressor:
         for k in range(self.n_features_in_):
             out[:, k], rem = np.divmod(rem, self.radix_[k])
         return out
+
+    def regions(self, X) -> np.ndarray:
+        """Rule cell of each sample: the max-membership set of every input (eq. 3), as keys."""
+        self._check_fitted()
+        X = _as_2d(X)
+        cells = np.column_stack([p.nearest(X[:, k]) for k, p in enumerate(self.partitions_)])
+        return self.cell_keys(cells) if len(cells) else np.empty(0, np.int64)
 
     def cell_keys(self, indices: np.ndarray) -> np.ndarray:
         """Rule keys of set-index rows (inverse of :meth:`cell_indices`)."""

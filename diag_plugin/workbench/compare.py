@@ -16,9 +16,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from diag_plugin.metrics import error_figures, residual_pct
 from diag_plugin.regressors import build_design, needed_tags
 from diag_plugin.rulebase import RuleBase
-from diag_plugin.training import residual_pct
+from historian.jsonable import to_jsonable
 
 
 @dataclass
@@ -55,34 +56,7 @@ class Comparison:
 
 
 def _records(df: pd.DataFrame) -> list[dict]:
-    out = []
-    for rec in df.to_dict("records"):
-        clean = {}
-        for k, v in rec.items():
-            if isinstance(v, pd.Timestamp):
-                v = v.isoformat()
-            elif isinstance(v, np.generic):
-                v = v.item()
-            if isinstance(v, float) and not np.isfinite(v):
-                v = None
-            clean[k] = v
-        out.append(clean)
-    return out
-
-
-def metrics(residual: np.ndarray) -> dict[str, float]:
-    """RMSE, MAE, bias and max |error| in % of span, and coverage."""
-    r = residual[np.isfinite(residual)]
-    if r.size == 0:
-        nan = float("nan")
-        return dict(rmse_pct=nan, mae_pct=nan, bias_pct=nan, max_abs_pct=nan, coverage=0.0)
-    return {
-        "rmse_pct": float(np.sqrt(np.mean(r**2))),
-        "mae_pct": float(np.mean(np.abs(r))),
-        "bias_pct": float(np.mean(r)),
-        "max_abs_pct": float(np.max(np.abs(r))),
-        "coverage": float(r.size / residual.size) if residual.size else 0.0,
-    }
+    return to_jsonable(df.to_dict("records"))
 
 
 def compare(
@@ -105,8 +79,10 @@ def compare(
         yhat=det.y,
         residual=res,
         reason=det.reason,
-        metrics=metrics(res),
-        regions=error_by_cell(rb, model, d.X, res),
+        metrics=error_figures(res),
+        regions=error_by_cell(rb, model, d.X, res)
+        if model.capabilities.rule_regions
+        else _no_regions(rb),
         periods=worst_periods(d.index, res, window),
         tags=residual_vs_tags(frame, d.index, res, exclude=_model_tags(rb)),
         dropped=d.dropped,
@@ -117,10 +93,16 @@ def _model_tags(rb: RuleBase) -> set[str]:
     return set(needed_tags([v.spec for v in rb.inputs] + [rb.output.spec]))
 
 
+def _no_regions(rb: RuleBase) -> pd.DataFrame:
+    """The per-cell table of a model without rule regions: empty."""
+    cols = [v.spec for v in rb.inputs] + [f"{v.spec} centre" for v in rb.inputs]
+    return pd.DataFrame(columns=[*cols, "count", "mean_pct", "rmse_pct", "rule"])
+
+
 def error_by_cell(rb: RuleBase, model, X: np.ndarray, res: np.ndarray) -> pd.DataFrame:
-    """Residual per rule cell of the inputs (max-membership sets, eq. 3)."""
-    cells = np.column_stack([p.nearest(X[:, k]) for k, p in enumerate(model.partitions_)])
-    keys = model.cell_keys(cells) if len(cells) else np.empty(0, np.int64)
+    """Residual per rule cell of the inputs (max-membership sets, eq. 3); for models that
+    declare ``rule_regions``."""
+    keys = model.regions(X)
     ok = np.isfinite(res)
     df = pd.DataFrame({"key": keys, "r": np.where(ok, res, 0.0), "ok": ok})
     df["r2"] = df["r"] ** 2
@@ -132,8 +114,7 @@ def error_by_cell(rb: RuleBase, model, X: np.ndarray, res: np.ndarray) -> pd.Dat
     labels = model.cell_indices(g.index.to_numpy())
     for k, v in enumerate(rb.inputs):
         out[v.spec] = [v.set_label(int(i)) for i in labels[:, k]]
-        centers = model.partitions_[k].centers
-        out[f"{v.spec} centre"] = centers[labels[:, k]]
+        out[f"{v.spec} centre"] = model.partitions_[k].centers[labels[:, k]]
     out["count"] = g["count"].to_numpy()
     out["mean_pct"] = np.where(g["supported"] > 0, g["s"] / n, np.nan)
     out["rmse_pct"] = np.where(g["supported"] > 0, np.sqrt(g["s2"] / n), np.nan)

@@ -14,11 +14,13 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from dataclasses import replace as dc_replace
 
 import numpy as np
 import pandas as pd
 
-from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
+from diag_plugin.metrics import residual_pct
+from diag_plugin.models.spec import Variable
 from diag_plugin.regressors import (
     InputSpec,
     check_regular,
@@ -27,6 +29,8 @@ from diag_plugin.regressors import (
     needed_tags,
 )
 from diag_plugin.rulebase import RuleBase
+from diag_plugin.training import split_time
+from diag_plugin.workbench.model_edit import variable_for
 
 #: |correlation| with a model input above which a candidate is flagged
 CORR_WARN = 0.6
@@ -103,35 +107,16 @@ class _Features:
         return v
 
 
-def _span_and_sets(spec: InputSpec, col: np.ndarray, spans, default_sets: int):
-    if spec.fn == "dir":
-        return (-1.0, 1.0), 2
-    if spec.fn == "hour":
-        return (0.0, 24.0), 25
-    if spec.fn == "" and spec.tags[0] in spans:
-        return tuple(spans[spec.tags[0]]), default_sets
-    v = col[np.isfinite(col)]
-    if v.size == 0:
-        return None, default_sets
-    lo, hi = np.quantile(v, [0.001, 0.999]) if spec.fn in ("rate", "diff") else (v.min(), v.max())
-    if hi <= lo:
-        return None, default_sets
-    sets = 12 if spec.fn == "days" else default_sets
-    return (float(lo), float(hi)), sets
-
-
 def _score(
+    rb: RuleBase,
+    variables: Sequence[Variable],
     cols: Sequence[np.ndarray],
     y: np.ndarray,
-    spans: Sequence[tuple[float, float]],
-    sets: Sequence[int],
-    out_span: tuple[float, float],
-    shape: str,
-    method: str,
     cut: int,
     stride: int = 1,
 ) -> tuple[float, float, float]:
-    """Held-out RMSE in % of span, coverage, and training samples per rule."""
+    """Held-out RMSE in % of span, coverage, and training samples per rule of ``rb``'s
+    method with ``variables`` as inputs, trained on rows before ``cut`` (time order)."""
     X = np.column_stack(cols)
     if stride > 1:
         X, y = X[::stride], y[::stride]
@@ -143,12 +128,11 @@ def _score(
     va[:cut] = False
     if tr.sum() < 10 or va.sum() < 10:
         return math.nan, 0.0, 0.0
-    m = WangMendelRegressor(list(spans), out_span, list(sets), shape=shape, method=method)
-    m.fit(X[tr], y[tr])
-    p = m.predict(X[va])
-    r = (y[va] - p) / (out_span[1] - out_span[0]) * 100
+    spec = dc_replace(rb.spec, inputs=list(variables))
+    m = rb.codec.new_estimator(spec).fit(X[tr], y[tr])
+    r = residual_pct(y[va], m.predict(X[va]), rb.output.span[1] - rb.output.span[0])
     good = np.isfinite(r)
-    per_cell = tr.sum() / max(m.n_rules_, 1)
+    per_cell = tr.sum() / max(rb.codec.size(m), 1)
     if not good.any():
         return math.nan, 0.0, per_cell
     return float(np.sqrt(np.mean(r[good] ** 2))), float(good.mean()), per_cell
@@ -170,44 +154,57 @@ def explain(
     """
     check_regular(frame.index)
     tag_info = tag_info or {}
-    spans = {
-        t: (float(i["lo"]), float(i["hi"]))
-        for t, i in tag_info.items()
-        if i.get("lo") is not None and i.get("hi") is not None and float(i["hi"]) > float(i["lo"])
-    }
-    for v in rb.inputs:
-        s = InputSpec.parse(v.spec)
-        if s.fn == "" and s.tags[0] not in spans:
-            spans[s.tags[0]] = v.span
+    known = {s.tags[0]: v.span for v in rb.inputs if (s := InputSpec.parse(v.spec)).fn == ""}
+    spans = dict(known)
+    for t, i in tag_info.items():
+        if i.get("lo") is not None and i.get("hi") is not None and float(i["hi"]) > float(i["lo"]):
+            spans[t] = (float(i["lo"]), float(i["hi"]))
     feats = _Features(frame, spans)
     out_spec = InputSpec.parse(rb.output.spec)
     y = feats.column(out_spec)
     in_specs = [InputSpec.parse(v.spec) for v in rb.inputs]
     in_cols = [feats.column(s) for s in in_specs]
-    in_spans = [v.span for v in rb.inputs]
-    in_sets = [v.sets for v in rb.inputs]
-    default_sets = max(in_sets) if in_sets else 31
+    in_vars = list(rb.inputs)
+    default_sets = max(v.sets for v in in_vars) if in_vars else 31
     n = len(frame)
-    cut = int(n * (1 - holdout))
-    args = (rb.output.span, rb.shape, rb.method, cut)
-    base_rmse, base_cov, _ = _score(in_cols, y, in_spans, in_sets, *args)
+    cut = _cut_row(frame.index, holdout)
+    base_rmse, base_cov, _ = _score(rb, in_vars, in_cols, y, cut)
+    var_cache: dict[str, Variable | None] = {}
+
+    def variable(spec: InputSpec) -> Variable | None:
+        """The variable add-input would write for ``spec`` (same span and sets)."""
+        if spec.base not in var_cache:
+            col = feats.column(spec.with_lag(0))
+            v = col[np.isfinite(col)]
+            if v.size == 0 or v.min() == v.max():
+                var_cache[spec.base] = None  # nothing to learn from a constant
+            else:
+                var_cache[spec.base] = variable_for(
+                    str(spec.with_lag(0)),
+                    frame=frame,
+                    tag_info=tag_info,
+                    default_sets=default_sets,
+                    known_spans=known,
+                )
+        base = var_cache[spec.base]
+        return None if base is None else dc_replace(base, spec=str(spec))
+
     model_tags = set(needed_tags([v.spec for v in rb.inputs]))
     out_tags = set(out_spec.tags)
 
     def evaluate(spec: InputSpec, replace: int | None = None, stride: int = 1):
-        col = feats.column(spec)
-        span, sets = _span_and_sets(spec, col, spans, default_sets)
-        if span is None:
+        var = variable(spec)
+        if var is None:
             return None
-        cols, sp, st = list(in_cols), list(in_spans), list(in_sets)
+        col = feats.column(spec)
+        cols, vs = list(in_cols), list(in_vars)
         if replace is None:
             cols.append(col)
-            sp.append(span)
-            st.append(sets)
+            vs.append(var)
         else:
-            cols[replace], sp[replace] = col, span
-        rmse, cov, per_cell = _score(cols, y, sp, st, *args, stride=stride)
-        return rmse, cov, per_cell, span, sets
+            cols[replace], vs[replace] = col, var
+        rmse, cov, per_cell = _score(rb, vs, cols, y, cut, stride=stride)
+        return rmse, cov, per_cell, var.span, var.sets
 
     def best_lag(base: InputSpec, lags, replace=None):
         stride = max(1, n // LAG_SEARCH_ROWS)
@@ -326,6 +323,15 @@ def explain(
         candidates=found[:top] if top else found,
         validation_from=frame.index[cut] if cut < n else None,
     )
+
+
+def _cut_row(index: pd.DatetimeIndex, holdout: float) -> int:
+    """First row of the held-out block: the product's one time-based cut."""
+    if len(index) == 0:
+        return 0
+    step = index[1] - index[0] if len(index) > 1 else pd.Timedelta(0)
+    t = split_time(index[0], index[-1] + step, holdout)
+    return int(index.searchsorted(t))
 
 
 def _sortable(v: float) -> float:

@@ -7,6 +7,7 @@ cleared (the file says so) and the next ``diag train`` fills them.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -27,7 +28,9 @@ def variable_for(
     default_sets: int = 31,
     known_spans: Mapping[str, tuple[float, float]] | None = None,
 ) -> Variable:
-    """A variable with its nominal span: tag metadata first, else the observed range.
+    """A variable with its nominal span and sets: tag metadata first, then the span the model
+    already gives the tag (``known_spans``), else the observed range. The one rule for spans
+    and sets: ``explain`` scores each candidate on exactly the variable ``add-input`` writes.
 
     A ``dir()`` input gets its move threshold written into the spec, so training,
     inference and the live plug-in all use the same value.
@@ -54,6 +57,8 @@ def variable_for(
             lo, hi = float(info["lo"]), float(info["hi"])
             if hi > lo:
                 span = (lo, hi)
+        if s.fn == "" and span is None and s.tags[0] in (known_spans or {}):
+            span = tuple(known_spans[s.tags[0]])  # the span the model already uses for it
     if s.fn == "days":
         unit, n_sets = "d", sets or 12
     if span is None:
@@ -68,12 +73,20 @@ def variable_for(
         if hi <= lo:
             hi = lo + max(abs(lo), 1.0) * 0.01
         pad = 0.02 * (hi - lo)
-        span = (_nice(lo - pad), _nice(hi + pad))
+        span = _nice_span(lo - pad, hi + pad)
     return Variable(spec, default_label(spec), unit, span, int(n_sets))
 
 
-def _nice(v: float) -> float:
-    return float(f"{v:.4g}")
+def _nice_span(lo: float, hi: float) -> tuple[float, float]:
+    """``[lo, hi]`` with each end to 4 significant digits, or finer where the width needs it
+    (a day of ``days()`` near 9,500 keeps its width instead of collapsing to one value)."""
+    w = math.floor(math.log10(hi - lo))
+
+    def nice(v: float) -> float:
+        mag = math.floor(math.log10(abs(v))) if v else w
+        return float(f"{v:.{max(4, mag - w + 4)}g}")
+
+    return nice(lo), nice(hi)
 
 
 def new_model(

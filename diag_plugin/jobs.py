@@ -29,6 +29,7 @@ from diag_plugin.rulebase import RuleBase, RuleBaseError, resolve
 from diag_plugin.training import DEFAULT_CHUNK, train
 from historian.access import WindowReader, experiments
 from historian.errors import UserError
+from historian.jsonable import to_jsonable
 from historian.store import Historian
 
 log = logging.getLogger(__name__)
@@ -88,7 +89,7 @@ def train_one(
     reader = WindowReader(url, tuple(tags), rb.period)
     fit_chunks = None
     if engine == "dask":
-        from historian.dask_engine import dask_fitter
+        from diag_plugin.dask_engine import dask_fitter
 
         fit_chunks = dask_fitter(scheduler, reader)
     started = time.perf_counter()
@@ -130,7 +131,7 @@ def train_one(
             [v.spec for v in rb.inputs],
             t0,
             t1,
-            {**metrics, "rules": res.model.n_rules_, "trained_samples": res.samples},
+            {**metrics, "rules": res.size, "trained_samples": res.samples},
         )
     out = {"model": rb.name, "version": version, **res.as_dict()}
     out["seconds"] = round(time.perf_counter() - started, 3)
@@ -256,7 +257,7 @@ def cmd_experiments(args) -> int:
     if args.json:
         rows = []
         for rec in df[cols].to_dict("records"):
-            rows.append({k: _jsonable(v) for k, v in rec.items()})
+            rows.append({k: to_jsonable(v) for k, v in rec.items()})
         print(json.dumps({"model": name, "experiments": rows}, indent=2))
         return 0
     if not len(df):
@@ -283,13 +284,3 @@ def _fmt(v, spec: str) -> str:
         return format(float(v), spec)
     except (TypeError, ValueError):
         return ""
-
-
-def _jsonable(v):
-    if isinstance(v, pd.Timestamp):
-        return v.isoformat()
-    if hasattr(v, "item"):
-        v = v.item()
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v

@@ -1,0 +1,237 @@
+"""The Wang–Mendel part of a model file: its rules, how they are read, written and locked.
+
+The file's shell (``[model]``, ``[output]``, ``[[inputs]]``, ``[training]``) is
+the same for every method (:mod:`diag_plugin.rulebase`); this codec gives the
+``[rules]`` list its meaning for ``wm-avg`` and ``wm`` (Kościelny et al.,
+eqs. 2–5)::
+
+    { if = ["U17", "P04"], then = 63.2, n = 5231, sd = 0.8, lock = false }
+
+``if`` names the premise set of each input (label + set index), ``then`` is the
+conclusion in the output's engineering units, ``n``/``sd`` its training
+support, ``lock`` keeps ``then`` through retraining. ``then = nan`` with
+``lock = true`` is a *locked-deleted* rule: that cell never gets a rule.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
+from diag_plugin.models.spec import ModelSpec
+
+if TYPE_CHECKING:
+    from diag_plugin.rulebase import RuleBase
+
+RULE_KEYS = {"if", "then", "n", "sd", "lock"}
+
+
+@dataclass
+class Rule:
+    premise: tuple[int, ...]
+    then: float
+    n: int = 0
+    sd: float = 0.0
+    lock: bool = False
+    line: int = 0
+    comments: list[str] = field(default_factory=list)
+    trailing: str = ""
+
+
+class WangMendelCodec:
+    """Estimator factory and rule I/O of the Wang–Mendel methods (``wm-avg``, ``wm``)."""
+
+    estimator = WangMendelRegressor
+
+    def __init__(self, method: str = "wm-avg") -> None:
+        self.method = method
+
+    # ------------------------------------------------------------ estimators
+    def new_estimator(self, spec: ModelSpec) -> WangMendelRegressor:
+        """An untrained model with the spec's partitions and method."""
+        return WangMendelRegressor(
+            input_spans=[v.span for v in spec.inputs],
+            output_span=spec.output.span,
+            n_sets=[v.sets for v in spec.inputs],
+            output_sets=spec.output.sets,
+            shape=spec.shape,
+            method=spec.method,
+        )
+
+    def to_model(self, rb: RuleBase) -> WangMendelRegressor:
+        """The model the file describes; expert edits are used as written."""
+        m = self.new_estimator(rb.spec).init(len(rb.inputs))
+        return _with_rules(m, {r.premise: r for r in rb.rules if not math.isnan(r.then)})
+
+    def predictor(self, rb: RuleBase, model: WangMendelRegressor) -> WangMendelRegressor:
+        """A copy of a trained model with the experts' locked rules applied.
+
+        The trained model itself keeps its exact statistics (for ``merge``); the
+        file applies the locks again when it takes the training.
+        """
+        locked = [r for r in rb.rules if r.lock]
+        if not locked:
+            return model
+        out = WangMendelRegressor.from_state(model.to_state())
+        idx = out.cell_indices()
+        rules = {
+            tuple(int(v) for v in idx[j]): Rule((), float(c), int(n), float(sd))
+            for j, (c, n, sd) in enumerate(zip(out.conclusions_, out.count_, out.sd_, strict=True))
+        }
+        for r in locked:
+            if math.isnan(r.then):
+                rules.pop(r.premise, None)
+            else:
+                rules[r.premise] = r
+        return _with_rules(out, rules)
+
+    def apply_training(self, rb: RuleBase, model: WangMendelRegressor) -> list[Rule]:
+        """The file's rules after training, keeping the experts' locks.
+
+        A locked rule keeps its conclusion (its support is updated); a
+        locked-deleted cell stays empty; a rule without new data is kept as it
+        was; every other cell gets the trained average (eq. 5), clipped to the
+        output's nominal span.
+        """
+        old = {r.premise: r for r in rb.rules}
+        idx = model.cell_indices()
+        # averages of noisy measurements may sit a hair outside the nominal span
+        conc = np.clip(model.conclusions_, *rb.output.span)
+        sd, cnt = model.sd_, model.count_
+        new: dict[tuple[int, ...], Rule] = {}
+        for j in range(idx.shape[0]):
+            p = tuple(int(v) for v in idx[j])
+            prev = old.get(p)
+            r = Rule(p, float(conc[j]), int(cnt[j]), float(sd[j]))
+            if prev is not None:
+                r.comments, r.trailing = prev.comments, prev.trailing
+                if prev.lock:
+                    r.then, r.lock = prev.then, True
+            new[p] = r
+        for p, prev in old.items():
+            new.setdefault(p, prev)
+        return [new[p] for p in sorted(new)]
+
+    def size(self, model: WangMendelRegressor) -> int:
+        """Rules of a trained model."""
+        return model.n_rules_
+
+    # ------------------------------------------------------------- file I/O
+    def read_rules(
+        self, rb: RuleBase, items: list, positions: Sequence[tuple[int, list[str], str]]
+    ) -> list[Rule]:
+        """Rules from the file's ``[rules] list``; each problem goes to ``rb.error(line, …)``."""
+        lo, hi = rb.output.span
+        rules: list[Rule] = []
+        seen: dict[tuple[int, ...], int] = {}
+        for i, item in enumerate(items):
+            line, comments, trail = (
+                positions[i] if i < len(positions) else (rb.line_of("rules", "list"), [], "")
+            )
+            where = f"rule {i + 1}"
+            if not isinstance(item, Mapping):
+                rb.error(line, f"{where}: expected {{ if = [...], then = ... }}")
+                continue
+            n0 = len(rb.problems)
+            unknown = set(item) - RULE_KEYS
+            if unknown:
+                rb.error(line, f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+            prem = item.get("if")
+            premise: list[int] = []
+            if not isinstance(prem, list) or not all(isinstance(p, str) for p in prem):
+                rb.error(line, f"{where}: 'if' must be a list of set labels")
+            elif len(prem) != len(rb.inputs):
+                rb.error(line, f"{where}: 'if' has {len(prem)} labels for {len(rb.inputs)} inputs")
+            else:
+                for var, lab in zip(rb.inputs, prem, strict=True):
+                    idx = var.parse_label(str(lab))
+                    if idx is None:
+                        rb.error(
+                            line,
+                            f"{where}: unknown set label {str(lab)!r} for input "
+                            f"{var.spec} (expected {var.set_label(0)}…"
+                            f"{var.set_label(var.sets - 1)})",
+                        )
+                    premise.append(-1 if idx is None else idx)
+            then = item.get("then")
+            lock = item.get("lock", False)
+            if not isinstance(lock, bool):
+                rb.error(line, f"{where}: lock must be true or false, got {lock!r}")
+                lock = False
+            if isinstance(then, bool) or not isinstance(then, int | float):
+                rb.error(line, f"{where}: then must be a number, got {then!r}")
+                then = math.nan
+            then = float(then)
+            if math.isnan(then) and not lock:
+                rb.error(
+                    line,
+                    f"{where}: then = nan is only allowed on a locked rule "
+                    "(locked-deleted cell); delete the line to drop the rule",
+                )
+            elif not math.isnan(then) and not (lo <= then <= hi):
+                rb.error(
+                    line,
+                    f"{where}: then = {then:g} is outside the output span "
+                    f"[{lo:g}, {hi:g}] {rb.output.unit}".rstrip(),
+                )
+            n = item.get("n", 0)
+            if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+                rb.error(line, f"{where}: n must be a non-negative integer, got {n!r}")
+                n = 0
+            sd = item.get("sd", 0.0)
+            if isinstance(sd, bool) or not isinstance(sd, int | float) or not sd >= 0:
+                if not (isinstance(sd, float) and math.isnan(sd)):
+                    rb.error(line, f"{where}: sd must be a non-negative number, got {sd!r}")
+                sd = 0.0
+            if len(rb.problems) > n0:
+                continue
+            key = tuple(premise)
+            if key in seen:
+                rb.error(
+                    line, f"{where}: duplicate premise {list(prem)} (first at line {seen[key]})"
+                )
+                continue
+            seen[key] = line
+            rules.append(Rule(key, then, int(n), float(sd), bool(lock), line, comments, trail))
+        return rules
+
+    def format_rules(self, rb: RuleBase) -> str:
+        """The ``list = [...]`` text, one rule per line in premise order, comments kept."""
+        dec_y = _decimals(rb.output.span)
+        out = ["list = [\n"]
+        for r in rb.rules:
+            for c in r.comments:
+                out.append(f"    {c}\n")
+            labels = ", ".join(
+                f'"{v.set_label(i)}"' for v, i in zip(rb.inputs, r.premise, strict=True)
+            )
+            then = "nan" if math.isnan(r.then) else f"{r.then:.{dec_y}f}"
+            sd = "nan" if math.isnan(r.sd) else f"{r.sd:.{dec_y}f}"
+            lock = "true" if r.lock else "false"
+            line = f"    {{ if = [{labels}], then = {then}, n = {r.n}, sd = {sd}, lock = {lock} }},"
+            out.append(line + (f"  {r.trailing}" if r.trailing else "") + "\n")
+        out.append("]\n")
+        return "".join(out)
+
+
+def _with_rules(m: WangMendelRegressor, rules: Mapping[tuple[int, ...], Rule]):
+    d = m.n_features_in_
+    ps = sorted(rules)
+    idx = np.array(ps, np.int64).reshape(-1, d)
+    return m.set_rules(
+        m.cell_keys(idx),
+        [rules[p].then for p in ps],
+        counts=[rules[p].n for p in ps],
+        sds=[rules[p].sd for p in ps],
+    )
+
+
+def _decimals(span: tuple[float, float]) -> int:
+    """Decimals that resolve 1e-4 of the span."""
+    width = span[1] - span[0]
+    return max(0, 4 - math.floor(math.log10(width))) if width > 0 else 4

@@ -1,0 +1,78 @@
+"""What every model method offers the rest of the product (training, compare, explain,
+report, the Dask engine, diagnostics): scikit-learn style estimators with a declared set of
+capabilities and a public, pickle-free state."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar, Protocol, Self, runtime_checkable
+
+import numpy as np
+
+REASON_OK = 0
+REASON_NAN = 1
+REASON_UNSUPPORTED = 2
+REASON_OUTSIDE = 3
+REASONS = {
+    REASON_OK: "",
+    REASON_NAN: "an input is missing (NaN or bad quality)",
+    REASON_UNSUPPORTED: "no trained rule covers this operating point",
+    REASON_OUTSIDE: "an input is outside its nominal span (clipped to the span)",
+}
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What a method can do; callers use a feature only where it is declared.
+
+    ``incremental``: ``partial_fit`` on consecutive chunks equals one ``fit``.
+    ``mergeable``: ``merge`` of models trained on parts equals training on all
+    (chunks trained on Dask workers). ``rule_regions``: predictions come from
+    rule cells over the inputs (``regions``), so errors can be mapped per cell.
+    ``free_run``: the model can simulate its output from its own past outputs
+    (output-error residuals).
+    """
+
+    incremental: bool = False
+    mergeable: bool = False
+    rule_regions: bool = False
+    free_run: bool = False
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Model output with its support: ``y`` (NaN where unsupported), the firing
+    weight carried by existing rules ``support`` (0–1), and a ``reason`` code
+    per sample (see :data:`REASONS`)."""
+
+    y: np.ndarray
+    support: np.ndarray
+    reason: np.ndarray
+
+    @property
+    def coverage(self) -> float:
+        """Share of samples that got a prediction."""
+        return float(np.isfinite(self.y).mean()) if self.y.size else float("nan")
+
+
+@runtime_checkable
+class Model(Protocol):
+    """A model of one output from ``d`` inputs (rows × inputs in, one value per row out)."""
+
+    capabilities: ClassVar[Capabilities]
+    n_samples_seen_: int
+
+    def fit(self, X: Any, y: Any) -> Self: ...
+
+    def partial_fit(self, X: Any, y: Any) -> Self: ...
+
+    def predict(self, X: Any) -> np.ndarray: ...
+
+    def predict_detail(self, X: Any) -> Prediction: ...
+
+    def merge(self, other: Self) -> Self: ...
+
+    def to_state(self) -> dict[str, Any]: ...
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> Self: ...

@@ -1,0 +1,42 @@
+"""From the method name a model file names to the estimator and the file codec that serve it.
+
+Adding a method is a new module with its estimator and codec, and one line here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Method:
+    """A method name, the module that implements it and its codec's class name."""
+
+    name: str
+    module: str
+    codec: str
+    summary: str
+
+    def load(self) -> Any:
+        """The codec instance (imported on first use: a CLI start loads no method)."""
+        import importlib
+
+        return getattr(importlib.import_module(self.module), self.codec)(self.name)
+
+
+METHODS: dict[str, Method] = {
+    m.name: m
+    for m in (
+        Method("wm-avg", "diag_plugin.fuzzy.wm_codec", "WangMendelCodec", "averaged Wang–Mendel"),
+        Method("wm", "diag_plugin.fuzzy.wm_codec", "WangMendelCodec", "classic Wang–Mendel"),
+    )
+}
+
+
+def get_method(name: str):
+    """The codec of a method name, or ``KeyError`` naming the known ones."""
+    try:
+        return METHODS[name].load()
+    except KeyError:
+        raise KeyError(f"unknown method {name!r} (known: {', '.join(METHODS)})") from None
