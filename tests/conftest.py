@@ -1,10 +1,17 @@
-"""Shared fixtures: a fresh historian on each backend (SQLite file, PostgreSQL database)."""
+"""Shared fixtures: a fresh historian on each backend (SQLite file, PostgreSQL database).
+
+With the environment variable CI=true, a test that would skip because a peer or system
+part is missing (a skip reason made by ``helpers.require``/``requires``) fails instead:
+on CI every part is installed, so such a skip means a broken set-up step.
+"""
 
 from __future__ import annotations
 
+import os
 import uuid
 
 import pytest
+from helpers import MISSING, require
 
 PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/postgres"
 
@@ -29,8 +36,11 @@ def pg_available() -> bool:
 @pytest.fixture
 def pg_url(pg_available):
     """URL of a new, empty PostgreSQL database, dropped after the test."""
-    if not pg_available:
-        pytest.skip("no PostgreSQL server reachable on 127.0.0.1:5432")
+    require(
+        "PostgreSQL server",
+        pg_available,
+        "nothing reachable on 127.0.0.1:5432; .ci/sysdeps starts it",
+    )
     import psycopg
 
     name = f"diag_test_{uuid.uuid4().hex[:12]}"
@@ -63,3 +73,22 @@ def historian(db_url, tmp_path):
         yield h
     finally:
         h.close()
+
+
+def _ci() -> bool:
+    return os.environ.get("CI", "").strip().lower() == "true"
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    """With CI=true, a skip for a missing peer/system part is a failure; other skips stay."""
+    rep = yield
+    if rep.skipped and _ci() and isinstance(rep.longrepr, tuple):
+        reason = str(rep.longrepr[2])
+        if MISSING in reason:
+            rep.outcome = "failed"
+            rep.longrepr = (
+                f"CI=true: this test would skip, but on CI nothing may be missing: "
+                f"{reason.removeprefix('Skipped: ')}"
+            )
+    return rep

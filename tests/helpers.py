@@ -1,4 +1,4 @@
-"""Small synthetic plants shared by tests (not tests themselves)."""
+"""Small synthetic plants shared by tests (not tests themselves), and ``require``."""
 
 import os
 import subprocess
@@ -7,6 +7,48 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+#: Every skip because a peer or system part is missing (PostgreSQL server, Chromium, the
+#: fuzzylite binary, the pyfuzzylite venv, the shared data) has a reason starting with
+#: this; with CI=true conftest.py turns such a skip into a failure, since on CI it means
+#: a set-up step is broken.
+MISSING = "missing peer/system part:"
+
+
+def missing(what: str, how: str) -> str:
+    """The skip reason for a missing part ``what``; ``how`` says how one gets it."""
+    return f"{MISSING} {what} ({how})"
+
+
+def require(what: str, ok: bool, how: str) -> None:
+    """Skip the running test (fail it when CI=true) unless the part ``what`` is there."""
+    if not ok:
+        pytest.skip(missing(what, how))
+
+
+def requires(what: str, ok: bool, how: str) -> pytest.MarkDecorator:
+    """:func:`require` as a mark for whole tests or modules."""
+    return pytest.mark.skipif(not ok, reason=missing(what, how))
+
+
+def shared_dir() -> Path:
+    """The ``shared`` folder beside the repository (real plant data; CI provides it).
+
+    TESTS_SHARED_DIR points the tests elsewhere (e.g. at an empty folder, to check that
+    CI fails when the data are missing)."""
+    return Path(os.environ.get("TESTS_SHARED_DIR") or REPO.parent / "shared")
+
+
+def damadics_file() -> Path | None:
+    """The real DAMADICS hour (``shared/data/damadics``), if present."""
+    p = shared_dir() / "data" / "damadics" / "OneHourTestData_ExampleII.mat"
+    return p if p.is_file() else None
+
+
+DAMADICS_HOW = "../shared/data/damadics; CI has it"
 
 
 def run_diag(cwd: Path, *args: str, **env: str) -> subprocess.CompletedProcess:

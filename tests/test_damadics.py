@@ -2,13 +2,12 @@
 
 import numpy as np
 import pytest
+from helpers import DAMADICS_HOW, damadics_file, requires
 
-from diag_plugin.damadics import find_file, load_hour
+from diag_plugin.damadics import load_hour
 
-PATH = find_file()
-pytestmark = pytest.mark.skipif(
-    PATH is None, reason="real DAMADICS data not present (../shared/data/damadics; CI has it)"
-)
+PATH = damadics_file()
+pytestmark = requires("real DAMADICS data", PATH is not None, DAMADICS_HOW)
 
 
 def test_hour_loads_with_its_physics():

@@ -21,14 +21,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import require, requires
 
 from diag_plugin.fuzzy.fcl import identifier, to_fcl, to_fll
 from diag_plugin.rulebase import RuleBase, Variable
 
 FUZZYLITE = shutil.which("fuzzylite")
-needs_fuzzylite = pytest.mark.skipif(
-    FUZZYLITE is None,
-    reason="the fuzzylite command (Debian package 'fuzzylite', version 6) is not installed",
+needs_fuzzylite = requires(
+    "the fuzzylite command",
+    FUZZYLITE is not None,
+    "Debian package 'fuzzylite', version 6; .ci/sysdeps installs it",
 )
 TOL = 1e-6  # of the output span
 
@@ -133,8 +135,7 @@ print("ready" if ready else "not ready")
 
 def _run_pyfuzzylite(fll: str, X: np.ndarray, tmp_path: Path, rules: bool = True) -> np.ndarray:
     """pyfuzzylite in its own venv (it pins numpy<2; ours is numpy 2): FLL in, outputs out."""
-    if not PEER_PYTHON.exists():
-        pytest.skip("pyfuzzylite peer venv .venv-peers is missing: `make test` creates it")
+    require("pyfuzzylite peer venv .venv-peers", PEER_PYTHON.exists(), "`make test` creates it")
     (tmp_path / "model.fll").write_text(fll, encoding="utf-8")
     np.savetxt(tmp_path / "in.txt", X, fmt="%.17g")
     res = subprocess.run(

@@ -8,9 +8,10 @@ first and adding it must cut the held-out error.
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import DAMADICS_HOW, damadics_file, requires
 
 from diag_plugin.damadics import TAGS as DAMADICS_TAGS
-from diag_plugin.damadics import find_file, load_hour
+from diag_plugin.damadics import load_hour
 from diag_plugin.rulebase import RuleBase
 from diag_plugin.simulate.valve import TAGS, ValveParams, simulate_valve
 from diag_plugin.training import train
@@ -75,8 +76,8 @@ def test_hidden_hysteresis_is_found(tmp_path, seed):
     assert after < 0.85 * before, (before, after)
 
 
-REAL = find_file()
-real = pytest.mark.skipif(REAL is None, reason="real DAMADICS data not present (CI has it)")
+REAL = damadics_file()
+real = requires("real DAMADICS data", REAL is not None, DAMADICS_HOW)
 
 
 @real

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import valve_frame
+from helpers import requires, valve_frame
 
 from diag_plugin.metrics import error_figures
 from diag_plugin.regressors import build_design
@@ -36,9 +36,10 @@ from diag_plugin.workbench.report import (
 )
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-needs_chromium = pytest.mark.skipif(
-    CHROMIUM is None,
-    reason="headless Chromium not installed (Debian package 'chromium'; .ci/run installs it)",
+needs_chromium = requires(
+    "headless Chromium",
+    CHROMIUM is not None,
+    "Debian package 'chromium'; .ci/sysdeps installs it",
 )
 SPANS = {"CV": (0.0, 100.0, "%"), "P1": (0.0, 1000.0, "kPa")}
 TAG_INFO = {

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import DAMADICS_HOW, damadics_file, require
 
 from diag_plugin.simulate import (
     FAULTS,
@@ -369,18 +370,14 @@ def test_cli_rejects_bad_input(tmp_path, capsys):
 
 # ---------------------------------------------------------------- real data (plausibility)
 
-REAL = "/work/shared/data/damadics/OneHourTestData_ExampleII.mat"
-
 
 def test_lag_and_ranges_match_the_real_actuator():
     """The Lublin hour: X follows CV about 1 s later; P1, P2, T1, F inside our spans."""
-    import os
-
-    if not os.path.exists(REAL):
-        pytest.skip(f"real DAMADICS data not present ({REAL})")
+    real_file = damadics_file()
+    require("real DAMADICS data", real_file is not None, DAMADICS_HOW)
     from scipy.io import loadmat
 
-    m = loadmat(REAL)["OneHourTestData_ExampleII"]
+    m = loadmat(real_file)["OneHourTestData_ExampleII"]
     real = pd.DataFrame({"CV": m[5], "X": m[6]})
     assert _best_lag(real, 6) == 1
     # the simulated CV is far smoother than the real one (6 %/s jitter), so compare
