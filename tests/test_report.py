@@ -149,6 +149,10 @@ def test_downsampling_is_honest(report):
     assert levels[0]["n"] == OVERVIEW_BUCKETS and len(levels) == 2
     assert levels[1]["n"] > 10 * OVERVIEW_BUCKETS
     assert "downsampled" in path.read_text("utf-8")
+    res = np.asarray(c.residual, float)
+    ok = np.isfinite(res)
+    assert 0.05 < 1 - ok.mean() < 0.95  # unsupported samples: the means must skip them
+    t = (c.index.as_unit("ns").asi8 - c.index[0].as_unit("ns").value) / 1e9
     for lv in levels:
         y, r = _f32(lv["y"]), _f32(lv["r"])
         assert y.size == 2 * lv["n"]
@@ -156,8 +160,19 @@ def test_downsampling_is_honest(report):
         assert np.nanmax(y) == pytest.approx(SPIKE, rel=1e-6)
         assert np.nanmax(r) == pytest.approx(np.nanmax(c.residual), rel=1e-5)
         assert np.nanmin(r) == pytest.approx(np.nanmin(c.residual), rel=1e-5)
-        # the bucket means of the residual average to its overall mean (weighted by samples)
-        assert np.isfinite(_f32(lv["rmean"])).any()
+        # the bucket means of the residual, recomputed here from the samples' times: each
+        # bucket's mean of its supported samples (NaN without any) ...
+        rmean = _f32(lv["rmean"]).astype(float)
+        assert rmean.size == lv["n"]
+        bucket = np.minimum((t / lv["w"]).astype(np.int64), lv["n"] - 1)
+        k = np.bincount(bucket[ok], minlength=lv["n"])
+        s = np.bincount(bucket[ok], weights=res[ok], minlength=lv["n"])
+        np.testing.assert_array_equal(np.isnan(rmean), k == 0)
+        has = k > 0
+        np.testing.assert_allclose(rmean[has], s[has] / k[has], rtol=1e-6, atol=1e-5)
+        # ... so, weighted by those sample counts, they average to the overall mean
+        weighted = np.sum(rmean[has] * k[has]) / k.sum()
+        assert weighted == pytest.approx(np.mean(res[ok]), abs=1e-5), (weighted, np.mean(res[ok]))
 
 
 def test_min_max_order_and_gaps():
