@@ -54,11 +54,26 @@ def test_unedited_round_trip_gives_identical_bytes(rb_path, tmp_path):
 
 
 def test_loaded_model_predicts_like_trained_model(rb_path):
-    X, y = train_data(seed=1, n=2000)
+    X, _ = train_data(seed=1, n=2000)
+    X = np.r_[X, [[99.0, 990.0], [50.0, 5.0]]]  # and two points where no rule was trained
     rb = RuleBase.load(rb_path)
     trained = rb.new_model().fit(*train_data())
-    diff = rb.to_model().predict(X) - trained.predict(X)
-    assert np.nanmax(np.abs(diff)) < 1e-3 * 40  # file rounds to 1e-4 of span
+    loaded = rb.to_model()
+    # every trained rule is in the file, with its premise, and no other rule
+    assert len(rb.rules) == loaded.n_rules_ == trained.n_rules_
+    premises = [tuple(int(i) for i in row) for row in trained.cell_indices()]
+    assert [r.premise for r in rb.rules] == premises
+    np.testing.assert_array_equal(loaded.keys_, trained.keys_)
+    # each conclusion is the trained one, clipped to the output span and rounded to the
+    # file's 3 decimals (1e-4 of the 40 t/h span)
+    want = [float(f"{v:.3f}") for v in np.clip(trained.conclusions_, 0.0, 40.0)]
+    np.testing.assert_allclose([r.then for r in rb.rules], want, rtol=0, atol=1e-9)
+    # so no prediction is lost (or made up) and the rest differ by the rounding only
+    a, b = loaded.predict(X), trained.predict(X)
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+    assert np.isfinite(b).sum() == len(X) - 2 and np.isnan(b[-2:]).all()
+    clipped = np.abs(np.clip(trained.conclusions_, 0.0, 40.0) - trained.conclusions_).max()
+    assert np.max(np.abs(a - b)[:-2]) <= 0.0005 + clipped + 1e-9
 
 
 def test_expert_edit_is_used_and_lock_survives_retraining(rb_path):
