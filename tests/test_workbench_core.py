@@ -1,11 +1,14 @@
 """Workbench core on synthetic plants: compare, explain, model edits (no database)."""
 
 import json
+import re
+import shlex
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from diag_plugin.cli import build_parser
 from diag_plugin.rulebase import RuleBase
 from diag_plugin.training import train
 from diag_plugin.workbench.compare import compare
@@ -55,11 +58,22 @@ def test_explain_ranks_the_pressure_effect_first_and_adding_it_cuts_error(tmp_pa
     assert best.input in ("diff(P1,P2)[k]", "P1[k]", "P2[k]") or best.input.startswith(
         ("P1[", "P2[", "diff(P1,P2)")
     ), [c.input for c in e.candidates[:3]]
-    assert best.command == f"diag model add-input m '{best.input}'" or "--sets" in best.command
+    # explain adds --sets only for an input that needs other sets than the model's inputs
+    # (days(): 12); a tag or a difference of tags gets the model's 31, so no --sets
+    model_sets = rb.inputs[0].sets
+    assert model_sets == 31
+    assert best.command == f"diag model add-input m '{best.input}'"
+    for note in best.notes:  # a sparse grid may suggest fewer sets: then really fewer
+        for k in re.findall(r"--sets (\d+)", note):
+            assert 5 <= int(k) < model_sets, note
     assert "would cut the error" in best.effect
     json.dumps(e.as_dict())
-    rb = add_input(rb, best.input, frame=f, tag_info=INFO)
+    # run the command as printed: the `diag` parser, then what `diag model add-input` does
+    args = build_parser().parse_args(shlex.split(best.command)[1:])
+    assert (args.command, args.model_command, args.name) == ("model", "add-input", "m")
+    rb = add_input(rb, args.spec, frame=f, tag_info=INFO, sets=args.sets, replace=args.replace)
     assert [v.spec for v in rb.inputs] == ["CV[k-1]", best.input] and rb.rules == []
+    assert [v.sets for v in rb.inputs] == [model_sets, model_sets]
     _, after = trained_again(rb, f)
     assert after.validation["rmse_pct"] < before.validation["rmse_pct"] / 3
 
