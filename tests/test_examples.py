@@ -1,20 +1,28 @@
 """The example rule bases shipped in rulebases/ are valid and reproducible.
 
-Regenerating them gives the same bytes with the same numerical libraries; across numpy
-versions the simulator's floating-point results may differ in the last bits, which moves a
-few samples across set boundaries, so the comparison allows for that.
+Regenerating them gives the same bytes: checked with numpy 1.26.4 (numba 0.61, scipy
+1.13, pandas 2.2), numpy 2.1.3 and numpy 2.4.6 (numba 0.68, scipy 1.17, pandas 3.1). Other
+library versions might still round the simulator's floating-point results differently in
+the last bits; that can only move a sample lying within ~1e-12 of a set boundary into the
+neighbouring rule, so it can move a few samples at most (FEW), never add or drop a rule:
+each moved sample changes two rules' counts by one and their conclusions by at most
+2 · span / n (outputs lie within one span outside the nominal span). damadics_f is
+trained on the recorded hour, not on the simulator, so there nothing may move.
 """
 
+import math
 from pathlib import Path
 
 import pytest
+from helpers import DAMADICS_HOW, damadics_file, require
 
-from diag_plugin.damadics import find_file
 from diag_plugin.examples import build_examples
 from diag_plugin.rulebase import RuleBase, check
 
 SHIPPED = Path(__file__).resolve().parents[1] / "rulebases"
 NAMES = ["valve_a", "valve_b", "damadics_f"]
+#: samples that last-bit differences between library versions may move across a boundary
+FEW = 3
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -26,21 +34,33 @@ def test_shipped_example_is_valid(name):
     assert rb.to_model().n_rules_ == len(rb.rules)
 
 
-def test_examples_regenerate_identically(tmp_path):
-    made = build_examples(tmp_path)
-    names = {p.stem for p in made}
-    expected = set(NAMES) if find_file() is not None else {"valve_a", "valve_b"}
-    assert names == expected
-    for p in made:
-        new, old = RuleBase.load(p), RuleBase.load(SHIPPED / p.name)
-        if p.read_bytes() == (SHIPPED / p.name).read_bytes():
-            continue
-        a = {r.premise: r for r in new.rules}
-        b = {r.premise: r for r in old.rules}
-        common = set(a) & set(b)
-        assert len(common) >= 0.95 * max(len(a), len(b)), p.name
-        span = old.output.span[1] - old.output.span[0]
-        big = [k for k in common if a[k].n >= 100]
-        assert big and all(abs(a[k].then - b[k].then) < 0.005 * span for k in big), p.name
-        v_new = new.training["validation_rmse_pct"]
-        assert v_new == pytest.approx(old.training["validation_rmse_pct"], abs=0.05), p.name
+@pytest.fixture(scope="module")
+def regenerated(tmp_path_factory) -> dict[str, Path]:
+    made = build_examples(tmp_path_factory.mktemp("examples"), damadics=damadics_file())
+    return {p.stem: p for p in made}
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_examples_regenerate_identically(regenerated, name):
+    if name == "damadics_f":
+        require("real DAMADICS data", damadics_file() is not None, DAMADICS_HOW)
+    assert set(regenerated) <= set(NAMES) and name in regenerated, sorted(regenerated)
+    p, shipped = regenerated[name], SHIPPED / f"{name}.toml"
+    if p.read_bytes() == shipped.read_bytes():
+        return
+    new, old = RuleBase.load(p), RuleBase.load(shipped)
+    a = {r.premise: r for r in new.rules}
+    b = {r.premise: r for r in old.rules}
+    assert sorted(a) == sorted(b), (sorted(set(a) ^ set(b)), name)  # the same rules
+    few = FEW if name.startswith("valve") else 0
+    moved = sum(abs(a[k].n - b[k].n) for k in b)
+    assert moved <= 2 * few, (moved, name)
+    span = old.output.span[1] - old.output.span[0]
+    unit = 10.0 ** (math.floor(math.log10(span)) - 4)  # conclusions resolve 1e-4 of span
+    off = {k: abs(a[k].then - b[k].then) for k in b if a[k].then != b[k].then}
+    bad = {k: d for k, d in off.items() if not d <= unit + 2 * span * few / b[k].n}
+    assert not bad, (bad, name)
+    assert new.training == {
+        **old.training,
+        "validation_rmse_pct": pytest.approx(old.training["validation_rmse_pct"], abs=0.002),
+    }, name
