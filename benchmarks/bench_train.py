@@ -29,10 +29,10 @@ def main() -> int:
         with Historian.open(url) as h:
             for name in frame.columns:
                 m = TAGS[name]
-                h.ensure_tag(name, unit=m["unit"], lo=m["lo"], hi=m["hi"])
+                h.ensure_tag(name, unit=m.unit, lo=m.lo, hi=m.hi)
             n = h.write_samples(frame)
         t_ingest = time.perf_counter() - t0
-        info = {k: dict(v) for k, v in TAGS.items()}
+        info = TAGS
         rb = new_model(
             Path(d) / "m.toml",
             "m",

@@ -19,18 +19,19 @@ import numpy as np
 from diag_plugin.simulate.valve import TAGS, simulate_valve
 from diag_plugin.workbench.explain import explain
 from diag_plugin.workbench.model_edit import new_model
+from historian.taginfo import TagInfo
 
 BUDGET_S = 60.0
 
 
 def main() -> int:
     frame = simulate_valve(182.5, seed=3)[["CV", "P1", "P2", "T1", "X", "F"]]
-    info = {k: dict(v) for k, v in TAGS.items()}
+    info = dict(TAGS)
     rng = np.random.default_rng(0)
     for i in range(20):  # other plant tags: slow random walks with their own units
         name = f"TI{i:02d}"
         frame[name] = 50 + np.cumsum(rng.normal(0, 0.05, len(frame)))
-        info[name] = {"unit": f"u{i}", "lo": None, "hi": None, "description": "other plant tag"}
+        info[name] = TagInfo(name, f"u{i}", description="other plant tag")
     with tempfile.TemporaryDirectory() as d:
         rb = new_model(Path(d) / "m.toml", "m", "F[k]", ["CV[k-1]"], frame=frame, tag_info=info)
         tracemalloc.start()

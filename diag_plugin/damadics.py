@@ -14,15 +14,20 @@ import numpy as np
 import pandas as pd
 import scipy.io
 
+from historian.taginfo import TagInfo
+
 COLUMNS = ("time", "P1", "P2", "T1", "F", "CV", "X")
 #: tag metadata: unit, nominal range (transducer ranges), description
 TAGS = {
-    "P1": {"unit": "kPa", "lo": 3000.0, "hi": 4000.0, "description": "inlet pressure"},
-    "P2": {"unit": "kPa", "lo": 2200.0, "hi": 3000.0, "description": "outlet pressure"},
-    "T1": {"unit": "°C", "lo": 95.0, "hi": 105.0, "description": "water temperature"},
-    "F": {"unit": "t/h", "lo": 0.0, "hi": 40.0, "description": "feed-water flow"},
-    "CV": {"unit": "%", "lo": 0.0, "hi": 100.0, "description": "controller output"},
-    "X": {"unit": "%", "lo": 0.0, "hi": 100.0, "description": "rod position"},
+    t.name: t
+    for t in (
+        TagInfo("P1", "kPa", 3000.0, 4000.0, "inlet pressure"),
+        TagInfo("P2", "kPa", 2200.0, 3000.0, "outlet pressure"),
+        TagInfo("T1", "°C", 95.0, 105.0, "water temperature"),
+        TagInfo("F", "t/h", 0.0, 40.0, "feed-water flow"),
+        TagInfo("CV", "%", 0.0, 100.0, "controller output"),
+        TagInfo("X", "%", 0.0, 100.0, "rod position"),
+    )
 }
 #: the recording's date is not in the file; frames start here
 START = pd.Timestamp("2001-11-17T00:00:00Z")

@@ -55,13 +55,12 @@ def cmd_demo(args) -> int:
     with Historian.open(url) as h:
         for name, meta in TAGS.items():
             if name in frame.columns:
-                lo, hi = meta.get("range", (meta.get("lo"), meta.get("hi")))
                 h.ensure_tag(
                     name,
-                    unit=meta.get("unit"),
-                    lo=lo,
-                    hi=hi,
-                    description=meta.get("description"),
+                    unit=meta.unit,
+                    lo=meta.lo,
+                    hi=meta.hi,
+                    description=meta.description,
                     source="simulator",
                 )
         n = h.write_samples(frame)

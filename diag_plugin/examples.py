@@ -50,7 +50,7 @@ def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[
     folder.mkdir(parents=True, exist_ok=True)
     out = []
     frame = simulate_valve(SIM_DAYS, seed=SIM_SEED)
-    info = {k: dict(v) for k, v in TAGS.items()}
+    info = TAGS
     source = f"diag simulate --days {SIM_DAYS} --seed {SIM_SEED}"
     for name, inputs, desc in (
         (

@@ -14,24 +14,15 @@ from dataclasses import dataclass
 import pandas as pd
 
 from historian.store import Historian
+from historian.taginfo import TagInfo
 
 
-def tag_info(h: Historian) -> dict[str, dict]:
-    """Tag → {"unit", "lo", "hi", "description"} from the tags table."""
-    t = h.tags()
-    out = {}
-    for _, row in t.iterrows():
-        out[str(row["name"])] = {
-            "unit": _clean(row.get("unit")),
-            "lo": _clean(row.get("lo")),
-            "hi": _clean(row.get("hi")),
-            "description": _clean(row.get("description")),
-        }
-    return out
-
-
-def _clean(v):
-    return None if v is None or (isinstance(v, float) and v != v) else v
+def tag_info(h: Historian) -> dict[str, TagInfo]:
+    """Tag → :class:`TagInfo` from the tags table."""
+    return {
+        str(row["name"]): TagInfo.from_mapping(str(row["name"]), row)
+        for row in h.tags().to_dict("records")
+    }
 
 
 def open_data(
@@ -40,7 +31,7 @@ def open_data(
     start: pd.Timestamp | None,
     end: pd.Timestamp | None,
     period: str,
-) -> tuple[pd.DataFrame, dict[str, dict]]:
+) -> tuple[pd.DataFrame, dict[str, TagInfo]]:
     """Aligned frame of ``tags`` (all tags if None) on a ``period`` grid, plus tag metadata."""
     with Historian.open(url) as h:
         info = tag_info(h)

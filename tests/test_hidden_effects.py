@@ -18,7 +18,7 @@ from diag_plugin.training import train
 from diag_plugin.workbench.explain import explain
 from diag_plugin.workbench.model_edit import add_input, new_model
 
-INFO = {k: dict(v) for k, v in TAGS.items()}
+INFO = dict(TAGS)
 #: what a plant historian usually records around a control valve (no positioner internals)
 PLANT_TAGS = ["CV", "P1", "P2", "T1", "X", "F"]
 
@@ -101,7 +101,7 @@ def test_real_valve_flow_model_gets_the_pressure(tmp_path):
 def test_real_positioner_lag_is_suggested(tmp_path):
     """X = f(CV[k]) at 1 s: CV[k-1] (the positioner lag) must be suggested."""
     f = load_hour(REAL)
-    info = {k: v for k, v in DAMADICS_TAGS.items()}
+    info = dict(DAMADICS_TAGS)
     rb = new_model(tmp_path / "x.toml", "x", "X[k]", ["CV[k]"], frame=f, tag_info=info, period="1s")
     e = explain(rb, f, tag_info=info)
     cv = [c for c in e.candidates[:3] if c.input == "CV[k-1]"]

@@ -73,7 +73,7 @@ def test_shorter_run_is_a_prefix_of_a_longer_one():
 
 def test_values_inside_transducer_ranges(three_days):
     for tag, meta in TAGS.items():
-        lo, hi = meta["range"]
+        lo, hi = meta.span
         assert three_days[tag].between(lo, hi).all(), tag
 
 
@@ -219,7 +219,7 @@ def test_each_fault_acts_from_its_onset_and_not_before(base, name):
     pd.testing.assert_frame_equal(d[before], base[before], check_exact=True)
     diff = (d[~before] - base[~before]).abs().mean()
     for tag in EXPECTED[name]:
-        lo, hi = TAGS[tag]["range"]
+        lo, hi = TAGS[tag].span
         assert diff[tag] > 0.003 * (hi - lo), (name, tag, diff[tag])
     # process conditions only change where the fault is a process condition
     for tag in ("P1", "P2", "T1"):
@@ -385,5 +385,5 @@ def test_lag_and_ranges_match_the_real_actuator():
     sim = simulate_valve(0.1, period_s=1, seed=0, params=QUIET)
     assert _best_lag(sim, 6) == 1
     for row, tag in ((1, "P1"), (2, "P2"), (3, "T1"), (4, "F")):
-        lo, hi = TAGS[tag]["range"]
+        lo, hi = TAGS[tag].span
         assert lo <= m[row].min() and m[row].max() <= hi, tag

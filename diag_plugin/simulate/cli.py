@@ -46,8 +46,8 @@ def write_tags_csv(path: Path, columns) -> None:
     for c in columns:
         m = TAGS.get(c)
         if m:
-            desc = str(m.get("description", "")).replace('"', "'")
-            rows.append(f'{c},{m["unit"]},{m["lo"]:g},{m["hi"]:g},"{desc}"')
+            desc = m.description.replace('"', "'")
+            rows.append(f'{c},{m.unit},{m.lo:g},{m.hi:g},"{desc}"')
     path.write_text("\n".join(rows) + "\n", encoding="utf-8")
 
 

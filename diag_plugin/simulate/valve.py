@@ -40,6 +40,8 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 
+from historian.taginfo import TagInfo
+
 from . import _kernel as K
 from .faults import FAULTS, N_FAULTS, FaultSpec, fault_index, fault_truth
 from .process import ProcessGenerator, ProcessParams
@@ -52,11 +54,11 @@ __all__ = [
     "simulate_valve",
 ]
 
-#: metadata of the output tags: unit, nominal (transducer) range as ``range`` and
-#: ``lo``/``hi``, description. Ranges: DABLib Table 2 (P1, P2 0–4 MPa, T1 0–200 °C,
-#: X 0–100 %, F 0–40 t/h) and Table 23 (chamber and supply pressure 0–0.6 MPa).
-TAGS: dict[str, dict] = {
-    tag: {"unit": unit, "range": (lo, hi), "lo": lo, "hi": hi, "description": text}
+#: metadata of the output tags: unit, nominal (transducer) range, description. Ranges:
+#: DABLib Table 2 (P1, P2 0–4 MPa, T1 0–200 °C, X 0–100 %, F 0–40 t/h) and Table 23
+#: (chamber and supply pressure 0–0.6 MPa).
+TAGS: dict[str, TagInfo] = {
+    tag: TagInfo(tag, unit, lo, hi, text)
     for tag, unit, lo, hi, text in (
         ("CV", "%", 0.0, 100.0, "controller output to the positioner"),
         ("P1", "kPa", 0.0, 4000.0, "valve inlet pressure (absolute)"),
@@ -71,7 +73,7 @@ TAGS: dict[str, dict] = {
 
 
 def _default_spans() -> dict[str, tuple[float, float]]:
-    return {k: v["range"] for k, v in TAGS.items()}
+    return {k: v.span for k, v in TAGS.items()}
 
 
 def _default_noise() -> dict[str, float]:

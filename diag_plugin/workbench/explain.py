@@ -31,6 +31,7 @@ from diag_plugin.regressors import (
 from diag_plugin.rulebase import RuleBase
 from diag_plugin.training import split_time
 from diag_plugin.workbench.model_edit import variable_for
+from historian.taginfo import TagInfo, tag_infos
 
 #: |correlation| with a model input above which a candidate is flagged
 CORR_WARN = 0.6
@@ -142,23 +143,21 @@ def explain(
     rb: RuleBase,
     frame: pd.DataFrame,
     *,
-    tag_info: Mapping[str, Mapping[str, object]] | None = None,
+    tag_info: Mapping[str, TagInfo | Mapping[str, object]] | None = None,
     holdout: float = 0.2,
     max_lag: int = 10,
     top: int | None = None,
 ) -> Explanation:
     """Candidate missing effects of ``rb``'s model, best first.
 
-    ``tag_info`` maps tag → {"unit", "lo", "hi", "description"} (historian
+    ``tag_info`` maps tag → :class:`~historian.taginfo.TagInfo` (historian
     metadata); spans of new inputs come from it, else from the data.
     """
     check_regular(frame.index)
-    tag_info = tag_info or {}
+    tag_info = tag_infos(tag_info)
     known = {s.tags[0]: v.span for v in rb.inputs if (s := InputSpec.parse(v.spec)).fn == ""}
     spans = dict(known)
-    for t, i in tag_info.items():
-        if i.get("lo") is not None and i.get("hi") is not None and float(i["hi"]) > float(i["lo"]):
-            spans[t] = (float(i["lo"]), float(i["hi"]))
+    spans.update({t: i.span for t, i in tag_info.items() if i.span})
     feats = _Features(frame, spans)
     out_spec = InputSpec.parse(rb.output.spec)
     y = feats.column(out_spec)
@@ -277,7 +276,7 @@ def explain(
     # difference explains more than either tag alone
     units: dict[str, list[str]] = {}
     for t in numeric:
-        u = str((tag_info.get(t) or {}).get("unit") or "")
+        u = tag_info[t].unit if t in tag_info else ""
         if u and t not in out_tags:
             units.setdefault(u, []).append(t)
     have = {(s.fn, frozenset(s.tags)) for s in in_specs}
@@ -363,11 +362,11 @@ KIND_LABELS = {
 def _wording(kind, spec: InputSpec, replaces, base, rmse, tag_info) -> str:
     """One sentence a plant engineer reads: the physical effect and the gain."""
     tag = spec.tags[0] if spec.tags else ""
-    desc = str((tag_info.get(tag) or {}).get("description") or "").strip()
+    desc = tag_info[tag].description.strip() if tag in tag_info else ""
     what = f"{desc} {tag}".strip() if desc else tag
     if kind == "difference":
         what = f"the difference {spec.tags[0]} − {spec.tags[1]}"
-        descs = [str((tag_info.get(t) or {}).get("description", "")) for t in spec.tags]
+        descs = [tag_info[t].description if t in tag_info else "" for t in spec.tags]
         if all("pressure" in d.lower() for d in descs):
             what = f"the pressure drop {spec.tags[0]} − {spec.tags[1]}"
     verb = "using" if replaces else "adding"

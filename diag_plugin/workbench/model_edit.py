@@ -17,13 +17,14 @@ import tomlkit
 
 from diag_plugin.regressors import InputSpec, dir_threshold, feature
 from diag_plugin.rulebase import RuleBase, Variable, default_label
+from historian.taginfo import TagInfo, tag_infos
 
 
 def variable_for(
     spec: str,
     *,
     frame: pd.DataFrame | None,
-    tag_info: Mapping[str, Mapping[str, object]],
+    tag_info: Mapping[str, TagInfo | Mapping[str, object]],
     sets: int | None = None,
     default_sets: int = 31,
     known_spans: Mapping[str, tuple[float, float]] | None = None,
@@ -36,11 +37,10 @@ def variable_for(
     inference and the live plug-in all use the same value.
     """
     s = InputSpec.parse(spec)
+    info = tag_infos(tag_info)
     if s.fn == "dir" and s.param is None:
         spans = dict(known_spans or {})
-        for tag, i in tag_info.items():
-            if i.get("lo") is not None and i.get("hi") is not None:
-                spans[tag] = (float(i["lo"]), float(i["hi"]))
+        spans.update({t: i.span for t, i in info.items() if i.span})
         s = InputSpec("dir", s.tags, s.lag, dir_threshold(s.tags[0], spans, frame))
         spec = str(s)
     unit = ""
@@ -51,12 +51,10 @@ def variable_for(
     elif s.fn == "hour":
         span, unit, n_sets = (0.0, 24.0), "h", sets or 25
     elif s.fn == "" or s.fn == "diff":
-        info = tag_info.get(s.tags[0]) or {}
-        unit = str(info.get("unit") or "")
-        if s.fn == "" and info.get("lo") is not None and info.get("hi") is not None:
-            lo, hi = float(info["lo"]), float(info["hi"])
-            if hi > lo:
-                span = (lo, hi)
+        tag = info.get(s.tags[0]) or TagInfo(s.tags[0])
+        unit = tag.unit
+        if s.fn == "":
+            span = tag.span
         if s.fn == "" and span is None and s.tags[0] in (known_spans or {}):
             span = tuple(known_spans[s.tags[0]])  # the span the model already uses for it
     if s.fn == "days":
@@ -96,7 +94,7 @@ def new_model(
     inputs: Sequence[str],
     *,
     frame: pd.DataFrame | None,
-    tag_info: Mapping[str, Mapping[str, object]],
+    tag_info: Mapping[str, TagInfo | Mapping[str, object]],
     sets: int = 31,
     method: str = "wm-avg",
     shape: str = "trapezoidal",
@@ -126,7 +124,7 @@ def add_input(
     spec: str,
     *,
     frame: pd.DataFrame | None,
-    tag_info: Mapping[str, Mapping[str, object]],
+    tag_info: Mapping[str, TagInfo | Mapping[str, object]],
     sets: int | None = None,
     replace: str | None = None,
 ) -> RuleBase:

@@ -1,0 +1,56 @@
+"""Tag metadata — one type for the historian's tags table, the simulators, the real
+DAMADICS hour and the workbench."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class TagInfo:
+    """A tag's unit, nominal range (``lo``–``hi``, engineering units) and description."""
+
+    name: str
+    unit: str = ""
+    lo: float | None = None
+    hi: float | None = None
+    description: str = ""
+
+    @property
+    def span(self) -> tuple[float, float] | None:
+        """The nominal range when both ends are known and ``lo < hi``, else None."""
+        if self.lo is None or self.hi is None:
+            return None
+        lo, hi = float(self.lo), float(self.hi)
+        return (lo, hi) if math.isfinite(lo) and math.isfinite(hi) and hi > lo else None
+
+    @classmethod
+    def from_mapping(cls, name: str, m: Mapping[str, object]) -> TagInfo:
+        """From a plain mapping with any of ``unit``, ``lo``, ``hi``, ``description``."""
+        return cls(
+            name,
+            unit=str(m.get("unit") or ""),
+            lo=_num(m.get("lo")),
+            hi=_num(m.get("hi")),
+            description=str(m.get("description") or ""),
+        )
+
+
+def tag_infos(info: Mapping[str, TagInfo | Mapping[str, object]] | None) -> dict[str, TagInfo]:
+    """Tag metadata as :class:`TagInfo`, from TagInfo values or plain mappings (user input)."""
+    return {
+        t: v if isinstance(v, TagInfo) else TagInfo.from_mapping(t, v)
+        for t, v in (info or {}).items()
+    }
+
+
+def _num(v) -> float | None:
+    if v is None:
+        return None
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
