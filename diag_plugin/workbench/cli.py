@@ -13,6 +13,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from diag_plugin.models.registry import METHODS
 from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase import RuleBase
 from historian.errors import UserError
@@ -26,7 +27,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--output", required=True, metavar="TAG", help="output tag or spec, e.g. F")
     p.add_argument("--input", action="append", required=True, metavar="SPEC", dest="inputs")
     p.add_argument("--sets", type=int, default=31)
-    p.add_argument("--method", default="wm-avg", choices=["wm-avg", "wm"])
+    p.add_argument(
+        "--method",
+        default="wm-avg",
+        choices=list(METHODS),
+        help="identification method: "
+        + "; ".join(f"{m.name} ({m.summary})" for m in METHODS.values()),
+    )
     p.add_argument("--shape", default="trapezoidal", choices=["trapezoidal", "triangular"])
     p.add_argument("--period", default="10s", help="sample period of the aligned data")
     p.add_argument("--description", default="")
