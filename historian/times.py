@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pandas as pd
 
 US = 1_000_000
+
+
+def now_us() -> int:
+    """The current time as int µs since epoch UTC."""
+    return int(time.time() * US)
 
 
 def to_us(t) -> int:
