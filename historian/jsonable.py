@@ -6,6 +6,17 @@ import math
 from collections.abc import Mapping
 
 
+def finite_float(v) -> float | None:
+    """``v`` as a finite float, else None (missing, text, NaN or infinite)."""
+    if v is None:
+        return None
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
 def to_jsonable(v):
     """Timestamps as ISO text, numpy scalars as Python numbers, NaN/NaT/inf as None,
     mappings and sequences converted element by element."""

@@ -7,6 +7,8 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from historian.jsonable import finite_float
+
 
 @dataclass(frozen=True)
 class TagInfo:
@@ -32,8 +34,8 @@ class TagInfo:
         return cls(
             name,
             unit=str(m.get("unit") or ""),
-            lo=_num(m.get("lo")),
-            hi=_num(m.get("hi")),
+            lo=finite_float(m.get("lo")),
+            hi=finite_float(m.get("hi")),
             description=str(m.get("description") or ""),
         )
 
@@ -44,13 +46,3 @@ def tag_infos(info: Mapping[str, TagInfo | Mapping[str, object]] | None) -> dict
         t: v if isinstance(v, TagInfo) else TagInfo.from_mapping(t, v)
         for t, v in (info or {}).items()
     }
-
-
-def _num(v) -> float | None:
-    if v is None:
-        return None
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        return None
-    return f if math.isfinite(f) else None

@@ -34,6 +34,7 @@ import pandas as pd
 
 from diag_plugin.rulebase import RuleBase
 from diag_plugin.workbench.compare import Comparison
+from historian.jsonable import finite_float
 
 #: buckets of the overview level (whole range)
 OVERVIEW_BUCKETS = 2_000
@@ -340,13 +341,8 @@ def _float(v) -> float | None:
 
 def _num(v, digits: int = 6) -> float | None:
     """A finite float rounded for the page, else ``None`` (JSON ``null``)."""
-    if v is None:
-        return None
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        return None
-    return round(f, digits) if math.isfinite(f) else None
+    f = finite_float(v)
+    return None if f is None else round(f, digits)
 
 
 # ------------------------------------------------------------------- sections
