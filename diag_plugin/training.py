@@ -115,8 +115,11 @@ def warmup_rows(builder: DesignBuilder) -> int:
 
 
 def prime(builder: DesignBuilder, read: Reader, at: pd.Timestamp, period: pd.Timedelta) -> None:
-    """Start the builder's state from the data just before ``at``."""
-    builder.prime(read(at - warmup_rows(builder) * period, at))
+    """Start the builder's state from the data just before ``at`` (nothing to read for a
+    model without lags or derived state)."""
+    rows = warmup_rows(builder)
+    if rows:
+        builder.prime(read(at - rows * period, at))
 
 
 def train(

@@ -76,6 +76,17 @@ def test_train_writes_rules_and_logs_versions(loaded, capsys):
     assert r3["samples"] == 2 * 8640
 
 
+def test_a_model_without_lags_trains_on_every_engine(loaded, capsys):
+    """No lag, no derived state: nothing to read before the range (an empty window)."""
+    url, rules = loaded
+    g = ["--db", url, "--rulebases", str(rules)]
+    assert run(capsys, *g, "model", "new", "p", "--output", "F", "--input", "P1[k]")[0] == 0
+    for engine in ("local", "dask"):
+        rc, out, err = run(capsys, *g, "train", "p", "--engine", engine, "--chunk", "2D", "--json")
+        assert rc == 0, err
+        assert json.loads(out)["samples"] == 8 * 8640
+
+
 def test_locked_rule_survives_diag_train(loaded, capsys):
     url, rules = loaded
     g = ["--db", url, "--rulebases", str(rules)]
