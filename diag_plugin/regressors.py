@@ -274,8 +274,14 @@ class DesignBuilder:
     sample) and the recent history the lags need are carried from piece to
     piece, so training chunk by chunk, validating after training and the live
     loop cycle by cycle give exactly the rows one pass over all data gives
-    (Kościelny et al., eqs. 7–9). :meth:`to_state` / :meth:`from_state` carry
+    (Kościelny et al., eqs. 7–9). :meth:`to_state` / :meth:`load_state` carry
     it between processes as plain numbers (JSON-able).
+
+    Lags count samples of a regular grid, also across pieces: a piece that
+    starts later than one ``period`` after the last one (a missed cycle) is
+    joined as if the samples in between were missing, exactly as one pass over
+    the grid would see them; a piece that starts earlier is an error.
+    ``period`` is taken from the first piece of two or more rows if not given.
     """
 
     def __init__(
@@ -283,7 +289,10 @@ class DesignBuilder:
         inputs: Sequence[str | InputSpec],
         output: str | InputSpec | None = None,
         spans: Mapping[str, tuple[float, float]] | None = None,
+        period: str | pd.Timedelta | None = None,
     ) -> None:
+        self.period = None if period is None else pd.Timedelta(period)
+        self.last: pd.Timestamp | None = None
         self.specs = parse_specs(inputs)
         self.out_spec = None if output is None else parse_specs([output])[0]
         self.all_specs = self.specs + ([self.out_spec] if self.out_spec is not None else [])
@@ -307,6 +316,36 @@ class DesignBuilder:
     def _columns(self, frame: pd.DataFrame) -> dict[str, np.ndarray]:
         return {b: f.compute(frame) for b, f in self.features.items()}
 
+    def _join(self, index: pd.Index) -> None:
+        """Check that a piece continues the last one; a gap counts as missing samples."""
+        if not len(index):
+            return
+        if self.period is None and len(index) > 1:
+            self.period = pd.Timedelta(index[1] - index[0])
+        first = pd.Timestamp(index[0])
+        if self.last is not None and self.period is not None:
+            step = (first - self.last) / self.period
+            if step < 1 or step != round(step):
+                raise ValueError(
+                    f"data at {first} do not continue the previous piece (last sample "
+                    f"{self.last}, period {self.period}): pieces must follow each other "
+                    "on one time grid"
+                )
+            self._skip(int(round(step)) - 1)
+        self.last = pd.Timestamp(index[-1])
+
+    def _skip(self, n: int) -> None:
+        """``n`` samples nobody delivered: missing values for the lags, state restarts."""
+        if n <= 0:
+            return
+        for b, f in self.features.items():
+            self.tails[b] = _keep_tail(self.tails[b], np.full(min(n, self.tails[b].size), np.nan))
+            f.carry[:] = np.nan
+        for t in self.tags:
+            k = min(n, self.nan_tails[t].size)
+            self.nan_tails[t] = _keep_tail(self.nan_tails[t], np.ones(k, bool))
+        self.seen += n
+
     def transform(self, frame: pd.DataFrame, quality: pd.DataFrame | None = None) -> Design:
         """The design matrix of the next piece; rows needing data before the first piece
         ever seen, or a NaN, bad-quality or undefined value, are dropped and counted."""
@@ -314,6 +353,7 @@ class DesignBuilder:
         missing = [t for t in self.tags if t not in frame.columns]
         if missing:
             raise KeyError(f"tag(s) {', '.join(missing)} needed by the model are not in the data")
+        self._join(frame.index)
         if quality is not None:
             bad = quality.reindex(index=frame.index, columns=frame.columns).fillna(0).to_numpy()
             frame = frame.mask(bad != 0)
@@ -364,6 +404,8 @@ class DesignBuilder:
         missing = [t for t in self.tags if t not in frame.columns]
         if missing:
             raise KeyError(f"tag(s) {', '.join(missing)} needed by the model are not in the data")
+        check_regular(frame.index)
+        self._join(frame.index)
         for b, v in self._columns(frame).items():
             self.tails[b] = _keep_tail(self.tails[b], v)
         for t in self.tags:
@@ -382,6 +424,8 @@ class DesignBuilder:
         """The carried state as plain numbers and lists (JSON-able)."""
         return {
             "seen": self.seen,
+            "last": None if self.last is None else self.last.isoformat(),
+            "period": None if self.period is None else str(self.period),
             "features": {
                 b: {
                     "tail": _plain(self.tails[b]),
@@ -396,6 +440,8 @@ class DesignBuilder:
     def load_state(self, state: Mapping) -> DesignBuilder:
         """Continue from a state of :meth:`to_state` (same specs)."""
         self.seen = int(state["seen"])
+        self.last = None if state["last"] is None else pd.Timestamp(state["last"])
+        self.period = None if state["period"] is None else pd.Timedelta(state["period"])
         for b, f in self.features.items():
             st = state["features"][b]
             self.tails[b] = np.array(st["tail"], float).reshape(-1)

@@ -105,7 +105,7 @@ class TrainResult:
 
 def design_builder(rb: RuleBase, spans: Mapping[str, tuple[float, float]] | None = None):
     """The design builder of a model file's inputs and output."""
-    return DesignBuilder([v.spec for v in rb.inputs], rb.output.spec, spans)
+    return DesignBuilder([v.spec for v in rb.inputs], rb.output.spec, spans, period=rb.period)
 
 
 def warmup_rows(builder: DesignBuilder) -> int:

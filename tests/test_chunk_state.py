@@ -140,3 +140,19 @@ def test_cycle_by_cycle_equals_one_pass_across_a_restart():
         ys.append(d.y)
     np.testing.assert_array_equal(np.vstack(rows), whole.X)
     np.testing.assert_array_equal(np.concatenate(ys), whole.y)
+
+
+def test_a_missed_cycle_counts_as_missing_samples_and_overlap_is_refused():
+    """Lags count grid samples across pieces too: rows nobody delivered are missing."""
+    f = still_valve(0.2, seed=2, hold_hours=0.5)
+    inputs = ["CV[k-3]", "rate(CV)[k-1]", "dir(CV,0.5)[k]"]
+    lost = np.zeros(len(f), bool)
+    lost[[100, 101, 102, 500, 900]] = True
+    masked = f.copy()
+    masked.loc[lost] = np.nan  # what one pass over the grid sees
+    one_pass = build_design(masked, inputs, "X[k]")
+    b = DesignBuilder(inputs, "X[k]", period="10s")
+    rows = [b.transform(f.iloc[i : i + 1]).X for i in np.flatnonzero(~lost)]
+    np.testing.assert_array_equal(np.vstack(rows), one_pass.X)
+    with pytest.raises(ValueError, match="do not continue the previous piece"):
+        b.transform(f.iloc[-5:])
