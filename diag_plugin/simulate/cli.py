@@ -8,11 +8,6 @@ import sys
 import time
 from pathlib import Path
 
-import pandas as pd
-
-from .faults import parse_fault
-from .valve import simulate_valve
-
 FAULT_HELP = (
     "fault NAME:STRENGTH[@ONSET][/abrupt|/incipient[=DURATION]], repeatable; "
     "e.g. f17:0.5@2026-03-01T10:00 or f2:1@2026-03-01/incipient=1d (ONSET in UTC); "
@@ -53,7 +48,12 @@ def write_tags_csv(path: Path, columns) -> None:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     """Run the simulation described by ``args`` and write the file; returns 0."""
+    import pandas as pd
+
     from historian.errors import UserError
+
+    from .faults import parse_fault
+    from .valve import simulate_valve
 
     out = Path(args.out)
     suffix = out.suffix.lower()
