@@ -15,10 +15,6 @@ import shutil
 import time
 from pathlib import Path
 
-from rich.console import Console
-from rich.markup import escape
-from rich.table import Table
-
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="simulate, train, compare, explain: the product end to end")
@@ -29,6 +25,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_demo(args) -> int:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
     from diag_plugin.jobs import train_one
     from diag_plugin.simulate.valve import TAGS, simulate_valve
     from diag_plugin.training import DEFAULT_CHUNK

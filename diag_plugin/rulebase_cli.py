@@ -6,14 +6,12 @@ import argparse
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from rich import box
-from rich.console import Console
-from rich.markup import escape
-from rich.table import Table
-
-from diag_plugin.rulebase import RuleBase, RuleBaseError, check, resolve
 from historian.errors import UserError
+
+if TYPE_CHECKING:  # the commands import rich and the rule base when they run
+    from diag_plugin.rulebase import RuleBase
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -35,6 +33,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def load(name: str, folder: str) -> RuleBase:
+    from diag_plugin.rulebase import RuleBase, RuleBaseError, resolve
+
     path = resolve(name, folder)
     if not path.exists():
         raise UserError(f"no model {name!r}: {path} does not exist (diag model new …)")
@@ -45,6 +45,8 @@ def load(name: str, folder: str) -> RuleBase:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
+    from diag_plugin.rulebase import check, resolve
+
     bad = 0
     for f in args.files:
         problems = check(resolve(f, args.rulebases))
@@ -58,6 +60,11 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_show(args: argparse.Namespace) -> int:
+    from rich import box
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
     rb = load(args.name, args.rulebases)
     con = Console()
     n_live = sum(not math.isnan(r.then) for r in rb.rules)
