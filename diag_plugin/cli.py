@@ -24,7 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "diag_plugin.rulebase_cli",
     "diag_plugin.demo",
     "historian.cli",
-    "diag_plugin.jobs",
+    "diag_plugin.jobs_cli",
     "diag_plugin.workbench.cli",
 )
 

@@ -5,11 +5,12 @@ window in chunks (memory flat in the length of the range), trains with
 ``partial_fit`` (or on a Dask cluster), validates on a time-ordered held-out
 block, writes the rule base keeping the experts' locked rules, and records
 an experiment so the user can watch the error fall version by version.
+The commands' arguments are in :mod:`diag_plugin.jobs_cli` (a light module: ``diag``
+builds its parser without importing this one).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import math
@@ -33,24 +34,6 @@ from historian.jsonable import to_jsonable
 from historian.store import Historian
 
 log = logging.getLogger(__name__)
-
-
-def add_commands(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("train", help="train a model (or --all) from the historian")
-    p.add_argument("name", nargs="?", help="model name in the rule-base folder, or a file")
-    p.add_argument("--all", action="store_true", help="retrain every model in the folder")
-    p.add_argument("--from", dest="start", help="start of the training range (default: all)")
-    p.add_argument("--to", dest="end", help="end of the training range")
-    p.add_argument("--holdout", type=float, default=0.2, help="held-out share (last part)")
-    p.add_argument("--chunk", default="7D", help="time span read at once (default 7D)")
-    p.add_argument("--engine", choices=["local", "dask"], default="local")
-    p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
-    p.set_defaults(func=cmd_train)
-    p = sub.add_parser("experiments", help="versions of a model with inputs and error")
-    p.add_argument("name")
-    p.add_argument("--json", action="store_true")
-    p.set_defaults(func=cmd_experiments)
 
 
 def safe_url(url: str) -> str:

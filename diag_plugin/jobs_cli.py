@@ -1,0 +1,39 @@
+"""``diag train NAME|--all`` and ``diag experiments NAME``: the arguments only.
+
+The jobs themselves live in :mod:`diag_plugin.jobs`, imported when a command runs, so
+building the ``diag`` parser loads no pandas, SQLAlchemy, numba or rich.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("train", help="train a model (or --all) from the historian")
+    p.add_argument("name", nargs="?", help="model name in the rule-base folder, or a file")
+    p.add_argument("--all", action="store_true", help="retrain every model in the folder")
+    p.add_argument("--from", dest="start", help="start of the training range (default: all)")
+    p.add_argument("--to", dest="end", help="end of the training range")
+    p.add_argument("--holdout", type=float, default=0.2, help="held-out share (last part)")
+    p.add_argument("--chunk", default="7D", help="time span read at once (default 7D)")
+    p.add_argument("--engine", choices=["local", "dask"], default="local")
+    p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=cmd_train)
+    p = sub.add_parser("experiments", help="versions of a model with inputs and error")
+    p.add_argument("name")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_experiments)
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from diag_plugin.jobs import cmd_train
+
+    return cmd_train(args)
+
+
+def cmd_experiments(args: argparse.Namespace) -> int:
+    from diag_plugin.jobs import cmd_experiments
+
+    return cmd_experiments(args)
