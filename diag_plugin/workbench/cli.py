@@ -7,16 +7,13 @@ import json
 import math
 import sys
 from pathlib import Path
-
-import pandas as pd
-from rich.console import Console
-from rich.markup import escape
-from rich.table import Table
+from typing import TYPE_CHECKING
 
 from diag_plugin.models.registry import METHODS
-from diag_plugin.regressors import needed_tags
-from diag_plugin.rulebase import RuleBase
 from historian.errors import UserError
+
+if TYPE_CHECKING:  # the commands import pandas, rich and the models when they run
+    from diag_plugin.rulebase import RuleBase
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -86,14 +83,19 @@ def _data(args, tags: list[str] | None, period: str):
 
 
 def args_start(args):
+    import pandas as pd
+
     return pd.Timestamp(args.start, tz="UTC") if getattr(args, "start", None) else None
 
 
 def args_end(args):
+    import pandas as pd
+
     return pd.Timestamp(args.end, tz="UTC") if getattr(args, "end", None) else None
 
 
 def cmd_model_new(args) -> int:
+    from diag_plugin.regressors import needed_tags
     from diag_plugin.workbench.model_edit import new_model
 
     path = Path(args.rulebases) / f"{args.name}.toml"
@@ -123,6 +125,7 @@ def cmd_model_new(args) -> int:
 
 
 def cmd_add_input(args) -> int:
+    from diag_plugin.regressors import needed_tags
     from diag_plugin.workbench.model_edit import add_input
 
     rb = _load(args)
@@ -159,6 +162,10 @@ def _model_frame(args, rb: RuleBase):
 
 
 def cmd_compare(args) -> int:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
     from diag_plugin.workbench.compare import compare
 
     rb = _load(args)
@@ -217,6 +224,10 @@ def cmd_compare(args) -> int:
 
 
 def cmd_explain(args) -> int:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
     from diag_plugin.workbench.explain import explain
 
     rb = _load(args)
