@@ -62,7 +62,9 @@ def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[
     ):
         path = folder / f"{name}.toml"
         path.unlink(missing_ok=True)
-        rb = new_model(path, name, "F[k]", inputs, frame=frame, tag_info=info, description=desc)
+        rb = new_model(
+            path, name, "F[k]", inputs, frame=frame, tag_info=info, sets=31, description=desc
+        )
         out.append(_fit(rb, frame, source).path)
     real = damadics or find_file()
     if real is not None:
@@ -76,6 +78,7 @@ def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[
             ["X[k]"],
             frame=f,
             tag_info=DTAGS,
+            sets=31,
             period="1s",
             description="Lublin sugar factory actuator 3 (real hour, 1 s): F = f(X)",
         )

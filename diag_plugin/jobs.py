@@ -25,6 +25,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 from sqlalchemy.engine import make_url
 
+from diag_plugin.metrics import coverage_note
 from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase import RuleBase, RuleBaseError, resolve
 from diag_plugin.training import DEFAULT_CHUNK, train
@@ -181,6 +182,8 @@ def cmd_train(args) -> int:
                 f"MAE {v['mae_pct']:.2f} %, coverage {v['coverage']:.1%}; "
                 f"{r['samples']:,} samples, {r['rules']} rules, {r['seconds']:.1f} s"
             )
+            if note := coverage_note(v):
+                print(f"  {note}")
         for f in failures:
             print(f"{f['rulebase']}: training failed: {f['error']}", file=sys.stderr)
     return 1 if failures else 0
@@ -256,7 +259,7 @@ def cmd_experiments(args) -> int:
             escape(", ".join(rec.get("inputs") or [])),
             _fmt(rec.get("rmse_pct"), ".2f"),
             _fmt(rec.get("mae_pct"), ".2f"),
-            _fmt(rec.get("coverage"), ".1%"),
+            _fmt(rec.get("coverage"), ".1%") + (" ⚠" if coverage_note(rec) else ""),
         )
     Console().print(t)
     return 0

@@ -43,6 +43,10 @@ class MeanModel:
     def predict(self, X):
         return self.predict_detail(X).y
 
+    @property
+    def output_mean_(self):
+        return self.sum_ / self.n_samples_seen_ if self.n_samples_seen_ else float("nan")
+
     def merge(self, other):
         self.n_samples_seen_ += other.n_samples_seen_
         self.sum_ += other.sum_

@@ -352,6 +352,13 @@ class WangMendelRegressor:
         return self._conclusions
 
     @property
+    def output_mean_(self) -> float:
+        """Mean training output (rules weighted by their samples): the stand-in prediction
+        where no rule covers a sample when errors are scored."""
+        n = self.count_.sum() if hasattr(self, "count_") else 0
+        return float(self.conclusions_ @ self.count_ / n) if n else float("nan")
+
+    @property
     def sd_(self) -> np.ndarray:
         """Standard deviation of the training outputs in each rule cell."""
         n = np.maximum(self.count_, 1).astype(float)

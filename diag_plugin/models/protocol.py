@@ -61,6 +61,9 @@ class Model(Protocol):
 
     capabilities: ClassVar[Capabilities]
     n_samples_seen_: int
+    #: mean training output: where the model has no prediction, errors are scored as if it
+    #: had predicted this (predicting fewer samples never looks better)
+    output_mean_: float
 
     def fit(self, X: Any, y: Any) -> Self: ...
 

@@ -23,7 +23,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("name")
     p.add_argument("--output", required=True, metavar="TAG", help="output tag or spec, e.g. F")
     p.add_argument("--input", action="append", required=True, metavar="SPEC", dest="inputs")
-    p.add_argument("--sets", type=int, default=31)
+    p.add_argument(
+        "--sets", type=int, help="sets per input (default: what the data fill, at most 31)"
+    )
     p.add_argument(
         "--method",
         default="wm-avg",
@@ -41,6 +43,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--replace", metavar="SPEC", help="input the new one replaces")
     p.add_argument("--sets", type=int)
     p.set_defaults(func=cmd_add_input)
+    p = msub.add_parser("set-input", help="change an input's span or sets (resolution)")
+    p.add_argument("name")
+    p.add_argument("spec")
+    p.add_argument("--span", type=float, nargs=2, metavar=("LO", "HI"))
+    p.add_argument("--sets", type=int)
+    p.set_defaults(func=cmd_set_input)
     p = msub.add_parser("remove-input", help="remove an input")
     p.add_argument("name")
     p.add_argument("spec")
@@ -60,7 +68,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
             p.add_argument("--json", action="store_true")
         elif name == "explain":
             p.add_argument("--top", type=int, default=10)
-            p.add_argument("--max-lag", type=int, default=10)
+            p.add_argument(
+                "--max-lag",
+                type=int,
+                help="longest dead time screened, in samples (default: 10 minutes of samples)",
+            )
             p.add_argument("--json", action="store_true")
         else:
             p.add_argument("--out", required=True, metavar="FILE.html")
@@ -120,6 +132,12 @@ def cmd_model_new(args) -> int:
     except (FileExistsError, ValueError) as exc:
         raise UserError(str(exc)) from None
     print(f"wrote {path}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)})")
+    if args.sets is None:
+        sets = sorted({v.sets for v in rb.inputs})
+        print(
+            f"sets per input: {', '.join(map(str, sets))}, what {len(frame):,} samples can fill "
+            "(give --sets to choose)"
+        )
     print(f"next: diag train {args.name}")
     return 0
 
@@ -134,6 +152,17 @@ def cmd_add_input(args) -> int:
         rb = add_input(
             rb, args.spec, frame=frame, tag_info=info, sets=args.sets, replace=args.replace
         )
+    except (ValueError, KeyError) as exc:
+        raise UserError(str(exc)) from None
+    return _changed(rb)
+
+
+def cmd_set_input(args) -> int:
+    from diag_plugin.workbench.model_edit import set_input
+
+    rb = _load(args)
+    try:
+        rb = set_input(rb, args.spec, span=args.span, sets=args.sets)
     except (ValueError, KeyError) as exc:
         raise UserError(str(exc)) from None
     return _changed(rb)
@@ -166,6 +195,7 @@ def cmd_compare(args) -> int:
     from rich.markup import escape
     from rich.table import Table
 
+    from diag_plugin.metrics import coverage_note
     from diag_plugin.workbench.compare import compare
 
     rb = _load(args)
@@ -194,6 +224,8 @@ def cmd_compare(args) -> int:
         f"RMSE {m['rmse_pct']:.2f} %  MAE {m['mae_pct']:.2f} %  bias {m['bias_pct']:+.2f} %  "
         f"max {m['max_abs_pct']:.1f} % of span; coverage {m['coverage']:.1%}"
     )
+    if note := coverage_note(m):
+        con.print(note, markup=False)
     d = c.as_dict()
     t = Table(title="worst operating regions (rule cells)")
     for col in [v.spec for v in rb.inputs] + ["count", "mean %", "RMSE %"]:
@@ -241,18 +273,21 @@ def cmd_explain(args) -> int:
         return 0
     con = Console()
     con.print(
-        f"[bold]{escape(rb.name)}[/]: held-out error {e.baseline_rmse_pct:.2f} % of span "
-        f"(validation from {e.validation_from:%Y-%m-%d %H:%M})"
+        f"[bold]{escape(rb.name)}[/]: held-out error {e.baseline_rmse_pct:.2f} % of span, "
+        f"coverage {e.baseline_coverage:.0%} (validation from {e.validation_from:%Y-%m-%d %H:%M}; "
+        "every candidate scored on these samples, the current model standing in where it has "
+        "no rule)"
     )
     t = Table(title="candidate missing effects, best first")
     t.add_column("#", justify="right")
     t.add_column("effect")
     t.add_column("error %", justify="right")
+    t.add_column("own coverage", justify="right")
     t.add_column("next command")
     for i, c in enumerate(e.candidates, 1):
         effect = c.effect + "".join(f"\n  ⚠ {n}" for n in c.notes)
         err = "n/a" if not math.isfinite(c.rmse_pct_if_added) else f"{c.rmse_pct_if_added:.2f}"
-        t.add_row(str(i), escape(effect), err, escape(c.command))
+        t.add_row(str(i), escape(effect), err, f"{c.coverage:.0%}", escape(c.command))
     con.print(t)
     return 0
 

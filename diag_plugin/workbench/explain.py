@@ -3,10 +3,19 @@
 For each candidate input the model is retrained with it added (or, for a
 dead time, with an input's lag replaced) on the first part of the data and
 scored on the last part — a time-ordered held-out block, never shuffled
-samples. Candidates: every other plant tag (at its best lag), differences of
-tags that share a unit (a pressure drop), dead time and more lags of the
-model's inputs, direction of travel (hysteresis, backlash), rate of change,
-slow drift and time of day.
+samples. Every candidate is scored on the *same* samples: where it has no
+rule, the current model's prediction stands in (and the training mean of the
+output where that has none), so a candidate cannot look better by predicting
+fewer samples; its own coverage is shown beside the error. A candidate whose
+grid would be thin is also scored with the fewer sets the data fill, and the
+better of the two is offered with its exact command.
+
+Candidates: every other plant tag (at its best lag), differences of tags that
+share a unit (a pressure drop), dead time and more lags of the model's inputs
+(lags screened by correlation over a horizon of ten minutes of samples, the
+best few retrained), direction of travel (hysteresis, backlash), rate of
+change, slow drift, time of day, and the model's own resolution (an input's
+span narrowed to its operating range, more or fewer sets).
 """
 
 from __future__ import annotations
@@ -30,15 +39,22 @@ from diag_plugin.regressors import (
 )
 from diag_plugin.rulebase import RuleBase
 from diag_plugin.training import split_time
-from diag_plugin.workbench.model_edit import variable_for
+from diag_plugin.workbench.model_edit import nice_span, variable_for
 from historian.taginfo import TagInfo, tag_infos
 
 #: |correlation| with a model input above which a candidate is flagged
 CORR_WARN = 0.6
 #: validation samples per rule cell below which the grid is called sparse
 SPARSE_PER_CELL = 5.0
-#: rows used to search a tag's best lag (the best lag is then scored on all rows)
-LAG_SEARCH_ROWS = 200_000
+#: dead times screened by default: this much time (and at least MIN_LAGS samples)
+LAG_HORIZON_S = 600.0
+MIN_LAGS = 10
+#: lags of each screen that are retrained and scored
+LAGS_RETRAINED = 3
+#: training samples per rule cell a new input's set count aims at
+MIN_PER_CELL = 20
+#: own coverage below this share of the current model's is called thin
+THIN_COVERAGE = 0.95
 
 
 @dataclass
@@ -108,35 +124,102 @@ class _Features:
         return v
 
 
-def _score(
-    rb: RuleBase,
-    variables: Sequence[Variable],
-    cols: Sequence[np.ndarray],
-    y: np.ndarray,
-    cut: int,
-    stride: int = 1,
-) -> tuple[float, float, float]:
-    """Held-out RMSE in % of span, coverage, and training samples per rule of ``rb``'s
-    method with ``variables`` as inputs, trained on rows before ``cut`` (time order)."""
-    X = np.column_stack(cols)
-    if stride > 1:
-        X, y = X[::stride], y[::stride]
-        cut = -(-cut // stride)
-    ok = np.isfinite(X).all(axis=1) & np.isfinite(y)
-    tr = ok.copy()
-    tr[cut:] = False
-    va = ok.copy()
-    va[:cut] = False
-    if tr.sum() < 10 or va.sum() < 10:
-        return math.nan, 0.0, 0.0
-    spec = dc_replace(rb.spec, inputs=list(variables))
-    m = rb.codec.new_estimator(spec).fit(X[tr], y[tr])
-    r = residual_pct(y[va], m.predict(X[va]), rb.output.span[1] - rb.output.span[0])
-    good = np.isfinite(r)
-    per_cell = tr.sum() / max(rb.codec.size(m), 1)
-    if not good.any():
-        return math.nan, 0.0, per_cell
-    return float(np.sqrt(np.mean(r[good] ** 2))), float(good.mean()), per_cell
+class _Scorer:
+    """Trains a variant of the model on the rows before the cut and scores every variant on
+    the *same* held-out samples: all rows after the cut with a measured output.
+
+    Where a variant has no prediction (no rule, a missing input) the current model's
+    prediction stands in, and where that has none the training mean of the output — so
+    predicting fewer samples never makes a variant look better. Each variant's own coverage
+    is reported beside its error.
+    """
+
+    def __init__(self, rb: RuleBase, cols: Sequence[np.ndarray], y: np.ndarray, cut: int):
+        self.rb = rb
+        self.y = y
+        self.cut = cut
+        self.span = rb.output.span[1] - rb.output.span[0]
+        tr_y = np.isfinite(y[:cut])
+        self.mean = float(y[:cut][tr_y].mean()) if tr_y.any() else math.nan
+        self.va = np.flatnonzero(np.isfinite(y[cut:])) + cut
+        fallback = np.full(self.va.size, self.mean)
+        pred, self.base_model, self.base_rows = self._fit_predict(list(rb.inputs), cols)
+        self.base_cov = float(np.isfinite(pred).mean()) if pred.size else 0.0
+        self.fallback = np.where(np.isfinite(pred), pred, fallback)
+        self.base_rmse = self._rmse(self.fallback)
+        self.base_rules = rb.codec.size(self.base_model) if self.base_model is not None else 0
+
+    def _fit_predict(self, variables, cols):
+        X = np.column_stack(cols)
+        tr = np.isfinite(X[: self.cut]).all(axis=1) & np.isfinite(self.y[: self.cut])
+        if tr.sum() < 10 or self.va.size < 10:
+            return np.full(self.va.size, np.nan), None, int(tr.sum())
+        spec = dc_replace(self.rb.spec, inputs=list(variables))
+        m = self.rb.codec.new_estimator(spec).fit(X[: self.cut][tr], self.y[: self.cut][tr])
+        return m.predict(X[self.va]), m, int(tr.sum())
+
+    def _rmse(self, pred: np.ndarray) -> float:
+        if not pred.size or not np.isfinite(pred).all():
+            return math.nan
+        r = residual_pct(self.y[self.va], pred, self.span)
+        return float(np.sqrt(np.mean(r * r)))
+
+    def score(self, variables, cols) -> tuple[float, float, float]:
+        """Held-out RMSE in % of span on the common samples, own coverage, and training
+        samples per rule of a variant."""
+        pred, m, n_train = self._fit_predict(variables, cols)
+        if m is None:
+            return math.nan, 0.0, 0.0
+        own = np.isfinite(pred)
+        per_cell = n_train / max(self.rb.codec.size(m), 1)
+        return self._rmse(np.where(own, pred, self.fallback)), float(own.mean()), per_cell
+
+    def residual(self, cols) -> np.ndarray:
+        """The current model's in-sample residual on the training rows (NaN where none)."""
+        out = np.full(self.cut, np.nan)
+        if self.base_model is not None:
+            X = np.column_stack(cols)[: self.cut]
+            out = self.y[: self.cut] - self.base_model.predict(X)
+        return out
+
+
+def lag_screen(target: np.ndarray, x: np.ndarray, max_lag: int) -> np.ndarray:
+    """|correlation| of ``target[k]`` with ``x[k-L]`` for ``L = 0 … max_lag`` (NaN-tolerant,
+    via FFT): a cheap screen of dead times before any model is retrained."""
+    from scipy.signal import correlate
+
+    n = min(target.size, x.size)
+    t, v = target[:n], x[:n]
+    both = np.isfinite(t) & np.isfinite(v)
+    if both.sum() < 10:
+        return np.zeros(max_lag + 1)
+    t0 = np.where(np.isfinite(t), t - np.nanmean(t[both]), 0.0)
+    v0 = np.where(np.isfinite(v), v - np.nanmean(v[both]), 0.0)
+    norm = math.sqrt(float(t0 @ t0) * float(v0 @ v0))
+    if norm == 0:
+        return np.zeros(max_lag + 1)
+    full = correlate(t0, v0, mode="full", method="fft")
+    lags = full[n - 1 : n + max_lag]
+    out = np.zeros(max_lag + 1)
+    out[: lags.size] = np.abs(lags) / norm
+    return out
+
+
+def default_max_lag(index: pd.DatetimeIndex) -> int:
+    """Dead-time horizon from the data: 10 minutes of samples (at least 10), at most a
+    tenth of the rows (transport delays of minutes are common in plants)."""
+    if len(index) < 2:
+        return 0
+    period = (index[1] - index[0]) / pd.Timedelta(seconds=1)
+    want = max(MIN_LAGS, math.ceil(LAG_HORIZON_S / period)) if period > 0 else MIN_LAGS
+    return int(max(0, min(want, len(index) // 10)))
+
+
+def sets_for_cells(n_train: int, cells: int, current: int) -> int:
+    """Sets for a new input so that each occupied rule cell keeps about
+    :data:`MIN_PER_CELL` training samples (``cells``: rules the model has now)."""
+    fit = n_train // max(MIN_PER_CELL * max(cells, 1), 1)
+    return int(min(max(fit, 2), current))
 
 
 def explain(
@@ -145,13 +228,16 @@ def explain(
     *,
     tag_info: Mapping[str, TagInfo | Mapping[str, object]] | None = None,
     holdout: float = 0.2,
-    max_lag: int = 10,
+    max_lag: int | None = None,
     top: int | None = None,
 ) -> Explanation:
     """Candidate missing effects of ``rb``'s model, best first.
 
-    ``tag_info`` maps tag → :class:`~historian.taginfo.TagInfo` (historian
-    metadata); spans of new inputs come from it, else from the data.
+    Every candidate is scored on the same held-out samples (see :class:`_Scorer`), so the
+    order is the order of the errors. ``tag_info`` maps tag →
+    :class:`~historian.taginfo.TagInfo` (historian metadata); spans of new inputs come
+    from it, else from the data. ``max_lag`` bounds the dead times screened (default
+    :func:`default_max_lag`).
     """
     check_regular(frame.index)
     tag_info = tag_infos(tag_info)
@@ -167,7 +253,10 @@ def explain(
     default_sets = max(v.sets for v in in_vars) if in_vars else 31
     n = len(frame)
     cut = _cut_row(frame.index, holdout)
-    base_rmse, base_cov, _ = _score(rb, in_vars, in_cols, y, cut)
+    horizon = default_max_lag(frame.index) if max_lag is None else max_lag
+    scorer = _Scorer(rb, in_cols, y, cut)
+    base_rmse, base_cov = scorer.base_rmse, scorer.base_cov
+    resid = scorer.residual(in_cols)
     var_cache: dict[str, Variable | None] = {}
 
     def variable(spec: InputSpec) -> Variable | None:
@@ -191,38 +280,62 @@ def explain(
     model_tags = set(needed_tags([v.spec for v in rb.inputs]))
     out_tags = set(out_spec.tags)
 
-    def evaluate(spec: InputSpec, replace: int | None = None, stride: int = 1):
+    def evaluate(spec: InputSpec, replace: int | None = None, sets: int | None = None):
         var = variable(spec)
         if var is None:
             return None
-        col = feats.column(spec)
+        if sets is not None:
+            var = dc_replace(var, sets=sets)
         cols, vs = list(in_cols), list(in_vars)
         if replace is None:
-            cols.append(col)
+            cols.append(feats.column(spec))
             vs.append(var)
         else:
-            cols[replace], vs[replace] = col, var
-        rmse, cov, per_cell = _score(rb, vs, cols, y, cut, stride=stride)
-        return rmse, cov, per_cell, var.span, var.sets
+            cols[replace], vs[replace] = feats.column(spec), var
+        rmse, cov, per_cell = scorer.score(vs, cols)
+        return _Score(rmse, cov, per_cell, var.sets)
 
-    def best_lag(base: InputSpec, lags, replace=None):
-        stride = max(1, n // LAG_SEARCH_ROWS)
+    def thin(r: _Score) -> bool:
+        return r.per_cell < SPARSE_PER_CELL or r.coverage < THIN_COVERAGE * base_cov
+
+    def evaluate_best(spec: InputSpec, replace: int | None = None):
+        """Scored as add-input writes it; if that grid is thin, also with the fewer sets
+        the data can fill for the new input, keeping whichever scores better."""
+        r = evaluate(spec, replace)
+        if r is None or not thin(r) or spec.fn in ("dir", "hour"):
+            return r
+        fewer = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
+        if fewer >= r.sets:
+            return r
+        r2 = evaluate(spec, replace, sets=fewer)
+        if r2 is not None and _sortable(r2.rmse) < _sortable(r.rmse):
+            return dc_replace(r2, fewer_from=r.sets, thin_before=(r.coverage, r.per_cell))
+        return r
+
+    def best_lag(base: InputSpec, lags: Sequence[int], target: np.ndarray, replace=None):
+        """Screen ``lags`` by correlation with ``target``, retrain the best few."""
+        lags = list(lags)
+        if not lags:
+            return None
+        col = feats.column(base.with_lag(0))[:cut]
+        corr = lag_screen(target, col, max(lags))
+        # the best few by correlation, and the shortest lag (no dead time) always
+        order = sorted(lags, key=lambda lag: -corr[lag])[:LAGS_RETRAINED]
+        order = sorted({*order, min(lags)})
         scored = []
-        for lag in lags:
-            r = evaluate(base.with_lag(lag), replace, stride)
-            if r is not None and math.isfinite(r[0]):
-                scored.append((r[0], lag))
+        for lag in order:
+            r = evaluate_best(base.with_lag(lag), replace)
+            if r is not None and math.isfinite(r.rmse):
+                scored.append((r.rmse, lag, r))
         if not scored:
             return None
-        lag = min(scored)[1]
-        r = evaluate(base.with_lag(lag), replace)
-        return (lag, *r) if r is not None else None
+        _, lag, r = min(scored, key=lambda t: (t[0], t[1]))
+        return lag, r
 
     found: list[Candidate] = []
     name = rb.name
 
-    def add(spec: InputSpec, kind: str, res, replaces: str | None = None):
-        _, rmse, cov, per_cell, span, sets = res
+    def add(spec: InputSpec, kind: str, r: _Score, replaces: str | None = None):
         col = feats.column(spec)
         notes = []
         for s, c in zip(in_specs, in_cols, strict=True):
@@ -230,32 +343,38 @@ def explain(
                 continue
             m = np.isfinite(col) & np.isfinite(c)
             if m.sum() > 10 and col[m].std() > 0 and c[m].std() > 0:
-                r = float(np.corrcoef(col[m], c[m])[0, 1])
-                if abs(r) > CORR_WARN:
+                rr = float(np.corrcoef(col[m], c[m])[0, 1])
+                if abs(rr) > CORR_WARN:
                     notes.append(
-                        f"strongly correlated with {s} (r = {r:.2f}): the two effects are hard "
+                        f"strongly correlated with {s} (r = {rr:.2f}): the two effects are hard "
                         "to separate in these data"
                     )
-        if per_cell < SPARSE_PER_CELL or cov < 0.95 * base_cov:
-            fewer = max(5, int(sets * 0.5) | 1)
+        if r.fewer_from:
+            cov0, per0 = r.thin_before
             notes.append(
-                f"the rule grid would be sparse ({per_cell:.0f} samples per rule, coverage "
-                f"{cov:.0%}): consider fewer sets, e.g. --sets {fewer}"
+                f"with {r.fewer_from} sets the rule grid would be thin ({per0:.0f} samples per "
+                f"rule, coverage {cov0:.0%}): {r.sets} sets, which the data fill, score better"
             )
-        quoted = f"'{spec}'"
-        cmd = f"diag model add-input {name} {quoted}"
+        elif thin(r):
+            fewer = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
+            notes.append(
+                f"the rule grid would be thin ({r.per_cell:.0f} samples per rule, coverage "
+                f"{r.coverage:.0%}; the rest is scored with the current model)"
+                + (f": consider fewer sets, e.g. --sets {fewer}" if fewer < r.sets else "")
+            )
+        cmd = f"diag model add-input {name} '{spec}'"
         if replaces:
             cmd += f" --replace '{replaces}'"
-        if spec.fn not in ("dir", "hour") and sets != default_sets:
-            cmd += f" --sets {sets}"
+        written = variable(spec)
+        if spec.fn not in ("dir", "hour") and written is not None and r.sets != written.sets:
+            cmd += f" --sets {r.sets}"
         found.append(
             Candidate(
                 input=str(spec),
                 kind=kind,
-                effect=_wording(kind, spec, replaces, base_rmse, rmse, tag_info)
-                + (f" (on the {cov:.0%} of samples it covers)" if cov < 0.95 * base_cov else ""),
-                rmse_pct_if_added=rmse,
-                coverage=cov,
+                effect=_wording(kind, spec, replaces, base_rmse, r.rmse, tag_info),
+                rmse_pct_if_added=r.rmse,
+                coverage=r.coverage,
                 command=cmd,
                 replaces=replaces,
                 notes=notes,
@@ -268,10 +387,10 @@ def explain(
     for tag in numeric:
         if tag in model_tags or tag in out_tags:
             continue
-        r = best_lag(InputSpec("", (tag,)), range(0, max_lag + 1))
-        if r is not None:
-            add(InputSpec("", (tag,), r[0]), "tag", r)
-            tag_rmse[tag] = r[1]
+        got = best_lag(InputSpec("", (tag,)), range(0, horizon + 1), resid)
+        if got is not None:
+            add(InputSpec("", (tag,), got[0]), "tag", got[1])
+            tag_rmse[tag] = got[1].rmse
     # differences of tags with the same unit (a pressure drop), kept only when the
     # difference explains more than either tag alone
     units: dict[str, list[str]] = {}
@@ -286,35 +405,58 @@ def explain(
                 spec = InputSpec("diff", (a, b))
                 if ("diff", frozenset((a, b))) in have:
                     continue
-                r = evaluate(spec)
+                r = evaluate_best(spec)
                 alone = min(tag_rmse.get(a, base_rmse), tag_rmse.get(b, base_rmse))
-                if r is not None and math.isfinite(r[0]) and r[0] < alone:
-                    add(spec, "difference", (0, *r))
+                if r is not None and math.isfinite(r.rmse) and r.rmse < alone:
+                    add(spec, "difference", r)
     # dead time / more lags, direction of travel, rate of change of each input
     for k, s in enumerate(in_specs):
         if s.fn != "":
             continue
-        others = [lag for lag in range(0, max_lag + 1) if lag != s.lag]
-        r = best_lag(s, others, replace=k)
-        if r is not None:
-            add(s.with_lag(r[0]), "dead time", r, replaces=str(s))
-        have = {x.lag for x in in_specs if x.tags == s.tags and x.fn == ""}
-        r = best_lag(s, [lag for lag in others if lag not in have])
-        if r is not None:
-            add(s.with_lag(r[0]), "dynamics", r)
+        others = [lag for lag in range(0, horizon + 1) if lag != s.lag]
+        got = best_lag(s, others, y[:cut], replace=k)
+        if got is not None:
+            add(s.with_lag(got[0]), "dead time", got[1], replaces=str(s))
+        have_lags = {x.lag for x in in_specs if x.tags == s.tags and x.fn == ""}
+        got = best_lag(s, [lag for lag in others if lag not in have_lags], resid)
+        if got is not None:
+            add(s.with_lag(got[0]), "dynamics", got[1])
         for fn, kind in (("dir", "direction"), ("rate", "rate of change")):
             th = dir_threshold(s.tags[0], spans, frame) if fn == "dir" else None
             spec = InputSpec(fn, s.tags, s.lag, th)
-            r = evaluate(spec)
+            r = evaluate_best(spec)
             if r is not None:
-                add(spec, kind, (0, *r))
+                add(spec, kind, r)
     for fn, kind in (("days", "drift"), ("hour", "time of day")):
         spec = InputSpec(fn, ())
-        r = evaluate(spec)
+        r = evaluate_best(spec)
         if r is not None:
-            add(spec, kind, (0, *r))
+            add(spec, kind, r)
+    # the model's own resolution: spans narrowed to the operating range, more or fewer sets
+    for k, (s, v) in enumerate(zip(in_specs, in_vars, strict=True)):
+        for change, var in _resolution_variants(v, in_cols[k][:cut]):
+            vs = list(in_vars)
+            vs[k] = var
+            rmse, cov, _ = scorer.score(vs, in_cols)
+            if not math.isfinite(rmse):
+                continue
+            opt = (
+                f"--span {var.span[0]:g} {var.span[1]:g}"
+                if var.span != v.span
+                else f"--sets {var.sets}"
+            )
+            found.append(
+                Candidate(
+                    input=str(s),
+                    kind="resolution",
+                    effect=_resolution_wording(change, base_rmse, rmse),
+                    rmse_pct_if_added=rmse,
+                    coverage=cov,
+                    command=f"diag model set-input {name} '{s}' {opt}",
+                )
+            )
 
-    found.sort(key=lambda c: (c.coverage < 0.95 * base_cov, _sortable(c.rmse_pct_if_added)))
+    found.sort(key=lambda c: _sortable(c.rmse_pct_if_added))
     return Explanation(
         model=name,
         baseline_rmse_pct=base_rmse,
@@ -322,6 +464,49 @@ def explain(
         candidates=found[:top] if top else found,
         validation_from=frame.index[cut] if cut < n else None,
     )
+
+
+@dataclass(frozen=True)
+class _Score:
+    rmse: float
+    coverage: float
+    per_cell: float
+    sets: int
+    fewer_from: int | None = None
+    thin_before: tuple[float, float] | None = None
+
+
+def _resolution_variants(v: Variable, col: np.ndarray):
+    """The model's own resolution for one input: the span narrowed to the operating range
+    seen in training (2 % margin) when that is under 70 % of the span, more sets (×1.5)
+    and fewer sets (÷2)."""
+    x = col[np.isfinite(col)]
+    if x.size >= 10:
+        lo, hi = (float(q) for q in np.quantile(x, [0.001, 0.999]))
+        pad = 0.02 * (hi - lo)
+        lo, hi = max(v.span[0], lo - pad), min(v.span[1], hi + pad)
+        if hi > lo and (hi - lo) < 0.7 * (v.span[1] - v.span[0]):
+            lo, hi = nice_span(lo, hi)
+            yield (
+                f"{v.spec} uses only {lo:g} … {hi:g} of its span {v.span[0]:g} … {v.span[1]:g}",
+                dc_replace(v, span=(lo, hi)),
+            )
+    more = int(v.sets * 1.5) | 1
+    if more > v.sets:
+        yield f"more sets for {v.spec} ({v.sets} → {more})", dc_replace(v, sets=more)
+    fewer = max(2, v.sets // 2)
+    if fewer < v.sets:
+        yield f"fewer sets for {v.spec} ({v.sets} → {fewer})", dc_replace(v, sets=fewer)
+
+
+def _resolution_wording(change: str, base: float, rmse: float) -> str:
+    if rmse < 0.97 * base:
+        gain = f"would cut the error from {base:.1f} % to {rmse:.1f} % of span"
+    elif rmse < base:
+        gain = f"would barely change the error ({base:.1f} % → {rmse:.1f} %)"
+    else:
+        gain = f"would not cut the error ({base:.1f} % → {rmse:.1f} %)"
+    return f"model resolution: {change}: {gain}"
 
 
 def _cut_row(index: pd.DatetimeIndex, holdout: float) -> int:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -71,11 +72,11 @@ def variable_for(
         if hi <= lo:
             hi = lo + max(abs(lo), 1.0) * 0.01
         pad = 0.02 * (hi - lo)
-        span = _nice_span(lo - pad, hi + pad)
+        span = nice_span(lo - pad, hi + pad)
     return Variable(spec, default_label(spec), unit, span, int(n_sets))
 
 
-def _nice_span(lo: float, hi: float) -> tuple[float, float]:
+def nice_span(lo: float, hi: float) -> tuple[float, float]:
     """``[lo, hi]`` with each end to 4 significant digits, or finer where the width needs it
     (a day of ``days()`` near 9,500 keeps its width instead of collapsing to one value)."""
     w = math.floor(math.log10(hi - lo))
@@ -87,6 +88,31 @@ def _nice_span(lo: float, hi: float) -> tuple[float, float]:
     return nice(lo), nice(hi)
 
 
+#: training samples per rule cell a grid should keep (set counts chosen from the data)
+MIN_PER_CELL = 20
+#: set counts chosen from the data stay within these
+SETS_RANGE = (3, 31)
+
+
+def sets_for_data(cols: Sequence[np.ndarray], spans: Sequence[tuple[float, float]]) -> int:
+    """The most sets per input (within :data:`SETS_RANGE`; 31 is the paper's count) for which
+    the rule cells the data occupy hold :data:`MIN_PER_CELL` samples on average — the
+    operating range counts, not the nominal span."""
+    X = np.column_stack(cols) if cols else np.empty((0, 0))
+    X = X[np.isfinite(X).all(axis=1)] if X.size else X
+    n = len(X)
+    lo = np.array([s[0] for s in spans])
+    width = np.array([s[1] - s[0] for s in spans])
+    for sets in range(SETS_RANGE[1], SETS_RANGE[0] - 1, -1):
+        if n == 0:
+            break
+        idx = np.clip(np.floor((X - lo) / width * (sets - 1) + 0.5), 0, sets - 1).astype(np.int64)
+        occupied = np.unique(idx @ (sets ** np.arange(idx.shape[1], dtype=np.int64))).size
+        if n >= MIN_PER_CELL * occupied:
+            return sets
+    return SETS_RANGE[0] if n else SETS_RANGE[1]
+
+
 def new_model(
     path: Path,
     name: str,
@@ -95,16 +121,26 @@ def new_model(
     *,
     frame: pd.DataFrame | None,
     tag_info: Mapping[str, TagInfo | Mapping[str, object]],
-    sets: int = 31,
+    sets: int | None = None,
     method: str = "wm-avg",
     shape: str = "trapezoidal",
     period: str = "10s",
     description: str = "",
 ) -> RuleBase:
+    """Write a new model file. Without ``sets``, each input gets the sets the data fill
+    (:func:`sets_for_data`; 31 without data)."""
     if path.exists():
         raise FileExistsError(f"{path} exists already; edit it or choose another name")
-    out = variable_for(output, frame=frame, tag_info=tag_info, sets=sets)
-    ins = [variable_for(s, frame=frame, tag_info=tag_info, sets=sets) for s in inputs]
+    fixed = sets
+    out = variable_for(output, frame=frame, tag_info=tag_info, sets=fixed)
+    ins = [variable_for(s, frame=frame, tag_info=tag_info, sets=fixed) for s in inputs]
+    if fixed is None and frame is not None:
+        cols = [feature(frame, InputSpec.parse(v.spec)) for v in ins]
+        auto = sets_for_data(cols, [v.span for v in ins])
+        ins = [
+            v if v.spec.startswith(("dir(", "hour(", "days(")) else replace(v, sets=auto)
+            for v in ins
+        ]
     rb = RuleBase.new(
         name,
         out,
@@ -164,6 +200,33 @@ def add_input(
         table.update(fields)
         doc["inputs"].append(table)
         rb.clear_rules(f"input {new} added: rules cleared, run diag train")
+    return _save(rb)
+
+
+def set_input(
+    rb: RuleBase,
+    spec: str,
+    *,
+    span: tuple[float, float] | None = None,
+    sets: int | None = None,
+) -> RuleBase:
+    """Change an input's nominal span and/or set count (the model's resolution) and save."""
+    old = str(InputSpec.parse(spec))
+    specs = [v.spec for v in rb.inputs]
+    if old not in specs:
+        raise ValueError(f"{old} is not an input of {rb.name} (inputs: {', '.join(specs)})")
+    if span is None and sets is None:
+        raise ValueError("give --span LO HI and/or --sets N")
+    table = rb.doc["inputs"][specs.index(old)]  # edited in place: its comments stay
+    if span is not None:
+        if not span[0] < span[1]:
+            raise ValueError(f"span needs lo < hi, got {list(span)}")
+        table["span"] = [float(span[0]), float(span[1])]
+    if sets is not None:
+        if sets < 2:
+            raise ValueError(f"sets must be at least 2, got {sets}")
+        table["sets"] = int(sets)
+    rb.clear_rules(f"input {old} resized: rules cleared, run diag train")
     return _save(rb)
 
 
