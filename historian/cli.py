@@ -16,17 +16,35 @@ def add_commands(subparsers) -> None:
     p = subparsers.add_parser(
         "import",
         help="import a wide CSV or Parquet file (time column + one column per tag)",
-        description="Import samples: a time column (ts/time/timestamp/datetime, else the "
-        "first) plus one column per tag. Bad rows are reported as file:line and skipped; "
-        "re-importing the same file adds nothing.",
+        description="Import samples: a time column plus one column per tag. The time column "
+        "is --time-column, else one named ts/time/timestamp/datetime/date, else the first if "
+        "it holds date-times; plain-number times need --time-unit (and --start for a "
+        "relative time). Bad rows are reported as file:line and skipped; re-importing the "
+        "same file adds nothing; values that differ from stored ones are reported and kept "
+        "unless --replace.",
     )
     p.add_argument("file", help="CSV or Parquet file")
     p.add_argument("--time-column", help="name of the time column")
     p.add_argument("--tz", default="UTC", help="time zone of naive times (default UTC)")
+    p.add_argument(
+        "--time-unit",
+        choices=["s", "ms", "us", "min", "h"],
+        help="the time column holds plain numbers of this unit (after --start, else after "
+        "1970-01-01 UTC)",
+    )
+    p.add_argument(
+        "--start",
+        metavar="TIME",
+        help="origin of a plain-number time column, e.g. 2001-11-17T00:00:00Z (naive: --tz)",
+    )
     p.add_argument("--tags", dest="tags_csv", help="tags CSV: name, unit, lo, hi, description")
     p.add_argument("--strict", action="store_true", help="refuse the file if any row is bad")
     p.add_argument(
-        "--update", action="store_true", help="overwrite stored samples at the same times"
+        "--replace",
+        "--update",
+        dest="replace",
+        action="store_true",
+        help="overwrite stored samples whose value or quality differs (--update: the old name)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_import)
@@ -56,8 +74,10 @@ def cmd_import(args) -> int:
     from .importer import ImportRefused, import_file
 
     path = Path(args.file)
-    if not path.is_file():
+    if not path.exists():
         raise UserError(f"{path}: no such file")
+    if not path.is_file():
+        raise UserError(f"{path}: not a file")
     err = Console(stderr=True)
     show = not args.no_progress and path.stat().st_size >= PROGRESS_MIN_BYTES
     columns = [TextColumn(f"importing {path.name}"), BarColumn(), TimeRemainingColumn()]
@@ -80,9 +100,11 @@ def cmd_import(args) -> int:
                 path,
                 time_column=args.time_column,
                 tz=args.tz,
+                time_unit=args.time_unit,
+                start=args.start,
                 tags_csv=args.tags_csv,
                 strict=args.strict,
-                policy="update" if args.update else "ignore",
+                policy="update" if args.replace else "ignore",
                 progress=progress,
             )
         except ImportRefused as exc:
@@ -99,10 +121,15 @@ def cmd_import(args) -> int:
         print(msg, file=sys.stderr)
     if report.n_bad > 20:
         print(f"... and {report.n_bad - 20} more", file=sys.stderr)
+    conflicts = report.conflict_message()
+    if conflicts:
+        print(f"{path}: {conflicts}", file=sys.stderr)
     span = f"{report.first} .. {report.last}" if report.first is not None else "no data"
+    counts = f"{report.new} new samples, {report.already} already stored"
+    if report.conflicts:
+        counts += f", {report.conflicts} " + ("replaced" if report.replace else "conflicting")
     print(
-        f"{path}: {report.rows} rows, {len(report.tags)} tags, {span}; "
-        f"{report.written} new samples, {report.samples - report.written} already stored"
+        f"{path}: {report.rows} rows, {len(report.tags)} tags, {span}; {counts}"
         + (f"; {report.n_bad} bad rows skipped" if report.n_bad else "")
     )
     return 0

@@ -1,20 +1,43 @@
 """Import of wide CSV and Parquet files: a time column plus one column per tag.
 
-The time column is ``--time-column`` if given, else the first column named ``ts``, ``time``,
-``timestamp`` or ``datetime`` (any case), else the first column. Times with an offset are
-converted to UTC; naive times are in ``tz`` (default UTC; ambiguous or non-existent local
-times are bad rows); a numeric time column is seconds since the epoch.
+Import refuses to guess. The time column is ``time_column`` if given, else the first column
+named ``ts``, ``time``, ``timestamp``, ``datetime`` or ``date`` (any case), else the only
+Parquet column of timestamp type, else the first column if its values are date-times (text
+such as ``2026-01-01 00:00:10`` or ISO 8601, at least half of the first 100 non-empty
+values). Otherwise :class:`FileRefused` names the file, the columns found and
+``--time-column``.
+
+Date-time text with an offset is converted to UTC; naive times are in ``tz`` (default UTC;
+ambiguous or non-existent local times are bad rows). A time column of plain numbers is refused
+unless ``time_unit`` says what they count (``s``, ``ms``, ``us``, ``min``, ``h``): they are
+then that many units after ``start`` (a time; naive means ``tz``), or after 1970-01-01 UTC
+(Unix time) when no ``start`` is given. A relative time column (e.g. DAMADICS: seconds from
+0) needs its origin as ``start``.
 
 Empty cells (and NA/NaN) mean "no sample". A row whose time cannot be parsed or that holds a
 non-numeric value is *bad*: it is reported as ``file:line: what is wrong`` (CSV: the physical
 line, header = line 1; Parquet: the 1-based row number) and skipped, or with ``strict=True``
-the whole import is refused before anything is written. Stored samples are never modified
-(``policy="ignore"``), so a re-import adds nothing.
+the whole import is refused before anything is written.
+
+A file that cannot be imported at all (missing, empty, blank, header only, no tag column, not
+UTF-8 text or binary, not readable Parquet) raises :class:`FileRefused` before anything is
+written, naming the file (``file:line`` where a line is meaningful).
+
+A sample whose (tag, ts) is already stored (in the database or in a month rolled to the
+cold store) with the same value and quality is "already stored" and silently skipped. One
+stored with a *different* value or quality is a *conflict*: counted in
+:attr:`ImportReport.conflicts`, the earliest one kept in :attr:`ImportReport.first_conflict`;
+the stored value is kept (``policy="ignore"``) or overwritten (``policy="update"``, the CLI's
+``--replace``). A time that repeats within the file is compared the same way with the row
+stored first. See :func:`stored_conflicts`.
 """
 
 from __future__ import annotations
 
+import codecs
 import os
+import re
+import shlex
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,11 +45,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .quality import GOOD
+from .quality import GOOD, NAMES
 from .store import Historian
+from .times import from_us, index_us
 
-TIME_NAMES = ("ts", "time", "timestamp", "datetime")
+TIME_NAMES = ("ts", "time", "timestamp", "datetime", "date")
+#: µs per unit of a plain-number time column
+TIME_UNITS = {"s": 1_000_000, "ms": 1_000, "us": 1, "min": 60_000_000, "h": 3_600_000_000}
 MAX_MESSAGES = 1000
+#: rows read to recognise the time column and its kind
+SAMPLE_ROWS = 100
 
 
 class ImportRefused(Exception):
@@ -38,6 +66,34 @@ class ImportRefused(Exception):
         super().__init__(f"{n_bad} bad row(s); nothing imported:\n" + "\n".join(messages[:20]))
 
 
+class FileRefused(ValueError):
+    """The file cannot be imported as given (missing, empty, header only, unreadable, no
+    recognisable time column, plain-number times without a unit); the message names the file
+    and what to do. Nothing was written."""
+
+
+@dataclass
+class Conflict:
+    """A file sample at a stored (tag, ts) with a different value or quality."""
+
+    tag: str
+    ts: pd.Timestamp
+    stored: float
+    stored_quality: int
+    value: float
+    quality: int
+    where: str  # file:line of the row
+
+    def describe(self) -> str:
+        """``P1 at 2026-01-01T00:01:00Z (f.csv:3): stored 501.2, file 499.0``."""
+        show_q = self.stored_quality != self.quality
+        return (
+            f"{self.tag} at {_iso(self.ts)} ({self.where}): "
+            f"stored {_num(self.stored, self.stored_quality if show_q else None)}, "
+            f"file {_num(self.value, self.quality if show_q else None)}"
+        )
+
+
 @dataclass
 class ImportReport:
     file: str
@@ -45,42 +101,186 @@ class ImportReport:
     n_bad: int = 0
     bad: list[str] = field(default_factory=list)  # first MAX_MESSAGES 'file:line: ...'
     samples: int = 0  # samples offered to the store
-    written: int = 0  # newly stored (the rest were already there)
+    written: int = 0  # rows the store added (replace: added or changed)
     tags: list[str] = field(default_factory=list)
     first: pd.Timestamp | None = None
     last: pd.Timestamp | None = None
+    conflicts: int = 0  # samples at a stored (tag, ts) with another value or quality
+    first_conflict: Conflict | None = None  # the earliest
+    replace: bool = False  # conflicts overwrote the stored values
 
     def _bad(self, msg: str) -> None:
         self.n_bad += 1
         if len(self.bad) < MAX_MESSAGES:
             self.bad.append(msg)
 
+    @property
+    def new(self) -> int:
+        """Samples at a (tag, ts) not stored before."""
+        return max(0, self.written - self.conflicts) if self.replace else self.written
 
-def pick_time_column(columns, time_column: str | None = None) -> str:
+    @property
+    def already(self) -> int:
+        """Samples stored before with the same value and quality."""
+        return self.samples - self.new - self.conflicts
+
+    def conflict_message(self) -> str | None:
+        """The sentence telling the user about conflicts (None when there were none)."""
+        if not self.conflicts or self.first_conflict is None:
+            return None
+        n = self.conflicts
+        noun = "1 sample" if n == 1 else f"{n} samples"
+        first = self.first_conflict.describe()
+        if self.replace:
+            return (
+                f"{noun} conflicted with stored values (first: {first}); "
+                "replaced them with the file's (--replace)"
+            )
+        verb = "conflicts" if n == 1 else "conflict"
+        return (
+            f"{noun} {verb} with stored values (first: {first}); "
+            "kept the stored ones — use --replace to overwrite"
+        )
+
+
+def _iso(t: pd.Timestamp) -> str:
+    text = t.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%S")
+    if t.microsecond:
+        text += f".{t.microsecond:06d}".rstrip("0")
+    return text + "Z"
+
+
+def _num(v: float, q: int | None = None) -> str:
+    text = "no value" if np.isnan(v) else repr(float(v))
+    return text if q is None else f"{text} ({NAMES.get(int(q), q)})"
+
+
+def _plain_numbers(raw: pd.Series) -> bool:
+    """Every non-empty value is a plain number (a numeric column, or text of numbers)."""
+    if pd.api.types.is_bool_dtype(raw.dtype) or pd.api.types.is_datetime64_any_dtype(raw.dtype):
+        return False
+    if pd.api.types.is_numeric_dtype(raw.dtype):
+        return bool(raw.notna().any())
+    text = _texts(raw)
+    return bool(len(text)) and bool(pd.to_numeric(text, errors="coerce").notna().all())
+
+
+def _texts(raw: pd.Series) -> pd.Series:
+    text = raw.dropna().astype("string").str.strip()
+    return text[text != ""]
+
+
+def _holds_datetimes(raw: pd.Series) -> bool:
+    """At least half of the first non-empty values are date-times (never plain numbers)."""
+    if pd.api.types.is_datetime64_any_dtype(raw.dtype):
+        return True
+    if pd.api.types.is_numeric_dtype(raw.dtype) or pd.api.types.is_bool_dtype(raw.dtype):
+        return False
+    text = _texts(raw).iloc[:SAMPLE_ROWS]
+    if not len(text):
+        return False
+    return 2 * int(parse_times(text).notna().sum()) >= len(text)
+
+
+def _no_time_column(where: str, cols: list[str]) -> str:
+    sep = next((c for c in (";", "\t", "|") if len(cols) == 1 and c in cols[0]), None)
+    hint = f" (one column: is {sep!r} the separator? import reads commas)" if sep else ""
+    return (
+        f"{where}: no time column among the columns {', '.join(cols)}{hint}: none is named "
+        f"{', '.join(TIME_NAMES[:-1])} or {TIME_NAMES[-1]} (any case), and the first, "
+        f"{cols[0]!r}, does not hold date-times such as 2026-01-01 00:00:10; name the time "
+        "column with --time-column NAME (a column of plain numbers also needs --time-unit, "
+        "e.g. --time-unit s)"
+    )
+
+
+def pick_time_column(
+    columns, time_column: str | None = None, sample: pd.DataFrame | None = None, where="file"
+) -> str:
+    """The time column (see the module docstring); ``sample``: the first rows of the file,
+    to recognise a first column of date-times or a timestamp-typed column. Raises
+    :class:`FileRefused` when there is none (``where`` names the file)."""
     cols = [str(c) for c in columns]
     if not cols:
-        raise ValueError("the file has no columns")
+        raise FileRefused(f"{where}: the file has no columns")
     if time_column is not None:
         if time_column not in cols:
-            raise ValueError(f"no column {time_column!r}; columns are {', '.join(cols)}")
+            raise FileRefused(
+                f"{where}: no column {time_column!r} (--time-column); the columns are "
+                + ", ".join(cols)
+            )
         return time_column
     for c in cols:
         if c.strip().lower() in TIME_NAMES:
             return c
-    return cols[0]
+    if sample is not None:
+        typed = [c for c in cols if pd.api.types.is_datetime64_any_dtype(sample[c].dtype)]
+        if len(typed) == 1:
+            return typed[0]
+        if _holds_datetimes(sample[cols[0]]):
+            return cols[0]
+    raise FileRefused(_no_time_column(where, cols))
 
 
-def parse_times(raw: pd.Series, tz: str = "UTC") -> pd.Series:
-    """Times → tz-aware UTC (NaT where unparseable)."""
+def check_time_kind(
+    where: str, tcol: str, raw: pd.Series, time_unit: str | None, start, tz: str = "UTC"
+) -> int | None:
+    """Refuse plain-number times without a unit, a unit for date-times, ``start`` without
+    a unit; return the origin of a plain-number time column in µs (None for date-times)."""
+    flag = shlex.quote(tcol)
+    if time_unit is None:
+        if start is not None:
+            raise FileRefused(
+                f"{where}: --start is the origin of plain-number times; it needs --time-unit"
+            )
+        if _plain_numbers(raw):
+            shown = ", ".join(_texts(raw).iloc[:3].tolist())
+            raise FileRefused(
+                f"{where}: the time column {tcol!r} holds plain numbers ({shown}, ...), not "
+                "date-times, and import does not guess what they count. Say it: "
+                f"--time-column {flag} --time-unit s --start 2001-11-17T00:00:00Z reads "
+                "them as seconds after that time (give the time of 0: a relative time needs "
+                "its origin); --time-unit s without --start reads seconds since 1970-01-01 "
+                f"UTC (Unix time). Units: {', '.join(TIME_UNITS)}"
+            )
+        return None
+    if time_unit not in TIME_UNITS:
+        raise FileRefused(f"--time-unit {time_unit!r}: use one of {', '.join(TIME_UNITS)}")
+    if not _plain_numbers(raw) and len(_texts(raw)):
+        example = _texts(raw).iloc[0]
+        raise FileRefused(
+            f"{where}: --time-unit {time_unit} is for a time column of plain numbers, but "
+            f"{tcol!r} holds date-times (e.g. {str(example)!r}); leave --time-unit and "
+            "--start out"
+        )
+    if start is None:
+        return 0
+    try:
+        origin = pd.Timestamp(start)
+        if origin.tzinfo is None:
+            origin = origin.tz_localize(tz)
+    except Exception:  # noqa: BLE001 - unparseable, or ambiguous/non-existent in tz
+        raise FileRefused(
+            f"--start {start!r}: not a time in {tz} (e.g. 2001-11-17T00:00:00Z)"
+        ) from None
+    return int(index_us(pd.DatetimeIndex([origin]))[0])
+
+
+def parse_times(
+    raw: pd.Series, tz: str = "UTC", unit: str | None = None, origin_us: int = 0
+) -> pd.Series:
+    """Times → tz-aware UTC (NaT where unparseable). Without ``unit`` plain numbers are not
+    times (NaT); with it every value must be a number of ``unit`` after ``origin_us``."""
+    if unit is not None:
+        return _numeric_times(raw, unit, origin_us)
     if pd.api.types.is_datetime64_any_dtype(raw.dtype):
         t = raw
     elif pd.api.types.is_numeric_dtype(raw.dtype):
-        return pd.to_datetime(raw, unit="s", utc=True, errors="coerce")
+        return pd.Series(pd.NaT, index=raw.index, dtype="datetime64[us, UTC]")
     else:
         text = raw.astype("string").str.strip()
-        num = pd.to_numeric(text, errors="coerce")
-        if num.notna().sum() == text.notna().sum() and text.notna().any():
-            return pd.to_datetime(num, unit="s", utc=True, errors="coerce")
+        number = pd.to_numeric(text, errors="coerce").notna()
+        text = text.mask(number)
         try:
             t = pd.to_datetime(text, errors="coerce", format="ISO8601")
         except (ValueError, TypeError):
@@ -94,20 +294,42 @@ def parse_times(raw: pd.Series, tz: str = "UTC") -> pd.Series:
     return t.dt.tz_convert("UTC")
 
 
+def _numeric_times(raw: pd.Series, unit: str, origin_us: int) -> pd.Series:
+    if pd.api.types.is_numeric_dtype(raw.dtype) and not pd.api.types.is_bool_dtype(raw.dtype):
+        x = raw.to_numpy(np.float64, na_value=np.nan)
+    else:
+        num = pd.to_numeric(raw.astype("string").str.strip(), errors="coerce")
+        x = num.to_numpy(np.float64, na_value=np.nan)
+    after = np.rint(x * TIME_UNITS[unit])  # µs after the origin
+    ok = np.isfinite(after) & (np.abs(after) < 4e18)
+    out = np.full(len(x), np.datetime64("NaT"), "datetime64[us]")
+    out[ok] = (after[ok].astype(np.int64) + origin_us).view("datetime64[us]")
+    return pd.Series(pd.DatetimeIndex(out).tz_localize("UTC"), index=raw.index)
+
+
 def _clean_chunk(
-    chunk: pd.DataFrame, tcol: str, tz: str, line_of: Callable[[int], str], report: ImportReport
-) -> pd.DataFrame:
-    """Parse one chunk; report bad rows; return the good rows as a wide frame on UTC time."""
+    chunk: pd.DataFrame,
+    tcol: str,
+    tz: str,
+    line_of: Callable[[int], str],
+    report: ImportReport,
+    unit: str | None = None,
+    origin_us: int = 0,
+) -> tuple[pd.DataFrame, np.ndarray]:
+    """Parse one chunk; report bad rows; return the good rows as a wide frame on UTC time
+    and their positions in the chunk (for ``line_of``)."""
     values = chunk.drop(columns=[tcol])
     raw_t = chunk[tcol]
     blank = raw_t.isna().to_numpy() & values.isna().all(axis=1).to_numpy()
-    t = parse_times(raw_t, tz)
+    t = parse_times(raw_t, tz, unit, origin_us)
     bad_time = t.isna().to_numpy() & ~blank
     reason: dict[int, str] = {}
     for i in np.flatnonzero(bad_time):
         rv = raw_t.iloc[i]
         why = "missing time" if pd.isna(rv) else f"unparseable time {str(rv)!r}"
-        if not pd.isna(rv) and tz != "UTC":
+        if not pd.isna(rv) and unit is not None:
+            why += f" (--time-unit {unit}: expected a number)"
+        elif not pd.isna(rv) and tz != "UTC":
             why += f" (or ambiguous/non-existent in {tz})"
         reason[i] = why
     numeric = {}
@@ -127,7 +349,7 @@ def _clean_chunk(
         ok[i] = False
     report.rows += int(np.count_nonzero(~blank))
     frame = pd.DataFrame(numeric, index=pd.DatetimeIndex(t, name="ts"))[ok]
-    return frame
+    return frame, np.flatnonzero(ok)
 
 
 def _csv_chunks(path: Path, tcol: str, chunk_rows: int, advance) -> Iterator:
@@ -176,12 +398,90 @@ def _is_parquet(path: Path) -> bool:
         return fh.read(4) == b"PAR1"
 
 
-def file_columns(path: Path) -> list[str]:
-    if _is_parquet(path):
-        import pyarrow.parquet as pq
+def _check_text(path: Path, block_size: int = 1 << 20) -> None:
+    """Refuse a CSV that is not UTF-8 text (a NUL byte, an invalid byte) at ``file:line``,
+    or holds only blank lines. Reads the whole file once, before anything is written."""
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    line, text = 1, False
+    with open(path, "rb") as fh:
+        while block := fh.read(block_size):
+            nul = block.find(b"\0")
+            if nul >= 0:
+                at = line + block.count(b"\n", 0, nul)
+                raise FileRefused(f"{path}:{at}: binary data (a NUL byte), not a CSV text file")
+            held = len(decoder.getstate()[0])
+            try:
+                decoder.decode(block)
+            except UnicodeDecodeError as exc:
+                pos = min(max(0, exc.start - held), len(block) - 1)
+                at = line + block.count(b"\n", 0, pos)
+                raise FileRefused(
+                    f"{path}:{at}: not UTF-8 text (byte 0x{block[pos : pos + 1].hex()}); "
+                    "save the file as UTF-8 (CSV UTF-8)"
+                ) from None
+            text = text or bool(block.strip())
+            line += block.count(b"\n")
+    try:
+        decoder.decode(b"", final=True)
+    except UnicodeDecodeError:
+        raise FileRefused(f"{path}:{line}: not UTF-8 text (cut off at the end)") from None
+    if not text:
+        raise FileRefused(f"{path}: no header line (the file holds only blank lines)")
 
-        return list(pq.ParquetFile(path).schema_arrow.names)
-    return [str(c) for c in pd.read_csv(path, nrows=0, skipinitialspace=True).columns]
+
+def inspect_file(path: Path) -> tuple[bool, list[str], pd.DataFrame]:
+    """(is Parquet, column names, the first :data:`SAMPLE_ROWS` data rows). Raises
+    :class:`FileRefused`, naming the file, for a missing, empty, blank, header-only or
+    unreadable file."""
+    if not path.exists():
+        raise FileRefused(f"{path}: no such file")
+    if not path.is_file():
+        raise FileRefused(f"{path}: not a file")
+    try:
+        if path.stat().st_size == 0:
+            raise FileRefused(
+                f"{path}: empty file (0 bytes); expected a header line (a time column, then "
+                "one column per tag) and data rows"
+            )
+        parquet = _is_parquet(path)
+        if parquet:
+            sample, columns, rows = _parquet_sample(path)
+        else:
+            _check_text(path)
+            try:
+                sample = pd.read_csv(path, nrows=SAMPLE_ROWS, dtype=str, skipinitialspace=True)
+            except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
+                raise FileRefused(f"{path}: {_first_line(exc)}") from None
+            columns = [str(c) for c in sample.columns]
+            rows = len(sample.dropna(how="all"))
+    except OSError as exc:
+        raise FileRefused(f"{path}: cannot read it: {exc.strerror or exc}") from None
+    if not rows:
+        raise FileRefused(f"{path}: no data rows, only a header ({', '.join(columns)})")
+    return parquet, columns, sample
+
+
+def _parquet_sample(path: Path):
+    import pyarrow.parquet as pq
+
+    try:
+        pf = pq.ParquetFile(path)
+        columns = list(pf.schema_arrow.names)
+        if pf.metadata.num_rows == 0:
+            return pd.DataFrame(columns=columns), columns, 0
+        batch = next(pf.iter_batches(batch_size=SAMPLE_ROWS))
+    except Exception as exc:  # noqa: BLE001 - pyarrow's errors: say the file is unreadable
+        raise FileRefused(f"{path}: not a readable Parquet file ({_first_line(exc)})") from None
+    return batch.to_pandas(ignore_metadata=True), columns, pf.metadata.num_rows
+
+
+def _first_line(exc: Exception) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def file_columns(path: Path) -> list[str]:
+    return inspect_file(Path(path))[1]
 
 
 def load_tags_csv(h: Historian, path: str | Path) -> list[str]:
@@ -232,12 +532,52 @@ def load_tags_csv(h: Historian, path: str | Path) -> list[str]:
     return names
 
 
+def stored_conflicts(
+    h: Historian, frame: pd.DataFrame, quality: int = GOOD
+) -> tuple[int, tuple[int, int, int, float, int] | None]:
+    """Samples of the wide ``frame`` (a DatetimeIndex without repeats, one column per
+    existing tag, NaN = no sample) whose (tag, ts) ``h`` holds with a different value or
+    quality, in the database or in a month rolled to the cold store.
+
+    Returns ``(count, first)``; ``first`` is ``(ts µs, column, row, stored value, stored
+    quality)`` of the earliest conflict, or None. Reads, per tag, the stored samples over the
+    frame's span and compares them with numpy (no per-row queries)."""
+    count, first = 0, None
+    ts_all = index_us(frame.index)
+    for j, name in enumerate(frame.columns):
+        value = frame[name].to_numpy(np.float64, na_value=np.nan)
+        rows = np.flatnonzero(~np.isnan(value))
+        if not len(rows):
+            continue
+        ts = ts_all[rows]
+        stored = h.read_samples(
+            str(name), from_us(int(ts.min())), from_us(int(ts.max()) + 1), with_quality=True
+        )
+        if stored.empty:
+            continue
+        s_ts = index_us(stored.index)
+        s_v = stored["value"].to_numpy(np.float64)
+        s_q = stored["quality"].to_numpy(np.int64)
+        pos = np.minimum(np.searchsorted(s_ts, ts), len(s_ts) - 1)
+        same = (s_v[pos] == value[rows]) & (s_q[pos] == quality)
+        hits = np.flatnonzero((s_ts[pos] == ts) & ~same)
+        if not len(hits):
+            continue
+        count += len(hits)
+        k = hits[np.argmin(ts[hits])]
+        if first is None or ts[k] < first[0]:
+            first = (int(ts[k]), j, int(rows[k]), float(s_v[pos[k]]), int(s_q[pos[k]]))
+    return count, first
+
+
 def import_file(
     h: Historian,
     path: str | Path,
     *,
     time_column: str | None = None,
     tz: str = "UTC",
+    time_unit: str | None = None,
+    start=None,
     tags_csv: str | Path | None = None,
     strict: bool = False,
     policy: str = "ignore",
@@ -246,14 +586,22 @@ def import_file(
 ) -> ImportReport:
     """Import a wide CSV or Parquet file into ``h``; see the module docstring.
 
+    ``time_unit``/``start``: a time column of plain numbers counts ``time_unit`` after
+    ``start`` (default 1970-01-01 UTC). ``policy``: ``"ignore"`` keeps stored values at a
+    conflict, ``"update"`` overwrites them; either way conflicts are counted in the report.
     ``progress(done, total)`` is called after each chunk (bytes for CSV, rows for Parquet).
-    Raises :class:`ImportRefused` in strict mode when any row is bad (nothing written).
+    Raises :class:`FileRefused` (nothing written) when the file cannot be imported as given,
+    :class:`ImportRefused` in strict mode when any row is bad (nothing written).
     """
+    if policy not in ("ignore", "update"):
+        raise ValueError(f"policy must be 'ignore' or 'update', not {policy!r}")
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file")
-    parquet = _is_parquet(path)
-    tcol = pick_time_column(file_columns(path), time_column)
+    parquet, columns, sample = inspect_file(path)
+    tcol = pick_time_column(columns, time_column, sample, where=str(path))
+    if len(columns) < 2:
+        raise FileRefused(f"{path}: only the time column {tcol!r}; no tag columns to import")
+    origin = check_time_kind(str(path), tcol, sample[tcol], time_unit, start, tz)
+    unit = time_unit if origin is not None else None
     if parquet:
         import pyarrow.parquet as pq
 
@@ -269,15 +617,19 @@ def import_file(
     def noop(_done):
         pass
 
+    def clean(chunk, line_of, report):
+        return _clean_chunk(chunk, tcol, tz, line_of, report, unit, origin or 0)
+
     if strict:  # validate the whole file first: refuse before writing anything
         check = ImportReport(str(path))
-        for chunk, line_of in chunks(noop):
-            _clean_chunk(chunk, tcol, tz, line_of, check)
+        with _reading(path, check):
+            for chunk, line_of in chunks(noop):
+                clean(chunk, line_of, check)
         if check.n_bad:
             raise ImportRefused(check.bad, check.n_bad)
     if tags_csv is not None:
         load_tags_csv(h, tags_csv)
-    report = ImportReport(str(path))
+    report = ImportReport(str(path), replace=policy == "update")
     known = set(h.tags()["name"])
     tags_seen: list[str] = []
 
@@ -285,19 +637,88 @@ def import_file(
         if progress is not None:
             progress(done, total)
 
-    for chunk, line_of in chunks(advance):
-        frame = _clean_chunk(chunk, tcol, tz, line_of, report)
-        for name in frame.columns:
-            if name not in known:
-                h.ensure_tag(str(name), source=path.name)
-                known.add(name)
-            if name not in tags_seen:
-                tags_seen.append(str(name))
-        if len(frame):
-            report.samples += int(frame.notna().to_numpy().sum())
-            report.written += h.write_samples(frame, quality=GOOD, policy=policy)
-            lo, hi = frame.index.min(), frame.index.max()
-            report.first = lo if report.first is None else min(report.first, lo)
-            report.last = hi if report.last is None else max(report.last, hi)
+    with _reading(path, report):
+        for chunk, line_of in chunks(advance):
+            frame, rows = clean(chunk, line_of, report)
+            for name in frame.columns:
+                if name not in known:
+                    h.ensure_tag(str(name), source=path.name)
+                    known.add(name)
+                if name not in tags_seen:
+                    tags_seen.append(str(name))
+            if len(frame):
+                report.samples += int(frame.notna().to_numpy().sum())
+                _write(h, frame, rows, line_of, policy, report)
+                lo, hi = frame.index.min(), frame.index.max()
+                report.first = lo if report.first is None else min(report.first, lo)
+                report.last = hi if report.last is None else max(report.last, hi)
     report.tags = tags_seen
     return report
+
+
+def _write(h, frame, rows, line_of, policy, report: ImportReport) -> None:
+    """Write one chunk, counting conflicts. A time repeated in the chunk goes in a later
+    pass, so it meets the row stored first like any stored sample. With ``"ignore"`` the
+    stored values are compared after the write, and only when some samples were not new
+    (the write keeps stored values, so what differs then is a conflict); with ``"update"``
+    before it."""
+    todo = np.arange(len(frame))
+    while len(todo):
+        again = frame.index[todo].duplicated(keep="first")
+        now, todo = todo[~again], todo[again]
+        part = frame.iloc[now]
+        if policy == "update":
+            _count_conflicts(h, part, now, rows, line_of, report)
+            report.written += h.write_samples(part, quality=GOOD, policy=policy)
+            continue
+        written = h.write_samples(part, quality=GOOD, policy=policy)
+        report.written += written
+        if written < int(part.notna().to_numpy().sum()):
+            _count_conflicts(h, part, now, rows, line_of, report)
+
+
+def _count_conflicts(h, part, now, rows, line_of, report: ImportReport) -> None:
+    n, first = stored_conflicts(h, part)
+    if not n:
+        return
+    report.conflicts += n
+    ts, j, row, stored, stored_q = first
+    old = report.first_conflict
+    if old is None or from_us(ts) < old.ts:
+        report.first_conflict = Conflict(
+            tag=str(part.columns[j]),
+            ts=from_us(ts),
+            stored=stored,
+            stored_quality=stored_q,
+            value=float(part.iat[row, j]),
+            quality=GOOD,
+            where=line_of(int(rows[now[row]])),
+        )
+
+
+class _reading:
+    """Turn a parse error met while reading the file into :class:`FileRefused` at
+    ``file:line`` (saying whether earlier rows were already stored)."""
+
+    def __init__(self, path: Path, report: ImportReport):
+        self.path, self.report = path, report
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, exc, tb):
+        if exc is None or not isinstance(exc, (pd.errors.ParserError, UnicodeDecodeError)):
+            return False
+        text = _first_line(exc)
+        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
+        msg = (
+            f"{self.path}:{m[2]}: {m[3]} fields, but the header has {m[1]}"
+            if m
+            else f"{self.path}: {text}"
+        )
+        if self.report.samples:
+            msg += (
+                "; the rows before it were imported (fix the line and import again: stored "
+                "rows are skipped; --strict checks the whole file before writing)"
+            )
+        raise FileRefused(msg) from None

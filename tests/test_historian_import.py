@@ -24,7 +24,12 @@ nonsense,3,12
 
 def test_time_column_choice():
     assert pick_time_column(["a", "Timestamp", "b"]) == "Timestamp"
-    assert pick_time_column(["when", "b"]) == "when"
+    dates = pd.DataFrame({"when": ["2024-01-01 00:00:10", "2024-01-01T00:00:20Z"], "b": "1"})
+    assert pick_time_column(["when", "b"], sample=dates) == "when"  # first column of dates
+    with pytest.raises(ValueError, match="--time-column"):  # never a guess
+        pick_time_column(["when", "b"], sample=dates.assign(when=["1", "2"]))
+    with pytest.raises(ValueError, match="--time-column"):
+        pick_time_column(["when", "b"])
     assert pick_time_column(["a", "b"], "b") == "b"
     with pytest.raises(ValueError):
         pick_time_column(["a"], "zz")

@@ -1,0 +1,217 @@
+"""diag import refuses to guess (issue 8): no recognisable time column, plain-number times
+without a unit, conflicting values at a stored (tag, ts), empty or unreadable files.
+
+Every case runs through the CLI (``diag_plugin.cli.main``), the conflict cases on both
+backends (``db_url``), the cold-store case with months rolled to Parquet."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from diag_plugin.cli import main
+from historian import Historian
+from historian.quality import BAD
+
+FIRST = """ts,P1,F
+2026-01-01 00:00:00,500.0,10.0
+2026-01-01 00:00:10,500.5,10.5
+2026-01-01 00:01:00,501.2,11.0
+2026-01-01 00:01:10,502.0,11.5
+"""
+
+# the same times; P1 differs at 00:01:00 and 00:01:10, F is identical, one row is new
+SECOND = """ts,P1,F
+2026-01-01 00:00:10,500.5,10.5
+2026-01-01 00:01:00,499.0,11.0
+2026-01-01 00:01:10,498.0,11.5
+2026-01-01 00:01:20,497.0,12.0
+"""
+
+
+def _diag(capsys, *args):
+    rc = main(list(args))
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def _nothing_stored(db):
+    with Historian(db) as h:
+        assert h.tags().empty
+        assert h.time_range() == (None, None)
+
+
+# -- 1. the time column -----------------------------------------------------------------
+
+
+def test_no_time_column_is_refused(tmp_path, capsys):
+    db = f"sqlite:///{tmp_path / 'h.db'}"
+    f = tmp_path / "notime.csv"
+    f.write_text("a,b\n1,2\n3,4\n")
+    rc, out, err = _diag(capsys, "--db", db, "import", str(f))
+    assert rc == 2
+    assert str(f) in err and "a, b" in err and "--time-column" in err
+    _nothing_stored(db)
+    # a first column of date-times needs no name; a named one wins over the first
+    g = tmp_path / "when.csv"
+    g.write_text("when,P1\n2026-01-01 00:00:10,1\n2026-01-01T00:00:20Z,2\n")
+    assert _diag(capsys, "--db", db, "import", str(g))[0] == 0
+    with Historian(db) as h:
+        assert h.read_samples("P1").index[0] == pd.Timestamp("2026-01-01 00:00:10", tz="UTC")
+
+
+def test_plain_number_times_need_a_unit_and_an_origin(tmp_path, capsys):
+    """A DAMADICS-style CSV: 'time' in seconds from 0 of the recording."""
+    db = f"sqlite:///{tmp_path / 'h.db'}"
+    f = tmp_path / "damadics.csv"
+    f.write_text("time,P1,F\n0,500,10\n1,501,11\n2,502,12\n")
+    rc, out, err = _diag(capsys, "--db", db, "import", str(f))
+    assert rc == 2
+    assert str(f) in err and "'time'" in err and "plain numbers" in err
+    assert "--time-unit s" in err and "--start" in err
+    _nothing_stored(db)
+    rc, out, err = _diag(
+        capsys,
+        "--db",
+        db,
+        "import",
+        str(f),
+        "--time-column",
+        "time",
+        "--time-unit",
+        "s",
+        "--start",
+        "2001-11-17T00:00:00Z",
+    )
+    assert rc == 0, err
+    with Historian(db) as h:
+        s = h.read_samples("F")
+    assert list(s.index) == list(
+        pd.date_range("2001-11-17", periods=3, freq="1s", tz="UTC", name="ts")
+    )
+    assert "time" not in set(Historian(db).tags()["name"])
+    # --time-unit alone: Unix time (seconds since 1970-01-01 UTC)
+    g = tmp_path / "unix.csv"
+    g.write_text("t,X\n1767225600,1\n")
+    rc, out, err = _diag(capsys, "--db", db, "import", str(g), "--time-column", "t")
+    assert rc == 2 and "--time-unit" in err
+    assert (
+        _diag(capsys, "--db", db, "import", str(g), "--time-column", "t", "--time-unit", "s")[0]
+        == 0
+    )
+    with Historian(db) as h:
+        assert h.read_samples("X").index[0] == pd.Timestamp("2026-01-01", tz="UTC")
+    # a unit for a column of date-times is a contradiction, not something to guess around
+    h2 = tmp_path / "dates.csv"
+    h2.write_text(FIRST)
+    rc, out, err = _diag(capsys, "--db", db, "import", str(h2), "--time-unit", "s")
+    assert rc == 2 and "--time-unit" in err and str(h2) in err
+
+
+# -- 2. conflicts with stored values ----------------------------------------------------
+
+
+def test_conflicts_are_reported_and_stored_values_kept(db_url, tmp_path, capsys):
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_text(FIRST)
+    b.write_text(SECOND)
+    assert _diag(capsys, "--db", db_url, "import", str(a))[0] == 0
+    rc, out, err = _diag(capsys, "--db", db_url, "import", str(a))  # identical: silent
+    assert rc == 0 and "conflict" not in err and "conflicting" not in out
+    assert "0 new samples, 8 already stored" in out
+    rc, out, err = _diag(capsys, "--db", db_url, "import", str(b))
+    assert rc == 0, err
+    assert (
+        "2 samples conflict with stored values (first: P1 at 2026-01-01T00:01:00Z "
+        f"({b}:3): stored 501.2, file 499.0); kept the stored ones — use --replace to overwrite"
+    ) in err
+    assert "2 new samples, 4 already stored, 2 conflicting" in out
+    with Historian(db_url) as h:
+        assert h.read_samples("P1").tolist() == [500.0, 500.5, 501.2, 502.0, 497.0]
+        assert h.read_samples("F").tolist() == [10.0, 10.5, 11.0, 11.5, 12.0]
+    rc, out, err = _diag(capsys, "--db", db_url, "import", str(b), "--replace")
+    assert rc == 0
+    assert "2 samples conflicted with stored values" in err and "replaced" in err
+    assert "0 new samples, 6 already stored, 2 replaced" in out
+    with Historian(db_url) as h:
+        assert h.read_samples("P1").tolist() == [500.0, 500.5, 499.0, 498.0, 497.0]
+    rc, out, err = _diag(capsys, "--db", db_url, "import", str(a), "--update")  # the alias
+    assert rc == 0 and "2 replaced" in out
+    with Historian(db_url) as h:
+        assert h.read_samples("P1").tolist() == [500.0, 500.5, 501.2, 502.0, 497.0]
+
+
+def test_a_different_quality_is_a_conflict(db_url, tmp_path, capsys):
+    with Historian(db_url) as h:
+        s = pd.Series([501.2], pd.DatetimeIndex(["2026-01-01 00:01:00"], tz="UTC"), name="P1")
+        h.write_samples(s, quality=BAD)
+    a = tmp_path / "a.csv"
+    a.write_text(FIRST)
+    rc, out, err = _diag(capsys, "--db", db_url, "import", str(a))
+    assert rc == 0
+    assert (
+        "1 sample conflicts with stored values (first: P1 at 2026-01-01T00:01:00Z "
+        f"({a}:4): stored 501.2 (bad), file 501.2 (good))"
+    ) in err
+
+
+def test_a_repeated_time_in_the_file_is_a_conflict(tmp_path, capsys):
+    db = f"sqlite:///{tmp_path / 'h.db'}"
+    f = tmp_path / "twice.csv"
+    f.write_text("ts,P1\n2026-01-01 00:00:00,1\n2026-01-01 00:00:10,2\n2026-01-01 00:00:00,3\n")
+    rc, out, err = _diag(capsys, "--db", db, "import", str(f))
+    assert rc == 0
+    assert (
+        f"1 sample conflicts with stored values (first: P1 at 2026-01-01T00:00:00Z ({f}:4)" in err
+    )
+    with Historian(db) as h:
+        assert h.read_samples("P1").tolist() == [1.0, 2.0]
+
+
+def test_conflicts_in_months_rolled_to_the_cold_store(tmp_path, capsys):
+    db = f"sqlite:///{tmp_path / 'h.db'}"
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_text(FIRST)
+    b.write_text(SECOND)
+    assert _diag(capsys, "--db", db, "import", str(a))[0] == 0
+    with Historian(db) as h:
+        assert h.roll_months(before="2026-02-01") == ["2026-01"]
+    rc, out, err = _diag(capsys, "--db", db, "import", str(a))
+    assert rc == 0 and "conflict" not in err and "conflicting" not in out
+    assert "0 new samples, 8 already stored" in out
+    rc, out, err = _diag(capsys, "--db", db, "import", str(b))
+    assert rc == 0
+    assert "2 samples conflict with stored values (first: P1 at 2026-01-01T00:01:00Z" in err
+    with Historian(db) as h:
+        assert h.read_samples("P1").tolist() == [500.0, 500.5, 501.2, 502.0, 497.0]
+    rc, out, err = _diag(capsys, "--db", db, "import", str(b), "--replace")
+    assert rc == 0 and "2 replaced" in out
+    with Historian(db) as h:
+        assert h.read_samples("P1").tolist() == [500.0, 500.5, 499.0, 498.0, 497.0]
+
+
+# -- 3. empty, header-only, unreadable, missing files -----------------------------------
+
+
+@pytest.mark.parametrize(
+    "kind, content, says",
+    [
+        ("empty", b"", "empty file"),
+        ("blank", b"\n\n  \n", "no header"),
+        ("header", b"ts,P1,F\n", "no data rows"),
+        ("header-blank", b"ts,P1,F\n\n\n", "no data rows"),
+        ("binary", b"ts,P1\n2026-01-01 00:00:00,1\n\x00\x01\x02\xff\xfe", ":3: "),
+        ("latin1", "ts,Druck\n2026-01-01 00:00:00,1\n\xfc,2\n".encode("latin-1"), ":3: "),
+        ("parquet", b"PAR1 this is not parquet", "Parquet"),
+        ("missing", None, "no such file"),
+    ],
+)
+def test_unusable_files_are_refused_by_name(tmp_path, capsys, kind, content, says):
+    db = f"sqlite:///{tmp_path / 'h.db'}"
+    f = tmp_path / f"{kind}.csv"
+    if content is not None:
+        f.write_bytes(content)
+    rc, out, err = _diag(capsys, "--db", db, "import", str(f))
+    assert rc == 2
+    assert f"diag: error: {f}" in err and says in err
+    _nothing_stored(db)
