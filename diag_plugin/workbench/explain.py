@@ -4,9 +4,10 @@ For each candidate input the model is retrained with it added (or, for a
 dead time, with an input's lag replaced) on the first part of the data and
 scored on the last part — a time-ordered held-out block, never shuffled
 samples. Every candidate is scored on the *same* samples: where it has no
-rule, the current model's prediction stands in (and the training mean of the
-output where that has none), so a candidate cannot look better by predicting
-fewer samples; its own coverage is shown beside the error. A candidate whose
+rule, its mean training output stands in — as in the error ``diag train``
+reports — so a candidate cannot look better by predicting fewer samples, and
+the error it promises is the one training gives; its own coverage is shown
+beside the error. A candidate whose
 grid would be thin is also scored with the fewer sets the data fill, and the
 better of the two is offered with its exact command.
 
@@ -51,8 +52,12 @@ LAG_HORIZON_S = 600.0
 MIN_LAGS = 10
 #: lags of each screen that are retrained and scored
 LAGS_RETRAINED = 3
+#: a longer lag is suggested only when it scores better than this share
+LAG_TOLERANCE = 0.01
 #: training samples per rule cell a new input's set count aims at
 MIN_PER_CELL = 20
+#: margin around the operating range when an input's span is narrowed to it
+SPAN_MARGIN = 0.1
 #: own coverage below this share of the current model's is called thin
 THIN_COVERAGE = 0.95
 
@@ -128,10 +133,11 @@ class _Scorer:
     """Trains a variant of the model on the rows before the cut and scores every variant on
     the *same* held-out samples: all rows after the cut with a measured output.
 
-    Where a variant has no prediction (no rule, a missing input) the current model's
-    prediction stands in, and where that has none the training mean of the output — so
-    predicting fewer samples never makes a variant look better. Each variant's own coverage
-    is reported beside its error.
+    Where a variant has no prediction (no rule, a missing input) its training mean of the
+    output stands in — exactly how ``diag train`` and ``diag compare`` score a model — so
+    predicting fewer samples never makes a variant look better, and the error a candidate
+    promises is the error training then reports. Each variant's own coverage is reported
+    beside its error.
     """
 
     def __init__(self, rb: RuleBase, cols: Sequence[np.ndarray], y: np.ndarray, cut: int):
@@ -142,11 +148,9 @@ class _Scorer:
         tr_y = np.isfinite(y[:cut])
         self.mean = float(y[:cut][tr_y].mean()) if tr_y.any() else math.nan
         self.va = np.flatnonzero(np.isfinite(y[cut:])) + cut
-        fallback = np.full(self.va.size, self.mean)
         pred, self.base_model, self.base_rows = self._fit_predict(list(rb.inputs), cols)
         self.base_cov = float(np.isfinite(pred).mean()) if pred.size else 0.0
-        self.fallback = np.where(np.isfinite(pred), pred, fallback)
-        self.base_rmse = self._rmse(self.fallback)
+        self.base_rmse = self._rmse(self._stand_in(pred, self.base_model))
         self.base_rules = rb.codec.size(self.base_model) if self.base_model is not None else 0
 
     def _fit_predict(self, variables, cols):
@@ -157,6 +161,11 @@ class _Scorer:
         spec = dc_replace(self.rb.spec, inputs=list(variables))
         m = self.rb.codec.new_estimator(spec).fit(X[: self.cut][tr], self.y[: self.cut][tr])
         return m.predict(X[self.va]), m, int(tr.sum())
+
+    def _stand_in(self, pred: np.ndarray, model) -> np.ndarray:
+        """``pred`` with the model's mean training output where it has no prediction."""
+        mean = getattr(model, "output_mean_", self.mean) if model is not None else self.mean
+        return np.where(np.isfinite(pred), pred, mean)
 
     def _rmse(self, pred: np.ndarray) -> float:
         if not pred.size or not np.isfinite(pred).all():
@@ -172,7 +181,7 @@ class _Scorer:
             return math.nan, 0.0, 0.0
         own = np.isfinite(pred)
         per_cell = n_train / max(self.rb.codec.size(m), 1)
-        return self._rmse(np.where(own, pred, self.fallback)), float(own.mean()), per_cell
+        return self._rmse(self._stand_in(pred, m)), float(own.mean()), per_cell
 
     def residual(self, cols) -> np.ndarray:
         """The current model's in-sample residual on the training rows (NaN where none)."""
@@ -299,18 +308,22 @@ def explain(
         return r.per_cell < SPARSE_PER_CELL or r.coverage < THIN_COVERAGE * base_cov
 
     def evaluate_best(spec: InputSpec, replace: int | None = None):
-        """Scored as add-input writes it; if that grid is thin, also with the fewer sets
-        the data can fill for the new input, keeping whichever scores better."""
+        """Scored as add-input writes it; if that grid is thin, also with fewer sets for
+        the new input (a few coarse counts and what the data fill), keeping the best."""
         r = evaluate(spec, replace)
         if r is None or not thin(r) or spec.fn in ("dir", "hour"):
             return r
-        fewer = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
-        if fewer >= r.sets:
+        fit = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
+        best = r
+        for sets in sorted({2, 3, 5, fit, max(fit, r.sets // 4), max(fit, r.sets // 2)}):
+            if sets >= r.sets:
+                continue
+            r2 = evaluate(spec, replace, sets=sets)
+            if r2 is not None and _sortable(r2.rmse) < _sortable(best.rmse):
+                best = r2
+        if best is r:
             return r
-        r2 = evaluate(spec, replace, sets=fewer)
-        if r2 is not None and _sortable(r2.rmse) < _sortable(r.rmse):
-            return dc_replace(r2, fewer_from=r.sets, thin_before=(r.coverage, r.per_cell))
-        return r
+        return dc_replace(best, fewer_from=r.sets, thin_before=(r.coverage, r.per_cell))
 
     def best_lag(base: InputSpec, lags: Sequence[int], target: np.ndarray, replace=None):
         """Screen ``lags`` by correlation with ``target``, retrain the best few."""
@@ -329,7 +342,12 @@ def explain(
                 scored.append((r.rmse, lag, r))
         if not scored:
             return None
-        _, lag, r = min(scored, key=lambda t: (t[0], t[1]))
+        # the shortest lag that scores within LAG_TOLERANCE of the best: a dead time is
+        # suggested only where it clearly matters
+        best = min(t[0] for t in scored)
+        _, lag, r = min(
+            (t for t in scored if t[0] <= best * (1 + LAG_TOLERANCE)), key=lambda t: t[1]
+        )
         return lag, r
 
     found: list[Candidate] = []
@@ -353,13 +371,13 @@ def explain(
             cov0, per0 = r.thin_before
             notes.append(
                 f"with {r.fewer_from} sets the rule grid would be thin ({per0:.0f} samples per "
-                f"rule, coverage {cov0:.0%}): {r.sets} sets, which the data fill, score better"
+                f"rule, coverage {cov0:.0%}): {r.sets} sets score better"
             )
         elif thin(r):
             fewer = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
             notes.append(
                 f"the rule grid would be thin ({r.per_cell:.0f} samples per rule, coverage "
-                f"{r.coverage:.0%}; the rest is scored with the current model)"
+                f"{r.coverage:.0%}; the rest is scored with the mean output)"
                 + (f": consider fewer sets, e.g. --sets {fewer}" if fewer < r.sets else "")
             )
         cmd = f"diag model add-input {name} '{spec}'"
@@ -478,12 +496,12 @@ class _Score:
 
 def _resolution_variants(v: Variable, col: np.ndarray):
     """The model's own resolution for one input: the span narrowed to the operating range
-    seen in training (2 % margin) when that is under 70 % of the span, more sets (×1.5)
-    and fewer sets (÷2)."""
+    seen in training (with a margin of :data:`SPAN_MARGIN`) when that is under 70 % of the
+    span, more sets (×1.5) and fewer sets (÷2)."""
     x = col[np.isfinite(col)]
     if x.size >= 10:
         lo, hi = (float(q) for q in np.quantile(x, [0.001, 0.999]))
-        pad = 0.02 * (hi - lo)
+        pad = SPAN_MARGIN * (hi - lo)
         lo, hi = max(v.span[0], lo - pad), min(v.span[1], hi + pad)
         if hi > lo and (hi - lo) < 0.7 * (v.span[1] - v.span[0]):
             lo, hi = nice_span(lo, hi)
