@@ -38,7 +38,9 @@ def story(tmp_path, frame, output, inputs, info):
     e = explain(rb, frame, tag_info=info)
     best = e.candidates[0]
     assert e.baseline_rmse_pct == pytest.approx(before, rel=0.02)
-    rb = add_input(rb, best.input, frame=frame, tag_info=info, replace=best.replaces)
+    words = best.command.split()  # follow the command as explain prints it
+    sets = int(words[words.index("--sets") + 1]) if "--sets" in words else None
+    rb = add_input(rb, best.input, frame=frame, tag_info=info, replace=best.replaces, sets=sets)
     rb, after = fit(rb, frame)
     assert after == pytest.approx(best.rmse_pct_if_added, rel=0.05)
     return e, before, after

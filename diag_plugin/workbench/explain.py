@@ -58,8 +58,9 @@ LAG_TOLERANCE = 0.01
 MIN_PER_CELL = 20
 #: margin around the operating range when an input's span is narrowed to it
 SPAN_MARGIN = 0.1
-#: own coverage below this share of the current model's is called thin
-THIN_COVERAGE = 0.95
+#: a candidate covering fewer samples than the current model by more than this is thin
+#: (each sample it loses is scored with the mean output)
+COVERAGE_SLACK = 0.001
 
 
 @dataclass
@@ -305,7 +306,7 @@ def explain(
         return _Score(rmse, cov, per_cell, var.sets)
 
     def thin(r: _Score) -> bool:
-        return r.per_cell < SPARSE_PER_CELL or r.coverage < THIN_COVERAGE * base_cov
+        return r.per_cell < SPARSE_PER_CELL or r.coverage < base_cov - COVERAGE_SLACK
 
     def evaluate_best(spec: InputSpec, replace: int | None = None):
         """Scored as add-input writes it; if that grid is thin, also with fewer sets for
