@@ -18,7 +18,7 @@ def coverage_note(fig: dict) -> str:
         return ""
     return (
         f"⚠ the model predicts only {cov:.0%} of the samples; the others are scored with its "
-        f"mean output ({fig.get('rmse_covered_pct', float('nan')):.2f} % on the covered ones)"
+        f"nearest rule ({fig.get('rmse_covered_pct', float('nan')):.2f} % on the covered ones)"
     )
 
 
@@ -32,10 +32,11 @@ class ErrorStats:
     """Streaming statistics of residuals in % of span (eq. 6), mergeable across chunks.
 
     The headline figures count every sample: where the model gave no prediction
-    (no rule, NaN), the residual of a stand-in prediction — the training mean of
-    the output — is used, so a model cannot look better by predicting fewer
-    samples. ``coverage`` is the share the model predicted itself, and
-    ``rmse_covered_pct`` the error on those samples alone.
+    (no rule), the residual of its stand-in prediction (the model's
+    ``extrapolate``: for Wang–Mendel the nearest trained rule) is used, so a
+    model cannot look better by predicting fewer samples. ``coverage`` is the
+    share the model predicted itself, and ``rmse_covered_pct`` the error on
+    those samples alone.
     """
 
     n: int = 0

@@ -12,8 +12,8 @@ Validation is a *time-ordered held-out block* (never shuffled samples): the
 model trained on the first part of the range predicts the last part
 (default 20 %), and the errors are reported in % of the output's nominal
 span (Kościelny et al., eq. 6), counting every held-out sample: where the
-model has no rule, its mean training output stands in, so a model cannot look
-better by predicting less (coverage is reported beside it). The returned model
+model has no rule, its nearest trained rule stands in (``extrapolate``), so a
+model cannot look better by predicting less (coverage is reported beside it). The returned model
 is then completed with the held-out block too (exact, by ``merge``), so the rule base uses all data
 while the reported error stays out-of-sample.
 """
@@ -176,7 +176,6 @@ def train(
     if n_train == 0:
         raise ValueError(f"no usable training samples between {start} and {cut}")
     predictor = rb.predictor(model)
-    stand_in = model.output_mean_  # scored where the model has no prediction
 
     val_stats = ErrorStats()
     held = rb.new_model()
@@ -186,7 +185,7 @@ def train(
         if len(d.y):
             val_stats.update(
                 residual_pct(d.y, predictor.predict(d.X), span),
-                residual_pct(d.y, stand_in, span),
+                residual_pct(d.y, predictor.extrapolate(d.X), span),
             )
             held.partial_fit(d.X, d.y)
         done += 1

@@ -89,8 +89,11 @@ def test_real_valve_flow_model_gets_the_pressure(tmp_path):
     f = load_hour(REAL, "10s")
     rb = new_model(tmp_path / "f.toml", "f", "F[k]", ["X[k]"], frame=f, tag_info=DAMADICS_TAGS)
     e = explain(rb, f, tag_info=DAMADICS_TAGS)
-    top2 = [c.input for c in e.candidates[:2]]
-    hit = [c for c in e.candidates[:2] if c.input.startswith(("P1[", "diff(P1,P2)"))]
+    # with the transducer's 0–100 % span for X, the model is also too coarse where this
+    # valve works (54–72 %): resolution may rank above; among the missing effects, pressure
+    effects = [c for c in e.candidates if c.kind != "resolution"]
+    top2 = [c.input for c in effects[:2]]
+    hit = [c for c in effects[:2] if c.input.startswith(("P1[", "diff(P1,P2)"))]
     assert hit, top2
     assert hit[0].rmse_pct_if_added < e.baseline_rmse_pct
     # X and the pressures correlate on this valve: explain says so for every candidate

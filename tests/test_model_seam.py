@@ -47,6 +47,10 @@ class MeanModel:
     def output_mean_(self):
         return self.sum_ / self.n_samples_seen_ if self.n_samples_seen_ else float("nan")
 
+    def extrapolate(self, X):
+        y = self.predict(X)
+        return np.where(np.isfinite(y), y, self.output_mean_)
+
     def merge(self, other):
         self.n_samples_seen_ += other.n_samples_seen_
         self.sum_ += other.sum_

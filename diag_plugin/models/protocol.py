@@ -61,8 +61,7 @@ class Model(Protocol):
 
     capabilities: ClassVar[Capabilities]
     n_samples_seen_: int
-    #: mean training output: where the model has no prediction, errors are scored as if it
-    #: had predicted this (predicting fewer samples never looks better)
+    #: mean training output
     output_mean_: float
 
     def fit(self, X: Any, y: Any) -> Self: ...
@@ -72,6 +71,11 @@ class Model(Protocol):
     def predict(self, X: Any) -> np.ndarray: ...
 
     def predict_detail(self, X: Any) -> Prediction: ...
+
+    def extrapolate(self, X: Any) -> np.ndarray:
+        """The prediction, and where there is none the model's best stand-in (e.g. its
+        nearest rule, else its mean output): used only to score every sample."""
+        ...
 
     def merge(self, other: Self) -> Self: ...
 

@@ -275,8 +275,8 @@ def cmd_explain(args) -> int:
     con.print(
         f"[bold]{escape(rb.name)}[/]: held-out error {e.baseline_rmse_pct:.2f} % of span, "
         f"coverage {e.baseline_coverage:.0%} (validation from {e.validation_from:%Y-%m-%d %H:%M}; "
-        "every candidate scored on these samples, its mean output standing in where it has "
-        "no rule)"
+        "every candidate scored on these samples, its nearest rule standing in where it has "
+        "none)"
     )
     t = Table(title="candidate missing effects, best first")
     t.add_column("#", justify="right")

@@ -4,7 +4,7 @@ For each candidate input the model is retrained with it added (or, for a
 dead time, with an input's lag replaced) on the first part of the data and
 scored on the last part — a time-ordered held-out block, never shuffled
 samples. Every candidate is scored on the *same* samples: where it has no
-rule, its mean training output stands in — as in the error ``diag train``
+rule, its nearest trained rule stands in — as in the error ``diag train``
 reports — so a candidate cannot look better by predicting fewer samples, and
 the error it promises is the one training gives; its own coverage is shown
 beside the error. A candidate whose
@@ -52,15 +52,18 @@ LAG_HORIZON_S = 600.0
 MIN_LAGS = 10
 #: lags of each screen that are retrained and scored
 LAGS_RETRAINED = 3
-#: a longer lag is suggested only when it scores better than this share
-LAG_TOLERANCE = 0.01
+#: a longer lag is suggested only when it scores better by more than this share
+TOLERANCE = 0.01
+#: fewer sets than add-input writes are suggested only when they score better by more
+#: than this share (the gain explain calls more than "barely")
+SETS_GAIN = 0.03
 #: training samples per rule cell a new input's set count aims at
 MIN_PER_CELL = 20
 #: margin around the operating range when an input's span is narrowed to it
 SPAN_MARGIN = 0.1
 #: a candidate covering fewer samples than the current model by more than this is thin
-#: (each sample it loses is scored with the mean output)
-COVERAGE_SLACK = 0.001
+#: (each sample it loses is scored with its nearest rule)
+COVERAGE_SLACK = 0.01
 
 
 @dataclass
@@ -134,10 +137,10 @@ class _Scorer:
     """Trains a variant of the model on the rows before the cut and scores every variant on
     the *same* held-out samples: all rows after the cut with a measured output.
 
-    Where a variant has no prediction (no rule, a missing input) its training mean of the
-    output stands in — exactly how ``diag train`` and ``diag compare`` score a model — so
-    predicting fewer samples never makes a variant look better, and the error a candidate
-    promises is the error training then reports. Each variant's own coverage is reported
+    Where a variant has no rule its nearest trained rule stands in (``extrapolate``) —
+    exactly how ``diag train`` and ``diag compare`` score a model — so predicting fewer
+    samples never makes a variant look better, and the error a candidate promises is the
+    error training then reports. Each variant's own coverage is reported
     beside its error.
     """
 
@@ -151,7 +154,7 @@ class _Scorer:
         self.va = np.flatnonzero(np.isfinite(y[cut:])) + cut
         pred, self.base_model, self.base_rows = self._fit_predict(list(rb.inputs), cols)
         self.base_cov = float(np.isfinite(pred).mean()) if pred.size else 0.0
-        self.base_rmse = self._rmse(self._stand_in(pred, self.base_model))
+        self.base_rmse = self._rmse(self._stand_in(pred, self.base_model, cols))
         self.base_rules = rb.codec.size(self.base_model) if self.base_model is not None else 0
 
     def _fit_predict(self, variables, cols):
@@ -163,10 +166,15 @@ class _Scorer:
         m = self.rb.codec.new_estimator(spec).fit(X[: self.cut][tr], self.y[: self.cut][tr])
         return m.predict(X[self.va]), m, int(tr.sum())
 
-    def _stand_in(self, pred: np.ndarray, model) -> np.ndarray:
-        """``pred`` with the model's mean training output where it has no prediction."""
-        mean = getattr(model, "output_mean_", self.mean) if model is not None else self.mean
-        return np.where(np.isfinite(pred), pred, mean)
+    def _stand_in(self, pred: np.ndarray, model, cols) -> np.ndarray:
+        """``pred`` with the model's stand-in (its ``extrapolate``: the nearest rule) where it
+        has no prediction, and the training mean where an input is missing."""
+        out = pred.copy()
+        miss = ~np.isfinite(out)
+        if model is not None and miss.any():
+            X = np.column_stack(cols)[self.va[miss]]
+            out[miss] = model.extrapolate(X)
+        return np.where(np.isfinite(out), out, self.mean)
 
     def _rmse(self, pred: np.ndarray) -> float:
         if not pred.size or not np.isfinite(pred).all():
@@ -182,7 +190,7 @@ class _Scorer:
             return math.nan, 0.0, 0.0
         own = np.isfinite(pred)
         per_cell = n_train / max(self.rb.codec.size(m), 1)
-        return self._rmse(self._stand_in(pred, m)), float(own.mean()), per_cell
+        return self._rmse(self._stand_in(pred, m, cols)), float(own.mean()), per_cell
 
     def residual(self, cols) -> np.ndarray:
         """The current model's in-sample residual on the training rows (NaN where none)."""
@@ -320,7 +328,7 @@ def explain(
             if sets >= r.sets:
                 continue
             r2 = evaluate(spec, replace, sets=sets)
-            if r2 is not None and _sortable(r2.rmse) < _sortable(best.rmse):
+            if r2 is not None and _sortable(r2.rmse) < _sortable(best.rmse) * (1 - SETS_GAIN):
                 best = r2
         if best is r:
             return r
@@ -343,12 +351,10 @@ def explain(
                 scored.append((r.rmse, lag, r))
         if not scored:
             return None
-        # the shortest lag that scores within LAG_TOLERANCE of the best: a dead time is
+        # the shortest lag that scores within TOLERANCE of the best: a dead time is
         # suggested only where it clearly matters
         best = min(t[0] for t in scored)
-        _, lag, r = min(
-            (t for t in scored if t[0] <= best * (1 + LAG_TOLERANCE)), key=lambda t: t[1]
-        )
+        _, lag, r = min((t for t in scored if t[0] <= best * (1 + TOLERANCE)), key=lambda t: t[1])
         return lag, r
 
     found: list[Candidate] = []
@@ -378,7 +384,7 @@ def explain(
             fewer = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
             notes.append(
                 f"the rule grid would be thin ({r.per_cell:.0f} samples per rule, coverage "
-                f"{r.coverage:.0%}; the rest is scored with the mean output)"
+                f"{r.coverage:.0%}; the rest is scored with the nearest rule)"
                 + (f": consider fewer sets, e.g. --sets {fewer}" if fewer < r.sets else "")
             )
         cmd = f"diag model add-input {name} '{spec}'"
