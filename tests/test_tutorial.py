@@ -25,7 +25,7 @@ def test_tutorial_reproduces(tmp_path):
     text = DOC.read_text()
     out = {}
     for args in commands(text):
-        p = run_diag(tmp_path, *args, COLUMNS="200")  # the explain table unwrapped
+        p = run_diag(tmp_path, *args, COLUMNS="260")  # the explain table unwrapped
         assert p.returncode == 0, (args, p.stderr)
         out.setdefault(args[0], []).append(p.stdout + p.stderr)
     stated = re.search(
