@@ -12,6 +12,7 @@ from helpers import DAMADICS_HOW, damadics_file, requires, run_diag
 
 from diag_plugin.rulebase import RuleBase
 from diag_plugin.training import train
+from diag_plugin.workbench.compare import compare
 from diag_plugin.workbench.explain import explain
 from diag_plugin.workbench.model_edit import add_input, new_model, set_input
 from historian.taginfo import TagInfo
@@ -112,6 +113,8 @@ def test_narrowing_a_span_the_plant_barely_uses_is_the_top_suggestion(tmp_path, 
         "F": TagInfo("F", "t/h", 0, 50, "flow"),
     }
     rb = new_model(tmp_path / "v.toml", "v", "F[k]", ["CV[k-1]", "P1[k]"], frame=f, tag_info=info)
+    use = {u["input"]: u for u in compare(rb, f).inputs}
+    assert use["P1[k]"]["used_fraction"] < 0.15 < use["CV[k-1]"]["used_fraction"]
     e = explain(rb, f, tag_info=info)
     best = e.candidates[0]
     assert best.kind == "resolution" and "--span" in best.command, best

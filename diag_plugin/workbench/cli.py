@@ -226,6 +226,13 @@ def cmd_compare(args) -> int:
     )
     if note := coverage_note(m):
         con.print(note, markup=False)
+    for u in c.inputs:
+        con.print(
+            f"{u['input']}: uses {u['used'][0]:.4g} … {u['used'][1]:.4g}, "
+            f"{u['used_fraction']:.0%} of its span {u['span'][0]:g} … {u['span'][1]:g}"
+            + ("  (explain tries a narrower span)" if u["used_fraction"] < 0.7 else ""),
+            markup=False,
+        )
     d = c.as_dict()
     t = Table(title="worst operating regions (rule cells)")
     for col in [v.spec for v in rb.inputs] + ["count", "mean %", "RMSE %"]:

@@ -37,6 +37,7 @@ class Comparison:
     periods: pd.DataFrame  # per time window
     tags: pd.DataFrame  # residual against each plant tag
     dropped: dict[str, int] = field(default_factory=dict)
+    inputs: list[dict] = field(default_factory=list)  # each input's span and the part used
 
     def as_dict(self, top: int = 5) -> dict:
         worst_r = self.regions[self.regions["count"] > 0].nlargest(top, "rmse_pct")
@@ -52,6 +53,7 @@ class Comparison:
             ),
             "worst_periods": _records(self.periods.nlargest(top, "rmse_pct")),
             "tags": _records(self.tags.head(top)),
+            "inputs": to_jsonable(self.inputs),
         }
 
 
@@ -86,7 +88,22 @@ def compare(
         periods=worst_periods(d.index, res, window),
         tags=residual_vs_tags(frame, d.index, res, exclude=_model_tags(rb)),
         dropped=d.dropped,
+        inputs=span_use(rb, d.X),
     )
+
+
+def span_use(rb: RuleBase, X: np.ndarray) -> list[dict]:
+    """Per input: its nominal span, the range the data use (0.1–99.9 % quantiles) and the
+    used fraction of the span — a model whose inputs use a sliver of their spans is coarser
+    there than its set count says."""
+    out = []
+    for k, v in enumerate(rb.inputs):
+        x = X[:, k][np.isfinite(X[:, k])] if len(X) else np.empty(0)
+        lo, hi = (float(q) for q in np.quantile(x, [0.001, 0.999])) if x.size else (np.nan,) * 2
+        width = v.span[1] - v.span[0]
+        used = max(0.0, min(hi, v.span[1]) - max(lo, v.span[0])) / width if x.size else np.nan
+        out.append({"input": v.spec, "span": list(v.span), "used": [lo, hi], "used_fraction": used})
+    return out
 
 
 def _model_tags(rb: RuleBase) -> set[str]:
