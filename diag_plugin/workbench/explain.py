@@ -50,6 +50,8 @@ SPARSE_PER_CELL = 5.0
 #: dead times screened by default: this much time (and at least MIN_LAGS samples)
 LAG_HORIZON_S = 600.0
 MIN_LAGS = 10
+#: rows on which the screened lags are compared (every n/LAG_SEARCH_ROWS-th row)
+LAG_SEARCH_ROWS = 200_000
 #: lags of each screen that are retrained and scored
 LAGS_RETRAINED = 3
 #: a longer lag is suggested only when it scores better by more than this share
@@ -273,6 +275,11 @@ def explain(
     cut = _cut_row(frame.index, holdout)
     horizon = default_max_lag(frame.index) if max_lag is None else max_lag
     scorer = _Scorer(rb, in_cols, y, cut)
+    # lags are compared on every stride-th row; only the chosen one is scored on all rows
+    stride = max(1, n // LAG_SEARCH_ROWS)
+    quick = scorer
+    if stride > 1:
+        quick = _Scorer(rb, [c[::stride] for c in in_cols], y[::stride], -(-cut // stride))
     base_rmse, base_cov = scorer.base_rmse, scorer.base_cov
     resid = scorer.residual(in_cols)
     var_cache: dict[str, Variable | None] = {}
@@ -298,28 +305,30 @@ def explain(
     model_tags = set(needed_tags([v.spec for v in rb.inputs]))
     out_tags = set(out_spec.tags)
 
-    def evaluate(spec: InputSpec, replace: int | None = None, sets: int | None = None):
+    def evaluate(spec: InputSpec, replace=None, sets=None, sc: _Scorer | None = None):
+        sc = sc or scorer
+        step = stride if sc is not scorer else 1
         var = variable(spec)
         if var is None:
             return None
         if sets is not None:
             var = dc_replace(var, sets=sets)
-        cols, vs = list(in_cols), list(in_vars)
+        cols, vs = [c[::step] for c in in_cols], list(in_vars)
         if replace is None:
-            cols.append(feats.column(spec))
+            cols.append(feats.column(spec)[::step])
             vs.append(var)
         else:
-            cols[replace], vs[replace] = feats.column(spec), var
-        rmse, cov, per_cell = scorer.score(vs, cols)
+            cols[replace], vs[replace] = feats.column(spec)[::step], var
+        rmse, cov, per_cell = sc.score(vs, cols)
         return _Score(rmse, cov, per_cell, var.sets)
 
     def thin(r: _Score) -> bool:
         return r.per_cell < SPARSE_PER_CELL or r.coverage < base_cov - COVERAGE_SLACK
 
-    def evaluate_best(spec: InputSpec, replace: int | None = None):
+    def evaluate_best(spec: InputSpec, replace: int | None = None, sc: _Scorer | None = None):
         """Scored as add-input writes it; if that grid is thin, also with fewer sets for
         the new input (a few coarse counts and what the data fill), keeping the best."""
-        r = evaluate(spec, replace)
+        r = evaluate(spec, replace, sc=sc)
         if r is None or not thin(r) or spec.fn in ("dir", "hour"):
             return r
         fit = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
@@ -327,7 +336,7 @@ def explain(
         for sets in sorted({2, 3, 5, fit, max(fit, r.sets // 4), max(fit, r.sets // 2)}):
             if sets >= r.sets:
                 continue
-            r2 = evaluate(spec, replace, sets=sets)
+            r2 = evaluate(spec, replace, sets=sets, sc=sc)
             if r2 is not None and _sortable(r2.rmse) < _sortable(best.rmse) * (1 - SETS_GAIN):
                 best = r2
         if best is r:
@@ -346,16 +355,17 @@ def explain(
         order = sorted({*order, min(lags)})
         scored = []
         for lag in order:
-            r = evaluate_best(base.with_lag(lag), replace)
+            r = evaluate_best(base.with_lag(lag), replace, sc=quick)
             if r is not None and math.isfinite(r.rmse):
-                scored.append((r.rmse, lag, r))
+                scored.append((r.rmse, lag))
         if not scored:
             return None
         # the shortest lag that scores within TOLERANCE of the best: a dead time is
         # suggested only where it clearly matters
         best = min(t[0] for t in scored)
-        _, lag, r = min((t for t in scored if t[0] <= best * (1 + TOLERANCE)), key=lambda t: t[1])
-        return lag, r
+        lag = min(t[1] for t in scored if t[0] <= best * (1 + TOLERANCE))
+        r = evaluate_best(base.with_lag(lag), replace)
+        return (lag, r) if r is not None and math.isfinite(r.rmse) else None
 
     found: list[Candidate] = []
     name = rb.name
