@@ -1,0 +1,1 @@
+"""Residual evaluation, symptoms and diagnostic reasoning (issue 9)."""

@@ -1,0 +1,297 @@
+"""Symptom evaluation per test (residual column) — issue 9, "Residuals and symptoms".
+
+* :class:`FixedThresholds` — crisp two-sided thresholds (seed 000 Table III, ±value; seed 001
+  Sec. 5: ``d_j = 0`` when ``|r_j| ≤ K``, 1 when ``|r_j| > K``), optionally separate low/high,
+  giving −1/0/+1 (``signed=True``) or 0/1.
+* :class:`LearnedThresholds` — thresholds from a fault-free window: ``quantile(|r|) · margin``,
+  with the window they came from (seed 000: "computed empirically by analyzing the deviation of
+  the residuals from zero during no fault operation").
+* :class:`FuzzyThreeValued` — memberships of N, 0, P (trapezoidal, summing to 1; seed 001).
+* :class:`OnOffDelay` — on/off delays against chattering, state carried across chunks.
+
+UNKNOWN: a NaN residual (model unsupported, input NaN, stale or bad quality) gives the symptom
+:data:`UNKNOWN`, which is NaN in the float outputs: never a symptom, never a fault. Use
+:func:`is_unknown` to test for it. Fuzzy memberships are all NaN for an unknown sample.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numba
+import numpy as np
+import pandas as pd
+
+from diag_plugin.diagnose.residuals import ArrayLike, _as_2d, _per_column
+
+__all__ = [
+    "UNKNOWN",
+    "FixedThresholds",
+    "FuzzyThreeValued",
+    "LearnedThresholds",
+    "OnOffDelay",
+    "is_unknown",
+]
+
+UNKNOWN: float = float("nan")
+"""Symptom value of a sample whose residual is unknown (NaN in every float output)."""
+
+
+def is_unknown(s: ArrayLike) -> np.ndarray:
+    """Boolean mask of :data:`UNKNOWN` symptom values."""
+    return np.isnan(np.asarray(s, dtype=float))
+
+
+def _columns(r: Any) -> Any:
+    return r.columns if isinstance(r, pd.DataFrame) else None
+
+
+class FixedThresholds:
+    """Crisp two-sided thresholds (seed 000 Table III; seed 001 Sec. 5, threshold ``K``).
+
+    ``high`` (scalar, sequence or ``{column: value}``) is the upper threshold; ``low`` defaults
+    to ``-high``. A sample is +1 when ``r > high``, −1 when ``r < low``, 0 otherwise and
+    :data:`UNKNOWN` (NaN) when ``r`` is NaN. With ``signed=False`` the output is 0/1 (``|d_j|``).
+    """
+
+    def __init__(self, high: Any, low: Any = None, signed: bool = True) -> None:
+        self.high = high
+        self.low = low
+        self.signed = signed
+
+    def _limits(self, cols: Any, m: int) -> tuple[np.ndarray, np.ndarray]:
+        hi = _per_column(self.high, cols, m, "high threshold")
+        lo = -hi if self.low is None else _per_column(self.low, cols, m, "low threshold")
+        if np.any(lo > hi):
+            raise ValueError("low threshold above high threshold")
+        return lo, hi
+
+    def transform(self, r: ArrayLike) -> ArrayLike:
+        """Symptoms −1/0/+1 (or 0/1), NaN unknown (seed 001 Sec. 5, ``d_j``)."""
+        a, wrap = _as_2d(r)
+        lo, hi = self._limits(_columns(r), a.shape[1])
+        with np.errstate(invalid="ignore"):
+            s = (a > hi).astype(float) - (a < lo).astype(float)
+        if not self.signed:
+            s = np.abs(s)
+        s[np.isnan(a)] = UNKNOWN
+        return wrap(s)
+
+
+class LearnedThresholds(FixedThresholds):
+    """Thresholds learned from a fault-free window: ``quantile(|r|, q) · margin`` (seed 000).
+
+    Seed 000 Sec. IV computes its Table III thresholds "empirically by analyzing the deviation of
+    the residuals from zero during no fault operation"; here that is the ``quantile`` (default
+    0.999) of ``|r|`` over the window times a ``margin`` (default 1.2), symmetric (±). NaN
+    residuals in the window are ignored. After :meth:`fit`: ``thresholds_`` (Series per column),
+    ``window_`` (first and last index label of the frame, for the unit file) and ``n_samples_``.
+    """
+
+    def __init__(self, quantile: float = 0.999, margin: float = 1.2, signed: bool = True) -> None:
+        if not 0.0 < quantile <= 1.0:
+            raise ValueError("quantile must be in (0, 1]")
+        if margin <= 0:
+            raise ValueError("margin must be > 0")
+        super().__init__(high=None, signed=signed)
+        self.quantile = float(quantile)
+        self.margin = float(margin)
+        self.thresholds_: pd.Series | None = None
+        self.window_: tuple[Any, Any] | None = None
+        self.n_samples_: pd.Series | None = None
+
+    def fit(self, residuals: pd.DataFrame) -> LearnedThresholds:
+        """Learn one threshold per column from fault-free residuals (seed 000 Table III)."""
+        df = pd.DataFrame(residuals)
+        a = df.to_numpy(dtype=float)
+        n = np.isfinite(a).sum(axis=0)
+        if np.any(n == 0):
+            empty = [c for c, k in zip(df.columns, n, strict=True) if k == 0]
+            raise ValueError(f"no finite residuals to learn from in columns {empty}")
+        q = np.nanquantile(np.abs(a), self.quantile, axis=0) * self.margin
+        self.thresholds_ = pd.Series(q, index=df.columns, name="threshold")
+        self.n_samples_ = pd.Series(n, index=df.columns, name="n")
+        self.window_ = (df.index[0], df.index[-1])
+        self.high = self.thresholds_
+        return self
+
+    def transform(self, r: ArrayLike) -> ArrayLike:
+        """Symptoms with the learned thresholds (see :meth:`FixedThresholds.transform`)."""
+        if self.thresholds_ is None:
+            raise RuntimeError("LearnedThresholds is not fitted")
+        if isinstance(r, pd.DataFrame):
+            self.high = self.thresholds_
+        else:
+            self.high = self.thresholds_.to_numpy()
+        return super().transform(r)
+
+    def to_state(self) -> dict[str, Any]:
+        """Thresholds and their window as plain JSON (timestamps as ISO strings)."""
+
+        def ts(x: Any) -> Any:
+            if isinstance(x, pd.Timestamp):
+                return x.isoformat()
+            return x.item() if isinstance(x, np.generic) else x
+
+        return {
+            "quantile": self.quantile,
+            "margin": self.margin,
+            "signed": self.signed,
+            "thresholds": None
+            if self.thresholds_ is None
+            else {str(k): float(v) for k, v in self.thresholds_.items()},
+            "n_samples": None
+            if self.n_samples_ is None
+            else {str(k): int(v) for k, v in self.n_samples_.items()},
+            "window": None if self.window_ is None else [ts(self.window_[0]), ts(self.window_[1])],
+        }
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> LearnedThresholds:
+        """Rebuild from :meth:`to_state` output (window bounds stay as stored)."""
+        lt = cls(state["quantile"], state["margin"], state.get("signed", True))
+        if state.get("thresholds") is not None:
+            lt.thresholds_ = pd.Series(state["thresholds"], dtype=float, name="threshold")
+            lt.high = lt.thresholds_
+            if state.get("n_samples") is not None:
+                lt.n_samples_ = pd.Series(state["n_samples"], dtype=np.int64, name="n")
+            w = state.get("window")
+            lt.window_ = None if w is None else (w[0], w[1])
+        return lt
+
+
+class FuzzyThreeValued:
+    """Fuzzy three-valued residual evaluation: memberships of N, 0, P (seed 001).
+
+    Seed 001 evaluates residuals as N/0/P (negative, zero, positive), the fuzzy counterpart of
+    its crisp ``d_j`` with threshold ``K`` (Sec. 5). Here P is a trapezoid (a ramp) rising from 0
+    at ``K − width/2`` to 1 at ``K + width/2``, N its mirror image at ``−K``, and
+    ``μ0 = 1 − μN − μP`` (a trapezoid, 1 on ``[−K + width/2, K − width/2]``). The three sum to 1,
+    μP is non-decreasing and μN non-increasing in ``r``; ``width → 0`` gives the crisp
+    :class:`FixedThresholds`. ``width ≤ 2K`` so N and P never overlap. NaN residuals give NaN
+    memberships (unknown).
+    """
+
+    def __init__(self, threshold: Any, width: Any) -> None:
+        self.threshold = threshold
+        self.width = width
+
+    def transform(self, r: ArrayLike) -> tuple[ArrayLike, ArrayLike, ArrayLike]:
+        """Return ``(μN, μ0, μP)``, each shaped like ``r`` (seed 001, N/0/P evaluation)."""
+        a, wrap = _as_2d(r)
+        cols, m = _columns(r), a.shape[1]
+        k = _per_column(self.threshold, cols, m, "threshold")
+        w = _per_column(self.width, cols, m, "width")
+        if np.any(k <= 0) or np.any(w < 0) or np.any(w > 2 * k):
+            raise ValueError("need threshold > 0 and 0 ≤ width ≤ 2·threshold")
+        half = w / 2.0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            # Ramp with zero width is a step at K (crisp limit).
+            up = np.where(half > 0, (a - (k - half)) / np.where(half > 0, w, 1.0), 0.0)
+            mu_p = np.where(half > 0, np.clip(up, 0.0, 1.0), (a > k).astype(float))
+            dn = np.where(half > 0, ((-k + half) - a) / np.where(half > 0, w, 1.0), 0.0)
+            mu_n = np.where(half > 0, np.clip(dn, 0.0, 1.0), (a < -k).astype(float))
+        mu_z = 1.0 - mu_n - mu_p
+        nan = np.isnan(a)
+        for mu in (mu_n, mu_z, mu_p):
+            mu[nan] = np.nan
+        return wrap(mu_n), wrap(mu_z), wrap(mu_p)
+
+
+@numba.njit(cache=False)
+def _delay_kernel(raw, on_delay, off_delay, state, count):  # pragma: no cover - numba
+    n, m = raw.shape
+    out = np.empty_like(raw)
+    for j in range(m):
+        s = state[j]
+        c = count[j]
+        for i in range(n):
+            x = raw[i, j]
+            if np.isnan(x):
+                out[i, j] = np.nan  # unknown: counted neither as on nor off
+                continue
+            v = 0.0 if x == 0 else (1.0 if x > 0 else -1.0)
+            if s == 0.0:
+                # c counts consecutive samples with the same nonzero sign (sign in its sign).
+                if v == 0.0:
+                    c = 0
+                elif c * v > 0:
+                    c += int(v)
+                else:
+                    c = int(v)
+                if abs(c) >= on_delay:
+                    s = v
+                    c = 0
+            else:
+                # c counts consecutive samples not equal to the active symptom.
+                if v == s:
+                    c = 0
+                else:
+                    c += 1
+                    if c >= off_delay:
+                        s = 0.0
+                        c = int(v)
+                        if v != 0.0 and on_delay <= 1:
+                            s = v
+                            c = 0
+            out[i, j] = s
+        state[j] = s
+        count[j] = c
+    return out
+
+
+class OnOffDelay:
+    """On/off delays against chattering, with state carried across chunks (issue 9).
+
+    A symptom turns on only after ``on_delay`` consecutive samples over the threshold (same
+    sign) and off after ``off_delay`` consecutive samples not showing it. ``on_delay=1`` /
+    ``off_delay=1`` pass the raw symptom through. Input: raw symptoms −1/0/+1 or 0/1 with NaN
+    for :data:`UNKNOWN` (e.g. from :class:`FixedThresholds`); output the same coding. An unknown
+    sample outputs :data:`UNKNOWN` and is counted as neither on nor off: the counters skip it.
+    """
+
+    def __init__(self, on_delay: int = 1, off_delay: int = 1) -> None:
+        if on_delay < 1 or off_delay < 1:
+            raise ValueError("delays are counted in samples and must be ≥ 1")
+        self.on_delay = int(on_delay)
+        self.off_delay = int(off_delay)
+        self.state_: np.ndarray | None = None  # active value per column: -1, 0, +1
+        self.count_: np.ndarray | None = None
+
+    def reset(self) -> OnOffDelay:
+        """Forget the carried state (all symptoms off, counters zero)."""
+        self.state_ = None
+        self.count_ = None
+        return self
+
+    def transform(self, symptoms: ArrayLike) -> ArrayLike:
+        """Delayed symptoms, continuing from the carried state."""
+        a, wrap = _as_2d(symptoms)
+        m = a.shape[1]
+        if self.state_ is None:
+            self.state_ = np.zeros(m)
+            self.count_ = np.zeros(m, dtype=np.int64)
+        elif self.state_.shape[0] != m:
+            raise ValueError(f"delay state has {self.state_.shape[0]} columns, input has {m}")
+        out = _delay_kernel(
+            np.ascontiguousarray(a), self.on_delay, self.off_delay, self.state_, self.count_
+        )
+        return wrap(out)
+
+    def to_state(self) -> dict[str, Any]:
+        """Delays and carried state as plain JSON."""
+        return {
+            "on_delay": self.on_delay,
+            "off_delay": self.off_delay,
+            "state": None if self.state_ is None else self.state_.tolist(),
+            "count": None if self.count_ is None else self.count_.tolist(),
+        }
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> OnOffDelay:
+        """Rebuild from :meth:`to_state` output."""
+        d = cls(state["on_delay"], state["off_delay"])
+        if state.get("state") is not None:
+            d.state_ = np.asarray(state["state"], dtype=float)
+            d.count_ = np.asarray(state["count"], dtype=np.int64)
+        return d
