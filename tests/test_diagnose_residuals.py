@@ -58,22 +58,22 @@ def test_lowpass_dataframe_roundtrip():
     assert list(out.columns) == ["r1", "r2"] and out.index.equals(idx)
 
 
-def _gain(wn_filter: float, w: float) -> float:
+def _gain(w: float) -> float:
     n = 40000
     t = np.arange(n)
     x = np.sin(np.pi * w * t)  # w in scipy units: π·w rad/sample
-    y = LowPass(wn=wn_filter).transform(x)
+    y = LowPass().transform(x)  # default cut-off: π/100 rad/sample
     tail = slice(n // 2, n)
     return float(np.sqrt(np.mean(y[tail] ** 2) / np.mean(x[tail] ** 2)))
 
 
 def test_lowpass_minus_3db_at_cutoff():
-    g_cut = _gain(0.01, 0.01)
-    g_stop = _gain(0.01, 0.1)
+    g_cut = _gain(0.01)  # π/100 rad/sample
+    g_stop = _gain(0.1)
     assert 20 * np.log10(g_cut) == pytest.approx(-3.01, abs=0.2)
     # 4th order: −80 dB per decade.
     assert 20 * np.log10(g_stop) < -70
-    assert _gain(0.01, 0.001) == pytest.approx(1.0, abs=0.01)
+    assert _gain(0.001) == pytest.approx(1.0, abs=0.01)
 
 
 def test_lowpass_nan_holds_state_and_restarts_after_long_gap():
