@@ -403,6 +403,7 @@ def _header(rb: RuleBase, c: Comparison, explanation) -> str:
     dropped = "".join(f"<li>{esc(str(k))}: {int(v):,}</li>" for k, v in (c.dropped or {}).items())
     vars_html = "".join(f"<li>input {esc(_var(v))}</li>" for v in rb.inputs)
     span = f"{rb.output.span[1] - rb.output.span[0]:g} {esc(rb.output.unit)}".strip()
+    covered = _fmt(m.get("rmse_covered_pct"), 2, " %")
     return f"""
 <header>
   <h1>Model <span class="name">{esc(rb.name)}</span></h1>
@@ -418,7 +419,9 @@ def _header(rb: RuleBase, c: Comparison, explanation) -> str:
   <div class="cards">{card_html}</div>
   <p class="note">Residual r = (measured − model) / span · 100 % (Kościelny et al., eq. 6).
   Samples the model cannot predict (no rule near enough) are <em>unsupported</em>: they have
-  no model value and count against coverage, not in the error figures.</p>
+  no model value and count against coverage; the error figures score them with the model's
+  nearest rule, so a model never looks better by predicting less (RMSE on the covered samples
+  alone: {covered}).</p>
 </section>"""
 
 
