@@ -176,6 +176,17 @@ def test_fault_free_gives_no_fault(unit, seed):
 
 
 @pytest.mark.parametrize("seed", TEST_SEEDS)
+@pytest.mark.parametrize("expected, spec", [tuple(c.values) for c in CASES])
+def test_every_injected_fault_is_detected_without_false_alarms_before(unit, expected, spec, seed):
+    """Detection holds for all five faults (isolation below is where the limits are)."""
+    s = unit.symptoms(simulate_valve(1.5, seed=seed, faults=[spec]))
+    before = s[(s.index >= s.index[500]) & (s.index < ONSET)]
+    after = s[s.index >= ONSET + SETTLE]
+    assert (before.fillna(0) != 0).any(axis=1).mean() < 0.05
+    assert (after.fillna(0) != 0).any(axis=1).mean() > 0.5, f"{expected} not detected"
+
+
+@pytest.mark.parametrize("seed", TEST_SEEDS)
 @pytest.mark.parametrize("expected, spec", CASES)
 def test_injected_fault_is_isolated(unit, expected, spec, seed):
     t0 = time.perf_counter()
