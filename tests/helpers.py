@@ -76,3 +76,20 @@ def valve_frame(days: float, seed: int) -> pd.DataFrame:
     frame = pd.DataFrame({"CV": cv, "P1": p1, "F": f}, index=idx)
     frame.iloc[rng.choice(n, 50, replace=False), 0] = np.nan
     return frame
+
+
+#: seed 001 Table 4 (rules 10–14) as a matrix file: the servomotor–valve unit
+VALVE_TABLE4 = """\
+# Servomotor–valve unit, seed 001 Table 4 (blank entries are 0, as rules (10)–(14) say)
+[matrix]
+name = "valve_unit"
+tests = ["r1", "r2", "r3", "r4"]
+faults = ["f_EP", "f_P0", "f_S", "f_X", "f_V"]
+rows = [
+  #                   f_EP f_P0 f_S  f_X  f_V
+  { test = "r1", row = ["1", "0", "1", "0", "1"] },
+  { test = "r2", row = ["1", "1", "0", "0", "0"] },
+  { test = "r3", row = ["0", "1", "1", "1", "0"] },
+  { test = "r4", row = ["0", "0", "0", "1", "1"] },
+]
+"""

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import VALVE_TABLE4
 
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix, parse_matrix
 
@@ -287,20 +288,9 @@ def test_fuzzy_min_t_norm_on_graded_memberships():
 
 
 # ---------------------------------------------------------------- files
-EXAMPLE = """\
-# Servomotor–valve unit, seed 001 Table 4
-[matrix]
-name = "valve_unit"
-tests = ["r1", "r2", "r3", "r4"]
-faults = ["f_EP", "f_P0", "f_S", "f_X", "f_V"]
-rows = [
-  #                   f_EP f_P0 f_S  f_X  f_V
-  { test = "r1", row = ["1", "0", "1", "0", "1"] },
-  { test = "r2", row = ["1", "1", "0", "0", "0"] },
-  { test = "r3", row = ["0", "1", "1", "1", "0"] },
-  { test = "r4", row = [0, 0, 0, 1, 1] },
-]
-"""
+# the shared Table-4 file, with one row written with integers (both forms are allowed)
+EXAMPLE = VALVE_TABLE4.replace('["0", "0", "0", "1", "1"]', "[0, 0, 0, 1, 1]")
+assert EXAMPLE != VALVE_TABLE4
 
 
 def test_load_example_file(tmp_path):

@@ -39,6 +39,7 @@ import time
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import VALVE_TABLE4
 
 from diag_plugin.diagnose.matrix import parse_matrix
 from diag_plugin.diagnose.residuals import LowPass
@@ -48,21 +49,6 @@ from diag_plugin.regressors import build_design
 from diag_plugin.simulate import TAGS, FaultSpec, simulate_valve
 from diag_plugin.training import train
 from diag_plugin.workbench.model_edit import new_model
-
-MATRIX = """\
-# Servomotor–valve unit, seed 001 Table 4 (blank entries are 0, as rules (10)–(14) say)
-[matrix]
-name = "valve_unit"
-tests = ["r1", "r2", "r3", "r4"]
-faults = ["f_EP", "f_P0", "f_S", "f_X", "f_V"]
-rows = [
-  #                   f_EP f_P0 f_S  f_X  f_V
-  { test = "r1", row = ["1", "0", "1", "0", "1"] },
-  { test = "r2", row = ["1", "1", "0", "0", "0"] },
-  { test = "r3", row = ["0", "1", "1", "1", "0"] },
-  { test = "r4", row = ["0", "0", "0", "1", "1"] },
-]
-"""
 
 MODELS = {
     "r1": ("F", ["CV[k]", "P1[k]", "P2[k]"]),
@@ -127,7 +113,7 @@ class Unit:
         ff = simulate_valve(2, seed=THRESHOLD_SEED)
         r = self.residuals(ff)
         self.thresholds = LearnedThresholds(quantile=0.999, margin=1.2).fit(r.iloc[500:])
-        self.matrix = parse_matrix(MATRIX, "valve_unit_matrix.toml")
+        self.matrix = parse_matrix(VALVE_TABLE4, "valve_unit_matrix.toml")
 
     def residuals(self, frame: pd.DataFrame) -> pd.DataFrame:
         cols = {}

@@ -13,7 +13,7 @@ from diag_plugin.rulebase import RuleBase
 from diag_plugin.training import train
 from diag_plugin.workbench.compare import compare
 from diag_plugin.workbench.explain import explain
-from diag_plugin.workbench.model_edit import add_input, new_model, remove_input
+from diag_plugin.workbench.model_edit import add_input, new_model, remove_input, set_input
 
 INFO = {
     "CV": {"unit": "%", "lo": 0, "hi": 100, "description": "controller output"},
@@ -152,3 +152,18 @@ def test_model_edits_keep_comments(tmp_path):
         remove_input(rb, "P2[k]")
     with pytest.raises(FileExistsError):
         new_model(tmp_path / "v.toml", "v", "F[k]", ["CV[k-1]"], frame=f, tag_info=INFO)
+
+
+def test_set_input_changes_the_resolution_and_names_file_and_input_in_errors(tmp_path):
+    f = plant(3, 5)
+    rb, _ = trained(tmp_path, f, ["CV[k-1]", "P1[k]"])
+    rb = set_input(rb, "P1[k]", span=(400.0, 600.0), sets=15)
+    v = {x.spec: x for x in rb.inputs}["P1[k]"]
+    assert (v.span, v.sets) == ((400.0, 600.0), 15) and rb.rules == []
+    assert "resized" in rb.training["status"]
+    with pytest.raises(ValueError, match=r"m\.toml: P1\[k\]: span needs lo < hi"):
+        set_input(rb, "P1[k]", span=(600.0, 400.0))
+    with pytest.raises(ValueError, match=r"m\.toml: P1\[k\]: give --span"):
+        set_input(rb, "P1[k]")
+    with pytest.raises(ValueError, match=r"T1\[k\] is not an input of m"):
+        set_input(rb, "T1[k]", sets=5)

@@ -40,7 +40,7 @@ from diag_plugin.regressors import (
 )
 from diag_plugin.rulebase import RuleBase
 from diag_plugin.training import split_time
-from diag_plugin.workbench.model_edit import nice_span, variable_for
+from diag_plugin.workbench.model_edit import MIN_PER_CELL, nice_span, variable_for
 from historian.taginfo import TagInfo, tag_infos
 
 #: |correlation| with a model input above which a candidate is flagged
@@ -59,8 +59,6 @@ TOLERANCE = 0.01
 #: fewer sets than add-input writes are suggested only when they score better by more
 #: than this share (the gain explain calls more than "barely")
 SETS_GAIN = 0.03
-#: training samples per rule cell a new input's set count aims at
-MIN_PER_CELL = 20
 #: margin around the operating range when an input's span is narrowed to it
 SPAN_MARGIN = 0.1
 #: a candidate covering fewer samples than the current model by more than this is thin

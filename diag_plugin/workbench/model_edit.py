@@ -216,15 +216,15 @@ def set_input(
     if old not in specs:
         raise ValueError(f"{old} is not an input of {rb.name} (inputs: {', '.join(specs)})")
     if span is None and sets is None:
-        raise ValueError("give --span LO HI and/or --sets N")
+        raise ValueError(f"{rb.path}: {old}: give --span LO HI and/or --sets N")
     table = rb.doc["inputs"][specs.index(old)]  # edited in place: its comments stay
     if span is not None:
         if not span[0] < span[1]:
-            raise ValueError(f"span needs lo < hi, got {list(span)}")
+            raise ValueError(f"{rb.path}: {old}: span needs lo < hi, got {list(span)}")
         table["span"] = [float(span[0]), float(span[1])]
     if sets is not None:
         if sets < 2:
-            raise ValueError(f"sets must be at least 2, got {sets}")
+            raise ValueError(f"{rb.path}: {old}: sets must be at least 2, got {sets}")
         table["sets"] = int(sets)
     rb.clear_rules(f"input {old} resized: rules cleared, run diag train")
     return _save(rb)
