@@ -21,6 +21,31 @@ from diag_plugin.training import train
 
 SIM_DAYS = 60
 SIM_SEED = 1
+THRESHOLD_DAYS, THRESHOLD_SEED = 2, 7
+
+#: the unit's tests: r1 = F − F̂(CV), r2 = P0 − P̂0(CV), r3 = X − X̂(P0), r4 = F − F̂(X)
+#: (Kościelny et al., Sec. 6); r1 and r4 also take P1, P2 (docs/diagnostics.md says why)
+UNIT_TESTS = {
+    "r1": ("F[k]", ["CV[k]", "P1[k]", "P2[k]"], "r1: F = f(CV, P1, P2)"),
+    "r2": ("P0[k]", ["CV[k]"], "r2: P0 = f(CV)"),
+    "r3": ("X[k]", ["P0[k]"], "r3: X = f(P0)"),
+    "r4": ("F[k]", ["X[k]", "P1[k]", "P2[k]"], "r4: F = f(X, P1, P2)"),
+}
+UNIT_MATRIX = """\
+# Servomotor–valve unit, Kościelny et al. Table 4 (blank entries are 0, as rules (10)–(14) say)
+# f_EP E/P transducer, f_P0 P0 pressure sensor, f_S servomotor, f_X X transducer, f_V valve
+[matrix]
+name = "valve_unit"
+tests = ["r1", "r2", "r3", "r4"]
+faults = ["f_EP", "f_P0", "f_S", "f_X", "f_V"]
+rows = [
+  #                   f_EP f_P0 f_S  f_X  f_V
+  { test = "r1", row = ["1", "0", "1", "0", "1"] },
+  { test = "r2", row = ["1", "1", "0", "0", "0"] },
+  { test = "r3", row = ["0", "1", "1", "1", "0"] },
+  { test = "r4", row = ["0", "0", "0", "1", "1"] },
+]
+"""
 
 
 def _fit(rb: RuleBase, frame: pd.DataFrame, source: str) -> RuleBase:
@@ -66,6 +91,7 @@ def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[
             path, name, "F[k]", inputs, frame=frame, tag_info=info, sets=31, description=desc
         )
         out.append(_fit(rb, frame, source).path)
+    out.extend(build_valve_unit(folder, frame, source))
     real = damadics or find_file()
     if real is not None:
         f = load_hour(real)
@@ -83,6 +109,52 @@ def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[
             description="Lublin sugar factory actuator 3 (real hour, 1 s): F = f(X)",
         )
         out.append(_fit(rb, f, f"DAMADICS {real.name}").path)
+    return out
+
+
+def build_valve_unit(folder: Path, frame: pd.DataFrame, source: str) -> list[Path]:
+    """The example unit: four models, the Table 4 matrix, the unit file with learned
+    thresholds (Kościelny et al., Sec. 6; thresholds as Laukonen et al., Table III)."""
+    from diag_plugin.diagnose.unit import Unit, learn_thresholds
+    from diag_plugin.diagnose.unitfile import UnitFile, new_unit_text
+    from diag_plugin.simulate.valve import TAGS, simulate_valve
+    from diag_plugin.workbench.model_edit import new_model
+
+    out = []
+    tests = {}
+    for test, (output, inputs, desc) in UNIT_TESTS.items():
+        name = f"valve_{test}"
+        path = folder / f"{name}.toml"
+        path.unlink(missing_ok=True)
+        rb = new_model(path, name, output, inputs, frame=frame, tag_info=TAGS, description=desc)
+        out.append(_fit(rb, frame, source).path)
+        tests[test] = path.name
+    matrix = folder / "valve_unit.matrix.toml"
+    matrix.write_text(UNIT_MATRIX, encoding="utf-8")
+    out.append(matrix)
+    path = folder / "valve_unit.unit.toml"
+    text = new_unit_text(
+        "valve_unit",
+        tests,
+        matrix=matrix.name,
+        description="positioner + servomotor + valve (Kościelny et al., Table 4)",
+        outputs="VALVE1",
+    )
+    path.write_text(text, encoding="utf-8")
+    unit = Unit.load(path)
+    ff = simulate_valve(THRESHOLD_DAYS, seed=THRESHOLD_SEED)
+    got = learn_thresholds(unit, [ff])
+    uf = UnitFile.load(path)
+    uf.set_thresholds(
+        got.limits,
+        got.window,
+        quantile=got.quantile,
+        margin=got.margin,
+        samples=got.samples,
+        ymax=got.ymax,
+    )
+    uf.save()
+    out.append(path)
     return out
 
 

@@ -1,0 +1,506 @@
+"""A plant unit at run time: residuals → symptoms → isolated faults → NE 107 status.
+
+:class:`Unit` evaluates one unit file (see :mod:`diag_plugin.diagnose.unitfile`) over
+consecutive pieces of aligned data (a historian window, or one row per live cycle). Every stage
+carries its state from piece to piece — each model's design builder (lags, derived inputs),
+the Butterworth filter, the on/off delays and latches — so a replay in chunks, a live loop and
+one pass over the data give the same diagnosis.
+
+Stages (all vectorised over samples and tests):
+
+1. residual per test in % of the output's nominal span (Kościelny et al., eq. 6), or of the
+   signal maximum (Laukonen et al., Sec. IV); NaN (*unknown*) where the model has no rule, an
+   input is missing, stale or of bad quality;
+2. optional causal 4th-order Butterworth low-pass (Laukonen et al., Sec. IV);
+3. symptoms by crisp thresholds (Laukonen et al., Table III; Kościelny et al., Sec. 5) or by
+   three-valued fuzzy evaluation (N, 0, P), then on/off delays and optional latching;
+4. with a matrix: a certainty per fault — nearest signature (crisp) or rules (10)–(14) of
+   Kościelny et al. (fuzzy) — and the isolated faults;
+5. NE 107 status: NORMAL without symptoms, the fault's status (FAILURE by default) when a fault
+   is isolated, OFF_SPEC for symptoms no signature explains (or a unit without a matrix), and
+   CHECK_FUNCTION when the diagnosis is unknown. An unknown test is never a symptom and never a
+   fault.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
+from diag_plugin.diagnose.residuals import LowPass
+from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
+from diag_plugin.diagnose.symptoms import FixedThresholds, FuzzyThreeValued, OnOffDelay
+from diag_plugin.diagnose.unitfile import UnitError, UnitFile, unit_path
+from diag_plugin.metrics import residual_pct
+from diag_plugin.regressors import DesignBuilder
+
+log = logging.getLogger(__name__)
+
+#: NE 107 priority when several apply (NAMUR: failure, function check, off-spec, maintenance)
+PRIORITY = (NE107.FAILURE, NE107.CHECK_FUNCTION, NE107.OFF_SPEC, NE107.MAINTENANCE_REQUIRED)
+
+
+@dataclass
+class TestModel:
+    """A test's model with what it needs to turn data into residuals."""
+
+    name: str
+    path: Path
+    model: Any
+    inputs: list[str]
+    output: str
+    span: float
+    period: str
+
+    def builder(self) -> DesignBuilder:
+        return DesignBuilder(self.inputs, self.output, period=self.period)
+
+    @property
+    def tags(self) -> list[str]:
+        b = self.builder()
+        return list(b.tags)
+
+
+def load_test_model(name: str, path: Path) -> TestModel:
+    """The model of one test from its rule-base file (problems as ``file:line``)."""
+    from diag_plugin.rulebase import RuleBase, RuleBaseError
+
+    try:
+        rb = RuleBase.load(path)
+        model = rb.to_model()
+    except RuleBaseError as exc:
+        raise UnitError(exc.problems) from None
+    lo, hi = rb.output.span
+    return TestModel(
+        name=name,
+        path=path,
+        model=model,
+        inputs=[v.spec for v in rb.inputs],
+        output=rb.output.spec,
+        span=float(hi - lo),
+        period=rb.period,
+    )
+
+
+def _sticky(s: np.ndarray, carry: np.ndarray) -> np.ndarray:
+    """Latch symptoms: once nonzero a column keeps that value (Laukonen et al., Sec. IV)."""
+    out = s.copy()
+    n, m = s.shape
+    for j in range(m):
+        if carry[j] != 0:
+            out[:, j] = carry[j]
+            continue
+        on = np.flatnonzero(np.nan_to_num(s[:, j]) != 0)
+        if on.size:
+            out[on[0] :, j] = s[on[0], j]
+            carry[j] = s[on[0], j]
+    return out
+
+
+@dataclass
+class Diagnosis:
+    """A unit's diagnosis per sample (all frames indexed by the samples' timestamps).
+
+    ``residuals``: filtered residual per test (% of span, NaN unknown); ``symptoms``: −1/0/+1 or
+    NaN (unknown) per test after delays; ``certainties``: per fault in [0, 1] (empty without a
+    matrix); ``detected``: 1.0 any symptom, 0.0 none, NaN unknown; ``status``: NE 107 number;
+    ``quality``: :class:`Quality` number; ``faults``: isolated faults joined by ``|``.
+    """
+
+    unit: str
+    residuals: pd.DataFrame
+    symptoms: pd.DataFrame
+    certainties: pd.DataFrame
+    detected: pd.Series
+    status: pd.Series
+    quality: pd.Series
+    faults: pd.Series
+    message: str = ""
+
+    def __len__(self) -> int:
+        return len(self.status)
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per sample: ``status``, ``r_<test>``, ``s_<test>``, ``c_<fault>``,
+        ``detected``, ``quality``, ``faults`` (index ``ts``)."""
+        parts = [
+            self.status.rename("status"),
+            self.residuals.add_prefix("r_"),
+            self.symptoms.add_prefix("s_"),
+            self.certainties.add_prefix("c_"),
+            self.detected.rename("detected"),
+            self.quality.map(lambda q: Quality(q).name).rename("quality"),
+            self.faults.rename("faults"),
+        ]
+        out = pd.concat(parts, axis=1)
+        out.index.name = "ts"
+        return out
+
+    def at(self, i: int = -1) -> UnitStatus:
+        """The :class:`UnitStatus` of sample ``i`` (default the last), for publishing."""
+        ts = self.status.index[i]
+        faults = self.faults.iloc[i]
+        det = self.detected.iloc[i]
+        return UnitStatus(
+            unit=self.unit,
+            ts=pd.Timestamp(ts),
+            status=NE107(int(self.status.iloc[i])),
+            quality=Quality(int(self.quality.iloc[i])),
+            residuals=self.residuals.iloc[i].to_dict(),
+            symptoms=self.symptoms.iloc[i].to_dict(),
+            certainties=self.certainties.iloc[i].to_dict() if len(self.certainties.columns) else {},
+            detected=None if np.isnan(det) else bool(det),
+            faults=[f for f in str(faults).split("|") if f],
+            message=self.message,
+        )
+
+    def intervals(self) -> pd.DataFrame:
+        """Runs of equal status and isolated faults: ``from``, ``to`` (exclusive), ``status``,
+        ``faults``, ``samples`` and the tests with symptoms in the run — the timeline a person
+        reads."""
+        if not len(self.status):
+            return pd.DataFrame(columns=["from", "to", "status", "faults", "samples", "tests"])
+        key = self.status.astype(str) + "/" + self.faults.astype(str)
+        run = (key != key.shift()).cumsum().to_numpy()
+        idx = self.status.index
+        period = (idx[1] - idx[0]) if len(idx) > 1 else pd.Timedelta(0)
+        sym = self.symptoms.fillna(0).to_numpy() != 0
+        rows = []
+        for r in np.unique(run):
+            sel = np.flatnonzero(run == r)
+            a, b = sel[0], sel[-1]
+            tests = [
+                t for t, on in zip(self.symptoms.columns, sym[sel].any(axis=0), strict=True) if on
+            ]
+            rows.append(
+                {
+                    "from": idx[a],
+                    "to": idx[b] + period,
+                    "status": NE107(int(self.status.iloc[a])).name,
+                    "faults": self.faults.iloc[a],
+                    "samples": int(sel.size),
+                    "tests": ",".join(tests),
+                }
+            )
+        return pd.DataFrame(rows)
+
+
+class Unit:
+    """One unit: its tests' models, evaluation chain and matrix, with carried state.
+
+    Use :meth:`load` for a unit file. :meth:`evaluate` takes consecutive pieces of an aligned
+    frame holding :attr:`tags` (one row per sampling period; NaN = missing, stale or bad).
+    """
+
+    def __init__(
+        self, file: UnitFile, models: dict[str, TestModel], matrix: DiagnosticMatrix | None
+    ):
+        self.file = file
+        self.name = file.name
+        self.models = models
+        self.matrix = matrix
+        self.tests = [t.name for t in file.tests]
+        self.ev = file.evaluation
+        periods = {m.period for m in models.values()}
+        if len(periods) > 1:
+            raise UnitError([f"{file.path}:1: the tests' models have different periods {periods}"])
+        self.period = periods.pop() if periods else "10s"
+        self.reset()
+
+    # ------------------------------------------------------------ loading
+    @classmethod
+    def load(cls, path: str | Path, folder: str | Path = "rulebases") -> Unit:
+        """Load a unit file, its models and matrix; all problems at once as ``file:line``."""
+        file = UnitFile.load(unit_path(str(path), folder))
+        problems: list[str] = []
+        models: dict[str, TestModel] = {}
+        for t in file.tests:
+            p = file.resolve(t.model)
+            if not p.exists():
+                problems.append(f"{file.path}:{t.line}: test {t.name!r}: model file {p} not found")
+                continue
+            try:
+                models[t.name] = load_test_model(t.name, p)
+            except UnitError as exc:
+                problems.append(f"{file.path}:{t.line}: test {t.name!r}: its model is broken:")
+                problems.extend("  " + p for p in exc.problems)
+        matrix = None
+        if file.matrix_path is not None:
+            line = file.line_of("unit", "matrix")
+            try:
+                matrix = load_matrix(file.matrix_path)
+            except MatrixError as exc:
+                problems.append(f"{file.path}:{line}: matrix {file.matrix_path} is broken:")
+                problems.extend("  " + p for p in exc.problems)
+            else:
+                if set(matrix.tests) != {t.name for t in file.tests}:
+                    problems.append(
+                        f"{file.path}:{line}: matrix tests {matrix.tests} differ from the "
+                        f"unit's tests {[t.name for t in file.tests]}"
+                    )
+        if problems:
+            raise UnitError(problems)
+        return cls(file, models, matrix)
+
+    @property
+    def tags(self) -> list[str]:
+        """Every tag the unit's models read."""
+        return list(dict.fromkeys(t for m in self.models.values() for t in m.tags))
+
+    @property
+    def faults(self) -> list[str]:
+        return [] if self.matrix is None else list(self.matrix.faults)
+
+    @property
+    def has_thresholds(self) -> bool:
+        return all(t.high is not None for t in self.file.tests)
+
+    # ------------------------------------------------------------ state
+    def reset(self) -> Unit:
+        """Start from rest: no history, filters at zero, no symptom on."""
+        self.builders = {n: m.builder() for n, m in self.models.items()}
+        ev = self.ev
+        self.lowpass = LowPass(ev["lowpass"], ev["order"]) if ev["lowpass"] > 0 else None
+        self.delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
+        self.latched = np.zeros(len(self.tests))
+        return self
+
+    def to_state(self) -> dict[str, Any]:
+        """The carried state as JSON (restart a live loop where it stopped)."""
+        return {
+            "builders": {n: b.to_state() for n, b in self.builders.items()},
+            "lowpass": None if self.lowpass is None else self.lowpass.to_state(),
+            "delay": self.delay.to_state(),
+            "latched": self.latched.tolist(),
+        }
+
+    def load_state(self, state: dict[str, Any]) -> Unit:
+        for n, b in self.builders.items():
+            b.load_state(state["builders"][n])
+        if self.lowpass is not None and state.get("lowpass"):
+            self.lowpass = LowPass.from_state(state["lowpass"])
+        self.delay = OnOffDelay.from_state(state["delay"])
+        self.latched = np.asarray(state["latched"], float)
+        return self
+
+    # ------------------------------------------------------------ stages
+    def raw_residuals(self, frame: pd.DataFrame) -> pd.DataFrame:
+        """Residual per test in % (eq. 6 or of ``ymax``), NaN where unknown; advances state."""
+        cols = {}
+        for t in self.file.tests:
+            m = self.models[t.name]
+            d = self.builders[t.name].transform(frame)
+            y = np.full(len(frame), np.nan)
+            r = np.full(len(frame), np.nan)
+            if len(d.index):
+                yhat = m.model.predict_detail(d.X).y
+                scale = t.ymax if self.ev["scale"] == "max" and t.ymax else m.span
+                pos = frame.index.get_indexer(d.index)
+                r[pos] = residual_pct(d.y, yhat, scale)
+                y[pos] = d.y
+            cols[t.name] = r
+        return pd.DataFrame(cols, index=frame.index, columns=self.tests)
+
+    def filtered(self, raw: pd.DataFrame) -> pd.DataFrame:
+        if self.lowpass is None:
+            return raw
+        return pd.DataFrame(
+            self.lowpass.transform(raw.to_numpy()), index=raw.index, columns=raw.columns
+        )
+
+    def _limits(self) -> tuple[np.ndarray, np.ndarray]:
+        lims = [t.limits or (np.nan, np.nan) for t in self.file.tests]
+        lo = np.array([a for a, _ in lims], float)
+        hi = np.array([b for _, b in lims], float)
+        return lo, hi
+
+    def symptoms(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Delayed (and latched) symptoms −1/0/+1/NaN, and the fuzzy memberships if fuzzy."""
+        lo, hi = self._limits()
+        no_th = np.isnan(hi)
+        hi_ = np.where(no_th, 1.0, hi)
+        lo_ = np.where(no_th, -1.0, lo)
+        mem = None
+        if self.ev["symptoms"] == "fuzzy":
+            k = (hi_ - lo_) / 2.0
+            shift = (hi_ + lo_) / 2.0
+            mu_n, mu_0, mu_p = FuzzyThreeValued(k, self.ev["fuzzy_width"] * k).transform(r - shift)
+            mem = np.stack([mu_n, mu_0, mu_p], axis=2)
+            mem[:, no_th, :] = np.nan
+        raw = FixedThresholds(high=hi_, low=lo_).transform(r)
+        raw[:, no_th] = np.nan
+        s = self.delay.transform(raw)
+        if self.ev["latch"]:
+            s = _sticky(s, self.latched)
+        return s, mem
+
+    def certainties(self, s: np.ndarray, mem: np.ndarray | None) -> np.ndarray:
+        """Certainty per fault: nearest signature (crisp) or rules (10)–(14) (fuzzy); 0 while
+        no symptom is on (the delays decide when there is something to isolate)."""
+        assert self.matrix is not None
+        order = [self.tests.index(t) for t in self.matrix.tests]
+        s_m = s[:, order]
+        on = (np.nan_to_num(s_m) != 0).any(axis=1)
+        if mem is not None:
+            c = self.matrix.fuzzy(mem[:, order, :])
+        else:
+            c = self.matrix.nearest(s_m).certainties
+        c = np.where(on[:, None], c, 0.0)
+        return c
+
+    # ------------------------------------------------------------ evaluate
+    def evaluate(self, frame: pd.DataFrame) -> Diagnosis:
+        """Diagnose the next piece of data (continues the carried state)."""
+        raw = self.raw_residuals(frame)
+        r = self.filtered(raw)
+        s, mem = self.symptoms(r.to_numpy())
+        n, T = s.shape
+        known = ~np.isnan(s)
+        active = (np.nan_to_num(s) != 0).any(axis=1)
+        detected = np.where(active, 1.0, np.where(known.all(axis=1), 0.0, np.nan))
+        quality = np.where(
+            known.all(axis=1),
+            Quality.GOOD,
+            np.where(known.any(axis=1), Quality.UNCERTAIN, Quality.BAD),
+        ).astype(np.int8)
+        status = np.where(
+            active, NE107.OFF_SPEC, np.where(np.isnan(detected), NE107.CHECK_FUNCTION, NE107.NORMAL)
+        ).astype(np.int8)
+        faults = np.full(n, "", dtype=object)
+        cert = np.empty((n, 0))
+        if self.matrix is not None:
+            cert = self.certainties(s, mem)
+            status, faults = self._isolate(cert, active, status)
+        message = ""
+        if not self.has_thresholds:
+            missing = [t.name for t in self.file.tests if t.high is None]
+            message = f"no thresholds for {', '.join(missing)}: run `diag unit learn {self.name}`"
+            status[:] = NE107.CHECK_FUNCTION
+        idx = frame.index
+        return Diagnosis(
+            unit=self.name,
+            residuals=r,
+            symptoms=pd.DataFrame(s, index=idx, columns=self.tests),
+            certainties=pd.DataFrame(cert, index=idx, columns=self.faults),
+            detected=pd.Series(detected, index=idx),
+            status=pd.Series(status, index=idx),
+            quality=pd.Series(quality, index=idx),
+            faults=pd.Series(faults, index=idx),
+            message=message,
+        )
+
+    def _isolate(
+        self, cert: np.ndarray, active: np.ndarray, status: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Isolated faults: those with the highest certainty, at least ``certainty``."""
+        n = cert.shape[0]
+        c = np.nan_to_num(cert, nan=0.0)
+        best = c.max(axis=1) if c.shape[1] else np.zeros(n)
+        iso = active[:, None] & (c >= self.ev["certainty"]) & (c >= best[:, None] - 1e-12)
+        fault_status = np.array(
+            [int(self.file.fault_status.get(f, NE107.FAILURE)) for f in self.faults], np.int8
+        )
+        rank = {int(s): i for i, s in enumerate(PRIORITY)}
+        prio = np.array([rank[int(s)] for s in fault_status])
+        out_status = status.copy()
+        faults = np.full(n, "", dtype=object)
+        rows = np.flatnonzero(iso.any(axis=1))
+        names = np.array(self.faults, dtype=object)
+        for i in rows:
+            sel = np.flatnonzero(iso[i])
+            faults[i] = "|".join(names[sel])
+            out_status[i] = fault_status[sel[np.argmin(prio[sel])]]
+        return out_status, faults
+
+
+def broken_status(name: str, ts: pd.Timestamp, message: str) -> UnitStatus:
+    """What a unit that cannot be evaluated reports: CHECK_FUNCTION with Bad quality."""
+    return UnitStatus(
+        unit=name, ts=ts, status=NE107.CHECK_FUNCTION, quality=Quality.BAD, message=message
+    )
+
+
+def concat(parts: list[Diagnosis]) -> Diagnosis:
+    """One diagnosis from consecutive pieces (as :meth:`Unit.evaluate` returned them)."""
+    if len(parts) == 1:
+        return parts[0]
+    first = parts[0]
+
+    def cat(attr: str):
+        return pd.concat([getattr(p, attr) for p in parts])
+
+    return Diagnosis(
+        unit=first.unit,
+        residuals=cat("residuals"),
+        symptoms=cat("symptoms"),
+        certainties=cat("certainties"),
+        detected=cat("detected"),
+        status=cat("status"),
+        quality=cat("quality"),
+        faults=cat("faults"),
+        message=first.message,
+    )
+
+
+#: samples skipped at the start of a learning window: the filter starts from rest
+SETTLE_SAMPLES = 500
+
+
+@dataclass
+class Learned:
+    """Thresholds learned from a fault-free window (Laukonen et al., Table III, empirically)."""
+
+    limits: dict[str, tuple[float, float]]
+    samples: dict[str, int]
+    window: tuple[str, str]
+    quantile: float
+    margin: float
+    ymax: dict[str, float]
+
+
+def learn_thresholds(
+    unit: Unit, frames, *, quantile: float = 0.999, margin: float = 1.2
+) -> Learned:
+    """Thresholds per test: ``quantile(|r|) · margin`` of the filtered residual over a window
+    the user declares fault-free (``frames``: consecutive pieces of it), skipping the first
+    :data:`SETTLE_SAMPLES` while the filter settles. With ``scale = "max"`` the signal maximum
+    ``ymax`` per test is learned first (Laukonen et al., Sec. IV)."""
+    from diag_plugin.diagnose.symptoms import LearnedThresholds
+
+    frames = list(frames)
+    if not frames or not sum(len(f) for f in frames):
+        raise ValueError("the learning window holds no data")
+    ymax: dict[str, float] = {}
+    if unit.ev["scale"] == "max":
+        for t in unit.file.tests:
+            out = unit.models[t.name].output.split("[")[0]
+            v = np.concatenate([f[out].to_numpy(float) for f in frames if out in f])
+            m = float(np.nanmax(np.abs(v))) if np.isfinite(v).any() else np.nan
+            if not np.isfinite(m) or m <= 0:
+                raise ValueError(f"test {t.name}: the maximum of {out} is not positive")
+            t.ymax = ymax[t.name] = m
+    unit.reset()
+    r = pd.concat([unit.filtered(unit.raw_residuals(f)) for f in frames])
+    unit.reset()
+    settle = SETTLE_SAMPLES if len(r) > 4 * SETTLE_SAMPLES else len(r) // 4
+    body = r.iloc[settle:]
+    empty = [c for c in body.columns if not body[c].notna().any()]
+    if empty:
+        raise ValueError(
+            f"no residual for {', '.join(empty)} in the window (no rule covers the data, "
+            "or the tags are missing)"
+        )
+    lt = LearnedThresholds(quantile=quantile, margin=margin).fit(body)
+    assert lt.thresholds_ is not None and lt.n_samples_ is not None
+    limits = {str(k): (-float(v), float(v)) for k, v in lt.thresholds_.items()}
+    samples = {str(k): int(v) for k, v in lt.n_samples_.items()}
+    idx = r.index
+    period = idx[1] - idx[0] if len(idx) > 1 else pd.Timedelta(unit.period)
+    window = (idx[0].isoformat(), (idx[-1] + period).isoformat())
+    return Learned(limits, samples, window, quantile, margin, ymax)

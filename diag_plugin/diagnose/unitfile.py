@@ -1,0 +1,386 @@
+"""The unit file: one plant unit's tests (models), residual evaluation, thresholds and matrix.
+
+A *unit* (e.g. one positioner + servomotor + valve) is one TOML file beside the rule bases,
+named ``NAME.unit.toml``, that an engineer can read and edit::
+
+    # Servomotor–valve unit (Kościelny et al., Table 4)
+    [unit]
+    name = "valve_unit"
+    description = "positioner + servomotor + valve, four models"
+    matrix = "valve_unit.matrix.toml"   # optional: without a matrix the unit only detects
+    outputs = "VALVE1"                  # prefix of the tags it publishes (VALVE1.status, …)
+
+    [evaluation]
+    lowpass = 0.01       # Butterworth cut-off / Nyquist (0.01 = π/100 rad/sample); 0 = off
+    order = 4
+    scale = "span"       # "span": % of the output's nominal span (eq. 6); "max": of its maximum
+    latch = false        # keep a symptom once raised (seed 000)
+    symptoms = "crisp"   # "crisp" (thresholds) or "fuzzy" (N/0/P memberships, seed 001)
+    fuzzy_width = 0.5    # ramp width as a fraction of the threshold (fuzzy only)
+    on_delay = 30        # samples over the threshold before a symptom turns on
+    off_delay = 30       # samples below it before it turns off
+    certainty = 0.5      # a fault counts as isolated from this certainty on
+
+    [thresholds]         # written by `diag unit learn`: the fault-free window they came from
+    quantile = 0.999
+    margin = 1.2
+    from = "2026-01-01T00:00:00+00:00"
+    to = "2026-01-08T00:00:00+00:00"
+
+    [tests]              # one line per test: its model (rule-base file) and thresholds in %
+    r1 = { model = "valve_r1.toml", high = 9.8, low = -9.8 }
+    r2 = { model = "valve_r2.toml", high = 4.1 }    # low defaults to -high
+
+    [faults]             # optional: NE 107 status a fault raises (default FAILURE)
+    f_P0 = "MAINTENANCE_REQUIRED"
+
+Paths are relative to the unit file. Problems are reported all at once as ``file:line: what``,
+like ``diag rules check``. Saving after :meth:`UnitFile.set_thresholds` keeps comments and
+layout (tomlkit round trip).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import tomlkit
+from tomlkit.exceptions import ParseError
+
+from diag_plugin.diagnose.status import NE107
+
+SUFFIX = ".unit.toml"
+MATRIX_SUFFIX = ".matrix.toml"
+
+EVALUATION_DEFAULTS: dict[str, Any] = {
+    "lowpass": 0.01,
+    "order": 4,
+    "scale": "span",
+    "latch": False,
+    "symptoms": "crisp",
+    "fuzzy_width": 0.5,
+    "on_delay": 30,
+    "off_delay": 30,
+    "certainty": 0.5,
+}
+_KINDS = {
+    "lowpass": float,
+    "order": int,
+    "scale": str,
+    "latch": bool,
+    "symptoms": str,
+    "fuzzy_width": float,
+    "on_delay": int,
+    "off_delay": int,
+    "certainty": float,
+}
+_CHOICES = {"scale": ("span", "max"), "symptoms": ("crisp", "fuzzy")}
+
+
+class UnitError(Exception):
+    """Problems of a unit file, each ``file:line: what``."""
+
+    def __init__(self, problems: list[str]):
+        super().__init__("\n".join(problems))
+        self.problems = problems
+
+
+@dataclass
+class TestSpec:
+    """One test of a unit: its residual comes from ``model`` (a rule-base file)."""
+
+    name: str
+    model: str
+    high: float | None = None
+    low: float | None = None
+    ymax: float | None = None  # signal maximum for scale = "max" (learned)
+    line: int = 0
+
+    @property
+    def limits(self) -> tuple[float, float] | None:
+        if self.high is None:
+            return None
+        return (-self.high if self.low is None else self.low), self.high
+
+
+def unit_path(name_or_path: str, folder: str | Path = "rulebases") -> Path:
+    """A unit name (``valve_unit``) or a path to its file."""
+    p = Path(name_or_path)
+    if p.name.endswith(".toml") or p.exists():
+        return p
+    return Path(folder) / f"{name_or_path}{SUFFIX}"
+
+
+def is_model_file(path: Path) -> bool:
+    """Rule-base (model) files are the ``*.toml`` that are neither unit nor matrix files."""
+    return not path.name.endswith((SUFFIX, MATRIX_SUFFIX))
+
+
+def _plain(v: Any) -> Any:
+    return v.unwrap() if hasattr(v, "unwrap") else v
+
+
+class UnitFile:
+    """A unit file in memory (see module doc); :meth:`load` reports ``file:line`` problems."""
+
+    def __init__(self, text: str, path: str | Path = "<unit>") -> None:
+        self.path = Path(path)
+        self.lines = text.splitlines()
+        self.problems: list[str] = []
+        try:
+            self.doc = tomlkit.parse(text)
+        except ParseError as exc:
+            raise UnitError([f"{self.path}:{exc.line}: TOML syntax error: {exc}"]) from None
+        self._read()
+        if self.problems:
+            raise UnitError(self.problems)
+
+    @classmethod
+    def load(cls, path: str | Path) -> UnitFile:
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise UnitError([f"{path}:0: cannot read: {exc}"]) from None
+        return cls(text, path)
+
+    # ------------------------------------------------------------ reading
+    def error(self, line: int, msg: str) -> None:
+        self.problems.append(f"{self.path}:{line}: {msg}")
+
+    def line_of(self, section: str, key: str | None = None) -> int:
+        """1-based line of ``[section]`` or of ``key =`` inside it (the header if absent)."""
+        hdr = re.compile(r"^\s*\[\s*" + re.escape(section) + r"\s*\]")
+        start = None
+        for i, line in enumerate(self.lines):
+            if start is None:
+                if hdr.match(line):
+                    start = i
+                    if key is None:
+                        return i + 1
+                continue
+            if re.match(r"^\s*\[", line):
+                break
+            if re.match(r"^\s*" + re.escape(key or "") + r"\s*=", line):
+                return i + 1
+        return 1 if start is None else start + 1
+
+    def _table(self, name: str, required: bool = False) -> dict:
+        t = self.doc.get(name)
+        if t is None:
+            if required:
+                self.error(1, f"missing [{name}] table")
+            return {}
+        if not isinstance(t, dict):
+            self.error(self.line_of(name), f"[{name}] must be a table")
+            return {}
+        return t
+
+    def _read(self) -> None:
+        for key in self.doc:
+            if key not in ("unit", "evaluation", "thresholds", "tests", "faults"):
+                self.error(self.line_of(key), f"unknown table [{key}]")
+        unit = self._table("unit", required=True)
+        for key in unit:
+            if key not in ("name", "description", "matrix", "outputs"):
+                self.error(self.line_of("unit", key), f"unknown key {key!r} in [unit]")
+        self.name = str(_plain(unit.get("name", self.path.name.removesuffix(SUFFIX))))
+        self.description = str(_plain(unit.get("description", "")))
+        m = _plain(unit.get("matrix"))
+        if m is not None and not isinstance(m, str):
+            self.error(self.line_of("unit", "matrix"), "matrix must be a file name")
+            m = None
+        self.matrix = m
+        self.outputs = str(_plain(unit.get("outputs", self.name)))
+        self.evaluation = self._evaluation(self._table("evaluation"))
+        self.thresholds = {k: _plain(v) for k, v in self._table("thresholds").items()}
+        self.tests = self._tests(self._table("tests", required=True))
+        self.fault_status = self._faults(self._table("faults"))
+
+    def _evaluation(self, table: dict) -> dict[str, Any]:
+        ev = dict(EVALUATION_DEFAULTS)
+        for key, raw in table.items():
+            v = _plain(raw)
+            line = self.line_of("evaluation", key)
+            kind = _KINDS.get(key)
+            if kind is None:
+                self.error(
+                    line, f"unknown key {key!r} in [evaluation] (known: {', '.join(_KINDS)})"
+                )
+                continue
+            if kind is float and isinstance(v, int) and not isinstance(v, bool):
+                v = float(v)
+            if not isinstance(v, kind) or (kind is not bool and isinstance(v, bool)):
+                self.error(line, f"{key} must be {kind.__name__}, got {v!r}")
+                continue
+            if key in _CHOICES and v not in _CHOICES[key]:
+                self.error(line, f"{key} must be one of {', '.join(_CHOICES[key])}, got {v!r}")
+                continue
+            ev[key] = v
+        checks = (
+            ("lowpass", 0.0 <= ev["lowpass"] < 1.0, "lowpass must be in [0, 1) (0 = off)"),
+            ("order", 1 <= ev["order"] <= 10, "order must be 1..10"),
+            ("on_delay", ev["on_delay"] >= 1, "on_delay counts samples, ≥ 1"),
+            ("off_delay", ev["off_delay"] >= 1, "off_delay counts samples, ≥ 1"),
+            ("certainty", 0.0 < ev["certainty"] <= 1.0, "certainty must be in (0, 1]"),
+            ("fuzzy_width", 0.0 <= ev["fuzzy_width"] <= 2.0, "fuzzy_width must be in [0, 2]"),
+        )
+        for key, ok, msg in checks:
+            if not ok:
+                self.error(self.line_of("evaluation", key), msg)
+        return ev
+
+    def _tests(self, table: dict) -> list[TestSpec]:
+        tests = []
+        for name, raw in table.items():
+            line = self.line_of("tests", name)
+            if not isinstance(raw, dict):
+                self.error(line, f'test {name!r}: needs {{ model = "file.toml", high = … }}')
+                continue
+            v = {k: _plain(x) for k, x in raw.items()}
+            for key in sorted(set(v) - {"model", "high", "low", "ymax"}):
+                self.error(line, f"test {name!r}: unknown key {key!r}")
+            model = v.get("model")
+            if not isinstance(model, str) or not model:
+                self.error(line, f"test {name!r}: model must name a rule-base file")
+                continue
+            nums = {}
+            for key in ("high", "low", "ymax"):
+                x = v.get(key)
+                if x is None:
+                    nums[key] = None
+                elif isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+                    self.error(line, f"test {name!r}: {key} must be a finite number, got {x!r}")
+                    nums[key] = None
+                else:
+                    nums[key] = float(x)
+            if nums["high"] is not None and nums["high"] <= 0:
+                self.error(line, f"test {name!r}: high must be > 0 (% of span)")
+            if nums["low"] is not None and nums["high"] is None:
+                self.error(line, f"test {name!r}: low given without high")
+            elif nums["low"] is not None and nums["low"] >= nums["high"]:
+                self.error(line, f"test {name!r}: low must be below high")
+            if nums["ymax"] is not None and nums["ymax"] <= 0:
+                self.error(line, f"test {name!r}: ymax must be > 0")
+            tests.append(TestSpec(name, model, nums["high"], nums["low"], nums["ymax"], line))
+        if table and not tests and not self.problems:
+            self.error(self.line_of("tests"), "no valid test")
+        elif not table:
+            self.error(self.line_of("tests"), "[tests] lists no test (one line per model)")
+        return tests
+
+    def _faults(self, table: dict) -> dict[str, NE107]:
+        out = {}
+        for fault, raw in table.items():
+            v = _plain(raw)
+            try:
+                out[fault] = NE107[str(v).upper()] if isinstance(v, str) else NE107(v)
+            except (KeyError, ValueError):
+                names = ", ".join(s.name for s in NE107 if s != NE107.NORMAL)
+                self.error(
+                    self.line_of("faults", fault), f"fault {fault!r}: status {v!r} ({names})"
+                )
+                continue
+            if out[fault] == NE107.NORMAL:
+                self.error(self.line_of("faults", fault), f"fault {fault!r}: NORMAL is no fault")
+        return out
+
+    # ------------------------------------------------------------ paths
+    def resolve(self, name: str) -> Path:
+        """A file named in the unit file, relative to the unit file."""
+        p = Path(name)
+        return p if p.is_absolute() else self.path.parent / p
+
+    @property
+    def matrix_path(self) -> Path | None:
+        return None if self.matrix is None else self.resolve(self.matrix)
+
+    def test(self, name: str) -> TestSpec:
+        for t in self.tests:
+            if t.name == name:
+                return t
+        raise KeyError(name)
+
+    # ------------------------------------------------------------ writing
+    def set_thresholds(
+        self,
+        limits: dict[str, tuple[float, float]],
+        window: tuple[str, str],
+        *,
+        quantile: float,
+        margin: float,
+        samples: dict[str, int],
+        ymax: dict[str, float] | None = None,
+    ) -> None:
+        """Write learned thresholds per test and the fault-free window they came from."""
+        th = self.doc.get("thresholds")
+        if th is None:
+            th = tomlkit.table()
+            th.add(tomlkit.comment("written by `diag unit learn`: the fault-free window used"))
+            self.doc["thresholds"] = th
+        th["quantile"] = quantile
+        th["margin"] = margin
+        th["from"], th["to"] = window
+        th["samples"] = int(min(samples.values())) if samples else 0
+        tests = self.doc["tests"]
+        for name, (lo, hi) in limits.items():
+            row = {k: _plain(v) for k, v in tests[name].items()}
+            row["high"] = round(float(hi), 4)
+            row.pop("low", None)
+            if abs(lo + hi) > 1e-12:
+                row["low"] = round(float(lo), 4)
+            if ymax and name in ymax:
+                row["ymax"] = round(float(ymax[name]), 6)
+            fresh_row = tomlkit.inline_table()
+            fresh_row.update(row)  # rebuilt, so tomlkit spaces it like a hand-written line
+            tests[name] = fresh_row
+        text = self.dumps()
+        fresh = UnitFile(text, self.path)
+        self.__dict__.update(fresh.__dict__)
+
+    def dumps(self) -> str:
+        return tomlkit.dumps(self.doc)
+
+    def save(self, path: str | Path | None = None) -> Path:
+        """Write the file atomically (a killed process leaves the old or the new file)."""
+        target = Path(path) if path is not None else self.path
+        tmp = target.with_name(target.name + ".tmp")
+        tmp.write_text(self.dumps(), encoding="utf-8")
+        tmp.replace(target)
+        self.path = target
+        return target
+
+
+def new_unit_text(
+    name: str,
+    tests: dict[str, str],
+    *,
+    matrix: str | None = None,
+    description: str = "",
+    outputs: str | None = None,
+) -> str:
+    """The text of a new unit file with default evaluation and no thresholds yet."""
+    doc = tomlkit.document()
+    doc.add(tomlkit.comment(f"Unit {name}: models (tests), residual evaluation, thresholds"))
+    unit = tomlkit.table()
+    unit["name"] = name
+    if description:
+        unit["description"] = description
+    if matrix:
+        unit["matrix"] = matrix
+    unit["outputs"] = outputs or name
+    doc["unit"] = unit
+    ev = tomlkit.table()
+    for k, v in EVALUATION_DEFAULTS.items():
+        ev[k] = v
+    doc["evaluation"] = ev
+    t = tomlkit.table()
+    for test, model in tests.items():
+        row = tomlkit.inline_table()
+        row["model"] = model
+        t[test] = row
+    doc["tests"] = t
+    return tomlkit.dumps(doc)
