@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "historian.cli",
     "diag_plugin.jobs_cli",
     "diag_plugin.workbench.cli",
+    "diag_plugin.diagnose.cli",
 )
 
 

@@ -25,6 +25,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 from sqlalchemy.engine import make_url
 
+from diag_plugin.diagnose.unitfile import is_model_file
 from diag_plugin.metrics import coverage_note
 from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase import RuleBase, RuleBaseError, resolve
@@ -131,7 +132,7 @@ def cmd_train(args) -> int:
     if args.all == bool(args.name):
         raise UserError("give a model NAME or --all")
     paths = (
-        sorted(Path(args.rulebases).glob("*.toml"))
+        sorted(p for p in Path(args.rulebases).glob("*.toml") if is_model_file(p))
         if args.all
         else [resolve(args.name, args.rulebases)]
     )

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
 import pandas as pd
 
@@ -86,6 +87,27 @@ def load_test_model(name: str, path: Path) -> TestModel:
         span=float(hi - lo),
         period=rb.period,
     )
+
+
+@numba.njit(cache=False)
+def _hold_kernel(s, limit, last, run):  # pragma: no cover - numba
+    n, m = s.shape
+    out = s.copy()
+    for j in range(m):
+        v = last[j]
+        k = run[j]
+        for i in range(n):
+            x = s[i, j]
+            if np.isnan(x):
+                k += 1
+                if k <= limit and not np.isnan(v):
+                    out[i, j] = v
+            else:
+                v = x
+                k = 0
+        last[j] = v
+        run[j] = k
+    return out
 
 
 def _sticky(s: np.ndarray, carry: np.ndarray) -> np.ndarray:
@@ -269,6 +291,8 @@ class Unit:
         self.lowpass = LowPass(ev["lowpass"], ev["order"]) if ev["lowpass"] > 0 else None
         self.delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
         self.latched = np.zeros(len(self.tests))
+        self.held = np.full(len(self.tests), np.nan)  # last known symptom per test
+        self.unknown_run = np.zeros(len(self.tests), np.int64)
         return self
 
     def to_state(self) -> dict[str, Any]:
@@ -278,6 +302,8 @@ class Unit:
             "lowpass": None if self.lowpass is None else self.lowpass.to_state(),
             "delay": self.delay.to_state(),
             "latched": self.latched.tolist(),
+            "held": [None if np.isnan(v) else float(v) for v in self.held],
+            "unknown_run": self.unknown_run.tolist(),
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -287,6 +313,8 @@ class Unit:
             self.lowpass = LowPass.from_state(state["lowpass"])
         self.delay = OnOffDelay.from_state(state["delay"])
         self.latched = np.asarray(state["latched"], float)
+        self.held = np.array([np.nan if v is None else v for v in state["held"]], float)
+        self.unknown_run = np.asarray(state["unknown_run"], np.int64)
         return self
 
     # ------------------------------------------------------------ stages
@@ -336,6 +364,11 @@ class Unit:
         raw = FixedThresholds(high=hi_, low=lo_).transform(r)
         raw[:, no_th] = np.nan
         s = self.delay.transform(raw)
+        # a test unknown for fewer samples than the on-delay keeps its last known symptom:
+        # a brief gap neither clears a symptom nor flickers the unit to CHECK_FUNCTION
+        s = _hold_kernel(
+            np.ascontiguousarray(s), self.ev["on_delay"] - 1, self.held, self.unknown_run
+        )
         if self.ev["latch"]:
             s = _sticky(s, self.latched)
         return s, mem

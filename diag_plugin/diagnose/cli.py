@@ -1,0 +1,419 @@
+"""``diag unit new|check|show|learn`` and ``diag diagnose``: units on historian data.
+
+Only argparse is imported at start-up; each command imports what it needs when it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from historian.errors import UserError
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    unit = sub.add_parser("unit", help="create, check, show a unit or learn its thresholds")
+    usub = unit.add_subparsers(dest="unit_command", metavar="ACTION", required=True)
+    p = usub.add_parser("new", help="write rulebases/NAME.unit.toml naming the unit's models")
+    p.add_argument("name")
+    p.add_argument(
+        "--model",
+        action="append",
+        required=True,
+        metavar="TEST=RULEBASE",
+        help="a test and the model whose residual it is, e.g. r1=valve_r1 (repeat)",
+    )
+    p.add_argument("--matrix", metavar="FILE", help="diagnostic matrix file (else detect only)")
+    p.add_argument("--outputs", metavar="PREFIX", help="prefix of the published tags")
+    p.add_argument("--description", default="")
+    p.add_argument("--force", action="store_true", help="overwrite an existing unit file")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_unit_new)
+    p = usub.add_parser("check", help="check a unit file, its models and matrix (file:line)")
+    p.add_argument("file")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_unit_check)
+    p = usub.add_parser("show", help="tests, thresholds, matrix and its isolability")
+    p.add_argument("name")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_unit_show)
+    p = usub.add_parser("learn", help="learn thresholds from a window you declare fault-free")
+    p.add_argument("name")
+    p.add_argument("--from", dest="start", required=True, metavar="T0")
+    p.add_argument("--to", dest="end", required=True, metavar="T1")
+    p.add_argument("--quantile", type=float, default=0.999)
+    p.add_argument("--margin", type=float, default=1.2)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_unit_learn)
+
+    p = sub.add_parser("diagnose", help="replay historian data through a unit")
+    p.add_argument("name")
+    p.add_argument("--from", dest="start", metavar="T0")
+    p.add_argument("--to", dest="end", metavar="T1")
+    p.add_argument("--csv", metavar="FILE", help="one row per sample (ts, status, r_*, s_*, c_*)")
+    p.add_argument("--chunk", default="7D", help="data read per step (default 7D)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_diagnose)
+
+
+def _load_unit(args, name: str):
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unitfile import UnitError, unit_path
+
+    path = unit_path(name, args.rulebases)
+    if not path.exists():
+        raise UserError(f"no unit file {path} (make one with `diag unit new`)")
+    try:
+        return Unit.load(path, args.rulebases)
+    except UnitError as exc:
+        raise UserError("unit file has problems:\n" + "\n".join(exc.problems)) from None
+
+
+def _ts(text: str | None):
+    import pandas as pd
+
+    if text is None:
+        return None
+    try:
+        t = pd.Timestamp(text)
+    except ValueError:
+        raise UserError(
+            f"{text!r} is not a time (use e.g. 2026-01-01 or 2026-01-01T06:00)"
+        ) from None
+    return t.tz_localize("UTC") if t.tzinfo is None else t.tz_convert("UTC")
+
+
+def cmd_unit_new(args) -> int:
+    from diag_plugin.diagnose.unitfile import SUFFIX, new_unit_text
+    from diag_plugin.rulebase import resolve
+
+    folder = Path(args.rulebases)
+    path = folder / f"{args.name}{SUFFIX}"
+    if path.exists() and not args.force:
+        raise UserError(f"{path} exists (use --force to overwrite)")
+    tests: dict[str, str] = {}
+    for item in args.model:
+        test, sep, model = item.partition("=")
+        if not sep or not test or not model:
+            raise UserError(f"--model {item!r}: write TEST=RULEBASE, e.g. r1=valve_r1")
+        if test in tests:
+            raise UserError(f"--model {item!r}: test {test!r} given twice")
+        mpath = resolve(model, folder)
+        if not mpath.exists():
+            raise UserError(f"--model {item!r}: no model file {mpath}")
+        tests[test] = os.path.relpath(mpath.resolve(), folder.resolve())
+    matrix = None
+    if args.matrix:
+        mp = Path(args.matrix)
+        if not mp.exists() and (folder / mp).exists():
+            mp = folder / mp
+        if not mp.exists():
+            raise UserError(f"--matrix {args.matrix}: no such file")
+        matrix = os.path.relpath(mp.resolve(), folder.resolve())
+    text = new_unit_text(
+        args.name, tests, matrix=matrix, description=args.description, outputs=args.outputs
+    )
+    folder.mkdir(parents=True, exist_ok=True)
+    path.write_text(text, encoding="utf-8")
+    problems = _problems(path, args.rulebases)
+    if args.json:
+        print(json.dumps({"unit": str(path), "tests": tests, "problems": problems}, indent=2))
+    else:
+        print(f"wrote {path}: {len(tests)} tests" + (f", matrix {matrix}" if matrix else ""))
+        for p in problems:
+            print(p, file=sys.stderr)
+        print(f"next: diag unit learn {args.name} --from T0 --to T1 (a fault-free window)")
+    if problems:
+        raise UserError("the new unit has problems (above)")
+    return 0
+
+
+def _problems(path: Path, folder: str) -> list[str]:
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unitfile import UnitError
+
+    try:
+        Unit.load(path, folder)
+    except UnitError as exc:
+        return exc.problems
+    return []
+
+
+def cmd_unit_check(args) -> int:
+    from diag_plugin.diagnose.unitfile import unit_path
+
+    path = unit_path(args.file, args.rulebases)
+    problems = _problems(path, args.rulebases)
+    if args.json:
+        print(json.dumps({"file": str(path), "ok": not problems, "problems": problems}, indent=2))
+    elif problems:
+        print("\n".join(problems), file=sys.stderr)
+    else:
+        print(f"{path}: ok")
+    return 1 if problems else 0
+
+
+def unit_summary(unit) -> dict:
+    """What ``diag unit show`` prints: tests, thresholds, evaluation, matrix analysis."""
+    f = unit.file
+    tests = []
+    for t in f.tests:
+        m = unit.models[t.name]
+        lim = t.limits
+        tests.append(
+            {
+                "test": t.name,
+                "model": t.model,
+                "output": m.output,
+                "inputs": m.inputs,
+                "low": None if lim is None else lim[0],
+                "high": None if lim is None else lim[1],
+            }
+        )
+    out = {
+        "unit": unit.name,
+        "file": str(f.path),
+        "description": f.description,
+        "outputs": f.outputs,
+        "period": unit.period,
+        "tags": unit.tags,
+        "evaluation": f.evaluation,
+        "thresholds": f.thresholds,
+        "tests": tests,
+        "matrix": None,
+    }
+    if unit.matrix is not None:
+        mx = unit.matrix
+        out["matrix"] = {
+            "file": str(f.matrix_path),
+            "tests": mx.tests,
+            "faults": mx.faults,
+            "rows": {t: list(mx.entries[i]) for i, t in enumerate(mx.tests)},
+            "isolability_groups": mx.isolability_groups(),
+            "undetectable": mx.undetectable,
+            "diagnosis_accuracy": mx.diagnosis_accuracy(),
+            "mean_diagnosis_accuracy": mx.mean_diagnosis_accuracy(),
+            "fault_status": {k: v.name for k, v in f.fault_status.items()},
+        }
+    return out
+
+
+def cmd_unit_show(args) -> int:
+    unit = _load_unit(args, args.name)
+    s = unit_summary(unit)
+    if args.json:
+        print(json.dumps(s, indent=2, default=str))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    con.print(f"unit {s['unit']} ({s['file']}): {s['description']}", markup=False)
+    ev = s["evaluation"]
+    con.print(
+        f"period {s['period']}; low-pass {ev['lowpass'] or 'off'} (order {ev['order']}); "
+        f"{ev['symptoms']} symptoms, on/off delay {ev['on_delay']}/{ev['off_delay']} samples"
+        + ("; latched" if ev["latch"] else ""),
+        markup=False,
+    )
+    t = Table(title="tests (residuals in % of span)")
+    for c in ("test", "model", "output = f(inputs)", "low", "high"):
+        t.add_column(c)
+    for r in s["tests"]:
+        t.add_row(
+            r["test"],
+            r["model"],
+            f"{r['output']} = f({', '.join(r['inputs'])})",
+            "—" if r["low"] is None else f"{r['low']:.3g}",
+            "—" if r["high"] is None else f"{r['high']:.3g}",
+        )
+    con.print(t)
+    th = s["thresholds"]
+    if th.get("from"):
+        con.print(
+            f"thresholds learned from {th['from']} … {th['to']} (quantile {th.get('quantile')} "
+            f"× margin {th.get('margin')}, {th.get('samples')} samples)",
+            markup=False,
+        )
+    else:
+        con.print(f"no thresholds learned yet: diag unit learn {s['unit']} --from … --to …")
+    mx = s["matrix"]
+    if mx is None:
+        con.print("no matrix: this unit only detects (status OFF_SPEC on a symptom)")
+        return 0
+    t = Table(title=f"diagnostic matrix {mx['file']}")
+    t.add_column("test")
+    for f in mx["faults"]:
+        t.add_column(f, justify="center")
+    for test in mx["tests"]:
+        t.add_row(test, *mx["rows"][test])
+    con.print(t)
+    groups = [g for g in mx["isolability_groups"] if len(g) > 1]
+    con.print(
+        "isolable: every detectable fault"
+        if not groups
+        else "not isolable from each other: " + "; ".join("{" + ", ".join(g) + "}" for g in groups),
+        markup=False,
+    )
+    if mx["undetectable"]:
+        con.print(f"undetectable: {', '.join(mx['undetectable'])}", markup=False)
+    con.print(f"theoretical diagnosis accuracy (DAMADICS): {mx['mean_diagnosis_accuracy']:.2f}")
+    return 0
+
+
+def _frames(args, unit, start, end, chunk="7D"):
+    """Consecutive aligned pieces of the unit's tags from the historian."""
+    import pandas as pd
+
+    from historian.store import Historian
+
+    h = Historian.open(args.db)
+    try:
+        known = set(h.tags()["name"])
+        missing = [t for t in unit.tags if t not in known]
+        if missing:
+            raise UserError(f"unit {unit.name}: tag(s) {', '.join(missing)} not in the historian")
+        a, b = h.time_range(unit.tags)
+        if a is None:
+            raise UserError(f"no samples of {', '.join(unit.tags)} in the historian")
+        t0 = start if start is not None else a
+        t1 = end if end is not None else b + pd.Timedelta(unit.period)
+        if t1 <= t0:
+            raise UserError(f"--to {t1} is not after --from {t0}")
+        yield from h.iter_windows(unit.tags, t0, t1, unit.period, chunk=chunk)
+    finally:
+        h.close()
+
+
+def cmd_unit_learn(args) -> int:
+    from diag_plugin.diagnose.unit import learn_thresholds
+    from diag_plugin.diagnose.unitfile import UnitFile
+
+    unit = _load_unit(args, args.name)
+    t0, t1 = _ts(args.start), _ts(args.end)
+    frames = list(_frames(args, unit, t0, t1))
+    try:
+        got = learn_thresholds(unit, frames, quantile=args.quantile, margin=args.margin)
+    except ValueError as exc:
+        raise UserError(f"unit {unit.name}: {exc}") from None
+    uf = UnitFile.load(unit.file.path)
+    uf.set_thresholds(
+        got.limits,
+        got.window,
+        quantile=got.quantile,
+        margin=got.margin,
+        samples=got.samples,
+        ymax=got.ymax,
+    )
+    uf.save()
+    out = {
+        "unit": unit.name,
+        "file": str(uf.path),
+        "window": list(got.window),
+        "thresholds": {k: {"low": lo, "high": hi} for k, (lo, hi) in got.limits.items()},
+        "samples": got.samples,
+    }
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        print(f"{uf.path}: thresholds from {got.window[0]} … {got.window[1]}")
+        for k, (lo, hi) in got.limits.items():
+            print(f"  {k}: {lo:+.3f} … {hi:+.3f} % ({got.samples[k]:,} samples)")
+    return 0
+
+
+def cmd_diagnose(args) -> int:
+    import pandas as pd
+
+    from diag_plugin.diagnose.unit import concat
+
+    unit = _load_unit(args, args.name)
+    try:
+        chunk = pd.Timedelta(args.chunk)
+    except ValueError:
+        raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D") from None
+    parts = [unit.evaluate(f) for f in _frames(args, unit, _ts(args.start), _ts(args.end), chunk)]
+    parts = [p for p in parts if len(p)]
+    if not parts:
+        raise UserError("no data in the window")
+    d = concat(parts)
+    if args.csv:
+        write_csv(d, args.csv)
+    iv = d.intervals()
+    summary = {
+        "unit": unit.name,
+        "from": d.status.index[0].isoformat(),
+        "samples": len(d),
+        "message": d.message,
+        "status_share": {
+            k: round(float(v), 6)
+            for k, v in d.status.map(lambda s: _name(s)).value_counts(normalize=True).items()
+        },
+        "detected_share": _share(d.detected),
+        "intervals": [
+            {**r, "from": r["from"].isoformat(), "to": r["to"].isoformat()}
+            for r in iv.to_dict("records")
+        ],
+    }
+    if args.json:
+        print(json.dumps(summary, indent=2))
+        return 0
+    _print_timeline(unit, d, iv, args.csv)
+    return 0
+
+
+def _name(s: int) -> str:
+    from diag_plugin.diagnose.status import NE107
+
+    return NE107(int(s)).name
+
+
+def _share(s) -> float | None:
+    import numpy as np
+
+    v = s.to_numpy()
+    k = np.isfinite(v)
+    return None if not k.any() else round(float(v[k].mean()), 6)
+
+
+def write_csv(d, path: str) -> None:
+    """One row per sample: ts, status (NE 107), r_<test>, s_<test>, c_<fault>, detected
+    (1/0, empty when unknown), quality, faults."""
+    frame = d.to_frame()
+    frame["detected"] = frame["detected"].map(lambda v: "" if v != v else str(int(v)))
+    frame.to_csv(path, float_format="%.6g", date_format="%Y-%m-%dT%H:%M:%S%z")
+
+
+def _print_timeline(unit, d, iv, csv) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    con.print(
+        f"unit {unit.name}: {len(d):,} samples {d.status.index[0]:%Y-%m-%d %H:%M} … "
+        f"{d.status.index[-1]:%Y-%m-%d %H:%M}",
+        markup=False,
+    )
+    if d.message:
+        con.print(d.message, markup=False)
+    t = Table(title="timeline")
+    for c in ("from", "to", "status", "faults", "tests with symptoms", "samples"):
+        t.add_column(c)
+    shown = iv if len(iv) <= 60 else iv[iv["status"] != "NORMAL"].head(60)
+    for r in shown.to_dict("records"):
+        t.add_row(
+            f"{r['from']:%Y-%m-%d %H:%M:%S}",
+            f"{r['to']:%Y-%m-%d %H:%M:%S}",
+            r["status"],
+            r["faults"].replace("|", ", ") or "—",
+            r["tests"] or "—",
+            f"{r['samples']:,}",
+        )
+    con.print(t)
+    if len(shown) < len(iv):
+        con.print(f"({len(iv) - len(shown)} more intervals; --json or --csv for all)")
+    if csv:
+        con.print(f"wrote {csv}")
