@@ -321,6 +321,38 @@ class ReadPlan:
             raw[self._w32] = np.where(self._w32_float, u32.view(np.float32), u32.view(np.int32))
         return raw * self.scale + self.offset
 
+    def encode(self, values: np.ndarray, buf: np.ndarray | None = None) -> np.ndarray:
+        """Raw words of all tags from engineering ``values`` (map order); inverse of decode.
+
+        ``raw = (value − offset) / scale``; integer types are rounded and clipped to their
+        range (NaN → 0), a float32 keeps NaN; a bool sets or clears its bit in ``buf``
+        (other bits of a shared status word are kept).
+        """
+        buf = self.new_buffer() if buf is None else buf
+        raw = (np.asarray(values, dtype=np.float64) - self.offset) / self.scale
+        p = self.pos
+
+        def ints(idx: np.ndarray, lo: float, hi: float) -> np.ndarray:
+            r = np.nan_to_num(np.rint(raw[idx]), nan=0.0, posinf=hi, neginf=lo)
+            return np.clip(r, lo, hi).astype(np.int64)
+
+        buf[p[self._u16]] = ints(self._u16, 0, 65535).astype(np.uint16)
+        buf[p[self._i16]] = ints(self._i16, -32768, 32767).astype(np.int16).view(np.uint16)
+        if len(self._bit):
+            on = (np.nan_to_num(raw[self._bit]) != 0).astype(np.uint16)
+            mask = (np.uint16(1) << self._bitshift).astype(np.uint16)
+            np.bitwise_and.at(buf, p[self._bit], ~mask)
+            np.bitwise_or.at(buf, p[self._bit], on << self._bitshift)
+        if len(self._w32):
+            r = raw[self._w32]
+            f = r.astype(np.float32).view(np.uint32)
+            i = ints(self._w32, -(2**31), 2**31 - 1).astype(np.int32).view(np.uint32)
+            u32 = np.where(self._w32_float, f, i)
+            hi, lo = (u32 >> 16).astype(np.uint16), (u32 & 0xFFFF).astype(np.uint16)
+            buf[p[self._w32]] = np.where(self._w32_cdab, lo, hi)
+            buf[p[self._w32] + 1] = np.where(self._w32_cdab, hi, lo)
+        return buf
+
 
 def unpack_bits(words: Sequence[int] | np.ndarray, nbits: int = 16) -> np.ndarray:
     """Bits of bit-packed status words, shape ``(len(words), nbits)``, bit 0 = LSB first."""
