@@ -1,0 +1,304 @@
+"""OPC UA tag reader/writer (asyncua): subscription or polling, quality from the StatusCode.
+
+:class:`OpcUaReader` keeps one connection per endpoint in a background task. While connected
+it either holds a data-change subscription (``mode="subscription"``) or reads all nodes in
+one Read request per :meth:`OpcUaReader.read` (``mode="poll"``). Values come from
+``DataValue`` s (never ``read_value()``, which raises on Uncertain): the StatusCode's
+severity gives :class:`TagQuality`. When the connection fails every tag turns Bad, the
+failure is logged once, the task reconnects with :class:`Backoff` (exponential, jitter) and
+logs the recovery once (Home Assistant's coordinator pattern, DESIGN.md).
+Writes go only to tags on the :class:`AllowList`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from datetime import UTC
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+from connectors.base import AllowList, Backoff, TagQuality, TagSample, now
+
+if TYPE_CHECKING:
+    from asyncua import Client, Node, ua
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ClientSecurity:
+    """Basic256Sha256 SignAndEncrypt: our certificate and key, and an optional user."""
+
+    certificate: Path
+    private_key: Path
+    application_uri: str
+    username: str | None = None
+    password: str | None = None
+    server_certificate: Path | None = None
+
+
+@dataclass
+class OpcUaConfig:
+    """One endpoint: tag name → node id (``ns=2;s=Plant.F`` or ``nsu=<uri>;s=...``)."""
+
+    url: str
+    nodes: Mapping[str, str]
+    mode: Literal["subscription", "poll"] = "poll"
+    period: float = 1.0  # publishing interval (subscription) in s
+    timeout: float = 4.0  # per request, s
+    connect_timeout: float = 10.0
+    security: ClientSecurity | None = None
+    outputs: tuple[str, ...] = ()  # the write allow-list (tag names of ``nodes``)
+    backoff_base: float = 0.5
+    backoff_cap: float = 30.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def quality_of(code: Any) -> TagQuality:
+    """:class:`TagQuality` from an OPC UA StatusCode (its two severity bits)."""
+    if code is None:
+        return TagQuality.GOOD
+    value = int(getattr(code, "value", code))
+    sev = value >> 30
+    return (TagQuality.GOOD, TagQuality.UNCERTAIN, TagQuality.BAD, TagQuality.BAD)[sev]
+
+
+def sample_of(tag: str, dv: ua.DataValue) -> TagSample:
+    """A :class:`TagSample` from a DataValue: NaN for null/non-numeric values."""
+    q = quality_of(dv.StatusCode)
+    raw = dv.Value.Value if dv.Value is not None else None
+    try:
+        value = float(raw) if raw is not None else math.nan
+    except (TypeError, ValueError):
+        value = math.nan
+    ts = dv.SourceTimestamp or dv.ServerTimestamp or now()
+    if ts.tzinfo is None:
+        ts = ts.replace(tzinfo=UTC)
+    reason = "" if q == TagQuality.GOOD else getattr(dv.StatusCode, "name", str(dv.StatusCode))
+    return TagSample(tag, value, ts, q, reason)
+
+
+class _Handler:
+    def __init__(self, reader: OpcUaReader) -> None:
+        self.reader = reader
+
+    def datachange_notification(self, node: Node, val: Any, data: Any) -> None:
+        tag = self.reader._tag_of.get(node.nodeid.to_string())
+        if tag is not None:
+            self.reader._latest[tag] = sample_of(tag, data.monitored_item.Value)
+
+    def status_change_notification(self, status: Any) -> None:
+        self.reader._lost.set()
+
+
+class OpcUaReader:
+    """Reads (and writes allowed) tags of one OPC UA server; never raises from :meth:`read`.
+
+    ``await reader.start()`` launches the connection task and returns at once; ``read()``
+    gives the latest sample of every tag (Bad while disconnected); ``write()`` writes
+    allow-listed tags; ``close()`` stops everything.
+    """
+
+    def __init__(self, config: OpcUaConfig) -> None:
+        self.config = config
+        self.allow = AllowList(config.outputs)
+        self._latest: dict[str, TagSample] = {}
+        self._tag_of: dict[str, str] = {}
+        self._nodes: dict[str, Node] = {}
+        self._vtypes: dict[str, Any] = {}
+        self._client: Client | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._connected = asyncio.Event()
+        self._lost = asyncio.Event()
+        self._stop = asyncio.Event()
+        self._failing = False
+        self.outages = 0  # how many times the connection was lost or refused
+        self._set_all_bad("not connected yet")
+
+    @property
+    def connected(self) -> bool:
+        return self._connected.is_set()
+
+    def _set_all_bad(self, reason: str) -> None:
+        t = now()
+        for tag in self.config.nodes:
+            old = self._latest.get(tag)
+            value = old.value if old is not None else math.nan
+            self._latest[tag] = TagSample(tag, value, t, TagQuality.BAD, reason)
+
+    async def start(self) -> None:
+        """Start the background connection task (returns immediately)."""
+        if self._task is None:
+            self._stop.clear()
+            self._task = asyncio.create_task(self._run(), name=f"opcua {self.config.url}")
+
+    async def wait_connected(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` s for the connection; True when connected."""
+        try:
+            await asyncio.wait_for(self._connected.wait(), timeout)
+            return True
+        except TimeoutError:
+            return False
+
+    async def close(self) -> None:
+        self._stop.set()
+        if self._task is not None:
+            self._task.cancel()
+            try:
+                await self._task
+            except (asyncio.CancelledError, Exception):  # noqa: BLE001 - shutting down
+                pass
+            self._task = None
+        await self._disconnect()
+
+    # -- connection ------------------------------------------------------------------------
+
+    async def _run(self) -> None:
+        backoff = Backoff(self.config.backoff_base, self.config.backoff_cap)
+        while not self._stop.is_set():
+            try:
+                await asyncio.wait_for(self._connect(), self.config.connect_timeout)
+            except Exception as exc:  # noqa: BLE001 - any failure means "retry later"
+                await self._disconnect()
+                self._on_failure(exc)
+                await self._sleep(backoff.next_delay())
+                continue
+            backoff.reset()
+            if self._failing:
+                log.warning("OPC UA %s: connection restored", self.config.url)
+            else:
+                log.info("OPC UA %s: connected", self.config.url)
+            self._failing = False
+            self._connected.set()
+            await self._lost.wait()
+            self._connected.clear()
+            await self._disconnect()
+            self._on_failure(ConnectionError("connection lost"))
+            await self._sleep(backoff.next_delay())
+
+    def _on_failure(self, exc: BaseException) -> None:
+        self._set_all_bad(f"no connection: {exc!r}")
+        if not self._failing:
+            self.outages += 1
+            log.warning(
+                "OPC UA %s: unavailable (%r); retrying in the background", self.config.url, exc
+            )
+        else:
+            log.debug("OPC UA %s: still unavailable (%r)", self.config.url, exc)
+        self._failing = True
+
+    async def _sleep(self, delay: float) -> None:
+        try:
+            await asyncio.wait_for(self._stop.wait(), delay)
+        except TimeoutError:
+            pass
+
+    async def _connect(self) -> None:
+        from asyncua import Client, ua
+        from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
+        cfg = self.config
+        self._lost.clear()
+        client = Client(cfg.url, timeout=cfg.timeout, watchdog_intervall=max(0.5, cfg.timeout / 2))
+        client.session_timeout = 60_000
+        sec = cfg.security
+        if sec is not None:
+            client.application_uri = sec.application_uri
+            if sec.username is not None:
+                client.set_user(sec.username)
+            if sec.password is not None:
+                client.set_password(sec.password)
+            await client.set_security(
+                SecurityPolicyBasic256Sha256,
+                str(sec.certificate),
+                str(sec.private_key),
+                server_certificate=str(sec.server_certificate) if sec.server_certificate else None,
+                mode=ua.MessageSecurityMode.SignAndEncrypt,
+            )
+
+        async def lost(exc: Exception) -> None:
+            self._lost.set()
+
+        client.connection_lost_callback = lost
+        self._client = client
+        await client.connect(auto_reconnect=False)
+        self._nodes = {tag: client.get_node(nid) for tag, nid in cfg.nodes.items()}
+        self._tag_of = {n.nodeid.to_string(): tag for tag, n in self._nodes.items()}
+        for tag in cfg.outputs:
+            if tag in self._nodes:
+                self._vtypes[tag] = await self._nodes[tag].read_data_type_as_variant_type()
+        if cfg.mode == "subscription":
+            sub = await client.create_subscription(cfg.period * 1000, _Handler(self))
+            await sub.subscribe_data_change(list(self._nodes.values()))
+        else:
+            await self._poll()
+
+    async def _disconnect(self) -> None:
+        client, self._client = self._client, None
+        if client is None:
+            return
+        try:
+            await asyncio.wait_for(client.disconnect(), self.config.timeout)
+        except Exception:  # noqa: BLE001 - the peer may be gone already
+            client.disconnect_socket()
+
+    async def _poll(self) -> None:
+        assert self._client is not None
+        tags = list(self._nodes)
+        dvs = await asyncio.wait_for(
+            self._client.read_attributes([self._nodes[t] for t in tags]), self.config.timeout
+        )
+        for tag, dv in zip(tags, dvs, strict=True):
+            self._latest[tag] = sample_of(tag, dv)
+
+    # -- the reader interface ---------------------------------------------------------------
+
+    async def read(self) -> list[TagSample]:
+        """The latest sample of every configured tag (one Read request when polling)."""
+        if self.config.mode == "poll" and self._connected.is_set():
+            try:
+                await self._poll()
+            except Exception as exc:  # noqa: BLE001 - a failed poll means a lost connection
+                self._set_all_bad(f"read failed: {exc!r}")
+                self._lost.set()
+        return [self._latest[t] for t in self.config.nodes]
+
+    async def write(self, values: Mapping[str, float]) -> dict[str, str]:
+        """Write allow-listed tags; raises :class:`WriteRefused` for any other tag.
+
+        Returns tag → StatusCode name (``"Good"`` or why the server refused)."""
+        from asyncua import ua
+
+        self.allow.check(values)
+        unknown = sorted(set(values) - set(self.config.nodes))
+        if unknown:
+            raise KeyError(f"not configured: {', '.join(unknown)}")
+        if self._client is None or not self._connected.is_set():
+            return {t: "BadNotConnected" for t in values}
+        tags = list(values)
+        dvs = []
+        for t in tags:
+            vt = self._vtypes.get(t, ua.VariantType.Double)
+            v: Any = values[t]
+            if vt == ua.VariantType.Boolean:
+                v = bool(v)
+            elif vt in (ua.VariantType.Float, ua.VariantType.Double):
+                v = float(v)
+            else:
+                v = int(v)
+            dvs.append(ua.DataValue(ua.Variant(v, vt)))
+        try:
+            codes = await asyncio.wait_for(
+                self._client.uaclient.write_attributes(
+                    [self._nodes[t].nodeid for t in tags], dvs, ua.AttributeIds.Value
+                ),
+                self.config.timeout,
+            )
+        except Exception as exc:  # noqa: BLE001 - returned as a value
+            log.warning("OPC UA write to %s failed: %r", self.config.url, exc)
+            return {t: f"Bad: {exc!r}" for t in tags}
+        return {t: c.name for t, c in zip(tags, codes, strict=True)}
