@@ -125,6 +125,7 @@ class ModbusTagClient:
         self._reconnect_task: asyncio.Task | None = None
         self._closed = False
         self._ever_tried = False
+        self._rx = bytearray()
         self.last_error = ""
         #: availability as the last poll left it, and since when it is failing
         self.available = False
@@ -151,6 +152,7 @@ class ModbusTagClient:
             retries=0,
             reconnect_delay=0,  # reconnection is ours (Backoff), not pymodbus's
             name=self.name,
+            trace_packet=self._trace,
         )
         try:
             ok = await asyncio.wait_for(client.connect(), self.timeout + 0.5)
@@ -167,6 +169,27 @@ class ModbusTagClient:
         self.connects += 1
         log.debug("%s: connected", self.name)
         return True
+
+    def _trace(self, sending: bool, data: bytes) -> bytes:
+        """pymodbus packet hook: keep what came back since the last request (diagnosis)."""
+        if sending:
+            self._rx.clear()
+        elif len(self._rx) < 512:
+            self._rx += data
+        return data
+
+    def _no_answer(self, where: str) -> str:
+        """Why a request got no usable answer, from the bytes that did come back.
+
+        pymodbus drops frames it cannot use (garbage, another unit id, a short PDU) and
+        waits for the timeout; the raw bytes tell which it was.
+        """
+        rx = bytes(self._rx)
+        if not rx:
+            return f"timeout after {self.timeout:g} s reading {where}"
+        if len(rx) >= 8 and rx[2:4] == b"\x00\x00" and rx[6] != self.device_id:
+            return f"reply from unit id {rx[6]}, not {self.device_id}, reading {where}"
+        return f"malformed reply reading {where}: {len(rx)} bytes {rx[:16].hex(' ')}…"
 
     def _drop_client(self) -> None:
         if self._client is not None:
@@ -260,13 +283,13 @@ class ModbusTagClient:
                 fn(b.start, count=b.count, device_id=self.device_id), self.timeout + 0.25
             )
         except TimeoutError:
-            raise _Dropped(f"timeout after {self.timeout:g} s reading {where}") from None
+            raise _Dropped(self._no_answer(where)) from None
         except ModbusIOException as exc:
             msg = str(exc)
             if "device id" in msg:
                 raise _Dropped(f"reply from a wrong unit id reading {where}: {msg}") from None
             if "No response" in msg:
-                raise _Dropped(f"timeout after {self.timeout:g} s reading {where}") from None
+                raise _Dropped(self._no_answer(where)) from None
             raise _Dropped(f"malformed reply reading {where}: {msg}") from None
         except ConnectionException as exc:
             raise _Dropped(f"connection lost reading {where}: {exc}") from None

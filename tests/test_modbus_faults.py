@@ -1,0 +1,275 @@
+"""Modbus faults: server killed and restarted, exception reply, wrong unit id, slow and
+malformed replies. Tags go Bad with a reason; read() never raises; recovery is on its own."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from modbus_peers import (
+    PLC_MAP,
+    free_port,
+    needs_pymodbustcp,
+    raw_server,
+    read_request,
+    registers_reply,
+    reply,
+    start_plc,
+)
+
+from connectors.base import Backoff, TagQuality
+from connectors.modbus import ModbusTagClient
+from connectors.modbus_server import RegisterServer
+from connectors.registermap import RegisterMap
+
+HERE = Path(__file__).resolve().parent
+ONE = RegisterMap.parse("tag,table,address,type\nA,hr,0,float32\nB,hr,2,uint16\n")
+MOD = "connectors.modbus"
+
+
+def run(coro, timeout: float = 90.0):
+    async def main():
+        return await asyncio.wait_for(coro, timeout)
+
+    return asyncio.run(main())
+
+
+def _plc_process(port: int) -> subprocess.Popen:
+    p = subprocess.Popen(
+        [sys.executable, str(HERE / "modbus_peers.py"), str(port)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert p.stdout is not None and p.stdout.readline().strip() == "ready"
+    return p
+
+
+@needs_pymodbustcp
+def test_plc_killed_mid_run_and_restarted(caplog):
+    """Tags Bad during the outage, Good again on their own; one warning, one recovery."""
+    caplog.set_level(logging.INFO, logger=MOD)
+    port = free_port()
+    plc = _plc_process(port)
+    regmap = RegisterMap.parse(PLC_MAP)
+
+    async def main():
+        c = ModbusTagClient(
+            regmap, port=port, timeout=0.3, backoff=Backoff(base=0.05, cap=0.4, seed=1)
+        )
+        history: list[tuple[str, bool, str]] = []
+        try:
+            for _ in range(5):
+                p = await c.poll()
+                history.append(("before", p.good, p.reasons[0]))
+                await asyncio.sleep(0.05)
+            plc.send_signal(signal.SIGKILL)
+            plc.wait(10)
+            connects_before = c.connects
+            for _ in range(20):
+                p = await c.poll()
+                history.append(("outage", p.good, p.reasons[0]))
+                assert np.isnan(p.values).all()
+                await asyncio.sleep(0.05)
+            restarted = await asyncio.get_running_loop().run_in_executor(None, _plc_process, port)
+            for _ in range(200):
+                p = await c.poll()
+                history.append(("after", p.good, p.reasons[0]))
+                if p.good:
+                    break
+                await asyncio.sleep(0.05)
+            for _ in range(5):
+                p = await c.poll()
+                history.append(("after", p.good, p.reasons[0]))
+            return history, c.connects - connects_before, restarted, p
+        finally:
+            await c.close()
+
+    try:
+        history, reconnects, restarted, last = run(main())
+    finally:
+        plc.kill()
+        if "restarted" in locals():
+            restarted.kill()
+            restarted.wait(10)
+    assert all(ok for phase, ok, _ in history if phase == "before")
+    outage = [(ok, why) for phase, ok, why in history if phase == "outage"]
+    assert not any(ok for ok, _ in outage)
+    assert all(why for _, why in outage)
+    assert any("not connected" in why or "connection" in why for _, why in outage)
+    assert history[-1][1] and last.good and last.values[0] == 12.5
+    assert reconnects == 1
+    warnings = [r for r in caplog.records if r.name == MOD and r.levelno == logging.WARNING]
+    recovered = [r for r in caplog.records if r.name == MOD and "recovered" in r.getMessage()]
+    assert len(warnings) == 1, [r.getMessage() for r in warnings]
+    assert len(recovered) == 1
+
+
+@needs_pymodbustcp
+def test_exception_reply_makes_only_that_block_bad():
+    """Reading an address the PLC does not have: exception 2, other blocks stay Good."""
+    port = free_port()
+    srv = start_plc(port, size=64)
+    regmap = RegisterMap.parse(PLC_MAP + "FAR,hr,500,float32,ABCD,1,0,\n")
+
+    async def main():
+        c = ModbusTagClient(regmap, port=port, timeout=1.0)
+        try:
+            first = await c.read()
+            second = await c.read()
+            return first, second, c.connected
+        finally:
+            await c.close()
+
+    try:
+        first, second, connected = run(main())
+    finally:
+        srv.stop()
+    got = {s.tag: s for s in second}
+    assert got["FAR"].quality == TagQuality.BAD
+    assert "exception reply 2" in got["FAR"].reason and "illegal data address" in got["FAR"].reason
+    assert np.isnan(got["FAR"].value)
+    assert got["F"].quality == TagQuality.GOOD and got["F"].value == 12.5
+    assert all(s.quality == TagQuality.GOOD for s in second if s.tag != "FAR")
+    assert connected  # an exception reply is an answer: the connection stays
+
+
+def test_wrong_unit_id_our_server():
+    """A server serving unit 1 asked for unit 7: an exception reply → Bad, no crash."""
+
+    async def main():
+        srv = RegisterServer(ONE, device_id=1)
+        await srv.start()
+        await srv.update({"A": 1.5, "B": 3})
+        good = ModbusTagClient(ONE, port=srv.port, device_id=1)
+        wrong = ModbusTagClient(ONE, port=srv.port, device_id=7, timeout=0.5)
+        try:
+            return await good.read(), await wrong.read()
+        finally:
+            await good.close()
+            await wrong.close()
+            await srv.stop()
+
+    good, wrong = run(main())
+    assert [s.value for s in good] == [1.5, 3]
+    assert all(s.quality == TagQuality.BAD and "exception reply" in s.reason for s in wrong)
+
+
+def test_reply_from_a_wrong_unit_id():
+    """A gateway answering with another unit id than asked: Bad with the reason."""
+
+    async def handler(r, w):
+        try:
+            while True:
+                tid, unit, pdu = await read_request(r)
+                w.write(reply(tid, unit + 1, registers_reply(pdu, 0x4000)))
+                await w.drain()
+        except (asyncio.IncompleteReadError, ConnectionError):
+            pass
+
+    async def main():
+        srv, port = await raw_server(handler)
+        c = ModbusTagClient(ONE, port=port, device_id=3, timeout=0.3, backoff=Backoff(0.05, 0.1))
+        try:
+            return await c.read(), await c.read()
+        finally:
+            await c.close()
+            srv.close()
+
+    first, second = run(main())
+    for s in first + second:
+        assert s.quality == TagQuality.BAD, s
+    assert "reply from unit id 4, not 3" in first[0].reason, first[0].reason
+
+
+@pytest.mark.parametrize("delay", [None, 2.0], ids=["never-answers", "answers-late"])
+def test_slow_server_times_out_and_backs_off(delay):
+    """Accepts, then never answers (or too late): Bad per poll, reconnects spaced out."""
+    accepted: list[float] = []
+
+    async def handler(r, w):
+        accepted.append(asyncio.get_running_loop().time())
+        try:
+            while True:
+                tid, unit, pdu = await read_request(r)
+                if delay is None:
+                    continue
+                await asyncio.sleep(delay)
+                w.write(reply(tid, unit, registers_reply(pdu)))
+                await w.drain()
+        except (asyncio.IncompleteReadError, ConnectionError):
+            pass
+
+    async def main():
+        srv, port = await raw_server(handler)
+        c = ModbusTagClient(ONE, port=port, timeout=0.2, backoff=Backoff(0.1, 0.8, seed=2))
+        loop = asyncio.get_running_loop()
+        polls = []
+        try:
+            t0 = loop.time()
+            while loop.time() - t0 < 3.0:
+                t = loop.time()
+                samples = await c.read()
+                polls.append((loop.time() - t, samples))
+                await asyncio.sleep(0.05)
+            return polls
+        finally:
+            await c.close()
+            srv.close()
+
+    polls = run(main())
+    for took, samples in polls:
+        assert took < 0.2 + 0.5  # one timeout at most, never one per block
+        assert all(s.quality == TagQuality.BAD for s in samples)
+    reasons = {s.reason for _, samples in polls for s in samples}
+    assert any("timeout after 0.2 s" in r for r in reasons), reasons
+    assert any("not connected" in r for r in reasons), reasons
+    gaps = np.diff(accepted)
+    assert 2 <= len(accepted) <= 12  # reconnects, but not one per poll (~45 polls)
+    assert gaps.max() > 0.15  # backoff grows
+
+
+def test_malformed_reply_is_bad_not_a_crash():
+    """Garbage instead of a Modbus frame, then a short reply: Bad, connection renewed."""
+    n = {"conn": 0}
+
+    async def handler(r, w):
+        n["conn"] += 1
+        try:
+            while True:
+                tid, unit, pdu = await read_request(r)
+                if n["conn"] % 2:
+                    w.write(b"\xde\xad\xbe\xef garbage, not modbus \x00\xff" * 3)
+                else:  # a frame claiming 3 registers but carrying 1
+                    w.write(reply(tid, unit, bytes([pdu[0], 6, 0x41, 0x48])))
+                await w.drain()
+        except (asyncio.IncompleteReadError, ConnectionError):
+            pass
+
+    async def main():
+        srv, port = await raw_server(handler)
+        c = ModbusTagClient(ONE, port=port, timeout=0.3, backoff=Backoff(0.02, 0.05, seed=3))
+        out = []
+        try:
+            for _ in range(12):
+                out.append(await c.read())
+                await asyncio.sleep(0.1)
+            return out, c.connects
+        finally:
+            await c.close()
+            srv.close()
+
+    out, connects = run(main())
+    for samples in out:
+        assert all(s.quality == TagQuality.BAD and s.reason for s in samples)
+    reasons = {s.reason for samples in out for s in samples}
+    assert any(
+        r.startswith("malformed reply reading hr 0+3: 81 bytes de ad be ef") for r in reasons
+    )
+    assert any("malformed reply reading hr 0+3: 11 bytes" in r for r in reasons), reasons
+    assert connects >= 2
