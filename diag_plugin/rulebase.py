@@ -322,6 +322,16 @@ class RuleBase:
             return []
         return self.codec.read_rules(self, items, self._rule_lines())
 
+    @property
+    def options(self) -> dict:
+        """The method's options: every key of ``[rules]`` but ``list`` (its codec checks them)."""
+        table = self.doc.get("rules", {})
+        if not isinstance(table, Mapping):
+            return {}
+        return {
+            k: v.unwrap() if hasattr(v, "unwrap") else v for k, v in table.items() if k != "list"
+        }
+
     # ----------------------------------------------------------------- model
     @property
     def codec(self):
@@ -338,6 +348,7 @@ class RuleBase:
             method=self.method,
             shape=self.shape,
             period=self.period,
+            options=self.options,
         )
 
     def new_model(self):
@@ -429,7 +440,8 @@ class RuleBase:
     ) -> RuleBase:
         """A fresh rule base with no rules (train it next)."""
         doc = tomlkit.document()
-        for line in HEADER.splitlines():
+        codec = get_method(method) if method in METHODS else None
+        for line in getattr(codec, "header", HEADER).splitlines():
             doc.add(tomlkit.comment(line[2:] if line.startswith("# ") else line))
         doc.add(tomlkit.nl())
         model = tomlkit.table()
@@ -447,6 +459,8 @@ class RuleBase:
         doc["inputs"] = aot
         doc["training"] = tomlkit.table()
         rules = tomlkit.table()
+        for k, v in (codec.default_options() if hasattr(codec, "default_options") else {}).items():
+            rules[k] = v
         rules["list"] = tomlkit.array()
         doc["rules"] = rules
         rb = cls(tomlkit.dumps(doc), path or f"{name}.toml")

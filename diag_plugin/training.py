@@ -152,8 +152,12 @@ def train(
     done = 0
     model = rb.new_model()
     caps = model.capabilities
-    if not (caps.incremental and caps.mergeable):
-        raise ValueError(f"method {rb.method} cannot be trained chunk by chunk")
+    # a method that is not incremental and mergeable (ts-fcm) keeps the design rows of the
+    # range in memory and is fitted once: on the training part, then on all of it
+    whole = not (caps.incremental and caps.mergeable)
+    if whole and fit_chunks is not None:
+        raise ValueError(f"method {rb.method} cannot be trained chunk by chunk on workers")
+    rows: list[tuple] = []
 
     builder = design_builder(rb, spans)
     prime(builder, read, start, pd.Timedelta(rb.period))
@@ -167,11 +171,15 @@ def train(
         for a, b in train_iv:
             d = builder.transform(read(a, b))
             tally.add_design(d)
-            if len(d.y):
+            if len(d.y) and whole:
+                rows.append((d.X, d.y))
+            elif len(d.y):
                 model.partial_fit(d.X, d.y)
             done += 1
             if progress:
                 progress(done, total)
+    if whole and rows:
+        model.fit(*_stack(rows))
     n_train = int(getattr(model, "n_samples_seen_", 0))
     if n_train == 0:
         raise ValueError(f"no usable training samples between {start} and {cut}")
@@ -187,11 +195,17 @@ def train(
                 residual_pct(d.y, predictor.predict(d.X), span),
                 residual_pct(d.y, predictor.extrapolate(d.X), span),
             )
-            held.partial_fit(d.X, d.y)
+            if whole:
+                rows.append((d.X, d.y))
+            else:
+                held.partial_fit(d.X, d.y)
         done += 1
         if progress:
             progress(done, total)
-    model.merge(held)
+    if whole:
+        model = rb.new_model().fit(*_stack(rows))
+    else:
+        model.merge(held)
     return TrainResult(
         model=model,
         size=rb.codec.size(model),
@@ -203,6 +217,13 @@ def train(
         train_range=(start, cut),
         validation_range=(cut, end),
     )
+
+
+def _stack(rows: list[tuple]) -> tuple:
+    """The design rows of several chunks as one ``X``, ``y``."""
+    import numpy as np
+
+    return np.vstack([x for x, _ in rows]), np.concatenate([y for _, y in rows])
 
 
 def chunk_starts(

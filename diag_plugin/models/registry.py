@@ -30,6 +30,8 @@ METHODS: dict[str, Method] = {
     for m in (
         Method("wm-avg", "diag_plugin.fuzzy.wm_codec", "WangMendelCodec", "averaged Wang–Mendel"),
         Method("wm", "diag_plugin.fuzzy.wm_codec", "WangMendelCodec", "classic Wang–Mendel"),
+        Method("ts-fcm", "diag_plugin.fuzzy.ts_fcm", "TakagiSugenoCodec", "Takagi–Sugeno, c-Means"),
+        Method("narmax2", "diag_plugin.models.narmax", "NarmaxCodec", "2nd-order NARMAX"),
     )
 }
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 
 @dataclass
@@ -42,3 +43,5 @@ class ModelSpec:
     method: str = "wm-avg"
     shape: str = "trapezoidal"
     period: str = "10s"
+    #: the method's own options (every key of the file's ``[rules]`` table but ``list``)
+    options: dict[str, Any] = field(default_factory=dict)

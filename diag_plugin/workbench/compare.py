@@ -113,7 +113,9 @@ def _model_tags(rb: RuleBase) -> set[str]:
 def _no_regions(rb: RuleBase) -> pd.DataFrame:
     """The per-cell table of a model without rule regions: empty."""
     cols = [v.spec for v in rb.inputs] + [f"{v.spec} centre" for v in rb.inputs]
-    return pd.DataFrame(columns=[*cols, "count", "mean_pct", "rmse_pct", "rule"])
+    df = pd.DataFrame(columns=[*cols, "count", "mean_pct", "rmse_pct", "rule"])
+    # typed, so the "worst regions" of an empty table are empty rather than an error
+    return df.astype({"count": "int64", "mean_pct": float, "rmse_pct": float, "rule": bool})
 
 
 def error_by_cell(rb: RuleBase, model, X: np.ndarray, res: np.ndarray) -> pd.DataFrame:
