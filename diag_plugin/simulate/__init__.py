@@ -19,6 +19,8 @@ _LAZY = {
     "TAGS": "valve",
     "ValveParams": "valve",
     "simulate_valve": "valve",
+    "EngineFault": "engine",
+    "simulate_engine": "engine",
 }
 __all__ = sorted(_LAZY)
 
