@@ -328,6 +328,7 @@ class StatusServer(RegisterServer):
         self.on_ack = on_ack
         self.acks: asyncio.Queue[str] = asyncio.Queue()
         self._counter: dict[str, int] = {}
+        self._tasks: set[asyncio.Task] = set()
 
     def _on_write(self, tag: str, value: float) -> None:
         super()._on_write(tag, value)
@@ -341,8 +342,9 @@ class StatusServer(RegisterServer):
                 except Exception:  # noqa: BLE001 - a callback must not break the server
                     log.exception("on_ack callback failed for %s", unit)
             # self-clearing: the coil reads back 0 once the acknowledgement is taken
-            loop = asyncio.get_running_loop()
-            loop.create_task(self.update({tag: 0.0}))
+            task = asyncio.get_running_loop().create_task(self.update({tag: 0.0}))
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
 
     def status_values(self, status: UnitStatus, **extra: float) -> dict[str, float]:
         """The map's tag values for one :class:`UnitStatus` (tags not in the map omitted)."""
