@@ -143,3 +143,40 @@ def test_bit_packed_words_lsb_first():
     assert bits[1, 15] and not bits[1, :15].any()
     assert list(np.flatnonzero(bits[2])) == [0, 2, 5, 7]
     assert pack_bits(bits[2]) == 0x00A5
+
+
+def test_docs_example_and_default_layouts_match_the_code():
+    """docs/connectors.md: the example map parses; the documented addresses are the code's."""
+    import re
+    from pathlib import Path
+
+    from connectors.modbus_server import (
+        PLANT_TAGS,
+        UnitLayout,
+        default_output_map,
+        default_plant_map,
+    )
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "connectors.md").read_text()
+    (example,) = re.findall(r"```csv\n(.*?)```", doc, flags=re.S)
+    m = RegisterMap.parse(example, source="docs/connectors.md")
+    assert m["TRIP"].bit == 15 and m["X"].word_order == "CDAB"
+    plant = default_plant_map()
+    assert [(t.tag, t.table, t.address, t.type) for t in plant.tags] == [
+        (tag, "ir", 2 * i, "float32") for i, tag in enumerate(PLANT_TAGS)
+    ]
+    out = default_output_map(
+        [UnitLayout("A", ["f1"], ["r1"]), UnitLayout("B", ["f1", "f2"], ["r1"], ["M"])]
+    )
+    where = {t.tag: (t.table, t.address, t.type) for t in out.tags}
+    assert where["B.status"] == ("hr", 100, "uint16")
+    assert where["B.quality"] == ("hr", 101, "uint16")
+    assert where["B.faults"] == ("hr", 102, "uint16")
+    assert where["B.alarm"] == ("hr", 103, "uint16")
+    assert where["B.updates"] == ("hr", 104, "uint16")
+    assert where["B.time"] == ("hr", 106, "int32")
+    assert where["B.certainty.f2"] == ("hr", 112, "float32")
+    assert where["B.residual.r1"] == ("hr", 150, "float32")
+    assert where["B.coverage.M"] == ("hr", 190, "float32")
+    assert where["B.ack"] == ("co", 100, "bool")
+    assert where["B.fault.f2"] == ("co", 102, "bool")
