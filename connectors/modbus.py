@@ -154,15 +154,14 @@ class ModbusTagClient:
             name=self.name,
             trace_packet=self._trace,
         )
+        why = "refused or unreachable"
         try:
             ok = await asyncio.wait_for(client.connect(), self.timeout + 0.5)
         except (TimeoutError, OSError) as exc:
-            ok, self.last_error = False, f"connect failed: {exc or type(exc).__name__}"
+            ok, why = False, f"{type(exc).__name__} {exc}".strip()
         if not ok:
             client.close()
-            self.last_error = self.last_error or "connect failed"
-            if not self.last_error.startswith("connect"):
-                self.last_error = f"connect failed ({self.last_error})"
+            self.last_error = f"connect to {self.host}:{self.port} failed: {why}"
             log.debug("%s: %s", self.name, self.last_error)
             return False
         self._client = client
@@ -211,7 +210,6 @@ class ModbusTagClient:
             await asyncio.sleep(delay)
             if self._closed:
                 return
-            self.last_error = ""
             if await self.connect():
                 return
 

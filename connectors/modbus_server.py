@@ -20,7 +20,7 @@ Default output layout, per unit ``U`` number ``i`` (0-based, in the order given)
       base+0   U.status            uint16   NE 107: 0 NORMAL, 1 FAILURE, 2 CHECK_FUNCTION,
                                             3 OFF_SPEC, 4 MAINTENANCE_REQUIRED
       base+1   U.quality           uint16   diagnosis quality: 0 Good, 1 Uncertain, 2 Bad
-      base+2   U.faults            uint16   fault bits: bit j (LSB = 0) = j-th fault isolated
+      base+2   U.faults            uint16   bit j (LSB = 0) set: fault j isolated (j < 16)
       base+3   U.alarm             uint16   alarm state set by the live loop (0 = normal)
       base+4   U.updates           uint16   publish counter (wraps at 65536): a heartbeat
       base+6   U.time              int32    time of the diagnosis, Unix seconds
