@@ -58,6 +58,15 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_diagnose)
 
+    p = sub.add_parser(
+        "benchmark", help="DAMADICS faults f1–f19 against a unit, scored with the benchmark indexes"
+    )
+    p.add_argument("--unit", default="valve_unit", help="unit to score (default the example)")
+    p.add_argument("--quick", action="store_true", help="one strength per fault (38 scenarios)")
+    p.add_argument("--seed", type=int, action="append", dest="seeds", help="simulator seed(s)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_benchmark)
+
 
 def _load_unit(args, name: str):
     from diag_plugin.diagnose.unit import Unit
@@ -417,3 +426,74 @@ def _print_timeline(unit, d, iv, csv) -> None:
         con.print(f"({len(iv) - len(shown)} more intervals; --json or --csv for all)")
     if csv:
         con.print(f"wrote {csv}")
+
+
+def _fmt(v, spec: str = ".3f") -> str:
+    if v is None:
+        return "—"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    return format(v, spec)
+
+
+def cmd_benchmark(args) -> int:
+    from rich.console import Console
+    from rich.progress import Progress
+    from rich.table import Table
+
+    from diag_plugin.diagnose.benchmark import run_benchmark
+
+    unit = _load_unit(args, args.unit)
+    if not unit.has_thresholds:
+        raise UserError(f"unit {unit.name} has no thresholds: run diag unit learn first")
+    seeds = tuple(args.seeds or (11,))
+    con = Console(stderr=True)
+    with Progress(console=con, transient=True, disable=args.json or not con.is_terminal) as pr:
+        n = (38 if args.quick else 76) * len(seeds)
+        task = pr.add_task("scenarios", total=n)
+        out = run_benchmark(
+            unit,
+            quick=args.quick,
+            seeds=seeds,
+            progress=lambda sc: pr.update(task, advance=1, description=f"{sc.fault} {sc.mode}"),
+        )
+    if args.json:
+        print(json.dumps(out, indent=2, allow_nan=False))
+        return 0
+    t = Table(title=f"DAMADICS benchmark, unit {unit.name} (times in s after the onset)")
+    cols = ("fault", "mode", "strength", "detected", "t_dt", "r_fd", "r_td", "unknown")
+    for c in cols + ("isolated", "t_it", "r_ti", "r_mi", "dacc"):
+        t.add_column(c, justify="right")
+    for r in out["scenarios"]:
+        t.add_row(
+            r["fault"],
+            r["mode"],
+            f"{r['strength']:g}",
+            _fmt(r["detected"]),
+            _fmt(r["detection_time_s"], ".0f"),
+            _fmt(r["false_detection_rate"]),
+            _fmt(r["true_detection_rate"]),
+            _fmt(r["unknown_rate"], ".2f"),
+            _fmt(r["isolated"]) + ("" if r["unit_fault"] is None else f" ({r['unit_fault']})"),
+            _fmt(r["isolation_time_s"], ".0f"),
+            _fmt(r["true_isolation_rate"]),
+            _fmt(r["mismatch_isolation_rate"]),
+            _fmt(r["diagnosis_accuracy"], ".2f"),
+        )
+    Console(width=None if con.is_terminal else 150).print(t)
+    s = out["summary"]
+    print(
+        f"detected {s['scenarios_detected']}/{s['scenarios']} scenarios; faults detected: "
+        f"{', '.join(s['faults_detected']) or '—'}; missed: {', '.join(s['faults_missed']) or '—'}"
+    )
+    print(
+        f"of the {s['literature_detectable']} faults the literature detects: "
+        f"{s['literature_detectable_detected']} ({s['literature_detectable_share']:.0%}); "
+        f"false detection rate mean {s['mean_false_detection_rate']:.4f}, "
+        f"max {s['max_false_detection_rate']:.4f}"
+    )
+    print(
+        f"isolated {s['scenarios_isolated']}/{s['scenarios_with_isolation']} scenarios with a "
+        f"matrix column: {', '.join(s['faults_isolated']) or '—'}"
+    )
+    return 0
