@@ -269,18 +269,34 @@ def test_throttle_actuator_fault_changes_the_dynamics_not_the_past():
     assert not np.allclose(faulty["omega"].iloc[after], nominal["omega"].iloc[after])
 
 
-def test_fuel_actuator_fault_makes_the_engine_run_rich_while_the_command_looks_normal():
+def test_fuel_actuator_fault_without_trim_makes_the_engine_run_rich_unseen_in_the_command():
     onset = 3000
-    nominal = simulate_engine(4000, seed=9, internals=True)
-    faulty = simulate_engine(4000, seed=9, internals=True, faults=[EngineFault("m_f", 1.4, onset)])
+    p = EngineParams(lambda_trim_gain=0.0)
+    nominal = simulate_engine(4000, seed=9, internals=True, params=p)
+    faults = [EngineFault("m_f", 1.4, onset)]
+    faulty = simulate_engine(4000, seed=9, internals=True, params=p, faults=faults)
     pd.testing.assert_frame_equal(nominal.iloc[:onset], faulty.iloc[:onset])
     late = slice(onset + 200, None)
     np.testing.assert_allclose(faulty["m_f_inj"].iloc[late], 1.4 * faulty["m_f"].iloc[late])
     assert faulty["lambda"].iloc[late].median() == pytest.approx(1 / 1.4, abs=0.03)
-    # the recorded command stays near its nominal level; the torque per fuel falls
+    # the recorded command stays near its nominal level; the engine's speed differs
     cmd_ratio = faulty["m_f"].iloc[late].mean() / nominal["m_f"].iloc[late].mean()
     assert 0.95 < cmd_ratio < 1.2
     assert not np.allclose(faulty["omega"].iloc[late], nominal["omega"].iloc[late])
+
+
+def test_fuel_actuator_fault_with_the_lambda_trim_pulls_the_command_down():
+    onset = 3000
+    nominal = simulate_engine(4500, seed=9, internals=True)
+    faulty = simulate_engine(4500, seed=9, internals=True, faults=[EngineFault("m_f", 1.4, onset)])
+    pd.testing.assert_frame_equal(nominal.iloc[:onset], faulty.iloc[:onset])
+    first = slice(onset + 5, onset + 30)
+    assert faulty["lambda"].iloc[first].median() < 0.8  # rich at first
+    late = slice(onset + 1200, None)  # after a few trim time constants
+    assert faulty["lambda"].iloc[late].median() == pytest.approx(1.0, abs=0.03)
+    cmd_ratio = faulty["m_f"].iloc[late].mean() / nominal["m_f"].iloc[late].mean()
+    assert cmd_ratio == pytest.approx(1 / 1.4, abs=0.04)
+    assert nominal["lambda"].median() == pytest.approx(1.0, abs=0.01)
 
 
 def test_fault_spec_is_checked():

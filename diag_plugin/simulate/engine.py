@@ -88,7 +88,12 @@ Per revolution ``k`` (held over the revolution):
   revolution, ``m_f = m_ac(k-1) / (L_st λ_ref)``, times ``1 + U(-a_f, a_f)``. It
   does not compensate the fuel film, so λ swings in transients as on a real
   engine. It reads the true cylinder air charge (an ideal air-charge observer),
-  so a MAF *sensor* fault does not reach the fuel command.
+  so a MAF *sensor* fault does not reach the fuel command. An integral
+  closed-loop trim (``lambda_trim_gain``) multiplies it, driven
+  by the λ of the last charge (an ideal exhaust-oxygen sensor; the seed's
+  engine had HEGO sensors and the EEC-IV's closed loop):
+  ``trim(k) = trim(k-1) + g (λ(k-1) - λ_ref)``, limited to 0.5–1.5; g = 0.003 by
+  default (a slow trim, ~330 revolutions; 0 turns it off).
 
 ``simulate_engine_open_loop`` takes given per-revolution throttle, load and
 (optionally) fuel sequences instead (used by the tests for steps).
@@ -197,11 +202,11 @@ ACTUATOR_SIGNALS = ("alpha", "m_f")
     P_PA, P_TA, P_R, P_KAPPA, P_CD, P_D, P_PHI0, P_ALEAK, P_PILIN, P_VM, P_TM, P_VD,
     P_EPS, P_PE, P_E0, P_E1, P_E2, P_X, P_TAUF, P_HL, P_LST, P_ETAI, P_CLAM, P_LAM0,
     P_F0, P_F1, P_F2, P_JE, P_JDY, P_TAUMAF, P_KP, P_KI, P_AMAX, P_T0, P_C2, P_JEQ,
-    P_TMIN, P_LREF, P_WMIN, P_IDLE, P_TOP, P_UFLOOR, N_PRM,
-) = range(43)  # fmt: skip
+    P_TMIN, P_LREF, P_WMIN, P_IDLE, P_TOP, P_UFLOOR, P_HEGO, N_PRM,
+) = range(44)  # fmt: skip
 
 # ---- state vector indices ----
-S_PM, S_W, S_FF, S_MAF, S_T, S_INT, S_MAC, S_MFC, S_WAVG, N_STATE = range(10)
+S_PM, S_W, S_FF, S_MAF, S_T, S_INT, S_MAC, S_MFC, S_WAVG, S_TRIM, N_STATE = range(11)
 
 # ---- output columns of the kernel ----
 (
@@ -267,6 +272,7 @@ class EngineParams:
     t_dy_min: float = 0.0  # the dynamometer only absorbs (N·m lower limit)
     # --- fuel controller
     lambda_ref: float = 1.0  # λ the AFR controller aims at
+    lambda_trim_gain: float = 0.003  # closed-loop λ trim per revolution per unit λ error (0: off)
     # --- numerics
     omega_min_rpm: float = 200.0  # speed floor (stall is not modelled), rpm
     n_sub: int = 24  # integration steps per revolution
@@ -295,6 +301,7 @@ class EngineParams:
         v[P_T0], v[P_C2], v[P_JEQ] = self.t0_nm, self.c2_nm_per_rpm2, self.j_eq
         v[P_TMIN], v[P_LREF], v[P_WMIN] = self.t_dy_min, self.lambda_ref, self.omega_min_rpm / RPM
         v[P_IDLE], v[P_TOP], v[P_UFLOOR] = self.idle_rpm, self.top_rpm, self.excite_floor
+        v[P_HEGO] = self.lambda_trim_gain
         return v  # fmt: skip
 
 
@@ -542,7 +549,11 @@ def _run(prm, n_sub, tr_t, tr_n, freeze, alpha_in, load_in, fuel_in, u_a, u_t, u
         a_cmd = min(max(a_cmd, 0.0), prm[P_AMAX])
         # --- fuel: stoichiometric feed-forward on the last air charge (or the given input)
         if math.isnan(fuel_in[k]):
-            mf_cmd = state[S_MAC] / (prm[P_LST] * prm[P_LREF]) * (1.0 + u_f[k])
+            if prm[P_HEGO] > 0.0 and state[S_MFC] > 0.0:
+                lam_meas = state[S_MAC] / (prm[P_LST] * state[S_MFC])
+                trim = state[S_TRIM] + prm[P_HEGO] * (lam_meas - prm[P_LREF])
+                state[S_TRIM] = min(max(trim, 0.5), 1.5)
+            mf_cmd = state[S_TRIM] * state[S_MAC] / (prm[P_LST] * prm[P_LREF]) * (1.0 + u_f[k])
         else:
             mf_cmd = fuel_in[k] * (1.0 + u_f[k])
         mf_cmd = max(mf_cmd, 0.0)
@@ -655,6 +666,7 @@ def _initial_state(p: EngineParams, omega0_rpm: float | None) -> np.ndarray:
     s[S_MAC] = 0.2e-3  # kg per revolution
     s[S_MFC] = s[S_MAC] / p.l_st
     s[S_FF] = 0.0
+    s[S_TRIM] = 1.0
     return s
 
 
