@@ -1,0 +1,250 @@
+"""ts-fcm: Takagi–Sugeno model with Fuzzy c-Means premises and weighted least-squares
+consequents (Laukonen et al., eqs. 13–26), behind the model seam (estimator, codec, file, CLI)."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from helpers import run_diag, valve_frame
+
+from diag_plugin.fuzzy import ts_fcm
+from diag_plugin.fuzzy.ts_fcm import TakagiSugenoRegressor, fuzzy_c_means, memberships
+from diag_plugin.models import Model
+from diag_plugin.models.protocol import REASON_NAN, REASON_OK, REASON_OUTSIDE
+from diag_plugin.rulebase import RuleBase, RuleBaseError, Variable
+from diag_plugin.training import train
+from diag_plugin.workbench.compare import compare
+from diag_plugin.workbench.explain import explain
+
+
+def blobs(centres, n=400, sd=0.05, seed=0):
+    rng = np.random.default_rng(seed)
+    centres = np.asarray(centres, float)
+    label = np.repeat(np.arange(len(centres)), n)
+    return centres[label] + rng.normal(0, sd, (label.size, centres.shape[1])), label
+
+
+def match(found, want):
+    """Largest distance from a wanted centre to its nearest found one (and vice versa)."""
+    d = np.linalg.norm(found[:, None, :] - want[None, :, :], axis=2)
+    return max(d.min(axis=0).max(), d.min(axis=1).max())
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_fuzzy_c_means_recovers_well_separated_centres(seed):
+    want = np.random.default_rng(100 + seed).uniform(0, 10, (4, 3))
+    want[:, 0] += np.arange(4) * 12  # well separated
+    X, _ = blobs(want, seed=seed)
+    V, it = fuzzy_c_means(X, 4, m=2.0, eps=1e-4, max_iter=500, random_state=seed)
+    assert 1 < it < 500
+    assert match(V, want) < 0.05
+
+
+def test_initial_centres_lie_within_the_data_range_and_are_seeded():
+    lo, hi = np.array([0.0, 10.0]), np.array([1.0, 30.0])
+    V = ts_fcm.initial_centres(lo, hi, 50, np.random.default_rng(3))  # eq. 18
+    assert (V >= lo).all() and (V <= hi).all()
+    X, _ = blobs([[0, 0], [3, 3]])
+    a = fuzzy_c_means(X, 2, random_state=7)[0]
+    np.testing.assert_array_equal(a, fuzzy_c_means(X, 2, random_state=7)[0])
+
+
+def test_memberships_sum_to_one_and_a_centre_belongs_to_itself():
+    V = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    Z = np.vstack([V, np.random.default_rng(0).uniform(-1, 2, (50, 2))])
+    for m in (1.5, 2.0, 3.0):
+        U = memberships(Z, V, m)
+        np.testing.assert_allclose(U.sum(axis=1), 1.0)
+        np.testing.assert_allclose(U[:3], np.eye(3), atol=1e-12)
+    # eq. 26 at m = 2: inverse squared distances, normalised
+    z = np.array([[0.25, 0.5]])
+    w = 1 / ((z - V) ** 2).sum(axis=1)
+    np.testing.assert_allclose(memberships(z, V, 2.0)[0], w / w.sum())
+
+
+def piecewise_linear(seed=0):
+    """Three separated operating regions, each with its own linear law."""
+    centres = np.array([[10.0, 10.0], [50.0, 80.0], [90.0, 20.0]])
+    laws = np.array([[1.0, 0.5, -2.0], [20.0, -0.3, 0.1], [-5.0, 0.2, 0.4]])  # const, slopes
+    X, label = blobs(centres, n=500, sd=2.0, seed=seed)
+    y = laws[label, 0] + np.einsum("ij,ij->i", laws[label, 1:], X)
+    return X, y, centres, laws
+
+
+def test_takagi_sugeno_reproduces_a_piecewise_linear_function():
+    X, y, centres, laws = piecewise_linear()
+    m = TakagiSugenoRegressor(n_clusters=3, m=1.5, eps=1e-5, input_spans=[(0, 100)] * 2)
+    m.fit(X, y)
+    assert isinstance(m, Model) and m.n_rules_ == 3
+    assert match(m.centers_, centres) < 0.5
+    order = [int(np.argmin(np.linalg.norm(centres - c, axis=1))) for c in m.centers_]
+    np.testing.assert_allclose(m.intercept_, laws[order, 0], atol=1e-3)
+    np.testing.assert_allclose(m.coef_, laws[order, 1:], atol=1e-4)
+    assert np.abs(m.predict(X) - y).max() < 1e-3 * np.ptp(y)
+    assert m.weight_.sum() == pytest.approx(len(y))
+    assert m.output_mean_ == pytest.approx(y.mean())
+
+
+def test_chunked_consequents_equal_one_weighted_least_squares(monkeypatch):
+    """Eq. 24 with ``D_j²`` weights, solved over row chunks, against one direct solve."""
+    rng = np.random.default_rng(4)
+    X = rng.uniform(0, 1, (3000, 2))
+    y = np.sin(3 * X[:, 0]) + X[:, 1] ** 2
+    monkeypatch.setattr(ts_fcm, "CHUNK_ROWS", 512)
+    m = TakagiSugenoRegressor(n_clusters=4, input_spans=[(0, 1)] * 2).fit(X, y)
+    U = memberships(X, m.centers_, 2.0)
+    A = np.column_stack([np.ones(len(X)), X])
+    for j in range(4):
+        c = np.linalg.lstsq(A * U[:, [j]], y * U[:, j], rcond=None)[0]
+        np.testing.assert_allclose([m.intercept_[j], *m.coef_[j]], c, rtol=1e-8, atol=1e-10)
+
+
+def test_not_incremental_and_says_so():
+    caps = TakagiSugenoRegressor.capabilities
+    assert not caps.incremental and not caps.mergeable
+    X, y, _, _ = piecewise_linear()
+    m = TakagiSugenoRegressor(n_clusters=3).partial_fit(X, y)  # the first call fits
+    with pytest.raises(NotImplementedError, match="not incremental"):
+        m.partial_fit(X, y)
+    with pytest.raises(NotImplementedError, match="cannot be merged"):
+        m.merge(m)
+
+
+def test_state_round_trips_through_json():
+    X, y, _, _ = piecewise_linear(seed=2)
+    m = TakagiSugenoRegressor(n_clusters=3, m=1.7, random_state=5).fit(X, y)
+    back = TakagiSugenoRegressor.from_state(json.loads(json.dumps(m.to_state())))
+    np.testing.assert_array_equal(back.predict(X), m.predict(X))
+    assert back.get_params() == {
+        **m.get_params(),
+        "input_spans": m.spans_.tolist(),
+        "output_span": list(m.output_span_),
+    }
+    assert back.output_mean_ == m.output_mean_ and back.n_samples_seen_ == m.n_samples_seen_
+
+
+def test_reasons_for_missing_and_out_of_span_inputs():
+    X, y, _, _ = piecewise_linear()
+    m = TakagiSugenoRegressor(n_clusters=3, input_spans=[(0, 100)] * 2).fit(X, y)
+    det = m.predict_detail([[50.0, 50.0], [np.nan, 1.0], [150.0, 50.0]])
+    assert list(det.reason) == [REASON_OK, REASON_NAN, REASON_OUTSIDE]
+    assert det.y[2] == pytest.approx(m.predict([[100.0, 50.0]])[0])
+    assert m.extrapolate([[np.nan, 1.0]])[0] == pytest.approx(m.output_mean_)
+
+
+def test_free_run_feeds_back_the_models_own_outputs():
+    rng = np.random.default_rng(8)
+    u = rng.uniform(0, 100, 800)
+    yv = np.zeros(800)
+    for k in range(1, 800):
+        yv[k] = 0.5 * yv[k - 1] + (0.2 if u[k - 1] < 50 else 0.6) * u[k - 1]
+    X, y = np.column_stack([yv[:-1], u[:-1]]), yv[1:]
+    rb = RuleBase.new(
+        "fr",
+        Variable("Y[k]", "Y", "", (0.0, 150.0)),
+        [Variable("Y[k-1]", "Y", "", (0.0, 150.0)), Variable("U[k-1]", "U", "", (0.0, 100.0))],
+        method="ts-fcm",
+    )
+    m = rb.new_model().set_params(n_clusters=6).fit(X, y)
+    assert m.capabilities.free_run and m.output_lags == [1, 0]
+    sim = m.simulate(X)
+    bad = X.copy()
+    bad[1:, 0] = 0.0  # the measured lag is ignored after the first row
+    np.testing.assert_allclose(m.simulate(bad), sim)
+    assert np.abs(m.predict(bad) - m.predict(X)).max() > 1.0
+    # the free-run error stays bounded (a stable model of a stable plant)
+    assert np.sqrt(np.mean((sim - y) ** 2)) < 0.1 * np.ptp(y)
+    assert not TakagiSugenoRegressor(output_lags=[0, 0]).capabilities.free_run
+
+
+def _trained_file(tmp_path, seed=6):
+    f = valve_frame(1, seed=seed)
+    rb = RuleBase.new(
+        "t",
+        Variable("F[k]", "F", "t/h", (0.0, 40.0)),
+        [
+            Variable("CV[k-1]", "CV", "%", (0.0, 100.0)),
+            Variable("P1[k]", "P1_", "kPa", (300.0, 700.0)),
+        ],
+        method="ts-fcm",
+        path=tmp_path / "t.toml",
+    )
+    a, b = f.index[0], f.index[-1] + pd.Timedelta("10s")
+    res = train(rb, lambda s, e: f[(f.index >= s) & (f.index < e)], a, b, chunk=pd.Timedelta("5h"))
+    rb.apply_training(res.model, {"samples": res.samples})
+    rb.save()
+    return rb, res, f
+
+
+def test_model_file_lists_rules_round_trips_and_predicts_like_the_model(tmp_path):
+    rb, res, f = _trained_file(tmp_path)
+    text = rb.path.read_text()
+    for opt in ("n_clusters = 10", "m = 2.0", "eps = 0.01", "max_iter = 300", "random_state = 0"):
+        assert f"\n{opt}\n" in text
+    assert text.count("{ centre = [") == 10 and res.size == 10
+    loaded = RuleBase.load(rb.path)
+    assert loaded.dumps() == text
+    loaded.save()
+    assert rb.path.read_text() == text
+    from diag_plugin.regressors import build_design
+
+    d = build_design(f, [v.spec for v in rb.inputs], rb.output.spec)
+    np.testing.assert_allclose(loaded.to_model().predict(d.X), res.model.predict(d.X), atol=1e-5)
+    # the options in the file reach the estimator
+    edited = text.replace("n_clusters = 10", "n_clusters = 4").replace("m = 2.0", "m = 1.5")
+    (tmp_path / "o.toml").write_text(edited)
+    est = RuleBase.load(tmp_path / "o.toml").new_model()
+    assert (est.n_clusters, est.m) == (4, 1.5)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ("{ centre = [", "{ centre = [1.0, ", r"rule \d+: centre has 3 values for 2 inputs"),
+        (", const = ", ', const = "x", z = ', r"rule \d+: unknown key\(s\) z"),
+        ("m = 2.0", "m = 0.5", "m must be a number > 1"),
+        ("eps = 0.01", "tol = 0.01", "unknown ts-fcm option 'tol'"),
+    ],
+)
+def test_a_broken_edit_names_file_and_line(tmp_path, old, new, message):
+    rb, _, _ = _trained_file(tmp_path)
+    text = rb.path.read_text()
+    line = next(k for k, ln in enumerate(text.splitlines(), 1) if old in ln)
+    (tmp_path / "bad.toml").write_text(text.replace(old, new, 1))
+    with pytest.raises(RuleBaseError, match=rf"bad\.toml:{line}: {message}"):
+        RuleBase.load(tmp_path / "bad.toml")
+
+
+def test_trains_compares_and_explains_through_the_seam(tmp_path):
+    rb, res, f = _trained_file(tmp_path, seed=7)
+    assert res.validation["rmse_pct"] < 10.0
+    # trained once on all rows after validation: as many samples as the design has
+    assert res.samples == res.rows - sum(res.dropped.values())
+    c = compare(RuleBase.load(rb.path), f)
+    assert c.metrics["coverage"] > 0.99 and c.as_dict()["worst_regions"] == []
+    e = explain(RuleBase.load(rb.path), f, max_lag=2)
+    assert e.candidates and np.isfinite(e.baseline_rmse_pct)
+
+
+@pytest.fixture(scope="module")
+def plant(tmp_path_factory):
+    cwd = tmp_path_factory.mktemp("plant")
+    for args in (
+        ("simulate", "--days", "1", "--seed", "3", "--out", "p.parquet"),
+        ("import", "p.parquet"),
+    ):
+        r = run_diag(cwd, *args)
+        assert r.returncode == 0, r.stderr
+    return cwd
+
+
+def test_cli_model_new_train_compare(plant):
+    new = ("model", "new", "ts", "--output", "F", "--input", "CV[k-1]", "--method", "ts-fcm")
+    for args in (new, ("train", "ts"), ("compare", "ts", "--json")):
+        r = run_diag(plant, *args)
+        assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["coverage"] > 0.99 and np.isfinite(doc["rmse_pct"])
+    text = (plant / "rulebases" / "ts.toml").read_text()
+    assert 'method = "ts-fcm"' in text and text.count("{ centre = [") == 10
