@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import ipaddress
 import logging
+import socket
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,13 +35,14 @@ def make_certificate(
     *,
     client: bool = True,
     server: bool = False,
-    hostnames: tuple[str, ...] = ("localhost",),
+    hostnames: tuple[str, ...] | None = None,
     ips: tuple[str, ...] = ("127.0.0.1",),
     days: int = 365,
 ) -> CertPair:
     """Write ``<name>.pem`` and ``<name>.key.pem`` into ``directory``; return their paths.
 
-    ``client``/``server`` choose the extended key usages (clientAuth/serverAuth).
+    ``client``/``server`` choose the extended key usages (clientAuth/serverAuth); the DNS
+    names are ``localhost`` and this host's name unless ``hostnames`` says otherwise.
     """
     from asyncua.crypto import cert_gen
     from cryptography import x509
@@ -52,6 +54,8 @@ def make_certificate(
     d.mkdir(parents=True, exist_ok=True)
     key = cert_gen.generate_private_key()
     san: list[x509.GeneralName] = [x509.UniformResourceIdentifier(application_uri)]
+    if hostnames is None:
+        hostnames = tuple(dict.fromkeys(("localhost", socket.gethostname())))
     san += [x509.DNSName(h) for h in hostnames]
     san += [x509.IPAddress(ipaddress.ip_address(i)) for i in ips]
     usage = []

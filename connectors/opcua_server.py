@@ -108,6 +108,14 @@ class _Users:
         return None
 
 
+async def _refuse_all(cert: Any, app_description: Any) -> None:
+    """Certificate validator for an empty trust list."""
+    from asyncua import ua
+    from asyncua.common.utils import ServiceError
+
+    raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
+
+
 @dataclass
 class _UnitNodes:
     obj: Node
@@ -204,12 +212,19 @@ class DiagOpcUaServer:
                 tokens.append(ua.AnonymousIdentityToken)
             server.set_identity_tokens(tokens)
             store = TrustStore([Path(sec.trusted_dir)], [])
-            await store.load()
-            opts = (
-                CertificateValidatorOptions.TRUSTED_VALIDATION
-                | CertificateValidatorOptions.PEER_CLIENT
-            )
-            server.set_certificate_validator(CertificateValidator(opts, store))
+            try:
+                await store.load()
+            except ValueError:  # cryptography refuses an empty store
+                log.warning(
+                    "OPC UA trust list %s is empty: every client is refused", sec.trusted_dir
+                )
+                server.set_certificate_validator(_refuse_all)
+            else:
+                opts = (
+                    CertificateValidatorOptions.TRUSTED_VALIDATION
+                    | CertificateValidatorOptions.PEER_CLIENT
+                )
+                server.set_certificate_validator(CertificateValidator(opts, store))
         else:
             server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
             server.set_identity_tokens([ua.AnonymousIdentityToken])

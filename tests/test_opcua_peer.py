@@ -1,0 +1,206 @@
+"""Our OPC UA server against a client we did not write: node-opcua (npm), on 127.0.0.1.
+
+The server offers only Basic256Sha256 SignAndEncrypt with user/password and a trust list.
+node-opcua browses the units, reads a unit's status, receives AlarmConditionType events and
+acknowledges through the unit's Acknowledge method; an untrusted client certificate and a
+wrong password are refused. Our own client connects with the same security.
+
+node-opcua is installed by ``cd tests/peers/opcua && npm ci`` (``make test`` does it);
+without it these tests skip locally and fail on CI.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import shutil
+import socket
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from helpers import REPO, requires
+
+from connectors.base import TagQuality
+from connectors.certs import CertPair, make_certificate, trust
+from connectors.opcua_client import ClientSecurity, OpcUaConfig, OpcUaReader
+from connectors.opcua_server import DiagOpcUaServer, ServerSecurity
+from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
+
+PEER = REPO / "tests" / "peers" / "opcua"
+HAVE_NODE = shutil.which("node") is not None and (PEER / "node_modules" / "node-opcua").is_dir()
+need_node = requires("node-opcua (npm)", HAVE_NODE, "cd tests/peers/opcua && npm ci; node >= 18")
+
+pytestmark = pytest.mark.anyio
+USER, PASSWORD = "operator", "s3cret-pw"
+
+
+@pytest.fixture(scope="module")
+def anyio_backend():
+    return "asyncio"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def pki(tmp_path_factory) -> dict[str, CertPair | Path]:
+    d = tmp_path_factory.mktemp("pki")
+    server = make_certificate(
+        d / "server", "server", "urn:diag-plugin:server", server=True, client=False
+    )
+    good = make_certificate(d / "clients", "peer", "urn:diag-plugin:test:peer")
+    ours = make_certificate(d / "clients", "ours", "urn:diag-plugin:test:ours")
+    stranger = make_certificate(d / "strangers", "peer", "urn:diag-plugin:test:peer")
+    trust(good, d / "trusted")
+    trust(ours, d / "trusted")
+    return {"server": server, "good": good, "ours": ours, "stranger": stranger, "dir": d}
+
+
+@pytest.fixture(scope="module")
+async def server(anyio_backend, pki):
+    s = pki["server"]
+    sec = ServerSecurity(s.certificate, s.private_key, pki["dir"] / "trusted", {USER: PASSWORD})
+    srv = DiagOpcUaServer(port=free_port(), security=sec)
+    await srv.start()
+    await srv.publish(unit_status(NE107.NORMAL, 0.0))
+    yield srv
+    await srv.stop()
+
+
+def unit_status(st: NE107, c: float) -> UnitStatus:
+    return UnitStatus(
+        "valve",
+        pd.Timestamp.now(tz="UTC"),
+        st,
+        Quality.GOOD,
+        residuals={"r1": 5.0 if st else 0.1},
+        certainties={"f_S": c},
+        coverage={"F": 1.0},
+        detected=st != NE107.NORMAL,
+        faults=["f_S"] if st != NE107.NORMAL else [],
+    )
+
+
+async def node_peer(
+    srv: DiagOpcUaServer,
+    cert: CertPair,
+    tmp: Path,
+    on_ready=None,
+    password: str = PASSWORD,
+    **extra,
+) -> list[dict]:
+    """Run the node-opcua client script; ``on_ready`` runs once it subscribed to events."""
+    args = {
+        "url": srv.endpoint,
+        "unit": "valve",
+        "cert": "f_S",
+        "certificateFile": str(cert.certificate),
+        "privateKeyFile": str(cert.private_key),
+        "applicationUri": cert.application_uri,
+        "user": USER,
+        "password": password,
+        "pkiDir": str(tmp / "node-pki"),
+        "timeoutMs": 30000,
+        **extra,
+    }
+    p = await asyncio.create_subprocess_exec(
+        "node",
+        str(PEER / "client.js"),
+        json.dumps(args),
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
+    lines: list[dict] = []
+    try:
+        while line := await asyncio.wait_for(p.stdout.readline(), 40):
+            if not line.startswith(b'{"step"'):
+                continue  # node-opcua's own messages on stdout
+            msg = json.loads(line)
+            lines.append(msg)
+            if msg["step"] == "ready" and on_ready is not None:
+                await on_ready()
+        await asyncio.wait_for(p.wait(), 10)
+    finally:
+        if p.returncode is None:
+            p.kill()
+            await p.wait()
+    if p.returncode not in (0, 2):
+        err = (await p.stderr.read()).decode()[-3000:]
+        pytest.fail(f"node peer exited {p.returncode}: {lines} {err}")
+    return lines
+
+
+@need_node
+async def test_node_opcua_browses_reads_and_gets_alarms(server, pki, tmp_path):
+    async def raise_fault():
+        await server.publish(unit_status(NE107.FAILURE, 0.9))
+
+    lines = await node_peer(
+        server, pki["good"], tmp_path, raise_fault, waitEvents=2, ackByMethod=True
+    )
+    steps = {m["step"]: m for m in lines}
+    assert "error" not in steps, lines
+    assert steps["connected"]["securityMode"] == "SignAndEncrypt"
+    assert "valve" in steps["browse"]["units"]
+    read = steps["read"]
+    assert {"DeviceHealth", "Quality", "Certainty", "Alarm", "Acknowledge"} <= set(read["children"])
+    assert read["values"]["DeviceHealth"] == {"value": 0, "status": "Good"}
+    events = [m["event"] for m in lines if m["step"] == "event"]
+    raised, acked = events[0], events[1]
+    assert raised["EventType"] == "ns=0;i=2915"  # AlarmConditionType
+    assert raised["SourceName"] == "valve" and raised["ConditionName"] == "Diagnosis"
+    assert 801 <= raised["Severity"] <= 1000  # FAILURE: critical band
+    assert raised["ActiveState.Id"] is True and raised["AckedState.Id"] is False
+    assert raised["Retain"] is True
+    assert steps["acknowledge"] == {"step": "acknowledge", "status": "Good", "changed": True}
+    assert acked["AckedState.Id"] is True and acked["ActiveState.Id"] is True
+    assert server.alarms["valve"].state == "active-acknowledged"
+    await server.publish(unit_status(NE107.NORMAL, 0.0))
+    assert server.alarms["valve"].state == "normal"
+
+
+@need_node
+async def test_untrusted_client_certificate_refused(server, pki, tmp_path):
+    lines = await node_peer(server, pki["stranger"], tmp_path)
+    assert lines[-1]["step"] == "error", lines
+    assert "BadCertificateUntrusted" in lines[-1]["message"]
+    assert not any(m["step"] == "read" for m in lines)
+
+
+@need_node
+async def test_wrong_password_refused(server, pki, tmp_path):
+    lines = await node_peer(server, pki["good"], tmp_path, password="guess")
+    assert lines[-1]["step"] == "error", lines
+    assert not any(m["step"] == "read" for m in lines)
+
+
+async def test_our_client_sign_and_encrypt_with_user(server, pki):
+    ours = pki["ours"]
+    sec = ClientSecurity(ours.certificate, ours.private_key, ours.application_uri, USER, PASSWORD)
+    nodes = {"health": server.node_id("Units", "valve", "DeviceHealth")}
+    r = OpcUaReader(OpcUaConfig(server.endpoint, nodes, security=sec, timeout=4.0))
+    await r.start()
+    try:
+        assert await r.wait_connected(20)
+        (s,) = await r.read()
+        assert s.quality is TagQuality.GOOD and s.value in (0, 1)
+    finally:
+        await r.close()
+
+
+async def test_our_client_untrusted_certificate_stays_bad(server, pki):
+    st = pki["stranger"]
+    sec = ClientSecurity(st.certificate, st.private_key, st.application_uri, USER, PASSWORD)
+    nodes = {"health": server.node_id("Units", "valve", "DeviceHealth")}
+    r = OpcUaReader(OpcUaConfig(server.endpoint, nodes, security=sec, backoff_cap=1.0))
+    await r.start()
+    try:
+        assert not await r.wait_connected(3)
+        (s,) = await r.read()
+        assert s.quality is TagQuality.BAD and r.outages == 1
+    finally:
+        await r.close()
