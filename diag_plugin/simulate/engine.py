@@ -11,9 +11,9 @@ here from the publications (no code is taken from anywhere):
 * [HS90] E. Hendricks, S. C. Sorenson, "Mean value modelling of spark ignition
   engines", SAE 900616, 1990 (manifold filling, port flow, fuel film, crank).
 * [GO10] L. Guzzella, C. H. Onder, *Introduction to Modeling and Control of
-  Internal Combustion Engine Systems*, 2nd ed., Springer 2010, ch. 2
-  (eqs. 2.10–2.13 throttle, 2.7 receiver, 2.19–2.23 volumetric efficiency,
-  2.5x wall wetting, 2.4x Willans torque).
+  Internal Combustion Engine Systems*, 2nd ed., Springer 2010, ch. 2 (mean-value
+  models: throttle, receiver, volumetric efficiency, wall wetting, Willans
+  torque). Cited by section topic; we give no equation numbers we could not check.
 * [Hey88] J. B. Heywood, *Internal Combustion Engine Fundamentals*, McGraw-Hill
   1988 (friction mean effective pressure, fuel conversion efficiency against λ).
 * [Aq81] C. F. Aquino, "Transient A/F control characteristics of the 5 liter
@@ -22,27 +22,27 @@ here from the publications (no code is taken from anywhere):
 Equations (SI units inside; ``θ`` crank angle, ``ω`` crank speed, ``k`` revolution)
 -------------------------------------------------------------------------------
 
-1. Throttle, compressible orifice [GO10 eq. 2.10–2.12]:
+1. Throttle, compressible orifice [GO10 ch. 2]:
    ``ṁ_th = c_d A(φ) p_a / sqrt(R T_a) Ψ(p_m/p_a)`` with
    ``Ψ(Π) = sqrt(κ) (2/(κ+1))^((κ+1)/(2(κ-1)))`` for ``Π < Π_cr = (2/(κ+1))^(κ/(κ-1))``
    (choked) and ``Ψ(Π) = Π^(1/κ) sqrt(2κ/(κ-1) (1 - Π^((κ-1)/κ)))`` above it; near
    ``Π = 1`` (above ``Π_lin``) Ψ is continued linearly to 0 at ``Π = 1`` (and below
    0 for back-flow), as [GO10] and [HS90] do to avoid the infinite slope.
-   Plate area [GO10 eq. 2.13, Heywood §7.2]:
+   Plate area [GO10 ch. 2, Hey88]:
    ``A(φ) = (π D²/4)(1 - cos φ / cos φ_0) + A_leak``, ``φ = φ_0 + (90° - φ_0) α/100``
    (α is the opening in % of full scale, as in the seed).
-2. Manifold, isothermal receiver [GO10 eq. 2.7, HS90]:
+2. Manifold, isothermal receiver [GO10 ch. 2, HS90]:
    ``dp_m/dt = R T_m / V_m (ṁ_th - ṁ_ap)``.
-3. Port air flow, speed–density [GO10 eq. 2.19, 2.23; HS90]:
+3. Port air flow, speed–density [GO10 ch. 2, HS90]:
    ``ṁ_ap = λ_l(ω, p_m) p_m V_d ω / (4π R T_m)`` with the volumetric efficiency
    ``λ_l = λ_lω(n) · λ_lp(p_m)``, ``λ_lp = ε/(ε-1) - (p_e/p_m)^(1/κ)/(ε-1)`` (residual
    gas expanding from exhaust pressure ``p_e``) and ``λ_lω = e_0 + e_1 n + e_2 n²``
    (n in 1000 rpm).
-4. Fuel film (wall wetting) [Aq81, HS90, GO10 §2.x]: of the injected flow ``ṁ_fi``
+4. Fuel film (wall wetting) [Aq81, HS90, GO10 ch. 2]: of the injected flow ``ṁ_fi``
    a fraction ``X`` goes to the film ``m_ff``, which evaporates with time constant
    ``τ_f``: ``dm_ff/dt = X ṁ_fi - m_ff/τ_f``; the cylinders get
    ``ṁ_fc = (1 - X) ṁ_fi + m_ff/τ_f``. Integrated exactly over each sub-step.
-5. Torque [GO10 Willans form; Hey88 ch. 13, Fig. 4.x]: the charge of revolution
+5. Torque [GO10 ch. 2 Willans form; Hey88]: the charge of revolution
    ``k-1`` (air ``m_ac``, fuel ``m_fc``, ``λ = m_ac/(L_st m_fc)``) burns in
    revolution ``k`` (one-revolution induction-to-power delay, [HS90]):
    ``T_i = η_i η_λ(λ) H_l m_fc / (2π)`` (energy per revolution over 2π), with
@@ -50,7 +50,7 @@ Equations (SI units inside; ``θ`` crank angle, ``ω`` crank speed, ``k`` revolu
    stoichiometric does not burn; efficiency peaks slightly lean; 1 at λ = 1 —
    our parameterisation of the shape in [Hey88]). Losses are friction and
    pumping mean effective pressures, ``T_loss = V_d/(4π) (p_f(n) + p_e - p_m)``,
-   ``p_f = f_0 + f_1 n + f_2 n²`` [Hey88 §13.x]. Brake torque ``T_e = T_i - T_loss``.
+   ``p_f = f_0 + f_1 n + f_2 n²`` [Hey88]. Brake torque ``T_e = T_i - T_loss``.
 6. Crankshaft and dynamometer: ``(J_e + J_dy) dω/dt = T_e - T_dy`` (engine and
    dynamometer rotor on one shaft, transmission locked, ratio 1 — a
    simplification of the seed's automatic transmission). The load cell reads the
@@ -227,21 +227,21 @@ class EngineParams:
     about 800 rpm at 25–35 kPa and 4000 rpm needs about 25 % throttle).
     """
 
-    # --- ambient and gas [GO10 §2.3]
+    # --- ambient and gas [GO10 ch. 2]
     p_a: float = 101325.0  # ambient (upstream of the throttle) pressure, Pa
     T_a: float = 298.0  # ambient temperature, K
     R: float = 287.0  # gas constant of air, J/(kg K)
     kappa: float = 1.4  # ratio of specific heats
-    # --- throttle [GO10 eqs. 2.10–2.13]
+    # --- throttle [GO10 ch. 2]
     c_d: float = 0.8  # discharge coefficient
     bore_m: float = 0.050  # throttle bore D, m
     phi0_deg: float = 7.0  # closed plate angle φ_0, degrees
     a_leak_m2: float = 6.0e-6  # leakage / idle-air bypass area, m²
     pi_lin: float = 0.95  # Ψ continued linearly to 0 above this pressure ratio
-    # --- manifold [GO10 eq. 2.7]
+    # --- manifold [GO10 ch. 2]
     v_m_m3: float = 4.0e-3  # manifold volume, m³
     T_m: float = 300.0  # manifold temperature (isothermal), K
-    # --- cylinders, port flow [GO10 eqs. 2.19–2.23]
+    # --- cylinders, port flow [GO10 ch. 2]
     v_d_m3: float = 3.0e-3  # displacement, m³ (3.0 L)
     eps: float = 9.3  # compression ratio (Ford 3.0 L Vulcan)
     p_e: float = 103000.0  # exhaust pressure, Pa
@@ -394,7 +394,7 @@ def im240_like_trace(
 
 @nb.njit(cache=True, nogil=True)
 def _psi(pr, kappa, pi_lin):
-    """Flow function Ψ(Π) of the compressible orifice [GO10 eqs. 2.11–2.12].
+    """Flow function Ψ(Π) of the compressible orifice [GO10 ch. 2].
 
     Choked below Π_cr, the isentropic formula up to ``pi_lin``, then linear to 0
     at Π = 1 (negative beyond: back-flow), as [GO10] and [HS90] regularise it.
@@ -415,7 +415,7 @@ def _psi(pr, kappa, pi_lin):
 
 @nb.njit(cache=True, nogil=True)
 def _throttle_area(alpha_pct, prm):
-    """Open area A(φ) of the throttle plate plus leakage [GO10 eq. 2.13], m²."""
+    """Open area A(φ) of the throttle plate plus leakage [GO10 ch. 2], m²."""
     phi0 = prm[P_PHI0]
     a = min(max(alpha_pct, 0.0), 100.0)
     phi = phi0 + (0.5 * math.pi - phi0) * a / 100.0
@@ -425,7 +425,7 @@ def _throttle_area(alpha_pct, prm):
 
 @nb.njit(cache=True, nogil=True)
 def _throttle_flow(area, pm, prm):
-    """Air mass flow through the throttle, kg/s [GO10 eq. 2.10]."""
+    """Air mass flow through the throttle, kg/s [GO10 ch. 2]."""
     pa = prm[P_PA]
     return (
         prm[P_CD]
@@ -438,7 +438,7 @@ def _throttle_flow(area, pm, prm):
 
 @nb.njit(cache=True, nogil=True)
 def _port_flow(w, pm, prm):
-    """Air mass flow into the cylinders by speed–density, kg/s [GO10 eqs. 2.19, 2.23]."""
+    """Air mass flow into the cylinders by speed–density, kg/s [GO10 ch. 2]."""
     eps = prm[P_EPS]
     lam_p = (eps - (prm[P_PE] / pm) ** (1.0 / prm[P_KAPPA])) / (eps - 1.0)
     if lam_p < 0.0:
@@ -583,7 +583,7 @@ def _run(prm, n_sub, tr_t, tr_n, freeze, alpha_in, load_in, fuel_in, u_a, u_t, u
             w = state[S_W]
             pm = state[S_PM]
             dt = h / w
-            # manifold, linearly implicit Euler [GO10 eq. 2.7]
+            # manifold, linearly implicit Euler [GO10 ch. 2]
             mth = _throttle_flow(area, pm, prm)
             mapf = _port_flow(w, pm, prm)
             dp = 1.0 + 1e-4 * pm
