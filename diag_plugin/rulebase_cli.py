@@ -67,6 +67,20 @@ def cmd_show(args: argparse.Namespace) -> int:
 
     rb = load(args.name, args.rulebases)
     con = Console()
+    if hasattr(rb.codec, "rule_table"):  # a method with its own kind of rules
+        columns, rows = rb.codec.rule_table(rb)
+        con.print(
+            f"[bold]{escape(rb.name)}[/]: "
+            + escape(f"{rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)}), ")
+            + f"method {rb.method}, {len(rb.rules)} rules"
+        )
+        t = Table()
+        for col in columns:
+            t.add_column(escape(col), justify="right")
+        for row in rows:
+            t.add_row(*(escape(c) for c in row))
+        con.print(t)
+        return 0
     n_live = sum(not math.isnan(r.then) for r in rb.rules)
     con.print(
         f"[bold]{escape(rb.name)}[/]: "
@@ -133,6 +147,8 @@ def cmd_export_fcl(args: argparse.Namespace) -> int:
     from diag_plugin.fuzzy.fcl import to_fcl
 
     rb = load(args.name, args.rulebases)
+    if not getattr(rb.codec, "fcl", True):
+        raise UserError(f"{rb.name}: method {rb.method} has no IEC 61131-7 FCL form")
     text = to_fcl(rb)
     if args.out:
         Path(args.out).write_text(text, encoding="utf-8")

@@ -221,6 +221,8 @@ def test_trains_compares_and_explains_through_the_seam(tmp_path):
     assert c.as_dict()["worst_regions"] == []
     e = explain(RuleBase.load(rb.path), f, max_lag=2)
     assert e.candidates and np.isfinite(e.baseline_rmse_pct)
+    # set counts mean nothing to this method: explain does not offer them
+    assert not any("--sets" in c.command for c in e.candidates)
 
 
 @pytest.fixture(scope="module")
@@ -244,3 +246,7 @@ def test_cli_model_new_train_compare(plant):
     assert doc["coverage"] > 0.99 and np.isfinite(doc["rmse_pct"])
     text = (plant / "rulebases" / "nx.toml").read_text()
     assert text.count("{ term = ") == 3  # 1, CV[k-1], CV[k-1]^2
+    shown = run_diag(plant, "rules", "show", "nx")
+    assert shown.returncode == 0 and "CV[k-1]^2" in shown.stdout, shown.stderr
+    fcl = run_diag(plant, "rules", "export-fcl", "nx")
+    assert fcl.returncode != 0 and "no IEC 61131-7 FCL form" in fcl.stderr

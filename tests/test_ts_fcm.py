@@ -225,6 +225,8 @@ def test_trains_compares_and_explains_through_the_seam(tmp_path):
     assert c.metrics["coverage"] > 0.99 and c.as_dict()["worst_regions"] == []
     e = explain(RuleBase.load(rb.path), f, max_lag=2)
     assert e.candidates and np.isfinite(e.baseline_rmse_pct)
+    # set counts mean nothing to this method: explain does not offer them
+    assert not any("--sets" in c.command for c in e.candidates)
 
 
 @pytest.fixture(scope="module")
@@ -248,3 +250,7 @@ def test_cli_model_new_train_compare(plant):
     assert doc["coverage"] > 0.99 and np.isfinite(doc["rmse_pct"])
     text = (plant / "rulebases" / "ts.toml").read_text()
     assert 'method = "ts-fcm"' in text and text.count("{ centre = [") == 10
+    shown = run_diag(plant, "rules", "show", "ts")
+    assert shown.returncode == 0 and "centre CV[k-1]" in shown.stdout, shown.stderr
+    fcl = run_diag(plant, "rules", "export-fcl", "ts")
+    assert fcl.returncode != 0 and "no IEC 61131-7 FCL form" in fcl.stderr

@@ -479,6 +479,8 @@ class TakagiSugenoCodec:
 
     estimator = TakagiSugenoRegressor
     header = HEADER
+    #: c-means memberships and linear conclusions have no IEC 61131-7 FCL form
+    fcl = False
 
     def __init__(self, method: str = "ts-fcm") -> None:
         self.method = method
@@ -579,6 +581,20 @@ class TakagiSugenoCodec:
                 TSRule(vecs["centre"], vecs["slope"], float(const), n, line, comments, trail)
             )
         return out
+
+    def rule_table(self, rb: RuleBase) -> tuple[list[str], list[list[str]]]:
+        """Columns and rows for ``diag rules show``: per rule its centre, its output
+        ``const + slope·x`` and its training weight."""
+        specs = [v.spec for v in rb.inputs]
+        cols = ["rule", *(f"centre {s}" for s in specs), "const"]
+        cols += [f"slope {s}" for s in specs] + ["n"]
+        rows = [
+            [str(i + 1), *(f"{c:.5g}" for c in r.centre), f"{r.const:.5g}"]
+            + [f"{c:.5g}" for c in r.slope]
+            + [str(r.n)]
+            for i, r in enumerate(rb.rules)
+        ]
+        return cols, rows
 
     def format_rules(self, rb: RuleBase) -> str:
         """The ``list = [...]`` text, one rule per line, comments kept."""

@@ -385,6 +385,8 @@ class NarmaxCodec:
 
     estimator = Narmax2Regressor
     header = HEADER
+    #: a polynomial has no IEC 61131-7 FCL form
+    fcl = False
 
     def __init__(self, method: str = "narmax2") -> None:
         self.method = method
@@ -475,6 +477,11 @@ class NarmaxCodec:
             seen[term] = line
             out.append(Term(term, float(coef), line, comments, trail))
         return out
+
+    def rule_table(self, rb: RuleBase) -> tuple[list[str], list[list[str]]]:
+        """Columns and rows for ``diag rules show``: each term and its coefficient."""
+        specs = [v.spec for v in rb.inputs]
+        return ["term", "coef"], [[format_term(r.term, specs), f"{r.coef:.6g}"] for r in rb.rules]
 
     def format_rules(self, rb: RuleBase) -> str:
         """The ``list = [...]`` text, one term per line in the model's term order."""

@@ -132,7 +132,7 @@ def cmd_model_new(args) -> int:
     except (FileExistsError, ValueError) as exc:
         raise UserError(str(exc)) from None
     print(f"wrote {path}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)})")
-    if args.sets is None:
+    if args.sets is None and rb.new_model().capabilities.rule_regions:  # sets matter
         sets = sorted({v.sets for v in rb.inputs})
         print(
             f"sets per input: {', '.join(map(str, sets))}, what {len(frame):,} samples can fill "
@@ -234,17 +234,18 @@ def cmd_compare(args) -> int:
             markup=False,
         )
     d = c.as_dict()
-    t = Table(title="worst operating regions (rule cells)")
-    for col in [v.spec for v in rb.inputs] + ["count", "mean %", "RMSE %"]:
-        t.add_column(escape(col), justify="right")
-    for r in d["worst_regions"]:
-        t.add_row(
-            *[str(r[v.spec]) for v in rb.inputs],
-            str(r["count"]),
-            f"{r['mean_pct']:+.2f}",
-            f"{r['rmse_pct']:.2f}",
-        )
-    con.print(t)
+    if len(c.regions):  # methods without rule cells (ts-fcm, narmax2) have no such map
+        t = Table(title="worst operating regions (rule cells)")
+        for col in [v.spec for v in rb.inputs] + ["count", "mean %", "RMSE %"]:
+            t.add_column(escape(col), justify="right")
+        for r in d["worst_regions"]:
+            t.add_row(
+                *[str(r[v.spec]) for v in rb.inputs],
+                str(r["count"]),
+                f"{r['mean_pct']:+.2f}",
+                f"{r['rmse_pct']:.2f}",
+            )
+        con.print(t)
     t = Table(title="worst time windows")
     for col in ("start", "end", "RMSE %", "mean %"):
         t.add_column(col)

@@ -466,8 +466,12 @@ def explain(
         if r is not None:
             add(spec, kind, r)
     # the model's own resolution: spans narrowed to the operating range, more or fewer sets
+    # (sets only for methods with rule cells: ts-fcm and narmax2 do not use them)
+    uses_sets = rb.new_model().capabilities.rule_regions
     for k, (s, v) in enumerate(zip(in_specs, in_vars, strict=True)):
         for change, var in _resolution_variants(v, in_cols[k][:cut]):
+            if var.sets != v.sets and not uses_sets:
+                continue
             vs = list(in_vars)
             vs[k] = var
             rmse, cov, _ = scorer.score(vs, in_cols)
