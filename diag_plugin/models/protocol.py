@@ -30,7 +30,8 @@ class Capabilities:
     (chunks trained on Dask workers). ``rule_regions``: predictions come from
     rule cells over the inputs (``regions``), so errors can be mapped per cell.
     ``free_run``: the model can simulate its output from its own past outputs
-    (output-error residuals).
+    (output-error residuals) with ``simulate(X)`` over consecutive rows: the inputs that
+    are lags of the output get the model's earlier outputs instead of the measurements.
     """
 
     incremental: bool = False
