@@ -396,6 +396,8 @@ class DiagOpcUaServer:
         ev.NodeId = alarm_obj.nodeid  # the ConditionId
         ev.ConditionName = "Diagnosis"
         ev.BranchId = ua.NodeId()
+        for prop in ("ActiveState/TransitionTime", "AckedState/TransitionTime"):
+            ev.data_types[prop] = ua.VariantType.DateTime  # declared as NodeId(UtcTime)
         ev.EnabledState = ua.LocalizedText("Enabled")
         setattr(ev, "EnabledState/Id", True)
         n.event = gen

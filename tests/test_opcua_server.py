@@ -1,0 +1,210 @@
+"""Our OPC UA server seen through asyncua's client: address space, alarm events per severity
+band, shelve/unshelve methods, the AckRequest tag, restart keeping alarm state."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+
+import pandas as pd
+import pytest
+
+from connectors.opcua_server import NAMESPACE, DiagOpcUaServer
+from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
+
+pytestmark = pytest.mark.anyio
+
+
+@pytest.fixture(scope="module")
+def anyio_backend():
+    return "asyncio"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def st(unit: str, status: NE107, c: float = 0.5, q: Quality = Quality.GOOD) -> UnitStatus:
+    return UnitStatus(
+        unit,
+        pd.Timestamp.now(tz="UTC"),
+        status,
+        q,
+        residuals={"r1": 1.0},
+        symptoms={"r1": 1.0},
+        certainties={"f1": c},
+        coverage={"A": 0.9},
+        detected=status != NE107.NORMAL,
+        faults=["f1"] if status != NE107.NORMAL else [],
+    )
+
+
+class Events:
+    def __init__(self) -> None:
+        self.items: list = []
+
+    def event_notification(self, event) -> None:
+        self.items.append(event)
+
+
+@pytest.fixture(scope="module")
+async def env(anyio_backend):
+    from asyncua import Client
+
+    srv = DiagOpcUaServer(port=free_port())
+    await srv.start()
+    await srv.add_unit("u1", faults=["f1", "f2"], tests=["r1"], models=["A"])
+    client = Client(srv.endpoint, timeout=5)
+    await client.connect()
+    events = Events()
+    sub = await client.create_subscription(50, events)
+    from asyncua import ua
+
+    await sub.subscribe_alarms_and_conditions(
+        client.nodes.server, ua.NodeId(ua.ObjectIds.AlarmConditionType)
+    )
+    yield srv, client, events
+    await client.disconnect()
+    await srv.stop()
+
+
+async def wait_events(events: Events, unit: str, n: int, timeout: float = 10.0) -> list:
+    """The events of ``unit`` once there are ``n`` of them (or after ``timeout`` s)."""
+    loop = asyncio.get_running_loop()
+    end = loop.time() + timeout
+    mine: list = []
+    while loop.time() < end:
+        mine = [e for e in events.items if e.SourceName == unit]
+        if len(mine) >= n:
+            break
+        await asyncio.sleep(0.05)
+    return mine
+
+
+async def test_address_space(env):
+    srv, client, _ = env
+    ns = await client.get_namespace_index(NAMESPACE)
+    assert ns == srv.ns
+    unit = client.get_node(srv.node_id("Units", "u1"))
+    names = {(await n.read_browse_name()).Name for n in await unit.get_children()}
+    assert {
+        "DeviceHealth",
+        "StatusName",
+        "Quality",
+        "Detected",
+        "Faults",
+        "Message",
+        "LastUpdate",
+        "Certainty",
+        "Residual",
+        "Symptom",
+        "Coverage",
+        "Alarm",
+        "Acknowledge",
+        "Shelve",
+        "Unshelve",
+    } <= names
+    certs = client.get_node(srv.node_id("Units", "u1", "Certainty"))
+    assert {(await n.read_browse_name()).Name for n in await certs.get_children()} == {"f1", "f2"}
+    plant = client.get_node(srv.node_id("Plant"))
+    assert len(await plant.get_children()) == 7
+    dv = await client.get_node(srv.node_id("Plant", "F")).read_data_value(raise_on_bad_status=False)
+    assert dv.StatusCode.is_bad()  # nothing served yet: BadWaitingForInitialData
+    with pytest.raises(KeyError):
+        await srv.update_plant({"nope": 1.0})
+    await srv.update_plant({"F": 3.0})
+    dv = await client.get_node(srv.node_id("Plant", "F")).read_data_value()
+    assert dv.Value.Value == 3.0 and dv.StatusCode.is_good()
+
+
+@pytest.mark.parametrize(
+    ("status", "lo", "hi"),
+    [
+        (NE107.FAILURE, 801, 1000),
+        (NE107.OFF_SPEC, 601, 800),
+        (NE107.CHECK_FUNCTION, 401, 600),
+        (NE107.MAINTENANCE_REQUIRED, 301, 400),
+    ],
+)
+async def test_event_severity_bands(env, status, lo, hi):
+    srv, _, events = env
+    events.items.clear()
+    await srv.publish(st("u2", status, 0.7))
+    (ev,) = await wait_events(events, "u2", 1)
+    assert lo <= ev.Severity <= hi
+    assert ev.SourceName == "u2" and ev.Retain is True
+    assert getattr(ev, "ActiveState/Id") is True and getattr(ev, "AckedState/Id") is False
+    await srv.acknowledge("u2")
+    await srv.publish(st("u2", NE107.NORMAL))
+    evs = await wait_events(events, "u2", 3)
+    assert getattr(evs[-1], "ActiveState/Id") is False and evs[-1].Retain is False
+    assert srv.alarms["u2"].state == "normal"
+
+
+async def test_certainty_rise_updates_severity_without_new_state(env):
+    srv, _, events = env
+    events.items.clear()
+    await srv.publish(st("u3", NE107.FAILURE, 0.1))
+    await srv.publish(st("u3", NE107.FAILURE, 0.1))  # no change: no event
+    await srv.publish(st("u3", NE107.FAILURE, 1.0))
+    await asyncio.sleep(0.2)
+    evs = await wait_events(events, "u3", 2)
+    assert [e.Severity for e in evs] == [821, 1000]
+
+
+async def test_shelve_and_unshelve_methods(env):
+    srv, client, events = env
+    from asyncua import ua
+
+    await srv.publish(st("u4", NE107.FAILURE, 0.9))
+    await wait_events(events, "u4", 1)
+    unit = client.get_node(srv.node_id("Units", "u4"))
+    events.items.clear()
+    assert await unit.call_method(f"{srv.ns}:Shelve", ua.Variant(0.0, ua.VariantType.Double))
+    assert srv.alarms["u4"].state == "shelved"
+    (ev,) = await wait_events(events, "u4", 1)
+    assert ev.SuppressedOrShelved is True and ev.Retain is False
+    shelved = client.get_node(srv.node_id("Units", "u4", "Alarm", "Shelved"))
+    assert await shelved.read_value() is True
+    assert await unit.call_method(f"{srv.ns}:Unshelve")
+    assert srv.alarms["u4"].state == "active-unacknowledged"  # still on: annunciated again
+    assert await unit.call_method(f"{srv.ns}:Acknowledge")
+    assert not await unit.call_method(f"{srv.ns}:Acknowledge")  # nothing left to acknowledge
+    assert srv.alarms["u4"].state == "active-acknowledged"
+
+
+async def test_ack_request_tag(env):
+    srv, client, _ = env
+    await srv.publish(st("u5", NE107.OFF_SPEC, 0.9))
+    tag = client.get_node(srv.node_id("Units", "u5", "Alarm", "AckRequest"))
+    await tag.write_value(True)
+    for _ in range(50):
+        if srv.alarms["u5"].state == "active-acknowledged":
+            break
+        await asyncio.sleep(0.05)
+    assert srv.alarms["u5"].state == "active-acknowledged"
+    assert await tag.read_value() is False  # the request is consumed
+
+
+async def test_restart_keeps_alarm_state_and_units(anyio_backend):
+    from asyncua import Client
+
+    srv = DiagOpcUaServer(port=free_port(), plant_tags=("F",))
+    await srv.start()
+    await srv.publish(st("v", NE107.FAILURE, 0.9))
+    await srv.acknowledge("v")
+    await srv.stop()
+    await srv.publish(st("v", NE107.NORMAL))  # while stopped: dropped, no crash
+    await srv.start()
+    try:
+        assert srv.alarms["v"].state == "active-acknowledged"
+        async with Client(srv.endpoint, timeout=5) as c:
+            node = c.get_node(srv.node_id("Units", "v", "Certainty", "f1"))
+            assert (await node.read_browse_name()).Name == "f1"
+            state = c.get_node(srv.node_id("Units", "v", "Alarm", "State"))
+            await srv.publish(st("v", NE107.NORMAL))
+            assert await state.read_value() == "normal"
+    finally:
+        await srv.stop()
