@@ -188,6 +188,12 @@ class DiagOpcUaServer:
 
     async def start(self, timeout: float = 30.0) -> None:
         """Build the address space and listen (within ``timeout`` seconds)."""
+        if self.host not in ("127.0.0.1", "localhost", "::1"):
+            log.warning(
+                "OPC UA server on %s, not loopback%s",
+                self.host,
+                "" if self.security else ", and without security",
+            )
         await asyncio.wait_for(self._start(), timeout)
         log.info("OPC UA server listening on %s", self.endpoint)
 
@@ -336,6 +342,8 @@ class DiagOpcUaServer:
             n.vars[name] = await obj.add_variable(
                 self._nid("Units", unit, name), self._bn(name), val, vt
             )
+        # no diagnosis yet: CHECK_FUNCTION, and the status itself Uncertain
+        await self._write(n.vars["DeviceHealth"], 2, V.Int32, self._code(1), None)
         for name, val, vt in (
             ("State", alarm.state.value, V.String),
             ("Active", alarm.active, V.Boolean),
@@ -490,7 +498,7 @@ class DiagOpcUaServer:
             on = int(status.status) in self.alarm_statuses
             sev = severity(int(status.status), top) if on else 0
             msg = self._alarm_message(status, top)
-            t = n.alarm.update(on, sev, msg, now=ts)
+            t = n.alarm.update(on, sev, msg, now=datetime.now(UTC))  # shelving runs on wall time
             if t.changed or (on and n.alarm.retain and sev != self._shown_severity(n)):
                 await self._emit(status.unit, t)
 
