@@ -16,8 +16,8 @@ import asyncio
 import logging
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from datetime import UTC
+from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -55,7 +55,6 @@ class OpcUaConfig:
     outputs: tuple[str, ...] = ()  # the write allow-list (tag names of ``nodes``)
     backoff_base: float = 0.5
     backoff_cap: float = 30.0
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def quality_of(code: Any) -> TagQuality:
@@ -117,6 +116,8 @@ class OpcUaReader:
         self._stop = asyncio.Event()
         self._failing = False
         self.outages = 0  # how many times the connection was lost or refused
+        #: (start, end) of each outage; end is None while it lasts
+        self.gaps: list[tuple[datetime, datetime | None]] = []
         self._set_all_bad("not connected yet")
 
     @property
@@ -169,6 +170,7 @@ class OpcUaReader:
                 continue
             backoff.reset()
             if self._failing:
+                self.gaps[-1] = (self.gaps[-1][0], now())
                 log.warning("OPC UA %s: connection restored", self.config.url)
             else:
                 log.info("OPC UA %s: connected", self.config.url)
@@ -184,6 +186,7 @@ class OpcUaReader:
         self._set_all_bad(f"no connection: {exc!r}")
         if not self._failing:
             self.outages += 1
+            self.gaps.append((now(), None))
             log.warning(
                 "OPC UA %s: unavailable (%r); retrying in the background", self.config.url, exc
             )

@@ -227,6 +227,8 @@ async def test_server_restart_bad_then_good(mode, caplog):
             await asyncio.sleep(0.1)
         assert latest["F"].value == 2.0
         assert r.outages == 1
+        ((start, end),) = r.gaps  # the first connect is no outage; the restart is one
+        assert end is not None and end > start
         msgs = [m.getMessage() for m in caplog.records if m.name == "connectors.opcua_client"]
         assert sum("unavailable" in m for m in msgs) == 1, msgs
         assert sum("restored" in m for m in msgs) == 1, msgs
