@@ -47,7 +47,6 @@ import numpy as np
 from diag_plugin.models.estimation import (
     CHUNK_ROWS,
     FreeRunCapabilities,
-    QRLeastSquares,
     as_2d,
     as_xy,
     detail,
@@ -56,6 +55,8 @@ from diag_plugin.models.estimation import (
     observed_span,
     output_lags_of,
     resolve_spans,
+    solve_triangle,
+    triangles,
 )
 from diag_plugin.models.protocol import REASON_NAN, REASON_UNSUPPORTED, Capabilities, Prediction
 from diag_plugin.models.spec import ModelSpec
@@ -292,21 +293,22 @@ class TakagiSugenoRegressor:
         return self
 
     def _fit_consequents(self, X: np.ndarray, y: np.ndarray, V: np.ndarray) -> None:
-        """Per rule, weighted least squares of eqs. 23–25 (weights ``D_j²``, eq. 24) over row
-        chunks, in the scaled inputs; converted to engineering units."""
+        """Per rule, weighted least squares of eqs. 23–25 (weights ``D_j²``, eq. 24): the rows
+        ``μ_ij [1, x_i | y_i]`` of all rules folded, chunk by chunk, into one triangular QR
+        factor per rule (a stacked QR), in the scaled inputs; then converted to engineering
+        units."""
         N, d = V.shape
         lo, width = self._scale
-        acc = [QRLeastSquares(d + 1) for _ in range(N)]
+        R = np.zeros((N, 0, d + 2))
         weight = np.zeros(N)
-        for s in range(0, X.shape[0], CHUNK_ROWS):
-            Z = (X[s : s + CHUNK_ROWS] - lo) / width
+        rows = max(CHUNK_ROWS // N, 1024)  # the stacked rows of all rules stay one chunk
+        for s in range(0, X.shape[0], rows):
+            Z = (X[s : s + rows] - lo) / width
             U = memberships(Z, V, float(self.m))
             weight += U.sum(axis=0)
-            A = np.hstack([np.ones((Z.shape[0], 1)), Z])
-            b = y[s : s + CHUNK_ROWS]
-            for j in range(N):
-                acc[j].update(A * U[:, j : j + 1], b * U[:, j])
-        c = np.array([a.solve() for a in acc])  # N × (1 + d), scaled inputs
+            Ab = np.column_stack([np.ones(Z.shape[0]), Z, y[s : s + rows]])
+            R = triangles(np.concatenate([R, U.T[:, :, None] * Ab[None]], axis=1))
+        c = np.array([solve_triangle(R[j]) for j in range(N)])  # N × (1 + d), scaled inputs
         self.coef_ = c[:, 1:] / width
         self.intercept_ = c[:, 0] - self.coef_ @ lo
         self.weight_ = weight

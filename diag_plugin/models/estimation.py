@@ -141,11 +141,7 @@ class QRLeastSquares:
 
     def solve(self) -> np.ndarray:
         """The least-squares solution (minimum norm where the rows do not determine it)."""
-        p = self.R.shape[1] - 1
-        if self.R.shape[0] == 0:
-            return np.zeros(p)
-        k = min(p, self.R.shape[0])
-        return np.linalg.lstsq(self.R[:k, :p], self.R[:k, p], rcond=None)[0]
+        return solve_triangle(self.R)
 
     def to_state(self) -> dict[str, Any]:
         return {"R": self.R.tolist(), "n": self.n}
@@ -158,25 +154,41 @@ class QRLeastSquares:
         return q
 
 
-#: rows per block of the first QR stage (tall-skinny QR: a block fits the cache)
-QR_BLOCK = 4096
+#: rows per block of the first QR stage at least (tall-skinny QR: a block fits the cache,
+#: which makes it many times faster than one QR of all rows)
+QR_BLOCK = 256
 
 
 def _triangle(M: np.ndarray) -> np.ndarray:
-    """The triangular factor ``R`` of a QR decomposition of ``M`` (at most ``cols`` rows).
+    """The triangular factor ``R`` of a QR decomposition of ``M`` (at most ``cols`` rows)."""
+    return triangles(M[None])[0]
+
+
+def triangles(M: np.ndarray) -> np.ndarray:
+    """The triangular factors ``R`` of QR decompositions of a stack of matrices
+    (``batch × rows × cols`` → ``batch × min(rows, cols) × cols``).
 
     Tall matrices go in two stages (tall-skinny QR): the ``R`` of each block of rows, then
     the ``R`` of those stacked; zero rows padding the last block change nothing."""
-    from scipy.linalg import qr
+    batch, rows, cols = M.shape
+    size = max(QR_BLOCK, 4 * cols)
+    if rows > 2 * size:
+        blocks = -(-rows // size)
+        padded = np.zeros((batch, blocks * size, cols))
+        padded[:, :rows] = M
+        M = np.linalg.qr(padded.reshape(batch * blocks, size, cols), mode="r")
+        M = M.reshape(batch, blocks * cols, cols)
+    return np.linalg.qr(M, mode="r")
 
-    rows, cols = M.shape
-    if rows > 2 * QR_BLOCK and cols < QR_BLOCK // 8:
-        blocks = -(-rows // QR_BLOCK)
-        padded = np.zeros((blocks * QR_BLOCK, cols))
-        padded[:rows] = M
-        M = np.linalg.qr(padded.reshape(blocks, QR_BLOCK, cols), mode="r").reshape(-1, cols)
-    R = qr(M, mode="r", overwrite_a=True, check_finite=False)[0]
-    return R[: min(M.shape)]
+
+def solve_triangle(R: np.ndarray) -> np.ndarray:
+    """The least-squares solution held by the ``R`` of ``[A | b]`` (see
+    :class:`QRLeastSquares`); minimum norm where the rows do not determine it."""
+    p = R.shape[1] - 1
+    k = min(p, R.shape[0])
+    if k == 0:
+        return np.zeros(p)
+    return np.linalg.lstsq(R[:k, :p], R[:k, p], rcond=None)[0]
 
 
 def output_lags_of(output_spec: str, input_specs: Sequence[str]) -> list[int]:
