@@ -271,9 +271,20 @@ class Unit:
         return cls(file, models, matrix)
 
     @property
-    def tags(self) -> list[str]:
-        """Every tag the unit's models read."""
+    def model_tags(self) -> list[str]:
+        """Every tag the unit's models read, by the models' names."""
         return list(dict.fromkeys(t for m in self.models.values() for t in m.tags))
+
+    @property
+    def tags(self) -> list[str]:
+        """Every tag the unit reads, by the plant's names (the file's ``[tags]`` mapping)."""
+        return [self.file.tags.get(t, t) for t in self.model_tags]
+
+    def _model_frame(self, frame: pd.DataFrame) -> pd.DataFrame:
+        """The plant's columns under the models' tag names."""
+        if not self.file.tags:
+            return frame
+        return frame.rename(columns={self.file.tags.get(t, t): t for t in self.model_tags})
 
     @property
     def faults(self) -> list[str]:
@@ -320,6 +331,7 @@ class Unit:
     # ------------------------------------------------------------ stages
     def raw_residuals(self, frame: pd.DataFrame) -> pd.DataFrame:
         """Residual per test in % (eq. 6 or of ``ymax``), NaN where unknown; advances state."""
+        frame = self._model_frame(frame)
         cols = {}
         for t in self.file.tests:
             m = self.models[t.name]
@@ -513,6 +525,7 @@ def learn_thresholds(
     if unit.ev["scale"] == "max":
         for t in unit.file.tests:
             out = unit.models[t.name].output.split("[")[0]
+            out = unit.file.tags.get(out, out)
             v = np.concatenate([f[out].to_numpy(float) for f in frames if out in f])
             m = float(np.nanmax(np.abs(v))) if np.isfinite(v).any() else np.nan
             if not np.isfinite(m) or m <= 0:

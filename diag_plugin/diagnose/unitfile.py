@@ -34,6 +34,9 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     [faults]             # optional: NE 107 status a fault raises (default FAILURE)
     f_P0 = "MAINTENANCE_REQUIRED"
 
+    [tags]               # optional: the plant tags this unit reads for the models' tags
+    F = "V17.F"          # (one set of models serves a fleet of identical valves)
+
 Paths are relative to the unit file. Problems are reported all at once as ``file:line: what``,
 like ``diag rules check``. Saving after :meth:`UnitFile.set_thresholds` keeps comments and
 layout (tomlkit round trip).
@@ -181,7 +184,7 @@ class UnitFile:
 
     def _read(self) -> None:
         for key in self.doc:
-            if key not in ("unit", "evaluation", "thresholds", "tests", "faults"):
+            if key not in ("unit", "evaluation", "thresholds", "tests", "faults", "tags"):
                 self.error(self.line_of(key), f"unknown table [{key}]")
         unit = self._table("unit", required=True)
         for key in unit:
@@ -199,6 +202,13 @@ class UnitFile:
         self.thresholds = {k: _plain(v) for k, v in self._table("thresholds").items()}
         self.tests = self._tests(self._table("tests", required=True))
         self.fault_status = self._faults(self._table("faults"))
+        self.tags: dict[str, str] = {}
+        for k, v in self._table("tags").items():
+            v = _plain(v)
+            if not isinstance(v, str) or not v:
+                self.error(self.line_of("tags", k), f"tag {k!r} must map to a tag name")
+            else:
+                self.tags[str(k)] = v
 
     def _evaluation(self, table: dict) -> dict[str, Any]:
         ev = dict(EVALUATION_DEFAULTS)

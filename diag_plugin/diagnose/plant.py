@@ -1,0 +1,323 @@
+"""A plant: many units evaluated together, one cycle at a time, vectorised across units.
+
+Kościelny et al. (Sect. 5, Table 3) decompose a plant's diagnostic matrix into the
+block-diagonal matrices of its units: each unit is diagnosed on its own, so one unit's failure
+stays local. :class:`Plant` keeps that structure and evaluates every unit each cycle as arrays:
+
+* the plant's tag vector and its recent history (a ring buffer as deep as the longest lag);
+* one ``predict`` per distinct model object over all the units that use it (units loaded from
+  the same rule-base files share one model: a fleet of identical valves is one call);
+* the Butterworth filter, thresholds, on/off delays and holds over all (unit, test) residuals
+  at once, and one matrix call per distinct matrix with units as rows.
+
+A unit whose file, models or matrix are broken is reported CHECK_FUNCTION with Bad quality and
+its ``file:line`` problems every cycle; the others go on. Units whose models use derived inputs
+(``dir``, ``rate``, …) are evaluated one by one with :meth:`Unit.evaluate` (same result, slower).
+The fast path gives the same statuses as :meth:`Unit.evaluate` over the same rows (tested).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from diag_plugin.diagnose.residuals import LowPass
+from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
+from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay
+from diag_plugin.diagnose.unit import PRIORITY, Unit, _hold_kernel, broken_status
+from diag_plugin.diagnose.unitfile import UnitError
+from diag_plugin.regressors import parse_specs
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class _Slot:
+    """One (unit, test) residual: where its model's inputs and output sit in the tag vector."""
+
+    unit: int
+    test: int
+    model: object
+    inputs: np.ndarray  # (d, 2): (lag, tag index)
+    output: tuple[int, int]  # (lag, tag index)
+    scale: float
+
+
+def _plain_lags(unit: Unit) -> bool:
+    """True when every model input and output is a plain tag with a lag (the fast path)."""
+    for m in unit.models.values():
+        for s in parse_specs([*m.inputs, m.output]):
+            if s.fn != "":
+                return False
+    return True
+
+
+class Plant:
+    """Units evaluated together each cycle (see module doc).
+
+    ``units``: loaded units by name; ``broken``: unit name → its problems (``file:line``).
+    Evaluation settings that must be shared by the stacked stages (low-pass cut-off and order,
+    on/off delays) may differ between units: units are stacked per setting.
+    """
+
+    def __init__(self, units: Mapping[str, Unit], broken: Mapping[str, list[str]] | None = None):
+        self.units = dict(units)
+        self.broken = dict(broken or {})
+        self.fast = [n for n, u in self.units.items() if _plain_lags(u)]
+        self.slow = [n for n in self.units if n not in self.fast]
+        self._build()
+
+    @classmethod
+    def load(cls, paths: Iterable[str | Path], folder: str | Path = "rulebases") -> Plant:
+        """Load unit files; a broken one is kept aside with its problems, never raised."""
+        units: dict[str, Unit] = {}
+        broken: dict[str, list[str]] = {}
+        cache: dict[Path, object] = {}
+        for p in paths:
+            name = Path(p).name.removesuffix(".unit.toml").removesuffix(".toml")
+            try:
+                u = Unit.load(p, folder)
+            except UnitError as exc:
+                broken[name] = exc.problems
+                log.warning("unit %s not loaded:\n%s", name, "\n".join(exc.problems))
+                continue
+            for m in u.models.values():  # units reading the same file share its model
+                m.model = cache.setdefault(m.path.resolve(), m.model)
+            units[u.name] = u
+        return cls(units, broken)
+
+    # ------------------------------------------------------------ structure
+    def _build(self) -> None:
+        units = [self.units[n] for n in self.fast]
+        tags: dict[str, int] = {}
+        depth = 0
+        slots: list[_Slot] = []
+        for ui, u in enumerate(units):
+            for ti, t in enumerate(u.file.tests):
+                m = u.models[t.name]
+                ins = []
+                for s in parse_specs(m.inputs):
+                    tag = u.file.tags.get(s.tags[0], s.tags[0])
+                    ins.append((s.lag, tags.setdefault(tag, len(tags))))
+                    depth = max(depth, s.lag)
+                o = parse_specs([m.output])[0]
+                out = (o.lag, tags.setdefault(u.file.tags.get(o.tags[0], o.tags[0]), len(tags)))
+                depth = max(depth, o.lag)
+                scale = t.ymax if u.ev["scale"] == "max" and t.ymax else m.span
+                slots.append(_Slot(ui, ti, m.model, np.array(ins, np.intp), out, float(scale)))
+        self.tag_names = list(tags)
+        self.tag_index = tags
+        self.depth = depth
+        self.slots = slots
+        self._units = units
+        n = len(slots)
+        self._slot_unit = np.array([s.unit for s in slots], np.intp)
+        # per distinct model: the slots it serves and their gathered input indices
+        by_model: dict[int, list[int]] = {}
+        for i, s in enumerate(slots):
+            by_model.setdefault(id(s.model), []).append(i)
+        self._groups = []
+        for idx in by_model.values():
+            idx_a = np.array(idx, np.intp)
+            lags = np.stack([slots[i].inputs[:, 0] for i in idx])
+            cols = np.stack([slots[i].inputs[:, 1] for i in idx])
+            self._groups.append((slots[idx[0]].model, idx_a, lags, cols))
+        self._out_lag = np.array([s.output[0] for s in slots], np.intp)
+        self._out_col = np.array([s.output[1] for s in slots], np.intp)
+        self._scale = np.array([s.scale for s in slots])
+        lims = [units[s.unit].file.tests[s.test].limits for s in slots]
+        self._no_th = np.array([lim is None for lim in lims], bool)
+        self._lo = np.array([-1.0 if lim is None else lim[0] for lim in lims])
+        self._hi = np.array([1.0 if lim is None else lim[1] for lim in lims])
+        # stages stacked per evaluation setting (filter, delays)
+        self._stages = []
+        keys: dict[tuple, list[int]] = {}
+        for i, s in enumerate(slots):
+            ev = units[s.unit].ev
+            keys.setdefault(
+                (ev["lowpass"], ev["order"], ev["on_delay"], ev["off_delay"]), []
+            ).append(i)
+        for (wn, order, on, off), idx in keys.items():
+            self._stages.append(
+                (
+                    np.array(idx, np.intp),
+                    LowPass(wn, order) if wn > 0 else None,
+                    OnOffDelay(on, off),
+                    on - 1,
+                )
+            )
+        self._held = np.full(n, np.nan)
+        self._run = np.zeros(n, np.int64)
+        self._latched = np.zeros(n)
+        self._latch = np.array([units[s.unit].ev["latch"] for s in slots], bool)
+        # per distinct matrix: its units (rows) and their slots in matrix test order
+        self._matrices = []
+        by_matrix: dict[int, list[int]] = {}
+        for ui, u in enumerate(units):
+            if u.matrix is not None:
+                by_matrix.setdefault(_matrix_key(u), []).append(ui)
+        first_slot: dict[int, int] = {}
+        for i, s in enumerate(slots):
+            first_slot.setdefault(s.unit, i)
+        self._first = first_slot
+        self._has_th = [u.has_thresholds for u in units]
+        for uis in by_matrix.values():
+            mx = units[uis[0]].matrix
+            order = [units[uis[0]].tests.index(t) for t in mx.tests]
+            cols = np.array([[first_slot[ui] + k for k in order] for ui in uis], np.intp)
+            self._matrices.append((mx, np.array(uis, np.intp), cols))
+        self._hist = np.full((depth + 1, len(tags)), np.nan)
+        self._cycles = 0
+
+    @property
+    def tags(self) -> list[str]:
+        """Every plant tag any unit reads."""
+        extra = [t for n in self.slow for t in self.units[n].tags]
+        return list(dict.fromkeys([*self.tag_names, *extra]))
+
+    def reset(self) -> Plant:
+        self._build()
+        for n in self.slow:
+            self.units[n].reset()
+        return self
+
+    # ------------------------------------------------------------ one cycle
+    def cycle(self, ts: pd.Timestamp, values: Mapping[str, float] | pd.Series) -> list[UnitStatus]:
+        """Evaluate every unit on one sample (``values``: plant tag → value, NaN or absent for
+        missing, stale or bad quality); returns one :class:`UnitStatus` per unit, broken ones
+        included. Consecutive calls must be consecutive sampling periods."""
+        ts = pd.Timestamp(ts)
+        vec = np.full(len(self.tag_names), np.nan)
+        get = values.get
+        for tag, i in self.tag_index.items():
+            v = get(tag)
+            if v is not None:
+                vec[i] = float(v)
+        self._hist = np.roll(self._hist, 1, axis=0)
+        self._hist[0] = vec
+        self._cycles += 1
+        out = self._fast_cycle(ts) if self.slots else []
+        if self.slow:
+            row = pd.DataFrame({t: [float(values.get(t, np.nan))] for t in self.tags}, index=[ts])
+            for n in self.slow:
+                try:
+                    out.append(self.units[n].evaluate(row).at(-1))
+                except Exception as exc:  # noqa: BLE001 - one unit's failure stays local
+                    out.append(broken_status(n, ts, f"evaluation failed: {exc}"))
+        for n, problems in self.broken.items():
+            out.append(broken_status(n, ts, "; ".join(problems)))
+        return out
+
+    def _fast_cycle(self, ts: pd.Timestamp) -> list[UnitStatus]:
+        n = len(self.slots)
+        yhat = np.full(n, np.nan)
+        have = self._cycles - 1  # lags beyond the history seen so far are missing
+        for model, idx, lags, cols in self._groups:
+            X = self._hist[lags, cols]
+            X[(lags > have)] = np.nan
+            ok = ~np.isnan(X).any(axis=1)
+            if ok.any():
+                try:
+                    yhat[idx[ok]] = model.predict_detail(X[ok]).y
+                except Exception as exc:  # noqa: BLE001 - a broken model: its tests unknown
+                    log.warning("model prediction failed: %s", exc)
+        y = self._hist[self._out_lag, self._out_col]
+        y[self._out_lag > have] = np.nan
+        r = (y - yhat) / self._scale * 100.0  # Kościelny et al., eq. 6
+        s = np.full(n, np.nan)
+        rf = r.copy()
+        for idx, lp, delay, hold in self._stages:
+            x = r[idx][None, :]
+            if lp is not None:
+                x = lp.transform(x)
+            rf[idx] = x[0]
+            raw = FixedThresholds(high=self._hi[idx], low=self._lo[idx]).transform(x)
+            raw[:, self._no_th[idx]] = np.nan
+            d = delay.transform(raw)
+            held = self._held[idx]
+            run = self._run[idx]
+            d = _hold_kernel(np.ascontiguousarray(d), hold, held, run)
+            self._held[idx], self._run[idx] = held, run
+            s[idx] = d[0]
+        if self._latch.any():
+            on = self._latch & (self._latched == 0) & (np.nan_to_num(s) != 0)
+            self._latched[on] = s[on]
+            s = np.where(self._latch & (self._latched != 0), self._latched, s)
+        return self._statuses(ts, rf, s)
+
+    def _statuses(self, ts: pd.Timestamp, r: np.ndarray, s: np.ndarray) -> list[UnitStatus]:
+        units = self._units
+        nu = len(units)
+        su = self._slot_unit
+        known = ~np.isnan(s)
+        active_slot = np.nan_to_num(s) != 0
+        active = np.bincount(su, weights=active_slot, minlength=nu) > 0
+        n_known = np.bincount(su, weights=known, minlength=nu)
+        n_tests = np.bincount(su, minlength=nu)
+        all_known = n_known == n_tests
+        status = np.where(
+            active, NE107.OFF_SPEC, np.where(all_known, NE107.NORMAL, NE107.CHECK_FUNCTION)
+        ).astype(np.int8)
+        quality = np.where(
+            all_known, Quality.GOOD, np.where(n_known > 0, Quality.UNCERTAIN, Quality.BAD)
+        )
+        certs: list[dict[str, float]] = [{} for _ in range(nu)]
+        faults: list[list[str]] = [[] for _ in range(nu)]
+        for mx, uis, cols in self._matrices:
+            sm = s[cols]  # units × tests (matrix order)
+            c = mx.nearest(sm).certainties
+            on = active[uis]
+            c = np.where(on[:, None], c, 0.0)
+            cz = np.nan_to_num(c, nan=0.0)
+            best = cz.max(axis=1)
+            for k, ui in enumerate(uis):
+                u = units[ui]
+                certs[ui] = dict(zip(mx.faults, c[k].tolist(), strict=True))
+                if not on[k]:
+                    continue
+                iso = (cz[k] >= u.ev["certainty"]) & (cz[k] >= best[k] - 1e-12)
+                if iso.any():
+                    names = [f for f, i in zip(mx.faults, iso, strict=True) if i]
+                    faults[ui] = names
+                    st = [u.file.fault_status.get(f, NE107.FAILURE) for f in names]
+                    status[ui] = min(st, key=PRIORITY.index)
+        out = []
+        for ui, u in enumerate(units):
+            a = self._first[ui]
+            b = a + len(u.tests)
+            msg = ""
+            st = NE107(int(status[ui]))
+            if not self._has_th[ui]:
+                st, msg = NE107.CHECK_FUNCTION, f"no thresholds: run `diag unit learn {u.name}`"
+            det = None if not active[ui] and not all_known[ui] else bool(active[ui])
+            out.append(
+                UnitStatus(
+                    unit=u.name,
+                    ts=ts,
+                    status=st,
+                    quality=Quality(int(quality[ui])),
+                    residuals=dict(zip(u.tests, r[a:b].tolist(), strict=True)),
+                    symptoms=dict(zip(u.tests, s[a:b].tolist(), strict=True)),
+                    certainties=certs[ui],
+                    detected=det,
+                    faults=faults[ui],
+                    message=msg,
+                )
+            )
+        return out
+
+
+def _matrix_key(u: Unit) -> tuple:
+    mx = u.matrix
+    assert mx is not None
+    return (
+        tuple(mx.tests),
+        tuple(mx.faults),
+        tuple(map(tuple, mx.entries.tolist())),
+        tuple(u.tests),
+    )
