@@ -6,6 +6,9 @@ STAMP := $(VENV)/.installed
 DEVSTAMP := $(VENV)/.installed-dev
 PEERS := .venv-peers
 PEERSTAMP := $(PEERS)/.installed
+# node-opcua, the OPC UA client peer of the tests (pinned by its package-lock.json)
+OPCUA_PEER := tests/peers/opcua
+OPCUA_STAMP := $(OPCUA_PEER)/node_modules/.package-lock.json
 
 .PHONY: run test lint bench clean
 
@@ -30,8 +33,13 @@ $(PEERSTAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/diag demo
 
+$(OPCUA_STAMP): $(OPCUA_PEER)/package-lock.json
+	cd $(OPCUA_PEER) && npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
 test: $(DEVSTAMP) $(PEERSTAMP)
 	bash .ci/sysdeps
+	$(MAKE) $(OPCUA_STAMP)
 	$(BIN)/python -m pytest -q
 
 lint: $(DEVSTAMP)
@@ -41,4 +49,4 @@ bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) $(PEERS) .pytest_cache
+	rm -rf $(VENV) $(PEERS) .pytest_cache $(OPCUA_PEER)/node_modules

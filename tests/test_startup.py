@@ -41,6 +41,12 @@ ARGV = {
     "compare": ["compare", "valve", "--json"],
     "explain": ["explain", "valve", "--top", "3"],
     "report": ["report", "valve", "--out", "r.html"],
+    "unit new": ["unit", "new", "u", "--model", "r1=valve_r1", "--matrix", "m.toml"],
+    "unit check": ["unit", "check", "u.unit.toml", "--json"],
+    "unit show": ["unit", "show", "u", "--json"],
+    "unit learn": ["unit", "learn", "u", "--from", "2026-01-01", "--to", "2026-01-02"],
+    "diagnose": ["diagnose", "u", "--csv", "d.csv", "--from", "2026-01-01"],
+    "benchmark": ["benchmark", "--quick", "--json"],
 }
 
 PROBE = textwrap.dedent(
