@@ -297,6 +297,22 @@ def _frames(args, unit, start, end, chunk="7D"):
         h.close()
 
 
+def _prefetch(items):
+    """Yield from ``items`` while a thread already reads the next one (the historian read
+    releases the GIL, so reading and evaluating overlap)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    it = iter(items)
+    with ThreadPoolExecutor(1) as ex:
+        nxt = ex.submit(next, it, None)
+        while True:
+            item = nxt.result()
+            if item is None:
+                return
+            nxt = ex.submit(next, it, None)
+            yield item
+
+
 def cmd_unit_learn(args) -> int:
     from diag_plugin.diagnose.unit import learn_thresholds
     from diag_plugin.diagnose.unitfile import UnitFile
@@ -344,7 +360,8 @@ def cmd_diagnose(args) -> int:
         chunk = pd.Timedelta(args.chunk)
     except ValueError:
         raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D") from None
-    parts = [unit.evaluate(f) for f in _frames(args, unit, _ts(args.start), _ts(args.end), chunk)]
+    frames = _prefetch(_frames(args, unit, _ts(args.start), _ts(args.end), chunk))
+    parts = [unit.evaluate(f) for f in frames]
     parts = [p for p in parts if len(p)]
     if not parts:
         raise UserError("no data in the window")
@@ -358,8 +375,7 @@ def cmd_diagnose(args) -> int:
         "samples": len(d),
         "message": d.message,
         "status_share": {
-            k: round(float(v), 6)
-            for k, v in d.status.map(lambda s: _name(s)).value_counts(normalize=True).items()
+            _name(k): round(float(v), 6) for k, v in d.status.value_counts(normalize=True).items()
         },
         "detected_share": _share(d.detected),
         "intervals": [

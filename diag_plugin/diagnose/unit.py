@@ -456,11 +456,16 @@ class Unit:
         out_status = status.copy()
         faults = np.full(n, "", dtype=object)
         rows = np.flatnonzero(iso.any(axis=1))
-        names = np.array(self.faults, dtype=object)
-        for i in rows:
-            sel = np.flatnonzero(iso[i])
-            faults[i] = "|".join(names[sel])
-            out_status[i] = fault_status[sel[np.argmin(prio[sel])]]
+        if not rows.size:
+            return out_status, faults
+        # one pass per distinct pattern of isolated faults, not per sample
+        patterns, inverse = np.unique(iso[rows], axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        for k, pat in enumerate(patterns):
+            sel = np.flatnonzero(pat)
+            at = rows[inverse == k]
+            faults[at] = "|".join(self.faults[j] for j in sel)
+            out_status[at] = fault_status[sel[np.argmin(prio[sel])]]
         return out_status, faults
 
 
