@@ -27,6 +27,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "diag_plugin.jobs_cli",
     "diag_plugin.workbench.cli",
     "diag_plugin.diagnose.cli",
+    "diag_plugin.live_cli",
 )
 
 

@@ -47,6 +47,7 @@ ARGV = {
     "unit learn": ["unit", "learn", "u", "--from", "2026-01-01", "--to", "2026-01-02"],
     "diagnose": ["diagnose", "u", "--csv", "d.csv", "--from", "2026-01-01"],
     "benchmark": ["benchmark", "--quick", "--json"],
+    "run": ["run", "--duration", "5"],
 }
 
 PROBE = textwrap.dedent(
