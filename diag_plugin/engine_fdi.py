@@ -1,0 +1,374 @@
+"""The seed's whole engine FDI experiment (Laukonen et al., IEEE TCST 3(3), 1995, §§III–IV).
+
+1. Fault-free runs of the simulated engine (:mod:`diag_plugin.simulate.engine`): one for
+   identification, one to learn the thresholds, one per test case (different seeds: the
+   seed's "similar tests run on different days").
+2. The five models ``f_ω, f_ma, f_α, f_mf, f_TL`` (eqs. 2–6) with the regression vectors of
+   eqs. 7–11, identified on measured data (series-parallel) with a chosen method: ``ts-fcm``
+   (N = 10, m = 2, ε = 0.01, §III), ``narmax2`` (eq. 12) or ``wm-avg``.
+3. Residuals ``ŷ − y`` (§IV) in free run where the method can simulate (``ts-fcm``,
+   ``narmax2``): the regressors carry the estimates ω̂, m̂_a, α̂, m̂_f of the model's own earlier
+   outputs and T̂_L of the load-torque model (eqs. 7, 8); ``wm-avg`` cannot, so its residuals
+   are one step ahead (measured lags).
+4. Post-processing (§IV): 4th-order Butterworth at π/100 (:class:`LowPass`), division by the
+   signal's maximum over a fault-free run (:class:`MaxScaler`), thresholds learned from a
+   fault-free run (:class:`LearnedThresholds`; the seed's Table III values belong to its engine)
+   and latching (:class:`Latch`) over the seed's test window, revolutions 3000–5000.
+5. Isolation by Table II (:class:`DiagnosticMatrix`, exact match, else nearest signature).
+
+Plain functions, numpy/pandas in and out.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from diag_plugin.diagnose.matrix import DiagnosticMatrix
+from diag_plugin.diagnose.residuals import Latch, LowPass, MaxScaler
+from diag_plugin.diagnose.symptoms import LearnedThresholds
+from diag_plugin.simulate.engine import EngineFault, simulate_engine
+
+__all__ = [
+    "CASES",
+    "FDI_METHODS",
+    "MODELS",
+    "RESIDUALS",
+    "TABLE_II",
+    "TABLE_III",
+    "EngineModels",
+    "compare_methods",
+    "fault_case",
+    "identify",
+    "isolate",
+    "new_estimator",
+    "regressors",
+    "residuals",
+    "run_case",
+    "run_fdi",
+    "table_ii",
+    "validation_errors",
+]
+
+#: methods engine-fdi can identify with
+FDI_METHODS = ("ts-fcm", "narmax2", "wm-avg")
+
+#: Eqs. 7–11: per model, its output column and its inputs ``(column, lag)``; an input on the
+#: model's own output is its estimate in free run, ``T_L`` in eqs. 7–8 the estimate T̂_L.
+MODELS: dict[str, tuple[str, tuple[tuple[str, int], ...]]] = {
+    "omega": (  # eq. 7
+        "omega",
+        (("omega", 1), ("omega", 2), ("omega", 3), ("alpha", 1), ("alpha", 2), ("alpha", 3))
+        + (("m_f", 1), ("m_f", 2), ("m_f", 3), ("T_L", 2)),
+    ),
+    "m_a": (  # eq. 8
+        "m_a",
+        (("m_a", 1), ("m_a", 2), ("m_a", 3), ("alpha", 1), ("alpha", 2), ("m_f", 1))
+        + (("m_f", 2), ("m_f", 3), ("T_L", 1), ("T_L", 3)),
+    ),
+    "alpha": (  # eq. 9
+        "alpha",
+        (("alpha", 1), ("alpha", 2), ("alpha", 3), ("m_a", 1), ("m_a", 2), ("m_a", 3))
+        + (("omega_dy", 1), ("omega_dy", 2)),
+    ),
+    "m_f": (  # eq. 10
+        "m_f",
+        (("m_f", 1), ("m_f", 2), ("m_f", 3), ("m_a", 1), ("m_a", 2), ("m_a", 3))
+        + (("omega", 1), ("omega", 2), ("omega", 3)),
+    ),
+    "T_L": (  # eq. 11
+        "T_L",
+        (("T_L", 1), ("T_L", 2), ("T_L", 3), ("alpha", 1), ("alpha", 2), ("m_f", 1))
+        + (("m_a", 1), ("m_a", 3), ("omega_dy", 1), ("omega_dy", 3)),
+    ),
+}
+
+#: the four residuals of Table II, ``ŷ − y`` (T̂_L only feeds eqs. 7–8)
+RESIDUALS = ("omega", "m_a", "alpha", "m_f")
+
+#: Table II, per fault its residual signature over :data:`RESIDUALS` ("x": the seed's "-")
+TABLE_II: dict[str, tuple[str, str, str, str]] = {
+    "m_a": ("x", "1", "1", "1"),
+    "omega": ("1", "0", "1", "1"),
+    "alpha": ("1", "1", "1", "0"),
+    "m_f": ("1", "1", "0", "1"),
+}
+
+#: Table III thresholds of the seed's engine (its scaling; for reference only)
+TABLE_III: dict[str, float] = {"omega": 0.10, "m_a": 0.30, "alpha": 0.04, "m_f": 0.15}
+
+#: the seed's calibration faults (§IV): signal(s) and gain
+CASES: dict[str, tuple[tuple[str, ...], float]] = {
+    "none": ((), 1.0),
+    "omega": (("omega", "omega_dy"), 1.2),  # ω_dy carries the error too (docs/engine.md)
+    "m_a": (("m_a",), 1.2),
+    "alpha": (("alpha",), 1.2),  # actuator: the engine gets 1.2 × the command
+    "m_f": (("m_f",), 1.4),  # actuator: injects 1.4 × the command
+}
+
+N_REV = 7000  # the seed's cut IM240 cycle (§III)
+WINDOW = (3000, 5000)  # the seed's test window, revolutions (§IV)
+
+
+@dataclass
+class EngineModels:
+    """The five identified models (eqs. 2–6), keyed like :data:`MODELS`."""
+
+    method: str
+    models: dict[str, Any]
+    fit_seconds: dict[str, float]
+
+
+def table_ii() -> DiagnosticMatrix:
+    """Table II as a :class:`DiagnosticMatrix` (tests = :data:`RESIDUALS`)."""
+    faults = list(TABLE_II)
+    rows = [[TABLE_II[f][t] for f in faults] for t in range(len(RESIDUALS))]
+    return DiagnosticMatrix(list(RESIDUALS), faults, rows, name="seed 000 Table II")
+
+
+def fault_case(case: str, onset: int, kind: str = "recorded") -> list[EngineFault]:
+    """The calibration fault(s) of a case (Laukonen et al. §IV, Table I) from ``onset`` on.
+
+    ``kind="recorded"`` multiplies the recorded signal, as the seed simulated its faults
+    ("multiplying the experimental data for a specific fault by the desired calibration fault
+    value"); ``"physical"`` makes α and m_f actuator faults the engine feels (the closed loops
+    react)."""
+    if kind not in ("recorded", "physical"):
+        raise ValueError(f"kind must be 'recorded' or 'physical', got {kind!r}")
+    signals, gain = CASES[case]
+    k = "sensor" if kind == "recorded" else None
+    return [EngineFault(s, gain, onset, kind=k) for s in signals]
+
+
+def regressors(df: pd.DataFrame, model: str) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """Regression matrix of eqs. 7–11 for ``model`` from the columns of ``df``, its target and
+    the output lags (per input the lag if it is the model's own output, else 0)."""
+    out, inputs = MODELS[model]
+    X = np.column_stack([df[col].shift(lag).to_numpy(float) for col, lag in inputs])
+    lags = [lag if col == out else 0 for col, lag in inputs]
+    return X, df[out].to_numpy(float), lags
+
+
+def new_estimator(method: str, output_lags: Sequence[int], random_state: int = 0) -> Any:
+    """An untrained estimator: ``ts-fcm`` with the seed's N = 10, m = 2, ε = 0.01 (§III),
+    ``narmax2`` (eq. 12) or ``wm-avg``."""
+    if method == "ts-fcm":
+        from diag_plugin.fuzzy.ts_fcm import TakagiSugenoRegressor
+
+        return TakagiSugenoRegressor(
+            n_clusters=10, m=2.0, eps=0.01, random_state=random_state, output_lags=output_lags
+        )
+    if method == "narmax2":
+        from diag_plugin.models.narmax import Narmax2Regressor
+
+        return Narmax2Regressor(output_lags=output_lags)
+    if method == "wm-avg":
+        from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
+
+        return WangMendelRegressor(n_sets=9, output_sets=31, method="wm-avg")
+    raise ValueError(f"unknown method {method!r} (known: {', '.join(FDI_METHODS)})")
+
+
+def _with_estimates(X: np.ndarray, lags: Sequence[int], yhat: np.ndarray) -> np.ndarray:
+    """``X`` with each own-lag column replaced by the estimate ``yhat`` that many rows earlier
+    (measured where there is no estimate yet)."""
+    X = X.copy()
+    for j, d in enumerate(lags):
+        if d > 0:
+            est = np.r_[np.full(d, np.nan), yhat[:-d]]
+            X[:, j] = np.where(np.isfinite(est), est, X[:, j])
+    return X
+
+
+def _free_run_sse(model: Any, X: np.ndarray, y: np.ndarray) -> float:
+    e = model.simulate(X) - y
+    e = e[np.isfinite(e)]
+    return float(e @ e) if e.size else float("inf")
+
+
+def _fit_one(method: str, X: np.ndarray, y: np.ndarray, lags: list[int], refits: int) -> Any:
+    """Fit on measured lags, then ``refits`` times on the previous fit's own estimates in the
+    lag columns (the seed's ŷ(k−1..3), eqs. 7–11); keep the fit whose free run is closest to
+    the training data (a model trained on measured lags may lean on y(k−1) and drift when
+    fed its own output)."""
+    model = new_estimator(method, lags).fit(X, y)
+    if not getattr(model.capabilities, "free_run", False):
+        return model
+    best, best_sse = model, _free_run_sse(model, X, y)
+    for _ in range(refits):
+        model = new_estimator(method, lags).fit(_with_estimates(X, lags, model.simulate(X)), y)
+        sse = _free_run_sse(model, X, y)
+        if sse < best_sse:
+            best, best_sse = model, sse
+    return best
+
+
+def identify(train: pd.DataFrame, method: str = "ts-fcm", refits: int = 2) -> EngineModels:
+    """Identify the five models of eqs. 7–11 on fault-free data (Laukonen et al. §III): see
+    :func:`_fit_one`; the ω and m_a models (eqs. 7–8) are trained with T̂_L, the free run of
+    the load-torque model (eq. 11), in place of T_L where the method can simulate."""
+    models, secs = {}, {}
+    fed = train
+    for name in ("T_L", *RESIDUALS):
+        X, y, lags = regressors(fed, name)
+        t0 = time.perf_counter()
+        models[name] = _fit_one(method, X, y, lags, refits)
+        secs[name] = time.perf_counter() - t0
+        if name == "T_L" and getattr(models[name].capabilities, "free_run", False):
+            est = models[name].simulate(X)
+            fed = train.assign(T_L=np.where(np.isfinite(est), est, train["T_L"]))
+    return EngineModels(method, {k: models[k] for k in MODELS}, secs)
+
+
+def free_runs(em: EngineModels) -> bool:
+    """Whether the method simulates its own lags (free run, the seed's ω̂(k−1), …)."""
+    return all(getattr(m.capabilities, "free_run", False) for m in em.models.values())
+
+
+def _estimate(model: Any, X: np.ndarray, free: bool) -> np.ndarray:
+    return model.simulate(X) if free else model.extrapolate(X)
+
+
+def estimates(em: EngineModels, df: pd.DataFrame) -> pd.DataFrame:
+    """Estimates ω̂, m̂_a, α̂, m̂_f, T̂_L over a run (eqs. 2–6): free run where the method can,
+    with T̂_L in place of T_L in eqs. 7–8; else one step ahead on measured data."""
+    free = free_runs(em)
+    X, _, _ = regressors(df, "T_L")
+    out = {"T_L": _estimate(em.models["T_L"], X, free)}
+    fed = df.assign(T_L=np.where(np.isfinite(out["T_L"]), out["T_L"], df["T_L"])) if free else df
+    for name in RESIDUALS:
+        X, _, _ = regressors(fed, name)
+        out[name] = _estimate(em.models[name], X, free)
+    return pd.DataFrame(out, index=df.index)[[*RESIDUALS, "T_L"]]
+
+
+def residuals(em: EngineModels, df: pd.DataFrame, scaler: MaxScaler) -> pd.DataFrame:
+    """Filtered, scaled residuals ``ŷ − y`` of Table II (§IV: Butterworth 4th order at π/100,
+    divided by the signal maximum over a fault-free cycle). NaN warm-up rows count as zero."""
+    est = estimates(em, df)[list(RESIDUALS)]
+    raw = (est - df[list(RESIDUALS)]).fillna(0.0)
+    return scaler.transform(LowPass(wn=0.01, order=4).transform(raw))
+
+
+def _window(df: pd.DataFrame, window: tuple[int, int]) -> pd.DataFrame:
+    rev = df["rev"].to_numpy() if "rev" in df else np.arange(len(df))
+    return df[(rev >= window[0]) & (rev < window[1])]
+
+
+def isolate(latched: pd.DataFrame, onset_time: pd.Timestamp) -> tuple[str, float, bool]:
+    """Isolation by Table II over latched symptoms: exact match at the end of the window, else
+    the nearest signature; time from the onset to the first sample from which that decision
+    holds to the end. Returns ``(fault or "none", seconds or NaN, exact)``."""
+    m = table_ii()
+    s = latched[list(RESIDUALS)].to_numpy(float)
+    match = m.match(s).matched
+    exact = match.sum(axis=1) == 1
+    near = m.nearest(s).fault
+    decision = np.where(exact, match.argmax(axis=1), near)
+    last = int(decision[-1]) if len(decision) else -1
+    if last < 0:
+        return "none", float("nan"), True
+    differ = np.flatnonzero(decision != last)
+    first = int(differ[-1]) + 1 if differ.size else 0
+    seconds = (latched.index[first] - onset_time).total_seconds()
+    return m.faults[last], float(seconds), bool(exact[-1])
+
+
+def run_case(
+    em: EngineModels,
+    case: str,
+    *,
+    seed: int,
+    scaler: MaxScaler,
+    thresholds: pd.Series,
+    onset: int = WINDOW[0],
+    window: tuple[int, int] = WINDOW,
+    kind: str = "recorded",
+) -> dict[str, Any]:
+    """One test (§IV, Figs. 8–12): simulate the case, residuals, thresholds, latch, isolate."""
+    df = simulate_engine(window[1], seed=seed, faults=fault_case(case, onset, kind))
+    r = _window(residuals(em, df, scaler).assign(rev=df["rev"]), window)[list(RESIDUALS)]
+    latched = Latch(thresholds).transform(r)
+    fault, secs, exact = isolate(latched, df.index[df["rev"] == onset][0])
+    return {
+        "injected": case,
+        "isolated": fault,
+        "time_s": None if np.isnan(secs) else round(secs, 3),
+        "exact": exact,
+        "peak": {c: round(float(r[c].abs().max()), 4) for c in RESIDUALS},
+    }
+
+
+def validation_errors(em: EngineModels, val: pd.DataFrame) -> dict[str, dict[str, float]]:
+    """Per model, Figs. 3–7: the sum of squared errors Σe² over the validation run and the RMSE
+    in % of the signal's range, of the estimates the FDI uses (free run where it can)."""
+    est = estimates(em, val)
+    out = {}
+    for name in MODELS:
+        e = (est[name] - val[name]).to_numpy(float)[10:]
+        e = e[np.isfinite(e)]
+        span = float(val[name].max() - val[name].min())
+        out[name] = {
+            "sse": float(e @ e),
+            "rmse_pct": float(100 * np.sqrt(np.mean(e**2)) / span),
+            "fit_s": round(em.fit_seconds[name], 3),
+        }
+    return out
+
+
+def learn_thresholds(
+    em: EngineModels, clean: pd.DataFrame, scaler: MaxScaler, window: tuple[int, int] = WINDOW
+) -> pd.Series:
+    """Thresholds from a fault-free run (§IV: "computed empirically by analyzing the deviation
+    of the residuals from zero during no fault operation"): the largest |r| in the window,
+    times 1.5."""
+    r = _window(residuals(em, clean, scaler).assign(rev=clean["rev"]), window)
+    r = r[list(RESIDUALS)]
+    return LearnedThresholds(quantile=1.0, margin=1.5).fit(r).thresholds_
+
+
+def run_fdi(
+    seed: int = 0,
+    method: str = "ts-fcm",
+    *,
+    cases: Sequence[str] = tuple(CASES),
+    n_rev: int = N_REV,
+    window: tuple[int, int] = WINDOW,
+    kind: str = "recorded",
+) -> dict[str, Any]:
+    """The seed's whole experiment (§§III–IV) for one seed: identification on a fault-free run
+    (simulator seed ``seed``), scaling and thresholds from a second fault-free run
+    (``seed + 1000``), each case on a third run (``seed + 2000``) with the fault from the start
+    of the test window. Returns ``{"method", "seed", "thresholds", "validation", "cases"}``."""
+    train = simulate_engine(n_rev, seed=seed)
+    em = identify(train, method)
+    clean = simulate_engine(n_rev, seed=seed + 1000)
+    scaler = MaxScaler().fit(clean[list(RESIDUALS)])
+    thr = learn_thresholds(em, clean, scaler, window)
+    results = [
+        run_case(em, c, seed=seed + 2000, scaler=scaler, thresholds=thr, window=window, kind=kind)
+        for c in cases
+    ]
+    return {
+        "method": method,
+        "seed": seed,
+        "fault_kind": kind,
+        "residual_mode": "free run" if free_runs(em) else "one step ahead",
+        "thresholds": {k: round(float(v), 4) for k, v in thr.items()},
+        "validation": validation_errors(em, clean),
+        "cases": results,
+    }
+
+
+def compare_methods(
+    seed: int = 0, methods: Sequence[str] = FDI_METHODS, n_rev: int = N_REV
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Figs. 3–7 for every method: identify on run ``seed``, validate on ``seed + 1000``."""
+    train = simulate_engine(n_rev, seed=seed)
+    val = simulate_engine(n_rev, seed=seed + 1000)
+    return {m: validation_errors(identify(train, m), val) for m in methods}
