@@ -28,6 +28,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "diag_plugin.workbench.cli",
     "diag_plugin.diagnose.cli",
     "diag_plugin.live_cli",
+    "diag_plugin.engine_cli",
 )
 
 

@@ -185,12 +185,6 @@ def _with_estimates(X: np.ndarray, lags: Sequence[int], yhat: np.ndarray) -> np.
     return X
 
 
-def _free_run_sse(model: Any, X: np.ndarray, y: np.ndarray) -> float:
-    e = model.simulate(X) - y
-    e = e[np.isfinite(e)]
-    return float(e @ e) if e.size else float("inf")
-
-
 def _fit_one(method: str, X: np.ndarray, y: np.ndarray, lags: list[int], refits: int) -> Any:
     """Fit on measured lags, then ``refits`` times on the previous fit's own estimates in the
     lag columns (the seed's ŷ(k−1..3), eqs. 7–11); keep the fit whose free run is closest to
@@ -199,12 +193,14 @@ def _fit_one(method: str, X: np.ndarray, y: np.ndarray, lags: list[int], refits:
     model = new_estimator(method, lags).fit(X, y)
     if not getattr(model.capabilities, "free_run", False):
         return model
-    best, best_sse = model, _free_run_sse(model, X, y)
-    for _ in range(refits):
-        model = new_estimator(method, lags).fit(_with_estimates(X, lags, model.simulate(X)), y)
-        sse = _free_run_sse(model, X, y)
-        if sse < best_sse:
-            best, best_sse = model, sse
+    best, best_sse = model, float("inf")
+    for i in range(refits + 1):
+        sim = model.simulate(X)
+        e = (sim - y)[np.isfinite(sim)]
+        if e.size and float(e @ e) < best_sse:
+            best, best_sse = model, float(e @ e)
+        if i < refits:
+            model = new_estimator(method, lags).fit(_with_estimates(X, lags, sim), y)
     return best
 
 

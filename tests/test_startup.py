@@ -47,6 +47,7 @@ ARGV = {
     "unit learn": ["unit", "learn", "u", "--from", "2026-01-01", "--to", "2026-01-02"],
     "diagnose": ["diagnose", "u", "--csv", "d.csv", "--from", "2026-01-01"],
     "benchmark": ["benchmark", "--quick", "--json"],
+    "engine-fdi": ["engine-fdi", "--seed", "1", "--method", "narmax2", "--json"],
     "run": ["run", "--duration", "5"],
 }
 
