@@ -14,8 +14,14 @@ def add_commands(sub) -> None:
             "scripted operator and cleared; its data, history and example unit live in --data."
         ),
     )
-    p.add_argument("--config", metavar="PLANT_TOML", help="plant.toml (not yet supported)")
-    p.add_argument("--data", default="diag-data", metavar="DIR", help="embedded data dir")
+    p.add_argument(
+        "--config",
+        metavar="PLANT_TOML",
+        help="plant.toml (one Modbus source; see diag_plugin/live_config.py)",
+    )
+    p.add_argument(
+        "--data", default="diag-data", metavar="DIR", help="embedded data dir (no --config)"
+    )
     p.add_argument(
         "--cycle",
         type=float,
@@ -41,12 +47,16 @@ def _run(args: argparse.Namespace) -> int:
     import sys
 
     if args.config:
-        print(
-            f"diag run: --config {args.config}: plant.toml configurations are not yet "
-            "supported; run `diag run` without --config for the embedded plant",
-            file=sys.stderr,
+        from diag_plugin.live_config import ConfigError, load_config, run_config
+
+        try:
+            cfg = load_config(args.config)
+        except ConfigError as exc:
+            print(f"diag run: {exc}", file=sys.stderr)
+            return 2
+        return asyncio.run(
+            run_config(cfg, duration=args.duration, tty=False if args.plain else None)
         )
-        return 2
     if args.cycle <= 0:
         print("diag run: --cycle must be positive", file=sys.stderr)
         return 2

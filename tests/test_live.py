@@ -126,3 +126,120 @@ def test_diag_run_embedded_alarm_cycle_mbpoll_and_historian(tmp_path):
     assert rc == 0, out + proc.stderr.read()
     assert "using the embedded plant" in out and "first start" not in out
     assert re.search(r"stopped after \d+ cycles", out), out
+
+
+PLANT_TOML = """\
+[plant]
+cycle = 0.05
+historian = "sqlite:///cfg.db"
+units = ["rb/valve_unit.unit.toml"]
+
+[source]
+host = "127.0.0.1"
+port = {port}
+map = "plc.csv"
+
+[outputs]
+modbus_port = {modbus}
+opcua_port = 0
+"""
+
+
+def _config_dir(tmp_path):
+    from connectors.modbus_server import default_plant_map
+
+    (tmp_path / "rb").mkdir()
+    (tmp_path / "rb" / "valve_unit.unit.toml").write_text("", encoding="utf-8")
+    rows = ["tag,table,address,type"] + [
+        f"{t.tag},{t.table},{t.address},{t.type}" for t in default_plant_map().tags
+    ]
+    (tmp_path / "plc.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    return tmp_path
+
+
+def test_config_errors_name_key_and_line(tmp_path):
+    from diag_plugin.live_config import ConfigError, load_config
+
+    d = _config_dir(tmp_path)
+    good = PLANT_TOML.format(port=5021, modbus=5020)
+    p = d / "plant.toml"
+    p.write_text(good, encoding="utf-8")
+    cfg = load_config(p)
+    assert cfg.port == 5021 and cfg.cycle == 0.05 and cfg.opcua_port == 0
+    assert cfg.historian == f"sqlite:///{d / 'cfg.db'}"
+    for bad, want in (
+        (
+            good.replace("port = 5021", 'port = "x"'),
+            "plant.toml:8: source.port: must be an integer",
+        ),
+        (good.replace("port = 5021", "port = 70000"), "plant.toml:8: source.port: must be a TCP"),
+        (good.replace('"plc.csv"', '"nope.csv"'), "plant.toml:9: source.map: 'nope.csv': no such"),
+        (good.replace("cycle = 0.05", "cycle = -1"), "plant.toml:2: plant.cycle: must be positive"),
+        (good.replace("opcua_port", "opc_port"), "plant.toml:13: outputs.opc_port: unknown key"),
+        (good.replace("units = ", "unit = "), "plant.toml:4: plant.unit: unknown key"),
+        (good.replace("[source]", "[source"), "plant.toml:6: not valid TOML"),
+    ):
+        p.write_text(bad, encoding="utf-8")
+        try:
+            load_config(p)
+        except ConfigError as exc:
+            assert want in str(exc), str(exc)
+        else:
+            raise AssertionError(f"no error for {want}")
+    p.write_text(good.replace("port = 5021", "port = 0"), encoding="utf-8")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")}
+    res = subprocess.run(
+        [sys.executable, "-m", "diag_plugin", "run", "--config", str(p)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=60,
+    )
+    assert res.returncode == 2 and "plant.toml:8: source.port" in res.stderr, res.stderr
+
+
+def test_config_run_polls_a_plc_stores_and_publishes(tmp_path):
+    """`run_config` against our PlantServer: samples stored, status served, exit 0."""
+    import asyncio
+
+    from connectors.modbus_server import PlantServer
+    from diag_plugin.examples import build_valve_unit
+    from diag_plugin.live_config import load_config, run_config
+    from diag_plugin.simulate import simulate_valve
+    from historian.store import Historian
+
+    d = _config_dir(tmp_path)
+    frame = simulate_valve(1, seed=5)
+    build_valve_unit(d / "rb", frame, "test")
+    plc_port, modbus = free_port(), free_port()
+    (d / "plant.toml").write_text(PLANT_TOML.format(port=plc_port, modbus=modbus), "utf-8")
+    cfg = load_config(d / "plant.toml")
+
+    class Out:
+        lines: list[str] = []
+
+        def write(self, s):
+            self.lines.append(s)
+
+        def flush(self):
+            pass
+
+        def isatty(self):
+            return False
+
+    async def main():
+        async with PlantServer(port=plc_port) as plc:
+            await plc.set_row(frame.iloc[100].to_dict())
+            task = asyncio.create_task(run_config(cfg, duration=2.0, out=Out()))
+            await asyncio.sleep(1.0)
+            word = await asyncio.to_thread(_status_word, modbus) if shutil.which("mbpoll") else 0
+            return await task, word
+
+    rc, word = asyncio.run(main())
+    out = "".join(Out.lines)
+    assert rc == 0, out
+    assert word in (0, 1, 2, 3, 4), out
+    assert "stopped after" in out
+    h = Historian.open(cfg.historian)
+    assert len(h.read_samples("F")) > 5
+    h.close()
