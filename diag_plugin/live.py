@@ -256,7 +256,7 @@ class LiveLoop:
                     loop.remove_signal_handler(sig)
         self.event(
             f"stopped after {self.stats.cycles} cycles, {self.stats.overruns} overruns, "
-            f"{self.stats.stored} samples stored"
+            f"{self.stats.stored} new samples stored"
         )
         return 0
 
@@ -267,7 +267,7 @@ class LiveLoop:
         st = self.stats
         t = Table(
             title=f"diag run: cycle {st.cycles}, {st.last_ms:.1f} ms, "
-            f"{st.overruns} overruns, {st.stored} samples stored"
+            f"{st.overruns} overruns, {st.stored} new samples stored"
         )
         for col in (
             "unit",
