@@ -256,23 +256,32 @@ def _window(df: pd.DataFrame, window: tuple[int, int]) -> pd.DataFrame:
     return df[(rev >= window[0]) & (rev < window[1])]
 
 
-def isolate(latched: pd.DataFrame, onset_time: pd.Timestamp) -> tuple[str, float, bool]:
-    """Isolation by Table II over latched symptoms: exact match at the end of the window, else
-    the nearest signature; time from the onset to the first sample from which that decision
-    holds to the end. Returns ``(fault or "none", seconds or NaN, exact)``."""
+def isolate(
+    latched: pd.DataFrame, onset_time: pd.Timestamp, min_certainty: float = 0.75
+) -> tuple[str, float, bool]:
+    """Isolation by Table II over latched symptoms (§IV): the exact match at the end of the
+    window, else the nearest signature if its certainty (share of its constrained residuals
+    that fit) is at least ``min_certainty`` (one residual off in four), else ``"unknown"``
+    (detected, not isolated). Time: from the onset to the first sample from which that
+    decision holds to the end. Returns ``(fault, "unknown" or "none"; seconds or NaN;
+    exact)``."""
     m = table_ii()
     s = latched[list(RESIDUALS)].to_numpy(float)
     match = m.match(s).matched
     exact = match.sum(axis=1) == 1
-    near = m.nearest(s).fault
-    decision = np.where(exact, match.argmax(axis=1), near)
+    near = m.nearest(s)
+    detected = (np.nan_to_num(s) != 0).any(axis=1)
+    ok_near = np.nan_to_num(near.certainty, nan=0.0) >= min_certainty
+    decision = np.where(exact, match.argmax(axis=1), np.where(ok_near, near.fault, -1))
+    decision = np.where(detected & (decision < 0), -2, decision)  # -2: unknown
     last = int(decision[-1]) if len(decision) else -1
-    if last < 0:
+    if last == -1:
         return "none", float("nan"), True
     differ = np.flatnonzero(decision != last)
     first = int(differ[-1]) + 1 if differ.size else 0
     seconds = (latched.index[first] - onset_time).total_seconds()
-    return m.faults[last], float(seconds), bool(exact[-1])
+    name = "unknown" if last == -2 else m.faults[last]
+    return name, float(seconds), bool(exact[-1])
 
 
 def run_case(
