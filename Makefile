@@ -30,8 +30,11 @@ $(PEERSTAMP): pyproject.toml
 	$(PEERS)/bin/python -m pip install --quiet $$($(PY) -c "import tomllib; print(*tomllib.load(open('pyproject.toml', 'rb'))['project']['optional-dependencies']['peers'])")
 	touch $@
 
+# the live plug-in on the embedded default: a simulated valve plant served over Modbus TCP,
+# diagnosed each cycle, results over OPC UA and Modbus; a scripted fault is raised,
+# acknowledged and cleared, then it stops (`.venv/bin/diag run` runs until Ctrl-C)
 run: $(STAMP)
-	$(BIN)/diag demo
+	$(BIN)/diag run --duration 160
 
 $(OPCUA_STAMP): $(OPCUA_PEER)/package-lock.json
 	cd $(OPCUA_PEER) && npm ci --no-audit --no-fund --loglevel=error

@@ -62,6 +62,7 @@ class LiveStats:
     cycles: int = 0
     overruns: int = 0
     last_ms: float = 0.0
+    work_ms: list[float] = field(default_factory=list)  # per cycle: poll, store, diagnose, publish
     stored: int = 0
     units: dict[str, UnitView] = field(default_factory=dict)
     events: list[str] = field(default_factory=list)
@@ -236,6 +237,7 @@ class LiveLoop:
                     work = time.monotonic() - t0
                     self.stats.cycles = i + 1
                     self.stats.last_ms = work * 1000
+                    self.stats.work_ms.append(work * 1000)
                     if work > self.cycle_s:
                         self.stats.overruns += 1
                     if live is not None:
@@ -254,9 +256,11 @@ class LiveLoop:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 with contextlib.suppress(NotImplementedError, RuntimeError):
                     loop.remove_signal_handler(sig)
+        ms = sorted(self.stats.work_ms) or [0.0]
         self.event(
             f"stopped after {self.stats.cycles} cycles, {self.stats.overruns} overruns, "
-            f"{self.stats.stored} new samples stored"
+            f"{self.stats.stored} new samples stored; cycle work median {ms[len(ms) // 2]:.1f} ms, "
+            f"p95 {ms[int(0.95 * (len(ms) - 1))]:.1f} ms, max {ms[-1]:.1f} ms"
         )
         return 0
 
