@@ -289,3 +289,28 @@ def test_cli_unit_check_reports_file_line(folder, capsys):
     err = capsys.readouterr().err
     line = next(i for i, ln in enumerate(path.read_text().splitlines(), 1) if "fuzy" in ln)
     assert f"{path}:{line}: symptoms must be one of crisp, fuzzy" in err
+
+
+def test_bad_quality_in_the_historian_is_check_function_not_a_fault(folder, tmp_path, faulty):
+    """Samples stored with Bad quality (and a stale tag: no samples at all for a while) reach
+    the unit as missing values: CHECK_FUNCTION, never a fault, even during a real fault."""
+    from historian.quality import BAD, GOOD
+    from historian.store import Historian
+
+    url = f"sqlite:///{tmp_path / 'q.db'}"
+    quality = pd.DataFrame(GOOD, index=faulty.index, columns=faulty.columns)
+    bad = slice(6000, 6400)  # after the onset: the unit is in FAILURE before
+    quality.iloc[bad] = BAD
+    stale = faulty.drop(faulty.index[7000:7400])  # nothing stored for 400 samples
+    with Historian.open(url) as h:
+        h.write_samples(stale, quality=quality.loc[stale.index])
+    csv = tmp_path / "d.csv"
+    args = ["--db", url, "--rulebases", str(folder), "diagnose", "valve_unit", "--csv", str(csv)]
+    assert main(args) == 0
+    t = pd.read_csv(csv, keep_default_na=False)
+    hold = 30
+    for a, b in ((6000, 6400), (7000, 7400)):
+        rows = t.iloc[a + hold : b]
+        assert (rows["status"] == int(NE107.CHECK_FUNCTION)).all(), (a, rows["status"].unique())
+        assert (rows["faults"] == "").all() and (rows["detected"].astype(str) == "").all()
+        assert t["status"].iloc[a - 1] == int(NE107.FAILURE)
