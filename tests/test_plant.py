@@ -1,0 +1,64 @@
+"""The plant (issue 9): units evaluated together each cycle give the statuses each unit gives on
+its own; a broken unit is reported alone (file:line) and the others go on; a fleet of units
+reading their own tags through [tags] shares one set of models."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from diag_plugin.diagnose.plant import Plant
+from diag_plugin.diagnose.status import NE107, Quality
+from diag_plugin.diagnose.unit import Unit
+from diag_plugin.simulate import FaultSpec, simulate_valve
+
+SHIPPED = Path(__file__).resolve().parents[1] / "rulebases"
+ONSET = pd.Timestamp("2026-01-01T06:00", tz="UTC")
+TAGS = ("CV", "P1", "P2", "F", "P0", "X")
+
+
+@pytest.fixture()
+def folder(tmp_path) -> Path:
+    for f in SHIPPED.glob("valve_*"):
+        if f.name.startswith(("valve_r", "valve_unit")):
+            shutil.copy(f, tmp_path / f.name)
+    text = (tmp_path / "valve_unit.unit.toml").read_text()
+    for k in ("a", "b"):
+        tags = "\n".join(f'{t} = "{k.upper()}.{t}"' for t in TAGS)
+        body = text.replace('name = "valve_unit"', f'name = "{k}"')
+        (tmp_path / f"{k}.unit.toml").write_text(body + "\n[tags]\n" + tags + "\n")
+    return tmp_path
+
+
+def test_plant_cycles_equal_each_unit_alone_and_a_broken_unit_stays_local(folder):
+    # unit a sees a P0-sensor fault, unit b runs fault-free; a third unit file is broken
+    fa = simulate_valve(0.4, seed=606, faults=[FaultSpec("f14", -0.3, ONSET)])
+    fb = simulate_valve(0.4, seed=707)
+    fb.iloc[1500:1600, fb.columns.get_loc("F")] = np.nan  # b: a gap in its flow reading
+    broken = folder / "c.unit.toml"
+    broken.write_text((folder / "a.unit.toml").read_text().replace("on_delay = 30", "on_delay = 0"))
+    plant = Plant.load([folder / "a.unit.toml", broken, folder / "b.unit.toml"], folder)
+    assert set(plant.units) == {"a", "b"} and "c" in plant.broken
+    a_u, b_u = Unit.load(folder / "a.unit.toml"), Unit.load(folder / "b.unit.toml")
+    plant_tags = {f"A.{t}": fa[t] for t in TAGS} | {f"B.{t}": fb[t] for t in TAGS}
+    rows = pd.DataFrame(plant_tags)
+    got: dict[str, list] = {"a": [], "b": [], "c": []}
+    for ts, row in rows.iterrows():
+        for st in plant.cycle(ts, row.to_dict()):
+            got[st.unit].append(st)
+    for name, u in (("a", a_u), ("b", b_u)):
+        d = u.evaluate(rows)
+        assert [int(s.status) for s in got[name]] == d.status.tolist(), name
+        assert ["|".join(s.faults) for s in got[name]] == d.faults.tolist(), name
+        r = np.array([list(s.residuals.values()) for s in got[name]])
+        np.testing.assert_allclose(r, d.residuals.to_numpy(), atol=1e-9)
+    assert got["a"][-1].status == NE107.FAILURE and got["a"][-1].faults == ["f_P0"]
+    assert got["b"][-1].status == NE107.NORMAL
+    assert {s.status for s in got["b"][1530:1600]} == {NE107.CHECK_FUNCTION}
+    c = got["c"][-1]
+    assert c.status == NE107.CHECK_FUNCTION and c.quality == Quality.BAD
+    assert f"{broken}:" in c.message and "on_delay" in c.message
