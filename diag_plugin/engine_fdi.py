@@ -327,14 +327,19 @@ def validation_errors(em: EngineModels, val: pd.DataFrame) -> dict[str, dict[str
 
 
 def learn_thresholds(
-    em: EngineModels, clean: pd.DataFrame, scaler: MaxScaler, window: tuple[int, int] = WINDOW
+    em: EngineModels,
+    clean: Sequence[pd.DataFrame],
+    scaler: MaxScaler,
+    window: tuple[int, int] = WINDOW,
 ) -> pd.Series:
-    """Thresholds from a fault-free run (§IV: "computed empirically by analyzing the deviation
-    of the residuals from zero during no fault operation"): the largest |r| in the window,
-    times 1.5."""
-    r = _window(residuals(em, clean, scaler).assign(rev=clean["rev"]), window)
-    r = r[list(RESIDUALS)]
-    return LearnedThresholds(quantile=1.0, margin=1.5).fit(r).thresholds_
+    """Thresholds from fault-free runs (§IV, Table III: "computed empirically by analyzing the
+    deviation of the residuals from zero during no fault operation"): the largest |r| in the
+    test window over all the runs, times 1.5 (:class:`LearnedThresholds`, quantile 1)."""
+    parts = [
+        _window(residuals(em, df, scaler).assign(rev=df["rev"]), window)[list(RESIDUALS)]
+        for df in clean
+    ]
+    return LearnedThresholds(quantile=1.0, margin=1.5).fit(pd.concat(parts)).thresholds_
 
 
 def run_fdi(
@@ -345,16 +350,20 @@ def run_fdi(
     n_rev: int = N_REV,
     window: tuple[int, int] = WINDOW,
     kind: str = "recorded",
+    n_clean: int = 2,
 ) -> dict[str, Any]:
     """The seed's whole experiment (§§III–IV) for one seed: identification on a fault-free run
-    (simulator seed ``seed``), scaling and thresholds from a second fault-free run
-    (``seed + 1000``), each case on a third run (``seed + 2000``) with the fault from the start
-    of the test window. Returns ``{"method", "seed", "thresholds", "validation", "cases"}``."""
+    (simulator seed ``seed``), scaling from a second fault-free run (``seed + 1000``),
+    thresholds over it and ``n_clean − 1`` more (``seed + 1001``, …), each case on a third run
+    (``seed + 2000``) with the fault from the start of the test window. Returns
+    ``{"method", "seed", "fault_kind", "residual_mode", "thresholds", "validation", "cases"}``.
+    """
     train = simulate_engine(n_rev, seed=seed)
     em = identify(train, method)
     clean = simulate_engine(n_rev, seed=seed + 1000)
     scaler = MaxScaler().fit(clean[list(RESIDUALS)])
-    thr = learn_thresholds(em, clean, scaler, window)
+    more = [simulate_engine(window[1], seed=seed + 1000 + i) for i in range(1, n_clean)]
+    thr = learn_thresholds(em, [clean, *more], scaler, window)
     results = [
         run_case(em, c, seed=seed + 2000, scaler=scaler, thresholds=thr, window=window, kind=kind)
         for c in cases
