@@ -1,4 +1,5 @@
-"""``diag engine-fdi``: the seed's engine FDI experiment (Laukonen et al., §§III–IV).
+"""``diag engine-fdi`` (the seed's engine FDI experiment, Laukonen et al., §§III–IV) and
+``diag compare-methods NAME`` (every method on one model file's historian data).
 
 Arguments only; :mod:`diag_plugin.engine_fdi` (numpy, pandas, numba) is imported when the
 command runs. ``--compare`` prints, like the seed's Figs. 3–7, the validation Σe² and RMSE %
@@ -14,7 +15,7 @@ METHODS = ("ts-fcm", "narmax2", "wm-avg")
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    """Register ``engine-fdi``."""
+    """Register ``engine-fdi`` and ``compare-methods``."""
     p = sub.add_parser("engine-fdi", help="the seed's engine FDI experiment (Table II)")
     p.add_argument("--seed", type=int, default=0, help="simulator seed of the training run")
     p.add_argument("--method", choices=METHODS, default="ts-fcm")
@@ -31,6 +32,37 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=cmd_engine_fdi)
+    p = sub.add_parser("compare-methods", help="train every method on a model's data (Figs. 3-7)")
+    p.add_argument("name", help="model name in the rule-base folder, or a file")
+    p.add_argument("--from", dest="start", help="start of the range (default: all)")
+    p.add_argument("--to", dest="end", help="end of the range")
+    p.add_argument("--holdout", type=float, default=0.2, help="held-out share (last part)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=cmd_compare_methods)
+
+
+def cmd_compare_methods(args: argparse.Namespace) -> int:
+    """Validation Σe², RMSE % and fit time per registered method (seed 000 Figs. 3–7)."""
+    from diag_plugin.method_compare import compare_methods
+    from diag_plugin.rulebase import resolve
+
+    rows = compare_methods(
+        resolve(args.name, args.rulebases),
+        args.db,
+        start=args.start,
+        end=args.end,
+        holdout=args.holdout,
+    )
+    if args.json:
+        print(json.dumps({"model": args.name, "methods": rows}, indent=2))
+        return 0
+    print(f"{'method':8} {'SSE':>12} {'RMSE %':>8} {'coverage':>9} {'fit s':>7}")
+    for r in rows:
+        print(
+            f"{r['method']:8} {r['sse']:12.4g} {r['rmse_pct']:8.2f} "
+            f"{r['coverage']:9.1%} {r['fit_s']:7.2f}"
+        )
+    return 0
 
 
 def cmd_engine_fdi(args: argparse.Namespace) -> int:

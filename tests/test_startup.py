@@ -48,6 +48,7 @@ ARGV = {
     "diagnose": ["diagnose", "u", "--csv", "d.csv", "--from", "2026-01-01"],
     "benchmark": ["benchmark", "--quick", "--json"],
     "engine-fdi": ["engine-fdi", "--seed", "1", "--method", "narmax2", "--json"],
+    "compare-methods": ["compare-methods", "valve", "--holdout", "0.3", "--json"],
     "run": ["run", "--duration", "5"],
 }
 

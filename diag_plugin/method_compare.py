@@ -1,0 +1,100 @@
+"""``diag compare-methods NAME``: every registered method trained on the same historian data.
+
+Like Laukonen et al.'s Figs. 3–7 (fuzzy clustering beside NARMAX on the same training and
+validation data): for the model file ``NAME`` each method of the registry is trained by
+:func:`diag_plugin.training.train` on the same range, the same held-out validation part
+and the same spans, with the method's default options; nothing is saved. Reported per method:
+the validation sum of squared errors Σe² (output units²), the RMSE in % of the output span
+(seed 001 eq. 6), the coverage and the fit time.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from diag_plugin.models.registry import METHODS, get_method
+from diag_plugin.regressors import needed_tags
+from diag_plugin.rulebase import RuleBase
+from diag_plugin.training import DEFAULT_CHUNK, train
+from historian.access import WindowReader
+from historian.store import Historian
+
+__all__ = ["AsMethod", "compare_methods"]
+
+
+class AsMethod:
+    """A model file seen as if it named another method (its default options, no locks)."""
+
+    def __init__(self, rb: RuleBase, method: str) -> None:
+        self._rb = rb
+        self.method = method
+        self.codec = get_method(method)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._rb, name)
+
+    @property
+    def spec(self) -> Any:
+        """The file's spec with this method and its default options."""
+        return dataclasses.replace(
+            self._rb.spec, method=self.method, options=self.codec.default_options()
+        )
+
+    def new_model(self) -> Any:
+        """An untrained estimator of this method on the file's inputs and spans."""
+        return self.codec.new_estimator(self.spec)
+
+    def predictor(self, model: Any) -> Any:
+        """The trained model itself (a comparison applies no expert locks)."""
+        return model
+
+
+def _sse(validation: dict[str, Any], span: float) -> float:
+    """Σe² in output units from the RMSE in % of span and the sample count."""
+    return float(validation["samples"] * (validation["rmse_pct"] * span / 100.0) ** 2)
+
+
+def compare_methods(
+    path: Path,
+    url: str,
+    *,
+    start: str | None = None,
+    end: str | None = None,
+    holdout: float = 0.2,
+    methods: tuple[str, ...] | None = None,
+) -> list[dict[str, Any]]:
+    """Train each method on the same data of the model file ``path`` (Figs. 3–7 style)."""
+    rb = RuleBase.load(path)
+    tags = needed_tags([*(v.spec for v in rb.inputs), rb.output.spec])
+    with Historian.open(url) as h:
+        a, b = h.time_range(tags)
+    if a is None:
+        raise ValueError(f"no samples of {', '.join(tags)}")
+    t0 = pd.Timestamp(start, tz="UTC") if start else a
+    t1 = pd.Timestamp(end, tz="UTC") if end else b + pd.Timedelta(rb.period)
+    span = rb.output.span[1] - rb.output.span[0]
+    out = []
+    for method in methods or tuple(METHODS):
+        reader = WindowReader(url, tuple(tags), rb.period)
+        started = time.perf_counter()
+        try:
+            res = train(AsMethod(rb, method), reader, t0, t1, holdout=holdout, chunk=DEFAULT_CHUNK)
+        finally:
+            reader.close()
+        v = res.validation
+        out.append(
+            {
+                "method": method,
+                "sse": _sse(v, span),
+                "rmse_pct": v["rmse_pct"],
+                "coverage": v["coverage"],
+                "samples": v["samples"],
+                "fit_s": round(time.perf_counter() - started, 3),
+            }
+        )
+    return out
