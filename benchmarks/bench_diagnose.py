@@ -96,7 +96,6 @@ def bench_diagnose(folder: Path) -> float:
             m = TAGS[name]
             h.ensure_tag(name, unit=m.unit, lo=m.lo, hi=m.hi)
         h.write_samples(frame)
-    csv = folder / "d.csv"
     t0 = time.perf_counter()
     r = subprocess.run(
         [*DIAG, "--db", url, "--rulebases", str(RB), "diagnose", "valve_unit", "--json"],
@@ -110,13 +109,6 @@ def bench_diagnose(folder: Path) -> float:
         f"diag diagnose, 6 months ({out['samples']:,} samples, 4 models) from SQLite: {dt:.2f} s "
         f"({out['samples'] / dt / 1e6:.2f} M samples/s), {len(out['intervals'])} intervals"
     )
-    t0 = time.perf_counter()
-    subprocess.run(
-        [*DIAG, "--db", url, "--rulebases", str(RB), "diagnose", "valve_unit", "--csv", str(csv)],
-        capture_output=True,
-        check=True,
-    )
-    print(f"  with --csv ({csv.stat().st_size / 1e6:.0f} MB): {time.perf_counter() - t0:.2f} s")
     del pd
     return dt
 
