@@ -33,7 +33,6 @@ UNIT_TESTS = {
 }
 UNIT_MATRIX = """\
 # Servomotor–valve unit, Kościelny et al. Table 4 (blank entries are 0, as rules (10)–(14) say)
-# f_EP E/P transducer, f_P0 P0 pressure sensor, f_S servomotor, f_X X transducer, f_V valve
 [matrix]
 name = "valve_unit"
 tests = ["r1", "r2", "r3", "r4"]
@@ -45,6 +44,7 @@ rows = [
   { test = "r3", row = ["0", "1", "1", "1", "0"] },
   { test = "r4", row = ["0", "0", "0", "1", "1"] },
 ]
+# f_EP E/P transducer, f_P0 P0 pressure sensor, f_S servomotor, f_X X transducer, f_V valve
 """
 
 

@@ -9,6 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from diag_plugin.examples import UNIT_MATRIX
+
 REPO = Path(__file__).resolve().parents[1]
 
 #: Every skip because a peer or system part is missing (PostgreSQL server, Chromium, the
@@ -79,17 +81,5 @@ def valve_frame(days: float, seed: int) -> pd.DataFrame:
 
 
 #: seed 001 Table 4 (rules 10–14) as a matrix file: the servomotor–valve unit
-VALVE_TABLE4 = """\
-# Servomotor–valve unit, seed 001 Table 4 (blank entries are 0, as rules (10)–(14) say)
-[matrix]
-name = "valve_unit"
-tests = ["r1", "r2", "r3", "r4"]
-faults = ["f_EP", "f_P0", "f_S", "f_X", "f_V"]
-rows = [
-  #                   f_EP f_P0 f_S  f_X  f_V
-  { test = "r1", row = ["1", "0", "1", "0", "1"] },
-  { test = "r2", row = ["1", "1", "0", "0", "0"] },
-  { test = "r3", row = ["0", "1", "1", "1", "0"] },
-  { test = "r4", row = ["0", "0", "0", "1", "1"] },
-]
-"""
+#: the seed 001 Table 4 matrix, as the example unit ships it
+VALVE_TABLE4 = UNIT_MATRIX

@@ -27,6 +27,7 @@ def test_indexes_on_hand_made_decisions():
     assert s["true_detection_rate"] == pytest.approx(15 / 20)
     assert s["detected"] and s["detection_time_s"] == 80.0  # last leading edge, not the first
     assert s["unknown_rate"] == pytest.approx(1 / 20)
+    assert s["unknown_rate_before"] == 0.0
     assert s["isolated"] and s["isolation_time_s"] == 100.0
     assert s["true_isolation_rate"] == pytest.approx(10 / 20)
     assert s["mismatch_isolation_rate"] == pytest.approx(1 / 30)
@@ -72,6 +73,7 @@ def test_quick_benchmark_meets_the_issue_goal(quick):
     rows = {(r["fault"], r["mode"]): r for r in quick["scenarios"]}
     s = quick["summary"]
     assert s["max_false_detection_rate"] < 0.05
+    assert s["mean_unknown_rate_before"] < 0.05  # not quiet because it says nothing
     assert rows[("f14", "abrupt")]["isolated"]  # P0 sensor: Table 4's f_P0 column
     for f in ("f1", "f2", "f12", "f13", "f14", "f16"):
         assert rows[(f, "abrupt")]["detected"], f

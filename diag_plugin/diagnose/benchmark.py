@@ -11,7 +11,8 @@ The benchmark's Step I times (t_on 300 s, t_from 900 s) are for 1 s data; at 10 
 Indexes per scenario (DD = detection decision: the unit's ``detected`` is 1; PID = primary
 isolation decision: the isolated faults include the fault's matrix column):
 
-* ``false_detection_rate`` r_fd = time with DD before the fault / (t_from − t_on);
+* ``false_detection_rate`` r_fd = time with DD before the fault / (t_from − t_on), with
+  ``unknown_rate_before`` beside it (time without a diagnosis is no false alarm either);
 * ``true_detection_rate`` r_td = time with DD after the onset / (t_hor − t_from);
 * ``detected``: DD holds over the last tenth of the horizon (permanent detection);
   ``detection_time_s`` t_dt = from t_from to the last leading edge of DD;
@@ -129,8 +130,10 @@ def score(
     if out["detected"]:
         edge = _last_leading_edge(after)
         out["detection_time_s"] = float(edge * period_s)
-    unknown = np.isnan(detected[t_from:])
-    out["unknown_rate"] = _rate(unknown)
+    # coverage beside the rates: a unit that is unknown (CHECK_FUNCTION) raises no false
+    # alarm either, so the false detection rate is read with the unknown share before the onset
+    out["unknown_rate_before"] = _rate(np.isnan(detected[:t_from]))
+    out["unknown_rate"] = _rate(np.isnan(detected[t_from:]))
     keys = (
         "false_isolation_rate",
         "true_isolation_rate",
@@ -225,6 +228,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "literature_detectable_share": float(by_fault[lit].mean()) if lit else None,
         "mean_false_detection_rate": float(df["false_detection_rate"].mean()),
         "max_false_detection_rate": float(df["false_detection_rate"].max()),
+        "mean_unknown_rate_before": float(df["unknown_rate_before"].mean()),
         "scenarios_with_isolation": int(len(iso)),
         "scenarios_isolated": int(iso["isolated"].fillna(False).astype(bool).sum()),
         "faults_isolated": sorted(

@@ -506,7 +506,8 @@ def cmd_benchmark(args) -> int:
         f"of the {s['literature_detectable']} faults the literature detects: "
         f"{s['literature_detectable_detected']} ({s['literature_detectable_share']:.0%}); "
         f"false detection rate mean {s['mean_false_detection_rate']:.4f}, "
-        f"max {s['max_false_detection_rate']:.4f}"
+        f"max {s['max_false_detection_rate']:.4f} (unknown before the onsets "
+        f"{s['mean_unknown_rate_before']:.1%})"
     )
     print(
         f"isolated {s['scenarios_isolated']}/{s['scenarios_with_isolation']} scenarios with a "

@@ -39,7 +39,7 @@ from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 from diag_plugin.diagnose.symptoms import FixedThresholds, FuzzyThreeValued, OnOffDelay
 from diag_plugin.diagnose.unitfile import UnitError, UnitFile, unit_path
 from diag_plugin.metrics import residual_pct
-from diag_plugin.regressors import DesignBuilder
+from diag_plugin.regressors import DesignBuilder, needed_tags
 
 log = logging.getLogger(__name__)
 
@@ -64,8 +64,7 @@ class TestModel:
 
     @property
     def tags(self) -> list[str]:
-        b = self.builder()
-        return list(b.tags)
+        return needed_tags([*self.inputs, self.output])
 
 
 def load_test_model(name: str, path: Path) -> TestModel:
@@ -336,14 +335,11 @@ class Unit:
         for t in self.file.tests:
             m = self.models[t.name]
             d = self.builders[t.name].transform(frame)
-            y = np.full(len(frame), np.nan)
             r = np.full(len(frame), np.nan)
             if len(d.index):
                 yhat = m.model.predict_detail(d.X).y
                 scale = t.ymax if self.ev["scale"] == "max" and t.ymax else m.span
-                pos = frame.index.get_indexer(d.index)
-                r[pos] = residual_pct(d.y, yhat, scale)
-                y[pos] = d.y
+                r[frame.index.get_indexer(d.index)] = residual_pct(d.y, yhat, scale)
             cols[t.name] = r
         return pd.DataFrame(cols, index=frame.index, columns=self.tests)
 

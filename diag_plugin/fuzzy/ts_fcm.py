@@ -58,6 +58,7 @@ from diag_plugin.models.estimation import (
     solve_triangle,
     triangles,
 )
+from diag_plugin.models.params import ParamsMixin
 from diag_plugin.models.protocol import REASON_NAN, REASON_UNSUPPORTED, Capabilities, Prediction
 from diag_plugin.models.spec import ModelSpec
 
@@ -198,7 +199,7 @@ def fuzzy_c_means(
 
 
 # -------------------------------------------------------------- the estimator
-class TakagiSugenoRegressor:
+class TakagiSugenoRegressor(ParamsMixin):
     """Takagi–Sugeno fuzzy model with Fuzzy c-Means premises (Laukonen et al., Sect. II).
 
     Parameters
@@ -220,6 +221,8 @@ class TakagiSugenoRegressor:
         Per input, ``d > 0`` if it is the output lagged by ``d`` samples (fed back by
         :meth:`simulate`).
     """
+
+    _params = PARAMS
 
     capabilities = FreeRunCapabilities(
         Capabilities(incremental=False, mergeable=False, rule_regions=False, free_run=True)
@@ -244,17 +247,6 @@ class TakagiSugenoRegressor:
         self.input_spans = input_spans
         self.output_span = output_span
         self.output_lags = output_lags
-
-    def get_params(self, deep: bool = True) -> dict[str, Any]:
-        """Constructor parameters (scikit-learn convention)."""
-        return {k: getattr(self, k) for k in PARAMS}
-
-    def set_params(self, **params: Any) -> TakagiSugenoRegressor:
-        for k, v in params.items():
-            if k not in PARAMS:
-                raise ValueError(f"unknown parameter {k!r}")
-            setattr(self, k, v)
-        return self
 
     # ---------------------------------------------------------------- training
     def fit(self, X: Any, y: Any) -> TakagiSugenoRegressor:

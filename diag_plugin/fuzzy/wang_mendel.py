@@ -32,6 +32,7 @@ import numpy as np
 
 from diag_plugin.fuzzy import _kernels as K
 from diag_plugin.fuzzy.partition import UniformPartition
+from diag_plugin.models.params import ParamsMixin
 from diag_plugin.models.protocol import (  # noqa: F401 - re-exported for callers
     REASON_NAN,
     REASON_OK,
@@ -63,7 +64,7 @@ def _as_2d(X) -> np.ndarray:
     return np.ascontiguousarray(X)
 
 
-class WangMendelRegressor:
+class WangMendelRegressor(ParamsMixin):
     """Wang–Mendel fuzzy model of one output from ``d`` inputs.
 
     Parameters
@@ -80,6 +81,8 @@ class WangMendelRegressor:
     shape : {"trapezoidal", "triangular"}
     method : {"wm-avg", "wm"}
     """
+
+    _params = PARAMS
 
     capabilities = Capabilities(incremental=True, mergeable=True, rule_regions=True)
 
@@ -98,17 +101,6 @@ class WangMendelRegressor:
         self.output_sets = output_sets
         self.shape = shape
         self.method = method
-
-    def get_params(self, deep: bool = True) -> dict:
-        """Constructor parameters (scikit-learn convention)."""
-        return {k: getattr(self, k) for k in PARAMS}
-
-    def set_params(self, **params) -> WangMendelRegressor:
-        for k, v in params.items():
-            if k not in PARAMS:
-                raise ValueError(f"unknown parameter {k!r}")
-            setattr(self, k, v)
-        return self
 
     # ------------------------------------------------------------------ set-up
     def _init_partitions(self, X: np.ndarray, y: np.ndarray) -> None:

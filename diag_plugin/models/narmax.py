@@ -47,6 +47,7 @@ from diag_plugin.models.estimation import (
     output_lags_of,
     resolve_spans,
 )
+from diag_plugin.models.params import ParamsMixin
 from diag_plugin.models.protocol import Capabilities, Prediction
 from diag_plugin.models.spec import ModelSpec
 
@@ -98,7 +99,7 @@ def _raw_basis(centre: np.ndarray, half: np.ndarray) -> np.ndarray:
     return M
 
 
-class Narmax2Regressor:
+class Narmax2Regressor(ParamsMixin):
     """Second-order polynomial model (Laukonen et al., eq. 12) by batch least squares.
 
     Parameters
@@ -113,6 +114,8 @@ class Narmax2Regressor:
         back by :meth:`simulate` (free run).
     """
 
+    _params = PARAMS
+
     capabilities = FreeRunCapabilities(
         Capabilities(incremental=True, mergeable=True, rule_regions=False, free_run=True)
     )
@@ -126,17 +129,6 @@ class Narmax2Regressor:
         self.input_spans = input_spans
         self.output_span = output_span
         self.output_lags = output_lags
-
-    def get_params(self, deep: bool = True) -> dict[str, Any]:
-        """Constructor parameters (scikit-learn convention)."""
-        return {k: getattr(self, k) for k in PARAMS}
-
-    def set_params(self, **params: Any) -> Narmax2Regressor:
-        for k, v in params.items():
-            if k not in PARAMS:
-                raise ValueError(f"unknown parameter {k!r}")
-            setattr(self, k, v)
-        return self
 
     # ------------------------------------------------------------------ set-up
     def _init(self, X: np.ndarray, y: np.ndarray | None = None) -> None:
