@@ -272,6 +272,35 @@ def test_f13_measurement_mode_leaves_the_process_alone(base):
     assert (d["X"][after] - ok["X"][after]).abs().mean() > 3.0
 
 
+def test_without_positioner_the_chain_is_open():
+    """``positioner_gain=0``: CV drives the E/P converter, so P0 depends on CV alone and
+    an E/P or spring fault is not compensated (the plant of Kościelny et al.'s Table 4)."""
+    p = ValveParams(positioner_gain=0.0, hysteresis=0.03, noise_scale=0.0)
+    ok = simulate_valve(0.5, seed=3, internals=True, params=p)
+    # healthy: the calibration still puts X near CV, within the friction band
+    assert (ok["X"] - ok["CV"]).abs().median() < 3.0
+    # P0 is a straight function of the (filtered) CV: no feedback from X
+    slope, icpt = np.polyfit(ok["CV"], ok["P0"], 1)
+    assert np.abs(ok["P0"] - (slope * ok["CV"] + icpt)).quantile(0.99) < 5.0
+    after = ok.index >= ONSET
+    for fault in ("f12", "f11"):
+        d = simulate_valve(
+            0.5, seed=3, internals=True, params=p, faults=[FaultSpec(fault, 0.2, ONSET)]
+        )
+        if fault == "f12":  # the E/P output falls for the same CV: ~20 % less pressure
+            ratio = d["P0"][after] / (slope * d["CV"][after] + icpt)
+            assert 0.75 < ratio.median() < 0.85
+        else:  # a weaker spring: more travel for the same chamber pressure
+            x_for_p0 = np.polyfit(ok["P0"], ok["X"], 1)
+            excess = d["X"][after] - np.polyval(x_for_p0, d["P0"][after])
+            assert excess.median() > 5.0
+    # with the positioner (default) the same E/P fault is compensated: P0(CV) barely moves
+    closed = ValveParams(noise_scale=0.0)
+    c_ok = simulate_valve(0.5, seed=3, params=closed)
+    c = simulate_valve(0.5, seed=3, params=closed, faults=[FaultSpec("f12", 0.2, ONSET)])
+    assert (c["X"] - c_ok["X"])[after].abs().median() < 1.0
+
+
 # ---------------------------------------------------------------- parse_fault
 
 

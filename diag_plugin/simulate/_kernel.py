@@ -11,7 +11,8 @@ Physics per fine step (Bartyś & de las Heras, IFAC SAFEPROCESS 2003, §6;
 Hull Jan 2002 slides):
 
 * Positioner (2003 §6.1, Figs. 4–5): low-pass input filter on CV, proportional
-  controller ``CVI = Kp (SP - x_fb)`` limited to ±1, E/P transducer
+  controller ``CVI = Kp (SP - x_fb)`` limited to ±1 (``Kp = 0``: no positioner,
+  ``CVI = SP`` drives the E/P converter open-loop), E/P transducer
   ``P0 = Pz_nom (1 + CVI) / 2`` (current ``i = (1 + CVI) / 2``) limited to the supply
   pressure. SP is CV after the zero/span calibration done at commissioning
   (``a0 + a1·CV``), so a healthy actuator settles at X = CV.
@@ -49,7 +50,7 @@ from .physics import allowed_pressure_drop_kpa, kv_relative, liquid_flow_th, wat
 P_DT = 0  # fine step, s
 P_ALPHA_F = 1  # input-filter update factor 1 - exp(-dt/tau_f)
 P_TAU_CH = 2  # chamber time constant, s
-P_KP = 3  # positioner proportional gain, 1 per unit travel error
+P_KP = 3  # positioner proportional gain, 1 per unit travel error (0: no positioner)
 P_PZ = 4  # nominal supply pressure (E/P full scale), kPa
 P_A0 = 5  # positioner calibration: SP = a0 + a1 * CV
 P_A1 = 6
@@ -156,8 +157,12 @@ def _e_p(xn, xb, sens_gain, half_d, s_pos, kp, i_gain, pz, pzf):
     elif xbn > xs + half_d:
         xbn = xs + half_d
         dxb = dxs
-    cvi = kp * (s_pos - xbn)
-    dcvi = -kp * dxb
+    if kp > 0.0:
+        cvi = kp * (s_pos - xbn)
+        dcvi = -kp * dxb
+    else:  # no positioner: the calibrated CV drives the E/P converter directly
+        cvi = s_pos
+        dcvi = 0.0
     if cvi > 1.0:
         cvi = 1.0
         dcvi = 0.0

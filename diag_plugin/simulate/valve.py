@@ -100,7 +100,9 @@ class ValveParams:
     warmup_s: float = 1800.0  # simulated before the start and discarded, s
     # --- positioner (Bartyś & de las Heras 2003 §6.1)
     input_tau_s: float = 0.7  # input low-pass filter time constant, s
-    positioner_gain: float = 10.0  # P controller gain, CVI per unit travel error
+    # P controller gain, CVI per unit travel error; 0: no positioner, CV drives the E/P
+    # converter open-loop (the chain U -> P0 -> X -> F of Kościelny et al.'s Table 4)
+    positioner_gain: float = 10.0
     supply_kpa: float = 500.0  # positioner supply pressure Pz = E/P full scale, kPa gauge
     dead_time_s: float = 0.0  # extra transport delay between CV and the positioner, s
     # --- pneumatic chamber (2003 eq. 6): tau = V / (R T0 Cq)
@@ -147,7 +149,8 @@ class ValveParams:
 
         From the quasi-static force balance (2003 eq. 1 without friction) at the
         nominal pressure drop: the chamber pressure needed at travel x is
-        ``c0 + c1 x``; the P positioner gives ``P0 = Pz (1 + Kp (SP - x)) / 2``.
+        ``c0 + c1 x``; the P positioner gives ``P0 = Pz (1 + Kp (SP - x)) / 2``, and
+        without a positioner (``positioner_gain = 0``) ``P0 = Pz (1 + SP) / 2``.
         """
         k = self.stiffness_n()
         dp = (self.process.p1_mean_kpa - self.process.p2_mean_kpa) * 1000.0
@@ -157,6 +160,8 @@ class ValveParams:
         c0 = (k * x0r + mg - self.unbalanced_area_m2 * dp) / area
         c1 = (k + self.unbalanced_area_m2 * dp) / area
         kp = self.positioner_gain
+        if kp <= 0:  # no positioner: P0 = Pz (1 + SP) / 2 must equal c0 + c1·CV
+            return 2 * c0 / self.supply_kpa - 1, 2 * c1 / self.supply_kpa
         return (2 * c0 / self.supply_kpa - 1) / kp, 1 + 2 * c1 / (self.supply_kpa * kp)
 
     def vector(self) -> np.ndarray:
