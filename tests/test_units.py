@@ -193,6 +193,33 @@ def test_missing_or_unsupported_samples_never_raise_a_fault(unit, faulty, how):
     _never_a_fault(d, range(gap.start + hold, gap.stop))
 
 
+def test_edge_of_the_trained_region_is_unknown_not_a_residual(folder):
+    """Where trained rules carry less than ``min_support`` of the firing weight the
+    prediction leans on neighbouring rules: the test is unknown (default 0.9); with
+    ``min_support = 0`` the same samples give a residual."""
+    path = folder / "valve_unit.unit.toml"
+    unit = Unit.load(path)
+    m = unit.models["r1"]
+    frame = simulate_valve(0.2, seed=505)
+    rng = np.random.default_rng(1)
+    pts = np.column_stack(
+        [rng.uniform(0, 100, 20000), rng.uniform(2500, 4000, 20000), rng.uniform(1500, 3000, 20000)]
+    )  # CV, P1, P2
+    sup = m.model.predict_detail(pts).support
+    edge = pts[(sup > 0.2) & (sup < 0.8)]
+    assert len(edge) > 0, "no point at the edge of the trained region"
+    rows = slice(100, 100 + min(len(edge), 200))
+    n = rows.stop - rows.start
+    for i, c in enumerate(["CV", "P1", "P2"]):
+        frame.iloc[rows, frame.columns.get_loc(c)] = edge[:n, i]
+    r = unit.raw_residuals(frame)["r1"].iloc[rows]
+    assert r.isna().all()
+    path.write_text(path.read_text().replace("min_support = 0.9", "min_support = 0.0"))
+    loose = Unit.load(path)
+    assert loose.ev["min_support"] == 0.0
+    assert np.isfinite(loose.raw_residuals(frame)["r1"].iloc[rows]).all()
+
+
 def test_unknown_on_a_fault_free_run_is_check_function_not_failure(unit):
     frame = simulate_valve(0.5, seed=404)
     frame.iloc[2000:2600, frame.columns.get_loc("F")] = np.nan  # r1, r4 unknown

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.residuals import LowPass
+from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay
 from diag_plugin.diagnose.unit import PRIORITY, Unit, _hold_kernel, broken_status
@@ -130,6 +130,7 @@ class Plant:
         self._out_lag = np.array([s.output[0] for s in slots], np.intp)
         self._out_col = np.array([s.output[1] for s in slots], np.intp)
         self._scale = np.array([s.scale for s in slots])
+        self._min_support = np.array([units[s.unit].ev["min_support"] for s in slots])
         lims = [units[s.unit].file.tests[s.test].limits for s in slots]
         self._no_th = np.array([lim is None for lim in lims], bool)
         self._lo = np.array([-1.0 if lim is None else lim[0] for lim in lims])
@@ -223,7 +224,8 @@ class Plant:
             ok = ~np.isnan(X).any(axis=1)
             if ok.any():
                 try:
-                    yhat[idx[ok]] = model.predict_detail(X[ok]).y
+                    pred = model.predict_detail(X[ok])
+                    yhat[idx[ok]] = supported(pred, self._min_support[idx[ok]])
                 except Exception as exc:  # noqa: BLE001 - a broken model: its tests unknown
                     log.warning("model prediction failed: %s", exc)
         y = self._hist[self._out_lag, self._out_col]

@@ -23,6 +23,7 @@ import pandas as pd
 from scipy import signal
 
 from diag_plugin.metrics import residual_pct
+from diag_plugin.models.protocol import Prediction
 
 __all__ = ["Latch", "LowPass", "MaxScaler", "residual_pct"]
 
@@ -245,3 +246,15 @@ class Latch:
         if state.get("latched") is not None:
             lt.latched_ = np.asarray(state["latched"], dtype=bool)
         return lt
+
+
+def supported(pred: Prediction, min_support: float | np.ndarray) -> np.ndarray:
+    """The model output where trained rules carry at least ``min_support`` of the firing
+    weight, NaN elsewhere.
+
+    At the edge of the trained region a Wang–Mendel prediction leans on the neighbouring
+    rules (the weights of missing rules are dropped and the rest renormalised); its residual
+    says more about the model than about the plant, so the test is *unknown* there, never a
+    symptom. Methods without rule support (TS, NARMAX) report support 1 wherever they predict.
+    """
+    return np.where(pred.support >= min_support, pred.y, np.nan)

@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
-from diag_plugin.diagnose.residuals import LowPass
+from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 from diag_plugin.diagnose.symptoms import FixedThresholds, FuzzyThreeValued, OnOffDelay
 from diag_plugin.diagnose.unitfile import UnitError, UnitFile, unit_path
@@ -337,7 +337,7 @@ class Unit:
             d = self.builders[t.name].transform(frame)
             r = np.full(len(frame), np.nan)
             if len(d.index):
-                yhat = m.model.predict_detail(d.X).y
+                yhat = supported(m.model.predict_detail(d.X), self.ev["min_support"])
                 scale = t.ymax if self.ev["scale"] == "max" and t.ymax else m.span
                 r[frame.index.get_indexer(d.index)] = residual_pct(d.y, yhat, scale)
             cols[t.name] = r

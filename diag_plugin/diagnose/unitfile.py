@@ -20,6 +20,8 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     on_delay = 30        # samples over the threshold before a symptom turns on
     off_delay = 30       # samples below it before it turns off
     certainty = 0.5      # a fault counts as isolated from this certainty on
+    min_support = 0.9    # a residual counts only where trained rules carry this share of the
+                         # firing weight; elsewhere (the edge of the trained region) unknown
 
     [thresholds]         # written by `diag unit learn`: the fault-free window they came from
     quantile = 0.999
@@ -68,6 +70,7 @@ EVALUATION_DEFAULTS: dict[str, Any] = {
     "on_delay": 30,
     "off_delay": 30,
     "certainty": 0.5,
+    "min_support": 0.9,
 }
 _KINDS = {
     "lowpass": float,
@@ -79,6 +82,7 @@ _KINDS = {
     "on_delay": int,
     "off_delay": int,
     "certainty": float,
+    "min_support": float,
 }
 _CHOICES = {"scale": ("span", "max"), "symptoms": ("crisp", "fuzzy")}
 
@@ -236,6 +240,7 @@ class UnitFile:
             ("on_delay", ev["on_delay"] >= 1, "on_delay counts samples, ≥ 1"),
             ("off_delay", ev["off_delay"] >= 1, "off_delay counts samples, ≥ 1"),
             ("certainty", 0.0 < ev["certainty"] <= 1.0, "certainty must be in (0, 1]"),
+            ("min_support", 0.0 <= ev["min_support"] <= 1.0, "min_support must be in [0, 1]"),
             ("fuzzy_width", 0.0 <= ev["fuzzy_width"] <= 2.0, "fuzzy_width must be in [0, 2]"),
         )
         for key, ok, msg in checks:
