@@ -31,7 +31,9 @@ UNIT_TESTS = {
     "r3": ("X[k]", ["P0[k]"], "r3: X = f(P0)"),
     "r4": ("F[k]", ["X[k]", "P1[k]", "P2[k]"], "r4: F = f(X, P1, P2)"),
 }
-UNIT_MATRIX = """\
+#: Kościelny et al. Table 4 as printed (blank entries are 0, as rules (10)–(14) say): the
+#: open chain U → P0 → X → F of an actuator without a positioner loop
+TABLE4_MATRIX = """\
 # Servomotor–valve unit, Kościelny et al. Table 4 (blank entries are 0, as rules (10)–(14) say)
 [matrix]
 name = "valve_unit"
@@ -45,6 +47,27 @@ rows = [
   { test = "r4", row = ["0", "0", "0", "1", "1"] },
 ]
 # f_EP E/P transducer, f_P0 P0 pressure sensor, f_S servomotor, f_X X transducer, f_V valve
+"""
+
+#: the example unit's matrix: Table 4 for the simulated actuator, whose positioner closes its
+#: loop on the measured X (docs/diagnostics.md). The loop restores X after a servomotor fault
+#: by changing P0, so f_S shows P0's column (0, 1, 1, 0) and the two are one group; after an
+#: X-transducer fault it moves the true travel, so all four residuals react.
+UNIT_MATRIX = """\
+# Servomotor–valve unit with a positioner: Kościelny et al. Table 4 for a loop closed on X
+[matrix]
+name = "valve_unit"
+tests = ["r1", "r2", "r3", "r4"]
+faults = ["f_EP", "f_P0", "f_S", "f_X", "f_V"]
+rows = [
+  #                   f_EP f_P0 f_S  f_X  f_V
+  { test = "r1", row = ["1", "0", "0", "1", "1"] },
+  { test = "r2", row = ["1", "1", "1", "1", "0"] },
+  { test = "r3", row = ["0", "1", "1", "1", "0"] },
+  { test = "r4", row = ["0", "0", "0", "1", "1"] },
+]
+# f_EP E/P transducer, f_P0 P0 pressure sensor, f_S servomotor, f_X X transducer, f_V valve;
+# f_P0 and f_S cannot be told apart by these four tests (a Pch = f(P0) test would split them)
 """
 
 
@@ -137,7 +160,7 @@ def build_valve_unit(folder: Path, frame: pd.DataFrame, source: str) -> list[Pat
         "valve_unit",
         tests,
         matrix=matrix.name,
-        description="positioner + servomotor + valve (Kościelny et al., Table 4)",
+        description="positioner + servomotor + valve (Kościelny et al., Table 4, loop on X)",
         outputs="VALVE1",
     )
     path.write_text(text, encoding="utf-8")

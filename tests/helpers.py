@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from diag_plugin.examples import UNIT_MATRIX
+from diag_plugin.examples import TABLE4_MATRIX
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -82,4 +82,4 @@ def valve_frame(days: float, seed: int) -> pd.DataFrame:
 
 #: seed 001 Table 4 (rules 10–14) as a matrix file: the servomotor–valve unit
 #: the seed 001 Table 4 matrix, as the example unit ships it
-VALVE_TABLE4 = UNIT_MATRIX
+VALVE_TABLE4 = TABLE4_MATRIX

@@ -56,7 +56,7 @@ def test_plant_cycles_equal_each_unit_alone_and_a_broken_unit_stays_local(folder
         assert ["|".join(s.faults) for s in got[name]] == d.faults.tolist(), name
         r = np.array([list(s.residuals.values()) for s in got[name]])
         np.testing.assert_allclose(r, d.residuals.to_numpy(), atol=1e-9)
-    assert got["a"][-1].status == NE107.FAILURE and got["a"][-1].faults == ["f_P0"]
+    assert got["a"][-1].status == NE107.FAILURE and got["a"][-1].faults == ["f_P0", "f_S"]
     assert got["b"][-1].status == NE107.NORMAL
     assert {s.status for s in got["b"][1530:1600]} == {NE107.CHECK_FUNCTION}
     c = got["c"][-1]

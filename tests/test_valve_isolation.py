@@ -38,8 +38,9 @@ Lublin actuators. There the loop changes the signatures, as the physics says it 
   the DAMADICS literature finds it undetectable, docs/diagnostics.md);
 * P0 sensor (f14) and valve erosion (f3): as in Table 4.
 
-``CLOSED_LOOP_MATRIX`` writes that down; ``test_closed_loop_*`` checks that the observed
-signatures on the default actuator are these, so an expert knows which matrix fits which plant.
+The example unit's matrix (``examples.UNIT_MATRIX``) writes that down; ``test_closed_loop_*``
+checks that the observed signatures on the default actuator are these, so an expert knows
+which matrix fits which plant.
 
 Simulator faults (DABLib numbering, see diag_plugin/simulate/faults.py):
     e1 E/P transducer      f12 (E/P current i0 (1 − fs)), +0.2
@@ -60,6 +61,7 @@ from helpers import VALVE_TABLE4
 from diag_plugin.diagnose.matrix import parse_matrix
 from diag_plugin.diagnose.residuals import LowPass
 from diag_plugin.diagnose.symptoms import LearnedThresholds, OnOffDelay
+from diag_plugin.examples import UNIT_MATRIX
 from diag_plugin.metrics import residual_pct
 from diag_plugin.regressors import build_design
 from diag_plugin.simulate import TAGS, FaultSpec, simulate_valve
@@ -91,25 +93,11 @@ TABLE4_CASES = [
     ("f_V", FaultSpec("f3", 1.0, ONSET)),
 ]
 
-#: the signatures the default actuator's closed positioner loop gives (see the module text)
-CLOSED_LOOP_MATRIX = """\
-[matrix]
-name = "valve_closed_loop"
-tests = ["r1", "r2", "r3", "r4"]
-faults = ["f_P0_or_S", "f_X", "f_V"]
-rows = [
-  { test = "r1", row = ["0", "1", "1"] },
-  { test = "r2", row = ["1", "1", "0"] },
-  { test = "r3", row = ["1", "1", "0"] },
-  { test = "r4", row = ["0", "1", "1"] },
-]
-"""
-
 CLOSED_LOOP_CASES = [
-    ("f_P0_or_S", FaultSpec("f14", -0.3, ONSET)),
-    ("f_P0_or_S", FaultSpec("f11", 0.3, ONSET)),
-    ("f_X", FaultSpec("f13", -0.3, ONSET)),
-    ("f_V", FaultSpec("f3", 1.0, ONSET)),
+    ({"f_P0", "f_S"}, FaultSpec("f14", -0.3, ONSET)),
+    ({"f_P0", "f_S"}, FaultSpec("f11", 0.3, ONSET)),
+    ({"f_X"}, FaultSpec("f13", -0.3, ONSET)),
+    ({"f_V"}, FaultSpec("f3", 1.0, ONSET)),
 ]
 
 
@@ -196,7 +184,7 @@ def table4_unit(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def closed_unit(tmp_path_factory):
-    return Unit(tmp_path_factory.mktemp("closed_loop"), None, CLOSED_LOOP_MATRIX)
+    return Unit(tmp_path_factory.mktemp("closed_loop"), None, UNIT_MATRIX)
 
 
 def test_table4_matrix_groups(table4_unit):
@@ -205,9 +193,9 @@ def test_table4_matrix_groups(table4_unit):
 
 
 def test_closed_loop_matrix_merges_p0_sensor_and_servomotor():
-    # what dropping a column's distinction does: Table 4 with S = P0 has one group fewer
-    m = parse_matrix(CLOSED_LOOP_MATRIX, "closed.toml")
-    assert m.isolability_groups() == [["f_P0_or_S"], ["f_X"], ["f_V"]]
+    # the example unit's matrix (Table 4 for a positioner loop on X): S and P0 are one group
+    m = parse_matrix(UNIT_MATRIX, "valve_unit.matrix.toml")
+    assert m.isolability_groups() == [["f_EP"], ["f_P0", "f_S"], ["f_X"], ["f_V"]]
 
 
 @pytest.mark.parametrize("seed", TEST_SEEDS)
@@ -255,4 +243,4 @@ def test_closed_loop_signatures(closed_unit, expected, spec, seed):
     _, after = closed_unit.run(spec, seed)
     fault, share = closed_unit.isolate(after)
     print(f"closed loop {spec.name}:{spec.strength:+} seed {seed}: {fault} {share}")
-    assert fault == expected, share
+    assert fault in expected, share
