@@ -137,11 +137,19 @@ def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[
 
 def build_valve_unit(folder: Path, frame: pd.DataFrame, source: str) -> list[Path]:
     """The example unit: four models, the Table 4 matrix, the unit file with learned
-    thresholds (Kościelny et al., Sec. 6; thresholds as Laukonen et al., Table III)."""
+    thresholds (Kościelny et al., Sec. 6; thresholds as Laukonen et al., Table III).
+
+    Each model input's span is narrowed to the operating range of the training data
+    (:func:`operating_span`, what ``diag explain`` proposes): P1 and P2 use a fifth of their
+    0–4,000 kPa transducer range, and 31 sets over the whole range left the flow models
+    coarse (fault-free thresholds of r1 and r4 ~9 % of span instead of ~4 %). Outputs keep
+    their nominal span: it is the unit of the residual (eq. 6)."""
+    from dataclasses import replace
+
     from diag_plugin.diagnose.unit import Unit, learn_thresholds
     from diag_plugin.diagnose.unitfile import UnitFile, new_unit_text
     from diag_plugin.simulate.valve import TAGS, simulate_valve
-    from diag_plugin.workbench.model_edit import new_model
+    from diag_plugin.workbench.model_edit import new_model, operating_span
 
     out = []
     tests = {}
@@ -149,7 +157,13 @@ def build_valve_unit(folder: Path, frame: pd.DataFrame, source: str) -> list[Pat
         name = f"valve_{test}"
         path = folder / f"{name}.toml"
         path.unlink(missing_ok=True)
-        rb = new_model(path, name, output, inputs, frame=frame, tag_info=TAGS, description=desc)
+        info = dict(TAGS)
+        for spec in inputs:
+            tag = spec.split("[")[0]
+            narrow = operating_span(TAGS[tag].span, frame[tag].to_numpy())
+            if narrow is not None:
+                info[tag] = replace(TAGS[tag], lo=narrow[0], hi=narrow[1])
+        rb = new_model(path, name, output, inputs, frame=frame, tag_info=info, description=desc)
         out.append(_fit(rb, frame, source).path)
         tests[test] = path.name
     matrix = folder / "valve_unit.matrix.toml"

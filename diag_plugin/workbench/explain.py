@@ -40,7 +40,7 @@ from diag_plugin.regressors import (
 )
 from diag_plugin.rulebase import RuleBase
 from diag_plugin.training import split_time
-from diag_plugin.workbench.model_edit import MIN_PER_CELL, nice_span, variable_for
+from diag_plugin.workbench.model_edit import MIN_PER_CELL, operating_span, variable_for
 from historian.taginfo import TagInfo, tag_infos
 
 #: |correlation| with a model input above which a candidate is flagged
@@ -59,8 +59,6 @@ TOLERANCE = 0.01
 #: fewer sets than add-input writes are suggested only when they score better by more
 #: than this share (the gain explain calls more than "barely")
 SETS_GAIN = 0.03
-#: margin around the operating range when an input's span is narrowed to it
-SPAN_MARGIN = 0.1
 #: a candidate covering fewer samples than the current model by more than this is thin
 #: (each sample it loses is scored with its nearest rule)
 COVERAGE_SLACK = 0.01
@@ -515,19 +513,15 @@ class _Score:
 
 def _resolution_variants(v: Variable, col: np.ndarray):
     """The model's own resolution for one input: the span narrowed to the operating range
-    seen in training (with a margin of :data:`SPAN_MARGIN`) when that is under 70 % of the
-    span, more sets (×1.5) and fewer sets (÷2)."""
-    x = col[np.isfinite(col)]
-    if x.size >= 10:
-        lo, hi = (float(q) for q in np.quantile(x, [0.001, 0.999]))
-        pad = SPAN_MARGIN * (hi - lo)
-        lo, hi = max(v.span[0], lo - pad), min(v.span[1], hi + pad)
-        if hi > lo and (hi - lo) < 0.7 * (v.span[1] - v.span[0]):
-            lo, hi = nice_span(lo, hi)
-            yield (
-                f"{v.spec} uses only {lo:g} … {hi:g} of its span {v.span[0]:g} … {v.span[1]:g}",
-                dc_replace(v, span=(lo, hi)),
-            )
+    seen in training (:func:`operating_span`) when that is under 70 % of the span, more sets
+    (×1.5) and fewer sets (÷2)."""
+    narrow = operating_span(v.span, col)
+    if narrow is not None:
+        lo, hi = narrow
+        yield (
+            f"{v.spec} uses only {lo:g} … {hi:g} of its span {v.span[0]:g} … {v.span[1]:g}",
+            dc_replace(v, span=(lo, hi)),
+        )
     more = int(v.sets * 1.5) | 1
     if more > v.sets:
         yield f"more sets for {v.spec} ({v.sets} → {more})", dc_replace(v, sets=more)

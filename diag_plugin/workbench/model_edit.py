@@ -88,6 +88,26 @@ def nice_span(lo: float, hi: float) -> tuple[float, float]:
     return nice(lo), nice(hi)
 
 
+#: margin around the operating range when an input's span is narrowed to it
+SPAN_MARGIN = 0.1
+
+
+def operating_span(span: tuple[float, float], values: np.ndarray) -> tuple[float, float] | None:
+    """``span`` narrowed to the operating range of ``values`` (0.1–99.9 % quantiles, with a
+    margin of :data:`SPAN_MARGIN`, inside the nominal span), or None when that range fills
+    70 % of the span or more. The rule ``explain`` proposes and the example unit follows:
+    31 sets over a transducer range the process uses a sliver of leave a coarse model."""
+    x = values[np.isfinite(values)]
+    if x.size < 10:
+        return None
+    lo, hi = (float(q) for q in np.quantile(x, [0.001, 0.999]))
+    pad = SPAN_MARGIN * (hi - lo)
+    lo, hi = max(span[0], lo - pad), min(span[1], hi + pad)
+    if hi > lo and (hi - lo) < 0.7 * (span[1] - span[0]):
+        return nice_span(lo, hi)
+    return None
+
+
 #: training samples per rule cell a grid should keep (set counts chosen from the data)
 MIN_PER_CELL = 20
 #: set counts chosen from the data stay within these
