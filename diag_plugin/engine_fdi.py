@@ -39,6 +39,7 @@ __all__ = [
     "FDI_METHODS",
     "MODELS",
     "RESIDUALS",
+    "SIGNALS",
     "TABLE_II",
     "TABLE_III",
     "EngineModels",
@@ -47,6 +48,7 @@ __all__ = [
     "identify",
     "isolate",
     "new_estimator",
+    "plot_residuals",
     "regressors",
     "residuals",
     "run_case",
@@ -90,6 +92,9 @@ MODELS: dict[str, tuple[str, tuple[tuple[str, int], ...]]] = {
 
 #: the four residuals of Table II, ``ŷ − y`` (T̂_L only feeds eqs. 7–8)
 RESIDUALS = ("omega", "m_a", "alpha", "m_f")
+
+#: the residuals :func:`residuals` returns: Table II's four and T̂_L − T_L (plotted, not tested)
+SIGNALS = (*RESIDUALS, "T_L")
 
 #: Table II, per fault its residual signature over :data:`RESIDUALS` ("x": the seed's "-")
 TABLE_II: dict[str, tuple[str, str, str, str]] = {
@@ -244,10 +249,11 @@ def estimates(em: EngineModels, df: pd.DataFrame) -> pd.DataFrame:
 
 
 def residuals(em: EngineModels, df: pd.DataFrame, scaler: MaxScaler) -> pd.DataFrame:
-    """Filtered, scaled residuals ``ŷ − y`` of Table II (§IV: Butterworth 4th order at π/100,
-    divided by the signal maximum over a fault-free cycle). NaN warm-up rows count as zero."""
-    est = estimates(em, df)[list(RESIDUALS)]
-    raw = (est - df[list(RESIDUALS)]).fillna(0.0)
+    """Filtered, scaled residuals ``ŷ − y`` (§IV: Butterworth 4th order at π/100, divided by
+    the signal maximum over a fault-free cycle) of :data:`SIGNALS`: Table II's four and
+    T̂_L − T_L (``scaler`` fitted on the five signals). NaN warm-up rows count as zero."""
+    est = estimates(em, df)[list(SIGNALS)]
+    raw = (est - df[list(SIGNALS)]).fillna(0.0)
     return scaler.transform(LowPass(wn=0.01, order=4).transform(raw))
 
 
@@ -294,19 +300,33 @@ def run_case(
     onset: int = WINDOW[0],
     window: tuple[int, int] = WINDOW,
     kind: str = "recorded",
+    keep_residuals: bool = False,
 ) -> dict[str, Any]:
-    """One test (§IV, Figs. 8–12): simulate the case, residuals, thresholds, latch, isolate."""
+    """One test (§IV, Figs. 8–12): simulate the case, residuals, thresholds, latch, isolate.
+    Per residual its peak |r| over the window and the revolution it latched at (None: never);
+    with ``keep_residuals`` also ``"residuals"``, the window's frame of :data:`SIGNALS` and
+    ``rev`` (for :func:`plot_residuals`)."""
     df = simulate_engine(window[1], seed=seed, faults=fault_case(case, onset, kind))
-    r = _window(residuals(em, df, scaler).assign(rev=df["rev"]), window)[list(RESIDUALS)]
+    full = _window(residuals(em, df, scaler).assign(rev=df["rev"]), window)
+    r = full[list(RESIDUALS)]
     latched = Latch(thresholds).transform(r)
     fault, secs, exact = isolate(latched, df.index[df["rev"] == onset][0])
-    return {
+    on = latched.to_numpy() == 1.0
+    revs = full["rev"].to_numpy()
+    out = {
         "injected": case,
         "isolated": fault,
         "time_s": None if np.isnan(secs) else round(secs, 3),
         "exact": exact,
         "peak": {c: round(float(r[c].abs().max()), 4) for c in RESIDUALS},
+        "latched_rev": {
+            c: int(revs[on[:, j].argmax()]) if on[:, j].any() else None
+            for j, c in enumerate(RESIDUALS)
+        },
     }
+    if keep_residuals:
+        out["residuals"] = full
+    return out
 
 
 def validation_errors(em: EngineModels, val: pd.DataFrame) -> dict[str, dict[str, float]]:
@@ -351,21 +371,32 @@ def run_fdi(
     window: tuple[int, int] = WINDOW,
     kind: str = "recorded",
     n_clean: int = 2,
+    keep_residuals: bool = False,
 ) -> dict[str, Any]:
     """The seed's whole experiment (§§III–IV) for one seed: identification on a fault-free run
     (simulator seed ``seed``), scaling from a second fault-free run (``seed + 1000``),
     thresholds over it and ``n_clean − 1`` more (``seed + 1001``, …), each case on a third run
     (``seed + 2000``) with the fault from the start of the test window. Returns
-    ``{"method", "seed", "fault_kind", "residual_mode", "thresholds", "validation", "cases"}``.
+    ``{"method", "seed", "fault_kind", "residual_mode", "thresholds", "validation", "cases"}``;
+    ``keep_residuals`` keeps each case's residual frame (:func:`run_case`).
     """
     train = simulate_engine(n_rev, seed=seed)
     em = identify(train, method)
     clean = simulate_engine(n_rev, seed=seed + 1000)
-    scaler = MaxScaler().fit(clean[list(RESIDUALS)])
+    scaler = MaxScaler().fit(clean[list(SIGNALS)])
     more = [simulate_engine(window[1], seed=seed + 1000 + i) for i in range(1, n_clean)]
     thr = learn_thresholds(em, [clean, *more], scaler, window)
     results = [
-        run_case(em, c, seed=seed + 2000, scaler=scaler, thresholds=thr, window=window, kind=kind)
+        run_case(
+            em,
+            c,
+            seed=seed + 2000,
+            scaler=scaler,
+            thresholds=thr,
+            window=window,
+            kind=kind,
+            keep_residuals=keep_residuals,
+        )
         for c in cases
     ]
     return {
@@ -386,3 +417,108 @@ def compare_methods(
     train = simulate_engine(n_rev, seed=seed)
     val = simulate_engine(n_rev, seed=seed + 1000)
     return {m: validation_errors(identify(train, m), val) for m in methods}
+
+
+#: the seed's figure per case (Figs. 8–12) and a readable name
+FIGURES: dict[str, tuple[int, str]] = {
+    "none": (8, "no fault"),
+    "alpha": (9, "20 % throttle (α) calibration fault"),
+    "m_a": (10, "20 % mass air (m_a) calibration fault"),
+    "m_f": (11, "40 % mass fuel (m_f) calibration fault"),
+    "omega": (12, "20 % engine speed (ω, ω_dy) calibration fault"),
+}
+
+_PANEL_TITLES = {
+    "omega": "ω̂ − ω (eq. 7)",
+    "m_a": "m̂_a − m_a (eq. 8)",
+    "alpha": "α̂ − α (eq. 9)",
+    "m_f": "m̂_f − m_f (eq. 10)",
+    "T_L": "T̂_L − T_L (eq. 11; feeds eqs. 7–8, not in Table II)",
+}
+
+
+def plot_residuals(res: dict[str, Any], outdir: str | Any) -> list[Any]:
+    """Residual plots like the seed's Figs. 8–12 from a :func:`run_fdi` result with
+    ``keep_residuals=True``: one SVG per case, ``{method}-seed{seed}-fig{n}-{case}.svg`` in
+    ``outdir``, one panel per model (eqs. 7–11): the filtered, scaled residual over revolutions
+    (§IV), the no-fault case's in grey behind a fault's, ± the learned threshold (our Table
+    III), ± the seed's Table III value for reference, and the revolution each Table II residual
+    latched. Returns the paths written."""
+    from pathlib import Path
+
+    from diag_plugin import svgplot as sp
+
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    by_case = {c["injected"]: c for c in res["cases"]}
+    base = by_case.get("none", {}).get("residuals")
+    paths = []
+    for case, c in by_case.items():
+        r = c["residuals"]
+        rev = r["rev"].to_numpy(float)
+        panels = []
+        for k in SIGNALS:
+            traces = []
+            if base is not None and case != "none":
+                traces.append(
+                    sp.Trace(base["rev"], base[k], "no fault", color="#b0b0b0", width=1.0)
+                )
+            traces.append(sp.Trace(rev, r[k], FIGURES[case][1]))
+            hlines, vlines = [], []
+            if k in RESIDUALS:
+                thr = float(res["thresholds"][k])
+                hlines += [sp.HLine(v, "learned threshold ±") for v in (thr, -thr)]
+                hlines += [
+                    sp.HLine(
+                        v,
+                        "seed's Table III ± (its scaling)",
+                        color="#888",
+                        dash="1 3",
+                        autoscale=False,
+                    )
+                    for v in (TABLE_III[k], -TABLE_III[k])
+                ]
+                if c["latched_rev"][k] is not None:
+                    vlines.append(sp.VLine(c["latched_rev"][k], "latched"))
+            panels.append(sp.Panel(_PANEL_TITLES[k], traces, hlines, vlines))
+        n, name = FIGURES[case]
+        title = (
+            f"Residuals with {name} (like seed Fig. {n}): {res['method']}, seed {res['seed']}, "
+            f"isolated: {c['isolated']}"
+        )
+        svg = sp.figure(
+            panels,
+            title=title,
+            xlabel="engine revolution (fault from 3000)",
+            xlim=(float(rev[0]), float(rev[-1])),
+            note="filtered (4th-order Butterworth, π/100) residual ŷ − y divided by the "
+            "signal's maximum over a fault-free cycle (dimensionless)",
+        )
+        path = out / f"{res['method']}-seed{res['seed']}-fig{n}-{case}.svg"
+        path.write_text(svg, encoding="utf-8")
+        paths.append(path)
+    return paths
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m diag_plugin.engine_fdi --plot DIR [--seed N] [--method M]``: run the
+    experiment and write the residual plots (Figs. 8–12) as SVG files."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m diag_plugin.engine_fdi")
+    ap.add_argument("--plot", required=True, metavar="DIR", help="folder for the SVG files")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--method", choices=FDI_METHODS, default="ts-fcm")
+    ap.add_argument("--faults", choices=("recorded", "physical"), default="recorded")
+    args = ap.parse_args(argv)
+    res = run_fdi(args.seed, args.method, kind=args.faults, keep_residuals=True)
+    for p in plot_residuals(res, args.plot):
+        print(p)
+    for c in res["cases"]:
+        print(f"{c['injected']:6} -> {c['isolated']:8} peaks {c['peak']}")
+    print("thresholds", res["thresholds"])
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -28,7 +28,7 @@ OMEGA_MARGINAL = pytest.mark.xfail(
 def ts_fcm_run(seed: int) -> dict:
     """One full experiment per seed, shared by the cases (about 20 s each)."""
     if seed not in RUNS:
-        RUNS[seed] = fdi.run_fdi(seed, "ts-fcm")
+        RUNS[seed] = fdi.run_fdi(seed, "ts-fcm", keep_residuals=True)
     return RUNS[seed]
 
 
@@ -64,6 +64,44 @@ def test_ts_fcm_isolates_the_injected_fault(seed, case):
     # an exact Table II match or, failing one, the nearest signature (certainty ≥ 0.75)
     assert got["isolated"] == case, res["cases"]
     assert (got["time_s"] is None) == (case == "none")
+
+
+def test_residual_plots_like_figs_8_to_12(tmp_path, monkeypatch, capsys):
+    """``python -m diag_plugin.engine_fdi --plot DIR``: one SVG per case (Figs. 8–12), a panel
+    per model (eqs. 7–11), ± the learned thresholds drawn on Table II's four residuals."""
+    import xml.etree.ElementTree as ET
+
+    res = ts_fcm_run(SEEDS[0])
+    monkeypatch.setattr(fdi, "run_fdi", lambda *a, **k: res)  # the run above, not another
+    assert fdi.main(["--plot", str(tmp_path / "fig"), "--seed", str(SEEDS[0])]) == 0
+    files = sorted((tmp_path / "fig").glob("*.svg"))
+    assert len(files) == len(CASES) and str(files[0]) in capsys.readouterr().out
+    ns = {"s": "http://www.w3.org/2000/svg"}
+    for case in CASES:
+        n = fdi.FIGURES[case][0]
+        (path,) = [f for f in files if f.name == f"ts-fcm-seed{SEEDS[0]}-fig{n}-{case}.svg"]
+        root = ET.parse(path).getroot()
+        panels = root.findall(".//s:g[@class='panel']", ns)
+        assert len(panels) == len(fdi.SIGNALS) == 5
+        got = next(c for c in res["cases"] if c["injected"] == case)
+        for name, panel in zip(fdi.SIGNALS, panels, strict=True):
+            traces = panel.findall("s:g[@class='trace']", ns)
+            # the case's residual, behind it the no-fault one for comparison
+            assert len(traces) == (1 if case == "none" else 2)
+            hl = [
+                float(h.get("data-value"))
+                for h in panel.findall("s:line[@class='hline']", ns)
+                if h.get("data-label") == "learned threshold ±"
+            ]
+            if name in fdi.RESIDUALS:
+                thr = res["thresholds"][name]
+                assert sorted(hl) == [-thr, thr]
+                latched = panel.findall("s:line[@class='vline']", ns)
+                assert len(latched) == (got["latched_rev"][name] is not None)
+            else:  # T̂_L − T_L feeds eqs. 7–8, Table II does not test it
+                assert hl == []
+        text = "".join(root.itertext())
+        assert f"isolated: {got['isolated']}" in text and "revolution" in text
 
 
 @pytest.mark.xfail(
