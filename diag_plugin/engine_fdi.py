@@ -266,21 +266,33 @@ def isolate(
     latched: pd.DataFrame, onset_time: pd.Timestamp, min_certainty: float = 0.75
 ) -> tuple[str, float, bool]:
     """Isolation by Table II over latched symptoms (§IV): the exact match at the end of the
-    window, else the nearest signature if its certainty (share of its constrained residuals
-    that fit) is at least ``min_certainty`` (one residual off in four), else ``"unknown"``
-    (detected, not isolated). Time: from the onset to the first sample from which that
-    decision holds to the end. Returns ``(fault, "unknown" or "none"; seconds or NaN;
+    window, else the nearest signature — fewest constrained residuals that do not fit — if it
+    is the only one that near and its certainty (share of its constrained residuals that fit)
+    is at least ``min_certainty``, else ``"unknown"`` (detected, not isolated). A tie is no
+    isolation: Table II's ω, α and m_f signatures are two residuals apart and m_a's is one from
+    each (its don't care), so a pattern one residual off one signature is as near another, and
+    in practice only exact matches isolate. Time: from the onset to the first sample from which
+    the decision holds to the end. Returns ``(fault, "unknown" or "none"; seconds or NaN;
     exact)``."""
     m = table_ii()
     s = latched[list(RESIDUALS)].to_numpy(float)
+    if not len(s):
+        return "none", float("nan"), True
     match = m.match(s).matched
     exact = match.sum(axis=1) == 1
-    near = m.nearest(s)
+    sig = np.array([[np.nan if v == "x" else float(v) for v in TABLE_II[f]] for f in m.faults])
+    rel = np.isfinite(sig)[None, :, :] & np.isfinite(s)[:, None, :]  # samples × faults × tests
+    miss = (rel & (s[:, None, :] != sig[None, :, :])).sum(axis=2)
+    n_rel = rel.sum(axis=2)
+    best, best_miss = miss.argmin(axis=1), miss.min(axis=1)
+    unique = (miss == best_miss[:, None]).sum(axis=1) == 1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cert = 1.0 - best_miss / np.take_along_axis(n_rel, best[:, None], axis=1)[:, 0]
+    ok_near = unique & (np.nan_to_num(cert, nan=0.0) >= min_certainty)
     detected = (np.nan_to_num(s) != 0).any(axis=1)
-    ok_near = np.nan_to_num(near.certainty, nan=0.0) >= min_certainty
-    decision = np.where(exact, match.argmax(axis=1), np.where(ok_near, near.fault, -1))
-    decision = np.where(detected & (decision < 0), -2, decision)  # -2: unknown
-    last = int(decision[-1]) if len(decision) else -1
+    decision = np.where(exact, match.argmax(axis=1), np.where(ok_near, best, -1))
+    decision = np.where(detected, np.where(decision < 0, -2, decision), -1)  # -2: unknown
+    last = int(decision[-1])
     if last == -1:
         return "none", float("nan"), True
     differ = np.flatnonzero(decision != last)

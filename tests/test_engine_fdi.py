@@ -53,6 +53,17 @@ def test_isolate_reads_table_ii(pattern, fault):
     assert (secs == 1.0) if fault else np.isnan(secs)
 
 
+@pytest.mark.parametrize(
+    "pattern", [(1, 0, 0, 1), (1, 0, 1, 0), (0, 1, 0, 1), (0, 0, 1, 1), (1, 1, 0, 0), (1, 0, 0, 0)]
+)
+def test_isolate_does_not_break_ties(pattern):
+    """One residual off a signature is as near another (ω, α, m_f are two apart, m_a one from
+    each through its don't care): detected, not isolated — no pick by table order."""
+    idx = pd.date_range("2026-01-01", periods=2, freq="s", tz="UTC")
+    latched = pd.DataFrame([[0, 0, 0, 0], pattern], index=idx, columns=fdi.RESIDUALS)
+    assert fdi.isolate(latched.astype(float), idx[0])[:1] == ("unknown",)
+
+
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize(
     "case", [pytest.param(c, marks=OMEGA_MARGINAL) if c == "omega" else c for c in CASES]
