@@ -122,11 +122,14 @@ WINDOW = (3000, 5000)  # the seed's test window, revolutions (§IV)
 
 @dataclass
 class EngineModels:
-    """The five identified models (eqs. 2–6), keyed like :data:`MODELS`."""
+    """The five identified models (eqs. 2–6), keyed like :data:`MODELS`. ``one_step``: estimate
+    one step ahead on measured data even where the method can free-run (not the seed's mode;
+    for comparison, docs/engine.md)."""
 
     method: str
     models: dict[str, Any]
     fit_seconds: dict[str, float]
+    one_step: bool = False
 
 
 def table_ii() -> DiagnosticMatrix:
@@ -227,8 +230,10 @@ def identify(train: pd.DataFrame, method: str = "ts-fcm", refits: int = 2) -> En
 
 
 def free_runs(em: EngineModels) -> bool:
-    """Whether the method simulates its own lags (free run, the seed's ω̂(k−1), …)."""
-    return all(getattr(m.capabilities, "free_run", False) for m in em.models.values())
+    """Whether the estimates are free run (the seed's ω̂(k−1), …, T̂_L): the method simulates
+    its own lags and ``em.one_step`` is off."""
+    can = all(getattr(m.capabilities, "free_run", False) for m in em.models.values())
+    return can and not em.one_step
 
 
 def _estimate(model: Any, X: np.ndarray, free: bool) -> np.ndarray:
@@ -236,8 +241,9 @@ def _estimate(model: Any, X: np.ndarray, free: bool) -> np.ndarray:
 
 
 def estimates(em: EngineModels, df: pd.DataFrame) -> pd.DataFrame:
-    """Estimates ω̂, m̂_a, α̂, m̂_f, T̂_L over a run (eqs. 2–6): free run where the method can,
-    with T̂_L in place of T_L in eqs. 7–8; else one step ahead on measured data."""
+    """Estimates ω̂, m̂_a, α̂, m̂_f, T̂_L over a run (eqs. 2–6): free run where the method can
+    (:func:`free_runs`), with T̂_L in place of T_L in eqs. 7–8; else one step ahead on measured
+    data (measured lags and the measured T_L)."""
     free = free_runs(em)
     X, _, _ = regressors(df, "T_L")
     out = {"T_L": _estimate(em.models["T_L"], X, free)}
@@ -384,16 +390,19 @@ def run_fdi(
     kind: str = "recorded",
     n_clean: int = 2,
     keep_residuals: bool = False,
+    one_step: bool = False,
 ) -> dict[str, Any]:
     """The seed's whole experiment (§§III–IV) for one seed: identification on a fault-free run
     (simulator seed ``seed``), scaling from a second fault-free run (``seed + 1000``),
     thresholds over it and ``n_clean − 1`` more (``seed + 1001``, …), each case on a third run
     (``seed + 2000``) with the fault from the start of the test window. Returns
     ``{"method", "seed", "fault_kind", "residual_mode", "thresholds", "validation", "cases"}``;
-    ``keep_residuals`` keeps each case's residual frame (:func:`run_case`).
+    ``keep_residuals`` keeps each case's residual frame (:func:`run_case`); ``one_step``
+    computes every residual one step ahead (:class:`EngineModels`), not the seed's free run.
     """
     train = simulate_engine(n_rev, seed=seed)
     em = identify(train, method)
+    em.one_step = one_step
     clean = simulate_engine(n_rev, seed=seed + 1000)
     scaler = MaxScaler().fit(clean[list(SIGNALS)])
     more = [simulate_engine(window[1], seed=seed + 1000 + i) for i in range(1, n_clean)]
@@ -455,7 +464,8 @@ def plot_residuals(res: dict[str, Any], outdir: str | Any) -> list[Any]:
     ``outdir``, one panel per model (eqs. 7–11): the filtered, scaled residual over revolutions
     (§IV), the no-fault case's in grey behind a fault's, ± the learned threshold (our Table
     III), ± the seed's Table III value for reference, and the revolution each Table II residual
-    latched. Returns the paths written."""
+    latched. Residuals one step ahead add ``-one-step`` to the method in the name. Returns the
+    paths written."""
     from pathlib import Path
 
     from diag_plugin import svgplot as sp
@@ -495,8 +505,8 @@ def plot_residuals(res: dict[str, Any], outdir: str | Any) -> list[Any]:
             panels.append(sp.Panel(_PANEL_TITLES[k], traces, hlines, vlines))
         n, name = FIGURES[case]
         title = (
-            f"Residuals with {name} (like seed Fig. {n}): {res['method']}, seed {res['seed']}, "
-            f"isolated: {c['isolated']}"
+            f"Residuals with {name} (like seed Fig. {n}): {res['method']} "
+            f"({res['residual_mode']}), seed {res['seed']}, isolated: {c['isolated']}"
         )
         svg = sp.figure(
             panels,
@@ -506,7 +516,8 @@ def plot_residuals(res: dict[str, Any], outdir: str | Any) -> list[Any]:
             note="filtered (4th-order Butterworth, π/100) residual ŷ − y divided by the "
             "signal's maximum over a fault-free cycle (dimensionless)",
         )
-        path = out / f"{res['method']}-seed{res['seed']}-fig{n}-{case}.svg"
+        mode = "" if res["residual_mode"] == "free run" else "-one-step"
+        path = out / f"{res['method']}{mode}-seed{res['seed']}-fig{n}-{case}.svg"
         path.write_text(svg, encoding="utf-8")
         paths.append(path)
     return paths
@@ -522,8 +533,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--method", choices=FDI_METHODS, default="ts-fcm")
     ap.add_argument("--faults", choices=("recorded", "physical"), default="recorded")
+    ap.add_argument(
+        "--one-step",
+        action="store_true",
+        help="residuals one step ahead on measured data (not the seed's free run)",
+    )
     args = ap.parse_args(argv)
-    res = run_fdi(args.seed, args.method, kind=args.faults, keep_residuals=True)
+    res = run_fdi(
+        args.seed, args.method, kind=args.faults, keep_residuals=True, one_step=args.one_step
+    )
     for p in plot_residuals(res, args.plot):
         print(p)
     for c in res["cases"]:

@@ -77,6 +77,26 @@ def test_ts_fcm_isolates_the_injected_fault(seed, case):
     assert (got["time_s"] is None) == (case == "none")
 
 
+def test_one_step_estimates_read_measured_lags_and_load_torque():
+    """Free run (the seed's eqs. 7–11: own estimates, T̂_L in eqs. 7–8) against one step
+    ahead (measured lags and the measured T_L), the comparison mode of docs/engine.md."""
+    from diag_plugin.simulate.engine import simulate_engine
+
+    em = fdi.identify(simulate_engine(2000, seed=41), "narmax2")
+    df = simulate_engine(1000, seed=42)
+    free = fdi.estimates(em, df)
+    assert fdi.free_runs(em)
+    em.one_step = True
+    assert not fdi.free_runs(em)
+    one = fdi.estimates(em, df)
+    for name in fdi.MODELS:
+        X, _, _ = fdi.regressors(df, name)  # measured columns throughout, T_L included
+        np.testing.assert_allclose(one[name], em.models[name].extrapolate(X))
+        X_sim, _, _ = fdi.regressors(df.assign(T_L=free["T_L"].fillna(df["T_L"])), name)
+        sim = X if name == "T_L" else X_sim
+        np.testing.assert_allclose(free[name], em.models[name].simulate(sim))
+
+
 def test_residual_plots_like_figs_8_to_12(tmp_path, monkeypatch, capsys):
     """``python -m diag_plugin.engine_fdi --plot DIR``: one SVG per case (Figs. 8–12), a panel
     per model (eqs. 7–11), ± the learned thresholds drawn on Table II's four residuals."""
