@@ -5,8 +5,9 @@ block-diagonal matrices of its units: each unit is diagnosed on its own, so one 
 stays local. :class:`Plant` keeps that structure and evaluates every unit each cycle as arrays:
 
 * the plant's tag vector and its recent history (a ring buffer as deep as the longest lag);
-* one ``predict`` per distinct model object over all the units that use it (units loaded from
-  the same rule-base files share one model: a fleet of identical valves is one call);
+* every Wang–Mendel model in one stacked kernel call (:class:`WangMendelStack`: 1,000 units
+  with their own rule bases cost one call), and one ``predict`` per distinct model object of
+  the other methods over all the units that use it;
 * the Butterworth filter, thresholds, on/off delays and holds over all (unit, test) residuals
   at once, and one matrix call per distinct matrix with units as rows.
 
@@ -31,6 +32,7 @@ from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay
 from diag_plugin.diagnose.unit import PRIORITY, Unit, _hold_kernel, broken_status
 from diag_plugin.diagnose.unitfile import UnitError
+from diag_plugin.fuzzy.stack import WangMendelStack
 from diag_plugin.regressors import parse_specs
 
 log = logging.getLogger(__name__)
@@ -77,17 +79,15 @@ class Plant:
         """Load unit files; a broken one is kept aside with its problems, never raised."""
         units: dict[str, Unit] = {}
         broken: dict[str, list[str]] = {}
-        cache: dict[Path, object] = {}
+        cache: dict = {}  # units reading the same rule-base file share its model
         for p in paths:
             name = Path(p).name.removesuffix(".unit.toml").removesuffix(".toml")
             try:
-                u = Unit.load(p, folder)
+                u = Unit.load(p, folder, models_cache=cache)
             except UnitError as exc:
                 broken[name] = exc.problems
                 log.warning("unit %s not loaded:\n%s", name, "\n".join(exc.problems))
                 continue
-            for m in u.models.values():  # units reading the same file share its model
-                m.model = cache.setdefault(m.path.resolve(), m.model)
             units[u.name] = u
         return cls(units, broken)
 
@@ -117,10 +117,30 @@ class Plant:
         self._units = units
         n = len(slots)
         self._slot_unit = np.array([s.unit for s in slots], np.intp)
-        # per distinct model: the slots it serves and their gathered input indices
+        # Wang–Mendel models: all stacked, one kernel call per cycle over every slot
+        # (4,000 distinct rule bases cost one call, not 4,000)
+        stacked: dict[int, int] = {}
+        wm = [i for i, s in enumerate(slots) if WangMendelStack.accepts(s.model)]
+        models = []
+        for i in wm:
+            if id(slots[i].model) not in stacked:
+                stacked[id(slots[i].model)] = len(models)
+                models.append(slots[i].model)
+        self._stack = WangMendelStack.from_models(models) if models else None
+        d_max = max((len(slots[i].inputs) for i in wm), default=0)
+        self._wm_slots = np.array(wm, np.intp)
+        self._wm_which = np.array([stacked[id(slots[i].model)] for i in wm], np.int64)
+        self._wm_lags = np.zeros((len(wm), d_max), np.intp)
+        self._wm_cols = np.zeros((len(wm), d_max), np.intp)
+        for r, i in enumerate(wm):
+            d = len(slots[i].inputs)
+            self._wm_lags[r, :d] = slots[i].inputs[:, 0]
+            self._wm_cols[r, :d] = slots[i].inputs[:, 1]
+        # other methods: one predict per distinct model object over the slots it serves
         by_model: dict[int, list[int]] = {}
         for i, s in enumerate(slots):
-            by_model.setdefault(id(s.model), []).append(i)
+            if id(s.model) not in stacked:
+                by_model.setdefault(id(s.model), []).append(i)
         self._groups = []
         for idx in by_model.values():
             idx_a = np.array(idx, np.intp)
@@ -218,6 +238,11 @@ class Plant:
         n = len(self.slots)
         yhat = np.full(n, np.nan)
         have = self._cycles - 1  # lags beyond the history seen so far are missing
+        if self._stack is not None:
+            X = self._hist[self._wm_lags, self._wm_cols]
+            X[self._wm_lags > have] = np.nan
+            pred = self._stack.predict_detail(self._wm_which, X)
+            yhat[self._wm_slots] = supported(pred, self._min_support[self._wm_slots])
         for model, idx, lags, cols in self._groups:
             X = self._hist[lags, cols]
             X[(lags > have)] = np.nan

@@ -27,6 +27,7 @@ inference on small grids.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -44,6 +45,21 @@ from diag_plugin.models.protocol import (  # noqa: F401 - re-exported for caller
 )
 
 METHODS = ("wm-avg", "wm")
+
+
+class InferenceGrid(NamedTuple):
+    """What inference reads of a fitted model: the input partitions as arrays and the rules
+    sorted by key (see :meth:`WangMendelRegressor.inference_grid`)."""
+
+    lo: np.ndarray
+    step: np.ndarray
+    nsets: np.ndarray
+    plateau: np.ndarray
+    radix: np.ndarray
+    keys: np.ndarray
+    conclusions: np.ndarray
+
+
 #: the exact training state (see :meth:`WangMendelRegressor.to_state`)
 STATE_ARRAYS = ("keys_", "count_", "qsum_", "qsq_", "best_w_", "best_set_")
 PARAMS = ("input_spans", "output_span", "n_sets", "output_sets", "shape", "method")
@@ -476,6 +492,22 @@ class WangMendelRegressor(ParamsMixin):
     def coverage(self, X) -> float:
         """Share of samples of ``X`` covered by trained rules."""
         return self.predict_detail(X).coverage
+
+    def inference_grid(self) -> InferenceGrid:
+        """Partitions and rules as flat arrays, for evaluators that run many models at once
+        (:class:`diag_plugin.fuzzy.stack.WangMendelStack`); ``keys`` ascending."""
+        self._check_fitted()
+        lo, step, nsets, plateau, _ = self._arrays()
+        order = np.argsort(self.keys_, kind="stable")
+        return InferenceGrid(
+            lo,
+            step,
+            nsets,
+            plateau,
+            self.radix_.copy(),
+            np.asarray(self.keys_, np.int64)[order],
+            np.asarray(self.conclusions_, np.float64)[order],
+        )
 
     def _check_fitted(self) -> None:
         if not hasattr(self, "partitions_"):
