@@ -120,21 +120,15 @@ class RuleBase:
                 continue
             if in_rules and re.match(r"^\s*list\s*=", line):
                 depth = 0
+                opened = False
                 for j in range(i, len(lines)):
                     code = _split_comment(lines[j])[0]
                     if j == i:
                         code = code.split("=", 1)[1]
-                    in_str = None
-                    for ch in code:
-                        if in_str:
-                            in_str = None if ch == in_str else in_str
-                        elif ch in "\"'":
-                            in_str = ch
-                        elif ch == "[":
-                            depth += 1
-                        elif ch == "]":
-                            depth -= 1
-                    if depth <= 0 and "[" in code + "".join(lines[i:j]):
+                    code = _STRINGS.sub("", code)  # brackets inside strings do not count
+                    depth += code.count("[") - code.count("]")
+                    opened = opened or "[" in code
+                    if depth <= 0 and opened:
                         return i, j
                 return i, len(lines) - 1
         return None
@@ -478,8 +472,13 @@ def _var_table(v: Variable) -> tomlkit.items.Table:
     return t
 
 
+_STRINGS = re.compile(r"\"(?:[^\"\\]|\\.)*\"|'[^']*'")
+
+
 def _split_comment(line: str) -> tuple[str, str, str]:
     """Split a TOML line into code and comment, respecting strings."""
+    if "#" not in line:
+        return line, "", ""
     in_str = None
     for i, ch in enumerate(line):
         if in_str:

@@ -292,7 +292,9 @@ def _frames(args, unit, start, end, chunk="7D"):
         t1 = end if end is not None else b + pd.Timedelta(unit.period)
         if t1 <= t0:
             raise UserError(f"--to {t1} is not after --from {t0}")
-        yield from h.iter_windows(unit.tags, t0, t1, unit.period, chunk=chunk)
+        for frame in h.iter_windows(unit.tags, t0, t1, unit.period, chunk=chunk):
+            frame.attrs = {}  # the quality summary is not read here; pandas would copy it
+            yield frame  # into every derived frame
     finally:
         h.close()
 

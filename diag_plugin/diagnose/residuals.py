@@ -120,21 +120,24 @@ class LowPass:
             out[:, whole], zf = signal.sosfilt(self.sos_, a[:, whole], axis=0, zi=zi)
             self.zi_[whole] = zf.transpose(2, 0, 1)
             self.gap_[whole] = 0
+        # columns with NaNs: the filter runs over the finite samples only (its state holds
+        # across a NaN), restarting from rest after a gap longer than max_gap; one sosfilt
+        # call per stretch between long gaps
         for j in np.flatnonzero(~np.isfinite(a).all(axis=0)):
-            col = a[:, j]
-            finite = np.isfinite(col)
-            # Runs of finite samples between NaNs.
-            edges = np.flatnonzero(np.diff(np.r_[False, finite, False].astype(np.int8)))
-            starts, stops = edges[0::2], edges[1::2]
-            pos = 0
-            for s, e in zip(starts, stops, strict=True):
-                self.gap_[j] += s - pos
-                if self.gap_[j] > self.max_gap:
+            idx = np.flatnonzero(np.isfinite(a[:, j]))
+            if not idx.size:
+                self.gap_[j] += n
+                continue
+            before = np.diff(idx, prepend=-1 - self.gap_[j]) - 1  # NaNs just before each
+            cuts = np.flatnonzero(before > self.max_gap)
+            for s, e in zip(np.r_[0, cuts], np.r_[cuts, idx.size], strict=True):
+                if e <= s:
+                    continue
+                if before[s] > self.max_gap:
                     self.zi_[j] = 0.0
-                out[s:e, j], self.zi_[j] = signal.sosfilt(self.sos_, col[s:e], zi=self.zi_[j])
-                self.gap_[j] = 0
-                pos = e
-            self.gap_[j] += n - pos
+                at = idx[s:e]
+                out[at, j], self.zi_[j] = signal.sosfilt(self.sos_, a[at, j], zi=self.zi_[j])
+            self.gap_[j] = n - 1 - idx[-1]
         return wrap(out)
 
     def to_state(self) -> dict[str, Any]:

@@ -24,6 +24,7 @@ Stages (all vectorised over samples and tests):
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -187,28 +188,26 @@ class Diagnosis:
         reads."""
         if not len(self.status):
             return pd.DataFrame(columns=["from", "to", "status", "faults", "samples", "tests"])
-        key = self.status.astype(str) + "/" + self.faults.astype(str)
-        run = (key != key.shift()).cumsum().to_numpy()
+        st = self.status.to_numpy()
+        fa = self.faults.to_numpy()
+        starts = np.flatnonzero(np.r_[True, (st[1:] != st[:-1]) | (fa[1:] != fa[:-1])])
+        ends = np.r_[starts[1:], len(st)]  # exclusive
         idx = self.status.index
         period = (idx[1] - idx[0]) if len(idx) > 1 else pd.Timedelta(0)
         sym = self.symptoms.fillna(0).to_numpy() != 0
-        rows = []
-        for r in np.unique(run):
-            sel = np.flatnonzero(run == r)
-            a, b = sel[0], sel[-1]
-            tests = [
-                t for t, on in zip(self.symptoms.columns, sym[sel].any(axis=0), strict=True) if on
-            ]
-            rows.append(
-                {
-                    "from": idx[a],
-                    "to": idx[b] + period,
-                    "status": NE107(int(self.status.iloc[a])).name,
-                    "faults": self.faults.iloc[a],
-                    "samples": int(sel.size),
-                    "tests": ",".join(tests),
-                }
-            )
+        on = np.logical_or.reduceat(sym, starts, axis=0) if sym.shape[1] else sym[starts]
+        names = list(self.symptoms.columns)
+        rows = [
+            {
+                "from": idx[a],
+                "to": idx[b - 1] + period,
+                "status": NE107(int(st[a])).name,
+                "faults": fa[a],
+                "samples": int(b - a),
+                "tests": ",".join(t for t, o in zip(names, on[k], strict=True) if o),
+            }
+            for k, (a, b) in enumerate(zip(starts, ends, strict=True))
+        ]
         return pd.DataFrame(rows)
 
 
@@ -236,21 +235,38 @@ class Unit:
 
     # ------------------------------------------------------------ loading
     @classmethod
-    def load(cls, path: str | Path, folder: str | Path = "rulebases") -> Unit:
-        """Load a unit file, its models and matrix; all problems at once as ``file:line``."""
+    def load(
+        cls,
+        path: str | Path,
+        folder: str | Path = "rulebases",
+        models_cache: dict[Path, TestModel | UnitError] | None = None,
+    ) -> Unit:
+        """Load a unit file, its models and matrix; all problems at once as ``file:line``.
+
+        ``models_cache`` (resolved rule-base path → loaded model or its error), shared between
+        calls, reads each rule-base file once: units that name the same file share its model.
+        """
         file = UnitFile.load(unit_path(str(path), folder))
         problems: list[str] = []
         models: dict[str, TestModel] = {}
+        cache = {} if models_cache is None else models_cache
         for t in file.tests:
             p = file.resolve(t.model)
             if not p.exists():
                 problems.append(f"{file.path}:{t.line}: test {t.name!r}: model file {p} not found")
                 continue
-            try:
-                models[t.name] = load_test_model(t.name, p)
-            except UnitError as exc:
+            key = p.resolve()
+            if key not in cache:
+                try:
+                    cache[key] = load_test_model(t.name, p)
+                except UnitError as exc:
+                    cache[key] = exc
+            got = cache[key]
+            if isinstance(got, UnitError):
                 problems.append(f"{file.path}:{t.line}: test {t.name!r}: its model is broken:")
-                problems.extend("  " + p for p in exc.problems)
+                problems.extend("  " + q for q in got.problems)
+            else:
+                models[t.name] = dataclasses.replace(got, name=t.name, path=p)
         matrix = None
         if file.matrix_path is not None:
             line = file.line_of("unit", "matrix")
