@@ -30,6 +30,14 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="instead: validation errors per model and method (Figs. 3-7)",
     )
+    p.add_argument(
+        "--one-step",
+        action="store_true",
+        help="residuals one step ahead on measured data (not the seed's free run)",
+    )
+    p.add_argument(
+        "--plot", metavar="DIR", help="also write the residual plots (Figs. 8-12) as SVG to DIR"
+    )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=cmd_engine_fdi)
     p = sub.add_parser("compare-methods", help="train every method on a model's data (Figs. 3-7)")
@@ -81,13 +89,21 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
                     f"{method:8} {model:6} {v['sse']:14.4g} {v['rmse_pct']:8.2f} {v['fit_s']:7.2f}"
                 )
         return 0
-    res = engine_fdi.run_fdi(args.seed, args.method, kind=args.faults)
+    res = engine_fdi.run_fdi(
+        args.seed,
+        args.method,
+        kind=args.faults,
+        keep_residuals=bool(args.plot),
+        one_step=args.one_step,
+    )
+    plots = engine_fdi.plot_residuals(res, args.plot) if args.plot else []
     if args.json:
         doc = {
             "cases": [{k: c[k] for k in ("injected", "isolated", "time_s")} for c in res["cases"]],
             "method": res["method"],
             "seed": res["seed"],
             "detail": {k: res[k] for k in ("fault_kind", "residual_mode", "thresholds")},
+            "plots": [str(p) for p in plots],
         }
         print(json.dumps(doc, indent=2))
         return 0
@@ -95,6 +111,10 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
     print(f"{'injected':9} {'isolated':9} {'time s':>7}")
     for c in res["cases"]:
         t = "-" if c["time_s"] is None else f"{c['time_s']:.1f}"
-        mark = "" if c["exact"] else " (nearest)"
-        print(f"{c['injected']:9} {c['isolated']:9} {t:>7}{mark}")
+        # a signature that matches no Table II row exactly isolates only when one row is
+        # nearer than all others (engine_fdi.isolate); say so beside the name
+        nearest = c["isolated"] not in (None, "none", "unknown") and not c["exact"]
+        print(f"{c['injected']:9} {c['isolated']:9} {t:>7}{' (nearest)' if nearest else ''}")
+    for p in plots:
+        print(f"plot: {p}")
     return 0

@@ -139,6 +139,39 @@ def test_residual_plots_like_figs_8_to_12(tmp_path, monkeypatch, capsys):
         assert f"isolated: {got['isolated']}" in text and "revolution" in text
 
 
+def test_diag_engine_fdi_plot_writes_the_figures_and_marks_only_isolated_nearest(
+    tmp_path, monkeypatch, capsys
+):
+    """``diag engine-fdi --plot DIR``: the same SVG files as ``python -m diag_plugin.engine_fdi``,
+    listed in the output (and in ``--json``); "(nearest)" only beside a fault that was isolated
+    without an exact Table II match, never beside "none" or "unknown"."""
+    import json
+
+    from diag_plugin.cli import main
+
+    res = ts_fcm_run(SEEDS[0])
+    seen = {}
+
+    def fake_run(*a, **k):
+        seen.update(k)
+        return res
+
+    monkeypatch.setattr(fdi, "run_fdi", fake_run)  # the run above, not another
+    assert main(["engine-fdi", "--seed", str(SEEDS[0]), "--plot", str(tmp_path / "p")]) == 0
+    assert seen["keep_residuals"] is True and seen["one_step"] is False
+    out = capsys.readouterr().out
+    files = sorted((tmp_path / "p").glob("*.svg"))
+    assert len(files) == len(CASES)
+    assert all(f"plot: {f}" in out for f in files)
+    for c in res["cases"]:
+        (line,) = [ln for ln in out.splitlines() if ln.startswith(f"{c['injected']:9} ")]
+        near = c["isolated"] not in ("none", "unknown") and not c["exact"]
+        assert line.endswith("(nearest)") == near
+    assert main(["engine-fdi", "--seed", str(SEEDS[0]), "--json", "--one-step"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["plots"] == [] and seen["one_step"] is True and seen["keep_residuals"] is False
+
+
 @pytest.mark.xfail(
     run=False,
     reason="narmax2, ω (and ω_dy) fault, wrong on all 10 seeds tried: T̂_L follows ω_dy "
