@@ -282,6 +282,7 @@ class Plant:
         nu = len(units)
         su = self._slot_unit
         known = ~np.isnan(s)
+        fresh = known & ~np.isnan(r)  # evaluated on this sample, not held over a gap
         active_slot = np.nan_to_num(s) != 0
         active = np.bincount(su, weights=active_slot, minlength=nu) > 0
         n_known = np.bincount(su, weights=known, minlength=nu)
@@ -290,8 +291,9 @@ class Plant:
         status = np.where(
             active, NE107.OFF_SPEC, np.where(all_known, NE107.NORMAL, NE107.CHECK_FUNCTION)
         ).astype(np.int8)
+        all_fresh = np.bincount(su, weights=fresh, minlength=nu) == n_tests
         quality = np.where(
-            all_known, Quality.GOOD, np.where(n_known > 0, Quality.UNCERTAIN, Quality.BAD)
+            all_fresh, Quality.GOOD, np.where(n_known > 0, Quality.UNCERTAIN, Quality.BAD)
         )
         certs: list[dict[str, float]] = [{} for _ in range(nu)]
         faults: list[list[str]] = [[] for _ in range(nu)]

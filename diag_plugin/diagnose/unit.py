@@ -421,8 +421,11 @@ class Unit:
         known = ~np.isnan(s)
         active = (np.nan_to_num(s) != 0).any(axis=1)
         detected = np.where(active, 1.0, np.where(known.all(axis=1), 0.0, np.nan))
+        # Good only when every test was evaluated on this very sample; a symptom held over a
+        # gap (see symptoms) is Uncertain, like OPC UA's Uncertain_LastUsableValue
+        fresh = known & ~np.isnan(r.to_numpy())
         quality = np.where(
-            known.all(axis=1),
+            fresh.all(axis=1),
             Quality.GOOD,
             np.where(known.any(axis=1), Quality.UNCERTAIN, Quality.BAD),
         ).astype(np.int8)
