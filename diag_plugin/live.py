@@ -66,6 +66,8 @@ class LiveStats:
     stored: int = 0
     units: dict[str, UnitView] = field(default_factory=dict)
     events: list[str] = field(default_factory=list)
+    #: source outages seen by the loop: (source, from, to), wall-clock UTC
+    gaps: list[tuple[str, Any, Any]] = field(default_factory=list)
 
 
 class LiveLoop:
@@ -106,7 +108,7 @@ class LiveLoop:
         self._stop = asyncio.Event()
         self._buffer: list[pd.DataFrame] = []
         self._live: Any = None
-        self._tags = list(source.regmap.names)
+        self._tags = list(getattr(source, "names", None) or source.regmap.names)
 
     # ------------------------------------------------------------------ control
     def stop(self) -> None:
@@ -181,7 +183,12 @@ class LiveLoop:
         self._buffer_poll(ts, poll.values, poll.quality)
         if (i + 1) % self.flush_every == 0:
             await self.flush()
-        values = dict(zip(self._tags, poll.values.tolist(), strict=True))
+        for t in self.source.transitions(poll.ts) if hasattr(self.source, "transitions") else ():
+            self._source_event(t, ts)
+        # only Good samples reach the diagnosis: Bad or Uncertain ones make the tests that
+        # read them unknown (CHECK_FUNCTION), never a symptom
+        diag_values = np.where(poll.quality == 0, poll.values, np.nan)
+        values = dict(zip(self._tags, diag_values.tolist(), strict=True))
         statuses = self.plant.cycle(ts, values)
         if self.status_server is not None:
             while not self.status_server.acks.empty():
@@ -199,6 +206,19 @@ class LiveLoop:
         if self.after is not None:
             await self.after(self, i, statuses)
         return statuses
+
+    def _source_event(self, t: Any, ts: pd.Timestamp) -> None:
+        """A source went down or came back: one event line, the gap kept in the stats."""
+        if not t.up:
+            self.event(f"source {t.source} unavailable, its tags Bad: {t.reason}", ts)
+            return
+        gap = (t.until - t.since).total_seconds()
+        self.stats.gaps.append((t.source, t.since, t.until))
+        self.event(
+            f"source {t.source} back after {gap:.1f} s (gap {t.since:%H:%M:%S}-"
+            f"{t.until:%H:%M:%S} UTC, stored as Bad samples)",
+            ts,
+        )
 
     def _alarm_event(self, s: UnitStatus, before: AlarmState, after: AlarmState) -> None:
         what = {
@@ -402,6 +422,7 @@ async def run_embedded(
     from connectors.modbus import ModbusTagClient
     from connectors.modbus_server import PlantServer, StatusServer, UnitLayout, default_plant_map
     from connectors.opcua_server import DiagOpcUaServer
+    from connectors.sources import SourceSet
     from diag_plugin.diagnose.plant import Plant
     from historian.store import Historian
 
@@ -426,7 +447,10 @@ async def run_embedded(
     plc = PlantServer(default_plant_map(), "127.0.0.1", plc_port)
     status = StatusServer(layouts, "127.0.0.1", modbus_port)
     opcua = DiagOpcUaServer("127.0.0.1", opcua_port)
-    client = ModbusTagClient(default_plant_map(), "127.0.0.1", plc_port, timeout=1.0)
+    # one source, in a SourceSet for its outage events (down once, back once with the gap)
+    client = SourceSet(
+        [ModbusTagClient(default_plant_map(), "127.0.0.1", plc_port, timeout=1.0)], ["plc"]
+    )
     raised: dict[str, int] = {}
 
     async def feed(i: int) -> pd.Timestamp:

@@ -165,7 +165,7 @@ def test_config_errors_name_key_and_line(tmp_path):
     p = d / "plant.toml"
     p.write_text(good, encoding="utf-8")
     cfg = load_config(p)
-    assert cfg.port == 5021 and cfg.cycle == 0.05 and cfg.opcua_port == 0
+    assert cfg.sources[0].port == 5021 and cfg.cycle == 0.05 and cfg.opcua_port == 0
     assert cfg.historian == f"sqlite:///{d / 'cfg.db'}"
     for bad, want in (
         (

@@ -1,0 +1,140 @@
+"""Several tag sources polled as one: Modbus devices and OPC UA servers side by side.
+
+The live loop reads the plant as one vector of tags per cycle. A plant seldom has one
+controller, so :class:`SourceSet` polls each source concurrently (each with its own timeout,
+inside the connector) and lays their tags side by side in one :class:`connectors.modbus.Poll`.
+A source that fails makes only its own tags Bad; the others are read as usual.
+
+:class:`OpcUaSource` gives an :class:`connectors.opcua_client.OpcUaReader` the same ``names`` /
+``poll()`` shape as :class:`connectors.modbus.ModbusTagClient`: the latest ``DataValue`` of
+every node (one Read request when polling, the subscription's last notification otherwise),
+NaN where the StatusCode is Bad.
+
+:meth:`SourceSet.transitions` reports each source going down and coming back once, with the
+outage interval (the gap), for the loop's event log.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+import numpy as np
+
+from connectors.base import TagQuality, now
+from connectors.modbus import Poll
+
+
+class OpcUaSource:
+    """An :class:`~connectors.opcua_client.OpcUaReader` as a poll source (see module doc)."""
+
+    def __init__(self, reader: Any, name: str | None = None) -> None:
+        self.reader = reader
+        self.names = list(reader.config.nodes)
+        self.name = name or reader.config.url
+
+    async def start(self) -> None:
+        """Start the reader and wait up to its request timeout for the first connection (so
+        the first cycles are not Bad only because the session was still being opened)."""
+        await self.reader.start()
+        await self.reader.wait_connected(self.reader.config.timeout)
+
+    async def poll(self) -> Poll:
+        t0 = time.perf_counter()
+        ts = now()
+        samples = await self.reader.read()
+        values = np.array([s.value for s in samples], np.float64)
+        quality = np.array([int(s.quality) for s in samples], np.uint8)
+        values[quality == TagQuality.BAD] = np.nan
+        return Poll(ts, values, quality, [s.reason for s in samples], time.perf_counter() - t0)
+
+    async def close(self) -> None:
+        await self.reader.close()
+
+
+@dataclass
+class Transition:
+    """A source went down (``up`` False, ``since`` its start) or came back (``up`` True, the
+    gap from ``since`` to ``until``)."""
+
+    source: str
+    up: bool
+    since: datetime
+    until: datetime | None
+    reason: str
+
+
+class SourceSet:
+    """Sources polled concurrently as one tag vector (tag names must be unique)."""
+
+    def __init__(self, sources: Sequence[Any], names: Sequence[str] | None = None) -> None:
+        self.sources = list(sources)
+        self.source_names = list(names) if names else [_name(s) for s in self.sources]
+        self.names: list[str] = []
+        self._slices: list[slice] = []
+        for s in self.sources:
+            tags = list(getattr(s, "names", None) or s.regmap.names)
+            self._slices.append(slice(len(self.names), len(self.names) + len(tags)))
+            self.names.extend(tags)
+        dup = sorted({t for t in self.names if self.names.count(t) > 1})
+        if dup:
+            raise ValueError(f"tag(s) read from more than one source: {', '.join(dup)}")
+        self._down: dict[str, tuple[datetime, str]] = {}
+        self._last: list[str] = []  # per source: why it is down after the last poll, or ""
+
+    def tags_of(self, source: str) -> list[str]:
+        return self.names[self._slices[self.source_names.index(source)]]
+
+    async def start(self) -> None:
+        for s in self.sources:
+            if hasattr(s, "start"):
+                await s.start()
+
+    async def poll(self) -> Poll:
+        """One poll of every source at once; a source that raises gives Bad tags."""
+        t0 = time.perf_counter()
+        ts = now()
+        got = await asyncio.gather(*(s.poll() for s in self.sources), return_exceptions=True)
+        n = len(self.names)
+        values = np.full(n, np.nan)
+        quality = np.full(n, TagQuality.BAD, np.uint8)
+        reasons = [""] * n
+        self._last = []
+        for name, sl, p in zip(self.source_names, self._slices, got, strict=True):
+            if isinstance(p, BaseException):
+                why = f"{name}: poll failed: {p!r}"
+                reasons[sl] = [why] * (sl.stop - sl.start)
+                self._last.append(why)
+                continue
+            values[sl], quality[sl], reasons[sl] = p.values, p.quality, p.reasons
+            bad = [r for r, q in zip(p.reasons, p.quality, strict=True) if q == TagQuality.BAD]
+            # a source is down when none of its tags could be read
+            self._last.append(bad[0] if bad and len(bad) == len(p.reasons) else "")
+        return Poll(ts, values, quality, reasons, time.perf_counter() - t0)
+
+    def transitions(self, ts: datetime) -> list[Transition]:
+        """Sources that went down or came back in the last :meth:`poll`."""
+        out = []
+        for name, why in zip(self.source_names, self._last, strict=False):
+            if why and name not in self._down:
+                self._down[name] = (ts, why)
+                out.append(Transition(name, False, ts, None, why))
+            elif not why and name in self._down:
+                since, was = self._down.pop(name)
+                out.append(Transition(name, True, since, ts, was))
+        return out
+
+    async def close(self) -> None:
+        for s in self.sources:
+            try:
+                await s.close()
+            except Exception:  # noqa: BLE001 - closing the others matters more
+                pass
+
+
+def _name(source: Any) -> str:
+    return str(getattr(source, "name", None) or type(source).__name__)
