@@ -92,3 +92,35 @@ def test_units_with_their_own_rule_bases_are_each_evaluated_with_their_own(folde
     ok = np.isfinite(ra) & np.isfinite(rb)
     ok[: len(ok) // 2] = False  # past the low-pass filter's settling
     assert ok.sum() > len(ok) / 4 and np.all(np.abs(ra[ok] - rb[ok]) > 1.0)  # b's r1 differs
+
+
+def test_a_model_that_fails_at_run_time_stays_local(folder, caplog):
+    """One unit's model raising inside the cycle (a method's bug, a corrupt state) makes only
+    that unit's test unknown: the unit goes to CHECK_FUNCTION after its on-delay, the other
+    unit is evaluated exactly as without it, and the cycle never raises."""
+
+    class Broken:
+        """A model of another method whose prediction raises (fault injection)."""
+
+        def predict_detail(self, X):
+            raise RuntimeError("state corrupt")
+
+    a_u, b_u = Unit.load(folder / "a.unit.toml"), Unit.load(folder / "b.unit.toml")
+    b_u.models["r2"].model = Broken()
+    plant = Plant({"a": a_u, "b": b_u}, {})
+    frame = simulate_valve(0.1, seed=909)
+    rows = pd.DataFrame({f"{k}.{t}": frame[t] for k in ("A", "B") for t in TAGS})
+    got: dict[str, list] = {"a": [], "b": []}
+    for ts, row in rows.iterrows():
+        for st in plant.cycle(ts, row.to_dict()):
+            got[st.unit].append(st)
+    d = Unit.load(folder / "a.unit.toml").evaluate(rows)
+    assert [int(s.status) for s in got["a"]] == d.status.tolist()
+    r = np.array([list(s.residuals.values()) for s in got["a"]])
+    np.testing.assert_allclose(r, d.residuals.to_numpy(), atol=1e-9)
+    on_delay = b_u.ev["on_delay"]
+    assert all(np.isnan(s.residuals["r2"]) for s in got["b"])
+    assert {s.status for s in got["b"][on_delay:]} == {NE107.CHECK_FUNCTION}
+    assert {s.quality for s in got["b"]} == {Quality.UNCERTAIN}
+    (line,) = [r.getMessage() for r in caplog.records if "state corrupt" in r.getMessage()]
+    assert "b.r2" in line  # logged once, naming the test, not every cycle

@@ -114,6 +114,7 @@ class Plant:
         self.tag_index = tags
         self.depth = depth
         self.slots = slots
+        self._failing: set[int] = set()  # ids of models whose prediction raised (logged once)
         self._units = units
         n = len(slots)
         self._slot_unit = np.array([s.unit for s in slots], np.intp)
@@ -252,7 +253,10 @@ class Plant:
                     pred = model.predict_detail(X[ok])
                     yhat[idx[ok]] = supported(pred, self._min_support[idx[ok]])
                 except Exception as exc:  # noqa: BLE001 - a broken model: its tests unknown
-                    log.warning("model prediction failed: %s", exc)
+                    if id(model) not in self._failing:  # once per model, not every cycle
+                        self._failing.add(id(model))
+                        tests = ", ".join(self._slot_label(i) for i in idx)
+                        log.warning("model prediction failed (%s unknown): %r", tests, exc)
         y = self._hist[self._out_lag, self._out_col]
         y[self._out_lag > have] = np.nan
         r = (y - yhat) / self._scale * 100.0  # Kościelny et al., eq. 6
@@ -276,6 +280,11 @@ class Plant:
             self._latched[on] = s[on]
             s = np.where(self._latch & (self._latched != 0), self._latched, s)
         return self._statuses(ts, rf, s)
+
+    def _slot_label(self, i: int) -> str:
+        """``unit.test`` of slot ``i``."""
+        u = self._units[self.slots[i].unit]
+        return f"{u.name}.{u.tests[self.slots[i].test]}"
 
     def _statuses(self, ts: pd.Timestamp, r: np.ndarray, s: np.ndarray) -> list[UnitStatus]:
         units = self._units
