@@ -45,6 +45,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from diag_plugin.tomllines import line_of
+
 
 class ConfigError(ValueError):
     """A plant.toml problem; the message is ``file:line: key: what``."""
@@ -119,26 +121,7 @@ _KEYS = {
 
 
 def _line_of(lines: list[str], section: str, key: str | None, index: int = 0) -> int:
-    """1-based line of ``key`` in the ``index``-th ``[section]`` / ``[[section]]`` table (or
-    its header when ``key`` is None or not found)."""
-    header = re.compile(r"^\s*\[\[?\s*" + re.escape(section) + r"\s*\]\]?")
-    start, seen = None, -1
-    for i, line in enumerate(lines):
-        if start is None:
-            if header.match(line):
-                seen += 1
-                if seen == index:
-                    start = i
-                    if key is None:
-                        return i + 1
-            continue
-        if re.match(r"^\s*\[", line) and not re.match(
-            r"^\s*\[\s*" + re.escape(section) + r"\.", line
-        ):
-            break
-        if key is not None and re.match(r"^\s*" + re.escape(key) + r"\s*=", line):
-            return i + 1
-    return 1 if start is None else start + 1
+    return line_of(lines, section, key, index, subtables=True)
 
 
 def load_config(path: str | Path) -> LiveConfig:

@@ -149,24 +149,9 @@ class RuleBase:
 
     def line_of(self, section: str, key: str | None = None, nth: int = 0) -> int:
         """Line (1-based) of a section header or of ``key =`` inside it."""
-        hdr = re.compile(r"^\s*\[\[?\s*" + re.escape(section) + r"\s*\]\]?")
-        anyhdr = re.compile(r"^\s*\[")
-        seen = -1
-        start = None
-        for i, line in enumerate(self._lines):
-            if hdr.match(line):
-                seen += 1
-                if seen == nth:
-                    start = i
-                    if key is None:
-                        return i + 1
-                    continue
-            if start is not None and i > start:
-                if anyhdr.match(line):
-                    break
-                if re.match(r"^\s*" + re.escape(key) + r"\s*=", line):
-                    return i + 1
-        return start + 1 if start is not None else 1
+        from diag_plugin.tomllines import line_of
+
+        return line_of(self._lines, section, key, nth)
 
     def _rule_lines(self) -> list[tuple[int, list[str], str]]:
         """Per rule of ``rules.list``: its line number, the comment lines above it and

@@ -47,7 +47,6 @@ layout (tomlkit round trip).
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -160,20 +159,9 @@ class UnitFile:
 
     def line_of(self, section: str, key: str | None = None) -> int:
         """1-based line of ``[section]`` or of ``key =`` inside it (the header if absent)."""
-        hdr = re.compile(r"^\s*\[\s*" + re.escape(section) + r"\s*\]")
-        start = None
-        for i, line in enumerate(self.lines):
-            if start is None:
-                if hdr.match(line):
-                    start = i
-                    if key is None:
-                        return i + 1
-                continue
-            if re.match(r"^\s*\[", line):
-                break
-            if re.match(r"^\s*" + re.escape(key or "") + r"\s*=", line):
-                return i + 1
-        return 1 if start is None else start + 1
+        from diag_plugin.tomllines import line_of
+
+        return line_of(self.lines, section, key)
 
     def _table(self, name: str, required: bool = False) -> dict:
         t = self.doc.get(name)

@@ -1,0 +1,34 @@
+"""Where a TOML key sits in its file, for ``file:line`` error messages.
+
+``tomllib`` gives values, not positions; the files we read (rule bases, unit files,
+``plant.toml``) keep one key per line, so a line scan finds a key's line.
+"""
+
+from __future__ import annotations
+
+import re
+
+
+def line_of(
+    lines: list[str], section: str, key: str | None = None, nth: int = 0, subtables: bool = False
+) -> int:
+    """1-based line of ``key =`` in the ``nth`` ``[section]`` or ``[[section]]`` table, or of
+    that table's header when ``key`` is None or not in it; 1 when there is no such table.
+    ``subtables``: also look in ``[section.sub]`` tables that follow it."""
+    header = re.compile(r"^\s*\[\[?\s*" + re.escape(section) + r"\s*\]\]?")
+    sub = re.compile(r"^\s*\[\s*" + re.escape(section) + r"\.")
+    start, seen = None, -1
+    for i, line in enumerate(lines):
+        if start is None:
+            if header.match(line):
+                seen += 1
+                if seen == nth:
+                    start = i
+                    if key is None:
+                        return i + 1
+            continue
+        if re.match(r"^\s*\[", line) and not (subtables and sub.match(line)):
+            break
+        if key is not None and re.match(r"^\s*" + re.escape(key) + r"\s*=", line):
+            return i + 1
+    return 1 if start is None else start + 1
