@@ -198,7 +198,7 @@ class FuzzyThreeValued:
         return wrap(mu_n), wrap(mu_z), wrap(mu_p)
 
 
-@numba.njit(cache=False)
+@numba.njit(cache=True)
 def _delay_kernel(raw, on_delay, off_delay, state, count):  # pragma: no cover - numba
     n, m = raw.shape
     out = np.empty_like(raw)

@@ -89,7 +89,7 @@ def load_test_model(name: str, path: Path) -> TestModel:
     )
 
 
-@numba.njit(cache=False)
+@numba.njit(cache=True)
 def _hold_kernel(s, limit, last, run):  # pragma: no cover - numba
     n, m = s.shape
     out = s.copy()
