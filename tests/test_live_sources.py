@@ -291,3 +291,78 @@ def test_config_of_several_sources_names_source_key_and_line(plant_dir, monkeypa
         with pytest.raises(ConfigError) as exc:
             load_config(p)
         assert want in str(exc.value), str(exc.value)
+
+
+def test_source_set_opcua_subscription_outage_leaves_the_plc_tags_good():
+    """SourceSet over our PLC (Modbus) and an OPC UA server read by subscription: both read
+    in one poll; the OPC UA server stopped makes only its tags Bad (the PLC's stay Good), one
+    'down' transition; restarted on the same port, the reader resubscribes on its own and one
+    'up' transition carries the gap."""
+    from connectors.base import Backoff
+    from connectors.modbus import ModbusTagClient
+    from connectors.modbus_server import PlantServer, default_plant_map
+    from connectors.opcua_client import OpcUaConfig, OpcUaReader
+    from connectors.opcua_server import DiagOpcUaServer
+    from connectors.sources import OpcUaSource, SourceSet
+
+    ua_port = free_port()
+    plc_map = default_plant_map(("F", "CV"))
+
+    async def main():
+        async with PlantServer(plc_map, port=free_port()) as plc:
+            await plc.set_row({"F": 12.5, "CV": 40.0})
+            srv = DiagOpcUaServer("127.0.0.1", ua_port, plant_tags=("T1", "P2"))
+            await srv.start()
+            await srv.update_plant({"T1": 21.0, "P2": 800.0})
+            reader = OpcUaReader(
+                OpcUaConfig(
+                    srv.endpoint,
+                    {"T1": srv.node_id("Plant", "T1"), "P2": srv.node_id("Plant", "P2")},
+                    mode="subscription",
+                    period=0.1,
+                    timeout=1.0,
+                    backoff_base=0.2,
+                    backoff_cap=1.0,
+                )
+            )
+            client = ModbusTagClient(
+                plc_map, "127.0.0.1", plc.port, timeout=0.5, backoff=Backoff(0.2, 1.0)
+            )
+            sources = SourceSet([client, OpcUaSource(reader, "scada")], ["plc", "scada"])
+            assert sources.names == ["F", "CV", "T1", "P2"]
+            assert sources.tags_of("scada") == ["T1", "P2"]
+            await sources.start()
+            events = []
+
+            async def poll_until(pred, timeout=20.0):
+                end = time.monotonic() + timeout
+                while time.monotonic() < end:
+                    p = await sources.poll()
+                    events.extend(sources.transitions(p.ts))
+                    if pred(p):
+                        return p
+                    await asyncio.sleep(0.1)
+                raise AssertionError(f"timed out: {p}")
+
+            try:
+                p = await poll_until(lambda p: p.good)
+                assert p.values.tolist() == [12.5, 40.0, 21.0, 800.0]
+                await srv.stop()
+                p = await poll_until(lambda p: (p.quality[2:] == 2).all())
+                assert (p.quality[:2] == 0).all() and p.values[:2].tolist() == [12.5, 40.0]
+                assert np.isnan(p.values[2:]).all() and "scada" not in p.reasons[0]
+                await asyncio.sleep(0.5)
+                srv = DiagOpcUaServer("127.0.0.1", ua_port, plant_tags=("T1", "P2"))
+                await srv.start()
+                await srv.update_plant({"T1": 22.0, "P2": 810.0})
+                p = await poll_until(lambda p: p.good and p.values[2] == 22.0)
+                assert p.values.tolist() == [12.5, 40.0, 22.0, 810.0]
+            finally:
+                await sources.close()
+                await srv.stop()
+            return events
+
+    events = asyncio.run(main())
+    assert [(e.source, e.up) for e in events] == [("scada", False), ("scada", True)], events
+    down, up = events
+    assert up.since == down.since and up.until > up.since and down.reason
