@@ -198,11 +198,16 @@ class LiveLoop:
             if self.opcua is not None:
                 await self.opcua.publish(s)
             after = self._alarm(s.unit)
+            prev = self.stats.units.get(s.unit)
             self.stats.units[s.unit] = UnitView(s, after)
             if self.status_server is not None:
                 await self.status_server.publish(s, alarm=ALARM_CODES[after])
             if after is not before:
                 self._alarm_event(s, before, after)
+            elif prev is not None and s.faults and s.faults != prev.status.faults:
+                # the isolation narrowed or moved while the alarm stands: say so once
+                was = ", ".join(prev.status.faults) or "none"
+                self.event(f"{s.unit}: isolated {', '.join(s.faults)} (was {was})", s.ts)
         if self.after is not None:
             await self.after(self, i, statuses)
         return statuses

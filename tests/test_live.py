@@ -95,6 +95,8 @@ def test_diag_run_embedded_alarm_cycle_mbpoll_and_historian(tmp_path):
     assert any("operator acknowledges" in x for x in lines), out
     assert any("alarm acknowledged by operator" in x for x in lines), out
     assert any("alarm cleared: NORMAL" in x for x in lines), out
+    # the isolation narrows to the P0 group once r3 follows r2, and the operator is told
+    assert any("valve_unit: isolated f_P0, f_S (was" in x for x in lines), out
     order = [
         next(i for i, x in enumerate(lines) if key in x)
         for key in ("alarm raised", "operator acknowledges", "alarm cleared")
