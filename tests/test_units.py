@@ -226,6 +226,61 @@ def test_edge_of_the_trained_region_is_unknown_not_a_residual(folder):
     assert np.isfinite(loose.raw_residuals(frame)["r1"].iloc[rows]).all()
 
 
+def test_fading_symptoms_do_not_move_the_isolation_to_other_faults():
+    # a P0-sensor fault that ends: r2 and r3 fade at their own pace. Isolated afresh each
+    # sample, seed 404's fading pattern (r1 unknown, r2 on, r3 off) points at f_EP alone for
+    # 11 samples; held, f_P0 and f_S stay beside it until no symptom is left
+    end = ONSET + pd.Timedelta("2h")
+    f = simulate_valve(1, seed=404, faults=[FaultSpec("f14", -0.3, ONSET, end=end)])
+    got = {}
+    for hold in (True, False):
+        u = Unit.load(SHIPPED / "valve_unit.unit.toml")
+        u.ev["hold_isolation"] = hold
+        got[hold] = u.reset().evaluate(f).faults
+    after = {k: v[(v.index >= end) & (v != "")] for k, v in got.items()}
+    assert len(after[True]) > 100  # the symptoms take minutes to clear
+    assert after[True].str.contains("f_P0").all(), after[True].value_counts()
+    assert (after[False] == "f_EP").sum() == 11, after[False].value_counts()  # the rule matters
+    changed = got[True] != got[False]
+    assert set(got[True][changed]) == {"f_EP|f_P0|f_S"}
+    # while the fault develops, nothing changes: symptoms only appear there
+    during = got[True].index < end
+    pd.testing.assert_series_equal(got[True][during], got[False][during])
+
+
+def test_held_isolation_moves_on_new_evidence_only():
+    from diag_plugin.diagnose.isolation import IsolationHold
+
+    nan = np.nan
+    # tests r1..r4; faults A and B; "fresh" is what a sample isolates on its own
+    steps = [  # symptoms, fresh isolation, expected after the rule
+        ((0, 1, 0, 0), (1, 1), (1, 1)),  # r2: A or B
+        ((0, 1, 1, 0), (0, 1), (0, 1)),  # r3 appears: new evidence, B
+        ((nan, 1, 0, 0), (1, 0), (1, 1)),  # r3 fades, r1 unknown: A alone would be a jump
+        ((nan, 1, 0, 0), (1, 0), (1, 1)),  # ... so B stays beside it
+        ((0, 1, 1, 0), (0, 1), (0, 1)),  # r3 on again, as before: B
+        ((0, 1, 0, 0), (1, 1), (1, 1)),  # fading to a set that keeps B: as isolated
+        ((0, 1, -1, 0), (1, 0), (1, 0)),  # r3 with the other sign: new evidence, A
+        ((0, 0, 0, 0), (0, 0), (0, 0)),  # no symptom: cleared
+        ((0, 1, 0, 0), (1, 0), (1, 0)),  # a new episode starts afresh
+    ]
+    s = np.array([[st for st, _, _ in steps]], float).transpose(1, 0, 2)
+    fresh = np.array([[f for _, f, _ in steps]], bool).transpose(1, 0, 2)
+    want = np.array([e for _, _, e in steps], bool)
+    np.testing.assert_array_equal(IsolationHold(1, 4, 2).transform(fresh, s)[:, 0], want)
+    # one sample at a time, with a JSON restart halfway, gives the same
+    h, out = IsolationHold(1, 4, 2), []
+    for i in range(len(steps)):
+        if i == 3:
+            h = IsolationHold.from_state(json.loads(json.dumps(h.to_state())))
+        out.append(h.transform(fresh[i : i + 1], s[i : i + 1])[0, 0])
+    np.testing.assert_array_equal(np.array(out), want)
+    # a test that was unknown when the faults were isolated and is known now is new evidence
+    s2 = np.array([[[nan, 1, 0, 0]], [[0, 1, 0, 0]]])
+    f2 = np.array([[[1, 0]], [[0, 1]]], bool)
+    np.testing.assert_array_equal(IsolationHold(1, 4, 2).transform(f2, s2)[:, 0], f2[:, 0])
+
+
 def test_unknown_on_a_fault_free_run_is_check_function_not_failure(unit):
     frame = simulate_valve(0.5, seed=404)
     frame.iloc[2000:2600, frame.columns.get_loc("F")] = np.nan  # r1, r4 unknown

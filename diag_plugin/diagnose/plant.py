@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay
@@ -192,7 +193,16 @@ class Plant:
             mx = units[uis[0]].matrix
             order = [units[uis[0]].tests.index(t) for t in mx.tests]
             cols = np.array([[first_slot[ui] + k for k in order] for ui in uis], np.intp)
-            self._matrices.append((mx, np.array(uis, np.intp), cols))
+            self._matrices.append(
+                (
+                    mx,
+                    np.array(uis, np.intp),
+                    cols,
+                    np.array([units[ui].ev["certainty"] for ui in uis]),
+                    np.array([units[ui].ev["hold_isolation"] for ui in uis], bool),
+                    IsolationHold(len(uis), len(mx.tests), len(mx.faults)),
+                )
+            )
         self._hist = np.full((depth + 1, len(tags)), np.nan)
         self._cycles = 0
 
@@ -306,21 +316,21 @@ class Plant:
         )
         certs: list[dict[str, float]] = [{} for _ in range(nu)]
         faults: list[list[str]] = [[] for _ in range(nu)]
-        for mx, uis, cols in self._matrices:
+        for mx, uis, cols, certainty, hold, isolation in self._matrices:
             sm = s[cols]  # units × tests (matrix order)
             c = mx.nearest(sm).certainties
             on = active[uis]
             c = np.where(on[:, None], c, 0.0)
             cz = np.nan_to_num(c, nan=0.0)
-            best = cz.max(axis=1)
+            best = cz.max(axis=1, keepdims=True)
+            iso = on[:, None] & (cz >= certainty[:, None]) & (cz >= best - 1e-12)
+            held = isolation.transform(iso[None], sm[None])[0]
+            iso = np.where(hold[:, None], held, iso)
             for k, ui in enumerate(uis):
                 u = units[ui]
                 certs[ui] = dict(zip(mx.faults, c[k].tolist(), strict=True))
-                if not on[k]:
-                    continue
-                iso = (cz[k] >= u.ev["certainty"]) & (cz[k] >= best[k] - 1e-12)
-                if iso.any():
-                    names = [f for f, i in zip(mx.faults, iso, strict=True) if i]
+                if iso[k].any():
+                    names = [f for f, i in zip(mx.faults, iso[k], strict=True) if i]
                     faults[ui] = names
                     st = [u.file.fault_status.get(f, NE107.FAILURE) for f in names]
                     status[ui] = min(st, key=PRIORITY.index)

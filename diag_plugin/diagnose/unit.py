@@ -15,7 +15,8 @@ Stages (all vectorised over samples and tests):
 3. symptoms by crisp thresholds (Laukonen et al., Table III; Kościelny et al., Sec. 5) or by
    three-valued fuzzy evaluation (N, 0, P), then on/off delays and optional latching;
 4. with a matrix: a certainty per fault — nearest signature (crisp) or rules (10)–(14) of
-   Kościelny et al. (fuzzy) — and the isolated faults;
+   Kościelny et al. (fuzzy) — and the isolated faults, revised on new symptoms only
+   (:mod:`diag_plugin.diagnose.isolation`);
 5. NE 107 status: NORMAL without symptoms, the fault's status (FAILURE by default) when a fault
    is isolated, OFF_SPEC for symptoms no signature explains (or a unit without a matrix), and
    CHECK_FUNCTION when the diagnosis is unknown. An unknown test is never a symptom and never a
@@ -34,6 +35,7 @@ import numba
 import numpy as np
 import pandas as pd
 
+from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
@@ -319,6 +321,7 @@ class Unit:
         self.latched = np.zeros(len(self.tests))
         self.held = np.full(len(self.tests), np.nan)  # last known symptom per test
         self.unknown_run = np.zeros(len(self.tests), np.int64)
+        self.isolation = IsolationHold(1, len(self.tests), len(self.faults))
         return self
 
     def to_state(self) -> dict[str, Any]:
@@ -330,6 +333,7 @@ class Unit:
             "latched": self.latched.tolist(),
             "held": [None if np.isnan(v) else float(v) for v in self.held],
             "unknown_run": self.unknown_run.tolist(),
+            "isolation": self.isolation.to_state(),
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -341,6 +345,8 @@ class Unit:
         self.latched = np.asarray(state["latched"], float)
         self.held = np.array([np.nan if v is None else v for v in state["held"]], float)
         self.unknown_run = np.asarray(state["unknown_run"], np.int64)
+        if "isolation" in state:  # states saved before it start without a held isolation
+            self.isolation = IsolationHold.from_state(state["isolation"])
         return self
 
     # ------------------------------------------------------------ stages
@@ -436,7 +442,7 @@ class Unit:
         cert = np.empty((n, 0))
         if self.matrix is not None:
             cert = self.certainties(s, mem)
-            status, faults = self._isolate(cert, active, status)
+            status, faults = self._isolate(cert, active, status, s)
         message = ""
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
@@ -456,13 +462,18 @@ class Unit:
         )
 
     def _isolate(
-        self, cert: np.ndarray, active: np.ndarray, status: np.ndarray
+        self, cert: np.ndarray, active: np.ndarray, status: np.ndarray, s: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Isolated faults: those with the highest certainty, at least ``certainty``."""
+        """Isolated faults: those with the highest certainty, at least ``certainty``; kept
+        while no new symptom appears (``hold_isolation``, :mod:`~diag_plugin.diagnose.isolation`).
+        """
         n = cert.shape[0]
         c = np.nan_to_num(cert, nan=0.0)
         best = c.max(axis=1) if c.shape[1] else np.zeros(n)
         iso = active[:, None] & (c >= self.ev["certainty"]) & (c >= best[:, None] - 1e-12)
+        held = self.isolation.transform(iso[:, None, :], s[:, None, :])[:, 0, :]
+        if self.ev["hold_isolation"]:
+            iso = held
         fault_status = np.array(
             [int(self.file.fault_status.get(f, NE107.FAILURE)) for f in self.faults], np.int8
         )

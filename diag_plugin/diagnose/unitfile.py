@@ -22,6 +22,7 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     certainty = 0.5      # a fault counts as isolated from this certainty on
     min_support = 0.9    # a residual counts only where trained rules carry this share of the
                          # firing weight; elsewhere (the edge of the trained region) unknown
+    hold_isolation = true  # fading symptoms widen the isolation, never move it elsewhere
 
     [thresholds]         # written by `diag unit learn`: the fault-free window they came from
     quantile = 0.999
@@ -70,6 +71,7 @@ EVALUATION_DEFAULTS: dict[str, Any] = {
     "off_delay": 30,
     "certainty": 0.5,
     "min_support": 0.9,
+    "hold_isolation": True,
 }
 _KINDS = {
     "lowpass": float,
@@ -82,6 +84,7 @@ _KINDS = {
     "off_delay": int,
     "certainty": float,
     "min_support": float,
+    "hold_isolation": bool,
 }
 _CHOICES = {"scale": ("span", "max"), "symptoms": ("crisp", "fuzzy")}
 
