@@ -225,7 +225,8 @@ def cmd_unit_show(args) -> int:
     con.print(
         f"period {s['period']}; low-pass {ev['lowpass'] or 'off'} (order {ev['order']}); "
         f"{ev['symptoms']} symptoms, on/off delay {ev['on_delay']}/{ev['off_delay']} samples"
-        + ("; latched" if ev["latch"] else ""),
+        + ("; latched" if ev["latch"] else "")
+        + ("" if ev.get("hold_isolation", True) else "; isolated afresh each sample"),
         markup=False,
     )
     t = Table(title="tests (residuals in % of span)")
