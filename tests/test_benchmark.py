@@ -79,6 +79,8 @@ def test_quick_benchmark_meets_the_issue_goal(quick):
         assert rows[(f, "abrupt")]["detected"], f
     # what the literature cannot see with flow/position models, we do not claim either
     assert not rows[("f5", "abrupt")]["detected"]
-    # the issue's goal is 0.8; seed 11 reaches it, this seed does not (docs/diagnostics.md:
-    # faults that drive the valve where no model has rules make the unit CHECK_FUNCTION)
-    assert s["literature_detectable_share"] >= 0.5
+    # the issue's goal is 0.8 of the 15 faults the literature detects; the full run (every
+    # strength) reaches 12/15 on each of seeds 11, 23, 37 (docs/diagnostics.md). The quick run
+    # tries one strength per fault and finds 11/15 here: faults that drive the valve where no
+    # model has rules make the unit CHECK_FUNCTION, not detected
+    assert s["literature_detectable_share"] >= 0.7
