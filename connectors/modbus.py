@@ -135,6 +135,11 @@ class ModbusTagClient:
         self.connects = 0
         quiet_pymodbus()
 
+    @property
+    def names(self) -> list[str]:
+        """The tags a :meth:`poll` returns, in its order (the register map's)."""
+        return list(self.regmap.names)
+
     # ------------------------------------------------------------ connection
     @property
     def connected(self) -> bool:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
@@ -69,7 +70,9 @@ class Transition:
 
 
 class SourceSet:
-    """Sources polled concurrently as one tag vector (tag names must be unique)."""
+    """Sources polled concurrently as one tag vector (tag names must be unique). A source
+    has ``names`` (its tags, in the order its ``poll()`` returns them), ``poll()`` and
+    ``close()``, and may have ``start()``."""
 
     def __init__(self, sources: Sequence[Any], names: Sequence[str] | None = None) -> None:
         self.sources = list(sources)
@@ -77,10 +80,10 @@ class SourceSet:
         self.names: list[str] = []
         self._slices: list[slice] = []
         for s in self.sources:
-            tags = list(getattr(s, "names", None) or s.regmap.names)
+            tags = list(s.names)
             self._slices.append(slice(len(self.names), len(self.names) + len(tags)))
             self.names.extend(tags)
-        dup = sorted({t for t in self.names if self.names.count(t) > 1})
+        dup = sorted(t for t, k in Counter(self.names).items() if k > 1)
         if dup:
             raise ValueError(f"tag(s) read from more than one source: {', '.join(dup)}")
         self._down: dict[str, tuple[datetime, str]] = {}

@@ -31,13 +31,17 @@ import sys
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from connectors.alarms import AlarmState
+from connectors.base import TagQuality
 from diag_plugin.diagnose.status import UnitStatus
+
+if TYPE_CHECKING:
+    from connectors.sources import SourceSet, Transition
 
 #: the number published in the Modbus ``U.alarm`` register for each alarm state
 ALARM_CODES: dict[AlarmState, int] = {
@@ -71,7 +75,9 @@ class LiveStats:
 
 
 class LiveLoop:
-    """One live loop (module doc). ``opcua`` and ``status_server`` must be started by the caller.
+    """One live loop (module doc). ``source``: a :class:`connectors.sources.SourceSet` (its
+    outage transitions become event lines); ``opcua`` and ``status_server`` must be started by
+    the caller.
 
     ``feed(i)``: optional async hook run before the poll of cycle ``i``; it may return the
     time stamp of the sample (default: the poll's wall time). ``after(loop, i, statuses)``:
@@ -83,7 +89,7 @@ class LiveLoop:
     def __init__(
         self,
         plant: Any,
-        source: Any,
+        source: SourceSet,
         *,
         historian: Any = None,
         opcua: Any = None,
@@ -108,7 +114,7 @@ class LiveLoop:
         self._stop = asyncio.Event()
         self._buffer: list[pd.DataFrame] = []
         self._live: Any = None
-        self._tags = list(getattr(source, "names", None) or source.regmap.names)
+        self._tags = list(source.names)
 
     # ------------------------------------------------------------------ control
     def stop(self) -> None:
@@ -183,11 +189,11 @@ class LiveLoop:
         self._buffer_poll(ts, poll.values, poll.quality)
         if (i + 1) % self.flush_every == 0:
             await self.flush()
-        for t in self.source.transitions(poll.ts) if hasattr(self.source, "transitions") else ():
+        for t in self.source.transitions(poll.ts):
             self._source_event(t, ts)
         # only Good samples reach the diagnosis: Bad or Uncertain ones make the tests that
         # read them unknown (CHECK_FUNCTION), never a symptom
-        diag_values = np.where(poll.quality == 0, poll.values, np.nan)
+        diag_values = np.where(poll.quality == TagQuality.GOOD, poll.values, np.nan)
         values = dict(zip(self._tags, diag_values.tolist(), strict=True))
         statuses = self.plant.cycle(ts, values)
         if self.status_server is not None:
@@ -212,7 +218,7 @@ class LiveLoop:
             await self.after(self, i, statuses)
         return statuses
 
-    def _source_event(self, t: Any, ts: pd.Timestamp) -> None:
+    def _source_event(self, t: Transition, ts: pd.Timestamp) -> None:
         """A source went down or came back: one event line, the gap kept in the stats."""
         if not t.up:
             self.event(f"source {t.source} unavailable, its tags Bad: {t.reason}", ts)

@@ -64,6 +64,7 @@ class SourceConfig:
     port: int = 502
     device_id: int = 1
     map: Path | None = None
+    regmap: Any = None  # the parsed map (a RegisterMap), read once by load_config
     # opcua
     url: str = ""
     nodes: dict[str, str] = field(default_factory=dict)
@@ -332,9 +333,10 @@ def _check_tags(cfg: LiveConfig, fail) -> None:
     for i, s in enumerate(cfg.sources):
         if s.type == "modbus":
             try:
-                tags = RegisterMap.from_csv(s.map).names
+                s.regmap = RegisterMap.from_csv(s.map)
             except (ValueError, OSError) as exc:
                 raise fail("source", "map", str(exc), i) from None
+            tags = s.regmap.names
         else:
             tags = list(s.nodes)
         for t in tags:
@@ -358,7 +360,7 @@ def build_sources(cfg: LiveConfig) -> Any:
     clients: list[Any] = []
     for s in cfg.sources:
         if s.type == "modbus":
-            regmap = RegisterMap.from_csv(s.map)
+            regmap = s.regmap if s.regmap is not None else RegisterMap.from_csv(s.map)
             clients.append(
                 ModbusTagClient(regmap, s.host, s.port, device_id=s.device_id, timeout=s.timeout)
             )
