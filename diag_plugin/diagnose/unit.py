@@ -15,8 +15,8 @@ Stages (all vectorised over samples and tests):
 3. symptoms by crisp thresholds (Laukonen et al., Table III; Kościelny et al., Sec. 5) or by
    three-valued fuzzy evaluation (N, 0, P), then on/off delays and optional latching;
 4. with a matrix: a certainty per fault — nearest signature (crisp) or rules (10)–(14) of
-   Kościelny et al. (fuzzy) — and the isolated faults, revised on new symptoms only
-   (:mod:`diag_plugin.diagnose.isolation`);
+   Kościelny et al. (fuzzy) — and the isolated faults, never moved to other faults on fading
+   symptoms alone (:mod:`diag_plugin.diagnose.isolation`);
 5. NE 107 status: NORMAL without symptoms, the fault's status (FAILURE by default) when a fault
    is isolated, OFF_SPEC for symptoms no signature explains (or a unit without a matrix), and
    CHECK_FUNCTION when the diagnosis is unknown. An unknown test is never a symptom and never a
@@ -464,16 +464,15 @@ class Unit:
     def _isolate(
         self, cert: np.ndarray, active: np.ndarray, status: np.ndarray, s: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Isolated faults: those with the highest certainty, at least ``certainty``; kept
-        while no new symptom appears (``hold_isolation``, :mod:`~diag_plugin.diagnose.isolation`).
-        """
+        """Isolated faults: those with the highest certainty, at least ``certainty``; with
+        ``hold_isolation`` fading symptoms do not move them to other faults
+        (:mod:`~diag_plugin.diagnose.isolation`)."""
         n = cert.shape[0]
         c = np.nan_to_num(cert, nan=0.0)
         best = c.max(axis=1) if c.shape[1] else np.zeros(n)
         iso = active[:, None] & (c >= self.ev["certainty"]) & (c >= best[:, None] - 1e-12)
-        held = self.isolation.transform(iso[:, None, :], s[:, None, :])[:, 0, :]
         if self.ev["hold_isolation"]:
-            iso = held
+            iso = self.isolation.transform(iso[:, None, :], s[:, None, :])[:, 0, :]
         fault_status = np.array(
             [int(self.file.fault_status.get(f, NE107.FAILURE)) for f in self.faults], np.int8
         )
