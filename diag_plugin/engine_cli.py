@@ -36,6 +36,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="residuals one step ahead on measured data (not the seed's free run)",
     )
     p.add_argument(
+        "--matrix",
+        choices=("derived", "printed"),
+        default="derived",
+        help="Table II derived from eqs. 7-11 by the seed's rule (default) or as printed",
+    )
+    p.add_argument(
         "--plot", metavar="DIR", help="also write the residual plots (Figs. 8-12) as SVG to DIR"
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -95,6 +101,7 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
         kind=args.faults,
         keep_residuals=bool(args.plot),
         one_step=args.one_step,
+        matrix=args.matrix,
     )
     plots = engine_fdi.plot_residuals(res, args.plot) if args.plot else []
     if args.json:
@@ -102,12 +109,15 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
             "cases": [{k: c[k] for k in ("injected", "isolated", "time_s")} for c in res["cases"]],
             "method": res["method"],
             "seed": res["seed"],
-            "detail": {k: res[k] for k in ("fault_kind", "residual_mode", "thresholds")},
+            "detail": {k: res[k] for k in ("fault_kind", "residual_mode", "matrix", "thresholds")},
             "plots": [str(p) for p in plots],
         }
         print(json.dumps(doc, indent=2))
         return 0
-    print(f"method {res['method']}, seed {res['seed']}, residuals {res['residual_mode']}")
+    print(
+        f"method {res['method']}, seed {res['seed']}, residuals {res['residual_mode']}, "
+        f"Table II {res['matrix']}"
+    )
     print(f"{'injected':9} {'isolated':9} {'time s':>7}")
     for c in res["cases"]:
         t = "-" if c["time_s"] is None else f"{c['time_s']:.1f}"

@@ -14,7 +14,10 @@
    signal's maximum over a fault-free run (:class:`MaxScaler`), thresholds learned from a
    fault-free run (:class:`LearnedThresholds`; the seed's Table III values belong to its engine)
    and latching (:class:`Latch`) over the seed's test window, revolutions 3000–5000.
-5. Isolation by Table II (:class:`DiagnosticMatrix`, exact match, else nearest signature).
+5. Isolation by Table II (:class:`DiagnosticMatrix`, exact match, else nearest signature): by
+   default the table derived from eqs. 7–11 by the seed's own method (:func:`derive_table_ii`),
+   which reproduces the printed rows for m_a, α and m_f and corrects the ω row's α entry;
+   ``matrix="printed"`` isolates by the table as printed (docs/engine.md, "The ω case").
 
 Plain functions, numpy/pandas in and out.
 """
@@ -22,7 +25,7 @@ Plain functions, numpy/pandas in and out.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -36,14 +39,18 @@ from diag_plugin.simulate.engine import EngineFault, simulate_engine
 
 __all__ = [
     "CASES",
+    "ESTIMATED_INPUTS",
     "FDI_METHODS",
+    "MATRICES",
     "MODELS",
     "RESIDUALS",
     "SIGNALS",
     "TABLE_II",
     "TABLE_III",
+    "TABLE_II_DERIVED",
     "EngineModels",
     "compare_methods",
+    "derive_table_ii",
     "fault_case",
     "identify",
     "isolate",
@@ -96,7 +103,8 @@ RESIDUALS = ("omega", "m_a", "alpha", "m_f")
 #: the residuals :func:`residuals` returns: Table II's four and T̂_L − T_L (plotted, not tested)
 SIGNALS = (*RESIDUALS, "T_L")
 
-#: Table II, per fault its residual signature over :data:`RESIDUALS` ("x": the seed's "-")
+#: Table II as printed, per fault its residual signature over :data:`RESIDUALS` ("x": the
+#: seed's "-")
 TABLE_II: dict[str, tuple[str, str, str, str]] = {
     "m_a": ("x", "1", "1", "1"),
     "omega": ("1", "0", "1", "1"),
@@ -107,14 +115,63 @@ TABLE_II: dict[str, tuple[str, str, str, str]] = {
 #: Table III thresholds of the seed's engine (its scaling; for reference only)
 TABLE_III: dict[str, float] = {"omega": 0.10, "m_a": 0.30, "alpha": 0.04, "m_f": 0.15}
 
-#: the seed's calibration faults (§IV): signal(s) and gain
+#: the seed's calibration faults (§IV): signal(s) and gain. "to obtain a 20% ω calibration
+#: fault, we multiply ω by 1.20": the engine speed sensor only — the dynamometer's tachometer
+#: (ω_dy, eqs. 9 and 11) is another instrument
 CASES: dict[str, tuple[tuple[str, ...], float]] = {
     "none": ((), 1.0),
-    "omega": (("omega", "omega_dy"), 1.2),  # ω_dy carries the error too (docs/engine.md)
+    "omega": (("omega",), 1.2),
     "m_a": (("m_a",), 1.2),
     "alpha": (("alpha",), 1.2),  # actuator: the engine gets 1.2 × the command
     "m_f": (("m_f",), 1.4),  # actuator: injects 1.4 × the command
 }
+
+#: inputs that eqs. 7–11 read as another model's estimate, not as measured: T̂_L in eqs. 7–8
+ESTIMATED_INPUTS = ("T_L",)
+
+
+def derive_table_ii(
+    faults: Mapping[str, Sequence[str]] | None = None,
+    models: Mapping[str, tuple[str, tuple[tuple[str, int], ...]]] = MODELS,
+    estimated: Sequence[str] = ESTIMATED_INPUTS,
+    residuals: Sequence[str] = RESIDUALS,
+) -> dict[str, tuple[str, ...]]:
+    """Table II derived from the regression vectors, by the rule the seed states for it (§IV,
+    the "indirect decoupling method"): a fault on recorded signals ``faults[f]`` makes the
+    residual ``ŷ − y`` of a model (:data:`RESIDUALS`) non-zero ("1") when the signal is the
+    model's output or one of its measured regressors; "-" ("x", don't care) when it reaches
+    the model only through another model's estimate (``estimated`` inputs, each the output of
+    the model of that name in ``models``) (T̂_L in eqs. 7–8 — the seed's "very
+    weakly coupled through the load torque model" for the m_a fault's ω residual); else zero.
+    The model's own lags are its estimates (free run), so they carry no fault.
+
+    For eqs. 7–11 and the seed's faults this gives the printed rows for m_a, α and m_f, and
+    for ω (multiplied alone, as the seed did) ``1 0 0 1``: eq. 9 reads ω_dy, not ω, so α̂ − α
+    cannot move; the printed ``1 0 1 1`` holds only if ω_dy is faulty too, and then the rule
+    gives "-" for m̂_a − m_a (eq. 11 reads ω_dy, eq. 8 reads T̂_L), not the printed zero."""
+    faults = {f: sig for f, (sig, _) in CASES.items() if sig} if faults is None else faults
+    measured = {  # per model, the regressors read as recorded (not its lags, not estimates)
+        name: {c for c, _ in inputs if c != out and c not in estimated}
+        for name, (out, inputs) in models.items()
+    }
+    table = {}
+    for fault, signals in faults.items():
+        bad = set(signals)
+        moved = {name for name, cols in measured.items() if cols & bad}  # estimates it moves
+        row = []
+        for name in residuals:
+            out, inputs = models[name]
+            via = {c for c, _ in inputs if c != out and c in estimated} & moved
+            row.append("1" if out in bad or measured[name] & bad else "x" if via else "0")
+        table[fault] = tuple(row)
+    return table
+
+
+#: Table II as :func:`derive_table_ii` gives it for eqs. 7–11 (the default for isolation)
+TABLE_II_DERIVED: dict[str, tuple[str, ...]] = derive_table_ii()
+
+#: the matrices :func:`run_fdi` can isolate by
+MATRICES = {"derived": TABLE_II_DERIVED, "printed": TABLE_II}
 
 N_REV = 7000  # the seed's cut IM240 cycle (§III)
 WINDOW = (3000, 5000)  # the seed's test window, revolutions (§IV)
@@ -132,10 +189,11 @@ class EngineModels:
     one_step: bool = False
 
 
-def table_ii() -> DiagnosticMatrix:
-    """Table II as a :class:`DiagnosticMatrix` (tests = :data:`RESIDUALS`)."""
-    faults = list(TABLE_II)
-    rows = [[TABLE_II[f][t] for f in faults] for t in range(len(RESIDUALS))]
+def table_ii(table: Mapping[str, Sequence[str]] = TABLE_II_DERIVED) -> DiagnosticMatrix:
+    """Table II (by default as derived, :func:`derive_table_ii`; or :data:`TABLE_II` as
+    printed) as a :class:`DiagnosticMatrix` (tests = :data:`RESIDUALS`)."""
+    faults = list(table)
+    rows = [[table[f][t] for f in faults] for t in range(len(RESIDUALS))]
     return DiagnosticMatrix(list(RESIDUALS), faults, rows, name="seed 000 Table II")
 
 
@@ -269,24 +327,28 @@ def _window(df: pd.DataFrame, window: tuple[int, int]) -> pd.DataFrame:
 
 
 def isolate(
-    latched: pd.DataFrame, onset_time: pd.Timestamp, min_certainty: float = 0.75
+    latched: pd.DataFrame,
+    onset_time: pd.Timestamp,
+    min_certainty: float = 0.75,
+    table: Mapping[str, Sequence[str]] = TABLE_II_DERIVED,
 ) -> tuple[str, float, bool]:
-    """Isolation by Table II over latched symptoms (§IV): the exact match at the end of the
+    """Isolation by Table II (``table``: derived, the default, or :data:`TABLE_II` as printed)
+    over latched symptoms (§IV): the exact match at the end of the
     window, else the nearest signature — fewest constrained residuals that do not fit — if it
     is the only one that near and its certainty (share of its constrained residuals that fit)
     is at least ``min_certainty``, else ``"unknown"`` (detected, not isolated). A tie is no
-    isolation: Table II's ω, α and m_f signatures are two residuals apart and m_a's is one from
-    each (its don't care), so a pattern one residual off one signature is as near another, and
-    in practice only exact matches isolate. Time: from the onset to the first sample from which
-    the decision holds to the end. Returns ``(fault, "unknown" or "none"; seconds or NaN;
-    exact)``."""
-    m = table_ii()
+    isolation: in the printed table the ω, α and m_f signatures are two residuals apart and
+    m_a's is one from each (its don't care), so a pattern one residual off one signature is as
+    near another; in the derived one ω and m_f differ in m̂_a − m_a alone. Time: from the onset
+    to the first sample from which the decision holds to the end. Returns ``(fault, "unknown"
+    or "none"; seconds or NaN; exact)``."""
+    m = table_ii(table)
     s = latched[list(RESIDUALS)].to_numpy(float)
     if not len(s):
         return "none", float("nan"), True
     match = m.match(s).matched
     exact = match.sum(axis=1) == 1
-    sig = np.array([[np.nan if v == "x" else float(v) for v in TABLE_II[f]] for f in m.faults])
+    sig = np.array([[np.nan if v == "x" else float(v) for v in table[f]] for f in m.faults])
     rel = np.isfinite(sig)[None, :, :] & np.isfinite(s)[:, None, :]  # samples × faults × tests
     miss = (rel & (s[:, None, :] != sig[None, :, :])).sum(axis=2)
     n_rel = rel.sum(axis=2)
@@ -319,8 +381,10 @@ def run_case(
     window: tuple[int, int] = WINDOW,
     kind: str = "recorded",
     keep_residuals: bool = False,
+    table: Mapping[str, Sequence[str]] = TABLE_II_DERIVED,
 ) -> dict[str, Any]:
-    """One test (§IV, Figs. 8–12): simulate the case, residuals, thresholds, latch, isolate.
+    """One test (§IV, Figs. 8–12): simulate the case, residuals, thresholds, latch, isolate
+    (by ``table``).
     Per residual its peak |r| over the window and the revolution it latched at (None: never);
     with ``keep_residuals`` also ``"residuals"``, the window's frame of :data:`SIGNALS` and
     ``rev`` (for :func:`plot_residuals`)."""
@@ -328,7 +392,7 @@ def run_case(
     full = _window(residuals(em, df, scaler).assign(rev=df["rev"]), window)
     r = full[list(RESIDUALS)]
     latched = Latch(thresholds).transform(r)
-    fault, secs, exact = isolate(latched, df.index[df["rev"] == onset][0])
+    fault, secs, exact = isolate(latched, df.index[df["rev"] == onset][0], table=table)
     on = latched.to_numpy() == 1.0
     revs = full["rev"].to_numpy()
     out = {
@@ -388,18 +452,25 @@ def run_fdi(
     n_rev: int = N_REV,
     window: tuple[int, int] = WINDOW,
     kind: str = "recorded",
-    n_clean: int = 2,
+    n_clean: int = 4,
     keep_residuals: bool = False,
     one_step: bool = False,
+    matrix: str = "derived",
 ) -> dict[str, Any]:
     """The seed's whole experiment (§§III–IV) for one seed: identification on a fault-free run
     (simulator seed ``seed``), scaling from a second fault-free run (``seed + 1000``),
-    thresholds over it and ``n_clean − 1`` more (``seed + 1001``, …), each case on a third run
+    thresholds over it and ``n_clean − 1`` more (``seed + 1001``, …; the seed's "similar tests
+    run on different days": with two runs, narmax2's tight free-run m_f thresholds were crossed
+    without a fault on the test run of seeds 3 and 17), each case on a third run
     (``seed + 2000``) with the fault from the start of the test window. Returns
-    ``{"method", "seed", "fault_kind", "residual_mode", "thresholds", "validation", "cases"}``;
-    ``keep_residuals`` keeps each case's residual frame (:func:`run_case`); ``one_step``
-    computes every residual one step ahead (:class:`EngineModels`), not the seed's free run.
+    ``{"method", "seed", "fault_kind", "residual_mode", "matrix", "thresholds", "validation",
+    "cases"}``; ``keep_residuals`` keeps each case's residual frame (:func:`run_case`);
+    ``one_step`` computes every residual one step ahead (:class:`EngineModels`), not the seed's
+    free run; ``matrix`` names the Table II to isolate by (:data:`MATRICES`: ``"derived"`` from
+    eqs. 7–11, the default, or ``"printed"``).
     """
+    if matrix not in MATRICES:
+        raise ValueError(f"matrix must be one of {', '.join(MATRICES)}, got {matrix!r}")
     train = simulate_engine(n_rev, seed=seed)
     em = identify(train, method)
     em.one_step = one_step
@@ -417,6 +488,7 @@ def run_fdi(
             window=window,
             kind=kind,
             keep_residuals=keep_residuals,
+            table=MATRICES[matrix],
         )
         for c in cases
     ]
@@ -425,6 +497,7 @@ def run_fdi(
         "seed": seed,
         "fault_kind": kind,
         "residual_mode": "free run" if free_runs(em) else "one step ahead",
+        "matrix": matrix,
         "thresholds": {k: round(float(v), 4) for k, v in thr.items()},
         "validation": validation_errors(em, clean),
         "cases": results,
@@ -446,7 +519,7 @@ FIGURES: dict[str, tuple[int, str]] = {
     "alpha": (9, "20 % throttle (α) calibration fault"),
     "m_a": (10, "20 % mass air (m_a) calibration fault"),
     "m_f": (11, "40 % mass fuel (m_f) calibration fault"),
-    "omega": (12, "20 % engine speed (ω, ω_dy) calibration fault"),
+    "omega": (12, "20 % engine speed (ω) calibration fault"),
 }
 
 _PANEL_TITLES = {
@@ -506,7 +579,8 @@ def plot_residuals(res: dict[str, Any], outdir: str | Any) -> list[Any]:
         n, name = FIGURES[case]
         title = (
             f"Residuals with {name} (like seed Fig. {n}): {res['method']} "
-            f"({res['residual_mode']}), seed {res['seed']}, isolated: {c['isolated']}"
+            f"({res['residual_mode']}), seed {res['seed']}, "
+            f"Table II {res.get('matrix', 'derived')}, isolated: {c['isolated']}"
         )
         svg = sp.figure(
             panels,
@@ -524,8 +598,8 @@ def plot_residuals(res: dict[str, Any], outdir: str | Any) -> list[Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m diag_plugin.engine_fdi --plot DIR [--seed N] [--method M]``: run the
-    experiment and write the residual plots (Figs. 8–12) as SVG files."""
+    """``python -m diag_plugin.engine_fdi --plot DIR [--seed N] [--method M] [--matrix T]``: run
+    the experiment and write the residual plots (Figs. 8–12) as SVG files."""
     import argparse
 
     ap = argparse.ArgumentParser(prog="python -m diag_plugin.engine_fdi")
@@ -538,9 +612,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="residuals one step ahead on measured data (not the seed's free run)",
     )
+    ap.add_argument("--matrix", choices=tuple(MATRICES), default="derived")
     args = ap.parse_args(argv)
     res = run_fdi(
-        args.seed, args.method, kind=args.faults, keep_residuals=True, one_step=args.one_step
+        args.seed,
+        args.method,
+        kind=args.faults,
+        keep_residuals=True,
+        one_step=args.one_step,
+        matrix=args.matrix,
     )
     for p in plot_residuals(res, args.plot):
         print(p)

@@ -153,9 +153,10 @@ onset revolution on (seed: 1.2 on ω, m_a, α; 1.4 on m_f). Two kinds:
 
 The speed controller reads the true speed, so an ``omega`` sensor fault changes
 no dynamics. The seed's Table II marks the α residual non-zero for an ω sensor
-fault although eq. 9 reads ω_dy, not ω: the seed multiplied recorded data, and
-its ω_dy evidently carried the same error. To reproduce that row here, give the
-same fault on ``omega_dy`` too (``EngineFault("omega_dy", 1.2, onset)``).
+fault although eq. 9 reads ω_dy, the dynamometer's tachometer (another instrument),
+not ω; the FDI experiment multiplies ω alone, as the seed did, and isolates by the
+table derived from eqs. 7–11 (:func:`diag_plugin.engine_fdi.derive_table_ii`). A
+fault on both is ``[EngineFault("omega", 1.2, k), EngineFault("omega_dy", 1.2, k)]``.
 """
 
 from __future__ import annotations
