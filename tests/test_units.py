@@ -349,6 +349,8 @@ def test_cli_unit_new_learn_show_diagnose(folder, db, tmp_path, capsys):
     got = json.loads(capsys.readouterr().out)
     assert got["window"][0].startswith("2026-01-01T00:00") and got["samples"]["r1"] > 3000
     assert all(v["high"] > 0 for v in got["thresholds"].values())
+    # filtered residuals stay correlated: far fewer independent values than samples
+    assert all(1 <= got["independent"][k] < got["samples"][k] / 10 for k in got["samples"])
     assert main(base + ["unit", "show", "v2", "--json"]) == 0
     shown = json.loads(capsys.readouterr().out)
     groups = [["f_EP"], ["f_P0", "f_S"], ["f_X"], ["f_V"]]

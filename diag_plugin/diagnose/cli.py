@@ -343,13 +343,17 @@ def cmd_unit_learn(args) -> int:
         "window": list(got.window),
         "thresholds": {k: {"low": lo, "high": hi} for k, (lo, hi) in got.limits.items()},
         "samples": got.samples,
+        "independent": got.independent,
     }
     if args.json:
         print(json.dumps(out, indent=2))
     else:
         print(f"{uf.path}: thresholds from {got.window[0]} … {got.window[1]}")
         for k, (lo, hi) in got.limits.items():
-            print(f"  {k}: {lo:+.3f} … {hi:+.3f} % ({got.samples[k]:,} samples)")
+            print(
+                f"  {k}: {lo:+.3f} … {hi:+.3f} % ({got.samples[k]:,} samples, "
+                f"≈ {got.independent[k]:,} independent)"
+            )
     return 0
 
 

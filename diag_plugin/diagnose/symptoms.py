@@ -21,6 +21,7 @@ from typing import Any
 import numba
 import numpy as np
 import pandas as pd
+from scipy import signal
 
 from diag_plugin.diagnose.residuals import ArrayLike, _as_2d, _per_column
 
@@ -78,6 +79,30 @@ class FixedThresholds:
         return wrap(s)
 
 
+def effective_samples(x: ArrayLike) -> float:
+    """About how many independent values a residual series holds: ``n / τ`` with ``τ`` the
+    integrated autocorrelation time ``1 + 2 Σ ρ_k``, summed up to the first lag where the
+    sample autocorrelation ``ρ_k`` is no longer positive (Sokal's window, truncated where the
+    estimate turns to noise). A filtered residual is strongly correlated: a quantile learned
+    over few independent values is their maximum, and fault-free data outside the window cross
+    it. NaNs are left out (the series is taken as contiguous); fewer than 3 finite values
+    give their count."""
+    a = np.asarray(x, dtype=float).ravel()
+    a = a[np.isfinite(a)]
+    n = a.size
+    if n < 3:
+        return float(n)
+    a = a - a.mean()
+    if not np.any(a):
+        return float(n)
+    ac = signal.correlate(a, a, mode="full", method="fft")[n - 1 :]
+    rho = ac / ac[0]
+    stop = np.flatnonzero(rho[1:] <= 0.0)
+    k = int(stop[0]) + 1 if stop.size else n
+    tau = max(1.0, 1.0 + 2.0 * float(rho[1:k].sum()))
+    return n / tau
+
+
 class LearnedThresholds(FixedThresholds):
     """Thresholds learned from a fault-free window: ``quantile(|r|, q) · margin`` (seed 000).
 
@@ -85,7 +110,9 @@ class LearnedThresholds(FixedThresholds):
     the residuals from zero during no fault operation"; here that is the ``quantile`` (default
     0.999) of ``|r|`` over the window times a ``margin`` (default 1.2), symmetric (±). NaN
     residuals in the window are ignored. After :meth:`fit`: ``thresholds_`` (Series per column),
-    ``window_`` (first and last index label of the frame, for the unit file) and ``n_samples_``.
+    ``window_`` (first and last index label of the frame, for the unit file), ``n_samples_`` and
+    ``n_independent_`` (:func:`effective_samples` per column: how many independent values the
+    quantile was taken over).
     """
 
     def __init__(self, quantile: float = 0.999, margin: float = 1.2, signed: bool = True) -> None:
@@ -99,6 +126,7 @@ class LearnedThresholds(FixedThresholds):
         self.thresholds_: pd.Series | None = None
         self.window_: tuple[Any, Any] | None = None
         self.n_samples_: pd.Series | None = None
+        self.n_independent_: pd.Series | None = None
 
     def fit(self, residuals: pd.DataFrame) -> LearnedThresholds:
         """Learn one threshold per column from fault-free residuals (seed 000 Table III)."""
@@ -111,6 +139,11 @@ class LearnedThresholds(FixedThresholds):
         q = np.nanquantile(np.abs(a), self.quantile, axis=0) * self.margin
         self.thresholds_ = pd.Series(q, index=df.columns, name="threshold")
         self.n_samples_ = pd.Series(n, index=df.columns, name="n")
+        self.n_independent_ = pd.Series(
+            [effective_samples(a[:, j]) for j in range(a.shape[1])],
+            index=df.columns,
+            name="n_independent",
+        )
         self.window_ = (df.index[0], df.index[-1])
         self.high = self.thresholds_
         return self

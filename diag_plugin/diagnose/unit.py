@@ -537,6 +537,8 @@ class Learned:
     quantile: float
     margin: float
     ymax: dict[str, float]
+    #: about how many independent residual values each threshold rests on (``effective_samples``)
+    independent: dict[str, int]
 
 
 def learn_thresholds(
@@ -545,7 +547,10 @@ def learn_thresholds(
     """Thresholds per test: ``quantile(|r|) · margin`` of the filtered residual over a window
     the user declares fault-free (``frames``: consecutive pieces of it), skipping the first
     :data:`SETTLE_SAMPLES` while the filter settles. With ``scale = "max"`` the signal maximum
-    ``ymax`` per test is learned first (Laukonen et al., Sec. IV)."""
+    ``ymax`` per test is learned first (Laukonen et al., Sec. IV). ``independent`` says about how
+    many independent values each quantile rests on: a filtered residual stays correlated for
+    hours, and a threshold from a few dozen independent values is their maximum, which
+    fault-free data outside the window will cross (learn over weeks, not days)."""
     from diag_plugin.diagnose.symptoms import LearnedThresholds
 
     frames = list(frames)
@@ -576,7 +581,9 @@ def learn_thresholds(
     assert lt.thresholds_ is not None and lt.n_samples_ is not None
     limits = {str(k): (-float(v), float(v)) for k, v in lt.thresholds_.items()}
     samples = {str(k): int(v) for k, v in lt.n_samples_.items()}
+    assert lt.n_independent_ is not None
+    independent = {str(k): int(v) for k, v in lt.n_independent_.items()}
     idx = r.index
     period = idx[1] - idx[0] if len(idx) > 1 else pd.Timedelta(unit.period)
     window = (idx[0].isoformat(), (idx[-1] + period).isoformat())
-    return Learned(limits, samples, window, quantile, margin, ymax)
+    return Learned(limits, samples, window, quantile, margin, ymax, independent)
