@@ -80,7 +80,44 @@ def test_quick_benchmark_meets_the_issue_goal(quick):
     # what the literature cannot see with flow/position models, we do not claim either
     assert not rows[("f5", "abrupt")]["detected"]
     # the issue's goal is 0.8 of the 15 faults the literature detects; the full run (every
-    # strength) reaches 12/15 on each of seeds 11, 23, 37 (docs/diagnostics.md). The quick run
-    # tries one strength per fault and finds 11/15 here: faults that drive the valve where no
-    # model has rules make the unit CHECK_FUNCTION, not detected
-    assert s["literature_detectable_share"] >= 0.7
+    # strength) reaches 12/15 pooled over seeds 11, 23, 37 (11, 12, 12 per seed;
+    # docs/diagnostics.md). The quick run tries one strength per fault and finds 10/15 here:
+    # faults that drive the valve where no model has rules make the unit CHECK_FUNCTION, not
+    # detected, and f3 at fs = 0.5 stays under the thresholds learned over 14 days (it was
+    # 11/15 with 2-day thresholds, which alarmed on fault-free days: the test below)
+    assert s["literature_detectable_share"] >= 0.65
+
+
+def fault_free_alarms(unit_path, seeds, days: float = 3.0) -> tuple[int, float]:
+    """Runs (of ``seeds``, ``days`` fault-free each, after 2 h of warm-up) with any detection,
+    and the pooled share of detected samples."""
+    import pandas as pd
+
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.simulate import simulate_valve
+
+    unit = Unit.load(unit_path)
+    runs, on, total = 0, 0, 0
+    for seed in seeds:
+        frame = simulate_valve(days, seed=seed, period_s=pd.Timedelta(unit.period).total_seconds())
+        unit.reset()
+        d = unit.evaluate(frame)
+        after = d.detected.index >= d.detected.index[0] + pd.Timedelta("2h")
+        det = d.detected.to_numpy()[after] == 1
+        runs += bool(det.any())
+        on += int(det.sum())
+        total += det.size
+    return runs, on / total
+
+
+def test_the_shipped_unit_is_quiet_on_fault_free_days_of_unseen_seeds():
+    """Twenty fault-free 3-day runs on seeds used nowhere else (5000–5019, criterion fixed
+    before they were first run): an alarm on at most 3 runs and < 0.1 % of the samples.
+    Thresholds from 2 fault-free days (16–20 independent residual values for r1 and r4) gave
+    alarms on 12 of 40 other runs (seeds 3000–3019, 4000–4019; 0.21–0.28 % of samples) and
+    on 6 of these 20; from 14 days, 3 of 40 (0.008–0.03 %) and none of these."""
+    from pathlib import Path
+
+    shipped = Path(__file__).resolve().parents[1] / "rulebases" / "valve_unit.unit.toml"
+    runs, share = fault_free_alarms(shipped, range(5000, 5020))
+    assert runs <= 3 and share < 0.001, (runs, share)
