@@ -161,7 +161,8 @@ class ModbusTagClient:
         )
         why = "refused or unreachable"
         try:
-            ok = await asyncio.wait_for(client.connect(), self.timeout + 0.5)
+            async with asyncio.timeout(self.timeout + 0.5):
+                ok = await client.connect()
         except (TimeoutError, OSError) as exc:
             ok, why = False, f"{type(exc).__name__} {exc}".strip()
         if not ok:
@@ -282,9 +283,8 @@ class ModbusTagClient:
         }[b.table]
         where = f"{b.table} {b.start}+{b.count}"
         try:
-            rr = await asyncio.wait_for(
-                fn(b.start, count=b.count, device_id=self.device_id), self.timeout + 0.25
-            )
+            async with asyncio.timeout(self.timeout + 0.25):
+                rr = await fn(b.start, count=b.count, device_id=self.device_id)
         except TimeoutError:
             raise _Dropped(self._no_answer(where)) from None
         except ModbusIOException as exc:
@@ -368,10 +368,10 @@ class ModbusTagClient:
             try:
                 current = 0
                 if spec.type == "bool" and spec.table == "hr":
-                    rr = await asyncio.wait_for(
-                        c.read_holding_registers(spec.address, count=1, device_id=self.device_id),
-                        self.timeout + 0.25,
-                    )
+                    async with asyncio.timeout(self.timeout + 0.25):
+                        rr = await c.read_holding_registers(
+                            spec.address, count=1, device_id=self.device_id
+                        )
                     if rr.isError():
                         out[tag] = f"read before write failed: {rr}"
                         continue
@@ -381,7 +381,8 @@ class ModbusTagClient:
                     req = c.write_coils(spec.address, list(words), device_id=self.device_id)
                 else:
                     req = c.write_registers(spec.address, list(words), device_id=self.device_id)
-                rr = await asyncio.wait_for(req, self.timeout + 0.25)
+                async with asyncio.timeout(self.timeout + 0.25):
+                    rr = await req
                 code = int(getattr(rr, "exception_code", 0) or 0) if rr.isError() else 0
                 out[tag] = (
                     f"exception reply {code} ({_EXC_NAMES.get(code, 'unknown')})"

@@ -162,7 +162,8 @@ class OpcUaReader:
         backoff = Backoff(self.config.backoff_base, self.config.backoff_cap)
         while not self._stop.is_set():
             try:
-                await asyncio.wait_for(self._connect(), self.config.connect_timeout)
+                async with asyncio.timeout(self.config.connect_timeout):
+                    await self._connect()
             except Exception as exc:  # noqa: BLE001 - any failure means "retry later"
                 await self._disconnect()
                 self._on_failure(exc)
@@ -245,16 +246,16 @@ class OpcUaReader:
         if client is None:
             return
         try:
-            await asyncio.wait_for(client.disconnect(), self.config.timeout)
+            async with asyncio.timeout(self.config.timeout):
+                await client.disconnect()
         except Exception:  # noqa: BLE001 - the peer may be gone already
             client.disconnect_socket()
 
     async def _poll(self) -> None:
         assert self._client is not None
         tags = list(self._nodes)
-        dvs = await asyncio.wait_for(
-            self._client.read_attributes([self._nodes[t] for t in tags]), self.config.timeout
-        )
+        async with asyncio.timeout(self.config.timeout):
+            dvs = await self._client.read_attributes([self._nodes[t] for t in tags])
         for tag, dv in zip(tags, dvs, strict=True):
             self._latest[tag] = sample_of(tag, dv)
 
@@ -295,12 +296,10 @@ class OpcUaReader:
                 v = int(v)
             dvs.append(ua.DataValue(ua.Variant(v, vt)))
         try:
-            codes = await asyncio.wait_for(
-                self._client.uaclient.write_attributes(
+            async with asyncio.timeout(self.config.timeout):
+                codes = await self._client.uaclient.write_attributes(
                     [self._nodes[t].nodeid for t in tags], dvs, ua.AttributeIds.Value
-                ),
-                self.config.timeout,
-            )
+                )
         except Exception as exc:  # noqa: BLE001 - returned as a value
             log.warning("OPC UA write to %s failed: %r", self.config.url, exc)
             return {t: f"Bad: {exc!r}" for t in tags}

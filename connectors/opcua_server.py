@@ -194,7 +194,8 @@ class DiagOpcUaServer:
                 self.host,
                 "" if self.security else ", and without security",
             )
-        await asyncio.wait_for(self._start(), timeout)
+        async with asyncio.timeout(timeout):
+            await self._start()
         log.info("OPC UA server listening on %s", self.endpoint)
 
     async def _start(self) -> None:
@@ -264,7 +265,8 @@ class DiagOpcUaServer:
             t.cancel()
         server, self.server = self.server, None
         try:
-            await asyncio.wait_for(server.stop(), timeout)
+            async with asyncio.timeout(timeout):
+                await server.stop()
         except (TimeoutError, OSError) as exc:
             log.warning("OPC UA server stop: %s", exc)
         self._plant.clear()
