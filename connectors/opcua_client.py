@@ -147,12 +147,13 @@ class OpcUaReader:
 
     async def close(self) -> None:
         self._stop.set()
+        # wakes _run once connected even if asyncua swallowed the cancel below mid-connect
+        self._lost.set()
         if self._task is not None:
             self._task.cancel()
-            try:
-                await self._task
-            except (asyncio.CancelledError, Exception):  # noqa: BLE001 - shutting down
-                pass
+            await asyncio.wait([self._task])  # a cancel of close() itself still propagates
+            if not self._task.cancelled() and self._task.exception() is not None:
+                log.debug("OPC UA %s: %r on close", self.config.url, self._task.exception())
             self._task = None
         await self._disconnect()
 
@@ -161,6 +162,7 @@ class OpcUaReader:
     async def _run(self) -> None:
         backoff = Backoff(self.config.backoff_base, self.config.backoff_cap)
         while not self._stop.is_set():
+            self._lost.clear()  # here, not in _connect: close() may set it while connecting
             try:
                 async with asyncio.timeout(self.config.connect_timeout):
                     await self._connect()
@@ -180,6 +182,8 @@ class OpcUaReader:
             await self._lost.wait()
             self._connected.clear()
             await self._disconnect()
+            if self._stop.is_set():
+                break
             self._on_failure(ConnectionError("connection lost"))
             await self._sleep(backoff.next_delay())
 
@@ -206,7 +210,6 @@ class OpcUaReader:
         from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
         cfg = self.config
-        self._lost.clear()
         client = Client(cfg.url, timeout=cfg.timeout, watchdog_intervall=max(0.5, cfg.timeout / 2))
         client.session_timeout = 60_000
         sec = cfg.security

@@ -235,3 +235,34 @@ async def test_server_restart_bad_then_good(mode, caplog):
     finally:
         await r.close()
         await srv.stop()
+
+
+class CancelSwallowingReader(OpcUaReader):
+    """Stands in for asyncua's nested ``wait_for``: a cancel that arrives while the answer is
+    already in is dropped, and the connect completes as if nothing had been asked."""
+
+    connecting: asyncio.Event
+
+    async def _connect(self) -> None:
+        async def slow() -> None:
+            await asyncio.sleep(0.3)
+            await OpcUaReader._connect(self)
+
+        inner = asyncio.ensure_future(slow())
+        self.connecting.set()
+        try:
+            await asyncio.shield(inner)
+        except asyncio.CancelledError:
+            await inner
+
+
+async def test_close_returns_when_the_library_swallows_the_cancel(server, caplog):
+    r = CancelSwallowingReader(OpcUaConfig(server.endpoint, plant_nodes(server), timeout=2.0))
+    r.connecting = asyncio.Event()
+    await r.start()
+    await r.connecting.wait()
+    async with asyncio.timeout(10):  # hung for good before close() woke the connected loop
+        await r.close()
+    assert r.outages == 0 and not await r.wait_connected(0.1)
+    msgs = [m.getMessage() for m in caplog.records if m.name == "connectors.opcua_client"]
+    assert not any("unavailable" in m or "lost" in m for m in msgs), msgs
