@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.simulate.valve import TAGS, simulate_valve
-from diag_plugin.training import train
+from diag_plugin.training.chunked import train
 from diag_plugin.workbench.explain import explain
 from diag_plugin.workbench.model_edit import add_input, new_model, set_input
 

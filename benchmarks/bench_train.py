@@ -13,8 +13,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from diag_plugin.jobs import train_one
 from diag_plugin.simulate.valve import TAGS, simulate_valve
+from diag_plugin.training.jobs import train_one
 from diag_plugin.workbench.model_edit import new_model
 from historian.store import Historian
 

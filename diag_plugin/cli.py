@@ -21,14 +21,14 @@ log = logging.getLogger("diag")
 #: modules that contribute sub-commands (each has ``add_commands(subparsers)``)
 COMMAND_MODULES: tuple[str, ...] = (
     "diag_plugin.simulate.cli",
-    "diag_plugin.rulebase_cli",
-    "diag_plugin.demo",
+    "diag_plugin.rulebase.cli",
+    "diag_plugin.examples.demo",
     "historian.cli",
-    "diag_plugin.jobs_cli",
+    "diag_plugin.training.cli",
     "diag_plugin.workbench.cli",
     "diag_plugin.diagnose.cli",
-    "diag_plugin.live_cli",
-    "diag_plugin.engine_cli",
+    "diag_plugin.live.cli",
+    "diag_plugin.engine.cli",
 )
 
 

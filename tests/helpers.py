@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from diag_plugin.examples import TABLE4_MATRIX
+from diag_plugin.examples.build import TABLE4_MATRIX
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -8,8 +8,8 @@ import pandas as pd
 import pytest
 
 from diag_plugin.regressors import DesignBuilder, build_design, direction
-from diag_plugin.rulebase import RuleBase, Variable
-from diag_plugin.training import train
+from diag_plugin.rulebase.document import RuleBase, Variable
+from diag_plugin.training.chunked import train
 
 #: one input of every derived kind, several with lags (dead time)
 ALL_KINDS = (
@@ -109,7 +109,7 @@ def test_direction_survives_a_valve_that_holds_still(tmp_path):
 
 def test_dask_chunks_start_from_the_carried_state(tmp_path):
     """On workers each chunk starts from the state one pass would have (dir: unbounded)."""
-    from diag_plugin.dask_engine import dask_fitter
+    from diag_plugin.training.dask_engine import dask_fitter
 
     f = still_valve(4, seed=3)
     a, b = f.index[0], f.index[-1] + pd.Timedelta("10s")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from helpers import DAMADICS_HOW, damadics_file, requires
 
-from diag_plugin.damadics import load_hour
+from diag_plugin.examples.damadics import load_hour
 
 PATH = damadics_file()
 pytestmark = requires("real DAMADICS data", PATH is not None, DAMADICS_HOW)

@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from diag_plugin import engine_fdi as fdi
+from diag_plugin.engine import fdi
 
 SEEDS = (5, 11)
 CASES = tuple(fdi.CASES)
@@ -149,7 +149,7 @@ def test_one_step_estimates_read_measured_lags_and_load_torque():
 
 
 def test_residual_plots_like_figs_8_to_12(tmp_path, monkeypatch, capsys):
-    """``python -m diag_plugin.engine_fdi --plot DIR``: one SVG per case (Figs. 8–12), a panel
+    """``python -m diag_plugin.engine.fdi --plot DIR``: one SVG per case (Figs. 8–12), a panel
     per model (eqs. 7–11), ± the learned thresholds drawn on Table II's four residuals."""
     import xml.etree.ElementTree as ET
 
@@ -189,7 +189,7 @@ def test_residual_plots_like_figs_8_to_12(tmp_path, monkeypatch, capsys):
 def test_diag_engine_fdi_plot_writes_the_figures_and_marks_only_isolated_nearest(
     tmp_path, monkeypatch, capsys
 ):
-    """``diag engine-fdi --plot DIR``: the same SVG files as ``python -m diag_plugin.engine_fdi``,
+    """``diag engine-fdi --plot DIR``: the same SVG files as ``python -m diag_plugin.engine.fdi``,
     listed in the output (and in ``--json``); "(nearest)" only beside a fault that was isolated
     without an exact Table II match, never beside "none" or "unknown"."""
     import json

@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 from helpers import DAMADICS_HOW, damadics_file, require
 
-from diag_plugin.examples import build_examples
-from diag_plugin.rulebase import RuleBase, check
+from diag_plugin.examples.build import build_examples
+from diag_plugin.rulebase.document import RuleBase, check
 
 SHIPPED = Path(__file__).resolve().parents[1] / "rulebases"
 NAMES = ["valve_a", "valve_b", "valve_r1", "valve_r2", "valve_r3", "valve_r4", "damadics_f"]

@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 from helpers import require, requires
 
-from diag_plugin.fuzzy.fcl import identifier, to_fcl, to_fll
-from diag_plugin.rulebase import RuleBase, Variable
+from diag_plugin.rulebase.document import RuleBase, Variable
+from diag_plugin.rulebase.fcl import identifier, to_fcl, to_fll
 
 FUZZYLITE = shutil.which("fuzzylite")
 needs_fuzzylite = requires(

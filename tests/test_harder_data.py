@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 from helpers import DAMADICS_HOW, damadics_file, requires, run_diag
 
-from diag_plugin.rulebase import RuleBase
-from diag_plugin.training import train
+from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.training.chunked import train
 from diag_plugin.workbench.compare import compare
 from diag_plugin.workbench.explain import explain
 from diag_plugin.workbench.model_edit import add_input, new_model, set_input
@@ -146,7 +146,7 @@ REAL = damadics_file()
 @requires("real DAMADICS data", REAL is not None, DAMADICS_HOW)
 def test_real_hour_from_a_plain_csv_puts_the_pressure_first(tmp_path):
     """The Lublin hour as a user has it: a CSV of timestamps and values, no tag metadata."""
-    from diag_plugin.damadics import load_hour
+    from diag_plugin.examples.damadics import load_hour
 
     hour = load_hour(REAL)
     csv = tmp_path / "actuator3.csv"

@@ -10,12 +10,12 @@ import pandas as pd
 import pytest
 from helpers import DAMADICS_HOW, damadics_file, requires
 
-from diag_plugin.damadics import TAGS as DAMADICS_TAGS
-from diag_plugin.damadics import load_hour
+from diag_plugin.examples.damadics import TAGS as DAMADICS_TAGS
+from diag_plugin.examples.damadics import load_hour
 from diag_plugin.regressors import build_design
-from diag_plugin.rulebase import RuleBase
+from diag_plugin.rulebase.document import RuleBase
 from diag_plugin.simulate.valve import TAGS, ValveParams, simulate_valve
-from diag_plugin.training import train
+from diag_plugin.training.chunked import train
 from diag_plugin.workbench.explain import explain
 from diag_plugin.workbench.model_edit import add_input, new_model
 

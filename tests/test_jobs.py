@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from diag_plugin.cli import main
-from diag_plugin.rulebase import RuleBase
+from diag_plugin.rulebase.document import RuleBase
 from historian import Historian
 from historian.access import experiments
 

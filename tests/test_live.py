@@ -13,7 +13,7 @@ import pandas as pd
 from helpers import REPO, requires
 from modbus_peers import free_port
 
-from diag_plugin.live import FAULT_OFF, HISTORY_START
+from diag_plugin.live.loop import FAULT_OFF, HISTORY_START
 
 needs_mbpoll = requires(
     "mbpoll (Debian package)", bool(shutil.which("mbpoll")), "apt-get install mbpoll"
@@ -160,7 +160,7 @@ def _config_dir(tmp_path):
 
 
 def test_config_errors_name_key_and_line(tmp_path):
-    from diag_plugin.live_config import ConfigError, load_config
+    from diag_plugin.live.config import ConfigError, load_config
 
     d = _config_dir(tmp_path)
     good = PLANT_TOML.format(port=5021, modbus=5020)
@@ -205,8 +205,8 @@ def test_config_run_polls_a_plc_stores_and_publishes(tmp_path):
     import asyncio
 
     from connectors.modbus_server import PlantServer
-    from diag_plugin.examples import build_valve_unit
-    from diag_plugin.live_config import load_config, run_config
+    from diag_plugin.examples.build import build_valve_unit
+    from diag_plugin.live.config import load_config, run_config
     from diag_plugin.simulate import simulate_valve
     from historian.store import Historian
 

@@ -115,7 +115,7 @@ def plant_dir(tmp_path_factory):
     """The example unit trained on a day of the simulated valve; P2 comes over OPC UA, the
     other tags from the PLC's register map (a plain CSV, as a user would write it)."""
     from connectors.modbus_server import default_plant_map
-    from diag_plugin.examples import build_valve_unit
+    from diag_plugin.examples.build import build_valve_unit
     from diag_plugin.simulate import simulate_valve
 
     d = tmp_path_factory.mktemp("live_sources")
@@ -132,7 +132,7 @@ def plant_dir(tmp_path_factory):
 def test_two_sources_and_a_plc_killed_and_restarted(plant_dir):
     from connectors.opcua_server import DiagOpcUaServer
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.live_config import load_config, run_config
+    from diag_plugin.live.config import load_config, run_config
     from historian.store import Historian
 
     d, frame = plant_dir
@@ -239,7 +239,7 @@ def test_config_of_several_sources_names_source_key_and_line(plant_dir, monkeypa
     """``[[source]]`` tables: each checked for its type's keys; errors say which source
     (``source[2].url``) and the line; a tag read from two sources and a nodes CSV with a
     broken row are refused; a password comes from the environment, never the file."""
-    from diag_plugin.live_config import ConfigError, load_config
+    from diag_plugin.live.config import ConfigError, load_config
 
     d, _ = plant_dir
     (d / "scada.csv").write_text("tag,node\nP2,ns=2;s=Plant.P2\n", encoding="utf-8")

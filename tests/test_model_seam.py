@@ -10,8 +10,8 @@ import pytest
 from helpers import valve_frame
 
 from diag_plugin.models import METHODS, Capabilities, Method, Model, Prediction
-from diag_plugin.rulebase import RuleBase, RuleBaseError, Variable
-from diag_plugin.training import train
+from diag_plugin.rulebase.document import RuleBase, RuleBaseError, Variable
+from diag_plugin.training.chunked import train
 from diag_plugin.workbench.compare import compare
 from diag_plugin.workbench.explain import explain
 

@@ -13,8 +13,8 @@ from helpers import run_diag, valve_frame
 from diag_plugin.models import Model
 from diag_plugin.models.narmax import Narmax2Regressor, parse_term, term_pairs
 from diag_plugin.models.protocol import REASON_NAN, REASON_OK, REASON_OUTSIDE
-from diag_plugin.rulebase import RuleBase, RuleBaseError, Variable
-from diag_plugin.training import train
+from diag_plugin.rulebase.document import RuleBase, RuleBaseError, Variable
+from diag_plugin.training.chunked import train
 from diag_plugin.workbench.compare import compare
 from diag_plugin.workbench.explain import explain
 

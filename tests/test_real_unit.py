@@ -28,7 +28,7 @@ PERIOD = ("--period", "1s")
 
 @requires("real DAMADICS data", REAL is not None, DAMADICS_HOW)
 def test_real_hour_unit_from_a_plain_csv(tmp_path):
-    from diag_plugin.damadics import load_hour
+    from diag_plugin.examples.damadics import load_hour
 
     load_hour(REAL).rename_axis("timestamp").to_csv(tmp_path / "actuator3.csv")
     half, three_q, end = "2001-11-17T00:30:00Z", "2001-11-17T00:45:00Z", "2001-11-17T01:00:00Z"

@@ -25,7 +25,7 @@ from helpers import requires, valve_frame
 
 from diag_plugin.metrics import error_figures
 from diag_plugin.regressors import build_design
-from diag_plugin.rulebase import RuleBase, Variable
+from diag_plugin.rulebase.document import RuleBase, Variable
 from diag_plugin.workbench.compare import Comparison, compare, worst_periods
 from diag_plugin.workbench.explain import explain
 from diag_plugin.workbench.report import (

@@ -6,7 +6,7 @@ import re
 import numpy as np
 import pytest
 
-from diag_plugin.rulebase import RuleBase, RuleBaseError, Variable, check
+from diag_plugin.rulebase.document import RuleBase, RuleBaseError, Variable, check
 
 
 def train_data(seed=0, n=20_000):

@@ -1,11 +1,11 @@
-"""The small SVG line-chart writer of the docs' figures (diag_plugin/svgplot.py)."""
+"""The small SVG line-chart writer of the docs' figures (diag_plugin/engine/svgplot.py)."""
 
 import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
 
-from diag_plugin import svgplot as sp
+from diag_plugin.engine import svgplot as sp
 
 NS = {"s": "http://www.w3.org/2000/svg"}
 

@@ -6,8 +6,8 @@ import pytest
 from helpers import valve_frame as plant_frame
 
 from diag_plugin.metrics import ErrorStats, residual_pct
-from diag_plugin.rulebase import RuleBase, Variable
-from diag_plugin.training import train
+from diag_plugin.rulebase.document import RuleBase, Variable
+from diag_plugin.training.chunked import train
 
 
 def rulebase(tmp_path, inputs=("CV[k-1]",)):
@@ -79,7 +79,7 @@ def test_dask_training_equals_in_process(tmp_path):
     """The Dask engine on a LocalCluster gives exactly the in-process rule base."""
     from distributed import LocalCluster
 
-    from diag_plugin.dask_engine import dask_fitter
+    from diag_plugin.training.dask_engine import dask_fitter
 
     f = plant_frame(4, seed=33)
     f.iloc[::997, 1] = np.nan

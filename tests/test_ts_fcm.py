@@ -12,8 +12,8 @@ from diag_plugin.fuzzy import ts_fcm
 from diag_plugin.fuzzy.ts_fcm import TakagiSugenoRegressor, fuzzy_c_means, memberships
 from diag_plugin.models import Model
 from diag_plugin.models.protocol import REASON_NAN, REASON_OK, REASON_OUTSIDE
-from diag_plugin.rulebase import RuleBase, RuleBaseError, Variable
-from diag_plugin.training import train
+from diag_plugin.rulebase.document import RuleBase, RuleBaseError, Variable
+from diag_plugin.training.chunked import train
 from diag_plugin.workbench.compare import compare
 from diag_plugin.workbench.explain import explain
 

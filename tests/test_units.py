@@ -151,7 +151,7 @@ def test_fault_free_run_stays_normal_and_fault_is_isolated(unit, faulty):
 def _unsupported_point(unit) -> dict[str, float]:
     """Tag values inside the models' spans that no model has a rule for (seeded search)."""
     from diag_plugin.models.protocol import REASON_UNSUPPORTED
-    from diag_plugin.rulebase import RuleBase
+    from diag_plugin.rulebase.document import RuleBase
 
     spans = {}
     for m in unit.models.values():

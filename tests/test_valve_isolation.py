@@ -61,12 +61,12 @@ from helpers import VALVE_TABLE4
 from diag_plugin.diagnose.matrix import parse_matrix
 from diag_plugin.diagnose.residuals import LowPass
 from diag_plugin.diagnose.symptoms import LearnedThresholds, OnOffDelay
-from diag_plugin.examples import UNIT_MATRIX
+from diag_plugin.examples.build import UNIT_MATRIX
 from diag_plugin.metrics import residual_pct
 from diag_plugin.regressors import build_design
 from diag_plugin.simulate import TAGS, FaultSpec, simulate_valve
 from diag_plugin.simulate.valve import ValveParams
-from diag_plugin.training import train
+from diag_plugin.training.chunked import train
 from diag_plugin.workbench.model_edit import new_model
 
 MODELS = {

@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 
 from diag_plugin.cli import build_parser
-from diag_plugin.rulebase import RuleBase
-from diag_plugin.training import train
+from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.training.chunked import train
 from diag_plugin.workbench.compare import compare
 from diag_plugin.workbench.explain import explain
 from diag_plugin.workbench.model_edit import add_input, new_model, remove_input, set_input

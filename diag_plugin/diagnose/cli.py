@@ -97,7 +97,7 @@ def _ts(text: str | None):
 
 def cmd_unit_new(args) -> int:
     from diag_plugin.diagnose.unitfile import SUFFIX, new_unit_text
-    from diag_plugin.rulebase import resolve
+    from diag_plugin.rulebase.document import resolve
 
     folder = Path(args.rulebases)
     path = folder / f"{args.name}{SUFFIX}"

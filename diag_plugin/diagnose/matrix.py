@@ -15,7 +15,7 @@ for ``k`` = 0 (N, −1), 1 (zero, 0), 2 (P, +1). Every rule below is written on
 that array, vectorised over samples.
 
 File format (TOML, edited by an expert, ``file:line`` errors like
-:mod:`diag_plugin.rulebase`)::
+:mod:`diag_plugin.rulebase.document`)::
 
     [matrix]
     name = "valve_unit"                      # optional

@@ -72,7 +72,7 @@ class TestModel:
 
 def load_test_model(name: str, path: Path) -> TestModel:
     """The model of one test from its rule-base file (problems as ``file:line``)."""
-    from diag_plugin.rulebase import RuleBase, RuleBaseError
+    from diag_plugin.rulebase.document import RuleBase, RuleBaseError
 
     try:
         rb = RuleBase.load(path)

@@ -63,7 +63,7 @@ from diag_plugin.models.protocol import REASON_NAN, REASON_UNSUPPORTED, Capabili
 from diag_plugin.models.spec import ModelSpec
 
 if TYPE_CHECKING:
-    from diag_plugin.rulebase import RuleBase
+    from diag_plugin.rulebase.document import RuleBase
 
 log = logging.getLogger(__name__)
 

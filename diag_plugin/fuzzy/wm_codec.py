@@ -1,7 +1,7 @@
 """The Wang–Mendel part of a model file: its rules, how they are read, written and locked.
 
 The file's shell (``[model]``, ``[output]``, ``[[inputs]]``, ``[training]``) is
-the same for every method (:mod:`diag_plugin.rulebase`); this codec gives the
+the same for every method (:mod:`diag_plugin.rulebase.document`); this codec gives the
 ``[rules]`` list its meaning for ``wm-avg`` and ``wm`` (Kościelny et al.,
 eqs. 2–5)::
 
@@ -26,7 +26,7 @@ from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
 from diag_plugin.models.spec import ModelSpec
 
 if TYPE_CHECKING:
-    from diag_plugin.rulebase import RuleBase
+    from diag_plugin.rulebase.document import RuleBase
 
 RULE_KEYS = {"if", "then", "n", "sd", "lock"}
 

@@ -52,7 +52,7 @@ from diag_plugin.models.protocol import Capabilities, Prediction
 from diag_plugin.models.spec import ModelSpec
 
 if TYPE_CHECKING:
-    from diag_plugin.rulebase import RuleBase
+    from diag_plugin.rulebase.document import RuleBase
 
 log = logging.getLogger(__name__)
 

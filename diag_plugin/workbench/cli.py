@@ -13,7 +13,7 @@ from diag_plugin.models.registry import METHODS
 from historian.errors import UserError
 
 if TYPE_CHECKING:  # the commands import pandas, rich and the models when they run
-    from diag_plugin.rulebase import RuleBase
+    from diag_plugin.rulebase.document import RuleBase
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -80,7 +80,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def _load(args) -> RuleBase:
-    from diag_plugin.rulebase_cli import load
+    from diag_plugin.rulebase.cli import load
 
     return load(args.name, args.rulebases)
 

@@ -18,7 +18,7 @@ import pandas as pd
 
 from diag_plugin.metrics import error_figures, residual_pct
 from diag_plugin.regressors import build_design, needed_tags
-from diag_plugin.rulebase import RuleBase
+from diag_plugin.rulebase.document import RuleBase
 from historian.jsonable import to_jsonable
 
 

@@ -38,8 +38,8 @@ from diag_plugin.regressors import (
     feature,
     needed_tags,
 )
-from diag_plugin.rulebase import RuleBase
-from diag_plugin.training import split_time
+from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.training.chunked import split_time
 from diag_plugin.workbench.model_edit import MIN_PER_CELL, operating_span, variable_for
 from historian.taginfo import TagInfo, tag_infos
 

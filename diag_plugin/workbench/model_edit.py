@@ -17,7 +17,7 @@ import pandas as pd
 import tomlkit
 
 from diag_plugin.regressors import InputSpec, dir_threshold, feature
-from diag_plugin.rulebase import RuleBase, Variable, default_label
+from diag_plugin.rulebase.document import RuleBase, Variable, default_label
 from historian.taginfo import TagInfo, tag_infos
 
 

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from diag_plugin.rulebase import RuleBase
+from diag_plugin.rulebase.document import RuleBase
 from diag_plugin.workbench.compare import Comparison
 from historian.jsonable import finite_float
 

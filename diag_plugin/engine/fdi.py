@@ -541,7 +541,7 @@ def plot_residuals(res: dict[str, Any], outdir: str | Any) -> list[Any]:
     paths written."""
     from pathlib import Path
 
-    from diag_plugin import svgplot as sp
+    from diag_plugin.engine import svgplot as sp
 
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
@@ -598,11 +598,11 @@ def plot_residuals(res: dict[str, Any], outdir: str | Any) -> list[Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m diag_plugin.engine_fdi --plot DIR [--seed N] [--method M] [--matrix T]``: run
+    """``python -m diag_plugin.engine.fdi --plot DIR [--seed N] [--method M] [--matrix T]``: run
     the experiment and write the residual plots (Figs. 8–12) as SVG files."""
     import argparse
 
-    ap = argparse.ArgumentParser(prog="python -m diag_plugin.engine_fdi")
+    ap = argparse.ArgumentParser(prog="python -m diag_plugin.engine.fdi")
     ap.add_argument("--plot", required=True, metavar="DIR", help="folder for the SVG files")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--method", choices=FDI_METHODS, default="ts-fcm")

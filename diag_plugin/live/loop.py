@@ -380,7 +380,7 @@ def prepare_embedded(data: Any, say: Callable[[str], None] = print) -> Embedded:
     if ready.is_file() and unit_file.is_file() and db.is_file():
         say(f"using the embedded plant in {data} (history and example unit cached)")
         return Embedded(data, url, unit_file, history_end)
-    from diag_plugin.examples import build_valve_unit
+    from diag_plugin.examples.build import build_valve_unit
     from diag_plugin.simulate.valve import TAGS, simulate_valve
     from historian.store import Historian
 

@@ -1,4 +1,4 @@
-"""``diag run``: the live plug-in (see :mod:`diag_plugin.live`)."""
+"""``diag run``: the live plug-in (see :mod:`diag_plugin.live.loop`)."""
 
 import argparse
 
@@ -47,7 +47,7 @@ def _run(args: argparse.Namespace) -> int:
     import sys
 
     if args.config:
-        from diag_plugin.live_config import ConfigError, load_config, run_config
+        from diag_plugin.live.config import ConfigError, load_config, run_config
 
         try:
             cfg = load_config(args.config)
@@ -60,7 +60,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.cycle <= 0:
         print("diag run: --cycle must be positive", file=sys.stderr)
         return 2
-    from diag_plugin.live import run_embedded
+    from diag_plugin.live.loop import run_embedded
 
     return asyncio.run(
         run_embedded(

@@ -2,7 +2,7 @@
 
 Like Laukonen et al.'s Figs. 3–7 (fuzzy clustering beside NARMAX on the same training and
 validation data): for the model file ``NAME`` each method of the registry is trained by
-:func:`diag_plugin.training.train` on the same range, the same held-out validation part
+:func:`diag_plugin.training.chunked.train` on the same range, the same held-out validation part
 and the same spans, with the method's default options; nothing is saved. Reported per method:
 the validation sum of squared errors Σe² (output units²), the RMSE in % of the output span
 (seed 001 eq. 6), the coverage and the fit time.
@@ -19,8 +19,8 @@ import pandas as pd
 
 from diag_plugin.models.registry import METHODS, get_method
 from diag_plugin.regressors import needed_tags
-from diag_plugin.rulebase import RuleBase
-from diag_plugin.training import DEFAULT_CHUNK, train
+from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.training.chunked import DEFAULT_CHUNK, train
 from historian.access import WindowReader
 from historian.store import Historian
 

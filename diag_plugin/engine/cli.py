@@ -1,7 +1,7 @@
 """``diag engine-fdi`` (the seed's engine FDI experiment, Laukonen et al., §§III–IV) and
 ``diag compare-methods NAME`` (every method on one model file's historian data).
 
-Arguments only; :mod:`diag_plugin.engine_fdi` (numpy, pandas, numba) is imported when the
+Arguments only; :mod:`diag_plugin.engine.fdi` (numpy, pandas, numba) is imported when the
 command runs. ``--compare`` prints, like the seed's Figs. 3–7, the validation Σe² and RMSE %
 per model and method, plus the fit time (the engine-model form of ``compare-methods``).
 """
@@ -57,8 +57,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 def cmd_compare_methods(args: argparse.Namespace) -> int:
     """Validation Σe², RMSE % and fit time per registered method (seed 000 Figs. 3–7)."""
-    from diag_plugin.method_compare import compare_methods
-    from diag_plugin.rulebase import resolve
+    from diag_plugin.engine.method_compare import compare_methods
+    from diag_plugin.rulebase.document import resolve
 
     rows = compare_methods(
         resolve(args.name, args.rulebases),
@@ -81,10 +81,10 @@ def cmd_compare_methods(args: argparse.Namespace) -> int:
 
 def cmd_engine_fdi(args: argparse.Namespace) -> int:
     """Run the experiment (or ``--compare``) and print per case injected / isolated / time."""
-    from diag_plugin import engine_fdi
+    from diag_plugin.engine import fdi
 
     if args.compare:
-        res = engine_fdi.compare_methods(args.seed)
+        res = fdi.compare_methods(args.seed)
         if args.json:
             print(json.dumps({"seed": args.seed, "methods": res}, indent=2))
             return 0
@@ -95,7 +95,7 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
                     f"{method:8} {model:6} {v['sse']:14.4g} {v['rmse_pct']:8.2f} {v['fit_s']:7.2f}"
                 )
         return 0
-    res = engine_fdi.run_fdi(
+    res = fdi.run_fdi(
         args.seed,
         args.method,
         kind=args.faults,
@@ -103,7 +103,7 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
         one_step=args.one_step,
         matrix=args.matrix,
     )
-    plots = engine_fdi.plot_residuals(res, args.plot) if args.plot else []
+    plots = fdi.plot_residuals(res, args.plot) if args.plot else []
     if args.json:
         doc = {
             "cases": [{k: c[k] for k in ("injected", "isolated", "time_s")} for c in res["cases"]],
@@ -122,7 +122,7 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
     for c in res["cases"]:
         t = "-" if c["time_s"] is None else f"{c['time_s']:.1f}"
         # a signature that matches no Table II row exactly isolates only when one row is
-        # nearer than all others (engine_fdi.isolate); say so beside the name
+        # nearer than all others (fdi.isolate); say so beside the name
         nearest = c["isolated"] not in (None, "none", "unknown") and not c["exact"]
         print(f"{c['injected']:9} {c['isolated']:9} {t:>7}{' (nearest)' if nearest else ''}")
     for p in plots:

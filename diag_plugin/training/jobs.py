@@ -5,7 +5,7 @@ window in chunks (memory flat in the length of the range), trains with
 ``partial_fit`` (or on a Dask cluster), validates on a time-ordered held-out
 block, writes the rule base keeping the experts' locked rules, and records
 an experiment so the user can watch the error fall version by version.
-The commands' arguments are in :mod:`diag_plugin.jobs_cli` (a light module: ``diag``
+The commands' arguments are in :mod:`diag_plugin.training.cli` (a light module: ``diag``
 builds its parser without importing this one).
 """
 
@@ -28,8 +28,8 @@ from sqlalchemy.engine import make_url
 from diag_plugin.diagnose.unitfile import is_model_file
 from diag_plugin.metrics import coverage_note
 from diag_plugin.regressors import needed_tags
-from diag_plugin.rulebase import RuleBase, RuleBaseError, resolve
-from diag_plugin.training import DEFAULT_CHUNK, train
+from diag_plugin.rulebase.document import RuleBase, RuleBaseError, resolve
+from diag_plugin.training.chunked import DEFAULT_CHUNK, train
 from historian.access import WindowReader, experiments
 from historian.errors import UserError
 from historian.jsonable import to_jsonable
@@ -74,7 +74,7 @@ def train_one(
     reader = WindowReader(url, tuple(tags), rb.period)
     fit_chunks = None
     if engine == "dask":
-        from diag_plugin.dask_engine import dask_fitter
+        from diag_plugin.training.dask_engine import dask_fitter
 
         fit_chunks = dask_fitter(scheduler, reader)
     started = time.perf_counter()

@@ -28,7 +28,7 @@ import pandas as pd
 from diag_plugin.metrics import ErrorStats, residual_pct
 from diag_plugin.models.protocol import Model
 from diag_plugin.regressors import Design, DesignBuilder
-from diag_plugin.rulebase import RuleBase
+from diag_plugin.rulebase.document import RuleBase
 
 #: samples before the range read to start the state of unbounded-memory inputs (dir())
 WARMUP_ROWS = 360

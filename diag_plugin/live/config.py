@@ -398,7 +398,7 @@ async def run_config(
     after: Any = None,
 ) -> int:
     """``diag run --config``: poll every source, store, diagnose, publish. ``after``: the
-    :class:`~diag_plugin.live.LiveLoop` hook run after each cycle's publishing."""
+    :class:`~diag_plugin.live.loop.LiveLoop` hook run after each cycle's publishing."""
     import contextlib
     import sys
 
@@ -407,7 +407,7 @@ async def run_config(
     from connectors.modbus_server import StatusServer, UnitLayout
     from connectors.opcua_server import DiagOpcUaServer
     from diag_plugin.diagnose.plant import Plant
-    from diag_plugin.live import LiveLoop
+    from diag_plugin.live.loop import LiveLoop
 
     out = out or sys.stdout
     plant = Plant.load(cfg.units, cfg.rulebases)

@@ -29,9 +29,9 @@ def cmd_demo(args) -> int:
     from rich.markup import escape
     from rich.table import Table
 
-    from diag_plugin.jobs import train_one
     from diag_plugin.simulate.valve import TAGS, simulate_valve
-    from diag_plugin.training import DEFAULT_CHUNK
+    from diag_plugin.training.chunked import DEFAULT_CHUNK
+    from diag_plugin.training.jobs import train_one
     from diag_plugin.workbench.compare import compare
     from diag_plugin.workbench.explain import explain
     from diag_plugin.workbench.model_edit import add_input, new_model
@@ -82,7 +82,7 @@ def cmd_demo(args) -> int:
         f"[bold]3. train[/] {r['model']} F = f(CV\\[k-1]): held-out RMSE "
         f"{r['validation']['rmse_pct']:.2f} % of span, {r['rules']} rules ({r['seconds']:.1f} s)"
     )
-    from diag_plugin.rulebase import RuleBase
+    from diag_plugin.rulebase.document import RuleBase
 
     rb = RuleBase.load(rb.path)
     c = compare(rb, data)

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 from historian.errors import UserError
 
 if TYPE_CHECKING:  # the commands import rich and the rule base when they run
-    from diag_plugin.rulebase import RuleBase
+    from diag_plugin.rulebase.document import RuleBase
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -33,7 +33,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def load(name: str, folder: str) -> RuleBase:
-    from diag_plugin.rulebase import RuleBase, RuleBaseError, resolve
+    from diag_plugin.rulebase.document import RuleBase, RuleBaseError, resolve
 
     path = resolve(name, folder)
     if not path.exists():
@@ -45,7 +45,7 @@ def load(name: str, folder: str) -> RuleBase:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from diag_plugin.rulebase import check, resolve
+    from diag_plugin.rulebase.document import check, resolve
 
     bad = 0
     for f in args.files:
@@ -144,7 +144,7 @@ def cmd_show(args: argparse.Namespace) -> int:
 
 
 def cmd_export_fcl(args: argparse.Namespace) -> int:
-    from diag_plugin.fuzzy.fcl import to_fcl
+    from diag_plugin.rulebase.fcl import to_fcl
 
     rb = load(args.name, args.rulebases)
     if not getattr(rb.codec, "fcl", True):

@@ -6,7 +6,7 @@
 * ``damadics_f``: the real Lublin actuator 3 hour (1 s): ``F = f(X[k])``.
 
 31 uniform trapezoidal sets per variable (Sect. 4.4). Regenerate with
-``python -m diag_plugin.examples rulebases``; the result is reproducible to the byte.
+``python -m diag_plugin.examples.build rulebases``; the result is reproducible to the byte.
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from diag_plugin.rulebase import RuleBase
-from diag_plugin.training import train
+from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.training.chunked import train
 
 SIM_DAYS = 60
 SIM_SEED = 1
@@ -93,8 +93,8 @@ def _fit(rb: RuleBase, frame: pd.DataFrame, source: str) -> RuleBase:
 
 
 def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[Path]:
-    from diag_plugin.damadics import TAGS as DTAGS
-    from diag_plugin.damadics import find_file, load_hour
+    from diag_plugin.examples.damadics import TAGS as DTAGS
+    from diag_plugin.examples.damadics import find_file, load_hour
     from diag_plugin.simulate.valve import TAGS, simulate_valve
     from diag_plugin.workbench.model_edit import new_model
 

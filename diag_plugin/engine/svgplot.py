@@ -6,7 +6,7 @@ ticks, and the figure has one legend. The output is plain SVG 1.1 text; every el
 carries a ``class`` (``trace``, ``hline``, ``vline``) and ``data-label`` / ``data-value``
 attributes so tests can read a figure back with :mod:`xml.etree.ElementTree`.
 
-Used by :func:`diag_plugin.engine_fdi.plot_residuals` for the residual plots like seed 000's
+Used by :func:`diag_plugin.engine.fdi.plot_residuals` for the residual plots like seed 000's
 Figs. 8–12.
 """
 

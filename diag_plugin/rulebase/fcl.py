@@ -44,7 +44,7 @@ import re
 
 from diag_plugin.fuzzy.partition import UniformPartition
 from diag_plugin.fuzzy.wm_codec import Rule
-from diag_plugin.rulebase import RuleBase, Variable
+from diag_plugin.rulebase.document import RuleBase, Variable
 
 #: names a variable or term may not take: FCL block keywords, fuzzylite rule keywords/hedges
 RESERVED = frozenset(

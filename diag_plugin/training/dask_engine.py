@@ -8,7 +8,7 @@ Only methods that declare ``mergeable`` run here; for the Wang–Mendel models
 the accumulators are exact integers, so the result equals the in-process
 training bit for bit. Inputs with unbounded memory (``dir()``) get their
 state at every chunk start from a pass over the data on the client
-(:func:`diag_plugin.training.chunk_starts`).
+(:func:`diag_plugin.training.chunked.chunk_starts`).
 
 Point it at a real cluster with ``diag train NAME --engine dask --scheduler
 tcp://scheduler:8786``; the workers need this package installed and must
@@ -21,8 +21,8 @@ import pandas as pd
 
 from diag_plugin.models.protocol import Model
 from diag_plugin.regressors import DesignBuilder
-from diag_plugin.rulebase import RuleBase
-from diag_plugin.training import Interval, Reader, Tally, chunk_starts, fit_interval
+from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.training.chunked import Interval, Reader, Tally, chunk_starts, fit_interval
 
 
 def _fit_on_worker(rb_text: str, read: Reader, a, b, state, history_from):
@@ -41,7 +41,7 @@ def merge_states(rb: RuleBase, parts) -> tuple[Model, Tally]:
 
 
 def dask_fitter(scheduler: str | None, worker_read: Reader):
-    """A ``fit_chunks`` callable for :func:`diag_plugin.training.train` using Dask.
+    """A ``fit_chunks`` callable for :func:`diag_plugin.training.chunked.train` using Dask.
 
     ``worker_read`` is the picklable reader the workers call (each opens its own
     connection); the client reads through the reader ``train`` gives it.

@@ -1,6 +1,6 @@
 """``diag train NAME|--all`` and ``diag experiments NAME``: the arguments only.
 
-The jobs themselves live in :mod:`diag_plugin.jobs`, imported when a command runs, so
+The jobs themselves live in :mod:`diag_plugin.training.jobs`, imported when a command runs, so
 building the ``diag`` parser loads no pandas, SQLAlchemy, numba or rich.
 """
 
@@ -28,12 +28,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from diag_plugin.jobs import cmd_train
+    from diag_plugin.training.jobs import cmd_train
 
     return cmd_train(args)
 
 
 def cmd_experiments(args: argparse.Namespace) -> int:
-    from diag_plugin.jobs import cmd_experiments
+    from diag_plugin.training.jobs import cmd_experiments
 
     return cmd_experiments(args)
