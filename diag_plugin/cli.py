@@ -22,7 +22,7 @@ log = logging.getLogger("diag")
 COMMAND_MODULES: tuple[str, ...] = (
     "diag_plugin.simulate.cli",
     "diag_plugin.rulebase.cli",
-    "diag_plugin.examples.demo",
+    "diag_plugin.examples.cli",
     "historian.cli",
     "diag_plugin.training.cli",
     "diag_plugin.workbench.cli",

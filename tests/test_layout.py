@@ -38,3 +38,24 @@ def test_a_broken_command_module_is_an_error_not_a_missing_command(monkeypatch):
     monkeypatch.setattr(cli, "COMMAND_MODULES", (*cli.COMMAND_MODULES, "diag_plugin.no_such"))
     with pytest.raises(ModuleNotFoundError, match="diag_plugin.no_such"):
         cli.build_parser()
+
+
+#: the small modules every stage shares, the only loose modules beside the stage packages
+SHARED = {"__init__.py", "__main__.py", "cli.py", "regressors.py", "metrics.py", "tomllines.py"}
+
+
+def test_each_stage_is_a_package_with_its_commands_in_its_own_cli():
+    pkg = ROOT / "diag_plugin"
+    loose = {p.name for p in pkg.glob("*.py")}
+    assert loose <= SHARED, sorted(loose - SHARED)
+    from diag_plugin import cli
+
+    for name in cli.COMMAND_MODULES:
+        assert name.endswith(".cli"), name
+
+
+def test_docs_index_lists_every_page():
+    index = (ROOT / "docs" / "index.md").read_text(encoding="utf-8")
+    pages = {p.name for p in (ROOT / "docs").glob("*.md")} - {"index.md"}
+    missing = {p for p in pages if f"]({p})" not in index}
+    assert not missing, sorted(missing)

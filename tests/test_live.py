@@ -13,7 +13,7 @@ import pandas as pd
 from helpers import REPO, requires
 from modbus_peers import free_port
 
-from diag_plugin.live.loop import FAULT_OFF, HISTORY_START
+from diag_plugin.live.embedded import FAULT_OFF, HISTORY_START
 
 needs_mbpoll = requires(
     "mbpoll (Debian package)", bool(shutil.which("mbpoll")), "apt-get install mbpoll"

@@ -328,14 +328,7 @@ def cmd_unit_learn(args) -> int:
     except ValueError as exc:
         raise UserError(f"unit {unit.name}: {exc}") from None
     uf = UnitFile.load(unit.file.path)
-    uf.set_thresholds(
-        got.limits,
-        got.window,
-        quantile=got.quantile,
-        margin=got.margin,
-        samples=got.samples,
-        ymax=got.ymax,
-    )
+    uf.set_learned(got)
     uf.save()
     out = {
         "unit": unit.name,

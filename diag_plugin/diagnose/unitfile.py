@@ -311,6 +311,18 @@ class UnitFile:
         raise KeyError(name)
 
     # ------------------------------------------------------------ writing
+    def set_learned(self, learned: Any) -> None:
+        """Write what :func:`diag_plugin.diagnose.unit.learn_thresholds` learned: its limits,
+        window, quantile, margin, sample counts and scales."""
+        self.set_thresholds(
+            learned.limits,
+            learned.window,
+            quantile=learned.quantile,
+            margin=learned.margin,
+            samples=learned.samples,
+            ymax=learned.ymax,
+        )
+
     def set_thresholds(
         self,
         limits: dict[str, tuple[float, float]],

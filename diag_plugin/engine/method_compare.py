@@ -15,14 +15,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-import pandas as pd
-
 from diag_plugin.models.registry import METHODS, get_method
-from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase.document import RuleBase
 from diag_plugin.training.chunked import DEFAULT_CHUNK, train
+from diag_plugin.training.jobs import data_window
 from historian.access import WindowReader
-from historian.store import Historian
 
 __all__ = ["AsMethod", "compare_methods"]
 
@@ -70,13 +67,7 @@ def compare_methods(
 ) -> list[dict[str, Any]]:
     """Train each method on the same data of the model file ``path`` (Figs. 3–7 style)."""
     rb = RuleBase.load(path)
-    tags = needed_tags([*(v.spec for v in rb.inputs), rb.output.spec])
-    with Historian.open(url) as h:
-        a, b = h.time_range(tags)
-    if a is None:
-        raise ValueError(f"no samples of {', '.join(tags)}")
-    t0 = pd.Timestamp(start, tz="UTC") if start else a
-    t1 = pd.Timestamp(end, tz="UTC") if end else b + pd.Timedelta(rb.period)
+    tags, t0, t1 = data_window(rb, url, start, end)
     span = rb.output.span[1] - rb.output.span[0]
     out = []
     for method in methods or tuple(METHODS):

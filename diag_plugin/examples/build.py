@@ -186,14 +186,7 @@ def build_valve_unit(folder: Path, frame: pd.DataFrame, source: str) -> list[Pat
     ff = simulate_valve(THRESHOLD_DAYS, seed=THRESHOLD_SEED)
     got = learn_thresholds(unit, [ff])
     uf = UnitFile.load(path)
-    uf.set_thresholds(
-        got.limits,
-        got.window,
-        quantile=got.quantile,
-        margin=got.margin,
-        samples=got.samples,
-        ymax=got.ymax,
-    )
+    uf.set_learned(got)
     uf.save()
     out.append(path)
     return out

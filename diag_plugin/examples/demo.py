@@ -5,23 +5,14 @@ historian, trains the paper's Model B ``F = f(CV[k-1])`` (Kościelny et al.,
 eq. 9), compares it with the measurements, asks ``explain`` for the missing
 effect, adds it, retrains and shows the error falling in the experiment log.
 Everything goes to ``--workdir`` (default ``out/demo``), never to the user's
-own historian or rule bases.
+own historian or rule bases. The arguments are in :mod:`diag_plugin.examples.cli`.
 """
 
 from __future__ import annotations
 
-import argparse
 import shutil
 import time
 from pathlib import Path
-
-
-def add_commands(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="simulate, train, compare, explain: the product end to end")
-    p.add_argument("--days", type=float, default=28.0, help="days of 10 s data to simulate")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--workdir", default="out/demo", help="folder for the demo's database and files")
-    p.set_defaults(func=cmd_demo)
 
 
 def cmd_demo(args) -> int:

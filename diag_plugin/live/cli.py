@@ -60,7 +60,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.cycle <= 0:
         print("diag run: --cycle must be positive", file=sys.stderr)
         return 2
-    from diag_plugin.live.loop import run_embedded
+    from diag_plugin.live.embedded import run_embedded
 
     return asyncio.run(
         run_embedded(

@@ -399,7 +399,6 @@ async def run_config(
 ) -> int:
     """``diag run --config``: poll every source, store, diagnose, publish. ``after``: the
     :class:`~diag_plugin.live.loop.LiveLoop` hook run after each cycle's publishing."""
-    import contextlib
     import sys
 
     import pandas as pd
@@ -407,7 +406,7 @@ async def run_config(
     from connectors.modbus_server import StatusServer, UnitLayout
     from connectors.opcua_server import DiagOpcUaServer
     from diag_plugin.diagnose.plant import Plant
-    from diag_plugin.live.loop import LiveLoop
+    from diag_plugin.live.loop import LiveLoop, close_all
 
     out = out or sys.stdout
     plant = Plant.load(cfg.units, cfg.rulebases)
@@ -458,12 +457,4 @@ async def run_config(
         )
         return await loop.run()
     finally:
-        with contextlib.suppress(Exception):
-            await sources.close()
-        for srv in (opcua, status):
-            if srv is not None:
-                with contextlib.suppress(Exception):
-                    await srv.stop()
-        if historian is not None:
-            with contextlib.suppress(Exception):
-                historian.close()
+        await close_all(sources, opcua, status, historian)

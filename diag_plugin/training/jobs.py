@@ -46,6 +46,25 @@ def safe_url(url: str) -> str:
         return url
 
 
+def data_window(
+    rb: RuleBase, url: str, start: str | None = None, end: str | None = None
+) -> tuple[list[str], pd.Timestamp, pd.Timestamp]:
+    """The tags a model file reads and the range to train it on: ``start``/``end`` where
+    given, else from the first to one period past the last stored sample of those tags."""
+    tags = needed_tags([*(v.spec for v in rb.inputs), rb.output.spec])
+    with Historian.open(url) as h:
+        known = set(h.tags()["name"])
+        missing = [t for t in tags if t not in known]
+        if missing:
+            raise KeyError(f"tag(s) {', '.join(missing)} of model {rb.name} not in {safe_url(url)}")
+        a, b = h.time_range(tags)
+    if a is None:
+        raise ValueError(f"no samples of {', '.join(tags)} in {safe_url(url)}")
+    t0 = pd.Timestamp(start, tz="UTC") if start else a
+    t1 = pd.Timestamp(end, tz="UTC") if end else b + pd.Timedelta(rb.period)
+    return tags, t0, t1
+
+
 def train_one(
     path: Path,
     url: str,
@@ -60,17 +79,7 @@ def train_one(
 ) -> dict:
     """Train the model in ``path`` and record the experiment; returns the result dict."""
     rb = RuleBase.load(path)
-    tags = needed_tags([*(v.spec for v in rb.inputs), rb.output.spec])
-    with Historian.open(url) as h:
-        known = set(h.tags()["name"])
-        missing = [t for t in tags if t not in known]
-        if missing:
-            raise KeyError(f"tag(s) {', '.join(missing)} of model {rb.name} not in {safe_url(url)}")
-        a, b = h.time_range(tags)
-    if a is None:
-        raise ValueError(f"no samples of {', '.join(tags)} in {safe_url(url)}")
-    t0 = pd.Timestamp(start, tz="UTC") if start else a
-    t1 = pd.Timestamp(end, tz="UTC") if end else b + pd.Timedelta(rb.period)
+    tags, t0, t1 = data_window(rb, url, start, end)
     reader = WindowReader(url, tuple(tags), rb.period)
     fit_chunks = None
     if engine == "dask":
