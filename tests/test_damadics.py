@@ -21,3 +21,13 @@ def test_hour_loads_with_its_physics():
     assert int(np.argmax(lags)) == 1  # X follows CV about 1 s later
     g = load_hour(PATH, "10s")
     assert len(g) == 360 and g["F"].mean() == pytest.approx(f["F"].mean())
+
+
+def test_the_package_finds_the_hour_beside_the_repository():
+    """``find_file`` looks in ``../shared/data/damadics`` from the repository root (the
+    example build reads the hour from there)."""
+    from helpers import REPO
+
+    from diag_plugin.examples.damadics import DEFAULT_PATH
+
+    assert DEFAULT_PATH == REPO.parent / "shared" / "data" / "damadics"

@@ -31,7 +31,7 @@ TAGS = {
 }
 #: the recording's date is not in the file; frames start here
 START = pd.Timestamp("2001-11-17T00:00:00Z")
-DEFAULT_PATH = Path(__file__).resolve().parents[2] / "shared" / "data" / "damadics"
+DEFAULT_PATH = Path(__file__).resolve().parents[3] / "shared" / "data" / "damadics"
 FILE = "OneHourTestData_ExampleII.mat"
 
 
