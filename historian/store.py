@@ -22,12 +22,13 @@ import pandas as pd
 from sqlalchemy import create_engine, event, select, update
 from sqlalchemy.engine import make_url
 
-from . import schema
+from . import coldstore, schema
 from .backends import PostgresBulk, SqliteBulk
 from .coldmonths import ColdMonths
 from .frames import sorted_unique, tag_arrays
 from .quality import GOOD
 from .registry import Registry
+from .sampling import SAMPLING_ROWS, Sampling, hold_us, sampling_of, snap_near, snap_up
 from .tagreport import TagReport
 from .times import from_us, period_us, to_us, us_index
 from .window import align, summarize, summary_attrs
@@ -64,6 +65,7 @@ class Historian(ColdMonths, Registry, TagReport):
             raise ValueError(f"unsupported database URL {self.url!r} (sqlite or postgresql)")
         schema.metadata.create_all(self.engine)
         self._tags: dict[str, tuple[int, float | None, float | None]] = {}
+        self._sampling: dict[str, Sampling] = {}  # per tag, for holds()
 
     # -- life cycle ----------------------------------------------------------------------
     @classmethod
@@ -265,19 +267,65 @@ class Historian(ColdMonths, Registry, TagReport):
         return first, last
 
     def _grid(self, tags, start, end, period):
+        """The requested range in µs and its grid: the first grid point at or after the
+        start, and the period; open ends come from the tags' stored samples (the end one
+        period past the last sample's grid point)."""
         p = period_us(period)
         if start is None or end is None:
             lo, hi = self.time_range(tags)
             if lo is None:
                 raise ValueError(f"no samples for {list(tags)}")
             start = lo if start is None else start
-            end = hi + pd.Timedelta(1, "us") if end is None else end
+            end = from_us(snap_near(to_us(hi), p) + p) if end is None else end
         s, e = to_us(start), to_us(end)
         if e <= s:
             raise ValueError("end must be after start")
-        t0 = s - (s % p)  # grid anchored on the epoch, so chunks and windows line up
-        return s, e, t0, p
+        return s, e, snap_up(s, p), p
 
+    # -- sampling --------------------------------------------------------------------------
+    def sampling(self, tags: Iterable[str], start=None, end=None) -> dict[str, Sampling]:
+        """How each tag is sampled over [start, end) (its whole history when both are None):
+        the median and 95th-percentile spacing of its stored samples (:mod:`historian.sampling`)."""
+        out = {}
+        for name in tags:
+            tag_id = self._tag(name)[0]
+            s = to_us(start) if start is not None else np.iinfo(np.int64).min
+            e = to_us(end) if end is not None else np.iinfo(np.int64).max
+            ts, _, _ = self._read_raw(tag_id, s, e)
+            out[name] = sampling_of(name, ts)
+        return out
+
+    def holds(self, tags: Iterable[str], period) -> dict[str, int]:
+        """Per tag, how long its last sample stands in for later grid points of ``period``
+        (µs, :func:`historian.sampling.hold_us`), from its most recent samples (measured once
+        per tag and open historian, so every chunk of a job aligns alike)."""
+        p = period_us(period)
+        out = {}
+        for name in tags:
+            if name not in self._sampling:
+                self._sampling[name] = sampling_of(name, self._recent_ts(self._tag(name)[0]))
+            out[name] = hold_us(self._sampling[name], p)
+        return out
+
+    def _recent_ts(self, tag_id: int, n: int = SAMPLING_ROWS) -> np.ndarray:
+        """Times of the tag's last ``n`` samples (the database first, then rolled months)."""
+        s = schema.samples
+        with self.engine.connect() as c:
+            rows = c.execute(
+                select(s.c.ts).where(s.c.tag_id == tag_id).order_by(s.c.ts.desc()).limit(n)
+            ).scalars()
+            ts = np.fromiter(rows, np.int64)[::-1]
+        if len(ts) >= n:
+            return ts
+        for seg in reversed(self._segments(None, None)):
+            m0, m1 = coldstore.month_bounds(seg["month"])
+            _, cold, _, _ = coldstore.read_segment(self._cold_path(seg["path"]), tag_id, m0, m1)
+            ts = np.r_[cold, ts]
+            if len(ts) >= n:
+                break
+        return ts[-n:]
+
+    # -- windows -----------------------------------------------------------------------------
     def window(
         self,
         tags: Iterable[str],
@@ -288,34 +336,40 @@ class Historian(ColdMonths, Registry, TagReport):
         *,
         gap=None,
         flat="30min",
+        hold: dict[str, int] | None = None,
     ) -> pd.DataFrame:
-        """Tags aligned on the regular grid ``k·period`` (epoch-anchored) over [start, end).
-
-        Each row is labelled by the left edge of its period and holds the mean (``how="mean"``)
-        or the last (``how="last"``) usable sample in it; bad-quality samples count as missing,
-        so a period without a usable sample is NaN. Index: tz-aware UTC, named ``ts``; one
-        float column per tag. ``frame.attrs["quality"]`` holds the per-tag data-quality
-        summary as ``{tag: {field: value}}`` (fields in :func:`historian.window.summarize`;
-        ``historian.quality_table(frame)`` gives it as a DataFrame); ``gap``/``flat`` are
-        Timedelta-likes overriding the defaults.
+        """Tags aligned on the grid ``k·period`` (epoch-anchored): one row per grid point in
+        [start, end), labelled by it, by the rule of :mod:`historian.sampling` (the mean or
+        last usable sample within half a period; slower, irregular and on-change tags hold
+        their last value for ``hold[tag]`` µs, default :meth:`holds`; else NaN). Index:
+        tz-aware UTC, named ``ts``; one float column per tag. ``frame.attrs["quality"]``
+        holds the per-tag data-quality summary as ``{tag: {field: value}}`` (fields in
+        :func:`historian.window.summarize`; ``historian.quality_table(frame)`` gives it as a
+        DataFrame); ``gap``/``flat`` are Timedelta-likes overriding the defaults.
         """
         tags = list(tags)
         s, e, t0, p = self._grid(tags, start, end, period)
-        return self._window(tags, s, e, t0, p, how, gap, flat)
+        hold = self.holds(tags, p) if hold is None else hold
+        return self._window(tags, e, t0, p, how, gap, flat, hold)
 
-    def _window(self, tags, s, e, t0, p, how, gap, flat) -> pd.DataFrame:
-        n = -(-(e - t0) // p)
+    def _window(self, tags, e, t0, p, how, gap, flat, hold) -> pd.DataFrame:
+        n = max(0, -(-(e - t0) // p))
+        half = p // 2
+        lo, hi = t0 - half, t0 + n * p - half  # the bins of the rows
         cols, summary = {}, {}
         gap_us = period_us(gap) if gap is not None else None
         flat_us = period_us(flat) if flat is not None else None
         meta = [self._tag(name) for name in tags]
 
         def one(i):
-            tag_id, lo, hi = meta[i]
-            ts, v, q = self._read_raw(tag_id, s, e)
-            col = align(ts, v, q, t0, p, n, how)
+            tag_id, t_lo, t_hi = meta[i]
+            back = int(hold.get(tags[i], 0))
+            ts, v, q = self._read_raw(tag_id, lo - back, hi)
+            col = align(ts, v, q, t0, p, n, how, back)
+            inside = np.searchsorted(ts, lo)
+            ts, v, q = ts[inside:], v[inside:], q[inside:]
             return col, summarize(
-                ts, v, q, s, e, p, lo=lo, hi=hi, gap=gap_us, flat=flat_us, aligned=col
+                ts, v, q, lo, hi, p, lo=t_lo, hi=t_hi, gap=gap_us, flat=flat_us, aligned=col
             )
 
         # one thread per tag: the database read and numpy release the GIL
@@ -343,17 +397,19 @@ class Historian(ColdMonths, Registry, TagReport):
         chunk="7D",
         gap=None,
         flat="30min",
+        hold: dict[str, int] | None = None,
     ) -> Iterator[pd.DataFrame]:
         """Consecutive chunks of :meth:`window` (``chunk`` long, rounded to whole periods);
         ``pd.concat`` of them equals ``window(tags, start, end, period, how)`` exactly. Each
         chunk carries its own ``attrs["quality"]``."""
         tags = list(tags)
         s, e, t0, p = self._grid(tags, start, end, period)
+        hold = self.holds(tags, p) if hold is None else hold
         step = max(1, period_us(chunk) // p) * p
         left = t0
         while left < e:
             right = min(left + step, e)
-            yield self._window(tags, max(s, left), right, left, p, how, gap, flat)
+            yield self._window(tags, right, left, p, how, gap, flat, hold)
             left += step
 
     # -- checks --------------------------------------------------------------------------

@@ -29,36 +29,52 @@ SUMMARY_COLUMNS = [
 ]
 
 
-def align(ts, value, quality, t0: int, period: int, n: int, how: str = "mean") -> np.ndarray:
-    """Values on the grid ``t0 + k·period`` (k < n), each bin [left, left+period) labelled by
-    its left edge. Bad-quality and NaN samples are ignored, so a bin holding only those is NaN.
+def align(
+    ts, value, quality, t0: int, period: int, n: int, how: str = "mean", hold: int = 0
+) -> np.ndarray:
+    """Values on the grid ``t0 + k·period`` (k < n) by the rule of :mod:`historian.sampling`:
+    grid point ``t`` takes the mean (``how="mean"``) or the last (``how="last"``) usable
+    sample in ``[t − period/2, t + period/2)``; with none there, the tag's last sample before
+    that bin's end, if it is usable and no older than ``hold`` µs; else NaN. Bad-quality and
+    NaN samples are not usable, and a newer unusable sample ends a hold.
 
-    ``how="mean"``: the mean of the usable samples in the bin; ``how="last"``: the last one.
+    ``ts`` must be sorted and should start ``period/2 + hold`` before ``t0`` so the first grid
+    points see what precedes them (then chunked reads give the same values as one read).
     """
-    out = np.full(n, np.nan)
-    usable = (quality < BAD) & np.isfinite(value)
-    if not usable.all():
-        ts, value = ts[usable], value[usable]
-    if len(ts) == 0:
-        return out
-    b = (ts - t0) // period
-    keep = (b >= 0) & (b < n)
-    if not keep.all():
-        b, value = b[keep], value[keep]
     if how not in ("mean", "last"):
         raise ValueError(f"how must be 'mean' or 'last', not {how!r}")
+    out = np.full(n, np.nan)
+    if len(ts) == 0 or n <= 0:
+        return out
+    half = period // 2
+    all_ts = ts
+    usable_all = (quality < BAD) & np.isfinite(value)
+    ts_u, value_u = (ts, value) if usable_all.all() else (ts[usable_all], value[usable_all])
+    b = (ts_u - t0 + half) // period
+    keep = (b >= 0) & (b < n)
+    if not keep.all():
+        b, value_u = b[keep], value_u[keep]
     if len(b) < 2 or np.all(b[1:] != b[:-1]):  # at most one sample per bin: mean == last
-        out[b] = value
+        out[b] = value_u
     elif how == "mean":
-        s = np.bincount(b, weights=value, minlength=n)
+        s = np.bincount(b, weights=value_u, minlength=n)
         c = np.bincount(b, minlength=n)
         has = c > 0
         out[has] = s[has] / c[has]
-    elif how == "last":
+    else:
         # times are sorted, so bins are non-decreasing: the last sample of each bin is where
         # the next bin starts
         ends = np.flatnonzero(np.r_[b[1:] != b[:-1], True])
-        out[b[ends]] = value[ends]
+        out[b[ends]] = value_u[ends]
+    if hold > 0:
+        empty = np.flatnonzero(np.isnan(out))
+        if len(empty):
+            grid = t0 + empty * period
+            j = np.searchsorted(all_ts, grid - half + period, side="left") - 1
+            ok = j >= 0
+            j_ok = np.where(ok, j, 0)
+            ok &= usable_all[j_ok] & (grid - all_ts[j_ok] <= hold)
+            out[empty[ok]] = value[j_ok[ok]]
     return out
 
 

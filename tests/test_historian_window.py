@@ -16,23 +16,25 @@ def test_window_mean_and_last(historian):
     w = historian.window(["A"], T0, T0 + pd.Timedelta("2min"), period="1min")
     assert w.index.name == "ts" and str(w.index.tz) == "UTC"
     assert w.index.tolist() == [T0, T0 + pd.Timedelta("1min")]
-    assert w["A"].tolist() == [2.5, 8.5]
+    # each grid point takes the samples within half a period of it: [-30 s, 30 s), [30 s, 90 s)
+    assert w["A"].tolist() == [1.0, 5.5]
     w = historian.window(["A"], T0, T0 + pd.Timedelta("2min"), period="1min", how="last")
-    assert w["A"].tolist() == [5.0, 11.0]
+    assert w["A"].tolist() == [2.0, 8.0]
 
 
 def test_bad_quality_is_nan_and_uncertain_kept(historian):
     idx = T0 + pd.to_timedelta(np.arange(6) * 10, unit="s")
-    q = pd.DataFrame({"A": [0, 0, BAD, BAD, UNCERTAIN, 0]}, index=idx)
+    q = pd.DataFrame({"A": [0, BAD, BAD, 0, UNCERTAIN, 0]}, index=idx)
     historian.write_samples(pd.DataFrame({"A": np.arange(6.0)}, index=idx), quality=q)
     w = historian.window(["A"], T0, T0 + pd.Timedelta("60s"), period="20s")
-    assert w["A"].iloc[0] == 0.5
-    assert np.isnan(w["A"].iloc[1])  # only bad samples in that period
-    assert w["A"].iloc[2] == 4.5
+    assert w["A"].iloc[0] == 0.0
+    assert np.isnan(w["A"].iloc[1])  # only bad samples within 10 s of it
+    assert w["A"].iloc[2] == 3.5
     last = historian.window(["A"], T0, T0 + pd.Timedelta("60s"), period="20s", how="last")
     assert np.isnan(last["A"].iloc[1])
     summary = quality_table(w).loc["A"]
-    assert (summary["bad"], summary["uncertain"], summary["good"]) == (2, 1, 3)
+    # the sample at 50 s belongs to the grid point at 60 s, outside the window
+    assert (summary["bad"], summary["uncertain"], summary["good"]) == (2, 1, 2)
     assert summary["coverage"] == 2 / 3
 
 
@@ -41,7 +43,7 @@ def test_unaligned_start_and_missing_tag_data(historian):
     historian.write_samples(pd.DataFrame({"A": np.ones(30), "B": np.ones(30)}, index=idx))
     historian.ensure_tag("EMPTY")
     w = historian.window(["A", "EMPTY"], T0 + pd.Timedelta("25s"), T0 + pd.Timedelta("100s"), 10)
-    assert w.index[0] == T0 + pd.Timedelta("20s")  # grid anchored on the epoch
+    assert w.index[0] == T0 + pd.Timedelta("30s")  # the first grid point after the start
     assert list(w.columns) == ["A", "EMPTY"]
     assert w["EMPTY"].isna().all()
     assert w.attrs["quality"]["EMPTY"]["stale"] is True
