@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import pandas as pd
 
+from historian.sampling import Sampling
 from historian.store import Historian
 from historian.taginfo import TagInfo
 
@@ -51,6 +52,22 @@ def open_data(
         end = end or (b + pd.Timedelta(period))
         frame = h.window(names, start, end, period)
     return frame, info
+
+
+def tag_sampling(
+    url: str, tags: Sequence[str], start: pd.Timestamp | None = None, end=None
+) -> dict[str, Sampling]:
+    """How each tag is sampled over [start, end) (all its data when open): the median and
+    95th-percentile spacing of its stored samples."""
+    with Historian.open(url) as h:
+        known = set(h.tags()["name"])
+        unknown = [t for t in tags if t not in known]
+        if unknown:
+            raise KeyError(
+                f"tag(s) {', '.join(unknown)} not in the historian {url} "
+                f"(it has: {', '.join(sorted(known)) or 'no tags'}); diag import a file first"
+            )
+        return h.sampling(tags, start, end)
 
 
 @dataclass

@@ -28,10 +28,32 @@ def add_commands(subparsers) -> None:
     p.add_argument("--tz", default="UTC", help="time zone of naive times (default UTC)")
     p.add_argument(
         "--time-unit",
-        choices=["s", "ms", "us", "min", "h"],
+        choices=["s", "ms", "us", "µs", "ns", "min", "h"],
         help="the time column holds plain numbers of this unit (after --start, else after "
         "1970-01-01 UTC)",
     )
+    p.add_argument(
+        "--time-format",
+        metavar="FORMAT",
+        help="strftime format of the times, e.g. '%%d.%%m.%%Y %%H:%%M:%%S' (default ISO 8601; "
+        "day.month dates are read when the file shows the order)",
+    )
+    p.add_argument(
+        "--sep", help="CSV separator, e.g. ';' (default: detected from the first lines, else ,)"
+    )
+    p.add_argument(
+        "--decimal",
+        choices=[".", ","],
+        help="decimal mark (default: detected; a comma only with another separator)",
+    )
+    p.add_argument(
+        "--rename",
+        action="append",
+        default=[],
+        metavar="COLUMN=TAG",
+        help="store a column under another tag name (repeatable)",
+    )
+    p.add_argument("--json", action="store_true", help="print the import report as JSON")
     p.add_argument(
         "--start",
         metavar="TIME",
@@ -100,11 +122,15 @@ def cmd_import(args) -> int:
                 path,
                 time_column=args.time_column,
                 tz=args.tz,
-                time_unit=args.time_unit,
+                time_unit="us" if args.time_unit == "µs" else args.time_unit,
                 start=args.start,
                 tags_csv=args.tags_csv,
                 strict=args.strict,
                 policy="update" if args.replace else "ignore",
+                sep={"tab": "\t", "\\t": "\t"}.get(args.sep, args.sep),
+                decimal=args.decimal,
+                time_format=args.time_format,
+                rename=_renames(args.rename),
                 progress=progress,
             )
         except ImportRefused as exc:
@@ -113,14 +139,26 @@ def cmd_import(args) -> int:
             more = exc.n_bad - min(20, len(exc.messages))
             if more > 0:
                 print(f"... and {more} more", file=sys.stderr)
-            msg = f"{path}: {exc.n_bad} bad row(s); nothing imported (--strict)"
+            msg = f"{path}: {exc.n_bad} bad row(s) or cell(s); nothing imported (--strict)"
             raise UserError(msg) from None
         except (ValueError, FileNotFoundError) as exc:
             raise UserError(str(exc)) from None
+    if args.json:
+        print(json.dumps(_report_json(report), indent=2, default=str))
+        return 0
+    for note in report.notes:
+        print(f"{path}: {note}", file=sys.stderr)
     for msg in report.bad[:20]:
         print(msg, file=sys.stderr)
     if report.n_bad > 20:
         print(f"... and {report.n_bad - 20} more", file=sys.stderr)
+    for msg in report.cells[:20]:
+        print(msg, file=sys.stderr)
+    if report.n_bad_cells > 20:
+        print(f"... and {report.n_bad_cells - 20} more bad cells", file=sys.stderr)
+    if report.bad_cells:
+        per_tag = ", ".join(f"{t} {n}" for t, n in report.bad_cells.items())
+        print(f"{path}: stored as Bad samples: {per_tag}", file=sys.stderr)
     conflicts = report.conflict_message()
     if conflicts:
         print(f"{path}: {conflicts}", file=sys.stderr)
@@ -131,8 +169,39 @@ def cmd_import(args) -> int:
     print(
         f"{path}: {report.rows} rows, {len(report.tags)} tags, {span}; {counts}"
         + (f"; {report.n_bad} bad rows skipped" if report.n_bad else "")
+        + (f"; {report.n_bad_cells} bad cells stored as Bad" if report.n_bad_cells else "")
     )
     return 0
+
+
+def _renames(pairs: list[str]) -> dict[str, str]:
+    out = {}
+    for text in pairs:
+        old, eq, new = text.partition("=")
+        if not eq or not old or not new:
+            raise UserError(f"--rename {text!r}: write COLUMN=TAG")
+        out[old] = new
+    return out
+
+
+def _report_json(r) -> dict:
+    return {
+        "file": r.file,
+        "rows": r.rows,
+        "tags": r.tags,
+        "first": to_jsonable(r.first),
+        "last": to_jsonable(r.last),
+        "samples": r.samples,
+        "new": r.new,
+        "already": r.already,
+        "conflicts": r.conflicts,
+        "first_conflict": r.first_conflict.describe() if r.first_conflict else None,
+        "bad_rows": r.n_bad,
+        "bad_row_messages": r.bad,
+        "bad_cells": r.bad_cells,
+        "bad_cell_messages": r.cells,
+        "notes": r.notes,
+    }
 
 
 def cmd_tags(args) -> int:

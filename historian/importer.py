@@ -14,10 +14,31 @@ then that many units after ``start`` (a time; naive means ``tz``), or after 1970
 (Unix time) when no ``start`` is given. A relative time column (e.g. DAMADICS: seconds from
 0) needs its origin as ``start``.
 
-Empty cells (and NA/NaN) mean "no sample". A row whose time cannot be parsed or that holds a
-non-numeric value is *bad*: it is reported as ``file:line: what is wrong`` (CSV: the physical
-line, header = line 1; Parquet: the 1-based row number) and skipped, or with ``strict=True``
-the whole import is refused before anything is written.
+Separator and decimal mark are ``sep`` and ``decimal`` (``--sep``, ``--decimal``); when not
+given they are detected from the first lines where that is unambiguous (a header split by
+``;`` only, cells such as ``12,5`` and none such as ``12.5``), and :attr:`ImportReport.notes`
+says what was detected. Date-times are ISO 8601 unless ``time_format`` (``--time-format``, a
+``strftime`` format such as ``%d.%m.%Y %H:%M:%S``) says otherwise; day.month and month/day
+dates are read only when their order shows in the file (a first field above 12) and the notes
+say so, otherwise the import asks for ``--time-format``. Times must fall between 1970 and a
+year from now: epoch milliseconds read as seconds (year 58869) are refused with the unit that
+fits.
+
+Empty cells mean "no sample". A row whose time is missing or cannot be parsed is *bad*: it is
+reported as ``file:line: what is wrong`` (CSV: the physical line, header = line 1; Parquet:
+the 1-based row number) and skipped. A *cell* that holds no usable number — text such as
+``Bad`` or ``#N/A``, ``NaN``, ``inf``, a number beyond the 32-bit float range historians and
+OPC UA Float store (|x| > 3.4e38), or one outside the tag's declared range [lo, hi] by the
+failure margins of NAMUR NE 43 (below lo − 2.5 % or above hi + 6.25 % of the span) — is stored
+as a *Bad-quality* sample at its time (its number kept where it has one) and counted per tag
+with its ``file:line``; the rest of the row is kept. With ``strict=True`` any bad row or
+cell refuses the whole import before anything is written.
+
+An import that stores no sample at all is refused (:class:`FileRefused`) and leaves no tag
+behind. Tag names are the column names; a name a model cannot refer to (empty, blank at an
+end, a double quote, a square bracket or a control character in it) is refused with the
+rename that fixes it (``rename``, ``--rename OLD=NEW``); any other name works in input specs,
+in double quotes when it holds spaces or brackets (``"Flow (t/h)"[k]``).
 
 A file that cannot be imported at all (missing, empty, blank, header only, no tag column, not
 UTF-8 text or binary, not readable Parquet) raises :class:`FileRefused` before anything is
@@ -45,28 +66,47 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .quality import GOOD, NAMES
+from .errors import UserError
+from .quality import BAD, GOOD, NAMES
 from .store import Historian
+from .taginfo import tag_name_problem
 from .times import from_us, index_us
 
 TIME_NAMES = ("ts", "time", "timestamp", "datetime", "date")
 #: µs per unit of a plain-number time column
-TIME_UNITS = {"s": 1_000_000, "ms": 1_000, "us": 1, "min": 60_000_000, "h": 3_600_000_000}
+TIME_UNITS = {
+    "s": 1_000_000,
+    "ms": 1_000,
+    "us": 1,
+    "µs": 1,
+    "ns": 1e-3,
+    "min": 60_000_000,
+    "h": 3_600_000_000,
+}
+#: the largest magnitude a 32-bit float historian (and OPC UA Float) stores
+FLOAT32_MAX = 3.4028235e38
+#: NAMUR NE 43 failure signals: below 3.6 mA / above 21 mA of a 4-20 mA span
+NE43_LOW, NE43_HIGH = 0.025, 0.0625
+#: plausible times: 1970-01-02 up to this long after now
+FUTURE_LIMIT = pd.Timedelta(days=366)
+SEPARATORS = (",", ";", "\t", "|")
 MAX_MESSAGES = 1000
 #: rows read to recognise the time column and its kind
 SAMPLE_ROWS = 100
 
 
-class ImportRefused(Exception):
+class ImportRefused(UserError):
     """Strict import found bad rows; nothing was written. ``messages`` lists them."""
 
     def __init__(self, messages: list[str], n_bad: int):
         self.messages = messages
         self.n_bad = n_bad
-        super().__init__(f"{n_bad} bad row(s); nothing imported:\n" + "\n".join(messages[:20]))
+        super().__init__(
+            f"{n_bad} bad row(s) or cell(s); nothing imported:\n" + "\n".join(messages[:20])
+        )
 
 
-class FileRefused(ValueError):
+class FileRefused(UserError, ValueError):
     """The file cannot be imported as given (missing, empty, header only, unreadable, no
     recognisable time column, plain-number times without a unit); the message names the file
     and what to do. Nothing was written."""
@@ -108,11 +148,23 @@ class ImportReport:
     conflicts: int = 0  # samples at a stored (tag, ts) with another value or quality
     first_conflict: Conflict | None = None  # the earliest
     replace: bool = False  # conflicts overwrote the stored values
+    bad_cells: dict[str, int] = field(default_factory=dict)  # per tag: stored as Bad
+    cells: list[str] = field(default_factory=list)  # first MAX_MESSAGES 'file:line: TAG: ...'
+    notes: list[str] = field(default_factory=list)  # what was detected (separator, ...)
 
     def _bad(self, msg: str) -> None:
         self.n_bad += 1
         if len(self.bad) < MAX_MESSAGES:
             self.bad.append(msg)
+
+    def _bad_cell(self, tag: str, msg: str) -> None:
+        self.bad_cells[tag] = self.bad_cells.get(tag, 0) + 1
+        if len(self.cells) < MAX_MESSAGES:
+            self.cells.append(msg)
+
+    @property
+    def n_bad_cells(self) -> int:
+        return sum(self.bad_cells.values())
 
     @property
     def new(self) -> int:
@@ -179,7 +231,8 @@ def _holds_datetimes(raw: pd.Series) -> bool:
     text = _texts(raw).iloc[:SAMPLE_ROWS]
     if not len(text):
         return False
-    return 2 * int(parse_times(text).notna().sum()) >= len(text)
+    dated = parse_times(text).notna() | text.str.match(_DAY_MONTH.pattern)
+    return 2 * int(dated.sum()) >= len(text)
 
 
 def _no_time_column(where: str, cols: list[str]) -> str:
@@ -267,16 +320,24 @@ def check_time_kind(
 
 
 def parse_times(
-    raw: pd.Series, tz: str = "UTC", unit: str | None = None, origin_us: int = 0
+    raw: pd.Series,
+    tz: str = "UTC",
+    unit: str | None = None,
+    origin_us: int = 0,
+    time_format: str | None = None,
 ) -> pd.Series:
     """Times → tz-aware UTC (NaT where unparseable). Without ``unit`` plain numbers are not
-    times (NaT); with it every value must be a number of ``unit`` after ``origin_us``."""
+    times (NaT); with it every value must be a number of ``unit`` after ``origin_us``.
+    ``time_format``: a ``strftime`` format the text follows (default ISO 8601)."""
     if unit is not None:
         return _numeric_times(raw, unit, origin_us)
     if pd.api.types.is_datetime64_any_dtype(raw.dtype):
         t = raw
     elif pd.api.types.is_numeric_dtype(raw.dtype):
         return pd.Series(pd.NaT, index=raw.index, dtype="datetime64[us, UTC]")
+    elif time_format is not None:
+        text = raw.astype("string").str.strip()
+        t = pd.to_datetime(text, errors="coerce", format=time_format, utc="%z" in time_format)
     else:
         text = raw.astype("string").str.strip()
         number = pd.to_numeric(text, errors="coerce").notna()
@@ -300,11 +361,22 @@ def _numeric_times(raw: pd.Series, unit: str, origin_us: int) -> pd.Series:
     else:
         num = pd.to_numeric(raw.astype("string").str.strip(), errors="coerce")
         x = num.to_numpy(np.float64, na_value=np.nan)
-    after = np.rint(x * TIME_UNITS[unit])  # µs after the origin
+    after = np.rint(x * TIME_UNITS[unit]) if unit != "ns" else np.rint(x / 1000.0)
     ok = np.isfinite(after) & (np.abs(after) < 4e18)
     out = np.full(len(x), np.datetime64("NaT"), "datetime64[us]")
     out[ok] = (after[ok].astype(np.int64) + origin_us).view("datetime64[us]")
     return pd.Series(pd.DatetimeIndex(out).tz_localize("UTC"), index=raw.index)
+
+
+@dataclass
+class Dialect:
+    """How a file writes its rows: the CSV separator, the decimal mark, the date-time format
+    (None: ISO 8601), and the tags' declared ranges used to judge values."""
+
+    sep: str = ","
+    decimal: str = "."
+    time_format: str | None = None
+    ranges: dict[str, tuple[float | None, float | None]] = field(default_factory=dict)
 
 
 def _clean_chunk(
@@ -315,13 +387,17 @@ def _clean_chunk(
     report: ImportReport,
     unit: str | None = None,
     origin_us: int = 0,
-) -> tuple[pd.DataFrame, np.ndarray]:
-    """Parse one chunk; report bad rows; return the good rows as a wide frame on UTC time
-    and their positions in the chunk (for ``line_of``)."""
+    dialect: Dialect | None = None,
+) -> tuple[pd.DataFrame, pd.DataFrame, np.ndarray]:
+    """Parse one chunk: report bad rows (no usable time: skipped) and bad cells (stored as
+    Bad samples); return the rows with a time as a wide frame of values on UTC time, the
+    frame of their quality codes (NaN value and GOOD: no sample) and the rows' positions in
+    the chunk (for ``line_of``)."""
+    dialect = dialect or Dialect()
     values = chunk.drop(columns=[tcol])
     raw_t = chunk[tcol]
     blank = raw_t.isna().to_numpy() & values.isna().all(axis=1).to_numpy()
-    t = parse_times(raw_t, tz, unit, origin_us)
+    t = parse_times(raw_t, tz, unit, origin_us, dialect.time_format)
     bad_time = t.isna().to_numpy() & ~blank
     reason: dict[int, str] = {}
     for i in np.flatnonzero(bad_time):
@@ -329,37 +405,107 @@ def _clean_chunk(
         why = "missing time" if pd.isna(rv) else f"unparseable time {str(rv)!r}"
         if not pd.isna(rv) and unit is not None:
             why += f" (--time-unit {unit}: expected a number)"
+        elif not pd.isna(rv) and dialect.time_format:
+            why += f" (--time-format {dialect.time_format})"
         elif not pd.isna(rv) and tz != "UTC":
             why += f" (or ambiguous/non-existent in {tz})"
         reason[i] = why
-    numeric = {}
-    for name in values.columns:
-        col = values[name]
-        if pd.api.types.is_numeric_dtype(col.dtype) and not pd.api.types.is_bool_dtype(col.dtype):
-            numeric[name] = col.to_numpy(np.float64, na_value=np.nan)
-            continue
-        num = pd.to_numeric(col.astype("string").str.strip(), errors="coerce")
-        wrong = (num.isna() & col.notna()).to_numpy()
-        for i in np.flatnonzero(wrong):
-            reason.setdefault(i, f"non-numeric value {str(col.iloc[i])!r} in column {name!r}")
-        numeric[name] = num.to_numpy(np.float64, na_value=np.nan)
+    tv = t.to_numpy()
+    implausible = ~bad_time & ~blank & ~pd.isna(tv)
+    if implausible.any():
+        lo, hi = _plausible_times()
+        ok_t = pd.DatetimeIndex(t[implausible])
+        out_of = (ok_t < lo) | (ok_t > hi)
+        for i, when in zip(np.flatnonzero(implausible)[out_of], ok_t[out_of], strict=True):
+            reason[i] = f"time {when} is before 1970 or more than a year ahead"
     ok = ~blank
     for i in sorted(reason):
         report._bad(f"{line_of(i)}: {reason[i]}")
         ok[i] = False
     report.rows += int(np.count_nonzero(~blank))
-    frame = pd.DataFrame(numeric, index=pd.DatetimeIndex(t, name="ts"))[ok]
-    return frame, np.flatnonzero(ok)
+    rows = np.flatnonzero(ok)
+    numeric, quality = {}, {}
+    for name in values.columns:
+        v, bad, why = _cell_values(values[name], dialect, str(name))
+        v, bad, why = v[rows], bad[rows], why[rows]
+        for k in np.flatnonzero(bad):
+            report._bad_cell(
+                str(name), f"{line_of(int(rows[k]))}: {name}: {why[k]}; stored as a Bad sample"
+            )
+        numeric[name] = v
+        quality[name] = np.where(bad, BAD, GOOD).astype(np.int8)
+    index = pd.DatetimeIndex(t.iloc[rows], name="ts")
+    return (
+        pd.DataFrame(numeric, index=index, columns=values.columns),
+        pd.DataFrame(quality, index=index, columns=values.columns),
+        rows,
+    )
 
 
-def _csv_chunks(path: Path, tcol: str, chunk_rows: int, advance) -> Iterator:
+def _plausible_times() -> tuple[pd.Timestamp, pd.Timestamp]:
+    return pd.Timestamp("1970-01-02", tz="UTC"), pd.Timestamp.now(tz="UTC") + FUTURE_LIMIT
+
+
+def _cell_values(
+    col: pd.Series, dialect: Dialect, name: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One column's numbers (NaN: no number), the mask of bad cells (something there, but no
+    usable number) and, per cell, why it is bad."""
+    if pd.api.types.is_numeric_dtype(col.dtype) and not pd.api.types.is_bool_dtype(col.dtype):
+        v = col.to_numpy(np.float64, na_value=np.nan)
+        present = ~np.isnan(v)
+        text = None
+    else:
+        text = col.astype("string").str.strip()
+        present = (text.notna() & (text != "")).to_numpy()
+        if dialect.decimal != ".":  # a '.' is then no decimal mark: not a number
+            text = text.mask(text.str.contains(".", regex=False))
+            text = text.str.replace(dialect.decimal, ".", regex=False)
+        v = pd.to_numeric(text, errors="coerce").to_numpy(np.float64, na_value=np.nan)
+        v[~present] = np.nan
+    why = np.full(len(v), "", dtype=object)
+    bad = np.zeros(len(v), bool)
+    nan = present & np.isnan(v)
+    if nan.any():
+        bad |= nan
+        shown = col.astype("string").to_numpy(dtype=object, na_value="")
+        why[nan] = [f"no number in {str(x).strip()!r}" for x in shown[nan]]
+    inf = present & np.isinf(v)
+    bad |= inf
+    why[inf] = "not finite (inf)"
+    huge = present & np.isfinite(v) & (np.abs(v) > FLOAT32_MAX)
+    bad |= huge
+    why[huge] = [f"{x:g} is beyond the float range a historian stores" for x in v[huge]]
+    lo, hi = dialect.ranges.get(name, (None, None))
+    if lo is not None and hi is not None and hi > lo:
+        span = hi - lo
+        out = (
+            present
+            & np.isfinite(v)
+            & ~huge
+            & ((v < lo - NE43_LOW * span) | (v > hi + NE43_HIGH * span))
+        )
+        bad |= out
+        why[out] = [
+            f"{x:g} is outside the tag's range {lo:g}..{hi:g} beyond the NE 43 failure margins"
+            for x in v[out]
+        ]
+    return v, bad, why
+
+
+def _csv_chunks(path: Path, tcol: str, chunk_rows: int, advance, dialect: Dialect) -> Iterator:
     with open(path, "rb") as fh:
         reader = pd.read_csv(
             fh,
             chunksize=chunk_rows,
+            sep=dialect.sep,
+            decimal=dialect.decimal,
             dtype={tcol: str},
+            keep_default_na=False,
+            na_values=[""],
             skip_blank_lines=False,
             skipinitialspace=True,
+            encoding="utf-8-sig",
         )
         base = 0
         for chunk in reader:
@@ -429,14 +575,17 @@ def _check_text(path: Path, block_size: int = 1 << 20) -> None:
         raise FileRefused(f"{path}: no header line (the file holds only blank lines)")
 
 
-def inspect_file(path: Path) -> tuple[bool, list[str], pd.DataFrame]:
-    """(is Parquet, column names, the first :data:`SAMPLE_ROWS` data rows). Raises
-    :class:`FileRefused`, naming the file, for a missing, empty, blank, header-only or
-    unreadable file."""
+def inspect_file(
+    path: Path, sep: str | None = None, decimal: str | None = None
+) -> tuple[bool, list[str], pd.DataFrame, Dialect, list[str]]:
+    """(is Parquet, column names, the first :data:`SAMPLE_ROWS` data rows as text, the CSV
+    dialect, notes on what was detected). Raises :class:`FileRefused`, naming the file, for
+    a missing, empty, blank, header-only or unreadable file."""
     if not path.exists():
         raise FileRefused(f"{path}: no such file")
     if not path.is_file():
         raise FileRefused(f"{path}: not a file")
+    dialect, notes = Dialect(), []
     try:
         if path.stat().st_size == 0:
             raise FileRefused(
@@ -448,8 +597,18 @@ def inspect_file(path: Path) -> tuple[bool, list[str], pd.DataFrame]:
             sample, columns, rows = _parquet_sample(path)
         else:
             _check_text(path)
+            dialect, notes = sniff_csv(path, sep, decimal)
             try:
-                sample = pd.read_csv(path, nrows=SAMPLE_ROWS, dtype=str, skipinitialspace=True)
+                sample = pd.read_csv(
+                    path,
+                    nrows=SAMPLE_ROWS,
+                    dtype=str,
+                    sep=dialect.sep,
+                    keep_default_na=False,
+                    na_values=[""],
+                    skipinitialspace=True,
+                    encoding="utf-8-sig",
+                )
             except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
                 raise FileRefused(f"{path}: {_first_line(exc)}") from None
             columns = [str(c) for c in sample.columns]
@@ -458,7 +617,94 @@ def inspect_file(path: Path) -> tuple[bool, list[str], pd.DataFrame]:
         raise FileRefused(f"{path}: cannot read it: {exc.strerror or exc}") from None
     if not rows:
         raise FileRefused(f"{path}: no data rows, only a header ({', '.join(columns)})")
-    return parquet, columns, sample
+    return parquet, columns, sample, dialect, notes
+
+
+#: lines read to detect a CSV file's separator and decimal mark
+SNIFF_LINES = 50
+_COMMA_NUMBER = re.compile(r"^[+-]?\d+,\d+(?:[eE][+-]?\d+)?$")
+_DOT_NUMBER = re.compile(r"^[+-]?\d*\.\d+(?:[eE][+-]?\d+)?$")
+
+
+def sniff_csv(
+    path: Path, sep: str | None = None, decimal: str | None = None
+) -> tuple[Dialect, list[str]]:
+    """The separator and decimal mark of a CSV file: as given, else detected from its first
+    lines where unambiguous (every line splits into the header's number of fields by exactly
+    one of ``, ; tab |``; cells like ``12,5`` and none like ``12.5`` mean a decimal comma).
+    Returns the dialect and a note per detected choice. Raises :class:`FileRefused` when the
+    decimal mark cannot be told and matters."""
+    import csv
+
+    with open(path, encoding="utf-8-sig", newline="") as fh:
+        lines = [ln for _, ln in zip(range(SNIFF_LINES), fh, strict=False) if ln.strip()]
+    notes = []
+    if sep is None:
+        fits = []
+        for c in SEPARATORS:
+            counts = [len(row) for row in csv.reader(lines, delimiter=c)]
+            if counts and counts[0] >= 2 and all(n == counts[0] for n in counts):
+                fits.append(c)
+        sep = "," if not fits or "," in fits else fits[0]
+        if sep != ",":
+            notes.append(f"separator {_sep_name(sep)} (detected; --sep to choose)")
+    if decimal is None:
+        decimal = "."
+        if sep != ",":
+            cells = [c.strip() for row in csv.reader(lines[1:], delimiter=sep) for c in row[1:]]
+            comma = sum(bool(_COMMA_NUMBER.match(c)) for c in cells)
+            dot = sum(bool(_DOT_NUMBER.match(c)) for c in cells)
+            if comma and dot:
+                raise FileRefused(
+                    f"{path}: numbers written both as 12,5 and as 12.5 in the first lines; say "
+                    "which is the decimal mark: --decimal , or --decimal ."
+                )
+            if comma:
+                decimal = ","
+                notes.append("decimal comma (detected; --decimal to choose)")
+    elif sep == decimal:
+        raise FileRefused(f"{path}: --sep and --decimal are both {sep!r}")
+    return Dialect(sep=sep, decimal=decimal), notes
+
+
+def _sep_name(sep: str) -> str:
+    return {"\t": "tab", ";": "';'", "|": "'|'", ",": "','"}[sep]
+
+
+_DAY_MONTH = re.compile(r"^\s*(\d{1,2})([./-])(\d{1,2})\2(\d{4})(?:[ T](.*))?$")
+_CLOCK = re.compile(r"^(\d{1,2}):(\d{2})(?::(\d{2})(\.\d+)?)?$")
+
+
+def detect_time_format(texts: pd.Series, where: str) -> tuple[str | None, str | None]:
+    """The format of date-times written day.month.year or month/day/year, read only when the
+    file shows the order (a first field above 12: day first; a second one: month first), and
+    a note saying so; ``(None, None)`` for anything else (ISO 8601 is read as it is). Raises
+    :class:`FileRefused` when the order cannot be told."""
+    first = [m for t in texts if (m := _DAY_MONTH.match(str(t)))]
+    if not first or len(first) < len(texts) // 2:
+        return None, None
+    a = max(int(m[1]) for m in first)
+    b = max(int(m[3]) for m in first)
+    sep = first[0][2]
+    example = first[0].string.strip()
+    if a > 12 and b > 12:
+        raise FileRefused(f"{where}: dates such as {example!r} fit no day/month order")
+    if a <= 12 and b <= 12:
+        raise FileRefused(
+            f"{where}: dates such as {example!r} can be read day first or month first and "
+            "import does not guess: give --time-format, e.g. --time-format "
+            f"'%d{sep}%m{sep}%Y %H:%M:%S' (day first) or '%m{sep}%d{sep}%Y %H:%M:%S'"
+        )
+    date = f"%d{sep}%m{sep}%Y" if a > 12 else f"%m{sep}%d{sep}%Y"
+    clock = first[0][5]
+    fmt = date
+    if clock:
+        m = _CLOCK.match(clock.strip())
+        if not m:
+            return None, None
+        fmt += " %H:%M" + (":%S" if m[3] else "") + (".%f" if m[4] else "")
+    order = "day.month.year" if a > 12 else "month/day/year"
+    return fmt, f"times read as {order} ({fmt!r}, detected; --time-format to choose)"
 
 
 def _parquet_sample(path: Path):
@@ -485,68 +731,35 @@ def file_columns(path: Path) -> list[str]:
 
 
 def load_tags_csv(h: Historian, path: str | Path) -> list[str]:
-    """Tag metadata from a CSV with columns name (or tag), unit, lo (or min), hi (or max),
-    description, source; returns the tag names. A bad number raises ValueError file:line."""
-    path = Path(path)
-    frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
-    cols = {c.strip().lower(): c for c in frame.columns}
-
-    def col(*names):
-        for n in names:
-            if n in cols:
-                return cols[n]
-        return None
-
-    c_name = col("name", "tag")
-    if c_name is None:
-        raise ValueError(f"{path}:1: a tags CSV needs a 'name' (or 'tag') column")
-    c_unit, c_desc, c_src = col("unit"), col("description"), col("source")
-    c_lo, c_hi = col("lo", "min", "range_lo"), col("hi", "max", "range_hi")
-    names = []
-    for i, row in enumerate(frame.to_dict("records")):
-        line = f"{path}:{i + 2}"
-        name = row[c_name].strip()
-        if not name:
-            continue
-
-        def num(c, row=row, line=line):
-            if c is None or not row[c].strip():
-                return None
-            try:
-                return float(row[c])
-            except ValueError:
-                raise ValueError(f"{line}: {c} {row[c]!r} is not a number") from None
-
-        lo, hi = num(c_lo), num(c_hi)
-        if lo is not None and hi is not None and lo >= hi:
-            raise ValueError(f"{line}: range lo {lo} must be below hi {hi}")
-        h.ensure_tag(
-            name,
-            unit=(row[c_unit].strip() or None) if c_unit else None,
-            lo=lo,
-            hi=hi,
-            description=(row[c_desc].strip() or None) if c_desc else None,
-            source=(row[c_src].strip() or None) if c_src else None,
-        )
-        names.append(name)
-    return names
+    """Tag metadata from a tags CSV (:func:`read_tags_csv`) into ``h``; returns the names."""
+    rows = read_tags_csv(path)
+    for m in rows:
+        h.ensure_tag(**m)
+    return [m["name"] for m in rows]
 
 
 def stored_conflicts(
-    h: Historian, frame: pd.DataFrame, quality: int = GOOD
+    h: Historian, frame: pd.DataFrame, quality: int | pd.DataFrame = GOOD
 ) -> tuple[int, tuple[int, int, int, float, int] | None]:
     """Samples of the wide ``frame`` (a DatetimeIndex without repeats, one column per
-    existing tag, NaN = no sample) whose (tag, ts) ``h`` holds with a different value or
-    quality, in the database or in a month rolled to the cold store.
+    existing tag; a cell is a sample when it holds a number or its quality is Bad) whose
+    (tag, ts) ``h`` holds with a different value or quality, in the database or in a month
+    rolled to the cold store. ``quality``: one code, or a frame of codes like ``frame``.
 
     Returns ``(count, first)``; ``first`` is ``(ts µs, column, row, stored value, stored
     quality)`` of the earliest conflict, or None. Reads, per tag, the stored samples over the
-    frame's span and compares them with numpy (no per-row queries)."""
+    frame's span and compares them with numpy (no per-row queries); two NaN values are the
+    same value."""
     count, first = 0, None
     ts_all = index_us(frame.index)
     for j, name in enumerate(frame.columns):
         value = frame[name].to_numpy(np.float64, na_value=np.nan)
-        rows = np.flatnonzero(~np.isnan(value))
+        q = (
+            quality[name].to_numpy(np.int64)
+            if isinstance(quality, pd.DataFrame)
+            else np.full(len(value), int(quality), np.int64)
+        )
+        rows = np.flatnonzero(~np.isnan(value) | (q == BAD))
         if not len(rows):
             continue
         ts = ts_all[rows]
@@ -559,7 +772,8 @@ def stored_conflicts(
         s_v = stored["value"].to_numpy(np.float64)
         s_q = stored["quality"].to_numpy(np.int64)
         pos = np.minimum(np.searchsorted(s_ts, ts), len(s_ts) - 1)
-        same = (s_v[pos] == value[rows]) & (s_q[pos] == quality)
+        v, sv = value[rows], s_v[pos]
+        same = ((sv == v) | (np.isnan(sv) & np.isnan(v))) & (s_q[pos] == q[rows])
         hits = np.flatnonzero((s_ts[pos] == ts) & ~same)
         if not len(hits):
             continue
@@ -581,27 +795,42 @@ def import_file(
     tags_csv: str | Path | None = None,
     strict: bool = False,
     policy: str = "ignore",
+    sep: str | None = None,
+    decimal: str | None = None,
+    time_format: str | None = None,
+    rename: dict[str, str] | None = None,
     chunk_rows: int = 200_000,
     progress: Callable[[int, int], None] | None = None,
 ) -> ImportReport:
     """Import a wide CSV or Parquet file into ``h``; see the module docstring.
 
     ``time_unit``/``start``: a time column of plain numbers counts ``time_unit`` after
-    ``start`` (default 1970-01-01 UTC). ``policy``: ``"ignore"`` keeps stored values at a
-    conflict, ``"update"`` overwrites them; either way conflicts are counted in the report.
-    ``progress(done, total)`` is called after each chunk (bytes for CSV, rows for Parquet).
-    Raises :class:`FileRefused` (nothing written) when the file cannot be imported as given,
-    :class:`ImportRefused` in strict mode when any row is bad (nothing written).
+    ``start`` (default 1970-01-01 UTC). ``sep``/``decimal``: the CSV separator and decimal
+    mark (default: detected where unambiguous); ``time_format``: a ``strftime`` format of
+    the date-times (default ISO 8601); ``rename``: column → tag name. ``policy``:
+    ``"ignore"`` keeps stored values at a conflict, ``"update"`` overwrites them; either way
+    conflicts are counted in the report. ``progress(done, total)`` is called after each
+    chunk (bytes for CSV, rows for Parquet). Raises :class:`FileRefused` (nothing written)
+    when the file cannot be imported as given or holds no sample, :class:`ImportRefused` in
+    strict mode when any row or cell is bad (nothing written).
     """
     if policy not in ("ignore", "update"):
         raise ValueError(f"policy must be 'ignore' or 'update', not {policy!r}")
     path = Path(path)
-    parquet, columns, sample = inspect_file(path)
+    parquet, columns, sample, dialect, notes = inspect_file(path, sep, decimal)
     tcol = pick_time_column(columns, time_column, sample, where=str(path))
     if len(columns) < 2:
         raise FileRefused(f"{path}: only the time column {tcol!r}; no tag columns to import")
+    names = _tag_names(path, [c for c in columns if c != tcol], rename or {})
     origin = check_time_kind(str(path), tcol, sample[tcol], time_unit, start, tz)
     unit = time_unit if origin is not None else None
+    if unit is None and time_format is None and not parquet:
+        time_format, note = detect_time_format(_texts(sample[tcol]), str(path))
+        notes += [note] if note else []
+    dialect.time_format = time_format
+    _check_plausible(path, tcol, sample[tcol], tz, unit, origin or 0, time_format)
+    meta = read_tags_csv(tags_csv) if tags_csv is not None else []
+    dialect.ranges = _ranges(h, names.values(), meta)
     if parquet:
         import pyarrow.parquet as pq
 
@@ -612,26 +841,29 @@ def import_file(
     def chunks(advance):
         if parquet:
             return _parquet_chunks(path, chunk_rows, advance)
-        return _csv_chunks(path, tcol, chunk_rows, advance)
+        return _csv_chunks(path, tcol, chunk_rows, advance, dialect)
 
     def noop(_done):
         pass
 
     def clean(chunk, line_of, report):
-        return _clean_chunk(chunk, tcol, tz, line_of, report, unit, origin or 0)
+        values, quality, rows = _clean_chunk(
+            chunk, tcol, tz, line_of, report, unit, origin or 0, dialect
+        )
+        return values.rename(columns=names), quality.rename(columns=names), rows
 
     if strict:  # validate the whole file first: refuse before writing anything
         check = ImportReport(str(path))
         with _reading(path, check):
             for chunk, line_of in chunks(noop):
                 clean(chunk, line_of, check)
-        if check.n_bad:
-            raise ImportRefused(check.bad, check.n_bad)
-    if tags_csv is not None:
-        load_tags_csv(h, tags_csv)
-    report = ImportReport(str(path), replace=policy == "update")
+        if check.n_bad or check.n_bad_cells:
+            n = check.n_bad + check.n_bad_cells
+            raise ImportRefused(sorted(check.bad + check.cells, key=_line_number), n)
+    report = ImportReport(str(path), replace=policy == "update", notes=notes)
     known = set(h.tags()["name"])
     tags_seen: list[str] = []
+    pending_meta = {m["name"]: m for m in meta}
 
     def advance(done):
         if progress is not None:
@@ -639,24 +871,167 @@ def import_file(
 
     with _reading(path, report):
         for chunk, line_of in chunks(advance):
-            frame, rows = clean(chunk, line_of, report)
-            for name in frame.columns:
+            frame, quality, rows = clean(chunk, line_of, report)
+            present = frame.notna().to_numpy() | (quality.to_numpy() == BAD)
+            for j, name in enumerate(frame.columns):
+                if not present[:, j].any():
+                    continue
+                if name in pending_meta:
+                    h.ensure_tag(**pending_meta.pop(name))
+                    known.add(name)
                 if name not in known:
                     h.ensure_tag(str(name), source=path.name)
                     known.add(name)
                 if name not in tags_seen:
                     tags_seen.append(str(name))
-            if len(frame):
-                report.samples += int(frame.notna().to_numpy().sum())
-                _write(h, frame, rows, line_of, policy, report)
+            if present.any():
+                report.samples += int(present.sum())
+                _write(h, frame, quality, rows, line_of, policy, report)
                 lo, hi = frame.index.min(), frame.index.max()
                 report.first = lo if report.first is None else min(report.first, lo)
                 report.last = hi if report.last is None else max(report.last, hi)
+    for m in pending_meta.values():  # metadata of tags already stored
+        if m["name"] in known:
+            h.ensure_tag(**m)
     report.tags = tags_seen
+    if not report.samples:
+        first = (report.bad + report.cells)[:3]
+        raise FileRefused(
+            f"{path}: nothing imported: no row holds a usable time and a value"
+            + (" (" + "; ".join(first) + ")" if first else "")
+        )
     return report
 
 
-def _write(h, frame, rows, line_of, policy, report: ImportReport) -> None:
+def _line_number(msg: str) -> int:
+    m = re.search(r":(\d+): ", msg)
+    return int(m[1]) if m else 0
+
+
+def _tag_names(path: Path, columns: list[str], rename: dict[str, str]) -> dict[str, str]:
+    """Column → tag name after ``rename``; refuses names a spec cannot refer to, and a
+    rename of a column the file does not have, saying which rename would fix it."""
+    unknown = [c for c in rename if c not in columns]
+    if unknown:
+        raise FileRefused(
+            f"{path}: --rename names no column {', '.join(map(repr, unknown))}; the columns "
+            f"are {', '.join(columns)}"
+        )
+    out = {c: rename.get(c, c) for c in columns}
+    bad = [(c, n, why) for c, n in out.items() if (why := tag_name_problem(n))]
+    if bad:
+        fixes = " ".join(f"--rename {shlex.quote(c + '=' + _clean_name(n))}" for c, n, _ in bad)
+        raise FileRefused(
+            f"{path}: column name(s) no model could refer to: "
+            + "; ".join(f"{n!r} ({why})" for _, n, why in bad)
+            + f". Rename them as they are imported, e.g. {fixes}"
+        )
+    twice = sorted({n for n in out.values() if list(out.values()).count(n) > 1})
+    if twice:
+        raise FileRefused(f"{path}: two columns would both be tag {', '.join(twice)}")
+    return out
+
+
+def _clean_name(name: str) -> str:
+    text = re.sub(r'["\[\]]', "_", "".join(c for c in name if c.isprintable())).strip()
+    return text or "TAG"
+
+
+def _ranges(h: Historian, names, meta: list[dict]) -> dict[str, tuple]:
+    """Declared range per tag: the tags CSV first, else what the historian has."""
+    out = {}
+    stored = h.tags().set_index("name") if len(h.tags()) else None
+    for n in names:
+        if stored is not None and n in stored.index:
+            lo, hi = stored.loc[n, "lo"], stored.loc[n, "hi"]
+            out[n] = (None if pd.isna(lo) else float(lo), None if pd.isna(hi) else float(hi))
+    for m in meta:
+        out[m["name"]] = (m.get("lo"), m.get("hi"))
+    return out
+
+
+def _check_plausible(path, tcol, raw, tz, unit, origin, time_format) -> None:
+    """Refuse times outside 1970 .. a year ahead in the file's first rows, before anything
+    is written; for plain numbers, name the unit that would fit."""
+    t = parse_times(_texts(raw), tz, unit, origin, time_format)
+    t = pd.DatetimeIndex(t.dropna())
+    if not len(t):
+        return
+    lo, hi = _plausible_times()
+    if t.min() >= lo and t.max() <= hi:
+        return
+    bad = t.max() if t.max() > hi else t.min()
+    text = f"{path}: the time column {tcol!r} reads as {bad} (before 1970 or a year ahead)"
+    if unit is not None:
+        fits = [u for u in ("s", "ms", "us", "ns") if u != unit and _fits(raw, u, origin)]
+        text += (
+            f"; with --time-unit {fits[0]} it reads as "
+            f"{parse_times(_texts(raw).iloc[:1], tz, fits[0], origin).iloc[0]}"
+            if fits
+            else "; check --time-unit and --start"
+        )
+    else:
+        text += "; check the time column and --time-format"
+    raise FileRefused(text)
+
+
+def _fits(raw, unit, origin) -> bool:
+    t = pd.DatetimeIndex(parse_times(_texts(raw), "UTC", unit, origin).dropna())
+    lo, hi = _plausible_times()
+    return bool(len(t)) and t.min() >= lo and t.max() <= hi
+
+
+def read_tags_csv(path: str | Path) -> list[dict]:
+    """Tag metadata from a CSV with columns name (or tag), unit, lo (or min), hi (or max),
+    description, source, as keyword dicts for :meth:`Historian.ensure_tag`. A bad number
+    raises ValueError ``file:line``."""
+    path = Path(path)
+    frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+    cols = {c.strip().lower(): c for c in frame.columns}
+
+    def col(*names):
+        for n in names:
+            if n in cols:
+                return cols[n]
+        return None
+
+    c_name = col("name", "tag")
+    if c_name is None:
+        raise ValueError(f"{path}:1: a tags CSV needs a 'name' (or 'tag') column")
+    c_unit, c_desc, c_src = col("unit"), col("description"), col("source")
+    c_lo, c_hi = col("lo", "min", "range_lo"), col("hi", "max", "range_hi")
+    out = []
+    for i, row in enumerate(frame.to_dict("records")):
+        line = f"{path}:{i + 2}"
+        name = row[c_name].strip()
+        if not name:
+            continue
+
+        def num(c, row=row, line=line):
+            if c is None or not row[c].strip():
+                return None
+            try:
+                return float(row[c])
+            except ValueError:
+                raise ValueError(f"{line}: {c} {row[c]!r} is not a number") from None
+
+        lo, hi = num(c_lo), num(c_hi)
+        if lo is not None and hi is not None and lo >= hi:
+            raise ValueError(f"{line}: range lo {lo} must be below hi {hi}")
+        out.append(
+            {
+                "name": name,
+                "unit": (row[c_unit].strip() or None) if c_unit else None,
+                "lo": lo,
+                "hi": hi,
+                "description": (row[c_desc].strip() or None) if c_desc else None,
+                "source": (row[c_src].strip() or None) if c_src else None,
+            }
+        )
+    return out
+
+
+def _write(h, frame, quality, rows, line_of, policy, report: ImportReport) -> None:
     """Write one chunk, counting conflicts. A time repeated in the chunk goes in a later
     pass, so it meets the row stored first like any stored sample. With ``"ignore"`` the
     stored values are compared after the write, and only when some samples were not new
@@ -666,19 +1041,35 @@ def _write(h, frame, rows, line_of, policy, report: ImportReport) -> None:
     while len(todo):
         again = frame.index[todo].duplicated(keep="first")
         now, todo = todo[~again], todo[again]
-        part = frame.iloc[now]
+        part, part_q = frame.iloc[now], quality.iloc[now]
+        long = _long(part, part_q)
         if policy == "update":
-            _count_conflicts(h, part, now, rows, line_of, report)
-            report.written += h.write_samples(part, quality=GOOD, policy=policy)
+            _count_conflicts(h, part, part_q, now, rows, line_of, report)
+            report.written += h.write_samples(long, policy=policy)
             continue
-        written = h.write_samples(part, quality=GOOD, policy=policy)
+        written = h.write_samples(long, policy=policy)
         report.written += written
-        if written < int(part.notna().to_numpy().sum()):
-            _count_conflicts(h, part, now, rows, line_of, report)
+        if written < len(long):
+            _count_conflicts(h, part, part_q, now, rows, line_of, report)
 
 
-def _count_conflicts(h, part, now, rows, line_of, report: ImportReport) -> None:
-    n, first = stored_conflicts(h, part)
+def _long(values: pd.DataFrame, quality: pd.DataFrame) -> pd.DataFrame:
+    """The samples of a wide chunk (a number, or a Bad cell) as a long frame."""
+    v = values.to_numpy(np.float64)
+    q = quality.to_numpy(np.int64)
+    r, c = np.nonzero(~np.isnan(v) | (q == BAD))
+    return pd.DataFrame(
+        {
+            "tag": np.asarray(values.columns, dtype=object)[c],
+            "ts": values.index[r],
+            "value": v[r, c],
+            "quality": q[r, c],
+        }
+    )
+
+
+def _count_conflicts(h, part, part_q, now, rows, line_of, report: ImportReport) -> None:
+    n, first = stored_conflicts(h, part, part_q)
     if not n:
         return
     report.conflicts += n
@@ -691,7 +1082,7 @@ def _count_conflicts(h, part, now, rows, line_of, report: ImportReport) -> None:
             stored=stored,
             stored_quality=stored_q,
             value=float(part.iat[row, j]),
-            quality=GOOD,
+            quality=int(part_q.iat[row, j]),
             where=line_of(int(rows[now[row]])),
         )
 

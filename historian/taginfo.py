@@ -46,3 +46,18 @@ def tag_infos(info: Mapping[str, TagInfo | Mapping[str, object]] | None) -> dict
         t: v if isinstance(v, TagInfo) else TagInfo.from_mapping(t, v)
         for t, v in (info or {}).items()
     }
+
+
+def tag_name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be a tag that an input spec names (None when it can): empty or
+    blank at an end, or a double quote, a square bracket or a control character in it. Any
+    other name works, in double quotes when it is not a plain word (``"Flow (t/h)"[k]``)."""
+    if not name or name != name.strip():
+        return "empty or blank at an end"
+    if '"' in name:
+        return "a double quote in it"
+    if "[" in name or "]" in name:
+        return "a square bracket in it"
+    if any(not c.isprintable() for c in name):
+        return "a control character in it"
+    return None

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from diag_plugin.cli import main
-from historian import Historian
+from historian import BAD, GOOD, Historian
 from historian.importer import ImportRefused, import_file, pick_time_column
 
 CSV = """ts,U17,F17
@@ -35,19 +35,22 @@ def test_time_column_choice():
         pick_time_column(["a"], "zz")
 
 
-def test_bad_rows_reported_and_skipped(historian, tmp_path):
+def test_bad_rows_skipped_bad_cells_stored_bad_and_the_rest_of_the_row_kept(historian, tmp_path):
+    """A row without a usable time is skipped; a cell without a usable number is stored as a
+    Bad sample and the row's other values are kept (issue 22: one bad cell lost the row)."""
     f = tmp_path / "data.csv"
     f.write_text(CSV)
     r = import_file(historian, f)
-    assert r.bad == [
-        f"{f}:3: non-numeric value 'oops' in column 'U17'",
-        f"{f}:5: unparseable time 'nonsense'",
-    ]
-    assert r.rows == 5 and r.written == 5
-    assert historian.read_samples("F17").tolist() == [10.0, 13.0, 14.0]
-    assert historian.read_samples("U17").tolist() == [1.5, 5.0]
-    again = import_file(historian, f)  # idempotent
-    assert again.written == 0 and again.samples == 5
+    assert r.bad == [f"{f}:5: unparseable time 'nonsense'"]
+    assert r.cells == [f"{f}:3: U17: no number in 'oops'; stored as a Bad sample"]
+    assert r.bad_cells == {"U17": 1}
+    assert r.rows == 5 and r.written == 7
+    assert historian.read_samples("F17").tolist() == [10.0, 11.0, 13.0, 14.0]
+    u17 = historian.read_samples("U17", with_quality=True)
+    assert u17["quality"].tolist() == [GOOD, BAD, GOOD]
+    assert u17["value"].iloc[0] == 1.5 and np.isnan(u17["value"].iloc[1])
+    again = import_file(historian, f)  # idempotent, the Bad sample included
+    assert again.written == 0 and again.samples == 7 and again.conflicts == 0
 
 
 def test_strict_refuses_and_leaves_db_untouched(historian, tmp_path):
@@ -88,8 +91,9 @@ def test_parquet_import(historian, tmp_path):
     f = tmp_path / "d.parquet"
     df.to_parquet(f)
     r = import_file(historian, f)
-    assert r.bad == [f"{f}:50: non-numeric value 'x' in column 'B'"]
-    assert len(historian.read_samples("A")) == 49
+    assert r.bad == [] and r.cells == [f"{f}:50: B: no number in 'x'; stored as a Bad sample"]
+    assert len(historian.read_samples("A")) == 50  # the row's good value is kept
+    assert historian.read_samples("B", with_quality=True)["quality"].iloc[-1] == BAD
     assert import_file(historian, f).written == 0
 
 
@@ -99,15 +103,18 @@ def test_cli_import_and_tags(tmp_path, capsys):
     f.write_text(CSV)
     assert main(["--db", db, "import", str(f), "--strict"]) == 2
     err = capsys.readouterr().err
-    assert f"{f}:3: non-numeric value 'oops'" in err and "nothing imported" in err
+    assert f"{f}:3: U17: no number in 'oops'" in err and "nothing imported" in err
+    assert err.index(f"{f}:3:") < err.index(f"{f}:5:")  # in file order
     assert main(["--db", db, "import", str(f)]) == 0
     out, err = capsys.readouterr()
-    assert "5 new samples" in out and f"{f}:5: unparseable time" in err
+    assert "7 new samples" in out and f"{f}:5: unparseable time" in err
+    assert "stored as Bad samples: U17 1" in err
     assert main(["--db", db, "import", str(f)]) == 0
-    assert "0 new samples, 5 already stored" in capsys.readouterr().out
+    assert "0 new samples, 7 already stored" in capsys.readouterr().out
     assert main(["--db", db, "tags", "--json"]) == 0
     rows = {r["tag"]: r for r in json.loads(capsys.readouterr().out)}
-    assert rows["F17"]["samples"] == 3 and rows["U17"]["samples"] == 2
+    assert rows["F17"]["samples"] == 4 and rows["U17"]["samples"] == 3
+    assert rows["U17"]["bad"] == 1
     assert main(["--db", db, "tags"]) == 0
     assert "F17" in capsys.readouterr().out
     with Historian(db) as h:
