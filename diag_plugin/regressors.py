@@ -30,10 +30,8 @@ import numba as nb
 import numpy as np
 import pandas as pd
 
-_SPEC = re.compile(
-    r"^\s*(?:(?P<fn>[a-z]+)\((?P<args>[^()]*)\)|(?P<tag>[A-Za-z_][A-Za-z0-9_.:/-]*))"
-    r"\s*\[\s*k\s*(?:-\s*(?P<lag>\d+)\s*)?\]\s*$"
-)
+from historian.errors import UserError
+
 FUNCTIONS = {"diff": 2, "rate": 1, "dir": 1, "hour": 0, "days": 0}
 EPOCH = pd.Timestamp("2000-01-01", tz="UTC")
 #: default move threshold of dir(): this share of the tag's span
@@ -51,39 +49,16 @@ class InputSpec:
 
     @classmethod
     def parse(cls, text: str) -> InputSpec:
-        m = _SPEC.match(text)
-        if not m:
-            raise ValueError(
-                f"bad input spec {text!r}: expected TAG[k], TAG[k-d] or FN(ARGS)[k-d], "
-                "e.g. CV[k-1], diff(P1,P2)[k], dir(CV)[k-1]"
-            )
-        lag = int(m["lag"] or 0)
-        if m["tag"]:
-            return cls("", (m["tag"],), lag)
-        fn = m["fn"]
-        if fn not in FUNCTIONS:
-            raise ValueError(
-                f"bad input spec {text!r}: unknown function {fn!r} (known: {', '.join(FUNCTIONS)})"
-            )
-        args = [a.strip() for a in m["args"].split(",")] if m["args"].strip() else []
-        param = None
-        if fn == "dir" and len(args) == 2:
-            try:
-                param = float(args.pop())
-            except ValueError:
-                raise ValueError(f"bad input spec {text!r}: threshold must be a number") from None
-        if len(args) != FUNCTIONS[fn]:
-            raise ValueError(f"bad input spec {text!r}: {fn}() takes {FUNCTIONS[fn]} tag(s)")
-        for a in args:
-            if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.:/-]*", a):
-                raise ValueError(f"bad input spec {text!r}: {a!r} is not a tag name")
-        return cls(fn, tuple(args), lag, param)
+        """Parse ``TAG[k-d]``, ``"a tag"[k]`` or ``FN(ARGS)[k-d]`` (the module docstring);
+        a spec that does not parse raises :class:`SpecError` showing where."""
+        return _SpecParser(text).spec()
 
     def __str__(self) -> str:
         lag = f"[k-{self.lag}]" if self.lag else "[k]"
         if not self.fn:
-            return f"{self.tags[0]}{lag}"
-        args = list(self.tags) + ([_fmt_num(self.param)] if self.param is not None else [])
+            return f"{quote_tag(self.tags[0])}{lag}"
+        args = [quote_tag(t) for t in self.tags]
+        args += [_fmt_num(self.param)] if self.param is not None else []
         return f"{self.fn}({','.join(args)}){lag}"
 
     @property
@@ -97,6 +72,132 @@ class InputSpec:
 
 def _fmt_num(v: float) -> str:
     return f"{v:g}"
+
+
+#: a tag name written bare in a spec: a letter or ``_`` (any alphabet), then letters, digits
+#: and ``_ . : / -``; any other name is written in double quotes, e.g. ``"Flow (t/h)"[k]``
+BARE_TAG = re.compile(r"[^\W\d][\w.:/-]*")
+
+
+def quote_tag(name: str) -> str:
+    """``name`` as a spec writes it: bare when it can be, else in double quotes."""
+    return name if BARE_TAG.fullmatch(name) else f'"{name}"'
+
+
+class SpecError(UserError, ValueError):
+    """An input spec that does not parse; the message shows the spec and a caret at the
+    position (0-based ``pos``) where it goes wrong."""
+
+    def __init__(self, text: str, pos: int, what: str):
+        self.text, self.pos, self.what = text, pos, what
+        super().__init__(
+            f"bad input spec {text!r}: {what} (at character {pos + 1})\n"
+            f"  {text}\n  {' ' * pos}^\n"
+            '  specs: TAG[k], TAG[k-d], "a tag name"[k-d], diff(A,B)[k], rate(TAG)[k-1], '
+            "dir(TAG)[k], dir(TAG,0.5)[k], hour()[k], days()[k]"
+        )
+
+
+class _SpecParser:
+    """A small recursive-descent parser of one spec, so an error can say where."""
+
+    def __init__(self, text: str):
+        self.text, self.i = text, 0
+
+    def fail(self, what: str, at: int | None = None):
+        raise SpecError(self.text, self.i if at is None else at, what)
+
+    def skip(self) -> None:
+        while self.i < len(self.text) and self.text[self.i].isspace():
+            self.i += 1
+
+    def peek(self) -> str:
+        self.skip()
+        return self.text[self.i] if self.i < len(self.text) else ""
+
+    def expect(self, c: str, what: str) -> None:
+        if self.peek() != c:
+            self.fail(f"expected {what}")
+        self.i += 1
+
+    def name(self) -> tuple[str, bool]:
+        """A bare or double-quoted name, and whether it was quoted."""
+        self.skip()
+        if self.peek() == '"':
+            start = self.i
+            end = self.text.find('"', self.i + 1)
+            if end < 0:
+                self.fail("a quoted tag name without its closing double quote", start)
+            name = self.text[self.i + 1 : end]
+            if not name:
+                self.fail("an empty tag name", start)
+            self.i = end + 1
+            return name, True
+        m = BARE_TAG.match(self.text, self.i)
+        if not m:
+            c = self.peek()
+            self.fail(
+                "expected a tag name"
+                + (f", not {c!r}" if c else " (the spec is empty)")
+                + (
+                    ' (write a name with spaces or brackets in double quotes: "a tag")'
+                    if c and not c.isspace()
+                    else ""
+                )
+            )
+        self.i = m.end()
+        return m.group(), False
+
+    def spec(self) -> InputSpec:
+        name, quoted = self.name()
+        name_end = self.i
+        fn, args, param = "", [name], None
+        if not quoted and self.text[self.i : self.i + 1] == "(":
+            fn, fn_at = name, self.i - len(name)
+            if fn not in FUNCTIONS:
+                self.fail(
+                    f"unknown function {fn!r} (known: {', '.join(FUNCTIONS)}; a tag name "
+                    'with brackets is written in double quotes, "a (tag)"[k])',
+                    fn_at,
+                )
+            self.i += 1
+            args = []
+            while self.peek() not in (")", ""):
+                if args or param is not None:
+                    self.expect(",", "',' between arguments")
+                if fn == "dir" and len(args) == 1:
+                    m = re.compile(r"\s*([-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)").match(
+                        self.text, self.i
+                    )
+                    if not m:
+                        self.fail("expected the move threshold of dir() as a number")
+                    param, self.i = float(m.group(1)), m.end()
+                    continue
+                args.append(self.name()[0])
+            self.expect(")", "')' closing the arguments")
+            if len(args) != FUNCTIONS[fn]:
+                self.fail(f"{fn}() takes {FUNCTIONS[fn]} tag(s), got {len(args)}", fn_at)
+        if self.peek() != "[" and not quoted and not fn:
+            self.fail(
+                "expected '[' after the tag name (an input is written with its sample, e.g. "
+                'CV[k-1]; a name with spaces or brackets in double quotes, "a tag"[k])',
+                name_end,
+            )
+        self.expect("[", "'[' (an input is written with its sample, e.g. CV[k] or CV[k-1])")
+        self.expect("k", "'k' (the current sample) after '['")
+        lag = 0
+        if self.peek() == "-":
+            self.i += 1
+            m = re.compile(r"\s*(\d+)").match(self.text, self.i)
+            if not m:
+                self.fail("expected a whole number of samples after 'k-', e.g. [k-1]")
+            lag, self.i = int(m.group(1)), m.end()
+        elif self.peek() == "+":
+            self.fail("a future sample cannot be an input: lags count back, e.g. [k-1]")
+        self.expect("]", "']' closing the sample")
+        if self.peek():
+            self.fail("unexpected text after the spec")
+        return InputSpec(fn, tuple(args), lag, param)
 
 
 def parse_specs(specs: Sequence[str | InputSpec]) -> list[InputSpec]:

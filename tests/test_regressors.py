@@ -34,13 +34,33 @@ def test_parse_specs(text, fn, tags, lag):
 
 
 @pytest.mark.parametrize(
-    "text,msg",
-    [("CV", "expected TAG"), ("CV[k+1]", "expected TAG"), ("foo(CV)[k]", "unknown function"),
-     ("diff(P1)[k]", "takes 2"), ("dir(CV,abc)[k]", "threshold")],
+    "text,msg,pos",
+    [("CV", "expected '\\['", 2), ("CV[k+1]", "future sample", 4), ("LT101[k-]", "whole number", 8),
+     ("foo(CV)[k]", "unknown function", 0), ("diff(P1)[k]", "takes 2", 0),
+     ("dir(CV,abc)[k]", "threshold", 7), ("Flow (t/h)[k]", "double quotes", 4),
+     ('"Flow (t/h)[k]', "closing double quote", 0), ("X[k] Y", "after the spec", 5)],
 )  # fmt: skip
-def test_bad_specs_say_what_is_wrong(text, msg):
-    with pytest.raises(ValueError, match=msg):
+def test_bad_specs_say_what_is_wrong_and_where(text, msg, pos):
+    """A spec that does not parse names the spec, what is wrong and the position, with a
+    caret under it (issue 22: `LT101[k-]`, `X[k+1]` ended in tracebacks)."""
+    from diag_plugin.regressors import SpecError
+
+    with pytest.raises(SpecError, match=msg) as err:
         InputSpec.parse(text)
+    assert err.value.pos == pos
+    lines = str(err.value).splitlines()
+    assert lines[1] == f"  {text}" and lines[2] == "  " + " " * pos + "^"
+
+
+@pytest.mark.parametrize(
+    "text,tags",
+    [('"Flow (t/h)"[k-1]', ("Flow (t/h)",)), ("Füllstand[k]", ("Füllstand",)),
+     ('diff("P 1",P2.PV)[k]', ("P 1", "P2.PV")), ('rate("TI-101 (°C)")[k-1]', ("TI-101 (°C)",))],
+)  # fmt: skip
+def test_tag_names_with_spaces_brackets_or_any_alphabet_work_in_specs(text, tags):
+    s = InputSpec.parse(text)
+    assert s.tags == tags
+    assert InputSpec.parse(str(s)) == s
 
 
 def test_lagged_design_matrix_aligns_and_counts_drops():
