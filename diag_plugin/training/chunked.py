@@ -29,6 +29,8 @@ from diag_plugin.metrics import ErrorStats, residual_pct
 from diag_plugin.models.protocol import Model
 from diag_plugin.regressors import Design, DesignBuilder
 from diag_plugin.rulebase.document import RuleBase
+from historian.sampling import snap_near, snap_up
+from historian.times import from_us, period_us, to_us
 
 #: samples before the range read to start the state of unbounded-memory inputs (dir())
 WARMUP_ROWS = 360
@@ -61,10 +63,26 @@ class Tally:
 ChunkFitter = Callable[[RuleBase, list[Interval], DesignBuilder, Reader], tuple[Model, Tally]]
 
 
+def on_grid(t: pd.Timestamp, period: pd.Timedelta | str, how: str = "up") -> pd.Timestamp:
+    """``t`` on the model's grid (``k · period`` from the Unix epoch, UTC, the historian's
+    grid): the first grid point at or after it (``"up"``) or the nearest one (``"near"``).
+    Every boundary the product makes (range ends, hold-out cut, chunk edges) lies on it."""
+    p = period_us(pd.Timedelta(period))
+    t_us = to_us(t)
+    return from_us(snap_up(t_us, p) if how == "up" else snap_near(t_us, p))
+
+
 def time_chunks(
-    start: pd.Timestamp, end: pd.Timestamp, every: pd.Timedelta
+    start: pd.Timestamp,
+    end: pd.Timestamp,
+    every: pd.Timedelta,
+    period: pd.Timedelta | None = None,
 ) -> Iterator[tuple[pd.Timestamp, pd.Timestamp]]:
-    """Consecutive half-open intervals ``[a, b)`` covering ``[start, end)``."""
+    """Consecutive half-open intervals ``[a, b)`` covering ``[start, end)``; with ``period``
+    each is a whole number of periods long (at least one), so grid-aligned ends give
+    grid-aligned chunks."""
+    if period is not None:
+        every = max(1, int(pd.Timedelta(every) // period)) * period
     a = start
     while a < end:
         b = min(a + every, end)
@@ -72,12 +90,23 @@ def time_chunks(
         a = b
 
 
-def split_time(start: pd.Timestamp, end: pd.Timestamp, holdout: float) -> pd.Timestamp:
+def split_time(
+    start: pd.Timestamp,
+    end: pd.Timestamp,
+    holdout: float,
+    period: pd.Timedelta | None = None,
+) -> pd.Timestamp:
     """Start of the held-out block: the last ``holdout`` share of the range (the one hold-out
-    cut of the product: training, compare and explain all cut by time)."""
-    if not 0.0 < holdout < 1.0:
-        raise ValueError(f"holdout must be between 0 and 1, got {holdout}")
-    return start + (end - start) * (1.0 - holdout)
+    cut of the product: training, compare and explain all cut by time); with ``period`` the
+    nearest grid point. ``holdout = 0``: no held-out block (the cut is ``end``)."""
+    if not 0.0 <= holdout < 1.0:
+        raise ValueError(f"holdout must be at least 0 and below 1, got {holdout}")
+    if holdout == 0.0:
+        return end
+    cut = start + (end - start) * (1.0 - holdout)
+    if period is not None:
+        cut = on_grid(cut, period, "near")
+    return cut
 
 
 @dataclass
@@ -141,12 +170,22 @@ def train(
     ``fit_chunks`` can replace the in-process training pass (the Dask engine
     trains the chunks on workers and merges the partial models).
     """
-    start, end = pd.Timestamp(start), pd.Timestamp(end)
+    period = pd.Timedelta(rb.period)
+    given = pd.Timestamp(start), pd.Timestamp(end)
+    start, end = on_grid(given[0], period), on_grid(given[1], period)
     if end <= start:
-        raise ValueError(f"empty training range: {start} … {end}")
-    cut = split_time(start, end, holdout)
-    train_iv = list(time_chunks(start, cut, chunk))
-    val_iv = list(time_chunks(cut, end, chunk))
+        raise ValueError(
+            f"no sample of the model's {rb.period} grid between {given[0]} and {given[1]}"
+        )
+    cut = split_time(start, end, holdout, period)
+    if holdout > 0 and not start < cut < end:
+        raise ValueError(
+            f"{(end - start) // period} samples of {rb.period} from {start} to {end} are too "
+            f"few to hold out {holdout:.0%}: give a longer range, or --holdout 0 to train on "
+            "all of it without a validation figure"
+        )
+    train_iv = list(time_chunks(start, cut, chunk, period))
+    val_iv = list(time_chunks(cut, end, chunk, period))
     total = len(train_iv) + len(val_iv)
     span = rb.output.span[1] - rb.output.span[0]
     done = 0
@@ -160,7 +199,7 @@ def train(
     rows: list[tuple] = []
 
     builder = design_builder(rb, spans)
-    prime(builder, read, start, pd.Timedelta(rb.period))
+    prime(builder, read, start, period)
     if fit_chunks is not None:
         model, tally = fit_chunks(rb, train_iv, builder, read)
         done += len(train_iv)

@@ -15,7 +15,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--all", action="store_true", help="retrain every model in the folder")
     p.add_argument("--from", dest="start", help="start of the training range (default: all)")
     p.add_argument("--to", dest="end", help="end of the training range")
-    p.add_argument("--holdout", type=float, default=0.2, help="held-out share (last part)")
+    p.add_argument(
+        "--holdout",
+        type=float,
+        default=0.2,
+        help="share of the range, at its end, held out to validate (default 0.2; 0: train on "
+        "all of it, no validation figure)",
+    )
     p.add_argument("--chunk", default="7D", help="time span read at once (default 7D)")
     p.add_argument("--engine", choices=["local", "dask"], default="local")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")

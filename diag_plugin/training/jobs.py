@@ -28,8 +28,9 @@ from sqlalchemy.engine import make_url
 from diag_plugin.diagnose.unitfile import is_model_file
 from diag_plugin.metrics import coverage_note
 from diag_plugin.regressors import needed_tags
+from diag_plugin.rulebase.backups import backups
 from diag_plugin.rulebase.document import RuleBase, RuleBaseError, resolve
-from diag_plugin.training.chunked import DEFAULT_CHUNK, train
+from diag_plugin.training.chunked import DEFAULT_CHUNK, on_grid, train
 from historian.access import WindowReader, experiments
 from historian.errors import UserError
 from historian.jsonable import to_jsonable
@@ -49,8 +50,9 @@ def safe_url(url: str) -> str:
 def data_window(
     rb: RuleBase, url: str, start: str | None = None, end: str | None = None
 ) -> tuple[list[str], pd.Timestamp, pd.Timestamp]:
-    """The tags a model file reads and the range to train it on: ``start``/``end`` where
-    given, else from the first to one period past the last stored sample of those tags."""
+    """The tags a model file reads and the range to train it on, on the model's grid:
+    ``start``/``end`` where given (any time; naive means UTC), else from the first to one
+    period past the last stored sample of those tags."""
     tags = needed_tags([*(v.spec for v in rb.inputs), rb.output.spec])
     with Historian.open(url) as h:
         known = set(h.tags()["name"])
@@ -60,9 +62,21 @@ def data_window(
         a, b = h.time_range(tags)
     if a is None:
         raise ValueError(f"no samples of {', '.join(tags)} in {safe_url(url)}")
-    t0 = pd.Timestamp(start, tz="UTC") if start else a
-    t1 = pd.Timestamp(end, tz="UTC") if end else b + pd.Timedelta(rb.period)
+    period = pd.Timedelta(rb.period)
+    t0 = on_grid(_utc(start) if start else a, period)
+    t1 = on_grid(_utc(end), period) if end else on_grid(b, period, "near") + period
+    if t1 <= t0:
+        raise ValueError(
+            f"no sample of {rb.name}'s {rb.period} grid from {t0} to {t1} "
+            f"(its data run from {a} to {b})"
+        )
     return tags, t0, t1
+
+
+def _utc(t: str) -> pd.Timestamp:
+    """A time given by the user: naive means UTC."""
+    ts = pd.Timestamp(t)
+    return ts.tz_localize("UTC") if ts.tzinfo is None else ts.tz_convert("UTC")
 
 
 def train_one(
@@ -155,7 +169,13 @@ def cmd_train(args) -> int:
     con = Console(stderr=True)
     for path in paths:
         if not path.exists():
-            failures.append({"rulebase": str(path), "error": "file does not exist"})
+            failures.append(
+                {
+                    "rulebase": str(path),
+                    "error": "no such model file (diag model new …)",
+                    "bad_input": True,
+                }
+            )
             continue
         try:
             with _progress(con, path.stem) as cb:
@@ -173,11 +193,17 @@ def cmd_train(args) -> int:
                     )
                 )
         except RuleBaseError as exc:
-            failures.append({"rulebase": str(path), "error": "\n".join(exc.problems)})
-        except (KeyError, ValueError, OSError) as exc:
-            failures.append({"rulebase": str(path), "error": str(exc).strip("'\"")})
+            failures.append(
+                {"rulebase": str(path), "error": "\n".join(exc.problems), "bad_input": True}
+            )
+        except (KeyError, ValueError, UserError, FileNotFoundError) as exc:
+            failures.append(
+                {"rulebase": str(path), "error": str(exc).strip("'\""), "bad_input": True}
+            )
         except Exception as exc:  # noqa: BLE001 - one model's failure must not stop the others
-            log.exception("training %s failed", path)
+            if type(exc).__module__.startswith(("sqlalchemy", "psycopg", "adbc")):
+                raise  # the database, not this model: diag reports it (exit 3)
+            log.debug("training %s failed", path, exc_info=exc)
             failures.append({"rulebase": str(path), "error": f"{type(exc).__name__}: {exc}"})
     if args.json:
         doc = results[0] if (len(paths) == 1 and results) else {"results": results}
@@ -187,16 +213,26 @@ def cmd_train(args) -> int:
     else:
         for r in results:
             v = r["validation"]
+            tail = f"{r['samples']:,} samples, {r['rules']} rules, {r['seconds']:.1f} s"
+            if not v.get("samples"):
+                print(
+                    f"{r['model']} v{r['version']}: trained on all of the range, no held-out "
+                    f"validation (--holdout 0), so no validation error; {tail}"
+                )
+                continue
             print(
                 f"{r['model']} v{r['version']}: held-out RMSE {v['rmse_pct']:.2f} % of span, "
-                f"MAE {v['mae_pct']:.2f} %, coverage {v['coverage']:.1%}; "
-                f"{r['samples']:,} samples, {r['rules']} rules, {r['seconds']:.1f} s"
+                f"MAE {v['mae_pct']:.2f} %, coverage {v['coverage']:.1%}; {tail}"
             )
             if note := coverage_note(v):
                 print(f"  {note}")
         for f in failures:
             print(f"{f['rulebase']}: training failed: {f['error']}", file=sys.stderr)
-    return 1 if failures else 0
+    if not failures:
+        return 0
+    # bad input (a missing or broken file, unknown tags, a range without data) is 2, like
+    # every command's; a model that failed for another reason is the job failing (1)
+    return 2 if any(f.get("bad_input") for f in failures) else 1
 
 
 class _progress:
@@ -235,6 +271,8 @@ def cmd_experiments(args) -> int:
     path = resolve(args.name, args.rulebases)
     name = RuleBase.load(path).name if path.exists() else args.name
     df = experiments(args.db, name)
+    if not path.exists() and not len(df):
+        raise UserError(f"no model {args.name!r}: {path} does not exist and no experiments")
     cols = [
         c
         for c in (
@@ -254,10 +292,14 @@ def cmd_experiments(args) -> int:
         rows = []
         for rec in df[cols].to_dict("records"):
             rows.append({k: to_jsonable(v) for k, v in rec.items()})
-        print(json.dumps({"model": name, "experiments": rows}, indent=2))
+        kept = [str(p) for p in backups(path)]
+        print(json.dumps({"model": name, "experiments": rows, "backups": kept}, indent=2))
         return 0
+    kept = [str(p) for p in backups(path)]
     if not len(df):
         print(f"no experiments recorded for {name}: run diag train {name}")
+        for b in kept:
+            print(f"earlier file kept: {b}")
         return 0
     t = Table(title=escape(f"experiments of {name}"))
     for c in ("version", "created", "inputs", "held-out RMSE %", "MAE %", "coverage"):
@@ -272,6 +314,8 @@ def cmd_experiments(args) -> int:
             _fmt(rec.get("coverage"), ".1%") + (" ⚠" if coverage_note(rec) else ""),
         )
     Console().print(t)
+    for b in kept:
+        print(f"earlier file kept: {b} (before an edit of the inputs)")
     return 0
 
 

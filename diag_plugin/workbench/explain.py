@@ -545,7 +545,7 @@ def _cut_row(index: pd.DatetimeIndex, holdout: float) -> int:
     if len(index) == 0:
         return 0
     step = index[1] - index[0] if len(index) > 1 else pd.Timedelta(0)
-    t = split_time(index[0], index[-1] + step, holdout)
+    t = split_time(index[0], index[-1] + step, holdout, step if len(index) > 1 else None)
     return int(index.searchsorted(t))
 
 

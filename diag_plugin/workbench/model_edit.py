@@ -1,23 +1,30 @@
 """Create a model's rule-base file and add or remove inputs in place.
 
 Edits go through tomlkit, so comments and expert edits elsewhere in the file
-survive. A change of the inputs changes the rule grid, so the rules are
-cleared (the file says so) and the next ``diag train`` fills them.
+survive. A change of the inputs changes the rule grid, so the trained rules are
+cleared (the file says so) and the next ``diag train`` fills them — but the
+experts' locked rules are carried to the new grid (:func:`carry_locks`), an edit
+that cannot carry one is refused unless ``drop_locks``, and the previous file is
+kept as a numbered backup beside it (``NAME.toml.~N~``,
+:mod:`diag_plugin.rulebase.backups`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import tomlkit
 
+from diag_plugin.fuzzy.partition import UniformPartition
 from diag_plugin.regressors import InputSpec, dir_threshold, feature
+from diag_plugin.rulebase.backups import keep_backup
 from diag_plugin.rulebase.document import RuleBase, Variable, default_label
+from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
 
 
@@ -183,8 +190,10 @@ def add_input(
     tag_info: Mapping[str, TagInfo | Mapping[str, object]],
     sets: int | None = None,
     replace: str | None = None,
+    drop_locks: bool = False,
 ) -> RuleBase:
-    """Add ``spec`` as an input (or let it replace input ``replace``) and save."""
+    """Add ``spec`` as an input (or let it replace input ``replace``) and save; locked
+    rules are carried (:func:`carry_locks`)."""
     specs = [v.spec for v in rb.inputs]
     default_sets = rb.inputs[0].sets if rb.inputs else 31
     known = {s.tags[0]: v.span for v in rb.inputs if (s := InputSpec.parse(v.spec)).fn == ""}
@@ -211,16 +220,18 @@ def add_input(
         old = str(InputSpec.parse(replace))
         if old not in specs:
             raise ValueError(f"{old} is not an input of {rb.name} (inputs: {', '.join(specs)})")
-        table = doc["inputs"][specs.index(old)]  # edited in place: its comments stay
+        i = specs.index(old)
+        table = doc["inputs"][i]  # edited in place: its comments stay
         for k, v in fields.items():
             table[k] = v
-        rb.clear_rules(f"input {old} replaced by {new}: rules cleared, run diag train")
-    else:
-        table = tomlkit.table()
-        table.update(fields)
-        doc["inputs"].append(table)
-        rb.clear_rules(f"input {new} added: rules cleared, run diag train")
-    return _save(rb)
+        same_tag = InputSpec.parse(old).with_lag(0) == InputSpec.parse(new).with_lag(0)
+        mapping = [j if (j != i or same_tag) else None for j in range(len(specs))]
+        return _restructure(rb, f"input {old} replaced by {new}", mapping, drop_locks)
+    table = tomlkit.table()
+    table.update(fields)
+    doc["inputs"].append(table)
+    mapping = [*range(len(specs)), None]
+    return _restructure(rb, f"input {new} added", mapping, drop_locks)
 
 
 def set_input(
@@ -229,6 +240,7 @@ def set_input(
     *,
     span: tuple[float, float] | None = None,
     sets: int | None = None,
+    drop_locks: bool = False,
 ) -> RuleBase:
     """Change an input's nominal span and/or set count (the model's resolution) and save."""
     old = str(InputSpec.parse(spec))
@@ -246,24 +258,126 @@ def set_input(
         if sets < 2:
             raise ValueError(f"{rb.path}: {old}: sets must be at least 2, got {sets}")
         table["sets"] = int(sets)
-    rb.clear_rules(f"input {old} resized: rules cleared, run diag train")
-    return _save(rb)
+    mapping = list(range(len(specs)))
+    return _restructure(rb, f"input {old} resized", mapping, drop_locks)
 
 
-def remove_input(rb: RuleBase, spec: str) -> RuleBase:
+def remove_input(rb: RuleBase, spec: str, *, drop_locks: bool = False) -> RuleBase:
     old = str(InputSpec.parse(spec))
     specs = [v.spec for v in rb.inputs]
     if old not in specs:
         raise ValueError(f"{old} is not an input of {rb.name} (inputs: {', '.join(specs)})")
     if len(specs) == 1:
         raise ValueError(f"{old} is the only input of {rb.name}; a model needs one")
-    del rb.doc["inputs"][specs.index(old)]
-    rb.clear_rules(f"input {old} removed: rules cleared, run diag train")
-    return _save(rb)
+    i = specs.index(old)
+    del rb.doc["inputs"][i]
+    mapping = [j for j in range(len(specs)) if j != i]
+    return _restructure(rb, f"input {old} removed", mapping, drop_locks)
 
 
-def _save(rb: RuleBase) -> RuleBase:
-    text = rb.dumps()
-    fresh = RuleBase(text, rb.path)  # validates before anything is written
+class LocksNotCarried(UserError, ValueError):
+    """A structural edit would lose locked rules; ``problems`` says which and why."""
+
+    def __init__(self, path, problems: list[str]):
+        self.problems = problems
+        super().__init__(
+            f"{path}: {len(problems)} locked rule(s) cannot be carried to the new rule grid:\n"
+            + "\n".join(f"  {p}" for p in problems)
+            + "\nnothing changed; --drop-locks makes the edit anyway (the file is kept as a "
+            "numbered backup)"
+        )
+
+
+@dataclass
+class Carried:
+    """Locked rules of the old file placed on the new grid, and those that could not be."""
+
+    rules: list
+    problems: list[str]
+
+
+def carry_locks(old: RuleBase, new_inputs: Sequence, mapping: Sequence[int | None]) -> Carried:
+    """The old file's locked rules on the grid of ``new_inputs``.
+
+    ``mapping[j]`` is the old input that new input ``j`` continues (the same tag values, maybe
+    another span, set count or lag), or None for a new input. A lock goes to the new set
+    whose centre is nearest to its old set's centre (in engineering units) — it cannot be
+    carried when that centre lies outside the new span. Over a new input it holds for every
+    set. Old inputs no longer there are dropped from the premises; locks that then meet in
+    one cell must agree on their conclusion, or none of them can be carried."""
+    locked = [r for r in old.rules if getattr(r, "lock", False) and hasattr(r, "premise")]
+    if not locked:
+        return Carried([], [])
+    old_parts = [_partition(v, old.shape) for v in old.inputs]
+    new_parts = [_partition(v, old.shape) for v in new_inputs]
+    cells: dict[tuple[int, ...], list] = {}
+    problems = []
+    for r in locked:
+        axes, why = [], None
+        for j, m in enumerate(mapping):
+            if m is None:
+                axes.append(range(new_parts[j].n))
+                continue
+            c = float(old_parts[m].centers[r.premise[m]])
+            part = new_parts[j]
+            tol = 1e-9 * part.span
+            if not part.lo - tol <= c <= part.hi + tol:
+                why = (
+                    f"{old.inputs[m].set_label(r.premise[m])} of {old.inputs[m].spec} "
+                    f"(centre {c:g}) is outside the new span {part.lo:g}..{part.hi:g}"
+                )
+                break
+            axes.append([int(part.nearest(np.array([c]))[0])])
+        if why:
+            problems.append(f"{old.path}:{r.line}: {_premise(old, r)}: {why}")
+            continue
+        for p in _product(axes):
+            cells.setdefault(p, []).append(r)
+    out = []
+    for p, rs in sorted(cells.items()):
+        thens = {("nan" if math.isnan(r.then) else round(r.then, 12)) for r in rs}
+        if len(thens) > 1:
+            where = ", ".join(f"{old.path}:{r.line} ({_premise(old, r)})" for r in rs)
+            problems.append(f"{where}: meet in one cell of the new grid with different values")
+            continue
+        first = rs[0]
+        out.append(replace(first, premise=p, line=0, comments=list(first.comments)))
+    return Carried(out, sorted(set(problems)))
+
+
+def _partition(v, shape: str) -> UniformPartition:
+    return UniformPartition(v.span[0], v.span[1], v.sets, shape)
+
+
+def _product(axes):
+    import itertools
+
+    return [tuple(p) for p in itertools.product(*axes)]
+
+
+def _premise(rb: RuleBase, r) -> str:
+    return " ".join(v.set_label(i) for v, i in zip(rb.inputs, r.premise, strict=True))
+
+
+def _restructure(rb: RuleBase, what: str, mapping: list[int | None], drop_locks: bool):
+    """Save an edit of the inputs: rules cleared but the locks carried, the old file kept as
+    a numbered backup; refused (nothing written) when a lock cannot be carried."""
+    old = RuleBase.load(rb.path)
+    rb.clear_rules(f"{what}: rules cleared, run diag train")
+    fresh = RuleBase(rb.dumps(), rb.path)  # validates before anything is written
+    carried = carry_locks(old, fresh.inputs, mapping)
+    if carried.problems and not drop_locks:
+        raise LocksNotCarried(rb.path, carried.problems)
+    backup = keep_backup(rb.path)
+    kept = f", {len(carried.rules)} locked rule(s) carried" if carried.rules else ""
+    lost = f", {len(carried.problems)} lock(s) dropped (--drop-locks)" if carried.problems else ""
+    fresh.set_training(
+        {
+            "status": f"{what}: rules cleared{kept}{lost}; previous file {backup.name}; "
+            "run diag train"
+        }
+    )
+    fresh.rules = carried.rules
+    fresh._dirty_rules = True
     fresh.save()
     return RuleBase.load(rb.path)
