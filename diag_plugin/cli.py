@@ -8,6 +8,7 @@ logging and turns errors into a clear message and a non-zero exit status.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import os
@@ -54,7 +55,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: exit statuses, the one contract of every command (docs/cli.md)
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_ENVIRONMENT = 0, 1, 2, 3
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command; returns its exit status: 0 done, 1 the job failed, 2 bad usage or
+    input (the message says what and where), 3 the environment (database unreachable, port
+    busy). No traceback reaches the user unless ``-vv`` asks for one."""
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(
@@ -63,25 +71,54 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     if not getattr(args, "func", None):
         parser.print_help()
-        return 2
+        return EXIT_USAGE
     try:
         rc = args.func(args)
     except UserError as exc:
         print(f"diag: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     except KeyboardInterrupt:
         return 130
     except BrokenPipeError:  # output piped into `head` and the like: stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
-    except Exception as exc:
-        if type(exc).__module__.startswith(("sqlalchemy", "psycopg", "adbc")):
-            # an unreachable or broken database: say which, without a traceback
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            print(f"diag: database error ({_safe(args.db)}): {first}", file=sys.stderr)
-            return 3
-        raise
+    except Exception as exc:  # noqa: BLE001 - every error becomes a message and a status
+        return _failure(args, exc)
     return int(rc or 0)
+
+
+def _failure(args: argparse.Namespace, exc: Exception) -> int:
+    """The message and exit status of an error no command turned into a UserError."""
+    first = _first_line(exc)
+    if type(exc).__module__.startswith(("sqlalchemy", "psycopg", "adbc")):
+        # an unreachable or broken database: say which, without a traceback
+        print(f"diag: database error ({_safe(args.db)}): {first}", file=sys.stderr)
+        return EXIT_ENVIRONMENT
+    if isinstance(exc, OSError) and exc.errno in (errno.EADDRINUSE, errno.EADDRNOTAVAIL):
+        print(f"diag: error: a port is busy or not available here: {first}", file=sys.stderr)
+        return EXIT_ENVIRONMENT
+    if isinstance(exc, (ConnectionError, TimeoutError, PermissionError)):
+        print(f"diag: error: {first}", file=sys.stderr)
+        return EXIT_ENVIRONMENT
+    if isinstance(exc, (ValueError, KeyError, LookupError, FileNotFoundError, IsADirectoryError)):
+        print(f"diag: error: {first}", file=sys.stderr)
+        return EXIT_USAGE
+    log.debug("internal error", exc_info=exc)
+    print(
+        f"diag: internal error: {type(exc).__name__}: {first}"
+        + ("" if args.verbose >= 2 else " (diag -vv … shows where)"),
+        file=sys.stderr,
+    )
+    if args.verbose >= 2:
+        import traceback
+
+        traceback.print_exception(exc, file=sys.stderr)
+    return EXIT_FAILED
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().strip("'\"")
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def _safe(url: str) -> str:

@@ -70,9 +70,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 def _load_unit(args, name: str):
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.diagnose.unitfile import UnitError, unit_path
+    from diag_plugin.diagnose.unitfile import SUFFIX, UnitError, unit_path
 
     path = unit_path(name, args.rulebases)
+    if not path.exists():
+        from diag_plugin.examples.shipped import find_shipped
+
+        path = find_shipped(name, SUFFIX) or path
     if not path.exists():
         raise UserError(f"no unit file {path} (make one with `diag unit new`)")
     try:
@@ -162,7 +166,7 @@ def cmd_unit_check(args) -> int:
         print("\n".join(problems), file=sys.stderr)
     else:
         print(f"{path}: ok")
-    return 1 if problems else 0
+    return 2 if problems else 0
 
 
 def unit_summary(unit) -> dict:

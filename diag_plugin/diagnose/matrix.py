@@ -41,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from historian.errors import UserError
+
 __all__ = [
     "ENTRIES",
     "DiagnosticMatrix",
@@ -62,7 +64,7 @@ ENTRIES: dict[str, tuple[bool, bool, bool]] = {
 }
 
 
-class MatrixError(Exception):
+class MatrixError(UserError):
     """A matrix file has problems; ``problems`` lists ``file:line: what``."""
 
     def __init__(self, problems: list[str]):

@@ -56,6 +56,7 @@ import tomlkit
 from tomlkit.exceptions import ParseError
 
 from diag_plugin.diagnose.status import NE107
+from historian.errors import UserError
 
 SUFFIX = ".unit.toml"
 MATRIX_SUFFIX = ".matrix.toml"
@@ -89,7 +90,7 @@ _KINDS = {
 _CHOICES = {"scale": ("span", "max"), "symptoms": ("crisp", "fuzzy")}
 
 
-class UnitError(Exception):
+class UnitError(UserError):
     """Problems of a unit file, each ``file:line: what``."""
 
     def __init__(self, problems: list[str]):

@@ -54,12 +54,18 @@ def _run(args: argparse.Namespace) -> int:
         except ConfigError as exc:
             print(f"diag run: {exc}", file=sys.stderr)
             return 2
+        if busy := _busy([cfg.modbus_port, cfg.opcua_port]):
+            print(f"diag run: {busy}", file=sys.stderr)
+            return 3
         return asyncio.run(
             run_config(cfg, duration=args.duration, tty=False if args.plain else None)
         )
     if args.cycle <= 0:
         print("diag run: --cycle must be positive", file=sys.stderr)
         return 2
+    if busy := _busy([args.plc_port, args.modbus_port, args.opcua_port]):
+        print(f"diag run: {busy}", file=sys.stderr)
+        return 3
     from diag_plugin.live.embedded import run_embedded
 
     return asyncio.run(
@@ -74,3 +80,21 @@ def _run(args: argparse.Namespace) -> int:
             tty=False if args.plain else None,
         )
     )
+
+
+def _busy(ports) -> str | None:
+    """Which of the ports the plug-in serves on 127.0.0.1 another program holds already."""
+    import socket
+
+    for port in ports:
+        if not port:
+            continue
+        with socket.socket() as sock:
+            try:
+                sock.bind(("127.0.0.1", int(port)))
+            except OSError as exc:
+                return (
+                    f"port {port} on 127.0.0.1 is busy ({exc.strerror}): stop what holds it "
+                    "or choose another port"
+                )
+    return None

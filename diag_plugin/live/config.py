@@ -46,9 +46,10 @@ from pathlib import Path
 from typing import Any
 
 from diag_plugin.tomllines import line_of
+from historian.errors import UserError
 
 
-class ConfigError(ValueError):
+class ConfigError(UserError, ValueError):
     """A plant.toml problem; the message is ``file:line: key: what``."""
 
 

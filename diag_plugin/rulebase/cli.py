@@ -18,12 +18,23 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     rules = sub.add_parser("rules", help="check, show and export rule-base files")
     rsub = rules.add_subparsers(dest="rules_command", metavar="ACTION", required=True)
 
-    p = rsub.add_parser("check", help="validate rule-base files; prints file:line: problem")
+    p = rsub.add_parser(
+        "check",
+        help="validate rule-base, unit and matrix files; prints file:line: problem",
+    )
     p.add_argument("files", nargs="+", metavar="FILE")
+    p.add_argument("--json", action="store_true", help="print the problems as JSON")
     p.set_defaults(func=cmd_check)
 
-    p = rsub.add_parser("show", help="print the rule grid of a model")
+    p = rsub.add_parser("show", help="print the rules of a model (a grid, or --list)")
     p.add_argument("name", metavar="NAME", help="model name in the rule-base folder, or a file")
+    p.add_argument(
+        "--list",
+        action="store_true",
+        help="one rule per line with each premise set's centre in engineering units (the "
+        "default when a grid would not fit the terminal)",
+    )
+    p.add_argument("--json", action="store_true", help="print the rules as JSON")
     p.set_defaults(func=cmd_show)
 
     p = rsub.add_parser("export-fcl", help="write the model as IEC 61131-7 FCL")
@@ -37,6 +48,10 @@ def load(name: str, folder: str) -> RuleBase:
 
     path = resolve(name, folder)
     if not path.exists():
+        from diag_plugin.examples.shipped import find_shipped
+
+        path = find_shipped(name) or path
+    if not path.exists():
         raise UserError(f"no model {name!r}: {path} does not exist (diag model new …)")
     try:
         return RuleBase.load(path)
@@ -45,18 +60,57 @@ def load(name: str, folder: str) -> RuleBase:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from diag_plugin.rulebase.document import check, resolve
+    """Check each file by its kind (a unit file, a matrix file, else a rule base); exit 2
+    when any has problems, like every command given bad input."""
+    import json
 
-    bad = 0
+    from diag_plugin.rulebase.document import resolve
+
+    report = {}
     for f in args.files:
-        problems = check(resolve(f, args.rulebases))
+        path = resolve(f, args.rulebases)
+        if not path.exists() and (Path(args.rulebases) / f).exists():
+            path = Path(args.rulebases) / f
+        kind, problems = file_problems(path, args.rulebases)
+        report[str(path)] = {"kind": kind, "problems": problems}
+        if args.json:
+            continue
         for p in problems:
             print(p)
-        if problems:
-            bad += 1
-        else:
-            print(f"{f}: ok")
-    return 1 if bad else 0
+        if not problems:
+            print(f"{f}: ok ({kind})")
+    if args.json:
+        print(json.dumps(report, indent=2))
+    return 2 if any(r["problems"] for r in report.values()) else 0
+
+
+def file_problems(path: Path, folder: str) -> tuple[str, list[str]]:
+    """The kind of a file (``unit``, ``matrix``, ``rule base``) and its problems."""
+    from diag_plugin.diagnose.unitfile import MATRIX_SUFFIX, SUFFIX
+
+    if not path.exists():
+        return "missing", [f"{path}: no such file"]
+    head = path.read_text(encoding="utf-8", errors="replace")
+    if path.name.endswith(SUFFIX) or head.lstrip().startswith("[unit]") or "\n[unit]" in head:
+        from diag_plugin.diagnose.unit import Unit
+        from diag_plugin.diagnose.unitfile import UnitError
+
+        try:
+            Unit.load(path, folder)
+        except UnitError as exc:
+            return "unit", exc.problems
+        return "unit", []
+    if path.name.endswith(MATRIX_SUFFIX) or "\n[matrix]" in "\n" + head:
+        from diag_plugin.diagnose.matrix import MatrixError, load_matrix
+
+        try:
+            load_matrix(path)
+        except MatrixError as exc:
+            return "matrix", list(getattr(exc, "problems", None) or [str(exc)])
+        return "matrix", []
+    from diag_plugin.rulebase.document import check
+
+    return "rule base", check(path)
 
 
 def cmd_show(args: argparse.Namespace) -> int:
@@ -67,6 +121,11 @@ def cmd_show(args: argparse.Namespace) -> int:
 
     rb = load(args.name, args.rulebases)
     con = Console()
+    if args.json:
+        import json
+
+        print(json.dumps(rules_json(rb), indent=2))
+        return 0
     if hasattr(rb.codec, "rule_table"):  # a method with its own kind of rules
         columns, rows = rb.codec.rule_table(rb)
         con.print(
@@ -107,9 +166,13 @@ def cmd_show(args: argparse.Namespace) -> int:
             )
             t.add_row(v.set_label(i), f"{v.span[0] + i * step:g}", *cells)
         con.print(t)
-    elif len(rb.inputs) == 2:
+    elif len(rb.inputs) == 2 and not args.list and _grid_fits(rb, con.width):
         a, b = rb.inputs
-        title = f"{rb.output.spec}{unit}: rows {a.spec}, columns {b.spec} set {b.label}NN"
+        title = (
+            f"{rb.output.spec}{unit}: rows {a.spec}, columns {b.spec}"
+            + (f" [{b.unit}]" if b.unit else "")
+            + " at the set centres"
+        )
         t = Table(
             title=escape(title + " (· = no rule, * = locked)"),
             box=box.SIMPLE_HEAD,
@@ -120,7 +183,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         cols = sorted({r.premise[1] for r in rb.rules}) or [0]
         cols = list(range(min(cols), max(cols) + 1))
         for j in cols:
-            t.add_column(f"{j:02d}", justify="right")
+            t.add_column(_centre(b, j), justify="right")
         by = {r.premise: r for r in rb.rules}
         rows = sorted({r.premise[0] for r in rb.rules}) or [0]
         for i in range(min(rows), max(rows) + 1):
@@ -128,19 +191,67 @@ def cmd_show(args: argparse.Namespace) -> int:
             for j in cols:
                 r = by.get((i, j))
                 row.append("·" if r is None else f"{r.then:.3g}" + ("*" if r.lock else ""))
-            t.add_row(a.set_label(i), *row)
+            t.add_row(f"{a.set_label(i)} {_centre(a, i)}", *row)
         con.print(t)
     else:
-        t = Table(title=f"{len(rb.rules)} rules ({len(rb.inputs)} inputs)")
+        if len(rb.inputs) == 2 and not args.list:
+            con.print("(the grid is wider than the terminal: one rule per line)")
+        t = Table(
+            title=escape(
+                f"{len(rb.rules)} rules: premise sets at their centres → {rb.output.spec}"
+            ),
+            box=box.SIMPLE_HEAD,
+            padding=(0, 1, 0, 0),
+        )
         for v in rb.inputs:
-            t.add_column(escape(v.spec))
-        for col in ("then", "n", "sd", "lock"):
-            t.add_column(col, justify="right")
+            t.add_column(escape(v.spec + (f" [{v.unit}]" if v.unit else "")), justify="right")
+        for col in (f"then{unit}", "n", "sd", "lock"):
+            t.add_column(escape(col), justify="right")
         for r in rb.rules:
-            labels = [v.set_label(i) for v, i in zip(rb.inputs, r.premise, strict=True)]
-            t.add_row(*labels, _fmt(r.then), str(r.n), _fmt(r.sd), "yes" if r.lock else "")
+            labels = [
+                f"{v.set_label(i)} {_centre(v, i)}"
+                for v, i in zip(rb.inputs, r.premise, strict=True)
+            ]
+            t.add_row(*labels, _fmt(r.then), str(r.n), _fmt(r.sd), "🔒" if r.lock else "")
         con.print(t)
     return 0
+
+
+def _centre(v, i: int) -> str:
+    """Set ``i``'s centre in engineering units, short: ``53.3``, ``2.1e+03``."""
+    return f"{v.span[0] + i * (v.span[1] - v.span[0]) / (v.sets - 1):.4g}"
+
+
+def _grid_fits(rb, width: int) -> bool:
+    """A two-input grid fits when its columns (about 6 characters each) do."""
+    cols = {r.premise[1] for r in rb.rules} or {0}
+    return 8 + 6 * (max(cols) - min(cols) + 1) <= width
+
+
+def rules_json(rb) -> dict:
+    """The model's rules with each premise set's label and centre in engineering units."""
+    return {
+        "model": rb.name,
+        "output": {"spec": rb.output.spec, "unit": rb.output.unit, "span": list(rb.output.span)},
+        "inputs": [
+            {"spec": v.spec, "unit": v.unit, "span": list(v.span), "sets": v.sets}
+            for v in rb.inputs
+        ],
+        "rules": [
+            {
+                "if": [
+                    {"set": v.set_label(i), "centre": float(_centre(v, i))}
+                    for v, i in zip(rb.inputs, r.premise, strict=True)
+                ],
+                "then": None if math.isnan(r.then) else r.then,
+                "n": r.n,
+                "sd": None if math.isnan(r.sd) else r.sd,
+                "lock": r.lock,
+            }
+            for r in rb.rules
+            if hasattr(r, "premise")
+        ],
+    }
 
 
 def cmd_export_fcl(args: argparse.Namespace) -> int:

@@ -42,6 +42,7 @@ from diag_plugin.fuzzy.partition import SHAPES
 from diag_plugin.models.registry import METHODS, get_method
 from diag_plugin.models.spec import ModelSpec, Variable
 from diag_plugin.regressors import InputSpec
+from historian.errors import UserError
 
 __all__ = ["RuleBase", "RuleBaseError", "Variable", "check", "default_label", "resolve"]
 
@@ -54,7 +55,7 @@ HEADER = """\
 """
 
 
-class RuleBaseError(Exception):
+class RuleBaseError(UserError):
     """A rule-base file has problems; ``problems`` lists ``file:line: what``."""
 
     def __init__(self, problems: list[str]):

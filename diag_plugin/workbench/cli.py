@@ -34,7 +34,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         + "; ".join(f"{m.name} ({m.summary})" for m in METHODS.values()),
     )
     p.add_argument("--shape", default="trapezoidal", choices=["trapezoidal", "triangular"])
-    p.add_argument("--period", default="10s", help="sample period of the aligned data")
+    p.add_argument(
+        "--period",
+        help="grid period of the model, e.g. 1s, 10s, 3min (default: from the data, the "
+        "longest typical spacing of its tags' samples)",
+    )
     p.add_argument("--description", default="")
     p.set_defaults(func=cmd_model_new)
     p = msub.add_parser("add-input", help="add an input (or replace one with --replace)")
@@ -42,16 +46,19 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("spec")
     p.add_argument("--replace", metavar="SPEC", help="input the new one replaces")
     p.add_argument("--sets", type=int)
+    _edit_flags(p)
     p.set_defaults(func=cmd_add_input)
     p = msub.add_parser("set-input", help="change an input's span or sets (resolution)")
     p.add_argument("name")
     p.add_argument("spec")
     p.add_argument("--span", type=float, nargs=2, metavar=("LO", "HI"))
     p.add_argument("--sets", type=int)
+    _edit_flags(p)
     p.set_defaults(func=cmd_set_input)
     p = msub.add_parser("remove-input", help="remove an input")
     p.add_argument("name")
     p.add_argument("spec")
+    _edit_flags(p)
     p.set_defaults(func=cmd_remove_input)
 
     for name, fn, helptext in (
@@ -77,6 +84,15 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         else:
             p.add_argument("--out", required=True, metavar="FILE.html")
         p.set_defaults(func=fn)
+
+
+def _edit_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--drop-locks",
+        action="store_true",
+        help="make the edit even when locked rules cannot be carried to the new grid",
+    )
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
 def _load(args) -> RuleBase:
@@ -113,8 +129,9 @@ def cmd_model_new(args) -> int:
     path = Path(args.rulebases) / f"{args.name}.toml"
     Path(args.rulebases).mkdir(parents=True, exist_ok=True)
     out = args.output if "[" in args.output else f"{args.output}[k]"
-    tags = needed_tags([out, *args.inputs])
-    frame, info = _data(args, tags, args.period)
+    tags = needed_tags(_specs([out, *args.inputs]))
+    period, notes = _period(args, tags)
+    frame, info = _data(args, tags, period)
     try:
         rb = new_model(
             path,
@@ -126,12 +143,14 @@ def cmd_model_new(args) -> int:
             sets=args.sets,
             method=args.method,
             shape=args.shape,
-            period=args.period,
+            period=period,
             description=args.description,
         )
     except (FileExistsError, ValueError) as exc:
         raise UserError(str(exc)) from None
     print(f"wrote {path}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)})")
+    for line in notes:
+        print(line)
     if args.sets is None and rb.new_model().capabilities.rule_regions:  # sets matter
         sets = sorted({v.sets for v in rb.inputs})
         print(
@@ -142,19 +161,78 @@ def cmd_model_new(args) -> int:
     return 0
 
 
+def _specs(specs: list[str]) -> list[str]:
+    """The specs, each checked: a bad one is a usage error showing where it goes wrong."""
+    from diag_plugin.regressors import SpecError, parse_specs
+
+    try:
+        parse_specs(specs)
+    except SpecError as exc:
+        raise UserError(str(exc)) from None
+    return specs
+
+
+def _period(args, tags: list[str]) -> tuple[str, list[str]]:
+    """The model's grid period (``--period`` or from the data) and lines saying how each
+    tag is sampled and aligned on it."""
+    from historian.access import tag_sampling
+    from historian.sampling import format_period, hold_us, model_period, nice_period_us
+    from historian.times import period_us
+
+    try:
+        sampling = tag_sampling(args.db, tags, args_start(args), args_end(args))
+    except KeyError as exc:
+        raise UserError(str(exc).strip("'\"")) from None
+    if args.period:
+        try:
+            p = period_us(args.period)
+        except ValueError:
+            raise UserError(
+                f"--period {args.period!r} is not a duration like 10s or 3min"
+            ) from None
+        said = f"period {format_period(p)} (--period)"
+    else:
+        try:
+            p = model_period(list(sampling.values()))
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+        said = f"period {format_period(p)} from the data (the longest typical spacing)"
+    lines = [f"{said}: " + "; ".join(f"{t} {s.describe()}" for t, s in sampling.items())]
+    half = format_period(p // 2) if p > 1 else "0"
+    faster = [t for t, s in sampling.items() if 0 < s.median_us < 0.75 * p]
+    held = {t: hold_us(s, p) for t, s in sampling.items() if hold_us(s, p)}
+    if faster:
+        lines.append(
+            f"  {', '.join(faster)}: averaged over each period (samples within {half} of a "
+            "grid point)"
+        )
+    for t, us in held.items():
+        lines.append(
+            f"  {t}: sampled slower than the grid or irregularly: its last value stands for "
+            f"up to {format_period(nice_period_us(us))}, then a gap"
+        )
+    return format_period(p), lines
+
+
 def cmd_add_input(args) -> int:
     from diag_plugin.regressors import needed_tags
     from diag_plugin.workbench.model_edit import add_input
 
     rb = _load(args)
-    frame, info = _data(args, needed_tags([args.spec]) or None, rb.period)
+    frame, info = _data(args, needed_tags(_specs([args.spec])) or None, rb.period)
     try:
         rb = add_input(
-            rb, args.spec, frame=frame, tag_info=info, sets=args.sets, replace=args.replace
+            rb,
+            args.spec,
+            frame=frame,
+            tag_info=info,
+            sets=args.sets,
+            replace=args.replace,
+            drop_locks=args.drop_locks,
         )
     except (ValueError, KeyError) as exc:
-        raise UserError(str(exc)) from None
-    return _changed(rb)
+        raise UserError(str(exc).strip("'\"")) from None
+    return _changed(rb, args.json)
 
 
 def cmd_set_input(args) -> int:
@@ -162,25 +240,38 @@ def cmd_set_input(args) -> int:
 
     rb = _load(args)
     try:
-        rb = set_input(rb, args.spec, span=args.span, sets=args.sets)
+        rb = set_input(rb, args.spec, span=args.span, sets=args.sets, drop_locks=args.drop_locks)
     except (ValueError, KeyError) as exc:
-        raise UserError(str(exc)) from None
-    return _changed(rb)
+        raise UserError(str(exc).strip("'\"")) from None
+    return _changed(rb, args.json)
 
 
 def cmd_remove_input(args) -> int:
     from diag_plugin.workbench.model_edit import remove_input
 
     try:
-        rb = remove_input(_load(args), args.spec)
+        rb = remove_input(_load(args), args.spec, drop_locks=args.drop_locks)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    return _changed(rb)
+    return _changed(rb, args.json)
 
 
-def _changed(rb: RuleBase) -> int:
+def _changed(rb: RuleBase, as_json: bool = False) -> int:
+    status = str(rb.training.get("status", ""))
+    if as_json:
+        doc = {
+            "model": rb.name,
+            "file": str(rb.path),
+            "output": rb.output.spec,
+            "inputs": [v.spec for v in rb.inputs],
+            "locked_rules": sum(1 for r in rb.rules if getattr(r, "lock", False)),
+            "status": status,
+        }
+        print(json.dumps(doc, indent=2))
+        return 0
     print(f"{rb.path}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)})")
-    print(f"rules cleared; next: diag train {rb.name}")
+    print(status or "rules cleared")
+    print(f"next: diag train {rb.name}")
     return 0
 
 

@@ -1,0 +1,37 @@
+"""Where the shipped example files are, so the example unit and ``diag benchmark`` work from
+any folder.
+
+The examples live in the repository's ``rulebases/`` folder (the rule bases, the example
+unit and its matrix; :mod:`diag_plugin.examples.build` makes them). A source checkout or an
+editable install (what ``make`` sets up) finds them beside the package; an installed wheel
+carries them as data files under ``<prefix>/share/diag-plugin/rulebases``
+(``[tool.setuptools.data-files]`` in ``pyproject.toml``).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+#: the shipped example files
+NAMES = ("valve_a", "valve_b", "damadics_f", "valve_unit")
+
+
+def shipped_folder() -> Path | None:
+    """The folder of the shipped examples, or None when this installation has none."""
+    for folder in (
+        Path(__file__).resolve().parents[2] / "rulebases",
+        Path(sys.prefix) / "share" / "diag-plugin" / "rulebases",
+    ):
+        if (folder / "valve_unit.unit.toml").is_file():
+            return folder
+    return None
+
+
+def find_shipped(name: str, suffix: str = ".toml") -> Path | None:
+    """The shipped file ``NAME`` + ``suffix`` (a bare name, no folder), if there is one."""
+    if Path(name).name != name or name.endswith(".toml"):
+        return None
+    folder = shipped_folder()
+    path = folder / f"{name}{suffix}" if folder else None
+    return path if path is not None and path.is_file() else None
