@@ -687,22 +687,22 @@ def detect_time_format(texts: pd.Series, where: str) -> tuple[str | None, str | 
     b = max(int(m[3]) for m in first)
     sep = first[0][2]
     example = first[0].string.strip()
+    clock = ""
+    if first[0][5]:
+        m = _CLOCK.match(first[0][5].strip())
+        if not m:
+            return None, None
+        clock = " %H:%M" + (":%S" if m[3] else "") + (".%f" if m[4] else "")
+    day_first, month_first = f"%d{sep}%m{sep}%Y{clock}", f"%m{sep}%d{sep}%Y{clock}"
     if a > 12 and b > 12:
         raise FileRefused(f"{where}: dates such as {example!r} fit no day/month order")
     if a <= 12 and b <= 12:
         raise FileRefused(
             f"{where}: dates such as {example!r} can be read day first or month first and "
-            "import does not guess: give --time-format, e.g. --time-format "
-            f"'%d{sep}%m{sep}%Y %H:%M:%S' (day first) or '%m{sep}%d{sep}%Y %H:%M:%S'"
+            f"import does not guess: give --time-format, e.g. --time-format '{day_first}' "
+            f"(day first) or '{month_first}'"
         )
-    date = f"%d{sep}%m{sep}%Y" if a > 12 else f"%m{sep}%d{sep}%Y"
-    clock = first[0][5]
-    fmt = date
-    if clock:
-        m = _CLOCK.match(clock.strip())
-        if not m:
-            return None, None
-        fmt += " %H:%M" + (":%S" if m[3] else "") + (".%f" if m[4] else "")
+    fmt = day_first if a > 12 else month_first
     order = "day.month.year" if a > 12 else "month/day/year"
     return fmt, f"times read as {order} ({fmt!r}, detected; --time-format to choose)"
 

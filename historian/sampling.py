@@ -58,7 +58,8 @@ class Sampling:
         """``every 10 s`` / ``irregular, typically every 7.3 s`` / ``too few samples``."""
         if self.median_us <= 0:
             return f"too few samples ({self.samples})"
-        text = f"every {format_period(nice_period_us(self.median_us))}"
+        tol = ROUND_TOLERANCE if self.regular else 0.05
+        text = f"every {format_period(nice_period_us(self.median_us, tol))}"
         return text if self.regular else f"irregular, typically {text}"
 
 
@@ -73,37 +74,39 @@ def sampling_of(tag: str, ts: np.ndarray) -> Sampling:
     return Sampling(tag, len(ts), int(round(med)), int(round(q95)))
 
 
-def nice_period_us(us: float) -> int:
+def nice_period_us(us: float, tolerance: float = ROUND_TOLERANCE) -> int:
     """``us`` rounded to the coarsest whole unit (1 h, 1 min, 1 s, 100 ms, 10 ms, 1 ms) that
-    moves it by at most 2 %: 10.02 s → 10 s, 180.4 s → 3 min, 2.5 s → 2.5 s."""
+    moves it by at most ``tolerance`` (2 %): 10.02 s → 10 s, 180.4 s → 3 min, 2.5 s → 2.5 s."""
     if us <= 0:
         raise ValueError(f"a period must be positive, got {us} µs")
     for r in ROUNDINGS_US:
         q = round(us / r) * r
-        if q > 0 and abs(q - us) <= ROUND_TOLERANCE * us:
+        if q > 0 and abs(q - us) <= tolerance * us:
             return int(q)
     return max(1, int(round(us)))
 
 
 def format_period(us: int) -> str:
     """A period as pandas writes it and reads it back: ``10s``, ``3min``, ``1h``, ``2.5s``."""
-    for unit, size in (("h", 3600 * US), ("min", 60 * US), ("s", US), ("ms", 1000)):
+    for unit, size in (("h", 3600 * US), ("min", 60 * US), ("s", US)):
         if us % size == 0:
             return f"{us // size}{unit}"
     if us >= US:
         return f"{us / US:g}s"
-    return f"{us}us"
+    return f"{us // 1000}ms" if us % 1000 == 0 else f"{us}us"
 
 
 def model_period(samplings: list[Sampling]) -> int:
     """The grid period (µs) of a model reading these tags: the longest typical (median)
     spacing among them, rounded by :func:`nice_period_us`. Raises ValueError when no tag has
     two samples."""
-    known = [s.median_us for s in samplings if s.median_us > 0]
+    known = [s for s in samplings if s.median_us > 0]
     if not known:
         names = ", ".join(s.tag for s in samplings)
         raise ValueError(f"too few samples of {names} to tell how often they are sampled")
-    return nice_period_us(max(known))
+    slowest = max(known, key=lambda s: s.median_us)
+    # an irregular tag's median spacing is a noisy figure: round it more boldly
+    return nice_period_us(slowest.median_us, ROUND_TOLERANCE if slowest.regular else 0.05)
 
 
 def hold_us(s: Sampling, period_us: int) -> int:
