@@ -110,7 +110,7 @@ def cmd_import(args) -> int:
         if side.exists():
             args.tags_csv = str(side)
             print(f"tag metadata from {side}", file=sys.stderr)
-    with _open(args) as h, Progress(*columns, console=err, disable=not show) as bar:
+    with _open(args) as h, Progress(*columns, console=err, disable=not show, transient=True) as bar:
         task = bar.add_task("import", total=None)
 
         def progress(done, total):

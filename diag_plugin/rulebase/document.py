@@ -349,6 +349,9 @@ class RuleBase:
         self._dirty_rules = True
         if provenance is not None:
             self.set_training(provenance)
+            if "status" in self.doc["training"] and "status" not in provenance:
+                del self.doc["training"]["status"]  # "rules cleared, run diag train": done
+                self.training.pop("status", None)
 
     def set_training(self, provenance: Mapping[str, object]) -> None:
         if "training" not in self.doc:

@@ -29,6 +29,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--period", type=float, default=10.0, help="sample period, s (default 10)")
     p.add_argument("--start", default="2026-01-01", help="time of the first sample (UTC)")
+    p.add_argument("--json", action="store_true", help="print what was written as JSON")
     p.set_defaults(func=cmd_simulate)
 
 
@@ -89,6 +90,19 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         df.to_parquet(out)  # pandas keeps df.attrs (the fault truth) in the file metadata
     write_tags_csv(out.with_name(out.name + ".tags.csv"), df.columns)
     secs = time.perf_counter() - t0
+    if args.json:
+        doc = {
+            "file": str(out),
+            "samples": len(df),
+            "tags": list(df.columns),
+            "first": df.index[0].isoformat(),
+            "last": df.index[-1].isoformat(),
+            "period_s": args.period,
+            "faults": [str(f) for f in args.fault],
+            "seconds": round(secs, 2),
+        }
+        print(json.dumps(doc, indent=2))
+        return 0
     print(
         f"wrote {len(df)} samples ({args.days:g} days at {args.period:g} s, "
         f"{len(faults)} fault(s)) to {out} in {secs:.1f} s",

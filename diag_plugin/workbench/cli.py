@@ -83,6 +83,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
             p.add_argument("--json", action="store_true")
         else:
             p.add_argument("--out", required=True, metavar="FILE.html")
+            p.add_argument("--json", action="store_true", help="print what was written as JSON")
         p.set_defaults(func=fn)
 
 
@@ -410,5 +411,8 @@ def cmd_report(args) -> int:
     c = compare(rb, frame)
     e = explain(rb, frame, tag_info=info)
     write_report(args.out, rb, c, e, _experiments(args, rb))
+    if args.json:
+        print(json.dumps({"model": rb.name, "report": args.out, "metrics": c.metrics}, default=str))
+        return 0
     print(f"wrote {args.out}", file=sys.stderr)
     return 0
