@@ -349,7 +349,7 @@ class Historian(ColdMonths, Registry, TagReport):
         """
         tags = list(tags)
         s, e, t0, p = self._grid(tags, start, end, period)
-        hold = self.holds(tags, p) if hold is None else hold
+        hold = self.holds(tags, period) if hold is None else hold
         return self._window(tags, e, t0, p, how, gap, flat, hold)
 
     def _window(self, tags, e, t0, p, how, gap, flat, hold) -> pd.DataFrame:
@@ -404,7 +404,7 @@ class Historian(ColdMonths, Registry, TagReport):
         chunk carries its own ``attrs["quality"]``."""
         tags = list(tags)
         s, e, t0, p = self._grid(tags, start, end, period)
-        hold = self.holds(tags, p) if hold is None else hold
+        hold = self.holds(tags, period) if hold is None else hold
         step = max(1, period_us(chunk) // p) * p
         left = t0
         while left < e:

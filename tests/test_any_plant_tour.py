@@ -164,3 +164,22 @@ def test_a_short_export_of_a_few_hundred_samples(tmp_path):
     assert json.loads(text)["validation"]["samples"] >= 50
     rc, text = diag(g, "train", "m", "--holdout", "0", "--json")
     assert rc == 0 and json.loads(text)["samples"] >= 250, text
+
+
+def test_a_grid_finer_than_the_data_holds_each_tag_so_lags_still_work(tmp_path):
+    """60 s data on a 10 s grid (--period): each tag's last value stands for 90 s, so a
+    lagged input has data (it had none: 'no usable training samples')."""
+    frame = export("tank", 60.0, "jitter", seed=8)
+    f = tmp_path / "export.csv"
+    european_csv(frame, f)
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    assert diag(g, "import", str(f), "--time-format", TIME_FORMAT)[0] == 0
+    rc, text = diag(
+        g, "model", "new", "m", "--output", "FI102", "--input", "LIC101.OUT[k-3]", "--period", "10s"
+    )
+    assert rc == 0 and "period 10s (--period)" in text, text
+    assert "FI102: sampled slower than the grid or irregularly: its last value stands" in text
+    rc, text = diag(g, "train", "m", "--json")
+    assert rc == 0, text
+    res = json.loads(text)
+    assert res["samples"] > 5 * len(frame), (res["samples"], len(frame))

@@ -110,3 +110,34 @@ def test_roll_months_to_parquet_reads_the_same(historian, tmp_path):
     assert historian.roll_months(before="2024-03-01") == ["2024-02"]  # the month with news
     pd.testing.assert_series_equal(historian.read_samples("A", "2024-01-30", "2024-03-01"), got)
     assert historian.integrity_check() == []
+
+
+def test_a_tag_slower_than_the_grid_holds_its_last_value_and_a_bad_sample_ends_it(historian):
+    """One rule for tags sampled differently (historian/sampling.py): on a 10 s grid a 60 s
+    tag's last value stands for 1.5 x its 95th-percentile spacing (90 s), a Bad sample ends
+    the hold at once, and the 10 s tag is never held (a missing sample stays a gap)."""
+    fast = T0 + pd.to_timedelta(np.arange(0, 600, 10), unit="s")
+    slow = T0 + pd.to_timedelta(np.arange(0, 600, 60), unit="s")
+    historian.write_samples(pd.DataFrame({"FAST": np.arange(60.0)}, index=fast).drop(fast[7]))
+    q = pd.DataFrame({"SLOW": [0] * 10}, index=slow)
+    q.iloc[5, 0] = BAD
+    historian.write_samples(pd.DataFrame({"SLOW": np.arange(10.0)}, index=slow), quality=q)
+    assert historian.holds(["FAST", "SLOW"], "10s") == {"FAST": 0, "SLOW": 90_000_000}
+    w = historian.window(["FAST", "SLOW"], T0, T0 + pd.Timedelta("10min"), "10s")
+    assert np.isnan(w["FAST"].iloc[7]) and w["FAST"].iloc[8] == 8.0
+    assert w["SLOW"].iloc[:6].tolist() == [0.0] * 6 and w["SLOW"].iloc[6] == 1.0
+    assert np.isnan(w["SLOW"].iloc[30:36]).all()  # the Bad sample at 300 s
+    assert w["SLOW"].iloc[36] == 6.0
+    parts = historian.iter_windows(
+        ["FAST", "SLOW"], T0, T0 + pd.Timedelta("10min"), "10s", chunk="70s"
+    )
+    pd.testing.assert_frame_equal(pd.concat(list(parts)), w, check_freq=False)
+
+
+def test_jittered_and_offset_timestamps_land_on_the_nearest_grid_point(historian):
+    rng = np.random.default_rng(4)
+    k = np.arange(500)
+    t = T0 + pd.to_timedelta(k * 15 + 4.9 + rng.uniform(-0.45, 0.45, k.size), unit="s")
+    historian.write_samples(pd.DataFrame({"A": k.astype(float)}, index=t))
+    w = historian.window(["A"], T0, T0 + pd.Timedelta(seconds=15 * 500), "15s")
+    assert w["A"].tolist() == k.astype(float).tolist()  # one sample per grid point, in order

@@ -117,10 +117,11 @@ def test_train_all_goes_on_after_a_failure(loaded, capsys):
         (rules / "good.toml").read_text().replace("sets = 31", "sets = x", 1)
     )
     rc, out, _ = run(capsys, *g, "train", "--all", "--json")
-    assert rc == 1
+    assert rc == 2  # the failures are bad input: a broken file, a tag not in the historian
     doc = json.loads(out)
     assert [r["model"] for r in doc["results"]] == ["good"]
     errors = {f["rulebase"].split("/")[-1]: f["error"] for f in doc["failures"]}
+    assert all(f["bad_input"] for f in doc["failures"])
     assert set(errors) == {"broken.toml", "nodata.toml"}
     assert re.search(r"broken\.toml:\d+: TOML syntax error", errors["broken.toml"])
     assert "TI99" in errors["nodata.toml"]

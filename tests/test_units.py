@@ -376,7 +376,7 @@ def test_cli_unit_new_learn_show_diagnose(folder, db, tmp_path, capsys):
 def test_cli_unit_check_reports_file_line(folder, capsys):
     path = folder / "valve_unit.unit.toml"
     path.write_text(path.read_text().replace('symptoms = "crisp"', 'symptoms = "fuzy"'))
-    assert main(["--rulebases", str(folder), "unit", "check", str(path)]) == 1
+    assert main(["--rulebases", str(folder), "unit", "check", str(path)]) == 2
     err = capsys.readouterr().err
     line = next(i for i, ln in enumerate(path.read_text().splitlines(), 1) if "fuzy" in ln)
     assert f"{path}:{line}: symptoms must be one of crisp, fuzzy" in err

@@ -82,7 +82,7 @@ def test_bad_input_gets_a_clear_error(tmp_path):
     (tmp_path / "rulebases").mkdir()
     (tmp_path / "rulebases" / "bad.toml").write_text("[model]\nname = 'bad'\n")
     p = diag(tmp_path, "rules", "check", "rulebases/bad.toml", check=False)
-    assert p.returncode == 1 and "bad.toml:" in p.stdout and "missing section [output]" in p.stdout
+    assert p.returncode == 2 and "bad.toml:" in p.stdout and "missing section [output]" in p.stdout
 
 
 def test_unreachable_database_is_a_clear_error(tmp_path):
