@@ -69,6 +69,14 @@ def _schedule(rng: np.random.Generator, n: int, lo: float, hi: float, hold_s: fl
     return out
 
 
+def _seconds(days: float, start: str | pd.Timestamp) -> pd.DatetimeIndex:
+    """The 1 s grid of a run: ``days`` long from ``start`` (naive: UTC)."""
+    t0 = pd.Timestamp(start)
+    t0 = t0.tz_localize("UTC") if t0.tzinfo is None else t0.tz_convert("UTC")
+    n = int(round(days * 86400))
+    return pd.DatetimeIndex(t0 + pd.to_timedelta(np.arange(n), unit="s"), name="ts")
+
+
 def _daily(n: int, start: pd.Timestamp, amplitude: float, peak_hour: float) -> np.ndarray:
     s0 = (start - start.normalize()).total_seconds()
     t = s0 + np.arange(n)
@@ -106,8 +114,8 @@ def simulate_tank(
     days: float, *, seed: int = 0, start: str | pd.Timestamp = "2026-03-02"
 ) -> pd.DataFrame:
     """A buffer tank with a level controller on its outflow valve, on a 1 s grid."""
-    start = pd.Timestamp(start, tz="UTC") if pd.Timestamp(start).tzinfo is None else start
-    n = int(round(days * 86400))
+    index = _seconds(days, start)
+    start, n = index[0], len(index)
     rng = np.random.default_rng([seed, 101])
     fin = (
         38.0
@@ -128,7 +136,7 @@ def simulate_tank(
             "LIC101.OUT": u,
             "LIC101.SP": sp,
         },
-        index=pd.DatetimeIndex(start + pd.to_timedelta(np.arange(n), unit="s"), name="ts"),
+        index=index,
     )
     return frame
 
@@ -179,8 +187,8 @@ def simulate_heat_exchanger(
     days: float, *, seed: int = 0, start: str | pd.Timestamp = "2026-03-02"
 ) -> pd.DataFrame:
     """A process cooler whose temperature controller moves the cooling-water valve, 1 s."""
-    start = pd.Timestamp(start, tz="UTC") if pd.Timestamp(start).tzinfo is None else start
-    n = int(round(days * 86400))
+    index = _seconds(days, start)
+    start, n = index[0], len(index)
     rng = np.random.default_rng([seed, 202])
     fp = np.clip(30.0 + _ou(rng, n, 4.0, 3 * 3600.0) + _steps(rng, n, 2.0, 4.0), 12.0, 55.0)
     tp_in = np.clip(88.0 + _ou(rng, n, 3.0, 5 * 3600.0) + _ou(rng, n, 0.3, 60.0), 70.0, 110.0)
@@ -198,7 +206,7 @@ def simulate_heat_exchanger(
             "TIC202.OUT": u,
             "TIC202.SP": sp,
         },
-        index=pd.DatetimeIndex(start + pd.to_timedelta(np.arange(n), unit="s"), name="ts"),
+        index=index,
     )
 
 
