@@ -103,7 +103,8 @@ class ColdMonths:
             if m0 >= end or m1 <= start:
                 continue
             index = self._segment_index(seg)
-            parts.append(index.read(tag_id, max(start, m0), min(end, m1)))
+            cache = self.__dict__.setdefault("_row_group_cache", coldstore.RowGroupCache())
+            parts.append(index.read(tag_id, max(start, m0), min(end, m1), cache))
         return parts
 
     def _cold_bounds(self, tag_id: int, segments: list[dict]) -> tuple[int | None, int | None]:

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import functools
 import os
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -163,22 +165,28 @@ class SegmentIndex:
     tag_hi: np.ndarray
     ts_lo: np.ndarray
     ts_hi: np.ndarray
+    #: the quality of every row of the row group when they all have the same one, else -1
+    #: (most row groups hold only good samples: then the column is not decoded at all)
+    q_all: np.ndarray
 
     @classmethod
     def open(cls, path: Path) -> SegmentIndex:
         md = pq.ParquetFile(path).metadata
         names = [md.schema.column(i).name for i in range(md.num_columns)]
         it, its = names.index("tag_id"), names.index("ts")
+        iq = names.index("quality")
         n = md.num_row_groups
         tag_lo, tag_hi = np.full(n, _INT64.min), np.full(n, _INT64.max)
         ts_lo, ts_hi = np.full(n, _INT64.min), np.full(n, _INT64.max)
+        q_lo, q_hi = np.full(n, _INT64.min), np.full(n, _INT64.max)
         for g in range(n):
             rg = md.row_group(g)
-            for col, lo, hi in ((it, tag_lo, tag_hi), (its, ts_lo, ts_hi)):
+            for col, lo, hi in ((it, tag_lo, tag_hi), (its, ts_lo, ts_hi), (iq, q_lo, q_hi)):
                 st = rg.column(col).statistics
-                if st is not None and st.has_min_max:
+                if st is not None and st.has_min_max and st.null_count == 0:
                     lo[g], hi[g] = int(st.min), int(st.max)
-        return cls(Path(path), md, tag_lo, tag_hi, ts_lo, ts_hi)
+        q_all = np.where(q_lo == q_hi, q_lo, -1)
+        return cls(Path(path), md, tag_lo, tag_hi, ts_lo, ts_hi, q_all)
 
     def groups(self, tag_id: int, start: int, end: int) -> np.ndarray:
         """Row groups that may hold rows of ``tag_id`` in [start, end)."""
@@ -196,25 +204,68 @@ class SegmentIndex:
             return None
         return int(self.ts_lo[g].min()), int(self.ts_hi[g].max())
 
-    def read(self, tag_id: int, start: int, end: int):
-        """(ts, value, quality) of one tag in [start, end), decoding only its row groups."""
+    def read(self, tag_id: int, start: int, end: int, cache: RowGroupCache | None = None):
+        """(ts, value, quality) of one tag in [start, end), decoding only its row groups
+        (row groups of one tag through ``cache``: consecutive chunked reads decode each once)."""
         g = self.groups(tag_id, start, end)
         if not len(g):
             return np.empty(0, np.int64), np.empty(0, np.float64), np.empty(0, np.int64)
-        mixed = bool(np.any(self.tag_lo[g] != self.tag_hi[g]))
+        if cache is not None and np.all(self.tag_lo[g] == self.tag_hi[g]):
+            parts = [cache.get(self, int(i)) for i in g]
+            ts, value, quality = (
+                col[0] if len(parts) == 1 else np.concatenate(col)
+                for col in zip(*parts, strict=True)
+            )
+        else:
+            ts, value, quality = self._decode([int(i) for i in g], tag_id)
+        a, b = np.searchsorted(ts, [start, end])  # one tag's rows are sorted by time
+        return ts[a:b], value[a:b], quality[a:b]
+
+    def _decode(self, groups: list[int], tag_id: int | None = None):
+        """Rows of row groups as (ts int64, value float64, quality int64); only ``tag_id``'s
+        when given and a group mixes tags (files of the earlier layout)."""
+        mixed = tag_id is not None and bool(np.any(self.tag_lo[groups] != self.tag_hi[groups]))
+        q_all = self.q_all[groups]
+        one_q = len(groups) == 1 and q_all[0] >= 0  # one quality throughout: not decoded
+        columns = (["tag_id"] if mixed else []) + (_DATA[:2] if one_q else _DATA)
         pf = pq.ParquetFile(self.path, metadata=self.metadata)
-        table = pf.read_row_groups(
-            [int(i) for i in g], columns=(["tag_id"] if mixed else []) + _DATA, use_threads=False
-        )
-        ts = table.column("ts").to_numpy()
-        value = table.column("value").to_numpy()
-        quality = table.column("quality").to_numpy()
+        table = pf.read_row_groups(groups, columns=columns, use_threads=False)
+        ts = table.column("ts").to_numpy().astype(np.int64, copy=False)
+        value = table.column("value").to_numpy().astype(np.float64, copy=False)
+        if one_q:
+            quality = np.full(len(ts), q_all[0], np.int64)
+        else:
+            quality = table.column("quality").to_numpy().astype(np.int64)
         if mixed:
             mine = table.column("tag_id").to_numpy() == tag_id
             ts, value, quality = ts[mine], value[mine], quality[mine]
-        a, b = np.searchsorted(ts, [start, end])  # one tag's rows are sorted by time
-        return (
-            ts[a:b].astype(np.int64, copy=False),
-            value[a:b].astype(np.float64, copy=False),
-            quality[a:b].astype(np.int64),
-        )
+        return ts, value, quality
+
+
+class RowGroupCache:
+    """The last decoded row groups (least recently used out first, at most ``max_rows``
+    rows): a training job reads a month in 7-day chunks, and each chunk would otherwise
+    decode again the row group it shares with the one before. Thread-safe."""
+
+    def __init__(self, max_rows: int = 1 << 21):
+        self.max_rows = max_rows
+        self._rows = 0
+        self._items: OrderedDict[tuple[Path, int], tuple[np.ndarray, ...]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, index: SegmentIndex, group: int) -> tuple[np.ndarray, ...]:
+        key = (index.path, group)
+        with self._lock:
+            hit = self._items.get(key)
+            if hit is not None:
+                self._items.move_to_end(key)
+                return hit
+        arrays = index._decode([group])
+        with self._lock:
+            if key not in self._items:
+                self._items[key] = arrays
+                self._rows += len(arrays[0])
+            while self._rows > self.max_rows and len(self._items) > 1:
+                _, old = self._items.popitem(last=False)
+                self._rows -= len(old[0])
+        return arrays

@@ -68,6 +68,7 @@ class Historian(ColdMonths, Registry, TagReport):
             Path(cold_dir) if cold_dir else self._recorded_cold_dir() or self._default_cold_dir
         )
         self._tags: dict[str, tuple[int, float | None, float | None]] = {}
+        self._pool: ThreadPoolExecutor | None = None
 
     # -- life cycle ----------------------------------------------------------------------
     @classmethod
@@ -86,7 +87,17 @@ class Historian(ColdMonths, Registry, TagReport):
         """'sqlite' or 'postgresql'."""
         return self._bulk.name
 
+    def _readers(self) -> ThreadPoolExecutor:
+        """The threads of parallel per-tag reads, started once (starting them for every
+        window of a chunked read cost more than some reads)."""
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(READ_THREADS, thread_name_prefix="historian-read")
+        return self._pool
+
     def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
         self._bulk.close()
         self.engine.dispose()
 
@@ -327,10 +338,9 @@ class Historian(ColdMonths, Registry, TagReport):
                 ts, v, q, s, e, p, lo=lo, hi=hi, gap=gap_us, flat=flat_us, aligned=col
             )
 
-        # one thread per tag: the database read and numpy release the GIL
+        # a thread per tag: the database read, Parquet decoding and numpy release the GIL
         if len(tags) > 1:
-            with ThreadPoolExecutor(min(len(tags), READ_THREADS)) as ex:
-                results = list(ex.map(one, range(len(tags))))
+            results = list(self._readers().map(one, range(len(tags))))
         else:
             results = [one(0)] if tags else []
         if segments != self._segments(s, e):  # a roll committed meanwhile: read again
