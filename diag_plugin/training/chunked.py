@@ -32,8 +32,11 @@ from diag_plugin.rulebase.document import RuleBase
 
 #: samples before the range read to start the state of unbounded-memory inputs (dir())
 WARMUP_ROWS = 360
-#: time span read and trained at once
-DEFAULT_CHUNK = pd.Timedelta(days=7)
+#: model periods read and trained at once (30 days of 10 s data, 3 days of 1 s data): few
+#: enough reads that their fixed costs vanish, memory still flat in the length of the range
+CHUNK_ROWS = 1 << 18
+#: time span read and trained at once; None: :data:`CHUNK_ROWS` periods of the model
+DEFAULT_CHUNK: pd.Timedelta | None = None
 Reader = Callable[[pd.Timestamp, pd.Timestamp], pd.DataFrame]
 Interval = tuple[pd.Timestamp, pd.Timestamp]
 
@@ -131,7 +134,7 @@ def train(
     end: pd.Timestamp,
     *,
     holdout: float = 0.2,
-    chunk: pd.Timedelta = DEFAULT_CHUNK,
+    chunk: pd.Timedelta | None = DEFAULT_CHUNK,
     spans: Mapping[str, tuple[float, float]] | None = None,
     progress: Callable[[int, int], None] | None = None,
     fit_chunks: ChunkFitter | None = None,
@@ -145,6 +148,8 @@ def train(
     if end <= start:
         raise ValueError(f"empty training range: {start} … {end}")
     cut = split_time(start, end, holdout)
+    if chunk is None:
+        chunk = CHUNK_ROWS * pd.Timedelta(rb.period)
     train_iv = list(time_chunks(start, cut, chunk))
     val_iv = list(time_chunks(cut, end, chunk))
     total = len(train_iv) + len(val_iv)

@@ -16,7 +16,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--from", dest="start", help="start of the training range (default: all)")
     p.add_argument("--to", dest="end", help="end of the training range")
     p.add_argument("--holdout", type=float, default=0.2, help="held-out share (last part)")
-    p.add_argument("--chunk", default="7D", help="time span read at once (default 7D)")
+    p.add_argument(
+        "--chunk",
+        help="time span read at once (default: 262,144 periods of the model, 30 days at 10 s)",
+    )
     p.add_argument("--engine", choices=["local", "dask"], default="local")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
