@@ -169,8 +169,13 @@ class SegmentIndex:
     #: (most row groups hold only good samples: then the column is not decoded at all)
     q_all: np.ndarray
 
+    #: (size, mtime) of the file when its footer was read: a file replaced in place is
+    #: another file for :class:`RowGroupCache`
+    stamp: tuple[int, int] = (0, 0)
+
     @classmethod
     def open(cls, path: Path) -> SegmentIndex:
+        fstat = os.stat(path)
         md = pq.ParquetFile(path).metadata
         names = [md.schema.column(i).name for i in range(md.num_columns)]
         it, its = names.index("tag_id"), names.index("ts")
@@ -186,7 +191,9 @@ class SegmentIndex:
                 if st is not None and st.has_min_max and st.null_count == 0:
                     lo[g], hi[g] = int(st.min), int(st.max)
         q_all = np.where(q_lo == q_hi, q_lo, -1)
-        return cls(Path(path), md, tag_lo, tag_hi, ts_lo, ts_hi, q_all)
+        return cls(
+            Path(path), md, tag_lo, tag_hi, ts_lo, ts_hi, q_all, (fstat.st_size, fstat.st_mtime_ns)
+        )
 
     def groups(self, tag_id: int, start: int, end: int) -> np.ndarray:
         """Row groups that may hold rows of ``tag_id`` in [start, end)."""
@@ -250,11 +257,11 @@ class RowGroupCache:
     def __init__(self, max_rows: int = 1 << 21):
         self.max_rows = max_rows
         self._rows = 0
-        self._items: OrderedDict[tuple[Path, int], tuple[np.ndarray, ...]] = OrderedDict()
+        self._items: OrderedDict[tuple, tuple[np.ndarray, ...]] = OrderedDict()
         self._lock = threading.Lock()
 
     def get(self, index: SegmentIndex, group: int) -> tuple[np.ndarray, ...]:
-        key = (index.path, group)
+        key = (index.path, index.stamp, group)
         with self._lock:
             hit = self._items.get(key)
             if hit is not None:
