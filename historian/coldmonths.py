@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import delete, insert, select
+from sqlalchemy import delete, func, insert, select
 
 from . import coldstore, schema
 from .times import now_us, to_us
@@ -163,8 +163,12 @@ class ColdMonths:
             else to_us(pd.Timestamp.now(tz="UTC").normalize().replace(day=1))
         )
         s = schema.samples
-        with self.engine.connect() as c:
-            lo = c.execute(select(s.c.ts).order_by(s.c.ts).limit(1)).scalar()
+        with self.engine.connect() as c:  # per tag: an index seek each (a scan without)
+            lows = [
+                c.execute(select(func.min(s.c.ts)).where(s.c.tag_id == int(i))).scalar()
+                for i in self.tags()["id"]
+            ]
+        lo = min((x for x in lows if x is not None), default=None)
         if lo is None:
             return []
         months = []
