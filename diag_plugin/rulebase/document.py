@@ -467,10 +467,10 @@ def _var_table(v: Variable) -> tomlkit.items.Table:
 #: numbers), optionally with a trailing comment
 _RULE_LINE = re.compile(
     r'\s*\{ if = \[((?:"[^"\\\x00-\x1f]*", )*"[^"\\\x00-\x1f]*")\], then = ([-+.\w]+), '
-    r"n = (0|[1-9]\d*), sd = ([-+.\w]+), lock = (true|false) \},\s*(?:#.*)?"
+    r"n = (0|[1-9][0-9]*), sd = ([-+.\w]+), lock = (true|false) \},\s*(?:#.*)?"
 )
 _LABEL = re.compile(r'"([^"]*)"')
-_FLOAT = re.compile(r"-?(?:0|[1-9]\d*)(?:\.\d+)?(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf)")
+_FLOAT = re.compile(r"-?(?:0|[1-9][0-9]*)(?:\.[0-9]+)?(?:[eE][+-]?[0-9]+)?|[+-]?(?:nan|inf)")
 
 
 def _plain_rule_list(lines: list[str]) -> list[dict] | None:
@@ -504,7 +504,7 @@ def _plain_rule_list(lines: list[str]) -> list[dict] | None:
 
 def _toml_number(text: str) -> int | float:
     """An integer or float literal as TOML reads it (``nan``/``inf`` included)."""
-    return int(text) if re.fullmatch(r"-?\d+", text) else float(text)
+    return int(text) if text.lstrip("-").isdigit() else float(text)
 
 
 _STRINGS = re.compile(r"\"(?:[^\"\\]|\\.)*\"|'[^']*'")
