@@ -196,9 +196,10 @@ def train(
         d = builder.transform(read(a, b))
         tally.add_design(d)
         if len(d.y):
+            y_hat = predictor.predict(d.X)
             val_stats.update(
-                residual_pct(d.y, predictor.predict(d.X), span),
-                residual_pct(d.y, predictor.extrapolate(d.X), span),
+                residual_pct(d.y, y_hat, span),
+                residual_pct(d.y, _stand_in(predictor, d.X, y_hat), span),
             )
             if whole:
                 rows.append((d.X, d.y))
@@ -222,6 +223,20 @@ def train(
         train_range=(start, cut),
         validation_range=(cut, end),
     )
+
+
+def _stand_in(predictor, X, y_hat):
+    """The prediction with the model's stand-in (``extrapolate``) where it has none, asking
+    the model only about those rows (rows are scored one by one; ``extrapolate`` of all of
+    them would infer the whole block a second time)."""
+    import numpy as np
+
+    miss = ~np.isfinite(y_hat)
+    if not miss.any():
+        return y_hat
+    out = y_hat.copy()
+    out[miss] = predictor.extrapolate(X[miss])
+    return out
 
 
 def _stack(rows: list[tuple]) -> tuple:
