@@ -163,19 +163,22 @@ class ColdMonths:
             else to_us(pd.Timestamp.now(tz="UTC").normalize().replace(day=1))
         )
         s = schema.samples
-        with self.engine.connect() as c:  # per tag: an index seek each (a scan without)
-            lows = [
-                c.execute(select(func.min(s.c.ts)).where(s.c.tag_id == int(i))).scalar()
-                for i in self.tags()["id"]
-            ]
-        lo = min((x for x in lows if x is not None), default=None)
-        if lo is None:
-            return []
+        ids = [int(i) for i in self.tags()["id"]]
         months = []
-        for month in coldstore.months_between(lo, limit):
-            if coldstore.month_bounds(month)[1] > limit:
-                break
-            months.append(month)
+        with self.engine.connect() as c:  # index seeks per tag (a scan without the tag)
+            lows = [
+                c.execute(select(func.min(s.c.ts)).where(s.c.tag_id == i)).scalar() for i in ids
+            ]
+            lo = min((x for x in lows if x is not None), default=None)
+            if lo is None:
+                return []
+            for month in coldstore.months_between(lo, limit):
+                m0, m1 = coldstore.month_bounds(month)
+                if m1 > limit:
+                    break
+                held = select(s.c.ts).where(s.c.tag_id.in_(ids), s.c.ts >= m0, s.c.ts < m1)
+                if c.execute(held.limit(1)).first() is not None:  # rolled months hold none
+                    months.append(month)
         return months
 
     def roll_months(self, before=None, *, progress: Progress | None = None) -> list[str]:
