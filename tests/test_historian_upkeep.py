@@ -248,3 +248,23 @@ def test_a_write_during_a_roll_is_not_lost(historian, tmp_path):
     assert got.tolist() == [frame()["B"].iloc[20160], 99.0, frame()["B"].iloc[20161]]
     assert len(list(historian.cold_dir.glob("*.parquet*"))) == 1  # the undone try's file went
     assert historian.integrity_check() == []
+
+
+def test_training_reads_of_rolled_months_equal_the_full_window(historian):
+    """What a training job reads (WindowReader: no summary, the rolled months through the
+    row-group cache, chunk after chunk) equals one full window with its summary."""
+    from historian.access import WindowReader
+
+    historian.write_samples(frame())
+    historian.roll_months(before="2024-03-01")  # March stays in the database
+    whole = historian.window(["A", "B"], IDX[0], IDX[-1] + pd.Timedelta("1min"), "1min")
+    assert set(whole.attrs["quality"]) == {"A", "B"}
+    reader = WindowReader(historian.url, ("A", "B"), "1min")
+    reader._h = Historian(historian.url, cold_dir=historian.cold_dir)
+    edges = pd.date_range(IDX[0], IDX[-1] + pd.Timedelta("1min"), periods=8)
+    try:
+        parts = [reader(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    finally:
+        reader.close()
+    assert all(not p.attrs for p in parts)
+    pd.testing.assert_frame_equal(pd.concat(parts), whole, check_freq=False)
