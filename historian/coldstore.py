@@ -218,7 +218,20 @@ class SegmentIndex:
         if not len(g):
             return np.empty(0, np.int64), np.empty(0, np.float64), np.empty(0, np.int64)
         if cache is not None and np.all(self.tag_lo[g] == self.tag_hi[g]):
-            parts = [cache.get(self, int(i)) for i in g]
+            # row groups inside [start, end) are decoded together (no later read wants
+            # them); those at its edges, which the next chunk shares, through the cache
+            inside = (self.ts_lo[g] >= start) & (self.ts_hi[g] < end)
+            parts, run = [], []
+            for i, whole in zip(g, inside, strict=True):
+                if whole:
+                    run.append(int(i))
+                    continue
+                if run:
+                    parts.append(self._decode(run))
+                    run = []
+                parts.append(cache.get(self, int(i)))
+            if run:
+                parts.append(self._decode(run))
             ts, value, quality = (
                 col[0] if len(parts) == 1 else np.concatenate(col)
                 for col in zip(*parts, strict=True)
@@ -233,7 +246,7 @@ class SegmentIndex:
         when given and a group mixes tags (files of the earlier layout)."""
         mixed = tag_id is not None and bool(np.any(self.tag_lo[groups] != self.tag_hi[groups]))
         q_all = self.q_all[groups]
-        one_q = len(groups) == 1 and q_all[0] >= 0  # one quality throughout: not decoded
+        one_q = q_all[0] >= 0 and bool(np.all(q_all == q_all[0]))  # one quality: not decoded
         columns = (["tag_id"] if mixed else []) + (_DATA[:2] if one_q else _DATA)
         pf = pq.ParquetFile(self.path, metadata=self.metadata)
         table = pf.read_row_groups(groups, columns=columns, use_threads=False)
