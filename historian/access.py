@@ -84,7 +84,7 @@ class WindowReader:
     def __call__(self, a: pd.Timestamp, b: pd.Timestamp) -> pd.DataFrame:
         if self._h is None:  # one connection per process, opened on first use
             self._h = Historian.open(self.url)
-        return self._h.window(list(self.tags), a, b, self.period)
+        return self._h.window(list(self.tags), a, b, self.period, summary=False)
 
     def close(self) -> None:
         if self._h is not None:

@@ -135,6 +135,35 @@ class SqliteBulk:
         quality = tb.column("quality").to_numpy().astype(np.int64, copy=False)
         return ts, value, quality
 
+    def size_bytes(self) -> int:
+        """Bytes the database takes on disk: the file and its write-ahead log."""
+        wal = self.path.with_name(self.path.name + "-wal")
+        return sum(p.stat().st_size for p in (self.path, wal) if p.exists())
+
+    def free_bytes(self) -> int:
+        """Bytes of free pages in the file (reused by later writes; ``vacuum`` returns them)."""
+        cur = self.conn.cursor()
+        try:
+            cur.execute("PRAGMA page_size")
+            page = int(cur.fetchone()[0])
+            cur.execute("PRAGMA freelist_count")
+            return page * int(cur.fetchone()[0])
+        finally:
+            cur.close()
+
+    def vacuum(self, full: bool = False) -> None:
+        """``VACUUM`` (rebuilds the file without its free pages; needs as much free disk as
+        the database takes), then a truncating checkpoint so the file shrinks now. ``full``
+        changes nothing on SQLite."""
+        cur = self.conn.cursor()
+        try:
+            cur.execute("VACUUM")
+            cur.fetchall()
+            cur.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+            cur.fetchall()
+        finally:
+            cur.close()
+
     def integrity_check(self) -> list[str]:
         """``PRAGMA integrity_check``; a file too damaged for it to run is reported too."""
         import adbc_driver_sqlite.dbapi as adbc
@@ -255,6 +284,25 @@ class PostgresBulk:
             rows["value"].astype(np.float64),
             rows["quality"].astype(np.int64),
         )
+
+    def size_bytes(self) -> int:
+        """Bytes the database takes (``pg_database_size``)."""
+        with self.engine.connect() as c:
+            return int(c.exec_driver_sql("SELECT pg_database_size(current_database())").scalar())
+
+    def free_bytes(self) -> None:
+        """Not known without an extension (pgstattuple): dead rows are reclaimed by
+        ``vacuum`` for reuse, ``vacuum(full=True)`` gives them back to the disk."""
+        return None
+
+    def vacuum(self, full: bool = False, tables: tuple[str, ...] = ()) -> None:
+        """``VACUUM (ANALYZE)`` of the given tables (all of the database when empty): dead rows
+        become reusable space and the planner's statistics are renewed; ``full`` rewrites the
+        tables compactly and gives the space back to the disk (``VACUUM (FULL, ANALYZE)``,
+        holding an exclusive lock on each table while it runs)."""
+        opts = "FULL, ANALYZE" if full else "ANALYZE"
+        with self.engine.connect().execution_options(isolation_level="AUTOCOMMIT") as c:
+            c.exec_driver_sql(f"VACUUM ({opts}) {', '.join(tables)}".rstrip())
 
     def integrity_check(self) -> list[str]:
         """A sane check for PostgreSQL: no duplicate keys and the primary-key index is valid."""

@@ -79,12 +79,68 @@ def add_commands(subparsers) -> None:
     t.add_argument("--end", help="summarise up to this time (default: each tag's last)")
     t.set_defaults(func=cmd_tags)
 
+    h = subparsers.add_parser(
+        "historian",
+        help="roll closed months to the Parquet cold store, check the store, reclaim space",
+        description="Upkeep of the historian: 'roll' moves closed months to Parquet files "
+        "(reads stay the same), 'check' checks the database and the files, 'vacuum' gives "
+        "the room of rolled months back to the disk.",
+    )
+    hs = h.add_subparsers(dest="historian_command", metavar="ACTION", required=True)
+    r = hs.add_parser(
+        "roll",
+        help="move closed months from the database to the Parquet cold store",
+        description="Move every closed month (before --before, default the current UTC "
+        "month) to one Parquet file per month in the cold folder. Reads and training see the "
+        "same data after. The database file keeps the room as free pages until "
+        "'diag historian vacuum' (or --vacuum).",
+    )
+    r.add_argument(
+        "--before",
+        metavar="MONTH",
+        help="roll the months before this one, YYYY-MM (default: the current UTC month)",
+    )
+    r.add_argument(
+        "--cold-dir",
+        metavar="DIR",
+        help="folder of the Parquet files (SQLite default: <db file>.cold; PostgreSQL needs "
+        "it the first time; the database remembers it)",
+    )
+    r.add_argument("--vacuum", action="store_true", help="vacuum after rolling")
+    r.add_argument("--json", action="store_true", help="print the result as JSON")
+    r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    r.set_defaults(func=cmd_roll)
+    c = hs.add_parser(
+        "check",
+        help="check the database and every rolled month's file (exit 1 on a problem)",
+        description="SQLite: PRAGMA integrity_check; PostgreSQL: duplicate and NULL keys, "
+        "the primary-key index. Each rolled month: its file readable, holding the rows "
+        "recorded for it and no time outside the month. Files no month lists (left by an "
+        "interrupted roll) are named. Exit status 1 when a problem is found.",
+    )
+    c.add_argument("--json", action="store_true", help="print the result as JSON")
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
+    c.set_defaults(func=cmd_check)
+    v = hs.add_parser(
+        "vacuum",
+        help="give the room of deleted (rolled) rows back: SQLite VACUUM, PostgreSQL "
+        "VACUUM ANALYZE",
+        description="SQLite: VACUUM rebuilds the file without its free pages (it needs as "
+        "much free disk as the database while it runs, and blocks writers). PostgreSQL: "
+        "VACUUM (ANALYZE) of the historian's tables makes the room reusable and renews the "
+        "planner's statistics; --full rewrites the tables and gives the room back to the "
+        "disk, locking each table while it runs.",
+    )
+    v.add_argument("--full", action="store_true", help="PostgreSQL: VACUUM (FULL, ANALYZE)")
+    v.add_argument("--json", action="store_true", help="print the result as JSON")
+    v.set_defaults(func=cmd_vacuum)
 
-def _open(args):
+
+def _open(args, **kw):
     from .store import Historian
 
     try:
-        return Historian.open(args.db)
+        return Historian.open(args.db, **kw)
     except ValueError as exc:
         raise UserError(str(exc)) from None
 
@@ -249,3 +305,176 @@ def _fmt(x):
 
 def _when(t):
     return "" if to_jsonable(t) is None else t.strftime("%Y-%m-%d %H:%M:%S")
+
+
+# -- diag historian roll | check | vacuum ------------------------------------------------------
+
+
+def _mb(n) -> str:
+    return "?" if n is None else f"{n / 1e6:,.1f} MB"
+
+
+def _bar(args, what: str):
+    """A rich progress bar on stderr when it is a terminal (and not --no-progress)."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    err = Console(stderr=True)
+    off = getattr(args, "no_progress", False) or args.json or not err.is_terminal
+    return Progress(TextColumn(what), BarColumn(), MofNCompleteColumn(), console=err, disable=off)
+
+
+def _month_limit(text: str | None):
+    """--before MONTH as the start of that month (UTC); refused when not YYYY-MM or after
+    the current month (only closed months are rolled)."""
+    import re
+
+    import pandas as pd
+
+    now = pd.Timestamp.now(tz="UTC").normalize().replace(day=1)
+    if text is None:
+        return now
+    if not re.fullmatch(r"\d{4}-\d{2}", text.strip()):
+        raise UserError(f"--before {text!r}: not a month like 2024-03")
+    try:
+        limit = pd.Timestamp(f"{text.strip()}-01", tz="UTC")
+    except ValueError:
+        raise UserError(f"--before {text!r}: not a month like 2024-03") from None
+    if limit > now:
+        raise UserError(
+            f"--before {text}: after the current month {now:%Y-%m}; only closed months are "
+            "rolled (the default rolls all of them)"
+        )
+    return limit
+
+
+def cmd_roll(args) -> int:
+    import time
+
+    limit = _month_limit(args.before)
+    kw = {"cold_dir": args.cold_dir} if args.cold_dir else {}
+    started = time.perf_counter()
+    with _open(args, **kw) as h:
+        if h.cold_dir is None:
+            raise UserError(
+                "a PostgreSQL historian keeps rolled months in Parquet files: give their folder "
+                "with --cold-dir DIR the first time (the database remembers it)"
+            )
+        with _bar(args, "rolling months") as bar:
+            task = bar.add_task("roll", total=None)
+            try:
+                rolled = h.roll_months(
+                    limit,
+                    progress=lambda done, total: bar.update(task, completed=done, total=total),
+                )
+            except ValueError as exc:  # the database keeps its months in another folder
+                raise UserError(str(exc)) from None
+        seconds = time.perf_counter() - started
+        store = h.storage()
+        vacuum = None
+        if args.vacuum and rolled:
+            vacuum = _vacuum(h, args, full=False)
+    doc = {
+        "rolled": rolled,
+        "before": f"{limit:%Y-%m}",
+        "seconds": round(seconds, 3),
+        **store,
+        "vacuum": vacuum,
+    }
+    if args.json:
+        print(json.dumps(doc, indent=2))
+        return 0
+    if not rolled:
+        done = store["cold_months"]
+        tail = f" (rolled already: {done[0]} .. {done[-1]})" if done else ""
+        print(f"no month before {limit:%Y-%m} left in the database to roll{tail}")
+        return 0
+    span = rolled[0] if len(rolled) == 1 else f"{rolled[0]} .. {rolled[-1]}"
+    print(
+        f"rolled {len(rolled)} month(s) ({span}) to {store['cold_dir']} in {seconds:.1f} s; "
+        f"cold store: {len(store['cold_months'])} months, {store['cold_rows']:,} rows, "
+        f"{_mb(store['cold_bytes'])}"
+    )
+    if vacuum is not None:
+        _print_vacuum(vacuum)
+    elif store["free_bytes"]:
+        print(
+            f"the database file ({_mb(store['db_bytes'])}) holds {_mb(store['free_bytes'])} of "
+            "free pages: 'diag historian vacuum' gives them back to the disk"
+        )
+    elif store["backend"] == "postgresql":
+        print("'diag historian vacuum' makes the room of the moved rows reusable")
+    return 0
+
+
+def cmd_check(args) -> int:
+    with _open(args) as h:
+        with _bar(args, "checking rolled months") as bar:
+            task = bar.add_task("check", total=None)
+            problems = h.integrity_check(
+                progress=lambda done, total: bar.update(task, completed=done, total=total)
+            )
+        store = h.storage()
+        orphans = [str(p) for p in h.cold_orphans()]
+    doc = {"ok": not problems, "problems": problems, "orphan_files": orphans, **store}
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        for p in problems:
+            print(f"{args.db}: {p}")
+        for p in orphans:
+            print(
+                f"{p}: listed by no rolled month (left by an interrupted roll; its rows are "
+                "still in the database, so it can be deleted)"
+            )
+        months = store["cold_months"]
+        print(
+            f"{'problems found' if problems else 'sound'}: {store['backend']} database "
+            f"({_mb(store['db_bytes'])})"
+            + (
+                f", {len(months)} rolled months ({store['cold_rows']:,} rows, "
+                f"{_mb(store['cold_bytes'])} in {store['cold_dir']})"
+                if months
+                else ", no rolled months"
+            )
+        )
+    return 1 if problems else 0
+
+
+def _vacuum(h, args, *, full: bool) -> dict:
+    import time
+
+    from rich.console import Console
+
+    err = Console(stderr=True)
+    what = (
+        "VACUUM"
+        if h.backend == "sqlite"
+        else ("VACUUM (FULL, ANALYZE)" if full else "VACUUM (ANALYZE)")
+    )
+    started = time.perf_counter()
+    if err.is_terminal and not args.json:
+        with err.status(f"{what} of {h.backend} database ..."):
+            out = h.vacuum(full=full)
+    else:
+        out = h.vacuum(full=full)
+    return {**out, "statement": what, "seconds": round(time.perf_counter() - started, 3)}
+
+
+def _print_vacuum(v: dict) -> None:
+    freed = v["before_bytes"] - v["after_bytes"]
+    print(
+        f"{v['statement']}: {_mb(v['before_bytes'])} -> {_mb(v['after_bytes'])}"
+        + (f" ({_mb(freed)} given back to the disk)" if freed > 0 else "")
+        + f" in {v['seconds']:.1f} s"
+    )
+
+
+def cmd_vacuum(args) -> int:
+    with _open(args) as h:
+        v = _vacuum(h, args, full=args.full)
+    if args.json:
+        print(json.dumps(v, indent=2))
+    else:
+        _print_vacuum(v)
+    return 0

@@ -1,30 +1,71 @@
 """Months rolled to the Parquet cold store, on the database side: rolling a closed month
 into its file (:mod:`historian.coldstore` writes and reads the files), the list of rolled
-months, the key check that keeps writes into them idempotent, and the check of the files.
-Mixed into :class:`historian.store.Historian`."""
+months and where their folder is, the key check that keeps writes into them idempotent, and
+the check of the files. Mixed into :class:`historian.store.Historian`."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import delete, insert, select
+from sqlalchemy import delete, func, insert, select
 
 from . import coldstore, schema
 from .times import now_us, to_us
 
+#: times a month is re-read when rows arrived in it while it was being rolled
+ROLL_ATTEMPTS = 3
+#: key of the cold folder in the ``settings`` table
+COLD_DIR_KEY = "cold_dir"
+
+Progress = Callable[[int, int], None]
+
+
+class MonthChanged(RuntimeError):
+    """Rows of a month were written while it was being rolled (nothing was changed)."""
+
 
 class ColdMonths:
-    """Needs ``self.engine``, ``self._bulk`` (hot reads), ``self.cold_dir`` and
-    ``self.tags()``."""
+    """Needs ``self.engine``, ``self._bulk`` (hot reads), ``self.cold_dir``,
+    ``self._default_cold_dir`` and ``self.tags()``."""
 
     def _cold_path(self, name: str) -> Path:
         if self.cold_dir is None:
-            raise RuntimeError("this database has rolled months: open it with cold_dir=...")
+            raise RuntimeError(
+                "this database has rolled months but no cold folder is known: "
+                "open it with cold_dir=..."
+            )
         return self.cold_dir / name
 
+    # -- where the cold folder is ------------------------------------------------------------
+    def _recorded_cold_dir(self) -> Path | None:
+        t = schema.settings
+        with self.engine.connect() as c:
+            v = c.execute(select(t.c.value).where(t.c.key == COLD_DIR_KEY)).scalar()
+        return Path(v) if v else None
+
+    def _record_cold_dir(self) -> None:
+        """Remember the cold folder in the database (unless it is SQLite's default beside the
+        file), so a later ``Historian(url)`` and every ``diag`` command find the months."""
+        here = self.cold_dir.resolve()
+        recorded = self._recorded_cold_dir()
+        if recorded is not None and recorded.resolve() == here:
+            return
+        if recorded is not None and self._segments(None, None):
+            raise ValueError(
+                f"this database keeps its rolled months in {recorded}, not {self.cold_dir}: "
+                "open it without cold_dir (or with that folder)"
+            )
+        t = schema.settings
+        with self.engine.begin() as c:
+            c.execute(delete(t).where(t.c.key == COLD_DIR_KEY))
+            if self._default_cold_dir is None or self._default_cold_dir.resolve() != here:
+                c.execute(insert(t).values(key=COLD_DIR_KEY, value=str(here)))
+
+    # -- the list of rolled months and their files -------------------------------------------
     def _segments(self, start: int | None, end: int | None) -> list[dict]:
         t = schema.cold_segments
         with self.engine.connect() as c:
@@ -38,16 +79,49 @@ class ColdMonths:
                 out.append(dict(r))
         return out
 
-    def _read_cold(self, tag_id: int, start: int, end: int) -> list[tuple[np.ndarray, ...]]:
-        """(ts, value, quality) of one tag in [start, end) from each rolled month it meets."""
+    def _segment_index(self, seg: dict) -> coldstore.SegmentIndex:
+        """The row-group index of a segment's file, read once per file (files are never
+        rewritten in place: a re-roll writes a new name; size and mtime guard the rest)."""
+        path = self._cold_path(seg["path"])
+        st = os.stat(path)
+        key = (seg["path"], st.st_size, st.st_mtime_ns)
+        cache = self.__dict__.setdefault("_cold_index_cache", {})
+        index = cache.get(key)
+        if index is None:
+            index = coldstore.SegmentIndex.open(path)
+            cache[key] = index
+        return index
+
+    def _read_cold(
+        self, tag_id: int, start: int, end: int, segments: list[dict] | None = None
+    ) -> list[tuple[np.ndarray, ...]]:
+        """(ts, value, quality) of one tag in [start, end) from each rolled month it meets
+        (``segments``: the list of rolled months when the caller has it already)."""
         parts = []
-        for seg in self._segments(start, end):
+        for seg in self._segments(None, None) if segments is None else segments:
             m0, m1 = coldstore.month_bounds(seg["month"])
-            _, ts, v, q = coldstore.read_segment(
-                self._cold_path(seg["path"]), tag_id, max(start, m0), min(end, m1)
-            )
-            parts.append((ts, v, q))
+            if m0 >= end or m1 <= start:
+                continue
+            index = self._segment_index(seg)
+            cache = self.__dict__.setdefault("_row_group_cache", coldstore.RowGroupCache())
+            parts.append(index.read(tag_id, max(start, m0), min(end, m1), cache))
         return parts
+
+    def _cold_bounds(self, tag_id: int, segments: list[dict]) -> tuple[int | None, int | None]:
+        """First and last time of a tag in the cold files: from the row-group statistics,
+        reading the tag's times only where they cannot say."""
+        first = last = None
+        for seg in segments:
+            b = self._segment_index(seg).bounds(tag_id)
+            if b is None:
+                m0, m1 = coldstore.month_bounds(seg["month"])
+                ts = self._segment_index(seg).read(tag_id, m0, m1)[0]
+                b = (int(ts[0]), int(ts[-1])) if len(ts) else (0, -1)
+            if b[1] < b[0]:
+                continue
+            first = b[0] if first is None else min(first, b[0])
+            last = b[1] if last is None else max(last, b[1])
+        return first, last
 
     def _not_in_cold(self, rolled, tag_id, ts, value, q, policy: str) -> np.ndarray:
         """Mask of the batch rows the database still needs: rows in a rolled month whose
@@ -59,17 +133,14 @@ class ColdMonths:
             rows = np.flatnonzero((ts >= m0) & (ts < m1))
             if not len(rows):
                 continue
-            tids = np.unique(tag_id[rows])
-            c_tid, c_ts, c_v, c_q = coldstore.read_segment(
-                self._cold_path(seg["path"]), tids, int(ts[rows].min()), int(ts[rows].max()) + 1
-            )
-            starts = np.searchsorted(c_tid, tids, "left")
-            ends = np.searchsorted(c_tid, tids, "right")
-            for tid, a, b in zip(tids, starts, ends, strict=True):
-                if a == b:
+            index = self._segment_index(seg)
+            lo, hi = int(ts[rows].min()), int(ts[rows].max()) + 1
+            for tid in np.unique(tag_id[rows]):
+                c_ts, c_v, c_q = index.read(int(tid), lo, hi)
+                if not len(c_ts):
                     continue
                 mine = rows[tag_id[rows] == tid]
-                pos = np.minimum(np.searchsorted(c_ts[a:b], ts[mine]), b - a - 1) + a
+                pos = np.minimum(np.searchsorted(c_ts, ts[mine]), len(c_ts) - 1)
                 stored = c_ts[pos] == ts[mine]
                 if policy == "update":
                     same_value = (c_v[pos] == value[mine]) | (
@@ -82,73 +153,122 @@ class ColdMonths:
     def cold_months(self) -> list[str]:
         return [r["month"] for r in self._segments(None, None)]
 
-    def roll_months(self, before=None) -> list[str]:
-        """Move every closed month (ending at or before ``before``, default: the start of the
-        current UTC month) from the database to the Parquet cold store. Returns the months
-        rolled. Reads see the same data before and after."""
-        if self.cold_dir is None:
-            raise RuntimeError("roll_months needs cold_dir=... for this database")
+    # -- rolling -----------------------------------------------------------------------------
+    def months_to_roll(self, before=None) -> list[str]:
+        """The closed months (ending at or before ``before``, default: the start of the
+        current UTC month) that still hold rows in the database."""
         limit = (
             to_us(before)
             if before is not None
             else to_us(pd.Timestamp.now(tz="UTC").normalize().replace(day=1))
         )
         s = schema.samples
-        with self.engine.connect() as c:
-            lo = c.execute(select(s.c.ts).order_by(s.c.ts).limit(1)).scalar()
-        if lo is None:
+        ids = [int(i) for i in self.tags()["id"]]
+        months = []
+        with self.engine.connect() as c:  # index seeks per tag (a scan without the tag)
+            lows = [
+                c.execute(select(func.min(s.c.ts)).where(s.c.tag_id == i)).scalar() for i in ids
+            ]
+            lo = min((x for x in lows if x is not None), default=None)
+            if lo is None:
+                return []
+            for month in coldstore.months_between(lo, limit):
+                m0, m1 = coldstore.month_bounds(month)
+                if m1 > limit:
+                    break
+                held = select(s.c.ts).where(s.c.tag_id.in_(ids), s.c.ts >= m0, s.c.ts < m1)
+                if c.execute(held.limit(1)).first() is not None:  # rolled months hold none
+                    months.append(month)
+        return months
+
+    def roll_months(self, before=None, *, progress: Progress | None = None) -> list[str]:
+        """Move every closed month (ending at or before ``before``, default: the start of the
+        current UTC month) from the database to the Parquet cold store. Returns the months
+        rolled. Reads see the same data before and after. ``progress(done, total)`` is called
+        after each tag of each month.
+
+        The space the rows took stays in a SQLite file (as free pages, reused by later
+        writes) and in PostgreSQL's table (dead rows) until :meth:`vacuum`."""
+        if self.cold_dir is None:
+            raise RuntimeError(
+                "rolling months needs a folder for the Parquet files: Historian(url, cold_dir=...)"
+            )
+        months = self.months_to_roll(before)
+        if not months:
             return []
+        self._record_cold_dir()
+        ids = sorted(int(i) for i in self.tags()["id"])
+        total = len(months) * len(ids)
         rolled = []
-        for month in coldstore.months_between(lo, limit):
-            m0, m1 = coldstore.month_bounds(month)
-            if m1 > limit:
-                break
-            if self._roll_month(month, m0, m1):
-                rolled.append(month)
+        for i, month in enumerate(months):
+
+            def step(j: int, i=i) -> None:
+                if progress is not None:
+                    progress(i * len(ids) + j, total)
+
+            for attempt in range(ROLL_ATTEMPTS):
+                try:
+                    if self._roll_month(month, ids, step):
+                        rolled.append(month)
+                    break
+                except MonthChanged:
+                    if attempt == ROLL_ATTEMPTS - 1:
+                        raise RuntimeError(
+                            f"rows of {month} kept arriving while it was being rolled "
+                            f"({ROLL_ATTEMPTS} tries); nothing of it was moved: roll again later"
+                        ) from None
+        if progress is not None:
+            progress(total, total)
         return rolled
 
-    def _roll_month(self, month: str, m0: int, m1: int) -> bool:
+    def _roll_month(self, month: str, ids: list[int], step: Callable[[int], None]) -> bool:
+        """Write the month's file tag by tag (the hot rows merged into the month's earlier file,
+        the hot row winning at an equal (tag, ts)), then in one transaction record it and
+        delete the rows it holds. If the delete meets more rows than were read, a writer added
+        some meanwhile: the transaction is undone and :class:`MonthChanged` raised."""
         s, t = schema.samples, schema.cold_segments
-        ids = [int(i) for i in self.tags()["id"]]
-        parts = []
-        for tid in sorted(ids):
-            ts, v, q = self._bulk.read(tid, m0, m1)
-            if len(ts):
-                parts.append((np.full(len(ts), tid, np.int64), ts, v, q))
-        if not parts:
-            return False
+        m0, m1 = coldstore.month_bounds(month)
         old = self._segments(m0, m1)
-        if old:  # merge: hot rows at a (tag, ts) of the cold file are updates, they win
-            parts = [coldstore.read_segment(self._cold_path(old[0]["path"]))] + parts
-        tid, ts, v, q = (np.concatenate(col) for col in zip(*parts, strict=True))
-        if old:
-            order = np.lexsort((ts, tid))  # stable: cold before hot at an equal key
-            tid, ts, v, q = tid[order], ts[order], v[order], q[order]
-            last = np.r_[(tid[1:] != tid[:-1]) | (ts[1:] != ts[:-1]), True]
-            tid, ts, v, q = tid[last], ts[last], v[last], q[last]
+        old_index = self._segment_index(old[0]) if old else None
         name = f"samples-{month}-{now_us()}.parquet"
-        rows = coldstore.write_segment(self._cold_path(name), tid, ts, v, q)
-        with self.engine.begin() as c:
-            c.execute(delete(t).where(t.c.month == month))
-            c.execute(
-                insert(t).values(
-                    month=month,
-                    path=name,
-                    rows=rows,
-                    ts_min=int(ts.min()),
-                    ts_max=int(ts.max()),
-                    created_at=now_us(),
+        hot = 0
+        with coldstore.SegmentWriter(self._cold_path(name)) as w:
+            for j, tid in enumerate(ids):
+                ts, v, q = self._bulk.read(tid, m0, m1)
+                hot += len(ts)
+                if old_index is not None:
+                    ts, v, q = _merge(old_index.read(tid, m0, m1), (ts, v, q))
+                w.write(tid, ts, v, q)
+                step(j + 1)
+        if hot == 0:  # nothing in the database for this month (only other tags' rows, if any)
+            self._cold_path(name).unlink(missing_ok=True)
+            return False
+        try:
+            with self.engine.begin() as c:
+                gone = c.execute(
+                    delete(s).where(s.c.tag_id.in_(ids), s.c.ts >= m0, s.c.ts < m1)
+                ).rowcount
+                if gone != hot:
+                    raise MonthChanged(month)
+                c.execute(delete(t).where(t.c.month == month))
+                c.execute(
+                    insert(t).values(
+                        month=month,
+                        path=name,
+                        rows=w.rows,
+                        ts_min=w.ts_min,
+                        ts_max=w.ts_max,
+                        created_at=now_us(),
+                    )
                 )
-            )
-            c.execute(delete(s).where(s.c.ts >= m0, s.c.ts < m1))
+        except BaseException:
+            self._cold_path(name).unlink(missing_ok=True)
+            raise
         if old and old[0]["path"] != name:
-            try:
-                os.remove(self._cold_path(old[0]["path"]))
-            except FileNotFoundError:
-                pass
+            self._cold_path(old[0]["path"]).unlink(missing_ok=True)
         return True
 
-    def _cold_problems(self) -> list[str]:
+    def _cold_problems(self, progress: Progress | None = None) -> list[str]:
         """What is wrong with the rolled months: each file readable and holding the row count
         recorded for its month (reported, never raised)."""
         problems = []
@@ -156,12 +276,49 @@ class ColdMonths:
             segments = self._segments(None, None)
         except Exception as exc:  # noqa: BLE001 - report, do not raise
             return [f"cold segment list unreadable: {exc}"]
-        for seg in segments:
+        for i, seg in enumerate(segments):
             try:
-                import pyarrow.parquet as pq
-
-                if pq.ParquetFile(self._cold_path(seg["path"])).metadata.num_rows != seg["rows"]:
+                index = coldstore.SegmentIndex.open(self._cold_path(seg["path"]))
+                m0, m1 = coldstore.month_bounds(seg["month"])
+                if index.metadata.num_rows != seg["rows"]:
                     problems.append(f"cold segment {seg['month']}: row count differs")
+                elif _outside(index, m0, m1):
+                    problems.append(f"cold segment {seg['month']}: rows outside the month")
             except Exception as exc:  # noqa: BLE001 - report, do not raise
                 problems.append(f"cold segment {seg['month']}: {exc}")
+            if progress is not None:
+                progress(i + 1, len(segments))
         return problems
+
+    def cold_orphans(self) -> list[Path]:
+        """Files in the cold folder that no rolled month lists: left by a roll interrupted
+        between writing its file and recording it (the month's rows are still in the
+        database, so they can be deleted)."""
+        if self.cold_dir is None or not self.cold_dir.is_dir():
+            return []
+        listed = {seg["path"] for seg in self._segments(None, None)}
+        return sorted(
+            p
+            for p in self.cold_dir.glob("samples-*.parquet*")
+            if p.name not in listed and p.name.endswith((".parquet", ".parquet.tmp"))
+        )
+
+
+def _outside(index: coldstore.SegmentIndex, m0: int, m1: int) -> bool:
+    """Whether the file's statistics show times outside [m0, m1)."""
+    known = index.ts_lo != np.iinfo(np.int64).min
+    return bool(known.any() and (index.ts_lo[known].min() < m0 or index.ts_hi[known].max() >= m1))
+
+
+def _merge(cold, hot):
+    """One tag's cold rows and hot rows, sorted by time; the hot row wins at an equal time
+    (it is a late sample or an update)."""
+    if not len(cold[0]):
+        return hot
+    if not len(hot[0]):
+        return cold
+    ts, v, q = (np.concatenate(pair) for pair in zip(cold, hot, strict=True))
+    order = np.argsort(ts, kind="stable")  # stable: cold before hot at an equal time
+    ts, v, q = ts[order], v[order], q[order]
+    last = np.r_[ts[1:] != ts[:-1], True]
+    return ts[last], v[last], q[last]

@@ -100,3 +100,11 @@ cold_segments = Table(
     Column("ts_max", BigInteger),
     Column("created_at", BigInteger, nullable=False),
 )
+
+#: settings of the database itself, e.g. where its rolled months are (``cold_dir``)
+settings = Table(
+    "settings",
+    metadata,
+    Column("key", String(100), primary_key=True),
+    Column("value", Text),
+)

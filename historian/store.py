@@ -42,8 +42,9 @@ class Historian(ColdMonths, Registry, TagReport):
     """Time-series store for plant tags on SQLite (default) or PostgreSQL.
 
     ``url``: ``sqlite:///path/diag.db`` or ``postgresql://user@127.0.0.1:5432/db``.
-    ``cold_dir``: folder of the Parquet cold store (default for SQLite: ``<db file>.cold``
-    beside the database; PostgreSQL needs it given to roll or read rolled months).
+    ``cold_dir``: folder of the Parquet cold store. Default: the folder the database recorded
+    when it first rolled months into another than SQLite's default, ``<db file>.cold`` beside
+    the database (PostgreSQL has no default: give it to the first roll).
     """
 
     def __init__(self, url: str = "sqlite:///diag.db", *, cold_dir: str | Path | None = None):
@@ -56,16 +57,20 @@ class Historian(ColdMonths, Registry, TagReport):
             self.engine = create_engine(u.set(drivername="sqlite"))
             event.listen(self.engine, "connect", _sqlite_pragmas)
             self._bulk = SqliteBulk(path)
-            self.cold_dir = Path(cold_dir) if cold_dir else path.with_name(path.name + ".cold")
+            self._default_cold_dir = path.with_name(path.name + ".cold")
         elif u.get_backend_name() == "postgresql":
             self.engine = create_engine(u.set(drivername="postgresql+psycopg"))
             self._bulk = PostgresBulk(self.engine)
-            self.cold_dir = Path(cold_dir) if cold_dir else None
+            self._default_cold_dir = None
         else:
             raise ValueError(f"unsupported database URL {self.url!r} (sqlite or postgresql)")
         schema.metadata.create_all(self.engine)
+        self.cold_dir = (
+            Path(cold_dir) if cold_dir else self._recorded_cold_dir() or self._default_cold_dir
+        )
         self._tags: dict[str, tuple[int, float | None, float | None]] = {}
         self._sampling: dict[str, Sampling] = {}  # per tag, for holds()
+        self._pool: ThreadPoolExecutor | None = None
 
     # -- life cycle ----------------------------------------------------------------------
     @classmethod
@@ -84,7 +89,17 @@ class Historian(ColdMonths, Registry, TagReport):
         """'sqlite' or 'postgresql'."""
         return self._bulk.name
 
+    def _readers(self) -> ThreadPoolExecutor:
+        """The threads of parallel per-tag reads, started once (starting them for every
+        window of a chunked read cost more than some reads)."""
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(READ_THREADS, thread_name_prefix="historian-read")
+        return self._pool
+
     def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
         self._bulk.close()
         self.engine.dispose()
 
@@ -203,13 +218,17 @@ class Historian(ColdMonths, Registry, TagReport):
             yield tuple(np.concatenate(col) for col in zip(*pending, strict=True))
 
     # -- reading -------------------------------------------------------------------------
-    def _read_raw(self, tag_id: int, start: int, end: int):
+    def _read_raw(self, tag_id: int, start: int, end: int, segments: list[dict] | None = None):
+        """(ts, value, quality) of one tag in [start, end), hot and cold rows combined.
+        ``segments``: the list of rolled months, when the caller read it before this read."""
         # hot first, then the segment list: a roll committing in between gives duplicates
         # (removed below), never a loss
         hot = self._bulk.read(tag_id, start, end)
-        parts = self._read_cold(tag_id, start, end)
+        parts = [p for p in self._read_cold(tag_id, start, end, segments) if len(p[0])]
         if not parts:
             return hot
+        if len(parts) == 1 and not len(hot[0]):
+            return parts[0]
         parts.append(hot)
         ts, v, q = (np.concatenate(col) for col in zip(*parts, strict=True))
         if len(parts) > 1 and len(hot[0]):
@@ -236,7 +255,7 @@ class Historian(ColdMonths, Registry, TagReport):
 
     def time_range(self, tags: Iterable[str] | None = None):
         """(first, last) sample time over the given tags (all when None); (None, None) if
-        there are no samples."""
+        there are no samples. Rolled months answer from their files' row-group statistics."""
         s = schema.samples
         ids = None if tags is None else [self._tag(t)[0] for t in tags]
         lo = hi = None
@@ -249,22 +268,18 @@ class Historian(ColdMonths, Registry, TagReport):
                 b = c.execute(base.order_by(s.c.ts.desc()).limit(1)).scalar()
                 lo = a if lo is None or (a is not None and a < lo) else lo
                 hi = b if hi is None or (b is not None and b > hi) else hi
-        for seg in self._segments(None, None):
-            lo = seg["ts_min"] if lo is None else min(lo, seg["ts_min"])
-            hi = seg["ts_max"] if hi is None else max(hi, seg["ts_max"])
-        if ids is not None and self._segments(None, None):
-            lo, hi = self._time_range_exact(ids, lo, hi)
+        segments = self._segments(None, None)
+        if ids is None:
+            for seg in segments:
+                lo = seg["ts_min"] if lo is None else min(lo, seg["ts_min"])
+                hi = seg["ts_max"] if hi is None else max(hi, seg["ts_max"])
+        elif segments:
+            for tid in ids:
+                a, b = self._cold_bounds(tid, segments)
+                if a is not None:
+                    lo = a if lo is None else min(lo, a)
+                    hi = b if hi is None else max(hi, b)
         return from_us(lo), from_us(hi)
-
-    def _time_range_exact(self, ids, lo, hi):
-        """Per-tag bounds when cold segments exist (segment bounds cover all tags)."""
-        first = last = None
-        for tid in ids:
-            ts, _, _ = self._read_raw(tid, lo, hi + 1)
-            if len(ts):
-                first = ts[0] if first is None else min(first, ts[0])
-                last = ts[-1] if last is None else max(last, ts[-1])
-        return first, last
 
     def _grid(self, tags, start, end, period):
         """The requested range in µs and its grid: the first grid point at or after the
@@ -319,7 +334,7 @@ class Historian(ColdMonths, Registry, TagReport):
             return ts
         for seg in reversed(self._segments(None, None)):
             m0, m1 = coldstore.month_bounds(seg["month"])
-            _, cold, _, _ = coldstore.read_segment(self._cold_path(seg["path"]), tag_id, m0, m1)
+            cold, _, _ = self._segment_index(seg).read(tag_id, m0, m1)
             ts = np.r_[cold, ts]
             if len(ts) >= n:
                 break
@@ -337,6 +352,7 @@ class Historian(ColdMonths, Registry, TagReport):
         gap=None,
         flat="30min",
         hold: dict[str, int] | None = None,
+        summary: bool = True,
     ) -> pd.DataFrame:
         """Tags aligned on the grid ``k·period`` (epoch-anchored): one row per grid point in
         [start, end), labelled by it, by the rule of :mod:`historian.sampling` (the mean or
@@ -346,44 +362,52 @@ class Historian(ColdMonths, Registry, TagReport):
         holds the per-tag data-quality summary as ``{tag: {field: value}}`` (fields in
         :func:`historian.window.summarize`; ``historian.quality_table(frame)`` gives it as a
         DataFrame); ``gap``/``flat`` are Timedelta-likes overriding the defaults.
+        ``summary=False`` skips the summary (a training job reading months in chunks has no
+        use for it; ``attrs`` stays empty).
         """
         tags = list(tags)
         s, e, t0, p = self._grid(tags, start, end, period)
         hold = self.holds(tags, period) if hold is None else hold
-        return self._window(tags, e, t0, p, how, gap, flat, hold)
+        return self._window(tags, e, t0, p, how, gap, flat, hold, summary)
 
-    def _window(self, tags, e, t0, p, how, gap, flat, hold) -> pd.DataFrame:
+    def _window(self, tags, e, t0, p, how, gap, flat, hold, summary=True) -> pd.DataFrame:
         n = max(0, -(-(e - t0) // p))
         half = p // 2
         lo, hi = t0 - half, t0 + n * p - half  # the bins of the rows
-        cols, summary = {}, {}
         gap_us = period_us(gap) if gap is not None else None
         flat_us = period_us(flat) if flat is not None else None
         meta = [self._tag(name) for name in tags]
+        # the rolled months, listed once for all tags; checked again after the reads
+        back_max = max((int(v) for v in hold.values()), default=0)
+        segments = self._segments(lo - back_max, hi)
 
         def one(i):
             tag_id, t_lo, t_hi = meta[i]
             back = int(hold.get(tags[i], 0))
-            ts, v, q = self._read_raw(tag_id, lo - back, hi)
+            ts, v, q = self._read_raw(tag_id, lo - back, hi, segments)
             col = align(ts, v, q, t0, p, n, how, back)
+            if not summary:
+                return col, None
             inside = np.searchsorted(ts, lo)
             ts, v, q = ts[inside:], v[inside:], q[inside:]
             return col, summarize(
                 ts, v, q, lo, hi, p, lo=t_lo, hi=t_hi, gap=gap_us, flat=flat_us, aligned=col
             )
 
-        # one thread per tag: the database read and numpy release the GIL
+        # a thread per tag: the database read, Parquet decoding and numpy release the GIL
         if len(tags) > 1:
-            with ThreadPoolExecutor(min(len(tags), READ_THREADS)) as ex:
-                results = list(ex.map(one, range(len(tags))))
+            results = list(self._readers().map(one, range(len(tags))))
         else:
             results = [one(0)] if tags else []
-        for name, (col, summ) in zip(tags, results, strict=True):
-            cols[name] = col
-            summary[name] = summ
+        if segments != self._segments(lo - back_max, hi):  # a roll committed meanwhile
+            return self._window(tags, e, t0, p, how, gap, flat, hold, summary)
         index = us_index(t0 + p * np.arange(n, dtype=np.int64))
+        cols = {name: col for name, (col, _) in zip(tags, results, strict=True)}
         frame = pd.DataFrame(cols, index=index, columns=tags)
-        frame.attrs["quality"] = summary_attrs(summary)
+        if summary:
+            frame.attrs["quality"] = summary_attrs(
+                {name: summ for name, (_, summ) in zip(tags, results, strict=True)}
+            )
         return frame
 
     def iter_windows(
@@ -398,10 +422,11 @@ class Historian(ColdMonths, Registry, TagReport):
         gap=None,
         flat="30min",
         hold: dict[str, int] | None = None,
+        summary: bool = True,
     ) -> Iterator[pd.DataFrame]:
         """Consecutive chunks of :meth:`window` (``chunk`` long, rounded to whole periods);
         ``pd.concat`` of them equals ``window(tags, start, end, period, how)`` exactly. Each
-        chunk carries its own ``attrs["quality"]``."""
+        chunk carries its own ``attrs["quality"]`` (unless ``summary=False``)."""
         tags = list(tags)
         s, e, t0, p = self._grid(tags, start, end, period)
         hold = self.holds(tags, period) if hold is None else hold
@@ -409,15 +434,55 @@ class Historian(ColdMonths, Registry, TagReport):
         left = t0
         while left < e:
             right = min(left + step, e)
-            yield self._window(tags, right, left, p, how, gap, flat, hold)
+            yield self._window(tags, right, left, p, how, gap, flat, hold, summary)
             left += step
 
-    # -- checks --------------------------------------------------------------------------
-    def integrity_check(self) -> list[str]:
+    # -- checks and upkeep ---------------------------------------------------------------
+    def integrity_check(self, progress=None) -> list[str]:
         """Problems found (empty when sound), never raised: SQLite ``PRAGMA integrity_check``
         (or that it cannot run); for PostgreSQL duplicate keys, NULL keys and the primary-key
-        index; each cold file readable and holding the row count recorded for its month."""
-        return list(self._bulk.integrity_check()) + self._cold_problems()
+        index; each cold file readable and holding the row count recorded for its month.
+        ``progress(done, total)`` is called after each cold file."""
+        return list(self._bulk.integrity_check()) + self._cold_problems(progress)
+
+    def storage(self) -> dict:
+        """Where the data are and how much room they take: ``backend``, ``db_bytes`` (file
+        and log, or the PostgreSQL database), ``free_bytes`` (SQLite: free pages a vacuum
+        returns to the disk; None on PostgreSQL), ``cold_dir``, ``cold_months`` and
+        ``cold_rows``/``cold_bytes`` of the rolled months' files."""
+        segments = self._segments(None, None)
+        cold_bytes = 0
+        for seg in segments:
+            try:
+                cold_bytes += self._cold_path(seg["path"]).stat().st_size
+            except OSError:  # reported by integrity_check
+                pass
+        return {
+            "backend": self.backend,
+            "db_bytes": self._bulk.size_bytes(),
+            "free_bytes": self._bulk.free_bytes(),
+            "cold_dir": None if self.cold_dir is None else str(self.cold_dir),
+            "cold_months": [seg["month"] for seg in segments],
+            "cold_rows": int(sum(seg["rows"] for seg in segments)),
+            "cold_bytes": cold_bytes,
+        }
+
+    def vacuum(self, *, full: bool = False) -> dict:
+        """Give the room of deleted rows (months rolled to the cold store) back: SQLite
+        ``VACUUM`` (the file shrinks; it needs as much free disk as the database takes while
+        it runs), PostgreSQL ``VACUUM (ANALYZE)`` of the historian's tables (the room becomes
+        reusable; ``full=True``: ``VACUUM (FULL, ANALYZE)``, which gives it back to the disk
+        but locks each table while it rewrites it). Returns ``db_bytes`` before and after."""
+        before = self._bulk.size_bytes()
+        if self.backend == "postgresql":
+            self._bulk.vacuum(full, tuple(schema.metadata.tables))
+        else:
+            self._bulk.vacuum(full)
+        return {
+            "backend": self.backend,
+            "before_bytes": before,
+            "after_bytes": self._bulk.size_bytes(),
+        }
 
 
 def _sqlite_pragmas(dbapi_conn, _record) -> None:

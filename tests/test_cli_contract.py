@@ -87,6 +87,9 @@ def cases(env) -> dict[tuple[str, ...], list[list[str]]]:
         ("demo",): [["--days", "-2", "--workdir", str(d / "demo")]],
         ("import",): [[str(d / "none.csv")], [str(d / "binary.csv")], [str(d)]],
         ("tags",): [["--start", "not-a-time"]],
+        ("historian", "roll"): [["--before", "2026-13"], ["--before", "soon"]],
+        ("historian", "check"): [["--bogus"]],
+        ("historian", "vacuum"): [["--bogus"]],
         ("train",): [
             ["nothing"],
             ["broken"],

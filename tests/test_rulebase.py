@@ -220,3 +220,39 @@ def test_all_problems_are_reported_at_once(rb_path):
 
 def test_unreadable_file_is_a_clear_error(tmp_path):
     assert check(tmp_path / "nope.toml")[0].startswith(f"{tmp_path / 'nope.toml'}:0: cannot read")
+
+
+@pytest.mark.parametrize(
+    "old, new",
+    [
+        (None, None),  # as written by training: read line by line
+        ("lock = false },", "lock = false },  # checked on site"),  # trailing comment
+        ("{ if = [", "# a comment line above\n    { if = ["),  # comment line
+        ("then = ", "then  =  "),  # other spacing: the TOML parser reads it
+        ("n = ", "n = 1_0"),  # TOML digit separators: the TOML parser reads it
+    ],
+)
+def test_plain_rule_lines_read_as_the_toml_parser_reads_them(rb_path, old, new):
+    """The line-by-line reader of the rule list gives what tomllib gives, or declines."""
+    import tomllib
+
+    from diag_plugin.rulebase.document import _plain_rule_list
+
+    text = rb_path.read_text()
+    if old is not None:
+        text = text.replace(old, new, 1)
+    rb = RuleBase(text, rb_path)
+    a, b = rb._list_span
+    lines = rb._lines[a : b + 1]
+    fast = _plain_rule_list(lines)
+    slow = tomllib.loads("\n".join(lines))["list"]
+    if old in (None, "lock = false },", "{ if = ["):
+        assert fast is not None and len(fast) == len(slow) > 100
+    if fast is not None:
+        assert [{k: str(v) for k, v in r.items()} for r in fast] == [
+            {k: str(v) for k, v in r.items()} for r in slow
+        ]  # str: nan == nan
+        assert [type(r["then"]) for r in fast] == [type(r["then"]) for r in slow]
+    assert [(r.premise, r.n, r.lock) for r in rb.rules] == [
+        (r.premise, r.n, r.lock) for r in RuleBase(text.replace("lock", "lock "), rb_path).rules
+    ]  # the same rules as the TOML parser's reading (the extra space forces it)

@@ -22,7 +22,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="share of the range, at its end, held out to validate (default 0.2; 0: train on "
         "all of it, no validation figure)",
     )
-    p.add_argument("--chunk", default="7D", help="time span read at once (default 7D)")
+    p.add_argument(
+        "--chunk",
+        help="time span read at once (default: 262,144 periods of the model, 30 days at 10 s)",
+    )
     p.add_argument("--engine", choices=["local", "dask"], default="local")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")

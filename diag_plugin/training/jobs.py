@@ -86,7 +86,7 @@ def train_one(
     start: str | None = None,
     end: str | None = None,
     holdout: float = 0.2,
-    chunk: pd.Timedelta = DEFAULT_CHUNK,
+    chunk: pd.Timedelta | None = DEFAULT_CHUNK,
     engine: str = "local",
     scheduler: str | None = None,
     progress=None,
@@ -162,7 +162,7 @@ def cmd_train(args) -> int:
     if not paths:
         raise UserError(f"no rule-base files in {args.rulebases}")
     try:
-        chunk = pd.Timedelta(args.chunk)
+        chunk = pd.Timedelta(args.chunk) if args.chunk else None
     except ValueError:
         raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D or 12h") from None
     results, failures = [], []
