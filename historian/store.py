@@ -43,9 +43,17 @@ class Historian(ColdMonths, Registry, TagReport):
     ``url``: ``sqlite:///path/diag.db`` or ``postgresql://user@127.0.0.1:5432/db``.
     ``cold_dir``: folder of the Parquet cold store (default for SQLite: ``<db file>.cold``
     beside the database; PostgreSQL needs it given to roll or read rolled months).
+    ``busy_timeout``: seconds a SQLite write waits for another writer's lock before it fails
+    (the live loop's writer uses a short one and retries on its own).
     """
 
-    def __init__(self, url: str = "sqlite:///diag.db", *, cold_dir: str | Path | None = None):
+    def __init__(
+        self,
+        url: str = "sqlite:///diag.db",
+        *,
+        cold_dir: str | Path | None = None,
+        busy_timeout: float = 60.0,
+    ):
         self.url = str(url)
         u = make_url(self.url)
         if u.get_backend_name() == "sqlite":
@@ -53,8 +61,9 @@ class Historian(ColdMonths, Registry, TagReport):
                 raise ValueError("the SQLite historian needs a file: sqlite:///path/to/diag.db")
             path = Path(u.database)
             self.engine = create_engine(u.set(drivername="sqlite"))
-            event.listen(self.engine, "connect", _sqlite_pragmas)
-            self._bulk = SqliteBulk(path)
+            busy_ms = int(busy_timeout * 1000)
+            event.listen(self.engine, "connect", lambda c, r: _sqlite_pragmas(c, r, busy_ms))
+            self._bulk = SqliteBulk(path, busy_timeout_ms=busy_ms)
             self.cold_dir = Path(cold_dir) if cold_dir else path.with_name(path.name + ".cold")
         elif u.get_backend_name() == "postgresql":
             self.engine = create_engine(u.set(drivername="postgresql+psycopg"))
@@ -364,9 +373,9 @@ class Historian(ColdMonths, Registry, TagReport):
         return list(self._bulk.integrity_check()) + self._cold_problems()
 
 
-def _sqlite_pragmas(dbapi_conn, _record) -> None:
+def _sqlite_pragmas(dbapi_conn, _record, busy_ms: int = 60_000) -> None:
     cur = dbapi_conn.cursor()
-    cur.execute("PRAGMA busy_timeout=60000")
+    cur.execute(f"PRAGMA busy_timeout={int(busy_ms)}")
     cur.execute("PRAGMA journal_mode=WAL")
     cur.execute("PRAGMA synchronous=FULL")
     cur.close()
