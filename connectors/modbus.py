@@ -77,6 +77,8 @@ class Poll:
     quality: np.ndarray  #: uint8 TagQuality per tag
     reasons: list[str]  #: per tag, "" when Good
     seconds: float  #: wall time of the poll
+    #: per tag, the source's own time stamp (Unix seconds; NaN where it gives none: Modbus)
+    source_ts: np.ndarray | None = None
 
     @property
     def good(self) -> bool:
