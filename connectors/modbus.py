@@ -265,8 +265,13 @@ class ModbusTagClient:
                         errors[j] = f"not connected (dropped after: {exc})"
                     break
         values = self.plan.decode(buf)
-        tag_err = [errors[b] if b >= 0 else "not in any read block" for b in self.plan.tag_block]
-        bad = np.array([bool(e) for e in tag_err], dtype=bool)
+        tb = self.plan.tag_block
+        block_bad = np.array([bool(e) for e in errors] + [True], dtype=bool)  # [-1]: no block
+        bad = block_bad[np.where(tb >= 0, tb, len(errors))]
+        if bad.any():
+            tag_err = [errors[b] if b >= 0 else "not in any read block" for b in tb]
+        else:
+            tag_err = [""] * len(tb)
         quality = np.where(bad, TagQuality.BAD, TagQuality.GOOD).astype(np.uint8)
         values[bad] = np.nan
         self._account(ts, errors)

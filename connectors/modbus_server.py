@@ -385,6 +385,15 @@ class StatusServer(RegisterServer):
         """Publish one unit's diagnosis; ``extra`` sets other tags of the unit (``alarm=2``)."""
         await self.update(self.status_values(status, **extra))
 
+    async def publish_many(self, items: Iterable[tuple[UnitStatus, Mapping[str, float]]]) -> None:
+        """Publish many units in one update (one encode, each changed block pushed once):
+        ``(status, extra)`` pairs as :meth:`publish` takes them."""
+        values: dict[str, float] = {}
+        for status, extra in items:
+            values.update(self.status_values(status, **extra))
+        if values:
+            await self.update(values)
+
 
 # --------------------------------------------------------------- the plant
 def default_plant_map(tags: Sequence[str] = PLANT_TAGS, table: str = "ir") -> RegisterMap:

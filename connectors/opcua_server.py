@@ -227,6 +227,7 @@ class DiagOpcUaServer:
         self._generates_event = False
         self._alarms: dict[str, Alarm] = {}
         self._condition: dict[str, bool] = {}
+        self._shown: dict[Any, tuple[Any, int]] = {}  # node id → (value, code) last written
         self._declared: dict[str, tuple[set[str], set[str], set[str]]] = {}
         self.permissions: Any = None
 
@@ -362,6 +363,7 @@ class DiagOpcUaServer:
         self._plant.clear()
         self._units.clear()  # the alarms stay in self._alarms
         self._by_condition.clear()
+        self._shown.clear()
         self._notices.clear()
         log.info("OPC UA server on %s stopped", self.endpoint)
 
@@ -616,14 +618,33 @@ class DiagOpcUaServer:
         )
         await self.server.write_attribute_value(node.nodeid, dv)
 
+    def _new(self, writes: list) -> Callable[[Node, Any, Any, int], None]:
+        """An ``add(node, value, vt, code)`` that appends to ``writes`` only what differs from
+        what the node already holds (value or StatusCode)."""
+        shown = self._shown
+
+        def add(node: Node, value: Any, vt: Any, code: int) -> None:
+            key = node.nodeid
+            last = shown.get(key)
+            if last is not None and last[1] == code:
+                if last[0] == value or (value != value and last[0] != last[0]):  # NaN == NaN
+                    return
+            shown[key] = (value, code)
+            writes.append((node, value, vt, code))
+
+        return add
+
     @staticmethod
     def _code(q: int) -> int:
-        from asyncua import ua
-
-        return (ua.StatusCodes.Good, ua.StatusCodes.Uncertain, ua.StatusCodes.Bad)[min(int(q), 2)]
+        """The StatusCode of a quality: 0 Good, 1 Uncertain, 2 Bad (OPC 10000-4 §7.34)."""
+        return (0x00000000, 0x40000000, 0x80000000)[min(int(q), 2)]
 
     async def publish(self, status: UnitStatus) -> None:
-        """Show one unit's diagnosis and drive its alarm (creates missing nodes)."""
+        """Show one unit's diagnosis and drive its alarm (creates missing nodes).
+
+        ``DeviceHealth`` and ``LastUpdate`` are written every time (the heartbeat an HMI
+        watches); every other value only when it or its StatusCode changed, so a hundred
+        units cost a few hundred writes a cycle, not thousands."""
         from asyncua import ua
 
         if self.server is None:
@@ -631,7 +652,16 @@ class DiagOpcUaServer:
             return
         V = ua.VariantType
         async with self._lock:
-            await self.add_unit(status.unit, status.certainties, status.residuals, status.coverage)
+            names = (set(status.certainties), set(status.residuals), set(status.coverage))
+            known = self._declared.get(status.unit)
+            if (
+                status.unit not in self._units
+                or known is None
+                or not all(
+                    a <= b for a, b in zip(names, (known[0], known[1], known[2]), strict=True)
+                )
+            ):
+                await self.add_unit(status.unit, *names)
             n = self._units[status.unit]
             ts = status.ts.to_pydatetime() if hasattr(status.ts, "to_pydatetime") else status.ts
             if ts is not None and ts.tzinfo is None:
@@ -639,20 +669,18 @@ class DiagOpcUaServer:
             q = int(status.quality)
             code, good = self._code(q), self._code(0)
             health_code = good if q == 0 else self._code(1)
-            w = self._write
-            await w(n.vars["DeviceHealth"], int(status.status), V.Int32, health_code, ts)
-            await w(n.vars["StatusName"], NE107_NAMES[int(status.status)], V.String, good, ts)
-            await w(n.vars["Quality"], q, V.Int32, good, ts)
-            await w(
-                n.vars["Detected"],
-                bool(status.detected),
-                V.Boolean,
-                code if status.detected is not None else self._code(2),
-                ts,
-            )
-            await w(n.vars["Faults"], ",".join(status.faults), V.String, code, ts)
-            await w(n.vars["Message"], status.message, V.String, good, ts)
-            await w(n.vars["LastUpdate"], ts, V.DateTime, good, ts)
+            writes: list[tuple[Node, Any, Any, int]] = [
+                (n.vars["DeviceHealth"], int(status.status), V.Int32, health_code),
+                (n.vars["LastUpdate"], ts, V.DateTime, good),
+            ]
+            new = self._new(writes)
+            new(n.vars["StatusName"], NE107_NAMES[int(status.status)], V.String, good)
+            new(n.vars["Quality"], q, V.Int32, good)
+            detected_code = code if status.detected is not None else self._code(2)
+            new(n.vars["Detected"], bool(status.detected), V.Boolean, detected_code)
+            new(n.vars["Faults"], ",".join(status.faults), V.String, code)
+            new(n.vars["Message"], status.message, V.String, good)
+            uncertain = self._code(1)
             for folder, values in (
                 ("Certainty", status.certainties),
                 ("Residual", status.residuals),
@@ -660,13 +688,14 @@ class DiagOpcUaServer:
                 ("Coverage", status.coverage),
             ):
                 for k, v in values.items():
-                    node = await self._var(n, status.unit, folder, k, math.nan, V.Double)
                     vcode = code
                     if folder == "Coverage":
                         vcode = good
-                    elif not _finite(v) and q == 0:
-                        vcode = self._code(1)  # an unknown value in a Good diagnosis
-                    await w(node, float(v), V.Double, vcode, ts)
+                    elif q == 0 and not _finite(v):
+                        vcode = uncertain  # an unknown value in a Good diagnosis
+                    new(n.vars[f"{folder}.{k}"], float(v), V.Double, vcode)
+            for node, value, vt, vcode in writes:
+                await self._write(node, value, vt, vcode, ts)
             top = max((v for v in status.certainties.values() if _finite(v)), default=0.0)
             was_on = self._condition.get(status.unit, False)
             if int(status.status) == 2:  # the diagnosis cannot be trusted: hold the condition

@@ -29,6 +29,8 @@ import numpy as np
 from connectors.base import TagQuality, now
 from connectors.modbus import Poll
 
+_BAD = int(TagQuality.BAD)
+
 
 class OpcUaSource:
     """An :class:`~connectors.opcua_client.OpcUaReader` as a poll source (see module doc)."""
@@ -132,9 +134,9 @@ class SourceSet:
             values[sl], quality[sl], reasons[sl] = p.values, p.quality, p.reasons
             if p.source_ts is not None:
                 source_ts[sl] = p.source_ts
-            bad = [r for r, q in zip(p.reasons, p.quality, strict=True) if q == TagQuality.BAD]
-            # a source is down when none of its tags could be read
-            self._last.append(bad[0] if bad and len(bad) == len(p.reasons) else "")
+            # a source is down when none of its tags could be read (vectorised: 5,000 tags)
+            down = len(p.reasons) > 0 and bool((p.quality == _BAD).all())
+            self._last.append((p.reasons[0] or "no tag readable") if down else "")
         return Poll(ts, values, quality, reasons, time.perf_counter() - t0, source_ts)
 
     def slices(self) -> list[tuple[str, slice]]:

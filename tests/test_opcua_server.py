@@ -10,7 +10,6 @@ import socket
 
 import pandas as pd
 import pytest
-
 from opcua_peers import client as ua_client
 from opcua_peers import pki, users
 
@@ -275,3 +274,30 @@ async def test_restart_keeps_alarm_state_and_units(anyio_backend):
             assert await state.read_value() == "normal"
     finally:
         await srv.stop()
+
+
+async def test_notices_are_maintenance_band_and_need_no_acknowledgement(env):
+    """The plug-in's own conditions (a source out, the historian degraded): severity 350, no
+    acknowledgement awaited, retained while on, normal again by themselves; their Active and
+    Message variables and the historian's backlog read over OPC UA."""
+    srv, client, events = env
+    events.items.clear()
+    await srv.notice("Historian", True, "historian degraded: database is locked")
+    await srv.set_plugin_value("Historian", "Backlog", 1234)
+    (ev,) = await wait_events(events, "Historian", 1)
+    assert ev.Severity == 350 and ev.Retain is True and ev.ConditionName == "Notice"
+    assert getattr(ev, "ActiveState/Id") is True and getattr(ev, "AckedState/Id") is True
+    read = {
+        k: await client.get_node(srv.node_id("Plugin", "Historian", k)).read_value()
+        for k in ("Active", "Message", "Backlog")
+    }
+    assert read == {
+        "Active": True,
+        "Message": "historian degraded: database is locked",
+        "Backlog": 1234,
+    }
+    await srv.notice("Historian", True, "historian degraded: database is locked")  # no change
+    await srv.notice("Historian", False, "historian back after 30.0 s")
+    evs = await wait_events(events, "Historian", 2)
+    assert len(evs) == 2 and evs[-1].Retain is False
+    assert getattr(evs[-1], "ActiveState/Id") is False

@@ -754,6 +754,9 @@ async def run_config(
                     f"{cfg.path}:{cfg.line('outputs', key)}: outputs.{key}: cannot listen: "
                     f"{exc.strerror or exc}"
                 ) from None
+        if opcua is not None:  # the address space at start, not in the first cycle
+            for st in first:
+                await opcua.add_unit(st.unit, st.certainties, st.residuals, st.coverage)
         if opcua is not None and opcua.fingerprint:
             made = "created now" if opcua.certificate_created else "existing"
             say(

@@ -255,6 +255,7 @@ class LiveLoop:
             while not self.status_server.acks.empty():
                 unit = self.status_server.acks.get_nowait()
                 await self.acknowledge(unit, "Modbus client", "Modbus")
+        modbus = []
         for s in statuses:
             before = self._alarm(s.unit)
             if self.opcua is not None:
@@ -262,14 +263,15 @@ class LiveLoop:
             after = self._alarm(s.unit)
             prev = self.stats.units.get(s.unit)
             self.stats.units[s.unit] = UnitView(s, after)
-            if self.status_server is not None:
-                await self.status_server.publish(s, alarm=ALARM_CODES[after])
+            modbus.append((s, {"alarm": ALARM_CODES[after]}))
             if after is not before:
                 self._alarm_event(s, before, after)
             elif prev is not None and s.faults and s.faults != prev.status.faults:
                 # the isolation narrowed or moved while the alarm stands: say so once
                 was = ", ".join(prev.status.faults) or "none"
                 self.event(f"{s.unit}: isolated {', '.join(s.faults)} (was {was})", s.ts, s.unit)
+        if self.status_server is not None:
+            await self.status_server.publish_many(modbus)
         if self.historian is not None and self.opcua is not None:
             await self.opcua.set_plugin_value("Historian", "Backlog", self.historian.backlog)
         if self.after is not None:
