@@ -483,8 +483,6 @@ class DiagOpcUaServer:
         """Our own Acknowledge(), Shelve(Seconds), Unshelve() on the unit object."""
         from asyncua import ua
 
-        V = ua.VariantType
-
         async def _ack(parent: ua.NodeId) -> Any:
             code, t = await self._call("acknowledge", unit)
             return self._result(code, t)
@@ -516,7 +514,6 @@ class DiagOpcUaServer:
                 self._nid("Units", unit, name), self._bn(name), fn, args, [changed]
             )
             self.permissions.operator_methods.add(node.nodeid)
-        del V
 
     @staticmethod
     def _result(code: int, t: Any) -> Any:

@@ -133,6 +133,7 @@ class HistorianWriter:
         self._since = 0.0
         self._late = 0
         self._spool_rows = 0
+        self._replayed0 = 0
         self._told_spill = False
         self._mem: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
         self._events: list[dict[str, Any]] = []
@@ -343,8 +344,8 @@ class HistorianWriter:
         if len(self._mem) * n <= self.memory_rows:
             return
         block = self._take(len(self._mem) - self.memory_rows // (2 * n))
-        try:
-            path = await asyncio.to_thread(self.spool.write, block)
+        try:  # shielded: a cancel (close() out of time) must not drop the block half-way
+            path = await asyncio.shield(asyncio.to_thread(self.spool.write, block))
         except OSError as exc:
             log.error(
                 "historian: cannot spill to %s: %s; keeping in memory", self.spool.folder, exc
@@ -369,6 +370,7 @@ class HistorianWriter:
             self._since = time.monotonic()
             self._late = 0
             self.reason = reason
+            self._replayed0 = self.stats.replayed
             self._tell(
                 True,
                 f"historian degraded: {reason}; samples wait in memory (up to "
@@ -380,7 +382,7 @@ class HistorianWriter:
         self.stats.degraded_s += dt
         self.degraded = False
         self._told_spill = False
-        replayed = self.stats.replayed
+        replayed = self.stats.replayed - self._replayed0
         self._tell(
             False,
             f"historian back after {dt:.1f} s: {self._late} samples stored late "
