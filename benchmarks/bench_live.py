@@ -1,18 +1,70 @@
-"""One whole cycle of the embedded plant (issue 10): poll the simulated PLC over Modbus TCP,
-store in the SQLite historian, diagnose, publish over OPC UA and Modbus. Target < 100 ms.
+"""The live plug-in at plant size (issues 10 and 23): 5,000 tags, 100 units, one cycle a second.
 
-Runs ``diag run`` (the embedded default) for 40 s at one cycle per 0.05 s on free ports and
-prints the cycle work times it reports (median, p95, max) and the overruns. The Modbus polling
-speed for 10,000 tags is ``bench_modbus.py``.
+A Modbus PLC in a child process (our ``PlantServer``) serves 5,000 float32 tags that move
+every second: 700 of them are the inputs of 100 copies of the example valve unit (each unit
+file maps the models' tags onto its own seven with a ``[tags]`` table), the rest are random
+walks no unit reads. ``diag run --config`` polls them every second, hands them to the
+historian writer (SQLite, a block every 20 cycles written in the background), diagnoses the
+100 units and publishes them over OPC UA and Modbus. The figures are the loop's own: the
+work of each cycle (poll, queue for storage, diagnose, publish — the cycles during which the
+historian writes included), its median, p95, p99 and maximum, the overruns, and the
+historian's writes. Target (issue 23): p99 under 200 ms.
+
+``--embedded`` instead runs the embedded default for 40 s at 0.05 s per cycle (issue 10's
+figure: one whole cycle of the 7-tag plant, target < 100 ms median).
+
+    python benchmarks/bench_live.py [--duration 180] [--embedded]
 """
 
 from __future__ import annotations
 
+import argparse
+import os
 import re
 import socket
 import subprocess
 import sys
 import tempfile
+import time
+from pathlib import Path
+
+N_TAGS, N_UNITS = 5000, 100
+UNIT_TAGS = ("F", "CV", "X", "P0", "P1", "P2", "T1")
+TARGET_P99_MS = 200.0
+
+PLC = """\
+import asyncio, sys, time
+import numpy as np
+import pandas as pd
+from connectors.modbus import quiet_pymodbus
+from connectors.modbus_server import PlantServer
+from connectors.registermap import RegisterMap
+
+quiet_pymodbus()
+regmap = RegisterMap.from_csv(sys.argv[2])
+rows = pd.read_parquet(sys.argv[3])
+names = regmap.names
+unit_cols = [(i, n.split(".", 1)[1]) for i, n in enumerate(names) if n.startswith("u")]
+idx = np.array([i for i, _ in unit_cols])
+cols = [c for _, c in unit_cols]
+filler = np.array([i for i, n in enumerate(names) if not n.startswith("u")])
+rng = np.random.default_rng(1)
+
+async def main():
+    async with PlantServer(regmap, port=int(sys.argv[1])) as plc:
+        values = np.zeros(len(names))
+        values[filler] = rng.normal(50, 5, len(filler))
+        print("ready", flush=True)
+        t0 = time.time()
+        while True:
+            row = rows.iloc[205 + int(time.time() - t0) % 2000]
+            values[idx] = row[cols].to_numpy(np.float64)
+            values[filler] += rng.normal(0, 0.1, len(filler))
+            await plc.update_array(values)
+            await asyncio.sleep(0.25)
+
+asyncio.run(main())
+"""
 
 
 def free_port() -> int:
@@ -21,7 +73,105 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def main() -> int:
+def build(d: Path) -> tuple[Path, Path]:
+    """The trained example unit, 100 unit files reading their own tags, the PLC's map."""
+    from diag_plugin.examples.build import build_valve_unit
+    from diag_plugin.simulate import simulate_valve
+
+    frame = simulate_valve(1, seed=5)
+    rb = d / "rb"
+    rb.mkdir()
+    build_valve_unit(rb, frame, "bench_live")
+    template = (rb / "valve_unit.unit.toml").read_text(encoding="utf-8")
+    tags = []
+    for u in range(N_UNITS):
+        name = f"u{u:03d}"
+        mapping = "\n".join(f'{t} = "{name}.{t}"' for t in UNIT_TAGS)
+        text = template.replace('name = "valve_unit"', f'name = "{name}"')
+        text = text.replace('outputs = "VALVE1"', f'outputs = "{name.upper()}"')
+        (rb / f"{name}.unit.toml").write_text(f"{text}\n[tags]\n{mapping}\n", encoding="utf-8")
+        tags += [f"{name}.{t}" for t in UNIT_TAGS]
+    tags += [f"filler{i:04d}" for i in range(N_TAGS - len(tags))]
+    lines = ["tag,table,address,type"] + [f"{t},ir,{2 * i},float32" for i, t in enumerate(tags)]
+    (d / "plc.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    frame.to_parquet(d / "rows.parquet")
+    return rb, d / "plc.csv"
+
+
+def plant_size(duration: float) -> int:
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        t0 = time.perf_counter()
+        rb, csv = build(d)
+        print(f"built {N_UNITS} units over {N_TAGS} tags in {time.perf_counter() - t0:.0f} s")
+        plc_port = free_port()
+        units = ", ".join(f'"rb/u{u:03d}.unit.toml"' for u in range(N_UNITS))
+        (d / "plant.toml").write_text(
+            f"""[plant]
+cycle = 1.0
+historian = "sqlite:///plant.db"
+flush_every = 20
+units = [{units}]
+
+[[source]]
+name = "plc"
+port = {plc_port}
+map = "plc.csv"
+timeout = 0.8
+
+[outputs]
+modbus_port = {free_port()}
+opcua_port = {free_port()}
+""",
+            encoding="utf-8",
+        )
+        plc = subprocess.Popen(
+            [sys.executable, "-c", PLC, str(plc_port), str(csv), str(d / "rows.parquet")],
+            stdout=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
+        try:
+            assert plc.stdout.readline().strip() == "ready"
+            r = subprocess.run(
+                [sys.executable, "-m", "diag_plugin", "run", "--config", str(d / "plant.toml")]
+                + ["--plain", "--duration", str(duration)],
+                capture_output=True,
+                text=True,
+                env=env,
+                cwd=d,
+                timeout=duration + 600,
+            )
+        finally:
+            plc.kill()
+            plc.wait()
+        m = re.search(
+            r"stopped after (\d+) cycles, (\d+) overruns, (\d+) new samples stored; cycle work "
+            r"median ([\d.]+) ms, p95 ([\d.]+) ms, p99 ([\d.]+) ms, max ([\d.]+) ms; "
+            r"historian: (\d+) writes \(longest (\d+) ms\), (\d+) failed",
+            r.stdout,
+        )
+        if r.returncode != 0 or m is None:
+            print(r.stdout[-3000:], r.stderr[-3000:])
+            return 1
+        cycles, over, stored, med, p95, p99, mx, writes, longest, failed = m.groups()
+        print(
+            f"{N_TAGS} tags, {N_UNITS} units, 1 s cycle, {cycles} cycles: cycle work median "
+            f"{med} ms, p95 {p95} ms, p99 {p99} ms, max {mx} ms; {over} overruns"
+        )
+        print(
+            f"historian: {stored} samples stored in {writes} background writes (longest "
+            f"{longest} ms, {failed} failed); the loop never waits for them"
+        )
+        ok = float(p99) < TARGET_P99_MS
+        print(
+            f"target: p99 < {TARGET_P99_MS:.0f} ms including flushes: {'met' if ok else 'MISSED'}"
+        )
+        return 0 if ok else 1
+
+
+def embedded() -> int:
     with tempfile.TemporaryDirectory() as d:
         cmd = [sys.executable, "-m", "diag_plugin", "run", "--duration", "40", "--cycle", "0.05"]
         cmd += ["--data", d, "--plain", "--plc-port", str(free_port())]
@@ -29,20 +179,28 @@ def main() -> int:
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     m = re.search(
         r"stopped after (\d+) cycles, (\d+) overruns.*median ([\d.]+) ms, p95 ([\d.]+) "
-        r"ms, max ([\d.]+) ms",
+        r"ms, p99 ([\d.]+) ms, max ([\d.]+) ms",
         r.stdout,
     )
     if r.returncode != 0 or m is None:
         print(r.stdout[-2000:], r.stderr[-2000:])
         return 1
-    cycles, overruns, med, p95, mx = m.groups()
+    cycles, overruns, med, p95, p99, mx = m.groups()
     print(
         f"embedded plant, {cycles} cycles of poll + store + diagnose + publish: median {med} ms, "
-        f"p95 {p95} ms, max {mx} ms; {overruns} cycles over the 50 ms period"
+        f"p95 {p95} ms, p99 {p99} ms, max {mx} ms; {overruns} cycles over the 50 ms period"
     )
     ok = float(med) < 100
     print(f"target: one cycle < 100 ms: {'met' if ok else 'MISSED'}")
     return 0 if ok else 1
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--duration", type=float, default=180.0, help="seconds of live run")
+    ap.add_argument("--embedded", action="store_true", help="the 7-tag embedded plant instead")
+    args = ap.parse_args()
+    return embedded() if args.embedded else plant_size(args.duration)
 
 
 if __name__ == "__main__":

@@ -29,6 +29,13 @@ shelved alarm knows where to return):
   active-unacknowledged if the condition is on (it is annunciated afresh), else normal;
   other states stay.
 
+Beside the ISA-18.2 state, :class:`Alarm` keeps what OPC UA Part 9 adds: ``confirmed``
+(ConfirmedState) and the last operator ``comment``. With ``confirmation`` on, an
+acknowledgement makes ``confirmed`` False until the operator confirms (OPC 10000-9 §5.7.4);
+off (the default, as in ISA-18.2), an alarm is never waiting for a confirmation. ``retain``
+(Part 9 §5.5.2) is True while the condition is on, or the alarm waits for an
+acknowledgement or a confirmation.
+
 Severity (OPC UA ``Severity`` 1–1000) from the unit's NE 107 status and the certainty of
 its most certain fault, in the DESIGN.md bands (:func:`severity`):
 
@@ -134,6 +141,9 @@ class Alarm:
     severity: int = 0
     message: str = ""
     shelved_until: datetime | None = None
+    confirmed: bool = True
+    confirmation: bool = False
+    comment: str = ""
     history: list[Transition] = field(default_factory=list, repr=False)
 
     def _apply(self, event: AlarmInput) -> Transition:
@@ -164,8 +174,20 @@ class Alarm:
         return self._apply(Ev.ON if condition else Ev.OFF)
 
     def acknowledge(self) -> Transition:
-        """The operator acknowledges (a no-op unless unacknowledged)."""
-        return self._apply(Ev.ACK)
+        """The operator acknowledges (a no-op unless unacknowledged); with ``confirmation``
+        the alarm then waits for a confirmation (Part 9 ConfirmedState False)."""
+        t = self._apply(Ev.ACK)
+        if t.changed and self.confirmation:
+            self.confirmed = False
+        return t
+
+    def confirm(self) -> bool:
+        """The operator confirms an acknowledged alarm (Part 9 §5.7.4); False when there was
+        nothing to confirm."""
+        if self.confirmed or not self.acked:
+            return False
+        self.confirmed = True
+        return True
 
     def shelve(
         self,
@@ -200,8 +222,14 @@ class Alarm:
 
     @property
     def retain(self) -> bool:
-        """OPC UA Retain: the alarm still matters to an operator (shown in an alarm list)."""
-        return self.state in (S.ACTIVE_UNACK, S.ACTIVE_ACK, S.RTN_UNACK)
+        """OPC UA Retain (Part 9 §5.5.2): the alarm still matters to an operator — its
+        condition is on (shelved or not), or it waits for an acknowledgement or a
+        confirmation."""
+        return (
+            self.state in (S.ACTIVE_UNACK, S.ACTIVE_ACK, S.RTN_UNACK)
+            or (self.shelved and self.condition)
+            or not self.confirmed
+        )
 
 
 #: (low, high) severity band per NE 107 status number; CHECK_FUNCTION is a fixed 500

@@ -83,3 +83,81 @@ def trust(pair: CertPair, trusted_dir: Path | str) -> Path:
     target = d / pair.certificate.name
     target.write_bytes(pair.certificate.read_bytes())
     return target
+
+
+def certificate_der(path: Path | str) -> bytes:
+    """The DER bytes of a PEM or DER certificate file; ValueError saying why it is unreadable."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives.serialization import Encoding
+
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise ValueError(f"cannot read {path}: {exc.strerror or exc}") from None
+    try:
+        if b"-----BEGIN" in data:
+            cert = x509.load_pem_x509_certificate(data)
+        else:
+            cert = x509.load_der_x509_certificate(data)
+    except ValueError as exc:
+        raise ValueError(f"{path}: not a PEM or DER X.509 certificate ({exc})") from None
+    return cert.public_bytes(Encoding.DER)
+
+
+def check_private_key(path: Path | str) -> None:
+    """ValueError saying why ``path`` is not a readable, unencrypted PEM/DER private key."""
+    from cryptography.hazmat.primitives import serialization
+
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise ValueError(f"cannot read {path}: {exc.strerror or exc}") from None
+    load = (
+        serialization.load_pem_private_key
+        if b"-----BEGIN" in data
+        else serialization.load_der_private_key
+    )
+    try:
+        load(data, password=None)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{path}: not an unencrypted PEM or DER private key ({exc})") from None
+
+
+def fingerprint(der: bytes) -> str:
+    """SHA-256 fingerprint of a DER certificate, as colon-separated hex (what tools print)."""
+    import hashlib
+
+    return ":".join(f"{b:02X}" for b in hashlib.sha256(der).digest())
+
+
+def ensure_certificate(
+    certificate: Path, private_key: Path, application_uri: str, *, server: bool = True
+) -> bool:
+    """Create a self-signed certificate and key at these paths when the certificate is absent
+    (a first start); True when created. An existing pair is left alone."""
+    certificate, private_key = Path(certificate), Path(private_key)
+    if certificate.exists():
+        return False
+    import tempfile
+
+    certificate.parent.mkdir(parents=True, exist_ok=True)
+    private_key.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=certificate.parent) as tmp:
+        pair = make_certificate(
+            tmp, "cert", application_uri, client=not server, server=server, days=3650
+        )
+        pair.private_key.replace(private_key)
+        pair.certificate.replace(certificate)
+    return True
+
+
+def trusted_ders(folder: Path | str | None) -> dict[bytes, Path]:
+    """DER bytes of every certificate file in a trust-list folder (unreadable files raise
+    ValueError naming them; other files such as README are skipped by extension)."""
+    out: dict[bytes, Path] = {}
+    if folder is None or not Path(folder).is_dir():
+        return out
+    for p in sorted(Path(folder).iterdir()):
+        if p.suffix.lower() in (".pem", ".der", ".crt", ".cer"):
+            out[certificate_der(p)] = p
+    return out

@@ -77,6 +77,8 @@ class Poll:
     quality: np.ndarray  #: uint8 TagQuality per tag
     reasons: list[str]  #: per tag, "" when Good
     seconds: float  #: wall time of the poll
+    #: per tag, the source's own time stamp (Unix seconds; NaN where it gives none: Modbus)
+    source_ts: np.ndarray | None = None
 
     @property
     def good(self) -> bool:
@@ -263,8 +265,13 @@ class ModbusTagClient:
                         errors[j] = f"not connected (dropped after: {exc})"
                     break
         values = self.plan.decode(buf)
-        tag_err = [errors[b] if b >= 0 else "not in any read block" for b in self.plan.tag_block]
-        bad = np.array([bool(e) for e in tag_err], dtype=bool)
+        tb = self.plan.tag_block
+        block_bad = np.array([bool(e) for e in errors] + [True], dtype=bool)  # [-1]: no block
+        bad = block_bad[np.where(tb >= 0, tb, len(errors))]
+        if bad.any():
+            tag_err = [errors[b] if b >= 0 else "not in any read block" for b in tb]
+        else:
+            tag_err = [""] * len(tb)
         quality = np.where(bad, TagQuality.BAD, TagQuality.GOOD).astype(np.uint8)
         values[bad] = np.nan
         self._account(ts, errors)

@@ -7,7 +7,8 @@ may write only the tags named ``writable`` — any other write is refused with a
 reply and logged.
 
 :class:`StatusServer` publishes :class:`~diag_plugin.diagnose.status.UnitStatus` objects
-per an output map (default: :func:`default_output_map`) and reports acknowledgements a
+per an output map (default: :func:`default_output_map`; until a unit's first diagnosis its
+status reads 2 CHECK_FUNCTION with quality 1 Uncertain) and reports acknowledgements a
 SCADA writes to a unit's ``.ack`` coil through a callback and an :class:`asyncio.Queue`.
 :class:`PlantServer` serves the simulated valve plant's tags (:func:`default_plant_map`)
 as a PLC would; the caller updates them every cycle.
@@ -329,6 +330,14 @@ class StatusServer(RegisterServer):
         self.acks: asyncio.Queue[str] = asyncio.Queue()
         self._counter: dict[str, int] = {}
         self._tasks: set[asyncio.Task] = set()
+        # before the first diagnosis: CHECK_FUNCTION with Uncertain quality ("initialising"),
+        # never the NORMAL/Good that zeroed registers would say
+        for i, tag in enumerate(regmap.names):
+            if tag.endswith(".status"):
+                self.values[i] = 2
+            elif tag.endswith(".quality"):
+                self.values[i] = 1
+        self._buf = self.plan.encode(self.values, self._buf)
 
     def _on_write(self, tag: str, value: float) -> None:
         super()._on_write(tag, value)
@@ -375,6 +384,15 @@ class StatusServer(RegisterServer):
     async def publish(self, status: UnitStatus, **extra: float) -> None:
         """Publish one unit's diagnosis; ``extra`` sets other tags of the unit (``alarm=2``)."""
         await self.update(self.status_values(status, **extra))
+
+    async def publish_many(self, items: Iterable[tuple[UnitStatus, Mapping[str, float]]]) -> None:
+        """Publish many units in one update (one encode, each changed block pushed once):
+        ``(status, extra)`` pairs as :meth:`publish` takes them."""
+        values: dict[str, float] = {}
+        for status, extra in items:
+            values.update(self.status_values(status, **extra))
+        if values:
+            await self.update(values)
 
 
 # --------------------------------------------------------------- the plant

@@ -8,6 +8,18 @@ severity gives :class:`TagQuality`. When the connection fails every tag turns Ba
 failure is logged once, the task reconnects with :class:`Backoff` (exponential, jitter) and
 logs the recovery once (Home Assistant's coordinator pattern, DESIGN.md).
 Writes go only to tags on the :class:`AllowList`.
+
+**Trust.** With security the server's certificate is fetched first (GetEndpoints, nothing of
+ours is sent) and must be the pinned one (``server_certificate``) or in the trust-list folder
+(``trusted_dir``, read again at every attempt, so a certificate copied there is trusted at the
+next retry); any other is refused with :class:`UntrustedServer`, which names its SHA-256
+fingerprint (and saves it in ``rejected/`` beside the trust folder) — before any session is
+created or a password sent. The channel is then pinned to that certificate.
+
+**Node ids** are checked at every connection: ``nsu=<uri>;...`` is resolved through the
+server's namespace array, and every node must exist and be a variable. A bad one is logged
+once (tag, node id, reason), its tag stays Bad with that reason, and :attr:`OpcUaReader.bad_nodes`
+lists them.
 """
 
 from __future__ import annotations
@@ -31,7 +43,9 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class ClientSecurity:
-    """Basic256Sha256 SignAndEncrypt: our certificate and key, and an optional user."""
+    """Basic256Sha256 (``mode`` SignAndEncrypt or Sign): our certificate and key, an optional
+    user, and which server certificates to trust: the pinned ``server_certificate`` and/or
+    those in ``trusted_dir`` (module doc)."""
 
     certificate: Path
     private_key: Path
@@ -39,6 +53,12 @@ class ClientSecurity:
     username: str | None = None
     password: str | None = None
     server_certificate: Path | None = None
+    trusted_dir: Path | None = None
+    mode: str = "SignAndEncrypt"
+
+
+class UntrustedServer(ConnectionError):
+    """The server's certificate is neither pinned nor in the trust list (nothing was sent)."""
 
 
 @dataclass
@@ -115,6 +135,9 @@ class OpcUaReader:
         self._lost = asyncio.Event()
         self._stop = asyncio.Event()
         self._failing = False
+        #: tag → why its node id is unusable on the server (checked at every connection)
+        self.bad_nodes: dict[str, str] = {}
+        self._reported_bad: dict[str, str] = {}
         self.outages = 0  # how many times the connection was lost or refused
         #: (start, end) of each outage; end is None while it lasts
         self.gaps: list[tuple[datetime, datetime | None]] = []
@@ -213,8 +236,11 @@ class OpcUaReader:
         client = Client(cfg.url, timeout=cfg.timeout, watchdog_intervall=max(0.5, cfg.timeout / 2))
         client.session_timeout = 60_000
         sec = cfg.security
+        self._client = client
         if sec is not None:
             client.application_uri = sec.application_uri
+            mode = getattr(ua.MessageSecurityMode, sec.mode)
+            server_der = await self._trusted_server_certificate(client, mode)
             if sec.username is not None:
                 client.set_user(sec.username)
             if sec.password is not None:
@@ -223,26 +249,119 @@ class OpcUaReader:
                 SecurityPolicyBasic256Sha256,
                 str(sec.certificate),
                 str(sec.private_key),
-                server_certificate=str(sec.server_certificate) if sec.server_certificate else None,
-                mode=ua.MessageSecurityMode.SignAndEncrypt,
+                server_certificate=server_der,
+                mode=mode,
             )
 
         async def lost(exc: Exception) -> None:
             self._lost.set()
 
         client.connection_lost_callback = lost
-        self._client = client
         await client.connect(auto_reconnect=False)
-        self._nodes = {tag: client.get_node(nid) for tag, nid in cfg.nodes.items()}
-        self._tag_of = {n.nodeid.to_string(): tag for tag, n in self._nodes.items()}
+        await self._resolve_nodes(client)
         for tag in cfg.outputs:
             if tag in self._nodes:
                 self._vtypes[tag] = await self._nodes[tag].read_data_type_as_variant_type()
         if cfg.mode == "subscription":
             sub = await client.create_subscription(cfg.period * 1000, _Handler(self))
-            await sub.subscribe_data_change(list(self._nodes.values()))
+            if self._nodes:
+                await sub.subscribe_data_change(list(self._nodes.values()))
         else:
             await self._poll()
+
+    async def _trusted_server_certificate(self, client: Client, mode: Any) -> bytes:
+        """The server certificate from its endpoints if trusted, else :class:`UntrustedServer`."""
+        from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
+        from connectors.certs import certificate_der, fingerprint, trusted_ders
+
+        sec = self.config.security
+        assert sec is not None
+        endpoints = await client.connect_and_get_server_endpoints()
+        uri = SecurityPolicyBasic256Sha256.URI
+        ep = next(
+            (e for e in endpoints if e.SecurityPolicyUri == uri and e.SecurityMode == mode), None
+        )
+        if ep is None or not ep.ServerCertificate:
+            offered = sorted(
+                {f"{e.SecurityPolicyUri.split('#')[-1]} {e.SecurityMode.name}" for e in endpoints}
+            )
+            raise ConnectionError(
+                f"{self.config.url} offers no Basic256Sha256 {mode.name} endpoint "
+                f"(it offers {', '.join(offered) or 'nothing'})"
+            )
+        chain = bytes(ep.ServerCertificate)
+        der = chain[: int.from_bytes(chain[2:4], "big") + 4]  # the first of a chain
+        trusted = await asyncio.to_thread(trusted_ders, sec.trusted_dir)
+        pinned = certificate_der(sec.server_certificate) if sec.server_certificate else None
+        if der == pinned or der in trusted:
+            return der
+        fp = fingerprint(der)
+        saved = ""
+        if sec.trusted_dir is not None:
+            rejected = Path(sec.trusted_dir).parent / "rejected"
+            rejected.mkdir(parents=True, exist_ok=True)
+            path = rejected / f"{fp.replace(':', '')[:16].lower()}.der"
+            path.write_bytes(der)
+            saved = f"; saved as {path}: move it into {sec.trusted_dir} to trust it"
+        elif pinned is not None:
+            saved = f"; it is not the pinned {sec.server_certificate} ({fingerprint(pinned)})"
+        else:
+            saved = "; set trusted (a folder) or server_certificate for this source"
+        raise UntrustedServer(
+            f"server certificate of {self.config.url} not trusted (SHA-256 {fp}), nothing sent"
+            + saved
+        )
+
+    async def _resolve_nodes(self, client: Client) -> None:
+        """Node ids to nodes: ``nsu=`` through the namespace array; each must exist and be a
+        variable. Unusable ones go to :attr:`bad_nodes` (logged once) and stay Bad."""
+        from asyncua import ua
+
+        namespaces = await client.get_namespace_array()
+        ids: dict[str, Any] = {}
+        bad: dict[str, str] = {}
+        for tag, text in self.config.nodes.items():
+            try:
+                nid = ua.NodeId.from_string(text)
+            except Exception as exc:  # noqa: BLE001 - the parser's own errors vary
+                bad[tag] = f"not a node id ({exc})"
+                continue
+            uri = getattr(nid, "NamespaceUri", None)
+            if uri:
+                if uri not in namespaces:
+                    bad[tag] = f"namespace {uri} is not on the server"
+                    continue
+                nid = ua.NodeId(nid.Identifier, namespaces.index(uri), nid.NodeIdType)
+            ids[tag] = nid
+        tags = list(ids)
+        async with asyncio.timeout(self.config.timeout):
+            classes = await client.uaclient.read_attributes(
+                [ids[t] for t in tags], ua.AttributeIds.NodeClass
+            )
+        for tag, dv in zip(tags, classes, strict=True):
+            if not dv.StatusCode.is_good():
+                bad[tag] = dv.StatusCode.name
+            elif dv.Value.Value != ua.NodeClass.Variable:
+                bad[tag] = f"a {ua.NodeClass(dv.Value.Value).name}, not a variable"
+        self.bad_nodes = bad
+        for tag, why in bad.items():
+            if self._reported_bad.get(tag) != why:
+                log.warning(
+                    "OPC UA %s: tag %s: node %s: %s",
+                    self.config.url,
+                    tag,
+                    self.config.nodes[tag],
+                    why,
+                )
+        self._reported_bad = dict(bad)
+        self._nodes = {t: client.get_node(n) for t, n in ids.items() if t not in bad}
+        self._tag_of = {n.nodeid.to_string(): t for t, n in self._nodes.items()}
+        t = now()
+        for tag, why in bad.items():
+            self._latest[tag] = TagSample(
+                tag, math.nan, t, TagQuality.BAD, f"node {self.config.nodes[tag]}: {why}"
+            )
 
     async def _disconnect(self) -> None:
         client, self._client = self._client, None
@@ -257,6 +376,8 @@ class OpcUaReader:
     async def _poll(self) -> None:
         assert self._client is not None
         tags = list(self._nodes)
+        if not tags:
+            return
         async with asyncio.timeout(self.config.timeout):
             dvs = await self._client.read_attributes([self._nodes[t] for t in tags])
         for tag, dv in zip(tags, dvs, strict=True):

@@ -29,6 +29,8 @@ import numpy as np
 from connectors.base import TagQuality, now
 from connectors.modbus import Poll
 
+_BAD = int(TagQuality.BAD)
+
 
 class OpcUaSource:
     """An :class:`~connectors.opcua_client.OpcUaReader` as a poll source (see module doc)."""
@@ -39,10 +41,23 @@ class OpcUaSource:
         self.name = name or reader.config.url
 
     async def start(self) -> None:
-        """Start the reader and wait up to its request timeout for the first connection (so
-        the first cycles are not Bad only because the session was still being opened)."""
+        """Start the reader and wait up to its request timeout for the first connection and,
+        with a subscription, for the first values (so the first cycles are not Bad only
+        because the session was still being opened)."""
         await self.reader.start()
-        await self.reader.wait_connected(self.reader.config.timeout)
+        timeout = self.reader.config.timeout
+        if await self.reader.wait_connected(timeout):
+            end = time.monotonic() + timeout
+            while time.monotonic() < end:
+                waiting = [s for s in await self.reader.read() if s.reason == "not connected yet"]
+                if not waiting:
+                    break
+                await asyncio.sleep(0.05)
+
+    @property
+    def bad_nodes(self) -> dict[str, str]:
+        """Tags whose node id is unusable on the server, and why."""
+        return dict(self.reader.bad_nodes)
 
     async def poll(self) -> Poll:
         t0 = time.perf_counter()
@@ -50,8 +65,10 @@ class OpcUaSource:
         samples = await self.reader.read()
         values = np.array([s.value for s in samples], np.float64)
         quality = np.array([int(s.quality) for s in samples], np.uint8)
+        src = np.array([s.ts.timestamp() for s in samples], np.float64)
         values[quality == TagQuality.BAD] = np.nan
-        return Poll(ts, values, quality, [s.reason for s in samples], time.perf_counter() - t0)
+        reasons = [s.reason for s in samples]
+        return Poll(ts, values, quality, reasons, time.perf_counter() - t0, src)
 
     async def close(self) -> None:
         await self.reader.close()
@@ -105,6 +122,7 @@ class SourceSet:
         n = len(self.names)
         values = np.full(n, np.nan)
         quality = np.full(n, TagQuality.BAD, np.uint8)
+        source_ts = np.full(n, np.nan)
         reasons = [""] * n
         self._last = []
         for name, sl, p in zip(self.source_names, self._slices, got, strict=True):
@@ -114,10 +132,24 @@ class SourceSet:
                 self._last.append(why)
                 continue
             values[sl], quality[sl], reasons[sl] = p.values, p.quality, p.reasons
-            bad = [r for r, q in zip(p.reasons, p.quality, strict=True) if q == TagQuality.BAD]
-            # a source is down when none of its tags could be read
-            self._last.append(bad[0] if bad and len(bad) == len(p.reasons) else "")
-        return Poll(ts, values, quality, reasons, time.perf_counter() - t0)
+            if p.source_ts is not None:
+                source_ts[sl] = p.source_ts
+            # a source is down when none of its tags could be read (vectorised: 5,000 tags)
+            down = len(p.reasons) > 0 and bool((p.quality == _BAD).all())
+            self._last.append((p.reasons[0] or "no tag readable") if down else "")
+        return Poll(ts, values, quality, reasons, time.perf_counter() - t0, source_ts)
+
+    def slices(self) -> list[tuple[str, slice]]:
+        """Each source's name and the slice of its tags in the tag vector."""
+        return list(zip(self.source_names, self._slices, strict=True))
+
+    def bad_nodes(self) -> dict[str, dict[str, str]]:
+        """Per source: tags whose node id is unusable (OPC UA sources), and why."""
+        return {
+            name: s.bad_nodes
+            for name, s in zip(self.source_names, self.sources, strict=True)
+            if getattr(s, "bad_nodes", None)
+        }
 
     def transitions(self, ts: datetime) -> list[Transition]:
         """Sources that went down or came back in the last :meth:`poll`."""

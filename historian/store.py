@@ -45,9 +45,17 @@ class Historian(ColdMonths, Registry, TagReport):
     ``cold_dir``: folder of the Parquet cold store. Default: the folder the database recorded
     when it first rolled months into another than SQLite's default, ``<db file>.cold`` beside
     the database (PostgreSQL has no default: give it to the first roll).
+    ``busy_timeout``: seconds a SQLite write waits for another writer's lock before it fails
+    (the live loop's writer uses a short one and retries on its own).
     """
 
-    def __init__(self, url: str = "sqlite:///diag.db", *, cold_dir: str | Path | None = None):
+    def __init__(
+        self,
+        url: str = "sqlite:///diag.db",
+        *,
+        cold_dir: str | Path | None = None,
+        busy_timeout: float = 60.0,
+    ):
         self.url = str(url)
         u = make_url(self.url)
         if u.get_backend_name() == "sqlite":
@@ -55,8 +63,9 @@ class Historian(ColdMonths, Registry, TagReport):
                 raise ValueError("the SQLite historian needs a file: sqlite:///path/to/diag.db")
             path = Path(u.database)
             self.engine = create_engine(u.set(drivername="sqlite"))
-            event.listen(self.engine, "connect", _sqlite_pragmas)
-            self._bulk = SqliteBulk(path)
+            busy_ms = int(busy_timeout * 1000)
+            event.listen(self.engine, "connect", lambda c, r: _sqlite_pragmas(c, r, busy_ms))
+            self._bulk = SqliteBulk(path, busy_timeout_ms=busy_ms)
             self._default_cold_dir = path.with_name(path.name + ".cold")
         elif u.get_backend_name() == "postgresql":
             self.engine = create_engine(u.set(drivername="postgresql+psycopg"))
@@ -485,9 +494,9 @@ class Historian(ColdMonths, Registry, TagReport):
         }
 
 
-def _sqlite_pragmas(dbapi_conn, _record) -> None:
+def _sqlite_pragmas(dbapi_conn, _record, busy_ms: int = 60_000) -> None:
     cur = dbapi_conn.cursor()
-    cur.execute("PRAGMA busy_timeout=60000")
+    cur.execute(f"PRAGMA busy_timeout={int(busy_ms)}")
     cur.execute("PRAGMA journal_mode=WAL")
     cur.execute("PRAGMA synchronous=FULL")
     cur.close()

@@ -88,8 +88,11 @@ def test_lifecycle_clear_before_ack():
 def test_shelve_remembers_condition():
     a = Alarm("v1")
     a.update(True, 900)
-    assert a.shelve().after is S.SHELVED and a.shelved and not a.active and not a.retain
+    # shelved, the condition still on: Part 9 keeps it retained (an HMI hides it by
+    # SuppressedOrShelved), ISA-18.2 no longer annunciates it
+    assert a.shelve().after is S.SHELVED and a.shelved and not a.active and a.retain
     a.update(False)
+    assert not a.retain  # shelved and off: nothing for an alarm list
     a.update(True, 950)
     assert a.state is S.SHELVED
     assert a.unshelve().after is S.ACTIVE_UNACK  # still on: annunciated afresh
@@ -132,3 +135,22 @@ def test_shelving_expires():
 )
 def test_severity_bands(status, certainty, band):
     assert band[0] <= severity(status, certainty) <= band[1]
+
+
+def test_confirmation_after_acknowledge_part9():
+    """Part 9 §5.7.4: with confirmations asked for, an acknowledged alarm waits for Confirm
+    (ConfirmedState False, still retained after it clears); without, it never waits."""
+    a = Alarm("v1", confirmation=True)
+    a.update(True, 900)
+    assert a.confirmed and not a.confirm()  # nothing acknowledged: nothing to confirm
+    a.acknowledge()
+    assert not a.confirmed and a.retain
+    a.update(False)
+    assert a.state is S.NORMAL and a.retain  # cleared, but not yet confirmed
+    assert a.confirm() and a.confirmed and not a.retain
+    assert not a.confirm()
+    plain = Alarm("v2")
+    plain.update(True, 900)
+    plain.acknowledge()
+    plain.update(False)
+    assert plain.confirmed and not plain.retain and not plain.confirm()

@@ -220,12 +220,17 @@ def test_two_sources_and_a_plc_killed_and_restarted(plant_dir):
     assert text.count("source plc unavailable") == 1, text
     assert text.count("source plc back after") == 1, text
     assert "source scada" not in text, text
+    # an outage is no fault: the unit's alarm stays down (the outage is a notice of its own,
+    # in the maintenance band, gone when the source is back)
+    assert "alarm raised" not in text, text
     h = Historian.open(f"sqlite:///{d / 'live.db'}")
     try:
         f = h.read_samples("F", with_quality=True)
         p2 = h.read_samples("P2", with_quality=True)
+        ev = h.events(unit="source plc")
     finally:
         h.close()
+    assert [m.split(" ")[2] for m in ev["message"]] == ["unavailable,", "back"], ev
     # every cycle stored; the outage as one run of Bad samples between Good ones
     assert len(f) == len(p2) == len(timeline), (len(f), len(timeline))
     bad = (f["quality"] == 2).to_numpy().astype(int)
@@ -243,8 +248,12 @@ def test_config_of_several_sources_names_source_key_and_line(plant_dir, monkeypa
 
     d, _ = plant_dir
     (d / "scada.csv").write_text("tag,node\nP2,ns=2;s=Plant.P2\n", encoding="utf-8")
-    (d / "client.der").write_bytes(b"x")
-    (d / "client.pem").write_bytes(b"x")
+    from connectors.certs import make_certificate
+
+    pair = make_certificate(d / "pki", "client", "urn:diag-plugin:client")
+    (d / "client.der").write_bytes(pair.certificate.read_bytes())
+    (d / "client.pem").write_bytes(pair.private_key.read_bytes())
+    (d / "broken.der").write_bytes(b"x")
     good = TOML.format(plc=5021, ua=4841)
     p = d / "several.toml"
     p.write_text(good, encoding="utf-8")
@@ -270,6 +279,18 @@ def test_config_of_several_sources_names_source_key_and_line(plant_dir, monkeypa
     monkeypatch.delenv("DIAG_TEST_PW")
     cases = (
         (secure, "several.toml:24: source[2].password_env: environment variable DIAG_TEST_PW"),
+        (
+            secure.replace('certificate = "client.der"', 'certificate = "broken.der"'),
+            "several.toml:21: source[2].certificate: unreadable certificate",
+        ),
+        (
+            secure.replace('private_key = "client.pem"', 'private_key = "client.der"'),
+            "several.toml:22: source[2].private_key: unreadable private key",
+        ),
+        (
+            good.replace('nodes = "scada.csv"', 'nodes = { P2 = "ns=2;x=Plant.P2" }'),
+            "several.toml:19: source[2].nodes: tag P2: 'ns=2;x=Plant.P2' is not a node id",
+        ),
         (
             secure.replace('certificate = "client.der"\n', ""),
             "several.toml:14: source[2].certificate: certificate and private_key go together",
@@ -297,6 +318,7 @@ def test_config_of_several_sources_names_source_key_and_line(plant_dir, monkeypa
         ("tag,node\nP2,ns=2;s=Plant.P2\nF,ns=2;s=Plant.F\n", "source[2].nodes: tag 'F' is also"),
         ("tag,node\nP2,ns=2;s=Plant.P2\nT9\n", "scada.csv:3: expected 'tag,node'"),
         ("name,id\nP2,ns=2;s=Plant.P2\n", "scada.csv:1: expected the header 'tag,node'"),
+        ("tag,node\nP2,ns=2;Plant.P2\n", "scada.csv:2: tag P2: 'ns=2;Plant.P2' is not a node id"),
     ):
         (d / "scada.csv").write_text(csv_text, encoding="utf-8")
         with pytest.raises(ConfigError) as exc:

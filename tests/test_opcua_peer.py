@@ -2,8 +2,11 @@
 
 The server offers only Basic256Sha256 SignAndEncrypt with user/password and a trust list.
 node-opcua browses the units, reads a unit's status, receives AlarmConditionType events and
-acknowledges through the unit's Acknowledge method; an untrusted client certificate and a
-wrong password are refused. Our own client connects with the same security.
+acknowledges through the unit's Acknowledge method, and — as an HMI does — through Part 9's
+standard Acknowledge (i=9111) naming the event's EventId, after a ConditionRefresh brought
+it the alarm raised before it subscribed; a viewer's acknowledgement is refused; an
+untrusted client certificate, a wrong password and an anonymous login are refused. Our own
+client connects with the same security.
 
 node-opcua is installed by ``cd tests/peers/opcua && npm ci`` (``make test`` does it);
 without it these tests skip locally and fail on CI.
@@ -23,8 +26,10 @@ from helpers import REPO, requires
 
 from connectors.base import TagQuality
 from connectors.certs import CertPair, make_certificate, trust
+from connectors.opcua_access import OpcUaUser
 from connectors.opcua_client import ClientSecurity, OpcUaConfig, OpcUaReader
 from connectors.opcua_server import DiagOpcUaServer, ServerSecurity
+from connectors.passwords import hash_password
 from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 
 PEER = REPO / "tests" / "peers" / "opcua"
@@ -33,6 +38,7 @@ need_node = requires("node-opcua (npm)", HAVE_NODE, "cd tests/peers/opcua && npm
 
 pytestmark = pytest.mark.anyio
 USER, PASSWORD = "operator", "s3cret-pw"
+VIEWER, VIEWER_PASSWORD = "watcher", "look-only-pw"
 
 
 @pytest.fixture(scope="module")
@@ -57,13 +63,18 @@ def pki(tmp_path_factory) -> dict[str, CertPair | Path]:
     stranger = make_certificate(d / "strangers", "peer", "urn:diag-plugin:test:peer")
     trust(good, d / "trusted")
     trust(ours, d / "trusted")
+    trust(server, d / "trusted_servers")  # our client trusts this server
     return {"server": server, "good": good, "ours": ours, "stranger": stranger, "dir": d}
 
 
 @pytest.fixture(scope="module")
 async def server(anyio_backend, pki):
     s = pki["server"]
-    sec = ServerSecurity(s.certificate, s.private_key, pki["dir"] / "trusted", {USER: PASSWORD})
+    users = (
+        OpcUaUser(USER, "operator", hash_password(PASSWORD)),
+        OpcUaUser(VIEWER, "viewer", hash_password(VIEWER_PASSWORD)),
+    )
+    sec = ServerSecurity(s.certificate, s.private_key, pki["dir"] / "trusted", users)
     srv = DiagOpcUaServer(port=free_port(), security=sec)
     await srv.start()
     await srv.publish(unit_status(NE107.NORMAL, 0.0))
@@ -91,6 +102,7 @@ async def node_peer(
     tmp: Path,
     on_ready=None,
     password: str = PASSWORD,
+    user: str = USER,
     **extra,
 ) -> list[dict]:
     """Run the node-opcua client script; ``on_ready`` runs once it subscribed to events."""
@@ -101,7 +113,7 @@ async def node_peer(
         "certificateFile": str(cert.certificate),
         "privateKeyFile": str(cert.private_key),
         "applicationUri": cert.application_uri,
-        "user": USER,
+        "user": user,
         "password": password,
         "pkiDir": str(tmp / "node-pki"),
         "timeoutMs": 30000,
@@ -164,6 +176,73 @@ async def test_node_opcua_browses_reads_and_gets_alarms(server, pki, tmp_path):
 
 
 @need_node
+async def test_node_opcua_acknowledges_by_part9_after_condition_refresh(server, pki, tmp_path):
+    """An HMI's way: subscribe, ConditionRefresh (the alarm raised before is sent again between
+    RefreshStart and RefreshEnd), Acknowledge (i=9111) with that event's EventId and a comment;
+    the next event shows AckedState true with the comment and who acknowledged."""
+    server.actions.clear()
+    await server.publish(unit_status(NE107.FAILURE, 0.8))  # raised before the HMI subscribes
+    lines = await node_peer(
+        server, pki["good"], tmp_path, waitEvents=2, ackStandard=True, refresh=True
+    )
+    steps = {m["step"]: m for m in lines}
+    assert "error" not in steps, lines
+    assert steps["refresh"]["status"] == "Good"
+    events = [m["event"] for m in lines if m["step"] == "event"]
+    types = [e["EventType"] for e in events]
+    start, end = types.index("ns=0;i=2787"), types.index("ns=0;i=2788")  # RefreshStart/End
+    refreshed = [e for e in events[start:end] if e["SourceName"] == "valve"]
+    assert refreshed and refreshed[0]["AckedState.Id"] is False and refreshed[0]["Retain"]
+    assert refreshed[0]["ConditionId"].endswith("s=Units.valve.Alarm")
+    assert steps["ackStandard"]["status"] == "Good", lines
+    acked = [e for e in events if e["EventType"] == "ns=0;i=2915" and e["AckedState.Id"]]
+    assert acked and acked[0]["Comment"] == "seen by the peer"
+    assert acked[0]["ClientUserId"] == "operator (operator)"
+    assert acked[0]["EventId"] != refreshed[0]["EventId"]  # every event its own id
+    assert server.alarms["valve"].state == "active-acknowledged"
+    (a,) = [a for a in server.actions if a.action == "acknowledge"]
+    assert (a.user, a.via, a.ok) == ("operator (operator)", "OPC UA", True)
+    await server.publish(unit_status(NE107.NORMAL, 0.0))
+
+
+@need_node
+async def test_node_opcua_viewer_cannot_acknowledge(server, pki, tmp_path):
+    server.actions.clear()
+    await server.publish(unit_status(NE107.FAILURE, 0.8))
+    try:
+        lines = await node_peer(
+            server,
+            pki["good"],
+            tmp_path,
+            user=VIEWER,
+            password=VIEWER_PASSWORD,
+            waitEvents=1,
+            ackStandard=True,
+            refresh=True,
+        )
+        for _ in range(50):  # the answer to the acknowledgement may come after the event
+            if any(m["step"] == "ackStandard" for m in lines):
+                break
+            await asyncio.sleep(0.1)
+        steps = {m["step"]: m for m in lines}
+        assert "read" in steps, lines  # a viewer reads and subscribes
+        assert server.alarms["valve"].state == "active-unacknowledged"
+        refused = [a for a in server.actions if a.action == "refused"]
+        assert refused and refused[0].user == f"{VIEWER} (viewer)", server.actions
+        assert "9111" in refused[0].detail
+    finally:
+        await server.acknowledge("valve")
+        await server.publish(unit_status(NE107.NORMAL, 0.0))
+
+
+@need_node
+async def test_anonymous_refused_when_not_allowed(server, pki, tmp_path):
+    lines = await node_peer(server, pki["good"], tmp_path, anonymous=True)
+    assert lines[-1]["step"] == "error", lines
+    assert not any(m["step"] == "read" for m in lines)
+
+
+@need_node
 async def test_untrusted_client_certificate_refused(server, pki, tmp_path):
     lines = await node_peer(server, pki["stranger"], tmp_path)
     assert lines[-1]["step"] == "error", lines
@@ -180,7 +259,14 @@ async def test_wrong_password_refused(server, pki, tmp_path):
 
 async def test_our_client_sign_and_encrypt_with_user(server, pki):
     ours = pki["ours"]
-    sec = ClientSecurity(ours.certificate, ours.private_key, ours.application_uri, USER, PASSWORD)
+    sec = ClientSecurity(
+        ours.certificate,
+        ours.private_key,
+        ours.application_uri,
+        USER,
+        PASSWORD,
+        trusted_dir=pki["dir"] / "trusted_servers",
+    )
     nodes = {"health": server.node_id("Units", "valve", "DeviceHealth")}
     r = OpcUaReader(OpcUaConfig(server.endpoint, nodes, security=sec, timeout=4.0))
     await r.start()
@@ -194,7 +280,14 @@ async def test_our_client_sign_and_encrypt_with_user(server, pki):
 
 async def test_our_client_untrusted_certificate_stays_bad(server, pki):
     st = pki["stranger"]
-    sec = ClientSecurity(st.certificate, st.private_key, st.application_uri, USER, PASSWORD)
+    sec = ClientSecurity(
+        st.certificate,
+        st.private_key,
+        st.application_uri,
+        USER,
+        PASSWORD,
+        trusted_dir=pki["dir"] / "trusted_servers",  # we trust the server; it refuses us
+    )
     nodes = {"health": server.node_id("Units", "valve", "DeviceHealth")}
     r = OpcUaReader(OpcUaConfig(server.endpoint, nodes, security=sec, backoff_cap=1.0))
     await r.start()

@@ -1,5 +1,7 @@
-"""Our OPC UA server seen through asyncua's client: address space, alarm events per severity
-band, shelve/unshelve methods, the AckRequest tag, restart keeping alarm state."""
+"""Our OPC UA server seen through asyncua's client, logged in as an operator over
+SignAndEncrypt: address space, alarm events per severity band, CHECK_FUNCTION neither raising
+nor clearing an alarm, timed shelving (refused untimed or over the maximum, visible while
+shelved, ending by itself), the AckRequest tag, restart keeping alarm state."""
 
 from __future__ import annotations
 
@@ -8,8 +10,10 @@ import socket
 
 import pandas as pd
 import pytest
+from opcua_peers import client as ua_client
+from opcua_peers import pki, users
 
-from connectors.opcua_server import NAMESPACE, DiagOpcUaServer
+from connectors.opcua_server import NAMESPACE, DiagOpcUaServer, ServerSecurity
 from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 
 pytestmark = pytest.mark.anyio
@@ -49,15 +53,20 @@ class Events:
         self.items.append(event)
 
 
-@pytest.fixture(scope="module")
-async def env(anyio_backend):
-    from asyncua import Client
+MAX_SHELVE = 60.0
 
-    srv = DiagOpcUaServer(port=free_port())
+
+@pytest.fixture(scope="module")
+async def env(anyio_backend, tmp_path_factory):
+    keys = pki(tmp_path_factory.mktemp("pki"))
+    d = keys["dir"]
+    sec = ServerSecurity(
+        d / "own" / "srv.pem", d / "own" / "srv.key.pem", d / "trusted", users(keys)
+    )
+    srv = DiagOpcUaServer(port=free_port(), security=sec, max_shelve=MAX_SHELVE)
     await srv.start()
     await srv.add_unit("u1", faults=["f1", "f2"], tests=["r1"], models=["A"])
-    client = Client(srv.endpoint, timeout=5)
-    await client.connect()
+    client = await ua_client(srv.endpoint, keys["hmi"], "alice")
     events = Events()
     sub = await client.create_subscription(50, events)
     from asyncua import ua
@@ -124,7 +133,6 @@ async def test_address_space(env):
     [
         (NE107.FAILURE, 801, 1000),
         (NE107.OFF_SPEC, 601, 800),
-        (NE107.CHECK_FUNCTION, 401, 600),
         (NE107.MAINTENANCE_REQUIRED, 301, 400),
     ],
 )
@@ -154,6 +162,22 @@ async def test_certainty_rise_updates_severity_without_new_state(env):
     assert [e.Severity for e in evs] == [821, 1000]
 
 
+async def test_check_function_neither_raises_nor_clears(env):
+    """CHECK_FUNCTION (inputs stale or Bad, a source out) is no fault: no alarm from NORMAL,
+    and a standing alarm holds until the diagnosis is back."""
+    srv, _, events = env
+    events.items.clear()
+    await srv.publish(st("u6", NE107.NORMAL))
+    await srv.publish(st("u6", NE107.CHECK_FUNCTION, q=Quality.BAD))
+    await asyncio.sleep(0.3)
+    assert srv.alarms["u6"].state == "normal" and not await wait_events(events, "u6", 1, 0.5)
+    await srv.publish(st("u6", NE107.FAILURE, 0.9))
+    await srv.publish(st("u6", NE107.CHECK_FUNCTION, q=Quality.BAD))
+    assert srv.alarms["u6"].state == "active-unacknowledged"
+    await srv.publish(st("u6", NE107.NORMAL))
+    assert srv.alarms["u6"].state == "return-to-normal-unacknowledged"
+
+
 async def test_shelve_and_unshelve_methods(env):
     srv, client, events = env
     from asyncua import ua
@@ -162,17 +186,59 @@ async def test_shelve_and_unshelve_methods(env):
     await wait_events(events, "u4", 1)
     unit = client.get_node(srv.node_id("Units", "u4"))
     events.items.clear()
-    assert await unit.call_method(f"{srv.ns}:Shelve", ua.Variant(0.0, ua.VariantType.Double))
+    # shelving is timed only, up to the maximum
+    for secs in (0.0, -5.0, MAX_SHELVE + 1):
+        with pytest.raises(ua.UaStatusCodeError, match="BadShelvingTimeOutOfRange"):
+            await unit.call_method(f"{srv.ns}:Shelve", ua.Variant(secs, ua.VariantType.Double))
+    assert srv.alarms["u4"].state == "active-unacknowledged"
+    assert await unit.call_method(f"{srv.ns}:Shelve", ua.Variant(30.0, ua.VariantType.Double))
     assert srv.alarms["u4"].state == "shelved"
     (ev,) = await wait_events(events, "u4", 1)
-    assert ev.SuppressedOrShelved is True and ev.Retain is False
+    # still visible, as shelved: the condition is on and retained, flagged shelved
+    assert ev.SuppressedOrShelved is True and ev.Retain is True
+    assert getattr(ev, "ActiveState/Id") is True
     shelved = client.get_node(srv.node_id("Units", "u4", "Alarm", "Shelved"))
     assert await shelved.read_value() is True
+    until = await client.get_node(srv.node_id("Units", "u4", "Alarm", "ShelvedUntil")).read_value()
+    assert 25 < (until - pd.Timestamp.now(tz="UTC").to_pydatetime()).total_seconds() <= 30
+    with pytest.raises(ua.UaStatusCodeError, match="BadConditionAlreadyShelved"):
+        await unit.call_method(f"{srv.ns}:Shelve", ua.Variant(10.0, ua.VariantType.Double))
     assert await unit.call_method(f"{srv.ns}:Unshelve")
     assert srv.alarms["u4"].state == "active-unacknowledged"  # still on: annunciated again
     assert await unit.call_method(f"{srv.ns}:Acknowledge")
-    assert not await unit.call_method(f"{srv.ns}:Acknowledge")  # nothing left to acknowledge
+    with pytest.raises(ua.UaStatusCodeError, match="BadConditionBranchAlreadyAcked"):
+        await unit.call_method(f"{srv.ns}:Acknowledge")  # nothing left to acknowledge
     assert srv.alarms["u4"].state == "active-acknowledged"
+    done = [a for a in srv.actions if a.unit == "u4" and a.ok]
+    assert [a.action for a in done] == ["shelve", "unshelve", "acknowledge"]
+    assert all(a.user == "alice (operator)" and a.via == "OPC UA" for a in done)
+
+
+async def test_shelving_ends_by_itself_and_a_fault_while_shelved_is_seen(env):
+    srv, client, events = env
+    from asyncua import ua
+
+    await srv.publish(st("u7", NE107.MAINTENANCE_REQUIRED, 0.5))
+    unit = client.get_node(srv.node_id("Units", "u7"))
+    assert await unit.call_method(f"{srv.ns}:Shelve", ua.Variant(1.0, ua.VariantType.Double))
+    await wait_events(events, "u7", 2)  # raised, shelved
+    events.items.clear()
+    await srv.publish(st("u7", NE107.NORMAL))
+    await srv.publish(st("u7", NE107.FAILURE, 0.9))  # a new fault while shelved: an event
+    evs = await wait_events(events, "u7", 2)
+    assert [e.SuppressedOrShelved for e in evs[-2:]] == [True, True]
+    assert srv.alarms["u7"].state == "shelved"
+    await asyncio.sleep(1.1)
+    await srv.publish(st("u7", NE107.FAILURE, 0.9))  # the next update ends the shelving
+    assert srv.alarms["u7"].state == "active-unacknowledged"
+    for _ in range(100):
+        evs = [e for e in events.items if e.SourceName == "u7"]
+        if evs and evs[-1].SuppressedOrShelved is False:
+            break
+        await asyncio.sleep(0.05)
+    assert evs[-1].SuppressedOrShelved is False and getattr(evs[-1], "AckedState/Id") is False
+    timer = [a for a in srv.actions if a.unit == "u7" and a.action == "unshelve"]
+    assert timer and timer[-1].user == "timer"
 
 
 async def test_ack_request_tag(env):
@@ -191,7 +257,7 @@ async def test_ack_request_tag(env):
 async def test_restart_keeps_alarm_state_and_units(anyio_backend):
     from asyncua import Client
 
-    srv = DiagOpcUaServer(port=free_port(), plant_tags=("F",))
+    srv = DiagOpcUaServer(port=free_port(), plant_tags=("F",))  # no security: loopback only
     await srv.start()
     await srv.publish(st("v", NE107.FAILURE, 0.9))
     await srv.acknowledge("v")
@@ -208,3 +274,30 @@ async def test_restart_keeps_alarm_state_and_units(anyio_backend):
             assert await state.read_value() == "normal"
     finally:
         await srv.stop()
+
+
+async def test_notices_are_maintenance_band_and_need_no_acknowledgement(env):
+    """The plug-in's own conditions (a source out, the historian degraded): severity 350, no
+    acknowledgement awaited, retained while on, normal again by themselves; their Active and
+    Message variables and the historian's backlog read over OPC UA."""
+    srv, client, events = env
+    events.items.clear()
+    await srv.notice("Historian", True, "historian degraded: database is locked")
+    await srv.set_plugin_value("Historian", "Backlog", 1234)
+    (ev,) = await wait_events(events, "Historian", 1)
+    assert ev.Severity == 350 and ev.Retain is True and ev.ConditionName == "Notice"
+    assert getattr(ev, "ActiveState/Id") is True and getattr(ev, "AckedState/Id") is True
+    read = {
+        k: await client.get_node(srv.node_id("Plugin", "Historian", k)).read_value()
+        for k in ("Active", "Message", "Backlog")
+    }
+    assert read == {
+        "Active": True,
+        "Message": "historian degraded: database is locked",
+        "Backlog": 1234,
+    }
+    await srv.notice("Historian", True, "historian degraded: database is locked")  # no change
+    await srv.notice("Historian", False, "historian back after 30.0 s")
+    evs = await wait_events(events, "Historian", 2)
+    assert len(evs) == 2 and evs[-1].Retain is False
+    assert getattr(evs[-1], "ActiveState/Id") is False

@@ -39,27 +39,52 @@ def add_commands(sub) -> None:
         "--flush-every", type=int, default=20, metavar="N", help="historian write every N cycles"
     )
     p.add_argument("--plain", action="store_true", help="print event lines only (no live table)")
+    p.add_argument(
+        "--hash-password",
+        action="store_true",
+        help="read a password (twice) and print its password_hash for a [[user]] in plant.toml",
+    )
     p.set_defaults(func=_run)
+
+
+def _hash_password() -> int:
+    import getpass
+    import sys
+
+    from connectors.passwords import hash_password
+
+    if sys.stdin.isatty():
+        pw = getpass.getpass("password: ")
+        if getpass.getpass("again: ") != pw:
+            print("diag run: the passwords differ", file=sys.stderr)
+            return 2
+    else:
+        pw = sys.stdin.readline().rstrip("\n")
+    if len(pw) < 8:
+        print("diag run: a password needs at least 8 characters", file=sys.stderr)
+        return 2
+    print(hash_password(pw))
+    return 0
 
 
 def _run(args: argparse.Namespace) -> int:
     import asyncio
     import sys
 
+    if args.hash_password:
+        return _hash_password()
     if args.config:
         from diag_plugin.live.config import ConfigError, load_config, run_config
 
         try:
             cfg = load_config(args.config)
+            return asyncio.run(
+                run_config(cfg, duration=args.duration, tty=False if args.plain else None)
+            )
         except ConfigError as exc:
-            print(f"diag run: {exc}", file=sys.stderr)
+            for line in str(exc).splitlines():
+                print(f"diag run: {line}", file=sys.stderr)
             return 2
-        if busy := _busy([cfg.modbus_port, cfg.opcua_port]):
-            print(f"diag run: {busy}", file=sys.stderr)
-            return 3
-        return asyncio.run(
-            run_config(cfg, duration=args.duration, tty=False if args.plain else None)
-        )
     if args.cycle <= 0:
         print("diag run: --cycle must be positive", file=sys.stderr)
         return 2
@@ -83,18 +108,10 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _busy(ports) -> str | None:
-    """Which of the ports the plug-in serves on 127.0.0.1 another program holds already."""
-    import socket
+    """Which of the ports the embedded plant serves on 127.0.0.1 another program holds."""
+    from diag_plugin.live.config import port_busy
 
     for port in ports:
-        if not port:
-            continue
-        with socket.socket() as sock:
-            try:
-                sock.bind(("127.0.0.1", int(port)))
-            except OSError as exc:
-                return (
-                    f"port {port} on 127.0.0.1 is busy ({exc.strerror}): stop what holds it "
-                    "or choose another port"
-                )
+        if port and (why := port_busy("127.0.0.1", int(port))):
+            return f"port {port} on 127.0.0.1 {why}: stop what holds it or choose another port"
     return None

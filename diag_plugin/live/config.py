@@ -8,6 +8,9 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     flush_every = 20                              # historian write every N cycles
     units = ["rulebases/valve_unit.unit.toml"]    # unit files
     rulebases = "rulebases"                       # optional; default: the first unit's folder
+    stale_after = 30                              # optional; default: from each tag's history
+    spill = "plant.db.spill"                      # optional; default: beside the database
+    buffer_samples = 2000000                      # samples held in memory before spilling
 
     [[source]]                                    # one table per PLC or server
     name = "plc1"
@@ -31,8 +34,25 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     modbus_port = 5020                            # Modbus status server; 0: none
     opcua_port = 4840                             # OPC UA server; 0: none
 
+    [opcua]                                       # our OPC UA server's security (optional)
+    security = ["SignAndEncrypt", "Sign"]         # Basic256Sha256; "None" only on loopback
+    certificate = "pki/own/diag-server.pem"       # created on first start when absent
+    private_key = "pki/own/diag-server.key.pem"
+    trusted = "pki/trusted"                       # client certificates allowed to connect
+    anonymous = false                             # anonymous sessions (read-only)
+    max_shelve = 3600                             # longest shelving, seconds
+    confirm = false                               # true: alarms also wait for Confirm
+
+    [[user]]
+    name = "alice"
+    role = "operator"                             # anonymous/viewer: read; operator: alarms
+    password_hash = "scrypt$16384$8$1$..."        # `diag run --hash-password`
+
 A single ``[source]`` table is read as a one-element list. Tag names must be unique across
 sources. Every error names the file, line and key (``plant.toml:12: source[2].port: ...``).
+Certificates, keys and trust folders are read at load (an unreadable one is an error there);
+:func:`commission` checks what needs the units and the machine: every unit input read by a
+source, the output ports free.
 """
 
 from __future__ import annotations
@@ -75,12 +95,29 @@ class SourceConfig:
     private_key: Path | None = None
     application_uri: str = "urn:diag-plugin:client"
     server_certificate: Path | None = None
+    trusted: Path | None = None
     username: str | None = None
     password: str | None = None
 
     @property
     def where(self) -> str:
         return self.url if self.type == "opcua" else f"modbus://{self.host}:{self.port}"
+
+
+@dataclass
+class ServerConfig:
+    """``[opcua]``: our OPC UA server's security, and ``[[user]]`` tables."""
+
+    host: str = "127.0.0.1"
+    security: tuple[str, ...] = ("SignAndEncrypt",)
+    certificate: Path | None = None
+    private_key: Path | None = None
+    trusted: Path | None = None
+    anonymous: bool = False
+    max_shelve: float = 3600.0
+    confirm: bool = False
+    application_uri: str = "urn:diag-plugin:server"
+    users: list[Any] = field(default_factory=list)  # connectors.opcua_access.OpcUaUser
 
 
 @dataclass
@@ -91,12 +128,28 @@ class LiveConfig:
     flush_every: int = 20
     units: list[Path] = field(default_factory=list)
     rulebases: Path | None = None
+    stale_after: float | None = None
+    spill: Path | None = None
+    buffer_samples: int = 2_000_000
     sources: list[SourceConfig] = field(default_factory=list)
     modbus_port: int = 5020
     opcua_port: int = 4840
+    server: ServerConfig | None = None
+    lines: list[str] = field(default_factory=list, repr=False)
+
+    def line(self, section: str, key: str | None = None, index: int = 0) -> int:
+        """The line of ``key`` in the ``index``-th ``[section]`` of the file."""
+        return _line_of(self.lines, section, key, index)
 
 
-_NAMES = {int: "an integer", float: "a number", str: "a string", list: "a list", dict: "a table"}
+_NAMES = {
+    int: "an integer",
+    float: "a number",
+    str: "a string",
+    list: "a list",
+    dict: "a table",
+    bool: "true or false",
+}
 
 _COMMON = {"name", "type", "timeout"}
 _SOURCE_KEYS = {
@@ -111,15 +164,45 @@ _SOURCE_KEYS = {
         "private_key",
         "application_uri",
         "server_certificate",
+        "trusted",
         "username",
         "password_env",
     },
 }
 _KEYS = {
-    "plant": {"cycle", "historian", "flush_every", "units", "rulebases"},
+    "plant": {
+        "cycle",
+        "historian",
+        "flush_every",
+        "units",
+        "rulebases",
+        "stale_after",
+        "spill",
+        "buffer_samples",
+    },
     "source": set().union(*_SOURCE_KEYS.values()),
     "outputs": {"modbus_port", "opcua_port"},
+    "opcua": {
+        "host",
+        "security",
+        "certificate",
+        "private_key",
+        "trusted",
+        "anonymous",
+        "max_shelve",
+        "confirm",
+        "application_uri",
+    },
+    "user": {"name", "role", "password_hash", "certificate"},
 }
+#: tables that may repeat ([[source]], [[user]])
+_LISTS = ("source", "user")
+#: node ids as OPC 10000-6 §5.3.1.10 writes them: [ns=<index>;|nsu=<uri>;]<i|s|g|b>=<id>
+_NODE_ID = re.compile(
+    r"^(?:ns=\d+;|nsu=[^;]+;)?(?:i=\d+|s=.+|g=[0-9a-fA-F]{8}(?:-[0-9a-fA-F]{4}){3}-[0-9a-fA-F]{12}"
+    r"|b=[A-Za-z0-9+/]+=*)$",
+    re.S,
+)
 
 
 def _line_of(lines: list[str], section: str, key: str | None, index: int = 0) -> int:
@@ -140,11 +223,10 @@ def load_config(path: str | Path) -> LiveConfig:
         raise ConfigError(f"{path}:{m.group(1) if m else 1}: not valid TOML: {exc}") from None
     lines = text.splitlines()
     base = path.parent
-    raw_sources = doc.get("source")
-    many = isinstance(raw_sources, list) and len(raw_sources) > 1
+    many = {k for k in _LISTS if isinstance(doc.get(k), list) and len(doc[k]) > 1}
 
     def label(section: str, index: int) -> str:
-        return f"{section}[{index + 1}]" if section == "source" and many else section
+        return f"{section}[{index + 1}]" if section in many else section
 
     def fail(section: str, key: str | None, msg: str, index: int = 0) -> ConfigError:
         name = f"{label(section, index)}.{key}" if key else f"[{label(section, index)}]"
@@ -161,10 +243,12 @@ def load_config(path: str | Path) -> LiveConfig:
             raise ConfigError(f"{path}:1: [{section}]: missing table")
     tables: dict[str, list[dict]] = {}
     for section, v in doc.items():
-        tables[section] = v if isinstance(v, list) and section == "source" else [v]
+        tables[section] = v if isinstance(v, list) and section in _LISTS else [v]
         if (isinstance(v, list) and not v) or not all(isinstance(t, dict) for t in tables[section]):
             raise fail(
-                section, None, "must be a table" + (" or [[source]] tables" * (section == "source"))
+                section,
+                None,
+                "must be a table" + (f" or [[{section}]] tables" * (section in _LISTS)),
             )
     for section, ts in tables.items():
         for i, t in enumerate(ts):
@@ -176,7 +260,7 @@ def load_config(path: str | Path) -> LiveConfig:
                     raise fail(
                         section, key, f"unknown key (expected {', '.join(sorted(allowed))})", i
                     )
-    cfg = LiveConfig(path)
+    cfg = LiveConfig(path, lines=lines)
 
     def get(
         section: str, key: str, typ: type | tuple, default: Any, required: bool = False, i: int = 0
@@ -232,6 +316,13 @@ def load_config(path: str | Path) -> LiveConfig:
     cfg.units = [existing("plant", "units", u) for u in units]
     rb = get("plant", "rulebases", str, None)
     cfg.rulebases = existing("plant", "rulebases", rb) if rb else cfg.units[0].parent
+    stale = get("plant", "stale_after", (int, float), None)
+    cfg.stale_after = None if stale is None else float(positive("plant", "stale_after", stale))
+    spill = get("plant", "spill", str, None)
+    cfg.spill = (base / spill).resolve() if spill else None
+    cfg.buffer_samples = int(
+        positive("plant", "buffer_samples", get("plant", "buffer_samples", int, 2_000_000))
+    )
 
     for i in range(len(tables["source"])):
         cfg.sources.append(_source(i, get, positive, port, existing, fail, base))
@@ -243,7 +334,121 @@ def load_config(path: str | Path) -> LiveConfig:
     _check_tags(cfg, fail)
     cfg.modbus_port = port("outputs", "modbus_port", get("outputs", "modbus_port", int, 5020), True)
     cfg.opcua_port = port("outputs", "opcua_port", get("outputs", "opcua_port", int, 4840), True)
+    if "user" in tables and "opcua" not in tables:
+        raise fail("user", None, "users need an [opcua] table (its security)")
+    if "opcua" in tables:
+        cfg.server = _server(get, positive, fail, base)
+        n_users = len(tables.get("user", []))
+        cfg.server.users = [_user(i, get, fail, base) for i in range(n_users)]
+        names = [u.name for u in cfg.server.users]
+        for i, name in enumerate(names):
+            if name in names[:i]:
+                raise fail("user", "name", f"{name!r} is also user {names.index(name) + 1}", i)
     return cfg
+
+
+def _readable_cert(fail, section: str, key: str, p: Path, i: int = 0) -> None:
+    from connectors.certs import certificate_der
+
+    try:
+        certificate_der(p)
+    except ValueError as exc:
+        raise fail(section, key, f"unreadable certificate: {exc}", i) from None
+
+
+def _readable_key(fail, section: str, key: str, p: Path, i: int = 0) -> None:
+    from connectors.certs import check_private_key
+
+    try:
+        check_private_key(p)
+    except ValueError as exc:
+        raise fail(section, key, f"unreadable private key: {exc}", i) from None
+
+
+def _readable_folder(fail, section: str, key: str, folder: Path, i: int = 0) -> None:
+    from connectors.certs import trusted_ders
+
+    if not folder.is_dir():
+        raise fail(section, key, f"{folder}: not a folder", i)
+    try:
+        trusted_ders(folder)
+    except ValueError as exc:
+        raise fail(section, key, f"unreadable certificate in the trust folder: {exc}", i) from None
+
+
+def _server(get, positive, fail, base: Path) -> ServerConfig:
+    """``[opcua]``: our server's security (see the module doc)."""
+    from connectors.opcua_server import LOOPBACK, POLICIES
+
+    def g(key: str, typ: type | tuple, default: Any) -> Any:
+        return get("opcua", key, typ, default)
+
+    sc = ServerConfig()
+    sc.host = g("host", str, sc.host)
+    sec = g("security", list, ["SignAndEncrypt"])
+    if not sec or not all(isinstance(x, str) and x in POLICIES for x in sec):
+        raise fail("opcua", "security", f"must list some of {list(POLICIES)}, not {sec!r}")
+    if "None" in sec and sc.host not in LOOPBACK:
+        raise fail("opcua", "security", f"'None' only on a loopback host, not {sc.host!r}")
+    sc.security = tuple(dict.fromkeys(sec))
+    sc.certificate = (base / g("certificate", str, "pki/own/diag-server.pem")).resolve()
+    sc.private_key = (base / g("private_key", str, "pki/own/diag-server.key.pem")).resolve()
+    if sc.certificate.exists():
+        _readable_cert(fail, "opcua", "certificate", sc.certificate)
+        if not sc.private_key.exists():
+            raise fail(
+                "opcua",
+                "private_key",
+                f"{sc.private_key}: no such file (the "
+                "certificate exists; a key is created only with a new certificate)",
+            )
+        _readable_key(fail, "opcua", "private_key", sc.private_key)
+    elif sc.private_key.exists():
+        raise fail(
+            "opcua",
+            "certificate",
+            f"{sc.certificate}: no such file, but the private key exists: restore the "
+            "certificate or remove the key (both are created on first start)",
+        )
+    sc.trusted = (base / g("trusted", str, "pki/trusted")).resolve()
+    if sc.trusted.exists():
+        _readable_folder(fail, "opcua", "trusted", sc.trusted)
+    sc.anonymous = g("anonymous", bool, False)
+    sc.max_shelve = float(positive("opcua", "max_shelve", g("max_shelve", (int, float), 3600.0)))
+    sc.confirm = g("confirm", bool, False)
+    sc.application_uri = g("application_uri", str, sc.application_uri)
+    return sc
+
+
+def _user(i: int, get, fail, base: Path) -> Any:
+    """The ``i``-th ``[[user]]`` table."""
+    from connectors.certs import certificate_der
+    from connectors.opcua_access import ROLES, OpcUaUser
+    from connectors.passwords import hash_problem
+
+    def g(key: str, typ: type | tuple, default: Any, required: bool = False) -> Any:
+        return get("user", key, typ, default, required, i)
+
+    name = g("name", str, None, required=True)
+    role = g("role", str, None, required=True)
+    if role not in ROLES:
+        raise fail("user", "role", f"expected one of {', '.join(ROLES)}, not {role!r}", i)
+    ph = g("password_hash", str, None)
+    cert = g("certificate", str, None)
+    if ph is None and cert is None:
+        raise fail("user", "name", f"user {name!r} needs password_hash or certificate", i)
+    if ph is not None and (why := hash_problem(ph)):
+        raise fail("user", "password_hash", why, i)
+    der = None
+    if cert is not None:
+        p = (base / cert).resolve()
+        if not p.exists():
+            raise fail("user", "certificate", f"{cert!r}: no such file ({p})", i)
+        try:
+            der = certificate_der(p)
+        except ValueError as exc:
+            raise fail("user", "certificate", f"unreadable certificate: {exc}", i) from None
+    return OpcUaUser(name, role, ph, der)
 
 
 def _source(i: int, get, positive, port, existing, fail, base: Path) -> SourceConfig:
@@ -274,9 +479,16 @@ def _source(i: int, get, positive, port, existing, fail, base: Path) -> SourceCo
         s.period = float(positive("source", "period", g("period", (int, float), 1.0), i))
         s.timeout = float(positive("source", "timeout", g("timeout", (int, float), 4.0), i))
         s.nodes = _nodes(i, g("nodes", (dict, str), None, required=True), existing, fail)
-        for key in ("certificate", "private_key", "server_certificate"):
+        for key in ("certificate", "private_key", "server_certificate", "trusted"):
             v = g(key, str, None)
             setattr(s, key, existing("source", key, v, i) if v is not None else None)
+        for key in ("certificate", "server_certificate"):
+            if getattr(s, key) is not None:
+                _readable_cert(fail, "source", key, getattr(s, key), i)
+        if s.private_key is not None:
+            _readable_key(fail, "source", "private_key", s.private_key, i)
+        if s.trusted is not None:
+            _readable_folder(fail, "source", "trusted", s.trusted, i)
         s.application_uri = g("application_uri", str, s.application_uri)
         if (s.certificate is None) != (s.private_key is None):
             key = "private_key" if s.private_key is None else "certificate"
@@ -304,6 +516,9 @@ def _nodes(i: int, v: dict | str, existing, fail) -> dict[str, str]:
         bad = [k for k, n in v.items() if not isinstance(n, str) or not n]
         if bad or not v:
             raise fail("source", "nodes", f"must map tag names to node id strings (bad: {bad})", i)
+        for tag, node in v.items():
+            if not _NODE_ID.match(node):
+                raise fail("source", "nodes", f"tag {tag}: {node!r} is not a node id ({_FORMS})", i)
         return dict(v)
     p = existing("source", "nodes", v, i)
     out: dict[str, str] = {}
@@ -320,10 +535,17 @@ def _nodes(i: int, v: dict | str, existing, fail) -> dict[str, str]:
             tag = row[0].strip()
             if tag in out:
                 raise ConfigError(f"{p}:{n}: tag {tag!r} listed twice")
+            if not _NODE_ID.match(row[1].strip()):
+                raise ConfigError(
+                    f"{p}:{n}: tag {tag}: {row[1].strip()!r} is not a node id ({_FORMS})"
+                )
             out[tag] = row[1].strip()
     if not out:
         raise ConfigError(f"{p}:1: no nodes listed")
     return out
+
+
+_FORMS = "expected [ns=<index>;|nsu=<uri>;]i=<number>|s=<text>|g=<guid>|b=<base64>"
 
 
 def _check_tags(cfg: LiveConfig, fail) -> None:
@@ -375,6 +597,7 @@ def build_sources(cfg: LiveConfig) -> Any:
                 username=s.username,
                 password=s.password,
                 server_certificate=s.server_certificate,
+                trusted_dir=s.trusted,
             )
         reader = OpcUaReader(
             OpcUaConfig(
@@ -390,6 +613,85 @@ def build_sources(cfg: LiveConfig) -> Any:
     return SourceSet(clients, [s.name for s in cfg.sources])
 
 
+def commission(cfg: LiveConfig, plant: Any) -> None:
+    """Checks that need the loaded units and this machine, refused like the file's own errors
+    (``plant.toml:<line>: <key>: ...``): every unit's input tags are read by some source; the
+    output ports are free on 127.0.0.1. All problems at once, one per line."""
+    read = {t for s in cfg.sources for t in (s.regmap.names if s.regmap else s.nodes)}
+    problems: list[str] = []
+    by_name = {p.name.removesuffix(".unit.toml").removesuffix(".toml"): p for p in cfg.units}
+    for name, unit in plant.units.items():
+        missing = [t for t in unit.tags if t not in read]
+        if missing:
+            where = by_name.get(name, name)
+            problems.append(
+                f"{cfg.path}:{cfg.line('plant', 'units')}: plant.units: {where}: input tags "
+                f"{', '.join(missing)} are read by no source (add them to a register map or "
+                "a nodes table)"
+            )
+    host = cfg.server.host if cfg.server else "127.0.0.1"
+    for key, port, h in (
+        ("modbus_port", cfg.modbus_port, "127.0.0.1"),
+        ("opcua_port", cfg.opcua_port, host),
+    ):
+        if port and (why := port_busy(h, port)):
+            problems.append(
+                f"{cfg.path}:{cfg.line('outputs', key)}: outputs.{key}: {h}:{port} {why}"
+            )
+    if problems:
+        raise ConfigError("\n".join(problems))
+
+
+def port_busy(host: str, port: int) -> str:
+    """Why ``host:port`` cannot be listened on ("" when it can)."""
+    import socket
+
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as asyncio's servers do
+        try:
+            sock.bind((host, port))
+        except OSError as exc:
+            return f"is busy ({exc.strerror or exc}; another diag run?)"
+    return ""
+
+
+def build_server(cfg: LiveConfig) -> Any:
+    """Our OPC UA server as ``[outputs]`` and ``[opcua]`` say (None when opcua_port is 0)."""
+    from connectors.opcua_server import DiagOpcUaServer, ServerSecurity
+
+    if not cfg.opcua_port:
+        return None
+    sc = cfg.server
+    if sc is None:
+        return DiagOpcUaServer("127.0.0.1", cfg.opcua_port)
+    assert sc.certificate is not None and sc.private_key is not None
+    security = ServerSecurity(
+        sc.certificate,
+        sc.private_key,
+        sc.trusted,
+        tuple(sc.users),
+        sc.anonymous,
+        sc.security,
+        sc.application_uri,
+    )
+    return DiagOpcUaServer(
+        sc.host,
+        cfg.opcua_port,
+        security=security,
+        max_shelve=sc.max_shelve,
+        confirmation=sc.confirm,
+    )
+
+
+def spill_dir(cfg: LiveConfig) -> Path:
+    """``plant.spill``, else beside a SQLite database, else beside plant.toml."""
+    if cfg.spill is not None:
+        return cfg.spill
+    if cfg.historian and cfg.historian.startswith("sqlite:///"):
+        return Path(cfg.historian.removeprefix("sqlite:///") + ".spill")
+    return cfg.path.parent / "historian.spill"
+
+
 async def run_config(
     cfg: LiveConfig,
     *,
@@ -399,63 +701,98 @@ async def run_config(
     after: Any = None,
 ) -> int:
     """``diag run --config``: poll every source, store, diagnose, publish. ``after``: the
-    :class:`~diag_plugin.live.loop.LiveLoop` hook run after each cycle's publishing."""
+    :class:`~diag_plugin.live.loop.LiveLoop` hook run after each cycle's publishing.
+    Commissioning problems (:func:`commission`) raise :class:`ConfigError` before anything
+    starts; a port taken in the meantime too."""
+    import asyncio
     import sys
 
     import pandas as pd
 
     from connectors.modbus_server import StatusServer, UnitLayout
-    from connectors.opcua_server import DiagOpcUaServer
     from diag_plugin.diagnose.plant import Plant
     from diag_plugin.live.loop import LiveLoop, close_all
+    from diag_plugin.live.stale import StaleDetector
+    from diag_plugin.live.writer import HistorianWriter
+    from historian.livestore import history_runs
 
     out = out or sys.stdout
+
+    def say(text: str) -> None:
+        print(text, file=out, flush=True)
+
     plant = Plant.load(cfg.units, cfg.rulebases)
     for name, problems in plant.broken.items():
-        print(f"unit {name} is broken: {'; '.join(problems)}", file=out, flush=True)
+        say(f"unit {name} is broken: {'; '.join(problems)}")
+    commission(cfg, plant)
     first = plant.cycle(pd.Timestamp.now(tz="UTC"), {})
     plant.reset()
-    historian = None
-    if cfg.historian:
-        from historian.store import Historian
-
-        historian = Historian.open(cfg.historian)
     status = None
     if cfg.modbus_port:
         status = StatusServer(
             [UnitLayout.from_status(s) for s in first], "127.0.0.1", cfg.modbus_port
         )
-    opcua = DiagOpcUaServer("127.0.0.1", cfg.opcua_port) if cfg.opcua_port else None
+    opcua = build_server(cfg)
     sources = build_sources(cfg)
+    writer = None
+    if cfg.historian:
+        writer = HistorianWriter(
+            cfg.historian,
+            sources.names,
+            spill_dir=spill_dir(cfg),
+            flush_every=cfg.flush_every,
+            cycle=cfg.cycle,
+            memory_rows=cfg.buffer_samples,
+        )
     try:
-        if status is not None:
-            await status.start()
-        if opcua is not None:
-            await opcua.start()
+        for server, key in ((status, "modbus_port"), (opcua, "opcua_port")):
+            if server is None:
+                continue
+            try:
+                await server.start()
+            except OSError as exc:
+                raise ConfigError(
+                    f"{cfg.path}:{cfg.line('outputs', key)}: outputs.{key}: cannot listen: "
+                    f"{exc.strerror or exc}"
+                ) from None
+        if opcua is not None:  # the address space at start, not in the first cycle
+            for st in first:
+                await opcua.add_unit(st.unit, st.certainties, st.residuals, st.coverage)
+        if opcua is not None and opcua.fingerprint:
+            made = "created now" if opcua.certificate_created else "existing"
+            say(
+                f"OPC UA server certificate {opcua.security.certificate} ({made}), SHA-256 "
+                f"{opcua.fingerprint}; policies {', '.join(opcua.security.policies)}"
+            )
         await sources.start()
-        print(
+        history = None
+        if writer is not None:
+            await writer.start()
+            history = asyncio.ensure_future(
+                asyncio.to_thread(history_runs, cfg.historian, sources.names)
+            )
+        say(
             f"diag run: {cfg.path}: polling "
             + ", ".join(f"{s.name} ({s.where})" for s in cfg.sources)
             + f" every {cfg.cycle:g} s"
             + (f", status Modbus 127.0.0.1:{cfg.modbus_port}" if status else "")
             + (f", OPC UA {opcua.endpoint}" if opcua else "")
-            + (f", historian {cfg.historian}" if historian else ""),
-            file=out,
-            flush=True,
+            + (f", historian {cfg.historian} (spill {spill_dir(cfg)})" if writer else "")
         )
         loop = LiveLoop(
             plant,
             sources,
-            historian=historian,
+            historian=writer,
             opcua=opcua,
             status_server=status,
             cycle=cfg.cycle,
-            flush_every=cfg.flush_every,
             duration=duration,
+            stale=StaleDetector(sources.names, cfg.stale_after),
+            stale_history=history,
             tty=tty,
             out=out,
             after=after,
         )
         return await loop.run()
     finally:
-        await close_all(sources, opcua, status, historian)
+        await close_all(sources, opcua, status, writer)

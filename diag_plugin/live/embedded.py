@@ -115,7 +115,8 @@ async def run_embedded(
     from connectors.opcua_server import DiagOpcUaServer
     from connectors.sources import SourceSet
     from diag_plugin.diagnose.plant import Plant
-    from historian.store import Historian
+    from diag_plugin.live.writer import HistorianWriter
+    from historian.livestore import history_runs
 
     out = out or sys.stdout
 
@@ -127,7 +128,6 @@ async def run_embedded(
     plant = Plant.load([emb.unit_file], emb.unit_file.parent)
     if plant.broken:
         say(f"warning: broken units: {plant.broken}")
-    historian = Historian.open(emb.url)
     first = plant.cycle(rows.index[0], rows.iloc[0].to_dict())
     plant.reset()
     layouts = [UnitLayout.from_status(s) for s in first]
@@ -163,9 +163,18 @@ async def run_embedded(
             else:
                 raised.pop(s.unit, None)
 
+    writer = HistorianWriter(
+        emb.url,
+        client.names,
+        spill_dir=f"{emb.data / 'plant.db'}.spill",
+        flush_every=flush_every,
+        cycle=cycle,
+    )
     await plc.start()
     await status.start()
     await opcua.start()
+    await writer.start()
+    history = asyncio.ensure_future(asyncio.to_thread(history_runs, emb.url, client.names))
     say(
         f"embedded plant: Modbus PLC 127.0.0.1:{plc_port}, status Modbus 127.0.0.1:{modbus_port}"
         f", OPC UA {opcua.endpoint}, historian {emb.url}; one 10 s sample every {cycle:g} s"
@@ -175,12 +184,12 @@ async def run_embedded(
         loop = LiveLoop(
             plant,
             client,
-            historian=historian,
+            historian=writer,
             opcua=opcua,
             status_server=status,
             cycle=cycle,
-            flush_every=flush_every,
             duration=duration,
+            stale_history=history,
             feed=feed,
             after=operator,
             tty=tty,
@@ -188,4 +197,4 @@ async def run_embedded(
         )
         return await loop.run()
     finally:
-        await close_all(client, opcua, status, plc, historian)
+        await close_all(client, opcua, status, plc, writer)

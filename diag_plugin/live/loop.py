@@ -4,21 +4,26 @@ Each cycle :class:`LiveLoop`
 
 1. lets an optional ``feed(i)`` hook run (the embedded default puts the next simulated row
    on its Modbus PLC there and returns the row's simulated time stamp);
-2. polls the plant over Modbus (:class:`connectors.modbus.ModbusTagClient`); a tag with Bad
-   quality reaches the diagnosis as NaN;
-3. buffers the samples and writes them to the historian every ``flush_every`` cycles and on
-   exit (idempotent; Bad samples are stored as NaN with their quality);
-4. evaluates every unit (:meth:`diag_plugin.diagnose.plant.Plant.cycle`);
+2. polls every source (:class:`connectors.sources.SourceSet`); a Good value that is not a
+   finite number (NaN, ±Inf) turns Bad, a frozen one turns Uncertain
+   (:class:`~diag_plugin.live.stale.StaleDetector`);
+3. hands the samples to the historian writer (:class:`~diag_plugin.live.writer.
+   HistorianWriter`): queued, never awaited — a locked or absent database delays storage,
+   never the cycle;
+4. evaluates every unit (:meth:`diag_plugin.diagnose.plant.Plant.cycle`) on the Good samples
+   only; a unit still filling its history is CHECK_FUNCTION/Uncertain "initialising", and a
+   CHECK_FUNCTION gets a message naming its unknown tests and the tags behind them;
 5. publishes each :class:`UnitStatus` to the OPC UA server (which drives the unit's
-   ISA-18.2 alarm) and to the Modbus status server (``U.alarm`` = :data:`ALARM_CODES` of the
-   alarm state); acknowledgements written to a unit's Modbus ``U.ack`` coil acknowledge the
-   OPC UA alarm;
-6. reports alarm transitions as events (raised / acknowledged / cleared) and counts cycle
-   overruns (a cycle whose work took longer than the period).
+   ISA-18.2 alarm) and to the Modbus status server (``U.alarm`` = :data:`ALARM_CODES`);
+   acknowledgements written to a unit's Modbus ``U.ack`` coil acknowledge the OPC UA alarm;
+6. reports events — alarm transitions, operator actions with their user (OPC UA and Modbus
+   alike), sources going and coming back, frozen sources, the historian degraded and whole
+   again — as lines and in the historian's event log; the plug-in's own conditions (a source
+   out, the historian away) are OPC UA notices in the maintenance band.
 
-SIGINT and SIGTERM stop the loop after the current cycle; the buffer is flushed and
-:meth:`LiveLoop.run` returns 0. On a terminal a ``rich`` live table shows the units; otherwise
-only the event lines are printed.
+SIGINT and SIGTERM stop the loop after the current cycle; the writer stores what is left
+(or spills it) and :meth:`LiveLoop.run` returns 0. On a terminal a ``rich`` live table shows
+the units; otherwise only the event lines are printed.
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ import signal
 import sys
 import time
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -38,10 +43,13 @@ import pandas as pd
 
 from connectors.alarms import AlarmState
 from connectors.base import TagQuality
-from diag_plugin.diagnose.status import UnitStatus
+from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
+from diag_plugin.live.stale import StaleDetector
 
 if TYPE_CHECKING:
+    from connectors.opcua_server import Action
     from connectors.sources import SourceSet, Transition
+    from diag_plugin.live.writer import HistorianWriter
 
 #: the number published in the Modbus ``U.alarm`` register for each alarm state
 ALARM_CODES: dict[AlarmState, int] = {
@@ -50,6 +58,13 @@ ALARM_CODES: dict[AlarmState, int] = {
     AlarmState.ACTIVE_ACK: 2,
     AlarmState.RTN_UNACK: 3,
     AlarmState.SHELVED: 4,
+}
+_PAST = {
+    "acknowledge": "acknowledged",
+    "confirm": "confirmed",
+    "comment": "commented",
+    "shelve": "shelved",
+    "unshelve": "unshelved",
 }
 
 
@@ -67,23 +82,25 @@ class LiveStats:
     overruns: int = 0
     last_ms: float = 0.0
     work_ms: list[float] = field(default_factory=list)  # per cycle: poll, store, diagnose, publish
-    stored: int = 0
     units: dict[str, UnitView] = field(default_factory=dict)
     events: list[str] = field(default_factory=list)
     #: source outages seen by the loop: (source, from, to), wall-clock UTC
     gaps: list[tuple[str, Any, Any]] = field(default_factory=list)
+    stale: int = 0  #: stale samples seen
+    not_finite: int = 0  #: Good samples that were NaN or ±Inf (made Bad)
 
 
 class LiveLoop:
-    """One live loop (module doc). ``source``: a :class:`connectors.sources.SourceSet` (its
-    outage transitions become event lines); ``opcua`` and ``status_server`` must be started by
-    the caller.
+    """One live loop (module doc). ``source``: a :class:`connectors.sources.SourceSet`;
+    ``opcua`` and ``status_server`` must be started by the caller; ``historian``: a started
+    :class:`~diag_plugin.live.writer.HistorianWriter` (or None), closed by :meth:`run`.
 
-    ``feed(i)``: optional async hook run before the poll of cycle ``i``; it may return the
-    time stamp of the sample (default: the poll's wall time). ``after(loop, i, statuses)``:
-    optional async hook run after publishing (the embedded scenario's operator). ``duration``
-    in seconds (0: until a signal or :meth:`stop`). ``out``: event lines go there when not on
-    a terminal; ``tty`` forces the live table on or off.
+    ``stale``: a fitted :class:`~diag_plugin.live.stale.StaleDetector` over the source's tags
+    (default: limits learned live). ``feed(i)``: optional async hook run before the poll of
+    cycle ``i``; it may return the time stamp of the sample (default: the poll's wall time).
+    ``after(loop, i, statuses)``: optional async hook run after publishing (the embedded
+    scenario's operator). ``duration`` in seconds (0: until a signal or :meth:`stop`).
+    ``out``: event lines go there when not on a terminal; ``tty`` forces the live table.
     """
 
     def __init__(
@@ -91,12 +108,13 @@ class LiveLoop:
         plant: Any,
         source: SourceSet,
         *,
-        historian: Any = None,
+        historian: HistorianWriter | None = None,
         opcua: Any = None,
         status_server: Any = None,
         cycle: float = 1.0,
-        flush_every: int = 20,
         duration: float = 0.0,
+        stale: StaleDetector | None = None,
+        stale_history: asyncio.Future[Any] | None = None,
         feed: Callable[[int], Awaitable[pd.Timestamp | None]] | None = None,
         after: Callable[[LiveLoop, int, list[UnitStatus]], Awaitable[None]] | None = None,
         tty: bool | None = None,
@@ -105,23 +123,43 @@ class LiveLoop:
         self.plant, self.source = plant, source
         self.historian, self.opcua, self.status_server = historian, opcua, status_server
         self.cycle_s = float(cycle)
-        self.flush_every = max(1, int(flush_every))
         self.duration = float(duration)
         self.feed, self.after = feed, after
         self.out = out or sys.stdout
         self.tty = self.out.isatty() if tty is None else tty
         self.stats = LiveStats()
         self._stop = asyncio.Event()
-        self._buffer: list[pd.DataFrame] = []
         self._live: Any = None
         self._tags = list(source.names)
+        self._index = {t: i for i, t in enumerate(self._tags)}
+        self.stale = stale or StaleDetector(self._tags)
+        self._stale_history = stale_history
+        self._bad_nodes: dict[str, dict[str, str]] = {}
+        self._ts = pd.Timestamp.now(tz="UTC")
+        self._frozen: set[str] = set()
+        self._cycle_i = 0
+        self._warmup = int(getattr(plant, "depth", 0)) + 1
+        self._diagnosed: set[str] = set()
+        self._test_tags = _test_tags(plant)
+        self._quality = np.zeros(len(self._tags), np.uint8)
+        self._reasons: list[str] = [""] * len(self._tags)
+        self._stale_mask = np.zeros(len(self._tags), bool)
+        self._age = np.zeros(len(self._tags))
+        self._notify_tasks: set[asyncio.Task[None]] = set()
+        if opcua is not None:
+            opcua.on_action = self.on_action
+        if historian is not None:
+            historian.notify = self._historian_state
 
     # ------------------------------------------------------------------ control
     def stop(self) -> None:
         self._stop.set()
 
-    def event(self, text: str, ts: pd.Timestamp | None = None) -> None:
-        """Report one event line (above the live table, or on ``out``)."""
+    def event(
+        self, text: str, ts: pd.Timestamp | None = None, unit: str | None = None, **fields: Any
+    ) -> None:
+        """Report one event line (above the live table, or on ``out``) and store it in the
+        historian's event log under ``unit`` (default: the plug-in, ``diag run``)."""
         stamp = f"{ts:%Y-%m-%d %H:%M:%S} " if ts is not None else ""
         line = f"{stamp}{text}"
         self.stats.events.append(line)
@@ -129,20 +167,34 @@ class LiveLoop:
             self._live.console.print(line)
         else:
             print(line, file=self.out, flush=True)
+        if self.historian is not None:
+            self.historian.put_event(
+                ts if ts is not None else self._ts, unit or "diag run", text, **fields
+            )
 
-    async def acknowledge(self, unit: str, who: str = "operator") -> None:
-        """Acknowledge ``unit``'s alarm (the OPC UA server's alarm; published next cycle)."""
-        if self.opcua is None:
+    def on_action(self, a: Action) -> None:
+        """An operator action on the OPC UA server (or its refusal): one event line, stored."""
+        if a.action == "refused":
+            self.event(f"OPC UA: {a.user} refused: {a.detail} (operators only)", self._ts)
             return
-        before = self._alarm(unit)
-        t = await self.opcua.acknowledge(unit)
-        if t.changed:
-            view = self.stats.units.get(unit)
-            if view is not None:
-                view.alarm = t.after
-            ts = view.status.ts if view is not None else None
-            self.event(f"{unit}: alarm acknowledged by {who} ({before} -> {t.after})", ts)
-            await self._publish_alarm(unit)
+        verb = _PAST.get(a.action, a.action)
+        via = "" if a.via == "local" else f" over {a.via}"
+        if a.ok:
+            detail = f" ({a.detail})" if a.detail else ""
+            text = f"{a.unit}: alarm {verb} by {a.user}{via}{detail}"
+        else:
+            text = f"{a.unit}: {a.action} by {a.user}{via} refused: {a.detail}"
+        self.event(text, self._ts, a.unit)
+        view = self.stats.units.get(a.unit or "")
+        if view is not None:
+            view.alarm = self._alarm(a.unit or "")
+
+    async def acknowledge(self, unit: str, who: str = "operator", via: str = "local") -> None:
+        """Acknowledge ``unit``'s alarm (the OPC UA server's alarm; published at once)."""
+        if self.opcua is None or unit not in self.opcua.alarms:
+            return
+        await self.opcua.acknowledge(unit, who=who, via=via)
+        await self._publish_alarm(unit)
 
     def _alarm(self, unit: str) -> AlarmState:
         if self.opcua is None or unit not in self.opcua.alarms:
@@ -154,29 +206,17 @@ class LiveLoop:
         if self.status_server is not None and view is not None:
             await self.status_server.publish(view.status, alarm=ALARM_CODES[self._alarm(unit)])
 
-    # ------------------------------------------------------------------ storage
-    def _buffer_poll(self, ts: pd.Timestamp, values: np.ndarray, quality: np.ndarray) -> None:
-        self._buffer.append(
-            pd.DataFrame(
-                {
-                    "tag": self._tags,
-                    "ts": [ts] * len(self._tags),
-                    "value": values.astype(np.float64),
-                    "quality": quality.astype(np.int64),
-                }
-            )
-        )
+    def _historian_state(self, degraded: bool, text: str) -> None:
+        """The writer degraded or whole again: an event line and the OPC UA notice."""
+        self.event(text, self._ts)
+        self._notice("Historian", degraded, text)
 
-    async def flush(self) -> int:
-        """Write the buffered samples to the historian (in a worker thread)."""
-        if self.historian is None or not self._buffer:
-            self._buffer.clear()
-            return 0
-        frame = pd.concat(self._buffer, ignore_index=True)
-        self._buffer.clear()
-        n = await asyncio.to_thread(self.historian.write_samples, frame)
-        self.stats.stored += n
-        return n
+    def _notice(self, name: str, active: bool, text: str) -> None:
+        if self.opcua is None:
+            return
+        task = asyncio.get_running_loop().create_task(self.opcua.notice(name, active, text))
+        self._notify_tasks.add(task)
+        task.add_done_callback(self._notify_tasks.discard)
 
     # ------------------------------------------------------------------ one cycle
     async def step(self, i: int) -> list[UnitStatus]:
@@ -186,19 +226,36 @@ class LiveLoop:
             ts = pd.Timestamp(poll.ts)
         if ts.tzinfo is None:
             ts = ts.tz_localize("UTC")
-        self._buffer_poll(ts, poll.values, poll.quality)
-        if (i + 1) % self.flush_every == 0:
-            await self.flush()
+        self._ts = ts
+        self._cycle_i = i
+        self._learn_stale_limits()
+        values, quality = poll.values, poll.quality.copy()
+        good = quality == TagQuality.GOOD
+        absurd = good & ~np.isfinite(values)
+        if absurd.any():  # NaN, +Inf, -Inf read as Good: Bad
+            quality[absurd] = TagQuality.BAD
+            self.stats.not_finite += int(absurd.sum())
+        stale, self._age = self.stale.update(ts.value / 1e9, values, quality, poll.source_ts)
+        if stale.any():
+            quality[stale] = TagQuality.UNCERTAIN
+            self.stats.stale += int(stale.sum())
+        self._quality, self._reasons, self._stale_mask = quality, poll.reasons, stale
+        if self.historian is not None:
+            self.historian.put(ts, values, quality)
         for t in self.source.transitions(poll.ts):
             self._source_event(t, ts)
+        self._node_problems(ts)
+        self._frozen_sources(stale, quality, ts)
         # only Good samples reach the diagnosis: Bad or Uncertain ones make the tests that
         # read them unknown (CHECK_FUNCTION), never a symptom
-        diag_values = np.where(poll.quality == TagQuality.GOOD, poll.values, np.nan)
-        values = dict(zip(self._tags, diag_values.tolist(), strict=True))
-        statuses = self.plant.cycle(ts, values)
+        diag_values = np.where(quality == TagQuality.GOOD, values, np.nan)
+        values_by_tag = dict(zip(self._tags, diag_values.tolist(), strict=True))
+        statuses = [self._explain(s) for s in self.plant.cycle(ts, values_by_tag)]
         if self.status_server is not None:
             while not self.status_server.acks.empty():
-                await self.acknowledge(self.status_server.acks.get_nowait(), "Modbus client")
+                unit = self.status_server.acks.get_nowait()
+                await self.acknowledge(unit, "Modbus client", "Modbus")
+        modbus = []
         for s in statuses:
             before = self._alarm(s.unit)
             if self.opcua is not None:
@@ -206,41 +263,160 @@ class LiveLoop:
             after = self._alarm(s.unit)
             prev = self.stats.units.get(s.unit)
             self.stats.units[s.unit] = UnitView(s, after)
-            if self.status_server is not None:
-                await self.status_server.publish(s, alarm=ALARM_CODES[after])
+            modbus.append((s, {"alarm": ALARM_CODES[after]}))
             if after is not before:
                 self._alarm_event(s, before, after)
             elif prev is not None and s.faults and s.faults != prev.status.faults:
                 # the isolation narrowed or moved while the alarm stands: say so once
                 was = ", ".join(prev.status.faults) or "none"
-                self.event(f"{s.unit}: isolated {', '.join(s.faults)} (was {was})", s.ts)
+                self.event(f"{s.unit}: isolated {', '.join(s.faults)} (was {was})", s.ts, s.unit)
+        if self.status_server is not None:
+            await self.status_server.publish_many(modbus)
+        if self.historian is not None and self.opcua is not None:
+            await self.opcua.set_plugin_value("Historian", "Backlog", self.historian.backlog)
         if self.after is not None:
             await self.after(self, i, statuses)
         return statuses
 
+    def _explain(self, s: UnitStatus) -> UnitStatus:
+        """Initialising before the first diagnosis; a CHECK_FUNCTION names its unknown tests
+        and the tags behind them."""
+        known = any(math.isfinite(v) for v in s.symptoms.values())
+        if known:
+            self._diagnosed.add(s.unit)
+        if s.status != NE107.CHECK_FUNCTION or s.message:
+            return s
+        tests = self._test_tags.get(s.unit, {})
+        unknown = [t for t, v in s.symptoms.items() if not math.isfinite(v)]
+        why = {t: self._tag_problems(tests.get(t, [])) for t in unknown}
+        if s.unit not in self._diagnosed and self._cycle_i < self._warmup:
+            if not any(why.values()):
+                msg = f"initialising: {self._cycle_i + 1} of {self._warmup} samples of history"
+                return replace(s, quality=Quality.UNCERTAIN, message=msg)
+        parts = []
+        for t in unknown:
+            if why[t]:
+                parts.append(f"{t} ({'; '.join(why[t])})")
+            else:
+                parts.append(f"{t} (inputs Good: outside the trained region or history too short)")
+        return replace(s, message=f"unknown tests: {', '.join(parts)}" if parts else s.message)
+
+    def _tag_problems(self, tags: list[str]) -> list[str]:
+        out = []
+        for tag in tags:
+            i = self._index.get(tag)
+            if i is None:
+                out.append(f"{tag} not read by any source")
+            elif self._quality[i] == TagQuality.BAD:
+                why = self._reasons[i] or "not a finite number"
+                out.append(f"{tag} Bad: {why}"[:160])
+            elif self._stale_mask[i]:
+                out.append(f"{tag} stale: unchanged for {self._age[i]:.0f} s")
+            elif self._quality[i] == TagQuality.UNCERTAIN:
+                out.append(f"{tag} Uncertain: {self._reasons[i]}"[:160])
+        return out
+
+    def _learn_stale_limits(self) -> None:
+        """Apply the stale limits learned from the history once they have been read."""
+        f = self._stale_history
+        if f is None or not f.done():
+            return
+        self._stale_history = None
+        try:
+            runs = f.result()
+        except Exception as exc:  # noqa: BLE001 - the history is a help, not a need
+            self.event(f"stale limits: history not readable ({exc!r}); learned live instead")
+            return
+        self.stale.fit(runs)
+        if self.stale.stale_after is not None:
+            self.event(f"stale after {self.stale.stale_after:g} s unchanged (plant.toml)")
+            return
+        lim = self.stale.limit_
+        finite = lim[np.isfinite(lim)]
+        learned = (
+            f"from the history of {len(runs)} tags: median {np.median(finite):.0f} s, "
+            f"{int(np.isinf(lim).sum())} never-changing tags never stale; "
+            if len(finite)
+            else "no history yet; "
+        )
+        self.event(
+            f"stale limits {learned}{int(np.isnan(lim).sum())} tags judged once seen "
+            f"changing, after {self.stale.fallback:.0f} s unchanged"
+        )
+
+    def _node_problems(self, ts: pd.Timestamp) -> None:
+        """Node ids an OPC UA source cannot use: one line each, when first seen."""
+        bad = self.source.bad_nodes()
+        for src, tags in bad.items():
+            seen = self._bad_nodes.get(src, {})
+            for tag, why in tags.items():
+                if seen.get(tag) != why:
+                    self.event(f"source {src}: tag {tag}: {why}", ts, f"source {src}")
+        self._bad_nodes = bad
+
+    def _frozen_sources(self, stale: np.ndarray, quality: np.ndarray, ts: pd.Timestamp) -> None:
+        """A source whose judged tags are all frozen: reported once, and once when it moves."""
+        judged = self.stale.judged
+        for name, sl in self.source.slices():
+            j = judged[sl] & (quality[sl] != TagQuality.BAD)
+            frozen = bool(j.any()) and bool(stale[sl][j].all())
+            if frozen and name not in self._frozen:
+                self._frozen.add(name)
+                age = float(np.nanmin(self._age[sl][j]))
+                text = (
+                    f"source {name}: all {int(j.sum())} tags frozen (unchanged for "
+                    f"{age:.0f} s or more): stale, stored Uncertain"
+                )
+                self.event(text, ts, f"source {name}")
+                self._notice(f"Source_{name}", True, text)
+            elif not frozen and name in self._frozen:
+                self._frozen.discard(name)
+                text = f"source {name}: values moving again"
+                self.event(text, ts, f"source {name}")
+                self._notice(f"Source_{name}", False, text)
+
     def _source_event(self, t: Transition, ts: pd.Timestamp) -> None:
-        """A source went down or came back: one event line, the gap kept in the stats."""
+        """A source went down or came back: one event line, the gap kept in the stats, and a
+        maintenance-band notice that returns to normal by itself."""
         if not t.up:
-            self.event(f"source {t.source} unavailable, its tags Bad: {t.reason}", ts)
+            text = f"source {t.source} unavailable, its tags Bad: {t.reason}"
+            self.event(text, ts, f"source {t.source}")
+            self._notice(f"Source_{t.source}", True, text)
             return
         gap = (t.until - t.since).total_seconds()
         self.stats.gaps.append((t.source, t.since, t.until))
-        self.event(
+        text = (
             f"source {t.source} back after {gap:.1f} s (gap {t.since:%H:%M:%S}-"
-            f"{t.until:%H:%M:%S} UTC, stored as Bad samples)",
-            ts,
+            f"{t.until:%H:%M:%S} UTC, stored as Bad samples)"
         )
+        self.event(text, ts, f"source {t.source}")
+        self._notice(f"Source_{t.source}", False, text)
 
     def _alarm_event(self, s: UnitStatus, before: AlarmState, after: AlarmState) -> None:
-        what = {
-            AlarmState.ACTIVE_UNACK: "alarm raised",
-            AlarmState.NORMAL: "alarm cleared",
-            AlarmState.RTN_UNACK: "condition returned to normal (alarm not yet acknowledged)",
-            AlarmState.ACTIVE_ACK: "alarm acknowledged",
-            AlarmState.SHELVED: "alarm shelved",
-        }[after]
+        if before is AlarmState.SHELVED:
+            what = {
+                AlarmState.ACTIVE_UNACK: "shelving over, alarm raised again",
+                AlarmState.NORMAL: "shelving over, condition normal",
+            }.get(after, f"shelving over ({after})")
+        else:
+            what = {
+                AlarmState.ACTIVE_UNACK: "alarm raised",
+                AlarmState.NORMAL: "alarm cleared",
+                AlarmState.RTN_UNACK: "condition returned to normal (alarm not yet acknowledged)",
+                AlarmState.ACTIVE_ACK: "alarm acknowledged",
+                AlarmState.SHELVED: "alarm shelved",
+            }[after]
         faults = f" faults {', '.join(s.faults)}" if s.faults else ""
-        self.event(f"{s.unit}: {what}: {s.status.name}{faults} ({before} -> {after})", s.ts)
+        sev = self.opcua.alarms[s.unit].severity if self.opcua is not None else None
+        self.event(
+            f"{s.unit}: {what}: {s.status.name}{faults} ({before} -> {after})",
+            s.ts,
+            s.unit,
+            status=int(s.status),
+            severity=sev,
+            quality=int(s.quality),
+            fault=",".join(s.faults) or None,
+        )
 
     # ------------------------------------------------------------------ the loop
     async def run(self) -> int:
@@ -283,26 +459,50 @@ class LiveLoop:
                         await asyncio.wait_for(self._stop.wait(), min(delay, max(0, end - t0)))
         finally:
             self._live = None
-            await self.flush()
+            if self.historian is not None:
+                await self.historian.close()
             for sig in (signal.SIGINT, signal.SIGTERM):
                 with contextlib.suppress(NotImplementedError, RuntimeError):
                     loop.remove_signal_handler(sig)
-        ms = sorted(self.stats.work_ms) or [0.0]
-        self.event(
-            f"stopped after {self.stats.cycles} cycles, {self.stats.overruns} overruns, "
-            f"{self.stats.stored} new samples stored; cycle work median {ms[len(ms) // 2]:.1f} ms, "
-            f"p95 {ms[int(0.95 * (len(ms) - 1))]:.1f} ms, max {ms[-1]:.1f} ms"
-        )
+        self.event(self.summary())
         return 0
+
+    def summary(self) -> str:
+        """The closing line: cycles, overruns, cycle work percentiles, storage figures."""
+        ms = np.sort(np.array(self.stats.work_ms)) if self.stats.work_ms else np.zeros(1)
+
+        def pct(p: float) -> float:
+            return float(ms[min(len(ms) - 1, int(math.ceil(p * len(ms))) - 1)])
+
+        text = (
+            f"stopped after {self.stats.cycles} cycles, {self.stats.overruns} overruns, "
+            f"{self.stored} new samples stored; cycle work median {pct(0.5):.1f} ms, "
+            f"p95 {pct(0.95):.1f} ms, p99 {pct(0.99):.1f} ms, max {ms[-1]:.1f} ms"
+        )
+        if self.historian is not None:
+            w = self.historian.stats
+            text += (
+                f"; historian: {w.writes} writes (longest {w.max_write_s * 1000:.0f} ms), "
+                f"{w.failures} failed, {w.spilled} samples spilled, {w.replayed} replayed, "
+                f"{self.historian.backlog} waiting"
+            )
+        if self.stats.stale or self.stats.not_finite:
+            text += f"; {self.stats.stale} stale and {self.stats.not_finite} non-finite samples"
+        return text
+
+    @property
+    def stored(self) -> int:
+        return self.historian.stats.stored if self.historian is not None else 0
 
     def table(self) -> Any:
         """The rich table of the units (one row each)."""
         from rich.table import Table
 
         st = self.stats
+        backlog = f", historian backlog {self.historian.backlog}" if self.historian else ""
         t = Table(
             title=f"diag run: cycle {st.cycles}, {st.last_ms:.1f} ms, "
-            f"{st.overruns} overruns, {st.stored} new samples stored"
+            f"{st.overruns} overruns, {self.stored} new samples stored{backlog}"
         )
         for col in (
             "unit",
@@ -341,10 +541,20 @@ class LiveLoop:
         return t
 
 
+def _test_tags(plant: Any) -> dict[str, dict[str, list[str]]]:
+    """Per unit, per test: the plant tags its model reads (the unit file's ``[tags]`` names)."""
+    out: dict[str, dict[str, list[str]]] = {}
+    for name, u in getattr(plant, "units", {}).items():
+        out[name] = {
+            t: [u.file.tags.get(x, x) for x in m.tags] for t, m in getattr(u, "models", {}).items()
+        }
+    return out
+
+
 async def close_all(*parts: Any) -> None:
     """Close what a run opened, each on its own: sources and clients (``close()``), servers
-    (``stop()``) and the historian (``close()``, synchronous); ``None`` is skipped and one
-    part's failure never keeps the others open."""
+    (``stop()``) and the historian (``close()``); ``None`` is skipped and one part's failure
+    never keeps the others open."""
     for part in parts:
         if part is None:
             continue

@@ -4,11 +4,14 @@
 //   {"step":"event",...} ... and {"step":"error","message":...} on failure.
 // Arguments (JSON in argv[2]): url, unit, certificateFile, privateKeyFile, applicationUri,
 //   user, password, pkiDir, waitEvents (number of alarm events to wait for), timeoutMs,
-//   ackByMethod (call the unit's Acknowledge method after the first event).
+//   ackByMethod (call the unit's own Acknowledge method after the first event),
+//   ackStandard (acknowledge the first event's condition with Part 9's Acknowledge,
+//   i=9111, naming its EventId), refresh (call ConditionRefresh once subscribed),
+//   anonymous (log in without a user).
 "use strict";
 const {
   OPCUAClient, MessageSecurityMode, SecurityPolicy, AttributeIds, UserTokenType,
-  OPCUACertificateManager, constructEventFilter, TimestampsToReturn,
+  OPCUACertificateManager, constructEventFilter, TimestampsToReturn, callConditionRefresh,
 } = require("node-opcua");
 
 const out = (o) => process.stdout.write(JSON.stringify(o) + "\n");
@@ -35,9 +38,9 @@ async function main() {
     a.timeoutMs || 30000);
   try {
     await client.connect(a.url);
-    const session = await client.createSession({
-      type: UserTokenType.UserName, userName: a.user, password: a.password,
-    });
+    const session = await client.createSession(a.anonymous
+      ? { type: UserTokenType.Anonymous }
+      : { type: UserTokenType.UserName, userName: a.user, password: a.password });
     out({ step: "connected", securityMode: MessageSecurityMode[client.securityMode] });
     const ns = (await session.readNamespaceArray()).indexOf("urn:diag-plugin:diagnosis");
     const units = await session.browse(`ns=${ns};s=Units`);
@@ -59,13 +62,15 @@ async function main() {
       requestedLifetimeCount: 100, publishingEnabled: true, priority: 1,
     });
     const fields = ["EventType", "SourceName", "SourceNode", "Message", "Severity", "Retain",
-      "ActiveState", "ActiveState.Id", "AckedState", "AckedState.Id", "ConditionName"];
+      "ActiveState", "ActiveState.Id", "AckedState", "AckedState.Id", "ConditionName",
+      "EventId", "ConditionId", "ConfirmedState.Id", "Comment", "ClientUserId"];
     const item = await sub.monitor(
       { nodeId: "i=2253", attributeId: AttributeIds.EventNotifier },
       { queueSize: 100, filter: constructEventFilter(fields), discardOldest: true },
       TimestampsToReturn.Neither,
     );
     let seen = 0;
+    let acked = false;
     const done = new Promise((resolve) => {
       item.on("changed", (values) => {
         const ev = {};
@@ -73,8 +78,18 @@ async function main() {
           const v = values[i].value;
           ev[f] = v && typeof v === "object" && "text" in v ? v.text : (v && v.toString ? v.toString() : v);
           if (typeof v === "number" || typeof v === "boolean") ev[f] = v;
+          if (Buffer.isBuffer(v)) ev[f] = v.toString("hex");
         });
         out({ step: "event", event: ev });
+        const isAlarm = ev.EventType === "ns=0;i=2915";
+        if (isAlarm && a.ackStandard && !acked) {
+          acked = true;
+          session.acknowledgeCondition(values[fields.indexOf("ConditionId")].value,
+            values[fields.indexOf("EventId")].value, "seen by the peer")
+            .then((status) => out({ step: "ackStandard", status: status.name }))
+            .catch((err) => out({ step: "ackStandard", status: String(err.message || err) }));
+        }
+        if (!isAlarm) return; // RefreshStart/End events are not counted
         seen += 1;
         if (seen === 1 && a.ackByMethod) {
           session.call({
@@ -88,6 +103,10 @@ async function main() {
         if (seen >= (a.waitEvents || 1)) resolve();
       });
     });
+    if (a.refresh) {
+      const status = await callConditionRefresh(session, sub.subscriptionId);
+      out({ step: "refresh", status: status.name });
+    }
     out({ step: "ready" });
     await done;
     await sub.terminate();

@@ -1,0 +1,59 @@
+"""Password hashes for plant.toml users: scrypt (stdlib), never the password itself.
+
+``diag run --hash-password`` prints one; the OPC UA server checks a login against it in
+constant time. The text form is ``scrypt$n$r$p$<salt base64>$<hash base64>``.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import hmac
+import os
+
+#: scrypt cost (n, r, p): ~50 ms and 16 MB per check, once per login
+_SCRYPT = (2**14, 8, 1)
+
+
+def hash_password(password: str, salt: bytes | None = None) -> str:
+    """``scrypt$n$r$p$salt$hash`` (base64) of ``password``, for ``password_hash`` in plant.toml."""
+    n, r, p = _SCRYPT
+    salt = salt if salt is not None else os.urandom(16)
+    digest = hashlib.scrypt(password.encode(), salt=salt, n=n, r=r, p=p, dklen=32)
+    b64 = base64.b64encode
+    return f"scrypt${n}${r}${p}${b64(salt).decode()}${b64(digest).decode()}"
+
+
+def hash_problem(stored: str) -> str | None:
+    """Why ``stored`` is not a hash :func:`verify_password` can check (None when it is)."""
+    parts = stored.split("$")
+    if len(parts) != 6 or parts[0] != "scrypt":
+        return "expected scrypt$n$r$p$salt$hash (make one with `diag run --hash-password`)"
+    try:
+        n, r, p = (int(x) for x in parts[1:4])
+        base64.b64decode(parts[4], validate=True)
+        base64.b64decode(parts[5], validate=True)
+    except ValueError:
+        return "malformed scrypt hash (numbers n, r, p, then base64 salt and hash)"
+    if n < 2 or n & (n - 1) or r < 1 or p < 1:
+        return "scrypt n must be a power of 2 and r, p positive"
+    if 128 * r * n > 32 * 2**20:
+        return "scrypt n·r too large (over 32 MB per check)"
+    return None
+
+
+def verify_password(stored: str, password: str) -> bool:
+    """``password`` matches the scrypt hash ``stored`` (compared in constant time)."""
+    if hash_problem(stored) is not None:
+        return False
+    _, n, r, p, salt, digest = stored.split("$")
+    want = base64.b64decode(digest)
+    got = hashlib.scrypt(
+        password.encode(),
+        salt=base64.b64decode(salt),
+        n=int(n),
+        r=int(r),
+        p=int(p),
+        dklen=len(want),
+    )
+    return hmac.compare_digest(got, want)

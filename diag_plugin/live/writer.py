@@ -1,0 +1,404 @@
+"""The live loop's storage side: the loop hands over samples and never waits for the database.
+
+:meth:`HistorianWriter.put` appends one cycle's tag vector to a queue in memory and returns;
+a task writes the queue to the historian in the background, through one thread of its own
+(:class:`historian.livestore.LiveStore`, short idempotent transactions). Flushes are
+incremental: one block of at most ``chunk_rows`` samples per transaction, so no single write
+holds anything up, and the first write creates all tags in one transaction.
+
+When the database does not take a block (locked by another writer, stopped, slow) the writer
+keeps the samples and tries again with backoff; the queue in memory holds ``memory_rows``
+samples, older ones go to the spill folder (:class:`historian.spool.Spool`). Everything is
+written back oldest first — the block in flight, then the spill segments, then memory — and
+idempotently (the samples' primary key), so each sample lands exactly once. A failed write,
+or one taking longer than ``stall_after`` seconds, makes the writer *degraded*; it reports
+that once through ``notify(degraded, text)`` and once when everything waiting is stored
+again. It never raises into the loop. :meth:`close` tries to store what is left within a
+time limit and spills the rest, so a later start stores it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import contextlib
+import logging
+import queue
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from historian.livestore import LiveStore
+from historian.spool import Block, Spool
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class WriterStats:
+    stored: int = 0  #: samples added to the database
+    events: int = 0  #: events added to the database
+    spilled: int = 0  #: samples written to spill segments
+    replayed: int = 0  #: samples read back from spill segments and stored
+    failures: int = 0  #: failed write attempts
+    writes: int = 0  #: successful block writes
+    max_backlog: int = 0  #: most samples waiting at once
+    max_write_s: float = 0.0  #: longest successful write
+    degraded_s: float = 0.0  #: time spent degraded
+
+
+class _DbThread:
+    """One daemon thread running the database calls in order: a call that hangs (a lock, a
+    server gone silent) never holds up the event loop or the process's exit."""
+
+    def __init__(self, name: str) -> None:
+        self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._t = threading.Thread(target=self._run, name=name, daemon=True)
+        self._t.start()
+
+    def _run(self) -> None:
+        while True:
+            item = self._q.get()
+            if item is None:
+                return
+            fut, fn, args = item
+            if not fut.set_running_or_notify_cancel():
+                continue
+            try:
+                fut.set_result(fn(*args))
+            except BaseException as exc:  # noqa: BLE001 - handed to the awaiting task
+                fut.set_exception(exc)
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> asyncio.Future[Any]:
+        cf: concurrent.futures.Future[Any] = concurrent.futures.Future()
+        self._q.put((cf, fn, args))
+        return asyncio.wrap_future(cf)
+
+    def stop(self) -> None:
+        self._q.put(None)
+
+
+@dataclass
+class _Item:
+    block: Block
+    segment: Path | None = None  # the spill segment it came from
+
+
+class HistorianWriter:
+    """Background historian writes for the live loop (module doc).
+
+    ``tags``: the tag names of every ``put`` vector, in order. ``spill_dir``: the spill
+    folder. ``flush_every``: cycles per block in normal operation. ``notify(degraded, text)``:
+    told once when storage degrades and once when it is whole again (also of the first
+    spill)."""
+
+    def __init__(
+        self,
+        url: str,
+        tags: Sequence[str],
+        *,
+        spill_dir: str | Path,
+        flush_every: int = 20,
+        cycle: float = 1.0,
+        memory_rows: int = 2_000_000,
+        chunk_rows: int = 200_000,
+        busy_timeout: float = 2.0,
+        stall_after: float | None = None,
+        notify: Callable[[bool, str], None] | None = None,
+    ) -> None:
+        self.url = url
+        self.tags = list(tags)
+        self.spool = Spool(spill_dir)
+        self.flush_every = max(1, int(flush_every))
+        self.cycle = float(cycle)
+        self.memory_rows = max(len(self.tags), int(memory_rows))
+        self.chunk_cycles = max(1, min(int(chunk_rows) // max(1, len(self.tags)), 10_000))
+        self.stall_after = (
+            float(stall_after)
+            if stall_after is not None
+            else max(5.0, 3 * self.flush_every * self.cycle)
+        )
+        self.notify = notify
+        self.store = LiveStore(url, busy_timeout=busy_timeout)
+        self.stats = WriterStats()
+        self.degraded = False
+        self.reason = ""
+        self._since = 0.0
+        self._late = 0
+        self._spool_rows = 0
+        self._replayed0 = 0
+        self._told_spill = False
+        self._mem: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
+        self._events: list[dict[str, Any]] = []
+        self._inflight: _Item | None = None
+        self._wake = asyncio.Event()
+        self._stopping = False
+        self._closed = False
+        self._task: asyncio.Task[None] | None = None
+        self._db = _DbThread(f"historian {url}")
+        self._fail_streak = 0
+
+    # ------------------------------------------------------------------ the loop's side
+    @property
+    def backlog(self) -> int:
+        """Samples waiting: in flight, in memory and in the spill (the spill as last counted)."""
+        n = len(self._mem) * len(self.tags)
+        if self._inflight is not None:
+            n += self._inflight.block.rows
+        return n + self._spool_rows
+
+    def put(self, ts: pd.Timestamp, values: np.ndarray, quality: np.ndarray) -> None:
+        """Queue one cycle's samples (never waits)."""
+        self._mem.append(
+            (int(ts.value // 1000), np.array(values, np.float64), np.array(quality, np.uint8))
+        )
+        self.stats.max_backlog = max(self.stats.max_backlog, self.backlog)
+        if len(self._mem) >= self.flush_every or len(self._mem) * len(self.tags) > self.memory_rows:
+            self._wake.set()
+
+    def put_event(self, ts: pd.Timestamp, unit: str, message: str, **fields: Any) -> None:
+        """Queue one event for the historian's event log (never waits)."""
+        self._events.append(
+            {"ts": int(pd.Timestamp(ts).value // 1000), "unit": unit, "message": message, **fields}
+        )
+        if len(self._events) > 10_000:
+            self._wake.set()
+
+    # ------------------------------------------------------------------ lifecycle
+    async def start(self) -> None:
+        """Start the background task (returns at once; the database may be away)."""
+        self._spool_rows = await asyncio.to_thread(self.spool.rows)
+        if self._spool_rows:
+            log.warning(
+                "historian: %d samples from an earlier run wait in %s; storing them first",
+                self._spool_rows,
+                self.spool.folder,
+            )
+        self._task = asyncio.create_task(self._run(), name=f"historian writer {self.url}")
+
+    async def close(self, timeout: float = 10.0) -> None:
+        """Store what is left within ``timeout`` seconds; spill the rest; stop the thread."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stopping = True
+        self._wake.set()
+        if self._task is not None:
+            done, _ = await asyncio.wait({self._task}, timeout=timeout)
+            if not done:
+                self._task.cancel()
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await self._task
+        left: list[Block] = []
+        if self._inflight is not None and self._inflight.segment is None:
+            left.append(self._inflight.block)  # may be stored too: idempotent at replay
+        if self._mem or self._events:
+            left.append(self._take(len(self._mem)))
+        for block in left:
+            if block.rows or block.events:
+                try:
+                    path = await asyncio.to_thread(self.spool.write, block)
+                    self.stats.spilled += block.rows
+                    self._spool_rows += block.rows
+                    self._tell(
+                        True,
+                        f"historian away at exit: {block.rows} samples kept in {path} for "
+                        "the next start",
+                    )
+                except OSError as exc:
+                    log.error("historian: %d samples lost at exit: %s", block.rows, exc)
+        self._db.submit(LiveStore.close, self.store)
+        self._db.stop()
+
+    # ------------------------------------------------------------------ the task
+    def _take(self, cycles: int) -> Block:
+        """The oldest ``cycles`` cycles of memory (and every pending event) as a block."""
+        items = [self._mem.popleft() for _ in range(min(cycles, len(self._mem)))]
+        events, self._events = self._events, []
+        n = len(self.tags)
+        if not items:
+            return Block(
+                self.tags,
+                np.empty(0, np.int64),
+                np.empty((0, n)),
+                np.empty((0, n), np.uint8),
+                events,
+            )
+        ts = np.fromiter((t for t, _, _ in items), np.int64, count=len(items))
+        return Block(
+            self.tags,
+            ts,
+            np.stack([v for _, v, _ in items]),
+            np.stack([q for _, _, q in items]),
+            events,
+        )
+
+    async def _next(self) -> _Item | None:
+        """What to store next: the oldest spill segment (read in a thread), else a block
+        from memory (taken here, in the loop's thread, where ``put`` appends)."""
+        if self._spool_rows:
+            segments = await asyncio.to_thread(self.spool.segments)
+            if segments:
+                return _Item(await asyncio.to_thread(self.spool.read, segments[0]), segments[0])
+            self._spool_rows = 0
+        if self._mem or self._events:
+            return _Item(self._take(self.chunk_cycles))
+        return None
+
+    def _due(self) -> bool:
+        if self._inflight is not None or self._spool_rows or self._stopping:
+            return True
+        if len(self._mem) >= self.flush_every or len(self._events) > 10_000:
+            return True
+        return bool(self._mem) and self._fail_streak > 0
+
+    async def _run(self) -> None:
+        backoff = 0.5
+        while True:
+            if not self._due():
+                self._wake.clear()
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(self.flush_every * self.cycle):
+                        await self._wake.wait()
+                if not self._due() and not self._mem and not self._events:
+                    continue
+            if self._inflight is None:
+                self._inflight = await self._next()
+                if self._inflight is None:
+                    if self._stopping:
+                        return
+                    continue
+            ok = await self._store(self._inflight)
+            if ok:
+                item, self._inflight = self._inflight, None
+                if item.segment is not None:
+                    await asyncio.to_thread(self.spool.remove, item.segment)
+                    self.stats.replayed += item.block.rows
+                    self._spool_rows = max(0, self._spool_rows - item.block.rows)
+                if self.degraded:
+                    self._late += item.block.rows
+                    if not self._spool_rows and len(self._mem) < self.flush_every:
+                        self._recovered()
+                backoff = 0.5
+                self._fail_streak = 0
+                continue
+            if self._stopping:
+                return
+            await self._spill_if_full()
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(backoff):
+                    while not self._stopping:
+                        await self._wake.wait()
+                        self._wake.clear()
+                        await self._spill_if_full()
+            backoff = min(backoff * 2, 10.0)
+
+    async def _store(self, item: _Item) -> bool:
+        """One write of ``item`` in the database thread; watch it, spill memory meanwhile."""
+        b = item.block
+        t0 = time.monotonic()
+
+        def write(store: LiveStore) -> tuple[int, int]:
+            try:
+                n = store.write_block(b.tags, b.ts, b.values, b.quality) if b.rows else 0
+                e = store.write_events(b.events)
+            except Exception:
+                store.reset()
+                raise
+            return n, e
+
+        fut = self._db.submit(write, self.store)
+        while True:
+            done, _ = await asyncio.wait({fut}, timeout=1.0)
+            if done:
+                break
+            if time.monotonic() - t0 > self.stall_after:
+                self._degrade(f"no answer for {time.monotonic() - t0:.0f} s")
+            await self._spill_if_full()
+        try:
+            n, e = fut.result()
+        except Exception as exc:  # noqa: BLE001 - any failure means "keep and retry"
+            self.stats.failures += 1
+            self._fail_streak += 1
+            self._degrade(_why(exc))
+            return False
+        dt = time.monotonic() - t0
+        self.stats.writes += 1
+        self.stats.stored += n
+        self.stats.events += e
+        self.stats.max_write_s = max(self.stats.max_write_s, dt)
+        if dt > self.stall_after:
+            log.warning("historian: a write took %.1f s", dt)
+        return True
+
+    async def _spill_if_full(self) -> None:
+        """Move the oldest memory cycles to a spill segment while memory is over its bound."""
+        n = len(self.tags)
+        if len(self._mem) * n <= self.memory_rows:
+            return
+        block = self._take(len(self._mem) - self.memory_rows // (2 * n))
+        try:  # shielded: a cancel (close() out of time) must not drop the block half-way
+            path = await asyncio.shield(asyncio.to_thread(self.spool.write, block))
+        except OSError as exc:
+            log.error(
+                "historian: cannot spill to %s: %s; keeping in memory", self.spool.folder, exc
+            )
+            for i in range(len(block.ts) - 1, -1, -1):
+                self._mem.appendleft((int(block.ts[i]), block.values[i], block.quality[i]))
+            self._events[:0] = block.events
+            return
+        self.stats.spilled += block.rows
+        self._spool_rows += block.rows
+        if not self._told_spill:
+            self._told_spill = True
+            self._tell(
+                True,
+                f"historian away: memory holds {self.memory_rows} samples, older ones go "
+                f"to {path.parent}",
+            )
+
+    def _degrade(self, reason: str) -> None:
+        if not self.degraded:
+            self.degraded = True
+            self._since = time.monotonic()
+            self._late = 0
+            self.reason = reason
+            self._replayed0 = self.stats.replayed
+            self._tell(
+                True,
+                f"historian degraded: {reason}; samples wait in memory (up to "
+                f"{self.memory_rows} samples), then in {self.spool.folder}",
+            )
+
+    def _recovered(self) -> None:
+        dt = time.monotonic() - self._since
+        self.stats.degraded_s += dt
+        self.degraded = False
+        self._told_spill = False
+        replayed = self.stats.replayed - self._replayed0
+        self._tell(
+            False,
+            f"historian back after {dt:.1f} s: {self._late} samples stored late "
+            f"({replayed} of them from the spill folder), none lost",
+        )
+
+    def _tell(self, degraded: bool, text: str) -> None:
+        (log.warning if degraded else log.info)("%s", text)
+        if self.notify is not None:
+            try:
+                self.notify(degraded, text)
+            except Exception:  # noqa: BLE001 - a listener must not stop storage
+                log.exception("historian notify failed")
+
+
+def _why(exc: BaseException) -> str:
+    """A one-line reason from a database exception (SQLAlchemy wraps the driver's)."""
+    text = str(getattr(exc, "orig", None) or exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0] if text else ''}"[:300]

@@ -1,0 +1,61 @@
+"""Peers for the OPC UA tests (not tests themselves): a PKI on disk, users, clients by role.
+
+``pki(folder)`` makes the server's and clients' self-signed certificates (our own
+:func:`connectors.certs.make_certificate`), trusts the good clients and leaves a stranger out;
+``secured_server`` runs our server with SignAndEncrypt, a trust list, an operator (alice),
+a viewer (bob), a user known by its certificate (carol, operator) and anonymous read-only
+sessions; ``client(...)`` opens an asyncua client as one of them.
+"""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+from connectors.certs import CertPair, certificate_der, make_certificate, trust
+from connectors.opcua_access import OpcUaUser
+from connectors.passwords import hash_password
+
+PASSWORDS = {"alice": "alice-pw-1", "bob": "bob-pw-22"}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def pki(folder: Path) -> dict[str, CertPair | Path]:
+    """Client certificates: ``hmi`` and ``carol`` trusted, ``stranger`` not."""
+    d = Path(folder)
+    hmi = make_certificate(d / "clients", "hmi", "urn:diag-plugin:test:hmi")
+    carol = make_certificate(d / "clients", "carol", "urn:diag-plugin:test:carol")
+    stranger = make_certificate(d / "strangers", "stranger", "urn:diag-plugin:test:stranger")
+    trust(hmi, d / "trusted")
+    trust(carol, d / "trusted")
+    return {"hmi": hmi, "carol": carol, "stranger": stranger, "dir": d}
+
+
+def users(keys: dict) -> tuple[OpcUaUser, ...]:
+    return (
+        OpcUaUser("alice", "operator", hash_password(PASSWORDS["alice"])),
+        OpcUaUser("bob", "viewer", hash_password(PASSWORDS["bob"])),
+        OpcUaUser("carol", "operator", certificate=certificate_der(keys["carol"].certificate)),
+    )
+
+
+async def client(
+    endpoint: str, cert: CertPair, user: str | None = None, mode: str = "SignAndEncrypt"
+):
+    """A connected asyncua client with ``cert`` over Basic256Sha256 ``mode`` as ``user``
+    (None: anonymous); the caller disconnects."""
+    from asyncua import Client
+
+    c = Client(endpoint, timeout=10)
+    c.application_uri = cert.application_uri
+    if user is not None:
+        c.set_user(user)
+        c.set_password(PASSWORDS[user])
+    await c.set_security_string(f"Basic256Sha256,{mode},{cert.certificate},{cert.private_key}")
+    await c.connect()
+    return c
