@@ -191,9 +191,11 @@ def train(
         d = builder.transform(read(a, b))
         tally.add_design(d)
         if len(d.y):
+            det = predictor.predict_detail(d.X)
             val_stats.update(
-                residual_pct(d.y, predictor.predict(d.X), span),
+                residual_pct(d.y, det.y, span),
                 residual_pct(d.y, predictor.extrapolate(d.X), span),
+                det.level,
             )
             if whole:
                 rows.append((d.X, d.y))

@@ -26,7 +26,7 @@ from rich.table import Table
 from sqlalchemy.engine import make_url
 
 from diag_plugin.diagnose.unitfile import is_model_file
-from diag_plugin.metrics import coverage_note
+from diag_plugin.metrics import coverage_note, levels_note
 from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase.document import RuleBase, RuleBaseError, resolve
 from diag_plugin.training.chunked import DEFAULT_CHUNK, train
@@ -192,6 +192,8 @@ def cmd_train(args) -> int:
                 f"MAE {v['mae_pct']:.2f} %, coverage {v['coverage']:.1%}; "
                 f"{r['samples']:,} samples, {r['rules']} rules, {r['seconds']:.1f} s"
             )
+            if note := levels_note(v):
+                print(f"  {note}")
             if note := coverage_note(v):
                 print(f"  {note}")
         for f in failures:
