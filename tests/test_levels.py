@@ -9,10 +9,12 @@ held-out sample inside the training range of a thin 3-input, 31-set grid.
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from diag_plugin.fuzzy.partition import UniformPartition
 from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor, level_blocks
+from diag_plugin.regressors import build_design
 
 
 def _data(n: int, seed: int, d: int = 2):
@@ -131,3 +133,51 @@ def test_a_thin_three_input_grid_answers_nearly_every_held_out_sample_in_its_ran
     both = np.isfinite(b.y)
     err = lambda p: np.sqrt(np.mean((p[both] - yv[inside][both]) ** 2))  # noqa: E731
     assert err(a.y) <= err(b.y) * 1.0001, (err(a.y), err(b.y))
+
+
+def test_compare_explain_training_units_and_the_plant_answer_alike(tmp_path):
+    """One model with coarse levels in use (the 3-input heat exchanger, 31 sets, 4 days): the
+    error training reports and the one explain starts from are the same figure; compare's
+    prediction is the model's; the unit's residual is compare's divided by its level and spread
+    factors; the plant (the live loop's evaluator) gives the unit's residuals."""
+    from diag_plugin.diagnose.learning import learn_thresholds
+    from diag_plugin.diagnose.plant import Plant
+    from diag_plugin.diagnose.unit import Unit, level_factor, spread_factor
+    from diag_plugin.diagnose.unitfile import UnitFile
+    from diag_plugin.examples.rigs import build_unit, runs
+    from diag_plugin.rulebase.document import RuleBase
+    from diag_plugin.training.chunked import train
+    from diag_plugin.workbench.compare import compare
+    from diag_plugin.workbench.explain import explain
+
+    frame = runs("hx", [31], length=4)
+    path = build_unit(tmp_path, "hx", frame)
+    rb = RuleBase.load(tmp_path / "hx_r_h.toml")
+    a, b = frame.index[0], frame.index[-1] + pd.Timedelta("60s")
+    res = train(rb, lambda x, y: frame[(frame.index >= x) & (frame.index < y)], a, b)
+    assert 0.0 < res.validation.get("coverage_level_0", 1.0) < 0.99  # levels answer some
+    e = explain(rb, frame, max_lag=0, top=1)
+    assert e.baseline_rmse_pct == pytest.approx(res.validation["rmse_pct"], rel=1e-9)
+    unit = Unit.load(path)
+    uf = UnitFile.load(path)
+    uf.set_learned(learn_thresholds(unit, [frame], far=0.01))
+    uf.save()
+    unit = Unit.load(path)
+    later = runs("hx", [32], length=1)
+    c = compare(RuleBase.load(tmp_path / "hx_r_h.toml"), later)
+    m = unit.models["r_h"]
+    det = m.model.predict_detail(build_design(later, m.inputs, m.output).X)
+    np.testing.assert_array_equal(c.yhat, det.y)
+    assert (det.level > 0).any()
+    t = unit.file.test("r_h")
+    want = (c.y - c.yhat) / m.span * 100
+    want = want / level_factor(t.levels, det.level) / spread_factor(det.spread)
+    want = np.where(det.support >= unit.ev["min_support"], want, np.nan)
+    got = unit.reset().raw_residuals(later)["r_h"].to_numpy()
+    np.testing.assert_allclose(got[-len(want) :], want, rtol=1e-12, equal_nan=True)
+    plant = Plant({"hx": unit.reset()}, {})
+    cyc = [plant.cycle(ts, row.to_dict())[0] for ts, row in later.iloc[:300].iterrows()]
+    alone = Unit.load(path).evaluate(later.iloc[:300])
+    r = np.array([s.residuals["r_h"] for s in cyc])
+    np.testing.assert_allclose(r, alone.residuals["r_h"].to_numpy(), rtol=1e-9, equal_nan=True)
+    assert [int(s.status) for s in cyc] == alone.status.tolist()
