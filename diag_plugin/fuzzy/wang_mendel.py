@@ -199,6 +199,8 @@ LEVEL_SUPPORT = 0.9
 SMOOTHING = 0.1
 #: samples' worth of the model's typical spread a cell's own spread is pooled with
 SPREAD_PRIOR = 5.0
+#: coarse levels whose nodes × fine rules stay below this are fitted with dense arrays
+DENSE_FIT = 1 << 17
 #: coarse levels whose fit would weigh more (fine rules × 2^inputs) stay silent
 FIT_LIMIT = 1 << 20
 
@@ -849,6 +851,8 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     col = col.reshape(-1)
     data = np.isin(nodes, cells.keys)
     sw = np.sqrt(n)
+    if nodes.size * n.size <= DENSE_FIT:  # small levels: dense numpy, no sparse overhead
+        return nodes, _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets), data
     A = sp.csr_matrix((w * sw[r], (r, col)), shape=(n.size, nodes.size))
     y = np.asarray(m.conclusions_, float)[has]
     # smoothness: second differences along each input where both neighbours are nodes
@@ -877,6 +881,32 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     rhs = A.T @ (sw * y) + ridge * float(np.average(y, weights=n))
     values = np.atleast_1d(spsolve(M, rhs))
     return nodes, values, data
+
+
+def _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets) -> np.ndarray:
+    """:func:`_fit_nodes`' least squares with dense arrays (a level of few nodes)."""
+    k = nodes.size
+    d = m.n_features_in_
+    A = np.zeros((n.size, k))
+    np.add.at(A, (r, col), w * sw[r])
+    y = np.asarray(m.conclusions_, float)[m.count_ > 0]
+    idx = np.column_stack([(nodes // radix[j]) % nsets[j] for j in range(d)])
+    rows = []
+    for j in range(d):
+        below = np.searchsorted(nodes, nodes - radix[j]).clip(0, k - 1)
+        above = np.searchsorted(nodes, nodes + radix[j]).clip(0, k - 1)
+        inside = (idx[:, j] > 0) & (idx[:, j] < nsets[j] - 1)
+        ok = inside & (nodes[below] == nodes - radix[j]) & (nodes[above] == nodes + radix[j])
+        for i in np.flatnonzero(ok):
+            row = np.zeros(k)
+            row[below[i]], row[i], row[above[i]] = 1.0, -2.0, 1.0
+            rows.append(row)
+    P = np.array(rows) if rows else np.zeros((0, k))
+    per_node = n.sum() / k
+    ridge = 1e-6 * per_node
+    M = A.T @ A + SMOOTHING * per_node * (P.T @ P) + ridge * np.eye(k)
+    rhs = A.T @ (sw * y) + ridge * float(np.average(y, weights=n))
+    return np.linalg.solve(M, rhs)
 
 
 def _observed_span(v: np.ndarray) -> tuple[float, float]:
