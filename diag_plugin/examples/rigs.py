@@ -226,9 +226,12 @@ UNITS = {
 PERIODS = {"tank": "1s", "hx": "60s"}
 
 
-def build_unit(folder, plant: str, frame: pd.DataFrame, *, levels: int | None = None):
+def build_unit(
+    folder, plant: str, frame: pd.DataFrame, *, levels: int | None = None, sets: int | None = None
+):
     """Rule bases of ``plant``'s models trained on ``frame`` and its unit file (no thresholds
-    yet) in ``folder``; returns the unit file's path. ``levels=0``: the fine grids alone."""
+    yet) in ``folder``; returns the unit file's path. ``levels=0``: the fine grids alone;
+    ``sets``: every input's sets (default :data:`UNITS`')."""
     from pathlib import Path
 
     from diag_plugin.diagnose.unitfile import new_unit_text
@@ -241,12 +244,12 @@ def build_unit(folder, plant: str, frame: pd.DataFrame, *, levels: int | None = 
     period = PERIODS[plant]
     a, b = frame.index[0], frame.index[-1] + pd.Timedelta(period)
     names = {}
-    for test, (out, inputs, sets) in UNITS[plant].items():
+    for test, (out, inputs, default) in UNITS[plant].items():
         path = folder / f"{plant}_{test}.toml"
         path.unlink(missing_ok=True)
         rb = new_model(
-            path, f"{plant}_{test}", out, inputs, frame=frame, tag_info=info, sets=sets,
-            period=period,
+            path, f"{plant}_{test}", out, inputs, frame=frame, tag_info=info,
+            sets=sets or default, period=period,
         )  # fmt: skip
         if levels is not None:
             rb.doc["rules"]["levels"] = levels
