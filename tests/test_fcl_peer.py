@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 from helpers import require, requires
 
+from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
 from diag_plugin.rulebase.document import RuleBase, Variable
 from diag_plugin.rulebase.fcl import identifier, to_fcl, to_fll
 
@@ -89,7 +90,11 @@ def _points(rb: RuleBase, seed: int = 1, n: int = 1000, outside: float = 0.0):
 def _compare(
     rb: RuleBase, X: np.ndarray, y_peer: np.ndarray, min_finite: int, mixed: bool = True
 ) -> None:
-    pred = rb.to_model().predict_detail(X)
+    # FCL holds the fine rule grid (IEC 61131-7 has no coarser levels behind it): the peer
+    # reproduces the model's fine grid alone
+    state = rb.to_model().to_state()
+    state["params"]["levels"] = 0
+    pred = WangMendelRegressor.from_state(state).predict_detail(X)
     y = pred.y
     finite = np.isfinite(y)
     assert finite.sum() >= min_finite, f"only {finite.sum()} supported points"

@@ -91,7 +91,8 @@ def test_a_missing_tag_that_thins_the_grid_still_ranks_first(tmp_path, seed):
     e = explain(rb, f)
     best = e.candidates[0]
     assert best.input.startswith("Tin["), [c.input for c in e.candidates[:3]]
-    assert best.coverage < 0.95 or any("thin" in n for n in best.notes), best
+    # thin: the fine grid alone answers few of the held-out samples, the coarser levels the rest
+    assert best.coverage > 0.99, best
     errors = [c.rmse_pct_if_added for c in e.candidates]
     assert errors == sorted(errors)  # best first means best
     before = held_out(rb, f)
@@ -99,6 +100,7 @@ def test_a_missing_tag_that_thins_the_grid_still_ranks_first(tmp_path, seed):
     sets = int(args[args.index("--sets") + 1]) if "--sets" in args else None
     rb = add_input(rb, best.input, frame=f, tag_info={}, sets=sets)
     after = held_out(rb, f)
+    assert after["coverage_level_0"] < 0.95 < after["coverage"], after
     assert after["rmse_pct"] < 0.8 * before["rmse_pct"], (before, after)
     assert after["rmse_pct"] == pytest.approx(best.rmse_pct_if_added, rel=0.05)
 

@@ -87,7 +87,7 @@ def test_units_with_their_own_rule_bases_are_each_evaluated_with_their_own(folde
         m.model = copy.deepcopy(m.model)
         if test == "r1":
             grid = m.model.inference_grid()
-            m.model.set_rules(grid.keys, grid.conclusions + 2.0)
+            m.model.set_rules(grid.keys[0], grid.conclusions[0] + 2.0, counts=m.model.count_)
     plant = Plant({"a": a_u, "b": b_u}, {})
     frame = simulate_valve(0.1, seed=808)
     rows = pd.DataFrame({f"{k}.{t}": frame[t] for k in ("A", "B") for t in TAGS})

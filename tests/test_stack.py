@@ -37,15 +37,18 @@ def test_stacked_prediction_equals_each_models_own(seed):
     X = rng.uniform(-1.5, 2.5, (n, 3))  # beyond the spans too: clipped, reason "outside"
     X[rng.random((n, 3)) < 0.03] = np.nan
     got = stack.predict_detail(which, X)
-    checked = set()
+    checked, levels = set(), set()
     for j, m in enumerate(models):
         rows = which == j
         want = m.predict_detail(X[rows, : m.n_features_in_])
         np.testing.assert_array_equal(got.y[rows], want.y)
         np.testing.assert_array_equal(got.support[rows], want.support)
         np.testing.assert_array_equal(got.reason[rows], want.reason)
+        np.testing.assert_array_equal(got.level[rows], want.level)
         checked |= set(np.unique(want.reason).tolist())
+        levels |= set(np.unique(want.level).tolist())
     assert checked >= {0, 1, 2, 3}  # ok, NaN input, unsupported and outside all exercised
+    assert levels >= {-1, 0, 1, 2}  # unanswered, the fine grid and coarser levels
 
 
 def test_a_nan_in_a_column_the_model_does_not_read_is_ignored():
@@ -76,7 +79,7 @@ def test_rules_edited_after_stacking_need_a_new_stack():
     m = _models(11)[1]
     before = WangMendelStack.from_models([m])
     grid = m.inference_grid()
-    m.set_rules(grid.keys, grid.conclusions + 1.0)
+    m.set_rules(grid.keys[0], grid.conclusions[0] + 1.0, counts=m.count_)
     X = np.random.default_rng(0).uniform(0, 1, (50, m.n_features_in_))
     w = np.zeros(50, np.int64)
     after = WangMendelStack.from_models([m])

@@ -49,8 +49,9 @@ def test_unit_file_problems_are_reported_with_lines(folder):
     path = folder / "valve_unit.unit.toml"
     text = path.read_text()
     text = text.replace("on_delay = 30", "on_delay = 0\ncolour = 3")
-    text = text.replace('r2 = {model = "valve_r2.toml"', 'r2 = {model = "nope.toml"')
-    text = text.replace("high = 2.", "high = -2.", 1) if "high = 2." in text else text
+    text = text.replace(
+        'r2 = {model = "valve_r2.toml", high = ', 'r2 = {model = "nope.toml", high = -'
+    )
     path.write_text(text)
     with pytest.raises(UnitError) as e:
         Unit.load(path)
@@ -93,8 +94,8 @@ def test_set_thresholds_keeps_comments_and_layout(folder):
     uf.set_thresholds(
         {"r1": (-3.0, 4.0), "r2": (-1.5, 1.5)},
         ("2026-02-01T00:00:00+00:00", "2026-02-02T00:00:00+00:00"),
-        quantile=0.99,
-        margin=1.5,
+        far=0.002,
+        blocks=5,
         samples={"r1": 100, "r2": 90},
     )
     uf.save()
@@ -104,7 +105,7 @@ def test_set_thresholds_keeps_comments_and_layout(folder):
     assert again.test("r1").limits == (-3.0, 4.0)
     assert again.test("r2").limits == (-1.5, 1.5)
     assert again.thresholds["from"] == "2026-02-01T00:00:00+00:00"
-    assert again.thresholds["samples"] == 90
+    assert again.thresholds["samples"] == 90 and again.thresholds["far"] == 0.002
     assert (
         again.test("r3").limits == UnitFile.load(SHIPPED / "valve_unit.unit.toml").test("r3").limits
     )
@@ -227,9 +228,11 @@ def test_edge_of_the_trained_region_is_unknown_not_a_residual(folder):
 
 
 def test_fading_symptoms_do_not_move_the_isolation_to_other_faults():
-    # a P0-sensor fault that ends: r2 and r3 fade at their own pace. Isolated afresh each
-    # sample, seed 404's fading pattern (r1 unknown, r2 on, r3 off) points at f_EP alone for
-    # 11 samples; held, f_P0 and f_S stay beside it until no symptom is left
+    # a P0-sensor fault that ends: r2 and r3 fade at their own pace. Held, the isolation keeps
+    # f_P0 until no symptom is left (with the 60-day unit, seed 404's fading pattern — r1
+    # briefly unknown, r2 on, r3 off — pointed at f_EP alone for 11 samples isolated afresh;
+    # the unit's coarser rule levels now keep r1 known there, and the rule itself is tested
+    # sample by sample in test_held_isolation_moves_on_new_evidence_only)
     end = ONSET + pd.Timedelta("2h")
     f = simulate_valve(1, seed=404, faults=[FaultSpec("f14", -0.3, ONSET, end=end)])
     got = {}
@@ -240,9 +243,10 @@ def test_fading_symptoms_do_not_move_the_isolation_to_other_faults():
     after = {k: v[(v.index >= end) & (v != "")] for k, v in got.items()}
     assert len(after[True]) > 100  # the symptoms take minutes to clear
     assert after[True].str.contains("f_P0").all(), after[True].value_counts()
-    assert (after[False] == "f_EP").sum() == 11, after[False].value_counts()  # the rule matters
+    # holding only ever widens a fresh isolation, never replaces it
     changed = got[True] != got[False]
-    assert set(got[True][changed]) == {"f_EP|f_P0|f_S"}
+    for held, fresh in zip(got[True][changed], got[False][changed], strict=True):
+        assert set(fresh.split("|")) - {""} < set(held.split("|")), (held, fresh)
     # while the fault develops, nothing changes: symptoms only appear there
     during = got[True].index < end
     pd.testing.assert_series_equal(got[True][during], got[False][during])
@@ -310,8 +314,6 @@ def test_unit_without_matrix_detects_as_off_spec(folder):
     uf.set_thresholds(
         {t: shipped.test(t).limits for t in ("r2", "r3")},
         ("a", "b"),
-        quantile=0.999,
-        margin=1.2,
         samples={"r2": 1, "r3": 1},
     )
     uf.save()

@@ -177,16 +177,28 @@ def test_triangular_inference_is_multilinear_interpolation():
     assert m.predict(x)[0] == pytest.approx(expected)
 
 
-def test_unsupported_samples_are_nan_with_reason():
+@pytest.mark.parametrize("levels", [0, None])
+def test_unsupported_samples_are_nan_with_reason(levels):
     X = np.c_[np.linspace(0, 40, 500), np.linspace(0, 40, 500)]
-    m = WangMendelRegressor([(0, 100), (0, 100)], (0, 100), n_sets=11).fit(X, X[:, 0])
-    det = m.predict_detail(np.array([[20, 20], [90, 90], [np.nan, 5], [-10, -10], [20, 60]]))
-    assert np.isfinite(det.y[0]) and det.reason[0] == REASON_OK
-    assert np.isnan(det.y[1]) and det.reason[1] == REASON_UNSUPPORTED
-    assert np.isnan(det.y[2]) and det.reason[2] == REASON_NAN
-    assert np.isfinite(det.y[3]) and det.reason[3] == REASON_OUTSIDE
-    assert np.isnan(det.y[4])
-    assert det.coverage == pytest.approx(2 / 5)
+    m = WangMendelRegressor([(0, 100), (0, 100)], (0, 100), n_sets=11, levels=levels)
+    m.fit(X, X[:, 0])
+    pts = np.array([[20, 20], [90, 90], [np.nan, 5], [-10, -10], [20, 60], [35, 5]])
+    det = m.predict_detail(pts)
+    assert np.isfinite(det.y[0]) and det.reason[0] == REASON_OK and det.level[0] == 0
+    assert np.isnan(det.y[1]) and det.reason[1] == REASON_UNSUPPORTED and det.level[1] == -1
+    assert np.isnan(det.y[2]) and det.reason[2] == REASON_NAN and det.level[2] == -1
+    assert np.isfinite(det.y[3]) and det.reason[3] == REASON_OUTSIDE and det.level[3] == 0
+    # (20, 60): beyond the training data's range of the second input (0…40): no level answers
+    assert np.isnan(det.y[4]) and det.level[4] == -1
+    if levels == 0:  # the paper's fine grid alone: no rule fires at (35, 5) either
+        assert np.isnan(det.y[5])
+        assert det.coverage == pytest.approx(2 / 6)
+        assert det.coverage_by_level() == {0: pytest.approx(2 / 6)}
+    else:  # inside both ranges, off the diagonal the data lie on: only the coarsest cell
+        # holding it (fine sets 0-7 of both inputs) has data, and it answers, saying so
+        assert det.level[5] == m.n_levels_ - 1 == 3 and det.y[5] == pytest.approx(20, abs=1)
+        assert det.coverage == pytest.approx(3 / 6)
+        assert det.coverage_by_level() == {0: pytest.approx(2 / 6), 3: pytest.approx(1 / 6)}
 
 
 def test_nan_training_rows_are_skipped_and_counted():
@@ -223,11 +235,13 @@ def test_many_inputs_stay_sparse(d):
     pred = {}
     pred_peak = _peak_bytes(lambda: pred.setdefault("y", m.predict(X)))
     grid = 8 * 31**d
-    # memory in proportion to the rows (about 80 and 65 bytes per row measured), never
-    # to the grid: one dense table of it alone would be > 1000 bytes per row
+    # memory in proportion to the rows (fit about 80 bytes per row measured, predict about
+    # 120), never to the grid: one dense table of it alone would be > 1000 bytes per row
     assert grid > 1000 * n
     assert fit_peak < 200 * n, (fit_peak, grid)
-    assert pred_peak < 200 * n, (pred_peak, grid)
+    assert pred_peak < 300 * n, (pred_peak, grid)
+    # 200,000 samples in 31^d cells: the coarse levels' node fit would weigh too much, so the
+    # fine grid answers alone, as before the levels (each training sample its own cell's rule)
     assert np.allclose(pred["y"][:200], y[:200], atol=0.05 * d)
     X, y = X[:20_000], y[:20_000]
     m = new().fit(X, y)

@@ -44,8 +44,27 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("name")
     p.add_argument("--from", dest="start", required=True, metavar="T0")
     p.add_argument("--to", dest="end", required=True, metavar="T1")
-    p.add_argument("--quantile", type=float, default=0.999)
-    p.add_argument("--margin", type=float, default=1.2)
+    p.add_argument(
+        "--far",
+        type=float,
+        default=None,
+        metavar="PER_HOUR",
+        help="false-alarm budget: alarms per hour of operation of the unit, all tests together "
+        "(default 0.001, about one in six weeks)",
+    )
+    p.add_argument(
+        "--blocks",
+        type=int,
+        default=None,
+        metavar="N",
+        help="time blocks for cross-fitting the residuals (default 5; 0: the models' own)",
+    )
+    p.add_argument(
+        "--cross-fit",
+        choices=("auto", "yes", "no"),
+        default="auto",
+        help="auto: cross-fit the tests whose models were trained on the window (default)",
+    )
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_unit_learn)
 
@@ -184,6 +203,9 @@ def unit_summary(unit) -> dict:
                 "inputs": m.inputs,
                 "low": None if lim is None else lim[0],
                 "high": None if lim is None else lim[1],
+                "levels": list(t.levels) if t.levels else [1.0],
+                "spread": t.spread,
+                "learned": f.learned.get(t.name, {}),
             }
         )
     out = {
@@ -234,26 +256,37 @@ def cmd_unit_show(args) -> int:
         markup=False,
     )
     t = Table(title="tests (residuals in % of span)")
-    for c in ("test", "model", "output = f(inputs)", "low", "high"):
+    for c in ("test", "model", "output = f(inputs)", "low", "high", "false alarms/h", "unknown"):
         t.add_column(c)
     for r in s["tests"]:
+        n = r["learned"]
         t.add_row(
             r["test"],
             r["model"],
             f"{r['output']} = f({', '.join(r['inputs'])})",
             "—" if r["low"] is None else f"{r['low']:.3g}",
             "—" if r["high"] is None else f"{r['high']:.3g}",
+            "—" if "far" not in n else f"{n['far']:.2g} ({n.get('method', '?')})",
+            "—" if "unknown" not in n else f"{n['unknown']:.1%}",
         )
     con.print(t)
     th = s["thresholds"]
     if th.get("from"):
+        how = (
+            f"budget {th['far']:g} false alarms per hour of operation"
+            if "far" in th
+            else f"quantile {th.get('quantile')} × margin {th.get('margin')}"
+        )
         con.print(
-            f"thresholds learned from {th['from']} … {th['to']} (quantile {th.get('quantile')} "
-            f"× margin {th.get('margin')}, {th.get('samples')} samples)",
+            f"thresholds learned from {th['from']} … {th['to']} ({how}, {th.get('samples')} "
+            "samples"
+            + (f", residuals cross-fitted over {th['blocks']} blocks" if th.get("blocks") else "")
+            + ")",
             markup=False,
         )
     else:
         con.print(f"no thresholds learned yet: diag unit learn {s['unit']} --from … --to …")
+    _print_learned(con, s["tests"])
     mx = s["matrix"]
     if mx is None:
         con.print("no matrix: this unit only detects (status OFF_SPEC on a symptom)")
@@ -276,6 +309,34 @@ def cmd_unit_show(args) -> int:
         con.print(f"undetectable: {', '.join(mx['undetectable'])}", markup=False)
     con.print(f"theoretical diagnosis accuracy (DAMADICS): {mx['mean_diagnosis_accuracy']:.2f}")
     return 0
+
+
+def _print_learned(con, tests: list[dict]) -> None:
+    """Per test: why its thresholds are what they are (the budget's support, the unknown share
+    and why, the level scales)."""
+    from diag_plugin.diagnose.learning import WHY, hours
+
+    for r in tests:
+        n = r["learned"]
+        if not n:
+            continue
+        parts = [
+            f"expected {n['far']:.2g} false alarms/h"
+            + ("" if n.get("supported") else f", extrapolated ({n.get('method')} fit)"),
+            f"≈ {n.get('independent', 0):,} independent values over {hours(n.get('hours', 0))}",
+        ]
+        if not n.get("supported"):
+            parts.append(f"a window of {hours(n.get('hours_needed', 0))} would support it")
+        why = [f"{WHY[k[8:]]} {v:.1%}" for k, v in n.items() if k.startswith("unknown_")]
+        if why:
+            parts.append("unknown: " + "; ".join(why))
+        if len(r["levels"]) > 1:
+            parts.append(
+                "coarser rule levels scaled ×" + ", ×".join(f"{x:.2g}" for x in r["levels"][1:])
+            )
+        if r["spread"]:
+            parts.append("residual in units of its model's local spread")
+        con.print(f"{r['test']}: " + "; ".join(parts), markup=False)
 
 
 def _frames(args, unit, start, end, chunk="7D"):
@@ -321,36 +382,70 @@ def _prefetch(items):
 
 
 def cmd_unit_learn(args) -> int:
-    from diag_plugin.diagnose.unit import learn_thresholds
+    from diag_plugin.diagnose.learning import (
+        DEFAULT_BLOCKS,
+        DEFAULT_FAR,
+        WHY,
+        LearnError,
+        learn_thresholds,
+    )
     from diag_plugin.diagnose.unitfile import UnitFile
 
     unit = _load_unit(args, args.name)
+    far = DEFAULT_FAR if args.far is None else args.far
+    blocks = DEFAULT_BLOCKS if args.blocks is None else args.blocks
+    if not far > 0:
+        raise UserError(f"--far {far:g}: the budget must be a positive rate per hour")
     t0, t1 = _ts(args.start), _ts(args.end)
     frames = list(_frames(args, unit, t0, t1))
+    cross = {"auto": None, "yes": True, "no": False}[args.cross_fit]
     try:
-        got = learn_thresholds(unit, frames, quantile=args.quantile, margin=args.margin)
-    except ValueError as exc:
-        raise UserError(f"unit {unit.name}: {exc}") from None
+        got = learn_thresholds(unit, frames, far=far, blocks=blocks, cross_fit=cross)
+    except LearnError as exc:
+        raise UserError(f"unit {unit.name}: cannot learn thresholds:\n" + "\n".join(
+            "  " + p for p in exc.problems
+        )) from None  # fmt: skip
     uf = UnitFile.load(unit.file.path)
     uf.set_learned(got)
     uf.save()
+    notes = got.notes()
     out = {
         "unit": unit.name,
         "file": str(uf.path),
         "window": list(got.window),
+        "far": far,
+        "blocks": got.blocks,
         "thresholds": {k: {"low": lo, "high": hi} for k, (lo, hi) in got.limits.items()},
+        "levels": got.levels,
         "samples": got.samples,
         "independent": got.independent,
+        "learned": notes,
+        "warnings": got.warnings,
     }
     if args.json:
         print(json.dumps(out, indent=2))
-    else:
-        print(f"{uf.path}: thresholds from {got.window[0]} … {got.window[1]}")
-        for k, (lo, hi) in got.limits.items():
-            print(
-                f"  {k}: {lo:+.3f} … {hi:+.3f} % ({got.samples[k]:,} samples, "
-                f"≈ {got.independent[k]:,} independent)"
-            )
+        return 0
+    print(
+        f"{uf.path}: thresholds from {got.window[0]} … {got.window[1]}, budget {far:g} false "
+        f"alarms per hour of operation (unit, all tests; "
+        + ("the default, " if args.far is None else "")
+        + f"one per {1 / far:,.0f} h)"
+    )
+    for k, (lo, hi) in got.limits.items():
+        b = got.budgets[k]
+        lv = got.levels[k]
+        print(
+            f"  {k}: {lo:+.3f} … {hi:+.3f} % ({b.samples:,} samples, ≈ {b.independent:,} "
+            f"independent; {got.sources[k]}); expected {b.rate:.2g} false alarms/h "
+            f"({b.method}); unknown {b.unknown:.1%}"
+            + (f"; levels ×{', ×'.join(f'{x:.2g}' for x in lv[1:])}" if len(lv) > 1 else "")
+            + ("; in units of its model's local spread" if got.spread.get(k) else "")
+        )
+        why = {w: v for w, v in got.unknown[k].items() if v > 0}
+        if why:
+            print("      unknown: " + "; ".join(f"{WHY[w]} {v:.1%}" for w, v in why.items()))
+    for w in got.warnings:
+        print(f"  note: {w}")
     return 0
 
 

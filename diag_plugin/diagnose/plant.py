@@ -31,7 +31,13 @@ from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay
-from diag_plugin.diagnose.unit import PRIORITY, Unit, _hold_kernel, broken_status
+from diag_plugin.diagnose.unit import (
+    PRIORITY,
+    Unit,
+    _hold_kernel,
+    broken_status,
+    spread_factor,
+)
 from diag_plugin.diagnose.unitfile import UnitError
 from diag_plugin.fuzzy.stack import WangMendelStack
 from diag_plugin.regressors import parse_specs
@@ -152,7 +158,13 @@ class Plant:
         self._out_lag = np.array([s.output[0] for s in slots], np.intp)
         self._out_col = np.array([s.output[1] for s in slots], np.intp)
         self._scale = np.array([s.scale for s in slots])
+        # residual scale of each rule level per slot (NaN: a level the unit never calibrated)
+        tables = [units[s.unit].file.tests[s.test].levels or (1.0,) for s in slots]
+        self._levels = np.full((n, max((len(t) for t in tables), default=1)), np.nan)
+        for i, t in enumerate(tables):
+            self._levels[i, : len(t)] = t
         self._min_support = np.array([units[s.unit].ev["min_support"] for s in slots])
+        self._spread = np.array([units[s.unit].file.tests[s.test].spread for s in slots], bool)
         lims = [units[s.unit].file.tests[s.test].limits for s in slots]
         self._no_th = np.array([lim is None for lim in lims], bool)
         self._lo = np.array([-1.0 if lim is None else lim[0] for lim in lims])
@@ -248,12 +260,19 @@ class Plant:
     def _fast_cycle(self, ts: pd.Timestamp) -> list[UnitStatus]:
         n = len(self.slots)
         yhat = np.full(n, np.nan)
+        factor = np.ones(n)
         have = self._cycles - 1  # lags beyond the history seen so far are missing
         if self._stack is not None:
             X = self._hist[self._wm_lags, self._wm_cols]
             X[self._wm_lags > have] = np.nan
             pred = self._stack.predict_detail(self._wm_which, X)
             yhat[self._wm_slots] = supported(pred, self._min_support[self._wm_slots])
+            lv = pred.level.astype(np.intp)
+            ok = (lv >= 0) & (lv < self._levels.shape[1])
+            got = self._levels[self._wm_slots, np.clip(lv, 0, self._levels.shape[1] - 1)]
+            factor[self._wm_slots] = np.where(ok, got, np.nan) * np.where(
+                self._spread[self._wm_slots], spread_factor(pred.spread), 1.0
+            )
         for model, idx, lags, cols in self._groups:
             X = self._hist[lags, cols]
             X[(lags > have)] = np.nan
@@ -269,7 +288,7 @@ class Plant:
                         log.warning("model prediction failed (%s unknown): %r", tests, exc)
         y = self._hist[self._out_lag, self._out_col]
         y[self._out_lag > have] = np.nan
-        r = (y - yhat) / self._scale * 100.0  # Kościelny et al., eq. 6
+        r = (y - yhat) / self._scale * 100.0 / factor  # Kościelny et al., eq. 6; levels
         s = np.full(n, np.nan)
         rf = r.copy()
         for idx, lp, delay, hold in self._stages:

@@ -10,7 +10,10 @@ Stages (all vectorised over samples and tests):
 
 1. residual per test in % of the output's nominal span (Kościelny et al., eq. 6), or of the
    signal maximum (Laukonen et al., Sec. IV); NaN (*unknown*) where the model has no rule, an
-   input is missing, stale or of bad quality;
+   input is missing, stale or of bad quality; an answer of a coarser rule level behind a
+   Wang–Mendel model's fine grid is divided by that level's learned residual scale
+   (:func:`level_factor`), and for a test with ``spread = true`` by the local spread of the
+   training outputs (:func:`spread_factor`);
 2. optional causal 4th-order Butterworth low-pass (Laukonen et al., Sec. IV);
 3. symptoms by crisp thresholds (Laukonen et al., Table III; Kościelny et al., Sec. 5) or by
    three-valued fuzzy evaluation (N, 0, P), then on/off delays and optional latching;
@@ -40,8 +43,9 @@ from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matr
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 from diag_plugin.diagnose.symptoms import FixedThresholds, FuzzyThreeValued, OnOffDelay
-from diag_plugin.diagnose.unitfile import UnitError, UnitFile, unit_path
+from diag_plugin.diagnose.unitfile import SPREAD_FLOOR, TestSpec, UnitError, UnitFile, unit_path
 from diag_plugin.metrics import residual_pct
+from diag_plugin.models.protocol import Prediction
 from diag_plugin.regressors import DesignBuilder, needed_tags
 
 log = logging.getLogger(__name__)
@@ -359,11 +363,21 @@ class Unit:
             d = self.builders[t.name].transform(frame)
             r = np.full(len(frame), np.nan)
             if len(d.index):
-                yhat = supported(m.model.predict_detail(d.X), self.ev["min_support"])
-                scale = t.ymax if self.ev["scale"] == "max" and t.ymax else m.span
-                r[frame.index.get_indexer(d.index)] = residual_pct(d.y, yhat, scale)
+                r[frame.index.get_indexer(d.index)] = self.residual(
+                    t, d.y, m.model.predict_detail(d.X)
+                )
             cols[t.name] = r
         return pd.DataFrame(cols, index=frame.index, columns=self.tests)
+
+    def residual(self, test: TestSpec, y: np.ndarray, pred: Prediction) -> np.ndarray:
+        """A test's raw residual from its model's prediction: % of span (eq. 6) or of ``ymax``,
+        NaN below ``min_support``, divided by the answering level's scale (:func:`level_factor`)
+        and, for a test with ``spread = true``, by the local spread (:func:`spread_factor`)."""
+        m = self.models[test.name]
+        yhat = supported(pred, self.ev["min_support"])
+        scale = test.ymax if self.ev["scale"] == "max" and test.ymax else m.span
+        r = residual_pct(y, yhat, scale) / level_factor(test.levels, pred.level)
+        return r / spread_factor(pred.spread) if test.spread else r
 
     def filtered(self, raw: pd.DataFrame) -> pd.DataFrame:
         if self.lowpass is None:
@@ -494,6 +508,27 @@ class Unit:
         return out_status, faults
 
 
+def level_factor(levels: tuple[float, ...] | None, level: np.ndarray | None) -> np.ndarray | float:
+    """What a residual is divided by, per sample: 1 where the fine grid answered (or the
+    method has no levels), the learned scale of the coarser level that answered, NaN (unknown)
+    at a level the unit never calibrated (``levels`` None: the fine grid only)."""
+    if level is None:
+        return 1.0
+    table = np.asarray(levels if levels is not None else (1.0,), float)
+    lv = np.asarray(level, np.int64)
+    ok = (lv >= 0) & (lv < table.size)
+    return np.where(ok, table[np.clip(lv, 0, table.size - 1)], np.nan)
+
+
+def spread_factor(spread: np.ndarray | None) -> np.ndarray | float:
+    """What a residual is divided by for the local spread: the answering rules' spread relative
+    to the model's (``Prediction.spread``), never below :data:`SPREAD_FLOOR`; 1 where unknown
+    or for methods without it."""
+    if spread is None:
+        return 1.0
+    return np.where(np.isfinite(spread), np.maximum(spread, SPREAD_FLOOR), 1.0)
+
+
 def broken_status(name: str, ts: pd.Timestamp, message: str) -> UnitStatus:
     """What a unit that cannot be evaluated reports: CHECK_FUNCTION with Bad quality."""
     return UnitStatus(
@@ -521,69 +556,3 @@ def concat(parts: list[Diagnosis]) -> Diagnosis:
         faults=cat("faults"),
         message=first.message,
     )
-
-
-#: samples skipped at the start of a learning window: the filter starts from rest
-SETTLE_SAMPLES = 500
-
-
-@dataclass
-class Learned:
-    """Thresholds learned from a fault-free window (Laukonen et al., Table III, empirically)."""
-
-    limits: dict[str, tuple[float, float]]
-    samples: dict[str, int]
-    window: tuple[str, str]
-    quantile: float
-    margin: float
-    ymax: dict[str, float]
-    #: about how many independent residual values each threshold rests on (``effective_samples``)
-    independent: dict[str, int]
-
-
-def learn_thresholds(
-    unit: Unit, frames, *, quantile: float = 0.999, margin: float = 1.2
-) -> Learned:
-    """Thresholds per test: ``quantile(|r|) · margin`` of the filtered residual over a window
-    the user declares fault-free (``frames``: consecutive pieces of it), skipping the first
-    :data:`SETTLE_SAMPLES` while the filter settles. With ``scale = "max"`` the signal maximum
-    ``ymax`` per test is learned first (Laukonen et al., Sec. IV). ``independent`` says about how
-    many independent values each quantile rests on: a filtered residual stays correlated for
-    hours, and a threshold from a few dozen independent values is their maximum, which
-    fault-free data outside the window will cross (learn over weeks, not days)."""
-    from diag_plugin.diagnose.symptoms import LearnedThresholds
-
-    frames = list(frames)
-    if not frames or not sum(len(f) for f in frames):
-        raise ValueError("the learning window holds no data")
-    ymax: dict[str, float] = {}
-    if unit.ev["scale"] == "max":
-        for t in unit.file.tests:
-            out = unit.models[t.name].output.split("[")[0]
-            out = unit.file.tags.get(out, out)
-            v = np.concatenate([f[out].to_numpy(float) for f in frames if out in f])
-            m = float(np.nanmax(np.abs(v))) if np.isfinite(v).any() else np.nan
-            if not np.isfinite(m) or m <= 0:
-                raise ValueError(f"test {t.name}: the maximum of {out} is not positive")
-            t.ymax = ymax[t.name] = m
-    unit.reset()
-    r = pd.concat([unit.filtered(unit.raw_residuals(f)) for f in frames])
-    unit.reset()
-    settle = SETTLE_SAMPLES if len(r) > 4 * SETTLE_SAMPLES else len(r) // 4
-    body = r.iloc[settle:]
-    empty = [c for c in body.columns if not body[c].notna().any()]
-    if empty:
-        raise ValueError(
-            f"no residual for {', '.join(empty)} in the window (no rule covers the data, "
-            "or the tags are missing)"
-        )
-    lt = LearnedThresholds(quantile=quantile, margin=margin).fit(body)
-    assert lt.thresholds_ is not None and lt.n_samples_ is not None
-    limits = {str(k): (-float(v), float(v)) for k, v in lt.thresholds_.items()}
-    samples = {str(k): int(v) for k, v in lt.n_samples_.items()}
-    assert lt.n_independent_ is not None
-    independent = {str(k): int(v) for k, v in lt.n_independent_.items()}
-    idx = r.index
-    period = idx[1] - idx[0] if len(idx) > 1 else pd.Timedelta(unit.period)
-    window = (idx[0].isoformat(), (idx[-1] + period).isoformat())
-    return Learned(limits, samples, window, quantile, margin, ymax, independent)

@@ -236,7 +236,9 @@ def new_estimator(method: str, output_lags: Sequence[int], random_state: int = 0
     if method == "wm-avg":
         from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
 
-        return WangMendelRegressor(n_sets=9, output_sets=31, method="wm-avg")
+        # the fine grid alone (no coarser levels behind it), as the experiment was designed and
+        # documented (docs/engine.md): its thresholds are learned on the models' own residuals
+        return WangMendelRegressor(n_sets=9, output_sets=31, method="wm-avg", levels=0)
     raise ValueError(f"unknown method {method!r} (known: {', '.join(FDI_METHODS)})")
 
 

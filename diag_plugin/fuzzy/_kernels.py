@@ -12,7 +12,8 @@ Inference evaluates, per row, the ``2^d`` rules whose premises fire (with a
 Ruspini partition only two neighbouring sets per input have non-zero
 membership) and returns the weighted average of their conclusions over the
 rules that exist; with triangular sets this is multilinear interpolation over
-the rule grid.
+the rule grid. The firing weight of rules never trained passes to coarser
+levels of the same grid (:func:`infer_levels`).
 """
 
 from __future__ import annotations
@@ -134,98 +135,152 @@ def classic_weights(X, y, lo, step, core, nsets, radix, ylo, ystep, ycore, yn, k
         yset[r] = j
 
 
-@nb.njit(cache=True, nogil=True)
-def _lookup_sparse(keys, values, key):
-    lo_i = 0
-    hi_i = keys.shape[0]
+@nb.njit(cache=True, nogil=True, inline="always")
+def _find(keys, dense, seg_a, seg_b, dense_a, key):
+    """Index of rule ``key`` of one level in ``keys`` (its dense table when ``dense_a`` >= 0,
+    else a binary search in the sorted ``keys[seg_a:seg_b]``); -1 when there is none."""
+    if dense_a >= 0:
+        return dense[dense_a + key]
+    lo_i = seg_a
+    hi_i = seg_b
     while lo_i < hi_i:
         mid = (lo_i + hi_i) >> 1
         if keys[mid] < key:
             lo_i = mid + 1
         else:
             hi_i = mid
-    if lo_i < keys.shape[0] and keys[lo_i] == key:
-        return values[lo_i]
-    return np.nan
+    if lo_i < seg_b and keys[lo_i] == key:
+        return lo_i
+    return -1
 
 
 @nb.njit(cache=True, nogil=True)
-def infer(X, lo, step, plateau, nsets, radix, keys, values, dense, out, support, reason):
-    """Weighted average of fired rules' conclusions over existing rules.
+def infer_levels(
+    which, X, n_inputs, lo, step, plateau, nsets, inner, blocks, radix, n_levels, seg, dense_at,
+    keys, values, spreads, data, dense, enough, out, support, reason, level, spread,
+):  # fmt: skip
+    """Inference over the fine rule grid and the coarser levels behind it, for many models.
 
-    ``dense`` is a look-up table indexed by key (NaN = no rule) or an empty
-    array, in which case ``keys``/``values`` (sorted) are searched. ``reason``
-    gets 0 (ok), 1 (NaN input), 2 (no trained rule fires), 3 (input clipped
-    to its span).
+    Row ``r`` is evaluated by model ``which[r]`` (model 0 when ``which`` is empty). Per model
+    ``m`` and level ``l``: ``blocks[m, l, k]`` fine sets of input ``k`` form one coarse set
+    (level 0: 1), ``radix[m, l]`` the mixed radix of that level's keys, ``seg[m, l]`` the slice
+    of ``keys``/``values``/``data`` holding its rules (sorted keys), ``dense_at[m, l]`` the
+    offset of its dense table of rule indices in ``dense`` or -1; ``inner[m, k]`` the first
+    and last fine set of input ``k`` holding training data; ``data`` says per coarse node
+    whether its own cell holds training data.
+
+    A coarse set groups ``b`` neighbouring fine sets: its centre is their mean, its spacing
+    ``b·h``, the same shape (a uniform partition, so a sample's max-membership coarse set is
+    its fine set ``// b``, eq. 3). Each level gives the weighted average of its fired rules'
+    conclusions (eq. 5 conclusions, multilinear interpolation) over the rules that exist, with
+    ``S``, the firing weight they carry. The finest level with ``S >= enough`` answers; where
+    none does, the finest level with ``S > 0`` (so wherever the fine grid answered with all
+    its weight, the answer is the fine grid's, exactly). A coarse level is asked only where
+    the sample's own cell at that level holds training data and the sample lies inside the
+    range of the training data (every input's fine set between the first and last set holding
+    data); beyond it the fine grid alone answers, as without levels.
+
+    ``support`` gets the answering level's ``S``, ``level`` that level (-1: no answer),
+    ``spread`` the same weighted average of the fired rules' ``spreads`` (their outputs'
+    spread; NaN where none is known), ``reason`` 0 (ok), 1 (NaN input), 2 (no trained rule
+    fires at any level), 3 (input clipped to its span).
     """
-    n, d = X.shape
-    use_dense = dense.shape[0] > 0
-    js = np.empty(d, dtype=np.int64)
-    ws = np.empty(d, dtype=np.float64)
-    hi = np.empty(d, dtype=np.float64)
-    inv_step = np.empty(d, dtype=np.float64)
-    for k in range(d):
-        hi[k] = lo[k] + step[k] * (nsets[k] - 1)
-        inv_step[k] = 1.0 / step[k]
-    ncorner = 1 << d
+    n = X.shape[0]
+    d_max = X.shape[1]
+    ws = np.empty(d_max, dtype=np.float64)
+    xs = np.empty(d_max, dtype=np.float64)
+    own = np.empty(d_max, dtype=np.int64)
+    per_row = which.shape[0] > 0
     for r in range(n):
+        m = which[r] if per_row else 0
+        d = n_inputs[m]
         code = 0
+        inside = True
         for k in range(d):
             xv = X[r, k]
             if math.isnan(xv):
                 code = 1
                 break
-            if xv < lo[k]:
-                xv = lo[k]
+            lo_k = lo[m, k]
+            hi_k = lo_k + step[m, k] * (nsets[m, k] - 1)
+            if xv < lo_k:
+                xv = lo_k
                 code = 3
-            elif xv > hi[k]:
-                xv = hi[k]
+            elif xv > hi_k:
+                xv = hi_k
                 code = 3
-            t = (xv - lo[k]) * inv_step[k]
-            j = int(t)
-            if j > nsets[k] - 2:
-                j = nsets[k] - 2
-            f = t - j
-            p = plateau[k]
-            wv = (f - 0.5 * p) / (1.0 - p)
-            if wv < 0.0:
-                wv = 0.0
-            elif wv > 1.0:
-                wv = 1.0
-            js[k] = j
-            ws[k] = wv
+            xs[k] = xv
+            i = math.floor((xv - lo_k) / step[m, k] + 0.5)
+            if i > nsets[m, k] - 1:
+                i = nsets[m, k] - 1
+            own[k] = i
+            if i < inner[m, k, 0] or i > inner[m, k, 1]:
+                inside = False
+        out[r] = np.nan
+        support[r] = 0.0
+        level[r] = -1
+        spread[r] = np.nan
         if code == 1:
-            out[r] = np.nan
-            support[r] = 0.0
             reason[r] = 1
             continue
-        base = 0
-        for k in range(d):
-            base += js[k] * radix[k]
-        num = 0.0
-        den = 0.0
-        for c in range(ncorner):
-            wt = 1.0
-            key = base
+        for lv in range(n_levels[m] if inside else 1):
+            sa = seg[m, lv, 0]
+            sb = seg[m, lv, 1]
+            da = dense_at[m, lv]
+            base = 0
+            own_key = 0
             for k in range(d):
-                if (c >> k) & 1:
-                    wt *= ws[k]
-                    key += radix[k]
-                else:
-                    wt *= 1.0 - ws[k]
-            if wt == 0.0:
-                continue
-            if use_dense:
-                v = dense[key]
-            else:
-                v = _lookup_sparse(keys, values, key)
-            if not math.isnan(v):
-                num += wt * v
-                den += wt
-        support[r] = den
-        if den > 0.0:
-            out[r] = num / den
-            reason[r] = code
-        else:
-            out[r] = np.nan
-            reason[r] = 2
+                b = blocks[m, lv, k]
+                nl = (nsets[m, k] + b - 1) // b
+                t = (xs[k] - (lo[m, k] + 0.5 * step[m, k] * (b - 1))) / (step[m, k] * b)
+                if t < 0.0:
+                    t = 0.0
+                elif t > nl - 1:
+                    t = nl - 1.0
+                j = int(t)
+                if j > nl - 2:
+                    j = nl - 2
+                f = t - j
+                p = plateau[m, k]
+                wv = (f - 0.5 * p) / (1.0 - p)
+                if wv < 0.0:
+                    wv = 0.0
+                elif wv > 1.0:
+                    wv = 1.0
+                ws[k] = wv
+                base += j * radix[m, lv, k]
+                own_key += (own[k] // b) * radix[m, lv, k]
+            if lv > 0:
+                io = _find(keys, dense, sa, sb, da, own_key)
+                if io < 0 or not data[io]:
+                    continue  # a coarse cell answers only where the data reached it
+            vl = 0.0
+            sl = 0.0
+            ql = 0.0
+            wl = 0.0
+            for c in range(1 << d):
+                wt = 1.0
+                key = base
+                for k in range(d):
+                    if (c >> k) & 1:
+                        wt *= ws[k]
+                        key += radix[m, lv, k]
+                    else:
+                        wt *= 1.0 - ws[k]
+                if wt == 0.0:
+                    continue
+                ix = _find(keys, dense, sa, sb, da, key)
+                if ix >= 0:
+                    vl += wt * values[ix]
+                    sl += wt
+                    if not math.isnan(spreads[ix]):
+                        ql += wt * spreads[ix]
+                        wl += wt
+            if sl > 0.0 and (level[r] < 0 or sl >= enough):
+                out[r] = vl / sl
+                support[r] = sl
+                level[r] = lv
+                spread[r] = ql / wl if wl > 0.0 else np.nan
+            if sl >= enough:
+                break
+        reason[r] = code if level[r] >= 0 else 2

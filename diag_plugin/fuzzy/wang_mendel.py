@@ -15,9 +15,24 @@ rule whose premises are the max-membership sets of its inputs (eq. 3, eq. 4).
   of the output set. Ties keep the earlier sample, also across ``merge``.
 
 Inference is the weighted average of the fired rules' conclusions (centroid
-of singleton conclusions), using only rules that exist. A sample whose fired
-rules were all never trained is *unsupported*: its prediction is NaN, and
-:meth:`WangMendelRegressor.predict_detail` says why.
+of singleton conclusions), using only rules that exist.
+
+**Coarser levels behind the fine grid** (``levels``). A thin grid leaves many
+cells without a rule. Level ``l`` groups ``2^l`` neighbouring fine sets of
+each input into one coarse set (inputs stop halving at 2 sets); a sample's
+coarse cell is its fine cell ``// 2^l``, so the coarse rules are the group-by
+of the fine cells' exact integer accumulators (count, sum, sum of squares):
+eq. 5 on bigger cells, exactly what training each coarser grid on the same
+samples would give, under any chunking and merge. They are derived from the
+fine rules, never stored. The firing weight the fine rules do not carry passes
+to the next coarser level (see :func:`._kernels.infer_levels`): where the fine
+rules carry it all, the answer is the fine grid's; where the fine cell has no
+rule, coarser cells answer, and :meth:`WangMendelRegressor.predict_detail`
+says at which level. Coarse levels answer only inside the range of the
+training data (per input, the first to the last fine set holding data); beyond
+it the fine grid alone answers. A sample no level's rules reach is
+*unsupported*: NaN, with a reason code. ``levels=0`` is the paper's fine grid
+alone.
 
 The rule storage is sparse (sorted cell keys), so models with many inputs
 never allocate the ``Π n_k`` grid; a dense look-up table is built only for
@@ -48,27 +63,146 @@ METHODS = ("wm-avg", "wm")
 
 
 class InferenceGrid(NamedTuple):
-    """What inference reads of a fitted model: the input partitions as arrays and the rules
-    sorted by key (see :meth:`WangMendelRegressor.inference_grid`)."""
+    """What inference reads of a fitted model: the input partitions as arrays and, per level
+    (0 = the fine grid), the fine sets per coarse set, the keys' radix and the rules sorted by
+    key (see :meth:`WangMendelRegressor.inference_grid`)."""
 
     lo: np.ndarray
     step: np.ndarray
     nsets: np.ndarray
     plateau: np.ndarray
-    radix: np.ndarray
+    inner: np.ndarray  # (d, 2): first and last fine set of each input holding training data
+    blocks: np.ndarray  # (levels, d)
+    radix: np.ndarray  # (levels, d)
+    keys: list[np.ndarray]
+    conclusions: list[np.ndarray]
+    data: list[np.ndarray]  # per node: its own cell holds training data
+    spreads: list[np.ndarray]  # per node: its outputs' spread relative to the model's
+
+
+class LevelRules(NamedTuple):
+    """The rules of one level: keys (ascending), conclusions, training samples and their
+    standard deviation per cell."""
+
     keys: np.ndarray
     conclusions: np.ndarray
+    count: np.ndarray
+    sd: np.ndarray
+
+
+def level_blocks(nsets: Sequence[int], levels: int | None = None) -> np.ndarray:
+    """Fine sets per coarse set, per level and input: level ``l`` halves every input ``l``
+    times, an input stopping once it has 2 sets (``ceil(n / b) = 2``); there are as many levels
+    as halvings of the input with most sets, at most ``levels`` beyond the fine one."""
+    n = np.asarray(nsets, np.int64)
+    stops = np.zeros(n.size, np.int64)
+    for k, nk in enumerate(n):
+        while -(-nk // (1 << stops[k])) > 2:
+            stops[k] += 1
+    deepest = int(stops.max()) if stops.size else 0
+    if levels is not None:
+        deepest = min(deepest, int(levels))
+    lv = np.arange(deepest + 1)[:, None]
+    return (1 << np.minimum(lv, stops[None, :])).astype(np.int64)
+
+
+def _radix(nsets: np.ndarray) -> np.ndarray:
+    radix = np.ones(nsets.size, dtype=np.int64)
+    total = 1
+    for k in range(nsets.size - 1, -1, -1):
+        radix[k] = total
+        total *= int(nsets[k])
+    return radix
+
+
+def pack(grids: Sequence[InferenceGrid], dense: bool) -> tuple:
+    """The arrays :func:`._kernels.infer_levels` reads for several models (row ``i`` of the
+    result describes ``grids[i]``); ``dense``: levels up to :data:`DENSE_LIMIT` cells get a
+    look-up table (one model's inference), else every level is searched (a stack of many)."""
+    m = len(grids)
+    d_max = max((g.lo.size for g in grids), default=1)
+    l_max = max((g.blocks.shape[0] for g in grids), default=1)
+    n_inputs = np.array([g.lo.size for g in grids], np.int64)
+    lo = np.zeros((m, d_max))
+    step = np.ones((m, d_max))
+    plateau = np.zeros((m, d_max))
+    nsets = np.full((m, d_max), 2, np.int64)
+    inner = np.zeros((m, d_max, 2), np.int64)
+    blocks = np.ones((m, l_max, d_max), np.int64)
+    radix = np.zeros((m, l_max, d_max), np.int64)
+    n_levels = np.array([g.blocks.shape[0] for g in grids], np.int64)
+    seg = np.zeros((m, l_max, 2), np.int64)
+    dense_at = np.full((m, l_max), -1, np.int64)
+    keys, values, spreads, data, tables = [], [], [], [], []
+    at = 0
+    dense_len = 0
+    for i, g in enumerate(grids):
+        d = g.lo.size
+        lo[i, :d], step[i, :d], nsets[i, :d], plateau[i, :d] = g.lo, g.step, g.nsets, g.plateau
+        inner[i, :d] = g.inner
+        L = g.blocks.shape[0]
+        blocks[i, :L, :d], radix[i, :L, :d] = g.blocks, g.radix
+        for lv in range(L):
+            k = g.keys[lv]
+            seg[i, lv] = at, at + k.size
+            keys.append(k)
+            values.append(g.conclusions[lv])
+            spreads.append(g.spreads[lv])
+            data.append(g.data[lv])
+            cells = int(np.prod(-(-g.nsets // g.blocks[lv])))
+            if dense and cells <= DENSE_LIMIT:
+                t = np.full(cells, -1, np.int64)
+                t[k] = np.arange(at, at + k.size)
+                dense_at[i, lv] = dense_len
+                dense_len += cells
+                tables.append(t)
+            at += k.size
+    cat_k = np.concatenate(keys) if keys else np.empty(0, np.int64)
+    cat_v = np.concatenate(values) if values else np.empty(0)
+    cat_s = np.concatenate(spreads) if spreads else np.empty(0)
+    cat_f = np.concatenate(data) if data else np.empty(0, np.bool_)
+    cat_d = np.concatenate(tables) if tables else np.empty(0, np.int64)
+    return (n_inputs, lo, step, plateau, nsets, inner, blocks, radix, n_levels, seg, dense_at,
+            cat_k, cat_v, cat_s, cat_f, cat_d, LEVEL_SUPPORT)  # fmt: skip
+
+
+def run_kernel(packed: tuple, which: np.ndarray, X: np.ndarray) -> Prediction:
+    """Prediction, support, reason and level per row of ``X`` by the packed models."""
+    n = X.shape[0]
+    out = np.empty(n)
+    sup = np.empty(n)
+    reason = np.empty(n, np.int8)
+    level = np.empty(n, np.int8)
+    spread = np.empty(n)
+    for s in range(0, n, CHUNK_ROWS):
+        e = s + CHUNK_ROWS
+        rows = which[s:e] if which.size else which
+        K.infer_levels(
+            rows, X[s:e], *packed, out[s:e], sup[s:e], reason[s:e], level[s:e], spread[s:e]
+        )
+    return Prediction(out, sup, reason, level, spread)
 
 
 #: the exact training state (see :meth:`WangMendelRegressor.to_state`)
 STATE_ARRAYS = ("keys_", "count_", "qsum_", "qsq_", "best_w_", "best_set_")
-PARAMS = ("input_spans", "output_span", "n_sets", "output_sets", "shape", "method")
+PARAMS = ("input_spans", "output_span", "n_sets", "output_sets", "shape", "method", "levels")
 #: grids up to this many cells train and infer through dense arrays
 DENSE_LIMIT = 1 << 20
 #: rows per compiled pass; bounds the memory of fit/predict
 CHUNK_ROWS = 1 << 20
 #: no cell may hold more samples than this (integer sum of squares stays exact)
 MAX_CELL_COUNT = 1 << 29
+#: a level answers a sample where its rules carry at least this share of the firing weight
+#: (the unit's default ``min_support``); else the next coarser level is asked
+LEVEL_SUPPORT = 0.9
+#: weight of the smoothness prior of a coarse level's node fit, relative to the data per node
+SMOOTHING = 0.1
+#: samples' worth of the model's typical spread a cell's own spread is pooled with
+SPREAD_PRIOR = 5.0
+#: coarse levels whose nodes × fine rules stay below this are fitted with dense arrays
+DENSE_FIT = 1 << 17
+#: coarse levels whose fit would weigh more (fine rules × 2^inputs) stay silent
+FIT_LIMIT = 1 << 20
 
 
 def _as_2d(X) -> np.ndarray:
@@ -96,6 +230,9 @@ class WangMendelRegressor(ParamsMixin):
         Sets of the output partition (classic method's conclusions, labels).
     shape : {"trapezoidal", "triangular"}
     method : {"wm-avg", "wm"}
+    levels : int, optional
+        Coarser levels behind the fine grid (see the module doc); by default as many as
+        halving allows (31 sets: 16, 8, 4, 2); 0 = the fine grid alone.
     """
 
     _params = PARAMS
@@ -110,6 +247,7 @@ class WangMendelRegressor(ParamsMixin):
         output_sets: int = 31,
         shape: str = "trapezoidal",
         method: str = "wm-avg",
+        levels: int | None = None,
     ) -> None:
         self.input_spans = input_spans
         self.output_span = output_span
@@ -117,11 +255,14 @@ class WangMendelRegressor(ParamsMixin):
         self.output_sets = output_sets
         self.shape = shape
         self.method = method
+        self.levels = levels
 
     # ------------------------------------------------------------------ set-up
     def _init_partitions(self, X: np.ndarray, y: np.ndarray) -> None:
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
+        if self.levels is not None and (isinstance(self.levels, bool) or int(self.levels) < 0):
+            raise ValueError(f"levels must be a non-negative integer, got {self.levels!r}")
         d = X.shape[1]
         sets = [self.n_sets] * d if np.isscalar(self.n_sets) else list(self.n_sets)
         if len(sets) != d:
@@ -149,6 +290,7 @@ class WangMendelRegressor(ParamsMixin):
         self.radix_ = radix
         self.n_cells_ = total
         self.n_features_in_ = d
+        self.level_blocks_ = level_blocks([p.n for p in self.partitions_], self.levels)
         self.keys_ = np.empty(0, np.int64)
         self.count_ = np.empty(0, np.int64)
         self.qsum_ = np.empty(0, np.int64)
@@ -157,7 +299,13 @@ class WangMendelRegressor(ParamsMixin):
         self.best_set_ = np.empty(0, np.int64)
         self.n_samples_seen_ = 0
         self.n_skipped_ = 0
-        self._lut = None
+        self._touch()
+
+    def _touch(self) -> None:
+        """Forget what is derived from the rules (conclusions, levels, look-up tables)."""
+        self._conclusions = None
+        self._packed = None
+        self._nodes: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def _arrays(self):
         P = self.partitions_
@@ -191,7 +339,6 @@ class WangMendelRegressor(ParamsMixin):
         for start in range(0, X.shape[0], CHUNK_ROWS):
             part = self._accumulate(X[start : start + CHUNK_ROWS], y[start : start + CHUNK_ROWS])
             self._merge_state(*part)
-        self._lut = None
         return self
 
     def _accumulate(self, X: np.ndarray, y: np.ndarray):
@@ -282,7 +429,7 @@ class WangMendelRegressor(ParamsMixin):
             new_sq[b] += qsq
             self.qsum_, self.qsq_ = new_sum, new_sq
         self.keys_, self.count_ = allk, new_count
-        self._conclusions = None
+        self._touch()
 
     def merge(self, other: WangMendelRegressor) -> WangMendelRegressor:
         """Add the training state of ``other`` (trained on later data) in place.
@@ -310,8 +457,46 @@ class WangMendelRegressor(ParamsMixin):
             other.best_set_,
             other.n_skipped_,
         )
-        self._lut = None
         return self
+
+    def without(self, other: WangMendelRegressor) -> WangMendelRegressor:
+        """A copy of this model with the training state of ``other`` taken out: the model
+        trained on everything but ``other``'s samples (the inverse of :meth:`merge`; exact for
+        the averaged method's integer accumulators). Raises ``ValueError`` when ``other`` holds
+        samples this model never had (a cell would fall below zero: ``other``'s data were not
+        part of this model's training), and for the classic method (a maximum cannot be
+        taken back)."""
+        self._check_fitted()
+        if self.method != "wm-avg":
+            raise ValueError("only the averaged method's training can be taken apart")
+        out = WangMendelRegressor.from_state(self.to_state())
+        if not hasattr(other, "partitions_") or not other.keys_.size:
+            return out
+        if (
+            other.partitions_ != self.partitions_
+            or other.output_partition_ != self.output_partition_
+        ):
+            raise ValueError("cannot take apart models with different partitions")
+        at = np.searchsorted(out.keys_, other.keys_)
+        at = np.minimum(at, max(out.keys_.size - 1, 0))
+        found = out.keys_.size > 0
+        found = found & (out.keys_[at] == other.keys_) if out.keys_.size else np.zeros(0, bool)
+        short = (~found).sum() + int(
+            np.sum(np.maximum(other.count_[found] - out.count_[at[found]], 0))
+        )
+        if short:
+            raise ValueError(f"{short} of the samples taken out were never in this model")
+        count, qsum, qsq = out.count_.copy(), out.qsum_.copy(), out.qsq_.copy()
+        np.subtract.at(count, at, other.count_)
+        np.subtract.at(qsum, at, other.qsum_)
+        np.subtract.at(qsq, at, other.qsq_)
+        keep = count > 0
+        out.keys_, out.count_ = out.keys_[keep], count[keep]
+        out.qsum_, out.qsq_ = qsum[keep], qsq[keep]
+        out.best_w_, out.best_set_ = out.best_w_[keep], out.best_set_[keep]
+        out.n_samples_seen_ -= int(other.count_.sum())
+        out._touch()
+        return out
 
     def to_state(self) -> dict:
         """Parameters and exact training state as plain numbers and integer arrays (no pickle):
@@ -418,51 +603,95 @@ class WangMendelRegressor(ParamsMixin):
         self.qsq_ = np.rint(n * (sd_q**2 + mean_q**2)).astype(np.int64)
         self.best_w_ = np.ones(keys.size)
         self.best_set_ = op.nearest(conc)
+        self._touch()
         # explicit conclusions are used as written, not re-derived from the sums
         self._conclusions = conc
-        self._lut = None
         return self
 
-    # --------------------------------------------------------------- inference
-    def _lookup(self):
-        if self._lut is None:
-            if self.n_cells_ <= DENSE_LIMIT:
-                lut = np.full(self.n_cells_, np.nan)
-                lut[self.keys_] = self.conclusions_
-            else:
-                lut = np.empty(0)
-            self._lut = lut
-        return self._lut
+    # ------------------------------------------------------------------ levels
+    @property
+    def n_levels_(self) -> int:
+        """Levels of the rule grid, the fine one included."""
+        return int(self.level_blocks_.shape[0])
 
+    def level_rules(self, level: int) -> LevelRules:
+        """The rules of ``level`` (0 = the fine grid as trained or edited). A coarse rule is
+        the group-by of the fine rules in its cell: count and output sums added as the exact
+        integers they are (eq. 5 on the bigger cell); the classic method averages its fine
+        conclusions weighted by their samples. Fine rules without samples (``n = 0``, written
+        by hand) answer at the fine level only."""
+        self._check_fitted()
+        if not 0 <= level < self.n_levels_:
+            raise ValueError(f"level must be 0…{self.n_levels_ - 1}, got {level}")
+        return self._derive_level(level)
+
+    def _derive_level(self, level: int) -> LevelRules:
+        if level == 0:
+            return LevelRules(self.keys_, self.conclusions_, self.count_, self.sd_)
+        has = self.count_ > 0
+        keys = self._coarse_keys(self.keys_[has], level)
+        ukeys, inv = np.unique(keys, return_inverse=True)
+        inv = inv.reshape(-1)
+        count = np.zeros(ukeys.size, np.int64)
+        np.add.at(count, inv, self.count_[has])
+        if self.method == "wm":
+            acc = np.zeros(ukeys.size)
+            np.add.at(acc, inv, self.count_[has] * self.conclusions_[has])
+            return LevelRules(ukeys, acc / count, count, np.full(ukeys.size, np.nan))
+        qsum = np.zeros(ukeys.size, np.int64)
+        qsq = np.zeros(ukeys.size, np.int64)
+        np.add.at(qsum, inv, self.qsum_[has])
+        np.add.at(qsq, inv, self.qsq_[has])
+        mean = qsum / count
+        conc = self.output_partition_.lo + mean * self._yquant
+        sd = np.sqrt(np.maximum(qsq / count - mean * mean, 0.0)) * self._yquant
+        return LevelRules(ukeys, conc, count, sd)
+
+    def _coarse_keys(self, keys: np.ndarray, level: int) -> np.ndarray:
+        """Keys at ``level`` of the fine cells ``keys`` (each fine set index ``// b``)."""
+        blocks = self.level_blocks_[level]
+        radix = _radix(self.level_nsets(level))
+        out = np.zeros(keys.size, np.int64)
+        rem = keys.copy()
+        for k in range(self.n_features_in_):
+            idx, rem = np.divmod(rem, self.radix_[k])
+            out += (idx // blocks[k]) * radix[k]
+        return out
+
+    def level_nsets(self, level: int) -> np.ndarray:
+        """Sets of every input at ``level``."""
+        n = np.array([p.n for p in self.partitions_], np.int64)
+        return -(-n // self.level_blocks_[level])
+
+    def level_cells(self, level: int, keys: np.ndarray | None = None) -> np.ndarray:
+        """Set index of every input at ``level`` for each of its rules (rows × inputs)."""
+        keys = self.level_rules(level).keys if keys is None else np.asarray(keys, np.int64)
+        radix = _radix(self.level_nsets(level))
+        out = np.empty((keys.size, self.n_features_in_), np.int64)
+        rem = keys.copy()
+        for k in range(self.n_features_in_):
+            out[:, k], rem = np.divmod(rem, radix[k])
+        return out
+
+    def level_centers(self, level: int) -> list[np.ndarray]:
+        """Centre of every set of each input at ``level``: the mean of the fine centres it
+        groups (the coarse partition is uniform with ``b`` times the spacing)."""
+        out = []
+        for p, b in zip(self.partitions_, self.level_blocks_[level], strict=True):
+            n = -(-p.n // int(b))
+            out.append(p.lo + p.step * (0.5 * (b - 1) + b * np.arange(n)))
+        return out
+
+    # --------------------------------------------------------------- inference
     def predict_detail(self, X) -> Prediction:
-        """Prediction with support and a reason code for each sample."""
+        """Prediction with support, a reason code and the answering level for each sample."""
         self._check_fitted()
         X = _as_2d(X)
         if X.shape[1] != self.n_features_in_:
             raise ValueError(f"model has {self.n_features_in_} inputs, X has {X.shape[1]}")
-        lo, step, nsets, plateau, _ = self._arrays()
-        out = np.empty(X.shape[0])
-        sup = np.empty(X.shape[0])
-        reason = np.empty(X.shape[0], np.int8)
-        lut = self._lookup()
-        conc = np.ascontiguousarray(self.conclusions_, dtype=np.float64)
-        for s in range(0, X.shape[0], CHUNK_ROWS):
-            e = s + CHUNK_ROWS
-            K.infer(
-                X[s:e],
-                lo,
-                step,
-                plateau,
-                nsets,
-                self.radix_,
-                self.keys_,
-                conc,
-                lut,
-                out[s:e],
-                sup[s:e],
-                reason[s:e],
-            )
-        return Prediction(out, sup, reason)
+        if self._packed is None:
+            self._packed = pack([self.inference_grid()], dense=True)
+        return run_kernel(self._packed, np.empty(0, np.int64), X)
 
     def predict(self, X) -> np.ndarray:
         """Model output; NaN where no trained rule covers the sample."""
@@ -490,24 +719,88 @@ class WangMendelRegressor(ParamsMixin):
         return y
 
     def coverage(self, X) -> float:
-        """Share of samples of ``X`` covered by trained rules."""
+        """Share of samples of ``X`` answered by trained rules (at any level)."""
         return self.predict_detail(X).coverage
 
     def inference_grid(self) -> InferenceGrid:
-        """Partitions and rules as flat arrays, for evaluators that run many models at once
-        (:class:`diag_plugin.fuzzy.stack.WangMendelStack`); ``keys`` ascending."""
+        """Partitions and rules of every level as flat arrays, for evaluators that run many
+        models at once (:class:`diag_plugin.fuzzy.stack.WangMendelStack`); keys ascending."""
         self._check_fitted()
         lo, step, nsets, plateau, _ = self._arrays()
-        order = np.argsort(self.keys_, kind="stable")
+        radix = np.stack([_radix(self.level_nsets(lv)) for lv in range(self.n_levels_)])
+        inner = np.column_stack([np.zeros(nsets.size, np.int64), nsets - 1])
+        rem = self.keys_[self.count_ > 0]
+        for k in range(self.n_features_in_ if rem.size else 0):
+            idx, rem = np.divmod(rem, self.radix_[k])
+            inner[k] = idx.min(), idx.max()
+        nodes = [self.level_nodes(lv) for lv in range(self.n_levels_)]
+        spreads = [self._node_spread(lv, k) for lv, (k, _, _) in enumerate(nodes)]
         return InferenceGrid(
             lo,
             step,
             nsets,
             plateau,
-            self.radix_.copy(),
-            np.asarray(self.keys_, np.int64)[order],
-            np.asarray(self.conclusions_, np.float64)[order],
+            inner,
+            self.level_blocks_.copy(),
+            radix,
+            [k for k, _, _ in nodes],
+            [v for _, v, _ in nodes],
+            [f for _, _, f in nodes],
+            spreads,
         )
+
+    @property
+    def spread_(self) -> float:
+        """The model's typical spread: the pooled standard deviation of the training outputs
+        within the fine cells, ``sqrt(Σ n sd² / Σ n)`` (NaN for the classic method)."""
+        n = self.count_.astype(float)
+        if self.method == "wm" or not n.sum():
+            return float("nan")
+        return float(np.sqrt(np.sum(n * self.sd_**2) / n.sum()))
+
+    def _node_spread(self, level: int, nodes: np.ndarray) -> np.ndarray:
+        """Per node of ``level``: the spread of its cell's training outputs relative to the
+        model's (:attr:`spread_`), pooled towards 1 by :data:`SPREAD_PRIOR` samples (a cell of
+        one sample has no spread of its own); NaN for nodes without data (and for the classic
+        method, whose rules keep no spread)."""
+        ref = self.spread_
+        rules = self.level_rules(level)
+        out = np.full(nodes.size, np.nan)
+        if not ref > 0:
+            return out
+        i = np.minimum(np.searchsorted(rules.keys, nodes), max(rules.keys.size - 1, 0))
+        ok = rules.keys.size > 0
+        ok = ok & (rules.keys[i] == nodes) if rules.keys.size else np.zeros(nodes.size, bool)
+        n = rules.count[i].astype(float)
+        rel2 = (n * (rules.sd[i] / ref) ** 2 + SPREAD_PRIOR) / (n + SPREAD_PRIOR)
+        out[ok] = np.sqrt(rel2[ok])
+        return out
+
+    def level_nodes(self, level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What inference reads of ``level``: the node keys (ascending), the value at each node
+        and whether the node's own cell holds training data.
+
+        Level 0: the fine rules as they are (every one counts as data). A coarser level: the
+        node values are the least-squares fit of the coarse grid's multilinear interpolation
+        to the fine rules (each fine conclusion at its set centres, weighted by its samples
+        ``n``), with a weak smoothness prior (second differences along each input, weight
+        :data:`SMOOTHING` of the data per node). The plain cell mean (eq. 5 on the bigger
+        cell, :meth:`level_rules`) sits at the centroid of the cell's data, not at its centre,
+        and interpolated as if it were at the centre it errs by up to half the cell's change
+        of output; the fit puts each node where the interpolation needs it (on a 3-input heat
+        exchanger the held-out error where only coarse levels answer fell from 3.7 to 1.3 of
+        an output with spread 3.0). Nodes next to the data get values too (the fit extends the
+        trend one cell), but a coarse level answers only where the sample's own cell holds
+        data. Where fine rules × 2^inputs exceed :data:`FIT_LIMIT` (many inputs, hundreds of
+        thousands of rules) the coarse levels stay silent: the model is the fine grid alone
+        (their cells' means, centroids off-centre, were tried and answered worse, 2.5 % of
+        span in-sample with 9 inputs)."""
+        self._check_fitted()
+        if level == 0:
+            return self.keys_, np.asarray(self.conclusions_, float), np.ones(self.keys_.size, bool)
+        if level not in self._nodes:
+            self._nodes[level] = _fit_nodes(self, level)
+        return self._nodes[level]
 
     def _check_fitted(self) -> None:
         if not hasattr(self, "partitions_"):
@@ -516,6 +809,104 @@ class WangMendelRegressor(ParamsMixin):
     @property
     def n_rules_(self) -> int:
         return int(self.keys_.size)
+
+
+def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Node keys, values and data flags of a coarse level (see :meth:`level_nodes`)."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import spsolve
+
+    cells = m.level_rules(level)
+    has = m.count_ > 0
+    n = m.count_[has].astype(float)
+    if not n.size:
+        return cells.keys, cells.conclusions, np.ones(cells.keys.size, bool)
+    d = m.n_features_in_
+    if n.size << d > FIT_LIMIT:  # too big to fit: the level stays silent
+        return np.empty(0, np.int64), np.empty(0), np.empty(0, bool)
+    blocks = m.level_blocks_[level]
+    nsets = m.level_nsets(level)
+    radix = _radix(nsets)
+    # each fine rule at its set centres, in the coarse partition: lower node and weight
+    fine = m.cell_indices(m.keys_[has])
+    lower = np.empty_like(fine)
+    upper_w = np.empty(fine.shape)
+    for k, p in enumerate(m.partitions_):
+        b = int(blocks[k])
+        t = np.clip((fine[:, k] - 0.5 * (b - 1)) / b, 0.0, nsets[k] - 1.0)
+        j = np.minimum(np.floor(t).astype(np.int64), nsets[k] - 2)
+        pl = p.plateau if p.shape == "trapezoidal" else 0.0
+        lower[:, k] = j
+        upper_w[:, k] = np.clip((t - j - 0.5 * pl) / (1.0 - pl), 0.0, 1.0)
+    rows, cols, vals = [], [], []
+    for c in range(1 << d):
+        up = np.array([(c >> k) & 1 for k in range(d)], bool)
+        w = np.prod(np.where(up, upper_w, 1.0 - upper_w), axis=1)
+        ok = w > 0
+        rows.append(np.flatnonzero(ok))
+        cols.append((lower[ok] + up) @ radix)
+        vals.append(w[ok])
+    r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+    nodes, col = np.unique(c, return_inverse=True)
+    col = col.reshape(-1)
+    data = np.isin(nodes, cells.keys)
+    sw = np.sqrt(n)
+    if nodes.size * n.size <= DENSE_FIT:  # small levels: dense numpy, no sparse overhead
+        return nodes, _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets), data
+    A = sp.csr_matrix((w * sw[r], (r, col)), shape=(n.size, nodes.size))
+    y = np.asarray(m.conclusions_, float)[has]
+    # smoothness: second differences along each input where both neighbours are nodes
+    idx = np.column_stack([(nodes // radix[k]) % nsets[k] for k in range(d)])
+    pr, pc, pv = [], [], []
+    row = 0
+    for k in range(d):
+        below = np.searchsorted(nodes, nodes - radix[k])
+        above = np.searchsorted(nodes, nodes + radix[k])
+        below = np.minimum(below, nodes.size - 1)
+        above = np.minimum(above, nodes.size - 1)
+        inside = (idx[:, k] > 0) & (idx[:, k] < nsets[k] - 1)
+        ok = inside & (nodes[below] == nodes - radix[k]) & (nodes[above] == nodes + radix[k])
+        mid = np.flatnonzero(ok)
+        rr = np.arange(row, row + mid.size)
+        pr += [rr, rr, rr]
+        pc += [below[mid], mid, above[mid]]
+        pv += [np.ones(mid.size), np.full(mid.size, -2.0), np.ones(mid.size)]
+        row += mid.size
+    per_node = n.sum() / nodes.size
+    P = sp.csr_matrix(
+        (np.concatenate(pv), (np.concatenate(pr), np.concatenate(pc))), shape=(row, nodes.size)
+    )
+    ridge = 1e-6 * per_node
+    M = (A.T @ A + SMOOTHING * per_node * (P.T @ P) + ridge * sp.identity(nodes.size)).tocsc()
+    rhs = A.T @ (sw * y) + ridge * float(np.average(y, weights=n))
+    values = np.atleast_1d(spsolve(M, rhs))
+    return nodes, values, data
+
+
+def _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets) -> np.ndarray:
+    """:func:`_fit_nodes`' least squares with dense arrays (a level of few nodes)."""
+    k = nodes.size
+    d = m.n_features_in_
+    A = np.zeros((n.size, k))
+    np.add.at(A, (r, col), w * sw[r])
+    y = np.asarray(m.conclusions_, float)[m.count_ > 0]
+    idx = np.column_stack([(nodes // radix[j]) % nsets[j] for j in range(d)])
+    rows = []
+    for j in range(d):
+        below = np.searchsorted(nodes, nodes - radix[j]).clip(0, k - 1)
+        above = np.searchsorted(nodes, nodes + radix[j]).clip(0, k - 1)
+        inside = (idx[:, j] > 0) & (idx[:, j] < nsets[j] - 1)
+        ok = inside & (nodes[below] == nodes - radix[j]) & (nodes[above] == nodes + radix[j])
+        for i in np.flatnonzero(ok):
+            row = np.zeros(k)
+            row[below[i]], row[i], row[above[i]] = 1.0, -2.0, 1.0
+            rows.append(row)
+    P = np.array(rows) if rows else np.zeros((0, k))
+    per_node = n.sum() / k
+    ridge = 1e-6 * per_node
+    M = A.T @ A + SMOOTHING * per_node * (P.T @ P) + ridge * np.eye(k)
+    rhs = A.T @ (sw * y) + ridge * float(np.average(y, weights=n))
+    return np.linalg.solve(M, rhs)
 
 
 def _observed_span(v: np.ndarray) -> tuple[float, float]:

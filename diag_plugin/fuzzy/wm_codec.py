@@ -11,6 +11,16 @@ eqs. 2–5)::
 conclusion in the output's engineering units, ``n``/``sd`` its training
 support, ``lock`` keeps ``then`` through retraining. ``then = nan`` with
 ``lock = true`` is a *locked-deleted* rule: that cell never gets a rule.
+
+The coarser levels behind the fine grid (:mod:`diag_plugin.fuzzy.wang_mendel`) are
+*derived* from these rules, not stored: a coarse rule is the ``n``-weighted
+mean of the fine rules in its cell (eq. 5 on a bigger cell), so an expert's
+edit of a fine rule (a value, a lock) carries into every level at once, there
+is one truth to diff and review, and files written before the levels existed
+predict with them unchanged. ``diag rules show NAME --level L`` prints a level.
+A locked-deleted cell's samples count at no level. The optional ``levels``
+key of ``[rules]`` limits the levels (``levels = 0``: the fine grid alone, the
+paper's model).
 """
 
 from __future__ import annotations
@@ -29,6 +39,8 @@ if TYPE_CHECKING:
     from diag_plugin.rulebase.document import RuleBase
 
 RULE_KEYS = {"if", "then", "n", "sd", "lock"}
+#: the options a Wang–Mendel file may set in ``[rules]``
+OPTIONS = ("levels",)
 
 
 @dataclass
@@ -53,7 +65,8 @@ class WangMendelCodec:
 
     # ------------------------------------------------------------ estimators
     def new_estimator(self, spec: ModelSpec) -> WangMendelRegressor:
-        """An untrained model with the spec's partitions and method."""
+        """An untrained model with the spec's partitions, method and levels."""
+        levels = spec.options.get("levels")
         return WangMendelRegressor(
             input_spans=[v.span for v in spec.inputs],
             output_span=spec.output.span,
@@ -61,6 +74,7 @@ class WangMendelCodec:
             output_sets=spec.output.sets,
             shape=spec.shape,
             method=spec.method,
+            levels=levels if _is_levels(levels) else None,
         )
 
     def to_model(self, rb: RuleBase) -> WangMendelRegressor:
@@ -126,6 +140,16 @@ class WangMendelCodec:
         self, rb: RuleBase, items: list, positions: Sequence[tuple[int, list[str], str]]
     ) -> list[Rule]:
         """Rules from the file's ``[rules] list``; each problem goes to ``rb.error(line, …)``."""
+        for key, value in rb.options.items():
+            line = rb.line_of("rules", key)
+            if key not in OPTIONS:
+                rb.error(line, f"unknown {rb.method} option {key!r} (known: {', '.join(OPTIONS)})")
+            elif not _is_levels(value):
+                rb.error(
+                    line,
+                    f"levels must be a non-negative integer (coarser levels behind the fine "
+                    f"grid; 0 = the fine grid alone), got {value!r}",
+                )
         lo, hi = rb.output.span
         rules: list[Rule] = []
         seen: dict[tuple[int, ...], int] = {}
@@ -229,6 +253,10 @@ def _with_rules(m: WangMendelRegressor, rules: Mapping[tuple[int, ...], Rule]):
         counts=[rules[p].n for p in ps],
         sds=[rules[p].sd for p in ps],
     )
+
+
+def _is_levels(v: object) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
 
 
 def _decimals(span: tuple[float, float]) -> int:

@@ -43,17 +43,34 @@ class Capabilities:
 @dataclass(frozen=True)
 class Prediction:
     """Model output with its support: ``y`` (NaN where unsupported), the firing
-    weight carried by existing rules ``support`` (0–1), and a ``reason`` code
-    per sample (see :data:`REASONS`)."""
+    weight carried by existing rules ``support`` (0–1), a ``reason`` code
+    per sample (see :data:`REASONS`) and, for models with a rule grid and coarser
+    levels behind it, the ``level`` that answered (0 = the fine grid, -1 = none;
+    ``None`` for methods without levels) and the ``spread`` of the training outputs
+    where it answered, relative to the model's typical spread (1 = typical; NaN unknown;
+    ``None`` for methods that keep no spread)."""
 
     y: np.ndarray
     support: np.ndarray
     reason: np.ndarray
+    level: np.ndarray | None = None
+    spread: np.ndarray | None = None
 
     @property
     def coverage(self) -> float:
         """Share of samples that got a prediction."""
         return float(np.isfinite(self.y).mean()) if self.y.size else float("nan")
+
+    def coverage_by_level(self) -> dict[int, float]:
+        """Share of the samples answered at each level (level 0 only for methods without
+        levels); the shares sum to :attr:`coverage`."""
+        if not self.y.size:
+            return {}
+        if self.level is None:
+            return {0: self.coverage}
+        lv = self.level[np.isfinite(self.y)]
+        counts = np.bincount(lv.astype(np.int64), minlength=1) if lv.size else np.zeros(1)
+        return {i: float(c) / self.y.size for i, c in enumerate(counts) if c or i == 0}
 
 
 @runtime_checkable

@@ -35,6 +35,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "default when a grid would not fit the terminal)",
     )
     p.add_argument("--json", action="store_true", help="print the rules as JSON")
+    p.add_argument(
+        "--level",
+        type=int,
+        default=0,
+        metavar="L",
+        help="a coarser level behind the fine grid (derived from the fine rules; 0 = the rules)",
+    )
     p.set_defaults(func=cmd_show)
 
     p = rsub.add_parser("export-fcl", help="write the model as IEC 61131-7 FCL")
@@ -121,6 +128,8 @@ def cmd_show(args: argparse.Namespace) -> int:
 
     rb = load(args.name, args.rulebases)
     con = Console()
+    if args.level:
+        return show_level(rb, args.level, con)
     if args.json:
         import json
 
@@ -214,6 +223,70 @@ def cmd_show(args: argparse.Namespace) -> int:
             ]
             t.add_row(*labels, _fmt(r.then), str(r.n), _fmt(r.sd), "🔒" if r.lock else "")
         con.print(t)
+    levels = _levels(rb)
+    if levels > 1:
+        con.print(
+            f"coarser levels 1…{levels - 1} behind this grid are derived from these rules "
+            f"(answer where a fine cell has none): diag rules show {rb.name} --level 1",
+            markup=False,
+        )
+    return 0
+
+
+def _levels(rb: RuleBase) -> int:
+    """Levels of a Wang–Mendel file's model (1 = the fine grid alone; 0 for other methods)."""
+    if rb.method not in ("wm-avg", "wm") or not rb.rules:
+        return 0
+    return rb.to_model().n_levels_
+
+
+def show_level(rb: RuleBase, level: int, con) -> int:
+    """Print the rules of a coarser level: each coarse set names the fine sets it groups and
+    their centre; the rules are derived from the fine ones (``n``-weighted means), read-only."""
+    from rich.markup import escape
+    from rich.table import Table
+
+    if rb.method not in ("wm-avg", "wm"):
+        raise UserError(f"{rb.name}: method {rb.method} has no rule levels")
+    model = rb.to_model()
+    if not 0 <= level < model.n_levels_:
+        raise UserError(f"{rb.name}: --level {level}: the model has levels 0…{model.n_levels_ - 1}")
+    rules = model.level_rules(level)
+    cells = model.level_cells(level)
+    blocks = model.level_blocks_[level]
+    centres = model.level_centers(level)
+
+    def label(k: int, i: int) -> str:
+        v = rb.inputs[k]
+        a = i * int(blocks[k])
+        b = min(a + int(blocks[k]), v.sets) - 1
+        return v.set_label(a) if a == b else f"{v.set_label(a)}-{b:0{v.width}d}"
+
+    con.print(
+        f"[bold]{escape(rb.name)}[/] level {level} of {model.n_levels_ - 1}: "
+        + escape(
+            ", ".join(
+                f"{v.spec} {int(n)} sets of {int(b)}"
+                for v, n, b in zip(rb.inputs, model.level_nsets(level), blocks, strict=True)
+            )
+        )
+        + f"; {rules.keys.size} rules, derived from the {model.n_rules_} fine rules "
+        "(edit those: this level follows)"
+    )
+    unit = f" [{rb.output.unit}]" if rb.output.unit else ""
+    t = Table(title=escape(f"{rb.output.spec}{unit}"))
+    for v in rb.inputs:
+        t.add_column(escape(f"{v.spec} sets"))
+        t.add_column("centre", justify="right")
+    for col in ("then", "n", "sd"):
+        t.add_column(col, justify="right")
+    for j in range(rules.keys.size):
+        row = []
+        for k in range(len(rb.inputs)):
+            i = int(cells[j, k])
+            row += [label(k, i), f"{centres[k][i]:.4g}"]
+        t.add_row(*row, _fmt(rules.conclusions[j]), str(rules.count[j]), _fmt(rules.sd[j]))
+    con.print(t)
     return 0
 
 

@@ -235,10 +235,11 @@ def train(
         d = builder.transform(read(a, b))
         tally.add_design(d)
         if len(d.y):
-            y_hat = predictor.predict(d.X)
+            det = predictor.predict_detail(d.X)
             val_stats.update(
-                residual_pct(d.y, y_hat, span),
-                residual_pct(d.y, _stand_in(predictor, d.X, y_hat), span),
+                residual_pct(d.y, det.y, span),
+                residual_pct(d.y, _stand_in(predictor, d.X, det.y), span),
+                det.level,
             )
             if whole:
                 rows.append((d.X, d.y))

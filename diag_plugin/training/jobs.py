@@ -26,7 +26,7 @@ from rich.table import Table
 from sqlalchemy.engine import make_url
 
 from diag_plugin.diagnose.unitfile import is_model_file
-from diag_plugin.metrics import coverage_note
+from diag_plugin.metrics import coverage_note, levels_note
 from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase.backups import backups
 from diag_plugin.rulebase.document import RuleBase, RuleBaseError, resolve
@@ -224,6 +224,8 @@ def cmd_train(args) -> int:
                 f"{r['model']} v{r['version']}: held-out RMSE {v['rmse_pct']:.2f} % of span, "
                 f"MAE {v['mae_pct']:.2f} %, coverage {v['coverage']:.1%}; {tail}"
             )
+            if note := levels_note(v):
+                print(f"  {note}")
             if note := coverage_note(v):
                 print(f"  {note}")
         for f in failures:

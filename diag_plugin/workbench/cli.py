@@ -287,7 +287,7 @@ def cmd_compare(args) -> int:
     from rich.markup import escape
     from rich.table import Table
 
-    from diag_plugin.metrics import coverage_note
+    from diag_plugin.metrics import coverage_note, levels_note
     from diag_plugin.workbench.compare import compare
 
     rb = _load(args)
@@ -316,6 +316,8 @@ def cmd_compare(args) -> int:
         f"RMSE {m['rmse_pct']:.2f} %  MAE {m['mae_pct']:.2f} %  bias {m['bias_pct']:+.2f} %  "
         f"max {m['max_abs_pct']:.1f} % of span; coverage {m['coverage']:.1%}"
     )
+    if note := levels_note(m):
+        con.print(note, markup=False)
     if note := coverage_note(m):
         con.print(note, markup=False)
     for u in c.inputs:

@@ -81,7 +81,7 @@ def compare(
         yhat=det.y,
         residual=res,
         reason=det.reason,
-        metrics=error_figures(res, residual_pct(d.y, model.extrapolate(d.X), span)),
+        metrics=error_figures(res, residual_pct(d.y, model.extrapolate(d.X), span), det.level),
         regions=error_by_cell(rb, model, d.X, res)
         if model.capabilities.rule_regions
         else _no_regions(rb),

@@ -150,8 +150,10 @@ class _Scorer:
         tr_y = np.isfinite(y[:cut])
         self.mean = float(y[:cut][tr_y].mean()) if tr_y.any() else math.nan
         self.va = np.flatnonzero(np.isfinite(y[cut:])) + cut
+        self.last_fine = 0.0
         pred, self.base_model, self.base_rows = self._fit_predict(list(rb.inputs), cols)
         self.base_cov = float(np.isfinite(pred).mean()) if pred.size else 0.0
+        self.base_fine = self.last_fine
         self.base_rmse = self._rmse(self._stand_in(pred, self.base_model, cols))
         self.base_rules = rb.codec.size(self.base_model) if self.base_model is not None else 0
 
@@ -162,7 +164,11 @@ class _Scorer:
             return np.full(self.va.size, np.nan), None, int(tr.sum())
         spec = dc_replace(self.rb.spec, inputs=list(variables))
         m = self.rb.codec.new_estimator(spec).fit(X[: self.cut][tr], self.y[: self.cut][tr])
-        return m.predict(X[self.va]), m, int(tr.sum())
+        det = m.predict_detail(X[self.va])
+        self.last_fine = (
+            float(np.mean(det.level == 0)) if det.level is not None else det.coverage
+        )  # the share the fine grid answered: levels behind it hide a thin grid otherwise
+        return det.y, m, int(tr.sum())
 
     def _stand_in(self, pred: np.ndarray, model, cols) -> np.ndarray:
         """``pred`` with the model's stand-in (its ``extrapolate``: the nearest rule) where it
@@ -180,15 +186,17 @@ class _Scorer:
         r = residual_pct(self.y[self.va], pred, self.span)
         return float(np.sqrt(np.mean(r * r)))
 
-    def score(self, variables, cols) -> tuple[float, float, float]:
-        """Held-out RMSE in % of span on the common samples, own coverage, and training
-        samples per rule of a variant."""
+    def score(self, variables, cols) -> tuple[float, float, float, float]:
+        """Held-out RMSE in % of span on the common samples, own coverage, training samples
+        per rule, and the share its fine rule grid answered, of a variant."""
+        self.last_fine = 0.0
         pred, m, n_train = self._fit_predict(variables, cols)
         if m is None:
-            return math.nan, 0.0, 0.0
+            return math.nan, 0.0, 0.0, 0.0
         own = np.isfinite(pred)
         per_cell = n_train / max(self.rb.codec.size(m), 1)
-        return self._rmse(self._stand_in(pred, m, cols)), float(own.mean()), per_cell
+        rmse = self._rmse(self._stand_in(pred, m, cols))
+        return rmse, float(own.mean()), per_cell, self.last_fine
 
     def residual(self, cols) -> np.ndarray:
         """The current model's in-sample residual on the training rows (NaN where none)."""
@@ -315,11 +323,15 @@ def explain(
             vs.append(var)
         else:
             cols[replace], vs[replace] = feats.column(spec)[::step], var
-        rmse, cov, per_cell = sc.score(vs, cols)
-        return _Score(rmse, cov, per_cell, var.sets)
+        rmse, cov, per_cell, fine = sc.score(vs, cols)
+        return _Score(rmse, cov, per_cell, var.sets, fine=fine)
 
     def thin(r: _Score) -> bool:
-        return r.per_cell < SPARSE_PER_CELL or r.coverage < base_cov - COVERAGE_SLACK
+        return (
+            r.per_cell < SPARSE_PER_CELL
+            or r.coverage < base_cov - COVERAGE_SLACK
+            or r.fine < scorer.base_fine - COVERAGE_SLACK
+        )
 
     def evaluate_best(spec: InputSpec, replace: int | None = None, sc: _Scorer | None = None):
         """Scored as add-input writes it; if that grid is thin, also with fewer sets for
@@ -337,7 +349,7 @@ def explain(
                 best = r2
         if best is r:
             return r
-        return dc_replace(best, fewer_from=r.sets, thin_before=(r.coverage, r.per_cell))
+        return dc_replace(best, fewer_from=r.sets, thin_before=(r.fine, r.per_cell))
 
     def best_lag(base: InputSpec, lags: Sequence[int], target: np.ndarray, replace=None):
         """Screen ``lags`` by correlation with ``target``, retrain the best few."""
@@ -384,13 +396,13 @@ def explain(
             cov0, per0 = r.thin_before
             notes.append(
                 f"with {r.fewer_from} sets the rule grid would be thin ({per0:.0f} samples per "
-                f"rule, coverage {cov0:.0%}): {r.sets} sets score better"
+                f"rule, the fine grid answering {cov0:.0%}): {r.sets} sets score better"
             )
         elif thin(r):
             fewer = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
             notes.append(
-                f"the rule grid would be thin ({r.per_cell:.0f} samples per rule, coverage "
-                f"{r.coverage:.0%}; the rest is scored with the nearest rule)"
+                f"the rule grid would be thin ({r.per_cell:.0f} samples per rule, the fine grid "
+                f"answering {r.fine:.0%} of the samples; coarser rules answer the rest)"
                 + (f": consider fewer sets, e.g. --sets {fewer}" if fewer < r.sets else "")
             )
         cmd = f"diag model add-input {name} '{spec}'"
@@ -472,7 +484,7 @@ def explain(
                 continue
             vs = list(in_vars)
             vs[k] = var
-            rmse, cov, _ = scorer.score(vs, in_cols)
+            rmse, cov, _, _ = scorer.score(vs, in_cols)
             if not math.isfinite(rmse):
                 continue
             opt = (
@@ -509,6 +521,7 @@ class _Score:
     sets: int
     fewer_from: int | None = None
     thin_before: tuple[float, float] | None = None
+    fine: float = 1.0  # share of the held-out samples the fine rule grid answered
 
 
 def _resolution_variants(v: Variable, col: np.ndarray):

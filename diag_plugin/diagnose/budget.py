@@ -1,0 +1,251 @@
+"""Thresholds held to a false-alarm budget: alarms per hour of operation, counted as the unit
+counts them (filtered residual, on/off delays), from a fault-free series of residuals.
+
+A unit raises an alarm when a test's filtered residual stays beyond its threshold for
+``on_delay`` samples; the alarm ends after ``off_delay`` samples back inside
+(:class:`~diag_plugin.diagnose.symptoms.OnOffDelay`). So a false alarm is an *episode*, not a
+sample: a filtered residual stays correlated for hours and crosses a threshold in bursts, and
+the share of samples beyond a threshold says little about how often an operator is called.
+:func:`calibrate` therefore counts alarm episodes directly: for each side of each test it runs
+the delay logic at a ladder of thresholds over the fault-free series and reads off the
+threshold whose episode rate is the budget.
+
+* **Empirical** when the window holds at least :data:`MIN_EPISODES` episodes at the budget: the
+  threshold is where the observed count is the budgeted one.
+* **Tail fit** when the budget asks for rarer alarms than the window shows: the episodes'
+  peaks above a high level are taken as exponential (the generalised Pareto tail of shape 0,
+  the limit for Gaussian-like residuals; Davison & Smith, 1990, peaks over threshold with
+  declustering), their mean excess ``β`` estimated from the episode counts up the ladder, and
+  the threshold put at ``u + β ln(E(u) / c*)``.
+* **Gaussian** when the window holds fewer than :data:`TAIL_EPISODES` episodes even at a
+  moderate level (a window of a few hundred samples, a residual correlated for hours): Rice's
+  formula for a stationary Gaussian series, ``E(u) = E(μ) exp(−(u − μ)² / 2σ²)``, with ``E(μ)``
+  the episodes counted at the mean and ``σ`` the spread on that side of the mean. Mean and
+  spread rest on few independent values (:func:`effective_samples`), so the density ratio is
+  that of the predictive Student t with ``n − 1`` degrees of freedom, ``(1 + z²/ν)^(−(ν+1)/2)``,
+  scaled by ``√(1 + 1/n)``: the fewer values, the wider (the normal case as ``n`` grows).
+
+Each result says which, how many independent values the series holds
+(:func:`~diag_plugin.diagnose.symptoms.effective_samples`), whether the window *supports* the
+budget (observes it :data:`MIN_EPISODES` times) and, if not, how long a window would.
+The budget of a unit is split evenly over its tests and the two sides of each (``2 T`` shares):
+the unit's alarm rate is at most the sum of its tests' (an alarm on any test is the unit's).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numba
+import numpy as np
+import pandas as pd
+
+from diag_plugin.diagnose.symptoms import effective_samples
+
+#: episodes at the budgeted rate a window must show for the threshold to be read off directly
+MIN_EPISODES = 5
+#: the tail fit starts where this many episodes remain; a window without so many uses the
+#: Gaussian model
+TAIL_EPISODES = 30
+#: the tail's mean excess is taken at this one-sided normal quantile above its estimate
+TAIL_Z = 0.84
+#: thresholds tried per side
+LADDER = 96
+
+
+@numba.njit(cache=True)
+def _episodes(x, levels, on_delay, off_delay):  # pragma: no cover - numba
+    """Alarm onsets of ``x > level`` for every level, with on/off delays; NaNs are skipped (an
+    unknown sample counts neither as on nor as off, as :class:`OnOffDelay` does)."""
+    out = np.zeros(levels.shape[0], np.int64)
+    for li in range(levels.shape[0]):
+        u = levels[li]
+        on = False
+        c = 0
+        k = 0
+        for i in range(x.shape[0]):
+            v = x[i]
+            if np.isnan(v):
+                continue
+            above = v > u
+            if not on:
+                c = c + 1 if above else 0
+                if c >= on_delay:
+                    on = True
+                    k += 1
+                    c = 0
+            else:
+                c = 0 if above else c + 1
+                if c >= off_delay:
+                    on = False
+                    c = 0
+        out[li] = k
+    return out
+
+
+def episodes(x: np.ndarray, levels: np.ndarray, on_delay: int = 1, off_delay: int = 1):
+    """Number of alarm episodes of ``x > level`` per level (on/off delays in samples)."""
+    return _episodes(
+        np.ascontiguousarray(x, np.float64),
+        np.ascontiguousarray(levels, np.float64),
+        int(on_delay),
+        int(off_delay),
+    )
+
+
+@dataclass
+class SideThreshold:
+    """The threshold of one side of one test and what it rests on."""
+
+    threshold: float
+    #: expected false alarms per hour of operation at this threshold (this side)
+    rate: float
+    #: "empirical", "tail" or "gaussian" (see the module doc)
+    method: str
+    #: episodes the window shows at the threshold and at the tail's base level
+    episodes: int
+    #: the window observes the budgeted rate MIN_EPISODES times
+    supported: bool
+    #: hours of operation a window needs to support the budget
+    hours_needed: float
+
+
+def calibrate_side(
+    x: np.ndarray, hours: float, rate: float, on_delay: int = 1, off_delay: int = 1
+) -> SideThreshold:
+    """The threshold ``K`` of ``x > K`` whose alarm episodes come at ``rate`` per hour, from a
+    fault-free series ``x`` covering ``hours`` of operation (NaN = unknown, skipped)."""
+    v = x[np.isfinite(x)]
+    if v.size < 3 or hours <= 0:
+        raise ValueError("too few known values to learn a threshold from")
+    want = rate * hours  # episodes the budget allows in this window
+    needed = MIN_EPISODES / rate
+    mu, sd = float(v.mean()), float(v.std())
+    top = float(v.max())
+    # the ladder: from the median to a little above the largest value
+    lo = float(np.median(v))
+    span = max(top - lo, 1e-12 * max(abs(top), 1.0))
+    levels = lo + span * np.linspace(0.0, 1.0, LADDER) ** 1.5
+    counts = episodes(x, levels, on_delay, off_delay)
+    if want >= MIN_EPISODES:
+        # the first level with no more episodes than allowed, interpolated on log counts
+        i = int(np.argmax(counts <= want))
+        k = levels[i]
+        if i > 0 and counts[i] < want:
+            c0, c1 = math.log(counts[i - 1]), math.log(max(counts[i], 0.5))
+            f = (c0 - math.log(want)) / (c0 - c1)
+            k = levels[i - 1] + f * (levels[i] - levels[i - 1])
+        return SideThreshold(float(k), rate, "empirical", int(round(want)), True, needed)
+    # the tail: from the highest level where TAIL_EPISODES remain
+    many = np.flatnonzero(counts >= TAIL_EPISODES)
+    if many.size:
+        j = int(many[-1])
+        u, e_u = float(levels[j]), int(counts[j])
+        # mean excess of the episodes' peaks: the area under their survival curve / E(u)
+        beta = float(np.trapezoid(counts[j:].astype(float), levels[j:])) / e_u
+        beta *= e_u / max(e_u - TAIL_Z * math.sqrt(e_u), 1.0)  # upper confidence bound
+        if beta > 0:
+            k = u + beta * math.log(e_u / want)
+            return SideThreshold(float(k), rate, "tail", e_u, False, needed)
+    # too few episodes for a tail: a Gaussian series (Rice), episodes counted at the mean,
+    # the spread on this side of it (a skewed residual has two)
+    e_mu = int(episodes(x, np.array([mu]), on_delay, off_delay)[0])
+    e_mu = max(e_mu, 1)
+    above = v[v > mu] - mu
+    sd = float(np.sqrt(np.mean(above**2))) if above.size else sd
+    # mean and spread rest on few independent values: the predictive (Student t, ν = n − 1)
+    # density in place of the normal one in Rice's ratio, (1 + z²/ν)^(−(ν+1)/2) = c*/E(μ)
+    n_eff = max(effective_samples(v), 2.0)
+    nu = n_eff - 1.0
+    ratio = e_mu / want
+    z = math.sqrt(nu * (ratio ** (2.0 / (nu + 1.0)) - 1.0)) if ratio > 1 else 1.0
+    k = mu + sd * math.sqrt(1.0 + 1.0 / n_eff) * z
+    return SideThreshold(float(k), rate, "gaussian", e_mu, False, needed)
+
+
+@dataclass
+class TestBudget:
+    """One test's thresholds (``low`` < 0 < ``high`` in the residual's unit) and their story."""
+
+    test: str
+    low: float
+    high: float
+    #: expected false alarms per hour of operation, both sides
+    rate: float
+    method: str
+    supported: bool
+    hours: float
+    hours_needed: float
+    samples: int
+    independent: int
+    #: share of the window the test was unknown
+    unknown: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def calibrate(
+    residuals: pd.DataFrame,
+    period: pd.Timedelta | str,
+    far: float,
+    *,
+    on_delay: int = 1,
+    off_delay: int = 1,
+) -> dict[str, TestBudget]:
+    """Thresholds per test (column) holding the unit's false alarms to ``far`` per hour of
+    operation, all tests together: each side of each test gets ``far / (2 T)``.
+
+    ``residuals``: the fault-free filtered residuals the unit would threshold (NaN unknown),
+    one column per test, one row per sampling ``period``.
+    """
+    if not far > 0:
+        raise ValueError(f"the false-alarm budget must be > 0 per hour, got {far}")
+    dt_h = pd.Timedelta(period) / pd.Timedelta(hours=1)
+    share = far / (2 * residuals.shape[1])
+    out = {}
+    for name in residuals.columns:
+        x = residuals[name].to_numpy(float)
+        known = np.isfinite(x)
+        hours = float(known.sum()) * dt_h
+        hi = calibrate_side(x, hours, share, on_delay, off_delay)
+        lo = calibrate_side(-x, hours, share, on_delay, off_delay)
+        both = (hi, lo)
+        out[str(name)] = TestBudget(
+            test=str(name),
+            low=-lo.threshold,
+            high=hi.threshold,
+            rate=hi.rate + lo.rate,
+            method=hi.method if hi.method == lo.method else f"{hi.method}/{lo.method}",
+            supported=all(s.supported for s in both),
+            hours=hours,
+            hours_needed=max(s.hours_needed for s in both),
+            samples=int(known.sum()),
+            independent=int(effective_samples(x)),
+            unknown=float(1.0 - known.mean()) if x.size else 1.0,
+        )
+    return out
+
+
+def observed_rate(
+    residuals: pd.DataFrame,
+    limits: dict[str, tuple[float, float]],
+    period: pd.Timedelta | str,
+    on_delay: int = 1,
+    off_delay: int = 1,
+) -> float:
+    """False alarms per hour of operation a unit with ``limits`` raises on ``residuals``
+    (episodes of any test beyond its limits, with the delays) — to check a budget."""
+    from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay
+
+    cols = list(residuals.columns)
+    lo = np.array([limits[c][0] for c in cols])
+    hi = np.array([limits[c][1] for c in cols])
+    raw = FixedThresholds(high=hi, low=lo).transform(residuals.to_numpy(float))
+    s = OnOffDelay(on_delay, off_delay).transform(raw)
+    active = (np.nan_to_num(s) != 0).any(axis=1)
+    onsets = int(np.count_nonzero(active[1:] & ~active[:-1]) + (active[0] if active.size else 0))
+    known = np.isfinite(residuals.to_numpy(float)).any(axis=1)
+    hours = float(known.sum()) * (pd.Timedelta(period) / pd.Timedelta(hours=1))
+    return onsets / hours if hours else float("nan")

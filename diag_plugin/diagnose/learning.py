@@ -1,0 +1,499 @@
+"""A unit's thresholds from a fault-free window: residuals the models did not see, held to a
+false-alarm budget.
+
+``diag unit learn`` (:func:`learn_thresholds`) works in three steps.
+
+1. **Residuals the model did not see.** Residuals of the very samples a model was trained on
+   are smaller than any it will see later, and thresholds learned from them alarm on the next
+   fault-free day. Each test's residuals over the window are *cross-fitted*: the window is cut
+   into ``blocks`` consecutive time blocks, and block ``b``'s residuals come from a model that
+   did not see block ``b`` (:func:`held_out`): the plant's own model with the block's samples
+   taken out of its exact integer accumulators (Wang–Mendel ``wm-avg``), else a model
+   retrained (same rule-base file: spans, sets, method, locks) on the other blocks. When the
+   model's training range (its file's ``[training] from``/``to``) lies wholly outside the window,
+   its own residuals are already out of sample and are used as they are.
+2. **Levels and spread.** Where a Wang–Mendel model's fine grid has no rule a coarser level
+   answers, less exactly. Each level's residual scale (RMS relative to the fine level's, over
+   the window) is learned, and a residual answered at level ``l`` is divided by it, so a coarse
+   answer needs a proportionally larger deviation to raise a symptom. A level seen on fewer
+   than :data:`MIN_LEVEL_SAMPLES` samples of the window stays unknown. Each test is also tried
+   in units of its model's local spread (the spread of the training outputs of the rules that
+   answered, :func:`~diag_plugin.diagnose.unit.spread_factor`), and keeps that form where its
+   thresholds come out tighter relative to its residual's RMS (a deviation of a given share
+   of the usual one then counts sooner).
+3. **The budget.** The scaled residuals are filtered as the unit filters them, and each test's
+   two thresholds are placed so that the unit's false alarms (episodes with the on/off delays)
+   come at the declared rate per hour of operation, all tests together
+   (:mod:`diag_plugin.diagnose.budget`), saying when the window is too short to show that rate
+   and what window would.
+
+A test whose residual is missing or exactly zero over the window gets a message naming it and
+what to do; nothing is written then.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from diag_plugin.diagnose.budget import TestBudget, calibrate
+from diag_plugin.diagnose.residuals import supported
+from diag_plugin.diagnose.unit import Unit, spread_factor
+from diag_plugin.models.protocol import REASON_NAN, Prediction
+
+#: samples skipped at the start of a learning window (and of each run in it): the filter
+#: starts from rest
+SETTLE_SAMPLES = 500
+#: the default false-alarm budget: alarms per hour of operation of a unit (about one in six
+#: weeks); a plant policy, not something data can tell, so `diag unit learn` prints it
+DEFAULT_FAR = 0.001
+#: time blocks of the learning window for cross-fitting
+DEFAULT_BLOCKS = 5
+#: a coarser level answering fewer samples of the window than this is not calibrated
+MIN_LEVEL_SAMPLES = 30
+#: known residual values a test needs in the window
+MIN_KNOWN = 30
+#: samples without data that separate two runs of a window (the unit's filter forgets its
+#: state after as many, :class:`~diag_plugin.diagnose.residuals.LowPass`)
+RUN_GAP = 100
+
+WHY = {
+    "missing": "an input or the output missing (NaN, bad quality, lags not yet filled)",
+    "no_rule": "no trained rule at any level (outside the trained region)",
+    "low_support": "the edge of the trained region (support below min_support)",
+    "level": "answered at a coarser level the window could not calibrate",
+}
+
+
+class LearnError(ValueError):
+    """The window cannot give thresholds; ``problems`` name each test and what to do."""
+
+    def __init__(self, problems: list[str]):
+        super().__init__("\n".join(problems))
+        self.problems = problems
+
+
+@dataclass
+class TestResiduals:
+    """A test's raw residuals over the window (index = the window's), the level that answered
+    each and why each unknown one is unknown."""
+
+    raw: np.ndarray
+    level: np.ndarray | None
+    unknown: dict[str, int]
+    source: str
+    #: the answering rules' spread relative to the model's (None: the method keeps none)
+    spread: np.ndarray | None = None
+
+
+@dataclass
+class Learned:
+    """What :func:`learn_thresholds` learned, and what it rests on."""
+
+    limits: dict[str, tuple[float, float]]
+    samples: dict[str, int]
+    window: tuple[str, str]
+    far: float
+    blocks: int
+    ymax: dict[str, float]
+    #: residual scale per rule level and test (level 0 first, 1.0)
+    levels: dict[str, list[float]]
+    #: per test: residuals in units of the model's local spread (tighter thresholds so)
+    spread: dict[str, bool]
+    budgets: dict[str, TestBudget]
+    #: per test: share of the window unknown, per reason (keys of WHY)
+    unknown: dict[str, dict[str, float]]
+    #: per test: where its residuals came from
+    sources: dict[str, str]
+    period: str = "10s"
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def independent(self) -> dict[str, int]:
+        return {k: b.independent for k, b in self.budgets.items()}
+
+    def notes(self) -> dict[str, dict]:
+        """The unit file's ``[learned]`` rows: per test its expected false-alarm rate, how the
+        thresholds were set, whether the window supports the budget, its unknown share and
+        why, and where its residuals came from."""
+        out = {}
+        for name, b in self.budgets.items():
+            why = {k: v for k, v in self.unknown[name].items() if v > 0}
+            out[name] = {
+                "far": float(f"{b.rate:.3g}"),
+                "method": b.method,
+                "supported": bool(b.supported),
+                "hours": round(b.hours, 1),
+                "hours_needed": float(f"{b.hours_needed:.3g}"),
+                "independent": int(b.independent),
+                "unknown": round(b.unknown, 5),
+                **{f"unknown_{k}": round(v, 5) for k, v in why.items()},
+                "residuals": self.sources[name],
+            }
+        return out
+
+
+def _window(frames) -> pd.DataFrame:
+    frames = [f for f in frames if len(f)]
+    if not frames:
+        raise LearnError(["the learning window holds no data"])
+    return pd.concat(frames) if len(frames) > 1 else frames[0]
+
+
+def _training_range(rb) -> tuple[pd.Timestamp, pd.Timestamp] | None:
+    """The range the model file says it was trained on (``[training] from``/``to``)."""
+    tr = rb.training
+    try:
+        a, b = pd.Timestamp(str(tr["from"])), pd.Timestamp(str(tr["to"]))
+    except (KeyError, ValueError):
+        return None
+    a = a.tz_localize("UTC") if a.tzinfo is None else a
+    b = b.tz_localize("UTC") if b.tzinfo is None else b
+    return a, b
+
+
+def block_of(index: pd.DatetimeIndex, blocks: int, data: np.ndarray | None = None) -> np.ndarray:
+    """Time block (0 … blocks − 1) of each timestamp. A window of several runs (stretches of
+    data separated by more than :data:`RUN_GAP` samples without, ``data`` False) is cut between
+    runs, consecutive runs grouped into at most ``blocks`` blocks (leave-runs-out: a run's
+    residuals come from models that never saw it); otherwise equal spans of time."""
+    if data is not None and data.size == len(index):
+        run = _runs(data)
+        n = int(run.max()) + 1 if run.size else 0
+        if n >= 2:
+            groups = min(blocks, n)
+            return (np.maximum(run, 0) * groups // n).astype(np.int64)
+    t = (index - index[0]) / (index[-1] - index[0] + pd.Timedelta(1, "ns"))
+    return np.minimum((np.asarray(t, float) * blocks).astype(np.int64), blocks - 1)
+
+
+def settled(data: np.ndarray) -> np.ndarray:
+    """Rows whose filtered residual has settled: each run's first :data:`SETTLE_SAMPLES` are
+    left out (a quarter of a shorter run), as the filter starts from rest in every run."""
+    run = _runs(data)
+    keep = np.ones(data.size, bool)
+    for r in np.unique(run):
+        rows = np.flatnonzero(run == r)
+        n = int(np.count_nonzero(data[rows]))
+        first = rows[data[rows]][0] if n else rows[0]
+        settle = SETTLE_SAMPLES if n > 4 * SETTLE_SAMPLES else n // 4
+        keep[first : first + settle] = False
+    return keep
+
+
+def _runs(data: np.ndarray) -> np.ndarray:
+    """Run number of each row (stretches of data separated by more than RUN_GAP rows
+    without); rows in a gap take the run before them (the first run's number before it)."""
+    start = np.flatnonzero(data)
+    if not start.size:
+        return np.zeros(data.size, np.int64)
+    gaps = np.diff(start) - 1
+    new = np.r_[0, (gaps > RUN_GAP).astype(np.int64)]
+    run_of_data = np.cumsum(new)
+    out = np.zeros(data.size, np.int64)
+    out[start] = run_of_data
+    filled = np.maximum.accumulate(np.where(data, np.arange(data.size), 0))
+    return out[filled]
+
+
+def test_residuals(
+    unit: Unit, frame: pd.DataFrame, blocks: int, cross_fit: bool | None
+) -> dict[str, TestResiduals]:
+    """Raw residuals of every test over ``frame``, each block's from a model that did not see
+    that block (see :func:`held_out`); ``cross_fit`` False: the models' own residuals."""
+    from diag_plugin.regressors import DesignBuilder
+    from diag_plugin.rulebase.document import RuleBase
+
+    frame = unit._model_frame(frame)
+    out = {}
+    missing = []
+    for t in unit.file.tests:
+        m = unit.models[t.name]
+        try:
+            d = DesignBuilder(m.inputs, m.output, period=m.period).transform(frame)
+        except KeyError as exc:
+            missing.append(f"test {t.name}: {exc.args[0]}: learn over a window that holds them")
+            continue
+        rows = frame.index.get_indexer(d.index)
+        if cross_fit is False or blocks < 2:
+            pred, source = m.model.predict_detail(d.X), "the model's own (not cross-fitted)"
+        else:
+            data = frame.notna().any(axis=1).to_numpy()
+            block = block_of(frame.index, blocks, data)[rows] if len(rows) else rows
+            pred, source = held_out(
+                RuleBase.load(m.path), m.model, d, block, blocks, t.name, force=bool(cross_fit)
+            )
+        raw = np.full(len(frame), np.nan)
+        raw[rows] = unit.residual(_fine_only(t), d.y, pred)
+        level = spread = None
+        if pred.level is not None:
+            level = np.full(len(frame), -1, np.int64)
+            level[rows] = pred.level
+        if pred.spread is not None:
+            spread = np.full(len(frame), np.nan)
+            spread[rows] = pred.spread
+        out[t.name] = TestResiduals(
+            raw, level, _unknown_reasons(len(frame), rows, d.y, pred, unit), source, spread
+        )
+    if missing:
+        raise LearnError(missing)
+    return out
+
+
+def held_out(rb, model, d, block: np.ndarray, blocks: int, test: str, *, force: bool = False):
+    """Each time block's prediction by the model without that block's samples.
+
+    * The model was trained on a range the window overlaps (its file's ``[training]``) and
+      keeps exact accumulators (``wm-avg``): each block's samples inside that range are taken
+      out of it (:meth:`WangMendelRegressor.without`), so the block is predicted by the model
+      the plant runs, minus the block. A block whose samples the model never had (its data
+      were not the training data) is predicted by the model as it is.
+    * The window lies outside the training range: the model's own prediction (out of sample).
+    * Otherwise (other methods, no training range, or ``force``): a model trained from scratch
+      on the window's other blocks.
+
+    Returns the prediction over all rows of ``d`` and a sentence saying how it was made."""
+    trained = _training_range(rb)
+    idx = d.index
+    outside = trained is not None and len(idx) and (trained[1] <= idx[0] or trained[0] > idx[-1])
+    if not force and outside:
+        return model.predict_detail(d.X), "the model's own (trained outside the window)"
+    exact = getattr(model, "method", None) == "wm-avg" and hasattr(model, "without")
+    if force or trained is None or not exact:
+        return _cross_fitted(rb, d.X, d.y, block, blocks, test), (
+            f"cross-fitted: retrained without each of {blocks} time blocks"
+        )
+    n = len(d.y)
+    parts = []
+    unseen = 0
+    usable = np.isfinite(d.X).all(axis=1) & np.isfinite(d.y)
+    inside = np.asarray((idx >= trained[0]) & (idx < trained[1]))
+    for b in range(blocks):
+        held = block == b
+        if not held.any():
+            continue
+        take = held & inside & usable
+        fold = model
+        if take.any():
+            try:
+                fold = model.without(rb.new_model().fit(d.X[take], d.y[take]))
+            except ValueError:
+                unseen += 1  # the block's samples were never in the model
+        parts.append((held, rb.predictor(fold).predict_detail(d.X[held])))
+    pred = _assemble(n, parts)
+    how = f"cross-fitted: the model without each of {blocks} time blocks"
+    if unseen:
+        how += f" ({unseen} block(s) never in the model: its own prediction there)"
+    return pred, how
+
+
+def _assemble(n: int, parts) -> Prediction:
+    """One prediction over ``n`` rows from per-block predictions ``(rows mask, prediction)``."""
+    ys, sup, reason = np.full(n, np.nan), np.zeros(n), np.full(n, 2, np.int8)
+    level, spread = np.full(n, -1, np.int8), np.full(n, np.nan)
+    has_level = has_spread = False
+    for held, p in parts:
+        ys[held], sup[held], reason[held] = p.y, p.support, p.reason
+        if p.level is not None:
+            level[held], has_level = p.level, True
+        if p.spread is not None:
+            spread[held], has_spread = p.spread, True
+    return Prediction(ys, sup, reason, level if has_level else None, spread if has_spread else None)
+
+
+def _fine_only(t):
+    """The test with every level counted at scale 1 and no spread: the plain residual."""
+    from dataclasses import replace
+
+    return replace(t, levels=tuple([1.0] * 64), spread=False)
+
+
+def _cross_fitted(rb, X, y, block, blocks: int, test: str) -> Prediction:
+    """Each block predicted by a model trained from scratch on the other blocks."""
+    usable = np.isfinite(X).all(axis=1) & np.isfinite(y)
+    parts = []
+    for b in range(blocks):
+        held = block == b
+        train = usable & ~held
+        if train.sum() < MIN_KNOWN:
+            raise LearnError(
+                [
+                    f"test {test}: only {int(train.sum())} usable samples outside time block "
+                    f"{b + 1} of {blocks}: learn over a longer window or with fewer --blocks"
+                ]
+            )
+        if held.any():
+            model = rb.new_model().fit(X[train], y[train])
+            parts.append((held, rb.predictor(model).predict_detail(X[held])))
+    return _assemble(len(y), parts)
+
+
+def _unknown_reasons(n: int, rows: np.ndarray, y: np.ndarray, pred: Prediction, unit: Unit):
+    """Samples of the window without a residual, counted by reason (see :data:`WHY`)."""
+    missing = n - rows.size + int(np.count_nonzero(~np.isfinite(y) | (pred.reason == REASON_NAN)))
+    answered = np.isfinite(pred.y) & np.isfinite(y)
+    no_rule = int(np.count_nonzero(~np.isfinite(pred.y) & np.isfinite(y) & (pred.reason != 1)))
+    low = int(np.count_nonzero(answered & ~np.isfinite(supported(pred, unit.ev["min_support"]))))
+    return {"missing": missing, "no_rule": no_rule, "low_support": low, "level": 0}
+
+
+def level_scales(raw: np.ndarray, level: np.ndarray | None) -> list[float]:
+    """Residual scale of each rule level relative to the fine grid's: the RMS of the residuals
+    it answered over the RMS of the fine grid's, never below the finer level's; the list stops
+    at the first level that answered fewer than :data:`MIN_LEVEL_SAMPLES` samples."""
+    if level is None:
+        return [1.0]
+    ok = np.isfinite(raw)
+
+    def rms(lv: int) -> tuple[float, int]:
+        sel = ok & (level == lv)
+        k = int(sel.sum())
+        return (float(np.sqrt(np.mean(raw[sel] ** 2))) if k else math.nan), k
+
+    base, k0 = rms(0)
+    if k0 < MIN_LEVEL_SAMPLES or not base > 0:
+        return [1.0]
+    out = [1.0]
+    for lv in range(1, int(level.max()) + 1 if level.size else 1):
+        r, k = rms(lv)
+        if k < MIN_LEVEL_SAMPLES:
+            break
+        out.append(max(r / base, out[-1]))
+    return out
+
+
+def learn_thresholds(
+    unit: Unit,
+    frames,
+    *,
+    far: float = DEFAULT_FAR,
+    blocks: int = DEFAULT_BLOCKS,
+    cross_fit: bool | None = None,
+    spread: bool = True,
+) -> Learned:
+    """Thresholds of every test of ``unit`` from a window the user declares fault-free
+    (``frames``: consecutive pieces of it), holding the unit to ``far`` false alarms per hour
+    of operation (see the module doc). Raises :class:`LearnError` naming each test the window
+    cannot serve and what to do."""
+    if blocks < 0 or blocks == 1:
+        raise LearnError([f"blocks must be 0 (no cross-fitting) or at least 2, got {blocks}"])
+    frame = _window(frames)
+    ymax: dict[str, float] = {}
+    if unit.ev["scale"] == "max":
+        for t in unit.file.tests:
+            out = unit.models[t.name].output.split("[")[0]
+            out = unit.file.tags.get(out, out)
+            v = frame[out].to_numpy(float) if out in frame else np.array([np.nan])
+            m = float(np.nanmax(np.abs(v))) if np.isfinite(v).any() else np.nan
+            if not np.isfinite(m) or m <= 0:
+                raise LearnError(
+                    [f"test {t.name}: the maximum of {out} over the window is not positive"]
+                )
+            t.ymax = ymax[t.name] = m
+    res = test_residuals(unit, frame, blocks, cross_fit)
+    problems = _check(res, unit)
+    if problems:
+        raise LearnError(problems)
+    # each test's residual, in units of its model's local spread where the model has one,
+    # divided by the scale of the level that answered
+    scaled, scales, in_spread = {}, {}, {}
+    for t in unit.file.tests:
+        r = res[t.name]
+        in_spread[t.name] = bool(spread and r.spread is not None)
+        x = r.raw / spread_factor(r.spread) if in_spread[t.name] else r.raw
+        scales[t.name] = table = level_scales(x, r.level)
+        if r.level is not None:
+            i = np.clip(r.level, 0, len(table) - 1)
+            x = x / np.where(r.level < len(table), np.asarray(table)[i], np.nan)
+            r.unknown["level"] = int((np.isfinite(r.raw) & (r.level >= len(table))).sum())
+        scaled[t.name] = x
+    unit.reset()
+    filtered = unit.filtered(pd.DataFrame(scaled, index=frame.index, columns=unit.tests))
+    unit.reset()
+    body = filtered[settled(frame.notna().any(axis=1).to_numpy())]
+    problems = _check_body(body)
+    if problems:
+        raise LearnError(problems)
+    budgets = calibrate(
+        body, unit.period, far, on_delay=unit.ev["on_delay"], off_delay=unit.ev["off_delay"]
+    )
+    for name, b in budgets.items():  # unknown over the whole window, as the reasons count it
+        b.unknown = float(np.mean(~np.isfinite(scaled[name])))
+    limits = {
+        k: (min(b.low, -1e-4), max(b.high, 1e-4)) for k, b in budgets.items()
+    }  # a band around 0 even for a biased residual
+    idx = frame.index
+    period = pd.Timedelta(unit.period)
+    window = (idx[0].isoformat(), (idx[-1] + period).isoformat())
+    unknown = {name: {k: v / len(frame) for k, v in r.unknown.items()} for name, r in res.items()}
+    warnings = []
+    for name, b in budgets.items():
+        if not b.supported:
+            warnings.append(
+                f"{name}: the window ({hours(b.hours)}) shows too few alarms to support "
+                f"{far:g} per hour (a window of {hours(b.hours_needed)} would); thresholds "
+                f"extrapolated by a {b.method} fit"
+            )
+    return Learned(
+        limits=limits,
+        samples={k: b.samples for k, b in budgets.items()},
+        window=window,
+        far=far,
+        blocks=blocks if any("cross-fitted" in r.source for r in res.values()) else 0,
+        ymax=ymax,
+        levels=scales,
+        spread=in_spread,
+        budgets=budgets,
+        unknown=unknown,
+        sources={k: r.source for k, r in res.items()},
+        period=unit.period,
+        warnings=warnings,
+    )
+
+
+def hours(h: float) -> str:
+    """Hours as a person reads them: ``40,000 h``, ``336 h``, ``0.11 h``."""
+    return f"{h:,.0f} h" if h >= 10 else f"{h:.2g} h"
+
+
+def _check(res: dict[str, TestResiduals], unit: Unit) -> list[str]:
+    """A message per test whose residual the window cannot give: none at all, or zero."""
+    out = []
+    for name, r in res.items():
+        known = np.isfinite(r.raw)
+        if known.sum() < MIN_KNOWN:
+            why = max(r.unknown, key=lambda k: r.unknown[k])
+            out.append(
+                f"test {name}: only {int(known.sum())} known residual values in the window "
+                f"(need {MIN_KNOWN}); mostly unknown because of {WHY[why]}: learn over a "
+                "window where its model's tags are present and inside its trained region"
+            )
+        elif not np.any(r.raw[known]):
+            out.append(
+                f"test {name}: its residual is exactly zero over the window: the model "
+                f"reproduces {unit.models[name].output} exactly (is the output among its own "
+                "inputs, or constant over the window?); remove the test or give its model "
+                "inputs that do not contain the output, or learn over a window where it varies"
+            )
+    return out
+
+
+def _check_body(body: pd.DataFrame) -> list[str]:
+    out = []
+    for name in body.columns:
+        v = body[name].to_numpy(float)
+        v = v[np.isfinite(v)]
+        if v.size < MIN_KNOWN:
+            out.append(
+                f"test {name}: only {v.size} known filtered residual values after the filter "
+                f"settles (up to {SETTLE_SAMPLES} samples a run): learn over a longer window"
+            )
+        elif not np.ptp(v) > 0:
+            out.append(
+                f"test {name}: its filtered residual is constant over the window; learn over "
+                "a window where its output varies"
+            )
+    return out
