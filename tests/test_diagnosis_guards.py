@@ -1,0 +1,295 @@
+"""What a unit reports, pinned where a small slip in the run-time diagnosis would change it
+(issue 28): the NE 107 status a unit file's ``[faults]`` table declares and the NAMUR priority
+between them, the published quality of a symptom held over a gap, the hold itself, the
+Butterworth filter across a gap of exactly ``max_gap`` samples, a sign change as new evidence
+for a held isolation, the sign of the residual, and isolation of the best signature.
+
+Every check runs on a small unit built here, whose models are exact (``Yi = X``), so the
+residual of each test is the offset the test puts on ``Yi`` (% of a 0–100 span), and every
+scenario is evaluated the three ways a user runs a unit: one pass over a window
+(``diag diagnose``), one row per cycle (the live loop) and :class:`Plant` (many units per
+cycle), which must agree. Each was shown to fail on the slip it guards against (see
+docs/testing.md).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from diag_plugin.diagnose.plant import Plant
+from diag_plugin.diagnose.status import NE107
+from diag_plugin.diagnose.unit import Unit, concat
+
+TESTS = ("r1", "r2", "r3", "r4")
+#: NAMUR NE 107: the status shown when several apply, most severe first
+NAMUR_ORDER = (
+    NE107.FAILURE,
+    NE107.CHECK_FUNCTION,
+    NE107.OFF_SPEC,
+    NE107.MAINTENANCE_REQUIRED,
+)
+#: f_A and f_B share one signature (one isolability group); f_C is seen by r2 alone
+GROUP_MATRIX = {"f_A": "1000", "f_B": "1000", "f_C": "0100"}
+
+_MODEL = """\
+[model]
+name = "id_y{i}"
+description = "Y{i} = X, exact"
+method = "wm-avg"
+shape = "triangular"
+period = "10s"
+
+[output]
+spec = "Y{i}[k]"
+label = "Y"
+unit = "%"
+span = [0.0, {span}]
+sets = 2
+
+[[inputs]]
+spec = "X[k]"
+label = "X"
+unit = "%"
+span = [0.0, {span}]
+sets = 2
+
+[training]
+
+[rules]
+list = [
+    {{ if = ["X0"], then = 0.0, n = 10, sd = 0.0, lock = false }},
+    {{ if = ["X1"], then = {span}, n = 10, sd = 0.0, lock = false }},
+]
+"""
+
+
+def make_unit(
+    folder: Path,
+    matrix: dict[str, str] | None = None,
+    *,
+    faults: dict[str, str] | None = None,
+    span: float = 100.0,
+    **evaluation,
+) -> Path:
+    """A unit of four tests ``ri: Yi = f(X)`` with thresholds ±1 %, no filter and on/off
+    delays of 3 unless ``evaluation`` says otherwise; ``matrix``: fault → one entry per test
+    (``"1"``, ``"0"``, ``"+"``, ``"-"``, ``"x"``); ``faults``: the ``[faults]`` table."""
+    for i in range(1, 5):
+        (folder / f"id_y{i}.toml").write_text(_MODEL.format(i=i, span=span))
+    ev = {"lowpass": 0.0, "on_delay": 3, "off_delay": 3} | evaluation
+    lines = ["[unit]", 'name = "u"']
+    if matrix is not None:
+        lines.append('matrix = "u.matrix.toml"')
+        rows = ",\n".join(
+            f'  {{ test = "{t}", row = [{", ".join(repr(e[k]) for e in matrix.values())}] }}'
+            for k, t in enumerate(TESTS)
+        )
+        (folder / "u.matrix.toml").write_text(
+            f"[matrix]\ntests = {list(TESTS)!r}\nfaults = {list(matrix)!r}\nrows = [\n{rows}\n]\n"
+        )
+    lines.append("[evaluation]")
+    lines += [f"{k} = {str(v).lower() if isinstance(v, bool) else v!r}" for k, v in ev.items()]
+    lines.append("[tests]")
+    lines += [f'{t} = {{ model = "id_y{i}.toml", high = 1.0 }}' for i, t in enumerate(TESTS, 1)]
+    if faults:
+        lines.append("[faults]")
+        lines += [f'{f} = "{s}"' for f, s in faults.items()]
+    path = folder / "u.unit.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def frame(n: int, x: float = 40.0, **offsets) -> pd.DataFrame:
+    """``n`` samples of X and ``Yi = X + offset`` (scalar or per sample; NaN = missing)."""
+    idx = pd.date_range("2026-03-01", periods=n, freq="10s", tz="UTC", name="ts")
+    cols = {"X": np.full(n, x)}
+    for i, t in enumerate(TESTS, 1):
+        cols[f"Y{i}"] = x + np.broadcast_to(np.asarray(offsets.get(t, 0.0), float), (n,))
+    return pd.DataFrame(cols, index=idx)
+
+
+def diagnose(path: Path, data: pd.DataFrame) -> pd.DataFrame:
+    """Status, quality, faults and residuals per sample as one pass, one row per cycle and a
+    plant give them; asserts the three agree and returns the one-pass table."""
+    unit = Unit.load(path)
+    one = unit.evaluate(data).to_frame()
+    unit.reset()
+    cycles = concat([unit.evaluate(data.iloc[i : i + 1]) for i in range(len(data))]).to_frame()
+    pd.testing.assert_frame_equal(cycles, one)
+    plant = Plant.load([path], path.parent)
+    rows = []
+    for ts, row in data.iterrows():
+        (st,) = plant.cycle(ts, row.to_dict())
+        rows.append(
+            {
+                "status": int(st.status),
+                "quality": st.quality.name,
+                "faults": "|".join(st.faults),
+                **{f"r_{t}": st.residuals[t] for t in TESTS},
+            }
+        )
+    fleet = pd.DataFrame(rows, index=data.index)
+    want = one[fleet.columns].astype({"status": int})
+    pd.testing.assert_frame_equal(fleet, want, check_names=False, atol=1e-9)
+    return one
+
+
+def statuses(table: pd.DataFrame) -> list[NE107]:
+    return [NE107(int(s)) for s in table["status"]]
+
+
+# ---------------------------------------------------------------- status per fault, priority
+@pytest.mark.parametrize(
+    "declared",
+    [
+        {},
+        {"f_C": "MAINTENANCE_REQUIRED"},
+        {"f_C": "OFF_SPEC"},
+        {"f_C": "CHECK_FUNCTION"},
+        {"f_C": "FAILURE", "f_A": "MAINTENANCE_REQUIRED"},
+    ],
+)
+def test_an_isolated_fault_reports_the_status_its_unit_file_declares(tmp_path, declared):
+    path = make_unit(tmp_path, GROUP_MATRIX, faults=declared)
+    got = diagnose(path, frame(20, r2=5.0))  # r2 alone: f_C
+    assert (got["faults"].iloc[2:] == "f_C").all()
+    want = NE107[declared.get("f_C", "FAILURE")]
+    assert statuses(got)[:2] == [NE107.NORMAL] * 2
+    assert set(statuses(got)[2:]) == {want}
+
+
+@pytest.mark.parametrize(
+    "a, b",
+    [(a, b) for i, a in enumerate(NAMUR_ORDER) for b in NAMUR_ORDER[i + 1 :]],
+    ids=lambda s: s.name,
+)
+def test_faults_isolated_together_report_the_most_severe_status_in_namur_order(tmp_path, a, b):
+    """f_A and f_B cannot be told apart: the unit shows the status that comes first in
+    NE 107's order (failure, function check, off-spec, maintenance), whichever fault
+    declares it."""
+    for fa, fb in ((a, b), (b, a)):
+        path = make_unit(tmp_path, GROUP_MATRIX, faults={"f_A": fa.name, "f_B": fb.name})
+        got = diagnose(path, frame(10, r1=5.0))
+        assert (got["faults"].iloc[2:] == "f_A|f_B").all()
+        assert set(statuses(got)[2:]) == {a}, (fa.name, fb.name)
+
+
+def test_an_isolated_fault_with_a_test_unknown_stays_a_failure(tmp_path):
+    """A fault isolated while another test cannot be evaluated (its reading lost) is still
+    reported as the fault, with Uncertain quality: an unknown test never hides a fault."""
+    path = make_unit(tmp_path, GROUP_MATRIX)
+    r4 = np.r_[np.zeros(10), np.full(30, np.nan)]
+    got = diagnose(path, frame(40, r1=5.0, r4=r4))
+    late = got.iloc[20:]
+    assert (late["faults"] == "f_A|f_B").all()
+    assert set(statuses(late)) == {NE107.FAILURE}
+    assert set(late["quality"]) == {"UNCERTAIN"}
+    assert set(got["quality"].iloc[:10]) == {"GOOD"}
+
+
+# ---------------------------------------------------------------- a brief gap
+def test_a_symptom_held_over_a_short_gap_is_published_uncertain(tmp_path):
+    """A test unknown for fewer samples than the on-delay keeps its last symptom, so the
+    status holds; but the diagnosis was not made on those samples: Uncertain, then Good
+    again as soon as the test is evaluated."""
+    path = make_unit(tmp_path, GROUP_MATRIX, on_delay=5, off_delay=5)
+    r1 = np.full(30, 5.0)
+    r1[[15, 16]] = np.nan
+    got = diagnose(path, frame(30, r1=r1))
+    q = list(got["quality"])
+    assert q[14] == "GOOD" and q[15:17] == ["UNCERTAIN"] * 2 and q[17] == "GOOD"
+    assert set(statuses(got)[4:]) == {NE107.FAILURE}
+    assert (got["faults"].iloc[4:] == "f_A|f_B").all()
+
+
+@pytest.mark.parametrize("level", [5.0, 0.0], ids=["fault", "fault-free"])
+def test_a_gap_of_on_delay_minus_one_samples_keeps_the_status(tmp_path, level):
+    """The last known symptom is held for up to on_delay − 1 unknown samples (a gap no
+    symptom could have turned on in): the unit keeps its status through such a gap and shows
+    CHECK_FUNCTION from the on_delay-th unknown sample on."""
+    on = 5
+    path = make_unit(tmp_path, GROUP_MATRIX, on_delay=on, off_delay=on)
+    before = NE107.FAILURE if level else NE107.NORMAL
+    for gap, unknown_from in ((on - 1, None), (on, on - 1)):
+        r1 = np.full(40, level)
+        r1[20 : 20 + gap] = np.nan
+        st = statuses(diagnose(path, frame(40, r1=r1)))
+        held = st[20 : 20 + gap] if unknown_from is None else st[20 : 20 + unknown_from]
+        assert set(st[10:20]) == {before} and set(held) == {before}, (gap, st[18:28])
+        if unknown_from is not None:
+            assert st[20 + unknown_from] == NE107.CHECK_FUNCTION, (gap, st[18:28])
+        assert set(st[20 + gap :]) == {before}, (gap, st[18:28])
+
+
+# ---------------------------------------------------------------- the filter across a gap
+@pytest.mark.parametrize("gap, restarts", [(100, False), (101, True)])
+def test_the_filter_restarts_only_after_a_gap_longer_than_its_memory(tmp_path, gap, restarts):
+    """The Butterworth filter (π/100) holds its state over a gap of up to 100 unknown samples
+    (about its memory) and starts from rest after a longer one. A standing +5 % residual
+    therefore comes back at +5 % after a 100-sample gap, the fault still shown, and from
+    almost nothing after a 101-sample gap — whether the unit sees the data in one pass, one
+    row per cycle, or in pieces cut inside the gap."""
+    path = make_unit(tmp_path, GROUP_MATRIX, lowpass=0.01, on_delay=3, off_delay=3)
+    n0 = 800  # the filter settles on the +5 % residual (within 3e-5 of it)
+    r1 = np.full(n0 + gap + 10, 5.0)
+    r1[n0 : n0 + gap] = np.nan
+    data = frame(len(r1), r1=r1)
+    got = diagnose(path, data)
+    back = got["r_r1"].iloc[n0 + gap]
+    assert got["r_r1"].iloc[n0 - 1] == pytest.approx(5.0, abs=1e-3)
+    assert got["r_r1"].iloc[n0 : n0 + gap].isna().all()
+    if restarts:
+        assert 0 < back < 1e-3
+        assert statuses(got)[n0 + gap + 3] == NE107.NORMAL  # off after the off-delay
+    else:
+        assert back == pytest.approx(5.0, abs=1e-3)
+        assert set(statuses(got)[n0 + gap :]) == {NE107.FAILURE}
+    unit = Unit.load(path)
+    cut = n0 + gap // 2
+    pieces = concat([unit.evaluate(data.iloc[:cut]), unit.evaluate(data.iloc[cut:])])
+    pd.testing.assert_frame_equal(pieces.to_frame(), got)
+
+
+# ---------------------------------------------------------------- isolation
+def test_a_sign_change_is_new_evidence_for_a_held_isolation(tmp_path):
+    """f_A moves r3 down, f_B up. r3 going from +5 % to −5 % while r2 stays on is new
+    evidence: the diagnosis moves from f_B to f_A, it is not widened to both as fading
+    symptoms would be."""
+    signed = {"f_A": "01-0", "f_B": "01+0"}
+    path = make_unit(tmp_path, signed, on_delay=1, off_delay=1)
+    r3 = np.r_[np.full(10, 5.0), np.full(10, -5.0)]
+    got = diagnose(path, frame(20, r2=5.0, r3=r3))
+    assert (got["faults"].iloc[:10] == "f_B").all()
+    assert (got["faults"].iloc[10:] == "f_A").all(), list(got["faults"])
+
+
+def test_the_residual_keeps_its_sign(tmp_path):
+    """Residual = (measured − model) / span · 100 % (Kościelny et al., eq. 6): a reading
+    above the model is a positive residual and a + symptom, below it a negative one and a −
+    symptom, and the isolated fault follows the sign."""
+    signed = {"f_low": "-000", "f_high": "+000"}
+    path = make_unit(tmp_path, signed, span=200.0)
+    r1 = np.r_[np.full(10, 6.0), np.full(10, -6.0)]
+    got = diagnose(path, frame(20, x=80.0, r1=r1))
+    np.testing.assert_allclose(got["r_r1"], np.r_[np.full(10, 3.0), np.full(10, -3.0)])
+    assert list(got["s_r1"].iloc[[5, 19]]) == [1.0, -1.0]
+    assert got["faults"].iloc[5] == "f_high" and got["faults"].iloc[19] == "f_low"
+
+
+def test_the_best_signature_is_isolated_not_a_near_one(tmp_path):
+    """r1 and r2 on: f_AB's signature matches exactly; f_A and f_ABC are one test off
+    (certainty 0.75, above the unit's 0.5) and f_D three tests off. Only f_AB is isolated;
+    with two signatures equally best, both are."""
+    mx = {"f_A": "1000", "f_AB": "1100", "f_ABC": "1110", "f_D": "0001"}
+    path = make_unit(tmp_path, mx)
+    got = diagnose(path, frame(10, r1=5.0, r2=5.0))
+    assert (got["faults"].iloc[2:] == "f_AB").all(), got["faults"].value_counts()
+    c = got.iloc[-1]
+    assert (c["c_f_AB"], c["c_f_A"], c["c_f_ABC"], c["c_f_D"]) == (1.0, 0.75, 0.75, 0.25)
+    tie = {"f_A": "1000", "f_ABC": "1110", "f_D": "0001"}
+    got = diagnose(make_unit(tmp_path, tie), frame(10, r1=5.0, r2=5.0))
+    assert (got["faults"].iloc[2:] == "f_A|f_ABC").all(), got["faults"].value_counts()
