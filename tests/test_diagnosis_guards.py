@@ -293,3 +293,25 @@ def test_the_best_signature_is_isolated_not_a_near_one(tmp_path):
     tie = {"f_A": "1000", "f_ABC": "1110", "f_D": "0001"}
     got = diagnose(make_unit(tmp_path, tie), frame(10, r1=5.0, r2=5.0))
     assert (got["faults"].iloc[2:] == "f_A|f_ABC").all(), got["faults"].value_counts()
+
+
+def test_a_new_episode_is_isolated_afresh_and_fading_to_no_signature_shows_none(tmp_path):
+    """f_B (r2 and r3) fades: r3 clears first and r2 alone would point at f_A, so f_B stays
+    beside it (the held isolation widens, it does not jump) until no symptom is left. A new
+    episode starts afresh: r2 alone is then f_A only. Symptoms no signature explains well
+    enough (certainty below the unit's 0.5) isolate nothing, held or not: OFF_SPEC."""
+    path = make_unit(
+        tmp_path, {"f_A": "0100", "f_B": "0110", "f_C": "1111"}, on_delay=1, off_delay=1
+    )
+    r2 = np.r_[np.full(5, 5.0), np.full(5, 5.0), np.zeros(5), np.full(5, 5.0)]
+    r3 = np.r_[np.full(5, 5.0), np.zeros(15)]
+    got = diagnose(path, frame(20, r2=r2, r3=r3))
+    assert list(got["faults"].iloc[[0, 5, 10, 15]]) == ["f_B", "f_A|f_B", "", "f_A"]
+    assert statuses(got)[10] == NE107.NORMAL
+    # all four on: f_C; fading to r1 alone, f_C and f_D are three tests off (0.25)
+    path = make_unit(tmp_path, {"f_C": "1111", "f_D": "0011"}, on_delay=1, off_delay=1)
+    on = np.r_[np.full(5, 5.0), np.zeros(5)]
+    got = diagnose(path, frame(10, r1=5.0, r2=on, r3=on, r4=on))
+    assert (got["faults"].iloc[:5] == "f_C").all()
+    assert (got["faults"].iloc[5:] == "").all(), list(got["faults"])
+    assert set(statuses(got)[5:]) == {NE107.OFF_SPEC}
