@@ -315,3 +315,30 @@ def test_a_new_episode_is_isolated_afresh_and_fading_to_no_signature_shows_none(
     assert (got["faults"].iloc[:5] == "f_C").all()
     assert (got["faults"].iloc[5:] == "").all(), list(got["faults"])
     assert set(statuses(got)[5:]) == {NE107.OFF_SPEC}
+
+
+def test_fuzzy_symptoms_give_the_same_diagnosis_in_a_plant_as_alone(tmp_path):
+    """Three-valued fuzzy evaluation (Kościelny et al.): with threshold 1 % and a ramp 0.5 %
+    wide, a residual of +1.1 % is P to 0.7 and −1.1 % is N to 0.7, so f_high (resp. f_low)
+    has certainty 0.7: below the unit's 0.8, nothing is isolated (OFF_SPEC). The live loop
+    evaluates units in a Plant, which must give that too (it isolated by the crisp nearest
+    signature, certainty 1, and reported FAILURE)."""
+    signed = {"f_low": "-000", "f_high": "+000"}
+    path = make_unit(tmp_path, signed, symptoms="fuzzy", fuzzy_width=0.5, certainty=0.8)
+    r1 = np.r_[np.full(10, 1.1), np.full(10, -1.1)]
+    got = diagnose(path, frame(20, r1=r1))
+    np.testing.assert_allclose(got["c_f_high"].iloc[5:10], 0.7)
+    np.testing.assert_allclose(got["c_f_low"].iloc[15:], 0.7)
+    st = statuses(got)
+    assert set(st[5:10] + st[15:]) == {NE107.OFF_SPEC} and (got["faults"] == "").all()
+    got = diagnose(make_unit(tmp_path, signed, symptoms="fuzzy", certainty=0.6), frame(20, r1=r1))
+    assert list(got["faults"].iloc[[9, 19]]) == ["f_high", "f_low"]
+
+
+def test_a_symptom_of_the_other_sign_waits_for_its_on_delay(tmp_path):
+    """r1 flips from +5 % to −5 %: the + symptom goes after the off-delay (1 sample) and the
+    − symptom comes after its own on-delay (2 samples), not at once."""
+    path = make_unit(tmp_path, {"f_low": "-000", "f_high": "+000"}, on_delay=2, off_delay=1)
+    r1 = np.r_[np.full(6, 5.0), np.full(6, -5.0)]
+    got = diagnose(path, frame(12, r1=r1))
+    assert list(got["s_r1"]) == [0, 1, 1, 1, 1, 1, 0, -1, -1, -1, -1, -1]
