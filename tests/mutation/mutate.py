@@ -49,6 +49,11 @@ TARGETS: dict[str, list[str]] = {
         "test_diagnosis_guards.py",
         "test_units.py",
     ],
+    "diag_plugin/diagnose/unit.py": [
+        "test_diagnosis_guards.py",
+        "test_units.py",
+        "test_plant.py",
+    ],
     "diag_plugin/diagnose/status.py": ["test_diagnosis_guards.py", "test_units.py"],
     "diag_plugin/diagnose/matrix.py": [
         "test_diagnose_matrix.py",
@@ -56,17 +61,12 @@ TARGETS: dict[str, list[str]] = {
         "test_units.py",
         "test_valve_isolation.py",
     ],
-    "diag_plugin/diagnose/unit.py": [
-        "test_diagnosis_guards.py",
-        "test_units.py",
-        "test_plant.py",
-    ],
-    "diag_plugin/diagnose/unitfile.py": ["test_diagnosis_guards.py", "test_units.py"],
     "diag_plugin/diagnose/plant.py": ["test_plant.py", "test_diagnosis_guards.py"],
+    "diag_plugin/diagnose/unitfile.py": ["test_diagnosis_guards.py", "test_units.py"],
+    "connectors/alarms.py": ["test_alarms.py", "test_alarm_edges.py"],
+    "historian/importer.py": ["test_historian_import.py", "test_import_refuses_to_guess.py"],
     "diag_plugin/diagnose/benchmark.py": ["test_benchmark.py"],
     "diag_plugin/diagnose/cli.py": ["test_units.py", "test_real_unit.py"],
-    "connectors/alarms.py": ["test_alarms.py"],
-    "historian/importer.py": ["test_historian_import.py", "test_import_refuses_to_guess.py"],
 }
 
 #: operators left out (see the module doc); cosmic-ray matches these from the start of the name
