@@ -41,11 +41,13 @@ TARGETS: dict[str, list[str]] = {
     "diag_plugin/diagnose/isolation.py": ["test_diagnosis_guards.py", "test_units.py"],
     "diag_plugin/diagnose/residuals.py": [
         "test_diagnose_residuals.py",
+        "test_diagnose_stage_edges.py",
         "test_diagnosis_guards.py",
         "test_units.py",
     ],
     "diag_plugin/diagnose/symptoms.py": [
         "test_diagnose_residuals.py",
+        "test_diagnose_stage_edges.py",
         "test_diagnosis_guards.py",
         "test_units.py",
     ],
