@@ -14,6 +14,7 @@ docs/testing.md).
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -73,11 +74,13 @@ def make_unit(
     *,
     faults: dict[str, str] | None = None,
     span: float = 100.0,
+    high: float | None = 1.0,
     **evaluation,
 ) -> Path:
-    """A unit of four tests ``ri: Yi = f(X)`` with thresholds ±1 %, no filter and on/off
-    delays of 3 unless ``evaluation`` says otherwise; ``matrix``: fault → one entry per test
-    (``"1"``, ``"0"``, ``"+"``, ``"-"``, ``"x"``); ``faults``: the ``[faults]`` table."""
+    """A unit of four tests ``ri: Yi = f(X)`` with thresholds ±``high`` % (None: not learned
+    yet), no filter and on/off delays of 3 unless ``evaluation`` says otherwise; ``matrix``:
+    fault → one entry per test (``"1"``, ``"0"``, ``"+"``, ``"-"``, ``"x"``); ``faults``: the
+    ``[faults]`` table."""
     for i in range(1, 5):
         (folder / f"id_y{i}.toml").write_text(_MODEL.format(i=i, span=span))
     ev = {"lowpass": 0.0, "on_delay": 3, "off_delay": 3} | evaluation
@@ -92,9 +95,10 @@ def make_unit(
             f"[matrix]\ntests = {list(TESTS)!r}\nfaults = {list(matrix)!r}\nrows = [\n{rows}\n]\n"
         )
     lines.append("[evaluation]")
-    lines += [f"{k} = {str(v).lower() if isinstance(v, bool) else v!r}" for k, v in ev.items()]
+    lines += [f"{k} = {str(v).lower() if isinstance(v, bool) else repr(v)}" for k, v in ev.items()]
     lines.append("[tests]")
-    lines += [f'{t} = {{ model = "id_y{i}.toml", high = 1.0 }}' for i, t in enumerate(TESTS, 1)]
+    th = "" if high is None else f", high = {high}"
+    lines += [f'{t} = {{ model = "id_y{i}.toml"{th} }}' for i, t in enumerate(TESTS, 1)]
     if faults:
         lines.append("[faults]")
         lines += [f'{f} = "{s}"' for f, s in faults.items()]
@@ -318,21 +322,26 @@ def test_a_new_episode_is_isolated_afresh_and_fading_to_no_signature_shows_none(
 
 
 def test_fuzzy_symptoms_give_the_same_diagnosis_in_a_plant_as_alone(tmp_path):
-    """Three-valued fuzzy evaluation (Kościelny et al.): with threshold 1 % and a ramp 0.5 %
-    wide, a residual of +1.1 % is P to 0.7 and −1.1 % is N to 0.7, so f_high (resp. f_low)
-    has certainty 0.7: below the unit's 0.8, nothing is isolated (OFF_SPEC). The live loop
-    evaluates units in a Plant, which must give that too (it isolated by the crisp nearest
-    signature, certainty 1, and reported FAILURE)."""
+    """Three-valued fuzzy evaluation (Kościelny et al.): with threshold 2 % and a ramp
+    0.5 · 2 % wide, a residual of +2.2 % is P to 0.7 and −2.2 % is N to 0.7, so f_high (resp.
+    f_low) has certainty 0.7: below the unit's 0.8, nothing is isolated (OFF_SPEC). The live
+    loop evaluates units in a Plant, which must give that too (it isolated by the crisp
+    nearest signature, certainty 1, and reported FAILURE)."""
     signed = {"f_low": "-000", "f_high": "+000"}
-    path = make_unit(tmp_path, signed, symptoms="fuzzy", fuzzy_width=0.5, certainty=0.8)
-    r1 = np.r_[np.full(10, 1.1), np.full(10, -1.1)]
+    fuzzy = {"symptoms": "fuzzy", "fuzzy_width": 0.5, "high": 2.0}
+    path = make_unit(tmp_path, signed, certainty=0.8, **fuzzy)
+    r1 = np.r_[np.full(10, 2.2), np.full(10, -2.2)]
     got = diagnose(path, frame(20, r1=r1))
     np.testing.assert_allclose(got["c_f_high"].iloc[5:10], 0.7)
     np.testing.assert_allclose(got["c_f_low"].iloc[15:], 0.7)
     st = statuses(got)
     assert set(st[5:10] + st[15:]) == {NE107.OFF_SPEC} and (got["faults"] == "").all()
-    got = diagnose(make_unit(tmp_path, signed, symptoms="fuzzy", certainty=0.6), frame(20, r1=r1))
+    got = diagnose(make_unit(tmp_path, signed, certainty=0.6, **fuzzy), frame(20, r1=r1))
     assert list(got["faults"].iloc[[9, 19]]) == ["f_high", "f_low"]
+    # a fuzzy unit whose thresholds are not learned yet says so, like a crisp one
+    unit = Unit.load(make_unit(tmp_path, signed, symptoms="fuzzy", high=None))
+    d = unit.evaluate(frame(5, r1=5.0))
+    assert set(d.status) == {NE107.CHECK_FUNCTION} and "diag unit learn u" in d.message
 
 
 def test_a_symptom_of_the_other_sign_waits_for_its_on_delay(tmp_path):
@@ -342,3 +351,80 @@ def test_a_symptom_of_the_other_sign_waits_for_its_on_delay(tmp_path):
     r1 = np.r_[np.full(6, 5.0), np.full(6, -5.0)]
     got = diagnose(path, frame(12, r1=r1))
     assert list(got["s_r1"]) == [0, 1, 1, 1, 1, 1, 0, -1, -1, -1, -1, -1]
+
+
+def test_a_latched_symptom_keeps_the_sign_it_was_raised_with(tmp_path):
+    """latch = true (Laukonen et al.: a symptom stays for the rest of the test): r1 raised +,
+    then gone, then −: the unit keeps reporting the + symptom and its fault."""
+    path = make_unit(tmp_path, {"f_low": "-000", "f_high": "+000"}, latch=True)
+    r1 = np.r_[np.zeros(3), np.full(5, 5.0), np.zeros(5), np.full(7, -5.0)]
+    got = diagnose(path, frame(20, r1=r1))
+    assert (got["s_r1"].iloc[:5] == 0).all()  # on at the third sample over the threshold
+    assert (got["s_r1"].iloc[5:] == 1).all() and (got["faults"].iloc[5:] == "f_high").all()
+
+
+def test_the_timeline_names_each_run_and_the_tests_showing_symptoms(tmp_path):
+    """``diag diagnose`` prints runs of equal status and faults, with the tests that had a
+    symptom in each run."""
+    path = make_unit(tmp_path, GROUP_MATRIX)
+    r1 = np.r_[np.zeros(4), np.full(6, 5.0), np.zeros(10)]
+    runs = Unit.load(path).evaluate(frame(20, r1=r1)).intervals()
+    assert list(runs["status"]) == ["NORMAL", "FAILURE", "NORMAL"]
+    assert list(runs["faults"]) == ["", "f_A|f_B", ""]
+    assert list(runs["samples"]) == [6, 6, 8]  # on 3 samples late, off 3 samples late
+    assert list(runs["tests"]) == ["", "r1", ""]
+    assert runs["to"].iloc[0] == runs["from"].iloc[1]
+
+
+def test_the_published_numbers_are_ne107s_and_the_register_maps(tmp_path):
+    """The HMI reads numbers: NE 107 as in the OPC UA device model (DESIGN.md: 0 NORMAL,
+    1 FAILURE, 2 CHECK_FUNCTION, 3 OFF_SPEC, 4 MAINTENANCE_REQUIRED) and the quality of the
+    diagnosis (docs/connectors.md: 0 Good, 1 Uncertain, 2 Bad)."""
+    path = make_unit(tmp_path, GROUP_MATRIX, faults={"f_C": "MAINTENANCE_REQUIRED"})
+    nan = np.nan
+    r1 = np.r_[np.zeros(5), np.full(10, 5.0), np.zeros(15)]
+    r2 = np.r_[np.zeros(20), np.full(10, 5.0)]
+    r3 = np.r_[np.zeros(15), np.full(15, nan)]
+    r4 = np.r_[np.full(20, 0.0), np.full(10, nan)]
+    d = Unit.load(path).evaluate(frame(30, r1=r1, r2=r2, r3=r3, r4=r4))
+    published = {(s := d.at(i).to_json())["status_name"]: s["status"] for i in range(30)}
+    assert published == {"NORMAL": 0, "FAILURE": 1, "CHECK_FUNCTION": 2, "MAINTENANCE_REQUIRED": 4}
+    quality = {d.at(i).quality.name: int(d.at(i).quality) for i in range(30)}
+    assert quality == {"GOOD": 0, "UNCERTAIN": 1}
+    assert int(d.at(-1).quality) == 1  # r3, r4 unknown, r2's symptom isolated: f_C
+    bad = Unit.load(path).evaluate(frame(3, x=nan))
+    assert [int(q) for q in bad.quality] == [2, 2, 2] and set(bad.status) == {2}
+    off = Unit.load(make_unit(tmp_path, None)).evaluate(frame(5, r1=5.0))  # no matrix
+    assert int(off.at(-1).status) == 3 and off.at(-1).to_json()["status_name"] == "OFF_SPEC"
+
+
+def test_learning_a_unit_scaled_by_the_signal_maximum(tmp_path, capsys):
+    """``diag unit learn`` on a unit with ``scale = "max"`` (Laukonen et al., Sec. IV) writes
+    each output's maximum |y| over the window beside its thresholds and reports the window
+    it learned over, end exclusive; an output that stays at zero has no maximum to scale by:
+    a clear error and a failing exit status."""
+    from diag_plugin.cli import main
+    from historian.store import Historian
+
+    path = make_unit(tmp_path, GROUP_MATRIX, high=None, scale="max")
+    rng = np.random.default_rng(5)
+    data = frame(600, x=30.0, **{t: rng.normal(0, 0.5, 600) for t in TESTS})
+    data.loc[data.index[100], "Y3"] = -70.0  # the largest |Y3|, negative
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    with Historian.open(url) as h:
+        h.write_samples(data)
+    args = ["--db", url, "--rulebases", str(tmp_path), "unit", "learn", "u", "--json"]
+    window = ["--from", "2026-03-01T00:00", "--to", "2026-03-02T00:00"]
+    assert main(args + window) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["window"] == ["2026-03-01T00:00:00+00:00", "2026-03-02T00:00:00+00:00"]
+    learned = Unit.load(path).file
+    for i, t in enumerate(TESTS, 1):
+        want = 70.0 if t == "r3" else data[f"Y{i}"].abs().max()
+        assert learned.test(t).ymax == pytest.approx(want, abs=1e-6), t
+    path = make_unit(tmp_path, GROUP_MATRIX, high=None, scale="max")
+    with Historian.open(url) as h:
+        h.write_samples(frame(600, x=0.0).shift(1, freq="1D"))
+    late = ["--from", "2026-03-02T00:00", "--to", "2026-03-03T00:00"]
+    assert main(args + late) != 0
+    assert "the maximum of Y1 is not positive" in capsys.readouterr().err
