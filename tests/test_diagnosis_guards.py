@@ -75,6 +75,7 @@ def make_unit(
     faults: dict[str, str] | None = None,
     span: float = 100.0,
     high: float | None = 1.0,
+    low: float | None = None,
     **evaluation,
 ) -> Path:
     """A unit of four tests ``ri: Yi = f(X)`` with thresholds ±``high`` % (None: not learned
@@ -98,6 +99,7 @@ def make_unit(
     lines += [f"{k} = {str(v).lower() if isinstance(v, bool) else repr(v)}" for k, v in ev.items()]
     lines.append("[tests]")
     th = "" if high is None else f", high = {high}"
+    th += "" if low is None else f", low = {low}"
     lines += [f'{t} = {{ model = "id_y{i}.toml"{th} }}' for i, t in enumerate(TESTS, 1)]
     if faults:
         lines.append("[faults]")
@@ -338,10 +340,19 @@ def test_fuzzy_symptoms_give_the_same_diagnosis_in_a_plant_as_alone(tmp_path):
     assert set(st[5:10] + st[15:]) == {NE107.OFF_SPEC} and (got["faults"] == "").all()
     got = diagnose(make_unit(tmp_path, signed, certainty=0.6, **fuzzy), frame(20, r1=r1))
     assert list(got["faults"].iloc[[9, 19]]) == ["f_high", "f_low"]
+    # asymmetric thresholds: the ramps sit at each threshold (−1 % and +3 %, K = 2 %)
+    path = make_unit(tmp_path, signed, certainty=0.8, **(fuzzy | {"high": 3.0, "low": -1.0}))
+    got = diagnose(path, frame(20, r1=np.r_[np.full(10, 3.2), np.full(10, -1.2)]))
+    np.testing.assert_allclose(got["c_f_high"].iloc[5:10], 0.7)
+    np.testing.assert_allclose(got["c_f_low"].iloc[15:], 0.7)
     # a fuzzy unit whose thresholds are not learned yet says so, like a crisp one
     unit = Unit.load(make_unit(tmp_path, signed, symptoms="fuzzy", high=None))
     d = unit.evaluate(frame(5, r1=5.0))
     assert set(d.status) == {NE107.CHECK_FUNCTION} and "diag unit learn u" in d.message
+    path = make_unit(tmp_path, signed)
+    path.write_text(path.read_text().replace('"id_y2.toml", high = 1.0', '"id_y2.toml"'))
+    d = Unit.load(path).evaluate(frame(5, r1=5.0))
+    assert d.message.startswith("no thresholds for r2:"), d.message
 
 
 def test_a_symptom_of_the_other_sign_waits_for_its_on_delay(tmp_path):
@@ -394,6 +405,9 @@ def test_the_published_numbers_are_ne107s_and_the_register_maps(tmp_path):
     assert int(d.at(-1).quality) == 1  # r3, r4 unknown, r2's symptom isolated: f_C
     bad = Unit.load(path).evaluate(frame(3, x=nan))
     assert [int(q) for q in bad.quality] == [2, 2, 2] and set(bad.status) == {2}
+    js = json.loads(json.dumps(d.at(-1).to_json()))  # NaN is null, numbers stay numbers
+    assert js["residuals"] == {"r1": 0.0, "r2": 5.0, "r3": None, "r4": None}
+    assert js["symptoms"] == {"r1": 0.0, "r2": 1.0, "r3": None, "r4": None}
     off = Unit.load(make_unit(tmp_path, None)).evaluate(frame(5, r1=5.0))  # no matrix
     assert int(off.at(-1).status) == 3 and off.at(-1).to_json()["status_name"] == "OFF_SPEC"
 
@@ -428,3 +442,13 @@ def test_learning_a_unit_scaled_by_the_signal_maximum(tmp_path, capsys):
     late = ["--from", "2026-03-02T00:00", "--to", "2026-03-03T00:00"]
     assert main(args + late) != 0
     assert "the maximum of Y1 is not positive" in capsys.readouterr().err
+
+
+def test_a_held_isolation_narrows_with_fading_evidence(tmp_path):
+    """r1, r2, r3 on: f_A and f_B are equally near (one test off each). r3 clears: f_A now
+    matches exactly and f_B is two tests off, so the diagnosis narrows to f_A — a fresh
+    isolation that shares a fault with the last one is taken as it is, not widened."""
+    path = make_unit(tmp_path, {"f_A": "1100", "f_B": "1111"}, on_delay=1, off_delay=1)
+    r3 = np.r_[np.full(5, 5.0), np.zeros(5)]
+    got = diagnose(path, frame(10, r1=5.0, r2=5.0, r3=r3))
+    assert list(got["faults"].iloc[[0, 4, 5, 9]]) == ["f_A|f_B", "f_A|f_B", "f_A", "f_A"]
