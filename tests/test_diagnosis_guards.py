@@ -299,6 +299,9 @@ def test_the_best_signature_is_isolated_not_a_near_one(tmp_path):
     tie = {"f_A": "1000", "f_ABC": "1110", "f_D": "0001"}
     got = diagnose(make_unit(tmp_path, tie), frame(10, r1=5.0, r2=5.0))
     assert (got["faults"].iloc[2:] == "f_A|f_ABC").all(), got["faults"].value_counts()
+    # a certainty exactly at the unit's limit counts ("from this certainty on")
+    got = diagnose(make_unit(tmp_path, tie, certainty=0.75), frame(10, r1=5.0, r2=5.0))
+    assert (got["faults"].iloc[2:] == "f_A|f_ABC").all(), got["faults"].value_counts()
 
 
 def test_a_new_episode_is_isolated_afresh_and_fading_to_no_signature_shows_none(tmp_path):
@@ -436,6 +439,8 @@ def test_learning_a_unit_scaled_by_the_signal_maximum(tmp_path, capsys):
     for i, t in enumerate(TESTS, 1):
         want = 70.0 if t == "r3" else data[f"Y{i}"].abs().max()
         assert learned.test(t).ymax == pytest.approx(want, abs=1e-6), t
+    got = diagnose(path, data.iloc[:20])  # residuals now in % of each output's maximum
+    np.testing.assert_allclose(got["r_r3"], (data["Y3"] - data["X"]).iloc[:20] / 70.0 * 100)
     path = make_unit(tmp_path, GROUP_MATRIX, high=None, scale="max")
     with Historian.open(url) as h:
         h.write_samples(frame(600, x=0.0).shift(1, freq="1D"))
