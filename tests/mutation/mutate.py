@@ -68,7 +68,11 @@ TARGETS: dict[str, list[str]] = {
     "connectors/alarms.py": ["test_alarms.py", "test_alarm_edges.py"],
     "historian/importer.py": ["test_historian_import.py", "test_import_refuses_to_guess.py"],
     "diag_plugin/diagnose/benchmark.py": ["test_benchmark.py"],
-    "diag_plugin/diagnose/cli.py": ["test_units.py", "test_real_unit.py"],
+    "diag_plugin/diagnose/cli.py": [
+        "test_diagnosis_guards.py",
+        "test_units.py",
+        "test_real_unit.py",
+    ],
 }
 
 #: operators left out (see the module doc); cosmic-ray matches these from the start of the name
