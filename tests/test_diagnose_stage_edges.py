@@ -50,3 +50,15 @@ def test_the_signal_maximum_survives_its_json_state():
     fresh = MaxScaler.from_state(json.loads(json.dumps(MaxScaler().to_state())))
     with pytest.raises(RuntimeError, match="not fitted"):
         fresh.transform(np.zeros((1, 2)))
+
+
+def test_a_malformed_matrix_row_is_named_by_its_position():
+    from diag_plugin.diagnose.matrix import MatrixError, parse_matrix
+
+    text = (
+        '[matrix]\ntests = ["r1", "r2"]\nfaults = ["f_A"]\nrows = [\n'
+        '  { test = "r1", row = ["1"] },\n  { row = ["0"] },\n]\n'
+    )
+    with pytest.raises(MatrixError) as e:
+        parse_matrix(text, "m.toml")
+    assert any("m.toml:4: row 2: needs test" in p for p in e.value.problems), e.value.problems

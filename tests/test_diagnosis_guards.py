@@ -457,3 +457,13 @@ def test_a_held_isolation_narrows_with_fading_evidence(tmp_path):
     r3 = np.r_[np.full(5, 5.0), np.zeros(5)]
     got = diagnose(path, frame(10, r1=5.0, r2=5.0, r3=r3))
     assert list(got["faults"].iloc[[0, 4, 5, 9]]) == ["f_A|f_B", "f_A|f_B", "f_A", "f_A"]
+
+
+def test_a_signature_constraining_one_test_has_certainty_zero_when_it_is_contradicted(tmp_path):
+    """f_A constrains r1 alone (don't care elsewhere), f_B r2 alone. With r2 on and r1 quiet,
+    f_B matches (1) and f_A is contradicted on its only test (0, not ½), so the published
+    certainty of f_A is 0."""
+    path = make_unit(tmp_path, {"f_A": "1xxx", "f_B": "x1xx"})
+    got = diagnose(path, frame(10, r2=5.0))
+    assert (got["faults"].iloc[2:] == "f_B").all()
+    assert list(got[["c_f_A", "c_f_B"]].iloc[-1]) == [0.0, 1.0]
