@@ -24,6 +24,7 @@ import pytest
 from diag_plugin.diagnose.plant import Plant
 from diag_plugin.diagnose.status import NE107
 from diag_plugin.diagnose.unit import Unit, concat
+from diag_plugin.diagnose.unitfile import UnitError
 
 TESTS = ("r1", "r2", "r3", "r4")
 #: NAMUR NE 107: the status shown when several apply, most severe first
@@ -467,3 +468,19 @@ def test_a_signature_constraining_one_test_has_certainty_zero_when_it_is_contrad
     got = diagnose(path, frame(10, r2=5.0))
     assert (got["faults"].iloc[2:] == "f_B").all()
     assert list(got[["c_f_A", "c_f_B"]].iloc[-1]) == [0.0, 1.0]
+
+
+def test_a_faults_table_takes_names_or_numbers_and_refuses_others_with_a_line(tmp_path):
+    """``[faults]`` entries are NE 107 names (any case) or numbers; anything else, NORMAL
+    included, is a ``file:line`` problem, never a traceback."""
+    path = make_unit(tmp_path, GROUP_MATRIX, faults={"f_C": "maintenance_required"})
+    path.write_text(path.read_text() + "f_A = 3\n")
+    got = diagnose(path, frame(10, r2=5.0))
+    assert set(statuses(got)[2:]) == {NE107.MAINTENANCE_REQUIRED}
+    assert set(statuses(diagnose(path, frame(10, r1=5.0)))[2:]) == {NE107.FAILURE}  # f_A|f_B
+    for bad in ("7", '"BROKEN"', '"NORMAL"', "0"):
+        path.write_text(make_unit(tmp_path, GROUP_MATRIX).read_text() + f"[faults]\nf_A = {bad}\n")
+        with pytest.raises(UnitError) as e:
+            Unit.load(path)
+        line = len(path.read_text().splitlines())
+        assert e.value.problems[0].startswith(f"{path}:{line}: fault 'f_A'"), e.value.problems

@@ -66,7 +66,11 @@ TARGETS: dict[str, list[str]] = {
     "diag_plugin/diagnose/plant.py": ["test_plant.py", "test_diagnosis_guards.py"],
     "diag_plugin/diagnose/unitfile.py": ["test_diagnosis_guards.py", "test_units.py"],
     "connectors/alarms.py": ["test_alarms.py", "test_alarm_edges.py"],
-    "historian/importer.py": ["test_historian_import.py", "test_import_refuses_to_guess.py"],
+    "historian/importer.py": [
+        "test_historian_import.py",
+        "test_import_refuses_to_guess.py",
+        "test_import_edges.py",
+    ],
     "diag_plugin/diagnose/benchmark.py": ["test_benchmark.py"],
     "diag_plugin/diagnose/cli.py": [
         "test_diagnosis_guards.py",

@@ -1,0 +1,34 @@
+"""An importer edge a mutation check found untested (issue 28): when a re-import conflicts
+with stored samples in several tags, the message names the earliest conflict over all tags,
+not the first tag's. Through ``diag import`` only, so it holds through rewrites of the
+importer."""
+
+from __future__ import annotations
+
+from diag_plugin.cli import main
+
+FIRST = """ts,P1,F
+2026-01-01 00:00:00,500.0,10.0
+2026-01-01 00:00:10,500.5,10.5
+2026-01-01 00:01:00,501.2,11.0
+"""
+
+# P1 differs at 00:01:00 only; F, the later column, differs earlier, at 00:00:10
+SECOND = """ts,P1,F
+2026-01-01 00:00:10,500.5,9.0
+2026-01-01 00:01:00,499.0,11.0
+"""
+
+
+def test_the_earliest_conflict_over_all_tags_is_named(db_url, tmp_path, capsys):
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_text(FIRST)
+    b.write_text(SECOND)
+    assert main(["--db", db_url, "import", str(a)]) == 0
+    capsys.readouterr()
+    assert main(["--db", db_url, "import", str(b)]) == 0
+    err = capsys.readouterr().err
+    assert (
+        f"2 samples conflict with stored values (first: F at 2026-01-01T00:00:10Z ({b}:2): "
+        "stored 10.5, file 9.0)"
+    ) in err, err
