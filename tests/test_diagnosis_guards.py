@@ -484,3 +484,43 @@ def test_a_faults_table_takes_names_or_numbers_and_refuses_others_with_a_line(tm
             Unit.load(path)
         line = len(path.read_text().splitlines())
         assert e.value.problems[0].startswith(f"{path}:{line}: fault 'f_A'"), e.value.problems
+
+
+def test_a_unit_file_without_a_filter_setting_filters_as_seed_000_does(tmp_path):
+    """Left out of [evaluation], the filter is Laukonen et al.'s: 4th-order Butterworth at
+    π/100 rad/sample (scipy's wn = 0.01). A +5 % step in r1 comes out as that filter's
+    step response."""
+    from scipy import signal
+
+    path = make_unit(tmp_path, GROUP_MATRIX)
+    path.write_text(path.read_text().replace("lowpass = 0.0\n", ""))
+    got = Unit.load(path).evaluate(frame(300, r1=5.0)).residuals["r1"].to_numpy()
+    want = 5.0 * signal.sosfilt(signal.butter(4, 0.01, output="sos"), np.ones(300))
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
+
+
+def test_unit_file_limits_are_checked_and_every_problem_is_reported(tmp_path):
+    path = make_unit(tmp_path, GROUP_MATRIX)
+    text = path.read_text()
+    for ok in ("min_support = 0.0", "min_support = 1.0"):
+        path.write_text(text.replace("[evaluation]", f"[evaluation]\n{ok}"))
+        Unit.load(path)
+    bad = {
+        "[evaluation]": "[evaluation]\ncolour = 1\nmin_support = -0.1\norder = 11",
+        '"id_y1.toml", high = 1.0': '"id_y1.toml", high = 1.0, ymax = 0.0',
+    }
+    for old, new in bad.items():
+        text = text.replace(old, new)
+    path.write_text(text)
+    with pytest.raises(UnitError) as e:
+        Unit.load(path)
+    lines = text.splitlines()
+
+    def at(key: str) -> str:
+        return f"{path}:{next(i for i, ln in enumerate(lines, 1) if ln.startswith(key))}: "
+
+    joined = "\n".join(e.value.problems)
+    assert at("colour") + "unknown key 'colour'" in joined
+    assert at("min_support") + "min_support must be in [0, 1]" in joined
+    assert at("order") + "order must be 1..10" in joined
+    assert at("r1 =") + "test 'r1': ymax must be > 0" in joined

@@ -32,3 +32,15 @@ def test_the_earliest_conflict_over_all_tags_is_named(db_url, tmp_path, capsys):
         f"2 samples conflict with stored values (first: F at 2026-01-01T00:00:10Z ({b}:2): "
         "stored 10.5, file 9.0)"
     ) in err, err
+
+
+def test_a_row_with_more_fields_than_the_header_is_named_by_its_line(db_url, tmp_path, capsys):
+    """Deep in a file (past the rows read to recognise it), a row with an extra field stops
+    the import at that row's file:line."""
+    rows = [f"2026-01-01 00:{k // 6:02d}:{k % 6 * 10:02d},{k}" for k in range(300)]
+    rows[250] += ",9"  # file line 252 (header = line 1)
+    f = tmp_path / "wide.csv"
+    f.write_text("ts,P1\n" + "\n".join(rows) + "\n")
+    assert main(["--db", db_url, "import", str(f)]) != 0
+    err = capsys.readouterr().err
+    assert f"{f}:252: 3 fields, but the header has 2" in err, err
