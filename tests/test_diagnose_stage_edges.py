@@ -62,3 +62,19 @@ def test_a_malformed_matrix_row_is_named_by_its_position():
     with pytest.raises(MatrixError) as e:
         parse_matrix(text, "m.toml")
     assert any("m.toml:4: row 2: needs test" in p for p in e.value.problems), e.value.problems
+
+
+def test_learned_thresholds_keep_their_counts_and_window_through_json():
+    idx = pd.date_range("2026-01-01", periods=50, freq="10s", tz="UTC")
+    r = pd.DataFrame({"r1": np.linspace(-2, 2, 50)}, index=idx)
+    lt = LearnedThresholds(quantile=1.0, margin=1.0).fit(r)
+    again = LearnedThresholds.from_state(json.loads(json.dumps(lt.to_state())))
+    assert again.thresholds_["r1"] == pytest.approx(2.0)
+    assert again.n_samples_["r1"] == 50
+    assert again.window_ == (idx[0].isoformat(), idx[-1].isoformat())
+
+
+@pytest.mark.parametrize("threshold", [0.0, -1.0])
+def test_a_fuzzy_threshold_must_be_positive(threshold):
+    with pytest.raises(ValueError, match="threshold > 0"):
+        FuzzyThreeValued(threshold=threshold, width=0.0).transform(np.zeros(1))

@@ -524,3 +524,28 @@ def test_unit_file_limits_are_checked_and_every_problem_is_reported(tmp_path):
     assert at("min_support") + "min_support must be in [0, 1]" in joined
     assert at("order") + "order must be 1..10" in joined
     assert at("r1 =") + "test 'r1': ymax must be > 0" in joined
+
+
+def test_diag_unit_new_never_overwrites_unasked_and_show_prints_the_matrix(tmp_path, capsys):
+    """A unit file is edited by hand: ``diag unit new`` over an existing one refuses unless
+    told ``--force``. ``diag unit show`` of a unit without thresholds yet prints them as
+    "—" and prints the matrix row by row."""
+    from diag_plugin.cli import main
+
+    path = make_unit(tmp_path, GROUP_MATRIX, high=None)
+    edited = path.read_text() + "# the expert's note\n"
+    path.write_text(edited)
+    base = ["--rulebases", str(tmp_path), "unit"]
+    new = ["new", "u", "--matrix", "u.matrix.toml"]
+    new += [a for i, t in enumerate(TESTS, 1) for a in ("--model", f"{t}=id_y{i}")]
+    assert main(base + new) != 0
+    assert "exists (use --force to overwrite)" in capsys.readouterr().err
+    assert path.read_text() == edited
+    path.write_text(edited)
+    assert main(base + ["show", "u"]) == 0
+    out = capsys.readouterr().out
+    assert "no thresholds learned yet" in out and out.count("—") >= 8  # low, high × 4 tests
+    rows = [ln for ln in out.splitlines() if ln.strip(" │|").startswith(TESTS)]
+    assert len(rows) >= 8, out  # the tests table and the matrix table
+    assert main(base + new + ["--force"]) == 0
+    assert "# the expert's note" not in path.read_text()
