@@ -59,6 +59,7 @@ TARGETS: dict[str, list[str]] = {
     "diag_plugin/diagnose/status.py": ["test_diagnosis_guards.py", "test_units.py"],
     "diag_plugin/diagnose/matrix.py": [
         "test_diagnose_matrix.py",
+        "test_diagnose_stage_edges.py",
         "test_diagnosis_guards.py",
         "test_units.py",
         "test_valve_isolation.py",
