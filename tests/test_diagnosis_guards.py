@@ -524,6 +524,15 @@ def test_unit_file_limits_are_checked_and_every_problem_is_reported(tmp_path):
     assert at("min_support") + "min_support must be in [0, 1]" in joined
     assert at("order") + "order must be 1..10" in joined
     assert at("r1 =") + "test 'r1': ymax must be > 0" in joined
+    # a test without a model does not hide the problems of the tests after it
+    text = text.replace('r2 = { model = "id_y2.toml", high = 1.0 }', "r2 = { high = 1.0 }")
+    text = text.replace('"id_y3.toml", high = 1.0', '"id_y3.toml", high = -1.0')
+    path.write_text(text)
+    with pytest.raises(UnitError) as e:
+        Unit.load(path)
+    joined = "\n".join(e.value.problems)
+    assert "test 'r2': model must name a rule-base file" in joined
+    assert "test 'r3': high must be > 0" in joined
 
 
 def test_diag_unit_new_never_overwrites_unasked_and_show_prints_the_matrix(tmp_path, capsys):
