@@ -610,7 +610,7 @@ def inspect_file(
                     encoding="utf-8-sig",
                 )
             except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
-                raise FileRefused(f"{path}: {_first_line(exc)}") from None
+                raise FileRefused(_parse_error(path, exc)) from None
             columns = [str(c) for c in sample.columns]
             rows = len(sample.dropna(how="all"))
     except OSError as exc:
@@ -1087,6 +1087,13 @@ def _count_conflicts(h, part, part_q, now, rows, line_of, report: ImportReport) 
         )
 
 
+def _parse_error(path: Path, exc: Exception) -> str:
+    """pandas' parse error as ``file:line: what``."""
+    text = _first_line(exc)
+    m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
+    return f"{path}:{m[2]}: {m[3]} fields, but the header has {m[1]}" if m else f"{path}: {text}"
+
+
 class _reading:
     """Turn a parse error met while reading the file into :class:`FileRefused` at
     ``file:line`` (saying whether earlier rows were already stored)."""
@@ -1100,13 +1107,7 @@ class _reading:
     def __exit__(self, kind, exc, tb):
         if exc is None or not isinstance(exc, (pd.errors.ParserError, UnicodeDecodeError)):
             return False
-        text = _first_line(exc)
-        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
-        msg = (
-            f"{self.path}:{m[2]}: {m[3]} fields, but the header has {m[1]}"
-            if m
-            else f"{self.path}: {text}"
-        )
+        msg = _parse_error(self.path, exc)
         if self.report.samples:
             msg += (
                 "; the rows before it were imported (fix the line and import again: stored "

@@ -196,3 +196,15 @@ def test_tag_names_with_spaces_parentheses_and_umlauts_work_through_the_tour(tmp
     assert main([*g, "train", "m", "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["validation"]["rmse_pct"] < 5 and res["validation"]["samples"] > 100
+
+
+def test_a_row_with_too_many_fields_in_the_first_lines_is_named_by_file_and_line(
+    historian, tmp_path
+):
+    """The same message whether the bad row is among the lines read to recognise the file or
+    further on (found by the mutation check of issue 28)."""
+    f = tmp_path / "short.csv"
+    f.write_text("time,A\n2026-01-01 00:00:00,1\n2026-01-01 00:00:01,2,3\n")
+    with pytest.raises(FileRefused, match=rf"^{f}:3: 3 fields, but the header has 2$"):
+        import_file(historian, f)
+    assert historian.tags().empty

@@ -13,7 +13,8 @@ stays local. :class:`Plant` keeps that structure and evaluates every unit each c
 
 A unit whose file, models or matrix are broken is reported CHECK_FUNCTION with Bad quality and
 its ``file:line`` problems every cycle; the others go on. Units whose models use derived inputs
-(``dir``, ``rate``, …) are evaluated one by one with :meth:`Unit.evaluate` (same result, slower).
+(``dir``, ``rate``, …) or whose symptoms are fuzzy (N/0/P, isolated by rules (10)–(14)) are
+evaluated one by one with :meth:`Unit.evaluate` (same result, slower).
 The fast path gives the same statuses as :meth:`Unit.evaluate` over the same rows (tested).
 """
 
@@ -66,6 +67,11 @@ def _plain_lags(unit: Unit) -> bool:
     return True
 
 
+def _crisp(unit: Unit) -> bool:
+    """True for crisp symptoms (the fast path); fuzzy N/0/P units go one by one."""
+    return unit.ev["symptoms"] == "crisp"
+
+
 class Plant:
     """Units evaluated together each cycle (see module doc).
 
@@ -77,7 +83,7 @@ class Plant:
     def __init__(self, units: Mapping[str, Unit], broken: Mapping[str, list[str]] | None = None):
         self.units = dict(units)
         self.broken = dict(broken or {})
-        self.fast = [n for n, u in self.units.items() if _plain_lags(u)]
+        self.fast = [n for n, u in self.units.items() if _plain_lags(u) and _crisp(u)]
         self.slow = [n for n in self.units if n not in self.fast]
         self._build()
 

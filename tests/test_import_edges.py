@@ -1,0 +1,46 @@
+"""An importer edge a mutation check found untested (issue 28): when a re-import conflicts
+with stored samples in several tags, the message names the earliest conflict over all tags,
+not the first tag's. Through ``diag import`` only, so it holds through rewrites of the
+importer."""
+
+from __future__ import annotations
+
+from diag_plugin.cli import main
+
+FIRST = """ts,P1,F
+2026-01-01 00:00:00,500.0,10.0
+2026-01-01 00:00:10,500.5,10.5
+2026-01-01 00:01:00,501.2,11.0
+"""
+
+# P1 differs at 00:01:00 only; F, the later column, differs earlier, at 00:00:10
+SECOND = """ts,P1,F
+2026-01-01 00:00:10,500.5,9.0
+2026-01-01 00:01:00,499.0,11.0
+"""
+
+
+def test_the_earliest_conflict_over_all_tags_is_named(db_url, tmp_path, capsys):
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_text(FIRST)
+    b.write_text(SECOND)
+    assert main(["--db", db_url, "import", str(a)]) == 0
+    capsys.readouterr()
+    assert main(["--db", db_url, "import", str(b)]) == 0
+    err = capsys.readouterr().err
+    assert (
+        f"2 samples conflict with stored values (first: F at 2026-01-01T00:00:10Z ({b}:2): "
+        "stored 10.5, file 9.0)"
+    ) in err, err
+
+
+def test_a_row_with_more_fields_than_the_header_is_named_by_its_line(db_url, tmp_path, capsys):
+    """Deep in a file (past the rows read to recognise it), a row with an extra field stops
+    the import at that row's file:line."""
+    rows = [f"2026-01-01 00:{k // 6:02d}:{k % 6 * 10:02d},{k}" for k in range(300)]
+    rows[250] += ",9"  # file line 252 (header = line 1)
+    f = tmp_path / "wide.csv"
+    f.write_text("ts,P1\n" + "\n".join(rows) + "\n")
+    assert main(["--db", db_url, "import", str(f)]) != 0
+    err = capsys.readouterr().err
+    assert f"{f}:252: 3 fields, but the header has 2" in err, err
