@@ -37,9 +37,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--matrix",
-        choices=("derived", "printed"),
-        default="derived",
-        help="Table II derived from eqs. 7-11 by the seed's rule (default) or as printed",
+        choices=("printed", "derived"),
+        default="printed",
+        help="Table II as printed (default) or derived from eqs. 7-11 by the seed's rule",
     )
     p.add_argument(
         "--plot", metavar="DIR", help="also write the residual plots (Figs. 8-12) as SVG to DIR"
@@ -106,7 +106,10 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
     plots = fdi.plot_residuals(res, args.plot) if args.plot else []
     if args.json:
         doc = {
-            "cases": [{k: c[k] for k in ("injected", "isolated", "time_s")} for c in res["cases"]],
+            "cases": [
+                {k: c[k] for k in ("injected", "isolated", "time_s", "isolated_by")}
+                for c in res["cases"]
+            ],
             "method": res["method"],
             "seed": res["seed"],
             "detail": {k: res[k] for k in ("fault_kind", "residual_mode", "matrix", "thresholds")},
@@ -118,13 +121,21 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
         f"method {res['method']}, seed {res['seed']}, residuals {res['residual_mode']}, "
         f"Table II {res['matrix']}"
     )
-    print(f"{'injected':9} {'isolated':9} {'time s':>7}")
+    other = next(m for m in fdi.MATRICES if m != res["matrix"])
+    print(f"{'injected':9} {'isolated':19} {'time s':>7}  Table II {other}")
     for c in res["cases"]:
         t = "-" if c["time_s"] is None else f"{c['time_s']:.1f}"
         # a signature that matches no Table II row exactly isolates only when one row is
         # nearer than all others (fdi.isolate); say so beside the name
-        nearest = c["isolated"] not in (None, "none", "unknown") and not c["exact"]
-        print(f"{c['injected']:9} {c['isolated']:9} {t:>7}{' (nearest)' if nearest else ''}")
+        got = _named(c["isolated"], c["exact"])
+        alt = c["isolated_by"][other]
+        print(f"{c['injected']:9} {got:19} {t:>7}  {_named(alt['isolated'], alt['exact'])}")
     for p in plots:
         print(f"plot: {p}")
     return 0
+
+
+def _named(fault: str, exact: bool) -> str:
+    """The isolated fault, marked "(nearest)" when no Table II row matched exactly."""
+    nearest = fault not in (None, "none", "unknown") and not exact
+    return f"{fault} (nearest)" if nearest else fault

@@ -15,9 +15,10 @@
    fault-free run (:class:`LearnedThresholds`; the seed's Table III values belong to its engine)
    and latching (:class:`Latch`) over the seed's test window, revolutions 3000–5000.
 5. Isolation by Table II (:class:`DiagnosticMatrix`, exact match, else nearest signature): by
-   default the table derived from eqs. 7–11 by the seed's own method (:func:`derive_table_ii`),
-   which reproduces the printed rows for m_a, α and m_f and corrects the ω row's α entry;
-   ``matrix="printed"`` isolates by the table as printed (docs/engine.md, "The ω case").
+   default the table as printed (:data:`TABLE_II`); ``matrix="derived"`` isolates by the table
+   derived from eqs. 7–11 by the seed's own rule (:func:`derive_table_ii`), which reproduces the
+   printed rows for m_a, α and m_f and gives ``1 0 0 1`` for the ω row (eq. 9 reads ω_dy, not
+   ω; docs/engine.md, "The ω case"). Every case reports its isolation by both tables.
 
 Plain functions, numpy/pandas in and out.
 """
@@ -39,6 +40,7 @@ from diag_plugin.simulate.engine import EngineFault, simulate_engine
 
 __all__ = [
     "CASES",
+    "DEFAULT_MATRIX",
     "ESTIMATED_INPUTS",
     "FDI_METHODS",
     "MATRICES",
@@ -167,11 +169,12 @@ def derive_table_ii(
     return table
 
 
-#: Table II as :func:`derive_table_ii` gives it for eqs. 7–11 (the default for isolation)
+#: Table II as :func:`derive_table_ii` gives it for eqs. 7–11 (``matrix="derived"``)
 TABLE_II_DERIVED: dict[str, tuple[str, ...]] = derive_table_ii()
 
-#: the matrices :func:`run_fdi` can isolate by
-MATRICES = {"derived": TABLE_II_DERIVED, "printed": TABLE_II}
+#: the matrices :func:`run_fdi` can isolate by; the first is the default (the seed's table)
+MATRICES = {"printed": TABLE_II, "derived": TABLE_II_DERIVED}
+DEFAULT_MATRIX = "printed"
 
 N_REV = 7000  # the seed's cut IM240 cycle (§III)
 WINDOW = (3000, 5000)  # the seed's test window, revolutions (§IV)
@@ -189,9 +192,9 @@ class EngineModels:
     one_step: bool = False
 
 
-def table_ii(table: Mapping[str, Sequence[str]] = TABLE_II_DERIVED) -> DiagnosticMatrix:
-    """Table II (by default as derived, :func:`derive_table_ii`; or :data:`TABLE_II` as
-    printed) as a :class:`DiagnosticMatrix` (tests = :data:`RESIDUALS`)."""
+def table_ii(table: Mapping[str, Sequence[str]] = TABLE_II) -> DiagnosticMatrix:
+    """Table II (by default as printed, :data:`TABLE_II`; or as derived,
+    :func:`derive_table_ii`) as a :class:`DiagnosticMatrix` (tests = :data:`RESIDUALS`)."""
     faults = list(table)
     rows = [[table[f][t] for f in faults] for t in range(len(RESIDUALS))]
     return DiagnosticMatrix(list(RESIDUALS), faults, rows, name="seed 000 Table II")
@@ -330,9 +333,9 @@ def isolate(
     latched: pd.DataFrame,
     onset_time: pd.Timestamp,
     min_certainty: float = 0.75,
-    table: Mapping[str, Sequence[str]] = TABLE_II_DERIVED,
+    table: Mapping[str, Sequence[str]] = TABLE_II,
 ) -> tuple[str, float, bool]:
-    """Isolation by Table II (``table``: derived, the default, or :data:`TABLE_II` as printed)
+    """Isolation by Table II (``table``: :data:`TABLE_II` as printed, the default, or derived)
     over latched symptoms (§IV): the exact match at the end of the
     window, else the nearest signature — fewest constrained residuals that do not fit — if it
     is the only one that near and its certainty (share of its constrained residuals that fit)
@@ -381,10 +384,11 @@ def run_case(
     window: tuple[int, int] = WINDOW,
     kind: str = "recorded",
     keep_residuals: bool = False,
-    table: Mapping[str, Sequence[str]] = TABLE_II_DERIVED,
+    table: Mapping[str, Sequence[str]] = TABLE_II,
 ) -> dict[str, Any]:
     """One test (§IV, Figs. 8–12): simulate the case, residuals, thresholds, latch, isolate
-    (by ``table``).
+    (by ``table``; ``"isolated_by"`` also names the isolation by every table of
+    :data:`MATRICES`, from the same latched residuals).
     Per residual its peak |r| over the window and the revolution it latched at (None: never);
     with ``keep_residuals`` also ``"residuals"``, the window's frame of :data:`SIGNALS` and
     ``rev`` (for :func:`plot_residuals`)."""
@@ -392,7 +396,9 @@ def run_case(
     full = _window(residuals(em, df, scaler).assign(rev=df["rev"]), window)
     r = full[list(RESIDUALS)]
     latched = Latch(thresholds).transform(r)
-    fault, secs, exact = isolate(latched, df.index[df["rev"] == onset][0], table=table)
+    t_onset = df.index[df["rev"] == onset][0]
+    fault, secs, exact = isolate(latched, t_onset, table=table)
+    by = {name: isolate(latched, t_onset, table=t) for name, t in MATRICES.items()}
     on = latched.to_numpy() == 1.0
     revs = full["rev"].to_numpy()
     out = {
@@ -400,6 +406,7 @@ def run_case(
         "isolated": fault,
         "time_s": None if np.isnan(secs) else round(secs, 3),
         "exact": exact,
+        "isolated_by": {name: {"isolated": f, "exact": e} for name, (f, _, e) in by.items()},
         "peak": {c: round(float(r[c].abs().max()), 4) for c in RESIDUALS},
         "latched_rev": {
             c: int(revs[on[:, j].argmax()]) if on[:, j].any() else None
@@ -455,7 +462,7 @@ def run_fdi(
     n_clean: int = 4,
     keep_residuals: bool = False,
     one_step: bool = False,
-    matrix: str = "derived",
+    matrix: str = DEFAULT_MATRIX,
 ) -> dict[str, Any]:
     """The seed's whole experiment (§§III–IV) for one seed: identification on a fault-free run
     (simulator seed ``seed``), scaling from a second fault-free run (``seed + 1000``),
@@ -466,8 +473,9 @@ def run_fdi(
     ``{"method", "seed", "fault_kind", "residual_mode", "matrix", "thresholds", "validation",
     "cases"}``; ``keep_residuals`` keeps each case's residual frame (:func:`run_case`);
     ``one_step`` computes every residual one step ahead (:class:`EngineModels`), not the seed's
-    free run; ``matrix`` names the Table II to isolate by (:data:`MATRICES`: ``"derived"`` from
-    eqs. 7–11, the default, or ``"printed"``).
+    free run; ``matrix`` names the Table II to isolate by (:data:`MATRICES`: ``"printed"``, the
+    default, or ``"derived"`` from eqs. 7–11); each case also carries ``"isolated_by"``, its
+    isolation by both.
     """
     if matrix not in MATRICES:
         raise ValueError(f"matrix must be one of {', '.join(MATRICES)}, got {matrix!r}")
@@ -580,7 +588,7 @@ def plot_residuals(res: dict[str, Any], outdir: str | Any) -> list[Any]:
         title = (
             f"Residuals with {name} (like seed Fig. {n}): {res['method']} "
             f"({res['residual_mode']}), seed {res['seed']}, "
-            f"Table II {res.get('matrix', 'derived')}, isolated: {c['isolated']}"
+            f"Table II {res.get('matrix', DEFAULT_MATRIX)}, isolated: {c['isolated']}"
         )
         svg = sp.figure(
             panels,
@@ -612,7 +620,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="residuals one step ahead on measured data (not the seed's free run)",
     )
-    ap.add_argument("--matrix", choices=tuple(MATRICES), default="derived")
+    ap.add_argument("--matrix", choices=tuple(MATRICES), default=DEFAULT_MATRIX)
     args = ap.parse_args(argv)
     res = run_fdi(
         args.seed,
