@@ -278,3 +278,58 @@ def test_compare_methods_trains_every_method_on_the_same_data(tmp_path, capsys):
     for r in rows:
         assert 0 < r["rmse_pct"] < 5 and r["sse"] > 0 and r["fit_s"] >= 0, r
     assert (rules / "m.toml").read_text() == before
+
+
+def test_sensor_voltages_follow_the_captions_of_figs_3_to_7():
+    """The seed's calibrations from volts (captions of Figs. 3–7) in the simulator's units,
+    and back; a fault × 1.2 on the ω voltage is 1.2 ω + 0.2 · 1990.5 rpm, not 1.2 ω."""
+    from diag_plugin.engine import voltage
+    from diag_plugin.simulate.engine import simulate_engine
+
+    x = pd.DataFrame({c: [1.0, 2.0, 3.0] for c in voltage.CALIBRATIONS})
+    v = voltage.from_volts(x)
+    np.testing.assert_allclose(v["omega"], -1990.5 + 1044.7 * x["omega"])
+    np.testing.assert_allclose(v["T_L"], (-2.5384 + 0.99857 * x["T_L"]) * 1.3558179)
+    ma = -4.2073e-4 + 5.2296e-3 * 2 + 1.3396e-3 * 4 + 2.1860e-3 * 8  # lbm/s at 2 V
+    assert v["m_a"][1] == pytest.approx(ma * 453.59237)
+    assert v["alpha"][0] == pytest.approx(-82.905 + 124.70 - 46.241 + 9.1047 - 0.67342)
+    # lbm per injection, three injections per revolution, in mg
+    assert v["m_f"][0] == pytest.approx(5.3e-6 * (-1.2015 + 3.3304) * 453592.37 * 3)
+    df = simulate_engine(4000, seed=9)
+    back = voltage.from_volts(voltage.to_volts(df))
+    for c in voltage.CALIBRATIONS:
+        np.testing.assert_allclose(back[c], df[c], rtol=1e-7, atol=1e-6)
+    bad = voltage.volt_fault(df, {"omega": 1.2}, 3000)
+    before, after = bad["rev"] < 3000, bad["rev"] >= 3000
+    np.testing.assert_array_equal(bad.loc[before, "omega"], df.loc[before, "omega"])
+    np.testing.assert_allclose(bad.loc[after, "omega"], 1.2 * df.loc[after, "omega"] + 398.1)
+    pd.testing.assert_frame_equal(bad.drop(columns="omega"), df.drop(columns="omega"))
+
+
+def test_setup_puts_recorded_faults_on_the_voltage_and_the_runs_in_volts():
+    """``Setup``: recorded (sensor) faults on the voltage where ``fault_volts``, the whole run
+    in volts where ``volts``; physical actuator faults stay in the engine."""
+    from diag_plugin.engine import voltage
+
+    onset = 300
+    plain = fdi.Setup().simulate(600, 4)
+    rec = fdi.fault_case("m_f", onset, "recorded")
+    on_v = fdi.Setup(fault_volts=True).simulate(600, 4, rec)
+    want = voltage.volt_fault(plain, {"m_f": 1.4}, onset)
+    np.testing.assert_allclose(on_v["m_f"], want["m_f"])
+    assert (on_v["m_f"] / plain["m_f"]).iloc[onset:].min() > 1.4  # offset: more than × 1.4
+    in_v = fdi.Setup(volts=True, fault_volts=True).simulate(600, 4, rec)
+    pd.testing.assert_frame_equal(in_v, voltage.to_volts(on_v))
+    phys = fdi.fault_case("m_f", onset, "physical")  # the engine's injector: no voltage
+    np.testing.assert_array_equal(
+        fdi.Setup(fault_volts=True).simulate(600, 4, phys)["m_f"],
+        fdi.Setup().simulate(600, 4, phys)["m_f"],
+    )
+    both = fdi.fault_case("omega", onset, omega_signals=("omega", "omega_dy"))
+    assert [f.signal for f in both] == ["omega", "omega_dy"]
+
+
+def test_table_iii_thresholds_on_request():
+    """``Setup(table_iii=True)`` thresholds the scaled residuals at Table III's values."""
+    res = fdi.run_fdi(3, "wm-avg", cases=("none",), setup=fdi.Setup(volts=True, table_iii=True))
+    assert res["thresholds"] == fdi.TABLE_III

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -36,7 +36,8 @@ import pandas as pd
 from diag_plugin.diagnose.matrix import DiagnosticMatrix
 from diag_plugin.diagnose.residuals import Latch, LowPass, MaxScaler
 from diag_plugin.diagnose.symptoms import LearnedThresholds
-from diag_plugin.simulate.engine import EngineFault, simulate_engine
+from diag_plugin.engine.voltage import to_volts, volt_fault
+from diag_plugin.simulate.engine import EngineFault, EngineParams, simulate_engine
 
 __all__ = [
     "CASES",
@@ -51,6 +52,7 @@ __all__ = [
     "TABLE_III",
     "TABLE_II_DERIVED",
     "EngineModels",
+    "Setup",
     "compare_methods",
     "derive_table_ii",
     "fault_case",
@@ -180,6 +182,41 @@ N_REV = 7000  # the seed's cut IM240 cycle (§III)
 WINDOW = (3000, 5000)  # the seed's test window, revolutions (§IV)
 
 
+@dataclass(frozen=True)
+class Setup:
+    """How a run departs from the default experiment (the leads of issue 26, docs/engine.md
+    "The printed ω row: three leads"). Defaults: the simulator as it is, signals in its
+    engineering units, faults × gain on those, thresholds learned from fault-free runs.
+
+    * ``params``: the simulator's :class:`EngineParams` for every run (e.g. the automatic
+      transmission, ``EngineParams(converter=True)``).
+    * ``volts``: signals, models, residuals, scaling and thresholds on the seed's sensor
+      voltage scale (:mod:`diag_plugin.engine.voltage`, Figs. 3–7's axes).
+    * ``fault_volts``: a recorded calibration fault multiplies the sensor's voltage, offset
+      and all (:func:`~diag_plugin.engine.voltage.volt_fault`), not the physical value.
+    * ``table_iii``: threshold the scaled residuals at Table III's printed values instead of
+      learning them (meaningful on the voltage scale, the seed's).
+    * ``omega_signals``: the signals the ω case multiplies (default ω alone, as the seed;
+      ``("omega", "omega_dy")`` for the engine speed read wrong by both instruments).
+    """
+
+    params: EngineParams | None = None
+    volts: bool = False
+    fault_volts: bool = False
+    table_iii: bool = False
+    omega_signals: tuple[str, ...] = field(default=("omega",))
+
+    def simulate(self, n_rev: int, seed: int, faults: Sequence[EngineFault] = ()) -> pd.DataFrame:
+        """A run as the FDI sees it: simulated, recorded faults on the voltage where
+        ``fault_volts``, in volts where ``volts``."""
+        on_volts = [f for f in faults if self.fault_volts and f.kind == "sensor"]
+        rest = [f for f in faults if f not in on_volts]
+        df = simulate_engine(n_rev, seed=seed, faults=rest, params=self.params)
+        for f in on_volts:
+            df = volt_fault(df, {f.signal: f.gain}, f.onset)
+        return to_volts(df) if self.volts else df
+
+
 @dataclass
 class EngineModels:
     """The five identified models (eqs. 2–6), keyed like :data:`MODELS`. ``one_step``: estimate
@@ -200,16 +237,20 @@ def table_ii(table: Mapping[str, Sequence[str]] = TABLE_II) -> DiagnosticMatrix:
     return DiagnosticMatrix(list(RESIDUALS), faults, rows, name="seed 000 Table II")
 
 
-def fault_case(case: str, onset: int, kind: str = "recorded") -> list[EngineFault]:
+def fault_case(
+    case: str, onset: int, kind: str = "recorded", omega_signals: Sequence[str] | None = None
+) -> list[EngineFault]:
     """The calibration fault(s) of a case (Laukonen et al. §IV, Table I) from ``onset`` on.
 
     ``kind="recorded"`` multiplies the recorded signal, as the seed simulated its faults
     ("multiplying the experimental data for a specific fault by the desired calibration fault
     value"); ``"physical"`` makes α and m_f actuator faults the engine feels (the closed loops
-    react)."""
+    react). ``omega_signals`` replaces the ω case's signals (:class:`Setup`)."""
     if kind not in ("recorded", "physical"):
         raise ValueError(f"kind must be 'recorded' or 'physical', got {kind!r}")
     signals, gain = CASES[case]
+    if case == "omega" and omega_signals is not None:
+        signals = tuple(omega_signals)
     k = "sensor" if kind == "recorded" else None
     return [EngineFault(s, gain, onset, kind=k) for s in signals]
 
@@ -223,14 +264,22 @@ def regressors(df: pd.DataFrame, model: str) -> tuple[np.ndarray, np.ndarray, li
     return X, df[out].to_numpy(float), lags
 
 
-def new_estimator(method: str, output_lags: Sequence[int], random_state: int = 0) -> Any:
-    """An untrained estimator: ``ts-fcm`` with the seed's N = 10, m = 2, ε = 0.01 (§III),
-    ``narmax2`` (eq. 12) or ``wm-avg``."""
+def new_estimator(
+    method: str, output_lags: Sequence[int], random_state: int = 0, weight_power: float = 2.0
+) -> Any:
+    """An untrained estimator: ``ts-fcm`` with the seed's N = 10, m = 2, ε = 0.01 (§III) and
+    its consequents weighted by μ^``weight_power`` (2: eq. 24, 1: eq. 23), ``narmax2``
+    (eq. 12) or ``wm-avg``."""
     if method == "ts-fcm":
         from diag_plugin.fuzzy.ts_fcm import TakagiSugenoRegressor
 
         return TakagiSugenoRegressor(
-            n_clusters=10, m=2.0, eps=0.01, random_state=random_state, output_lags=output_lags
+            n_clusters=10,
+            m=2.0,
+            eps=0.01,
+            random_state=random_state,
+            weight_power=weight_power,
+            output_lags=output_lags,
         )
     if method == "narmax2":
         from diag_plugin.models.narmax import Narmax2Regressor
@@ -254,12 +303,14 @@ def _with_estimates(X: np.ndarray, lags: Sequence[int], yhat: np.ndarray) -> np.
     return X
 
 
-def _fit_one(method: str, X: np.ndarray, y: np.ndarray, lags: list[int], refits: int) -> Any:
+def _fit_one(
+    method: str, X: np.ndarray, y: np.ndarray, lags: list[int], refits: int, **opts: Any
+) -> Any:
     """Fit on measured lags, then ``refits`` times on the previous fit's own estimates in the
     lag columns (the seed's ŷ(k−1..3), eqs. 7–11); keep the fit whose free run is closest to
     the training data (a model trained on measured lags may lean on y(k−1) and drift when
     fed its own output)."""
-    model = new_estimator(method, lags).fit(X, y)
+    model = new_estimator(method, lags, **opts).fit(X, y)
     if not getattr(model.capabilities, "free_run", False):
         return model
     best, best_sse = model, float("inf")
@@ -269,20 +320,23 @@ def _fit_one(method: str, X: np.ndarray, y: np.ndarray, lags: list[int], refits:
         if e.size and float(e @ e) < best_sse:
             best, best_sse = model, float(e @ e)
         if i < refits:
-            model = new_estimator(method, lags).fit(_with_estimates(X, lags, sim), y)
+            model = new_estimator(method, lags, **opts).fit(_with_estimates(X, lags, sim), y)
     return best
 
 
-def identify(train: pd.DataFrame, method: str = "ts-fcm", refits: int = 2) -> EngineModels:
+def identify(
+    train: pd.DataFrame, method: str = "ts-fcm", refits: int = 2, weight_power: float = 2.0
+) -> EngineModels:
     """Identify the five models of eqs. 7–11 on fault-free data (Laukonen et al. §III): see
     :func:`_fit_one`; the ω and m_a models (eqs. 7–8) are trained with T̂_L, the free run of
-    the load-torque model (eq. 11), in place of T_L where the method can simulate."""
+    the load-torque model (eq. 11), in place of T_L where the method can simulate.
+    ``weight_power``: ts-fcm's consequent weights μ^p (2: eq. 24, 1: eq. 23)."""
     models, secs = {}, {}
     fed = train
     for name in ("T_L", *RESIDUALS):
         X, y, lags = regressors(fed, name)
         t0 = time.perf_counter()
-        models[name] = _fit_one(method, X, y, lags, refits)
+        models[name] = _fit_one(method, X, y, lags, refits, weight_power=weight_power)
         secs[name] = time.perf_counter() - t0
         if name == "T_L" and getattr(models[name].capabilities, "free_run", False):
             est = models[name].simulate(X)
@@ -385,14 +439,15 @@ def run_case(
     kind: str = "recorded",
     keep_residuals: bool = False,
     table: Mapping[str, Sequence[str]] = TABLE_II,
+    setup: Setup = Setup(),
 ) -> dict[str, Any]:
     """One test (§IV, Figs. 8–12): simulate the case, residuals, thresholds, latch, isolate
     (by ``table``; ``"isolated_by"`` also names the isolation by every table of
     :data:`MATRICES`, from the same latched residuals).
     Per residual its peak |r| over the window and the revolution it latched at (None: never);
     with ``keep_residuals`` also ``"residuals"``, the window's frame of :data:`SIGNALS` and
-    ``rev`` (for :func:`plot_residuals`)."""
-    df = simulate_engine(window[1], seed=seed, faults=fault_case(case, onset, kind))
+    ``rev`` (for :func:`plot_residuals`). ``setup``: the run's departures (:class:`Setup`)."""
+    df = setup.simulate(window[1], seed, fault_case(case, onset, kind, setup.omega_signals))
     full = _window(residuals(em, df, scaler).assign(rev=df["rev"]), window)
     r = full[list(RESIDUALS)]
     latched = Latch(thresholds).transform(r)
@@ -463,6 +518,8 @@ def run_fdi(
     keep_residuals: bool = False,
     one_step: bool = False,
     matrix: str = DEFAULT_MATRIX,
+    weight_power: float = 2.0,
+    setup: Setup = Setup(),
 ) -> dict[str, Any]:
     """The seed's whole experiment (§§III–IV) for one seed: identification on a fault-free run
     (simulator seed ``seed``), scaling from a second fault-free run (``seed + 1000``),
@@ -475,17 +532,20 @@ def run_fdi(
     ``one_step`` computes every residual one step ahead (:class:`EngineModels`), not the seed's
     free run; ``matrix`` names the Table II to isolate by (:data:`MATRICES`: ``"printed"``, the
     default, or ``"derived"`` from eqs. 7–11); each case also carries ``"isolated_by"``, its
-    isolation by both.
+    isolation by both. ``weight_power``: ts-fcm's consequent weights μ^p (2: eq. 24, the
+    default; 1: eq. 23). ``setup``: the leads of docs/engine.md (:class:`Setup`).
     """
     if matrix not in MATRICES:
         raise ValueError(f"matrix must be one of {', '.join(MATRICES)}, got {matrix!r}")
-    train = simulate_engine(n_rev, seed=seed)
-    em = identify(train, method)
+    train = setup.simulate(n_rev, seed)
+    em = identify(train, method, weight_power=weight_power)
     em.one_step = one_step
-    clean = simulate_engine(n_rev, seed=seed + 1000)
+    clean = setup.simulate(n_rev, seed + 1000)
     scaler = MaxScaler().fit(clean[list(SIGNALS)])
-    more = [simulate_engine(window[1], seed=seed + 1000 + i) for i in range(1, n_clean)]
+    more = [setup.simulate(window[1], seed + 1000 + i) for i in range(1, n_clean)]
     thr = learn_thresholds(em, [clean, *more], scaler, window)
+    if setup.table_iii:
+        thr = pd.Series(TABLE_III)[list(RESIDUALS)]
     results = [
         run_case(
             em,
@@ -497,6 +557,7 @@ def run_fdi(
             kind=kind,
             keep_residuals=keep_residuals,
             table=MATRICES[matrix],
+            setup=setup,
         )
         for c in cases
     ]
@@ -513,12 +574,26 @@ def run_fdi(
 
 
 def compare_methods(
-    seed: int = 0, methods: Sequence[str] = FDI_METHODS, n_rev: int = N_REV
+    seed: int = 0,
+    methods: Sequence[str] = FDI_METHODS,
+    n_rev: int = N_REV,
+    *,
+    weight_power: float = 2.0,
+    one_step: bool = False,
+    setup: Setup = Setup(),
 ) -> dict[str, dict[str, dict[str, float]]]:
-    """Figs. 3–7 for every method: identify on run ``seed``, validate on ``seed + 1000``."""
-    train = simulate_engine(n_rev, seed=seed)
-    val = simulate_engine(n_rev, seed=seed + 1000)
-    return {m: validation_errors(identify(train, m), val) for m in methods}
+    """Figs. 3–7 for every method: identify on run ``seed``, validate on ``seed + 1000``
+    (free run where the method can, unless ``one_step``; ts-fcm's consequents weighted by
+    μ^``weight_power``; the runs as ``setup`` makes them, e.g. in volts as the seed's
+    figures)."""
+    train = setup.simulate(n_rev, seed)
+    val = setup.simulate(n_rev, seed + 1000)
+    out = {}
+    for m in methods:
+        em = identify(train, m, weight_power=weight_power)
+        em.one_step = one_step
+        out[m] = validation_errors(em, val)
+    return out
 
 
 #: the seed's figure per case (Figs. 8–12) and a readable name
