@@ -234,6 +234,14 @@ def test_diag_engine_fdi_plot_writes_the_figures_and_marks_only_isolated_nearest
     doc = json.loads(capsys.readouterr().out)
     assert doc["plots"] == [] and seen["one_step"] is True and seen["keep_residuals"] is False
     assert seen["matrix"] == "printed" and doc["detail"]["matrix"] == "printed"
+    assert seen["weight_power"] == 2.0 and doc["detail"]["weight_power"] == 2.0
+    # --compare passes eq. 23's weights and the residual mode on (Figs. 3-7)
+    got = {}
+    monkeypatch.setattr(fdi, "compare_methods", lambda seed, **k: got.update(k, seed=seed) or {})
+    argv = ["engine-fdi", "--compare", "--seed", "3", "--weight-power", "1", "--one-step"]
+    assert main([*argv, "--json"]) == 0
+    assert got == {"seed": 3, "weight_power": 1.0, "one_step": True}
+    assert json.loads(capsys.readouterr().out)["weight_power"] == 1.0
     assert {c["injected"]: c["isolated_by"]["derived"]["isolated"] for c in doc["cases"]} == {
         c["injected"]: c["isolated_by"]["derived"]["isolated"] for c in res["cases"]
     }

@@ -42,6 +42,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="Table II as printed (default) or derived from eqs. 7-11 by the seed's rule",
     )
     p.add_argument(
+        "--weight-power",
+        type=float,
+        choices=(1.0, 2.0),
+        default=2.0,
+        help="ts-fcm consequents weighted by mu^P: 2 as eq. 24 solves them (default), 1 as eq. 23",
+    )
+    p.add_argument(
         "--plot", metavar="DIR", help="also write the residual plots (Figs. 8-12) as SVG to DIR"
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -84,9 +91,10 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
     from diag_plugin.engine import fdi
 
     if args.compare:
-        res = fdi.compare_methods(args.seed)
+        res = fdi.compare_methods(args.seed, weight_power=args.weight_power, one_step=args.one_step)
         if args.json:
-            print(json.dumps({"seed": args.seed, "methods": res}, indent=2))
+            doc = {"seed": args.seed, "one_step": args.one_step, "methods": res}
+            print(json.dumps({**doc, "weight_power": args.weight_power}, indent=2))
             return 0
         print(f"{'method':8} {'model':6} {'SSE':>14} {'RMSE %':>8} {'fit s':>7}")
         for method, per_model in res.items():
@@ -102,6 +110,7 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
         keep_residuals=bool(args.plot),
         one_step=args.one_step,
         matrix=args.matrix,
+        weight_power=args.weight_power,
     )
     plots = fdi.plot_residuals(res, args.plot) if args.plot else []
     if args.json:
@@ -112,7 +121,10 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
             ],
             "method": res["method"],
             "seed": res["seed"],
-            "detail": {k: res[k] for k in ("fault_kind", "residual_mode", "matrix", "thresholds")},
+            "detail": {
+                k: res[k]
+                for k in ("fault_kind", "residual_mode", "matrix", "thresholds", "weight_power")
+            },
             "plots": [str(p) for p in plots],
         }
         print(json.dumps(doc, indent=2))

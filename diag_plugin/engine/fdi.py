@@ -567,6 +567,7 @@ def run_fdi(
         "fault_kind": kind,
         "residual_mode": "free run" if free_runs(em) else "one step ahead",
         "matrix": matrix,
+        "weight_power": weight_power,
         "thresholds": {k: round(float(v), 4) for k, v in thr.items()},
         "validation": validation_errors(em, clean),
         "cases": results,
