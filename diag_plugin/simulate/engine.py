@@ -163,8 +163,9 @@ The speed controller reads the true speed, so an ``omega`` sensor fault changes
 no dynamics. The seed's Table II marks the α residual non-zero for an ω sensor
 fault although eq. 9 reads ω_dy, the dynamometer's tachometer (another instrument),
 not ω; the FDI experiment multiplies ω alone, as the seed did, and isolates by the
-table derived from eqs. 7–11 (:func:`diag_plugin.engine.fdi.derive_table_ii`). A
-fault on both is ``[EngineFault("omega", 1.2, k), EngineFault("omega_dy", 1.2, k)]``.
+printed table, or by the one derived from eqs. 7–11
+(:func:`diag_plugin.engine.fdi.derive_table_ii`). A fault on both is
+``[EngineFault("omega", 1.2, k), EngineFault("omega_dy", 1.2, k)]``.
 """
 
 from __future__ import annotations
