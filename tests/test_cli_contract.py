@@ -75,6 +75,7 @@ def cases(env) -> dict[tuple[str, ...], list[list[str]]]:
         ("simulate",): [
             ["--days", "-1", "--out", str(d / "x.csv")],
             ["--days", "1", "--out", str(d / "x.txt")],
+            ["--days", "1", "--out", str(d / "x.csv"), "--min-flow", "50"],
         ],
         ("rules", "check"): [
             [str(d / "none.toml")],

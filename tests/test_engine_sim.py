@@ -146,6 +146,28 @@ def test_constant_inputs_give_a_constant_speed_and_more_throttle_more_of_everyth
     assert slow["omega"] < lo["omega"] - 100
 
 
+def test_torque_converter_slips_by_its_k_factor_and_passes_the_load():
+    """With the automatic transmission on (an open torque converter at gear ratio 1) the
+    dynamometer turns slower than the engine: in a steady state above the coupling point
+    the pump torque ``(n/K)² (1 − SR)/(1 − SR_c)`` equals the load the turbine passes to the
+    dynamometer, which the load cell reads. Without it (the default) ω_dy is ω."""
+    conv = EngineParams(converter=True)
+    for load in (20.0, 40.0):
+        df = simulate_engine_open_loop(np.full(1200, 12.0), load, noise=QUIET, params=conv)
+        tail = df.iloc[-100:].mean()
+        assert df.iloc[-100:]["omega"].std() < 0.5
+        assert tail["T_L"] == pytest.approx(load, abs=0.05)
+        sr = tail["omega_dy"] / tail["omega"]
+        pump = (tail["omega"] / conv.k_converter) ** 2 * (1 - sr) / (1 - conv.sr_coupling)
+        assert conv.sr_coupling < sr < 1 and pump == pytest.approx(load, rel=0.02)
+        assert tail["T_e"] == pytest.approx(load, rel=0.02)  # the engine's brake torque
+    rigid = simulate_engine_open_loop(np.full(800, 12.0), 40.0, noise=QUIET)
+    np.testing.assert_array_equal(rigid["omega_dy"], rigid["omega"])
+    cycle = simulate_engine(3000, seed=4, params=conv, noise=QUIET, internals=True)
+    slip = 1 - cycle["omega_dy"] / cycle["omega"]
+    assert 0.005 < slip.median() < 0.05 and slip.max() > 0.05  # more slip when accelerating
+
+
 # ---------------------------------------------------------------- manifold filling
 
 

@@ -100,6 +100,33 @@ def test_chunked_consequents_equal_one_weighted_least_squares(monkeypatch):
         np.testing.assert_allclose([m.intercept_[j], *m.coef_[j]], c, rtol=1e-8, atol=1e-10)
 
 
+@pytest.mark.parametrize("power", [1.0, 2.0, 1.5])
+def test_consequent_weights_follow_eq_23_or_eq_24(monkeypatch, power):
+    """``weight_power`` p weights each rule's squared errors by μ^p: 1 is eq. 23's cost, 2 the
+    ``D_j²`` of its stated solution eq. 24; chunked, against one direct weighted solve. The
+    clustering is the same, the consequents differ (unless the data are exactly linear)."""
+    rng = np.random.default_rng(5)
+    X = rng.uniform(0, 1, (3000, 2))
+    y = np.sin(3 * X[:, 0]) + X[:, 1] ** 2
+    monkeypatch.setattr(ts_fcm, "CHUNK_ROWS", 512)
+    m = TakagiSugenoRegressor(n_clusters=4, weight_power=power, input_spans=[(0, 1)] * 2)
+    m.fit(X, y)
+    U = memberships(X, m.centers_, 2.0)
+    A = np.column_stack([np.ones(len(X)), X])
+    for j in range(4):
+        w = np.sqrt(U[:, j] ** power)
+        c = np.linalg.lstsq(A * w[:, None], y * w, rcond=None)[0]
+        np.testing.assert_allclose([m.intercept_[j], *m.coef_[j]], c, rtol=1e-8, atol=1e-10)
+    other = TakagiSugenoRegressor(n_clusters=4, weight_power=3.0 - power, input_spans=[(0, 1)] * 2)
+    other.fit(X, y)
+    np.testing.assert_array_equal(other.centers_, m.centers_)
+    if power != 1.5:
+        assert np.abs(other.coef_ - m.coef_).max() > 1e-3
+    assert TakagiSugenoRegressor().weight_power == 2.0  # eq. 24 stays the default
+    with pytest.raises(ValueError, match="weight_power must be > 0"):
+        TakagiSugenoRegressor(weight_power=0).fit(X, y)
+
+
 def test_not_incremental_and_says_so():
     caps = TakagiSugenoRegressor.capabilities
     assert not caps.incremental and not caps.mergeable
@@ -182,6 +209,7 @@ def test_model_file_lists_rules_round_trips_and_predicts_like_the_model(tmp_path
     text = rb.path.read_text()
     for opt in ("n_clusters = 10", "m = 2.0", "eps = 0.01", "max_iter = 300", "random_state = 0"):
         assert f"\n{opt}\n" in text
+    assert "\nweight_power = 2.0\n" in text  # eq. 24, the default, written out
     assert text.count("{ centre = [") == 10 and res.size == 10
     loaded = RuleBase.load(rb.path)
     assert loaded.dumps() == text
@@ -193,9 +221,13 @@ def test_model_file_lists_rules_round_trips_and_predicts_like_the_model(tmp_path
     np.testing.assert_allclose(loaded.to_model().predict(d.X), res.model.predict(d.X), atol=1e-5)
     # the options in the file reach the estimator
     edited = text.replace("n_clusters = 10", "n_clusters = 4").replace("m = 2.0", "m = 1.5")
+    edited = edited.replace("weight_power = 2.0", "weight_power = 1.0")
     (tmp_path / "o.toml").write_text(edited)
     est = RuleBase.load(tmp_path / "o.toml").new_model()
-    assert (est.n_clusters, est.m) == (4, 1.5)
+    assert (est.n_clusters, est.m, est.weight_power) == (4, 1.5, 1.0)
+    # a file written before the option existed trains with eq. 24's weights
+    (tmp_path / "old.toml").write_text(text.replace("weight_power = 2.0\n", ""))
+    assert RuleBase.load(tmp_path / "old.toml").new_model().weight_power == 2.0
 
 
 @pytest.mark.parametrize(
@@ -205,6 +237,7 @@ def test_model_file_lists_rules_round_trips_and_predicts_like_the_model(tmp_path
         (", const = ", ', const = "x", z = ', r"rule \d+: unknown key\(s\) z"),
         ("m = 2.0", "m = 0.5", "m must be a number > 1"),
         ("eps = 0.01", "tol = 0.01", "unknown ts-fcm option 'tol'"),
+        ("weight_power = 2.0", "weight_power = 0", r"weight_power must be a number > 0"),
     ],
 )
 def test_a_broken_edit_names_file_and_line(tmp_path, old, new, message):

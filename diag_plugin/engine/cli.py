@@ -37,9 +37,16 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--matrix",
-        choices=("derived", "printed"),
-        default="derived",
-        help="Table II derived from eqs. 7-11 by the seed's rule (default) or as printed",
+        choices=("printed", "derived"),
+        default="printed",
+        help="Table II as printed (default) or derived from eqs. 7-11 by the seed's rule",
+    )
+    p.add_argument(
+        "--weight-power",
+        type=float,
+        choices=(1.0, 2.0),
+        default=2.0,
+        help="ts-fcm consequents weighted by mu^P: 2 as eq. 24 solves them (default), 1 as eq. 23",
     )
     p.add_argument(
         "--plot", metavar="DIR", help="also write the residual plots (Figs. 8-12) as SVG to DIR"
@@ -84,9 +91,10 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
     from diag_plugin.engine import fdi
 
     if args.compare:
-        res = fdi.compare_methods(args.seed)
+        res = fdi.compare_methods(args.seed, weight_power=args.weight_power, one_step=args.one_step)
         if args.json:
-            print(json.dumps({"seed": args.seed, "methods": res}, indent=2))
+            doc = {"seed": args.seed, "one_step": args.one_step, "methods": res}
+            print(json.dumps({**doc, "weight_power": args.weight_power}, indent=2))
             return 0
         print(f"{'method':8} {'model':6} {'SSE':>14} {'RMSE %':>8} {'fit s':>7}")
         for method, per_model in res.items():
@@ -102,14 +110,21 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
         keep_residuals=bool(args.plot),
         one_step=args.one_step,
         matrix=args.matrix,
+        weight_power=args.weight_power,
     )
     plots = fdi.plot_residuals(res, args.plot) if args.plot else []
     if args.json:
         doc = {
-            "cases": [{k: c[k] for k in ("injected", "isolated", "time_s")} for c in res["cases"]],
+            "cases": [
+                {k: c[k] for k in ("injected", "isolated", "time_s", "isolated_by")}
+                for c in res["cases"]
+            ],
             "method": res["method"],
             "seed": res["seed"],
-            "detail": {k: res[k] for k in ("fault_kind", "residual_mode", "matrix", "thresholds")},
+            "detail": {
+                k: res[k]
+                for k in ("fault_kind", "residual_mode", "matrix", "thresholds", "weight_power")
+            },
             "plots": [str(p) for p in plots],
         }
         print(json.dumps(doc, indent=2))
@@ -118,13 +133,21 @@ def cmd_engine_fdi(args: argparse.Namespace) -> int:
         f"method {res['method']}, seed {res['seed']}, residuals {res['residual_mode']}, "
         f"Table II {res['matrix']}"
     )
-    print(f"{'injected':9} {'isolated':9} {'time s':>7}")
+    other = next(m for m in fdi.MATRICES if m != res["matrix"])
+    print(f"{'injected':9} {'isolated':19} {'time s':>7}  Table II {other}")
     for c in res["cases"]:
         t = "-" if c["time_s"] is None else f"{c['time_s']:.1f}"
         # a signature that matches no Table II row exactly isolates only when one row is
         # nearer than all others (fdi.isolate); say so beside the name
-        nearest = c["isolated"] not in (None, "none", "unknown") and not c["exact"]
-        print(f"{c['injected']:9} {c['isolated']:9} {t:>7}{' (nearest)' if nearest else ''}")
+        got = _named(c["isolated"], c["exact"])
+        alt = c["isolated_by"][other]
+        print(f"{c['injected']:9} {got:19} {t:>7}  {_named(alt['isolated'], alt['exact'])}")
     for p in plots:
         print(f"plot: {p}")
     return 0
+
+
+def _named(fault: str, exact: bool) -> str:
+    """The isolated fault, marked "(nearest)" when no Table II row matched exactly."""
+    nearest = fault not in (None, "none", "unknown") and not exact
+    return f"{fault} (nearest)" if nearest else fault

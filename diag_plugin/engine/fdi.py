@@ -15,9 +15,10 @@
    fault-free run (:class:`LearnedThresholds`; the seed's Table III values belong to its engine)
    and latching (:class:`Latch`) over the seed's test window, revolutions 3000–5000.
 5. Isolation by Table II (:class:`DiagnosticMatrix`, exact match, else nearest signature): by
-   default the table derived from eqs. 7–11 by the seed's own method (:func:`derive_table_ii`),
-   which reproduces the printed rows for m_a, α and m_f and corrects the ω row's α entry;
-   ``matrix="printed"`` isolates by the table as printed (docs/engine.md, "The ω case").
+   default the table as printed (:data:`TABLE_II`); ``matrix="derived"`` isolates by the table
+   derived from eqs. 7–11 by the seed's own rule (:func:`derive_table_ii`), which reproduces the
+   printed rows for m_a, α and m_f and gives ``1 0 0 1`` for the ω row (eq. 9 reads ω_dy, not
+   ω; docs/engine.md, "The ω case"). Every case reports its isolation by both tables.
 
 Plain functions, numpy/pandas in and out.
 """
@@ -26,7 +27,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -35,10 +36,12 @@ import pandas as pd
 from diag_plugin.diagnose.matrix import DiagnosticMatrix
 from diag_plugin.diagnose.residuals import Latch, LowPass, MaxScaler
 from diag_plugin.diagnose.symptoms import LearnedThresholds
-from diag_plugin.simulate.engine import EngineFault, simulate_engine
+from diag_plugin.engine.voltage import to_volts, volt_fault
+from diag_plugin.simulate.engine import EngineFault, EngineParams, simulate_engine
 
 __all__ = [
     "CASES",
+    "DEFAULT_MATRIX",
     "ESTIMATED_INPUTS",
     "FDI_METHODS",
     "MATRICES",
@@ -49,6 +52,7 @@ __all__ = [
     "TABLE_III",
     "TABLE_II_DERIVED",
     "EngineModels",
+    "Setup",
     "compare_methods",
     "derive_table_ii",
     "fault_case",
@@ -167,14 +171,50 @@ def derive_table_ii(
     return table
 
 
-#: Table II as :func:`derive_table_ii` gives it for eqs. 7–11 (the default for isolation)
+#: Table II as :func:`derive_table_ii` gives it for eqs. 7–11 (``matrix="derived"``)
 TABLE_II_DERIVED: dict[str, tuple[str, ...]] = derive_table_ii()
 
-#: the matrices :func:`run_fdi` can isolate by
-MATRICES = {"derived": TABLE_II_DERIVED, "printed": TABLE_II}
+#: the matrices :func:`run_fdi` can isolate by; the first is the default (the seed's table)
+MATRICES = {"printed": TABLE_II, "derived": TABLE_II_DERIVED}
+DEFAULT_MATRIX = "printed"
 
 N_REV = 7000  # the seed's cut IM240 cycle (§III)
 WINDOW = (3000, 5000)  # the seed's test window, revolutions (§IV)
+
+
+@dataclass(frozen=True)
+class Setup:
+    """How a run departs from the default experiment (the leads of issue 26, docs/engine.md
+    "The printed ω row: three leads"). Defaults: the simulator as it is, signals in its
+    engineering units, faults × gain on those, thresholds learned from fault-free runs.
+
+    * ``params``: the simulator's :class:`EngineParams` for every run (e.g. the automatic
+      transmission, ``EngineParams(converter=True)``).
+    * ``volts``: signals, models, residuals, scaling and thresholds on the seed's sensor
+      voltage scale (:mod:`diag_plugin.engine.voltage`, Figs. 3–7's axes).
+    * ``fault_volts``: a recorded calibration fault multiplies the sensor's voltage, offset
+      and all (:func:`~diag_plugin.engine.voltage.volt_fault`), not the physical value.
+    * ``table_iii``: threshold the scaled residuals at Table III's printed values instead of
+      learning them (meaningful on the voltage scale, the seed's).
+    * ``omega_signals``: the signals the ω case multiplies (default ω alone, as the seed;
+      ``("omega", "omega_dy")`` for the engine speed read wrong by both instruments).
+    """
+
+    params: EngineParams | None = None
+    volts: bool = False
+    fault_volts: bool = False
+    table_iii: bool = False
+    omega_signals: tuple[str, ...] = field(default=("omega",))
+
+    def simulate(self, n_rev: int, seed: int, faults: Sequence[EngineFault] = ()) -> pd.DataFrame:
+        """A run as the FDI sees it: simulated, recorded faults on the voltage where
+        ``fault_volts``, in volts where ``volts``."""
+        on_volts = [f for f in faults if self.fault_volts and f.kind == "sensor"]
+        rest = [f for f in faults if f not in on_volts]
+        df = simulate_engine(n_rev, seed=seed, faults=rest, params=self.params)
+        for f in on_volts:
+            df = volt_fault(df, {f.signal: f.gain}, f.onset)
+        return to_volts(df) if self.volts else df
 
 
 @dataclass
@@ -189,24 +229,28 @@ class EngineModels:
     one_step: bool = False
 
 
-def table_ii(table: Mapping[str, Sequence[str]] = TABLE_II_DERIVED) -> DiagnosticMatrix:
-    """Table II (by default as derived, :func:`derive_table_ii`; or :data:`TABLE_II` as
-    printed) as a :class:`DiagnosticMatrix` (tests = :data:`RESIDUALS`)."""
+def table_ii(table: Mapping[str, Sequence[str]] = TABLE_II) -> DiagnosticMatrix:
+    """Table II (by default as printed, :data:`TABLE_II`; or as derived,
+    :func:`derive_table_ii`) as a :class:`DiagnosticMatrix` (tests = :data:`RESIDUALS`)."""
     faults = list(table)
     rows = [[table[f][t] for f in faults] for t in range(len(RESIDUALS))]
     return DiagnosticMatrix(list(RESIDUALS), faults, rows, name="seed 000 Table II")
 
 
-def fault_case(case: str, onset: int, kind: str = "recorded") -> list[EngineFault]:
+def fault_case(
+    case: str, onset: int, kind: str = "recorded", omega_signals: Sequence[str] | None = None
+) -> list[EngineFault]:
     """The calibration fault(s) of a case (Laukonen et al. §IV, Table I) from ``onset`` on.
 
     ``kind="recorded"`` multiplies the recorded signal, as the seed simulated its faults
     ("multiplying the experimental data for a specific fault by the desired calibration fault
     value"); ``"physical"`` makes α and m_f actuator faults the engine feels (the closed loops
-    react)."""
+    react). ``omega_signals`` replaces the ω case's signals (:class:`Setup`)."""
     if kind not in ("recorded", "physical"):
         raise ValueError(f"kind must be 'recorded' or 'physical', got {kind!r}")
     signals, gain = CASES[case]
+    if case == "omega" and omega_signals is not None:
+        signals = tuple(omega_signals)
     k = "sensor" if kind == "recorded" else None
     return [EngineFault(s, gain, onset, kind=k) for s in signals]
 
@@ -220,14 +264,22 @@ def regressors(df: pd.DataFrame, model: str) -> tuple[np.ndarray, np.ndarray, li
     return X, df[out].to_numpy(float), lags
 
 
-def new_estimator(method: str, output_lags: Sequence[int], random_state: int = 0) -> Any:
-    """An untrained estimator: ``ts-fcm`` with the seed's N = 10, m = 2, ε = 0.01 (§III),
-    ``narmax2`` (eq. 12) or ``wm-avg``."""
+def new_estimator(
+    method: str, output_lags: Sequence[int], random_state: int = 0, weight_power: float = 2.0
+) -> Any:
+    """An untrained estimator: ``ts-fcm`` with the seed's N = 10, m = 2, ε = 0.01 (§III) and
+    its consequents weighted by μ^``weight_power`` (2: eq. 24, 1: eq. 23), ``narmax2``
+    (eq. 12) or ``wm-avg``."""
     if method == "ts-fcm":
         from diag_plugin.fuzzy.ts_fcm import TakagiSugenoRegressor
 
         return TakagiSugenoRegressor(
-            n_clusters=10, m=2.0, eps=0.01, random_state=random_state, output_lags=output_lags
+            n_clusters=10,
+            m=2.0,
+            eps=0.01,
+            random_state=random_state,
+            weight_power=weight_power,
+            output_lags=output_lags,
         )
     if method == "narmax2":
         from diag_plugin.models.narmax import Narmax2Regressor
@@ -253,12 +305,14 @@ def _with_estimates(X: np.ndarray, lags: Sequence[int], yhat: np.ndarray) -> np.
     return X
 
 
-def _fit_one(method: str, X: np.ndarray, y: np.ndarray, lags: list[int], refits: int) -> Any:
+def _fit_one(
+    method: str, X: np.ndarray, y: np.ndarray, lags: list[int], refits: int, **opts: Any
+) -> Any:
     """Fit on measured lags, then ``refits`` times on the previous fit's own estimates in the
     lag columns (the seed's ŷ(k−1..3), eqs. 7–11); keep the fit whose free run is closest to
     the training data (a model trained on measured lags may lean on y(k−1) and drift when
     fed its own output)."""
-    model = new_estimator(method, lags).fit(X, y)
+    model = new_estimator(method, lags, **opts).fit(X, y)
     if not getattr(model.capabilities, "free_run", False):
         return model
     best, best_sse = model, float("inf")
@@ -268,20 +322,23 @@ def _fit_one(method: str, X: np.ndarray, y: np.ndarray, lags: list[int], refits:
         if e.size and float(e @ e) < best_sse:
             best, best_sse = model, float(e @ e)
         if i < refits:
-            model = new_estimator(method, lags).fit(_with_estimates(X, lags, sim), y)
+            model = new_estimator(method, lags, **opts).fit(_with_estimates(X, lags, sim), y)
     return best
 
 
-def identify(train: pd.DataFrame, method: str = "ts-fcm", refits: int = 2) -> EngineModels:
+def identify(
+    train: pd.DataFrame, method: str = "ts-fcm", refits: int = 2, weight_power: float = 2.0
+) -> EngineModels:
     """Identify the five models of eqs. 7–11 on fault-free data (Laukonen et al. §III): see
     :func:`_fit_one`; the ω and m_a models (eqs. 7–8) are trained with T̂_L, the free run of
-    the load-torque model (eq. 11), in place of T_L where the method can simulate."""
+    the load-torque model (eq. 11), in place of T_L where the method can simulate.
+    ``weight_power``: ts-fcm's consequent weights μ^p (2: eq. 24, 1: eq. 23)."""
     models, secs = {}, {}
     fed = train
     for name in ("T_L", *RESIDUALS):
         X, y, lags = regressors(fed, name)
         t0 = time.perf_counter()
-        models[name] = _fit_one(method, X, y, lags, refits)
+        models[name] = _fit_one(method, X, y, lags, refits, weight_power=weight_power)
         secs[name] = time.perf_counter() - t0
         if name == "T_L" and getattr(models[name].capabilities, "free_run", False):
             est = models[name].simulate(X)
@@ -332,9 +389,9 @@ def isolate(
     latched: pd.DataFrame,
     onset_time: pd.Timestamp,
     min_certainty: float = 0.75,
-    table: Mapping[str, Sequence[str]] = TABLE_II_DERIVED,
+    table: Mapping[str, Sequence[str]] = TABLE_II,
 ) -> tuple[str, float, bool]:
-    """Isolation by Table II (``table``: derived, the default, or :data:`TABLE_II` as printed)
+    """Isolation by Table II (``table``: :data:`TABLE_II` as printed, the default, or derived)
     over latched symptoms (§IV): the exact match at the end of the
     window, else the nearest signature — fewest constrained residuals that do not fit — if it
     is the only one that near and its certainty (share of its constrained residuals that fit)
@@ -383,18 +440,22 @@ def run_case(
     window: tuple[int, int] = WINDOW,
     kind: str = "recorded",
     keep_residuals: bool = False,
-    table: Mapping[str, Sequence[str]] = TABLE_II_DERIVED,
+    table: Mapping[str, Sequence[str]] = TABLE_II,
+    setup: Setup = Setup(),
 ) -> dict[str, Any]:
     """One test (§IV, Figs. 8–12): simulate the case, residuals, thresholds, latch, isolate
-    (by ``table``).
+    (by ``table``; ``"isolated_by"`` also names the isolation by every table of
+    :data:`MATRICES`, from the same latched residuals).
     Per residual its peak |r| over the window and the revolution it latched at (None: never);
     with ``keep_residuals`` also ``"residuals"``, the window's frame of :data:`SIGNALS` and
-    ``rev`` (for :func:`plot_residuals`)."""
-    df = simulate_engine(window[1], seed=seed, faults=fault_case(case, onset, kind))
+    ``rev`` (for :func:`plot_residuals`). ``setup``: the run's departures (:class:`Setup`)."""
+    df = setup.simulate(window[1], seed, fault_case(case, onset, kind, setup.omega_signals))
     full = _window(residuals(em, df, scaler).assign(rev=df["rev"]), window)
     r = full[list(RESIDUALS)]
     latched = Latch(thresholds).transform(r)
-    fault, secs, exact = isolate(latched, df.index[df["rev"] == onset][0], table=table)
+    t_onset = df.index[df["rev"] == onset][0]
+    fault, secs, exact = isolate(latched, t_onset, table=table)
+    by = {name: isolate(latched, t_onset, table=t) for name, t in MATRICES.items()}
     on = latched.to_numpy() == 1.0
     revs = full["rev"].to_numpy()
     out = {
@@ -402,6 +463,7 @@ def run_case(
         "isolated": fault,
         "time_s": None if np.isnan(secs) else round(secs, 3),
         "exact": exact,
+        "isolated_by": {name: {"isolated": f, "exact": e} for name, (f, _, e) in by.items()},
         "peak": {c: round(float(r[c].abs().max()), 4) for c in RESIDUALS},
         "latched_rev": {
             c: int(revs[on[:, j].argmax()]) if on[:, j].any() else None
@@ -457,7 +519,9 @@ def run_fdi(
     n_clean: int = 4,
     keep_residuals: bool = False,
     one_step: bool = False,
-    matrix: str = "derived",
+    matrix: str = DEFAULT_MATRIX,
+    weight_power: float = 2.0,
+    setup: Setup = Setup(),
 ) -> dict[str, Any]:
     """The seed's whole experiment (§§III–IV) for one seed: identification on a fault-free run
     (simulator seed ``seed``), scaling from a second fault-free run (``seed + 1000``),
@@ -468,18 +532,22 @@ def run_fdi(
     ``{"method", "seed", "fault_kind", "residual_mode", "matrix", "thresholds", "validation",
     "cases"}``; ``keep_residuals`` keeps each case's residual frame (:func:`run_case`);
     ``one_step`` computes every residual one step ahead (:class:`EngineModels`), not the seed's
-    free run; ``matrix`` names the Table II to isolate by (:data:`MATRICES`: ``"derived"`` from
-    eqs. 7–11, the default, or ``"printed"``).
+    free run; ``matrix`` names the Table II to isolate by (:data:`MATRICES`: ``"printed"``, the
+    default, or ``"derived"`` from eqs. 7–11); each case also carries ``"isolated_by"``, its
+    isolation by both. ``weight_power``: ts-fcm's consequent weights μ^p (2: eq. 24, the
+    default; 1: eq. 23). ``setup``: the leads of docs/engine.md (:class:`Setup`).
     """
     if matrix not in MATRICES:
         raise ValueError(f"matrix must be one of {', '.join(MATRICES)}, got {matrix!r}")
-    train = simulate_engine(n_rev, seed=seed)
-    em = identify(train, method)
+    train = setup.simulate(n_rev, seed)
+    em = identify(train, method, weight_power=weight_power)
     em.one_step = one_step
-    clean = simulate_engine(n_rev, seed=seed + 1000)
+    clean = setup.simulate(n_rev, seed + 1000)
     scaler = MaxScaler().fit(clean[list(SIGNALS)])
-    more = [simulate_engine(window[1], seed=seed + 1000 + i) for i in range(1, n_clean)]
+    more = [setup.simulate(window[1], seed + 1000 + i) for i in range(1, n_clean)]
     thr = learn_thresholds(em, [clean, *more], scaler, window)
+    if setup.table_iii:
+        thr = pd.Series(TABLE_III)[list(RESIDUALS)]
     results = [
         run_case(
             em,
@@ -491,6 +559,7 @@ def run_fdi(
             kind=kind,
             keep_residuals=keep_residuals,
             table=MATRICES[matrix],
+            setup=setup,
         )
         for c in cases
     ]
@@ -500,6 +569,7 @@ def run_fdi(
         "fault_kind": kind,
         "residual_mode": "free run" if free_runs(em) else "one step ahead",
         "matrix": matrix,
+        "weight_power": weight_power,
         "thresholds": {k: round(float(v), 4) for k, v in thr.items()},
         "validation": validation_errors(em, clean),
         "cases": results,
@@ -507,12 +577,26 @@ def run_fdi(
 
 
 def compare_methods(
-    seed: int = 0, methods: Sequence[str] = FDI_METHODS, n_rev: int = N_REV
+    seed: int = 0,
+    methods: Sequence[str] = FDI_METHODS,
+    n_rev: int = N_REV,
+    *,
+    weight_power: float = 2.0,
+    one_step: bool = False,
+    setup: Setup = Setup(),
 ) -> dict[str, dict[str, dict[str, float]]]:
-    """Figs. 3–7 for every method: identify on run ``seed``, validate on ``seed + 1000``."""
-    train = simulate_engine(n_rev, seed=seed)
-    val = simulate_engine(n_rev, seed=seed + 1000)
-    return {m: validation_errors(identify(train, m), val) for m in methods}
+    """Figs. 3–7 for every method: identify on run ``seed``, validate on ``seed + 1000``
+    (free run where the method can, unless ``one_step``; ts-fcm's consequents weighted by
+    μ^``weight_power``; the runs as ``setup`` makes them, e.g. in volts as the seed's
+    figures)."""
+    train = setup.simulate(n_rev, seed)
+    val = setup.simulate(n_rev, seed + 1000)
+    out = {}
+    for m in methods:
+        em = identify(train, m, weight_power=weight_power)
+        em.one_step = one_step
+        out[m] = validation_errors(em, val)
+    return out
 
 
 #: the seed's figure per case (Figs. 8–12) and a readable name
@@ -582,7 +666,7 @@ def plot_residuals(res: dict[str, Any], outdir: str | Any) -> list[Any]:
         title = (
             f"Residuals with {name} (like seed Fig. {n}): {res['method']} "
             f"({res['residual_mode']}), seed {res['seed']}, "
-            f"Table II {res.get('matrix', 'derived')}, isolated: {c['isolated']}"
+            f"Table II {res.get('matrix', DEFAULT_MATRIX)}, isolated: {c['isolated']}"
         )
         svg = sp.figure(
             panels,
@@ -614,7 +698,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="residuals one step ahead on measured data (not the seed's free run)",
     )
-    ap.add_argument("--matrix", choices=tuple(MATRICES), default="derived")
+    ap.add_argument("--matrix", choices=tuple(MATRICES), default=DEFAULT_MATRIX)
     args = ap.parse_args(argv)
     res = run_fdi(
         args.seed,

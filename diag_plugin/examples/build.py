@@ -2,7 +2,8 @@
 
 * ``valve_a``: Model A of Kościelny et al., eq. 8: ``F_k = f(U_{k-1}, P_k)`` with the
   upstream pressure P1, trained on 60 days of the simulated valve assembly.
-* ``valve_b``: Model B, eq. 9: ``F_k = f(U_{k-1})``, the same data.
+* ``valve_b``: Model B, eq. 9: ``F_k = f(U_{k-1})``, the same data (B.1).
+* ``valve_b2``: B.2, the expert's edit of ``valve_b`` (:mod:`diag_plugin.examples.expert_b2`).
 * ``valve_r1``…``valve_r4`` and ``valve_unit``: the example unit, trained on 180 days of the
   same run, thresholds cross-fitted over them (:func:`build_valve_unit`).
 * ``damadics_f``: the real Lublin actuator 3 hour (1 s): ``F = f(X[k])``.
@@ -100,6 +101,7 @@ def _fit(rb: RuleBase, frame: pd.DataFrame, source: str) -> RuleBase:
 def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[Path]:
     from diag_plugin.examples.damadics import TAGS as DTAGS
     from diag_plugin.examples.damadics import find_file, load_hour
+    from diag_plugin.examples.expert_b2 import make_b2
     from diag_plugin.simulate.valve import TAGS, simulate_valve
     from diag_plugin.workbench.model_edit import new_model
 
@@ -124,6 +126,7 @@ def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[
             path, name, "F[k]", inputs, frame=frame, tag_info=info, sets=31, description=desc
         )
         out.append(_fit(rb, frame, source).path)
+    out.append(make_b2(folder / "valve_b.toml", folder / "valve_b2.toml"))  # the expert's B.2
     out.extend(
         build_valve_unit(folder, half_year, f"diag simulate --days {UNIT_DAYS} --seed {SIM_SEED}")
     )

@@ -15,7 +15,8 @@ input in kPa does not outweigh one in %, and ``ε = 0.01`` means 1 % of span. Me
 exponent: the seed prints ``(‖x−v_j‖²/‖x−v_k‖²)^(m−1)`` in eqs. 17, 19 and 26; Bezdek's
 necessary condition is ``^(1/(m−1))``. The two agree at the seed's ``m = 2``; we use Bezdek's.
 Weights of the least squares: eq. 23 weights each squared error by ``μ_ij``, eq. 24 (its
-stated solution) by ``μ_ij²`` (``D_j²``); we follow eq. 24.
+stated solution) by ``μ_ij²`` (``D_j²``) — the seed contradicts itself. ``weight_power`` picks
+the exponent: 2 (eq. 24, the default) or 1 (eq. 23); docs/engine.md compares the two.
 
 Fitting is chunked over rows (memory stays flat in the number of rows) and vectorised. The
 clustering needs all rows at every iteration, so the method is *not* incremental: ``fit`` only.
@@ -73,6 +74,7 @@ PARAMS = (
     "eps",
     "max_iter",
     "random_state",
+    "weight_power",
     "input_spans",
     "output_span",
     "output_lags",
@@ -214,6 +216,10 @@ class TakagiSugenoRegressor(ParamsMixin):
         Iterations of Fuzzy c-Means at most.
     random_state : int or None
         Seed of the initial centres (eq. 18).
+    weight_power : float
+        Exponent ``p`` of the memberships weighting each rule's least squares,
+        ``J_j = Σ_i μ_ij^p (c_jᵀ x̂_i − y_i)²``: 2 as eq. 24 solves it (``D_j²``, the
+        default), 1 as eq. 23 writes the cost.
     input_spans, output_span : optional
         Nominal spans (by default the range seen in ``fit``); inputs outside are clipped and
         flagged.
@@ -235,6 +241,7 @@ class TakagiSugenoRegressor(ParamsMixin):
         eps: float = 0.01,
         max_iter: int = 300,
         random_state: int | None = 0,
+        weight_power: float = 2.0,
         input_spans: Sequence[tuple[float, float]] | None = None,
         output_span: tuple[float, float] | None = None,
         output_lags: Sequence[int] | None = None,
@@ -244,6 +251,7 @@ class TakagiSugenoRegressor(ParamsMixin):
         self.eps = eps
         self.max_iter = max_iter
         self.random_state = random_state
+        self.weight_power = weight_power
         self.input_spans = input_spans
         self.output_span = output_span
         self.output_lags = output_lags
@@ -256,6 +264,10 @@ class TakagiSugenoRegressor(ParamsMixin):
         d = X.shape[1]
         if self.output_lags is not None and len(self.output_lags) != d:
             raise ValueError(f"output_lags has {len(self.output_lags)} entries for {d} inputs")
+        if not float(self.weight_power) > 0:
+            raise ValueError(
+                f"weight_power must be > 0 (eq. 23: 1, eq. 24: 2), got {self.weight_power}"
+            )
         ok = finite_rows(X, y)
         if not ok.all():
             log.debug("ts-fcm: %d rows with a missing value skipped", int((~ok).sum()))
@@ -285,21 +297,24 @@ class TakagiSugenoRegressor(ParamsMixin):
         return self
 
     def _fit_consequents(self, X: np.ndarray, y: np.ndarray, V: np.ndarray) -> None:
-        """Per rule, weighted least squares of eqs. 23–25 (weights ``D_j²``, eq. 24): the rows
-        ``μ_ij [1, x_i | y_i]`` of all rules folded, chunk by chunk, into one triangular QR
-        factor per rule (a stacked QR), in the scaled inputs; then converted to engineering
+        """Per rule, weighted least squares of eqs. 23–25 (weights ``μ_ij^p``, ``p =
+        weight_power``: ``D_j²`` of eq. 24 for 2, eq. 23's ``μ_ij`` for 1): the rows
+        ``μ_ij^(p/2) [1, x_i | y_i]`` of all rules folded, chunk by chunk, into one triangular
+        QR factor per rule (a stacked QR), in the scaled inputs; then converted to engineering
         units."""
         N, d = V.shape
         lo, width = self._scale
         R = np.zeros((N, 0, d + 2))
         weight = np.zeros(N)
         rows = max(CHUNK_ROWS // N, 1024)  # the stacked rows of all rules stay one chunk
+        half = float(self.weight_power) / 2.0
         for s in range(0, X.shape[0], rows):
             Z = (X[s : s + rows] - lo) / width
             U = memberships(Z, V, float(self.m))
             weight += U.sum(axis=0)
+            W = U if half == 1.0 else U**half  # row factors: squared, the weights μ^p
             Ab = np.column_stack([np.ones(Z.shape[0]), Z, y[s : s + rows]])
-            R = triangles(np.concatenate([R, U.T[:, :, None] * Ab[None]], axis=1))
+            R = triangles(np.concatenate([R, W.T[:, :, None] * Ab[None]], axis=1))
         c = np.array([solve_triangle(R[j]) for j in range(N)])  # N × (1 + d), scaled inputs
         self.coef_ = c[:, 1:] / width
         self.intercept_ = c[:, 0] - self.coef_ @ lo
@@ -441,6 +456,7 @@ HEADER = """\
 # Model file (diag-plugin), method ts-fcm: a Takagi-Sugeno fuzzy model whose rules come from
 # Fuzzy c-Means clusters (Laukonen et al., eqs. 13-26). Edit by hand, then `diag rules check`.
 # [rules] n_clusters, m (fuzziness), eps (tolerance, share of span), max_iter, random_state
+# and weight_power (memberships^p weight each rule's least squares: 2 = eq. 24, 1 = eq. 23)
 # set the training. One rule per line, values per input in [[inputs]] order:
 # centre = cluster centre, slope and const = the rule's output const + slope . x (output
 # unit), n = training weight of the rule (sum of memberships). Comments stay with a rule.
@@ -451,6 +467,7 @@ OPTIONS: dict[str, Any] = {
     "eps": 0.01,
     "max_iter": 300,
     "random_state": 0,
+    "weight_power": 2.0,
 }
 RULE_KEYS = {"centre", "slope", "const", "n"}
 
@@ -623,6 +640,7 @@ def _check_options(rb: RuleBase) -> None:
             lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
             "a non-negative integer",
         ),
+        "weight_power": (lambda v: _is_num(v) and v > 0, "a number > 0 (eq. 23: 1, eq. 24: 2)"),
     }
     for key, value in rb.options.items():
         line = rb.line_of("rules", key)

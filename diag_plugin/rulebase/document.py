@@ -378,6 +378,12 @@ class RuleBase:
         """Call after changing ``doc`` directly: the next save writes it."""
         self._dirty_head = True
 
+    def set_rules(self, rules: list) -> None:
+        """Replace the rules (an expert's edit made in code, the codec's rule objects); the
+        next save writes them."""
+        self.rules = list(rules)
+        self._dirty_rules = True
+
     # ------------------------------------------------------------------ save
     def dumps(self) -> str:
         """File text: unchanged bytes if nothing changed; else the edited parts rewritten."""

@@ -29,6 +29,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--period", type=float, default=10.0, help="sample period, s (default 10)")
     p.add_argument("--start", default="2026-01-01", help="time of the first sample (UTC)")
+    p.add_argument(
+        "--min-flow",
+        type=float,
+        metavar="T/H",
+        help="lowest flow set-point, t/h (default 4): lower runs the plant at low load too",
+    )
     p.add_argument("--json", action="store_true", help="print what was written as JSON")
     p.set_defaults(func=cmd_simulate)
 
@@ -54,7 +60,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from historian.errors import UserError
 
     from .faults import parse_fault
-    from .valve import simulate_valve
+    from .process import ProcessParams
+    from .valve import ValveParams, simulate_valve
 
     out = Path(args.out)
     suffix = out.suffix.lower()
@@ -70,10 +77,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         start = pd.Timestamp(args.start)
     except (ValueError, TypeError):
         raise UserError(f"--start {args.start!r}: not an ISO 8601 time") from None
+    params = None
+    if args.min_flow is not None:
+        hi = ProcessParams().sp_hi_th
+        if not 0 <= args.min_flow < hi:
+            raise UserError(f"--min-flow {args.min_flow}: must be at least 0 and below {hi:g} t/h")
+        params = ValveParams(process=ProcessParams(sp_lo_th=args.min_flow))
     t0 = time.perf_counter()
     try:
         df = simulate_valve(
-            args.days, period_s=args.period, start=start, seed=args.seed, faults=faults
+            args.days,
+            period_s=args.period,
+            start=start,
+            seed=args.seed,
+            faults=faults,
+            params=params,
         )
     except ValueError as exc:
         raise UserError(str(exc)) from None

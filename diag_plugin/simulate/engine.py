@@ -53,8 +53,16 @@ Equations (SI units inside; ``θ`` crank angle, ``ω`` crank speed, ``k`` revolu
    ``p_f = f_0 + f_1 n + f_2 n²`` [Hey88]. Brake torque ``T_e = T_i - T_loss``.
 6. Crankshaft and dynamometer: ``(J_e + J_dy) dω/dt = T_e - T_dy`` (engine and
    dynamometer rotor on one shaft, transmission locked, ratio 1 — a
-   simplification of the seed's automatic transmission). The load cell reads the
-   shaft torque ``T_L = T_dy + J_dy dω/dt``.
+   simplification of the seed's automatic transmission; the default). The load
+   cell reads the shaft torque ``T_L = T_dy + J_dy dω/dt``. With
+   ``EngineParams(converter=True)`` an open torque converter (gear ratio 1) sits
+   between them: ``J_e dω/dt = T_e - T_p``, ``J_dy dω_t/dt = T_t - T_dy``, pump
+   torque ``T_p = (n/K)² g(SR)`` (K-factor form; ``g`` = 1 up to the coupling
+   point ``SR_c``, falling linearly to 0 at speed ratio ``SR = ω_t/ω`` = 1 and to
+   −1 in overrun), turbine torque ``T_t = TR(SR) T_p`` (torque ratio from
+   ``tr_stall`` at stall to 1 at ``SR_c``); ω_dy is the turbine (dynamometer)
+   speed and ``T_L = T_dy + J_dy dω_t/dt``. K = 130 rpm/√(N·m) slips 1–2 % in
+   cruise, up to ≈ 17 % when accelerating.
 7. Sensors: the mass-air-flow meter measures ``ṁ_th`` through a first-order lag
    ``τ_maf``; engine speed, manifold pressure and load-cell torque are the
    revolution means; every sensor adds Gaussian noise (``noise=``).
@@ -155,8 +163,9 @@ The speed controller reads the true speed, so an ``omega`` sensor fault changes
 no dynamics. The seed's Table II marks the α residual non-zero for an ω sensor
 fault although eq. 9 reads ω_dy, the dynamometer's tachometer (another instrument),
 not ω; the FDI experiment multiplies ω alone, as the seed did, and isolates by the
-table derived from eqs. 7–11 (:func:`diag_plugin.engine.fdi.derive_table_ii`). A
-fault on both is ``[EngineFault("omega", 1.2, k), EngineFault("omega_dy", 1.2, k)]``.
+printed table, or by the one derived from eqs. 7–11
+(:func:`diag_plugin.engine.fdi.derive_table_ii`). A fault on both is
+``[EngineFault("omega", 1.2, k), EngineFault("omega_dy", 1.2, k)]``.
 """
 
 from __future__ import annotations
@@ -203,17 +212,18 @@ ACTUATOR_SIGNALS = ("alpha", "m_f")
     P_PA, P_TA, P_R, P_KAPPA, P_CD, P_D, P_PHI0, P_ALEAK, P_PILIN, P_VM, P_TM, P_VD,
     P_EPS, P_PE, P_E0, P_E1, P_E2, P_X, P_TAUF, P_HL, P_LST, P_ETAI, P_CLAM, P_LAM0,
     P_F0, P_F1, P_F2, P_JE, P_JDY, P_TAUMAF, P_KP, P_KI, P_AMAX, P_T0, P_C2, P_JEQ,
-    P_TMIN, P_LREF, P_WMIN, P_IDLE, P_TOP, P_UFLOOR, P_HEGO, N_PRM,
-) = range(44)  # fmt: skip
+    P_TMIN, P_LREF, P_WMIN, P_IDLE, P_TOP, P_UFLOOR, P_HEGO, P_CONV, P_KCONV, P_SRC, P_TR0,
+    N_PRM,
+) = range(48)  # fmt: skip
 
 # ---- state vector indices ----
-S_PM, S_W, S_FF, S_MAF, S_T, S_INT, S_MAC, S_MFC, S_WAVG, S_TRIM, N_STATE = range(11)
+S_PM, S_W, S_FF, S_MAF, S_T, S_INT, S_MAC, S_MFC, S_WAVG, S_TRIM, S_WT, N_STATE = range(12)
 
 # ---- output columns of the kernel ----
 (
     O_T, O_DT, O_WAVG, O_PM, O_MTH, O_MAF, O_MAP, O_MAC, O_MFC, O_LAM, O_TE, O_TL,
-    O_TDY, O_ACMD, O_AACT, O_MFCMD, O_MFINJ, O_NREF, N_OUT,
-) = range(19)  # fmt: skip
+    O_TDY, O_ACMD, O_AACT, O_MFCMD, O_MFINJ, O_NREF, O_WDY, N_OUT,
+) = range(20)  # fmt: skip
 
 RPM = 60.0 / (2.0 * math.pi)  # rpm per rad/s
 
@@ -283,6 +293,12 @@ class EngineParams:
     top_rpm: float = 4000.0
     # --- random excitation: fraction of its amplitude at idle (1 at top speed, linear)
     excite_floor: float = 0.2
+    # --- automatic transmission between engine and dynamometer (the seed's test cell): off =
+    # one rigid shaft at ratio 1 (the default); on = an open torque converter, gear ratio 1
+    converter: bool = False
+    k_converter: float = 130.0  # capacity factor K = n_pump / sqrt(T_pump), rpm/sqrt(N·m)
+    sr_coupling: float = 0.85  # speed ratio of the coupling point
+    tr_stall: float = 2.0  # torque ratio at stall (speed ratio 0)
 
     def vector(self) -> np.ndarray:
         """The kernel's parameter vector (indices ``P_*``)."""
@@ -303,6 +319,8 @@ class EngineParams:
         v[P_TMIN], v[P_LREF], v[P_WMIN] = self.t_dy_min, self.lambda_ref, self.omega_min_rpm / RPM
         v[P_IDLE], v[P_TOP], v[P_UFLOOR] = self.idle_rpm, self.top_rpm, self.excite_floor
         v[P_HEGO] = self.lambda_trim_gain
+        v[P_CONV], v[P_KCONV] = float(self.converter), self.k_converter
+        v[P_SRC], v[P_TR0] = self.sr_coupling, self.tr_stall
         return v  # fmt: skip
 
 
@@ -501,6 +519,24 @@ def _alpha_steady(w, torque, prm):
 
 
 @nb.njit(cache=True, nogil=True)
+def _converter(w, wt, prm):
+    """Pump and turbine torque of an open torque converter (N·m), pump at ``w``, turbine at
+    ``wt`` (rad/s), in the K-factor form of [GO10]-style driveline models: ``T_p = (n_p/K)² g``
+    with ``g = 1`` up to the coupling point, falling linearly to 0 at speed ratio 1 and on to
+    −1 in overrun; ``T_t = TR T_p``, the torque ratio falling linearly from its stall value at
+    speed ratio 0 to 1 at the coupling point (1 in overrun)."""
+    src = prm[P_SRC]
+    sr = wt / w
+    g = min(max((1.0 - sr) / (1.0 - src), -1.0), 1.0)
+    n = w * RPM / prm[P_KCONV]
+    t_p = n * n * g
+    tr = 1.0
+    if t_p > 0.0 and sr < src:
+        tr = prm[P_TR0] + (1.0 - prm[P_TR0]) * max(sr, 0.0) / src
+    return t_p, tr * t_p
+
+
+@nb.njit(cache=True, nogil=True)
 def _run(prm, n_sub, tr_t, tr_n, freeze, alpha_in, load_in, fuel_in, u_a, u_t, u_f, g_a, g_f,
          state, out):  # fmt: skip
     """Advance ``len(alpha_in)`` revolutions; one row of ``out`` per revolution.
@@ -514,6 +550,7 @@ def _run(prm, n_sub, tr_t, tr_n, freeze, alpha_in, load_in, fuel_in, u_a, u_t, u
     h = 2.0 * math.pi / n_sub
     rt = prm[P_R] * prm[P_TM] / prm[P_VM]
     j_tot = prm[P_JE] + prm[P_JDY]
+    conv = prm[P_CONV] > 0.0
     t_cyc = tr_t[-1]
     for k in range(n_rev):
         t0 = state[S_T]
@@ -576,6 +613,7 @@ def _run(prm, n_sub, tr_t, tr_n, freeze, alpha_in, load_in, fuel_in, u_a, u_t, u
         i_map = 0.0
         i_te = 0.0
         i_tl = 0.0
+        i_wt = 0.0
         m_air = 0.0
         m_fuel = 0.0
         x = prm[P_X]
@@ -603,8 +641,17 @@ def _run(prm, n_sub, tr_t, tr_n, freeze, alpha_in, load_in, fuel_in, u_a, u_t, u
             fuel_cyl = (1.0 - x) * mfi * dt + (state[S_FF] + x * mfi * dt - ff_new)
             # torque and crank [HS90]
             t_e = t_i - _loss_torque(w, pm, prm)
-            wdot = (t_e - t_dy) / j_tot
-            t_l = t_dy + prm[P_JDY] * wdot
+            if conv:  # engine | torque converter | dynamometer, two shafts
+                wt = state[S_WT]
+                t_p, t_t = _converter(w, wt, prm)
+                wdot = (t_e - t_p) / prm[P_JE]
+                wtdot = (t_t - t_dy) / prm[P_JDY]
+                t_l = t_dy + prm[P_JDY] * wtdot
+                i_wt += wt * dt
+                state[S_WT] = max(wt + wtdot * dt, 0.0)
+            else:  # one rigid shaft
+                wdot = (t_e - t_dy) / j_tot
+                t_l = t_dy + prm[P_JDY] * wdot
             # MAF sensor lag
             em = math.exp(-dt / prm[P_TAUMAF])
             maf = state[S_MAF] * em + mth * (1.0 - em)
@@ -639,6 +686,7 @@ def _run(prm, n_sub, tr_t, tr_n, freeze, alpha_in, load_in, fuel_in, u_a, u_t, u
         out[k, O_LAM] = m_air / (prm[P_LST] * m_fuel) if m_fuel > 0.0 else np.inf
         out[k, O_TE] = i_te / dtr
         out[k, O_TL] = i_tl / dtr
+        out[k, O_WDY] = i_wt / dtr if conv else state[S_WAVG]
         out[k, O_TDY] = t_dy
         out[k, O_ACMD] = a_cmd
         out[k, O_AACT] = a_act
@@ -668,6 +716,7 @@ def _initial_state(p: EngineParams, omega0_rpm: float | None) -> np.ndarray:
     s[S_MFC] = s[S_MAC] / p.l_st
     s[S_FF] = 0.0
     s[S_TRIM] = 1.0
+    s[S_WT] = w
     return s
 
 
@@ -728,7 +777,7 @@ def _simulate(
     w_rpm = out[:, O_WAVG] * RPM
     cols: dict[str, np.ndarray] = {
         "omega": w_rpm + sd.get("omega", 0.0) * eps["omega"],
-        "omega_dy": w_rpm + sd.get("omega_dy", 0.0) * eps["omega_dy"],
+        "omega_dy": out[:, O_WDY] * RPM + sd.get("omega_dy", 0.0) * eps["omega_dy"],
         "m_a": 1e3 * out[:, O_MAF] + sd.get("m_a", 0.0) * eps["m_a"],
         "alpha": out[:, O_ACMD].copy(),
         "m_f": 1e6 * out[:, O_MFCMD],
