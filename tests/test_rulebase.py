@@ -256,3 +256,18 @@ def test_plain_rule_lines_read_as_the_toml_parser_reads_them(rb_path, old, new):
     assert [(r.premise, r.n, r.lock) for r in rb.rules] == [
         (r.premise, r.n, r.lock) for r in RuleBase(text.replace("lock", "lock "), rb_path).rules
     ]  # the same rules as the TOML parser's reading (the extra space forces it)
+
+
+def test_eq5_as_printed_is_an_option_of_the_file(rb_path):
+    """``conclusion = "sets"`` in ``[rules]`` trains eq. 5 as printed; a wrong value is a
+    ``file:line`` error."""
+    text = rb_path.read_text().replace("[rules]\n", '[rules]\nconclusion = "sets"\n', 1)
+    rb_path.write_text(text)
+    rb = RuleBase.load(rb_path)
+    assert rb.new_model().conclusion == "sets"
+    rb_path.write_text(text.replace('conclusion = "sets"', 'conclusion = "median"'))
+    problems = check(rb_path)
+    line = text.splitlines().index('conclusion = "sets"') + 1
+    assert problems == [f"{rb_path}:{line}: conclusion must be 'mean' or 'sets' (what a cell "
+                        "averages: the outputs, or their sets' centres as eq. 5 prints), got "
+                        "'median'"]  # fmt: skip

@@ -268,3 +268,34 @@ def test_estimator_conventions():
     assert m.n_features_in_ == 2
     with pytest.raises(ValueError, match="2 inputs"):
         m.predict(np.zeros((3, 3)))
+
+
+def test_eq5_as_printed_averages_the_centres_of_the_outputs_sets():
+    """``conclusion="sets"`` (Kościelny et al., eq. 5 as printed): each sample's conclusion is
+    the centre of its output's max-membership set (eq. 3 on y) and a cell averages those;
+    the default averages the outputs. Chunks and merges stay exact; the two differ by at
+    most half an output set."""
+    rng = np.random.default_rng(11)
+    X = rng.uniform(0, 100, (4000, 2))
+    y = 0.3 * X[:, 0] + 0.2 * X[:, 1] + rng.normal(0, 1.5, 4000)
+    kw = dict(input_spans=[(0, 100), (0, 100)], output_span=(0, 50), n_sets=7, levels=0)
+    lit = WangMendelRegressor(conclusion="sets", **kw).fit(X, y)
+    avg = WangMendelRegressor(**kw).fit(X, y)
+    out = UniformPartition(0, 50, 31)
+    centres = out.centers[out.nearest(y)]
+    cells = lit.cell_indices()
+    ix = np.stack([UniformPartition(0, 100, 7).nearest(X[:, k]) for k in range(2)], axis=1)
+    for j, cell in enumerate(cells):
+        mine = np.all(ix == cell, axis=1)
+        assert lit.conclusions_[j] == pytest.approx(centres[mine].mean(), abs=1e-3)
+        assert avg.conclusions_[j] == pytest.approx(y[mine].mean(), abs=1e-3)
+    assert np.max(np.abs(lit.conclusions_ - avg.conclusions_)) <= out.step / 2 + 1e-3
+    assert not np.allclose(lit.conclusions_, avg.conclusions_)
+    parts = WangMendelRegressor(conclusion="sets", **kw)
+    for s in range(0, 4000, 700):
+        parts.partial_fit(X[s : s + 700], y[s : s + 700])
+    np.testing.assert_array_equal(parts.conclusions_, lit.conclusions_)
+    with pytest.raises(ValueError, match="different partitions or methods"):
+        WangMendelRegressor(**kw).fit(X, y).merge(lit)
+    with pytest.raises(ValueError, match="conclusion must be one of"):
+        WangMendelRegressor(conclusion="median", **kw).fit(X, y)

@@ -4,9 +4,12 @@ Kościelny, Syfert & Bartyś, Sect. 4.1–4.2. Every training sample generates t
 rule whose premises are the max-membership sets of its inputs (eq. 3, eq. 4).
 
 * ``method="wm-avg"`` (modified method, eq. 5): rules with equal premises get
-  the *average* conclusion. We average the measured outputs themselves (the
-  limit of eq. 5 for an arbitrarily fine output partition), so the output
-  partition only labels the rules; per cell we keep count, sum and sum of
+  the *average* conclusion. By default (``conclusion="mean"``) we average the
+  measured outputs themselves (the limit of eq. 5 for an arbitrarily fine
+  output partition), so the output partition only labels the rules;
+  ``conclusion="sets"`` is eq. 5 as printed: each sample's conclusion is the
+  centre of its output's max-membership set (eq. 3 applied to ``y``), and the
+  cell averages those centres. Per cell we keep count, sum and sum of
   squares, which makes training incremental (``partial_fit``), mergeable
   (``merge``) and exactly reproducible (integer accumulators, see
   :mod:`diag_plugin.fuzzy._kernels`).
@@ -185,7 +188,18 @@ def run_kernel(packed: tuple, which: np.ndarray, X: np.ndarray) -> Prediction:
 
 #: the exact training state (see :meth:`WangMendelRegressor.to_state`)
 STATE_ARRAYS = ("keys_", "count_", "qsum_", "qsq_", "best_w_", "best_set_")
-PARAMS = ("input_spans", "output_span", "n_sets", "output_sets", "shape", "method", "levels")
+PARAMS = (
+    "input_spans",
+    "output_span",
+    "n_sets",
+    "output_sets",
+    "shape",
+    "method",
+    "levels",
+    "conclusion",
+)
+#: what a wm-avg cell averages: the measured outputs, or the centres of their output sets
+CONCLUSIONS = ("mean", "sets")
 #: grids up to this many cells train and infer through dense arrays
 DENSE_LIMIT = 1 << 20
 #: rows per compiled pass; bounds the memory of fit/predict
@@ -233,6 +247,9 @@ class WangMendelRegressor(ParamsMixin):
     levels : int, optional
         Coarser levels behind the fine grid (see the module doc); by default as many as
         halving allows (31 sets: 16, 8, 4, 2); 0 = the fine grid alone.
+    conclusion : {"mean", "sets"}
+        What ``wm-avg`` averages per cell (eq. 5): the measured outputs (default) or, as
+        the paper prints it, the centres of their max-membership output sets.
     """
 
     _params = PARAMS
@@ -248,6 +265,7 @@ class WangMendelRegressor(ParamsMixin):
         shape: str = "trapezoidal",
         method: str = "wm-avg",
         levels: int | None = None,
+        conclusion: str = "mean",
     ) -> None:
         self.input_spans = input_spans
         self.output_span = output_span
@@ -256,11 +274,14 @@ class WangMendelRegressor(ParamsMixin):
         self.shape = shape
         self.method = method
         self.levels = levels
+        self.conclusion = conclusion
 
     # ------------------------------------------------------------------ set-up
     def _init_partitions(self, X: np.ndarray, y: np.ndarray) -> None:
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
+        if self.conclusion not in CONCLUSIONS:
+            raise ValueError(f"conclusion must be one of {CONCLUSIONS}, got {self.conclusion!r}")
         if self.levels is not None and (isinstance(self.levels, bool) or int(self.levels) < 0):
             raise ValueError(f"levels must be a non-negative integer, got {self.levels!r}")
         d = X.shape[1]
@@ -336,10 +357,19 @@ class WangMendelRegressor(ParamsMixin):
             self._init_partitions(X, y)
         elif X.shape[1] != self.n_features_in_:
             raise ValueError(f"model has {self.n_features_in_} inputs, X has {X.shape[1]}")
+        if self.conclusion == "sets" and self.method == "wm-avg":
+            y = self._set_centres(y)
         for start in range(0, X.shape[0], CHUNK_ROWS):
             part = self._accumulate(X[start : start + CHUNK_ROWS], y[start : start + CHUNK_ROWS])
             self._merge_state(*part)
         return self
+
+    def _set_centres(self, y: np.ndarray) -> np.ndarray:
+        """Each output replaced by the centre of its max-membership output set (Kościelny
+        et al., eq. 3 on ``y``): the ``A^{n+1}`` that eq. 5 averages as printed."""
+        op = self.output_partition_
+        out = op.centers[op.nearest(np.where(np.isfinite(y), y, op.lo))]
+        return np.where(np.isfinite(y), out, y)
 
     def _accumulate(self, X: np.ndarray, y: np.ndarray):
         lo, step, nsets, _, core = self._arrays()
@@ -446,6 +476,7 @@ class WangMendelRegressor(ParamsMixin):
             self.partitions_ != other.partitions_
             or self.output_partition_ != other.output_partition_
             or self.method != other.method
+            or self.conclusion != other.conclusion
         ):
             raise ValueError("cannot merge models with different partitions or methods")
         self._merge_state(

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
+from diag_plugin.fuzzy.wang_mendel import CONCLUSIONS, WangMendelRegressor
 from diag_plugin.models.spec import ModelSpec
 
 if TYPE_CHECKING:
@@ -40,7 +40,7 @@ if TYPE_CHECKING:
 
 RULE_KEYS = {"if", "then", "n", "sd", "lock"}
 #: the options a Wang–Mendel file may set in ``[rules]``
-OPTIONS = ("levels",)
+OPTIONS = ("levels", "conclusion")
 
 
 @dataclass
@@ -67,6 +67,7 @@ class WangMendelCodec:
     def new_estimator(self, spec: ModelSpec) -> WangMendelRegressor:
         """An untrained model with the spec's partitions, method and levels."""
         levels = spec.options.get("levels")
+        conclusion = spec.options.get("conclusion", "mean")
         return WangMendelRegressor(
             input_spans=[v.span for v in spec.inputs],
             output_span=spec.output.span,
@@ -75,6 +76,7 @@ class WangMendelCodec:
             shape=spec.shape,
             method=spec.method,
             levels=levels if _is_levels(levels) else None,
+            conclusion=conclusion if conclusion in CONCLUSIONS else "mean",
         )
 
     def to_model(self, rb: RuleBase) -> WangMendelRegressor:
@@ -144,11 +146,18 @@ class WangMendelCodec:
             line = rb.line_of("rules", key)
             if key not in OPTIONS:
                 rb.error(line, f"unknown {rb.method} option {key!r} (known: {', '.join(OPTIONS)})")
-            elif not _is_levels(value):
+            elif key == "levels" and not _is_levels(value):
                 rb.error(
                     line,
                     f"levels must be a non-negative integer (coarser levels behind the fine "
                     f"grid; 0 = the fine grid alone), got {value!r}",
+                )
+            elif key == "conclusion" and value not in CONCLUSIONS:
+                rb.error(
+                    line,
+                    f"conclusion must be {' or '.join(map(repr, CONCLUSIONS))} (what a cell "
+                    f"averages: the outputs, or their sets' centres as eq. 5 prints), "
+                    f"got {value!r}",
                 )
         lo, hi = rb.output.span
         rules: list[Rule] = []
