@@ -28,9 +28,18 @@ NAMES = [
     "valve_r2",
     "valve_r3",
     "valve_r4",
+    "valve_t4_r1",
+    "valve_t4_r2",
+    "valve_t4_r3",
+    "valve_t4_r4",
     "damadics_f",
 ]
-UNIT_FILES = ["valve_unit.unit.toml", "valve_unit.matrix.toml"]
+UNIT_FILES = [
+    "valve_unit.unit.toml",
+    "valve_unit.matrix.toml",
+    "valve_t4.unit.toml",
+    "valve_t4.matrix.toml",
+]
 #: samples that last-bit differences between library versions may move across a boundary
 FEW = 3
 
@@ -94,5 +103,23 @@ def test_shipped_unit_is_valid_and_regenerates(regenerated):
     for ta, tb in zip(a.tests, b.tests, strict=True):
         # thresholds are quantiles of residuals of the regenerated models: moved samples
         # (see the module doc) may shift them in the last digits only
+        assert (ta.name, ta.model) == (tb.name, tb.model)
+        assert ta.high == pytest.approx(tb.high, rel=1e-3)
+
+
+def test_shipped_table4_unit_is_valid_and_regenerates(regenerated):
+    """The second example unit carries Table 4 as printed: five singleton groups."""
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unitfile import UnitFile
+
+    unit = Unit.load(SHIPPED / "valve_t4.unit.toml")
+    assert unit.has_thresholds and unit.matrix is not None
+    assert unit.matrix.isolability_groups() == [[f] for f in unit.matrix.faults]
+    new = regenerated["valve_t4.matrix"].read_bytes()
+    assert new == (SHIPPED / "valve_t4.matrix.toml").read_bytes()
+    a = UnitFile.load(regenerated["valve_t4.unit"])
+    b = UnitFile.load(SHIPPED / "valve_t4.unit.toml")
+    assert a.thresholds == b.thresholds
+    for ta, tb in zip(a.tests, b.tests, strict=True):
         assert (ta.name, ta.model) == (tb.name, tb.model)
         assert ta.high == pytest.approx(tb.high, rel=1e-3)

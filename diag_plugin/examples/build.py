@@ -130,6 +130,8 @@ def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[
     out.extend(
         build_valve_unit(folder, half_year, f"diag simulate --days {UNIT_DAYS} --seed {SIM_SEED}")
     )
+    t4 = f"simulate_valve({UNIT_DAYS}, seed={SIM_SEED}, params=ValveParams(**TABLE4_PLANT))"
+    out.extend(build_table4_unit(folder, t4))
     real = damadics or find_file()
     if real is not None:
         f = load_hour(real)
@@ -150,8 +152,41 @@ def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[
     return out
 
 
+#: the actuator Table 4 and rules (10)–(14) describe: no positioner (the controller output
+#: drives the E/P converter: the open chain U → P0 → X → F), low-friction packing
+#: (docs/diagnostics.md, "Which plant Table 4 describes")
+TABLE4_PLANT = {"positioner_gain": 0.0, "hysteresis": 0.03}
+
+
+def build_table4_unit(folder: Path, source: str, days: float = UNIT_DAYS) -> list[Path]:
+    """The second example unit: Table 4 as printed (``valve_t4``), on the plant it describes
+    (:data:`TABLE4_PLANT`), trained on ``days`` of seed :data:`SIM_SEED` of that plant."""
+    from diag_plugin.simulate.valve import ValveParams, simulate_valve
+
+    frame = simulate_valve(days, seed=SIM_SEED, params=ValveParams(**TABLE4_PLANT))
+    return build_valve_unit(
+        folder,
+        frame,
+        source,
+        name="valve_t4",
+        models="valve_t4",
+        matrix=TABLE4_MATRIX.replace('name = "valve_unit"', 'name = "valve_t4"'),
+        description="E/P + servomotor + valve without positioner (Kościelny et al., Table 4)",
+        outputs="VALVE_T4",
+    )
+
+
 def build_valve_unit(
-    folder: Path, frame: pd.DataFrame, source: str, *, conclusion: str = "mean"
+    folder: Path,
+    frame: pd.DataFrame,
+    source: str,
+    *,
+    conclusion: str = "mean",
+    name: str = "valve_unit",
+    models: str = "valve",
+    matrix: str = UNIT_MATRIX,
+    description: str = "positioner + servomotor + valve (Kościelny et al., Table 4, loop on X)",
+    outputs: str = "VALVE1",
 ) -> list[Path]:
     """The example unit: four models, the Table 4 matrix, the unit file with learned
     thresholds (Kościelny et al., Sec. 6; thresholds held to a false-alarm budget,
@@ -176,8 +211,9 @@ def build_valve_unit(
 
     out = []
     tests = {}
+    unit_name = name
     for test, (output, inputs, desc) in UNIT_TESTS.items():
-        name = f"valve_{test}"
+        name = f"{models}_{test}"
         path = folder / f"{name}.toml"
         path.unlink(missing_ok=True)
         info = dict(TAGS)
@@ -194,16 +230,12 @@ def build_valve_unit(
             rb = RuleBase.load(path)
         out.append(_fit(rb, frame, source).path)
         tests[test] = path.name
-    matrix = folder / "valve_unit.matrix.toml"
-    matrix.write_text(UNIT_MATRIX, encoding="utf-8")
-    out.append(matrix)
-    path = folder / "valve_unit.unit.toml"
+    matrix_path = folder / f"{unit_name}.matrix.toml"
+    matrix_path.write_text(matrix, encoding="utf-8")
+    out.append(matrix_path)
+    path = folder / f"{unit_name}.unit.toml"
     text = new_unit_text(
-        "valve_unit",
-        tests,
-        matrix=matrix.name,
-        description="positioner + servomotor + valve (Kościelny et al., Table 4, loop on X)",
-        outputs="VALVE1",
+        unit_name, tests, matrix=matrix_path.name, description=description, outputs=outputs
     )
     path.write_text(text, encoding="utf-8")
     unit = Unit.load(path)

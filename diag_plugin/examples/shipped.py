@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 #: the shipped example files
-NAMES = ("valve_a", "valve_b", "valve_b2", "damadics_f", "valve_unit")
+NAMES = ("valve_a", "valve_b", "valve_b2", "damadics_f", "valve_unit", "valve_t4")
 
 
 def shipped_folder() -> Path | None:
