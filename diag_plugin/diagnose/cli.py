@@ -219,6 +219,7 @@ def unit_summary(unit) -> dict:
         "thresholds": f.thresholds,
         "tests": tests,
         "matrix": None,
+        "combined": _combined_summary(unit),
     }
     if unit.matrix is not None:
         mx = unit.matrix
@@ -232,8 +233,26 @@ def unit_summary(unit) -> dict:
             "diagnosis_accuracy": mx.diagnosis_accuracy(),
             "mean_diagnosis_accuracy": mx.mean_diagnosis_accuracy(),
             "fault_status": {k: v.name for k, v in f.fault_status.items()},
+            "derived": unit.derived,
         }
     return out
+
+
+def _combined_summary(unit) -> dict | None:
+    """The unit-level test and isolation to tags, as ``unit show`` prints them."""
+    ev = unit.ev
+    if not ev["combined"] and ev["isolation"] != "tags":
+        return None
+    c = unit.file.combined
+    return {
+        "enabled": bool(ev["combined"]),
+        "isolation": ev["isolation"],
+        "learned": c is not None,
+        "high": None if c is None else c.high,
+        "shrinkage": None if c is None else c.shrinkage,
+        "notes": {} if c is None else dict(c.notes),
+        "gains": {} if c is None else c.gains,
+    }
 
 
 def cmd_unit_show(args) -> int:
@@ -287,11 +306,17 @@ def cmd_unit_show(args) -> int:
     else:
         con.print(f"no thresholds learned yet: diag unit learn {s['unit']} --from … --to …")
     _print_learned(con, s["tests"])
+    _print_combined(con, s)
     mx = s["matrix"]
     if mx is None:
         con.print("no matrix: this unit only detects (status OFF_SPEC on a symptom)")
         return 0
-    t = Table(title=f"diagnostic matrix {mx['file']}")
+    title = (
+        "diagnostic matrix derived from the models (a column per tag)"
+        if mx.get("derived")
+        else f"diagnostic matrix {mx['file']}"
+    )
+    t = Table(title=title)
     t.add_column("test")
     for f in mx["faults"]:
         t.add_column(f, justify="center")
@@ -337,6 +362,38 @@ def _print_learned(con, tests: list[dict]) -> None:
         if r["spread"]:
             parts.append("residual in units of its model's local spread")
         con.print(f"{r['test']}: " + "; ".join(parts), markup=False)
+
+
+def _print_combined(con, s: dict) -> None:
+    """The combined test's threshold and what it rests on, and the isolation to tags."""
+    c = s.get("combined")
+    if c is None:
+        return
+    if c["enabled"]:
+        n = c["notes"]
+        if c["high"] is None:
+            con.print(
+                f"combined test: no threshold yet: diag unit learn {s['unit']} --from … --to …",
+                markup=False,
+            )
+        else:
+            con.print(
+                f"combined test (T² of the scaled residuals, covariance shrunk "
+                f"{c['shrinkage']:.2g}): threshold {c['high']:.4g}; expected {n.get('far', 0):.2g} "
+                f"false alarms/h"
+                + ("" if n.get("supported") else f", extrapolated ({n.get('method')} fit)"),
+                markup=False,
+            )
+    if c["isolation"] == "tags":
+        con.print(
+            "isolation to tags: "
+            + (
+                "the expert matrix names faults; alarms also rank the tags"
+                if s["matrix"] is not None and not s["matrix"].get("derived")
+                else "a matrix derived from the models; alarms rank the tags by contribution"
+            ),
+            markup=False,
+        )
 
 
 def _frames(args, unit, start, end, chunk="7D"):
@@ -422,6 +479,8 @@ def cmd_unit_learn(args) -> int:
         "learned": notes,
         "warnings": got.warnings,
     }
+    if got.combined is not None:
+        out["combined"] = {"high": got.combined.high, **got.combined.notes}
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
@@ -444,6 +503,12 @@ def cmd_unit_learn(args) -> int:
         why = {w: v for w, v in got.unknown[k].items() if v > 0}
         if why:
             print("      unknown: " + "; ".join(f"{WHY[w]} {v:.1%}" for w, v in why.items()))
+    c = got.combined
+    if c is not None and c.high is not None:
+        print(
+            f"  combined test (T²): {c.high:.4g}; expected {c.notes['far']:.2g} false alarms/h "
+            f"({c.notes['method']}; its share of the budget, the tests the rest)"
+        )
     for w in got.warnings:
         print(f"  note: {w}")
     return 0
@@ -505,7 +570,9 @@ def _share(s) -> float | None:
 
 def write_csv(d, path: str) -> None:
     """One row per sample: ts, status (NE 107), r_<test>, s_<test>, c_<fault>, detected
-    (1/0, empty when unknown), quality, faults."""
+    (1/0, empty when unknown), quality, faults; with a combined test or isolation to tags also
+    T2 (the combined statistic), s_T2 (its symptom) and top1, share1, … top3, share3 (the
+    tags that explain an alarm, their share of T²)."""
     frame = d.to_frame()
     frame["detected"] = frame["detected"].map(lambda v: "" if v != v else str(int(v)))
     frame.to_csv(path, float_format="%.6g", date_format="%Y-%m-%dT%H:%M:%S%z")

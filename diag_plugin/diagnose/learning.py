@@ -27,6 +27,14 @@ false-alarm budget.
    (:mod:`diag_plugin.diagnose.budget`), saying when the window is too short to show that rate
    and what window would.
 
+With ``combined = true`` or ``isolation = "tags"`` in the unit's ``[evaluation]`` step 3 also
+learns the unit-level test and the tag directions (:func:`learn_combined`,
+:mod:`diag_plugin.diagnose.unittags`): each test's centre, robust scale and the shrunk
+covariance of the scaled residuals, the combined statistic's threshold under its share
+(:data:`~diag_plugin.diagnose.unittags.COMBINED_SHARE`) of the same budget, on T² computed from
+the cross-fitted residuals with those parameters learned without the block they score, and
+each model's mean gain per input tag (:func:`model_gains`).
+
 A test whose residual is missing or exactly zero over the window gets a message naming it and
 what to do; nothing is written then.
 """
@@ -42,6 +50,7 @@ import pandas as pd
 from diag_plugin.diagnose.budget import TestBudget, calibrate
 from diag_plugin.diagnose.residuals import supported
 from diag_plugin.diagnose.unit import Unit, spread_factor
+from diag_plugin.diagnose.unitfile import CombinedSpec
 from diag_plugin.models.protocol import REASON_NAN, Prediction
 
 #: samples skipped at the start of a learning window (and of each run in it): the filter
@@ -110,6 +119,8 @@ class Learned:
     sources: dict[str, str]
     period: str = "10s"
     warnings: list[str] = field(default_factory=list)
+    #: the unit-level test and tag directions (``combined`` or ``isolation = "tags"``)
+    combined: CombinedSpec | None = None
 
     @property
     def independent(self) -> dict[str, int]:
@@ -417,8 +428,11 @@ def learn_thresholds(
     problems = _check_body(body)
     if problems:
         raise LearnError(problems)
+    from diag_plugin.diagnose.unittags import COMBINED_SHARE
+
+    far_tests = far * (1.0 - COMBINED_SHARE) if unit.ev["combined"] else far
     budgets = calibrate(
-        body, unit.period, far, on_delay=unit.ev["on_delay"], off_delay=unit.ev["off_delay"]
+        body, unit.period, far_tests, on_delay=unit.ev["on_delay"], off_delay=unit.ev["off_delay"]
     )
     for name, b in budgets.items():  # unknown over the whole window, as the reasons count it
         b.unknown = float(np.mean(~np.isfinite(scaled[name])))
@@ -434,8 +448,27 @@ def learn_thresholds(
         if not b.supported:
             warnings.append(
                 f"{name}: the window ({hours(b.hours)}) shows too few alarms to support "
-                f"{far:g} per hour (a window of {hours(b.hours_needed)} would); thresholds "
-                f"extrapolated by a {b.method} fit"
+                f"{far_tests:g} per hour (a window of {hours(b.hours_needed)} would); "
+                f"thresholds extrapolated by a {b.method} fit"
+            )
+    combined = None
+    if unit.ev["combined"] or unit.ev["isolation"] == "tags":
+        data = frame.notna().any(axis=1).to_numpy()
+        keep = settled(data)
+        block = block_of(frame.index, max(blocks, 1), data)[keep]
+        combined = learn_combined(
+            unit,
+            body,
+            block,
+            far * COMBINED_SHARE if unit.ev["combined"] else None,
+            model_gains(unit, frame),
+        )
+        n = combined.notes
+        if unit.ev["combined"] and not n.get("supported", True):
+            warnings.append(
+                f"combined test: the window ({hours(n['hours'])}) shows too few alarms to "
+                f"support {n['far']:g} per hour (a window of {hours(n['hours_needed'])} "
+                f"would); threshold extrapolated by a {n['method']} fit"
             )
     return Learned(
         limits=limits,
@@ -451,6 +484,7 @@ def learn_thresholds(
         sources={k: r.source for k, r in res.items()},
         period=unit.period,
         warnings=warnings,
+        combined=combined,
     )
 
 
@@ -496,4 +530,113 @@ def _check_body(body: pd.DataFrame) -> list[str]:
                 f"test {name}: its filtered residual is constant over the window; learn over "
                 "a window where its output varies"
             )
+    return out
+
+
+def _combined_params(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Centre (median), robust scale (1.4826 MAD; the sd where the MAD is 0) of each column of
+    fault-free filtered residuals ``x`` (n × T), the covariance of the scaled residuals over
+    the rows where all are known, shrunk toward its diagonal by ``λ = T / (T + n_eff)``, and
+    ``λ`` (:mod:`~diag_plugin.diagnose.unittags`)."""
+    from diag_plugin.diagnose.symptoms import effective_samples
+
+    T = x.shape[1]
+    center = np.nanmedian(x, axis=0)
+    scale = 1.4826 * np.nanmedian(np.abs(x - center), axis=0)
+    sd = np.nanstd(x, axis=0)
+    scale = np.where(scale > 0, scale, np.where(sd > 0, sd, 1.0))
+    z = (x - center) / scale
+    rows = np.isfinite(z).all(axis=1)
+    if rows.sum() <= T + 1:
+        return center, scale, np.eye(T), 1.0
+    cov = np.atleast_2d(np.cov(z[rows].T))
+    n_eff = min(effective_samples(z[rows, j]) for j in range(T))
+    lam = T / (T + max(n_eff, 1.0))
+    cov = (1.0 - lam) * cov + lam * np.diag(np.diag(cov))
+    return center, scale, cov, float(lam)
+
+
+def learn_combined(
+    unit: Unit,
+    body: pd.DataFrame,
+    block: np.ndarray,
+    far: float | None,
+    gains: dict[str, dict[str, float]],
+) -> CombinedSpec:
+    """The unit-level test from the settled, filtered, cross-fitted fault-free residuals
+    ``body`` (one column per test, ``block``: each row's time block): centre, scale and shrunk
+    covariance (:func:`_combined_params`) over the whole window, and, with a budget ``far``
+    (alarms per hour: the combined test's share), the threshold of T² calibrated on T² of each
+    block computed with parameters learned without that block (out of sample, like the
+    residuals), with the unit's on/off delays
+    (:func:`~diag_plugin.diagnose.budget.calibrate_side`)."""
+    from diag_plugin.diagnose.budget import calibrate_side
+    from diag_plugin.diagnose.unittags import CombinedModel
+
+    x = body[unit.tests].to_numpy(float)
+    T = len(unit.tests)
+    center, scale, cov, lam = _combined_params(x)
+    spec = CombinedSpec(
+        tests=list(unit.tests),
+        center=center.tolist(),
+        scale=scale.tolist(),
+        cov=cov.tolist(),
+        shrinkage=lam,
+        gains=gains,
+    )
+    if far is None:
+        return spec
+    t2 = np.full(len(x), np.nan)
+    blocks = np.unique(block)
+    for b in blocks:
+        held = block == b
+        fit = x[~held] if blocks.size > 1 else x
+        c, s, S, _ = _combined_params(fit)
+        model = CombinedModel([], c, s, S, np.zeros((T, 0)), None)
+        t2[held] = model.evaluate(x[held])[0]
+    dt_h = pd.Timedelta(unit.period) / pd.Timedelta(hours=1)
+    h = float(np.isfinite(t2).sum()) * dt_h
+    side = calibrate_side(t2, h, far, unit.ev["on_delay"], unit.ev["off_delay"])
+    spec.high = float(side.threshold)
+    spec.notes = {
+        "far": float(f"{far:.3g}"),
+        "method": side.method,
+        "supported": bool(side.supported),
+        "hours": round(h, 1),
+        "hours_needed": float(f"{side.hours_needed:.3g}"),
+    }
+    return spec
+
+
+def model_gains(unit: Unit, frame: pd.DataFrame) -> dict[str, dict[str, float]]:
+    """Per test, the mean gain ``∂ŷ/∂X`` of its model for each tag ``X`` it reads plainly (any
+    lag; a bias moves every lag alike, so the lags' gains add), over the samples of ``frame``
+    the model answers, by a forward difference of 5 % of the tag's standard deviation; keyed by
+    the plant's tag names. Derived inputs (a rate, a direction) get none: a bias leaves them."""
+    from diag_plugin.regressors import DesignBuilder, parse_specs
+
+    mf = unit._model_frame(frame)
+    out: dict[str, dict[str, float]] = {}
+    for t in unit.tests:
+        m = unit.models[t]
+        d = DesignBuilder(m.inputs, m.output, period=m.period).transform(mf)
+        specs = parse_specs(m.inputs)
+        g: dict[str, float] = {}
+        if not len(d.y):
+            out[t] = g
+            continue
+        base = supported(m.model.predict_detail(d.X), unit.ev["min_support"])
+        for tag in dict.fromkeys(sp.tags[0] for sp in specs if not sp.fn):
+            cols = [i for i, sp in enumerate(specs) if not sp.fn and sp.tags[0] == tag]
+            sd = float(np.nanstd(d.X[:, cols[0]]))
+            if not sd > 0:
+                continue
+            step = 0.05 * sd
+            X = d.X.copy()
+            X[:, cols] += step
+            moved = supported(m.model.predict_detail(X), unit.ev["min_support"])
+            diff = (moved - base) / step
+            if np.isfinite(diff).any():
+                g[unit.file.tags.get(tag, tag)] = float(np.nanmean(diff))
+        out[t] = g
     return out

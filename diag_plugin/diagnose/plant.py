@@ -13,8 +13,10 @@ stays local. :class:`Plant` keeps that structure and evaluates every unit each c
 
 A unit whose file, models or matrix are broken is reported CHECK_FUNCTION with Bad quality and
 its ``file:line`` problems every cycle; the others go on. Units whose models use derived inputs
-(``dir``, ``rate``, …) or whose symptoms are fuzzy (N/0/P, isolated by rules (10)–(14)) are
-evaluated one by one with :meth:`Unit.evaluate` (same result, slower).
+(``dir``, ``rate``, …), whose symptoms are fuzzy (N/0/P, isolated by rules (10)–(14)), or that
+have a combined test or isolation to tags (:mod:`~diag_plugin.diagnose.unittags`; their status
+message and ``tags`` name the top tags) are evaluated one by one with :meth:`Unit.evaluate`
+(same result, slower).
 The fast path gives the same statuses as :meth:`Unit.evaluate` over the same rows (tested).
 """
 
@@ -68,8 +70,13 @@ def _plain_lags(unit: Unit) -> bool:
 
 
 def _crisp(unit: Unit) -> bool:
-    """True for crisp symptoms (the fast path); fuzzy N/0/P units go one by one."""
-    return unit.ev["symptoms"] == "crisp"
+    """True for crisp symptoms and per-test evaluation only (the fast path); fuzzy N/0/P units
+    and units with a combined test or isolation to tags go one by one."""
+    return (
+        unit.ev["symptoms"] == "crisp"
+        and not unit.ev["combined"]
+        and unit.ev["isolation"] == "matrix"
+    )
 
 
 class Plant:

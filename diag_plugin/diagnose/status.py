@@ -59,6 +59,9 @@ class UnitStatus:
     detected: bool | None = None
     faults: list[str] = field(default_factory=list)
     message: str = ""
+    #: the tags that explain an alarm, best first, with their share of the combined statistic
+    #: (units with ``isolation = "tags"`` or ``combined = true``; empty otherwise)
+    tags: list[tuple[str, float]] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready dict (NaN → null, enums by name and number)."""
@@ -75,4 +78,5 @@ class UnitStatus:
             "symptoms": {k: _num(v) for k, v in self.symptoms.items()},
             "coverage": {k: _num(v) for k, v in self.coverage.items()},
             "message": self.message,
+            **({"tags": [[t, _num(v)] for t, v in self.tags]} if self.tags else {}),
         }

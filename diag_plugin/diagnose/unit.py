@@ -24,6 +24,10 @@ Stages (all vectorised over samples and tests):
    is isolated, OFF_SPEC for symptoms no signature explains (or a unit without a matrix), and
    CHECK_FUNCTION when the diagnosis is unknown. An unknown test is never a symptom and never a
    fault.
+
+With ``combined = true`` a unit-level test (Hotelling's T² of the scaled residuals) runs beside
+the tests, and with ``isolation = "tags"`` the matrix is derived from the models and every alarm
+names the tags that explain it, ranked by contribution (:mod:`diag_plugin.diagnose.unittags`).
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 from diag_plugin.diagnose.symptoms import FixedThresholds, FuzzyThreeValued, OnOffDelay
 from diag_plugin.diagnose.unitfile import SPREAD_FLOOR, TestSpec, UnitError, UnitFile, unit_path
+from diag_plugin.diagnose.unittags import CombinedModel, derived_matrix, describe_top, top_tags
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
 from diag_plugin.regressors import DesignBuilder, needed_tags
@@ -139,6 +144,10 @@ class Diagnosis:
     NaN (unknown) per test after delays; ``certainties``: per fault in [0, 1] (empty without a
     matrix); ``detected``: 1.0 any symptom, 0.0 none, NaN unknown; ``status``: NE 107 number;
     ``quality``: :class:`Quality` number; ``faults``: isolated faults joined by ``|``.
+    Units with ``combined = true`` or ``isolation = "tags"`` also carry ``combined`` (columns
+    ``T2``: the combined statistic, NaN unknown; ``s_T2``: its symptom 0/1 after the delays,
+    NaN unknown or not a test), ``contributions`` (per tag its share of T², see
+    :mod:`~diag_plugin.diagnose.unittags`) and ``top`` (``top1``, ``share1``, … on alarms).
     """
 
     unit: str
@@ -150,13 +159,23 @@ class Diagnosis:
     quality: pd.Series
     faults: pd.Series
     message: str = ""
+    combined: pd.DataFrame | None = None
+    contributions: pd.DataFrame | None = None
+    top: pd.DataFrame | None = None
+
+    @property
+    def top_tags(self) -> pd.DataFrame:
+        """Per sample the tags that explain an alarm, best first (``top1``, ``share1``, …);
+        empty columns for a unit without isolation to tags."""
+        return self.top if self.top is not None else pd.DataFrame(index=self.status.index)
 
     def __len__(self) -> int:
         return len(self.status)
 
     def to_frame(self) -> pd.DataFrame:
         """One row per sample: ``status``, ``r_<test>``, ``s_<test>``, ``c_<fault>``,
-        ``detected``, ``quality``, ``faults`` (index ``ts``)."""
+        ``detected``, ``quality``, ``faults`` (index ``ts``); with a combined test or isolation
+        to tags also ``T2``, ``s_T2`` and ``top1``, ``share1``, … (the tags on an alarm)."""
         parts = [
             self.status.rename("status"),
             self.residuals.add_prefix("r_"),
@@ -166,6 +185,10 @@ class Diagnosis:
             self.quality.map(lambda q: Quality(q).name).rename("quality"),
             self.faults.rename("faults"),
         ]
+        if self.combined is not None:
+            parts.append(self.combined)
+        if self.top is not None:
+            parts.append(self.top)
         out = pd.concat(parts, axis=1)
         out.index.name = "ts"
         return out
@@ -185,8 +208,28 @@ class Diagnosis:
             certainties=self.certainties.iloc[i].to_dict() if len(self.certainties.columns) else {},
             detected=None if np.isnan(det) else bool(det),
             faults=[f for f in str(faults).split("|") if f],
-            message=self.message,
+            message=self._message(i),
+            tags=self._tags(i),
         )
+
+    def _tags(self, i: int) -> list[tuple[str, float]]:
+        if self.top is None:
+            return []
+        row = self.top.iloc[i]
+        n = sum(1 for c in self.top.columns if c.startswith("top"))
+        picks = range(1, n + 1)
+        return [(row[f"top{k}"], float(row[f"share{k}"])) for k in picks if row[f"top{k}"]]
+
+    def _message(self, i: int) -> str:
+        """The unit's message, with the combined test and the top tags on an alarm."""
+        parts = [self.message] if self.message else []
+        if self.combined is not None and self.combined["s_T2"].iloc[i] == 1:
+            parts.append(f"combined test on (T² {self.combined['T2'].iloc[i]:.3g})")
+        if self.top is not None:
+            top = describe_top(self.top.iloc[i])
+            if top:
+                parts.append(top)
+        return "; ".join(parts)
 
     def intervals(self) -> pd.DataFrame:
         """Runs of equal status and isolated faults: ``from``, ``to`` (exclusive), ``status``,
@@ -201,8 +244,11 @@ class Diagnosis:
         idx = self.status.index
         period = (idx[1] - idx[0]) if len(idx) > 1 else pd.Timedelta(0)
         sym = self.symptoms.fillna(0).to_numpy() != 0
-        on = np.logical_or.reduceat(sym, starts, axis=0) if sym.shape[1] else sym[starts]
         names = list(self.symptoms.columns)
+        if self.combined is not None:
+            sym = np.c_[sym, self.combined["s_T2"].fillna(0).to_numpy() != 0]
+            names.append("T2")
+        on = np.logical_or.reduceat(sym, starts, axis=0) if sym.shape[1] else sym[starts]
         rows = [
             {
                 "from": idx[a],
@@ -237,6 +283,14 @@ class Unit:
         if len(periods) > 1:
             raise UnitError([f"{file.path}:1: the tests' models have different periods {periods}"])
         self.period = periods.pop() if periods else "10s"
+        #: isolation to tags: a matrix derived from the models when no expert one is given
+        self.tag_isolation = self.ev["isolation"] == "tags"
+        self.derived = self.tag_isolation and matrix is None
+        if self.derived:
+            self.matrix = derived_matrix(self)
+        self.cmodel = (
+            CombinedModel.of(self) if (self.ev["combined"] or self.tag_isolation) else None
+        )
         self.reset()
 
     # ------------------------------------------------------------ loading
@@ -313,7 +367,10 @@ class Unit:
 
     @property
     def has_thresholds(self) -> bool:
-        return all(t.high is not None for t in self.file.tests)
+        """Every test has thresholds, and the combined test (``combined = true``) its own."""
+        tests = all(t.high is not None for t in self.file.tests)
+        c = self.file.combined
+        return tests and (not self.ev["combined"] or (c is not None and c.high is not None))
 
     # ------------------------------------------------------------ state
     def reset(self) -> Unit:
@@ -326,6 +383,7 @@ class Unit:
         self.held = np.full(len(self.tests), np.nan)  # last known symptom per test
         self.unknown_run = np.zeros(len(self.tests), np.int64)
         self.isolation = IsolationHold(1, len(self.tests), len(self.faults))
+        self.combined_delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
         return self
 
     def to_state(self) -> dict[str, Any]:
@@ -338,6 +396,7 @@ class Unit:
             "held": [None if np.isnan(v) else float(v) for v in self.held],
             "unknown_run": self.unknown_run.tolist(),
             "isolation": self.isolation.to_state(),
+            "combined_delay": self.combined_delay.to_state(),
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -351,6 +410,8 @@ class Unit:
         self.unknown_run = np.asarray(state["unknown_run"], np.int64)
         if "isolation" in state:  # states saved before it start without a held isolation
             self.isolation = IsolationHold.from_state(state["isolation"])
+        if "combined_delay" in state:
+            self.combined_delay = OnOffDelay.from_state(state["combined_delay"])
         return self
 
     # ------------------------------------------------------------ stages
@@ -440,6 +501,19 @@ class Unit:
         n, T = s.shape
         known = ~np.isnan(s)
         active = (np.nan_to_num(s) != 0).any(axis=1)
+        c_on = np.zeros(n, bool)
+        combined = share = None
+        if self.cmodel is not None:
+            t2, share = self.cmodel.evaluate(r.to_numpy())
+            s_t2 = np.full(n, np.nan)
+            if self.ev["combined"] and self.cmodel.high is not None:
+                with np.errstate(invalid="ignore"):
+                    raw_c = np.where(np.isnan(t2), np.nan, (t2 > self.cmodel.high) * 1.0)
+                s_t2 = self.combined_delay.transform(raw_c[:, None])[:, 0]
+                c_on = np.nan_to_num(s_t2) != 0
+            combined = pd.DataFrame({"T2": t2, "s_T2": s_t2}, index=frame.index)
+        tests_on = active
+        active = active | c_on
         detected = np.where(active, 1.0, np.where(known.all(axis=1), 0.0, np.nan))
         # Good only when every test was evaluated on this very sample; a symptom held over a
         # gap (see symptoms) is Uncertain, like OPC UA's Uncertain_LastUsableValue
@@ -457,6 +531,15 @@ class Unit:
         if self.matrix is not None:
             cert = self.certainties(s, mem)
             status, faults = self._isolate(cert, active, status, s)
+        top = None
+        if share is not None:
+            top = top_tags(share, self.cmodel.tags, active)
+            top.index = frame.index
+        alone = c_on & ~tests_on & (faults == "")
+        if alone.any():  # the combined test alone: the unit fails, at the best-ranked tag
+            status[alone] = NE107.FAILURE
+            faults[alone] = top["top1"].to_numpy()[alone] if self.tag_isolation else "unit"
+            faults[alone & (faults == "")] = "unit"
         message = ""
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
@@ -473,6 +556,11 @@ class Unit:
             quality=pd.Series(quality, index=idx),
             faults=pd.Series(faults, index=idx),
             message=message,
+            combined=combined,
+            contributions=None
+            if share is None
+            else pd.DataFrame(share, index=idx, columns=self.cmodel.tags),
+            top=top,
         )
 
     def _isolate(
@@ -545,6 +633,10 @@ def concat(parts: list[Diagnosis]) -> Diagnosis:
     def cat(attr: str):
         return pd.concat([getattr(p, attr) for p in parts])
 
+    def opt(attr: str):
+        got = [getattr(p, attr) for p in parts]
+        return None if any(g is None for g in got) else pd.concat(got)
+
     return Diagnosis(
         unit=first.unit,
         residuals=cat("residuals"),
@@ -555,4 +647,7 @@ def concat(parts: list[Diagnosis]) -> Diagnosis:
         quality=cat("quality"),
         faults=cat("faults"),
         message=first.message,
+        combined=opt("combined"),
+        contributions=opt("contributions"),
+        top=opt("top"),
     )

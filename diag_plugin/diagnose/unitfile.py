@@ -23,6 +23,9 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     min_support = 0.9    # a residual counts only where trained rules carry this share of the
                          # firing weight; elsewhere (the edge of the trained region) unknown
     hold_isolation = true  # fading symptoms widen the isolation, never move it elsewhere
+    combined = false     # a unit-level test: T² of the tests' scaled residuals (learned)
+    isolation = "matrix" # "matrix": the matrix file (none: detect only); "tags": isolation
+                         # to the tags, a matrix derived from the models' structure
 
     [thresholds]         # written by `diag unit learn`: the fault-free window they came from
     far = 0.001          # the false-alarm budget: alarms per hour of operation, all tests
@@ -36,6 +39,17 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
 
     [learned]            # written by `diag unit learn`: what each test's thresholds rest on
     r1 = { far = 0.00012, method = "tail", supported = false, hours = 336.0, ...}
+
+    [combined]           # written by `diag unit learn` with combined = true or isolation = "tags"
+    high = 41.3          # threshold of the combined statistic (combined = true)
+    far = 0.0005         # its share of the budget (COMBINED_SHARE of far)
+    shrinkage = 0.2      # covariance shrunk this far toward its diagonal
+    tests = ["r1", "r2"]
+    center = [0.01, -0.02]   # per test: median of its filtered residual (fault-free)
+    scale = [0.31, 0.2]      # per test: robust sd (1.4826 MAD) of it
+    cov = [[1.1, 0.3], [0.3, 0.9]]  # covariance of the scaled residuals
+    [combined.gains]     # per test: mean ∂ŷ/∂tag of its model over the window
+    r1 = { U = 0.52 }
 
     [faults]             # optional: NE 107 status a fault raises (default FAILURE)
     f_P0 = "MAINTENANCE_REQUIRED"
@@ -56,6 +70,10 @@ so a coarser, less exact answer needs a proportionally larger deviation to raise
 test without ``levels`` counts only answers of the fine grid; answers at levels beyond the list
 are unknown (never calibrated).
 
+``combined = true`` and ``isolation = "tags"`` (both off by default, so a unit without them
+behaves as before) and the ``[combined]`` table are described in
+:mod:`diag_plugin.diagnose.unittags`.
+
 Paths are relative to the unit file. Problems are reported all at once as ``file:line: what``,
 like ``diag rules check``. Saving after :meth:`UnitFile.set_thresholds` keeps comments and
 layout (tomlkit round trip).
@@ -64,7 +82,7 @@ layout (tomlkit round trip).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -75,7 +93,7 @@ from diag_plugin.diagnose.status import NE107
 from historian.errors import UserError
 
 SUFFIX = ".unit.toml"
-TABLES = ("unit", "evaluation", "thresholds", "tests", "faults", "tags", "learned")
+TABLES = ("unit", "evaluation", "thresholds", "tests", "faults", "tags", "learned", "combined")
 MATRIX_SUFFIX = ".matrix.toml"
 
 EVALUATION_DEFAULTS: dict[str, Any] = {
@@ -90,7 +108,12 @@ EVALUATION_DEFAULTS: dict[str, Any] = {
     "certainty": 0.5,
     "min_support": 0.9,
     "hold_isolation": True,
+    "combined": False,
+    "isolation": "matrix",
 }
+#: keys new_unit_text writes only when they differ from the default (files written before
+#: them regenerate byte for byte)
+NEW_KEYS = ("combined", "isolation")
 #: a residual is never amplified more than 1 / SPREAD_FLOOR by a small local spread. Of 0.5,
 #: 0.75 and 1 (attenuate only), 0.5 widened r3's thresholds (its cells at the travel limits
 #: have almost no spread, and their transients were doubled) and 1 left one marginal crossing
@@ -108,8 +131,14 @@ _KINDS = {
     "certainty": float,
     "min_support": float,
     "hold_isolation": bool,
+    "combined": bool,
+    "isolation": str,
 }
-_CHOICES = {"scale": ("span", "max"), "symptoms": ("crisp", "fuzzy")}
+_CHOICES = {
+    "scale": ("span", "max"),
+    "symptoms": ("crisp", "fuzzy"),
+    "isolation": ("matrix", "tags"),
+}
 
 
 class UnitError(UserError):
@@ -140,6 +169,29 @@ class TestSpec:
         if self.high is None:
             return None
         return (-self.high if self.low is None else self.low), self.high
+
+
+@dataclass
+class CombinedSpec:
+    """The unit-level test and the tag directions as learned (the unit file's ``[combined]``,
+    see :mod:`diag_plugin.diagnose.unittags`): per test (in ``tests`` order) the centre and
+    robust scale of its filtered residual, the covariance of the scaled residuals and how far
+    it was shrunk, the threshold ``high`` of the combined statistic (None: not a test, only the
+    ranking's scales), and per test its model's mean gain ``∂ŷ/∂tag`` for each input tag."""
+
+    tests: list[str]
+    center: list[float]
+    scale: list[float]
+    cov: list[list[float]]
+    shrinkage: float = 0.0
+    high: float | None = None
+    gains: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: what the threshold rests on (far, method, supported, hours, …), written as is
+    notes: dict[str, Any] = field(default_factory=dict)
+
+
+#: keys of [combined] besides the arrays, what they hold
+COMBINED_NOTES = ("far", "method", "supported", "hours", "hours_needed", "independent", "share")
 
 
 def unit_path(name_or_path: str, folder: str | Path = "rulebases") -> Path:
@@ -206,15 +258,7 @@ class UnitFile:
 
     def _read(self) -> None:
         for key in self.doc:
-            if key not in (
-                "unit",
-                "evaluation",
-                "thresholds",
-                "tests",
-                "faults",
-                "tags",
-                "learned",
-            ):
+            if key not in TABLES:
                 self.error(self.line_of(key), f"unknown table [{key}]")
         unit = self._table("unit", required=True)
         for key in unit:
@@ -236,6 +280,7 @@ class UnitFile:
         }
         self.tests = self._tests(self._table("tests", required=True))
         self.fault_status = self._faults(self._table("faults"))
+        self.combined = self._combined(self._table("combined"))
         self.tags: dict[str, str] = {}
         for k, v in self._table("tags").items():
             v = _plain(v)
@@ -366,6 +411,94 @@ class UnitFile:
                 self.error(self.line_of("faults", fault), f"fault {fault!r}: NORMAL is no fault")
         return out
 
+    def _combined(self, table: dict) -> CombinedSpec | None:
+        """The ``[combined]`` table (written by ``diag unit learn``), checked against the
+        tests: one centre, scale and covariance row per test, finite, scales > 0."""
+        if not table:
+            return None
+        v = {k: _plain(x) for k, x in table.items()}
+        line = lambda k: self.line_of("combined", k)  # noqa: E731
+        known = {"tests", "center", "scale", "cov", "shrinkage", "high", "gains", *COMBINED_NOTES}
+        for key in sorted(set(v) - known):
+            self.error(line(key), f"unknown key {key!r} in [combined]")
+        n0 = len(self.problems)
+        tests = v.get("tests")
+        if not isinstance(tests, list) or not all(isinstance(t, str) for t in tests):
+            self.error(line("tests"), "[combined] tests must list the unit's test names")
+            return None
+
+        def numbers(key: str, row: Any, k: int) -> list[float]:
+            ok = (
+                isinstance(row, list)
+                and len(row) == k
+                and all(
+                    isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                    for x in row
+                )
+            )
+            if not ok:
+                self.error(line(key), f"[combined] {key} must be {k} finite numbers, one per test")
+                return [math.nan] * k
+            return [float(x) for x in row]
+
+        k = len(tests)
+        center = numbers("center", v.get("center"), k)
+        scale = numbers("scale", v.get("scale"), k)
+        if not all(x > 0 for x in scale if math.isfinite(x)):
+            self.error(line("scale"), "[combined] scale must be > 0 for every test")
+        cov_raw = v.get("cov")
+        if not isinstance(cov_raw, list) or len(cov_raw) != k:
+            self.error(line("cov"), f"[combined] cov must be {k} rows of {k} numbers")
+            cov = []
+        else:
+            cov = [numbers("cov", row, k) for row in cov_raw]
+        shrink = v.get("shrinkage", 0.0)
+        if isinstance(shrink, bool) or not isinstance(shrink, int | float) or not 0 <= shrink <= 1:
+            self.error(line("shrinkage"), f"[combined] shrinkage must be in [0, 1], got {shrink!r}")
+            shrink = 0.0
+        high = v.get("high")
+        if high is not None and (
+            isinstance(high, bool) or not isinstance(high, int | float) or not high > 0
+        ):
+            self.error(line("high"), f"[combined] high must be a number > 0, got {high!r}")
+            high = None
+        gains: dict[str, dict[str, float]] = {}
+        graw = v.get("gains", {})
+        if not isinstance(graw, dict):
+            self.error(line("gains"), "[combined] gains must be a table of test = { TAG = gain }")
+            graw = {}
+        for test, row in graw.items():
+            gl = self.line_of("combined.gains", test)
+            if not isinstance(row, dict) or not all(
+                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                for x in row.values()
+            ):
+                self.error(gl, f"[combined.gains] {test}: must be {{ TAG = gain, … }}")
+                continue
+            gains[str(test)] = {str(t): float(x) for t, x in row.items()}
+        names = [t.name for t in getattr(self, "tests", [])]
+        if names and sorted(tests) != sorted(names):
+            self.error(
+                line("tests"),
+                f"[combined] tests {tests} differ from the unit's tests {names}: "
+                "run `diag unit learn` again",
+            )
+        for test in gains:
+            if names and test not in names:
+                self.error(self.line_of("combined.gains", test), f"unknown test {test!r}")
+        if len(self.problems) > n0:
+            return None
+        return CombinedSpec(
+            tests=list(tests),
+            center=center,
+            scale=scale,
+            cov=cov,
+            shrinkage=float(shrink),
+            high=None if high is None else float(high),
+            gains=gains,
+            notes={kk: v[kk] for kk in COMBINED_NOTES if kk in v},
+        )
+
     # ------------------------------------------------------------ paths
     def resolve(self, name: str) -> Path:
         """A file named in the unit file, relative to the unit file."""
@@ -398,6 +531,8 @@ class UnitFile:
             spread=learned.spread,
             notes=learned.notes(),
         )
+        if getattr(learned, "combined", None) is not None or self.combined is not None:
+            self.set_combined(getattr(learned, "combined", None))
 
     def set_thresholds(
         self,
@@ -470,6 +605,40 @@ class UnitFile:
         fresh = UnitFile(text, self.path)
         self.__dict__.update(fresh.__dict__)
 
+    def set_combined(self, spec: CombinedSpec | None) -> None:
+        """Write (or, with None, remove) the ``[combined]`` table."""
+        if "combined" in self.doc:
+            del self.doc["combined"]
+        if spec is not None:
+            t = tomlkit.table()
+            t.add(
+                tomlkit.comment(
+                    "written by `diag unit learn`: the unit-level test and the tag directions"
+                )
+            )
+            if spec.high is not None:
+                t["high"] = float(f"{spec.high:.6g}")
+            for k, x in spec.notes.items():
+                t[k] = x
+            t["shrinkage"] = round(float(spec.shrinkage), 4)
+            t["tests"] = list(spec.tests)
+            t["center"] = [float(f"{x:.5g}") for x in spec.center]
+            t["scale"] = [float(f"{x:.5g}") for x in spec.scale]
+            cov = tomlkit.array()
+            for row in spec.cov:
+                cov.append([float(f"{x:.5g}") for x in row])
+            cov.multiline(True)
+            t["cov"] = cov
+            g = tomlkit.table()
+            for test in spec.tests:
+                row = tomlkit.inline_table()
+                row.update({k: float(f"{x:.5g}") for k, x in spec.gains.get(test, {}).items()})
+                g[test] = row
+            t["gains"] = g
+            self.doc["combined"] = t
+        fresh = UnitFile(self.dumps(), self.path)
+        self.__dict__.update(fresh.__dict__)
+
     def dumps(self) -> str:
         return tomlkit.dumps(self.doc)
 
@@ -490,8 +659,10 @@ def new_unit_text(
     matrix: str | None = None,
     description: str = "",
     outputs: str | None = None,
+    evaluation: dict[str, Any] | None = None,
 ) -> str:
-    """The text of a new unit file with default evaluation and no thresholds yet."""
+    """The text of a new unit file with default evaluation (``evaluation``: keys set to other
+    values, e.g. ``{"combined": True, "isolation": "tags"}``) and no thresholds yet."""
     doc = tomlkit.document()
     doc.add(tomlkit.comment(f"Unit {name}: models (tests), residual evaluation, thresholds"))
     unit = tomlkit.table()
@@ -503,7 +674,9 @@ def new_unit_text(
     unit["outputs"] = outputs or name
     doc["unit"] = unit
     ev = tomlkit.table()
-    for k, v in EVALUATION_DEFAULTS.items():
+    for k, v in {**EVALUATION_DEFAULTS, **(evaluation or {})}.items():
+        if k in NEW_KEYS and v == EVALUATION_DEFAULTS[k]:
+            continue  # files written before these keys regenerate byte for byte
         ev[k] = v
     doc["evaluation"] = ev
     t = tomlkit.table()

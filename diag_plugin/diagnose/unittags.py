@@ -1,0 +1,214 @@
+"""The unit-level combined test and isolation to tags (issue 25).
+
+A unit made from a plant's history has one model per tag and no expert matrix. Two things
+let it see and name what single tests miss.
+
+**The combined test** (``combined = true`` in the unit file's ``[evaluation]``). Each test's
+filtered residual ``r_j`` (the one its thresholds judge) is centred and scaled by what it does
+on fault-free data the models did not see, ``z_j = (r_j − c_j) / s_j`` with ``c_j`` the median
+and ``s_j`` the robust standard deviation (1.4826 · MAD) of the cross-fitted residuals; the
+combined statistic is Hotelling's
+
+    ``T² = zᵀ S⁻¹ z``   (MacGregor & Kourti, 1995, eq. 3)
+
+with ``S`` the covariance of ``z`` over the same window shrunk toward its diagonal,
+``S = (1 − λ) Ŝ + λ diag(Ŝ)``, ``λ = T / (T + n_eff)`` (``T`` tests, ``n_eff`` the fewest
+independent values of a test's residual, :func:`~diag_plugin.diagnose.symptoms.effective_samples`:
+a filtered residual holds few, and an unshrunk inverse would chase noise). A coordinated small
+move of several tags, each residual inside its thresholds, adds up in ``T²``. Where some tests
+are unknown ``T²`` is taken over the known ones (``S`` restricted to them) and mapped to the
+same false-alarm level with ``T`` degrees of freedom, ``F⁻¹_T(F_k(T²_k))`` with ``F_k`` the χ²
+distribution function of ``k`` degrees of freedom; with fewer than half the tests known it is
+unknown. Its threshold ``high`` is learned like the tests' (:mod:`~diag_plugin.diagnose.budget`:
+alarm episodes with the unit's on/off delays, counted on ``T²`` computed from residuals
+cross-fitted over the time blocks, and ``c``, ``s``, ``S`` themselves learned without the
+block they score) under the same budget: the combined test gets :data:`COMBINED_SHARE` of the
+unit's ``far``, the per-tag tests share the rest as before (``far · (1 − COMBINED_SHARE) / 2T``
+a side). When the combined test alone is on, the unit is FAILURE and the fault is the
+top-ranked tag (``isolation = "tags"``) or ``unit``.
+
+**Isolation to tags** (``isolation = "tags"``). Without an expert matrix the unit's matrix is
+derived from its models (:func:`derived_matrix`): one fault column per tag, named by the tag,
+with ``1`` in every test that reads the tag (an input, any lag, derived or not) or models it
+(its output), ``0`` elsewhere, so the crisp nearest-signature isolation names tags. An expert
+matrix file, when given, takes precedence for the faults; the ranking below is still reported.
+A *process* fault (fouling, a leak) has no column: it moves the tests whose relations it
+breaks, and shows up as the tags those tests involve, ranked as below.
+
+**Ranking by contribution.** For each tag ``X`` a fault direction ``ξ_X`` in ``z`` space: a
+bias ``b`` of X's sensor moves test ``j``'s residual by ``(1{X is j's output} − g_jX) · b ·
+100 / span_j`` (eq. 6), ``g_jX`` the mean gain ``∂ŷ_j/∂X`` of ``j``'s model over the learning
+window (summed over the lags it reads X at; zero for derived inputs such as a rate, which a
+bias does not move), divided by ``s_j``. The reconstruction-based contribution
+(Alcala & Qin, 2009, eq. 13)
+
+    ``RBC_X = (ξ_Xᵀ S⁻¹ z)² / (ξ_Xᵀ S⁻¹ ξ_X)``
+
+is how much of ``T²`` a bias along ``ξ_X`` explains (``0 ≤ RBC_X ≤ T²``); the share
+``RBC_X / T²`` ranks the tags (1: a bias of X alone explains the deviation). Tags touching
+the same tests in the same proportions cannot be told apart and share a rank. Before
+``diag unit learn`` has written ``[combined]`` the ranking uses ``z = r / high``, ``S = I`` and
+the derived matrix's 0/1 columns as directions (rough, sign-blind).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from diag_plugin.diagnose.matrix import DiagnosticMatrix
+from diag_plugin.diagnose.unitfile import CombinedSpec
+from diag_plugin.regressors import parse_specs
+
+#: share of the unit's false-alarm budget given to the combined test (the per-tag tests share
+#: the rest): the unit's multivariate detector counts as much as all its single tests together;
+#: thresholds move with the log of their share, so halving the tests' costs them little
+COMBINED_SHARE = 0.5
+#: the combined statistic is unknown with fewer known tests than this share
+MIN_KNOWN_SHARE = 0.5
+#: tags reported per alarm
+TOP = 3
+
+
+def _tag(spec_tags: list[str], mapping: dict[str, str]) -> list[str]:
+    return [mapping.get(t, t) for t in spec_tags]
+
+
+def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
+    """The unit's tags (plant names, outputs first in test order, then inputs), each test's
+    output tag and the tags each test reads (inputs, any lag)."""
+    outputs: dict[str, str] = {}
+    reads: dict[str, list[str]] = {}
+    mapping = unit.file.tags
+    for t in unit.tests:
+        m = unit.models[t]
+        outputs[t] = _tag(parse_specs([m.output])[0].tags, mapping)[0]
+        reads[t] = list(
+            dict.fromkeys(x for s in parse_specs(m.inputs) for x in _tag(s.tags, mapping))
+        )
+    tags = list(dict.fromkeys([*outputs.values(), *(x for r in reads.values() for x in r)]))
+    return tags, outputs, reads
+
+
+def derived_matrix(unit) -> DiagnosticMatrix:
+    """The matrix of a unit without an expert one: tests × tags, ``1`` where the test reads
+    the tag (input, any lag) or models it (output), ``0`` elsewhere (see module doc)."""
+    tags, outputs, reads = structure(unit)
+    rows = [[1 if (x == outputs[t] or x in reads[t]) else 0 for x in tags] for t in unit.tests]
+    return DiagnosticMatrix(list(unit.tests), tags, rows, name=f"{unit.name} (derived: tags)")
+
+
+def directions(unit, spec: CombinedSpec | None) -> np.ndarray:
+    """Fault direction of each tag (columns, :func:`structure` order) in the space of the
+    scaled residuals (rows, the unit's tests): see the module doc."""
+    tags, outputs, reads = structure(unit)
+    xi = np.zeros((len(unit.tests), len(tags)))
+    for j, t in enumerate(unit.tests):
+        for k, x in enumerate(tags):
+            if spec is None:
+                xi[j, k] = 1.0 if (x == outputs[t] or x in reads[t]) else 0.0
+                continue
+            i = spec.tests.index(t)
+            test = unit.file.test(t)
+            span = test.ymax if unit.ev["scale"] == "max" and test.ymax else unit.models[t].span
+            g = spec.gains.get(t, {}).get(x, 0.0)
+            xi[j, k] = ((1.0 if x == outputs[t] else 0.0) - g) * 100.0 / span / spec.scale[i]
+    return xi
+
+
+@dataclass
+class CombinedModel:
+    """The combined statistic and the contributions of a unit, ready to evaluate."""
+
+    tags: list[str]
+    center: np.ndarray
+    scale: np.ndarray
+    cov: np.ndarray
+    xi: np.ndarray
+    high: float | None
+
+    @classmethod
+    def of(cls, unit) -> CombinedModel:
+        """From the unit file's ``[combined]`` (reordered to the unit's tests), or, before it
+        is learned, the rough ranking's scales (the thresholds, identity covariance)."""
+        spec = unit.file.combined
+        tags = structure(unit)[0]
+        T = len(unit.tests)
+        if spec is None:
+            hi = np.array([t.high if t.high else 1.0 for t in unit.file.tests], float)
+            return cls(tags, np.zeros(T), hi, np.eye(T), directions(unit, None), None)
+        order = [spec.tests.index(t) for t in unit.tests]
+        cov = np.asarray(spec.cov, float)[np.ix_(order, order)]
+        return cls(
+            tags,
+            np.asarray(spec.center, float)[order],
+            np.asarray(spec.scale, float)[order],
+            cov,
+            directions(unit, spec),
+            spec.high,
+        )
+
+    def z(self, r: np.ndarray) -> np.ndarray:
+        """Scaled residuals ``(r − c) / s`` (n × T, NaN unknown)."""
+        return (np.asarray(r, float) - self.center) / self.scale
+
+    def evaluate(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``T²`` per sample (NaN unknown) and each tag's share of it, ``RBC_X / T²`` (n × tags),
+        from filtered residuals ``r`` (n × T): see the module doc."""
+        z = self.z(r)
+        n, T = z.shape
+        t2 = np.full(n, np.nan)
+        share = np.full((n, len(self.tags)), np.nan)
+        known = np.isfinite(z)
+        enough = known.sum(axis=1) >= max(1, math.ceil(MIN_KNOWN_SHARE * T))
+        if not enough.any():
+            return t2, share
+        patterns, inverse = np.unique(known[enough], axis=0, return_inverse=True)
+        rows_all = np.flatnonzero(enough)
+        for p, pat in enumerate(patterns):
+            rows = rows_all[inverse.reshape(-1) == p]
+            k = np.flatnonzero(pat)
+            m = np.linalg.pinv(self.cov[np.ix_(k, k)])
+            zk = z[np.ix_(rows, k)]
+            mz = zk @ m
+            q = np.einsum("ij,ij->i", mz, zk)
+            xi = self.xi[k]
+            den = np.einsum("tk,tu,uk->k", xi, m, xi)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                rbc = np.where(den > 1e-12, (mz @ xi) ** 2 / np.maximum(den, 1e-12), 0.0)
+                share[rows] = np.clip(rbc / np.maximum(q, 1e-12)[:, None], 0.0, 1.0)
+            if k.size < T:  # the same false-alarm level with T degrees of freedom
+                q = stats.chi2.isf(stats.chi2.sf(q, k.size), T)
+            t2[rows] = q
+        return t2, share
+
+
+def top_tags(share: np.ndarray, tags: list[str], rows: np.ndarray, top: int = TOP) -> pd.DataFrame:
+    """The ``top`` tags by share per sample (``top1``, ``share1``, …), filled where ``rows``
+    (an alarm) and a ranking exists, empty elsewhere."""
+    n = share.shape[0]
+    out: dict[str, np.ndarray] = {}
+    s = np.nan_to_num(share, nan=-1.0)
+    order = np.argsort(-s, axis=1, kind="stable")[:, :top] if len(tags) else np.zeros((n, 0), int)
+    names = np.asarray(tags, dtype=object)
+    for i in range(min(top, len(tags))):
+        col = order[:, i]
+        val = s[np.arange(n), col]
+        ok = rows & (val > 0)
+        out[f"top{i + 1}"] = np.where(ok, names[col], "")
+        out[f"share{i + 1}"] = np.where(ok, val, np.nan)
+    return pd.DataFrame(out)
+
+
+def describe_top(row: pd.Series) -> str:
+    """``tags: X 0.82, Y 0.40`` for a row of :func:`top_tags` (empty without a ranking)."""
+    parts = []
+    for i in range(1, TOP + 1):
+        name = row.get(f"top{i}", "")
+        if name:
+            parts.append(f"{name} {row[f'share{i}']:.2f}")
+    return "tags: " + ", ".join(parts) if parts else ""
