@@ -15,8 +15,6 @@ on seeds never used to build or learn it:
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -25,81 +23,11 @@ from diag_plugin.diagnose.learning import learn_thresholds
 from diag_plugin.diagnose.plant import Plant
 from diag_plugin.diagnose.status import NE107
 from diag_plugin.diagnose.unit import Unit, concat
-from diag_plugin.diagnose.unitfile import UnitError, UnitFile, new_unit_text
+from diag_plugin.diagnose.unitfile import UnitError, UnitFile
 from diag_plugin.diagnose.unittags import COMBINED_SHARE, derived_matrix
-from diag_plugin.training.chunked import train
-from diag_plugin.workbench.model_edit import new_model
+from diag_plugin.examples.coupled import DAY, TESTS, build, process
 
-START = pd.Timestamp("2026-05-04", tz="UTC")
-TAGS = {"A": (0, 100), "B": (0, 100), "C": (0, 200), "D": (0, 200), "E": (0, 300), "F": (0, 300)}
-#: test → (output, inputs): each tag from the tags the process couples it to
-TESTS = {
-    "rA": ("A[k]", ["C[k]", "B[k]"]),
-    "rC": ("C[k]", ["A[k]", "B[k]"]),
-    "rD": ("D[k]", ["C[k]", "B[k]"]),
-    "rE": ("E[k]", ["D[k]", "A[k]"]),
-    "rF": ("F[k]", ["E[k]", "C[k]"]),
-}
 FAR = 0.01  # per hour, the unit's budget
-DAY = 1440  # samples a day at 60 s
-
-
-def process(n: int, seed: int, bias: dict[str, float] | None = None, onset: int = 0):
-    """``n`` minutes of the process: A, B follow set-points held 30–240 min (5 min lags), the
-    others are static couplings (one bilinear); ``bias``: sensor offsets from ``onset`` on."""
-    rng = np.random.default_rng([seed, 25])
-
-    def steps(lo: float, hi: float) -> np.ndarray:
-        out = np.empty(n)
-        i = 0
-        while i < n:
-            h = int(rng.integers(30, 240))
-            out[i : i + h] = rng.uniform(lo, hi)
-            i += h
-        return out
-
-    def lag(x: np.ndarray, tau: float) -> np.ndarray:
-        a = math.exp(-1 / tau)
-        y = np.empty_like(x)
-        v = x[0]
-        for k in range(len(x)):
-            v = a * v + (1 - a) * x[k]
-            y[k] = v
-        return y
-
-    A, B = lag(steps(20, 80), 5), lag(steps(20, 80), 5)
-    C = 0.8 * A + 0.6 * B + 0.004 * A * B
-    D = 1.1 * C - 0.5 * B + 40
-    E = 0.7 * D + 0.9 * A + 20
-    F = 0.5 * E + 0.4 * C + 30
-    true = {"A": A, "B": B, "C": C, "D": D, "E": E, "F": F}
-    noise = {"A": 0.4, "B": 0.4, "C": 0.8, "D": 0.8, "E": 1.0, "F": 1.0}
-    idx = pd.date_range(START, periods=n, freq="60s", name="ts")
-    f = pd.DataFrame({k: v + noise[k] * rng.standard_normal(n) for k, v in true.items()}, idx)
-    for tag, b in (bias or {}).items():
-        f.iloc[onset:, f.columns.get_loc(tag)] += b
-    return f
-
-
-def build(folder, frame: pd.DataFrame, evaluation: dict | None = None, matrix=None):
-    """The process's models trained on ``frame`` and a unit file (no thresholds yet)."""
-    from historian.taginfo import TagInfo
-
-    folder.mkdir(parents=True, exist_ok=True)
-    info = {k: TagInfo(k, unit="u", lo=lo, hi=hi, description=k) for k, (lo, hi) in TAGS.items()}
-    a, b = frame.index[0], frame.index[-1] + pd.Timedelta("60s")
-    names = {}
-    for test, (out, ins) in TESTS.items():
-        path = folder / f"p_{test}.toml"
-        if not path.exists():
-            rb = new_model(path, f"p_{test}", out, ins, frame=frame, tag_info=info, period="60s")
-            res = train(rb, lambda x, y: frame[(frame.index >= x) & (frame.index < y)], a, b)
-            rb.apply_training(res.model, {"from": a.isoformat(), "to": b.isoformat()})
-            rb.save()
-        names[test] = path.name
-    p = folder / "p.unit.toml"
-    p.write_text(new_unit_text("p", names, evaluation=evaluation, matrix=matrix))
-    return p
 
 
 @pytest.fixture(scope="module")
@@ -259,3 +187,33 @@ def test_pieces_and_one_pass_agree_and_the_live_path_names_the_tags(learned):
     assert st.status == NE107.FAILURE and st.tags and st.tags[0][0] == "D"
     assert "tags: D" in st.message and st.to_json()["tags"][0][0] == "D"
     assert st.status == one.at(299).status and st.message == one.at(299).message
+
+
+# ---------------------------------------------------------------- the commands
+def test_cli_show_and_diagnose_csv_carry_the_combined_test_and_the_tags(learned, tmp_path, capsys):
+    import json
+
+    from diag_plugin.cli import main
+    from historian.store import Historian
+
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    with Historian.open(url) as h:
+        h.write_samples(process(DAY, 221, {"D": 3.0}, DAY // 2))
+    base = ["--db", url, "--rulebases", str(learned.file.path.parent)]
+    assert main(base + ["unit", "show", "p", "--json"]) == 0
+    shown = json.loads(capsys.readouterr().out)
+    assert shown["combined"]["enabled"] and shown["combined"]["high"] > 0
+    assert shown["matrix"]["derived"] and shown["matrix"]["faults"][:2] == ["A", "C"]
+    assert main(base + ["unit", "show", "p"]) == 0
+    text = capsys.readouterr().out
+    assert "combined test (T²" in text and "derived from the models" in text
+    csv = tmp_path / "d.csv"
+    assert main(base + ["diagnose", "p", "--json", "--csv", str(csv)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert any(iv["status"] == "FAILURE" and "D" in iv["faults"] for iv in out["intervals"])
+    table = pd.read_csv(csv, keep_default_na=False)
+    for col in ("T2", "s_T2", "top1", "share1", "top2", "share2", "top3", "share3"):
+        assert col in table.columns, col
+    late = table.iloc[DAY // 2 + 200 :]
+    assert (late["top1"] == "D").mean() > 0.5
+    assert (table["top1"].iloc[200 : DAY // 2] == "").all()  # nothing to explain before
