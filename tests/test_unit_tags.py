@@ -179,14 +179,17 @@ def test_pieces_and_one_pass_agree_and_the_live_path_names_the_tags(learned):
     parts = concat([learned.evaluate(f.iloc[a : a + 97]) for a in range(0, len(f), 97)])
     pd.testing.assert_frame_equal(one.to_frame(), parts.to_frame())
     assert one.contributions.columns.tolist() == ["A", "C", "D", "E", "F", "B"]
-    # the live loop: the unit goes one by one, its status names the top tags
+    # the live loop's fast path: the same status, faults, tags and message every cycle
     plant = Plant({"p": learned.reset()})
-    assert plant.slow == ["p"]
-    for ts, row in f.iloc[:300].iterrows():
+    assert plant.fast == ["p"]
+    for i, (ts, row) in enumerate(f.iloc[:300].iterrows()):
         st = plant.cycle(ts, row)[0]
+        want = one.at(i)
+        assert (st.status, st.faults, st.message) == (want.status, want.faults, want.message)
+        assert [t for t, _ in st.tags] == [t for t, _ in want.tags]
+        assert np.allclose([v for _, v in st.tags], [v for _, v in want.tags])
     assert st.status == NE107.FAILURE and st.tags and st.tags[0][0] == "D"
     assert "tags: D" in st.message and st.to_json()["tags"][0][0] == "D"
-    assert st.status == one.at(299).status and st.message == one.at(299).message
 
 
 # ---------------------------------------------------------------- the commands

@@ -13,10 +13,11 @@ stays local. :class:`Plant` keeps that structure and evaluates every unit each c
 
 A unit whose file, models or matrix are broken is reported CHECK_FUNCTION with Bad quality and
 its ``file:line`` problems every cycle; the others go on. Units whose models use derived inputs
-(``dir``, ``rate``, …), whose symptoms are fuzzy (N/0/P, isolated by rules (10)–(14)), or that
-have a combined test or isolation to tags (:mod:`~diag_plugin.diagnose.unittags`; their status
-message and ``tags`` name the top tags) are evaluated one by one with :meth:`Unit.evaluate`
-(same result, slower).
+(``dir``, ``rate``, …) or whose symptoms are fuzzy (N/0/P, isolated by rules (10)–(14)) are
+evaluated one by one with :meth:`Unit.evaluate` (same result, slower). A unit with a combined
+test or isolation to tags (:mod:`~diag_plugin.diagnose.unittags`) stays on the fast path: its
+T² and tag shares are computed from its slice of the filtered residuals each cycle, and its
+status's ``tags`` and message name the top tags on an alarm.
 The fast path gives the same statuses as :meth:`Unit.evaluate` over the same rows (tested).
 """
 
@@ -70,13 +71,8 @@ def _plain_lags(unit: Unit) -> bool:
 
 
 def _crisp(unit: Unit) -> bool:
-    """True for crisp symptoms and per-test evaluation only (the fast path); fuzzy N/0/P units
-    and units with a combined test or isolation to tags go one by one."""
-    return (
-        unit.ev["symptoms"] == "crisp"
-        and not unit.ev["combined"]
-        and unit.ev["isolation"] == "matrix"
-    )
+    """True for crisp symptoms (the fast path); fuzzy N/0/P units go one by one."""
+    return unit.ev["symptoms"] == "crisp"
 
 
 class Plant:
@@ -214,6 +210,12 @@ class Plant:
             first_slot.setdefault(s.unit, i)
         self._first = first_slot
         self._has_th = [u.has_thresholds for u in units]
+        # units with a combined test or isolation to tags: (unit, its model, delay, enabled)
+        self._multi = [
+            (ui, u.cmodel, OnOffDelay(u.ev["on_delay"], u.ev["off_delay"]), bool(u.ev["combined"]))
+            for ui, u in enumerate(units)
+            if u.cmodel is not None
+        ]
         for uis in by_matrix.values():
             mx = units[uis[0]].matrix
             order = [units[uis[0]].tests.index(t) for t in mx.tests]
@@ -339,6 +341,19 @@ class Plant:
         n_known = np.bincount(su, weights=known, minlength=nu)
         n_tests = np.bincount(su, minlength=nu)
         all_known = n_known == n_tests
+        tests_on = active.copy()
+        c_on = np.zeros(nu, bool)
+        multi: dict[int, tuple] = {}
+        for ui, cm, delay, enabled in self._multi:
+            a = self._first[ui]
+            t2, share = cm.evaluate(r[a : a + len(units[ui].tests)][None, :])
+            s_t2 = np.nan
+            if enabled and cm.high is not None:
+                raw = np.nan if np.isnan(t2[0]) else float(t2[0] > cm.high)
+                s_t2 = float(delay.transform(np.array([[raw]]))[0, 0])
+                c_on[ui] = np.nan_to_num(s_t2) != 0
+            multi[ui] = (t2[0], s_t2, share[0], cm.tags)
+        active = active | c_on
         status = np.where(
             active, NE107.OFF_SPEC, np.where(all_known, NE107.NORMAL, NE107.CHECK_FUNCTION)
         ).astype(np.int8)
@@ -351,7 +366,7 @@ class Plant:
         for mx, uis, cols, certainty, hold, isolation in self._matrices:
             sm = s[cols]  # units × tests (matrix order)
             c = mx.nearest(sm).certainties
-            on = active[uis]
+            on = tests_on[uis]  # the combined test alone isolates nothing (Unit.certainties)
             c = np.where(on[:, None], c, 0.0)
             cz = np.nan_to_num(c, nan=0.0)
             best = cz.max(axis=1, keepdims=True)
@@ -366,14 +381,28 @@ class Plant:
                     faults[ui] = names
                     st = [u.file.fault_status.get(f, NE107.FAILURE) for f in names]
                     status[ui] = min(st, key=PRIORITY.index)
+        tags: list[list[tuple[str, float]]] = [[] for _ in range(nu)]
+        notes: list[list[str]] = [[] for _ in range(nu)]
+        for ui, (t2, _s_t2, share, names) in multi.items():
+            if active[ui]:
+                tags[ui] = _top(share, names)
+            if c_on[ui]:
+                notes[ui].append(f"combined test on (T² {t2:.3g})")
+            if tags[ui]:
+                notes[ui].append("tags: " + ", ".join(f"{t} {v:.2f}" for t, v in tags[ui]))
+            if c_on[ui] and not tests_on[ui] and not faults[ui]:  # the combined test alone
+                status[ui] = NE107.FAILURE
+                u = units[ui]
+                faults[ui] = [tags[ui][0][0]] if u.tag_isolation and tags[ui] else ["unit"]
         out = []
         for ui, u in enumerate(units):
             a = self._first[ui]
             b = a + len(u.tests)
-            msg = ""
+            msg = "; ".join(notes[ui])
             st = NE107(int(status[ui]))
             if not self._has_th[ui]:
                 st, msg = NE107.CHECK_FUNCTION, f"no thresholds: run `diag unit learn {u.name}`"
+                msg = "; ".join([msg, *notes[ui]])
             det = None if not active[ui] and not all_known[ui] else bool(active[ui])
             out.append(
                 UnitStatus(
@@ -387,9 +416,19 @@ class Plant:
                     detected=det,
                     faults=faults[ui],
                     message=msg,
+                    tags=tags[ui],
                 )
             )
         return out
+
+
+def _top(share: np.ndarray, names: list[str]) -> list[tuple[str, float]]:
+    """The top tags by share, as :func:`~diag_plugin.diagnose.unittags.top_tags` ranks them."""
+    from diag_plugin.diagnose.unittags import TOP
+
+    s = np.nan_to_num(share, nan=-1.0)
+    order = np.argsort(-s, kind="stable")[:TOP]
+    return [(names[k], float(s[k])) for k in order if s[k] > 0]
 
 
 def _matrix_key(u: Unit) -> tuple:

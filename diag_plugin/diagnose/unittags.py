@@ -54,7 +54,7 @@ the derived matrix's 0/1 columns as directions (rough, sign-blind).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -130,6 +130,17 @@ class CombinedModel:
     cov: np.ndarray
     xi: np.ndarray
     high: float | None
+    #: per pattern of known tests: S⁻¹ restricted to them and the directions' norms
+    _inverses: dict[bytes, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+    def _inverse(self, pat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key = pat.tobytes()
+        if key not in self._inverses:
+            k = np.flatnonzero(pat)
+            m = np.linalg.pinv(self.cov[np.ix_(k, k)])
+            xi = self.xi[k]
+            self._inverses[key] = (m, np.einsum("tk,tu,uk->k", xi, m, xi))
+        return self._inverses[key]
 
     @classmethod
     def of(cls, unit) -> CombinedModel:
@@ -172,12 +183,11 @@ class CombinedModel:
         for p, pat in enumerate(patterns):
             rows = rows_all[inverse.reshape(-1) == p]
             k = np.flatnonzero(pat)
-            m = np.linalg.pinv(self.cov[np.ix_(k, k)])
+            m, den = self._inverse(pat)
             zk = z[np.ix_(rows, k)]
             mz = zk @ m
             q = np.einsum("ij,ij->i", mz, zk)
             xi = self.xi[k]
-            den = np.einsum("tk,tu,uk->k", xi, m, xi)
             with np.errstate(invalid="ignore", divide="ignore"):
                 rbc = np.where(den > 1e-12, (mz @ xi) ** 2 / np.maximum(den, 1e-12), 0.0)
                 share[rows] = np.clip(rbc / np.maximum(q, 1e-12)[:, None], 0.0, 1.0)
