@@ -569,7 +569,9 @@ def learn_combined(
     (alarms per hour: the combined test's share), the threshold of T² calibrated on T² of each
     block computed with parameters learned without that block (out of sample, like the
     residuals), with the unit's on/off delays
-    (:func:`~diag_plugin.diagnose.budget.calibrate_side`)."""
+    (:func:`~diag_plugin.diagnose.budget.calibrate_side`); where the window is too short even
+    for a tail fit, Rice's Gaussian rate is fitted to √T² (Gaussian-tailed) rather than to the
+    skewed T²."""
     from diag_plugin.diagnose.budget import calibrate_side
     from diag_plugin.diagnose.unittags import CombinedModel
 
@@ -596,8 +598,15 @@ def learn_combined(
         t2[held] = model.evaluate(x[held])[0]
     dt_h = pd.Timedelta(unit.period) / pd.Timedelta(hours=1)
     h = float(np.isfinite(t2).sum()) * dt_h
-    side = calibrate_side(t2, h, far, unit.ev["on_delay"], unit.ev["off_delay"])
-    spec.high = float(side.threshold)
+    on, off = unit.ev["on_delay"], unit.ev["off_delay"]
+    side = calibrate_side(t2, h, far, on, off)
+    high = float(side.threshold)
+    if side.method == "gaussian":
+        # too few episodes for a tail: Rice's Gaussian rate fits the distance √T² (a χ
+        # variable, Gaussian-tailed), not the skewed T² itself
+        side = calibrate_side(np.sqrt(t2), h, far, on, off)
+        high = float(side.threshold) ** 2
+    spec.high = high
     spec.notes = {
         "far": float(f"{far:.3g}"),
         "method": side.method,
