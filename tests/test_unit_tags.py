@@ -220,3 +220,20 @@ def test_cli_show_and_diagnose_csv_carry_the_combined_test_and_the_tags(learned,
     late = table.iloc[DAY // 2 + 200 :]
     assert (late["top1"] == "D").mean() > 0.5
     assert (table["top1"].iloc[200 : DAY // 2] == "").all()  # nothing to explain before
+
+
+def test_a_combined_test_not_yet_learned_is_check_function_and_says_so(learned, tmp_path):
+    """combined = true added to a unit learned without it: CHECK_FUNCTION until relearned."""
+    import shutil
+
+    for f in learned.file.path.parent.glob("p*.toml"):
+        shutil.copy(f, tmp_path / f.name)
+    path = tmp_path / "p.unit.toml"
+    uf = UnitFile.load(path)
+    uf.set_combined(None)
+    uf.save()
+    unit = Unit.load(path)
+    assert not unit.has_thresholds
+    d = unit.evaluate(process(400, 5))
+    assert (d.status == NE107.CHECK_FUNCTION).all()
+    assert d.message == "no thresholds for the combined test: run `diag unit learn p`"

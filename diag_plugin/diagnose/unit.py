@@ -543,6 +543,8 @@ class Unit:
         message = ""
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
+            if self.ev["combined"] and (self.file.combined is None or self.cmodel.high is None):
+                missing.append("the combined test")
             message = f"no thresholds for {', '.join(missing)}: run `diag unit learn {self.name}`"
             status[:] = NE107.CHECK_FUNCTION
         idx = frame.index
