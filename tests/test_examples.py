@@ -105,6 +105,10 @@ def test_shipped_unit_is_valid_and_regenerates(regenerated):
         # (see the module doc) may shift them in the last digits only
         assert (ta.name, ta.model) == (tb.name, tb.model)
         assert ta.high == pytest.approx(tb.high, rel=1e-3)
+        # the N/0/P sets learned beside the thresholds (ramps centred on them)
+        assert ta.fuzzy == pytest.approx(tb.fuzzy, rel=1e-2)
+        assert ta.fuzzy[2] < ta.high < ta.fuzzy[3] and ta.fuzzy[0] < ta.low < ta.fuzzy[1]
+    assert unit.ev["symptoms"] == "crisp"  # crisp isolates more of the benchmark (docs)
 
 
 def test_shipped_table4_unit_is_valid_and_regenerates(regenerated):
@@ -123,3 +127,6 @@ def test_shipped_table4_unit_is_valid_and_regenerates(regenerated):
     for ta, tb in zip(a.tests, b.tests, strict=True):
         assert (ta.name, ta.model) == (tb.name, tb.model)
         assert ta.high == pytest.approx(tb.high, rel=1e-3)
+        assert ta.fuzzy == pytest.approx(tb.fuzzy, rel=1e-2)
+    # seed 001's diagnosis on the plant its Table 4 describes: rules (10)-(14)
+    assert unit.ev["symptoms"] == a.evaluation["symptoms"] == "fuzzy"

@@ -121,6 +121,8 @@ class Learned:
     warnings: list[str] = field(default_factory=list)
     #: the unit-level test and tag directions (``combined`` or ``isolation = "tags"``)
     combined: CombinedSpec | None = None
+    #: per test: breakpoints (n1, n0, p0, p1) of its N, 0, P sets (:func:`fuzzy_sets`)
+    fuzzy: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
 
     @property
     def independent(self) -> dict[str, int]:
@@ -439,6 +441,7 @@ def learn_thresholds(
     limits = {
         k: (min(b.low, -1e-4), max(b.high, 1e-4)) for k, b in budgets.items()
     }  # a band around 0 even for a biased residual
+    fuzzy = {k: fuzzy_sets(body[k].to_numpy(), *limits[k]) for k in limits}
     idx = frame.index
     period = pd.Timedelta(unit.period)
     window = (idx[0].isoformat(), (idx[-1] + period).isoformat())
@@ -485,7 +488,21 @@ def learn_thresholds(
         period=unit.period,
         warnings=warnings,
         combined=combined,
+        fuzzy=fuzzy,
     )
+
+
+def fuzzy_sets(residual: np.ndarray, low: float, high: float) -> tuple[float, float, float, float]:
+    """Breakpoints ``(n1, n0, p0, p1)`` of a test's N, 0, P sets (seed 001's three-valued
+    residual evaluation) from its fault-free residuals and its thresholds: each ramp is
+    centred on its threshold (μ = 0.5 there, so the fuzzy and crisp evaluations detect at the
+    same residual) and is two robust standard deviations (1.4826 × MAD) of the fault-free
+    residual wide — a residual one standard deviation past the threshold is wholly N or P,
+    one short of it wholly 0 — never reaching past zero."""
+    x = residual[np.isfinite(residual)]
+    sd = 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size else 0.0
+    up, dn = min(sd, 0.999 * high), min(sd, 0.999 * -low)
+    return (low - dn, low + dn, high - up, high + up)
 
 
 def hours(h: float) -> str:

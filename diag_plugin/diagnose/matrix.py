@@ -49,6 +49,7 @@ __all__ = [
     "MatchResult",
     "MatrixError",
     "NearestResult",
+    "RuleConclusions",
     "load_matrix",
     "parse_matrix",
 ]
@@ -112,6 +113,24 @@ class NearestResult:
     fault: np.ndarray
     certainty: np.ndarray
     certainties: np.ndarray
+
+
+@dataclass
+class RuleConclusions:
+    """Conclusions of the fault rules (seed 001, rules (10)–(14)), per sample.
+
+    ``firing``: each fault rule's premise degree α_f (min t-norm); ``normal``: the degree α_0
+    of the fault-free rule (every constrained test small); ``certainty``: the normalised
+    certainty factor of ``e_f = N`` (the element faulty), α_f over the sum of α_0 and the
+    degrees of the distinct rules; ``correct``: the ELSE branch ``e_f = P`` (the element
+    correct), 1 − certainty. All n_samples × n_faults but ``normal`` (n_samples). A rule is
+    judged on its known tests (a premise over an unknown test is left out, as the nearest
+    signature leaves the test out) and is NaN only when none of its tests is known."""
+
+    firing: np.ndarray
+    normal: np.ndarray
+    certainty: np.ndarray
+    correct: np.ndarray
 
 
 class DiagnosticMatrix:
@@ -336,6 +355,53 @@ class DiagnosticMatrix:
         cert[nan_rel] = np.nan
         cert[:, ~self.detectable] = 0.0
         return cert
+
+    def rules(self, memberships: np.ndarray) -> RuleConclusions:
+        """Fuzzy diagnosis by seed 001's rules (10)–(14), one rule per fault column::
+
+            IF (r_1 = A_1f) AND … AND (r_J = A_Jf) THEN e_f = N ELSE e_f = P
+
+        with ``A = B`` (big: max(μN, μP), or the sign's membership) where the column has a
+        1 or a sign, ``A = S`` (small: μ0) where it has a 0, and no premise for a
+        don't-care; AND is the min t-norm (:meth:`fuzzy` gives these firing degrees α_f).
+        The seed reads N as the element's faulty state and P as its correct one; we do too.
+
+        Aggregation and normalisation (the seed gives none): beside the fault rules the
+        unit has the fault-free rule ``IF every r_j = S THEN every e = P`` with degree α_0.
+        A sample's evidence is shared among the distinct hypotheses — fault-free and each
+        distinct rule premise (faults with identical columns are one hypothesis, the seed's
+        indistinguishable faults; each of them gets the hypothesis' certainty) — so the
+        certainty factor of ``e_f = N`` is ``c_f = α_f / (α_0 + Σ_g α_g)`` over the distinct
+        rules ``g``, and the ELSE branch holds to ``1 − c_f``. Hence ``c_f ≥ 0.5`` exactly when
+        ``e_f = N`` outweighs ``e_f = P``, the unit's default isolation rule. With crisp
+        memberships this is the exact match of the matrix, split evenly among compatible
+        distinct signatures. A pattern no rule covers (all α ≈ 0) gives certainty 0 to every
+        fault: an unknown fault, not a guess.
+        """
+        m = np.asarray(memberships, dtype=float)
+        if m.ndim == 2:
+            m = m[None]
+        unknown = np.isnan(m).any(axis=2)  # n × tests
+        # a premise over an unknown test is left out, as the nearest signature leaves the
+        # test out: each rule is judged on its known tests, unknown when it has none
+        firing = self.fuzzy(np.where(unknown[:, :, None], 1.0, m))
+        none_known = ~(self.relevant[None] & ~unknown[:, :, None]).any(axis=1)
+        firing[none_known & self.detectable[None]] = np.nan
+        constrained = self.relevant.any(axis=1)
+        z = np.where(unknown, np.nan, m[:, :, 1])[:, constrained]
+        normal = np.full(m.shape[0], np.nan) if not constrained.any() else z.min(axis=1)
+        some = ~np.isnan(z).all(axis=1) if constrained.any() else np.zeros(m.shape[0], bool)
+        if some.any():
+            normal[some] = np.nanmin(z[some], axis=1)
+        # one hypothesis per distinct rule premise
+        keys = [self.allowed[:, f, :].tobytes() for f in range(len(self.faults))]
+        first = np.array([keys.index(k) for k in keys])
+        distinct = np.unique(first[self.detectable]) if self.detectable.any() else first[:0]
+        total = np.nansum(firing[:, distinct], axis=1) + np.nan_to_num(normal)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cert = np.where(total[:, None] > 1e-12, firing / total[:, None], 0.0)
+        cert = np.where(np.isnan(firing), np.nan, np.clip(cert, 0.0, 1.0))
+        return RuleConclusions(firing=firing, normal=normal, certainty=cert, correct=1.0 - cert)
 
 
 # ---------------------------------------------------------------- file I/O

@@ -32,6 +32,7 @@ __all__ = [
     "LearnedThresholds",
     "OnOffDelay",
     "is_unknown",
+    "three_valued",
 ]
 
 UNKNOWN: float = float("nan")
@@ -218,17 +219,33 @@ class FuzzyThreeValued:
         if np.any(k <= 0) or np.any(w < 0) or np.any(w > 2 * k):
             raise ValueError("need threshold > 0 and 0 ≤ width ≤ 2·threshold")
         half = w / 2.0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            # Ramp with zero width is a step at K (crisp limit).
-            up = np.where(half > 0, (a - (k - half)) / np.where(half > 0, w, 1.0), 0.0)
-            mu_p = np.where(half > 0, np.clip(up, 0.0, 1.0), (a > k).astype(float))
-            dn = np.where(half > 0, ((-k + half) - a) / np.where(half > 0, w, 1.0), 0.0)
-            mu_n = np.where(half > 0, np.clip(dn, 0.0, 1.0), (a < -k).astype(float))
-        mu_z = 1.0 - mu_n - mu_p
-        nan = np.isnan(a)
-        for mu in (mu_n, mu_z, mu_p):
-            mu[nan] = np.nan
-        return wrap(mu_n), wrap(mu_z), wrap(mu_p)
+        mu = three_valued(a, -k - half, -k + half, k - half, k + half)
+        return tuple(wrap(x) for x in mu)  # type: ignore[return-value]
+
+
+def three_valued(
+    r: np.ndarray, n1: Any, n0: Any, p0: Any, p1: Any
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Memberships ``(μN, μ0, μP)`` of residuals ``r`` (n_samples × n_tests) in the three
+    trapezoidal sets of seed 001's residual evaluation, given per test by four breakpoints
+    ``n1 ≤ n0 ≤ p0 ≤ p1``: μN is 1 up to ``n1`` and falls to 0 at ``n0``; μP rises from 0 at
+    ``p0`` to 1 at ``p1``; ``μ0 = 1 − μN − μP`` is 1 on ``[n0, p0]``. A zero-width ramp is a
+    step (``r < n0`` is N, ``r > p0`` is P), the crisp three-valued evaluation. NaN residuals
+    give NaN memberships (unknown)."""
+    a = np.asarray(r, dtype=float)
+    n1, n0, p0, p1 = (np.broadcast_to(np.asarray(x, float), a.shape[-1:]) for x in (n1, n0, p0, p1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        up, wp = a - p0, p1 - p0
+        mu_p = np.where(wp > 0, np.clip(up / np.where(wp > 0, wp, 1.0), 0.0, 1.0), up > 0)
+        dn, wn = n0 - a, n0 - n1
+        mu_n = np.where(wn > 0, np.clip(dn / np.where(wn > 0, wn, 1.0), 0.0, 1.0), dn > 0)
+    mu_p = mu_p.astype(float)
+    mu_n = mu_n.astype(float)
+    mu_z = 1.0 - mu_n - mu_p
+    nan = np.isnan(a)
+    for mu in (mu_n, mu_z, mu_p):
+        mu[nan] = np.nan
+    return mu_n, mu_z, mu_p
 
 
 @numba.njit(cache=True)

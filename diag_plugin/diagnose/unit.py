@@ -46,7 +46,7 @@ from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
-from diag_plugin.diagnose.symptoms import FixedThresholds, FuzzyThreeValued, OnOffDelay
+from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay, three_valued
 from diag_plugin.diagnose.unitfile import SPREAD_FLOOR, TestSpec, UnitError, UnitFile, unit_path
 from diag_plugin.diagnose.unittags import CombinedModel, derived_matrix, describe_top, top_tags
 from diag_plugin.metrics import residual_pct
@@ -453,6 +453,18 @@ class Unit:
         hi = np.array([b for _, b in lims], float)
         return lo, hi
 
+    def _fuzzy_sets(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Breakpoints ``(n1, n0, p0, p1)`` of each test's N, 0, P sets: the unit file's
+        learned or edited ``fuzzy`` row, else ramps of ``fuzzy_width`` × half the band centred
+        on the thresholds (μP = μ0 = 0.5 at ``high``, μN = μ0 = 0.5 at ``low``)."""
+        k = (hi - lo) / 2.0
+        half = self.ev["fuzzy_width"] * k / 2.0
+        pts = np.stack([lo - half, lo + half, hi - half, hi + half])
+        for i, t in enumerate(self.file.tests):
+            if t.fuzzy is not None:
+                pts[:, i] = t.fuzzy
+        return tuple(pts)
+
     def symptoms(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Delayed (and latched) symptoms −1/0/+1/NaN, and the fuzzy memberships if fuzzy."""
         lo, hi = self._limits()
@@ -461,9 +473,7 @@ class Unit:
         lo_ = np.where(no_th, -1.0, lo)
         mem = None
         if self.ev["symptoms"] == "fuzzy":
-            k = (hi_ - lo_) / 2.0
-            shift = (hi_ + lo_) / 2.0
-            mu_n, mu_0, mu_p = FuzzyThreeValued(k, self.ev["fuzzy_width"] * k).transform(r - shift)
+            mu_n, mu_0, mu_p = three_valued(r, *self._fuzzy_sets(lo_, hi_))
             mem = np.stack([mu_n, mu_0, mu_p], axis=2)
             mem[:, no_th, :] = np.nan
         raw = FixedThresholds(high=hi_, low=lo_).transform(r)
@@ -479,14 +489,15 @@ class Unit:
         return s, mem
 
     def certainties(self, s: np.ndarray, mem: np.ndarray | None) -> np.ndarray:
-        """Certainty per fault: nearest signature (crisp) or rules (10)–(14) (fuzzy); 0 while
-        no symptom is on (the delays decide when there is something to isolate)."""
+        """Certainty per fault: nearest signature (crisp) or the normalised certainty factor
+        of rules (10)–(14) (fuzzy, :meth:`DiagnosticMatrix.rules`); 0 while no symptom is on
+        (the delays decide when there is something to isolate)."""
         assert self.matrix is not None
         order = [self.tests.index(t) for t in self.matrix.tests]
         s_m = s[:, order]
         on = (np.nan_to_num(s_m) != 0).any(axis=1)
         if mem is not None:
-            c = self.matrix.fuzzy(mem[:, order, :])
+            c = self.matrix.rules(mem[:, order, :]).certainty
         else:
             c = self.matrix.nearest(s_m).certainties
         c = np.where(on[:, None], c, 0.0)

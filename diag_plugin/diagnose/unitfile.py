@@ -15,8 +15,10 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     order = 4
     scale = "span"       # "span": % of the output's nominal span (eq. 6); "max": of its maximum
     latch = false        # keep a symptom once raised (seed 000)
-    symptoms = "crisp"   # "crisp" (thresholds) or "fuzzy" (N/0/P memberships, seed 001)
-    fuzzy_width = 0.5    # ramp width as a fraction of the threshold (fuzzy only)
+    symptoms = "crisp"   # "crisp": thresholds and the nearest signature; "fuzzy": N/0/P
+                         # memberships and rules (10)-(14) (seed 001)
+    fuzzy_width = 0.5    # ramp width as a fraction of the threshold, for a test without
+                         # its own learned `fuzzy` breakpoints (fuzzy only)
     on_delay = 30        # samples over the threshold before a symptom turns on
     off_delay = 30       # samples below it before it turns off
     certainty = 0.5      # a fault counts as isolated from this certainty on
@@ -63,6 +65,13 @@ the training outputs of the rules that answered, relative to the model's typical
 same inputs (a steep or unmodelled region) a deviation must be larger to count, where it is
 steady smaller. ``diag unit learn`` sets it for every test whose model keeps a spread
 (Wang–Mendel); without the key the plain residual counts.
+
+``fuzzy = [n1, n0, p0, p1]`` (learned, editable; fuzzy symptoms only): the breakpoints of the
+test's three sets, in the thresholds' units: μN is 1 below ``n1`` and 0 above ``n0``, μP is 0
+below ``p0`` and 1 above ``p1``, μ0 = 1 − μN − μP. ``diag unit learn`` centres each ramp on its
+threshold and makes it two fault-free standard deviations of the test's (cross-fitted, filtered)
+residual wide, so a residual one standard deviation past the threshold is wholly N or P and one
+short of it wholly 0 (:func:`diag_plugin.diagnose.learning.fuzzy_sets`).
 
 ``levels`` (learned) are the residual scales of the coarser rule levels behind a Wang–Mendel
 model's fine grid: a residual answered at level ``l`` is divided by ``levels[l]`` (level 0: 1),
@@ -163,6 +172,8 @@ class TestSpec:
     levels: tuple[float, ...] | None = None
     #: residuals in units of the model's local spread (learned)
     spread: bool = False
+    #: breakpoints n1 ≤ n0 ≤ p0 ≤ p1 of the N, 0, P sets (fuzzy symptoms; learned or edited)
+    fuzzy: tuple[float, float, float, float] | None = None
 
     @property
     def limits(self) -> tuple[float, float] | None:
@@ -331,7 +342,8 @@ class UnitFile:
                 self.error(line, f'test {name!r}: needs {{ model = "file.toml", high = … }}')
                 continue
             v = {k: _plain(x) for k, x in raw.items()}
-            for key in sorted(set(v) - {"model", "high", "low", "ymax", "levels", "spread"}):
+            known = {"model", "high", "low", "ymax", "levels", "spread", "fuzzy"}
+            for key in sorted(set(v) - known):
                 self.error(line, f"test {name!r}: unknown key {key!r}")
             model = v.get("model")
             if not isinstance(model, str) or not model:
@@ -377,6 +389,24 @@ class UnitFile:
             if not isinstance(spread, bool):
                 self.error(line, f"test {name!r}: spread must be true or false, got {spread!r}")
                 spread = False
+            fuzzy = v.get("fuzzy")
+            if fuzzy is not None:
+                ok = (
+                    isinstance(fuzzy, list)
+                    and len(fuzzy) == 4
+                    and all(
+                        isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                        for x in fuzzy
+                    )
+                    and fuzzy[0] <= fuzzy[1] < 0 < fuzzy[2] <= fuzzy[3]
+                )
+                if not ok:
+                    self.error(
+                        line,
+                        f"test {name!r}: fuzzy must list the N, 0, P breakpoints "
+                        f"[n1, n0, p0, p1] with n1 ≤ n0 < 0 < p0 ≤ p1, got {fuzzy!r}",
+                    )
+                    fuzzy = None
             tests.append(
                 TestSpec(
                     name,
@@ -387,6 +417,7 @@ class UnitFile:
                     line,
                     None if levels is None else tuple(float(x) for x in levels),
                     spread,
+                    None if fuzzy is None else tuple(float(x) for x in fuzzy),  # type: ignore[arg-type]
                 )
             )
         if table and not tests and not self.problems:
@@ -530,6 +561,7 @@ class UnitFile:
             levels=learned.levels,
             spread=learned.spread,
             notes=learned.notes(),
+            fuzzy=learned.fuzzy,
         )
         if getattr(learned, "combined", None) is not None or self.combined is not None:
             self.set_combined(getattr(learned, "combined", None))
@@ -546,6 +578,7 @@ class UnitFile:
         levels: dict[str, list[float]] | None = None,
         spread: dict[str, bool] | None = None,
         notes: dict[str, dict[str, Any]] | None = None,
+        fuzzy: dict[str, tuple[float, float, float, float]] | None = None,
     ) -> None:
         """Write thresholds per test and the fault-free window they came from (and, when
         given, the budget, level scales and the ``[learned]`` notes)."""
@@ -586,6 +619,10 @@ class UnitFile:
                 row.pop("levels", None)
                 if name in levels and len(levels[name]) > 1:
                     row["levels"] = [round(float(x), 3) for x in levels[name]]
+            if fuzzy is not None:
+                row.pop("fuzzy", None)
+                if name in fuzzy:
+                    row["fuzzy"] = [round(float(x), 4) for x in fuzzy[name]]
             fresh_row = tomlkit.inline_table()
             fresh_row.update(row)  # rebuilt, so tomlkit spaces it like a hand-written line
             tests[name] = fresh_row

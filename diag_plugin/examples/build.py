@@ -173,6 +173,7 @@ def build_table4_unit(folder: Path, source: str, days: float = UNIT_DAYS) -> lis
         matrix=TABLE4_MATRIX.replace('name = "valve_unit"', 'name = "valve_t4"'),
         description="E/P + servomotor + valve without positioner (Kościelny et al., Table 4)",
         outputs="VALVE_T4",
+        symptoms="fuzzy",
     )
 
 
@@ -187,6 +188,7 @@ def build_valve_unit(
     matrix: str = UNIT_MATRIX,
     description: str = "positioner + servomotor + valve (Kościelny et al., Table 4, loop on X)",
     outputs: str = "VALVE1",
+    symptoms: str = "crisp",
 ) -> list[Path]:
     """The example unit: four models, the Table 4 matrix, the unit file with learned
     thresholds (Kościelny et al., Sec. 6; thresholds held to a false-alarm budget,
@@ -200,7 +202,8 @@ def build_valve_unit(
     training window itself, cross-fitted (each of 5 time blocks' residuals from models
     trained on the other four), as a user's ``diag unit learn`` over it would give them.
     ``conclusion="sets"`` trains the models with eq. 5 as printed (``benchmarks/bench_eq5.py``
-    compares the two)."""
+    compares the two). ``symptoms``: the unit's diagnosis, crisp (nearest signature) or fuzzy
+    (rules (10)–(14); ``benchmarks/bench_fuzzy_diagnosis.py`` compares them)."""
     from dataclasses import replace
 
     from diag_plugin.diagnose.learning import learn_thresholds
@@ -237,6 +240,8 @@ def build_valve_unit(
     text = new_unit_text(
         unit_name, tests, matrix=matrix_path.name, description=description, outputs=outputs
     )
+    if symptoms != "crisp":
+        text = text.replace('symptoms = "crisp"', f'symptoms = "{symptoms}"')
     path.write_text(text, encoding="utf-8")
     unit = Unit.load(path)
     got = learn_thresholds(unit, [frame], far=UNIT_FAR)
