@@ -18,6 +18,9 @@ import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
+#: the operating point each kind of tag moves about (a parent acts by its deviation from it)
+NOMINAL = {"D": 50.0, "FIC1.SP": 60.0, "Y": 40.0}
+
 
 @dataclass(frozen=True)
 class Link:
@@ -87,18 +90,18 @@ def simulate(
     n = int(days * 86400 / period_s)
     sig: dict[str, np.ndarray] = {}
     for d in st.drivers:
-        sig[d] = 50.0 + 10.0 * _steps(rng, n, 15.0)
-    sig[st.set_point] = 60.0 + 5.0 * np.round(_steps(rng, n, 60.0))
+        sig[d] = NOMINAL["D"] + 10.0 * _steps(rng, n, 15.0)
+    sig[st.set_point] = NOMINAL["FIC1.SP"] + 5.0 * np.round(_steps(rng, n, 60.0))
     for y, links in st.links.items():
         u = np.zeros(n)
         for ln in links:
-            p = sig[ln.parent] - sig[ln.parent].mean()
+            p = sig[ln.parent] - (NOMINAL.get(ln.parent) or NOMINAL[ln.parent[0]])
             u += ln.gain * np.r_[np.full(ln.dead, p[0]), p[: n - ln.dead]]
         # an unmeasured disturbance of its own: a child or a sibling carries it, so only
         # the true parents predict a tag as well as they do
         u += disturbance * lfilter([0.3], [1, -0.7], rng.normal(0, 1, n)) * np.std(u)
         a = st.poles[y]
-        sig[y] = 40.0 + lfilter([1 - a], [1, -a], u)
+        sig[y] = NOMINAL["Y"] + lfilter([1 - a], [1, -a], u)
     meas = {t: v + noise * np.std(v) * rng.normal(0, 1, n) for t, v in sig.items()}
     meas[st.set_point] = sig[st.set_point]  # a set-point is exact
     copy, orig = st.duplicate
