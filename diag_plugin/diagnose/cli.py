@@ -571,8 +571,10 @@ def cmd_unit_build(args) -> int:
         print(f"  {ch.test}: {ch.tag} = f({', '.join(ch.inputs)}); held-out error {errs} % of span")
     for tag, why in res.skipped.items():
         print(f"  not tested: {tag}: {why}")
-    for n in res.notes:
+    for n in res.notes[:4]:
         print(f"  note: {n}")
+    if len(res.notes) > 4:
+        print(f"  … {len(res.notes) - 4} more notes of the same kind (--json lists them all)")
     print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in res.seconds.items()))
     print(f"next: diag unit show {args.name}; diag diagnose {args.name} --from … --to …")
     return 0
