@@ -204,3 +204,27 @@ def test_small_plants_build_as_users_would(tmp_path, plant):
     assert diag(g, "unit", "check", "u")[0] == 0
     rc, text = diag(g, "diagnose", "u", "--json")
     assert rc == 0, text
+
+
+def test_the_same_measurement_linear_or_monotone():
+    """A copy in other units and a monotone function of a tag (the rank correlation) are the
+    same measurement; a tag that merely follows it is not."""
+    from diag_plugin.diagnose.unitbuild import same_measurement
+
+    rng = np.random.default_rng(3)
+    x = np.cumsum(rng.normal(0, 1, 3000))
+    x = (x - x.min()) / np.ptp(x) * 5  # 0 … 5
+    idx = pd.date_range("2026-01-01", periods=x.size, freq="3min", tz="UTC")
+    frame = pd.DataFrame(
+        {
+            "X": x,
+            "F": 1.8 * x + 32,  # °C → °F
+            "E": np.exp(x),  # monotone, far from linear
+            "Z": x + rng.normal(0, 0.3, x.size),  # follows X, another measurement
+        },
+        index=idx,
+    )
+    assert abs(np.corrcoef(frame["X"], frame["E"])[0, 1]) < 0.995  # only the ranks say so
+    same = same_measurement(frame, list(frame.columns))
+    assert sorted(same["X"]) == ["E", "F"]
+    assert same["Z"] == []

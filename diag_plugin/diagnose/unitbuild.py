@@ -20,8 +20,9 @@ hand-build:
    :data:`~diag_plugin.workbench.explain.TOLERANCE` of the best is kept.
    Never a candidate: the tag itself at any lag (a model of ``y[k]`` from ``y[k-1]`` follows
    a fault as fast as the fault moves ``y`` and so hides it), nor a tag that is the same
-   measurement (:func:`same_measurement`: ``|r| >`` :data:`SAME_CORR` at lag 0 — a
-   redundant transmitter, a copy or a unit conversion of the tag).
+   measurement (:func:`same_measurement`: ``|r| >`` :data:`SAME_CORR` at lag 0, linear or
+   rank correlation — a redundant transmitter, a copy, a unit conversion or a monotone
+   function of the tag).
 3. **Models**: each test's model (``wm-avg``; sets per input what the data fill,
    :func:`~diag_plugin.workbench.model_edit.sets_for_data`) is written as an ordinary model
    file and trained like ``diag train`` does (80 % / 20 % time-ordered validation, then all
@@ -209,10 +210,13 @@ def choose_tests(
 
 def same_measurement(frame: pd.DataFrame, tags: Sequence[str]) -> dict[str, list[str]]:
     """For each tag, the others that are the same measurement: ``|r| >`` :data:`SAME_CORR`
-    at lag 0 over the window (a redundant transmitter, a copy, a unit conversion). Neither
-    is ever an input of the other's model."""
+    at lag 0 over the window, Pearson's or Spearman's (a redundant transmitter, a copy, a
+    unit conversion, a monotone function of it). Neither is ever an input of the other's
+    model."""
     X = frame[list(tags)].astype(float)
-    r = X.corr().to_numpy()
+    # Pearson for a copy or a linear conversion, Spearman (ranks) for any monotone one
+    # (a flow computed from a differential pressure, a level in % from one in m)
+    r = np.fmax(np.abs(X.corr().to_numpy()), np.abs(X.rank().corr().to_numpy()))
     out = {t: [] for t in tags}
     for i, a in enumerate(tags):
         for j, b in enumerate(tags):
