@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -163,6 +164,12 @@ def test_tags_and_tags_from_are_respected(built, tmp_path):
     # existing unit: refused without --force
     rc, text = diag(g, "unit", "build", "u2", "--from", t0, "--to", t1, "--tags", "Y1")
     assert rc == 2 and "exists" in text, text
+    # its model files too (an engineer's edits are never overwritten without --force)
+    (Path(g[3]) / "u2.unit.toml").unlink()
+    rc, text = diag(g, "unit", "build", "u2", "--from", t0, "--to", t1, "--tags", "Y1")
+    assert rc == 2 and "u2_Y1.toml" in text and "--force" in text, text
+    rc, text = diag(g, "unit", "build", "u2", "--from", t0, "--to", t1, "--tags", "Y1", "--force")
+    assert rc == 0, text
 
 
 @pytest.mark.parametrize(

@@ -395,15 +395,23 @@ def build_unit(
         raise UserError("cannot test: " + "; ".join(f"{t}: {why}" for t, why in skipped.items()))
     if not tests:
         raise UserError("no tag varies in the window: nothing to test")
+    taken: set[str] = set()
+    names = {tag: test_name(tag, taken) for tag in tests}
+    exist = [p for t in names.values() if (p := folder / f"{name}_{t}.toml").exists()]
+    if exist and not force:
+        raise UserError(
+            f"model file(s) {', '.join(str(p) for p in exist[:3])}"
+            + (f" and {len(exist) - 3} more" if len(exist) > 3 else "")
+            + " exist (use --force to overwrite, or another unit name)"
+        )
     ctx = _Context(frame, info, period)
     same = same_measurement(frame, list(ctx.vars))
     seconds["read and screen"] = time.perf_counter() - t_start
 
     t0 = time.perf_counter()
-    taken: set[str] = set()
     choices = []
     for i, tag in enumerate(tests):
-        test = test_name(tag, taken)
+        test = names[tag]
         excl = same.get(tag, [])
         cands = [c for c in ctx.vars if c != tag and c not in excl]
         ch = select_inputs(ctx, tag, cands, test=test, max_inputs=max_inputs)
