@@ -52,6 +52,7 @@ import numpy as np
 import pandas as pd
 import tomlkit
 
+from diag_plugin.diagnose.unitfile import EVALUATION_DEFAULTS
 from diag_plugin.models.spec import Variable
 from diag_plugin.regressors import InputSpec
 from diag_plugin.rulebase.document import RuleBase
@@ -86,10 +87,11 @@ MIN_GOOD_SHARE = 0.5
 MIN_ROWS = 1000
 #: share of the window held out to score each candidate (time-ordered)
 HOLDOUT = 0.2
-#: Unit-level combined statistic and isolation to tags: the run-time keys ``combined`` and
-#: ``isolation`` of [evaluation]. Off until the unit file accepts them (the unit run-time
-#: that evaluates them is another piece of work); switch on there, nothing else changes.
-WRITE_COMBINED = False
+#: Unit-level combined statistic and isolation to tags: ``combined = true`` and
+#: ``isolation = "tags"`` in [evaluation], written as soon as the unit file knows the keys
+#: (the unit run-time that evaluates them is another piece of work); a unit file that does
+#: not know them would refuse the unit.
+WRITE_COMBINED = {"combined", "isolation"} <= set(EVALUATION_DEFAULTS)
 
 
 @dataclass
