@@ -136,6 +136,13 @@ def cases(env) -> dict[tuple[str, ...], list[list[str]]]:
             ["u", "--from", "x", "--to", "y"],
             ["bad", "--from", "2026-03-02", "--to", "2026-03-03"],
         ],
+        ("unit", "build"): [
+            ["u4", "--from", "2026-03-02", "--to", "2026-03-03", "--tags", "NOPE"],
+            ["u4", "--from", "x", "--to", "y"],
+            ["u4", "--from", "2020-01-01", "--to", "2020-01-02"],
+            ["u4", "--from", "2026-03-02", "--to", "2026-03-03", "--tags-from", str(d / "no")],
+            ["u", "--from", "2026-03-02", "--to", "2026-03-03"],
+        ],
         ("diagnose",): [["nothing"], ["u", *bad_time], ["bad"]],
         ("benchmark",): [["--unit", "nothing"], ["--unit", "bad"]],
         ("run",): [

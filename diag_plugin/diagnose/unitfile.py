@@ -56,6 +56,10 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     [faults]             # optional: NE 107 status a fault raises (default FAILURE)
     f_P0 = "MAINTENANCE_REQUIRED"
 
+    [build]              # written by `diag unit build`: how each test's inputs were chosen
+    from = "…"           # the window, and per test in [build.tests] the inputs and the
+                         # held-out error before any input and after each
+
     [tags]               # optional: the plant tags this unit reads for the models' tags
     F = "V17.F"          # (one set of models serves a fleet of identical valves)
 
@@ -102,7 +106,17 @@ from diag_plugin.diagnose.status import NE107
 from historian.errors import UserError
 
 SUFFIX = ".unit.toml"
-TABLES = ("unit", "evaluation", "thresholds", "tests", "faults", "tags", "learned", "combined")
+TABLES = (
+    "unit",
+    "evaluation",
+    "thresholds",
+    "tests",
+    "faults",
+    "tags",
+    "learned",
+    "combined",
+    "build",
+)
 MATRIX_SUFFIX = ".matrix.toml"
 
 EVALUATION_DEFAULTS: dict[str, Any] = {
@@ -289,6 +303,8 @@ class UnitFile:
             str(k): dict(_plain(v)) if isinstance(_plain(v), dict) else {}
             for k, v in self._table("learned").items()
         }
+        # written by `diag unit build` (how each test's inputs were chosen); read, not checked
+        self.build = _plain(self._table("build")) if "build" in self.doc else {}
         self.tests = self._tests(self._table("tests", required=True))
         self.fault_status = self._faults(self._table("faults"))
         self.combined = self._combined(self._table("combined"))

@@ -113,7 +113,7 @@ class Explanation:
         }
 
 
-class _Features:
+class Features:
     """Unlagged feature columns over the frame, computed once, lagged by slicing."""
 
     def __init__(self, frame: pd.DataFrame, spans: Mapping[str, tuple[float, float]]):
@@ -131,7 +131,7 @@ class _Features:
         return v
 
 
-class _Scorer:
+class HeldOutScorer:
     """Trains a variant of the model on the rows before the cut and scores every variant on
     the *same* held-out samples: all rows after the cut with a measured output.
 
@@ -158,6 +158,8 @@ class _Scorer:
         self.base_rules = rb.codec.size(self.base_model) if self.base_model is not None else 0
 
     def _fit_predict(self, variables, cols):
+        if not len(cols):  # no input yet: the training mean stands in everywhere
+            return np.full(self.va.size, np.nan), None, int(np.isfinite(self.y[: self.cut]).sum())
         X = np.column_stack(cols)
         tr = np.isfinite(X[: self.cut]).all(axis=1) & np.isfinite(self.y[: self.cut])
         if tr.sum() < 10 or self.va.size < 10:
@@ -257,7 +259,7 @@ def explain(
 ) -> Explanation:
     """Candidate missing effects of ``rb``'s model, best first.
 
-    Every candidate is scored on the same held-out samples (see :class:`_Scorer`), so the
+    Every candidate is scored on the same held-out samples (see :class:`HeldOutScorer`), so the
     order is the order of the errors. ``tag_info`` maps tag →
     :class:`~historian.taginfo.TagInfo` (historian metadata); spans of new inputs come
     from it, else from the data. ``max_lag`` bounds the dead times screened (default
@@ -268,7 +270,7 @@ def explain(
     known = {s.tags[0]: v.span for v in rb.inputs if (s := InputSpec.parse(v.spec)).fn == ""}
     spans = dict(known)
     spans.update({t: i.span for t, i in tag_info.items() if i.span})
-    feats = _Features(frame, spans)
+    feats = Features(frame, spans)
     out_spec = InputSpec.parse(rb.output.spec)
     y = feats.column(out_spec)
     in_specs = [InputSpec.parse(v.spec) for v in rb.inputs]
@@ -276,14 +278,14 @@ def explain(
     in_vars = list(rb.inputs)
     default_sets = max(v.sets for v in in_vars) if in_vars else 31
     n = len(frame)
-    cut = _cut_row(frame.index, holdout)
+    cut = cut_row(frame.index, holdout)
     horizon = default_max_lag(frame.index) if max_lag is None else max_lag
-    scorer = _Scorer(rb, in_cols, y, cut)
+    scorer = HeldOutScorer(rb, in_cols, y, cut)
     # lags are compared on every stride-th row; only the chosen one is scored on all rows
     stride = max(1, n // LAG_SEARCH_ROWS)
     quick = scorer
     if stride > 1:
-        quick = _Scorer(rb, [c[::stride] for c in in_cols], y[::stride], -(-cut // stride))
+        quick = HeldOutScorer(rb, [c[::stride] for c in in_cols], y[::stride], -(-cut // stride))
     base_rmse, base_cov = scorer.base_rmse, scorer.base_cov
     resid = scorer.residual(in_cols)
     var_cache: dict[str, Variable | None] = {}
@@ -309,7 +311,7 @@ def explain(
     model_tags = set(needed_tags([v.spec for v in rb.inputs]))
     out_tags = set(out_spec.tags)
 
-    def evaluate(spec: InputSpec, replace=None, sets=None, sc: _Scorer | None = None):
+    def evaluate(spec: InputSpec, replace=None, sets=None, sc: HeldOutScorer | None = None):
         sc = sc or scorer
         step = stride if sc is not scorer else 1
         var = variable(spec)
@@ -333,7 +335,7 @@ def explain(
             or r.fine < scorer.base_fine - COVERAGE_SLACK
         )
 
-    def evaluate_best(spec: InputSpec, replace: int | None = None, sc: _Scorer | None = None):
+    def evaluate_best(spec: InputSpec, replace: int | None = None, sc: HeldOutScorer | None = None):
         """Scored as add-input writes it; if that grid is thin, also with fewer sets for
         the new input (a few coarse counts and what the data fill), keeping the best."""
         r = evaluate(spec, replace, sc=sc)
@@ -553,7 +555,7 @@ def _resolution_wording(change: str, base: float, rmse: float) -> str:
     return f"model resolution: {change}: {gain}"
 
 
-def _cut_row(index: pd.DatetimeIndex, holdout: float) -> int:
+def cut_row(index: pd.DatetimeIndex, holdout: float) -> int:
     """First row of the held-out block: the product's one time-based cut."""
     if len(index) == 0:
         return 0

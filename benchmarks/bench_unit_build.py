@@ -1,0 +1,179 @@
+"""``diag unit build`` speed and quality on the synthetic coupled process.
+
+Speed (issue 25's target: 50 tags over 10 days of 3-min data, 4,800 rows, in under 2 minutes on
+this machine): the process (:mod:`diag_plugin.simulate.coupled`) is imported into a temporary
+SQLite historian, then built with :func:`~diag_plugin.diagnose.unitbuild.build_from_historian`
+exactly as ``diag unit build`` does; the time of each stage and the process's peak resident
+memory are printed.
+
+Quality (with ``--quality``): the built unit and PCA T² + Q (dynamic, one lag) fitted on the
+same window with limits held to the same budget and the same on/off delays
+(``benchmarks/bench_detection_plants.py``'s ``pca_fit``), on fault-free runs of seeds never
+used to build (false alarms per hour) and on runs with a sensor bias on one tag from the
+middle (share of the samples after the onset in alarm).
+
+With ``--rig hx``: the heat exchanger of :mod:`diag_plugin.examples.rigs` (60 s, six tags), a
+unit built from its 60-day training window beside PCA on exactly the runs, faults and budget of
+``benchmarks/bench_detection_plants.py`` (whose hand-built unit's figures are in
+docs/diagnostics.md, "Plants unlike the valve").
+
+Run: ``python benchmarks/bench_unit_build.py [--tags 50] [--days 10] [--quality] [--rig hx]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from diag_plugin.diagnose.unit import Unit  # noqa: E402
+from diag_plugin.diagnose.unitbuild import build_from_historian  # noqa: E402
+from diag_plugin.simulate import coupled  # noqa: E402
+from historian.store import Historian  # noqa: E402
+
+
+def rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def store(url: str, frame: pd.DataFrame) -> None:
+    with Historian.open(url) as h:
+        h.write_samples(frame)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--tags", type=int, default=50)
+    ap.add_argument("--days", type=float, default=10.0)
+    ap.add_argument("--far", type=float, default=0.01)
+    ap.add_argument("--quality", action="store_true")
+    ap.add_argument("--rig", choices=["hx"], help="build on the rig instead, beside PCA")
+    a = ap.parse_args()
+    if a.rig:
+        return rig(a.rig)
+    frame, st = coupled.simulate(a.days, n_tags=a.tags, seed=1)
+    tmp = Path(tempfile.mkdtemp())
+    url = f"sqlite:///{tmp / 'h.db'}"
+    t = time.perf_counter()
+    store(url, frame)
+    print(
+        f"{a.tags} tags × {len(frame):,} rows of 3 min; stored in {time.perf_counter() - t:.1f} s"
+    )
+    before = rss_mb()
+    t0, t1 = frame.index[0], frame.index[-1] + pd.Timedelta("3min")
+    res = build_from_historian(url, "u", t0, t1, folder=tmp / "rb", far=a.far)
+    print(f"built {len(res.tests)} tests, skipped {len(res.skipped)}: {res.path}")
+    for k, v in res.seconds.items():
+        print(f"  {k:18s} {v:7.1f} s")
+    print(f"  peak resident memory {rss_mb():.0f} MB (before the build {before:.0f} MB)")
+    if not a.quality:
+        return
+    from bench_detection_plants import episodes_per_hour, pca_alarms, pca_fit, unit_alarms
+
+    unit = Unit.load(res.path, tmp / "rb")
+    ev = unit.ev
+    pca = pca_fit(frame, "3min", a.far, ev["on_delay"], ev["off_delay"])
+    rows = []
+    start = frame.index[-1] + pd.Timedelta(days=1)
+    for seed in (101, 102, 103):
+        q, _ = coupled.simulate(3.0, n_tags=a.tags, seed=seed, start=start.strftime("%Y-%m-%d"))
+        data = q.notna().any(axis=1).to_numpy()
+        u_al, _ = unit_alarms(unit, q)
+        p_al = pca_alarms(pca, q, ev["on_delay"], ev["off_delay"])
+        rows.append(("fault-free", seed, episodes_per_hour(u_al, data, "3min"),
+                     episodes_per_hour(p_al, data, "3min")))  # fmt: skip
+    print(f"\nfault-free, false alarms per hour (budget {a.far:g}):")
+    for r in rows:
+        print(f"  seed {r[1]}: unit {r[2]:.3f}, PCA {r[3]:.3f}")
+    tested = [t.tag for t in res.tests if t.tag.startswith("Y")][:8]
+    print("\nsensor bias from the middle of a 2-day run: share of samples after onset in alarm")
+    print("| bias (% of range) | unit | PCA |\n|---|---|---|")
+    for size in (0.02, 0.05, 0.1, 0.2):
+        det_u, det_p = [], []
+        for i, tag in enumerate(tested):
+            q, _ = coupled.simulate(2.0, n_tags=a.tags, seed=200 + i,
+                                    start=start.strftime("%Y-%m-%d"))  # fmt: skip
+            half = len(q) // 2
+            q.iloc[half:, q.columns.get_loc(tag)] += size * np.ptp(frame[tag])
+            u_al, _ = unit_alarms(unit, q)
+            p_al = pca_alarms(pca, q, ev["on_delay"], ev["off_delay"])
+            det_u.append(u_al[half:].mean())
+            det_p.append(p_al[half:].mean())
+        print(f"| {size:.0%} | {np.mean(det_u):.0%} | {np.mean(det_p):.0%} |")
+
+
+def rig(plant: str) -> None:
+    from bench_detection_plants import (
+        PLANTS,
+        episodes_per_hour,
+        pca_alarms,
+        pca_fit,
+        unit_alarms,
+    )
+
+    from diag_plugin.diagnose.unitbuild import build_unit
+    from diag_plugin.examples.rigs import HX_TAGS, PERIODS, RigFault, runs, tag_info
+
+    cfg = PLANTS[plant]
+    period = PERIODS[plant]
+    step = pd.Timedelta(period)
+    train = runs(plant, cfg["train"], length=cfg["length"])
+    tmp = Path(tempfile.mkdtemp())
+    t = time.perf_counter()
+    res = build_unit("hx", train, folder=tmp, period=period, tag_info=tag_info(HX_TAGS),
+                     far=cfg["far"])  # fmt: skip
+    print(f"built in {time.perf_counter() - t:.1f} s from {len(train):,} rows of {period}:")
+    for ch in res.tests:
+        errs = " → ".join(
+            f"{x:.2f}" for x in [ch.baseline_rmse_pct, *(s.rmse_pct for s in ch.steps)]
+        )
+        print(f"  {ch.test} = f({', '.join(ch.inputs)}): held-out error {errs} % of span")
+    for tag, why in res.skipped.items():
+        print(f"  not tested: {tag}: {why}")
+    unit = Unit.load(res.path, tmp)
+    on, off = unit.ev["on_delay"], unit.ev["off_delay"]
+    # PCA with the built unit's on/off delays, and with the 30 samples of the hand-built unit
+    pcas = {"pca": (pca_fit(train, period, cfg["far"], on, off), on, off),
+            "pca30": (pca_fit(train, period, cfg["far"], 30, 30), 30, 30)}  # fmt: skip
+    ff = runs(plant, list(cfg["fault_free"]), length=cfg["run"])
+    data = ff.notna().all(axis=1).to_numpy()
+    ours, unknown = unit_alarms(unit, ff)
+    rates = {k: episodes_per_hour(pca_alarms(p, ff, a, b), data, period)
+             for k, (p, a, b) in pcas.items()}  # fmt: skip
+    print(
+        f"fault-free runs of {len(cfg['fault_free'])} unseen seeds: false alarms per hour unit "
+        f"{episodes_per_hour(ours, data, period):.3g}, PCA {rates['pca']:.3g} (delays {on}), "
+        f"PCA {rates['pca30']:.3g} (delays 30) (budget {cfg['far']:g}); unit "
+        f"CHECK_FUNCTION {unknown[data].mean():.2%}"
+    )
+    print(f"| fault | strength | unit detected | delay | PCA (delays {on}) | delay | "
+          "PCA (delays 30) | delay |\n|---|---|---|---|---|---|---|---|")  # fmt: skip
+    onset = cfg["onset"]
+    at = int(onset / step.total_seconds())
+    for kind, strength in cfg["faults"]:
+        got = {"unit": [], "pca": [], "pca30": []}
+        for s in cfg["fault_seeds"]:
+            f = runs(plant, [s], faults=[RigFault(kind, strength, onset)],
+                     length=cfg.get("run_faulty", cfg["run"]))  # fmt: skip
+            al_by = {"unit": unit_alarms(unit, f)[0]}
+            al_by.update({k: pca_alarms(p, f, a, b) for k, (p, a, b) in pcas.items()})
+            for key, al in al_by.items():
+                hit = np.flatnonzero(al[at:])
+                got[key].append(hit[0] * step.total_seconds() / 3600 if hit.size else None)
+        cells = []
+        for key in ("unit", "pca", "pca30"):
+            d = [x for x in got[key] if x is not None]
+            cells += [f"{len(d)}/{len(got[key])}", f"{np.median(d):.1f} h" if d else "—"]
+        print(f"| {kind} | {strength:g} | " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,605 @@
+"""A unit from the plant's history: ``diag unit build``.
+
+From a window the user declares fault-free, :func:`build_unit` makes a unit nobody had to
+hand-build:
+
+1. **Tests** (:func:`choose_tests`): every tag that varies in the window — measurements and
+   controller outputs — unless the user lists them. Left out, each with its reason: tags
+   constant over the window, tags with too few good samples (:data:`MIN_GOOD_SHARE`),
+   set-points (a name ending ``.SP`` or a description saying set-point: a set-point is the
+   operator's choice, not a consequence of the process, so a model of it detects nothing).
+2. **Inputs** (:func:`select_inputs`): greedy forward selection of up to
+   :data:`MAX_INPUTS` inputs with the workbench's own held-out scoring
+   (:class:`~diag_plugin.workbench.explain.HeldOutScorer`, what ``diag explain`` ranks
+   with): at each step every candidate tag is screened at every dead time by the
+   correlation of its lagged values with the current model's training residual
+   (:func:`~diag_plugin.workbench.explain.lag_screen`), the best few are retrained on the
+   first 80 % of the window (time-ordered, on the model's grid) and scored on the last 20 %;
+   the candidate that cuts the held-out error most is kept if it cuts it by more than
+   :data:`MIN_GAIN`. The shortest dead time scoring within
+   :data:`~diag_plugin.workbench.explain.TOLERANCE` of the best is kept.
+   Never a candidate: the tag itself at any lag (a model of ``y[k]`` from ``y[k-1]`` follows
+   a fault as fast as the fault moves ``y`` and so hides it), nor a tag that is the same
+   measurement (:func:`same_measurement`: ``|r| >`` :data:`SAME_CORR` at lag 0, linear or
+   rank correlation — a redundant transmitter, a copy, a unit conversion or a monotone
+   function of the tag).
+3. **Models**: each test's model (``wm-avg``; sets per input what the data fill,
+   :func:`~diag_plugin.workbench.model_edit.sets_for_data`) is written as an ordinary model
+   file and trained like ``diag train`` does (80 % / 20 % time-ordered validation, then all
+   of the window), with the window as its provenance.
+4. **Thresholds**: :func:`~diag_plugin.diagnose.learning.learn_thresholds` on the same
+   window, cross-fitted (the models were trained on it), to the false-alarm budget ``far``,
+   saved as ``diag unit learn`` saves them.
+
+The unit file records per test, in ``[build.tests]``, the inputs chosen and the held-out
+error (% of the output's span) before any input and after each step, and the held-out
+coverage; ``diag unit show`` prints it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import re
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from dataclasses import replace as dc_replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import tomlkit
+
+from diag_plugin.models.spec import Variable
+from diag_plugin.regressors import InputSpec
+from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.workbench.explain import (
+    TOLERANCE,
+    Features,
+    HeldOutScorer,
+    cut_row,
+    default_max_lag,
+    lag_screen,
+)
+from diag_plugin.workbench.model_edit import sets_for_data, variable_for
+from historian.errors import UserError
+from historian.taginfo import TagInfo, tag_infos
+
+log = logging.getLogger(__name__)
+
+#: inputs per model at most (greedy forward selection stops earlier when none helps)
+MAX_INPUTS = 3
+#: a step must cut the held-out error by more than this share to be kept
+MIN_GAIN = 0.03
+#: candidate tags retrained and scored per step (the rest screened out by correlation)
+SCREENED = 5
+#: dead times retrained per screened candidate (the best by correlation)
+LAGS_RETRAINED = 2
+#: |r| at lag 0 above which two tags count as the same measurement
+SAME_CORR = 0.995
+#: a tag needs good samples in this share of the window's grid points to be tested
+MIN_GOOD_SHARE = 0.5
+#: grid points a window needs: the learning filter settles over 500 (SETTLE_SAMPLES), and
+#: the cross-fitting and the 80/20 validation need data on each side
+MIN_ROWS = 1000
+#: share of the window held out to score each candidate (time-ordered)
+HOLDOUT = 0.2
+
+
+@dataclass
+class Step:
+    """One step of the forward selection: the input added and the held-out error after."""
+
+    input: str
+    rmse_pct: float
+    coverage: float
+
+
+@dataclass
+class TestChoice:
+    """What the selection chose for one test (one tag) and why."""
+
+    test: str
+    tag: str
+    baseline_rmse_pct: float  # the training mean as the prediction
+    steps: list[Step] = field(default_factory=list)
+    excluded: list[str] = field(default_factory=list)  # same measurement as the tag
+    validation_rmse_pct: float = math.nan  # the trained model's, as diag train reports
+
+    @property
+    def inputs(self) -> list[str]:
+        return [s.input for s in self.steps]
+
+    def as_dict(self) -> dict:
+        return {
+            "test": self.test,
+            "tag": self.tag,
+            "inputs": self.inputs,
+            "rmse_pct": [_r(self.baseline_rmse_pct)] + [_r(s.rmse_pct) for s in self.steps],
+            "coverage": [_r(s.coverage) for s in self.steps],
+            "excluded": self.excluded,
+            "validation_rmse_pct": _r(self.validation_rmse_pct),
+        }
+
+
+@dataclass
+class BuildResult:
+    unit: str
+    path: Path
+    period: str
+    window: tuple[str, str]
+    tests: list[TestChoice]
+    skipped: dict[str, str]
+    far: float
+    learned: object | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        lim = getattr(self.learned, "limits", {}) or {}
+        return {
+            "unit": self.unit,
+            "file": str(self.path),
+            "period": self.period,
+            "window": list(self.window),
+            "far": self.far,
+            "tests": [{**t.as_dict(), "thresholds": list(lim.get(t.test, ()))} for t in self.tests],
+            "skipped": self.skipped,
+            "seconds": {k: round(v, 2) for k, v in self.seconds.items()},
+            "notes": self.notes,
+        }
+
+
+def _r(v: float) -> float | None:
+    return round(float(v), 4) if v is not None and math.isfinite(v) else None
+
+
+def is_set_point(tag: str, info: TagInfo | None = None) -> bool:
+    """A set-point by its name (``….SP``, ``…_SP``, ``…SETPOINT``) or its description."""
+    if re.search(r"(^|[._\-\s])(SP|SETPOINT|SET_POINT)$", tag.upper()):
+        return True
+    d = (info.description if info else "").lower()
+    return "set-point" in d or "setpoint" in d or "set point" in d
+
+
+def test_name(tag: str, taken: set[str]) -> str:
+    """A test name from a tag: letters, digits and ``_`` (``TIC202.OUT`` → ``TIC202_OUT``)."""
+    base = re.sub(r"\W+", "_", tag).strip("_") or "t"
+    if base[0].isdigit():
+        base = "t" + base
+    name, k = base, 2
+    while name in taken:
+        name, k = f"{base}_{k}", k + 1
+    taken.add(name)
+    return name
+
+
+def choose_tests(
+    frame: pd.DataFrame,
+    tag_info: Mapping[str, TagInfo | Mapping[str, object]] | None = None,
+    tags: Sequence[str] | None = None,
+) -> tuple[list[str], dict[str, str]]:
+    """The tags to test and the others with the reason each is left out.
+
+    ``tags`` (the user's list) are tested as given, unless constant or without enough data
+    (a test of a constant teaches nothing; that is an error the caller reports)."""
+    info = tag_infos(tag_info)
+    chosen, skipped = [], {}
+    for t in tags if tags is not None else list(frame.columns):
+        v = frame[t].to_numpy(float)
+        good = np.isfinite(v)
+        if good.mean() < MIN_GOOD_SHARE:
+            skipped[t] = (
+                f"good samples in {good.mean():.0%} of the window's grid points "
+                f"(a test needs {MIN_GOOD_SHARE:.0%})"
+            )
+        elif np.ptp(v[good]) <= 1e-9 * max(1.0, float(np.abs(v[good]).max())):
+            skipped[t] = f"constant over the window ({float(v[good][0]):g})"
+        elif tags is None and is_set_point(t, info.get(t)):
+            skipped[t] = "a set-point (the operator's choice; kept as a candidate input)"
+        else:
+            chosen.append(t)
+    return chosen, skipped
+
+
+def same_measurement(frame: pd.DataFrame, tags: Sequence[str]) -> dict[str, list[str]]:
+    """For each tag, the others that are the same measurement: ``|r| >`` :data:`SAME_CORR`
+    at lag 0 over the window, Pearson's or Spearman's (a redundant transmitter, a copy, a
+    unit conversion, a monotone function of it). Neither is ever an input of the other's
+    model."""
+    X = frame[list(tags)].astype(float)
+    # Pearson for a copy or a linear conversion, Spearman (ranks) for any monotone one
+    # (a flow computed from a differential pressure, a level in % from one in m)
+    r = np.fmax(np.abs(X.corr().to_numpy()), np.abs(X.rank().corr().to_numpy()))
+    out = {t: [] for t in tags}
+    for i, a in enumerate(tags):
+        for j, b in enumerate(tags):
+            if i != j and np.isfinite(r[i, j]) and abs(r[i, j]) > SAME_CORR:
+                out[a].append(b)
+    return out
+
+
+class _Context:
+    """Columns, spans and variables of the window, shared by every test's selection."""
+
+    def __init__(self, frame: pd.DataFrame, info: dict[str, TagInfo], period: str):
+        self.frame = frame
+        self.info = info
+        self.period = period
+        self.spans: dict[str, tuple[float, float]] = {}
+        self.vars: dict[str, Variable] = {}
+        for t in frame.columns:
+            col = frame[t].to_numpy(float)
+            if not np.isfinite(col).any() or np.nanmax(col) == np.nanmin(col):
+                continue
+            v = variable_for(str(InputSpec("", (t,), 0)), frame=frame, tag_info=info)
+            self.vars[t] = v
+            self.spans[t] = v.span
+        self.feats = Features(frame, self.spans)
+        self.cut = cut_row(frame.index, HOLDOUT)
+        self.max_lag = default_max_lag(frame.index)
+
+    def variable(self, tag: str, lag: int) -> Variable:
+        spec = InputSpec("", (tag,), lag)
+        return dc_replace(self.vars[tag], spec=str(spec), label=self.vars[tag].label)
+
+    def column(self, tag: str, lag: int = 0) -> np.ndarray:
+        return self.feats.column(InputSpec("", (tag,), lag))
+
+
+def _rulebase(name: str, out: Variable, ins: Sequence[Variable], period: str, path=None):
+    return RuleBase.new(name, out, list(ins), method="wm-avg", period=period, path=path)
+
+
+def _with_sets(ins: Sequence[Variable], cols: Sequence[np.ndarray], cut: int) -> list[Variable]:
+    """The inputs with the sets the training rows fill (what ``diag model new`` writes)."""
+    if not ins:
+        return []
+    sets = sets_for_data([c[:cut] for c in cols], [v.span for v in ins])
+    return [dc_replace(v, sets=sets) for v in ins]
+
+
+def select_inputs(
+    ctx: _Context,
+    tag: str,
+    candidates: Sequence[str],
+    *,
+    test: str,
+    max_inputs: int = MAX_INPUTS,
+) -> TestChoice:
+    """Greedy forward selection of ``tag``'s inputs among ``candidates`` (see module doc)."""
+    out = ctx.vars[tag]
+    y = ctx.column(tag)
+    cut = ctx.cut
+    chosen: list[tuple[str, int]] = []
+    scorer = HeldOutScorer(_rulebase(test, out, [], ctx.period), [], y, cut)
+    current = scorer.base_rmse
+    choice = TestChoice(test, tag, current)
+    resid = y[:cut] - scorer.mean
+    pool = [c for c in candidates if c != tag and c in ctx.vars]
+    while len(chosen) < max_inputs and pool:
+        # screen: every candidate at every dead time against the current residual
+        screened = []
+        for c in pool:
+            corr = lag_screen(resid, ctx.column(c)[:cut], ctx.max_lag)
+            order = np.argsort(-corr, kind="stable")[:LAGS_RETRAINED]
+            screened.append((float(corr[order[0]]), c, sorted(int(x) for x in order)))
+        screened.sort(key=lambda s: -s[0])
+        best = None  # (rmse, coverage, tag, lag)
+        base_cols = [ctx.column(t, lag) for t, lag in chosen]
+        for _, c, lags in screened[:SCREENED]:
+            scored = []
+            for lag in lags:
+                cols = [*base_cols, ctx.column(c, lag)]
+                ins = _with_sets([ctx.variable(t, g) for t, g in [*chosen, (c, lag)]], cols, cut)
+                rmse, cov, _, _ = scorer.score(ins, cols)
+                if math.isfinite(rmse):
+                    scored.append((rmse, lag, cov))
+            if not scored:
+                continue
+            low = min(s[0] for s in scored)
+            rmse, lag, cov = min((s for s in scored if s[0] <= low * (1 + TOLERANCE)),
+                                 key=lambda s: s[1])  # fmt: skip
+            if best is None or rmse < best[0]:
+                best = (rmse, cov, c, lag)
+        if best is None or not best[0] < current * (1 - MIN_GAIN):
+            break
+        rmse, cov, c, lag = best
+        chosen.append((c, lag))
+        pool.remove(c)
+        choice.steps.append(Step(str(InputSpec("", (c,), lag)), rmse, cov))
+        current = rmse
+        cols = [ctx.column(t, g) for t, g in chosen]
+        ins = _with_sets([ctx.variable(t, g) for t, g in chosen], cols, cut)
+        rb = _rulebase(test, out, ins, ctx.period)
+        scorer = HeldOutScorer(rb, cols, y, cut)
+        resid = scorer.residual(cols)
+    return choice
+
+
+def evaluation_for(period: str) -> dict[str, float | int]:
+    """Residual evaluation for the model's grid: the example unit's delays (30 samples of
+    1 s) and filter (cut-off 0.01 of Nyquist at 1 s) kept in time, but never under 3
+    samples of delay nor a filter longer than ~5 samples — on a grid of minutes the data
+    are already averaged per period and a delay of 30 samples would be hours."""
+    s = pd.Timedelta(period).total_seconds()
+    delay = int(min(30, max(3, round(30.0 / s))))
+    lowpass = float(f"{min(0.2, max(0.01, 0.01 * s)):.3g}")
+    return {"lowpass": lowpass, "on_delay": delay, "off_delay": delay}
+
+
+def _reader(frame: pd.DataFrame):
+    idx = frame.index
+
+    def read(a: pd.Timestamp, b: pd.Timestamp) -> pd.DataFrame:
+        return frame.iloc[idx.searchsorted(a) : idx.searchsorted(b)]
+
+    return read
+
+
+def build_unit(
+    name: str,
+    frame: pd.DataFrame,
+    *,
+    folder: str | Path,
+    period: str,
+    tag_info: Mapping[str, TagInfo | Mapping[str, object]] | None = None,
+    tags: Sequence[str] | None = None,
+    far: float | None = None,
+    max_inputs: int = MAX_INPUTS,
+    force: bool = False,
+    source: str = "",
+    progress: Callable[[str, int, int], None] | None = None,
+) -> BuildResult:
+    """Build unit ``name`` from ``frame`` (the fault-free window, aligned on ``period``; every
+    column a candidate input) into ``folder``: model files ``NAME_TEST.toml`` and
+    ``NAME.unit.toml`` with thresholds learned to ``far`` false alarms per hour of
+    operation. ``tags``: the tests (default: :func:`choose_tests`). ``progress(stage, done,
+    total)`` is called as the stages advance. Raises :class:`~historian.errors.UserError`
+    on input the build cannot use."""
+    from diag_plugin.diagnose.learning import DEFAULT_FAR, LearnError, learn_thresholds
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unitfile import SUFFIX, UnitError, UnitFile, new_unit_text
+    from diag_plugin.training.chunked import train
+
+    far = DEFAULT_FAR if far is None else far
+    if not far > 0:
+        raise UserError(f"--far {far:g}: the budget must be a positive rate per hour")
+    folder = Path(folder)
+    path = folder / f"{name}{SUFFIX}"
+    if path.exists() and not force:
+        raise UserError(f"{path} exists (use --force to overwrite)")
+    rows = int(frame.notna().any(axis=1).sum())
+    if rows == 0:
+        raise UserError("the window holds no samples of these tags")
+    if rows < MIN_ROWS:
+        raise UserError(
+            f"the window holds {rows} samples of the {period} grid; a unit needs at least "
+            f"{MIN_ROWS} (give a longer window)"
+        )
+    if tags is not None:
+        unknown = [t for t in tags if t not in frame.columns]
+        if unknown:
+            raise UserError(f"tag(s) {', '.join(unknown)} not in the data")
+    seconds: dict[str, float] = {}
+    t_start = time.perf_counter()
+    info = tag_infos(tag_info)
+    tests, skipped = choose_tests(frame, info, tags)
+    if tags is not None and skipped:
+        raise UserError("cannot test: " + "; ".join(f"{t}: {why}" for t, why in skipped.items()))
+    if not tests:
+        raise UserError("no tag varies in the window: nothing to test")
+    taken: set[str] = set()
+    names = {tag: test_name(tag, taken) for tag in tests}
+    exist = [p for t in names.values() if (p := folder / f"{name}_{t}.toml").exists()]
+    if exist and not force:
+        raise UserError(
+            f"model file(s) {', '.join(str(p) for p in exist[:3])}"
+            + (f" and {len(exist) - 3} more" if len(exist) > 3 else "")
+            + " exist (use --force to overwrite, or another unit name)"
+        )
+    ctx = _Context(frame, info, period)
+    same = same_measurement(frame, list(ctx.vars))
+    seconds["read and screen"] = time.perf_counter() - t_start
+
+    t0 = time.perf_counter()
+    choices = []
+    for i, tag in enumerate(tests):
+        test = names[tag]
+        excl = same.get(tag, [])
+        cands = [c for c in ctx.vars if c != tag and c not in excl]
+        ch = select_inputs(ctx, tag, cands, test=test, max_inputs=max_inputs)
+        ch.excluded = list(excl)
+        choices.append(ch)
+        if progress:
+            progress("choose inputs", i + 1, len(tests))
+    seconds["choose inputs"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    folder.mkdir(parents=True, exist_ok=True)
+    read = _reader(frame)
+    idx = frame.index
+    start, end = idx[0], idx[-1] + pd.Timedelta(period)
+    models: dict[str, str] = {}
+    notes: list[str] = []
+    kept = []
+    for i, ch in enumerate(choices):
+        if not ch.steps:
+            skipped[ch.tag] = (
+                "no other tag predicts it on held-out data (best cut of the error under "
+                f"{MIN_GAIN:.0%}): nothing to model it from"
+            )
+            continue
+        specs = [InputSpec.parse(s) for s in ch.inputs]
+        cols = [ctx.column(s.tags[0], s.lag) for s in specs]
+        ins = _with_sets([ctx.variable(s.tags[0], s.lag) for s in specs], cols, len(frame))
+        mpath = folder / f"{name}_{ch.test}.toml"
+        rb = _rulebase(
+            f"{name}_{ch.test}",
+            ctx.vars[ch.tag],
+            ins,
+            period,
+            path=mpath,
+        )
+        rb.doc["model"]["description"] = (
+            f"built by diag unit build {name} from {start.isoformat()} … {end.isoformat()}"
+        )
+        rb.edited()
+        res = train(rb, read, start, end, holdout=HOLDOUT)
+        ch.validation_rmse_pct = float(res.validation.get("rmse_pct", math.nan))
+        rb.apply_training(
+            res.model,
+            {
+                "source": source or "diag unit build",
+                "from": start.isoformat(),
+                "to": end.isoformat(),
+                "samples": res.samples,
+                "validation_rmse_pct": _r(ch.validation_rmse_pct) or "n/a",
+                "trained_at": pd.Timestamp.now(tz="UTC").floor("s").isoformat(),
+            },
+        )
+        rb.save(mpath)
+        models[ch.test] = os.path.relpath(mpath.resolve(), folder.resolve())
+        kept.append(ch)
+        if progress:
+            progress("train models", i + 1, len(choices))
+    if not kept:
+        raise UserError("no tag could be modelled from the others: nothing to test")
+    seconds["train models"] = time.perf_counter() - t0
+
+    text = new_unit_text(
+        name,
+        models,
+        description=f"built by diag unit build from {start.isoformat()} … {end.isoformat()}",
+    )
+    doc = tomlkit.parse(text)
+    for k, v in evaluation_for(period).items():
+        doc["evaluation"][k] = v
+    # a unit-level combined test beside the per-tag tests, and alarms isolated to tags
+    # (docs/diagnostics.md, "The combined test and isolation to tags")
+    doc["evaluation"]["combined"] = True
+    doc["evaluation"]["isolation"] = "tags"
+    doc["build"] = _build_table(kept, skipped, start, end, period, far, max_inputs)
+    path.write_text(tomlkit.dumps(doc), encoding="utf-8")
+
+    t0 = time.perf_counter()
+    try:
+        unit = Unit.load(path, folder)
+        learned = learn_thresholds(unit, [frame], far=far)
+        uf = UnitFile.load(path)
+        uf.set_learned(learned)
+        uf.save()
+    except UnitError as exc:
+        raise UserError("the built unit has problems:\n" + "\n".join(exc.problems)) from None
+    except LearnError as exc:
+        raise UserError(
+            f"unit {name}: cannot learn thresholds:\n" + "\n".join("  " + p for p in exc.problems)
+        ) from None
+    notes.extend(learned.warnings)
+    seconds["learn thresholds"] = time.perf_counter() - t0
+    seconds["total"] = time.perf_counter() - t_start
+    if progress:
+        progress("learn thresholds", 1, 1)
+    window = (start.isoformat(), end.isoformat())
+    return BuildResult(name, path, period, window, kept, skipped, far, learned, seconds, notes)
+
+
+def _build_table(kept, skipped, start, end, period, far, max_inputs) -> tomlkit.items.Table:
+    t = tomlkit.table()
+    t.add(
+        tomlkit.comment(
+            "written by `diag unit build`: how each test's inputs were chosen (held-out error "
+            "in % of span: before any input, then after each)"
+        )
+    )
+    t["from"], t["to"] = start.isoformat(), end.isoformat()
+    t["period"] = period
+    t["far"] = float(f"{far:.6g}")
+    t["max_inputs"] = max_inputs
+    t["same_corr"] = SAME_CORR
+    sk = tomlkit.table()
+    for tag, why in skipped.items():
+        sk[tag] = why
+    tests = tomlkit.table()
+    for ch in kept:
+        row = tomlkit.inline_table()
+        d = ch.as_dict()
+        row["tag"] = ch.tag
+        row["inputs"] = d["inputs"]
+        row["rmse_pct"] = [x for x in d["rmse_pct"] if x is not None]
+        row["coverage"] = [x for x in d["coverage"] if x is not None]
+        if ch.excluded:
+            row["same_as"] = ch.excluded
+        tests[ch.test] = row
+    t["tests"] = tests
+    t["skipped"] = sk
+    return t
+
+
+def build_from_historian(
+    url: str,
+    name: str,
+    start: pd.Timestamp,
+    end: pd.Timestamp,
+    *,
+    folder: str | Path,
+    tags: Sequence[str] | None = None,
+    far: float | None = None,
+    max_inputs: int = MAX_INPUTS,
+    force: bool = False,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> BuildResult:
+    """:func:`build_unit` on the historian's window ``[start, end)``: every tag it holds is
+    a candidate input; the grid period comes from the data (the longest typical spacing of
+    the tags, as ``diag model new`` chooses it)."""
+    from historian.access import open_data, tag_sampling
+    from historian.sampling import format_period, model_period
+    from historian.store import Historian
+
+    if end <= start:
+        raise UserError(f"--to {end} is not after --from {start}")
+    with Historian.open(url) as h:
+        known = sorted(str(t) for t in h.tags()["name"])
+    if not known:
+        raise UserError("the historian holds no tags: diag import a file first")
+    if tags is not None:
+        unknown = [t for t in tags if t not in known]
+        if unknown:
+            raise UserError(
+                f"tag(s) {', '.join(unknown)} not in the historian (it has: {', '.join(known)})"
+            )
+    t_read = time.perf_counter()
+    sampling = tag_sampling(url, known, start, end)
+    sampled = [s for s in sampling.values() if s.median_us > 0]
+    if not sampled:
+        raise UserError(f"no samples in the window {start} … {end}")
+    try:
+        period = format_period(model_period(sampled))
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    try:
+        frame, info = open_data(url, known, start, end, period)
+    except (KeyError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    frame.attrs = {}
+    frame = frame.astype(float)
+    read_s = time.perf_counter() - t_read
+    res = build_unit(
+        name,
+        frame,
+        folder=folder,
+        period=period,
+        tag_info=info,
+        tags=tags,
+        far=far,
+        max_inputs=max_inputs,
+        force=force,
+        progress=progress,
+        source="diag unit build",
+    )
+    res.seconds = {"read": read_s, **res.seconds}
+    res.seconds["total"] += read_s
+    res.notes.insert(0, f"period {period} from the data (the longest typical spacing of the tags)")
+    return res
