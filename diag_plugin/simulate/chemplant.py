@@ -203,14 +203,23 @@ def fault_tags(name: str) -> tuple[str, ...]:
     return FAULTS[name].tags
 
 
-def _hold_schedule(rng, n: int, lo: float, hi: float, hold_s: float, step: float) -> np.ndarray:
+def _hold_schedule(
+    rng, n: int, lo: float, hi: float, hold_s: float, step: float, ramp_s: int = 0
+) -> np.ndarray:
     """A set-point held for random times (exponential, mean ``hold_s``, at least an hour)
-    between changes to random round values (multiples of ``step``) in [lo, hi]."""
+    between changes to random round values (multiples of ``step``) in [lo, hi], each change
+    a step or, with ``ramp_s``, a ramp of that many seconds (as operators move a plant's rate)."""
     out = np.empty(n)
     i = 0
+    prev = None
     while i < n:
         j = min(n, i + max(3600, int(rng.exponential(hold_s))))
-        out[i:j] = np.round(rng.uniform(lo, hi) / step) * step
+        value = np.round(rng.uniform(lo, hi) / step) * step
+        out[i:j] = value
+        if prev is not None and ramp_s > 0:
+            k = min(j - i, ramp_s)
+            out[i : i + k] = prev + (value - prev) * np.arange(1, k + 1) / ramp_s
+        prev = value
         i = j
     return out
 
@@ -412,15 +421,15 @@ def _streams(n: int, seed: int, start: pd.Timestamp) -> tuple:
     cwx = _ou(rng, n, 1.0, 900.0)  # the extra wander of fault cw_temp_variation
     sp = np.column_stack(
         [
-            _hold_schedule(rng, n, 9.0, 11.0, 8 * 3600.0, 0.5),  # FIC101: production rate
+            _hold_schedule(rng, n, 9.0, 11.0, 8 * 3600.0, 0.5, 3600),  # FIC101: rate
             _hold_schedule(rng, n, 3.0, 3.8, 24 * 3600.0, 0.1),  # FIC102
             _hold_schedule(rng, n, 68.0, 72.0, 36 * 3600.0, 1.0),  # TIC103
             _hold_schedule(rng, n, 84.0, 86.0, 48 * 3600.0, 0.5),  # TIC104
-            _hold_schedule(rng, n, 55.0, 65.0, 48 * 3600.0, 5.0),  # LIC101
+            _hold_schedule(rng, n, 55.0, 65.0, 48 * 3600.0, 5.0, 1800),  # LIC101
             _hold_schedule(rng, n, 38.0, 42.0, 36 * 3600.0, 1.0),  # TIC107
             _hold_schedule(rng, n, 118.0, 122.0, 72 * 3600.0, 1.0),  # PIC101
-            _hold_schedule(rng, n, 45.0, 55.0, 72 * 3600.0, 5.0),  # LIC102
-            _hold_schedule(rng, n, 45.0, 55.0, 72 * 3600.0, 5.0),  # LIC103
+            _hold_schedule(rng, n, 45.0, 55.0, 72 * 3600.0, 5.0, 1800),  # LIC102
+            _hold_schedule(rng, n, 45.0, 55.0, 72 * 3600.0, 5.0, 1800),  # LIC103
         ]
     )
     noise_seed = int(rng.integers(0, 2**31 - 1))
