@@ -161,36 +161,36 @@ class ChemFault:
 
 
 FAULTS: dict[str, ChemFault] = {
-    "ti104_bias": ChemFault(1, "sensor", ("TI104",), 0.8, "degC",
+    "ti104_bias": ChemFault(1, "sensor", ("TI104",), 2.0, "degC",
                             "reactor temperature sensor reads high (inside TIC104's loop)"),
-    "fi109_bias": ChemFault(2, "sensor", ("FI109",), 0.25, "m3/h",
+    "fi109_bias": ChemFault(2, "sensor", ("FI109",), 0.5, "m3/h",
                             "product flow meter reads high (no loop uses it)"),
-    "ti107_drift": ChemFault(3, "sensor", ("TI107",), 1.0, "degC/day",
+    "ti107_drift": ChemFault(3, "sensor", ("TI107",), 4.0, "degC/day",
                              "cooler outlet sensor drifts up (inside TIC107's loop)"),
-    "ai102_drift": ChemFault(4, "sensor", ("AI102",), 0.04, "kmol/m3/day",
+    "ai102_drift": ChemFault(4, "sensor", ("AI102",), 0.2, "kmol/m3/day",
                              "reactor analyser drifts up (no loop uses it)"),
-    "tv104_stiction": ChemFault(5, "actuator", ("TIC104.OUT",), 2.0, "%",
+    "tv104_stiction": ChemFault(5, "actuator", ("TIC104.OUT",), 5.0, "%",
                                 "jacket coolant valve sticks: moves only when the demand is "
                                 "more than the band away, then jumps to it"),
     "tv103_stuck": ChemFault(6, "actuator", ("TIC103.OUT",), 0.0, "%",
                              "steam valve frozen at its opening at the onset (plus size)"),
-    "tv107_bias": ChemFault(7, "actuator", ("TIC107.OUT",), -6.0, "%",
+    "tv107_bias": ChemFault(7, "actuator", ("TIC107.OUT",), -12.0, "%",
                             "cooler water valve opens less than asked (positioner offset)"),
-    "cooler_fouling": ChemFault(8, "process", ("TIC107.OUT",), 0.3, "share of UA",
+    "cooler_fouling": ChemFault(8, "process", ("TIC107.OUT",), 0.5, "share of UA",
                                 "product cooler fouls: UA falls linearly", 2 * 86400.0),
-    "feed_comp_step": ChemFault(9, "process", ("AI101",), 0.08, "kmol/m3",
+    "feed_comp_step": ChemFault(9, "process", ("AI101",), 0.25, "kmol/m3",
                                 "more A in the fresh feed (step)"),
-    "feed_temp_step": ChemFault(10, "process", ("TI101",), 3.0, "degC",
+    "feed_temp_step": ChemFault(10, "process", ("TI101",), 8.0, "degC",
                                 "warmer fresh feed (step)"),
-    "catalyst_decay": ChemFault(11, "process", ("AI102",), 0.06, "share per day",
+    "catalyst_decay": ChemFault(11, "process", ("AI102",), 0.25, "share per day",
                                 "catalyst activity decays exponentially"),
-    "cw_temp_variation": ChemFault(12, "process", ("TI106",), 0.8, "degC",
+    "cw_temp_variation": ChemFault(12, "process", ("TI106",), 3.0, "degC",
                                    "cooling-water supply wanders more (15-min OU of this s.d.)"),
-    "recycle_leak": ChemFault(13, "process", ("FI103",), 0.2, "m3/h",
+    "recycle_leak": ChemFault(13, "process", ("FI103",), 0.6, "m3/h",
                               "recycle line leaks after its flow meter"),
-    "separator_leak": ChemFault(14, "process", ("FI109",), 0.25, "m3/h",
+    "separator_leak": ChemFault(14, "process", ("FI109",), 1.5, "m3/h",
                                 "flash drum leaks liquid"),
-    "feed_pump_degradation": ChemFault(15, "process", ("FIC101.OUT",), 0.25, "share of capacity",
+    "feed_pump_degradation": ChemFault(15, "process", ("FIC101.OUT",), 0.35, "share of capacity",
                                        "feed pump wears: capacity falls linearly", 86400.0),
 }  # fmt: skip
 
@@ -271,12 +271,12 @@ def _plant_loop(ca0, t0, tcw, pump, cwx, sp, noise_seed, code, i0, size, ramp): 
         tcw_i = tcw[i] + (size * cwx[i] if on and code == 12 else 0.0)
         act = np.exp(-size * dt_f / 86400.0) if on and code == 11 else 1.0
         ua_i = ua_c * (1.0 - size * prog) if on and code == 8 else ua_c
-        pcap = 1.0 - size * prog if on and code == 15 else 1.0
+        pcap = max(1.0 - size * prog, 0.05) if on and code == 15 else 1.0
         leak_r = size if on and code == 13 else 0.0
         leak_s = size if on and code == 14 else 0.0
         # ---------------- derived flows for the measurements
         fr_in = max(fr - leak_r, 0.0)
-        f1 = f0 + fr_in
+        f1 = max(f0 + fr_in, 0.1)
         t1 = (f0 * t0_i + fr_in * tr) / f1
         fout = 30.0 * u[4] / 100.0 * np.sqrt(0.5 + 3.0 * v / 10.0)
         fvout = 2.2 * u[6] / 100.0 * np.sqrt(max(p - 100.0, 0.0))
@@ -325,11 +325,11 @@ def _plant_loop(ca0, t0, tcw, pump, cwx, sp, noise_seed, code, i0, size, ramp): 
         u[1], ig[1] = _pi(sp[i, 1] - meas[3], 2.0, 8.0, ig[1])
         u[2], ig[2] = _pi(sp[i, 2] - meas[6], 1.0, 90.0, ig[2])
         u[3], ig[3] = _pi(meas[9] - sp[i, 3], 4.0, 500.0, ig[3])
-        u[4], ig[4] = _pi(meas[8] - sp[i, 4], 2.0, 600.0, ig[4])
+        u[4], ig[4] = _pi(meas[8] - sp[i, 4], 4.0, 300.0, ig[4])
         u[5], ig[5] = _pi(meas[15] - sp[i, 5], 3.0, 200.0, ig[5])
         u[6], ig[6] = _pi(meas[18] - sp[i, 6], 2.0, 60.0, ig[6])
-        u[7], ig[7] = _pi(meas[19] - sp[i, 7], 2.0, 900.0, ig[7])
-        u[8], ig[8] = _pi(meas[23] - sp[i, 8], 2.0, 900.0, ig[8])
+        u[7], ig[7] = _pi(meas[19] - sp[i, 7], 4.0, 300.0, ig[7])
+        u[8], ig[8] = _pi(meas[23] - sp[i, 8], 4.0, 300.0, ig[8])
         for j in range(26):
             out[i, j] = meas[j]
         for j in range(9):
