@@ -258,7 +258,7 @@ def _plant_loop(ca0, t0, tcw, pump, cwx, sp, noise_seed, code, i0, size, ramp): 
     meas = np.zeros(26)
     # constants
     kref, ear, dh, rcp, uaj, vj = 1.0 / 1000.0, 8000.0, 120000.0, 4000.0, 7.0, 1.0
-    fcmax, fwmax, ua_c = 25.0, 80.0, 30.0
+    fcmax, fwmax, ua_c = 25.0, 50.0, 42.0
     for i in range(n):
         on = code > 0 and i >= i0
         dt_f = (i - i0) if on else 0.0
