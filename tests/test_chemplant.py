@@ -246,8 +246,8 @@ def test_in_top():
 
 @pytest.fixture(scope="module")
 def pca():
-    """PCA fitted on four fault-free days (seeds 41–44) at 3 min, limits at 2 % of samples."""
-    runs = [cp.sample(cp.simulate_chemplant(2.0, s), 180) for s in (41, 42, 43, 44)]
+    """PCA fitted on 16 fault-free days (seeds 41–44) at 3 min, limits at 2 % of samples."""
+    runs = [cp.sample(cp.simulate_chemplant(4.0, s), 180) for s in (41, 42, 43, 44)]
     cols = [c for c in runs[0].columns if not c.endswith(".SP")]
     return PCABaseline(far=0.02, columns=cols).fit(runs)
 

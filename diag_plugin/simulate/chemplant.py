@@ -32,7 +32,7 @@ Tags (:data:`CHEMPLANT_TAGS`, 44): 26 measurements, and every controller's outpu
 on the seed: the feed's concentration and temperature (Ornstein–Uhlenbeck processes of hours
 plus fast ripple), the feed pump's discharge pressure (seconds), the cooling water's daily
 cycle and wander, set-points changed now and then to round values (production rate every
-few hours, the others every day or few), and measurement noise on every measured tag (the
+few hours, the others about daily), and measurement noise on every measured tag (the
 controllers see it, so their outputs jitter as on a real plant).
 
 Faults (:data:`FAULTS`; ``simulate_chemplant(..., fault=NAME, onset_s=, size=)``): each
@@ -258,7 +258,7 @@ def _plant_loop(ca0, t0, tcw, pump, cwx, sp, noise_seed, code, i0, size, ramp): 
     meas = np.zeros(26)
     # constants
     kref, ear, dh, rcp, uaj, vj = 1.0 / 1000.0, 8000.0, 120000.0, 4000.0, 7.0, 1.0
-    fcmax, fwmax, ua_c = 25.0, 50.0, 42.0
+    fcmax, fwmax, ua_c = 35.0, 50.0, 42.0
     for i in range(n):
         on = code > 0 and i >= i0
         dt_f = (i - i0) if on else 0.0
@@ -422,14 +422,14 @@ def _streams(n: int, seed: int, start: pd.Timestamp) -> tuple:
     sp = np.column_stack(
         [
             _hold_schedule(rng, n, 9.0, 11.0, 8 * 3600.0, 0.5, 3600),  # FIC101: rate
-            _hold_schedule(rng, n, 3.0, 3.8, 24 * 3600.0, 0.1),  # FIC102
-            _hold_schedule(rng, n, 68.0, 72.0, 36 * 3600.0, 1.0),  # TIC103
-            _hold_schedule(rng, n, 84.0, 86.0, 48 * 3600.0, 0.5),  # TIC104
-            _hold_schedule(rng, n, 55.0, 65.0, 48 * 3600.0, 5.0, 1800),  # LIC101
-            _hold_schedule(rng, n, 38.0, 42.0, 36 * 3600.0, 1.0),  # TIC107
-            _hold_schedule(rng, n, 118.0, 122.0, 72 * 3600.0, 1.0),  # PIC101
-            _hold_schedule(rng, n, 45.0, 55.0, 72 * 3600.0, 5.0, 1800),  # LIC102
-            _hold_schedule(rng, n, 45.0, 55.0, 72 * 3600.0, 5.0, 1800),  # LIC103
+            _hold_schedule(rng, n, 3.0, 3.8, 16 * 3600.0, 0.1),  # FIC102
+            _hold_schedule(rng, n, 68.0, 72.0, 16 * 3600.0, 1.0),  # TIC103
+            _hold_schedule(rng, n, 84.0, 86.0, 24 * 3600.0, 0.5),  # TIC104
+            _hold_schedule(rng, n, 55.0, 65.0, 24 * 3600.0, 5.0, 1800),  # LIC101
+            _hold_schedule(rng, n, 38.0, 42.0, 16 * 3600.0, 1.0),  # TIC107
+            _hold_schedule(rng, n, 118.0, 122.0, 24 * 3600.0, 1.0),  # PIC101
+            _hold_schedule(rng, n, 45.0, 55.0, 24 * 3600.0, 5.0, 1800),  # LIC102
+            _hold_schedule(rng, n, 45.0, 55.0, 24 * 3600.0, 5.0, 1800),  # LIC103
         ]
     )
     noise_seed = int(rng.integers(0, 2**31 - 1))
