@@ -246,8 +246,8 @@ def test_in_top():
 
 @pytest.fixture(scope="module")
 def pca():
-    """PCA fitted on 16 fault-free days (seeds 41–44) at 3 min, limits at 2 % of samples."""
-    runs = [cp.sample(cp.simulate_chemplant(4.0, s), 180) for s in (41, 42, 43, 44)]
+    """PCA fitted on 20 fault-free days (seeds 41–45) at 3 min, limits at 2 % of samples."""
+    runs = [cp.sample(cp.simulate_chemplant(4.0, s), 180) for s in (41, 42, 43, 44, 45)]
     cols = [c for c in runs[0].columns if not c.endswith(".SP")]
     return PCABaseline(far=0.02, columns=cols).fit(runs)
 
@@ -255,14 +255,14 @@ def pca():
 def test_pca_sees_a_big_sensor_bias_and_names_the_sensor(pca):
     """The reactor's thermometer 8 °C high: the loop cools the reactor 8 °C below its
     set-point, which PCA sees in the conversion, the jacket and the product."""
-    f = cp.sample(cp.simulate_chemplant(2.0, 45, fault="ti104_bias", size=8.0), 180)
+    f = cp.sample(cp.simulate_chemplant(2.0, 49, fault="ti104_bias", size=8.0), 180)
     onset = pd.Timestamp(f.attrs["fault"]["onset"])
     a = pca.alarms(f)
     assert a[f.index < onset].mean() < 0.1
     assert detection_rate(a, onset) > 0.9
     assert detection_delay(a, onset) <= 3600
     # the product flow meter 3 m3/h high (outside any loop): PCA names it first
-    f = cp.sample(cp.simulate_chemplant(2.0, 45, fault="fi109_bias", size=3.0), 180)
+    f = cp.sample(cp.simulate_chemplant(2.0, 49, fault="fi109_bias", size=3.0), 180)
     a = pca.alarms(f)
     assert detection_rate(a, onset) > 0.3
     assert pca.rank_tags(f, onset, a)[0] == "FI109"
@@ -270,10 +270,16 @@ def test_pca_sees_a_big_sensor_bias_and_names_the_sensor(pca):
     assert list(c.columns) == pca.columns_ and len(c) == len(f)
 
 
-def test_pca_false_alarms_on_an_unseen_seed_near_the_set_rate(pca):
-    free = cp.sample(cp.simulate_chemplant(4.0, 46), 180)
-    share, _ = false_alarm_rate(pca.alarms(free), 180)
-    assert 0.02 / 4 <= share <= 0.02 * 4, share
+def test_pca_false_alarms_on_unseen_seeds_at_most_the_set_rate(pca):
+    """Limits from leave-one-run-out statistics: a run unlike the others (an operating point
+    the rest never visit) sets them, so typical unseen runs alarm *less* than the set rate
+    (often not at all in two days); the check is that they do not alarm more."""
+    free = [cp.sample(cp.simulate_chemplant(2.0, s), 180) for s in (46, 47, 48)]
+    share = np.mean([false_alarm_rate(pca.alarms(f), 180)[0] for f in free])
+    assert share <= 0.02 * 2, share
+    # limits calibrated on out-of-sample statistics sit above the in-sample ones at this rate
+    t2, q = pca.detector_.limits(0.02)
+    assert pca.detector_.t2_limit_ > t2 or pca.detector_.q_limit_ > q
 
 
 def test_pca_contributions_of_dynamic_pca_sum_over_lags():
