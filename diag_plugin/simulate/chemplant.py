@@ -41,24 +41,28 @@ random streams are the same with and without a fault, so a faulty run equals the
 run of its seed up to the onset.
 
 ========================= ======== ============ ============================================
-fault                     kind     tag(s)        default size
+fault                     kind     tag(s)       default size
 ========================= ======== ============ ============================================
-ti104_bias                sensor   TI104         +0.8 °C on the reactor temperature (in loop)
-fi109_bias                sensor   FI109         +0.25 m³/h on the product flow (~3 %, no loop)
-ti107_drift               sensor   TI107         +1.0 °C/day, cooler outlet (in loop)
-ai102_drift               sensor   AI102         +0.04 kmol/m³/day, reactor analyser (no loop)
-tv104_stiction            actuator TIC104.OUT    2 % stick band, jacket coolant valve
-tv103_stuck               actuator TIC103.OUT    steam valve frozen where it was (+0 %)
-tv107_bias                actuator TIC107.OUT    −6 % opening, cooler water valve
-cooler_fouling            process  TIC107.OUT    UA −30 %, reached linearly over 2 days
-feed_comp_step            process  AI101         +0.08 kmol/m³ of A in the feed (+4 %)
-feed_temp_step            process  TI101         +3 °C on the feed
-catalyst_decay            process  AI102         activity −6 % a day (exponential)
-cw_temp_variation         process  TI106         +0.8 °C (s.d.) of 15-min wander, cooling water
-recycle_leak              process  FI103         0.2 m³/h lost after the recycle meter
-separator_leak            process  FI109         0.25 m³/h of liquid lost from the flash drum
-feed_pump_degradation     process  FIC101.OUT    pump capacity −25 %, over 1 day
+ti104_bias                sensor   TI104        +2 °C on the reactor temperature (in loop)
+fi109_bias                sensor   FI109        +0.5 m³/h on the product flow (~6 %, no loop)
+ti107_drift               sensor   TI107        +4 °C/day, cooler outlet (in loop)
+ai102_drift               sensor   AI102        +0.2 kmol/m³/day, reactor analyser (no loop)
+tv104_stiction            actuator TIC104.OUT   5 % stick band, jacket coolant valve
+tv103_stuck               actuator TIC103.OUT   steam valve frozen where it was (+0 %)
+tv107_bias                actuator TIC107.OUT   −12 % opening, cooler water valve
+cooler_fouling            process  TIC107.OUT   UA −50 %, reached linearly over 2 days
+feed_comp_step            process  AI101        +0.25 kmol/m³ of A in the feed (+12 %)
+feed_temp_step            process  TI101        +8 °C on the feed
+catalyst_decay            process  AI102        activity × exp(−0.25 · days)
+cw_temp_variation         process  TI106        +3 °C (s.d.) of 15-min wander, cooling water
+recycle_leak              process  FI103        0.6 m³/h lost after the recycle meter
+separator_leak            process  FI109        1.5 m³/h of liquid lost from the flash drum
+feed_pump_degradation     process  FIC101.OUT   pump capacity −35 %, over 1 day
 ========================= ======== ============ ============================================
+
+Default sizes were chosen on seeds 100–199 only, so that a plant engineer would want each
+caught and PCA T² + Q catches some at once, some partly and some not at all
+(``benchmarks/bench_chemplant_pca.py``, docs/diagnostics.md "The chemical plant").
 
 :func:`sample` gives the historian's view: means over each period (``how="mean"``, stamped at
 the period's start) or the instantaneous reading at each period (``"last"``).
