@@ -48,6 +48,7 @@ ARGV = {
     "unit check": ["unit", "check", "u.unit.toml", "--json"],
     "unit show": ["unit", "show", "u", "--json"],
     "unit learn": ["unit", "learn", "u", "--from", "2026-01-01", "--to", "2026-01-02"],
+    "unit build": ["unit", "build", "u", "--from", "2026-01-01", "--to", "2026-01-02"],
     "diagnose": ["diagnose", "u", "--csv", "d.csv", "--from", "2026-01-01"],
     "benchmark": ["benchmark", "--quick", "--json"],
     "engine-fdi": ["engine-fdi", "--seed", "1", "--method", "narmax2", "--json"],
