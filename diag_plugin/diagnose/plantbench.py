@@ -298,7 +298,7 @@ PLANT_DEFAULTS = {
     },
     "quick": {
         "train_seeds": (1, 2),
-        "train_days": {180: 3.0, 1: 0.25},
+        "train_days": {180: 6.0, 1: 0.25},
         "fault_seeds": (9101,),
         "free_seeds": (9151,),
         "days": 2.0,
