@@ -132,6 +132,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--free-seed", type=int, action="append", dest="free_seeds",
                    help="--plant: fault-free scoring seed(s) (default 9151–9153)")  # fmt: skip
+    p.add_argument("--train-seed", type=int, action="append", dest="train_seeds",
+                   help="--plant: fault-free training seed(s) (default 1–3)")  # fmt: skip
     p.add_argument("--train-days", type=float, help="--plant: days per training seed")
     p.add_argument("--fault", action="append", dest="faults", metavar="NAME[:SIZE]",
                    help="--plant: a fault to score (default all 15)")  # fmt: skip
@@ -877,6 +879,7 @@ def cmd_plant_benchmark(args) -> int:
                 quick=args.quick,
                 fault_seeds=args.seeds,
                 free_seeds=args.free_seeds,
+                train_seeds=args.train_seeds,
                 train_days=args.train_days,
                 faults=args.faults,
                 far=args.far,
