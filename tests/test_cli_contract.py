@@ -144,7 +144,14 @@ def cases(env) -> dict[tuple[str, ...], list[list[str]]]:
             ["u", "--from", "2026-03-02", "--to", "2026-03-03"],
         ],
         ("diagnose",): [["nothing"], ["u", *bad_time], ["bad"]],
-        ("benchmark",): [["--unit", "nothing"], ["--unit", "bad"]],
+        ("benchmark",): [
+            ["--unit", "nothing"],
+            ["--unit", "bad"],
+            ["--plant", "chemplant", "--period", "0"],
+            ["--plant", "chemplant", "--fault", "nope"],
+            ["--plant", "chemplant", "--seed", "1"],
+            ["--plant", "chemplant", "--far", "-1"],
+        ],
         ("run",): [
             ["--config", str(d / "none.toml")],
             ["--config", str(d / "plant.toml")],
