@@ -36,7 +36,6 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from diag_plugin.fuzzy import _kernels as K  # noqa: E402
 from diag_plugin.simulate.valve import TAGS, simulate_valve  # noqa: E402
 from diag_plugin.training.chunked import design_builder, split_time, train  # noqa: E402
 from diag_plugin.workbench.model_edit import new_model  # noqa: E402
@@ -62,14 +61,12 @@ def rmse_pct(y, yhat, span: float) -> float:
 
 
 def fine_only(model, X: np.ndarray) -> np.ndarray:
-    """Prediction from the fine rule grid alone (the multilinear kernel over the trained
-    cells, NaN where none fires), whatever other levels the model may answer from."""
-    g = model.inference_grid()
-    out, sup = np.empty(len(X)), np.empty(len(X))
-    reason = np.empty(len(X), np.int8)
-    K.infer(np.ascontiguousarray(X), g.lo, g.step, g.plateau, g.nsets, g.radix, g.keys,
-            g.conclusions, np.empty(0), out, sup, reason)  # fmt: skip
-    return out
+    """Prediction from the fine rule grid alone (NaN where the fine grid does not answer),
+    whatever coarser levels the model may answer from."""
+    p = model.predict_detail(X)
+    if p.level is None:
+        return p.y
+    return np.where(p.level == 0, p.y, np.nan)
 
 
 def nearest_rule(model, X: np.ndarray) -> np.ndarray:
@@ -78,9 +75,10 @@ def nearest_rule(model, X: np.ndarray) -> np.ndarray:
     from scipy.spatial import cKDTree
 
     g = model.inference_grid()
-    cells = model.cell_indices(g.keys).astype(float)
+    own = np.asarray(g.data[0], bool)
+    cells = model.cell_indices(g.keys[0][own]).astype(float)
     _, j = cKDTree(cells).query((X - g.lo) / g.step)
-    return g.conclusions[j]
+    return g.conclusions[0][own][j]
 
 
 def scored(yhat: np.ndarray, stand_in: np.ndarray, y: np.ndarray, span: float):
