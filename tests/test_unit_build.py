@@ -219,6 +219,33 @@ def test_small_plants_build_as_users_would(tmp_path, plant):
     assert rc == 0, text
 
 
+def test_one_second_jittered_export_in_a_window_wider_than_the_data(tmp_path):
+    """An engineer declares a whole day fault-free but the export holds 100 minutes of 1 s
+    readings off the grid: the tags are judged over the span the data cover (they were all
+    "constant or missing" over the day before), the unit says so and builds; a window too
+    short for a unit, or one in which no tag can be tested, says why, tag by tag."""
+    run = sp.simulate_heat_exchanger(0.1, seed=404, start="2026-03-02")
+    frame = sp.export(run, 1.0, timing="jitter", offset_s=0.37, seed=404).iloc[:6000]
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    _import(g, frame, tmp_path / "x.csv")
+    rc, text = diag(g, "unit", "build", "u", "--from", "2026-03-02", "--to", "2026-03-03")
+    assert rc == 0, text
+    assert "period 1s from the data" in text
+    assert "the data cover 2026-03-02 00:00:00+00:00 … 2026-03-02 01:40:00+00:00" in text
+    assert "of the window: the tags are judged and the unit learned over that span" in text
+    g2 = ["--db", f"sqlite:///{tmp_path / 's.db'}", "--rulebases", str(tmp_path / "rb2")]
+    _import(g2, frame.iloc[:900], tmp_path / "short.csv")
+    rc, text = diag(g2, "unit", "build", "s", "--from", "2026-03-02", "--to", "2026-03-03")
+    assert rc == 2 and "a unit needs at least 1000" in text, text
+    flat = frame.copy()
+    flat[:] = 1.0
+    g3 = ["--db", f"sqlite:///{tmp_path / 'f.db'}", "--rulebases", str(tmp_path / "rb3")]
+    _import(g3, flat, tmp_path / "flat.csv")
+    rc, text = diag(g3, "unit", "build", "f", "--from", "2026-03-02", "--to", "2026-03-03")
+    assert rc == 2 and "no tag of the window can be tested" in text, text
+    assert "TI202: constant over the window" in text, text
+
+
 def test_the_same_measurement_linear_or_monotone():
     """A copy in other units and a monotone function of a tag (the rank correlation) are the
     same measurement; a tag that merely follows it is not."""

@@ -371,9 +371,15 @@ def build_unit(
     path = folder / f"{name}{SUFFIX}"
     if path.exists() and not force:
         raise UserError(f"{path} exists (use --force to overwrite)")
-    rows = int(frame.notna().any(axis=1).sum())
+    have = frame.notna().any(axis=1).to_numpy()
+    rows = int(have.sum())
     if rows == 0:
         raise UserError("the window holds no samples of these tags")
+    # the declared window may reach past the data: judge the tags over the span they cover
+    first, last = np.flatnonzero(have)[[0, -1]]
+    trimmed = first > 0 or last < len(frame) - 1
+    if trimmed:
+        frame = frame.iloc[first : last + 1]
     if rows < MIN_ROWS:
         raise UserError(
             f"the window holds {rows} samples of the {period} grid; a unit needs at least "
@@ -390,7 +396,8 @@ def build_unit(
     if tags is not None and skipped:
         raise UserError("cannot test: " + "; ".join(f"{t}: {why}" for t, why in skipped.items()))
     if not tests:
-        raise UserError("no tag varies in the window: nothing to test")
+        why = "; ".join(f"{t}: {w}" for t, w in skipped.items())
+        raise UserError(f"no tag of the window can be tested ({why})")
     taken: set[str] = set()
     names = {tag: test_name(tag, taken) for tag in tests}
     exist = [p for t in names.values() if (p := folder / f"{name}_{t}.toml").exists()]
@@ -424,6 +431,11 @@ def build_unit(
     start, end = idx[0], idx[-1] + pd.Timedelta(period)
     models: dict[str, str] = {}
     notes: list[str] = []
+    if trimmed:
+        notes.append(
+            f"the data cover {frame.index[0]} … {frame.index[-1] + pd.Timedelta(period)} of "
+            "the window: the tags are judged and the unit learned over that span"
+        )
     kept = []
     for i, ch in enumerate(choices):
         if not ch.steps:
