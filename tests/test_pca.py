@@ -39,6 +39,20 @@ def test_a_sensor_bias_breaks_the_correlation_and_q_sees_it():
     assert (d.score(biased)["Q"] > d.q_limit_).mean() > 0.8
 
 
+@pytest.mark.parametrize("lags", [0, 2])
+def test_contributions_add_up_to_the_statistics_and_name_a_biased_tag(lags):
+    d = PCADetector(alpha=0.001, lags=lags).fit(_plant(20_000, 5))
+    biased = _plant(2000, 6)
+    biased["e"] += 3.0
+    c = d.contributions(biased)
+    assert list(c.columns) == list("abcdef")
+    s = d.score(biased)
+    whole = s["T2"] / d.t2_limit_ + s["Q"] / d.q_limit_
+    ok = whole.notna()
+    np.testing.assert_allclose(c[ok].sum(axis=1), whole[ok], rtol=1e-9)
+    assert (c[ok].idxmax(axis=1) == "e").mean() > 0.9
+
+
 def test_missing_tags_are_unknown_and_dynamic_pca_reads_lags():
     d = PCADetector(lags=2).fit(_plant(5000, 5))
     assert d.components_.shape[1] == 18  # six tags, now and two samples back

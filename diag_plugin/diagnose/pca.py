@@ -17,7 +17,8 @@ a fault-free window of the plant's tags:
   :meth:`PCADetector.set_limits`.
 
 scikit-learn style: ``PCADetector(...).fit(frame)``, ``score(frame)`` (a frame of ``T2`` and
-``Q``), ``decide(frame)`` (1.0 alarm, 0.0 none, NaN where a tag is missing), ``limits(alpha)``.
+``Q``), ``decide(frame)`` (1.0 alarm, 0.0 none, NaN where a tag is missing), ``limits(alpha)``,
+``contributions(frame)`` (each tag's part of the two statistics, to rank tags).
 numpy and scipy only.
 """
 
@@ -146,6 +147,20 @@ class PCADetector:
             E = Z[ok] - T @ self.components_
             q[ok] = np.sum(E**2, axis=1)
         return pd.DataFrame({"T2": t2, "Q": q}, index=frame.index)
+
+    def contributions(self, frame: pd.DataFrame) -> pd.DataFrame:
+        """Per row and tag, the tag's part of ``T²/T²_lim + Q/Q_lim``: the T² part by the
+        complete decomposition ``z_j (P Λ⁻¹ Pᵀ z)_j`` (it sums to T²), the Q part by ``e_j²``
+        (Qin, 2003, *J. Chemometrics* 17:480), a tag's lagged copies summed into it."""
+        Z = (self._matrix(frame) - self.mean_) / self.scale_
+        P = self.components_
+        T = Z @ P.T
+        c_t2 = Z * ((T / self.explained_variance_[: self.n_components_]) @ P)
+        E = Z - T @ P
+        c = c_t2 / self.t2_limit_ + E**2 / self.q_limit_
+        m = len(self.columns_)
+        per_tag = c.reshape(len(c), self.lags + 1, m).sum(axis=1)
+        return pd.DataFrame(per_tag, index=frame.index, columns=self.columns_)
 
     def decide(self, frame: pd.DataFrame) -> pd.Series:
         """1.0 where T² or Q is beyond its limit, 0.0 where neither, NaN where unknown."""

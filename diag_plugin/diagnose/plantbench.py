@@ -211,18 +211,9 @@ class PCABaseline:
         return pd.Series(out, index=raw.index, dtype=float)
 
     def contributions(self, frame: pd.DataFrame) -> pd.DataFrame:
-        """Per sample and tag, the tag's part of ``T²/T²_lim + Q/Q_lim`` (lags summed)."""
-        d = self.detector_
-        Z = (d._matrix(frame) - d.mean_) / d.scale_
-        P = d.components_
-        lam = d.explained_variance_[: d.n_components_]
-        T = Z @ P.T
-        c_t2 = Z * ((T / lam) @ P)  # complete decomposition: sums to T² per row
-        E = Z - T @ P
-        c = c_t2 / d.t2_limit_ + E**2 / d.q_limit_
-        m = len(d.columns_)
-        per_tag = c.reshape(len(c), self.lags + 1, m).sum(axis=1)
-        return pd.DataFrame(per_tag, index=frame.index, columns=d.columns_)
+        """Per sample and tag, the tag's part of ``T²/T²_lim + Q/Q_lim`` (lags summed;
+        :meth:`PCADetector.contributions`)."""
+        return self.detector_.contributions(frame)
 
     def rank_tags(
         self, frame: pd.DataFrame, onset: pd.Timestamp, alarm: pd.Series | None = None
