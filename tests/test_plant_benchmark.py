@@ -46,6 +46,10 @@ def test_the_cli_runs_and_prints_json_with_the_expected_keys(result):
             assert 0 <= r[m]["detection_rate"] <= 1
     for m in out["methods"]:
         assert set(out["fault_free"][m]) >= {"share", "per_hour"}
+    for m in out["methods"]:
+        s = out["summary"][m]
+        assert {"sensor_actuator_in_top3", "sensor_actuator_detected_runs",
+                "sensor_actuator_named_of_detected"} <= set(s)  # fmt: skip
     assert set(out["summary"]["goal"]) == {
         "detection_above_pca", "false_alarms_no_higher", "top3_80pct", "holds"
     }  # fmt: skip
@@ -72,3 +76,51 @@ def test_a_training_seed_cannot_score(capfd):
     rc = cli.main(["benchmark", "--plant", "chemplant", "--quick", "--seed", "2"])
     assert rc == 2
     assert "both train and score" in capfd.readouterr().err
+
+
+def _row(fault, kind, per_method):
+    """A benchmark row: per method a list of (detection rate, faulted tag named) per run."""
+    row = {"fault": fault, "kind": kind}
+    for m, runs in per_method.items():
+        per = [{"detection_rate": d, "in_top3": n} for d, n in runs]
+        row[m] = {
+            "detection_rate": sum(d for d, _ in runs) / len(runs),
+            "in_top3": sum(n for _, n in runs),
+            "runs": len(runs),
+            "per_seed": per,
+        }
+    return row
+
+
+def test_naming_is_judged_on_the_runs_a_method_detects():
+    """A run with a few alarm samples after the onset (1 %: as likely false alarms) names its
+    tags by chance; counted, it would reward a detector for raising more false alarms. The
+    goal's naming clause counts the detected runs, and asks for at least as many named runs
+    as PCA, so a detector that detects nothing cannot pass it by naming nothing wrongly."""
+    from diag_plugin.diagnose.plantbench import _summary
+
+    fa = {m: {"per_hour": 0.0} for m in ("unit", "PCA")}
+    rows = [
+        _row("a", "sensor", {"unit": [(0.9, True)] * 3, "PCA": [(0.5, True)] * 3}),
+        _row(
+            "b",
+            "sensor",
+            {"unit": [(0.6, True), (0.7, True), (0.8, False)], "PCA": [(0.0, False)] * 3},
+        ),  # fmt: skip
+        # chance hits: the unit alarms on 1 % of the samples and names the tag each time
+        _row("c", "actuator", {"unit": [(0.01, True)] * 3, "PCA": [(0.0, False)] * 3}),
+        _row("d", "process", {"unit": [(0.9, False)] * 3, "PCA": [(0.9, False)] * 3}),
+    ]
+    s = _summary(rows, fa, 0.001, ["unit", "PCA"])
+    assert s["unit"]["sensor_actuator_in_top3"] == "8/9"  # all runs: the chance hits count
+    assert s["unit"]["sensor_actuator_named_of_detected"] == "5/6"
+    assert s["PCA"]["sensor_actuator_named_of_detected"] == "3/3"
+    assert s["goal"]["top3_80pct"]  # 5 of 6 detected runs, and 5 ≥ PCA's 3
+    rows[1]["unit"]["per_seed"][0]["in_top3"] = False  # 4 of 6: under 80 %
+    assert not _summary(rows, fa, 0.001, ["unit", "PCA"])["goal"]["top3_80pct"]
+    # a unit that detects fewer runs than PCA names cannot pass by naming all it detects
+    few = [_row("a", "sensor", {"unit": [(0.9, True), (0.0, False), (0.0, False)],
+                                "PCA": [(0.5, True)] * 3})]  # fmt: skip
+    s = _summary(few, fa, 0.001, ["unit", "PCA"])
+    assert s["unit"]["sensor_actuator_named_of_detected"] == "1/1"
+    assert not s["goal"]["top3_80pct"]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import re
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -299,3 +300,105 @@ def test_the_heat_exchanger_rig_built_detects_fouling_and_is_quiet(tmp_path):
     alarm = (st != NE107.NORMAL) & (st != NE107.CHECK_FUNCTION)
     before, after = alarm[:1440].mean(), alarm[1440:].mean()  # the onset is a day in
     assert after > max(5 * before, 0.02), (before, after)
+
+
+def _regime_frame(seed: int, n: int = 5000) -> pd.DataFrame:
+    """Y follows the measured driver A (with noise) throughout; Z is an operator's choice
+    that moved with Y in four of the window's five periods and not in the other."""
+    rng = np.random.default_rng(seed)
+    a = np.repeat(rng.uniform(20, 80, n // 50 + 1), 50)[:n] + rng.normal(0, 0.5, n)
+    y = 0.8 * a + rng.normal(0, 5.0, n)
+    period = np.arange(n) * 5 // n
+    other = np.repeat(rng.uniform(20, 80, n // 50 + 1), 50)[:n]
+    z = np.where(period != 1, y + rng.normal(0, 0.5, n), other)
+    idx = pd.date_range("2026-01-01", periods=n, freq="60s", tz="UTC")
+    return pd.DataFrame({"A": a, "Y": y, "Z": z}, index=idx)
+
+
+def test_inputs_are_chosen_on_every_period_not_only_the_last():
+    """A relation that held only while the operators' choices made it (one period of five
+    broke it) is not chosen over the physical one: each candidate is scored with each time
+    block held out in turn (the blocks unit learn cross-fits over). Scored on the last fifth
+    alone, as a single held-out tail does, the spurious one wins on some of these windows —
+    the case this guards."""
+    from diag_plugin.diagnose.unitbuild import HOLDOUT, _Context, _rulebase, select_inputs
+    from diag_plugin.workbench.explain import HeldOutScorer, cut_row
+
+    tail_picks_z = 0
+    for seed in range(5):
+        f = _regime_frame(seed)
+        ctx = _Context(f, {}, "60s")
+        assert len(np.unique(ctx.block)) == 5
+        choice = select_inputs(ctx, "Y", ["A", "Z"], test="Y", max_inputs=1)
+        assert choice.inputs == ["A[k]"], (seed, choice.as_dict())
+        # the same candidates judged on the tail alone
+        cut = cut_row(f.index, HOLDOUT)
+        y = ctx.column("Y")
+        tail = HeldOutScorer(_rulebase("Y", ctx.vars["Y"], [], "60s"), [], y, cut)
+        score = {c: tail.score([ctx.variable(c, 0)], [ctx.column(c)])[0] for c in ("A", "Z")}
+        tail_picks_z += score["Z"] < score["A"]
+    assert tail_picks_z >= 2
+
+
+def _tank(days: float, seed: int, set_points, surge: float = 0.0) -> pd.DataFrame:
+    """The tour's tank (level held by LIC101 on the outflow valve) with the operators'
+    set-points drawn from ``set_points`` every 4 h; ``surge``: extra inflow (m³/h) over the
+    run's second half. 1-min means."""
+    idx = sp._seconds(days, "2026-03-02")
+    n = len(idx)
+    rng = np.random.default_rng([seed, 7])
+    fin = 38.0 + sp._ou(rng, n, 4.0, 2 * 3600.0) + sp._ou(rng, n, 0.8, 20.0)
+    fin[n // 2 :] += surge
+    hold = np.repeat(rng.choice(set_points, n // 14400 + 1), 14400)[:n].astype(float)
+    level, u, fout = sp._tank_loop(np.clip(fin, 5, 200), hold, 60.0, 12.0, 4.0, 4.0, 900.0, 50.0)
+    noise = rng.standard_normal((3, n))
+    x = pd.DataFrame(
+        {
+            "LT101": level + 0.15 * noise[0],
+            "FI101": fin + 0.3 * noise[1],
+            "FI102": fout + 0.3 * noise[2],
+            "LIC101.OUT": u,
+            "LIC101.SP": hold,
+        },
+        index=idx,
+    )
+    return x.resample("60s").mean()
+
+
+def test_a_controlled_tag_is_tested_against_its_set_point(tmp_path):
+    """A tag a controller holds at a set-point is tested as the loop holds it (its model: the
+    tag from its set-point, narmax2, which holds at set-points the window never saw): on a
+    run at a set-point outside every value of the training window its test is known and
+    quiet — a rule-grid model of the level from the set-point is unknown there — and when
+    an inflow surge saturates the valve, the level leaves its set-point and the unit names
+    it."""
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unitbuild import build_unit
+
+    train = _tank(6, 1, [40.0, 45.0, 50.0, 55.0])
+    res = build_unit("tank", train, folder=tmp_path, period="60s", far=0.01)
+    lt = next(t for t in res.tests if t.tag == "LT101")
+    assert (lt.tracks, lt.method, lt.inputs) == ("LIC101.SP", "narmax2", ["LIC101.SP[k]"])
+    assert all(t.tracks is None for t in res.tests if t.tag != "LT101")
+    row = tomllib.loads(res.path.read_text())["build"]["tests"]["LT101"]
+    assert row["tracks"] == "LIC101.SP" and row["method"] == "narmax2"
+    unit = Unit.load(res.path, tmp_path)
+
+    new = _tank(2, 2, [62.0])  # never seen in training
+    d = unit.reset().evaluate(new)
+    assert d.symptoms["LT101"].notna().mean() > 0.99
+    assert (d.symptoms["LT101"].fillna(0) != 0).mean() == 0
+    # the same level from a rule grid over the set-point: no rule at 62 %
+    from diag_plugin.diagnose.unitbuild import _Context, _rulebase
+
+    ctx = _Context(train, {}, "60s")
+    rb = _rulebase("lt", ctx.vars["LT101"], [ctx.variable("LIC101.SP", 0)], "60s")
+    wm = rb.codec.new_estimator(rb.spec).fit(train[["LIC101.SP"]].to_numpy(), train["LT101"])
+    assert np.isnan(wm.predict_detail(new[["LIC101.SP"]].to_numpy()).y).mean() > 0.9
+
+    surge = _tank(2, 2, [62.0], surge=80.0)
+    assert surge["LIC101.OUT"].iloc[len(surge) // 2 :].max() == 100.0  # the valve saturates
+    d = unit.reset().evaluate(surge)
+    late = slice(len(surge) // 2, None)
+    assert (d.symptoms["LT101"].iloc[late].fillna(0) > 0).mean() > 0.8
+    assert (d.faults.iloc[late] == "LT101").mean() > 0.8

@@ -12,12 +12,19 @@ hand-build:
    :data:`MAX_INPUTS` inputs with the workbench's own held-out scoring
    (:class:`~diag_plugin.workbench.explain.HeldOutScorer`, what ``diag explain`` ranks
    with): at each step every candidate tag is screened at every dead time by the
-   correlation of its lagged values with the current model's training residual
-   (:func:`~diag_plugin.workbench.explain.lag_screen`), the best few are retrained on the
-   first 80 % of the window (time-ordered, on the model's grid) and scored on the last 20 %;
-   the candidate that cuts the held-out error most is kept if it cuts it by more than
-   :data:`MIN_GAIN`. The shortest dead time scoring within
+   correlation of its lagged values with the current model's residual
+   (:func:`~diag_plugin.workbench.explain.lag_screen`), the best few are scored by
+   time-blocked cross-validation (:class:`BlockScorer`: each of :data:`FOLDS` time blocks of
+   the window — ``diag unit learn``'s blocks, cut between runs — held out in turn, the model
+   retrained on the others, the held-out errors pooled), so a relation must hold in every
+   period of the window, not only in its last fifth; the candidate that cuts the error most
+   is kept if it cuts it by more than :data:`MIN_GAIN`. The shortest dead time scoring within
    :data:`~diag_plugin.workbench.explain.TOLERANCE` of the best is kept.
+   **A tag a controller holds** (:func:`tracked_set_point`: RMS of tag − set-point at most
+   :data:`TRACKS` of the tag's standard deviation) is not modelled from the other tags: its
+   test is the loop's own relation (:func:`loop_test`: the tag from its set-point,
+   ``narmax2``), whose residual is the control error — valid at set-points the window never
+   saw, where other tags' models of it learned the operators' choices of the window.
    Never a candidate: the tag itself at any lag (a model of ``y[k]`` from ``y[k-1]`` follows
    a fault as fast as the fault moves ``y`` and so hides it), nor a tag that is the same
    measurement (:func:`same_measurement`: ``|r| >`` :data:`SAME_CORR` at lag 0, linear or
@@ -52,6 +59,8 @@ import numpy as np
 import pandas as pd
 import tomlkit
 
+from diag_plugin.diagnose.learning import DEFAULT_BLOCKS, block_of
+from diag_plugin.diagnose.unittags import is_set_point
 from diag_plugin.models.spec import Variable
 from diag_plugin.regressors import InputSpec
 from diag_plugin.rulebase.document import RuleBase
@@ -59,7 +68,6 @@ from diag_plugin.workbench.explain import (
     TOLERANCE,
     Features,
     HeldOutScorer,
-    cut_row,
     default_max_lag,
     lag_screen,
 )
@@ -79,13 +87,20 @@ SCREENED = 5
 LAGS_RETRAINED = 2
 #: |r| at lag 0 above which two tags count as the same measurement
 SAME_CORR = 0.995
+#: a tag is held at a set-point when RMS(tag − set-point) ≤ TRACKS × its standard deviation
+#: (the set-point as it stands accounts for at least 3/4 of the tag's variance)
+TRACKS = 0.5
+#: the method of a controlled tag's test (its measurement from its set-point)
+LOOP_METHOD = "narmax2"
 #: a tag needs good samples in this share of the window's grid points to be tested
 MIN_GOOD_SHARE = 0.5
 #: grid points a window needs: the learning filter settles over 500 (SETTLE_SAMPLES), and
 #: the cross-fitting and the 80/20 validation need data on each side
 MIN_ROWS = 1000
-#: share of the window held out to score each candidate (time-ordered)
+#: share of the window held out to validate each trained model (time-ordered, as diag train)
 HOLDOUT = 0.2
+#: time blocks each candidate is scored over, each held out in turn (unit learn's blocks)
+FOLDS = DEFAULT_BLOCKS
 
 
 @dataclass
@@ -107,6 +122,8 @@ class TestChoice:
     steps: list[Step] = field(default_factory=list)
     excluded: list[str] = field(default_factory=list)  # same measurement as the tag
     validation_rmse_pct: float = math.nan  # the trained model's, as diag train reports
+    method: str = "wm-avg"
+    tracks: str | None = None  # the set-point a controlled tag is held at
 
     @property
     def inputs(self) -> list[str]:
@@ -121,6 +138,8 @@ class TestChoice:
             "coverage": [_r(s.coverage) for s in self.steps],
             "excluded": self.excluded,
             "validation_rmse_pct": _r(self.validation_rmse_pct),
+            "method": self.method,
+            "tracks": self.tracks,
         }
 
 
@@ -154,14 +173,6 @@ class BuildResult:
 
 def _r(v: float) -> float | None:
     return round(float(v), 4) if v is not None and math.isfinite(v) else None
-
-
-def is_set_point(tag: str, info: TagInfo | None = None) -> bool:
-    """A set-point by its name (``….SP``, ``…_SP``, ``…SETPOINT``) or its description."""
-    if re.search(r"(^|[._\-\s])(SP|SETPOINT|SET_POINT)$", tag.upper()):
-        return True
-    d = (info.description if info else "").lower()
-    return "set-point" in d or "setpoint" in d or "set point" in d
 
 
 def test_name(tag: str, taken: set[str]) -> str:
@@ -221,6 +232,64 @@ def same_measurement(frame: pd.DataFrame, tags: Sequence[str]) -> dict[str, list
     return out
 
 
+class BlockScorer:
+    """:class:`~diag_plugin.workbench.explain.HeldOutScorer` over time blocks: each block of
+    the window is held out in turn, a variant is trained on the other blocks and scored on
+    it, and the squared errors of all blocks are pooled (time-blocked cross-validation).
+
+    A relation that holds only in part of the window — a correlation that the operators'
+    set-point choices of one period made, which another period's choices break — scores
+    badly on the blocks it does not hold in; a single held-out tail would judge it on one
+    period only. The blocks are ``diag unit learn``'s (:func:`~diag_plugin.diagnose.learning.
+    block_of`: a window of several runs is cut between runs), so inputs are chosen on the
+    error the thresholds are then learned from. A Wang–Mendel fit is a group-by over rule
+    cells, independent of row order, so each fold is the window's rows reordered (training
+    rows first) and cut there."""
+
+    def __init__(self, rb: RuleBase, cols: Sequence[np.ndarray], y: np.ndarray, block: np.ndarray):
+        self.y = y
+        self.folds = []
+        for b in np.unique(block):
+            held = block == b
+            order = np.r_[np.flatnonzero(~held), np.flatnonzero(held)]
+            self.folds.append((order, int(np.count_nonzero(~held))))
+        self.parts = [HeldOutScorer(rb, [c[o] for c in cols], y[o], cut) for o, cut in self.folds]
+        self.base_rmse = self._pool([p.base_rmse for p in self.parts])
+        good = np.isfinite(y)
+        self.mean = float(y[good].mean()) if good.any() else math.nan
+        # the current model on every row, for the screen of the next input
+        self.model = None
+        if len(cols):
+            X = np.column_stack(cols)
+            ok = np.isfinite(X).all(axis=1) & good
+            if ok.sum() >= 10:
+                self.model = rb.codec.new_estimator(rb.spec).fit(X[ok], y[ok])
+
+    def _pool(self, rmse: Sequence[float]) -> float:
+        """RMSE over every held-out sample from the blocks' RMSEs (NaN if any is NaN)."""
+        n = np.array([p.va.size for p in self.parts], float)
+        r = np.asarray(rmse, float)
+        if not n.sum() or not np.isfinite(r[n > 0]).all():
+            return math.nan
+        return float(np.sqrt(np.sum(n[n > 0] * r[n > 0] ** 2) / n.sum()))
+
+    def score(self, variables, cols) -> tuple[float, float]:
+        """Pooled held-out RMSE (% of span) and own coverage of a variant."""
+        got = [
+            p.score(variables, [c[o] for c in cols])
+            for p, (o, _) in zip(self.parts, self.folds, strict=True)
+        ]
+        n = np.array([p.va.size for p in self.parts], float)
+        cov = float(np.sum(n * np.array([g[1] for g in got])) / max(n.sum(), 1.0))
+        return self._pool([g[0] for g in got]), cov
+
+    def residual(self, cols) -> np.ndarray:
+        """The current model's in-sample residual on every row (NaN where none)."""
+        if self.model is None:
+            return self.y - self.mean
+        return self.y - self.model.predict(np.column_stack(cols))
+
+
 class _Context:
     """Columns, spans and variables of the window, shared by every test's selection."""
 
@@ -238,7 +307,7 @@ class _Context:
             self.vars[t] = v
             self.spans[t] = v.span
         self.feats = Features(frame, self.spans)
-        self.cut = cut_row(frame.index, HOLDOUT)
+        self.block = block_of(frame.index, FOLDS, frame.notna().any(axis=1).to_numpy())
         self.max_lag = default_max_lag(frame.index)
 
     def variable(self, tag: str, lag: int) -> Variable:
@@ -249,8 +318,15 @@ class _Context:
         return self.feats.column(InputSpec("", (tag,), lag))
 
 
-def _rulebase(name: str, out: Variable, ins: Sequence[Variable], period: str, path=None):
-    return RuleBase.new(name, out, list(ins), method="wm-avg", period=period, path=path)
+def _rulebase(
+    name: str,
+    out: Variable,
+    ins: Sequence[Variable],
+    period: str,
+    path=None,
+    method: str = "wm-avg",
+):
+    return RuleBase.new(name, out, list(ins), method=method, period=period, path=path)
 
 
 def _with_sets(ins: Sequence[Variable], cols: Sequence[np.ndarray], cut: int) -> list[Variable]:
@@ -272,18 +348,18 @@ def select_inputs(
     """Greedy forward selection of ``tag``'s inputs among ``candidates`` (see module doc)."""
     out = ctx.vars[tag]
     y = ctx.column(tag)
-    cut = ctx.cut
+    rows = len(y)
     chosen: list[tuple[str, int]] = []
-    scorer = HeldOutScorer(_rulebase(test, out, [], ctx.period), [], y, cut)
+    scorer = BlockScorer(_rulebase(test, out, [], ctx.period), [], y, ctx.block)
     current = scorer.base_rmse
     choice = TestChoice(test, tag, current)
-    resid = y[:cut] - scorer.mean
+    resid = scorer.residual([])
     pool = [c for c in candidates if c != tag and c in ctx.vars]
     while len(chosen) < max_inputs and pool:
         # screen: every candidate at every dead time against the current residual
         screened = []
         for c in pool:
-            corr = lag_screen(resid, ctx.column(c)[:cut], ctx.max_lag)
+            corr = lag_screen(resid, ctx.column(c), ctx.max_lag)
             order = np.argsort(-corr, kind="stable")[:LAGS_RETRAINED]
             screened.append((float(corr[order[0]]), c, sorted(int(x) for x in order)))
         screened.sort(key=lambda s: -s[0])
@@ -293,8 +369,8 @@ def select_inputs(
             scored = []
             for lag in lags:
                 cols = [*base_cols, ctx.column(c, lag)]
-                ins = _with_sets([ctx.variable(t, g) for t, g in [*chosen, (c, lag)]], cols, cut)
-                rmse, cov, _, _ = scorer.score(ins, cols)
+                ins = _with_sets([ctx.variable(t, g) for t, g in [*chosen, (c, lag)]], cols, rows)
+                rmse, cov = scorer.score(ins, cols)
                 if math.isfinite(rmse):
                     scored.append((rmse, lag, cov))
             if not scored:
@@ -312,10 +388,53 @@ def select_inputs(
         choice.steps.append(Step(str(InputSpec("", (c,), lag)), rmse, cov))
         current = rmse
         cols = [ctx.column(t, g) for t, g in chosen]
-        ins = _with_sets([ctx.variable(t, g) for t, g in chosen], cols, cut)
-        rb = _rulebase(test, out, ins, ctx.period)
-        scorer = HeldOutScorer(rb, cols, y, cut)
+        ins = _with_sets([ctx.variable(t, g) for t, g in chosen], cols, rows)
+        scorer = BlockScorer(_rulebase(test, out, ins, ctx.period), cols, y, ctx.block)
         resid = scorer.residual(cols)
+    return choice
+
+
+def tracked_set_point(
+    tag: str, frame: pd.DataFrame, candidates: Sequence[str], info: Mapping[str, TagInfo]
+) -> str | None:
+    """The set-point ``tag`` is held at, if any: the set-point (:func:`is_set_point`) among
+    ``candidates`` it follows most closely, provided the RMS of ``tag − set-point`` over the
+    window is at most :data:`TRACKS` times ``tag``'s standard deviation (the set-point as it
+    stands accounts for at least 3/4 of the tag's variance). A controller holds its measurement
+    there, so the measurement moves with the operators' choices and nothing else in the
+    window says why. A set-point is held at no other."""
+    if is_set_point(tag, info.get(tag)):
+        return None
+    y = frame[tag].to_numpy(float)
+    sd = float(np.nanstd(y))
+    best = None
+    for c in candidates:
+        if c == tag or not is_set_point(c, info.get(c)):
+            continue
+        rms = float(np.sqrt(np.nanmean((y - frame[c].to_numpy(float)) ** 2)))
+        if rms <= TRACKS * sd and (best is None or rms < best[0]):
+            best = (rms, c)
+    return best[1] if best else None
+
+
+def loop_test(ctx: _Context, tag: str, sp: str, *, test: str) -> TestChoice:
+    """The test of a controlled tag: its model is the control loop's own relation, the
+    measurement from its set-point (``narmax2``, a polynomial that holds at set-points the
+    window never saw; Laukonen et al., eq. 12), so its residual is the control error. Chosen
+    for every tag a controller holds: modelled from the other tags instead, such a tag is
+    predicted from whatever moved with the operators' set-point choices in the window, which
+    another period's choices break (false alarms), and a set-point value the window never
+    saw leaves a rule-grid model of it unknown."""
+    out = ctx.vars[tag]
+    y = ctx.column(tag)
+    scorer = BlockScorer(_rulebase(test, out, [], ctx.period), [], y, ctx.block)
+    choice = TestChoice(test, tag, scorer.base_rmse, method=LOOP_METHOD, tracks=sp)
+    ins, cols = [ctx.variable(sp, 0)], [ctx.column(sp)]
+    loop = BlockScorer(
+        _rulebase(test, out, ins, ctx.period, method=LOOP_METHOD), cols, y, ctx.block
+    )
+    rmse, cov = loop.score(ins, cols)
+    choice.steps.append(Step(str(InputSpec("", (sp,), 0)), rmse, cov))
     return choice
 
 
@@ -416,9 +535,13 @@ def build_unit(
     for i, tag in enumerate(tests):
         test = names[tag]
         excl = same.get(tag, [])
-        cands = [c for c in ctx.vars if c != tag and c not in excl]
-        ch = select_inputs(ctx, tag, cands, test=test, max_inputs=max_inputs)
-        ch.excluded = list(excl)
+        sp = tracked_set_point(tag, frame, list(ctx.vars), info)
+        if sp is not None:
+            ch = loop_test(ctx, tag, sp, test=test)
+        else:
+            cands = [c for c in ctx.vars if c != tag and c not in excl]
+            ch = select_inputs(ctx, tag, cands, test=test, max_inputs=max_inputs)
+        ch.excluded = [c for c in excl if c != sp]
         choices.append(ch)
         if progress:
             progress("choose inputs", i + 1, len(tests))
@@ -448,13 +571,7 @@ def build_unit(
         cols = [ctx.column(s.tags[0], s.lag) for s in specs]
         ins = _with_sets([ctx.variable(s.tags[0], s.lag) for s in specs], cols, len(frame))
         mpath = folder / f"{name}_{ch.test}.toml"
-        rb = _rulebase(
-            f"{name}_{ch.test}",
-            ctx.vars[ch.tag],
-            ins,
-            period,
-            path=mpath,
-        )
+        rb = _rulebase(f"{name}_{ch.test}", ctx.vars[ch.tag], ins, period, mpath, ch.method)
         rb.doc["model"]["description"] = (
             f"built by diag unit build {name} from {start.isoformat()} … {end.isoformat()}"
         )
@@ -544,6 +661,9 @@ def _build_table(kept, skipped, start, end, period, far, max_inputs) -> tomlkit.
         row["coverage"] = [x for x in d["coverage"] if x is not None]
         if ch.excluded:
             row["same_as"] = ch.excluded
+        if ch.tracks:
+            row["tracks"] = ch.tracks
+            row["method"] = ch.method
         tests[ch.test] = row
     t["tests"] = tests
     t["skipped"] = sk

@@ -54,6 +54,7 @@ the derived matrix's 0/1 columns as directions (rough, sign-blind).
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,9 +79,19 @@ def _tag(spec_tags: list[str], mapping: dict[str, str]) -> list[str]:
     return [mapping.get(t, t) for t in spec_tags]
 
 
+def is_set_point(tag: str, info=None) -> bool:
+    """A set-point by its name (``….SP``, ``…_SP``, ``…SETPOINT``) or, given a
+    :class:`~historian.taginfo.TagInfo`, its description."""
+    if re.search(r"(^|[._\-\s])(SP|SETPOINT|SET_POINT)$", tag.upper()):
+        return True
+    d = (getattr(info, "description", "") or "").lower()
+    return "set-point" in d or "setpoint" in d or "set point" in d
+
+
 def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
-    """The unit's tags (plant names, outputs first in test order, then inputs), each test's
-    output tag and the tags each test reads (inputs, any lag)."""
+    """The unit's tags that can be at fault (plant names, outputs first in test order, then
+    inputs; never a set-point: it is the operator's entry, with no sensor or actuator that
+    could fail), each test's output tag and the tags each test reads (inputs, any lag)."""
     outputs: dict[str, str] = {}
     reads: dict[str, list[str]] = {}
     mapping = unit.file.tags
@@ -91,7 +102,7 @@ def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
             dict.fromkeys(x for s in parse_specs(m.inputs) for x in _tag(s.tags, mapping))
         )
     tags = list(dict.fromkeys([*outputs.values(), *(x for r in reads.values() for x in r)]))
-    return tags, outputs, reads
+    return [x for x in tags if not is_set_point(x)], outputs, reads
 
 
 def derived_matrix(unit) -> DiagnosticMatrix:
