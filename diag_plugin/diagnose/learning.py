@@ -16,7 +16,9 @@ false-alarm budget.
    answers, less exactly. Each level's residual scale (RMS relative to the fine level's, over
    the window) is learned, and a residual answered at level ``l`` is divided by it, so a coarse
    answer needs a proportionally larger deviation to raise a symptom. A level seen on fewer
-   than :data:`MIN_LEVEL_SAMPLES` samples of the window stays unknown. Each test is also tried
+   than :data:`MIN_LEVEL_SAMPLES` samples of the window shares the scale of the coarser levels
+   it is pooled with until that many are seen (:func:`level_scales`); levels beyond the last
+   full pool stay unknown. Each test is also tried
    in units of its model's local spread (the spread of the training outputs of the rules that
    answered, :func:`~diag_plugin.diagnose.unit.spread_factor`), and keeps that form where its
    thresholds come out tighter relative to its residual's RMS (a deviation of a given share
@@ -355,26 +357,34 @@ def _unknown_reasons(n: int, rows: np.ndarray, y: np.ndarray, pred: Prediction, 
 
 def level_scales(raw: np.ndarray, level: np.ndarray | None) -> list[float]:
     """Residual scale of each rule level relative to the fine grid's: the RMS of the residuals
-    it answered over the RMS of the fine grid's, never below the finer level's; the list stops
-    at the first level that answered fewer than :data:`MIN_LEVEL_SAMPLES` samples."""
+    it answered over the RMS of the fine grid's, never below the finer level's. A level that
+    answered fewer than :data:`MIN_LEVEL_SAMPLES` samples is pooled with the coarser levels
+    after it until the pool holds that many, and the pool's scale is each of its levels'
+    (a thin level between two well-used ones would otherwise leave the coarser one
+    uncalibrated, its answers unknown); the list stops before a pool that never fills."""
     if level is None:
         return [1.0]
     ok = np.isfinite(raw)
 
-    def rms(lv: int) -> tuple[float, int]:
-        sel = ok & (level == lv)
+    def rms(sel: np.ndarray) -> tuple[float, int]:
         k = int(sel.sum())
         return (float(np.sqrt(np.mean(raw[sel] ** 2))) if k else math.nan), k
 
-    base, k0 = rms(0)
+    base, k0 = rms(ok & (level == 0))
     if k0 < MIN_LEVEL_SAMPLES or not base > 0:
         return [1.0]
     out = [1.0]
+    pool = np.zeros(raw.shape, bool)
+    pending = 0
     for lv in range(1, int(level.max()) + 1 if level.size else 1):
-        r, k = rms(lv)
+        pool |= ok & (level == lv)
+        pending += 1
+        r, k = rms(pool)
         if k < MIN_LEVEL_SAMPLES:
-            break
-        out.append(max(r / base, out[-1]))
+            continue
+        out.extend([max(r / base, out[-1])] * pending)
+        pool[:] = False
+        pending = 0
     return out
 
 
