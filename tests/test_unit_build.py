@@ -372,6 +372,7 @@ def test_a_controlled_tag_is_tested_against_its_set_point(tmp_path):
     quiet — a rule-grid model of the level from the set-point is unknown there — and when
     an inflow surge saturates the valve, the level leaves its set-point and the unit names
     it."""
+    from diag_plugin.diagnose.plant import Plant
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitbuild import build_unit
 
@@ -379,10 +380,12 @@ def test_a_controlled_tag_is_tested_against_its_set_point(tmp_path):
     res = build_unit("tank", train, folder=tmp_path, period="60s", far=0.01)
     lt = next(t for t in res.tests if t.tag == "LT101")
     assert (lt.tracks, lt.method, lt.inputs) == ("LIC101.SP", "narmax2", ["LIC101.SP[k]"])
+    assert lt.actuator == "LIC101.OUT"  # the controller's output, by the block's naming
     assert all(t.tracks is None for t in res.tests if t.tag != "LT101")
     row = tomllib.loads(res.path.read_text())["build"]["tests"]["LT101"]
     assert row["tracks"] == "LIC101.SP" and row["method"] == "narmax2"
     unit = Unit.load(res.path, tmp_path)
+    assert unit.file.test("LT101").actuator == "LIC101.OUT"
 
     new = _tank(2, 2, [62.0])  # never seen in training
     d = unit.reset().evaluate(new)
@@ -401,4 +404,14 @@ def test_a_controlled_tag_is_tested_against_its_set_point(tmp_path):
     d = unit.reset().evaluate(surge)
     late = slice(len(surge) // 2, None)
     assert (d.symptoms["LT101"].iloc[late].fillna(0) > 0).mean() > 0.8
-    assert (d.faults.iloc[late] == "LT101").mean() > 0.8
+    # the level sensor or the valve its loop drives (the valve is at its limit)
+    named = d.faults.iloc[late].str.split("|")
+    assert named.map(lambda f: "LT101" in f and "LIC101.OUT" in f).mean() > 0.8, named
+    # the live loop's fast path gives the same, the loop test's polynomial included
+    plant = Plant({"tank": unit.reset()})
+    assert plant.fast == ["tank"]
+    for i, (ts, r) in enumerate(surge.iterrows()):
+        st = plant.cycle(ts, r)[0]
+        want = d.at(i)
+        assert (st.status, st.faults) == (want.status, want.faults), (i, st, want)
+        assert [t for t, _ in st.tags] == [t for t, _ in want.tags]

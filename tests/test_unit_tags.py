@@ -237,3 +237,36 @@ def test_a_combined_test_not_yet_learned_is_check_function_and_says_so(learned, 
     d = unit.evaluate(process(400, 5))
     assert (d.status == NE107.CHECK_FUNCTION).all()
     assert d.message == "no thresholds for the combined test: run `diag unit learn p`"
+
+
+def test_a_loop_actuator_is_ranked_on_the_plane_of_its_direction_and_its_loop():
+    """A valve its loop compensates leaves the control error at zero; a stuck or saturated
+    one moves it either way: the actuator's contribution is taken over the plane of its own
+    direction and its loop test's axis (multidimensional RBC), so it explains both cases,
+    and a deviation of the loop test alone still goes to the measurement whose direction
+    it is."""
+    from diag_plugin.diagnose.unittags import CombinedModel
+
+    # tests: loop (PV − SP), the valve's own model (OUT from the load), a model reading PV
+    # tags: PV (output of the loop test, read by the third), OUT (output of the second)
+    xi = np.array([[1.0, 0.0], [0.0, 1.0], [-0.8, 0.0]])
+    cm = CombinedModel(["PV", "OUT"], np.zeros(3), np.ones(3), np.eye(3), xi, 10.0,
+                       np.array([-1, 0]))  # fmt: skip
+    plain = CombinedModel(["PV", "OUT"], np.zeros(3), np.ones(3), np.eye(3), xi, 10.0)
+    z = np.array(
+        [
+            [0.0, 6.0, 0.0],  # compensated: only the valve's own model
+            [5.0, 6.0, 0.0],  # stuck, the error up
+            [-5.0, 6.0, 0.0],  # stuck, the error down
+            [5.0, 0.0, -4.0],  # the measurement: its loop and the model reading it
+        ]
+    )
+    _, share = cm.evaluate(z)
+    _, before = plain.evaluate(z)
+    assert share[0, 1] == pytest.approx(1.0) and share[0, 0] == 0.0
+    assert share[1, 1] == pytest.approx(1.0) and share[2, 1] == pytest.approx(1.0)
+    assert before[1, 1] < 0.6 and before[2, 1] < 0.6  # a fixed direction explains half
+    assert share[3, 0] == pytest.approx(1.0) and share[3, 1] < share[3, 0]
+    # with the loop test unknown the actuator keeps its own direction
+    _, share = cm.evaluate(np.array([[np.nan, 6.0, 0.0]]))
+    assert share[0, 1] == pytest.approx(1.0)

@@ -407,3 +407,17 @@ def test_bad_quality_in_the_historian_is_check_function_not_a_fault(folder, tmp_
         assert (rows["status"] == int(NE107.CHECK_FUNCTION)).all(), (a, rows["status"].unique())
         assert (rows["faults"] == "").all() and (rows["detected"].astype(str) == "").all()
         assert t["status"].iloc[a - 1] == int(NE107.FAILURE)
+
+
+def test_a_loop_actuator_is_a_tag_name_or_an_error_with_its_line(folder):
+    path = folder / "valve_unit.unit.toml"
+    text = path.read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith("r1 ="))
+    path.write_text(text.replace(line, line[:-1] + ', actuator = "CV" }'))
+    assert Unit.load(path).file.test("r1").actuator == "CV"
+    bad = text.replace(line, line[:-1] + ", actuator = 3 }")
+    path.write_text(bad)
+    with pytest.raises(UnitError) as e:
+        Unit.load(path)
+    n = next(i for i, ln in enumerate(bad.splitlines(), 1) if ln.startswith("r1 ="))
+    assert any(p.startswith(f"{path}:{n}: test 'r1': actuator must name") for p in e.value.problems)

@@ -474,15 +474,16 @@ def _print_build(con, build: dict) -> None:
             c = f", coverage {cov[i]:.0%}" if i < len(cov) else ""
             steps.append(f"+ {inp} → {e}{c}")
         same = row.get("same_as")
-        loop = row.get("tracks")
+        loop = ""
+        if row.get("tracks"):
+            out = f" (output {row['actuator']})" if row.get("actuator") else ""
+            loop = (
+                f"held at {row['tracks']} by its controller{out}, tested as the loop holds it "
+                f"({row.get('method')}): "
+            )
         con.print(
             f"  {test} ({row.get('tag')}): "
-            + (
-                f"held at {loop} by its controller, tested as the loop holds it "
-                f"({row.get('method')}): "
-                if loop
-                else ""
-            )  # fmt: skip
+            + loop
             + "; ".join(steps)
             + (f"; never from {', '.join(same)} (the same measurement)" if same else ""),
             markup=False,

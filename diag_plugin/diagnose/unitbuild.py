@@ -90,6 +90,8 @@ SAME_CORR = 0.995
 #: a tag is held at a set-point when RMS(tag − set-point) ≤ TRACKS × its standard deviation
 #: (the set-point as it stands accounts for at least 3/4 of the tag's variance)
 TRACKS = 0.5
+#: suffixes of a controller's output beside its set-point's (TIC103.SP, TIC103.OUT)
+OUTPUT_NAMES = ("OUT", "OP", "MV", "CO", "OUTPUT")
 #: the method of a controlled tag's test (its measurement from its set-point)
 LOOP_METHOD = "narmax2"
 #: a tag needs good samples in this share of the window's grid points to be tested
@@ -124,6 +126,7 @@ class TestChoice:
     validation_rmse_pct: float = math.nan  # the trained model's, as diag train reports
     method: str = "wm-avg"
     tracks: str | None = None  # the set-point a controlled tag is held at
+    actuator: str | None = None  # that loop's controller output
 
     @property
     def inputs(self) -> list[str]:
@@ -140,6 +143,7 @@ class TestChoice:
             "validation_rmse_pct": _r(self.validation_rmse_pct),
             "method": self.method,
             "tracks": self.tracks,
+            "actuator": self.actuator,
         }
 
 
@@ -417,6 +421,23 @@ def tracked_set_point(
     return best[1] if best else None
 
 
+def controller_output(sp: str, tags: Sequence[str]) -> str | None:
+    """The output tag of the controller whose set-point is ``sp``, by the DCS naming of a
+    controller block's parameters: the set-point's name with its suffix (``SP``, ``SETPOINT``)
+    replaced by an output's (:data:`OUTPUT_NAMES`: ``OUT``, ``OP``, ``MV``, ``CO``), any
+    case, the same separator (``TIC103.SP`` → ``TIC103.OUT``); None where no such tag is in
+    ``tags``."""
+    m = re.search(r"([._\-\s]?)(SP|SETPOINT|SET_POINT)$", sp, flags=re.IGNORECASE)
+    if m is None:
+        return None
+    stem, sep = sp[: m.start()], m.group(1)
+    have = {t.upper(): t for t in tags}
+    for name in OUTPUT_NAMES:
+        if (hit := have.get(f"{stem}{sep}{name}".upper())) is not None:
+            return hit
+    return None
+
+
 def loop_test(ctx: _Context, tag: str, sp: str, *, test: str) -> TestChoice:
     """The test of a controlled tag: its model is the control loop's own relation, the
     measurement from its set-point (``narmax2``, a polynomial that holds at set-points the
@@ -538,6 +559,7 @@ def build_unit(
         sp = tracked_set_point(tag, frame, list(ctx.vars), info)
         if sp is not None:
             ch = loop_test(ctx, tag, sp, test=test)
+            ch.actuator = controller_output(sp, [t for t in ctx.vars if t != tag])
         else:
             cands = [c for c in ctx.vars if c != tag and c not in excl]
             ch = select_inputs(ctx, tag, cands, test=test, max_inputs=max_inputs)
@@ -604,6 +626,9 @@ def build_unit(
         description=f"built by diag unit build from {start.isoformat()} … {end.isoformat()}",
     )
     doc = tomlkit.parse(text)
+    for ch in kept:
+        if ch.actuator:
+            doc["tests"][ch.test]["actuator"] = ch.actuator
     for k, v in evaluation_for(period).items():
         doc["evaluation"][k] = v
     # a unit-level combined test beside the per-tag tests, and alarms isolated to tags
@@ -664,6 +689,8 @@ def _build_table(kept, skipped, start, end, period, far, max_inputs) -> tomlkit.
         if ch.tracks:
             row["tracks"] = ch.tracks
             row["method"] = ch.method
+        if ch.actuator:
+            row["actuator"] = ch.actuator
         tests[ch.test] = row
     t["tests"] = tests
     t["skipped"] = sk

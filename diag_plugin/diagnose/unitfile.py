@@ -38,6 +38,7 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     [tests]              # one line per test: its model (rule-base file) and thresholds in %
     r1 = { model = "valve_r1.toml", high = 9.8, low = -9.6, spread = true, levels = [1.0, 1.7] }
     r2 = { model = "valve_r2.toml", high = 4.1 }    # low defaults to -high
+    TI103 = { model = "u_TI103.toml", high = 0.6, actuator = "TIC103.OUT" }  # a loop's test
 
     [learned]            # written by `diag unit learn`: what each test's thresholds rest on
     r1 = { far = 0.00012, method = "tail", supported = false, hours = 336.0, ...}
@@ -69,6 +70,12 @@ the training outputs of the rules that answered, relative to the model's typical
 same inputs (a steep or unmodelled region) a deviation must be larger to count, where it is
 steady smaller. ``diag unit learn`` sets it for every test whose model keeps a spread
 (Wang–Mendel); without the key the plain residual counts.
+
+``actuator = "TAG"`` (written by ``diag unit build`` for a tag a controller holds, editable):
+the controller output of the loop whose control error the test's residual is; with
+``isolation = "tags"`` a fault of that actuator is a candidate when the test fires (a valve
+its loop compensates leaves the error at zero, a stuck or saturated one moves it either way,
+:func:`~diag_plugin.diagnose.unittags.directions`).
 
 ``fuzzy = [n1, n0, p0, p1]`` (learned, editable; fuzzy symptoms only): the breakpoints of the
 test's three sets, in the thresholds' units: μN is 1 below ``n1`` and 0 above ``n0``, μP is 0
@@ -188,6 +195,9 @@ class TestSpec:
     spread: bool = False
     #: breakpoints n1 ≤ n0 ≤ p0 ≤ p1 of the N, 0, P sets (fuzzy symptoms; learned or edited)
     fuzzy: tuple[float, float, float, float] | None = None
+    #: the actuator (a controller output tag) of the control loop whose error this test's
+    #: residual is: a fault of it is a candidate when the test fires (isolation to tags)
+    actuator: str | None = None
 
     @property
     def limits(self) -> tuple[float, float] | None:
@@ -358,7 +368,7 @@ class UnitFile:
                 self.error(line, f'test {name!r}: needs {{ model = "file.toml", high = … }}')
                 continue
             v = {k: _plain(x) for k, x in raw.items()}
-            known = {"model", "high", "low", "ymax", "levels", "spread", "fuzzy"}
+            known = {"model", "high", "low", "ymax", "levels", "spread", "fuzzy", "actuator"}
             for key in sorted(set(v) - known):
                 self.error(line, f"test {name!r}: unknown key {key!r}")
             model = v.get("model")
@@ -423,6 +433,14 @@ class UnitFile:
                         f"[n1, n0, p0, p1] with n1 ≤ n0 < 0 < p0 ≤ p1, got {fuzzy!r}",
                     )
                     fuzzy = None
+            actuator = v.get("actuator")
+            if actuator is not None and (not isinstance(actuator, str) or not actuator.strip()):
+                self.error(
+                    line,
+                    f"test {name!r}: actuator must name the tag of the loop's controller "
+                    f"output, got {actuator!r}",
+                )
+                actuator = None
             tests.append(
                 TestSpec(
                     name,
@@ -434,6 +452,7 @@ class UnitFile:
                     None if levels is None else tuple(float(x) for x in levels),
                     spread,
                     None if fuzzy is None else tuple(float(x) for x in fuzzy),  # type: ignore[arg-type]
+                    actuator,
                 )
             )
         if table and not tests and not self.problems:

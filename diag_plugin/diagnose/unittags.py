@@ -32,8 +32,11 @@ derived from its models (:func:`derived_matrix`): one fault column per tag, name
 with ``1`` in every test that reads the tag (an input, any lag, derived or not) or models it
 (its output), ``0`` elsewhere, so the crisp nearest-signature isolation names tags. An expert
 matrix file, when given, takes precedence for the faults; the ranking below is still reported.
-A *process* fault (fouling, a leak) has no column: it moves the tests whose relations it
-breaks, and shows up as the tags those tests involve, ranked as below.
+A test with an ``actuator`` (a loop's control error, written by ``diag unit build``) has ``1``
+in that controller output's column too; set-points are never columns (an operator's entry has
+no sensor or actuator to fail). A *process* fault (fouling, a leak) has no column: it moves
+the tests whose relations it breaks, and shows up as the tags those tests involve, ranked as
+below.
 
 **Ranking by contribution.** For each tag ``X`` a fault direction ``ξ_X`` in ``z`` space: a
 bias ``b`` of X's sensor moves test ``j``'s residual by ``(1{X is j's output} − g_jX) · b ·
@@ -44,7 +47,11 @@ bias does not move), divided by ``s_j``. The reconstruction-based contribution
 
     ``RBC_X = (ξ_Xᵀ S⁻¹ z)² / (ξ_Xᵀ S⁻¹ ξ_X)``
 
-is how much of ``T²`` a bias along ``ξ_X`` explains (``0 ≤ RBC_X ≤ T²``); the share
+is how much of ``T²`` a bias along ``ξ_X`` explains (``0 ≤ RBC_X ≤ T²``). A loop's actuator
+moves its loop test's residual by an amount and sign no gain says (zero while the loop
+compensates, either way once the valve sticks or saturates): its contribution is taken over the
+plane of its own direction and that test's axis, the multidimensional form ``uᵀ(ΞᵀS⁻¹Ξ)⁻¹u``,
+``Ξ = [ξ_X e_loop]``, ``u = ΞᵀS⁻¹z`` (Alcala & Qin, 2009). The share
 ``RBC_X / T²`` ranks the tags (1: a bias of X alone explains the deviation). Tags touching
 the same tests in the same proportions cannot be told apart and share a rank. Before
 ``diag unit learn`` has written ``[combined]`` the ranking uses ``z = r / high``, ``S = I`` and
@@ -101,6 +108,9 @@ def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
         reads[t] = list(
             dict.fromkeys(x for s in parse_specs(m.inputs) for x in _tag(s.tags, mapping))
         )
+        act = unit.file.test(t).actuator
+        if act and act not in reads[t] and act != outputs[t]:
+            reads[t].append(act)  # a loop's actuator: its fault moves the loop's error
     tags = list(dict.fromkeys([*outputs.values(), *(x for r in reads.values() for x in r)]))
     return [x for x in tags if not is_set_point(x)], outputs, reads
 
@@ -113,22 +123,30 @@ def derived_matrix(unit) -> DiagnosticMatrix:
     return DiagnosticMatrix(list(unit.tests), tags, rows, name=f"{unit.name} (derived: tags)")
 
 
-def directions(unit, spec: CombinedSpec | None) -> np.ndarray:
+def directions(unit, spec: CombinedSpec | None) -> tuple[np.ndarray, np.ndarray]:
     """Fault direction of each tag (columns, :func:`structure` order) in the space of the
-    scaled residuals (rows, the unit's tests): see the module doc."""
+    scaled residuals (rows, the unit's tests): see the module doc. And per tag the test
+    whose control error its fault also moves by an unknown amount (a loop's actuator: a
+    valve the loop compensates leaves the error at zero, a stuck or saturated one moves it
+    either way), −1 for none: the ranking gives that tag the plane of its direction and that
+    test's axis (:meth:`CombinedModel.evaluate`)."""
     tags, outputs, reads = structure(unit)
     xi = np.zeros((len(unit.tests), len(tags)))
+    loop = np.full(len(tags), -1, np.int64)
     for j, t in enumerate(unit.tests):
+        test = unit.file.test(t)
         for k, x in enumerate(tags):
             if spec is None:
                 xi[j, k] = 1.0 if (x == outputs[t] or x in reads[t]) else 0.0
                 continue
+            if x == test.actuator and x != outputs[t] and x not in spec.gains.get(t, {}):
+                loop[k] = j
+                continue
             i = spec.tests.index(t)
-            test = unit.file.test(t)
             span = test.ymax if unit.ev["scale"] == "max" and test.ymax else unit.models[t].span
             g = spec.gains.get(t, {}).get(x, 0.0)
             xi[j, k] = ((1.0 if x == outputs[t] else 0.0) - g) * 100.0 / span / spec.scale[i]
-    return xi
+    return xi, loop
 
 
 @dataclass
@@ -141,6 +159,8 @@ class CombinedModel:
     cov: np.ndarray
     xi: np.ndarray
     high: float | None
+    #: per tag the test whose axis joins its direction (a loop's actuator), −1 for none
+    loop: np.ndarray | None = None
     #: per pattern of known tests: S⁻¹ restricted to them and the directions' norms
     _inverses: dict[bytes, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
@@ -162,16 +182,19 @@ class CombinedModel:
         T = len(unit.tests)
         if spec is None:
             hi = np.array([t.high if t.high else 1.0 for t in unit.file.tests], float)
-            return cls(tags, np.zeros(T), hi, np.eye(T), directions(unit, None), None)
+            xi, _ = directions(unit, None)
+            return cls(tags, np.zeros(T), hi, np.eye(T), xi, None)
         order = [spec.tests.index(t) for t in unit.tests]
         cov = np.asarray(spec.cov, float)[np.ix_(order, order)]
+        xi, loop = directions(unit, spec)
         return cls(
             tags,
             np.asarray(spec.center, float)[order],
             np.asarray(spec.scale, float)[order],
             cov,
-            directions(unit, spec),
+            xi,
             spec.high,
+            loop if (loop >= 0).any() else None,
         )
 
     def z(self, r: np.ndarray) -> np.ndarray:
@@ -198,14 +221,40 @@ class CombinedModel:
             zk = z[np.ix_(rows, k)]
             mz = zk @ m
             q = np.einsum("ij,ij->i", mz, zk)
-            xi = self.xi[k]
             with np.errstate(invalid="ignore", divide="ignore"):
-                rbc = np.where(den > 1e-12, (mz @ xi) ** 2 / np.maximum(den, 1e-12), 0.0)
+                rbc = _rbc(mz, self.xi[k], den)
+                if self.loop is not None:
+                    self._loop_rbc(rbc, mz, m, k)
                 share[rows] = np.clip(rbc / np.maximum(q, 1e-12)[:, None], 0.0, 1.0)
             if k.size < T:  # the same false-alarm level with T degrees of freedom
                 q = stats.chi2.isf(stats.chi2.sf(q, k.size), T)
             t2[rows] = q
         return t2, share
+
+    def _loop_rbc(self, rbc: np.ndarray, mz: np.ndarray, m: np.ndarray, k: np.ndarray) -> None:
+        """In place: each loop actuator's contribution over the plane of its direction ``a``
+        and its loop test's axis ``b`` (Alcala & Qin, 2009, the multidimensional form:
+        ``uᵀ (ΞᵀS⁻¹Ξ)⁻¹ u`` with ``Ξ = [a b]``, ``u = ΞᵀS⁻¹z``), where that test is known."""
+        pos = {int(t): i for i, t in enumerate(k)}
+        for c in np.flatnonzero(self.loop >= 0):
+            j = pos.get(int(self.loop[c]))
+            if j is None:
+                continue
+            a = self.xi[k, c]
+            ma = m @ a
+            g = np.array([[a @ ma, ma[j]], [ma[j], m[j, j]]])
+            if not m[j, j] > 1e-12:
+                continue
+            if abs(np.linalg.det(g)) <= 1e-9 * g[0, 0] * g[1, 1]:  # no own direction beside
+                rbc[:, c] = mz[:, j] ** 2 / m[j, j]
+                continue
+            u = np.column_stack([mz @ a, mz[:, j]])
+            rbc[:, c] = np.einsum("ij,jk,ik->i", u, np.linalg.inv(g), u)
+
+
+def _rbc(mz: np.ndarray, xi: np.ndarray, den: np.ndarray) -> np.ndarray:
+    """Reconstruction-based contribution of each direction (Alcala & Qin, 2009, eq. 13)."""
+    return np.where(den > 1e-12, (mz @ xi) ** 2 / np.maximum(den, 1e-12), 0.0)
 
 
 def top_tags(share: np.ndarray, tags: list[str], rows: np.ndarray, top: int = TOP) -> pd.DataFrame:
