@@ -126,9 +126,20 @@ def simulate_tank(
     )
     fin = np.clip(fin, 5.0, 75.0)
     sp = _schedule(rng, n, 35.0, 70.0, 4 * 3600.0)
+    return tank_run(index, fin, sp, rng)
+
+
+def tank_run(
+    index: pd.DatetimeIndex, inflow: np.ndarray, set_point: np.ndarray, rng: np.random.Generator
+) -> pd.DataFrame:
+    """The tank's level loop on a 1 s ``index`` for a given ``inflow`` (m³/h) and the
+    operators' ``set_point`` schedule (%), with its tags as measured (noise from ``rng``): the
+    level LT101, inflow FI101, outflow FI102 and the controller's output and set-point."""
+    fin = np.asarray(inflow, float)
+    sp = np.asarray(set_point, float)
     level, u, fout = _tank_loop(fin, sp, 60.0, 12.0, 4.0, 4.0, 900.0, 50.0)
-    noise = rng.standard_normal((4, n))
-    frame = pd.DataFrame(
+    noise = rng.standard_normal((4, fin.size))
+    return pd.DataFrame(
         {
             "LT101": level + 0.15 * noise[0],
             "FI101": fin + 0.3 * noise[1],
@@ -138,7 +149,6 @@ def simulate_tank(
         },
         index=index,
     )
-    return frame
 
 
 @nb.njit(cache=True)
