@@ -672,7 +672,11 @@ def cmd_unit_build(args) -> int:
         errs = " → ".join(
             f"{x:.2f}" for x in [ch.baseline_rmse_pct, *(s.rmse_pct for s in ch.steps)]
         )
-        print(f"  {ch.test}: {ch.tag} = f({', '.join(ch.inputs)}); held-out error {errs} % of span")
+        loop = f" (its control loop, {ch.method}; actuator {ch.actuator})" if ch.tracks else ""
+        print(
+            f"  {ch.test}: {ch.tag} = f({', '.join(ch.inputs)}){loop}; held-out error {errs} % "
+            "of span"
+        )
     for tag, why in res.skipped.items():
         print(f"  not tested: {tag}: {why}")
     for n in res.notes[:4]:
