@@ -222,11 +222,13 @@ class Diagnosis:
 
     def _message(self, i: int) -> str:
         """The unit's message, with the combined test and the top tags on an alarm, and the
-        unknown tests when the diagnosis is (CHECK_FUNCTION)."""
+        unknown tests when the diagnosis is unknown (CHECK_FUNCTION)."""
         parts = [self.message] if self.message else []
         if int(self.status.iloc[i]) == NE107.CHECK_FUNCTION and not self.message:
             row = self.symptoms.iloc[i]
-            parts.append(unknown_note([t for t, v in row.items() if np.isnan(v)]))
+            note = unknown_note([t for t, v in row.items() if np.isnan(v)])
+            if note:
+                parts.append(note)
         if self.combined is not None and self.combined["s_T2"].iloc[i] == 1:
             parts.append(f"combined test on (T² {self.combined['T2'].iloc[i]:.3g})")
         if self.top is not None:
