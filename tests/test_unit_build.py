@@ -122,7 +122,9 @@ def test_quiet_on_an_unseen_run_and_a_sensor_bias_is_detected(built):
                     fmt(quiet.index[-1]), "--json")  # fmt: skip
     assert rc == 0, text
     d = json.loads(text)
-    episodes = [i for i in d["intervals"] if i["status"] not in ("NORMAL", "CHECK_FUNCTION")]
+    alarms = [i for i in d["intervals"] if i["status"] not in ("NORMAL", "CHECK_FUNCTION")]
+    # an episode is a run of alarm intervals end to end (the isolated tag may change within)
+    episodes = [i for k, i in enumerate(alarms) if k == 0 or i["from"] != alarms[k - 1]["to"]]
     hours = len(quiet) * 3 / 60
     rate = len(episodes) / hours
     assert rate <= 3 * FAR, (rate, episodes[:5])
