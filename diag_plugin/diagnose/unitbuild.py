@@ -22,9 +22,10 @@ hand-build:
    :data:`~diag_plugin.workbench.explain.TOLERANCE` of the best is kept.
    **A tag a controller holds** (:func:`tracked_set_point`: RMS of tag − set-point at most
    :data:`TRACKS` of the tag's standard deviation) is not modelled from the other tags: its
-   test is the loop's own relation (:func:`loop_test`: the tag from its set-point,
-   ``narmax2``), whose residual is the control error — valid at set-points the window never
-   saw, where other tags' models of it learned the operators' choices of the window.
+   test is the loop's own relation (:func:`loop_test`: the tag at its set-point plus the
+   loop's steady offset, ``track``), whose residual is the control error — valid at
+   set-points the window never saw, where other tags' models of it learned the operators'
+   choices of the window.
    Never a candidate: the tag itself at any lag (a model of ``y[k]`` from ``y[k-1]`` follows
    a fault as fast as the fault moves ``y`` and so hides it), nor a tag that is the same
    measurement (:func:`same_measurement`: ``|r| >`` :data:`SAME_CORR` at lag 0, linear or
@@ -92,8 +93,8 @@ SAME_CORR = 0.995
 TRACKS = 0.5
 #: suffixes of a controller's output beside its set-point's (TIC103.SP, TIC103.OUT)
 OUTPUT_NAMES = ("OUT", "OP", "MV", "CO", "OUTPUT")
-#: the method of a controlled tag's test (its measurement from its set-point)
-LOOP_METHOD = "narmax2"
+#: the method of a controlled tag's test (its measurement at its set-point plus the offset)
+LOOP_METHOD = "track"
 #: a tag needs good samples in this share of the window's grid points to be tested
 MIN_GOOD_SHARE = 0.5
 #: grid points a window needs: the learning filter settles over 500 (SETTLE_SAMPLES), and
@@ -440,23 +441,38 @@ def controller_output(sp: str, tags: Sequence[str]) -> str | None:
 
 def loop_test(ctx: _Context, tag: str, sp: str, *, test: str) -> TestChoice:
     """The test of a controlled tag: its model is the control loop's own relation, the
-    measurement from its set-point (``narmax2``, a polynomial that holds at set-points the
-    window never saw; Laukonen et al., eq. 12), so its residual is the control error. Chosen
-    for every tag a controller holds: modelled from the other tags instead, such a tag is
-    predicted from whatever moved with the operators' set-point choices in the window, which
-    another period's choices break (false alarms), and a set-point value the window never
-    saw leaves a rule-grid model of it unknown."""
+    measurement at its set-point plus the loop's steady offset (``track``,
+    :mod:`diag_plugin.models.track`), so its residual is the control error, at any set-point
+    an operator enters. Chosen for every tag a controller holds: modelled from the other
+    tags instead, such a tag is predicted from whatever moved with the operators' set-point
+    choices in the window, which another period's choices break (false alarms); a fitted
+    function of the set-point (a rule grid, a polynomial) is unknown or bends away from the
+    identity at set-points the window never saw."""
     out = ctx.vars[tag]
     y = ctx.column(tag)
     scorer = BlockScorer(_rulebase(test, out, [], ctx.period), [], y, ctx.block)
     choice = TestChoice(test, tag, scorer.base_rmse, method=LOOP_METHOD, tracks=sp)
-    ins, cols = [ctx.variable(sp, 0)], [ctx.column(sp)]
-    loop = BlockScorer(
-        _rulebase(test, out, ins, ctx.period, method=LOOP_METHOD), cols, y, ctx.block
-    )
-    rmse, cov = loop.score(ins, cols)
-    choice.steps.append(Step(str(InputSpec("", (sp,), 0)), rmse, cov))
+    # the loop's response time: the set-point as it was d samples ago, d on held-out error
+    # over the dead-time horizon (a slow loop — an averaging level — lags a set-point step)
+    rb = _rulebase(test, out, [ctx.variable(sp, 0)], ctx.period, method=LOOP_METHOD)
+    scored = []
+    for lag in loop_lags(ctx.max_lag):
+        ins, cols = [ctx.variable(sp, lag)], [ctx.column(sp, lag)]
+        rmse, cov = BlockScorer(rb, cols, y, ctx.block).score(ins, cols)
+        if math.isfinite(rmse):
+            scored.append((rmse, lag, cov))
+    low = min(r for r, _, _ in scored)
+    rmse, lag, cov = min((x for x in scored if x[0] <= low * (1 + TOLERANCE)), key=lambda x: x[1])
+    choice.steps.append(Step(str(InputSpec("", (sp,), lag)), rmse, cov))
     return choice
+
+
+def loop_lags(max_lag: int, n: int = 12) -> list[int]:
+    """Response times tried for a loop: 0 and ``n`` steps spaced geometrically up to
+    ``max_lag`` samples (a few seconds and many minutes both within reach at 1 s)."""
+    if max_lag < 1:
+        return [0]
+    return sorted({0, *np.unique(np.round(np.geomspace(1, max_lag, n)).astype(int)).tolist()})
 
 
 def evaluation_for(period: str) -> dict[str, float | int]:

@@ -65,12 +65,13 @@ def compare_methods(
     holdout: float = 0.2,
     methods: tuple[str, ...] | None = None,
 ) -> list[dict[str, Any]]:
-    """Train each method on the same data of the model file ``path`` (Figs. 3–7 style)."""
+    """Train each identification method (default: every registered one that identifies) on
+    the same data of the model file ``path`` (Figs. 3–7 style)."""
     rb = RuleBase.load(path)
     tags, t0, t1 = data_window(rb, url, start, end)
     span = rb.output.span[1] - rb.output.span[0]
     out = []
-    for method in methods or tuple(METHODS):
+    for method in methods or tuple(m.name for m in METHODS.values() if m.identifies):
         reader = WindowReader(url, tuple(tags), rb.period)
         started = time.perf_counter()
         try:

@@ -431,7 +431,7 @@ class NarmaxCodec:
         self, rb: RuleBase, items: list, positions: Sequence[tuple[int, list[str], str]]
     ) -> list[Term]:
         """Terms from the ``[rules] list``; each problem goes to ``rb.error(line, …)``."""
-        _no_options(rb)
+        _no_options(rb, self.method)
         specs = [v.spec for v in rb.inputs]
         out: list[Term] = []
         seen: dict[tuple[int, ...], int] = {}
@@ -488,9 +488,9 @@ class NarmaxCodec:
         return "".join(lines)
 
 
-def _no_options(rb: RuleBase) -> None:
+def _no_options(rb: RuleBase, method: str = "narmax2") -> None:
     for key in rb.options:
-        rb.error(rb.line_of("rules", key), f"narmax2 takes no option {key!r} in [rules]")
+        rb.error(rb.line_of("rules", key), f"{method} takes no option {key!r} in [rules]")
 
 
 def _num(v: float) -> str:

@@ -17,6 +17,9 @@ class Method:
     module: str
     codec: str
     summary: str
+    #: an identification method (trained from data on any inputs): `diag compare-methods`
+    #: trains these; the others serve a fixed structure (``track``: a loop at its set-point)
+    identifies: bool = True
 
     def load(self) -> Any:
         """The codec instance (imported on first use: a CLI start loads no method)."""
@@ -32,6 +35,13 @@ METHODS: dict[str, Method] = {
         Method("wm", "diag_plugin.fuzzy.wm_codec", "WangMendelCodec", "classic Wang–Mendel"),
         Method("ts-fcm", "diag_plugin.fuzzy.ts_fcm", "TakagiSugenoCodec", "Takagi–Sugeno, c-Means"),
         Method("narmax2", "diag_plugin.models.narmax", "NarmaxCodec", "2nd-order NARMAX"),
+        Method(
+            "track",
+            "diag_plugin.models.track",
+            "TrackCodec",
+            "control loop: the measurement at its set-point plus the loop's offset",
+            identifies=False,
+        ),
     )
 }
 
