@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from diag_plugin.models.params import ParamsMixin
 from diag_plugin.models.protocol import (
     REASON_NAN,
     REASON_OK,
@@ -249,3 +250,42 @@ def free_run(
         if np.isfinite(x).all():
             yhat[k] = predict_rows(np.clip(x, lo, hi))[0]
     return yhat
+
+
+class SpanEstimator(ParamsMixin):
+    """What the estimators fitted on nominal input spans share (``narmax2``, ``track``): an
+    empty model from explicit spans, the spans in the state, the mean output standing in where
+    an input is missing, and the fitted check. Subclasses set ``spans_``, ``output_span_`` and
+    ``output_mean_`` and define ``_init``, ``partial_fit`` and ``predict``."""
+
+    input_spans: Sequence[tuple[float, float]] | None
+
+    def fit(self, X: Any, y: Any) -> Any:
+        """A new model of all rows of ``X`` and ``y`` (rows with a NaN are skipped): the spans
+        forgotten, then :meth:`partial_fit` on everything."""
+        self.__dict__.pop("spans_", None)
+        return self.partial_fit(X, y)
+
+    def init(self, n_features: int) -> Any:
+        """An empty model for ``n_features`` inputs; needs explicit spans."""
+        if self.input_spans is None:
+            raise ValueError("init needs input_spans")
+        self._init(np.zeros((0, n_features)))
+        return self
+
+    def _span_params(self) -> dict[str, Any]:
+        """The constructor parameters with the spans as learned (for ``to_state``)."""
+        self._check_fitted()
+        params = self.get_params()
+        params["input_spans"] = self.spans_.tolist()
+        params["output_span"] = list(self.output_span_)
+        return params
+
+    def extrapolate(self, X: Any) -> np.ndarray:
+        """The prediction; the mean training output where an input is missing."""
+        y = self.predict(X)
+        return np.where(np.isfinite(y), y, self.output_mean_)
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "spans_"):
+            raise RuntimeError("this model is not trained yet: call fit or load a model file")

@@ -38,6 +38,7 @@ from diag_plugin.models.estimation import (
     CHUNK_ROWS,
     FreeRunCapabilities,
     QRLeastSquares,
+    SpanEstimator,
     as_2d,
     as_xy,
     detail,
@@ -47,7 +48,6 @@ from diag_plugin.models.estimation import (
     output_lags_of,
     resolve_spans,
 )
-from diag_plugin.models.params import ParamsMixin
 from diag_plugin.models.protocol import Capabilities, Prediction
 from diag_plugin.models.spec import ModelSpec
 
@@ -99,7 +99,7 @@ def _raw_basis(centre: np.ndarray, half: np.ndarray) -> np.ndarray:
     return M
 
 
-class Narmax2Regressor(ParamsMixin):
+class Narmax2Regressor(SpanEstimator):
     """Second-order polynomial model (Laukonen et al., eq. 12) by batch least squares.
 
     Parameters
@@ -161,11 +161,6 @@ class Narmax2Regressor(ParamsMixin):
         return (X - self._centre) / self._half
 
     # ---------------------------------------------------------------- training
-    def fit(self, X: Any, y: Any) -> Narmax2Regressor:
-        """Least squares over all rows of ``X`` and ``y`` (rows with a NaN are skipped)."""
-        self.__dict__.pop("spans_", None)
-        return self.partial_fit(X, y)
-
     def partial_fit(self, X: Any, y: Any) -> Narmax2Regressor:
         """Add a chunk of rows; consecutive chunks give the model of one ``fit`` on all."""
         X, y = as_xy(X, y)
@@ -241,20 +236,10 @@ class Narmax2Regressor(ParamsMixin):
             return math.nan
         return float(self._predict_rows(self._centre[None, :])[0])
 
-    def init(self, n_features: int) -> Narmax2Regressor:
-        """An empty model for ``n_features`` inputs; needs explicit spans."""
-        if self.input_spans is None:
-            raise ValueError("init needs input_spans")
-        self._init(np.zeros((0, n_features)))
-        return self
-
     # ------------------------------------------------------------------ state
     def to_state(self) -> dict[str, Any]:
         """Parameters and training state as plain JSON values (no pickle)."""
-        self._check_fitted()
-        params = self.get_params()
-        params["input_spans"] = self.spans_.tolist()
-        params["output_span"] = list(self.output_span_)
+        params = self._span_params()
         params["output_lags"] = None if self.output_lags is None else list(self.output_lags)
         return {
             "params": params,
@@ -291,11 +276,6 @@ class Narmax2Regressor(ParamsMixin):
         """Model output (eq. 12); NaN where an input is missing."""
         return self.predict_detail(X).y
 
-    def extrapolate(self, X: Any) -> np.ndarray:
-        """The prediction; the mean training output where an input is missing."""
-        y = self.predict(X)
-        return np.where(np.isfinite(y), y, self.output_mean_)
-
     def simulate(self, X: Any) -> np.ndarray:
         """Free-run (output-error) output over consecutive rows: inputs that are lags of the
         output get the model's own earlier outputs (see
@@ -314,10 +294,6 @@ class Narmax2Regressor(ParamsMixin):
         if X.shape[1] != self.n_features_in_:
             raise ValueError(f"model has {self.n_features_in_} inputs, X has {X.shape[1]}")
         return X
-
-    def _check_fitted(self) -> None:
-        if not hasattr(self, "spans_"):
-            raise RuntimeError("this model is not trained yet: call fit or load a model file")
 
 
 def format_term(t: tuple[int, ...], specs: Sequence[str]) -> str:

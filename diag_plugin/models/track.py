@@ -28,9 +28,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from diag_plugin.models.estimation import as_2d, as_xy, finite_rows, observed_span, resolve_spans
+from diag_plugin.models.estimation import (
+    SpanEstimator,
+    as_2d,
+    as_xy,
+    finite_rows,
+    observed_span,
+    resolve_spans,
+)
 from diag_plugin.models.narmax import NarmaxCodec, Term, format_term
-from diag_plugin.models.params import ParamsMixin
 from diag_plugin.models.protocol import REASON_NAN, REASON_OK, Capabilities, Prediction
 from diag_plugin.models.spec import ModelSpec
 
@@ -48,7 +54,7 @@ HEADER = """\
 TERMS: list[tuple[int, ...]] = [(), (0,)]
 
 
-class TrackRegressor(ParamsMixin):
+class TrackRegressor(SpanEstimator):
     """The measurement as its set-point plus the loop's steady offset (see module doc).
 
     Parameters
@@ -93,11 +99,6 @@ class TrackRegressor(ParamsMixin):
         self._offset: float | None = None  # an explicit b (a model file)
 
     # ---------------------------------------------------------------- training
-    def fit(self, X: Any, y: Any) -> TrackRegressor:
-        """The offset over all rows (rows with a NaN are skipped)."""
-        self.__dict__.pop("spans_", None)
-        return self.partial_fit(X, y)
-
     def partial_fit(self, X: Any, y: Any) -> TrackRegressor:
         """Add a chunk of rows; consecutive chunks give the model of one ``fit`` on all."""
         X, y = as_xy(X, y)
@@ -152,22 +153,11 @@ class TrackRegressor(ParamsMixin):
         """Mean training output (NaN for a model read from its coefficients)."""
         return self.y_sum_ / self.n_samples_seen_ if self.n_samples_seen_ else math.nan
 
-    def init(self, n_features: int) -> TrackRegressor:
-        """An empty model (one input); needs explicit spans."""
-        if self.input_spans is None:
-            raise ValueError("init needs input_spans")
-        self._init(np.zeros((0, n_features)))
-        return self
-
     # ------------------------------------------------------------------ state
     def to_state(self) -> dict[str, Any]:
         """Parameters and training state as plain JSON values (no pickle)."""
-        self._check_fitted()
-        params = self.get_params()
-        params["input_spans"] = self.spans_.tolist()
-        params["output_span"] = list(self.output_span_)
         return {
-            "params": params,
+            "params": self._span_params(),
             "n_samples_seen": int(self.n_samples_seen_),
             "y_sum": float(self.y_sum_),
             "error_sum": float(self.error_sum_),
@@ -198,15 +188,6 @@ class TrackRegressor(ParamsMixin):
 
     def predict(self, X: Any) -> np.ndarray:
         return self.predict_detail(X).y
-
-    def extrapolate(self, X: Any) -> np.ndarray:
-        """The prediction; the mean training output where the set-point is missing."""
-        y = self.predict(X)
-        return np.where(np.isfinite(y), y, self.output_mean_)
-
-    def _check_fitted(self) -> None:
-        if not hasattr(self, "spans_"):
-            raise RuntimeError("this model is not trained yet: call fit or load a model file")
 
 
 class TrackCodec(NarmaxCodec):
