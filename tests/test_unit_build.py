@@ -422,3 +422,20 @@ def test_a_controlled_tag_is_tested_against_its_set_point(tmp_path):
         want = d.at(i)
         assert (st.status, st.faults, st.message) == (want.status, want.faults, want.message)
         assert [t for t, _ in st.tags] == [t for t, _ in want.tags]
+
+
+def test_a_block_the_tag_is_nearly_missing_from_judges_nothing():
+    """A tag out of service for most of one time block (5 samples left in it) is still
+    modelled from the other four: that block cannot judge a candidate (it made every
+    candidate's pooled error unknown, and the tag untestable)."""
+    from diag_plugin.diagnose.unitbuild import _Context, select_inputs
+
+    rng = np.random.default_rng(0)
+    n = 3000
+    a = np.repeat(rng.uniform(0, 10, n // 30 + 1), 30)[:n] + rng.normal(0, 0.1, n)
+    y = 2 * a + rng.normal(0, 0.5, n)
+    y[1200:1795] = np.nan
+    idx = pd.date_range("2026-01-01", periods=n, freq="60s", tz="UTC")
+    ctx = _Context(pd.DataFrame({"A": a, "Y": y}, index=idx), {}, "60s")
+    assert [int((np.isfinite(y) & (ctx.block == b)).sum()) for b in range(5)][2] == 5
+    assert select_inputs(ctx, "Y", ["A"], test="Y").inputs == ["A[k]"]

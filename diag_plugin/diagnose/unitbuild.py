@@ -104,6 +104,8 @@ MIN_ROWS = 1000
 HOLDOUT = 0.2
 #: time blocks each candidate is scored over, each held out in turn (unit learn's blocks)
 FOLDS = DEFAULT_BLOCKS
+#: measured samples a held-out block needs to judge a candidate
+MIN_HELD = 10
 
 
 @dataclass
@@ -254,13 +256,15 @@ class BlockScorer:
     def __init__(self, rb: RuleBase, cols: Sequence[np.ndarray], y: np.ndarray, block: np.ndarray):
         self.y = y
         self.folds = []
+        good = np.isfinite(y)
         for b in np.unique(block):
             held = block == b
+            if np.count_nonzero(held & good) < MIN_HELD:
+                continue  # a block the tag is (nearly) missing from judges nothing
             order = np.r_[np.flatnonzero(~held), np.flatnonzero(held)]
             self.folds.append((order, int(np.count_nonzero(~held))))
         self.parts = [HeldOutScorer(rb, [c[o] for c in cols], y[o], cut) for o, cut in self.folds]
         self.base_rmse = self._pool([p.base_rmse for p in self.parts])
-        good = np.isfinite(y)
         self.mean = float(y[good].mean()) if good.any() else math.nan
         # the current model on every row, for the screen of the next input
         self.model = None
