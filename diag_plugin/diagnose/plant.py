@@ -41,7 +41,6 @@ from diag_plugin.diagnose.unit import (
     _hold_kernel,
     broken_status,
     spread_factor,
-    unknown_note,
 )
 from diag_plugin.diagnose.unitfile import UnitError
 from diag_plugin.fuzzy.stack import WangMendelStack
@@ -399,11 +398,8 @@ class Plant:
         for ui, u in enumerate(units):
             a = self._first[ui]
             b = a + len(u.tests)
+            msg = "; ".join(notes[ui])
             st = NE107(int(status[ui]))
-            if st == NE107.CHECK_FUNCTION and self._has_th[ui]:
-                notes[ui].insert(0, unknown_note([t for t, v in zip(u.tests, s[a:b], strict=True)
-                                                  if np.isnan(v)]))  # fmt: skip
-            msg = "; ".join(n for n in notes[ui] if n)
             if not self._has_th[ui]:
                 st, msg = NE107.CHECK_FUNCTION, f"no thresholds: run `diag unit learn {u.name}`"
                 msg = "; ".join([msg, *notes[ui]])

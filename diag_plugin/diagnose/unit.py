@@ -221,14 +221,8 @@ class Diagnosis:
         return [(row[f"top{k}"], float(row[f"share{k}"])) for k in picks if row[f"top{k}"]]
 
     def _message(self, i: int) -> str:
-        """The unit's message, with the combined test and the top tags on an alarm, and the
-        unknown tests when the diagnosis is unknown (CHECK_FUNCTION)."""
+        """The unit's message, with the combined test and the top tags on an alarm."""
         parts = [self.message] if self.message else []
-        if int(self.status.iloc[i]) == NE107.CHECK_FUNCTION and not self.message:
-            row = self.symptoms.iloc[i]
-            note = unknown_note([t for t, v in row.items() if np.isnan(v)])
-            if note:
-                parts.append(note)
         if self.combined is not None and self.combined["s_T2"].iloc[i] == 1:
             parts.append(f"combined test on (T² {self.combined['T2'].iloc[i]:.3g})")
         if self.top is not None:
@@ -613,20 +607,6 @@ class Unit:
             faults[at] = "|".join(self.faults[j] for j in sel)
             out_status[at] = fault_status[sel[np.argmin(prio[sel])]]
         return out_status, faults
-
-
-#: unknown tests a status message names at most
-UNKNOWN_NAMED = 5
-
-
-def unknown_note(tests: list[str]) -> str:
-    """``unknown: A, B (an input missing, stale, bad or outside the trained region)`` — what a
-    CHECK_FUNCTION status says of the tests that could not be evaluated."""
-    if not tests:
-        return ""
-    more = len(tests) - UNKNOWN_NAMED
-    names = ", ".join(tests[:UNKNOWN_NAMED]) + (f" and {more} more" if more > 0 else "")
-    return f"unknown: {names} (an input missing, stale, bad or outside the trained region)"
 
 
 def level_factor(levels: tuple[float, ...] | None, level: np.ndarray | None) -> np.ndarray | float:
