@@ -591,6 +591,7 @@ def _summary(rows: list[dict], fa: dict, far: float, methods: list[str]) -> dict
         det = [x for x in sa if x["detection_rate"] >= DETECTED]
         named = sum(x["in_top3"] for x in det)
         out[m]["sensor_actuator_detected_runs"] = len(det)
+        out[m]["sensor_actuator_named_runs"] = named
         out[m]["sensor_actuator_named_of_detected"] = f"{named}/{len(det)}"
         out[m]["sensor_actuator_named_of_detected_share"] = named / len(det) if det else None
     u, p = out["unit"], out["PCA"]
@@ -599,9 +600,12 @@ def _summary(rows: list[dict], fa: dict, far: float, methods: list[str]) -> dict
         and u["mean_detection_rate_either"] > p["mean_detection_rate_either"]
     )
     fa_ok = fa["unit"]["per_hour"] <= fa["PCA"]["per_hour"]
-    named = {m: int(out[m]["sensor_actuator_named_of_detected"].split("/")[0]) for m in methods}
     share = u["sensor_actuator_named_of_detected_share"]
-    top_ok = share is not None and share >= 0.8 and named["unit"] >= named["PCA"]
+    top_ok = (
+        share is not None
+        and share >= 0.8
+        and (u["sensor_actuator_named_runs"] >= p["sensor_actuator_named_runs"])
+    )
     out["goal"] = {
         "detection_above_pca": det_ok,
         "false_alarms_no_higher": fa_ok,

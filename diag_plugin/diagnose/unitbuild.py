@@ -454,15 +454,16 @@ def loop_test(ctx: _Context, tag: str, sp: str, *, test: str) -> TestChoice:
     identity at set-points the window never saw."""
     out = ctx.vars[tag]
     y = ctx.column(tag)
-    scorer = BlockScorer(_rulebase(test, out, [], ctx.period), [], y, ctx.block)
+    # one scorer: its base is the training mean, each variant the loop at a response time
+    rb = _rulebase(test, out, [ctx.variable(sp, 0)], ctx.period, method=LOOP_METHOD)
+    scorer = BlockScorer(rb, [], y, ctx.block)
     choice = TestChoice(test, tag, scorer.base_rmse, method=LOOP_METHOD, tracks=sp)
     # the loop's response time: the set-point as it was d samples ago, d on held-out error
     # over the dead-time horizon (a slow loop — an averaging level — lags a set-point step)
-    rb = _rulebase(test, out, [ctx.variable(sp, 0)], ctx.period, method=LOOP_METHOD)
     scored = []
     for lag in loop_lags(ctx.max_lag):
         ins, cols = [ctx.variable(sp, lag)], [ctx.column(sp, lag)]
-        rmse, cov = BlockScorer(rb, cols, y, ctx.block).score(ins, cols)
+        rmse, cov = scorer.score(ins, cols)
         if math.isfinite(rmse):
             scored.append((rmse, lag, cov))
     low = min(r for r, _, _ in scored)

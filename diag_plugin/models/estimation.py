@@ -266,6 +266,27 @@ class SpanEstimator(ParamsMixin):
         self.__dict__.pop("spans_", None)
         return self.partial_fit(X, y)
 
+    def _set_spans(self, X: np.ndarray, y: np.ndarray | None) -> None:
+        """``spans_`` (given, else the range of ``X``) and ``output_span_`` (given, else the
+        range of ``y``, else unknown)."""
+        self.spans_ = resolve_spans(self.input_spans, X)
+        if getattr(self, "output_span", None) is not None:
+            self.output_span_ = tuple(float(v) for v in self.output_span)
+        elif y is not None and np.isfinite(y).any():
+            self.output_span_ = observed_span(y)
+        else:
+            self.output_span_ = (float("nan"), float("nan"))
+
+    def _merge_empty(self, other: Any) -> bool:
+        """True when ``merge`` has nothing left to add: ``other`` untrained, or this model
+        untrained and now a copy of ``other``."""
+        if not hasattr(other, "spans_"):
+            return True
+        if not hasattr(self, "spans_"):
+            self.__dict__.update(type(other).from_state(other.to_state()).__dict__)
+            return True
+        return False
+
     def init(self, n_features: int) -> Any:
         """An empty model for ``n_features`` inputs; needs explicit spans."""
         if self.input_spans is None:

@@ -44,9 +44,7 @@ from diag_plugin.models.estimation import (
     detail,
     finite_rows,
     free_run,
-    observed_span,
     output_lags_of,
-    resolve_spans,
 )
 from diag_plugin.models.protocol import Capabilities, Prediction
 from diag_plugin.models.spec import ModelSpec
@@ -135,13 +133,7 @@ class Narmax2Regressor(SpanEstimator):
         d = X.shape[1]
         if self.output_lags is not None and len(self.output_lags) != d:
             raise ValueError(f"output_lags has {len(self.output_lags)} entries for {d} inputs")
-        self.spans_ = resolve_spans(self.input_spans, X)
-        if self.output_span is not None:
-            self.output_span_ = tuple(float(v) for v in self.output_span)
-        elif y is not None and np.isfinite(y).any():
-            self.output_span_ = observed_span(y)
-        else:
-            self.output_span_ = (math.nan, math.nan)
+        self._set_spans(X, y)
         self.n_features_in_ = d
         self.terms_ = term_pairs(d)
         self.qr_: QRLeastSquares | None = QRLeastSquares(len(self.terms_))
@@ -186,10 +178,7 @@ class Narmax2Regressor(SpanEstimator):
 
     def merge(self, other: Narmax2Regressor) -> Narmax2Regressor:
         """Add the rows ``other`` was trained on (same spans): the model of both data sets."""
-        if not hasattr(other, "spans_"):
-            return self
-        if not hasattr(self, "spans_"):
-            self.__dict__.update(Narmax2Regressor.from_state(other.to_state()).__dict__)
+        if self._merge_empty(other):
             return self
         if not np.array_equal(self.spans_, other.spans_):
             raise ValueError("cannot merge NARMAX models with different input spans")

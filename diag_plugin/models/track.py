@@ -33,8 +33,6 @@ from diag_plugin.models.estimation import (
     as_2d,
     as_xy,
     finite_rows,
-    observed_span,
-    resolve_spans,
 )
 from diag_plugin.models.narmax import NarmaxCodec, Term, format_term
 from diag_plugin.models.protocol import REASON_NAN, REASON_OK, Capabilities, Prediction
@@ -84,13 +82,7 @@ class TrackRegressor(SpanEstimator):
     def _init(self, X: np.ndarray, y: np.ndarray | None = None) -> None:
         if X.shape[1] != 1:
             raise ValueError(f"a track model has one input, its set-point; got {X.shape[1]}")
-        self.spans_ = resolve_spans(self.input_spans, X)
-        if self.output_span is not None:
-            self.output_span_ = tuple(float(v) for v in self.output_span)
-        elif y is not None and np.isfinite(y).any():
-            self.output_span_ = observed_span(y)
-        else:
-            self.output_span_ = (math.nan, math.nan)
+        self._set_spans(X, y)
         self.n_features_in_ = 1
         self.terms_ = list(TERMS)
         self.n_samples_seen_ = 0
@@ -115,10 +107,7 @@ class TrackRegressor(SpanEstimator):
 
     def merge(self, other: TrackRegressor) -> TrackRegressor:
         """Add the rows ``other`` was trained on: the model of both data sets."""
-        if not hasattr(other, "spans_"):
-            return self
-        if not hasattr(self, "spans_"):
-            self.__dict__.update(TrackRegressor.from_state(other.to_state()).__dict__)
+        if self._merge_empty(other):
             return self
         if self.slope != other.slope:
             raise ValueError("cannot merge track models with different slopes")
