@@ -25,21 +25,23 @@ __all__ = ["AsMethod", "compare_methods"]
 
 
 class AsMethod:
-    """A model file seen as if it named another method (its default options, no locks)."""
+    """A model file seen as if it named another method (its default options, no locks).
+
+    It holds exactly what :func:`~diag_plugin.training.chunked.train` reads of a model file,
+    each named here: no ``__getattr__`` forwards the rest to the file, so an attribute this
+    view lacks, or one that fails inside a property, is an ``AttributeError`` at the caller,
+    never the file's own value standing in silently (issue 36: a missing
+    ``default_options`` made the "wm" row train the file's wm-avg).
+    """
 
     def __init__(self, rb: RuleBase, method: str) -> None:
-        self._rb = rb
         self.method = method
         self.codec = get_method(method)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._rb, name)
-
-    @property
-    def spec(self) -> Any:
-        """The file's spec with this method and its default options."""
-        return dataclasses.replace(
-            self._rb.spec, method=self.method, options=self.codec.default_options()
+        self.period = rb.period
+        self.inputs = rb.inputs
+        self.output = rb.output
+        self.spec = dataclasses.replace(
+            rb.spec, method=method, options=dict(self.codec.default_options())
         )
 
     def new_model(self) -> Any:

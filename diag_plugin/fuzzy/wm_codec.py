@@ -63,6 +63,11 @@ class WangMendelCodec:
     def __init__(self, method: str = "wm-avg") -> None:
         self.method = method
 
+    def default_options(self) -> dict:
+        """The options a new file gets in ``[rules]``: none (every level behind the fine grid,
+        mean conclusions; ``levels = 0`` is the paper's fine grid alone)."""
+        return {}
+
     # ------------------------------------------------------------ estimators
     def new_estimator(self, spec: ModelSpec) -> WangMendelRegressor:
         """An untrained model with the spec's partitions, method and levels."""
