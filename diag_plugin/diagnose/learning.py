@@ -503,12 +503,12 @@ def learn_thresholds(
 
 
 def fuzzy_sets(residual: np.ndarray, low: float, high: float) -> tuple[float, float, float, float]:
-    """Breakpoints ``(n1, n0, p0, p1)`` of a test's N, 0, P sets (seed 001's three-valued
-    residual evaluation) from its fault-free residuals and its thresholds: each ramp is
-    centred on its threshold (μ = 0.5 there, so the fuzzy and crisp evaluations detect at the
-    same residual) and is two robust standard deviations (1.4826 × MAD) of the fault-free
-    residual wide — a residual one standard deviation past the threshold is wholly N or P,
-    one short of it wholly 0 — never reaching past zero."""
+    """Breakpoints ``(n1, n0, p0, p1)`` of a test's N, 0, P sets (our signed three-valued evaluation
+    behind seed 001's big/small) from its fault-free residuals and its thresholds: each ramp is
+    centred on its threshold (μ = 0.5 there, so the fuzzy and crisp evaluations detect at the same
+    residual) and is two robust standard deviations (1.4826 × MAD) of the fault-free residual wide —
+    a residual one standard deviation past the threshold is wholly N or P, one short of it wholly 0
+    — never reaching past zero."""
     x = residual[np.isfinite(residual)]
     sd = 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size else 0.0
     up, dn = min(sd, 0.999 * high), min(sd, 0.999 * -low)

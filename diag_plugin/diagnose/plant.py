@@ -1,6 +1,6 @@
 """A plant: many units evaluated together, one cycle at a time, vectorised across units.
 
-Kościelny et al. (Sect. 5, Table 3) decompose a plant's diagnostic matrix into the
+Kościelny et al. (Sect. 2, Table 3) decompose a plant's diagnostic matrix into the
 block-diagonal matrices of its units: each unit is diagnosed on its own, so one unit's failure
 stays local. :class:`Plant` keeps that structure and evaluates every unit each cycle as arrays:
 

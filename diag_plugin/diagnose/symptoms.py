@@ -6,7 +6,8 @@
 * :class:`LearnedThresholds` — thresholds from a fault-free window: ``quantile(|r|) · margin``,
   with the window they came from (seed 000: "computed empirically by analyzing the deviation of
   the residuals from zero during no fault operation").
-* :class:`FuzzyThreeValued` — memberships of N, 0, P (trapezoidal, summing to 1; seed 001).
+* :class:`FuzzyThreeValued` — memberships of N, 0, P (trapezoidal, summing to 1): ours, the signed
+  fuzzy counterpart of seed 001's two-valued big/small (B/S) residual evaluation.
 * :class:`OnOffDelay` — on/off delays against chattering, state carried across chunks.
 
 UNKNOWN: a NaN residual (model unsupported, input NaN, stale or bad quality) gives the symptom
@@ -195,15 +196,18 @@ class LearnedThresholds(FixedThresholds):
 
 
 class FuzzyThreeValued:
-    """Fuzzy three-valued residual evaluation: memberships of N, 0, P (seed 001).
+    """Fuzzy three-valued residual evaluation: memberships of N, 0, P.
 
-    Seed 001 evaluates residuals as N/0/P (negative, zero, positive), the fuzzy counterpart of
-    its crisp ``d_j`` with threshold ``K`` (Sec. 5). Here P is a trapezoid (a ramp) rising from 0
-    at ``K − width/2`` to 1 at ``K + width/2``, N its mirror image at ``−K``, and
-    ``μ0 = 1 − μN − μP`` (a trapezoid, 1 on ``[−K + width/2, K − width/2]``). The three sum to 1,
-    μP is non-decreasing and μN non-increasing in ``r``; ``width → 0`` gives the crisp
-    :class:`FixedThresholds`. ``width ≤ 2K`` so N and P never overlap. NaN residuals give NaN
-    memberships (unknown).
+    Seed 001's rules (10)–(14) (Sect. 5) evaluate each residual as big or small (B, S), the
+    fuzzy counterpart of its crisp ``d_j`` with threshold ``K``; their N and P name the fault's
+    conclusion (``e_j = N`` ELSE ``e_j = P``), not residual sets. The signed three-valued sets
+    N, 0, P are ours: B is ``max(μN, μP)`` and S is ``μ0``, and a sign in a matrix entry reads
+    μN or μP alone (:meth:`diag_plugin.diagnose.matrix.DiagnosticMatrix.fuzzy`). Here P is a
+    trapezoid (a ramp) rising from 0 at ``K − width/2`` to 1 at ``K + width/2``, N its mirror
+    image at ``−K``, and ``μ0 = 1 − μN − μP`` (a trapezoid, 1 on ``[−K + width/2, K −
+    width/2]``). The three sum to 1, μP is non-decreasing and μN non-increasing in ``r``;
+    ``width → 0`` gives the crisp :class:`FixedThresholds`. ``width ≤ 2K`` so N and P never
+    overlap. NaN residuals give NaN memberships (unknown).
     """
 
     def __init__(self, threshold: Any, width: Any) -> None:
@@ -211,7 +215,7 @@ class FuzzyThreeValued:
         self.width = width
 
     def transform(self, r: ArrayLike) -> tuple[ArrayLike, ArrayLike, ArrayLike]:
-        """Return ``(μN, μ0, μP)``, each shaped like ``r`` (seed 001, N/0/P evaluation)."""
+        """Return ``(μN, μ0, μP)``, each shaped like ``r`` (B = max(μN, μP), S = μ0)."""
         a, wrap = _as_2d(r)
         cols, m = _columns(r), a.shape[1]
         k = _per_column(self.threshold, cols, m, "threshold")
@@ -227,11 +231,11 @@ def three_valued(
     r: np.ndarray, n1: Any, n0: Any, p0: Any, p1: Any
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Memberships ``(μN, μ0, μP)`` of residuals ``r`` (n_samples × n_tests) in the three
-    trapezoidal sets of seed 001's residual evaluation, given per test by four breakpoints
-    ``n1 ≤ n0 ≤ p0 ≤ p1``: μN is 1 up to ``n1`` and falls to 0 at ``n0``; μP rises from 0 at
-    ``p0`` to 1 at ``p1``; ``μ0 = 1 − μN − μP`` is 1 on ``[n0, p0]``. A zero-width ramp is a
-    step (``r < n0`` is N, ``r > p0`` is P), the crisp three-valued evaluation. NaN residuals
-    give NaN memberships (unknown)."""
+    trapezoidal sets N, 0, P (ours; seed 001's rules read B = max(μN, μP), S = μ0), given per test
+    by four breakpoints ``n1 ≤ n0 ≤ p0 ≤ p1``: μN is 1 up to ``n1`` and falls to 0 at ``n0``; μP
+    rises from 0 at ``p0`` to 1 at ``p1``; ``μ0 = 1 − μN − μP`` is 1 on ``[n0, p0]``. A zero-width
+    ramp is a step (``r < n0`` is N, ``r > p0`` is P), the crisp three-valued evaluation. NaN
+    residuals give NaN memberships (unknown)."""
     a = np.asarray(r, dtype=float)
     n1, n0, p0, p1 = (np.broadcast_to(np.asarray(x, float), a.shape[-1:]) for x in (n1, n0, p0, p1))
     with np.errstate(invalid="ignore", divide="ignore"):

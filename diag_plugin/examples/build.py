@@ -34,7 +34,8 @@ UNIT_DAYS = 180
 UNIT_FAR = 0.001
 
 #: the unit's tests: r1 = F − F̂(CV), r2 = P0 − P̂0(CV), r3 = X − X̂(P0), r4 = F − F̂(X)
-#: (Kościelny et al., Sec. 6); r1 and r4 also take P1, P2 (docs/diagnostics.md says why)
+#: (Kościelny et al., Sect. 5, with rules (10)–(14)); r1 and r4 also take P1, P2
+#: (docs/diagnostics.md says why)
 UNIT_TESTS = {
     "r1": ("F[k]", ["CV[k]", "P1[k]", "P2[k]"], "r1: F = f(CV, P1, P2)"),
     "r2": ("P0[k]", ["CV[k]"], "r2: P0 = f(CV)"),
@@ -191,7 +192,7 @@ def build_valve_unit(
     symptoms: str = "crisp",
 ) -> list[Path]:
     """The example unit: four models, the Table 4 matrix, the unit file with learned
-    thresholds (Kościelny et al., Sec. 6; thresholds held to a false-alarm budget,
+    thresholds (Kościelny et al., Sect. 5; thresholds held to a false-alarm budget,
     :mod:`diag_plugin.diagnose.learning`).
 
     Each model input's span is narrowed to the operating range of the training data

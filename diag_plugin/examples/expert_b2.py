@@ -2,7 +2,9 @@
 
 "Version B.1 is the rule base obtained ... after the training process via the modified
 algorithm was completed. Then, on the basis of an expert's evaluation, the model was modified
-into Model B.2 that was the final product of the identification process." The shipped B.1
+into Model B.2 that was the final product of the identification process." The paper shows
+B.1 and B.2 only as a graphic (Fig. 6) and says neither what its expert changed nor why: **the
+edit below is the project's own**, what an expert could do to our B.1. The shipped B.1
 (``rulebases/valve_b.toml``, ``F_k = f(U_{k-1})``) shows what such an evaluation finds: no
 rules below CV10 (the plant never ran under ≈ 32 % CV while the data were logged) and a top
 rule below its neighbour (CV30 = 28.8 t/h < CV29 = 31.2 t/h: at a saturated controller the
@@ -144,8 +146,9 @@ def make_b2(b1: str | Path, out: str | Path) -> Path:
     out = Path(out)
     rb.doc["model"]["name"] = out.stem
     rb.doc["model"]["description"] = (
-        f"Model B.2: {rb.name} edited by the expert (Kościelny et al., Fig. 6): empty low "
-        f"sets filled by an equal-percentage law fitted to its rules (R = {fit['r']:.1f}), "
+        f"Model B.2: {rb.name} edited as an expert might (our edit: Kościelny et al. show B.2 "
+        "in Fig. 6 but print no edit): empty low sets filled by an equal-percentage law "
+        f"fitted to its rules (R = {fit['r']:.1f}), "
         "falling top pooled to keep it monotone, edits locked"
     )
     rb.edited()
