@@ -22,9 +22,18 @@ def res():
 def test_model_b_is_blind_to_the_pressure_and_model_a_is_not(res):
     ch = res["changes"]
     for gain in ("1.1", "1.2", "1.3", "1.01", "1.02", "1.03"):
-        assert ch["B"]["P1"][gain] == {"mean_pct": 0.0, "max_abs_pct": 0.0}
+        assert ch["B"]["P1"][gain] == {"mean_pct": 0.0, "max_abs_pct": 0.0, "coverage": 1.0}
         # A reads P: its residual moves by more than its own noise somewhere in the test part
         assert ch["A"]["P1"][gain]["max_abs_pct"] > fig8.BAND, gain
+    # P1 × 1.1-1.3 lies beyond every pressure of the hour: A has no rules there, its nearest
+    # rule answers, and the shift is the same for every change (an extrapolation, and the
+    # figure says so); 1-3 % stays mostly where A has rules, and the shift grows with it
+    big = [ch["A"]["P1"][g] for g in ("1.1", "1.2", "1.3")]
+    assert all(c["coverage"] == 0.0 for c in big)
+    assert big[0]["mean_pct"] == big[1]["mean_pct"] == big[2]["mean_pct"]
+    small = [ch["A"]["P1"][g] for g in ("1.01", "1.02", "1.03")]
+    assert small[0]["coverage"] > 0.9
+    assert small[0]["mean_pct"] < small[1]["mean_pct"] < small[2]["mean_pct"]
     base = res["frames"]["base"]
     end = res["frames"]["end"]
     for name in ("A", "B"):  # both see a change of U and of the measured flow
@@ -66,4 +75,8 @@ def test_the_figure(res, tmp_path):
         ]
         assert sorted(band) == [-5.0, 5.0]
         assert len(panel.findall("s:g[@class='trace']", ns)) == 1 + len(fig8.CHANGES)
-    assert "Fig. 8" in "".join(root.itertext())
+    text = "".join(root.itertext())
+    assert "Fig. 8" in text
+    # Model A's P-changed traces say they are extrapolated (coverage 0 %)
+    labels = [t.get("data-label", "") for t in panels[1].findall("s:g[@class='trace']", ns)]
+    assert sum("rules for 0 %: extrapolated" in lab for lab in labels) == 3, labels
