@@ -230,6 +230,10 @@ def test_diag_engine_fdi_plot_writes_the_figures_and_marks_only_isolated_nearest
         alt = c["isolated_by"]["derived"]
         alt_near = alt["isolated"] not in ("none", "unknown") and not alt["exact"]
         assert line.endswith(alt["isolated"] + (" (nearest)" if alt_near else ""))
+    assert seen["setup"] == fdi.Setup()  # the seed's window, ω alone
+    assert main(["engine-fdi", "--seed", str(SEEDS[0]), "--omega-dy", "--window", "matching"]) == 0
+    capsys.readouterr()
+    assert seen["setup"] == fdi.Setup(omega_signals=("omega", "omega_dy"), window="matching")
     assert main(["engine-fdi", "--seed", str(SEEDS[0]), "--json", "--one-step"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["plots"] == [] and seen["one_step"] is True and seen["keep_residuals"] is False
@@ -245,6 +249,24 @@ def test_diag_engine_fdi_plot_writes_the_figures_and_marks_only_isolated_nearest
     assert {c["injected"]: c["isolated_by"]["derived"]["isolated"] for c in doc["cases"]} == {
         c["injected"]: c["isolated_by"]["derived"]["isolated"] for c in res["cases"]
     }
+
+
+def test_the_matching_window_is_where_the_fault_free_residuals_are_smallest():
+    """§IV: "During this portion, the best model matching occurred" — of the 2000-revolution
+    windows on a 250 grid, the one whose largest fault-free residuals sum least, over every
+    run given; a window no run holds is an error."""
+    rev = np.arange(7000)
+    quiet = np.where((rev >= 1250) & (rev < 3250), 0.01, 0.05)
+    frames = []
+    for k, bump in enumerate((4000, 6000)):  # one spike per run, outside the quiet part
+        f = pd.DataFrame({r: quiet.copy() for r in fdi.RESIDUALS}).assign(rev=rev)
+        f.loc[bump, "m_a"] = 0.5 + k
+        frames.append(f)
+    assert fdi.matching_window(frames) == (1250, 3250)
+    frames[1].loc[2000, "alpha"] = 0.2  # a spike inside it in one run moves the choice
+    assert fdi.matching_window(frames) != (1250, 3250)
+    with pytest.raises(ValueError, match="no window"):
+        fdi.matching_window([frames[0].iloc[:1500]])
 
 
 def test_narmax2_isolates_the_injected_fault():
