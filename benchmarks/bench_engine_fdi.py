@@ -1,7 +1,7 @@
 """Seed 000's engine FDI experiment over many seeds and methods (docs/engine.md's tables).
 
     python benchmarks/bench_engine_fdi.py [--seeds 0 1 2] [--methods ts-fcm narmax2 wm-avg]
-        [--variant base] [--out results.jsonl]
+        [--variant base] [--omega-dy] [--window seed|matching] [--out results.jsonl]
 
 Runs :func:`diag_plugin.engine.fdi.run_fdi` per seed and method and prints, per case, the
 isolation by Table II as printed and as derived from eqs. 7–11 (both from the same latched
@@ -50,9 +50,10 @@ def one(
     omega_dy: bool = False,
     weight_power: float = 2.0,
     cases: tuple[str, ...] = tuple(fdi.CASES),
+    window: str = "seed",
 ) -> dict[str, Any]:
     t0 = time.perf_counter()
-    setup = VARIANTS[variant]
+    setup = dataclasses.replace(VARIANTS[variant], window=window)
     if omega_dy:
         setup = dataclasses.replace(setup, omega_signals=("omega", "omega_dy"))
     res = fdi.run_fdi(seed, method, setup=setup, weight_power=weight_power, cases=cases)
@@ -60,6 +61,7 @@ def one(
     return {
         "variant": variant,
         "omega_dy": omega_dy,
+        "window": res["window"],
         "weight_power": weight_power,
         "method": method,
         "seed": seed,
@@ -95,12 +97,23 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--weight-power", type=float, default=2.0, help="ts-fcm: 2 eq. 24, 1 eq. 23")
     ap.add_argument("--cases", nargs="+", default=list(fdi.CASES), help="cases to run")
+    ap.add_argument(
+        "--window", choices=("seed", "matching"), default="seed", help="test window (fdi.Setup)"
+    )
     args = ap.parse_args(argv)
     right = {m: {"printed": 0, "derived": 0, "runs": 0} for m in args.methods}
     print("printed / derived isolation per case; ~ nearest; pattern ω m_a α m_f")
     for method in args.methods:
         for seed in args.seeds:
-            r = one(seed, method, args.variant, args.omega_dy, args.weight_power, tuple(args.cases))
+            r = one(
+                seed,
+                method,
+                args.variant,
+                args.omega_dy,
+                args.weight_power,
+                tuple(args.cases),
+                args.window,
+            )
             if args.out:
                 with args.out.open("a", encoding="utf-8") as fh:
                     fh.write(json.dumps(r) + "\n")

@@ -269,6 +269,24 @@ def test_the_matching_window_is_where_the_fault_free_residuals_are_smallest():
         fdi.matching_window([frames[0].iloc[:1500]])
 
 
+def test_the_seeds_omega_test_on_both_instruments_in_the_matching_window():
+    """``Setup(omega_signals=("omega", "omega_dy"), window="matching")`` (docs/engine.md, issue
+    36): the window is chosen on the fault-free runs, faults start at its start, and with ω_dy
+    multiplied too α̂ − α is no longer the no-fault residual (with ω alone it is, to the digit).
+    wm-avg (one step ahead, seconds) on seed 11."""
+    both = fdi.Setup(omega_signals=("omega", "omega_dy"), window="matching")
+    res = fdi.run_fdi(11, "wm-avg", cases=("none", "omega"), setup=both)
+    a, b = res["window"]
+    assert b - a == 2000 and a % 250 == 0
+    none, omega = res["cases"]
+    assert none["isolated"] == "none"
+    assert omega["peak"]["alpha"] != none["peak"]["alpha"]
+    assert all(r is None or r >= a for r in omega["latched_rev"].values())
+    alone = fdi.run_fdi(11, "wm-avg", cases=("none", "omega"), setup=fdi.Setup(window="matching"))
+    assert alone["window"] == res["window"]  # chosen before any fault
+    assert alone["cases"][1]["peak"]["alpha"] == alone["cases"][0]["peak"]["alpha"]
+
+
 def test_narmax2_isolates_the_injected_fault():
     """The whole experiment with narmax2 (eq. 12) on seed 5, by the derived table; over ten
     seeds it is right on fewer runs than ts-fcm (docs/engine.md, "Results")."""
