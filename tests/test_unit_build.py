@@ -324,7 +324,7 @@ def test_inputs_are_chosen_on_every_period_not_only_the_last():
     alone, as a single held-out tail does, the spurious one wins on some of these windows —
     the case this guards."""
     from diag_plugin.diagnose.unitbuild import HOLDOUT, _Context, _rulebase, select_inputs
-    from diag_plugin.workbench.explain import HeldOutScorer, cut_row
+    from diag_plugin.selection.scoring import HeldOutScorer, cut_row
 
     tail_picks_z = 0
     for seed in range(5):

@@ -209,8 +209,9 @@ def build_valve_unit(
     from diag_plugin.diagnose.learning import learn_thresholds
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitFile, new_unit_text
+    from diag_plugin.selection.spans import operating_span
     from diag_plugin.simulate.valve import TAGS
-    from diag_plugin.workbench.model_edit import new_model, operating_span
+    from diag_plugin.workbench.model_edit import new_model
 
     out = []
     tests = {}
