@@ -28,6 +28,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "diag_plugin.training.cli",
     "diag_plugin.workbench.cli",
     "diag_plugin.diagnose.cli",
+    "diag_plugin.learn.cli",
     "diag_plugin.live.cli",
     "diag_plugin.engine.cli",
 )

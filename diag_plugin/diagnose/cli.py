@@ -1,4 +1,4 @@
-"""``diag unit new|check|show|learn`` and ``diag diagnose``: units on historian data.
+"""``diag unit new|check|show`` and ``diag diagnose``: units on historian data.
 
 Only argparse is imported at start-up; each command imports what it needs when it runs.
 """
@@ -15,8 +15,7 @@ from historian.errors import UserError
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    unit = sub.add_parser("unit", help="create, check, show a unit or learn its thresholds")
-    usub = unit.add_subparsers(dest="unit_command", metavar="ACTION", required=True)
+    usub = unit_actions(sub)
     p = usub.add_parser("new", help="write rulebases/NAME.unit.toml naming the unit's models")
     p.add_argument("name")
     p.add_argument(
@@ -40,33 +39,6 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("name")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_unit_show)
-    p = usub.add_parser("learn", help="learn thresholds from a window you declare fault-free")
-    p.add_argument("name")
-    p.add_argument("--from", dest="start", required=True, metavar="T0")
-    p.add_argument("--to", dest="end", required=True, metavar="T1")
-    p.add_argument(
-        "--far",
-        type=float,
-        default=None,
-        metavar="PER_HOUR",
-        help="false-alarm budget: alarms per hour of operation of the unit, all tests together "
-        "(default 0.001, about one in six weeks)",
-    )
-    p.add_argument(
-        "--blocks",
-        type=int,
-        default=None,
-        metavar="N",
-        help="time blocks for cross-fitting the residuals (default 5; 0: the models' own)",
-    )
-    p.add_argument(
-        "--cross-fit",
-        choices=("auto", "yes", "no"),
-        default="auto",
-        help="auto: cross-fit the tests whose models were trained on the window (default)",
-    )
-    p.add_argument("--json", action="store_true")
-    p.set_defaults(func=cmd_unit_learn)
     p = usub.add_parser(
         "build",
         help="build a unit from a fault-free window: tests, inputs, models and thresholds",
@@ -143,7 +115,18 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_benchmark)
 
 
-def _load_unit(args, name: str):
+def unit_actions(sub: argparse._SubParsersAction) -> argparse._SubParsersAction:
+    """The actions of ``diag unit``, made here if not yet there: this package adds ``new``,
+    ``check`` and ``show``; :mod:`diag_plugin.learn.cli` and :mod:`diag_plugin.unitbuild.cli`
+    add ``learn`` and ``build``."""
+    if "unit" not in sub.choices:
+        unit = sub.add_parser("unit", help="create, check, show a unit or learn its thresholds")
+        unit.add_subparsers(dest="unit_command", metavar="ACTION", required=True)
+    actions = sub.choices["unit"]._actions
+    return next(a for a in actions if isinstance(a, argparse._SubParsersAction))
+
+
+def load_unit(args, name: str):
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import SUFFIX, UnitError, unit_path
 
@@ -160,7 +143,7 @@ def _load_unit(args, name: str):
         raise UserError("unit file has problems:\n" + "\n".join(exc.problems)) from None
 
 
-def _ts(text: str | None):
+def parse_time(text: str | None):
     import pandas as pd
 
     if text is None:
@@ -313,7 +296,7 @@ def _combined_summary(unit) -> dict | None:
 
 
 def cmd_unit_show(args) -> int:
-    unit = _load_unit(args, args.name)
+    unit = load_unit(args, args.name)
     s = unit_summary(unit)
     if args.json:
         print(json.dumps(s, indent=2, default=str))
@@ -397,7 +380,7 @@ def cmd_unit_show(args) -> int:
 def _print_learned(con, tests: list[dict]) -> None:
     """Per test: why its thresholds are what they are (the budget's support, the unknown share
     and why, the level scales)."""
-    from diag_plugin.diagnose.learning import WHY, hours
+    from diag_plugin.learn.thresholds import WHY, hours
 
     for r in tests:
         n = r["learned"]
@@ -492,7 +475,7 @@ def _print_build(con, build: dict) -> None:
         con.print(f"  not tested: {tag}: {why}", markup=False)
 
 
-def _frames(args, unit, start, end, chunk="7D"):
+def unit_frames(args, unit, start, end, chunk="7D"):
     """Consecutive aligned pieces of the unit's tags from the historian."""
     import pandas as pd
 
@@ -534,82 +517,6 @@ def _prefetch(items):
             yield item
 
 
-def cmd_unit_learn(args) -> int:
-    from diag_plugin.diagnose.learning import (
-        DEFAULT_BLOCKS,
-        DEFAULT_FAR,
-        WHY,
-        LearnError,
-        learn_thresholds,
-    )
-    from diag_plugin.diagnose.unitfile import UnitFile
-
-    unit = _load_unit(args, args.name)
-    far = DEFAULT_FAR if args.far is None else args.far
-    blocks = DEFAULT_BLOCKS if args.blocks is None else args.blocks
-    if not far > 0:
-        raise UserError(f"--far {far:g}: the budget must be a positive rate per hour")
-    t0, t1 = _ts(args.start), _ts(args.end)
-    frames = list(_frames(args, unit, t0, t1))
-    cross = {"auto": None, "yes": True, "no": False}[args.cross_fit]
-    try:
-        got = learn_thresholds(unit, frames, far=far, blocks=blocks, cross_fit=cross)
-    except LearnError as exc:
-        raise UserError(f"unit {unit.name}: cannot learn thresholds:\n" + "\n".join(
-            "  " + p for p in exc.problems
-        )) from None  # fmt: skip
-    uf = UnitFile.load(unit.file.path)
-    uf.set_learned(got)
-    uf.save()
-    notes = got.notes()
-    out = {
-        "unit": unit.name,
-        "file": str(uf.path),
-        "window": list(got.window),
-        "far": far,
-        "blocks": got.blocks,
-        "thresholds": {k: {"low": lo, "high": hi} for k, (lo, hi) in got.limits.items()},
-        "levels": got.levels,
-        "samples": got.samples,
-        "independent": got.independent,
-        "learned": notes,
-        "warnings": got.warnings,
-    }
-    if got.combined is not None:
-        out["combined"] = {"high": got.combined.high, **got.combined.notes}
-    if args.json:
-        print(json.dumps(out, indent=2))
-        return 0
-    print(
-        f"{uf.path}: thresholds from {got.window[0]} … {got.window[1]}, budget {far:g} false "
-        f"alarms per hour of operation (unit, all tests; "
-        + ("the default, " if args.far is None else "")
-        + f"one per {1 / far:,.0f} h)"
-    )
-    for k, (lo, hi) in got.limits.items():
-        b = got.budgets[k]
-        lv = got.levels[k]
-        print(
-            f"  {k}: {lo:+.3f} … {hi:+.3f} % ({b.samples:,} samples, ≈ {b.independent:,} "
-            f"independent; {got.sources[k]}); expected {b.rate:.2g} false alarms/h "
-            f"({b.method}); unknown {b.unknown:.1%}"
-            + (f"; levels ×{', ×'.join(f'{x:.2g}' for x in lv[1:])}" if len(lv) > 1 else "")
-            + ("; in units of its model's local spread" if got.spread.get(k) else "")
-        )
-        why = {w: v for w, v in got.unknown[k].items() if v > 0}
-        if why:
-            print("      unknown: " + "; ".join(f"{WHY[w]} {v:.1%}" for w, v in why.items()))
-    c = got.combined
-    if c is not None and c.high is not None:
-        print(
-            f"  combined test (T²): {c.high:.4g}; expected {c.notes['far']:.2g} false alarms/h "
-            f"({c.notes['method']}; its share of the budget, the tests the rest)"
-        )
-    for w in got.warnings:
-        print(f"  note: {w}")
-    return 0
-
-
 def _tags_from(path: str) -> list[str]:
     try:
         lines = Path(path).read_text(encoding="utf-8").splitlines()
@@ -631,7 +538,7 @@ def cmd_unit_build(args) -> int:
     tags = args.tags or (_tags_from(args.tags_from) if args.tags_from else None)
     if args.max_inputs < 1:
         raise UserError(f"--max-inputs {args.max_inputs}: at least 1")
-    t0, t1 = _ts(args.start), _ts(args.end)
+    t0, t1 = parse_time(args.start), parse_time(args.end)
     err = Console(stderr=True)
     with Progress(
         TextColumn("{task.description}"),
@@ -693,12 +600,12 @@ def cmd_diagnose(args) -> int:
 
     from diag_plugin.diagnose.unit import concat
 
-    unit = _load_unit(args, args.name)
+    unit = load_unit(args, args.name)
     try:
         chunk = pd.Timedelta(args.chunk)
     except ValueError:
         raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D") from None
-    frames = _prefetch(_frames(args, unit, _ts(args.start), _ts(args.end), chunk))
+    frames = _prefetch(unit_frames(args, unit, parse_time(args.start), parse_time(args.end), chunk))
     parts = [unit.evaluate(f) for f in frames]
     parts = [p for p in parts if len(p)]
     if not parts:
@@ -801,7 +708,7 @@ def cmd_benchmark(args) -> int:
 
     if args.plant:
         return cmd_plant_benchmark(args)
-    unit = _load_unit(args, args.unit)
+    unit = load_unit(args, args.unit)
     if not unit.has_thresholds:
         raise UserError(f"unit {unit.name} has no thresholds: run diag unit learn first")
     seeds = tuple(args.seeds or (11,))

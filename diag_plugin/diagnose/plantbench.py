@@ -122,7 +122,7 @@ class PCABaseline:
         With ``delays`` (and ``period_s``, the runs' sample period in seconds) ``far`` is a
         rate of alarm *episodes per hour* after these on/off delays, as a unit's budget is:
         T² and Q each get half of it, each limit learned with
-        :func:`~diag_plugin.diagnose.budget.calibrate_side` on the leave-one-run-out
+        :func:`~diag_plugin.learn.budget.calibrate_side` on the leave-one-run-out
         statistics (as ``diag unit learn`` learns a test's threshold), and :meth:`alarms`
         applies the same delays. Without it ``far`` is a share of samples (no delays).
     """
@@ -172,7 +172,7 @@ class PCABaseline:
             t2s.append(s["T2"].to_numpy())
             qs.append(s["Q"].to_numpy())
         if per_hour:
-            from diag_plugin.diagnose.budget import calibrate_side
+            from diag_plugin.learn.budget import calibrate_side
 
             on, off = self.delays
             # one NaN between runs: no episode straddles two of them

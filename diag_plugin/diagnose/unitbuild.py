@@ -36,7 +36,7 @@ hand-build:
    :func:`~diag_plugin.selection.sets.sets_for_data`) is written as an ordinary model
    file and trained like ``diag train`` does (80 % / 20 % time-ordered validation, then all
    of the window), with the window as its provenance.
-4. **Thresholds**: :func:`~diag_plugin.diagnose.learning.learn_thresholds` on the same
+4. **Thresholds**: :func:`~diag_plugin.learn.thresholds.learn_thresholds` on the same
    window, cross-fitted (the models were trained on it), to the false-alarm budget ``far``,
    saved as ``diag unit learn`` saves them.
 
@@ -61,8 +61,8 @@ import numpy as np
 import pandas as pd
 import tomlkit
 
-from diag_plugin.diagnose.learning import DEFAULT_BLOCKS, block_of
 from diag_plugin.diagnose.unittags import is_set_point
+from diag_plugin.learn.thresholds import DEFAULT_BLOCKS, block_of
 from diag_plugin.models.spec import Variable
 from diag_plugin.regressors import InputSpec
 from diag_plugin.rulebase.document import RuleBase
@@ -456,9 +456,9 @@ def build_unit(
     operation. ``tags``: the tests (default: :func:`choose_tests`). ``progress(stage, done,
     total)`` is called as the stages advance. Raises :class:`~historian.errors.UserError`
     on input the build cannot use."""
-    from diag_plugin.diagnose.learning import DEFAULT_FAR, LearnError, learn_thresholds
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import SUFFIX, UnitError, UnitFile, new_unit_text
+    from diag_plugin.learn.thresholds import DEFAULT_FAR, LearnError, learn_thresholds
     from diag_plugin.training.chunked import train
 
     far = DEFAULT_FAR if far is None else far

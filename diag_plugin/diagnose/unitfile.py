@@ -82,7 +82,7 @@ test's three sets, in the thresholds' units: μN is 1 below ``n1`` and 0 above `
 below ``p0`` and 1 above ``p1``, μ0 = 1 − μN − μP. ``diag unit learn`` centres each ramp on its
 threshold and makes it two fault-free standard deviations of the test's (cross-fitted, filtered)
 residual wide, so a residual one standard deviation past the threshold is wholly N or P and one
-short of it wholly 0 (:func:`diag_plugin.diagnose.learning.fuzzy_sets`).
+short of it wholly 0 (:func:`diag_plugin.learn.thresholds.fuzzy_sets`).
 
 ``levels`` (learned) are the residual scales of the coarser rule levels behind a Wang–Mendel
 model's fine grid: a residual answered at level ``l`` is divided by ``levels[l]`` (level 0: 1),
@@ -583,7 +583,7 @@ class UnitFile:
 
     # ------------------------------------------------------------ writing
     def set_learned(self, learned: Any) -> None:
-        """Write what :func:`diag_plugin.diagnose.learning.learn_thresholds` learned: the
+        """Write what :func:`diag_plugin.learn.thresholds.learn_thresholds` learned: the
         limits, the budget and window they hold, each test's level scales and signal maximum,
         and per test what its thresholds rest on (``[learned]``)."""
         self.set_thresholds(

@@ -105,7 +105,7 @@ class BlockScorer:
     A relation that holds only in part of the window — a correlation that the operators'
     set-point choices of one period made, which another period's choices break — scores
     badly on the blocks it does not hold in; a single held-out tail would judge it on one
-    period only. The blocks are ``diag unit learn``'s (:func:`~diag_plugin.diagnose.learning.
+    period only. The blocks are ``diag unit learn``'s (:func:`~diag_plugin.learn.thresholds.
     block_of`: a window of several runs is cut between runs), so inputs are chosen on the
     error the thresholds are then learned from. A Wang–Mendel fit is a group-by over rule
     cells, independent of row order, so each fold is the window's rows reordered (training

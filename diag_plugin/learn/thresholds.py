@@ -26,7 +26,7 @@ false-alarm budget.
 3. **The budget.** The scaled residuals are filtered as the unit filters them, and each test's
    two thresholds are placed so that the unit's false alarms (episodes with the on/off delays)
    come at the declared rate per hour of operation, all tests together
-   (:mod:`diag_plugin.diagnose.budget`), saying when the window is too short to show that rate
+   (:mod:`diag_plugin.learn.budget`), saying when the window is too short to show that rate
    and what window would.
 
 With ``combined = true`` or ``isolation = "tags"`` in the unit's ``[evaluation]`` step 3 also
@@ -49,10 +49,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.budget import TestBudget, calibrate
 from diag_plugin.diagnose.residuals import supported
 from diag_plugin.diagnose.unit import Unit, spread_factor
 from diag_plugin.diagnose.unitfile import CombinedSpec
+from diag_plugin.learn.budget import TestBudget, calibrate
 from diag_plugin.models.protocol import REASON_NAN, Prediction
 
 #: samples skipped at the start of a learning window (and of each run in it): the filter
@@ -596,11 +596,11 @@ def learn_combined(
     (alarms per hour: the combined test's share), the threshold of T² calibrated on T² of each
     block computed with parameters learned without that block (out of sample, like the
     residuals), with the unit's on/off delays
-    (:func:`~diag_plugin.diagnose.budget.calibrate_side`); where the window is too short even
+    (:func:`~diag_plugin.learn.budget.calibrate_side`); where the window is too short even
     for a tail fit, Rice's Gaussian rate is fitted to √T² (Gaussian-tailed) rather than to the
     skewed T²."""
-    from diag_plugin.diagnose.budget import calibrate_side
     from diag_plugin.diagnose.unittags import CombinedModel
+    from diag_plugin.learn.budget import calibrate_side
 
     x = body[unit.tests].to_numpy(float)
     T = len(unit.tests)
