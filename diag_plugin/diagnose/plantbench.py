@@ -319,7 +319,7 @@ def run_plant_benchmark(
 
     1. **Training**: fault-free runs of ``train_seeds``, ``train_days`` each, sampled to
        ``period_s`` (3-min means or 1 s), placed one after another in time with an hour of
-       missing samples between them. :func:`~diag_plugin.diagnose.unitbuild.build_unit` on
+       missing samples between them. :func:`~diag_plugin.unitbuild.build.build_unit` on
        them (into ``folder``, a temporary folder by default) to the budget ``far`` (alarm
        episodes per hour; default ``unit build``'s); PCA (no lags) and DPCA (two lags) T² + Q
        fitted on the same runs (the 35 measurements and controller outputs), their limits
@@ -343,8 +343,8 @@ def run_plant_benchmark(
 
     from diag_plugin.diagnose.status import NE107
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.diagnose.unitbuild import build_unit
     from diag_plugin.simulate.chemplant import CHEMPLANT_TAGS, FAULTS, sample, simulate_chemplant
+    from diag_plugin.unitbuild.build import build_unit
     from historian.taginfo import TagInfo
 
     if plant != "chemplant":
