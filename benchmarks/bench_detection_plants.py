@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.pca import PCADetector
+from diag_plugin.bench.pca import PCADetector
 from diag_plugin.diagnose.status import NE107
 from diag_plugin.diagnose.symptoms import OnOffDelay
 from diag_plugin.diagnose.unit import Unit

@@ -65,7 +65,7 @@ def main() -> None:
     ap.add_argument("--folder", default=None, help="folder of the example units")
     ap.add_argument("--unit", action="append", dest="units")
     args = ap.parse_args()
-    from diag_plugin.diagnose.benchmark import run_benchmark
+    from diag_plugin.bench.damadics import run_benchmark
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.examples.shipped import shipped_folder
 

@@ -30,6 +30,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "diag_plugin.diagnose.cli",
     "diag_plugin.learn.cli",
     "diag_plugin.unitbuild.cli",
+    "diag_plugin.bench.cli",
     "diag_plugin.live.cli",
     "diag_plugin.engine.cli",
 )

@@ -72,7 +72,7 @@ TARGETS: dict[str, list[str]] = {
         "test_import_refuses_to_guess.py",
         "test_import_edges.py",
     ],
-    "diag_plugin/diagnose/benchmark.py": ["test_benchmark.py"],
+    "diag_plugin/bench/damadics.py": ["test_benchmark.py"],
     "diag_plugin/diagnose/cli.py": [
         "test_diagnosis_guards.py",
         "test_units.py",

@@ -6,7 +6,7 @@ The pieces a plant benchmark needs (issue 25), independent of what raised the al
 * :func:`detection_delay` — the time from the onset to the first alarm at or after it;
 * :func:`false_alarm_rate` — on a fault-free run, the share of samples in alarm and the alarm
   episodes (onsets) per hour;
-* :class:`PCABaseline` — PCA T² + Q (:class:`~diag_plugin.diagnose.pca.PCADetector`, dynamic
+* :class:`PCABaseline` — PCA T² + Q (:class:`~diag_plugin.bench.pca.PCADetector`, dynamic
   with ``lags`` previous samples), fitted on fault-free runs, its two limits set together so
   that the share of samples in alarm (T² *or* Q beyond its limit) is ``far`` on fault-free data
   *it was not fitted on*: each training run is scored by a PCA fitted on the other runs
@@ -29,7 +29,7 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.pca import PCADetector
+from diag_plugin.bench.pca import PCADetector
 
 __all__ = [
     "run_plant_benchmark",
