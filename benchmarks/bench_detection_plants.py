@@ -29,7 +29,6 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.bench.pca import PCADetector
-from diag_plugin.diagnose.status import NE107
 from diag_plugin.diagnose.symptoms import OnOffDelay
 from diag_plugin.diagnose.unit import Unit
 from diag_plugin.diagnose.unitfile import UnitFile
@@ -38,6 +37,7 @@ from diag_plugin.learn.budget import calibrate_side
 from diag_plugin.learn.thresholds import block_of, learn_thresholds
 from diag_plugin.regressors import build_design
 from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.status import NE107
 
 PLANTS = {
     "tank": dict(

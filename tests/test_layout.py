@@ -41,7 +41,17 @@ def test_a_broken_command_module_is_an_error_not_a_missing_command(monkeypatch):
 
 
 #: the small modules every stage shares, the only loose modules beside the stage packages
-SHARED = {"__init__.py", "__main__.py", "cli.py", "regressors.py", "metrics.py", "tomllines.py"}
+#: (status.py: the NE 107 status vocabulary the run-time diagnosis produces and connectors/
+#: publishes, below both)
+SHARED = {
+    "__init__.py",
+    "__main__.py",
+    "cli.py",
+    "regressors.py",
+    "metrics.py",
+    "tomllines.py",
+    "status.py",
+}
 
 
 def test_each_stage_is_a_package_with_its_commands_in_its_own_cli():

@@ -278,9 +278,9 @@ def test_the_heat_exchanger_rig_built_detects_fouling_and_is_quiet(tmp_path):
     from 60 fault-free days (the window of benchmarks/bench_detection_plants.py; two weeks
     are too few for this budget) stays quiet on an unseen fault-free week within three times
     its budget and detects fouling of a quarter of the heat transfer on an unseen seed."""
-    from diag_plugin.diagnose.status import NE107
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.examples.rigs import HX_TAGS, RigFault, runs, tag_info
+    from diag_plugin.status import NE107
     from diag_plugin.unitbuild.build import build_unit
 
     train = runs("hx", [1], length=60)
@@ -363,8 +363,8 @@ def test_a_controlled_tag_is_tested_against_its_set_point(tmp_path):
     an inflow surge saturates the valve, the level leaves its set-point and the unit names
     it."""
     from diag_plugin.diagnose.plant import Plant
-    from diag_plugin.diagnose.status import NE107
     from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.status import NE107
     from diag_plugin.unitbuild.build import build_unit
 
     train = _tank(6, 1, [40.0, 45.0, 50.0, 55.0])

@@ -341,9 +341,9 @@ def run_plant_benchmark(
     import tempfile
     import time
 
-    from diag_plugin.diagnose.status import NE107
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.simulate.chemplant import CHEMPLANT_TAGS, FAULTS, sample, simulate_chemplant
+    from diag_plugin.status import NE107
     from diag_plugin.unitbuild.build import build_unit
     from historian.taginfo import TagInfo
 

@@ -493,7 +493,7 @@ def cmd_diagnose(args) -> int:
 
 
 def _name(s: int) -> str:
-    from diag_plugin.diagnose.status import NE107
+    from diag_plugin.status import NE107
 
     return NE107(int(s)).name
 

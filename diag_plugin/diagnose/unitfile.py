@@ -109,7 +109,7 @@ from typing import Any
 import tomlkit
 from tomlkit.exceptions import ParseError
 
-from diag_plugin.diagnose.status import NE107
+from diag_plugin.status import NE107
 from historian.errors import UserError
 
 SUFFIX = ".unit.toml"

@@ -56,7 +56,7 @@ TARGETS: dict[str, list[str]] = {
         "test_units.py",
         "test_plant.py",
     ],
-    "diag_plugin/diagnose/status.py": ["test_diagnosis_guards.py", "test_units.py"],
+    "diag_plugin/status.py": ["test_diagnosis_guards.py", "test_units.py"],
     "diag_plugin/diagnose/matrix.py": [
         "test_diagnose_matrix.py",
         "test_diagnose_stage_edges.py",
