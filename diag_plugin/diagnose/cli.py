@@ -67,7 +67,7 @@ def load_unit(args, name: str):
 
     path = unit_path(name, args.rulebases)
     if not path.exists():
-        from diag_plugin.examples.shipped import find_shipped
+        from diag_plugin.rulebase.folder import find_shipped
 
         path = find_shipped(name, SUFFIX) or path
     if not path.exists():

@@ -55,7 +55,7 @@ def load(name: str, folder: str) -> RuleBase:
 
     path = resolve(name, folder)
     if not path.exists():
-        from diag_plugin.examples.shipped import find_shipped
+        from diag_plugin.rulebase.folder import find_shipped
 
         path = find_shipped(name) or path
     if not path.exists():
