@@ -63,13 +63,14 @@ def unit_actions(sub: argparse._SubParsersAction) -> argparse._SubParsersAction:
 
 def load_unit(args, name: str):
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.diagnose.unitfile import SUFFIX, UnitError, unit_path
+    from diag_plugin.diagnose.unitfile import UnitError, unit_path
+    from diag_plugin.rulebase.folder import UNIT_SUFFIX
 
     path = unit_path(name, args.rulebases)
     if not path.exists():
         from diag_plugin.rulebase.folder import find_shipped
 
-        path = find_shipped(name, SUFFIX) or path
+        path = find_shipped(name, UNIT_SUFFIX) or path
     if not path.exists():
         raise UserError(f"no unit file {path} (make one with `diag unit new`)")
     try:
@@ -93,11 +94,12 @@ def parse_time(text: str | None):
 
 
 def cmd_unit_new(args) -> int:
-    from diag_plugin.diagnose.unitfile import SUFFIX, new_unit_text
+    from diag_plugin.diagnose.unitfile import new_unit_text
     from diag_plugin.rulebase.document import resolve
+    from diag_plugin.rulebase.folder import UNIT_SUFFIX
 
     folder = Path(args.rulebases)
-    path = folder / f"{args.name}{SUFFIX}"
+    path = folder / f"{args.name}{UNIT_SUFFIX}"
     if path.exists() and not args.force:
         raise UserError(f"{path} exists (use --force to overwrite)")
     tests: dict[str, str] = {}

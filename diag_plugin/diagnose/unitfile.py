@@ -109,10 +109,10 @@ from typing import Any
 import tomlkit
 from tomlkit.exceptions import ParseError
 
+from diag_plugin.rulebase.folder import UNIT_SUFFIX
 from diag_plugin.status import NE107
 from historian.errors import UserError
 
-SUFFIX = ".unit.toml"
 TABLES = (
     "unit",
     "evaluation",
@@ -124,7 +124,6 @@ TABLES = (
     "combined",
     "build",
 )
-MATRIX_SUFFIX = ".matrix.toml"
 
 EVALUATION_DEFAULTS: dict[str, Any] = {
     "lowpass": 0.01,
@@ -234,12 +233,7 @@ def unit_path(name_or_path: str, folder: str | Path = "rulebases") -> Path:
     p = Path(name_or_path)
     if p.name.endswith(".toml") or p.exists():
         return p
-    return Path(folder) / f"{name_or_path}{SUFFIX}"
-
-
-def is_model_file(path: Path) -> bool:
-    """Rule-base (model) files are the ``*.toml`` that are neither unit nor matrix files."""
-    return not path.name.endswith((SUFFIX, MATRIX_SUFFIX))
+    return Path(folder) / f"{name_or_path}{UNIT_SUFFIX}"
 
 
 def _plain(v: Any) -> Any:
@@ -299,7 +293,7 @@ class UnitFile:
         for key in unit:
             if key not in ("name", "description", "matrix", "outputs"):
                 self.error(self.line_of("unit", key), f"unknown key {key!r} in [unit]")
-        self.name = str(_plain(unit.get("name", self.path.name.removesuffix(SUFFIX))))
+        self.name = str(_plain(unit.get("name", self.path.name.removesuffix(UNIT_SUFFIX))))
         self.description = str(_plain(unit.get("description", "")))
         m = _plain(unit.get("matrix"))
         if m is not None and not isinstance(m, str):

@@ -457,15 +457,16 @@ def build_unit(
     total)`` is called as the stages advance. Raises :class:`~historian.errors.UserError`
     on input the build cannot use."""
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.diagnose.unitfile import SUFFIX, UnitError, UnitFile, new_unit_text
+    from diag_plugin.diagnose.unitfile import UnitError, UnitFile, new_unit_text
     from diag_plugin.learn.thresholds import DEFAULT_FAR, LearnError, learn_thresholds
+    from diag_plugin.rulebase.folder import UNIT_SUFFIX
     from diag_plugin.training.chunked import train
 
     far = DEFAULT_FAR if far is None else far
     if not far > 0:
         raise UserError(f"--far {far:g}: the budget must be a positive rate per hour")
     folder = Path(folder)
-    path = folder / f"{name}{SUFFIX}"
+    path = folder / f"{name}{UNIT_SUFFIX}"
     if path.exists() and not force:
         raise UserError(f"{path} exists (use --force to overwrite)")
     have = frame.notna().any(axis=1).to_numpy()
