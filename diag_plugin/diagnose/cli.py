@@ -317,7 +317,7 @@ def cmd_unit_show(args) -> int:
 def _print_learned(con, tests: list[dict]) -> None:
     """Per test: why its thresholds are what they are (the budget's support, the unknown share
     and why, the level scales)."""
-    from diag_plugin.learn.thresholds import WHY, hours
+    from diag_plugin.diagnose.unitfile import WHY, hours
 
     for r in tests:
         n = r["learned"]

@@ -125,6 +125,21 @@ TABLES = (
     "build",
 )
 
+#: why a residual is unknown: the reasons ``diag unit learn`` counts (``unknown_<reason>``
+#: in ``[learned]``) and ``diag unit show`` words
+WHY = {
+    "missing": "an input or the output missing (NaN, bad quality, lags not yet filled)",
+    "no_rule": "no trained rule at any level (outside the trained region)",
+    "low_support": "the edge of the trained region (support below min_support)",
+    "level": "answered at a coarser level the window could not calibrate",
+}
+
+
+def hours(h: float) -> str:
+    """Hours as a person reads them: ``40,000 h``, ``336 h``, ``0.11 h``."""
+    return f"{h:,.0f} h" if h >= 10 else f"{h:.2g} h"
+
+
 EVALUATION_DEFAULTS: dict[str, Any] = {
     "lowpass": 0.01,
     "order": 4,

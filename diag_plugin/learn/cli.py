@@ -44,11 +44,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_unit_learn(args) -> int:
-    from diag_plugin.diagnose.unitfile import UnitFile
+    from diag_plugin.diagnose.unitfile import WHY, UnitFile
     from diag_plugin.learn.thresholds import (
         DEFAULT_BLOCKS,
         DEFAULT_FAR,
-        WHY,
         LearnError,
         learn_thresholds,
     )

@@ -51,7 +51,7 @@ import pandas as pd
 
 from diag_plugin.diagnose.residuals import supported
 from diag_plugin.diagnose.unit import Unit, spread_factor
-from diag_plugin.diagnose.unitfile import CombinedSpec
+from diag_plugin.diagnose.unitfile import WHY, CombinedSpec, hours
 from diag_plugin.learn.budget import TestBudget, calibrate
 from diag_plugin.models.protocol import REASON_NAN, Prediction
 
@@ -70,13 +70,6 @@ MIN_KNOWN = 30
 #: samples without data that separate two runs of a window (the unit's filter forgets its
 #: state after as many, :class:`~diag_plugin.diagnose.residuals.LowPass`)
 RUN_GAP = 100
-
-WHY = {
-    "missing": "an input or the output missing (NaN, bad quality, lags not yet filled)",
-    "no_rule": "no trained rule at any level (outside the trained region)",
-    "low_support": "the edge of the trained region (support below min_support)",
-    "level": "answered at a coarser level the window could not calibrate",
-}
 
 
 class LearnError(ValueError):
@@ -347,7 +340,8 @@ def _cross_fitted(rb, X, y, block, blocks: int, test: str) -> Prediction:
 
 
 def _unknown_reasons(n: int, rows: np.ndarray, y: np.ndarray, pred: Prediction, unit: Unit):
-    """Samples of the window without a residual, counted by reason (see :data:`WHY`)."""
+    """Samples of the window without a residual, counted by reason
+    (:data:`~diag_plugin.diagnose.unitfile.WHY`)."""
     missing = n - rows.size + int(np.count_nonzero(~np.isfinite(y) | (pred.reason == REASON_NAN)))
     answered = np.isfinite(pred.y) & np.isfinite(y)
     no_rule = int(np.count_nonzero(~np.isfinite(pred.y) & np.isfinite(y) & (pred.reason != 1)))
@@ -513,11 +507,6 @@ def fuzzy_sets(residual: np.ndarray, low: float, high: float) -> tuple[float, fl
     sd = 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size else 0.0
     up, dn = min(sd, 0.999 * high), min(sd, 0.999 * -low)
     return (low - dn, low + dn, high - up, high + up)
-
-
-def hours(h: float) -> str:
-    """Hours as a person reads them: ``40,000 h``, ``336 h``, ``0.11 h``."""
-    return f"{h:,.0f} h" if h >= 10 else f"{h:.2g} h"
 
 
 def _check(res: dict[str, TestResiduals], unit: Unit) -> list[str]:
