@@ -223,7 +223,10 @@ def run_matched_benchmark(
     for role, runs in (("calibration", plant.calibration), ("free", plant.free)):
         for r in runs:
             for m, s in scored(r).items():
-                per_method[m][role].append(s.score)
+                x = s.score
+                if r.labels is not None:  # a labelled run: its normal samples only
+                    x = x[r.labels[(r.learn if plant.per_run else 0) :] == 0]
+                per_method[m][role].append(x)
             done += 1
             tick("score fault-free runs", done, total)
     fault_runs = []
@@ -390,7 +393,7 @@ def render_page(out: dict, command: str) -> str:
     """The result as markdown: provenance, the split, the curve, a table per target."""
     methods = out["methods"]
     per = out["per"]
-    unit_of = "of samples" if per == "sample" else "episodes per hour"
+    unit_of = "share of samples" if per == "sample" else "alarm episodes per hour"
     lines = [
         f"# Matched false alarms: {out['title']}",
         "",
@@ -402,7 +405,7 @@ def render_page(out: dict, command: str) -> str:
         f"- data: {out['source']}",
         f"- sample period {out['period_s']:g} s; every method's statistics after on/off "
         f"delays of {out['delays'][0]}/{out['delays'][1]} samples, then their maximum; the "
-        f"limit on it set so the rate {unit_of} on the calibration runs is the target",
+        f"limit on it set so the {unit_of} in alarm on the calibration runs is the target",
         f"- PCA and DPCA ({DPCA_LAGS} lags): T² + Q, components to {out['pca_share']:.0%} "
         "of the variance, each statistic over its 1 % limit",
         "",
