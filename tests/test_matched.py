@@ -162,3 +162,12 @@ def test_truly_better_method_ranks_first_and_names_its_tag():
         assert ma["mean_detection"] > mb["mean_detection"] + 0.1
         assert ma["in_top"] == ma["named_runs"] == 6
         assert mb["faults"]["f"]["per_run"][0]["top"][0] == "X"
+
+
+def test_infinite_statistic_is_over_every_limit_and_unknown_never():
+    s = method_score(np.array([[np.inf, np.nan], [np.nan, np.nan], [0.5, 0.2]]), 1, 1)
+    assert s[0] == np.inf and np.isnan(s[1])
+    share, per_h = rates([s], 10.0, 3600.0)
+    assert share == pytest.approx(1 / 3) and per_h == pytest.approx(1 / 3)
+    lim = calibrate([np.r_[s, np.zeros(97)]], 0.02, 60.0)
+    assert lim.share <= 0.02 and lim.limit < np.inf

@@ -114,7 +114,7 @@ def method_score(stats: np.ndarray, on: int = 1, off: int = 1) -> np.ndarray:
     its own limit) after each statistic's own on/off delays; NaN where none is known."""
     d = delayed_score(np.asarray(stats, float).reshape(len(stats), -1), on, off)
     with np.errstate(all="ignore"):
-        known = np.isfinite(d).any(axis=1)
+        known = (~np.isnan(d)).any(axis=1)
         out = np.full(len(d), np.nan)
         out[known] = np.nanmax(d[known], axis=1)
     return out
@@ -130,7 +130,8 @@ def episode_count(alarm: np.ndarray) -> int:
 
 
 def _finite(d: np.ndarray) -> np.ndarray:
-    return np.where(np.isfinite(d), d, -np.inf)
+    """Unknown (NaN) as never over any limit; +inf stays over every finite one."""
+    return np.where(np.isnan(d), -np.inf, d)
 
 
 def _survival(values: np.ndarray, at: np.ndarray) -> np.ndarray:

@@ -291,7 +291,7 @@ def skab_metrics(scores: Sequence[Scored], labels: Sequence[np.ndarray], limit: 
     (unknown samples are not in alarm)."""
     tp = tn = fp = fn = 0
     for s, lab in zip(scores, labels, strict=True):
-        pred = np.where(np.isfinite(s.score), s.score, -np.inf) > limit
+        pred = np.where(np.isnan(s.score), -np.inf, s.score) > limit
         true = lab > 0
         tp += int(np.sum(pred & true))
         tn += int(np.sum(~pred & ~true))
