@@ -907,14 +907,16 @@ def cmd_matched_benchmark(args) -> int:
     con = Console(stderr=True)
     try:
         if args.plant == "chemplant":
-            plant = chemplant_plant(quick=args.quick)
+            plant = chemplant_plant(quick=args.quick, faults=args.faults)
         elif args.plant == "tep":
-            plant = pp.load_braatz(args.data)
+            plant = pp.load_braatz(args.data, faults=args.faults)
         elif args.plant == "tep-studio":
-            plant = pp.load_tep_studio(args.data)
+            plant = pp.load_tep_studio(args.data, faults=args.faults)
         else:
+            if args.faults:
+                raise UserError("--fault: SKAB is scored on all its scoring runs")
             plant = pp.load_skab(args.data)
-    except pp.DataMissing as exc:
+    except (pp.DataMissing, KeyError, ValueError) as exc:
         raise UserError(str(exc)) from None
     with Progress(console=con, transient=True, disable=args.json or not con.is_terminal) as pr:
         task = pr.add_task("build", total=None)

@@ -307,7 +307,7 @@ def skab_metrics(scores: Sequence[Scored], labels: Sequence[np.ndarray], limit: 
 # ---------------------------------------------------------------- the chemical plant
 
 
-def chemplant_plant(quick: bool = False) -> PublicPlant:
+def chemplant_plant(quick: bool = False, faults: Sequence[str] | None = None) -> PublicPlant:
     """The project's own chemical plant (3-min means) in the same shape: train seeds 1–3 × 10
     days, calibration 9161–9163 × 3 days, fault-free scoring 9151–9153 × 3 days, faults
     9101–9103 × 3 days from day 1 (``quick``: 2 × 6 days, one seed each, three faults).
@@ -319,6 +319,11 @@ def chemplant_plant(quick: bool = False) -> PublicPlant:
     free_seeds = (9151,) if quick else (9151, 9152, 9153)
     fault_seeds = (9101,) if quick else (9101, 9102, 9103)
     names = ("fi109_bias", "tv103_stuck", "feed_comp_step") if quick else tuple(FAULTS)
+    if faults:
+        unknown = [f for f in faults if f not in FAULTS]
+        if unknown:
+            raise ValueError(f"unknown fault(s) {', '.join(unknown)}; known: {', '.join(FAULTS)}")
+        names = tuple(faults)
     run_days, onset_days = (2.0, 0.5) if quick else (3.0, 1.0)
     cols = [c for c, v in CHEMPLANT_TAGS.items() if v[4] != "set-point"]
     start = pd.Timestamp("2026-01-01", tz="UTC")

@@ -220,6 +220,9 @@ def load_braatz(path: str | Path | None = None, faults: Sequence[str] | None = N
     train = [PlantRun("d00", _tep_frame(_read_dat(d / "d00.dat"), t0))]
     cal = [PlantRun("d00_te", _tep_frame(_read_dat(d / "d00_te.dat"), t0 + day))]
     names = list(faults) if faults else list(TEP_FAULTS)
+    bad = [f for f in names if f not in TEP_FAULTS]
+    if bad:
+        raise ValueError(f"unknown fault(s) {', '.join(bad)}; known: IDV1 … IDV21")
     fault_runs, free, tuning = [], [], []
     for k, idv in enumerate(names):
         n = int(idv[3:])
