@@ -171,3 +171,36 @@ def test_infinite_statistic_is_over_every_limit_and_unknown_never():
     assert share == pytest.approx(1 / 3) and per_h == pytest.approx(1 / 3)
     lim = calibrate([np.r_[s, np.zeros(97)]], 0.02, 60.0)
     assert lim.share <= 0.02 and lim.limit < np.inf
+
+
+@pytest.mark.slow
+def test_a_built_units_score_at_one_is_its_own_alarm(tmp_path):
+    """The unit's score (tests over their thresholds, combined T² over its limit, each after
+    the unit's delays, then the maximum) is over 1 exactly where the unit itself alarms, on
+    a run it never saw, with a fault and without."""
+    from diag_plugin.diagnose.publicbench import unit_statistics
+    from diag_plugin.diagnose.status import NE107
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unitbuild import build_unit
+    from diag_plugin.simulate import coupled
+
+    train, _ = coupled.simulate(4.0, n_tags=10, seed=1, structure_seed=0)
+    res = build_unit("u", train, folder=tmp_path, period="3min", far=0.05)
+    unit = Unit.load(res.path, tmp_path)
+    run, _ = coupled.simulate(2.0, n_tags=10, seed=9, structure_seed=0)
+    faulty = run.copy()
+    tag = res.tests[0].tag
+    faulty.iloc[len(run) // 2 :, faulty.columns.get_loc(tag)] += 3 * run[tag].std()
+    on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
+    seen = 0
+    for frame in (run, faulty):
+        stats, contrib = unit_statistics(unit, frame)
+        s = method_score(stats, on, off)
+        d = unit.reset().evaluate(frame)
+        st = d.status.to_numpy()
+        native = (st != NE107.NORMAL) & (st != NE107.CHECK_FUNCTION)
+        mine = np.where(np.isnan(s), -np.inf, s) > 1.0
+        np.testing.assert_array_equal(mine, native)
+        seen += int(native.sum())
+        assert list(contrib.columns) == unit.cmodel.tags
+    assert seen > 0  # the fault raised alarms: the comparison compared something
