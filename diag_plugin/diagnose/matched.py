@@ -242,6 +242,9 @@ class FaultRun:
     run: str
     onset: int
     tags: tuple[str, ...] = ()
+    #: where the fault is present (a labelled data set's anomaly labels); default: from the
+    #: onset to the end
+    active: np.ndarray | None = None
 
 
 @dataclass
@@ -252,15 +255,18 @@ class Scored:
     contributions: object | None = None  # pandas DataFrame: per sample, per tag
 
 
-def run_at(score: np.ndarray, onset: int, limit: float, period_s: float) -> dict:
-    """A faulty run at ``limit``: the share of samples from ``onset`` on in alarm (unknown
-    counts as not), seconds to the first alarm at or after it, alarm episodes after it, and
-    whether any alarm came before it (a false one)."""
+def run_at(
+    score: np.ndarray, onset: int, limit: float, period_s: float, active: np.ndarray | None = None
+) -> dict:
+    """A faulty run at ``limit``: the share of samples where the fault is present (``active``;
+    default from ``onset`` on) in alarm (unknown counts as not), seconds to the first alarm at
+    or after the onset, and alarm episodes after it."""
     on = _finite(np.asarray(score, float)) > limit
     after = on[onset:]
     hit = np.flatnonzero(after)
+    present = after if active is None else on[np.asarray(active, bool)]
     return {
-        "detection_rate": float(after.mean()) if after.size else float("nan"),
+        "detection_rate": float(present.mean()) if present.size else float("nan"),
         "delay_s": float(hit[0] * period_s) if hit.size else None,
         "episodes": episode_count(after),
         "alarm_rows": np.flatnonzero(on),
@@ -311,7 +317,7 @@ def curve(
                 for fr, sc in zip(fault_runs, m["faults"], strict=True):
                     if fr.fault != f:
                         continue
-                    r = run_at(sc.score, fr.onset, lim.limit, period_s)
+                    r = run_at(sc.score, fr.onset, lim.limit, period_s, fr.active)
                     ar = r.pop("alarm_rows")
                     ar = ar[ar >= fr.onset]
                     named = ranked_tags(sc.contributions, ar, top)[:top]

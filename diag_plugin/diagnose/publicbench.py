@@ -237,8 +237,12 @@ def run_matched_benchmark(
     labels = []
     for r in plant.faults:
         cut = r.learn if plant.per_run else 0
-        fault_runs.append(FaultRun(r.fault or r.name, r.name, int(r.onset) - cut, tuple(r.tags)))
-        labels.append(None if r.labels is None else r.labels[cut:])
+        lab = None if r.labels is None else r.labels[cut:]
+        active = None if lab is None else lab > 0
+        fault_runs.append(
+            FaultRun(r.fault or r.name, r.name, int(r.onset) - cut, tuple(r.tags), active)
+        )
+        labels.append(lab)
         for m, s in scored(r).items():
             per_method[m]["faults"].append(s)
         done += 1
@@ -467,9 +471,10 @@ def render_page(out: dict, command: str) -> str:
     lines += [
         "## Detection against false alarms",
         "",
-        "Mean detection rate over the faults (share of samples in alarm from the onset on; "
-        "unknown samples count as not in alarm), the tag at fault in the top three (runs "
-        "where one is defined), and the false alarms on the fault-free scoring runs, per "
+        "Mean detection rate over the faults (share of samples in alarm from the onset on, "
+        "or where a labelled data set marks the fault; unknown samples count as not in "
+        "alarm), the tag at fault in the top three (runs where one is defined), and the "
+        "false alarms on the fault-free scoring runs, per "
         "target. *Calibration* is the rate reached on the calibration runs; a target the "
         "calibration runs cannot resolve (under 5 alarm samples or episodes expected) is "
         "marked †.",
