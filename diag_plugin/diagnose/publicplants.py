@@ -181,6 +181,17 @@ TEP_FAULTS: dict[str, tuple[str, tuple[str, ...]]] = {
 }
 
 
+#: tep-studio's IDV(16)–(20) (Ricker's modified TEP defines what the classic set calls unknown)
+TEP_STUDIO_FAULTS: dict[str, tuple[str, tuple[str, ...]]] = {
+    **TEP_FAULTS,
+    "IDV16": ("stripper heat transfer: random variation", ("XMEAS18", "XMV9", "XMEAS19")),
+    "IDV17": ("reactor heat transfer: random variation", ("XMV10", "XMEAS9", "XMEAS21")),
+    "IDV18": ("condenser heat transfer: random variation", ("XMV11", "XMEAS22", "XMEAS11")),
+    "IDV19": ("valve stiction, a group of valves", ()),
+    "IDV20": ("unknown random disturbance", ()),
+}
+
+
 def braatz_dir(path: str | Path | None = None) -> Path:
     """The folder of ``d00.dat`` … (``path``, ``$DIAG_TEP_BRAATZ_DIR``, or the cache)."""
     p = path or os.environ.get("DIAG_TEP_BRAATZ_DIR")
@@ -290,7 +301,7 @@ def load_tep_studio(
         onset = None
         if idv:
             onset = int(round(m["onset_h"] * 3600 / 180.0))
-        tags = TEP_FAULTS[idv][1] if idv else ()
+        tags = TEP_STUDIO_FAULTS[idv][1] if idv else ()
         roles[m["role"]].append(PlantRun(name, frame[list(TEP_TAGS)], idv, onset, tags))
     missing = [r for r in ("train", "calibration", "free", "fault") if not roles[r]]
     if missing:
@@ -306,7 +317,7 @@ def load_tep_studio(
         free=roles["free"],
         faults=roles["fault"],
         tuning=roles["tuning"],
-        fault_info={k: v[0] for k, v in TEP_FAULTS.items()},
+        fault_info={k: v[0] for k, v in TEP_STUDIO_FAULTS.items() if k != "IDV21"},
         source=str(d),
         split=[
             "train: fault-free seeds 1 and 2, 5 days each (10 days at 3 min)",
