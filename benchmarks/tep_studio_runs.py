@@ -37,7 +37,7 @@ import pandas as pd
 
 STEP_H = 0.0005  # the controller's interval (1.8 s)
 SAMPLE_H = 0.05  # 3 min
-START = pd.Timestamp("2030-01-01", tz="UTC")
+START = pd.Timestamp("2020-01-01", tz="UTC")
 
 RUNS = {
     "train": [(s, None, 5 * 24.0) for s in (1, 2)],
