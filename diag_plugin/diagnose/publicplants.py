@@ -301,6 +301,9 @@ def load_tep_studio(
         if idv and want is not None and idv not in want:
             continue
         frame = pd.read_csv(f, index_col="ts", parse_dates=["ts"])
+        # a run that trips the shutdown records its last step too: on the 3-min grid it can
+        # fall on the sample before it
+        frame = frame[~frame.index.duplicated(keep="first")]
         if frame.index[0].year >= 2030:  # the first runs were dated from 2030; a historian
             frame.index = frame.index - _TEN_YEARS  # refuses times a year ahead
         onset = None
