@@ -68,6 +68,7 @@ def simulate(seed: int, idv: int | None, hours: float) -> tuple[pd.DataFrame, fl
     cols = [f"XMEAS{i}" for i in range(1, 42)] + [f"XMV{i}" for i in range(1, 12)]
     frame = pd.DataFrame(np.hstack([meas, xmv]), columns=cols)
     frame.insert(0, "hours", np.round(t_h / SAMPLE_H) * SAMPLE_H)
+    frame = frame.drop_duplicates("hours", keep="first")  # a shutdown's last step
     return frame, (res.final_time if res.terminated else None)
 
 
