@@ -927,7 +927,8 @@ def cmd_matched_benchmark(args) -> int:
         out = run_matched_benchmark(
             plant, targets=targets, per=args.far_per, work=args.out, progress=tick
         )
-    command = "diag benchmark " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "diag benchmark"
+    argv = sys.argv[1:]
+    command = "diag " + " ".join(argv[argv.index("benchmark") :] if "benchmark" in argv else argv)
     page = args.page or (f"docs/results/{plant.name}.md" if Path("docs/results").is_dir() else None)
     if page:
         out["page"] = str(write_page(out, page, command))
