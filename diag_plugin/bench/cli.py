@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from pathlib import Path
 
 from diag_plugin.diagnose.cli import load_unit
 from historian.errors import UserError
@@ -35,9 +37,31 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--plant",
-        choices=["chemplant"],
-        help="build a unit on this simulated plant and score it beside PCA and DPCA",
+        choices=["chemplant", "tep", "tep-studio", "skab"],
+        help="build a unit on this plant and score it beside PCA and DPCA: the simulated "
+        "chemical plant, or (always at matched false alarms) the public Tennessee Eastman "
+        "data (tep: the classic set; tep-studio: simulated runs) or SKAB",
     )
+    p.add_argument(
+        "--match-far",
+        nargs="?",
+        const="0.001,0.005,0.01,0.02,0.05",
+        metavar="RATES",
+        help="--plant: set every method's limit to the same false-alarm rate on fault-free "
+        "calibration runs, at each of these comma-separated rates (default "
+        "0.001,0.005,0.01,0.02,0.05), and write the result page",
+    )
+    p.add_argument(
+        "--far-per",
+        choices=["sample", "hour"],
+        default="sample",
+        help="--match-far: the rates are shares of samples (default) or alarm episodes per hour",
+    )
+    p.add_argument("--page", metavar="FILE",
+                   help="--match-far: the result page (default docs/results/PLANT.md)")  # fmt: skip
+    p.add_argument("--data", metavar="DIR",
+                   help="--plant tep/tep-studio/skab: where the data are (default: the "
+                   "environment variable or cache the docs name)")  # fmt: skip
     p.add_argument(
         "--period", type=int, default=180, help="--plant: sample period in s (default 180; 1)"
     )
@@ -69,6 +93,8 @@ def cmd_benchmark(args) -> int:
 
     from diag_plugin.bench.damadics import run_benchmark
 
+    if args.plant and (args.match_far or args.plant != "chemplant"):
+        return cmd_matched_benchmark(args)
     if args.plant:
         return cmd_plant_benchmark(args)
     unit = load_unit(args, args.unit)
@@ -132,6 +158,68 @@ def _dur(s: float | None) -> str:
     if s is None:
         return "—"
     return f"{s / 3600:.1f} h" if s >= 3600 else f"{s / 60:.0f} min" if s >= 60 else f"{s:.0f} s"
+
+
+def cmd_matched_benchmark(args) -> int:
+    """``diag benchmark --plant P --match-far``: the unit, PCA and DPCA at matched false-alarm
+    rates (:func:`~diag_plugin.bench.publicbench.run_matched_benchmark`), the result page
+    written."""
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from diag_plugin.bench import publicplants as pp
+    from diag_plugin.bench.publicbench import chemplant_plant, run_matched_benchmark, write_page
+
+    try:
+        targets = [float(x) for x in (args.match_far or "0.001,0.005,0.01,0.02,0.05").split(",")]
+    except ValueError:
+        raise UserError(f"--match-far {args.match_far}: comma-separated rates") from None
+    if any(not t > 0 for t in targets) or (args.far_per == "sample" and max(targets) >= 1):
+        raise UserError(f"--match-far {args.match_far}: rates must be > 0 (and < 1 per sample)")
+    con = Console(stderr=True)
+    try:
+        if args.plant == "chemplant":
+            plant = chemplant_plant(quick=args.quick, faults=args.faults)
+        elif args.plant == "tep":
+            plant = pp.load_braatz(args.data, faults=args.faults)
+        elif args.plant == "tep-studio":
+            plant = pp.load_tep_studio(args.data, faults=args.faults)
+        else:
+            if args.faults:
+                raise UserError("--fault: SKAB is scored on all its scoring runs")
+            plant = pp.load_skab(args.data)
+    except (pp.DataMissing, KeyError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    with Progress(console=con, transient=True, disable=args.json or not con.is_terminal) as pr:
+        task = pr.add_task("build", total=None)
+
+        def tick(stage: str, done: int, total: int) -> None:
+            pr.update(task, description=stage, completed=done, total=total)
+
+        out = run_matched_benchmark(
+            plant, targets=targets, per=args.far_per, work=args.out, progress=tick
+        )
+    argv = sys.argv[1:]
+    command = "diag " + " ".join(argv[argv.index("benchmark") :] if "benchmark" in argv else argv)
+    page = args.page or (f"docs/results/{plant.name}.md" if Path("docs/results").is_dir() else None)
+    if page:
+        out["page"] = str(write_page(out, page, command))
+    if args.json:
+        print(json.dumps(out, indent=2, default=float))
+        return 0
+    print(f"{out['title']}: " + ("" if "unit" in out["methods"] else
+          f"unit not built ({out['unit']['note']}); "))  # fmt: skip
+    for p in out["curve"]["points"]:
+        parts = []
+        for m in out["methods"]:
+            x = p["methods"][m]
+            fa = "—" if x["free_share"] is None else f"{x['free_share']:.2%}"
+            parts.append(f"{m} {x['mean_detection']:.0%} (top 3 {x['in_top']}/"
+                         f"{x['named_runs']}, false alarms {fa})")  # fmt: skip
+        print(f"at {p['target']:g} {out['per']}: " + "; ".join(parts))
+    if page:
+        print(f"page: {out['page']}")
+    return 0
 
 
 def cmd_plant_benchmark(args) -> int:
