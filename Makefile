@@ -10,7 +10,7 @@ PEERSTAMP := $(PEERS)/.installed
 OPCUA_PEER := tests/peers/opcua
 OPCUA_STAMP := $(OPCUA_PEER)/node_modules/.package-lock.json
 
-.PHONY: run test lint bench clean
+.PHONY: run test lint bench clean public-data tep-studio-data
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -43,6 +43,7 @@ $(OPCUA_STAMP): $(OPCUA_PEER)/package-lock.json
 test: $(DEVSTAMP) $(PEERSTAMP)
 	bash .ci/sysdeps
 	$(MAKE) $(OPCUA_STAMP)
+	-$(MAKE) public-data
 	$(BIN)/python -m pytest -q
 
 lint: $(DEVSTAMP)
@@ -50,6 +51,29 @@ lint: $(DEVSTAMP)
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
+
+# public plants for `diag benchmark --plant tep|tep-studio` (docs/results/), kept outside
+# the repository; tests skip with the reason when they are absent
+DATA := $(HOME)/.cache/diag-plugin
+BRAATZ := $(DATA)/tep-braatz/bibmon/tennessee_eastman/d21_te.dat
+TEPVENV := $(DATA)/tepvenv
+
+# the classic Tennessee Eastman data (Braatz), as shipped inside the bibmon 1.2.0 wheel: the
+# wheel alone (no dependencies), the .dat files unpacked from it
+public-data: $(BRAATZ)
+$(BRAATZ): | $(BIN)/python
+	mkdir -p $(DATA)/wheels $(DATA)/tep-braatz
+	$(BIN)/python -m pip download --quiet --no-deps bibmon==1.2.0 -d $(DATA)/wheels
+	$(BIN)/python -c "import sys, zipfile; z = zipfile.ZipFile(sys.argv[1]); \
+	z.extractall(sys.argv[2], [n for n in z.namelist() if n.endswith('.dat')])" \
+	  $(DATA)/wheels/bibmon-1.2.0-py3-none-any.whl $(DATA)/tep-braatz
+
+# tep-studio 0.2.0 (a C build through cffi; gcc) in its own venv, then its runs (~30 min)
+tep-studio-data:
+	test -x $(TEPVENV)/bin/python || $(PY) -m venv $(TEPVENV)
+	$(TEPVENV)/bin/python -m pip install --quiet cffi numpy scipy pandas gymnasium "setuptools>=68" wheel
+	$(TEPVENV)/bin/python -m pip install --quiet --no-deps --no-build-isolation tep-studio==0.2.0
+	$(TEPVENV)/bin/python benchmarks/tep_studio_runs.py
 
 clean:
 	rm -rf $(VENV) $(PEERS) .pytest_cache $(OPCUA_PEER)/node_modules

@@ -5,7 +5,7 @@ The baseline a unit built from the plant's history (issue 25) must beat, on
 
 1. **Training**: fault-free runs of seeds 1–5, 10 days each, averaged to 3 min (the first
    ``--train-days-1s`` days of each at 1 s, so the 1 s fit stays in memory);
-   :class:`~diag_plugin.diagnose.plantbench.PCABaseline` on the 35 measurements and controller
+   :class:`~diag_plugin.bench.plant.PCABaseline` on the 35 measurements and controller
    outputs (set-points left out: a set-point held constant through a training run gets a
    near-zero spread, and any later change becomes an enormous standardised deviation), limits
    at ``--far`` (share of samples, T² or Q) from leave-one-run-out statistics. PCA: no lags;
@@ -30,7 +30,7 @@ import time
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.plantbench import (
+from diag_plugin.bench.plant import (
     PCABaseline,
     detection_delay,
     detection_rate,

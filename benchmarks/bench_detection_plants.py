@@ -7,7 +7,7 @@ and the 3-input heat exchanger (60 s, weeks) of :mod:`diag_plugin.examples.rigs`
    window (cross-fitted, held to the budget ``far`` per hour of operation);
 2. PCA T² + Q (dynamic, one lag) is fitted on the same window and its two limits are held to
    the same budget the same way: each statistic cross-fitted over the same time blocks, each
-   side of the budget calibrated with the same on/off delays (:mod:`diag_plugin.diagnose.budget`);
+   side of the budget calibrated with the same on/off delays (:mod:`diag_plugin.learn.budget`);
 3. both run on fault-free runs of seeds never used for anything else (false alarms per hour
    against the budget, and the unit's CHECK_FUNCTION share) and on faulty runs of other seeds
    (detected or not by the end of the run, and the delay of the first alarm after the onset);
@@ -28,16 +28,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.budget import calibrate_side
-from diag_plugin.diagnose.learning import block_of, learn_thresholds
-from diag_plugin.diagnose.pca import PCADetector
-from diag_plugin.diagnose.status import NE107
+from diag_plugin.bench.pca import PCADetector
 from diag_plugin.diagnose.symptoms import OnOffDelay
 from diag_plugin.diagnose.unit import Unit
 from diag_plugin.diagnose.unitfile import UnitFile
 from diag_plugin.examples.rigs import PERIODS, RigFault, build_unit, runs
+from diag_plugin.learn.budget import calibrate_side
+from diag_plugin.learn.thresholds import block_of, learn_thresholds
 from diag_plugin.regressors import build_design
 from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.status import NE107
 
 PLANTS = {
     "tank": dict(

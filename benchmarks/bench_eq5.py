@@ -27,7 +27,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="one strength per fault")
     ap.add_argument("--seed", type=int, action="append", dest="seeds")
     args = ap.parse_args()
-    from diag_plugin.diagnose.benchmark import run_benchmark
+    from diag_plugin.bench.damadics import run_benchmark
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.examples.build import SIM_SEED, UNIT_TESTS, build_valve_unit
     from diag_plugin.rulebase.document import RuleBase

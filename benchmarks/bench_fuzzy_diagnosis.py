@@ -65,9 +65,9 @@ def main() -> None:
     ap.add_argument("--folder", default=None, help="folder of the example units")
     ap.add_argument("--unit", action="append", dest="units")
     args = ap.parse_args()
-    from diag_plugin.diagnose.benchmark import run_benchmark
+    from diag_plugin.bench.damadics import run_benchmark
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.examples.shipped import shipped_folder
+    from diag_plugin.rulebase.folder import shipped_folder
 
     seeds = tuple(args.seeds or (11, 23, 37))
     folder = Path(args.folder) if args.folder else shipped_folder()

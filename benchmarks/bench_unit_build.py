@@ -2,7 +2,7 @@
 
 Speed (issue 25's target: 50 tags over 10 days of 3-min data, 4,800 rows, in under 2 minutes on
 this machine): the process (:mod:`diag_plugin.simulate.coupled`) is imported into a temporary
-SQLite historian, then built with :func:`~diag_plugin.diagnose.unitbuild.build_from_historian`
+SQLite historian, then built with :func:`~diag_plugin.unitbuild.build.build_from_historian`
 exactly as ``diag unit build`` does; the time of each stage and the process's peak resident
 memory are printed.
 
@@ -35,8 +35,8 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from diag_plugin.diagnose.unit import Unit  # noqa: E402
-from diag_plugin.diagnose.unitbuild import build_from_historian  # noqa: E402
 from diag_plugin.simulate import coupled  # noqa: E402
+from diag_plugin.unitbuild.build import build_from_historian  # noqa: E402
 from historian.store import Historian  # noqa: E402
 
 
@@ -119,8 +119,8 @@ def rig(plant: str) -> None:
         unit_alarms,
     )
 
-    from diag_plugin.diagnose.unitbuild import build_unit
     from diag_plugin.examples.rigs import HX_TAGS, PERIODS, RigFault, runs, tag_info
+    from diag_plugin.unitbuild.build import build_unit
 
     cfg = PLANTS[plant]
     period = PERIODS[plant]

@@ -28,12 +28,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.learning import learn_thresholds
-from diag_plugin.diagnose.status import NE107
 from diag_plugin.diagnose.unit import Unit
 from diag_plugin.diagnose.unitfile import UnitFile
 from diag_plugin.diagnose.unittags import COMBINED_SHARE
 from diag_plugin.examples.coupled import DAY, build, process
+from diag_plugin.learn.thresholds import learn_thresholds
+from diag_plugin.status import NE107
 
 FAR = 0.01
 SETTLE = 200

@@ -6,7 +6,7 @@ map's addresses answer (others give an *illegal data address* exception reply); 
 may write only the tags named ``writable`` — any other write is refused with an exception
 reply and logged.
 
-:class:`StatusServer` publishes :class:`~diag_plugin.diagnose.status.UnitStatus` objects
+:class:`StatusServer` publishes :class:`~diag_plugin.status.UnitStatus` objects
 per an output map (default: :func:`default_output_map`; until a unit's first diagnosis its
 status reads 2 CHECK_FUNCTION with quality 1 Uncertain) and reports acknowledgements a
 SCADA writes to a unit's ``.ack`` coil through a callback and an :class:`asyncio.Queue`.
@@ -51,7 +51,7 @@ from connectors.modbus import quiet_pymodbus
 from connectors.registermap import BIT_TABLES, TABLES, RegisterMap, TagSpec, pack_bits
 
 if TYPE_CHECKING:
-    from diag_plugin.diagnose.status import UnitStatus
+    from diag_plugin.status import UnitStatus
 
 __all__ = [
     "PLANT_TAGS",

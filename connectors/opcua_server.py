@@ -64,7 +64,7 @@ if TYPE_CHECKING:
 
     from connectors.opcua_access import OpcUaUser
     from connectors.opcua_conditions import ConditionEvents
-    from diag_plugin.diagnose.status import UnitStatus
+    from diag_plugin.status import UnitStatus
 
 log = logging.getLogger(__name__)
 

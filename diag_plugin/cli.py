@@ -28,6 +28,9 @@ COMMAND_MODULES: tuple[str, ...] = (
     "diag_plugin.training.cli",
     "diag_plugin.workbench.cli",
     "diag_plugin.diagnose.cli",
+    "diag_plugin.learn.cli",
+    "diag_plugin.unitbuild.cli",
+    "diag_plugin.bench.cli",
     "diag_plugin.live.cli",
     "diag_plugin.engine.cli",
 )

@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
+from diag_plugin.bench.damadics import score
 from diag_plugin.cli import main
-from diag_plugin.diagnose.benchmark import score
 
 
 def test_indexes_on_hand_made_decisions():

@@ -1,5 +1,5 @@
 """The chemical plant with recycle (diag_plugin.simulate.chemplant) and the plant-benchmark
-scoring pieces (diag_plugin.diagnose.plantbench).
+scoring pieces (diag_plugin.bench.plant).
 
 Seeds here are none of those the benchmark trains on (1–5), tunes on (100–199) or scores on
 (≥ 9000).
@@ -15,14 +15,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from diag_plugin.cli import main
-from diag_plugin.diagnose.plantbench import (
+from diag_plugin.bench.plant import (
     PCABaseline,
     detection_delay,
     detection_rate,
     false_alarm_rate,
     in_top,
 )
+from diag_plugin.cli import main
 from diag_plugin.simulate import chemplant as cp
 
 LOOPS = {

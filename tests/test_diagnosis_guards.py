@@ -22,9 +22,9 @@ import pandas as pd
 import pytest
 
 from diag_plugin.diagnose.plant import Plant
-from diag_plugin.diagnose.status import NE107
 from diag_plugin.diagnose.unit import Unit, concat
 from diag_plugin.diagnose.unitfile import UnitError
+from diag_plugin.status import NE107
 
 TESTS = ("r1", "r2", "r3", "r4")
 #: NAMUR NE 107: the status shown when several apply, most severe first

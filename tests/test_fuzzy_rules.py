@@ -10,11 +10,11 @@ import pytest
 from test_diagnose_matrix import crisp, table4
 from test_diagnosis_guards import diagnose, frame, make_unit
 
-from diag_plugin.diagnose.learning import fuzzy_sets
 from diag_plugin.diagnose.matrix import DiagnosticMatrix
 from diag_plugin.diagnose.symptoms import FuzzyThreeValued, three_valued
 from diag_plugin.diagnose.unit import Unit
 from diag_plugin.diagnose.unitfile import UnitError
+from diag_plugin.learn.thresholds import fuzzy_sets
 
 #               N    0    P
 GRADED = np.array(

@@ -21,9 +21,6 @@ import pytest
 from scipy import signal
 
 from diag_plugin.cli import main
-from diag_plugin.diagnose.budget import calibrate, calibrate_side, episodes, observed_rate
-from diag_plugin.diagnose.learning import LearnError, block_of, learn_thresholds
-from diag_plugin.diagnose.status import NE107
 from diag_plugin.diagnose.unit import Unit
 from diag_plugin.diagnose.unitfile import UnitFile, new_unit_text
 from diag_plugin.examples.rigs import (
@@ -35,6 +32,9 @@ from diag_plugin.examples.rigs import (
     tag_info,
     tank_rig,
 )
+from diag_plugin.learn.budget import calibrate, calibrate_side, episodes, observed_rate
+from diag_plugin.learn.thresholds import LearnError, block_of, learn_thresholds
+from diag_plugin.status import NE107
 from diag_plugin.training.chunked import train
 from diag_plugin.workbench.model_edit import new_model
 

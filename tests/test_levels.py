@@ -140,11 +140,11 @@ def test_compare_explain_training_units_and_the_plant_answer_alike(tmp_path):
     error training reports and the one explain starts from are the same figure; compare's
     prediction is the model's; the unit's residual is compare's divided by its level and spread
     factors; the plant (the live loop's evaluator) gives the unit's residuals."""
-    from diag_plugin.diagnose.learning import learn_thresholds
     from diag_plugin.diagnose.plant import Plant
     from diag_plugin.diagnose.unit import Unit, level_factor, spread_factor
     from diag_plugin.diagnose.unitfile import UnitFile
     from diag_plugin.examples.rigs import build_unit, runs
+    from diag_plugin.learn.thresholds import learn_thresholds
     from diag_plugin.rulebase.document import RuleBase
     from diag_plugin.training.chunked import train
     from diag_plugin.workbench.compare import compare

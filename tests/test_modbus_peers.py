@@ -27,7 +27,7 @@ from connectors.modbus_server import (
     default_plant_map,
 )
 from connectors.registermap import RegisterMap
-from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
+from diag_plugin.status import NE107, Quality, UnitStatus
 
 
 def run(coro, timeout: float = 60.0):

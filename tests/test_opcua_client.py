@@ -18,7 +18,7 @@ import pytest
 from connectors.base import TagQuality, TagSample, WriteRefused
 from connectors.opcua_client import OpcUaConfig, OpcUaReader, quality_of
 from connectors.opcua_server import DEFAULT_PLANT_TAGS, DiagOpcUaServer
-from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
+from diag_plugin.status import NE107, Quality, UnitStatus
 
 pytestmark = pytest.mark.anyio
 

@@ -30,7 +30,7 @@ from connectors.opcua_access import OpcUaUser
 from connectors.opcua_client import ClientSecurity, OpcUaConfig, OpcUaReader
 from connectors.opcua_server import DiagOpcUaServer, ServerSecurity
 from connectors.passwords import hash_password
-from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
+from diag_plugin.status import NE107, Quality, UnitStatus
 
 PEER = REPO / "tests" / "peers" / "opcua"
 HAVE_NODE = shutil.which("node") is not None and (PEER / "node_modules" / "node-opcua").is_dir()

@@ -17,7 +17,7 @@ import pytest
 from opcua_peers import client, free_port, pki, users
 
 from connectors.opcua_server import DiagOpcUaServer, ServerSecurity
-from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
+from diag_plugin.status import NE107, Quality, UnitStatus
 
 pytestmark = pytest.mark.anyio
 

@@ -14,7 +14,7 @@ from opcua_peers import client as ua_client
 from opcua_peers import pki, users
 
 from connectors.opcua_server import NAMESPACE, DiagOpcUaServer, ServerSecurity
-from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
+from diag_plugin.status import NE107, Quality, UnitStatus
 
 pytestmark = pytest.mark.anyio
 

@@ -1,4 +1,4 @@
-"""The PCA T² + Q detector every detection figure is shown beside (diag_plugin.diagnose.pca)."""
+"""The PCA T² + Q detector every detection figure is shown beside (diag_plugin.bench.pca)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from diag_plugin.diagnose.pca import PCADetector
+from diag_plugin.bench.pca import PCADetector
 
 
 def _plant(n: int, seed: int) -> pd.DataFrame:

@@ -12,9 +12,9 @@ import pandas as pd
 import pytest
 
 from diag_plugin.diagnose.plant import Plant
-from diag_plugin.diagnose.status import NE107, Quality
 from diag_plugin.diagnose.unit import Unit
 from diag_plugin.simulate import FaultSpec, simulate_valve
+from diag_plugin.status import NE107, Quality
 
 SHIPPED = Path(__file__).resolve().parents[1] / "rulebases"
 ONSET = pd.Timestamp("2026-01-01T06:00", tz="UTC")

@@ -97,7 +97,7 @@ def test_naming_is_judged_on_the_runs_a_method_detects():
     tags by chance; counted, it would reward a detector for raising more false alarms. The
     goal's naming clause counts the detected runs, and asks for at least as many named runs
     as PCA, so a detector that detects nothing cannot pass it by naming nothing wrongly."""
-    from diag_plugin.diagnose.plantbench import _summary
+    from diag_plugin.bench.plant import _summary
 
     fa = {m: {"per_hour": 0.0} for m in ("unit", "PCA")}
     rows = [

@@ -252,7 +252,7 @@ def test_one_second_jittered_export_in_a_window_wider_than_the_data(tmp_path):
 def test_the_same_measurement_linear_or_monotone():
     """A copy in other units and a monotone function of a tag (the rank correlation) are the
     same measurement; a tag that merely follows it is not."""
-    from diag_plugin.diagnose.unitbuild import same_measurement
+    from diag_plugin.unitbuild.build import same_measurement
 
     rng = np.random.default_rng(3)
     x = np.cumsum(rng.normal(0, 1, 3000))
@@ -278,10 +278,10 @@ def test_the_heat_exchanger_rig_built_detects_fouling_and_is_quiet(tmp_path):
     from 60 fault-free days (the window of benchmarks/bench_detection_plants.py; two weeks
     are too few for this budget) stays quiet on an unseen fault-free week within three times
     its budget and detects fouling of a quarter of the heat transfer on an unseen seed."""
-    from diag_plugin.diagnose.status import NE107
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.diagnose.unitbuild import build_unit
     from diag_plugin.examples.rigs import HX_TAGS, RigFault, runs, tag_info
+    from diag_plugin.status import NE107
+    from diag_plugin.unitbuild.build import build_unit
 
     train = runs("hx", [1], length=60)
     res = build_unit("hx", train, folder=tmp_path, period="60s",
@@ -323,8 +323,8 @@ def test_inputs_are_chosen_on_every_period_not_only_the_last():
     block held out in turn (the blocks unit learn cross-fits over). Scored on the last fifth
     alone, as a single held-out tail does, the spurious one wins on some of these windows —
     the case this guards."""
-    from diag_plugin.diagnose.unitbuild import HOLDOUT, _Context, _rulebase, select_inputs
-    from diag_plugin.workbench.explain import HeldOutScorer, cut_row
+    from diag_plugin.selection.scoring import HeldOutScorer, cut_row
+    from diag_plugin.unitbuild.build import HOLDOUT, _Context, _rulebase, select_inputs
 
     tail_picks_z = 0
     for seed in range(5):
@@ -363,9 +363,9 @@ def test_a_controlled_tag_is_tested_against_its_set_point(tmp_path):
     an inflow surge saturates the valve, the level leaves its set-point and the unit names
     it."""
     from diag_plugin.diagnose.plant import Plant
-    from diag_plugin.diagnose.status import NE107
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.diagnose.unitbuild import build_unit
+    from diag_plugin.status import NE107
+    from diag_plugin.unitbuild.build import build_unit
 
     train = _tank(6, 1, [40.0, 45.0, 50.0, 55.0])
     res = build_unit("tank", train, folder=tmp_path, period="60s", far=0.01)
@@ -397,7 +397,7 @@ def test_a_controlled_tag_is_tested_against_its_set_point(tmp_path):
     # the models of the outflow at a level never seen are unknown: CHECK_FUNCTION, not a fault
     assert d.at(len(new) // 2).status == NE107.CHECK_FUNCTION
     # the same level from a rule grid over the set-point: no rule at 62 %
-    from diag_plugin.diagnose.unitbuild import _Context, _rulebase
+    from diag_plugin.unitbuild.build import _Context, _rulebase
 
     ctx = _Context(train, {}, "60s")
     rb = _rulebase("lt", ctx.vars["LT101"], [ctx.variable("LIC101.SP", 0)], "60s")
@@ -426,7 +426,7 @@ def test_a_block_the_tag_is_nearly_missing_from_judges_nothing():
     """A tag out of service for most of one time block (5 samples left in it) is still
     modelled from the other four: that block cannot judge a candidate (it made every
     candidate's pooled error unknown, and the tag untestable)."""
-    from diag_plugin.diagnose.unitbuild import _Context, select_inputs
+    from diag_plugin.unitbuild.build import _Context, select_inputs
 
     rng = np.random.default_rng(0)
     n = 3000

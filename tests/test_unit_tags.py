@@ -19,13 +19,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from diag_plugin.diagnose.learning import learn_thresholds
 from diag_plugin.diagnose.plant import Plant
-from diag_plugin.diagnose.status import NE107
 from diag_plugin.diagnose.unit import Unit, concat
 from diag_plugin.diagnose.unitfile import UnitError, UnitFile
 from diag_plugin.diagnose.unittags import COMBINED_SHARE, derived_matrix
 from diag_plugin.examples.coupled import DAY, TESTS, build, process
+from diag_plugin.learn.thresholds import learn_thresholds
+from diag_plugin.status import NE107
 
 FAR = 0.01  # per hour, the unit's budget
 

@@ -16,10 +16,10 @@ import pandas as pd
 import pytest
 
 from diag_plugin.cli import main
-from diag_plugin.diagnose.status import NE107, Quality
 from diag_plugin.diagnose.unit import Unit, concat
 from diag_plugin.diagnose.unitfile import UnitError, UnitFile, new_unit_text
 from diag_plugin.simulate import FaultSpec, simulate_valve
+from diag_plugin.status import NE107, Quality
 
 SHIPPED = Path(__file__).resolve().parents[1] / "rulebases"
 ONSET = pd.Timestamp("2026-01-01T12:00", tz="UTC")

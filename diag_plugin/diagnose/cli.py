@@ -1,4 +1,4 @@
-"""``diag unit new|check|show|learn`` and ``diag diagnose``: units on historian data.
+"""``diag unit new|check|show`` and ``diag diagnose``: units on historian data.
 
 Only argparse is imported at start-up; each command imports what it needs when it runs.
 """
@@ -15,8 +15,7 @@ from historian.errors import UserError
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    unit = sub.add_parser("unit", help="create, check, show a unit or learn its thresholds")
-    usub = unit.add_subparsers(dest="unit_command", metavar="ACTION", required=True)
+    usub = unit_actions(sub)
     p = usub.add_parser("new", help="write rulebases/NAME.unit.toml naming the unit's models")
     p.add_argument("name")
     p.add_argument(
@@ -40,59 +39,6 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("name")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_unit_show)
-    p = usub.add_parser("learn", help="learn thresholds from a window you declare fault-free")
-    p.add_argument("name")
-    p.add_argument("--from", dest="start", required=True, metavar="T0")
-    p.add_argument("--to", dest="end", required=True, metavar="T1")
-    p.add_argument(
-        "--far",
-        type=float,
-        default=None,
-        metavar="PER_HOUR",
-        help="false-alarm budget: alarms per hour of operation of the unit, all tests together "
-        "(default 0.001, about one in six weeks)",
-    )
-    p.add_argument(
-        "--blocks",
-        type=int,
-        default=None,
-        metavar="N",
-        help="time blocks for cross-fitting the residuals (default 5; 0: the models' own)",
-    )
-    p.add_argument(
-        "--cross-fit",
-        choices=("auto", "yes", "no"),
-        default="auto",
-        help="auto: cross-fit the tests whose models were trained on the window (default)",
-    )
-    p.add_argument("--json", action="store_true")
-    p.set_defaults(func=cmd_unit_learn)
-    p = usub.add_parser(
-        "build",
-        help="build a unit from a fault-free window: tests, inputs, models and thresholds",
-    )
-    p.add_argument("name")
-    p.add_argument("--from", dest="start", required=True, metavar="T0")
-    p.add_argument("--to", dest="end", required=True, metavar="T1")
-    g = p.add_mutually_exclusive_group()
-    g.add_argument(
-        "--tags", nargs="+", metavar="TAG", help="the tags to test (default: all that vary)"
-    )
-    g.add_argument(
-        "--tags-from", metavar="FILE", help="the tags to test, one per line (# comments)"
-    )
-    p.add_argument(
-        "--far",
-        type=float,
-        default=None,
-        metavar="PER_HOUR",
-        help="false-alarm budget: alarms per hour of operation of the unit, all tests together "
-        "(default 0.001)",
-    )
-    p.add_argument("--max-inputs", type=int, default=3, metavar="N", help="inputs per model (3)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing unit and models")
-    p.add_argument("--json", action="store_true")
-    p.set_defaults(func=cmd_unit_build)
 
     p = sub.add_parser("diagnose", help="replay historian data through a unit")
     p.add_argument("name")
@@ -103,55 +49,28 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_diagnose)
 
-    p = sub.add_parser(
-        "benchmark",
-        help="DAMADICS faults f1–f19 against a unit, scored with the benchmark indexes; or "
-        "(--plant chemplant) a unit built from the plant's history beside PCA and DPCA",
-    )
-    p.add_argument("--unit", default="valve_unit", help="unit to score (default the example)")
-    p.add_argument(
-        "--quick",
-        action="store_true",
-        help="DAMADICS: one strength per fault (38 scenarios); --plant: 2 training seeds × 6 "
-        "days, one seed, three faults",
-    )
-    p.add_argument(
-        "--seed",
-        type=int,
-        action="append",
-        dest="seeds",
-        help="simulator seed(s) (--plant: the faulty runs' seeds, default 9101–9103)",
-    )
-    p.add_argument(
-        "--plant",
-        choices=["chemplant"],
-        help="build a unit on this simulated plant and score it beside PCA and DPCA",
-    )
-    p.add_argument(
-        "--period", type=int, default=180, help="--plant: sample period in s (default 180; 1)"
-    )
-    p.add_argument("--free-seed", type=int, action="append", dest="free_seeds",
-                   help="--plant: fault-free scoring seed(s) (default 9151–9153)")  # fmt: skip
-    p.add_argument("--train-seed", type=int, action="append", dest="train_seeds",
-                   help="--plant: fault-free training seed(s) (default 1–3)")  # fmt: skip
-    p.add_argument("--train-days", type=float, help="--plant: days per training seed")
-    p.add_argument("--fault", action="append", dest="faults", metavar="NAME[:SIZE]",
-                   help="--plant: a fault to score (default all 15)")  # fmt: skip
-    p.add_argument("--far", type=float, help="--plant: budget, alarms per hour (unit build's)")
-    p.add_argument("--out", metavar="DIR", help="--plant: keep the built unit in DIR")
-    p.add_argument("--json", action="store_true")
-    p.set_defaults(func=cmd_benchmark)
+
+def unit_actions(sub: argparse._SubParsersAction) -> argparse._SubParsersAction:
+    """The actions of ``diag unit``, made here if not yet there: this package adds ``new``,
+    ``check`` and ``show``; :mod:`diag_plugin.learn.cli` and :mod:`diag_plugin.unitbuild.cli`
+    add ``learn`` and ``build``."""
+    if "unit" not in sub.choices:
+        unit = sub.add_parser("unit", help="create, check, show a unit or learn its thresholds")
+        unit.add_subparsers(dest="unit_command", metavar="ACTION", required=True)
+    actions = sub.choices["unit"]._actions
+    return next(a for a in actions if isinstance(a, argparse._SubParsersAction))
 
 
-def _load_unit(args, name: str):
+def load_unit(args, name: str):
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.diagnose.unitfile import SUFFIX, UnitError, unit_path
+    from diag_plugin.diagnose.unitfile import UnitError, unit_path
+    from diag_plugin.rulebase.folder import UNIT_SUFFIX
 
     path = unit_path(name, args.rulebases)
     if not path.exists():
-        from diag_plugin.examples.shipped import find_shipped
+        from diag_plugin.rulebase.folder import find_shipped
 
-        path = find_shipped(name, SUFFIX) or path
+        path = find_shipped(name, UNIT_SUFFIX) or path
     if not path.exists():
         raise UserError(f"no unit file {path} (make one with `diag unit new`)")
     try:
@@ -160,7 +79,7 @@ def _load_unit(args, name: str):
         raise UserError("unit file has problems:\n" + "\n".join(exc.problems)) from None
 
 
-def _ts(text: str | None):
+def parse_time(text: str | None):
     import pandas as pd
 
     if text is None:
@@ -175,11 +94,12 @@ def _ts(text: str | None):
 
 
 def cmd_unit_new(args) -> int:
-    from diag_plugin.diagnose.unitfile import SUFFIX, new_unit_text
+    from diag_plugin.diagnose.unitfile import new_unit_text
     from diag_plugin.rulebase.document import resolve
+    from diag_plugin.rulebase.folder import UNIT_SUFFIX
 
     folder = Path(args.rulebases)
-    path = folder / f"{args.name}{SUFFIX}"
+    path = folder / f"{args.name}{UNIT_SUFFIX}"
     if path.exists() and not args.force:
         raise UserError(f"{path} exists (use --force to overwrite)")
     tests: dict[str, str] = {}
@@ -313,7 +233,7 @@ def _combined_summary(unit) -> dict | None:
 
 
 def cmd_unit_show(args) -> int:
-    unit = _load_unit(args, args.name)
+    unit = load_unit(args, args.name)
     s = unit_summary(unit)
     if args.json:
         print(json.dumps(s, indent=2, default=str))
@@ -397,7 +317,7 @@ def cmd_unit_show(args) -> int:
 def _print_learned(con, tests: list[dict]) -> None:
     """Per test: why its thresholds are what they are (the budget's support, the unknown share
     and why, the level scales)."""
-    from diag_plugin.diagnose.learning import WHY, hours
+    from diag_plugin.diagnose.unitfile import WHY, hours
 
     for r in tests:
         n = r["learned"]
@@ -492,7 +412,7 @@ def _print_build(con, build: dict) -> None:
         con.print(f"  not tested: {tag}: {why}", markup=False)
 
 
-def _frames(args, unit, start, end, chunk="7D"):
+def unit_frames(args, unit, start, end, chunk="7D"):
     """Consecutive aligned pieces of the unit's tags from the historian."""
     import pandas as pd
 
@@ -534,171 +454,17 @@ def _prefetch(items):
             yield item
 
 
-def cmd_unit_learn(args) -> int:
-    from diag_plugin.diagnose.learning import (
-        DEFAULT_BLOCKS,
-        DEFAULT_FAR,
-        WHY,
-        LearnError,
-        learn_thresholds,
-    )
-    from diag_plugin.diagnose.unitfile import UnitFile
-
-    unit = _load_unit(args, args.name)
-    far = DEFAULT_FAR if args.far is None else args.far
-    blocks = DEFAULT_BLOCKS if args.blocks is None else args.blocks
-    if not far > 0:
-        raise UserError(f"--far {far:g}: the budget must be a positive rate per hour")
-    t0, t1 = _ts(args.start), _ts(args.end)
-    frames = list(_frames(args, unit, t0, t1))
-    cross = {"auto": None, "yes": True, "no": False}[args.cross_fit]
-    try:
-        got = learn_thresholds(unit, frames, far=far, blocks=blocks, cross_fit=cross)
-    except LearnError as exc:
-        raise UserError(f"unit {unit.name}: cannot learn thresholds:\n" + "\n".join(
-            "  " + p for p in exc.problems
-        )) from None  # fmt: skip
-    uf = UnitFile.load(unit.file.path)
-    uf.set_learned(got)
-    uf.save()
-    notes = got.notes()
-    out = {
-        "unit": unit.name,
-        "file": str(uf.path),
-        "window": list(got.window),
-        "far": far,
-        "blocks": got.blocks,
-        "thresholds": {k: {"low": lo, "high": hi} for k, (lo, hi) in got.limits.items()},
-        "levels": got.levels,
-        "samples": got.samples,
-        "independent": got.independent,
-        "learned": notes,
-        "warnings": got.warnings,
-    }
-    if got.combined is not None:
-        out["combined"] = {"high": got.combined.high, **got.combined.notes}
-    if args.json:
-        print(json.dumps(out, indent=2))
-        return 0
-    print(
-        f"{uf.path}: thresholds from {got.window[0]} … {got.window[1]}, budget {far:g} false "
-        f"alarms per hour of operation (unit, all tests; "
-        + ("the default, " if args.far is None else "")
-        + f"one per {1 / far:,.0f} h)"
-    )
-    for k, (lo, hi) in got.limits.items():
-        b = got.budgets[k]
-        lv = got.levels[k]
-        print(
-            f"  {k}: {lo:+.3f} … {hi:+.3f} % ({b.samples:,} samples, ≈ {b.independent:,} "
-            f"independent; {got.sources[k]}); expected {b.rate:.2g} false alarms/h "
-            f"({b.method}); unknown {b.unknown:.1%}"
-            + (f"; levels ×{', ×'.join(f'{x:.2g}' for x in lv[1:])}" if len(lv) > 1 else "")
-            + ("; in units of its model's local spread" if got.spread.get(k) else "")
-        )
-        why = {w: v for w, v in got.unknown[k].items() if v > 0}
-        if why:
-            print("      unknown: " + "; ".join(f"{WHY[w]} {v:.1%}" for w, v in why.items()))
-    c = got.combined
-    if c is not None and c.high is not None:
-        print(
-            f"  combined test (T²): {c.high:.4g}; expected {c.notes['far']:.2g} false alarms/h "
-            f"({c.notes['method']}; its share of the budget, the tests the rest)"
-        )
-    for w in got.warnings:
-        print(f"  note: {w}")
-    return 0
-
-
-def _tags_from(path: str) -> list[str]:
-    try:
-        lines = Path(path).read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UserError(f"--tags-from {path}: cannot read: {exc}") from None
-    tags = [ln.split("#", 1)[0].strip() for ln in lines]
-    tags = [t for t in tags if t]
-    if not tags:
-        raise UserError(f"--tags-from {path}: lists no tag (one per line)")
-    return tags
-
-
-def cmd_unit_build(args) -> int:
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
-
-    from diag_plugin.diagnose.unitbuild import build_from_historian
-
-    tags = args.tags or (_tags_from(args.tags_from) if args.tags_from else None)
-    if args.max_inputs < 1:
-        raise UserError(f"--max-inputs {args.max_inputs}: at least 1")
-    t0, t1 = _ts(args.start), _ts(args.end)
-    err = Console(stderr=True)
-    with Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        console=err,
-        transient=True,
-        disable=args.json or not err.is_terminal,
-    ) as bar:
-        tasks: dict[str, int] = {}
-
-        def progress(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = bar.add_task(stage, total=total)
-            bar.update(tasks[stage], completed=done)
-
-        res = build_from_historian(
-            args.db,
-            args.name,
-            t0,
-            t1,
-            folder=args.rulebases,
-            tags=tags,
-            far=args.far,
-            max_inputs=args.max_inputs,
-            force=args.force,
-            progress=progress,
-        )
-    if args.json:
-        print(json.dumps(res.as_dict(), indent=2))
-        return 0
-    print(
-        f"wrote {res.path}: {len(res.tests)} tests from {res.window[0]} … {res.window[1]} "
-        f"(period {res.period}), thresholds to {res.far:g} false alarms per hour"
-        + (" (the default)" if args.far is None else "")
-    )
-    for ch in res.tests:
-        errs = " → ".join(
-            f"{x:.2f}" for x in [ch.baseline_rmse_pct, *(s.rmse_pct for s in ch.steps)]
-        )
-        loop = f" (its control loop, {ch.method}; actuator {ch.actuator})" if ch.tracks else ""
-        print(
-            f"  {ch.test}: {ch.tag} = f({', '.join(ch.inputs)}){loop}; held-out error {errs} % "
-            "of span"
-        )
-    for tag, why in res.skipped.items():
-        print(f"  not tested: {tag}: {why}")
-    for n in res.notes[:4]:
-        print(f"  note: {n}")
-    if len(res.notes) > 4:
-        print(f"  … {len(res.notes) - 4} more notes of the same kind (--json lists them all)")
-    print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in res.seconds.items()))
-    print(f"next: diag unit show {args.name}; diag diagnose {args.name} --from … --to …")
-    return 0
-
-
 def cmd_diagnose(args) -> int:
     import pandas as pd
 
     from diag_plugin.diagnose.unit import concat
 
-    unit = _load_unit(args, args.name)
+    unit = load_unit(args, args.name)
     try:
         chunk = pd.Timedelta(args.chunk)
     except ValueError:
         raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D") from None
-    frames = _prefetch(_frames(args, unit, _ts(args.start), _ts(args.end), chunk))
+    frames = _prefetch(unit_frames(args, unit, parse_time(args.start), parse_time(args.end), chunk))
     parts = [unit.evaluate(f) for f in frames]
     parts = [p for p in parts if len(p)]
     if not parts:
@@ -729,7 +495,7 @@ def cmd_diagnose(args) -> int:
 
 
 def _name(s: int) -> str:
-    from diag_plugin.diagnose.status import NE107
+    from diag_plugin.status import NE107
 
     return NE107(int(s)).name
 
@@ -782,181 +548,3 @@ def _print_timeline(unit, d, iv, csv) -> None:
         con.print(f"({len(iv) - len(shown)} more intervals; --json or --csv for all)")
     if csv:
         con.print(f"wrote {csv}")
-
-
-def _fmt(v, spec: str = ".3f") -> str:
-    if v is None:
-        return "—"
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    return format(v, spec)
-
-
-def cmd_benchmark(args) -> int:
-    from rich.console import Console
-    from rich.progress import Progress
-    from rich.table import Table
-
-    from diag_plugin.diagnose.benchmark import run_benchmark
-
-    if args.plant:
-        return cmd_plant_benchmark(args)
-    unit = _load_unit(args, args.unit)
-    if not unit.has_thresholds:
-        raise UserError(f"unit {unit.name} has no thresholds: run diag unit learn first")
-    seeds = tuple(args.seeds or (11,))
-    con = Console(stderr=True)
-    with Progress(console=con, transient=True, disable=args.json or not con.is_terminal) as pr:
-        n = (38 if args.quick else 76) * len(seeds)
-        task = pr.add_task("scenarios", total=n)
-        out = run_benchmark(
-            unit,
-            quick=args.quick,
-            seeds=seeds,
-            progress=lambda sc: pr.update(task, advance=1, description=f"{sc.fault} {sc.mode}"),
-        )
-    if args.json:
-        print(json.dumps(out, indent=2, allow_nan=False))
-        return 0
-    t = Table(title=f"DAMADICS benchmark, unit {unit.name} (times in s after the onset)")
-    cols = ("fault", "mode", "strength", "detected", "t_dt", "r_fd", "r_td", "unknown")
-    for c in cols + ("isolated", "t_it", "r_ti", "r_mi", "dacc"):
-        t.add_column(c, justify="right")
-    for r in out["scenarios"]:
-        t.add_row(
-            r["fault"],
-            r["mode"],
-            f"{r['strength']:g}",
-            _fmt(r["detected"]),
-            _fmt(r["detection_time_s"], ".0f"),
-            _fmt(r["false_detection_rate"]),
-            _fmt(r["true_detection_rate"]),
-            _fmt(r["unknown_rate"], ".2f"),
-            _fmt(r["isolated"]) + ("" if r["unit_fault"] is None else f" ({r['unit_fault']})"),
-            _fmt(r["isolation_time_s"], ".0f"),
-            _fmt(r["true_isolation_rate"]),
-            _fmt(r["mismatch_isolation_rate"]),
-            _fmt(r["diagnosis_accuracy"], ".2f"),
-        )
-    Console(width=None if con.is_terminal else 150).print(t)
-    s = out["summary"]
-    print(
-        f"detected {s['scenarios_detected']}/{s['scenarios']} scenarios; faults detected: "
-        f"{', '.join(s['faults_detected']) or '—'}; missed: {', '.join(s['faults_missed']) or '—'}"
-    )
-    print(
-        f"of the {s['literature_detectable']} faults the literature detects: "
-        f"{s['literature_detectable_detected']} ({s['literature_detectable_share']:.0%}); "
-        f"false detection rate mean {s['mean_false_detection_rate']:.4f}, "
-        f"max {s['max_false_detection_rate']:.4f} (unknown before the onsets "
-        f"{s['mean_unknown_rate_before']:.1%})"
-    )
-    print(
-        f"isolated {s['scenarios_isolated']}/{s['scenarios_with_isolation']} scenarios with a "
-        f"matrix column: {', '.join(s['faults_isolated']) or '—'}"
-    )
-    return 0
-
-
-def _dur(s: float | None) -> str:
-    if s is None:
-        return "—"
-    return f"{s / 3600:.1f} h" if s >= 3600 else f"{s / 60:.0f} min" if s >= 60 else f"{s:.0f} s"
-
-
-def cmd_plant_benchmark(args) -> int:
-    """``diag benchmark --plant chemplant``: build a unit on fault-free runs, score it beside
-    PCA and DPCA held to the same budget (:func:`~diag_plugin.diagnose.plantbench.
-    run_plant_benchmark`)."""
-    from rich.console import Console
-    from rich.progress import Progress
-    from rich.table import Table
-
-    from diag_plugin.diagnose.plantbench import run_plant_benchmark
-
-    if args.period < 1:
-        raise UserError(f"--period {args.period}: a whole number of seconds ≥ 1")
-    if args.far is not None and not args.far > 0:
-        raise UserError(f"--far {args.far:g}: the budget must be a positive rate per hour")
-    con = Console(stderr=True)
-    with Progress(console=con, transient=True, disable=args.json or not con.is_terminal) as pr:
-        task = pr.add_task("simulate", total=None)
-
-        def tick(stage: str, done: int, total: int) -> None:
-            pr.update(task, description=stage, completed=done, total=total)
-
-        try:
-            out = run_plant_benchmark(
-                args.plant,
-                period_s=args.period,
-                quick=args.quick,
-                fault_seeds=args.seeds,
-                free_seeds=args.free_seeds,
-                train_seeds=args.train_seeds,
-                train_days=args.train_days,
-                faults=args.faults,
-                far=args.far,
-                folder=args.out,
-                progress=tick,
-            )
-        except ValueError as exc:
-            raise UserError(str(exc)) from None
-    if args.json:
-        print(json.dumps(out, indent=2, allow_nan=False))
-        return 0
-    methods = out["methods"]
-    tr, sc = out["training"], out["scoring"]
-    t = Table(
-        title=f"{out['plant']} at {out['period_s']} s: unit built on seeds "
-        f"{', '.join(map(str, tr['seeds']))} × {tr['days']:g} days ({tr['tests']} tests) beside "
-        f"PCA and DPCA, budget {out['far_per_hour']:g} alarms/h; faults from day "
-        f"{sc['onset_days']:g} of {sc['days']:g}-day runs, seeds "
-        f"{', '.join(map(str, sc['fault_seeds']))}"
-    )
-    t.add_column("fault")
-    t.add_column("kind")
-    t.add_column("tag")
-    for m in methods:
-        t.add_column(f"{m} detected", justify="right")
-        t.add_column(f"{m} delay", justify="right")
-        t.add_column(f"{m} top 3", justify="right")
-    for r in out["faults"]:
-        cells = [r["fault"], r["kind"], ", ".join(r["tags"])]
-        for m in methods:
-            x = r[m]
-            cells += [f"{x['detection_rate']:.0%}", _dur(x["delay_s"]),
-                      f"{x['in_top3']}/{x['runs']}"]  # fmt: skip
-        t.add_row(*cells)
-    cells = ["fault-free: samples, alarms/h", f"seeds {', '.join(map(str, sc['free_seeds']))}", ""]
-    for m in methods:
-        fa = out["fault_free"][m]
-        cells += [f"{fa['share']:.2%}", f"{fa['per_hour']:.3g}/h", ""]
-    t.add_row(*cells, end_section=True)
-    Console(width=None if con.is_terminal else 200).print(t)
-    s = out["summary"]
-    print(
-        "mean detection rate on the faults either the unit or PCA detects (≥ "
-        f"{s['detected_threshold']:.0%}): "
-        + ", ".join(f"{m} {s[m]['mean_detection_rate_either'] or 0:.0%}" for m in methods)
-    )
-    print(
-        "faulted tag in the top three, sensor and actuator runs detected (≥ "
-        f"{s['detected_threshold']:.0%}): "
-        + ", ".join(f"{m} {s[m]['sensor_actuator_named_of_detected']}" for m in methods)
-        + "; of all runs: "
-        + ", ".join(f"{m} {s[m]['sensor_actuator_in_top3']}" for m in methods)
-    )
-    print("unit misses: " + (", ".join(s["unit"]["faults_missed"]) or "—"))
-    g = s["goal"]
-    print(
-        f"goal (issue 25): detection above PCA {_fmt(g['detection_above_pca'])}, false alarms "
-        f"no higher {_fmt(g['false_alarms_no_higher'])}, top three ≥ 80 % of the detected "
-        f"{_fmt(g['top3_80pct'])} → {'holds' if g['holds'] else 'does not hold'}"
-    )
-    sec = out["seconds"]
-    print(
-        f"build {sec['build']:.0f} s, PCA fit {sec['fit PCA']:.0f} s, scoring: unit "
-        f"{sec['score unit']:.1f} s, PCA {sec['score PCA']:.1f} s, DPCA {sec['score DPCA']:.1f} s"
-        f" (simulation {sec['simulate training'] + sec['simulate scoring runs']:.0f} s)"
-    )
-    return 0

@@ -33,7 +33,6 @@ import pandas as pd
 
 from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.residuals import LowPass, supported
-from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay
 from diag_plugin.diagnose.unit import (
     PRIORITY,
@@ -45,6 +44,7 @@ from diag_plugin.diagnose.unit import (
 from diag_plugin.diagnose.unitfile import UnitError
 from diag_plugin.fuzzy.stack import WangMendelStack
 from diag_plugin.regressors import parse_specs
+from diag_plugin.status import NE107, Quality, UnitStatus
 
 log = logging.getLogger(__name__)
 

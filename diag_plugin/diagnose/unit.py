@@ -45,13 +45,13 @@ import pandas as pd
 from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.residuals import LowPass, supported
-from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay, three_valued
 from diag_plugin.diagnose.unitfile import SPREAD_FLOOR, TestSpec, UnitError, UnitFile, unit_path
 from diag_plugin.diagnose.unittags import CombinedModel, derived_matrix, describe_top, top_tags
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
 from diag_plugin.regressors import DesignBuilder, needed_tags
+from diag_plugin.status import NE107, Quality, UnitStatus
 
 log = logging.getLogger(__name__)
 

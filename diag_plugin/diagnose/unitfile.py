@@ -82,7 +82,7 @@ test's three sets, in the thresholds' units: μN is 1 below ``n1`` and 0 above `
 below ``p0`` and 1 above ``p1``, μ0 = 1 − μN − μP. ``diag unit learn`` centres each ramp on its
 threshold and makes it two fault-free standard deviations of the test's (cross-fitted, filtered)
 residual wide, so a residual one standard deviation past the threshold is wholly N or P and one
-short of it wholly 0 (:func:`diag_plugin.diagnose.learning.fuzzy_sets`).
+short of it wholly 0 (:func:`diag_plugin.learn.thresholds.fuzzy_sets`).
 
 ``levels`` (learned) are the residual scales of the coarser rule levels behind a Wang–Mendel
 model's fine grid: a residual answered at level ``l`` is divided by ``levels[l]`` (level 0: 1),
@@ -109,10 +109,10 @@ from typing import Any
 import tomlkit
 from tomlkit.exceptions import ParseError
 
-from diag_plugin.diagnose.status import NE107
+from diag_plugin.rulebase.folder import UNIT_SUFFIX
+from diag_plugin.status import NE107
 from historian.errors import UserError
 
-SUFFIX = ".unit.toml"
 TABLES = (
     "unit",
     "evaluation",
@@ -124,7 +124,21 @@ TABLES = (
     "combined",
     "build",
 )
-MATRIX_SUFFIX = ".matrix.toml"
+
+#: why a residual is unknown: the reasons ``diag unit learn`` counts (``unknown_<reason>``
+#: in ``[learned]``) and ``diag unit show`` words
+WHY = {
+    "missing": "an input or the output missing (NaN, bad quality, lags not yet filled)",
+    "no_rule": "no trained rule at any level (outside the trained region)",
+    "low_support": "the edge of the trained region (support below min_support)",
+    "level": "answered at a coarser level the window could not calibrate",
+}
+
+
+def hours(h: float) -> str:
+    """Hours as a person reads them: ``40,000 h``, ``336 h``, ``0.11 h``."""
+    return f"{h:,.0f} h" if h >= 10 else f"{h:.2g} h"
+
 
 EVALUATION_DEFAULTS: dict[str, Any] = {
     "lowpass": 0.01,
@@ -234,12 +248,7 @@ def unit_path(name_or_path: str, folder: str | Path = "rulebases") -> Path:
     p = Path(name_or_path)
     if p.name.endswith(".toml") or p.exists():
         return p
-    return Path(folder) / f"{name_or_path}{SUFFIX}"
-
-
-def is_model_file(path: Path) -> bool:
-    """Rule-base (model) files are the ``*.toml`` that are neither unit nor matrix files."""
-    return not path.name.endswith((SUFFIX, MATRIX_SUFFIX))
+    return Path(folder) / f"{name_or_path}{UNIT_SUFFIX}"
 
 
 def _plain(v: Any) -> Any:
@@ -299,7 +308,7 @@ class UnitFile:
         for key in unit:
             if key not in ("name", "description", "matrix", "outputs"):
                 self.error(self.line_of("unit", key), f"unknown key {key!r} in [unit]")
-        self.name = str(_plain(unit.get("name", self.path.name.removesuffix(SUFFIX))))
+        self.name = str(_plain(unit.get("name", self.path.name.removesuffix(UNIT_SUFFIX))))
         self.description = str(_plain(unit.get("description", "")))
         m = _plain(unit.get("matrix"))
         if m is not None and not isinstance(m, str):
@@ -583,7 +592,7 @@ class UnitFile:
 
     # ------------------------------------------------------------ writing
     def set_learned(self, learned: Any) -> None:
-        """Write what :func:`diag_plugin.diagnose.learning.learn_thresholds` learned: the
+        """Write what :func:`diag_plugin.learn.thresholds.learn_thresholds` learned: the
         limits, the budget and window they hold, each test's level scales and signal maximum,
         and per test what its thresholds rest on (``[learned]``)."""
         self.set_thresholds(

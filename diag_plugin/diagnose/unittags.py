@@ -19,7 +19,7 @@ move of several tags, each residual inside its thresholds, adds up in ``T²``. W
 are unknown ``T²`` is taken over the known ones (``S`` restricted to them) and mapped to the
 same false-alarm level with ``T`` degrees of freedom, ``F⁻¹_T(F_k(T²_k))`` with ``F_k`` the χ²
 distribution function of ``k`` degrees of freedom; with fewer than half the tests known it is
-unknown. Its threshold ``high`` is learned like the tests' (:mod:`~diag_plugin.diagnose.budget`:
+unknown. Its threshold ``high`` is learned like the tests' (:mod:`~diag_plugin.learn.budget`:
 alarm episodes with the unit's on/off delays, counted on ``T²`` computed from residuals
 cross-fitted over the time blocks, and ``c``, ``s``, ``S`` themselves learned without the
 block they score) under the same budget: the combined test gets :data:`COMBINED_SHARE` of the

@@ -193,7 +193,7 @@ def build_valve_unit(
 ) -> list[Path]:
     """The example unit: four models, the Table 4 matrix, the unit file with learned
     thresholds (Kościelny et al., Sect. 5; thresholds held to a false-alarm budget,
-    :mod:`diag_plugin.diagnose.learning`).
+    :mod:`diag_plugin.learn.thresholds`).
 
     Each model input's span is narrowed to the operating range of the training data
     (:func:`operating_span`, what ``diag explain`` proposes): P1 and P2 use a fifth of their
@@ -207,11 +207,12 @@ def build_valve_unit(
     (rules (10)–(14); ``benchmarks/bench_fuzzy_diagnosis.py`` compares them)."""
     from dataclasses import replace
 
-    from diag_plugin.diagnose.learning import learn_thresholds
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitFile, new_unit_text
+    from diag_plugin.learn.thresholds import learn_thresholds
+    from diag_plugin.selection.spans import operating_span
     from diag_plugin.simulate.valve import TAGS
-    from diag_plugin.workbench.model_edit import new_model, operating_span
+    from diag_plugin.workbench.model_edit import new_model
 
     out = []
     tests = {}

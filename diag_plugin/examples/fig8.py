@@ -169,7 +169,7 @@ def reproduce(path: str | Path, period: str = "10s", *, shipped: bool = True) ->
         out["baseline"] = _baseline(frame, end)
         out["frames"] = {"frame": frame, "base": base, "models": models, "end": end}
     if shipped:
-        from diag_plugin.examples.shipped import find_shipped
+        from diag_plugin.rulebase.folder import find_shipped
 
         hour = load_hour(path, "10s")
         out["shipped"] = {}

@@ -196,8 +196,8 @@ def accuracy(
 
 
 def _shipped(names: Sequence[str]) -> dict[str, Any]:
-    from diag_plugin.examples.shipped import find_shipped
     from diag_plugin.rulebase.document import RuleBase
+    from diag_plugin.rulebase.folder import find_shipped
 
     found = {n: find_shipped(n) for n in names}
     missing = [n for n, p in found.items() if p is None]

@@ -19,8 +19,8 @@ from typing import Any
 import pandas as pd
 
 from connectors.alarms import AlarmState
-from diag_plugin.diagnose.status import UnitStatus
 from diag_plugin.live.loop import LiveLoop, close_all
+from diag_plugin.status import UnitStatus
 
 HISTORY_START = pd.Timestamp("2026-01-01", tz="UTC")
 HISTORY_DAYS, HISTORY_SEED = 7, 21

@@ -43,8 +43,8 @@ import pandas as pd
 
 from connectors.alarms import AlarmState
 from connectors.base import TagQuality
-from diag_plugin.diagnose.status import NE107, Quality, UnitStatus
 from diag_plugin.live.stale import StaleDetector
+from diag_plugin.status import NE107, Quality, UnitStatus
 
 if TYPE_CHECKING:
     from connectors.opcua_server import Action

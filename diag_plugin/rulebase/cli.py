@@ -55,7 +55,7 @@ def load(name: str, folder: str) -> RuleBase:
 
     path = resolve(name, folder)
     if not path.exists():
-        from diag_plugin.examples.shipped import find_shipped
+        from diag_plugin.rulebase.folder import find_shipped
 
         path = find_shipped(name) or path
     if not path.exists():
@@ -93,12 +93,12 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 def file_problems(path: Path, folder: str) -> tuple[str, list[str]]:
     """The kind of a file (``unit``, ``matrix``, ``rule base``) and its problems."""
-    from diag_plugin.diagnose.unitfile import MATRIX_SUFFIX, SUFFIX
+    from diag_plugin.rulebase.folder import MATRIX_SUFFIX, UNIT_SUFFIX
 
     if not path.exists():
         return "missing", [f"{path}: no such file"]
     head = path.read_text(encoding="utf-8", errors="replace")
-    if path.name.endswith(SUFFIX) or head.lstrip().startswith("[unit]") or "\n[unit]" in head:
+    if path.name.endswith(UNIT_SUFFIX) or head.lstrip().startswith("[unit]") or "\n[unit]" in head:
         from diag_plugin.diagnose.unit import Unit
         from diag_plugin.diagnose.unitfile import UnitError
 

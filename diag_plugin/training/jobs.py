@@ -25,11 +25,11 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 from sqlalchemy.engine import make_url
 
-from diag_plugin.diagnose.unitfile import is_model_file
 from diag_plugin.metrics import coverage_note, levels_note
 from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase.backups import backups
 from diag_plugin.rulebase.document import RuleBase, RuleBaseError, resolve
+from diag_plugin.rulebase.folder import is_model_file
 from diag_plugin.training.chunked import DEFAULT_CHUNK, on_grid, train
 from historian.access import WindowReader, experiments
 from historian.errors import UserError

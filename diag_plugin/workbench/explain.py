@@ -29,33 +29,24 @@ from dataclasses import replace as dc_replace
 import numpy as np
 import pandas as pd
 
-from diag_plugin.metrics import residual_pct
 from diag_plugin.models.spec import Variable
-from diag_plugin.regressors import (
-    InputSpec,
-    check_regular,
-    dir_threshold,
-    feature,
-    needed_tags,
-)
+from diag_plugin.regressors import InputSpec, check_regular, dir_threshold, needed_tags
 from diag_plugin.rulebase.document import RuleBase
-from diag_plugin.training.chunked import split_time
-from diag_plugin.workbench.model_edit import MIN_PER_CELL, operating_span, variable_for
+from diag_plugin.selection.features import Features
+from diag_plugin.selection.lags import TOLERANCE, default_max_lag, lag_screen
+from diag_plugin.selection.scoring import HeldOutScorer, cut_row
+from diag_plugin.selection.sets import sets_for_cells
+from diag_plugin.selection.spans import operating_span, variable_for
 from historian.taginfo import TagInfo, tag_infos
 
 #: |correlation| with a model input above which a candidate is flagged
 CORR_WARN = 0.6
 #: validation samples per rule cell below which the grid is called sparse
 SPARSE_PER_CELL = 5.0
-#: dead times screened by default: this much time (and at least MIN_LAGS samples)
-LAG_HORIZON_S = 600.0
-MIN_LAGS = 10
 #: rows on which the screened lags are compared (every n/LAG_SEARCH_ROWS-th row)
 LAG_SEARCH_ROWS = 200_000
 #: lags of each screen that are retrained and scored
 LAGS_RETRAINED = 3
-#: a longer lag is suggested only when it scores better by more than this share
-TOLERANCE = 0.01
 #: fewer sets than add-input writes are suggested only when they score better by more
 #: than this share (the gain explain calls more than "barely")
 SETS_GAIN = 0.03
@@ -111,141 +102,6 @@ class Explanation:
             "validation_from": self.validation_from.isoformat() if self.validation_from else None,
             "candidates": [x.as_dict() for x in c],
         }
-
-
-class Features:
-    """Unlagged feature columns over the frame, computed once, lagged by slicing."""
-
-    def __init__(self, frame: pd.DataFrame, spans: Mapping[str, tuple[float, float]]):
-        self.frame = frame
-        self.spans = spans
-        self.cache: dict[str, np.ndarray] = {}
-
-    def column(self, spec: InputSpec) -> np.ndarray:
-        base = spec.base
-        if base not in self.cache:
-            self.cache[base] = feature(self.frame, spec, self.spans)
-        v = self.cache[base]
-        if spec.lag:
-            v = np.r_[np.full(min(spec.lag, v.size), np.nan), v[: max(v.size - spec.lag, 0)]]
-        return v
-
-
-class HeldOutScorer:
-    """Trains a variant of the model on the rows before the cut and scores every variant on
-    the *same* held-out samples: all rows after the cut with a measured output.
-
-    Where a variant has no rule its nearest trained rule stands in (``extrapolate``) —
-    exactly how ``diag train`` and ``diag compare`` score a model — so predicting fewer
-    samples never makes a variant look better, and the error a candidate promises is the
-    error training then reports. Each variant's own coverage is reported
-    beside its error.
-    """
-
-    def __init__(self, rb: RuleBase, cols: Sequence[np.ndarray], y: np.ndarray, cut: int):
-        self.rb = rb
-        self.y = y
-        self.cut = cut
-        self.span = rb.output.span[1] - rb.output.span[0]
-        tr_y = np.isfinite(y[:cut])
-        self.mean = float(y[:cut][tr_y].mean()) if tr_y.any() else math.nan
-        self.va = np.flatnonzero(np.isfinite(y[cut:])) + cut
-        self.last_fine = 0.0
-        pred, self.base_model, self.base_rows = self._fit_predict(list(rb.inputs), cols)
-        self.base_cov = float(np.isfinite(pred).mean()) if pred.size else 0.0
-        self.base_fine = self.last_fine
-        self.base_rmse = self._rmse(self._stand_in(pred, self.base_model, cols))
-        self.base_rules = rb.codec.size(self.base_model) if self.base_model is not None else 0
-
-    def _fit_predict(self, variables, cols):
-        if not len(cols):  # no input yet: the training mean stands in everywhere
-            return np.full(self.va.size, np.nan), None, int(np.isfinite(self.y[: self.cut]).sum())
-        X = np.column_stack(cols)
-        tr = np.isfinite(X[: self.cut]).all(axis=1) & np.isfinite(self.y[: self.cut])
-        if tr.sum() < 10 or self.va.size < 10:
-            return np.full(self.va.size, np.nan), None, int(tr.sum())
-        spec = dc_replace(self.rb.spec, inputs=list(variables))
-        m = self.rb.codec.new_estimator(spec).fit(X[: self.cut][tr], self.y[: self.cut][tr])
-        det = m.predict_detail(X[self.va])
-        self.last_fine = (
-            float(np.mean(det.level == 0)) if det.level is not None else det.coverage
-        )  # the share the fine grid answered: levels behind it hide a thin grid otherwise
-        return det.y, m, int(tr.sum())
-
-    def _stand_in(self, pred: np.ndarray, model, cols) -> np.ndarray:
-        """``pred`` with the model's stand-in (its ``extrapolate``: the nearest rule) where it
-        has no prediction, and the training mean where an input is missing."""
-        out = pred.copy()
-        miss = ~np.isfinite(out)
-        if model is not None and miss.any():
-            X = np.column_stack(cols)[self.va[miss]]
-            out[miss] = model.extrapolate(X)
-        return np.where(np.isfinite(out), out, self.mean)
-
-    def _rmse(self, pred: np.ndarray) -> float:
-        if not pred.size or not np.isfinite(pred).all():
-            return math.nan
-        r = residual_pct(self.y[self.va], pred, self.span)
-        return float(np.sqrt(np.mean(r * r)))
-
-    def score(self, variables, cols) -> tuple[float, float, float, float]:
-        """Held-out RMSE in % of span on the common samples, own coverage, training samples
-        per rule, and the share its fine rule grid answered, of a variant."""
-        self.last_fine = 0.0
-        pred, m, n_train = self._fit_predict(variables, cols)
-        if m is None:
-            return math.nan, 0.0, 0.0, 0.0
-        own = np.isfinite(pred)
-        per_cell = n_train / max(self.rb.codec.size(m), 1)
-        rmse = self._rmse(self._stand_in(pred, m, cols))
-        return rmse, float(own.mean()), per_cell, self.last_fine
-
-    def residual(self, cols) -> np.ndarray:
-        """The current model's in-sample residual on the training rows (NaN where none)."""
-        out = np.full(self.cut, np.nan)
-        if self.base_model is not None:
-            X = np.column_stack(cols)[: self.cut]
-            out = self.y[: self.cut] - self.base_model.predict(X)
-        return out
-
-
-def lag_screen(target: np.ndarray, x: np.ndarray, max_lag: int) -> np.ndarray:
-    """|correlation| of ``target[k]`` with ``x[k-L]`` for ``L = 0 … max_lag`` (NaN-tolerant,
-    via FFT): a cheap screen of dead times before any model is retrained."""
-    from scipy.signal import correlate
-
-    n = min(target.size, x.size)
-    t, v = target[:n], x[:n]
-    both = np.isfinite(t) & np.isfinite(v)
-    if both.sum() < 10:
-        return np.zeros(max_lag + 1)
-    t0 = np.where(np.isfinite(t), t - np.nanmean(t[both]), 0.0)
-    v0 = np.where(np.isfinite(v), v - np.nanmean(v[both]), 0.0)
-    norm = math.sqrt(float(t0 @ t0) * float(v0 @ v0))
-    if norm == 0:
-        return np.zeros(max_lag + 1)
-    full = correlate(t0, v0, mode="full", method="fft")
-    lags = full[n - 1 : n + max_lag]
-    out = np.zeros(max_lag + 1)
-    out[: lags.size] = np.abs(lags) / norm
-    return out
-
-
-def default_max_lag(index: pd.DatetimeIndex) -> int:
-    """Dead-time horizon from the data: 10 minutes of samples (at least 10), at most a
-    tenth of the rows (transport delays of minutes are common in plants)."""
-    if len(index) < 2:
-        return 0
-    period = (index[1] - index[0]) / pd.Timedelta(seconds=1)
-    want = max(MIN_LAGS, math.ceil(LAG_HORIZON_S / period)) if period > 0 else MIN_LAGS
-    return int(max(0, min(want, len(index) // 10)))
-
-
-def sets_for_cells(n_train: int, cells: int, current: int) -> int:
-    """Sets for a new input so that each occupied rule cell keeps about
-    :data:`MIN_PER_CELL` training samples (``cells``: rules the model has now)."""
-    fit = n_train // max(MIN_PER_CELL * max(cells, 1), 1)
-    return int(min(max(fit, 2), current))
 
 
 def explain(
@@ -553,15 +409,6 @@ def _resolution_wording(change: str, base: float, rmse: float) -> str:
     else:
         gain = f"would not cut the error ({base:.1f} % → {rmse:.1f} %)"
     return f"model resolution: {change}: {gain}"
-
-
-def cut_row(index: pd.DatetimeIndex, holdout: float) -> int:
-    """First row of the held-out block: the product's one time-based cut."""
-    if len(index) == 0:
-        return 0
-    step = index[1] - index[0] if len(index) > 1 else pd.Timedelta(0)
-    t = split_time(index[0], index[-1] + step, holdout, step if len(index) > 1 else None)
-    return int(index.searchsorted(t))
 
 
 def _sortable(v: float) -> float:

@@ -21,123 +21,13 @@ import pandas as pd
 import tomlkit
 
 from diag_plugin.fuzzy.partition import UniformPartition
-from diag_plugin.regressors import InputSpec, dir_threshold, feature
+from diag_plugin.regressors import InputSpec, feature
 from diag_plugin.rulebase.backups import keep_backup
-from diag_plugin.rulebase.document import RuleBase, Variable, default_label
+from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.selection.sets import sets_for_data
+from diag_plugin.selection.spans import variable_for
 from historian.errors import UserError
-from historian.taginfo import TagInfo, tag_infos
-
-
-def variable_for(
-    spec: str,
-    *,
-    frame: pd.DataFrame | None,
-    tag_info: Mapping[str, TagInfo | Mapping[str, object]],
-    sets: int | None = None,
-    default_sets: int = 31,
-    known_spans: Mapping[str, tuple[float, float]] | None = None,
-) -> Variable:
-    """A variable with its nominal span and sets: tag metadata first, then the span the model
-    already gives the tag (``known_spans``), else the observed range. The one rule for spans
-    and sets: ``explain`` scores each candidate on exactly the variable ``add-input`` writes.
-
-    A ``dir()`` input gets its move threshold written into the spec, so training,
-    inference and the live plug-in all use the same value.
-    """
-    s = InputSpec.parse(spec)
-    info = tag_infos(tag_info)
-    if s.fn == "dir" and s.param is None:
-        spans = dict(known_spans or {})
-        spans.update({t: i.span for t, i in info.items() if i.span})
-        s = InputSpec("dir", s.tags, s.lag, dir_threshold(s.tags[0], spans, frame))
-        spec = str(s)
-    unit = ""
-    span: tuple[float, float] | None = None
-    n_sets = sets or default_sets
-    if s.fn == "dir":
-        span, n_sets = (-1.0, 1.0), 2
-    elif s.fn == "hour":
-        span, unit, n_sets = (0.0, 24.0), "h", sets or 25
-    elif s.fn == "" or s.fn == "diff":
-        tag = info.get(s.tags[0]) or TagInfo(s.tags[0])
-        unit = tag.unit
-        if s.fn == "":
-            span = tag.span
-        if s.fn == "" and span is None and s.tags[0] in (known_spans or {}):
-            span = tuple(known_spans[s.tags[0]])  # the span the model already uses for it
-    if s.fn == "days":
-        unit, n_sets = "d", sets or 12
-    if span is None:
-        if frame is None:
-            raise ValueError(f"no nominal range known for {spec}: give the tag a range")
-        v = feature(frame, s)
-        v = v[np.isfinite(v)]
-        if v.size == 0:
-            raise ValueError(f"no data for {spec} to take its range from")
-        lo, hi = np.quantile(v, [0.001, 0.999]) if s.fn in ("rate", "diff") else (v.min(), v.max())
-        lo, hi = float(lo), float(hi)
-        if hi <= lo:
-            hi = lo + max(abs(lo), 1.0) * 0.01
-        pad = 0.02 * (hi - lo)
-        span = nice_span(lo - pad, hi + pad)
-    return Variable(spec, default_label(spec), unit, span, int(n_sets))
-
-
-def nice_span(lo: float, hi: float) -> tuple[float, float]:
-    """``[lo, hi]`` with each end to 4 significant digits, or finer where the width needs it
-    (a day of ``days()`` near 9,500 keeps its width instead of collapsing to one value)."""
-    w = math.floor(math.log10(hi - lo))
-
-    def nice(v: float) -> float:
-        mag = math.floor(math.log10(abs(v))) if v else w
-        return float(f"{v:.{max(4, mag - w + 4)}g}")
-
-    return nice(lo), nice(hi)
-
-
-#: margin around the operating range when an input's span is narrowed to it
-SPAN_MARGIN = 0.1
-
-
-def operating_span(span: tuple[float, float], values: np.ndarray) -> tuple[float, float] | None:
-    """``span`` narrowed to the operating range of ``values`` (0.1–99.9 % quantiles, with a
-    margin of :data:`SPAN_MARGIN`, inside the nominal span), or None when that range fills
-    70 % of the span or more. The rule ``explain`` proposes and the example unit follows:
-    31 sets over a transducer range the process uses a sliver of leave a coarse model."""
-    x = values[np.isfinite(values)]
-    if x.size < 10:
-        return None
-    lo, hi = (float(q) for q in np.quantile(x, [0.001, 0.999]))
-    pad = SPAN_MARGIN * (hi - lo)
-    lo, hi = max(span[0], lo - pad), min(span[1], hi + pad)
-    if hi > lo and (hi - lo) < 0.7 * (span[1] - span[0]):
-        return nice_span(lo, hi)
-    return None
-
-
-#: training samples per rule cell a grid should keep (set counts chosen from the data)
-MIN_PER_CELL = 20
-#: set counts chosen from the data stay within these
-SETS_RANGE = (3, 31)
-
-
-def sets_for_data(cols: Sequence[np.ndarray], spans: Sequence[tuple[float, float]]) -> int:
-    """The most sets per input (within :data:`SETS_RANGE`; 31 is the paper's count) for which
-    the rule cells the data occupy hold :data:`MIN_PER_CELL` samples on average — the
-    operating range counts, not the nominal span."""
-    X = np.column_stack(cols) if cols else np.empty((0, 0))
-    X = X[np.isfinite(X).all(axis=1)] if X.size else X
-    n = len(X)
-    lo = np.array([s[0] for s in spans])
-    width = np.array([s[1] - s[0] for s in spans])
-    for sets in range(SETS_RANGE[1], SETS_RANGE[0] - 1, -1):
-        if n == 0:
-            break
-        idx = np.clip(np.floor((X - lo) / width * (sets - 1) + 0.5), 0, sets - 1).astype(np.int64)
-        occupied = np.unique(idx @ (sets ** np.arange(idx.shape[1], dtype=np.int64))).size
-        if n >= MIN_PER_CELL * occupied:
-            return sets
-    return SETS_RANGE[0] if n else SETS_RANGE[1]
+from historian.taginfo import TagInfo
 
 
 def new_model(

@@ -56,7 +56,7 @@ TARGETS: dict[str, list[str]] = {
         "test_units.py",
         "test_plant.py",
     ],
-    "diag_plugin/diagnose/status.py": ["test_diagnosis_guards.py", "test_units.py"],
+    "diag_plugin/status.py": ["test_diagnosis_guards.py", "test_units.py"],
     "diag_plugin/diagnose/matrix.py": [
         "test_diagnose_matrix.py",
         "test_diagnose_stage_edges.py",
@@ -72,7 +72,7 @@ TARGETS: dict[str, list[str]] = {
         "test_import_refuses_to_guess.py",
         "test_import_edges.py",
     ],
-    "diag_plugin/diagnose/benchmark.py": ["test_benchmark.py"],
+    "diag_plugin/bench/damadics.py": ["test_benchmark.py"],
     "diag_plugin/diagnose/cli.py": [
         "test_diagnosis_guards.py",
         "test_units.py",

@@ -26,7 +26,7 @@ false-alarm budget.
 3. **The budget.** The scaled residuals are filtered as the unit filters them, and each test's
    two thresholds are placed so that the unit's false alarms (episodes with the on/off delays)
    come at the declared rate per hour of operation, all tests together
-   (:mod:`diag_plugin.diagnose.budget`), saying when the window is too short to show that rate
+   (:mod:`diag_plugin.learn.budget`), saying when the window is too short to show that rate
    and what window would.
 
 With ``combined = true`` or ``isolation = "tags"`` in the unit's ``[evaluation]`` step 3 also
@@ -49,10 +49,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.budget import TestBudget, calibrate
 from diag_plugin.diagnose.residuals import supported
 from diag_plugin.diagnose.unit import Unit, spread_factor
-from diag_plugin.diagnose.unitfile import CombinedSpec
+from diag_plugin.diagnose.unitfile import WHY, CombinedSpec, hours
+from diag_plugin.learn.budget import TestBudget, calibrate
 from diag_plugin.models.protocol import REASON_NAN, Prediction
 
 #: samples skipped at the start of a learning window (and of each run in it): the filter
@@ -70,13 +70,6 @@ MIN_KNOWN = 30
 #: samples without data that separate two runs of a window (the unit's filter forgets its
 #: state after as many, :class:`~diag_plugin.diagnose.residuals.LowPass`)
 RUN_GAP = 100
-
-WHY = {
-    "missing": "an input or the output missing (NaN, bad quality, lags not yet filled)",
-    "no_rule": "no trained rule at any level (outside the trained region)",
-    "low_support": "the edge of the trained region (support below min_support)",
-    "level": "answered at a coarser level the window could not calibrate",
-}
 
 
 class LearnError(ValueError):
@@ -347,7 +340,8 @@ def _cross_fitted(rb, X, y, block, blocks: int, test: str) -> Prediction:
 
 
 def _unknown_reasons(n: int, rows: np.ndarray, y: np.ndarray, pred: Prediction, unit: Unit):
-    """Samples of the window without a residual, counted by reason (see :data:`WHY`)."""
+    """Samples of the window without a residual, counted by reason
+    (:data:`~diag_plugin.diagnose.unitfile.WHY`)."""
     missing = n - rows.size + int(np.count_nonzero(~np.isfinite(y) | (pred.reason == REASON_NAN)))
     answered = np.isfinite(pred.y) & np.isfinite(y)
     no_rule = int(np.count_nonzero(~np.isfinite(pred.y) & np.isfinite(y) & (pred.reason != 1)))
@@ -515,11 +509,6 @@ def fuzzy_sets(residual: np.ndarray, low: float, high: float) -> tuple[float, fl
     return (low - dn, low + dn, high - up, high + up)
 
 
-def hours(h: float) -> str:
-    """Hours as a person reads them: ``40,000 h``, ``336 h``, ``0.11 h``."""
-    return f"{h:,.0f} h" if h >= 10 else f"{h:.2g} h"
-
-
 def _check(res: dict[str, TestResiduals], unit: Unit) -> list[str]:
     """A message per test whose residual the window cannot give: none at all, or zero."""
     out = []
@@ -596,11 +585,11 @@ def learn_combined(
     (alarms per hour: the combined test's share), the threshold of T² calibrated on T² of each
     block computed with parameters learned without that block (out of sample, like the
     residuals), with the unit's on/off delays
-    (:func:`~diag_plugin.diagnose.budget.calibrate_side`); where the window is too short even
+    (:func:`~diag_plugin.learn.budget.calibrate_side`); where the window is too short even
     for a tail fit, Rice's Gaussian rate is fitted to √T² (Gaussian-tailed) rather than to the
     skewed T²."""
-    from diag_plugin.diagnose.budget import calibrate_side
     from diag_plugin.diagnose.unittags import CombinedModel
+    from diag_plugin.learn.budget import calibrate_side
 
     x = body[unit.tests].to_numpy(float)
     T = len(unit.tests)

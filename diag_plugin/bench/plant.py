@@ -6,7 +6,7 @@ The pieces a plant benchmark needs (issue 25), independent of what raised the al
 * :func:`detection_delay` — the time from the onset to the first alarm at or after it;
 * :func:`false_alarm_rate` — on a fault-free run, the share of samples in alarm and the alarm
   episodes (onsets) per hour;
-* :class:`PCABaseline` — PCA T² + Q (:class:`~diag_plugin.diagnose.pca.PCADetector`, dynamic
+* :class:`PCABaseline` — PCA T² + Q (:class:`~diag_plugin.bench.pca.PCADetector`, dynamic
   with ``lags`` previous samples), fitted on fault-free runs, its two limits set together so
   that the share of samples in alarm (T² *or* Q beyond its limit) is ``far`` on fault-free data
   *it was not fitted on*: each training run is scored by a PCA fitted on the other runs
@@ -29,7 +29,7 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.pca import PCADetector
+from diag_plugin.bench.pca import PCADetector
 
 __all__ = [
     "run_plant_benchmark",
@@ -122,7 +122,7 @@ class PCABaseline:
         With ``delays`` (and ``period_s``, the runs' sample period in seconds) ``far`` is a
         rate of alarm *episodes per hour* after these on/off delays, as a unit's budget is:
         T² and Q each get half of it, each limit learned with
-        :func:`~diag_plugin.diagnose.budget.calibrate_side` on the leave-one-run-out
+        :func:`~diag_plugin.learn.budget.calibrate_side` on the leave-one-run-out
         statistics (as ``diag unit learn`` learns a test's threshold), and :meth:`alarms`
         applies the same delays. Without it ``far`` is a share of samples (no delays).
     """
@@ -172,7 +172,7 @@ class PCABaseline:
             t2s.append(s["T2"].to_numpy())
             qs.append(s["Q"].to_numpy())
         if per_hour:
-            from diag_plugin.diagnose.budget import calibrate_side
+            from diag_plugin.learn.budget import calibrate_side
 
             on, off = self.delays
             # one NaN between runs: no episode straddles two of them
@@ -319,7 +319,7 @@ def run_plant_benchmark(
 
     1. **Training**: fault-free runs of ``train_seeds``, ``train_days`` each, sampled to
        ``period_s`` (3-min means or 1 s), placed one after another in time with an hour of
-       missing samples between them. :func:`~diag_plugin.diagnose.unitbuild.build_unit` on
+       missing samples between them. :func:`~diag_plugin.unitbuild.build.build_unit` on
        them (into ``folder``, a temporary folder by default) to the budget ``far`` (alarm
        episodes per hour; default ``unit build``'s); PCA (no lags) and DPCA (two lags) T² + Q
        fitted on the same runs (the 35 measurements and controller outputs), their limits
@@ -341,10 +341,10 @@ def run_plant_benchmark(
     import tempfile
     import time
 
-    from diag_plugin.diagnose.status import NE107
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.diagnose.unitbuild import build_unit
     from diag_plugin.simulate.chemplant import CHEMPLANT_TAGS, FAULTS, sample, simulate_chemplant
+    from diag_plugin.status import NE107
+    from diag_plugin.unitbuild.build import build_unit
     from historian.taginfo import TagInfo
 
     if plant != "chemplant":

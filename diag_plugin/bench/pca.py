@@ -13,7 +13,7 @@ a fault-free window of the plant's tags:
 * control limits at a false-alarm probability ``alpha`` per sample: ``T²`` by the F
   distribution, ``a (n−1)(n+1) / (n (n−a)) · F(a, n−a)`` (Tracy, Young & Mason, 1992), ``Q`` by
   Jackson & Mudholkar (1979) from the discarded eigenvalues. Limits at another rate, or held to
-  an alarm budget per hour (:mod:`diag_plugin.diagnose.budget`), are set with
+  an alarm budget per hour (:mod:`diag_plugin.learn.budget`), are set with
   :meth:`PCADetector.set_limits`.
 
 scikit-learn style: ``PCADetector(...).fit(frame)``, ``score(frame)`` (a frame of ``T2`` and

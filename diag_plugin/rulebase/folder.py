@@ -1,5 +1,8 @@
-"""Where the shipped example files are, so the example unit and ``diag benchmark`` work from
-any folder.
+"""The rule-base folder: which file in it is what, and where the shipped example files are,
+so the example unit and ``diag benchmark`` work from any folder.
+
+A ``*.toml`` in the folder is a unit file (``NAME.unit.toml``, read by diagnose/unitfile.py),
+a diagnostic matrix (``NAME.matrix.toml``) or else a model's rule-base file.
 
 The examples live in the repository's ``rulebases/`` folder (the rule bases, the example
 unit and its matrix; :mod:`diag_plugin.examples.build` makes them). A source checkout or an
@@ -12,6 +15,16 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+
+#: a unit file's and a diagnostic matrix file's suffix; every other ``*.toml`` is a model
+UNIT_SUFFIX = ".unit.toml"
+MATRIX_SUFFIX = ".matrix.toml"
+
+
+def is_model_file(path: Path) -> bool:
+    """Rule-base (model) files are the ``*.toml`` that are neither unit nor matrix files."""
+    return not path.name.endswith((UNIT_SUFFIX, MATRIX_SUFFIX))
+
 
 #: the shipped example files
 NAMES = ("valve_a", "valve_b", "valve_b2", "damadics_f", "valve_unit", "valve_t4")

@@ -10,16 +10,17 @@ hand-build:
    operator's choice, not a consequence of the process, so a model of it detects nothing).
 2. **Inputs** (:func:`select_inputs`): greedy forward selection of up to
    :data:`MAX_INPUTS` inputs with the workbench's own held-out scoring
-   (:class:`~diag_plugin.workbench.explain.HeldOutScorer`, what ``diag explain`` ranks
+   (:class:`~diag_plugin.selection.scoring.HeldOutScorer`, what ``diag explain`` ranks
    with): at each step every candidate tag is screened at every dead time by the
    correlation of its lagged values with the current model's residual
-   (:func:`~diag_plugin.workbench.explain.lag_screen`), the best few are scored by
-   time-blocked cross-validation (:class:`BlockScorer`: each of :data:`FOLDS` time blocks of
-   the window — ``diag unit learn``'s blocks, cut between runs — held out in turn, the model
-   retrained on the others, the held-out errors pooled), so a relation must hold in every
-   period of the window, not only in its last fifth; the candidate that cuts the error most
-   is kept if it cuts it by more than :data:`MIN_GAIN`. The shortest dead time scoring within
-   :data:`~diag_plugin.workbench.explain.TOLERANCE` of the best is kept.
+   (:func:`~diag_plugin.selection.lags.lag_screen`), the best few are scored by
+   time-blocked cross-validation (:class:`~diag_plugin.selection.scoring.BlockScorer`: each
+   of :data:`FOLDS` time blocks of the window — ``diag unit learn``'s blocks, cut between
+   runs — held out in turn, the model retrained on the others, the held-out errors pooled),
+   so a relation must hold in every period of the window, not only in its last fifth; the
+   candidate that cuts the error most is kept if it cuts it by more than :data:`MIN_GAIN`.
+   The shortest dead time scoring within :data:`~diag_plugin.selection.lags.TOLERANCE` of
+   the best is kept.
    **A tag a controller holds** (:func:`tracked_set_point`: RMS of tag − set-point at most
    :data:`TRACKS` of the tag's standard deviation) is not modelled from the other tags: its
    test is the loop's own relation (:func:`loop_test`: the tag at its set-point plus the
@@ -32,10 +33,10 @@ hand-build:
    rank correlation — a redundant transmitter, a copy, a unit conversion or a monotone
    function of the tag).
 3. **Models**: each test's model (``wm-avg``; sets per input what the data fill,
-   :func:`~diag_plugin.workbench.model_edit.sets_for_data`) is written as an ordinary model
+   :func:`~diag_plugin.selection.sets.sets_for_data`) is written as an ordinary model
    file and trained like ``diag train`` does (80 % / 20 % time-ordered validation, then all
    of the window), with the window as its provenance.
-4. **Thresholds**: :func:`~diag_plugin.diagnose.learning.learn_thresholds` on the same
+4. **Thresholds**: :func:`~diag_plugin.learn.thresholds.learn_thresholds` on the same
    window, cross-fitted (the models were trained on it), to the false-alarm budget ``far``,
    saved as ``diag unit learn`` saves them.
 
@@ -60,19 +61,16 @@ import numpy as np
 import pandas as pd
 import tomlkit
 
-from diag_plugin.diagnose.learning import DEFAULT_BLOCKS, block_of
 from diag_plugin.diagnose.unittags import is_set_point
+from diag_plugin.learn.thresholds import DEFAULT_BLOCKS, block_of
 from diag_plugin.models.spec import Variable
 from diag_plugin.regressors import InputSpec
 from diag_plugin.rulebase.document import RuleBase
-from diag_plugin.workbench.explain import (
-    TOLERANCE,
-    Features,
-    HeldOutScorer,
-    default_max_lag,
-    lag_screen,
-)
-from diag_plugin.workbench.model_edit import sets_for_data, variable_for
+from diag_plugin.selection.features import Features
+from diag_plugin.selection.lags import TOLERANCE, default_max_lag, lag_screen
+from diag_plugin.selection.scoring import BlockScorer
+from diag_plugin.selection.sets import sets_for_data
+from diag_plugin.selection.spans import variable_for
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
 
@@ -104,8 +102,6 @@ MIN_ROWS = 1000
 HOLDOUT = 0.2
 #: time blocks each candidate is scored over, each held out in turn (unit learn's blocks)
 FOLDS = DEFAULT_BLOCKS
-#: measured samples a held-out block needs to judge a candidate
-MIN_HELD = 10
 
 
 @dataclass
@@ -237,66 +233,6 @@ def same_measurement(frame: pd.DataFrame, tags: Sequence[str]) -> dict[str, list
             if i != j and np.isfinite(r[i, j]) and abs(r[i, j]) > SAME_CORR:
                 out[a].append(b)
     return out
-
-
-class BlockScorer:
-    """:class:`~diag_plugin.workbench.explain.HeldOutScorer` over time blocks: each block of
-    the window is held out in turn, a variant is trained on the other blocks and scored on
-    it, and the squared errors of all blocks are pooled (time-blocked cross-validation).
-
-    A relation that holds only in part of the window — a correlation that the operators'
-    set-point choices of one period made, which another period's choices break — scores
-    badly on the blocks it does not hold in; a single held-out tail would judge it on one
-    period only. The blocks are ``diag unit learn``'s (:func:`~diag_plugin.diagnose.learning.
-    block_of`: a window of several runs is cut between runs), so inputs are chosen on the
-    error the thresholds are then learned from. A Wang–Mendel fit is a group-by over rule
-    cells, independent of row order, so each fold is the window's rows reordered (training
-    rows first) and cut there."""
-
-    def __init__(self, rb: RuleBase, cols: Sequence[np.ndarray], y: np.ndarray, block: np.ndarray):
-        self.y = y
-        self.folds = []
-        good = np.isfinite(y)
-        for b in np.unique(block):
-            held = block == b
-            if np.count_nonzero(held & good) < MIN_HELD:
-                continue  # a block the tag is (nearly) missing from judges nothing
-            order = np.r_[np.flatnonzero(~held), np.flatnonzero(held)]
-            self.folds.append((order, int(np.count_nonzero(~held))))
-        self.parts = [HeldOutScorer(rb, [c[o] for c in cols], y[o], cut) for o, cut in self.folds]
-        self.base_rmse = self._pool([p.base_rmse for p in self.parts])
-        self.mean = float(y[good].mean()) if good.any() else math.nan
-        # the current model on every row, for the screen of the next input
-        self.model = None
-        if len(cols):
-            X = np.column_stack(cols)
-            ok = np.isfinite(X).all(axis=1) & good
-            if ok.sum() >= 10:
-                self.model = rb.codec.new_estimator(rb.spec).fit(X[ok], y[ok])
-
-    def _pool(self, rmse: Sequence[float]) -> float:
-        """RMSE over every held-out sample from the blocks' RMSEs (NaN if any is NaN)."""
-        n = np.array([p.va.size for p in self.parts], float)
-        r = np.asarray(rmse, float)
-        if not n.sum() or not np.isfinite(r[n > 0]).all():
-            return math.nan
-        return float(np.sqrt(np.sum(n[n > 0] * r[n > 0] ** 2) / n.sum()))
-
-    def score(self, variables, cols) -> tuple[float, float]:
-        """Pooled held-out RMSE (% of span) and own coverage of a variant."""
-        got = [
-            p.score(variables, [c[o] for c in cols])
-            for p, (o, _) in zip(self.parts, self.folds, strict=True)
-        ]
-        n = np.array([p.va.size for p in self.parts], float)
-        cov = float(np.sum(n * np.array([g[1] for g in got])) / max(n.sum(), 1.0))
-        return self._pool([g[0] for g in got]), cov
-
-    def residual(self, cols) -> np.ndarray:
-        """The current model's in-sample residual on every row (NaN where none)."""
-        if self.model is None:
-            return self.y - self.mean
-        return self.y - self.model.predict(np.column_stack(cols))
 
 
 class _Context:
@@ -520,16 +456,17 @@ def build_unit(
     operation. ``tags``: the tests (default: :func:`choose_tests`). ``progress(stage, done,
     total)`` is called as the stages advance. Raises :class:`~historian.errors.UserError`
     on input the build cannot use."""
-    from diag_plugin.diagnose.learning import DEFAULT_FAR, LearnError, learn_thresholds
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.diagnose.unitfile import SUFFIX, UnitError, UnitFile, new_unit_text
+    from diag_plugin.diagnose.unitfile import UnitError, UnitFile, new_unit_text
+    from diag_plugin.learn.thresholds import DEFAULT_FAR, LearnError, learn_thresholds
+    from diag_plugin.rulebase.folder import UNIT_SUFFIX
     from diag_plugin.training.chunked import train
 
     far = DEFAULT_FAR if far is None else far
     if not far > 0:
         raise UserError(f"--far {far:g}: the budget must be a positive rate per hour")
     folder = Path(folder)
-    path = folder / f"{name}{SUFFIX}"
+    path = folder / f"{name}{UNIT_SUFFIX}"
     if path.exists() and not force:
         raise UserError(f"{path} exists (use --force to overwrite)")
     have = frame.notna().any(axis=1).to_numpy()

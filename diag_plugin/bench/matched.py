@@ -1,0 +1,353 @@
+"""Detection at a matched false-alarm rate: the yardstick every detector is judged with.
+
+Two detectors compared each at its own default limits are not compared: one that alarms more
+detects more. Here every method gives **one alarm score per sample**, and its limit is set so
+that its fault-free alarm rate on *calibration runs* — fault-free runs none of the methods
+learned from — equals the same target, per sample or in alarm episodes per hour. Then
+detection, delay, episodes and naming are counted on yet other runs (fault-free scoring runs
+show the matched rate holds out of sample), at several targets: a detection-vs-false-alarm
+curve.
+
+The score of a method with statistics ``x_1 … x_k`` (each already divided by its own limit:
+a unit's test residual by its threshold on the side it leaves, its combined ``T²`` by its
+limit; PCA's ``T²`` and ``Q`` by theirs) is ``max_i d_i`` where ``d_i`` is statistic ``i``
+*after the on/off delays* (:func:`delayed_score`): with ``on`` samples to switch on and
+``off`` to switch off, ``d(t) = max(min_{on}(x)(t), min(d(t−1), max_{off}(x)(t)))`` — the
+rolling minimum over the last ``on`` samples, the rolling maximum over the last ``off``.
+By induction ``d(t) > λ`` exactly when an on/off-delayed alarm on ``x > λ``
+(:class:`~diag_plugin.diagnose.symptoms.OnOffDelay`) is on at ``t``, for *every* ``λ``: so
+scaling all of a method's limits by one factor ``λ`` and applying its delays per statistic,
+as the unit does per test, is one threshold on one scalar. Delays applied after the maximum
+instead would let different statistics take turns to hold an alarm on; per statistic is how
+a unit (and a PCA chart per statistic) runs. Every method gets the same delays.
+
+Counting, so a method cannot win by being unknown or by alarming more:
+
+* a sample where a method knows nothing (score NaN) is *not in alarm*, and stays in every
+  denominator (fault-free share, detection rate): unknown is never a detection;
+* the limit is the smallest ``λ`` whose calibration rate is at most the target (per sample:
+  share of samples with ``d > λ``; per hour: alarm episodes — a sample in alarm whose
+  previous sample was not, runs never joined — per hour, the smallest ``λ`` above which the
+  rate never again exceeds the target, since episodes need not fall monotonically with ``λ``);
+* a target the calibration runs cannot resolve (fewer than :data:`MIN_EXPECTED` samples or
+  episodes expected at it) is flagged ``supported = False``: its limit is read off the tail
+  of a few samples.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+__all__ = [
+    "MIN_EXPECTED",
+    "Limit",
+    "calibrate",
+    "delayed_score",
+    "episode_count",
+    "method_score",
+    "side_ratio",
+]
+
+#: a target is resolved by the calibration runs when at least this many alarm samples (per
+#: sample) or episodes (per hour) are expected at it
+MIN_EXPECTED = 5
+
+
+def side_ratio(r: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """A two-sided test's statistic over its limit: ``r / high`` above zero, ``r / low`` below
+    (``low`` < 0 < ``high``, per column), so 1 is the threshold on either side; NaN where
+    ``r`` is unknown or the test has no threshold."""
+    r = np.asarray(r, float)
+    hi = np.asarray(high, float)
+    lo = np.asarray(low, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        up = np.where(hi > 0, r / hi, np.nan)
+        down = np.where(lo < 0, r / lo, np.nan)
+    out = np.fmax(up, down)
+    return np.where(np.isfinite(r), out, np.nan)
+
+
+@numba.njit(cache=True)
+def _delay_score_kernel(x, on, off):  # pragma: no cover - numba
+    n, m = x.shape
+    out = np.empty_like(x)
+    for j in range(m):
+        prev = -np.inf
+        for t in range(n):
+            lo = np.inf
+            if t + 1 >= on:
+                for k in range(t - on + 1, t + 1):
+                    v = x[k, j]
+                    lo = min(lo, v if v == v else -np.inf)
+            else:
+                lo = -np.inf
+            hi = -np.inf
+            for k in range(max(0, t - off + 1), t + 1):
+                v = x[k, j]
+                hi = max(hi, v if v == v else -np.inf)
+            d = max(lo, min(prev, hi))
+            out[t, j] = d
+            prev = d
+    return out
+
+
+def delayed_score(x: np.ndarray, on: int = 1, off: int = 1) -> np.ndarray:
+    """Per column, the statistic after on/off delays of ``on``/``off`` samples (see module
+    doc): ``d > λ`` exactly where the delayed alarm of ``x > λ`` is on, for any ``λ``.
+    NaN (unknown) counts as not over; a column wholly unknown stays NaN."""
+    if on < 1 or off < 1:
+        raise ValueError("delays are counted in samples and must be ≥ 1")
+    a = np.asarray(x, float)
+    one = a.ndim == 1
+    a2 = np.ascontiguousarray(a[:, None] if one else a)
+    d = _delay_score_kernel(a2, int(on), int(off))
+    d[np.isneginf(d)] = np.nan  # never over any limit: nothing known over the windows
+    return d[:, 0] if one else d
+
+
+def method_score(stats: np.ndarray, on: int = 1, off: int = 1) -> np.ndarray:
+    """One alarm score per sample: the maximum over a method's statistics (columns, each over
+    its own limit) after each statistic's own on/off delays; NaN where none is known."""
+    d = delayed_score(np.asarray(stats, float).reshape(len(stats), -1), on, off)
+    with np.errstate(all="ignore"):
+        known = (~np.isnan(d)).any(axis=1)
+        out = np.full(len(d), np.nan)
+        out[known] = np.nanmax(d[known], axis=1)
+    return out
+
+
+def episode_count(alarm: np.ndarray) -> int:
+    """Alarm episodes in one run: samples in alarm whose previous sample was not (the first
+    sample counts when in alarm)."""
+    a = np.asarray(alarm, bool)
+    if not a.size:
+        return 0
+    return int(a[0]) + int(np.count_nonzero(a[1:] & ~a[:-1]))
+
+
+def _finite(d: np.ndarray) -> np.ndarray:
+    """Unknown (NaN) as never over any limit; +inf stays over every finite one."""
+    return np.where(np.isnan(d), -np.inf, d)
+
+
+def _survival(values: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Per ``at``, how many of ``values`` are strictly greater."""
+    v = np.sort(values)
+    return v.size - np.searchsorted(v, at, side="right")
+
+
+@dataclass(frozen=True)
+class Limit:
+    """A method's limit ``λ`` on its score at one target, with what the calibration runs gave."""
+
+    target: float
+    per: str  # "sample" or "hour"
+    limit: float
+    share: float  # share of calibration samples with score > limit
+    per_hour: float  # alarm episodes per hour on the calibration runs
+    samples: int
+    hours: float
+    supported: bool
+
+    def as_dict(self) -> dict:
+        lim = self.limit if np.isfinite(self.limit) else None
+        return {
+            "target": self.target,
+            "per": self.per,
+            "limit": lim,
+            "share": self.share,
+            "per_hour": self.per_hour,
+            "samples": self.samples,
+            "hours": self.hours,
+            "supported": self.supported,
+        }
+
+
+def rates(runs: Sequence[np.ndarray], limit: float, period_s: float) -> tuple[float, float]:
+    """(share of samples with score > ``limit``, alarm episodes per hour) over ``runs``;
+    unknown samples are not in alarm and stay in the denominators."""
+    n = sum(len(r) for r in runs)
+    if not n:
+        return float("nan"), float("nan")
+    on = [_finite(np.asarray(r, float)) > limit for r in runs]
+    share = sum(int(a.sum()) for a in on) / n
+    return share, sum(episode_count(a) for a in on) / (n * period_s / 3600.0)
+
+
+def calibrate(
+    runs: Sequence[np.ndarray], target: float, period_s: float, per: str = "sample"
+) -> Limit:
+    """The smallest limit whose rate on the fault-free calibration ``runs`` (each a score
+    array, episodes never joined across runs) is at most ``target``: a share of samples
+    (``per="sample"``) or alarm episodes per hour (``per="hour"``, the smallest limit above
+    which the rate never exceeds the target)."""
+    if per not in ("sample", "hour"):
+        raise ValueError(f"per must be 'sample' or 'hour', not {per!r}")
+    if not target > 0 or (per == "sample" and target >= 1):
+        raise ValueError(f"target false-alarm rate {target!r} out of range")
+    runs = [_finite(np.asarray(r, float)) for r in runs if len(r)]
+    n = sum(len(r) for r in runs)
+    if not n:
+        raise ValueError("calibration: no samples")
+    hours = n * period_s / 3600.0
+    d = np.concatenate(runs)
+    fin = np.unique(d[np.isfinite(d)])
+    if not fin.size:
+        lim = np.inf
+    elif per == "sample":
+        over = _survival(d, fin)  # samples above each candidate, falling
+        ok = np.flatnonzero(over <= target * n)
+        lim = float(fin[ok[0]]) if ok.size else np.inf
+        # below the smallest finite value every known sample alarms: a limit there too
+        if over[0] + np.count_nonzero(d == fin[0]) <= target * n:
+            lim = -np.inf
+    else:
+        prev = np.concatenate([np.r_[-np.inf, r[:-1]] for r in runs])
+        both = np.minimum(prev, d)
+        ep = _survival(d, fin) - _survival(both, fin)
+        bad = np.flatnonzero(ep > target * hours)
+        if not bad.size:
+            lim = float(fin[0])
+        elif bad[-1] + 1 < fin.size:
+            lim = float(fin[bad[-1] + 1])
+        else:
+            lim = np.inf
+    share, ph = rates(runs, lim, period_s)
+    expected = target * (n if per == "sample" else hours)
+    return Limit(
+        target=float(target),
+        per=per,
+        limit=float(lim),
+        share=share,
+        per_hour=ph,
+        samples=n,
+        hours=hours,
+        supported=bool(expected >= MIN_EXPECTED),
+    )
+
+
+# ---------------------------------------------------------------- scoring at a limit
+
+
+@dataclass
+class FaultRun:
+    """One faulty run as every method scores it: the fault, the run's name, the sample of the
+    onset, the tags at fault (empty: no single tag is, naming not counted)."""
+
+    fault: str
+    run: str
+    onset: int
+    tags: tuple[str, ...] = ()
+    #: where the fault is present (a labelled data set's anomaly labels); default: from the
+    #: onset to the end
+    active: np.ndarray | None = None
+
+
+@dataclass
+class Scored:
+    """A method's score on one run, and (to name tags) its per-tag contributions."""
+
+    score: np.ndarray
+    contributions: object | None = None  # pandas DataFrame: per sample, per tag
+
+
+def run_at(
+    score: np.ndarray, onset: int, limit: float, period_s: float, active: np.ndarray | None = None
+) -> dict:
+    """A faulty run at ``limit``: the share of samples where the fault is present (``active``;
+    default from ``onset`` on) in alarm (unknown counts as not), seconds to the first alarm at
+    or after the onset, and alarm episodes after it."""
+    on = _finite(np.asarray(score, float)) > limit
+    after = on[onset:]
+    hit = np.flatnonzero(after)
+    present = after if active is None else on[np.asarray(active, bool)]
+    return {
+        "detection_rate": float(present.mean()) if present.size else float("nan"),
+        "delay_s": float(hit[0] * period_s) if hit.size else None,
+        "episodes": episode_count(after),
+        "alarm_rows": np.flatnonzero(on),
+    }
+
+
+def ranked_tags(contributions, rows: np.ndarray, k: int = 3) -> list[str]:
+    """Tags by how often they are among the ``k`` largest contributions over ``rows`` (the
+    samples in alarm after the onset), as :func:`~diag_plugin.bench.plant.rank_by_top`
+    counts a unit's ``top1``…``top3``."""
+    from diag_plugin.bench.plant import rank_by_top, top_from_contributions
+
+    if contributions is None or not len(rows):
+        return []
+    sel = contributions.iloc[rows]
+    top = top_from_contributions(sel.fillna(-np.inf), k)
+    return rank_by_top(top, np.ones(len(top), dtype=bool), k)
+
+
+def curve(
+    methods: dict[str, dict],
+    targets: Sequence[float],
+    period_s: float,
+    per: str = "sample",
+    fault_runs: Sequence[FaultRun] = (),
+    top: int = 3,
+) -> dict:
+    """Detection against false alarms, every method at the same targets.
+
+    ``methods[name]`` holds ``"calibration"`` (score arrays of fault-free runs none of the
+    methods learned from), ``"free"`` (score arrays of other fault-free runs, to show the
+    rate holds out of sample) and ``"faults"`` (a :class:`Scored` per entry of
+    ``fault_runs``, same order). Returns per target and method the calibrated :class:`Limit`,
+    the fault-free scoring rates, and per fault the mean detection rate, median delay, mean
+    episodes after the onset and the runs whose faulted tag is among the ``top`` tags named
+    over the samples in alarm after the onset (a run without such an alarm names nothing).
+    """
+    out: dict = {"per": per, "targets": list(targets), "period_s": period_s, "points": []}
+    faults = list(dict.fromkeys(f.fault for f in fault_runs))
+    for target in targets:
+        point: dict = {"target": target, "methods": {}}
+        for name, m in methods.items():
+            lim = calibrate(m["calibration"], target, period_s, per)
+            share, ph = rates(m["free"], lim.limit, period_s) if m["free"] else (None, None)
+            rows = {}
+            for f in faults:
+                per_run = []
+                for fr, sc in zip(fault_runs, m["faults"], strict=True):
+                    if fr.fault != f:
+                        continue
+                    r = run_at(sc.score, fr.onset, lim.limit, period_s, fr.active)
+                    ar = r.pop("alarm_rows")
+                    ar = ar[ar >= fr.onset]
+                    named = ranked_tags(sc.contributions, ar, top)[:top]
+                    r["top"] = named
+                    r["in_top"] = bool(fr.tags) and any(t in named for t in fr.tags)
+                    r["named_counted"] = bool(fr.tags)
+                    r["run"] = fr.run
+                    per_run.append(r)
+                delays = [r["delay_s"] for r in per_run if r["delay_s"] is not None]
+                counted = [r for r in per_run if r["named_counted"]]
+                rows[f] = {
+                    "detection_rate": float(np.mean([r["detection_rate"] for r in per_run])),
+                    "delay_s": float(np.median(delays)) if delays else None,
+                    "detected_runs": len(delays),
+                    "episodes": float(np.mean([r["episodes"] for r in per_run])),
+                    "in_top": sum(r["in_top"] for r in counted),
+                    "named_runs": len(counted),
+                    "runs": len(per_run),
+                    "per_run": per_run,
+                }
+            det = [rows[f]["detection_rate"] for f in faults]
+            counted = [rows[f] for f in faults if rows[f]["named_runs"]]
+            point["methods"][name] = {
+                "limit": lim.as_dict(),
+                "free_share": share,
+                "free_per_hour": ph,
+                "faults": rows,
+                "mean_detection": float(np.mean(det)) if det else None,
+                "in_top": sum(r["in_top"] for r in counted),
+                "named_runs": sum(r["named_runs"] for r in counted),
+            }
+        out["points"].append(point)
+    return out

@@ -1,0 +1,2 @@
+"""Learning a unit's thresholds from a fault-free window: cross-fitted residuals held to a
+false-alarm budget (``diag unit learn``)."""

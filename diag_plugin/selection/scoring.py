@@ -1,0 +1,166 @@
+"""Held-out scoring of model variants: a time-ordered held-out block
+(:class:`HeldOutScorer`, what ``diag explain`` ranks with) and time-blocked cross-validation
+over a window's blocks (:class:`BlockScorer`, what ``diag unit build`` chooses inputs with)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import replace as dc_replace
+
+import numpy as np
+import pandas as pd
+
+from diag_plugin.metrics import residual_pct
+from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.training.chunked import split_time
+
+#: measured samples a held-out block needs to judge a candidate
+MIN_HELD = 10
+
+
+class HeldOutScorer:
+    """Trains a variant of the model on the rows before the cut and scores every variant on
+    the *same* held-out samples: all rows after the cut with a measured output.
+
+    Where a variant has no rule its nearest trained rule stands in (``extrapolate``) —
+    exactly how ``diag train`` and ``diag compare`` score a model — so predicting fewer
+    samples never makes a variant look better, and the error a candidate promises is the
+    error training then reports. Each variant's own coverage is reported
+    beside its error.
+    """
+
+    def __init__(self, rb: RuleBase, cols: Sequence[np.ndarray], y: np.ndarray, cut: int):
+        self.rb = rb
+        self.y = y
+        self.cut = cut
+        self.span = rb.output.span[1] - rb.output.span[0]
+        tr_y = np.isfinite(y[:cut])
+        self.mean = float(y[:cut][tr_y].mean()) if tr_y.any() else math.nan
+        self.va = np.flatnonzero(np.isfinite(y[cut:])) + cut
+        self.last_fine = 0.0
+        pred, self.base_model, self.base_rows = self._fit_predict(list(rb.inputs), cols)
+        self.base_cov = float(np.isfinite(pred).mean()) if pred.size else 0.0
+        self.base_fine = self.last_fine
+        self.base_rmse = self._rmse(self._stand_in(pred, self.base_model, cols))
+        self.base_rules = rb.codec.size(self.base_model) if self.base_model is not None else 0
+
+    def _fit_predict(self, variables, cols):
+        if not len(cols):  # no input yet: the training mean stands in everywhere
+            return np.full(self.va.size, np.nan), None, int(np.isfinite(self.y[: self.cut]).sum())
+        X = np.column_stack(cols)
+        tr = np.isfinite(X[: self.cut]).all(axis=1) & np.isfinite(self.y[: self.cut])
+        if tr.sum() < 10 or self.va.size < 10:
+            return np.full(self.va.size, np.nan), None, int(tr.sum())
+        spec = dc_replace(self.rb.spec, inputs=list(variables))
+        m = self.rb.codec.new_estimator(spec).fit(X[: self.cut][tr], self.y[: self.cut][tr])
+        det = m.predict_detail(X[self.va])
+        self.last_fine = (
+            float(np.mean(det.level == 0)) if det.level is not None else det.coverage
+        )  # the share the fine grid answered: levels behind it hide a thin grid otherwise
+        return det.y, m, int(tr.sum())
+
+    def _stand_in(self, pred: np.ndarray, model, cols) -> np.ndarray:
+        """``pred`` with the model's stand-in (its ``extrapolate``: the nearest rule) where it
+        has no prediction, and the training mean where an input is missing."""
+        out = pred.copy()
+        miss = ~np.isfinite(out)
+        if model is not None and miss.any():
+            X = np.column_stack(cols)[self.va[miss]]
+            out[miss] = model.extrapolate(X)
+        return np.where(np.isfinite(out), out, self.mean)
+
+    def _rmse(self, pred: np.ndarray) -> float:
+        if not pred.size or not np.isfinite(pred).all():
+            return math.nan
+        r = residual_pct(self.y[self.va], pred, self.span)
+        return float(np.sqrt(np.mean(r * r)))
+
+    def score(self, variables, cols) -> tuple[float, float, float, float]:
+        """Held-out RMSE in % of span on the common samples, own coverage, training samples
+        per rule, and the share its fine rule grid answered, of a variant."""
+        self.last_fine = 0.0
+        pred, m, n_train = self._fit_predict(variables, cols)
+        if m is None:
+            return math.nan, 0.0, 0.0, 0.0
+        own = np.isfinite(pred)
+        per_cell = n_train / max(self.rb.codec.size(m), 1)
+        rmse = self._rmse(self._stand_in(pred, m, cols))
+        return rmse, float(own.mean()), per_cell, self.last_fine
+
+    def residual(self, cols) -> np.ndarray:
+        """The current model's in-sample residual on the training rows (NaN where none)."""
+        out = np.full(self.cut, np.nan)
+        if self.base_model is not None:
+            X = np.column_stack(cols)[: self.cut]
+            out = self.y[: self.cut] - self.base_model.predict(X)
+        return out
+
+
+class BlockScorer:
+    """:class:`HeldOutScorer` over time blocks: each block of
+    the window is held out in turn, a variant is trained on the other blocks and scored on
+    it, and the squared errors of all blocks are pooled (time-blocked cross-validation).
+
+    A relation that holds only in part of the window — a correlation that the operators'
+    set-point choices of one period made, which another period's choices break — scores
+    badly on the blocks it does not hold in; a single held-out tail would judge it on one
+    period only. The blocks are ``diag unit learn``'s (:func:`~diag_plugin.learn.thresholds.
+    block_of`: a window of several runs is cut between runs), so inputs are chosen on the
+    error the thresholds are then learned from. A Wang–Mendel fit is a group-by over rule
+    cells, independent of row order, so each fold is the window's rows reordered (training
+    rows first) and cut there."""
+
+    def __init__(self, rb: RuleBase, cols: Sequence[np.ndarray], y: np.ndarray, block: np.ndarray):
+        self.y = y
+        self.folds = []
+        good = np.isfinite(y)
+        for b in np.unique(block):
+            held = block == b
+            if np.count_nonzero(held & good) < MIN_HELD:
+                continue  # a block the tag is (nearly) missing from judges nothing
+            order = np.r_[np.flatnonzero(~held), np.flatnonzero(held)]
+            self.folds.append((order, int(np.count_nonzero(~held))))
+        self.parts = [HeldOutScorer(rb, [c[o] for c in cols], y[o], cut) for o, cut in self.folds]
+        self.base_rmse = self._pool([p.base_rmse for p in self.parts])
+        self.mean = float(y[good].mean()) if good.any() else math.nan
+        # the current model on every row, for the screen of the next input
+        self.model = None
+        if len(cols):
+            X = np.column_stack(cols)
+            ok = np.isfinite(X).all(axis=1) & good
+            if ok.sum() >= 10:
+                self.model = rb.codec.new_estimator(rb.spec).fit(X[ok], y[ok])
+
+    def _pool(self, rmse: Sequence[float]) -> float:
+        """RMSE over every held-out sample from the blocks' RMSEs (NaN if any is NaN)."""
+        n = np.array([p.va.size for p in self.parts], float)
+        r = np.asarray(rmse, float)
+        if not n.sum() or not np.isfinite(r[n > 0]).all():
+            return math.nan
+        return float(np.sqrt(np.sum(n[n > 0] * r[n > 0] ** 2) / n.sum()))
+
+    def score(self, variables, cols) -> tuple[float, float]:
+        """Pooled held-out RMSE (% of span) and own coverage of a variant."""
+        got = [
+            p.score(variables, [c[o] for c in cols])
+            for p, (o, _) in zip(self.parts, self.folds, strict=True)
+        ]
+        n = np.array([p.va.size for p in self.parts], float)
+        cov = float(np.sum(n * np.array([g[1] for g in got])) / max(n.sum(), 1.0))
+        return self._pool([g[0] for g in got]), cov
+
+    def residual(self, cols) -> np.ndarray:
+        """The current model's in-sample residual on every row (NaN where none)."""
+        if self.model is None:
+            return self.y - self.mean
+        return self.y - self.model.predict(np.column_stack(cols))
+
+
+def cut_row(index: pd.DatetimeIndex, holdout: float) -> int:
+    """First row of the held-out block: the product's one time-based cut."""
+    if len(index) == 0:
+        return 0
+    step = index[1] - index[0] if len(index) > 1 else pd.Timedelta(0)
+    t = split_time(index[0], index[-1] + step, holdout, step if len(index) > 1 else None)
+    return int(index.searchsorted(t))

@@ -1,0 +1,38 @@
+"""Set counts from the data: the most sets per input the data fill."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+#: training samples per rule cell a grid should keep (set counts chosen from the data)
+MIN_PER_CELL = 20
+#: set counts chosen from the data stay within these
+SETS_RANGE = (3, 31)
+
+
+def sets_for_data(cols: Sequence[np.ndarray], spans: Sequence[tuple[float, float]]) -> int:
+    """The most sets per input (within :data:`SETS_RANGE`; 31 is the paper's count) for which
+    the rule cells the data occupy hold :data:`MIN_PER_CELL` samples on average — the
+    operating range counts, not the nominal span."""
+    X = np.column_stack(cols) if cols else np.empty((0, 0))
+    X = X[np.isfinite(X).all(axis=1)] if X.size else X
+    n = len(X)
+    lo = np.array([s[0] for s in spans])
+    width = np.array([s[1] - s[0] for s in spans])
+    for sets in range(SETS_RANGE[1], SETS_RANGE[0] - 1, -1):
+        if n == 0:
+            break
+        idx = np.clip(np.floor((X - lo) / width * (sets - 1) + 0.5), 0, sets - 1).astype(np.int64)
+        occupied = np.unique(idx @ (sets ** np.arange(idx.shape[1], dtype=np.int64))).size
+        if n >= MIN_PER_CELL * occupied:
+            return sets
+    return SETS_RANGE[0] if n else SETS_RANGE[1]
+
+
+def sets_for_cells(n_train: int, cells: int, current: int) -> int:
+    """Sets for a new input so that each occupied rule cell keeps about
+    :data:`MIN_PER_CELL` training samples (``cells``: rules the model has now)."""
+    fit = n_train // max(MIN_PER_CELL * max(cells, 1), 1)
+    return int(min(max(fit, 2), current))

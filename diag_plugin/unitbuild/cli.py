@@ -1,0 +1,121 @@
+"""``diag unit build``: a unit from a window of the plant's history you declare fault-free.
+
+Only argparse is imported at start-up; the command imports what it needs when it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from diag_plugin.diagnose.cli import parse_time, unit_actions
+from historian.errors import UserError
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    usub = unit_actions(sub)
+    p = usub.add_parser(
+        "build",
+        help="build a unit from a fault-free window: tests, inputs, models and thresholds",
+    )
+    p.add_argument("name")
+    p.add_argument("--from", dest="start", required=True, metavar="T0")
+    p.add_argument("--to", dest="end", required=True, metavar="T1")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument(
+        "--tags", nargs="+", metavar="TAG", help="the tags to test (default: all that vary)"
+    )
+    g.add_argument(
+        "--tags-from", metavar="FILE", help="the tags to test, one per line (# comments)"
+    )
+    p.add_argument(
+        "--far",
+        type=float,
+        default=None,
+        metavar="PER_HOUR",
+        help="false-alarm budget: alarms per hour of operation of the unit, all tests together "
+        "(default 0.001)",
+    )
+    p.add_argument("--max-inputs", type=int, default=3, metavar="N", help="inputs per model (3)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing unit and models")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_unit_build)
+
+
+def _tags_from(path: str) -> list[str]:
+    try:
+        lines = Path(path).read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserError(f"--tags-from {path}: cannot read: {exc}") from None
+    tags = [ln.split("#", 1)[0].strip() for ln in lines]
+    tags = [t for t in tags if t]
+    if not tags:
+        raise UserError(f"--tags-from {path}: lists no tag (one per line)")
+    return tags
+
+
+def cmd_unit_build(args) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    from diag_plugin.unitbuild.build import build_from_historian
+
+    tags = args.tags or (_tags_from(args.tags_from) if args.tags_from else None)
+    if args.max_inputs < 1:
+        raise UserError(f"--max-inputs {args.max_inputs}: at least 1")
+    t0, t1 = parse_time(args.start), parse_time(args.end)
+    err = Console(stderr=True)
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        console=err,
+        transient=True,
+        disable=args.json or not err.is_terminal,
+    ) as bar:
+        tasks: dict[str, int] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=total)
+            bar.update(tasks[stage], completed=done)
+
+        res = build_from_historian(
+            args.db,
+            args.name,
+            t0,
+            t1,
+            folder=args.rulebases,
+            tags=tags,
+            far=args.far,
+            max_inputs=args.max_inputs,
+            force=args.force,
+            progress=progress,
+        )
+    if args.json:
+        print(json.dumps(res.as_dict(), indent=2))
+        return 0
+    print(
+        f"wrote {res.path}: {len(res.tests)} tests from {res.window[0]} … {res.window[1]} "
+        f"(period {res.period}), thresholds to {res.far:g} false alarms per hour"
+        + (" (the default)" if args.far is None else "")
+    )
+    for ch in res.tests:
+        errs = " → ".join(
+            f"{x:.2f}" for x in [ch.baseline_rmse_pct, *(s.rmse_pct for s in ch.steps)]
+        )
+        loop = f" (its control loop, {ch.method}; actuator {ch.actuator})" if ch.tracks else ""
+        print(
+            f"  {ch.test}: {ch.tag} = f({', '.join(ch.inputs)}){loop}; held-out error {errs} % "
+            "of span"
+        )
+    for tag, why in res.skipped.items():
+        print(f"  not tested: {tag}: {why}")
+    for n in res.notes[:4]:
+        print(f"  note: {n}")
+    if len(res.notes) > 4:
+        print(f"  … {len(res.notes) - 4} more notes of the same kind (--json lists them all)")
+    print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in res.seconds.items()))
+    print(f"next: diag unit show {args.name}; diag diagnose {args.name} --from … --to …")
+    return 0

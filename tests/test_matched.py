@@ -1,0 +1,206 @@
+"""Matched false-alarm scoring (diag_plugin.bench.matched): the yardstick of issue 34."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from diag_plugin.bench.matched import (
+    FaultRun,
+    Scored,
+    calibrate,
+    curve,
+    delayed_score,
+    episode_count,
+    method_score,
+    rates,
+    side_ratio,
+)
+from diag_plugin.diagnose.symptoms import OnOffDelay
+
+
+def _ar1(rng, n, phi=0.8):
+    e = rng.standard_normal(n)
+    x = np.empty(n)
+    x[0] = e[0]
+    for i in range(1, n):
+        x[i] = phi * x[i - 1] + np.sqrt(1 - phi**2) * e[i]
+    return x
+
+
+@pytest.mark.parametrize(("on", "off"), [(1, 1), (3, 1), (1, 4), (3, 3), (5, 2)])
+def test_delayed_score_is_the_delayed_alarm_at_every_limit(on, off):
+    rng = np.random.default_rng(on * 10 + off)
+    x = _ar1(rng, 600, 0.6)
+    x[rng.random(600) < 0.05] = np.nan  # unknown samples: never over
+    d = delayed_score(x, on, off)
+    for lam in (-0.5, 0.0, 0.7, 1.3, 2.0):
+        raw = np.where(np.isfinite(x), x > lam, False).astype(float)
+        ref = OnOffDelay(on, off).transform(raw[:, None])[:, 0] > 0
+        got = np.where(np.isfinite(d), d, -np.inf) > lam
+        np.testing.assert_array_equal(got, ref)
+
+
+def test_side_ratio_and_method_score():
+    r = np.array([[2.0, -1.0], [-4.0, 0.5], [np.nan, np.nan]])
+    s = side_ratio(r, low=np.array([-2.0, -0.5]), high=np.array([4.0, 1.0]))
+    np.testing.assert_allclose(s[:2], [[0.5, 2.0], [2.0, 0.5]])
+    assert np.isnan(s[2]).all()
+    m = method_score(s, 1, 1)
+    np.testing.assert_allclose(m[:2], [2.0, 2.0])
+    assert np.isnan(m[2])
+
+
+def test_episodes_counted_per_run_and_per_hour():
+    a = np.array([0, 1, 1, 0, 1, 0, 0, 1], bool)
+    assert episode_count(a) == 3
+    assert episode_count(np.array([1, 1, 0], bool)) == 1
+    # two runs of 3 min samples: an alarm at the end of one and the start of the next are two
+    runs = [np.array([0.0, 0, 2]), np.array([2.0, 2, 0])]
+    share, per_h = rates(runs, 1.0, 180.0)
+    assert share == pytest.approx(3 / 6)
+    assert per_h == pytest.approx(2 / (6 * 180 / 3600))
+    # unknown samples are not in alarm and stay in the denominators
+    share, _ = rates([np.array([np.nan, np.nan, 2.0, 0.0])], 1.0, 1.0)
+    assert share == pytest.approx(0.25)
+
+
+@pytest.mark.parametrize("target", [0.01, 0.05])
+def test_calibrated_limit_holds_on_held_out_runs(target):
+    rng = np.random.default_rng(1)
+    cal = [_ar1(rng, 5000) for _ in range(4)]
+    held = [_ar1(rng, 5000) for _ in range(4)]
+    lim = calibrate(cal, target, 60.0, "sample")
+    assert lim.share <= target and lim.supported
+    share, _ = rates(held, lim.limit, 60.0)
+    n_eff = 20000 * (1 - 0.8) / (1 + 0.8)  # AR(1) effective sample size
+    assert abs(share - target) < 4 * np.sqrt(target * (1 - target) / n_eff)
+
+
+def test_calibrated_episode_rate_holds_on_held_out_runs():
+    rng = np.random.default_rng(2)
+    period = 60.0
+    cal = [_ar1(rng, 20000, 0.9) for _ in range(3)]
+    held = [_ar1(rng, 20000, 0.9) for _ in range(3)]
+    target = 1.0  # episodes per hour
+    lim = calibrate(cal, target, period, "hour")
+    assert lim.per_hour <= target
+    _, ph = rates(held, lim.limit, period)
+    hours = 60000 * period / 3600
+    assert abs(ph - target) < 4 * np.sqrt(target / hours) + 0.15
+
+
+def test_thin_calibration_is_flagged():
+    rng = np.random.default_rng(3)
+    lim = calibrate([rng.standard_normal(500)], 0.001, 180.0)
+    assert not lim.supported
+    assert calibrate([rng.standard_normal(5000)], 0.01, 180.0).supported
+
+
+def _plant(rng, n_runs=6, n=400, onset=200, gain=(1.0, 0.3)):
+    """Fault runs where the fault raises method A's statistic by gain[0] and B's by gain[1]
+    (noise the same): A is truly better."""
+    runs, a, b = [], [], []
+    for i in range(n_runs):
+        step = np.r_[np.zeros(onset), np.ones(n - onset)]
+        a.append(Scored(_ar1(rng, n, 0.5) + 2.0 * gain[0] * step))
+        b.append(Scored(_ar1(rng, n, 0.5) + 2.0 * gain[1] * step))
+        runs.append(FaultRun("f", f"r{i}", onset, ()))
+    return runs, a, b
+
+
+def test_alarming_more_does_not_win():
+    """B is A on another scale: at a fixed limit of 1 it alarms far more, and
+    detects more; at matched false alarms it is exactly A."""
+    rng = np.random.default_rng(4)
+    runs, a, _ = _plant(rng)
+    cal = [_ar1(rng, 3000, 0.5) for _ in range(3)]
+    free = [_ar1(rng, 3000, 0.5) for _ in range(2)]
+
+    def inflate(x):
+        return 0.5 * x + 0.8
+
+    b = [Scored(inflate(s.score)) for s in a]
+    naive_a = np.mean([(s.score[200:] > 1).mean() for s in a])
+    naive_b = np.mean([(s.score[200:] > 1).mean() for s in b])
+    assert naive_b > naive_a  # what an unmatched comparison would credit
+    methods = {
+        "A": {"calibration": cal, "free": free, "faults": a},
+        "B": {"calibration": [inflate(c) for c in cal], "free": [inflate(f) for f in free],
+              "faults": b},
+    }  # fmt: skip
+    out = curve(methods, [0.01, 0.05], 60.0, "sample", runs)
+    for p in out["points"]:
+        ma, mb = p["methods"]["A"], p["methods"]["B"]
+        assert ma["mean_detection"] == pytest.approx(mb["mean_detection"])
+        assert ma["free_share"] == pytest.approx(mb["free_share"])
+
+
+def test_truly_better_method_ranks_first_and_names_its_tag():
+    rng = np.random.default_rng(5)
+    runs, a, b = _plant(rng, gain=(1.0, 0.4))
+    tags = ["X", "Y", "Z"]
+    idx = pd.RangeIndex(400)
+    runs = [FaultRun("f", r.run, r.onset, ("Y",)) for r in runs]
+    for s in a:  # A's contributions point at Y, B's at X
+        s.contributions = pd.DataFrame(
+            rng.random((400, 3)) + np.array([0.0, 1.0, 0.0]), index=idx, columns=tags
+        )
+    for s in b:
+        s.contributions = pd.DataFrame(
+            rng.random((400, 3)) + np.array([1.0, 0.0, 0.0]), index=idx, columns=tags
+        )
+    cal = [_ar1(rng, 3000, 0.5) for _ in range(3)]
+    methods = {
+        "A": {"calibration": cal, "free": [], "faults": a},
+        "B": {"calibration": cal, "free": [], "faults": b},
+    }
+    out = curve(methods, [0.005, 0.02, 0.05], 60.0, "sample", runs)
+    for p in out["points"]:
+        ma, mb = p["methods"]["A"], p["methods"]["B"]
+        assert ma["mean_detection"] > mb["mean_detection"] + 0.1
+        assert ma["in_top"] == ma["named_runs"] == 6
+        assert mb["faults"]["f"]["per_run"][0]["top"][0] == "X"
+
+
+def test_infinite_statistic_is_over_every_limit_and_unknown_never():
+    s = method_score(np.array([[np.inf, np.nan], [np.nan, np.nan], [0.5, 0.2]]), 1, 1)
+    assert s[0] == np.inf and np.isnan(s[1])
+    share, per_h = rates([s], 10.0, 3600.0)
+    assert share == pytest.approx(1 / 3) and per_h == pytest.approx(1 / 3)
+    lim = calibrate([np.r_[s, np.zeros(97)]], 0.02, 60.0)
+    assert lim.share <= 0.02 and lim.limit < np.inf
+
+
+@pytest.mark.slow
+def test_a_built_units_score_at_one_is_its_own_alarm(tmp_path):
+    """The unit's score (tests over their thresholds, combined T² over its limit, each after
+    the unit's delays, then the maximum) is over 1 exactly where the unit itself alarms, on
+    a run it never saw, with a fault and without."""
+    from diag_plugin.bench.publicbench import unit_statistics
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.simulate import coupled
+    from diag_plugin.status import NE107
+    from diag_plugin.unitbuild.build import build_unit
+
+    train, _ = coupled.simulate(4.0, n_tags=10, seed=1, structure_seed=0)
+    res = build_unit("u", train, folder=tmp_path, period="3min", far=0.05)
+    unit = Unit.load(res.path, tmp_path)
+    run, _ = coupled.simulate(2.0, n_tags=10, seed=9, structure_seed=0)
+    faulty = run.copy()
+    tag = res.tests[0].tag
+    faulty.iloc[len(run) // 2 :, faulty.columns.get_loc(tag)] += 3 * run[tag].std()
+    on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
+    seen = 0
+    for frame in (run, faulty):
+        stats, contrib = unit_statistics(unit, frame)
+        s = method_score(stats, on, off)
+        d = unit.reset().evaluate(frame)
+        st = d.status.to_numpy()
+        native = (st != NE107.NORMAL) & (st != NE107.CHECK_FUNCTION)
+        mine = np.where(np.isnan(s), -np.inf, s) > 1.0
+        np.testing.assert_array_equal(mine, native)
+        seen += int(native.sum())
+        assert list(contrib.columns) == unit.cmodel.tags
+    assert seen > 0  # the fault raised alarms: the comparison compared something
