@@ -141,3 +141,35 @@ def test_jittered_and_offset_timestamps_land_on_the_nearest_grid_point(historian
     historian.write_samples(pd.DataFrame({"A": k.astype(float)}, index=t))
     w = historian.window(["A"], T0, T0 + pd.Timedelta(seconds=15 * 500), "15s")
     assert w["A"].tolist() == k.astype(float).tolist()  # one sample per grid point, in order
+
+
+def test_a_training_read_without_summary_aligns_exactly_like_the_full_window(historian):
+    """``summary=False`` (training jobs) reads only the usable values from the database (a
+    Bad sample as NaN); the aligned frame must be the same as the full window's: Bad,
+    Uncertain and NaN samples, a held slow tag whose hold a Bad sample ends, and rows both
+    rolled to the cold store and still in the database."""
+    rng = np.random.default_rng(11)
+    t0 = pd.Timestamp("2024-01-30", tz="UTC")  # two days in January, one in February
+    fast = t0 + pd.to_timedelta(np.arange(0, 3 * 86400, 10) + rng.uniform(-2, 2, 25920), "s")
+    v = rng.normal(50, 5, len(fast))
+    v[rng.choice(len(v), 200, replace=False)] = np.nan
+    q = rng.choice([0, 0, 0, UNCERTAIN, BAD], len(v))
+    historian.write_samples(
+        pd.DataFrame({"A": v}, index=fast), quality=pd.DataFrame({"A": q}, index=fast)
+    )
+    slow = t0 + pd.to_timedelta(np.arange(0, 3 * 86400, 60), "s")
+    qs = rng.choice([0, 0, 0, 0, BAD], len(slow))
+    historian.write_samples(
+        pd.DataFrame({"S": np.arange(len(slow), dtype=float)}, index=slow),
+        quality=pd.DataFrame({"S": qs}, index=slow),
+    )
+    args = (["A", "S"], t0 - pd.Timedelta("1h"), t0 + pd.Timedelta("3D"), "10s")
+    full = historian.window(*args)
+    train = historian.window(*args, summary=False)
+    full.attrs = {}
+    pd.testing.assert_frame_equal(train, full, check_freq=False)
+    assert train["S"].notna().sum() > 3 * len(slow)  # the slow tag was held
+    assert np.isnan(train["A"]).sum() > 200
+    # January rolled to the cold store, February still in the database: the same frame
+    assert historian.roll_months(before="2024-02-01") == ["2024-01"]
+    pd.testing.assert_frame_equal(historian.window(*args, summary=False), train, check_freq=False)
