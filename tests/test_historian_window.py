@@ -173,3 +173,29 @@ def test_a_training_read_without_summary_aligns_exactly_like_the_full_window(his
     # January rolled to the cold store, February still in the database: the same frame
     assert historian.roll_months(before="2024-02-01") == ["2024-01"]
     pd.testing.assert_frame_equal(historian.window(*args, summary=False), train, check_freq=False)
+
+
+def test_tags_judges_coverage_and_gaps_on_the_tags_own_period_with_jitter(historian):
+    """Issue 37: `diag tags` showed 74.9 % coverage and 405 gaps on jittered 15 s data with
+    0.2 % of the rows missing (bins of the raw median spacing from the first sample, and
+    gaps between raw times). Judged on the tag's own 15 s grid, a sample at its nearest grid
+    point: the coverage is the share of rows present and each missed row is one gap. The
+    same at 1 s and at 5 min, and for a regular tag nothing changes."""
+    rng = np.random.default_rng(3)
+    for name, period_s, n in (("FI15", 15, 23_040), ("FI1", 1, 20_000), ("TI5M", 300, 2_000)):
+        k = np.arange(n)
+        t = T0 + pd.to_timedelta(
+            k * period_s + rng.uniform(-0.4, 0.4, n) * period_s + 0.1 * period_s, unit="s"
+        )
+        keep = np.ones(n, bool)
+        keep[rng.choice(np.arange(1, n - 1), max(2, n // 500), replace=False)] = False
+        historian.write_samples(pd.DataFrame({name: rng.normal(10, 1, n)}, index=t)[keep])
+        row = historian.tag_report().set_index("tag").loc[name]
+        missed_runs = int(np.count_nonzero(np.diff(np.r_[0, (~keep).astype(int)]) == 1))
+        assert abs(row["coverage"] - keep.mean()) < 1e-3, (name, row["coverage"])
+        assert row["gaps"] == missed_runs, (name, row["gaps"], missed_runs)
+    historian.write_samples(
+        pd.DataFrame({"REG": np.arange(100.0)}, index=T0 + pd.to_timedelta(np.arange(100), "min"))
+    )
+    row = historian.tag_report().set_index("tag").loc["REG"]
+    assert (row["coverage"], row["gaps"], row["interval_s"]) == (1.0, 0, 60.0)
