@@ -288,7 +288,7 @@ def cmd_compare(args) -> int:
     from rich.table import Table
 
     from diag_plugin.metrics import coverage_note, levels_note
-    from diag_plugin.workbench.compare import compare
+    from diag_plugin.workbench.compare import compare, scope_note
 
     rb = _load(args)
     frame, info = _model_frame(args, rb)
@@ -316,6 +316,7 @@ def cmd_compare(args) -> int:
         f"RMSE {m['rmse_pct']:.2f} %  MAE {m['mae_pct']:.2f} %  bias {m['bias_pct']:+.2f} %  "
         f"max {m['max_abs_pct']:.1f} % of span; coverage {m['coverage']:.1%}"
     )
+    con.print(scope_note(c.scope), markup=False, soft_wrap=True)
     if note := levels_note(m):
         con.print(note, markup=False)
     if note := coverage_note(m):
