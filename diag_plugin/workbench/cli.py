@@ -299,7 +299,7 @@ def cmd_compare(args) -> int:
     if args.report:
         from diag_plugin.workbench.report import write_report
 
-        write_report(args.report, rb, c, None, _experiments(args, rb))
+        write_report(args.report, rb, c, None, _experiments(args, rb), frame)
     if args.json:
         print(json.dumps(c.as_dict(), indent=2, allow_nan=False, default=str))
         return 0
@@ -413,7 +413,7 @@ def cmd_report(args) -> int:
     frame, info = _model_frame(args, rb)
     c = compare(rb, frame)
     e = explain(rb, frame, tag_info=info)
-    write_report(args.out, rb, c, e, _experiments(args, rb))
+    write_report(args.out, rb, c, e, _experiments(args, rb), frame)
     if args.json:
         print(json.dumps({"model": rb.name, "report": args.out, "metrics": c.metrics}, default=str))
         return 0
