@@ -362,8 +362,12 @@ def parse_times(
         t = pd.to_datetime(text, errors="coerce", format=time_format, utc="%z" in time_format)
     else:
         text = _strip(raw)
-        number = pd.to_numeric(text, errors="coerce").notna()
-        text = text.mask(number)
+        # a plain number is no time, though ISO 8601 reads 2026 or 20260101 as dates: the
+        # only numbers it reads are that short, so only short cells are tested (fast)
+        short = text.str.len() <= 10
+        if short.any():
+            number = pd.to_numeric(text[short], errors="coerce").notna()
+            text = text.mask(number.reindex(text.index, fill_value=False))
         try:
             t = pd.to_datetime(text, errors="coerce", format="ISO8601")
         except (ValueError, TypeError):
