@@ -29,6 +29,7 @@ import argparse
 import collections
 import functools
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -152,12 +153,23 @@ def fastest(fn, runs: int) -> float:
 
 def wall(cmd: list[str]) -> float:
     """Wall time of a fresh process (no DIAG_* settings from the caller)."""
+    return timed_process(cmd)[0]
+
+
+def timed_process(cmd: list[str]) -> tuple[float, float]:
+    """Wall time and CPU time (user + system, all its threads) of a fresh process (no DIAG_*
+    settings from the caller). The CPU time is the steadier figure on a machine other work
+    keeps busy."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     res = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    elapsed = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if res.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{res.stderr}")
-    return time.perf_counter() - t
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return elapsed, cpu
 
 
 def api_call(url: str, path: Path):
@@ -240,24 +252,26 @@ def main(argv=None) -> int:
         rules = reference(ref_file)
         calls = {("hot", "train"): [], ("cold", "train"): [], ("hot", "job"): []}
         calls |= {("cold", "job"): [], ("hot", "process"): [], ("cold", "process"): []}
-        ref, ref_proc = [], []
+        ref, ref_proc, ref_cpu = [], [], []
+        cpu: dict[str, list[float]] = {"hot": [], "cold": []}
         for where, url in (("hot", hot_url), ("cold", cold_url)):  # warm: numba, file cache
             api_call(url, work / where / "rulebases" / "m.toml")
         for _ in range(args.runs):
             ref.append(fastest(lambda: reference(ref_file), 1))
-            t = time.perf_counter()
-            subprocess.run(
-                [sys.executable, "-c", f"{REFERENCE}\nreference({ref_file!r}, {SPANS!r})"],
-                capture_output=True, text=True, check=True,
-            )  # fmt: skip
-            ref_proc.append(time.perf_counter() - t)
+            w, c = timed_process(
+                [sys.executable, "-c", f"{REFERENCE}\nreference({ref_file!r}, {SPANS!r})"]
+            )
+            ref_proc.append(w)
+            ref_cpu.append(c)
             for where, url in (("hot", hot_url), ("cold", cold_url)):
                 path = work / where / "rulebases" / "m.toml"
                 calls[where, "train"].append(fastest(lambda u=url, p=path: api_call(u, p), 1))
                 calls[where, "job"].append(fastest(lambda u=url, p=path: train_one(p, u), 1))
-                calls[where, "process"].append(
-                    wall([*diag, "--db", url, "--rulebases", str(path.parent), "train", "m"])
+                w, c = timed_process(
+                    [*diag, "--db", url, "--rulebases", str(path.parent), "train", "m"]
                 )
+                calls[where, "process"].append(w)
+                cpu[where].append(c)
         r = min(ref)
         res = api_call(cold_url, cold / "rulebases" / "m.toml")
         print(
@@ -266,8 +280,10 @@ def main(argv=None) -> int:
         )
         print(f"fastest of {args.runs} runs, in turns; x = times the reference's")
         print(f"  reference: Parquet read + numpy accumulation        {r:6.3f} s")
-        rp = min(ref_proc)
-        print(f"  reference as a process (python, numpy, pyarrow, work) {rp:6.3f} s")
+        rp, rc = min(ref_proc), min(ref_cpu)
+        print(
+            f"  reference as a process (python, numpy, pyarrow, work) {rp:6.3f} s ({rc:.3f} s CPU)"
+        )
         names = {
             "train": "train() through the API",
             "job": "train_one() (+ rule-base file, record)",
@@ -277,7 +293,13 @@ def main(argv=None) -> int:
             for where in ("hot", "cold"):
                 t = min(calls[where, kind])
                 label = f"{names[kind]}, {'SQLite' if where == 'hot' else 'rolled'}"
-                vs = f"  {t / rp:5.2f} x the reference process" if kind == "process" else ""
+                vs = ""
+                if kind == "process":
+                    c = min(cpu[where])
+                    vs = (
+                        f"  {t / rp:5.2f} x the reference process; CPU {c:.3f} s, "
+                        f"{c / rc:5.2f} x its"
+                    )
                 print(f"  {label:52s} {t:6.3f} s  {t / r:5.2f} x{vs}")
         ok_call = min(calls["cold", "train"]) <= TARGET_CALL * r
         ok_proc = all(min(calls[w, "process"]) <= TARGET_PROCESS * rp for w in ("hot", "cold"))
