@@ -1,6 +1,6 @@
 """``diag train`` of a 3-input model over six months at 10 s (1.58 M rows), from the SQLite
 historian and after rolling the months to the Parquet cold store, beside a columnar
-reference (issues 3 and 27).
+reference (issues 3, 27 and 37).
 
 The reference is the least a training can do: the same four columns read from one Parquet
 file (pyarrow) and the rule cells of ``F = f(CV[k-1], P1, P2)`` (31 sets each) accumulated
@@ -13,7 +13,9 @@ what the targets are about:
   the last 20 %) from the rolled historian: within 2x of the reference;
 - ``train_one()``: the same plus the rule-base file read and written and the experiment
   recorded (what ``diag train`` does in its process);
-- the whole ``diag train`` process: within 3x of the reference.
+- the whole ``diag train`` process, beside the reference run as a process (Python, numpy,
+  pyarrow, the same work): within 2x of it (issue 37; what a user timing the two commands
+  sees).
 
 Then where the time goes: per phase of ``train_one`` (wall time inside the call) and of the
 process (Python and imports, numba's start at the first compiled call, the job).
@@ -27,6 +29,7 @@ import argparse
 import collections
 import functools
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -34,9 +37,7 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
-import pyarrow.parquet as pq
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -48,19 +49,44 @@ from historian.access import WindowReader  # noqa: E402
 from historian.store import Historian  # noqa: E402
 
 TARGET_CALL = 2.0  # x reference, train() from the rolled historian
-TARGET_PROCESS = 3.0  # x reference, the diag train process
+TARGET_PROCESS = 2.0  # x the reference process, the diag train process
 INPUTS = ["CV[k-1]", "P1[k]", "P2[k]"]
 
+#: the reference, as a process would run it: nothing but numpy and pyarrow imported (the
+#: same source runs in this process, :func:`reference`)
 REFERENCE = """
-import sys, time
-t0 = time.perf_counter()
-import numpy as np, pyarrow.parquet as pq
-t1 = time.perf_counter()
-sys.path.insert(0, {here!r})
-from bench_train import reference
-reference({path!r})
-print(t1 - t0, time.perf_counter() - t1)
+import numpy as np
+import pyarrow.parquet as pq
+
+
+def reference(path, spans):
+    \"\"\"Read CV, P1, P2, F from one Parquet file and accumulate count, sum and sum of
+    squares per rule cell of F = f(CV[k-1], P1, P2) (31 sets each) with numpy; returns the
+    number of rules.\"\"\"
+    table = pq.read_table(path, columns=["CV", "P1", "P2", "F"])
+    cv, p1, p2, f = (table.column(c).to_numpy() for c in ("CV", "P1", "P2", "F"))
+    x = (np.r_[np.nan, cv[:-1]], p1, p2)
+    ok = np.isfinite(f) & np.isfinite(x[0]) & np.isfinite(p1) & np.isfinite(p2)
+    key = np.zeros(int(ok.sum()), np.int64)
+    for v, tag in zip(x, ("CV", "P1", "P2"), strict=True):
+        lo, hi = spans[tag]
+        cell = np.clip(np.floor((v[ok] - lo) / ((hi - lo) / 30) + 0.5), 0, 30).astype(np.int64)
+        key = key * 31 + cell
+    q = np.floor((f[ok] - spans["F"][0]) / (spans["F"][1] - spans["F"][0]) * 65536 + 0.5)
+    count = np.bincount(key, minlength=31**3)
+    np.bincount(key, weights=q, minlength=31**3)
+    np.bincount(key, weights=q * q, minlength=31**3)
+    return int(np.count_nonzero(count))
 """
+_REF: dict = {}
+exec(REFERENCE, _REF)
+SPANS = {t: (TAGS[t].lo, TAGS[t].hi) for t in ("CV", "P1", "P2", "F")}
+
+
+def reference(path: str) -> int:
+    """The reference in this process (see :data:`REFERENCE`)."""
+    return _REF["reference"](path, SPANS)
+
 
 PROCESS_PARTS = """
 import time
@@ -77,25 +103,6 @@ import scipy.spatial
 t3 = time.perf_counter()
 print(t1 - t0, t2 - t1, t3 - t2)
 """
-
-
-def reference(path: str) -> int:
-    """Read CV, P1, P2, F from one Parquet file and accumulate count, sum and sum of squares
-    per rule cell of F = f(CV[k-1], P1, P2) with numpy; returns the number of rules."""
-    table = pq.read_table(path, columns=["CV", "P1", "P2", "F"])
-    cv, p1, p2, f = (table.column(c).to_numpy() for c in ("CV", "P1", "P2", "F"))
-    x = (np.r_[np.nan, cv[:-1]], p1, p2)
-    ok = np.isfinite(f) & np.isfinite(x[0]) & np.isfinite(p1) & np.isfinite(p2)
-    key = np.zeros(int(ok.sum()), np.int64)
-    for v, tag in zip(x, ("CV", "P1", "P2"), strict=True):
-        lo, hi = TAGS[tag].lo, TAGS[tag].hi
-        cell = np.clip(np.floor((v[ok] - lo) / ((hi - lo) / 30) + 0.5), 0, 30).astype(np.int64)
-        key = key * 31 + cell
-    q = np.floor((f[ok] - TAGS["F"].lo) / (TAGS["F"].hi - TAGS["F"].lo) * 65536 + 0.5)
-    count = np.bincount(key, minlength=31**3)
-    np.bincount(key, weights=q, minlength=31**3)
-    np.bincount(key, weights=q * q, minlength=31**3)
-    return int(np.count_nonzero(count))
 
 
 def build(work: Path) -> tuple[str, str, Path, Path]:
@@ -146,12 +153,23 @@ def fastest(fn, runs: int) -> float:
 
 def wall(cmd: list[str]) -> float:
     """Wall time of a fresh process (no DIAG_* settings from the caller)."""
+    return timed_process(cmd)[0]
+
+
+def timed_process(cmd: list[str]) -> tuple[float, float]:
+    """Wall time and CPU time (user + system, all its threads) of a fresh process (no DIAG_*
+    settings from the caller). The CPU time is the steadier figure on a machine other work
+    keeps busy."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     res = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    elapsed = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if res.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{res.stderr}")
-    return time.perf_counter() - t
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return elapsed, cpu
 
 
 def api_call(url: str, path: Path):
@@ -227,7 +245,6 @@ def main(argv=None) -> int:
     ap.add_argument("--check", action="store_true", help="exit 1 when a target is missed")
     args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="bench_train_", dir=args.dir))
-    here = str(Path(__file__).resolve().parent)
     diag = [sys.executable, "-m", "diag_plugin"]
     try:
         hot_url, cold_url, hot, cold = build(work)
@@ -235,25 +252,26 @@ def main(argv=None) -> int:
         rules = reference(ref_file)
         calls = {("hot", "train"): [], ("cold", "train"): [], ("hot", "job"): []}
         calls |= {("cold", "job"): [], ("hot", "process"): [], ("cold", "process"): []}
-        ref, ref_proc, ref_imports = [], [], []
+        ref, ref_proc, ref_cpu = [], [], []
+        cpu: dict[str, list[float]] = {"hot": [], "cold": []}
         for where, url in (("hot", hot_url), ("cold", cold_url)):  # warm: numba, file cache
             api_call(url, work / where / "rulebases" / "m.toml")
         for _ in range(args.runs):
             ref.append(fastest(lambda: reference(ref_file), 1))
-            t = time.perf_counter()
-            out = subprocess.run(
-                [sys.executable, "-c", REFERENCE.format(here=here, path=ref_file)],
-                capture_output=True, text=True, check=True,
-            )  # fmt: skip
-            ref_proc.append(time.perf_counter() - t)
-            ref_imports.append(float(out.stdout.split()[0]))
+            w, c = timed_process(
+                [sys.executable, "-c", f"{REFERENCE}\nreference({ref_file!r}, {SPANS!r})"]
+            )
+            ref_proc.append(w)
+            ref_cpu.append(c)
             for where, url in (("hot", hot_url), ("cold", cold_url)):
                 path = work / where / "rulebases" / "m.toml"
                 calls[where, "train"].append(fastest(lambda u=url, p=path: api_call(u, p), 1))
                 calls[where, "job"].append(fastest(lambda u=url, p=path: train_one(p, u), 1))
-                calls[where, "process"].append(
-                    wall([*diag, "--db", url, "--rulebases", str(path.parent), "train", "m"])
+                w, c = timed_process(
+                    [*diag, "--db", url, "--rulebases", str(path.parent), "train", "m"]
                 )
+                calls[where, "process"].append(w)
+                cpu[where].append(c)
         r = min(ref)
         res = api_call(cold_url, cold / "rulebases" / "m.toml")
         print(
@@ -262,9 +280,9 @@ def main(argv=None) -> int:
         )
         print(f"fastest of {args.runs} runs, in turns; x = times the reference's")
         print(f"  reference: Parquet read + numpy accumulation        {r:6.3f} s")
+        rp, rc = min(ref_proc), min(ref_cpu)
         print(
-            f"  reference as a process (python, numpy+pyarrow, work) {min(ref_proc):6.3f} s "
-            f"(imports {min(ref_imports):.3f} s)"
+            f"  reference as a process (python, numpy, pyarrow, work) {rp:6.3f} s ({rc:.3f} s CPU)"
         )
         names = {
             "train": "train() through the API",
@@ -275,12 +293,20 @@ def main(argv=None) -> int:
             for where in ("hot", "cold"):
                 t = min(calls[where, kind])
                 label = f"{names[kind]}, {'SQLite' if where == 'hot' else 'rolled'}"
-                print(f"  {label:52s} {t:6.3f} s  {t / r:5.2f} x")
+                vs = ""
+                if kind == "process":
+                    c = min(cpu[where])
+                    vs = (
+                        f"  {t / rp:5.2f} x the reference process; CPU {c:.3f} s, "
+                        f"{c / rc:5.2f} x its"
+                    )
+                print(f"  {label:52s} {t:6.3f} s  {t / r:5.2f} x{vs}")
         ok_call = min(calls["cold", "train"]) <= TARGET_CALL * r
-        ok_proc = min(calls["cold", "process"]) <= TARGET_PROCESS * r
+        ok_proc = all(min(calls[w, "process"]) <= TARGET_PROCESS * rp for w in ("hot", "cold"))
         print(
             f"targets: train() from the rolled historian <= {TARGET_CALL:g} x: "
-            f"{'met' if ok_call else 'MISSED'}; diag train process <= {TARGET_PROCESS:g} x: "
+            f"{'met' if ok_call else 'MISSED'}; diag train process (SQLite and rolled) <= "
+            f"{TARGET_PROCESS:g} x the reference process: "
             f"{'met' if ok_proc else 'MISSED'}"
         )
         for where, url in (("hot", hot_url), ("cold", cold_url)):

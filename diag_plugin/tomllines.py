@@ -32,3 +32,23 @@ def line_of(
         if key is not None and re.match(r"^\s*" + re.escape(key) + r"\s*=", line):
             return i + 1
     return 1 if start is None else start + 1
+
+
+_POSITION = re.compile(r"\s*\(?\bat line (\d+),? col(?:umn)? (\d+)\)?\s*$")
+
+
+def syntax_error(path, exc: Exception, line_offset: int = 0) -> str:
+    """``path:line: TOML syntax error: what (column C)`` from a ``tomllib`` or ``tomlkit``
+    parse error, with one line number: the parsers end their message with their own ``at
+    line L, column C``, which becomes the ``file:line`` in front (``line_offset`` added when
+    only part of the file was parsed) and the column at the end."""
+    text = str(exc).strip()
+    m = _POSITION.search(text)
+    if m:
+        line, col = int(m.group(1)) + line_offset, int(m.group(2))
+        text = f"{text[: m.start()].rstrip()} (column {col})"
+    else:
+        line = getattr(exc, "line", None)
+        line = line + line_offset if isinstance(line, int) else None
+    where = f"{path}:{line}" if line is not None else f"{path}"
+    return f"{where}: TOML syntax error: {text[:1].lower() + text[1:]}"

@@ -68,6 +68,14 @@ def add_commands(subparsers) -> None:
         action="store_true",
         help="overwrite stored samples whose value or quality differs (--update: the old name)",
     )
+    p.add_argument(
+        "--duplicates",
+        choices=["error", "first", "last", "mean"],
+        default="error",
+        help="a time repeated within the file: refuse the file naming the rows (error, the "
+        "default), or keep each tag's first or last sample there, or the mean of its usable "
+        "ones",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_import)
 
@@ -187,6 +195,7 @@ def cmd_import(args) -> int:
                 decimal=args.decimal,
                 time_format=args.time_format,
                 rename=_renames(args.rename),
+                duplicates=args.duplicates,
                 progress=progress,
             )
         except ImportRefused as exc:
@@ -215,11 +224,16 @@ def cmd_import(args) -> int:
     if report.bad_cells:
         per_tag = ", ".join(f"{t} {n}" for t, n in report.bad_cells.items())
         print(f"{path}: stored as Bad samples: {per_tag}", file=sys.stderr)
+    repeats = report.repeat_message()
+    if repeats:
+        print(f"{path}: {repeats}", file=sys.stderr)
     conflicts = report.conflict_message()
     if conflicts:
         print(f"{path}: {conflicts}", file=sys.stderr)
     span = f"{report.first} .. {report.last}" if report.first is not None else "no data"
     counts = f"{report.new} new samples, {report.already} already stored"
+    if report.repeats:
+        counts = f"{report.repeats} rows at a repeated time merged ({report.duplicates}); " + counts
     if report.conflicts:
         counts += f", {report.conflicts} " + ("replaced" if report.replace else "conflicting")
     print(
@@ -252,6 +266,9 @@ def _report_json(r) -> dict:
         "already": r.already,
         "conflicts": r.conflicts,
         "first_conflict": r.first_conflict.describe() if r.first_conflict else None,
+        "repeated_times": r.repeats,
+        "first_repeat": r.repeat_example,
+        "duplicates": r.duplicates,
         "bad_rows": r.n_bad,
         "bad_row_messages": r.bad,
         "bad_cells": r.bad_cells,

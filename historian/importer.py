@@ -60,6 +60,7 @@ import os
 import re
 import shlex
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -73,6 +74,13 @@ from .taginfo import tag_name_problem
 from .times import from_us, index_us
 
 TIME_NAMES = ("ts", "time", "timestamp", "datetime", "date")
+#: what ``duplicates`` (``--duplicates``) may say about a time repeated within a file
+DUPLICATES = ("error", "first", "last", "mean")
+KEPT = {
+    "first": "each tag's first sample",
+    "last": "each tag's last sample",
+    "mean": "the mean of each tag's usable samples",
+}
 #: µs per unit of a plain-number time column
 TIME_UNITS = {
     "s": 1_000_000,
@@ -151,6 +159,9 @@ class ImportReport:
     bad_cells: dict[str, int] = field(default_factory=dict)  # per tag: stored as Bad
     cells: list[str] = field(default_factory=list)  # first MAX_MESSAGES 'file:line: TAG: ...'
     notes: list[str] = field(default_factory=list)  # what was detected (separator, ...)
+    repeats: int = 0  # rows whose time repeats an earlier row's in the file
+    repeat_example: str | None = None  # the first, 'file:line repeats file:line (time)'
+    duplicates: str = "error"  # what was kept at a repeated time
 
     def _bad(self, msg: str) -> None:
         self.n_bad += 1
@@ -175,6 +186,17 @@ class ImportReport:
     def already(self) -> int:
         """Samples stored before with the same value and quality."""
         return self.samples - self.new - self.conflicts
+
+    def repeat_message(self) -> str | None:
+        """The sentence telling the user about times repeated in the file (None: none)."""
+        if not self.repeats:
+            return None
+        noun = "1 row repeats" if self.repeats == 1 else f"{self.repeats} rows repeat"
+        return (
+            f"{noun} a time of an earlier row of the file (first: {self.repeat_example}); "
+            f"kept {KEPT[self.duplicates]} at each repeated time (--duplicates "
+            f"{self.duplicates})"
+        )
 
     def conflict_message(self) -> str | None:
         """The sentence telling the user about conflicts (None when there were none)."""
@@ -336,12 +358,16 @@ def parse_times(
     elif pd.api.types.is_numeric_dtype(raw.dtype):
         return pd.Series(pd.NaT, index=raw.index, dtype="datetime64[us, UTC]")
     elif time_format is not None:
-        text = raw.astype("string").str.strip()
+        text = _strip(raw)
         t = pd.to_datetime(text, errors="coerce", format=time_format, utc="%z" in time_format)
     else:
-        text = raw.astype("string").str.strip()
-        number = pd.to_numeric(text, errors="coerce").notna()
-        text = text.mask(number)
+        text = _strip(raw)
+        # a plain number is no time, though ISO 8601 reads 2026 or 20260101 as dates: the
+        # only numbers it reads are that short, so only short cells are tested (fast)
+        short = text.str.len() <= 10
+        if short.any():
+            number = pd.to_numeric(text[short], errors="coerce").notna()
+            text = text.mask(number.reindex(text.index, fill_value=False))
         try:
             t = pd.to_datetime(text, errors="coerce", format="ISO8601")
         except (ValueError, TypeError):
@@ -353,6 +379,13 @@ def parse_times(
     if getattr(t.dt, "tz", None) is None:
         t = t.dt.tz_localize(tz, ambiguous="NaT", nonexistent="NaT")
     return t.dt.tz_convert("UTC")
+
+
+def _strip(raw: pd.Series) -> pd.Series:
+    """Text without surrounding blanks (a column of str as it is; anything else as text)."""
+    if raw.dtype == object and pd.api.types.infer_dtype(raw, skipna=True) in ("string", "empty"):
+        return raw.str.strip()
+    return raw.astype("string").str.strip()
 
 
 def _numeric_times(raw: pd.Series, unit: str, origin_us: int) -> pd.Series:
@@ -410,8 +443,7 @@ def _clean_chunk(
         elif not pd.isna(rv) and tz != "UTC":
             why += f" (or ambiguous/non-existent in {tz})"
         reason[i] = why
-    tv = t.to_numpy()
-    implausible = ~bad_time & ~blank & ~pd.isna(tv)
+    implausible = ~blank & ~t.isna().to_numpy()  # every row with a time, judged below
     if implausible.any():
         lo, hi = _plausible_times()
         ok_t = pd.DatetimeIndex(t[implausible])
@@ -506,17 +538,15 @@ def _csv_chunks(path: Path, tcol: str, chunk_rows: int, advance, dialect: Dialec
             skip_blank_lines=False,
             skipinitialspace=True,
             encoding="utf-8-sig",
+            # each chunk's column types inferred from the whole chunk: a column with a text
+            # cell is text throughout the chunk (its cells judged one by one), never a mix of
+            # numbers and text pieces (pandas' DtypeWarning)
+            low_memory=False,
         )
         base = 0
         for chunk in reader:
-            n = len(chunk)
-            start = base
-
-            def line_of(i, start=start):
-                return f"{path}:{start + i + 2}"
-
-            yield chunk, line_of
-            base += n
+            yield chunk, base + 2  # the header is line 1
+            base += len(chunk)
             advance(fh.tell())
 
 
@@ -527,12 +557,7 @@ def _parquet_chunks(path: Path, chunk_rows: int, advance) -> Iterator:
     base = 0
     for batch in pf.iter_batches(batch_size=chunk_rows):
         chunk = batch.to_pandas(ignore_metadata=True)  # a DatetimeIndex stays a column
-        start = base
-
-        def line_of(i, start=start):
-            return f"{path}:{start + i + 1}"
-
-        yield chunk, line_of
+        yield chunk, base + 1  # 1-based row numbers
         base += len(chunk)
         advance(base)
 
@@ -542,6 +567,30 @@ def _is_parquet(path: Path) -> bool:
         return True
     with open(path, "rb") as fh:
         return fh.read(4) == b"PAR1"
+
+
+def _spreadsheet(path: Path) -> str | None:
+    """What kind of spreadsheet workbook the file is, from its first bytes (None: not one):
+    Office Open XML and OpenDocument are ZIP archives, Excel 97-2003 an OLE2 file."""
+    with open(path, "rb") as fh:
+        head = fh.read(8)
+    if head.startswith(b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1"):
+        return "an Excel 97-2003 workbook (.xls)"
+    if not head.startswith(b"PK\x03\x04"):
+        return None
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = z.namelist()
+            mime = z.read("mimetype").decode("ascii", "replace") if "mimetype" in names else ""
+    except (zipfile.BadZipFile, OSError, KeyError):
+        return "a ZIP archive"
+    if any(n.startswith("xl/") for n in names):
+        return "an Excel workbook (.xlsx)"
+    if "opendocument.spreadsheet" in mime:
+        return "an OpenDocument spreadsheet (.ods)"
+    return "a ZIP archive"
 
 
 def _check_text(path: Path, block_size: int = 1 << 20) -> None:
@@ -593,6 +642,14 @@ def inspect_file(
                 "one column per tag) and data rows"
             )
         parquet = _is_parquet(path)
+        kind = None if parquet else _spreadsheet(path)
+        if kind:
+            raise FileRefused(
+                f"{path}: {kind}, not a CSV text file; import reads CSV and Parquet: in the "
+                "spreadsheet program save the sheet as 'CSV UTF-8 (comma delimited)' (Excel) "
+                "or 'Text CSV' with UTF-8 (LibreOffice), one time column and one column per "
+                "tag, and import that file"
+            )
         if parquet:
             sample, columns, rows = _parquet_sample(path)
         else:
@@ -799,6 +856,7 @@ def import_file(
     decimal: str | None = None,
     time_format: str | None = None,
     rename: dict[str, str] | None = None,
+    duplicates: str = "error",
     chunk_rows: int = 200_000,
     progress: Callable[[int, int], None] | None = None,
 ) -> ImportReport:
@@ -809,13 +867,19 @@ def import_file(
     mark (default: detected where unambiguous); ``time_format``: a ``strftime`` format of
     the date-times (default ISO 8601); ``rename``: column → tag name. ``policy``:
     ``"ignore"`` keeps stored values at a conflict, ``"update"`` overwrites them; either way
-    conflicts are counted in the report. ``progress(done, total)`` is called after each
+    conflicts are counted in the report. ``duplicates``: what a time repeated within the
+    file means (:data:`DUPLICATES`; see :class:`_Repeats`): ``"error"`` refuses the file,
+    naming the first repeat and the count; ``"first"``, ``"last"`` keep that sample of each
+    tag, ``"mean"`` the mean of each tag's usable samples; the report says how many rows
+    repeated a time. ``progress(done, total)`` is called after each
     chunk (bytes for CSV, rows for Parquet). Raises :class:`FileRefused` (nothing written)
     when the file cannot be imported as given or holds no sample, :class:`ImportRefused` in
     strict mode when any row or cell is bad (nothing written).
     """
     if policy not in ("ignore", "update"):
         raise ValueError(f"policy must be 'ignore' or 'update', not {policy!r}")
+    if duplicates not in DUPLICATES:
+        raise ValueError(f"duplicates must be one of {', '.join(DUPLICATES)}, not {duplicates!r}")
     path = Path(path)
     parquet, columns, sample, dialect, notes = inspect_file(path, sep, decimal)
     tcol = pick_time_column(columns, time_column, sample, where=str(path))
@@ -852,15 +916,31 @@ def import_file(
         )
         return values.rename(columns=names), quality.rename(columns=names), rows
 
+    def pieces(advance, report, repeats):
+        """The file's rows as pieces without a repeated time (:class:`_Repeats`), each with
+        the line number of every row."""
+        for chunk, first in chunks(advance):
+
+            def line_of(i, first=first):
+                return f"{path}:{first + i}"
+
+            frame, quality, rows = clean(chunk, line_of, report)
+            yield from repeats.take(frame, quality, first + rows)
+        yield from repeats.flush()
+
     if strict:  # validate the whole file first: refuse before writing anything
         check = ImportReport(str(path))
+        repeats = _Repeats(path, duplicates)
         with _reading(path, check):
-            for chunk, line_of in chunks(noop):
-                clean(chunk, line_of, check)
+            for _ in pieces(noop, check, repeats):
+                pass
         if check.n_bad or check.n_bad_cells:
             n = check.n_bad + check.n_bad_cells
             raise ImportRefused(sorted(check.bad + check.cells, key=_line_number), n)
+        if repeats.refused:
+            raise FileRefused(repeats.refusal(written=False))
     report = ImportReport(str(path), replace=policy == "update", notes=notes)
+    repeats = _Repeats(path, duplicates)
     known = set(h.tags()["name"])
     tags_seen: list[str] = []
     pending_meta = {m["name"]: m for m in meta}
@@ -869,12 +949,27 @@ def import_file(
         if progress is not None:
             progress(done, total)
 
-    with _reading(path, report):
-        for chunk, line_of in chunks(advance):
-            frame, quality, rows = clean(chunk, line_of, report)
+    def line_at(n):
+        return f"{path}:{n}"
+
+    # one piece is written (a thread: the database releases the GIL) while the next is read
+    # and checked; in file order, each write waited for before the next starts
+    with _reading(path, report), ThreadPoolExecutor(1, "import-writer") as writer:
+        writing = None
+        for frame, quality, lines in pieces(advance, report, repeats):
+            if repeats.refused:
+                continue  # --duplicates error: the rest of the file is only read, to count
             present = frame.notna().to_numpy() | (quality.to_numpy() == BAD)
+            has = present.any(axis=0)
+            fresh = [
+                n
+                for j, n in enumerate(frame.columns)
+                if has[j] and (n in pending_meta or n not in known)
+            ]
+            if writing is not None and fresh:
+                writing.result()  # tag rows go in between sample batches, not beside them
             for j, name in enumerate(frame.columns):
-                if not present[:, j].any():
+                if not has[j]:
                     continue
                 if name in pending_meta:
                     h.ensure_tag(**pending_meta.pop(name))
@@ -884,12 +979,20 @@ def import_file(
                     known.add(name)
                 if name not in tags_seen:
                     tags_seen.append(str(name))
-            if present.any():
+            if has.any():
                 report.samples += int(present.sum())
-                _write(h, frame, quality, rows, line_of, policy, report)
+                if writing is not None:
+                    writing.result()
+                writing = writer.submit(_write, h, frame, quality, lines, line_at, policy, report)
                 lo, hi = frame.index.min(), frame.index.max()
                 report.first = lo if report.first is None else min(report.first, lo)
                 report.last = hi if report.last is None else max(report.last, hi)
+        if writing is not None:
+            writing.result()
+    report.repeats, report.repeat_example = repeats.count, repeats.example
+    report.duplicates = duplicates
+    if repeats.refused:
+        raise FileRefused(repeats.refusal(written=report.samples > 0))
     for m in pending_meta.values():  # metadata of tags already stored
         if m["name"] in known:
             h.ensure_tag(**m)
@@ -901,6 +1004,158 @@ def import_file(
             + (" (" + "; ".join(first) + ")" if first else "")
         )
     return report
+
+
+class _Repeats:
+    """Rows whose time repeats an earlier row's, met piece by piece.
+
+    :meth:`take` gets each cleaned chunk with its rows' line numbers and gives it back
+    without repeated times, by the policy (:data:`DUPLICATES`). The rows at the chunk's last
+    time, when it is the chunk's latest, wait for the next chunk (:meth:`flush` gives the
+    last ones), so repeats that follow each other always meet in one piece. A time repeating
+    one of an earlier piece (a file not in time order) is found among the times already
+    taken (8 bytes per row, only searched where the time ranges overlap): ``"first"`` drops
+    it, ``"last"`` and ``"mean"`` refuse (they need the repeats together). ``"error"`` sets
+    :attr:`refused` at the first repeat; later pieces are still read (and counted), not
+    given back."""
+
+    def __init__(self, path: Path, policy: str):
+        self.path, self.policy = path, policy
+        self.count = 0
+        self.example: str | None = None
+        self.example_line = 0
+        self.refused = False
+        self._seen: list[tuple[int, int, np.ndarray]] = []
+        self._carry = None
+
+    def take(self, frame: pd.DataFrame, quality: pd.DataFrame, lines: np.ndarray):
+        if self._carry is not None:
+            cf, cq, cl = self._carry
+            frame, quality = pd.concat([cf, frame]), pd.concat([cq, quality])
+            lines = np.r_[cl, lines]
+            self._carry = None
+        t = index_us(frame.index)
+        if not len(t):
+            return
+        k = len(t)
+        if t[-1] == t.max():  # in time order at its end: its last time may go on
+            k = len(t) - int(np.argmax(t[::-1] != t[-1])) if (t != t[-1]).any() else 0
+            self._carry = frame.iloc[k:], quality.iloc[k:], lines[k:]
+        if k:
+            yield from self._resolve(frame.iloc[:k], quality.iloc[:k], lines[:k], t[:k])
+
+    def flush(self):
+        if self._carry is not None:
+            frame, quality, lines = self._carry
+            self._carry = None
+            yield from self._resolve(frame, quality, lines, index_us(frame.index))
+
+    def refusal(self, written: bool) -> str:
+        where = (
+            f"the rows before line {self.example_line} were imported (importing again skips them)"
+            if written
+            else "nothing imported"
+        )
+        noun = "1 row repeats" if self.count == 1 else f"{self.count} rows repeat"
+        return (
+            f"{self.path}: {noun} the time of an earlier row (first: {self.example}); import "
+            "does not choose between them: say which sample each tag keeps with --duplicates "
+            f"first, last or mean; {where}"
+        )
+
+    def _note(self, line: int, text: str) -> None:
+        if self.example is None or line < self.example_line:
+            self.example, self.example_line = text, line
+
+    def _resolve(self, frame, quality, lines, t):
+        codes, uniq = pd.factorize(t)
+        inner = len(uniq) < len(t)
+        outer = np.zeros(len(t), bool)
+        lo, hi = int(t.min()), int(t.max())
+        for a, b, times in self._seen:
+            if a <= hi and b >= lo:
+                pos = np.minimum(np.searchsorted(times, t), len(times) - 1)
+                outer |= times[pos] == t
+        self._seen.append((lo, hi, np.sort(uniq)))
+        if not inner and not outer.any():
+            yield frame, quality, lines
+            return
+        first_row = np.unique(codes, return_index=True)[1]
+        again = np.ones(len(t), bool)
+        again[first_row] = False
+        self.count += int(np.count_nonzero(again | outer))
+        for i in np.flatnonzero(again)[:1]:
+            j = first_row[codes[i]]
+            self._note(
+                int(lines[i]),
+                f"{self.path}:{lines[i]} repeats {self.path}:{lines[j]}, "
+                f"{_iso(from_us(int(t[i])))}",
+            )
+        for i in np.flatnonzero(outer)[:1]:
+            self._note(
+                int(lines[i]),
+                f"{self.path}:{lines[i]} repeats a time met earlier in the file, "
+                f"{_iso(from_us(int(t[i])))}",
+            )
+        if self.policy == "error":
+            self.refused = True
+            return
+        if outer.any() and self.policy != "first":
+            i = int(np.flatnonzero(outer)[0])
+            raise FileRefused(
+                f"{self.path}:{lines[i]}: the time {_iso(from_us(int(t[i])))} repeats one met "
+                f"earlier in the file, not next to it; --duplicates {self.policy} takes "
+                "repeats that follow each other: sort the file by time, or use --duplicates "
+                "first"
+            )
+        keep = ~outer
+        if not keep.all():  # "first": a time already taken from an earlier piece stays
+            frame, quality, lines, t = frame[keep], quality[keep], lines[keep], t[keep]
+            codes, uniq = pd.factorize(t)
+        yield _collapse(frame, quality, lines, codes, uniq, self.policy)
+
+
+def _collapse(frame, quality, lines, codes, uniq, policy: str):
+    """One row per time (``uniq``, in the order first met; ``codes`` maps rows to them):
+    per tag its first or last sample (a number or a Bad cell) or the mean of its usable
+    ones (quality: Uncertain when one of them is; Bad, with the first Bad cell's number,
+    when none is usable)."""
+    V = frame.to_numpy(np.float64)
+    Q = quality.to_numpy(np.int64)
+    n, m = len(uniq), V.shape[1]
+    out_v = np.full((n, m), np.nan)
+    out_q = np.zeros((n, m), np.int64)
+    present = ~np.isnan(V) | (Q == BAD)
+    for j in range(m):
+        rows = np.flatnonzero(present[:, j])
+        if policy == "mean":
+            use = rows[Q[rows, j] < BAD]
+            g = codes[use]
+            total = np.bincount(g, weights=V[use, j], minlength=n)
+            count = np.bincount(g, minlength=n)
+            worst = np.zeros(n, np.int64)
+            np.maximum.at(worst, g, Q[use, j])
+            has = count > 0
+            out_v[has, j], out_q[has, j] = total[has] / count[has], worst[has]
+            rows = rows[~has[codes[rows]]]  # groups with only Bad cells: the first of them
+        elif policy == "last":
+            rows = rows[::-1]
+        g, at = np.unique(codes[rows], return_index=True)
+        out_v[g, j], out_q[g, j] = V[rows[at], j], Q[rows[at], j]
+    pick = np.unique(codes, return_index=True)[1]
+    if policy == "last":
+        pick = len(codes) - 1 - np.unique(codes[::-1], return_index=True)[1]
+    index = pd.DatetimeIndex(np.asarray(uniq, np.int64).view("datetime64[us]"), name="ts")
+    index = index.tz_localize("UTC")
+    return (
+        pd.DataFrame(out_v, index=index, columns=frame.columns),
+        pd.DataFrame(
+            out_q.astype(quality.dtypes.iloc[0] if m else np.int8),
+            index=index,
+            columns=quality.columns,
+        ),
+        lines[pick],
+    )
 
 
 def _line_number(msg: str) -> int:
@@ -1032,38 +1287,35 @@ def read_tags_csv(path: str | Path) -> list[dict]:
 
 
 def _write(h, frame, quality, rows, line_of, policy, report: ImportReport) -> None:
-    """Write one chunk, counting conflicts. A time repeated in the chunk goes in a later
-    pass, so it meets the row stored first like any stored sample. With ``"ignore"`` the
-    stored values are compared after the write, and only when some samples were not new
-    (the write keeps stored values, so what differs then is a conflict); with ``"update"``
-    before it."""
-    todo = np.arange(len(frame))
-    while len(todo):
-        again = frame.index[todo].duplicated(keep="first")
-        now, todo = todo[~again], todo[again]
-        part, part_q = frame.iloc[now], quality.iloc[now]
-        long = _long(part, part_q)
-        if policy == "update":
-            _count_conflicts(h, part, part_q, now, rows, line_of, report)
-            report.written += h.write_samples(long, policy=policy)
-            continue
-        written = h.write_samples(long, policy=policy)
-        report.written += written
-        if written < len(long):
-            _count_conflicts(h, part, part_q, now, rows, line_of, report)
+    """Write one piece (no time repeats in it: :class:`_Repeats`), counting conflicts with
+    stored samples. With ``"ignore"`` the stored values are compared after the write, and
+    only when some samples were not new (the write keeps stored values, so what differs
+    then is a conflict); with ``"update"`` before it. ``rows``: the line of each row."""
+    long = _long(frame, quality)
+    everything = np.arange(len(frame))
+    if policy == "update":
+        _count_conflicts(h, frame, quality, everything, rows, line_of, report)
+        report.written += h.write_samples(long, policy=policy)
+        return
+    written = h.write_samples(long, policy=policy)
+    report.written += written
+    if written < len(long):
+        _count_conflicts(h, frame, quality, everything, rows, line_of, report)
 
 
 def _long(values: pd.DataFrame, quality: pd.DataFrame) -> pd.DataFrame:
-    """The samples of a wide chunk (a number, or a Bad cell) as a long frame."""
-    v = values.to_numpy(np.float64)
-    q = quality.to_numpy(np.int64)
-    r, c = np.nonzero(~np.isnan(v) | (q == BAD))
+    """The samples of a wide chunk (a number, or a Bad cell) as a long frame, tag by tag
+    (the order the store writes; tags as a categorical, so nothing is hashed per row)."""
+    v = values.to_numpy(np.float64).T
+    q = quality.to_numpy(np.int64).T
+    c, r = np.nonzero(~np.isnan(v) | (q == BAD))
+    ts = index_us(values.index)[r].view("datetime64[us]")
     return pd.DataFrame(
         {
-            "tag": np.asarray(values.columns, dtype=object)[c],
-            "ts": values.index[r],
-            "value": v[r, c],
-            "quality": q[r, c],
+            "tag": pd.Categorical.from_codes(c, categories=[str(x) for x in values.columns]),
+            "ts": pd.DatetimeIndex(ts).tz_localize("UTC"),
+            "value": v[c, r],
+            "quality": q[c, r],
         }
     )
 

@@ -227,12 +227,21 @@ class Historian(ColdMonths, Registry, TagReport):
             yield tuple(np.concatenate(col) for col in zip(*pending, strict=True))
 
     # -- reading -------------------------------------------------------------------------
-    def _read_raw(self, tag_id: int, start: int, end: int, segments: list[dict] | None = None):
+    def _read_raw(
+        self,
+        tag_id: int,
+        start: int,
+        end: int,
+        segments: list[dict] | None = None,
+        usable: bool = False,
+    ):
         """(ts, value, quality) of one tag in [start, end), hot and cold rows combined.
-        ``segments``: the list of rolled months, when the caller read it before this read."""
+        ``segments``: the list of rolled months, when the caller read it before this read;
+        ``usable``: database rows may come with Bad samples as NaN values of GOOD quality
+        (the same to an aligned window, and faster to read from SQLite)."""
         # hot first, then the segment list: a roll committing in between gives duplicates
         # (removed below), never a loss
-        hot = self._bulk.read(tag_id, start, end)
+        hot = self._bulk.read(tag_id, start, end, usable=usable)
         parts = [p for p in self._read_cold(tag_id, start, end, segments) if len(p[0])]
         if not parts:
             return hot
@@ -333,12 +342,7 @@ class Historian(ColdMonths, Registry, TagReport):
 
     def _recent_ts(self, tag_id: int, n: int = SAMPLING_ROWS) -> np.ndarray:
         """Times of the tag's last ``n`` samples (the database first, then rolled months)."""
-        s = schema.samples
-        with self.engine.connect() as c:
-            rows = c.execute(
-                select(s.c.ts).where(s.c.tag_id == tag_id).order_by(s.c.ts.desc()).limit(n)
-            ).scalars()
-            ts = np.fromiter(rows, np.int64)[::-1]
+        ts = self._bulk.recent_ts(tag_id, n)
         if len(ts) >= n:
             return ts
         for seg in reversed(self._segments(None, None)):
@@ -393,7 +397,7 @@ class Historian(ColdMonths, Registry, TagReport):
         def one(i):
             tag_id, t_lo, t_hi = meta[i]
             back = int(hold.get(tags[i], 0))
-            ts, v, q = self._read_raw(tag_id, lo - back, hi, segments)
+            ts, v, q = self._read_raw(tag_id, lo - back, hi, segments, usable=not summary)
             col = align(ts, v, q, t0, p, n, how, back)
             if not summary:
                 return col, None

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from .sampling import nice_period_us, snap_near
 from .times import period_us, to_us
 from .window import summarize, summary_frame
 
@@ -25,13 +26,14 @@ class TagReport:
             e = to_us(end) if end is not None else np.iinfo(np.int64).max
             ts, v, q = self._read_raw(tag_id, s, e)
             dt = int(np.median(np.diff(ts))) if len(ts) > 2 else 1_000_000
-            s2 = ts[0] if start is None and len(ts) else s
-            e2 = ts[-1] + dt if end is None and len(ts) else e
+            # judged on the tag's own period (its median spacing, rounded as a model's
+            # period is), each sample at its nearest grid point: jitter is no gap
+            own = nice_period_us(dt, 0.05) if dt > 0 else 1_000_000
+            s2 = snap_near(ts[0], own) if start is None and len(ts) else s
+            e2 = snap_near(ts[-1], own) + own if end is None and len(ts) else e
             if not len(ts) and (start is None or end is None):
                 s2, e2 = 0, 1
-            row = summarize(
-                ts, v, q, s2, e2, max(dt, 1), lo=_num(lo), hi=_num(hi), flat=period_us(flat)
-            )
+            row = summarize(ts, v, q, s2, e2, own, lo=_num(lo), hi=_num(hi), flat=period_us(flat))
             row["interval_s"] = dt / 1e6 if len(ts) > 2 else np.nan
             rows[name] = row
         report = summary_frame(rows).reset_index()

@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from .quality import BAD, UNCERTAIN
+from .sampling import nice_period_us
 from .times import US, from_us
 
 SUMMARY_COLUMNS = [
@@ -102,10 +103,14 @@ def summarize(
 ) -> dict:
     """Data-quality summary of one tag's raw samples over [start, end).
 
-    - ``coverage``: fraction of grid periods holding a usable value.
+    - ``coverage``: fraction of grid points ``start + k·period`` holding a usable value,
+      a sample counting for the grid point within half a period of it (jitter up to half a
+      period does not empty a grid point; ``aligned``: the aligned column decides).
     - ``gaps`` / ``gap_s``: stretches without any sample longer than ``gap`` µs (default
-      1.5 × the larger of the period and the median sampling interval), the window edges
-      included; ``stale``: the tag stopped reporting before the end (a trailing gap).
+      1.5 × the larger of the period and the tag's own period, its median sampling interval
+      rounded as a model's period is), the window edges included, each sample taken at its
+      own grid point (the nearest multiple of its own period): jitter is no gap, one missed
+      sample is; ``stale``: the tag stopped reporting before the end (a trailing gap).
     - ``flat`` / ``flat_s``: runs of an unchanged good value lasting at least ``flat`` µs
       (default 30 min): a frozen transmitter or a stale value repeated by the gateway.
     - ``out_of_range``: good/uncertain values outside the tag's nominal range [lo, hi].
@@ -115,10 +120,12 @@ def summarize(
     unc = int(np.count_nonzero(quality == UNCERTAIN))
     usable = (quality < BAD) & np.isfinite(value)
     dt_med = int(np.median(np.diff(ts))) if n_samples > 2 else period
-    gap_us = int(gap) if gap is not None else int(1.5 * max(period, dt_med))
+    own = nice_period_us(dt_med, 0.05) if dt_med > 0 else period
+    gap_us = int(gap) if gap is not None else int(1.5 * max(period, own))
     flat_us = int(flat) if flat is not None else 30 * 60 * US
-    # gaps, edges included
-    edges = np.r_[start, ts, end] if n_samples else np.array([start, end])
+    # gaps, edges included, between the samples' own grid points (jitter is no gap)
+    on_grid = (ts + own // 2) // own * own
+    edges = np.r_[start, on_grid, end] if n_samples else np.array([start, end])
     d = np.diff(edges)
     # a sample exactly at `start` means no leading gap; one period after the last sample is
     # still "on time"
@@ -150,7 +157,8 @@ def summarize(
         coverage = float(np.count_nonzero(np.isfinite(aligned))) / len(aligned)
     else:
         n_bins = max(1, -(-(end - start) // period))
-        filled = np.unique((ts[usable] - start) // period) if n_samples else []
+        b = (ts[usable] - start + period // 2) // period  # the nearest grid point
+        filled = np.unique(b[(b >= 0) & (b < n_bins)])
         coverage = min(1.0, len(filled) / n_bins)
     return {
         "samples": n_samples,

@@ -11,6 +11,7 @@ import pytest
 
 from diag_plugin.cli import main
 from historian import Historian
+from historian.importer import KEPT
 from historian.quality import BAD
 
 FIRST = """ts,P1,F
@@ -155,17 +156,92 @@ def test_a_different_quality_is_a_conflict(db_url, tmp_path, capsys):
     ) in err
 
 
-def test_a_repeated_time_in_the_file_is_a_conflict(tmp_path, capsys):
-    db = f"sqlite:///{tmp_path / 'h.db'}"
+TWICE = (
+    "ts,P1,P2\n"
+    "2026-01-01 00:00:00,1,10\n"
+    "2026-01-01 00:00:10,2,\n"
+    "2026-01-01 00:00:00,3,30\n"  # repeats line 2
+    "2026-01-01 00:00:20,4,40\n"
+    "2026-01-01 00:00:20,,44\n"  # repeats line 5; P1 has no sample here
+    "2026-01-01 00:00:20,6,\n"
+)
+
+
+def test_a_repeated_time_is_refused_by_default_naming_the_rows_and_the_count(
+    db_url, tmp_path, capsys
+):
+    """Issue 37: a time repeated in the file was stored as 'already stored' with the first
+    value kept silently, exit 0. Now import does not choose: exit 2, nothing stored."""
     f = tmp_path / "twice.csv"
-    f.write_text("ts,P1\n2026-01-01 00:00:00,1\n2026-01-01 00:00:10,2\n2026-01-01 00:00:00,3\n")
-    rc, out, err = _diag(capsys, "--db", db, "import", str(f))
+    f.write_text(TWICE)
+    rc, out, err = _diag(capsys, "--db", db_url, "import", str(f))
+    assert rc == 2
+    assert (
+        f"{f}: 3 rows repeat the time of an earlier row (first: {f}:4 repeats {f}:2, "
+        "2026-01-01T00:00:00Z); import does not choose between them: say which sample each "
+        "tag keeps with --duplicates first, last or mean; nothing imported"
+    ) in err
+    _nothing_stored(db_url)
+    rc, out, err = _diag(capsys, "--db", db_url, "import", str(f), "--strict")
+    assert rc == 2 and "3 rows repeat" in err and "nothing imported" in err
+    _nothing_stored(db_url)
+
+
+@pytest.mark.parametrize(
+    "policy, p1, p2",
+    [
+        ("first", [1.0, 2.0, 4.0], [10.0, 40.0]),
+        ("last", [3.0, 2.0, 6.0], [30.0, 44.0]),
+        ("mean", [2.0, 2.0, 5.0], [20.0, 42.0]),
+    ],
+)
+def test_the_user_names_what_a_repeated_time_keeps(db_url, tmp_path, capsys, policy, p1, p2):
+    f = tmp_path / "twice.csv"
+    f.write_text(TWICE)
+    rc, out, err = _diag(capsys, "--db", db_url, "import", str(f), "--duplicates", policy)
     assert rc == 0
     assert (
-        f"1 sample conflicts with stored values (first: P1 at 2026-01-01T00:00:00Z ({f}:4)" in err
-    )
-    with Historian(db) as h:
-        assert h.read_samples("P1").tolist() == [1.0, 2.0]
+        f"3 rows repeat a time of an earlier row of the file (first: {f}:4 repeats {f}:2, "
+        f"2026-01-01T00:00:00Z); kept {KEPT[policy]} at each repeated time "
+        f"(--duplicates {policy})"
+    ) in err
+    assert "conflict" not in err  # a repeat within the file is not a stored conflict
+    assert f"3 rows at a repeated time merged ({policy}); 5 new samples, 0 already stored" in out
+    with Historian(db_url) as h:
+        assert h.read_samples("P1").tolist() == p1
+        assert h.read_samples("P2").tolist() == p2
+    # importing again: the same samples, already stored, no conflict
+    rc, out, err = _diag(capsys, "--db", db_url, "import", str(f), "--duplicates", policy)
+    assert rc == 0 and "0 new samples, 5 already stored" in out and "conflict" not in err
+
+
+def test_repeats_across_chunks_and_out_of_order(tmp_path):
+    """Repeats that follow each other across a chunk boundary meet in one piece; a repeat
+    far from its first row (a file out of time order) is found too: ``first`` drops it,
+    ``mean`` refuses it, saying why."""
+    from historian.importer import FileRefused, import_file
+
+    t = pd.date_range("2026-01-01", periods=10, freq="10s").strftime("%Y-%m-%d %H:%M:%S")
+    rows = [f"{t[i]},{i}" for i in range(10)]
+    rows.insert(5, f"{t[4]},40")  # a repeat right after line 6 (t[4]), across chunks of 5
+    rows.append(f"{t[1]},99")  # far from t[1], in the last chunk
+    f = tmp_path / "f.csv"
+    f.write_text("ts,A\n" + "\n".join(rows) + "\n")
+    with Historian(f"sqlite:///{tmp_path / 'a.db'}") as h:
+        r = import_file(h, f, duplicates="first", chunk_rows=5)
+        assert r.repeats == 2 and r.repeat_example == f"{f}:7 repeats {f}:6, 2026-01-01T00:00:40Z"
+        assert h.read_samples("A").tolist() == [float(i) for i in range(10)]
+    with Historian(f"sqlite:///{tmp_path / 'b.db'}") as h:
+        with pytest.raises(FileRefused, match=r"f.csv:13: the time 2026-01-01T00:00:10Z repeats"):
+            import_file(h, f, duplicates="mean", chunk_rows=5)
+    with Historian(f"sqlite:///{tmp_path / 'c.db'}") as h:
+        import_file(h, f, duplicates="mean", chunk_rows=50)  # all in one chunk
+        assert h.read_samples("A").tolist()[1] == (1 + 99) / 2
+        assert h.read_samples("A").tolist()[4] == (4 + 40) / 2
+    with Historian(f"sqlite:///{tmp_path / 'd.db'}") as h:
+        with pytest.raises(FileRefused, match="2 rows repeat.*the rows before line 7 were"):
+            import_file(h, f, chunk_rows=5)
+        assert h.read_samples("A").tolist() == [0.0, 1.0, 2.0, 3.0]
 
 
 def test_conflicts_in_months_rolled_to_the_cold_store(tmp_path, capsys):

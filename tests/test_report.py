@@ -98,7 +98,7 @@ def report(tmp_path_factory):
     assert len(f) >= 200_000
     c = compare(rb, f)
     e = explain(rb, f, tag_info=TAG_INFO, max_lag=3)
-    path = write_report(tmp / "valve.html", rb, c, e, _experiments())
+    path = write_report(tmp / "valve.html", rb, c, e, _experiments(), f)
     return path, c, e
 
 
@@ -148,7 +148,9 @@ def test_downsampling_is_honest(report):
     levels = d["levels"]
     assert levels[0]["n"] == OVERVIEW_BUCKETS and len(levels) == 2
     assert levels[1]["n"] > 10 * OVERVIEW_BUCKETS
-    assert "downsampled" in path.read_text("utf-8")
+    assert "each pixel column shows the band from the lowest to the highest" in path.read_text(
+        "utf-8"
+    )
     res = np.asarray(c.residual, float)
     ok = np.isfinite(res)
     assert 0.05 < 1 - ok.mean() < 0.95  # unsupported samples: the means must skip them
@@ -326,7 +328,7 @@ def _png_pixels(path: Path, max_rows: int = 1200) -> np.ndarray:
 def test_renders_in_headless_chromium_with_a_screenshot(report, tmp_path):
     path, _, _ = report
     dom = _render(path, tmp_path)
-    assert 'data-charts="4"' in dom  # time, residual, histogram, experiments
+    assert 'data-charts="5"' in dom  # time, residual, residual against a tag, histogram, runs
     shot = tmp_path / "report.png"
     res = _chromium(
         path.as_uri(), tmp_path / "profile-shot", f"--screenshot={shot}", "--window-size=1400,3000"
@@ -372,3 +374,90 @@ def test_one_and_three_inputs_render(tmp_path, inputs, charts, with_explanation)
         assert "No experiments recorded" in page
     dom = _render(path, tmp_path)
     assert f'data-charts="{charts}"' in dom
+
+
+# ------------------------------------------------------------------ issue 37: the page reads
+@needs_chromium
+@pytest.mark.parametrize("width", [900, 1400])
+def test_the_whole_range_is_an_envelope_per_pixel_column_not_a_zigzag(report, tmp_path, width):
+    """Issue 37: 30 days drawn as 2 × 2,000 bucket extremes per series on ~1,300 pixels made
+    measured and model one blur. Zoomed out, each series is a band of at most one column per
+    pixel of the plot (lowest to highest there); zoomed in past the pixels, every sample."""
+    path, _, _ = report
+    res = _chromium(
+        path.as_uri(), tmp_path / "profile-env", "--dump-dom", f"--window-size={width},2000"
+    )
+    assert res.returncode == 0, res.stderr[-2000:]
+    m = re.search(
+        r'<span id="resolution"[^>]*data-level="(\d)"[^>]*data-points="(\d+)"'
+        r'[^>]*data-envelope="(\d)"',
+        res.stdout,
+    )
+    assert m, res.stdout[:300]
+    assert m.group(3) == "1" and 0.5 * width < int(m.group(2)) <= width, m.groups()
+    assert "Each pixel column holds ~" in res.stdout
+    dom = _render(path, tmp_path, "#zoom=2026-01-05T00:00:00Z/2026-01-05T00:30:00Z")
+    m = re.search(r'data-points="(\d+)"[^>]*data-envelope="(\d)"', dom)
+    assert m and m.group(2) == "0" and int(m.group(1)) < 200, m and m.groups()
+
+
+def test_residual_against_the_tag_explain_suggests(report):
+    path, c, e = report
+    d = _data(path.read_text("utf-8"))
+    s = d["scatter"]
+    first = next(x for x in e.candidates if x.input not in ("CV[k-1]", "P1[k]"))
+    assert s["spec"] == first.input and s["why"] == "the effect diag explain ranks first"
+    x, r = _f32(s["x"]), _f32(s["r"])
+    assert len(x) == len(r) == s["shown"] == min(4000, s["samples"])
+    assert np.all(np.diff(x) >= 0) and s["samples"] > 0.5 * np.isfinite(c.residual).sum()
+    # the average line: the residual's mean in equal-count bins of the variable, so its
+    # count-weighted mean is the residual's mean over the samples with both
+    assert 5 <= len(s["bin_x"]) == len(s["bin_mean"]) <= 30
+    assert np.all(np.diff(s["bin_x"]) > 0)
+    assert np.mean(s["bin_mean"]) == pytest.approx(np.nanmean(c.residual), abs=0.5)
+    assert 'id="scatter"' in path.read_text("utf-8")
+
+
+def test_without_explain_the_scatter_takes_the_tag_the_residual_follows(tmp_path):
+    rb, f = _story(tmp_path, 3, ("CV[k-1]",))
+    c = compare(rb, f)
+    page = write_report(tmp_path / "r.html", rb, c, None, None, f).read_text("utf-8")
+    s = _data(page)["scatter"]
+    assert s["spec"] == c.tags["tag"].iloc[0] + "[k]"
+    assert s["why"] == "the tag the residual follows most"
+    # the same share of the residual as compare's table says (deciles there, 30 bins here)
+    assert s["explained_pct"] == pytest.approx(c.tags["explained_pct"].iloc[0], abs=5)
+    # a scatter needs the data: without the frame there is none, and no empty section
+    page = write_report(tmp_path / "r2.html", rb, c, None, None).read_text("utf-8")
+    assert _data(page)["scatter"] is None and 'id="scatter"' not in page
+
+
+def test_warnings_are_worded_for_a_plant_engineer(report):
+    from diag_plugin.workbench.report import plain_note
+
+    said = plain_note(
+        "strongly correlated with P1[k] (r = 0.93): the two effects are hard to separate in "
+        "these data"
+    )
+    assert said.startswith("moves together with P1[k] in these data (correlation 0.93)")
+    said = plain_note(
+        "the rule grid would be thin (12 samples per rule, the fine grid answering 81% of the "
+        "samples; coarser rules answer the rest): consider fewer sets, e.g. --sets 9"
+    )
+    assert "few measurements per operating point (about 12 each)" in said
+    assert "81 % of the samples" in said and said.endswith("(--sets 9)")
+    assert "rule grid" not in said
+    said = plain_note(
+        "with 31 sets the rule grid would be thin (4 samples per rule, the fine grid answering "
+        "60%): 9 sets score better"
+    )
+    assert said == (
+        "with 31 sets there would be too few measurements per operating point; 9 sets do "
+        "better here, and the command uses them"
+    )
+    assert plain_note("something else") == "something else"
+    path, _, _ = report
+    text = re.sub(r"<script.*?</script>", "", path.read_text("utf-8"), flags=re.S)
+    prose = " ".join(re.findall(r'<p class="(?:note|warn)">(.*?)</p>', text, re.S))
+    for jargon in ("unsupported", "rule cell", "bucket", "supported)"):
+        assert jargon not in prose, jargon

@@ -271,3 +271,37 @@ def test_eq5_as_printed_is_an_option_of_the_file(rb_path):
     assert problems == [f"{rb_path}:{line}: conclusion must be 'mean' or 'sets' (what a cell "
                         "averages: the outputs, or their sets' centres as eq. 5 prints), got "
                         "'median'"]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "old, new, line_of",
+    [
+        ("sets = 31", "sets = 31 x", "sets = 31 x"),  # in the head of the file
+        ("list = [", "list = [ xx", "list = [ xx"),  # in the rule list (parsed apart)
+        ("[training]", "[training", "[training"),  # a section header
+    ],
+)
+def test_a_toml_syntax_error_names_one_line(rb_path, old, new, line_of):
+    """Issue 37: the message carried our file:line and the parser's own 'at line L col C',
+    which for the rule list (parsed apart) counted from the list: two different lines."""
+    text = rb_path.read_text().replace(old, new, 1)
+    rb_path.write_text(text)
+    (p,) = check(rb_path)
+    want = next(i for i, ln in enumerate(text.splitlines()) if ln.startswith(line_of)) + 1
+    assert re.fullmatch(
+        rf"{re.escape(str(rb_path))}:{want}: TOML syntax error: .+ \(column \d+\)", p
+    ), p
+    assert "line" not in p.split("TOML syntax error")[1], p
+
+
+def test_then_as_text_is_one_message_naming_the_unit(rb_path):
+    """Issue 37: `then = "high"` also printed the unrelated 'then = nan is only allowed on a
+    locked rule'."""
+    text = rb_path.read_text()
+    lines = text.splitlines()
+    i = rule_line(text, "U05", "P12")
+    lines[i] = re.sub(r"then = [0-9.]+", 'then = "high"', lines[i])
+    rb_path.write_text("\n".join(lines) + "\n")
+    (p,) = check(rb_path)
+    assert p.startswith(f"{rb_path}:{i + 1}: ") and "nan" not in p
+    assert "then must be a number in the output's unit" in p and "got 'high'" in p

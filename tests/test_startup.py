@@ -101,3 +101,78 @@ def test_parser_help_and_arguments_import_no_heavy_library():
     assert len(out["commands"]) >= 15 and all(out["parsed"].values()), out["parsed"]
     heavy = sorted(set(HEAVY) & set(out["loaded"]))
     assert not heavy, f"imported before any command runs: {heavy}"
+
+
+PROBE_ONE = textwrap.dedent(
+    """
+    import contextlib, io, json, sys
+
+    from diag_plugin import cli
+
+    base = set(sys.modules)
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        try:
+            cli.main(sys.argv[1:])
+        except SystemExit:
+            pass
+    new = sorted(m for m in set(sys.modules) - base)
+    print(json.dumps({"help": out.getvalue(), "modules": new}))
+    """
+)
+
+
+def _probe(*argv: str) -> dict:
+    res = subprocess.run(
+        [sys.executable, "-c", PROBE_ONE, *argv], capture_output=True, text=True, timeout=120
+    )
+    assert res.returncode == 0, res.stderr
+    return json.loads(res.stdout)
+
+
+def test_top_level_help_imports_no_command_module_and_lists_every_command():
+    from diag_plugin import cli
+
+    out = _probe("--help")
+    loaded = set(out["modules"])
+    assert not loaded & set(cli.COMMAND_MODULES), sorted(loaded & set(cli.COMMAND_MODULES))
+    assert "logging" not in loaded
+    # the listing is the one the fully built parser prints
+    full = cli.build_parser().format_help()
+    assert out["help"] == full
+    for name in cli.COMMANDS:
+        assert f"\n    {name} " in out["help"], name
+
+
+def test_a_command_imports_only_its_own_command_module():
+    from diag_plugin import cli
+
+    for argv, module in (
+        (["train", "--help"], "diag_plugin.training.cli"),
+        (["--db", "sqlite:///x.db", "tags", "--help"], "historian.cli"),
+        (["--rul", "rb", "explain", "--help"], "diag_plugin.workbench.cli"),
+    ):
+        out = _probe(*argv)
+        assert out["help"].startswith(f"usage: diag {argv[-2]} "), out["help"][:80]
+        assert set(out["modules"]) & set(cli.COMMAND_MODULES) == {module}, argv
+
+
+def test_the_command_table_says_what_the_modules_register():
+    """COMMANDS (the light `diag --help` listing) holds each command's module and help
+    exactly as its module registers them: a new or reworded command shows at once."""
+    import argparse
+    import importlib
+
+    from diag_plugin import cli
+
+    registered: dict[str, tuple[tuple[str, ...], str]] = {}
+    for module in cli.COMMAND_MODULES:
+        parser = argparse.ArgumentParser()
+        sub = parser.add_subparsers()
+        importlib.import_module(module).add_commands(sub)
+        for action in sub._choices_actions:
+            mods, text = registered.get(action.dest, ((), action.help))
+            # a command several packages add to (diag unit) has one help, whoever adds it
+            assert text == action.help, (action.dest, module)
+            registered[action.dest] = (*mods, module), text
+    assert registered == cli.COMMANDS

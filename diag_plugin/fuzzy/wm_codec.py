@@ -201,11 +201,17 @@ class WangMendelCodec:
             if not isinstance(lock, bool):
                 rb.error(line, f"{where}: lock must be true or false, got {lock!r}")
                 lock = False
-            if isinstance(then, bool) or not isinstance(then, int | float):
-                rb.error(line, f"{where}: then must be a number, got {then!r}")
+            typed = not isinstance(then, bool) and isinstance(then, int | float)
+            if not typed:  # one message: the nan rule below is about a written nan
+                rb.error(
+                    line,
+                    f"{where}: then must be a number in the output's unit "
+                    f"({rb.output.spec} {rb.output.span[0]:g}…{rb.output.span[1]:g}), "
+                    + ("but it is missing" if then is None else f"got {then!r}"),
+                )
                 then = math.nan
             then = float(then)
-            if math.isnan(then) and not lock:
+            if typed and math.isnan(then) and not lock:
                 rb.error(
                     line,
                     f"{where}: then = nan is only allowed on a locked rule "

@@ -42,6 +42,7 @@ from diag_plugin.fuzzy.partition import SHAPES
 from diag_plugin.models.registry import METHODS, get_method
 from diag_plugin.models.spec import ModelSpec, Variable
 from diag_plugin.regressors import InputSpec
+from diag_plugin.tomllines import syntax_error
 from historian.errors import UserError
 
 __all__ = ["RuleBase", "RuleBaseError", "Variable", "check", "default_label", "resolve"]
@@ -98,17 +99,15 @@ class RuleBase:
                 self._list_items = _plain_rule_list(self._lines[a : b + 1])
                 if self._list_items is None:  # edited by hand: the full TOML parser reads it
                     self._list_items = tomllib.loads("\n".join(self._lines[a : b + 1]))["list"]
-            except tomllib.TOMLDecodeError as exc:
-                m = re.search(r"at line (\d+)", str(exc))
-                line = a + int(m.group(1)) if m else a + 1
-                raise RuleBaseError([f"{self.path}:{line}: TOML syntax error: {exc}"]) from None
+            except tomllib.TOMLDecodeError as exc:  # positions counted from the list's line
+                raise RuleBaseError([syntax_error(self.path, exc, a)]) from None
         try:
             self.doc = tomlkit.parse(head)
         except ParseError as exc:
-            line = exc.line
-            if self._list_span is not None and line > self._list_span[0] + 1:
-                line += self._list_span[1] - self._list_span[0]
-            raise RuleBaseError([f"{self.path}:{line}: TOML syntax error: {exc}"]) from None
+            shift = 0  # the rule list was parsed apart: lines after it moved up
+            if self._list_span is not None and exc.line > self._list_span[0] + 1:
+                shift = self._list_span[1] - self._list_span[0]
+            raise RuleBaseError([syntax_error(self.path, exc, shift)]) from None
         self._read()
         if self.problems:
             raise RuleBaseError(self.problems)

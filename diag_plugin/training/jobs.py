@@ -16,6 +16,7 @@ import logging
 import math
 import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 import pandas as pd
@@ -125,6 +126,8 @@ def train_one(
             "validation_rmse_pct": round(res.validation["rmse_pct"], 4)
             if math.isfinite(res.validation["rmse_pct"])
             else "n/a",
+            # the held-out block: from here to "to" (diag compare names it)
+            "validation_from": res.validation_range[0].isoformat(),
             "trained_at": pd.Timestamp.now(tz="UTC").floor("s").isoformat(),
         },
     )
@@ -145,6 +148,20 @@ def train_one(
     out["seconds"] = round(time.perf_counter() - started, 3)
     out["rulebase"] = str(path)
     return out
+
+
+def heldout_note(r: Mapping) -> str:
+    """What the held-out figure of a training result measures, in one sentence, so it is
+    never mistaken for ``diag compare``'s in-sample figure."""
+    a, b = (pd.Timestamp(t) for t in r["validation_range"])
+    t0 = pd.Timestamp(r["train_range"][0])
+    share = (b - a) / (b - t0) if b > t0 else float("nan")
+    return (
+        f"held out: the last {share:.0%} of the range, {a:%Y-%m-%d %H:%M} … "
+        f"{b:%Y-%m-%d %H:%M} ({r['validation']['samples']:,} samples), predicted by the "
+        "model trained on the rest; the saved model then learned them too, so diag compare "
+        "(which scores it on the samples it was trained on) gives an in-sample figure"
+    )
 
 
 def _is_nan(v) -> bool:
@@ -224,6 +241,7 @@ def cmd_train(args) -> int:
                 f"{r['model']} v{r['version']}: held-out RMSE {v['rmse_pct']:.2f} % of span, "
                 f"MAE {v['mae_pct']:.2f} %, coverage {v['coverage']:.1%}; {tail}"
             )
+            print(f"  {heldout_note(r)}")
             if note := levels_note(v):
                 print(f"  {note}")
             if note := coverage_note(v):

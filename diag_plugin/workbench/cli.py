@@ -288,7 +288,7 @@ def cmd_compare(args) -> int:
     from rich.table import Table
 
     from diag_plugin.metrics import coverage_note, levels_note
-    from diag_plugin.workbench.compare import compare
+    from diag_plugin.workbench.compare import compare, scope_note
 
     rb = _load(args)
     frame, info = _model_frame(args, rb)
@@ -299,7 +299,7 @@ def cmd_compare(args) -> int:
     if args.report:
         from diag_plugin.workbench.report import write_report
 
-        write_report(args.report, rb, c, None, _experiments(args, rb))
+        write_report(args.report, rb, c, None, _experiments(args, rb), frame)
     if args.json:
         print(json.dumps(c.as_dict(), indent=2, allow_nan=False, default=str))
         return 0
@@ -316,6 +316,7 @@ def cmd_compare(args) -> int:
         f"RMSE {m['rmse_pct']:.2f} %  MAE {m['mae_pct']:.2f} %  bias {m['bias_pct']:+.2f} %  "
         f"max {m['max_abs_pct']:.1f} % of span; coverage {m['coverage']:.1%}"
     )
+    con.print(scope_note(c.scope), markup=False, soft_wrap=True)
     if note := levels_note(m):
         con.print(note, markup=False)
     if note := coverage_note(m):
@@ -412,7 +413,7 @@ def cmd_report(args) -> int:
     frame, info = _model_frame(args, rb)
     c = compare(rb, frame)
     e = explain(rb, frame, tag_info=info)
-    write_report(args.out, rb, c, e, _experiments(args, rb))
+    write_report(args.out, rb, c, e, _experiments(args, rb), frame)
     if args.json:
         print(json.dumps({"model": rb.name, "report": args.out, "metrics": c.metrics}, default=str))
         return 0

@@ -38,6 +38,7 @@ class Comparison:
     tags: pd.DataFrame  # residual against each plant tag
     dropped: dict[str, int] = field(default_factory=dict)
     inputs: list[dict] = field(default_factory=list)  # each input's span and the part used
+    scope: dict = field(default_factory=dict)  # what the figures measure (:func:`scope`)
 
     def as_dict(self, top: int = 5) -> dict:
         worst_r = self.regions[self.regions["count"] > 0].nlargest(top, "rmse_pct")
@@ -54,6 +55,7 @@ class Comparison:
             "worst_periods": _records(self.periods.nlargest(top, "rmse_pct")),
             "tags": _records(self.tags.head(top)),
             "inputs": to_jsonable(self.inputs),
+            "scope": to_jsonable(self.scope),
         }
 
 
@@ -89,7 +91,68 @@ def compare(
         tags=residual_vs_tags(frame, d.index, res, exclude=_model_tags(rb)),
         dropped=d.dropped,
         inputs=span_use(rb, d.X),
+        scope=scope(rb, d.index),
     )
+
+
+def scope(rb: RuleBase, index: pd.DatetimeIndex) -> dict:
+    """What ``compare``'s figures measure beside ``diag train``'s: the samples scored (count,
+    first, last, the model's period), the share of them inside the range the saved model
+    was trained on (``in_training``: 1.0 is an in-sample figure, 0.0 out-of-sample), and the
+    held-out figure the training reported with the block it was measured on (from the
+    file's ``[training]``; None where the file does not say)."""
+    t = rb.training
+    start, end = _time(t.get("from")), _time(t.get("to"))
+    inside = None
+    if start is not None and end is not None and len(index):
+        inside = float(np.mean((index >= start) & (index < end)))
+    held = t.get("validation_rmse_pct")
+    return {
+        "samples": int(len(index)),
+        "first": index[0] if len(index) else None,
+        "last": index[-1] if len(index) else None,
+        "period": rb.period,
+        "training_range": [start, end] if start is not None else None,
+        "in_training": inside,
+        "heldout_rmse_pct": float(held) if isinstance(held, (int, float)) else None,
+        "heldout_from": _time(t.get("validation_from")),
+    }
+
+
+def _time(v) -> pd.Timestamp | None:
+    if v is None:
+        return None
+    try:
+        t = pd.Timestamp(str(v))
+    except ValueError:
+        return None
+    return t.tz_localize("UTC") if t.tzinfo is None else t.tz_convert("UTC")
+
+
+def scope_note(s: Mapping) -> str:
+    """One sentence: which samples the figure scores, and how it relates to the held-out
+    figure ``diag train`` printed."""
+    if not s.get("samples"):
+        return "no samples scored"
+    text = f"scored on all {s['samples']:,} samples at {s['period']}"
+    inside = s.get("in_training")
+    if inside is None:
+        text += " (the model file does not say what it was trained on)"
+    elif inside >= 0.999:
+        text += ", every one used to train the saved model: an in-sample figure"
+    elif inside <= 0.001:
+        text += ", none of them used to train the saved model: an out-of-sample figure"
+    else:
+        text += f", {inside:.0%} of them used to train the saved model"
+    held = s.get("heldout_rmse_pct")
+    if held is not None and s.get("heldout_from") is not None:
+        text += (
+            f"; diag train's held-out RMSE {held:.2f} % was the model trained without the "
+            f"samples from {pd.Timestamp(s['heldout_from']):%Y-%m-%d %H:%M} on, scored on them"
+        )
+    elif held is not None:
+        text += f"; diag train's held-out RMSE was {held:.2f} % (on its last block)"
+    return text
 
 
 def span_use(rb: RuleBase, X: np.ndarray) -> list[dict]:

@@ -14,7 +14,12 @@ and each bucket keeps the minimum and the maximum of every series (in the
 order they occurred), so a single-sample spike survives at any zoom. Two
 levels are embedded — an overview (~2,000 buckets over the whole range) and a
 detail level (up to 50,000 buckets, raw samples for short ranges); zooming in
-switches to the detail level for the visible window. Series are embedded as
+switches to the detail level for the visible window. The page draws, per pixel
+column of the chart, the band from the lowest to the highest value there
+(min/max envelope: every sample lies inside, and no two series blur into one
+zigzag), and lines where there are fewer samples than pixels. Beside it, the
+residual against the tag ``explain`` suggests first (or the tag the residual
+follows most), with the residual's mean along that tag. Series are embedded as
 base64 little-endian float32 (NaN marks a gap), everything else as JSON with
 ``null`` for missing numbers.
 """
@@ -25,6 +30,7 @@ import base64
 import html
 import json
 import math
+import re
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
@@ -32,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from diag_plugin.metrics import COVERAGE_WARN
 from diag_plugin.rulebase.document import RuleBase
 from diag_plugin.workbench.compare import Comparison
 from historian.jsonable import finite_float
@@ -46,6 +53,9 @@ HIST_BINS = 80
 TOP_ROWS = 12
 #: samples a rule cell needs to be ranked among the worst (fewer give a noisy RMSE)
 MIN_CELL_SAMPLES = 30
+#: points of the residual-against-tag scatter (drawn at random, seeded) and bins of its mean
+SCATTER_POINTS = 4_000
+SCATTER_BINS = 30
 
 CSP = (
     "default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'; "
@@ -59,10 +69,12 @@ def write_report(
     comparison: Comparison,
     explanation=None,
     experiments: pd.DataFrame | None = None,
+    frame: pd.DataFrame | None = None,
 ) -> Path:
-    """Write the report page of ``rb`` to ``path`` and return the path."""
+    """Write the report page of ``rb`` to ``path`` and return the path. ``frame``: the
+    aligned data the comparison ran on (for the residual-against-tag scatter)."""
     path = Path(path)
-    page = render_report(rb, comparison, explanation, experiments)
+    page = render_report(rb, comparison, explanation, experiments, frame)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(page, encoding="utf-8")
     return path
@@ -73,6 +85,7 @@ def render_report(
     comparison: Comparison,
     explanation=None,
     experiments: pd.DataFrame | None = None,
+    frame: pd.DataFrame | None = None,
 ) -> str:
     """The report page as one HTML string (see module doc)."""
     c = comparison
@@ -85,10 +98,12 @@ def render_report(
         "hist": residual_histogram(c.residual),
         "map": error_map(rb, c.regions),
         "experiments": experiment_rows(experiments),
+        "scatter": residual_scatter(rb, c, explanation, frame),
     }
     body = [
         _header(rb, c, explanation),
         _time_section(levels, c),
+        _scatter_section(data["scatter"]),
         _hist_section(data["hist"]),
         _map_section(rb, c.regions, data["map"]),
         _windows_section(c.periods),
@@ -173,6 +188,77 @@ def _minmax(v: np.ndarray, starts, which, buckets) -> np.ndarray:
 
 def _b64(v: np.ndarray) -> str:
     return base64.b64encode(np.asarray(v, "<f4").tobytes()).decode("ascii")
+
+
+# ------------------------------------------------------------- residual vs a tag
+def scatter_spec(rb: RuleBase, c: Comparison, explanation=None) -> tuple[str, str] | None:
+    """The variable to plot the residual against, and why: the first candidate of
+    ``explain`` that is not already an input of the model, else the tag the residual follows
+    most (``compare``'s table); None when there is neither."""
+    mine = {v.spec for v in rb.inputs}
+    if explanation is not None:
+        for cand in explanation.candidates:
+            if cand.input not in mine:
+                return cand.input, "the effect diag explain ranks first"
+    if c.tags is not None and len(c.tags):
+        from diag_plugin.regressors import quote_tag
+
+        tag = quote_tag(str(c.tags["tag"].iloc[0]))
+        return f"{tag}[k]", "the tag the residual follows most"
+    return None
+
+
+def residual_scatter(
+    rb: RuleBase,
+    c: Comparison,
+    explanation=None,
+    frame: pd.DataFrame | None = None,
+    points: int = SCATTER_POINTS,
+    bins: int = SCATTER_BINS,
+) -> dict | None:
+    """The residual against one variable (:func:`scatter_spec`) computed from ``frame`` as
+    the model would take it (lags included): up to ``points`` samples drawn at random
+    (seeded), sorted by the variable, and the residual's mean in ``bins`` equal-count bins
+    of it (what "explains % of the residual" measures). None without a frame or a
+    variable, or when fewer than 20 samples have both."""
+    pick = scatter_spec(rb, c, explanation)
+    if frame is None or pick is None or not len(c.index):
+        return None
+    spec, why = pick
+    from diag_plugin.regressors import build_design
+
+    try:
+        d = build_design(frame, [spec])
+    except (KeyError, ValueError):
+        return None
+    x = pd.Series(d.X[:, 0], index=d.index).reindex(c.index).to_numpy(float)
+    r = np.asarray(c.residual, float)
+    ok = np.isfinite(x) & np.isfinite(r)
+    n = int(ok.sum())
+    if n < 20:
+        return None
+    xs, rs = x[ok], r[ok]
+    take = np.sort(np.random.default_rng(0).choice(n, min(points, n), replace=False))
+    order = np.argsort(xs[take], kind="stable")
+    px, pr = xs[take][order], rs[take][order]
+    edges = np.unique(np.quantile(xs, np.linspace(0, 1, bins + 1)))
+    which = np.clip(np.searchsorted(edges, xs, side="right") - 1, 0, max(len(edges) - 2, 0))
+    k = np.bincount(which, minlength=max(len(edges) - 1, 1))
+    mean = np.bincount(which, weights=rs, minlength=len(k)) / np.maximum(k, 1)
+    centres = 0.5 * (edges[:-1] + edges[1:]) if len(edges) > 1 else edges
+    var = rs.var()
+    explained = 1 - (rs - mean[which]).var() / var if var > 0 else 0.0
+    return {
+        "spec": spec,
+        "why": why,
+        "samples": n,
+        "shown": int(len(px)),
+        "x": _b64(px),
+        "r": _b64(pr),
+        "bin_x": [_num(v) for v in centres[k[: len(centres)] > 0]],
+        "bin_mean": [_num(v) for v in mean[: len(centres)][k[: len(centres)] > 0]],
+        "explained_pct": _num(100 * explained, 1),
+    }
 
 
 # ------------------------------------------------------------------ summaries
@@ -381,7 +467,8 @@ def _header(rb: RuleBase, c: Comparison, explanation) -> str:
         (
             "coverage",
             _fmt(100 * m["coverage"], 1, " %") if _num(m.get("coverage")) is not None else "n/a",
-            "share of samples the model can predict (supported)",
+            "share of the samples at operating points the model learned: there it has its "
+            "own answer",
         ),
     ]
     if explanation is not None:
@@ -404,6 +491,15 @@ def _header(rb: RuleBase, c: Comparison, explanation) -> str:
     vars_html = "".join(f"<li>input {esc(_var(v))}</li>" for v in rb.inputs)
     span = f"{rb.output.span[1] - rb.output.span[0]:g} {esc(rb.output.unit)}".strip()
     covered = _fmt(m.get("rmse_covered_pct"), 2, " %")
+    cov = _num(m.get("coverage"))
+    warn = ""
+    if cov is not None and cov < COVERAGE_WARN:
+        warn = (
+            f'<p class="warn">⚠ The model has an answer of its own for only {100 * cov:.0f} % '
+            "of these samples: the plant often ran where the training data never went. Train "
+            "on a period that includes those conditions, or give the inputs fewer sets, "
+            "before trusting the figures.</p>"
+        )
     return f"""
 <header>
   <h1>Model <span class="name">{esc(rb.name)}</span></h1>
@@ -417,11 +513,12 @@ def _header(rb: RuleBase, c: Comparison, explanation) -> str:
 <section id="metrics">
   <h2>Error in % of the output span ({span})</h2>
   <div class="cards">{card_html}</div>
-  <p class="note">Residual r = (measured − model) / span · 100 % (Kościelny et al., eq. 6).
-  Samples the model cannot predict (no rule near enough) are <em>unsupported</em>: they have
-  no model value and count against coverage; the error figures score them with the model's
-  nearest rule, so a model never looks better by predicting less (RMSE on the covered samples
-  alone: {covered}).</p>
+  {warn}
+  <p class="note">The residual is measured minus model, in % of the output's span
+  (Kościelny et al., eq. 6). Where the plant ran at an operating point the model never saw in
+  training, it has no answer of its own (those samples count against coverage); the error
+  figures then take the answer of the nearest point it knows, so a model never looks better
+  by answering less (the error where it has its own answer: {covered}).</p>
 </section>"""
 
 
@@ -432,15 +529,17 @@ def _time_section(levels: list[dict], c: Comparison) -> str:
     how = (
         "every sample is shown"
         if per <= 1
-        else f"downsampled: time is cut into {levels[0]['n']:,} equal buckets "
-        f"(~{per:,.0f} samples each) and each line keeps the minimum and maximum of every "
-        "bucket in the order they occurred, so single-sample spikes are never lost"
+        else "more samples than the chart has pixels: each pixel column shows the band from "
+        "the lowest to the highest value in it (measured in blue, model in orange), so no "
+        "spike is lost and the two stay apart"
     )
     detail = ""
     if len(levels) > 1:
         d = levels[1]
-        detail = f" Zooming in switches to a finer level of {d['n']:,} buckets " + (
-            "(raw samples)." if d["per_bucket"] <= 1 else f"(~{d['per_bucket']:,.0f} each)."
+        detail = " Zoom in for finer detail " + (
+            "down to single samples."
+            if d["per_bucket"] <= 1
+            else f"(down to ~{d['per_bucket']:,.0f} samples per step)."
         )
     return f"""
 <section id="time">
@@ -454,6 +553,51 @@ def _time_section(levels: list[dict], c: Comparison) -> str:
   <h3>Residual trend (% of span)</h3>
   <div id="chart-r" class="chart"></div>
 </section>"""
+
+
+def _scatter_section(sc: dict | None) -> str:
+    if sc is None:
+        return ""
+    return f"""
+<section id="scatter">
+  <h2>Residual against {esc(sc["spec"])}</h2>
+  <p class="note">{esc(sc["why"])[:1].upper() + esc(sc["why"])[1:]}. Each dot is one sample
+  ({sc["shown"]:,} of {sc["samples"]:,}, drawn at random); the line is the residual's average
+  along {esc(sc["spec"])}. A line that climbs or bends means the model misses how
+  {esc(sc["spec"])} acts on the output: it explains {_fmt(sc["explained_pct"], 1)} % of the
+  residual's spread. A flat line at zero means it adds nothing the model does not know.</p>
+  <div id="chart-s" class="chart"></div>
+</section>"""
+
+
+def plain_note(note: str) -> str:
+    """A warning of ``explain`` in words for a plant engineer (the original stays as the
+    hover text); a note of another kind is returned as it is."""
+    m = re.match(r"strongly correlated with (.+?) \(r = (-?[\d.]+)\)", note)
+    if m:
+        return (
+            f"moves together with {m[1]} in these data (correlation {m[2]}): they cannot tell "
+            "which of the two really drives the output; a period where one changes alone would"
+        )
+    m = re.match(r"with (\d+) sets the rule grid would be thin .*: (\d+) sets score better", note)
+    if m:
+        return (
+            f"with {m[1]} sets there would be too few measurements per operating point; "
+            f"{m[2]} sets do better here, and the command uses them"
+        )
+    m = re.match(
+        r"the rule grid would be thin \((\d+) samples per rule, the fine grid answering "
+        r"(\d+)%.*?\)(?:: consider fewer sets, e\.g\. (--sets \d+))?",
+        note,
+    )
+    if m:
+        text = (
+            f"few measurements per operating point (about {m[1]} each): the model has its own "
+            f"answer for {m[2]} % of the samples and falls back on a broader average for the "
+            "rest, so the figure is less certain than it looks"
+        )
+        return text + (f"; fewer sets may do better ({m[3]})" if m[3] else "")
+    return note
 
 
 def _hist_section(h: dict) -> str:
@@ -514,18 +658,18 @@ def _map_section(rb: RuleBase, regions: pd.DataFrame, emap: dict) -> str:
     if d == 2:
         a, b = rb.inputs
         chart = (
-            f'<p class="note">RMSE of the residual per rule cell (nearest set of {esc(a.spec)} '
-            f"across, {esc(b.spec)} up). Hatched: samples fell in a cell without a rule, so their "
-            "model value comes from neighbouring rules or, light red, there is none (unsupported); "
-            "blank: no samples. Hover for numbers.</p>"
+            f'<p class="note">Error of the model per operating point ({esc(a.spec)} across, '
+            f"{esc(b.spec)} up; one square per pair of sets). Hatched: the plant ran there but "
+            "the training data never did, so the model borrows its neighbours' answer or, light "
+            "red, has none; blank: the plant never ran there. Hover for numbers.</p>"
             '<div id="heatmap" class="heat"><canvas></canvas><div class="tip" hidden></div>'
             '<div class="legend"></div></div>'
         )
     elif d == 1:
         chart = (
-            '<p class="note">RMSE (bars) and mean (line) of the residual per set of '
-            f"{esc(rb.inputs[0].spec)}; red markers: sets that hold samples but no rule (their "
-            "model value comes from neighbouring rules, or there is none).</p>"
+            '<p class="note">Error (bars) and average residual (line) per set of '
+            f"{esc(rb.inputs[0].spec)}; red markers: the plant ran there but the training data "
+            "never did (the model borrows its neighbours' answer, or has none).</p>"
             '<div id="chart-map" class="chart"></div>'
         )
     else:
@@ -632,7 +776,9 @@ def _candidates_section(explanation) -> str:
     for i, c in enumerate(explanation.candidates, 1):
         v = _num(c.rmse_pct_if_added)
         better = v is not None and base is not None and v < 0.97 * base
-        notes = "".join(f"<div class='warn'>⚠ {esc(n)}</div>" for n in c.notes)
+        notes = "".join(
+            f"<div class='warn' title='{esc(n)}'>⚠ {esc(plain_note(n))}</div>" for n in c.notes
+        )
         cov = _fmt(100 * c.coverage, 0, " %") if _num(c.coverage) is not None else "n/a"
         rows.append(
             f"<tr><td class='n'>{i}</td><td>{esc(c.effect)}{notes}"

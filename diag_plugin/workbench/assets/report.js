@@ -73,25 +73,54 @@
       for (const l of L) if (span / l.w >= 900) return l;
       return finest;
     }
-    function slice(l, a, b) {
+    // the visible buckets of level l between a and b, as at most `px` columns (one per pixel
+    // of the plot): per column the lowest and highest value of each series (an envelope that
+    // holds every sample), and the mean of the residual's bucket means; with fewer buckets
+    // than pixels, each bucket's two extremes in their order (a line through the samples)
+    function slice(l, a, b, px) {
       const i0 = Math.max(0, Math.floor((a - l.x0) / l.w) - 1);
       const i1 = Math.min(l.n, Math.ceil((b - l.x0) / l.w) + 1);
-      const m = Math.max(0, i1 - i0) * 2;
-      const x = new Float64Array(m);
-      const y = new Array(m), yh = new Array(m), r = new Array(m), rm = new Array(m);
-      for (let i = i0, j = 0; i < i1; i++) {
-        for (let h = 0; h < 2; h++, j++) {
+      const nb = Math.max(0, i1 - i0);
+      const cols = 2 * nb <= px ? 2 * nb : Math.max(1, Math.floor(px));
+      const perCol = 2 * nb <= px;
+      const x = new Float64Array(cols);
+      const out = {};
+      for (const k of ["ylo", "yhi", "hlo", "hhi", "rlo", "rhi", "rm"]) out[k] = new Array(cols).fill(null);
+      const rsum = new Float64Array(cols), rcnt = new Float64Array(cols);
+      const cw = (b - a) / cols;
+      const lower = (arr, j, v) => { if (v !== null && (arr[j] === null || v < arr[j])) arr[j] = v; };
+      const upper = (arr, j, v) => { if (v !== null && (arr[j] === null || v > arr[j])) arr[j] = v; };
+      for (let j = 0; j < cols; j++) x[j] = perCol ? 0 : a + (j + 0.5) * cw;
+      for (let i = i0, c = 0; i < i1; i++) {
+        for (let h = 0; h < 2; h++) {
           // a bucket's two extremes sit at its first and third quarter
-          x[j] = l.x0 + (i + (h ? 0.75 : 0.25)) * l.w;
+          const t = l.x0 + (i + (h ? 0.75 : 0.25)) * l.w;
+          let j;
+          if (perCol) {
+            j = c++;
+            x[j] = t;
+          } else {
+            j = Math.floor((t - a) / cw);
+            if (j < 0 || j >= cols) continue;
+          }
           const k = 2 * i + h;
-          y[j] = nn(l.y[k]);
-          yh[j] = nn(l.yhat[k]);
-          r[j] = nn(l.r[k]);
-          rm[j] = nn(l.rmean[i]);
+          const y = nn(l.y[k]), yh = nn(l.yhat[k]), r = nn(l.r[k]);
+          lower(out.ylo, j, y); upper(out.yhi, j, y);
+          lower(out.hlo, j, yh); upper(out.hhi, j, yh);
+          lower(out.rlo, j, r); upper(out.rhi, j, r);
+          const m = nn(l.rmean[i]);
+          if (m !== null) {
+            rsum[j] += m;
+            rcnt[j] += 1;
+          }
         }
       }
-      return { x, y, yh, r, rm };
+      for (let j = 0; j < cols; j++) if (rcnt[j] > 0) out.rm[j] = rsum[j] / rcnt[j];
+      out.x = x;
+      out.perCol = perCol;
+      return out;
     }
+    const plotWidth = (u) => Math.max(100, Math.round(u.bbox.width / uPlot.pxRatio));
     const unit = D.output.unit ? " [" + D.output.unit + "]" : "";
     const cursor = () => ({
       sync: { key: "time", setSeries: true },
@@ -137,31 +166,38 @@
       ctx.stroke();
       ctx.restore();
     };
-    const s0 = slice(L[0], full[0], full[1]);
+    const s0 = slice(L[0], full[0], full[1], widthOf(elY) - 80);
+    const band = (label, colour, value) => ({ label, stroke: colour, width: 1, value });
     const cy = new uPlot(
       Object.assign(common(elY, 330), {
         series: [
           { label: "time (UTC)" },
-          { label: "measured " + D.output.spec + unit, stroke: "#1f5fa8", width: 1,
-            value: (u, v) => fmt(v) },
-          { label: "model", stroke: "#e07b00", width: 1, value: (u, v) => fmt(v) },
+          band("measured " + D.output.spec + unit + ", highest", "#1f5fa8", (u, v) => fmt(v)),
+          band("measured, lowest", "#1f5fa8", (u, v) => fmt(v)),
+          band("model, highest", "#e07b00", (u, v) => fmt(v)),
+          band("model, lowest", "#e07b00", (u, v) => fmt(v)),
+        ],
+        bands: [
+          { series: [1, 2], fill: "rgba(31,95,168,0.28)" },
+          { series: [3, 4], fill: "rgba(224,123,0,0.20)" },
         ],
         axes: [{}, { label: D.output.spec + unit, size: 60 }],
       }),
-      [s0.x, s0.y, s0.yh],
+      [s0.x, s0.yhi, s0.ylo, s0.hhi, s0.hlo],
       elY,
     );
     const cr = new uPlot(
       Object.assign(common(elR, 230, zeroLine), {
         series: [
           { label: "time (UTC)" },
-          { label: "residual, min/max per bucket [% of span]", stroke: "rgba(198,40,40,0.6)",
-            width: 1, value: (u, v) => fmt(v) },
-          { label: "bucket mean", stroke: "#4a148c", width: 1.5, value: (u, v) => fmt(v) },
+          band("residual, highest [% of span]", "rgba(198,40,40,0.75)", (u, v) => fmt(v)),
+          band("residual, lowest", "rgba(198,40,40,0.75)", (u, v) => fmt(v)),
+          { label: "average", stroke: "#4a148c", width: 1.5, value: (u, v) => fmt(v) },
         ],
+        bands: [{ series: [1, 2], fill: "rgba(198,40,40,0.22)" }],
         axes: [{}, { label: "% of span", size: 60 }],
       }),
-      [s0.x, s0.r, s0.rm],
+      [s0.x, s0.rhi, s0.rlo, s0.rm],
       elR,
     );
     charts.push(cy, cr);
@@ -177,15 +213,17 @@
         b = Math.min(full[1], c + minSpan / 2);
       }
       const l = pick(b - a);
-      const s = slice(l, a, b);
+      const px = plotWidth(cy);
+      const s = slice(l, a, b, px);
       cy.batch(() => {
-        cy.setData([s.x, s.y, s.yh], false);
+        cy.setData([s.x, s.yhi, s.ylo, s.hhi, s.hlo], false);
         cy.setScale("x", { min: a, max: b });
       });
       cr.batch(() => {
-        cr.setData([s.x, s.r, s.rm], false);
+        cr.setData([s.x, s.rhi, s.rlo, s.rm], false);
         cr.setScale("x", { min: a, max: b });
       });
+      view = [a, b];
       const li = L.indexOf(l);
       try {
         const iso = (v) => new Date(v * 1e3).toISOString().replace(".000Z", "Z");
@@ -198,13 +236,20 @@
       if (resEl) {
         resEl.dataset.level = String(li);
         resEl.dataset.points = String(s.x.length);
-        const per = l.per <= 1 ? "raw samples" :
-          "min/max of ~" + Math.round(l.per).toLocaleString("en") + " samples per bucket";
-        const buckets = Math.round((b - a) / l.w).toLocaleString("en");
-        resEl.textContent = "Showing " + buckets + " buckets, " + per + ".";
+        resEl.dataset.envelope = s.perCol ? "0" : "1";
+        const samples = ((b - a) / l.w) * Math.max(1, l.per);
+        resEl.textContent = s.perCol
+          ? (l.per <= 1 ? "Showing every sample." :
+            "Each step holds ~" + Math.round(l.per).toLocaleString("en") + " samples.")
+          : "Each pixel column holds ~" +
+            Math.max(1, Math.round(samples / s.x.length)).toLocaleString("en") +
+            " samples: the band runs from the lowest to the highest.";
       }
     }
+    let view = full.slice();
     window.diagZoom = zoomTo;
+    // a new width re-cuts the pixel columns
+    charts.resized = () => zoomTo(view[0], view[1]);
     const m = /zoom=([^/&]+)\/([^&]+)/.exec(decodeURIComponent(location.hash));
     const a0 = m ? Date.parse(m[1]) / 1e3 : NaN, b0 = m ? Date.parse(m[2]) / 1e3 : NaN;
     if (b0 > a0) zoomTo(a0, b0);
@@ -219,6 +264,58 @@
         elY.scrollIntoView({ behavior: "smooth", block: "start" });
       });
     }
+  }
+
+  // ---- residual against the suggested tag: dots and the average along the tag
+  function scatter() {
+    const el = document.getElementById("chart-s");
+    const S = D.scatter;
+    if (!el || !S) return;
+    const x = Array.from(decode(S.x)), r = Array.from(decode(S.r));
+    // the bins' averages as a step line over the dots' x (each dot gets its bin's average)
+    const avg = new Array(x.length).fill(null);
+    for (let i = 0, k = 0; i < x.length; i++) {
+      while (k + 1 < S.bin_x.length && Math.abs(S.bin_x[k + 1] - x[i]) < Math.abs(S.bin_x[k] - x[i])) k++;
+      avg[i] = S.bin_mean[k];
+    }
+    const u = new uPlot(
+      {
+        width: widthOf(el),
+        height: 300,
+        scales: { x: { time: false } },
+        cursor: { drag: { x: true, y: false } },
+        series: [
+          { label: S.spec, value: (u, v) => fmt(v) },
+          { label: "residual [% of span]", stroke: "rgba(31,95,168,0.55)",
+            fill: "rgba(31,95,168,0.55)", paths: () => null,
+            points: { show: true, size: 3, width: 0, fill: "rgba(31,95,168,0.45)" },
+            value: (u, v) => fmt(v, 2) },
+          { label: "average along " + S.spec, stroke: "#c62828", width: 2.5,
+            points: { show: false }, value: (u, v) => fmt(v, 2) },
+        ],
+        axes: [{ label: S.spec }, { label: "residual [% of span]", size: 70 }],
+        hooks: {
+          draw: [
+            (u) => {
+              const y = u.valToPos(0, "y", true);
+              if (y < u.bbox.top || y > u.bbox.top + u.bbox.height) return;
+              const ctx = u.ctx;
+              ctx.save();
+              ctx.strokeStyle = "#555";
+              ctx.setLineDash([4, 4]);
+              ctx.beginPath();
+              ctx.moveTo(u.bbox.left, y);
+              ctx.lineTo(u.bbox.left + u.bbox.width, y);
+              ctx.stroke();
+              ctx.restore();
+            },
+          ],
+        },
+      },
+      [x, r, avg],
+      el,
+    );
+    charts.push(u);
   }
 
   // ---- residual histogram
@@ -557,6 +654,7 @@
   }
 
   guard("time charts", timeCharts);
+  guard("residual against a tag", scatter);
   guard("histogram", histogram);
   guard("heat map", heatmap);
   guard("error map", mapBars);
@@ -571,6 +669,7 @@
         const w = widthOf(u.root.parentElement);
         if (w !== u.width) u.setSize({ width: w, height: u.height });
       }
+      if (charts.resized) charts.resized();
     }, 150);
   });
 
