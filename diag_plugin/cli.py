@@ -17,9 +17,10 @@ from collections.abc import Sequence
 from historian.errors import UserError
 
 #: every command: the modules that add it (``add_commands(subparsers)``; ``diag unit``'s
-#: actions come from three packages) and its one-line help. ``diag --help`` lists them from here without importing any command module, and
-#: ``diag COMMAND …`` imports only the module of COMMAND (start-up, issues 8 and 37);
-#: tests/test_startup.py checks that this table says what the modules register.
+#: actions come from three packages) and its one-line help. ``diag --help`` lists them from
+#: here without importing any command module, and ``diag COMMAND …`` imports only the modules
+#: of COMMAND (start-up, issues 8 and 37); tests/test_startup.py checks that this table says
+#: what the modules register.
 COMMANDS: dict[str, tuple[tuple[str, ...], str]] = {
     "simulate": (
         ("diag_plugin.simulate.cli",),
