@@ -52,6 +52,7 @@ class WriterStats:
     max_backlog: int = 0  #: most samples waiting at once
     max_write_s: float = 0.0  #: longest successful write
     degraded_s: float = 0.0  #: time spent degraded
+    misfiled_tags: int = 0  #: tags found missing or renumbered when storage came back
 
 
 class _DbThread:
@@ -285,7 +286,7 @@ class HistorianWriter:
                 if self.degraded:
                     self._late += item.block.rows
                     if not self._spool_rows and len(self._mem) < self.flush_every:
-                        self._recovered()
+                        await self._recovered()
                 backoff = 0.5
                 self._fail_streak = 0
                 continue
@@ -377,16 +378,35 @@ class HistorianWriter:
                 f"{self.memory_rows} samples), then in {self.spool.folder}",
             )
 
-    def _recovered(self) -> None:
+    async def _recovered(self) -> None:
+        """Whole again: say so, and "none lost" only once every tag the samples were filed
+        under is checked to be that tag's row in the database."""
+        try:
+            wrong = await self._db.submit(LiveStore.missing_tags, self.store)
+        except Exception as exc:  # noqa: BLE001 - checked again at the next recovery
+            self.stats.failures += 1
+            self._fail_streak += 1
+            log.warning("historian: cannot check the stored tags yet: %s", _why(exc))
+            return
         dt = time.monotonic() - self._since
         self.stats.degraded_s += dt
         self.degraded = False
         self._told_spill = False
         replayed = self.stats.replayed - self._replayed0
+        if wrong:
+            self.stats.misfiled_tags += len(wrong)
+            self._tell(
+                False,
+                f"historian back after {dt:.1f} s: {self._late} samples stored late, but "
+                f"{len(wrong)} tags ({', '.join(wrong[:5])}{', ...' if len(wrong) > 5 else ''})"
+                " were not in the database as written: samples may be filed under no tag "
+                "('diag historian check' counts them)",
+            )
+            return
         self._tell(
             False,
             f"historian back after {dt:.1f} s: {self._late} samples stored late "
-            f"({replayed} of them from the spill folder), none lost",
+            f"({replayed} of them from the spill folder), none lost (every tag checked)",
         )
 
     def _tell(self, degraded: bool, text: str) -> None:
