@@ -73,7 +73,7 @@ class Historian(ColdMonths, Registry, TagReport):
             self._default_cold_dir = None
         else:
             raise ValueError(f"unsupported database URL {self.url!r} (sqlite or postgresql)")
-        schema.metadata.create_all(self.engine)
+        create_schema(self.engine)
         self.cold_dir = (
             Path(cold_dir) if cold_dir else self._recorded_cold_dir() or self._default_cold_dir
         )
@@ -535,6 +535,28 @@ class Historian(ColdMonths, Registry, TagReport):
             "before_bytes": before,
             "after_bytes": self._bulk.size_bytes(),
         }
+
+
+def create_schema(engine, tries: int = 8) -> None:
+    """Create the historian's tables and indexes that do not exist yet. Two processes starting
+    on a new database at once race between "does it exist?" and CREATE ("table tags already
+    exists", or on PostgreSQL a duplicate type name): the loser looks again — the check is
+    repeated on a fresh connection, so what the winner made is seen and kept."""
+    import time
+
+    from sqlalchemy.exc import DBAPIError
+
+    for attempt in range(tries):
+        try:
+            schema.metadata.create_all(engine, checkfirst=True)
+            return
+        except DBAPIError as exc:
+            text = str(getattr(exc, "orig", exc)).lower()
+            if attempt == tries - 1 or not (
+                "already exists" in text or "duplicate" in text or "locked" in text
+            ):
+                raise
+            time.sleep(0.05 * (attempt + 1))
 
 
 def _sqlite_pragmas(dbapi_conn, _record, busy_ms: int = 60_000) -> None:

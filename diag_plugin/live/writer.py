@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from historian.livestore import LiveStore
-from historian.spool import Block, Spool
+from historian.spool import Block, SegmentCorrupt, Spool
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +53,7 @@ class WriterStats:
     max_write_s: float = 0.0  #: longest successful write
     degraded_s: float = 0.0  #: time spent degraded
     misfiled_tags: int = 0  #: tags found missing or renumbered when storage came back
+    quarantined: int = 0  #: spill segments found damaged and renamed .corrupt
 
 
 class _DbThread:
@@ -145,6 +146,7 @@ class HistorianWriter:
         self._task: asyncio.Task[None] | None = None
         self._db = _DbThread(f"historian {url}")
         self._fail_streak = 0
+        self._quarantined_told = 0
 
     # ------------------------------------------------------------------ the loop's side
     @property
@@ -176,6 +178,7 @@ class HistorianWriter:
     async def start(self) -> None:
         """Start the background task (returns at once; the database may be away)."""
         self._spool_rows = await asyncio.to_thread(self.spool.rows)
+        self._report_quarantined()
         if self._spool_rows:
             log.warning(
                 "historian: %d samples from an earlier run wait in %s; storing them first",
@@ -246,8 +249,11 @@ class HistorianWriter:
         from memory (taken here, in the loop's thread, where ``put`` appends)."""
         if self._spool_rows:
             segments = await asyncio.to_thread(self.spool.segments)
-            if segments:
-                return _Item(await asyncio.to_thread(self.spool.read, segments[0]), segments[0])
+            for seg in segments:
+                try:
+                    return _Item(await asyncio.to_thread(self.spool.read, seg), seg)
+                except SegmentCorrupt:
+                    self._report_quarantined()
             self._spool_rows = 0
         if self._mem or self._events:
             return _Item(self._take(self.chunk_cycles))
@@ -363,6 +369,19 @@ class HistorianWriter:
                 True,
                 f"historian away: memory holds {self.memory_rows} samples, older ones go "
                 f"to {path.parent}",
+            )
+
+    def _report_quarantined(self) -> None:
+        """Each spill segment found damaged: an event (the spool has logged it by name)."""
+        while len(self.spool.quarantined) > self._quarantined_told:
+            path, moved, why = self.spool.quarantined[self._quarantined_told]
+            self._quarantined_told += 1
+            self.stats.quarantined += 1
+            self.put_event(
+                pd.Timestamp.now(tz="UTC"),
+                "diag run",
+                f"historian: spill file {path} is damaged ({why}); renamed {moved.name}, "
+                "its samples are not stored",
             )
 
     def _degrade(self, reason: str) -> None:
