@@ -11,10 +11,14 @@ and handed to the spill, whose replay stores them (idempotently: a cycle stored 
 the crash is not stored twice). At most the record being written at the kill is lost: it is
 torn, detected by its length and CRC-32, and dropped.
 
+Events (alarm transitions, operator actions: the audit) are journaled the same way, so a kill
+loses none that was reported.
+
 Format of ``journal-<seq>.bin``: the magic ``DIAGJNL1``, a little-endian ``uint32`` length and
 that many bytes of JSON (``tags``, ``cycle`` in seconds); then records, each ``uint32`` payload
-length, ``uint32`` CRC-32 of the payload, and the payload: ``int64`` time (µs UTC),
-``float64`` values and ``uint8`` qualities, one per tag. No pickle anywhere.
+length, ``uint32`` CRC-32 of the payload, and the payload: ``S``, ``int64`` time (µs UTC),
+``float64`` values and ``uint8`` qualities, one per tag (a cycle); or ``E`` and the event as
+JSON text. No pickle anywhere.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import struct
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -47,6 +52,7 @@ class Replay:
     ts: np.ndarray
     values: np.ndarray
     quality: np.ndarray
+    events: list[dict[str, Any]]
     torn: int = 0  #: bytes of a torn last record, dropped
 
 
@@ -65,7 +71,7 @@ class Journal:
         self._fd: int | None = None
         self.seq = 0  #: the file being appended to (0: none yet)
         self.cycles = 0  #: records in it
-        self._payload = 8 + 9 * len(self.tags)
+        self.created: set[int] = set()  #: the files this object made
 
     # ------------------------------------------------------------------ writing
     def files(self) -> list[Path]:
@@ -84,11 +90,14 @@ class Journal:
         seqs = [int(m.group(1)) for p in self.folder.iterdir() if (m := _NAME.match(p.name))]
         self.seq = max([*seqs, self.seq]) + 1
         head = json.dumps({"tags": self.tags, "cycle": self.cycle}).encode()
-        fd = os.open(self.path(self.seq), os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        path = self.path(self.seq)
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        self.created.add(self.seq)
         try:
             os.write(fd, MAGIC + struct.pack("<I", len(head)) + head)
         except OSError:
             os.close(fd)
+            path.unlink(missing_ok=True)
             raise
         self._fd, self.cycles = fd, 0
         return self.seq
@@ -98,14 +107,25 @@ class Journal:
         if self._fd is None:
             self.rotate()
         payload = (
-            struct.pack("<q", int(ts_us))
+            b"S"
+            + struct.pack("<q", int(ts_us))
             + np.ascontiguousarray(values, "<f8").tobytes()
             + np.ascontiguousarray(quality, np.uint8).tobytes()
         )
-        assert self._fd is not None
-        os.write(self._fd, _REC.pack(len(payload), zlib.crc32(payload)) + payload)
+        self._write(payload)
         self.cycles += 1
         return self.seq
+
+    def append_event(self, event: dict[str, Any]) -> int:
+        """Append one event (a JSON-able dict); returns the number of its file."""
+        if self._fd is None:
+            self.rotate()
+        self._write(b"E" + json.dumps(event, default=float).encode())
+        return self.seq
+
+    def _write(self, payload: bytes) -> None:
+        assert self._fd is not None
+        os.write(self._fd, _REC.pack(len(payload), zlib.crc32(payload)) + payload)
 
     def remove(self, seq: int) -> None:
         """Delete file ``seq`` (its cycles are stored or spilled); the current one is closed
@@ -137,18 +157,26 @@ class Journal:
             cycle = float(head.get("cycle", 0.0))
         except (ValueError, KeyError, TypeError, struct.error) as exc:
             raise JournalCorrupt(f"{path}: {type(exc).__name__}: {exc}") from None
-        width = 8 + 9 * len(tags)
-        pos, ts, vals, qual = 12 + n, [], [], []
+        k = len(tags)
+        width = 9 + 9 * k
+        pos, ts, vals, qual, events = 12 + n, [], [], [], []
         while pos + _REC.size <= len(raw):
             size, crc = _REC.unpack_from(raw, pos)
             body = raw[pos + _REC.size : pos + _REC.size + size]
-            if size != width or len(body) != size or zlib.crc32(body) != crc:
+            if len(body) != size or zlib.crc32(body) != crc:
+                break  # torn by the kill (or damaged): the rest is not trusted
+            if body[:1] == b"S" and size == width:
+                ts.append(struct.unpack_from("<q", body, 1)[0])
+                vals.append(np.frombuffer(body, "<f8", k, 9))
+                qual.append(np.frombuffer(body, np.uint8, k, 9 + 8 * k))
+            elif body[:1] == b"E":
+                try:
+                    events.append(json.loads(body[1:].decode()))
+                except ValueError:
+                    break
+            else:
                 break
-            ts.append(struct.unpack_from("<q", body)[0])
-            vals.append(np.frombuffer(body, "<f8", len(tags), 8))
-            qual.append(np.frombuffer(body, np.uint8, len(tags), 8 + 8 * len(tags)))
             pos += _REC.size + size
-        k = len(tags)
         return Replay(
             path,
             tags,
@@ -156,6 +184,7 @@ class Journal:
             np.array(ts, np.int64),
             np.array(vals, np.float64).reshape(-1, k),
             np.array(qual, np.uint8).reshape(-1, k),
+            events,
             torn=len(raw) - pos,
         )
 

@@ -128,6 +128,9 @@ def check(url: str, child: Child, w: HistorianWriter, resumed: int) -> int:
         )
         assert win["T007"].iloc[-3:].isna().all()
         assert win.attrs["quality"]["T007"]["bad"] == 1
+    with Historian(url) as h:  # the events reported before the kill: each stored once
+        ev = [m for m in h.events("child")["message"]]
+    assert sorted(ev) == sorted(f"event {k}" for k in put if k % 5 == 0), ev
     assert any("restart gap" in n and "ended without closing" in n for n in w.notes), w.notes
     assert any("recovered from its journal" in n for n in w.notes), w.notes
     return lost
@@ -172,3 +175,46 @@ def test_kill_9_inside_a_60_s_sqlite_lock_loses_no_cycle_put(tmp_path):
     w = restart(url, spill, resumed)
     lost = check(url, child, w, resumed)
     assert lost == 0
+
+
+def test_torn_last_record_is_dropped_and_a_damaged_journal_quarantined(tmp_path):
+    from historian.journal import Journal
+
+    j = Journal(tmp_path, ["A", "B"], 1.0)
+    for k in range(3):
+        j.append(k * 1_000_000, np.array([k, -k], float), np.zeros(2, np.uint8))
+    j.append_event({"ts": 5, "unit": "u", "message": "alarm raised"})
+    j.append(3_000_000, np.array([3.0, -3.0]), np.zeros(2, np.uint8))
+    j.close()
+    path = j.path(j.seq)
+    raw = path.read_bytes()
+    path.write_bytes(raw[:-7])  # the kill came in the middle of the last write
+    r = Journal.read(path)
+    assert r.ts.tolist() == [0, 1_000_000, 2_000_000]
+    np.testing.assert_array_equal(r.values[:, 1], [0, -1, -2])
+    assert r.events == [{"ts": 5, "unit": "u", "message": "alarm raised"}]
+    assert r.torn == 8 + 9 + 18 - 7
+    # a flipped bit inside a record: the CRC stops the read there
+    bad = bytearray(raw)
+    bad[len(raw) - 5] ^= 0x10
+    path.write_bytes(bytes(bad))
+    assert len(Journal.read(path).ts) == 3
+    # a header that is not a journal's: quarantined at the next start, named, the rest goes on
+    (tmp_path / "journal-00000009.bin").write_bytes(b"garbage")
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+
+    async def main():
+        w = HistorianWriter(url, ["A", "B"], spill_dir=tmp_path, flush_every=2, cycle=0.02)
+        notes: list[str] = []
+        w.on_note = notes.append
+        await w.start()
+        await w.close()
+        return notes
+
+    notes = asyncio.run(main())
+    assert (tmp_path / "journal-00000009.bin.corrupt").is_file()
+    assert any("journal-00000009.bin is damaged" in n for n in notes), notes
+    assert any("3 cycles (6 samples) and 1 events" in n for n in notes), notes
+    with Historian(url) as h:
+        assert h.read_samples("B").tolist() == [0.0, -1.0, -2.0]
+        assert list(h.events()["message"]) == ["alarm raised"]

@@ -158,6 +158,8 @@ class HistorianWriter:
         self._told_spill = False
         self._mem: deque[tuple[int, np.ndarray, np.ndarray, int]] = deque()
         self._events: list[dict[str, Any]] = []
+        self._event_seqs: list[int] = []  # the journal file of each pending event
+        self._spool_any = False  # spill segments may wait (some with events only)
         self._inflight: _Item | None = None
         self._wake = asyncio.Event()
         self._stopping = False
@@ -214,8 +216,15 @@ class HistorianWriter:
             return int(np.median(self._steps))
         return int(round(self.cycle * 1e6))
 
-    def _journal_append(self, t: int, v: np.ndarray, q: np.ndarray) -> int:
-        """Append one cycle to the journal; the number of its file (0: not journaled)."""
+    def _journal_append(
+        self,
+        t: int = 0,
+        v: np.ndarray | None = None,
+        q: np.ndarray | None = None,
+        event: dict[str, Any] | None = None,
+    ) -> int:
+        """Append one cycle (or ``event``) to the journal; the number of its file (0: not
+        journaled)."""
         j = self.journal
         try:
             if j.seq and j.cycles >= self.flush_every:
@@ -223,7 +232,7 @@ class HistorianWriter:
                 j.rotate()
                 if not self._pending.get(old):
                     j.remove(old)
-            seq = j.append(t, v, q)
+            seq = j.append_event(event) if event is not None else j.append(t, v, q)
         except OSError as exc:
             self.stats.journal_errors += 1
             if self._journal_ok:
@@ -290,9 +299,10 @@ class HistorianWriter:
 
     def put_event(self, ts: pd.Timestamp, unit: str, message: str, **fields: Any) -> None:
         """Queue one event for the historian's event log (never waits)."""
-        self._events.append(
-            {"ts": int(pd.Timestamp(ts).value // 1000), "unit": unit, "message": message, **fields}
-        )
+        event = {"ts": int(pd.Timestamp(ts).value // 1000), "unit": unit, "message": message}
+        event.update(fields)
+        self._events.append(event)
+        self._event_seqs.append(self._journal_append(event=event))
         if len(self._events) > 10_000:
             self._wake.set()
 
@@ -302,6 +312,7 @@ class HistorianWriter:
         (returns at once; the database may be away)."""
         await asyncio.to_thread(self._recover)
         self._spool_rows = await asyncio.to_thread(self.spool.rows)
+        self._spool_any = bool(await asyncio.to_thread(self.spool.segments))
         self._report_quarantined()
         if self._spool_rows:
             log.warning(
@@ -327,7 +338,7 @@ class HistorianWriter:
                 log.warning("historian: %s unreadable (%s); no restart gap marked", state, exc)
         else:
             crashed = True  # a clean stop leaves the state file; journal files alone: a kill
-        cycles = samples = torn = 0
+        cycles = samples = torn = events = 0
         files = self.journal.files()
         for path in files:
             try:
@@ -339,8 +350,18 @@ class HistorianWriter:
             except OSError as exc:
                 log.error("historian: journal file %s unreadable: %s", path, exc)
                 continue
-            if len(r.ts):
-                self.spool.write(Block(r.tags, r.ts, r.values, r.quality))
+            if len(r.ts) or r.events:
+                try:
+                    self.spool.write(Block(r.tags, r.ts, r.values, r.quality, r.events))
+                except OSError as exc:
+                    log.error(
+                        "historian: cannot move journal file %s to the spill (%s); kept for "
+                        "the next start",
+                        path,
+                        exc,
+                    )
+                    continue
+                events += len(r.events)
                 cycles += len(r.ts)
                 samples += int(r.values.size)
                 top = int(r.ts.max())
@@ -352,11 +373,11 @@ class HistorianWriter:
             path.unlink(missing_ok=True)
         if last is not None:
             self._prev = (last, max(1, period), crashed and bool(cycles))
-        if files and cycles:
+        if files and (cycles or events):
             self.stats.recovered += samples
             self._note(
-                f"historian: {cycles} cycles ({samples} samples) of a run that ended without "
-                f"closing recovered from its journal ({len(files)} files"
+                f"historian: {cycles} cycles ({samples} samples) and {events} events of a run "
+                f"that ended without closing recovered from its journal ({len(files)} files"
                 + (f", a torn last record of {torn} bytes dropped" if torn else "")
                 + "); stored first"
             )
@@ -409,10 +430,9 @@ class HistorianWriter:
         """At a clean stop: delete the journal files whose cycles are all durable, and
         leave the time of the last cycle for the next start's restart gap."""
         self.journal.close()
-        for path in self.journal.files():
-            seq = int(path.name[8:16])
+        for seq in self.journal.created:  # never a file an earlier run left
             if not self._pending.get(seq):
-                path.unlink(missing_ok=True)
+                self.journal.path(seq).unlink(missing_ok=True)
         if self._last_ts is not None:
             try:
                 self.spool.folder.mkdir(parents=True, exist_ok=True)
@@ -428,6 +448,7 @@ class HistorianWriter:
         the journal file of each cycle."""
         items = [self._mem.popleft() for _ in range(min(cycles, len(self._mem)))]
         events, self._events = self._events, []
+        event_seqs, self._event_seqs = self._event_seqs, []
         n = len(self.tags)
         if not items:
             empty = Block(
@@ -437,7 +458,7 @@ class HistorianWriter:
                 np.empty((0, n), np.uint8),
                 events,
             )
-            return empty, []
+            return empty, event_seqs
         ts = np.fromiter((it[0] for it in items), np.int64, count=len(items))
         block = Block(
             self.tags,
@@ -446,12 +467,12 @@ class HistorianWriter:
             np.stack([it[2] for it in items]),
             events,
         )
-        return block, [it[3] for it in items]
+        return block, [it[3] for it in items] + event_seqs
 
     async def _next(self) -> _Item | None:
         """What to store next: the oldest spill segment (read in a thread), else a block
         from memory (taken here, in the loop's thread, where ``put`` appends)."""
-        if self._spool_rows:
+        if self._spool_rows or self._spool_any:
             segments = await asyncio.to_thread(self.spool.segments)
             for seg in segments:
                 try:
@@ -459,13 +480,14 @@ class HistorianWriter:
                 except SegmentCorrupt:
                     self._report_quarantined()
             self._spool_rows = 0
+            self._spool_any = False
         if self._mem or self._events:
             block, seqs = self._take(self.chunk_cycles)
             return _Item(block, None, seqs)
         return None
 
     def _due(self) -> bool:
-        if self._inflight is not None or self._spool_rows or self._stopping:
+        if self._inflight is not None or self._spool_rows or self._spool_any or self._stopping:
             return True
         if len(self._mem) >= self.flush_every or len(self._events) > 10_000:
             return True
@@ -566,8 +588,10 @@ class HistorianWriter:
             for i in range(len(block.ts) - 1, -1, -1):
                 self._mem.appendleft((int(block.ts[i]), block.values[i], block.quality[i], seqs[i]))
             self._events[:0] = block.events
+            self._event_seqs[:0] = seqs[len(block.ts) :]
             return
         self._release(seqs)
+        self._spool_any = True
         self.stats.spilled += block.rows
         self._spool_rows += block.rows
         if not self._told_spill:
