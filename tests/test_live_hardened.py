@@ -371,6 +371,8 @@ def test_ten_minutes_of_cycles_locked_spill_and_exit_while_locked(plant_dir):
         async with PlantServer(port=port) as plc:
             first = await asyncio.to_thread(run, cfg, plc, frame, decide_first)
             assert list(spill.glob("spill-*.npz")), "nothing spilled"
+            # a clean stop leaves no journal: everything it held is spilled
+            assert not list(spill.glob("journal-*.bin")), list(spill.iterdir())
             state["lock"].release()
             second = await asyncio.to_thread(run, cfg, plc, frame, decide_second)
             return first, second
@@ -386,6 +388,8 @@ def test_ten_minutes_of_cycles_locked_spill_and_exit_while_locked(plant_dir):
     m = [x for x in text1.splitlines() if x.startswith("stopped after")][0]
     assert "samples spilled" in m and " 0 samples spilled" not in m, m
     assert not list(spill.glob("*.npz")), "spill left behind"
+    assert not list(spill.glob("journal-*.bin")), "journal left behind"
+    assert "recovered from its journal" not in text1 + text2  # no crash, nothing to recover
     exactly_once(url, t1 + t2, restarts=1)
     m2 = [x for x in text2.splitlines() if x.startswith("stopped after")][0]
     assert " 0 replayed" not in m2, m2

@@ -164,6 +164,7 @@ class HistorianWriter:
         self._wake = asyncio.Event()
         self._stopping = False
         self._closed = False
+        self._finished = False
         self._task: asyncio.Task[None] | None = None
         self._db = _DbThread(f"historian {url}")
         self._fail_streak = 0
@@ -299,6 +300,9 @@ class HistorianWriter:
 
     def put_event(self, ts: pd.Timestamp, unit: str, message: str, **fields: Any) -> None:
         """Queue one event for the historian's event log (never waits)."""
+        if self._finished:  # told after close took what was left: nowhere to go (as ever)
+            log.debug("historian closed: event not stored: %s", message)
+            return
         event = {"ts": int(pd.Timestamp(ts).value // 1000), "unit": unit, "message": message}
         event.update(fields)
         self._events.append(event)
@@ -364,8 +368,8 @@ class HistorianWriter:
                 events += len(r.events)
                 cycles += len(r.ts)
                 samples += int(r.values.size)
-                top = int(r.ts.max())
-                if last is None or top > last:
+                top = int(r.ts.max()) if len(r.ts) else None
+                if top is not None and (last is None or top > last):
                     last = top
                     if len(r.ts) > 1:
                         period = int(np.median(np.diff(np.sort(r.ts))))
@@ -401,6 +405,7 @@ class HistorianWriter:
             left.append((self._inflight.block, self._inflight.seqs or []))
         if self._mem or self._events:
             left.append(self._take(len(self._mem)))
+        self._finished = True
         for block, seqs in left:
             if block.rows or block.events:
                 try:
