@@ -816,6 +816,8 @@ async def run_config(
         history = None
         if writer is not None:
             await writer.start()
+            for text in writer.notes:  # a crashed run's journal, damaged spill files
+                say(text)
             history = asyncio.ensure_future(
                 asyncio.to_thread(history_runs, cfg.historian, sources.names)
             )

@@ -181,6 +181,8 @@ class HistorianWriter:
         #: told each note (restart gap, recovered journal, damaged files) as one line; by
         #: default it goes to the log and the historian's event log
         self.on_note: Callable[[str], None] | None = None
+        #: every note so far (those of :meth:`start` come before a listener can be set)
+        self.notes: list[str] = []
 
     # ------------------------------------------------------------------ the loop's side
     @property
@@ -290,6 +292,7 @@ class HistorianWriter:
 
     def _note(self, text: str) -> None:
         log.warning("%s", text)
+        self.notes.append(text)
         if self.on_note is not None:
             try:
                 self.on_note(text)
