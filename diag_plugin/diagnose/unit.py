@@ -47,6 +47,13 @@ from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matr
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay, three_valued
 from diag_plugin.diagnose.unitfile import SPREAD_FLOOR, TestSpec, UnitError, UnitFile, unit_path
+from diag_plugin.diagnose.unitloops import (
+    Deadband,
+    EpisodeHold,
+    RunningSpread,
+    resolved_evaluation,
+    spread_alpha,
+)
 from diag_plugin.diagnose.unittags import CombinedModel, derived_matrix, describe_top, top_tags
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
@@ -278,11 +285,16 @@ class Unit:
         self.models = models
         self.matrix = matrix
         self.tests = [t.name for t in file.tests]
-        self.ev = file.evaluation
         periods = {m.period for m in models.values()}
         if len(periods) > 1:
             raise UnitError([f"{file.path}:1: the tests' models have different periods {periods}"])
         self.period = periods.pop() if periods else "10s"
+        #: the file's evaluation with delays given in seconds turned into samples at the period
+        self.ev = resolved_evaluation(file.evaluation, self.period)
+        #: the tests judged by the spread of their residual (valve stiction), by position
+        self.spread_cols = np.array(
+            [i for i, t in enumerate(file.tests) if t.statistic == "spread"], np.int64
+        )
         #: isolation to tags: a matrix derived from the models when no expert one is given
         self.tag_isolation = self.ev["isolation"] == "tags"
         self.derived = self.tag_isolation and matrix is None
@@ -384,6 +396,11 @@ class Unit:
         self.unknown_run = np.zeros(len(self.tests), np.int64)
         self.isolation = IsolationHold(1, len(self.tests), len(self.faults))
         self.combined_delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
+        alpha = spread_alpha(ev["spread_window_s"], self.period)
+        self.spread = RunningSpread(alpha, len(self.spread_cols))
+        self.deadband = Deadband(ev["deadband"], len(self.tests)) if ev["deadband"] > 0 else None
+        ntags = len(self.cmodel.tags) if self.cmodel is not None else 0
+        self.episode = EpisodeHold(ntags)
         return self
 
     def to_state(self) -> dict[str, Any]:
@@ -397,6 +414,9 @@ class Unit:
             "unknown_run": self.unknown_run.tolist(),
             "isolation": self.isolation.to_state(),
             "combined_delay": self.combined_delay.to_state(),
+            "spread": self.spread.to_state(),
+            "deadband": None if self.deadband is None else self.deadband.state.tolist(),
+            "episode": self.episode.to_state(),
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -412,6 +432,11 @@ class Unit:
             self.isolation = IsolationHold.from_state(state["isolation"])
         if "combined_delay" in state:
             self.combined_delay = OnOffDelay.from_state(state["combined_delay"])
+        if "spread" in state:  # states saved before issue 34 start these from rest
+            self.spread.load_state(state["spread"])
+            self.episode.load_state(state["episode"])
+            if self.deadband is not None and state.get("deadband") is not None:
+                self.deadband.state = np.asarray(state["deadband"], float)
         return self
 
     # ------------------------------------------------------------ stages
@@ -441,6 +466,12 @@ class Unit:
         return r / spread_factor(pred.spread) if test.spread else r
 
     def filtered(self, raw: pd.DataFrame) -> pd.DataFrame:
+        """The residuals as judged: a spread test's column replaced by the running spread of
+        its residual (:mod:`~diag_plugin.diagnose.unitloops`), then the low-pass filter."""
+        if self.spread_cols.size:
+            x = raw.to_numpy(float, copy=True)
+            x[:, self.spread_cols] = self.spread.transform(x[:, self.spread_cols])
+            raw = pd.DataFrame(x, index=raw.index, columns=raw.columns)
         if self.lowpass is None:
             return raw
         return pd.DataFrame(
@@ -476,7 +507,10 @@ class Unit:
             mu_n, mu_0, mu_p = three_valued(r, *self._fuzzy_sets(lo_, hi_))
             mem = np.stack([mu_n, mu_0, mu_p], axis=2)
             mem[:, no_th, :] = np.nan
-        raw = FixedThresholds(high=hi_, low=lo_).transform(r)
+        if self.deadband is not None:  # ISA-18.2: clears only back inside (1 − deadband) × it
+            raw = self.deadband.transform(r, lo_, hi_)
+        else:
+            raw = FixedThresholds(high=hi_, low=lo_).transform(r)
         raw[:, no_th] = np.nan
         s = self.delay.transform(raw)
         # a test unknown for fewer samples than the on-delay keeps its last known symptom:
@@ -544,7 +578,8 @@ class Unit:
             status, faults = self._isolate(cert, active, status, s)
         top = None
         if share is not None:
-            top = top_tags(share, self.cmodel.tags, active)
+            # the tags named: each one's share averaged over the alarm episode so far
+            top = top_tags(self.episode.transform(share, active), self.cmodel.tags, active)
             top.index = frame.index
         alone = c_on & ~tests_on & (faults == "")
         if alone.any():  # the combined test alone: the unit fails, at the best-ranked tag
