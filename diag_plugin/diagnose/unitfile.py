@@ -391,7 +391,7 @@ class UnitFile:
             ("fuzzy_width", 0.0 <= ev["fuzzy_width"] <= 2.0, "fuzzy_width must be in [0, 2]"),
             ("on_delay_s", ev["on_delay_s"] >= 0, "on_delay_s is seconds, ≥ 0 (0: on_delay)"),
             ("off_delay_s", ev["off_delay_s"] >= 0, "off_delay_s is seconds, ≥ 0 (0: off_delay)"),
-            ("deadband", 0.0 <= ev["deadband"] < 1.0, "deadband is a share of the threshold, [0, 1)"),
+            ("deadband", 0.0 <= ev["deadband"] < 1.0, "deadband: share of the threshold, [0, 1)"),
             ("spread_window_s", ev["spread_window_s"] >= 0, "spread_window_s is seconds, ≥ 0"),
         )
         for key, ok, msg in checks:
