@@ -94,9 +94,7 @@ class Plant:
         self.units = dict(units)
         self.broken = dict(broken or {})
         self.fast = [
-            n
-            for n, u in self.units.items()
-            if _plain_lags(u) and _crisp(u) and _plain_alarms(u)
+            n for n, u in self.units.items() if _plain_lags(u) and _crisp(u) and _plain_alarms(u)
         ]
         self.slow = [n for n in self.units if n not in self.fast]
         self._build()
