@@ -77,9 +77,9 @@ def _crisp(unit: Unit) -> bool:
 
 
 def _plain_alarms(unit: Unit) -> bool:
-    """True without spread tests and deadband (the fast path); units with them go one by
-    one (:mod:`~diag_plugin.diagnose.unitloops`)."""
-    return unit.spread_cols.size == 0 and unit.deadband is None
+    """True without spread tests, deadband and the unit's own off-delay (the fast path);
+    units with them go one by one (:mod:`~diag_plugin.diagnose.unitloops`)."""
+    return unit.spread_cols.size == 0 and unit.deadband is None and unit.alarm_hold is None
 
 
 class Plant:

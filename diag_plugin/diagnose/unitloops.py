@@ -12,12 +12,10 @@ does not chatter.
 **The spread of a loop's error** (valve stiction). A sticking valve makes its loop cycle: the
 control error oscillates around zero, its level (mean) stays where it was. A test with
 ``statistic = "spread"`` judges the running standard deviation of its residual instead
-(:class:`RunningSpread`: exponentially weighted mean and variance,
-
-    ``m_k = m_{k−1} + a (r_k − m_{k−1})``,  ``v_k = (1 − a) (v_{k−1} + a (r_k − m_{k−1})²)``
-
-(West, 1979, the weighted incremental variance), ``a = 1 − exp(−T / W)`` for period ``T`` and
-window ``W = spread_window_s``), learned and thresholded like any test's residual; ``diag unit
+(:class:`RunningSpread`: over the window ``W = spread_window_s``, the median absolute
+deviation from the window's median, ``1.4826 · med_W |r_k − med_W(r)|`` (Hampel, 1974; robust:
+the brief transient of a set-point step, a few samples, does not move it; a loop cycling for
+more than half the window does), learned and thresholded like any test's residual; ``diag unit
 build`` writes one beside each loop's level test and names the loop's actuator for it.
 
 **The named tag held through an episode** (:class:`EpisodeHold`): each tag's share of the
@@ -48,62 +46,53 @@ def resolved_evaluation(ev: dict[str, Any], period: str) -> dict[str, Any]:
     return out
 
 
-def spread_alpha(window_s: float, period: str) -> float:
-    """The weight ``a = 1 − exp(−T / W)`` of a running spread over ``window_s`` seconds at
-    ``period`` (``W`` at least 5 samples)."""
+def spread_samples(window_s: float, period: str) -> int:
+    """Samples in a spread test's window of ``window_s`` seconds at ``period`` (at least 5)."""
     s = pd.Timedelta(period).total_seconds()
-    w = max(float(window_s), 5.0 * s)
-    return 1.0 - math.exp(-s / w)
-
-
-@numba.njit(cache=True)
-def _spread_kernel(x, a, mean, var, seen):  # pragma: no cover - numba
-    n, m = x.shape
-    out = np.full((n, m), np.nan)
-    for j in range(m):
-        mu = mean[j]
-        v = var[j]
-        k = seen[j]
-        for i in range(n):
-            r = x[i, j]
-            if np.isnan(r):
-                continue
-            if k == 0:
-                mu = r
-                v = 0.0
-            else:
-                d = r - mu
-                mu += a * d
-                v = (1.0 - a) * (v + a * d * d)
-            k += 1
-            out[i, j] = math.sqrt(v)
-        mean[j] = mu
-        var[j] = v
-        seen[j] = k
-    return out
+    return max(5, math.ceil(float(window_s) / s - 1e-9)) if s > 0 else 5
 
 
 class RunningSpread:
-    """Running standard deviation per column (see module doc), state carried across pieces;
-    NaN samples are skipped (unknown in, unknown out)."""
+    """Running robust spread per column (see module doc): ``1.4826 · median_W |r − med_W(r)|``
+    (the running median absolute deviation, each sample's deviation from the median of the
+    window ending at it), known once a quarter of the window is; the last ``W − 1`` residuals
+    and deviations carried across pieces."""
 
-    def __init__(self, alpha: float, columns: int) -> None:
-        self.alpha = float(alpha)
-        self.mean = np.zeros(columns)
-        self.var = np.zeros(columns)
-        self.seen = np.zeros(columns, np.int64)
+    def __init__(self, window: int, columns: int) -> None:
+        self.window = int(window)
+        self.r_tail = np.full((0, columns), np.nan)
+        self.d_tail = np.full((0, columns), np.nan)
+
+    def _rolling_median(self, tail: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        both = np.r_[tail, x]
+        k = max(3, self.window // 4)
+        med = pd.DataFrame(both).rolling(self.window, min_periods=k).median().to_numpy()
+        keep = both[-(self.window - 1) :] if self.window > 1 else both[:0]
+        return med[len(tail) :], keep
 
     def transform(self, x: np.ndarray) -> np.ndarray:
-        a = np.ascontiguousarray(np.asarray(x, float).reshape(len(x), -1))
-        return _spread_kernel(a, self.alpha, self.mean, self.var, self.seen)
+        a = np.asarray(x, float).reshape(len(x), -1)
+        if a.shape[1] == 0 or len(a) == 0:
+            return a.copy()
+        med, self.r_tail = self._rolling_median(self.r_tail, a)
+        dev = np.abs(a - med)
+        mad, self.d_tail = self._rolling_median(self.d_tail, dev)
+        return np.where(np.isfinite(a), 1.4826 * mad, np.nan)
 
     def to_state(self) -> dict[str, Any]:
-        return {"mean": self.mean.tolist(), "var": self.var.tolist(), "seen": self.seen.tolist()}
+        def rows(a: np.ndarray) -> list:
+            return [[float(v) if np.isfinite(v) else None for v in r] for r in a]
+
+        return {"r": rows(self.r_tail), "d": rows(self.d_tail)}
 
     def load_state(self, state: dict[str, Any]) -> None:
-        self.mean = np.asarray(state["mean"], float)
-        self.var = np.asarray(state["var"], float)
-        self.seen = np.asarray(state["seen"], np.int64)
+        m = self.r_tail.shape[1]
+
+        def arr(rows: list) -> np.ndarray:
+            a = np.array([[np.nan if v is None else v for v in r] for r in rows], float)
+            return a.reshape(-1, m)
+
+        self.r_tail, self.d_tail = arr(state["r"]), arr(state["d"])
 
 
 @numba.njit(cache=True)
@@ -179,3 +168,34 @@ class EpisodeHold:
     def load_state(self, state: dict[str, Any]) -> None:
         self.total = np.asarray(state["total"], float)
         self.count = int(state["count"])
+
+
+class AlarmHold:
+    """The unit's own off-delay (ISA-18.2): once the unit alarms, it stays in alarm until
+    no test has shown a symptom for ``off`` samples — each test's off-delay spaces its own
+    alarms, but tests taking turns would otherwise make the unit's alarm chatter. For each
+    sample the row whose diagnosis it repeats (:meth:`sources`)."""
+
+    def __init__(self, off: int) -> None:
+        self.off = int(off)
+        self.since = self.off  # samples since the last alarm sample (≥ off: none held)
+
+    def sources(self, active: np.ndarray) -> np.ndarray:
+        """Per sample: itself (−2) when in alarm or outside any hold, the last alarm row of
+        this piece it repeats (≥ 0), or −1 for the previous piece's last alarm row."""
+        act = np.asarray(active, bool)
+        n = act.size
+        idx = np.arange(n)
+        last = np.maximum.accumulate(np.where(act, idx, -1)) if n else idx
+        gap = np.where(last >= 0, idx - last, idx + 1 + self.since)
+        held = ~act & (gap < self.off)
+        out = np.where(held, np.where(last >= 0, last, -1), -2)
+        if n:
+            self.since = int(gap[-1]) if not act[-1] else 0
+        return out
+
+    def to_state(self) -> dict[str, Any]:
+        return {"since": self.since}
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        self.since = int(state["since"])

@@ -173,7 +173,35 @@ def directions(unit, spec: CombinedSpec | None) -> tuple[np.ndarray, np.ndarray]
             span = test.ymax if unit.ev["scale"] == "max" and test.ymax else unit.models[t].span
             g = spec.gains.get(t, {}).get(x, 0.0)
             xi[j, k] = ((1.0 if x == outputs[t] else 0.0) - g) * 100.0 / span / spec.scale[i]
+    if spec is not None:
+        _compensated_sensors(unit, spec, tags, outputs, xi)
     return xi, loop
+
+
+def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray) -> None:
+    """In place: a loop's own sensor biased by ``b`` is compensated by its loop, which then
+    drives the process as a set-point step of ``−b`` would: every other test whose model
+    reads the set-point (the model of the loop's actuator, of the tags downstream) sees a
+    residual ``−g · b``, ``g`` that model's gain on the set-point. Added to the sensor's
+    direction."""
+    for t in unit.tests:
+        test = unit.file.test(t)
+        if _spread_test(unit, t) or not (test.actuator and test.set_point):
+            continue
+        pv = outputs[t]
+        if pv not in tags:
+            continue
+        k = tags.index(pv)
+        for j, other in enumerate(unit.tests):
+            ot = unit.file.test(other)
+            if other == t or _spread_test(unit, other) or ot.set_point == test.set_point:
+                continue
+            g = spec.gains.get(other, {}).get(test.set_point)
+            if not g:
+                continue
+            m = unit.models[other]
+            span = ot.ymax if unit.ev["scale"] == "max" and ot.ymax else m.span
+            xi[j, k] += -g * 100.0 / span / spec.scale[spec.tests.index(other)]
 
 
 @dataclass
