@@ -68,8 +68,10 @@ def simulate(
     out = np.empty((n, 7))
     for i in range(n):
         faulty = fault is not None and i >= onset
-        meas_p = p[i] + (0.6 * (t[i] - t[onset]) / 24.0 if faulty and fault == "pressure_drift" else 0)
-        meas_f = flow + 0.05 * rng.standard_normal() + (0.8 if faulty and fault == "flow_bias" else 0)
+        drift = 0.6 * (t[i] - t[onset]) / 24.0 if faulty and fault == "pressure_drift" else 0.0
+        meas_p = p[i] + drift
+        bias = 0.8 if faulty and fault == "flow_bias" else 0.0
+        meas_f = flow + 0.05 * rng.standard_normal() + bias
         e = sp[i] - meas_f
         integ = float(np.clip(integ + kp * e * dt / ti, 0.0, 100.0))
         op = float(np.clip(kp * e + integ, 0.0, 100.0))
