@@ -90,7 +90,7 @@ class RunningSpread:
 
         def arr(rows: list) -> np.ndarray:
             a = np.array([[np.nan if v is None else v for v in r] for r in rows], float)
-            return a.reshape(-1, m)
+            return a.reshape(len(rows), m)
 
         self.r_tail, self.d_tail = arr(state["r"]), arr(state["d"])
 
