@@ -177,6 +177,9 @@ class LiveLoop:
         if a.action == "refused":
             self.event(f"OPC UA: {a.user} refused: {a.detail} (operators only)", self._ts)
             return
+        if a.action == "login":  # a refused login, or a run of identical ones merged
+            self.event(a.detail, self._ts)
+            return
         verb = _PAST.get(a.action, a.action)
         via = "" if a.via == "local" else f" over {a.via}"
         if a.ok:
