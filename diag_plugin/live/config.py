@@ -19,7 +19,7 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     port = 502
     device_id = 1
     map = "plc.csv"                               # register map CSV (docs/connectors.md)
-    timeout = 1.0
+    timeout = 1.0                                 # s, at most the cycle (default: 1 s or the cycle)
 
     [[source]]
     name = "scada"
@@ -27,7 +27,7 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     url = "opc.tcp://127.0.0.1:4841"
     mode = "subscription"                         # or "poll"
     period = 1.0                                  # publishing interval (subscription)
-    timeout = 4.0
+    timeout = 1.0                                 # s, at most the cycle (default: 4 s or the cycle)
     nodes = { T1 = "ns=2;s=Line.T1", T2 = "ns=2;s=Line.T2" }  # or a CSV "tag,node"
 
     [outputs]
@@ -326,6 +326,17 @@ def load_config(path: str | Path) -> LiveConfig:
 
     for i in range(len(tables["source"])):
         cfg.sources.append(_source(i, get, positive, port, existing, fail, base))
+        s = cfg.sources[-1]
+        if "timeout" not in tables["source"][i]:
+            s.timeout = min(s.timeout, cfg.cycle)  # the default never outlasts a cycle
+        elif s.timeout > cfg.cycle:
+            raise fail(
+                "source",
+                "timeout",
+                f"{s.timeout:g} s is longer than the cycle ({cfg.cycle:g} s): one slow "
+                "answer would hold the cycle; give at most the cycle",
+                i,
+            )
     seen_names: dict[str, int] = {}
     for i, s in enumerate(cfg.sources):
         if s.name in seen_names:
