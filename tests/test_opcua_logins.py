@@ -238,3 +238,37 @@ def test_limits_derived_from_users_and_cores():
     assert LoginLimits.derive(500, True, cpus=4).max_sessions == 1000
     with pytest.raises(ValueError, match="max_sessions"):
         LoginLimits(max_sessions=0)
+
+
+def test_plant_toml_sets_the_caps_and_refuses_nonsense(tmp_path):
+    from diag_plugin.live.config import ConfigError, build_server, load_config
+
+    (tmp_path / "u.unit.toml").write_text("", encoding="utf-8")
+    (tmp_path / "plc.csv").write_text("tag,table,address,type\nF,hr,0,uint16\n")
+    text = """\
+[plant]
+cycle = 1.0
+units = ["u.unit.toml"]
+
+[[source]]
+port = 1502
+map = "plc.csv"
+
+[outputs]
+modbus_port = 0
+opcua_port = {port}
+
+[opcua]
+anonymous = true
+{extra}
+"""
+    p = tmp_path / "plant.toml"
+    p.write_text(text.format(port=free_port(), extra=""), encoding="utf-8")
+    derived = build_server(load_config(p)).security.logins
+    assert derived == LoginLimits.derive(0, True)  # no users: derived from anonymous alone
+    p.write_text(text.format(port=free_port(), extra="max_sessions = 7\nmax_logins = 2"))
+    lim = build_server(load_config(p)).security.logins
+    assert (lim.max_sessions, lim.max_activations) == (7, 2)
+    p.write_text(text.format(port=free_port(), extra="max_logins = 0"), encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"plant.toml:15: opcua.max_logins: must be 1-10000"):
+        load_config(p)

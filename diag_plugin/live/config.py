@@ -42,6 +42,8 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     anonymous = false                             # anonymous sessions (read-only)
     max_shelve = 3600                             # longest shelving, seconds
     confirm = false                               # true: alarms also wait for Confirm
+    max_sessions = 40                             # default: 10 per user (+10 anonymous), 20-1000
+    max_logins = 4                                # logins checked at once; default 4 per thread
 
     [[user]]
     name = "alice"
@@ -118,6 +120,9 @@ class ServerConfig:
     confirm: bool = False
     application_uri: str = "urn:diag-plugin:server"
     users: list[Any] = field(default_factory=list)  # connectors.opcua_access.OpcUaUser
+    #: sessions at once and logins checked at once (None: derived, LoginLimits.derive)
+    max_sessions: int | None = None
+    max_logins: int | None = None
 
 
 @dataclass
@@ -192,6 +197,8 @@ _KEYS = {
         "max_shelve",
         "confirm",
         "application_uri",
+        "max_sessions",
+        "max_logins",
     },
     "user": {"name", "role", "password_hash", "certificate"},
 }
@@ -428,6 +435,11 @@ def _server(get, positive, fail, base: Path) -> ServerConfig:
     sc.max_shelve = float(positive("opcua", "max_shelve", g("max_shelve", (int, float), 3600.0)))
     sc.confirm = g("confirm", bool, False)
     sc.application_uri = g("application_uri", str, sc.application_uri)
+    for key in ("max_sessions", "max_logins"):
+        v = g(key, int, None)
+        if v is not None and not 1 <= v <= 10_000:
+            raise fail("opcua", key, f"must be 1-10000, not {v!r}")
+        setattr(sc, key, v)
     return sc
 
 
@@ -676,6 +688,15 @@ def build_server(cfg: LiveConfig) -> Any:
     if sc is None:
         return DiagOpcUaServer("127.0.0.1", cfg.opcua_port)
     assert sc.certificate is not None and sc.private_key is not None
+    from dataclasses import replace
+
+    from connectors.opcua_logins import LoginLimits
+
+    limits = LoginLimits.derive(len(sc.users), sc.anonymous)
+    if sc.max_sessions is not None:
+        limits = replace(limits, max_sessions=sc.max_sessions)
+    if sc.max_logins is not None:
+        limits = replace(limits, max_activations=sc.max_logins)
     security = ServerSecurity(
         sc.certificate,
         sc.private_key,
@@ -684,6 +705,7 @@ def build_server(cfg: LiveConfig) -> Any:
         sc.anonymous,
         sc.security,
         sc.application_uri,
+        logins=limits,
     )
     return DiagOpcUaServer(
         sc.host,
