@@ -252,8 +252,11 @@ class LoginGuard:
             return
         if merged is not None and merged[1]:
             self._emit(key, merged[1], now - merged[0])
+        if len(self._merged) >= self.limits.max_tracked:  # a flood of distinct names
+            self.flush(force=True)
         self._merged[key] = [now, 0]
         self._emit(key, 0, 0.0)
+        self._schedule_flush()  # the window's entry is dropped (with its count) when over
 
     def flush(self, force: bool = False) -> None:
         """Write the repeat counts of the windows that are over (all of them: ``force``)."""
@@ -275,7 +278,7 @@ class LoginGuard:
         def run() -> None:
             self._flush_handle = None
             self.flush()
-            if any(n for _, n in self._merged.values()):
+            if self._merged:
                 self._schedule_flush()
 
         self._flush_handle = loop.call_later(self.limits.log_window, run)

@@ -272,3 +272,25 @@ anonymous = true
     p.write_text(text.format(port=free_port(), extra="max_logins = 0"), encoding="utf-8")
     with pytest.raises(ConfigError, match=r"plant.toml:15: opcua.max_logins: must be 1-10000"):
         load_config(p)
+
+
+def test_refusal_log_merges_counts_and_forgets(anyio_backend):
+    """Identical refusals within the window are one line with their count; the window's
+    entries are dropped when it is over, and a flood of distinct names stays bounded."""
+    lines: list[str] = []
+    now = [0.0]
+    lim = LoginLimits(log_window=10.0, max_tracked=50)
+    guard = LoginGuard(lambda u, p: False, lim, on_event=lines.append, clock=lambda: now[0])
+    for _ in range(38):
+        guard.refused("alice", "10.0.0.7", "unknown user or wrong password")
+    assert len(lines) == 1 and "'alice' from 10.0.0.7" in lines[0]
+    now[0] = 11.0
+    guard.flush()
+    assert lines[-1].endswith("(repeated 37 times in 11 s)") and not guard._merged
+    for i in range(500):
+        guard.refused(f"name{i}", "10.0.0.8", "unknown user or wrong password")
+    assert len(guard._merged) <= lim.max_tracked and len(lines) == 502
+    for i in range(500):  # strikes too: at most max_tracked names and addresses kept
+        guard._strike(("user", f"name{i}"), now[0])
+    assert len(guard._strikes) <= lim.max_tracked
+    guard.close()
