@@ -216,13 +216,30 @@ def _line_of(lines: list[str], section: str, key: str | None, index: int = 0) ->
     return line_of(lines, section, key, index, subtables=True)
 
 
+def utf8_text(path: Path, raw: bytes) -> str:
+    """``raw`` decoded as UTF-8 (TOML files are UTF-8 by definition; a BOM is dropped), or
+    :class:`ConfigError` naming the file, line, column and byte offset of the first byte that
+    is not."""
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        at = exc.start
+        line = raw.count(b"\n", 0, at) + 1
+        col = at - (raw.rfind(b"\n", 0, at) + 1) + 1
+        raise ConfigError(
+            f"{path}:{line}: not UTF-8 text: byte 0x{raw[at]:02x} at offset {at} (line {line}, "
+            f"column {col}); save the file as UTF-8"
+        ) from None
+
+
 def load_config(path: str | Path) -> LiveConfig:
     """Read and check ``plant.toml`` (files it names must exist)."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except OSError as exc:
         raise ConfigError(f"{path}:0: cannot read: {exc.strerror or exc}") from None
+    text = utf8_text(path, raw)
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -636,7 +653,41 @@ def build_sources(cfg: LiveConfig) -> Any:
     return SourceSet(clients, [s.name for s in cfg.sources])
 
 
-def commission(cfg: LiveConfig, plant: Any) -> None:
+def load_plant(cfg: LiveConfig) -> Any:
+    """The plant's units; a unit or rule-base file that does not load refuses the start
+    (:class:`ConfigError` with each problem as ``file:line: what``, the unit named), never a
+    start with that unit stuck in CHECK_FUNCTION."""
+    from diag_plugin.diagnose.plant import Plant
+
+    plant = Plant.load(cfg.units, cfg.rulebases)
+    if plant.broken:
+        by_name = {p.name.removesuffix(".unit.toml").removesuffix(".toml"): p for p in cfg.units}
+        lines = []
+        for name, problems in plant.broken.items():
+            head = (
+                f"{cfg.path}:{cfg.line('plant', 'units')}: plant.units: "
+                f"{by_name.get(name, name)}: unit {name} does not load"
+            )
+            lines.append(head + ":")
+            lines.extend(f"  {p}" for p in problems)
+        raise ConfigError("\n".join(lines))
+    return plant
+
+
+def check_config(cfg: LiveConfig) -> str:
+    """``diag run --check``: everything :func:`run_config` checks before it starts except
+    that the output ports are free (the running plug-in may hold them); raises
+    :class:`ConfigError`, else returns a one-line summary."""
+    plant = load_plant(cfg)
+    commission(cfg, plant, ports=False)
+    tags = sum(len(s.regmap.names if s.regmap else s.nodes) for s in cfg.sources)
+    return (
+        f"{cfg.path}: sound: {len(plant.units)} units, {len(cfg.sources)} sources, {tags} tags"
+        + (f", historian {cfg.historian}" if cfg.historian else "")
+    )
+
+
+def commission(cfg: LiveConfig, plant: Any, *, ports: bool = True) -> None:
     """Checks that need the loaded units and this machine, refused like the file's own errors
     (``plant.toml:<line>: <key>: ...``): every unit's input tags are read by some source; the
     output ports are free on 127.0.0.1. All problems at once, one per line."""
@@ -657,7 +708,7 @@ def commission(cfg: LiveConfig, plant: Any) -> None:
         ("modbus_port", cfg.modbus_port, "127.0.0.1"),
         ("opcua_port", cfg.opcua_port, host),
     ):
-        if port and (why := port_busy(h, port)):
+        if ports and port and (why := port_busy(h, port)):
             problems.append(
                 f"{cfg.path}:{cfg.line('outputs', key)}: outputs.{key}: {h}:{port} {why}"
             )
@@ -743,7 +794,6 @@ async def run_config(
     import pandas as pd
 
     from connectors.modbus_server import StatusServer, UnitLayout
-    from diag_plugin.diagnose.plant import Plant
     from diag_plugin.live.loop import LiveLoop, close_all
     from diag_plugin.live.stale import StaleDetector
     from diag_plugin.live.writer import HistorianWriter
@@ -754,9 +804,7 @@ async def run_config(
     def say(text: str) -> None:
         print(text, file=out, flush=True)
 
-    plant = Plant.load(cfg.units, cfg.rulebases)
-    for name, problems in plant.broken.items():
-        say(f"unit {name} is broken: {'; '.join(problems)}")
+    plant = load_plant(cfg)
     commission(cfg, plant)
     first = plant.cycle(pd.Timestamp.now(tz="UTC"), {})
     plant.reset()
@@ -801,6 +849,8 @@ async def run_config(
         history = None
         if writer is not None:
             await writer.start()
+            for text in writer.notes:  # a crashed run's journal, damaged spill files
+                say(text)
             history = asyncio.ensure_future(
                 asyncio.to_thread(history_runs, cfg.historian, sources.names)
             )

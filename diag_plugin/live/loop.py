@@ -163,6 +163,8 @@ class LiveLoop:
             opcua.on_action = self.on_action
         if historian is not None:
             historian.notify = self._historian_state
+            # a restart gap, a crashed run's journal recovered, a damaged spill file
+            historian.on_note = lambda text: self.event(text, self._ts)
 
     def poll_deadline(self) -> float | None:
         """Seconds a cycle waits for its sources: the cycle less twice the median other work
@@ -283,7 +285,9 @@ class LiveLoop:
         if self.status_server is not None:
             while not self.status_server.acks.empty():
                 unit = self.status_server.acks.get_nowait()
-                await self.acknowledge(unit, "Modbus client", "Modbus")
+                client = getattr(unit, "client", "")  # ip:port of the writer, for the audit
+                who = f"Modbus client {client}" if client else "Modbus client"
+                await self.acknowledge(str(unit), who, "Modbus")
         modbus = []
         for s in statuses:
             before = self._alarm(s.unit)
