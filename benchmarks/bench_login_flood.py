@@ -22,6 +22,7 @@ import argparse
 import asyncio
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -144,6 +145,7 @@ async def run(period: float, flood: float, clients: int, quiet: float) -> dict:
     await task
     guard = getattr(srv, "logins", None)
     await srv.stop()
+    shutil.rmtree(d, ignore_errors=True)
     res = json.loads(out or b"{}")
     res["guard"] = (
         {
