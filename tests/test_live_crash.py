@@ -252,7 +252,7 @@ units = ["rb/valve_unit.unit.toml"]
 name = "plc"
 port = {port}
 map = "plc.csv"
-timeout = 0.5
+timeout = 0.2
 
 [outputs]
 modbus_port = 0

@@ -93,7 +93,7 @@ units = ["rb/valve_unit.unit.toml"]
 name = "plc"
 port = {plc}
 map = "plc.csv"
-timeout = 0.5
+timeout = {min(cycle, 0.5)}
 
 [outputs]
 modbus_port = 0

@@ -19,7 +19,7 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     port = 502
     device_id = 1
     map = "plc.csv"                               # register map CSV (docs/connectors.md)
-    timeout = 1.0
+    timeout = 1.0                                 # s, at most the cycle (default: 1 s or the cycle)
 
     [[source]]
     name = "scada"
@@ -27,7 +27,7 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     url = "opc.tcp://127.0.0.1:4841"
     mode = "subscription"                         # or "poll"
     period = 1.0                                  # publishing interval (subscription)
-    timeout = 4.0
+    timeout = 1.0                                 # s, at most the cycle (default: 4 s or the cycle)
     nodes = { T1 = "ns=2;s=Line.T1", T2 = "ns=2;s=Line.T2" }  # or a CSV "tag,node"
 
     [outputs]
@@ -42,6 +42,8 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     anonymous = false                             # anonymous sessions (read-only)
     max_shelve = 3600                             # longest shelving, seconds
     confirm = false                               # true: alarms also wait for Confirm
+    max_sessions = 40                             # default: 10 per user (+10 anonymous), 20-1000
+    max_logins = 4                                # logins checked at once; default 4 per thread
 
     [[user]]
     name = "alice"
@@ -118,6 +120,9 @@ class ServerConfig:
     confirm: bool = False
     application_uri: str = "urn:diag-plugin:server"
     users: list[Any] = field(default_factory=list)  # connectors.opcua_access.OpcUaUser
+    #: sessions at once and logins checked at once (None: derived, LoginLimits.derive)
+    max_sessions: int | None = None
+    max_logins: int | None = None
 
 
 @dataclass
@@ -192,6 +197,8 @@ _KEYS = {
         "max_shelve",
         "confirm",
         "application_uri",
+        "max_sessions",
+        "max_logins",
     },
     "user": {"name", "role", "password_hash", "certificate"},
 }
@@ -343,6 +350,17 @@ def load_config(path: str | Path) -> LiveConfig:
 
     for i in range(len(tables["source"])):
         cfg.sources.append(_source(i, get, positive, port, existing, fail, base))
+        s = cfg.sources[-1]
+        if "timeout" not in tables["source"][i]:
+            s.timeout = min(s.timeout, cfg.cycle)  # the default never outlasts a cycle
+        elif s.timeout > cfg.cycle:
+            raise fail(
+                "source",
+                "timeout",
+                f"{s.timeout:g} s is longer than the cycle ({cfg.cycle:g} s): one slow "
+                "answer would hold the cycle; give at most the cycle",
+                i,
+            )
     seen_names: dict[str, int] = {}
     for i, s in enumerate(cfg.sources):
         if s.name in seen_names:
@@ -434,6 +452,11 @@ def _server(get, positive, fail, base: Path) -> ServerConfig:
     sc.max_shelve = float(positive("opcua", "max_shelve", g("max_shelve", (int, float), 3600.0)))
     sc.confirm = g("confirm", bool, False)
     sc.application_uri = g("application_uri", str, sc.application_uri)
+    for key in ("max_sessions", "max_logins"):
+        v = g(key, int, None)
+        if v is not None and not 1 <= v <= 10_000:
+            raise fail("opcua", key, f"must be 1-10000, not {v!r}")
+        setattr(sc, key, v)
     return sc
 
 
@@ -716,6 +739,15 @@ def build_server(cfg: LiveConfig) -> Any:
     if sc is None:
         return DiagOpcUaServer("127.0.0.1", cfg.opcua_port)
     assert sc.certificate is not None and sc.private_key is not None
+    from dataclasses import replace
+
+    from connectors.opcua_logins import LoginLimits
+
+    limits = LoginLimits.derive(len(sc.users), sc.anonymous)
+    if sc.max_sessions is not None:
+        limits = replace(limits, max_sessions=sc.max_sessions)
+    if sc.max_logins is not None:
+        limits = replace(limits, max_activations=sc.max_logins)
     security = ServerSecurity(
         sc.certificate,
         sc.private_key,
@@ -724,6 +756,7 @@ def build_server(cfg: LiveConfig) -> Any:
         sc.anonymous,
         sc.security,
         sc.application_uri,
+        logins=limits,
     )
     return DiagOpcUaServer(
         sc.host,
