@@ -1,0 +1,119 @@
+"""The live loop's historian writer says "back, none lost" only when nothing waits any more
+(issue 38, bug 11), against a real SQLite historian write-locked by a second process.
+
+While the lock is held the writer keeps the samples, spills the overflow to its spill folder
+and says "degraded" once. Released, it stores the block it was holding first; the spilled
+samples are still waiting then, so "back" must wait until they are stored too: at the moment
+it is said the spill folder is empty and the historian holds every sample put but the newest
+few still in memory (fewer than one flush), and in the end every sample, exactly once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+LOCKER = """\
+import sqlite3, sys
+c = sqlite3.connect(sys.argv[1], isolation_level=None)
+c.execute("BEGIN IMMEDIATE")  # the write lock; readers still read (WAL)
+print("locked", flush=True)
+sys.stdin.readline()
+c.execute("COMMIT")
+print("released", flush=True)
+"""
+
+
+class Locker:
+    """A second process holding the SQLite file's write lock until :meth:`release`."""
+
+    def __init__(self, db: Path) -> None:
+        self.p = subprocess.Popen(
+            [sys.executable, "-c", LOCKER, str(db)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self.p.stdout.readline().strip() == "locked"
+
+    def release(self) -> None:
+        self.p.stdin.write("\n")
+        self.p.stdin.flush()
+        assert self.p.stdout.readline().strip() == "released"
+        self.p.wait(10)
+
+
+async def until(pred, timeout: float = 30.0) -> bool:
+    end = asyncio.get_running_loop().time() + timeout
+    while asyncio.get_running_loop().time() < end:
+        if pred():
+            return True
+        await asyncio.sleep(0.02)
+    return False
+
+
+def test_back_none_lost_is_said_only_when_the_spilled_samples_are_stored(tmp_path):
+    from diag_plugin.live.writer import HistorianWriter
+    from historian.store import Historian
+
+    db = tmp_path / "h.db"
+    url = f"sqlite:///{db}"
+    Historian(url).close()  # the schema (WAL) exists before the lock is taken
+    spill = tmp_path / "spill"
+    tags = ["A", "B"]
+    said: list[tuple[bool, str, int, list]] = []
+    t0 = pd.Timestamp("2026-03-01T00:00:00.3Z")  # off the second
+    n = 60
+
+    async def main() -> None:
+        w: HistorianWriter
+
+        def notify(degraded: bool, text: str) -> None:
+            # what waits at the moment it is said: spill segments, and samples not stored
+            with Historian(url) as h:
+                stored = list(h.read_samples("A").index) if len(h.tags()) else []
+            said.append((degraded, text, len(list(spill.glob("spill-*.npz"))), stored))
+
+        w = HistorianWriter(
+            url,
+            tags,
+            spill_dir=spill,
+            flush_every=50,
+            cycle=0.01,
+            memory_rows=16,  # 8 cycles in memory, the rest spilled
+            busy_timeout=0.1,
+            notify=notify,
+        )
+        lock = Locker(db)
+        try:
+            await w.start()
+            for i in range(n):
+                ts = t0 + pd.Timedelta(seconds=i)
+                w.put(ts, np.array([float(i), -float(i)]), np.zeros(2, np.uint8))
+                await asyncio.sleep(0.01)
+            assert await until(lambda: w.degraded and len(list(spill.glob("spill-*.npz"))) > 1)
+        finally:
+            lock.release()
+        assert await until(lambda: not w.degraded and w.backlog == 0)
+        await w.close()
+
+    asyncio.run(main())
+    degraded = [s for s in said if s[0]]
+    back = [s for s in said if not s[0]]
+    assert degraded and "historian degraded" in degraded[0][1]
+    assert len(back) == 1 and "none lost" in back[0][1], said
+    _, text, segments_left, stored = back[0]
+    assert segments_left == 0, text
+    put = [t0 + pd.Timedelta(seconds=i) for i in range(n)]
+    assert stored == put[: len(stored)], text  # the oldest first, none skipped
+    assert n - len(stored) < 50, text  # what is left is less than one flush, in memory
+    with Historian(url) as h:
+        a = h.read_samples("A")
+    assert a.index.is_unique and len(a) == n
+    assert a.tolist() == [float(i) for i in range(n)]
+    assert a.index[0] == t0
