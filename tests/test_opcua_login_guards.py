@@ -127,3 +127,32 @@ async def test_an_empty_trust_list_refuses_every_client(anyio_backend, keys, tmp
                 await c.disconnect()
     finally:
         await srv.stop()
+
+
+def test_a_failing_refusal_listener_still_refuses_and_users_cannot_be_changed(caplog):
+    """The permission check refuses a viewer's write even when the listener that hears
+    refusals raises (it is logged, never passed on to the server); a user is immutable, so a
+    role cannot be raised after the server took it."""
+    import dataclasses
+
+    from asyncua import ua
+    from asyncua.crypto.permission_rules import UserRole
+
+    from connectors.opcua_access import Identity, OpcUaUser, Permissions
+    from connectors.passwords import hash_password
+
+    heard = []
+
+    def listener(ident, what):
+        heard.append((ident.label, what))
+        raise RuntimeError("listener broke")
+
+    perms = Permissions(on_refused=listener)
+    bob = Identity(role=UserRole.User, name="bob", access="viewer")
+    write = ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary)
+    assert perms.check_validity(bob, write, b"") is False
+    assert heard == [("bob (viewer)", "write")]
+    assert "on_refused listener failed" in caplog.text
+    u = OpcUaUser("bob", "viewer", hash_password("pw"))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        u.role = "operator"
