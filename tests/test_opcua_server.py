@@ -301,3 +301,20 @@ async def test_notices_are_maintenance_band_and_need_no_acknowledgement(env):
     evs = await wait_events(events, "Historian", 2)
     assert len(evs) == 2 and evs[-1].Retain is False
     assert getattr(evs[-1], "ActiveState/Id") is False
+
+
+async def test_the_action_log_in_memory_keeps_the_newest_actions_up_to_its_bound(anyio_backend):
+    """Months of acknowledgements never grow :attr:`actions` past its bound (the newest 1000;
+    the historian's event log keeps them all); the newest are kept, in order."""
+    KEEP_ACTIONS = 1000
+
+    srv = DiagOpcUaServer(port=free_port())
+    await srv.start()
+    try:
+        await srv.publish(st("p", NE107.NORMAL))
+        for i in range(KEEP_ACTIONS + 5):
+            await srv.acknowledge("p", who=f"op{i}")
+        assert len(srv.actions) == KEEP_ACTIONS
+        assert srv.actions[0].user == "op5" and srv.actions[-1].user == f"op{KEEP_ACTIONS + 4}"
+    finally:
+        await srv.stop()
