@@ -106,6 +106,7 @@ def test_back_none_lost_is_said_only_when_the_spilled_samples_are_stored(tmp_pat
     degraded = [s for s in said if s[0]]
     back = [s for s in said if not s[0]]
     assert degraded and "historian degraded" in degraded[0][1]
+    assert "database is locked" in degraded[0][1]  # the database's own reason
     assert len(back) == 1 and "none lost" in back[0][1], said
     _, text, segments_left, stored = back[0]
     assert segments_left == 0, text
@@ -117,3 +118,88 @@ def test_back_none_lost_is_said_only_when_the_spilled_samples_are_stored(tmp_pat
     assert a.index.is_unique and len(a) == n
     assert a.tolist() == [float(i) for i in range(n)]
     assert a.index[0] == t0
+
+
+def test_a_spill_folder_that_cannot_be_written_keeps_the_samples_in_memory(tmp_path, caplog):
+    """The spill folder's place is taken by a file: the overflow stays in memory (said in the
+    log) and, once the database is back, every sample is stored once, in order."""
+    from diag_plugin.live.writer import HistorianWriter
+    from historian.store import Historian
+
+    db = tmp_path / "h.db"
+    url = f"sqlite:///{db}"
+    Historian(url).close()
+    (tmp_path / "taken").write_text("not a folder")
+    t0 = pd.Timestamp("2026-03-01T00:00:00Z")
+    n = 40
+
+    async def main() -> None:
+        w = HistorianWriter(
+            url,
+            ["A", "B"],
+            spill_dir=tmp_path / "taken" / "spill",
+            flush_every=50,
+            cycle=0.01,
+            memory_rows=16,
+            busy_timeout=0.1,
+        )
+        lock = Locker(db)
+        try:
+            await w.start()
+            for i in range(n):
+                w.put(t0 + pd.Timedelta(seconds=i), np.array([i, i + 0.5]), np.zeros(2, np.uint8))
+                await asyncio.sleep(0.01)
+            assert await until(lambda: "cannot spill" in caplog.text)
+        finally:
+            lock.release()
+        assert await until(lambda: not w.degraded and w.backlog == 0)
+        await w.close()
+        assert w.stats.spilled == 0 and w.stats.stored == 2 * n
+
+    asyncio.run(main())
+    with Historian(url) as h:
+        a, b = h.read_samples("A"), h.read_samples("B")
+    assert a.tolist() == [float(i) for i in range(n)]
+    assert b.tolist() == [i + 0.5 for i in range(n)] and b.index.is_unique
+
+
+def test_blocks_are_as_large_as_chunk_rows_allows_and_counted(tmp_path):
+    """One tag, ``chunk_rows=10``: 25 cycles go in three transactions (10, 10, 5 samples),
+    and the writer's figures say so."""
+    from diag_plugin.live.writer import HistorianWriter
+    from historian.store import Historian
+
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    t0 = pd.Timestamp("2026-03-01T00:00:00Z")
+
+    async def main():
+        w = HistorianWriter(
+            url, ["A"], spill_dir=tmp_path / "spill", flush_every=25, cycle=0.01, chunk_rows=10
+        )
+        await w.start()
+        for i in range(25):
+            w.put(t0 + pd.Timedelta(seconds=i), np.array([float(i)]), np.zeros(1, np.uint8))
+        assert await until(lambda: w.backlog == 0 and w.stats.stored == 25)
+        await w.close()
+        return w.stats
+
+    stats = asyncio.run(main())
+    assert (stats.writes, stats.stored, stats.failures, stats.spilled) == (3, 25, 0, 0)
+    with Historian(url) as h:
+        assert h.read_samples("A").tolist() == [float(i) for i in range(25)]
+
+
+def test_a_write_is_stalled_after_three_flushes_but_never_under_5_s(tmp_path):
+    """The default ``stall_after`` follows the loop: three flush intervals, at least 5 s."""
+    from diag_plugin.live.writer import HistorianWriter
+
+    def stall(flush_every: int, cycle: float) -> float:
+        url = f"sqlite:///{tmp_path / 'h.db'}"
+        w = HistorianWriter(url, ["A"], spill_dir=tmp_path, flush_every=flush_every, cycle=cycle)
+        asyncio.run(w.close())
+        return w.stall_after
+
+    assert stall(1, 0.1) == 5.0
+    assert stall(20, 0.05) == 5.0
+    assert stall(20, 1.0) == 60.0
+    assert stall(5, 60.0) == 900.0
