@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -97,6 +98,7 @@ def test_back_none_lost_is_said_only_when_the_spilled_samples_are_stored(tmp_pat
                 w.put(ts, np.array([float(i), -float(i)]), np.zeros(2, np.uint8))
                 await asyncio.sleep(0.01)
             assert await until(lambda: w.degraded and len(list(spill.glob("spill-*.npz"))) > 1)
+            assert w.backlog == n * len(tags)  # nothing stored yet: every sample waits
         finally:
             lock.release()
         assert await until(lambda: not w.degraded and w.backlog == 0)
@@ -163,14 +165,14 @@ def test_a_spill_folder_that_cannot_be_written_keeps_the_samples_in_memory(tmp_p
     assert b.tolist() == [i + 0.5 for i in range(n)] and b.index.is_unique
 
 
-def test_blocks_are_as_large_as_chunk_rows_allows_and_counted(tmp_path):
+def test_blocks_are_as_large_as_chunk_rows_allows_and_counted(tmp_path, caplog):
     """One tag, ``chunk_rows=10``: 25 cycles go in three transactions (10, 10, 5 samples),
-    and the writer's figures say so."""
+    and the writer's figures say so; times keep their microseconds exactly."""
     from diag_plugin.live.writer import HistorianWriter
     from historian.store import Historian
 
     url = f"sqlite:///{tmp_path / 'h.db'}"
-    t0 = pd.Timestamp("2026-03-01T00:00:00Z")
+    t0 = pd.Timestamp("2026-03-01T00:00:00.123457Z")  # not a float's multiple of 256 ns
 
     async def main():
         w = HistorianWriter(
@@ -183,10 +185,75 @@ def test_blocks_are_as_large_as_chunk_rows_allows_and_counted(tmp_path):
         await w.close()
         return w.stats
 
+    began = time.monotonic()
     stats = asyncio.run(main())
+    took = time.monotonic() - began
     assert (stats.writes, stats.stored, stats.failures, stats.spilled) == (3, 25, 0, 0)
+    assert 0 < stats.max_write_s <= took and "a write took" not in caplog.text
     with Historian(url) as h:
-        assert h.read_samples("A").tolist() == [float(i) for i in range(25)]
+        a = h.read_samples("A")
+    assert a.tolist() == [float(i) for i in range(25)]
+    assert list(a.index) == [t0 + pd.Timedelta(seconds=i) for i in range(25)]
+
+
+def test_a_source_time_finer_than_a_microsecond_is_stored_as_write_samples_stores_it(tmp_path):
+    """OPC UA source times count 100 ns: the live writer puts such a sample on the same µs
+    as :meth:`Historian.write_samples` (the importer's path) does, so the two never disagree
+    about one sample's time."""
+    from diag_plugin.live.writer import HistorianWriter
+    from historian.store import Historian
+
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    ts = [
+        pd.Timestamp("2026-03-01T00:00:00Z") + pd.Timedelta(nanoseconds=100 * k)
+        for k in range(1, 40)
+    ]
+
+    async def main() -> None:
+        w = HistorianWriter(url, ["LIVE"], spill_dir=tmp_path / "spill", flush_every=1)
+        await w.start()
+        for i, t in enumerate(ts):
+            w.put(t + pd.Timedelta(seconds=i), np.array([1.0]), np.zeros(1, np.uint8))
+        assert await until(lambda: w.stats.stored == len(ts))
+        await w.close()
+
+    asyncio.run(main())
+    with Historian(url) as h:
+        h.write_samples(
+            pd.DataFrame(
+                {"BATCH": 1.0}, index=[t + pd.Timedelta(seconds=i) for i, t in enumerate(ts)]
+            )
+        )
+        assert list(h.read_samples("LIVE").index) == list(h.read_samples("BATCH").index)
+
+
+def test_a_spill_segment_gone_before_it_was_read_does_not_stop_the_writer(tmp_path):
+    """A segment an earlier run left is counted at start, then removed by hand before the
+    writer reads it: the writer notices there is nothing to replay and goes on storing."""
+    from diag_plugin.live.writer import HistorianWriter
+    from historian.spool import Block, Spool
+    from historian.store import Historian
+
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    spill = tmp_path / "spill"
+    old = Spool(spill).write(
+        Block(["A"], np.array([0], np.int64), np.zeros((1, 1)), np.zeros((1, 1), np.uint8), [])
+    )
+    t0 = pd.Timestamp("2026-03-01T00:00:00Z")
+
+    async def main() -> None:
+        w = HistorianWriter(url, ["A"], spill_dir=spill, flush_every=5, cycle=0.01)
+        await w.start()
+        old.unlink()  # before the writer's task ran at all
+        await asyncio.sleep(0.2)  # it looks for the segment and finds none
+        for i in range(5):
+            w.put(t0 + pd.Timedelta(seconds=i), np.array([float(i)]), np.zeros(1, np.uint8))
+        assert await until(lambda: w.stats.stored == 5, timeout=20)
+        await w.close()
+
+    asyncio.run(main())
+    with Historian(url) as h:
+        assert h.read_samples("A").tolist() == [0.0, 1.0, 2.0, 3.0, 4.0]
 
 
 def test_a_write_is_stalled_after_three_flushes_but_never_under_5_s(tmp_path):
@@ -203,3 +270,46 @@ def test_a_write_is_stalled_after_three_flushes_but_never_under_5_s(tmp_path):
     assert stall(20, 0.05) == 5.0
     assert stall(20, 1.0) == 60.0
     assert stall(5, 60.0) == 900.0
+
+
+def test_closing_twice_while_the_historian_is_away_spills_each_sample_once(tmp_path):
+    from diag_plugin.live.writer import HistorianWriter
+    from historian.spool import Spool
+    from historian.store import Historian
+
+    db = tmp_path / "h.db"
+    url = f"sqlite:///{db}"
+    Historian(url).close()
+    spill = tmp_path / "spill"
+    told: list[str] = []
+    t0 = pd.Timestamp("2026-03-01T00:00:00Z")
+
+    async def main() -> HistorianWriter:
+        w = HistorianWriter(
+            url,
+            ["A", "B"],
+            spill_dir=spill,
+            flush_every=5,
+            cycle=0.01,
+            busy_timeout=0.1,
+            notify=lambda d, text: told.append(text),
+        )
+        lock = Locker(db)
+        try:
+            await w.start()
+            for i in range(12):
+                w.put(t0 + pd.Timedelta(seconds=i), np.array([i, -i]), np.zeros(2, np.uint8))
+                await asyncio.sleep(0.01)
+            assert await until(lambda: w.degraded)
+            await w.close(timeout=1.0)
+            await w.close(timeout=1.0)  # a second close (a caller's finally) adds nothing
+        finally:
+            lock.release()
+        return w
+
+    w = asyncio.run(main())
+    assert Spool(spill).rows() == 12 * 2 == w.stats.spilled
+    assert sum("historian away at exit" in t for t in told) >= 1
+    blocks = [Spool.read(p) for p in Spool(spill).segments()]
+    ts = np.concatenate([b.ts for b in blocks])
+    assert len(ts) == len(set(ts.tolist())) == 12
