@@ -90,9 +90,9 @@ class Screen:
         out[ok] = np.clip(np.floor(t + 0.5), 0, sets - 1).astype(np.int64)
         return out
 
-    def rmse(self, col: np.ndarray, sets: int | None = None, replace: int | None = None) -> float:
+    def rmse(self, col: np.ndarray, sets: int | None = None) -> float:
         """Screening error (held-out RMSE, % of span) with ``col`` added to the model's
-        inputs, or put in place of input ``replace``; ``sets``: the candidate's set count.
+        inputs (or put in place of one); ``sets``: the candidate's set count.
 
         The correction is looked up in cells of the candidate alone and of the candidate
         paired with each of the model's inputs (at the resolution two inputs' cells fill:
@@ -101,9 +101,10 @@ class Screen:
         s_c = max(2, int(min(sets or self.pair_sets, self.pair_sets)))
         own = self.index(col, s_c)
         best = self._score([own], [s_c])
+        # the input a candidate would replace is paired too: what the candidate explains of
+        # the residual beside it is what replacing it can gain (a dead time: the residual
+        # of f(x[k]) is a function of x[k] and x[k-L])
         for k in range(len(self.cols)):
-            if k == replace:
-                continue
             best = min(best, self._score([self.pair_idx[k], own], [self.pair_sets, s_c]))
         return best
 

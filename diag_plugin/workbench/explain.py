@@ -32,6 +32,7 @@ import pandas as pd
 from diag_plugin.models.spec import Variable
 from diag_plugin.regressors import InputSpec, check_regular, dir_threshold, needed_tags
 from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.selection.consequence import consequence
 from diag_plugin.selection.features import Features
 from diag_plugin.selection.lags import TOLERANCE, default_max_lag, lag_screen
 from diag_plugin.selection.scoring import HeldOutScorer, cut_row
@@ -50,6 +51,8 @@ QUICK_ROWS = 100_000
 LAGS_SCREENED = 4
 #: candidates best on the screen that are retrained and scored on the held-out samples
 REFINED = 8
+#: a slow drift (``days()``) is offered only when the training part spans this many days
+DRIFT_MIN_DAYS = 7.0
 #: fewer sets than add-input writes are suggested only when they score better by more
 #: than this share (the gain explain calls more than "barely")
 SETS_GAIN = 0.03
@@ -68,6 +71,8 @@ class Candidate:
     command: str
     replaces: str | None = None
     notes: list[str] = field(default_factory=list)
+    #: the candidate is likely driven by the output (:mod:`~diag_plugin.selection.consequence`)
+    consequence: bool = False
 
     def as_dict(self) -> dict:
         d = {
@@ -78,6 +83,7 @@ class Candidate:
             "coverage": _num(self.coverage),
             "command": self.command,
             "notes": self.notes,
+            "likely_consequence": self.consequence,
         }
         if self.replaces:
             d["replaces"] = self.replaces
@@ -99,6 +105,8 @@ class Explanation:
     screened: list[dict] = field(default_factory=list)
     #: sets per input of the screen's coarse cells
     screen_sets: int = 0
+    #: what was not offered and why (a drift on a short window)
+    notes: list[str] = field(default_factory=list)
 
     def as_dict(self, top: int | None = None) -> dict:
         c = self.candidates if top is None else self.candidates[:top]
@@ -110,6 +118,7 @@ class Explanation:
             "candidates": [x.as_dict() for x in c],
             "screened": self.screened,
             "screen_sets": self.screen_sets,
+            "notes": self.notes,
         }
 
 
@@ -228,7 +237,7 @@ def explain(
         var = variable(spec)
         if var is None:
             return math.nan
-        return screen.rmse(feats.column(spec), var.sets, replace)
+        return screen.rmse(feats.column(spec), var.sets)
 
     def best_lag(base: InputSpec, lags: Sequence[int], target: np.ndarray, replace=None):
         """Screen ``lags`` by correlation with ``target``, the best few on the screen."""
@@ -281,6 +290,12 @@ def explain(
                 f"answering {r.fine:.0%} of the samples; coarser rules answer the rest)"
                 + (f": consider fewer sets, e.g. --sets {fewer}" if fewer < r.sets else "")
             )
+        effect_of_y = False
+        if kind == "tag":
+            ev = consequence(feats.column(spec.with_lag(0)), y, in_cols, cut, horizon)
+            if ev.likely:
+                effect_of_y = True
+                notes.insert(0, ev.note(spec.tags[0], str(out_spec)))
         cmd = f"diag model add-input {name} '{spec}'"
         if replaces:
             cmd += f" --replace '{replaces}'"
@@ -297,6 +312,7 @@ def explain(
                 command=cmd,
                 replaces=replaces,
                 notes=notes,
+                consequence=effect_of_y,
             )
         )
 
@@ -348,7 +364,16 @@ def explain(
             th = dir_threshold(s.tags[0], spans, frame) if fn == "dir" else None
             spec = InputSpec(fn, s.tags, s.lag, th)
             offer(spec, kind, screened(spec))
+    notes: list[str] = []
+    days = (frame.index[cut - 1] - frame.index[0]) / pd.Timedelta(days=1) if cut > 0 else 0.0
     for fn, kind in (("days", "drift"), ("hour", "time of day")):
+        if fn == "days" and days < DRIFT_MIN_DAYS:
+            notes.append(
+                f"slow drift not offered: the training part of the window spans {days:.1f} "
+                f"days; a drift (slower than a day) needs {DRIFT_MIN_DAYS:g} days or more, or "
+                "a short window fits any slow wander as one"
+            )
+            continue
         spec = InputSpec(fn, ())
         offer(spec, kind, screened(spec))
     # the best on the screen are retrained and scored as training would score them
@@ -394,7 +419,9 @@ def explain(
                 )
             )
 
-    found.sort(key=lambda c: _sortable(c.rmse_pct_if_added))
+    # causes first, by error; candidates driven by the output after them (their error is
+    # real, but a model using them hides the faults it is built to show)
+    found.sort(key=lambda c: (c.consequence, _sortable(c.rmse_pct_if_added)))
     return Explanation(
         model=name,
         baseline_rmse_pct=base_rmse,
@@ -403,6 +430,7 @@ def explain(
         validation_from=frame.index[cut] if cut < n else None,
         screened=screened_out,
         screen_sets=screen.pair_sets,
+        notes=notes,
     )
 
 
