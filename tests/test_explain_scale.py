@@ -35,7 +35,8 @@ def _ou(rng, n, sd, tau):
 
 def header_plant(days: float, seed: int, period_s: float = 60.0) -> pd.DataFrame:
     """Flow through a control valve CV and a manual valve HV in series (the cause the model
-    misses); the header pressure PH sags with the flow (a consequence: the line losses, PH = P0 − k·F)."""
+    misses); the header pressure PH sags with the flow (a consequence: line losses,
+    PH = P0 − k·F)."""
     rng = np.random.default_rng(seed)
     n = int(days * 86400 / period_s)
     idx = pd.date_range("2026-03-01", periods=n, freq=f"{period_s:g}s", tz="UTC", name="ts")
