@@ -22,6 +22,7 @@ span narrowed to its operating range, more or fewer sets).
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
@@ -107,6 +108,8 @@ class Explanation:
     screen_sets: int = 0
     #: what was not offered and why (a drift on a short window)
     notes: list[str] = field(default_factory=list)
+    #: wall seconds of each phase
+    seconds: dict[str, float] = field(default_factory=dict)
 
     def as_dict(self, top: int | None = None) -> dict:
         c = self.candidates if top is None else self.candidates[:top]
@@ -154,6 +157,7 @@ def explain(
     n = len(frame)
     cut = cut_row(frame.index, holdout)
     horizon = default_max_lag(frame.index) if max_lag is None else max_lag
+    clock = _Clock()
     scorer = HeldOutScorer(rb, in_cols, y, cut)
     # set counts are compared on every stride-th row; only the chosen one on all rows
     stride = max(1, n // QUICK_ROWS)
@@ -162,7 +166,9 @@ def explain(
         quick = HeldOutScorer(rb, [c[::stride] for c in in_cols], y[::stride], -(-cut // stride))
     base_rmse, base_cov = scorer.base_rmse, scorer.base_cov
     resid = scorer.residual(in_cols)
+    clock.lap("model and held-out block")
     screen = Screen(rb, in_cols, y, cut, scorer.va, scorer.base_pred)
+    clock.lap("out-of-fold residual")
     var_cache: dict[str, Variable | None] = {}
 
     def variable(spec: InputSpec) -> Variable | None:
@@ -376,6 +382,7 @@ def explain(
             continue
         spec = InputSpec(fn, ())
         offer(spec, kind, screened(spec))
+    clock.lap("screen")
     # the best on the screen are retrained and scored as training would score them
     pending.sort(key=lambda p: p.screen_rmse)
     for p in pending[:REFINED]:
@@ -391,6 +398,7 @@ def explain(
         }
         for p in pending[REFINED:]
     ]
+    clock.lap("retrain the best")
     # the model's own resolution: spans narrowed to the operating range, more or fewer sets
     # (sets only for methods with rule cells: ts-fcm and narmax2 do not use them)
     uses_sets = rb.new_model().capabilities.rule_regions
@@ -421,6 +429,7 @@ def explain(
 
     # causes first, by error; candidates driven by the output after them (their error is
     # real, but a model using them hides the faults it is built to show)
+    clock.lap("resolution")
     found.sort(key=lambda c: (c.consequence, _sortable(c.rmse_pct_if_added)))
     return Explanation(
         model=name,
@@ -431,7 +440,21 @@ def explain(
         screened=screened_out,
         screen_sets=screen.pair_sets,
         notes=notes,
+        seconds=clock.laps,
     )
+
+
+class _Clock:
+    """Wall seconds of each phase of :func:`explain` (what the benchmark prints)."""
+
+    def __init__(self) -> None:
+        self.laps: dict[str, float] = {}
+        self.t = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.laps[name] = now - self.t
+        self.t = now
 
 
 @dataclass(frozen=True)
