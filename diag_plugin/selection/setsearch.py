@@ -5,7 +5,7 @@ that hardly matters as many sets as the one that matters most: with four inputs 
 31⁴ cells is so thin that the fine rules answer a small share of the held-out samples and
 the coarser levels answer the rest. :func:`choose_sets` searches each input's count on a
 ladder (:data:`LADDER`) by coordinate descent: from the data-filled count for every input,
-each round tries one step down and one step up for each input, trains the model on the
+each round tries one step down for each input, trains the model on the
 rows before the time-ordered cut and scores it on the held-out samples (every ``stride``-th
 of them, so the search stays quick; the training rows are all used, so no cell is thinner
 than it will be), and takes the move that cuts the held-out error most. It stops when no
@@ -26,7 +26,7 @@ from diag_plugin.rulebase.document import RuleBase
 from diag_plugin.selection.scoring import HeldOutScorer
 
 #: the set counts tried (31 is the paper's)
-LADDER = (3, 5, 7, 11, 15, 21, 31, 41)
+LADDER = (3, 5, 7, 11, 15, 21, 31)
 #: a move must cut the held-out error by this share
 GAIN = 0.01
 #: held-out samples scored during the search (every n/HELD_SCORED-th)
@@ -91,16 +91,17 @@ def choose_sets(
         moves = []
         for k, s in enumerate(cur):
             i = LADDER.index(s)
-            for j in (i - 1, i + 1):
-                if 0 <= j < len(LADDER):
-                    moves.append(cur[:k] + (LADDER[j],) + cur[k + 1 :])
+            if i > 0:  # down only: finer grids cost most to fit, and thin grids are the ill
+                moves.append(cur[:k] + (LADDER[i - 1],) + cur[k + 1 :])
         scored = [(score(m), m) for m in moves]
         better = [(e, m) for (e, _), m in scored if e < err * (1 - GAIN)]
         if better:
             cur = min(better)[1]
             continue
         # no clear gain: a move that keeps the error and lets the fine grid answer more
-        wider = [(-f, e, m) for (e, f), m in scored if e <= err * (1 + GAIN / 2) and f > fine + 0.05]
+        wider = [
+            (-f, e, m) for (e, f), m in scored if e <= err * (1 + GAIN / 2) and f > fine + 0.05
+        ]
         if not wider:
             break
         cur = min(wider)[2]
