@@ -146,13 +146,16 @@ def cmd_model_new(args) -> int:
             shape=args.shape,
             period=period,
             description=args.description,
+            notes=(chosen := []),
         )
     except (FileExistsError, ValueError) as exc:
         raise UserError(str(exc)) from None
     print(f"wrote {path}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)})")
     for line in notes:
         print(line)
-    if args.sets is None and rb.new_model().capabilities.rule_regions:  # sets matter
+    for line in chosen:  # sets per input searched on held-out data
+        print(line + " (give --sets to choose)")
+    if args.sets is None and not chosen and rb.new_model().capabilities.rule_regions:
         sets = sorted({v.sets for v in rb.inputs})
         print(
             f"sets per input: {', '.join(map(str, sets))}, what {len(frame):,} samples can fill "
