@@ -418,10 +418,10 @@ def cmd_explain(args) -> int:
         )
     if any(c.consequence for c in e.candidates):
         con.print(
-            "candidates marked 'likely a consequence' are ranked after the others whatever "
-            "their error: they follow the output. diag compare's table of the residual against "
-            "the tags orders by the in-sample share each tag alone explains; explain orders by "
-            "the held-out error of the retrained model",
+            "candidates marked 'likely a consequence' follow the output: they are ranked after "
+            "every cause that cuts the error, whatever their own error. diag compare's table "
+            "of the residual against the tags orders by the in-sample share each tag alone "
+            "explains; explain orders by the held-out error of the retrained model",
             markup=False,
             soft_wrap=True,
         )

@@ -428,10 +428,11 @@ def explain(
                 )
             )
 
-    # causes first, by error; candidates driven by the output after them (their error is
-    # real, but a model using them hides the faults it is built to show)
     clock.lap("resolution")
-    found.sort(key=lambda c: (c.consequence, _sortable(c.rmse_pct_if_added)))
+    # causes that cut the error first, by error; then the rest by error, candidates driven
+    # by the output among them (their error is real, but a model using them hides the faults
+    # it is built to show: a cause that helps is preferred; where none does, they lead)
+    found.sort(key=lambda c: (_tier(c, base_rmse), _sortable(c.rmse_pct_if_added)))
     return Explanation(
         model=name,
         baseline_rmse_pct=base_rmse,
@@ -509,6 +510,16 @@ def _resolution_wording(change: str, base: float, rmse: float) -> str:
     else:
         gain = f"would not cut the error ({base:.1f} % → {rmse:.1f} %)"
     return f"model resolution: {change}: {gain}"
+
+
+#: a candidate "cuts the error" when it promises less than this share of the baseline
+CUTS = 0.97
+
+
+def _tier(c: Candidate, base: float) -> int:
+    """0: not driven by the output and cuts the error (below :data:`CUTS` × baseline);
+    1: everything else (consequences, candidates that do not help)."""
+    return 0 if not c.consequence and _sortable(c.rmse_pct_if_added) < CUTS * base else 1
 
 
 def _sortable(v: float) -> float:
