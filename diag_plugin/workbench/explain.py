@@ -14,9 +14,17 @@ better of the two is offered with its exact command.
 Candidates: every other plant tag (at its best lag), differences of tags that
 share a unit (a pressure drop), dead time and more lags of the model's inputs
 (lags screened by correlation over a horizon of ten minutes of samples, the
-best few retrained), direction of travel (hysteresis, backlash), rate of
-change, slow drift, time of day, and the model's own resolution (an input's
-span narrowed to its operating range, more or fewer sets).
+best few put on the screen), direction of travel (hysteresis, backlash), rate of
+change, slow drift (on windows of a week or more), time of day, and the model's
+own resolution (an input's span narrowed to its operating range, more or fewer
+sets).
+
+Issue 37: not every candidate is retrained. Each goes through a quick screen first
+(:class:`~diag_plugin.selection.screen.Screen`: how much of the model's out-of-fold
+residual its cells explain on the held-out block) and only the :data:`REFINED` best
+are retrained and scored; the others are listed as screened. A tag driven by the
+output (:mod:`~diag_plugin.selection.consequence`) is flagged and ranked after the
+causes that cut the error.
 """
 
 from __future__ import annotations
@@ -240,7 +248,10 @@ def explain(
             return r
         return dc_replace(full, fewer_from=r.sets, thin_before=(r.fine, r.per_cell))
 
-    def screened(spec: InputSpec, replace: int | None = None) -> float:
+    def screened(spec: InputSpec) -> float:
+        """Screening error of ``spec`` (:class:`Screen`; a replaced input is paired with the
+        candidate there, so adding and replacing screen alike and retraining tells them
+        apart)."""
         var = variable(spec)
         if var is None:
             return math.nan
@@ -256,7 +267,7 @@ def explain(
         # the best few by correlation, and the shortest lag (no dead time) always
         order = sorted(lags, key=lambda lag: -corr[lag])[:LAGS_SCREENED]
         order = sorted({*order, min(lags)})
-        scored = [(screened(base.with_lag(lag), replace), lag) for lag in order]
+        scored = [(screened(base.with_lag(lag)), lag) for lag in order]
         scored = [t for t in scored if math.isfinite(t[0])]
         if not scored:
             return None
