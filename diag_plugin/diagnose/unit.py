@@ -44,6 +44,7 @@ import pandas as pd
 
 from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
+from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay, three_valued
 from diag_plugin.diagnose.unitfile import SPREAD_FLOOR, TestSpec, UnitError, UnitFile, unit_path
@@ -162,6 +163,8 @@ class Diagnosis:
     combined: pd.DataFrame | None = None
     contributions: pd.DataFrame | None = None
     top: pd.DataFrame | None = None
+    #: per sample of CHECK_FUNCTION the input outside what the unit learned (operating.py)
+    why: pd.Series | None = None
 
     @property
     def top_tags(self) -> pd.DataFrame:
@@ -189,6 +192,8 @@ class Diagnosis:
             parts.append(self.combined)
         if self.top is not None:
             parts.append(self.top)
+        if self.why is not None and (self.why != "").any():
+            parts.append(self.why.rename("why"))
         out = pd.concat(parts, axis=1)
         out.index.name = "ts"
         return out
@@ -223,6 +228,8 @@ class Diagnosis:
     def _message(self, i: int) -> str:
         """The unit's message, with the combined test and the top tags on an alarm."""
         parts = [self.message] if self.message else []
+        if self.why is not None and self.why.iloc[i]:
+            parts.append(str(self.why.iloc[i]))
         if self.combined is not None and self.combined["s_T2"].iloc[i] == 1:
             parts.append(f"combined test on (T² {self.combined['T2'].iloc[i]:.3g})")
         if self.top is not None:
@@ -257,6 +264,7 @@ class Diagnosis:
                 "faults": fa[a],
                 "samples": int(b - a),
                 "tests": ",".join(t for t, o in zip(names, on[k], strict=True) if o),
+                **({"why": self.why.iloc[a]} if self.why is not None else {}),
             }
             for k, (a, b) in enumerate(zip(starts, ends, strict=True))
         ]
@@ -384,6 +392,9 @@ class Unit:
         self.unknown_run = np.zeros(len(self.tests), np.int64)
         self.isolation = IsolationHold(1, len(self.tests), len(self.faults))
         self.combined_delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
+        if not hasattr(self, "outside"):
+            self.outside = OutsideLearned(learned_ranges(self.models, self.tests), self.file.tags)
+        self.outside.reset()
         return self
 
     def to_state(self) -> dict[str, Any]:
@@ -552,6 +563,9 @@ class Unit:
             faults[alone] = top["top1"].to_numpy()[alone] if self.tag_isolation else "unit"
             faults[alone & (faults == "")] = "unit"
         message = ""
+        why = self.outside.transform(
+            self._model_frame(frame), np.isnan(s), status == NE107.CHECK_FUNCTION
+        )
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
             if self.ev["combined"] and (self.file.combined is None or self.cmodel.high is None):
@@ -574,6 +588,7 @@ class Unit:
             if share is None
             else pd.DataFrame(share, index=idx, columns=self.cmodel.tags),
             top=top,
+            why=pd.Series(why, index=idx),
         )
 
     def _isolate(
@@ -663,4 +678,5 @@ def concat(parts: list[Diagnosis]) -> Diagnosis:
         combined=opt("combined"),
         contributions=opt("contributions"),
         top=opt("top"),
+        why=opt("why"),
     )

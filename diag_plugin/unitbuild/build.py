@@ -69,8 +69,9 @@ from diag_plugin.rulebase.document import RuleBase
 from diag_plugin.selection.features import Features
 from diag_plugin.selection.lags import TOLERANCE, default_max_lag, lag_screen
 from diag_plugin.selection.scoring import BlockScorer
-from diag_plugin.selection.sets import sets_for_data
+from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
+from diag_plugin.unitbuild import short
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
 
@@ -95,9 +96,9 @@ OUTPUT_NAMES = ("OUT", "OP", "MV", "CO", "OUTPUT")
 LOOP_METHOD = "track"
 #: a tag needs good samples in this share of the window's grid points to be tested
 MIN_GOOD_SHARE = 0.5
-#: grid points a window needs: the learning filter settles over 500 (SETTLE_SAMPLES), and
-#: the cross-fitting and the 80/20 validation need data on each side
-MIN_ROWS = 1000
+#: grid points a window needs (a window under short.SHORT_ROWS is built as a short one, see
+#: :mod:`diag_plugin.unitbuild.short`)
+MIN_ROWS = short.MIN_ROWS
 #: share of the window held out to validate each trained model (time-ordered, as diag train)
 HOLDOUT = 0.2
 #: time blocks each candidate is scored over, each held out in turn (unit learn's blocks)
@@ -126,6 +127,8 @@ class TestChoice:
     method: str = "wm-avg"
     tracks: str | None = None  # the set-point a controlled tag is held at
     actuator: str | None = None  # that loop's controller output
+    why: str = ""  # why this method (a short window's choice between a grid and a line)
+    sets: int | None = None  # sets per input of a short window's grid
 
     @property
     def inputs(self) -> list[str]:
@@ -143,6 +146,7 @@ class TestChoice:
             "method": self.method,
             "tracks": self.tracks,
             "actuator": self.actuator,
+            "why": self.why,
         }
 
 
@@ -274,11 +278,15 @@ def _rulebase(
     return RuleBase.new(name, out, list(ins), method=method, period=period, path=path)
 
 
-def _with_sets(ins: Sequence[Variable], cols: Sequence[np.ndarray], cut: int) -> list[Variable]:
-    """The inputs with the sets the training rows fill (what ``diag model new`` writes)."""
+def _with_sets(
+    ins: Sequence[Variable], cols: Sequence[np.ndarray], cut: int, max_sets: int | None = None
+) -> list[Variable]:
+    """The inputs with the sets the training rows fill (what ``diag model new`` writes), at
+    most ``max_sets`` (a short window's coarser grid)."""
     if not ins:
         return []
     sets = sets_for_data([c[:cut] for c in cols], [v.span for v in ins])
+    sets = sets if max_sets is None else min(sets, max_sets)
     return [dc_replace(v, sets=sets) for v in ins]
 
 
@@ -289,13 +297,16 @@ def select_inputs(
     *,
     test: str,
     max_inputs: int = MAX_INPUTS,
+    method: str = "wm-avg",
+    max_sets: int | None = None,
 ) -> TestChoice:
-    """Greedy forward selection of ``tag``'s inputs among ``candidates`` (see module doc)."""
+    """Greedy forward selection of ``tag``'s inputs among ``candidates`` (see module doc),
+    each variant scored as a ``method`` model (``linear`` in a short window)."""
     out = ctx.vars[tag]
     y = ctx.column(tag)
     rows = len(y)
     chosen: list[tuple[str, int]] = []
-    scorer = BlockScorer(_rulebase(test, out, [], ctx.period), [], y, ctx.block)
+    scorer = BlockScorer(_rulebase(test, out, [], ctx.period, method=method), [], y, ctx.block)
     current = scorer.base_rmse
     choice = TestChoice(test, tag, current)
     resid = scorer.residual([])
@@ -314,7 +325,8 @@ def select_inputs(
             scored = []
             for lag in lags:
                 cols = [*base_cols, ctx.column(c, lag)]
-                ins = _with_sets([ctx.variable(t, g) for t, g in [*chosen, (c, lag)]], cols, rows)
+                pairs = [*chosen, (c, lag)]
+                ins = _with_sets([ctx.variable(t, g) for t, g in pairs], cols, rows, max_sets)
                 rmse, cov = scorer.score(ins, cols)
                 if math.isfinite(rmse):
                     scored.append((rmse, lag, cov))
@@ -333,10 +345,45 @@ def select_inputs(
         choice.steps.append(Step(str(InputSpec("", (c,), lag)), rmse, cov))
         current = rmse
         cols = [ctx.column(t, g) for t, g in chosen]
-        ins = _with_sets([ctx.variable(t, g) for t, g in chosen], cols, rows)
-        scorer = BlockScorer(_rulebase(test, out, ins, ctx.period), cols, y, ctx.block)
+        ins = _with_sets([ctx.variable(t, g) for t, g in chosen], cols, rows, max_sets)
+        rb = _rulebase(test, out, ins, ctx.period, method=method)
+        scorer = BlockScorer(rb, cols, y, ctx.block)
         resid = scorer.residual(cols)
     return choice
+
+
+def _short_method(ctx: _Context, ch: TestChoice) -> None:
+    """A short window's test: a rule grid of :func:`short.short_sets` sets where the data
+    fill its cells and it beats the linear test's held-out error by more than
+    :data:`MIN_GAIN`, else the linear test (``ch.method``, ``ch.sets``, ``ch.why`` set)."""
+    specs = [InputSpec.parse(s) for s in ch.inputs]
+    cols = [ctx.column(s.tags[0], s.lag) for s in specs]
+    ins = [ctx.variable(s.tags[0], s.lag) for s in specs]
+    lin = ch.steps[-1].rmse_pct
+    ch.method = short.LINEAR
+    sets = short.short_sets(cols, [v.span for v in ins])
+    if sets is None:
+        ch.why = (
+            f"too few samples for a grid of {SETS_RANGE[0]} sets per input "
+            f"({short.SHORT_PER_CELL} a cell): linear test, held-out error {lin:.2f} %"
+        )
+        return
+    grid_ins = [dc_replace(v, sets=sets) for v in ins]
+    scorer = BlockScorer(
+        _rulebase(ch.test, ctx.vars[ch.tag], [], ctx.period), [], ctx.column(ch.tag), ctx.block
+    )
+    grid, _ = scorer.score(grid_ins, cols)
+    if math.isfinite(grid) and grid < lin * (1 - MIN_GAIN):
+        ch.method, ch.sets = "wm-avg", sets
+        ch.why = (
+            f"rule grid of {sets} sets per input: held-out error {grid:.2f} % against "
+            f"{lin:.2f} % linear"
+        )
+    else:
+        ch.why = (
+            f"linear test: held-out error {lin:.2f} % against {grid:.2f} % for a grid of "
+            f"{sets} sets per input"
+        )
 
 
 def tracked_set_point(
@@ -469,6 +516,8 @@ def build_unit(
     path = folder / f"{name}{UNIT_SUFFIX}"
     if path.exists() and not force:
         raise UserError(f"{path} exists (use --force to overwrite)")
+    if isinstance(frame.index, pd.DatetimeIndex) and frame.index.tz is None:
+        frame = frame.tz_localize("UTC")  # naive timestamps: UTC, as diag import reads them
     have = frame.notna().any(axis=1).to_numpy()
     rows = int(have.sum())
     if rows == 0:
@@ -506,6 +555,11 @@ def build_unit(
             + " exist (use --force to overwrite, or another unit name)"
         )
     ctx = _Context(frame, info, period)
+    plan = short.plan_for(rows, period, max_inputs)
+    # a long fast window: inputs chosen on a coarser grid (short.coarse_frame)
+    sel = ctx
+    if plan.factor > 1:
+        sel = _Context(short.coarse_frame(frame, plan.factor), info, plan.select_period)
     same = same_measurement(frame, list(ctx.vars))
     seconds["read and screen"] = time.perf_counter() - t_start
 
@@ -514,13 +568,21 @@ def build_unit(
     for i, tag in enumerate(tests):
         test = names[tag]
         excl = same.get(tag, [])
+        use = sel if tag in sel.vars else ctx
+        k = plan.factor if use is sel else 1
         sp = tracked_set_point(tag, frame, list(ctx.vars), info)
-        if sp is not None:
-            ch = loop_test(ctx, tag, sp, test=test)
+        if sp is not None and sp in use.vars:
+            ch = loop_test(use, tag, sp, test=test)
             ch.actuator = controller_output(sp, [t for t in ctx.vars if t != tag])
         else:
-            cands = [c for c in ctx.vars if c != tag and c not in excl]
-            ch = select_inputs(ctx, tag, cands, test=test, max_inputs=max_inputs)
+            sp = None
+            cands = [c for c in use.vars if c != tag and c not in excl]
+            ch = select_inputs(use, tag, cands, test=test, max_inputs=plan.max_inputs,
+                               method=plan.select_method, max_sets=plan.max_sets)  # fmt: skip
+            if plan.short and ch.steps:
+                _short_method(ctx, ch)
+        for st in ch.steps:  # dead times chosen on the coarse grid, on the data's grid
+            st.input = short.scale_lag(st.input, k)
         ch.excluded = [c for c in excl if c != sp]
         choices.append(ch)
         if progress:
@@ -534,6 +596,7 @@ def build_unit(
     start, end = idx[0], idx[-1] + pd.Timedelta(period)
     models: dict[str, str] = {}
     notes: list[str] = []
+    notes.extend(plan.reasons)
     if trimmed:
         notes.append(
             f"the data cover {frame.index[0]} … {frame.index[-1] + pd.Timedelta(period)} of "
@@ -550,6 +613,14 @@ def build_unit(
         specs = [InputSpec.parse(s) for s in ch.inputs]
         cols = [ctx.column(s.tags[0], s.lag) for s in specs]
         ins = _with_sets([ctx.variable(s.tags[0], s.lag) for s in specs], cols, len(frame))
+        if ch.sets:  # a short window's grid: the sets its cells were judged at
+            ins = [dc_replace(v, sets=ch.sets) for v in ins]
+        if ch.method == short.LINEAR:  # a span from a few hundred samples only scales
+            ins = [
+                v if info.get(s.tags[0]) and info[s.tags[0]].span else
+                dc_replace(v, span=short.widened(v.span))
+                for v, s in zip(ins, specs, strict=True)
+            ]  # fmt: skip
         mpath = folder / f"{name}_{ch.test}.toml"
         rb = _rulebase(f"{name}_{ch.test}", ctx.vars[ch.tag], ins, period, mpath, ch.method)
         rb.doc["model"]["description"] = (
@@ -593,7 +664,9 @@ def build_unit(
     # (docs/diagnostics.md, "The combined test and isolation to tags")
     doc["evaluation"]["combined"] = True
     doc["evaluation"]["isolation"] = "tags"
-    doc["build"] = _build_table(kept, skipped, start, end, period, far, max_inputs)
+    doc["build"] = _build_table(kept, skipped, start, end, period, far, plan.max_inputs)
+    if plan.reasons:
+        doc["build"]["plan"] = plan.reasons
     path.write_text(tomlkit.dumps(doc), encoding="utf-8")
 
     t0 = time.perf_counter()
@@ -644,9 +717,12 @@ def _build_table(kept, skipped, start, end, period, far, max_inputs) -> tomlkit.
         row["coverage"] = [x for x in d["coverage"] if x is not None]
         if ch.excluded:
             row["same_as"] = ch.excluded
+        if ch.tracks or ch.method != "wm-avg":
+            row["method"] = ch.method
         if ch.tracks:
             row["tracks"] = ch.tracks
-            row["method"] = ch.method
+        if ch.why:
+            row["why"] = ch.why
         if ch.actuator:
             row["actuator"] = ch.actuator
         tests[ch.test] = row

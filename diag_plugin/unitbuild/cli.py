@@ -106,6 +106,8 @@ def cmd_unit_build(args) -> int:
             f"{x:.2f}" for x in [ch.baseline_rmse_pct, *(s.rmse_pct for s in ch.steps)]
         )
         loop = f" (its control loop, {ch.method}; actuator {ch.actuator})" if ch.tracks else ""
+        if not ch.tracks and ch.why:
+            loop = f" ({ch.why})"
         print(
             f"  {ch.test}: {ch.tag} = f({', '.join(ch.inputs)}){loop}; held-out error {errs} % "
             "of span"
