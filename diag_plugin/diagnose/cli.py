@@ -419,7 +419,7 @@ def _print_build(con, build: dict) -> None:
                 f"({row.get('method')}): "
             )
         if row.get("why") and not row.get("tracks"):
-            loop = f"{row['method']} ({row['why']}): "
+            loop = f"{row.get('method', 'wm-avg')} ({row['why']}): "
         con.print(
             f"  {test} ({row.get('tag')}): "
             + loop

@@ -117,4 +117,28 @@ class OutsideLearned:
                     self.since[k] = carried if (all_off and carried is not None) else idx[first[-1]]
                 else:
                     self.since[k] = None
+        self._combination(frame, unknown, todo, out)
         return out
+
+    def _combination(self, frame, unknown, todo, out) -> None:
+        """The rows still unnamed: each input of the first unknown test is inside what it
+        learned, but not together (a grid cell without a rule), or has no value."""
+        tests: dict[int, list[str]] = {}
+        for r in self.ranges:
+            tests.setdefault(r.test, []).append(r.tag)
+        for j, tags in tests.items():
+            rows = np.flatnonzero(todo & unknown[:, j])
+            if not rows.size:
+                continue
+            have = [t for t in tags if t in frame.columns]
+            vals = frame[have].to_numpy(float)[rows] if have else np.empty((rows.size, 0))
+            names = [self.names.get(t, t) for t in have]
+            for i, v in zip(rows, vals, strict=True):
+                miss = [nm for nm, x in zip(names, v, strict=True) if not np.isfinite(x)]
+                out[i] = (
+                    f"{', '.join(miss)} without a value"
+                    if miss
+                    else ", ".join(f"{nm} = {x:.4g}" for nm, x in zip(names, v, strict=True))
+                    + ": each within what the unit learned, but not together"
+                )
+            todo[rows] = False

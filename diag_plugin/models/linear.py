@@ -20,12 +20,13 @@ constant and one term per input::
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from diag_plugin.models.estimation import output_lags_of
 from diag_plugin.models.narmax import Narmax2Regressor, NarmaxCodec, Term, format_term
+from diag_plugin.models.protocol import REASON_OUTSIDE, Prediction
 from diag_plugin.models.spec import ModelSpec
 
 if TYPE_CHECKING:
@@ -46,7 +47,16 @@ def linear_terms(d: int) -> list[tuple[int, ...]]:
 
 class LinearRegressor(Narmax2Regressor):
     """``ŷ = β₀ + Σ β_i x_i`` by batch least squares (see module doc); parameters as
-    :class:`~diag_plugin.models.narmax.Narmax2Regressor`."""
+    :class:`~diag_plugin.models.narmax.Narmax2Regressor`.
+
+    Where an input is outside its span the prediction (at the span's edge) has no support:
+    a line learned from a few hundred samples says nothing about a range it never saw, so
+    a unit's test is unknown there and names the input (not a symptom)."""
+
+    def predict_detail(self, X: Any) -> Prediction:
+        p = super().predict_detail(X)
+        support = np.where(p.reason == REASON_OUTSIDE, 0.0, p.support)
+        return Prediction(p.y, support, p.reason, p.level, p.spread)
 
     @staticmethod
     def _term_list(d: int) -> list[tuple[int, ...]]:

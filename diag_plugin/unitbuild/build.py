@@ -72,6 +72,7 @@ from diag_plugin.selection.scoring import BlockScorer
 from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
 from diag_plugin.unitbuild import short
+from diag_plugin.unitbuild.parallel import map_tests, one_blas_thread
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
 
@@ -352,6 +353,29 @@ def select_inputs(
     return choice
 
 
+def _choose(tag: str, names, same, ctx: _Context, sel: _Context, plan, frame, info) -> TestChoice:
+    """One test's choice (a worker's share of the build, see :mod:`.parallel`)."""
+    test = names[tag]
+    excl = same.get(tag, [])
+    use = sel if tag in sel.vars else ctx
+    k = plan.factor if use is sel else 1
+    sp = tracked_set_point(tag, frame, list(ctx.vars), info)
+    if sp is not None and sp in use.vars:
+        ch = loop_test(use, tag, sp, test=test)
+        ch.actuator = controller_output(sp, [t for t in ctx.vars if t != tag])
+    else:
+        sp = None
+        cands = [c for c in use.vars if c != tag and c not in excl]
+        ch = select_inputs(use, tag, cands, test=test, max_inputs=plan.max_inputs,
+                           method=plan.select_method, max_sets=plan.max_sets)  # fmt: skip
+        if plan.short and ch.steps:
+            _short_method(ctx, ch)
+    for st in ch.steps:  # dead times chosen on the coarse grid, on the data's grid
+        st.input = short.scale_lag(st.input, k)
+    ch.excluded = [c for c in excl if c != sp]
+    return ch
+
+
 def _short_method(ctx: _Context, ch: TestChoice) -> None:
     """A short window's test: a rule grid of :func:`short.short_sets` sets where the data
     fill its cells and it beats the linear test's held-out error by more than
@@ -496,13 +520,36 @@ def build_unit(
     force: bool = False,
     source: str = "",
     progress: Callable[[str, int, int], None] | None = None,
+    workers: int | None = None,
 ) -> BuildResult:
     """Build unit ``name`` from ``frame`` (the fault-free window, aligned on ``period``; every
     column a candidate input) into ``folder``: model files ``NAME_TEST.toml`` and
     ``NAME.unit.toml`` with thresholds learned to ``far`` false alarms per hour of
     operation. ``tags``: the tests (default: :func:`choose_tests`). ``progress(stage, done,
-    total)`` is called as the stages advance. Raises :class:`~historian.errors.UserError`
-    on input the build cannot use."""
+    total)`` is called as the stages advance; ``workers``: processes that choose the
+    tests' inputs (default: every core, :mod:`~diag_plugin.unitbuild.parallel`). Raises
+    :class:`~historian.errors.UserError` on input the build cannot use."""
+    with one_blas_thread():
+        return _build_unit(name, frame, folder=folder, period=period, tag_info=tag_info,
+                           tags=tags, far=far, max_inputs=max_inputs, force=force,
+                           source=source, progress=progress, workers=workers)  # fmt: skip
+
+
+def _build_unit(
+    name: str,
+    frame: pd.DataFrame,
+    *,
+    folder: str | Path,
+    period: str,
+    tag_info,
+    tags,
+    far,
+    max_inputs: int,
+    force: bool,
+    source: str,
+    progress,
+    workers: int | None,
+) -> BuildResult:
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitError, UnitFile, new_unit_text
     from diag_plugin.learn.thresholds import DEFAULT_FAR, LearnError, learn_thresholds
@@ -564,29 +611,9 @@ def build_unit(
     seconds["read and screen"] = time.perf_counter() - t_start
 
     t0 = time.perf_counter()
-    choices = []
-    for i, tag in enumerate(tests):
-        test = names[tag]
-        excl = same.get(tag, [])
-        use = sel if tag in sel.vars else ctx
-        k = plan.factor if use is sel else 1
-        sp = tracked_set_point(tag, frame, list(ctx.vars), info)
-        if sp is not None and sp in use.vars:
-            ch = loop_test(use, tag, sp, test=test)
-            ch.actuator = controller_output(sp, [t for t in ctx.vars if t != tag])
-        else:
-            sp = None
-            cands = [c for c in use.vars if c != tag and c not in excl]
-            ch = select_inputs(use, tag, cands, test=test, max_inputs=plan.max_inputs,
-                               method=plan.select_method, max_sets=plan.max_sets)  # fmt: skip
-            if plan.short and ch.steps:
-                _short_method(ctx, ch)
-        for st in ch.steps:  # dead times chosen on the coarse grid, on the data's grid
-            st.input = short.scale_lag(st.input, k)
-        ch.excluded = [c for c in excl if c != sp]
-        choices.append(ch)
-        if progress:
-            progress("choose inputs", i + 1, len(tests))
+    tick = (lambda d, n: progress("choose inputs", d, n)) if progress else None
+    choices = map_tests(_choose, tests, (names, same, ctx, sel, plan, frame, info),
+                        workers=workers, progress=tick)  # fmt: skip
     seconds["choose inputs"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -717,7 +744,7 @@ def _build_table(kept, skipped, start, end, period, far, max_inputs) -> tomlkit.
         row["coverage"] = [x for x in d["coverage"] if x is not None]
         if ch.excluded:
             row["same_as"] = ch.excluded
-        if ch.tracks or ch.method != "wm-avg":
+        if ch.tracks or ch.why or ch.method != "wm-avg":
             row["method"] = ch.method
         if ch.tracks:
             row["tracks"] = ch.tracks

@@ -152,10 +152,14 @@ def short_sets(cols: Sequence[np.ndarray], spans: Sequence[tuple[float, float]])
     return None
 
 
+#: a linear test's inputs are trusted this share of their observed range beyond it
+MARGIN = 0.25
+
+
 def widened(span: tuple[float, float]) -> tuple[float, float]:
-    """A linear test's input span from a short window's observed range: one range wider on
-    each side, so a value a little outside the few hundred samples is not clipped (the span
-    of a linear model only scales its inputs)."""
+    """A linear test's input span from a short window's observed range, :data:`MARGIN` of
+    it wider on each side: where an input leaves it the test is unknown (the unit
+    CHECK_FUNCTION, naming the input; ``diag unit accept`` learns the new range)."""
     lo, hi = span
-    w = hi - lo
+    w = (hi - lo) * MARGIN
     return (lo - w, hi + w)
