@@ -20,7 +20,7 @@ constant and one term per input::
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -28,9 +28,6 @@ from diag_plugin.models.estimation import output_lags_of
 from diag_plugin.models.narmax import Narmax2Regressor, NarmaxCodec, Term, format_term
 from diag_plugin.models.protocol import REASON_OUTSIDE, Prediction
 from diag_plugin.models.spec import ModelSpec
-
-if TYPE_CHECKING:
-    from diag_plugin.rulebase.document import RuleBase
 
 HEADER = """\
 # Model file (diag-plugin), method linear: y = b0 + sum of b_i * input_i (the first-order
@@ -97,7 +94,7 @@ class LinearCodec(NarmaxCodec):
         )
 
     def read_rules(
-        self, rb: RuleBase, items: list, positions: Sequence[tuple[int, list[str], str]]
+        self, rb: Any, items: list, positions: Sequence[tuple[int, list[str], str]]
     ) -> list[Term]:
         """Terms from the ``[rules] list``: the constant and the inputs, no products."""
         out = super().read_rules(rb, items, positions)
