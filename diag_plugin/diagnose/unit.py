@@ -507,11 +507,14 @@ class Unit:
         order = [self.tests.index(t) for t in self.matrix.tests]
         s_m = s[:, order]
         on = (np.nan_to_num(s_m) != 0).any(axis=1)
-        if mem is not None:
-            c = self.matrix.rules(mem[:, order, :]).certainty
-        else:
-            c = self.matrix.nearest(s_m).certainties
-        c = np.where(on[:, None], c, 0.0)
+        # only the samples with a symptom are reasoned over (the rest are 0): a replay of
+        # fault-free data skips the matrix, and its n × tests × faults arrays, almost entirely
+        c = np.zeros((s.shape[0], len(self.faults)))
+        rows = np.flatnonzero(on)
+        if rows.size and mem is not None:
+            c[rows] = self.matrix.rules(mem[rows][:, order, :]).certainty
+        elif rows.size:
+            c[rows] = self.matrix.nearest(s_m[rows]).certainties
         return c
 
     # ------------------------------------------------------------ evaluate
