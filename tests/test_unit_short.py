@@ -142,3 +142,12 @@ def test_a_day_at_one_second_chooses_inputs_on_a_coarser_grid(tmp_path):
 
     rb = RuleBase.load(tmp_path / f"day_{res.tests[0].test}.toml")
     assert rb.period == "1s" and rb.training["samples"] > 0.9 * len(frame)
+
+
+def test_unit_show_labels_each_test_s_threshold_unit():
+    """Issue 37: a test in units of its model's local spread is not labelled % of span."""
+    from diag_plugin.diagnose.cli import residual_unit
+
+    assert residual_unit(False) == "% of span"
+    assert residual_unit(False, "max") == "% of max"
+    assert residual_unit(True).startswith("% of span ÷ local spread")
