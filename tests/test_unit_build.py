@@ -187,7 +187,7 @@ def test_tags_and_tags_from_are_respected(built, tmp_path):
         (["--tags", "NOPE"], "NOPE"),
         (["--tags", "C1"], "constant"),
         (["--window", "2020-01-01", "2020-01-05"], "no samples"),
-        (["--window", "2026-03-02T00:00:00", "2026-03-02T12:00:00"], "at least"),
+        (["--window", "2026-03-02T00:00:00", "2026-03-02T06:00:00"], "at least 200"),
         (["--window", "2026-03-05", "2026-03-03"], "not after"),
     ],
 )
