@@ -49,6 +49,8 @@ ARGV = {
     "unit show": ["unit", "show", "u", "--json"],
     "unit learn": ["unit", "learn", "u", "--from", "2026-01-01", "--to", "2026-01-02"],
     "unit build": ["unit", "build", "u", "--from", "2026-01-01", "--to", "2026-01-02"],
+    "unit accept": ["unit", "accept", "u", "--from", "2026-01-01", "--to", "2026-01-02"],
+    "unit rollback": ["unit", "rollback", "u"],
     "diagnose": ["diagnose", "u", "--csv", "d.csv", "--from", "2026-01-01"],
     "benchmark": ["benchmark", "--quick", "--json"],
     "engine-fdi": ["engine-fdi", "--seed", "1", "--method", "narmax2", "--json"],

@@ -407,10 +407,17 @@ class Plant:
                 u = units[ui]
                 faults[ui] = [tags[ui][0][0]] if u.tag_isolation and tags[ui] else ["unit"]
         out = []
+        row = pd.DataFrame([self._hist[0]], columns=self.tag_names, index=[ts])
         for ui, u in enumerate(units):
             a = self._first[ui]
             b = a + len(u.tests)
-            msg = "; ".join(notes[ui])
+            # CHECK_FUNCTION's reason, as Unit.evaluate gives it (its excursions carried)
+            why = u.outside.transform(
+                u._model_frame(row),
+                np.isnan(s[a:b])[None, :],
+                status[ui : ui + 1] == NE107.CHECK_FUNCTION,
+            )[0]
+            msg = "; ".join([why, *notes[ui]] if why else notes[ui])
             st = NE107(int(status[ui]))
             if not self._has_th[ui]:
                 st, msg = NE107.CHECK_FUNCTION, f"no thresholds: run `diag unit learn {u.name}`"

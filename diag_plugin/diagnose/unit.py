@@ -44,6 +44,7 @@ import pandas as pd
 
 from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
+from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay, three_valued
 from diag_plugin.diagnose.unitfile import SPREAD_FLOOR, TestSpec, UnitError, UnitFile, unit_path
@@ -170,6 +171,8 @@ class Diagnosis:
     combined: pd.DataFrame | None = None
     contributions: pd.DataFrame | None = None
     top: pd.DataFrame | None = None
+    #: per sample of CHECK_FUNCTION the input outside what the unit learned (operating.py)
+    why: pd.Series | None = None
 
     @property
     def top_tags(self) -> pd.DataFrame:
@@ -197,6 +200,8 @@ class Diagnosis:
             parts.append(self.combined)
         if self.top is not None:
             parts.append(self.top)
+        if self.why is not None and (self.why != "").any():
+            parts.append(self.why.rename("why"))
         out = pd.concat(parts, axis=1)
         out.index.name = "ts"
         return out
@@ -231,6 +236,8 @@ class Diagnosis:
     def _message(self, i: int) -> str:
         """The unit's message, with the combined test and the top tags on an alarm."""
         parts = [self.message] if self.message else []
+        if self.why is not None and self.why.iloc[i]:
+            parts.append(str(self.why.iloc[i]))
         if self.combined is not None and self.combined["s_T2"].iloc[i] == 1:
             parts.append(f"combined test on (T² {self.combined['T2'].iloc[i]:.3g})")
         if self.top is not None:
@@ -265,6 +272,7 @@ class Diagnosis:
                 "faults": fa[a],
                 "samples": int(b - a),
                 "tests": ",".join(t for t, o in zip(names, on[k], strict=True) if o),
+                **({"why": self.why.iloc[a]} if self.why is not None else {}),
             }
             for k, (a, b) in enumerate(zip(starts, ends, strict=True))
         ]
@@ -404,6 +412,9 @@ class Unit:
         self.episode = EpisodeHold(ntags)
         self.alarm_hold = AlarmHold(ev["off_delay"]) if ev["off_delay_s"] > 0 else None
         self._last_alarm: tuple | None = None  # (status, faults, top row) the hold repeats
+        if not hasattr(self, "outside"):
+            self.outside = OutsideLearned(learned_ranges(self.models, self.tests), self.file.tags)
+        self.outside.reset()
         return self
 
     def to_state(self) -> dict[str, Any]:
@@ -541,11 +552,14 @@ class Unit:
         order = [self.tests.index(t) for t in self.matrix.tests]
         s_m = s[:, order]
         on = (np.nan_to_num(s_m) != 0).any(axis=1)
-        if mem is not None:
-            c = self.matrix.rules(mem[:, order, :]).certainty
-        else:
-            c = self.matrix.nearest(s_m).certainties
-        c = np.where(on[:, None], c, 0.0)
+        # only the samples with a symptom are reasoned over (the rest are 0): a replay of
+        # fault-free data skips the matrix, and its n × tests × faults arrays, almost entirely
+        c = np.zeros((s.shape[0], len(self.faults)))
+        rows = np.flatnonzero(on)
+        if rows.size and mem is not None:
+            c[rows] = self.matrix.rules(mem[rows][:, order, :]).certainty
+        elif rows.size:
+            c[rows] = self.matrix.nearest(s_m[rows]).certainties
         return c
 
     # ------------------------------------------------------------ evaluate
@@ -600,6 +614,9 @@ class Unit:
         if self.alarm_hold is not None:
             detected, status, faults, top = self._hold_alarm(active, detected, status, faults, top)
         message = ""
+        why = self.outside.transform(
+            self._model_frame(frame), np.isnan(s), status == NE107.CHECK_FUNCTION
+        )
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
             if self.ev["combined"] and (self.file.combined is None or self.cmodel.high is None):
@@ -622,6 +639,7 @@ class Unit:
             if share is None
             else pd.DataFrame(share, index=idx, columns=self.cmodel.tags),
             top=top,
+            why=pd.Series(why, index=idx),
         )
 
     def _hold_alarm(self, active, detected, status, faults, top):
@@ -742,4 +760,5 @@ def concat(parts: list[Diagnosis]) -> Diagnosis:
         combined=opt("combined"),
         contributions=opt("contributions"),
         top=opt("top"),
+        why=opt("why"),
     )

@@ -267,7 +267,15 @@ class CombinedModel:
         enough = known.sum(axis=1) >= max(1, math.ceil(MIN_KNOWN_SHARE * T))
         if not enough.any():
             return t2, share
-        patterns, inverse = np.unique(known[enough], axis=0, return_inverse=True)
+        # the patterns of known tests, as one integer key per sample when they fit in 63
+        # bits (a sort of n keys, not of n rows of T booleans)
+        kn = known[enough]
+        if T <= 63:
+            keys = kn.astype(np.int64) @ (np.int64(1) << np.arange(T, dtype=np.int64))
+            ukeys, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+            patterns = kn[first]
+        else:
+            patterns, inverse = np.unique(kn, axis=0, return_inverse=True)
         rows_all = np.flatnonzero(enough)
         for p, pat in enumerate(patterns):
             rows = rows_all[inverse.reshape(-1) == p]
@@ -317,15 +325,20 @@ def top_tags(share: np.ndarray, tags: list[str], rows: np.ndarray, top: int = TO
     (an alarm) and a ranking exists, empty elsewhere."""
     n = share.shape[0]
     out: dict[str, np.ndarray] = {}
-    s = np.nan_to_num(share, nan=-1.0)
-    order = np.argsort(-s, axis=1, kind="stable")[:, :top] if len(tags) else np.zeros((n, 0), int)
+    at = np.flatnonzero(rows)  # ranked only where there is an alarm (the rest stay empty)
+    s = np.nan_to_num(share[at], nan=-1.0)
+    order = np.argsort(-s, axis=1, kind="stable")[:, :top] if len(tags) else np.zeros((0, 0), int)
     names = np.asarray(tags, dtype=object)
     for i in range(min(top, len(tags))):
         col = order[:, i]
-        val = s[np.arange(n), col]
-        ok = rows & (val > 0)
-        out[f"top{i + 1}"] = np.where(ok, names[col], "")
-        out[f"share{i + 1}"] = np.where(ok, val, np.nan)
+        val = s[np.arange(at.size), col]
+        ok = val > 0
+        name = np.full(n, "", dtype=object)
+        value = np.full(n, np.nan)
+        name[at[ok]] = names[col[ok]]
+        value[at[ok]] = val[ok]
+        out[f"top{i + 1}"] = name
+        out[f"share{i + 1}"] = value
     return pd.DataFrame(out)
 
 

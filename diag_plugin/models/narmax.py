@@ -26,6 +26,7 @@ hardest design step). Retraining writes every term again.
 from __future__ import annotations
 
 import itertools
+import json
 import logging
 import math
 from collections.abc import Mapping, Sequence
@@ -135,7 +136,7 @@ class Narmax2Regressor(SpanEstimator):
             raise ValueError(f"output_lags has {len(self.output_lags)} entries for {d} inputs")
         self._set_spans(X, y)
         self.n_features_in_ = d
-        self.terms_ = term_pairs(d)
+        self.terms_ = self._term_list(d)
         self.qr_: QRLeastSquares | None = QRLeastSquares(len(self.terms_))
         self.y_sum_ = 0.0
         self.n_samples_seen_ = 0
@@ -170,7 +171,7 @@ class Narmax2Regressor(SpanEstimator):
             log.debug("narmax2: %d rows with a missing value skipped", int((~ok).sum()))
         X, y = X[ok], y[ok]
         for s in range(0, X.shape[0], CHUNK_ROWS):
-            self.qr_.update(_features(self._scaled(X[s : s + CHUNK_ROWS])), y[s : s + CHUNK_ROWS])
+            self.qr_.update(self._phi(self._scaled(X[s : s + CHUNK_ROWS])), y[s : s + CHUNK_ROWS])
         self.n_samples_seen_ += int(y.size)
         self.y_sum_ += float(y.sum())
         self._coef = None
@@ -202,7 +203,7 @@ class Narmax2Regressor(SpanEstimator):
     @property
     def coef_(self) -> np.ndarray:
         """Coefficients of :attr:`terms_` in engineering units (eq. 12 plus constant)."""
-        return _raw_basis(self._centre, self._half).T @ self.coef_scaled_
+        return self._basis().T @ self.coef_scaled_
 
     def set_coefficients(self, coef: Sequence[float]) -> Narmax2Regressor:
         """Use explicit coefficients in engineering units (a model file); the model then has no
@@ -210,7 +211,7 @@ class Narmax2Regressor(SpanEstimator):
         coef = np.asarray(coef, dtype=np.float64)
         if coef.shape != (len(self.terms_),):
             raise ValueError(f"expected {len(self.terms_)} coefficients, got {coef.shape}")
-        M = _raw_basis(self._centre, self._half)
+        M = self._basis()
         self._coef = np.linalg.solve(M.T, coef)
         self.qr_ = None
         return self
@@ -253,7 +254,19 @@ class Narmax2Regressor(SpanEstimator):
 
     # --------------------------------------------------------------- inference
     def _predict_rows(self, X: np.ndarray) -> np.ndarray:
-        return _features(self._scaled(X)) @ self.coef_scaled_
+        return self._phi(self._scaled(X)) @ self.coef_scaled_
+
+    # the terms, their regressors and the change of basis (a subclass may keep fewer terms)
+    @staticmethod
+    def _term_list(d: int) -> list[tuple[int, ...]]:
+        return term_pairs(d)
+
+    @staticmethod
+    def _phi(Z: np.ndarray) -> np.ndarray:
+        return _features(Z)
+
+    def _basis(self) -> np.ndarray:
+        return _raw_basis(self._centre, self._half)
 
     def predict_detail(self, X: Any) -> Prediction:
         """Prediction (one step ahead: inputs as measured) with a reason code per sample."""
@@ -447,7 +460,9 @@ class NarmaxCodec:
         lines = ["list = [\n"]
         for r in sorted(rb.rules, key=lambda r: order.get(r.term, len(order))):
             lines += [f"    {c}\n" for c in r.comments]
-            text = f'    {{ term = "{format_term(r.term, specs)}", coef = {_num(r.coef)} }},'
+            # a quoted tag name ("Flow rate"[k]) is escaped, as TOML's basic strings are
+            term = json.dumps(format_term(r.term, specs), ensure_ascii=False)
+            text = f"    {{ term = {term}, coef = {_num(r.coef)} }},"
             lines.append(text + (f"  {r.trailing}" if r.trailing else "") + "\n")
         lines.append("]\n")
         return "".join(lines)

@@ -35,6 +35,7 @@ METHODS: dict[str, Method] = {
         Method("wm", "diag_plugin.fuzzy.wm_codec", "WangMendelCodec", "classic Wang–Mendel"),
         Method("ts-fcm", "diag_plugin.fuzzy.ts_fcm", "TakagiSugenoCodec", "Takagi–Sugeno, c-Means"),
         Method("narmax2", "diag_plugin.models.narmax", "NarmaxCodec", "2nd-order NARMAX"),
+        Method("linear", "diag_plugin.models.linear", "LinearCodec", "linear (eq. 12, 1st order)"),
         Method(
             "track",
             "diag_plugin.models.track",

@@ -69,9 +69,11 @@ from diag_plugin.rulebase.document import RuleBase
 from diag_plugin.selection.features import Features
 from diag_plugin.selection.lags import TOLERANCE, default_max_lag, lag_screen
 from diag_plugin.selection.scoring import BlockScorer
-from diag_plugin.selection.sets import sets_for_data
+from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
+from diag_plugin.unitbuild import short
 from diag_plugin.unitbuild.loops import Loop, checked_loops
+from diag_plugin.unitbuild.parallel import map_tests, one_blas_thread
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
 
@@ -96,9 +98,9 @@ OUTPUT_NAMES = ("OUT", "OP", "MV", "CO", "OUTPUT")
 LOOP_METHOD = "track"
 #: a tag needs good samples in this share of the window's grid points to be tested
 MIN_GOOD_SHARE = 0.5
-#: grid points a window needs: the learning filter settles over 500 (SETTLE_SAMPLES), and
-#: the cross-fitting and the 80/20 validation need data on each side
-MIN_ROWS = 1000
+#: grid points a window needs (a window under short.SHORT_ROWS is built as a short one, see
+#: :mod:`diag_plugin.unitbuild.short`)
+MIN_ROWS = short.MIN_ROWS
 #: share of the window held out to validate each trained model (time-ordered, as diag train)
 HOLDOUT = 0.2
 #: time blocks each candidate is scored over, each held out in turn (unit learn's blocks)
@@ -129,6 +131,8 @@ class TestChoice:
     actuator: str | None = None  # that loop's controller output
     statistic: str = "level"  # "spread": the running sd of the loop's error (stiction)
     declared: bool = False  # the loop was declared (--loop, a tags CSV), not found
+    why: str = ""  # why this method (a short window's choice between a grid and a line)
+    sets: int | None = None  # sets per input of a short window's grid
 
     @property
     def inputs(self) -> list[str]:
@@ -148,6 +152,7 @@ class TestChoice:
             "actuator": self.actuator,
             "statistic": self.statistic,
             "declared": self.declared,
+            "why": self.why,
         }
 
 
@@ -280,11 +285,15 @@ def _rulebase(
     return RuleBase.new(name, out, list(ins), method=method, period=period, path=path)
 
 
-def _with_sets(ins: Sequence[Variable], cols: Sequence[np.ndarray], cut: int) -> list[Variable]:
-    """The inputs with the sets the training rows fill (what ``diag model new`` writes)."""
+def _with_sets(
+    ins: Sequence[Variable], cols: Sequence[np.ndarray], cut: int, max_sets: int | None = None
+) -> list[Variable]:
+    """The inputs with the sets the training rows fill (what ``diag model new`` writes), at
+    most ``max_sets`` (a short window's coarser grid)."""
     if not ins:
         return []
     sets = sets_for_data([c[:cut] for c in cols], [v.span for v in ins])
+    sets = sets if max_sets is None else min(sets, max_sets)
     return [dc_replace(v, sets=sets) for v in ins]
 
 
@@ -295,13 +304,16 @@ def select_inputs(
     *,
     test: str,
     max_inputs: int = MAX_INPUTS,
+    method: str = "wm-avg",
+    max_sets: int | None = None,
 ) -> TestChoice:
-    """Greedy forward selection of ``tag``'s inputs among ``candidates`` (see module doc)."""
+    """Greedy forward selection of ``tag``'s inputs among ``candidates`` (see module doc),
+    each variant scored as a ``method`` model (``linear`` in a short window)."""
     out = ctx.vars[tag]
     y = ctx.column(tag)
     rows = len(y)
     chosen: list[tuple[str, int]] = []
-    scorer = BlockScorer(_rulebase(test, out, [], ctx.period), [], y, ctx.block)
+    scorer = BlockScorer(_rulebase(test, out, [], ctx.period, method=method), [], y, ctx.block)
     current = scorer.base_rmse
     choice = TestChoice(test, tag, current)
     resid = scorer.residual([])
@@ -320,7 +332,8 @@ def select_inputs(
             scored = []
             for lag in lags:
                 cols = [*base_cols, ctx.column(c, lag)]
-                ins = _with_sets([ctx.variable(t, g) for t, g in [*chosen, (c, lag)]], cols, rows)
+                pairs = [*chosen, (c, lag)]
+                ins = _with_sets([ctx.variable(t, g) for t, g in pairs], cols, rows, max_sets)
                 rmse, cov = scorer.score(ins, cols)
                 if math.isfinite(rmse):
                     scored.append((rmse, lag, cov))
@@ -339,10 +352,80 @@ def select_inputs(
         choice.steps.append(Step(str(InputSpec("", (c,), lag)), rmse, cov))
         current = rmse
         cols = [ctx.column(t, g) for t, g in chosen]
-        ins = _with_sets([ctx.variable(t, g) for t, g in chosen], cols, rows)
-        scorer = BlockScorer(_rulebase(test, out, ins, ctx.period), cols, y, ctx.block)
+        ins = _with_sets([ctx.variable(t, g) for t, g in chosen], cols, rows, max_sets)
+        rb = _rulebase(test, out, ins, ctx.period, method=method)
+        scorer = BlockScorer(rb, cols, y, ctx.block)
         resid = scorer.residual(cols)
     return choice
+
+
+def _choose(
+    tag: str, names, same, ctx: _Context, sel: _Context, plan, frame, info, declared, held
+) -> TestChoice:
+    """One test's choice (a worker's share of the build, see :mod:`.parallel`); ``declared``
+    maps a loop's measurement to its declared :class:`Loop`, ``held`` an actuator to the tag
+    its loop holds (never one of its inputs)."""
+    test = names[tag]
+    excl = same.get(tag, [])
+    use = sel if tag in sel.vars else ctx
+    k = plan.factor if use is sel else 1
+    lp = declared.get(tag)
+    sp = lp.sp if lp is not None else tracked_set_point(tag, frame, list(ctx.vars), info)
+    if sp is not None and sp in ctx.vars:
+        # a loop's response time at the data's own rate: one input, a dozen lags, cheap;
+        # on the coarse grid it would be a whole coarse step off, and the residual of a
+        # loop that holds its set-point would carry the loop's dynamics
+        use, k = ctx, 1
+        ch = loop_test(ctx, tag, sp, test=test)
+        ch.actuator = (
+            lp.out if lp is not None else controller_output(sp, [t for t in ctx.vars if t != tag])
+        )
+        ch.declared = lp is not None
+    else:
+        sp = None
+        cands = [c for c in use.vars if c != tag and c not in excl and c != held.get(tag)]
+        ch = select_inputs(use, tag, cands, test=test, max_inputs=plan.max_inputs,
+                           method=plan.select_method, max_sets=plan.max_sets)  # fmt: skip
+        if plan.short and ch.steps:
+            _short_method(ctx, ch)
+    for st in ch.steps:  # dead times chosen on the coarse grid, on the data's grid
+        st.input = short.scale_lag(st.input, k)
+    ch.excluded = [c for c in excl if c != sp]
+    return ch
+
+
+def _short_method(ctx: _Context, ch: TestChoice) -> None:
+    """A short window's test: a rule grid of :func:`short.short_sets` sets where the data
+    fill its cells and it beats the linear test's held-out error by more than
+    :data:`MIN_GAIN`, else the linear test (``ch.method``, ``ch.sets``, ``ch.why`` set)."""
+    specs = [InputSpec.parse(s) for s in ch.inputs]
+    cols = [ctx.column(s.tags[0], s.lag) for s in specs]
+    ins = [ctx.variable(s.tags[0], s.lag) for s in specs]
+    lin = ch.steps[-1].rmse_pct
+    ch.method = short.LINEAR
+    sets = short.short_sets(cols, [v.span for v in ins])
+    if sets is None:
+        ch.why = (
+            f"too few samples for a grid of {SETS_RANGE[0]} sets per input "
+            f"({short.SHORT_PER_CELL} a cell): linear test, held-out error {lin:.2f} %"
+        )
+        return
+    grid_ins = [dc_replace(v, sets=sets) for v in ins]
+    scorer = BlockScorer(
+        _rulebase(ch.test, ctx.vars[ch.tag], [], ctx.period), [], ctx.column(ch.tag), ctx.block
+    )
+    grid, _ = scorer.score(grid_ins, cols)
+    if math.isfinite(grid) and grid < lin * (1 - MIN_GAIN):
+        ch.method, ch.sets = "wm-avg", sets
+        ch.why = (
+            f"rule grid of {sets} sets per input: held-out error {grid:.2f} % against "
+            f"{lin:.2f} % linear"
+        )
+    else:
+        ch.why = (
+            f"linear test: held-out error {lin:.2f} % against {grid:.2f} % for a grid of "
+            f"{sets} sets per input"
+        )
 
 
 def tracked_set_point(
@@ -482,13 +565,38 @@ def build_unit(
     source: str = "",
     progress: Callable[[str, int, int], None] | None = None,
     loops: Sequence[Loop] = (),
+    workers: int | None = None,
 ) -> BuildResult:
     """Build unit ``name`` from ``frame`` (the fault-free window, aligned on ``period``; every
     column a candidate input) into ``folder``: model files ``NAME_TEST.toml`` and
     ``NAME.unit.toml`` with thresholds learned to ``far`` false alarms per hour of
     operation. ``tags``: the tests (default: :func:`choose_tests`). ``progress(stage, done,
-    total)`` is called as the stages advance. Raises :class:`~historian.errors.UserError`
-    on input the build cannot use."""
+    total)`` is called as the stages advance; ``workers``: processes that choose the
+    tests' inputs (default: every core, :mod:`~diag_plugin.unitbuild.parallel`). Raises
+    :class:`~historian.errors.UserError` on input the build cannot use."""
+    with one_blas_thread():
+        return _build_unit(name, frame, folder=folder, period=period, tag_info=tag_info,
+                           tags=tags, far=far, max_inputs=max_inputs, force=force,
+                           source=source, progress=progress, loops=loops,
+                           workers=workers)  # fmt: skip
+
+
+def _build_unit(
+    name: str,
+    frame: pd.DataFrame,
+    *,
+    folder: str | Path,
+    period: str,
+    tag_info,
+    tags,
+    far,
+    max_inputs: int,
+    force: bool,
+    source: str,
+    progress,
+    loops: Sequence[Loop],
+    workers: int | None,
+) -> BuildResult:
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitError, UnitFile, new_unit_text
     from diag_plugin.learn.thresholds import DEFAULT_FAR, LearnError, learn_thresholds
@@ -502,6 +610,8 @@ def build_unit(
     path = folder / f"{name}{UNIT_SUFFIX}"
     if path.exists() and not force:
         raise UserError(f"{path} exists (use --force to overwrite)")
+    if isinstance(frame.index, pd.DatetimeIndex) and frame.index.tz is None:
+        frame = frame.tz_localize("UTC")  # naive timestamps: UTC, as diag import reads them
     have = frame.notna().any(axis=1).to_numpy()
     rows = int(have.sum())
     if rows == 0:
@@ -541,33 +651,19 @@ def build_unit(
             + " exist (use --force to overwrite, or another unit name)"
         )
     ctx = _Context(frame, info, period)
+    plan = short.plan_for(rows, period, max_inputs)
+    # a long fast window: inputs chosen on a coarser grid (short.coarse_frame)
+    sel = ctx
+    if plan.factor > 1:
+        sel = _Context(short.coarse_frame(frame, plan.factor), info, plan.select_period)
     same = same_measurement(frame, list(ctx.vars))
     seconds["read and screen"] = time.perf_counter() - t_start
 
     t0 = time.perf_counter()
-    choices = []
+    tick = (lambda d, n: progress("choose inputs", d, n)) if progress else None
     held = {lp.out: lp.pv for lp in loops if lp.out}  # an actuator → the tag its loop holds
-    for i, tag in enumerate(tests):
-        test = names[tag]
-        excl = same.get(tag, [])
-        lp = declared.get(tag)
-        sp = lp.sp if lp is not None else tracked_set_point(tag, frame, list(ctx.vars), info)
-        if sp is not None and sp in ctx.vars:
-            ch = loop_test(ctx, tag, sp, test=test)
-            ch.actuator = (
-                lp.out
-                if lp is not None
-                else controller_output(sp, [t for t in ctx.vars if t != tag])
-            )
-            ch.declared = lp is not None
-        else:
-            sp = None
-            cands = [c for c in ctx.vars if c != tag and c not in excl and c != held.get(tag)]
-            ch = select_inputs(ctx, tag, cands, test=test, max_inputs=max_inputs)
-        ch.excluded = [c for c in excl if c != sp]
-        choices.append(ch)
-        if progress:
-            progress("choose inputs", i + 1, len(tests))
+    choices = map_tests(_choose, tests, (names, same, ctx, sel, plan, frame, info, declared, held),
+                        workers=workers, progress=tick)  # fmt: skip
     seconds["choose inputs"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -577,6 +673,7 @@ def build_unit(
     start, end = idx[0], idx[-1] + pd.Timedelta(period)
     models: dict[str, str] = {}
     notes: list[str] = []
+    notes.extend(plan.reasons)
     if trimmed:
         notes.append(
             f"the data cover {frame.index[0]} … {frame.index[-1] + pd.Timedelta(period)} of "
@@ -593,6 +690,14 @@ def build_unit(
         specs = [InputSpec.parse(s) for s in ch.inputs]
         cols = [ctx.column(s.tags[0], s.lag) for s in specs]
         ins = _with_sets([ctx.variable(s.tags[0], s.lag) for s in specs], cols, len(frame))
+        if ch.sets:  # a short window's grid: the sets its cells were judged at
+            ins = [dc_replace(v, sets=ch.sets) for v in ins]
+        if ch.method == short.LINEAR:  # a span from a few hundred samples only scales
+            ins = [
+                v if info.get(s.tags[0]) and info[s.tags[0]].span else
+                dc_replace(v, span=short.widened(v.span))
+                for v, s in zip(ins, specs, strict=True)
+            ]  # fmt: skip
         mpath = folder / f"{name}_{ch.test}.toml"
         rb = _rulebase(f"{name}_{ch.test}", ctx.vars[ch.tag], ins, period, mpath, ch.method)
         rb.doc["model"]["description"] = (
@@ -641,7 +746,9 @@ def build_unit(
     # (docs/diagnostics.md, "The combined test and isolation to tags")
     doc["evaluation"]["combined"] = True
     doc["evaluation"]["isolation"] = "tags"
-    doc["build"] = _build_table(kept, skipped, start, end, period, far, max_inputs)
+    doc["build"] = _build_table(kept, skipped, start, end, period, far, plan.max_inputs)
+    if plan.reasons:
+        doc["build"]["plan"] = plan.reasons
     path.write_text(tomlkit.dumps(doc), encoding="utf-8")
 
     t0 = time.perf_counter()
@@ -705,9 +812,12 @@ def _build_table(kept, skipped, start, end, period, far, max_inputs) -> tomlkit.
         row["coverage"] = [x for x in d["coverage"] if x is not None]
         if ch.excluded:
             row["same_as"] = ch.excluded
+        if ch.tracks or ch.why or ch.method != "wm-avg":
+            row["method"] = ch.method
         if ch.tracks:
             row["tracks"] = ch.tracks
-            row["method"] = ch.method
+        if ch.why:
+            row["why"] = ch.why
         if ch.actuator:
             row["actuator"] = ch.actuator
         if ch.statistic != "level":

@@ -9,7 +9,7 @@ import argparse
 import json
 from pathlib import Path
 
-from diag_plugin.diagnose.cli import parse_time, unit_actions
+from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_frames
 from historian.errors import UserError
 
 
@@ -54,6 +54,27 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true", help="overwrite an existing unit and models")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_unit_build)
+    p = usub.add_parser(
+        "accept",
+        help="learn an operator-confirmed fault-free period (a new operating point) into the "
+        "unit: models merged, thresholds re-learned, the old version kept (unit rollback)",
+    )
+    p.add_argument("name")
+    p.add_argument("--from", dest="start", required=True, metavar="T0")
+    p.add_argument("--to", dest="end", required=True, metavar="T1")
+    p.add_argument(
+        "--far",
+        type=float,
+        default=None,
+        metavar="PER_HOUR",
+        help="false-alarm budget (default: the unit's own)",
+    )
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_unit_accept)
+    p = usub.add_parser("rollback", help="undo the last `diag unit accept` of a unit")
+    p.add_argument("name")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_unit_rollback)
 
 
 def _tags_from(path: str) -> list[str]:
@@ -126,6 +147,8 @@ def cmd_unit_build(args) -> int:
         loop = f" (its control loop, {ch.method}; actuator {ch.actuator})" if ch.tracks else ""
         if ch.statistic == "spread":
             loop = f" (the spread of its loop's error: stiction of {ch.actuator})"
+        if not ch.tracks and ch.why:
+            loop = f" ({ch.why})"
         print(
             f"  {ch.test}: {ch.tag} = f({', '.join(ch.inputs)}){loop}; held-out error {errs} % "
             "of span"
@@ -138,4 +161,50 @@ def cmd_unit_build(args) -> int:
         print(f"  … {len(res.notes) - 4} more notes of the same kind (--json lists them all)")
     print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in res.seconds.items()))
     print(f"next: diag unit show {args.name}; diag diagnose {args.name} --from … --to …")
+    return 0
+
+
+def cmd_unit_accept(args) -> int:
+    from diag_plugin.unitbuild.accept import accept
+
+    unit = load_unit(args, args.name)
+    t0, t1 = parse_time(args.start), parse_time(args.end)
+    if args.far is not None and not args.far > 0:
+        raise UserError(f"--far {args.far:g}: the budget must be a positive rate per hour")
+    res = accept(unit, lambda a, b: unit_frames(args, unit, a, b), t0, t1, far=args.far)
+    if args.json:
+        print(json.dumps(res.as_dict(), indent=2))
+        return 0
+    print(
+        f"unit {res.unit}: learned {res.window[0]} … {res.window[1]} (old version kept in "
+        f"{res.backup}; diag unit rollback {res.unit} puts it back)"
+    )
+    for k, (before, after) in res.rules.items():
+        lo, hi = res.limits.get(k, (float("nan"), float("nan")))
+        print(
+            f"  {k}: {res.samples.get(k, 0):,} samples merged; rules {before} → {after}; "
+            f"thresholds {lo:+.3f} … {hi:+.3f}"
+        )
+    print("  windows learned: " + "; ".join(f"{a} … {b}" for a, b in res.windows))
+    for w in res.warnings[:4]:
+        print(f"  note: {w}")
+    return 0
+
+
+def cmd_unit_rollback(args) -> int:
+    from diag_plugin.diagnose.unitfile import unit_path
+    from diag_plugin.unitbuild.accept import rollback
+
+    path = unit_path(args.name, args.rulebases)
+    if not path.exists():
+        raise UserError(f"unit {args.name}: no file {path}")
+    got = rollback(path)
+    if args.json:
+        print(json.dumps(got, indent=2))
+        return 0
+    acc = got.get("accepted") or ["?", "?"]
+    print(
+        f"unit {args.name}: restored the version before accepting {acc[0]} … {acc[1]} "
+        f"({len(got['files'])} files; {got['left']} older backup(s) left)"
+    )
     return 0

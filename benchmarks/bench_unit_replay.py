@@ -1,0 +1,86 @@
+"""Replay speed of a built unit (issue 34: ``diag diagnose`` of a 50-tag unit ≥ 100 k rows/s).
+
+A unit is built (``build_unit``, as ``diag unit build`` does) from 10 days of the synthetic
+coupled process (:mod:`diag_plugin.simulate.coupled`, ``--tags`` tags at ``--period`` s), then
+a fault-free run of ``--rows`` rows is replayed through :meth:`Unit.evaluate` in one pass and
+in the chunks ``diag diagnose`` reads (7 days); PCA T² + Q (90 % of the variance) fitted on the
+same 10 days scores the same rows beside it. Printed: tags, rows, seconds, rows/s, peak
+resident memory, and the machine's load average (the machine is shared: run it niced, once).
+
+Run: ``nice -n 10 python benchmarks/bench_unit_replay.py [--tags 50] [--rows 200000]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import tempfile
+import time
+
+import pandas as pd
+
+
+def rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def main() -> None:
+    from diag_plugin.bench.pca import PCADetector
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.simulate import coupled
+    from diag_plugin.unitbuild.build import build_unit
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--tags", type=int, default=50)
+    ap.add_argument("--period", type=float, default=180.0)
+    ap.add_argument("--rows", type=int, default=200_000)
+    ap.add_argument("--unit", help="an already built unit file to replay instead")
+    a = ap.parse_args()
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    train, _ = coupled.simulate(10, period_s=a.period, n_tags=a.tags, seed=1)
+    period = f"{a.period:g}s"
+    if a.unit:
+        unit = Unit.load(a.unit)
+    else:
+        folder = tempfile.mkdtemp()
+        t = time.perf_counter()
+        res = build_unit("replay", train, folder=folder, period=period, far=0.01)
+        print(f"built {len(res.tests)} tests in {time.perf_counter() - t:.1f} s: {res.path}")
+        unit = Unit.load(res.path, folder)
+    days = a.rows * a.period / 86400
+    frame, _ = coupled.simulate(days, period_s=a.period, n_tags=a.tags, seed=7,
+                                start="2026-06-01")  # fmt: skip
+    frame = frame.iloc[: a.rows]
+    n = len(frame)
+    from threadpoolctl import threadpool_limits
+
+    before = rss_mb()
+    with threadpool_limits(1):  # as diag diagnose runs it
+        t = time.perf_counter()
+        unit.reset().evaluate(frame)
+        one = time.perf_counter() - t
+        chunk = pd.Timedelta("7D") // pd.Timedelta(period)
+        t = time.perf_counter()
+        unit.reset()
+        for s in range(0, n, chunk):
+            unit.evaluate(frame.iloc[s : s + chunk])
+        chunked = time.perf_counter() - t
+    peak = rss_mb()
+    cols = [c for c in train.columns if train[c].std() > 0]
+    t = time.perf_counter()
+    pca = PCADetector(n_components=0.9, columns=cols).fit(train[cols])
+    fit = time.perf_counter() - t
+    t = time.perf_counter()
+    pca.score(frame[cols])
+    pca_s = time.perf_counter() - t
+    print(f"unit: {len(unit.tests)} tests over {len(unit.tags)} tags; {n:,} rows of {period}")
+    print(f"  one pass        {one:7.2f} s  {n / one:10,.0f} rows/s")
+    print(f"  7-day chunks    {chunked:7.2f} s  {n / chunked:10,.0f} rows/s")
+    print(f"  peak resident memory {peak:.0f} MB (before the replay {before:.0f} MB)")
+    print(f"PCA T² + Q ({len(cols)} tags): fit {fit:.2f} s; score {pca_s:.2f} s, "
+          f"{n / pca_s:,.0f} rows/s")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,144 @@
+"""Where a unit's tests learned to answer, and which input left it (issue 34, item 5).
+
+A test is *unknown* (the unit CHECK_FUNCTION) where its model has no rule: the plant is at an
+operating point the unit never learned. :func:`learned_ranges` gives each test's inputs the
+range its model learned — for a Wang–Mendel model the sets that carry a rule (Kościelny et
+al., eq. 5: a rule exists only where training samples fell), from the lowest such set's
+centre minus half a step to the highest's plus half a step; for a model without a rule grid
+(``linear``, ``narmax2``, ``track``) its nominal input span. :class:`OutsideLearned` names,
+per sample of CHECK_FUNCTION, the input of an unknown test that is outside its range, its
+value, and when it left (carried from piece to piece, as every stage's state is).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from diag_plugin.regressors import InputSpec
+
+
+@dataclass(frozen=True)
+class Range:
+    """One input of one test and the range its model learned."""
+
+    test: int  # index of the test in the unit's tests
+    tag: str  # the model's tag name
+    lo: float
+    hi: float
+
+
+def model_ranges(model, specs: Sequence[str]) -> list[tuple[str, float, float]]:
+    """``(tag, lo, hi)`` per plain input of ``model`` (derived inputs — ``dir()``,
+    ``hour()`` — are left out): the extent of the sets that carry a rule, or the span."""
+    out = []
+    cells = None
+    parts = getattr(model, "partitions_", None)
+    if parts is not None and getattr(model, "keys_", np.empty(0)).size:
+        cells = model.cell_indices()
+    spans = getattr(model, "spans_", None)
+    for j, spec in enumerate(specs):
+        s = InputSpec.parse(spec)
+        if s.fn != "":
+            continue
+        if cells is not None:
+            p = parts[j]
+            a, b = int(cells[:, j].min()), int(cells[:, j].max())
+            lo, hi = p.lo + p.step * (a - 0.5), p.lo + p.step * (b + 0.5)
+        elif spans is not None:
+            lo, hi = float(spans[j][0]), float(spans[j][1])
+        else:
+            continue
+        out.append((s.tags[0], float(lo), float(hi)))
+    return out
+
+
+def learned_ranges(models: Mapping[str, object], tests: Sequence[str]) -> list[Range]:
+    """Every test's plain inputs with their learned ranges (``models``: test name →
+    :class:`~diag_plugin.diagnose.unit.TestModel`)."""
+    out = []
+    for i, name in enumerate(tests):
+        m = models[name]
+        for tag, lo, hi in model_ranges(m.model, m.inputs):
+            out.append(Range(i, tag, lo, hi))
+    return out
+
+
+class OutsideLearned:
+    """Names, per sample, the input outside what the unit learned (module doc)."""
+
+    def __init__(self, ranges: Sequence[Range], names: Mapping[str, str] | None = None):
+        self.ranges = list(ranges)
+        self.names = dict(names or {})  # model tag → plant tag
+        self.since: dict[int, pd.Timestamp | None] = {}
+
+    def reset(self) -> OutsideLearned:
+        self.since = {}
+        return self
+
+    def transform(self, frame: pd.DataFrame, unknown: np.ndarray, report: np.ndarray) -> np.ndarray:
+        """Per row a sentence (``""`` elsewhere) for the rows in ``report`` (CHECK_FUNCTION):
+        the first input of an unknown test (``unknown``: rows × tests) outside its learned
+        range, ``TAG = value outside what the unit learned (lo … hi) since T``. Advances the
+        carried start of every input's excursion."""
+        n = len(frame)
+        out = np.full(n, "", dtype=object)
+        idx = frame.index
+        todo = report.copy()
+        for k, r in enumerate(self.ranges):
+            if r.tag not in frame.columns:
+                continue
+            x = frame[r.tag].to_numpy(float)
+            with np.errstate(invalid="ignore"):
+                off = (x < r.lo) | (x > r.hi)
+            # the row each excursion started at (carried over the piece's start)
+            starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
+            first = np.full(n, -1)
+            first[starts] = starts
+            first = np.maximum.accumulate(first)
+            carried = self.since.get(k)
+            hit = np.flatnonzero(todo & off & unknown[:, r.test])
+            for i in hit:
+                st = first[i]
+                # an excursion that began in an earlier piece keeps its start
+                t0 = carried if carried is not None and first[i] == 0 and off[0] else idx[st]
+                name = self.names.get(r.tag, r.tag)
+                out[i] = (
+                    f"{name} = {x[i]:.4g} outside what the unit learned "
+                    f"({r.lo:.4g} … {r.hi:.4g}) since {pd.Timestamp(t0).isoformat()}"
+                )
+            todo[hit] = False
+            if n:
+                if off[-1]:
+                    all_off = off.all()
+                    self.since[k] = carried if (all_off and carried is not None) else idx[first[-1]]
+                else:
+                    self.since[k] = None
+        self._combination(frame, unknown, todo, out)
+        return out
+
+    def _combination(self, frame, unknown, todo, out) -> None:
+        """The rows still unnamed: each input of the first unknown test is inside what it
+        learned, but not together (a grid cell without a rule), or has no value."""
+        tests: dict[int, list[str]] = {}
+        for r in self.ranges:
+            tests.setdefault(r.test, []).append(r.tag)
+        for j, tags in tests.items():
+            rows = np.flatnonzero(todo & unknown[:, j])
+            if not rows.size:
+                continue
+            have = [t for t in tags if t in frame.columns]
+            vals = frame[have].to_numpy(float)[rows] if have else np.empty((rows.size, 0))
+            names = [self.names.get(t, t) for t in have]
+            for i, v in zip(rows, vals, strict=True):
+                miss = [nm for nm, x in zip(names, v, strict=True) if not np.isfinite(x)]
+                out[i] = (
+                    f"{', '.join(miss)} without a value"
+                    if miss
+                    else ", ".join(f"{nm} = {x:.4g}" for nm, x in zip(names, v, strict=True))
+                    + ": each within what the unit learned, but not together"
+                )
+            todo[rows] = False

@@ -1,0 +1,109 @@
+"""A linear model of the inputs (method ``linear``) and its model-file codec.
+
+``ŷ = β₀ + Σ β_i x_i``: the first-order part of Laukonen et al., eq. 12 (the ``narmax2``
+polynomial without its squares and products), fitted by the same batch least squares over
+inputs scaled to their spans (:class:`~diag_plugin.models.narmax.Narmax2Regressor`: a QR
+factor, so ``partial_fit`` on consecutive chunks and ``merge`` of models trained on parts give
+the model of all rows). ``diag unit build`` tests with it where a window is too short for a
+rule grid: a residual of one tag against a linear combination of others is a PCA-like
+parity relation (a residual subspace of one row), which a few hundred samples determine
+(``1 + d`` parameters against a grid's ``sets^d``). The file is the ``narmax2`` form with the
+constant and one term per input::
+
+    [rules]
+    list = [
+        { term = "1", coef = 12.5 },
+        { term = "FI101[k]", coef = 0.42 },
+    ]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from diag_plugin.models.estimation import output_lags_of
+from diag_plugin.models.narmax import Narmax2Regressor, NarmaxCodec, Term, format_term
+from diag_plugin.models.protocol import REASON_OUTSIDE, Prediction
+from diag_plugin.models.spec import ModelSpec
+
+HEADER = """\
+# Model file (diag-plugin), method linear: y = b0 + sum of b_i * input_i (the first-order
+# part of Laukonen et al., eq. 12). Edit by hand, then run `diag rules check FILE`.
+# One term per line: term = "1" (constant) or "SPEC" (an input of [[inputs]]); coef in
+# engineering units (output unit per input unit). A term left out counts as 0.
+"""
+
+
+def linear_terms(d: int) -> list[tuple[int, ...]]:
+    """The constant and one term per input, as input-index tuples."""
+    return [(), *((i,) for i in range(d))]
+
+
+class LinearRegressor(Narmax2Regressor):
+    """``ŷ = β₀ + Σ β_i x_i`` by batch least squares (see module doc); parameters as
+    :class:`~diag_plugin.models.narmax.Narmax2Regressor`.
+
+    Where an input is outside its span the prediction (at the span's edge) has no support:
+    a line learned from a few hundred samples says nothing about a range it never saw, so
+    a unit's test is unknown there and names the input (not a symptom)."""
+
+    def predict_detail(self, X: Any) -> Prediction:
+        p = super().predict_detail(X)
+        support = np.where(p.reason == REASON_OUTSIDE, 0.0, p.support)
+        return Prediction(p.y, support, p.reason, p.level, p.spread)
+
+    @staticmethod
+    def _term_list(d: int) -> list[tuple[int, ...]]:
+        return linear_terms(d)
+
+    @staticmethod
+    def _phi(Z: np.ndarray) -> np.ndarray:
+        return np.hstack([np.ones((Z.shape[0], 1)), Z])
+
+    def _basis(self) -> np.ndarray:
+        """``M`` with ``φ(z) = M φ(x)`` for ``z = (x − centre) / half`` (first order)."""
+        d = self._centre.size
+        M = np.zeros((d + 1, d + 1))
+        M[0, 0] = 1.0
+        M[1:, 0] = -self._centre / self._half
+        M[1:, 1:] = np.diag(1.0 / self._half)
+        return M
+
+
+class LinearCodec(NarmaxCodec):
+    """Estimator factory and term I/O of ``linear`` (the ``narmax2`` file form, first order)."""
+
+    estimator = LinearRegressor
+    header = HEADER
+
+    def __init__(self, method: str = "linear") -> None:
+        super().__init__(method)
+
+    def new_estimator(self, spec: ModelSpec) -> LinearRegressor:
+        """An untrained model with the spec's spans."""
+        if spec.options:
+            raise ValueError(f"linear takes no options, got {', '.join(spec.options)}")
+        specs = [v.spec for v in spec.inputs]
+        return LinearRegressor(
+            input_spans=[v.span for v in spec.inputs],
+            output_span=spec.output.span,
+            output_lags=output_lags_of(spec.output.spec, specs),
+        )
+
+    def read_rules(
+        self, rb: Any, items: list, positions: Sequence[tuple[int, list[str], str]]
+    ) -> list[Term]:
+        """Terms from the ``[rules] list``: the constant and the inputs, no products."""
+        out = super().read_rules(rb, items, positions)
+        specs = [v.spec for v in rb.inputs]
+        for t in out:
+            if len(t.term) > 1:
+                rb.error(
+                    t.line,
+                    f"term {format_term(t.term, specs)!r}: a linear model has only the "
+                    'constant "1" and its inputs',
+                )
+        return [t for t in out if len(t.term) <= 1]

@@ -1,0 +1,333 @@
+"""``diag unit accept`` and ``diag unit rollback``: a new operating point an operator confirms.
+
+When the plant moves to an operating point the unit never learned (a manual valve at a new
+position), its tests there are unknown and the unit CHECK_FUNCTION, naming the input that
+left what it learned (:mod:`diag_plugin.diagnose.operating`). Once an operator confirms a
+period there as fault-free, :func:`accept` learns it into the unit:
+
+1. **Backup**: the unit file and every model file are copied to
+   ``.unit-backups/NAME/N/`` beside the unit file (N = 1, 2, … ; ``manifest.json`` lists
+   the files and the window accepted); :func:`rollback` puts the newest back and removes it.
+2. **Models, exact merge**: each test's model is retrained on the windows its file says it
+   learned from (``[training] windows``, else ``from``/``to``) — the same rows give the same
+   integer accumulators (:meth:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.merge`)
+   or least-squares factor — and the model of the accepted window is merged into it: the
+   result is the model of all those rows (Kościelny et al., eq. 5 over the union: every
+   rule's count and sums add). Locked rules stay as the expert set them.
+3. **Thresholds re-learned** over all the windows together (cross-fitted, to the unit's own
+   budget), as ``diag unit learn`` learns them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from diag_plugin.regressors import InputSpec
+from historian.errors import UserError
+
+#: the folder, beside the unit file, that keeps each accept's backup
+BACKUPS = ".unit-backups"
+
+Reader = Callable[[pd.Timestamp, pd.Timestamp], Iterable[pd.DataFrame]]
+
+
+@dataclass
+class AcceptResult:
+    unit: str
+    window: tuple[str, str]
+    backup: Path
+    windows: list[tuple[str, str]]
+    samples: dict[str, int] = field(default_factory=dict)  # per test: rows added
+    rules: dict[str, tuple[int, int]] = field(default_factory=dict)  # per test: before, after
+    limits: dict[str, tuple[float, float]] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {
+            "unit": self.unit,
+            "window": list(self.window),
+            "backup": str(self.backup),
+            "windows": [list(w) for w in self.windows],
+            "samples": self.samples,
+            "rules": {k: list(v) for k, v in self.rules.items()},
+            "thresholds": {k: {"low": a, "high": b} for k, (a, b) in self.limits.items()},
+            "warnings": self.warnings,
+        }
+
+
+def backup_root(unit_file: Path) -> Path:
+    unit_file = Path(unit_file)
+    from diag_plugin.rulebase.folder import UNIT_SUFFIX
+
+    return unit_file.parent / BACKUPS / unit_file.name.removesuffix(UNIT_SUFFIX)
+
+
+def _numbered(root: Path) -> list[Path]:
+    found = [p for p in root.glob("*") if p.is_dir() and p.name.isdigit()] if root.exists() else []
+    return sorted(found, key=lambda p: int(p.name))
+
+
+def keep_unit_backup(unit, why: dict) -> Path:
+    """Copy the unit file and its model files (and matrix) to the next numbered backup."""
+    uf = unit.file
+    root = backup_root(uf.path)
+    have = _numbered(root)
+    target = root / str(int(have[-1].name) + 1 if have else 1)
+    target.mkdir(parents=True)
+    files = [uf.path, *(uf.resolve(t.model) for t in uf.tests)]
+    if uf.matrix_path is not None:
+        files.append(uf.matrix_path)
+    base = uf.path.parent.resolve()
+    listed = []
+    for k, f in enumerate(files):
+        copy = target / f"{k:03d}_{f.name}"
+        shutil.copy2(f, copy)
+        full = Path(f).resolve()
+        to = full.relative_to(base) if full.is_relative_to(base) else full
+        listed.append({"copy": copy.name, "to": str(to)})
+    manifest = {"unit": unit.name, "files": listed, **why}
+    (target / "manifest.json").write_text(json.dumps(manifest, indent=2), encoding="utf-8")
+    return target
+
+
+def rollback(unit_file: Path) -> dict:
+    """Put the newest backup of the unit back (unit file, models, matrix) and remove it;
+    returns its manifest. :class:`UserError` when there is none."""
+    unit_file = Path(unit_file)
+    root = backup_root(unit_file)
+    have = _numbered(root)
+    if not have:
+        raise UserError(f"{unit_file}: no backup to roll back to (none under {root})")
+    last = have[-1]
+    manifest = json.loads((last / "manifest.json").read_text(encoding="utf-8"))
+    base = unit_file.parent
+    for f in manifest["files"]:
+        dest = Path(f["to"])
+        dest = dest if dest.is_absolute() else base / dest
+        shutil.copy2(last / f["copy"], dest)
+    shutil.rmtree(last)
+    manifest["restored_from"] = str(last)
+    manifest["left"] = len(have) - 1
+    return manifest
+
+
+def training_windows(rb) -> list[tuple[pd.Timestamp, pd.Timestamp]]:
+    """The windows a model file says it was trained on: ``[training] windows``, else its
+    ``from``/``to``; empty when it says neither."""
+    tr = rb.training
+    raw = tr.get("windows")
+    pairs = [tuple(w) for w in raw] if raw else [(tr.get("from"), tr.get("to"))]
+    out = []
+    for a, b in pairs:
+        if a is None or b is None:
+            continue
+        ta, tb = pd.Timestamp(str(a)), pd.Timestamp(str(b))
+        out.append((_utc(ta), _utc(tb)))
+    return out
+
+
+def _utc(t: pd.Timestamp) -> pd.Timestamp:
+    return t.tz_localize("UTC") if t.tzinfo is None else t.tz_convert("UTC")
+
+
+def _joined(frames: list[pd.DataFrame], period: str) -> pd.DataFrame:
+    """Windows one after another with a gap of missing rows between them, so the learning
+    treats each as its own run (its blocks cut between them; its filter settles in each)."""
+    from diag_plugin.learn.thresholds import RUN_GAP
+
+    parts = []
+    step = pd.Timedelta(period)
+    for k, f in enumerate(frames):
+        if k and len(parts[-1]):
+            last = parts[-1].index[-1]
+            gap = pd.date_range(last + step, periods=RUN_GAP + 1, freq=step)
+            gap = gap[gap < f.index[0]] if len(f) else gap
+            parts.append(pd.DataFrame(np.nan, index=gap, columns=f.columns))
+        parts.append(f)
+    out = pd.concat(parts)
+    return out[~out.index.duplicated()].sort_index()
+
+
+def accept(
+    unit,
+    read: Reader,
+    start: pd.Timestamp,
+    end: pd.Timestamp,
+    *,
+    far: float | None = None,
+) -> AcceptResult:
+    """Learn the fault-free window ``[start, end)`` into ``unit`` (see module doc).
+    ``read(a, b)`` yields the unit's aligned frames (plant tag names) of ``[a, b)``."""
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unitfile import UnitFile
+    from diag_plugin.learn.thresholds import DEFAULT_FAR, LearnError, learn_thresholds
+    from diag_plugin.rulebase.document import RuleBase
+    from diag_plugin.training.chunked import train
+
+    start, end = _utc(pd.Timestamp(start)), _utc(pd.Timestamp(end))
+    if end <= start:
+        raise UserError(f"--to {end} is not after --from {start}")
+    uf = unit.file
+    far = far if far is not None else float(uf.thresholds.get("far", DEFAULT_FAR))
+    cache: dict[tuple, pd.DataFrame] = {}
+
+    def window(a: pd.Timestamp, b: pd.Timestamp) -> pd.DataFrame:
+        if (a, b) not in cache:
+            parts = [f for f in read(a, b) if len(f)]
+            if not parts:
+                raise UserError(f"no samples of the unit's tags in {a} … {b}")
+            cache[(a, b)] = unit._model_frame(pd.concat(parts))
+        return cache[(a, b)]
+
+    new = window(start, end)
+    if not new.notna().any(axis=1).any():
+        raise UserError(f"no samples of the unit's tags in {start} … {end}")
+    plans = []
+    warnings: list[str] = []
+    all_windows: set[tuple[pd.Timestamp, pd.Timestamp]] = {(start, end)}
+    for t in uf.tests:
+        path = uf.resolve(t.model)
+        rb = RuleBase.load(path)
+        old = training_windows(rb)
+        if not old:
+            raise UserError(
+                f"{path}: [training] names no window it was trained on; train it (diag train) "
+                "before accepting a period into its unit"
+            )
+        if any(a < end and start < b for a, b in old):
+            raise UserError(
+                f"{start} … {end} overlaps the window {path.name} already learned "
+                f"({', '.join(f'{a} … {b}' for a, b in old)})"
+            )
+        rb, said = widen_spans(rb, new)
+        plans.append((t, path, rb, old))
+        warnings.extend(f"{path.name}: {w}" for w in said)
+        all_windows |= set(old)
+    backup = keep_unit_backup(
+        unit, {"accepted": [start.isoformat(), end.isoformat()], "at": _now()}
+    )
+    res = AcceptResult(unit.name, (start.isoformat(), end.isoformat()), backup, [])
+    try:
+        for t, path, rb, old in plans:
+            model = None
+            for a, b in old:
+                m = train(rb, reader(window(a, b)), a, b, holdout=0).model
+                model = m if model is None else model.merge(m)
+            before = rb.codec.size(model)
+            got = train(rb, reader(new), start, end, holdout=0)
+            model.merge(got.model)
+            res.samples[t.name] = int(got.samples)
+            res.rules[t.name] = (before, rb.codec.size(model))
+            wins = sorted([*old, (start, end)])
+            prov = dict(rb.training)
+            prov.update({
+                "source": "diag unit accept",
+                "from": wins[0][0].isoformat(),
+                "to": wins[-1][1].isoformat(),
+                "windows": [[a.isoformat(), b.isoformat()] for a, b in wins],
+                "samples": int(prov.get("samples", 0) or 0) + int(got.samples),
+                "trained_at": _now(),
+            })  # fmt: skip
+            rb.apply_training(model, prov)
+            rb.save(path)
+        windows = sorted(all_windows)
+        res.windows = [(a.isoformat(), b.isoformat()) for a, b in windows]
+        fresh = Unit.load(uf.path, uf.path.parent)
+        frame = _joined([window(a, b) for a, b in windows], fresh.period)
+        frame = frame.rename(columns={k: v for k, v in fresh.file.tags.items()})
+        try:
+            learned = learn_thresholds(fresh, [frame], far=far)
+        except LearnError as exc:
+            raise UserError(
+                f"unit {unit.name}: cannot learn thresholds:\n"
+                + "\n".join("  " + p for p in exc.problems)
+            ) from None
+        out = UnitFile.load(uf.path)
+        out.set_learned(learned)
+        out.save()
+        res.limits = {k: (float(a), float(b)) for k, (a, b) in learned.limits.items()}
+        res.warnings = warnings + list(learned.warnings)
+    except BaseException:
+        rollback(uf.path)  # leave the unit as it was
+        raise
+    return res
+
+
+def reader(frame: pd.DataFrame):
+    """``read(a, b)`` over an in-memory frame (what ``train`` reads chunk by chunk)."""
+    idx = frame.index
+
+    def read(a: pd.Timestamp, b: pd.Timestamp) -> pd.DataFrame:
+        return frame.iloc[idx.searchsorted(a) : idx.searchsorted(b)]
+
+    return read
+
+
+def _grown(lo0: float, hi0: float, lo: float, hi: float, step: float) -> tuple[int, int]:
+    """Whole steps to add below and above ``[lo0, hi0]`` to reach ``[lo, hi]``."""
+    below = int(math.ceil((lo0 - lo) / step - 1e-9)) if lo < lo0 else 0
+    above = int(math.ceil((hi - hi0) / step - 1e-9)) if hi > hi0 else 0
+    return below, above
+
+
+def widen_spans(rb, frame: pd.DataFrame):
+    """``rb`` with every plain input's (and the output's) span grown to hold the accepted
+    window's values, a grid's set step kept (sets added at the ends); the rules are cleared
+    (the models are retrained from the data of every window next). Returns the rule base and
+    what changed. A model with locked rules is not regrown (the expert's cells would move):
+    :class:`UserError`."""
+    said = []
+    doc = rb.doc
+    tables = [("output", doc["output"], rb.output)] + [
+        (f"input {v.spec}", doc["inputs"][j], v) for j, v in enumerate(rb.inputs)
+    ]
+    for what, table, v in tables:
+        s = InputSpec.parse(v.spec)
+        if s.fn != "" or s.tags[0] not in frame.columns:
+            continue
+        x = frame[s.tags[0]].to_numpy(float)
+        if not np.isfinite(x).any():
+            continue
+        lo, hi = float(np.nanmin(x)), float(np.nanmax(x))
+        lo0, hi0 = v.span
+        if lo >= lo0 and hi <= hi0:
+            continue
+        if any(getattr(r, "lock", False) for r in rb.rules):
+            raise UserError(
+                f"{rb.path}: {s.tags[0]} reaches {lo:g} … {hi:g}, outside the span "
+                f"{lo0:g} … {hi0:g}, and the model has locked rules: widen the span by hand "
+                "(diag rules edit) before accepting"
+            )
+        grid = "sets" in table and what != "output" and rb.method.startswith("wm")
+        step = (hi0 - lo0) / (v.sets - 1) if grid else (hi0 - lo0) / 10.0
+        below, above = _grown(lo0, hi0, lo, hi, step)
+        new = (lo0 - below * step, hi0 + above * step)
+        table["span"] = [float(f"{new[0]:.10g}"), float(f"{new[1]:.10g}")]
+        if grid:
+            table["sets"] = v.sets + below + above
+        said.append(
+            f"{what}: span {lo0:g} … {hi0:g} → {new[0]:g} … {new[1]:g}"
+            + (f", {v.sets} → {v.sets + below + above} sets (the step kept)" if grid else "")
+            + f" (the window reaches {lo:g} … {hi:g})"
+        )
+    if not said:
+        return rb, said
+    rb.clear_rules("spans widened by diag unit accept")
+    from diag_plugin.rulebase.document import RuleBase
+
+    training = dict(rb.training)
+    out = RuleBase(rb.dumps(), rb.path)
+    out.training.update({k: v for k, v in training.items() if k != "status"})
+    return out, said
+
+
+def _now() -> str:
+    return pd.Timestamp.now(tz="UTC").floor("s").isoformat()
