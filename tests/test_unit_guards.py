@@ -1,0 +1,269 @@
+"""Guards of a unit's combined test, its threshold learning and ``diag unit build`` (issue 38).
+
+Each test was shown to fail on the bug it names (planted by hand, one at a time) and to pass
+on the code as it is; docs/testing.md, "Issue 38 — diagnosis", lists them.
+
+* the combined statistic keeps its false-alarm level when some tests are unknown (χ² of the
+  known count mapped to ``T`` degrees of freedom) and is unknown with fewer than half known;
+* its threshold is calibrated on T² of blocks the parameters were not learned on (out of
+  sample: higher than an in-sample one);
+* a thin rule level is pooled with the coarser ones, never ends the calibration;
+* set-points are never tags a unit can blame — by name, and by the description the historian
+  gives them (``diag unit build`` records them in the unit file);
+* ``diag unit build`` skips a set-point known only by its description, tests the tag its
+  controller holds as the loop's own relation, and keeps 30 s of on/off delay at any rate.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import signal, stats
+
+from diag_plugin.diagnose.unit import Unit
+from diag_plugin.diagnose.unitfile import UnitFile
+from diag_plugin.diagnose.unittags import MIN_KNOWN_SHARE, CombinedModel, derived_matrix
+from diag_plugin.examples.coupled import DAY, TESTS, build, process
+from diag_plugin.learn.thresholds import (
+    MIN_LEVEL_SAMPLES,
+    learn_combined,
+    learn_thresholds,
+    level_scales,
+)
+from diag_plugin.unitbuild.build import build_unit, evaluation_for
+from historian.taginfo import TagInfo
+
+
+def _correlated(n: int, T: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` draws of ``T`` scaled residuals ~ N(0, S), S a random correlation matrix."""
+    rng = np.random.default_rng([seed, 38])
+    a = rng.standard_normal((T, T))
+    s = a @ a.T + T * np.eye(T)
+    d = np.sqrt(np.diag(s))
+    s = s / np.outer(d, d)
+    return rng.multivariate_normal(np.zeros(T), s, size=n), s
+
+
+@pytest.fixture(scope="module")
+def learned(tmp_path_factory):
+    """The coupled process's unit (``combined = true``, ``isolation = "tags"``), models
+    trained and thresholds learned on 3 fault-free days of seed 1."""
+    folder = tmp_path_factory.mktemp("coupled")
+    window = process(3 * DAY, 1)
+    path = build(folder, window, {"combined": True, "isolation": "tags"})
+    uf = UnitFile.load(path)
+    uf.set_learned(learn_thresholds(Unit.load(path), [window], far=0.05))
+    uf.save()
+    return Unit.load(path)
+
+
+def _model(cov: np.ndarray) -> CombinedModel:
+    T = cov.shape[0]
+    return CombinedModel([], np.zeros(T), np.ones(T), cov, np.zeros((T, 0)), None)
+
+
+# ---------------------------------------------------------------- the combined statistic
+@pytest.mark.parametrize("T, unknown", [(4, 1), (6, 2), (5, 2)])
+def test_the_combined_statistic_keeps_its_false_alarm_level_with_tests_unknown(T, unknown):
+    """Fault-free scaled residuals (correlated, the covariance the model holds): the share of
+    samples beyond the χ²_T quantile of 1 % and 5 % is that level whether all tests are known
+    or some are (the statistic over the known ones mapped to T degrees of freedom)."""
+    n = 40_000
+    z, cov = _correlated(n, T, seed=T * 10 + unknown)
+    model = _model(cov)
+    full = model.evaluate(z)[0]
+    some = z.copy()
+    some[:, :unknown] = np.nan  # those tests unknown (their models' inputs missing)
+    part = model.evaluate(some)[0]
+    assert np.isfinite(part).all()
+    for level in (0.01, 0.05):
+        limit = stats.chi2.isf(level, T)
+        for t2 in (full, part):
+            assert abs((t2 > limit).mean() - level) < 0.25 * level, (level, (t2 > limit).mean())
+    # and the same quantiles: the mapped statistic is χ²_T, not χ² of the known count
+    for q in (0.5, 0.9, 0.99):
+        assert np.quantile(part, q) == pytest.approx(stats.chi2.ppf(q, T), rel=0.05)
+
+
+@pytest.mark.parametrize("T", [2, 3, 4, 5, 7])
+def test_the_combined_statistic_is_unknown_with_fewer_than_half_the_tests_known(T):
+    z, cov = _correlated(10, T, seed=T)
+    model = _model(cov)
+    need = max(1, math.ceil(MIN_KNOWN_SHARE * T))
+    for known in range(1, T + 1):
+        x = z.copy()
+        x[:, known:] = np.nan
+        t2 = model.evaluate(x)[0]
+        if known < need:
+            assert np.isnan(t2).all(), (T, known)
+        else:
+            assert np.isfinite(t2).all(), (T, known)
+
+
+def test_a_unit_with_most_tests_unknown_publishes_the_combined_test_unknown(learned):
+    """D and F missing: only rA and rC (of five) known — the combined test says nothing, and
+    with one tag missing (four tests known) it still judges."""
+    f = process(600, 41)
+    f[["D", "F"]] = np.nan
+    d = learned.reset().evaluate(f)
+    assert d.combined["T2"].isna().all()
+    f = process(600, 41)
+    f["F"] = np.nan
+    d = learned.reset().evaluate(f)
+    assert d.combined["T2"].iloc[300:].notna().all()
+
+
+# ---------------------------------------------------------------- the combined threshold
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_combined_threshold_is_calibrated_out_of_sample(learned, seed):
+    """Fault-free filtered residuals of five tests whose level wanders between periods (as a
+    plant's does): the threshold learned with the centre, scale and covariance fitted without
+    the block they score is above the one fitted on all the data (in-sample T² is smaller)."""
+    n, T = 5000, len(TESTS)
+    rng = np.random.default_rng([seed, 381])
+    e = rng.standard_normal((n, T)) @ np.linalg.cholesky(_correlated(1, T, seed)[1]).T
+    x = signal.sosfilt(signal.butter(2, 0.05, output="sos"), e, axis=0) * 3.0
+    block = np.repeat(np.arange(5), n // 5)
+    x += rng.normal(0.0, 0.4, (5, T))[block]  # each period its own small offset
+    body = pd.DataFrame(x, columns=list(TESTS))
+    cross = learn_combined(learned, body, block, 0.01, {}).high
+    inside = learn_combined(learned, body, np.zeros(n, np.int64), 0.01, {}).high
+    assert cross > 1.1 * inside, (cross, inside)
+
+
+# ---------------------------------------------------------------- rule levels
+def test_a_thin_rule_level_is_pooled_with_the_coarser_ones():
+    """Level 1 answered a handful of samples, level 2 many: both get the pool's scale, and
+    level 2's answers stay calibrated (a thin level used to end the list); a thin level at the
+    end, never filled, stays out."""
+    rng = np.random.default_rng(7)
+    level = np.r_[np.zeros(600), np.ones(MIN_LEVEL_SAMPLES // 3), np.full(300, 2), np.full(5, 3)]
+    level = level.astype(np.int64)
+    raw = rng.standard_normal(level.size) * np.array([1.0, 1.5, 2.0, 3.0])[level]
+    got = level_scales(raw, level)
+    assert len(got) == 3, got
+    assert got[0] == 1.0 and got[1] == got[2] and 1.5 < got[2] < 2.5, got
+    # two thin levels in a row between full ones: pooled until full, then the next level
+    level = np.r_[np.zeros(600), np.ones(10), np.full(10, 2), np.full(200, 3)].astype(np.int64)
+    raw = rng.standard_normal(level.size)
+    got = level_scales(raw, level)
+    assert len(got) == 4 and got[1] == got[2] == got[3], got
+
+
+# ---------------------------------------------------------------- set-points are never blamed
+def test_a_set_point_is_never_a_tag_the_unit_names(tmp_path):
+    """The model tag B read as plant tag FIC1.SP (``[tags]``): the derived matrix, the ranking
+    and the combined model leave it out; the other tags stay."""
+    path = build(tmp_path, process(2 * DAY, 1), {"isolation": "tags", "combined": True})
+    path.write_text(path.read_text() + '\n[tags]\nB = "FIC1.SP"\n')
+    unit = Unit.load(path)
+    faults = derived_matrix(unit).faults
+    assert "FIC1.SP" not in faults and faults == ["A", "C", "D", "E", "F"]
+    assert CombinedModel.of(unit).tags == faults
+
+
+# ---------------------------------------------------------------- diag unit build
+PERIOD = "10s"
+
+
+def _loop_plant(n: int, seed: int) -> tuple[pd.DataFrame, dict[str, TagInfo]]:
+    """A flow loop at 10 s: FLOW_TARGET (the operator's entry, a set-point only its
+    description says so) held 20–60 min, FI101 following it (first-order, 3 samples), the
+    valve VALVE moving with the flow and a pressure disturbance, a temperature TI201 and a
+    pressure PI301 downstream."""
+    rng = np.random.default_rng([seed, 382])
+    sp = np.empty(n)
+    i = 0
+    while i < n:
+        h = int(rng.integers(120, 360))
+        sp[i : i + h] = rng.uniform(20.0, 80.0)
+        i += h
+    a = math.exp(-1 / 3)
+    fi = signal.lfilter([1 - a], [1, -a], sp, zi=[a * sp[0]])[0]
+    dist = signal.lfilter([0.02], [1, -0.98], rng.standard_normal(n))
+    valve = 0.8 * fi + 60.0 * dist + 5.0
+    ti = 40.0 + 0.3 * np.r_[np.full(4, fi[0]), fi[:-4]]
+    pi = 2.0 + 0.02 * valve - 0.01 * fi
+    idx = pd.date_range("2026-03-02 00:00:03", periods=n, freq=PERIOD, tz="UTC", name="ts")
+    f = pd.DataFrame(
+        {
+            "FLOW_TARGET": sp,
+            "FI101": fi + 0.3 * rng.standard_normal(n),
+            "VALVE": valve + 0.5 * rng.standard_normal(n),
+            "TI201": ti + 0.2 * rng.standard_normal(n),
+            "PI301": pi + 0.01 * rng.standard_normal(n),
+        },
+        idx,
+    )
+    info = {
+        "FLOW_TARGET": TagInfo("FLOW_TARGET", "m3/h", 0, 100, "feed flow set-point"),
+        "FI101": TagInfo("FI101", "m3/h", 0, 100, "feed flow"),
+        "VALVE": TagInfo("VALVE", "%", 0, 100, "feed valve position"),
+        "TI201": TagInfo("TI201", "degC", 0, 100, "reactor temperature"),
+        "PI301": TagInfo("PI301", "bar", 0, 5, "header pressure"),
+    }
+    return f, info
+
+
+@pytest.fixture(scope="module")
+def loop_built(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("loop")
+    frame, info = _loop_plant(2400, 1)
+    res = build_unit("loop", frame, folder=folder, period=PERIOD, tag_info=info, far=0.05)
+    return res, Unit.load(res.path, folder)
+
+
+def test_a_set_point_known_by_its_description_is_not_tested(loop_built):
+    res, _ = loop_built
+    assert "set-point" in res.skipped.get("FLOW_TARGET", ""), res.skipped
+    assert "FLOW_TARGET" not in {t.tag for t in res.tests}
+    # the flow its controller holds is tested as the loop's own relation, at that set-point
+    (fi,) = [t for t in res.tests if t.tag == "FI101"]
+    assert fi.tracks == "FLOW_TARGET" and fi.method == "track", fi
+
+
+def test_a_set_point_known_by_its_description_is_never_blamed(loop_built, tmp_path):
+    """The loop test reads FLOW_TARGET (its set-point); the unit never names it at fault —
+    not in the derived matrix, not in the ranking, not in an alarm's tags."""
+    res, unit = loop_built
+    assert any("FLOW_TARGET" in s for t in unit.tests for s in unit.models[t].inputs)
+    assert "FLOW_TARGET" not in unit.matrix.faults
+    assert "FLOW_TARGET" not in unit.cmodel.tags
+    assert "FLOW_TARGET" in UnitFile.load(res.path).build["set_points"]
+    # a unit built before [build] set_points was written: the loop test's set-point counts
+    old = tmp_path / "old"
+    shutil.copytree(res.path.parent, old)
+    text = (old / res.path.name).read_text()
+    (old / res.path.name).write_text(text.replace('set_points = ["FLOW_TARGET"]\n', ""))
+    assert "FLOW_TARGET" not in Unit.load(old / res.path.name, old).matrix.faults
+    # a bias on the flow sensor: the unit names tags, never the set-point
+    frame, _ = _loop_plant(1500, 2)
+    frame.iloc[700:, frame.columns.get_loc("FI101")] += 8.0
+    d = unit.reset().evaluate(frame)
+    named = set(d.top_tags[["top1", "top2", "top3"]].to_numpy().ravel()) - {""}
+    assert named and "FLOW_TARGET" not in named, named
+    assert not d.faults.str.contains("FLOW_TARGET").any()
+
+
+@pytest.mark.parametrize("period", ["250ms", "1s", "2s", "5s", "10s", "1min", "15min"])
+def test_the_on_off_delays_keep_30_seconds_at_any_rate(period):
+    """30 s of delay (the example unit's 30 samples at 1 s) at every rate, never under 3
+    samples nor over 30."""
+    s = pd.Timedelta(period).total_seconds()
+    ev = evaluation_for(period)
+    assert ev["on_delay"] == ev["off_delay"]
+    if s < 1.0:
+        assert ev["on_delay"] == 30  # at most 30 samples
+    elif s <= 10.0:
+        assert ev["on_delay"] * s == pytest.approx(30.0, rel=0.2)
+    else:
+        assert ev["on_delay"] == 3  # at least 3 samples
+
+
+def test_a_built_unit_at_10_s_has_3_samples_of_delay(loop_built):
+    _, unit = loop_built
+    assert unit.ev["on_delay"] == unit.ev["off_delay"] == 3
