@@ -267,3 +267,17 @@ def test_the_on_off_delays_keep_30_seconds_at_any_rate(period):
 def test_a_built_unit_at_10_s_has_3_samples_of_delay(loop_built):
     _, unit = loop_built
     assert unit.ev["on_delay"] == unit.ev["off_delay"] == 3
+
+
+def test_a_loop_actuator_no_other_test_reads_takes_its_loop_axis_whatever_the_sign():
+    """A controller output read by no test but its loop's (``--tags`` left it out): its
+    direction is empty, so its contribution is its loop test's axis alone, ``(S⁻¹z)_j² /
+    S⁻¹_jj`` — all of a deviation of that test alone, up or down."""
+    xi = np.array([[1.0, 0.0], [0.0, 0.0], [-0.8, 0.0]])  # PV: loop test and a reader
+    cm = CombinedModel(["PV", "OUT"], np.zeros(3), np.ones(3), np.eye(3), xi, 10.0,
+                       np.array([-1, 0]))  # fmt: skip
+    t2, share = cm.evaluate(np.array([[5.0, 0.0, 0.0], [-5.0, 0.0, 0.0], [-5.0, 1.0, 0.0]]))
+    assert t2[:2] == pytest.approx([25.0, 25.0])
+    assert share[0, 1] == pytest.approx(1.0) and share[1, 1] == pytest.approx(1.0)
+    assert share[2, 1] == pytest.approx(25.0 / 26.0)
+    assert share[0, 0] == pytest.approx(1.0 / 1.64)  # PV's own direction explains less
