@@ -163,7 +163,9 @@ def test_a_set_point_is_never_a_tag_the_unit_names(tmp_path):
     unit = Unit.load(path)
     faults = derived_matrix(unit).faults
     assert "FIC1.SP" not in faults and faults == ["A", "C", "D", "E", "F"]
-    assert CombinedModel.of(unit).tags == faults
+    rough = CombinedModel.of(unit)  # before diag unit learn: the matrix's 0/1 columns
+    assert rough.tags == faults
+    assert rough.xi.tolist() == (derived_matrix(unit).entries == "1").astype(float).tolist()
 
 
 # ---------------------------------------------------------------- diag unit build
