@@ -26,7 +26,13 @@ from scipy import signal, stats
 
 from diag_plugin.diagnose.unit import Unit
 from diag_plugin.diagnose.unitfile import UnitFile
-from diag_plugin.diagnose.unittags import MIN_KNOWN_SHARE, CombinedModel, derived_matrix
+from diag_plugin.diagnose.unittags import (
+    MIN_KNOWN_SHARE,
+    CombinedModel,
+    derived_matrix,
+    describe_top,
+    top_tags,
+)
 from diag_plugin.examples.coupled import DAY, TESTS, build, process
 from diag_plugin.learn.thresholds import (
     MIN_LEVEL_SAMPLES,
@@ -283,3 +289,25 @@ def test_a_loop_actuator_no_other_test_reads_takes_its_loop_axis_whatever_the_si
     assert share[0, 1] == pytest.approx(1.0) and share[1, 1] == pytest.approx(1.0)
     assert share[2, 1] == pytest.approx(25.0 / 26.0)
     assert share[0, 0] == pytest.approx(1.0 / 1.64)  # PV's own direction explains less
+
+
+def test_a_tags_share_does_not_depend_on_the_length_of_its_direction():
+    """RBC (Alcala & Qin, 2009, eq. 13) is a projection: directions 1000 times shorter or
+    longer give the same shares, for any deviation."""
+    z, cov = _correlated(50, 4, seed=9)
+    xi = np.random.default_rng(9).standard_normal((4, 3))
+    shares = []
+    for f in (1e-3, 1.0, 1e3):
+        cm = CombinedModel(["X", "Y", "W"], np.zeros(4), np.ones(4), cov, xi * f, 10.0)
+        shares.append(cm.evaluate(z * 3.0)[1])
+    np.testing.assert_allclose(shares[0], shares[1], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(shares[2], shares[1], rtol=1e-9, atol=1e-12)
+
+
+def test_an_alarm_names_only_tags_that_explain_some_of_it():
+    share = np.array([[0.9, 0.0, 0.4], [0.0, 0.0, 0.0], [0.5, np.nan, 0.7]])
+    top = top_tags(share, ["X", "Y", "W"], np.array([True, True, False]))
+    assert top["top1"].tolist() == ["X", "", ""] and top["top2"].tolist() == ["W", "", ""]
+    assert top["top3"].tolist() == ["", "", ""]  # Y explains nothing: never named
+    assert describe_top(top.iloc[0]) == "tags: X 0.90, W 0.40"
+    assert describe_top(top.iloc[1]) == ""
