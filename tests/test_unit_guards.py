@@ -311,3 +311,32 @@ def test_an_alarm_names_only_tags_that_explain_some_of_it():
     assert top["top3"].tolist() == ["", "", ""]  # Y explains nothing: never named
     assert describe_top(top.iloc[0]) == "tags: X 0.90, W 0.40"
     assert describe_top(top.iloc[1]) == ""
+
+
+@pytest.mark.parametrize("scale", ["span", "max"])
+def test_a_tags_direction_is_the_move_a_bias_of_its_sensor_makes(tmp_path, scale):
+    """Eq. 6 of the module doc: a bias ``b`` of D's sensor moves the test modelling D by
+    ``b · 100 / span`` (``ymax`` with ``scale = "max"``) over its scale ``s``, exactly (its
+    model does not read D), and the tests that neither read nor model D not at all."""
+    window = process(3 * DAY, 1)
+    path = build(tmp_path, window, {"combined": True, "isolation": "tags", "scale": scale})
+    uf = UnitFile.load(path)
+    uf.set_learned(learn_thresholds(Unit.load(path), [window], far=0.05, spread=False))
+    uf.save()
+    unit = Unit.load(path)
+    f = process(1500, 51)
+    g = f.copy()
+    g["D"] += 3.0
+    before = unit.reset().evaluate(f).residuals
+    after = unit.reset().evaluate(g).residuals
+    cm, tests = unit.cmodel, list(unit.tests)
+    dz = ((after - before) / cm.scale).iloc[800:]  # the low-pass has settled
+    col = cm.tags.index("D")
+    moved = dz["rD"].dropna()
+    assert len(moved) > 300
+    want = 3.0 * cm.xi[tests.index("rD"), col]
+    # where the fine grid answered (a coarser level divides the residual by its scale)
+    assert (np.abs(moved - want) < 0.01 * abs(want)).mean() > 0.3, moved.describe()
+    for t in ("rA", "rC"):  # neither reads nor models D
+        assert cm.xi[tests.index(t), col] == 0.0
+        assert dz[t].abs().max() < 1e-9
