@@ -36,9 +36,12 @@ from diag_plugin.diagnose.unittags import (
 from diag_plugin.examples.coupled import DAY, TESTS, build, process
 from diag_plugin.learn.thresholds import (
     MIN_LEVEL_SAMPLES,
+    RUN_GAP,
+    SETTLE_SAMPLES,
     learn_combined,
     learn_thresholds,
     level_scales,
+    settled,
 )
 from diag_plugin.unitbuild.build import build_unit, evaluation_for
 from historian.taginfo import TagInfo
@@ -340,3 +343,33 @@ def test_a_tags_direction_is_the_move_a_bias_of_its_sensor_makes(tmp_path, scale
     for t in ("rA", "rC"):  # neither reads nor models D
         assert cm.xi[tests.index(t), col] == 0.0
         assert dz[t].abs().max() < 1e-9
+
+
+# ---------------------------------------------------------------- the learning window
+def test_each_run_of_a_window_waits_for_the_filter_to_settle():
+    """Two runs of data with a gap longer than RUN_GAP: the first SETTLE_SAMPLES of each are
+    left out (the filter starts from rest in each); a run of under 4 × that loses a quarter."""
+    long = 5 * SETTLE_SAMPLES
+    data = np.r_[np.zeros(7, bool), np.ones(long, bool), np.zeros(RUN_GAP + 5, bool),
+                 np.ones(long, bool), np.zeros(RUN_GAP + 5, bool), np.ones(400, bool)]  # fmt: skip
+    keep = settled(data)
+    starts = [7, 7 + long + RUN_GAP + 5, 7 + 2 * (long + RUN_GAP + 5)]
+    for a in starts[:2]:
+        assert not keep[a : a + SETTLE_SAMPLES].any()
+        assert keep[a + SETTLE_SAMPLES : a + long].all()
+    assert not keep[starts[2] : starts[2] + 100].any() and keep[starts[2] + 100 :].all()
+    # a gap no longer than RUN_GAP does not restart the filter
+    data = np.r_[np.ones(long, bool), np.zeros(RUN_GAP, bool), np.ones(long, bool)]
+    assert settled(data)[SETTLE_SAMPLES:].all()
+
+
+def test_a_window_overlapping_the_training_range_is_cross_fitted(tmp_path):
+    """Models trained on days 2–4: a window of days 1–4 overlaps their training data and is
+    cross-fitted; a window of day 1 alone lies before it and uses the models' own residuals."""
+    frame = process(4 * DAY, 3)
+    path = build(tmp_path, frame.iloc[DAY:], {"combined": True})
+    unit = Unit.load(path)
+    got = learn_thresholds(unit, [frame], far=0.05)
+    assert all(s.startswith("cross-fitted") for s in got.sources.values()), got.sources
+    got = learn_thresholds(unit.reset(), [frame.iloc[:DAY]], far=0.05)
+    assert all("trained outside the window" in s for s in got.sources.values()), got.sources
