@@ -38,6 +38,7 @@ from diag_plugin.learn.thresholds import (
     MIN_LEVEL_SAMPLES,
     RUN_GAP,
     SETTLE_SAMPLES,
+    LearnError,
     learn_combined,
     learn_thresholds,
     level_scales,
@@ -373,3 +374,18 @@ def test_a_window_overlapping_the_training_range_is_cross_fitted(tmp_path):
     assert all(s.startswith("cross-fitted") for s in got.sources.values()), got.sources
     got = learn_thresholds(unit.reset(), [frame.iloc[:DAY]], far=0.05)
     assert all("trained outside the window" in s for s in got.sources.values()), got.sources
+
+
+def test_a_window_where_the_plant_stood_still_is_refused_with_what_to_do(tmp_path):
+    """Every tag held at one value (a plant at a standstill, or a frozen historian): each
+    test's residual is a constant, its filtered residual too once the filter settles — no
+    false-alarm rate can be read from it, and the message names each test and what to do."""
+    path = build(tmp_path, process(2 * DAY, 1), {"lowpass": 0.2})
+    still = process(2000, 7)
+    still.iloc[:] = still.iloc[[1000]].to_numpy()
+    with pytest.raises(LearnError) as exc:
+        learn_thresholds(Unit.load(path), [still], far=0.05)
+    got = "\n".join(exc.value.problems)
+    for t in TESTS:
+        assert f"test {t}: its filtered residual is constant" in got, got
+    assert "learn over a window where its output varies" in got
