@@ -389,3 +389,21 @@ def test_a_window_where_the_plant_stood_still_is_refused_with_what_to_do(tmp_pat
     for t in TESTS:
         assert f"test {t}: its filtered residual is constant" in got, got
     assert "learn over a window where its output varies" in got
+
+
+def test_a_window_where_the_tests_are_never_known_together_gives_a_loadable_unit(learned, tmp_path):
+    """Each row has one test unknown (a tag dropping out in turn): no covariance can be
+    estimated, so the scaled residuals are taken as independent — identity, shrinkage 1 —
+    and the unit file written from it loads."""
+    T = len(TESTS)
+    x = np.random.default_rng(5).standard_normal((2000, T))
+    x[np.arange(2000), np.arange(2000) % T] = np.nan
+    body = pd.DataFrame(x, columns=list(TESTS))
+    spec = learn_combined(learned, body, np.repeat(np.arange(5), 400), None, {})
+    assert np.array_equal(spec.cov, np.eye(T)) and spec.shrinkage == 1.0
+    for f in learned.file.path.parent.glob("p*.toml"):
+        shutil.copy(f, tmp_path / f.name)
+    uf = UnitFile.load(tmp_path / "p.unit.toml")
+    uf.set_combined(spec)
+    uf.save()
+    assert UnitFile.load(tmp_path / "p.unit.toml").combined.shrinkage == 1.0
