@@ -65,10 +65,13 @@ def learned(tmp_path_factory):
     folder = tmp_path_factory.mktemp("coupled")
     window = process(3 * DAY, 1)
     path = build(folder, window, {"combined": True, "isolation": "tags"})
+    got = learn_thresholds(Unit.load(path), [window], far=0.05)
     uf = UnitFile.load(path)
-    uf.set_learned(learn_thresholds(Unit.load(path), [window], far=0.05))
+    uf.set_learned(got)
     uf.save()
-    return Unit.load(path)
+    unit = Unit.load(path)
+    unit.learned_result = got  # what learn_thresholds returned, for the tests below
+    return unit
 
 
 def _model(cov: np.ndarray) -> CombinedModel:
@@ -407,3 +410,15 @@ def test_a_window_where_the_tests_are_never_known_together_gives_a_loadable_unit
     uf.set_combined(spec)
     uf.save()
     assert UnitFile.load(tmp_path / "p.unit.toml").combined.shrinkage == 1.0
+
+
+def test_the_thresholds_written_are_the_ones_the_budget_calibrated(learned):
+    """However small a test's residual (thresholds under 1 % of span), its limits are the
+    calibrated ones (only a band of ±1e-4 % around 0 is enforced), in the file as learned."""
+    got = learned.learned_result
+    for t in TESTS:
+        b = got.budgets[t]
+        assert got.limits[t] == pytest.approx((b.low, b.high)), t  # none near 0 here
+        spec = learned.file.test(t)
+        assert (spec.low, spec.high) == pytest.approx(got.limits[t], rel=1e-3)
+    assert min(got.limits[t][1] for t in TESTS) < 1.0  # a small threshold is kept small
