@@ -39,6 +39,7 @@ from diag_plugin.learn.thresholds import (
     RUN_GAP,
     SETTLE_SAMPLES,
     LearnError,
+    fuzzy_sets,
     learn_combined,
     learn_thresholds,
     level_scales,
@@ -422,3 +423,11 @@ def test_the_thresholds_written_are_the_ones_the_budget_calibrated(learned):
         spec = learned.file.test(t)
         assert (spec.low, spec.high) == pytest.approx(got.limits[t], rel=1e-3)
     assert min(got.limits[t][1] for t in TESTS) < 1.0  # a small threshold is kept small
+
+
+def test_fuzzy_sets_without_residuals_are_crisp_at_the_thresholds():
+    """No fault-free residual to measure the ramps by: zero-width ramps at the thresholds (the
+    crisp evaluation), never ramps turned inside out."""
+    assert fuzzy_sets(np.array([np.nan, np.nan]), -2.0, 3.0) == (-2.0, -2.0, 3.0, 3.0)
+    n1, n0, p0, p1 = fuzzy_sets(np.random.default_rng(3).standard_normal(500), -2.0, 3.0)
+    assert n1 < -2.0 < n0 <= 0.0 <= p0 < 3.0 < p1
