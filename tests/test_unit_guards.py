@@ -34,6 +34,7 @@ from diag_plugin.diagnose.unittags import (
     top_tags,
 )
 from diag_plugin.examples.coupled import DAY, TESTS, build, process
+from diag_plugin.learn.budget import episodes
 from diag_plugin.learn.thresholds import (
     MIN_LEVEL_SAMPLES,
     RUN_GAP,
@@ -431,3 +432,11 @@ def test_fuzzy_sets_without_residuals_are_crisp_at_the_thresholds():
     assert fuzzy_sets(np.array([np.nan, np.nan]), -2.0, 3.0) == (-2.0, -2.0, 3.0, 3.0)
     n1, n0, p0, p1 = fuzzy_sets(np.random.default_rng(3).standard_normal(500), -2.0, 3.0)
     assert n1 < -2.0 < n0 <= 0.0 <= p0 < 3.0 < p1
+
+
+def test_episodes_without_delays_count_every_run_above_the_level():
+    """``episodes`` by default: no delay (one sample on, one sample back inside ends it)."""
+    x = np.array([0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0])
+    assert episodes(x, np.array([0.5, 2.0])).tolist() == [3, 0]
+    assert episodes(x, np.array([0.5]), 1, 2).tolist() == [2]  # a 1-sample dip bridged
+    assert episodes(np.ones(6), np.array([0.5])).tolist() == [1]  # one run, one episode
