@@ -440,3 +440,17 @@ def test_episodes_without_delays_count_every_run_above_the_level():
     assert episodes(x, np.array([0.5, 2.0])).tolist() == [3, 0]
     assert episodes(x, np.array([0.5]), 1, 2).tolist() == [2]  # a 1-sample dip bridged
     assert episodes(np.ones(6), np.array([0.5])).tolist() == [1]  # one run, one episode
+
+
+@pytest.mark.parametrize("missing", ["--from", "--to"])
+def test_unit_learn_needs_both_ends_of_its_window(tmp_path, capsys, missing):
+    from diag_plugin.cli import main
+
+    args = {"--from": "2026-05-04T00:00:00Z", "--to": "2026-05-05T00:00:00Z"}
+    args.pop(missing)
+    cmd = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path)]
+    cmd += ["unit", "learn", "p", *[x for kv in args.items() for x in kv]]
+    with pytest.raises(SystemExit) as exc:
+        main(cmd)
+    assert exc.value.code == 2
+    assert f"required: {missing}" in capsys.readouterr().err

@@ -80,7 +80,7 @@ TARGETS: dict[str, list[str]] = {
         "test_unit_guards.py",
         "test_unit_tags.py",
     ],
-    "diag_plugin/learn/cli.py": ["test_learning.py", "test_unit_tags.py"],
+    "diag_plugin/learn/cli.py": ["test_learning.py", "test_unit_tags.py", "test_unit_guards.py"],
     "diag_plugin/unitbuild/build.py": ["test_unit_guards.py", "test_unit_build.py"],
     "diag_plugin/unitbuild/cli.py": ["test_unit_guards.py", "test_unit_build.py"],
     "connectors/alarms.py": ["test_alarms.py", "test_alarm_edges.py"],
