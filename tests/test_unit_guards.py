@@ -12,6 +12,10 @@ on the code as it is; docs/testing.md, "Issue 38 — diagnosis", lists them.
   gives them (``diag unit build`` records them in the unit file);
 * ``diag unit build`` skips a set-point known only by its description, tests the tag its
   controller holds as the loop's own relation, and keeps 30 s of on/off delay at any rate.
+
+The rest close survivors of the mutation check (docs/testing.md): a tag's direction is the
+move a bias of its sensor makes, the ranking's invariances, the learning window's runs and
+training range, a window where the plant stood still, the thresholds as calibrated.
 """
 
 from __future__ import annotations
