@@ -50,7 +50,7 @@ from diag_plugin.learn.thresholds import (
     level_scales,
     settled,
 )
-from diag_plugin.unitbuild.build import build_unit, evaluation_for
+from diag_plugin.unitbuild.build import build_unit, evaluation_for, loop_lags
 from historian.taginfo import TagInfo
 
 
@@ -458,3 +458,13 @@ def test_unit_learn_needs_both_ends_of_its_window(tmp_path, capsys, missing):
         main(cmd)
     assert exc.value.code == 2
     assert f"required: {missing}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("max_lag", [1, 2, 5, 60, 360])
+def test_a_loops_response_times_reach_the_dead_time_horizon(max_lag):
+    """0 and up to 12 response times spaced geometrically to the horizon, whatever it is —
+    one sample included (a coarse grid, a loop answering within one period)."""
+    lags = loop_lags(max_lag)
+    assert lags[0] == 0 and lags[-1] == max_lag and len(lags) <= 13
+    assert all(a < b for a, b in zip(lags, lags[1:], strict=False))
+    assert loop_lags(0) == [0]
