@@ -468,3 +468,17 @@ def test_a_loops_response_times_reach_the_dead_time_horizon(max_lag):
     assert lags[0] == 0 and lags[-1] == max_lag and len(lags) <= 13
     assert all(a < b for a, b in zip(lags, lags[1:], strict=False))
     assert loop_lags(0) == [0]
+
+
+def test_set_points_that_are_not_a_list_of_tags_are_a_file_line_error(tmp_path):
+    from diag_plugin.diagnose.unitfile import UnitError, new_unit_text
+
+    path = tmp_path / "u.unit.toml"
+    text = new_unit_text("u", {"r1": "m.toml"}) + '\n[build]\nperiod = "10s"\n'
+    path.write_text(text + 'set_points = ["FLOW_TARGET"]\n')
+    assert UnitFile.load(path).build["set_points"] == ["FLOW_TARGET"]
+    path.write_text(text + 'set_points = "FLOW_TARGET"\n')
+    with pytest.raises(UnitError) as exc:
+        UnitFile.load(path)
+    n = len(text.splitlines()) + 1
+    assert f"u.unit.toml:{n}: set_points must be a list of tags" in "\n".join(exc.value.problems)
