@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import logging
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -70,6 +71,46 @@ PLANT_TAGS = ("F", "CV", "X", "P0", "P1", "P2", "T1")
 STRIDE = 100
 MAX_FAULTS, MAX_TESTS, MAX_MODELS = 20, 20, 5
 _WRITE_FC = {5: "co", 15: "co", 6: "hr", 16: "hr", 22: "hr", 23: "hr"}
+#: the address (``ip:port``) of the client whose request is being served; set by the
+#: connection handler around each request, read by the write hook (same task)
+_PEER: contextvars.ContextVar[str] = contextvars.ContextVar("modbus_peer", default="")
+
+
+class Ack(str):
+    """A unit name taken from its ``U.ack`` coil, with the client that wrote it
+    (``client``: ``ip:port``, "" when unknown). Compares and hashes as the unit name."""
+
+    client: str
+
+    def __new__(cls, unit: str, client: str = "") -> Ack:
+        self = super().__new__(cls, unit)
+        self.client = client
+        return self
+
+
+def _tcp_server(device: Any, address: tuple[str, int]) -> Any:
+    """pymodbus's TCP server whose connections tell each request's client address (the
+    write hook pymodbus calls does not): an audit line must name who wrote."""
+    from pymodbus.server import ModbusTcpServer
+    from pymodbus.server.requesthandler import ServerRequestHandler
+
+    class _Handler(ServerRequestHandler):
+        async def handle_request(self) -> None:
+            peer = ""
+            with contextlib.suppress(Exception):
+                info = self.transport.get_extra_info("peername")
+                peer = f"{info[0]}:{info[1]}" if info else ""
+            token = _PEER.set(peer)
+            try:
+                await super().handle_request()
+            finally:
+                _PEER.reset(token)
+
+    class _Server(ModbusTcpServer):
+        def callback_new_connection(self) -> Any:
+            return _Handler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+
+    return _Server(device, address=address)
 
 
 class RegisterServer:
@@ -142,9 +183,7 @@ class RegisterServer:
 
     async def start(self) -> None:
         """Listen (background task); afterwards :attr:`port` is the bound port."""
-        from pymodbus.server import ModbusTcpServer
-
-        self._server = ModbusTcpServer(self._device(), address=(self.host, self.port))
+        self._server = _tcp_server(self._device(), (self.host, self.port))
         await self._server.serve_forever(background=True)
         self.port = int(self._server.transport.sockets[0].getsockname()[1])
         await self._push(range(len(self.plan.blocks)))
@@ -211,16 +250,18 @@ class RegisterServer:
 
         if set_values is None or self._internal:
             return None
+        client = _PEER.get() or "unknown client"
         table = _WRITE_FC.get(func_code)
         addrs = range(address, address + len(set_values))
         tags = {self._write_addr.get((table or "", a)) for a in addrs}
         if table is None or None in tags:
             self.refused_writes += 1
             log.warning(
-                "modbus server %s:%d: refused a client write (fc %d) to %s %d+%d: not a "
-                "writable output tag",
+                "modbus server %s:%d: refused a write by client %s (fc %d) to %s %d+%d: not "
+                "a writable output tag",
                 self.host,
                 self.port,
+                client,
                 func_code,
                 table or "?",
                 address,
@@ -228,11 +269,13 @@ class RegisterServer:
             )
             return ExcCodes.ILLEGAL_ADDRESS
         asyncio.get_running_loop().call_soon(
-            self._written, table, address, list(set_values), sorted(t for t in tags if t)
+            self._written, table, address, list(set_values), sorted(t for t in tags if t), client
         )
         return None
 
-    def _written(self, table: str, address: int, vals: list, tags: list[str]) -> None:
+    def _written(
+        self, table: str, address: int, vals: list, tags: list[str], client: str = ""
+    ) -> None:
         for tag in tags:
             s = self.regmap[tag]
             i = self._index[tag]
@@ -244,10 +287,10 @@ class RegisterServer:
                         self._buf[self.plan.pos[i] + a - s.address] = int(vals[a - address])
             value = float(self.plan.decode(self._buf)[i])
             self.values[i] = value
-            log.info("modbus server: client wrote %s = %g", tag, value)
-            self._on_write(tag, value)
+            log.info("modbus server: client %s wrote %s = %g", client or "?", tag, value)
+            self._on_write(tag, value, client)
 
-    def _on_write(self, tag: str, value: float) -> None:
+    def _on_write(self, tag: str, value: float, client: str = "") -> None:
         if self.on_write is not None:
             try:
                 self.on_write(tag, value)
@@ -327,7 +370,8 @@ class StatusServer(RegisterServer):
         acks = [t for t in regmap.names if t.endswith(".ack") and regmap[t].table == "co"]
         super().__init__(regmap, host, port, device_id=device_id, writable=acks)
         self.on_ack = on_ack
-        self.acks: asyncio.Queue[str] = asyncio.Queue()
+        #: acknowledgements in order, each an :class:`Ack` (the unit, with its client)
+        self.acks: asyncio.Queue[Ack] = asyncio.Queue()
         self._counter: dict[str, int] = {}
         self._tasks: set[asyncio.Task] = set()
         # before the first diagnosis: CHECK_FUNCTION with Uncertain quality ("initialising"),
@@ -339,11 +383,11 @@ class StatusServer(RegisterServer):
                 self.values[i] = 1
         self._buf = self.plan.encode(self.values, self._buf)
 
-    def _on_write(self, tag: str, value: float) -> None:
-        super()._on_write(tag, value)
+    def _on_write(self, tag: str, value: float, client: str = "") -> None:
+        super()._on_write(tag, value, client)
         if tag.endswith(".ack") and value:
-            unit = tag.removesuffix(".ack")
-            log.info("modbus server: unit %s acknowledged by a client", unit)
+            unit = Ack(tag.removesuffix(".ack"), client)
+            log.info("modbus server: unit %s acknowledged by client %s", unit, client or "?")
             self.acks.put_nowait(unit)
             if self.on_ack is not None:
                 try:

@@ -32,7 +32,8 @@ from typing import Any
 
 from asyncua.crypto.permission_rules import PermissionRuleset, User, UserRole
 
-from connectors.passwords import hash_problem, verify_password
+from connectors.opcua_logins import login_verdict
+from connectors.passwords import check_password, dummy_hash, hash_problem
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +84,17 @@ class UserManager:
         self.users = {u.name: u for u in users}
         self.by_cert = {u.certificate: u for u in self.users.values() if u.certificate}
         self.allow_anonymous = allow_anonymous
+        #: the hash whose cost an unknown user's check pays (the first user's)
+        self._like = next((u.password_hash for u in self.users.values() if u.password_hash), None)
+        dummy_hash(self._like)  # made now, not in the first unknown user's login
+
+    def verify(self, username: str, password: Any) -> bool:
+        """The password of ``username`` is ``password``: one scrypt whether or not the user
+        exists (:func:`~connectors.passwords.check_password`), so the time taken does not
+        tell which user names exist. Blocking (~50 ms): the server runs it in a pool."""
+        u = self.users.get(username)
+        stored = u.password_hash if u is not None else None
+        return check_password(stored, None if password is None else str(password), self._like)
 
     def get_user(
         self,
@@ -93,16 +105,16 @@ class UserManager:
     ) -> Identity | None:
         if username is not None:
             u = self.users.get(username)
-            ok = (
-                u is not None
-                and u.password_hash is not None
-                and password is not None
-                and verify_password(u.password_hash, str(password))
-            )
-            if not ok:
-                log.warning(
-                    "OPC UA login refused for user %r (unknown or wrong password)", username
-                )
+            verdict = login_verdict.get()
+            if verdict is not None and verdict[:2] == (str(username), password):
+                ok = verdict[2]  # checked off the event loop by connectors.opcua_logins
+            else:
+                ok = self.verify(username, password)
+                if not ok:
+                    log.warning(
+                        "OPC UA login refused for user %r (unknown or wrong password)", username
+                    )
+            if not ok or u is None:
                 return None
             return Identity(role=UserRole.User, name=u.name, access=u.role)
         if certificate:

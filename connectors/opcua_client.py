@@ -233,7 +233,13 @@ class OpcUaReader:
         from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
         cfg = self.config
-        client = Client(cfg.url, timeout=cfg.timeout, watchdog_intervall=max(0.5, cfg.timeout / 2))
+        # the session's own requests (CreateSession, ActivateSession, a secured handshake)
+        # get at least 4 s even when the reads' timeout is a short cycle's
+        client = Client(
+            cfg.url,
+            timeout=max(cfg.timeout, 4.0),
+            watchdog_intervall=max(0.5, cfg.timeout / 2),
+        )
         client.session_timeout = 60_000
         sec = cfg.security
         self._client = client

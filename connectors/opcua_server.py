@@ -58,6 +58,7 @@ from typing import TYPE_CHECKING, Any
 
 from connectors.alarms import Alarm, AlarmState, Transition, severity
 from connectors.base import TagSample
+from connectors.opcua_logins import LoginGuard, LoginLimits
 
 if TYPE_CHECKING:
     from asyncua import Node, Server, ua
@@ -105,6 +106,14 @@ class ServerSecurity:
     allow_anonymous: bool = False
     policies: tuple[str, ...] = ("SignAndEncrypt",)
     application_uri: str = "urn:diag-plugin:server"
+    #: session and login caps, back-off (None: :meth:`LoginLimits.derive` from the users)
+    logins: LoginLimits | None = None
+
+    def login_limits(self) -> LoginLimits:
+        """``logins``, or the limits derived from the users and the machine."""
+        if self.logins is not None:
+            return self.logins
+        return LoginLimits.derive(len(self.users), self.allow_anonymous)
 
 
 @dataclass(frozen=True)
@@ -113,7 +122,7 @@ class Action:
 
     ts: datetime
     user: str  # "alice (operator)", "anonymous", "Modbus client", "local"
-    action: str  # acknowledge, confirm, comment, shelve, unshelve, refused
+    action: str  # acknowledge, confirm, comment, shelve, unshelve, refused, login (refused)
     unit: str | None
     ok: bool
     detail: str = ""
@@ -124,6 +133,8 @@ class Action:
         """``alice (operator) over OPC UA: shelve valve (for 600 s, ...)``, or ``... refused``."""
         if self.action == "refused":
             return f"{self.user} over {self.via}: refused {self.detail} (operators only)"
+        if self.action == "login":
+            return self.detail
         what = f"{self.action} {self.unit}" if self.unit else self.action
         tail = f" ({self.detail})" if self.detail else ""
         return f"{self.user} over {self.via}: {what}{'' if self.ok else ' refused'}{tail}"
@@ -230,6 +241,8 @@ class DiagOpcUaServer:
         self._shown: dict[Any, tuple[Any, int]] = {}  # node id → (value, code) last written
         self._declared: dict[str, tuple[set[str], set[str], set[str]]] = {}
         self.permissions: Any = None
+        #: the login guard of a secured server (after start): refusals, back-off, caps
+        self.logins: LoginGuard | None = None
 
     @property
     def endpoint(self) -> str:
@@ -330,6 +343,16 @@ class DiagOpcUaServer:
         for name, (on, msg) in list(self._notice_state.items()):
             await self.notice(name, on, msg, emit=False)
         await server.start()
+        if sec is not None:
+            limits = sec.login_limits()
+            self.logins = LoginGuard(users.verify, limits, on_event=self._login_refused)
+            self.logins.install(server)
+            log.info(
+                "OPC UA logins: %d sessions at most, %d logins checked at once in %d threads",
+                limits.max_sessions,
+                limits.max_activations,
+                limits.hash_workers,
+            )
 
     @staticmethod
     async def _validator(sec: ServerSecurity) -> Any:
@@ -355,6 +378,8 @@ class DiagOpcUaServer:
         for t in list(self._tasks):
             t.cancel()
         server, self.server = self.server, None
+        if self.logins is not None:
+            self.logins.close()
         try:
             async with asyncio.timeout(timeout):
                 await server.stop()
@@ -927,9 +952,21 @@ class DiagOpcUaServer:
             except Exception:  # noqa: BLE001 - a listener must not break the server
                 log.exception("on_action listener failed")
 
+    def _login_refused(self, text: str) -> None:
+        """A refused login (or a merged run of them): an :class:`Action` ``login``."""
+        a = Action(datetime.now(UTC), "", "login", None, False, text, "OPC UA")
+        self.actions.append(a)
+        del self.actions[:-1000]
+        if self.on_action is not None:
+            try:
+                self.on_action(a)
+            except Exception:  # noqa: BLE001 - a listener must not break the server
+                log.exception("on_action listener failed")
+
     def _refused(self, ident: Any, what: str) -> None:
         a = Action(datetime.now(UTC), ident.label, "refused", None, False, what, "OPC UA")
         self.actions.append(a)
+        del self.actions[:-1000]
         if self.on_action is not None:
             try:
                 self.on_action(a)

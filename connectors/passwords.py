@@ -1,7 +1,8 @@
 """Password hashes for plant.toml users: scrypt (stdlib), never the password itself.
 
 ``diag run --hash-password`` prints one; the OPC UA server checks a login against it in
-constant time. The text form is ``scrypt$n$r$p$<salt base64>$<hash base64>``.
+constant time (:func:`check_password`: an unknown user costs one scrypt too). The text form
+is ``scrypt$n$r$p$<salt base64>$<hash base64>``.
 """
 
 from __future__ import annotations
@@ -57,3 +58,34 @@ def verify_password(stored: str, password: str) -> bool:
         dklen=len(want),
     )
     return hmac.compare_digest(got, want)
+
+
+_DUMMY: dict[tuple[int, int, int], str] = {}
+
+
+def dummy_hash(like: str | None = None) -> str:
+    """A hash of a random password with the cost (n, r, p) of ``like`` (default: ours), made
+    once per cost: what an unknown user's password is checked against, so that refusing an
+    unknown user costs one scrypt, as refusing a wrong password does (no user enumeration by
+    timing)."""
+    cost = _SCRYPT
+    if like is not None and hash_problem(like) is None:
+        n, r, p = (int(x) for x in like.split("$")[1:4])
+        cost = (n, r, p)
+    if cost not in _DUMMY:
+        n, r, p = cost
+        salt = os.urandom(16)
+        digest = hashlib.scrypt(os.urandom(16), salt=salt, n=n, r=r, p=p, dklen=32)
+        b64 = base64.b64encode
+        _DUMMY[cost] = f"scrypt${n}${r}${p}${b64(salt).decode()}${b64(digest).decode()}"
+    return _DUMMY[cost]
+
+
+def check_password(stored: str | None, password: str | None, like: str | None = None) -> bool:
+    """``password`` matches ``stored``, in the same time whether or not there is a user:
+    with no ``stored`` hash (unknown user, or a certificate-only one) or no password the
+    check runs against :func:`dummy_hash` (cost of ``like``) and returns False. Exactly one
+    scrypt either way, compared with :func:`hmac.compare_digest`."""
+    real = stored is not None and password is not None and hash_problem(stored) is None
+    ok = verify_password(stored if real else dummy_hash(like or stored), password or "")
+    return ok and real

@@ -3,7 +3,9 @@
 The live loop reads the plant as one vector of tags per cycle. A plant seldom has one
 controller, so :class:`SourceSet` polls each source concurrently (each with its own timeout,
 inside the connector) and lays their tags side by side in one :class:`connectors.modbus.Poll`.
-A source that fails makes only its own tags Bad; the others are read as usual.
+A source that fails makes only its own tags Bad; the others are read as usual. The cycle waits
+for the sources only until its poll deadline: a source still busy then is Bad for that
+cycle and its poll runs on in the background (:meth:`SourceSet.poll`).
 
 :class:`OpcUaSource` gives an :class:`connectors.opcua_client.OpcUaReader` the same ``names`` /
 ``poll()`` shape as :class:`connectors.modbus.ModbusTagClient`: the latest ``DataValue`` of
@@ -17,6 +19,7 @@ outage interval (the gap), for the loop's event log.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import time
 from collections import Counter
 from collections.abc import Sequence
@@ -105,6 +108,10 @@ class SourceSet:
             raise ValueError(f"tag(s) read from more than one source: {', '.join(dup)}")
         self._down: dict[str, tuple[datetime, str]] = {}
         self._last: list[str] = []  # per source: why it is down after the last poll, or ""
+        #: per source: its poll still running from an earlier cycle (past the deadline)
+        self._pending: list[asyncio.Future[Any] | None] = [None] * len(self.sources)
+        #: per source name: cycles it gave no answer within the deadline
+        self.late_polls: dict[str, int] = {}
 
     def tags_of(self, source: str) -> list[str]:
         return self.names[self._slices[self.source_names.index(source)]]
@@ -114,18 +121,42 @@ class SourceSet:
             if hasattr(s, "start"):
                 await s.start()
 
-    async def poll(self) -> Poll:
-        """One poll of every source at once; a source that raises gives Bad tags."""
+    async def poll(self, deadline: float | None = None) -> Poll:
+        """One poll of every source at once; a source that raises gives Bad tags.
+
+        ``deadline``: seconds the cycle waits for the sources. A source that has not
+        answered by then gives Bad tags ("no answer within ...") this cycle but is not
+        cancelled: its poll runs on (bounded by its own timeout), the next cycle waits for
+        that same poll instead of starting another, and takes its answer if it comes in
+        time. So one slow source never holds the others' samples or the cycle."""
         t0 = time.perf_counter()
         ts = now()
-        got = await asyncio.gather(*(s.poll() for s in self.sources), return_exceptions=True)
+        for i, s in enumerate(self.sources):
+            if self._pending[i] is None:
+                self._pending[i] = asyncio.ensure_future(s.poll())
+        tasks = [t for t in self._pending if t is not None]
+        if tasks:
+            await asyncio.wait(tasks, timeout=deadline)
         n = len(self.names)
         values = np.full(n, np.nan)
         quality = np.full(n, TagQuality.BAD, np.uint8)
         source_ts = np.full(n, np.nan)
         reasons = [""] * n
         self._last = []
-        for name, sl, p in zip(self.source_names, self._slices, got, strict=True):
+        for i, (name, sl) in enumerate(zip(self.source_names, self._slices, strict=True)):
+            task = self._pending[i]
+            assert task is not None
+            if not task.done():
+                why = f"{name}: no answer within the cycle's poll deadline ({deadline:.2f} s)"
+                reasons[sl] = [why] * (sl.stop - sl.start)
+                # late is not down: the source keeps its state until its poll answers
+                self._last.append(self._down[name][1] if name in self._down else "")
+                self.late_polls[name] = self.late_polls.get(name, 0) + 1
+                continue
+            self._pending[i] = None
+            p: Any = task.exception() if not task.cancelled() else asyncio.CancelledError()
+            if p is None:
+                p = task.result()
             if isinstance(p, BaseException):
                 why = f"{name}: poll failed: {p!r}"
                 reasons[sl] = [why] * (sl.stop - sl.start)
@@ -164,6 +195,12 @@ class SourceSet:
         return out
 
     async def close(self) -> None:
+        for i, task in enumerate(self._pending):
+            if task is not None:
+                task.cancel()
+                with contextlib.suppress(BaseException):
+                    await task
+                self._pending[i] = None
         for s in self.sources:
             try:
                 await s.close()

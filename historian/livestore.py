@@ -49,7 +49,10 @@ class LiveStore:
             h.close()
 
     def reset(self) -> None:
-        """Drop the connections after a failure (a restarted server needs new ones)."""
+        """Drop the connections and the tag-id cache after a failure (a restarted server needs
+        new connections; a rolled-back transaction may have taken the tags it created with it,
+        so cached ids are only trusted again once read from a committed transaction)."""
+        self._ids.clear()
         h = self.historian
         if h is not None:
             try:
@@ -59,17 +62,23 @@ class LiveStore:
             self.historian = None
 
     def tag_ids(self, names: Sequence[str]) -> np.ndarray:
-        """Ids of ``names`` (int64, in order), creating missing tags in one transaction."""
+        """Ids of ``names`` (int64, in order), creating missing tags in one transaction.
+
+        The ids read inside the transaction are cached only once it has committed: a commit
+        that fails (a full disk) rolls the new tags back, and samples filed under their ids
+        would belong to no tag — or, after a restart, to another one."""
         h = self.open()
         missing = [n for n in dict.fromkeys(names) if n not in self._ids]
         if missing:
             t = schema.tags
+            got: dict[str, int] = {}
             with h.engine.begin() as c:
                 c.execute(h._insert(t).on_conflict_do_nothing(), [{"name": n} for n in missing])
                 for i in range(0, len(missing), 900):  # SQLite's bound-parameter limit
                     part = missing[i : i + 900]
                     rows = c.execute(select(t.c.name, t.c.id).where(t.c.name.in_(part))).all()
-                    self._ids.update((str(n), int(i_)) for n, i_ in rows)
+                    got.update((str(n), int(i_)) for n, i_ in rows)
+            self._ids.update(got)  # committed
         return np.fromiter((self._ids[n] for n in names), np.int64, count=len(names))
 
     def write_block(
@@ -96,6 +105,25 @@ class LiveStore:
             new = h._not_in_cold(rolled, tag_id, t, v, q, "ignore")  # a month rolled already
             tag_id, t, v, q = tag_id[new], t[new], v[new], q[new]
         return int(h._bulk.insert(tag_id, t, v, q, policy="ignore")) if len(t) else 0
+
+    def missing_tags(self) -> list[str]:
+        """Names of the cached tags whose id is no longer that tag's row in ``tags`` (the
+        check behind the writer's "none lost"); the cache is dropped when any is found."""
+        if not self._ids:
+            return []
+        h = self.open()
+        t = schema.tags
+        have: dict[str, int] = {}
+        names = list(self._ids)
+        with h.engine.connect() as c:
+            for i in range(0, len(names), 900):
+                part = names[i : i + 900]
+                rows = c.execute(select(t.c.name, t.c.id).where(t.c.name.in_(part))).all()
+                have.update((str(n), int(i_)) for n, i_ in rows)
+        bad = [n for n, i in self._ids.items() if have.get(n) != i]
+        if bad:
+            self._ids.clear()
+        return bad
 
     def write_events(self, events: Iterable[dict[str, Any]]) -> int:
         """Store diagnostic events (dicts with ``ts`` µs, ``unit``, ``message`` and optionally

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import create_engine, event, select, update
+from sqlalchemy import create_engine, event, func, select, update
 from sqlalchemy.engine import make_url
 
 from . import coldstore, schema
@@ -73,7 +73,7 @@ class Historian(ColdMonths, Registry, TagReport):
             self._default_cold_dir = None
         else:
             raise ValueError(f"unsupported database URL {self.url!r} (sqlite or postgresql)")
-        schema.metadata.create_all(self.engine)
+        create_schema(self.engine)
         self.cold_dir = (
             Path(cold_dir) if cold_dir else self._recorded_cold_dir() or self._default_cold_dir
         )
@@ -455,8 +455,47 @@ class Historian(ColdMonths, Registry, TagReport):
         """Problems found (empty when sound), never raised: SQLite ``PRAGMA integrity_check``
         (or that it cannot run); for PostgreSQL duplicate keys, NULL keys and the primary-key
         index; each cold file readable and holding the row count recorded for its month.
-        ``progress(done, total)`` is called after each cold file."""
-        return list(self._bulk.integrity_check()) + self._cold_problems(progress)
+        Every sample's tag must exist: samples under a tag id with no row in ``tags`` (left
+        by a tag insert that was rolled back, e.g. on a full disk) are reported with their
+        count. ``progress(done, total)`` is called after each cold file."""
+        problems = list(self._bulk.integrity_check())
+        try:
+            orphans = self.orphan_samples()
+        except Exception as exc:  # noqa: BLE001 - a check reports, never raises
+            problems.append(f"cannot check the samples' tags: {exc}")
+        else:
+            if orphans:
+                ids = ", ".join(str(i) for i in list(orphans)[:10])
+                more = f" and {len(orphans) - 10} more" if len(orphans) > 10 else ""
+                problems.append(
+                    f"{sum(orphans.values())} samples under {len(orphans)} tag ids that are "
+                    f"in no row of tags (ids {ids}{more}): stored under the id of a tag "
+                    "whose insert was rolled back; their tag is unknown"
+                )
+        return problems + self._cold_problems(progress)
+
+    def orphan_samples(self) -> dict[int, int]:
+        """Tag id → sample count, for sample tag ids that have no row in ``tags``. Walks the
+        distinct tag ids through the primary key (one index seek each), so it costs the
+        number of tags, not of samples."""
+        s, t = schema.samples, schema.tags
+        out: dict[int, int] = {}
+        with self.engine.connect() as c:
+            known = {int(i) for (i,) in c.execute(select(t.c.id))}
+            last = None
+            while True:
+                q = select(func.min(s.c.tag_id))
+                if last is not None:
+                    q = q.where(s.c.tag_id > last)
+                last = c.execute(q).scalar()
+                if last is None:
+                    break
+                if int(last) not in known:
+                    n = c.execute(
+                        select(func.count()).select_from(s).where(s.c.tag_id == last)
+                    ).scalar()
+                    out[int(last)] = int(n or 0)
+        return out
 
     def storage(self) -> dict:
         """Where the data are and how much room they take: ``backend``, ``db_bytes`` (file
@@ -496,6 +535,28 @@ class Historian(ColdMonths, Registry, TagReport):
             "before_bytes": before,
             "after_bytes": self._bulk.size_bytes(),
         }
+
+
+def create_schema(engine, tries: int = 8) -> None:
+    """Create the historian's tables and indexes that do not exist yet. Two processes starting
+    on a new database at once race between "does it exist?" and CREATE ("table tags already
+    exists", or on PostgreSQL a duplicate type name): the loser looks again — the check is
+    repeated on a fresh connection, so what the winner made is seen and kept."""
+    import time
+
+    from sqlalchemy.exc import DBAPIError
+
+    for attempt in range(tries):
+        try:
+            schema.metadata.create_all(engine, checkfirst=True)
+            return
+        except DBAPIError as exc:
+            text = str(getattr(exc, "orig", exc)).lower()
+            if attempt == tries - 1 or not (
+                "already exists" in text or "duplicate" in text or "locked" in text
+            ):
+                raise
+            time.sleep(0.05 * (attempt + 1))
 
 
 def _sqlite_pragmas(dbapi_conn, _record, busy_ms: int = 60_000) -> None:

@@ -57,6 +57,7 @@ def env(tmp_path_factory):
     (rb / "bad.unit.toml").write_text("[unit\n", encoding="utf-8")
     (rb / "bad.matrix.toml").write_text("[matrix]\ntests = 3\n", encoding="utf-8")
     (d / "plant.toml").write_text("[plant]\ncycle = 'x'\n", encoding="utf-8")
+    (d / "latin1.toml").write_bytes("[plant]\n# K\u00fchlwasser\n".encode("latin-1"))
     (d / "binary.csv").write_bytes(b"\x00\x01\x02")
     return {"dir": d, "db": db, "rb": str(rb), "g": g}
 
@@ -155,6 +156,9 @@ def cases(env) -> dict[tuple[str, ...], list[list[str]]]:
         ("run",): [
             ["--config", str(d / "none.toml")],
             ["--config", str(d / "plant.toml")],
+            ["--config", str(d / "plant.toml"), "--check"],
+            ["--config", str(d / "latin1.toml")],
+            ["--check"],
             ["--cycle", "-1"],
         ],
         ("engine-fdi",): [["--seed", "x"], ["--method", "nope"]],

@@ -55,13 +55,13 @@ name = "plc"
 type = "modbus"
 port = {plc}
 map = "plc.csv"
-timeout = 0.5
+timeout = 0.09
 
 [[source]]
 name = "scada"
 type = "opcua"
 url = "opc.tcp://127.0.0.1:{ua}/diag/"
-timeout = 2.0
+timeout = 0.1
 nodes = "scada.csv"
 
 [outputs]
@@ -259,7 +259,7 @@ def test_config_of_several_sources_names_source_key_and_line(plant_dir, monkeypa
     p.write_text(good, encoding="utf-8")
     cfg = load_config(p)
     plc, scada = cfg.sources
-    assert (plc.type, plc.port, plc.timeout, plc.map) == ("modbus", 5021, 0.5, d / "plc.csv")
+    assert (plc.type, plc.port, plc.timeout, plc.map) == ("modbus", 5021, 0.09, d / "plc.csv")
     assert (scada.type, scada.url, scada.mode, scada.nodes) == (
         "opcua",
         "opc.tcp://127.0.0.1:4841/diag/",
@@ -300,9 +300,13 @@ def test_config_of_several_sources_names_source_key_and_line(plant_dir, monkeypa
             "several.toml:17: source[2].url: expected opc.tcp://",
         ),
         (good.replace('type = "opcua"', 'type = "bacnet"'), "several.toml:16: source[2].type"),
-        (good.replace("timeout = 2.0", "map = 'x.csv'"), "several.toml:18: source[2].map: unknown"),
+        (good.replace("timeout = 0.1", "map = 'x.csv'"), "several.toml:18: source[2].map: unknown"),
+        (
+            good.replace("timeout = 0.1", "timeout = 2.0"),
+            "several.toml:18: source[2].timeout: 2 s is longer than the cycle (0.1 s)",
+        ),
         (good.replace('name = "scada"', 'name = "plc"'), "several.toml:15: source[2].name: 'plc'"),
-        (good.replace("timeout = 0.5", "timeout = 0"), "several.toml:12: source[1].timeout: must"),
+        (good.replace("timeout = 0.09", "timeout = 0"), "several.toml:12: source[1].timeout: must"),
         (
             good.replace('[[source]]\nname = "scada"', '[[source]]\nname = "scada"\nhost = "x"'),
             "several.toml:16: source[2].host: unknown key",
@@ -399,3 +403,107 @@ def test_source_set_opcua_subscription_outage_leaves_the_plc_tags_good():
     assert [(e.source, e.up) for e in events] == [("scada", False), ("scada", True)], events
     down, up = events
     assert up.since == down.since and up.until > up.since and down.reason
+
+
+SLOW_PLC = """\
+import sys, time
+from pyModbusTCP.server import DataBank, DataHandler, ModbusServer
+
+class Slow(DataHandler):
+    def read_h_regs(self, address, count, srv_info):
+        time.sleep(float(sys.argv[2]))  # a PLC that answers, but late
+        return super().read_h_regs(address, count, srv_info)
+
+bank = DataBank(h_regs_size=16)
+bank.set_holding_registers(0, [7, 8])
+srv = ModbusServer(host="127.0.0.1", port=int(sys.argv[1]), no_block=True,
+                   data_hdl=Slow(data_bank=bank))
+srv.start()
+print("ready", flush=True)
+while True:
+    time.sleep(3600)
+"""
+
+SLOW_TOML = """\
+[plant]
+cycle = 0.5
+units = ["rb/valve_unit.unit.toml"]
+
+[[source]]
+name = "plc"
+port = {plc}
+map = "all.csv"
+timeout = 0.5
+
+[[source]]
+name = "slow"
+port = {slow}
+map = "slow.csv"
+timeout = 0.5
+
+[outputs]
+modbus_port = 0
+opcua_port = 0
+"""
+
+
+def test_a_slow_source_never_holds_the_cycle_or_the_other_source(plant_dir):
+    """A PLC whose handler sleeps 2 s a request (pyModbusTCP in its own process) beside our
+    fast PLC, at a 0.5 s cycle and a 0.5 s timeout each: the fast PLC's samples arrive Good
+    every cycle, the loop never overruns after the first cycle, the slow PLC's tags are Bad
+    and it is reported unavailable once (before: every cycle waited for the slow PLC's
+    timeout and overran)."""
+    pytest.importorskip("pyModbusTCP")
+    from connectors.modbus_server import default_plant_map
+    from diag_plugin.live.config import load_config, run_config
+
+    d, _ = plant_dir
+    rows = ["tag,table,address,type"] + [
+        f"{t.tag},{t.table},{t.address},{t.type}" for t in default_plant_map().tags
+    ]
+    (d / "all.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    (d / "slow.csv").write_text("tag,table,address,type\nS1,hr,0,uint16\nS2,hr,1,uint16\n")
+    plc_port, slow_port = free_port(), free_port()
+    plc, _ = start_plc(plc_port)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    slow = subprocess.Popen(
+        [sys.executable, "-c", SLOW_PLC, str(slow_port), "2.0"],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    assert slow.stdout.readline().strip() == "ready"
+    p = d / "slow.toml"
+    p.write_text(SLOW_TOML.format(plc=plc_port, slow=slow_port), encoding="utf-8")
+    out = Out()
+    seen: list[tuple[list[int], list[int], str]] = []  # per cycle: fast, slow quality, reason
+    got: dict = {}
+
+    async def after(loop, i, statuses) -> None:
+        names = loop._tags
+        q = loop._quality
+        fast = [int(q[names.index(t)]) for t in ("F", "CV", "P2")]
+        slow_q = [int(q[names.index(t)]) for t in ("S1", "S2")]
+        seen.append((fast, slow_q, loop._reasons[names.index("S1")]))
+        got["stats"] = loop.stats
+
+    try:
+        cfg = load_config(p)
+        rc = asyncio.run(run_config(cfg, duration=8.0, out=out, after=after))
+    finally:
+        for proc in (plc, slow):
+            proc.kill()
+            proc.wait()
+    text = "".join(out.lines)
+    assert rc == 0, text
+    stats = got["stats"]
+    assert stats.cycles >= 12, text  # 8 s at 0.5 s: no cycle lost to the slow PLC
+    # the first cycle waits for every source's first answer (each within its timeout: the
+    # connections are being opened); from then on no cycle overruns
+    work = list(stats.work_ms)
+    assert max(work[1:]) < 500.0 and stats.overruns <= 1, (work, text)
+    assert all(f == [0, 0, 0] for f, _, _ in seen[1:]), seen
+    assert all(s == [2, 2] for _, s, _ in seen), seen
+    assert any("no answer within the cycle's poll deadline" in r for _, _, r in seen), seen
+    assert text.count("source slow unavailable") == 1, text
+    assert "source plc" not in text, text

@@ -301,3 +301,71 @@ async def test_notices_are_maintenance_band_and_need_no_acknowledgement(env):
     evs = await wait_events(events, "Historian", 2)
     assert len(evs) == 2 and evs[-1].Retain is False
     assert getattr(evs[-1], "ActiveState/Id") is False
+
+
+async def test_the_action_log_in_memory_keeps_the_newest_actions_up_to_its_bound(anyio_backend):
+    """Months of acknowledgements never grow :attr:`actions` past its bound (the newest 1000;
+    the historian's event log keeps them all); the newest are kept, in order."""
+    KEEP_ACTIONS = 1000
+
+    srv = DiagOpcUaServer(port=free_port())
+    await srv.start()
+    try:
+        await srv.publish(st("p", NE107.NORMAL))
+        for i in range(KEEP_ACTIONS + 5):
+            await srv.acknowledge("p", who=f"op{i}")
+        assert len(srv.actions) == KEEP_ACTIONS
+        assert srv.actions[0].user == "op5" and srv.actions[-1].user == f"op{KEEP_ACTIONS + 4}"
+    finally:
+        await srv.stop()
+
+
+async def test_a_changed_value_is_shown_and_an_unchanged_one_is_not_written_again(env):
+    """Every value that changes (a residual, NaN to a number and back) is what a client reads
+    next; one that stays the same, NaN included, keeps the SourceTimestamp of its write."""
+    import math
+
+    srv, client, _ = env
+    node = client.get_node(srv.node_id("Units", "u9", "Residual", "r1"))
+    seen = []
+    for r in (1.0, 2.5, 2.5, math.nan, math.nan, 4.0, 4.0):
+        s = st("u9", NE107.NORMAL)
+        s.residuals = {"r1": r}
+        await srv.publish(s)
+        dv = await node.read_data_value(raise_on_bad_status=False)
+        seen.append((dv.Value.Value, dv.SourceTimestamp))
+        await asyncio.sleep(0.01)  # a rewrite would carry a later SourceTimestamp
+    values = [v for v, _ in seen]
+    assert values[:3] == [1.0, 2.5, 2.5] and values[5:] == [4.0, 4.0]
+    assert math.isnan(values[3]) and math.isnan(values[4])
+    stamps = [t for _, t in seen]
+    assert stamps[1] == stamps[2] and stamps[3] == stamps[4] and stamps[5] == stamps[6]
+    assert stamps[0] < stamps[1] < stamps[3] < stamps[5]
+
+
+async def test_a_stop_that_fails_in_the_library_still_stops_and_can_start_again(
+    anyio_backend, monkeypatch, caplog
+):
+    """asyncua's own stop raising OSError (a socket already gone; injected here, a real
+    server does it only by chance) is logged, the address space is dropped, and the same
+    object starts again with its units."""
+    from asyncua import Server
+
+    srv = DiagOpcUaServer(port=free_port())
+    await srv.start()
+    await srv.publish(st("p", NE107.FAILURE))
+    real_stop = Server.stop
+
+    async def broken_stop(self):
+        await real_stop(self)
+        raise OSError("socket already closed")
+
+    monkeypatch.setattr(Server, "stop", broken_stop)
+    await srv.stop()
+    assert srv.server is None and "socket already closed" in caplog.text
+    monkeypatch.setattr(Server, "stop", real_stop)
+    await srv.start()
+    try:
+        assert srv.alarms["p"].state == "active-unacknowledged"
+    finally:
+        await srv.stop()

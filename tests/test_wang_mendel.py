@@ -299,3 +299,42 @@ def test_eq5_as_printed_averages_the_centres_of_the_outputs_sets():
         WangMendelRegressor(**kw).fit(X, y).merge(lit)
     with pytest.raises(ValueError, match="conclusion must be one of"):
         WangMendelRegressor(conclusion="median", **kw).fit(X, y)
+
+
+def test_without_takes_out_exactly_the_samples_given_and_refuses_any_it_never_had():
+    """``without`` (issue 38, bug 10): the model minus a part of its training equals the model
+    trained on the rest, state and predictions; a part holding samples the model never had —
+    other data, the same part twice, a sample repeated more often than it was trained — is
+    refused, not silently clipped (unit learn would cross-fit from a damaged model)."""
+
+    def new():
+        return WangMendelRegressor([(0, 100)] * 2, (0, 45), n_sets=7)
+
+    X, y = plant(600, 3)
+    full = new().fit(X, y)
+    before = full.to_state()
+    part = new().fit(X[:200], y[:200])
+    rest = new().fit(X[200:], y[200:])
+    out = full.without(part)
+    for k in ("keys_", "count_", "qsum_", "qsq_"):
+        np.testing.assert_array_equal(getattr(out, k), getattr(rest, k), err_msg=k)
+    assert out.n_samples_seen_ == rest.n_samples_seen_ == 400
+    Xt, _ = plant(300, 4)
+    np.testing.assert_array_equal(out.predict(Xt), rest.predict(Xt))
+    for k, v in full.to_state().items():  # the model itself is left as it was
+        np.testing.assert_array_equal(v, before[k], err_msg=k)
+
+    repeated = new().fit(np.vstack([X, X[:1]]), np.r_[y, y[:1]])  # one sample once more
+    low = X[:, 0] < 60  # a model that never saw the high half of the first input
+    half = new().fit(X[low], y[low])
+    one_new_cell = new().fit(np.vstack([X[low][:50], [[100.0, 50.0]]]), np.r_[y[low][:50], 20.0])
+    cases = {
+        "other data": (full, new().fit(*plant(200, 99))),
+        "a sample more often than trained": (full, repeated),
+        "the same part twice": (out, part),
+        "one cell the model never had": (half, one_new_cell),
+    }
+    for what, (model, other) in cases.items():
+        with pytest.raises(ValueError, match="never in this model"):
+            model.without(other)
+            pytest.fail(what)

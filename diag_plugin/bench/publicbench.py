@@ -75,9 +75,7 @@ def build_unit_as_user(plant: PublicPlant, runs: Sequence[PlantRun], work: Path)
     csv = work / f"{plant.name}_train.csv"
     data.rename_axis("ts").to_csv(csv, float_format="%.8g")
     tags = work / f"{plant.name}_tags.csv"
-    pd.DataFrame(
-        [{"name": t, "unit": u, "description": d} for t, (u, d) in plant.tag_info.items()]
-    ).to_csv(tags, index=False)
+    tags_frame(plant).to_csv(tags, index=False)
     db = f"sqlite:///{work / 'historian.db'}"
     folder = work / "units"
     folder.mkdir(exist_ok=True)
@@ -85,7 +83,8 @@ def build_unit_as_user(plant: PublicPlant, runs: Sequence[PlantRun], work: Path)
     cmds = [
         ["--db", db, "import", str(csv), "--tags", str(tags), "--no-progress"],
         ["--db", db, "--rulebases", str(folder), "unit", "build", plant.name,
-         "--from", t0, "--to", t1, "--force"],
+         "--from", t0, "--to", t1, "--force"]
+        + (["--loops-from", str(tags)] if plant.loops else []),
     ]  # fmt: skip
     shown = [f"diag {' '.join(c)}" for c in cmds]
     t = time.perf_counter()
@@ -100,6 +99,27 @@ def build_unit_as_user(plant: PublicPlant, runs: Sequence[PlantRun], work: Path)
     unit = Unit.load(plant.name, folder)
     return {"unit": unit, "note": "", "commands": shown, "seconds": time.perf_counter() - t,
             "tests": len(unit.tests), "rows": len(data)}  # fmt: skip
+
+
+def tags_frame(plant: PublicPlant) -> pd.DataFrame:
+    """The plant's tags CSV: name, unit, description, and the declared loops' ``loop`` and
+    ``role`` columns (:mod:`~diag_plugin.unitbuild.loops`)."""
+    from diag_plugin.unitbuild.loops import parse_loop
+
+    role: dict[str, tuple[str, str]] = {}
+    for spec in plant.loops:
+        lp = parse_loop(spec)
+        role[lp.pv] = (lp.pv, "pv")
+        role[lp.sp] = (lp.pv, "sp")
+        if lp.out:
+            role[lp.out] = (lp.pv, "out")
+    rows = [
+        {"name": t, "unit": u, "description": d, "loop": role.get(t, ("", ""))[0],
+         "role": role.get(t, ("", ""))[1]}
+        for t, (u, d) in plant.tag_info.items()
+    ]  # fmt: skip
+    frame = pd.DataFrame(rows)
+    return frame if plant.loops else frame.drop(columns=["loop", "role"])
 
 
 def unit_statistics(unit, frame: pd.DataFrame) -> tuple[np.ndarray, pd.DataFrame | None]:
@@ -338,7 +358,11 @@ def chemplant_plant(quick: bool = False, faults: Sequence[str] | None = None) ->
             raise ValueError(f"unknown fault(s) {', '.join(unknown)}; known: {', '.join(FAULTS)}")
         names = tuple(faults)
     run_days, onset_days = (2.0, 0.5) if quick else (3.0, 1.0)
+    # PCA's columns: the measurements and outputs (the unit's historian holds the set-points
+    # too, as before); the loops declared as a user would in the tags CSV (each controller:
+    # the tag it holds, its set-point, its output)
     cols = [c for c, v in CHEMPLANT_TAGS.items() if v[4] != "set-point"]
+    loops = [f"{pv}={c}.SP:{c}.OUT" for c, pv in CHEMPLANT_LOOPS.items()]
     start = pd.Timestamp("2026-01-01", tz="UTC")
     train = []
     for s in train_seeds:
@@ -370,6 +394,7 @@ def chemplant_plant(quick: bool = False, faults: Sequence[str] | None = None) ->
         faults=faults,
         fault_info={n: FAULTS[n].kind for n in names},
         source="diag_plugin.simulate.chemplant",
+        loops=loops,
         split=[
             f"train: fault-free seeds {', '.join(map(str, train_seeds))} × {days:g} days",
             f"calibration (the matched limits): fault-free seeds "
@@ -378,8 +403,23 @@ def chemplant_plant(quick: bool = False, faults: Sequence[str] | None = None) ->
             f"fault scoring: seeds {', '.join(map(str, fault_seeds))}, {run_days:g}-day runs, "
             f"the fault from day {onset_days:g}",
             "tuning (not run here): fault seeds 101–103, fault-free 150–154",
+            "loops declared to the unit build (issue 34, docs/unit-loops.md): " + ", ".join(loops),
         ],
     )
+
+
+#: the chemical plant's controllers and the measured tag each one holds
+CHEMPLANT_LOOPS = {
+    "FIC101": "FI101",
+    "FIC102": "FI102",
+    "TIC103": "TI103",
+    "TIC104": "TI104",
+    "LIC101": "LI101",
+    "TIC107": "TI107",
+    "PIC101": "PI101",
+    "LIC102": "LI102",
+    "LIC103": "LI103",
+}
 
 
 # ---------------------------------------------------------------- the page

@@ -96,6 +96,9 @@ class PublicPlant:
     per_run: bool = False  # the protocol learns from each run's first ``learn`` rows
     source: str = ""
     split: list[str] = field(default_factory=list)  # the runs and what each is for, in words
+    #: control loops declared to ``diag unit build`` as ``PV=SP:OUT`` (the tags CSV's loop and
+    #: role columns, docs/unit-loops.md)
+    loops: list[str] = field(default_factory=list)
 
 
 # ---------------------------------------------------------------- Tennessee Eastman

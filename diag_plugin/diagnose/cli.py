@@ -181,6 +181,9 @@ def unit_summary(unit) -> dict:
                 "high": None if lim is None else lim[1],
                 "levels": list(t.levels) if t.levels else [1.0],
                 "spread": t.spread,
+                "statistic": t.statistic,
+                "actuator": t.actuator,
+                "set_point": t.set_point,
                 "learned": f.learned.get(t.name, {}),
             }
         )
@@ -191,7 +194,7 @@ def unit_summary(unit) -> dict:
         "outputs": f.outputs,
         "period": unit.period,
         "tags": unit.tags,
-        "evaluation": f.evaluation,
+        "evaluation": unit.ev,  # delays in seconds resolved to samples at the period
         "thresholds": f.thresholds,
         "tests": tests,
         "build": getattr(f, "build", {}) or {},
@@ -247,6 +250,12 @@ def cmd_unit_show(args) -> int:
     con.print(
         f"period {s['period']}; low-pass {ev['lowpass'] or 'off'} (order {ev['order']}); "
         f"{ev['symptoms']} symptoms, on/off delay {ev['on_delay']}/{ev['off_delay']} samples"
+        + (
+            f" ({ev['on_delay_s']:g}/{ev['off_delay_s']:g} s; the unit's own off-delay too)"
+            if ev.get("off_delay_s")
+            else ""
+        )
+        + (f"; deadband {ev['deadband']:.0%} of the threshold" if ev.get("deadband") else "")
         + ("; latched" if ev["latch"] else "")
         + ("" if ev.get("hold_isolation", True) else "; isolated afresh each sample"),
         markup=False,

@@ -42,6 +42,7 @@ from diag_plugin.diagnose.unit import (
     spread_factor,
 )
 from diag_plugin.diagnose.unitfile import UnitError
+from diag_plugin.diagnose.unitloops import EpisodeHold
 from diag_plugin.fuzzy.stack import WangMendelStack
 from diag_plugin.regressors import parse_specs
 from diag_plugin.status import NE107, Quality, UnitStatus
@@ -75,6 +76,12 @@ def _crisp(unit: Unit) -> bool:
     return unit.ev["symptoms"] == "crisp"
 
 
+def _plain_alarms(unit: Unit) -> bool:
+    """True without spread tests, deadband and the unit's own off-delay (the fast path);
+    units with them go one by one (:mod:`~diag_plugin.diagnose.unitloops`)."""
+    return unit.spread_cols.size == 0 and unit.deadband is None and unit.alarm_hold is None
+
+
 class Plant:
     """Units evaluated together each cycle (see module doc).
 
@@ -86,7 +93,9 @@ class Plant:
     def __init__(self, units: Mapping[str, Unit], broken: Mapping[str, list[str]] | None = None):
         self.units = dict(units)
         self.broken = dict(broken or {})
-        self.fast = [n for n, u in self.units.items() if _plain_lags(u) and _crisp(u)]
+        self.fast = [
+            n for n, u in self.units.items() if _plain_lags(u) and _crisp(u) and _plain_alarms(u)
+        ]
         self.slow = [n for n in self.units if n not in self.fast]
         self._build()
 
@@ -216,6 +225,8 @@ class Plant:
             for ui, u in enumerate(units)
             if u.cmodel is not None
         ]
+        # the tags named, averaged over each alarm episode (unitloops.EpisodeHold)
+        self._holds = {ui: EpisodeHold(len(cm.tags)) for ui, cm, _, _ in self._multi}
         for uis in by_matrix.values():
             mx = units[uis[0]].matrix
             order = [units[uis[0]].tests.index(t) for t in mx.tests]
@@ -384,8 +395,9 @@ class Plant:
         tags: list[list[tuple[str, float]]] = [[] for _ in range(nu)]
         notes: list[list[str]] = [[] for _ in range(nu)]
         for ui, (t2, _s_t2, share, names) in multi.items():
+            held = self._holds[ui].transform(share[None, :], np.array([active[ui]]))[0]
             if active[ui]:
-                tags[ui] = _top(share, names)
+                tags[ui] = _top(held, names)
             if c_on[ui]:
                 notes[ui].append(f"combined test on (T² {t2:.3g})")
             if tags[ui]:

@@ -47,6 +47,14 @@ from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matr
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay, three_valued
 from diag_plugin.diagnose.unitfile import SPREAD_FLOOR, TestSpec, UnitError, UnitFile, unit_path
+from diag_plugin.diagnose.unitloops import (
+    AlarmHold,
+    Deadband,
+    EpisodeHold,
+    RunningSpread,
+    resolved_evaluation,
+    spread_samples,
+)
 from diag_plugin.diagnose.unittags import CombinedModel, derived_matrix, describe_top, top_tags
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
@@ -278,11 +286,16 @@ class Unit:
         self.models = models
         self.matrix = matrix
         self.tests = [t.name for t in file.tests]
-        self.ev = file.evaluation
         periods = {m.period for m in models.values()}
         if len(periods) > 1:
             raise UnitError([f"{file.path}:1: the tests' models have different periods {periods}"])
         self.period = periods.pop() if periods else "10s"
+        #: the file's evaluation with delays given in seconds turned into samples at the period
+        self.ev = resolved_evaluation(file.evaluation, self.period)
+        #: the tests judged by the spread of their residual (valve stiction), by position
+        self.spread_cols = np.array(
+            [i for i, t in enumerate(file.tests) if t.statistic == "spread"], np.int64
+        )
         #: isolation to tags: a matrix derived from the models when no expert one is given
         self.tag_isolation = self.ev["isolation"] == "tags"
         self.derived = self.tag_isolation and matrix is None
@@ -384,6 +397,13 @@ class Unit:
         self.unknown_run = np.zeros(len(self.tests), np.int64)
         self.isolation = IsolationHold(1, len(self.tests), len(self.faults))
         self.combined_delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
+        window = spread_samples(ev["spread_window_s"] or 600.0, self.period)
+        self.spread = RunningSpread(window, len(self.spread_cols))
+        self.deadband = Deadband(ev["deadband"], len(self.tests)) if ev["deadband"] > 0 else None
+        ntags = len(self.cmodel.tags) if self.cmodel is not None else 0
+        self.episode = EpisodeHold(ntags)
+        self.alarm_hold = AlarmHold(ev["off_delay"]) if ev["off_delay_s"] > 0 else None
+        self._last_alarm: tuple | None = None  # (status, faults, top row) the hold repeats
         return self
 
     def to_state(self) -> dict[str, Any]:
@@ -397,6 +417,13 @@ class Unit:
             "unknown_run": self.unknown_run.tolist(),
             "isolation": self.isolation.to_state(),
             "combined_delay": self.combined_delay.to_state(),
+            "spread": self.spread.to_state(),
+            "deadband": None if self.deadband is None else self.deadband.state.tolist(),
+            "episode": self.episode.to_state(),
+            "alarm_hold": None if self.alarm_hold is None else self.alarm_hold.to_state(),
+            "last_alarm": None
+            if self._last_alarm is None
+            else [int(self._last_alarm[0]), self._last_alarm[1], self._last_alarm[2]],
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -412,6 +439,15 @@ class Unit:
             self.isolation = IsolationHold.from_state(state["isolation"])
         if "combined_delay" in state:
             self.combined_delay = OnOffDelay.from_state(state["combined_delay"])
+        if "spread" in state:  # states saved before issue 34 start these from rest
+            self.spread.load_state(state["spread"])
+            self.episode.load_state(state["episode"])
+            if self.deadband is not None and state.get("deadband") is not None:
+                self.deadband.state = np.asarray(state["deadband"], float)
+            if self.alarm_hold is not None and state.get("alarm_hold") is not None:
+                self.alarm_hold.load_state(state["alarm_hold"])
+                last = state.get("last_alarm")
+                self._last_alarm = None if last is None else (last[0], last[1], last[2])
         return self
 
     # ------------------------------------------------------------ stages
@@ -441,6 +477,12 @@ class Unit:
         return r / spread_factor(pred.spread) if test.spread else r
 
     def filtered(self, raw: pd.DataFrame) -> pd.DataFrame:
+        """The residuals as judged: a spread test's column replaced by the running spread of
+        its residual (:mod:`~diag_plugin.diagnose.unitloops`), then the low-pass filter."""
+        if self.spread_cols.size:
+            x = raw.to_numpy(float, copy=True)
+            x[:, self.spread_cols] = self.spread.transform(x[:, self.spread_cols])
+            raw = pd.DataFrame(x, index=raw.index, columns=raw.columns)
         if self.lowpass is None:
             return raw
         return pd.DataFrame(
@@ -476,7 +518,10 @@ class Unit:
             mu_n, mu_0, mu_p = three_valued(r, *self._fuzzy_sets(lo_, hi_))
             mem = np.stack([mu_n, mu_0, mu_p], axis=2)
             mem[:, no_th, :] = np.nan
-        raw = FixedThresholds(high=hi_, low=lo_).transform(r)
+        if self.deadband is not None:  # ISA-18.2: clears only back inside (1 − deadband) × it
+            raw = self.deadband.transform(r, lo_, hi_)
+        else:
+            raw = FixedThresholds(high=hi_, low=lo_).transform(r)
         raw[:, no_th] = np.nan
         s = self.delay.transform(raw)
         # a test unknown for fewer samples than the on-delay keeps its last known symptom:
@@ -544,13 +589,16 @@ class Unit:
             status, faults = self._isolate(cert, active, status, s)
         top = None
         if share is not None:
-            top = top_tags(share, self.cmodel.tags, active)
+            # the tags named: each one's share averaged over the alarm episode so far
+            top = top_tags(self.episode.transform(share, active), self.cmodel.tags, active)
             top.index = frame.index
         alone = c_on & ~tests_on & (faults == "")
         if alone.any():  # the combined test alone: the unit fails, at the best-ranked tag
             status[alone] = NE107.FAILURE
             faults[alone] = top["top1"].to_numpy()[alone] if self.tag_isolation else "unit"
             faults[alone & (faults == "")] = "unit"
+        if self.alarm_hold is not None:
+            detected, status, faults, top = self._hold_alarm(active, detected, status, faults, top)
         message = ""
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
@@ -575,6 +623,32 @@ class Unit:
             else pd.DataFrame(share, index=idx, columns=self.cmodel.tags),
             top=top,
         )
+
+    def _hold_alarm(self, active, detected, status, faults, top):
+        """The unit's off-delay (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`): a
+        sample within it repeats the last alarm sample's status, faults and tags."""
+        src = self.alarm_hold.sources(active)
+        held = np.flatnonzero(src >= 0)
+        detected, status, faults = detected.copy(), status.copy(), faults.copy()
+        if held.size:
+            detected[held] = 1.0
+            status[held] = status[src[held]]
+            faults[held] = faults[src[held]]
+            if top is not None:
+                top.iloc[held] = top.iloc[src[held]].to_numpy()
+        carried = np.flatnonzero(src == -1)
+        if carried.size and self._last_alarm is not None:
+            st, fa, row = self._last_alarm
+            detected[carried], status[carried], faults[carried] = 1.0, st, fa
+            if top is not None:
+                for c, v in row.items():
+                    top.iloc[carried, top.columns.get_loc(c)] = v
+        on = np.flatnonzero(active)
+        if on.size:
+            i = on[-1]
+            row = {} if top is None else {c: _plain(v) for c, v in top.iloc[i].items()}
+            self._last_alarm = (int(status[i]), str(faults[i]), row)
+        return detected, status, faults, top
 
     def _isolate(
         self, cert: np.ndarray, active: np.ndarray, status: np.ndarray, s: np.ndarray
@@ -607,6 +681,11 @@ class Unit:
             faults[at] = "|".join(self.faults[j] for j in sel)
             out_status[at] = fault_status[sel[np.argmin(prio[sel])]]
         return out_status, faults
+
+
+def _plain(v):
+    """A numpy scalar as a plain Python value (the carried state is JSON)."""
+    return v.item() if hasattr(v, "item") else v
 
 
 def level_factor(levels: tuple[float, ...] | None, level: np.ndarray | None) -> np.ndarray | float:

@@ -79,6 +79,14 @@ the controller output of the loop whose control error the test's residual is; wi
 its loop compensates leaves the error at zero, a stuck or saturated one moves it either way,
 :func:`~diag_plugin.diagnose.unittags.directions`).
 
+``statistic = "spread"`` and ``set_point = "TAG"`` (written by ``diag unit build`` for a
+loop, editable): the test judges the running standard deviation of its residual (valve
+stiction, a loop oscillating) instead of its level; the loop's set-point is never a tag at
+fault. The alarm settings in time, ``on_delay_s``, ``off_delay_s`` (seconds, converted at the
+models' period; 0: the sample counts ``on_delay``/``off_delay``), ``deadband`` (a symptom,
+once on, clears only below ``(1 − deadband)`` × its threshold) and ``spread_window_s`` (the
+spread tests' window) are described in :mod:`diag_plugin.diagnose.unitloops`.
+
 ``fuzzy = [n1, n0, p0, p1]`` (learned, editable; fuzzy symptoms only): the breakpoints of the
 test's three sets, in the thresholds' units: μN is 1 below ``n1`` and 0 above ``n0``, μP is 0
 below ``p0`` and 1 above ``p1``, μ0 = 1 − μN − μP. ``diag unit learn`` centres each ramp on its
@@ -156,10 +164,14 @@ EVALUATION_DEFAULTS: dict[str, Any] = {
     "hold_isolation": True,
     "combined": False,
     "isolation": "matrix",
+    "on_delay_s": 0.0,
+    "off_delay_s": 0.0,
+    "deadband": 0.0,
+    "spread_window_s": 0.0,
 }
 #: keys new_unit_text writes only when they differ from the default (files written before
 #: them regenerate byte for byte)
-NEW_KEYS = ("combined", "isolation")
+NEW_KEYS = ("combined", "isolation", "on_delay_s", "off_delay_s", "deadband", "spread_window_s")
 #: a residual is never amplified more than 1 / SPREAD_FLOOR by a small local spread. Of 0.5,
 #: 0.75 and 1 (attenuate only), 0.5 widened r3's thresholds (its cells at the travel limits
 #: have almost no spread, and their transients were doubled) and 1 left one marginal crossing
@@ -179,12 +191,20 @@ _KINDS = {
     "hold_isolation": bool,
     "combined": bool,
     "isolation": str,
+    "on_delay_s": float,
+    "off_delay_s": float,
+    "deadband": float,
+    "spread_window_s": float,
 }
 _CHOICES = {
     "scale": ("span", "max"),
     "symptoms": ("crisp", "fuzzy"),
     "isolation": ("matrix", "tags"),
 }
+
+
+#: what a test's residual is judged as: the residual, or its running spread
+STATISTICS = ("level", "spread")
 
 
 class UnitError(UserError):
@@ -214,6 +234,12 @@ class TestSpec:
     #: the actuator (a controller output tag) of the control loop whose error this test's
     #: residual is: a fault of it is a candidate when the test fires (isolation to tags)
     actuator: str | None = None
+    #: "level" (the residual itself) or "spread" (its running standard deviation over
+    #: ``spread_window_s``: a loop's oscillation, valve stiction; :mod:`~diag_plugin.diagnose.
+    #: unitloops`)
+    statistic: str = "level"
+    #: the set-point of the loop (declared or found by ``diag unit build``): never a tag at fault
+    set_point: str | None = None
 
     @property
     def limits(self) -> tuple[float, float] | None:
@@ -369,6 +395,10 @@ class UnitFile:
             ("certainty", 0.0 < ev["certainty"] <= 1.0, "certainty must be in (0, 1]"),
             ("min_support", 0.0 <= ev["min_support"] <= 1.0, "min_support must be in [0, 1]"),
             ("fuzzy_width", 0.0 <= ev["fuzzy_width"] <= 2.0, "fuzzy_width must be in [0, 2]"),
+            ("on_delay_s", ev["on_delay_s"] >= 0, "on_delay_s is seconds, ≥ 0 (0: on_delay)"),
+            ("off_delay_s", ev["off_delay_s"] >= 0, "off_delay_s is seconds, ≥ 0 (0: off_delay)"),
+            ("deadband", 0.0 <= ev["deadband"] < 1.0, "deadband: share of the threshold, [0, 1)"),
+            ("spread_window_s", ev["spread_window_s"] >= 0, "spread_window_s is seconds, ≥ 0"),
         )
         for key, ok, msg in checks:
             if not ok:
@@ -383,7 +413,8 @@ class UnitFile:
                 self.error(line, f'test {name!r}: needs {{ model = "file.toml", high = … }}')
                 continue
             v = {k: _plain(x) for k, x in raw.items()}
-            known = {"model", "high", "low", "ymax", "levels", "spread", "fuzzy", "actuator"}
+            known = {"model", "high", "low", "ymax", "levels", "spread", "fuzzy", "actuator",
+                     "statistic", "set_point"}  # fmt: skip
             for key in sorted(set(v) - known):
                 self.error(line, f"test {name!r}: unknown key {key!r}")
             model = v.get("model")
@@ -456,6 +487,18 @@ class UnitFile:
                     f"output, got {actuator!r}",
                 )
                 actuator = None
+            statistic = v.get("statistic", "level")
+            if statistic not in STATISTICS:
+                self.error(
+                    line,
+                    f"test {name!r}: statistic must be one of {', '.join(STATISTICS)}, "
+                    f"got {statistic!r}",
+                )
+                statistic = "level"
+            set_point = v.get("set_point")
+            if set_point is not None and (not isinstance(set_point, str) or not set_point):
+                self.error(line, f"test {name!r}: set_point must name a tag, got {set_point!r}")
+                set_point = None
             tests.append(
                 TestSpec(
                     name,
@@ -468,6 +511,8 @@ class UnitFile:
                     spread,
                     None if fuzzy is None else tuple(float(x) for x in fuzzy),  # type: ignore[arg-type]
                     actuator,
+                    statistic,
+                    set_point,
                 )
             )
         if table and not tests and not self.problems:

@@ -110,9 +110,10 @@ def declared_set_points(unit) -> set[str]:
 
 def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
     """The unit's tags that can be at fault (plant names, outputs first in test order, then
-    inputs; never a set-point, by its name or as the unit file declares it
-    (:func:`declared_set_points`): it is the operator's entry, with no sensor or actuator that
-    could fail), each test's output tag and the tags each test reads (inputs, any lag)."""
+    inputs; never a set-point, by its name or as the unit file declares it (a loop test's
+    ``set_point``, :func:`declared_set_points`): it is the operator's entry, with no sensor
+    or actuator that could fail), each test's output tag and the tags each test reads
+    (inputs, any lag)."""
     outputs: dict[str, str] = {}
     reads: dict[str, list[str]] = {}
     mapping = unit.file.tags
@@ -125,16 +126,31 @@ def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
         act = unit.file.test(t).actuator
         if act and act not in reads[t] and act != outputs[t]:
             reads[t].append(act)  # a loop's actuator: its fault moves the loop's error
+    sps = set_points(unit) | declared_set_points(unit)
     tags = list(dict.fromkeys([*outputs.values(), *(x for r in reads.values() for x in r)]))
-    declared = declared_set_points(unit)
-    return [x for x in tags if x not in declared and not is_set_point(x)], outputs, reads
+    return [x for x in tags if not is_set_point(x) and x not in sps], outputs, reads
+
+
+def set_points(unit) -> set[str]:
+    """The set-points the unit file declares (``set_point`` of its loop tests)."""
+    return {t.set_point for t in unit.file.tests if getattr(t, "set_point", None)}
+
+
+def _spread_test(unit, t: str) -> bool:
+    return getattr(unit.file.test(t), "statistic", "level") == "spread"
 
 
 def derived_matrix(unit) -> DiagnosticMatrix:
     """The matrix of a unit without an expert one: tests × tags, ``1`` where the test reads
     the tag (input, any lag) or models it (output), ``0`` elsewhere (see module doc)."""
     tags, outputs, reads = structure(unit)
-    rows = [[1 if (x == outputs[t] or x in reads[t]) else 0 for x in tags] for t in unit.tests]
+
+    def on(t: str, x: str) -> int:
+        if _spread_test(unit, t):  # the spread of a loop's error: its actuator (stiction)
+            return 1 if x == unit.file.test(t).actuator else 0
+        return 1 if (x == outputs[t] or x in reads[t]) else 0
+
+    rows = [[on(t, x) for x in tags] for t in unit.tests]
     return DiagnosticMatrix(list(unit.tests), tags, rows, name=f"{unit.name} (derived: tags)")
 
 
@@ -150,6 +166,11 @@ def directions(unit, spec: CombinedSpec | None) -> tuple[np.ndarray, np.ndarray]
     loop = np.full(len(tags), -1, np.int64)
     for j, t in enumerate(unit.tests):
         test = unit.file.test(t)
+        if _spread_test(unit, t):  # only a sticking actuator widens its loop's error
+            for k, x in enumerate(tags):
+                if x == test.actuator:
+                    xi[j, k] = 1.0 if spec is None else 1.0 / spec.scale[spec.tests.index(t)]
+            continue
         for k, x in enumerate(tags):
             if spec is None:
                 xi[j, k] = 1.0 if (x == outputs[t] or x in reads[t]) else 0.0
@@ -157,11 +178,45 @@ def directions(unit, spec: CombinedSpec | None) -> tuple[np.ndarray, np.ndarray]
             if x == test.actuator and x != outputs[t] and x not in spec.gains.get(t, {}):
                 loop[k] = j
                 continue
+            if test.actuator and x == outputs[t] and loop[k] < 0:
+                # the loop's own sensor: the loop holds its reading at the set-point, so a
+                # bias of it moves the loop's error by an amount no gain says (zero once
+                # compensated): the plane of its direction elsewhere and this test's axis
+                loop[k] = j
+                continue
             i = spec.tests.index(t)
             span = test.ymax if unit.ev["scale"] == "max" and test.ymax else unit.models[t].span
             g = spec.gains.get(t, {}).get(x, 0.0)
             xi[j, k] = ((1.0 if x == outputs[t] else 0.0) - g) * 100.0 / span / spec.scale[i]
+    if spec is not None:
+        _compensated_sensors(unit, spec, tags, outputs, xi)
     return xi, loop
+
+
+def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray) -> None:
+    """In place: a loop's own sensor biased by ``b`` is compensated by its loop, which then
+    drives the process as a set-point step of ``−b`` would: every other test whose model
+    reads the set-point (the model of the loop's actuator, of the tags downstream) sees a
+    residual ``−g · b``, ``g`` that model's gain on the set-point. Added to the sensor's
+    direction."""
+    for t in unit.tests:
+        test = unit.file.test(t)
+        if _spread_test(unit, t) or not (test.actuator and test.set_point):
+            continue
+        pv = outputs[t]
+        if pv not in tags:
+            continue
+        k = tags.index(pv)
+        for j, other in enumerate(unit.tests):
+            ot = unit.file.test(other)
+            if other == t or _spread_test(unit, other) or ot.set_point == test.set_point:
+                continue
+            g = spec.gains.get(other, {}).get(test.set_point)
+            if not g:
+                continue
+            m = unit.models[other]
+            span = ot.ymax if unit.ev["scale"] == "max" and ot.ymax else m.span
+            xi[j, k] += -g * 100.0 / span / spec.scale[spec.tests.index(other)]
 
 
 @dataclass

@@ -524,7 +524,8 @@ class WangMendelRegressor(ParamsMixin):
         keep = count > 0
         out.keys_, out.count_ = out.keys_[keep], count[keep]
         out.qsum_, out.qsq_ = qsum[keep], qsq[keep]
-        out.best_w_, out.best_set_ = out.best_w_[keep], out.best_set_[keep]
+        if out.best_w_.size == keep.size:  # rules set from a file carry them; a fit does not
+            out.best_w_, out.best_set_ = out.best_w_[keep], out.best_set_[keep]
         out.n_samples_seen_ -= int(other.count_.sum())
         out._touch()
         return out

@@ -445,6 +445,9 @@ def learn_thresholds(
     limits = {
         k: (min(b.low, -1e-4), max(b.high, 1e-4)) for k, b in budgets.items()
     }  # a band around 0 even for a biased residual
+    for t in unit.file.tests:  # a spread is never negative: only its high side is a test
+        if getattr(t, "statistic", "level") == "spread" and t.name in limits:
+            limits[t.name] = (-limits[t.name][1], limits[t.name][1])
     fuzzy = {k: fuzzy_sets(body[k].to_numpy(), *limits[k]) for k in limits}
     idx = frame.index
     period = pd.Timedelta(unit.period)

@@ -40,6 +40,11 @@ def add_commands(sub) -> None:
     )
     p.add_argument("--plain", action="store_true", help="print event lines only (no live table)")
     p.add_argument(
+        "--check",
+        action="store_true",
+        help="with --config: check plant.toml, its files and units, then exit (0 sound, 2 not)",
+    )
+    p.add_argument(
         "--hash-password",
         action="store_true",
         help="read a password (twice) and print its password_hash for a [[user]] in plant.toml",
@@ -73,11 +78,17 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.hash_password:
         return _hash_password()
+    if args.check and not args.config:
+        print("diag run: --check needs --config plant.toml", file=sys.stderr)
+        return 2
     if args.config:
-        from diag_plugin.live.config import ConfigError, load_config, run_config
+        from diag_plugin.live.config import ConfigError, check_config, load_config, run_config
 
         try:
             cfg = load_config(args.config)
+            if args.check:
+                print(check_config(cfg))
+                return 0
             return asyncio.run(
                 run_config(cfg, duration=args.duration, tty=False if args.plain else None)
             )

@@ -19,7 +19,7 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     port = 502
     device_id = 1
     map = "plc.csv"                               # register map CSV (docs/connectors.md)
-    timeout = 1.0
+    timeout = 1.0                                 # s, at most the cycle (default: 1 s or the cycle)
 
     [[source]]
     name = "scada"
@@ -27,7 +27,7 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     url = "opc.tcp://127.0.0.1:4841"
     mode = "subscription"                         # or "poll"
     period = 1.0                                  # publishing interval (subscription)
-    timeout = 4.0
+    timeout = 1.0                                 # s, at most the cycle (default: 4 s or the cycle)
     nodes = { T1 = "ns=2;s=Line.T1", T2 = "ns=2;s=Line.T2" }  # or a CSV "tag,node"
 
     [outputs]
@@ -42,6 +42,8 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     anonymous = false                             # anonymous sessions (read-only)
     max_shelve = 3600                             # longest shelving, seconds
     confirm = false                               # true: alarms also wait for Confirm
+    max_sessions = 40                             # default: 10 per user (+10 anonymous), 20-1000
+    max_logins = 4                                # logins checked at once; default 4 per thread
 
     [[user]]
     name = "alice"
@@ -118,6 +120,9 @@ class ServerConfig:
     confirm: bool = False
     application_uri: str = "urn:diag-plugin:server"
     users: list[Any] = field(default_factory=list)  # connectors.opcua_access.OpcUaUser
+    #: sessions at once and logins checked at once (None: derived, LoginLimits.derive)
+    max_sessions: int | None = None
+    max_logins: int | None = None
 
 
 @dataclass
@@ -192,6 +197,8 @@ _KEYS = {
         "max_shelve",
         "confirm",
         "application_uri",
+        "max_sessions",
+        "max_logins",
     },
     "user": {"name", "role", "password_hash", "certificate"},
 }
@@ -209,13 +216,30 @@ def _line_of(lines: list[str], section: str, key: str | None, index: int = 0) ->
     return line_of(lines, section, key, index, subtables=True)
 
 
+def utf8_text(path: Path, raw: bytes) -> str:
+    """``raw`` decoded as UTF-8 (TOML files are UTF-8 by definition; a BOM is dropped), or
+    :class:`ConfigError` naming the file, line, column and byte offset of the first byte that
+    is not."""
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        at = exc.start
+        line = raw.count(b"\n", 0, at) + 1
+        col = at - (raw.rfind(b"\n", 0, at) + 1) + 1
+        raise ConfigError(
+            f"{path}:{line}: not UTF-8 text: byte 0x{raw[at]:02x} at offset {at} (line {line}, "
+            f"column {col}); save the file as UTF-8"
+        ) from None
+
+
 def load_config(path: str | Path) -> LiveConfig:
     """Read and check ``plant.toml`` (files it names must exist)."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except OSError as exc:
         raise ConfigError(f"{path}:0: cannot read: {exc.strerror or exc}") from None
+    text = utf8_text(path, raw)
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -326,6 +350,17 @@ def load_config(path: str | Path) -> LiveConfig:
 
     for i in range(len(tables["source"])):
         cfg.sources.append(_source(i, get, positive, port, existing, fail, base))
+        s = cfg.sources[-1]
+        if "timeout" not in tables["source"][i]:
+            s.timeout = min(s.timeout, cfg.cycle)  # the default never outlasts a cycle
+        elif s.timeout > cfg.cycle:
+            raise fail(
+                "source",
+                "timeout",
+                f"{s.timeout:g} s is longer than the cycle ({cfg.cycle:g} s): one slow "
+                "answer would hold the cycle; give at most the cycle",
+                i,
+            )
     seen_names: dict[str, int] = {}
     for i, s in enumerate(cfg.sources):
         if s.name in seen_names:
@@ -417,6 +452,11 @@ def _server(get, positive, fail, base: Path) -> ServerConfig:
     sc.max_shelve = float(positive("opcua", "max_shelve", g("max_shelve", (int, float), 3600.0)))
     sc.confirm = g("confirm", bool, False)
     sc.application_uri = g("application_uri", str, sc.application_uri)
+    for key in ("max_sessions", "max_logins"):
+        v = g(key, int, None)
+        if v is not None and not 1 <= v <= 10_000:
+            raise fail("opcua", key, f"must be 1-10000, not {v!r}")
+        setattr(sc, key, v)
     return sc
 
 
@@ -613,7 +653,41 @@ def build_sources(cfg: LiveConfig) -> Any:
     return SourceSet(clients, [s.name for s in cfg.sources])
 
 
-def commission(cfg: LiveConfig, plant: Any) -> None:
+def load_plant(cfg: LiveConfig) -> Any:
+    """The plant's units; a unit or rule-base file that does not load refuses the start
+    (:class:`ConfigError` with each problem as ``file:line: what``, the unit named), never a
+    start with that unit stuck in CHECK_FUNCTION."""
+    from diag_plugin.diagnose.plant import Plant
+
+    plant = Plant.load(cfg.units, cfg.rulebases)
+    if plant.broken:
+        by_name = {p.name.removesuffix(".unit.toml").removesuffix(".toml"): p for p in cfg.units}
+        lines = []
+        for name, problems in plant.broken.items():
+            head = (
+                f"{cfg.path}:{cfg.line('plant', 'units')}: plant.units: "
+                f"{by_name.get(name, name)}: unit {name} does not load"
+            )
+            lines.append(head + ":")
+            lines.extend(f"  {p}" for p in problems)
+        raise ConfigError("\n".join(lines))
+    return plant
+
+
+def check_config(cfg: LiveConfig) -> str:
+    """``diag run --check``: everything :func:`run_config` checks before it starts except
+    that the output ports are free (the running plug-in may hold them); raises
+    :class:`ConfigError`, else returns a one-line summary."""
+    plant = load_plant(cfg)
+    commission(cfg, plant, ports=False)
+    tags = sum(len(s.regmap.names if s.regmap else s.nodes) for s in cfg.sources)
+    return (
+        f"{cfg.path}: sound: {len(plant.units)} units, {len(cfg.sources)} sources, {tags} tags"
+        + (f", historian {cfg.historian}" if cfg.historian else "")
+    )
+
+
+def commission(cfg: LiveConfig, plant: Any, *, ports: bool = True) -> None:
     """Checks that need the loaded units and this machine, refused like the file's own errors
     (``plant.toml:<line>: <key>: ...``): every unit's input tags are read by some source; the
     output ports are free on 127.0.0.1. All problems at once, one per line."""
@@ -634,7 +708,7 @@ def commission(cfg: LiveConfig, plant: Any) -> None:
         ("modbus_port", cfg.modbus_port, "127.0.0.1"),
         ("opcua_port", cfg.opcua_port, host),
     ):
-        if port and (why := port_busy(h, port)):
+        if ports and port and (why := port_busy(h, port)):
             problems.append(
                 f"{cfg.path}:{cfg.line('outputs', key)}: outputs.{key}: {h}:{port} {why}"
             )
@@ -665,6 +739,15 @@ def build_server(cfg: LiveConfig) -> Any:
     if sc is None:
         return DiagOpcUaServer("127.0.0.1", cfg.opcua_port)
     assert sc.certificate is not None and sc.private_key is not None
+    from dataclasses import replace
+
+    from connectors.opcua_logins import LoginLimits
+
+    limits = LoginLimits.derive(len(sc.users), sc.anonymous)
+    if sc.max_sessions is not None:
+        limits = replace(limits, max_sessions=sc.max_sessions)
+    if sc.max_logins is not None:
+        limits = replace(limits, max_activations=sc.max_logins)
     security = ServerSecurity(
         sc.certificate,
         sc.private_key,
@@ -673,6 +756,7 @@ def build_server(cfg: LiveConfig) -> Any:
         sc.anonymous,
         sc.security,
         sc.application_uri,
+        logins=limits,
     )
     return DiagOpcUaServer(
         sc.host,
@@ -710,7 +794,6 @@ async def run_config(
     import pandas as pd
 
     from connectors.modbus_server import StatusServer, UnitLayout
-    from diag_plugin.diagnose.plant import Plant
     from diag_plugin.live.loop import LiveLoop, close_all
     from diag_plugin.live.stale import StaleDetector
     from diag_plugin.live.writer import HistorianWriter
@@ -721,9 +804,7 @@ async def run_config(
     def say(text: str) -> None:
         print(text, file=out, flush=True)
 
-    plant = Plant.load(cfg.units, cfg.rulebases)
-    for name, problems in plant.broken.items():
-        say(f"unit {name} is broken: {'; '.join(problems)}")
+    plant = load_plant(cfg)
     commission(cfg, plant)
     first = plant.cycle(pd.Timestamp.now(tz="UTC"), {})
     plant.reset()
@@ -768,6 +849,8 @@ async def run_config(
         history = None
         if writer is not None:
             await writer.start()
+            for text in writer.notes:  # a crashed run's journal, damaged spill files
+                say(text)
             history = asyncio.ensure_future(
                 asyncio.to_thread(history_runs, cfg.historian, sources.names)
             )

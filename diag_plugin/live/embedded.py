@@ -174,6 +174,8 @@ async def run_embedded(
     await status.start()
     await opcua.start()
     await writer.start()
+    for text in writer.notes:  # a crashed run's journal, damaged spill files
+        say(text)
     history = asyncio.ensure_future(asyncio.to_thread(history_runs, emb.url, client.names))
     say(
         f"embedded plant: Modbus PLC 127.0.0.1:{plc_port}, status Modbus 127.0.0.1:{modbus_port}"

@@ -4,7 +4,9 @@ Each cycle :class:`LiveLoop`
 
 1. lets an optional ``feed(i)`` hook run (the embedded default puts the next simulated row
    on its Modbus PLC there and returns the row's simulated time stamp);
-2. polls every source (:class:`connectors.sources.SourceSet`); a Good value that is not a
+2. polls every source (:class:`connectors.sources.SourceSet`) concurrently, waiting for them
+   only until the poll deadline (:meth:`LiveLoop.poll_deadline`): a slow source is Bad for
+   the cycle, never holding it or the other sources; a Good value that is not a
    finite number (NaN, ±Inf) turns Bad, a frozen one turns Uncertain
    (:class:`~diag_plugin.live.stale.StaleDetector`);
 3. hands the samples to the historian writer (:class:`~diag_plugin.live.writer.
@@ -34,6 +36,7 @@ import math
 import signal
 import sys
 import time
+from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
@@ -68,6 +71,12 @@ _PAST = {
 }
 
 
+#: cycle times kept for the summary's percentiles (a day at 1 s), and event lines and source
+#: gaps kept in memory (all of them go to the event log): a run of months holds no more
+KEEP_CYCLES = 86_400
+KEEP_EVENTS = 1_000
+
+
 @dataclass
 class UnitView:
     """What the live table shows for one unit."""
@@ -81,11 +90,12 @@ class LiveStats:
     cycles: int = 0
     overruns: int = 0
     last_ms: float = 0.0
-    work_ms: list[float] = field(default_factory=list)  # per cycle: poll, store, diagnose, publish
+    #: per cycle: poll, store, diagnose, publish; the last :data:`KEEP_CYCLES` (a day at 1 s)
+    work_ms: deque[float] = field(default_factory=lambda: deque(maxlen=KEEP_CYCLES))
     units: dict[str, UnitView] = field(default_factory=dict)
-    events: list[str] = field(default_factory=list)
+    events: deque[str] = field(default_factory=lambda: deque(maxlen=KEEP_EVENTS))
     #: source outages seen by the loop: (source, from, to), wall-clock UTC
-    gaps: list[tuple[str, Any, Any]] = field(default_factory=list)
+    gaps: deque[tuple[str, Any, Any]] = field(default_factory=lambda: deque(maxlen=KEEP_EVENTS))
     stale: int = 0  #: stale samples seen
     not_finite: int = 0  #: Good samples that were NaN or ±Inf (made Bad)
 
@@ -146,10 +156,26 @@ class LiveLoop:
         self._stale_mask = np.zeros(len(self._tags), bool)
         self._age = np.zeros(len(self._tags))
         self._notify_tasks: set[asyncio.Task[None]] = set()
+        #: the last 60 cycles' work besides polling (store, diagnose, publish), seconds
+        self._other_s: deque[float] = deque(maxlen=60)
+        self._poll_s = 0.0
         if opcua is not None:
             opcua.on_action = self.on_action
         if historian is not None:
             historian.notify = self._historian_state
+            # a restart gap, a crashed run's journal recovered, a damaged spill file
+            historian.on_note = lambda text: self.event(text, self._ts)
+
+    def poll_deadline(self) -> float | None:
+        """Seconds a cycle waits for its sources: the cycle less twice the median other work
+        (store, diagnose, publish) of the last 60 cycles, within 50-90 % of the cycle. A
+        source slower than that is Bad for the cycle and keeps polling in the background
+        (:meth:`SourceSet.poll`). None (wait for every source, each within its own timeout)
+        in the first cycle, whose polls open the connections."""
+        if not self._other_s:
+            return None
+        budget = self.cycle_s - 2.0 * float(np.median(self._other_s))
+        return min(0.9 * self.cycle_s, max(0.5 * self.cycle_s, budget))
 
     # ------------------------------------------------------------------ control
     def stop(self) -> None:
@@ -176,6 +202,9 @@ class LiveLoop:
         """An operator action on the OPC UA server (or its refusal): one event line, stored."""
         if a.action == "refused":
             self.event(f"OPC UA: {a.user} refused: {a.detail} (operators only)", self._ts)
+            return
+        if a.action == "login":  # a refused login, or a run of identical ones merged
+            self.event(a.detail, self._ts)
             return
         verb = _PAST.get(a.action, a.action)
         via = "" if a.via == "local" else f" over {a.via}"
@@ -221,7 +250,9 @@ class LiveLoop:
     # ------------------------------------------------------------------ one cycle
     async def step(self, i: int) -> list[UnitStatus]:
         ts = await self.feed(i) if self.feed is not None else None
-        poll = await self.source.poll()
+        t_poll = time.monotonic()
+        poll = await self.source.poll(deadline=self.poll_deadline())
+        self._poll_s = time.monotonic() - t_poll
         if ts is None:
             ts = pd.Timestamp(poll.ts)
         if ts.tzinfo is None:
@@ -254,7 +285,9 @@ class LiveLoop:
         if self.status_server is not None:
             while not self.status_server.acks.empty():
                 unit = self.status_server.acks.get_nowait()
-                await self.acknowledge(unit, "Modbus client", "Modbus")
+                client = getattr(unit, "client", "")  # ip:port of the writer, for the audit
+                who = f"Modbus client {client}" if client else "Modbus client"
+                await self.acknowledge(str(unit), who, "Modbus")
         modbus = []
         for s in statuses:
             before = self._alarm(s.unit)
@@ -442,6 +475,7 @@ class LiveLoop:
                     t0 = time.monotonic()
                     await self.step(i)
                     work = time.monotonic() - t0
+                    self._other_s.append(max(0.0, work - self._poll_s))
                     self.stats.cycles = i + 1
                     self.stats.last_ms = work * 1000
                     self.stats.work_ms.append(work * 1000)
@@ -479,6 +513,8 @@ class LiveLoop:
             f"{self.stored} new samples stored; cycle work median {pct(0.5):.1f} ms, "
             f"p95 {pct(0.95):.1f} ms, p99 {pct(0.99):.1f} ms, max {ms[-1]:.1f} ms"
         )
+        if self.stats.cycles > len(ms):
+            text += f" (work figures of the last {len(ms)} cycles)"
         if self.historian is not None:
             w = self.historian.stats
             text += (

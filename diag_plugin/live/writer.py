@@ -15,6 +15,15 @@ or one taking longer than ``stall_after`` seconds, makes the writer *degraded*; 
 that once through ``notify(degraded, text)`` and once when everything waiting is stored
 again. It never raises into the loop. :meth:`close` tries to store what is left within a
 time limit and spills the rest, so a later start stores it.
+
+Every cycle is also appended to a journal file in the spill folder before it waits in memory
+(:class:`historian.journal.Journal`), and each journal file is deleted once all its cycles are
+stored or spilled; a process killed with SIGKILL leaves its unstored cycles there, and the
+next start hands them to the spill replay — at most the cycle being written at the kill is
+lost. The time the plug-in was not running (from the last cycle of the previous run, journal
+or clean stop, to the first of this one) is marked in the historian: one Bad sample per tag
+at the first missed cycle (it ends any hold in windows and counts as Bad in ``diag tags``)
+and an event ``restart gap: ...``.
 """
 
 from __future__ import annotations
@@ -22,6 +31,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import json
 import logging
 import queue
 import threading
@@ -35,8 +45,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from historian.journal import Journal, JournalCorrupt
 from historian.livestore import LiveStore
-from historian.spool import Block, Spool
+from historian.quality import BAD
+from historian.spool import Block, SegmentCorrupt, Spool
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +64,10 @@ class WriterStats:
     max_backlog: int = 0  #: most samples waiting at once
     max_write_s: float = 0.0  #: longest successful write
     degraded_s: float = 0.0  #: time spent degraded
+    misfiled_tags: int = 0  #: tags found missing or renumbered when storage came back
+    quarantined: int = 0  #: spill segments found damaged and renamed .corrupt
+    journal_errors: int = 0  #: cycles that could not be journaled (kept in memory only)
+    recovered: int = 0  #: samples read back from a crashed run's journal at start
 
 
 class _DbThread:
@@ -89,6 +105,11 @@ class _DbThread:
 class _Item:
     block: Block
     segment: Path | None = None  # the spill segment it came from
+    seqs: list[int] | None = None  # the journal file of each of its cycles (from memory)
+
+
+#: where a clean stop leaves the time of its last cycle (the next start's gap begins there)
+LAST_FILE = "journal-last.json"
 
 
 class HistorianWriter:
@@ -135,15 +156,33 @@ class HistorianWriter:
         self._spool_rows = 0
         self._replayed0 = 0
         self._told_spill = False
-        self._mem: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
+        self._mem: deque[tuple[int, np.ndarray, np.ndarray, int]] = deque()
         self._events: list[dict[str, Any]] = []
+        self._event_seqs: list[int] = []  # the journal file of each pending event
+        self._spool_any = False  # spill segments may wait (some with events only)
         self._inflight: _Item | None = None
         self._wake = asyncio.Event()
         self._stopping = False
         self._closed = False
+        self._finished = False
         self._task: asyncio.Task[None] | None = None
         self._db = _DbThread(f"historian {url}")
         self._fail_streak = 0
+        self._quarantined_told = 0
+        self.journal = Journal(self.spool.folder, self.tags, self.cycle)
+        self._pending: dict[int, int] = {}  # journal file → its cycles not yet durable
+        self._journal_ok = True
+        self._prev: tuple[int, int, bool] | None = None  # last ts, period µs, crashed
+        self._first_put = True
+        self._last_ts: int | None = None
+        self._steps: deque[int] = deque(maxlen=20)
+        #: (start, end) of the restart gap marked at the first cycle, if any
+        self.restart_gap: tuple[pd.Timestamp, pd.Timestamp] | None = None
+        #: told each note (restart gap, recovered journal, damaged files) as one line; by
+        #: default it goes to the log and the historian's event log
+        self.on_note: Callable[[str], None] | None = None
+        #: every note so far (those of :meth:`start` come before a listener can be set)
+        self.notes: list[str] = []
 
     # ------------------------------------------------------------------ the loop's side
     @property
@@ -155,26 +194,133 @@ class HistorianWriter:
         return n + self._spool_rows
 
     def put(self, ts: pd.Timestamp, values: np.ndarray, quality: np.ndarray) -> None:
-        """Queue one cycle's samples (never waits)."""
-        self._mem.append(
-            (int(ts.value // 1000), np.array(values, np.float64), np.array(quality, np.uint8))
-        )
+        """Queue one cycle's samples (journaled first; never waits on the database)."""
+        t = int(ts.value // 1000)
+        if self._first_put:
+            self._first_put = False
+            self._mark_gap(t)
+        self._queue(t, np.array(values, np.float64), np.array(quality, np.uint8))
         self.stats.max_backlog = max(self.stats.max_backlog, self.backlog)
         if len(self._mem) >= self.flush_every or len(self._mem) * len(self.tags) > self.memory_rows:
             self._wake.set()
 
+    def _queue(self, t: int, v: np.ndarray, q: np.ndarray) -> None:
+        self._mem.append((t, v, q, self._journal_append(t, v, q)))
+        if self._last_ts is not None and t > self._last_ts:
+            self._steps.append(t - self._last_ts)
+        self._last_ts = t if self._last_ts is None else max(self._last_ts, t)
+
+    @property
+    def period_us(self) -> int:
+        """The sampling period seen in the data (median of the last 20 steps, µs; the
+        cycle until two cycles are seen) — the embedded plant's samples are 10 s apart at
+        a 0.25 s cycle, so the gap is judged on the data's own period."""
+        if self._steps:
+            return int(np.median(self._steps))
+        return int(round(self.cycle * 1e6))
+
+    def _journal_append(
+        self,
+        t: int = 0,
+        v: np.ndarray | None = None,
+        q: np.ndarray | None = None,
+        event: dict[str, Any] | None = None,
+    ) -> int:
+        """Append one cycle (or ``event``) to the journal; the number of its file (0: not
+        journaled)."""
+        j = self.journal
+        try:
+            if j.seq and j.cycles >= self.flush_every:
+                old = j.seq
+                j.rotate()
+                if not self._pending.get(old):
+                    j.remove(old)
+            seq = j.append_event(event) if event is not None else j.append(t, v, q)
+        except OSError as exc:
+            self.stats.journal_errors += 1
+            if self._journal_ok:
+                self._journal_ok = False
+                log.error(
+                    "historian: cannot journal cycles in %s (%s): until it can, a crash loses "
+                    "what waits in memory",
+                    j.folder,
+                    exc,
+                )
+            return 0
+        if not self._journal_ok:
+            self._journal_ok = True
+            log.warning("historian: journaling cycles again in %s", j.folder)
+        self._pending[seq] = self._pending.get(seq, 0) + 1
+        return seq
+
+    def _release(self, seqs: list[int] | None) -> None:
+        """These cycles are stored or spilled: a journal file none of whose cycles waits any
+        longer is deleted (the current one once it rotates)."""
+        for seq in seqs or ():
+            if not seq:
+                continue
+            left = self._pending.get(seq, 0) - 1
+            if left > 0:
+                self._pending[seq] = left
+                continue
+            self._pending.pop(seq, None)
+            if seq != self.journal.seq:
+                with contextlib.suppress(OSError):
+                    self.journal.remove(seq)
+
+    def _mark_gap(self, t: int) -> None:
+        """The first cycle of this run: mark the time since the previous run's last cycle
+        (one Bad sample per tag at the first missed cycle, and a note)."""
+        with contextlib.suppress(OSError):  # this run's own stop will write it again
+            (self.spool.folder / LAST_FILE).unlink(missing_ok=True)
+        if self._prev is None:
+            return
+        last, step, crashed = self._prev
+        if t - last <= 1.5 * step:
+            return
+        start = last + step
+        n = len(self.tags)
+        self._queue(start, np.full(n, np.nan), np.full(n, BAD, np.uint8))
+        a, b = pd.Timestamp(start, unit="us", tz="UTC"), pd.Timestamp(t, unit="us", tz="UTC")
+        self.restart_gap = (a, b)
+        why = "the previous run ended without closing (killed?)" if crashed else "not running"
+        self._note(
+            f"restart gap: no samples from {a:%Y-%m-%d %H:%M:%S} to {b:%H:%M:%S} UTC "
+            f"({(t - start) / 1e6:.1f} s, {why}); marked by a Bad sample of every tag at "
+            f"{a:%H:%M:%S}"
+        )
+
+    def _note(self, text: str) -> None:
+        log.warning("%s", text)
+        self.notes.append(text)
+        if self.on_note is not None:
+            try:
+                self.on_note(text)
+                return
+            except Exception:  # noqa: BLE001 - a listener must not stop storage
+                log.exception("historian note failed")
+        self.put_event(pd.Timestamp.now(tz="UTC"), "diag run", text)
+
     def put_event(self, ts: pd.Timestamp, unit: str, message: str, **fields: Any) -> None:
         """Queue one event for the historian's event log (never waits)."""
-        self._events.append(
-            {"ts": int(pd.Timestamp(ts).value // 1000), "unit": unit, "message": message, **fields}
-        )
+        if self._finished:  # told after close took what was left: nowhere to go (as ever)
+            log.debug("historian closed: event not stored: %s", message)
+            return
+        event = {"ts": int(pd.Timestamp(ts).value // 1000), "unit": unit, "message": message}
+        event.update(fields)
+        self._events.append(event)
+        self._event_seqs.append(self._journal_append(event=event))
         if len(self._events) > 10_000:
             self._wake.set()
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
-        """Start the background task (returns at once; the database may be away)."""
+        """Recover a crashed run's journal into the spill, then start the background task
+        (returns at once; the database may be away)."""
+        await asyncio.to_thread(self._recover)
         self._spool_rows = await asyncio.to_thread(self.spool.rows)
+        self._spool_any = bool(await asyncio.to_thread(self.spool.segments))
+        self._report_quarantined()
         if self._spool_rows:
             log.warning(
                 "historian: %d samples from an earlier run wait in %s; storing them first",
@@ -182,6 +328,66 @@ class HistorianWriter:
                 self.spool.folder,
             )
         self._task = asyncio.create_task(self._run(), name=f"historian writer {self.url}")
+
+    def _recover(self) -> None:
+        """Journal files left by an earlier run (killed, or its spill failed at exit) become
+        spill segments, stored first; the time of the earlier run's last cycle is kept for
+        the restart gap."""
+        last: int | None = None
+        period = int(round(self.cycle * 1e6))
+        crashed = False
+        state = self.spool.folder / LAST_FILE
+        if state.is_file():
+            try:
+                doc = json.loads(state.read_text(encoding="utf-8"))
+                last, period = int(doc["ts"]), int(doc.get("period_us", period))
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                log.warning("historian: %s unreadable (%s); no restart gap marked", state, exc)
+        else:
+            crashed = True  # a clean stop leaves the state file; journal files alone: a kill
+        cycles = samples = torn = events = 0
+        files = self.journal.files()
+        for path in files:
+            try:
+                r = Journal.read(path)
+            except JournalCorrupt as exc:
+                moved = self.journal.quarantine(path, str(exc))
+                self._note(f"historian: journal file {path} is damaged; renamed {moved.name}")
+                continue
+            except OSError as exc:
+                log.error("historian: journal file %s unreadable: %s", path, exc)
+                continue
+            if len(r.ts) or r.events:
+                try:
+                    self.spool.write(Block(r.tags, r.ts, r.values, r.quality, r.events))
+                except OSError as exc:
+                    log.error(
+                        "historian: cannot move journal file %s to the spill (%s); kept for "
+                        "the next start",
+                        path,
+                        exc,
+                    )
+                    continue
+                events += len(r.events)
+                cycles += len(r.ts)
+                samples += int(r.values.size)
+                top = int(r.ts.max()) if len(r.ts) else None
+                if top is not None and (last is None or top > last):
+                    last = top
+                    if len(r.ts) > 1:
+                        period = int(np.median(np.diff(np.sort(r.ts))))
+            torn += r.torn
+            path.unlink(missing_ok=True)
+        if last is not None:
+            self._prev = (last, max(1, period), crashed and bool(cycles))
+        if files and (cycles or events):
+            self.stats.recovered += samples
+            self._note(
+                f"historian: {cycles} cycles ({samples} samples) and {events} events of a run "
+                f"that ended without closing recovered from its journal ({len(files)} files"
+                + (f", a torn last record of {torn} bytes dropped" if torn else "")
+                + "); stored first"
+            )
 
     async def close(self, timeout: float = 10.0) -> None:
         """Store what is left within ``timeout`` seconds; spill the rest; stop the thread."""
@@ -196,15 +402,18 @@ class HistorianWriter:
                 self._task.cancel()
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await self._task
-        left: list[Block] = []
+        left: list[tuple[Block, list[int]]] = []
         if self._inflight is not None and self._inflight.segment is None:
-            left.append(self._inflight.block)  # may be stored too: idempotent at replay
+            # may be stored too: idempotent at replay
+            left.append((self._inflight.block, self._inflight.seqs or []))
         if self._mem or self._events:
             left.append(self._take(len(self._mem)))
-        for block in left:
+        self._finished = True
+        for block, seqs in left:
             if block.rows or block.events:
                 try:
                     path = await asyncio.to_thread(self.spool.write, block)
+                    self._release(seqs)
                     self.stats.spilled += block.rows
                     self._spool_rows += block.rows
                     self._tell(
@@ -213,47 +422,80 @@ class HistorianWriter:
                         "the next start",
                     )
                 except OSError as exc:
-                    log.error("historian: %d samples lost at exit: %s", block.rows, exc)
+                    log.error(
+                        "historian: %d samples neither stored nor spilled at exit (%s); %s",
+                        block.rows,
+                        exc,
+                        "the journal keeps them for the next start" if all(seqs) else "lost",
+                    )
+            else:
+                self._release(seqs)
+        await asyncio.to_thread(self._close_journal)
         self._db.submit(LiveStore.close, self.store)
         self._db.stop()
 
+    def _close_journal(self) -> None:
+        """At a clean stop: delete the journal files whose cycles are all durable, and
+        leave the time of the last cycle for the next start's restart gap."""
+        self.journal.close()
+        for seq in self.journal.created:  # never a file an earlier run left
+            if not self._pending.get(seq):
+                self.journal.path(seq).unlink(missing_ok=True)
+        if self._last_ts is not None:
+            try:
+                self.spool.folder.mkdir(parents=True, exist_ok=True)
+                (self.spool.folder / LAST_FILE).write_text(
+                    json.dumps({"ts": self._last_ts, "period_us": self.period_us}), encoding="utf-8"
+                )
+            except OSError as exc:
+                log.warning("historian: cannot note the last cycle's time: %s", exc)
+
     # ------------------------------------------------------------------ the task
-    def _take(self, cycles: int) -> Block:
-        """The oldest ``cycles`` cycles of memory (and every pending event) as a block."""
+    def _take(self, cycles: int) -> tuple[Block, list[int]]:
+        """The oldest ``cycles`` cycles of memory (and every pending event) as a block, and
+        the journal file of each cycle."""
         items = [self._mem.popleft() for _ in range(min(cycles, len(self._mem)))]
         events, self._events = self._events, []
+        event_seqs, self._event_seqs = self._event_seqs, []
         n = len(self.tags)
         if not items:
-            return Block(
+            empty = Block(
                 self.tags,
                 np.empty(0, np.int64),
                 np.empty((0, n)),
                 np.empty((0, n), np.uint8),
                 events,
             )
-        ts = np.fromiter((t for t, _, _ in items), np.int64, count=len(items))
-        return Block(
+            return empty, event_seqs
+        ts = np.fromiter((it[0] for it in items), np.int64, count=len(items))
+        block = Block(
             self.tags,
             ts,
-            np.stack([v for _, v, _ in items]),
-            np.stack([q for _, _, q in items]),
+            np.stack([it[1] for it in items]),
+            np.stack([it[2] for it in items]),
             events,
         )
+        return block, [it[3] for it in items] + event_seqs
 
     async def _next(self) -> _Item | None:
         """What to store next: the oldest spill segment (read in a thread), else a block
         from memory (taken here, in the loop's thread, where ``put`` appends)."""
-        if self._spool_rows:
+        if self._spool_rows or self._spool_any:
             segments = await asyncio.to_thread(self.spool.segments)
-            if segments:
-                return _Item(await asyncio.to_thread(self.spool.read, segments[0]), segments[0])
+            for seg in segments:
+                try:
+                    return _Item(await asyncio.to_thread(self.spool.read, seg), seg)
+                except SegmentCorrupt:
+                    self._report_quarantined()
             self._spool_rows = 0
+            self._spool_any = False
         if self._mem or self._events:
-            return _Item(self._take(self.chunk_cycles))
+            block, seqs = self._take(self.chunk_cycles)
+            return _Item(block, None, seqs)
         return None
 
     def _due(self) -> bool:
-        if self._inflight is not None or self._spool_rows or self._stopping:
+        if self._inflight is not None or self._spool_rows or self._spool_any or self._stopping:
             return True
         if len(self._mem) >= self.flush_every or len(self._events) > 10_000:
             return True
@@ -278,6 +520,7 @@ class HistorianWriter:
             ok = await self._store(self._inflight)
             if ok:
                 item, self._inflight = self._inflight, None
+                self._release(item.seqs)
                 if item.segment is not None:
                     await asyncio.to_thread(self.spool.remove, item.segment)
                     self.stats.replayed += item.block.rows
@@ -285,7 +528,7 @@ class HistorianWriter:
                 if self.degraded:
                     self._late += item.block.rows
                     if not self._spool_rows and len(self._mem) < self.flush_every:
-                        self._recovered()
+                        await self._recovered()
                 backoff = 0.5
                 self._fail_streak = 0
                 continue
@@ -343,7 +586,7 @@ class HistorianWriter:
         n = len(self.tags)
         if len(self._mem) * n <= self.memory_rows:
             return
-        block = self._take(len(self._mem) - self.memory_rows // (2 * n))
+        block, seqs = self._take(len(self._mem) - self.memory_rows // (2 * n))
         try:  # shielded: a cancel (close() out of time) must not drop the block half-way
             path = await asyncio.shield(asyncio.to_thread(self.spool.write, block))
         except OSError as exc:
@@ -351,9 +594,12 @@ class HistorianWriter:
                 "historian: cannot spill to %s: %s; keeping in memory", self.spool.folder, exc
             )
             for i in range(len(block.ts) - 1, -1, -1):
-                self._mem.appendleft((int(block.ts[i]), block.values[i], block.quality[i]))
+                self._mem.appendleft((int(block.ts[i]), block.values[i], block.quality[i], seqs[i]))
             self._events[:0] = block.events
+            self._event_seqs[:0] = seqs[len(block.ts) :]
             return
+        self._release(seqs)
+        self._spool_any = True
         self.stats.spilled += block.rows
         self._spool_rows += block.rows
         if not self._told_spill:
@@ -362,6 +608,17 @@ class HistorianWriter:
                 True,
                 f"historian away: memory holds {self.memory_rows} samples, older ones go "
                 f"to {path.parent}",
+            )
+
+    def _report_quarantined(self) -> None:
+        """Each spill segment found damaged: an event (the spool has logged it by name)."""
+        while len(self.spool.quarantined) > self._quarantined_told:
+            path, moved, why = self.spool.quarantined[self._quarantined_told]
+            self._quarantined_told += 1
+            self.stats.quarantined += 1
+            self._note(
+                f"historian: spill file {path} is damaged ({why}); renamed {moved.name}, "
+                "its samples are not stored"
             )
 
     def _degrade(self, reason: str) -> None:
@@ -377,16 +634,35 @@ class HistorianWriter:
                 f"{self.memory_rows} samples), then in {self.spool.folder}",
             )
 
-    def _recovered(self) -> None:
+    async def _recovered(self) -> None:
+        """Whole again: say so, and "none lost" only once every tag the samples were filed
+        under is checked to be that tag's row in the database."""
+        try:
+            wrong = await self._db.submit(LiveStore.missing_tags, self.store)
+        except Exception as exc:  # noqa: BLE001 - checked again at the next recovery
+            self.stats.failures += 1
+            self._fail_streak += 1
+            log.warning("historian: cannot check the stored tags yet: %s", _why(exc))
+            return
         dt = time.monotonic() - self._since
         self.stats.degraded_s += dt
         self.degraded = False
         self._told_spill = False
         replayed = self.stats.replayed - self._replayed0
+        if wrong:
+            self.stats.misfiled_tags += len(wrong)
+            self._tell(
+                False,
+                f"historian back after {dt:.1f} s: {self._late} samples stored late, but "
+                f"{len(wrong)} tags ({', '.join(wrong[:5])}{', ...' if len(wrong) > 5 else ''})"
+                " were not in the database as written: samples may be filed under no tag "
+                "('diag historian check' counts them)",
+            )
+            return
         self._tell(
             False,
             f"historian back after {dt:.1f} s: {self._late} samples stored late "
-            f"({replayed} of them from the spill folder), none lost",
+            f"({replayed} of them from the spill folder), none lost (every tag checked)",
         )
 
     def _tell(self, degraded: bool, text: str) -> None:

@@ -42,7 +42,9 @@ class HeldOutScorer:
         pred, self.base_model, self.base_rows = self._fit_predict(list(rb.inputs), cols)
         self.base_cov = float(np.isfinite(pred).mean()) if pred.size else 0.0
         self.base_fine = self.last_fine
-        self.base_rmse = self._rmse(self._stand_in(pred, self.base_model, cols))
+        #: the model's held-out prediction, its stand-in where it has none
+        self.base_pred = self._stand_in(pred, self.base_model, cols)
+        self.base_rmse = self._rmse(self.base_pred)
         self.base_rules = rb.codec.size(self.base_model) if self.base_model is not None else 0
 
     def _fit_predict(self, variables, cols):

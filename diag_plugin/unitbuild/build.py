@@ -71,6 +71,7 @@ from diag_plugin.selection.lags import TOLERANCE, default_max_lag, lag_screen
 from diag_plugin.selection.scoring import BlockScorer
 from diag_plugin.selection.sets import sets_for_data
 from diag_plugin.selection.spans import variable_for
+from diag_plugin.unitbuild.loops import Loop, checked_loops
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
 
@@ -126,6 +127,8 @@ class TestChoice:
     method: str = "wm-avg"
     tracks: str | None = None  # the set-point a controlled tag is held at
     actuator: str | None = None  # that loop's controller output
+    statistic: str = "level"  # "spread": the running sd of the loop's error (stiction)
+    declared: bool = False  # the loop was declared (--loop, a tags CSV), not found
 
     @property
     def inputs(self) -> list[str]:
@@ -143,6 +146,8 @@ class TestChoice:
             "method": self.method,
             "tracks": self.tracks,
             "actuator": self.actuator,
+            "statistic": self.statistic,
+            "declared": self.declared,
         }
 
 
@@ -194,6 +199,7 @@ def choose_tests(
     frame: pd.DataFrame,
     tag_info: Mapping[str, TagInfo | Mapping[str, object]] | None = None,
     tags: Sequence[str] | None = None,
+    set_points: Sequence[str] = (),
 ) -> tuple[list[str], dict[str, str]]:
     """The tags to test and the others with the reason each is left out.
 
@@ -211,7 +217,7 @@ def choose_tests(
             )
         elif np.ptp(v[good]) <= 1e-9 * max(1.0, float(np.abs(v[good]).max())):
             skipped[t] = f"constant over the window ({float(v[good][0]):g})"
-        elif tags is None and is_set_point(t, info.get(t)):
+        elif tags is None and (is_set_point(t, info.get(t)) or t in set_points):
             skipped[t] = "a set-point (the operator's choice; kept as a candidate input)"
         else:
             chosen.append(t)
@@ -427,6 +433,32 @@ def evaluation_for(period: str) -> dict[str, float | int]:
     return {"lowpass": lowpass, "on_delay": delay, "off_delay": delay}
 
 
+def alarm_settings(period: str) -> dict[str, float]:
+    """ISA-18.2 alarm settings in time for the unit file (:mod:`~diag_plugin.diagnose.
+    unitloops`): the on-delay of :func:`evaluation_for` in seconds; an off-delay of at least
+    :data:`OFF_DELAY_S` (with the on-delay it spaces two alarms of one test by more than a
+    third of :data:`CHATTER_WINDOW_S`, so no fault raises more than 3 episodes in it); a
+    :data:`DEADBAND` of the threshold; the spread tests' window :data:`SPREAD_WINDOW_S`, at
+    least 20 samples."""
+    s = pd.Timedelta(period).total_seconds()
+    ev = evaluation_for(period)
+    on_s = ev["on_delay"] * s
+    return {
+        "on_delay_s": float(on_s),
+        "off_delay_s": float(max(ev["off_delay"] * s, OFF_DELAY_S)),
+        "deadband": DEADBAND,
+        "spread_window_s": float(max(SPREAD_WINDOW_S, 20 * s)),
+    }
+
+
+#: ISA-18.2 settings ``diag unit build`` writes (seconds; a share of the threshold)
+OFF_DELAY_S = 240.0
+DEADBAND = 0.1
+SPREAD_WINDOW_S = 600.0
+#: the window of the chattering rule: more than 3 alarm episodes in it is chattering
+CHATTER_WINDOW_S = 600.0
+
+
 def _reader(frame: pd.DataFrame):
     idx = frame.index
 
@@ -449,6 +481,7 @@ def build_unit(
     force: bool = False,
     source: str = "",
     progress: Callable[[str, int, int], None] | None = None,
+    loops: Sequence[Loop] = (),
 ) -> BuildResult:
     """Build unit ``name`` from ``frame`` (the fault-free window, aligned on ``period``; every
     column a candidate input) into ``folder``: model files ``NAME_TEST.toml`` and
@@ -490,7 +523,9 @@ def build_unit(
     seconds: dict[str, float] = {}
     t_start = time.perf_counter()
     info = tag_infos(tag_info)
-    tests, skipped = choose_tests(frame, info, tags)
+    loops = checked_loops(loops, list(frame.columns))
+    declared = {lp.pv: lp for lp in loops}
+    tests, skipped = choose_tests(frame, info, tags, [lp.sp for lp in loops])
     if tags is not None and skipped:
         raise UserError("cannot test: " + "; ".join(f"{t}: {why}" for t, why in skipped.items()))
     if not tests:
@@ -511,15 +546,23 @@ def build_unit(
 
     t0 = time.perf_counter()
     choices = []
+    held = {lp.out: lp.pv for lp in loops if lp.out}  # an actuator → the tag its loop holds
     for i, tag in enumerate(tests):
         test = names[tag]
         excl = same.get(tag, [])
-        sp = tracked_set_point(tag, frame, list(ctx.vars), info)
-        if sp is not None:
+        lp = declared.get(tag)
+        sp = lp.sp if lp is not None else tracked_set_point(tag, frame, list(ctx.vars), info)
+        if sp is not None and sp in ctx.vars:
             ch = loop_test(ctx, tag, sp, test=test)
-            ch.actuator = controller_output(sp, [t for t in ctx.vars if t != tag])
+            ch.actuator = (
+                lp.out
+                if lp is not None
+                else controller_output(sp, [t for t in ctx.vars if t != tag])
+            )
+            ch.declared = lp is not None
         else:
-            cands = [c for c in ctx.vars if c != tag and c not in excl]
+            sp = None
+            cands = [c for c in ctx.vars if c != tag and c not in excl and c != held.get(tag)]
             ch = select_inputs(ctx, tag, cands, test=test, max_inputs=max_inputs)
         ch.excluded = [c for c in excl if c != sp]
         choices.append(ch)
@@ -576,6 +619,7 @@ def build_unit(
             progress("train models", i + 1, len(choices))
     if not kept:
         raise UserError("no tag could be modelled from the others: nothing to test")
+    kept.extend(spread_tests(kept, models, taken))
     seconds["train models"] = time.perf_counter() - t0
 
     text = new_unit_text(
@@ -587,7 +631,11 @@ def build_unit(
     for ch in kept:
         if ch.actuator:
             doc["tests"][ch.test]["actuator"] = ch.actuator
-    for k, v in evaluation_for(period).items():
+        if ch.tracks:
+            doc["tests"][ch.test]["set_point"] = ch.tracks
+        if ch.statistic != "level":
+            doc["tests"][ch.test]["statistic"] = ch.statistic
+    for k, v in {**evaluation_for(period), **alarm_settings(period)}.items():
         doc["evaluation"][k] = v
     # a unit-level combined test beside the per-tag tests, and alarms isolated to tags
     # (docs/diagnostics.md, "The combined test and isolation to tags")
@@ -621,6 +669,19 @@ def build_unit(
     return BuildResult(name, path, period, window, kept, skipped, far, learned, seconds, notes)
 
 
+def spread_tests(kept: Sequence[TestChoice], models: dict[str, str], taken: set[str]):
+    """A spread test beside each loop test with an actuator (:mod:`~diag_plugin.unitbuild.
+    loops`): the same model, ``statistic = "spread"``, named ``<test>_spread``; its model
+    file entered in ``models``."""
+    out = []
+    for ch in list(kept):
+        if ch.tracks and ch.actuator and ch.statistic == "level":
+            name = test_name(f"{ch.test}_spread", taken)
+            models[name] = models[ch.test]
+            out.append(dc_replace(ch, test=name, statistic="spread", steps=list(ch.steps)))
+    return out
+
+
 def _build_table(kept, skipped, start, end, period, far, max_inputs) -> tomlkit.items.Table:
     t = tomlkit.table()
     t.add(
@@ -652,6 +713,10 @@ def _build_table(kept, skipped, start, end, period, far, max_inputs) -> tomlkit.
             row["method"] = ch.method
         if ch.actuator:
             row["actuator"] = ch.actuator
+        if ch.statistic != "level":
+            row["statistic"] = ch.statistic
+        if ch.declared:
+            row["declared"] = True
         tests[ch.test] = row
     t["tests"] = tests
     t["skipped"] = sk
@@ -670,6 +735,7 @@ def build_from_historian(
     max_inputs: int = MAX_INPUTS,
     force: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
+    loops: Sequence[Loop] = (),
 ) -> BuildResult:
     """:func:`build_unit` on the historian's window ``[start, end)``: every tag it holds is
     a candidate input; the grid period comes from the data (the longest typical spacing of
@@ -718,6 +784,7 @@ def build_from_historian(
         force=force,
         progress=progress,
         source="diag unit build",
+        loops=loops,
     )
     res.seconds = {"read": read_s, **res.seconds}
     res.seconds["total"] += read_s

@@ -38,6 +38,19 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "(default 0.001)",
     )
     p.add_argument("--max-inputs", type=int, default=3, metavar="N", help="inputs per model (3)")
+    p.add_argument(
+        "--loop",
+        action="append",
+        default=[],
+        metavar="PV=SP:OUT",
+        help="a control loop: the measurement it holds, its set-point and its output "
+        "(repeatable; docs/unit-loops.md)",
+    )
+    p.add_argument(
+        "--loops-from",
+        metavar="TAGS_CSV",
+        help="loops declared in a tags CSV's 'loop' and 'role' (pv|sp|out|sensor|actuator) columns",
+    )
     p.add_argument("--force", action="store_true", help="overwrite an existing unit and models")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_unit_build)
@@ -60,8 +73,12 @@ def cmd_unit_build(args) -> int:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
     from diag_plugin.unitbuild.build import build_from_historian
+    from diag_plugin.unitbuild.loops import loops_from_tags_csv, parse_loop
 
     tags = args.tags or (_tags_from(args.tags_from) if args.tags_from else None)
+    loops = [parse_loop(x) for x in args.loop]
+    if args.loops_from:
+        loops += loops_from_tags_csv(args.loops_from)
     if args.max_inputs < 1:
         raise UserError(f"--max-inputs {args.max_inputs}: at least 1")
     t0, t1 = parse_time(args.start), parse_time(args.end)
@@ -92,6 +109,7 @@ def cmd_unit_build(args) -> int:
             max_inputs=args.max_inputs,
             force=args.force,
             progress=progress,
+            loops=loops,
         )
     if args.json:
         print(json.dumps(res.as_dict(), indent=2))
@@ -106,6 +124,8 @@ def cmd_unit_build(args) -> int:
             f"{x:.2f}" for x in [ch.baseline_rmse_pct, *(s.rmse_pct for s in ch.steps)]
         )
         loop = f" (its control loop, {ch.method}; actuator {ch.actuator})" if ch.tracks else ""
+        if ch.statistic == "spread":
+            loop = f" (the spread of its loop's error: stiction of {ch.actuator})"
         print(
             f"  {ch.test}: {ch.tag} = f({', '.join(ch.inputs)}){loop}; held-out error {errs} % "
             "of span"

@@ -146,13 +146,16 @@ def cmd_model_new(args) -> int:
             shape=args.shape,
             period=period,
             description=args.description,
+            notes=(chosen := []),
         )
     except (FileExistsError, ValueError) as exc:
         raise UserError(str(exc)) from None
     print(f"wrote {path}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)})")
     for line in notes:
         print(line)
-    if args.sets is None and rb.new_model().capabilities.rule_regions:  # sets matter
+    for line in chosen:  # sets per input searched on held-out data
+        print(line + " (give --sets to choose)")
+    if args.sets is None and not chosen and rb.new_model().capabilities.rule_regions:
         sets = sorted({v.sets for v in rb.inputs})
         print(
             f"sets per input: {', '.join(map(str, sets))}, what {len(frame):,} samples can fill "
@@ -349,11 +352,22 @@ def cmd_compare(args) -> int:
     con.print(t)
     if d["tags"]:
         t = Table(title="residual against the other tags of the plant")
-        for col in ("tag", "explains % of residual variance", "correlation"):
+        for col in ("tag", "explains % of residual variance", "correlation", "driven by output"):
             t.add_column(col)
         for r in d["tags"]:
-            t.add_row(r["tag"], f"{r['explained_pct']:.1f}", f"{r['corr']:+.2f}")
+            t.add_row(
+                r["tag"],
+                f"{r['explained_pct']:.1f}",
+                f"{r['corr']:+.2f}",
+                "likely" if r.get("likely_consequence") else "",
+            )
         con.print(t)
+        con.print(
+            "each tag alone, in-sample, over its deciles; diag explain ranks by the held-out "
+            "error of the model retrained with the tag, tags driven by the output last",
+            markup=False,
+            soft_wrap=True,
+        )
     con.print(f"next: diag explain {rb.name}")
     return 0
 
@@ -392,6 +406,27 @@ def cmd_explain(args) -> int:
         err = "n/a" if not math.isfinite(c.rmse_pct_if_added) else f"{c.rmse_pct_if_added:.2f}"
         t.add_row(str(i), escape(effect), err, f"{c.coverage:.0%}", escape(c.command))
     con.print(t)
+    if e.screened:
+        shown = ", ".join(f"{s['input']} ({s['screen_rmse_pct']:.2f})" for s in e.screened[:8])
+        more = f" and {len(e.screened) - 8} more" if len(e.screened) > 8 else ""
+        con.print(
+            f"screened out, not retrained ({len(e.screened)}; their screening error in "
+            f"brackets, the model's held-out prediction corrected by the mean out-of-fold "
+            f"residual of the candidate's cells — not a promise): {shown}{more}",
+            markup=False,
+            soft_wrap=True,
+        )
+    if any(c.consequence for c in e.candidates):
+        con.print(
+            "candidates marked 'likely a consequence' follow the output: they are ranked after "
+            "every cause that cuts the error, whatever their own error. diag compare's table "
+            "of the residual against the tags orders by the in-sample share each tag alone "
+            "explains; explain orders by the held-out error of the retrained model",
+            markup=False,
+            soft_wrap=True,
+        )
+    for note in e.notes:
+        con.print(note, markup=False, soft_wrap=True)
     return 0
 
 

@@ -88,7 +88,7 @@ def compare(
         if model.capabilities.rule_regions
         else _no_regions(rb),
         periods=worst_periods(d.index, res, window),
-        tags=residual_vs_tags(frame, d.index, res, exclude=_model_tags(rb)),
+        tags=residual_vs_tags(frame, d.index, res, exclude=_model_tags(rb), y=d.y, inputs=d.X),
         dropped=d.dropped,
         inputs=span_use(rb, d.X),
         scope=scope(rb, d.index),
@@ -231,14 +231,30 @@ def worst_periods(
 
 
 def residual_vs_tags(
-    frame: pd.DataFrame, index: pd.DatetimeIndex, res: np.ndarray, exclude: set[str]
+    frame: pd.DataFrame,
+    index: pd.DatetimeIndex,
+    res: np.ndarray,
+    exclude: set[str],
+    y: np.ndarray | None = None,
+    inputs: np.ndarray | None = None,
 ) -> pd.DataFrame:
     """How much of the residual each other plant tag explains.
 
     ``explained_pct`` is the share of the residual's variance explained by a
     piecewise-constant fit on deciles of the tag (a model-free, non-linear
-    measure); ``corr`` is the plain correlation.
+    measure, in-sample, the tag alone); ``corr`` is the plain correlation.
+    ``diag explain`` ranks differently: by the held-out error of the model retrained
+    with the tag (where the tag acts together with the model's inputs, that counts), causes
+    before consequences. With the output ``y`` and the model's input rows ``inputs``,
+    ``likely_consequence`` flags a tag driven by the output
+    (:func:`~diag_plugin.selection.consequence.consequence`, the same test ``explain`` uses).
     """
+    from diag_plugin.selection.consequence import consequence
+    from diag_plugin.selection.lags import default_max_lag
+    from diag_plugin.selection.scoring import cut_row
+
+    cut = cut_row(index, 0.2) if len(index) > 1 else 0
+    horizon = default_max_lag(index)
     rows = []
     r = pd.Series(res, index=index)
     ok = r.notna()
@@ -257,6 +273,17 @@ def residual_vs_tags(
         var = rv.var()
         explained = 1 - resid.var() / var if var > 0 else 0.0
         corr = float(np.corrcoef(xv, rv)[0, 1]) if xv.std() > 0 and rv.std() > 0 else 0.0
-        rows.append({"tag": tag, "explained_pct": 100 * explained, "corr": corr})
-    df = pd.DataFrame(rows, columns=["tag", "explained_pct", "corr"])
+        effect = False
+        if y is not None and inputs is not None and len(y) == len(index):
+            cols = [inputs[:, k] for k in range(inputs.shape[1])]
+            effect = consequence(x.to_numpy(float), y, cols, cut, horizon).likely
+        rows.append(
+            {
+                "tag": tag,
+                "explained_pct": 100 * explained,
+                "corr": corr,
+                "likely_consequence": effect,
+            }
+        )
+    df = pd.DataFrame(rows, columns=["tag", "explained_pct", "corr", "likely_consequence"])
     return df.sort_values("explained_pct", ascending=False).reset_index(drop=True)

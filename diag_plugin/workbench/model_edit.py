@@ -43,9 +43,13 @@ def new_model(
     shape: str = "trapezoidal",
     period: str = "10s",
     description: str = "",
+    notes: list[str] | None = None,
 ) -> RuleBase:
     """Write a new model file. Without ``sets``, each input gets the sets the data fill
-    (:func:`sets_for_data`; 31 without data)."""
+    (:func:`sets_for_data`; 31 without data); where with those the fine grid would answer
+    few held-out samples (several inputs), each input's count is searched on held-out data
+    (:func:`~diag_plugin.selection.setsearch.choose_sets`) and what was chosen is appended to
+    ``notes``."""
     if path.exists():
         raise FileExistsError(f"{path} exists already; edit it or choose another name")
     fixed = sets
@@ -58,6 +62,8 @@ def new_model(
             v if v.spec.startswith(("dir(", "hour(", "days(")) else replace(v, sets=auto)
             for v in ins
         ]
+        if len(ins) > 1 and not any(v.spec.startswith(("dir(", "hour(", "days(")) for v in ins):
+            ins = _searched_sets(name, out, ins, frame, method, shape, period, auto, notes)
     rb = RuleBase.new(
         name,
         out,
@@ -70,6 +76,25 @@ def new_model(
     )
     rb.save()
     return RuleBase.load(path)
+
+
+def _searched_sets(name, out, ins, frame, method, shape, period, auto, notes):
+    """``ins`` with each input's sets searched on held-out data where the fine grid is thin
+    (:func:`~diag_plugin.selection.setsearch.choose_sets`); unchanged otherwise."""
+    from diag_plugin.selection.scoring import cut_row
+    from diag_plugin.selection.setsearch import choose_sets
+
+    probe = RuleBase.new(name, out, ins, method=method, shape=shape, period=period)
+    if not probe.new_model().capabilities.rule_regions or len(frame) < 100:
+        return ins
+    cols = [feature(frame, InputSpec.parse(v.spec)) for v in ins]
+    y = feature(frame, InputSpec.parse(out.spec))
+    choice = choose_sets(probe, cols, y, cut_row(frame.index, 0.2), auto)
+    if choice is None:
+        return ins
+    if notes is not None:
+        notes.append(choice.note([v.spec for v in ins]))
+    return [replace(v, sets=s) for v, s in zip(ins, choice.sets, strict=True)]
 
 
 def add_input(

@@ -1,0 +1,201 @@
+"""Loops and alarms an operator can live with (issue 34, items 4, 6, 7).
+
+**Alarm settings in time** (ISA-18.2, alarm rationalisation: on-delay, off-delay and deadband
+are set per alarm in seconds and in the signal's units, never in samples). A unit file may give
+``on_delay_s`` and ``off_delay_s`` in its ``[evaluation]``: :func:`resolved_evaluation` turns
+them into sample counts at the models' period (``ceil(seconds / period)``, at least 1), so the
+same file means the same alarm behaviour at 1 s and at 3 min. ``deadband`` (a share of the
+threshold): a symptom, once on, clears only when the residual falls below ``(1 − deadband)``
+times the threshold it crossed (:class:`Deadband`), so a residual hovering at its threshold
+does not chatter.
+
+**The spread of a loop's error** (valve stiction). A sticking valve makes its loop cycle: the
+control error oscillates around zero, its level (mean) stays where it was. A test with
+``statistic = "spread"`` judges the running standard deviation of its residual instead
+(:class:`RunningSpread`: over the window ``W = spread_window_s``, the median absolute
+deviation from the window's median, ``1.4826 · med_W |r_k − med_W(r)|`` (Hampel, 1974; robust:
+the brief transient of a set-point step, a few samples, does not move it; a loop cycling for
+more than half the window does), learned and thresholded like any test's residual; ``diag unit
+build`` writes one beside each loop's level test and names the loop's actuator for it.
+
+**The named tag held through an episode** (:class:`EpisodeHold`): each tag's share of the
+alarm is averaged over the samples of the current alarm episode, and the tags are ranked by
+that mean, so the tags named do not flicker from sample to sample within one alarm (as the
+isolated faults are held, :mod:`~diag_plugin.diagnose.isolation`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numba
+import numpy as np
+import pandas as pd
+
+
+def resolved_evaluation(ev: dict[str, Any], period: str) -> dict[str, Any]:
+    """``ev`` with ``on_delay``/``off_delay`` in samples from ``on_delay_s``/``off_delay_s``
+    (when set) at ``period``: ``ceil(seconds / period)``, at least 1 sample."""
+    out = dict(ev)
+    s = pd.Timedelta(period).total_seconds()
+    for key in ("on_delay", "off_delay"):
+        sec = float(ev.get(f"{key}_s", 0.0) or 0.0)
+        if sec > 0 and s > 0:
+            out[key] = max(1, math.ceil(sec / s - 1e-9))
+    return out
+
+
+def spread_samples(window_s: float, period: str) -> int:
+    """Samples in a spread test's window of ``window_s`` seconds at ``period`` (at least 5)."""
+    s = pd.Timedelta(period).total_seconds()
+    return max(5, math.ceil(float(window_s) / s - 1e-9)) if s > 0 else 5
+
+
+class RunningSpread:
+    """Running robust spread per column (see module doc): ``1.4826 · median_W |r − med_W(r)|``
+    (the running median absolute deviation, each sample's deviation from the median of the
+    window ending at it), known once a quarter of the window is; the last ``W − 1`` residuals
+    and deviations carried across pieces."""
+
+    def __init__(self, window: int, columns: int) -> None:
+        self.window = int(window)
+        self.r_tail = np.full((0, columns), np.nan)
+        self.d_tail = np.full((0, columns), np.nan)
+
+    def _rolling_median(self, tail: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        both = np.r_[tail, x]
+        k = max(3, self.window // 4)
+        med = pd.DataFrame(both).rolling(self.window, min_periods=k).median().to_numpy()
+        keep = both[-(self.window - 1) :] if self.window > 1 else both[:0]
+        return med[len(tail) :], keep
+
+    def transform(self, x: np.ndarray) -> np.ndarray:
+        a = np.asarray(x, float).reshape(len(x), -1)
+        if a.shape[1] == 0 or len(a) == 0:
+            return a.copy()
+        med, self.r_tail = self._rolling_median(self.r_tail, a)
+        dev = np.abs(a - med)
+        mad, self.d_tail = self._rolling_median(self.d_tail, dev)
+        return np.where(np.isfinite(a), 1.4826 * mad, np.nan)
+
+    def to_state(self) -> dict[str, Any]:
+        def rows(a: np.ndarray) -> list:
+            return [[float(v) if np.isfinite(v) else None for v in r] for r in a]
+
+        return {"r": rows(self.r_tail), "d": rows(self.d_tail)}
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        m = self.r_tail.shape[1]
+
+        def arr(rows: list) -> np.ndarray:
+            a = np.array([[np.nan if v is None else v for v in r] for r in rows], float)
+            return a.reshape(len(rows), m)
+
+        self.r_tail, self.d_tail = arr(state["r"]), arr(state["d"])
+
+
+@numba.njit(cache=True)
+def _deadband_kernel(r, lo, hi, keep, state):  # pragma: no cover - numba
+    n, m = r.shape
+    out = np.full((n, m), np.nan)
+    for j in range(m):
+        s = state[j]
+        for i in range(n):
+            x = r[i, j]
+            if np.isnan(x) or np.isnan(hi[j]):
+                continue
+            if x > hi[j] or (s > 0 and x > keep * hi[j]):
+                s = 1.0
+            elif x < lo[j] or (s < 0 and x < keep * lo[j]):
+                s = -1.0
+            else:
+                s = 0.0
+            out[i, j] = s
+        state[j] = s
+    return out
+
+
+class Deadband:
+    """Raw symptoms −1/0/+1 (NaN unknown) with a deadband: on past a threshold, off only
+    back inside ``(1 − deadband)`` × it (see module doc); state carried across pieces."""
+
+    def __init__(self, deadband: float, columns: int) -> None:
+        self.keep = 1.0 - float(deadband)
+        self.state = np.zeros(columns)
+
+    def transform(self, r: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        a = np.ascontiguousarray(np.asarray(r, float))
+        return _deadband_kernel(a, np.asarray(lo, float), np.asarray(hi, float), self.keep,
+                                self.state)  # fmt: skip
+
+
+class EpisodeHold:
+    """Each tag's share averaged over the current alarm episode (see module doc)."""
+
+    def __init__(self, tags: int) -> None:
+        self.total = np.zeros(tags)
+        self.count = 0
+
+    def transform(self, share: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """Per sample the mean share since its episode began (NaN outside alarms)."""
+        act = np.asarray(active, bool)
+        n = act.size
+        if n == 0:
+            return np.full(share.shape, np.nan)
+        s = np.where(act[:, None], np.nan_to_num(share, nan=0.0), 0.0)
+        cs, cc = np.cumsum(s, axis=0), np.cumsum(act.astype(float))
+        prev = np.r_[self.count > 0, act[:-1]]
+        start = act & ~prev
+        last = np.maximum.accumulate(np.where(start, np.arange(n), -1))
+        before = np.clip(last - 1, 0, None)
+        base_s = np.where((last > 0)[:, None], cs[before], 0.0)
+        base_c = np.where(last > 0, cc[before], 0.0)
+        carry = last < 0  # the episode the previous piece left open
+        total = cs - base_s + np.where(carry[:, None], self.total, 0.0)
+        count = cc - base_c + np.where(carry, self.count, 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = np.where(act[:, None], total / np.maximum(count, 1)[:, None], np.nan)
+        if act[-1]:
+            self.total, self.count = total[-1].copy(), int(count[-1])
+        else:
+            self.total, self.count = np.zeros(share.shape[1]), 0
+        return out
+
+    def to_state(self) -> dict[str, Any]:
+        return {"total": self.total.tolist(), "count": self.count}
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        self.total = np.asarray(state["total"], float)
+        self.count = int(state["count"])
+
+
+class AlarmHold:
+    """The unit's own off-delay (ISA-18.2): once the unit alarms, it stays in alarm until
+    no test has shown a symptom for ``off`` samples — each test's off-delay spaces its own
+    alarms, but tests taking turns would otherwise make the unit's alarm chatter. For each
+    sample the row whose diagnosis it repeats (:meth:`sources`)."""
+
+    def __init__(self, off: int) -> None:
+        self.off = int(off)
+        self.since = self.off  # samples since the last alarm sample (≥ off: none held)
+
+    def sources(self, active: np.ndarray) -> np.ndarray:
+        """Per sample: itself (−2) when in alarm or outside any hold, the last alarm row of
+        this piece it repeats (≥ 0), or −1 for the previous piece's last alarm row."""
+        act = np.asarray(active, bool)
+        n = act.size
+        idx = np.arange(n)
+        last = np.maximum.accumulate(np.where(act, idx, -1)) if n else idx
+        gap = np.where(last >= 0, idx - last, idx + 1 + self.since)
+        held = ~act & (gap < self.off)
+        out = np.where(held, np.where(last >= 0, last, -1), -2)
+        if n:
+            self.since = int(gap[-1]) if not act[-1] else 0
+        return out
+
+    def to_state(self) -> dict[str, Any]:
+        return {"since": self.since}
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        self.since = int(state["since"])

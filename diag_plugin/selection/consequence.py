@@ -1,0 +1,137 @@
+"""Is a candidate input a consequence of the output rather than a cause? (issue 37)
+
+A header pressure that sags with the flow explains the flow model's residual well — but it is
+driven by the flow: a model that uses it predicts the output from its own effect, and a fault
+that moves the output moves it too, so the residual stays blind to the fault. Two tests, both
+on data (held-out where anything is fitted):
+
+* **chain, not collider.** A cause ``c`` of ``y`` that is independent of the model's inputs
+  ``x`` becomes dependent on them once ``y`` is known (``x → y ← c``: knowing ``y`` and ``x``
+  tells ``c``). A consequence (``x → y → c``) is not: once ``y`` is known, ``x`` tells
+  nothing more about ``c``. We fit ``c`` from ``y`` alone and from ``y`` with each model
+  input (cell means over uniform sets, fitted before the cut and scored after it) and call
+  ``c`` a consequence when ``y`` explains a fair share of it (:data:`MIN_R2`) and the model
+  inputs add less than :data:`MAX_GAIN` of what ``y`` leaves unexplained.
+* **lag structure.** The changes of ``c`` follow the changes of ``y``: the correlation of
+  their first differences peaks with ``c`` lagging ``y`` (by at least one sample), clearly
+  above (:data:`LAG_MARGIN`) any peak with ``c`` leading.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from diag_plugin.selection.lags import lag_screen
+
+#: share of the candidate's held-out variance the output must explain
+MIN_R2 = 0.2
+#: share of what the output leaves unexplained the model's inputs may add for a consequence
+#: (a cause gains most of it: knowing the output and the inputs tells the cause)
+MAX_GAIN = 0.25
+#: a lagging peak must beat every leading one by this factor
+LAG_MARGIN = 1.5
+#: sets of the output and of a model input in the cell-mean fits (the output finer: what a
+#: model input adds within one of the output's sets is what a coarse output grid leaves)
+Y_SETS, X_SETS = 40, 8
+
+
+@dataclass(frozen=True)
+class Consequence:
+    """The evidence: ``r2_y`` — held-out R² of the candidate from the output alone;
+    ``r2_yx`` — with the output and the best model input; ``lag`` — samples by which the
+    candidate's changes follow the output's (0: no such lag)."""
+
+    r2_y: float
+    r2_yx: float
+    lag: int
+
+    @property
+    def chain(self) -> bool:
+        room = max(1.0 - self.r2_y, 1e-9)
+        return self.r2_y >= MIN_R2 and (self.r2_yx - self.r2_y) / room < MAX_GAIN
+
+    @property
+    def likely(self) -> bool:
+        return self.chain or self.lag > 0
+
+    def note(self, tag: str, output: str) -> str:
+        why = []
+        if self.chain:
+            why.append(
+                f"{output} explains {self.r2_y:.0%} of it and the model's inputs add "
+                f"{max(self.r2_yx - self.r2_y, 0.0):.0%} (a cause would gain from them)"
+            )
+        if self.lag > 0:
+            why.append(f"its changes follow {output}'s by {self.lag} samples")
+        return (
+            f"likely a consequence of {output}, not a cause: {'; '.join(why)}. A model using "
+            f"{tag} predicts the output from its own effect, and a fault would move both"
+        )
+
+
+def consequence(
+    cand: np.ndarray,
+    y: np.ndarray,
+    inputs: Sequence[np.ndarray],
+    cut: int,
+    max_lag: int = 0,
+) -> Consequence:
+    """Evidence that ``cand`` is driven by ``y`` (see the module doc); rows before ``cut``
+    fit, rows after it score."""
+    r2_y = _heldout_r2(cand, [y], [Y_SETS], cut)
+    r2_yx = max([r2_y, *(_heldout_r2(cand, [y, x], [Y_SETS, X_SETS], cut) for x in inputs)])
+    lag = 0
+    if max_lag > 0:
+        dc, dy = np.diff(cand[:cut]), np.diff(y[:cut])
+        lagging = lag_screen(dc, dy, max_lag)  # cand[k] against y[k-L]
+        leading = lag_screen(dy, dc, max_lag)  # y[k] against cand[k-L]
+        best = int(np.argmax(lagging))
+        if best > 0 and lagging[best] > LAG_MARGIN * max(leading.max(), lagging[0], 1e-12):
+            lag = best
+    return Consequence(r2_y, r2_yx, lag)
+
+
+def _index(col: np.ndarray, cut: int, sets: int) -> np.ndarray:
+    x = col[:cut][np.isfinite(col[:cut])]
+    out = np.full(col.size, -1, np.int64)
+    if x.size < 10:
+        return out
+    lo, hi = (float(q) for q in np.quantile(x, [0.005, 0.995]))
+    ok = np.isfinite(col)
+    if hi <= lo:
+        out[ok] = 0
+        return out
+    t = (col[ok] - lo) / (hi - lo) * (sets - 1)
+    out[ok] = np.clip(np.floor(t + 0.5), 0, sets - 1).astype(np.int64)
+    return out
+
+
+def _heldout_r2(
+    target: np.ndarray, cols: Sequence[np.ndarray], sets: Sequence[int], cut: int
+) -> float:
+    """Held-out R² of ``target`` from the cell means of ``cols`` (fitted before ``cut``)."""
+    key = np.zeros(target.size, np.int64)
+    bad = ~np.isfinite(target)
+    for c, n in zip(cols, sets, strict=True):
+        ix = _index(c, cut, n)
+        key = key * n + ix
+        bad |= ix < 0
+    rows = np.arange(target.size)
+    tr = ~bad & (rows < cut)
+    ho = ~bad & (rows >= cut)
+    if tr.sum() < 20 or ho.sum() < 10:
+        return math.nan
+    cells = int(np.prod(sets))
+    cnt = np.bincount(key[tr], minlength=cells)
+    sm = np.bincount(key[tr], target[tr], minlength=cells)
+    mean = float(target[tr].mean())
+    fit = np.where(cnt > 0, sm / np.maximum(cnt, 1), mean)
+    t = target[ho]
+    ss = float(np.sum((t - t.mean()) ** 2))
+    if ss <= 0:
+        return math.nan
+    return 1.0 - float(np.sum((t - fit[key[ho]]) ** 2)) / ss

@@ -1,0 +1,121 @@
+"""Control loops declared by the user (issue 34, item 4): ``diag unit build --loop PV=SP:OUT``
+and the ``loop`` / ``role`` columns of a tags CSV.
+
+A loop whose names follow no convention (``FEED_FLOW`` held at ``FEED_TARGET`` by valve
+``V101``) cannot be found from the names; :func:`tracked_set_point` still finds the set-point a
+measurement follows, but not which output drives it. Declared, the build knows all three:
+
+- the measurement's test is the loop's own relation (its control error), with the set-point
+  and the actuator written in the unit file (``set_point``, ``actuator``);
+- a second test judges the **spread** of that error (``statistic = "spread"``): a sticking
+  valve makes the loop cycle, its error's level stays at zero and its spread grows; that test
+  names the actuator;
+- the set-point is never tested nor a tag at fault (an operator's entry);
+- the actuator's own test (every controller output that varies is tested) predicts the valve
+  position from what drives it — the set-point, load, feed, other loops' outputs — but never
+  from the measurement its loop holds (which follows the set-point, not the valve).
+
+In a tags CSV (the file ``diag import --tags`` reads; extra columns are ignored there), rows
+sharing a ``loop`` name form one loop, each with a ``role``: ``pv`` (or ``sensor``: the
+measurement the loop holds), ``sp`` (its set-point), ``out`` (or ``actuator``: the controller
+output or valve position). A loop needs a ``pv`` and an ``sp``; ``out`` is optional.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from historian.errors import UserError
+
+#: role names of the tags CSV's ``role`` column, and the part of a loop each one is
+ROLES = {"pv": "pv", "sensor": "pv", "sp": "sp", "out": "out", "actuator": "out"}
+
+
+@dataclass(frozen=True)
+class Loop:
+    """A control loop: the measurement held (``pv``), its set-point, its output (or None)."""
+
+    pv: str
+    sp: str
+    out: str | None = None
+
+    def __str__(self) -> str:
+        return f"{self.pv}={self.sp}" + (f":{self.out}" if self.out else "")
+
+
+def parse_loop(text: str) -> Loop:
+    """``PV=SP:OUT`` (or ``PV=SP``) as a :class:`Loop`; a bad spec is a
+    :class:`~historian.errors.UserError` that shows the form."""
+    pv, eq, rest = text.partition("=")
+    sp, colon, out = rest.partition(":")
+    pv, sp, out = pv.strip(), sp.strip(), out.strip()
+    if not eq or not pv or not sp or (colon and not out):
+        raise UserError(f"--loop {text!r}: write PV=SP:OUT (or PV=SP), e.g. FT101=FT101_SP:FV101")
+    if len({pv, sp, out or None} - {None}) < (3 if out else 2):
+        raise UserError(f"--loop {text!r}: the measurement, set-point and output must differ")
+    return Loop(pv, sp, out or None)
+
+
+def loops_from_tags_csv(path: str | Path) -> list[Loop]:
+    """The loops a tags CSV declares in its ``loop`` and ``role`` columns (see module doc);
+    none when it has no ``loop`` column. Problems as ``file:line``."""
+    import pandas as pd
+
+    path = Path(path)
+    try:
+        frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+    except (OSError, ValueError) as exc:
+        raise UserError(f"{path}: cannot read the tags CSV: {exc}") from None
+    cols = {c.strip().lower(): c for c in frame.columns}
+    name = cols.get("name", cols.get("tag"))
+    if "loop" not in cols:
+        return []
+    if name is None or "role" not in cols:
+        raise UserError(f"{path}:1: a 'loop' column needs 'name' and 'role' columns beside it")
+    parts: dict[str, dict[str, tuple[str, int]]] = {}
+    for i, row in enumerate(frame.to_dict("records")):
+        line = i + 2
+        loop = row[cols["loop"]].strip()
+        if not loop:
+            continue
+        tag, role = row[name].strip(), row[cols["role"]].strip().lower()
+        if role not in ROLES:
+            raise UserError(
+                f"{path}:{line}: role {role!r} of {tag} (loop {loop}) is not one of "
+                f"{', '.join(ROLES)}"
+            )
+        got = parts.setdefault(loop, {})
+        part = ROLES[role]
+        if part in got:
+            raise UserError(
+                f"{path}:{line}: loop {loop} has two {part} tags ({got[part][0]} on line "
+                f"{got[part][1]}, {tag})"
+            )
+        got[part] = (tag, line)
+    out = []
+    for loop, got in parts.items():
+        missing = [p for p in ("pv", "sp") if p not in got]
+        if missing:
+            first = min(v[1] for v in got.values())
+            raise UserError(f"{path}:{first}: loop {loop} has no {' and no '.join(missing)} tag")
+        out.append(Loop(got["pv"][0], got["sp"][0], got["out"][0] if "out" in got else None))
+    return out
+
+
+def checked_loops(loops: Iterable[Loop], columns: Sequence[str]) -> list[Loop]:
+    """``loops`` with every tag in ``columns`` and no measurement declared twice."""
+    have = set(columns)
+    seen: dict[str, Loop] = {}
+    out = []
+    for lp in loops:
+        unknown = [t for t in (lp.pv, lp.sp, lp.out) if t and t not in have]
+        if unknown:
+            raise UserError(f"loop {lp}: tag(s) {', '.join(unknown)} not in the data")
+        if lp.pv in seen and seen[lp.pv] != lp:
+            raise UserError(f"loop {lp}: {lp.pv} is already the measurement of loop {seen[lp.pv]}")
+        if lp.pv not in seen:
+            seen[lp.pv] = lp
+            out.append(lp)
+    return out

@@ -1,0 +1,111 @@
+"""A 7-tag line built by hand (issue 34): a feed pipe with a flow loop into a tank drained
+through a manual valve. Not a simulator of the package and not tuned for: written once from
+the physics below, then the unit was built on it as a user would.
+
+Tags (names follow no convention, so the loop must be declared):
+
+- ``SUPPLY_P`` supply pressure, bar (slow random swings and a daily cycle)
+- ``FEED_TARGET`` the feed flow set-point, m³/h (operators move it every few hours)
+- ``FEED_FLOW`` the feed flow meter, m³/h (the loop holds it at ``FEED_TARGET``)
+- ``VALVE_A`` the flow controller's output, % (PI; the valve follows it)
+- ``TANK_LEVEL`` level, m (``A dL/dt = F_in − F_out``)
+- ``HAND_VALVE`` the manual drain valve, % (operators adjust it now and then)
+- ``OUT_FLOW`` outlet flow, m³/h (``k · HV/100 · √L``)
+
+Faults (from ``onset`` on): ``flow_bias`` the flow meter reads +0.8 m³/h (the loop compensates:
+the true flow falls), ``stiction`` the valve moves only when the output is 4 % away from its
+position, ``pressure_drift`` the pressure transmitter drifts +0.6 bar a day, ``manual_moved``
+the manual valve set to 78 %, a position it never had.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+PERIOD_S = 15.0
+TAGS = ("SUPPLY_P", "FEED_TARGET", "FEED_FLOW", "VALVE_A", "TANK_LEVEL", "HAND_VALVE", "OUT_FLOW")
+LOOP = "FEED_FLOW=FEED_TARGET:VALVE_A"
+#: the tag at fault of each fault, as an operator would want it named
+AT_FAULT = {"flow_bias": "FEED_FLOW", "stiction": "VALVE_A", "pressure_drift": "SUPPLY_P"}
+
+
+def simulate(
+    days: float, seed: int, fault: str | None = None, onset_days: float = 1.0
+) -> pd.DataFrame:
+    """The line's 15 s samples over ``days`` (``fault`` from ``onset_days`` on)."""
+    rng = np.random.default_rng(seed)
+    n = int(days * 86400 / PERIOD_S)
+    onset = int(onset_days * 86400 / PERIOD_S)
+    dt = PERIOD_S / 3600.0  # hours
+    t = np.arange(n) * dt
+    # supply pressure: AR(1) swings plus a daily cycle
+    p = np.empty(n)
+    x = 0.0
+    for i in range(n):
+        x = 0.999 * x + 0.02 * rng.standard_normal()
+        p[i] = 5.0 + x + 0.3 * np.sin(2 * np.pi * t[i] / 24.0)
+    # operators: the set-point every 2–6 h, the manual valve every 6–18 h
+    sp = np.empty(n)
+    hv = np.empty(n)
+    i, v = 0, 10.0
+    while i < n:
+        k = int(rng.uniform(2, 6) * 3600 / PERIOD_S)
+        v = float(np.clip(v + rng.normal(0, 1.0), 8.0, 12.0))
+        sp[i : i + k] = round(v, 1)
+        i += k
+    i, h = 0, 50.0
+    while i < n:
+        k = int(rng.uniform(6, 18) * 3600 / PERIOD_S)
+        h = float(np.clip(h + rng.normal(0, 4.0), 40.0, 60.0))
+        hv[i : i + k] = round(h)
+        i += k
+    if fault == "manual_moved":
+        hv[onset:] = 78.0
+    cv, k_out, area = 10.0, 14.1, 5.0
+    kp, ti = 2.0, 60.0 / 3600.0  # %/(m³/h), h
+    flow, pos, level, integ = 10.0, 50.0, 2.0, 50.0
+    out = np.empty((n, 7))
+    for i in range(n):
+        faulty = fault is not None and i >= onset
+        drift = 0.6 * (t[i] - t[onset]) / 24.0 if faulty and fault == "pressure_drift" else 0.0
+        meas_p = p[i] + drift
+        bias = 0.8 if faulty and fault == "flow_bias" else 0.0
+        meas_f = flow + 0.05 * rng.standard_normal() + bias
+        e = sp[i] - meas_f
+        integ = float(np.clip(integ + kp * e * dt / ti, 0.0, 100.0))
+        op = float(np.clip(kp * e + integ, 0.0, 100.0))
+        if faulty and fault == "stiction":
+            if abs(op - pos) > 4.0:
+                pos = op
+        else:
+            pos = op
+        target = cv * pos / 100.0 * np.sqrt(max(p[i] - 1.0, 0.0))
+        flow += (target - flow) * (1 - np.exp(-PERIOD_S / 30.0))
+        f_out = k_out * hv[i] / 100.0 * np.sqrt(max(level, 0.0))
+        level = max(level + (flow - f_out) * dt / area, 0.0)
+        out[i] = (
+            meas_p + 0.02 * rng.standard_normal(),
+            sp[i],
+            meas_f,
+            op,
+            level + 0.005 * rng.standard_normal(),
+            hv[i],
+            f_out + 0.05 * rng.standard_normal(),
+        )
+    idx = pd.date_range("2026-03-02", periods=n, freq=f"{int(PERIOD_S)}s", tz="UTC")
+    return pd.DataFrame(out, index=idx, columns=list(TAGS))
+
+
+def tags_csv() -> pd.DataFrame:
+    """The line's tags CSV, the loop declared in its ``loop`` and ``role`` columns."""
+    rows = [
+        ("SUPPLY_P", "bar", "supply pressure", "", ""),
+        ("FEED_TARGET", "m3/h", "feed flow target", "feed", "sp"),
+        ("FEED_FLOW", "m3/h", "feed flow meter", "feed", "pv"),
+        ("VALVE_A", "%", "feed valve output", "feed", "out"),
+        ("TANK_LEVEL", "m", "tank level", "", ""),
+        ("HAND_VALVE", "%", "manual drain valve", "", ""),
+        ("OUT_FLOW", "m3/h", "outlet flow", "", ""),
+    ]
+    return pd.DataFrame(rows, columns=["name", "unit", "description", "loop", "role"])

@@ -1,0 +1,215 @@
+"""Loops, naming and alarms (issue 34, items 4, 6, 7) on a 7-tag line built by hand
+(:mod:`tests.line7`: a flow loop whose names follow no convention, a tank, a manual valve).
+
+The unit is built as a user would: the line's CSV and tags CSV (the loop declared in its
+``loop`` and ``role`` columns) imported into SQLite, ``diag unit build --loops-from``. Faults
+are scored on seeds never used to build (101, 102). Nothing in the line was tuned to the unit:
+it was written from its physics once; where the unit does not reach a goal, the test says so
+with the figure (xfail, strict).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from diag_plugin.diagnose.unit import Unit, concat
+from diag_plugin.diagnose.unitloops import (
+    Deadband,
+    EpisodeHold,
+    RunningSpread,
+    resolved_evaluation,
+)
+from diag_plugin.unitbuild.build import CHATTER_WINDOW_S
+from diag_plugin.unitbuild.loops import Loop, loops_from_tags_csv, parse_loop
+from historian.errors import UserError
+from tests import line7
+from tests.test_any_plant_tour import diag, fmt
+
+TRAIN_DAYS = 6.0
+ONSET = int(86400 / line7.PERIOD_S)  # the faults start after a day
+SEEDS = (101, 102)
+
+
+@pytest.fixture(scope="module")
+def line(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("line7")
+    g = ["--db", f"sqlite:///{tmp / 'h.db'}", "--rulebases", str(tmp / "rb")]
+    frame = line7.simulate(TRAIN_DAYS, seed=1)
+    out = frame.copy()
+    out.index = out.index.strftime("%Y-%m-%dT%H:%M:%S")
+    out.index.name = "time"
+    out.to_csv(tmp / "line.csv")
+    line7.tags_csv().to_csv(tmp / "tags.csv", index=False)
+    rc, text = diag(g, "import", str(tmp / "line.csv"), "--tags", str(tmp / "tags.csv"))
+    assert rc == 0, text
+    t0, t1 = frame.index[0], frame.index[-1] + pd.Timedelta("15s")
+    rc, text = diag(g, "unit", "build", "line", "--from", fmt(t0), "--to", fmt(t1),
+                    "--loops-from", str(tmp / "tags.csv"), "--far", "0.01", "--json")  # fmt: skip
+    assert rc == 0, text
+    unit = Unit.load("line", tmp / "rb")
+    runs = {
+        (fault, seed): unit.reset().evaluate(line7.simulate(2.0, seed, fault))
+        for fault in (None, *line7.AT_FAULT, "manual_moved")
+        for seed in SEEDS
+    }
+    return json.loads(text), unit, runs, g
+
+
+def _episodes(alarm: np.ndarray) -> np.ndarray:
+    a = np.asarray(alarm, bool)
+    return np.flatnonzero(a & ~np.r_[False, a[:-1]])
+
+
+def _named(d, k: int = 3) -> list[str]:
+    """The tags most often in the top three over the alarm samples after the onset."""
+    top = d.top_tags.iloc[ONSET:]
+    names = pd.concat([top[f"top{i}"] for i in (1, 2, 3)])
+    return names[names != ""].value_counts().index[:k].tolist()
+
+
+# ---------------------------------------------------------------- the build
+def test_the_declared_loop_is_built_with_its_set_point_actuator_and_spread_test(line):
+    res, unit, *_ = line
+    tests = {t["test"]: t for t in res["tests"]}
+    pv = tests["FEED_FLOW"]
+    assert pv["method"] == "track" and pv["tracks"] == "FEED_TARGET"
+    assert pv["actuator"] == "VALVE_A" and pv["declared"]
+    spread = tests["FEED_FLOW_spread"]
+    assert spread["statistic"] == "spread" and spread["actuator"] == "VALVE_A"
+    assert "set-point" in res["skipped"]["FEED_TARGET"]
+    # the valve is predicted from what drives it, never from the flow its loop holds
+    assert tests["VALVE_A"]["inputs"] and not any(
+        i.startswith("FEED_FLOW") for i in tests["VALVE_A"]["inputs"]
+    )
+    spec = unit.file.test("FEED_FLOW_spread")
+    assert spec.statistic == "spread" and spec.set_point == "FEED_TARGET"
+    assert "FEED_TARGET" not in unit.cmodel.tags  # a set-point is never a tag at fault
+    ev = unit.file.evaluation
+    assert ev["on_delay_s"] == 45.0 and ev["off_delay_s"] >= 240.0 and ev["deadband"] > 0
+    assert unit.ev["off_delay"] == int(np.ceil(ev["off_delay_s"] / line7.PERIOD_S))
+
+
+# ---------------------------------------------------------------- detection and naming
+@pytest.mark.parametrize("fault", list(line7.AT_FAULT))
+def test_each_fault_is_detected_and_its_tag_named_in_the_top_three(line, fault):
+    _, _, runs, _ = line
+    for seed in SEEDS:
+        d = runs[(fault, seed)]
+        det = (d.detected.iloc[ONSET:] == 1).mean()
+        assert det > 0.2, (fault, seed, det)
+        assert line7.AT_FAULT[fault] in _named(d), (fault, seed, _named(d))
+
+
+def test_stiction_is_named_on_the_valve_by_the_spread_of_its_loop_error(line):
+    _, _, runs, _ = line
+    for seed in SEEDS:
+        d = runs[("stiction", seed)]
+        after = d.symptoms["FEED_FLOW_spread"].iloc[ONSET:]
+        before = d.symptoms["FEED_FLOW_spread"].iloc[:ONSET]
+        # at the budget of 0.01 alarms per hour the spread test's threshold is extrapolated
+        # (7 tests share it): it fires on part of the cycle only (9–16 % of the samples)
+        assert (after == 1).mean() > 0.05 and (before != 0).mean() < 0.01
+        # the level of the loop's error stays inside its band: stiction is not its level
+        assert (d.symptoms["FEED_FLOW"].iloc[ONSET:] != 0).mean() < 0.05
+        top1 = d.top_tags["top1"].iloc[ONSET:]
+        assert top1[top1 != ""].value_counts().index[0] == "VALVE_A"
+
+
+def test_a_flow_meter_bias_names_the_meter_not_the_manual_valve(line):
+    _, _, runs, _ = line
+    for seed in SEEDS:
+        named = _named(runs[("flow_bias", seed)])
+        assert "FEED_FLOW" in named[:2] and "HAND_VALVE" not in named, named
+
+
+def test_fault_free_runs_are_quiet(line):
+    _, _, runs, _ = line
+    for seed in SEEDS:
+        d = runs[(None, seed)]
+        assert (d.detected == 1).mean() < 0.05, seed
+
+
+# ---------------------------------------------------------------- ISA-18.2
+def test_no_fault_chatters_more_than_3_episodes_in_10_minutes(line):
+    """A chattering alarm (more than 3 episodes of one fault in 10 minutes) fails."""
+    _, _, runs, _ = line
+    w = int(CHATTER_WINDOW_S / line7.PERIOD_S)
+    for key, d in runs.items():
+        ep = _episodes(d.detected.to_numpy() == 1)
+        worst = max(((ep >= e) & (ep < e + w)).sum() for e in ep) if ep.size else 0
+        assert worst <= 3, (key, worst)
+
+
+def test_pieces_and_one_pass_agree_with_the_alarm_hold_and_spread(line):
+    _, unit, _, _ = line
+    f = line7.simulate(1.5, 103, "stiction", onset_days=0.5)
+    one = unit.reset().evaluate(f).to_frame()
+    unit.reset()
+    parts = []
+    for a in range(0, len(f), 977):
+        state = json.loads(json.dumps(unit.to_state()))  # the live loop's restart
+        parts.append(unit.load_state(state).evaluate(f.iloc[a : a + 977]))
+    pd.testing.assert_frame_equal(one, concat(parts).to_frame())
+
+
+def test_delays_in_seconds_mean_the_same_time_at_any_rate():
+    ev = {"on_delay": 30, "off_delay": 30, "on_delay_s": 45.0, "off_delay_s": 240.0}
+    assert [resolved_evaluation(ev, p)["on_delay"] for p in ("1s", "15s", "1min")] == [45, 3, 1]
+    assert [resolved_evaluation(ev, p)["off_delay"] for p in ("1s", "15s", "1min")] == [240, 16, 4]
+    assert resolved_evaluation({**ev, "on_delay_s": 0.0}, "1s")["on_delay"] == 30
+
+
+def test_a_deadband_keeps_a_hovering_residual_one_alarm():
+    rng = np.random.default_rng(3)
+    r = 1.0 + 0.03 * rng.standard_normal((400, 1))  # hovering at its threshold 1
+    lo, hi = np.array([-1.0]), np.array([1.0])
+    plain = Deadband(0.0, 1).transform(r, lo, hi)[:, 0]
+    band = Deadband(0.1, 1).transform(r, lo, hi)[:, 0]
+    assert _episodes(plain == 1).size > 50 and _episodes(band == 1).size <= 2
+    d = Deadband(0.1, 1)
+    pieces = np.r_[d.transform(r[:133], lo, hi)[:, 0], d.transform(r[133:], lo, hi)[:, 0]]
+    assert np.array_equal(pieces, band)
+
+
+def test_running_spread_and_episode_hold_carry_their_state():
+    rng = np.random.default_rng(4)
+    x = rng.standard_normal((300, 2))
+    x[50:60, 1] = np.nan
+    one = RunningSpread(40, 2).transform(x)
+    s = RunningSpread(40, 2)
+    assert np.allclose(np.r_[s.transform(x[:101]), s.transform(x[101:])], one, equal_nan=True)
+    assert np.isnan(one[50:60, 1]).all() and abs(np.nanmean(one[200:, 0]) - 1.0) < 0.3
+    share, act = rng.random((300, 3)), rng.random(300) > 0.3
+    h = EpisodeHold(3)
+    whole = EpisodeHold(3).transform(share, act)
+    assert np.allclose(np.r_[h.transform(share[:77], act[:77]), h.transform(share[77:], act[77:])],
+                       whole, equal_nan=True)  # fmt: skip
+
+
+# ---------------------------------------------------------------- declaring loops
+def test_loop_specs_and_their_errors(tmp_path):
+    assert parse_loop("FT1=FT1_TARGET:V1") == Loop("FT1", "FT1_TARGET", "V1")
+    assert parse_loop("T 4 = T 4 goal") == Loop("T 4", "T 4 goal", None)
+    for bad in ("FT1", "FT1=:V1", "=SP", "FT1=SP:", "A=A:B"):
+        with pytest.raises(UserError, match="--loop"):
+            parse_loop(bad)
+    p = tmp_path / "tags.csv"
+    p.write_text("name,unit,loop,role\nF,m3/h,a,pv\nS,m3/h,a,sp\nV,%,a,valve\n")
+    with pytest.raises(UserError, match=r"tags.csv:4: role 'valve' of V"):
+        loops_from_tags_csv(p)
+    p.write_text("name,loop,role\nF,a,pv\nV,a,out\n")
+    with pytest.raises(UserError, match=r"tags.csv:2: loop a has no sp tag"):
+        loops_from_tags_csv(p)
+    p.write_text("name,unit\nF,m3/h\n")
+    assert loops_from_tags_csv(p) == []
+
+
+def test_a_loop_naming_an_unknown_tag_is_refused(line):
+    *_, g = line
+    rc, text = diag(g, "unit", "build", "x", "--from", "2026-03-02", "--to", "2026-03-03",
+                    "--loop", "FEED_FLOW=NO_SUCH:VALVE_A")  # fmt: skip
+    assert rc == 2 and "NO_SUCH not in the data" in text, text
