@@ -60,6 +60,8 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     [build]              # written by `diag unit build`: how each test's inputs were chosen
     from = "…"           # the window, and per test in [build.tests] the inputs and the
                          # held-out error before any input and after each
+    set_points = ["FLOW_TARGET"]  # the window's set-points (by name or by the description
+                         # the historian gives them): never a tag the unit blames
 
     [tags]               # optional: the plant tags this unit reads for the models' tags
     F = "V17.F"          # (one set of models serves a fleet of identical valves)
@@ -350,6 +352,10 @@ class UnitFile:
         }
         # written by `diag unit build` (how each test's inputs were chosen); read, not checked
         self.build = _plain(self._table("build")) if "build" in self.doc else {}
+        sps = self.build.get("set_points", [])
+        if not isinstance(sps, list) or not all(isinstance(x, str) and x for x in sps):
+            self.error(self.line_of("build", "set_points"), "set_points must be a list of tags")
+            self.build.pop("set_points")
         self.tests = self._tests(self._table("tests", required=True))
         self.fault_status = self._faults(self._table("faults"))
         self.combined = self._combined(self._table("combined"))

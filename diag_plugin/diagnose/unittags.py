@@ -95,10 +95,25 @@ def is_set_point(tag: str, info=None) -> bool:
     return "set-point" in d or "setpoint" in d or "set point" in d
 
 
+def declared_set_points(unit) -> set[str]:
+    """The tags the unit file says are set-points (plant names): ``[build] set_points``, the
+    window's set-points as ``diag unit build`` judged them from the historian's metadata (by
+    name or by description, :func:`is_set_point`), and the set-point each loop test tracks
+    (``[build.tests] … tracks``, also in files built before ``set_points`` was written)."""
+    build = unit.file.build or {}
+    out = {str(x) for x in build.get("set_points", [])}
+    for row in (build.get("tests") or {}).values():
+        if isinstance(row, dict) and isinstance(row.get("tracks"), str):
+            out.add(row["tracks"])
+    return out
+
+
 def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
     """The unit's tags that can be at fault (plant names, outputs first in test order, then
-    inputs; never a set-point: it is the operator's entry, with no sensor or actuator that
-    could fail), each test's output tag and the tags each test reads (inputs, any lag)."""
+    inputs; never a set-point, by its name or as the unit file declares it (a loop test's
+    ``set_point``, :func:`declared_set_points`): it is the operator's entry, with no sensor
+    or actuator that could fail), each test's output tag and the tags each test reads
+    (inputs, any lag)."""
     outputs: dict[str, str] = {}
     reads: dict[str, list[str]] = {}
     mapping = unit.file.tags
@@ -111,7 +126,7 @@ def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
         act = unit.file.test(t).actuator
         if act and act not in reads[t] and act != outputs[t]:
             reads[t].append(act)  # a loop's actuator: its fault moves the loop's error
-    sps = set_points(unit)
+    sps = set_points(unit) | declared_set_points(unit)
     tags = list(dict.fromkeys([*outputs.values(), *(x for r in reads.values() for x in r)]))
     return [x for x in tags if not is_set_point(x) and x not in sps], outputs, reads
 

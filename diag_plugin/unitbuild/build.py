@@ -749,6 +749,9 @@ def _build_unit(
     doc["build"] = _build_table(kept, skipped, start, end, period, far, plan.max_inputs)
     if plan.reasons:
         doc["build"]["plan"] = plan.reasons
+    # the window's set-points, as judged here (name or description): the unit never blames
+    # one (unittags.structure), and it has no historian metadata at run time
+    doc["build"]["set_points"] = [t for t in frame.columns if is_set_point(t, info.get(t))]
     path.write_text(tomlkit.dumps(doc), encoding="utf-8")
 
     t0 = time.perf_counter()

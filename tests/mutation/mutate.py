@@ -1,4 +1,5 @@
-"""Mutation check of the run-time diagnosis, the alarm lifecycle and the importer (cosmic-ray).
+"""Mutation check of the run-time diagnosis, threshold learning, unit build, the alarm lifecycle
+and the importer (cosmic-ray).
 
 Not part of ``make test`` (pytest collects only ``test_*.py``); see docs/testing.md. Run it
 from the repository root, niced, on a machine nobody else is waiting for::
@@ -66,6 +67,22 @@ TARGETS: dict[str, list[str]] = {
     ],
     "diag_plugin/diagnose/plant.py": ["test_plant.py", "test_diagnosis_guards.py"],
     "diag_plugin/diagnose/unitfile.py": ["test_diagnosis_guards.py", "test_units.py"],
+    # issue 38: the combined test, threshold learning and diag unit build
+    "diag_plugin/diagnose/unittags.py": ["test_unit_guards.py", "test_unit_tags.py"],
+    "diag_plugin/learn/thresholds.py": [
+        "test_unit_guards.py",
+        "test_learning.py",
+        "test_unit_tags.py",
+        "test_levels.py",
+    ],
+    "diag_plugin/learn/budget.py": [
+        "test_learning.py",
+        "test_unit_guards.py",
+        "test_unit_tags.py",
+    ],
+    "diag_plugin/learn/cli.py": ["test_learning.py", "test_unit_tags.py", "test_unit_guards.py"],
+    "diag_plugin/unitbuild/build.py": ["test_unit_guards.py", "test_unit_build.py"],
+    "diag_plugin/unitbuild/cli.py": ["test_unit_guards.py", "test_unit_build.py"],
     "connectors/alarms.py": ["test_alarms.py", "test_alarm_edges.py"],
     "historian/importer.py": [
         "test_import_time_units.py",
