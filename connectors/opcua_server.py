@@ -1,7 +1,7 @@
 """Our OPC UA server: one object per unit with its diagnosis, alarms, and the plant's tags.
 
 Address space (namespace ``urn:diag-plugin:diagnosis``, string node ids; see
-docs/connectors.md, "OPC UA")::
+docs/reference/connectors.md, "OPC UA")::
 
     Objects/
       Units/                               ns;s=Units
@@ -30,7 +30,7 @@ docs/connectors.md, "OPC UA")::
         <notice>/ Active Boolean, Message String   (e.g. Historian, Source_plc1)
         Historian/Backlog UInt64           samples waiting for the historian
 
-Values carry a StatusCode from :class:`UnitStatus.quality` (see docs/connectors.md).
+Values carry a StatusCode from :class:`UnitStatus.quality` (see docs/reference/connectors.md).
 Alarms are AlarmConditionType events emitted by the Server object (i=2253) with SourceNode
 = the unit object; their lifecycle is the ISA-18.2 state machine of :mod:`connectors.alarms`
 with Part 9's ConfirmedState and Retain (:mod:`connectors.opcua_conditions`). A unit's

@@ -81,7 +81,7 @@ def test_quick_benchmark_meets_the_issue_goal(quick):
     assert not rows[("f5", "abrupt")]["detected"]
     # the issue's goal is 0.8 of the 15 faults the literature detects; the full run (every
     # strength) reaches 12/15 pooled over seeds 11, 23, 37 (11, 12, 12 per seed;
-    # docs/diagnostics.md). The quick run tries one strength per fault and finds 10/15 here:
+    # docs/results/damadics.md). The quick run tries one strength per fault and finds 10/15 here:
     # faults that drive the valve where no model has rules make the unit CHECK_FUNCTION, not
     # detected, and f3 at fs = 0.5 stays under the thresholds learned over 14 days (it was
     # 11/15 with 2-day thresholds, which alarmed on fault-free days: the test below)

@@ -142,7 +142,8 @@ def test_ts_fcm_isolates_the_injected_fault(seed, case):
 
 def test_one_step_estimates_read_measured_lags_and_load_torque():
     """Free run (the seed's eqs. 7–11: own estimates, T̂_L in eqs. 7–8) against one step
-    ahead (measured lags and the measured T_L), the comparison mode of docs/engine.md."""
+    ahead (measured lags and the measured T_L), the comparison mode of
+    docs/explanation/engine.md."""
     from diag_plugin.simulate.engine import simulate_engine
 
     em = fdi.identify(simulate_engine(2000, seed=41), "narmax2")
@@ -270,9 +271,10 @@ def test_the_matching_window_is_where_the_fault_free_residuals_are_smallest():
 
 
 def test_the_seeds_omega_test_on_both_instruments_in_the_matching_window():
-    """``Setup(omega_signals=("omega", "omega_dy"), window="matching")`` (docs/engine.md, issue
-    36): the window is chosen on the fault-free runs, faults start at its start, and with ω_dy
-    multiplied too α̂ − α is no longer the no-fault residual (with ω alone it is, to the digit).
+    """``Setup(omega_signals=("omega", "omega_dy"), window="matching")``
+    (docs/explanation/engine.md, issue 36): the window is chosen on the fault-free runs,
+    faults start at its start, and with ω_dy multiplied too α̂ − α is no longer the no-fault
+    residual (with ω alone it is, to the digit).
     wm-avg (one step ahead, seconds) on seed 11."""
     both = fdi.Setup(omega_signals=("omega", "omega_dy"), window="matching")
     res = fdi.run_fdi(11, "wm-avg", cases=("none", "omega"), setup=both)
@@ -289,7 +291,7 @@ def test_the_seeds_omega_test_on_both_instruments_in_the_matching_window():
 
 def test_narmax2_isolates_the_injected_fault():
     """The whole experiment with narmax2 (eq. 12) on seed 5, by the derived table; over ten
-    seeds it is right on fewer runs than ts-fcm (docs/engine.md, "Results")."""
+    seeds it is right on fewer runs than ts-fcm (docs/explanation/engine.md, "Results")."""
     res = fdi.run_fdi(SEEDS[0], "narmax2", matrix="derived")
     assert res["matrix"] == "derived"
     assert [c["isolated"] for c in res["cases"]] == list(CASES), res["cases"]

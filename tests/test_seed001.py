@@ -1,6 +1,6 @@
-"""Seed 001's figures on the simulated valve (docs/seed001.md): Fig. 4 / eq. 7, the "±5 %" of
-Models A and B, Figs. 7 and 8. The docs' figures use seeds 11/12 (lab), 1 and 43; these tests
-run other seeds and shorter runs."""
+"""Seed 001's figures on the simulated valve (docs/explanation/seed001.md): Fig. 4 / eq. 7,
+the "±5 %" of Models A and B, Figs. 7 and 8. The docs' figures use seeds 11/12 (lab), 1 and 43;
+these tests run other seeds and shorter runs."""
 
 import xml.etree.ElementTree as ET
 

@@ -35,7 +35,7 @@ UNIT_FAR = 0.001
 
 #: the unit's tests: r1 = F − F̂(CV), r2 = P0 − P̂0(CV), r3 = X − X̂(P0), r4 = F − F̂(X)
 #: (Kościelny et al., Sect. 5, with rules (10)–(14)); r1 and r4 also take P1, P2
-#: (docs/diagnostics.md says why)
+#: (docs/explanation/table4.md says why)
 UNIT_TESTS = {
     "r1": ("F[k]", ["CV[k]", "P1[k]", "P2[k]"], "r1: F = f(CV, P1, P2)"),
     "r2": ("P0[k]", ["CV[k]"], "r2: P0 = f(CV)"),
@@ -61,7 +61,7 @@ rows = [
 """
 
 #: the example unit's matrix: Table 4 for the simulated actuator, whose positioner closes its
-#: loop on the measured X (docs/diagnostics.md). The loop restores X after a servomotor fault
+#: loop on the measured X (docs/explanation/table4.md). The loop restores X after a servomotor fault
 #: by changing P0, so f_S shows P0's column (0, 1, 1, 0) and the two are one group; after an
 #: X-transducer fault it moves the true travel, so all four residuals react.
 UNIT_MATRIX = """\
@@ -155,7 +155,7 @@ def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[
 
 #: the actuator Table 4 and rules (10)–(14) describe: no positioner (the controller output
 #: drives the E/P converter: the open chain U → P0 → X → F), low-friction packing
-#: (docs/diagnostics.md, "Which plant Table 4 describes")
+#: (docs/explanation/table4.md, "Which plant Table 4 describes")
 TABLE4_PLANT = {"positioner_gain": 0.0, "hysteresis": 0.03}
 
 

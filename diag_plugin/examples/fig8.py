@@ -19,7 +19,8 @@ Here, on the one real hour we have (Lublin actuator 3, :mod:`diag_plugin.example
 
 Residuals are eq. 6, ``(y − ŷ) / span · 100 %``; where a model has no rule for a sample its
 nearest rule answers (``extrapolate``), so every sample is scored (coverage reported).
-``python -m diag_plugin.examples.fig8 --plot FILE.svg`` draws the figure of docs/diagnostics.md.
+``python -m diag_plugin.examples.fig8 --plot FILE.svg`` draws the figure of
+docs/explanation/fig8.md.
 """
 
 from __future__ import annotations

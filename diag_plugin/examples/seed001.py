@@ -21,7 +21,7 @@ real DAMADICS hour is reproduced in :mod:`diag_plugin.examples.fig8`. Here, on
 
 Residuals are eq. 6, ``(y − ŷ)/span · 100 %``, every sample scored (the nearest rule where a
 model has none; coverage reported). ``python -m diag_plugin.examples.seed001 --plot DIR``
-prints the figures as JSON and draws the SVGs of docs/seed001.md.
+prints the figures as JSON and draws the SVGs of docs/explanation/seed001.md.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ exponent: the seed prints ``(‖x−v_j‖²/‖x−v_k‖²)^(m−1)`` in eqs. 
 necessary condition is ``^(1/(m−1))``. The two agree at the seed's ``m = 2``; we use Bezdek's.
 Weights of the least squares: eq. 23 weights each squared error by ``μ_ij``, eq. 24 (its
 stated solution) by ``μ_ij²`` (``D_j²``) — the seed contradicts itself. ``weight_power`` picks
-the exponent: 2 (eq. 24, the default) or 1 (eq. 23); docs/engine.md compares the two.
+the exponent: 2 (eq. 24, the default) or 1 (eq. 23); docs/explanation/engine.md compares the two.
 
 Fitting is chunked over rows (memory stays flat in the number of rows) and vectorised. The
 clustering needs all rows at every iteration, so the method is *not* incremental: ``fit`` only.

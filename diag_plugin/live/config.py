@@ -18,7 +18,7 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     host = "127.0.0.1"
     port = 502
     device_id = 1
-    map = "plc.csv"                               # register map CSV (docs/connectors.md)
+    map = "plc.csv"                               # register map CSV (docs/reference/connectors.md)
     timeout = 1.0
 
     [[source]]

@@ -1,6 +1,6 @@
 """Rule-base files: one TOML file per model that plant experts edit by hand.
 
-Layout (see ``docs/rulebase.md``)::
+Layout (see ``docs/reference/rulebase.md``)::
 
     [model]        name, description, method, shape, period (lags count samples)
     [output]       spec, label, unit, span = [lo, hi], sets

@@ -62,7 +62,7 @@ feed_pump_degradation     process  FIC101.OUT   pump capacity −35 %, over 1 da
 
 Default sizes were chosen on seeds 100–199 only, so that a plant engineer would want each
 caught and PCA T² + Q catches some at once, some partly and some not at all
-(``benchmarks/bench_chemplant_pca.py``, docs/diagnostics.md "The chemical plant").
+(``benchmarks/bench_chemplant_pca.py``, docs/reference/chemplant.md).
 
 :func:`sample` gives the historian's view: means over each period (``how="mean"``, stamped at
 the period's start) or the instantaneous reading at each period (``"last"``).
