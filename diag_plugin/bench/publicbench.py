@@ -27,7 +27,6 @@ at the top) — the pages under ``docs/results/`` are generated, never edited by
 
 from __future__ import annotations
 
-import datetime as _dt
 import logging
 import subprocess
 import sys
@@ -40,6 +39,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.bench.matched import FaultRun, Scored, curve, method_score, side_ratio
+from diag_plugin.bench.pages import provenance
 from diag_plugin.bench.publicplants import PlantRun, PublicPlant
 
 log = logging.getLogger(__name__)
@@ -395,18 +395,6 @@ def _dur(s: float | None) -> str:
     return f"{s / 3600:.1f} h" if s >= 3600 else f"{s / 60:.0f} min" if s >= 60 else f"{s:.0f} s"
 
 
-def _commit() -> str:
-    try:
-        p = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                           text=True, timeout=10, cwd=Path(__file__).parent)  # fmt: skip
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10,
-                               cwd=Path(__file__).parent).stdout.strip()  # fmt: skip
-        return p.stdout.strip() + (" (with uncommitted changes)" if dirty else "")
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
 def _summary(pts: list[dict], methods: list[str], per: str) -> list[str]:
     """The curve as a table: per target and method the mean detection, the runs named, the
     false alarms on the fault-free scoring runs and the calibration rate reached."""
@@ -441,11 +429,7 @@ def render_page(out: dict, command: str) -> str:
     lines = [
         f"# Matched false alarms: {out['title']}",
         "",
-        "*Generated — do not edit by hand; run the command again.*",
-        "",
-        f"- command: `{command}`",
-        f"- date: {_dt.datetime.now(_dt.UTC).strftime('%Y-%m-%d %H:%M UTC')}",
-        f"- commit: {_commit()}",
+        *provenance(command),
         f"- data: {out['source']}",
         f"- sample period {out['period_s']:g} s; every method's statistics after on/off "
         f"delays of {out['delays'][0]}/{out['delays'][1]} samples, then their maximum; the "
