@@ -23,25 +23,31 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from diag_plugin.simulate.tagtable import tag_table
+
 G = 981.0  # cm/s²
 START = pd.Timestamp("2026-03-02", tz="UTC")
 
 #: the tank rig's tags: (unit, lo, hi, description)
-TANK_TAGS = {
-    "U": ("%", 0.0, 100.0, "pump command"),
-    "Q": ("cm3/s", 0.0, 120.0, "pump flow"),
-    "H1": ("cm", 0.0, 40.0, "tank 1 level"),
-    "H2": ("cm", 0.0, 40.0, "tank 2 level"),
-}
+TANK_TAGS = tag_table(
+    """
+U  | %     | 0 | 100 | pump command
+Q  | cm3/s | 0 | 120 | pump flow
+H1 | cm    | 0 | 40  | tank 1 level
+H2 | cm    | 0 | 40  | tank 2 level
+"""
+)
 #: the heat exchanger's tags
-HX_TAGS = {
-    "FH": ("kg/s", 0.0, 5.0, "hot flow"),
-    "FC": ("kg/s", 0.0, 6.0, "cold flow"),
-    "THI": ("degC", 50.0, 110.0, "hot inlet temperature"),
-    "TCI": ("degC", 0.0, 40.0, "cold inlet temperature"),
-    "THO": ("degC", 0.0, 110.0, "hot outlet temperature"),
-    "TCO": ("degC", 0.0, 110.0, "cold outlet temperature"),
-}
+HX_TAGS = tag_table(
+    """
+FH  | kg/s | 0  | 5   | hot flow
+FC  | kg/s | 0  | 6   | cold flow
+THI | degC | 50 | 110 | hot inlet temperature
+TCI | degC | 0  | 40  | cold inlet temperature
+THO | degC | 0  | 110 | hot outlet temperature
+TCO | degC | 0  | 110 | cold outlet temperature
+"""
+)
 
 
 @dataclass(frozen=True)

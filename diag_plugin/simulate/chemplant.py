@@ -77,6 +77,7 @@ import numpy as np
 import pandas as pd
 
 from .smallplants import _daily, _ou, _seconds
+from .tagtable import tag_table
 
 __all__ = [
     "CHEMPLANT_TAGS",
@@ -88,46 +89,50 @@ __all__ = [
 ]
 
 #: measured tags: unit, nominal range, description (order = the simulator's columns)
-_MEASURED = {
-    "FI101": ("m3/h", 0.0, 20.0, "fresh feed flow"),
-    "TI101": ("degC", 0.0, 50.0, "fresh feed temperature"),
-    "AI101": ("kmol/m3", 0.0, 3.0, "fresh feed concentration of A (analyser)"),
-    "FI102": ("m3/h", 0.0, 10.0, "recycle flow"),
-    "TI102": ("degC", 0.0, 60.0, "reactor feed temperature after mixing"),
-    "FI103": ("m3/h", 0.0, 30.0, "reactor feed flow (fresh + recycle)"),
-    "TI103": ("degC", 0.0, 120.0, "reactor feed temperature after the preheater"),
-    "FI104": ("t/h", 0.0, 3.0, "preheater steam flow"),
-    "LI101": ("%", 0.0, 100.0, "reactor level"),
-    "TI104": ("degC", 0.0, 150.0, "reactor temperature"),
-    "TI105": ("degC", 0.0, 120.0, "jacket coolant outlet temperature"),
-    "TI106": ("degC", 0.0, 50.0, "cooling-water supply temperature"),
-    "FI105": ("m3/h", 0.0, 25.0, "jacket coolant flow"),
-    "AI102": ("kmol/m3", 0.0, 3.0, "reactor outlet concentration of A (analyser)"),
-    "FI106": ("m3/h", 0.0, 30.0, "reactor outlet flow"),
-    "TI107": ("degC", 0.0, 100.0, "product cooler outlet temperature"),
-    "FI107": ("m3/h", 0.0, 80.0, "product cooler cooling-water flow"),
-    "TI108": ("degC", 0.0, 80.0, "product cooler cooling-water return temperature"),
-    "PI101": ("kPa", 80.0, 200.0, "flash drum pressure (absolute)"),
-    "LI102": ("%", 0.0, 100.0, "flash drum level"),
-    "FI108": ("m3/h", 0.0, 15.0, "flash vapour (condensate) flow"),
-    "FI109": ("m3/h", 0.0, 20.0, "bottoms product flow"),
-    "AI103": ("%", 0.0, 100.0, "product purity, share of B (analyser)"),
-    "LI103": ("%", 0.0, 100.0, "recycle drum level"),
-    "FI110": ("m3/h", 0.0, 10.0, "purge flow"),
-    "TI109": ("degC", 0.0, 80.0, "condensate (recycle) temperature"),
-}
+_MEASURED = tag_table(
+    """
+FI101 | m3/h    | 0  | 20  | fresh feed flow
+TI101 | degC    | 0  | 50  | fresh feed temperature
+AI101 | kmol/m3 | 0  | 3   | fresh feed concentration of A (analyser)
+FI102 | m3/h    | 0  | 10  | recycle flow
+TI102 | degC    | 0  | 60  | reactor feed temperature after mixing
+FI103 | m3/h    | 0  | 30  | reactor feed flow (fresh + recycle)
+TI103 | degC    | 0  | 120 | reactor feed temperature after the preheater
+FI104 | t/h     | 0  | 3   | preheater steam flow
+LI101 | %       | 0  | 100 | reactor level
+TI104 | degC    | 0  | 150 | reactor temperature
+TI105 | degC    | 0  | 120 | jacket coolant outlet temperature
+TI106 | degC    | 0  | 50  | cooling-water supply temperature
+FI105 | m3/h    | 0  | 25  | jacket coolant flow
+AI102 | kmol/m3 | 0  | 3   | reactor outlet concentration of A (analyser)
+FI106 | m3/h    | 0  | 30  | reactor outlet flow
+TI107 | degC    | 0  | 100 | product cooler outlet temperature
+FI107 | m3/h    | 0  | 80  | product cooler cooling-water flow
+TI108 | degC    | 0  | 80  | product cooler cooling-water return temperature
+PI101 | kPa     | 80 | 200 | flash drum pressure (absolute)
+LI102 | %       | 0  | 100 | flash drum level
+FI108 | m3/h    | 0  | 15  | flash vapour (condensate) flow
+FI109 | m3/h    | 0  | 20  | bottoms product flow
+AI103 | %       | 0  | 100 | product purity, share of B (analyser)
+LI103 | %       | 0  | 100 | recycle drum level
+FI110 | m3/h    | 0  | 10  | purge flow
+TI109 | degC    | 0  | 80  | condensate (recycle) temperature
+"""
+)
 #: controllers: what each holds and by which valve
-_CONTROLLERS = {
-    "FIC101": ("m3/h", 0.0, 20.0, "fresh feed flow", "feed valve"),
-    "FIC102": ("m3/h", 0.0, 10.0, "recycle flow", "recycle valve"),
-    "TIC103": ("degC", 0.0, 120.0, "preheater outlet temperature", "steam valve"),
-    "TIC104": ("degC", 0.0, 150.0, "reactor temperature", "jacket coolant valve"),
-    "LIC101": ("%", 0.0, 100.0, "reactor level", "reactor outlet valve"),
-    "TIC107": ("degC", 0.0, 100.0, "cooler outlet temperature", "cooler water valve"),
-    "PIC101": ("kPa", 80.0, 200.0, "flash drum pressure", "vapour valve"),
-    "LIC102": ("%", 0.0, 100.0, "flash drum level", "bottoms valve"),
-    "LIC103": ("%", 0.0, 100.0, "recycle drum level", "purge valve"),
-}
+_CONTROLLERS = tag_table(
+    """
+FIC101 | m3/h | 0  | 20  | fresh feed flow              | feed valve
+FIC102 | m3/h | 0  | 10  | recycle flow                 | recycle valve
+TIC103 | degC | 0  | 120 | preheater outlet temperature | steam valve
+TIC104 | degC | 0  | 150 | reactor temperature          | jacket coolant valve
+LIC101 | %    | 0  | 100 | reactor level                | reactor outlet valve
+TIC107 | degC | 0  | 100 | cooler outlet temperature    | cooler water valve
+PIC101 | kPa  | 80 | 200 | flash drum pressure          | vapour valve
+LIC102 | %    | 0  | 100 | flash drum level             | bottoms valve
+LIC103 | %    | 0  | 100 | recycle drum level           | purge valve
+"""
+)
 #: every tag: (unit, lo, hi, description, kind) with kind "measurement", "controller output"
 #: or "set-point"
 CHEMPLANT_TAGS: dict[str, tuple[str, float, float, str, str]] = {

@@ -21,23 +21,29 @@ import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
+from diag_plugin.simulate.tagtable import tag_table
+
 #: tags of each plant: unit, nominal range, description
-TANK_TAGS = {
-    "LT101": ("%", 0.0, 100.0, "tank level"),
-    "FI101": ("m3/h", 0.0, 80.0, "inflow (disturbance)"),
-    "FI102": ("m3/h", 0.0, 80.0, "outflow through the level control valve"),
-    "LIC101.OUT": ("%", 0.0, 100.0, "level controller output (valve opening)"),
-    "LIC101.SP": ("%", 0.0, 100.0, "level set-point"),
-}
-HEATEX_TAGS = {
-    "TI201": ("degC", 0.0, 150.0, "process inlet temperature"),
-    "TI202": ("degC", 0.0, 150.0, "process outlet temperature (controlled)"),
-    "TI203": ("degC", 0.0, 50.0, "cooling-water inlet temperature"),
-    "FI201": ("t/h", 0.0, 60.0, "process flow"),
-    "FI202": ("t/h", 0.0, 120.0, "cooling-water flow"),
-    "TIC202.OUT": ("%", 0.0, 100.0, "temperature controller output (cooling valve)"),
-    "TIC202.SP": ("degC", 0.0, 150.0, "outlet temperature set-point"),
-}
+TANK_TAGS = tag_table(
+    """
+LT101      | %    | 0 | 100 | tank level
+FI101      | m3/h | 0 | 80  | inflow (disturbance)
+FI102      | m3/h | 0 | 80  | outflow through the level control valve
+LIC101.OUT | %    | 0 | 100 | level controller output (valve opening)
+LIC101.SP  | %    | 0 | 100 | level set-point
+"""
+)
+HEATEX_TAGS = tag_table(
+    """
+TI201      | degC | 0 | 150 | process inlet temperature
+TI202      | degC | 0 | 150 | process outlet temperature (controlled)
+TI203      | degC | 0 | 50  | cooling-water inlet temperature
+FI201      | t/h  | 0 | 60  | process flow
+FI202      | t/h  | 0 | 120 | cooling-water flow
+TIC202.OUT | %    | 0 | 100 | temperature controller output (cooling valve)
+TIC202.SP  | degC | 0 | 150 | outlet temperature set-point
+"""
+)
 PLANTS = {"tank": TANK_TAGS, "heatex": HEATEX_TAGS}
 
 
