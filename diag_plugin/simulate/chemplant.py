@@ -169,39 +169,58 @@ class ChemFault:
     ramp_s: float = 0.0
 
 
-FAULTS: dict[str, ChemFault] = {
-    "ti104_bias": ChemFault(1, "sensor", ("TI104",), 2.0, "degC",
-                            "reactor temperature sensor reads high (inside TIC104's loop)"),
-    "fi109_bias": ChemFault(2, "sensor", ("FI109",), 0.5, "m3/h",
-                            "product flow meter reads high (no loop uses it)"),
-    "ti107_drift": ChemFault(3, "sensor", ("TI107",), 4.0, "degC/day",
-                             "cooler outlet sensor drifts up (inside TIC107's loop)"),
-    "ai102_drift": ChemFault(4, "sensor", ("AI102",), 0.2, "kmol/m3/day",
-                             "reactor analyser drifts up (no loop uses it)"),
-    "tv104_stiction": ChemFault(5, "actuator", ("TIC104.OUT",), 5.0, "%",
-                                "jacket coolant valve sticks: moves only when the demand is "
-                                "more than the band away, then jumps to it"),
-    "tv103_stuck": ChemFault(6, "actuator", ("TIC103.OUT",), 0.0, "%",
-                             "steam valve frozen at its opening at the onset (plus size)"),
-    "tv107_bias": ChemFault(7, "actuator", ("TIC107.OUT",), -12.0, "%",
-                            "cooler water valve opens less than asked (positioner offset)"),
-    "cooler_fouling": ChemFault(8, "process", ("TIC107.OUT",), 0.5, "share of UA",
-                                "product cooler fouls: UA falls linearly", 2 * 86400.0),
-    "feed_comp_step": ChemFault(9, "process", ("AI101",), 0.25, "kmol/m3",
-                                "more A in the fresh feed (step)"),
-    "feed_temp_step": ChemFault(10, "process", ("TI101",), 8.0, "degC",
-                                "warmer fresh feed (step)"),
-    "catalyst_decay": ChemFault(11, "process", ("AI102",), 0.25, "share per day",
-                                "catalyst activity decays exponentially"),
-    "cw_temp_variation": ChemFault(12, "process", ("TI106",), 3.0, "degC",
-                                   "cooling-water supply wanders more (15-min OU of this s.d.)"),
-    "recycle_leak": ChemFault(13, "process", ("FI103",), 0.6, "m3/h",
-                              "recycle line leaks after its flow meter"),
-    "separator_leak": ChemFault(14, "process", ("FI109",), 1.5, "m3/h",
-                                "flash drum leaks liquid"),
-    "feed_pump_degradation": ChemFault(15, "process", ("FIC101.OUT",), 0.35, "share of capacity",
-                                       "feed pump wears: capacity falls linearly", 86400.0),
-}  # fmt: skip
+#: the faults, a row each: name | code | kind | tags at fault | size | unit | ramp_s; the
+#: indented lines under it: the description
+_FAULT_TABLE = """
+ti104_bias            | 1  | sensor   | TI104      | 2    | degC              | 0
+    | reactor temperature sensor reads high (inside TIC104's loop)
+fi109_bias            | 2  | sensor   | FI109      | 0.5  | m3/h              | 0
+    | product flow meter reads high (no loop uses it)
+ti107_drift           | 3  | sensor   | TI107      | 4    | degC/day          | 0
+    | cooler outlet sensor drifts up (inside TIC107's loop)
+ai102_drift           | 4  | sensor   | AI102      | 0.2  | kmol/m3/day       | 0
+    | reactor analyser drifts up (no loop uses it)
+tv104_stiction        | 5  | actuator | TIC104.OUT | 5    | %                 | 0
+    | jacket coolant valve sticks: moves only when the demand is more than the band away, then
+    | jumps to it
+tv103_stuck           | 6  | actuator | TIC103.OUT | 0    | %                 | 0
+    | steam valve frozen at its opening at the onset (plus size)
+tv107_bias            | 7  | actuator | TIC107.OUT | -12  | %                 | 0
+    | cooler water valve opens less than asked (positioner offset)
+cooler_fouling        | 8  | process  | TIC107.OUT | 0.5  | share of UA       | 172800
+    | product cooler fouls: UA falls linearly
+feed_comp_step        | 9  | process  | AI101      | 0.25 | kmol/m3           | 0
+    | more A in the fresh feed (step)
+feed_temp_step        | 10 | process  | TI101      | 8    | degC              | 0
+    | warmer fresh feed (step)
+catalyst_decay        | 11 | process  | AI102      | 0.25 | share per day     | 0
+    | catalyst activity decays exponentially
+cw_temp_variation     | 12 | process  | TI106      | 3    | degC              | 0
+    | cooling-water supply wanders more (15-min OU of this s.d.)
+recycle_leak          | 13 | process  | FI103      | 0.6  | m3/h              | 0
+    | recycle line leaks after its flow meter
+separator_leak        | 14 | process  | FI109      | 1.5  | m3/h              | 0
+    | flash drum leaks liquid
+feed_pump_degradation | 15 | process  | FIC101.OUT | 0.35 | share of capacity | 86400
+    | feed pump wears: capacity falls linearly
+"""
+
+
+def _read_faults(text: str) -> dict[str, ChemFault]:
+    """The faults of :data:`_FAULT_TABLE`, by name."""
+    rows: list[list[str]] = []
+    for line in text.strip().splitlines():
+        if line.startswith(" "):  # the description, continued
+            rows[-1][-1] = f"{rows[-1][-1]} {line.strip(' |')}".strip()
+        else:
+            rows.append([c.strip() for c in line.split("|")] + [""])
+    return {
+        name: ChemFault(int(code), kind, tuple(tags.split()), float(size), unit, desc, float(ramp))
+        for name, code, kind, tags, size, unit, ramp, desc in rows
+    }
+
+
+FAULTS: dict[str, ChemFault] = _read_faults(_FAULT_TABLE)
 
 #: warm-up before the first recorded second (the plant settles from its initial state)
 WARMUP_S = 6 * 3600
