@@ -11,7 +11,14 @@ import os
 import uuid
 
 import pytest
-from helpers import MISSING, require
+from helpers import MISSING, require, run_diag
+
+
+@pytest.fixture(scope="module")
+def anyio_backend():
+    """The async tests (``pytest.mark.anyio``) run on asyncio."""
+    return "asyncio"
+
 
 PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/postgres"
 
@@ -92,3 +99,18 @@ def pytest_runtest_makereport(item, call):
                 f"{reason.removeprefix('Skipped: ')}"
             )
     return rep
+
+
+@pytest.fixture(scope="session")
+def cli_plant(tmp_path_factory):
+    """A folder where ``diag`` simulated a day of the valve (seed 3) and imported it into its
+    historian: the start of a user's session, shared by the tests that add models to it
+    (each under its own name)."""
+    cwd = tmp_path_factory.mktemp("cli_plant")
+    for args in (
+        ("simulate", "--days", "1", "--seed", "3", "--out", "p.parquet"),
+        ("import", "p.parquet"),
+    ):
+        r = run_diag(cwd, *args)
+        assert r.returncode == 0, r.stderr
+    return cwd

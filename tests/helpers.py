@@ -1,6 +1,7 @@
 """Small synthetic plants shared by tests (not tests themselves), and ``require``."""
 
 import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -83,3 +84,50 @@ def valve_frame(days: float, seed: int) -> pd.DataFrame:
 #: seed 001 Table 4 (rules 10–14) as a matrix file: the servomotor–valve unit
 #: the seed 001 Table 4 matrix, as the example unit ships it
 VALVE_TABLE4 = TABLE4_MATRIX
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Out:
+    """A text stream for a console to print to (not a terminal); ``text`` is what it got."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def write(self, s: str) -> None:
+        self.lines.append(s)
+
+    def flush(self) -> None:
+        pass
+
+    def isatty(self) -> bool:
+        return False
+
+    @property
+    def text(self) -> str:
+        return "".join(self.lines)
+
+
+def cv_flow_historian(tmp_path, noise: float, seed: int) -> list[str]:
+    """Four days of a valve-like flow at 10 s, F = 30 (CV/100)² + N(0, noise) t/h, in SQLite;
+    the global options for ``diag``."""
+    from historian import Historian
+
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    rng = np.random.default_rng(seed)
+    n = 4 * 8640
+    idx = pd.date_range("2026-03-01", periods=n, freq="10s", tz="UTC", name="ts")
+    cv = rng.uniform(5, 95, n // 60 + 1).repeat(60)[:n]
+    f = np.r_[0, 30 * (cv[:-1] / 100) ** 2] + rng.normal(0, noise, n)
+    with Historian.open(url) as h:
+        h.ensure_tag("CV", unit="%", lo=0, hi=100, description="controller output")
+        h.ensure_tag("F", unit="t/h", lo=0, hi=40, description="flow")
+        h.write_samples(pd.DataFrame({"CV": cv, "F": f}, index=idx))
+    rules = tmp_path / "rulebases"
+    rules.mkdir()
+    return ["--db", url, "--rulebases", str(rules)]

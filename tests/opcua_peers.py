@@ -9,8 +9,9 @@ sessions; ``client(...)`` opens an asyncua client as one of them.
 
 from __future__ import annotations
 
-import socket
 from pathlib import Path
+
+from helpers import free_port  # noqa: F401 - the peers' callers import it from here
 
 from connectors.certs import CertPair, certificate_der, make_certificate, trust
 from connectors.opcua_access import OpcUaUser
@@ -19,10 +20,14 @@ from connectors.passwords import hash_password
 PASSWORDS = {"alice": "alice-pw-1", "bob": "bob-pw-22"}
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+class Events:
+    """An OPC UA event subscription's handler that keeps every event."""
+
+    def __init__(self) -> None:
+        self.items: list = []
+
+    def event_notification(self, event) -> None:
+        self.items.append(event)
 
 
 def pki(folder: Path) -> dict[str, CertPair | Path]:

@@ -302,23 +302,13 @@ def test_compare_methods_trains_every_method_on_the_same_data(tmp_path, capsys):
     model file untouched (seed 000 Figs. 3–7)."""
     import json
 
+    from helpers import cv_flow_historian
+
     from diag_plugin.cli import main
     from diag_plugin.models.registry import METHODS
-    from historian import Historian
 
-    url = f"sqlite:///{tmp_path / 'h.db'}"
-    rng = np.random.default_rng(0)
-    n = 4 * 8640
-    idx = pd.date_range("2026-03-01", periods=n, freq="10s", tz="UTC", name="ts")
-    cv = rng.uniform(5, 95, n // 60 + 1).repeat(60)[:n]
-    f = np.r_[0, 30 * (cv[:-1] / 100) ** 2] + rng.normal(0, 0.1, n)
-    with Historian.open(url) as h:
-        h.ensure_tag("CV", unit="%", lo=0, hi=100, description="controller output")
-        h.ensure_tag("F", unit="t/h", lo=0, hi=40, description="flow")
-        h.write_samples(pd.DataFrame({"CV": cv, "F": f}, index=idx))
+    g = cv_flow_historian(tmp_path, noise=0.1, seed=0)
     rules = tmp_path / "rulebases"
-    rules.mkdir()
-    g = ["--db", url, "--rulebases", str(rules)]
     assert main([*g, "model", "new", "m", "--output", "F", "--input", "CV[k-1]"]) == 0
     before = (rules / "m.toml").read_text()
     capsys.readouterr()

@@ -31,33 +31,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import require
+from helpers import Out, free_port, require
 
 ROWS = 205  # the first row of a stretch every trained rule covers (see test_live_sources)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class Out:
-    def __init__(self) -> None:
-        self.lines: list[str] = []
-
-    def write(self, s: str) -> None:
-        self.lines.append(s)
-
-    def flush(self) -> None:
-        pass
-
-    def isatty(self) -> bool:
-        return False
-
-    @property
-    def text(self) -> str:
-        return "".join(self.lines)
 
 
 @pytest.fixture(scope="module")

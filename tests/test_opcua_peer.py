@@ -17,12 +17,11 @@ from __future__ import annotations
 import asyncio
 import json
 import shutil
-import socket
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from helpers import REPO, requires
+from helpers import REPO, free_port, requires
 
 from connectors.base import TagQuality
 from connectors.certs import CertPair, make_certificate, trust
@@ -39,17 +38,6 @@ need_node = requires("node-opcua (npm)", HAVE_NODE, "cd tests/peers/opcua && npm
 pytestmark = pytest.mark.anyio
 USER, PASSWORD = "operator", "s3cret-pw"
 VIEWER, VIEWER_PASSWORD = "watcher", "look-only-pw"
-
-
-@pytest.fixture(scope="module")
-def anyio_backend():
-    return "asyncio"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")

@@ -24,11 +24,6 @@ from connectors.opcua_server import NAMESPACE, DiagOpcUaServer
 pytestmark = pytest.mark.anyio
 
 
-@pytest.fixture(scope="module")
-def anyio_backend():
-    return "asyncio"
-
-
 class Recorder:
     """The rogue server's user manager: every login attempt it sees."""
 

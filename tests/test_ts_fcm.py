@@ -262,19 +262,8 @@ def test_trains_compares_and_explains_through_the_seam(tmp_path):
     assert not any("--sets" in c.command for c in e.candidates)
 
 
-@pytest.fixture(scope="module")
-def plant(tmp_path_factory):
-    cwd = tmp_path_factory.mktemp("plant")
-    for args in (
-        ("simulate", "--days", "1", "--seed", "3", "--out", "p.parquet"),
-        ("import", "p.parquet"),
-    ):
-        r = run_diag(cwd, *args)
-        assert r.returncode == 0, r.stderr
-    return cwd
-
-
-def test_cli_model_new_train_compare(plant):
+def test_cli_model_new_train_compare(cli_plant):
+    plant = cli_plant
     new = ("model", "new", "ts", "--output", "F", "--input", "CV[k-1]", "--method", "ts-fcm")
     for args in (new, ("train", "ts"), ("compare", "ts", "--json")):
         r = run_diag(plant, *args)
