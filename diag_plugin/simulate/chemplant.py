@@ -76,7 +76,7 @@ import numba as nb
 import numpy as np
 import pandas as pd
 
-from .smallplants import _daily, _ou, _seconds
+from .smallplants import _daily, _ou, _pi, _seconds
 from .tagtable import tag_table
 
 __all__ = [
@@ -250,19 +250,6 @@ def _hold_schedule(
         prev = value
         i = j
     return out
-
-
-@nb.njit(cache=True)
-def _pi(e, kp, ti, integ):  # pragma: no cover - numba
-    """Positional PI with conditional integration (anti-windup): output %, new integral."""
-    out = kp * e + integ
-    if out > 100.0:
-        out = 100.0
-    elif out < 0.0:
-        out = 0.0
-    else:
-        integ += kp * e / ti
-    return out, integ
 
 
 @nb.njit(cache=True)

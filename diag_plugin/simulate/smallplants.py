@@ -83,10 +83,30 @@ def _seconds(days: float, start: str | pd.Timestamp) -> pd.DatetimeIndex:
     return pd.DatetimeIndex(t0 + pd.to_timedelta(np.arange(n), unit="s"), name="ts")
 
 
+def _grid(days: float, start: str | pd.Timestamp, stream: list[int]):
+    """A run's 1 s index, its first time, its length and its random stream (``stream``: the
+    seed and the plant's own number, so plants of one seed draw independently)."""
+    index = _seconds(days, start)
+    return index, index[0], len(index), np.random.default_rng(stream)
+
+
 def _daily(n: int, start: pd.Timestamp, amplitude: float, peak_hour: float) -> np.ndarray:
     s0 = (start - start.normalize()).total_seconds()
     t = s0 + np.arange(n)
     return amplitude * np.cos(2 * np.pi * (t / 86400.0 - peak_hour / 24.0))
+
+
+@nb.njit(cache=True)
+def _pi(e, kp, ti, integ):  # pragma: no cover - numba
+    """Positional PI with conditional integration (anti-windup): output %, new integral."""
+    out = kp * e + integ
+    if out > 100.0:
+        out = 100.0
+    elif out < 0.0:
+        out = 0.0
+    else:
+        integ += kp * e / ti
+    return out, integ
 
 
 @nb.njit(cache=True)
@@ -99,13 +119,7 @@ def _tank_loop(fin, sp, kv, area_m2, height_m, kp, ti_s, level0):  # pragma: no 
     integ = 50.0
     for i in range(n):
         e = x - sp[i]  # reverse acting: a high level opens the valve
-        out = kp * e + integ
-        if out > 100.0:
-            out = 100.0
-        elif out < 0.0:
-            out = 0.0
-        else:
-            integ += kp * e / ti_s
+        out, integ = _pi(e, kp, ti_s, integ)
         head = max(x, 0.0) / 100.0 * height_m + 0.5  # m of liquid above the valve
         q = kv * (out / 100.0) * np.sqrt(head)  # m3/h
         level[i] = x
@@ -120,9 +134,7 @@ def simulate_tank(
     days: float, *, seed: int = 0, start: str | pd.Timestamp = "2026-03-02"
 ) -> pd.DataFrame:
     """A buffer tank with a level controller on its outflow valve, on a 1 s grid."""
-    index = _seconds(days, start)
-    start, n = index[0], len(index)
-    rng = np.random.default_rng([seed, 101])
+    index, start, n, rng = _grid(days, start, [seed, 101])
     fin = (
         38.0
         + _daily(n, start, 6.0, 14.0)
@@ -171,13 +183,7 @@ def _heatex_loop(fp, tp_in, tw_in, sp, ua, kp, ti_s, lag_s, valve_s, dead_s):  #
     for i in range(n):
         measured = hist[i % (dead_s + 1)]  # the outlet temperature dead_s seconds ago
         e = measured - sp[i]  # direct acting: too hot opens the cooling valve
-        out = kp * e + integ
-        if out > 100.0:
-            out = 100.0
-        elif out < 0.0:
-            out = 0.0
-        else:
-            integ += kp * e / ti_s
+        out, integ = _pi(e, kp, ti_s, integ)
         flow_w += (120.0 * out / 100.0 - flow_w) / valve_s
         cp_hot = fp[i] * 1000.0 / 3600.0 * cp_p  # kW/K
         cw = max(flow_w, 0.5) * 1000.0 / 3600.0 * cp_w
@@ -203,9 +209,7 @@ def simulate_heat_exchanger(
     days: float, *, seed: int = 0, start: str | pd.Timestamp = "2026-03-02"
 ) -> pd.DataFrame:
     """A process cooler whose temperature controller moves the cooling-water valve, 1 s."""
-    index = _seconds(days, start)
-    start, n = index[0], len(index)
-    rng = np.random.default_rng([seed, 202])
+    index, start, n, rng = _grid(days, start, [seed, 202])
     fp = np.clip(30.0 + _ou(rng, n, 4.0, 3 * 3600.0) + _steps(rng, n, 2.0, 4.0), 12.0, 55.0)
     tp_in = np.clip(88.0 + _ou(rng, n, 3.0, 5 * 3600.0) + _ou(rng, n, 0.3, 60.0), 70.0, 110.0)
     tw_in = 21.0 + _daily(n, start, 4.0, 15.0) + _ou(rng, n, 1.0, 6 * 3600.0)
