@@ -76,7 +76,7 @@ import numba as nb
 import numpy as np
 import pandas as pd
 
-from .smallplants import _daily, _ou, _pi, _seconds
+from .smallplants import _counterflow, _daily, _ou, _pi, _seconds
 from .tagtable import tag_table
 
 __all__ = [
@@ -387,14 +387,7 @@ def _plant_loop(ca0, t0, tcw, pump, cwx, sp, noise_seed, code, i0, size, ramp): 
         # product cooler, counter-current
         ch = max(fout, 0.5) / 3600.0 * rcp
         cw = max(fw, 0.5) / 3600.0 * 4180.0
-        cmin, cmax = min(ch, cw), max(ch, cw)
-        cr = cmin / cmax
-        ntu = ua_i / cmin
-        if abs(1.0 - cr) < 1e-6:
-            eff = ntu / (1.0 + ntu)
-        else:
-            ex = np.exp(-ntu * (1.0 - cr))
-            eff = (1.0 - ex) / (1.0 - cr * ex)
+        eff, cmin = _counterflow(ch, cw, ua_i)
         q = eff * cmin * (t - tcw_i)
         tco += (t - q / ch - tco) / 60.0
         twr += (tcw_i + q / cw - twr) / 60.0

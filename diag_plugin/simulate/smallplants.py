@@ -110,6 +110,22 @@ def _pi(e, kp, ti, integ):  # pragma: no cover - numba
 
 
 @nb.njit(cache=True)
+def _counterflow(c1, c2, ua):  # pragma: no cover - numba
+    """A counter-flow exchanger's effectiveness (ε–NTU) for heat-capacity rates ``c1``,
+    ``c2`` and conductance ``ua`` (same units), and the smaller rate C_min."""
+    cmin = min(c1, c2)
+    cmax = max(c1, c2)
+    r = cmin / cmax
+    ntu = ua / cmin
+    if abs(1.0 - r) < 1e-6:
+        eff = ntu / (1.0 + ntu)
+    else:
+        ex = np.exp(-ntu * (1.0 - r))
+        eff = (1.0 - ex) / (1.0 - r * ex)
+    return eff, cmin
+
+
+@nb.njit(cache=True)
 def _tank_loop(fin, sp, kv, area_m2, height_m, kp, ti_s, level0):  # pragma: no cover
     n = fin.shape[0]
     level = np.empty(n)
@@ -187,15 +203,7 @@ def _heatex_loop(fp, tp_in, tw_in, sp, ua, kp, ti_s, lag_s, valve_s, dead_s):  #
         flow_w += (120.0 * out / 100.0 - flow_w) / valve_s
         cp_hot = fp[i] * 1000.0 / 3600.0 * cp_p  # kW/K
         cw = max(flow_w, 0.5) * 1000.0 / 3600.0 * cp_w
-        cmin = min(cp_hot, cw)
-        cmax = max(cp_hot, cw)
-        r = cmin / cmax
-        ntu = ua / cmin
-        if abs(1.0 - r) < 1e-6:
-            eff = ntu / (1.0 + ntu)
-        else:
-            ex = np.exp(-ntu * (1.0 - r))
-            eff = (1.0 - ex) / (1.0 - r * ex)
+        eff, cmin = _counterflow(cp_hot, cw, ua)
         target = tp_in[i] - eff * cmin / cp_hot * (tp_in[i] - tw_in[i])
         y += (target - y) / lag_s
         tout[i] = measured

@@ -45,7 +45,7 @@ from historian.taginfo import TagInfo
 from . import _kernel as K
 from .faults import FAULTS, N_FAULTS, FaultSpec, fault_index, fault_truth
 from .process import ProcessGenerator, ProcessParams
-from .tagtable import tag_table
+from .tagtable import tag_infos
 
 __all__ = [
     "TAGS",
@@ -58,10 +58,8 @@ __all__ = [
 #: metadata of the output tags: unit, nominal (transducer) range, description. Ranges:
 #: DABLib Table 2 (P1, P2 0–4 MPa, T1 0–200 °C, X 0–100 %, F 0–40 t/h) and Table 23
 #: (chamber and supply pressure 0–0.6 MPa).
-TAGS: dict[str, TagInfo] = {
-    tag: TagInfo(tag, *row)
-    for tag, row in tag_table(
-        """
+TAGS: dict[str, TagInfo] = tag_infos(
+    """
 CV  | %   | 0 | 100  | controller output to the positioner
 P1  | kPa | 0 | 4000 | valve inlet pressure (absolute)
 P2  | kPa | 0 | 4000 | valve outlet pressure (absolute)
@@ -71,8 +69,7 @@ F   | t/h | 0 | 40   | flow through the valve (and the bypass)
 P0  | kPa | 0 | 600  | E/P transducer output pressure (gauge)
 Pch | kPa | 0 | 600  | servomotor chamber pressure (gauge)
 """
-    ).items()
-}
+)
 
 
 def _default_spans() -> dict[str, tuple[float, float]]:
