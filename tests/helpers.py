@@ -131,3 +131,71 @@ def cv_flow_historian(tmp_path, noise: float, seed: int) -> list[str]:
     rules = tmp_path / "rulebases"
     rules.mkdir()
     return ["--db", url, "--rulebases", str(rules)]
+
+
+def trained_valve_file(folder: Path, method: str, seed: int = 6):
+    """A model file F[k] = f(CV[k-1], P1[k]) of ``method`` trained on a day of the simulated
+    valve (seed ``seed``) and saved in ``folder``: ``(rule base, training result, frame)``."""
+    from diag_plugin.rulebase.document import RuleBase, Variable
+    from diag_plugin.training.chunked import train
+
+    f = valve_frame(1, seed=seed)
+    rb = RuleBase.new(
+        method[0],
+        Variable("F[k]", "F", "t/h", (0.0, 40.0)),
+        [
+            Variable("CV[k-1]", "CV", "%", (0.0, 100.0)),
+            Variable("P1[k]", "P1_", "kPa", (300.0, 700.0)),
+        ],
+        method=method,
+        path=Path(folder) / f"{method[0]}.toml",
+    )
+    a, b = f.index[0], f.index[-1] + pd.Timedelta("10s")
+    res = train(rb, lambda s, e: f[(f.index >= s) & (f.index < e)], a, b, chunk=pd.Timedelta("5h"))
+    rb.apply_training(res.model, {"samples": res.samples})
+    rb.save()
+    return rb, res, f
+
+
+def broken_edit_is_named(path: Path, folder: Path, old: str, new: str, message: str) -> None:
+    """Replacing ``old`` by ``new`` in the model file ``path`` (written to ``folder/bad.toml``)
+    makes loading it fail with ``bad.toml:LINE: message``, LINE where ``old`` stood."""
+    from diag_plugin.rulebase.document import RuleBase, RuleBaseError
+
+    text = Path(path).read_text()
+    assert old in text
+    line = next(k for k, ln in enumerate(text.splitlines(), 1) if old in ln)
+    (folder / "bad.toml").write_text(text.replace(old, new, 1))
+    with pytest.raises(RuleBaseError, match=rf"bad\.toml:{line}: {message}"):
+        RuleBase.load(folder / "bad.toml")
+
+
+def compares_and_explains(path: Path, frame: pd.DataFrame):
+    """A trained model file of a method without sets goes through the workbench's seam:
+    ``compare`` covers the data with no worst regions, ``explain`` ranks candidates and
+    offers no set counts."""
+    from diag_plugin.rulebase.document import RuleBase
+    from diag_plugin.workbench.compare import compare
+    from diag_plugin.workbench.explain import explain
+
+    c = compare(RuleBase.load(path), frame)
+    assert c.metrics["coverage"] > 0.99 and c.as_dict()["worst_regions"] == []
+    e = explain(RuleBase.load(path), frame, max_lag=2)
+    assert e.candidates and np.isfinite(e.baseline_rmse_pct)
+    # set counts mean nothing to such a method: explain does not offer them
+    assert not any("--sets" in c.command for c in e.candidates)
+    return c
+
+
+def cli_new_train_compare(folder: Path, name: str, method: str) -> tuple[dict, str]:
+    """``diag model new NAME --method METHOD`` (F from CV[k-1]), ``train``, ``compare --json``
+    in ``folder``: the comparison and the model file's text."""
+    import json
+
+    new = ("model", "new", name, "--output", "F", "--input", "CV[k-1]", "--method", method)
+    for args in (new, ("train", name), ("compare", name, "--json")):
+        r = run_diag(folder, *args)
+        assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["coverage"] > 0.99 and np.isfinite(doc["rmse_pct"])
+    return doc, (folder / "rulebases" / f"{name}.toml").read_text()

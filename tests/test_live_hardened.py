@@ -107,6 +107,17 @@ def run(cfg_path: Path, plc, rows: pd.DataFrame, decide, duration: float = 120.0
     return asyncio.run(main()), out.text, timeline
 
 
+def run_with_plc(port: int, cfg_path: Path, rows: pd.DataFrame, decide):
+    """:func:`run` (in a thread) against our PLC server on ``port``."""
+    from connectors.modbus_server import PlantServer
+
+    async def serve():
+        async with PlantServer(port=port) as plc:
+            return await asyncio.to_thread(run, cfg_path, plc, rows, decide)
+
+    return asyncio.run(serve())
+
+
 def samples(url: str, tag: str) -> pd.DataFrame:
     from historian.store import Historian
 
@@ -129,7 +140,6 @@ def events(url: str) -> pd.DataFrame:
 
 # ---------------------------------------------------------------- frozen and absurd values
 def test_frozen_plc_and_nan_inf_make_check_function_never_a_fault(plant_dir):
-    from connectors.modbus_server import PlantServer
 
     d, frame = plant_dir
     port = free_port()
@@ -154,11 +164,7 @@ def test_frozen_plc_and_nan_inf_make_check_function_never_a_fault(plant_dir):
             row.update(F=math.nan, X=math.inf, P1=-math.inf)
         return row
 
-    async def serve():
-        async with PlantServer(port=port) as plc:
-            return await asyncio.to_thread(run, cfg, plc, frame, decide)
-
-    rc, text, timeline = asyncio.run(serve())
+    rc, text, timeline = run_with_plc(port, cfg, frame, decide)
     assert rc == 0, text
     by_phase: dict[str, list] = {}
     for i, (_, st, q, msg) in enumerate(timeline):
@@ -265,7 +271,6 @@ def exactly_once(url: str, timeline: list[tuple]) -> pd.DataFrame:
 
 
 def test_sqlite_write_locked_30_s_by_another_process(plant_dir):
-    from connectors.modbus_server import PlantServer
 
     d, frame = plant_dir
     port = free_port()
@@ -286,12 +291,8 @@ def test_sqlite_write_locked_30_s_by_another_process(plant_dir):
             raise StopIteration
         return frame.iloc[ROWS + i % 400].to_dict()
 
-    async def serve():
-        async with PlantServer(port=port) as plc:
-            return await asyncio.to_thread(run, cfg, plc, frame, decide)
-
     try:
-        rc, text, timeline = asyncio.run(serve())
+        rc, text, timeline = run_with_plc(port, cfg, frame, decide)
     finally:
         if "lock" in state and state["lock"].p.poll() is None:
             state["lock"].p.kill()
@@ -419,7 +420,6 @@ class PrivatePostgres:
 
 
 def test_postgresql_stopped_and_restarted(plant_dir, tmp_path):
-    from connectors.modbus_server import PlantServer
 
     require(
         "PostgreSQL binaries (initdb, pg_ctl)",
@@ -451,12 +451,8 @@ def test_postgresql_stopped_and_restarted(plant_dir, tmp_path):
             raise StopIteration
         return frame.iloc[ROWS + i % 400].to_dict()
 
-    async def serve():
-        async with PlantServer(port=port) as plc:
-            return await asyncio.to_thread(run, cfg, plc, frame, decide)
-
     try:
-        rc, text, timeline = asyncio.run(serve())
+        rc, text, timeline = run_with_plc(port, cfg, frame, decide)
         assert rc == 0, text
         assert text.count("historian degraded") == 1 and text.count("historian back after") == 1
         f = exactly_once(pg.url, timeline)
