@@ -15,6 +15,7 @@ from helpers import free_port  # noqa: F401 - the peers' callers import it from 
 
 from connectors.certs import CertPair, certificate_der, make_certificate, trust
 from connectors.opcua_access import OpcUaUser
+from connectors.opcua_client import ClientSecurity
 from connectors.passwords import hash_password
 
 PASSWORDS = {"alice": "alice-pw-1", "bob": "bob-pw-22"}
@@ -64,3 +65,11 @@ async def client(
     await c.set_security_string(f"Basic256Sha256,{mode},{cert.certificate},{cert.private_key}")
     await c.connect()
     return c
+
+
+def security_of(pair: CertPair, username: str, password: str, **kw) -> ClientSecurity:
+    """Our client's security settings: ``pair``'s certificate, key and URI, a user and its
+    password, and ``kw`` (``trusted_dir``, ``server_certificate``, …)."""
+    return ClientSecurity(
+        pair.certificate, pair.private_key, pair.application_uri, username, password, **kw
+    )

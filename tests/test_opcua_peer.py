@@ -22,11 +22,12 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from helpers import REPO, free_port, requires
+from opcua_peers import security_of
 
 from connectors.base import TagQuality
 from connectors.certs import CertPair, make_certificate, trust
 from connectors.opcua_access import OpcUaUser
-from connectors.opcua_client import ClientSecurity, OpcUaConfig, OpcUaReader
+from connectors.opcua_client import OpcUaConfig, OpcUaReader
 from connectors.opcua_server import DiagOpcUaServer, ServerSecurity
 from connectors.passwords import hash_password
 from diag_plugin.status import NE107, Quality, UnitStatus
@@ -247,14 +248,7 @@ async def test_wrong_password_refused(server, pki, tmp_path):
 
 async def test_our_client_sign_and_encrypt_with_user(server, pki):
     ours = pki["ours"]
-    sec = ClientSecurity(
-        ours.certificate,
-        ours.private_key,
-        ours.application_uri,
-        USER,
-        PASSWORD,
-        trusted_dir=pki["dir"] / "trusted_servers",
-    )
+    sec = security_of(ours, USER, PASSWORD, trusted_dir=pki["dir"] / "trusted_servers")
     nodes = {"health": server.node_id("Units", "valve", "DeviceHealth")}
     r = OpcUaReader(OpcUaConfig(server.endpoint, nodes, security=sec, timeout=4.0))
     await r.start()
@@ -268,14 +262,8 @@ async def test_our_client_sign_and_encrypt_with_user(server, pki):
 
 async def test_our_client_untrusted_certificate_stays_bad(server, pki):
     st = pki["stranger"]
-    sec = ClientSecurity(
-        st.certificate,
-        st.private_key,
-        st.application_uri,
-        USER,
-        PASSWORD,
-        trusted_dir=pki["dir"] / "trusted_servers",  # we trust the server; it refuses us
-    )
+    # we trust the server; it refuses us
+    sec = security_of(st, USER, PASSWORD, trusted_dir=pki["dir"] / "trusted_servers")
     nodes = {"health": server.node_id("Units", "valve", "DeviceHealth")}
     r = OpcUaReader(OpcUaConfig(server.endpoint, nodes, security=sec, backoff_cap=1.0))
     await r.start()
