@@ -245,10 +245,7 @@ def plot(res: dict[str, Any], path: str | Path) -> Path:
         "lie on its fault-free one; P1 × 1.1–1.3 lies beyond every pressure of the hour, where A "
         "has no rules and its nearest rule answers (the same shift for every change)",
     )
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(fig, encoding="utf-8")
-    return path
+    return sp.write(fig, path)
 
 
 def figures(res: dict[str, Any]) -> dict[str, Any]:
