@@ -11,7 +11,7 @@ import os
 import uuid
 
 import pytest
-from helpers import MISSING, require, run_diag
+from helpers import MISSING, require, run_diag, trained_valve_file
 
 
 @pytest.fixture(scope="module")
@@ -82,6 +82,22 @@ def historian(db_url, tmp_path):
         h.close()
 
 
+#: the tests `make check` leaves out (marked slow here, beside the few marked in their own
+#: files): the slowest files and tests of the whole suite's profile (`pytest --durations=60`,
+#: 2026-11-28, a busy 2-core machine); `make test` runs them all. A file listed here is slow
+#: as a whole (its module fixtures are the cost); a test is listed by its name in its file.
+SLOW_FILES: frozenset[str] = frozenset()
+SLOW_TESTS: frozenset[str] = frozenset()
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark the tests of :data:`SLOW_FILES` and :data:`SLOW_TESTS` slow."""
+    for item in items:
+        name = f"{item.path.name}::{item.originalname}"
+        if item.path.name in SLOW_FILES or name in SLOW_TESTS:
+            item.add_marker(pytest.mark.slow)
+
+
 def _ci() -> bool:
     return os.environ.get("CI", "").strip().lower() == "true"
 
@@ -114,3 +130,10 @@ def cli_plant(tmp_path_factory):
         r = run_diag(cwd, *args)
         assert r.returncode == 0, r.stderr
     return cwd
+
+
+@pytest.fixture(scope="module")
+def trained(request, tmp_path_factory):
+    """A model file of the test module's ``METHOD`` trained on a day of the valve, once per
+    module, for the tests that only read it: ``(rule base, training result, frame)``."""
+    return trained_valve_file(tmp_path_factory.mktemp("trained"), request.module.METHOD)

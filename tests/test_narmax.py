@@ -23,6 +23,10 @@ from diag_plugin.rulebase.document import RuleBase, Variable
 SPANS = [(0.0, 100.0), (200.0, 1800.0), (-5.0, 5.0)]
 
 
+#: the method of the model files (the ``trained`` fixture of conftest.py reads it)
+METHOD = "narmax2"
+
+
 def poly_data(n=3000, seed=0):
     """Inputs over engineering spans and an exact second-order polynomial of them."""
     rng = np.random.default_rng(seed)
@@ -146,18 +150,8 @@ def test_terms_parse_in_any_order_and_reject_higher_orders():
     assert all(len(t) <= 2 for t in itertools.chain(term_pairs(3)))
 
 
-def _trained_file(tmp_path, seed=6):
-    return trained_valve_file(tmp_path, "narmax2", seed)
-
-
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    """One trained file for the tests that only read it."""
-    return _trained_file(tmp_path_factory.mktemp("trained"))
-
-
 def test_model_file_lists_terms_round_trips_and_predicts_like_the_model(tmp_path):
-    rb, res, f = _trained_file(tmp_path)
+    rb, res, f = trained_valve_file(tmp_path, METHOD)
     text = rb.path.read_text()
     assert 'method = "narmax2"' in text
     for term in ("1", "CV[k-1]", "CV[k-1]^2", "CV[k-1]*P1[k]", "P1[k]^2"):
@@ -201,7 +195,7 @@ def test_a_broken_edit_names_file_and_line(trained, tmp_path, old, new, message)
 
 
 def test_trains_compares_and_explains_through_the_seam(tmp_path):
-    rb, res, f = _trained_file(tmp_path, seed=7)
+    rb, res, f = trained_valve_file(tmp_path, METHOD, seed=7)
     assert res.validation["rmse_pct"] < 5.0 and res.size == 6
     assert len(compares_and_explains(rb.path, f).regions) == 0
 

@@ -19,6 +19,9 @@ from diag_plugin.models import Model
 from diag_plugin.models.protocol import REASON_NAN, REASON_OK, REASON_OUTSIDE
 from diag_plugin.rulebase.document import RuleBase, Variable
 
+#: the method of the model files (the ``trained`` fixture of conftest.py reads it)
+METHOD = "ts-fcm"
+
 
 def blobs(centres, n=400, sd=0.05, seed=0):
     rng = np.random.default_rng(seed)
@@ -187,18 +190,8 @@ def test_free_run_feeds_back_the_models_own_outputs():
     assert not TakagiSugenoRegressor(output_lags=[0, 0]).capabilities.free_run
 
 
-def _trained_file(tmp_path, seed=6):
-    return trained_valve_file(tmp_path, "ts-fcm", seed)
-
-
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    """One trained file for the tests that only read it."""
-    return _trained_file(tmp_path_factory.mktemp("trained"))
-
-
 def test_model_file_lists_rules_round_trips_and_predicts_like_the_model(tmp_path):
-    rb, res, f = _trained_file(tmp_path)
+    rb, res, f = trained_valve_file(tmp_path, METHOD)
     text = rb.path.read_text()
     for opt in ("n_clusters = 10", "m = 2.0", "eps = 0.01", "max_iter = 300", "random_state = 0"):
         assert f"\n{opt}\n" in text
@@ -238,7 +231,7 @@ def test_a_broken_edit_names_file_and_line(trained, tmp_path, old, new, message)
 
 
 def test_trains_compares_and_explains_through_the_seam(tmp_path):
-    rb, res, f = _trained_file(tmp_path, seed=7)
+    rb, res, f = trained_valve_file(tmp_path, METHOD, seed=7)
     assert res.validation["rmse_pct"] < 10.0
     # trained once on all rows after validation: as many samples as the design has
     assert res.samples == res.rows - sum(res.dropped.values())
