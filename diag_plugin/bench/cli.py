@@ -103,6 +103,10 @@ def cmd_benchmark(args) -> int:
     if not unit.has_thresholds:
         raise UserError(f"unit {unit.name} has no thresholds: run diag unit learn first")
     seeds = tuple(args.seeds or (11,))
+    if args.page:
+        from diag_plugin.bench.pages import commit
+
+        started = commit()  # the code that runs, not what the tree holds when it ends
     con = Console(stderr=True)
     with Progress(console=con, transient=True, disable=args.json or not con.is_terminal) as pr:
         n = (38 if args.quick else 76) * len(seeds)
@@ -116,7 +120,7 @@ def cmd_benchmark(args) -> int:
     if args.page:
         from diag_plugin.bench.pages import render_damadics, write
 
-        out["page"] = str(write(render_damadics(out, _command()), args.page))
+        out["page"] = str(write(render_damadics(out, _command(), started), args.page))
     if args.json:
         print(json.dumps(out, indent=2, allow_nan=False))
         return 0

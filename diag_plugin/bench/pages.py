@@ -28,14 +28,15 @@ def commit() -> str:
         return "unknown"
 
 
-def provenance(command: str) -> list[str]:
-    """The first lines of every generated page: the note, the command, the date, the commit."""
+def provenance(command: str, started: str | None = None) -> list[str]:
+    """The first lines of every generated page: the note, the command, the date, the commit
+    (``started``: the commit taken when the run began, else now)."""
     return [
         "*Generated — do not edit by hand; run the command again.*",
         "",
         f"- command: `{command}`",
         f"- date: {_dt.datetime.now(_dt.UTC).strftime('%Y-%m-%d %H:%M UTC')}",
-        f"- commit: {commit()}",
+        f"- commit: {started or commit()}",
     ]
 
 
@@ -62,7 +63,7 @@ def _mean(rows: list[dict], key: str, spec: str) -> str:
     return format(sum(vals) / len(vals), spec) if vals else "—"
 
 
-def render_damadics(out: dict[str, Any], command: str) -> str:
+def render_damadics(out: dict[str, Any], command: str, started: str | None = None) -> str:
     """The DAMADICS result (:func:`diag_plugin.bench.damadics.run_benchmark`) as markdown: one
     row per fault, mode and strength over the seeds (detected and isolated k of n, median
     detection time, mean true detection rate and unknown share), then the summary."""
@@ -71,7 +72,7 @@ def render_damadics(out: dict[str, Any], command: str) -> str:
     lines = [
         f"# DAMADICS faults against the unit {out['unit']}",
         "",
-        *provenance(command),
+        *provenance(command, started),
         f"- unit: `{out['unit']}`; seeds {seeds}; "
         + ("one strength per fault (--quick)" if st["quick"] else "every strength"),
         f"- each scenario: {st['warmup_s'] / 3600:g} h of warm-up, {st['fault_free_s'] / 3600:g} h"
