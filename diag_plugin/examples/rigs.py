@@ -66,6 +66,20 @@ class RigFault:
     onset: float
 
 
+def held_levels(
+    rng: np.random.Generator, n: int, lo: float, hi: float, hold: tuple[int, int]
+) -> np.ndarray:
+    """``n`` samples of levels drawn uniformly from ``lo``–``hi``, each held for a number of
+    samples drawn from ``hold`` (low inclusive, high exclusive): set-points an operator moves."""
+    out = np.empty(n)
+    i = 0
+    while i < n:
+        h = int(rng.integers(*hold))
+        out[i : i + h] = rng.uniform(lo, hi)
+        i += h
+    return out
+
+
 def _on(faults, kind: str, t: np.ndarray) -> np.ndarray:
     out = np.zeros_like(t, dtype=float)
     for f in faults:
@@ -148,13 +162,7 @@ def heat_exchanger(
     day = np.sin(2 * np.pi * t / 86400.0)
 
     def setpoints(lo: float, hi: float) -> np.ndarray:
-        out = np.empty(n)
-        i = 0
-        while i < n:
-            hold = int(rng.integers(20, 240))
-            out[i : i + hold] = rng.uniform(lo, hi)
-            i += hold
-        return out
+        return held_levels(rng, n, lo, hi, (20, 240))
 
     def wander(sd: float, tau_s: float) -> np.ndarray:
         a = math.exp(-dt / tau_s)
