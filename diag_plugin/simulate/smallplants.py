@@ -90,6 +90,16 @@ def _grid(days: float, start: str | pd.Timestamp, stream: list[int]):
     return index, index[0], len(index), np.random.default_rng(stream)
 
 
+def _measured(index: pd.DatetimeIndex, rng: np.random.Generator, rows: int, noisy: dict,
+              exact: dict) -> pd.DataFrame:  # fmt: skip
+    """The tags as measured: ``noisy`` tag -> (true signal, noise s.d.), white noise from
+    ``rng`` (``rows`` × n draws, a row per noisy tag in order), then the ``exact`` tags
+    (controller outputs and set-points)."""
+    noise = rng.standard_normal((rows, len(index)))
+    cols = {tag: x + sd * noise[k] for k, (tag, (x, sd)) in enumerate(noisy.items())}
+    return pd.DataFrame({**cols, **exact}, index=index)
+
+
 def _daily(n: int, start: pd.Timestamp, amplitude: float, peak_hour: float) -> np.ndarray:
     s0 = (start - start.normalize()).total_seconds()
     t = s0 + np.arange(n)
@@ -172,17 +182,8 @@ def tank_run(
     fin = np.asarray(inflow, float)
     sp = np.asarray(set_point, float)
     level, u, fout = _tank_loop(fin, sp, 60.0, 12.0, 4.0, 4.0, 900.0, 50.0)
-    noise = rng.standard_normal((4, fin.size))
-    return pd.DataFrame(
-        {
-            "LT101": level + 0.15 * noise[0],
-            "FI101": fin + 0.3 * noise[1],
-            "FI102": fout + 0.3 * noise[2],
-            "LIC101.OUT": u,
-            "LIC101.SP": sp,
-        },
-        index=index,
-    )
+    noisy = {"LT101": (level, 0.15), "FI101": (fin, 0.3), "FI102": (fout, 0.3)}
+    return _measured(index, rng, 4, noisy, {"LIC101.OUT": u, "LIC101.SP": sp})
 
 
 @nb.njit(cache=True)
@@ -223,19 +224,9 @@ def simulate_heat_exchanger(
     tw_in = 21.0 + _daily(n, start, 4.0, 15.0) + _ou(rng, n, 1.0, 6 * 3600.0)
     sp = _schedule(rng, n, 40.0, 50.0, 8 * 3600.0)
     tout, u, fw = _heatex_loop(fp, tp_in, tw_in, sp, 60.0, 3.0, 600.0, 180.0, 20.0, 30)
-    noise = rng.standard_normal((5, n))
-    return pd.DataFrame(
-        {
-            "TI201": tp_in + 0.1 * noise[0],
-            "TI202": tout + 0.1 * noise[1],
-            "TI203": tw_in + 0.1 * noise[2],
-            "FI201": fp + 0.2 * noise[3],
-            "FI202": fw + 0.4 * noise[4],
-            "TIC202.OUT": u,
-            "TIC202.SP": sp,
-        },
-        index=index,
-    )
+    noisy = {"TI201": (tp_in, 0.1), "TI202": (tout, 0.1), "TI203": (tw_in, 0.1)}
+    noisy |= {"FI201": (fp, 0.2), "FI202": (fw, 0.4)}
+    return _measured(index, rng, 5, noisy, {"TIC202.OUT": u, "TIC202.SP": sp})
 
 
 def export(
