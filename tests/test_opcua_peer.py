@@ -15,6 +15,7 @@ without it these tests skip locally and fail on CI.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import shutil
 from pathlib import Path
@@ -246,30 +247,30 @@ async def test_wrong_password_refused(server, pki, tmp_path):
     assert not any(m["step"] == "read" for m in lines)
 
 
-async def test_our_client_sign_and_encrypt_with_user(server, pki):
-    ours = pki["ours"]
-    sec = security_of(ours, USER, PASSWORD, trusted_dir=pki["dir"] / "trusted_servers")
+@contextlib.asynccontextmanager
+async def health_reader(server, pki, who: str, **cfg):
+    """Our client, as ``pki[who]`` with the operator's password and the server trusted,
+    reading the valve unit's DeviceHealth (started, closed after)."""
+    sec = security_of(pki[who], USER, PASSWORD, trusted_dir=pki["dir"] / "trusted_servers")
     nodes = {"health": server.node_id("Units", "valve", "DeviceHealth")}
-    r = OpcUaReader(OpcUaConfig(server.endpoint, nodes, security=sec, timeout=4.0))
+    r = OpcUaReader(OpcUaConfig(server.endpoint, nodes, security=sec, **cfg))
     await r.start()
     try:
+        yield r
+    finally:
+        await r.close()
+
+
+async def test_our_client_sign_and_encrypt_with_user(server, pki):
+    async with health_reader(server, pki, "ours", timeout=4.0) as r:
         assert await r.wait_connected(20)
         (s,) = await r.read()
         assert s.quality is TagQuality.GOOD and s.value in (0, 1)
-    finally:
-        await r.close()
 
 
 async def test_our_client_untrusted_certificate_stays_bad(server, pki):
-    st = pki["stranger"]
     # we trust the server; it refuses us
-    sec = security_of(st, USER, PASSWORD, trusted_dir=pki["dir"] / "trusted_servers")
-    nodes = {"health": server.node_id("Units", "valve", "DeviceHealth")}
-    r = OpcUaReader(OpcUaConfig(server.endpoint, nodes, security=sec, backoff_cap=1.0))
-    await r.start()
-    try:
+    async with health_reader(server, pki, "stranger", backoff_cap=1.0) as r:
         assert not await r.wait_connected(3)
         (s,) = await r.read()
         assert s.quality is TagQuality.BAD and r.outages == 1
-    finally:
-        await r.close()
