@@ -10,7 +10,7 @@ PEERSTAMP := $(PEERS)/.installed
 OPCUA_PEER := tests/peers/opcua
 OPCUA_STAMP := $(OPCUA_PEER)/node_modules/.package-lock.json
 
-.PHONY: run test lint bench clean public-data tep-studio-data
+.PHONY: run test check lint bench clean public-data tep-studio-data
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -40,11 +40,21 @@ $(OPCUA_STAMP): $(OPCUA_PEER)/package-lock.json
 	cd $(OPCUA_PEER) && npm ci --no-audit --no-fund --loglevel=error
 	touch $@
 
+# the whole suite (CI runs this), on TEST_JOBS pytest-xdist workers, a test file per worker
+# at a time so that a file's module fixtures are built once (TEST_JOBS=0: one process)
+TEST_JOBS ?= 2
+XDIST = $(if $(filter 0,$(TEST_JOBS)),,-n $(TEST_JOBS) --dist loadfile)
+
 test: $(DEVSTAMP) $(PEERSTAMP)
 	bash .ci/sysdeps
 	$(MAKE) $(OPCUA_STAMP)
 	-$(MAKE) public-data
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q $(XDIST)
+
+# the fast tier while working: everything but the tests marked slow (tests/conftest.py
+# lists them, from a --durations profile), same workers; the full suite stays `make test`
+check: $(DEVSTAMP)
+	$(BIN)/python -m pytest -q -m "not slow" $(XDIST)
 
 lint: $(DEVSTAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .

@@ -1,4 +1,5 @@
-"""Seed 000's engine FDI experiment over many seeds and methods (docs/engine.md's tables).
+"""Seed 000's engine FDI experiment over many seeds and methods
+(docs/explanation/engine.md's tables).
 
     python benchmarks/bench_engine_fdi.py [--seeds 0 1 2] [--methods ts-fcm narmax2 wm-avg]
         [--variant base] [--omega-dy] [--window seed|matching] [--out results.jsonl]

@@ -1,6 +1,6 @@
 """Who may do what on our OPC UA server: users, roles, password hashes, the permission check.
 
-Roles (docs/connectors.md, "Security model"):
+Roles (docs/reference/connectors.md, "Security model"):
 
 ==========  =====================================================================
 role        may

@@ -24,7 +24,7 @@ that says how many there were ("repeated 37 times in 60 s"), so a flood stays co
 without flooding the event log.
 
 :meth:`LoginLimits.derive` chooses the limits from the machine and the configured users
-(docs/live.md, "Logins, slow sources and memory").
+(docs/reference/live.md, "Logins, slow sources and memory").
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Our OPC UA server: one object per unit with its diagnosis, alarms, and the plant's tags.
 
 Address space (namespace ``urn:diag-plugin:diagnosis``, string node ids; see
-docs/connectors.md, "OPC UA")::
+docs/reference/connectors.md, "OPC UA")::
 
     Objects/
       Units/                               ns;s=Units
@@ -30,7 +30,7 @@ docs/connectors.md, "OPC UA")::
         <notice>/ Active Boolean, Message String   (e.g. Historian, Source_plc1)
         Historian/Backlog UInt64           samples waiting for the historian
 
-Values carry a StatusCode from :class:`UnitStatus.quality` (see docs/connectors.md).
+Values carry a StatusCode from :class:`UnitStatus.quality` (see docs/reference/connectors.md).
 Alarms are AlarmConditionType events emitted by the Server object (i=2253) with SourceNode
 = the unit object; their lifecycle is the ISA-18.2 state machine of :mod:`connectors.alarms`
 with Part 9's ConfirmedState and Retain (:mod:`connectors.opcua_conditions`). A unit's
@@ -468,17 +468,7 @@ class DiagOpcUaServer:
         # no diagnosis yet: CHECK_FUNCTION, and the status itself Uncertain ("initialising")
         await self._write(n.vars["DeviceHealth"], 2, V.Int32, self._code(1), None)
         await self._write(n.vars["Detected"], False, V.Boolean, self._code(2), None)
-        for name, val, vt in (
-            ("State", alarm.state.value, V.String),
-            ("Active", alarm.active, V.Boolean),
-            ("Acked", alarm.acked, V.Boolean),
-            ("Confirmed", alarm.confirmed, V.Boolean),
-            ("Shelved", alarm.shelved, V.Boolean),
-            ("ShelvedUntil", alarm.shelved_until or epoch, V.DateTime),
-            ("Severity", alarm.severity, V.UInt16),
-            ("Comment", alarm.comment, V.String),
-            ("AckRequest", False, V.Boolean),
-        ):
+        for name, val, vt in (*_alarm_values(alarm), ("AckRequest", False, V.Boolean)):
             n.vars["Alarm." + name] = await alarm_obj.add_variable(
                 self._nid("Units", unit, "Alarm", name), self._bn(name), val, vt
             )
@@ -1014,22 +1004,11 @@ class DiagOpcUaServer:
 
     async def _emit(self, unit: str, comment: str | None = None, user: str | None = None) -> None:
         """Show the alarm's state in its variables and send an AlarmConditionType event."""
-        from asyncua import ua
 
         n = self._units[unit]
         a = n.alarm
-        V, good = ua.VariantType, self._code(0)
-        epoch = datetime(1601, 1, 1, tzinfo=UTC)
-        for name, val, vt in (
-            ("State", a.state.value, V.String),
-            ("Active", a.active, V.Boolean),
-            ("Acked", a.acked, V.Boolean),
-            ("Confirmed", a.confirmed, V.Boolean),
-            ("Shelved", a.shelved, V.Boolean),
-            ("ShelvedUntil", a.shelved_until or epoch, V.DateTime),
-            ("Severity", a.severity, V.UInt16),
-            ("Comment", a.comment, V.String),
-        ):
+        good = self._code(0)
+        for name, val, vt in _alarm_values(a):
             await self._write(n.vars["Alarm." + name], val, vt, good, None)
         assert n.events is not None
         state = a.state.value
@@ -1061,3 +1040,21 @@ async def _refuse_all(cert: Any, app_description: Any) -> None:
     from asyncua.common.utils import ServiceError
 
     raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
+
+
+def _alarm_values(alarm: Alarm) -> list[tuple[str, Any, Any]]:
+    """The alarm's variables under ``Units/UNIT/Alarm``: name, value, variant type (a never
+    shelved alarm's ShelvedUntil is OPC UA's zero time, 1601-01-01)."""
+    from asyncua import ua
+
+    V = ua.VariantType
+    return [
+        ("State", alarm.state.value, V.String),
+        ("Active", alarm.active, V.Boolean),
+        ("Acked", alarm.acked, V.Boolean),
+        ("Confirmed", alarm.confirmed, V.Boolean),
+        ("Shelved", alarm.shelved, V.Boolean),
+        ("ShelvedUntil", alarm.shelved_until or datetime(1601, 1, 1, tzinfo=UTC), V.DateTime),
+        ("Severity", alarm.severity, V.UInt16),
+        ("Comment", alarm.comment, V.String),
+    ]

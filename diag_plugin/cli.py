@@ -121,7 +121,7 @@ def _command_word(argv: Sequence[str]) -> str | None:
     return None
 
 
-#: exit statuses, the one contract of every command (docs/cli.md)
+#: exit statuses, the one contract of every command (docs/reference/cli.md)
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_ENVIRONMENT = 0, 1, 2, 3
 
 

@@ -7,6 +7,8 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
+from pathlib import Path
 
 
 def line_of(
@@ -52,3 +54,12 @@ def syntax_error(path, exc: Exception, line_offset: int = 0) -> str:
         line = line + line_offset if isinstance(line, int) else None
     where = f"{path}:{line}" if line is not None else f"{path}"
     return f"{where}: TOML syntax error: {text[:1].lower() + text[1:]}"
+
+
+def read_text(path: str | Path, error: Callable[[list[str]], Exception]) -> str:
+    """The text of a user's file; one that cannot be read raises ``error`` with the message
+    ``PATH:0: cannot read: …``."""
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error([f"{path}:0: cannot read: {exc}"]) from None

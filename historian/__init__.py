@@ -7,20 +7,13 @@ errors, tag metadata) does not pull in pandas and SQLAlchemy.
 
 from __future__ import annotations
 
-import importlib
+from historian.lazy import lazy
 
-_LAZY = {
-    "BAD": "quality",
-    "GOOD": "quality",
-    "UNCERTAIN": "quality",
-    "from_opcua_status": "quality",
-    "Historian": "store",
-    "quality_table": "window",
-}
-__all__ = sorted(_LAZY)
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __all__ = lazy(
+    __name__,
+    """
+quality: BAD GOOD UNCERTAIN from_opcua_status
+store: Historian
+window: quality_table
+""",
+)

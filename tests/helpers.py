@@ -1,6 +1,7 @@
 """Small synthetic plants shared by tests (not tests themselves), and ``require``."""
 
 import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -83,3 +84,118 @@ def valve_frame(days: float, seed: int) -> pd.DataFrame:
 #: seed 001 Table 4 (rules 10–14) as a matrix file: the servomotor–valve unit
 #: the seed 001 Table 4 matrix, as the example unit ships it
 VALVE_TABLE4 = TABLE4_MATRIX
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Out:
+    """A text stream for a console to print to (not a terminal); ``text`` is what it got."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def write(self, s: str) -> None:
+        self.lines.append(s)
+
+    def flush(self) -> None:
+        pass
+
+    def isatty(self) -> bool:
+        return False
+
+    @property
+    def text(self) -> str:
+        return "".join(self.lines)
+
+
+def cv_flow_historian(tmp_path, noise: float, seed: int) -> list[str]:
+    """Four days of a valve-like flow at 10 s, F = 30 (CV/100)² + N(0, noise) t/h, in SQLite;
+    the global options for ``diag``."""
+    from historian import Historian
+
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    rng = np.random.default_rng(seed)
+    n = 4 * 8640
+    idx = pd.date_range("2026-03-01", periods=n, freq="10s", tz="UTC", name="ts")
+    cv = rng.uniform(5, 95, n // 60 + 1).repeat(60)[:n]
+    f = np.r_[0, 30 * (cv[:-1] / 100) ** 2] + rng.normal(0, noise, n)
+    with Historian.open(url) as h:
+        h.ensure_tag("CV", unit="%", lo=0, hi=100, description="controller output")
+        h.ensure_tag("F", unit="t/h", lo=0, hi=40, description="flow")
+        h.write_samples(pd.DataFrame({"CV": cv, "F": f}, index=idx))
+    rules = tmp_path / "rulebases"
+    rules.mkdir()
+    return ["--db", url, "--rulebases", str(rules)]
+
+
+def trained_valve_file(folder: Path, method: str, seed: int = 6):
+    """A model file F[k] = f(CV[k-1], P1[k]) of ``method`` trained on a day of the simulated
+    valve (seed ``seed``) and saved in ``folder``: ``(rule base, training result, frame)``."""
+    from diag_plugin.rulebase.document import RuleBase, Variable
+    from diag_plugin.training.chunked import train
+
+    f = valve_frame(1, seed=seed)
+    rb = RuleBase.new(
+        method[0],
+        Variable("F[k]", "F", "t/h", (0.0, 40.0)),
+        [
+            Variable("CV[k-1]", "CV", "%", (0.0, 100.0)),
+            Variable("P1[k]", "P1_", "kPa", (300.0, 700.0)),
+        ],
+        method=method,
+        path=Path(folder) / f"{method[0]}.toml",
+    )
+    a, b = f.index[0], f.index[-1] + pd.Timedelta("10s")
+    res = train(rb, lambda s, e: f[(f.index >= s) & (f.index < e)], a, b, chunk=pd.Timedelta("5h"))
+    rb.apply_training(res.model, {"samples": res.samples})
+    rb.save()
+    return rb, res, f
+
+
+def broken_edit_is_named(path: Path, folder: Path, old: str, new: str, message: str) -> None:
+    """Replacing ``old`` by ``new`` in the model file ``path`` (written to ``folder/bad.toml``)
+    makes loading it fail with ``bad.toml:LINE: message``, LINE where ``old`` stood."""
+    from diag_plugin.rulebase.document import RuleBase, RuleBaseError
+
+    text = Path(path).read_text()
+    assert old in text
+    line = next(k for k, ln in enumerate(text.splitlines(), 1) if old in ln)
+    (folder / "bad.toml").write_text(text.replace(old, new, 1))
+    with pytest.raises(RuleBaseError, match=rf"bad\.toml:{line}: {message}"):
+        RuleBase.load(folder / "bad.toml")
+
+
+def compares_and_explains(path: Path, frame: pd.DataFrame):
+    """A trained model file of a method without sets goes through the workbench's seam:
+    ``compare`` covers the data with no worst regions, ``explain`` ranks candidates and
+    offers no set counts."""
+    from diag_plugin.rulebase.document import RuleBase
+    from diag_plugin.workbench.compare import compare
+    from diag_plugin.workbench.explain import explain
+
+    c = compare(RuleBase.load(path), frame)
+    assert c.metrics["coverage"] > 0.99 and c.as_dict()["worst_regions"] == []
+    e = explain(RuleBase.load(path), frame, max_lag=2)
+    assert e.candidates and np.isfinite(e.baseline_rmse_pct)
+    # set counts mean nothing to such a method: explain does not offer them
+    assert not any("--sets" in c.command for c in e.candidates)
+    return c
+
+
+def cli_new_train_compare(folder: Path, name: str, method: str) -> tuple[dict, str]:
+    """``diag model new NAME --method METHOD`` (F from CV[k-1]), ``train``, ``compare --json``
+    in ``folder``: the comparison and the model file's text."""
+    import json
+
+    new = ("model", "new", name, "--output", "F", "--input", "CV[k-1]", "--method", method)
+    for args in (new, ("train", name), ("compare", name, "--json")):
+        r = run_diag(folder, *args)
+        assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["coverage"] > 0.99 and np.isfinite(doc["rmse_pct"])
+    return doc, (folder / "rulebases" / f"{name}.toml").read_text()

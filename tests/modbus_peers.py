@@ -11,13 +11,12 @@ from __future__ import annotations
 import asyncio
 import importlib.util
 import shutil
-import socket
 import struct
 import sys
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from helpers import requires
+from helpers import free_port, requires  # noqa: F401 - free_port: the peers' callers import it here
 
 HAVE_PYMODBUSTCP = importlib.util.find_spec("pyModbusTCP") is not None
 HAVE_MBPOLL = shutil.which("mbpoll") is not None
@@ -40,13 +39,6 @@ PUMP,co,3,bool,,,,
 LEVEL_HI,di,7,bool,,,,
 SP,hr,20,float32,ABCD,1,0,t/h
 """
-
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def regs_f32(x: float, cdab: bool = False) -> list[int]:

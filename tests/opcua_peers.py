@@ -9,20 +9,26 @@ sessions; ``client(...)`` opens an asyncua client as one of them.
 
 from __future__ import annotations
 
-import socket
 from pathlib import Path
+
+from helpers import free_port  # noqa: F401 - the peers' callers import it from here
 
 from connectors.certs import CertPair, certificate_der, make_certificate, trust
 from connectors.opcua_access import OpcUaUser
+from connectors.opcua_client import ClientSecurity
 from connectors.passwords import hash_password
 
 PASSWORDS = {"alice": "alice-pw-1", "bob": "bob-pw-22"}
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+class Events:
+    """An OPC UA event subscription's handler that keeps every event."""
+
+    def __init__(self) -> None:
+        self.items: list = []
+
+    def event_notification(self, event) -> None:
+        self.items.append(event)
 
 
 def pki(folder: Path) -> dict[str, CertPair | Path]:
@@ -59,3 +65,11 @@ async def client(
     await c.set_security_string(f"Basic256Sha256,{mode},{cert.certificate},{cert.private_key}")
     await c.connect()
     return c
+
+
+def security_of(pair: CertPair, username: str, password: str, **kw) -> ClientSecurity:
+    """Our client's security settings: ``pair``'s certificate, key and URI, a user and its
+    password, and ``kw`` (``trusted_dir``, ``server_certificate``, …)."""
+    return ClientSecurity(
+        pair.certificate, pair.private_key, pair.application_uri, username, password, **kw
+    )

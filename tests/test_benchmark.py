@@ -4,6 +4,7 @@ quick run of the example unit on a simulator seed used nowhere else (23)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -40,15 +41,33 @@ def test_indexes_on_hand_made_decisions():
 
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
-    out = tmp_path_factory.mktemp("bench") / "b.json"
+    folder = tmp_path_factory.mktemp("bench")
     import contextlib
     import io
 
     buf = io.StringIO()
+    page = folder / "results" / "damadics.md"
     with contextlib.redirect_stdout(buf):
-        assert main(["benchmark", "--quick", "--seed", "23", "--json"]) == 0
-    out.write_text(buf.getvalue())
+        assert main(["benchmark", "--quick", "--seed", "23", "--json", "--page", str(page)]) == 0
+    (folder / "b.json").write_text(buf.getvalue())
     return json.loads(buf.getvalue())
+
+
+def test_the_result_page_says_how_it_was_made_and_holds_every_scenario(quick):
+    """``--page``: the generated page names the command, date, commit and seeds, and has one
+    row per fault, mode and strength with the run's own detections."""
+    text = Path(quick["page"]).read_text(encoding="utf-8")
+    assert "*Generated — do not edit by hand" in text
+    for line in ("- command: `diag ", "- date: ", "- commit: ", "seeds 23;"):
+        assert line in text, line
+    rows = [ln for ln in text.splitlines() if ln.startswith("| f") and "| mode |" not in ln]
+    assert len(rows) == len(quick["scenarios"]) == 38
+    for r, ln in zip(quick["scenarios"], rows, strict=True):
+        cells = [c.strip() for c in ln.strip("|").split("|")]
+        assert cells[:2] == [r["fault"], r["mode"]]
+        assert cells[3] == f"{int(r['detected'])}/1"
+    s = quick["summary"]
+    assert f"detected {s['scenarios_detected']} of {s['scenarios']} scenarios" in text
 
 
 def test_quick_benchmark_shape(quick):
@@ -81,7 +100,7 @@ def test_quick_benchmark_meets_the_issue_goal(quick):
     assert not rows[("f5", "abrupt")]["detected"]
     # the issue's goal is 0.8 of the 15 faults the literature detects; the full run (every
     # strength) reaches 12/15 pooled over seeds 11, 23, 37 (11, 12, 12 per seed;
-    # docs/diagnostics.md). The quick run tries one strength per fault and finds 10/15 here:
+    # docs/results/damadics.md). The quick run tries one strength per fault and finds 10/15 here:
     # faults that drive the valve where no model has rules make the unit CHECK_FUNCTION, not
     # detected, and f3 at fs = 0.5 stays under the thresholds learned over 14 days (it was
     # 11/15 with 2-day thresholds, which alarmed on fault-free days: the test below)

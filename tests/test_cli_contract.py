@@ -1,4 +1,4 @@
-"""One CLI contract (issue 22, docs/cli.md): exit 0 done, 1 the job failed, 2 bad usage or
+"""One CLI contract (issue 22, docs/reference/cli.md): exit 0 done, 1 the job failed, 2 bad usage or
 input, 3 environment; no traceback reaches the user from any command.
 
 Every command of the parser (so a new command is covered without editing this file) is

@@ -11,30 +11,11 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import cv_flow_historian
 
 from diag_plugin.cli import main
 from diag_plugin.engine import method_compare
 from diag_plugin.rulebase.document import RuleBase
-
-
-def _historian(tmp_path, noise: float, seed: int) -> list[str]:
-    """Four days of a valve-like flow at 10 s, F = 30 (CV/100)² + N(0, noise) t/h, in SQLite;
-    the global options for ``diag``."""
-    from historian import Historian
-
-    url = f"sqlite:///{tmp_path / 'h.db'}"
-    rng = np.random.default_rng(seed)
-    n = 4 * 8640
-    idx = pd.date_range("2026-03-01", periods=n, freq="10s", tz="UTC", name="ts")
-    cv = rng.uniform(5, 95, n // 60 + 1).repeat(60)[:n]
-    f = np.r_[0, 30 * (cv[:-1] / 100) ** 2] + rng.normal(0, noise, n)
-    with Historian.open(url) as h:
-        h.ensure_tag("CV", unit="%", lo=0, hi=100, description="controller output")
-        h.ensure_tag("F", unit="t/h", lo=0, hi=40, description="flow")
-        h.write_samples(pd.DataFrame({"CV": cv, "F": f}, index=idx))
-    rules = tmp_path / "rulebases"
-    rules.mkdir()
-    return ["--db", url, "--rulebases", str(rules)]
 
 
 def _rows(g: list[str], name: str, capsys) -> dict[str, dict]:
@@ -55,7 +36,7 @@ def test_the_wm_row_is_classic_wm_and_averaging_wins_on_noisy_data(tmp_path, cap
     error as ``diag train`` of a ``wm`` file), the ``wm-avg`` row a ``wm-avg`` one, and the
     average beats the max-weight winner (seed 001's argument for eq. 5). The rows do not
     depend on the method the compared file names (a ts-fcm file gives the same)."""
-    g = _historian(tmp_path, noise=2.0, seed=seed)
+    g = cv_flow_historian(tmp_path, noise=2.0, seed=seed)
     for name, method in (("avg", "wm-avg"), ("classic", "wm"), ("tsk", "ts-fcm")):
         assert main([*g, "model", "new", name, "--output", "F", "--input", "CV[k-1]",
                      "--method", method]) == 0  # fmt: skip

@@ -9,7 +9,7 @@ residual of each test is the offset the test puts on ``Yi`` (% of a 0–100 span
 scenario is evaluated the three ways a user runs a unit: one pass over a window
 (``diag diagnose``), one row per cycle (the live loop) and :class:`Plant` (many units per
 cycle), which must agree. Each was shown to fail on the slip it guards against (see
-docs/testing.md).
+docs/reference/testing.md).
 """
 
 from __future__ import annotations
@@ -394,7 +394,7 @@ def test_the_timeline_names_each_run_and_the_tests_showing_symptoms(tmp_path):
 def test_the_published_numbers_are_ne107s_and_the_register_maps(tmp_path):
     """The HMI reads numbers: NE 107 as in the OPC UA device model (DESIGN.md: 0 NORMAL,
     1 FAILURE, 2 CHECK_FUNCTION, 3 OFF_SPEC, 4 MAINTENANCE_REQUIRED) and the quality of the
-    diagnosis (docs/connectors.md: 0 Good, 1 Uncertain, 2 Bad)."""
+    diagnosis (docs/reference/connectors.md: 0 Good, 1 Uncertain, 2 Bad)."""
     path = make_unit(tmp_path, GROUP_MATRIX, faults={"f_C": "MAINTENANCE_REQUIRED"})
     nan = np.nan
     r1 = np.r_[np.zeros(5), np.full(10, 5.0), np.zeros(15)]

@@ -142,7 +142,8 @@ def test_ts_fcm_isolates_the_injected_fault(seed, case):
 
 def test_one_step_estimates_read_measured_lags_and_load_torque():
     """Free run (the seed's eqs. 7–11: own estimates, T̂_L in eqs. 7–8) against one step
-    ahead (measured lags and the measured T_L), the comparison mode of docs/engine.md."""
+    ahead (measured lags and the measured T_L), the comparison mode of
+    docs/explanation/engine.md."""
     from diag_plugin.simulate.engine import simulate_engine
 
     em = fdi.identify(simulate_engine(2000, seed=41), "narmax2")
@@ -270,9 +271,10 @@ def test_the_matching_window_is_where_the_fault_free_residuals_are_smallest():
 
 
 def test_the_seeds_omega_test_on_both_instruments_in_the_matching_window():
-    """``Setup(omega_signals=("omega", "omega_dy"), window="matching")`` (docs/engine.md, issue
-    36): the window is chosen on the fault-free runs, faults start at its start, and with ω_dy
-    multiplied too α̂ − α is no longer the no-fault residual (with ω alone it is, to the digit).
+    """``Setup(omega_signals=("omega", "omega_dy"), window="matching")``
+    (docs/explanation/engine.md, issue 36): the window is chosen on the fault-free runs,
+    faults start at its start, and with ω_dy multiplied too α̂ − α is no longer the no-fault
+    residual (with ω alone it is, to the digit).
     wm-avg (one step ahead, seconds) on seed 11."""
     both = fdi.Setup(omega_signals=("omega", "omega_dy"), window="matching")
     res = fdi.run_fdi(11, "wm-avg", cases=("none", "omega"), setup=both)
@@ -289,7 +291,7 @@ def test_the_seeds_omega_test_on_both_instruments_in_the_matching_window():
 
 def test_narmax2_isolates_the_injected_fault():
     """The whole experiment with narmax2 (eq. 12) on seed 5, by the derived table; over ten
-    seeds it is right on fewer runs than ts-fcm (docs/engine.md, "Results")."""
+    seeds it is right on fewer runs than ts-fcm (docs/explanation/engine.md, "Results")."""
     res = fdi.run_fdi(SEEDS[0], "narmax2", matrix="derived")
     assert res["matrix"] == "derived"
     assert [c["isolated"] for c in res["cases"]] == list(CASES), res["cases"]
@@ -300,23 +302,13 @@ def test_compare_methods_trains_every_method_on_the_same_data(tmp_path, capsys):
     model file untouched (seed 000 Figs. 3–7)."""
     import json
 
+    from helpers import cv_flow_historian
+
     from diag_plugin.cli import main
     from diag_plugin.models.registry import METHODS
-    from historian import Historian
 
-    url = f"sqlite:///{tmp_path / 'h.db'}"
-    rng = np.random.default_rng(0)
-    n = 4 * 8640
-    idx = pd.date_range("2026-03-01", periods=n, freq="10s", tz="UTC", name="ts")
-    cv = rng.uniform(5, 95, n // 60 + 1).repeat(60)[:n]
-    f = np.r_[0, 30 * (cv[:-1] / 100) ** 2] + rng.normal(0, 0.1, n)
-    with Historian.open(url) as h:
-        h.ensure_tag("CV", unit="%", lo=0, hi=100, description="controller output")
-        h.ensure_tag("F", unit="t/h", lo=0, hi=40, description="flow")
-        h.write_samples(pd.DataFrame({"CV": cv, "F": f}, index=idx))
+    g = cv_flow_historian(tmp_path, noise=0.1, seed=0)
     rules = tmp_path / "rulebases"
-    rules.mkdir()
-    g = ["--db", url, "--rulebases", str(rules)]
     assert main([*g, "model", "new", "m", "--output", "F", "--input", "CV[k-1]"]) == 0
     before = (rules / "m.toml").read_text()
     capsys.readouterr()

@@ -89,44 +89,43 @@ def test_examples_regenerate_identically(regenerated, name):
 
 def test_shipped_unit_is_valid_and_regenerates(regenerated):
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.diagnose.unitfile import UnitFile
 
     unit = Unit.load(SHIPPED / "valve_unit.unit.toml")
     assert unit.has_thresholds and unit.matrix is not None
     # Table 4 for a positioner loop on X: the P0 sensor and the servomotor are one group
     assert unit.matrix.isolability_groups() == [["f_EP"], ["f_P0", "f_S"], ["f_X"], ["f_V"]]
-    new = regenerated["valve_unit.matrix"].read_bytes()
-    assert new == (SHIPPED / "valve_unit.matrix.toml").read_bytes()
-    a = UnitFile.load(regenerated["valve_unit.unit"])
-    b = UnitFile.load(SHIPPED / "valve_unit.unit.toml")
-    assert a.thresholds == b.thresholds
-    for ta, tb in zip(a.tests, b.tests, strict=True):
-        # thresholds are quantiles of residuals of the regenerated models: moved samples
-        # (see the module doc) may shift them in the last digits only
-        assert (ta.name, ta.model) == (tb.name, tb.model)
-        assert ta.high == pytest.approx(tb.high, rel=1e-3)
-        # the N/0/P sets learned beside the thresholds (ramps centred on them)
-        assert ta.fuzzy == pytest.approx(tb.fuzzy, rel=1e-2)
+    a = _regenerated_like_shipped(regenerated, "valve_unit")
+    for ta in a.tests:
         assert ta.fuzzy[2] < ta.high < ta.fuzzy[3] and ta.fuzzy[0] < ta.low < ta.fuzzy[1]
     assert unit.ev["symptoms"] == "crisp"  # crisp isolates more of the benchmark (docs)
+
+
+def _regenerated_like_shipped(regenerated, name: str):
+    """The regenerated unit ``name``: its matrix byte for byte the shipped one, its tests,
+    models and thresholds the shipped ones (thresholds are quantiles of residuals of the
+    regenerated models: moved samples, see the module doc, may shift them in the last digits
+    only; so may the N/0/P sets learned beside them, ramps centred on them)."""
+    from diag_plugin.diagnose.unitfile import UnitFile
+
+    new = regenerated[f"{name}.matrix"].read_bytes()
+    assert new == (SHIPPED / f"{name}.matrix.toml").read_bytes()
+    a = UnitFile.load(regenerated[f"{name}.unit"])
+    b = UnitFile.load(SHIPPED / f"{name}.unit.toml")
+    assert a.thresholds == b.thresholds
+    for ta, tb in zip(a.tests, b.tests, strict=True):
+        assert (ta.name, ta.model) == (tb.name, tb.model)
+        assert ta.high == pytest.approx(tb.high, rel=1e-3)
+        assert ta.fuzzy == pytest.approx(tb.fuzzy, rel=1e-2)
+    return a
 
 
 def test_shipped_table4_unit_is_valid_and_regenerates(regenerated):
     """The second example unit carries Table 4 as printed: five singleton groups."""
     from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.diagnose.unitfile import UnitFile
 
     unit = Unit.load(SHIPPED / "valve_t4.unit.toml")
     assert unit.has_thresholds and unit.matrix is not None
     assert unit.matrix.isolability_groups() == [[f] for f in unit.matrix.faults]
-    new = regenerated["valve_t4.matrix"].read_bytes()
-    assert new == (SHIPPED / "valve_t4.matrix.toml").read_bytes()
-    a = UnitFile.load(regenerated["valve_t4.unit"])
-    b = UnitFile.load(SHIPPED / "valve_t4.unit.toml")
-    assert a.thresholds == b.thresholds
-    for ta, tb in zip(a.tests, b.tests, strict=True):
-        assert (ta.name, ta.model) == (tb.name, tb.model)
-        assert ta.high == pytest.approx(tb.high, rel=1e-3)
-        assert ta.fuzzy == pytest.approx(tb.fuzzy, rel=1e-2)
+    a = _regenerated_like_shipped(regenerated, "valve_t4")
     # seed 001's diagnosis on the plant its Table 4 describes: rules (10)-(14)
     assert unit.ev["symptoms"] == a.evaluation["symptoms"] == "fuzzy"

@@ -100,7 +100,7 @@ def test_b2_answers_where_b1_has_no_rules_on_held_out_data(low_load_week):
     """A week at low load, never trained on: B.1 has no rule for 16 % of it (CV < 31.7 %);
     B.2's physical fill cuts the error there from 7.5 % to about 1 % of span. At the top
     (CV ≥ 96.7 %, a saturated controller whose flow the pressure drop limits) the monotone
-    edit costs: B.2 over-predicts more than B.1 there (docs/tutorial.md, step 6)."""
+    edit costs: B.2 over-predicts more than B.1 there (docs/tutorial/first-model.md, step 6)."""
     b1, b2 = RuleBase.load(SHIPPED / "valve_b.toml"), RuleBase.load(SHIPPED / "valve_b2.toml")
     cv, e1 = _errors(b1, low_load_week)
     _, e2 = _errors(b2, low_load_week)

@@ -1,6 +1,6 @@
 """Seed 001's Fig. 8 on the real DAMADICS hour: Model B is blind to the pressure, Model A is not;
 both model the hour's held-out 20 minutes as well as HistGradientBoosting does on the same split
-(docs/diagnostics.md, "Fig. 8 on the real hour")."""
+(docs/explanation/fig8.md)."""
 
 import xml.etree.ElementTree as ET
 

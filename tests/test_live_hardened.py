@@ -32,33 +32,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import require
+from helpers import Out, free_port, require
 
 ROWS = 205  # the first row of a stretch every trained rule covers (see test_live_sources)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class Out:
-    def __init__(self) -> None:
-        self.lines: list[str] = []
-
-    def write(self, s: str) -> None:
-        self.lines.append(s)
-
-    def flush(self) -> None:
-        pass
-
-    def isatty(self) -> bool:
-        return False
-
-    @property
-    def text(self) -> str:
-        return "".join(self.lines)
 
 
 @pytest.fixture(scope="module")
@@ -132,6 +108,17 @@ def run(cfg_path: Path, plc, rows: pd.DataFrame, decide, duration: float = 120.0
     return asyncio.run(main()), out.text, timeline
 
 
+def run_with_plc(port: int, cfg_path: Path, rows: pd.DataFrame, decide):
+    """:func:`run` (in a thread) against our PLC server on ``port``."""
+    from connectors.modbus_server import PlantServer
+
+    async def serve():
+        async with PlantServer(port=port) as plc:
+            return await asyncio.to_thread(run, cfg_path, plc, rows, decide)
+
+    return asyncio.run(serve())
+
+
 def samples(url: str, tag: str) -> pd.DataFrame:
     from historian.store import Historian
 
@@ -154,7 +141,6 @@ def events(url: str) -> pd.DataFrame:
 
 # ---------------------------------------------------------------- frozen and absurd values
 def test_frozen_plc_and_nan_inf_make_check_function_never_a_fault(plant_dir):
-    from connectors.modbus_server import PlantServer
 
     d, frame = plant_dir
     port = free_port()
@@ -179,11 +165,7 @@ def test_frozen_plc_and_nan_inf_make_check_function_never_a_fault(plant_dir):
             row.update(F=math.nan, X=math.inf, P1=-math.inf)
         return row
 
-    async def serve():
-        async with PlantServer(port=port) as plc:
-            return await asyncio.to_thread(run, cfg, plc, frame, decide)
-
-    rc, text, timeline = asyncio.run(serve())
+    rc, text, timeline = run_with_plc(port, cfg, frame, decide)
     assert rc == 0, text
     by_phase: dict[str, list] = {}
     for i, (_, st, q, msg) in enumerate(timeline):
@@ -295,7 +277,6 @@ def exactly_once(url: str, timeline: list[tuple], restarts: int = 0) -> pd.DataF
 
 
 def test_sqlite_write_locked_30_s_by_another_process(plant_dir):
-    from connectors.modbus_server import PlantServer
 
     d, frame = plant_dir
     port = free_port()
@@ -316,12 +297,8 @@ def test_sqlite_write_locked_30_s_by_another_process(plant_dir):
             raise StopIteration
         return frame.iloc[ROWS + i % 400].to_dict()
 
-    async def serve():
-        async with PlantServer(port=port) as plc:
-            return await asyncio.to_thread(run, cfg, plc, frame, decide)
-
     try:
-        rc, text, timeline = asyncio.run(serve())
+        rc, text, timeline = run_with_plc(port, cfg, frame, decide)
     finally:
         if "lock" in state and state["lock"].p.poll() is None:
             state["lock"].p.kill()
@@ -453,7 +430,6 @@ class PrivatePostgres:
 
 
 def test_postgresql_stopped_and_restarted(plant_dir, tmp_path):
-    from connectors.modbus_server import PlantServer
 
     require(
         "PostgreSQL binaries (initdb, pg_ctl)",
@@ -485,12 +461,8 @@ def test_postgresql_stopped_and_restarted(plant_dir, tmp_path):
             raise StopIteration
         return frame.iloc[ROWS + i % 400].to_dict()
 
-    async def serve():
-        async with PlantServer(port=port) as plc:
-            return await asyncio.to_thread(run, cfg, plc, frame, decide)
-
     try:
-        rc, text, timeline = asyncio.run(serve())
+        rc, text, timeline = run_with_plc(port, cfg, frame, decide)
         assert rc == 0, text
         assert text.count("historian degraded") == 1 and text.count("historian back after") == 1
         f = exactly_once(pg.url, timeline)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import asyncio
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -21,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import Out, free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -70,12 +70,6 @@ opcua_port = 0
 """
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def start_plc(port: int, epoch: float | None = None) -> tuple[subprocess.Popen, float]:
     """The PLC child process, serving rows from ``epoch`` (``time.time()``; None: the moment
     it is up) on; returns it and the epoch."""
@@ -94,20 +88,6 @@ def start_plc(port: int, epoch: float | None = None) -> tuple[subprocess.Popen, 
     proc.stdin.write(f"{epoch!r}\n")
     proc.stdin.flush()
     return proc, epoch
-
-
-class Out:
-    def __init__(self) -> None:
-        self.lines: list[str] = []
-
-    def write(self, s: str) -> None:
-        self.lines.append(s)
-
-    def flush(self) -> None:
-        pass
-
-    def isatty(self) -> bool:
-        return False
 
 
 @pytest.fixture(scope="module")

@@ -179,29 +179,17 @@ def test_mbpoll_acknowledge_coil_reaches_the_live_loop():
         srv = StatusServer([UnitLayout("V1", ["f1"], ["r1"])], on_ack=seen.append)
         await srv.start()
         try:
-            loop = asyncio.get_running_loop()
-            out = await loop.run_in_executor(
-                None,
-                lambda: subprocess.run(
-                    ["mbpoll", "-m", "tcp", "-a", "1", "-p", str(srv.port), "-0", "-t", "0"]
-                    + ["-r", "0", "127.0.0.1", "1"],
-                    capture_output=True,
-                    text=True,
-                    timeout=30,
-                ),
-            )
+
+            def write(table: str, value: str) -> subprocess.CompletedProcess:
+                """mbpoll writes ``value`` at reference 0 of ``table`` (0 coils, 4 registers)."""
+                cmd = ["mbpoll", "-m", "tcp", "-a", "1", "-p", str(srv.port), "-0", "-t", table]
+                cmd += ["-r", "0", "127.0.0.1", value]
+                return subprocess.run(cmd, capture_output=True, text=True, timeout=30)
+
+            out = await asyncio.to_thread(write, "0", "1")
             unit = await asyncio.wait_for(srv.acks.get(), 5)
             # a write anywhere else is refused with an exception reply
-            bad = await loop.run_in_executor(
-                None,
-                lambda: subprocess.run(
-                    ["mbpoll", "-m", "tcp", "-a", "1", "-p", str(srv.port), "-0", "-t", "4"]
-                    + ["-r", "0", "127.0.0.1", "3"],
-                    capture_output=True,
-                    text=True,
-                    timeout=30,
-                ),
-            )
+            bad = await asyncio.to_thread(write, "4", "3")
             await asyncio.sleep(0.05)
             return (
                 out,

@@ -146,7 +146,8 @@ def test_bit_packed_words_lsb_first():
 
 
 def test_docs_example_and_default_layouts_match_the_code():
-    """docs/connectors.md: the example map parses; the documented addresses are the code's."""
+    """docs/reference/connectors.md: the example map parses; the documented addresses are
+    the code's."""
     import re
     from pathlib import Path
 
@@ -157,9 +158,9 @@ def test_docs_example_and_default_layouts_match_the_code():
         default_plant_map,
     )
 
-    doc = (Path(__file__).resolve().parents[1] / "docs" / "connectors.md").read_text()
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "reference" / "connectors.md").read_text()
     (example,) = re.findall(r"```csv\n(.*?)```", doc, flags=re.S)
-    m = RegisterMap.parse(example, source="docs/connectors.md")
+    m = RegisterMap.parse(example, source="docs/reference/connectors.md")
     assert m["TRIP"].bit == 15 and m["X"].word_order == "CDAB"
     plant = default_plant_map()
     assert [(t.tag, t.table, t.address, t.type) for t in plant.tags] == [

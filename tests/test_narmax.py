@@ -6,19 +6,25 @@ import json
 import re
 
 import numpy as np
-import pandas as pd
 import pytest
-from helpers import run_diag, valve_frame
+from helpers import (
+    broken_edit_is_named,
+    cli_new_train_compare,
+    compares_and_explains,
+    run_diag,
+    trained_valve_file,
+)
 
 from diag_plugin.models import Model
 from diag_plugin.models.narmax import Narmax2Regressor, parse_term, term_pairs
 from diag_plugin.models.protocol import REASON_NAN, REASON_OK, REASON_OUTSIDE
-from diag_plugin.rulebase.document import RuleBase, RuleBaseError, Variable
-from diag_plugin.training.chunked import train
-from diag_plugin.workbench.compare import compare
-from diag_plugin.workbench.explain import explain
+from diag_plugin.rulebase.document import RuleBase, Variable
 
 SPANS = [(0.0, 100.0), (200.0, 1800.0), (-5.0, 5.0)]
+
+
+#: the method of the model files (the ``trained`` fixture of conftest.py reads it)
+METHOD = "narmax2"
 
 
 def poly_data(n=3000, seed=0):
@@ -144,27 +150,8 @@ def test_terms_parse_in_any_order_and_reject_higher_orders():
     assert all(len(t) <= 2 for t in itertools.chain(term_pairs(3)))
 
 
-def _trained_file(tmp_path, seed=6):
-    f = valve_frame(1, seed=seed)
-    rb = RuleBase.new(
-        "n",
-        Variable("F[k]", "F", "t/h", (0.0, 40.0)),
-        [
-            Variable("CV[k-1]", "CV", "%", (0.0, 100.0)),
-            Variable("P1[k]", "P1_", "kPa", (300.0, 700.0)),
-        ],
-        method="narmax2",
-        path=tmp_path / "n.toml",
-    )
-    a, b = f.index[0], f.index[-1] + pd.Timedelta("10s")
-    res = train(rb, lambda s, e: f[(f.index >= s) & (f.index < e)], a, b, chunk=pd.Timedelta("5h"))
-    rb.apply_training(res.model, {"samples": res.samples})
-    rb.save()
-    return rb, res, f
-
-
 def test_model_file_lists_terms_round_trips_and_predicts_like_the_model(tmp_path):
-    rb, res, f = _trained_file(tmp_path)
+    rb, res, f = trained_valve_file(tmp_path, METHOD)
     text = rb.path.read_text()
     assert 'method = "narmax2"' in text
     for term in ("1", "CV[k-1]", "CV[k-1]^2", "CV[k-1]*P1[k]", "P1[k]^2"):
@@ -203,48 +190,19 @@ def test_model_file_lists_terms_round_trips_and_predicts_like_the_model(tmp_path
         ('term = "CV[k-1]^2"', 'term = "CV[k-1]"', "duplicate term"),
     ],
 )
-def test_a_broken_edit_names_file_and_line(tmp_path, old, new, message):
-    rb, _, _ = _trained_file(tmp_path)
-    text = rb.path.read_text()
-    assert old in text
-    line = next(k for k, ln in enumerate(text.splitlines(), 1) if old in ln)
-    (tmp_path / "bad.toml").write_text(text.replace(old, new, 1))
-    with pytest.raises(RuleBaseError, match=rf"bad\.toml:{line}: term \d+: {message}"):
-        RuleBase.load(tmp_path / "bad.toml")
+def test_a_broken_edit_names_file_and_line(trained, tmp_path, old, new, message):
+    broken_edit_is_named(trained[0].path, tmp_path, old, new, r"term \d+: " + message)
 
 
 def test_trains_compares_and_explains_through_the_seam(tmp_path):
-    rb, res, f = _trained_file(tmp_path, seed=7)
+    rb, res, f = trained_valve_file(tmp_path, METHOD, seed=7)
     assert res.validation["rmse_pct"] < 5.0 and res.size == 6
-    c = compare(RuleBase.load(rb.path), f)
-    assert c.metrics["coverage"] > 0.99 and len(c.regions) == 0
-    assert c.as_dict()["worst_regions"] == []
-    e = explain(RuleBase.load(rb.path), f, max_lag=2)
-    assert e.candidates and np.isfinite(e.baseline_rmse_pct)
-    # set counts mean nothing to this method: explain does not offer them
-    assert not any("--sets" in c.command for c in e.candidates)
+    assert len(compares_and_explains(rb.path, f).regions) == 0
 
 
-@pytest.fixture(scope="module")
-def plant(tmp_path_factory):
-    cwd = tmp_path_factory.mktemp("plant")
-    for args in (
-        ("simulate", "--days", "1", "--seed", "3", "--out", "p.parquet"),
-        ("import", "p.parquet"),
-    ):
-        r = run_diag(cwd, *args)
-        assert r.returncode == 0, r.stderr
-    return cwd
-
-
-def test_cli_model_new_train_compare(plant):
-    new = ("model", "new", "nx", "--output", "F", "--input", "CV[k-1]", "--method", "narmax2")
-    for args in (new, ("train", "nx"), ("compare", "nx", "--json")):
-        r = run_diag(plant, *args)
-        assert r.returncode == 0, r.stderr
-    doc = json.loads(r.stdout)
-    assert doc["coverage"] > 0.99 and np.isfinite(doc["rmse_pct"])
-    text = (plant / "rulebases" / "nx.toml").read_text()
+def test_cli_model_new_train_compare(cli_plant):
+    plant = cli_plant
+    _, text = cli_new_train_compare(plant, "nx", "narmax2")
     assert text.count("{ term = ") == 3  # 1, CV[k-1], CV[k-1]^2
     shown = run_diag(plant, "rules", "show", "nx")
     assert shown.returncode == 0 and "CV[k-1]^2" in shown.stdout, shown.stderr

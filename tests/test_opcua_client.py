@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import asyncio
 import math
-import socket
 from datetime import UTC, datetime
 
 import pandas as pd
 import pytest
+from helpers import free_port
 
 from connectors.base import TagQuality, TagSample, WriteRefused
 from connectors.opcua_client import OpcUaConfig, OpcUaReader, quality_of
@@ -21,17 +21,6 @@ from connectors.opcua_server import DEFAULT_PLANT_TAGS, DiagOpcUaServer
 from diag_plugin.status import NE107, Quality, UnitStatus
 
 pytestmark = pytest.mark.anyio
-
-
-@pytest.fixture(scope="module")
-def anyio_backend():
-    return "asyncio"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def status(st: NE107 = NE107.FAILURE, q: Quality = Quality.GOOD, c: float = 0.9) -> UnitStatus:

@@ -5,7 +5,7 @@
   acknowledge or shelve alarms. A known user with a wrong or empty password is refused too,
   and the right password and the certificate itself still work.
 - A trust list that is empty (or a folder that does not exist yet) refuses every client
-  certificate, as docs/connectors.md promises: no session, whoever asks.
+  certificate, as docs/reference/connectors.md promises: no session, whoever asks.
 """
 
 from __future__ import annotations

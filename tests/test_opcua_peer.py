@@ -15,19 +15,20 @@ without it these tests skip locally and fail on CI.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import shutil
-import socket
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from helpers import REPO, requires
+from helpers import REPO, free_port, requires
+from opcua_peers import security_of
 
 from connectors.base import TagQuality
 from connectors.certs import CertPair, make_certificate, trust
 from connectors.opcua_access import OpcUaUser
-from connectors.opcua_client import ClientSecurity, OpcUaConfig, OpcUaReader
+from connectors.opcua_client import OpcUaConfig, OpcUaReader
 from connectors.opcua_server import DiagOpcUaServer, ServerSecurity
 from connectors.passwords import hash_password
 from diag_plugin.status import NE107, Quality, UnitStatus
@@ -39,17 +40,6 @@ need_node = requires("node-opcua (npm)", HAVE_NODE, "cd tests/peers/opcua && npm
 pytestmark = pytest.mark.anyio
 USER, PASSWORD = "operator", "s3cret-pw"
 VIEWER, VIEWER_PASSWORD = "watcher", "look-only-pw"
-
-
-@pytest.fixture(scope="module")
-def anyio_backend():
-    return "asyncio"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -257,43 +247,30 @@ async def test_wrong_password_refused(server, pki, tmp_path):
     assert not any(m["step"] == "read" for m in lines)
 
 
-async def test_our_client_sign_and_encrypt_with_user(server, pki):
-    ours = pki["ours"]
-    sec = ClientSecurity(
-        ours.certificate,
-        ours.private_key,
-        ours.application_uri,
-        USER,
-        PASSWORD,
-        trusted_dir=pki["dir"] / "trusted_servers",
-    )
+@contextlib.asynccontextmanager
+async def health_reader(server, pki, who: str, **cfg):
+    """Our client, as ``pki[who]`` with the operator's password and the server trusted,
+    reading the valve unit's DeviceHealth (started, closed after)."""
+    sec = security_of(pki[who], USER, PASSWORD, trusted_dir=pki["dir"] / "trusted_servers")
     nodes = {"health": server.node_id("Units", "valve", "DeviceHealth")}
-    r = OpcUaReader(OpcUaConfig(server.endpoint, nodes, security=sec, timeout=4.0))
+    r = OpcUaReader(OpcUaConfig(server.endpoint, nodes, security=sec, **cfg))
     await r.start()
     try:
+        yield r
+    finally:
+        await r.close()
+
+
+async def test_our_client_sign_and_encrypt_with_user(server, pki):
+    async with health_reader(server, pki, "ours", timeout=4.0) as r:
         assert await r.wait_connected(20)
         (s,) = await r.read()
         assert s.quality is TagQuality.GOOD and s.value in (0, 1)
-    finally:
-        await r.close()
 
 
 async def test_our_client_untrusted_certificate_stays_bad(server, pki):
-    st = pki["stranger"]
-    sec = ClientSecurity(
-        st.certificate,
-        st.private_key,
-        st.application_uri,
-        USER,
-        PASSWORD,
-        trusted_dir=pki["dir"] / "trusted_servers",  # we trust the server; it refuses us
-    )
-    nodes = {"health": server.node_id("Units", "valve", "DeviceHealth")}
-    r = OpcUaReader(OpcUaConfig(server.endpoint, nodes, security=sec, backoff_cap=1.0))
-    await r.start()
-    try:
+    # we trust the server; it refuses us
+    async with health_reader(server, pki, "stranger", backoff_cap=1.0) as r:
         assert not await r.wait_connected(3)
         (s,) = await r.read()
         assert s.quality is TagQuality.BAD and r.outages == 1
-    finally:
-        await r.close()

@@ -14,17 +14,12 @@ import asyncio
 
 import pandas as pd
 import pytest
-from opcua_peers import client, free_port, pki, users
+from opcua_peers import Events, client, free_port, pki, users
 
 from connectors.opcua_server import DiagOpcUaServer, ServerSecurity
 from diag_plugin.status import NE107, Quality, UnitStatus
 
 pytestmark = pytest.mark.anyio
-
-
-@pytest.fixture(scope="module")
-def anyio_backend():
-    return "asyncio"
 
 
 def st(unit: str, status: NE107, c: float = 0.9) -> UnitStatus:
@@ -39,14 +34,6 @@ def st(unit: str, status: NE107, c: float = 0.9) -> UnitStatus:
         detected=status != NE107.NORMAL,
         faults=["f1"] if status != NE107.NORMAL else [],
     )
-
-
-class Events:
-    def __init__(self) -> None:
-        self.items: list = []
-
-    def event_notification(self, event) -> None:
-        self.items.append(event)
 
 
 @pytest.fixture(scope="module")

@@ -6,28 +6,16 @@ shelved, ending by itself), the AckRequest tag, restart keeping alarm state."""
 from __future__ import annotations
 
 import asyncio
-import socket
 
 import pandas as pd
 import pytest
+from opcua_peers import Events, free_port, pki, users
 from opcua_peers import client as ua_client
-from opcua_peers import pki, users
 
 from connectors.opcua_server import NAMESPACE, DiagOpcUaServer, ServerSecurity
 from diag_plugin.status import NE107, Quality, UnitStatus
 
 pytestmark = pytest.mark.anyio
-
-
-@pytest.fixture(scope="module")
-def anyio_backend():
-    return "asyncio"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def st(unit: str, status: NE107, c: float = 0.5, q: Quality = Quality.GOOD) -> UnitStatus:
@@ -43,14 +31,6 @@ def st(unit: str, status: NE107, c: float = 0.5, q: Quality = Quality.GOOD) -> U
         detected=status != NE107.NORMAL,
         faults=["f1"] if status != NE107.NORMAL else [],
     )
-
-
-class Events:
-    def __init__(self) -> None:
-        self.items: list = []
-
-    def event_notification(self, event) -> None:
-        self.items.append(event)
 
 
 MAX_SHELVE = 60.0

@@ -14,19 +14,14 @@ import asyncio
 import math
 
 import pytest
-from opcua_peers import free_port
+from opcua_peers import free_port, security_of
 
 from connectors.base import TagQuality
 from connectors.certs import certificate_der, fingerprint, make_certificate
-from connectors.opcua_client import ClientSecurity, OpcUaConfig, OpcUaReader
+from connectors.opcua_client import OpcUaConfig, OpcUaReader
 from connectors.opcua_server import NAMESPACE, DiagOpcUaServer
 
 pytestmark = pytest.mark.anyio
-
-
-@pytest.fixture(scope="module")
-def anyio_backend():
-    return "asyncio"
 
 
 class Recorder:
@@ -77,14 +72,7 @@ async def test_rogue_server_gets_no_password_until_trusted(anyio_backend, tmp_pa
     ours = make_certificate(tmp_path / "ours", "ours", "urn:diag-plugin:test:client")
     trusted = tmp_path / "pki" / "trusted"
     trusted.mkdir(parents=True)
-    sec = ClientSecurity(
-        ours.certificate,
-        ours.private_key,
-        ours.application_uri,
-        "diag",
-        "plant-secret",
-        trusted_dir=trusted,
-    )
+    sec = security_of(ours, "diag", "plant-secret", trusted_dir=trusted)
     cfg = OpcUaConfig(
         f"opc.tcp://127.0.0.1:{port}/rogue/",
         {"F": var.nodeid.to_string()},
@@ -124,14 +112,7 @@ async def test_pinned_certificate_mismatch_refused(anyio_backend, tmp_path):
     srv, rec, rogue, var = await rogue_server(tmp_path, port)
     real = make_certificate(tmp_path / "real", "real", "urn:real", server=True, client=False)
     ours = make_certificate(tmp_path / "ours", "ours", "urn:diag-plugin:test:client")
-    sec = ClientSecurity(
-        ours.certificate,
-        ours.private_key,
-        ours.application_uri,
-        "diag",
-        "plant-secret",
-        server_certificate=real.certificate,
-    )
+    sec = security_of(ours, "diag", "plant-secret", server_certificate=real.certificate)
     r = OpcUaReader(
         OpcUaConfig(
             f"opc.tcp://127.0.0.1:{port}/rogue/", {"F": var.nodeid.to_string()}, security=sec

@@ -1,6 +1,6 @@
-"""Seed 001's figures on the simulated valve (docs/seed001.md): Fig. 4 / eq. 7, the "±5 %" of
-Models A and B, Figs. 7 and 8. The docs' figures use seeds 11/12 (lab), 1 and 43; these tests
-run other seeds and shorter runs."""
+"""Seed 001's figures on the simulated valve (docs/explanation/seed001.md): Fig. 4 / eq. 7,
+the "±5 %" of Models A and B, Figs. 7 and 8. The docs' figures use seeds 11/12 (lab), 1 and 43;
+these tests run other seeds and shorter runs."""
 
 import xml.etree.ElementTree as ET
 
@@ -29,7 +29,9 @@ def test_model_a_meets_the_band_where_its_one_pressure_carries_the_pressure_drop
     """Sect. 4.4's "±5 %": on the default plant the outlet pressure wanders as much as the
     inlet, Model A (P1 alone) misses the band and the pressure drop brings it in; with a steady
     outlet Model A is within it and B is not."""
-    res = seed001.accuracy(days=20, test_days=2, seed=5, test_seed=44)
+    # 8 training days: the gaps the test checks are as clear as with 20 (A 6.5 % vs A' 2.5 %;
+    # steady outlet A 2.2 % vs B 4.7 %), at two fifths of the time
+    res = seed001.accuracy(days=8, test_days=2, seed=5, test_seed=44)
     plant = res["default"]
     assert plant["A"]["test"]["rmse_pct"] > 5.0
     assert plant["A'"]["test"]["rmse_pct"] < 5.0 and plant["A'"]["test"]["within_band"] > 0.9

@@ -4,18 +4,23 @@ consequents (Laukonen et al., eqs. 13–26), behind the model seam (estimator, c
 import json
 
 import numpy as np
-import pandas as pd
 import pytest
-from helpers import run_diag, valve_frame
+from helpers import (
+    broken_edit_is_named,
+    cli_new_train_compare,
+    compares_and_explains,
+    run_diag,
+    trained_valve_file,
+)
 
 from diag_plugin.fuzzy import ts_fcm
 from diag_plugin.fuzzy.ts_fcm import TakagiSugenoRegressor, fuzzy_c_means, memberships
 from diag_plugin.models import Model
 from diag_plugin.models.protocol import REASON_NAN, REASON_OK, REASON_OUTSIDE
-from diag_plugin.rulebase.document import RuleBase, RuleBaseError, Variable
-from diag_plugin.training.chunked import train
-from diag_plugin.workbench.compare import compare
-from diag_plugin.workbench.explain import explain
+from diag_plugin.rulebase.document import RuleBase, Variable
+
+#: the method of the model files (the ``trained`` fixture of conftest.py reads it)
+METHOD = "ts-fcm"
 
 
 def blobs(centres, n=400, sd=0.05, seed=0):
@@ -185,27 +190,8 @@ def test_free_run_feeds_back_the_models_own_outputs():
     assert not TakagiSugenoRegressor(output_lags=[0, 0]).capabilities.free_run
 
 
-def _trained_file(tmp_path, seed=6):
-    f = valve_frame(1, seed=seed)
-    rb = RuleBase.new(
-        "t",
-        Variable("F[k]", "F", "t/h", (0.0, 40.0)),
-        [
-            Variable("CV[k-1]", "CV", "%", (0.0, 100.0)),
-            Variable("P1[k]", "P1_", "kPa", (300.0, 700.0)),
-        ],
-        method="ts-fcm",
-        path=tmp_path / "t.toml",
-    )
-    a, b = f.index[0], f.index[-1] + pd.Timedelta("10s")
-    res = train(rb, lambda s, e: f[(f.index >= s) & (f.index < e)], a, b, chunk=pd.Timedelta("5h"))
-    rb.apply_training(res.model, {"samples": res.samples})
-    rb.save()
-    return rb, res, f
-
-
 def test_model_file_lists_rules_round_trips_and_predicts_like_the_model(tmp_path):
-    rb, res, f = _trained_file(tmp_path)
+    rb, res, f = trained_valve_file(tmp_path, METHOD)
     text = rb.path.read_text()
     for opt in ("n_clusters = 10", "m = 2.0", "eps = 0.01", "max_iter = 300", "random_state = 0"):
         assert f"\n{opt}\n" in text
@@ -240,48 +226,21 @@ def test_model_file_lists_rules_round_trips_and_predicts_like_the_model(tmp_path
         ("weight_power = 2.0", "weight_power = 0", r"weight_power must be a number > 0"),
     ],
 )
-def test_a_broken_edit_names_file_and_line(tmp_path, old, new, message):
-    rb, _, _ = _trained_file(tmp_path)
-    text = rb.path.read_text()
-    line = next(k for k, ln in enumerate(text.splitlines(), 1) if old in ln)
-    (tmp_path / "bad.toml").write_text(text.replace(old, new, 1))
-    with pytest.raises(RuleBaseError, match=rf"bad\.toml:{line}: {message}"):
-        RuleBase.load(tmp_path / "bad.toml")
+def test_a_broken_edit_names_file_and_line(trained, tmp_path, old, new, message):
+    broken_edit_is_named(trained[0].path, tmp_path, old, new, message)
 
 
 def test_trains_compares_and_explains_through_the_seam(tmp_path):
-    rb, res, f = _trained_file(tmp_path, seed=7)
+    rb, res, f = trained_valve_file(tmp_path, METHOD, seed=7)
     assert res.validation["rmse_pct"] < 10.0
     # trained once on all rows after validation: as many samples as the design has
     assert res.samples == res.rows - sum(res.dropped.values())
-    c = compare(RuleBase.load(rb.path), f)
-    assert c.metrics["coverage"] > 0.99 and c.as_dict()["worst_regions"] == []
-    e = explain(RuleBase.load(rb.path), f, max_lag=2)
-    assert e.candidates and np.isfinite(e.baseline_rmse_pct)
-    # set counts mean nothing to this method: explain does not offer them
-    assert not any("--sets" in c.command for c in e.candidates)
+    compares_and_explains(rb.path, f)
 
 
-@pytest.fixture(scope="module")
-def plant(tmp_path_factory):
-    cwd = tmp_path_factory.mktemp("plant")
-    for args in (
-        ("simulate", "--days", "1", "--seed", "3", "--out", "p.parquet"),
-        ("import", "p.parquet"),
-    ):
-        r = run_diag(cwd, *args)
-        assert r.returncode == 0, r.stderr
-    return cwd
-
-
-def test_cli_model_new_train_compare(plant):
-    new = ("model", "new", "ts", "--output", "F", "--input", "CV[k-1]", "--method", "ts-fcm")
-    for args in (new, ("train", "ts"), ("compare", "ts", "--json")):
-        r = run_diag(plant, *args)
-        assert r.returncode == 0, r.stderr
-    doc = json.loads(r.stdout)
-    assert doc["coverage"] > 0.99 and np.isfinite(doc["rmse_pct"])
-    text = (plant / "rulebases" / "ts.toml").read_text()
+def test_cli_model_new_train_compare(cli_plant):
+    plant = cli_plant
+    _, text = cli_new_train_compare(plant, "ts", "ts-fcm")
     assert 'method = "ts-fcm"' in text and text.count("{ centre = [") == 10
     shown = run_diag(plant, "rules", "show", "ts")
     assert shown.returncode == 0 and "centre CV[k-1]" in shown.stdout, shown.stderr

@@ -1,4 +1,4 @@
-"""docs/tutorial.md reproduces: its commands run as written and print its numbers."""
+"""docs/tutorial/first-model.md reproduces: its commands run as written and print its numbers."""
 
 import json
 import re
@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from helpers import run_diag
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "tutorial.md"
+DOC = Path(__file__).resolve().parents[1] / "docs" / "tutorial" / "first-model.md"
 
 
 def commands(text: str) -> list[list[str]]:

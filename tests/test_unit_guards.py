@@ -1,7 +1,7 @@
 """Guards of a unit's combined test, its threshold learning and ``diag unit build`` (issue 38).
 
 Each test was shown to fail on the bug it names (planted by hand, one at a time) and to pass
-on the code as it is; docs/testing.md, "Issue 38 — diagnosis", lists them.
+on the code as it is; docs/reference/testing.md, "Issue 38 — diagnosis", lists them.
 
 * the combined statistic keeps its false-alarm level when some tests are unknown (χ² of the
   known count mapped to ``T`` degrees of freedom) and is unknown with fewer than half known;
@@ -13,7 +13,7 @@ on the code as it is; docs/testing.md, "Issue 38 — diagnosis", lists them.
 * ``diag unit build`` skips a set-point known only by its description, tests the tag its
   controller holds as the loop's own relation, and keeps 30 s of on/off delay at any rate.
 
-The rest close survivors of the mutation check (docs/testing.md): a tag's direction is the
+The rest close survivors of the mutation check (docs/reference/testing.md): a tag's direction is the
 move a bias of its sensor makes, the ranking's invariances, the learning window's runs and
 training range, a window where the plant stood still, the thresholds as calibrated.
 """

@@ -35,7 +35,7 @@ Lublin actuators. There the loop changes the signatures, as the physics says it 
 * X transducer (f13 on the positioner's feedback): the positioner follows the wrong reading,
   the true travel moves, and every residual reacts: (1, 1, 1, 1);
 * E/P (f12): compensated by the loop until the positioner saturates (not tested for isolation;
-  the DAMADICS literature finds it undetectable, docs/diagnostics.md);
+  the DAMADICS literature finds it undetectable, docs/explanation/damadics.md);
 * P0 sensor (f14) and valve erosion (f3): as in Table 4.
 
 The example unit's matrix (``examples.UNIT_MATRIX``) writes that down; ``test_closed_loop_*``

@@ -58,7 +58,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="--match-far: the rates are shares of samples (default) or alarm episodes per hour",
     )
     p.add_argument("--page", metavar="FILE",
-                   help="--match-far: the result page (default docs/results/PLANT.md)")  # fmt: skip
+                   help="write the result page (provenance: command, date, commit, seeds): "
+                   "DAMADICS only when given (docs/results/damadics.md); --match-far by "
+                   "default docs/results/PLANT.md")  # fmt: skip
     p.add_argument("--data", metavar="DIR",
                    help="--plant tep/tep-studio/skab: where the data are (default: the "
                    "environment variable or cache the docs name)")  # fmt: skip
@@ -101,6 +103,10 @@ def cmd_benchmark(args) -> int:
     if not unit.has_thresholds:
         raise UserError(f"unit {unit.name} has no thresholds: run diag unit learn first")
     seeds = tuple(args.seeds or (11,))
+    if args.page:
+        from diag_plugin.bench.pages import commit
+
+        started = commit()  # the code that runs, not what the tree holds when it ends
     con = Console(stderr=True)
     with Progress(console=con, transient=True, disable=args.json or not con.is_terminal) as pr:
         n = (38 if args.quick else 76) * len(seeds)
@@ -111,6 +117,10 @@ def cmd_benchmark(args) -> int:
             seeds=seeds,
             progress=lambda sc: pr.update(task, advance=1, description=f"{sc.fault} {sc.mode}"),
         )
+    if args.page:
+        from diag_plugin.bench.pages import render_damadics, write
+
+        out["page"] = str(write(render_damadics(out, _command(), started), args.page))
     if args.json:
         print(json.dumps(out, indent=2, allow_nan=False))
         return 0
@@ -151,7 +161,15 @@ def cmd_benchmark(args) -> int:
         f"isolated {s['scenarios_isolated']}/{s['scenarios_with_isolation']} scenarios with a "
         f"matrix column: {', '.join(s['faults_isolated']) or '—'}"
     )
+    if args.page:
+        print(f"page: {out['page']}")
     return 0
+
+
+def _command() -> str:
+    """The command line as the user typed it, from ``benchmark`` on (for a page's provenance)."""
+    argv = sys.argv[1:]
+    return "diag " + " ".join(argv[argv.index("benchmark") :] if "benchmark" in argv else argv)
 
 
 def _dur(s: float | None) -> str:
@@ -199,8 +217,7 @@ def cmd_matched_benchmark(args) -> int:
         out = run_matched_benchmark(
             plant, targets=targets, per=args.far_per, work=args.out, progress=tick
         )
-    argv = sys.argv[1:]
-    command = "diag " + " ".join(argv[argv.index("benchmark") :] if "benchmark" in argv else argv)
+    command = _command()
     page = args.page or (f"docs/results/{plant.name}.md" if Path("docs/results").is_dir() else None)
     if page:
         out["page"] = str(write_page(out, page, command))

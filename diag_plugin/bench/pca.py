@@ -31,10 +31,12 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from diag_plugin.models.params import ParamsMixin
+
 __all__ = ["PCADetector"]
 
 
-class PCADetector:
+class PCADetector(ParamsMixin):
     """PCA with T² and Q statistics and their control limits (see module doc).
 
     Parameters
@@ -49,6 +51,8 @@ class PCADetector:
         The tags used (default: every numeric column of the frame given to :meth:`fit`).
     """
 
+    _params = ("n_components", "alpha", "lags", "columns")
+
     def __init__(
         self,
         n_components: int | float = 0.9,
@@ -56,10 +60,7 @@ class PCADetector:
         lags: int = 0,
         columns: Sequence[str] | None = None,
     ) -> None:
-        self.n_components = n_components
-        self.alpha = alpha
-        self.lags = lags
-        self.columns = columns
+        self._keep(locals())
 
     # ------------------------------------------------------------ design
     def _matrix(self, frame: pd.DataFrame) -> np.ndarray:

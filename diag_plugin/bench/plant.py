@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.bench.pca import PCADetector
+from diag_plugin.models.params import ParamsMixin
 
 __all__ = [
     "run_plant_benchmark",
@@ -105,7 +106,7 @@ def _union_limits(t2: np.ndarray, q: np.ndarray, far: float) -> tuple[float, flo
     return float(np.quantile(t2, 1 - p)), float(np.quantile(q, 1 - p)), p
 
 
-class PCABaseline:
+class PCABaseline(ParamsMixin):
     """PCA (or dynamic PCA) T² + Q with limits at a false-alarm rate from out-of-sample data.
 
     Parameters
@@ -127,6 +128,8 @@ class PCABaseline:
         applies the same delays. Without it ``far`` is a share of samples (no delays).
     """
 
+    _params = ("far", "lags", "n_components", "columns", "delays", "period_s")
+
     def __init__(
         self,
         far: float = 0.01,
@@ -136,12 +139,7 @@ class PCABaseline:
         delays: tuple[int, int] | None = None,
         period_s: float | None = None,
     ) -> None:
-        self.far = far
-        self.lags = lags
-        self.n_components = n_components
-        self.columns = columns
-        self.delays = delays
-        self.period_s = period_s
+        self._keep(locals())
 
     def _detector(self) -> PCADetector:
         return PCADetector(n_components=self.n_components, lags=self.lags, columns=self.columns_)

@@ -27,7 +27,6 @@ at the top) — the pages under ``docs/results/`` are generated, never edited by
 
 from __future__ import annotations
 
-import datetime as _dt
 import logging
 import subprocess
 import sys
@@ -40,6 +39,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.bench.matched import FaultRun, Scored, curve, method_score, side_ratio
+from diag_plugin.bench.pages import provenance
 from diag_plugin.bench.publicplants import PlantRun, PublicPlant
 
 log = logging.getLogger(__name__)
@@ -440,7 +440,8 @@ def chemplant_plant(quick: bool = False, faults: Sequence[str] | None = None) ->
             f"fault scoring: seeds {', '.join(map(str, fault_seeds))}, {run_days:g}-day runs, "
             f"the fault from day {onset_days:g}",
             "tuning (not run here): fault seeds 101–103, fault-free 150–154",
-            "loops declared to the unit build (issue 34, docs/unit-loops.md): " + ", ".join(loops),
+            "loops declared to the unit build (issue 34, docs/how-to/unit-loops.md): "
+            + ", ".join(loops),
         ],
     )
 
@@ -470,18 +471,6 @@ def _dur(s: float | None) -> str:
     if s is None:
         return "—"
     return f"{s / 3600:.1f} h" if s >= 3600 else f"{s / 60:.0f} min" if s >= 60 else f"{s:.0f} s"
-
-
-def _commit() -> str:
-    try:
-        p = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                           text=True, timeout=10, cwd=Path(__file__).parent)  # fmt: skip
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10,
-                               cwd=Path(__file__).parent).stdout.strip()  # fmt: skip
-        return p.stdout.strip() + (" (with uncommitted changes)" if dirty else "")
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
 
 
 def _summary(pts: list[dict], methods: list[str], per: str) -> list[str]:
@@ -518,11 +507,7 @@ def render_page(out: dict, command: str) -> str:
     lines = [
         f"# Matched false alarms: {out['title']}",
         "",
-        "*Generated — do not edit by hand; run the command again.*",
-        "",
-        f"- command: `{command}`",
-        f"- date: {_dt.datetime.now(_dt.UTC).strftime('%Y-%m-%d %H:%M UTC')}",
-        f"- commit: {_commit()}",
+        *provenance(command),
         f"- data: {out['source']}",
         f"- sample period {out['period_s']:g} s; every method's statistics after on/off "
         f"delays of {out['delays'][0]}/{out['delays'][1]} samples, then their maximum; the "

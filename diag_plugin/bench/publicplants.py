@@ -97,7 +97,7 @@ class PublicPlant:
     source: str = ""
     split: list[str] = field(default_factory=list)  # the runs and what each is for, in words
     #: control loops declared to ``diag unit build`` as ``PV=SP:OUT`` (the tags CSV's loop and
-    #: role columns, docs/unit-loops.md)
+    #: role columns, docs/how-to/unit-loops.md)
     loops: list[str] = field(default_factory=list)
 
 

@@ -503,9 +503,7 @@ def parse_matrix(text: str, path: str | Path = "<matrix>") -> DiagnosticMatrix:
 
 def load_matrix(path: str | Path) -> DiagnosticMatrix:
     """Read a matrix file (see module doc); problems raise :class:`MatrixError`."""
+    from diag_plugin.tomllines import read_text
+
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MatrixError([f"{path}:0: cannot read: {exc}"]) from None
-    return parse_matrix(text, path)
+    return parse_matrix(read_text(path, MatrixError), path)

@@ -300,12 +300,10 @@ class UnitFile:
 
     @classmethod
     def load(cls, path: str | Path) -> UnitFile:
+        from diag_plugin.tomllines import read_text
+
         path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise UnitError([f"{path}:0: cannot read: {exc}"]) from None
-        return cls(text, path)
+        return cls(read_text(path, UnitError), path)
 
     # ------------------------------------------------------------ reading
     def error(self, line: int, msg: str) -> None:

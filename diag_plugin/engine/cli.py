@@ -52,7 +52,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "--omega-dy",
         action="store_true",
         help="the omega case also multiplies omega_dy: the engine speed as both instruments "
-        "read it (what Fig. 12's alpha residual implies, docs/engine.md)",
+        "read it (what Fig. 12's alpha residual implies, docs/explanation/engine.md)",
     )
     p.add_argument(
         "--window",

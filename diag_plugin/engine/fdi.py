@@ -18,7 +18,7 @@
    default the table as printed (:data:`TABLE_II`); ``matrix="derived"`` isolates by the table
    derived from eqs. 7–11 by the seed's own rule (:func:`derive_table_ii`), which reproduces the
    printed rows for m_a, α and m_f and gives ``1 0 0 1`` for the ω row (eq. 9 reads ω_dy, not
-   ω; docs/engine.md, "The ω case"). Every case reports its isolation by both tables.
+   ω; docs/explanation/engine.md, "The ω case"). Every case reports its isolation by both tables.
 
 Plain functions, numpy/pandas in and out.
 """
@@ -185,9 +185,10 @@ WINDOW = (3000, 5000)  # the seed's test window, revolutions (§IV)
 
 @dataclass(frozen=True)
 class Setup:
-    """How a run departs from the default experiment (the leads of issue 26, docs/engine.md
-    "The printed ω row: three leads"). Defaults: the simulator as it is, signals in its
-    engineering units, faults × gain on those, thresholds learned from fault-free runs.
+    """How a run departs from the default experiment (the leads of issue 26,
+    docs/explanation/engine.md, "The printed ω row: three leads"). Defaults: the simulator as it
+    is, signals in its engineering units, faults × gain on those, thresholds learned from
+    fault-free runs.
 
     * ``params``: the simulator's :class:`EngineParams` for every run (e.g. the automatic
       transmission, ``EngineParams(converter=True)``).
@@ -226,7 +227,7 @@ class Setup:
 class EngineModels:
     """The five identified models (eqs. 2–6), keyed like :data:`MODELS`. ``one_step``: estimate
     one step ahead on measured data even where the method can free-run (not the seed's mode;
-    for comparison, docs/engine.md)."""
+    for comparison, docs/explanation/engine.md)."""
 
     method: str
     models: dict[str, Any]
@@ -294,7 +295,8 @@ def new_estimator(
         from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
 
         # the fine grid alone (no coarser levels behind it), as the experiment was designed and
-        # documented (docs/engine.md): its thresholds are learned on the models' own residuals
+        # documented (docs/explanation/engine.md): its thresholds are learned on the models'
+        # own residuals
         return WangMendelRegressor(n_sets=9, output_sets=31, method="wm-avg", levels=0)
     raise ValueError(f"unknown method {method!r} (known: {', '.join(FDI_METHODS)})")
 
@@ -560,7 +562,7 @@ def run_fdi(
     free run; ``matrix`` names the Table II to isolate by (:data:`MATRICES`: ``"printed"``, the
     default, or ``"derived"`` from eqs. 7–11); each case also carries ``"isolated_by"``, its
     isolation by both. ``weight_power``: ts-fcm's consequent weights μ^p (2: eq. 24, the
-    default; 1: eq. 23). ``setup``: the leads of docs/engine.md (:class:`Setup`).
+    default; 1: eq. 23). ``setup``: the leads of docs/explanation/engine.md (:class:`Setup`).
     """
     if matrix not in MATRICES:
         raise ValueError(f"matrix must be one of {', '.join(MATRICES)}, got {matrix!r}")

@@ -35,51 +35,58 @@ UNIT_FAR = 0.001
 
 #: the unit's tests: r1 = F − F̂(CV), r2 = P0 − P̂0(CV), r3 = X − X̂(P0), r4 = F − F̂(X)
 #: (Kościelny et al., Sect. 5, with rules (10)–(14)); r1 and r4 also take P1, P2
-#: (docs/diagnostics.md says why)
+#: (docs/explanation/table4.md says why)
 UNIT_TESTS = {
     "r1": ("F[k]", ["CV[k]", "P1[k]", "P2[k]"], "r1: F = f(CV, P1, P2)"),
     "r2": ("P0[k]", ["CV[k]"], "r2: P0 = f(CV)"),
     "r3": ("X[k]", ["P0[k]"], "r3: X = f(P0)"),
     "r4": ("F[k]", ["X[k]", "P1[k]", "P2[k]"], "r4: F = f(X, P1, P2)"),
 }
+
+
 #: Kościelny et al. Table 4 as printed (blank entries are 0, as rules (10)–(14) say): the
 #: open chain U → P0 → X → F of an actuator without a positioner loop
-TABLE4_MATRIX = """\
-# Servomotor–valve unit, Kościelny et al. Table 4 (blank entries are 0, as rules (10)–(14) say)
-[matrix]
-name = "valve_unit"
-tests = ["r1", "r2", "r3", "r4"]
-faults = ["f_EP", "f_P0", "f_S", "f_X", "f_V"]
-rows = [
-  #                   f_EP f_P0 f_S  f_X  f_V
-  { test = "r1", row = ["1", "0", "1", "0", "1"] },
-  { test = "r2", row = ["1", "1", "0", "0", "0"] },
-  { test = "r3", row = ["0", "1", "1", "1", "0"] },
-  { test = "r4", row = ["0", "0", "0", "1", "1"] },
-]
-# f_EP E/P transducer, f_P0 P0 pressure sensor, f_S servomotor, f_X X transducer, f_V valve
-"""
+def _matrix(title: str, rows: str, notes: str) -> str:
+    """A matrix file of the valve's four tests and five faults: ``rows`` a line per test,
+    ``test: e e e e e`` in the order f_EP f_P0 f_S f_X f_V."""
+    lines = [f"# Servomotor–valve unit{title}", "[matrix]", 'name = "valve_unit"']
+    lines += ['tests = ["r1", "r2", "r3", "r4"]', 'faults = ["f_EP", "f_P0", "f_S", "f_X", "f_V"]']
+    lines += ["rows = [", "  #                   f_EP f_P0 f_S  f_X  f_V"]
+    for row in rows.strip().splitlines():
+        test, entries = row.split(":")
+        cells = ", ".join(f'"{e}"' for e in entries.split())
+        lines.append(f'  {{ test = "{test}", row = [{cells}] }},')
+    legend = "f_EP E/P transducer, f_P0 P0 pressure sensor, f_S servomotor, f_X X transducer"
+    lines += ["]", f"# {legend}, f_V valve{notes}"]
+    return "\n".join(lines) + "\n"
+
+
+TABLE4_MATRIX = _matrix(
+    ", Kościelny et al. Table 4 (blank entries are 0, as rules (10)–(14) say)",
+    """
+r1: 1 0 1 0 1
+r2: 1 1 0 0 0
+r3: 0 1 1 1 0
+r4: 0 0 0 1 1
+""",
+    "",
+)
 
 #: the example unit's matrix: Table 4 for the simulated actuator, whose positioner closes its
-#: loop on the measured X (docs/diagnostics.md). The loop restores X after a servomotor fault
+#: loop on the measured X (docs/explanation/table4.md). The loop restores X after a servomotor fault
 #: by changing P0, so f_S shows P0's column (0, 1, 1, 0) and the two are one group; after an
 #: X-transducer fault it moves the true travel, so all four residuals react.
-UNIT_MATRIX = """\
-# Servomotor–valve unit with a positioner: Kościelny et al. Table 4 for a loop closed on X
-[matrix]
-name = "valve_unit"
-tests = ["r1", "r2", "r3", "r4"]
-faults = ["f_EP", "f_P0", "f_S", "f_X", "f_V"]
-rows = [
-  #                   f_EP f_P0 f_S  f_X  f_V
-  { test = "r1", row = ["1", "0", "0", "1", "1"] },
-  { test = "r2", row = ["1", "1", "1", "1", "0"] },
-  { test = "r3", row = ["0", "1", "1", "1", "0"] },
-  { test = "r4", row = ["0", "0", "0", "1", "1"] },
-]
-# f_EP E/P transducer, f_P0 P0 pressure sensor, f_S servomotor, f_X X transducer, f_V valve;
-# f_P0 and f_S cannot be told apart by these four tests (a Pch = f(P0) test would split them)
-"""
+UNIT_MATRIX = _matrix(
+    " with a positioner: Kościelny et al. Table 4 for a loop closed on X",
+    """
+r1: 1 0 0 1 1
+r2: 1 1 1 1 0
+r3: 0 1 1 1 0
+r4: 0 0 0 1 1
+""",
+    ";\n# f_P0 and f_S cannot be told apart by these four tests "
+    "(a Pch = f(P0) test would split them)",
+)
 
 
 def _fit(rb: RuleBase, frame: pd.DataFrame, source: str) -> RuleBase:
@@ -155,7 +162,7 @@ def build_examples(folder: str | Path, *, damadics: Path | None = None) -> list[
 
 #: the actuator Table 4 and rules (10)–(14) describe: no positioner (the controller output
 #: drives the E/P converter: the open chain U → P0 → X → F), low-friction packing
-#: (docs/diagnostics.md, "Which plant Table 4 describes")
+#: (docs/explanation/table4.md, "Which plant Table 4 describes")
 TABLE4_PLANT = {"positioner_gain": 0.0, "hysteresis": 0.03}
 
 

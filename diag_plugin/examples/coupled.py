@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.unitfile import new_unit_text
+from diag_plugin.examples.rigs import held_levels
 from diag_plugin.training.chunked import train
 from diag_plugin.workbench.model_edit import new_model
 
@@ -52,13 +53,7 @@ def process(
     rng = np.random.default_rng([seed, 25])
 
     def steps(lo: float, hi: float) -> np.ndarray:
-        out = np.empty(n)
-        i = 0
-        while i < n:
-            h = int(rng.integers(30, 240))
-            out[i : i + h] = rng.uniform(lo, hi)
-            i += h
-        return out
+        return held_levels(rng, n, lo, hi, (30, 240))
 
     def lag(x: np.ndarray, tau: float) -> np.ndarray:
         a = math.exp(-1 / tau)

@@ -22,13 +22,13 @@ pressure drop, not the valve, limits the flow — Model B cannot see it). The ex
    in the training error (weighted by each rule's samples: isotonic regression, adjacent
    violators pooled) — on the shipped B.1 CV28–CV30 (30.70, 31.17, 28.78 t/h) become 30.63.
    Raising the low rule to its neighbour instead (the smaller edit in values) cost more on
-   held-out data (docs/tutorial.md, step 6).
+   held-out data (docs/tutorial/first-model.md, step 6).
 3. Every edited rule is **locked**, so ``diag train`` keeps it (its n/sd are refreshed).
 
 On the shipped B.1 the fit gives R = 50.2 (the DN50 valve's data sheet: 50) and fills CV00–
 CV09 with 0–2.40 t/h; on a week of the simulated plant at low load (flow set-points from
-0.5 t/h, seed 43) the measured flow averages 0.51–1.96 t/h over CV 5–32 % (docs/tutorial.md,
-step 6, and docs/diagnostics.md give the held-out errors).
+0.5 t/h, seed 43) the measured flow averages 0.51–1.96 t/h over CV 5–32 %
+(docs/tutorial/first-model.md, step 6, and docs/explanation/fig8.md give the held-out errors).
 """
 
 from __future__ import annotations

@@ -19,7 +19,8 @@ Here, on the one real hour we have (Lublin actuator 3, :mod:`diag_plugin.example
 
 Residuals are eq. 6, ``(y − ŷ) / span · 100 %``; where a model has no rule for a sample its
 nearest rule answers (``extrapolate``), so every sample is scored (coverage reported).
-``python -m diag_plugin.examples.fig8 --plot FILE.svg`` draws the figure of docs/diagnostics.md.
+``python -m diag_plugin.examples.fig8 --plot FILE.svg`` draws the figure of
+docs/explanation/fig8.md.
 """
 
 from __future__ import annotations
@@ -244,10 +245,7 @@ def plot(res: dict[str, Any], path: str | Path) -> Path:
         "lie on its fault-free one; P1 × 1.1–1.3 lies beyond every pressure of the hour, where A "
         "has no rules and its nearest rule answers (the same shift for every change)",
     )
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(fig, encoding="utf-8")
-    return path
+    return sp.write(fig, path)
 
 
 def figures(res: dict[str, Any]) -> dict[str, Any]:

@@ -23,25 +23,31 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from diag_plugin.simulate.tagtable import tag_table
+
 G = 981.0  # cm/s²
 START = pd.Timestamp("2026-03-02", tz="UTC")
 
 #: the tank rig's tags: (unit, lo, hi, description)
-TANK_TAGS = {
-    "U": ("%", 0.0, 100.0, "pump command"),
-    "Q": ("cm3/s", 0.0, 120.0, "pump flow"),
-    "H1": ("cm", 0.0, 40.0, "tank 1 level"),
-    "H2": ("cm", 0.0, 40.0, "tank 2 level"),
-}
+TANK_TAGS = tag_table(
+    """
+U  | %     | 0 | 100 | pump command
+Q  | cm3/s | 0 | 120 | pump flow
+H1 | cm    | 0 | 40  | tank 1 level
+H2 | cm    | 0 | 40  | tank 2 level
+"""
+)
 #: the heat exchanger's tags
-HX_TAGS = {
-    "FH": ("kg/s", 0.0, 5.0, "hot flow"),
-    "FC": ("kg/s", 0.0, 6.0, "cold flow"),
-    "THI": ("degC", 50.0, 110.0, "hot inlet temperature"),
-    "TCI": ("degC", 0.0, 40.0, "cold inlet temperature"),
-    "THO": ("degC", 0.0, 110.0, "hot outlet temperature"),
-    "TCO": ("degC", 0.0, 110.0, "cold outlet temperature"),
-}
+HX_TAGS = tag_table(
+    """
+FH  | kg/s | 0  | 5   | hot flow
+FC  | kg/s | 0  | 6   | cold flow
+THI | degC | 50 | 110 | hot inlet temperature
+TCI | degC | 0  | 40  | cold inlet temperature
+THO | degC | 0  | 110 | hot outlet temperature
+TCO | degC | 0  | 110 | cold outlet temperature
+"""
+)
 
 
 @dataclass(frozen=True)
@@ -58,6 +64,20 @@ class RigFault:
     kind: str
     strength: float
     onset: float
+
+
+def held_levels(
+    rng: np.random.Generator, n: int, lo: float, hi: float, hold: tuple[int, int]
+) -> np.ndarray:
+    """``n`` samples of levels drawn uniformly from ``lo``–``hi``, each held for a number of
+    samples drawn from ``hold`` (low inclusive, high exclusive): set-points an operator moves."""
+    out = np.empty(n)
+    i = 0
+    while i < n:
+        h = int(rng.integers(*hold))
+        out[i : i + h] = rng.uniform(lo, hi)
+        i += h
+    return out
 
 
 def _on(faults, kind: str, t: np.ndarray) -> np.ndarray:
@@ -142,13 +162,7 @@ def heat_exchanger(
     day = np.sin(2 * np.pi * t / 86400.0)
 
     def setpoints(lo: float, hi: float) -> np.ndarray:
-        out = np.empty(n)
-        i = 0
-        while i < n:
-            hold = int(rng.integers(20, 240))
-            out[i : i + hold] = rng.uniform(lo, hi)
-            i += hold
-        return out
+        return held_levels(rng, n, lo, hi, (20, 240))
 
     def wander(sd: float, tau_s: float) -> np.ndarray:
         a = math.exp(-dt / tau_s)

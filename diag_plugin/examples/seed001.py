@@ -21,7 +21,7 @@ real DAMADICS hour is reproduced in :mod:`diag_plugin.examples.fig8`. Here, on
 
 Residuals are eq. 6, ``(y − ŷ)/span · 100 %``, every sample scored (the nearest rule where a
 model has none; coverage reported). ``python -m diag_plugin.examples.seed001 --plot DIR``
-prints the figures as JSON and draws the SVGs of docs/seed001.md.
+prints the figures as JSON and draws the SVGs of docs/explanation/seed001.md.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from diag_plugin.examples.fig8 import figures
 from diag_plugin.regressors import build_design
 from diag_plugin.simulate.process import ProcessParams
 
@@ -324,7 +325,7 @@ def plot_fig4(res: dict[str, Any], path: str | Path, hours: float = 2.0) -> Path
             [sp.HLine(v, "±1 % and ±2 % (the paper's lab accuracy)") for v in (-2, -1, 1, 2)],
         ),
     ]
-    return _write(
+    return sp.write(
         sp.figure(
             panels,
             title=f"Kościelny et al. Fig. 4 / eq. 7, the simulated lab rig ({res['period_s']:g} s)",
@@ -356,7 +357,7 @@ def plot_fig7(res: dict[str, Any], path: str | Path, hours: float = 24.0) -> Pat
         )
         panels.append(sp.Panel(title, [sp.Trace(_hours(r.index, t0), r["r"], "F − F̂, % of span",
                                                 color="#222", width=0.7)], list(band)))  # fmt: skip
-    return _write(
+    return sp.write(
         sp.figure(
             panels,
             title="Kościelny et al. Fig. 7 on the simulator: shipped Models A, B and B.2, "
@@ -397,7 +398,7 @@ def plot_fig8(res: dict[str, Any], path: str | Path) -> Path:
                                        color=colors[g], dash="4 2", width=0.8))  # fmt: skip
             panels.append(sp.Panel(f"{label} residual, % of span, {what} changed", traces,
                                    list(band), split))  # fmt: skip
-    return _write(
+    return sp.write(
         sp.figure(
             panels,
             title="Kościelny et al. Fig. 8 on the simulator: shipped Models A and B, signals "
@@ -409,17 +410,6 @@ def plot_fig8(res: dict[str, Any], path: str | Path) -> Path:
         ),
         path,
     )
-
-
-def _write(svg: str, path: str | Path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(svg, encoding="utf-8")
-    return path
-
-
-def _plain(res: dict[str, Any]) -> dict[str, Any]:
-    return {k: v for k, v in res.items() if k != "frames"}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -434,7 +424,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--skip-accuracy", action="store_true", help="no A/B table (two 60-day runs)")
     args = ap.parse_args(argv)
     lab, f7, f8 = lab_model(), fig7(), fig8()
-    out = {"fig4": _plain(lab), "fig7": _plain(f7), "fig8": _plain(f8)}
+    out = {"fig4": figures(lab), "fig7": figures(f7), "fig8": figures(f8)}
     if not args.skip_accuracy:
         out["accuracy"] = accuracy(days=args.days)
     if args.plot:

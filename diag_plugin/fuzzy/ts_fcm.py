@@ -16,7 +16,7 @@ exponent: the seed prints ``(‖x−v_j‖²/‖x−v_k‖²)^(m−1)`` in eqs. 
 necessary condition is ``^(1/(m−1))``. The two agree at the seed's ``m = 2``; we use Bezdek's.
 Weights of the least squares: eq. 23 weights each squared error by ``μ_ij``, eq. 24 (its
 stated solution) by ``μ_ij²`` (``D_j²``) — the seed contradicts itself. ``weight_power`` picks
-the exponent: 2 (eq. 24, the default) or 1 (eq. 23); docs/engine.md compares the two.
+the exponent: 2 (eq. 24, the default) or 1 (eq. 23); docs/explanation/engine.md compares the two.
 
 Fitting is chunked over rows (memory stays flat in the number of rows) and vectorised. The
 clustering needs all rows at every iteration, so the method is *not* incremental: ``fit`` only.
@@ -45,6 +45,7 @@ from typing import TYPE_CHECKING, Any
 import numba as nb
 import numpy as np
 
+from diag_plugin.models.codec import RuleCodec
 from diag_plugin.models.estimation import (
     CHUNK_ROWS,
     FreeRunCapabilities,
@@ -246,15 +247,7 @@ class TakagiSugenoRegressor(ParamsMixin):
         output_span: tuple[float, float] | None = None,
         output_lags: Sequence[int] | None = None,
     ) -> None:
-        self.n_clusters = n_clusters
-        self.m = m
-        self.eps = eps
-        self.max_iter = max_iter
-        self.random_state = random_state
-        self.weight_power = weight_power
-        self.input_spans = input_spans
-        self.output_span = output_span
-        self.output_lags = output_lags
+        self._keep(locals())
 
     # ---------------------------------------------------------------- training
     def fit(self, X: Any, y: Any) -> TakagiSugenoRegressor:
@@ -485,16 +478,15 @@ class TSRule:
     trailing: str = ""
 
 
-class TakagiSugenoCodec:
-    """Estimator factory and rule I/O of ``ts-fcm``."""
+class TakagiSugenoCodec(RuleCodec):
+    """Estimator factory and rule I/O of ``ts-fcm`` (c-means memberships and linear
+    conclusions: no FCL form)."""
 
     estimator = TakagiSugenoRegressor
     header = HEADER
-    #: c-means memberships and linear conclusions have no IEC 61131-7 FCL form
-    fcl = False
 
     def __init__(self, method: str = "ts-fcm") -> None:
-        self.method = method
+        super().__init__(method)
 
     def default_options(self) -> dict[str, Any]:
         """The training options a new file gets in its ``[rules]`` table (the seed's values)."""
@@ -524,10 +516,6 @@ class TakagiSugenoCodec:
             np.array([r.n for r in rules], float),
         )
 
-    def predictor(self, rb: RuleBase, model: TakagiSugenoRegressor) -> TakagiSugenoRegressor:
-        """The trained model as the file predicts with it (no locks in this method)."""
-        return model
-
     def apply_training(self, rb: RuleBase, model: TakagiSugenoRegressor) -> list[TSRule]:
         """The trained rules. Retraining re-clusters, so old rules have no successors: their
         comments are kept above the first rule rather than lost."""
@@ -555,20 +543,9 @@ class TakagiSugenoCodec:
         _check_options(rb)
         d = len(rb.inputs)
         out: list[TSRule] = []
-        for i, item in enumerate(items):
-            line, comments, trail = (
-                positions[i] if i < len(positions) else (rb.line_of("rules", "list"), [], "")
-            )
-            where = f"rule {i + 1}"
-            if not isinstance(item, Mapping):
-                rb.error(
-                    line, f"{where}: expected {{ centre = [...], slope = [...], const = ... }}"
-                )
-                continue
-            n0 = len(rb.problems)
-            unknown = set(item) - RULE_KEYS
-            if unknown:
-                rb.error(line, f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+        shape = "centre = [...], slope = [...], const = ..."
+        for e in self.entries(rb, items, positions, "rule", RULE_KEYS, shape):
+            item, line, where = e.item, e.line, e.where
             vecs = {}
             for key in ("centre", "slope"):
                 v = item.get(key)
@@ -586,10 +563,10 @@ class TakagiSugenoCodec:
             n = item.get("n", 0)
             if isinstance(n, bool) or not isinstance(n, int) or n < 0:
                 rb.error(line, f"{where}: n must be a non-negative integer, got {n!r}")
-            if len(rb.problems) > n0:
+            if len(rb.problems) > e.problems:
                 continue
             out.append(
-                TSRule(vecs["centre"], vecs["slope"], float(const), n, line, comments, trail)
+                TSRule(vecs["centre"], vecs["slope"], float(const), n, line, e.comments, e.trailing)
             )
         return out
 
@@ -609,18 +586,16 @@ class TakagiSugenoCodec:
 
     def format_rules(self, rb: RuleBase) -> str:
         """The ``list = [...]`` text, one rule per line, comments kept."""
-        lines = ["list = [\n"]
-        for r in rb.rules:
-            lines += [f"    {c}\n" for c in r.comments]
+
+        def text(r: TSRule) -> str:
             centre = ", ".join(_num(v, 8) for v in r.centre)
             slope = ", ".join(_num(v, 10) for v in r.slope)
-            text = (
-                f"    {{ centre = [{centre}], slope = [{slope}], "
+            return (
+                f"{{ centre = [{centre}], slope = [{slope}], "
                 f"const = {_num(r.const, 10)}, n = {r.n} }},"
             )
-            lines.append(text + (f"  {r.trailing}" if r.trailing else "") + "\n")
-        lines.append("]\n")
-        return "".join(lines)
+
+        return self.format_list(rb.rules, text)
 
 
 def _check_options(rb: RuleBase) -> None:

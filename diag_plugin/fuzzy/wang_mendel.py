@@ -51,6 +51,7 @@ import numpy as np
 
 from diag_plugin.fuzzy import _kernels as K
 from diag_plugin.fuzzy.partition import UniformPartition
+from diag_plugin.models.estimation import observed_span
 from diag_plugin.models.params import ParamsMixin
 from diag_plugin.models.protocol import (  # noqa: F401 - re-exported for callers
     REASON_NAN,
@@ -267,14 +268,7 @@ class WangMendelRegressor(ParamsMixin):
         levels: int | None = None,
         conclusion: str = "mean",
     ) -> None:
-        self.input_spans = input_spans
-        self.output_span = output_span
-        self.n_sets = n_sets
-        self.output_sets = output_sets
-        self.shape = shape
-        self.method = method
-        self.levels = levels
-        self.conclusion = conclusion
+        self._keep(locals())
 
     # ------------------------------------------------------------------ set-up
     def _init_partitions(self, X: np.ndarray, y: np.ndarray) -> None:
@@ -290,10 +284,10 @@ class WangMendelRegressor(ParamsMixin):
             raise ValueError(f"n_sets has {len(sets)} entries for {d} inputs")
         spans = self.input_spans
         if spans is None:
-            spans = [_observed_span(X[:, k]) for k in range(d)]
+            spans = [observed_span(X[:, k]) for k in range(d)]
         if len(spans) != d:
             raise ValueError(f"input_spans has {len(spans)} entries for {d} inputs")
-        ospan = self.output_span if self.output_span is not None else _observed_span(y)
+        ospan = self.output_span if self.output_span is not None else observed_span(y)
         self.partitions_ = [
             UniformPartition(float(lo), float(hi), int(n), self.shape)
             for (lo, hi), n in zip(spans, sets, strict=True)
@@ -939,16 +933,6 @@ def _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets) -> np.ndarray:
     M = A.T @ A + SMOOTHING * per_node * (P.T @ P) + ridge * np.eye(k)
     rhs = A.T @ (sw * y) + ridge * float(np.average(y, weights=n))
     return np.linalg.solve(M, rhs)
-
-
-def _observed_span(v: np.ndarray) -> tuple[float, float]:
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        raise ValueError("cannot infer a span from data that is all NaN")
-    lo, hi = float(v.min()), float(v.max())
-    if hi <= lo:
-        hi = lo + max(abs(lo), 1.0) * 1e-3
-    return lo, hi
 
 
 def _copy_state(m: WangMendelRegressor) -> dict:

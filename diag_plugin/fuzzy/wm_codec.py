@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from diag_plugin.fuzzy.wang_mendel import CONCLUSIONS, WangMendelRegressor
+from diag_plugin.models.codec import RuleCodec
 from diag_plugin.models.spec import ModelSpec
 
 if TYPE_CHECKING:
@@ -55,13 +56,15 @@ class Rule:
     trailing: str = ""
 
 
-class WangMendelCodec:
+class WangMendelCodec(RuleCodec):
     """Estimator factory and rule I/O of the Wang–Mendel methods (``wm-avg``, ``wm``)."""
 
     estimator = WangMendelRegressor
+    #: the fine grid's rules are IEC 61131-7 FCL rules (``diag rules export-fcl``)
+    fcl = True
 
     def __init__(self, method: str = "wm-avg") -> None:
-        self.method = method
+        super().__init__(method)
 
     def default_options(self) -> dict:
         """The options a new file gets in ``[rules]``: none (every level behind the fine grid,
@@ -167,18 +170,8 @@ class WangMendelCodec:
         lo, hi = rb.output.span
         rules: list[Rule] = []
         seen: dict[tuple[int, ...], int] = {}
-        for i, item in enumerate(items):
-            line, comments, trail = (
-                positions[i] if i < len(positions) else (rb.line_of("rules", "list"), [], "")
-            )
-            where = f"rule {i + 1}"
-            if not isinstance(item, Mapping):
-                rb.error(line, f"{where}: expected {{ if = [...], then = ... }}")
-                continue
-            n0 = len(rb.problems)
-            unknown = set(item) - RULE_KEYS
-            if unknown:
-                rb.error(line, f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+        for e in self.entries(rb, items, positions, "rule", RULE_KEYS, "if = [...], then = ..."):
+            item, line, where = e.item, e.line, e.where
             prem = item.get("if")
             premise: list[int] = []
             if not isinstance(prem, list) or not all(isinstance(p, str) for p in prem):
@@ -232,7 +225,7 @@ class WangMendelCodec:
                 if not (isinstance(sd, float) and math.isnan(sd)):
                     rb.error(line, f"{where}: sd must be a non-negative number, got {sd!r}")
                 sd = 0.0
-            if len(rb.problems) > n0:
+            if len(rb.problems) > e.problems:
                 continue
             key = tuple(premise)
             if key in seen:
@@ -241,26 +234,25 @@ class WangMendelCodec:
                 )
                 continue
             seen[key] = line
-            rules.append(Rule(key, then, int(n), float(sd), bool(lock), line, comments, trail))
+            rules.append(
+                Rule(key, then, int(n), float(sd), bool(lock), line, e.comments, e.trailing)
+            )
         return rules
 
     def format_rules(self, rb: RuleBase) -> str:
         """The ``list = [...]`` text, one rule per line in premise order, comments kept."""
         dec_y = _decimals(rb.output.span)
-        out = ["list = [\n"]
-        for r in rb.rules:
-            for c in r.comments:
-                out.append(f"    {c}\n")
+
+        def text(r: Rule) -> str:
             labels = ", ".join(
                 f'"{v.set_label(i)}"' for v, i in zip(rb.inputs, r.premise, strict=True)
             )
             then = "nan" if math.isnan(r.then) else f"{r.then:.{dec_y}f}"
             sd = "nan" if math.isnan(r.sd) else f"{r.sd:.{dec_y}f}"
             lock = "true" if r.lock else "false"
-            line = f"    {{ if = [{labels}], then = {then}, n = {r.n}, sd = {sd}, lock = {lock} }},"
-            out.append(line + (f"  {r.trailing}" if r.trailing else "") + "\n")
-        out.append("]\n")
-        return "".join(out)
+            return f"{{ if = [{labels}], then = {then}, n = {r.n}, sd = {sd}, lock = {lock} }},"
+
+        return self.format_list(rb.rules, text)
 
 
 def _with_rules(m: WangMendelRegressor, rules: Mapping[tuple[int, ...], Rule]):

@@ -12,20 +12,25 @@ from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_f
 from historian.errors import UserError
 
 
-def add_commands(sub: argparse._SubParsersAction) -> None:
-    usub = unit_actions(sub)
-    p = usub.add_parser("learn", help="learn thresholds from a window you declare fault-free")
-    p.add_argument("name")
-    p.add_argument("--from", dest="start", required=True, metavar="T0")
-    p.add_argument("--to", dest="end", required=True, metavar="T1")
+def add_far(p: argparse.ArgumentParser, default: str) -> None:
+    """``--far PER_HOUR``, the false-alarm budget (``default``: what the help says of it)."""
     p.add_argument(
         "--far",
         type=float,
         default=None,
         metavar="PER_HOUR",
         help="false-alarm budget: alarms per hour of operation of the unit, all tests together "
-        "(default 0.001, about one in six weeks)",
+        + default,
     )
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    usub = unit_actions(sub)
+    p = usub.add_parser("learn", help="learn thresholds from a window you declare fault-free")
+    p.add_argument("name")
+    p.add_argument("--from", dest="start", required=True, metavar="T0")
+    p.add_argument("--to", dest="end", required=True, metavar="T1")
+    add_far(p, "(default 0.001, about one in six weeks)")
     p.add_argument(
         "--blocks",
         type=int,

@@ -17,7 +17,7 @@ def add_commands(sub) -> None:
     p.add_argument(
         "--config",
         metavar="PLANT_TOML",
-        help="plant.toml: units, Modbus/OPC UA sources, outputs (docs/live.md)",
+        help="plant.toml: units, Modbus/OPC UA sources, outputs (docs/reference/live.md)",
     )
     p.add_argument(
         "--data", default="diag-data", metavar="DIR", help="embedded data dir (no --config)"

@@ -1,6 +1,6 @@
 """``plant.toml`` for ``diag run --config``: the plant, its tag sources, the outputs.
 
-Example (paths are relative to the file; docs/live.md explains every key)::
+Example (paths are relative to the file; docs/reference/live.md explains every key)::
 
     [plant]
     cycle = 1.0                                   # seconds per cycle
@@ -18,7 +18,7 @@ Example (paths are relative to the file; docs/live.md explains every key)::
     host = "127.0.0.1"
     port = 502
     device_id = 1
-    map = "plc.csv"                               # register map CSV (docs/connectors.md)
+    map = "plc.csv"                               # register map CSV (docs/reference/connectors.md)
     timeout = 1.0                                 # s, at most the cycle (default: 1 s or the cycle)
 
     [[source]]

@@ -8,22 +8,13 @@ takes its ``--method`` choices from) does not pull in numpy through the protocol
 
 from __future__ import annotations
 
-import importlib
+from historian.lazy import lazy
 
-_LAZY = {
-    "Capabilities": "protocol",
-    "Model": "protocol",
-    "Prediction": "protocol",
-    "METHODS": "registry",
-    "Method": "registry",
-    "get_method": "registry",
-    "ModelSpec": "spec",
-    "Variable": "spec",
-}
-__all__ = sorted(_LAZY)
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __all__ = lazy(
+    __name__,
+    """
+protocol: Capabilities Model Prediction
+registry: METHODS Method get_method
+spec: ModelSpec Variable
+""",
+)

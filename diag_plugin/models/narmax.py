@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from diag_plugin.models.codec import RuleCodec
 from diag_plugin.models.estimation import (
     CHUNK_ROWS,
     FreeRunCapabilities,
@@ -125,9 +126,7 @@ class Narmax2Regressor(SpanEstimator):
         output_span: tuple[float, float] | None = None,
         output_lags: Sequence[int] | None = None,
     ) -> None:
-        self.input_spans = input_spans
-        self.output_span = output_span
-        self.output_lags = output_lags
+        self._keep(locals())
 
     # ------------------------------------------------------------------ set-up
     def _init(self, X: np.ndarray, y: np.ndarray | None = None) -> None:
@@ -350,16 +349,14 @@ class Term:
 TERM_KEYS = {"term", "coef"}
 
 
-class NarmaxCodec:
-    """Estimator factory and term I/O of ``narmax2``."""
+class NarmaxCodec(RuleCodec):
+    """Estimator factory and term I/O of ``narmax2`` (a polynomial: no FCL form)."""
 
     estimator = Narmax2Regressor
     header = HEADER
-    #: a polynomial has no IEC 61131-7 FCL form
-    fcl = False
 
     def __init__(self, method: str = "narmax2") -> None:
-        self.method = method
+        super().__init__(method)
 
     def default_options(self) -> dict[str, Any]:
         """Method options written into a new file's ``[rules]`` table: none."""
@@ -386,10 +383,6 @@ class NarmaxCodec:
             coef[pos[r.term]] = r.coef
         return m.set_coefficients(coef)
 
-    def predictor(self, rb: RuleBase, model: Narmax2Regressor) -> Narmax2Regressor:
-        """The trained model as the file predicts with it (no locks in this method)."""
-        return model
-
     def apply_training(self, rb: RuleBase, model: Narmax2Regressor) -> list[Term]:
         """Every term with its trained coefficient; comments of terms already there stay."""
         old = {r.term: r for r in rb.rules}
@@ -413,18 +406,8 @@ class NarmaxCodec:
         specs = [v.spec for v in rb.inputs]
         out: list[Term] = []
         seen: dict[tuple[int, ...], int] = {}
-        for i, item in enumerate(items):
-            line, comments, trail = (
-                positions[i] if i < len(positions) else (rb.line_of("rules", "list"), [], "")
-            )
-            where = f"term {i + 1}"
-            if not isinstance(item, Mapping):
-                rb.error(line, f'{where}: expected {{ term = "...", coef = ... }}')
-                continue
-            n0 = len(rb.problems)
-            unknown = set(item) - TERM_KEYS
-            if unknown:
-                rb.error(line, f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+        for e in self.entries(rb, items, positions, "term", TERM_KEYS, 'term = "...", coef = ...'):
+            item, line, where = e.item, e.line, e.where
             text = item.get("term")
             term: tuple[int, ...] = ()
             if not isinstance(text, str):
@@ -439,13 +422,13 @@ class NarmaxCodec:
                 rb.error(line, f"{where}: coef must be a number, got {coef!r}")
             elif not math.isfinite(coef):
                 rb.error(line, f"{where}: coef must be finite, got {coef!r}")
-            if len(rb.problems) > n0:
+            if len(rb.problems) > e.problems:
                 continue
             if term in seen:
                 rb.error(line, f"{where}: duplicate term {text!r} (first at line {seen[term]})")
                 continue
             seen[term] = line
-            out.append(Term(term, float(coef), line, comments, trail))
+            out.append(Term(term, float(coef), line, e.comments, e.trailing))
         return out
 
     def rule_table(self, rb: RuleBase) -> tuple[list[str], list[list[str]]]:
@@ -457,15 +440,14 @@ class NarmaxCodec:
         """The ``list = [...]`` text, one term per line in the model's term order."""
         specs = [v.spec for v in rb.inputs]
         order = {t: k for k, t in enumerate(term_pairs(len(specs)))}
-        lines = ["list = [\n"]
-        for r in sorted(rb.rules, key=lambda r: order.get(r.term, len(order))):
-            lines += [f"    {c}\n" for c in r.comments]
-            # a quoted tag name ("Flow rate"[k]) is escaped, as TOML's basic strings are
-            term = json.dumps(format_term(r.term, specs), ensure_ascii=False)
-            text = f"    {{ term = {term}, coef = {_num(r.coef)} }},"
-            lines.append(text + (f"  {r.trailing}" if r.trailing else "") + "\n")
-        lines.append("]\n")
-        return "".join(lines)
+        # a quoted tag name ("Flow rate"[k]) is escaped, as TOML's basic strings are
+        return self.format_list(
+            sorted(rb.rules, key=lambda r: order.get(r.term, len(order))),
+            lambda r: (
+                f"{{ term = {json.dumps(format_term(r.term, specs), ensure_ascii=False)}, "
+                f"coef = {_num(r.coef)} }},"
+            ),
+        )
 
 
 def _no_options(rb: RuleBase, method: str = "narmax2") -> None:

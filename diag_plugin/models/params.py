@@ -11,6 +11,12 @@ class ParamsMixin:
 
     _params: tuple[str, ...] = ()
 
+    def _keep(self, args: dict[str, Any]) -> None:
+        """Store each constructor argument under its own name, as given (call with
+        ``locals()``): all a scikit-learn constructor does."""
+        for k in self._params:
+            setattr(self, k, args[k])
+
     def get_params(self, deep: bool = True) -> dict[str, Any]:
         """Constructor parameters (scikit-learn convention)."""
         return {k: getattr(self, k) for k in self._params}

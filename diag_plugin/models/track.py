@@ -75,9 +75,7 @@ class TrackRegressor(SpanEstimator):
         output_span: tuple[float, float] | None = None,
         slope: float = 1.0,
     ) -> None:
-        self.input_spans = input_spans
-        self.output_span = output_span
-        self.slope = slope
+        self._keep(locals())
 
     def _init(self, X: np.ndarray, y: np.ndarray | None = None) -> None:
         if X.shape[1] != 1:

@@ -1,6 +1,6 @@
 """Rule-base files: one TOML file per model that plant experts edit by hand.
 
-Layout (see ``docs/rulebase.md``)::
+Layout (see ``docs/reference/rulebase.md``)::
 
     [model]        name, description, method, shape, period (lags count samples)
     [output]       spec, label, unit, span = [lo, hi], sets
@@ -42,7 +42,7 @@ from diag_plugin.fuzzy.partition import SHAPES
 from diag_plugin.models.registry import METHODS, get_method
 from diag_plugin.models.spec import ModelSpec, Variable
 from diag_plugin.regressors import InputSpec
-from diag_plugin.tomllines import syntax_error
+from diag_plugin.tomllines import read_text, syntax_error
 from historian.errors import UserError
 
 __all__ = ["RuleBase", "RuleBaseError", "Variable", "check", "default_label", "resolve"]
@@ -139,11 +139,7 @@ class RuleBase:
     @classmethod
     def load(cls, path: str | Path) -> RuleBase:
         path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise RuleBaseError([f"{path}:0: cannot read: {exc}"]) from None
-        return cls(text, path)
+        return cls(read_text(path, RuleBaseError), path)
 
     def error(self, line: int, msg: str) -> None:
         """Record a problem at ``line`` (1-based) of the file."""

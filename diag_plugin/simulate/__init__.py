@@ -10,25 +10,14 @@ The names below load on first use, so ``diag`` building its parser (which import
 
 from __future__ import annotations
 
-import importlib
+from historian.lazy import lazy
 
-_LAZY = {
-    "FAULTS": "faults",
-    "FaultSpec": "faults",
-    "fault_truth": "faults",
-    "parse_fault": "faults",
-    "TAGS": "valve",
-    "ValveParams": "valve",
-    "simulate_valve": "valve",
-    "EngineFault": "engine",
-    "simulate_engine": "engine",
-    "CHEMPLANT_TAGS": "chemplant",
-    "simulate_chemplant": "chemplant",
-}
-__all__ = sorted(_LAZY)
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __all__ = lazy(
+    __name__,
+    """
+faults: FAULTS FaultSpec fault_truth parse_fault
+valve: TAGS ValveParams simulate_valve
+engine: EngineFault simulate_engine
+chemplant: CHEMPLANT_TAGS simulate_chemplant
+""",
+)

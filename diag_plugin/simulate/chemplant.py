@@ -62,7 +62,7 @@ feed_pump_degradation     process  FIC101.OUT   pump capacity −35 %, over 1 da
 
 Default sizes were chosen on seeds 100–199 only, so that a plant engineer would want each
 caught and PCA T² + Q catches some at once, some partly and some not at all
-(``benchmarks/bench_chemplant_pca.py``, docs/diagnostics.md "The chemical plant").
+(``benchmarks/bench_chemplant_pca.py``, docs/reference/chemplant.md).
 
 :func:`sample` gives the historian's view: means over each period (``how="mean"``, stamped at
 the period's start) or the instantaneous reading at each period (``"last"``).
@@ -76,7 +76,8 @@ import numba as nb
 import numpy as np
 import pandas as pd
 
-from .smallplants import _daily, _ou, _seconds
+from .smallplants import _counterflow, _daily, _ou, _pi, _seconds
+from .tagtable import tag_table
 
 __all__ = [
     "CHEMPLANT_TAGS",
@@ -88,46 +89,50 @@ __all__ = [
 ]
 
 #: measured tags: unit, nominal range, description (order = the simulator's columns)
-_MEASURED = {
-    "FI101": ("m3/h", 0.0, 20.0, "fresh feed flow"),
-    "TI101": ("degC", 0.0, 50.0, "fresh feed temperature"),
-    "AI101": ("kmol/m3", 0.0, 3.0, "fresh feed concentration of A (analyser)"),
-    "FI102": ("m3/h", 0.0, 10.0, "recycle flow"),
-    "TI102": ("degC", 0.0, 60.0, "reactor feed temperature after mixing"),
-    "FI103": ("m3/h", 0.0, 30.0, "reactor feed flow (fresh + recycle)"),
-    "TI103": ("degC", 0.0, 120.0, "reactor feed temperature after the preheater"),
-    "FI104": ("t/h", 0.0, 3.0, "preheater steam flow"),
-    "LI101": ("%", 0.0, 100.0, "reactor level"),
-    "TI104": ("degC", 0.0, 150.0, "reactor temperature"),
-    "TI105": ("degC", 0.0, 120.0, "jacket coolant outlet temperature"),
-    "TI106": ("degC", 0.0, 50.0, "cooling-water supply temperature"),
-    "FI105": ("m3/h", 0.0, 25.0, "jacket coolant flow"),
-    "AI102": ("kmol/m3", 0.0, 3.0, "reactor outlet concentration of A (analyser)"),
-    "FI106": ("m3/h", 0.0, 30.0, "reactor outlet flow"),
-    "TI107": ("degC", 0.0, 100.0, "product cooler outlet temperature"),
-    "FI107": ("m3/h", 0.0, 80.0, "product cooler cooling-water flow"),
-    "TI108": ("degC", 0.0, 80.0, "product cooler cooling-water return temperature"),
-    "PI101": ("kPa", 80.0, 200.0, "flash drum pressure (absolute)"),
-    "LI102": ("%", 0.0, 100.0, "flash drum level"),
-    "FI108": ("m3/h", 0.0, 15.0, "flash vapour (condensate) flow"),
-    "FI109": ("m3/h", 0.0, 20.0, "bottoms product flow"),
-    "AI103": ("%", 0.0, 100.0, "product purity, share of B (analyser)"),
-    "LI103": ("%", 0.0, 100.0, "recycle drum level"),
-    "FI110": ("m3/h", 0.0, 10.0, "purge flow"),
-    "TI109": ("degC", 0.0, 80.0, "condensate (recycle) temperature"),
-}
+_MEASURED = tag_table(
+    """
+FI101 | m3/h    | 0  | 20  | fresh feed flow
+TI101 | degC    | 0  | 50  | fresh feed temperature
+AI101 | kmol/m3 | 0  | 3   | fresh feed concentration of A (analyser)
+FI102 | m3/h    | 0  | 10  | recycle flow
+TI102 | degC    | 0  | 60  | reactor feed temperature after mixing
+FI103 | m3/h    | 0  | 30  | reactor feed flow (fresh + recycle)
+TI103 | degC    | 0  | 120 | reactor feed temperature after the preheater
+FI104 | t/h     | 0  | 3   | preheater steam flow
+LI101 | %       | 0  | 100 | reactor level
+TI104 | degC    | 0  | 150 | reactor temperature
+TI105 | degC    | 0  | 120 | jacket coolant outlet temperature
+TI106 | degC    | 0  | 50  | cooling-water supply temperature
+FI105 | m3/h    | 0  | 25  | jacket coolant flow
+AI102 | kmol/m3 | 0  | 3   | reactor outlet concentration of A (analyser)
+FI106 | m3/h    | 0  | 30  | reactor outlet flow
+TI107 | degC    | 0  | 100 | product cooler outlet temperature
+FI107 | m3/h    | 0  | 80  | product cooler cooling-water flow
+TI108 | degC    | 0  | 80  | product cooler cooling-water return temperature
+PI101 | kPa     | 80 | 200 | flash drum pressure (absolute)
+LI102 | %       | 0  | 100 | flash drum level
+FI108 | m3/h    | 0  | 15  | flash vapour (condensate) flow
+FI109 | m3/h    | 0  | 20  | bottoms product flow
+AI103 | %       | 0  | 100 | product purity, share of B (analyser)
+LI103 | %       | 0  | 100 | recycle drum level
+FI110 | m3/h    | 0  | 10  | purge flow
+TI109 | degC    | 0  | 80  | condensate (recycle) temperature
+"""
+)
 #: controllers: what each holds and by which valve
-_CONTROLLERS = {
-    "FIC101": ("m3/h", 0.0, 20.0, "fresh feed flow", "feed valve"),
-    "FIC102": ("m3/h", 0.0, 10.0, "recycle flow", "recycle valve"),
-    "TIC103": ("degC", 0.0, 120.0, "preheater outlet temperature", "steam valve"),
-    "TIC104": ("degC", 0.0, 150.0, "reactor temperature", "jacket coolant valve"),
-    "LIC101": ("%", 0.0, 100.0, "reactor level", "reactor outlet valve"),
-    "TIC107": ("degC", 0.0, 100.0, "cooler outlet temperature", "cooler water valve"),
-    "PIC101": ("kPa", 80.0, 200.0, "flash drum pressure", "vapour valve"),
-    "LIC102": ("%", 0.0, 100.0, "flash drum level", "bottoms valve"),
-    "LIC103": ("%", 0.0, 100.0, "recycle drum level", "purge valve"),
-}
+_CONTROLLERS = tag_table(
+    """
+FIC101 | m3/h | 0  | 20  | fresh feed flow              | feed valve
+FIC102 | m3/h | 0  | 10  | recycle flow                 | recycle valve
+TIC103 | degC | 0  | 120 | preheater outlet temperature | steam valve
+TIC104 | degC | 0  | 150 | reactor temperature          | jacket coolant valve
+LIC101 | %    | 0  | 100 | reactor level                | reactor outlet valve
+TIC107 | degC | 0  | 100 | cooler outlet temperature    | cooler water valve
+PIC101 | kPa  | 80 | 200 | flash drum pressure          | vapour valve
+LIC102 | %    | 0  | 100 | flash drum level             | bottoms valve
+LIC103 | %    | 0  | 100 | recycle drum level           | purge valve
+"""
+)
 #: every tag: (unit, lo, hi, description, kind) with kind "measurement", "controller output"
 #: or "set-point"
 CHEMPLANT_TAGS: dict[str, tuple[str, float, float, str, str]] = {
@@ -164,39 +169,58 @@ class ChemFault:
     ramp_s: float = 0.0
 
 
-FAULTS: dict[str, ChemFault] = {
-    "ti104_bias": ChemFault(1, "sensor", ("TI104",), 2.0, "degC",
-                            "reactor temperature sensor reads high (inside TIC104's loop)"),
-    "fi109_bias": ChemFault(2, "sensor", ("FI109",), 0.5, "m3/h",
-                            "product flow meter reads high (no loop uses it)"),
-    "ti107_drift": ChemFault(3, "sensor", ("TI107",), 4.0, "degC/day",
-                             "cooler outlet sensor drifts up (inside TIC107's loop)"),
-    "ai102_drift": ChemFault(4, "sensor", ("AI102",), 0.2, "kmol/m3/day",
-                             "reactor analyser drifts up (no loop uses it)"),
-    "tv104_stiction": ChemFault(5, "actuator", ("TIC104.OUT",), 5.0, "%",
-                                "jacket coolant valve sticks: moves only when the demand is "
-                                "more than the band away, then jumps to it"),
-    "tv103_stuck": ChemFault(6, "actuator", ("TIC103.OUT",), 0.0, "%",
-                             "steam valve frozen at its opening at the onset (plus size)"),
-    "tv107_bias": ChemFault(7, "actuator", ("TIC107.OUT",), -12.0, "%",
-                            "cooler water valve opens less than asked (positioner offset)"),
-    "cooler_fouling": ChemFault(8, "process", ("TIC107.OUT",), 0.5, "share of UA",
-                                "product cooler fouls: UA falls linearly", 2 * 86400.0),
-    "feed_comp_step": ChemFault(9, "process", ("AI101",), 0.25, "kmol/m3",
-                                "more A in the fresh feed (step)"),
-    "feed_temp_step": ChemFault(10, "process", ("TI101",), 8.0, "degC",
-                                "warmer fresh feed (step)"),
-    "catalyst_decay": ChemFault(11, "process", ("AI102",), 0.25, "share per day",
-                                "catalyst activity decays exponentially"),
-    "cw_temp_variation": ChemFault(12, "process", ("TI106",), 3.0, "degC",
-                                   "cooling-water supply wanders more (15-min OU of this s.d.)"),
-    "recycle_leak": ChemFault(13, "process", ("FI103",), 0.6, "m3/h",
-                              "recycle line leaks after its flow meter"),
-    "separator_leak": ChemFault(14, "process", ("FI109",), 1.5, "m3/h",
-                                "flash drum leaks liquid"),
-    "feed_pump_degradation": ChemFault(15, "process", ("FIC101.OUT",), 0.35, "share of capacity",
-                                       "feed pump wears: capacity falls linearly", 86400.0),
-}  # fmt: skip
+#: the faults, a row each: name | code | kind | tags at fault | size | unit | ramp_s; the
+#: indented lines under it: the description
+_FAULT_TABLE = """
+ti104_bias            | 1  | sensor   | TI104      | 2    | degC              | 0
+    | reactor temperature sensor reads high (inside TIC104's loop)
+fi109_bias            | 2  | sensor   | FI109      | 0.5  | m3/h              | 0
+    | product flow meter reads high (no loop uses it)
+ti107_drift           | 3  | sensor   | TI107      | 4    | degC/day          | 0
+    | cooler outlet sensor drifts up (inside TIC107's loop)
+ai102_drift           | 4  | sensor   | AI102      | 0.2  | kmol/m3/day       | 0
+    | reactor analyser drifts up (no loop uses it)
+tv104_stiction        | 5  | actuator | TIC104.OUT | 5    | %                 | 0
+    | jacket coolant valve sticks: moves only when the demand is more than the band away, then
+    | jumps to it
+tv103_stuck           | 6  | actuator | TIC103.OUT | 0    | %                 | 0
+    | steam valve frozen at its opening at the onset (plus size)
+tv107_bias            | 7  | actuator | TIC107.OUT | -12  | %                 | 0
+    | cooler water valve opens less than asked (positioner offset)
+cooler_fouling        | 8  | process  | TIC107.OUT | 0.5  | share of UA       | 172800
+    | product cooler fouls: UA falls linearly
+feed_comp_step        | 9  | process  | AI101      | 0.25 | kmol/m3           | 0
+    | more A in the fresh feed (step)
+feed_temp_step        | 10 | process  | TI101      | 8    | degC              | 0
+    | warmer fresh feed (step)
+catalyst_decay        | 11 | process  | AI102      | 0.25 | share per day     | 0
+    | catalyst activity decays exponentially
+cw_temp_variation     | 12 | process  | TI106      | 3    | degC              | 0
+    | cooling-water supply wanders more (15-min OU of this s.d.)
+recycle_leak          | 13 | process  | FI103      | 0.6  | m3/h              | 0
+    | recycle line leaks after its flow meter
+separator_leak        | 14 | process  | FI109      | 1.5  | m3/h              | 0
+    | flash drum leaks liquid
+feed_pump_degradation | 15 | process  | FIC101.OUT | 0.35 | share of capacity | 86400
+    | feed pump wears: capacity falls linearly
+"""
+
+
+def _read_faults(text: str) -> dict[str, ChemFault]:
+    """The faults of :data:`_FAULT_TABLE`, by name."""
+    rows: list[list[str]] = []
+    for line in text.strip().splitlines():
+        if line.startswith(" "):  # the description, continued
+            rows[-1][-1] = f"{rows[-1][-1]} {line.strip(' |')}".strip()
+        else:
+            rows.append([c.strip() for c in line.split("|")] + [""])
+    return {
+        name: ChemFault(int(code), kind, tuple(tags.split()), float(size), unit, desc, float(ramp))
+        for name, code, kind, tags, size, unit, ramp, desc in rows
+    }
+
+
+FAULTS: dict[str, ChemFault] = _read_faults(_FAULT_TABLE)
 
 #: warm-up before the first recorded second (the plant settles from its initial state)
 WARMUP_S = 6 * 3600
@@ -226,19 +250,6 @@ def _hold_schedule(
         prev = value
         i = j
     return out
-
-
-@nb.njit(cache=True)
-def _pi(e, kp, ti, integ):  # pragma: no cover - numba
-    """Positional PI with conditional integration (anti-windup): output %, new integral."""
-    out = kp * e + integ
-    if out > 100.0:
-        out = 100.0
-    elif out < 0.0:
-        out = 0.0
-    else:
-        integ += kp * e / ti
-    return out, integ
 
 
 @nb.njit(cache=True)
@@ -376,14 +387,7 @@ def _plant_loop(ca0, t0, tcw, pump, cwx, sp, noise_seed, code, i0, size, ramp): 
         # product cooler, counter-current
         ch = max(fout, 0.5) / 3600.0 * rcp
         cw = max(fw, 0.5) / 3600.0 * 4180.0
-        cmin, cmax = min(ch, cw), max(ch, cw)
-        cr = cmin / cmax
-        ntu = ua_i / cmin
-        if abs(1.0 - cr) < 1e-6:
-            eff = ntu / (1.0 + ntu)
-        else:
-            ex = np.exp(-ntu * (1.0 - cr))
-            eff = (1.0 - ex) / (1.0 - cr * ex)
+        eff, cmin = _counterflow(ch, cw, ua_i)
         q = eff * cmin * (t - tcw_i)
         tco += (t - q / ch - tco) / 60.0
         twr += (tcw_i + q / cw - twr) / 60.0

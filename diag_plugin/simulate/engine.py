@@ -179,6 +179,7 @@ import numba as nb
 import numpy as np
 import pandas as pd
 
+from diag_plugin.simulate.tagtable import tag_infos
 from historian.taginfo import TagInfo
 
 __all__ = [
@@ -191,18 +192,17 @@ __all__ = [
 ]
 
 #: the recorded signals: unit, nominal range, description (seed §II symbols)
-ENGINE_TAGS: dict[str, TagInfo] = {
-    tag: TagInfo(tag, unit, lo, hi, text)
-    for tag, unit, lo, hi, text in (
-        ("omega", "rpm", 0.0, 6000.0, "engine speed ω (sensor, revolution mean)"),
-        ("omega_dy", "rpm", 0.0, 6000.0, "dynamometer speed ω_dy (tachometer)"),
-        ("m_a", "g/s", 0.0, 150.0, "mass air flow m_a into the manifold (MAF sensor)"),
-        ("alpha", "%", 0.0, 100.0, "throttle command α, % of full-scale opening"),
-        ("m_f", "mg/rev", 0.0, 200.0, "fuel mass command m_f per revolution"),
-        ("T_L", "N·m", -100.0, 300.0, "load torque T_L (dynamometer load cell)"),
-        ("p_m", "kPa", 0.0, 110.0, "intake manifold absolute pressure (MAP sensor)"),
-    )
-}
+ENGINE_TAGS: dict[str, TagInfo] = tag_infos(
+    """
+omega    | rpm    | 0    | 6000 | engine speed ω (sensor, revolution mean)
+omega_dy | rpm    | 0    | 6000 | dynamometer speed ω_dy (tachometer)
+m_a      | g/s    | 0    | 150  | mass air flow m_a into the manifold (MAF sensor)
+alpha    | %      | 0    | 100  | throttle command α, % of full-scale opening
+m_f      | mg/rev | 0    | 200  | fuel mass command m_f per revolution
+T_L      | N·m    | -100 | 300  | load torque T_L (dynamometer load cell)
+p_m      | kPa    | 0    | 110  | intake manifold absolute pressure (MAP sensor)
+"""
+)
 
 SENSOR_SIGNALS = ("omega", "omega_dy", "m_a", "p_m", "T_L")
 ACTUATOR_SIGNALS = ("alpha", "m_f")

@@ -77,87 +77,61 @@ class FaultInfo:
     entry: str  # how the simulator applies it
 
 
-FAULTS: dict[str, FaultInfo] = {
-    f.name: f
-    for f in (
-        FaultInfo(
-            "f1", "valve clogging", 0, 1, "Table 4",
-            "upper travel bound H = H0 (1 - fs)",
-        ),
-        FaultInfo(
-            "f2", "valve plug or valve seat sedimentation", 0, 1, "Table 5",
-            "H = H0 (1 - 0.2 fs); effective opening X - 0.2 fs; Kv (1 - 0.2 fs)",
-        ),
-        FaultInfo(
-            "f3", "valve plug or valve seat erosion", 0, 1, "Table 6",
-            "H = H0 (1 + 0.1 fs); effective opening X + 0.1 fs; Kv (1 + 0.1 fs)",
-        ),
-        FaultInfo(
-            "f4", "increased valve or bushing friction", -1, 1, "Table 7",
-            "open-loop hysteresis width Db = max(0, Db0 + fs) (friction force)",
-        ),
-        FaultInfo(
-            "f5", "external leakage", 0, 1, "Table 8",
-            "outflow reaching the flow meter F (1 - 0.05 fs)",
-        ),
-        FaultInfo(
-            "f6", "internal leakage (valve tightness)", 0, 1, "Table 9",
-            "Kv (1 + 0.1 fs)",
-        ),
-        FaultInfo(
-            "f7", "medium evaporation or critical flow", 0, 1, "Table 10",
-            "fluid temperature T + dT0 + dT1 fs (choked flow via pv(T)); T1 shows it",
-        ),
-        FaultInfo(
-            "f8", "twisted servomotor piston rod", 0, 1, "Table 11",
-            "hysteresis width Db (1 + 0.5 fs X), X = opening (1 - closing)",
-        ),
-        FaultInfo(
-            "f9", "servomotor housing or terminals tightness", 0, 1, "Table 12",
-            "chamber air leak, conductance 2e-6 fs Ps[Pa] of the positioner's",
-        ),
-        FaultInfo(
-            "f10", "servomotor diaphragm perforation", 0, 1, "Table 13",
-            "chamber air leak as f9 and diaphragm area Ae (1 - fs)",
-        ),
-        FaultInfo(
-            "f11", "servomotor spring fault", 0, 1, "Table 14",
-            "spring constant ks (1 - fs)",
-        ),
-        FaultInfo(
-            "f12", "electro-pneumatic transducer fault", -1, 1, "Table 15",
-            "E/P transducer current i0 (1 - fs)",
-        ),
-        FaultInfo(
-            "f13", "rod displacement sensor fault", -1, 1, "Table 16",
-            "positioner displacement sensor X (1 + 1.25 fs), clipped to 0..1",
-        ),
-        FaultInfo(
-            "f14", "pressure sensor fault", -1, 1, "Table 17",
-            "measured E/P output pressure P0 (1 + fs), clipped to its range",
-        ),
-        FaultInfo(
-            "f15", "positioner feedback fault", 0, 1, "Table 18",
-            "backlash of width fs·(nominal travel) in the positioner feedback",
-        ),
-        FaultInfo(
-            "f16", "positioner supply pressure drop", 0, 1, "Table 19",
-            "supply pressure Pz = Pz0 (1 - fs) limits the E/P output",
-        ),
-        FaultInfo(
-            "f17", "unexpected pressure change across the valve", -1, 1, "Table 20",
-            "fs < 0: P1 (1 + fs); fs > 0: P2 (1 - fs) (P1/P2 tags show it)",
-        ),
-        FaultInfo(
-            "f18", "fully or partly opened bypass valve", 0, 1, "Table 21",
-            "bypass valve opening fs (closing 1 - fs)",
-        ),
-        FaultInfo(
-            "f19", "flow rate sensor fault", -1, 1, "Table 22",
-            "measured relative flow F' (1 + fs), clipped to 0..1 (controller sees it)",
-        ),
-    )
-}  # fmt: skip
+#: DABLib Table 3, a row a fault: name | description | strength limits | DABLib table with the
+#: simulation technique; the indented line under it: how this simulator applies it
+_TABLE_3 = """
+f1  | valve clogging                                | 0  | 1 | Table 4
+    | upper travel bound H = H0 (1 - fs)
+f2  | valve plug or valve seat sedimentation        | 0  | 1 | Table 5
+    | H = H0 (1 - 0.2 fs); effective opening X - 0.2 fs; Kv (1 - 0.2 fs)
+f3  | valve plug or valve seat erosion              | 0  | 1 | Table 6
+    | H = H0 (1 + 0.1 fs); effective opening X + 0.1 fs; Kv (1 + 0.1 fs)
+f4  | increased valve or bushing friction           | -1 | 1 | Table 7
+    | open-loop hysteresis width Db = max(0, Db0 + fs) (friction force)
+f5  | external leakage                              | 0  | 1 | Table 8
+    | outflow reaching the flow meter F (1 - 0.05 fs)
+f6  | internal leakage (valve tightness)            | 0  | 1 | Table 9
+    | Kv (1 + 0.1 fs)
+f7  | medium evaporation or critical flow           | 0  | 1 | Table 10
+    | fluid temperature T + dT0 + dT1 fs (choked flow via pv(T)); T1 shows it
+f8  | twisted servomotor piston rod                 | 0  | 1 | Table 11
+    | hysteresis width Db (1 + 0.5 fs X), X = opening (1 - closing)
+f9  | servomotor housing or terminals tightness     | 0  | 1 | Table 12
+    | chamber air leak, conductance 2e-6 fs Ps[Pa] of the positioner's
+f10 | servomotor diaphragm perforation              | 0  | 1 | Table 13
+    | chamber air leak as f9 and diaphragm area Ae (1 - fs)
+f11 | servomotor spring fault                       | 0  | 1 | Table 14
+    | spring constant ks (1 - fs)
+f12 | electro-pneumatic transducer fault            | -1 | 1 | Table 15
+    | E/P transducer current i0 (1 - fs)
+f13 | rod displacement sensor fault                 | -1 | 1 | Table 16
+    | positioner displacement sensor X (1 + 1.25 fs), clipped to 0..1
+f14 | pressure sensor fault                         | -1 | 1 | Table 17
+    | measured E/P output pressure P0 (1 + fs), clipped to its range
+f15 | positioner feedback fault                     | 0  | 1 | Table 18
+    | backlash of width fs·(nominal travel) in the positioner feedback
+f16 | positioner supply pressure drop               | 0  | 1 | Table 19
+    | supply pressure Pz = Pz0 (1 - fs) limits the E/P output
+f17 | unexpected pressure change across the valve   | -1 | 1 | Table 20
+    | fs < 0: P1 (1 + fs); fs > 0: P2 (1 - fs) (P1/P2 tags show it)
+f18 | fully or partly opened bypass valve           | 0  | 1 | Table 21
+    | bypass valve opening fs (closing 1 - fs)
+f19 | flow rate sensor fault                        | -1 | 1 | Table 22
+    | measured relative flow F' (1 + fs), clipped to 0..1 (controller sees it)
+"""
+
+
+def _read_table_3(text: str) -> dict[str, FaultInfo]:
+    """The faults of :data:`_TABLE_3`, by name."""
+    lines = text.strip().splitlines()
+    out = {}
+    for head, how in zip(lines[::2], lines[1::2], strict=True):
+        name, description, lo, hi, table = (c.strip() for c in head.split("|"))
+        out[name] = FaultInfo(name, description, int(lo), int(hi), table, how.strip(" |"))
+    return out
+
+
+FAULTS: dict[str, FaultInfo] = _read_table_3(_TABLE_3)
 
 
 def fault_index(name: str) -> int:

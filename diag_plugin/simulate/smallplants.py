@@ -21,23 +21,29 @@ import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
+from diag_plugin.simulate.tagtable import tag_table
+
 #: tags of each plant: unit, nominal range, description
-TANK_TAGS = {
-    "LT101": ("%", 0.0, 100.0, "tank level"),
-    "FI101": ("m3/h", 0.0, 80.0, "inflow (disturbance)"),
-    "FI102": ("m3/h", 0.0, 80.0, "outflow through the level control valve"),
-    "LIC101.OUT": ("%", 0.0, 100.0, "level controller output (valve opening)"),
-    "LIC101.SP": ("%", 0.0, 100.0, "level set-point"),
-}
-HEATEX_TAGS = {
-    "TI201": ("degC", 0.0, 150.0, "process inlet temperature"),
-    "TI202": ("degC", 0.0, 150.0, "process outlet temperature (controlled)"),
-    "TI203": ("degC", 0.0, 50.0, "cooling-water inlet temperature"),
-    "FI201": ("t/h", 0.0, 60.0, "process flow"),
-    "FI202": ("t/h", 0.0, 120.0, "cooling-water flow"),
-    "TIC202.OUT": ("%", 0.0, 100.0, "temperature controller output (cooling valve)"),
-    "TIC202.SP": ("degC", 0.0, 150.0, "outlet temperature set-point"),
-}
+TANK_TAGS = tag_table(
+    """
+LT101      | %    | 0 | 100 | tank level
+FI101      | m3/h | 0 | 80  | inflow (disturbance)
+FI102      | m3/h | 0 | 80  | outflow through the level control valve
+LIC101.OUT | %    | 0 | 100 | level controller output (valve opening)
+LIC101.SP  | %    | 0 | 100 | level set-point
+"""
+)
+HEATEX_TAGS = tag_table(
+    """
+TI201      | degC | 0 | 150 | process inlet temperature
+TI202      | degC | 0 | 150 | process outlet temperature (controlled)
+TI203      | degC | 0 | 50  | cooling-water inlet temperature
+FI201      | t/h  | 0 | 60  | process flow
+FI202      | t/h  | 0 | 120 | cooling-water flow
+TIC202.OUT | %    | 0 | 100 | temperature controller output (cooling valve)
+TIC202.SP  | degC | 0 | 150 | outlet temperature set-point
+"""
+)
 PLANTS = {"tank": TANK_TAGS, "heatex": HEATEX_TAGS}
 
 
@@ -77,10 +83,56 @@ def _seconds(days: float, start: str | pd.Timestamp) -> pd.DatetimeIndex:
     return pd.DatetimeIndex(t0 + pd.to_timedelta(np.arange(n), unit="s"), name="ts")
 
 
+def _grid(days: float, start: str | pd.Timestamp, stream: list[int]):
+    """A run's 1 s index, its first time, its length and its random stream (``stream``: the
+    seed and the plant's own number, so plants of one seed draw independently)."""
+    index = _seconds(days, start)
+    return index, index[0], len(index), np.random.default_rng(stream)
+
+
+def _measured(index: pd.DatetimeIndex, rng: np.random.Generator, rows: int, noisy: dict,
+              exact: dict) -> pd.DataFrame:  # fmt: skip
+    """The tags as measured: ``noisy`` tag -> (true signal, noise s.d.), white noise from
+    ``rng`` (``rows`` × n draws, a row per noisy tag in order), then the ``exact`` tags
+    (controller outputs and set-points)."""
+    noise = rng.standard_normal((rows, len(index)))
+    cols = {tag: x + sd * noise[k] for k, (tag, (x, sd)) in enumerate(noisy.items())}
+    return pd.DataFrame({**cols, **exact}, index=index)
+
+
 def _daily(n: int, start: pd.Timestamp, amplitude: float, peak_hour: float) -> np.ndarray:
     s0 = (start - start.normalize()).total_seconds()
     t = s0 + np.arange(n)
     return amplitude * np.cos(2 * np.pi * (t / 86400.0 - peak_hour / 24.0))
+
+
+@nb.njit(cache=True)
+def _pi(e, kp, ti, integ):  # pragma: no cover - numba
+    """Positional PI with conditional integration (anti-windup): output %, new integral."""
+    out = kp * e + integ
+    if out > 100.0:
+        out = 100.0
+    elif out < 0.0:
+        out = 0.0
+    else:
+        integ += kp * e / ti
+    return out, integ
+
+
+@nb.njit(cache=True)
+def _counterflow(c1, c2, ua):  # pragma: no cover - numba
+    """A counter-flow exchanger's effectiveness (ε–NTU) for heat-capacity rates ``c1``,
+    ``c2`` and conductance ``ua`` (same units), and the smaller rate C_min."""
+    cmin = min(c1, c2)
+    cmax = max(c1, c2)
+    r = cmin / cmax
+    ntu = ua / cmin
+    if abs(1.0 - r) < 1e-6:
+        eff = ntu / (1.0 + ntu)
+    else:
+        ex = np.exp(-ntu * (1.0 - r))
+        eff = (1.0 - ex) / (1.0 - r * ex)
+    return eff, cmin
 
 
 @nb.njit(cache=True)
@@ -93,13 +145,7 @@ def _tank_loop(fin, sp, kv, area_m2, height_m, kp, ti_s, level0):  # pragma: no 
     integ = 50.0
     for i in range(n):
         e = x - sp[i]  # reverse acting: a high level opens the valve
-        out = kp * e + integ
-        if out > 100.0:
-            out = 100.0
-        elif out < 0.0:
-            out = 0.0
-        else:
-            integ += kp * e / ti_s
+        out, integ = _pi(e, kp, ti_s, integ)
         head = max(x, 0.0) / 100.0 * height_m + 0.5  # m of liquid above the valve
         q = kv * (out / 100.0) * np.sqrt(head)  # m3/h
         level[i] = x
@@ -114,9 +160,7 @@ def simulate_tank(
     days: float, *, seed: int = 0, start: str | pd.Timestamp = "2026-03-02"
 ) -> pd.DataFrame:
     """A buffer tank with a level controller on its outflow valve, on a 1 s grid."""
-    index = _seconds(days, start)
-    start, n = index[0], len(index)
-    rng = np.random.default_rng([seed, 101])
+    index, start, n, rng = _grid(days, start, [seed, 101])
     fin = (
         38.0
         + _daily(n, start, 6.0, 14.0)
@@ -138,17 +182,8 @@ def tank_run(
     fin = np.asarray(inflow, float)
     sp = np.asarray(set_point, float)
     level, u, fout = _tank_loop(fin, sp, 60.0, 12.0, 4.0, 4.0, 900.0, 50.0)
-    noise = rng.standard_normal((4, fin.size))
-    return pd.DataFrame(
-        {
-            "LT101": level + 0.15 * noise[0],
-            "FI101": fin + 0.3 * noise[1],
-            "FI102": fout + 0.3 * noise[2],
-            "LIC101.OUT": u,
-            "LIC101.SP": sp,
-        },
-        index=index,
-    )
+    noisy = {"LT101": (level, 0.15), "FI101": (fin, 0.3), "FI102": (fout, 0.3)}
+    return _measured(index, rng, 4, noisy, {"LIC101.OUT": u, "LIC101.SP": sp})
 
 
 @nb.njit(cache=True)
@@ -165,25 +200,11 @@ def _heatex_loop(fp, tp_in, tw_in, sp, ua, kp, ti_s, lag_s, valve_s, dead_s):  #
     for i in range(n):
         measured = hist[i % (dead_s + 1)]  # the outlet temperature dead_s seconds ago
         e = measured - sp[i]  # direct acting: too hot opens the cooling valve
-        out = kp * e + integ
-        if out > 100.0:
-            out = 100.0
-        elif out < 0.0:
-            out = 0.0
-        else:
-            integ += kp * e / ti_s
+        out, integ = _pi(e, kp, ti_s, integ)
         flow_w += (120.0 * out / 100.0 - flow_w) / valve_s
         cp_hot = fp[i] * 1000.0 / 3600.0 * cp_p  # kW/K
         cw = max(flow_w, 0.5) * 1000.0 / 3600.0 * cp_w
-        cmin = min(cp_hot, cw)
-        cmax = max(cp_hot, cw)
-        r = cmin / cmax
-        ntu = ua / cmin
-        if abs(1.0 - r) < 1e-6:
-            eff = ntu / (1.0 + ntu)
-        else:
-            ex = np.exp(-ntu * (1.0 - r))
-            eff = (1.0 - ex) / (1.0 - r * ex)
+        eff, cmin = _counterflow(cp_hot, cw, ua)
         target = tp_in[i] - eff * cmin / cp_hot * (tp_in[i] - tw_in[i])
         y += (target - y) / lag_s
         tout[i] = measured
@@ -197,27 +218,15 @@ def simulate_heat_exchanger(
     days: float, *, seed: int = 0, start: str | pd.Timestamp = "2026-03-02"
 ) -> pd.DataFrame:
     """A process cooler whose temperature controller moves the cooling-water valve, 1 s."""
-    index = _seconds(days, start)
-    start, n = index[0], len(index)
-    rng = np.random.default_rng([seed, 202])
+    index, start, n, rng = _grid(days, start, [seed, 202])
     fp = np.clip(30.0 + _ou(rng, n, 4.0, 3 * 3600.0) + _steps(rng, n, 2.0, 4.0), 12.0, 55.0)
     tp_in = np.clip(88.0 + _ou(rng, n, 3.0, 5 * 3600.0) + _ou(rng, n, 0.3, 60.0), 70.0, 110.0)
     tw_in = 21.0 + _daily(n, start, 4.0, 15.0) + _ou(rng, n, 1.0, 6 * 3600.0)
     sp = _schedule(rng, n, 40.0, 50.0, 8 * 3600.0)
     tout, u, fw = _heatex_loop(fp, tp_in, tw_in, sp, 60.0, 3.0, 600.0, 180.0, 20.0, 30)
-    noise = rng.standard_normal((5, n))
-    return pd.DataFrame(
-        {
-            "TI201": tp_in + 0.1 * noise[0],
-            "TI202": tout + 0.1 * noise[1],
-            "TI203": tw_in + 0.1 * noise[2],
-            "FI201": fp + 0.2 * noise[3],
-            "FI202": fw + 0.4 * noise[4],
-            "TIC202.OUT": u,
-            "TIC202.SP": sp,
-        },
-        index=index,
-    )
+    noisy = {"TI201": (tp_in, 0.1), "TI202": (tout, 0.1), "TI203": (tw_in, 0.1)}
+    noisy |= {"FI201": (fp, 0.2), "FI202": (fw, 0.4)}
+    return _measured(index, rng, 5, noisy, {"TIC202.OUT": u, "TIC202.SP": sp})
 
 
 def export(

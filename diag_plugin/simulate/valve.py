@@ -45,6 +45,7 @@ from historian.taginfo import TagInfo
 from . import _kernel as K
 from .faults import FAULTS, N_FAULTS, FaultSpec, fault_index, fault_truth
 from .process import ProcessGenerator, ProcessParams
+from .tagtable import tag_infos
 
 __all__ = [
     "TAGS",
@@ -57,19 +58,18 @@ __all__ = [
 #: metadata of the output tags: unit, nominal (transducer) range, description. Ranges:
 #: DABLib Table 2 (P1, P2 0–4 MPa, T1 0–200 °C, X 0–100 %, F 0–40 t/h) and Table 23
 #: (chamber and supply pressure 0–0.6 MPa).
-TAGS: dict[str, TagInfo] = {
-    tag: TagInfo(tag, unit, lo, hi, text)
-    for tag, unit, lo, hi, text in (
-        ("CV", "%", 0.0, 100.0, "controller output to the positioner"),
-        ("P1", "kPa", 0.0, 4000.0, "valve inlet pressure (absolute)"),
-        ("P2", "kPa", 0.0, 4000.0, "valve outlet pressure (absolute)"),
-        ("T1", "°C", 0.0, 200.0, "medium temperature at the valve"),
-        ("X", "%", 0.0, 100.0, "rod travel, % open (positioner displacement sensor)"),
-        ("F", "t/h", 0.0, 40.0, "flow through the valve (and the bypass)"),
-        ("P0", "kPa", 0.0, 600.0, "E/P transducer output pressure (gauge)"),
-        ("Pch", "kPa", 0.0, 600.0, "servomotor chamber pressure (gauge)"),
-    )
-}
+TAGS: dict[str, TagInfo] = tag_infos(
+    """
+CV  | %   | 0 | 100  | controller output to the positioner
+P1  | kPa | 0 | 4000 | valve inlet pressure (absolute)
+P2  | kPa | 0 | 4000 | valve outlet pressure (absolute)
+T1  | °C  | 0 | 200  | medium temperature at the valve
+X   | %   | 0 | 100  | rod travel, % open (positioner displacement sensor)
+F   | t/h | 0 | 40   | flow through the valve (and the bypass)
+P0  | kPa | 0 | 600  | E/P transducer output pressure (gauge)
+Pch | kPa | 0 | 600  | servomotor chamber pressure (gauge)
+"""
+)
 
 
 def _default_spans() -> dict[str, tuple[float, float]]:

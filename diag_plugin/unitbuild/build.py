@@ -743,7 +743,7 @@ def _build_unit(
     for k, v in {**evaluation_for(period), **alarm_settings(period)}.items():
         doc["evaluation"][k] = v
     # a unit-level combined test beside the per-tag tests, and alarms isolated to tags
-    # (docs/diagnostics.md, "The combined test and isolation to tags")
+    # (docs/reference/units.md, "The combined test and isolation to tags")
     doc["evaluation"]["combined"] = True
     doc["evaluation"]["isolation"] = "tags"
     doc["build"] = _build_table(kept, skipped, start, end, period, far, plan.max_inputs)

@@ -10,6 +10,7 @@ import json
 from pathlib import Path
 
 from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_frames
+from diag_plugin.learn.cli import add_far
 from historian.errors import UserError
 
 
@@ -29,14 +30,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     g.add_argument(
         "--tags-from", metavar="FILE", help="the tags to test, one per line (# comments)"
     )
-    p.add_argument(
-        "--far",
-        type=float,
-        default=None,
-        metavar="PER_HOUR",
-        help="false-alarm budget: alarms per hour of operation of the unit, all tests together "
-        "(default 0.001)",
-    )
+    add_far(p, "(default 0.001)")
     p.add_argument("--max-inputs", type=int, default=3, metavar="N", help="inputs per model (3)")
     p.add_argument(
         "--loop",
@@ -44,7 +38,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         default=[],
         metavar="PV=SP:OUT",
         help="a control loop: the measurement it holds, its set-point and its output "
-        "(repeatable; docs/unit-loops.md)",
+        "(repeatable; docs/how-to/unit-loops.md)",
     )
     p.add_argument(
         "--loops-from",

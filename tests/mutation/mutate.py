@@ -1,7 +1,8 @@
 """Mutation check of the run-time diagnosis, threshold learning, unit build, the alarm lifecycle
 and the importer (cosmic-ray).
 
-Not part of ``make test`` (pytest collects only ``test_*.py``); see docs/testing.md. Run it
+Not part of ``make test`` (pytest collects only ``test_*.py``); see
+docs/reference/testing.md. Run it
 from the repository root, niced, on a machine nobody else is waiting for::
 
     nice -n 19 python tests/mutation/mutate.py --out /tmp/mutation

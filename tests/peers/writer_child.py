@@ -5,7 +5,7 @@
 20 cycles), sample k at 2026-03-01 + (START + k) s with tag i reading i·1000 + k, and prints
 ``put k`` once ``put`` (and, every 5th cycle, ``put_event`` of "event k") has returned. Runs
 until killed. A 6th argument ``--no-journal`` turns the journal off (the writer before issue
-35, for the figures in docs/live.md)."""
+35, for the figures in docs/reference/live.md)."""
 
 import asyncio
 import sys
