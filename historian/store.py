@@ -462,7 +462,8 @@ class Historian(ColdMonths, Registry, TagReport):
         try:
             orphans = self.orphan_samples()
         except Exception as exc:  # noqa: BLE001 - a check reports, never raises
-            problems.append(f"cannot check the samples' tags: {exc}")
+            if not problems:  # else the database's own check already said it cannot be read
+                problems.append(f"cannot check the samples' tags: {exc}")
         else:
             if orphans:
                 ids = ", ".join(str(i) for i in list(orphans)[:10])

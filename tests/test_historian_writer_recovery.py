@@ -310,6 +310,7 @@ def test_closing_twice_while_the_historian_is_away_spills_each_sample_once(tmp_p
     w = asyncio.run(main())
     assert Spool(spill).rows() == 12 * 2 == w.stats.spilled
     assert sum("historian away at exit" in t for t in told) >= 1
-    blocks = [Spool.read(p) for p in Spool(spill).segments()]
+    spool = Spool(spill)
+    blocks = [spool.read(p) for p in spool.segments()]
     ts = np.concatenate([b.ts for b in blocks])
     assert len(ts) == len(set(ts.tolist())) == 12

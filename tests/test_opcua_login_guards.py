@@ -95,7 +95,15 @@ async def test_a_certificate_only_user_cannot_log_in_by_name_with_any_password(
                     await c.disconnect()
         assert srv.alarms["pump"].state == "active-unacknowledged"
         assert not [a for a in srv.actions if a.ok]
-        # the right password, and carol by her certificate, still get in
+    finally:
+        await srv.stop()
+    # the right password, and carol by her certificate, still get in (on a fresh server: after
+    # these refusals this address and these names are backed off, issue 35 item 3)
+    srv = DiagOpcUaServer(port=free_port(), security=sec)
+    await srv.start()
+    try:
+        await srv.publish(st("pump", NE107.NORMAL))
+        await srv.publish(st("pump", NE107.FAILURE))
         c = await connect(srv.endpoint, keys["hmi"], "alice", PASSWORDS["alice"])
         await c.disconnect()
         c = await connect(srv.endpoint, keys["carol"], None, None)

@@ -317,12 +317,14 @@ class LiveLoop:
         known = any(math.isfinite(v) for v in s.symptoms.values())
         if known:
             self._diagnosed.add(s.unit)
-        if s.status != NE107.CHECK_FUNCTION or s.message:
+        if s.status != NE107.CHECK_FUNCTION:
             return s
         tests = self._test_tags.get(s.unit, {})
         unknown = [t for t, v in s.symptoms.items() if not math.isfinite(v)]
         why = {t: self._tag_problems(tests.get(t, [])) for t in unknown}
-        if s.unit not in self._diagnosed and self._cycle_i < self._warmup:
+        if s.message and not any(why.values()):  # the unit's own reason says it all
+            return s
+        if not s.message and s.unit not in self._diagnosed and self._cycle_i < self._warmup:
             if not any(why.values()):
                 msg = f"initialising: {self._cycle_i + 1} of {self._warmup} samples of history"
                 return replace(s, quality=Quality.UNCERTAIN, message=msg)
@@ -332,7 +334,12 @@ class LiveLoop:
                 parts.append(f"{t} ({'; '.join(why[t])})")
             else:
                 parts.append(f"{t} (inputs Good: outside the trained region or history too short)")
-        return replace(s, message=f"unknown tests: {', '.join(parts)}" if parts else s.message)
+        # the tags' own problems (stale, Bad) first, then the unit's reason (an input outside
+        # what it learned, inputs without a value)
+        msg = "; ".join(
+            m for m in (f"unknown tests: {', '.join(parts)}" if parts else "", s.message) if m
+        )
+        return replace(s, message=msg)
 
     def _tag_problems(self, tags: list[str]) -> list[str]:
         out = []
