@@ -16,7 +16,7 @@ import pytest
 
 from diag_plugin.bench import publicplants as pp
 from diag_plugin.bench.matched import method_score
-from diag_plugin.bench.publicbench import pca_fit, pca_statistics
+from diag_plugin.bench.publicbench import pca_fit, pca_statistics, write_page
 
 
 def _or_skip(load, *a, **kw):
@@ -82,21 +82,31 @@ def test_pca_detects_a_big_tep_fault_at_a_matched_rate():
     assert rates([s[:160]], lim.limit, 180.0)[0] < 0.1
 
 
-def test_cli_matched_benchmark_writes_its_page(tmp_path):
+def test_cli_matched_benchmark_writes_a_page_only_when_asked(tmp_path):
+    """Without ``--page`` the run leaves ``docs/results/`` alone (it used to overwrite
+    ``docs/results/PLANT.md`` whenever the folder was there, ``--json`` or not); the JSON it
+    prints is what ``--page`` renders."""
     p = _or_skip(pp.load_braatz, faults=["IDV1"])
     assert p.faults
-    page = tmp_path / "tep.md"
+    results = tmp_path / "docs" / "results"
+    results.mkdir(parents=True)
+    stale = results / "tep.md"
+    stale.write_text("kept\n")
     out = subprocess.run(
         [sys.executable, "-m", "diag_plugin", "benchmark", "--plant", "tep",
-         "--match-far", "0.01,0.05", "--fault", "IDV1", "--fault", "IDV4", "--page",
-         str(page), "--out", str(tmp_path / "w"), "--json"],
-        capture_output=True, text=True, timeout=600,
+         "--match-far", "0.01,0.05", "--fault", "IDV1", "--fault", "IDV4",
+         "--out", str(tmp_path / "w"), "--json"],
+        capture_output=True, text=True, timeout=600, cwd=tmp_path,
     )  # fmt: skip
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout)
+    assert "page" not in res
+    assert sorted(x.name for x in results.iterdir()) == ["tep.md"]
+    assert stale.read_text() == "kept\n"
     assert res["methods"] == ["unit", "PCA", "DPCA"]  # 500 training rows: a short window
     assert res["unit"]["note"] == "" and res["unit"]["tests"] > 0
     assert [p["target"] for p in res["curve"]["points"]] == [0.01, 0.05]
+    page = write_page(res, tmp_path / "tep.md", "diag benchmark --plant tep --page tep.md")
     text = page.read_text()
     assert "diag benchmark --plant tep" in text and "built by the plain commands" in text
     assert "d00_te.dat" in text and "| IDV4 |" in text and "| IDV6 |" not in text

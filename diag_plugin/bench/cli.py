@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 from diag_plugin.diagnose.cli import load_unit
 from historian.errors import UserError
@@ -49,7 +48,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         metavar="RATES",
         help="--plant: set every method's limit to the same false-alarm rate on fault-free "
         "calibration runs, at each of these comma-separated rates (default "
-        "0.001,0.005,0.01,0.02,0.05), and write the result page",
+        "0.001,0.005,0.01,0.02,0.05); --page FILE writes the result page",
     )
     p.add_argument(
         "--far-per",
@@ -59,8 +58,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--page", metavar="FILE",
                    help="write the result page (provenance: command, date, commit, seeds): "
-                   "DAMADICS only when given (docs/results/damadics.md); --match-far by "
-                   "default docs/results/PLANT.md")  # fmt: skip
+                   "only when given, e.g. docs/results/damadics.md or, with --plant, "
+                   "docs/results/PLANT.md")  # fmt: skip
     p.add_argument("--data", metavar="DIR",
                    help="--plant tep/tep-studio/skab: where the data are (default: the "
                    "environment variable or cache the docs name)")  # fmt: skip
@@ -180,8 +179,8 @@ def _dur(s: float | None) -> str:
 
 def cmd_matched_benchmark(args) -> int:
     """``diag benchmark --plant P --match-far``: the unit, PCA and DPCA at matched false-alarm
-    rates (:func:`~diag_plugin.bench.publicbench.run_matched_benchmark`), the result page
-    written."""
+    rates (:func:`~diag_plugin.bench.publicbench.run_matched_benchmark`); the result page
+    written only when ``--page`` names it."""
     from rich.console import Console
     from rich.progress import Progress
 
@@ -218,7 +217,7 @@ def cmd_matched_benchmark(args) -> int:
             plant, targets=targets, per=args.far_per, work=args.out, progress=tick
         )
     command = _command()
-    page = args.page or (f"docs/results/{plant.name}.md" if Path("docs/results").is_dir() else None)
+    page = args.page  # only --page writes a page; --json (or nothing) leaves docs/ alone
     if page:
         out["page"] = str(write_page(out, page, command))
     if args.json:
