@@ -98,17 +98,13 @@ def build(d: Path) -> tuple[Path, Path]:
     return rb, d / "plc.csv"
 
 
-def plant_size(duration: float) -> int:
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
-    with tempfile.TemporaryDirectory() as tmp:
-        d = Path(tmp)
-        t0 = time.perf_counter()
-        rb, csv = build(d)
-        print(f"built {N_UNITS} units over {N_TAGS} tags in {time.perf_counter() - t0:.0f} s")
-        plc_port = free_port()
-        units = ", ".join(f'"rb/u{u:03d}.unit.toml"' for u in range(N_UNITS))
-        (d / "plant.toml").write_text(
-            f"""[plant]
+def plant_toml(d: Path, plc_port: int) -> Path:
+    """``d``/plant.toml: the PLC on ``plc_port``, the units :func:`build` wrote, free
+    output ports."""
+    units = ", ".join(f'"rb/u{u:03d}.unit.toml"' for u in range(N_UNITS))
+    p = d / "plant.toml"
+    p.write_text(
+        f"""[plant]
 cycle = 1.0
 historian = "sqlite:///plant.db"
 flush_every = 20
@@ -124,8 +120,20 @@ timeout = 0.8
 modbus_port = {free_port()}
 opcua_port = {free_port()}
 """,
-            encoding="utf-8",
-        )
+        encoding="utf-8",
+    )
+    return p
+
+
+def plant_size(duration: float) -> int:
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        t0 = time.perf_counter()
+        rb, csv = build(d)
+        print(f"built {N_UNITS} units over {N_TAGS} tags in {time.perf_counter() - t0:.0f} s")
+        plc_port = free_port()
+        plant_toml(d, plc_port)
         plc = subprocess.Popen(
             [sys.executable, "-c", PLC, str(plc_port), str(csv), str(d / "rows.parquet")],
             stdout=subprocess.PIPE,
