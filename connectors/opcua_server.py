@@ -442,8 +442,6 @@ class DiagOpcUaServer:
     async def _create_unit(self, unit: str) -> None:
         from asyncua import ua
 
-        from connectors.opcua_conditions import ConditionEvents
-
         assert self.server is not None and self._units_folder is not None
         obj = await self._units_folder.add_object(self._nid("Units", unit), self._bn(unit))
         alarm_obj = await obj.add_object(self._nid("Units", unit, "Alarm"), self._bn("Alarm"))
@@ -484,15 +482,24 @@ class DiagOpcUaServer:
                 ua.NodeId(method), ua.ObjectIds.HasComponent, bidirectional=False
             )
         await self._unit_methods(unit, obj)
-        n.events = await ConditionEvents.create(
+        n.events = await self._events(obj, unit, alarm_obj, "Diagnosis")
+
+    async def _events(self, obj: Node, name: str, source: Node, kind: str) -> ConditionEvents:
+        """The condition events ``obj`` sends for ``name`` (from ``source``); the first one
+        made adds the server's GeneratesEvent reference."""
+        from connectors.opcua_conditions import ConditionEvents
+
+        assert self.server is not None
+        events = await ConditionEvents.create(
             self.server.iserver.isession,
             obj.nodeid,
-            unit,
-            alarm_obj.nodeid,
-            "Diagnosis",
+            name,
+            source.nodeid,
+            kind,
             add_generates_event=not self._generates_event,
         )
         self._generates_event = True
+        return events
 
     async def _unit_methods(self, unit: str, obj: Node) -> None:
         """Our own Acknowledge(), Shelve(Seconds), Unshelve() on the unit object."""
@@ -795,8 +802,6 @@ class DiagOpcUaServer:
     async def _create_notice(self, name: str) -> _Notice:
         from asyncua import ua
 
-        from connectors.opcua_conditions import ConditionEvents
-
         assert self.server is not None and self._plugin_folder is not None
         obj = await self._plugin_folder.add_object(self._nid("Plugin", name), self._bn(name))
         vars_ = {}
@@ -807,15 +812,7 @@ class DiagOpcUaServer:
             vars_[var] = await obj.add_variable(
                 self._nid("Plugin", name, var), self._bn(var), val, vt
             )
-        events = await ConditionEvents.create(
-            self.server.iserver.isession,
-            obj.nodeid,
-            name,
-            obj.nodeid,
-            "Notice",
-            add_generates_event=not self._generates_event,
-        )
-        self._generates_event = True
+        events = await self._events(obj, name, obj, "Notice")
         nt = _Notice(obj, vars_, events)
         self._notices[name] = nt
         return nt
