@@ -930,9 +930,13 @@ class DiagOpcUaServer:
         user = who or self._caller()
         via = via or ("local" if user in ("local", "timer") else "OPC UA")
         a = Action(datetime.now(UTC), user, action, unit, ok, detail, via)
+        (log.info if ok else log.warning)("OPC UA alarm action: %s", a.text)
+        self._keep(a)
+
+    def _keep(self, a: Action) -> None:
+        """``a`` into :attr:`actions` (the last 1,000 kept) and to ``on_action``."""
         self.actions.append(a)
         del self.actions[:-1000]
-        (log.info if ok else log.warning)("OPC UA alarm action: %s", a.text)
         if self.on_action is not None:
             try:
                 self.on_action(a)
@@ -941,24 +945,10 @@ class DiagOpcUaServer:
 
     def _login_refused(self, text: str) -> None:
         """A refused login (or a merged run of them): an :class:`Action` ``login``."""
-        a = Action(datetime.now(UTC), "", "login", None, False, text, "OPC UA")
-        self.actions.append(a)
-        del self.actions[:-1000]
-        if self.on_action is not None:
-            try:
-                self.on_action(a)
-            except Exception:  # noqa: BLE001 - a listener must not break the server
-                log.exception("on_action listener failed")
+        self._keep(Action(datetime.now(UTC), "", "login", None, False, text, "OPC UA"))
 
     def _refused(self, ident: Any, what: str) -> None:
-        a = Action(datetime.now(UTC), ident.label, "refused", None, False, what, "OPC UA")
-        self.actions.append(a)
-        del self.actions[:-1000]
-        if self.on_action is not None:
-            try:
-                self.on_action(a)
-            except Exception:  # noqa: BLE001 - a listener must not break the server
-                log.exception("on_action listener failed")
+        self._keep(Action(datetime.now(UTC), ident.label, "refused", None, False, what, "OPC UA"))
 
     async def acknowledge(
         self, unit: str, who: str = "local", via: str = "local", comment: str = ""
