@@ -239,18 +239,10 @@ def figure(
             if not ok:
                 continue
             y = sy(h.y)
-            out.append(
-                f'<line class="hline" data-label={quoteattr(h.label)} data-value="{h.y!r}" '
-                f'x1="{left}" y1="{y:.1f}" x2="{left + plot_w}" y2="{y:.1f}" '
-                f'stroke="{h.color}" stroke-width="{h.width}"{_dash(h.dash)}/>'
-            )
+            out.append(_marker("hline", h, h.y, (left, f"{y:.1f}", left + plot_w, f"{y:.1f}")))
         for v in p.vlines:
             x = sx(v.x)
-            out.append(
-                f'<line class="vline" data-label={quoteattr(v.label)} data-value="{v.x!r}" '
-                f'x1="{x:.1f}" y1="{top}" x2="{x:.1f}" y2="{top + panel_height}" '
-                f'stroke="{v.color}" stroke-width="{v.width}"{_dash(v.dash)}/>'
-            )
+            out.append(_marker("vline", v, v.x, (f"{x:.1f}", top, f"{x:.1f}", top + panel_height)))
         for t in p.traces:
             pts = _polyline_points(sx(np.asarray(t.x, float)), sy(np.asarray(t.y, float)))
             out.append(f'<g class="trace" data-label={quoteattr(t.label)}>')
@@ -287,3 +279,13 @@ def _grid_line(line: tuple, at: tuple, anchor: str, label: str) -> list[str]:
         f'<line x1="{x1}" y1="{y1}" x2="{x2}" y2="{y2}" stroke="#e4e4e4"/>',
         f'<text x="{at[0]}" y="{at[1]}" text-anchor="{anchor}">{label}</text>',
     ]
+
+
+def _marker(kind: str, m: HLine | VLine, value: float, line: tuple) -> str:
+    """An :class:`HLine` or :class:`VLine` at ``value``, drawn from (x1, y1) to (x2, y2)."""
+    x1, y1, x2, y2 = line
+    return (
+        f'<line class="{kind}" data-label={quoteattr(m.label)} data-value="{value!r}" '
+        f'x1="{x1}" y1="{y1}" x2="{x2}" y2="{y2}" '
+        f'stroke="{m.color}" stroke-width="{m.width}"{_dash(m.dash)}/>'
+    )
