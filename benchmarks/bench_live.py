@@ -154,16 +154,16 @@ def plant_size(duration: float) -> int:
         finally:
             plc.kill()
             plc.wait()
-        m = re.search(
+        found = summary(
+            r,
             r"stopped after (\d+) cycles, (\d+) overruns, (\d+) new samples stored; cycle work "
             r"median ([\d.]+) ms, p95 ([\d.]+) ms, p99 ([\d.]+) ms, max ([\d.]+) ms; "
             r"historian: (\d+) writes \(longest (\d+) ms\), (\d+) failed",
-            r.stdout,
+            3000,
         )
-        if r.returncode != 0 or m is None:
-            print(r.stdout[-3000:], r.stderr[-3000:])
+        if found is None:
             return 1
-        cycles, over, stored, med, p95, p99, mx, writes, longest, failed = m.groups()
+        cycles, over, stored, med, p95, p99, mx, writes, longest, failed = found
         print(
             f"{N_TAGS} tags, {N_UNITS} units, 1 s cycle, {cycles} cycles: cycle work median "
             f"{med} ms, p95 {p95} ms, p99 {p99} ms, max {mx} ms; {over} overruns"
@@ -179,21 +179,31 @@ def plant_size(duration: float) -> int:
         return 0 if ok else 1
 
 
+def summary(r: subprocess.CompletedProcess, pattern: str, tail: int) -> tuple[str, ...] | None:
+    """The figures ``pattern`` finds in the run's closing line; None (and the last ``tail``
+    characters of its output printed) when the run failed or did not say them."""
+    m = re.search(pattern, r.stdout)
+    if r.returncode != 0 or m is None:
+        print(r.stdout[-tail:], r.stderr[-tail:])
+        return None
+    return m.groups()
+
+
 def embedded() -> int:
     with tempfile.TemporaryDirectory() as d:
         cmd = [sys.executable, "-m", "diag_plugin", "run", "--duration", "40", "--cycle", "0.05"]
         cmd += ["--data", d, "--plain", "--plc-port", str(free_port())]
         cmd += ["--modbus-port", str(free_port()), "--opcua-port", str(free_port())]
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    m = re.search(
+    found = summary(
+        r,
         r"stopped after (\d+) cycles, (\d+) overruns.*median ([\d.]+) ms, p95 ([\d.]+) "
         r"ms, p99 ([\d.]+) ms, max ([\d.]+) ms",
-        r.stdout,
+        2000,
     )
-    if r.returncode != 0 or m is None:
-        print(r.stdout[-2000:], r.stderr[-2000:])
+    if found is None:
         return 1
-    cycles, overruns, med, p95, p99, mx = m.groups()
+    cycles, overruns, med, p95, p99, mx = found
     print(
         f"embedded plant, {cycles} cycles of poll + store + diagnose + publish: median {med} ms, "
         f"p95 {p95} ms, p99 {p99} ms, max {mx} ms; {overruns} cycles over the 50 ms period"
