@@ -122,7 +122,7 @@ from tomlkit.exceptions import ParseError
 from diag_plugin.rulebase.folder import UNIT_SUFFIX
 from diag_plugin.status import NE107
 from diag_plugin.tomllines import LinedFile
-from historian.errors import UserError
+from historian.errors import ProblemsError
 
 TABLES = (
     "unit",
@@ -208,12 +208,8 @@ _CHOICES = {
 STATISTICS = ("level", "spread")
 
 
-class UnitError(UserError):
+class UnitError(ProblemsError):
     """Problems of a unit file, each ``file:line: what``."""
-
-    def __init__(self, problems: list[str]):
-        super().__init__("\n".join(problems))
-        self.problems = problems
 
 
 @dataclass

@@ -43,7 +43,7 @@ from diag_plugin.models.registry import METHODS, get_method
 from diag_plugin.models.spec import ModelSpec, Variable
 from diag_plugin.regressors import InputSpec
 from diag_plugin.tomllines import LinedFile, syntax_error
-from historian.errors import UserError
+from historian.errors import ProblemsError
 
 __all__ = ["RuleBase", "RuleBaseError", "Variable", "check", "default_label", "resolve"]
 
@@ -56,12 +56,8 @@ HEADER = """\
 """
 
 
-class RuleBaseError(UserError):
+class RuleBaseError(ProblemsError):
     """A rule-base file has problems; ``problems`` lists ``file:line: what``."""
-
-    def __init__(self, problems: list[str]):
-        self.problems = problems
-        super().__init__("\n".join(problems))
 
 
 def default_label(spec: str) -> str:
