@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -21,6 +20,9 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import add_scratch_args, fastest, scratch  # noqa: E402
 
 from historian import Historian  # noqa: E402
 
@@ -40,23 +42,13 @@ def month_frame(start: pd.Timestamp, tags: list[str], rng: np.random.Generator) 
     return pd.DataFrame(data, index=idx)
 
 
-def timed(fn, repeat=3):
-    best, out = float("inf"), None
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--months", type=int, default=6)
     ap.add_argument("--tags", type=int, default=20)
-    ap.add_argument("--dir", default=None, help="scratch folder (default: system temp)")
-    ap.add_argument("--check", action="store_true", help="exit 1 when a target is missed")
+    add_scratch_args(ap)
     args = ap.parse_args(argv)
-    tmp = Path(tempfile.mkdtemp(prefix="bench_historian_", dir=args.dir))
+    tmp = scratch("bench_historian_", args.dir)
     ok = True
     try:
         url = f"sqlite:///{tmp / 'bench.db'}"
@@ -78,7 +70,7 @@ def main(argv=None) -> int:
             ok &= rate >= TARGET_INGEST
             m0, m1 = months[1] if len(months) > 1 else months[0], None
             m1 = m0 + pd.offsets.MonthBegin(1)
-            dt, s = timed(lambda: h.read_samples(tags[0], m0, m1))
+            dt, s = fastest(lambda: h.read_samples(tags[0], m0, m1))
             print(
                 f"read one tag-month (SQLite): {len(s):,} rows in {dt:.3f} s "
                 f"(target {TARGET_TAG_MONTH})"
@@ -86,7 +78,7 @@ def main(argv=None) -> int:
             ok &= dt < TARGET_TAG_MONTH
             start, end = months[0], months[-1] + pd.offsets.MonthBegin(1)
             three = tags[:3]
-            dt, w = timed(lambda: h.window(three, start, end, "10s"), repeat=2)
+            dt, w = fastest(lambda: h.window(three, start, end, "10s"), runs=2)
             print(
                 f"window 3 tags × {args.months} months (SQLite): {w.shape[0]:,} rows "
                 f"in {dt:.3f} s (target {TARGET_WINDOW3})"
@@ -111,12 +103,12 @@ def main(argv=None) -> int:
                 f"vacuum: {v['before_bytes'] / 1e6:.0f} -> {v['after_bytes'] / 1e6:.1f} MB in "
                 f"{time.perf_counter() - t:.1f} s"
             )
-            dt, rng = timed(lambda: h.time_range(three))
+            dt, rng = fastest(lambda: h.time_range(three))
             print(f"time_range of 3 rolled tags (row-group statistics): {dt * 1e3:.1f} ms")
-            dt, s2 = timed(lambda: h.read_samples(tags[0], m0, m1))
+            dt, s2 = fastest(lambda: h.read_samples(tags[0], m0, m1))
             print(f"read one tag-month (Parquet cold store): {len(s2):,} rows in {dt:.3f} s")
             assert s2.equals(s), "cold read differs from hot read"
-            dt, w2 = timed(lambda: h.window(three, start, end, "10s"), repeat=2)
+            dt, w2 = fastest(lambda: h.window(three, start, end, "10s"), runs=2)
             print(f"window 3 tags × {args.months} months (Parquet): {dt:.3f} s")
             assert w2.equals(w), "cold window differs from hot window"
             t = time.perf_counter()

@@ -19,7 +19,6 @@ import argparse
 import shutil
 import sqlite3
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -27,6 +26,9 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import add_scratch_args, scratch  # noqa: E402
 
 from historian.importer import import_file  # noqa: E402
 from historian.store import Historian  # noqa: E402
@@ -69,10 +71,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rows", type=int, default=1_000_000)
     ap.add_argument("--tags", type=int, default=20)
     ap.add_argument("--runs", type=int, default=2)
-    ap.add_argument("--dir", default=None, help="scratch folder (default: system temp)")
-    ap.add_argument("--check", action="store_true", help="exit 1 when the target is missed")
+    add_scratch_args(ap, "the target")
     args = ap.parse_args(argv)
-    work = Path(tempfile.mkdtemp(prefix="bench_import_", dir=args.dir))
+    work = scratch("bench_import_", args.dir)
     try:
         csv = work / "export.csv"
         write_csv(csv, args.rows, args.tags)

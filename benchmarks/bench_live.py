@@ -98,17 +98,13 @@ def build(d: Path) -> tuple[Path, Path]:
     return rb, d / "plc.csv"
 
 
-def plant_size(duration: float) -> int:
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
-    with tempfile.TemporaryDirectory() as tmp:
-        d = Path(tmp)
-        t0 = time.perf_counter()
-        rb, csv = build(d)
-        print(f"built {N_UNITS} units over {N_TAGS} tags in {time.perf_counter() - t0:.0f} s")
-        plc_port = free_port()
-        units = ", ".join(f'"rb/u{u:03d}.unit.toml"' for u in range(N_UNITS))
-        (d / "plant.toml").write_text(
-            f"""[plant]
+def plant_toml(d: Path, plc_port: int) -> Path:
+    """``d``/plant.toml: the PLC on ``plc_port``, the units :func:`build` wrote, free
+    output ports."""
+    units = ", ".join(f'"rb/u{u:03d}.unit.toml"' for u in range(N_UNITS))
+    p = d / "plant.toml"
+    p.write_text(
+        f"""[plant]
 cycle = 1.0
 historian = "sqlite:///plant.db"
 flush_every = 20
@@ -124,8 +120,20 @@ timeout = 0.8
 modbus_port = {free_port()}
 opcua_port = {free_port()}
 """,
-            encoding="utf-8",
-        )
+        encoding="utf-8",
+    )
+    return p
+
+
+def plant_size(duration: float) -> int:
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        t0 = time.perf_counter()
+        rb, csv = build(d)
+        print(f"built {N_UNITS} units over {N_TAGS} tags in {time.perf_counter() - t0:.0f} s")
+        plc_port = free_port()
+        plant_toml(d, plc_port)
         plc = subprocess.Popen(
             [sys.executable, "-c", PLC, str(plc_port), str(csv), str(d / "rows.parquet")],
             stdout=subprocess.PIPE,
@@ -146,16 +154,16 @@ opcua_port = {free_port()}
         finally:
             plc.kill()
             plc.wait()
-        m = re.search(
+        found = summary(
+            r,
             r"stopped after (\d+) cycles, (\d+) overruns, (\d+) new samples stored; cycle work "
             r"median ([\d.]+) ms, p95 ([\d.]+) ms, p99 ([\d.]+) ms, max ([\d.]+) ms; "
             r"historian: (\d+) writes \(longest (\d+) ms\), (\d+) failed",
-            r.stdout,
+            3000,
         )
-        if r.returncode != 0 or m is None:
-            print(r.stdout[-3000:], r.stderr[-3000:])
+        if found is None:
             return 1
-        cycles, over, stored, med, p95, p99, mx, writes, longest, failed = m.groups()
+        cycles, over, stored, med, p95, p99, mx, writes, longest, failed = found
         print(
             f"{N_TAGS} tags, {N_UNITS} units, 1 s cycle, {cycles} cycles: cycle work median "
             f"{med} ms, p95 {p95} ms, p99 {p99} ms, max {mx} ms; {over} overruns"
@@ -171,21 +179,31 @@ opcua_port = {free_port()}
         return 0 if ok else 1
 
 
+def summary(r: subprocess.CompletedProcess, pattern: str, tail: int) -> tuple[str, ...] | None:
+    """The figures ``pattern`` finds in the run's closing line; None (and the last ``tail``
+    characters of its output printed) when the run failed or did not say them."""
+    m = re.search(pattern, r.stdout)
+    if r.returncode != 0 or m is None:
+        print(r.stdout[-tail:], r.stderr[-tail:])
+        return None
+    return m.groups()
+
+
 def embedded() -> int:
     with tempfile.TemporaryDirectory() as d:
         cmd = [sys.executable, "-m", "diag_plugin", "run", "--duration", "40", "--cycle", "0.05"]
         cmd += ["--data", d, "--plain", "--plc-port", str(free_port())]
         cmd += ["--modbus-port", str(free_port()), "--opcua-port", str(free_port())]
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    m = re.search(
+    found = summary(
+        r,
         r"stopped after (\d+) cycles, (\d+) overruns.*median ([\d.]+) ms, p95 ([\d.]+) "
         r"ms, p99 ([\d.]+) ms, max ([\d.]+) ms",
-        r.stdout,
+        2000,
     )
-    if r.returncode != 0 or m is None:
-        print(r.stdout[-2000:], r.stderr[-2000:])
+    if found is None:
         return 1
-    cycles, overruns, med, p95, p99, mx = m.groups()
+    cycles, overruns, med, p95, p99, mx = found
     print(
         f"embedded plant, {cycles} cycles of poll + store + diagnose + publish: median {med} ms, "
         f"p95 {p95} ms, p99 {p99} ms, max {mx} ms; {overruns} cycles over the 50 ms period"

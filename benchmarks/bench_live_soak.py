@@ -30,7 +30,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_live import N_TAGS, N_UNITS, PLC, build, free_port  # noqa: E402
+from bench_live import N_TAGS, N_UNITS, PLC, build, free_port, plant_toml  # noqa: E402
 
 TOLERANCE = 0.05
 
@@ -40,31 +40,6 @@ def rss_mb() -> float:
     with open("/proc/self/statm", encoding="ascii") as f:
         pages = int(f.read().split()[1])
     return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
-
-
-def plant_toml(d: Path, plc_port: int) -> Path:
-    units = ", ".join(f'"rb/u{u:03d}.unit.toml"' for u in range(N_UNITS))
-    p = d / "plant.toml"
-    p.write_text(
-        f"""[plant]
-cycle = 1.0
-historian = "sqlite:///plant.db"
-flush_every = 20
-units = [{units}]
-
-[[source]]
-name = "plc"
-port = {plc_port}
-map = "plc.csv"
-timeout = 0.8
-
-[outputs]
-modbus_port = {free_port()}
-opcua_port = {free_port()}
-""",
-        encoding="utf-8",
-    )
-    return p
 
 
 def sqlite_mb() -> float:

@@ -33,13 +33,15 @@ import resource
 import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import add_scratch_args, fastest, scratch  # noqa: E402
 
 from diag_plugin.simulate.valve import TAGS, simulate_valve  # noqa: E402
 from diag_plugin.training.chunked import train  # noqa: E402
@@ -142,15 +144,6 @@ def build(work: Path) -> tuple[str, str, Path, Path]:
     return url, cold_url, hot, cold
 
 
-def fastest(fn, runs: int) -> float:
-    best = float("inf")
-    for _ in range(runs):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
-
-
 def wall(cmd: list[str]) -> float:
     """Wall time of a fresh process (no DIAG_* settings from the caller)."""
     return timed_process(cmd)[0]
@@ -241,10 +234,9 @@ def phases(url: str, path: Path, runs: int) -> tuple[float, dict[str, float]]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=5)
-    ap.add_argument("--dir", default=None, help="scratch folder (default: system temp)")
-    ap.add_argument("--check", action="store_true", help="exit 1 when a target is missed")
+    add_scratch_args(ap)
     args = ap.parse_args(argv)
-    work = Path(tempfile.mkdtemp(prefix="bench_train_", dir=args.dir))
+    work = scratch("bench_train_", args.dir)
     diag = [sys.executable, "-m", "diag_plugin"]
     try:
         hot_url, cold_url, hot, cold = build(work)
@@ -257,7 +249,7 @@ def main(argv=None) -> int:
         for where, url in (("hot", hot_url), ("cold", cold_url)):  # warm: numba, file cache
             api_call(url, work / where / "rulebases" / "m.toml")
         for _ in range(args.runs):
-            ref.append(fastest(lambda: reference(ref_file), 1))
+            ref.append(fastest(lambda: reference(ref_file), 1)[0])
             w, c = timed_process(
                 [sys.executable, "-c", f"{REFERENCE}\nreference({ref_file!r}, {SPANS!r})"]
             )
@@ -265,8 +257,8 @@ def main(argv=None) -> int:
             ref_cpu.append(c)
             for where, url in (("hot", hot_url), ("cold", cold_url)):
                 path = work / where / "rulebases" / "m.toml"
-                calls[where, "train"].append(fastest(lambda u=url, p=path: api_call(u, p), 1))
-                calls[where, "job"].append(fastest(lambda u=url, p=path: train_one(p, u), 1))
+                calls[where, "train"].append(fastest(lambda u=url, p=path: api_call(u, p), 1)[0])
+                calls[where, "job"].append(fastest(lambda u=url, p=path: train_one(p, u), 1)[0])
                 w, c = timed_process(
                     [*diag, "--db", url, "--rulebases", str(path.parent), "train", "m"]
                 )

@@ -27,14 +27,15 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
-import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import add_scratch_args, fastest, scratch  # noqa: E402
 
 from diag_plugin.simulate.valve import TAGS, simulate_valve  # noqa: E402
 from diag_plugin.training.chunked import design_builder, split_time, train  # noqa: E402
@@ -44,15 +45,6 @@ from historian.store import Historian  # noqa: E402
 
 INPUTS = ["CV[k-1]", "P1[k]", "P2[k]"]
 GOAL_SPEED, GOAL_ERROR = 5.0, 1.1
-
-
-def fastest(fn, runs: int) -> tuple[float, object]:
-    best, out = float("inf"), None
-    for _ in range(runs):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
 
 
 def rmse_pct(y, yhat, span: float) -> float:
@@ -92,7 +84,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=12)
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--hgb-threads", type=int, default=1, help="0: scikit-learn's default")
-    ap.add_argument("--check", action="store_true", help="exit 1 when a goal is missed")
+    add_scratch_args(ap, "a goal")
     args = ap.parse_args(argv)
     try:
         from sklearn.ensemble import HistGradientBoostingRegressor
@@ -101,7 +93,7 @@ def main(argv=None) -> int:
         print("scikit-learn is not installed (pip install -e '.[dev]'): no comparison")
         return 0
     frame = simulate_valve(args.days, seed=args.seed)[["CV", "P1", "P2", "F"]]
-    work = Path(tempfile.mkdtemp(prefix="bench_wm_hgb_"))
+    work = scratch("bench_wm_hgb_", args.dir)
     try:
         url = f"sqlite:///{work / 'h.db'}"
         with Historian.open(url) as h:

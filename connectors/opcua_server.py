@@ -442,8 +442,6 @@ class DiagOpcUaServer:
     async def _create_unit(self, unit: str) -> None:
         from asyncua import ua
 
-        from connectors.opcua_conditions import ConditionEvents
-
         assert self.server is not None and self._units_folder is not None
         obj = await self._units_folder.add_object(self._nid("Units", unit), self._bn(unit))
         alarm_obj = await obj.add_object(self._nid("Units", unit, "Alarm"), self._bn("Alarm"))
@@ -484,15 +482,24 @@ class DiagOpcUaServer:
                 ua.NodeId(method), ua.ObjectIds.HasComponent, bidirectional=False
             )
         await self._unit_methods(unit, obj)
-        n.events = await ConditionEvents.create(
+        n.events = await self._events(obj, unit, alarm_obj, "Diagnosis")
+
+    async def _events(self, obj: Node, name: str, source: Node, kind: str) -> ConditionEvents:
+        """The condition events ``obj`` sends for ``name`` (from ``source``); the first one
+        made adds the server's GeneratesEvent reference."""
+        from connectors.opcua_conditions import ConditionEvents
+
+        assert self.server is not None
+        events = await ConditionEvents.create(
             self.server.iserver.isession,
             obj.nodeid,
-            unit,
-            alarm_obj.nodeid,
-            "Diagnosis",
+            name,
+            source.nodeid,
+            kind,
             add_generates_event=not self._generates_event,
         )
         self._generates_event = True
+        return events
 
     async def _unit_methods(self, unit: str, obj: Node) -> None:
         """Our own Acknowledge(), Shelve(Seconds), Unshelve() on the unit object."""
@@ -795,8 +802,6 @@ class DiagOpcUaServer:
     async def _create_notice(self, name: str) -> _Notice:
         from asyncua import ua
 
-        from connectors.opcua_conditions import ConditionEvents
-
         assert self.server is not None and self._plugin_folder is not None
         obj = await self._plugin_folder.add_object(self._nid("Plugin", name), self._bn(name))
         vars_ = {}
@@ -807,15 +812,7 @@ class DiagOpcUaServer:
             vars_[var] = await obj.add_variable(
                 self._nid("Plugin", name, var), self._bn(var), val, vt
             )
-        events = await ConditionEvents.create(
-            self.server.iserver.isession,
-            obj.nodeid,
-            name,
-            obj.nodeid,
-            "Notice",
-            add_generates_event=not self._generates_event,
-        )
-        self._generates_event = True
+        events = await self._events(obj, name, obj, "Notice")
         nt = _Notice(obj, vars_, events)
         self._notices[name] = nt
         return nt
@@ -933,9 +930,13 @@ class DiagOpcUaServer:
         user = who or self._caller()
         via = via or ("local" if user in ("local", "timer") else "OPC UA")
         a = Action(datetime.now(UTC), user, action, unit, ok, detail, via)
+        (log.info if ok else log.warning)("OPC UA alarm action: %s", a.text)
+        self._keep(a)
+
+    def _keep(self, a: Action) -> None:
+        """``a`` into :attr:`actions` (the last 1,000 kept) and to ``on_action``."""
         self.actions.append(a)
         del self.actions[:-1000]
-        (log.info if ok else log.warning)("OPC UA alarm action: %s", a.text)
         if self.on_action is not None:
             try:
                 self.on_action(a)
@@ -944,24 +945,10 @@ class DiagOpcUaServer:
 
     def _login_refused(self, text: str) -> None:
         """A refused login (or a merged run of them): an :class:`Action` ``login``."""
-        a = Action(datetime.now(UTC), "", "login", None, False, text, "OPC UA")
-        self.actions.append(a)
-        del self.actions[:-1000]
-        if self.on_action is not None:
-            try:
-                self.on_action(a)
-            except Exception:  # noqa: BLE001 - a listener must not break the server
-                log.exception("on_action listener failed")
+        self._keep(Action(datetime.now(UTC), "", "login", None, False, text, "OPC UA"))
 
     def _refused(self, ident: Any, what: str) -> None:
-        a = Action(datetime.now(UTC), ident.label, "refused", None, False, what, "OPC UA")
-        self.actions.append(a)
-        del self.actions[:-1000]
-        if self.on_action is not None:
-            try:
-                self.on_action(a)
-            except Exception:  # noqa: BLE001 - a listener must not break the server
-                log.exception("on_action listener failed")
+        self._keep(Action(datetime.now(UTC), ident.label, "refused", None, False, what, "OPC UA"))
 
     async def acknowledge(
         self, unit: str, who: str = "local", via: str = "local", comment: str = ""

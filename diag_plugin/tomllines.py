@@ -9,6 +9,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from pathlib import Path
+from typing import Self
 
 
 def line_of(
@@ -63,3 +64,25 @@ def read_text(path: str | Path, error: Callable[[list[str]], Exception]) -> str:
         return Path(path).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise error([f"{path}:0: cannot read: {exc}"]) from None
+
+
+class LinedFile:
+    """A user's TOML file read for ``file:line`` problems (the rule-base and the unit file):
+    ``cls(text, path)`` reads it, raising ``Error(problems)``; ``error`` records one."""
+
+    Error: Callable[[list[str]], Exception]
+    path: Path
+    problems: list[str]
+
+    def __init__(self, text: str, path: str | Path) -> None:
+        raise NotImplementedError
+
+    @classmethod
+    def load(cls, path: str | Path) -> Self:
+        """The file at ``path``; one that cannot be read raises ``Error`` naming it."""
+        path = Path(path)
+        return cls(read_text(path, cls.Error), path)
+
+    def error(self, line: int, msg: str) -> None:
+        """Record a problem at ``line`` (1-based) of the file."""
+        self.problems.append(f"{self.path}:{line}: {msg}")

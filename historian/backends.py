@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import struct
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -254,49 +257,53 @@ class PostgresBulk:
         rows["value"] = value
         rows["l4"] = 2
         rows["quality"] = quality
+        with self._cursor(commit=True) as cur:
+            cur.execute(
+                "CREATE TEMP TABLE IF NOT EXISTS _stage "
+                "(tag_id int4, ts int8, value float8, quality int2) ON COMMIT DELETE ROWS"
+            )
+            with cur.copy("COPY _stage FROM STDIN (FORMAT binary)") as cp:
+                cp.write(_PGHEADER)
+                cp.write(rows.tobytes())
+                cp.write(_PGTRAILER)
+            cur.execute(
+                "INSERT INTO samples (tag_id, ts, value, quality) "
+                f"SELECT tag_id, ts, value, quality FROM _stage {clause}"
+            )
+            inserted = cur.rowcount
+        return int(inserted)
+
+    @contextmanager
+    def _cursor(self, commit: bool) -> Iterator[Any]:
+        """A psycopg cursor on a pooled connection's driver connection; at the end the work
+        is committed (``commit``) or rolled back (a read), and rolled back on an error."""
         raw = self.engine.raw_connection()
         try:
             pg = raw.driver_connection
             with pg.cursor() as cur:
-                cur.execute(
-                    "CREATE TEMP TABLE IF NOT EXISTS _stage "
-                    "(tag_id int4, ts int8, value float8, quality int2) ON COMMIT DELETE ROWS"
-                )
-                with cur.copy("COPY _stage FROM STDIN (FORMAT binary)") as cp:
-                    cp.write(_PGHEADER)
-                    cp.write(rows.tobytes())
-                    cp.write(_PGTRAILER)
-                cur.execute(
-                    "INSERT INTO samples (tag_id, ts, value, quality) "
-                    f"SELECT tag_id, ts, value, quality FROM _stage {clause}"
-                )
-                inserted = cur.rowcount
-            pg.commit()
+                yield cur
+            if commit:
+                pg.commit()
+            else:
+                pg.rollback()
         except BaseException:
             raw.driver_connection.rollback()
             raise
         finally:
             raw.close()
-        return int(inserted)
 
     def read(self, tag_id: int, start: int, end: int, usable: bool = False):
         """Samples of one tag with start <= ts < end, ordered by ts (rows are fixed-width
         here: ``usable`` changes nothing)."""
-        raw = self.engine.raw_connection()
-        try:
-            pg = raw.driver_connection
-            chunks = []
-            with pg.cursor() as cur:
-                with cur.copy(
-                    "COPY (SELECT ts, coalesce(value, 'NaN'::float8), quality FROM samples "
-                    f"WHERE tag_id = {int(tag_id)} AND ts >= {int(start)} AND ts < {int(end)} "
-                    "ORDER BY ts) TO STDOUT (FORMAT binary)"
-                ) as cp:
-                    for data in cp:
-                        chunks.append(bytes(data))
-            pg.rollback()
-        finally:
-            raw.close()
+        chunks = []
+        with self._cursor(commit=False) as cur:
+            with cur.copy(
+                "COPY (SELECT ts, coalesce(value, 'NaN'::float8), quality FROM samples "
+                f"WHERE tag_id = {int(tag_id)} AND ts >= {int(start)} AND ts < {int(end)} "
+                "ORDER BY ts) TO STDOUT (FORMAT binary)"
+            ) as cp:
+                for data in cp:
+                    chunks.append(bytes(data))
         buf = b"".join(chunks)
         body = buf[len(_PGHEADER) : len(buf) - len(_PGTRAILER)]
         if not body:
@@ -339,28 +346,22 @@ class PostgresBulk:
     def integrity_check(self) -> list[str]:
         """A sane check for PostgreSQL: no duplicate keys and the primary-key index is valid."""
         problems = []
-        raw = self.engine.raw_connection()
-        try:
-            pg = raw.driver_connection
-            with pg.cursor() as cur:
-                cur.execute(
-                    "SELECT count(*) FROM (SELECT tag_id, ts FROM samples "
-                    "GROUP BY tag_id, ts HAVING count(*) > 1) d"
-                )
-                dups = cur.fetchone()[0]
-                if dups:
-                    problems.append(f"{dups} duplicated (tag_id, ts) keys in samples")
-                cur.execute(
-                    "SELECT i.indisvalid FROM pg_index i JOIN pg_class c ON c.oid = i.indrelid "
-                    "WHERE c.relname = 'samples' AND i.indisprimary"
-                )
-                row = cur.fetchone()
-                if row is None or not row[0]:
-                    problems.append("primary-key index of samples missing or invalid")
-                cur.execute("SELECT count(*) FROM samples WHERE ts IS NULL OR tag_id IS NULL")
-                if cur.fetchone()[0]:
-                    problems.append("samples with NULL keys")
-            pg.rollback()
-        finally:
-            raw.close()
+        with self._cursor(commit=False) as cur:
+            cur.execute(
+                "SELECT count(*) FROM (SELECT tag_id, ts FROM samples "
+                "GROUP BY tag_id, ts HAVING count(*) > 1) d"
+            )
+            dups = cur.fetchone()[0]
+            if dups:
+                problems.append(f"{dups} duplicated (tag_id, ts) keys in samples")
+            cur.execute(
+                "SELECT i.indisvalid FROM pg_index i JOIN pg_class c ON c.oid = i.indrelid "
+                "WHERE c.relname = 'samples' AND i.indisprimary"
+            )
+            row = cur.fetchone()
+            if row is None or not row[0]:
+                problems.append("primary-key index of samples missing or invalid")
+            cur.execute("SELECT count(*) FROM samples WHERE ts IS NULL OR tag_id IS NULL")
+            if cur.fetchone()[0]:
+                problems.append("samples with NULL keys")
         return problems

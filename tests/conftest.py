@@ -20,6 +20,15 @@ def anyio_backend():
     return "asyncio"
 
 
+@pytest.fixture(scope="module")
+def keys(tmp_path_factory):
+    """The OPC UA tests' client and server certificates (``opcua_peers.pki``), one set a
+    module."""
+    from opcua_peers import pki
+
+    return pki(tmp_path_factory.mktemp("pki"))
+
+
 PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/postgres"
 
 

@@ -54,8 +54,11 @@ def damadics_file() -> Path | None:
 DAMADICS_HOW = "../shared/data/damadics; CI has it"
 
 
-def run_diag(cwd: Path, *args: str, **env: str) -> subprocess.CompletedProcess:
-    """`diag ARGS` as a user runs it: a subprocess in ``cwd``, no DIAG_* from the caller."""
+def run_diag(
+    cwd: Path, *args: str, stdin: str | None = None, timeout: float = 600, **env: str
+) -> subprocess.CompletedProcess:
+    """`diag ARGS` as a user runs it: a subprocess in ``cwd``, no DIAG_* from the caller,
+    ``stdin`` as its input."""
     clean = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")} | env
     return subprocess.run(
         [sys.executable, "-m", "diag_plugin", *args],
@@ -63,8 +66,39 @@ def run_diag(cwd: Path, *args: str, **env: str) -> subprocess.CompletedProcess:
         env=clean,
         capture_output=True,
         text=True,
-        timeout=600,
+        timeout=timeout,
+        input=stdin,
     )
+
+
+LOCKER = """\
+import sqlite3, sys
+c = sqlite3.connect(sys.argv[1], isolation_level=None)
+c.execute("BEGIN IMMEDIATE")  # the write lock; readers still read (WAL)
+print("locked", flush=True)
+sys.stdin.readline()  # held until the test says
+c.execute("COMMIT")
+print("released", flush=True)
+"""
+
+
+class Locker:
+    """A second process holding the SQLite file's write lock until :meth:`release`."""
+
+    def __init__(self, db: Path) -> None:
+        self.p = subprocess.Popen(
+            [sys.executable, "-c", LOCKER, str(db)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self.p.stdout.readline().strip() == "locked"
+
+    def release(self) -> None:
+        self.p.stdin.write("\n")
+        self.p.stdin.flush()
+        assert self.p.stdout.readline().strip() == "released"
+        self.p.wait(10)
 
 
 def valve_frame(days: float, seed: int) -> pd.DataFrame:

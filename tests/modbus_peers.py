@@ -92,6 +92,29 @@ async def raw_server(
     return srv, int(srv.sockets[0].getsockname()[1])
 
 
+async def answering_server(
+    answer: Callable[[int, int, bytes], Awaitable[bytes | None]],
+    on_connect: Callable[[], None] | None = None,
+) -> tuple[asyncio.Server, int]:
+    """:func:`raw_server` reading each connection's requests until it closes and writing
+    what ``answer(transaction id, unit id, PDU)`` gives (None: nothing); ``on_connect`` is
+    called as each connection is accepted."""
+
+    async def handler(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+        if on_connect is not None:
+            on_connect()
+        try:
+            while True:
+                out = await answer(*await read_request(r))
+                if out is not None:
+                    w.write(out)
+                    await w.drain()
+        except (asyncio.IncompleteReadError, ConnectionError):
+            pass
+
+    return await raw_server(handler)
+
+
 async def read_request(r: asyncio.StreamReader) -> tuple[int, int, bytes]:
     """(transaction id, unit id, PDU) of one Modbus TCP request."""
     head = await r.readexactly(7)

@@ -11,12 +11,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pandas as pd
 from helpers import free_port  # noqa: F401 - the peers' callers import it from here
 
 from connectors.certs import CertPair, certificate_der, make_certificate, trust
 from connectors.opcua_access import OpcUaUser
 from connectors.opcua_client import ClientSecurity
 from connectors.passwords import hash_password
+from diag_plugin.status import NE107, Quality, UnitStatus
 
 PASSWORDS = {"alice": "alice-pw-1", "bob": "bob-pw-22"}
 
@@ -72,4 +74,20 @@ def security_of(pair: CertPair, username: str, password: str, **kw) -> ClientSec
     password, and ``kw`` (``trusted_dir``, ``server_certificate``, …)."""
     return ClientSecurity(
         pair.certificate, pair.private_key, pair.application_uri, username, password, **kw
+    )
+
+
+def unit_status(unit: str, status: NE107, c: float = 0.9) -> UnitStatus:
+    """A unit's status now: residual r1 = 3, symptom r1 = 1, fault f1 of certainty ``c``
+    (found unless ``status`` is NORMAL)."""
+    return UnitStatus(
+        unit,
+        pd.Timestamp.now(tz="UTC"),
+        status,
+        Quality.GOOD,
+        residuals={"r1": 3.0},
+        symptoms={"r1": 1.0},
+        certainties={"f1": c},
+        detected=status != NE107.NORMAL,
+        faults=["f1"] if status != NE107.NORMAL else [],
     )

@@ -22,20 +22,9 @@ from diag_plugin.bench.plant import (
     false_alarm_rate,
     in_top,
 )
+from diag_plugin.bench.publicbench import CHEMPLANT_LOOPS as LOOPS
 from diag_plugin.cli import main
 from diag_plugin.simulate import chemplant as cp
-
-LOOPS = {
-    "FIC101": "FI101",
-    "FIC102": "FI102",
-    "TIC103": "TI103",
-    "TIC104": "TI104",
-    "LIC101": "LI101",
-    "TIC107": "TI107",
-    "PIC101": "PI101",
-    "LIC102": "LI102",
-    "LIC103": "LI103",
-}
 
 
 @pytest.fixture(scope="module")

@@ -11,42 +11,12 @@ few still in memory (fewer than one flush), and in the end every sample, exactly
 from __future__ import annotations
 
 import asyncio
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-LOCKER = """\
-import sqlite3, sys
-c = sqlite3.connect(sys.argv[1], isolation_level=None)
-c.execute("BEGIN IMMEDIATE")  # the write lock; readers still read (WAL)
-print("locked", flush=True)
-sys.stdin.readline()
-c.execute("COMMIT")
-print("released", flush=True)
-"""
-
-
-class Locker:
-    """A second process holding the SQLite file's write lock until :meth:`release`."""
-
-    def __init__(self, db: Path) -> None:
-        self.p = subprocess.Popen(
-            [sys.executable, "-c", LOCKER, str(db)],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-        )
-        assert self.p.stdout.readline().strip() == "locked"
-
-    def release(self) -> None:
-        self.p.stdin.write("\n")
-        self.p.stdin.flush()
-        assert self.p.stdout.readline().strip() == "released"
-        self.p.wait(10)
+from tests.helpers import Locker
 
 
 async def until(pred, timeout: float = 30.0) -> bool:

@@ -42,17 +42,27 @@ def _nothing_stored(db):
         assert h.time_range() == (None, None)
 
 
+def _refused(capsys, db, f, text: str | bytes | None, *more) -> str:
+    """``text`` written to ``f`` (None: no file), ``diag import f *more`` refused with exit 2
+    and nothing stored; what it said on stderr."""
+    if isinstance(text, bytes):
+        f.write_bytes(text)
+    elif text is not None:
+        f.write_text(text)
+    rc, out, err = _diag(capsys, "--db", db, "import", str(f), *more)
+    assert rc == 2, err
+    _nothing_stored(db)
+    return err
+
+
 # -- 1. the time column -----------------------------------------------------------------
 
 
 def test_no_time_column_is_refused(tmp_path, capsys):
     db = f"sqlite:///{tmp_path / 'h.db'}"
     f = tmp_path / "notime.csv"
-    f.write_text("a,b\n1,2\n3,4\n")
-    rc, out, err = _diag(capsys, "--db", db, "import", str(f))
-    assert rc == 2
+    err = _refused(capsys, db, f, "a,b\n1,2\n3,4\n")
     assert str(f) in err and "a, b" in err and "--time-column" in err
-    _nothing_stored(db)
     # a first column of date-times needs no name; a named one wins over the first
     g = tmp_path / "when.csv"
     g.write_text("when,P1\n2026-01-01 00:00:10,1\n2026-01-01T00:00:20Z,2\n")
@@ -65,12 +75,9 @@ def test_plain_number_times_need_a_unit_and_an_origin(tmp_path, capsys):
     """A DAMADICS-style CSV: 'time' in seconds from 0 of the recording."""
     db = f"sqlite:///{tmp_path / 'h.db'}"
     f = tmp_path / "damadics.csv"
-    f.write_text("time,P1,F\n0,500,10\n1,501,11\n2,502,12\n")
-    rc, out, err = _diag(capsys, "--db", db, "import", str(f))
-    assert rc == 2
+    err = _refused(capsys, db, f, "time,P1,F\n0,500,10\n1,501,11\n2,502,12\n")
     assert str(f) in err and "'time'" in err and "plain numbers" in err
     assert "--time-unit s" in err and "--start" in err
-    _nothing_stored(db)
     rc, out, err = _diag(
         capsys,
         "--db",
@@ -173,18 +180,14 @@ def test_a_repeated_time_is_refused_by_default_naming_the_rows_and_the_count(
     """Issue 37: a time repeated in the file was stored as 'already stored' with the first
     value kept silently, exit 0. Now import does not choose: exit 2, nothing stored."""
     f = tmp_path / "twice.csv"
-    f.write_text(TWICE)
-    rc, out, err = _diag(capsys, "--db", db_url, "import", str(f))
-    assert rc == 2
+    err = _refused(capsys, db_url, f, TWICE)
     assert (
         f"{f}: 3 rows repeat the time of an earlier row (first: {f}:4 repeats {f}:2, "
         "2026-01-01T00:00:00Z); import does not choose between them: say which sample each "
         "tag keeps with --duplicates first, last or mean; nothing imported"
     ) in err
-    _nothing_stored(db_url)
-    rc, out, err = _diag(capsys, "--db", db_url, "import", str(f), "--strict")
-    assert rc == 2 and "3 rows repeat" in err and "nothing imported" in err
-    _nothing_stored(db_url)
+    err = _refused(capsys, db_url, f, None, "--strict")
+    assert "3 rows repeat" in err and "nothing imported" in err
 
 
 @pytest.mark.parametrize(
@@ -285,9 +288,5 @@ def test_conflicts_in_months_rolled_to_the_cold_store(tmp_path, capsys):
 def test_unusable_files_are_refused_by_name(tmp_path, capsys, kind, content, says):
     db = f"sqlite:///{tmp_path / 'h.db'}"
     f = tmp_path / f"{kind}.csv"
-    if content is not None:
-        f.write_bytes(content)
-    rc, out, err = _diag(capsys, "--db", db, "import", str(f))
-    assert rc == 2
+    err = _refused(capsys, db, f, content)
     assert f"diag: error: {f}" in err and says in err
-    _nothing_stored(db)

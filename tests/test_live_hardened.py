@@ -25,14 +25,13 @@ import re
 import shutil
 import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import Out, free_port, require
+from helpers import Locker, Out, free_port, require, run_diag
 
 ROWS = 205  # the first row of a stretch every trained rule covers (see test_live_sources)
 
@@ -233,34 +232,6 @@ def test_stale_limits_come_from_each_tags_history(tmp_path):
 
 
 # ---------------------------------------------------------------- the historian away
-LOCKER = """\
-import sqlite3, sys, time
-c = sqlite3.connect(sys.argv[1], isolation_level=None)
-c.execute("BEGIN IMMEDIATE")  # the write lock; readers still read (WAL)
-print("locked", flush=True)
-sys.stdin.readline()  # held until the test says
-c.execute("COMMIT")
-print("released", flush=True)
-"""
-
-
-class Locker:
-    """A second process holding the SQLite file's write lock."""
-
-    def __init__(self, db: Path) -> None:
-        self.p = subprocess.Popen(
-            [sys.executable, "-c", LOCKER, str(db)],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-        )
-        assert self.p.stdout.readline().strip() == "locked"
-
-    def release(self) -> None:
-        self.p.stdin.write("\n")
-        self.p.stdin.flush()
-        assert self.p.stdout.readline().strip() == "released"
-        self.p.wait(10)
 
 
 def exactly_once(url: str, timeline: list[tuple], restarts: int = 0) -> pd.DataFrame:
@@ -475,19 +446,6 @@ def test_postgresql_stopped_and_restarted(plant_dir, tmp_path):
 
 
 # ---------------------------------------------------------------- commissioning at load
-def diag_run(cwd: Path, *args: str, stdin: str | None = None) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")}
-    return subprocess.run(
-        [sys.executable, "-m", "diag_plugin", "run", *args],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        input=stdin,
-    )
-
-
 def test_commissioning_checks_name_file_line_key(plant_dir):
     from connectors.passwords import verify_password
 
@@ -551,14 +509,14 @@ def test_commissioning_checks_name_file_line_key(plant_dir):
             p = d / "commission.toml"
             p.write_text(toml, encoding="utf-8")
             line = next(n for n, x in enumerate(toml.splitlines(), 1) if x.startswith(key))
-            r = diag_run(d, "--config", str(p), "--plain", "--duration", "1")
+            r = run_diag(d, "run", "--config", str(p), "--plain", "--duration", "1", timeout=120)
             assert r.returncode == 2, r.stdout + r.stderr
             assert f"commission.toml:{line}: {where}" in r.stderr, r.stderr
             assert what in r.stderr, r.stderr
             assert "Traceback" not in r.stderr + r.stdout
     finally:
         busy.close()
-    r = diag_run(d, "--hash-password", stdin="correct horse\n")
+    r = run_diag(d, "run", "--hash-password", stdin="correct horse\n", timeout=120)
     assert r.returncode == 0 and verify_password(r.stdout.strip(), "correct horse")
 
 

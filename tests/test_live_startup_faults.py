@@ -7,9 +7,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import multiprocessing as mp
-import os
 import subprocess
-import sys
 import uuid
 from pathlib import Path
 
@@ -20,7 +18,7 @@ import pytest
 from diag_plugin.live.writer import HistorianWriter
 from historian.spool import Block, Spool
 from historian.store import Historian
-from tests.helpers import require
+from tests.helpers import require, run_diag
 
 T0 = pd.Timestamp("2026-03-01", tz="UTC")
 
@@ -61,15 +59,8 @@ opcua_port = 0
 
 
 def diag_run(cwd: Path, *args: str) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")}
-    return subprocess.run(
-        [sys.executable, "-m", "diag_plugin", "run", *args],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    """``diag run ARGS`` in ``cwd``."""
+    return run_diag(cwd, "run", *args, timeout=120)
 
 
 # ------------------------------------------------------------------ a damaged spill file

@@ -14,10 +14,9 @@ import numpy as np
 import pytest
 from modbus_peers import (
     PLC_MAP,
+    answering_server,
     free_port,
     needs_pymodbustcp,
-    raw_server,
-    read_request,
     registers_reply,
     reply,
     start_plc,
@@ -163,17 +162,11 @@ def test_wrong_unit_id_our_server():
 def test_reply_from_a_wrong_unit_id():
     """A gateway answering with another unit id than asked: Bad with the reason."""
 
-    async def handler(r, w):
-        try:
-            while True:
-                tid, unit, pdu = await read_request(r)
-                w.write(reply(tid, unit + 1, registers_reply(pdu, 0x4000)))
-                await w.drain()
-        except (asyncio.IncompleteReadError, ConnectionError):
-            pass
+    async def answer(tid, unit, pdu):
+        return reply(tid, unit + 1, registers_reply(pdu, 0x4000))
 
     async def main():
-        srv, port = await raw_server(handler)
+        srv, port = await answering_server(answer)
         c = ModbusTagClient(ONE, port=port, device_id=3, timeout=0.3, backoff=Backoff(0.05, 0.1))
         try:
             return await c.read(), await c.read()
@@ -192,21 +185,16 @@ def test_slow_server_times_out_and_backs_off(delay):
     """Accepts, then never answers (or too late): Bad per poll, reconnects spaced out."""
     accepted: list[float] = []
 
-    async def handler(r, w):
-        accepted.append(asyncio.get_running_loop().time())
-        try:
-            while True:
-                tid, unit, pdu = await read_request(r)
-                if delay is None:
-                    continue
-                await asyncio.sleep(delay)
-                w.write(reply(tid, unit, registers_reply(pdu)))
-                await w.drain()
-        except (asyncio.IncompleteReadError, ConnectionError):
-            pass
+    async def answer(tid, unit, pdu):
+        if delay is None:
+            return None
+        await asyncio.sleep(delay)
+        return reply(tid, unit, registers_reply(pdu))
 
     async def main():
-        srv, port = await raw_server(handler)
+        srv, port = await answering_server(
+            answer, lambda: accepted.append(asyncio.get_running_loop().time())
+        )
         c = ModbusTagClient(ONE, port=port, timeout=0.2, backoff=Backoff(0.1, 0.8, seed=2))
         loop = asyncio.get_running_loop()
         polls = []
@@ -238,21 +226,16 @@ def test_malformed_reply_is_bad_not_a_crash():
     """Garbage instead of a Modbus frame, then a short reply: Bad, connection renewed."""
     n = {"conn": 0}
 
-    async def handler(r, w):
+    async def answer(tid, unit, pdu):
+        if n["conn"] % 2:
+            return b"\xde\xad\xbe\xef garbage, not modbus \x00\xff" * 3
+        return reply(tid, unit, bytes([pdu[0], 6, 0x41, 0x48]))  # 3 registers claimed, 1 sent
+
+    def connected():
         n["conn"] += 1
-        try:
-            while True:
-                tid, unit, pdu = await read_request(r)
-                if n["conn"] % 2:
-                    w.write(b"\xde\xad\xbe\xef garbage, not modbus \x00\xff" * 3)
-                else:  # a frame claiming 3 registers but carrying 1
-                    w.write(reply(tid, unit, bytes([pdu[0], 6, 0x41, 0x48])))
-                await w.drain()
-        except (asyncio.IncompleteReadError, ConnectionError):
-            pass
 
     async def main():
-        srv, port = await raw_server(handler)
+        srv, port = await answering_server(answer, connected)
         c = ModbusTagClient(ONE, port=port, timeout=0.3, backoff=Backoff(0.02, 0.05, seed=3))
         out = []
         try:

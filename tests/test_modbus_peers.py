@@ -37,22 +37,25 @@ def run(coro, timeout: float = 60.0):
     return asyncio.run(main())
 
 
-@needs_pymodbustcp
-def test_poll_pymodbustcp_plc_all_types_and_word_orders():
+@pytest.fixture
+def plc_port():
+    """The port of a pyModbusTCP PLC (``modbus_peers.start_plc``), stopped after the test."""
     port = free_port()
     srv = start_plc(port)
-    try:
+    yield port
+    srv.stop()
 
-        async def main():
-            c = ModbusTagClient(RegisterMap.parse(PLC_MAP), port=port, timeout=1.0)
-            try:
-                return await c.read()
-            finally:
-                await c.close()
 
-        samples = run(main())
-    finally:
-        srv.stop()
+@needs_pymodbustcp
+def test_poll_pymodbustcp_plc_all_types_and_word_orders(plc_port):
+    async def main():
+        c = ModbusTagClient(RegisterMap.parse(PLC_MAP), port=plc_port, timeout=1.0)
+        try:
+            return await c.read()
+        finally:
+            await c.close()
+
+    samples = run(main())
     got = {s.tag: s for s in samples}
     assert all(s.quality == TagQuality.GOOD for s in samples), [s.reason for s in samples]
     for tag, want in PLC_VALUES.items():
@@ -60,34 +63,28 @@ def test_poll_pymodbustcp_plc_all_types_and_word_orders():
 
 
 @needs_pymodbustcp
-def test_writes_to_the_plc_only_on_the_allow_list():
+def test_writes_to_the_plc_only_on_the_allow_list(plc_port):
     from pyModbusTCP.client import ModbusClient
 
-    port = free_port()
-    srv = start_plc(port)
-    try:
+    async def main():
+        c = ModbusTagClient(
+            RegisterMap.parse(PLC_MAP), port=plc_port, allow=["SP", "PUMP", "TRIP", "CNT"]
+        )
+        try:
+            await c.read()
+            ok = await c.write({"SP": 33.25, "PUMP": 0, "TRIP": 0})
+            ro = await c.write({"CNT": 5})  # allowed, but an input register
+            with pytest.raises(WriteRefused, match="F"):
+                await c.write({"SP": 1.0, "F": 99.0})  # nothing written at all
+            after = {s.tag: s.value for s in await c.read()}
+            return ok, ro, after
+        finally:
+            await c.close()
 
-        async def main():
-            c = ModbusTagClient(
-                RegisterMap.parse(PLC_MAP), port=port, allow=["SP", "PUMP", "TRIP", "CNT"]
-            )
-            try:
-                await c.read()
-                ok = await c.write({"SP": 33.25, "PUMP": 0, "TRIP": 0})
-                ro = await c.write({"CNT": 5})  # allowed, but an input register
-                with pytest.raises(WriteRefused, match="F"):
-                    await c.write({"SP": 1.0, "F": 99.0})  # nothing written at all
-                after = {s.tag: s.value for s in await c.read()}
-                return ok, ro, after
-            finally:
-                await c.close()
-
-        ok, ro, after = run(main())
-        raw = ModbusClient(host="127.0.0.1", port=port, auto_open=True, timeout=2)
-        assert raw.read_holding_registers(0, 2) == [0x4148, 0x0000]  # F untouched: 12.5
-        raw.close()
-    finally:
-        srv.stop()
+    ok, ro, after = run(main())
+    raw = ModbusClient(host="127.0.0.1", port=plc_port, auto_open=True, timeout=2)
+    assert raw.read_holding_registers(0, 2) == [0x4148, 0x0000]  # F untouched: 12.5
+    raw.close()
     assert ok == {"SP": "ok", "PUMP": "ok", "TRIP": "ok"}
     assert "read-only" in ro["CNT"]
     assert after["SP"] == 33.25 and after["PUMP"] == 0 and after["TRIP"] == 0

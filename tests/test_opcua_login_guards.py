@@ -10,38 +10,16 @@
 
 from __future__ import annotations
 
-import pandas as pd
 import pytest
-from opcua_peers import PASSWORDS, free_port, pki, users
+from opcua_peers import PASSWORDS, free_port, unit_status, users
 
 from connectors.opcua_server import DiagOpcUaServer, ServerSecurity
-from diag_plugin.status import NE107, Quality, UnitStatus
+from diag_plugin.status import NE107
 
 pytestmark = pytest.mark.anyio
 
 
-@pytest.fixture(scope="module")
-def anyio_backend():
-    return "asyncio"
-
-
-@pytest.fixture(scope="module")
-def keys(tmp_path_factory):
-    return pki(tmp_path_factory.mktemp("pki"))
-
-
-def st(unit: str, status: NE107) -> UnitStatus:
-    return UnitStatus(
-        unit,
-        pd.Timestamp.now(tz="UTC"),
-        status,
-        Quality.GOOD,
-        residuals={"r1": 3.0},
-        symptoms={"r1": 1.0},
-        certainties={"f1": 0.9},
-        detected=status != NE107.NORMAL,
-        faults=["f1"] if status != NE107.NORMAL else [],
-    )
+st = unit_status
 
 
 async def connect(endpoint: str, cert, user: str | None, password: str | None):

@@ -16,23 +16,13 @@ import threading
 import time
 
 import pytest
-from opcua_peers import PASSWORDS, free_port, pki, users
+from opcua_peers import PASSWORDS, free_port, users
 
 from connectors.opcua_access import UserManager
 from connectors.opcua_logins import LoginGuard, LoginLimits, LoginRefused
 from connectors.opcua_server import Action, DiagOpcUaServer, ServerSecurity
 
 pytestmark = pytest.mark.anyio
-
-
-@pytest.fixture(scope="module")
-def anyio_backend():
-    return "asyncio"
-
-
-@pytest.fixture(scope="module")
-def keys(tmp_path_factory):
-    return pki(tmp_path_factory.mktemp("pki"))
 
 
 def security(keys, limits: LoginLimits | None) -> ServerSecurity:

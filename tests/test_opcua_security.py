@@ -12,33 +12,16 @@ from __future__ import annotations
 
 import asyncio
 
-import pandas as pd
 import pytest
-from opcua_peers import Events, client, free_port, pki, users
+from opcua_peers import Events, client, free_port, unit_status, users
 
 from connectors.opcua_server import DiagOpcUaServer, ServerSecurity
-from diag_plugin.status import NE107, Quality, UnitStatus
+from diag_plugin.status import NE107
 
 pytestmark = pytest.mark.anyio
 
 
-def st(unit: str, status: NE107, c: float = 0.9) -> UnitStatus:
-    return UnitStatus(
-        unit,
-        pd.Timestamp.now(tz="UTC"),
-        status,
-        Quality.GOOD,
-        residuals={"r1": 3.0},
-        symptoms={"r1": 1.0},
-        certainties={"f1": c},
-        detected=status != NE107.NORMAL,
-        faults=["f1"] if status != NE107.NORMAL else [],
-    )
-
-
-@pytest.fixture(scope="module")
-def keys(tmp_path_factory):
-    return pki(tmp_path_factory.mktemp("pki"))
+st = unit_status
 
 
 @pytest.fixture(scope="module")

@@ -34,6 +34,21 @@ def folder(tmp_path) -> Path:
     return tmp_path
 
 
+def _cycle(plant: Plant, rows: pd.DataFrame, units: str) -> dict[str, list]:
+    """Per unit (one letter each in ``units``): the statuses of ``plant`` cycled row by row."""
+    got: dict[str, list] = {u: [] for u in units}
+    for ts, row in rows.iterrows():
+        for st in plant.cycle(ts, row.to_dict()):
+            got[st.unit].append(st)
+    return got
+
+
+def _two_units(seed: int) -> pd.DataFrame:
+    """A simulated valve's tags twice, as A.* and B.*."""
+    frame = simulate_valve(0.1, seed=seed)
+    return pd.DataFrame({f"{k}.{t}": frame[t] for k in ("A", "B") for t in TAGS})
+
+
 def test_plant_cycles_equal_each_unit_alone_and_a_broken_unit_stays_local(folder):
     # unit a sees a P0-sensor fault come and go, unit b runs fault-free; a third unit file is
     # broken. Seed 404's fading symptoms isolated afresh would point at f_EP alone for 11
@@ -55,10 +70,7 @@ def test_plant_cycles_equal_each_unit_alone_and_a_broken_unit_stays_local(folder
     a_u, b_u = Unit.load(folder / "a.unit.toml"), Unit.load(folder / "b.unit.toml")
     plant_tags = {f"A.{t}": fa[t] for t in TAGS} | {f"B.{t}": fb[t] for t in TAGS}
     rows = pd.DataFrame(plant_tags)
-    got: dict[str, list] = {"a": [], "b": [], "c": []}
-    for ts, row in rows.iterrows():
-        for st in plant.cycle(ts, row.to_dict()):
-            got[st.unit].append(st)
+    got = _cycle(plant, rows, "abc")
     for name, u in (("a", a_u), ("b", b_u)):
         d = u.evaluate(rows)
         assert [int(s.status) for s in got[name]] == d.status.tolist(), name
@@ -89,12 +101,8 @@ def test_units_with_their_own_rule_bases_are_each_evaluated_with_their_own(folde
             grid = m.model.inference_grid()
             m.model.set_rules(grid.keys[0], grid.conclusions[0] + 2.0, counts=m.model.count_)
     plant = Plant({"a": a_u, "b": b_u}, {})
-    frame = simulate_valve(0.1, seed=808)
-    rows = pd.DataFrame({f"{k}.{t}": frame[t] for k in ("A", "B") for t in TAGS})
-    got: dict[str, list] = {"a": [], "b": []}
-    for ts, row in rows.iterrows():
-        for st in plant.cycle(ts, row.to_dict()):
-            got[st.unit].append(st)
+    rows = _two_units(808)
+    got = _cycle(plant, rows, "ab")
     for name, u in (("a", a_u), ("b", b_u)):
         d = u.evaluate(rows)
         r = np.array([list(s.residuals.values()) for s in got[name]])
@@ -121,12 +129,8 @@ def test_a_model_that_fails_at_run_time_stays_local(folder, caplog):
     a_u, b_u = Unit.load(folder / "a.unit.toml"), Unit.load(folder / "b.unit.toml")
     b_u.models["r2"].model = Broken()
     plant = Plant({"a": a_u, "b": b_u}, {})
-    frame = simulate_valve(0.1, seed=909)
-    rows = pd.DataFrame({f"{k}.{t}": frame[t] for k in ("A", "B") for t in TAGS})
-    got: dict[str, list] = {"a": [], "b": []}
-    for ts, row in rows.iterrows():
-        for st in plant.cycle(ts, row.to_dict()):
-            got[st.unit].append(st)
+    rows = _two_units(909)
+    got = _cycle(plant, rows, "ab")
     d = Unit.load(folder / "a.unit.toml").evaluate(rows)
     assert [int(s.status) for s in got["a"]] == d.status.tolist()
     r = np.array([list(s.residuals.values()) for s in got["a"]])

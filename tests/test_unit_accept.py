@@ -18,7 +18,7 @@ import pandas as pd
 import pytest
 
 from diag_plugin.status import NE107
-from tests.test_any_plant_tour import diag, fmt
+from tests.test_any_plant_tour import diag, fmt, import_csv
 
 PERIOD_S = 15.0
 T0 = pd.Timestamp("2026-04-01", tz="UTC")
@@ -65,15 +65,6 @@ def positions(hours: np.ndarray) -> np.ndarray:
     return steps[(hours // 7).astype(int) % steps.size].astype(float)
 
 
-def _import(g, frame: pd.DataFrame, path) -> None:
-    out = frame.copy()
-    out.index = out.index.strftime("%Y-%m-%dT%H:%M:%S")
-    out.index.name = "time"
-    out.to_csv(path)
-    rc, text = diag(g, "import", str(path))
-    assert rc == 0, text
-
-
 def _alarms(g, unit: str, a: pd.Timestamp, b: pd.Timestamp, tmp) -> pd.DataFrame:
     csv = tmp / f"d_{a:%m%d%H}.csv"
     rc, text = diag(g, "diagnose", unit, "--from", fmt(a), "--to", fmt(b), "--csv", str(csv))
@@ -91,7 +82,7 @@ def plant(tmp_path_factory):
     opened = line(4, 2, seed=12, valve=lambda h: np.full(h.size, 75.0))
     faulty = line(6, 1, seed=13, valve=lambda h: np.full(h.size, 75.0), bias=2.5)
     for k, f in enumerate((build, opened, faulty)):
-        _import(g, f, tmp / f"part{k}.csv")
+        import_csv(g, f, tmp / f"part{k}.csv")
     rc, text = diag(g, "unit", "build", "line", "--from", fmt(T0),
                     "--to", fmt(T0 + pd.Timedelta(days=4)), "--far", "0.01")  # fmt: skip
     assert rc == 0, text

@@ -20,19 +20,10 @@ import pytest
 
 from diag_plugin.simulate import coupled
 from diag_plugin.simulate import smallplants as sp
-from tests.test_any_plant_tour import diag, fmt
+from tests.test_any_plant_tour import diag, fmt, import_csv
 
 DAYS = 6.0
 FAR = 0.05  # per hour: 7 days of 3-min data show a few dozen alarm episodes' worth of tail
-
-
-def _import(g, frame: pd.DataFrame, path) -> None:
-    out = frame.copy()
-    out.index = out.index.strftime("%Y-%m-%dT%H:%M:%S")
-    out.index.name = "time"
-    out.to_csv(path)
-    rc, text = diag(g, "import", str(path))
-    assert rc == 0, text
 
 
 @pytest.fixture(scope="module", params=[0, 5], ids=lambda s: f"structure{s}")
@@ -41,7 +32,7 @@ def built(request, tmp_path_factory):
     tmp = tmp_path_factory.mktemp(f"build{seed}")
     g = ["--db", f"sqlite:///{tmp / 'h.db'}", "--rulebases", str(tmp / "rb")]
     frame, st = coupled.simulate(DAYS, n_tags=24, seed=1, structure_seed=seed)
-    _import(g, frame, tmp / "train.csv")
+    import_csv(g, frame, tmp / "train.csv")
     t0, t1 = frame.index[0], frame.index[-1] + pd.Timedelta("3min")
     rc, text = diag(g, "unit", "build", "u", "--from", fmt(t0), "--to", fmt(t1), "--far",
                     str(FAR), "--json")  # fmt: skip
@@ -117,7 +108,7 @@ def test_quiet_on_an_unseen_run_and_a_sensor_bias_is_detected(built):
         DAYS, n_tags=24, seed=77, structure_seed=seed,
         start=later.strftime("%Y-%m-%d"),
     )  # fmt: skip
-    _import(g, quiet, tmp / "quiet.csv")
+    import_csv(g, quiet, tmp / "quiet.csv")
     rc, text = diag(g, "diagnose", "u", "--from", fmt(quiet.index[0]), "--to",
                     fmt(quiet.index[-1]), "--json")  # fmt: skip
     assert rc == 0, text
@@ -139,7 +130,7 @@ def test_quiet_on_an_unseen_run_and_a_sensor_bias_is_detected(built):
     half = len(biased) // 2
     span = np.ptp(frame[tag]) * 1.04  # the model's span: the range seen, 2 % each side
     biased.iloc[half:, biased.columns.get_loc(tag)] += 2 * test["thresholds"][1] / 100 * span
-    _import(g, biased, tmp / "biased.csv")
+    import_csv(g, biased, tmp / "biased.csv")
     rc, text = diag(g, "diagnose", "u", "--from", fmt(biased.index[0]), "--to",
                     fmt(biased.index[-1]), "--json")  # fmt: skip
     assert rc == 0, text
@@ -194,7 +185,7 @@ def test_tags_and_tags_from_are_respected(built, tmp_path):
 def test_bad_input_is_exit_2_with_a_clear_message(tmp_path, args, says):
     g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
     frame, _ = coupled.simulate(3.0, n_tags=12, seed=1)
-    _import(g, frame, tmp_path / "x.csv")
+    import_csv(g, frame, tmp_path / "x.csv")
     window = ["--from", "2026-03-02", "--to", "2026-03-05"]
     if args[0] == "--window":
         window, args = ["--from", args[1], "--to", args[2]], []
@@ -211,7 +202,7 @@ def test_small_plants_build_as_users_would(tmp_path, plant):
     run = sim(4.0, seed=11, start="2026-03-02")
     frame = sp.export(run, 180.0, timing="grid", seed=11)
     g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
-    _import(g, frame, tmp_path / "x.csv")
+    import_csv(g, frame, tmp_path / "x.csv")
     t0, t1 = fmt(frame.index[0]), fmt(frame.index[-1])
     rc, text = diag(g, "unit", "build", "u", "--from", t0, "--to", t1, "--far", "0.05")
     assert rc == 0, text
@@ -230,20 +221,20 @@ def test_one_second_jittered_export_in_a_window_wider_than_the_data(tmp_path):
     run = sp.simulate_heat_exchanger(0.1, seed=404, start="2026-03-02")
     frame = sp.export(run, 1.0, timing="jitter", offset_s=0.37, seed=404).iloc[:6000]
     g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
-    _import(g, frame, tmp_path / "x.csv")
+    import_csv(g, frame, tmp_path / "x.csv")
     rc, text = diag(g, "unit", "build", "u", "--from", "2026-03-02", "--to", "2026-03-03")
     assert rc == 0, text
     assert "period 1s from the data" in text
     assert "the data cover 2026-03-02 00:00:00+00:00 … 2026-03-02 01:40:00+00:00" in text
     assert "of the window: the tags are judged and the unit learned over that span" in text
     g2 = ["--db", f"sqlite:///{tmp_path / 's.db'}", "--rulebases", str(tmp_path / "rb2")]
-    _import(g2, frame.iloc[:150], tmp_path / "short.csv")
+    import_csv(g2, frame.iloc[:150], tmp_path / "short.csv")
     rc, text = diag(g2, "unit", "build", "s", "--from", "2026-03-02", "--to", "2026-03-03")
     assert rc == 2 and "a unit needs at least 200" in text, text
     flat = frame.copy()
     flat[:] = 1.0
     g3 = ["--db", f"sqlite:///{tmp_path / 'f.db'}", "--rulebases", str(tmp_path / "rb3")]
-    _import(g3, flat, tmp_path / "flat.csv")
+    import_csv(g3, flat, tmp_path / "flat.csv")
     rc, text = diag(g3, "unit", "build", "f", "--from", "2026-03-02", "--to", "2026-03-03")
     assert rc == 2 and "no tag of the window can be tested" in text, text
     assert "TI202: constant over the window" in text, text

@@ -39,6 +39,7 @@ from diag_plugin.diagnose.unittags import (
     top_tags,
 )
 from diag_plugin.examples.coupled import DAY, TESTS, build, process
+from diag_plugin.examples.rigs import held_levels
 from diag_plugin.learn.budget import episodes
 from diag_plugin.learn.thresholds import (
     MIN_LEVEL_SAMPLES,
@@ -198,12 +199,7 @@ def _loop_plant(n: int, seed: int) -> tuple[pd.DataFrame, dict[str, TagInfo]]:
     valve VALVE moving with the flow and a pressure disturbance, a temperature TI201 and a
     pressure PI301 downstream."""
     rng = np.random.default_rng([seed, 382])
-    sp = np.empty(n)
-    i = 0
-    while i < n:
-        h = int(rng.integers(120, 360))
-        sp[i : i + h] = rng.uniform(20.0, 80.0)
-        i += h
+    sp = held_levels(rng, n, 20.0, 80.0, (120, 360))
     a = math.exp(-1 / 3)
     fi = signal.lfilter([1 - a], [1, -a], sp, zi=[a * sp[0]])[0]
     dist = signal.lfilter([0.02], [1, -0.98], rng.standard_normal(n))

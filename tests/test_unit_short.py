@@ -19,21 +19,12 @@ import pandas as pd
 import pytest
 
 from diag_plugin.simulate import smallplants as sp
-from tests.test_any_plant_tour import diag, fmt
+from tests.test_any_plant_tour import diag, fmt, import_csv
 
 SIM = {"tank": sp.simulate_tank, "heatex": sp.simulate_heat_exchanger}
 #: the tags given a bias in the continuation: the first of these the build tests
 BIASED = {"tank": ("FI102", "LT101", "FI101"), "heatex": ("TI202", "TI201", "FI202")}
 ROWS = 400
-
-
-def _import(g, frame: pd.DataFrame, path) -> None:
-    out = frame.copy()
-    out.index = out.index.strftime("%Y-%m-%dT%H:%M:%S.%f")
-    out.index.name = "time"
-    out.to_csv(path)
-    rc, text = diag(g, "import", str(path))
-    assert rc == 0, text
 
 
 def _statuses(unit, frame: pd.DataFrame):
@@ -69,7 +60,7 @@ def test_a_unit_from_400_samples_at_any_rate(tmp_path, plant, period):
     frame = sp.export(run, period, timing="jitter", offset_s=0.37 * period, seed=31)
     build = frame.iloc[:ROWS]
     g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
-    _import(g, build, tmp_path / "train.csv")
+    import_csv(g, build, tmp_path / "train.csv", "%Y-%m-%dT%H:%M:%S.%f")
     t0, t1 = build.index[0].floor(f"{period:g}s"), build.index[-1] + pd.Timedelta(seconds=period)
     rc, text = diag(g, "unit", "build", "u", "--from", fmt(t0), "--to", fmt(t1), "--far", "0.05")
     assert rc == 0, text

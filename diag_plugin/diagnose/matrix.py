@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from historian.errors import UserError
+from historian.errors import ProblemsError
 
 __all__ = [
     "ENTRIES",
@@ -65,12 +65,8 @@ ENTRIES: dict[str, tuple[bool, bool, bool]] = {
 }
 
 
-class MatrixError(UserError):
+class MatrixError(ProblemsError):
     """A matrix file has problems; ``problems`` lists ``file:line: what``."""
-
-    def __init__(self, problems: list[str]):
-        self.problems = problems
-        super().__init__("\n".join(problems))
 
 
 def _canon(entry: object) -> str | None:

@@ -121,7 +121,8 @@ from tomlkit.exceptions import ParseError
 
 from diag_plugin.rulebase.folder import UNIT_SUFFIX
 from diag_plugin.status import NE107
-from historian.errors import UserError
+from diag_plugin.tomllines import LinedFile
+from historian.errors import ProblemsError
 
 TABLES = (
     "unit",
@@ -207,12 +208,8 @@ _CHOICES = {
 STATISTICS = ("level", "spread")
 
 
-class UnitError(UserError):
+class UnitError(ProblemsError):
     """Problems of a unit file, each ``file:line: what``."""
-
-    def __init__(self, problems: list[str]):
-        super().__init__("\n".join(problems))
-        self.problems = problems
 
 
 @dataclass
@@ -283,8 +280,10 @@ def _plain(v: Any) -> Any:
     return v.unwrap() if hasattr(v, "unwrap") else v
 
 
-class UnitFile:
+class UnitFile(LinedFile):
     """A unit file in memory (see module doc); :meth:`load` reports ``file:line`` problems."""
+
+    Error = UnitError
 
     def __init__(self, text: str, path: str | Path = "<unit>") -> None:
         self.path = Path(path)
@@ -298,17 +297,7 @@ class UnitFile:
         if self.problems:
             raise UnitError(self.problems)
 
-    @classmethod
-    def load(cls, path: str | Path) -> UnitFile:
-        from diag_plugin.tomllines import read_text
-
-        path = Path(path)
-        return cls(read_text(path, UnitError), path)
-
     # ------------------------------------------------------------ reading
-    def error(self, line: int, msg: str) -> None:
-        self.problems.append(f"{self.path}:{line}: {msg}")
-
     def line_of(self, section: str, key: str | None = None) -> int:
         """1-based line of ``[section]`` or of ``key =`` inside it (the header if absent)."""
         from diag_plugin.tomllines import line_of

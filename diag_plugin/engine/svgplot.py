@@ -207,21 +207,12 @@ def figure(
         out.append(f'<text x="{left}" y="{top - 6}" font-weight="bold">{escape(p.title)}</text>')
         for t in yt:
             y = sy(t)
-            out.append(
-                f'<line x1="{left}" y1="{y:.1f}" x2="{left + plot_w}" y2="{y:.1f}" '
-                'stroke="#e4e4e4"/>'
-            )
-            out.append(f'<text x="{left - 5}" y="{y + 4:.1f}" text-anchor="end">{_fmt(t)}</text>')
+            line = (left, f"{y:.1f}", left + plot_w, f"{y:.1f}")
+            out += _grid_line(line, (left - 5, f"{y + 4:.1f}"), "end", _fmt(t))
         for t in xt:
             x = sx(t)
-            out.append(
-                f'<line x1="{x:.1f}" y1="{top}" x2="{x:.1f}" y2="{top + panel_height}" '
-                'stroke="#e4e4e4"/>'
-            )
-            out.append(
-                f'<text x="{x:.1f}" y="{top + panel_height + 13}" '
-                f'text-anchor="middle">{_fmt(t)}</text>'
-            )
+            line = (f"{x:.1f}", top, f"{x:.1f}", top + panel_height)
+            out += _grid_line(line, (f"{x:.1f}", top + panel_height + 13), "middle", _fmt(t))
         if p.ylabel:
             cy = top + panel_height / 2
             out.append(
@@ -248,18 +239,10 @@ def figure(
             if not ok:
                 continue
             y = sy(h.y)
-            out.append(
-                f'<line class="hline" data-label={quoteattr(h.label)} data-value="{h.y!r}" '
-                f'x1="{left}" y1="{y:.1f}" x2="{left + plot_w}" y2="{y:.1f}" '
-                f'stroke="{h.color}" stroke-width="{h.width}"{_dash(h.dash)}/>'
-            )
+            out.append(_marker("hline", h, h.y, (left, f"{y:.1f}", left + plot_w, f"{y:.1f}")))
         for v in p.vlines:
             x = sx(v.x)
-            out.append(
-                f'<line class="vline" data-label={quoteattr(v.label)} data-value="{v.x!r}" '
-                f'x1="{x:.1f}" y1="{top}" x2="{x:.1f}" y2="{top + panel_height}" '
-                f'stroke="{v.color}" stroke-width="{v.width}"{_dash(v.dash)}/>'
-            )
+            out.append(_marker("vline", v, v.x, (f"{x:.1f}", top, f"{x:.1f}", top + panel_height)))
         for t in p.traces:
             pts = _polyline_points(sx(np.asarray(t.x, float)), sy(np.asarray(t.y, float)))
             out.append(f'<g class="trace" data-label={quoteattr(t.label)}>')
@@ -287,3 +270,22 @@ def write(svg: str, path: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(svg, encoding="utf-8")
     return path
+
+
+def _grid_line(line: tuple, at: tuple, anchor: str, label: str) -> list[str]:
+    """A grey grid line from (x1, y1) to (x2, y2) and its tick label at (x, y)."""
+    x1, y1, x2, y2 = line
+    return [
+        f'<line x1="{x1}" y1="{y1}" x2="{x2}" y2="{y2}" stroke="#e4e4e4"/>',
+        f'<text x="{at[0]}" y="{at[1]}" text-anchor="{anchor}">{label}</text>',
+    ]
+
+
+def _marker(kind: str, m: HLine | VLine, value: float, line: tuple) -> str:
+    """An :class:`HLine` or :class:`VLine` at ``value``, drawn from (x1, y1) to (x2, y2)."""
+    x1, y1, x2, y2 = line
+    return (
+        f'<line class="{kind}" data-label={quoteattr(m.label)} data-value="{value!r}" '
+        f'x1="{x1}" y1="{y1}" x2="{x2}" y2="{y2}" '
+        f'stroke="{m.color}" stroke-width="{m.width}"{_dash(m.dash)}/>'
+    )

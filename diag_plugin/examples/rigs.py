@@ -111,12 +111,7 @@ def tank_rig(
     sub = 10  # integration steps per second
     n = int(seconds)
     t = np.arange(n, dtype=float)
-    u = np.empty(n)
-    i = 0
-    while i < n:
-        hold = int(rng.integers(15, 61))
-        u[i : i + hold] = rng.uniform(25.0, 95.0)
-        i += hold
+    u = held_levels(rng, n, 25.0, 95.0, (15, 61))
     h1, h2 = rng.uniform(2.0, 25.0, 2)
     wear, leak, clog = (_on(faults, k, t) for k in ("pump", "leak", "clog"))
     q = qmax * (u / 100.0) ** 1.3 * (1.0 - wear)

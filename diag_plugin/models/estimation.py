@@ -206,6 +206,19 @@ def output_lags_of(output_spec: str, input_specs: Sequence[str]) -> list[int]:
     return lags
 
 
+def spans_and_lags(spec: Any, method: str) -> dict[str, Any]:
+    """Keyword arguments of an untrained model of a method that takes no options (linear,
+    narmax2): the inputs' and output's spans and :func:`output_lags_of`; a ValueError naming
+    the options when ``spec`` (a ``ModelSpec``) has some."""
+    if spec.options:
+        raise ValueError(f"{method} takes no options, got {', '.join(spec.options)}")
+    return {
+        "input_spans": [v.span for v in spec.inputs],
+        "output_span": spec.output.span,
+        "output_lags": output_lags_of(spec.output.spec, [v.spec for v in spec.inputs]),
+    }
+
+
 class FreeRunCapabilities:
     """``capabilities`` of a method that can simulate its output from its own past outputs:
     on the class, what the method can do; on a model, ``free_run`` only if some input is a lag

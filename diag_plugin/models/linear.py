@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from diag_plugin.models.estimation import output_lags_of
+from diag_plugin.models.estimation import spans_and_lags
 from diag_plugin.models.narmax import Narmax2Regressor, NarmaxCodec, Term, format_term
 from diag_plugin.models.protocol import REASON_OUTSIDE, Prediction
 from diag_plugin.models.spec import ModelSpec
@@ -84,14 +84,7 @@ class LinearCodec(NarmaxCodec):
 
     def new_estimator(self, spec: ModelSpec) -> LinearRegressor:
         """An untrained model with the spec's spans."""
-        if spec.options:
-            raise ValueError(f"linear takes no options, got {', '.join(spec.options)}")
-        specs = [v.spec for v in spec.inputs]
-        return LinearRegressor(
-            input_spans=[v.span for v in spec.inputs],
-            output_span=spec.output.span,
-            output_lags=output_lags_of(spec.output.spec, specs),
-        )
+        return LinearRegressor(**spans_and_lags(spec, "linear"))
 
     def read_rules(
         self, rb: Any, items: list, positions: Sequence[tuple[int, list[str], str]]

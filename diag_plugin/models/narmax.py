@@ -46,7 +46,7 @@ from diag_plugin.models.estimation import (
     detail,
     finite_rows,
     free_run,
-    output_lags_of,
+    spans_and_lags,
 )
 from diag_plugin.models.protocol import Capabilities, Prediction
 from diag_plugin.models.spec import ModelSpec
@@ -365,14 +365,7 @@ class NarmaxCodec(RuleCodec):
     def new_estimator(self, spec: ModelSpec) -> Narmax2Regressor:
         """An untrained model with the spec's spans; lags of the output are fed back in free
         run."""
-        if spec.options:
-            raise ValueError(f"narmax2 takes no options, got {', '.join(spec.options)}")
-        specs = [v.spec for v in spec.inputs]
-        return Narmax2Regressor(
-            input_spans=[v.span for v in spec.inputs],
-            output_span=spec.output.span,
-            output_lags=output_lags_of(spec.output.spec, specs),
-        )
+        return Narmax2Regressor(**spans_and_lags(spec, "narmax2"))
 
     def to_model(self, rb: RuleBase) -> Narmax2Regressor:
         """The model the file describes (terms not listed count 0)."""

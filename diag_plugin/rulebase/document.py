@@ -42,8 +42,8 @@ from diag_plugin.fuzzy.partition import SHAPES
 from diag_plugin.models.registry import METHODS, get_method
 from diag_plugin.models.spec import ModelSpec, Variable
 from diag_plugin.regressors import InputSpec
-from diag_plugin.tomllines import read_text, syntax_error
-from historian.errors import UserError
+from diag_plugin.tomllines import LinedFile, syntax_error
+from historian.errors import ProblemsError
 
 __all__ = ["RuleBase", "RuleBaseError", "Variable", "check", "default_label", "resolve"]
 
@@ -56,12 +56,8 @@ HEADER = """\
 """
 
 
-class RuleBaseError(UserError):
+class RuleBaseError(ProblemsError):
     """A rule-base file has problems; ``problems`` lists ``file:line: what``."""
-
-    def __init__(self, problems: list[str]):
-        self.problems = problems
-        super().__init__("\n".join(problems))
 
 
 def default_label(spec: str) -> str:
@@ -76,8 +72,11 @@ def default_label(spec: str) -> str:
     return base + "_" if base[-1].isdigit() else base
 
 
-class RuleBase:
-    """A rule-base file in memory: spec, provenance and rules (see module doc)."""
+class RuleBase(LinedFile):
+    """A rule-base file in memory: spec, provenance and rules (see module doc);
+    :meth:`load` reports ``file:line`` problems."""
+
+    Error = RuleBaseError
 
     def __init__(self, text: str, path: str | Path = "<rulebase>"):
         self.path = Path(path)
@@ -134,16 +133,6 @@ class RuleBase:
                         return i, j
                 return i, len(lines) - 1
         return None
-
-    # ------------------------------------------------------------------ load
-    @classmethod
-    def load(cls, path: str | Path) -> RuleBase:
-        path = Path(path)
-        return cls(read_text(path, RuleBaseError), path)
-
-    def error(self, line: int, msg: str) -> None:
-        """Record a problem at ``line`` (1-based) of the file."""
-        self.problems.append(f"{self.path}:{line}: {msg}")
 
     def line_of(self, section: str, key: str | None = None, nth: int = 0) -> int:
         """Line (1-based) of a section header or of ``key =`` inside it."""

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from diag_plugin.selection.lags import lag_screen
+from diag_plugin.selection.sets import set_index
 
 #: share of the candidate's held-out variance the output must explain
 MIN_R2 = 0.2
@@ -97,17 +98,7 @@ def consequence(
 
 def _index(col: np.ndarray, cut: int, sets: int) -> np.ndarray:
     x = col[:cut][np.isfinite(col[:cut])]
-    out = np.full(col.size, -1, np.int64)
-    if x.size < 10:
-        return out
-    lo, hi = (float(q) for q in np.quantile(x, [0.005, 0.995]))
-    ok = np.isfinite(col)
-    if hi <= lo:
-        out[ok] = 0
-        return out
-    t = (col[ok] - lo) / (hi - lo) * (sets - 1)
-    out[ok] = np.clip(np.floor(t + 0.5), 0, sets - 1).astype(np.int64)
-    return out
+    return set_index(col, x, sets, 0.005, least=10)
 
 
 def _heldout_r2(

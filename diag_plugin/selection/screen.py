@@ -31,7 +31,7 @@ from dataclasses import replace as dc_replace
 import numpy as np
 
 from diag_plugin.rulebase.document import RuleBase
-from diag_plugin.selection.sets import MIN_PER_CELL, SETS_RANGE
+from diag_plugin.selection.sets import MIN_PER_CELL, SETS_RANGE, set_index
 
 #: groups of interleaved time blocks the out-of-fold residual is computed over
 FOLDS = 2
@@ -77,18 +77,7 @@ class Screen:
         """Set index (0 … sets-1) of every row of ``col`` over the range its training rows
         use; -1 where missing."""
         x = col[: self.cut][self.train]
-        x = x[np.isfinite(x)]
-        out = np.full(col.size, -1, np.int64)
-        if x.size == 0:
-            return out
-        lo, hi = (float(q) for q in np.quantile(x, [0.001, 0.999]))
-        ok = np.isfinite(col)
-        if hi <= lo:
-            out[ok] = 0
-            return out
-        t = (col[ok] - lo) / (hi - lo) * (sets - 1)
-        out[ok] = np.clip(np.floor(t + 0.5), 0, sets - 1).astype(np.int64)
-        return out
+        return set_index(col, x[np.isfinite(x)], sets, 0.001)
 
     def rmse(self, col: np.ndarray, sets: int | None = None) -> float:
         """Screening error (held-out RMSE, % of span) with ``col`` added to the model's

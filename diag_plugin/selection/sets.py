@@ -36,3 +36,21 @@ def sets_for_cells(n_train: int, cells: int, current: int) -> int:
     :data:`MIN_PER_CELL` training samples (``cells``: rules the model has now)."""
     fit = n_train // max(MIN_PER_CELL * max(cells, 1), 1)
     return int(min(max(fit, 2), current))
+
+
+def set_index(col: np.ndarray, x: np.ndarray, sets: int, tail: float, least: int = 1) -> np.ndarray:
+    """Set index (0 … sets-1) of every row of ``col``, the nearest of ``sets`` evenly spaced
+    centres over the ``tail`` … 1-``tail`` quantiles of the finite training values ``x``;
+    -1 where ``col`` is missing, and everywhere when ``x`` has fewer than ``least`` values.
+    """
+    out = np.full(col.size, -1, np.int64)
+    if x.size < least:
+        return out
+    lo, hi = (float(q) for q in np.quantile(x, [tail, 1.0 - tail]))
+    ok = np.isfinite(col)
+    if hi <= lo:
+        out[ok] = 0
+        return out
+    t = (col[ok] - lo) / (hi - lo) * (sets - 1)
+    out[ok] = np.clip(np.floor(t + 0.5), 0, sets - 1).astype(np.int64)
+    return out

@@ -56,13 +56,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("name")
     p.add_argument("--from", dest="start", required=True, metavar="T0")
     p.add_argument("--to", dest="end", required=True, metavar="T1")
-    p.add_argument(
-        "--far",
-        type=float,
-        default=None,
-        metavar="PER_HOUR",
-        help="false-alarm budget (default: the unit's own)",
-    )
+    add_far(p, "(default: the unit's own)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_unit_accept)
     p = usub.add_parser("rollback", help="undo the last `diag unit accept` of a unit")

@@ -57,6 +57,22 @@
   const nn = (v) => (Number.isNaN(v) ? null : v);
 
   // ---- measured vs model and the residual trend, two resolution levels
+  // a dashed line at y = 0 (a uPlot draw hook), where zero is in view
+  function zeroLine(u) {
+    const y = u.valToPos(0, "y", true);
+    if (y < u.bbox.top || y > u.bbox.top + u.bbox.height) return;
+    const ctx = u.ctx;
+    ctx.save();
+    ctx.strokeStyle = "#555";
+    ctx.setLineDash([4, 4]);
+    ctx.lineWidth = 1;
+    ctx.beginPath();
+    ctx.moveTo(u.bbox.left, y);
+    ctx.lineTo(u.bbox.left + u.bbox.width, y);
+    ctx.stroke();
+    ctx.restore();
+  }
+
   function timeCharts() {
     const elY = document.getElementById("chart-y");
     const elR = document.getElementById("chart-r");
@@ -152,20 +168,6 @@
       scales: { x: { time: true } },
       hooks: Object.assign({}, zoomHook, draw ? { draw: [draw] } : {}),
     });
-    const zeroLine = (u) => {
-      const y = u.valToPos(0, "y", true);
-      if (y < u.bbox.top || y > u.bbox.top + u.bbox.height) return;
-      const ctx = u.ctx;
-      ctx.save();
-      ctx.strokeStyle = "#555";
-      ctx.setLineDash([4, 4]);
-      ctx.lineWidth = 1;
-      ctx.beginPath();
-      ctx.moveTo(u.bbox.left, y);
-      ctx.lineTo(u.bbox.left + u.bbox.width, y);
-      ctx.stroke();
-      ctx.restore();
-    };
     const s0 = slice(L[0], full[0], full[1], widthOf(elY) - 80);
     const band = (label, colour, value) => ({ label, stroke: colour, width: 1, value });
     const cy = new uPlot(
@@ -295,21 +297,7 @@
         ],
         axes: [{ label: S.spec }, { label: "residual [% of span]", size: 70 }],
         hooks: {
-          draw: [
-            (u) => {
-              const y = u.valToPos(0, "y", true);
-              if (y < u.bbox.top || y > u.bbox.top + u.bbox.height) return;
-              const ctx = u.ctx;
-              ctx.save();
-              ctx.strokeStyle = "#555";
-              ctx.setLineDash([4, 4]);
-              ctx.beginPath();
-              ctx.moveTo(u.bbox.left, y);
-              ctx.lineTo(u.bbox.left + u.bbox.width, y);
-              ctx.stroke();
-              ctx.restore();
-            },
-          ],
+          draw: [zeroLine],
         },
       },
       [x, r, avg],
