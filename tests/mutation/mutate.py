@@ -109,11 +109,13 @@ TARGETS: dict[str, list[str]] = {
     "diag_plugin/live/writer.py": ["test_historian_writer_recovery.py", "test_live.py"],
     # issue 38 (the rest of diagnose/): the operating range and the loops' alarm settings
     "diag_plugin/diagnose/operating.py": [
+        "test_unit_operating.py",
         "test_unit_loops.py",
         "test_unit_accept.py",
         "test_units.py",
     ],
     "diag_plugin/diagnose/unitloops.py": [
+        "test_unit_loop_settings.py",
         "test_unit_loops.py",
         "test_unit_guards.py",
         "test_units.py",
