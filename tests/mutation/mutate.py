@@ -54,6 +54,7 @@ TARGETS: dict[str, list[str]] = {
         "test_units.py",
     ],
     "diag_plugin/diagnose/unit.py": [
+        "test_diagnosis_intervals.py",
         "test_diagnosis_guards.py",
         "test_units.py",
         "test_plant.py",
