@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.unit import Diagnosis
+from diag_plugin.diagnose.unit import Diagnosis, Unit
 from diag_plugin.status import NE107, Quality
+from tests.test_diagnosis_guards import GROUP_MATRIX, frame, make_unit
 
 
 def _diagnosis(status, s1, s_t2) -> Diagnosis:
@@ -43,3 +44,21 @@ def test_a_run_names_the_combined_test_only_where_it_was_on():
     # T² unknown (CHECK_FUNCTION, and the last run's first sample) is not a symptom
     assert list(runs["tests"]) == ["", "", "r1,T2", ""]
     assert runs["to"].iloc[-1] == d.status.index[-1] + pd.Timedelta("10s")
+
+
+def test_detected_is_one_with_a_symptom_zero_with_none_and_unknown_otherwise(tmp_path):
+    """``detected`` (published beside the status): 1 while any test shows a symptom, 0 when
+    every test answered without one, NaN when some test could not answer."""
+    r1 = np.r_[np.zeros(4), np.full(8, 5.0), np.zeros(8)]
+    data = frame(20, r1=r1)
+    data.loc[data.index[17:], "Y3"] = np.nan  # r3 unknown at the end
+    for matrix in (GROUP_MATRIX, None):
+        folder = tmp_path / ("plain" if matrix is None else "matrix")
+        folder.mkdir()
+        d = Unit.load(make_unit(folder, matrix)).evaluate(data)
+        on = d.symptoms.fillna(0).ne(0).any(axis=1).to_numpy()
+        assert on.sum() >= 5  # the symptom is on after its on-delay
+        assert (d.detected.to_numpy()[on] == 1.0).all()
+        quiet = ~on & d.symptoms.notna().all(axis=1).to_numpy()
+        assert quiet.sum() >= 3 and (d.detected.to_numpy()[quiet] == 0.0).all()
+        assert np.isnan(d.detected.to_numpy()[~on & ~quiet]).all() and (~on & ~quiet).any()
