@@ -68,7 +68,11 @@ TARGETS: dict[str, list[str]] = {
         "test_valve_isolation.py",
     ],
     "diag_plugin/diagnose/plant.py": ["test_plant.py", "test_diagnosis_guards.py"],
-    "diag_plugin/diagnose/unitfile.py": ["test_diagnosis_guards.py", "test_units.py"],
+    "diag_plugin/diagnose/unitfile.py": [
+        "test_unit_new_text.py",
+        "test_diagnosis_guards.py",
+        "test_units.py",
+    ],
     # issue 38: the combined test, threshold learning and diag unit build
     "diag_plugin/diagnose/unittags.py": ["test_unit_guards.py", "test_unit_tags.py"],
     "diag_plugin/learn/thresholds.py": [
