@@ -34,3 +34,22 @@ def test_a_new_unit_file_keeps_each_setting_asked_for(tmp_path, keys):
         assert ev[k] == asked.get(k, v), k
         # the newer keys at their default are not written
         assert (f"\n{k} = " in text) == (k not in NEW_KEYS or k in asked), k
+
+
+def test_a_unit_file_without_evaluation_settings_gets_the_documented_defaults(tmp_path):
+    """The ``[evaluation]`` of the example in the unit file's reference (the module doc of
+    :mod:`diag_plugin.diagnose.unitfile`) lists each setting at its default: a unit that
+    leaves them all out evaluates with exactly those."""
+    import textwrap
+    import tomllib
+
+    from diag_plugin.diagnose import unitfile
+
+    doc = unitfile.__doc__
+    block = doc[doc.index("    [evaluation]") :].split("\n\n")[0]
+    documented = tomllib.loads(textwrap.dedent(block))["evaluation"]
+    assert len(documented) >= 12
+    path = tmp_path / "u.unit.toml"
+    path.write_text('[unit]\nname = "u"\n[tests]\nr1 = { model = "m.toml" }\n')
+    ev = UnitFile.load(path).evaluation
+    assert {k: ev[k] for k in documented} == documented
