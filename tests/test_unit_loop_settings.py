@@ -66,12 +66,15 @@ def test_a_spread_window_is_its_seconds_in_samples_and_at_least_5(window_s, peri
     assert spread_samples(window_s, period) == want
 
 
-def test_a_deadband_holds_a_low_symptom_until_back_inside_the_band():
+def test_a_deadband_holds_a_symptom_until_back_inside_the_band_on_either_side():
     r = np.array([[-1.0], [-1.2], [-0.95], [-0.91], [-0.85], [-0.95], [np.nan], [-1.1], [2.0]])
     lo, hi = np.array([-1.0]), np.array([1.0])
     got = Deadband(0.1, 1).transform(r, lo, hi)[:, 0]
     # at the threshold itself it is not yet past it
     np.testing.assert_array_equal(got, [0, -1, -1, -1, 0, 0, np.nan, -1, 1])
+    # the high side mirrors it: inside the band a symptom that is off stays off
+    mirrored = Deadband(0.1, 1).transform(-r, lo, hi)[:, 0]
+    np.testing.assert_array_equal(mirrored, -got)
     # without a threshold the symptom is unknown
     assert np.isnan(Deadband(0.1, 1).transform(r[:2], lo, np.array([np.nan]))).all()
 
