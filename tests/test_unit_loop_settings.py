@@ -55,6 +55,17 @@ def test_the_off_delay_carries_across_pieces_and_through_its_state():
     assert joined == whole.tolist()
     assert rest[:3].tolist() == [-1] * 3 and rest[3] == -2  # rows 8-10 hold row 5; 11 does not
     assert h2.sources(np.zeros(0, bool)).size == 0 and h2.to_state() == {"since": 0}
+    # cut anywhere (right after an alarm row, one sample at a time), the pieces agree
+    for cut in range(1, act.size):
+        h = AlarmHold(6)
+        a, b = h.sources(act[:cut]), h.sources(act[cut:])
+        prev = np.flatnonzero(act[:cut])
+        b = [int(prev[-1]) if s == -1 else s + cut if s >= 0 else s for s in b.tolist()]
+        assert a.tolist() + b == whole.tolist(), cut
+    h = AlarmHold(6)
+    assert np.concatenate([h.sources(act[i : i + 1]) for i in range(act.size)]).tolist() == [
+        -2 if s < 0 else -1 if s < i else s for i, s in enumerate(whole.tolist())
+    ]
 
 
 @pytest.mark.parametrize(
