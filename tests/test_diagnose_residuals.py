@@ -248,3 +248,19 @@ def test_on_off_delay_chunked_equals_one_pass():
     parts.append(e.transform(raw[1000:]))
     np.testing.assert_array_equal(np.vstack(parts), one)
     assert (one != 0).any() and (one == 0).any()
+
+
+@pytest.mark.parametrize("n", [600, 2000, 7000])
+def test_effective_samples_stop_summing_at_the_first_lag_not_positive(n):
+    """Sokal's window ends at the first lag whose ρ_k is not positive, whatever follows: a
+    residual that alternates (ρ_1 < 0) over a slow swing (ρ_2 ≈ 0.9) counts every sample; a
+    window running on to the next such lag would count ρ_1 + ρ_2 and give about n / 2.8."""
+    t = np.arange(n)
+    x = (-1.0) ** t + 1.28 * np.sin(2 * np.pi * t / (n / 2) + 0.3)
+    from scipy import signal
+
+    a = x - x.mean()
+    rho = signal.correlate(a, a, mode="full", method="direct")[n - 1 :]
+    rho = rho / rho[0]
+    assert rho[1] <= 0 < rho[2] and rho[1] + rho[2] > 0.5  # the case is the one described
+    assert effective_samples(x) == pytest.approx(n)

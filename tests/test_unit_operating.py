@@ -1,0 +1,125 @@
+"""What CHECK_FUNCTION says when a unit's test has no rule (issue 34 item 5, closed under issue
+38's mutation check of ``diagnose/operating.py``): the learned range of each input, the input
+named outside it with its value and since when (carried from piece to piece), and the inputs
+that are each inside but not together, or without a value.
+
+:mod:`tests.test_unit_accept` checks the same through ``diag diagnose`` on one plant; these
+check each sentence and each boundary through the public classes the unit uses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from diag_plugin.diagnose.operating import OutsideLearned, Range, model_ranges
+from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
+from diag_plugin.models.linear import LinearRegressor
+
+
+def _frame(period: str, **cols) -> pd.DataFrame:
+    n = len(next(iter(cols.values())))
+    idx = pd.date_range("2026-05-01 00:00:03", periods=n, freq=period, tz="UTC")
+    return pd.DataFrame({k: np.asarray(v, float) for k, v in cols.items()}, index=idx)
+
+
+@pytest.mark.parametrize("lo,hi,sets", [(2.0, 4.0, 11), (31.0, 47.5, 21)])
+def test_a_rule_grids_learned_range_is_its_outer_rule_sets_half_a_step_out(lo, hi, sets):
+    rng = np.random.default_rng(5)
+    x = np.c_[rng.uniform(lo, hi, 800), rng.uniform(0.0, 100.0, 800)]
+    m = WangMendelRegressor(
+        input_spans=[(0.0, 100.0), (0.0, 100.0)], output_span=(0.0, 200.0), n_sets=sets
+    ).fit(x, x.sum(axis=1))
+    step = 100.0 / (sets - 1)
+    a, b = np.rint(x[:, 0].min() / step), np.rint(x[:, 0].max() / step)
+    got = model_ranges(m, ["FLOW[k]", "dir(LEVEL)[k]"])  # a derived input is left out
+    assert [t for t, *_ in got] == ["FLOW"]
+    assert got[0][1] == pytest.approx((a - 0.5) * step)
+    assert got[0][2] == pytest.approx((b + 0.5) * step)
+    both = model_ranges(m, ["FLOW[k]", "LEVEL[k-1]"])
+    assert both[1][1:] == pytest.approx((-0.5 * step, 100.0 + 0.5 * step))
+
+
+def test_a_model_without_a_rule_grid_answers_over_its_nominal_span():
+    rng = np.random.default_rng(6)
+    x = rng.uniform(0.0, 1.0, (200, 2))
+    m = LinearRegressor(input_spans=[(-3.0, 12.0), (0.5, 0.75)]).fit(x, x @ [1.0, 2.0])
+    assert model_ranges(m, ["A[k]", "B[k-2]"]) == [("A", -3.0, 12.0), ("B", 0.5, 0.75)]
+
+
+@pytest.mark.parametrize("period", ["1s", "15s", "3min"])
+def test_the_input_outside_is_named_with_its_value_and_when_it_left(period):
+    a = [3.0, 3.2, 5.25, 6.0, 4.0, 1.0, 1.25, 3.0]
+    f = _frame(period, A=a)
+    t = f.index
+    ol = OutsideLearned([Range(0, "A", 1.5, 4.5)], names={"A": "PI-101"})
+    unknown = np.ones((8, 1), bool)
+    report = np.ones(8, bool)
+    report[6] = False  # a row the unit answers is not explained
+    out = ol.transform(f, unknown, report)
+    sent = "PI-101 = {} outside what the unit learned (1.5 … 4.5) since {}"
+    assert list(out[[2, 3, 5]]) == [
+        sent.format("5.25", t[2].isoformat()),
+        sent.format("6", t[2].isoformat()),  # the same excursion: since it began
+        sent.format("1", t[5].isoformat()),
+    ]
+    # inside the range the sentence is the combination's (each inside, not together)
+    assert out[0] == "PI-101 = 3: each within what the unit learned, but not together"
+    assert out[4].startswith("PI-101 = 4: each within") and out[6] == ""
+    # the edges themselves were learned
+    edge = ol.reset().transform(_frame(period, A=[1.5, 4.5]), np.ones((2, 1), bool),
+                                np.ones(2, bool))  # fmt: skip
+    assert all("not together" in s for s in edge)
+
+
+def test_only_an_unknown_tests_input_is_named_and_the_first_one_out_wins():
+    f = _frame("10s", A=[9.0, 9.0, 9.0], B=[-5.0, -5.0, 0.0])
+    ranges = [Range(0, "A", 0.0, 1.0), Range(1, "B", -1.0, 1.0), Range(1, "A", 0.0, 20.0)]
+    unknown = np.array([[False, True], [True, True], [True, False]])
+    out = OutsideLearned(ranges).transform(f, unknown, np.ones(3, bool))
+    assert out[0].startswith("B = -5 outside")  # test 0 answers: its input A is not blamed
+    assert out[1].startswith("A = 9 outside")
+    assert out[2].startswith("A = 9 outside") and "(0 … 1)" in out[2]
+
+
+def test_an_excursion_keeps_its_start_across_pieces():
+    a = np.r_[np.full(5, 2.0), np.full(10, 7.0), np.full(5, 2.0), np.full(5, 7.0)]
+    f = _frame("1min", A=a)
+    t = f.index
+    # out at 5-14 and from 20: pieces that begin out, are wholly out, and begin out, come
+    # back and leave again (the second excursion has its own start)
+    cuts = [0, 7, 11, 13, 22, 25]
+    ol = OutsideLearned([Range(0, "A", 0.0, 5.0)])
+    parts = [
+        ol.transform(f.iloc[i:j], np.ones((j - i, 1), bool), np.ones(j - i, bool))
+        for i, j in zip(cuts[:-1], cuts[1:], strict=True)
+    ]
+    whole = OutsideLearned([Range(0, "A", 0.0, 5.0)]).transform(
+        f, np.ones((25, 1), bool), np.ones(25, bool)
+    )
+    assert list(np.concatenate(parts)) == list(whole)
+    assert all(s.endswith(f"since {t[5].isoformat()}") for s in whole[5:15])
+    assert all(s.endswith(f"since {t[20].isoformat()}") for s in whole[20:])
+    # a piece that begins inside after an excursion does not inherit its start
+    ol = OutsideLearned([Range(0, "A", 0.0, 5.0)])
+    ol.transform(f.iloc[:15], np.ones((15, 1), bool), np.ones(15, bool))
+    again = ol.transform(f.iloc[15:], np.ones((10, 1), bool), np.ones(10, bool))
+    assert again[5].endswith(f"since {t[20].isoformat()}")
+
+
+def test_inputs_inside_but_not_together_or_without_a_value_are_said_so():
+    f = _frame("5s", A=[1.0, np.nan, 1.0, 2.0], B=[2.0, 3.0, np.nan, np.nan])
+    ranges = [Range(0, "A", 0.0, 4.0), Range(0, "B", 0.0, 4.0), Range(0, "C", 0.0, 4.0)]
+    unknown = np.ones((4, 1), bool)
+    report = np.array([True, True, True, False])
+    out = OutsideLearned(ranges, names={"B": "FT 2"}).transform(f, unknown, report)
+    # C is not in the data: the sentence names the inputs it has
+    assert list(out) == [
+        "A = 1, FT 2 = 2: each within what the unit learned, but not together",
+        "A without a value",
+        "FT 2 without a value",
+        "",
+    ]
+    # an empty piece says nothing and keeps what it carried
+    ol = OutsideLearned(ranges)
+    assert ol.transform(f.iloc[:0], unknown[:0], report[:0]).size == 0
