@@ -41,8 +41,10 @@ $(OPCUA_STAMP): $(OPCUA_PEER)/package-lock.json
 	touch $@
 
 # the whole suite (CI runs this), on TEST_JOBS pytest-xdist workers, a test file per worker
-# at a time so that a file's module fixtures are built once (TEST_JOBS=0: one process)
-TEST_JOBS ?= 2
+# at a time so that a file's module fixtures are built once (TEST_JOBS=0: one process).
+# Three workers on two cores: many tests wait on real time (live loops, held locks,
+# restarts), and the third fills those waits (fresh clone, quiet machine: 7.5 min)
+TEST_JOBS ?= 3
 XDIST = $(if $(filter 0,$(TEST_JOBS)),,-n $(TEST_JOBS) --dist loadfile)
 
 test: $(DEVSTAMP) $(PEERSTAMP)

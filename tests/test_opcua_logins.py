@@ -163,9 +163,13 @@ async def test_login_flood_is_hashed_off_the_loop_and_capped(anyio_backend, keys
         assert guard.peak_active <= limits.max_activations
         assert guard.checked == len(calls)
         assert set(results) <= {"Good", "BadUserAccessDenied", "BadTooManyOperations"}
-        assert "Good" in results
         wrong = [r for i, r in enumerate(results) if i % 2 == 0]
         assert "Good" not in wrong
+        # which three arrive first is up to the handshakes: a right password checked in the
+        # flood logged in, and once it is over the right password logs in
+        right = [r for i, r in enumerate(results) if i % 2]
+        assert set(right) <= {"Good", "BadTooManyOperations"}
+        assert await login(srv, keys, "bob", PASSWORDS["bob"]) == "Good"
     finally:
         await srv.stop()
 
