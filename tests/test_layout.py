@@ -44,11 +44,13 @@ def test_a_broken_command_module_is_an_error_not_a_missing_command(monkeypatch):
 
 #: the small modules every stage shares, the only loose modules beside the stage packages
 #: (status.py: the NE 107 status vocabulary the run-time diagnosis produces and connectors/
-#: publishes, below both)
+#: publishes, below both; cliargs.py: options every package's cli.py declares alike, such as
+#: the CLI contract's --json, so it must sit below all of them)
 SHARED = {
     "__init__.py",
     "__main__.py",
     "cli.py",
+    "cliargs.py",
     "regressors.py",
     "metrics.py",
     "tomllines.py",
@@ -83,6 +85,7 @@ BELOW: dict[str, tuple[str, ...]] = {
     "diag_plugin.tomllines": (),
     "diag_plugin.metrics": (),
     "diag_plugin.status": (),
+    "diag_plugin.cliargs": (),
     "diag_plugin.regressors": ("historian",),
     "diag_plugin.simulate": ("historian",),
     "connectors": ("diag_plugin.status", "diag_plugin.simulate"),
