@@ -11,7 +11,6 @@ target is missed with ``--check``.
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -22,7 +21,7 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import add_scratch_args, fastest, scratch  # noqa: E402
+from _common import add_scratch_args, exit_status, fastest, scratch  # noqa: E402
 
 from historian import Historian  # noqa: E402
 
@@ -48,9 +47,8 @@ def main(argv=None) -> int:
     ap.add_argument("--tags", type=int, default=20)
     add_scratch_args(ap)
     args = ap.parse_args(argv)
-    tmp = scratch("bench_historian_", args.dir)
     ok = True
-    try:
+    with scratch("bench_historian_", args.dir) as tmp:
         url = f"sqlite:///{tmp / 'bench.db'}"
         tags = [f"T{i:02d}" for i in range(args.tags)]
         months = pd.date_range("2024-01-01", periods=args.months, freq="MS", tz="UTC")
@@ -119,10 +117,8 @@ def main(argv=None) -> int:
                 f"iter_windows 3 tags, 7-day chunks, no summary (Parquet): {n:,} rows in "
                 f"{time.perf_counter() - t:.3f} s"
             )
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     print("all targets met" if ok else "TARGET MISSED")
-    return 0 if ok or not args.check else 1
+    return exit_status(ok, args.check)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,6 @@ cores its wall time is below its CPU time.
 from __future__ import annotations
 
 import argparse
-import shutil
 import sqlite3
 import sys
 import time
@@ -28,7 +27,7 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import add_scratch_args, scratch  # noqa: E402
+from _common import add_scratch_args, exit_status, scratch  # noqa: E402
 
 from historian.importer import import_file  # noqa: E402
 from historian.store import Historian  # noqa: E402
@@ -73,8 +72,7 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=2)
     add_scratch_args(ap, "the target")
     args = ap.parse_args(argv)
-    work = scratch("bench_import_", args.dir)
-    try:
+    with scratch("bench_import_", args.dir) as work:
         csv = work / "export.csv"
         write_csv(csv, args.rows, args.tags)
         size = csv.stat().st_size / 1e6
@@ -102,9 +100,7 @@ def main(argv=None) -> int:
             f"  {n_imp:,} samples: {n_imp / o:,.0f} samples/s; target <= {TARGET:g} x wall: "
             f"{'met' if o <= TARGET * r else 'MISSED'}"
         )
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
-    return 0 if o <= TARGET * r or not args.check else 1
+    return exit_status(o <= TARGET * r, args.check)
 
 
 if __name__ == "__main__":

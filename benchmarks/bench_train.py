@@ -41,7 +41,7 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import add_scratch_args, fastest, scratch  # noqa: E402
+from _common import add_scratch_args, exit_status, fastest, scratch  # noqa: E402
 
 from diag_plugin.simulate.valve import TAGS, simulate_valve  # noqa: E402
 from diag_plugin.training.chunked import train  # noqa: E402
@@ -236,9 +236,8 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=5)
     add_scratch_args(ap)
     args = ap.parse_args(argv)
-    work = scratch("bench_train_", args.dir)
     diag = [sys.executable, "-m", "diag_plugin"]
-    try:
+    with scratch("bench_train_", args.dir) as work:
         hot_url, cold_url, hot, cold = build(work)
         ref_file = str(work / "frame.parquet")
         rules = reference(ref_file)
@@ -332,9 +331,7 @@ def main(argv=None) -> int:
             f"    unaccounted                               "
             f"{proc - bare - imp - nb - sp - job:6.3f} s"
         )
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
-    return 0 if (ok_call and ok_proc) or not args.check else 1
+    return exit_status(ok_call and ok_proc, args.check)
 
 
 if __name__ == "__main__":

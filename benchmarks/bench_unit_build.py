@@ -14,8 +14,8 @@ middle (share of the samples after the onset in alarm).
 
 With ``--rig hx``: the heat exchanger of :mod:`diag_plugin.examples.rigs` (60 s, six tags), a
 unit built from its 60-day training window beside PCA on exactly the runs, faults and budget of
-``benchmarks/bench_detection_plants.py`` (whose hand-built unit's figures are in
-docs/explanation/other-plants.md).
+``benchmarks/bench_detection_plants.py`` (which prints its hand-built unit's figures;
+docs/explanation/other-plants.md explains them).
 
 Run: ``python benchmarks/bench_unit_build.py [--tags 50] [--days 10] [--quality] [--rig hx]``.
 """

@@ -25,7 +25,6 @@ when missed.
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
 from pathlib import Path
 
@@ -35,7 +34,7 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import add_scratch_args, fastest, scratch  # noqa: E402
+from _common import add_scratch_args, exit_status, fastest, scratch  # noqa: E402
 
 from diag_plugin.simulate.valve import TAGS, simulate_valve  # noqa: E402
 from diag_plugin.training.chunked import design_builder, split_time, train  # noqa: E402
@@ -93,8 +92,7 @@ def main(argv=None) -> int:
         print("scikit-learn is not installed (pip install -e '.[dev]'): no comparison")
         return 0
     frame = simulate_valve(args.days, seed=args.seed)[["CV", "P1", "P2", "F"]]
-    work = scratch("bench_wm_hgb_", args.dir)
-    try:
+    with scratch("bench_wm_hgb_", args.dir) as work:
         url = f"sqlite:///{work / 'h.db'}"
         with Historian.open(url) as h:
             for name in frame.columns:
@@ -162,9 +160,7 @@ def main(argv=None) -> int:
             f"{'met' if ok_speed else 'MISSED'}; error <= {GOAL_ERROR:g}x HGB's: "
             f"{'met' if ok_error else 'MISSED'}"
         )
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
-    return 0 if (ok_speed and ok_error) or not args.check else 1
+    return exit_status(ok_speed and ok_error, args.check)
 
 
 if __name__ == "__main__":

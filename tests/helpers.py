@@ -120,6 +120,61 @@ def valve_frame(days: float, seed: int) -> pd.DataFrame:
 VALVE_TABLE4 = TABLE4_MATRIX
 
 
+def valve_plant(d: Path, without: tuple[str, ...] = ()) -> pd.DataFrame:
+    """The example unit trained on a fault-free day of the simulated valve (seed 5) in
+    ``d/rb``, and the PLC's register map as a plain CSV, ``d/plc.csv`` (less the tags
+    ``without``, which another source serves). Returns the day's frame."""
+    from connectors.modbus_server import default_plant_map
+    from diag_plugin.examples.build import build_valve_unit
+    from diag_plugin.simulate import simulate_valve
+
+    frame = simulate_valve(1, seed=5)
+    (d / "rb").mkdir()
+    build_valve_unit(d / "rb", frame, "test")
+    rows = ["tag,table,address,type"] + [
+        f"{t.tag},{t.table},{t.address},{t.type}"
+        for t in default_plant_map().tags
+        if t.tag not in without
+    ]
+    (d / "plc.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    return frame
+
+
+def plant_toml(
+    d: Path,
+    plc: int,
+    historian: str,
+    *,
+    cycle: float,
+    extra: str = "",
+    flush_every: int = 5,
+) -> Path:
+    """``d/plant-PLC.toml``: the unit of :func:`valve_plant` polling one PLC (``plc.csv``) at
+    ``cycle`` s into ``historian``; ``extra`` lines go into ``[plant]``."""
+    p = d / f"plant-{plc}.toml"
+    p.write_text(
+        f"""\
+[plant]
+cycle = {cycle}
+historian = "{historian}"
+flush_every = {flush_every}
+units = ["rb/valve_unit.unit.toml"]
+{extra}
+[[source]]
+name = "plc"
+port = {plc}
+map = "plc.csv"
+timeout = {min(cycle, 0.5)}
+
+[outputs]
+modbus_port = 0
+opcua_port = 0
+""",
+        encoding="utf-8",
+    )
+    return p
+
+
 def free_port() -> int:
     """A TCP port on 127.0.0.1 that was free a moment ago."""
     with socket.socket() as s:

@@ -5,15 +5,11 @@ importer."""
 
 from __future__ import annotations
 
+from test_import_refuses_to_guess import FIRST  # the stored file of the conflict cases
+
 from diag_plugin.cli import main
 
-FIRST = """ts,P1,F
-2026-01-01 00:00:00,500.0,10.0
-2026-01-01 00:00:10,500.5,10.5
-2026-01-01 00:01:00,501.2,11.0
-"""
-
-# P1 differs at 00:01:00 only; F, the later column, differs earlier, at 00:00:10
+# against FIRST: P1 differs at 00:01:00 only; F, the later column, differs earlier, at 00:00:10
 SECOND = """ts,P1,F
 2026-01-01 00:00:10,500.5,9.0
 2026-01-01 00:01:00,499.0,11.0

@@ -226,43 +226,16 @@ def test_diag_run_killed_with_sigkill_and_restarted(tmp_path):
     killed with SIGKILL 4 s in — before its first block was due, so without the journal
     nothing of those 20 cycles would be stored. The next start stores them, says so, and
     marks the gap."""
+    from helpers import plant_toml, valve_plant
     from test_live_sources import free_port, start_plc
 
-    from connectors.modbus_server import default_plant_map
-    from diag_plugin.examples.build import build_valve_unit
-    from diag_plugin.simulate import simulate_valve
-
     d = tmp_path
-    (d / "rb").mkdir()
-    build_valve_unit(d / "rb", simulate_valve(1, seed=5), "test")
-    rows = ["tag,table,address,type"] + [
-        f"{t.tag},{t.table},{t.address},{t.type}" for t in default_plant_map().tags
-    ]
-    (d / "plc.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    valve_plant(d)
     port = free_port()
-    (d / "plant.toml").write_text(
-        f"""\
-[plant]
-cycle = 0.2
-historian = "sqlite:///k.db"
-flush_every = 50
-units = ["rb/valve_unit.unit.toml"]
-
-[[source]]
-name = "plc"
-port = {port}
-map = "plc.csv"
-timeout = 0.2
-
-[outputs]
-modbus_port = 0
-opcua_port = 0
-""",
-        encoding="utf-8",
-    )
+    cfg = plant_toml(d, port, "sqlite:///k.db", cycle=0.2, flush_every=50)
     plc, _ = start_plc(port)
     env = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")}
-    argv = [sys.executable, "-m", "diag_plugin", "run", "--config", "plant.toml", "--plain"]
+    argv = [sys.executable, "-m", "diag_plugin", "run", "--config", cfg.name, "--plain"]
     try:
         run = subprocess.Popen(argv, cwd=d, env=env, stdout=subprocess.PIPE, text=True)
         for line in run.stdout:

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import Locker, Out, free_port, require, run_diag
+from helpers import Locker, Out, free_port, plant_toml, require, run_diag, valve_plant
 
 ROWS = 205  # the first row of a stretch every trained rule covers (see test_live_sources)
 
@@ -39,44 +39,8 @@ ROWS = 205  # the first row of a stretch every trained rule covers (see test_liv
 @pytest.fixture(scope="module")
 def plant_dir(tmp_path_factory):
     """The example unit trained on a fault-free day; the PLC's register map as a CSV."""
-    from connectors.modbus_server import default_plant_map
-    from diag_plugin.examples.build import build_valve_unit
-    from diag_plugin.simulate import simulate_valve
-
     d = tmp_path_factory.mktemp("hardened")
-    frame = simulate_valve(1, seed=5)
-    (d / "rb").mkdir()
-    build_valve_unit(d / "rb", frame, "test")
-    rows = ["tag,table,address,type"] + [
-        f"{t.tag},{t.table},{t.address},{t.type}" for t in default_plant_map().tags
-    ]
-    (d / "plc.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
-    return d, frame
-
-
-def plant_toml(d: Path, plc: int, historian: str, *, cycle: float, extra: str = "") -> Path:
-    p = d / f"plant-{plc}.toml"
-    p.write_text(
-        f"""\
-[plant]
-cycle = {cycle}
-historian = "{historian}"
-flush_every = 5
-units = ["rb/valve_unit.unit.toml"]
-{extra}
-[[source]]
-name = "plc"
-port = {plc}
-map = "plc.csv"
-timeout = {min(cycle, 0.5)}
-
-[outputs]
-modbus_port = 0
-opcua_port = 0
-""",
-        encoding="utf-8",
-    )
-    return p
+    return d, valve_plant(d)
 
 
 def run(cfg_path: Path, plc, rows: pd.DataFrame, decide, duration: float = 120.0):

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import Out, free_port
+from helpers import Out, free_port, valve_plant
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -94,19 +94,8 @@ def start_plc(port: int, epoch: float | None = None) -> tuple[subprocess.Popen, 
 def plant_dir(tmp_path_factory):
     """The example unit trained on a day of the simulated valve; P2 comes over OPC UA, the
     other tags from the PLC's register map (a plain CSV, as a user would write it)."""
-    from connectors.modbus_server import default_plant_map
-    from diag_plugin.examples.build import build_valve_unit
-    from diag_plugin.simulate import simulate_valve
-
     d = tmp_path_factory.mktemp("live_sources")
-    frame = simulate_valve(1, seed=5)
-    (d / "rb").mkdir()
-    build_valve_unit(d / "rb", frame, "test")
-    rows = ["tag,table,address,type"] + [
-        f"{t.tag},{t.table},{t.address},{t.type}" for t in default_plant_map().tags if t.tag != "P2"
-    ]
-    (d / "plc.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
-    return d, frame
+    return d, valve_plant(d, without=("P2",))
 
 
 def test_two_sources_and_a_plc_killed_and_restarted(plant_dir):

@@ -10,6 +10,7 @@ import argparse
 import json
 import sys
 
+from diag_plugin.cliargs import add_json
 from diag_plugin.diagnose.cli import load_unit
 from historian.errors import UserError
 
@@ -75,7 +76,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="--plant: a fault to score (default all 15)")  # fmt: skip
     p.add_argument("--far", type=float, help="--plant: budget, alarms per hour (unit build's)")
     p.add_argument("--out", metavar="DIR", help="--plant: keep the built unit in DIR")
-    p.add_argument("--json", action="store_true")
+    add_json(p)
     p.set_defaults(func=cmd_benchmark)
 
 

@@ -217,9 +217,40 @@ def _read_dat(path: Path) -> np.ndarray:
     return a
 
 
-def _tep_frame(a: np.ndarray, start: pd.Timestamp, period_s: float = 180.0) -> pd.DataFrame:
+#: the sample period of both Tennessee Eastman data sets (3 min)
+TEP_PERIOD_S = 180.0
+
+
+def _tep_frame(a: np.ndarray, start: pd.Timestamp, period_s: float = TEP_PERIOD_S) -> pd.DataFrame:
     idx = pd.date_range(start, periods=len(a), freq=pd.Timedelta(seconds=period_s))
     return pd.DataFrame(a, index=idx, columns=list(TEP_TAGS))
+
+
+def _tep_plant(
+    name: str,
+    title: str,
+    runs: dict[str, list[PlantRun]],
+    fault_info: dict[str, str],
+    source: Path,
+    split: list[str],
+) -> PublicPlant:
+    """A Tennessee Eastman data set: the plant's tags at its 3-min period, its ``runs`` by
+    role (``train``, ``calibration``, ``free``, ``fault``, ``tuning``)."""
+    return PublicPlant(
+        name=name,
+        title=title,
+        period_s=TEP_PERIOD_S,
+        tags=list(TEP_TAGS),
+        tag_info=TEP_TAGS,
+        train=runs["train"],
+        calibration=runs["calibration"],
+        free=runs["free"],
+        faults=runs["fault"],
+        tuning=runs["tuning"],
+        fault_info=fault_info,
+        source=str(source),
+        split=split,
+    )
 
 
 def load_braatz(path: str | Path | None = None, faults: Sequence[str] | None = None) -> PublicPlant:
@@ -247,20 +278,13 @@ def load_braatz(path: str | Path | None = None, faults: Sequence[str] | None = N
         free.append(PlantRun(f"d{n:02d}_te[:160]", frame.iloc[:160]))
         tr = _read_dat(d / f"d{n:02d}.dat")
         tuning.append(PlantRun(f"d{n:02d}", _tep_frame(tr, t0 + day * (40 + k)), idv, 0, tags))
-    return PublicPlant(
-        name="tep",
-        title="Tennessee Eastman, the classic data set (Braatz; as shipped in bibmon 1.2.0)",
-        period_s=180.0,
-        tags=list(TEP_TAGS),
-        tag_info=TEP_TAGS,
-        train=train,
-        calibration=cal,
-        free=free,
-        faults=fault_runs,
-        tuning=tuning,
-        fault_info={k: v[0] for k, v in TEP_FAULTS.items()},
-        source=str(d),
-        split=[
+    return _tep_plant(
+        "tep",
+        "Tennessee Eastman, the classic data set (Braatz; as shipped in bibmon 1.2.0)",
+        {"train": train, "calibration": cal, "free": free, "fault": fault_runs, "tuning": tuning},
+        {k: v[0] for k, v in TEP_FAULTS.items()},
+        d,
+        [
             "train: d00.dat (500 samples at 3 min, 25 h, fault-free)",
             "calibration (the matched limits): d00_te.dat (960 samples, 48 h, fault-free)",
             "fault-free scoring: the first 160 samples (8 h) of each d01_te … d21_te, before "
@@ -311,26 +335,19 @@ def load_tep_studio(
             frame.index = frame.index - _TEN_YEARS  # refuses times a year ahead
         onset = None
         if idv:
-            onset = int(round(m["onset_h"] * 3600 / 180.0))
+            onset = int(round(m["onset_h"] * 3600 / TEP_PERIOD_S))
         tags = TEP_STUDIO_FAULTS[idv][1] if idv else ()
         roles[m["role"]].append(PlantRun(name, frame[list(TEP_TAGS)], idv, onset, tags))
     missing = [r for r in ("train", "calibration", "free", "fault") if not roles[r]]
     if missing:
         raise DataMissing(f"tep-studio runs in {d}: none for {', '.join(missing)}")
-    return PublicPlant(
-        name="tep-studio",
-        title="Tennessee Eastman, tep-studio 0.2.0 (Ricker's modified TEP, decentralised control)",
-        period_s=180.0,
-        tags=list(TEP_TAGS),
-        tag_info=TEP_TAGS,
-        train=roles["train"],
-        calibration=roles["calibration"],
-        free=roles["free"],
-        faults=roles["fault"],
-        tuning=roles["tuning"],
-        fault_info={k: v[0] for k, v in TEP_STUDIO_FAULTS.items() if k != "IDV21"},
-        source=str(d),
-        split=[
+    return _tep_plant(
+        "tep-studio",
+        "Tennessee Eastman, tep-studio 0.2.0 (Ricker's modified TEP, decentralised control)",
+        roles,
+        {k: v[0] for k, v in TEP_STUDIO_FAULTS.items() if k != "IDV21"},
+        d,
+        [
             "train: fault-free seeds 1 and 2, 5 days each (10 days at 3 min)",
             "calibration (the matched limits): fault-free seeds 11, 12, 13, 3 days each",
             "fault-free scoring: seeds 21, 22, 23, 2 days each",

@@ -11,6 +11,7 @@ import os
 import sys
 from pathlib import Path
 
+from diag_plugin.cliargs import add_json
 from historian.errors import UserError
 
 
@@ -29,16 +30,16 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--outputs", metavar="PREFIX", help="prefix of the published tags")
     p.add_argument("--description", default="")
     p.add_argument("--force", action="store_true", help="overwrite an existing unit file")
-    p.add_argument("--json", action="store_true")
+    add_json(p)
     p.set_defaults(func=cmd_unit_new)
-    p = usub.add_parser("check", help="check a unit file, its models and matrix (file:line)")
-    p.add_argument("file")
-    p.add_argument("--json", action="store_true")
-    p.set_defaults(func=cmd_unit_check)
-    p = usub.add_parser("show", help="tests, thresholds, matrix and its isolability")
-    p.add_argument("name")
-    p.add_argument("--json", action="store_true")
-    p.set_defaults(func=cmd_unit_show)
+    for action, arg, text, func in (
+        ("check", "file", "check a unit file, its models and matrix (file:line)", cmd_unit_check),
+        ("show", "name", "tests, thresholds, matrix and its isolability", cmd_unit_show),
+    ):
+        p = usub.add_parser(action, help=text)
+        p.add_argument(arg)
+        add_json(p)
+        p.set_defaults(func=func)
 
     p = sub.add_parser("diagnose", help="replay historian data through a unit")
     p.add_argument("name")
@@ -46,7 +47,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--to", dest="end", metavar="T1")
     p.add_argument("--csv", metavar="FILE", help="one row per sample (ts, status, r_*, s_*, c_*)")
     p.add_argument("--chunk", default="7D", help="data read per step (default 7D)")
-    p.add_argument("--json", action="store_true")
+    add_json(p)
     p.set_defaults(func=cmd_diagnose)
 
 

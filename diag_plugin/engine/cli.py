@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from diag_plugin.cliargs import add_json
+
 METHODS = ("ts-fcm", "narmax2", "wm-avg")
 
 
@@ -64,14 +66,14 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--plot", metavar="DIR", help="also write the residual plots (Figs. 8-12) as SVG to DIR"
     )
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_json(p, "print the result as JSON")
     p.set_defaults(func=cmd_engine_fdi)
     p = sub.add_parser("compare-methods", help="train every method on a model's data (Figs. 3-7)")
     p.add_argument("name", help="model name in the rule-base folder, or a file")
     p.add_argument("--from", dest="start", help="start of the range (default: all)")
     p.add_argument("--to", dest="end", help="end of the range")
     p.add_argument("--holdout", type=float, default=0.2, help="held-out share (last part)")
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_json(p, "print the result as JSON")
     p.set_defaults(func=cmd_compare_methods)
 
 

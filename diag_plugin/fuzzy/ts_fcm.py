@@ -482,11 +482,9 @@ class TakagiSugenoCodec(RuleCodec):
     """Estimator factory and rule I/O of ``ts-fcm`` (c-means memberships and linear
     conclusions: no FCL form)."""
 
+    method = "ts-fcm"
     estimator = TakagiSugenoRegressor
     header = HEADER
-
-    def __init__(self, method: str = "ts-fcm") -> None:
-        super().__init__(method)
 
     def default_options(self) -> dict[str, Any]:
         """The training options a new file gets in its ``[rules]`` table (the seed's values)."""

@@ -59,12 +59,10 @@ class Rule:
 class WangMendelCodec(RuleCodec):
     """Estimator factory and rule I/O of the Wang–Mendel methods (``wm-avg``, ``wm``)."""
 
+    method = "wm-avg"
     estimator = WangMendelRegressor
     #: the fine grid's rules are IEC 61131-7 FCL rules (``diag rules export-fcl``)
     fcl = True
-
-    def __init__(self, method: str = "wm-avg") -> None:
-        super().__init__(method)
 
     def default_options(self) -> dict:
         """The options a new file gets in ``[rules]``: none (every level behind the fine grid,

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from diag_plugin.cliargs import add_json
 from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_frames
 from historian.errors import UserError
 
@@ -44,7 +45,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         default="auto",
         help="auto: cross-fit the tests whose models were trained on the window (default)",
     )
-    p.add_argument("--json", action="store_true")
+    add_json(p)
     p.set_defaults(func=cmd_unit_learn)
 
 

@@ -35,11 +35,15 @@ class RuleCodec:
     """The base of the model-file codecs: ``method`` (one codec may serve several names),
     the predictor of a trained model (the model itself, unless a method applies locks)."""
 
+    #: the method name a codec made without one serves (each codec class names its own;
+    #: :meth:`~diag_plugin.models.registry.Method.load` passes the name the file gives)
+    method = ""
     #: whether the method has an IEC 61131-7 FCL form (``diag rules export``)
     fcl = False
 
-    def __init__(self, method: str) -> None:
-        self.method = method
+    def __init__(self, method: str | None = None) -> None:
+        if method is not None:
+            self.method = method
 
     def predictor(self, rb: Any, model: Any) -> Any:
         """The trained model as the file predicts with it (no locks in this method)."""

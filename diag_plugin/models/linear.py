@@ -19,15 +19,12 @@ constant and one term per input::
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from diag_plugin.models.estimation import spans_and_lags
-from diag_plugin.models.narmax import Narmax2Regressor, NarmaxCodec, Term, format_term
+from diag_plugin.models.narmax import Narmax2Regressor, NarmaxCodec
 from diag_plugin.models.protocol import REASON_OUTSIDE, Prediction
-from diag_plugin.models.spec import ModelSpec
 
 HEADER = """\
 # Model file (diag-plugin), method linear: y = b0 + sum of b_i * input_i (the first-order
@@ -76,27 +73,11 @@ class LinearRegressor(Narmax2Regressor):
 class LinearCodec(NarmaxCodec):
     """Estimator factory and term I/O of ``linear`` (the ``narmax2`` file form, first order)."""
 
+    method = "linear"
     estimator = LinearRegressor
     header = HEADER
+    only = 'a linear model has only the constant "1" and its inputs'
 
-    def __init__(self, method: str = "linear") -> None:
-        super().__init__(method)
-
-    def new_estimator(self, spec: ModelSpec) -> LinearRegressor:
-        """An untrained model with the spec's spans."""
-        return LinearRegressor(**spans_and_lags(spec, "linear"))
-
-    def read_rules(
-        self, rb: Any, items: list, positions: Sequence[tuple[int, list[str], str]]
-    ) -> list[Term]:
-        """Terms from the ``[rules] list``: the constant and the inputs, no products."""
-        out = super().read_rules(rb, items, positions)
-        specs = [v.spec for v in rb.inputs]
-        for t in out:
-            if len(t.term) > 1:
-                rb.error(
-                    t.line,
-                    f"term {format_term(t.term, specs)!r}: a linear model has only the "
-                    'constant "1" and its inputs',
-                )
-        return [t for t in out if len(t.term) <= 1]
+    def allows(self, term: tuple[int, ...]) -> bool:
+        """The constant and the inputs, no products."""
+        return len(term) <= 1

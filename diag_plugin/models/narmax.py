@@ -352,20 +352,21 @@ TERM_KEYS = {"term", "coef"}
 class NarmaxCodec(RuleCodec):
     """Estimator factory and term I/O of ``narmax2`` (a polynomial: no FCL form)."""
 
+    method = "narmax2"
     estimator = Narmax2Regressor
     header = HEADER
 
-    def __init__(self, method: str = "narmax2") -> None:
-        super().__init__(method)
+    #: what a term the method does not have is told (see :meth:`allows`)
+    only = ""
 
     def default_options(self) -> dict[str, Any]:
         """Method options written into a new file's ``[rules]`` table: none."""
         return {}
 
     def new_estimator(self, spec: ModelSpec) -> Narmax2Regressor:
-        """An untrained model with the spec's spans; lags of the output are fed back in free
-        run."""
-        return Narmax2Regressor(**spans_and_lags(spec, "narmax2"))
+        """An untrained model (the codec's :attr:`estimator`) with the spec's spans; lags of
+        the output are fed back in free run."""
+        return self.estimator(**spans_and_lags(spec, self.method))
 
     def to_model(self, rb: RuleBase) -> Narmax2Regressor:
         """The model the file describes (terms not listed count 0)."""
@@ -422,7 +423,15 @@ class NarmaxCodec(RuleCodec):
                 continue
             seen[term] = line
             out.append(Term(term, float(coef), line, e.comments, e.trailing))
-        return out
+        for t in out:
+            if not self.allows(t.term):
+                rb.error(t.line, f"term {format_term(t.term, specs)!r}: {self.only}")
+        return [t for t in out if self.allows(t.term)]
+
+    def allows(self, term: tuple[int, ...]) -> bool:
+        """Whether the method's file form has ``term`` (``narmax2``: every term it parses;
+        a narrower method says what it has in :attr:`only`)."""
+        return True
 
     def rule_table(self, rb: RuleBase) -> tuple[list[str], list[list[str]]]:
         """Columns and rows for ``diag rules show``: each term and its coefficient."""

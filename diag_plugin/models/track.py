@@ -34,7 +34,7 @@ from diag_plugin.models.estimation import (
     as_xy,
     finite_rows,
 )
-from diag_plugin.models.narmax import NarmaxCodec, Term, format_term
+from diag_plugin.models.narmax import NarmaxCodec
 from diag_plugin.models.protocol import REASON_NAN, REASON_OK, Capabilities, Prediction
 from diag_plugin.models.spec import ModelSpec
 
@@ -180,11 +180,10 @@ class TrackRegressor(SpanEstimator):
 class TrackCodec(NarmaxCodec):
     """Estimator factory and term I/O of ``track`` (the ``narmax2`` file form, two terms)."""
 
+    method = "track"
     estimator = TrackRegressor
     header = HEADER
-
-    def __init__(self, method: str = "track") -> None:
-        super().__init__(method)
+    only = 'a track model has only the constant "1" (its offset) and its input (slope 1)'
 
     def new_estimator(self, spec: ModelSpec) -> TrackRegressor:
         """An untrained model of the spec's one input (the set-point)."""
@@ -208,17 +207,6 @@ class TrackCodec(NarmaxCodec):
     def size(self, model: TrackRegressor) -> int:
         return len(TERMS)
 
-    def read_rules(
-        self, rb: RuleBase, items: list, positions: Sequence[tuple[int, list[str], str]]
-    ) -> list[Term]:
-        """Terms from the ``[rules] list``: only ``1`` and the input."""
-        out = super().read_rules(rb, items, positions)
-        specs = [v.spec for v in rb.inputs]
-        for t in out:
-            if t.term not in TERMS:
-                rb.error(
-                    t.line,
-                    f"term {format_term(t.term, specs)!r}: a track model has only the "
-                    'constant "1" (its offset) and its input (slope 1)',
-                )
-        return [t for t in out if t.term in TERMS]
+    def allows(self, term: tuple[int, ...]) -> bool:
+        """Only ``1`` and the input."""
+        return term in TERMS

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from diag_plugin.cliargs import add_json
 from historian.errors import UserError
 
 if TYPE_CHECKING:  # the commands import rich and the rule base when they run
@@ -23,7 +24,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="validate rule-base, unit and matrix files; prints file:line: problem",
     )
     p.add_argument("files", nargs="+", metavar="FILE")
-    p.add_argument("--json", action="store_true", help="print the problems as JSON")
+    add_json(p, "print the problems as JSON")
     p.set_defaults(func=cmd_check)
 
     p = rsub.add_parser("show", help="print the rules of a model (a grid, or --list)")
@@ -34,7 +35,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="one rule per line with each premise set's centre in engineering units (the "
         "default when a grid would not fit the terminal)",
     )
-    p.add_argument("--json", action="store_true", help="print the rules as JSON")
+    add_json(p, "print the rules as JSON")
     p.add_argument(
         "--level",
         type=int,

@@ -14,6 +14,8 @@ import sys
 import time
 from pathlib import Path
 
+from diag_plugin.cliargs import add_json
+
 FAULT_HELP = (
     "fault NAME:STRENGTH[@ONSET][/abrupt|/incipient[=DURATION]], repeatable; "
     "e.g. f17:0.5@2026-03-01T10:00 or f2:1@2026-03-01/incipient=1d (ONSET in UTC); "
@@ -55,7 +57,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         metavar="T/H",
         help="lowest flow set-point, t/h (default 4): lower runs the plant at low load too",
     )
-    p.add_argument("--json", action="store_true", help="print what was written as JSON")
+    add_json(p, "print what was written as JSON")
     p.set_defaults(func=cmd_simulate)
 
 

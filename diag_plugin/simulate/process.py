@@ -151,6 +151,15 @@ class _Schedule:
         return np.interp(t, self.times, self.values)
 
 
+def _daily(mean: float, amplitude: float, angle: np.ndarray, n: int, parts) -> np.ndarray:
+    """A slow variable: ``mean`` plus a daily sine of ``amplitude`` at ``angle`` (rad) plus the
+    next ``n`` samples of each of ``parts`` (noise sources with ``next(n)``), added in order."""
+    out = mean + amplitude * np.sin(angle)
+    for part in parts:
+        out = out + part.next(n)
+    return out
+
+
 class ProcessGenerator:
     """Per-second process conditions from ``origin`` (s of day of the first sample)."""
 
@@ -163,17 +172,19 @@ class ProcessGenerator:
         self.tod0 = origin_s % DAY_S  # time of day of the origin
         ph = rng(_S_PHASE).uniform(0.0, 2 * np.pi, 3)
         self.phase = ph
-        self.p1_ou = _OU(rng(_S_P1), pp.p1_ou_sd_kpa, pp.p1_ou_tau_s)
-        self.p1_fast = _OU(rng(_S_P1 + 100), pp.p1_fast_sd_kpa, pp.p1_fast_tau_s)
-        self.p1_steps = _Steps(
-            rng(_S_P1EV), rng(_S_P1EV + 100), pp.p1_step_sd_kpa, pp.p1_step_rate_per_day
+        # each pressure wanders slowly, steps at random events and has fast noise (added in
+        # that order); the temperature only wanders
+        self.p1_noise = (
+            _OU(rng(_S_P1), pp.p1_ou_sd_kpa, pp.p1_ou_tau_s),
+            _Steps(rng(_S_P1EV), rng(_S_P1EV + 100), pp.p1_step_sd_kpa, pp.p1_step_rate_per_day),
+            _OU(rng(_S_P1 + 100), pp.p1_fast_sd_kpa, pp.p1_fast_tau_s),
         )
-        self.p2_ou = _OU(rng(_S_P2), pp.p2_ou_sd_kpa, pp.p2_ou_tau_s)
-        self.p2_fast = _OU(rng(_S_P2 + 100), pp.p2_fast_sd_kpa, pp.p2_fast_tau_s)
-        self.p2_steps = _Steps(
-            rng(_S_P2EV), rng(_S_P2EV + 100), pp.p2_step_sd_kpa, pp.p2_step_rate_per_day
+        self.p2_noise = (
+            _OU(rng(_S_P2), pp.p2_ou_sd_kpa, pp.p2_ou_tau_s),
+            _Steps(rng(_S_P2EV), rng(_S_P2EV + 100), pp.p2_step_sd_kpa, pp.p2_step_rate_per_day),
+            _OU(rng(_S_P2 + 100), pp.p2_fast_sd_kpa, pp.p2_fast_tau_s),
         )
-        self.t_ou = _OU(rng(_S_T), pp.t_ou_sd_c, pp.t_ou_tau_s)
+        self.t_noise = (_OU(rng(_S_T), pp.t_ou_sd_c, pp.t_ou_tau_s),)
         self.sched = _Schedule(rng(_S_SP), pp)
         self.fnoise_rng = rng(_S_FNOISE)
         self.f_noise_sd = f_noise_sd
@@ -183,21 +194,9 @@ class ProcessGenerator:
         pp = self.pp
         t = self.t + np.arange(n, dtype=float)
         day = 2 * np.pi * (self.tod0 + t) / DAY_S
-        p1 = (
-            pp.p1_mean_kpa
-            + pp.p1_daily_kpa * np.sin(day + self.phase[0])
-            + self.p1_ou.next(n)
-            + self.p1_steps.next(n)
-            + self.p1_fast.next(n)
-        )
-        p2 = (
-            pp.p2_mean_kpa
-            + pp.p2_daily_kpa * np.sin(day + self.phase[1])
-            + self.p2_ou.next(n)
-            + self.p2_steps.next(n)
-            + self.p2_fast.next(n)
-        )
-        tc = pp.t_mean_c + pp.t_daily_c * np.sin(day + self.phase[2]) + self.t_ou.next(n)
+        p1 = _daily(pp.p1_mean_kpa, pp.p1_daily_kpa, day + self.phase[0], n, self.p1_noise)
+        p2 = _daily(pp.p2_mean_kpa, pp.p2_daily_kpa, day + self.phase[1], n, self.p2_noise)
+        tc = _daily(pp.t_mean_c, pp.t_daily_c, day + self.phase[2], n, self.t_noise)
         sp = self.sched.at(t) + pp.sp_daily_th * np.sin(day - 1.0)
         sp = np.clip(sp, pp.sp_lo_th, pp.sp_hi_th)
         fn = self.f_noise_sd * self.fnoise_rng.standard_normal(n)

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 
+from diag_plugin.cliargs import add_json
+
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("train", help="train a model (or --all) from the historian")
@@ -28,11 +30,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--engine", choices=["local", "dask"], default="local")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_json(p, "print the result as JSON")
     p.set_defaults(func=cmd_train)
     p = sub.add_parser("experiments", help="versions of a model with inputs and error")
     p.add_argument("name")
-    p.add_argument("--json", action="store_true")
+    add_json(p)
     p.set_defaults(func=cmd_experiments)
 
 

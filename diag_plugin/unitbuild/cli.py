@@ -9,6 +9,7 @@ import argparse
 import json
 from pathlib import Path
 
+from diag_plugin.cliargs import add_json
 from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_frames
 from diag_plugin.learn.cli import add_far
 from historian.errors import UserError
@@ -46,7 +47,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="loops declared in a tags CSV's 'loop' and 'role' (pv|sp|out|sensor|actuator) columns",
     )
     p.add_argument("--force", action="store_true", help="overwrite an existing unit and models")
-    p.add_argument("--json", action="store_true")
+    add_json(p)
     p.set_defaults(func=cmd_unit_build)
     p = usub.add_parser(
         "accept",
@@ -57,12 +58,19 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--from", dest="start", required=True, metavar="T0")
     p.add_argument("--to", dest="end", required=True, metavar="T1")
     add_far(p, "(default: the unit's own)")
-    p.add_argument("--json", action="store_true")
+    add_json(p)
     p.set_defaults(func=cmd_unit_accept)
     p = usub.add_parser("rollback", help="undo the last `diag unit accept` of a unit")
     p.add_argument("name")
-    p.add_argument("--json", action="store_true")
+    add_json(p)
     p.set_defaults(func=cmd_unit_rollback)
+
+
+def _printed_json(args, doc: dict) -> bool:
+    """With ``--json``: ``doc`` printed as the command's whole answer (True)."""
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    return args.json
 
 
 def _tags_from(path: str) -> list[str]:
@@ -120,8 +128,7 @@ def cmd_unit_build(args) -> int:
             progress=progress,
             loops=loops,
         )
-    if args.json:
-        print(json.dumps(res.as_dict(), indent=2))
+    if _printed_json(args, res.as_dict()):
         return 0
     print(
         f"wrote {res.path}: {len(res.tests)} tests from {res.window[0]} … {res.window[1]} "
@@ -160,8 +167,7 @@ def cmd_unit_accept(args) -> int:
     if args.far is not None and not args.far > 0:
         raise UserError(f"--far {args.far:g}: the budget must be a positive rate per hour")
     res = accept(unit, lambda a, b: unit_frames(args, unit, a, b), t0, t1, far=args.far)
-    if args.json:
-        print(json.dumps(res.as_dict(), indent=2))
+    if _printed_json(args, res.as_dict()):
         return 0
     print(
         f"unit {res.unit}: learned {res.window[0]} … {res.window[1]} (old version kept in "
@@ -187,8 +193,7 @@ def cmd_unit_rollback(args) -> int:
     if not path.exists():
         raise UserError(f"unit {args.name}: no file {path}")
     got = rollback(path)
-    if args.json:
-        print(json.dumps(got, indent=2))
+    if _printed_json(args, got):
         return 0
     acc = got.get("accepted") or ["?", "?"]
     print(

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from diag_plugin.cliargs import add_json
 from diag_plugin.models.registry import METHODS
 from historian.errors import UserError
 
@@ -72,7 +73,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         p.add_argument("--to", dest="end", help="end time")
         if name == "compare":
             p.add_argument("--report", metavar="FILE.html")
-            p.add_argument("--json", action="store_true")
+            add_json(p)
         elif name == "explain":
             p.add_argument("--top", type=int, default=10)
             p.add_argument(
@@ -80,10 +81,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                 type=int,
                 help="longest dead time screened, in samples (default: 10 minutes of samples)",
             )
-            p.add_argument("--json", action="store_true")
+            add_json(p)
         else:
             p.add_argument("--out", required=True, metavar="FILE.html")
-            p.add_argument("--json", action="store_true", help="print what was written as JSON")
+            add_json(p, "print what was written as JSON")
         p.set_defaults(func=fn)
 
 
@@ -93,7 +94,7 @@ def _edit_flags(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="make the edit even when locked rules cannot be carried to the new grid",
     )
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_json(p, "print the result as JSON")
 
 
 def _load(args) -> RuleBase:
