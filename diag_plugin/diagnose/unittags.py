@@ -51,7 +51,11 @@ is how much of ``T²`` a bias along ``ξ_X`` explains (``0 ≤ RBC_X ≤ T²``).
 moves its loop test's residual by an amount and sign no gain says (zero while the loop
 compensates, either way once the valve sticks or saturates): its contribution is taken over the
 plane of its own direction and that test's axis, the multidimensional form ``uᵀ(ΞᵀS⁻¹Ξ)⁻¹u``,
-``Ξ = [ξ_X e_loop]``, ``u = ΞᵀS⁻¹z`` (Alcala & Qin, 2009). The share
+``Ξ = [ξ_X e_loop]``, ``u = ΞᵀS⁻¹z`` (Alcala & Qin, 2009). A loop's own sensor is not given
+that plane: its direction is ``1`` on its loop test, as any tag's own test, plus the move of
+the compensating loop on the tests reading the set-point (``−g_SP``); a plane would give it one
+more degree of freedom than the tags it is ranked against, and a share of every deviation
+that moves its loop's error. The share
 ``RBC_X / T²`` ranks the tags (1: a bias of X alone explains the deviation). Tags touching
 the same tests in the same proportions cannot be told apart and share a rank. Before
 ``diag unit learn`` has written ``[combined]`` the ranking uses ``z = r / high``, ``S = I`` and
@@ -160,7 +164,9 @@ def directions(unit, spec: CombinedSpec | None) -> tuple[np.ndarray, np.ndarray]
     whose control error its fault also moves by an unknown amount (a loop's actuator: a
     valve the loop compensates leaves the error at zero, a stuck or saturated one moves it
     either way), −1 for none: the ranking gives that tag the plane of its direction and that
-    test's axis (:meth:`CombinedModel.evaluate`)."""
+    test's axis (:meth:`CombinedModel.evaluate`). Only actuators get a plane; a loop's own
+    sensor has one direction (its loop test and the compensating move,
+    :func:`_compensated_sensors`)."""
     tags, outputs, reads = structure(unit)
     xi = np.zeros((len(unit.tests), len(tags)))
     loop = np.full(len(tags), -1, np.int64)
@@ -178,12 +184,13 @@ def directions(unit, spec: CombinedSpec | None) -> tuple[np.ndarray, np.ndarray]
             if x == test.actuator and x != outputs[t] and x not in spec.gains.get(t, {}):
                 loop[k] = j
                 continue
-            if test.actuator and x == outputs[t] and loop[k] < 0:
-                # the loop's own sensor: the loop holds its reading at the set-point, so a
-                # bias of it moves the loop's error by an amount no gain says (zero once
-                # compensated): the plane of its direction elsewhere and this test's axis
-                loop[k] = j
-                continue
+            # the loop's own sensor keeps one direction, as any tag: ``1`` on its loop test
+            # (its own residual, the control error a bias moves before the loop compensates)
+            # and, added below, the compensating move on the tests reading the set-point. Not
+            # the plane of its direction and the loop test's axis: one more degree of
+            # freedom than the other tags have, it took a share of every deviation that
+            # moved the loop's error (chemical plant, tuning seeds: faulted tag in the top
+            # three 28/45 with the plane, 31/45 without; docs/how-to/unit-loops.md)
             i = spec.tests.index(t)
             span = test.ymax if unit.ev["scale"] == "max" and test.ymax else unit.models[t].span
             g = spec.gains.get(t, {}).get(x, 0.0)
