@@ -42,11 +42,19 @@ def _empty():
     return np.empty(0, np.int64), np.empty(0, np.float64), np.empty(0, np.int64)
 
 
+#: bytes of the database file a connection reads through a memory map (SQLite caps it at
+#: its compile-time limit, 2 GB by default): a training read of months of samples costs a
+#: sixth less CPU than through read() calls into SQLite's page cache (bench_train). Reads
+#: only: SQLite still writes through its journal, so durability is unchanged.
+MMAP_BYTES = 1 << 31
+
+
 class SqliteBulk:
     """SQLite hot path on one ADBC connection (Arrow in, Arrow out).
 
     WAL journal and ``synchronous=FULL`` are set on every connection, so a committed batch
-    survives a crash of the process (and of the machine).
+    survives a crash of the process (and of the machine); pages are read through a memory
+    map (:data:`MMAP_BYTES`).
     """
 
     name = "sqlite"
@@ -72,6 +80,7 @@ class SqliteBulk:
                 "PRAGMA synchronous=FULL",
                 "PRAGMA temp_store=MEMORY",
                 "PRAGMA cache_size=-65536",
+                f"PRAGMA mmap_size={MMAP_BYTES}",
             ):
                 cur.execute(pragma)
                 cur.fetchall()

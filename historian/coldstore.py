@@ -211,6 +211,20 @@ class SegmentIndex:
             return None
         return int(self.ts_lo[g].min()), int(self.ts_hi[g].max())
 
+    def tail_start(self, tag_id: int, rows: int) -> int:
+        """A time from which the file holds at least the last ``rows`` rows of ``tag_id``
+        (or all of them), from the statistics: the first time of the last row groups that
+        hold that many; the lowest time when they cannot say (groups mixing tags)."""
+        g = self.groups(tag_id, _INT64.min, _INT64.max)
+        if not len(g) or np.any(self.tag_lo[g] != self.tag_hi[g]):
+            return int(_INT64.min)
+        sizes = np.array([self.metadata.row_group(int(i)).num_rows for i in g])
+        order = np.argsort(self.ts_hi[g])[::-1]  # the newest row groups first
+        enough = np.flatnonzero(np.cumsum(sizes[order]) >= rows)
+        if not len(enough):
+            return int(_INT64.min)
+        return int(self.ts_lo[g[order[: enough[0] + 1]]].min())
+
     def read(self, tag_id: int, start: int, end: int, cache: RowGroupCache | None = None):
         """(ts, value, quality) of one tag in [start, end), decoding only its row groups
         (row groups of one tag through ``cache``: consecutive chunked reads decode each once)."""

@@ -347,7 +347,8 @@ class Historian(ColdMonths, Registry, TagReport):
             return ts
         for seg in reversed(self._segments(None, None)):
             m0, m1 = coldstore.month_bounds(seg["month"])
-            cold, _, _ = self._segment_index(seg).read(tag_id, m0, m1)
+            index = self._segment_index(seg)  # only the row groups holding the last rows
+            cold, _, _ = index.read(tag_id, max(m0, index.tail_start(tag_id, n - len(ts))), m1)
             ts = np.r_[cold, ts]
             if len(ts) >= n:
                 break

@@ -179,3 +179,19 @@ def test_integrity_check_reports_duplicate_keys_on_postgres(pg_url, tmp_path):
             "2 duplicated (tag_id, ts) keys in samples",
             "primary-key index of samples missing or invalid",
         ]
+
+
+@pytest.mark.parametrize("n", [1, HOT, HOT + 1, HOT + 100, 30 * 24, 10 * len(IDX)])
+def test_recent_sample_times_reach_into_rolled_months(historian, monkeypatch, n):
+    """A tag's last ``n`` sample times (what holds() measures a tag's sampling from) are the
+    tail of all its samples, database and rolled months alike, also when the months' files
+    hold many row groups and only the last of them are read."""
+    from historian import coldstore
+
+    monkeypatch.setattr(coldstore, "ROW_GROUP_ROWS", 50)
+    historian.write_samples(frame())
+    historian.roll_months(before="2024-03-01")
+    tag_id = historian._tag("A")[0]
+    every = historian.read_samples("A").index.as_unit("us").asi8
+    got = historian._recent_ts(tag_id, n)
+    np.testing.assert_array_equal(got, every[-n:])
