@@ -37,7 +37,7 @@ def _statuses(unit, frame: pd.DataFrame):
     return alarm, st == NE107.CHECK_FUNCTION, d.why.to_numpy()
 
 
-def _pca_share(train: pd.DataFrame, frame: pd.DataFrame, delay: int) -> float:
+def _pca_alarms(train: pd.DataFrame, frame: pd.DataFrame, delay: int) -> np.ndarray:
     """PCA T² + Q (90 % of the variance, 1 % limits) fitted on the same rows, each alarm
     after the unit's on/off delays: the baseline beside every figure here."""
     from diag_plugin.bench.pca import PCADetector
@@ -46,8 +46,12 @@ def _pca_share(train: pd.DataFrame, frame: pd.DataFrame, delay: int) -> float:
     cols = [c for c in train.columns if np.ptp(train[c].to_numpy(float)) > 0]
     det = PCADetector(n_components=0.9, columns=cols).fit(train[cols])
     raw = det.decide(frame[cols]).to_numpy()
-    on = OnOffDelay(delay, delay).transform(raw[:, None])[:, 0]
-    return float(np.nan_to_num(on).mean())
+    return np.nan_to_num(OnOffDelay(delay, delay).transform(raw[:, None])[:, 0]) > 0
+
+
+def _pca_share(train: pd.DataFrame, frame: pd.DataFrame, delay: int) -> float:
+    """The share of ``frame`` in alarm by :func:`_pca_alarms`."""
+    return float(_pca_alarms(train, frame, delay).mean())
 
 
 @pytest.mark.parametrize("period", [1.0, 15.0, 60.0, 180.0], ids=lambda p: f"{p:g}s")
@@ -144,3 +148,49 @@ def test_unit_show_labels_each_test_s_threshold_unit():
     assert residual_unit(False) == "% of span"
     assert residual_unit(False, "max") == "% of max"
     assert residual_unit(True).startswith("% of span ÷ local spread")
+
+
+def test_a_tag_no_other_predicts_gets_a_level_test_that_detects_its_fault(tmp_path):
+    """Issue 34, item 3: in a short window a tag no other tag predicts is still watched.
+
+    SKAB's run valve1/3 (a public 1 s rig; a tuning run): from its first 400 samples no other
+    tag predicts the flow, and the build used to leave it untested ("nothing to model it
+    from"), so the inlet valve closing, which acts on the flow, raised nothing there. Now the
+    flow gets a level test (the tag against its window mean, where the window holds enough
+    independent values of it), the build says so in its output and in ``unit show``, and the
+    unit's own alarms cover most of the labelled fault and little of the normal samples
+    between the 400 and the onset; PCA T² + Q fitted on the same rows beside it."""
+    from diag_plugin.bench import publicplants as pp
+    from diag_plugin.diagnose.unit import Unit
+
+    try:
+        plant = pp.load_skab()
+    except pp.DataMissing as exc:
+        pytest.skip(str(exc))
+    run = next(r for r in plant.tuning if r.name == "valve1/3")
+    frame = run.frame.copy()
+    frame.index = pd.date_range("2020-03-09 10:00", periods=len(frame), freq="1s")
+    build = frame.iloc[:ROWS]
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    import_csv(g, build, tmp_path / "train.csv")
+    t1 = build.index[-1] + pd.Timedelta(seconds=1)
+    rc, text = diag(g, "unit", "build", "u", "--from", fmt(build.index[0]), "--to", fmt(t1))
+    assert rc == 0, text
+    assert "level test" in text and "residual filter cut-off 0.1" in text, text
+    rc, shown = diag(g, "unit", "show", "u")
+    assert rc == 0 and "level test" in shown, shown
+    unit = Unit.load(tmp_path / "rb" / "u.unit.toml", tmp_path / "rb")
+    row = next(t for t in unit.file.build["tests"].values() if t["tag"] == "Volume Flow RateRMS")
+    assert row["inputs"] == [] and row["method"] == "linear", row
+    alarm, _, _ = _statuses(unit, frame)
+    lab = run.labels
+    # the normal samples between the 400 and the onset (after the fault the unit's off-delay
+    # of minutes, ISA-18.2, holds the alarm on)
+    k = np.arange(len(frame))
+    before, during = (k >= ROWS) & (k < run.onset), (k >= ROWS) & (lab > 0)
+    fault, normal = alarm[during].mean(), alarm[before].mean()
+    pca = _pca_alarms(build, frame, int(unit.ev["on_delay"]))
+    print(f"SKAB valve1/3: unit in alarm on {fault:.2f} of the fault, {normal:.2f} of the "
+          f"normal samples before it; PCA {pca[during].mean():.2f}, "
+          f"{pca[before].mean():.2f}")  # fmt: skip
+    assert fault > 0.5 and normal < 0.1, (fault, normal)

@@ -651,7 +651,7 @@ def _build_unit(
             + " exist (use --force to overwrite, or another unit name)"
         )
     ctx = _Context(frame, info, period)
-    plan = short.plan_for(rows, period, max_inputs)
+    plan = short.plan_for(rows, period, max_inputs, evaluation_for(period)["lowpass"])
     # a long fast window: inputs chosen on a coarser grid (short.coarse_frame)
     sel = ctx
     if plan.factor > 1:
@@ -681,7 +681,12 @@ def _build_unit(
         )
     kept = []
     for i, ch in enumerate(choices):
-        if not ch.steps:
+        if not ch.steps and plan.short and not ch.tracks:
+            why = short.level_test(ch, ctx.column(ch.tag), MIN_GAIN)
+            if why:
+                skipped[ch.tag] = why
+                continue
+        elif not ch.steps:
             skipped[ch.tag] = (
                 "no other tag predicts it on held-out data (best cut of the error under "
                 f"{MIN_GAIN:.0%}): nothing to model it from"
@@ -742,6 +747,8 @@ def _build_unit(
             doc["tests"][ch.test]["statistic"] = ch.statistic
     for k, v in {**evaluation_for(period), **alarm_settings(period)}.items():
         doc["evaluation"][k] = v
+    if plan.lowpass is not None:
+        doc["evaluation"]["lowpass"] = plan.lowpass
     # a unit-level combined test beside the per-tag tests, and alarms isolated to tags
     # (docs/reference/units.md, "The combined test and isolation to tags")
     doc["evaluation"]["combined"] = True

@@ -10,6 +10,10 @@
   :data:`SHORT_PER_CELL` samples each *and* it beats the linear test's held-out error by more
   than the build's ``MIN_GAIN``; elsewhere the test is linear (:mod:`diag_plugin.models.linear`):
   the tag against a least-squares combination of its inputs, a PCA-like parity relation.
+  A tag no other tag predicts gets a **level test** (:func:`level_test`: a linear test without
+  inputs, the tag against its window mean), so every tag that varies is watched. The
+  residual filter's cut-off is raised (:func:`short_lowpass`) so that the window's filtered
+  residuals hold about :data:`SHORT_INDEPENDENT` independent values for the thresholds.
 * **A long window on a fast grid** (more than :data:`SELECT_ROWS` grid points, e.g. a day at
   1 s): the inputs and dead times are chosen on a grid :func:`coarse_factor` times coarser
   (means over consecutive samples), the dead times scaled back; the models are then trained,
@@ -39,6 +43,12 @@ SHORT_MAX_INPUTS = 2
 SHORT_MAX_SETS = 5
 #: training samples per occupied rule cell a short window's grid must hold
 SHORT_PER_CELL = 40
+#: independent values a short window's filtered residuals should hold (:func:`short_lowpass`)
+SHORT_INDEPENDENT = 40
+#: independent values of a tag a short window needs for a level test (:func:`level_test`)
+SHORT_LEVEL_INDEPENDENT = SHORT_INDEPENDENT
+#: the highest residual filter cut-off (/ Nyquist) a short window gets
+SHORT_MAX_LOWPASS = 0.2
 #: above this many grid points inputs are chosen on a coarser grid
 SELECT_ROWS = 20_000
 #: the linear method a short window's tests fall back to
@@ -56,6 +66,8 @@ class Plan:
     select_method: str = "wm-avg"
     max_sets: int | None = None
     factor: int = 1
+    #: a short window's residual filter (cut-off / Nyquist), None: the period's default
+    lowpass: float | None = None
     reasons: list[str] = field(default_factory=list)
 
     @property
@@ -71,6 +83,7 @@ class Plan:
             "select_method": self.select_method,
             "max_sets": self.max_sets,
             "select_period": self.select_period,
+            "lowpass": self.lowpass,
             "reasons": list(self.reasons),
         }
 
@@ -88,8 +101,18 @@ def coarse_factor(rows: int) -> int:
     return max(1, math.ceil(rows / SELECT_ROWS))
 
 
-def plan_for(rows: int, period: str, max_inputs: int) -> Plan:
-    """The build's plan for a window of ``rows`` grid points of ``period`` (module doc)."""
+def short_lowpass(rows: int, lowpass: float) -> float:
+    """A short window's residual filter: the period's cut-off ``lowpass`` (/ Nyquist), raised
+    so that the filtered residuals of ``rows`` samples hold :data:`SHORT_INDEPENDENT` values
+    the thresholds can rest on (a filter remembers about ``1 / wn`` samples), at most
+    :data:`SHORT_MAX_LOWPASS`."""
+    return float(f"{min(SHORT_MAX_LOWPASS, max(lowpass, SHORT_INDEPENDENT / rows)):.3g}")
+
+
+def plan_for(rows: int, period: str, max_inputs: int, lowpass: float | None = None) -> Plan:
+    """The build's plan for a window of ``rows`` grid points of ``period`` (module doc);
+    ``lowpass``: the period's residual filter (cut-off / Nyquist), which a short window
+    raises (:func:`short_lowpass`)."""
     p = Plan(rows, period, max_inputs=max_inputs)
     if rows < SHORT_ROWS:
         p.short = True
@@ -101,8 +124,19 @@ def plan_for(rows: int, period: str, max_inputs: int) -> Plan:
             f"{p.max_inputs} inputs per test, chosen with a linear model; a rule grid (at most "
             f"{SHORT_MAX_SETS} sets per input) only where its cells hold {SHORT_PER_CELL} "
             "samples each and it beats the linear test on held-out error, else a linear "
-            "(PCA-like) test"
+            "(PCA-like) test; a tag no other tag predicts: a level test (the tag against its "
+            "mean over the window)"
         )
+        if lowpass is not None:
+            p.lowpass = short_lowpass(rows, lowpass)
+            if p.lowpass != lowpass:
+                p.reasons.append(
+                    f"residual filter cut-off {p.lowpass:g} of Nyquist (memory about "
+                    f"{1 / p.lowpass:.0f} samples), not {lowpass:g} (about {1 / lowpass:.0f}): "
+                    f"the thresholds rest on the {rows} samples' filtered residuals, which "
+                    f"then hold about {SHORT_INDEPENDENT} independent values, not "
+                    f"{rows * lowpass:.0f}"
+                )
     elif rows > SELECT_ROWS:
         p.factor = coarse_factor(rows)
         p.reasons.append(
@@ -163,3 +197,30 @@ def widened(span: tuple[float, float]) -> tuple[float, float]:
     lo, hi = span
     w = (hi - lo) * MARGIN
     return (lo - w, hi + w)
+
+
+def level_test(ch, y: np.ndarray, min_gain: float) -> str | None:
+    """A short window's test of a tag no other tag predicts: the tag against its mean over
+    the window (a linear test without inputs) -- a univariate T²-like chart, so that every
+    tag that varies is watched (``ch.method`` and ``ch.why`` set). Only where the window
+    holds :data:`SHORT_LEVEL_INDEPENDENT` independent values of the tag ``y``
+    (:func:`~diag_plugin.diagnose.symptoms.effective_samples`): a tag that wanders slower
+    than the window has not shown its fault-free range, and its mean says nothing; then the
+    reason it is left untested is returned."""
+    from diag_plugin.diagnose.symptoms import effective_samples
+
+    n = effective_samples(y)
+    if n < SHORT_LEVEL_INDEPENDENT:
+        return (
+            f"no other tag predicts it on held-out data (best cut of the error under "
+            f"{min_gain:.0%}), and the window holds about {n:.0f} independent values of it "
+            f"(a level test needs {SHORT_LEVEL_INDEPENDENT}): it wanders slower than the "
+            "window shows"
+        )
+    ch.method = LINEAR
+    ch.why = (
+        f"level test: no other tag cuts its held-out error by more than {min_gain:.0%}; "
+        f"the tag against its mean over the window ({n:.0f} independent values; held-out "
+        f"error {ch.baseline_rmse_pct:.2f} %)"
+    )
+    return None
