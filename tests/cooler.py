@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from tests.line7 import pi_valve
+
 PERIOD_S = 30.0
 SET_POINT = 45.0
 TAGS = ("F_PROC", "T_IN", "T_CW", "T_OUT", "V_CW")
@@ -56,13 +58,8 @@ def simulate(hours: float, seed: int, fault: str | None = None, onset_h: float =
     for i in range(m):
         faulty = fault is not None and i >= onset
         e = y - SET_POINT  # too hot opens the cooling valve
-        integ = float(np.clip(integ + kp * e * dt / ti, 0.0, 100.0))
-        op = float(np.clip(kp * e + integ, 0.0, 100.0))
-        if faulty and fault == "stiction":
-            if abs(op - pos) > 3.0:
-                pos = op
-        else:
-            pos = op
+        op, integ, pos = pi_valve(e, integ, pos, kp, dt, ti,
+                                  3.0 if faulty and fault == "stiction" else None)  # fmt: skip
         flow_cw = cap * pos * (np.sqrt(0.7) if faulty and fault == "valve_capacity" else 1.0)
         eps = 1.0 - np.exp(-k * max(flow_cw, 0.1) / f[i])
         target = tin[i] - eps * (tin[i] - tcw[i])

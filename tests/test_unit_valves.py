@@ -21,7 +21,7 @@ from diag_plugin.unitbuild.build import build_unit
 from diag_plugin.unitbuild.loops import Loop, loops_from_tags_csv, parse_loop
 from historian.errors import UserError
 from tests import cooler
-from tests.test_any_plant_tour import diag, fmt
+from tests.test_any_plant_tour import diag, fmt, import_csv
 
 ONSET = int(2 * 3600 / cooler.PERIOD_S)  # the faults start after 2 h
 SEEDS = (11, 12)
@@ -144,13 +144,8 @@ def test_the_fixed_set_point_loop_is_built_through_the_commands(tmp_path):
     and ``--loop`` with a number; a bad number is refused naming the option."""
     g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
     frame = cooler.simulate(5.0, seed=1)
-    out = frame.copy()
-    out.index = out.index.strftime("%Y-%m-%dT%H:%M:%S")
-    out.index.name = "time"
-    out.to_csv(tmp_path / "c.csv")
     cooler.tags_csv().to_csv(tmp_path / "tags.csv", index=False)
-    rc, text = diag(g, "import", str(tmp_path / "c.csv"), "--tags", str(tmp_path / "tags.csv"))
-    assert rc == 0, text
+    import_csv(g, frame, tmp_path / "c.csv", tags=tmp_path / "tags.csv")
     t0, t1 = fmt(frame.index[0]), fmt(frame.index[-1] + pd.Timedelta("30s"))
     rc, text = diag(g, "unit", "build", "c", "--from", t0, "--to", t1, "--json",
                     "--loops-from", str(tmp_path / "tags.csv"))  # fmt: skip
