@@ -14,6 +14,8 @@ A model input is written as a *spec* (Kościelny et al., eqs. 7–9:
                     tag's span)
 ``hour()[k]``       time of day in hours (0–24, UTC)
 ``days()[k]``       time in days since 2000-01-01 (slow drift)
+``const(120.4)[k]`` a fixed number: the set-point of a loop whose set-point
+                    is not a tag (``diag unit build --loop PV=120.4:OUT``)
 ==================  ==========================================================
 
 Frames are pandas DataFrames indexed by a regular timestamp grid, one column
@@ -32,7 +34,7 @@ import pandas as pd
 
 from historian.errors import UserError
 
-FUNCTIONS = {"diff": 2, "rate": 1, "dir": 1, "hour": 0, "days": 0}
+FUNCTIONS = {"diff": 2, "rate": 1, "dir": 1, "hour": 0, "days": 0, "const": 0}
 EPOCH = pd.Timestamp("2000-01-01", tz="UTC")
 #: default move threshold of dir(): this share of the tag's span
 DIR_THRESHOLD_SHARE = 0.005
@@ -58,7 +60,8 @@ class InputSpec:
         if not self.fn:
             return f"{quote_tag(self.tags[0])}{lag}"
         args = [quote_tag(t) for t in self.tags]
-        args += [_fmt_num(self.param)] if self.param is not None else []
+        if self.param is not None:
+            args.append(f"{self.param:.12g}" if self.fn == "const" else _fmt_num(self.param))
         return f"{self.fn}({','.join(args)}){lag}"
 
     @property
@@ -94,7 +97,7 @@ class SpecError(UserError, ValueError):
             f"bad input spec {text!r}: {what} (at character {pos + 1})\n"
             f"  {text}\n  {' ' * pos}^\n"
             '  specs: TAG[k], TAG[k-d], "a tag name"[k-d], diff(A,B)[k], rate(TAG)[k-1], '
-            "dir(TAG)[k], dir(TAG,0.5)[k], hour()[k], days()[k]"
+            "dir(TAG)[k], dir(TAG,0.5)[k], hour()[k], days()[k], const(120.4)[k]"
         )
 
 
@@ -165,18 +168,24 @@ class _SpecParser:
             while self.peek() not in (")", ""):
                 if args or param is not None:
                     self.expect(",", "',' between arguments")
-                if fn == "dir" and len(args) == 1:
+                if (fn == "dir" and len(args) == 1) or fn == "const":
                     m = re.compile(r"\s*([-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)").match(
                         self.text, self.i
                     )
                     if not m:
-                        self.fail("expected the move threshold of dir() as a number")
+                        self.fail(
+                            "expected the move threshold of dir() as a number"
+                            if fn == "dir"
+                            else "expected the value of const() as a number"
+                        )
                     param, self.i = float(m.group(1)), m.end()
                     continue
                 args.append(self.name()[0])
             self.expect(")", "')' closing the arguments")
             if len(args) != FUNCTIONS[fn]:
                 self.fail(f"{fn}() takes {FUNCTIONS[fn]} tag(s), got {len(args)}", fn_at)
+            if fn == "const" and param is None:
+                self.fail("const() takes a number, e.g. const(120.4)[k]", fn_at)
         if self.peek() != "[" and not quoted and not fn:
             self.fail(
                 "expected '[' after the tag name (an input is written with its sample, e.g. "
@@ -324,6 +333,8 @@ class _FeatureState:
                 v = x[np.isfinite(x)]
                 self.threshold = DIR_THRESHOLD_SHARE * float(np.ptp(v)) if v.size else 0.0
             return direction(x, self.threshold, self.carry)
+        if spec.fn == "const":
+            return np.full(len(frame), float(spec.param))
         idx = pd.DatetimeIndex(frame.index)
         if idx.tz is None:
             idx = idx.tz_localize("UTC")

@@ -73,13 +73,8 @@ def simulate(
         bias = 0.8 if faulty and fault == "flow_bias" else 0.0
         meas_f = flow + 0.05 * rng.standard_normal() + bias
         e = sp[i] - meas_f
-        integ = float(np.clip(integ + kp * e * dt / ti, 0.0, 100.0))
-        op = float(np.clip(kp * e + integ, 0.0, 100.0))
-        if faulty and fault == "stiction":
-            if abs(op - pos) > 4.0:
-                pos = op
-        else:
-            pos = op
+        op, integ, pos = pi_valve(e, integ, pos, kp, dt, ti,
+                                  4.0 if faulty and fault == "stiction" else None)  # fmt: skip
         target = cv * pos / 100.0 * np.sqrt(max(p[i] - 1.0, 0.0))
         flow += (target - flow) * (1 - np.exp(-PERIOD_S / 30.0))
         f_out = k_out * hv[i] / 100.0 * np.sqrt(max(level, 0.0))
@@ -95,6 +90,20 @@ def simulate(
         )
     idx = pd.date_range("2026-03-02", periods=n, freq=f"{int(PERIOD_S)}s", tz="UTC")
     return pd.DataFrame(out, index=idx, columns=list(TAGS))
+
+
+def pi_valve(
+    e: float, integ: float, pos: float, kp: float, dt: float, ti: float, stick: float | None
+) -> tuple[float, float, float]:
+    """One step of a PI controller (error ``e``, output and integral clipped to 0–100 %) and
+    its valve: the valve's position follows the output, or, sticking (``stick`` %), moves
+    only once the output is more than that away from it. Returns (output, integral,
+    position)."""
+    integ = float(np.clip(integ + kp * e * dt / ti, 0.0, 100.0))
+    op = float(np.clip(kp * e + integ, 0.0, 100.0))
+    if stick is None or abs(op - pos) > stick:
+        pos = op
+    return op, integ, pos
 
 
 def tags_csv() -> pd.DataFrame:

@@ -73,13 +73,16 @@ def fmt(t: pd.Timestamp) -> str:
     return t.strftime("%Y-%m-%dT%H:%M:%S")
 
 
-def import_csv(g, frame: pd.DataFrame, path, time_format: str = "%Y-%m-%dT%H:%M:%S") -> None:
-    """``frame`` written to the CSV ``path`` (a 'time' column) and ``diag import``-ed."""
+def import_csv(
+    g, frame: pd.DataFrame, path, time_format: str = "%Y-%m-%dT%H:%M:%S", tags=None
+) -> None:
+    """``frame`` written to the CSV ``path`` (a 'time' column) and ``diag import``-ed (with
+    the tags CSV ``tags`` when given)."""
     out = frame.copy()
     out.index = out.index.strftime(time_format)
     out.index.name = "time"
     out.to_csv(path)
-    rc, text = diag(g, "import", str(path))
+    rc, text = diag(g, "import", str(path), *(["--tags", str(tags)] if tags else []))
     assert rc == 0, text
 
 

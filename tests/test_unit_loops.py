@@ -27,7 +27,7 @@ from diag_plugin.unitbuild.build import CHATTER_WINDOW_S
 from diag_plugin.unitbuild.loops import Loop, loops_from_tags_csv, parse_loop
 from historian.errors import UserError
 from tests import line7
-from tests.test_any_plant_tour import diag, fmt
+from tests.test_any_plant_tour import diag, fmt, import_csv
 
 TRAIN_DAYS = 6.0
 ONSET = int(86400 / line7.PERIOD_S)  # the faults start after a day
@@ -39,13 +39,8 @@ def line(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("line7")
     g = ["--db", f"sqlite:///{tmp / 'h.db'}", "--rulebases", str(tmp / "rb")]
     frame = line7.simulate(TRAIN_DAYS, seed=1)
-    out = frame.copy()
-    out.index = out.index.strftime("%Y-%m-%dT%H:%M:%S")
-    out.index.name = "time"
-    out.to_csv(tmp / "line.csv")
     line7.tags_csv().to_csv(tmp / "tags.csv", index=False)
-    rc, text = diag(g, "import", str(tmp / "line.csv"), "--tags", str(tmp / "tags.csv"))
-    assert rc == 0, text
+    import_csv(g, frame, tmp / "line.csv", tags=tmp / "tags.csv")
     t0, t1 = frame.index[0], frame.index[-1] + pd.Timedelta("15s")
     rc, text = diag(g, "unit", "build", "line", "--from", fmt(t0), "--to", fmt(t1),
                     "--loops-from", str(tmp / "tags.csv"), "--far", "0.01", "--json")  # fmt: skip

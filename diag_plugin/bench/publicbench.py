@@ -107,18 +107,24 @@ def tags_frame(plant: PublicPlant) -> pd.DataFrame:
     from diag_plugin.unitbuild.loops import parse_loop
 
     role: dict[str, tuple[str, str]] = {}
+    fixed: dict[str, str] = {}  # a loop's measurement → its fixed set-point (not a tag)
     for spec in plant.loops:
         lp = parse_loop(spec)
         role[lp.pv] = (lp.pv, "pv")
-        role[lp.sp] = (lp.pv, "sp")
+        if lp.fixed is None:
+            role[lp.sp] = (lp.pv, "sp")
+        else:
+            fixed[lp.pv] = lp.sp
         if lp.out:
             role[lp.out] = (lp.pv, "out")
     rows = [
         {"name": t, "unit": u, "description": d, "loop": role.get(t, ("", ""))[0],
-         "role": role.get(t, ("", ""))[1]}
+         "role": role.get(t, ("", ""))[1], "set_point": fixed.get(t, "")}
         for t, (u, d) in plant.tag_info.items()
     ]  # fmt: skip
     frame = pd.DataFrame(rows)
+    if not fixed:
+        frame = frame.drop(columns=["set_point"])
     return frame if plant.loops else frame.drop(columns=["loop", "role"])
 
 

@@ -195,6 +195,12 @@ TEP_STUDIO_FAULTS: dict[str, tuple[str, tuple[str, ...]]] = {
 }
 
 
+#: the classic set's loop whose set-point is known from the plant's description: the reactor
+#: temperature held at its base-case 120.4 °C (Downs & Vogel 1993, Table 1) by the reactor
+#: cooling water flow; the set-point is not one of the 52 tags, so it is declared as a number
+TEP_LOOPS = ("XMEAS9=120.4:XMV10",)
+
+
 def braatz_dir(path: str | Path | None = None) -> Path:
     """The folder of ``d00.dat`` … (``path``, ``$DIAG_TEP_BRAATZ_DIR``, or the cache)."""
     p = path or os.environ.get("DIAG_TEP_BRAATZ_DIR")
@@ -233,6 +239,7 @@ def _tep_plant(
     fault_info: dict[str, str],
     source: Path,
     split: list[str],
+    loops: Sequence[str] = (),
 ) -> PublicPlant:
     """A Tennessee Eastman data set: the plant's tags at its 3-min period, its ``runs`` by
     role (``train``, ``calibration``, ``free``, ``fault``, ``tuning``)."""
@@ -249,6 +256,7 @@ def _tep_plant(
         tuning=runs["tuning"],
         fault_info=fault_info,
         source=str(source),
+        loops=list(loops),
         split=split,
     )
 
@@ -284,13 +292,16 @@ def load_braatz(path: str | Path | None = None, faults: Sequence[str] | None = N
         {"train": train, "calibration": cal, "free": free, "fault": fault_runs, "tuning": tuning},
         {k: v[0] for k, v in TEP_FAULTS.items()},
         d,
-        [
+        loops=TEP_LOOPS,
+        split=[
             "train: d00.dat (500 samples at 3 min, 25 h, fault-free)",
             "calibration (the matched limits): d00_te.dat (960 samples, 48 h, fault-free)",
             "fault-free scoring: the first 160 samples (8 h) of each d01_te … d21_te, before "
             "the onset (each run its own noise)",
             "fault scoring: d01_te … d21_te, the fault from sample 160 (8 h) to the end (40 h)",
             "tuning (not scored here): d01.dat … d21.dat, faulty from their first sample",
+            "loop declared to the unit build (issue 34, docs/how-to/unit-loops.md): "
+            + ", ".join(TEP_LOOPS),
         ],
     )
 

@@ -81,6 +81,11 @@ log = logging.getLogger(__name__)
 
 #: inputs per model at most (greedy forward selection stops earlier when none helps)
 MAX_INPUTS = 3
+#: inputs of a controller output's test at most (issue 34, item 7): a valve position is set by
+#: several process conditions at once (load, feed, the other loops' outputs); chosen as a
+#: linear (parity) relation, each input kept only where it cuts the held-out error by
+#: :data:`MIN_GAIN`, so the window decides how many it supports
+ACTUATOR_MAX_INPUTS = 6
 #: a step must cut the held-out error by more than this share to be kept
 MIN_GAIN = 0.03
 #: candidate tags retrained and scored per step (the rest screened out by correlation)
@@ -273,6 +278,16 @@ class _Context:
     def column(self, tag: str, lag: int = 0) -> np.ndarray:
         return self.feats.column(InputSpec("", (tag,), lag))
 
+    def spec_variable(self, spec: InputSpec) -> Variable:
+        """The variable of any input spec: a tag's as :meth:`variable`, a function's (a
+        fixed set-point's ``const(120.4)[k]``) from its values over the window."""
+        if not spec.fn:
+            return self.variable(spec.tags[0], spec.lag)
+        return variable_for(str(spec), frame=self.frame, tag_info=self.info)
+
+    def spec_column(self, spec: InputSpec) -> np.ndarray:
+        return self.column(spec.tags[0], spec.lag) if not spec.fn else self.feats.column(spec)
+
 
 def _rulebase(
     name: str,
@@ -363,15 +378,22 @@ def _choose(
     tag: str, names, same, ctx: _Context, sel: _Context, plan, frame, info, declared, held
 ) -> TestChoice:
     """One test's choice (a worker's share of the build, see :mod:`.parallel`); ``declared``
-    maps a loop's measurement to its declared :class:`Loop`, ``held`` an actuator to the tag
-    its loop holds (never one of its inputs)."""
+    maps a loop's measurement to its declared :class:`Loop`, ``held`` each controller output
+    (declared, or found by its name beside a set-point's) to the tag its loop holds (never
+    one of its inputs; None where the loop is not declared): its test is
+    :func:`actuator_test`."""
     test = names[tag]
     excl = same.get(tag, [])
     use = sel if tag in sel.vars else ctx
     k = plan.factor if use is sel else 1
     lp = declared.get(tag)
     sp = lp.sp if lp is not None else tracked_set_point(tag, frame, list(ctx.vars), info)
-    if sp is not None and sp in ctx.vars:
+    if lp is not None and lp.fixed is not None:
+        # a fixed set-point (not a tag): the loop's error against that number
+        ch = loop_test(ctx, tag, InputSpec("const", (), 0, lp.fixed), test=test)
+        ch.actuator, ch.declared = lp.out, True
+        sp = None
+    elif sp is not None and sp in ctx.vars:
         # a loop's response time at the data's own rate: one input, a dozen lags, cheap;
         # on the coarse grid it would be a whole coarse step off, and the residual of a
         # loop that holds its set-point would carry the loop's dynamics
@@ -388,10 +410,38 @@ def _choose(
                            method=plan.select_method, max_sets=plan.max_sets)  # fmt: skip
         if plan.short and ch.steps:
             _short_method(ctx, ch)
+        if tag in held:
+            ch = actuator_test(use, ch, cands)
     for st in ch.steps:  # dead times chosen on the coarse grid, on the data's grid
         st.input = short.scale_lag(st.input, k)
     ch.excluded = [c for c in excl if c != sp]
     return ch
+
+
+def actuator_test(ctx: _Context, ch: TestChoice, candidates: Sequence[str]) -> TestChoice:
+    """A controller output's test from several inputs (issue 34, item 7): the valve position
+    predicted from the process conditions that drive it, as a linear (parity) relation of up
+    to :data:`ACTUATOR_MAX_INPUTS` inputs chosen by the same forward selection (each kept only
+    where it cuts the held-out error by :data:`MIN_GAIN`), kept where its held-out error is
+    below that of ``ch``, the test chosen as any tag's (a rule grid of at most
+    :data:`MAX_INPUTS` inputs, or a short window's two). A loop compensating a disturbance
+    holds its measurement and moves its valve; the valve's test is then the one that fires,
+    and the tighter its prediction the smaller the disturbance it sees."""
+    lin = select_inputs(ctx, ch.tag, candidates, test=ch.test, max_inputs=ACTUATOR_MAX_INPUTS,
+                        method=short.LINEAR)  # fmt: skip
+    if len(lin.steps) <= len(ch.steps) or not ch.steps:
+        keep = ch if ch.steps else lin
+    else:
+        keep = lin if lin.steps[-1].rmse_pct < ch.steps[-1].rmse_pct else ch
+    if keep is lin:
+        was = ch.steps[-1].rmse_pct if ch.steps else ch.baseline_rmse_pct
+        lin.method = short.LINEAR
+        lin.why = (
+            f"a controller output: linear test of {len(lin.steps)} inputs, held-out error "
+            f"{lin.steps[-1].rmse_pct:.2f} % against {was:.2f} % for {len(ch.steps)} "
+            f"input(s) ({ch.method})"
+        )
+    return keep
 
 
 def _short_method(ctx: _Context, ch: TestChoice) -> None:
@@ -468,7 +518,7 @@ def controller_output(sp: str, tags: Sequence[str]) -> str | None:
     return None
 
 
-def loop_test(ctx: _Context, tag: str, sp: str, *, test: str) -> TestChoice:
+def loop_test(ctx: _Context, tag: str, sp: str | InputSpec, *, test: str) -> TestChoice:
     """The test of a controlled tag: its model is the control loop's own relation, the
     measurement at its set-point plus the loop's steady offset (``track``,
     :mod:`diag_plugin.models.track`), so its residual is the control error, at any set-point
@@ -476,24 +526,28 @@ def loop_test(ctx: _Context, tag: str, sp: str, *, test: str) -> TestChoice:
     tags instead, such a tag is predicted from whatever moved with the operators' set-point
     choices in the window, which another period's choices break (false alarms); a fitted
     function of the set-point (a rule grid, a polynomial) is unknown or bends away from the
-    identity at set-points the window never saw."""
+    identity at set-points the window never saw. ``sp`` a set-point tag, or a fixed
+    set-point's ``const(120.4)`` spec (no response time: it never moves)."""
     out = ctx.vars[tag]
     y = ctx.column(tag)
+    base = sp if isinstance(sp, InputSpec) else InputSpec("", (sp,), 0)
     # one scorer: its base is the training mean, each variant the loop at a response time
-    rb = _rulebase(test, out, [ctx.variable(sp, 0)], ctx.period, method=LOOP_METHOD)
+    rb = _rulebase(test, out, [ctx.spec_variable(base)], ctx.period, method=LOOP_METHOD)
     scorer = BlockScorer(rb, [], y, ctx.block)
-    choice = TestChoice(test, tag, scorer.base_rmse, method=LOOP_METHOD, tracks=sp)
+    tracks = f"{base.param:.12g}" if base.fn == "const" else base.tags[0]
+    choice = TestChoice(test, tag, scorer.base_rmse, method=LOOP_METHOD, tracks=tracks)
     # the loop's response time: the set-point as it was d samples ago, d on held-out error
     # over the dead-time horizon (a slow loop — an averaging level — lags a set-point step)
     scored = []
-    for lag in loop_lags(ctx.max_lag):
-        ins, cols = [ctx.variable(sp, lag)], [ctx.column(sp, lag)]
+    for lag in loop_lags(ctx.max_lag) if not base.fn else [0]:
+        spec = base.with_lag(lag)
+        ins, cols = [ctx.spec_variable(spec)], [ctx.spec_column(spec)]
         rmse, cov = scorer.score(ins, cols)
         if math.isfinite(rmse):
             scored.append((rmse, lag, cov))
     low = min(r for r, _, _ in scored)
     rmse, lag, cov = min((x for x in scored if x[0] <= low * (1 + TOLERANCE)), key=lambda x: x[1])
-    choice.steps.append(Step(str(InputSpec("", (sp,), lag)), rmse, cov))
+    choice.steps.append(Step(str(base.with_lag(lag)), rmse, cov))
     return choice
 
 
@@ -661,7 +715,12 @@ def _build_unit(
 
     t0 = time.perf_counter()
     tick = (lambda d, n: progress("choose inputs", d, n)) if progress else None
-    held = {lp.out: lp.pv for lp in loops if lp.out}  # an actuator → the tag its loop holds
+    held: dict[str, str | None] = {
+        out: None
+        for sp in frame.columns
+        if is_set_point(sp, info.get(sp)) and (out := controller_output(sp, list(ctx.vars)))
+    }  # a controller output found by its name → (an undeclared loop's measurement unknown)
+    held.update({lp.out: lp.pv for lp in loops if lp.out})  # declared: the tag it holds
     choices = map_tests(_choose, tests, (names, same, ctx, sel, plan, frame, info, declared, held),
                         workers=workers, progress=tick)  # fmt: skip
     seconds["choose inputs"] = time.perf_counter() - t0
@@ -693,13 +752,13 @@ def _build_unit(
             )
             continue
         specs = [InputSpec.parse(s) for s in ch.inputs]
-        cols = [ctx.column(s.tags[0], s.lag) for s in specs]
-        ins = _with_sets([ctx.variable(s.tags[0], s.lag) for s in specs], cols, len(frame))
+        cols = [ctx.spec_column(s) for s in specs]
+        ins = _with_sets([ctx.spec_variable(s) for s in specs], cols, len(frame))
         if ch.sets:  # a short window's grid: the sets its cells were judged at
             ins = [dc_replace(v, sets=ch.sets) for v in ins]
         if ch.method == short.LINEAR:  # a span from a few hundred samples only scales
             ins = [
-                v if info.get(s.tags[0]) and info[s.tags[0]].span else
+                v if s.fn or (info.get(s.tags[0]) and info[s.tags[0]].span) else
                 dc_replace(v, span=short.widened(v.span))
                 for v, s in zip(ins, specs, strict=True)
             ]  # fmt: skip

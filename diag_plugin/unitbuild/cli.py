@@ -38,13 +38,14 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="PV=SP:OUT",
-        help="a control loop: the measurement it holds, its set-point and its output "
-        "(repeatable; docs/how-to/unit-loops.md)",
+        help="a control loop: the measurement it holds, its set-point (a tag, or a fixed "
+        "number: TI9=120.4:TV9) and its output (repeatable; docs/how-to/unit-loops.md)",
     )
     p.add_argument(
         "--loops-from",
         metavar="TAGS_CSV",
-        help="loops declared in a tags CSV's 'loop' and 'role' (pv|sp|out|sensor|actuator) columns",
+        help="loops declared in a tags CSV's 'loop' and 'role' (pv|sp|out|sensor|actuator) "
+        "columns; a fixed set-point in a 'set_point' column of the pv row",
     )
     p.add_argument("--force", action="store_true", help="overwrite an existing unit and models")
     add_json(p)

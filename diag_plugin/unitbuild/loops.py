@@ -19,10 +19,17 @@ In a tags CSV (the file ``diag import --tags`` reads; extra columns are ignored 
 sharing a ``loop`` name form one loop, each with a ``role``: ``pv`` (or ``sensor``: the
 measurement the loop holds), ``sp`` (its set-point), ``out`` (or ``actuator``: the controller
 output or valve position). A loop needs a ``pv`` and an ``sp``; ``out`` is optional.
+
+**A fixed set-point** (one that is not a tag, as the Tennessee Eastman reactor temperature's
+120.4 °C): ``--loop XMEAS9=120.4:XMV10``, or in the tags CSV a number in the ``set_point``
+column of the loop's ``pv`` row (then no ``sp`` row). The loop's test is then the measurement
+at that number plus the loop's steady offset (``track`` on ``const(120.4)[k]``): its residual is
+the control error, as for a set-point tag.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +51,20 @@ class Loop:
     def __str__(self) -> str:
         return f"{self.pv}={self.sp}" + (f":{self.out}" if self.out else "")
 
+    @property
+    def fixed(self) -> float | None:
+        """The set-point's value when it is a number, not a tag (else None)."""
+        return fixed_value(self.sp)
+
+
+def fixed_value(text: str) -> float | None:
+    """``text`` as a finite number (a fixed set-point), or None when it is a tag's name."""
+    try:
+        v = float(text)
+    except ValueError:
+        return None
+    return v if math.isfinite(v) else None
+
 
 def parse_loop(text: str) -> Loop:
     """``PV=SP:OUT`` (or ``PV=SP``) as a :class:`Loop`; a bad spec is a
@@ -52,7 +73,17 @@ def parse_loop(text: str) -> Loop:
     sp, colon, out = rest.partition(":")
     pv, sp, out = pv.strip(), sp.strip(), out.strip()
     if not eq or not pv or not sp or (colon and not out):
-        raise UserError(f"--loop {text!r}: write PV=SP:OUT (or PV=SP), e.g. FT101=FT101_SP:FV101")
+        raise UserError(
+            f"--loop {text!r}: write PV=SP:OUT (or PV=SP; SP a set-point tag or a fixed "
+            "number), e.g. FT101=FT101_SP:FV101 or TI9=120.4:TV9"
+        )
+    if fixed_value(pv) is not None or (out and fixed_value(out) is not None):
+        raise UserError(
+            f"--loop {text!r}: only the set-point may be a number; the measurement and the "
+            "output are tags"
+        )
+    if sp.lower() in ("nan", "inf", "+inf", "-inf", "infinity"):
+        raise UserError(f"--loop {text!r}: the set-point {sp!r} is not a finite number")
     if len({pv, sp, out or None} - {None}) < (3 if out else 2):
         raise UserError(f"--loop {text!r}: the measurement, set-point and output must differ")
     return Loop(pv, sp, out or None)
@@ -75,12 +106,35 @@ def loops_from_tags_csv(path: str | Path) -> list[Loop]:
     if name is None or "role" not in cols:
         raise UserError(f"{path}:1: a 'loop' column needs 'name' and 'role' columns beside it")
     parts: dict[str, dict[str, tuple[str, int]]] = {}
+    fixed_col = cols.get("set_point", cols.get("setpoint"))
     for i, row in enumerate(frame.to_dict("records")):
         line = i + 2
         loop = row[cols["loop"]].strip()
+        fixed = row[fixed_col].strip() if fixed_col else ""
         if not loop:
+            if fixed:
+                raise UserError(
+                    f"{path}:{line}: set_point {fixed!r} of {row[name].strip()} without a "
+                    "loop (give the loop's name in the 'loop' column)"
+                )
             continue
         tag, role = row[name].strip(), row[cols["role"]].strip().lower()
+        if fixed:
+            if ROLES.get(role) != "pv":
+                raise UserError(
+                    f"{path}:{line}: set_point {fixed!r} on {tag} (loop {loop}, role "
+                    f"{role or 'none'}): a fixed set-point goes on the loop's pv row"
+                )
+            if fixed_value(fixed) is None:
+                raise UserError(
+                    f"{path}:{line}: set_point {fixed!r} of {tag} (loop {loop}) is not a number"
+                )
+            if "sp" in parts.get(loop, {}):
+                raise UserError(
+                    f"{path}:{line}: loop {loop} has a set-point tag ({parts[loop]['sp'][0]}) "
+                    f"and a fixed set_point {fixed}: give one"
+                )
+            parts.setdefault(loop, {})["sp"] = (fixed, line)
         if role not in ROLES:
             raise UserError(
                 f"{path}:{line}: role {role!r} of {tag} (loop {loop}) is not one of "
@@ -88,6 +142,11 @@ def loops_from_tags_csv(path: str | Path) -> list[Loop]:
             )
         got = parts.setdefault(loop, {})
         part = ROLES[role]
+        if part == "sp" and part in got and fixed_value(got["sp"][0]) is not None:
+            raise UserError(
+                f"{path}:{line}: loop {loop} has a fixed set_point ({got['sp'][0]} on line "
+                f"{got['sp'][1]}) and a set-point tag {tag}: give one"
+            )
         if part in got:
             raise UserError(
                 f"{path}:{line}: loop {loop} has two {part} tags ({got[part][0]} on line "
@@ -110,7 +169,8 @@ def checked_loops(loops: Iterable[Loop], columns: Sequence[str]) -> list[Loop]:
     seen: dict[str, Loop] = {}
     out = []
     for lp in loops:
-        unknown = [t for t in (lp.pv, lp.sp, lp.out) if t and t not in have]
+        sp = None if lp.fixed is not None else lp.sp
+        unknown = [t for t in (lp.pv, sp, lp.out) if t and t not in have]
         if unknown:
             raise UserError(f"loop {lp}: tag(s) {', '.join(unknown)} not in the data")
         if lp.pv in seen and seen[lp.pv] != lp:
