@@ -339,20 +339,24 @@ class Design:
     """A design matrix ready for a model.
 
     ``X`` (rows × inputs) and ``y`` hold only complete rows; ``index`` their
-    timestamps; ``dropped`` counts the rows left out and why.
+    timestamps (None from a lean :meth:`DesignBuilder.transform`); ``dropped`` counts the
+    rows left out and why; ``positions`` (when the builder gives them) the complete rows'
+    positions in the piece.
     """
 
     X: np.ndarray
     y: np.ndarray | None
-    index: pd.DatetimeIndex
+    index: pd.DatetimeIndex | None
     inputs: list[str]
     output: str | None
     n_rows: int
     dropped: dict[str, int] = field(default_factory=dict)
+    positions: np.ndarray | None = None
 
     @property
     def n_dropped(self) -> int:
-        return self.n_rows - len(self.index)
+        kept = len(self.index) if self.index is not None else len(self.X)
+        return self.n_rows - kept
 
 
 def check_regular(index: pd.Index) -> None:
@@ -447,9 +451,13 @@ class DesignBuilder:
             self.nan_tails[t] = _keep_tail(self.nan_tails[t], np.ones(k, bool))
         self.seen += n
 
-    def transform(self, frame: pd.DataFrame, quality: pd.DataFrame | None = None) -> Design:
+    def transform(
+        self, frame: pd.DataFrame, quality: pd.DataFrame | None = None, *, lean: bool = False
+    ) -> Design:
         """The design matrix of the next piece; rows needing data before the first piece
-        ever seen, or a NaN, bad-quality or undefined value, are dropped and counted."""
+        ever seen, or a NaN, bad-quality or undefined value, are dropped and counted. With
+        ``lean=True`` (a replay, which needs only the rows) neither counted per reason nor
+        given an index: ``X``, ``y`` and ``positions`` only (``index`` is None)."""
         check_regular(frame.index)
         missing = [t for t in self.tags if t not in frame.columns]
         if missing:
@@ -472,6 +480,8 @@ class DesignBuilder:
         for tag in self.tags:
             raw = frame[tag].isna().to_numpy()
             raw_nan[tag] = raw
+            if lean:
+                continue
             miss = np.zeros(n, bool)
             for s in self.all_specs:
                 if tag in s.tags:
@@ -480,7 +490,7 @@ class DesignBuilder:
             if miss.any():
                 dropped[f"{tag} missing or bad"] = int(miss.sum())
                 attributed |= miss
-        other = int((~ok & ~attributed).sum())
+        other = 0 if lean else int((~ok & ~attributed).sum())
         if other > 0:
             dropped["derived value undefined"] = other
         for b, v in feats.items():
@@ -488,16 +498,18 @@ class DesignBuilder:
         for t, v in raw_nan.items():
             self.nan_tails[t] = _keep_tail(self.nan_tails[t], v)
         self.seen += n
-        Mok = M[ok]
+        positions = np.flatnonzero(ok)
+        Mok = M[positions]
         d = len(self.specs)
         return Design(
             X=np.ascontiguousarray(Mok[:, :d]),
             y=Mok[:, d].copy() if self.out_spec is not None else None,
-            index=pd.DatetimeIndex(frame.index[ok]),
+            index=None if lean else pd.DatetimeIndex(frame.index[positions]),
             inputs=[str(s) for s in self.specs],
             output=None if self.out_spec is None else str(self.out_spec),
             n_rows=n,
             dropped=dropped,
+            positions=positions,
         )
 
     def advance(self, frame: pd.DataFrame) -> None:
@@ -568,6 +580,8 @@ def _keep_tail(tail: np.ndarray, v: np.ndarray) -> np.ndarray:
     h = tail.size
     if h == 0:
         return tail
+    if v.size >= h:  # the piece alone holds the new tail (no copy of the whole piece)
+        return v[v.size - h :].copy()
     return np.concatenate([tail, v])[-h:]
 
 

@@ -100,23 +100,25 @@ class OutsideLearned:
         out = np.full(n, "", dtype=object)
         idx = frame.index
         todo = report.copy()
+        columns = set(frame.columns)
+        none = np.empty(0, np.intp)
         for k, r in enumerate(self.ranges):
-            if r.tag not in frame.columns:
+            if r.tag not in columns:
                 continue
             x = frame[r.tag].to_numpy(float)
             with np.errstate(invalid="ignore"):
                 off = (x < r.lo) | (x > r.hi)
-            # the row each excursion started at (carried over the piece's start)
-            starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
-            first = np.full(n, -1)
-            first[starts] = starts
-            first = np.maximum.accumulate(first)
             carried = self.since.get(k)
-            hit = np.flatnonzero(todo & off & unknown[:, r.test])
-            for i in hit:
-                st = first[i]
+            hit = np.flatnonzero(todo & off & unknown[:, r.test]) if todo.any() else none
+            first = none
+            if hit.size or (n and off[-1]):
+                # the row each excursion started at (carried over the piece's start): for an
+                # outside row, the last start at or before it
+                starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
+                first = starts[np.searchsorted(starts, np.r_[hit, n - 1], side="right") - 1]
+            for i, st in zip(hit, first, strict=False):
                 # an excursion that began in an earlier piece keeps its start
-                t0 = carried if carried is not None and first[i] == 0 and off[0] else idx[st]
+                t0 = carried if carried is not None and st == 0 and off[0] else idx[st]
                 name = self.names.get(r.tag, r.tag)
                 out[i] = (
                     f"{name} = {x[i]:.4g} outside what the unit learned "
