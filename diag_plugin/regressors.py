@@ -362,7 +362,10 @@ class Design:
 def check_regular(index: pd.Index) -> None:
     """Lags count samples, so the frame must sit on a regular time grid."""
     if len(index) > 2:
-        d = np.diff(np.asarray(index, dtype="datetime64[ns]").astype(np.int64))
+        if isinstance(index, pd.DatetimeIndex):  # its integers as they are (no conversion)
+            d = np.diff(index.asi8)
+        else:
+            d = np.diff(np.asarray(index, dtype="datetime64[ns]").astype(np.int64))
         bad = np.flatnonzero((d != d[0]) | (d <= 0))
         if bad.size:
             raise ValueError(
@@ -469,8 +472,9 @@ class DesignBuilder:
         n = len(frame)
         feats = self._columns(frame)
         cols = [_lagged(self.tails[s.base], feats[s.base], s.lag) for s in self.all_specs]
-        M = np.column_stack(cols) if cols else np.empty((n, 0))
-        ok = ~np.isnan(M).any(axis=1)
+        ok = np.ones(n, bool)
+        for c in cols:  # a row is complete without a NaN in any column
+            ok &= ~np.isnan(c)
         pos = self.seen + np.arange(n)
         dropped: dict[str, int] = {}
         attributed = pos < self.history
@@ -499,11 +503,11 @@ class DesignBuilder:
             self.nan_tails[t] = _keep_tail(self.nan_tails[t], v)
         self.seen += n
         positions = np.flatnonzero(ok)
-        Mok = M[positions]
         d = len(self.specs)
+        X = np.column_stack([c[positions] for c in cols[:d]]) if d else np.empty((ok.sum(), 0))
         return Design(
-            X=np.ascontiguousarray(Mok[:, :d]),
-            y=Mok[:, d].copy() if self.out_spec is not None else None,
+            X=np.ascontiguousarray(X, dtype=float),
+            y=np.asarray(cols[d][positions], float) if self.out_spec is not None else None,
             index=None if lean else pd.DatetimeIndex(frame.index[positions]),
             inputs=[str(s) for s in self.specs],
             output=None if self.out_spec is None else str(self.out_spec),

@@ -473,7 +473,7 @@ class Unit:
             d = self.builders[t.name].transform(frame, lean=True)
             if d.positions.size:
                 out[d.positions, j] = self.residual(t, d.y, m.model.predict_detail(d.X))
-        return pd.DataFrame(out, index=frame.index, columns=self.tests)
+        return pd.DataFrame(out, index=frame.index, columns=self.tests, copy=False)
 
     def residual(self, test: TestSpec, y: np.ndarray, pred: Prediction) -> np.ndarray:
         """A test's raw residual from its model's prediction: % of span (eq. 6) or of ``ymax``,
@@ -491,12 +491,11 @@ class Unit:
         if self.spread_cols.size:
             x = raw.to_numpy(float, copy=True)
             x[:, self.spread_cols] = self.spread.transform(x[:, self.spread_cols])
-            raw = pd.DataFrame(x, index=raw.index, columns=raw.columns)
+            raw = pd.DataFrame(x, index=raw.index, columns=raw.columns, copy=False)
         if self.lowpass is None:
             return raw
-        return pd.DataFrame(
-            self.lowpass.transform(raw.to_numpy()), index=raw.index, columns=raw.columns
-        )
+        x = self.lowpass.transform(raw.to_numpy())
+        return pd.DataFrame(x, index=raw.index, columns=raw.columns, copy=False)
 
     def _limits(self) -> tuple[np.ndarray, np.ndarray]:
         lims = [t.limits or (np.nan, np.nan) for t in self.file.tests]
@@ -625,8 +624,8 @@ class Unit:
         return Diagnosis(
             unit=self.name,
             residuals=r,
-            symptoms=pd.DataFrame(s, index=idx, columns=self.tests),
-            certainties=pd.DataFrame(cert, index=idx, columns=self.faults),
+            symptoms=pd.DataFrame(s, index=idx, columns=self.tests, copy=False),
+            certainties=pd.DataFrame(cert, index=idx, columns=self.faults, copy=False),
             detected=pd.Series(detected, index=idx),
             status=pd.Series(status, index=idx),
             quality=pd.Series(quality, index=idx),
@@ -635,7 +634,7 @@ class Unit:
             combined=combined,
             contributions=None
             if share is None
-            else pd.DataFrame(share, index=idx, columns=self.cmodel.tags),
+            else pd.DataFrame(share, index=idx, columns=self.cmodel.tags, copy=False),
             top=top,
             why=pd.Series(why, index=idx),
         )
