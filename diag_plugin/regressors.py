@@ -402,6 +402,7 @@ class DesignBuilder:
         self.period = None if period is None else pd.Timedelta(period)
         self.last: pd.Timestamp | None = None
         self.specs = parse_specs(inputs)
+        self.input_names = [str(s) for s in self.specs]
         self.out_spec = None if output is None else parse_specs([output])[0]
         self.all_specs = self.specs + ([self.out_spec] if self.out_spec is not None else [])
         self.tags = needed_tags(self.all_specs)
@@ -482,7 +483,7 @@ class DesignBuilder:
             dropped["history for the lags"] = int(attributed.sum())
         raw_nan = {}
         for tag in self.tags:
-            raw = frame[tag].isna().to_numpy()
+            raw = pd.isna(frame[tag].to_numpy())  # as Series.isna, without the Series
             raw_nan[tag] = raw
             if lean:
                 continue
@@ -509,7 +510,7 @@ class DesignBuilder:
             X=np.ascontiguousarray(X, dtype=float),
             y=np.asarray(cols[d][positions], float) if self.out_spec is not None else None,
             index=None if lean else pd.DatetimeIndex(frame.index[positions]),
-            inputs=[str(s) for s in self.specs],
+            inputs=list(self.input_names),
             output=None if self.out_spec is None else str(self.out_spec),
             n_rows=n,
             dropped=dropped,

@@ -84,17 +84,10 @@ def _ref_deadband(r, lo, hi, keep, state):
     out = np.full((n, m), np.nan)
     for j in range(m):
         s = state[j]
-        for i in range(n):
-            x = r[i, j]
-            if np.isnan(x) or np.isnan(hi[j]):
-                continue
-            if x > hi[j] or (s > 0 and x > keep * hi[j]):
-                s = 1.0
-            elif x < lo[j] or (s < 0 and x < keep * lo[j]):
-                s = -1.0
-            else:
-                s = 0.0
-            out[i, j] = s
+        for i in np.flatnonzero(~np.isnan(r[:, j])) if not np.isnan(hi[j]) else []:
+            up = r[i, j] > hi[j] or (s > 0 and r[i, j] > keep * hi[j])
+            down = r[i, j] < lo[j] or (s < 0 and r[i, j] < keep * lo[j])
+            s = out[i, j] = 1.0 if up else (-1.0 if down else 0.0)
         state[j] = s
     return out
 
@@ -200,10 +193,7 @@ def _ref_outside(self, frame, unknown, report):
         hit = np.flatnonzero(todo & off & unknown[:, r.test])
         for i in hit:
             t0 = carried if carried is not None and first[i] == 0 and off[0] else idx[first[i]]
-            out[i] = (
-                f"{self.names.get(r.tag, r.tag)} = {x[i]:.4g} outside what the unit learned "
-                f"({r.lo:.4g} … {r.hi:.4g}) since {pd.Timestamp(t0).isoformat()}"
-            )
+            out[i] = self.sentence(r, x[i], t0)
         todo[hit] = False
         if n:
             if off[-1]:

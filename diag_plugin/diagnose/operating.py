@@ -91,6 +91,13 @@ class OutsideLearned:
                 return False
         return True
 
+    def sentence(self, r: Range, x: float, since) -> str:
+        """``TAG = value outside what the unit learned (lo … hi) since T``."""
+        return (
+            f"{self.names.get(r.tag, r.tag)} = {x:.4g} outside what the unit learned "
+            f"({r.lo:.4g} … {r.hi:.4g}) since {pd.Timestamp(since).isoformat()}"
+        )
+
     def transform(self, frame: pd.DataFrame, unknown: np.ndarray, report: np.ndarray) -> np.ndarray:
         """Per row a sentence (``""`` elsewhere) for the rows in ``report`` (CHECK_FUNCTION):
         the first input of an unknown test (``unknown``: rows × tests) outside its learned
@@ -119,11 +126,7 @@ class OutsideLearned:
             for i, st in zip(hit, first, strict=False):
                 # an excursion that began in an earlier piece keeps its start
                 t0 = carried if carried is not None and st == 0 and off[0] else idx[st]
-                name = self.names.get(r.tag, r.tag)
-                out[i] = (
-                    f"{name} = {x[i]:.4g} outside what the unit learned "
-                    f"({r.lo:.4g} … {r.hi:.4g}) since {pd.Timestamp(t0).isoformat()}"
-                )
+                out[i] = self.sentence(r, x[i], t0)
             todo[hit] = False
             if n:
                 if off[-1]:
@@ -145,7 +148,10 @@ class OutsideLearned:
             if not rows.size:
                 continue
             have = [t for t in tags if t in frame.columns]
-            vals = frame[have].to_numpy(float)[rows] if have else np.empty((rows.size, 0))
+            # column by column (a frame of the columns, per test and piece, cost more)
+            vals = np.empty((rows.size, len(have)))
+            for c, t in enumerate(have):
+                vals[:, c] = frame[t].to_numpy(float)[rows]
             names = [self.names.get(t, t) for t in have]
             for i, v in zip(rows, vals, strict=True):
                 miss = [nm for nm, x in zip(names, v, strict=True) if not np.isfinite(x)]
