@@ -350,26 +350,33 @@ class Design:
     """A design matrix ready for a model.
 
     ``X`` (rows × inputs) and ``y`` hold only complete rows; ``index`` their
-    timestamps; ``dropped`` counts the rows left out and why.
+    timestamps (None from a lean :meth:`DesignBuilder.transform`); ``dropped`` counts the
+    rows left out and why; ``positions`` (when the builder gives them) the complete rows'
+    positions in the piece.
     """
 
     X: np.ndarray
     y: np.ndarray | None
-    index: pd.DatetimeIndex
+    index: pd.DatetimeIndex | None
     inputs: list[str]
     output: str | None
     n_rows: int
     dropped: dict[str, int] = field(default_factory=dict)
+    positions: np.ndarray | None = None
 
     @property
     def n_dropped(self) -> int:
-        return self.n_rows - len(self.index)
+        kept = len(self.index) if self.index is not None else len(self.X)
+        return self.n_rows - kept
 
 
 def check_regular(index: pd.Index) -> None:
     """Lags count samples, so the frame must sit on a regular time grid."""
     if len(index) > 2:
-        d = np.diff(np.asarray(index, dtype="datetime64[ns]").astype(np.int64))
+        if isinstance(index, pd.DatetimeIndex):  # its integers as they are (no conversion)
+            d = np.diff(index.asi8)
+        else:
+            d = np.diff(np.asarray(index, dtype="datetime64[ns]").astype(np.int64))
         bad = np.flatnonzero((d != d[0]) | (d <= 0))
         if bad.size:
             raise ValueError(
@@ -406,6 +413,7 @@ class DesignBuilder:
         self.period = None if period is None else pd.Timedelta(period)
         self.last: pd.Timestamp | None = None
         self.specs = parse_specs(inputs)
+        self.input_names = [str(s) for s in self.specs]
         self.out_spec = None if output is None else parse_specs([output])[0]
         self.all_specs = self.specs + ([self.out_spec] if self.out_spec is not None else [])
         self.tags = needed_tags(self.all_specs)
@@ -458,9 +466,13 @@ class DesignBuilder:
             self.nan_tails[t] = _keep_tail(self.nan_tails[t], np.ones(k, bool))
         self.seen += n
 
-    def transform(self, frame: pd.DataFrame, quality: pd.DataFrame | None = None) -> Design:
+    def transform(
+        self, frame: pd.DataFrame, quality: pd.DataFrame | None = None, *, lean: bool = False
+    ) -> Design:
         """The design matrix of the next piece; rows needing data before the first piece
-        ever seen, or a NaN, bad-quality or undefined value, are dropped and counted."""
+        ever seen, or a NaN, bad-quality or undefined value, are dropped and counted. With
+        ``lean=True`` (a replay, which needs only the rows) neither counted per reason nor
+        given an index: ``X``, ``y`` and ``positions`` only (``index`` is None)."""
         check_regular(frame.index)
         missing = [t for t in self.tags if t not in frame.columns]
         if missing:
@@ -472,8 +484,9 @@ class DesignBuilder:
         n = len(frame)
         feats = self._columns(frame)
         cols = [_lagged(self.tails[s.base], feats[s.base], s.lag) for s in self.all_specs]
-        M = np.column_stack(cols) if cols else np.empty((n, 0))
-        ok = ~np.isnan(M).any(axis=1)
+        ok = np.ones(n, bool)
+        for c in cols:  # a row is complete without a NaN in any column
+            ok &= ~np.isnan(c)
         pos = self.seen + np.arange(n)
         dropped: dict[str, int] = {}
         attributed = pos < self.history
@@ -481,8 +494,10 @@ class DesignBuilder:
             dropped["history for the lags"] = int(attributed.sum())
         raw_nan = {}
         for tag in self.tags:
-            raw = frame[tag].isna().to_numpy()
+            raw = pd.isna(frame[tag].to_numpy())  # as Series.isna, without the Series
             raw_nan[tag] = raw
+            if lean:
+                continue
             miss = np.zeros(n, bool)
             for s in self.all_specs:
                 if tag in s.tags:
@@ -491,7 +506,7 @@ class DesignBuilder:
             if miss.any():
                 dropped[f"{tag} missing or bad"] = int(miss.sum())
                 attributed |= miss
-        other = int((~ok & ~attributed).sum())
+        other = 0 if lean else int((~ok & ~attributed).sum())
         if other > 0:
             dropped["derived value undefined"] = other
         for b, v in feats.items():
@@ -499,16 +514,18 @@ class DesignBuilder:
         for t, v in raw_nan.items():
             self.nan_tails[t] = _keep_tail(self.nan_tails[t], v)
         self.seen += n
-        Mok = M[ok]
+        positions = np.flatnonzero(ok)
         d = len(self.specs)
+        X = np.column_stack([c[positions] for c in cols[:d]]) if d else np.empty((ok.sum(), 0))
         return Design(
-            X=np.ascontiguousarray(Mok[:, :d]),
-            y=Mok[:, d].copy() if self.out_spec is not None else None,
-            index=pd.DatetimeIndex(frame.index[ok]),
-            inputs=[str(s) for s in self.specs],
+            X=np.ascontiguousarray(X, dtype=float),
+            y=np.asarray(cols[d][positions], float) if self.out_spec is not None else None,
+            index=None if lean else pd.DatetimeIndex(frame.index[positions]),
+            inputs=list(self.input_names),
             output=None if self.out_spec is None else str(self.out_spec),
             n_rows=n,
             dropped=dropped,
+            positions=positions,
         )
 
     def advance(self, frame: pd.DataFrame) -> None:
@@ -579,6 +596,8 @@ def _keep_tail(tail: np.ndarray, v: np.ndarray) -> np.ndarray:
     h = tail.size
     if h == 0:
         return tail
+    if v.size >= h:  # the piece alone holds the new tail (no copy of the whole piece)
+        return v[v.size - h :].copy()
     return np.concatenate([tail, v])[-h:]
 
 

@@ -91,6 +91,13 @@ class OutsideLearned:
                 return False
         return True
 
+    def sentence(self, r: Range, x: float, since) -> str:
+        """``TAG = value outside what the unit learned (lo … hi) since T``."""
+        return (
+            f"{self.names.get(r.tag, r.tag)} = {x:.4g} outside what the unit learned "
+            f"({r.lo:.4g} … {r.hi:.4g}) since {pd.Timestamp(since).isoformat()}"
+        )
+
     def transform(self, frame: pd.DataFrame, unknown: np.ndarray, report: np.ndarray) -> np.ndarray:
         """Per row a sentence (``""`` elsewhere) for the rows in ``report`` (CHECK_FUNCTION):
         the first input of an unknown test (``unknown``: rows × tests) outside its learned
@@ -100,28 +107,26 @@ class OutsideLearned:
         out = np.full(n, "", dtype=object)
         idx = frame.index
         todo = report.copy()
+        columns = set(frame.columns)
+        none = np.empty(0, np.intp)
         for k, r in enumerate(self.ranges):
-            if r.tag not in frame.columns:
+            if r.tag not in columns:
                 continue
             x = frame[r.tag].to_numpy(float)
             with np.errstate(invalid="ignore"):
                 off = (x < r.lo) | (x > r.hi)
-            # the row each excursion started at (carried over the piece's start)
-            starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
-            first = np.full(n, -1)
-            first[starts] = starts
-            first = np.maximum.accumulate(first)
             carried = self.since.get(k)
-            hit = np.flatnonzero(todo & off & unknown[:, r.test])
-            for i in hit:
-                st = first[i]
+            hit = np.flatnonzero(todo & off & unknown[:, r.test]) if todo.any() else none
+            first = none
+            if hit.size or (n and off[-1]):
+                # the row each excursion started at (carried over the piece's start): for an
+                # outside row, the last start at or before it
+                starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
+                first = starts[np.searchsorted(starts, np.r_[hit, n - 1], side="right") - 1]
+            for i, st in zip(hit, first, strict=False):
                 # an excursion that began in an earlier piece keeps its start
-                t0 = carried if carried is not None and first[i] == 0 and off[0] else idx[st]
-                name = self.names.get(r.tag, r.tag)
-                out[i] = (
-                    f"{name} = {x[i]:.4g} outside what the unit learned "
-                    f"({r.lo:.4g} … {r.hi:.4g}) since {pd.Timestamp(t0).isoformat()}"
-                )
+                t0 = carried if carried is not None and st == 0 and off[0] else idx[st]
+                out[i] = self.sentence(r, x[i], t0)
             todo[hit] = False
             if n:
                 if off[-1]:
@@ -143,7 +148,10 @@ class OutsideLearned:
             if not rows.size:
                 continue
             have = [t for t in tags if t in frame.columns]
-            vals = frame[have].to_numpy(float)[rows] if have else np.empty((rows.size, 0))
+            # column by column (a frame of the columns, per test and piece, cost more)
+            vals = np.empty((rows.size, len(have)))
+            for c, t in enumerate(have):
+                vals[:, c] = frame[t].to_numpy(float)[rows]
             names = [self.names.get(t, t) for t in have]
             for i, v in zip(rows, vals, strict=True):
                 miss = [nm for nm, x in zip(names, v, strict=True) if not np.isfinite(x)]

@@ -18,6 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+import numba
 import numpy as np
 import pandas as pd
 from scipy import signal
@@ -61,6 +62,35 @@ def _per_column(value: Any, columns: Any, m: int, what: str) -> np.ndarray:
         return np.array([float(value[c]) for c in columns])
     arr = np.broadcast_to(np.asarray(value, dtype=float), (m,)).copy()
     return arr
+
+
+@numba.njit(cache=True)
+def _lowpass_kernel(x, sos, zi, gap, max_gap):  # pragma: no cover - numba
+    """``x`` (samples × columns) filtered by the second-order sections ``sos`` from the state
+    ``zi`` (columns × sections × 2), skipping non-finite samples (NaN out, state held), the
+    state back at rest after more than ``max_gap`` of them; ``zi`` and ``gap`` advanced.
+    Row by row, so the samples are read in memory order; each column's recursion is its own."""
+    n, m = x.shape
+    out = np.full((n, m), np.nan)
+    ns = sos.shape[0]
+    for i in range(n):
+        for j in range(m):
+            x_cur = x[i, j]
+            if not np.isfinite(x_cur):
+                gap[j] += 1
+                continue
+            if gap[j] > max_gap:
+                for s in range(ns):
+                    zi[j, s, 0] = 0.0
+                    zi[j, s, 1] = 0.0
+            gap[j] = 0
+            for s in range(ns):
+                x_new = sos[s, 0] * x_cur + zi[j, s, 0]
+                zi[j, s, 0] = sos[s, 1] * x_cur - sos[s, 4] * x_new + zi[j, s, 1]
+                zi[j, s, 1] = sos[s, 2] * x_cur - sos[s, 5] * x_new
+                x_cur = x_new
+            out[i, j] = x_cur
+    return out
 
 
 class LowPass:
@@ -109,36 +139,12 @@ class LowPass:
         n, m = a.shape
         self._init_state(m)
         assert self.zi_ is not None and self.gap_ is not None
-        out = np.full_like(a, np.nan)
         if not n:
-            return wrap(out)
-        # columns finite throughout the piece: one vectorised call (the live loop's case)
-        whole = np.flatnonzero(np.isfinite(a).all(axis=0))
-        if whole.size:
-            self.zi_[whole[self.gap_[whole] > self.max_gap]] = 0.0
-            zi = np.ascontiguousarray(self.zi_[whole].transpose(1, 2, 0))
-            out[:, whole], zf = signal.sosfilt(self.sos_, a[:, whole], axis=0, zi=zi)
-            self.zi_[whole] = zf.transpose(2, 0, 1)
-            self.gap_[whole] = 0
-        # columns with NaNs: the filter runs over the finite samples only (its state holds
-        # across a NaN), restarting from rest after a gap longer than max_gap; one sosfilt
-        # call per stretch between long gaps
-        for j in np.flatnonzero(~np.isfinite(a).all(axis=0)):
-            idx = np.flatnonzero(np.isfinite(a[:, j]))
-            if not idx.size:
-                self.gap_[j] += n
-                continue
-            before = np.diff(idx, prepend=-1 - self.gap_[j]) - 1  # NaNs just before each
-            cuts = np.flatnonzero(before > self.max_gap)
-            for s, e in zip(np.r_[0, cuts], np.r_[cuts, idx.size], strict=True):
-                if e <= s:
-                    continue
-                if before[s] > self.max_gap:
-                    self.zi_[j] = 0.0
-                at = idx[s:e]
-                out[at, j], self.zi_[j] = signal.sosfilt(self.sos_, a[at, j], zi=self.zi_[j])
-            self.gap_[j] = n - 1 - idx[-1]
-        return wrap(out)
+            return wrap(np.full_like(a, np.nan))
+        # one compiled pass per column over the finite samples (the recursion of scipy's
+        # sosfilt, direct form II transposed, the same operations in the same order)
+        x = np.ascontiguousarray(a)
+        return wrap(_lowpass_kernel(x, self.sos_, self.zi_, self.gap_, self.max_gap))
 
     def to_state(self) -> dict[str, Any]:
         """Parameters and carried state as plain JSON-able values."""

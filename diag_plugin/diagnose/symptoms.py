@@ -254,16 +254,17 @@ def three_valued(
 
 @numba.njit(cache=True)
 def _delay_kernel(raw, on_delay, off_delay, state, count):  # pragma: no cover - numba
+    # row by row (memory order); each column's state machine is its own
     n, m = raw.shape
     out = np.empty_like(raw)
-    for j in range(m):
-        s = state[j]
-        c = count[j]
-        for i in range(n):
+    for i in range(n):
+        for j in range(m):
             x = raw[i, j]
             if np.isnan(x):
                 out[i, j] = np.nan  # unknown: counted neither as on nor off
                 continue
+            s = state[j]
+            c = count[j]
             v = 0.0 if x == 0 else (1.0 if x > 0 else -1.0)
             if s == 0.0:
                 # c counts consecutive samples with the same nonzero sign (sign in its sign).
@@ -289,8 +290,8 @@ def _delay_kernel(raw, on_delay, off_delay, state, count):  # pragma: no cover -
                             s = v
                             c = 0
             out[i, j] = s
-        state[j] = s
-        count[j] = c
+            state[j] = s
+            count[j] = c
     return out
 
 

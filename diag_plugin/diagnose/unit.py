@@ -111,23 +111,25 @@ def load_test_model(name: str, path: Path) -> TestModel:
 
 @numba.njit(cache=True)
 def _hold_kernel(s, limit, last, run):  # pragma: no cover - numba
+    # row by row (memory order); each column's state is its own
     n, m = s.shape
     out = s.copy()
-    for j in range(m):
-        v = last[j]
-        k = run[j]
-        for i in range(n):
+    for i in range(n):
+        for j in range(m):
             x = s[i, j]
             if np.isnan(x):
-                k += 1
-                if k <= limit and not np.isnan(v):
-                    out[i, j] = v
+                run[j] += 1
+                if run[j] <= limit and not np.isnan(last[j]):
+                    out[i, j] = last[j]
             else:
-                v = x
-                k = 0
-        last[j] = v
-        run[j] = k
+                last[j] = x
+                run[j] = 0
     return out
+
+
+def _on(s: np.ndarray) -> np.ndarray:
+    """Where a symptom is on: nonzero and known (``nan_to_num(s) != 0`` without the copy)."""
+    return np.abs(s) > 0
 
 
 def _sticky(s: np.ndarray, carry: np.ndarray) -> np.ndarray:
@@ -465,17 +467,13 @@ class Unit:
     def raw_residuals(self, frame: pd.DataFrame) -> pd.DataFrame:
         """Residual per test in % (eq. 6 or of ``ymax``), NaN where unknown; advances state."""
         frame = self._model_frame(frame)
-        cols = {}
-        for t in self.file.tests:
+        out = np.full((len(frame), len(self.tests)), np.nan)
+        for j, t in enumerate(self.file.tests):
             m = self.models[t.name]
-            d = self.builders[t.name].transform(frame)
-            r = np.full(len(frame), np.nan)
-            if len(d.index):
-                r[frame.index.get_indexer(d.index)] = self.residual(
-                    t, d.y, m.model.predict_detail(d.X)
-                )
-            cols[t.name] = r
-        return pd.DataFrame(cols, index=frame.index, columns=self.tests)
+            d = self.builders[t.name].transform(frame, lean=True)
+            if d.positions.size:
+                out[d.positions, j] = self.residual(t, d.y, m.model.predict_detail(d.X))
+        return pd.DataFrame(out, index=frame.index, columns=self.tests, copy=False)
 
     def residual(self, test: TestSpec, y: np.ndarray, pred: Prediction) -> np.ndarray:
         """A test's raw residual from its model's prediction: % of span (eq. 6) or of ``ymax``,
@@ -493,12 +491,11 @@ class Unit:
         if self.spread_cols.size:
             x = raw.to_numpy(float, copy=True)
             x[:, self.spread_cols] = self.spread.transform(x[:, self.spread_cols])
-            raw = pd.DataFrame(x, index=raw.index, columns=raw.columns)
+            raw = pd.DataFrame(x, index=raw.index, columns=raw.columns, copy=False)
         if self.lowpass is None:
             return raw
-        return pd.DataFrame(
-            self.lowpass.transform(raw.to_numpy()), index=raw.index, columns=raw.columns
-        )
+        x = self.lowpass.transform(raw.to_numpy())
+        return pd.DataFrame(x, index=raw.index, columns=raw.columns, copy=False)
 
     def _limits(self) -> tuple[np.ndarray, np.ndarray]:
         lims = [t.limits or (np.nan, np.nan) for t in self.file.tests]
@@ -551,7 +548,7 @@ class Unit:
         assert self.matrix is not None
         order = [self.tests.index(t) for t in self.matrix.tests]
         s_m = s[:, order]
-        on = (np.nan_to_num(s_m) != 0).any(axis=1)
+        on = _on(s_m).any(axis=1)
         # only the samples with a symptom are reasoned over (the rest are 0): a replay of
         # fault-free data skips the matrix, and its n × tests × faults arrays, almost entirely
         c = np.zeros((s.shape[0], len(self.faults)))
@@ -570,7 +567,7 @@ class Unit:
         s, mem = self.symptoms(r.to_numpy())
         n, T = s.shape
         known = ~np.isnan(s)
-        active = (np.nan_to_num(s) != 0).any(axis=1)
+        active = _on(s).any(axis=1)
         c_on = np.zeros(n, bool)
         combined = share = None
         if self.cmodel is not None:
@@ -580,7 +577,7 @@ class Unit:
                 with np.errstate(invalid="ignore"):
                     raw_c = np.where(np.isnan(t2), np.nan, (t2 > self.cmodel.high) * 1.0)
                 s_t2 = self.combined_delay.transform(raw_c[:, None])[:, 0]
-                c_on = np.nan_to_num(s_t2) != 0
+                c_on = _on(s_t2)
             combined = pd.DataFrame({"T2": t2, "s_T2": s_t2}, index=frame.index)
         tests_on = active
         active = active | c_on
@@ -627,8 +624,8 @@ class Unit:
         return Diagnosis(
             unit=self.name,
             residuals=r,
-            symptoms=pd.DataFrame(s, index=idx, columns=self.tests),
-            certainties=pd.DataFrame(cert, index=idx, columns=self.faults),
+            symptoms=pd.DataFrame(s, index=idx, columns=self.tests, copy=False),
+            certainties=pd.DataFrame(cert, index=idx, columns=self.faults, copy=False),
             detected=pd.Series(detected, index=idx),
             status=pd.Series(status, index=idx),
             quality=pd.Series(quality, index=idx),
@@ -637,7 +634,7 @@ class Unit:
             combined=combined,
             contributions=None
             if share is None
-            else pd.DataFrame(share, index=idx, columns=self.cmodel.tags),
+            else pd.DataFrame(share, index=idx, columns=self.cmodel.tags, copy=False),
             top=top,
             why=pd.Series(why, index=idx),
         )

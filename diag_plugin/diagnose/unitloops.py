@@ -97,14 +97,15 @@ class RunningSpread:
 
 @numba.njit(cache=True)
 def _deadband_kernel(r, lo, hi, keep, state):  # pragma: no cover - numba
+    # row by row (memory order); each column's state is its own
     n, m = r.shape
     out = np.full((n, m), np.nan)
-    for j in range(m):
-        s = state[j]
-        for i in range(n):
+    for i in range(n):
+        for j in range(m):
             x = r[i, j]
             if np.isnan(x) or np.isnan(hi[j]):
                 continue
+            s = state[j]
             if x > hi[j] or (s > 0 and x > keep * hi[j]):
                 s = 1.0
             elif x < lo[j] or (s < 0 and x < keep * lo[j]):
@@ -112,7 +113,7 @@ def _deadband_kernel(r, lo, hi, keep, state):  # pragma: no cover - numba
             else:
                 s = 0.0
             out[i, j] = s
-        state[j] = s
+            state[j] = s
     return out
 
 
@@ -138,16 +139,23 @@ class EpisodeHold:
         self.count = 0
 
     def transform(self, share: np.ndarray, active: np.ndarray) -> np.ndarray:
-        """Per sample the mean share since its episode began (NaN outside alarms)."""
+        """Per sample the mean share since its episode began (NaN outside alarms).
+
+        Worked over the alarm samples only (running sums over them are those over all
+        samples with zeros between: the same numbers, at the cost of the alarms alone)."""
         act = np.asarray(active, bool)
         n = act.size
-        if n == 0:
-            return np.full(share.shape, np.nan)
-        s = np.where(act[:, None], np.nan_to_num(share, nan=0.0), 0.0)
-        cs, cc = np.cumsum(s, axis=0), np.cumsum(act.astype(float))
-        prev = np.r_[self.count > 0, act[:-1]]
-        start = act & ~prev
-        last = np.maximum.accumulate(np.where(start, np.arange(n), -1))
+        out = np.full(share.shape, np.nan)
+        at = np.flatnonzero(act)
+        if at.size == 0:
+            if n:
+                self.total, self.count = np.zeros(share.shape[1]), 0
+            return out
+        m = at.size
+        start = ~np.r_[self.count > 0, act[:-1]][at]
+        cs = np.cumsum(np.nan_to_num(share[at], nan=0.0), axis=0)
+        cc = np.arange(1, m + 1, dtype=float)
+        last = np.maximum.accumulate(np.where(start, np.arange(m), -1))
         before = np.clip(last - 1, 0, None)
         base_s = np.where((last > 0)[:, None], cs[before], 0.0)
         base_c = np.where(last > 0, cc[before], 0.0)
@@ -155,7 +163,7 @@ class EpisodeHold:
         total = cs - base_s + np.where(carry[:, None], self.total, 0.0)
         count = cc - base_c + np.where(carry, self.count, 0)
         with np.errstate(invalid="ignore", divide="ignore"):
-            out = np.where(act[:, None], total / np.maximum(count, 1)[:, None], np.nan)
+            out[at] = total / np.maximum(count, 1)[:, None]
         if act[-1]:
             self.total, self.count = total[-1].copy(), int(count[-1])
         else:

@@ -292,28 +292,41 @@ class CombinedModel:
         # the patterns of known tests, as one integer key per sample when they fit in 63
         # bits (a sort of n keys, not of n rows of T booleans)
         kn = known[enough]
-        if T <= 63:
-            keys = kn.astype(np.int64) @ (np.int64(1) << np.arange(T, dtype=np.int64))
+        if T <= 63:  # bit j of a key is test j: the bits packed, 8 bytes read as one integer
+            packed = np.zeros((kn.shape[0], 8), np.uint8)
+            packed[:, : (T + 7) // 8] = np.packbits(kn, axis=1, bitorder="little")
+            keys = packed.view("<u8").reshape(-1)
             ukeys, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
             patterns = kn[first]
         else:
             patterns, inverse = np.unique(kn, axis=0, return_inverse=True)
         rows_all = np.flatnonzero(enough)
+        # each pattern's rows (ascending) as one slice of a stable sort, not a scan per pattern
+        inverse = inverse.reshape(-1)
+        by = rows_all[np.argsort(inverse, kind="stable")]
+        ends = np.cumsum(np.bincount(inverse, minlength=len(patterns)))
+        partial: list[tuple[np.ndarray, np.ndarray, int]] = []
         for p, pat in enumerate(patterns):
-            rows = rows_all[inverse.reshape(-1) == p]
+            rows = by[ends[p - 1] if p else 0 : ends[p]]
             k = np.flatnonzero(pat)
             m, den = self._inverse(pat)
-            zk = z[np.ix_(rows, k)]
+            zk = z[rows] if k.size == T else z[np.ix_(rows, k)]
             mz = zk @ m
             q = np.einsum("ij,ij->i", mz, zk)
             with np.errstate(invalid="ignore", divide="ignore"):
                 rbc = _rbc(mz, self.xi[k], den)
                 if self.loop is not None:
                     self._loop_rbc(rbc, mz, m, k)
-                share[rows] = np.clip(rbc / np.maximum(q, 1e-12)[:, None], 0.0, 1.0)
-            if k.size < T:  # the same false-alarm level with T degrees of freedom
-                q = stats.chi2.isf(stats.chi2.sf(q, k.size), T)
+                rbc /= np.maximum(q, 1e-12)[:, None]
+                share[rows] = np.clip(rbc, 0.0, 1.0, out=rbc)
             t2[rows] = q
+            if k.size < T:
+                partial.append((rows, q, k.size))
+        if partial:  # the same false-alarm level with T degrees of freedom (one call for all)
+            rows = np.concatenate([p[0] for p in partial])
+            q = np.concatenate([p[1] for p in partial])
+            df = np.concatenate([np.full(p[1].size, p[2]) for p in partial])
+            t2[rows] = stats.chi2.isf(stats.chi2.sf(q, df), T)
         return t2, share
 
     def _loop_rbc(self, rbc: np.ndarray, mz: np.ndarray, m: np.ndarray, k: np.ndarray) -> None:
@@ -339,7 +352,11 @@ class CombinedModel:
 
 def _rbc(mz: np.ndarray, xi: np.ndarray, den: np.ndarray) -> np.ndarray:
     """Reconstruction-based contribution of each direction (Alcala & Qin, 2009, eq. 13)."""
-    return np.where(den > 1e-12, (mz @ xi) ** 2 / np.maximum(den, 1e-12), 0.0)
+    out = mz @ xi
+    np.square(out, out=out)
+    out /= np.maximum(den, 1e-12)
+    out[:, ~(den > 1e-12)] = 0.0
+    return out
 
 
 def top_tags(share: np.ndarray, tags: list[str], rows: np.ndarray, top: int = TOP) -> pd.DataFrame:
