@@ -321,6 +321,7 @@ class WangMendelRegressor(ParamsMixin):
         self._conclusions = None
         self._packed = None
         self._nodes: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._levels: dict[int, LevelRules] = {}
 
     def _arrays(self):
         P = self.partitions_
@@ -649,7 +650,10 @@ class WangMendelRegressor(ParamsMixin):
         self._check_fitted()
         if not 0 <= level < self.n_levels_:
             raise ValueError(f"level must be 0…{self.n_levels_ - 1}, got {level}")
-        return self._derive_level(level)
+        cache = self.__dict__.setdefault("_levels", {})  # the node fit and spreads read it
+        if level not in cache:
+            cache[level] = self._derive_level(level)
+        return cache[level]
 
     def _derive_level(self, level: int) -> LevelRules:
         if level == 0:
@@ -913,21 +917,27 @@ def _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets) -> np.ndarray:
     """:func:`_fit_nodes`' least squares with dense arrays (a level of few nodes)."""
     k = nodes.size
     d = m.n_features_in_
-    A = np.zeros((n.size, k))
-    np.add.at(A, (r, col), w * sw[r])
+    # each (fine rule, node) pair at most once: the sums of np.add.at, without its loop
+    A = np.bincount(r * k + col, w * sw[r], minlength=n.size * k).reshape(n.size, k)
     y = np.asarray(m.conclusions_, float)[m.count_ > 0]
     idx = np.column_stack([(nodes // radix[j]) % nsets[j] for j in range(d)])
-    rows = []
+    below_all, mid_all, above_all = [], [], []
     for j in range(d):
         below = np.searchsorted(nodes, nodes - radix[j]).clip(0, k - 1)
         above = np.searchsorted(nodes, nodes + radix[j]).clip(0, k - 1)
         inside = (idx[:, j] > 0) & (idx[:, j] < nsets[j] - 1)
         ok = inside & (nodes[below] == nodes - radix[j]) & (nodes[above] == nodes + radix[j])
-        for i in np.flatnonzero(ok):
-            row = np.zeros(k)
-            row[below[i]], row[i], row[above[i]] = 1.0, -2.0, 1.0
-            rows.append(row)
-    P = np.array(rows) if rows else np.zeros((0, k))
+        mid = np.flatnonzero(ok)
+        below_all.append(below[mid])
+        mid_all.append(mid)
+        above_all.append(above[mid])
+    # one row per second difference: 1, -2, 1 at the node below, the node, the node above
+    mid = np.concatenate(mid_all)
+    P = np.zeros((mid.size, k))
+    at = np.arange(mid.size)
+    P[at, np.concatenate(below_all)] = 1.0
+    P[at, mid] = -2.0
+    P[at, np.concatenate(above_all)] = 1.0
     per_node = n.sum() / k
     ridge = 1e-6 * per_node
     M = A.T @ A + SMOOTHING * per_node * (P.T @ P) + ridge * np.eye(k)
