@@ -170,6 +170,10 @@ def pack(grids: Sequence[InferenceGrid], dense: bool) -> tuple:
             cat_k, cat_v, cat_s, cat_f, cat_d, LEVEL_SUPPORT)  # fmt: skip
 
 
+def _fields(det: Prediction) -> tuple[np.ndarray, ...]:
+    return det.y, det.support, det.reason, det.level, det.spread
+
+
 def run_kernel(packed: tuple, which: np.ndarray, X: np.ndarray) -> Prediction:
     """Prediction, support, reason and level per row of ``X`` by the packed models."""
     n = X.shape[0]
@@ -218,6 +222,9 @@ SPREAD_PRIOR = 5.0
 DENSE_FIT = 1 << 17
 #: coarse levels whose fit would weigh more (fine rules × 2^inputs) stay silent
 FIT_LIMIT = 1 << 20
+#: a prediction of more rows than this asks every level of all of them once more than half
+#: of them need a coarse level (instead of copying the rows asked)
+LAZY_ROWS = 1 << 16
 
 
 def _as_2d(X) -> np.ndarray:
@@ -321,6 +328,9 @@ class WangMendelRegressor(ParamsMixin):
         self._conclusions = None
         self._packed = None
         self._nodes: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._levels: dict[int, LevelRules] = {}
+        self._spreads: dict[int, np.ndarray] = {}
+        self._packs: dict[int, tuple] = {}
 
     def _arrays(self):
         P = self.partitions_
@@ -649,7 +659,10 @@ class WangMendelRegressor(ParamsMixin):
         self._check_fitted()
         if not 0 <= level < self.n_levels_:
             raise ValueError(f"level must be 0…{self.n_levels_ - 1}, got {level}")
-        return self._derive_level(level)
+        cache = self.__dict__.setdefault("_levels", {})  # the node fit and spreads read it
+        if level not in cache:
+            cache[level] = self._derive_level(level)
+        return cache[level]
 
     def _derive_level(self, level: int) -> LevelRules:
         if level == 0:
@@ -715,9 +728,60 @@ class WangMendelRegressor(ParamsMixin):
         X = _as_2d(X)
         if X.shape[1] != self.n_features_in_:
             raise ValueError(f"model has {self.n_features_in_} inputs, X has {X.shape[1]}")
-        if self._packed is None:
-            self._packed = pack([self.inference_grid()], dense=True)
-        return run_kernel(self._packed, np.empty(0, np.int64), X)
+        if self._packed is not None:
+            return run_kernel(self._packed, np.empty(0, np.int64), X)
+        # a coarse level is fitted only when a sample reaches it: the levels down to
+        # ``depth`` answer every sample that one of them answers with LEVEL_SUPPORT (the
+        # kernel stops there, as with every level); the others are asked again one level
+        # deeper — exactly the answers of all levels, without fitting those nobody asks
+        packs = self.__dict__.setdefault("_packs", {})
+        none = np.empty(0, np.int64)
+        last = self.n_levels_ - 1
+        depth = 0
+        rows = np.empty(0, np.int64)
+        while True:
+            if depth not in packs:
+                packs[depth] = pack([self.inference_grid(depth)], dense=True)
+            if depth == last:
+                self._packed = packs[depth]
+            if depth == 0 or rows.size == X.shape[0]:
+                det = run_kernel(packs[depth], none, X)
+                rows = np.arange(X.shape[0])
+            else:
+                sub = run_kernel(packs[depth], none, X[rows])
+                for full, part in zip(_fields(det), _fields(sub), strict=True):
+                    full[rows] = part
+            if depth == last:
+                return det
+            if depth == 0:  # the kernel asks no coarse level outside the data's range
+                rows = rows[self._inside(X)]
+            ask = (det.support[rows] < LEVEL_SUPPORT) & (det.reason[rows] != 1)
+            rows = rows[ask]
+            if not rows.size:
+                return det
+            depth += 1
+            if rows.size > X.shape[0] // 2 and X.shape[0] > LAZY_ROWS:
+                # most of many rows asked again: one pass of every level over all of them
+                # (no copy of the rows asked; memory in proportion to the rows as before)
+                depth, rows = last, np.arange(X.shape[0])
+
+    def _inside(self, X: np.ndarray) -> np.ndarray:
+        """Rows whose fine set of every input may lie between the first and last set holding
+        training data (:func:`._kernels.infer_levels`' ``inside``; a row within rounding of
+        that range counts as inside, so no row the kernel takes inside is left out)."""
+        lo, step, nsets, _, _ = self._arrays()
+        ok = np.ones(X.shape[0], bool)
+        rem = self.keys_[self.count_ > 0]
+        if not rem.size:
+            return ok
+        for k in range(self.n_features_in_):
+            idx, rem = np.divmod(rem, self.radix_[k])
+            x = np.clip(X[:, k], lo[k], lo[k] + step[k] * (nsets[k] - 1))
+            t = (x - lo[k]) / step[k] + 0.5
+            hi_i = np.minimum(np.floor(t + 1e-9), nsets[k] - 1)
+            lo_i = np.minimum(np.floor(t - 1e-9), nsets[k] - 1)
+            ok &= ~((hi_i < idx.min()) | (lo_i > idx.max())) | np.isnan(X[:, k])
+        return ok
 
     def predict(self, X) -> np.ndarray:
         """Model output; NaN where no trained rule covers the sample."""
@@ -748,26 +812,32 @@ class WangMendelRegressor(ParamsMixin):
         """Share of samples of ``X`` answered by trained rules (at any level)."""
         return self.predict_detail(X).coverage
 
-    def inference_grid(self) -> InferenceGrid:
-        """Partitions and rules of every level as flat arrays, for evaluators that run many
-        models at once (:class:`diag_plugin.fuzzy.stack.WangMendelStack`); keys ascending."""
+    def inference_grid(self, depth: int | None = None) -> InferenceGrid:
+        """Partitions and rules of every level (down to level ``depth``) as flat arrays, for
+        evaluators that run many models at once (:class:`diag_plugin.fuzzy.stack.
+        WangMendelStack`); keys ascending."""
         self._check_fitted()
         lo, step, nsets, plateau, _ = self._arrays()
-        radix = np.stack([_radix(self.level_nsets(lv)) for lv in range(self.n_levels_)])
+        levels = self.n_levels_ if depth is None else min(depth + 1, self.n_levels_)
+        radix = np.stack([_radix(self.level_nsets(lv)) for lv in range(levels)])
         inner = np.column_stack([np.zeros(nsets.size, np.int64), nsets - 1])
         rem = self.keys_[self.count_ > 0]
         for k in range(self.n_features_in_ if rem.size else 0):
             idx, rem = np.divmod(rem, self.radix_[k])
             inner[k] = idx.min(), idx.max()
-        nodes = [self.level_nodes(lv) for lv in range(self.n_levels_)]
-        spreads = [self._node_spread(lv, k) for lv, (k, _, _) in enumerate(nodes)]
+        nodes = [self.level_nodes(lv) for lv in range(levels)]
+        spread = self.__dict__.setdefault("_spreads", {})
+        for lv, (k, _, _) in enumerate(nodes):
+            if lv not in spread:
+                spread[lv] = self._node_spread(lv, k)
+        spreads = [spread[lv] for lv in range(levels)]
         return InferenceGrid(
             lo,
             step,
             nsets,
             plateau,
             inner,
-            self.level_blocks_.copy(),
+            self.level_blocks_[:levels].copy(),
             radix,
             [k for k, _, _ in nodes],
             [v for _, v, _ in nodes],
@@ -913,21 +983,27 @@ def _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets) -> np.ndarray:
     """:func:`_fit_nodes`' least squares with dense arrays (a level of few nodes)."""
     k = nodes.size
     d = m.n_features_in_
-    A = np.zeros((n.size, k))
-    np.add.at(A, (r, col), w * sw[r])
+    # each (fine rule, node) pair at most once: the sums of np.add.at, without its loop
+    A = np.bincount(r * k + col, w * sw[r], minlength=n.size * k).reshape(n.size, k)
     y = np.asarray(m.conclusions_, float)[m.count_ > 0]
     idx = np.column_stack([(nodes // radix[j]) % nsets[j] for j in range(d)])
-    rows = []
+    below_all, mid_all, above_all = [], [], []
     for j in range(d):
         below = np.searchsorted(nodes, nodes - radix[j]).clip(0, k - 1)
         above = np.searchsorted(nodes, nodes + radix[j]).clip(0, k - 1)
         inside = (idx[:, j] > 0) & (idx[:, j] < nsets[j] - 1)
         ok = inside & (nodes[below] == nodes - radix[j]) & (nodes[above] == nodes + radix[j])
-        for i in np.flatnonzero(ok):
-            row = np.zeros(k)
-            row[below[i]], row[i], row[above[i]] = 1.0, -2.0, 1.0
-            rows.append(row)
-    P = np.array(rows) if rows else np.zeros((0, k))
+        mid = np.flatnonzero(ok)
+        below_all.append(below[mid])
+        mid_all.append(mid)
+        above_all.append(above[mid])
+    # one row per second difference: 1, -2, 1 at the node below, the node, the node above
+    mid = np.concatenate(mid_all)
+    P = np.zeros((mid.size, k))
+    at = np.arange(mid.size)
+    P[at, np.concatenate(below_all)] = 1.0
+    P[at, mid] = -2.0
+    P[at, np.concatenate(above_all)] = 1.0
     per_node = n.sum() / k
     ridge = 1e-6 * per_node
     M = A.T @ A + SMOOTHING * per_node * (P.T @ P) + ridge * np.eye(k)

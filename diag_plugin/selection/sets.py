@@ -10,6 +10,8 @@ import numpy as np
 MIN_PER_CELL = 20
 #: set counts chosen from the data stay within these
 SETS_RANGE = (3, 31)
+#: grids of at most this many cells count their occupied cells in a dense table
+OCCUPANCY_CELLS = 1 << 22
 
 
 def sets_for_data(cols: Sequence[np.ndarray], spans: Sequence[tuple[float, float]]) -> int:
@@ -21,14 +23,27 @@ def sets_for_data(cols: Sequence[np.ndarray], spans: Sequence[tuple[float, float
     n = len(X)
     lo = np.array([s[0] for s in spans])
     width = np.array([s[1] - s[0] for s in spans])
+    if n:
+        pos = (X - lo) / width  # each sample's place in the span, computed once
     for sets in range(SETS_RANGE[1], SETS_RANGE[0] - 1, -1):
         if n == 0:
             break
-        idx = np.clip(np.floor((X - lo) / width * (sets - 1) + 0.5), 0, sets - 1).astype(np.int64)
-        occupied = np.unique(idx @ (sets ** np.arange(idx.shape[1], dtype=np.int64))).size
-        if n >= MIN_PER_CELL * occupied:
+        idx = np.clip(np.floor(pos * (sets - 1) + 0.5), 0, sets - 1).astype(np.int64)
+        if n >= MIN_PER_CELL * _occupied(idx, sets):
             return sets
     return SETS_RANGE[0] if n else SETS_RANGE[1]
+
+
+def _occupied(idx: np.ndarray, sets: int) -> int:
+    """Distinct rows of ``idx`` (set indices 0 … sets-1 per column): a count of a dense
+    occupancy table where the grid is small (no sort), else of the unique keys."""
+    key = idx @ (sets ** np.arange(idx.shape[1], dtype=np.int64))
+    cells = sets ** idx.shape[1]
+    if cells <= OCCUPANCY_CELLS:
+        seen = np.zeros(cells, bool)
+        seen[key] = True
+        return int(np.count_nonzero(seen))
+    return int(np.unique(key).size)
 
 
 def sets_for_cells(n_train: int, cells: int, current: int) -> int:

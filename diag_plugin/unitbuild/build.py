@@ -67,7 +67,7 @@ from diag_plugin.models.spec import Variable
 from diag_plugin.regressors import InputSpec
 from diag_plugin.rulebase.document import RuleBase
 from diag_plugin.selection.features import Features
-from diag_plugin.selection.lags import TOLERANCE, default_max_lag, lag_screen
+from diag_plugin.selection.lags import TOLERANCE, LagScreen, default_max_lag
 from diag_plugin.selection.scoring import BlockScorer
 from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
@@ -270,6 +270,8 @@ class _Context:
         self.feats = Features(frame, self.spans)
         self.block = block_of(frame.index, FOLDS, frame.notna().any(axis=1).to_numpy())
         self.max_lag = default_max_lag(frame.index)
+        # every candidate centred once: each step of each test screens them in one product
+        self.lags = LagScreen({t: self.column(t) for t in self.vars}, self.max_lag)
 
     def variable(self, tag: str, lag: int) -> Variable:
         spec = InputSpec("", (tag,), lag)
@@ -336,8 +338,9 @@ def select_inputs(
     while len(chosen) < max_inputs and pool:
         # screen: every candidate at every dead time against the current residual
         screened = []
+        corrs = ctx.lags.screen(resid, pool)
         for c in pool:
-            corr = lag_screen(resid, ctx.column(c), ctx.max_lag)
+            corr = corrs[c]
             order = np.argsort(-corr, kind="stable")[:LAGS_RETRAINED]
             screened.append((float(corr[order[0]]), c, sorted(int(x) for x in order)))
         screened.sort(key=lambda s: -s[0])

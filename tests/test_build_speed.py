@@ -1,0 +1,122 @@
+"""The build's fast paths give exactly what the slow ones gave (issue 34, speed).
+
+Judged on plants the fast paths were not tuned on (the tour's small tank and heat exchanger,
+:mod:`diag_plugin.simulate.smallplants`; the speed work was measured on the coupled process):
+the unit built on two worker processes is the unit built on one; every candidate's dead times
+screened in one product are :func:`~diag_plugin.selection.lags.lag_screen`'s, gaps included;
+a model that fits its coarse levels only when a sample reaches them answers as one that
+fitted them all; the occupied cells counted in a dense table are the unique keys.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor, pack, run_kernel
+from diag_plugin.selection.lags import LagScreen, lag_screen
+from diag_plugin.selection.sets import _occupied
+from diag_plugin.simulate import smallplants as sp
+from diag_plugin.unitbuild.build import build_unit
+
+
+def _plant(kind: str, days: float, seed: int):
+    sim = {"tank": sp.simulate_tank, "heatex": sp.simulate_heat_exchanger}[kind]
+    return sp.export(sim(days, seed=seed, start="2026-03-02"), 60.0, timing="grid", seed=seed)
+
+
+def _text(path) -> str:
+    """A built file without the times it was written at."""
+    return re.sub(r"(?m)^.*(_at|learned) = .*$", "", path.read_text(encoding="utf-8"))
+
+
+@pytest.mark.parametrize("kind", ["tank", "heatex"])
+def test_two_workers_build_the_unit_one_builds(tmp_path, kind):
+    frame = _plant(kind, 3.0, 21)
+    one = build_unit("u", frame, folder=tmp_path / "one", period="60s", far=0.05, workers=1)
+    two = build_unit("u", frame, folder=tmp_path / "two", period="60s", far=0.05, workers=2)
+    assert [t.as_dict() for t in one.tests] == [t.as_dict() for t in two.tests]
+    assert one.learned.limits == two.learned.limits
+    files = sorted(p.name for p in (tmp_path / "one").iterdir())
+    assert files == sorted(p.name for p in (tmp_path / "two").iterdir())
+    assert len(files) > 1
+    for name in files:
+        assert _text(tmp_path / "one" / name) == _text(tmp_path / "two" / name), name
+
+
+def test_all_candidates_screened_at_once_equal_one_by_one():
+    frame = _plant("heatex", 2.0, 33)
+    cols = {c: frame[c].to_numpy(float) for c in frame.columns}
+    rng = np.random.default_rng(5)
+    names = list(cols)
+    gappy = names[0]
+    cols[gappy] = cols[gappy].copy()
+    cols[gappy][rng.choice(cols[gappy].size, 40, replace=False)] = np.nan  # gaps of its own
+    w = rng.normal(0, 1.0, cols[gappy].size)  # a white input acting 7 samples late
+    target = cols[names[-1]] + np.r_[np.zeros(7), w[:-7]] + rng.normal(0, 0.1, w.size)
+    cols["w"] = w
+    names.append("w")
+    target[100:160] = np.nan  # a residual the model does not cover everywhere
+    for max_lag in (0, 10, 80):  # the last beyond the direct product's horizon
+        screen = LagScreen(cols, max_lag)
+        got = screen.screen(target, names)
+        assert list(got) == names or set(got) == set(names)
+        for c in names:
+            want = lag_screen(target, cols[c], max_lag)
+            np.testing.assert_allclose(got[c], want, rtol=1e-9, atol=1e-12, err_msg=c)
+    # the dead time the screen ranks first is the one built in
+    assert np.argmax(LagScreen(cols, 10).screen(target, ["w"])["w"]) == 7
+
+
+def _model(frame, inputs, out, sets):
+    X = frame[inputs].to_numpy(float)
+    y = frame[out].to_numpy(float)
+    spans = [(np.nanmin(X[:, k]), np.nanmax(X[:, k])) for k in range(X.shape[1])]
+    cut = len(y) // 2
+    ok = np.isfinite(X[:cut]).all(axis=1) & np.isfinite(y[:cut])
+    m = WangMendelRegressor(input_spans=spans, n_sets=sets).fit(X[:cut][ok], y[:cut][ok])
+    return m, X
+
+
+@pytest.mark.parametrize("kind", ["tank", "heatex"])
+def test_coarse_levels_fitted_on_demand_answer_as_all_levels(kind):
+    frame = _plant(kind, 2.0, 44)
+    cols = list(frame.columns)
+    out, inputs = cols[-1], cols[:2]
+    for sets in (31, 9):
+        m, X = _model(frame, inputs, out, sets)
+        X = X.copy()
+        X[5, 0] = np.nan
+        X[6, 1] = X[:, 1].max() * 10  # beyond the span, clipped
+        full = run_kernel(pack([m.inference_grid()], dense=True), np.empty(0, np.int64), X)
+        lazy, _ = _model(frame, inputs, out, sets)
+        got = lazy.predict_detail(X)
+        for a, b in zip(
+            (full.y, full.support, full.reason, full.level, full.spread),
+            (got.y, got.support, got.reason, got.level, got.spread),
+            strict=True,
+        ):
+            np.testing.assert_array_equal(a, b)
+        assert (got.level > 0).any()  # coarse levels did answer some samples
+
+
+def test_no_coarse_level_fitted_where_the_fine_grid_answers_every_sample():
+    frame = _plant("tank", 2.0, 45)
+    cols = list(frame.columns)
+    m, X = _model(frame, cols[:1], cols[-1], 7)
+    fine = m.predict_detail(X)
+    rows = np.flatnonzero((fine.level == 0) & (fine.support >= 0.9))
+    assert rows.size > 100
+    fresh, _ = _model(frame, cols[:1], cols[-1], 7)
+    again = fresh.predict_detail(X[rows])
+    np.testing.assert_array_equal(again.y, fine.y[rows])
+    assert fresh.n_levels_ > 1 and not fresh._nodes  # nothing fitted beyond the fine grid
+
+
+@pytest.mark.parametrize("d,sets", [(1, 31), (3, 31), (5, 31)])  # 31^5 > the dense table
+def test_occupied_cells_counted_densely_are_the_unique_keys(d, sets):
+    idx = np.random.default_rng(d).integers(0, sets, size=(2000, d)) // 3
+    key = idx @ (sets ** np.arange(d, dtype=np.int64))
+    assert _occupied(idx, sets) == np.unique(key).size
