@@ -33,7 +33,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="identification method: "
         + "; ".join(f"{m.name} ({m.summary})" for m in METHODS.values()),
     )
-    p.add_argument("--shape", default="trapezoidal", choices=["trapezoidal", "triangular"])
+    p.add_argument(
+        "--shape",
+        choices=["trapezoidal", "triangular"],
+        help="shape of the fuzzy sets (default: chosen on the data's held-out tail — "
+        "triangular where it errs less, else the paper's trapezoidal)",
+    )
     p.add_argument(
         "--period",
         help="grid period of the model, e.g. 1s, 10s, 3min (default: from the data, the "
