@@ -39,6 +39,8 @@ HELD_SCORED = 20_000
 ROUNDS = 12
 #: the search runs only where the fine grid answers less than this share of held-out samples
 FINE_TARGET = 0.8
+#: how the note of a shape choice begins (:meth:`ShapeChoice.note`)
+SHAPE_NOTE = "set shape chosen on held-out data"
 
 
 @dataclass(frozen=True)
@@ -143,9 +145,7 @@ class ShapeChoice:
 
     def note(self) -> str:
         tried = ", ".join(f"{s} {e:.2f}" for s, e in self.rmse_pct.items())
-        return (
-            f"set shape chosen on held-out data: {self.shape} (held-out error, % of span: {tried})"
-        )
+        return f"{SHAPE_NOTE}: {self.shape} (held-out error, % of span: {tried})"
 
 
 def choose_shape(
