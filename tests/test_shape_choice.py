@@ -55,7 +55,7 @@ def _fit_later(tmp_path, f: pd.DataFrame):
     cut = cut_row(f.index, 0.2)
     notes: list[str] = []
     rb = new_model(tmp_path / "m.toml", "m", "Y[k]", ["A[k]", "B[k]"], frame=f.iloc[:cut],
-                   tag_info=INFO, period="60s", sets=31, notes=notes)  # fmt: skip
+                   tag_info=INFO, period="60s", sets=31, shape=None, notes=notes)  # fmt: skip
     cols, y = [f["A"].to_numpy(), f["B"].to_numpy()], f["Y"].to_numpy()
     err = {}
     for shape in ("trapezoidal", "triangular"):
@@ -68,7 +68,7 @@ def _fit_later(tmp_path, f: pd.DataFrame):
 @pytest.mark.parametrize("seed", [5, 6])
 def test_smooth_surface_gets_triangular_sets_and_a_lower_later_error(tmp_path, seed):
     rb, err, notes = _fit_later(tmp_path, surface(seed))
-    assert rb.shape == "triangular", notes  # the old new_model wrote trapezoidal sets
+    assert rb.shape == "triangular", notes  # the old diag model new wrote trapezoidal sets
     assert err["triangular"] < 0.8 * err["trapezoidal"], err
     assert any("set shape chosen on held-out data: triangular" in n for n in notes)
 
@@ -82,7 +82,7 @@ def test_staircase_on_the_cells_keeps_the_papers_trapezoidal_sets(tmp_path):
 def test_no_choice_without_enough_data(tmp_path):
     f = surface(5, n=200)
     rb = new_model(tmp_path / "m.toml", "m", "Y[k]", ["A[k]", "B[k]"], frame=f.iloc[:30],
-                   tag_info=INFO, period="60s", sets=31)  # fmt: skip
+                   tag_info=INFO, period="60s", sets=31, shape=None)  # fmt: skip
     assert rb.shape == "trapezoidal"
     cols = [f["A"].to_numpy(), f["B"].to_numpy()]
     assert choose_shape(rb, cols, f["Y"].to_numpy(), 190) is None

@@ -40,7 +40,7 @@ def new_model(
     tag_info: Mapping[str, TagInfo | Mapping[str, object]],
     sets: int | None = None,
     method: str = "wm-avg",
-    shape: str | None = None,
+    shape: str | None = "trapezoidal",
     period: str = "10s",
     description: str = "",
     notes: list[str] | None = None,
@@ -49,9 +49,11 @@ def new_model(
     (:func:`sets_for_data`; 31 without data); where with those the fine grid would answer
     few held-out samples (several inputs), each input's count is searched on held-out data
     (:func:`~diag_plugin.selection.setsearch.choose_sets`) and what was chosen is appended to
-    ``notes``. Without ``shape``, the sets' shape is chosen on the same held-out data
-    (:func:`~diag_plugin.selection.setsearch.choose_shape`: triangular where it errs less,
-    else the paper's trapezoidal; trapezoidal without data), before the sets are searched."""
+    ``notes``. ``shape=None`` (``diag model new`` without ``--shape``) chooses the sets' shape on
+    the same held-out data (:func:`~diag_plugin.selection.setsearch.choose_shape`: triangular
+    where it errs less, else the paper's trapezoidal; trapezoidal without data), before the
+    sets are searched; the default is the paper's trapezoidal sets (the examples reproduce
+    the paper with them)."""
     if path.exists():
         raise FileExistsError(f"{path} exists already; edit it or choose another name")
     fixed = sets
