@@ -2,7 +2,9 @@
 fit time and held-out error on the same time-ordered 80/20 split (issue 27).
 
 Model ``F = f(CV[k-1], P1[k], P2[k])``, 31 sets per input over the nominal spans (what
-``diag model new`` writes). HistGradientBoostingRegressor with its defaults
+``diag model new`` writes), of the shape ``diag model new`` chooses
+(:func:`~diag_plugin.selection.setsearch.choose_shape`, on the training rows alone; ``--shape``
+to fix it). HistGradientBoostingRegressor with its defaults
 (``random_state=0``) is fitted on the same design rows. Figures:
 
 - fit: our estimator's ``fit`` on the training rows beside HGB's ``fit`` on the same arrays
@@ -20,6 +22,7 @@ Goal: fit >= 5x faster than HGB at an error within 1.1x of HGB's. Exit 1 with ``
 when missed.
 
     python benchmarks/bench_wm_vs_hgb.py [--days 60] [--seed 12] [--runs 5] [--hgb-threads 1]
+        [--shape chosen|trapezoidal|triangular]
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import add_scratch_args, exit_status, fastest, scratch  # noqa: E402
 
+from diag_plugin.selection.setsearch import choose_shape  # noqa: E402
 from diag_plugin.simulate.valve import TAGS, simulate_valve  # noqa: E402
 from diag_plugin.training.chunked import design_builder, split_time, train  # noqa: E402
 from diag_plugin.workbench.model_edit import new_model  # noqa: E402
@@ -83,6 +87,12 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=12)
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--hgb-threads", type=int, default=1, help="0: scikit-learn's default")
+    ap.add_argument(
+        "--shape",
+        choices=["chosen", "trapezoidal", "triangular"],
+        default="chosen",
+        help="the sets' shape; chosen: as diag model new chooses it, on the training part",
+    )
     add_scratch_args(ap, "a goal")
     args = ap.parse_args(argv)
     try:
@@ -106,9 +116,16 @@ def main(argv=None) -> int:
         tr, va = d.index < cut, d.index >= cut
         Xt, yt, Xv, yv = d.X[tr], d.y[tr], d.X[va], d.y[va]
         span = rb.output.span[1] - rb.output.span[0]
+        if args.shape == "chosen":  # as diag model new chooses, on the training part alone
+            inner = int(np.searchsorted(d.index[tr], split_time(a, cut, 0.2)))
+            pick = choose_shape(rb, list(Xt.T), yt, inner)
+            rb.shape = pick.shape if pick is not None else "trapezoidal"
+        else:
+            rb.shape = args.shape
         print(
             f"{args.days:g} days of the valve (seed {args.seed}), F = f({', '.join(INPUTS)}), "
-            f"31 sets; {len(yt):,} training rows, {len(yv):,} held out (time-ordered 80/20)"
+            f"31 {rb.shape} sets ({args.shape}); {len(yt):,} training rows, {len(yv):,} held "
+            "out (time-ordered 80/20)"
         )
 
         wm = rb.new_model().fit(Xt, yt)  # warm

@@ -38,8 +38,10 @@ def test_the_wm_row_is_classic_wm_and_averaging_wins_on_noisy_data(tmp_path, cap
     depend on the method the compared file names (a ts-fcm file gives the same)."""
     g = cv_flow_historian(tmp_path, noise=2.0, seed=seed)
     for name, method in (("avg", "wm-avg"), ("classic", "wm"), ("tsk", "ts-fcm")):
+        # one shape for all three files (model new would choose it per method): the files
+        # differ in their method alone
         assert main([*g, "model", "new", name, "--output", "F", "--input", "CV[k-1]",
-                     "--method", method]) == 0  # fmt: skip
+                     "--method", method, "--shape", "trapezoidal"]) == 0  # fmt: skip
     rows = _rows(g, "avg", capsys)
     assert rows["wm-avg"]["rmse_pct"] == pytest.approx(_trained_rmse(g, "avg", capsys))
     assert rows["wm"]["rmse_pct"] == pytest.approx(_trained_rmse(g, "classic", capsys))

@@ -34,7 +34,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="identification method: "
         + "; ".join(f"{m.name} ({m.summary})" for m in METHODS.values()),
     )
-    p.add_argument("--shape", default="trapezoidal", choices=["trapezoidal", "triangular"])
+    p.add_argument(
+        "--shape",
+        choices=["trapezoidal", "triangular"],
+        help="shape of the fuzzy sets (default: chosen on the data's held-out tail — "
+        "triangular where it errs less, else the paper's trapezoidal)",
+    )
     p.add_argument(
         "--period",
         help="grid period of the model, e.g. 1s, 10s, 3min (default: from the data, the "
@@ -154,9 +159,12 @@ def cmd_model_new(args) -> int:
     print(f"wrote {path}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)})")
     for line in notes:
         print(line)
-    for line in chosen:  # sets per input searched on held-out data
-        print(line + " (give --sets to choose)")
-    if args.sets is None and not chosen and rb.new_model().capabilities.rule_regions:
+    from diag_plugin.selection.setsearch import SHAPE_NOTE
+
+    searched = [line for line in chosen if not line.startswith(SHAPE_NOTE)]
+    for line in chosen:  # the shape and the sets per input chosen on held-out data
+        print(line + (" (give --sets to choose)" if line in searched else " (give --shape)"))
+    if args.sets is None and not searched and rb.new_model().capabilities.rule_regions:
         sets = sorted({v.sets for v in rb.inputs})
         print(
             f"sets per input: {', '.join(map(str, sets))}, what {len(frame):,} samples can fill "

@@ -40,7 +40,7 @@ def new_model(
     tag_info: Mapping[str, TagInfo | Mapping[str, object]],
     sets: int | None = None,
     method: str = "wm-avg",
-    shape: str = "trapezoidal",
+    shape: str | None = "trapezoidal",
     period: str = "10s",
     description: str = "",
     notes: list[str] | None = None,
@@ -49,7 +49,11 @@ def new_model(
     (:func:`sets_for_data`; 31 without data); where with those the fine grid would answer
     few held-out samples (several inputs), each input's count is searched on held-out data
     (:func:`~diag_plugin.selection.setsearch.choose_sets`) and what was chosen is appended to
-    ``notes``."""
+    ``notes``. ``shape=None`` (``diag model new`` without ``--shape``) chooses the sets' shape on
+    the same held-out data (:func:`~diag_plugin.selection.setsearch.choose_shape`: triangular
+    where it errs less, else the paper's trapezoidal; trapezoidal without data), before the
+    sets are searched; the default is the paper's trapezoidal sets (the examples reproduce
+    the paper with them)."""
     if path.exists():
         raise FileExistsError(f"{path} exists already; edit it or choose another name")
     fixed = sets
@@ -62,6 +66,9 @@ def new_model(
             v if v.spec.startswith(("dir(", "hour(", "days(")) else replace(v, sets=auto)
             for v in ins
         ]
+    if shape is None:
+        shape = _chosen_shape(name, out, ins, frame, method, period, notes)
+    if fixed is None and frame is not None:
         if len(ins) > 1 and not any(v.spec.startswith(("dir(", "hour(", "days(")) for v in ins):
             ins = _searched_sets(name, out, ins, frame, method, shape, period, auto, notes)
     rb = RuleBase.new(
@@ -76,6 +83,26 @@ def new_model(
     )
     rb.save()
     return RuleBase.load(path)
+
+
+def _chosen_shape(name, out, ins, frame, method, period, notes) -> str:
+    """The sets' shape chosen on the frame's held-out tail
+    (:func:`~diag_plugin.selection.setsearch.choose_shape`); the paper's trapezoidal sets
+    without data or where no choice can be made."""
+    from diag_plugin.selection.scoring import cut_row
+    from diag_plugin.selection.setsearch import choose_shape
+
+    if frame is None or len(frame) < 100 or not ins:
+        return "trapezoidal"
+    probe = RuleBase.new(name, out, ins, method=method, shape="trapezoidal", period=period)
+    cols = [feature(frame, InputSpec.parse(v.spec)) for v in ins]
+    y = feature(frame, InputSpec.parse(out.spec))
+    choice = choose_shape(probe, cols, y, cut_row(frame.index, 0.2))
+    if choice is None:
+        return "trapezoidal"
+    if notes is not None:
+        notes.append(choice.note())
+    return choice.shape
 
 
 def _searched_sets(name, out, ins, frame, method, shape, period, auto, notes):
