@@ -55,7 +55,10 @@ plane of its own direction and that test's axis, the multidimensional form ``u�
 that plane: its direction is ``1`` on its loop test, as any tag's own test, plus the move of
 the compensating loop on the tests reading the set-point (``−g_SP``); a plane would give it one
 more degree of freedom than the tags it is ranked against, and a share of every deviation
-that moves its loop's error. The share
+that moves its loop's error. A tag outside loops has a second direction, a change of the
+true quantity, which the tags whose models read it follow (:func:`process_directions`): its
+contribution is the larger of the two one-dimensional ones (a warmer feed moves the tests that
+read the mixed temperature, not those reading the feed). The share
 ``RBC_X / T²`` ranks the tags (1: a bias of X alone explains the deviation). Tags touching
 the same tests in the same proportions cannot be told apart and share a rank. Before
 ``diag unit learn`` has written ``[combined]`` the ranking uses ``z = r / high``, ``S = I`` and
