@@ -118,3 +118,59 @@ def tags_csv() -> pd.DataFrame:
         ("OUT_FLOW", "m3/h", "outlet flow", "", ""),
     ]
     return pd.DataFrame(rows, columns=["name", "unit", "description", "loop", "role"])
+
+
+def how_to_table(seed: int = 101, train_days: float = 6.0) -> str:
+    """The 7-tag line's table in docs/how-to/unit-loops.md, as markdown rows: the unit built
+    through the Python API (``build_unit(…, loops=[parse_loop(LOOP)], far=0.01)`` on
+    ``simulate(train_days, 1)``), each run ``simulate(2, seed, fault)``, the fault from day 1.
+    Detection and alarm episodes (the most in any 10 minutes) are counted from day 1 on;
+    *named* is the held top 1's share of the alarm samples from day 1 on, the faulted tag's
+    place among the tags most often in the top three. Run: ``python -m tests.line7``."""
+    import tempfile
+
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.status import NE107
+    from diag_plugin.unitbuild.build import CHATTER_WINDOW_S, build_unit
+    from diag_plugin.unitbuild.loops import parse_loop
+
+    folder = tempfile.mkdtemp()
+    res = build_unit("line", simulate(train_days, 1), folder=folder, period=f"{int(PERIOD_S)}s",
+                     loops=[parse_loop(LOOP)], far=0.01, force=True)  # fmt: skip
+    unit = Unit.load(res.path, folder)
+    onset, w = int(86400 / PERIOD_S), int(CHATTER_WINDOW_S / PERIOD_S)
+    rows = []
+    for fault in (None, *AT_FAULT, "manual_moved"):
+        d = unit.reset().evaluate(simulate(2.0, seed, fault))
+        alarm = d.detected.to_numpy() == 1
+        after = alarm[onset:]
+        ep = np.flatnonzero(after & ~np.r_[False, after[:-1]])
+        worst = max(((ep >= e) & (ep < e + w)).sum() for e in ep) if ep.size else 0
+        check = (d.status.to_numpy()[onset:] == int(NE107.CHECK_FUNCTION)).mean()
+        top = d.top_tags.iloc[onset:]
+        first = top["top1"][after & (top["top1"] != "").to_numpy()]
+        share = first.value_counts(normalize=True)
+        names = pd.concat([top[f"top{i}"] for i in (1, 2, 3)])
+        ranked = names[names != ""].value_counts().index[:3].tolist()
+        tag = AT_FAULT.get(fault or "")
+        held = ", ".join(
+            f"{'**' + t + '**' if t == tag else t} {v:.0%}" for t, v in share[share >= 0.05].items()
+        )
+        place = (
+            f"; **{tag}** {ranked.index(tag) + 1} of the top 3 {ranked}"
+            if tag in ranked
+            else (f"; {tag} not in the top 3 {ranked}" if tag else "")
+        )
+        det = f"{after.mean():.1%}" + (
+            f" ({alarm[:onset].mean():.1%} before day 1)" if fault is None else ""
+        )
+        if check:
+            det += f" (CHECK_FUNCTION {check:.0%})"
+        rows.append(
+            f"| {fault or 'fault-free'} | {det} | {ep.size} ({worst}) | {held or '—'}{place} |"
+        )
+    return "\n".join(rows)
+
+
+if __name__ == "__main__":
+    print(how_to_table())

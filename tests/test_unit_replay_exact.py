@@ -146,12 +146,21 @@ def _ref_combined(self, r):
     for p, pat in enumerate(patterns):
         rows = rows_all[inverse.reshape(-1) == p]
         k = np.flatnonzero(pat)
-        m, den = self._inverse(pat)
+        m, den, den_process = self._inverse(pat)
         zk = z[np.ix_(rows, k)]
         mz = zk @ m
         q = np.einsum("ij,ij->i", mz, zk)
         with np.errstate(invalid="ignore", divide="ignore"):
             rbc = np.where(den > 1e-12, (mz @ self.xi[k]) ** 2 / np.maximum(den, 1e-12), 0.0)
+            if den_process is not None:  # the larger of a sensor's and a true change's
+                rbc = np.maximum(
+                    rbc,
+                    np.where(
+                        den_process > 1e-12,
+                        (mz @ self.process[k]) ** 2 / np.maximum(den_process, 1e-12),
+                        0.0,
+                    ),
+                )
             if self.loop is not None:
                 self._loop_rbc(rbc, mz, m, k)
             share[rows] = np.clip(rbc / np.maximum(q, 1e-12)[:, None], 0.0, 1.0)

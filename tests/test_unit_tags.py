@@ -270,3 +270,70 @@ def test_a_loop_actuator_is_ranked_on_the_plane_of_its_direction_and_its_loop():
     # with the loop test unknown the actuator keeps its own direction
     _, share = cm.evaluate(np.array([[np.nan, 6.0, 0.0]]))
     assert share[0, 1] == pytest.approx(1.0)
+
+
+# ---------------------------------------------------------------- a true change of an input
+#: a mixer: input X (a feed temperature: its own wander and the ambient cycle) mixed with W
+#: (cooling water, the ambient only) into Y; Z (a condensate, the ambient only) — each tag
+#: modelled from the tags a unit built from the history would pick, so W and Z from Y: they
+#: follow the ambient cycle Y carries, not Y
+MIXER_TAGS = {"X": (0, 100), "Y": (0, 100), "W": (0, 100), "Z": (0, 100)}
+MIXER_TESTS = {
+    "rX": ("X[k]", ["Y[k]", "Z[k]"]),
+    "rY": ("Y[k]", ["X[k]", "W[k]"]),
+    "rW": ("W[k]", ["Y[k]"]),
+    "rZ": ("Z[k]", ["Y[k]"]),
+}
+
+
+def _ou(rng: np.random.Generator, n: int, tau: float, sd: float) -> np.ndarray:
+    a = np.exp(-1 / tau)
+    e = rng.standard_normal(n) * sd * np.sqrt(1 - a * a)
+    out, v = np.empty(n), 0.0
+    for k in range(n):
+        v = a * v + e[k]
+        out[k] = v
+    return out
+
+
+def mixer(n: int, seed: int, step: float = 0.0, onset: int = 0) -> pd.DataFrame:
+    """``n`` minutes of the mixer, the true X stepped by ``step`` from ``onset`` (Y follows)."""
+    from diag_plugin.examples.coupled import START
+
+    rng = np.random.default_rng([seed, 34])
+    t = np.arange(n)
+    ambient = np.sin(2 * np.pi * t / DAY) + _ou(rng, n, 240, 0.5)
+    x = 50 + 6 * ambient + _ou(rng, n, 120, 2.0) + step * (t >= onset)
+    w = 30 + 8 * ambient
+    mixed = 0.6 * x + 0.4 * w
+    y, v, a = np.empty(n), mixed[0], np.exp(-1 / 5)
+    for k in range(n):
+        v = a * v + (1 - a) * mixed[k]
+        y[k] = v
+    true = {"X": x, "Y": y, "W": w, "Z": 25 + 8 * ambient}
+    idx = pd.date_range(START, periods=n, freq="60s", name="ts")
+    return pd.DataFrame({k: v + 0.3 * rng.standard_normal(n) for k, v in true.items()}, idx)
+
+
+def test_a_true_step_of_an_input_names_the_input_not_the_tag_that_follows_it(tmp_path):
+    """A step of the true X: Y follows it, and the models of W and Z, which read Y, see a
+    change their tags do not make. As a bias of Y's sensor the deviation looks half like Y;
+    as a change of the true X (:func:`~diag_plugin.diagnose.unittags.process_directions`) it
+    is X's. X is named first on more than 80 % of the alarm samples after the onset (the bar
+    of the sensor-bias test above); ranked on the sensor directions alone it was 63 % (these
+    seeds; the change was chosen on the chemical plant's tuning seeds)."""
+    window = mixer(14 * DAY, 1)
+    path = build(tmp_path, window, {"combined": True, "isolation": "tags"},
+                 tests=MIXER_TESTS, tags=MIXER_TAGS)  # fmt: skip
+    uf = UnitFile.load(path)
+    uf.set_learned(learn_thresholds(Unit.load(path), [window], far=FAR))
+    uf.save()
+    unit = Unit.load(path)
+    named = []
+    for step in (8.0, -8.0):
+        for seed in (304, 305, 306):
+            top = unit.reset().evaluate(mixer(3 * DAY, seed, step, DAY)).top_tags.iloc[DAY + 60 :]
+            named.append(top["top1"][top["top1"] != ""])
+    named = pd.concat(named)
+    assert len(named) > 1000, len(named)
+    assert (named == "X").mean() > 0.8, named.value_counts(normalize=True)

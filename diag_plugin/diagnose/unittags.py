@@ -55,7 +55,10 @@ plane of its own direction and that test's axis, the multidimensional form ``u�
 that plane: its direction is ``1`` on its loop test, as any tag's own test, plus the move of
 the compensating loop on the tests reading the set-point (``−g_SP``); a plane would give it one
 more degree of freedom than the tags it is ranked against, and a share of every deviation
-that moves its loop's error. The share
+that moves its loop's error. A tag outside loops has a second direction, a change of the
+true quantity, which the tags whose models read it follow (:func:`process_directions`): its
+contribution is the larger of the two one-dimensional ones (a warmer feed moves the tests that
+read the mixed temperature, not those reading the feed). The share
 ``RBC_X / T²`` ranks the tags (1: a bias of X alone explains the deviation). Tags touching
 the same tests in the same proportions cannot be told apart and share a rank. Before
 ``diag unit learn`` has written ``[combined]`` the ranking uses ``z = r / high``, ``S = I`` and
@@ -200,6 +203,54 @@ def directions(unit, spec: CombinedSpec | None) -> tuple[np.ndarray, np.ndarray]
     return xi, loop
 
 
+def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
+    """Each tag's second fault direction: a change of the *true* quantity (a process fault
+    entering through it, a warmer feed), where :func:`directions` gives its sensor's bias.
+
+    A true change ``b`` of ``X`` is followed by the tags whose models read ``X``: tag ``Y``
+    (the output of test ``i``) moves by ``g_iX · b`` (one step along the models' gains, as the
+    model says it follows) and the readings move by ``d = b (e_X + Σ_i g_iX e_Y(i))``. Test
+    ``j``'s residual moves by ``(e_out(j) − g_j) · d · 100 / span_j`` (eq. 6 applied to every
+    tag that moved), divided by ``s_j``: zero on the tests that follow ``X``, the move on the
+    tests that read the followers but not ``X`` (a feed-temperature step seen by the models
+    of the mixer's consumers) and on ``X``'s own test. A sensor bias moves only the reading of
+    ``X``, so the two differ wherever a model reads ``X``. Loops' sensors and actuators keep
+    their column of ``xi`` (a loop holds its measurement; an actuator has its plane); spread
+    tests keep theirs. The ranking takes the larger of the two contributions
+    (:meth:`CombinedModel.evaluate`)."""
+    tags, outputs, _ = structure(unit)
+    T, n = len(unit.tests), len(tags)
+    col = {x: k for k, x in enumerate(tags)}
+    own = np.zeros((T, n))  # e_out(j)
+    gain = np.zeros((T, n))  # g_jX
+    f = np.zeros(T)  # 100 / span_j / s_j
+    spread = np.array([_spread_test(unit, t) for t in unit.tests])
+    fixed = set()  # loops' sensors and actuators
+    for j, t in enumerate(unit.tests):
+        test = unit.file.test(t)
+        if test.actuator:
+            fixed.add(test.actuator)
+            if not spread[j]:
+                fixed.add(outputs[t])
+        if spread[j]:
+            continue
+        span = test.ymax if unit.ev["scale"] == "max" and test.ymax else unit.models[t].span
+        f[j] = 100.0 / span / spec.scale[spec.tests.index(t)]
+        if outputs[t] in col:
+            own[j, col[outputs[t]]] = 1.0
+        for x, g in spec.gains.get(t, {}).items():
+            if x in col:
+                gain[j, col[x]] = g
+    # d[:, X]: the readings a true change of X moves (X itself and its followers)
+    follow = np.where(own.sum(axis=1, keepdims=True) > 0, gain, 0.0) * (1.0 - own)
+    d = np.eye(n) + own.T @ follow
+    out = ((own - gain) @ d) * f[:, None]
+    out[spread] = xi[spread]
+    keep = [k for k, x in enumerate(tags) if x in fixed]
+    out[:, keep] = xi[:, keep]
+    return out
+
+
 def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray) -> None:
     """In place: a loop's own sensor biased by ``b`` is compensated by its loop, which then
     drives the process as a set-point step of ``−b`` would: every other test whose model
@@ -238,16 +289,25 @@ class CombinedModel:
     high: float | None
     #: per tag the test whose axis joins its direction (a loop's actuator), −1 for none
     loop: np.ndarray | None = None
+    #: per tag a second direction, a change of the true quantity (:func:`process_directions`)
+    process: np.ndarray | None = None
     #: per pattern of known tests: S⁻¹ restricted to them and the directions' norms
-    _inverses: dict[bytes, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    _inverses: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray | None]] = field(
+        default_factory=dict
+    )
 
-    def _inverse(self, pat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _inverse(self, pat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         key = pat.tobytes()
         if key not in self._inverses:
             k = np.flatnonzero(pat)
             m = np.linalg.pinv(self.cov[np.ix_(k, k)])
             xi = self.xi[k]
-            self._inverses[key] = (m, np.einsum("tk,tu,uk->k", xi, m, xi))
+            pr = None if self.process is None else self.process[k]
+            self._inverses[key] = (
+                m,
+                np.einsum("tk,tu,uk->k", xi, m, xi),
+                None if pr is None else np.einsum("tk,tu,uk->k", pr, m, pr),
+            )
         return self._inverses[key]
 
     @classmethod
@@ -272,6 +332,7 @@ class CombinedModel:
             xi,
             spec.high,
             loop if (loop >= 0).any() else None,
+            process_directions(unit, spec, xi),
         )
 
     def z(self, r: np.ndarray) -> np.ndarray:
@@ -309,12 +370,14 @@ class CombinedModel:
         for p, pat in enumerate(patterns):
             rows = by[ends[p - 1] if p else 0 : ends[p]]
             k = np.flatnonzero(pat)
-            m, den = self._inverse(pat)
+            m, den, den_process = self._inverse(pat)
             zk = z[rows] if k.size == T else z[np.ix_(rows, k)]
             mz = zk @ m
             q = np.einsum("ij,ij->i", mz, zk)
             with np.errstate(invalid="ignore", divide="ignore"):
                 rbc = _rbc(mz, self.xi[k], den)
+                if den_process is not None:  # a bias of the sensor or a true change
+                    rbc = np.maximum(rbc, _rbc(mz, self.process[k], den_process))
                 if self.loop is not None:
                     self._loop_rbc(rbc, mz, m, k)
                 rbc /= np.maximum(q, 1e-12)[:, None]

@@ -78,16 +78,28 @@ def process(
     return f
 
 
-def build(folder: str | Path, frame: pd.DataFrame, evaluation: dict | None = None, matrix=None):
-    """The process's models trained on ``frame`` and a unit file (no thresholds yet)."""
+def build(
+    folder: str | Path,
+    frame: pd.DataFrame,
+    evaluation: dict | None = None,
+    matrix=None,
+    *,
+    tests: dict[str, tuple[str, list[str]]] | None = None,
+    tags: dict[str, tuple[float, float]] | None = None,
+):
+    """The process's models trained on ``frame`` and a unit file (no thresholds yet); ``tests``
+    and ``tags`` (ranges) replace :data:`TESTS` and :data:`TAGS` for another small process."""
     from historian.taginfo import TagInfo
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    info = {k: TagInfo(k, unit="u", lo=lo, hi=hi, description=k) for k, (lo, hi) in TAGS.items()}
+    info = {
+        k: TagInfo(k, unit="u", lo=lo, hi=hi, description=k)
+        for k, (lo, hi) in (tags or TAGS).items()
+    }
     a, b = frame.index[0], frame.index[-1] + pd.Timedelta("60s")
     names = {}
-    for test, (out, ins) in TESTS.items():
+    for test, (out, ins) in (tests or TESTS).items():
         path = folder / f"p_{test}.toml"
         if not path.exists():
             rb = new_model(path, f"p_{test}", out, ins, frame=frame, tag_info=info, period="60s")
