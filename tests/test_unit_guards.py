@@ -175,6 +175,20 @@ def test_a_thin_rule_level_is_pooled_with_the_coarser_ones():
     assert len(got) == 4 and got[1] == got[2] == got[3], got
 
 
+def test_a_thin_fine_grid_is_pooled_into_the_reference():
+    """A model whose fine grid answers only a few samples (many inputs, few rows per cell):
+    the finest levels that together answer enough are the reference (scale 1), the coarser
+    ones are scaled against it — the test is not left unknown everywhere (a 12-tag coupled
+    plant's unit build failed: "only 0 known filtered residual values")."""
+    rng = np.random.default_rng(11)
+    level = np.r_[np.zeros(5), np.ones(400), np.full(300, 2)].astype(np.int64)
+    raw = rng.standard_normal(level.size) * np.array([1.0, 1.0, 2.0])[level]
+    got = level_scales(raw, level)
+    assert len(got) == 3 and got[0] == got[1] == 1.0 and 1.6 < got[2] < 2.4, got
+    # no level at all answers enough: nothing is calibrated beyond the fine grid
+    assert level_scales(raw[:20], level[:20]) == [1.0]
+
+
 # ---------------------------------------------------------------- set-points are never blamed
 def test_a_set_point_is_never_a_tag_the_unit_names(tmp_path):
     """The model tag B read as plant tag FIC1.SP (``[tags]``): the derived matrix, the ranking

@@ -355,7 +355,8 @@ def level_scales(raw: np.ndarray, level: np.ndarray | None) -> list[float]:
     answered fewer than :data:`MIN_LEVEL_SAMPLES` samples is pooled with the coarser levels
     after it until the pool holds that many, and the pool's scale is each of its levels'
     (a thin level between two well-used ones would otherwise leave the coarser one
-    uncalibrated, its answers unknown); the list stops before a pool that never fills."""
+    uncalibrated, its answers unknown); the list stops before a pool that never fills. A fine
+    grid answering fewer than that is pooled the same way into the reference (scale 1)."""
     if level is None:
         return [1.0]
     ok = np.isfinite(raw)
@@ -364,13 +365,21 @@ def level_scales(raw: np.ndarray, level: np.ndarray | None) -> list[float]:
         k = int(sel.sum())
         return (float(np.sqrt(np.mean(raw[sel] ** 2))) if k else math.nan), k
 
+    top = int(level.max()) if level.size else 0
+    # the reference: the fine grid, pooled with the coarser levels after it until it holds
+    # MIN_LEVEL_SAMPLES (a model whose fine grid is thin everywhere — many inputs, a short
+    # window — is judged at the finest level that answers enough, not left all unknown)
+    first = 0
     base, k0 = rms(ok & (level == 0))
+    while k0 < MIN_LEVEL_SAMPLES and first < top:
+        first += 1
+        base, k0 = rms(ok & (level >= 0) & (level <= first))
     if k0 < MIN_LEVEL_SAMPLES or not base > 0:
         return [1.0]
-    out = [1.0]
+    out = [1.0] * (first + 1)
     pool = np.zeros(raw.shape, bool)
     pending = 0
-    for lv in range(1, int(level.max()) + 1 if level.size else 1):
+    for lv in range(first + 1, top + 1):
         pool |= ok & (level == lv)
         pending += 1
         r, k = rms(pool)
