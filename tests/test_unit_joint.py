@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from tests.test_any_plant_tour import diag, fmt, import_csv
-from tests.test_unit_short import _pca_share, _statuses
+from tests.test_any_plant_tour import diag
+from tests.test_unit_short import _pca_share, _statuses, build_short_unit
 
 ROWS = 400
 
@@ -54,15 +54,7 @@ def pump(seed: int, n: int, rise_from: int | None = None) -> pd.DataFrame:
 
 
 def _build(tmp_path, frame: pd.DataFrame):
-    from diag_plugin.diagnose.unit import Unit
-
-    build = frame.iloc[:ROWS]
-    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
-    import_csv(g, build, tmp_path / "train.csv")
-    t1 = build.index[-1] + pd.Timedelta(seconds=1)
-    rc, text = diag(g, "unit", "build", "u", "--from", fmt(build.index[0]), "--to", fmt(t1))
-    assert rc == 0, text
-    return g, text, Unit.load(tmp_path / "rb" / "u.unit.toml", tmp_path / "rb")
+    return build_short_unit(tmp_path, frame.iloc[:ROWS])
 
 
 def test_a_joint_test_sees_a_common_rise_the_parity_tests_miss(tmp_path):
