@@ -60,26 +60,24 @@ def _build(tmp_path, frame: pd.DataFrame):
 def test_a_joint_test_sees_a_common_rise_the_parity_tests_miss(tmp_path):
     frame = pump(7, 1800, rise_from=ROWS + 200)
     g, text, unit = _build(tmp_path, frame)
+    k = np.arange(len(frame))
+    rise = k >= ROWS + 800  # ten minutes into the rise: 10 % of the vibration level
+    before = (k >= ROWS) & (k < ROWS + 200)
+    alarm, _, _ = _statuses(unit, frame)
+    print(f"rise: unit in alarm {alarm[rise].mean():.2f}; before it: {alarm[before].mean():.2f}")
+    assert alarm[rise].mean() > 0.9 and alarm[before].mean() < 0.1
     assert "jointly (their common direction)" in text, text
     rc, shown = diag(g, "unit", "show", "u")
     assert rc == 0 and "joint test of ACC1, ACC2" in shown, shown
     joint = [n for n, r in unit.file.build["tests"].items() if r.get("method") == "joint"]
     assert len(joint) == 1, unit.file.build["tests"]
     d = unit.reset().evaluate(frame)
-    alarm, _, _ = _statuses(unit, frame)
-    k = np.arange(len(frame))
-    rise = k >= ROWS + 800  # ten minutes into the rise: 10 % of the vibration level
-    before = (k >= ROWS) & (k < ROWS + 200)
     sym = d.symptoms.fillna(0).abs() > 0
     per_tag = sym[[c for c in sym.columns if c not in joint]].any(axis=1).to_numpy()
     by_joint = sym[joint[0]].to_numpy()
-    print(
-        f"rise: unit in alarm {alarm[rise].mean():.2f}, joint test {by_joint[rise].mean():.2f}, "
-        f"per-tag tests {per_tag[rise].mean():.2f}; before it: {alarm[before].mean():.2f}"
-    )
-    assert by_joint[rise].mean() > 0.9 and alarm[rise].mean() > 0.9
+    print(f"joint test {by_joint[rise].mean():.2f}, per-tag tests {per_tag[rise].mean():.2f}")
+    assert by_joint[rise].mean() > 0.9
     assert per_tag[rise].mean() < 0.5  # what the joint test adds
-    assert alarm[before].mean() < 0.1
     # the alarm names the pair, not the flow
     top = d.top_tags["top1"].to_numpy()[rise & alarm]
     assert np.isin(top, ["ACC1", "ACC2"]).mean() > 0.9, pd.Series(top).value_counts()
