@@ -88,7 +88,7 @@ def test_a_unit_from_400_samples_at_any_rate(tmp_path, plant, period):
     unit = Unit.load(tmp_path / "rb" / "u.unit.toml", tmp_path / "rb")
     assert pd.Timedelta(unit.period) == pd.Timedelta(seconds=period)  # the data's own rate
     methods = {t["method"] for t in unit.file.build["tests"].values() if "method" in t}
-    assert methods <= {"linear", "track", "wm-avg"}, methods
+    assert methods <= {"linear", "joint", "track", "wm-avg"}, methods
     tested = {t["tag"] for t in unit.file.build["tests"].values()}
     tag = next((t for t in BIASED[plant] if t in tested), None)
     assert tag is not None, tested
