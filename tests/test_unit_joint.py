@@ -13,6 +13,8 @@ unit's alarm share stays small, beside PCA T² + Q fitted on the same rows.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pandas as pd
 
@@ -69,6 +71,8 @@ def test_a_joint_test_sees_a_common_rise_the_parity_tests_miss(tmp_path):
     assert "jointly (their common direction)" in text, text
     rc, shown = diag(g, "unit", "show", "u")
     assert rc == 0 and "joint test of ACC1, ACC2" in shown, shown
+    rc, out = diag(g, "diagnose", "u", "--json")  # diag diagnose runs the joint test
+    assert rc == 0 and json.loads(out)["samples"] == ROWS, out[:2000]
     joint = [n for n, r in unit.file.build["tests"].items() if r.get("method") == "joint"]
     assert len(joint) == 1, unit.file.build["tests"]
     d = unit.reset().evaluate(frame)
