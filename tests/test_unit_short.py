@@ -37,6 +37,19 @@ def _statuses(unit, frame: pd.DataFrame):
     return alarm, st == NE107.CHECK_FUNCTION, d.why.to_numpy()
 
 
+def build_short_unit(tmp_path, build: pd.DataFrame):
+    """Unit ``u`` built as a user would from ``build`` at 1 s (CSV → ``diag import`` →
+    ``diag unit build``): the global options, the build's output and the loaded unit."""
+    from diag_plugin.diagnose.unit import Unit
+
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    import_csv(g, build, tmp_path / "train.csv")
+    t1 = build.index[-1] + pd.Timedelta(seconds=1)
+    rc, text = diag(g, "unit", "build", "u", "--from", fmt(build.index[0]), "--to", fmt(t1))
+    assert rc == 0, text
+    return g, text, Unit.load(tmp_path / "rb" / "u.unit.toml", tmp_path / "rb")
+
+
 def _pca_alarms(train: pd.DataFrame, frame: pd.DataFrame, delay: int) -> np.ndarray:
     """PCA T² + Q (90 % of the variance, 1 % limits) fitted on the same rows, each alarm
     after the unit's on/off delays: the baseline beside every figure here."""
@@ -75,7 +88,7 @@ def test_a_unit_from_400_samples_at_any_rate(tmp_path, plant, period):
     unit = Unit.load(tmp_path / "rb" / "u.unit.toml", tmp_path / "rb")
     assert pd.Timedelta(unit.period) == pd.Timedelta(seconds=period)  # the data's own rate
     methods = {t["method"] for t in unit.file.build["tests"].values() if "method" in t}
-    assert methods <= {"linear", "track", "wm-avg"}, methods
+    assert methods <= {"linear", "joint", "track", "wm-avg"}, methods
     tested = {t["tag"] for t in unit.file.build["tests"].values()}
     tag = next((t for t in BIASED[plant] if t in tested), None)
     assert tag is not None, tested
@@ -161,7 +174,6 @@ def test_a_tag_no_other_predicts_gets_a_level_test_that_detects_its_fault(tmp_pa
     unit's own alarms cover most of the labelled fault and little of the normal samples
     between the 400 and the onset; PCA T² + Q fitted on the same rows beside it."""
     from diag_plugin.bench import publicplants as pp
-    from diag_plugin.diagnose.unit import Unit
 
     try:
         plant = pp.load_skab()
@@ -171,15 +183,10 @@ def test_a_tag_no_other_predicts_gets_a_level_test_that_detects_its_fault(tmp_pa
     frame = run.frame.copy()
     frame.index = pd.date_range("2020-03-09 10:00", periods=len(frame), freq="1s")
     build = frame.iloc[:ROWS]
-    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
-    import_csv(g, build, tmp_path / "train.csv")
-    t1 = build.index[-1] + pd.Timedelta(seconds=1)
-    rc, text = diag(g, "unit", "build", "u", "--from", fmt(build.index[0]), "--to", fmt(t1))
-    assert rc == 0, text
+    g, text, unit = build_short_unit(tmp_path, build)
     assert "level test" in text and "residual filter cut-off 0.1" in text, text
     rc, shown = diag(g, "unit", "show", "u")
     assert rc == 0 and "level test" in shown, shown
-    unit = Unit.load(tmp_path / "rb" / "u.unit.toml", tmp_path / "rb")
     row = next(t for t in unit.file.build["tests"].values() if t["tag"] == "Volume Flow RateRMS")
     assert row["inputs"] == [] and row["method"] == "linear", row
     alarm, _, _ = _statuses(unit, frame)

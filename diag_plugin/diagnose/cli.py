@@ -420,6 +420,8 @@ def _print_build(con, build: dict) -> None:
             e = f"{errs[i + 1]:.2f} %" if i + 1 < len(errs) else "?"
             c = f", coverage {cov[i]:.0%}" if i < len(cov) else ""
             steps.append(f"+ {inp} → {e}{c}")
+        if row.get("method") == "joint":  # a group's common direction: no inputs chosen
+            steps = [f"{errs[0]:.2f} % of span the group's first tag alone"] if errs else []
         same = row.get("same_as")
         loop = ""
         if row.get("tracks"):

@@ -37,6 +37,13 @@ METHODS: dict[str, Method] = {
         Method("narmax2", "diag_plugin.models.narmax", "NarmaxCodec", "2nd-order NARMAX"),
         Method("linear", "diag_plugin.models.linear", "LinearCodec", "linear (eq. 12, 1st order)"),
         Method(
+            "joint",
+            "diag_plugin.models.joint",
+            "JointCodec",
+            "joint test of a collinear group: its score on the first principal component",
+            identifies=False,
+        ),
+        Method(
             "track",
             "diag_plugin.models.track",
             "TrackCodec",

@@ -741,19 +741,9 @@ def _build_unit(
             f"the data cover {frame.index[0]} … {frame.index[-1] + pd.Timedelta(period)} of "
             "the window: the tags are judged and the unit learned over that span"
         )
-    kept = []
-    for i, ch in enumerate(choices):
-        if not ch.steps and plan.short and not ch.tracks:
-            why = short.level_test(ch, ctx.column(ch.tag), MIN_GAIN)
-            if why:
-                skipped[ch.tag] = why
-                continue
-        elif not ch.steps:
-            skipped[ch.tag] = (
-                "no other tag predicts it on held-out data (best cut of the error under "
-                f"{MIN_GAIN:.0%}): nothing to model it from"
-            )
-            continue
+
+    def fit(ch: TestChoice) -> None:
+        """Train ``ch``'s model on the window and write its model file."""
         specs = [InputSpec.parse(s) for s in ch.inputs]
         cols = [ctx.spec_column(s) for s in specs]
         ins = _with_sets([ctx.spec_variable(s) for s in specs], cols, len(frame))
@@ -787,8 +777,26 @@ def _build_unit(
         rb.save(mpath)
         models[ch.test] = os.path.relpath(mpath.resolve(), folder.resolve())
         kept.append(ch)
+
+    kept: list[TestChoice] = []
+    for i, ch in enumerate(choices):
+        if not ch.steps and plan.short and not ch.tracks:
+            why = short.level_test(ch, ctx.column(ch.tag), MIN_GAIN)
+            if why:
+                skipped[ch.tag] = why
+                continue
+        elif not ch.steps:
+            skipped[ch.tag] = (
+                "no other tag predicts it on held-out data (best cut of the error under "
+                f"{MIN_GAIN:.0%}): nothing to model it from"
+            )
+            continue
+        fit(ch)
         if progress:
             progress("train models", i + 1, len(choices))
+    if plan.short:
+        for ch in joint_tests(kept, ctx, taken, notes):
+            fit(ch)
     if not kept:
         raise UserError("no tag could be modelled from the others: nothing to test")
     kept.extend(spread_tests(kept, models, taken))
@@ -843,6 +851,38 @@ def _build_unit(
         progress("learn thresholds", 1, 1)
     window = (start.isoformat(), end.isoformat())
     return BuildResult(name, path, period, window, kept, skipped, far, learned, seconds, notes)
+
+
+def joint_tests(
+    kept: Sequence[TestChoice], ctx: _Context, taken: set[str], notes: list[str]
+) -> list[TestChoice]:
+    """A short window's joint tests (:func:`short.joint_groups`): one per group of tags whose
+    tests (linear or a grid) predict each other, where the window shows enough of the group's common
+    direction; the group's first tag is the output, the others its inputs (method
+    ``joint``, :mod:`diag_plugin.models.joint`). Groups left out are said in ``notes``."""
+    lin = [ch for ch in kept if ch.steps and not ch.tracks and ch.method != short.JOINT]
+    pairs = [(ch.tag, [InputSpec.parse(s).tags[0] for s in ch.inputs]) for ch in lin]
+    out = []
+    for group, n, why in short.joint_groups(pairs, ctx.column):
+        if why:
+            notes.append(f"no joint test of {', '.join(group)}: {why}")
+            continue
+        base = next(ch for ch in lin if ch.tag == group[0])
+        ch = TestChoice(
+            test_name(f"{group[0]}_joint", taken),
+            group[0],
+            base.baseline_rmse_pct,
+            steps=[Step(str(InputSpec("", (t,))), math.nan, 1.0) for t in group[1:]],
+            method=short.JOINT,
+            why=(
+                f"joint test of {', '.join(group)}: their tests predict each other, so a "
+                "common rise cancels in each; this one watches the group's score on its first "
+                f"principal component (T² of their standardised deviations, {n:.0f} "
+                "independent values in the window)"
+            ),
+        )
+        out.append(ch)
+    return out
 
 
 def spread_tests(kept: Sequence[TestChoice], models: dict[str, str], taken: set[str]):

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 from diag_plugin.cliargs import add_json
@@ -138,17 +139,16 @@ def cmd_unit_build(args) -> int:
     )
     for ch in res.tests:
         errs = " → ".join(
-            f"{x:.2f}" for x in [ch.baseline_rmse_pct, *(s.rmse_pct for s in ch.steps)]
+            f"{x:.2f}"
+            for x in [ch.baseline_rmse_pct, *(s.rmse_pct for s in ch.steps)]
+            if math.isfinite(x)
         )
         loop = f" (its control loop, {ch.method}; actuator {ch.actuator})" if ch.tracks else ""
         if ch.statistic == "spread":
             loop = f" (the spread of its loop's error: stiction of {ch.actuator})"
         if not ch.tracks and ch.why:
             loop = f" ({ch.why})"
-        print(
-            f"  {ch.test}: {ch.tag} = f({', '.join(ch.inputs)}){loop}; held-out error {errs} % "
-            "of span"
-        )
+        print(f"  {ch.test}: {test_line(ch)}{loop}; held-out error {errs} % of span")
     for tag, why in res.skipped.items():
         print(f"  not tested: {tag}: {why}")
     for n in res.notes[:4]:
@@ -158,6 +158,20 @@ def cmd_unit_build(args) -> int:
     print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in res.seconds.items()))
     print(f"next: diag unit show {args.name}; diag diagnose {args.name} --from … --to …")
     return 0
+
+
+def test_line(ch) -> str:
+    """What a built test compares, in words where a formula would mislead: a level test
+    (no inputs) is the tag against its window mean, a joint test the group's common
+    direction."""
+    if ch.method == "joint":
+        from diag_plugin.regressors import InputSpec
+
+        tags = [ch.tag, *(InputSpec.parse(s).tags[0] for s in ch.inputs)]
+        return f"{', '.join(tags)} jointly (their common direction)"
+    if not ch.inputs and not ch.tracks:
+        return f"{ch.tag} against its window mean"
+    return f"{ch.tag} = f({', '.join(ch.inputs)})"
 
 
 def cmd_unit_accept(args) -> int:

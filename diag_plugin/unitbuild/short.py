@@ -224,3 +224,60 @@ def level_test(ch, y: np.ndarray, min_gain: float) -> str | None:
         f"error {ch.baseline_rmse_pct:.2f} %)"
     )
     return None
+
+
+#: the method of a short window's joint test of a collinear group (:func:`joint_groups`)
+JOINT = "joint"
+
+
+def joint_groups(
+    tests: Sequence[tuple[str, Sequence[str]]], column
+) -> list[tuple[list[str], float, str]]:
+    """A short window's collinear groups and whether each gets a joint test
+    (:mod:`diag_plugin.models.joint`): tags whose parity tests predict each other (``A`` from
+    ``B`` and ``B`` from ``A``, any dead time), joined where they share a tag. A common rise
+    of such tags cancels in each one's test against the others; the joint test watches the
+    group's score on its first principal component, as PCA's T² does.
+
+    ``tests``: per linear test its tag and its inputs' tags; ``column(tag)``: the window's
+    values. Returns per group its tags (in ``tests``' order), the independent values its
+    score holds, and why it is left out ("" where it is tested): only where the window holds
+    :data:`SHORT_LEVEL_INDEPENDENT` independent values of the score, as a level test."""
+    from diag_plugin.diagnose.symptoms import effective_samples
+    from diag_plugin.models.joint import first_component
+
+    order = [t for t, _ in tests]
+    ins = {t: set(i) for t, i in tests}
+    parent = {t: t for t in order}
+
+    def root(t: str) -> str:
+        while parent[t] != t:
+            t = parent[t]
+        return t
+
+    for a in order:
+        for b in ins[a]:
+            if b in ins and a in ins[b] and root(a) != root(b):
+                parent[root(b)] = root(a)
+    groups: dict[str, list[str]] = {}
+    for t in order:
+        groups.setdefault(root(t), []).append(t)
+    out = []
+    for g in groups.values():
+        if len(g) < 2:
+            continue
+        U = np.column_stack([column(t) for t in g])
+        U = U[np.isfinite(U).all(axis=1)]
+        if len(U) < 3:
+            continue
+        P = np.column_stack([np.ones(len(U)), U])
+        m, s, v = first_component(P.T @ P)
+        n = effective_samples(((U - m) / s) @ v)
+        why = ""
+        if n < SHORT_LEVEL_INDEPENDENT:
+            why = (
+                f"the window holds about {n:.0f} independent values of their common "
+                f"direction (a joint test needs {SHORT_LEVEL_INDEPENDENT})"
+            )
+        out.append((g, n, why))
+    return out

@@ -1,0 +1,129 @@
+"""A short window's joint test of a collinear group (issue 34, item 3; models/joint.py).
+
+Two vibration sensors on one pump (physics written here, not a plant the build was tuned on):
+both read the pump's vibration, each with its own gain and noise, beside a flow that has
+nothing to do with it. From 400 samples at 1 s each sensor's test predicts it from the other
+— a parity relation — so when the vibration rises (a rotor imbalance) both rise together and
+each test stays quiet or goes unknown as its input leaves the window's range. The joint test
+watches the pair's common direction (their score on the first principal component, as PCA's
+T² does) and is what alarms. It fails on a build without joint tests (no such test, the
+per-tag tests alone miss most of the rise). On fault-free continuations of unseen seeds the
+unit's alarm share stays small, beside PCA T² + Q fitted on the same rows.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+
+from tests.test_any_plant_tour import diag
+from tests.test_unit_short import _pca_share, _statuses, build_short_unit
+
+ROWS = 400
+
+
+def _ou(rng: np.random.Generator, n: int, tau_s: float) -> np.ndarray:
+    """A unit-variance Ornstein–Uhlenbeck series at 1 s with time constant ``tau_s``."""
+    a = np.exp(-1.0 / tau_s)
+    e = rng.normal(0.0, np.sqrt(1 - a * a), n)
+    x = np.empty(n)
+    x[0] = rng.normal()
+    for i in range(1, n):
+        x[i] = a * x[i - 1] + e[i]
+    return x
+
+
+def pump(seed: int, n: int, rise_from: int | None = None) -> pd.DataFrame:
+    """A pump at 1 s: vibration ``V`` (g, RMS) seen by two accelerometers of different
+    sensitivity, and a flow driven by its own demand. With ``rise_from`` the vibration rises
+    from that sample on by 1 % of its level a minute (an imbalance growing)."""
+    rng = np.random.default_rng([seed, 34])
+    v = 0.25 + 0.004 * _ou(rng, n, 3.0)
+    if rise_from is not None:
+        k = np.arange(n) - rise_from
+        v = v + np.where(k > 0, 0.25 * 0.01 * k / 60.0, 0.0)
+    flow = 32.0 + 0.6 * _ou(rng, n, 4.0) + 0.1 * rng.normal(size=n)
+    return pd.DataFrame(
+        {
+            "ACC1": 0.9 * v + 0.0012 * rng.normal(size=n),
+            "ACC2": 1.3 * v + 0.0018 * rng.normal(size=n),
+            "FLOW": flow,
+        },
+        index=pd.date_range("2026-05-04 08:00", periods=n, freq="1s", name="ts"),
+    )
+
+
+def _build(tmp_path, frame: pd.DataFrame):
+    return build_short_unit(tmp_path, frame.iloc[:ROWS])
+
+
+def test_a_joint_test_sees_a_common_rise_the_parity_tests_miss(tmp_path):
+    frame = pump(7, 1800, rise_from=ROWS + 200)
+    g, text, unit = _build(tmp_path, frame)
+    k = np.arange(len(frame))
+    rise = k >= ROWS + 800  # ten minutes into the rise: 10 % of the vibration level
+    before = (k >= ROWS) & (k < ROWS + 200)
+    alarm, _, _ = _statuses(unit, frame)
+    print(f"rise: unit in alarm {alarm[rise].mean():.2f}; before it: {alarm[before].mean():.2f}")
+    assert alarm[rise].mean() > 0.9 and alarm[before].mean() < 0.1
+    assert "jointly (their common direction)" in text, text
+    rc, shown = diag(g, "unit", "show", "u")
+    assert rc == 0 and "joint test of ACC1, ACC2" in shown, shown
+    rc, out = diag(g, "diagnose", "u", "--json")  # diag diagnose runs the joint test
+    assert rc == 0 and json.loads(out)["samples"] == ROWS, out[:2000]
+    joint = [n for n, r in unit.file.build["tests"].items() if r.get("method") == "joint"]
+    assert len(joint) == 1, unit.file.build["tests"]
+    d = unit.reset().evaluate(frame)
+    sym = d.symptoms.fillna(0).abs() > 0
+    per_tag = sym[[c for c in sym.columns if c not in joint]].any(axis=1).to_numpy()
+    by_joint = sym[joint[0]].to_numpy()
+    print(f"joint test {by_joint[rise].mean():.2f}, per-tag tests {per_tag[rise].mean():.2f}")
+    assert by_joint[rise].mean() > 0.9
+    assert per_tag[rise].mean() < 0.5  # what the joint test adds
+    # the alarm names the pair, not the flow
+    top = d.top_tags["top1"].to_numpy()[rise & alarm]
+    assert np.isin(top, ["ACC1", "ACC2"]).mean() > 0.9, pd.Series(top).value_counts()
+
+
+def test_the_joint_test_keeps_fault_free_alarms_near_the_budget(tmp_path):
+    """Unseen seeds, fault-free: the unit with its joint test alarms on little of the
+    continuation (the next 1,200 s), no more than PCA T² + Q fitted on the same 400 rows."""
+    shares, pcas = [], []
+    for seed in (101, 102, 103):
+        frame = pump(seed, ROWS + 1200)
+        (tmp_path / str(seed)).mkdir()
+        _, _, unit = _build(tmp_path / str(seed), frame)
+        assert any(r.get("method") == "joint" for r in unit.file.build["tests"].values())
+        alarm, _, _ = _statuses(unit, frame)
+        shares.append(alarm[ROWS:].mean())
+        pcas.append(_pca_share(frame.iloc[:ROWS], frame.iloc[ROWS:], int(unit.ev["on_delay"])))
+    print(f"fault-free alarm share: unit {np.round(shares, 3)}, PCA {np.round(pcas, 3)}")
+    assert np.mean(shares) <= max(0.05, np.mean(pcas) + 0.02), (shares, pcas)
+
+
+def test_the_joint_model_is_the_group_s_first_component_and_merges_exactly():
+    """``y − ŷ`` is the group's score on its first principal component (up to scale), parts
+    merge into the model of all rows, and it extrapolates (no span clips a common rise)."""
+    from diag_plugin.models.joint import JointRegressor
+
+    rng = np.random.default_rng(5)
+    c = rng.normal(size=600)
+    U = np.column_stack([2.0 + c + 0.3 * rng.normal(size=600), 5.0 + 3 * c + rng.normal(size=600)])
+    X, y = U[:, :1], U[:, 1]
+    spans = [(float(X.min()), float(X.max()))]
+    m = JointRegressor(input_spans=spans).fit(X, y)
+    Z = (U - U.mean(0)) / U.std(0)
+    v = np.linalg.eigh(np.corrcoef(U.T))[1][:, -1]
+    r = y - m.predict(X)
+    assert abs(np.corrcoef(r, Z @ v)[0, 1]) > 0.999999
+    a = JointRegressor(input_spans=spans).fit(X[:250], y[:250])
+    b = JointRegressor(input_spans=spans).fit(X[250:], y[250:])
+    assert np.allclose(a.merge(b).coef_, m.coef_, rtol=1e-9, atol=1e-9)
+    # a common rise far beyond the window: both up by 10 of their sd, the residual grows
+    far = np.array([[X.mean() + 10 * X.std()]])
+    p = m.predict_detail(far)
+    assert p.support[0] == 1.0 and p.reason[0] == 0
+    rise = y.mean() + 10 * y.std() - p.y[0]
+    assert abs(rise) > 10 * np.std(r)
