@@ -110,3 +110,42 @@ def test_cli_matched_benchmark_writes_a_page_only_when_asked(tmp_path):
     text = page.read_text()
     assert "diag benchmark --plant tep" in text and "built by the plain commands" in text
     assert "d00_te.dat" in text and "| IDV4 |" in text and "| IDV6 |" not in text
+
+
+def test_tep_studio_loops_have_fixed_set_points_that_the_tags_csv_carries(tmp_path):
+    """Ricker's loops are declared with fixed set-points (numbers, not tags): each parses as
+    ``PV=number[:OUT]``, and the tags CSV the benchmark writes for the build gives them back
+    (``set_point`` on the ``pv`` row, the valve as ``out``)."""
+    from diag_plugin.bench.publicbench import tags_frame
+    from diag_plugin.unitbuild.loops import loops_from_tags_csv, parse_loop
+
+    loops = [parse_loop(s) for s in pp.TEP_STUDIO_LOOPS]
+    assert loops and all(lp.fixed is not None for lp in loops)
+    assert {lp.pv for lp in loops} <= set(pp.TEP_TAGS)
+    assert {lp.out for lp in loops if lp.out} <= set(pp.TEP_TAGS)
+    assert parse_loop("XMEAS9=120.4:XMV10") in loops  # the reactor temperature → its coolant
+    plant = pp.PublicPlant(
+        name="t", title="t", period_s=180.0, tags=list(pp.TEP_TAGS), tag_info=pp.TEP_TAGS,
+        train=[], calibration=[], free=[], faults=[], loops=list(pp.TEP_STUDIO_LOOPS),
+    )  # fmt: skip
+    path = tmp_path / "tags.csv"
+    tags_frame(plant).to_csv(path, index=False)
+    back = loops_from_tags_csv(path)
+    key = {lp.pv: (lp.fixed, lp.out) for lp in loops}
+    assert {lp.pv: (lp.fixed, lp.out) for lp in back} == key
+
+
+def test_tep_studio_declares_rickers_loops_and_the_data_hold_them():
+    """The tep-studio loader declares Ricker's fixed-set-point loops to the unit build, and
+    each measurement's mean on the fault-free training runs is at its declared set-point
+    (within half its standard deviation, or 0.1 % of the value), so the numbers are the
+    plant's."""
+    from diag_plugin.unitbuild.loops import parse_loop
+
+    p = _or_skip(pp.load_tep_studio, faults=["IDV1"])
+    assert p.loops == list(pp.TEP_STUDIO_LOOPS)
+    assert any("XMEAS9=120.4:XMV10" in s for s in p.split)
+    train = pd.concat([r.frame for r in p.train])
+    for lp in map(parse_loop, p.loops):
+        x = train[lp.pv]
+        assert abs(x.mean() - lp.fixed) < max(0.5 * x.std(), 0.001 * abs(lp.fixed)), lp

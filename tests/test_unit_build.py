@@ -429,3 +429,21 @@ def test_a_block_the_tag_is_nearly_missing_from_judges_nothing():
     ctx = _Context(pd.DataFrame({"A": a, "Y": y}, index=idx), {}, "60s")
     assert [int((np.isfinite(y) & (ctx.block == b)).sum()) for b in range(5)][2] == 5
     assert select_inputs(ctx, "Y", ["A"], test="Y").inputs == ["A[k]"]
+
+
+def test_a_controller_output_nothing_predicts_keeps_its_level_test():
+    """A valve whose position no input explains (its loop's set-point fixed, every candidate
+    unrelated): neither the rule-grid selection nor the linear one finds an input, and the
+    actuator's test is its level test (the build failed with an IndexError on an empty linear
+    choice when a tep-studio loop was declared)."""
+    from diag_plugin.unitbuild.build import _Context, actuator_test, select_inputs
+
+    rng = np.random.default_rng(1)
+    n = 3000
+    idx = pd.date_range("2026-01-01", periods=n, freq="60s", tz="UTC")
+    f = pd.DataFrame({k: rng.normal(0, 1, n) for k in ("A", "B", "V")}, index=idx)
+    ctx = _Context(f, {}, "60s")
+    ch = select_inputs(ctx, "V", ["A", "B"], test="V")
+    assert ch.steps == []
+    keep = actuator_test(ctx, ch, ["A", "B"])
+    assert keep.steps == [] and keep.tag == "V"

@@ -433,7 +433,8 @@ def actuator_test(ctx: _Context, ch: TestChoice, candidates: Sequence[str]) -> T
     lin = select_inputs(ctx, ch.tag, candidates, test=ch.test, max_inputs=ACTUATOR_MAX_INPUTS,
                         method=short.LINEAR)  # fmt: skip
     if len(lin.steps) <= len(ch.steps) or not ch.steps:
-        keep = ch if ch.steps else lin
+        # neither found an input: keep the tag's own (a level test), not an empty linear one
+        keep = ch if ch.steps or not lin.steps else lin
     else:
         keep = lin if lin.steps[-1].rmse_pct < ch.steps[-1].rmse_pct else ch
     if keep is lin:
