@@ -310,7 +310,16 @@ class Columns:
         names = dict(names) if names is not None else {str(c): c for c in frame.columns}
         have = [n for n, c in names.items() if c in frame.columns]
         cols = [names[n] for n in have]
+        check_regular(frame.index)  # once for all the builders
         self.index = frame.index
+        rows = len(frame.index)
+        #: the first, second (None for one row) and last timestamps: what a builder joins
+        #: pieces by
+        self.ends: tuple = ()
+        if rows:
+            ts = frame.index
+            second = pd.Timestamp(ts[1]) if rows > 1 else None
+            self.ends = (pd.Timestamp(ts[0]), second, pd.Timestamp(ts[-1]))
         self.columns = {n: j for j, n in enumerate(have)}
         block = frame[cols].to_numpy(dtype=float, na_value=np.nan) if cols else None
         self._values = np.asfortranarray(block if block is not None else np.empty((len(frame), 0)))
@@ -472,13 +481,19 @@ class DesignBuilder:
     def _columns(self, frame: pd.DataFrame | Columns) -> dict[str, np.ndarray]:
         return {b: f.compute(frame) for b, f in self.features.items()}
 
-    def _join(self, index: pd.Index) -> None:
-        """Check that a piece continues the last one; a gap counts as missing samples."""
+    def _join(self, index: pd.Index | tuple) -> None:
+        """Check that a piece continues the last one; a gap counts as missing samples.
+        ``index``: the piece's index, or its first, second and last timestamps
+        (:attr:`Columns.ends`)."""
         if not len(index):
             return
-        if self.period is None and len(index) > 1:
-            self.period = pd.Timedelta(index[1] - index[0])
-        first = pd.Timestamp(index[0])
+        if isinstance(index, tuple):
+            first, second, last = index
+        else:
+            first, second, last = index[0], index[1] if len(index) > 1 else None, index[-1]
+        first = pd.Timestamp(first)
+        if self.period is None and second is not None:
+            self.period = pd.Timedelta(second - first)
         if self.last is not None and self.period is not None:
             step = (first - self.last) / self.period
             if step < 1 or step != round(step):
@@ -488,7 +503,7 @@ class DesignBuilder:
                     "on one time grid"
                 )
             self._skip(int(round(step)) - 1)
-        self.last = pd.Timestamp(index[-1])
+        self.last = pd.Timestamp(last)
 
     def _skip(self, n: int) -> None:
         """``n`` samples nobody delivered: missing values for the lags, state restarts."""
@@ -515,11 +530,12 @@ class DesignBuilder:
         given an index: ``X``, ``y`` and ``positions`` only (``index`` is None). ``frame``
         may be the piece's :class:`Columns` (read once for many builders), without
         ``quality``."""
-        check_regular(frame.index)
+        if not isinstance(frame, Columns):  # Columns checked it once
+            check_regular(frame.index)
         missing = [t for t in self.tags if t not in frame.columns]
         if missing:
             raise KeyError(f"tag(s) {', '.join(missing)} needed by the model are not in the data")
-        self._join(frame.index)
+        self._join(frame.ends if isinstance(frame, Columns) else frame.index)
         if quality is not None:
             if isinstance(frame, Columns):
                 raise TypeError("quality needs the piece as a frame, not as Columns")

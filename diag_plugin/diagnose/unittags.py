@@ -289,11 +289,12 @@ class CombinedModel:
         a[:, idx, idx] = np.where(known, a[:, idx, idx], 1.0)
         inv = np.linalg.inv(a)
         inv = 0.5 * (inv + inv.transpose(0, 2, 1))  # as pinv's: symmetric to the last bit
-        for pat, m_full in zip(new, inv, strict=True):
+        inv *= both  # the unknown tests' rows and columns out: ξᵀ S_kk⁻¹ ξ over the known
+        den = np.einsum("ptk,tk->pk", inv @ self.xi, self.xi)
+        for pat, m_full, d in zip(new, inv, den, strict=True):
             k = np.flatnonzero(pat)
             m = m_full if k.size == T else m_full[np.ix_(k, k)]
-            xi = self.xi[k]
-            self._inverses[pat.tobytes()] = (m, np.einsum("tk,tu,uk->k", xi, m, xi))
+            self._inverses[pat.tobytes()] = (m, d)
 
     @classmethod
     def of(cls, unit) -> CombinedModel:
