@@ -322,7 +322,9 @@ class CombinedModel:
 
     def z(self, r: np.ndarray) -> np.ndarray:
         """Scaled residuals ``(r − c) / s`` (n × T, NaN unknown)."""
-        return (np.asarray(r, float) - self.center) / self.scale
+        z = np.subtract(r, self.center, dtype=float)
+        z /= self.scale  # in place: one n × T array, not two
+        return z
 
     def evaluate(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``T²`` per sample (NaN unknown) and each tag's share of it, ``RBC_X / T²`` (n × tags),
