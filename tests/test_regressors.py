@@ -110,3 +110,26 @@ def test_derived_features_and_helpers():
     assert d.X[0, 2] == pytest.approx(10 / 3600)
     assert needed_tags(["diff(P1,P2)[k]", "P1[k-2]", "CV[k]"]) == ["P1", "P2", "CV"]
     assert max_lag(["rate(CV)[k-2]", "P1[k]"]) == 3
+
+
+def test_columns_read_once_give_the_frames_design_rows():
+    """A piece read once into :class:`Columns` (renamed, for many builders) gives each builder
+    the rows, state and counts the frame gives, across pieces with a missed cycle."""
+    from diag_plugin.regressors import Columns, DesignBuilder
+
+    f = frame().rename(columns={"CV": "plant CV"})
+    f.loc[f.index[2], "P1"] = np.nan
+    specs = ["CV[k-1]", "rate(P1)[k]", "dir(CV)[k-2]", "diff(P1,CV)[k]"]
+    a, b = DesignBuilder(specs, "F[k]"), DesignBuilder(specs, "F[k]")
+    names = {"CV": "plant CV", "P1": "P1", "F": "F"}
+    for piece in (f.iloc[:4], f.iloc[5:6], f.iloc[6:]):  # a missed cycle between the first two
+        da = a.transform(piece.rename(columns={"plant CV": "CV"}), lean=True)
+        db = b.transform(Columns(piece, names), lean=True)
+        np.testing.assert_array_equal(da.X, db.X)
+        np.testing.assert_array_equal(da.y, db.y)
+        np.testing.assert_array_equal(da.positions, db.positions)
+        assert a.to_state() == b.to_state()
+    with pytest.raises(KeyError, match="P2"):
+        DesignBuilder(["diff(P1,P2)[k]"], "F[k]").transform(Columns(f, names))
+    with pytest.raises(ValueError, match="regular"):
+        Columns(f.drop(f.index[4]), names)

@@ -59,7 +59,7 @@ from diag_plugin.diagnose.unitloops import (
 from diag_plugin.diagnose.unittags import CombinedModel, derived_matrix, describe_top, top_tags
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
-from diag_plugin.regressors import DesignBuilder, needed_tags
+from diag_plugin.regressors import Columns, DesignBuilder, needed_tags
 from diag_plugin.status import NE107, Quality, UnitStatus
 
 log = logging.getLogger(__name__)
@@ -466,11 +466,13 @@ class Unit:
     # ------------------------------------------------------------ stages
     def raw_residuals(self, frame: pd.DataFrame) -> pd.DataFrame:
         """Residual per test in % (eq. 6 or of ``ymax``), NaN where unknown; advances state."""
-        frame = self._model_frame(frame)
+        # the piece's columns read once for all the builders (under the models' tag names)
+        plant = {t: self.file.tags.get(t, t) for t in self.model_tags}
+        cols = Columns(frame, {t: p if p in frame.columns else t for t, p in plant.items()})
         out = np.full((len(frame), len(self.tests)), np.nan)
         for j, t in enumerate(self.file.tests):
             m = self.models[t.name]
-            d = self.builders[t.name].transform(frame, lean=True)
+            d = self.builders[t.name].transform(cols, lean=True)
             if d.positions.size:
                 out[d.positions, j] = self.residual(t, d.y, m.model.predict_detail(d.X))
         return pd.DataFrame(out, index=frame.index, columns=self.tests, copy=False)

@@ -277,6 +277,12 @@ def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray
             xi[j, k] += -g * 100.0 / span / spec.scale[spec.tests.index(other)]
 
 
+#: the combined test's covariance up to this condition number has every pattern's inverse
+#: computed in one stacked call, not one pseudo-inverse (an SVD) each: equal to within
+#: ~T · BATCH_COND · 2.2e-16 relative (1e-10 for 45 tests), tests/test_unit_replay_exact.py
+BATCH_COND = 1e4
+
+
 @dataclass
 class CombinedModel:
     """The combined statistic and the contributions of a unit, ready to evaluate."""
@@ -295,6 +301,8 @@ class CombinedModel:
     _inverses: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray | None]] = field(
         default_factory=dict
     )
+    #: whether ``S`` is well conditioned (:meth:`_well_conditioned`), once known
+    _cond_ok: bool | None = field(default=None, repr=False)
 
     def _inverse(self, pat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         key = pat.tobytes()
@@ -309,6 +317,46 @@ class CombinedModel:
                 None if pr is None else np.einsum("tk,tu,uk->k", pr, m, pr),
             )
         return self._inverses[key]
+
+    def _well_conditioned(self) -> bool:
+        """``S`` is symmetric positive definite with a condition number of at most
+        :data:`BATCH_COND`: then so is every ``S`` restricted to some tests (the eigenvalues
+        of a principal submatrix lie between the extreme ones of ``S``, Cauchy interlacing),
+        and its inverse is its pseudo-inverse to within ``~T · cond · ε`` relative."""
+        if self._cond_ok is None:
+            s = self.cov
+            ok = s.size > 0 and bool(np.all(np.isfinite(s))) and np.allclose(s, s.T)
+            if ok:
+                ev = np.linalg.eigvalsh(s)
+                ok = bool(ev[0] > 0 and ev[-1] <= BATCH_COND * ev[0])
+            self._cond_ok = ok
+        return self._cond_ok
+
+    def _prepare(self, patterns: np.ndarray) -> None:
+        """Cache the inverses of every new pattern of known tests in one stacked call: ``S``
+        with the unknown tests' rows and columns replaced by the identity's is block diagonal
+        (after ordering), so its inverse restricted to the known tests is ``S_kk⁻¹``. Only
+        for a well-conditioned ``S`` (:meth:`_well_conditioned`); else each pattern gets
+        its pseudo-inverse in :meth:`_inverse` as before."""
+        new = [p for p in patterns if p.tobytes() not in self._inverses]
+        if len(new) < 2 or not self._well_conditioned():
+            return
+        known = np.asarray(new, bool)
+        T = known.shape[1]
+        both = known[:, :, None] & known[:, None, :]
+        a = np.where(both, self.cov, 0.0)
+        idx = np.arange(T)
+        a[:, idx, idx] = np.where(known, a[:, idx, idx], 1.0)
+        inv = np.linalg.inv(a)
+        inv = 0.5 * (inv + inv.transpose(0, 2, 1))  # as pinv's: symmetric to the last bit
+        inv *= both  # the unknown tests' rows and columns out: ξᵀ S_kk⁻¹ ξ over the known
+        den = np.einsum("ptk,tk->pk", inv @ self.xi, self.xi)
+        pr = self.process
+        dens_p = [None] * len(new) if pr is None else np.einsum("ptk,tk->pk", inv @ pr, pr)
+        for pat, m_full, d, dp in zip(new, inv, den, dens_p, strict=True):
+            k = np.flatnonzero(pat)
+            m = m_full if k.size == T else m_full[np.ix_(k, k)]
+            self._inverses[pat.tobytes()] = (m, d, dp)
 
     @classmethod
     def of(cls, unit) -> CombinedModel:
@@ -337,7 +385,9 @@ class CombinedModel:
 
     def z(self, r: np.ndarray) -> np.ndarray:
         """Scaled residuals ``(r − c) / s`` (n × T, NaN unknown)."""
-        return (np.asarray(r, float) - self.center) / self.scale
+        z = np.subtract(r, self.center, dtype=float)
+        z /= self.scale  # in place: one n × T array, not two
+        return z
 
     def evaluate(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``T²`` per sample (NaN unknown) and each tag's share of it, ``RBC_X / T²`` (n × tags),
@@ -367,6 +417,7 @@ class CombinedModel:
         by = rows_all[np.argsort(inverse, kind="stable")]
         ends = np.cumsum(np.bincount(inverse, minlength=len(patterns)))
         partial: list[tuple[np.ndarray, np.ndarray, int]] = []
+        self._prepare(patterns)
         for p, pat in enumerate(patterns):
             rows = by[ends[p - 1] if p else 0 : ends[p]]
             k = np.flatnonzero(pat)
