@@ -10,10 +10,17 @@ work of each cycle (poll, queue for storage, diagnose, publish — the cycles du
 historian writes included), its median, p95, p99 and maximum, the overruns, and the
 historian's writes. Target (issue 23): p99 under 200 ms.
 
+``--built`` gives each unit what ``diag unit build`` writes on every unit it builds (issue 34,
+item 6): the ISA-18.2 alarm settings in time of :func:`~diag_plugin.unitbuild.build.
+alarm_settings` at the data's 1 s (on-delay in seconds, the unit's own off-delay of 240 s, a
+deadband of 10 % of the threshold, a 600 s spread window) and a spread test on the valve's
+position loop (``r3_spread``: the running spread of r3's residual, as ``unit build`` writes one
+beside each loop's level test), every threshold learned again on the training day.
+
 ``--embedded`` instead runs the embedded default for 40 s at 0.05 s per cycle (issue 10's
 figure: one whole cycle of the 7-tag plant, target < 100 ms median).
 
-    python benchmarks/bench_live.py [--duration 180] [--embedded]
+    python benchmarks/bench_live.py [--duration 180] [--built] [--embedded]
 """
 
 from __future__ import annotations
@@ -73,8 +80,36 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def build(d: Path) -> tuple[Path, Path]:
-    """The trained example unit, 100 unit files reading their own tags, the PLC's map."""
+def with_built_alarms(path: Path, frame) -> None:
+    """The unit file at ``path`` with what ``diag unit build`` writes on every unit: the alarm
+    settings in time at the frame's period, a spread test on the position loop (r3's model),
+    thresholds learned again on ``frame`` (see module doc)."""
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unitfile import UnitFile
+    from diag_plugin.examples.build import UNIT_FAR
+    from diag_plugin.learn.thresholds import learn_thresholds
+    from diag_plugin.unitbuild.build import alarm_settings
+
+    period = frame.index[1] - frame.index[0]
+    text = path.read_text(encoding="utf-8")
+    settings = "".join(f"{k} = {v!r}\n" for k, v in alarm_settings(period).items())
+    text = text.replace("[evaluation]\n", f"[evaluation]\n{settings}", 1)
+    spread = 'r3_spread = {model = "valve_r3.toml", statistic = "spread"}\n'
+    text = text.replace("\n[thresholds]", f"{spread}\n[thresholds]", 1)
+    path.write_text(text, encoding="utf-8")
+    # the matrix: the spread of r3's residual answers to the faults r3 answers to
+    mx = path.with_name("valve_unit.matrix.toml")
+    rows = mx.read_text(encoding="utf-8").replace('"r4"]', '"r4", "r3_spread"]', 1)
+    row = '  { test = "r3_spread", row = ["0", "1", "1", "1", "0"] },\n]'
+    mx.write_text(rows[: rows.rindex("]")] + row + rows[rows.rindex("]") + 1 :], encoding="utf-8")
+    uf = UnitFile.load(path)
+    uf.set_learned(learn_thresholds(Unit.load(path), [frame], far=UNIT_FAR))
+    uf.save()
+
+
+def build(d: Path, built: bool = False) -> tuple[Path, Path]:
+    """The trained example unit, 100 unit files reading their own tags, the PLC's map;
+    ``built``: the unit with what ``diag unit build`` writes (:func:`with_built_alarms`)."""
     from diag_plugin.examples.build import build_valve_unit
     from diag_plugin.simulate import simulate_valve
 
@@ -82,6 +117,8 @@ def build(d: Path) -> tuple[Path, Path]:
     rb = d / "rb"
     rb.mkdir()
     build_valve_unit(rb, frame, "bench_live")
+    if built:
+        with_built_alarms(rb / "valve_unit.unit.toml", frame)
     template = (rb / "valve_unit.unit.toml").read_text(encoding="utf-8")
     tags = []
     for u in range(N_UNITS):
@@ -125,13 +162,14 @@ opcua_port = {free_port()}
     return p
 
 
-def plant_size(duration: float) -> int:
+def plant_size(duration: float, built: bool = False) -> int:
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         t0 = time.perf_counter()
-        rb, csv = build(d)
-        print(f"built {N_UNITS} units over {N_TAGS} tags in {time.perf_counter() - t0:.0f} s")
+        rb, csv = build(d, built)
+        kind = "units as `diag unit build` writes them" if built else "units"
+        print(f"built {N_UNITS} {kind} over {N_TAGS} tags in {time.perf_counter() - t0:.0f} s")
         plc_port = free_port()
         plant_toml(d, plc_port)
         plc = subprocess.Popen(
@@ -217,8 +255,13 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=180.0, help="seconds of live run")
     ap.add_argument("--embedded", action="store_true", help="the 7-tag embedded plant instead")
+    ap.add_argument(
+        "--built",
+        action="store_true",
+        help="units with the deadband, off-delay and spread test `diag unit build` writes",
+    )
     args = ap.parse_args()
-    return embedded() if args.embedded else plant_size(args.duration)
+    return embedded() if args.embedded else plant_size(args.duration, args.built)
 
 
 if __name__ == "__main__":

@@ -403,10 +403,10 @@ def test_a_controlled_tag_is_tested_against_its_set_point(tmp_path):
     # the level sensor or the valve its loop drives (the valve is at its limit)
     named = d.faults.iloc[late].str.split("|")
     assert named.map(lambda f: "LT101" in f and "LIC101.OUT" in f).mean() > 0.8, named
-    # the live loop gives the same, one cycle at a time (a built unit's deadband, spread
-    # test and own off-delay are carried by Unit.evaluate, not the stacked fast path)
+    # the live loop gives the same, one cycle at a time, on the stacked fast path (a built
+    # unit's deadband, spread test and own off-delay carried across cycles, plant.py)
     plant = Plant({"tank": unit.reset()})
-    assert plant.slow == ["tank"]
+    assert plant.fast == ["tank"]
     for i, (ts, r) in enumerate(surge.iterrows()):
         st = plant.cycle(ts, r)[0]
         want = d.at(i)

@@ -14,7 +14,12 @@ stays local. :class:`Plant` keeps that structure and evaluates every unit each c
 A unit whose file, models or matrix are broken is reported CHECK_FUNCTION with Bad quality and
 its ``file:line`` problems every cycle; the others go on. Units whose models use derived inputs
 (``dir``, ``rate``, …) or whose symptoms are fuzzy (N/0/P, isolated by rules (10)–(14)) are
-evaluated one by one with :meth:`Unit.evaluate` (same result, slower). A unit with a combined
+evaluated one by one with :meth:`Unit.evaluate` (same result, slower). The alarm settings
+``diag unit build`` writes on every unit (:mod:`~diag_plugin.diagnose.unitloops`) stay on the
+fast path, their state carried per slot or unit across cycles: the running spread of a spread
+test's residual (a ring of the last ``W`` residuals and deviations per test, medians over the
+ring), the deadband (each test's last raw symptom) and the unit's own off-delay (samples since
+its last alarm sample, and that sample's status, faults and tags). A unit with a combined
 test or isolation to tags (:mod:`~diag_plugin.diagnose.unittags`) stays on the fast path: its
 T² and tag shares are computed from its slice of the filtered residuals each cycle, and its
 status's ``tags`` and message name the top tags on an alarm.
@@ -33,7 +38,7 @@ import pandas as pd
 
 from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.residuals import LowPass, supported
-from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay
+from diag_plugin.diagnose.symptoms import OnOffDelay
 from diag_plugin.diagnose.unit import (
     PRIORITY,
     Unit,
@@ -42,7 +47,7 @@ from diag_plugin.diagnose.unit import (
     spread_factor,
 )
 from diag_plugin.diagnose.unitfile import UnitError
-from diag_plugin.diagnose.unitloops import EpisodeHold
+from diag_plugin.diagnose.unitloops import EpisodeHold, spread_samples
 from diag_plugin.fuzzy.stack import WangMendelStack
 from diag_plugin.regressors import parse_specs
 from diag_plugin.status import NE107, Quality, UnitStatus
@@ -76,10 +81,36 @@ def _crisp(unit: Unit) -> bool:
     return unit.ev["symptoms"] == "crisp"
 
 
-def _plain_alarms(unit: Unit) -> bool:
-    """True without spread tests, deadband and the unit's own off-delay (the fast path);
-    units with them go one by one (:mod:`~diag_plugin.diagnose.unitloops`)."""
-    return unit.spread_cols.size == 0 and unit.deadband is None and unit.alarm_hold is None
+class _RingSpread:
+    """:class:`~diag_plugin.diagnose.unitloops.RunningSpread` one sample at a time for many
+    columns sharing a window ``W``: rings of the last ``W`` residuals and deviations, the
+    median over each column's known values once at least ``max(3, W // 4)`` are known (as
+    pandas' rolling median with ``min_periods``)."""
+
+    def __init__(self, window: int, columns: int) -> None:
+        self.window = int(window)
+        self.k = max(3, self.window // 4)
+        self.r = np.full((self.window, columns), np.nan)
+        self.d = np.full((self.window, columns), np.nan)
+        self.at = 0
+
+    def _median(self, ring: np.ndarray) -> np.ndarray:
+        known = ~np.isnan(ring)
+        c = known.sum(axis=0)
+        srt = np.sort(np.where(known, ring, np.inf), axis=0)
+        cols = np.arange(ring.shape[1])
+        lo = srt[np.maximum(c - 1, 0) // 2, cols]
+        hi = srt[np.minimum(c // 2, ring.shape[0] - 1), cols]
+        med = np.where(c % 2 == 1, lo, (lo + hi) / 2.0)
+        return np.where(c >= self.k, med, np.nan)
+
+    def transform(self, x: np.ndarray) -> np.ndarray:
+        self.r[self.at] = x
+        dev = np.abs(x - self._median(self.r))
+        self.d[self.at] = dev
+        mad = self._median(self.d)
+        self.at = (self.at + 1) % self.window
+        return np.where(np.isfinite(x), 1.4826 * mad, np.nan)
 
 
 class Plant:
@@ -87,15 +118,21 @@ class Plant:
 
     ``units``: loaded units by name; ``broken``: unit name → its problems (``file:line``).
     Evaluation settings that must be shared by the stacked stages (low-pass cut-off and order,
-    on/off delays) may differ between units: units are stacked per setting.
+    on/off delays, spread windows) may differ between units: units are stacked per setting.
+    ``batched=False`` evaluates every unit one by one with :meth:`Unit.evaluate` (the
+    reference the fast path is tested against).
     """
 
-    def __init__(self, units: Mapping[str, Unit], broken: Mapping[str, list[str]] | None = None):
+    def __init__(
+        self,
+        units: Mapping[str, Unit],
+        broken: Mapping[str, list[str]] | None = None,
+        *,
+        batched: bool = True,
+    ):
         self.units = dict(units)
         self.broken = dict(broken or {})
-        self.fast = [
-            n for n, u in self.units.items() if _plain_lags(u) and _crisp(u) and _plain_alarms(u)
-        ]
+        self.fast = [n for n, u in self.units.items() if batched and _plain_lags(u) and _crisp(u)]
         self.slow = [n for n in self.units if n not in self.fast]
         self._build()
 
@@ -204,6 +241,29 @@ class Plant:
                     on - 1,
                 )
             )
+        # the spread tests (statistic "spread"): a ring per window length (unitloops)
+        self._spreads = []
+        by_window: dict[int, list[int]] = {}
+        for i, s in enumerate(slots):
+            u = units[s.unit]
+            if u.file.tests[s.test].statistic == "spread":
+                w = spread_samples(u.ev["spread_window_s"] or 600.0, u.period)
+                by_window.setdefault(w, []).append(i)
+        for w, idx in by_window.items():
+            self._spreads.append((np.array(idx, np.intp), _RingSpread(w, len(idx))))
+        # the deadband: each test's last raw symptom; keep 1 (no deadband) is a plain threshold
+        self._keep = np.array(
+            [1.0 - units[s.unit].ev["deadband"] if units[s.unit].ev["deadband"] > 0 else 1.0
+             for s in slots]
+        )  # fmt: skip
+        self._raw = np.zeros(n)
+        # the unit's own off-delay (unitloops.AlarmHold): samples since its last alarm sample
+        # and that sample's (status, faults, tags)
+        self._alarm_off = np.array(
+            [u.ev["off_delay"] if u.ev["off_delay_s"] > 0 else 0 for u in units], np.int64
+        )
+        self._since = self._alarm_off.copy()
+        self._last_alarm: dict[int, tuple[int, list[str], list[tuple[str, float]]]] = {}
         self._held = np.full(n, np.nan)
         self._run = np.zeros(n, np.int64)
         self._latched = np.zeros(n)
@@ -316,13 +376,15 @@ class Plant:
         y[self._out_lag > have] = np.nan
         r = (y - yhat) / self._scale * 100.0 / factor  # Kościelny et al., eq. 6; levels
         s = np.full(n, np.nan)
+        for idx, ring in self._spreads:  # a spread test judges its residual's running spread
+            r[idx] = ring.transform(r[idx])
         rf = r.copy()
         for idx, lp, delay, hold in self._stages:
             x = r[idx][None, :]
             if lp is not None:
                 x = lp.transform(x)
             rf[idx] = x[0]
-            raw = FixedThresholds(high=self._hi[idx], low=self._lo[idx]).transform(x)
+            raw = self._thresholds(idx, x[0])[None, :]
             raw[:, self._no_th[idx]] = np.nan
             d = delay.transform(raw)
             held = self._held[idx]
@@ -335,6 +397,20 @@ class Plant:
             self._latched[on] = s[on]
             s = np.where(self._latch & (self._latched != 0), self._latched, s)
         return self._statuses(ts, rf, s)
+
+    def _thresholds(self, idx: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Raw symptoms −1/0/+1 (NaN unknown) of slots ``idx`` with their deadband, as
+        :class:`~diag_plugin.diagnose.unitloops.Deadband` gives them: on past a threshold,
+        off only back inside ``keep`` × it; the last known symptom carried."""
+        lo, hi, keep, last = self._lo[idx], self._hi[idx], self._keep[idx], self._raw[idx]
+        with np.errstate(invalid="ignore"):
+            up = (x > hi) | ((last > 0) & (x > keep * hi))
+            down = ~up & ((x < lo) | ((last < 0) & (x < keep * lo)))
+        out = np.where(up, 1.0, np.where(down, -1.0, 0.0))
+        unknown = np.isnan(x)
+        out[unknown] = np.nan
+        self._raw[idx] = np.where(unknown, last, out)
+        return out
 
     def _slot_label(self, i: int) -> str:
         """``unit.test`` of slot ``i``."""
@@ -406,6 +482,7 @@ class Plant:
                 status[ui] = NE107.FAILURE
                 u = units[ui]
                 faults[ui] = [tags[ui][0][0]] if u.tag_isolation and tags[ui] else ["unit"]
+        det_held = self._hold_alarms(active, status, faults, tags, notes)
         out = []
         now = self._hist[0]
         index = self.tag_index
@@ -433,6 +510,8 @@ class Plant:
                 st, msg = NE107.CHECK_FUNCTION, f"no thresholds: run `diag unit learn {u.name}`"
                 msg = "; ".join([msg, *notes[ui]])
             det = None if not active[ui] and not all_known[ui] else bool(active[ui])
+            if det_held[ui]:
+                det = True
             out.append(
                 UnitStatus(
                     unit=u.name,
@@ -449,6 +528,38 @@ class Plant:
                 )
             )
         return out
+
+    def _hold_alarms(
+        self,
+        active: np.ndarray,
+        status: np.ndarray,
+        faults: list[list[str]],
+        tags: list[list[tuple[str, float]]],
+        notes: list[list[str]],
+    ) -> np.ndarray:
+        """The units' own off-delay (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`), in
+        place: a unit out of alarm for fewer than its off-delay's samples repeats its last
+        alarm sample's status, faults and tags. Returns where a unit was held."""
+        off = self._alarm_off
+        has = off > 0
+        held = np.zeros(len(off), bool)
+        if not has.any():
+            return held
+        gap = np.where(active, 0, self._since + 1)
+        held = has & ~active & (gap < off)
+        self._since = np.where(has, gap, self._since)
+        for ui in np.flatnonzero(held):
+            last = self._last_alarm.get(int(ui))
+            if last is None:
+                held[ui] = False
+                continue
+            status[ui], faults[ui], tags[ui] = last[0], list(last[1]), list(last[2])
+            notes[ui] = [n for n in notes[ui] if not n.startswith("tags: ")]
+            if tags[ui]:
+                notes[ui].append("tags: " + ", ".join(f"{t} {v:.2f}" for t, v in tags[ui]))
+        for ui in np.flatnonzero(has & active):
+            self._last_alarm[int(ui)] = (int(status[ui]), list(faults[ui]), list(tags[ui]))
+        return held
 
 
 def _top(share: np.ndarray, names: list[str]) -> list[tuple[str, float]]:
