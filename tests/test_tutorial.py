@@ -87,7 +87,7 @@ def test_tutorial_reproduces(tmp_path):
         assert g["rmse_pct"] == pytest.approx(err, abs=0.05)
     explained = out["explain"][0]
     assert (
-        "diff(P1,P2)[k] would cut the error" in explained and "7.7 % to 1.6 % of span" in explained
+        "diff(P1,P2)[k] would cut the error" in explained and "7.6 % to 1.3 % of span" in explained
     )
     assert (tmp_path / "valve.html").stat().st_size > 100_000
 
