@@ -47,7 +47,7 @@ from diag_plugin.diagnose.unit import (
     spread_factor,
 )
 from diag_plugin.diagnose.unitfile import UnitError
-from diag_plugin.diagnose.unitloops import EpisodeHold, spread_samples
+from diag_plugin.diagnose.unitloops import Deadband, EpisodeHold, spread_samples
 from diag_plugin.fuzzy.stack import WangMendelStack
 from diag_plugin.regressors import parse_specs
 from diag_plugin.status import NE107, Quality, UnitStatus
@@ -224,19 +224,22 @@ class Plant:
         self._no_th = np.array([lim is None for lim in lims], bool)
         self._lo = np.array([-1.0 if lim is None else lim[0] for lim in lims])
         self._hi = np.array([1.0 if lim is None else lim[1] for lim in lims])
-        # stages stacked per evaluation setting (filter, delays)
+        # stages stacked per evaluation setting (filter, deadband, delays); a deadband of 0
+        # is a plain threshold (unitloops.Deadband, its last symptom per test carried)
         self._stages = []
         keys: dict[tuple, list[int]] = {}
         for i, s in enumerate(slots):
             ev = units[s.unit].ev
+            band = max(float(ev["deadband"] or 0.0), 0.0)
             keys.setdefault(
-                (ev["lowpass"], ev["order"], ev["on_delay"], ev["off_delay"]), []
+                (ev["lowpass"], ev["order"], band, ev["on_delay"], ev["off_delay"]), []
             ).append(i)
-        for (wn, order, on, off), idx in keys.items():
+        for (wn, order, band, on, off), idx in keys.items():
             self._stages.append(
                 (
                     np.array(idx, np.intp),
                     LowPass(wn, order) if wn > 0 else None,
+                    Deadband(band, len(idx)),
                     OnOffDelay(on, off),
                     on - 1,
                 )
@@ -251,12 +254,6 @@ class Plant:
                 by_window.setdefault(w, []).append(i)
         for w, idx in by_window.items():
             self._spreads.append((np.array(idx, np.intp), _RingSpread(w, len(idx))))
-        # the deadband: each test's last raw symptom; keep 1 (no deadband) is a plain threshold
-        self._keep = np.array(
-            [1.0 - units[s.unit].ev["deadband"] if units[s.unit].ev["deadband"] > 0 else 1.0
-             for s in slots]
-        )  # fmt: skip
-        self._raw = np.zeros(n)
         # the unit's own off-delay (unitloops.AlarmHold): samples since its last alarm sample
         # and that sample's (status, faults, tags)
         self._alarm_off = np.array(
@@ -379,12 +376,12 @@ class Plant:
         for idx, ring in self._spreads:  # a spread test judges its residual's running spread
             r[idx] = ring.transform(r[idx])
         rf = r.copy()
-        for idx, lp, delay, hold in self._stages:
+        for idx, lp, band, delay, hold in self._stages:
             x = r[idx][None, :]
             if lp is not None:
                 x = lp.transform(x)
             rf[idx] = x[0]
-            raw = self._thresholds(idx, x[0])[None, :]
+            raw = band.transform(x, self._lo[idx], self._hi[idx])
             raw[:, self._no_th[idx]] = np.nan
             d = delay.transform(raw)
             held = self._held[idx]
@@ -397,20 +394,6 @@ class Plant:
             self._latched[on] = s[on]
             s = np.where(self._latch & (self._latched != 0), self._latched, s)
         return self._statuses(ts, rf, s)
-
-    def _thresholds(self, idx: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Raw symptoms −1/0/+1 (NaN unknown) of slots ``idx`` with their deadband, as
-        :class:`~diag_plugin.diagnose.unitloops.Deadband` gives them: on past a threshold,
-        off only back inside ``keep`` × it; the last known symptom carried."""
-        lo, hi, keep, last = self._lo[idx], self._hi[idx], self._keep[idx], self._raw[idx]
-        with np.errstate(invalid="ignore"):
-            up = (x > hi) | ((last > 0) & (x > keep * hi))
-            down = ~up & ((x < lo) | ((last < 0) & (x < keep * lo)))
-        out = np.where(up, 1.0, np.where(down, -1.0, 0.0))
-        unknown = np.isnan(x)
-        out[unknown] = np.nan
-        self._raw[idx] = np.where(unknown, last, out)
-        return out
 
     def _slot_label(self, i: int) -> str:
         """``unit.test`` of slot ``i``."""
