@@ -197,6 +197,13 @@ def test_running_spread_and_episode_hold_carry_their_state():
     one = RunningSpread(40, 2).transform(x)
     s = RunningSpread(40, 2)
     assert np.allclose(np.r_[s.transform(x[:101]), s.transform(x[101:])], one, equal_nan=True)
+    # one sample at a time (the live loop's fast path) gives the rolling medians' answer,
+    # through the first quarter-window (unknown) and a gap longer than the window's
+    x[120:170, 0] = np.nan
+    one = RunningSpread(40, 2).transform(x)
+    s = RunningSpread(40, 2)
+    rows = np.vstack([s.transform(x[i : i + 1]) for i in range(len(x))])
+    assert np.allclose(rows, one, equal_nan=True) and np.isnan(rows[:9]).all()
     assert np.isnan(one[50:60, 1]).all() and abs(np.nanmean(one[200:, 0]) - 1.0) < 0.3
     share, act = rng.random((300, 3)), rng.random(300) > 0.3
     h = EpisodeHold(3)

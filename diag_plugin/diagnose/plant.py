@@ -17,9 +17,10 @@ its ``file:line`` problems every cycle; the others go on. Units whose models use
 evaluated one by one with :meth:`Unit.evaluate` (same result, slower). The alarm settings
 ``diag unit build`` writes on every unit (:mod:`~diag_plugin.diagnose.unitloops`) stay on the
 fast path, their state carried per slot or unit across cycles: the running spread of a spread
-test's residual (a ring of the last ``W`` residuals and deviations per test, medians over the
-ring), the deadband (each test's last raw symptom) and the unit's own off-delay (samples since
-its last alarm sample, and that sample's status, faults and tags). A unit with a combined
+test's residual (:class:`~diag_plugin.diagnose.unitloops.RunningSpread`, its last ``W − 1``
+residuals and deviations), the deadband (:class:`~diag_plugin.diagnose.unitloops.Deadband`,
+each test's last raw symptom) and the unit's own off-delay (samples since its last alarm
+sample, and that sample's status, faults and tags). A unit with a combined
 test or isolation to tags (:mod:`~diag_plugin.diagnose.unittags`) stays on the fast path: its
 T² and tag shares are computed from its slice of the filtered residuals each cycle, and its
 status's ``tags`` and message name the top tags on an alarm.
@@ -47,7 +48,7 @@ from diag_plugin.diagnose.unit import (
     spread_factor,
 )
 from diag_plugin.diagnose.unitfile import UnitError
-from diag_plugin.diagnose.unitloops import Deadband, EpisodeHold, spread_samples
+from diag_plugin.diagnose.unitloops import Deadband, EpisodeHold, RunningSpread, spread_samples
 from diag_plugin.fuzzy.stack import WangMendelStack
 from diag_plugin.regressors import parse_specs
 from diag_plugin.status import NE107, Quality, UnitStatus
@@ -79,38 +80,6 @@ def _plain_lags(unit: Unit) -> bool:
 def _crisp(unit: Unit) -> bool:
     """True for crisp symptoms (the fast path); fuzzy N/0/P units go one by one."""
     return unit.ev["symptoms"] == "crisp"
-
-
-class _RingSpread:
-    """:class:`~diag_plugin.diagnose.unitloops.RunningSpread` one sample at a time for many
-    columns sharing a window ``W``: rings of the last ``W`` residuals and deviations, the
-    median over each column's known values once at least ``max(3, W // 4)`` are known (as
-    pandas' rolling median with ``min_periods``)."""
-
-    def __init__(self, window: int, columns: int) -> None:
-        self.window = int(window)
-        self.k = max(3, self.window // 4)
-        self.r = np.full((self.window, columns), np.nan)
-        self.d = np.full((self.window, columns), np.nan)
-        self.at = 0
-
-    def _median(self, ring: np.ndarray) -> np.ndarray:
-        known = ~np.isnan(ring)
-        c = known.sum(axis=0)
-        srt = np.sort(np.where(known, ring, np.inf), axis=0)
-        cols = np.arange(ring.shape[1])
-        lo = srt[np.maximum(c - 1, 0) // 2, cols]
-        hi = srt[np.minimum(c // 2, ring.shape[0] - 1), cols]
-        med = np.where(c % 2 == 1, lo, (lo + hi) / 2.0)
-        return np.where(c >= self.k, med, np.nan)
-
-    def transform(self, x: np.ndarray) -> np.ndarray:
-        self.r[self.at] = x
-        dev = np.abs(x - self._median(self.r))
-        self.d[self.at] = dev
-        mad = self._median(self.d)
-        self.at = (self.at + 1) % self.window
-        return np.where(np.isfinite(x), 1.4826 * mad, np.nan)
 
 
 class Plant:
@@ -244,7 +213,7 @@ class Plant:
                     on - 1,
                 )
             )
-        # the spread tests (statistic "spread"): a ring per window length (unitloops)
+        # the spread tests (statistic "spread"): a running spread per window length
         self._spreads = []
         by_window: dict[int, list[int]] = {}
         for i, s in enumerate(slots):
@@ -253,7 +222,7 @@ class Plant:
                 w = spread_samples(u.ev["spread_window_s"] or 600.0, u.period)
                 by_window.setdefault(w, []).append(i)
         for w, idx in by_window.items():
-            self._spreads.append((np.array(idx, np.intp), _RingSpread(w, len(idx))))
+            self._spreads.append((np.array(idx, np.intp), RunningSpread(w, len(idx))))
         # the unit's own off-delay (unitloops.AlarmHold): samples since its last alarm sample
         # and that sample's (status, faults, tags)
         self._alarm_off = np.array(
@@ -373,8 +342,8 @@ class Plant:
         y[self._out_lag > have] = np.nan
         r = (y - yhat) / self._scale * 100.0 / factor  # Kościelny et al., eq. 6; levels
         s = np.full(n, np.nan)
-        for idx, ring in self._spreads:  # a spread test judges its residual's running spread
-            r[idx] = ring.transform(r[idx])
+        for idx, spread in self._spreads:  # a spread test judges its residual's running spread
+            r[idx] = spread.transform(r[idx][None, :])[0]
         rf = r.copy()
         for idx, lp, band, delay, hold in self._stages:
             x = r[idx][None, :]

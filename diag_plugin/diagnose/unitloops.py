@@ -27,6 +27,7 @@ isolated faults are held, :mod:`~diag_plugin.diagnose.isolation`).
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any
 
 import numba
@@ -66,9 +67,17 @@ class RunningSpread:
     def _rolling_median(self, tail: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         both = np.r_[tail, x]
         k = max(3, self.window // 4)
-        med = pd.DataFrame(both).rolling(self.window, min_periods=k).median().to_numpy()
+        if len(x) == 1:  # the live loop's one sample a cycle: the last window's median alone
+            last = both[-self.window :]
+            known = np.isfinite(last).sum(axis=0)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # an all-unknown column
+                med = np.where(known >= k, np.nanmedian(last, axis=0), np.nan)[None, :]
+        else:
+            med = pd.DataFrame(both).rolling(self.window, min_periods=k).median().to_numpy()
+            med = med[len(tail) :]
         keep = both[-(self.window - 1) :] if self.window > 1 else both[:0]
-        return med[len(tail) :], keep
+        return med, keep
 
     def transform(self, x: np.ndarray) -> np.ndarray:
         a = np.asarray(x, float).reshape(len(x), -1)
