@@ -1,19 +1,26 @@
-"""Does a matched limit hold out of sample on the classic TEP? The check on the **tuning** runs
-only (issue 34; ``docs/results/index.md``, "Why the unit's matched limit…").
+"""Does a matched limit hold out of sample on the TEP? The check on the **calibration and
+tuning** runs only (issue 34; ``docs/results/index.md``, "Why the unit's matched limit…").
 
-The built unit (the bench's plain ``diag import`` + ``diag unit build`` on ``d00.dat``), PCA
-and DPCA T² + Q, each one score per sample (:mod:`diag_plugin.bench.matched`), then:
+The built unit (the bench's plain ``diag import`` + ``diag unit build`` on the training
+runs), PCA and DPCA T² + Q, each one score per sample (:mod:`diag_plugin.bench.matched`),
+then:
 
-1. **The bench's protocol on the tuning runs**: each limit matched on ``d00_te`` (the
-   calibration run), the share of samples in alarm on the tuning runs the faults leave
-   fault-free to every method (``d03``, ``d09``, ``d15`` — 480 samples each), and the mean
-   detection over the other tuning runs (``d01.dat`` … ``d21.dat``, faulty throughout).
-2. **Leave one run out**: the four fault-free runs none of the methods learned from
-   (``d00_te`` and the three above), each in turn the calibration run, the share in alarm on
-   the other three at its limit — how far one run's limit moves on the next, per method.
+1. **The bench's protocol on the tuning runs**: each limit matched on the calibration runs,
+   the share of samples in alarm on the fault-free tuning samples, and the mean detection
+   over the tuning runs' faulty samples. Classic TEP (``--plant tep``): calibration
+   ``d00_te``; fault-free the tuning runs whose fault no method detects (``d03``, ``d09``,
+   ``d15`` — 480 samples each); detection over the other ``dXX.dat`` (faulty throughout).
+   tep-studio (``--plant tep-studio``): the three calibration runs; fault-free the tuning
+   runs' samples before their onset, detection after it (none where the tuning runs have
+   not been simulated).
+2. **Leave one run out**: the fault-free runs none of the methods learned from (the
+   calibration runs and the fault-free tuning samples above), each whole run in turn alone
+   setting the limit (classic TEP: ``d00_te`` and the three quiet tuning runs; tep-studio:
+   its calibration runs), the share in alarm on all the others — how far one run's limit
+   moves on the next, per method.
 
-The scoring runs (``dXX_te``) are not read. Run: ``python benchmarks/tep_matched_tuning.py``
-(the classic data in ``~/.cache/diag-plugin/tep-braatz``; about a minute of CPU).
+The scoring runs are not read. Run: ``python benchmarks/tep_matched_tuning.py [--plant
+tep-studio]`` (the data in ``~/.cache/diag-plugin``; a minute or a few of CPU).
 """
 
 from __future__ import annotations
@@ -37,15 +44,16 @@ def main(argv: list[str] | None = None) -> int:
         pca_statistics,
         unit_statistics,
     )
-    from diag_plugin.bench.publicplants import load_braatz
+    from diag_plugin.bench.publicplants import load_braatz, load_tep_studio
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--plant", choices=("tep", "tep-studio"), default="tep")
     ap.add_argument("--targets", default="0.005,0.01,0.02,0.05", help="shares of samples")
     add_scratch_args(ap, "nothing")
     args = ap.parse_args(argv)
     targets = [float(t) for t in args.targets.split(",")]
 
-    plant = load_braatz()
+    plant = load_braatz() if args.plant == "tep" else load_tep_studio()
     with scratch("tep_tuning_", args.dir) as work:
         built = build_unit_as_user(plant, plant.train, work)
     unit = built["unit"]
@@ -64,33 +72,48 @@ def main(argv: list[str] | None = None) -> int:
             stats = pca_statistics(dets[method], frame)[0]
         return method_score(stats, on, off)
 
-    quiet = [r for r in plant.tuning if r.name in QUIET]
-    faulty = [r for r in plant.tuning if r.name not in QUIET]
-    pool = plant.calibration + quiet
+    if args.plant == "tep":
+        quiet = [r.frame for r in plant.tuning if r.name in QUIET]
+        faulty = [(r.frame, 0) for r in plant.tuning if r.name not in QUIET]
+    else:  # before and after each tuning run's onset (scored from the run's start)
+        quiet = [r.frame.iloc[: r.onset] for r in plant.tuning]
+        faulty = [(r.frame, int(r.onset or 0)) for r in plant.tuning]
+    cal = [r.frame for r in plant.calibration]
     print(f"unit: {len(unit.tests)} tests from {built.get('rows')} rows; delays {on}/{off}")
-    print(f"fault-free tuning runs: {', '.join(r.name for r in quiet)}; "
+    print(f"calibration runs: {', '.join(r.name for r in plant.calibration)}; "
+          f"fault-free tuning samples: {sum(len(f) for f in quiet)}; "
           f"detection over {len(faulty)} tuning runs")  # fmt: skip
     print()
     period = plant.period_s
-    head = "| method | target | on d03/d09/d15 | detection | leave one run out: mean (each) |"
+    head = "| method | target | fault-free tuning | detection | leave one run out: mean (each) |"
     print(head)
     print("|---" * 5 + "|")
+
+    def pct(x: float, spec: str = ".2f") -> str:
+        return f"{100 * x:{spec}} %" if np.isfinite(x) else "—"
+
     for m in ("unit", "PCA", "DPCA"):
-        s_pool = [score(m, r.frame) for r in pool]
-        s_fault = [score(m, r.frame) for r in faulty]
+        s_cal = [score(m, f) for f in cal]
+        s_quiet = [score(m, f) for f in quiet]
+        s_fault = [(score(m, f), k) for f, k in faulty]
         for t in targets:
-            lim = calibrate(s_pool[:1], t, period).limit
-            free = rates(s_pool[1:], lim, period)[0]
-            det = np.mean([np.mean(np.nan_to_num(s, nan=-np.inf) > lim) for s in s_fault])
+            lim = calibrate(s_cal, t, period).limit
+            free = rates(s_quiet, lim, period)[0] if s_quiet else np.nan
+            hits = [np.mean(np.nan_to_num(s[k:], nan=-np.inf) > lim) for s, k in s_fault]
+            det = float(np.mean(hits)) if hits else np.nan
+            # whole fault-free runs take turns (classic TEP: d00_te and the three quiet
+            # tuning runs); tep-studio's 8-hour pieces before an onset only score
+            pool = s_cal + s_quiet
+            turns = len(pool) if args.plant == "tep" else len(s_cal)
             each = []
-            for i in range(len(s_pool)):
-                li = calibrate([s_pool[i]], t, period).limit
-                each.append(rates(s_pool[:i] + s_pool[i + 1 :], li, period)[0])
+            for i in range(turns):
+                li = calibrate([pool[i]], t, period).limit
+                each.append(rates(pool[:i] + pool[i + 1 :], li, period)[0])
             shown = " ".join(f"{100 * x:.1f}" for x in each)
-            print(f"| {m} | {100 * t:g} % | {100 * free:.2f} % | {100 * det:.1f} % | "
-                  f"{100 * np.mean(each):.2f} % ({shown}) |")  # fmt: skip
+            print(f"| {m} | {100 * t:g} % | {pct(free)} | {pct(det, '.1f')} | "
+                  f"{pct(float(np.mean(each)))} ({shown}) |")  # fmt: skip
     print()
-    print("leave one run out: calibration run in turn " + ", ".join(r.name for r in pool))
+    print("leave one run out: each whole fault-free run in turn sets the limit alone")
     return 0
 
 
