@@ -94,9 +94,10 @@ def historian(db_url, tmp_path):
 #: the tests `make check` leaves out (marked slow here, beside the few marked in their own
 #: files): the slowest of a profile of the whole suite (`pytest --durations=60`, 2026-11-28,
 #: one process, 69 min on a 2-core machine at a load average of 14-18, about 4x a quiet
-#: machine; the seconds below are that run's). A file listed is slow as a whole (its module
-#: fixtures or most of its tests are the cost); a test is listed by its name in its file.
-#: `make test` runs them all.
+#: machine; the seconds below are that run's), and since issue 33 item 6 the check tier's
+#: heaviest files by CPU seconds (user + system, `benchmarks/bench_tests.py`, one file a
+#: process; "CPU" below). A file listed is slow as a whole (its module fixtures or most of
+#: its tests are the cost); a test is listed by its name in its file. `make test` runs them all.
 SLOW_FILES: frozenset[str] = frozenset(
     {
         "test_examples.py",  # 387 s: the example units regenerated
@@ -112,6 +113,8 @@ SLOW_FILES: frozenset[str] = frozenset(
         "test_live.py",  # `diag run` end to end
         "test_benchmark.py",  # 27 s + 17 s: the quick DAMADICS run, fault-free days
         "test_historian_crash.py",  # 19-26 s: SIGKILL mid-ingest
+        "test_plant_built.py",  # 25 CPU s, one test: units built, cycled row by row twice
+        "test_unit_replay_exact.py",  # 19 CPU s: a unit built at two rates, the slow reference
     }
 )
 SLOW_TESTS: frozenset[str] = frozenset(
@@ -121,6 +124,10 @@ SLOW_TESTS: frozenset[str] = frozenset(
         "test_engine_fdi.py::test_ts_fcm_isolates_the_injected_fault",  # 70 s (no fault)
         "test_engine_fdi.py::test_one_step_estimates_read_measured_lags_and_load_torque",  # 39 s
         "test_engine_fdi.py::test_table_iii_thresholds_on_request",  # 35 s
+        # these two read seed 5's ts-fcm run (23 of the 28 CPU s the file's check tier took);
+        # in `make test` they share it with test_ts_fcm_isolates_the_injected_fault
+        "test_engine_fdi.py::test_residual_plots_like_figs_8_to_12",
+        "test_engine_fdi.py::test_diag_engine_fdi_plot_writes_the_figures_and_marks_only_isolated_nearest",
         "test_historian_upkeep.py::test_roll_check_vacuum_from_the_cli",  # 19-30 s
         "test_levels.py::test_compare_explain_training_units_and_the_plant_answer_alike",  # 29 s
         "test_opcua_server.py::test_restart_keeps_alarm_state_and_units",  # 23 s
@@ -135,6 +142,8 @@ SLOW_TESTS: frozenset[str] = frozenset(
         "test_publicplants.py::test_cli_matched_benchmark_writes_its_page",
         "test_any_plant_tour.py::test_the_whole_tour_and_the_error_falls",  # 19-27 s a tour
         "test_jobs.py::test_dask_engine_gives_the_same_rule_base",  # 21-27 s: Dask
+        # a day at 1 s built: 11 of the 24 CPU s the file's check tier took
+        "test_unit_short.py::test_a_day_at_one_second_chooses_inputs_on_a_coarser_grid",
         # 90 s: the shipped unit on unseen seeds (the file's other tests take seconds)
         "test_valve_isolation.py::test_the_shipped_table4_unit_isolates_five_singletons_on_unseen_seeds",
     }

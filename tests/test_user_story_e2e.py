@@ -17,9 +17,15 @@ def diag(cwd: Path, *args: str, check: bool = True) -> subprocess.CompletedProce
     return p
 
 
+#: days simulated for the staircase: 15 (45 until issue 33 item 6) keep every assertion's
+#: margin wide on seed 31 (v2/v1 = 0.19 against < 0.5, covered 0.19 against < 1/3; training
+#: gives explain's promise to 4e-5 against 2 %) at a third of the cost (20 CPU s of commands)
+DAYS = 15
+
+
 @pytest.mark.slow
 def test_error_staircase_from_the_command_line(tmp_path):
-    diag(tmp_path, "simulate", "--days", "45", "--seed", "31", "--out", "plant.parquet")
+    diag(tmp_path, "simulate", "--days", str(DAYS), "--seed", "31", "--out", "plant.parquet")
     diag(tmp_path, "import", "plant.parquet")
     tags = json.loads(diag(tmp_path, "tags", "--json").stdout)
     assert {"CV", "P1", "P2", "F"} <= {t["tag"] for t in tags}
@@ -28,7 +34,7 @@ def test_error_staircase_from_the_command_line(tmp_path):
     assert (tmp_path / "rulebases" / "valve.toml").exists()
     first = json.loads(diag(tmp_path, "train", "valve", "--json").stdout)
     assert set(first["validation"]) >= {"rmse_pct", "mae_pct", "coverage"}
-    assert first["samples"] > 0.9 * 45 * 8640
+    assert first["samples"] > 0.9 * DAYS * 8640
 
     cmp_ = json.loads(diag(tmp_path, "compare", "valve", "--json").stdout)
     assert {"rmse_pct", "coverage", "worst_regions", "worst_periods"} <= set(cmp_)
