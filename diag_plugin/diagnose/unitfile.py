@@ -584,36 +584,8 @@ class UnitFile(LinedFile):
         ):
             self.error(line("high"), f"[combined] high must be a number > 0, got {high!r}")
             high = None
-        gains: dict[str, dict[str, float]] = {}
-        graw = v.get("gains", {})
-        if not isinstance(graw, dict):
-            self.error(line("gains"), "[combined] gains must be a table of test = { TAG = gain }")
-            graw = {}
-        for test, row in graw.items():
-            gl = self.line_of("combined.gains", test)
-            if not isinstance(row, dict) or not all(
-                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
-                for x in row.values()
-            ):
-                self.error(gl, f"[combined.gains] {test}: must be {{ TAG = gain, … }}")
-                continue
-            gains[str(test)] = {str(t): float(x) for t, x in row.items()}
-        responses: dict[str, dict[str, float]] = {}
-        rraw = v.get("responses", {})
-        if not isinstance(rraw, dict):
-            self.error(
-                line("responses"), "[combined] responses must be a table of TAG = { test = r }"
-            )
-            rraw = {}
-        for sp, row in rraw.items():
-            rl = self.line_of("combined.responses", sp)
-            if not isinstance(row, dict) or not all(
-                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
-                for x in row.values()
-            ):
-                self.error(rl, f"[combined.responses] {sp}: must be {{ test = response, … }}")
-                continue
-            responses[str(sp)] = {str(t): float(x) for t, x in row.items()}
+        gains = self._number_tables(v, "gains", "test = { TAG = gain }", "TAG = gain")
+        responses = self._number_tables(v, "responses", "TAG = { test = r }", "test = response")
         names = [t.name for t in getattr(self, "tests", [])]
         if names and sorted(tests) != sorted(names):
             self.error(
@@ -753,6 +725,29 @@ class UnitFile(LinedFile):
         text = self.dumps()
         fresh = UnitFile(text, self.path)
         self.__dict__.update(fresh.__dict__)
+
+    def _number_tables(
+        self, v: dict, key: str, form: str, row_form: str
+    ) -> dict[str, dict[str, float]]:
+        """``[combined.KEY]``: a table of ``name = { name = number, … }``, finite numbers;
+        a bad row is a ``file:line`` error and left out."""
+        out: dict[str, dict[str, float]] = {}
+        raw = v.get(key, {})
+        if not isinstance(raw, dict):
+            self.error(self.line_of("combined", key), f"[combined] {key} must be a table of {form}")
+            return out
+        for name, row in raw.items():
+            if not isinstance(row, dict) or not all(
+                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                for x in row.values()
+            ):
+                self.error(
+                    self.line_of(f"combined.{key}", name),
+                    f"[combined.{key}] {name}: must be {{ {row_form}, … }}",
+                )
+                continue
+            out[str(name)] = {str(t): float(x) for t, x in row.items()}
+        return out
 
     def set_combined(self, spec: CombinedSpec | None) -> None:
         """Write (or, with None, remove) the ``[combined]`` table."""
