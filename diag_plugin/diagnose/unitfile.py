@@ -53,6 +53,8 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     cov = [[1.1, 0.3], [0.3, 0.9]]  # covariance of the scaled residuals
     [combined.gains]     # per test: mean ∂ŷ/∂tag of its model over the window
     r1 = { U = 0.52 }
+    [combined.responses] # per loop set-point: its move's effect on the tests' scaled residuals
+    U_SP = { r2 = -0.8 }
 
     [faults]             # optional: NE 107 status a fault raises (default FAILURE)
     f_P0 = "MAINTENANCE_REQUIRED"
@@ -260,6 +262,10 @@ class CombinedSpec:
     shrinkage: float = 0.0
     high: float | None = None
     gains: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: per loop set-point tag, the response of each test's scaled residual to a unit move of
+    #: it over the window, where the window shows one (:func:`~diag_plugin.learn.thresholds.
+    #: setpoint_responses`): what a bias of the loop's sensor does once the loop compensates
+    responses: dict[str, dict[str, float]] = field(default_factory=dict)
     #: what the threshold rests on (far, method, supported, hours, …), written as is
     notes: dict[str, Any] = field(default_factory=dict)
 
@@ -531,7 +537,10 @@ class UnitFile(LinedFile):
             return None
         v = {k: _plain(x) for k, x in table.items()}
         line = lambda k: self.line_of("combined", k)  # noqa: E731
-        known = {"tests", "center", "scale", "cov", "shrinkage", "high", "gains", *COMBINED_NOTES}
+        known = {
+            "tests", "center", "scale", "cov", "shrinkage", "high", "gains", "responses",
+            *COMBINED_NOTES,
+        }  # fmt: skip
         for key in sorted(set(v) - known):
             self.error(line(key), f"unknown key {key!r} in [combined]")
         n0 = len(self.problems)
@@ -575,20 +584,8 @@ class UnitFile(LinedFile):
         ):
             self.error(line("high"), f"[combined] high must be a number > 0, got {high!r}")
             high = None
-        gains: dict[str, dict[str, float]] = {}
-        graw = v.get("gains", {})
-        if not isinstance(graw, dict):
-            self.error(line("gains"), "[combined] gains must be a table of test = { TAG = gain }")
-            graw = {}
-        for test, row in graw.items():
-            gl = self.line_of("combined.gains", test)
-            if not isinstance(row, dict) or not all(
-                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
-                for x in row.values()
-            ):
-                self.error(gl, f"[combined.gains] {test}: must be {{ TAG = gain, … }}")
-                continue
-            gains[str(test)] = {str(t): float(x) for t, x in row.items()}
+        gains = self._number_tables(v, "gains", "test = { TAG = gain }", "TAG = gain")
+        responses = self._number_tables(v, "responses", "TAG = { test = r }", "test = response")
         names = [t.name for t in getattr(self, "tests", [])]
         if names and sorted(tests) != sorted(names):
             self.error(
@@ -599,6 +596,10 @@ class UnitFile(LinedFile):
         for test in gains:
             if names and test not in names:
                 self.error(self.line_of("combined.gains", test), f"unknown test {test!r}")
+        for sp, row in responses.items():
+            for test in row:
+                if names and test not in names:
+                    self.error(self.line_of("combined.responses", sp), f"unknown test {test!r}")
         if len(self.problems) > n0:
             return None
         return CombinedSpec(
@@ -609,6 +610,7 @@ class UnitFile(LinedFile):
             shrinkage=float(shrink),
             high=None if high is None else float(high),
             gains=gains,
+            responses=responses,
             notes={kk: v[kk] for kk in COMBINED_NOTES if kk in v},
         )
 
@@ -724,6 +726,29 @@ class UnitFile(LinedFile):
         fresh = UnitFile(text, self.path)
         self.__dict__.update(fresh.__dict__)
 
+    def _number_tables(
+        self, v: dict, key: str, form: str, row_form: str
+    ) -> dict[str, dict[str, float]]:
+        """``[combined.KEY]``: a table of ``name = { name = number, … }``, finite numbers;
+        a bad row is a ``file:line`` error and left out."""
+        out: dict[str, dict[str, float]] = {}
+        raw = v.get(key, {})
+        if not isinstance(raw, dict):
+            self.error(self.line_of("combined", key), f"[combined] {key} must be a table of {form}")
+            return out
+        for name, row in raw.items():
+            if not isinstance(row, dict) or not all(
+                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                for x in row.values()
+            ):
+                self.error(
+                    self.line_of(f"combined.{key}", name),
+                    f"[combined.{key}] {name}: must be {{ {row_form}, … }}",
+                )
+                continue
+            out[str(name)] = {str(t): float(x) for t, x in row.items()}
+        return out
+
     def set_combined(self, spec: CombinedSpec | None) -> None:
         """Write (or, with None, remove) the ``[combined]`` table."""
         if "combined" in self.doc:
@@ -754,6 +779,13 @@ class UnitFile(LinedFile):
                 row.update({k: float(f"{x:.5g}") for k, x in spec.gains.get(test, {}).items()})
                 g[test] = row
             t["gains"] = g
+            if spec.responses:
+                rs = tomlkit.table()
+                for sp, resp in spec.responses.items():
+                    row = tomlkit.inline_table()
+                    row.update({k: float(f"{x:.5g}") for k, x in resp.items()})
+                    rs[sp] = row
+                t["responses"] = rs
             self.doc["combined"] = t
         fresh = UnitFile(self.dumps(), self.path)
         self.__dict__.update(fresh.__dict__)

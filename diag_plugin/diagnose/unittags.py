@@ -256,7 +256,12 @@ def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray
     drives the process as a set-point step of ``−b`` would: every other test whose model
     reads the set-point (the model of the loop's actuator, of the tags downstream) sees a
     residual ``−g · b``, ``g`` that model's gain on the set-point. Added to the sensor's
-    direction."""
+    direction. And where the window showed the residuals moving with the set-point (``[combined]
+    responses``, :func:`~diag_plugin.learn.thresholds.setpoint_responses`: the plant's response
+    that no model's gain carries, as where no model reads the measurement or the set-point),
+    ``−β_j`` on each test ``j`` that moved, ``β_j`` its scaled residual's response to a unit
+    move of the set-point: the compensated bias moves the true measurement as a set-point move
+    of ``−b`` would."""
     for t in unit.tests:
         test = unit.file.test(t)
         if _spread_test(unit, t) or not (test.actuator and test.set_point):
@@ -265,6 +270,9 @@ def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray
         if pv not in tags:
             continue
         k = tags.index(pv)
+        for other, beta in spec.responses.get(test.set_point, {}).items():
+            if other in unit.tests and other != t:
+                xi[unit.tests.index(other), k] -= beta
         for j, other in enumerate(unit.tests):
             ot = unit.file.test(other)
             if other == t or _spread_test(unit, other) or ot.set_point == test.set_point:

@@ -482,6 +482,7 @@ def learn_thresholds(
             far * COMBINED_SHARE if unit.ev["combined"] else None,
             model_gains(unit, frame),
         )
+        combined.responses = setpoint_responses(unit, frame.loc[body.index], body, combined)
         n = combined.notes
         if unit.ev["combined"] and not n.get("supported", True):
             warnings.append(
@@ -643,6 +644,76 @@ def learn_combined(
         "hours_needed": float(f"{side.hours_needed:.3g}"),
     }
     return spec
+
+
+#: a set-point's response on a test is kept where it is this many standard errors from zero
+RESPONSE_T = 3.0
+
+
+def setpoint_responses(
+    unit: Unit, frame: pd.DataFrame, body: pd.DataFrame, spec: CombinedSpec
+) -> dict[str, dict[str, float]]:
+    """Per loop set-point tag ``SP`` (a loop test's ``set_point`` that ``frame`` holds; a fixed
+    number has none), the response ``β_j`` of each test's scaled residual
+    ``z_j = (r_j − c_j) / s_j`` (``body``: the settled, filtered, cross-fitted fault-free
+    residuals; ``spec``: their centre and scale) to a unit move of ``SP`` over the window: the
+    least-squares slope of ``z_j`` on ``SP``, kept where it is at least :data:`RESPONSE_T`
+    standard errors from zero. Both series are autocorrelated (a set-point held for hours, a
+    filtered residual), so the slope's variance is ``σ_e² / Σx² · (1 + 2 Σ_k ρ_x(k) ρ_e(k))``
+    (Bartlett, 1935; ``ρ`` the sample autocorrelations of the set-point and of the fit's
+    residual ``e``, summed up to the first lag where ``ρ_e`` is no longer positive, as
+    :func:`~diag_plugin.diagnose.symptoms.effective_samples` sums). Neither the loop's own test
+    nor a spread test is answered.
+
+    A set-point move ``Δ`` moves the true measurement by ``Δ``; a bias ``b`` of the loop's
+    sensor, once the loop compensates it, moves the true measurement by ``−b`` with the reading
+    and the set-point unchanged. So where no model reads the measurement or the set-point (or
+    reads them with a gain short of the plant's), the residuals that move with the set-point
+    in the window are those the compensated bias moves, by ``−β_j · b`` on top of the models'
+    gains (:func:`~diag_plugin.diagnose.unittags.directions`)."""
+    loops: dict[str, set[str]] = {}
+    for t in unit.file.tests:
+        sp = getattr(t, "set_point", None)
+        if sp and sp in frame.columns:
+            loops.setdefault(sp, set()).add(t.name)
+    out: dict[str, dict[str, float]] = {}
+    for sp, own in sorted(loops.items()):
+        x = frame[sp].to_numpy(float)
+        row: dict[str, float] = {}
+        for j, name in enumerate(spec.tests):
+            test = unit.file.test(name)
+            if name in own or getattr(test, "statistic", "level") == "spread":
+                continue
+            z = (body[name].to_numpy(float) - spec.center[j]) / spec.scale[j]
+            ok = np.isfinite(x) & np.isfinite(z)
+            if ok.sum() < MIN_KNOWN:
+                continue
+            xc = x[ok] - x[ok].mean()
+            zc = z[ok] - z[ok].mean()
+            sxx = float(xc @ xc)
+            if not sxx > 0:
+                continue
+            beta = float(xc @ zc) / sxx
+            e = zc - beta * xc
+            rx, re = _autocorrelation(xc), _autocorrelation(e)
+            stop = np.flatnonzero(re[1:] <= 0.0)
+            k = int(stop[0]) + 1 if stop.size else re.size
+            tau = max(1.0, 1.0 + 2.0 * float(rx[1:k] @ re[1:k]))
+            se = math.sqrt(float(e @ e) / max(ok.sum() - 2, 1) / sxx * tau)
+            if abs(beta) >= RESPONSE_T * se:
+                row[name] = beta
+        if row:
+            out[sp] = row
+    return out
+
+
+def _autocorrelation(a: np.ndarray) -> np.ndarray:
+    """Sample autocorrelation of a centred series at every lag (NaN-free, taken as contiguous)."""
+    from scipy import signal
+
+    n = a.size
+    ac = signal.correlate(a, a, mode="full", method="fft")[n - 1 :]
+    return ac / ac[0] if ac[0] > 0 else np.zeros(n)
 
 
 def model_gains(unit: Unit, frame: pd.DataFrame) -> dict[str, dict[str, float]]:
