@@ -24,6 +24,7 @@ per tag (the historian's aligned window); lags count grid samples.
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -247,6 +248,40 @@ def dir_threshold(
     return float(f"{DIR_THRESHOLD_SHARE * (hi - lo):.3g}")
 
 
+def _direction(x, threshold, carry):  # pragma: no cover - compiled
+    out = np.empty(x.shape[0])
+    ref = carry[0]
+    state = carry[1]
+    for i in range(x.shape[0]):
+        v = x[i]
+        if np.isnan(v):
+            out[i] = np.nan
+            ref = np.nan
+            state = np.nan
+            continue
+        if np.isnan(ref):
+            ref = v
+        elif v - ref > threshold:
+            state = 1.0
+            ref = v
+        elif ref - v > threshold:
+            state = -1.0
+            ref = v
+        out[i] = state
+    carry[0] = ref
+    carry[1] = state
+    return out
+
+
+@functools.cache
+def _compiled_direction():
+    """:func:`_direction` compiled by numba at its first use (numba is imported here, not with
+    this module: a training whose inputs have no ``dir()`` never loads it)."""
+    import numba as nb
+
+    return nb.njit(cache=True)(_direction)
+
+
 def direction(x: np.ndarray, threshold: float, carry: np.ndarray | None = None) -> np.ndarray:
     """Direction of the last move larger than ``threshold``: +1 up, −1 down.
 
@@ -256,11 +291,9 @@ def direction(x: np.ndarray, threshold: float, carry: np.ndarray | None = None) 
     direction), NaN for a fresh start, is read and updated in place, so a
     signal fed in pieces gives the same values as one pass.
     """
-    from diag_plugin._direction import _direction  # numba: loaded only where a dir() runs
-
     if carry is None:
         carry = np.full(2, np.nan)
-    return _direction(np.ascontiguousarray(x, dtype=np.float64), float(threshold), carry)
+    return _compiled_direction()(np.ascontiguousarray(x, dtype=np.float64), float(threshold), carry)
 
 
 def feature(
