@@ -18,7 +18,8 @@ what the targets are about:
   sees).
 
 Then where the time goes: per phase of ``train_one`` (wall time inside the call) and of the
-process (Python and imports, numba's start at the first compiled call, the job).
+process (Python and imports, numba's start at the first compiled call where the training's
+imports load numba — since issue 37 its loops run in numpy and they do not — the job).
 
     python benchmarks/bench_train.py [--runs 5] [--dir /tmp] [--check]
 """
@@ -96,6 +97,8 @@ t0 = time.perf_counter()
 import diag_plugin.cli
 import diag_plugin.training.jobs
 t1 = time.perf_counter()
+import sys
+loaded = "numba" in sys.modules
 import numpy as np
 from diag_plugin.fuzzy import _kernels as K
 z, one, n = np.zeros(1), np.ones(1), np.ones(1, np.int64)
@@ -103,7 +106,7 @@ K.accumulate_dense(np.zeros((1, 1)), z, z, one, n, n, 0.0, 1.0, n * 0, n * 0, n 
 t2 = time.perf_counter()
 import scipy.spatial
 t3 = time.perf_counter()
-print(t1 - t0, t2 - t1, t3 - t2)
+print(t1 - t0, t2 - t1, t3 - t2, int(loaded))
 """
 
 
@@ -209,6 +212,7 @@ def phases(url: str, path: Path, runs: int) -> tuple[float, dict[str, float]]:
     timed(WindowReader, "__call__", "historian reads (aligned windows)")
     timed(reg.DesignBuilder, "transform", "design matrix (lags, NaN rows)")
     timed(wm.WangMendelRegressor, "partial_fit", "rule-cell accumulation")
+    timed(wm.WangMendelRegressor, "predict_detail", "validation inference")
     timed(wm.WangMendelRegressor, "predict", "validation inference")
     timed(wm.WangMendelRegressor, "extrapolate", "validation inference")
     timed(RuleBase, "load", "rule-base file read")
@@ -317,14 +321,19 @@ def main(argv=None) -> int:
                 [sys.executable, "-c", PROCESS_PARTS], capture_output=True, text=True, check=True
             )
             starts.append([float(x) for x in out.stdout.split()])
-        imp, nb, sp = (min(col) for col in zip(*starts, strict=True))
+        imp, nb, sp, loaded = (min(col) for col in zip(*starts, strict=True))
         bare = min(wall([sys.executable, "-c", "pass"]) for _ in range(3))
         proc = min(calls["cold", "process"])
         job = min(calls["cold", "job"])
         print(f"where the diag train process's {proc:.3f} s go (rolled):")
         print(f"    python itself                             {bare:6.3f} s")
         print(f"    imports of diag_plugin.training.jobs      {imp:6.3f} s")
-        print(f"    numba's start (first compiled call)       {nb:6.3f} s")
+        if loaded:
+            print(f"    numba's start (first compiled call)       {nb:6.3f} s")
+        else:  # the training loops run in numpy (issue 37): numba is never loaded
+            nb = 0.0
+            print("    numba: not imported by the training (its start elsewhere: "
+                  f"{min(col[1] for col in starts):.3f} s)")  # fmt: skip
         print(f"    scipy.spatial (extrapolate's KD tree)     {sp:6.3f} s")
         print(f"    the job (train_one, warm)                 {job:6.3f} s")
         print(

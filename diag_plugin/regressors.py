@@ -24,11 +24,11 @@ per tag (the historian's aligned window); lags count grid samples.
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
-import numba as nb
 import numpy as np
 import pandas as pd
 
@@ -248,7 +248,6 @@ def dir_threshold(
     return float(f"{DIR_THRESHOLD_SHARE * (hi - lo):.3g}")
 
 
-@nb.njit(cache=True)
 def _direction(x, threshold, carry):  # pragma: no cover - compiled
     out = np.empty(x.shape[0])
     ref = carry[0]
@@ -274,6 +273,15 @@ def _direction(x, threshold, carry):  # pragma: no cover - compiled
     return out
 
 
+@functools.cache
+def _compiled_direction():
+    """:func:`_direction` compiled by numba at its first use (numba is imported here, not with
+    this module: a training whose inputs have no ``dir()`` never loads it)."""
+    import numba as nb
+
+    return nb.njit(cache=True)(_direction)
+
+
 def direction(x: np.ndarray, threshold: float, carry: np.ndarray | None = None) -> np.ndarray:
     """Direction of the last move larger than ``threshold``: +1 up, −1 down.
 
@@ -285,7 +293,7 @@ def direction(x: np.ndarray, threshold: float, carry: np.ndarray | None = None) 
     """
     if carry is None:
         carry = np.full(2, np.nan)
-    return _direction(np.ascontiguousarray(x, dtype=np.float64), float(threshold), carry)
+    return _compiled_direction()(np.ascontiguousarray(x, dtype=np.float64), float(threshold), carry)
 
 
 def feature(

@@ -278,10 +278,13 @@ def _report_json(r) -> dict:
 
 
 def cmd_tags(args) -> int:
-    with _open(args) as h:
-        report = h.tag_report(args.start, args.end)
+    if args.start is None and args.end is None and _stored_tags(args.db) == 0:
+        records: list[dict] = []  # an empty historian: nothing to summarise (no pandas)
+    else:
+        with _open(args) as h:
+            records = h.tag_report(args.start, args.end).to_dict("records")
     if args.json:
-        rows = [{k: to_jsonable(v) for k, v in r.items()} for r in report.to_dict("records")]
+        rows = [{k: to_jsonable(v) for k, v in r.items()} for r in records]
         print(json.dumps(rows, indent=2))
         return 0
     from rich.console import Console
@@ -292,7 +295,7 @@ def cmd_tags(args) -> int:
         table.add_column(col, justify="right" if col in ("samples", "coverage") else "left")
     for col in ("bad", "gaps", "flat", "out of range"):
         table.add_column(col, justify="right")
-    for r in report.to_dict("records"):
+    for r in records:
         lo, hi = to_jsonable(r["lo"]), to_jsonable(r["hi"])
         rng = "" if lo is None and hi is None else f"{_fmt(lo)} .. {_fmt(hi)}"
         table.add_row(
@@ -314,6 +317,30 @@ def cmd_tags(args) -> int:
         console = Console(width=160)
     console.print(table)
     return 0
+
+
+def _stored_tags(url: str) -> int | None:
+    """How many tags the SQLite historian at ``url`` holds, read with the standard library
+    (``diag tags`` on an empty historian then imports neither pandas nor SQLAlchemy). None
+    where this cannot tell: another database, a URL with options, a file not made yet (the
+    historian makes it) or not readable as a historian."""
+    import sqlite3
+    from urllib.parse import quote
+
+    prefix = "sqlite:///"
+    if not url.startswith(prefix) or "?" in url:
+        return None
+    path = Path(url[len(prefix) :])
+    if not path.is_file():
+        return None
+    try:
+        con = sqlite3.connect(f"file:{quote(str(path))}?mode=ro", uri=True)
+        try:
+            return int(con.execute("SELECT count(*) FROM tags").fetchone()[0])
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return None
 
 
 def _fmt(x):

@@ -89,3 +89,15 @@ def test_no_choice_without_enough_data(tmp_path):
     given = new_model(tmp_path / "g.toml", "g", "Y[k]", ["A[k]", "B[k]"], frame=f,
                       tag_info=INFO, period="60s", sets=31, shape="triangular")  # fmt: skip
     assert given.shape == "triangular"
+
+
+def test_a_method_without_fuzzy_sets_has_no_shape_to_choose(tmp_path):
+    """The codec's estimator class says whether the method takes a shape (no model built)."""
+    f = surface(5, n=2000)
+    cols = [f["A"].to_numpy(), f["B"].to_numpy()]
+    for method, expect_choice in (("narmax2", False), ("wm-avg", True)):
+        path = tmp_path / f"{method}.toml"
+        rb = new_model(path, method, "Y[k]", ["A[k]", "B[k]"], frame=None, tag_info=INFO,
+                       period="60s", method=method, shape=None)  # fmt: skip
+        choice = choose_shape(rb, cols, f["Y"].to_numpy(), 1500)
+        assert (choice is not None) == expect_choice, (method, choice)

@@ -178,3 +178,21 @@ def test_the_command_table_says_what_the_modules_register():
             assert text == action.help, (action.dest, module)
             registered[action.dest] = (*mods, module), text
     assert registered == cli.COMMANDS
+
+
+def test_tags_of_an_empty_historian_imports_neither_pandas_nor_sqlalchemy(tmp_path):
+    """``diag tags`` on a SQLite historian holding no tag answers from the standard library;
+    once a tag is stored the full report runs (and lists it)."""
+    from historian.store import Historian
+
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    Historian.open(url).close()  # the file and its schema, no tag
+    out = _probe("--db", url, "tags", "--json")
+    assert json.loads(out["help"]) == []
+    heavy = sorted({m.split(".")[0] for m in out["modules"]} & set(HEAVY))
+    assert not heavy, heavy
+    with Historian.open(url) as h:
+        h.ensure_tag("FI101", unit="t/h", lo=0, hi=10)
+    out = _probe("--db", url, "tags", "--json")
+    assert [r["tag"] for r in json.loads(out["help"])] == ["FI101"]
+    assert "pandas" in {m.split(".")[0] for m in out["modules"]}

@@ -1,4 +1,5 @@
-"""Compiled inner loops of Wang–Mendel training and inference (numba).
+"""Compiled inner loops of Wang–Mendel training and inference (numba; the same loops in
+numpy, for a process that need not load numba: :mod:`._numpy_kernels`).
 
 Training is one pass over the rows that fuzzifies every input by its
 max-membership set (Kościelny et al., eq. 3), forms the rule-cell key in a mixed
@@ -23,10 +24,7 @@ import math
 import numba as nb
 import numpy as np
 
-#: output quantum for exact accumulation: span / QUANT (≈ 1.5e-5 of span)
-QUANT = 65536
-#: accumulated outputs are clipped to [lo - span, hi + span]
-QCLIP = 2 * QUANT
+from diag_plugin.fuzzy._numpy_kernels import QCLIP, QUANT  # noqa: F401 - one definition
 
 
 @nb.njit(cache=True, nogil=True, inline="always")

@@ -44,12 +44,14 @@ inference on small grids.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
+from types import ModuleType
 from typing import NamedTuple
 
 import numpy as np
 
-from diag_plugin.fuzzy import _kernels as K
+from diag_plugin.fuzzy import _numpy_kernels as N
 from diag_plugin.fuzzy.partition import UniformPartition
 from diag_plugin.models.estimation import observed_span
 from diag_plugin.models.params import ParamsMixin
@@ -170,6 +172,18 @@ def pack(grids: Sequence[InferenceGrid], dense: bool) -> tuple:
             cat_k, cat_v, cat_s, cat_f, cat_d, LEVEL_SUPPORT)  # fmt: skip
 
 
+def kernels(rows: int | None = None) -> ModuleType:
+    """The loops that run a call on ``rows`` rows: numpy (:mod:`._numpy_kernels`: one model's
+    inference, the dense accumulation) for fewer than :data:`NUMPY_ROWS` while numba is not
+    loaded, else (and for a loop numpy lacks, ``rows`` None) the compiled ones
+    (:mod:`._kernels`). Both give the same bits."""
+    if rows is not None and rows < NUMPY_ROWS and "numba" not in sys.modules:
+        return N
+    from diag_plugin.fuzzy import _kernels
+
+    return _kernels
+
+
 def _fields(det: Prediction) -> tuple[np.ndarray, ...]:
     return det.y, det.support, det.reason, det.level, det.spread
 
@@ -182,10 +196,11 @@ def run_kernel(packed: tuple, which: np.ndarray, X: np.ndarray) -> Prediction:
     reason = np.empty(n, np.int8)
     level = np.empty(n, np.int8)
     spread = np.empty(n)
+    loops = kernels(None if which.size else n)  # numpy: one model's inference
     for s in range(0, n, CHUNK_ROWS):
         e = s + CHUNK_ROWS
         rows = which[s:e] if which.size else which
-        K.infer_levels(
+        loops.infer_levels(
             rows, X[s:e], *packed, out[s:e], sup[s:e], reason[s:e], level[s:e], spread[s:e]
         )
     return Prediction(out, sup, reason, level, spread)
@@ -209,6 +224,10 @@ CONCLUSIONS = ("mean", "sets")
 DENSE_LIMIT = 1 << 20
 #: rows per compiled pass; bounds the memory of fit/predict
 CHUNK_ROWS = 1 << 20
+#: a call on fewer rows runs in numpy while numba is not loaded (:func:`kernels`): numba's
+#: import and compiled-code load cost ≈ 0.6 s CPU, numpy's inference ≈ 0.25 µs a row more
+#: than numba's (3 inputs, bench_train and benchmarks/bench_kernels.py)
+NUMPY_ROWS = 1 << 21
 #: no cell may hold more samples than this (integer sum of squares stays exact)
 MAX_CELL_COUNT = 1 << 29
 #: a level answers a sample where its rules carry at least this share of the firing weight
@@ -343,7 +362,7 @@ class WangMendelRegressor(ParamsMixin):
 
     @property
     def _yquant(self) -> float:
-        return self.output_partition_.span / K.QUANT
+        return self.output_partition_.span / N.QUANT
 
     # ---------------------------------------------------------------- training
     def fit(self, X, y) -> WangMendelRegressor:
@@ -383,7 +402,7 @@ class WangMendelRegressor(ParamsMixin):
             keys = np.empty(n, np.int64)
             w = np.empty(n, np.float64)
             yset = np.empty(n, np.int64)
-            K.classic_weights(
+            kernels().classic_weights(
                 X,
                 y,
                 lo,
@@ -414,14 +433,14 @@ class WangMendelRegressor(ParamsMixin):
             count = np.zeros(self.n_cells_, np.int64)
             qsum = np.zeros(self.n_cells_, np.int64)
             qsq = np.zeros(self.n_cells_, np.int64)
-            skipped = K.accumulate_dense(
+            skipped = kernels(n).accumulate_dense(
                 X, y, lo, step, nsets, self.radix_, op.lo, self._yquant, count, qsum, qsq
             )
             keys = np.flatnonzero(count).astype(np.int64)
             return keys, count[keys], qsum[keys], qsq[keys], None, None, int(skipped)
         keys = np.empty(n, np.int64)
         qy = np.empty(n, np.int64)
-        K.keys_and_quanta(X, y, lo, step, nsets, self.radix_, op.lo, self._yquant, keys, qy)
+        kernels().keys_and_quanta(X, y, lo, step, nsets, self.radix_, op.lo, self._yquant, keys, qy)
         ok = keys >= 0
         skipped = int(n - ok.sum())
         ukeys, inv = np.unique(keys[ok], return_inverse=True)

@@ -38,6 +38,8 @@ class RuleCodec:
     #: the method name a codec made without one serves (each codec class names its own;
     #: :meth:`~diag_plugin.models.registry.Method.load` passes the name the file gives)
     method = ""
+    #: the estimator class the codec makes (its ``_params`` name what the method takes)
+    estimator: type | None = None
     #: whether the method has an IEC 61131-7 FCL form (``diag rules export``)
     fcl = False
 

@@ -167,10 +167,10 @@ def choose_shape(
     after = np.flatnonzero(np.isfinite(y[cut:]))
     if after.size < 20 or cut < 20 or not len(cols):
         return None
+    if "shape" not in getattr(rb.codec.estimator, "_params", ()):
+        return None  # a method without fuzzy sets (the codec's estimator class says)
     errors: dict[str, float] = {}
     for shape in SHAPES:
-        if "shape" not in getattr(rb.codec.new_estimator(rb.spec), "_params", ()):
-            return None  # a method without fuzzy sets
         probe = copy.copy(rb)  # the same file with other sets: only the spec is read
         probe.shape = shape
         scorer = HeldOutScorer(probe, cols, y, cut)
