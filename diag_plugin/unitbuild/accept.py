@@ -34,7 +34,11 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.regressors import InputSpec, max_lag
+from diag_plugin.unitbuild import short
 from historian.errors import UserError
+
+#: methods whose input spans the build widens beyond the window (``short.widened``)
+LINEAR_METHODS = ("linear", "joint")
 
 #: the folder, beside the unit file, that keeps each accept's backup
 BACKUPS = ".unit-backups"
@@ -315,6 +319,12 @@ def widen_spans(rb, frame: pd.DataFrame):
         lo0, hi0 = v.span
         if lo >= lo0 and hi <= hi0:
             continue
+        reach = (lo, hi)
+        if rb.method in LINEAR_METHODS and what != "output":
+            # as the build gives a linear test's inputs (short.widened): a line learned from
+            # the window is trusted a quarter of its range beyond it, not to its very extremes
+            # (where every excursion would flip the unit in and out of CHECK_FUNCTION)
+            lo, hi = short.widened((lo, hi))
         if any(getattr(r, "lock", False) for r in rb.rules):
             raise UserError(
                 f"{rb.path}: {s.tags[0]} reaches {lo:g} … {hi:g}, outside the span "
@@ -331,7 +341,7 @@ def widen_spans(rb, frame: pd.DataFrame):
         said.append(
             f"{what}: span {lo0:g} … {hi0:g} → {new[0]:g} … {new[1]:g}"
             + (f", {v.sets} → {v.sets + below + above} sets (the step kept)" if grid else "")
-            + f" (the window reaches {lo:g} … {hi:g})"
+            + f" (the window reaches {reach[0]:g} … {reach[1]:g})"
         )
     if not said:
         return rb, said
