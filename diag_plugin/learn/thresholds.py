@@ -208,10 +208,11 @@ def _runs(data: np.ndarray) -> np.ndarray:
 
 
 def test_residuals(
-    unit: Unit, frame: pd.DataFrame, blocks: int, cross_fit: bool | None
+    unit: Unit, frame: pd.DataFrame, blocks: int, cross_fit: bool | None, by_run: bool = True
 ) -> dict[str, TestResiduals]:
     """Raw residuals of every test over ``frame``, each block's from a model that did not see
-    that block (see :func:`held_out`); ``cross_fit`` False: the models' own residuals."""
+    that block (see :func:`held_out`); ``cross_fit`` False: the models' own residuals;
+    ``by_run`` False: equal time blocks even where the window holds several runs."""
     from diag_plugin.regressors import DesignBuilder
     from diag_plugin.rulebase.document import RuleBase
 
@@ -230,7 +231,8 @@ def test_residuals(
             pred, source = m.model.predict_detail(d.X), "the model's own (not cross-fitted)"
         else:
             data = frame.notna().any(axis=1).to_numpy()
-            block = block_of(frame.index, blocks, data)[rows] if len(rows) else rows
+            runs = data if by_run else None
+            block = block_of(frame.index, blocks, runs)[rows] if len(rows) else rows
             pred, source = held_out(
                 RuleBase.load(m.path), m.model, d, block, blocks, t.name, force=bool(cross_fit)
             )
@@ -399,11 +401,15 @@ def learn_thresholds(
     blocks: int = DEFAULT_BLOCKS,
     cross_fit: bool | None = None,
     spread: bool = True,
+    by_run: bool = True,
 ) -> Learned:
     """Thresholds of every test of ``unit`` from a window the user declares fault-free
     (``frames``: consecutive pieces of it), holding the unit to ``far`` false alarms per hour
     of operation (see the module doc). Raises :class:`LearnError` naming each test the window
-    cannot serve and what to do."""
+    cannot serve and what to do. ``by_run`` False: the cross-fitting's blocks are equal spans
+    of time even where the window holds several runs (``diag unit accept``: windows at
+    different operating points, none of which the others' models cover; each run's filter
+    still settles on its own)."""
     if blocks < 0 or blocks == 1:
         raise LearnError([f"blocks must be 0 (no cross-fitting) or at least 2, got {blocks}"])
     frame = _window(frames)
@@ -419,7 +425,7 @@ def learn_thresholds(
                     [f"test {t.name}: the maximum of {out} over the window is not positive"]
                 )
             t.ymax = ymax[t.name] = m
-    res = test_residuals(unit, frame, blocks, cross_fit)
+    res = test_residuals(unit, frame, blocks, cross_fit, by_run)
     problems = _check(res, unit)
     if problems:
         raise LearnError(problems)
@@ -474,7 +480,7 @@ def learn_thresholds(
     if unit.ev["combined"] or unit.ev["isolation"] == "tags":
         data = frame.notna().any(axis=1).to_numpy()
         keep = settled(data)
-        block = block_of(frame.index, max(blocks, 1), data)[keep]
+        block = block_of(frame.index, max(blocks, 1), data if by_run else None)[keep]
         combined = learn_combined(
             unit,
             body,

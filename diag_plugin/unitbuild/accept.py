@@ -15,7 +15,10 @@ period there as fault-free, :func:`accept` learns it into the unit:
    result is the model of all those rows (Kościelny et al., eq. 5 over the union: every
    rule's count and sums add). Locked rules stay as the expert set them.
 3. **Thresholds re-learned** over all the windows together (cross-fitted, to the unit's own
-   budget), as ``diag unit learn`` learns them.
+   budget), as ``diag unit learn`` learns them; the windows are set one after another on one
+   time grid (a window weeks away re-timed to follow a gap), and the cross-fitting's blocks
+   are equal spans of that frame, not whole windows (a window at a new operating point held
+   out whole has no model that covers it).
 """
 
 from __future__ import annotations
@@ -30,8 +33,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from diag_plugin.regressors import InputSpec
+from diag_plugin.regressors import InputSpec, max_lag
+from diag_plugin.unitbuild import short
 from historian.errors import UserError
+
+#: methods whose input spans the build widens beyond the window (``short.widened``)
+LINEAR_METHODS = ("linear", "joint")
 
 #: the folder, beside the unit file, that keeps each accept's backup
 BACKUPS = ".unit-backups"
@@ -138,17 +145,27 @@ def _utc(t: pd.Timestamp) -> pd.Timestamp:
     return t.tz_localize("UTC") if t.tzinfo is None else t.tz_convert("UTC")
 
 
-def _joined(frames: list[pd.DataFrame], period: str) -> pd.DataFrame:
-    """Windows one after another with a gap of missing rows between them, so the learning
-    treats each as its own run (its blocks cut between them; its filter settles in each)."""
+def _joined(frames: list[pd.DataFrame], period: str, history: int = 0) -> pd.DataFrame:
+    """Windows one after another on one time grid, with a gap of missing rows between them,
+    so the learning's filter settles in each (each is its own run) and no lag reaches into
+    the window before (the gap is longer than ``history`` samples). Lags count samples, so
+    the frame must be on a regular grid: a window that starts later than the gap's end is
+    moved up to follow it. It stays inside the models' training range (between the first
+    window's start and the last one's end), which the cross-fitting reads; the windows' own
+    times are what the caller records. The cross-fitting's blocks are equal spans of this
+    frame (``by_run=False``), not the windows: a window at a new operating point held out
+    whole would leave no model that covers it."""
     from diag_plugin.learn.thresholds import RUN_GAP
 
     parts = []
     step = pd.Timedelta(period)
+    rows = max(RUN_GAP, history) + 1
     for k, f in enumerate(frames):
         if k and len(parts[-1]):
             last = parts[-1].index[-1]
-            gap = pd.date_range(last + step, periods=RUN_GAP + 1, freq=step)
+            gap = pd.date_range(last + step, periods=rows, freq=step)
+            if len(f) and f.index[0] > gap[-1] + step:
+                f = f.set_axis(f.index - (f.index[0] - (gap[-1] + step)))
             gap = gap[gap < f.index[0]] if len(f) else gap
             parts.append(pd.DataFrame(np.nan, index=gap, columns=f.columns))
         parts.append(f)
@@ -241,15 +258,17 @@ def accept(
         windows = sorted(all_windows)
         res.windows = [(a.isoformat(), b.isoformat()) for a, b in windows]
         fresh = Unit.load(uf.path, uf.path.parent)
-        frame = _joined([window(a, b) for a, b in windows], fresh.period)
+        history = max((max_lag(m.inputs) for m in fresh.models.values()), default=0)
+        frame = _joined([window(a, b) for a, b in windows], fresh.period, history)
         frame = frame.rename(columns={k: v for k, v in fresh.file.tags.items()})
         try:
-            learned = learn_thresholds(fresh, [frame], far=far)
+            learned = learn_thresholds(fresh, [frame], far=far, by_run=False)
         except LearnError as exc:
             raise UserError(
                 f"unit {unit.name}: cannot learn thresholds:\n"
                 + "\n".join("  " + p for p in exc.problems)
             ) from None
+        learned.window = (windows[0][0].isoformat(), windows[-1][1].isoformat())
         out = UnitFile.load(uf.path)
         out.set_learned(learned)
         out.save()
@@ -300,6 +319,12 @@ def widen_spans(rb, frame: pd.DataFrame):
         lo0, hi0 = v.span
         if lo >= lo0 and hi <= hi0:
             continue
+        reach = (lo, hi)
+        if rb.method in LINEAR_METHODS and what != "output":
+            # as the build gives a linear test's inputs (short.widened): a line learned from
+            # the window is trusted a quarter of its range beyond it, not to its very extremes
+            # (where every excursion would flip the unit in and out of CHECK_FUNCTION)
+            lo, hi = short.widened((lo, hi))
         if any(getattr(r, "lock", False) for r in rb.rules):
             raise UserError(
                 f"{rb.path}: {s.tags[0]} reaches {lo:g} … {hi:g}, outside the span "
@@ -316,7 +341,7 @@ def widen_spans(rb, frame: pd.DataFrame):
         said.append(
             f"{what}: span {lo0:g} … {hi0:g} → {new[0]:g} … {new[1]:g}"
             + (f", {v.sets} → {v.sets + below + above} sets (the step kept)" if grid else "")
-            + f" (the window reaches {lo:g} … {hi:g})"
+            + f" (the window reaches {reach[0]:g} … {reach[1]:g})"
         )
     if not said:
         return rb, said
