@@ -127,3 +127,47 @@ def test_the_joint_model_is_the_group_s_first_component_and_merges_exactly():
     assert p.support[0] == 1.0 and p.reason[0] == 0
     rise = y.mean() + 10 * y.std() - p.y[0]
     assert abs(rise) > 10 * np.std(r)
+
+
+def test_the_joint_output_is_the_tag_with_the_largest_loading():
+    """A group whose first tag (in the tests' order) barely loads on the component: ``A``
+    joins through its parity test with ``B`` but is nearly uncorrelated with the pair ``B``,
+    ``C`` that carries the common direction. The output is then the tag with the largest
+    |loading| (its coefficients divide by that loading): with ``A`` as output they were
+    ~1 / 0 (the 1e-9 floor) — here over 1,000 times the chosen model's."""
+    from diag_plugin.models.joint import JointRegressor, first_component
+    from diag_plugin.unitbuild.short import joint_groups
+
+    rng = np.random.default_rng(11)
+    n = 600
+    c = np.cumsum(rng.normal(size=n)) * 0.05 + rng.normal(size=n)
+    cols = {
+        "B": 3.0 + c + 0.1 * rng.normal(size=n),
+        "C": 7.0 + 2 * c + 0.2 * rng.normal(size=n),
+    }
+    # A: noise with its sample correlation to B and C removed, so its loading is ~0
+    P = np.column_stack([np.ones(n), cols["B"], cols["C"]])
+    a = rng.normal(size=n)
+    cols["A"] = 5.0 + a - P @ np.linalg.lstsq(P, a, rcond=None)[0]
+    pairs = [("A", ["B"]), ("B", ["A", "C"]), ("C", ["B"])]
+    U = np.column_stack([cols[t] for t in "ABC"])
+    _, _, v = first_component(np.c_[np.ones(n), U].T @ np.c_[np.ones(n), U])
+    assert abs(v[0]) < 1e-6 and abs(v[1]) > 0.5  # the first tag's loading is ~0
+    [(group, _, why)] = joint_groups(pairs, lambda t: cols[t])
+    assert not why and sorted(group) == ["A", "B", "C"]
+    assert group[0] == "ABC"[int(np.argmax(np.abs(v)))], (group, v)
+    assert group[0] != "A"
+
+    def model(out: str) -> JointRegressor:
+        ins = [t for t in group if t != out]
+        X = np.column_stack([cols[t] for t in ins])
+        spans = [(float(x.min()), float(x.max())) for x in X.T]
+        return JointRegressor(input_spans=spans).fit(X, cols[out]), X
+
+    chosen, X = model(group[0])
+    Z = (U - U.mean(0)) / U.std(0)
+    r = cols[group[0]] - chosen.predict(X)
+    assert abs(np.corrcoef(r, Z @ v)[0, 1]) > 0.999999  # still the component's score
+    assert np.all(np.isfinite(chosen.coef_)) and np.max(np.abs(chosen.coef_[1:])) < 10
+    first, _ = model("A")  # the old choice: the group's first tag
+    assert np.max(np.abs(first.coef_[1:])) > 1000 * np.max(np.abs(chosen.coef_[1:]))

@@ -10,7 +10,9 @@ PCA decomposition; MacGregor and Kourti, T² of the retained component),
 ``t = Σ_i v_i (x_i − m_i) / s_i``, with ``v`` the first eigenvector of the group's correlation
 matrix, ``m`` and ``s`` the training means and standard deviations.
 
-It is written as a linear model of the group's first tag (the output) on the others::
+It is written as a linear model of one tag of the group (the output: the build chooses the
+tag with the largest |loading| ``v_y`` on the component, :func:`~diag_plugin.unitbuild.short.
+joint_groups`, so the division below never comes near zero) on the others::
 
     y − ŷ = (s_y / v_y) · t,   ŷ = m_y − (s_y / v_y) Σ_{i≠y} v_i (x_i − m_i) / s_i
 

@@ -859,8 +859,10 @@ def joint_tests(
 ) -> list[TestChoice]:
     """A short window's joint tests (:func:`short.joint_groups`): one per group of tags whose
     tests (linear or a grid) predict each other, where the window shows enough of the group's common
-    direction; the group's first tag is the output, the others its inputs (method
-    ``joint``, :mod:`diag_plugin.models.joint`). Groups left out are said in ``notes``."""
+    direction; the output is the group's tag with the largest |loading| on its first
+    component (:func:`short.joint_groups` puts it first), the others its inputs (method
+    ``joint``, :mod:`diag_plugin.models.joint`), and its ``why`` names it. Groups left out
+    are said in ``notes``."""
     lin = [ch for ch in kept if ch.steps and not ch.tracks and ch.method != short.JOINT]
     pairs = [(ch.tag, [InputSpec.parse(s).tags[0] for s in ch.inputs]) for ch in lin]
     out = []
@@ -879,7 +881,8 @@ def joint_tests(
                 f"joint test of {', '.join(group)}: their tests predict each other, so a "
                 "common rise cancels in each; this one watches the group's score on its first "
                 f"principal component (T² of their standardised deviations, {n:.0f} "
-                "independent values in the window)"
+                f"independent values in the window), written as a model of {group[0]}, the "
+                "tag with the largest loading on that component"
             ),
         )
         out.append(ch)

@@ -240,9 +240,13 @@ def joint_groups(
     group's score on its first principal component, as PCA's T² does.
 
     ``tests``: per linear test its tag and its inputs' tags; ``column(tag)``: the window's
-    values. Returns per group its tags (in ``tests``' order), the independent values its
-    score holds, and why it is left out ("" where it is tested): only where the window holds
-    :data:`SHORT_LEVEL_INDEPENDENT` independent values of the score, as a level test."""
+    values. Returns per group its tags, the output of its joint test first — the tag with the
+    largest |loading| on the component (the model divides by that loading,
+    :class:`~diag_plugin.models.joint.JointRegressor`; a tag barely on the component would
+    scale its residual by ~1 / 0) — then the others in ``tests``' order; the independent
+    values its score holds, and why it is left out ("" where it is tested): only where the
+    window holds :data:`SHORT_LEVEL_INDEPENDENT` independent values of the score, as a level
+    test."""
     from diag_plugin.diagnose.symptoms import effective_samples
     from diag_plugin.models.joint import first_component
 
@@ -273,6 +277,8 @@ def joint_groups(
         P = np.column_stack([np.ones(len(U)), U])
         m, s, v = first_component(P.T @ P)
         n = effective_samples(((U - m) / s) @ v)
+        out_at = int(np.argmax(np.abs(v)))  # the first of equal loadings in tests' order
+        g = [g[out_at]] + g[:out_at] + g[out_at + 1 :]
         why = ""
         if n < SHORT_LEVEL_INDEPENDENT:
             why = (
