@@ -284,3 +284,102 @@ def infer_levels(
             if sl >= enough:
                 break
         reason[r] = code if level[r] >= 0 else 2
+
+
+@nb.njit(cache=True, nogil=True)
+def infer_fine(
+    X, lo, step, plateau, nsets, inner, radix, table, values, spreads, enough, coarse,
+    out, support, reason, level, spread, again,
+):  # fmt: skip
+    """:func:`infer_levels` of one model at its fine level only, through the level's dense
+    table of rule indices (``table``: cell key → index into ``values``/``spreads``, -1 where
+    no rule): the same arithmetic in the same order, so the same bits, without the per-model
+    and per-level indexing. ``again[r]`` is set where :func:`infer_levels` would go on to a
+    coarser level (``coarse``: the model has one): the fine rules carry less than ``enough``
+    of the weight, no input is NaN and the sample lies inside the training data's range.
+    Elsewhere the answer is :func:`infer_levels`' answer."""
+    n = X.shape[0]
+    d = X.shape[1]
+    ws = np.empty(d, dtype=np.float64)
+    for r in range(n):
+        code = 0
+        inside = True
+        base = 0
+        for k in range(d):
+            xv = X[r, k]
+            if math.isnan(xv):
+                code = 1
+                break
+            lo_k = lo[k]
+            st = step[k]
+            nk = nsets[k]
+            hi_k = lo_k + st * (nk - 1)
+            if xv < lo_k:
+                xv = lo_k
+                code = 3
+            elif xv > hi_k:
+                xv = hi_k
+                code = 3
+            t = (xv - lo_k) / st  # the fine level: b = 1, its centre offset 0
+            i = int(t + 0.5)  # t >= 0 here (xv clipped), so the floor
+            if i > nk - 1:
+                i = nk - 1
+            if i < inner[k, 0] or i > inner[k, 1]:
+                inside = False
+            if t < 0.0:
+                t = 0.0
+            elif t > nk - 1:
+                t = nk - 1.0
+            j = int(t)
+            if j > nk - 2:
+                j = nk - 2
+            f = t - j
+            p = plateau[k]
+            if p == 0.0:  # triangular sets: (f - 0) / 1 is f, bit for bit
+                ws[k] = f
+            else:
+                wv = (f - 0.5 * p) / (1.0 - p)
+                if wv < 0.0:
+                    wv = 0.0
+                elif wv > 1.0:
+                    wv = 1.0
+                ws[k] = wv
+            base += j * radix[k]
+        out[r] = np.nan
+        support[r] = 0.0
+        level[r] = -1
+        spread[r] = np.nan
+        again[r] = False
+        if code == 1:
+            reason[r] = 1
+            continue
+        vl = 0.0
+        sl = 0.0
+        ql = 0.0
+        wl = 0.0
+        for c in range(1 << d):
+            wt = 1.0
+            key = base
+            for k in range(d):
+                if (c >> k) & 1:
+                    wt *= ws[k]
+                    key += radix[k]
+                else:
+                    wt *= 1.0 - ws[k]
+            if wt == 0.0:
+                continue
+            ix = table[key]
+            if ix >= 0:
+                vl += wt * values[ix]
+                sl += wt
+                if not math.isnan(spreads[ix]):
+                    ql += wt * spreads[ix]
+                    wl += wt
+        if sl > 0.0:
+            out[r] = vl / sl
+            support[r] = sl
+            level[r] = 0
+            spread[r] = ql / wl if wl > 0.0 else np.nan
+        if sl < enough and coarse and inside:
+            again[r] = True
+        reason[r] = code if level[r] >= 0 else 2
