@@ -127,6 +127,26 @@ def _hold_kernel(s, limit, last, run):  # pragma: no cover - numba
     return out
 
 
+@numba.njit(cache=True)
+def _residual_kernel(
+    out, j, at, y, yp, support, min_support, scale, table, level, spread, floor
+):  # pragma: no cover - numba
+    # Unit.residual row by row: supported (NaN below min_support), % of scale (eq. 6), the
+    # answering level's factor (level_factor), the local spread's (spread_factor)
+    has_level = level.shape[0] > 0
+    has_spread = spread.shape[0] > 0
+    for i in range(at.shape[0]):
+        yhat = yp[i] if support[i] >= min_support else np.nan
+        r = (y[i] - yhat) / scale * 100.0
+        if has_level:
+            lv = np.int64(level[i])
+            r = r / (table[lv] if 0 <= lv < table.shape[0] else np.nan)
+        if has_spread:
+            sp = spread[i]
+            r = r / (max(sp, floor) if np.isfinite(sp) else 1.0)
+        out[at[i], j] = r
+
+
 def _on(s: np.ndarray) -> np.ndarray:
     """Where a symptom is on: nonzero and known (``nan_to_num(s) != 0`` without the copy)."""
     return np.abs(s) > 0
@@ -474,8 +494,25 @@ class Unit:
             m = self.models[t.name]
             d = self.builders[t.name].transform(cols, lean=True)
             if d.positions.size:
-                out[d.positions, j] = self.residual(t, d.y, m.model.predict_detail(d.X))
+                self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
         return pd.DataFrame(out, index=frame.index, columns=self.tests, copy=False)
+
+    def _residual_into(
+        self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y: np.ndarray,
+        pred: Prediction,
+    ) -> None:  # fmt: skip
+        """:meth:`residual` written into column ``j`` of ``out`` at rows ``at``, in one
+        compiled pass (the same operations in the same order, so the same bits)."""
+        m = self.models[test.name]
+        scale = test.ymax if self.ev["scale"] == "max" and test.ymax else m.span
+        none = np.empty(0)
+        table = np.asarray(test.levels if test.levels is not None else (1.0,), float)
+        level = none.astype(np.int8) if pred.level is None else np.asarray(pred.level)
+        spread = none if pred.spread is None or not test.spread else np.asarray(pred.spread)
+        support = np.broadcast_to(np.asarray(pred.support, float), np.shape(pred.y))
+        _residual_kernel(out, j, at, np.asarray(y, float), np.asarray(pred.y, float),
+                         np.ascontiguousarray(support), float(self.ev["min_support"]),
+                         float(scale), table, level, spread, SPREAD_FLOOR)  # fmt: skip
 
     def residual(self, test: TestSpec, y: np.ndarray, pred: Prediction) -> np.ndarray:
         """A test's raw residual from its model's prediction: % of span (eq. 6) or of ``ymax``,
