@@ -144,7 +144,7 @@ def _residual_kernel(
         if has_spread:
             sp = spread[i]
             r = r / (max(sp, floor) if np.isfinite(sp) else 1.0)
-        out[at[i], j] = r
+        out[j, at[i]] = r
 
 
 def _on(s: np.ndarray) -> np.ndarray:
@@ -489,20 +489,24 @@ class Unit:
         # the piece's columns read once for all the builders (under the models' tag names)
         plant = {t: self.file.tags.get(t, t) for t in self.model_tags}
         cols = Columns(frame, {t: p if p in frame.columns else t for t, p in plant.items()})
-        out = np.full((len(frame), len(self.tests)), np.nan)
+        # a test's residuals are one row of tests × samples (written in memory order, not a
+        # column of samples × tests); turned to samples × tests once at the end
+        out = np.full((len(self.tests), len(frame)), np.nan)
         for j, t in enumerate(self.file.tests):
             m = self.models[t.name]
             d = self.builders[t.name].transform(cols, lean=True)
             if d.positions.size:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
+        out = np.ascontiguousarray(out.T)
         return pd.DataFrame(out, index=frame.index, columns=self.tests, copy=False)
 
     def _residual_into(
         self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y: np.ndarray,
         pred: Prediction,
     ) -> None:  # fmt: skip
-        """:meth:`residual` written into column ``j`` of ``out`` at rows ``at``, in one
-        compiled pass (the same operations in the same order, so the same bits)."""
+        """:meth:`residual` written into row ``j`` of ``out`` (tests × samples) at samples
+        ``at``, in one compiled pass (the same operations in the same order, so the same
+        bits)."""
         m = self.models[test.name]
         scale = test.ymax if self.ev["scale"] == "max" and test.ymax else m.span
         none = np.empty(0)
