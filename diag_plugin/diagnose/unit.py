@@ -148,8 +148,18 @@ def _residual_kernel(
 
 
 def _on(s: np.ndarray) -> np.ndarray:
-    """Where a symptom is on: nonzero and known (``nan_to_num(s) != 0`` without the copy)."""
-    return np.abs(s) > 0
+    """Where a symptom is on: nonzero and known (``nan_to_num(s) != 0`` in one compiled pass,
+    without a temporary of the symptoms' size)."""
+    a = np.ascontiguousarray(s, dtype=float)
+    return _on_kernel(a.reshape(-1)).reshape(a.shape)
+
+
+@numba.njit(cache=True)
+def _on_kernel(s):  # pragma: no cover - numba
+    out = np.empty(s.shape[0], np.bool_)
+    for i in range(s.shape[0]):
+        out[i] = s[i] > 0.0 or s[i] < 0.0  # NaN: neither
+    return out
 
 
 def _sticky(s: np.ndarray, carry: np.ndarray) -> np.ndarray:
@@ -584,14 +594,17 @@ class Unit:
             s = _sticky(s, self.latched)
         return s, mem
 
-    def certainties(self, s: np.ndarray, mem: np.ndarray | None) -> np.ndarray:
+    def certainties(
+        self, s: np.ndarray, mem: np.ndarray | None, on: np.ndarray | None = None
+    ) -> np.ndarray:
         """Certainty per fault: nearest signature (crisp) or the normalised certainty factor
         of rules (10)–(14) (fuzzy, :meth:`DiagnosticMatrix.rules`); 0 while no symptom is on
-        (the delays decide when there is something to isolate)."""
+        (the delays decide when there is something to isolate). ``on``: the samples with a
+        symptom, if known (``_on(s).any(axis=1)``)."""
         assert self.matrix is not None
         order = [self.tests.index(t) for t in self.matrix.tests]
-        s_m = s[:, order]
-        on = _on(s_m).any(axis=1)
+        if on is None:
+            on = _on(s).any(axis=1)  # any test: the matrix's order does not matter
         # only the samples with a symptom are reasoned over (the rest are 0): a replay of
         # fault-free data skips the matrix, and its n × tests × faults arrays, almost entirely
         c = np.zeros((s.shape[0], len(self.faults)))
@@ -599,7 +612,7 @@ class Unit:
         if rows.size and mem is not None:
             c[rows] = self.matrix.rules(mem[rows][:, order, :]).certainty
         elif rows.size:
-            c[rows] = self.matrix.nearest(s_m[rows]).certainties
+            c[rows] = self.matrix.nearest(s[rows][:, order]).certainties
         return c
 
     # ------------------------------------------------------------ evaluate
@@ -639,7 +652,7 @@ class Unit:
         faults = np.full(n, "", dtype=object)
         cert = np.empty((n, 0))
         if self.matrix is not None:
-            cert = self.certainties(s, mem)
+            cert = self.certainties(s, mem, tests_on)
             status, faults = self._isolate(cert, active, status, s)
         top = None
         if share is not None:
