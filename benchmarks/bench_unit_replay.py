@@ -7,7 +7,12 @@ in the chunks ``diag diagnose`` reads (7 days); PCA T² + Q (90 % of the varianc
 same 10 days scores the same rows beside it. Printed: tags, rows, seconds, rows/s, peak
 resident memory, and the machine's load average (the machine is shared: run it niced, once).
 
-Run: ``nice -n 10 python benchmarks/bench_unit_replay.py [--tags 50] [--rows 200000]``.
+With ``--profile N`` the one pass runs once more under :mod:`cProfile`, timed in CPU seconds
+of this process (the machine is shared), and the ``N`` functions with most time of their own
+are printed (the profile the speed work is chosen by).
+
+Run: ``nice -n 10 python benchmarks/bench_unit_replay.py [--tags 50] [--rows 200000]
+[--profile 15]``.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ def main() -> None:
     ap.add_argument("--period", type=float, default=180.0)
     ap.add_argument("--rows", type=int, default=200_000)
     ap.add_argument("--unit", help="an already built unit file to replay instead")
+    ap.add_argument("--profile", type=int, default=0, help="print the N top functions (CPU s)")
     a = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     train, _ = coupled.simulate(10, period_s=a.period, n_tags=a.tags, seed=1)
@@ -89,6 +95,16 @@ def main() -> None:
           f"the unit's one pass is {pca_s / one:.1f}× PCA's speed (CPU "
           f"{pca_cpu / one_cpu:.1f}×)")  # fmt: skip
     print(f"load average {os.getloadavg()[0]:.1f} at the end")
+    if a.profile:
+        import cProfile
+        import pstats
+
+        prof = cProfile.Profile(time.process_time)
+        with threadpool_limits(1):
+            unit.reset().evaluate(frame.iloc[:100])
+            prof.runcall(unit.reset().evaluate, frame)
+        print(f"profile of the one pass (CPU s of this process, load {os.getloadavg()[0]:.1f}):")
+        pstats.Stats(prof).sort_stats("tottime").print_stats(a.profile)
 
 
 if __name__ == "__main__":

@@ -93,9 +93,14 @@ class OutsideLearned:
 
     def sentence(self, r: Range, x: float, since) -> str:
         """``TAG = value outside what the unit learned (lo … hi) since T``."""
+        head, tail = self._parts(r)
+        return f"{head}{x:.4g}{tail}{pd.Timestamp(since).isoformat()}"
+
+    def _parts(self, r: Range) -> tuple[str, str]:
+        """:meth:`sentence` before and after the value, up to the time."""
         return (
-            f"{self.names.get(r.tag, r.tag)} = {x:.4g} outside what the unit learned "
-            f"({r.lo:.4g} … {r.hi:.4g}) since {pd.Timestamp(since).isoformat()}"
+            f"{self.names.get(r.tag, r.tag)} = ",
+            f" outside what the unit learned ({r.lo:.4g} … {r.hi:.4g}) since ",
         )
 
     def transform(self, frame: pd.DataFrame, unknown: np.ndarray, report: np.ndarray) -> np.ndarray:
@@ -123,10 +128,16 @@ class OutsideLearned:
                 # outside row, the last start at or before it
                 starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
                 first = starts[np.searchsorted(starts, np.r_[hit, n - 1], side="right") - 1]
-            for i, st in zip(hit, first, strict=False):
-                # an excursion that began in an earlier piece keeps its start
-                t0 = carried if carried is not None and st == 0 and off[0] else idx[st]
-                out[i] = self.sentence(r, x[i], t0)
+            if hit.size:
+                head, tail = self._parts(r)
+                when: dict[int, str] = {}  # each excursion's start written once, not per row
+                for i, st in zip(hit.tolist(), first.tolist(), strict=False):
+                    w = when.get(st)
+                    if w is None:
+                        # an excursion that began in an earlier piece keeps its start
+                        t0 = carried if carried is not None and st == 0 and off[0] else idx[st]
+                        w = when[st] = pd.Timestamp(t0).isoformat()
+                    out[i] = f"{head}{x[i]:.4g}{tail}{w}"
             todo[hit] = False
             if n:
                 if off[-1]:
@@ -153,12 +164,18 @@ class OutsideLearned:
             for c, t in enumerate(have):
                 vals[:, c] = frame[t].to_numpy(float)[rows]
             names = [self.names.get(t, t) for t in have]
-            for i, v in zip(rows, vals, strict=True):
-                miss = [nm for nm, x in zip(names, v, strict=True) if not np.isfinite(x)]
+            ok = np.isfinite(vals)
+            full = ok.all(axis=1)
+            # rows with an input missing: one sentence per pattern of missing inputs
+            gaps = np.flatnonzero(~full)
+            if gaps.size:
+                pats, inv = np.unique(~ok[gaps], axis=0, return_inverse=True)
+                said = [", ".join(nm for nm, m in zip(names, p, strict=True) if m)
+                        + " without a value" for p in pats]  # fmt: skip
+                out[rows[gaps]] = np.array(said, dtype=object)[inv.reshape(-1)]
+            for i, v in zip(rows[full].tolist(), vals[full].tolist(), strict=True):
                 out[i] = (
-                    f"{', '.join(miss)} without a value"
-                    if miss
-                    else ", ".join(f"{nm} = {x:.4g}" for nm, x in zip(names, v, strict=True))
+                    ", ".join(f"{nm} = {x:.4g}" for nm, x in zip(names, v, strict=True))
                     + ": each within what the unit learned, but not together"
                 )
             todo[rows] = False

@@ -31,19 +31,20 @@ __all__ = ["Latch", "LowPass", "MaxScaler", "residual_pct"]
 ArrayLike = np.ndarray | pd.DataFrame | pd.Series
 
 
-def _as_2d(x: Any) -> tuple[np.ndarray, Callable[[np.ndarray], Any]]:
-    """Return ``x`` as a float ``(n, m)`` array and a function that wraps a result back."""
+def _as_2d(x: Any, copy: bool = True) -> tuple[np.ndarray, Callable[[np.ndarray], Any]]:
+    """Return ``x`` as a float ``(n, m)`` array and a function that wraps a result back;
+    ``copy=False`` for callers that only read it (a float array is then not copied)."""
     if isinstance(x, pd.DataFrame):
         idx, cols = x.index, x.columns
-        return x.to_numpy(dtype=float, copy=True), lambda a: pd.DataFrame(
+        return x.to_numpy(dtype=float, copy=copy), lambda a: pd.DataFrame(
             a, index=idx, columns=cols
         )
     if isinstance(x, pd.Series):
         idx, name = x.index, x.name
-        return x.to_numpy(dtype=float, copy=True).reshape(-1, 1), lambda a: pd.Series(
+        return x.to_numpy(dtype=float, copy=copy).reshape(-1, 1), lambda a: pd.Series(
             a[:, 0], index=idx, name=name
         )
-    a = np.array(x, dtype=float)
+    a = np.array(x, dtype=float, copy=copy or None)
     if a.ndim == 1:
         return a.reshape(-1, 1), lambda b: b[:, 0]
     if a.ndim != 2:
@@ -135,7 +136,7 @@ class LowPass:
 
     def transform(self, r: ArrayLike) -> ArrayLike:
         """Filter residuals (seed 000 Sec. IV), continuing from the carried state."""
-        a, wrap = _as_2d(r)
+        a, wrap = _as_2d(r, copy=False)  # read only: the kernel writes a new array
         n, m = a.shape
         self._init_state(m)
         assert self.zi_ is not None and self.gap_ is not None

@@ -321,7 +321,7 @@ class OnOffDelay:
 
     def transform(self, symptoms: ArrayLike) -> ArrayLike:
         """Delayed symptoms, continuing from the carried state."""
-        a, wrap = _as_2d(symptoms)
+        a, wrap = _as_2d(symptoms, copy=False)  # read only: the kernel writes a new array
         m = a.shape[1]
         if self.state_ is None:
             self.state_ = np.zeros(m)

@@ -127,9 +127,39 @@ def _hold_kernel(s, limit, last, run):  # pragma: no cover - numba
     return out
 
 
+@numba.njit(cache=True)
+def _residual_kernel(
+    out, j, at, y, yp, support, min_support, scale, table, level, spread, floor
+):  # pragma: no cover - numba
+    # Unit.residual row by row: supported (NaN below min_support), % of scale (eq. 6), the
+    # answering level's factor (level_factor), the local spread's (spread_factor)
+    has_level = level.shape[0] > 0
+    has_spread = spread.shape[0] > 0
+    for i in range(at.shape[0]):
+        yhat = yp[i] if support[i] >= min_support else np.nan
+        r = (y[i] - yhat) / scale * 100.0
+        if has_level:
+            lv = np.int64(level[i])
+            r = r / (table[lv] if 0 <= lv < table.shape[0] else np.nan)
+        if has_spread:
+            sp = spread[i]
+            r = r / (max(sp, floor) if np.isfinite(sp) else 1.0)
+        out[j, at[i]] = r
+
+
 def _on(s: np.ndarray) -> np.ndarray:
-    """Where a symptom is on: nonzero and known (``nan_to_num(s) != 0`` without the copy)."""
-    return np.abs(s) > 0
+    """Where a symptom is on: nonzero and known (``nan_to_num(s) != 0`` in one compiled pass,
+    without a temporary of the symptoms' size)."""
+    a = np.ascontiguousarray(s, dtype=float)
+    return _on_kernel(a.reshape(-1)).reshape(a.shape)
+
+
+@numba.njit(cache=True)
+def _on_kernel(s):  # pragma: no cover - numba
+    out = np.empty(s.shape[0], np.bool_)
+    for i in range(s.shape[0]):
+        out[i] = s[i] > 0.0 or s[i] < 0.0  # NaN: neither
+    return out
 
 
 def _sticky(s: np.ndarray, carry: np.ndarray) -> np.ndarray:
@@ -469,13 +499,34 @@ class Unit:
         # the piece's columns read once for all the builders (under the models' tag names)
         plant = {t: self.file.tags.get(t, t) for t in self.model_tags}
         cols = Columns(frame, {t: p if p in frame.columns else t for t, p in plant.items()})
-        out = np.full((len(frame), len(self.tests)), np.nan)
+        # a test's residuals are one row of tests × samples (written in memory order, not a
+        # column of samples × tests); turned to samples × tests once at the end
+        out = np.full((len(self.tests), len(frame)), np.nan)
         for j, t in enumerate(self.file.tests):
             m = self.models[t.name]
             d = self.builders[t.name].transform(cols, lean=True)
             if d.positions.size:
-                out[d.positions, j] = self.residual(t, d.y, m.model.predict_detail(d.X))
+                self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
+        out = np.ascontiguousarray(out.T)
         return pd.DataFrame(out, index=frame.index, columns=self.tests, copy=False)
+
+    def _residual_into(
+        self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y: np.ndarray,
+        pred: Prediction,
+    ) -> None:  # fmt: skip
+        """:meth:`residual` written into row ``j`` of ``out`` (tests × samples) at samples
+        ``at``, in one compiled pass (the same operations in the same order, so the same
+        bits)."""
+        m = self.models[test.name]
+        scale = test.ymax if self.ev["scale"] == "max" and test.ymax else m.span
+        none = np.empty(0)
+        table = np.asarray(test.levels if test.levels is not None else (1.0,), float)
+        level = none.astype(np.int8) if pred.level is None else np.asarray(pred.level)
+        spread = none if pred.spread is None or not test.spread else np.asarray(pred.spread)
+        support = np.broadcast_to(np.asarray(pred.support, float), np.shape(pred.y))
+        _residual_kernel(out, j, at, np.asarray(y, float), np.asarray(pred.y, float),
+                         np.ascontiguousarray(support), float(self.ev["min_support"]),
+                         float(scale), table, level, spread, SPREAD_FLOOR)  # fmt: skip
 
     def residual(self, test: TestSpec, y: np.ndarray, pred: Prediction) -> np.ndarray:
         """A test's raw residual from its model's prediction: % of span (eq. 6) or of ``ymax``,
@@ -543,14 +594,17 @@ class Unit:
             s = _sticky(s, self.latched)
         return s, mem
 
-    def certainties(self, s: np.ndarray, mem: np.ndarray | None) -> np.ndarray:
+    def certainties(
+        self, s: np.ndarray, mem: np.ndarray | None, on: np.ndarray | None = None
+    ) -> np.ndarray:
         """Certainty per fault: nearest signature (crisp) or the normalised certainty factor
         of rules (10)–(14) (fuzzy, :meth:`DiagnosticMatrix.rules`); 0 while no symptom is on
-        (the delays decide when there is something to isolate)."""
+        (the delays decide when there is something to isolate). ``on``: the samples with a
+        symptom, if known (``_on(s).any(axis=1)``)."""
         assert self.matrix is not None
         order = [self.tests.index(t) for t in self.matrix.tests]
-        s_m = s[:, order]
-        on = _on(s_m).any(axis=1)
+        if on is None:
+            on = _on(s).any(axis=1)  # any test: the matrix's order does not matter
         # only the samples with a symptom are reasoned over (the rest are 0): a replay of
         # fault-free data skips the matrix, and its n × tests × faults arrays, almost entirely
         c = np.zeros((s.shape[0], len(self.faults)))
@@ -558,7 +612,7 @@ class Unit:
         if rows.size and mem is not None:
             c[rows] = self.matrix.rules(mem[rows][:, order, :]).certainty
         elif rows.size:
-            c[rows] = self.matrix.nearest(s_m[rows]).certainties
+            c[rows] = self.matrix.nearest(s[rows][:, order]).certainties
         return c
 
     # ------------------------------------------------------------ evaluate
@@ -598,7 +652,7 @@ class Unit:
         faults = np.full(n, "", dtype=object)
         cert = np.empty((n, 0))
         if self.matrix is not None:
-            cert = self.certainties(s, mem)
+            cert = self.certainties(s, mem, tests_on)
             status, faults = self._isolate(cert, active, status, s)
         top = None
         if share is not None:

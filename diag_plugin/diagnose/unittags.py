@@ -289,6 +289,8 @@ def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray
 #: computed in one stacked call, not one pseudo-inverse (an SVD) each: equal to within
 #: ~T · BATCH_COND · 2.2e-16 relative (1e-10 for 45 tests), tests/test_unit_replay_exact.py
 BATCH_COND = 1e4
+#: rows per block of the combined test's evaluation (its arrays of rows × tests in the cache)
+BLOCK_ROWS = 1024
 
 
 @dataclass
@@ -427,23 +429,29 @@ class CombinedModel:
         partial: list[tuple[np.ndarray, np.ndarray, int]] = []
         self._prepare(patterns)
         for p, pat in enumerate(patterns):
-            rows = by[ends[p - 1] if p else 0 : ends[p]]
             k = np.flatnonzero(pat)
             m, den, den_process = self._inverse(pat)
-            zk = z[rows] if k.size == T else z[np.ix_(rows, k)]
-            mz = zk @ m
-            q = np.einsum("ij,ij->i", mz, zk)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                rbc = _rbc(mz, self.xi[k], den)
-                if den_process is not None:  # a bias of the sensor or a true change
-                    rbc = np.maximum(rbc, _rbc(mz, self.process[k], den_process))
-                if self.loop is not None:
-                    self._loop_rbc(rbc, mz, m, k)
-                rbc /= np.maximum(q, 1e-12)[:, None]
-                share[rows] = np.clip(rbc, 0.0, 1.0, out=rbc)
-            t2[rows] = q
-            if k.size < T:
-                partial.append((rows, q, k.size))
+            xi = self.xi[k]
+            pr = None if den_process is None else self.process[k]
+            at = ends[p - 1] if p else 0
+            # in blocks of rows whose arrays stay in the cache (one n × T pass per operation
+            # was memory-bound: ~8 passes over 200 k × 45 doubles per replay)
+            for a in range(at, ends[p], BLOCK_ROWS):
+                rows = by[a : min(a + BLOCK_ROWS, ends[p])]
+                zk = z[rows] if k.size == T else z[np.ix_(rows, k)]
+                mz = zk @ m
+                q = np.einsum("ij,ij->i", mz, zk)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    rbc = _rbc(mz, xi, den)
+                    if pr is not None:  # a bias of the sensor or a true change
+                        np.maximum(rbc, _rbc(mz, pr, den_process), out=rbc)
+                    if self.loop is not None:
+                        self._loop_rbc(rbc, mz, m, k)
+                    rbc /= np.maximum(q, 1e-12)[:, None]
+                    share[rows] = np.clip(rbc, 0.0, 1.0, out=rbc)
+                t2[rows] = q
+                if k.size < T:
+                    partial.append((rows, q, k.size))
         if partial:  # the same false-alarm level with T degrees of freedom (one call for all)
             rows = np.concatenate([p[0] for p in partial])
             q = np.concatenate([p[1] for p in partial])

@@ -152,6 +152,67 @@ def _find(keys, dense, seg_a, seg_b, dense_a, key):
     return -1
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _clipped(xv, lo_k, hi_k, code):
+    """An input held to its span ``[lo_k, hi_k]``, and the reason code 3 (clipped) if it
+    was outside (else ``code`` as it was)."""
+    if xv < lo_k:
+        return lo_k, 3
+    if xv > hi_k:
+        return hi_k, 3
+    return xv, code
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _lower_weight(t, nl, p):
+    """Lower set ``j`` of a sample at ``t`` (in set spacings from the first centre) among
+    ``nl`` sets of plateau ``p``, and the upper set's membership: the sample lies between
+    centres ``j`` and ``j + 1``."""
+    if t < 0.0:
+        t = 0.0
+    elif t > nl - 1:
+        t = nl - 1.0
+    j = int(t)
+    if j > nl - 2:
+        j = nl - 2
+    f = t - j
+    wv = (f - 0.5 * p) / (1.0 - p)
+    if wv < 0.0:
+        wv = 0.0
+    elif wv > 1.0:
+        wv = 1.0
+    return j, wv
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads):
+    """The ``2^d`` rules around cell ``base`` (upper memberships ``ws``): the weighted sums
+    of the existing rules' conclusions and spreads and their weights ``(vl, sl, ql, wl)``."""
+    vl = 0.0
+    sl = 0.0
+    ql = 0.0
+    wl = 0.0
+    for c in range(1 << d):
+        wt = 1.0
+        key = base
+        for k in range(d):
+            if (c >> k) & 1:
+                wt *= ws[k]
+                key += radix[k]
+            else:
+                wt *= 1.0 - ws[k]
+        if wt == 0.0:
+            continue
+        ix = _find(keys, dense, sa, sb, da, key)
+        if ix >= 0:
+            vl += wt * values[ix]
+            sl += wt
+            if not math.isnan(spreads[ix]):
+                ql += wt * spreads[ix]
+                wl += wt
+    return vl, sl, ql, wl
+
+
 @nb.njit(cache=True, nogil=True)
 def infer_levels(
     which, X, n_inputs, lo, step, plateau, nsets, inner, blocks, radix, n_levels, seg, dense_at,
@@ -200,13 +261,7 @@ def infer_levels(
                 code = 1
                 break
             lo_k = lo[m, k]
-            hi_k = lo_k + step[m, k] * (nsets[m, k] - 1)
-            if xv < lo_k:
-                xv = lo_k
-                code = 3
-            elif xv > hi_k:
-                xv = hi_k
-                code = 3
+            xv, code = _clipped(xv, lo_k, lo_k + step[m, k] * (nsets[m, k] - 1), code)
             xs[k] = xv
             i = math.floor((xv - lo_k) / step[m, k] + 0.5)
             if i > nsets[m, k] - 1:
@@ -231,49 +286,16 @@ def infer_levels(
                 b = blocks[m, lv, k]
                 nl = (nsets[m, k] + b - 1) // b
                 t = (xs[k] - (lo[m, k] + 0.5 * step[m, k] * (b - 1))) / (step[m, k] * b)
-                if t < 0.0:
-                    t = 0.0
-                elif t > nl - 1:
-                    t = nl - 1.0
-                j = int(t)
-                if j > nl - 2:
-                    j = nl - 2
-                f = t - j
-                p = plateau[m, k]
-                wv = (f - 0.5 * p) / (1.0 - p)
-                if wv < 0.0:
-                    wv = 0.0
-                elif wv > 1.0:
-                    wv = 1.0
-                ws[k] = wv
+                j, ws[k] = _lower_weight(t, nl, plateau[m, k])
                 base += j * radix[m, lv, k]
                 own_key += (own[k] // b) * radix[m, lv, k]
             if lv > 0:
                 io = _find(keys, dense, sa, sb, da, own_key)
                 if io < 0 or not data[io]:
                     continue  # a coarse cell answers only where the data reached it
-            vl = 0.0
-            sl = 0.0
-            ql = 0.0
-            wl = 0.0
-            for c in range(1 << d):
-                wt = 1.0
-                key = base
-                for k in range(d):
-                    if (c >> k) & 1:
-                        wt *= ws[k]
-                        key += radix[m, lv, k]
-                    else:
-                        wt *= 1.0 - ws[k]
-                if wt == 0.0:
-                    continue
-                ix = _find(keys, dense, sa, sb, da, key)
-                if ix >= 0:
-                    vl += wt * values[ix]
-                    sl += wt
-                    if not math.isnan(spreads[ix]):
-                        ql += wt * spreads[ix]
-                        wl += wt
+            vl, sl, ql, wl = _fire(
+                ws, d, base, radix[m, lv], keys, dense, sa, sb, da, values, spreads
+            )
             if sl > 0.0 and (level[r] < 0 or sl >= enough):
                 out[r] = vl / sl
                 support[r] = sl
@@ -281,4 +303,59 @@ def infer_levels(
                 spread[r] = ql / wl if wl > 0.0 else np.nan
             if sl >= enough:
                 break
+        reason[r] = code if level[r] >= 0 else 2
+
+
+@nb.njit(cache=True, nogil=True)
+def infer_fine(
+    X, lo, step, plateau, nsets, inner, radix, table, values, spreads, enough, coarse,
+    out, support, reason, level, spread, again,
+):  # fmt: skip
+    """:func:`infer_levels` of one model at its fine level only, through the level's dense
+    table of rule indices (``table``: cell key → index into ``values``/``spreads``, -1 where
+    no rule): the same arithmetic in the same order, so the same bits, without the per-model
+    and per-level indexing. ``again[r]`` is set where :func:`infer_levels` would go on to a
+    coarser level (``coarse``: the model has one): the fine rules carry less than ``enough``
+    of the weight, no input is NaN and the sample lies inside the training data's range.
+    Elsewhere the answer is :func:`infer_levels`' answer."""
+    n = X.shape[0]
+    d = X.shape[1]
+    ws = np.empty(d, dtype=np.float64)
+    for r in range(n):
+        code = 0
+        inside = True
+        base = 0
+        for k in range(d):
+            xv = X[r, k]
+            if math.isnan(xv):
+                code = 1
+                break
+            lo_k = lo[k]
+            st = step[k]
+            nk = nsets[k]
+            xv, code = _clipped(xv, lo_k, lo_k + st * (nk - 1), code)
+            t = (xv - lo_k) / st  # the fine level: b = 1, its centre offset 0
+            i = int(t + 0.5)  # t >= 0 here (xv clipped), so the floor
+            if i > nk - 1:
+                i = nk - 1
+            if i < inner[k, 0] or i > inner[k, 1]:
+                inside = False
+            j, ws[k] = _lower_weight(t, nk, plateau[k])
+            base += j * radix[k]
+        out[r] = np.nan
+        support[r] = 0.0
+        level[r] = -1
+        spread[r] = np.nan
+        again[r] = False
+        if code == 1:
+            reason[r] = 1
+            continue
+        vl, sl, ql, wl = _fire(ws, d, base, radix, table, table, 0, 0, 0, values, spreads)
+        if sl > 0.0:
+            out[r] = vl / sl
+            support[r] = sl
+            level[r] = 0
+            spread[r] = ql / wl if wl > 0.0 else np.nan
+        if sl < enough and coarse and inside:
+            again[r] = True
         reason[r] = code if level[r] >= 0 else 2

@@ -350,6 +350,7 @@ class WangMendelRegressor(ParamsMixin):
         self._levels: dict[int, LevelRules] = {}
         self._spreads: dict[int, np.ndarray] = {}
         self._packs: dict[int, tuple] = {}
+        self._fine: tuple | None = None
 
     def _arrays(self):
         P = self.partitions_
@@ -747,6 +748,56 @@ class WangMendelRegressor(ParamsMixin):
         X = _as_2d(X)
         if X.shape[1] != self.n_features_in_:
             raise ValueError(f"model has {self.n_features_in_} inputs, X has {X.shape[1]}")
+        fine = self._fine_table()
+        if fine is None:  # a fine grid too big for a dense table: every level searched
+            return self._predict_levels(X)
+        # the fine level of every row through its dense table; only the rows it leaves short
+        # of LEVEL_SUPPORT inside the data's range are asked again, level by level
+        n = X.shape[0]
+        det = Prediction(np.empty(n), np.empty(n), np.empty(n, np.int8), np.empty(n, np.int8),
+                         np.empty(n))  # fmt: skip
+        again = np.empty(n, np.bool_)
+        for s in range(0, n, CHUNK_ROWS):
+            e = s + CHUNK_ROWS
+            K.infer_fine(X[s:e], *fine, *(f[s:e] for f in _fields(det)), again[s:e])
+        rows = np.flatnonzero(again)
+        packs = self.__dict__.setdefault("_packs", {})
+        none = np.empty(0, np.int64)
+        last = self.n_levels_ - 1
+        depth = 0
+        while rows.size:
+            depth += 1
+            if rows.size > n // 2 and n > LAZY_ROWS:
+                depth = last  # most of many rows asked again: every level of them at once
+            if depth not in packs:
+                packs[depth] = pack([self.inference_grid(depth)], dense=True)
+            sub = run_kernel(packs[depth], none, X[rows])
+            for full, part in zip(_fields(det), _fields(sub), strict=True):
+                full[rows] = part
+            if depth == last:
+                break
+            rows = rows[(sub.support < LEVEL_SUPPORT) & (sub.reason != 1)]
+        return det
+
+    def _fine_table(self) -> tuple | None:
+        """What :func:`._kernels.infer_fine` reads: the input partitions, the range holding
+        training data, the fine level's radix, its dense table of rule indices, the rules'
+        conclusions and spreads, the support that suffices and whether coarser levels exist;
+        None where the fine grid has more than :data:`DENSE_LIMIT` cells."""
+        if "_fine" not in self.__dict__ or self._fine is None:
+            if self.n_cells_ > DENSE_LIMIT:
+                return None
+            g = self.inference_grid(0)
+            table = np.full(self.n_cells_, -1, np.int64)
+            table[g.keys[0]] = np.arange(g.keys[0].size)
+            self._fine = (g.lo, g.step, g.plateau, g.nsets, np.ascontiguousarray(g.inner),
+                          g.radix[0].copy(), table, np.asarray(g.conclusions[0], float),
+                          np.asarray(g.spreads[0], float), LEVEL_SUPPORT,
+                          self.n_levels_ > 1)  # fmt: skip
+        return self._fine
+
+    def _predict_levels(self, X: np.ndarray) -> Prediction:
+        """:meth:`predict_detail` by :func:`._kernels.infer_levels` alone (searched rules)."""
         if self._packed is not None:
             return run_kernel(self._packed, np.empty(0, np.int64), X)
         # a coarse level is fitted only when a sample reaches it: the levels down to
