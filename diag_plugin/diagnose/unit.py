@@ -55,6 +55,7 @@ from diag_plugin.diagnose.unitloops import (
     RunningSpread,
     resolved_evaluation,
     spread_samples,
+    warming_up,
 )
 from diag_plugin.diagnose.unittags import CombinedModel, derived_matrix, describe_top, top_tags
 from diag_plugin.metrics import residual_pct
@@ -300,6 +301,7 @@ class Unit:
         if len(periods) > 1:
             raise UnitError([f"{file.path}:1: the tests' models have different periods {periods}"])
         self.period = periods.pop() if periods else "10s"
+        self.period_s = pd.Timedelta(self.period).total_seconds()
         #: the file's evaluation with delays given in seconds turned into samples at the period
         self.ev = resolved_evaluation(file.evaluation, self.period)
         #: the tests judged by the spread of their residual (valve stiction), by position
@@ -613,9 +615,14 @@ class Unit:
         if self.alarm_hold is not None:
             detected, status, faults, top = self._hold_alarm(active, detected, status, faults, top)
         message = ""
-        why = self.outside.transform(
-            self._model_frame(frame), np.isnan(s), status == NE107.CHECK_FUNCTION
-        )
+        checking = status == NE107.CHECK_FUNCTION
+        unknown = np.isnan(s)
+        warm = unknown & self._warming(raw.to_numpy())
+        why = self.outside.transform(self._model_frame(frame), unknown & ~warm, checking)
+        if warm.any():
+            left = np.zeros(s.shape, np.int64)
+            left[:, self.spread_cols] = self.spread.left_
+            why = warming_up(why, warm, left, checking, self.tests, self.period_s)
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
             if self.ev["combined"] and (self.file.combined is None or self.cmodel.high is None):
@@ -640,6 +647,15 @@ class Unit:
             top=top,
             why=pd.Series(why, index=idx),
         )
+
+    def _warming(self, raw: np.ndarray) -> np.ndarray:
+        """Rows × tests: a spread test whose residual is known but whose window is still
+        filling (:attr:`RunningSpread.left_` of the last piece)."""
+        out = np.zeros(raw.shape, bool)
+        if self.spread_cols.size:
+            c = self.spread_cols
+            out[:, c] = (self.spread.left_ > 0) & np.isfinite(raw[:, c])
+        return out
 
     def _hold_alarm(self, active, detected, status, faults, top):
         """The unit's off-delay (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`): a
