@@ -1,5 +1,6 @@
 """`diag run` (embedded default) as a user runs it, with mbpoll as the SCADA reading our status."""
 
+import json
 import os
 import re
 import shutil
@@ -247,3 +248,23 @@ def test_config_run_polls_a_plc_stores_and_publishes(tmp_path):
     # gave the loop 3 in 2 s, so the count asked for is small and the run a little longer)
     assert len(h.read_samples("F")) >= 3
     h.close()
+    # the units' state saved on the stop (none before it), restored by the next start, and
+    # refused (start fresh, said) once a unit file changed
+    assert f"state {cfg.state}: none yet, units start fresh" in out
+    saved = json.loads(cfg.state.read_text(encoding="utf-8"))
+    assert saved["cycles"] >= 3 and list(saved["versions"]) == ["valve_unit"]
+
+    async def again(duration: float) -> str:
+        Out.lines = []
+        async with PlantServer(port=plc_port) as plc:
+            await plc.set_row(frame.iloc[100].to_dict())
+            assert await run_config(cfg, duration=duration, out=Out()) == 0
+        return "".join(Out.lines)
+
+    out = asyncio.run(again(1.0))
+    assert f"state {cfg.state} restored: 1 units go on where they stopped" in out, out
+    assert json.loads(cfg.state.read_text(encoding="utf-8"))["cycles"] > saved["cycles"]
+    unit = d / "rb" / "valve_unit.unit.toml"
+    unit.write_text(unit.read_text(encoding="utf-8") + "# edited\n", encoding="utf-8")
+    out = asyncio.run(again(0.5))
+    assert "not restored (units changed since the state was saved: valve_unit)" in out, out
