@@ -112,6 +112,7 @@ class Plant:
         self.broken = dict(broken or {})
         self.fast = [n for n, u in self.units.items() if batched and _plain_lags(u) and _crisp(u)]
         self.slow = [n for n in self.units if n not in self.fast]
+        self._versions = _versions(self.units)  # of the files as loaded, not as they become
         self._build()
 
     @classmethod
@@ -304,16 +305,9 @@ class Plant:
     # ------------------------------------------------------------ state
     def versions(self) -> dict[str, str]:
         """Per unit a SHA-256 of its unit file, its models' rule-base files and its matrix
-        file: a state is restored only onto the same versions (:meth:`load_state`)."""
-        out = {}
-        for name, u in self.units.items():
-            h = hashlib.sha256()
-            files = [u.file.path, *(m.path for m in u.models.values()), u.file.matrix_path]
-            for f in files:
-                h.update(str(Path(f).name).encode() if f is not None else b"-")
-                h.update(Path(f).read_bytes() if f is not None and Path(f).exists() else b"-")
-            out[name] = h.hexdigest()
-        return out
+        file, read when the plant was made: a state is restored only onto the same versions
+        (:meth:`load_state`); a file edited while the plant runs does not change them."""
+        return dict(self._versions)
 
     def to_state(self) -> dict[str, Any]:
         """Everything the plant carries from cycle to cycle, as JSON (arrays as lists, NaN as
@@ -666,6 +660,18 @@ def _matrix_key(u: Unit) -> tuple:
         tuple(map(tuple, mx.entries.tolist())),
         tuple(u.tests),
     )
+
+
+def _versions(units: Mapping[str, Unit]) -> dict[str, str]:
+    """See :meth:`Plant.versions`."""
+    out = {}
+    for name, u in units.items():
+        h = hashlib.sha256()
+        for f in [u.file.path, *(m.path for m in u.models.values()), u.file.matrix_path]:
+            h.update(str(Path(f).name).encode() if f is not None else b"-")
+            h.update(Path(f).read_bytes() if f is not None and Path(f).exists() else b"-")
+        out[name] = h.hexdigest()
+    return out
 
 
 def _json(a: np.ndarray) -> list:

@@ -137,6 +137,7 @@ class LiveLoop:
     ) -> None:
         self.plant, self.source = plant, source
         self.state_path, self.state_every = state, int(state_every)
+        self._state_task: asyncio.Task[None] | None = None
         self.historian, self.opcua, self.status_server = historian, opcua, status_server
         self.cycle_s = float(cycle)
         self.duration = float(duration)
@@ -497,7 +498,7 @@ class LiveLoop:
                     if live is not None:
                         live.update(self.table())
                     if self.state_every > 0 and (i + 1) % self.state_every == 0:
-                        self.save_state()
+                        self._save_in_background()
                     i += 1
                     next_t += self.cycle_s
                     delay = next_t - time.monotonic()
@@ -508,6 +509,9 @@ class LiveLoop:
                         await asyncio.wait_for(self._stop.wait(), min(delay, max(0, end - t0)))
         finally:
             self._live = None
+            if self._state_task is not None:
+                with contextlib.suppress(Exception):
+                    await self._state_task
             self.save_state()
             if self.historian is not None:
                 await self.historian.close()
@@ -518,7 +522,7 @@ class LiveLoop:
         return 0
 
     def save_state(self) -> None:
-        """Save the plant's state (when a path is given); a failure is an event, never a
+        """Save the plant's state now (when a path is given); a failure is an event, never a
         stop of the loop."""
         if self.state_path is None or self.stats.cycles == 0:
             return
@@ -528,6 +532,28 @@ class LiveLoop:
             save_state(self.plant, self.state_path)
         except (OSError, ValueError, TypeError) as exc:
             self.event(f"state {self.state_path} not saved: {exc}", self._ts)
+
+    def _save_in_background(self) -> None:
+        """The periodic save: the snapshot taken between cycles, written (and fsynced) by a
+        thread so the disk never holds up a cycle; skipped while the last one still writes."""
+        if self.state_path is None or (self._state_task and not self._state_task.done()):
+            return
+        from diag_plugin.live.state import state_text, write_atomic
+
+        path = self.state_path
+        try:
+            text = state_text(self.plant)
+        except (ValueError, TypeError) as exc:
+            self.event(f"state {path} not saved: {exc}", self._ts)
+            return
+
+        async def write() -> None:
+            try:
+                await asyncio.to_thread(write_atomic, text, path)
+            except OSError as exc:
+                self.event(f"state {path} not saved: {exc}", self._ts)
+
+        self._state_task = asyncio.get_running_loop().create_task(write())
 
     def summary(self) -> str:
         """The closing line: cycles, overruns, cycle work percentiles, storage figures."""

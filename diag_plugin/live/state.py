@@ -23,9 +23,18 @@ import pandas as pd
 
 def save_state(plant: Any, path: str | Path) -> None:
     """Write ``plant.to_state()`` to ``path`` atomically (temporary file, fsync, rename)."""
+    write_atomic(state_text(plant), path)
+
+
+def state_text(plant: Any) -> str:
+    """``plant.to_state()`` as JSON text (the snapshot: take it between cycles)."""
+    return json.dumps(plant.to_state(), allow_nan=False, separators=(",", ":"))
+
+
+def write_atomic(text: str, path: str | Path) -> None:
+    """``text`` to ``path``: a temporary file beside it, flushed to disk, renamed over it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(plant.to_state(), allow_nan=False, separators=(",", ":"))
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
