@@ -154,8 +154,9 @@ class OutsideLearned:
         return out
 
     def _combination(self, cols, unknown, todo, out) -> None:
-        """The rows still unnamed: each input of the first unknown test is inside what it
-        learned, but not together (a grid cell without a rule), or has no value."""
+        """The rows still unnamed (``cols``: model tag → values, a mapping or a frame): each
+        input of the first unknown test is inside what it learned, but not together (a grid
+        cell without a rule), or has no value."""
         tests: dict[int, list[str]] = {}
         for r in self.ranges:
             tests.setdefault(r.test, []).append(r.tag)
@@ -167,7 +168,7 @@ class OutsideLearned:
             # column by column (a frame of the columns, per test and piece, cost more)
             vals = np.empty((rows.size, len(have)))
             for c, t in enumerate(have):
-                vals[:, c] = cols[t][rows]
+                vals[:, c] = np.asarray(cols[t], float)[rows]
             names = [self.names.get(t, t) for t in have]
             for i, v in zip(rows, vals, strict=True):
                 miss = [nm for nm, x in zip(names, v, strict=True) if not np.isfinite(x)]

@@ -56,6 +56,7 @@ from diag_plugin.diagnose.unitloops import (
     EpisodeHold,
     RunningSpread,
     spread_samples,
+    warm_up,
     warming_up,
 )
 from diag_plugin.fuzzy.stack import WangMendelStack
@@ -233,10 +234,18 @@ class Plant:
                 by_window.setdefault(w, []).append(i)
         for w, idx in by_window.items():
             self._spreads.append((np.array(idx, np.intp), RunningSpread(w, len(idx))))
-        # per slot: the known samples its spread window still needs, and whether that alone
-        # leaves it unknown (the warm-up, unitloops.warming_up)
-        self._left = np.zeros(n, np.int64)
-        self._warm = np.zeros(n, bool)
+        # the warm-up (unitloops.warm_up): per slot its longest lag, whether it is a spread
+        # test, the known samples its spread window still needs and whether its residual was
+        # known before the spread; per unit what each test waits for
+        self._slot_depth = np.array(
+            [max(int(s.inputs[:, 0].max(initial=0)), s.output[0]) for s in slots], np.int64
+        )
+        self._spread_test = np.zeros(n, bool)
+        for idx, _ in self._spreads:
+            self._spread_test[idx] = True
+        self._spread_left = np.zeros(n, np.int64)
+        self._raw_known = np.zeros(n, bool)
+        self._labels = [u.warm_labels for u in units]
         # the unit's own off-delay (unitloops.AlarmHold): samples since its last alarm sample
         # and that sample's (status, faults, tags)
         self._alarm_hold = AlarmHold(
@@ -467,10 +476,9 @@ class Plant:
         r = (y - yhat) / self._scale * 100.0 / factor  # Kościelny et al., eq. 6; levels
         s = np.full(n, np.nan)
         for idx, spread in self._spreads:  # a spread test judges its residual's running spread
-            raw = r[idx]
-            r[idx] = spread.transform(raw[None, :])[0]
-            self._left[idx] = spread.left_[0]
-            self._warm[idx] = (spread.left_[0] > 0) & np.isfinite(raw)
+            self._raw_known[idx] = np.isfinite(r[idx])
+            r[idx] = spread.transform(r[idx][None, :])[0]
+            self._spread_left[idx] = spread.left_[0]
         rf = r.copy()
         for idx, lp, band, delay, hold in self._stages:
             x = r[idx][None, :]
@@ -581,12 +589,18 @@ class Plant:
                 # the reason without a frame: the unit's judged inputs as one-value arrays
                 cols = {t: np.array([value(p)]) for t, p in self._judged[ui]}
                 unknown = np.isnan(s[a:b])[None, :]
-                warm = unknown & self._warm[a:b]
+                warm, left = warm_up(
+                    unknown,
+                    self._raw_known[a:b][None, :],
+                    self._cycles - 1,
+                    self._slot_depth[a:b],
+                    self._spread_left[a:b][None, :],
+                    self._spread_test[a:b],
+                )
                 report = np.array([checking])
                 why = u.outside.columns(cols, [ts], unknown & ~warm, report)
                 if warm.any():
-                    left = self._left[a:b][None, :]
-                    why = warming_up(why, warm, left, report, u.tests, u.period_s)
+                    why = warming_up(why, warm, left, report, self._labels[ui], u.period_s)
                 why = why[0]
             msg = "; ".join([why, *notes[ui]] if why else notes[ui])
             st = NE107(int(status[ui]))

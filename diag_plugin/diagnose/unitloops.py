@@ -248,24 +248,56 @@ class AlarmHold:
         self.since = np.atleast_1d(np.asarray(state["since"], np.int64)).copy()
 
 
+def warm_up(
+    unknown: np.ndarray,
+    raw_known: np.ndarray,
+    seen: np.ndarray | int,
+    depth: np.ndarray,
+    spread_left: np.ndarray,
+    spread_test: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which unknown tests are unknown only because the unit has not yet seen enough samples
+    since it started, and how many more samples each needs (rows × tests).
+
+    ``seen``: samples before each row since the start; ``depth``: per test the longest lag
+    its model reads (unknown while ``seen < depth``); ``spread_left``:
+    :attr:`RunningSpread.left_` per row for the spread tests (0 elsewhere); ``spread_test``:
+    the spread tests; ``raw_known``: their residual known before the spread. A spread test
+    behind its lags needs its lags' samples, then its window's."""
+    lag_left = np.maximum(np.asarray(depth)[None, :] - np.reshape(seen, (-1, 1)), 0)
+    lag_warm = lag_left > 0
+    spread = spread_test[None, :] & (spread_left > 0) & (raw_known | lag_warm)
+    warm = unknown & (lag_warm | spread)
+    return warm, lag_left + np.where(spread_test[None, :], spread_left, 0)
+
+
+def warm_labels(tests: list[str], depth: np.ndarray, spread_test: np.ndarray) -> list[str]:
+    """Per test what it waits for in a warm-up (:func:`warming_up`)."""
+    out = []
+    for name, d, sp in zip(tests, depth, spread_test, strict=True):
+        if sp:
+            out.append(f"the spread window of {name}")
+        else:
+            out.append(f"{int(d)} samples of history for {name}")
+    return out
+
+
 def warming_up(
     why: np.ndarray,
     warm: np.ndarray,
     left: np.ndarray,
     report: np.ndarray,
-    tests: list[str],
+    labels: list[str],
     period_s: float,
 ) -> np.ndarray:
     """``why`` (a reason per row) with the warm-up put first on the rows in ``report`` where a
-    test is unknown only because its spread window is still filling (``warm``: rows × tests;
-    ``left``: the known samples each still needs, :attr:`RunningSpread.left_`):
-    ``warming up, N s left (the spread window of TEST)`` — the unit is not at fault, it has
-    not yet seen enough samples since it started."""
+    test is unknown only because the unit has not seen enough samples since it started
+    (``warm``, ``left``: :func:`warm_up`; ``labels``: :func:`warm_labels`):
+    ``warming up, N s left (the spread window of TEST)`` — the unit is not at fault."""
     out = why.copy()
     for i in np.flatnonzero(report & warm.any(axis=1)):
         cols = np.flatnonzero(warm[i])
         secs = float(left[i, cols].max()) * period_s
-        names = ", ".join(tests[c] for c in cols)
-        text = f"warming up, {secs:.0f} s left (the spread window of {names})"
+        text = f"warming up, {secs:.0f} s left ({'; '.join(labels[c] for c in cols)})"
         out[i] = f"{text}; {out[i]}" if out[i] else text
     return out
