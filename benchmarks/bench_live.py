@@ -17,10 +17,15 @@ deadband of 10 % of the threshold, a 600 s spread window) and a spread test on t
 position loop (``r3_spread``: the running spread of r3's residual, as ``unit build`` writes one
 beside each loop's level test), every threshold learned again on the training day.
 
+``--plant`` times :meth:`~diag_plugin.diagnose.plant.Plant.cycle` alone, in process, on the
+same 100 built units fed the training day's rows (no PLC, no servers, no historian): CPU time
+(``time.process_time``) per cycle, for the first 30 cycles after a fresh start (the spread
+tests warming up: CHECK_FUNCTION with its reason each cycle) and for the next 90.
+
 ``--embedded`` instead runs the embedded default for 40 s at 0.05 s per cycle (issue 10's
 figure: one whole cycle of the 7-tag plant, target < 100 ms median).
 
-    python benchmarks/bench_live.py [--duration 180] [--built] [--embedded]
+    python benchmarks/bench_live.py [--duration 180] [--built] [--plant] [--embedded]
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import resource
 import socket
 import subprocess
 import sys
@@ -180,6 +186,7 @@ def plant_size(duration: float, built: bool = False) -> int:
         )
         try:
             assert plc.stdout.readline().strip() == "ready"
+            cpu0 = _children_cpu()
             r = subprocess.run(
                 [sys.executable, "-m", "diag_plugin", "run", "--config", str(d / "plant.toml")]
                 + ["--plain", "--duration", str(duration)],
@@ -189,6 +196,7 @@ def plant_size(duration: float, built: bool = False) -> int:
                 cwd=d,
                 timeout=duration + 600,
             )
+            cpu = _children_cpu() - cpu0  # the `diag run` process alone (the PLC still runs)
         finally:
             plc.kill()
             plc.wait()
@@ -207,6 +215,10 @@ def plant_size(duration: float, built: bool = False) -> int:
             f"{med} ms, p95 {p95} ms, p99 {p99} ms, max {mx} ms; {over} overruns"
         )
         print(
+            f"CPU of `diag run` (user + system, start-up included): {cpu:.1f} s, "
+            f"{1000 * cpu / max(int(cycles), 1):.1f} ms a cycle"
+        )
+        print(
             f"historian: {stored} samples stored in {writes} background writes (longest "
             f"{longest} ms, {failed} failed); the loop never waits for them"
         )
@@ -215,6 +227,12 @@ def plant_size(duration: float, built: bool = False) -> int:
             f"target: p99 < {TARGET_P99_MS:.0f} ms including flushes: {'met' if ok else 'MISSED'}"
         )
         return 0 if ok else 1
+
+
+def _children_cpu() -> float:
+    """User + system CPU seconds of the finished child processes so far."""
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
 
 
 def summary(r: subprocess.CompletedProcess, pattern: str, tail: int) -> tuple[str, ...] | None:
@@ -251,16 +269,53 @@ def embedded() -> int:
     return 0 if ok else 1
 
 
+def plant_cycles(start: int = 30, steady: int = 90) -> int:
+    """CPU per :meth:`Plant.cycle` of the 100 built units (see module doc)."""
+    import numpy as np
+    import pandas as pd
+
+    from diag_plugin.diagnose.plant import Plant
+
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        rb, _ = build(d, built=True)
+        rows = pd.read_parquet(d / "rows.parquet")
+        plant = Plant.load([rb / f"u{u:03d}.unit.toml" for u in range(N_UNITS)], rb)
+        cpu, checking = [], []
+        for k in range(start + steady):
+            row = rows.iloc[205 + k]
+            values = {f"u{u:03d}.{t}": float(row[t]) for u in range(N_UNITS) for t in UNIT_TAGS}
+            t0 = time.process_time()
+            st = plant.cycle(rows.index[205 + k], values)
+            cpu.append(1000 * (time.process_time() - t0))
+            checking.append(sum(s.status.name == "CHECK_FUNCTION" for s in st))
+    for name, part, chk in (
+        (f"first {start} cycles", cpu[1:start], checking[1:start]),
+        (f"next {steady}", cpu[start:], checking[start:]),
+    ):
+        a = np.array(part)
+        print(
+            f"Plant.cycle, {N_UNITS} built units, {name}: CPU median {np.median(a):.1f} ms, "
+            f"p99 {np.percentile(a, 99):.1f} ms, max {a.max():.1f} ms; units in "
+            f"CHECK_FUNCTION per cycle: median {int(np.median(chk))}"
+        )
+    print(f"(the first cycle, compiling and caching, {cpu[0]:.0f} ms, left out)")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=180.0, help="seconds of live run")
     ap.add_argument("--embedded", action="store_true", help="the 7-tag embedded plant instead")
+    ap.add_argument("--plant", action="store_true", help="Plant.cycle alone, CPU per cycle")
     ap.add_argument(
         "--built",
         action="store_true",
         help="units with the deadband, off-delay and spread test `diag unit build` writes",
     )
     args = ap.parse_args()
+    if args.plant:
+        return plant_cycles()
     return embedded() if args.embedded else plant_size(args.duration, args.built)
 
 

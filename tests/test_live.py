@@ -1,5 +1,6 @@
 """`diag run` (embedded default) as a user runs it, with mbpoll as the SCADA reading our status."""
 
+import json
 import os
 import re
 import shutil
@@ -216,6 +217,13 @@ def test_config_run_polls_a_plc_stores_and_publishes(tmp_path):
     plc_port, modbus = free_port(), free_port()
     (d / "plant.toml").write_text(PLANT_TOML.format(port=plc_port, modbus=modbus), "utf-8")
     cfg = load_config(d / "plant.toml")
+    assert cfg.state == (d / "plant.state.json").resolve() and cfg.state_every == 60
+    cfg.state_every = 5
+    during: list[int] = []  # the saved state's cycles, read while the run goes on
+
+    async def peek(loop, i, statuses):
+        if i % 5 == 4 and cfg.state.exists():
+            during.append(json.loads(cfg.state.read_text(encoding="utf-8"))["cycles"])
 
     class Out:
         lines: list[str] = []
@@ -232,7 +240,7 @@ def test_config_run_polls_a_plc_stores_and_publishes(tmp_path):
     async def main():
         async with PlantServer(port=plc_port) as plc:
             await plc.set_row(frame.iloc[100].to_dict())
-            task = asyncio.create_task(run_config(cfg, duration=3.0, out=Out()))
+            task = asyncio.create_task(run_config(cfg, duration=3.0, out=Out(), after=peek))
             await asyncio.sleep(1.0)
             word = await asyncio.to_thread(_status_word, modbus) if shutil.which("mbpoll") else 0
             return await task, word
@@ -247,3 +255,27 @@ def test_config_run_polls_a_plc_stores_and_publishes(tmp_path):
     # gave the loop 3 in 2 s, so the count asked for is small and the run a little longer)
     assert len(h.read_samples("F")) >= 3
     h.close()
+    # the units' state saved on the stop (none before it), restored by the next start, and
+    # refused (start fresh, said) once a unit file changed
+    assert f"state {cfg.state}: none yet, units start fresh" in out
+    saved = json.loads(cfg.state.read_text(encoding="utf-8"))
+    assert saved["cycles"] >= 3 and list(saved["versions"]) == ["valve_unit"]
+    # saved every 5 cycles while running (written by a thread: seen a cycle or more later;
+    # a loaded machine may give the run fewer than the 10 cycles this needs)
+    assert all(c % 5 == 0 for c in during), during
+    assert during or saved["cycles"] < 10, saved["cycles"]
+
+    async def again(duration: float) -> str:
+        Out.lines = []
+        async with PlantServer(port=plc_port) as plc:
+            await plc.set_row(frame.iloc[100].to_dict())
+            assert await run_config(cfg, duration=duration, out=Out()) == 0
+        return "".join(Out.lines)
+
+    out = asyncio.run(again(1.0))
+    assert f"state {cfg.state} restored: 1 units go on where they stopped" in out, out
+    assert json.loads(cfg.state.read_text(encoding="utf-8"))["cycles"] > saved["cycles"]
+    unit = d / "rb" / "valve_unit.unit.toml"
+    unit.write_text(unit.read_text(encoding="utf-8") + "# edited\n", encoding="utf-8")
+    out = asyncio.run(again(0.5))
+    assert "not restored (units changed since the state was saved: valve_unit)" in out, out

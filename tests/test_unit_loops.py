@@ -235,3 +235,31 @@ def test_a_loop_naming_an_unknown_tag_is_refused(line):
     rc, text = diag(g, "unit", "build", "x", "--from", "2026-03-02", "--to", "2026-03-03",
                     "--loop", "FEED_FLOW=NO_SUCH:VALVE_A")  # fmt: skip
     assert rc == 2 and "NO_SUCH not in the data" in text, text
+
+
+def test_a_fresh_start_says_it_is_warming_up_not_what_is_wrong(line):
+    """Started fresh, the built line is CHECK_FUNCTION while its tests wait for their lags'
+    history (the outlet's 38-sample dead time) and the spread window — and says so, counting
+    down, on the live loop's fast path as one by one; never an input blamed for it."""
+    from diag_plugin.diagnose.plant import Plant
+
+    _, unit, _, g = line
+    rb = g[g.index("--rulebases") + 1]
+    fast = Plant.load([unit.file.path], rb)
+    slow = Plant(Plant.load([unit.file.path], rb).units, batched=False)
+    assert fast.fast == ["line"] and slow.slow == ["line"]
+    depth = int(unit.test_depth.max())
+    assert depth >= 10  # the line's dead times: a warm-up worth saying
+    rows = line7.simulate(0.3, 150).iloc[: depth + 5]
+    left = []
+    for k, (ts, row) in enumerate(rows.iterrows()):
+        a, b = fast.cycle(ts, row.to_dict())[0], slow.cycle(ts, row.to_dict())[0]
+        assert (a.status, a.message) == (b.status, b.message), k
+        if k < depth:
+            assert a.status.name == "CHECK_FUNCTION", k
+            assert a.message.startswith("warming up, "), a.message
+            assert "within what the unit learned" not in a.message, a.message
+            left.append(float(a.message.split()[2]))
+        else:
+            assert "warming up" not in a.message, (k, a.message)
+    assert left[0] == depth * line7.PERIOD_S and np.all(np.diff(left) <= 0), left

@@ -108,16 +108,32 @@ class OutsideLearned:
         the first input of an unknown test (``unknown``: rows × tests) outside its learned
         range, ``TAG = value outside what the unit learned (lo … hi) since T``. Advances the
         carried start of every input's excursion."""
-        n = len(frame)
+        have = set(frame.columns)
+        cols = {t: frame[t].to_numpy(float) for t in self.tags if t in have}
+        return self.columns(cols, frame.index, unknown, report)
+
+    @property
+    def tags(self) -> list[str]:
+        """The model tags whose ranges are judged."""
+        return list(dict.fromkeys(r.tag for r in self.ranges))
+
+    def columns(
+        self,
+        cols: Mapping[str, np.ndarray],
+        idx: Sequence[pd.Timestamp] | pd.Index,
+        unknown: np.ndarray,
+        report: np.ndarray,
+    ) -> np.ndarray:
+        """:meth:`transform` of the rows ``idx`` given as arrays (model tag → values; a tag
+        absent is not judged): the live loop's one row a cycle without a frame."""
+        n = len(idx)
         out = np.full(n, "", dtype=object)
-        idx = frame.index
         todo = report.copy()
-        columns = set(frame.columns)
         none = np.empty(0, np.intp)
         for k, r in enumerate(self.ranges):
-            if r.tag not in columns:
+            if r.tag not in cols:
                 continue
-            x = frame[r.tag].to_numpy(float)
+            x = cols[r.tag]
             with np.errstate(invalid="ignore"):
                 off = (x < r.lo) | (x > r.hi)
             carried = self.since.get(k)
@@ -145,12 +161,13 @@ class OutsideLearned:
                     self.since[k] = carried if (all_off and carried is not None) else idx[first[-1]]
                 else:
                     self.since[k] = None
-        self._combination(frame, unknown, todo, out)
+        self._combination(cols, unknown, todo, out)
         return out
 
-    def _combination(self, frame, unknown, todo, out) -> None:
-        """The rows still unnamed: each input of the first unknown test is inside what it
-        learned, but not together (a grid cell without a rule), or has no value."""
+    def _combination(self, cols, unknown, todo, out) -> None:
+        """The rows still unnamed (``cols``: model tag → values, a mapping or a frame): each
+        input of the first unknown test is inside what it learned, but not together (a grid
+        cell without a rule), or has no value."""
         tests: dict[int, list[str]] = {}
         for r in self.ranges:
             tests.setdefault(r.test, []).append(r.tag)
@@ -158,11 +175,11 @@ class OutsideLearned:
             rows = np.flatnonzero(todo & unknown[:, j])
             if not rows.size:
                 continue
-            have = [t for t in tags if t in frame.columns]
+            have = [t for t in tags if t in cols]
             # column by column (a frame of the columns, per test and piece, cost more)
             vals = np.empty((rows.size, len(have)))
             for c, t in enumerate(have):
-                vals[:, c] = frame[t].to_numpy(float)[rows]
+                vals[:, c] = np.asarray(cols[t], float)[rows]
             names = [self.names.get(t, t) for t in have]
             ok = np.isfinite(vals)
             full = ok.all(axis=1)

@@ -29,10 +29,12 @@ The fast path gives the same statuses as :meth:`Unit.evaluate` over the same row
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -48,7 +50,15 @@ from diag_plugin.diagnose.unit import (
     spread_factor,
 )
 from diag_plugin.diagnose.unitfile import UnitError
-from diag_plugin.diagnose.unitloops import Deadband, EpisodeHold, RunningSpread, spread_samples
+from diag_plugin.diagnose.unitloops import (
+    AlarmHold,
+    Deadband,
+    EpisodeHold,
+    RunningSpread,
+    spread_samples,
+    warm_up,
+    warming_up,
+)
 from diag_plugin.fuzzy.stack import WangMendelStack
 from diag_plugin.regressors import parse_specs
 from diag_plugin.status import NE107, Quality, UnitStatus
@@ -103,6 +113,7 @@ class Plant:
         self.broken = dict(broken or {})
         self.fast = [n for n, u in self.units.items() if batched and _plain_lags(u) and _crisp(u)]
         self.slow = [n for n in self.units if n not in self.fast]
+        self._versions = _versions(self.units)  # of the files as loaded, not as they become
         self._build()
 
     @classmethod
@@ -223,12 +234,23 @@ class Plant:
                 by_window.setdefault(w, []).append(i)
         for w, idx in by_window.items():
             self._spreads.append((np.array(idx, np.intp), RunningSpread(w, len(idx))))
+        # the warm-up (unitloops.warm_up): per slot its longest lag, whether it is a spread
+        # test, the known samples its spread window still needs and whether its residual was
+        # known before the spread; per unit what each test waits for
+        self._slot_depth = np.array(
+            [max(int(s.inputs[:, 0].max(initial=0)), s.output[0]) for s in slots], np.int64
+        )
+        self._spread_test = np.zeros(n, bool)
+        for idx, _ in self._spreads:
+            self._spread_test[idx] = True
+        self._spread_left = np.zeros(n, np.int64)
+        self._raw_known = np.zeros(n, bool)
+        self._labels = [u.warm_labels for u in units]
         # the unit's own off-delay (unitloops.AlarmHold): samples since its last alarm sample
         # and that sample's (status, faults, tags)
-        self._alarm_off = np.array(
-            [u.ev["off_delay"] if u.ev["off_delay_s"] > 0 else 0 for u in units], np.int64
+        self._alarm_hold = AlarmHold(
+            np.array([u.ev["off_delay"] if u.ev["off_delay_s"] > 0 else 0 for u in units], np.int64)
         )
-        self._since = self._alarm_off.copy()
         self._last_alarm: dict[int, tuple[int, list[str], list[tuple[str, float]]]] = {}
         self._held = np.full(n, np.nan)
         self._run = np.zeros(n, np.int64)
@@ -245,6 +267,10 @@ class Plant:
             first_slot.setdefault(s.unit, i)
         self._first = first_slot
         self._has_th = [u.has_thresholds for u in units]
+        # per unit the inputs its reasons judge: (model tag, plant tag) read by some unit
+        self._judged = [
+            [(t, p) for t in u.outside.tags if (p := u.file.tags.get(t, t)) in tags] for u in units
+        ]
         # units with a combined test or isolation to tags: (unit, its model, delay, enabled)
         self._multi = [
             (ui, u.cmodel, OnOffDelay(u.ev["on_delay"], u.ev["off_delay"]), bool(u.ev["combined"]))
@@ -269,6 +295,7 @@ class Plant:
             )
         self._hist = np.full((depth + 1, len(tags)), np.nan)
         self._cycles = 0
+        self._ts: pd.Timestamp | None = None  # the last cycle's (saved with the state)
 
     @property
     def tags(self) -> list[str]:
@@ -280,6 +307,111 @@ class Plant:
         self._build()
         for n in self.slow:
             self.units[n].reset()
+        for u in self._units:
+            u.outside.reset()
+        return self
+
+    # ------------------------------------------------------------ state
+    def versions(self) -> dict[str, str]:
+        """Per unit a SHA-256 of its unit file, its models' rule-base files and its matrix
+        file, read when the plant was made: a state is restored only onto the same versions
+        (:meth:`load_state`); a file edited while the plant runs does not change them."""
+        return dict(self._versions)
+
+    def to_state(self) -> dict[str, Any]:
+        """Everything the plant carries from cycle to cycle, as JSON (arrays as lists, NaN as
+        null): the tag history, each stage's filter, deadband and delays, the held and
+        latched symptoms, the running spreads, the unit off-delays and their last alarms, the
+        combined tests' delays, the episode and isolation holds, each unit's excursions
+        outside what it learned, and the one-by-one units' own :meth:`Unit.to_state`.
+        With :meth:`load_state` a restarted plant goes on where this one was."""
+        ts = self._ts
+        return {
+            "format": 1,
+            "versions": self.versions(),
+            "ts": None if ts is None else ts.isoformat(),
+            "cycles": self._cycles,
+            "tags": self.tag_names,
+            "hist": _json(self._hist),
+            "stages": [
+                {
+                    "lowpass": None if lp is None else lp.to_state(),
+                    "deadband": _json(band.state),
+                    "delay": delay.to_state(),
+                }
+                for _, lp, band, delay, _ in self._stages
+            ],
+            "held": _json(self._held),
+            "run": self._run.tolist(),
+            "latched": _json(self._latched),
+            "spreads": [sp.to_state() for _, sp in self._spreads],
+            "alarm_hold": self._alarm_hold.to_state(),
+            "last_alarm": {
+                str(ui): [st, fa, [[t, v] for t, v in tg]]
+                for ui, (st, fa, tg) in self._last_alarm.items()
+            },
+            "combined_delays": [d.to_state() for _, _, d, _ in self._multi],
+            "episodes": {str(ui): h.to_state() for ui, h in self._holds.items()},
+            "isolation": [m[5].to_state() for m in self._matrices],
+            "outside": {u.name: _since_json(u.outside.since) for u in self._units},
+            "slow": {n: self.units[n].to_state() for n in self.slow},
+        }
+
+    def load_state(self, state: Mapping[str, Any]) -> Plant:
+        """Go on from :meth:`to_state` of a plant of the same unit versions; raises
+        :class:`ValueError` saying why when the state does not fit (other units or versions,
+        another layout), the plant then left as it was."""
+        if state.get("format") != 1:
+            raise ValueError(f"state format {state.get('format')!r}, not 1")
+        mine, theirs = self.versions(), dict(state.get("versions", {}))
+        if mine != theirs:
+            changed = sorted(n for n in mine.keys() | theirs.keys() if mine.get(n) != theirs.get(n))
+            raise ValueError(f"units changed since the state was saved: {', '.join(changed)}")
+        hist = _array(state["hist"])
+        layout = (
+            state["tags"] == self.tag_names
+            and hist.shape == self._hist.shape
+            and len(state["stages"]) == len(self._stages)
+            and len(state["spreads"]) == len(self._spreads)
+            and len(state["combined_delays"]) == len(self._multi)
+            and len(state["isolation"]) == len(self._matrices)
+        )
+        if not layout:
+            raise ValueError("the state's layout differs from the plant's (tags or stages)")
+        self._build()
+        self._ts = None if state["ts"] is None else pd.Timestamp(state["ts"])
+        self._cycles = int(state["cycles"])
+        self._hist = hist
+        stages = []
+        for (idx, _lp, band, _delay, hold), st in zip(self._stages, state["stages"], strict=True):
+            lp = None if st["lowpass"] is None else LowPass.from_state(st["lowpass"])
+            band.state = _array(st["deadband"])
+            stages.append((idx, lp, band, OnOffDelay.from_state(st["delay"]), hold))
+        self._stages = stages
+        self._held = _array(state["held"])
+        self._run = np.asarray(state["run"], np.int64)
+        self._latched = _array(state["latched"])
+        for (_, sp), st in zip(self._spreads, state["spreads"], strict=True):
+            sp.load_state(st)
+        self._alarm_hold.load_state(state["alarm_hold"])
+        self._last_alarm = {
+            int(ui): (int(st), list(fa), [(str(t), float(v)) for t, v in tg])
+            for ui, (st, fa, tg) in state["last_alarm"].items()
+        }
+        self._multi = [
+            (ui, cm, OnOffDelay.from_state(d), en)
+            for (ui, cm, _, en), d in zip(self._multi, state["combined_delays"], strict=True)
+        ]
+        for ui, st in state["episodes"].items():
+            self._holds[int(ui)].load_state(st)
+        self._matrices = [
+            (*m[:5], IsolationHold.from_state(st))
+            for m, st in zip(self._matrices, state["isolation"], strict=True)
+        ]
+        for u in self._units:
+            u.outside.since = _since_back(state["outside"].get(u.name, {}))
+        for n in self.slow:
+            self.units[n].reset().load_state(state["slow"][n])
         return self
 
     # ------------------------------------------------------------ one cycle
@@ -297,6 +429,7 @@ class Plant:
         self._hist = np.roll(self._hist, 1, axis=0)
         self._hist[0] = vec
         self._cycles += 1
+        self._ts = ts
         out = self._fast_cycle(ts) if self.slots else []
         if self.slow:
             row = pd.DataFrame({t: [float(values.get(t, np.nan))] for t in self.tags}, index=[ts])
@@ -343,7 +476,9 @@ class Plant:
         r = (y - yhat) / self._scale * 100.0 / factor  # Kościelny et al., eq. 6; levels
         s = np.full(n, np.nan)
         for idx, spread in self._spreads:  # a spread test judges its residual's running spread
+            self._raw_known[idx] = np.isfinite(r[idx])
             r[idx] = spread.transform(r[idx][None, :])[0]
+            self._spread_left[idx] = spread.left_[0]
         rf = r.copy()
         for idx, lp, band, delay, hold in self._stages:
             x = r[idx][None, :]
@@ -451,11 +586,22 @@ class Plant:
             why = ""
             checking = status[ui] == NE107.CHECK_FUNCTION
             if checking or not u.outside.idle(value):
-                names = [t for t in u.tags if t in index]
-                row = pd.DataFrame([[value(t) for t in names]], columns=names, index=[ts])
-                why = u.outside.transform(
-                    u._model_frame(row), np.isnan(s[a:b])[None, :], np.array([checking])
-                )[0]
+                # the reason without a frame: the unit's judged inputs as one-value arrays
+                cols = {t: np.array([value(p)]) for t, p in self._judged[ui]}
+                unknown = np.isnan(s[a:b])[None, :]
+                warm, left = warm_up(
+                    unknown,
+                    self._raw_known[a:b][None, :],
+                    self._cycles - 1,
+                    self._slot_depth[a:b],
+                    self._spread_left[a:b][None, :],
+                    self._spread_test[a:b],
+                )
+                report = np.array([checking])
+                why = u.outside.columns(cols, [ts], unknown & ~warm, report)
+                if warm.any():
+                    why = warming_up(why, warm, left, report, self._labels[ui], u.period_s)
+                why = why[0]
             msg = "; ".join([why, *notes[ui]] if why else notes[ui])
             st = NE107(int(status[ui]))
             if not self._has_th[ui]:
@@ -492,14 +638,10 @@ class Plant:
         """The units' own off-delay (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`), in
         place: a unit out of alarm for fewer than its off-delay's samples repeats its last
         alarm sample's status, faults and tags. Returns where a unit was held."""
-        off = self._alarm_off
-        has = off > 0
-        held = np.zeros(len(off), bool)
+        has = self._alarm_hold.off > 0
         if not has.any():
-            return held
-        gap = np.where(active, 0, self._since + 1)
-        held = has & ~active & (gap < off)
-        self._since = np.where(has, gap, self._since)
+            return np.zeros(len(has), bool)
+        held = self._alarm_hold.sources(active[None, :])[0] == -1  # one row: the last cycle's
         for ui in np.flatnonzero(held):
             last = self._last_alarm.get(int(ui))
             if last is None:
@@ -532,3 +674,35 @@ def _matrix_key(u: Unit) -> tuple:
         tuple(map(tuple, mx.entries.tolist())),
         tuple(u.tests),
     )
+
+
+def _versions(units: Mapping[str, Unit]) -> dict[str, str]:
+    """See :meth:`Plant.versions`."""
+    out = {}
+    for name, u in units.items():
+        h = hashlib.sha256()
+        for f in [u.file.path, *(m.path for m in u.models.values()), u.file.matrix_path]:
+            h.update(str(Path(f).name).encode() if f is not None else b"-")
+            h.update(Path(f).read_bytes() if f is not None and Path(f).exists() else b"-")
+        out[name] = h.hexdigest()
+    return out
+
+
+def _json(a: np.ndarray) -> list:
+    """An array as nested lists, NaN as None (JSON has no NaN)."""
+    x = np.asarray(a, float)
+    return np.where(np.isnan(x), None, x.astype(object)).tolist()
+
+
+def _array(v: list) -> np.ndarray:
+    """Back from :func:`_json`."""
+    a = np.array(v, dtype=object)
+    return np.where(a == None, np.nan, a).astype(float)  # noqa: E711 - elementwise
+
+
+def _since_json(since: Mapping[int, pd.Timestamp | None]) -> dict[str, str | None]:
+    return {str(k): None if t is None else pd.Timestamp(t).isoformat() for k, t in since.items()}
+
+
+def _since_back(state: Mapping[str, str | None]) -> dict[int, pd.Timestamp | None]:
+    return {int(k): None if t is None else pd.Timestamp(t) for k, t in state.items()}

@@ -55,11 +55,14 @@ from diag_plugin.diagnose.unitloops import (
     RunningSpread,
     resolved_evaluation,
     spread_samples,
+    warm_labels,
+    warm_up,
+    warming_up,
 )
 from diag_plugin.diagnose.unittags import CombinedModel, derived_matrix, describe_top, top_tags
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
-from diag_plugin.regressors import Columns, DesignBuilder, needed_tags
+from diag_plugin.regressors import Columns, DesignBuilder, needed_tags, parse_specs
 from diag_plugin.status import NE107, Quality, UnitStatus
 
 log = logging.getLogger(__name__)
@@ -330,6 +333,7 @@ class Unit:
         if len(periods) > 1:
             raise UnitError([f"{file.path}:1: the tests' models have different periods {periods}"])
         self.period = periods.pop() if periods else "10s"
+        self.period_s = pd.Timedelta(self.period).total_seconds()
         #: the file's evaluation with delays given in seconds turned into samples at the period
         self.ev = resolved_evaluation(file.evaluation, self.period)
         #: the tests judged by the spread of their residual (valve stiction), by position
@@ -344,6 +348,12 @@ class Unit:
         self.cmodel = (
             CombinedModel.of(self) if (self.ev["combined"] or self.tag_isolation) else None
         )
+        #: per test the longest lag its model reads (unknown for that many samples at start)
+        specs = [parse_specs([*models[t].inputs, models[t].output]) for t in self.tests]
+        self.test_depth = np.array([max(s.lag for s in sp) for sp in specs], np.int64)
+        spread = np.zeros(len(self.tests), bool)
+        spread[self.spread_cols] = True
+        self.warm_labels = warm_labels(self.tests, self.test_depth, spread)
         self.reset()
 
     # ------------------------------------------------------------ loading
@@ -444,6 +454,7 @@ class Unit:
         self.episode = EpisodeHold(ntags)
         self.alarm_hold = AlarmHold(ev["off_delay"]) if ev["off_delay_s"] > 0 else None
         self._last_alarm: tuple | None = None  # (status, faults, top row) the hold repeats
+        self.seen = 0  # samples since the start (the warm-up)
         if not hasattr(self, "outside"):
             self.outside = OutsideLearned(learned_ranges(self.models, self.tests), self.file.tags)
         self.outside.reset()
@@ -464,6 +475,7 @@ class Unit:
             "deadband": None if self.deadband is None else self.deadband.state.tolist(),
             "episode": self.episode.to_state(),
             "alarm_hold": None if self.alarm_hold is None else self.alarm_hold.to_state(),
+            "seen": self.seen,
             "last_alarm": None
             if self._last_alarm is None
             else [int(self._last_alarm[0]), self._last_alarm[1], self._last_alarm[2]],
@@ -478,6 +490,7 @@ class Unit:
         self.latched = np.asarray(state["latched"], float)
         self.held = np.array([np.nan if v is None else v for v in state["held"]], float)
         self.unknown_run = np.asarray(state["unknown_run"], np.int64)
+        self.seen = int(state.get("seen", 1 << 40))  # states saved before it: warmed up
         if "isolation" in state:  # states saved before it start without a held isolation
             self.isolation = IsolationHold.from_state(state["isolation"])
         if "combined_delay" in state:
@@ -667,9 +680,12 @@ class Unit:
         if self.alarm_hold is not None:
             detected, status, faults, top = self._hold_alarm(active, detected, status, faults, top)
         message = ""
-        why = self.outside.transform(
-            self._model_frame(frame), np.isnan(s), status == NE107.CHECK_FUNCTION
-        )
+        checking = status == NE107.CHECK_FUNCTION
+        unknown = np.isnan(s)
+        warm, left = self._warming(unknown, raw.to_numpy())
+        why = self.outside.transform(self._model_frame(frame), unknown & ~warm, checking)
+        if warm.any():
+            why = warming_up(why, warm, left, checking, self.warm_labels, self.period_s)
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
             if self.ev["combined"] and (self.file.combined is None or self.cmodel.high is None):
@@ -694,6 +710,19 @@ class Unit:
             top=top,
             why=pd.Series(why, index=idx),
         )
+
+    def _warming(self, unknown: np.ndarray, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The tests unknown only for the warm-up, and the samples each still needs
+        (:func:`~diag_plugin.diagnose.unitloops.warm_up`); advances :attr:`seen`."""
+        n = len(raw)
+        spread_left = np.zeros(raw.shape, np.int64)
+        if self.spread_cols.size:  # the spread ran on this piece (Unit.filtered)
+            spread_left[:, self.spread_cols] = self.spread.left_
+        test = np.zeros(raw.shape[1], bool)
+        test[self.spread_cols] = True
+        seen = self.seen + np.arange(n)
+        self.seen += n
+        return warm_up(unknown, np.isfinite(raw), seen, self.test_depth, spread_left, test)
 
     def _hold_alarm(self, active, detected, status, faults, top):
         """The unit's off-delay (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`): a

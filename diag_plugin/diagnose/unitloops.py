@@ -63,29 +63,51 @@ class RunningSpread:
         self.window = int(window)
         self.r_tail = np.full((0, columns), np.nan)
         self.d_tail = np.full((0, columns), np.nan)
+        self.left_ = np.zeros((0, columns), np.int64)
 
-    def _rolling_median(self, tail: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _rolling_median(
+        self, tail: np.ndarray, x: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rolling median of ``x`` (continuing ``tail``), the new tail, and per row how
+        many known values its window holds."""
         both = np.r_[tail, x]
-        k = max(3, self.window // 4)
+        k = self.least
         if len(x) == 1:  # the live loop's one sample a cycle: the last window's median alone
             last = both[-self.window :]
             known = np.isfinite(last).sum(axis=0)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # an all-unknown column
                 med = np.where(known >= k, np.nanmedian(last, axis=0), np.nan)[None, :]
+            count = known[None, :]
         else:
             med = pd.DataFrame(both).rolling(self.window, min_periods=k).median().to_numpy()
             med = med[len(tail) :]
+            cs = np.r_[np.zeros((1, both.shape[1]), np.int64), np.isfinite(both).cumsum(axis=0)]
+            end = np.arange(len(tail), len(both)) + 1
+            count = cs[end] - cs[np.maximum(end - self.window, 0)]
         keep = both[-(self.window - 1) :] if self.window > 1 else both[:0]
-        return med, keep
+        return med, keep, count
+
+    @property
+    def least(self) -> int:
+        """Known values a window needs for its median: a quarter of it, at least 3."""
+        return max(3, self.window // 4)
 
     def transform(self, x: np.ndarray) -> np.ndarray:
+        """The running spread of each column (NaN where unknown); :attr:`left_` is set to the
+        known samples each row's column still needed (0 where its spread is known)."""
         a = np.asarray(x, float).reshape(len(x), -1)
         if a.shape[1] == 0 or len(a) == 0:
+            self.left_ = np.zeros(a.shape, np.int64)
             return a.copy()
-        med, self.r_tail = self._rolling_median(self.r_tail, a)
+        med, self.r_tail, n_r = self._rolling_median(self.r_tail, a)
         dev = np.abs(a - med)
-        mad, self.d_tail = self._rolling_median(self.d_tail, dev)
+        mad, self.d_tail, n_d = self._rolling_median(self.d_tail, dev)
+        # the warm-up: k known residuals for the median, then k known deviations from it
+        # (the sample that completes the median gives the first deviation)
+        k = self.least
+        lr = np.maximum(k - n_r, 0)
+        self.left_ = np.where(lr > 0, lr + np.maximum(k - 1 - n_d, 0), np.maximum(k - n_d, 0))
         return np.where(np.isfinite(a), 1.4826 * mad, np.nan)
 
     def to_state(self) -> dict[str, Any]:
@@ -191,28 +213,91 @@ class AlarmHold:
     """The unit's own off-delay (ISA-18.2): once the unit alarms, it stays in alarm until
     no test has shown a symptom for ``off`` samples — each test's off-delay spaces its own
     alarms, but tests taking turns would otherwise make the unit's alarm chatter. For each
-    sample the row whose diagnosis it repeats (:meth:`sources`)."""
+    sample the row whose diagnosis it repeats (:meth:`sources`).
 
-    def __init__(self, off: int) -> None:
-        self.off = int(off)
-        self.since = self.off  # samples since the last alarm sample (≥ off: none held)
+    Vectorised over units: ``off`` an array (one off-delay per unit, 0: no hold) holds each
+    column of ``active`` on its own — :class:`~diag_plugin.diagnose.plant.Plant` holds all
+    its units with one, a :class:`~diag_plugin.diagnose.unit.Unit` (scalar ``off``) itself."""
+
+    def __init__(self, off: int | np.ndarray) -> None:
+        self.single = np.ndim(off) == 0
+        self.off = np.atleast_1d(np.asarray(off, np.int64)).copy()
+        self.since = self.off.copy()  # samples since the last alarm sample (≥ off: none held)
 
     def sources(self, active: np.ndarray) -> np.ndarray:
-        """Per sample: itself (−2) when in alarm or outside any hold, the last alarm row of
-        this piece it repeats (≥ 0), or −1 for the previous piece's last alarm row."""
+        """Per sample (and unit: ``active`` samples × units, or samples for a single unit):
+        itself (−2) when in alarm or outside any hold, the last alarm row of this piece it
+        repeats (≥ 0), or −1 for the previous piece's last alarm row."""
         act = np.asarray(active, bool)
-        n = act.size
-        idx = np.arange(n)
-        last = np.maximum.accumulate(np.where(act, idx, -1)) if n else idx
-        gap = np.where(last >= 0, idx - last, idx + 1 + self.since)
-        held = ~act & (gap < self.off)
+        shape = act.shape
+        act = act.reshape(len(act), len(self.off))
+        n = len(act)
+        idx = np.arange(n)[:, None]
+        last = np.maximum.accumulate(np.where(act, idx, -1), axis=0) if n else act.astype(int)
+        gap = np.where(last >= 0, idx - last, idx + 1 + self.since[None, :])
+        held = ~act & (gap < self.off[None, :])
         out = np.where(held, np.where(last >= 0, last, -1), -2)
         if n:
-            self.since = int(gap[-1]) if not act[-1] else 0
-        return out
+            self.since = gap[-1].astype(np.int64)  # 0 where the last sample is in alarm
+        return out.reshape(shape)
 
     def to_state(self) -> dict[str, Any]:
-        return {"since": self.since}
+        return {"since": int(self.since[0]) if self.single else self.since.tolist()}
 
     def load_state(self, state: dict[str, Any]) -> None:
-        self.since = int(state["since"])
+        self.since = np.atleast_1d(np.asarray(state["since"], np.int64)).copy()
+
+
+def warm_up(
+    unknown: np.ndarray,
+    raw_known: np.ndarray,
+    seen: np.ndarray | int,
+    depth: np.ndarray,
+    spread_left: np.ndarray,
+    spread_test: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which unknown tests are unknown only because the unit has not yet seen enough samples
+    since it started, and how many more samples each needs (rows × tests).
+
+    ``seen``: samples before each row since the start; ``depth``: per test the longest lag
+    its model reads (unknown while ``seen < depth``); ``spread_left``:
+    :attr:`RunningSpread.left_` per row for the spread tests (0 elsewhere); ``spread_test``:
+    the spread tests; ``raw_known``: their residual known before the spread. A spread test
+    behind its lags needs its lags' samples, then its window's."""
+    lag_left = np.maximum(np.asarray(depth)[None, :] - np.reshape(seen, (-1, 1)), 0)
+    lag_warm = lag_left > 0
+    spread = spread_test[None, :] & (spread_left > 0) & (raw_known | lag_warm)
+    warm = unknown & (lag_warm | spread)
+    return warm, lag_left + np.where(spread_test[None, :], spread_left, 0)
+
+
+def warm_labels(tests: list[str], depth: np.ndarray, spread_test: np.ndarray) -> list[str]:
+    """Per test what it waits for in a warm-up (:func:`warming_up`)."""
+    out = []
+    for name, d, sp in zip(tests, depth, spread_test, strict=True):
+        if sp:
+            out.append(f"the spread window of {name}")
+        else:
+            out.append(f"{int(d)} samples of history for {name}")
+    return out
+
+
+def warming_up(
+    why: np.ndarray,
+    warm: np.ndarray,
+    left: np.ndarray,
+    report: np.ndarray,
+    labels: list[str],
+    period_s: float,
+) -> np.ndarray:
+    """``why`` (a reason per row) with the warm-up put first on the rows in ``report`` where a
+    test is unknown only because the unit has not seen enough samples since it started
+    (``warm``, ``left``: :func:`warm_up`; ``labels``: :func:`warm_labels`):
+    ``warming up, N s left (the spread window of TEST)`` — the unit is not at fault."""
+    out = why.copy()
+    for i in np.flatnonzero(report & warm.any(axis=1)):
+        cols = np.flatnonzero(warm[i])
+        secs = float(left[i, cols].max()) * period_s
+        text = f"warming up, {secs:.0f} s left ({'; '.join(labels[c] for c in cols)})"
+        out[i] = f"{text}; {out[i]}" if out[i] else text
+    return out

@@ -11,6 +11,8 @@ Example (paths are relative to the file; docs/reference/live.md explains every k
     stale_after = 30                              # optional; default: from each tag's history
     spill = "plant.db.spill"                      # optional; default: beside the database
     buffer_samples = 2000000                      # samples held in memory before spilling
+    state = "plant.state.json"                    # the units' state; default: beside this file
+    state_every = 60                              # cycles between saves (and on stop)
 
     [[source]]                                    # one table per PLC or server
     name = "plc1"
@@ -136,6 +138,8 @@ class LiveConfig:
     stale_after: float | None = None
     spill: Path | None = None
     buffer_samples: int = 2_000_000
+    state: Path | None = None
+    state_every: int = 60
     sources: list[SourceConfig] = field(default_factory=list)
     modbus_port: int = 5020
     opcua_port: int = 4840
@@ -184,6 +188,8 @@ _KEYS = {
         "stale_after",
         "spill",
         "buffer_samples",
+        "state",
+        "state_every",
     },
     "source": set().union(*_SOURCE_KEYS.values()),
     "outputs": {"modbus_port", "opcua_port"},
@@ -347,6 +353,9 @@ def load_config(path: str | Path) -> LiveConfig:
     cfg.buffer_samples = int(
         positive("plant", "buffer_samples", get("plant", "buffer_samples", int, 2_000_000))
     )
+    state = get("plant", "state", str, None)
+    cfg.state = (base / state).resolve() if state else path.resolve().with_suffix(".state.json")
+    cfg.state_every = int(positive("plant", "state_every", get("plant", "state_every", int, 60)))
 
     for i in range(len(tables["source"])):
         cfg.sources.append(_source(i, get, positive, port, existing, fail, base))
@@ -804,10 +813,13 @@ async def run_config(
     def say(text: str) -> None:
         print(text, file=out, flush=True)
 
+    from diag_plugin.live.state import restore_state
+
     plant = load_plant(cfg)
     commission(cfg, plant)
     first = plant.cycle(pd.Timestamp.now(tz="UTC"), {})
     plant.reset()
+    say(restore_state(plant, cfg.state, pd.Timestamp.now(tz="UTC")))
     status = None
     if cfg.modbus_port:
         status = StatusServer(
@@ -875,6 +887,8 @@ async def run_config(
             tty=tty,
             out=out,
             after=after,
+            state=cfg.state,
+            state_every=cfg.state_every,
         )
         return await loop.run()
     finally:

@@ -39,6 +39,7 @@ import time
 from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -111,6 +112,8 @@ class LiveLoop:
     ``after(loop, i, statuses)``: optional async hook run after publishing (the embedded
     scenario's operator). ``duration`` in seconds (0: until a signal or :meth:`stop`).
     ``out``: event lines go there when not on a terminal; ``tty`` forces the live table.
+    ``state``: where the plant's state is saved (:mod:`~diag_plugin.live.state`) every
+    ``state_every`` cycles and on stop (None: not saved).
     """
 
     def __init__(
@@ -129,8 +132,12 @@ class LiveLoop:
         after: Callable[[LiveLoop, int, list[UnitStatus]], Awaitable[None]] | None = None,
         tty: bool | None = None,
         out: Any = None,
+        state: Path | None = None,
+        state_every: int = 60,
     ) -> None:
         self.plant, self.source = plant, source
+        self.state_path, self.state_every = state, int(state_every)
+        self._state_task: asyncio.Task[None] | None = None
         self.historian, self.opcua, self.status_server = historian, opcua, status_server
         self.cycle_s = float(cycle)
         self.duration = float(duration)
@@ -490,6 +497,8 @@ class LiveLoop:
                         self.stats.overruns += 1
                     if live is not None:
                         live.update(self.table())
+                    if self.state_every > 0 and (i + 1) % self.state_every == 0:
+                        self._save_in_background()
                     i += 1
                     next_t += self.cycle_s
                     delay = next_t - time.monotonic()
@@ -500,6 +509,10 @@ class LiveLoop:
                         await asyncio.wait_for(self._stop.wait(), min(delay, max(0, end - t0)))
         finally:
             self._live = None
+            if self._state_task is not None:
+                with contextlib.suppress(Exception):
+                    await self._state_task
+            self.save_state()
             if self.historian is not None:
                 await self.historian.close()
             for sig in (signal.SIGINT, signal.SIGTERM):
@@ -507,6 +520,40 @@ class LiveLoop:
                     loop.remove_signal_handler(sig)
         self.event(self.summary())
         return 0
+
+    def save_state(self) -> None:
+        """Save the plant's state now (when a path is given); a failure is an event, never a
+        stop of the loop."""
+        if self.state_path is None or self.stats.cycles == 0:
+            return
+        from diag_plugin.live.state import save_state
+
+        try:
+            save_state(self.plant, self.state_path)
+        except (OSError, ValueError, TypeError) as exc:
+            self.event(f"state {self.state_path} not saved: {exc}", self._ts)
+
+    def _save_in_background(self) -> None:
+        """The periodic save: the snapshot taken between cycles, written (and fsynced) by a
+        thread so the disk never holds up a cycle; skipped while the last one still writes."""
+        if self.state_path is None or (self._state_task and not self._state_task.done()):
+            return
+        from diag_plugin.live.state import state_text, write_atomic
+
+        path = self.state_path
+        try:
+            text = state_text(self.plant)
+        except (ValueError, TypeError) as exc:
+            self.event(f"state {path} not saved: {exc}", self._ts)
+            return
+
+        async def write() -> None:
+            try:
+                await asyncio.to_thread(write_atomic, text, path)
+            except OSError as exc:
+                self.event(f"state {path} not saved: {exc}", self._ts)
+
+        self._state_task = asyncio.get_running_loop().create_task(write())
 
     def summary(self) -> str:
         """The closing line: cycles, overruns, cycle work percentiles, storage figures."""
