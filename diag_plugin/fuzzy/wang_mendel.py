@@ -749,7 +749,10 @@ class WangMendelRegressor(ParamsMixin):
         if X.shape[1] != self.n_features_in_:
             raise ValueError(f"model has {self.n_features_in_} inputs, X has {X.shape[1]}")
         fine = self._fine_table()
-        if fine is None:  # a fine grid too big for a dense table: every level searched
+        loops = kernels(X.shape[0])
+        if fine is None or not hasattr(loops, "infer_fine"):
+            # a fine grid too big for a dense table, or numpy's loops (no numba loaded: one
+            # model's inference, :func:`kernels`): every level searched, the same bits
             return self._predict_levels(X)
         # the fine level of every row through its dense table; only the rows it leaves short
         # of LEVEL_SUPPORT inside the data's range are asked again, level by level
@@ -759,7 +762,7 @@ class WangMendelRegressor(ParamsMixin):
         again = np.empty(n, np.bool_)
         for s in range(0, n, CHUNK_ROWS):
             e = s + CHUNK_ROWS
-            K.infer_fine(X[s:e], *fine, *(f[s:e] for f in _fields(det)), again[s:e])
+            loops.infer_fine(X[s:e], *fine, *(f[s:e] for f in _fields(det)), again[s:e])
         rows = np.flatnonzero(again)
         packs = self.__dict__.setdefault("_packs", {})
         none = np.empty(0, np.int64)
