@@ -229,3 +229,24 @@ def test_first_start_on_a_new_postgresql_database_races_no_more():
             for n in names:
                 c.execute(sa.text(f'DROP DATABASE IF EXISTS "{n}" WITH (FORCE)'))
         admin.dispose()
+
+
+# ------------------------------------------------------------------ an output port taken
+def test_an_output_port_taken_is_named_with_file_line(plant_dir, tmp_path):
+    """Another program listens on the OPC UA port: the start stops with the file, line, key
+    and address and the system's reason, not a traceback, and not as a start-up time-out."""
+    import shutil
+    import socket
+
+    d = tmp_path / "p"
+    shutil.copytree(plant_dir, d)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        _edit(d / "plant.toml", "opcua_port = 0", f"opcua_port = {port}")
+        r = diag_run(d, "--config", "plant.toml", "--plain", "--duration", "2")
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    want = f"plant.toml:13: outputs.opcua_port: 127.0.0.1:{port} is busy (Address already in use"
+    assert want in r.stderr, r.stderr
+    assert "did not start in time" not in r.stderr and "Traceback" not in r.stderr

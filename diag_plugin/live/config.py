@@ -843,6 +843,11 @@ async def run_config(
                 continue
             try:
                 await server.start()
+            except TimeoutError:  # an OSError too: say it is the time-out, not the port
+                raise ConfigError(
+                    f"{cfg.path}:{cfg.line('outputs', key)}: outputs.{key}: the server did not "
+                    "start in time (its start-up time-out ran out; is the machine overloaded?)"
+                ) from None
             except OSError as exc:
                 raise ConfigError(
                     f"{cfg.path}:{cfg.line('outputs', key)}: outputs.{key}: cannot listen: "
