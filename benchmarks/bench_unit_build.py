@@ -18,8 +18,11 @@ unit built from its 60-day training window beside PCA on exactly the runs, fault
 docs/explanation/other-plants.md explains them).
 
 Issue 34's speed target: 200 tags × 10 days at 1 min (``--tags 200 --period 60``) in under
-60 s on two cores. On a shared machine the wall time follows the load, so the CPU time (the
-worker processes' included) and the same run's PCA fit time are printed beside it.
+60 s on two cores. On a shared machine the wall time follows the load, so the CPU time is
+printed beside it: the parent's (the serial parts), each worker process's (the per-test work
+handed to :func:`~diag_plugin.unitbuild.parallel.map_tests`, timed inside the worker), and
+the wall two idle cores would take — the parent's CPU plus, for each pool, its busiest
+worker's — with the same run's PCA fit time.
 
 Run: ``python benchmarks/bench_unit_build.py [--tags 50] [--days 10] [--period 60]
 [--workers N] [--quality] [--rig hx]``.
@@ -54,6 +57,41 @@ def cpu_s() -> float:
     me = resource.getrusage(resource.RUSAGE_SELF)
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)
     return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def cpu_self() -> float:
+    me = resource.getrusage(resource.RUSAGE_SELF)
+    return me.ru_utime + me.ru_stime
+
+
+#: per call of map_tests in the build: {worker pid: CPU seconds of its items}
+POOLS: list[dict[int, float]] = []
+
+
+def _timed(item, fn, *args):
+    """``fn(item, *args)`` in a worker, with the worker's pid and the CPU seconds it took."""
+    import os
+
+    t = time.process_time()
+    out = fn(item, *args)
+    return out, os.getpid(), time.process_time() - t
+
+
+def time_workers() -> None:
+    """Time every item the build hands to its workers (``build.map_tests`` wrapped)."""
+    from diag_plugin.unitbuild import build
+
+    inner = build.map_tests
+
+    def timed(fn, items, args=(), **kw):
+        got = inner(_timed, items, (fn, *args), **kw)
+        per: dict[int, float] = {}
+        for _, pid, s in got:
+            per[pid] = per.get(pid, 0.0) + s
+        POOLS.append(per)
+        return [g[0] for g in got]
+
+    build.map_tests = timed
 
 
 def store(url: str, frame: pd.DataFrame) -> None:
@@ -92,12 +130,21 @@ def main() -> None:
     workers = a.workers or default_workers()
     if a.workers:
         os.environ["DIAG_WORKERS"] = str(a.workers)
-    t, cpu = time.perf_counter(), cpu_s()
+    time_workers()
+    t, cpu, own = time.perf_counter(), cpu_s(), cpu_self()
     res = build_from_historian(url, "u", t0, t1, folder=tmp / "rb", far=a.far)
-    took, build_cpu = time.perf_counter() - t, cpu_s() - cpu
+    took, build_cpu, parent = time.perf_counter() - t, cpu_s() - cpu, cpu_self() - own
     print(f"built {len(res.tests)} tests, skipped {len(res.skipped)} on {workers} worker(s): "
           f"{took:.1f} s, {len(frame) * a.tags / took:,.0f} tag-rows/s; CPU {build_cpu:.1f} s "
           f"(the workers' included); load {os.getloadavg()[0]:.1f}; {res.path}")  # fmt: skip
+    pools = "; ".join(
+        f"pool {i + 1}: " + ", ".join(f"{s:.1f}" for s in sorted(p.values(), reverse=True))
+        for i, p in enumerate(POOLS)
+    )
+    kids = [[s for pid, s in p.items() if pid != os.getpid()] for p in POOLS]
+    idle = parent + sum(max(k, default=0.0) for k in kids)
+    print(f"  CPU: parent {parent:.1f} s (serial parts; a one-worker pool runs in it), per "
+          f"worker {pools} s; on {workers} idle core(s) ≈ {idle:.1f} s wall")  # fmt: skip
     for k, v in res.seconds.items():
         print(f"  {k:18s} {v:7.1f} s")
     print(f"  peak resident memory {rss_mb():.0f} MB (before the build {before:.0f} MB; the "

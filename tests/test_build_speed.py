@@ -5,7 +5,9 @@ Judged on plants the fast paths were not tuned on (the tour's small tank and hea
 the unit built on two worker processes is the unit built on one; every candidate's dead times
 screened in one product are :func:`~diag_plugin.selection.lags.lag_screen`'s, gaps included;
 a model that fits its coarse levels only when a sample reaches them answers as one that
-fitted them all; the occupied cells counted in a dense table are the unique keys.
+fitted them all; the occupied cells counted in a dense table are the unique keys; a coarse
+level's corner weights are ``np.prod``'s to the bit; a selection step that takes the winning
+variant's block fits is the step that fits them again.
 """
 
 from __future__ import annotations
@@ -15,11 +17,12 @@ import re
 import numpy as np
 import pytest
 
-from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor, pack, run_kernel
+from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor, corner_weight, pack, run_kernel
 from diag_plugin.selection.lags import LagScreen, lag_screen
+from diag_plugin.selection.scoring import BlockScorer, FrozenRuleBase
 from diag_plugin.selection.sets import _occupied
 from diag_plugin.simulate import smallplants as sp
-from diag_plugin.unitbuild.build import build_unit
+from diag_plugin.unitbuild.build import _Context, _rulebase, _with_sets, build_unit
 
 
 def _plant(kind: str, days: float, seed: int):
@@ -120,3 +123,43 @@ def test_occupied_cells_counted_densely_are_the_unique_keys(d, sets):
     idx = np.random.default_rng(d).integers(0, sets, size=(2000, d)) // 3
     key = idx @ (sets ** np.arange(d, dtype=np.int64))
     assert _occupied(idx, sets) == np.unique(key).size
+
+
+def test_corner_weights_are_np_prod_to_the_bit():
+    rng = np.random.default_rng(8)
+    for d in range(1, 7):
+        upper = rng.random((300, d))
+        upper[rng.random(upper.shape) < 0.2] = 0.0  # corners a rule gives no weight
+        upper[rng.random(upper.shape) < 0.1] = 1.0
+        for c in range(1 << d):
+            up = np.array([(c >> k) & 1 for k in range(d)], bool)
+            want = np.prod(np.where(up, upper, 1.0 - upper), axis=1)
+            np.testing.assert_array_equal(corner_weight(upper, 1.0 - upper, up), want)
+
+
+def test_the_winners_fits_reused_are_the_fits_made_again():
+    """A step's scorer built from the winning variant's block fits (as select_inputs does)
+    is the scorer that fits that variant again: the same pooled error, residual and
+    per-block predictions."""
+    frame = _plant("heatex", 3.0, 46)
+    ctx = _Context(frame, {}, "60s")
+    tags = list(ctx.vars)
+    out, ins = tags[-1], [(tags[0], 0), (tags[1], 2)]
+    y = ctx.column(out)
+    cols = [ctx.column(t, g) for t, g in ins]
+    variables = _with_sets([ctx.variable(t, g) for t, g in ins], cols, len(y))
+    base = FrozenRuleBase(_rulebase("t", ctx.vars[out], [], "60s"))
+    probe = BlockScorer(base, [], y, ctx.block)
+    probe.score(variables, cols)
+    fits = probe.fitted()
+    assert fits is not None and len(fits) == len(probe.parts) > 1
+    again = BlockScorer(FrozenRuleBase(base, variables), cols, y, ctx.block)
+    reused = BlockScorer(FrozenRuleBase(base, variables), cols, y, ctx.block, fitted=fits)
+    assert reused.base_rmse == again.base_rmse
+    np.testing.assert_array_equal(reused.residual(cols), again.residual(cols))
+    for a, b in zip(reused.parts, again.parts, strict=True):
+        np.testing.assert_array_equal(a.base_pred, b.base_pred)
+        assert (a.base_cov, a.base_fine, a.base_rows) == (b.base_cov, b.base_fine, b.base_rows)
+    # the spec read once is the one the file gives for those inputs
+    assert FrozenRuleBase(base, variables).spec == _rulebase("t", ctx.vars[out], variables,
+                                                             "60s").spec  # fmt: skip

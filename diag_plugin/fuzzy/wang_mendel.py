@@ -1008,9 +1008,10 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
         lower[:, k] = j
         upper_w[:, k] = np.clip((t - j - 0.5 * pl) / (1.0 - pl), 0.0, 1.0)
     rows, cols, vals = [], [], []
+    lower_w = 1.0 - upper_w
     for c in range(1 << d):
         up = np.array([(c >> k) & 1 for k in range(d)], bool)
-        w = np.prod(np.where(up, upper_w, 1.0 - upper_w), axis=1)
+        w = corner_weight(upper_w, lower_w, up)
         ok = w > 0
         rows.append(np.flatnonzero(ok))
         cols.append((lower[ok] + up) @ radix)
@@ -1050,6 +1051,17 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     rhs = A.T @ (sw * y) + ridge * float(np.average(y, weights=n))
     values = np.atleast_1d(spsolve(M, rhs))
     return nodes, values, data
+
+
+def corner_weight(upper_w: np.ndarray, lower_w: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Each row's multilinear weight of one corner of its coarse cell: the product over the
+    inputs of ``upper_w`` where the corner is the upper node (``up``), else ``lower_w``,
+    multiplied in the inputs' order — ``np.prod(np.where(up, upper_w, lower_w), axis=1)``
+    to the bit, without building the selected array."""
+    w = upper_w[:, 0] if up[0] else lower_w[:, 0]
+    for k in range(1, up.size):
+        w = w * (upper_w[:, k] if up[k] else lower_w[:, k])
+    return w
 
 
 def _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets) -> np.ndarray:

@@ -44,7 +44,9 @@ what to do; nothing is written then.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -207,50 +209,80 @@ def _runs(data: np.ndarray) -> np.ndarray:
     return out[filled]
 
 
+#: ``mapper(fn, items, args)``: ``[fn(item, *args) for item in items]``, in any number of
+#: processes, in order (``diag unit build`` passes its worker pool's,
+#: :func:`diag_plugin.unitbuild.parallel.map_tests`)
+Mapper = Callable[[Callable[..., Any], Sequence[Any], tuple], list[Any]]
+
+
+def _serial(fn: Callable[..., Any], items: Sequence[Any], args: tuple) -> list[Any]:
+    return [fn(it, *args) for it in items]
+
+
 def test_residuals(
-    unit: Unit, frame: pd.DataFrame, blocks: int, cross_fit: bool | None, by_run: bool = True
+    unit: Unit,
+    frame: pd.DataFrame,
+    blocks: int,
+    cross_fit: bool | None,
+    mapper: Mapper | None = None,
+    by_run: bool = True,
 ) -> dict[str, TestResiduals]:
     """Raw residuals of every test over ``frame``, each block's from a model that did not see
     that block (see :func:`held_out`); ``cross_fit`` False: the models' own residuals;
-    ``by_run`` False: equal time blocks even where the window holds several runs."""
+    ``by_run`` False: equal time blocks even where the window holds several runs. Each
+    test's are independent of the others': ``mapper`` may compute them in several
+    processes."""
+    frame = unit._model_frame(frame)
+    names = [t.name for t in unit.file.tests]
+    args = (unit, frame, blocks, cross_fit, by_run)
+    got = (mapper or _serial)(_test_residual, names, args)
+    missing = [r for r in got if isinstance(r, str)]
+    if missing:
+        raise LearnError(missing)
+    return dict(zip(names, got, strict=True))
+
+
+def _test_residual(
+    name: str,
+    unit: Unit,
+    frame: pd.DataFrame,
+    blocks: int,
+    cross_fit: bool | None,
+    by_run: bool = True,
+) -> TestResiduals | str:
+    """One test's residuals for :func:`test_residuals` (a message if the window lacks a tag
+    its model reads)."""
     from diag_plugin.regressors import DesignBuilder
     from diag_plugin.rulebase.document import RuleBase
 
-    frame = unit._model_frame(frame)
-    out = {}
-    missing = []
-    for t in unit.file.tests:
-        m = unit.models[t.name]
-        try:
-            d = DesignBuilder(m.inputs, m.output, period=m.period).transform(frame)
-        except KeyError as exc:
-            missing.append(f"test {t.name}: {exc.args[0]}: learn over a window that holds them")
-            continue
-        rows = frame.index.get_indexer(d.index)
-        if cross_fit is False or blocks < 2:
-            pred, source = m.model.predict_detail(d.X), "the model's own (not cross-fitted)"
-        else:
-            data = frame.notna().any(axis=1).to_numpy()
-            runs = data if by_run else None
-            block = block_of(frame.index, blocks, runs)[rows] if len(rows) else rows
-            pred, source = held_out(
-                RuleBase.load(m.path), m.model, d, block, blocks, t.name, force=bool(cross_fit)
-            )
-        raw = np.full(len(frame), np.nan)
-        raw[rows] = unit.residual(_fine_only(t), d.y, pred)
-        level = spread = None
-        if pred.level is not None:
-            level = np.full(len(frame), -1, np.int64)
-            level[rows] = pred.level
-        if pred.spread is not None:
-            spread = np.full(len(frame), np.nan)
-            spread[rows] = pred.spread
-        out[t.name] = TestResiduals(
-            raw, level, _unknown_reasons(len(frame), rows, d.y, pred, unit), source, spread
+    t = next(t for t in unit.file.tests if t.name == name)
+    m = unit.models[t.name]
+    try:
+        d = DesignBuilder(m.inputs, m.output, period=m.period).transform(frame)
+    except KeyError as exc:
+        return f"test {t.name}: {exc.args[0]}: learn over a window that holds them"
+    rows = frame.index.get_indexer(d.index)
+    if cross_fit is False or blocks < 2:
+        pred, source = m.model.predict_detail(d.X), "the model's own (not cross-fitted)"
+    else:
+        data = frame.notna().any(axis=1).to_numpy()
+        runs = data if by_run else None
+        block = block_of(frame.index, blocks, runs)[rows] if len(rows) else rows
+        pred, source = held_out(
+            RuleBase.load(m.path), m.model, d, block, blocks, t.name, force=bool(cross_fit)
         )
-    if missing:
-        raise LearnError(missing)
-    return out
+    raw = np.full(len(frame), np.nan)
+    raw[rows] = unit.residual(_fine_only(t), d.y, pred)
+    level = spread = None
+    if pred.level is not None:
+        level = np.full(len(frame), -1, np.int64)
+        level[rows] = pred.level
+    if pred.spread is not None:
+        spread = np.full(len(frame), np.nan)
+        spread[rows] = pred.spread
+    return TestResiduals(
+        raw, level, _unknown_reasons(len(frame), rows, d.y, pred, unit), source, spread
+    )
 
 
 def held_out(rb, model, d, block: np.ndarray, blocks: int, test: str, *, force: bool = False):
@@ -402,6 +434,7 @@ def learn_thresholds(
     cross_fit: bool | None = None,
     spread: bool = True,
     by_run: bool = True,
+    mapper: Mapper | None = None,
 ) -> Learned:
     """Thresholds of every test of ``unit`` from a window the user declares fault-free
     (``frames``: consecutive pieces of it), holding the unit to ``far`` false alarms per hour
@@ -409,7 +442,8 @@ def learn_thresholds(
     cannot serve and what to do. ``by_run`` False: the cross-fitting's blocks are equal spans
     of time even where the window holds several runs (``diag unit accept``: windows at
     different operating points, none of which the others' models cover; each run's filter
-    still settles on its own)."""
+    still settles on its own). ``mapper``: how the tests' residuals are computed
+    (:data:`Mapper`; default one after the other in this process)."""
     if blocks < 0 or blocks == 1:
         raise LearnError([f"blocks must be 0 (no cross-fitting) or at least 2, got {blocks}"])
     frame = _window(frames)
@@ -425,7 +459,7 @@ def learn_thresholds(
                     [f"test {t.name}: the maximum of {out} over the window is not positive"]
                 )
             t.ymax = ymax[t.name] = m
-    res = test_residuals(unit, frame, blocks, cross_fit, by_run)
+    res = test_residuals(unit, frame, blocks, cross_fit, mapper, by_run)
     problems = _check(res, unit)
     if problems:
         raise LearnError(problems)

@@ -19,6 +19,22 @@ from diag_plugin.training.chunked import split_time
 MIN_HELD = 10
 
 
+class FrozenRuleBase:
+    """What scoring reads of a rule base — its spec, codec, output and inputs — read once.
+
+    :class:`~diag_plugin.rulebase.document.RuleBase` derives each of them from its TOML
+    document on every access; a scorer fits thousands of variants of one model, so it reads
+    them once. ``inputs`` replaces the inputs (a variant of the same model)."""
+
+    def __init__(self, rb, inputs: Sequence | None = None):
+        base = rb if isinstance(rb, FrozenRuleBase) else None
+        self.codec = base.codec if base else rb.codec
+        self.output = base.output if base else rb.output
+        spec = base.spec if base else rb.spec
+        self.inputs = list(spec.inputs) if inputs is None else list(inputs)
+        self.spec = spec if inputs is None else dc_replace(spec, inputs=list(inputs))
+
+
 class HeldOutScorer:
     """Trains a variant of the model on the rows before the cut and scores every variant on
     the *same* held-out samples: all rows after the cut with a measured output.
@@ -30,8 +46,16 @@ class HeldOutScorer:
     beside its error.
     """
 
-    def __init__(self, rb: RuleBase, cols: Sequence[np.ndarray], y: np.ndarray, cut: int):
-        self.rb = rb
+    def __init__(
+        self,
+        rb: RuleBase | FrozenRuleBase,
+        cols: Sequence[np.ndarray],
+        y: np.ndarray,
+        cut: int,
+        fitted: tuple | None = None,
+    ):
+        self.rb = rb if isinstance(rb, FrozenRuleBase) else FrozenRuleBase(rb)
+        rb = self.rb
         self.y = y
         self.cut = cut
         self.span = rb.output.span[1] - rb.output.span[0]
@@ -39,11 +63,16 @@ class HeldOutScorer:
         self.mean = float(y[:cut][tr_y].mean()) if tr_y.any() else math.nan
         self.va = np.flatnonzero(np.isfinite(y[cut:])) + cut
         self.last_fine = 0.0
-        pred, self.base_model, self.base_rows = self._fit_predict(list(rb.inputs), cols)
+        #: the last variant :meth:`score` fitted (see :attr:`fitted`)
+        self.last_fit: tuple | None = None
+        if fitted is None:
+            pred, self.base_model, self.base_rows = self._fit_predict(list(rb.inputs), cols)
+            self.base_fine = self.last_fine
+            #: the model's held-out prediction, its stand-in where it has none
+            self.base_pred = self._stand_in(pred, self.base_model, cols)
+        else:  # this variant as score() fitted it on the same rows: the same model
+            pred, self.base_model, self.base_rows, self.base_fine, self.base_pred = fitted
         self.base_cov = float(np.isfinite(pred).mean()) if pred.size else 0.0
-        self.base_fine = self.last_fine
-        #: the model's held-out prediction, its stand-in where it has none
-        self.base_pred = self._stand_in(pred, self.base_model, cols)
         self.base_rmse = self._rmse(self.base_pred)
         self.base_rules = rb.codec.size(self.base_model) if self.base_model is not None else 0
 
@@ -82,12 +111,15 @@ class HeldOutScorer:
         """Held-out RMSE in % of span on the common samples, own coverage, training samples
         per rule, and the share its fine rule grid answered, of a variant."""
         self.last_fine = 0.0
+        self.last_fit = None
         pred, m, n_train = self._fit_predict(variables, cols)
         if m is None:
             return math.nan, 0.0, 0.0, 0.0
         own = np.isfinite(pred)
         per_cell = n_train / max(self.rb.codec.size(m), 1)
-        rmse = self._rmse(self._stand_in(pred, m, cols))
+        full = self._stand_in(pred, m, cols)
+        self.last_fit = (pred, m, n_train, self.last_fine, full)
+        rmse = self._rmse(full)
         return rmse, float(own.mean()), per_cell, self.last_fine
 
     def residual(self, cols) -> np.ndarray:
@@ -113,7 +145,19 @@ class BlockScorer:
     cells, independent of row order, so each fold is the window's rows reordered (training
     rows first) and cut there."""
 
-    def __init__(self, rb: RuleBase, cols: Sequence[np.ndarray], y: np.ndarray, block: np.ndarray):
+    def __init__(
+        self,
+        rb: RuleBase | FrozenRuleBase,
+        cols: Sequence[np.ndarray],
+        y: np.ndarray,
+        block: np.ndarray,
+        fitted: Sequence[tuple] | None = None,
+    ):
+        """``fitted``: the blocks' fits of this very variant from another scorer's
+        :meth:`score` on the same ``y`` and blocks (:meth:`fitted`), used instead of
+        fitting it again."""
+        rb = rb if isinstance(rb, FrozenRuleBase) else FrozenRuleBase(rb)
+        self.rb = rb
         self.y = y
         self.folds = []
         good = np.isfinite(y)
@@ -123,7 +167,12 @@ class BlockScorer:
                 continue  # a block the tag is (nearly) missing from judges nothing
             order = np.r_[np.flatnonzero(~held), np.flatnonzero(held)]
             self.folds.append((order, int(np.count_nonzero(~held))))
-        self.parts = [HeldOutScorer(rb, [c[o] for c in cols], y[o], cut) for o, cut in self.folds]
+        if fitted is not None and len(fitted) != len(self.folds):
+            raise ValueError("fitted: one fit per block is needed")
+        self.parts = [
+            HeldOutScorer(rb, [c[o] for c in cols], y[o], cut, None if fitted is None else f)
+            for (o, cut), f in zip(self.folds, fitted or [None] * len(self.folds), strict=True)
+        ]
         self.base_rmse = self._pool([p.base_rmse for p in self.parts])
         self.mean = float(y[good].mean()) if good.any() else math.nan
         # the current model on every row, for the screen of the next input
@@ -151,6 +200,13 @@ class BlockScorer:
         n = np.array([p.va.size for p in self.parts], float)
         cov = float(np.sum(n * np.array([g[1] for g in got])) / max(n.sum(), 1.0))
         return self._pool([g[0] for g in got]), cov
+
+    def fitted(self) -> list[tuple] | None:
+        """The blocks' fits of the variant :meth:`score` scored last (None if a block fitted
+        none): a :class:`BlockScorer` of that variant over the same ``y`` and blocks takes
+        them as its ``fitted`` instead of fitting the same models again."""
+        fits = [p.last_fit for p in self.parts]
+        return None if any(f is None for f in fits) else fits
 
     def residual(self, cols) -> np.ndarray:
         """The current model's in-sample residual on every row (NaN where none)."""

@@ -68,7 +68,7 @@ from diag_plugin.regressors import InputSpec
 from diag_plugin.rulebase.document import RuleBase
 from diag_plugin.selection.features import Features
 from diag_plugin.selection.lags import TOLERANCE, LagScreen, default_max_lag
-from diag_plugin.selection.scoring import BlockScorer
+from diag_plugin.selection.scoring import BlockScorer, FrozenRuleBase
 from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
 from diag_plugin.unitbuild import short
@@ -330,7 +330,9 @@ def select_inputs(
     y = ctx.column(tag)
     rows = len(y)
     chosen: list[tuple[str, int]] = []
-    scorer = BlockScorer(_rulebase(test, out, [], ctx.period, method=method), [], y, ctx.block)
+    # the file is parsed once; each step's model is a variant of it (its inputs replaced)
+    base = FrozenRuleBase(_rulebase(test, out, [], ctx.period, method=method))
+    scorer = BlockScorer(base, [], y, ctx.block)
     current = scorer.base_rmse
     choice = TestChoice(test, tag, current)
     resid = scorer.residual([])
@@ -344,7 +346,7 @@ def select_inputs(
             order = np.argsort(-corr, kind="stable")[:LAGS_RETRAINED]
             screened.append((float(corr[order[0]]), c, sorted(int(x) for x in order)))
         screened.sort(key=lambda s: -s[0])
-        best = None  # (rmse, coverage, tag, lag)
+        best = None  # (rmse, coverage, tag, lag, the variant's inputs, columns and fits)
         base_cols = [ctx.column(t, lag) for t, lag in chosen]
         for _, c, lags in screened[:SCREENED]:
             scored = []
@@ -354,25 +356,23 @@ def select_inputs(
                 ins = _with_sets([ctx.variable(t, g) for t, g in pairs], cols, rows, max_sets)
                 rmse, cov = scorer.score(ins, cols)
                 if math.isfinite(rmse):
-                    scored.append((rmse, lag, cov))
+                    scored.append((rmse, lag, cov, (ins, cols, scorer.fitted())))
             if not scored:
                 continue
             low = min(s[0] for s in scored)
-            rmse, lag, cov = min((s for s in scored if s[0] <= low * (1 + TOLERANCE)),
-                                 key=lambda s: s[1])  # fmt: skip
+            rmse, lag, cov, kept = min((s for s in scored if s[0] <= low * (1 + TOLERANCE)),
+                                       key=lambda s: s[1])  # fmt: skip
             if best is None or rmse < best[0]:
-                best = (rmse, cov, c, lag)
+                best = (rmse, cov, c, lag, kept)
         if best is None or not best[0] < current * (1 - MIN_GAIN):
             break
-        rmse, cov, c, lag = best
+        rmse, cov, c, lag, (ins, cols, fits) = best
         chosen.append((c, lag))
         pool.remove(c)
         choice.steps.append(Step(str(InputSpec("", (c,), lag)), rmse, cov))
         current = rmse
-        cols = [ctx.column(t, g) for t, g in chosen]
-        ins = _with_sets([ctx.variable(t, g) for t, g in chosen], cols, rows, max_sets)
-        rb = _rulebase(test, out, ins, ctx.period, method=method)
-        scorer = BlockScorer(rb, cols, y, ctx.block)
+        # the winner's block fits as its scoring made them: the next step's base model
+        scorer = BlockScorer(FrozenRuleBase(base, ins), cols, y, ctx.block, fitted=fits)
         resid = scorer.residual(cols)
     return choice
 
@@ -600,6 +600,18 @@ SPREAD_WINDOW_S = 600.0
 CHATTER_WINDOW_S = 600.0
 
 
+def warm_kernels() -> None:
+    """Load the compiled Wang–Mendel kernels (fit, every level's inference) into this process
+    before the build's worker pools fork, so every worker of every pool inherits them instead
+    of loading them from numba's cache again (~0.3 s CPU a process)."""
+    from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
+
+    x = np.linspace(0.0, 0.5, 40)
+    X = np.column_stack([x, x[::-1]])
+    m = WangMendelRegressor([(0.0, 1.0), (0.0, 1.0)], (0.0, 1.0), n_sets=9)
+    m.fit(X, X.sum(axis=1) / 2).predict_detail(np.column_stack([x + 0.1, x]))
+
+
 def _reader(frame: pd.DataFrame):
     idx = frame.index
 
@@ -715,6 +727,7 @@ def _build_unit(
     if plan.factor > 1:
         sel = _Context(short.coarse_frame(frame, plan.factor), info, plan.select_period)
     same = same_measurement(frame, list(ctx.vars))
+    warm_kernels()
     seconds["read and screen"] = time.perf_counter() - t_start
 
     t0 = time.perf_counter()
@@ -743,8 +756,9 @@ def _build_unit(
             "the window: the tags are judged and the unit learned over that span"
         )
 
-    def fit(ch: TestChoice) -> None:
-        """Train ``ch``'s model on the window and write its model file."""
+    def fit(ch: TestChoice) -> tuple[float, str]:
+        """Train ``ch``'s model on the window and write its model file: its validation error
+        and the file's path relative to the folder (a worker's share, see :mod:`.parallel`)."""
         specs = [InputSpec.parse(s) for s in ch.inputs]
         cols = [ctx.spec_column(s) for s in specs]
         ins = _with_sets([ctx.spec_variable(s) for s in specs], cols, len(frame))
@@ -763,7 +777,7 @@ def _build_unit(
         )
         rb.edited()
         res = train(rb, read, start, end, holdout=HOLDOUT)
-        ch.validation_rmse_pct = float(res.validation.get("rmse_pct", math.nan))
+        validation = float(res.validation.get("rmse_pct", math.nan))
         rb.apply_training(
             res.model,
             {
@@ -771,16 +785,15 @@ def _build_unit(
                 "from": start.isoformat(),
                 "to": end.isoformat(),
                 "samples": res.samples,
-                "validation_rmse_pct": _r(ch.validation_rmse_pct) or "n/a",
+                "validation_rmse_pct": _r(validation) or "n/a",
                 "trained_at": pd.Timestamp.now(tz="UTC").floor("s").isoformat(),
             },
         )
         rb.save(mpath)
-        models[ch.test] = os.path.relpath(mpath.resolve(), folder.resolve())
-        kept.append(ch)
+        return validation, os.path.relpath(mpath.resolve(), folder.resolve())
 
     kept: list[TestChoice] = []
-    for i, ch in enumerate(choices):
+    for ch in choices:
         if not ch.steps and plan.short and not ch.tracks:
             why = short.level_test(ch, ctx.column(ch.tag), MIN_GAIN)
             if why:
@@ -792,12 +805,16 @@ def _build_unit(
                 f"{MIN_GAIN:.0%}): nothing to model it from"
             )
             continue
-        fit(ch)
-        if progress:
-            progress("train models", i + 1, len(choices))
+        kept.append(ch)
     if plan.short:
-        for ch in joint_tests(kept, ctx, taken, notes):
-            fit(ch)
+        kept.extend(joint_tests(kept, ctx, taken, notes))
+    # each model trained and written on its own: on every core, as the inputs were chosen
+    tick = (lambda d, n: progress("train models", d, n)) if progress else None
+    for ch, (validation, rel) in zip(
+        kept, map_tests(fit, kept, workers=workers, progress=tick), strict=True
+    ):
+        ch.validation_rmse_pct = validation
+        models[ch.test] = rel
     if not kept:
         raise UserError("no tag could be modelled from the others: nothing to test")
     kept.extend(spread_tests(kept, models, taken))
@@ -835,7 +852,10 @@ def _build_unit(
     t0 = time.perf_counter()
     try:
         unit = Unit.load(path, folder)
-        learned = learn_thresholds(unit, [frame], far=far)
+        learned = learn_thresholds(
+            unit, [frame], far=far, mapper=lambda fn, items, args: map_tests(fn, items, args,
+                                                                            workers=workers)
+        )  # fmt: skip
         uf = UnitFile.load(path)
         uf.set_learned(learned)
         uf.save()

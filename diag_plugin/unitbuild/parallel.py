@@ -1,10 +1,13 @@
 """The build's per-test work on every core (issue 34, speed).
 
 Each test's choice of inputs is independent of the others' (it reads the shared window and
-writes its own :class:`~diag_plugin.unitbuild.build.TestChoice`), so :func:`map_tests` runs
-them in a pool of worker processes — forked, so each worker starts with the window already in
-memory; only the test names go out and the choices come back. The workers' results are
-assembled in the tests' order, so the unit is the same as one process builds.
+writes its own :class:`~diag_plugin.unitbuild.build.TestChoice`), and so are the training of
+its model (which writes its own model file) and its cross-fitted residuals for the thresholds
+(:func:`~diag_plugin.learn.thresholds.test_residuals`), so :func:`map_tests` runs each of
+the three in a pool of worker processes — forked, so each worker starts with the window (and
+the unit) already in memory; only the test names or choices go out and the results come back.
+The workers' results are assembled in the tests' order, so the unit is the same as one process
+builds.
 
 Each process (the parent too, :func:`one_blas_thread`) keeps BLAS to one thread: the build
 makes thousands of small dense solves (a Wang–Mendel model's coarse levels, fitted for every
