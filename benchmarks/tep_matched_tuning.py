@@ -19,8 +19,17 @@ then:
    its calibration runs), the share in alarm on all the others — how far one run's limit
    moves on the next, per method.
 
+3. **More fault-free runs** (tep-studio, ``--more DIR``: the ``tunefree`` runs of
+   ``benchmarks/tep_studio_runs.py --roles tunefree --out DIR``, seeds 31–34, 3 days each,
+   which no method learns from and nothing scores): they join the fault-free samples of 1
+   and take turns with the calibration runs in 2; per fault-free run, each method's largest
+   score (over the 1 % limit matched on the calibration runs) and the share of samples where
+   some test of the unit reads an input outside the range its model learned
+   (:func:`~diag_plugin.diagnose.operating.learned_ranges`, at lag 0): there a rule grid
+   answers with its edge rule, flat, whatever the input does beyond it.
+
 The scoring runs are not read. Run: ``python benchmarks/tep_matched_tuning.py [--plant
-tep-studio]`` (the data in ``~/.cache/diag-plugin``; a minute or a few of CPU).
+tep-studio] [--more DIR]`` (the data in ``~/.cache/diag-plugin``; a minute or a few of CPU).
 """
 
 from __future__ import annotations
@@ -49,6 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--plant", choices=("tep", "tep-studio"), default="tep")
     ap.add_argument("--targets", default="0.005,0.01,0.02,0.05", help="shares of samples")
+    ap.add_argument("--more", default=None, help="folder of more fault-free runs (tep-studio)")
     add_scratch_args(ap, "nothing")
     args = ap.parse_args(argv)
     targets = [float(t) for t in args.targets.split(",")]
@@ -78,6 +88,8 @@ def main(argv: list[str] | None = None) -> int:
     else:  # before and after each tuning run's onset (scored from the run's start)
         quiet = [r.frame.iloc[: r.onset] for r in plant.tuning]
         faulty = [(r.frame, int(r.onset or 0)) for r in plant.tuning]
+    more = _more_runs(args.more) if args.plant == "tep-studio" and args.more else {}
+    quiet += list(more.values())
     cal = [r.frame for r in plant.calibration]
     print(f"unit: {len(unit.tests)} tests from {built.get('rows')} rows; delays {on}/{off}")
     print(f"calibration runs: {', '.join(r.name for r in plant.calibration)}; "
@@ -103,10 +115,10 @@ def main(argv: list[str] | None = None) -> int:
             det = float(np.mean(hits)) if hits else np.nan
             # whole fault-free runs take turns (classic TEP: d00_te and the three quiet
             # tuning runs); tep-studio's 8-hour pieces before an onset only score
-            pool = s_cal + s_quiet
-            turns = len(pool) if args.plant == "tep" else len(s_cal)
+            # tep-studio: the calibration runs and the --more runs (the last in s_quiet)
+            pool = s_cal + s_quiet if args.plant == "tep" else s_cal + s_quiet[len(faulty) :]
             each = []
-            for i in range(turns):
+            for i in range(len(pool)):
                 li = calibrate([pool[i]], t, period).limit
                 each.append(rates(pool[:i] + pool[i + 1 :], li, period)[0])
             shown = " ".join(f"{100 * x:.1f}" for x in each)
@@ -114,7 +126,47 @@ def main(argv: list[str] | None = None) -> int:
                   f"{pct(float(np.mean(each)))} ({shown}) |")  # fmt: skip
     print()
     print("leave one run out: each whole fault-free run in turn sets the limit alone")
+    if args.plant == "tep-studio":
+        _beyond(unit, {r.name: r.frame for r in plant.calibration} | more,
+                {m: calibrate([score(m, f) for f in cal], 0.01, period).limit
+                 for m in ("unit", "PCA", "DPCA")}, score)  # fmt: skip
     return 0
+
+
+def _more_runs(folder: str) -> dict:
+    """The fault-free runs in ``folder`` (any depth), by name, with the plant's tags."""
+    from pathlib import Path
+
+    import pandas as pd
+
+    from diag_plugin.bench.publicplants import TEP_TAGS
+
+    out = {}
+    for f in sorted(Path(folder).expanduser().rglob("tunefree_s*.csv")):
+        frame = pd.read_csv(f, index_col="ts", parse_dates=["ts"])
+        out[f.stem] = frame[~frame.index.duplicated(keep="first")][list(TEP_TAGS)]
+    return out
+
+
+def _beyond(unit, runs: dict, limits: dict, score) -> None:
+    """Per fault-free run: each method's largest score over its 1 % limit, and the share of
+    samples where some test's input is outside its model's learned range."""
+    from diag_plugin.diagnose.operating import learned_ranges
+
+    ranges = learned_ranges(unit.models, unit.tests)
+    tags = unit.file.tags
+    print()
+    print("| fault-free run | unit max | PCA max | DPCA max | unit: an input beyond its range |")
+    print("|---" * 5 + "|")
+    for name, f in runs.items():
+        out = np.zeros(len(f), bool)
+        for r in ranges:
+            v = f[tags.get(r.tag, r.tag)].to_numpy(float)
+            out |= (v < r.lo) | (v > r.hi)
+        mx = {m: np.nanmax(score(m, f)) / lim for m, lim in limits.items()}
+        print(f"| {name} | {mx['unit']:.2f} | {mx['PCA']:.2f} | {mx['DPCA']:.2f} | "
+              f"{100 * out.mean():.1f} % |")  # fmt: skip
+    print("(largest score over the 1 % limit matched on the calibration runs)")
 
 
 if __name__ == "__main__":

@@ -16,6 +16,10 @@ The runs and what each is for were fixed before any result was looked at:
 * ``tuning``: IDV(1)…IDV(20), seed 101, 48 h, the fault from hour 8 — for choosing changes;
 * ``fault``: IDV(1)…IDV(20), seeds 201 and 202, 48 h, the fault from hour 8 — scoring only.
 
+Added later (issue 34), for choosing changes to the false-alarm side, never scored:
+
+* ``tunefree``: fault-free, seeds 31, 32, 33, 34, 3 days each (as a calibration run).
+
 Samples every 3 min (as the classic data sets): XMEAS(1)…(41) and XMV(1)…(11) as
 ``XMEAS1``…, ``XMV1``… (the agitator XMV(12) is fixed). The seed sets the measurement noise.
 A run that trips the plant's shutdown ends there; the manifest says when.
@@ -45,6 +49,7 @@ RUNS = {
     "free": [(s, None, 2 * 24.0) for s in (21, 22, 23)],
     "tuning": [(101, k, 48.0) for k in range(1, 21)],
     "fault": [(s, k, 48.0) for s in (201, 202) for k in range(1, 21)],
+    "tunefree": [(s, None, 3 * 24.0) for s in (31, 32, 33, 34)],
 }
 ONSET_H = 8.0
 
@@ -77,7 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     default = os.environ.get("DIAG_TEP_STUDIO_DIR") or "~/.cache/diag-plugin/tep-studio"
     p.add_argument("--out", default=default)
     p.add_argument("--roles", default="train,calibration,free,fault,tuning")
+    p.add_argument("--seeds", default="", help="only these seeds (comma-separated)")
     args = p.parse_args(argv)
+    only = {int(x) for x in args.seeds.split(",") if x}
     out = Path(args.out).expanduser()
     out.mkdir(parents=True, exist_ok=True)
     mpath = out / "manifest.json"
@@ -85,6 +92,8 @@ def main(argv: list[str] | None = None) -> int:
     offset = 0
     for role in args.roles.split(","):
         for seed, idv, hours in RUNS[role]:
+            if only and seed not in only:
+                continue
             name = f"{role}_s{seed}" + (f"_idv{idv:02d}" if idv else "")
             offset += 1
             if name in manifest["runs"] and (out / f"{name}.csv").exists():
