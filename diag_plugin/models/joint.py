@@ -101,7 +101,6 @@ def within_component(
     Last, per point the variance of its rows' score ``Σ v_i (u_i − m_i) / s_i`` (NaN for a
     point with fewer than two rows)."""
     k = grams[0].shape[0] - 1
-    W = np.zeros((k, k))
     means, scatters = [], []
     n = 0.0
     for g in grams:
@@ -109,9 +108,12 @@ def within_component(
         m = g[0, 1:] / nk if nk > 0 else np.full(k, np.nan)
         means.append(m)
         scatters.append(g[1:, 1:] - nk * np.outer(m, m) if nk > 0 else np.zeros((k, k)))
-        W += scatters[-1]
         n += nk
-    cov = W / max(n, 1.0)
+    # W / n as Σ G_k / n − Σ (n_k / n) m_k m_kᵀ: with one point the bits of first_component
+    n = max(n, 1.0)
+    cov = sum(g[1:, 1:] for g in grams) / n
+    cov = cov - sum((g[0, 0] / n) * np.outer(m, m) for g, m in zip(grams, means, strict=True)
+                    if g[0, 0] > 0)  # fmt: skip
     s = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     s = np.where(s > 0, s, 1.0)
     w, V = np.linalg.eigh(cov / np.outer(s, s))
@@ -158,8 +160,9 @@ class JointRegressor(LinearRegressor):
         if P.ndim != 2 or (len(P) and P.shape[1] != d + 1):
             raise ValueError(f"each point has the {d} inputs and the output, got {P.shape}")
         self.points_ = P
+        # per point its own statistics; one point is the model's own (``qr_``)
         self.qrs_: list[QRLeastSquares] | None = [
-            QRLeastSquares(len(self.terms_)) for _ in range(max(1, len(P)))
+            QRLeastSquares(len(self.terms_)) for _ in range(len(P) if len(P) >= 2 else 0)
         ]
         self._shift: np.ndarray | None = None
         self._spread: np.ndarray | None = None
@@ -203,7 +206,7 @@ class JointRegressor(LinearRegressor):
 
     def _solve(self) -> None:
         k = len(self.terms_) + 1
-        grams = [_gram(q, k) for q in self.qrs_]
+        grams = [_gram(q, k) for q in (self.qrs_ or [self.qr_])]
         means, s, v, var = within_component(grams)
         vy = v[-1] if abs(v[-1]) > 1e-9 else 1e-9
         b = -s[-1] * v[:-1] / (vy * s[:-1])
@@ -287,12 +290,13 @@ class JointRegressor(LinearRegressor):
     @classmethod
     def from_state(cls, state: Mapping[str, Any]) -> JointRegressor:
         m = super().from_state(state)
-        if state.get("qrs") is not None:
-            m.qrs_ = [QRLeastSquares.from_state(q, len(m.terms_)) for q in state["qrs"]]
+        k = max(1, len(m.points_))
+        if m.qr_ is not None:
+            m.qrs_ = [QRLeastSquares.from_state(q, len(m.terms_)) for q in state.get("qrs") or []]
         else:
             m.qrs_ = None
-            m._shift = np.asarray(state["shifts"], dtype=np.float64)
-            m._spread = np.asarray(state.get("spreads") or np.ones(len(m._shift)), np.float64)
+            m._shift = np.asarray(state.get("shifts") or np.zeros(k), np.float64)
+            m._spread = np.asarray(state.get("spreads") or np.ones(k), np.float64)
         return m
 
     def predict_detail(self, X: Any) -> Prediction:
