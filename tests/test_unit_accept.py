@@ -211,3 +211,57 @@ def test_a_short_units_accepted_point_is_answered_not_flickering(tmp_path):
     cf = (d["status"] == "CHECK_FUNCTION").to_numpy()
     print(f"SKAB after accept: CHECK_FUNCTION {cf.mean():.3f}, {_episodes(cf)} episodes")
     assert cf.mean() < 0.03 and _episodes(cf) <= 3, (cf.mean(), _episodes(cf))
+
+
+def test_a_joint_test_after_accept_answers_at_both_points(tmp_path):
+    """SKAB (the walk's scenario): a unit built from valve1/1's first 400 s, then the
+    anomaly-free run's first hour (the pump at about four times the flow) accepted. Back on
+    valve1/1's normal samples before its fault, the unit stays quiet, as it did before the
+    accept, and on the rest of the accepted run too. Before, the accepted joint test of the
+    accelerometers took its principal component and mean from both points pooled — the line
+    between them, each point at one end — and alarmed on every one of those normal samples
+    (0 % before the accept); now its component is the one within the points, and each sample
+    is scored against its nearest point's mean and spread (``[rules] points``)."""
+    import tomllib
+
+    from diag_plugin.bench import publicplants as pp
+    from diag_plugin.diagnose.unit import Unit
+    from tests.helpers import require
+
+    try:
+        src = pp.skab_source()
+        free = src.read("anomaly-free/anomaly-free.csv")[list(pp.SKAB_TAGS)]
+        raw = src.read("valve1/1.csv")
+    except pp.DataMissing as exc:
+        require("SKAB", False, str(exc))
+    run = raw[list(pp.SKAB_TAGS)]
+    labels = raw["anomaly"].to_numpy(float)
+    onset = pp.SKAB_LEARN + int(np.flatnonzero(labels[pp.SKAB_LEARN :] > 0)[0])
+    run.index = pd.date_range("2020-03-09 10:00", periods=len(run), freq="1s")
+    free.index = pd.date_range("2020-02-08 13:00", periods=len(free), freq="1s")
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    import_csv(g, run, tmp_path / "run.csv")
+    import_csv(g, free, tmp_path / "free.csv")
+    rc, text = diag(g, "unit", "build", "rig", "--from", fmt(run.index[0]),
+                    "--to", fmt(run.index[pp.SKAB_LEARN]))  # fmt: skip
+    assert rc == 0, text
+    hour = free.index[0] + pd.Timedelta(hours=1)
+    rc, text = diag(g, "unit", "accept", "rig", "--from", fmt(free.index[0]), "--to", fmt(hour))
+    assert rc == 0, text
+    rb = tmp_path / "rb"
+    unit = Unit.load(rb / "rig.unit.toml", rb)
+
+    def alarms(frame: pd.DataFrame) -> np.ndarray:
+        st = unit.reset().evaluate(frame).status.to_numpy()
+        return np.isin(st, [NE107.FAILURE, NE107.OFF_SPEC])
+
+    normal = alarms(run)[pp.SKAB_LEARN : onset]
+    rest = alarms(free.iloc[3600:])
+    print(f"after accept: valve1/1 normal in alarm {normal.mean():.3f}, "
+          f"anomaly-free rest {rest.mean():.3f}")  # fmt: skip
+    assert normal.mean() < 0.05 and rest.mean() < 0.05, (normal.mean(), rest.mean())
+    joint = [n for n, r in unit.file.build["tests"].items() if r.get("method") == "joint"]
+    assert joint, unit.file.build["tests"]
+    for name in joint:
+        doc = tomllib.loads(unit.models[name].path.read_text())
+        assert len(doc["rules"]["points"]) == 2, doc["rules"]

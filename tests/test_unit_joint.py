@@ -35,23 +35,31 @@ def _ou(rng: np.random.Generator, n: int, tau_s: float) -> np.ndarray:
     return x
 
 
-def pump(seed: int, n: int, rise_from: int | None = None) -> pd.DataFrame:
-    """A pump at 1 s: vibration ``V`` (g, RMS) seen by two accelerometers of different
-    sensitivity, and a flow driven by its own demand. With ``rise_from`` the vibration rises
-    from that sample on by 1 % of its level a minute (an imbalance growing)."""
+def pump(
+    seed: int,
+    n: int,
+    rise_from: int | None = None,
+    level: float = 0.25,
+    flow_at: float = 32.0,
+    start: str = "2026-05-04 08:00",
+) -> pd.DataFrame:
+    """A pump at 1 s: vibration ``V`` (g, RMS; ``level`` its mean) seen by two accelerometers
+    of different sensitivity, and a flow (mean ``flow_at``) driven by its own demand. With
+    ``rise_from`` the vibration rises from that sample on by 1 % of its level a minute (an
+    imbalance growing)."""
     rng = np.random.default_rng([seed, 34])
-    v = 0.25 + 0.004 * _ou(rng, n, 3.0)
+    v = level + 0.004 * (level / 0.25) * _ou(rng, n, 3.0)
     if rise_from is not None:
         k = np.arange(n) - rise_from
-        v = v + np.where(k > 0, 0.25 * 0.01 * k / 60.0, 0.0)
-    flow = 32.0 + 0.6 * _ou(rng, n, 4.0) + 0.1 * rng.normal(size=n)
+        v = v + np.where(k > 0, level * 0.01 * k / 60.0, 0.0)
+    flow = flow_at + 0.6 * _ou(rng, n, 4.0) + 0.1 * rng.normal(size=n)
     return pd.DataFrame(
         {
             "ACC1": 0.9 * v + 0.0012 * rng.normal(size=n),
             "ACC2": 1.3 * v + 0.0018 * rng.normal(size=n),
             "FLOW": flow,
         },
-        index=pd.date_range("2026-05-04 08:00", periods=n, freq="1s", name="ts"),
+        index=pd.date_range(start, periods=n, freq="1s", name="ts"),
     )
 
 
@@ -171,3 +179,94 @@ def test_the_joint_output_is_the_tag_with_the_largest_loading():
     assert np.all(np.isfinite(chosen.coef_)) and np.max(np.abs(chosen.coef_[1:])) < 10
     first, _ = model("A")  # the old choice: the group's first tag
     assert np.max(np.abs(first.coef_[1:])) > 1000 * np.max(np.abs(chosen.coef_[1:]))
+
+
+def _two_points(seed: int, n: int = 3000):
+    """Rows of two operating points far apart (the second at 4× the first along the group's
+    common direction, as SKAB's pump in its calibration run), each with its own fault-free
+    co-variation, the second noisier."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k, (centre, sd) in enumerate([((0.25, 0.36), 1.0), ((1.0, 1.45), 4.0)]):
+        c = 0.004 * sd * rng.normal(size=n // 2)
+        a = centre[0] + 0.9 * c + 0.0012 * sd * rng.normal(size=n // 2)
+        b = centre[1] + 1.3 * c + 0.0018 * sd * rng.normal(size=n // 2)
+        out.append(np.column_stack([a, b, np.full(n // 2, k)]))
+    return np.vstack(out)
+
+
+def test_a_joint_test_over_two_points_keeps_each_points_component_and_merges_exactly():
+    """Two operating points: the model's component is the one of fault-free variation
+    *within* the points (not the line between them, the pooled total covariance's), each
+    point's residuals are centred on its own mean, and the models of the two windows merged
+    are the model of the union fitted at once (``diag unit accept``'s exact merge)."""
+    from diag_plugin.models.joint import JointRegressor, within_component
+
+    U = _two_points(3)
+    X, y, at = U[:, :1], U[:, 1], U[:, 2].astype(int)
+    spans = [(0.2, 1.1)]
+    points = [[U[at == k, 0].mean(), U[at == k, 1].mean()] for k in (0, 1)]
+    whole = JointRegressor(input_spans=spans, points=points).fit(X, y)
+    parts = [JointRegressor(input_spans=spans, points=points).fit(X[at == k], y[at == k])
+             for k in (0, 1)]  # fmt: skip
+    merged = parts[0].merge(parts[1])
+    assert np.allclose(merged.coef_, whole.coef_, rtol=1e-9, atol=1e-12)
+    assert np.allclose(merged.shifts_, whole.shifts_, rtol=1e-9, atol=1e-12)
+    # the slope is the within-point one (1.3 / 0.9 in the tags' common direction) ...
+    _, _, v, _ = within_component(
+        [
+            np.c_[np.ones(n), W].T @ np.c_[np.ones(n), W]
+            for W in (U[at == 0, :2], U[at == 1, :2])
+            for n in [len(W)]
+        ]
+    )
+    r = y - whole.predict(X)
+    for k in (0, 1):
+        Z = U[at == k, :2] - U[at == k, :2].mean(0)
+        assert abs(np.corrcoef(r[at == k], Z @ (v / U[:, :2][at == 0].std(0)))[0, 1]) > 0.9
+        # ... and each point's residuals are centred on its own mean, at the scale of the
+        # point's own variation, not half the distance between the points
+        assert abs(r[at == k].mean()) < 1e-9 + 1e-6 * abs(points[1][1] - points[0][1])
+    assert r[at == 0].std() < 0.01 * abs(points[1][1] - points[0][1])
+    pooled = JointRegressor(input_spans=spans).fit(X, y)  # one point: the old model
+    r1 = y - pooled.predict(X)
+    assert abs(r1[at == 0].mean()) > 10 * r[at == 0].std()  # each point at one end
+    # the file's form: the terms and each point's shift give the same prediction
+    from diag_plugin.models.joint import JointRegressor as J
+
+    back = J.from_state(whole.to_state())
+    assert np.allclose(back.predict(X), whole.predict(X))
+    coded = J(input_spans=spans, points=points).init(1).set_coefficients(whole.coef_)
+    coded.set_shifts(whole.shifts_)
+    assert np.allclose(coded.predict(X), whole.predict(X), rtol=1e-9, atol=1e-12)
+
+
+def test_after_accepting_a_second_point_the_first_point_stays_quiet(tmp_path):
+    """A unit from 400 s of the pump (its accelerometers a joint test), then an hour at a
+    second operating point confirmed with ``diag unit accept`` (vibration 4×, more flow: as
+    SKAB's calibration run beside its valve runs). Back at the first point, fault-free, the
+    unit stays quiet, and at the second point too; a vibration rise at the first point is
+    still seen. Before, the accepted joint test took its component and mean from both points
+    pooled — the line between them — and alarmed on most fault-free samples at either."""
+    from diag_plugin.diagnose.unit import Unit
+    from tests.test_any_plant_tour import fmt, import_csv
+
+    first = pump(41, ROWS + 1800, rise_from=ROWS + 900)
+    second = pump(42, 3600 + 1200, level=1.0, flow_at=45.0, start="2026-05-06 08:00")
+    g, _, unit = _build(tmp_path, first)
+    assert any(r.get("method") == "joint" for r in unit.file.build["tests"].values())
+    import_csv(g, first.iloc[ROWS:], tmp_path / "rest.csv")
+    import_csv(g, second, tmp_path / "second.csv")
+    hour = second.index[3600]
+    rc, text = diag(g, "unit", "accept", "u", "--from", fmt(second.index[0]), "--to", fmt(hour))
+    assert rc == 0, text
+    unit = Unit.load(tmp_path / "rb" / "u.unit.toml", tmp_path / "rb")
+    alarm, cf, _ = _statuses(unit, first)
+    quiet = slice(ROWS, ROWS + 900)
+    k = np.arange(len(first))
+    rise = k >= ROWS + 1500  # ten minutes into the rise
+    alarm2, cf2, _ = _statuses(unit, second.iloc[3600:])
+    print(f"first point fault-free: alarm {alarm[quiet].mean():.3f}, CF {cf[quiet].mean():.3f}; "
+          f"rise {alarm[rise].mean():.2f}; second point: alarm {alarm2.mean():.3f}")  # fmt: skip
+    assert alarm[quiet].mean() < 0.05 and alarm2.mean() < 0.05
+    assert alarm[rise].mean() > 0.5

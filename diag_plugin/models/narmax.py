@@ -396,7 +396,7 @@ class NarmaxCodec(RuleCodec):
         self, rb: RuleBase, items: list, positions: Sequence[tuple[int, list[str], str]]
     ) -> list[Term]:
         """Terms from the ``[rules] list``; each problem goes to ``rb.error(line, …)``."""
-        _no_options(rb, self.method)
+        self.check_options(rb)
         specs = [v.spec for v in rb.inputs]
         out: list[Term] = []
         seen: dict[tuple[int, ...], int] = {}
@@ -427,6 +427,11 @@ class NarmaxCodec(RuleCodec):
             if not self.allows(t.term):
                 rb.error(t.line, f"term {format_term(t.term, specs)!r}: {self.only}")
         return [t for t in out if self.allows(t.term)]
+
+    def check_options(self, rb: RuleBase) -> None:
+        """Each ``[rules]`` key but ``list`` that the method does not take goes to
+        ``rb.error`` (``narmax2`` and ``linear`` take none)."""
+        _no_options(rb, self.method)
 
     def allows(self, term: tuple[int, ...]) -> bool:
         """Whether the method's file form has ``term`` (``narmax2``: every term it parses;

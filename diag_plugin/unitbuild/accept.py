@@ -14,6 +14,9 @@ period there as fault-free, :func:`accept` learns it into the unit:
    or least-squares factor — and the model of the accepted window is merged into it: the
    result is the model of all those rows (Kościelny et al., eq. 5 over the union: every
    rule's count and sums add). Locked rules stay as the expert set them.
+   A joint test (:mod:`diag_plugin.models.joint`) gets the accepted window as an operating
+   point of its own (:func:`add_point`): its component is the within-point one, and each
+   sample is scored against the nearest point's mean.
 3. **Thresholds re-learned** over all the windows together (cross-fitted, to the unit's own
    budget), as ``diag unit learn`` learns them; the windows are set one after another on one
    time grid (a window weeks away re-timed to follow a gap), and the cross-fitting's blocks
@@ -225,6 +228,8 @@ def accept(
                 f"({', '.join(f'{a} … {b}' for a, b in old)})"
             )
         rb, said = widen_spans(rb, new)
+        if rb.method == short.JOINT:
+            rb = add_point(rb, [window(a, b) for a, b in old], new)
         plans.append((t, path, rb, old))
         warnings.extend(f"{path.name}: {w}" for w in said)
         all_windows |= set(old)
@@ -352,6 +357,32 @@ def widen_spans(rb, frame: pd.DataFrame):
     out = RuleBase(rb.dumps(), rb.path)
     out.training.update({k: v for k, v in training.items() if k != "status"})
     return out, said
+
+
+def add_point(rb, old: list[pd.DataFrame], new: pd.DataFrame):
+    """``rb`` (a joint test) with the accepted window as an operating point of its own: its
+    ``[rules] points`` (the points it learned, else one: the mean of the windows it learned)
+    and the mean of the group's tags over ``new``. The joint test then scores each sample
+    against its nearest point's mean, along the component of fault-free variation *within*
+    the points (:mod:`diag_plugin.models.joint`): the group's total covariance over two
+    points far apart has as its first component the line between them, on which each point
+    sits at one end (SKAB, a unit from valve1/1's first 400 s after accepting the
+    anomaly-free run's first hour: the joint test alarmed on every normal sample)."""
+    from diag_plugin.models.joint import POINTS, set_points
+
+    cols = [InputSpec.parse(v.spec).tags[0] for v in [*rb.inputs, rb.output]]
+
+    def mean(frames: list[pd.DataFrame]) -> list[float]:
+        f = pd.concat([x.reindex(columns=cols) for x in frames]).dropna()
+        if not len(f):
+            raise UserError(f"{rb.path}: no sample with every tag of {', '.join(cols)}")
+        return [float(v) for v in f.mean().to_numpy(float)]
+
+    have = rb.options.get(POINTS)
+    points = [list(p["at"]) for p in have] if have else [mean(old)]
+    points.append(mean([new]))
+    set_points(rb, np.asarray(points), np.zeros(len(points)))
+    return rb
 
 
 def _now() -> str:
