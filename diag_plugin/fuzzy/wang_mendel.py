@@ -748,18 +748,21 @@ class WangMendelRegressor(ParamsMixin):
         X = _as_2d(X)
         if X.shape[1] != self.n_features_in_:
             raise ValueError(f"model has {self.n_features_in_} inputs, X has {X.shape[1]}")
+        n = X.shape[0]
+        loops = kernels(n)
+        if not hasattr(loops, "infer_fine"):  # numpy's loops (numba not loaded): the levels'
+            return self._predict_levels(X)  # search, the same answers (test_unit_replay_exact)
         fine = self._fine_table()
         if fine is None:  # a fine grid too big for a dense table: every level searched
             return self._predict_levels(X)
         # the fine level of every row through its dense table; only the rows it leaves short
         # of LEVEL_SUPPORT inside the data's range are asked again, level by level
-        n = X.shape[0]
         det = Prediction(np.empty(n), np.empty(n), np.empty(n, np.int8), np.empty(n, np.int8),
                          np.empty(n))  # fmt: skip
         again = np.empty(n, np.bool_)
         for s in range(0, n, CHUNK_ROWS):
             e = s + CHUNK_ROWS
-            K.infer_fine(X[s:e], *fine, *(f[s:e] for f in _fields(det)), again[s:e])
+            loops.infer_fine(X[s:e], *fine, *(f[s:e] for f in _fields(det)), again[s:e])
         rows = np.flatnonzero(again)
         packs = self.__dict__.setdefault("_packs", {})
         none = np.empty(0, np.int64)
