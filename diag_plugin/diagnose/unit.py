@@ -33,6 +33,7 @@ names the tags that explain it, ranked by contribution (:mod:`diag_plugin.diagno
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -91,7 +92,13 @@ class TestModel:
 
     @property
     def tags(self) -> list[str]:
-        return needed_tags([*self.inputs, self.output])
+        return list(_needed_tags(tuple(self.inputs), self.output))
+
+
+@functools.lru_cache(maxsize=4096)
+def _needed_tags(inputs: tuple[str, ...], output: str) -> tuple[str, ...]:
+    """:func:`needed_tags` of a model's specs, parsed once (asked for every piece replayed)."""
+    return tuple(needed_tags([*inputs, output]))
 
 
 def load_test_model(name: str, path: Path) -> TestModel:
