@@ -469,6 +469,7 @@ class DesignBuilder:
         self.input_names = [str(s) for s in self.specs]
         self.out_spec = None if output is None else parse_specs([output])[0]
         self.all_specs = self.specs + ([self.out_spec] if self.out_spec is not None else [])
+        self._bases = [s.base for s in self.all_specs]  # each spec's feature, once
         self.tags = needed_tags(self.all_specs)
         self.history = max_lag(self.all_specs)
         self.features: dict[str, _FeatureState] = {}
@@ -551,7 +552,10 @@ class DesignBuilder:
             frame = frame.mask(bad != 0)
         n = len(frame)
         feats = self._columns(frame)
-        cols = [_lagged(self.tails[s.base], feats[s.base], s.lag) for s in self.all_specs]
+        cols = [
+            _lagged(self.tails[b], feats[b], s.lag)
+            for s, b in zip(self.all_specs, self._bases, strict=True)
+        ]
         ok = np.ones(n, bool)
         for c in cols:  # a row is complete without a NaN in any column
             ok &= ~np.isnan(c)

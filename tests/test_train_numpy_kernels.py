@@ -105,3 +105,26 @@ def test_training_and_predicting_one_model_do_not_load_numba():
     out = json.loads(res.stdout)
     assert out["numba"] is False
     assert out["y"] > 0
+
+
+@pytest.mark.parametrize(
+    "d, shape, sets, rows",
+    [(1, "triangular", 31, 12), (2, "trapezoidal", 15, 60), (3, "triangular", 31, 4000)],
+)
+def test_prediction_by_numpy_loops_is_the_fine_kernels_bit_for_bit(
+    d, shape, sets, rows, monkeypatch
+):
+    """Without numba (numpy's loops, no ``infer_fine``) ``predict_detail`` searches the levels;
+    with it the fine level comes from its dense table: the same answers, bit for bit."""
+    from diag_plugin.fuzzy import wang_mendel
+
+    rng = np.random.default_rng(20 + d)
+    X, y = _data(rng, 30_000, d)
+    Xt, _ = _data(rng, 20_000, d, -20, 120)
+    fast = _model(d, shape, sets).fit(X[:rows], y[:rows]).predict_detail(Xt)
+    monkeypatch.setattr(wang_mendel, "kernels", lambda rows=None: N)
+    slow = _model(d, shape, sets).fit(X[:rows], y[:rows]).predict_detail(Xt)
+    assert {-1, 0, 1} <= set(np.unique(fast.level).tolist())  # fine, coarse and no answer met
+    for f in ("y", "support", "reason", "level", "spread"):
+        a, b = getattr(fast, f), getattr(slow, f)
+        assert np.array_equal(a.view(np.uint8), b.view(np.uint8)), f

@@ -135,7 +135,7 @@ def _ref_episode(self, share, active):
     return out
 
 
-def _ref_combined(self, r):
+def _ref_combined(self, r, shares=True):  # T² and every sample's shares, whatever is asked
     z = self.z(r)
     n, T = z.shape
     t2 = np.full(n, np.nan)
@@ -171,6 +171,17 @@ def _ref_combined(self, r):
             q = stats.chi2.isf(stats.chi2.sf(q, k.size), T)
         t2[rows] = q
     return t2, share
+
+
+def _ref_episode_at(self, share_at, active):  # the episode over every sample, alarms' kept
+    act = np.asarray(active, bool)
+    full = np.full((act.size, share_at.shape[1]), np.nan)
+    full[act] = share_at
+    return _ref_episode(self, full, act)[act]
+
+
+def _ref_shares(self, r, rows):  # every sample's shares computed, those asked for kept
+    return _ref_combined(self, r)[1][np.asarray(rows, bool)]
 
 
 def _ref_inverse(self, pat):  # each pattern's pseudo-inverse, nothing shared with the replay
@@ -240,7 +251,9 @@ def reference(monkeypatch):
         monkeypatch.setattr(unit, "_hold_kernel", _ref_hold)
         monkeypatch.setattr(unit, "_on", lambda s: np.nan_to_num(s) != 0)
         monkeypatch.setattr(unitloops.EpisodeHold, "transform", _ref_episode)
+        monkeypatch.setattr(unitloops.EpisodeHold, "transform_at", _ref_episode_at)
         monkeypatch.setattr(unittags.CombinedModel, "evaluate", _ref_combined)
+        monkeypatch.setattr(unittags.CombinedModel, "shares", _ref_shares)
         monkeypatch.setattr(unittags.CombinedModel, "_inverse", _ref_inverse)
         monkeypatch.setattr(Unit, "raw_residuals", _ref_raw_residuals)
         monkeypatch.setattr(operating.OutsideLearned, "transform", _ref_outside)
@@ -345,6 +358,37 @@ def test_replay_matches_the_reference_path_bit_for_bit(built, fault, reference):
     if fault is not None:  # the run is not trivially quiet: the fault is seen and named
         assert (slow["frame"]["status"] != 0).any()
         assert (slow["frame"].get("top1", pd.Series(dtype=object)) != "").any()
+
+
+@pytest.mark.parametrize("fault", ["stiction", "flow_bias"])
+def test_shares_computed_on_alarms_and_when_asked_are_the_eager_ones(built, fault):
+    """The replay computes the tags' shares of T² on the alarm samples only (what the named
+    tags read) and the others when ``Diagnosis.contributions`` is first asked for: every
+    sample's share is the one the combined test gives over all samples at once, in one pass
+    and in pieces, and the named tags are the eager shares' ranking."""
+    u, step = built
+    frame = _run(fault, step)
+    d = u.reset().evaluate(frame)
+    lazy = d._contributions
+    assert isinstance(lazy, unit.LazyShares)
+    assert lazy.at.any() and (~lazy.at).any()  # both kinds of samples met
+    t2, eager = u.cmodel.evaluate(d.residuals.to_numpy())
+    np.testing.assert_array_equal(d.combined["T2"].to_numpy(), t2)
+    got = d.contributions
+    assert got is d.contributions  # computed once
+    assert got.columns.tolist() == u.cmodel.tags and got.index.equals(frame.index)
+    np.testing.assert_array_equal(got.to_numpy(), eager)
+    ranked = unittags.top_tags(
+        unitloops.EpisodeHold(len(u.cmodel.tags)).transform(eager, lazy.at), u.cmodel.tags, lazy.at
+    )
+    held = d.status.to_numpy() != 0
+    for c in ranked.columns:  # the alarm samples (the unit's hold repeats them after)
+        np.testing.assert_array_equal(d.top[c].to_numpy()[lazy.at], ranked[c].to_numpy()[lazy.at])
+    assert held[lazy.at].all()
+    piece = max(7, len(frame) // 9)
+    u.reset()
+    parts = [u.evaluate(frame.iloc[s : s + piece]) for s in range(0, len(frame), piece)]
+    np.testing.assert_array_equal(concat(parts).contributions.to_numpy(), eager)
 
 
 def _spd(rng, T: int, lam: float) -> np.ndarray:

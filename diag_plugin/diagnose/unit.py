@@ -33,8 +33,10 @@ names the tags that explain it, ranked by contribution (:mod:`diag_plugin.diagno
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -59,7 +61,12 @@ from diag_plugin.diagnose.unitloops import (
     warm_up,
     warming_up,
 )
-from diag_plugin.diagnose.unittags import CombinedModel, derived_matrix, describe_top, top_tags
+from diag_plugin.diagnose.unittags import (
+    CombinedModel,
+    derived_matrix,
+    describe_top,
+    top_tags_at,
+)
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
 from diag_plugin.regressors import Columns, DesignBuilder, needed_tags, parse_specs
@@ -88,7 +95,13 @@ class TestModel:
 
     @property
     def tags(self) -> list[str]:
-        return needed_tags([*self.inputs, self.output])
+        return list(_needed_tags(tuple(self.inputs), self.output))
+
+
+@functools.lru_cache(maxsize=4096)
+def _needed_tags(inputs: tuple[str, ...], output: str) -> tuple[str, ...]:
+    """:func:`needed_tags` of a model's specs, parsed once (asked for every piece replayed)."""
+    return tuple(needed_tags([*inputs, output]))
 
 
 def load_test_model(name: str, path: Path) -> TestModel:
@@ -192,6 +205,8 @@ class Diagnosis:
     ``T2``: the combined statistic, NaN unknown; ``s_T2``: its symptom 0/1 after the delays,
     NaN unknown or not a test), ``contributions`` (per tag its share of T², see
     :mod:`~diag_plugin.diagnose.unittags`) and ``top`` (``top1``, ``share1``, … on alarms).
+    The replay computes the shares on the alarm samples only (what ``top`` ranks);
+    ``contributions`` computes the others when first asked (the same values).
     """
 
     unit: str
@@ -204,10 +219,21 @@ class Diagnosis:
     faults: pd.Series
     message: str = ""
     combined: pd.DataFrame | None = None
-    contributions: pd.DataFrame | None = None
+    #: ``contributions``, or what computes it when first asked (:class:`LazyShares`)
+    _contributions: pd.DataFrame | Callable[[], pd.DataFrame] | None = field(
+        default=None, repr=False
+    )
     top: pd.DataFrame | None = None
     #: per sample of CHECK_FUNCTION the input outside what the unit learned (operating.py)
     why: pd.Series | None = None
+
+    @property
+    def contributions(self) -> pd.DataFrame | None:
+        """Per sample each tag's share of T² (samples × tags; NaN unknown), or None without a
+        combined test or isolation to tags; computed here, once, outside the alarm samples."""
+        if callable(self._contributions):
+            self._contributions = self._contributions()
+        return self._contributions
 
     @property
     def top_tags(self) -> pd.DataFrame:
@@ -638,9 +664,9 @@ class Unit:
         known = ~np.isnan(s)
         active = _on(s).any(axis=1)
         c_on = np.zeros(n, bool)
-        combined = share = None
+        combined = None
         if self.cmodel is not None:
-            t2, share = self.cmodel.evaluate(r.to_numpy())
+            t2, _ = self.cmodel.evaluate(r.to_numpy(), shares=False)  # shares: alarms only
             s_t2 = np.full(n, np.nan)
             if self.ev["combined"] and self.cmodel.high is not None:
                 with np.errstate(invalid="ignore"):
@@ -667,10 +693,14 @@ class Unit:
         if self.matrix is not None:
             cert = self.certainties(s, mem, tests_on)
             status, faults = self._isolate(cert, active, status, s)
-        top = None
-        if share is not None:
-            # the tags named: each one's share averaged over the alarm episode so far
-            top = top_tags(self.episode.transform(share, active), self.cmodel.tags, active)
+        top = shares = None
+        if self.cmodel is not None:
+            # the tags named: each one's share averaged over the alarm episode so far; the
+            # shares computed on the alarm samples only (the episode and the ranking read
+            # no others; the rest when Diagnosis.contributions is asked for)
+            shares = LazyShares(self.cmodel, r.to_numpy(), active, frame.index)
+            held = self.episode.transform_at(shares.share_at, active)
+            top = top_tags_at(held, self.cmodel.tags, active)
             top.index = frame.index
         alone = c_on & ~tests_on & (faults == "")
         if alone.any():  # the combined test alone: the unit fails, at the best-ranked tag
@@ -704,9 +734,7 @@ class Unit:
             faults=pd.Series(faults, index=idx),
             message=message,
             combined=combined,
-            contributions=None
-            if share is None
-            else pd.DataFrame(share, index=idx, columns=self.cmodel.tags, copy=False),
+            _contributions=shares,
             top=top,
             why=pd.Series(why, index=idx),
         )
@@ -783,6 +811,32 @@ class Unit:
         return out_status, faults
 
 
+class LazyShares:
+    """Each tag's share of T² per sample for :class:`Diagnosis`: those of the alarm samples
+    (``at``) computed now (the episode's ranking reads them), the others when called."""
+
+    def __init__(self, cmodel: CombinedModel, r: np.ndarray, at: np.ndarray, index) -> None:
+        self.cmodel, self.r, self.at, self.index = cmodel, r, np.asarray(at, bool), index
+        self.share_at = cmodel.shares(r, self.at)
+
+    def __call__(self) -> pd.DataFrame:
+        out = np.empty((self.r.shape[0], len(self.cmodel.tags)))
+        out[self.at] = self.share_at
+        out[~self.at] = self.cmodel.shares(self.r, ~self.at)
+        return pd.DataFrame(out, index=self.index, columns=self.cmodel.tags, copy=False)
+
+
+class _Concat:
+    """The contributions of consecutive pieces (frames or :class:`LazyShares`), concatenated
+    when called."""
+
+    def __init__(self, parts: list) -> None:
+        self.parts = parts
+
+    def __call__(self) -> pd.DataFrame:
+        return pd.concat([p() if callable(p) else p for p in self.parts])
+
+
 def _plain(v):
     """A numpy scalar as a plain Python value (the carried state is JSON)."""
     return v.item() if hasattr(v, "item") else v
@@ -840,7 +894,9 @@ def concat(parts: list[Diagnosis]) -> Diagnosis:
         faults=cat("faults"),
         message=first.message,
         combined=opt("combined"),
-        contributions=opt("contributions"),
+        _contributions=None
+        if any(p._contributions is None for p in parts)
+        else _Concat([p._contributions for p in parts]),
         top=opt("top"),
         why=opt("why"),
     )

@@ -170,21 +170,28 @@ class EpisodeHold:
         self.count = 0
 
     def transform(self, share: np.ndarray, active: np.ndarray) -> np.ndarray:
-        """Per sample the mean share since its episode began (NaN outside alarms).
+        """Per sample the mean share since its episode began (NaN outside alarms)."""
+        act = np.asarray(active, bool)
+        out = np.full(share.shape, np.nan)
+        out[act] = self.transform_at(share[act], act)
+        return out
+
+    def transform_at(self, share_at: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """:meth:`transform` at the alarm samples only, from their shares ``share_at``
+        (``active.sum()`` × tags, in order): the running means there.
 
         Worked over the alarm samples only (running sums over them are those over all
         samples with zeros between: the same numbers, at the cost of the alarms alone)."""
         act = np.asarray(active, bool)
         n = act.size
-        out = np.full(share.shape, np.nan)
         at = np.flatnonzero(act)
         if at.size == 0:
             if n:
-                self.total, self.count = np.zeros(share.shape[1]), 0
-            return out
+                self.total, self.count = np.zeros(share_at.shape[1]), 0
+            return share_at[:0].astype(float)
         m = at.size
         start = ~np.r_[self.count > 0, act[:-1]][at]
-        cs = np.cumsum(np.nan_to_num(share[at], nan=0.0), axis=0)
+        cs = np.cumsum(np.nan_to_num(share_at, nan=0.0), axis=0)
         cc = np.arange(1, m + 1, dtype=float)
         last = np.maximum.accumulate(np.where(start, np.arange(m), -1))
         before = np.clip(last - 1, 0, None)
@@ -194,11 +201,11 @@ class EpisodeHold:
         total = cs - base_s + np.where(carry[:, None], self.total, 0.0)
         count = cc - base_c + np.where(carry, self.count, 0)
         with np.errstate(invalid="ignore", divide="ignore"):
-            out[at] = total / np.maximum(count, 1)[:, None]
+            out = total / np.maximum(count, 1)[:, None]
         if act[-1]:
             self.total, self.count = total[-1].copy(), int(count[-1])
         else:
-            self.total, self.count = np.zeros(share.shape[1]), 0
+            self.total, self.count = np.zeros(share_at.shape[1]), 0
         return out
 
     def to_state(self) -> dict[str, Any]:

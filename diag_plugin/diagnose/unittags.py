@@ -399,17 +399,48 @@ class CombinedModel:
         z /= self.scale  # in place: one n × T array, not two
         return z
 
-    def evaluate(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def evaluate(self, r: np.ndarray, shares: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """``T²`` per sample (NaN unknown) and each tag's share of it, ``RBC_X / T²`` (n × tags),
-        from filtered residuals ``r`` (n × T): see the module doc."""
+        from filtered residuals ``r`` (n × T): see the module doc. ``shares=False``: T² alone
+        (the shares None; :meth:`shares` gives them for the rows that need them)."""
         z = self.z(r)
         n, T = z.shape
         t2 = np.full(n, np.nan)
-        share = np.full((n, len(self.tags)), np.nan)
+        share = np.full((n, len(self.tags)), np.nan) if shares else None
+        partial: list[tuple[np.ndarray, np.ndarray, int]] = []
+        for rows, k, inv, mz, q in self._blocks(z):
+            if share is not None:
+                share[rows] = self._share(mz, q, k, inv)
+            t2[rows] = q
+            if k.size < T:
+                partial.append((rows, q, k.size))
+        if partial:  # the same false-alarm level with T degrees of freedom (one call for all)
+            rows = np.concatenate([p[0] for p in partial])
+            q = np.concatenate([p[1] for p in partial])
+            df = np.concatenate([np.full(p[1].size, p[2]) for p in partial])
+            t2[rows] = stats.chi2.isf(stats.chi2.sf(q, df), T)
+        return t2, share
+
+    def shares(self, r: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Each tag's share of T² (as :meth:`evaluate`'s) at ``rows`` only (a boolean mask
+        over the n samples of ``r``): ``len(rows[rows]) × tags``, in the rows' order."""
+        at = np.flatnonzero(rows)
+        z = self.z(r[at])
+        share = np.full((at.size, len(self.tags)), np.nan)
+        for sub, k, inv, mz, q in self._blocks(z):
+            share[sub] = self._share(mz, q, k, inv)
+        return share
+
+    def _blocks(self, z: np.ndarray):
+        """The samples with enough known tests, grouped by their pattern of known tests, in
+        blocks of at most :data:`BLOCK_ROWS` rows: per block its rows (ascending), the known
+        tests ``k``, their :meth:`_inverse`, ``S_kk⁻¹ z`` and ``T² = zᵀ S_kk⁻¹ z`` (before
+        the degrees of freedom)."""
+        n, T = z.shape
         known = np.isfinite(z)
         enough = known.sum(axis=1) >= max(1, math.ceil(MIN_KNOWN_SHARE * T))
         if not enough.any():
-            return t2, share
+            return
         # the patterns of known tests, as one integer key per sample when they fit in 63
         # bits (a sort of n keys, not of n rows of T booleans)
         kn = known[enough]
@@ -426,13 +457,11 @@ class CombinedModel:
         inverse = inverse.reshape(-1)
         by = rows_all[np.argsort(inverse, kind="stable")]
         ends = np.cumsum(np.bincount(inverse, minlength=len(patterns)))
-        partial: list[tuple[np.ndarray, np.ndarray, int]] = []
         self._prepare(patterns)
         for p, pat in enumerate(patterns):
             k = np.flatnonzero(pat)
-            m, den, den_process = self._inverse(pat)
-            xi = self.xi[k]
-            pr = None if den_process is None else self.process[k]
+            inv = self._inverse(pat)
+            m = inv[0]
             at = ends[p - 1] if p else 0
             # in blocks of rows whose arrays stay in the cache (one n × T pass per operation
             # was memory-bound: ~8 passes over 200 k × 45 doubles per replay)
@@ -440,24 +469,21 @@ class CombinedModel:
                 rows = by[a : min(a + BLOCK_ROWS, ends[p])]
                 zk = z[rows] if k.size == T else z[np.ix_(rows, k)]
                 mz = zk @ m
-                q = np.einsum("ij,ij->i", mz, zk)
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    rbc = _rbc(mz, xi, den)
-                    if pr is not None:  # a bias of the sensor or a true change
-                        np.maximum(rbc, _rbc(mz, pr, den_process), out=rbc)
-                    if self.loop is not None:
-                        self._loop_rbc(rbc, mz, m, k)
-                    rbc /= np.maximum(q, 1e-12)[:, None]
-                    share[rows] = np.clip(rbc, 0.0, 1.0, out=rbc)
-                t2[rows] = q
-                if k.size < T:
-                    partial.append((rows, q, k.size))
-        if partial:  # the same false-alarm level with T degrees of freedom (one call for all)
-            rows = np.concatenate([p[0] for p in partial])
-            q = np.concatenate([p[1] for p in partial])
-            df = np.concatenate([np.full(p[1].size, p[2]) for p in partial])
-            t2[rows] = stats.chi2.isf(stats.chi2.sf(q, df), T)
-        return t2, share
+                yield rows, k, inv, mz, np.einsum("ij,ij->i", mz, zk)
+
+    def _share(self, mz: np.ndarray, q: np.ndarray, k: np.ndarray, inv: tuple) -> np.ndarray:
+        """Each tag's ``RBC / T²`` in [0, 1] for one block of :meth:`_blocks` (known tests
+        ``k``, their inverse, ``S_kk⁻¹ z`` and ``T²``): Alcala & Qin (2009), eq. 13, over each tag's
+        direction, the larger of a sensor's bias and a true change, loops over their plane."""
+        m, den, den_process = inv
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rbc = _rbc(mz, self.xi[k], den)
+            if den_process is not None:  # a bias of the sensor or a true change
+                np.maximum(rbc, _rbc(mz, self.process[k], den_process), out=rbc)
+            if self.loop is not None:
+                self._loop_rbc(rbc, mz, m, k)
+            rbc /= np.maximum(q, 1e-12)[:, None]
+            return np.clip(rbc, 0.0, 1.0, out=rbc)
 
     def _loop_rbc(self, rbc: np.ndarray, mz: np.ndarray, m: np.ndarray, k: np.ndarray) -> None:
         """In place: each loop actuator's contribution over the plane of its direction ``a``
@@ -492,10 +518,17 @@ def _rbc(mz: np.ndarray, xi: np.ndarray, den: np.ndarray) -> np.ndarray:
 def top_tags(share: np.ndarray, tags: list[str], rows: np.ndarray, top: int = TOP) -> pd.DataFrame:
     """The ``top`` tags by share per sample (``top1``, ``share1``, …), filled where ``rows``
     (an alarm) and a ranking exists, empty elsewhere."""
-    n = share.shape[0]
+    return top_tags_at(share[np.asarray(rows, bool)], tags, rows, top)
+
+
+def top_tags_at(
+    share_at: np.ndarray, tags: list[str], rows: np.ndarray, top: int = TOP
+) -> pd.DataFrame:
+    """:func:`top_tags` from the shares at ``rows`` only (``rows.sum()`` × tags, in order)."""
+    n = len(rows)
     out: dict[str, np.ndarray] = {}
     at = np.flatnonzero(rows)  # ranked only where there is an alarm (the rest stay empty)
-    s = np.nan_to_num(share[at], nan=-1.0)
+    s = np.nan_to_num(share_at, nan=-1.0)
     order = np.argsort(-s, axis=1, kind="stable")[:, :top] if len(tags) else np.zeros((0, 0), int)
     names = np.asarray(tags, dtype=object)
     for i in range(min(top, len(tags))):

@@ -748,6 +748,10 @@ class WangMendelRegressor(ParamsMixin):
         X = _as_2d(X)
         if X.shape[1] != self.n_features_in_:
             raise ValueError(f"model has {self.n_features_in_} inputs, X has {X.shape[1]}")
+        n = X.shape[0]
+        loops = kernels(n)
+        if not hasattr(loops, "infer_fine"):  # numpy's loops (numba not loaded): the levels'
+            return self._predict_levels(X)  # search, the same answers (test_unit_replay_exact)
         fine = self._fine_table()
         loops = kernels(X.shape[0])
         if fine is None or not hasattr(loops, "infer_fine"):
@@ -756,7 +760,6 @@ class WangMendelRegressor(ParamsMixin):
             return self._predict_levels(X)
         # the fine level of every row through its dense table; only the rows it leaves short
         # of LEVEL_SUPPORT inside the data's range are asked again, level by level
-        n = X.shape[0]
         det = Prediction(np.empty(n), np.empty(n), np.empty(n, np.int8), np.empty(n, np.int8),
                          np.empty(n))  # fmt: skip
         again = np.empty(n, np.bool_)
