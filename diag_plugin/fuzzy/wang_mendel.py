@@ -750,10 +750,7 @@ class WangMendelRegressor(ParamsMixin):
             raise ValueError(f"model has {self.n_features_in_} inputs, X has {X.shape[1]}")
         n = X.shape[0]
         loops = kernels(n)
-        if not hasattr(loops, "infer_fine"):  # numpy's loops (numba not loaded): the levels'
-            return self._predict_levels(X)  # search, the same answers (test_unit_replay_exact)
         fine = self._fine_table()
-        loops = kernels(X.shape[0])
         if fine is None or not hasattr(loops, "infer_fine"):
             # a fine grid too big for a dense table, or numpy's loops (no numba loaded: one
             # model's inference, :func:`kernels`): every level searched, the same bits
