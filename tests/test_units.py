@@ -428,14 +428,15 @@ def test_diagnose_from_reads_the_history_its_lags_filter_and_delays_need(folder,
     residuals a diagnosis of the whole record has there — the lags (an hour: CV[k-360]), the
     filter and the delays read the historian before T0, the rows before it are not shown; at
     the record's start the unit warms up, and says so, as before."""
-    from diag_plugin.diagnose.cli import lead_in
+    from diag_plugin.diagnose.cli import lead_in, lead_in_parts
 
     m = folder / "valve_r1.toml"
     m.write_text(m.read_text().replace('spec = "CV[k]"', 'spec = "CV[k-360]"', 1))
     unit = Unit.load(folder / "valve_unit.unit.toml", folder)
     assert unit.test_depth.max() == 360
     # the lag, the filter's settling (1 150 samples at 0.01) and the on/off delays
-    assert 360 + 1100 + 60 < lead_in(unit) < 360 + 1200 + 60
+    parts = {"lags": 360, "spread": 0, "filter": 1150, "delays": 60}
+    assert lead_in_parts(unit) == parts and lead_in(unit) == 1570
 
     def run(*extra) -> pd.DataFrame:
         csv = tmp_path / "d.csv"

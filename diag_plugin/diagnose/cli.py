@@ -202,6 +202,7 @@ def unit_summary(unit) -> dict:
         "build": getattr(f, "build", {}) or {},
         "matrix": None,
         "combined": _combined_summary(unit),
+        "lead_in": {**lead_in_parts(unit), "samples": lead_in(unit), "cap": LEAD_CAP},
     }
     if unit.matrix is not None:
         mx = unit.matrix
@@ -305,6 +306,13 @@ def cmd_unit_show(args) -> int:
     else:
         con.print(f"no thresholds learned yet: diag unit learn {s['unit']} --from … --to …")
     _print_learned(con, s["tests"])
+    lead = s["lead_in"]
+    why = ", ".join(f"{k} {lead[k]}" for k in ("lags", "spread", "filter", "delays") if lead[k])
+    con.print(
+        f"diag diagnose --from T0 first reads {lead['samples']:,} samples before T0 "
+        f"({why or 'none needed'}; at most {lead['cap']})",
+        markup=False,
+    )
     _print_combined(con, s)
     _print_build(con, s["build"])
     mx = s["matrix"]
@@ -450,31 +458,41 @@ SETTLED = 1e-6
 
 
 def lead_in(unit) -> int:
-    """Samples a replay from ``--from`` reads before it, so that at ``--from`` the unit's
-    carried state is what the live plug-in, running since earlier, had there: the longest lag
-    its models read (``rate`` one more), a spread test's two windows (the running median, then
-    the median of the deviations from it), the low-pass filter's settling — the samples after
-    which a cold start's transient is below :data:`SETTLED` of it, ``ln(SETTLED) / ln|p|``
-    for the filter's slowest pole ``p`` (1 150 samples at the default cut-off 0.01) — and the
-    on/off delays (with the unit's own off-delay, that once more). Capped at :data:`LEAD_CAP`
-    of data. State that depends on all history (a latch, a held isolation, ``dir()`` inputs)
-    starts at the lead-in's start."""
+    """Samples a replay from ``--from`` reads before it: the sum of :func:`lead_in_parts`,
+    capped at :data:`LEAD_CAP` of data."""
+    import pandas as pd
+
+    n = sum(lead_in_parts(unit).values())
+    return min(n, int(pd.Timedelta(LEAD_CAP) / pd.Timedelta(unit.period)))
+
+
+def lead_in_parts(unit) -> dict[str, int]:
+    """What a replay from ``--from`` reads before it, in samples, so that at ``--from`` the
+    unit's carried state is what the live plug-in, running since earlier, had there: ``lags``,
+    the longest lag its models read (``rate`` one more); ``spread``, a spread test's two
+    windows (the running median, then the median of the deviations from it); ``filter``, the
+    low-pass filter's settling — the samples after which a cold start's transient is below
+    :data:`SETTLED` of it, ``ln(SETTLED) / ln|p|`` for the filter's slowest pole ``p`` (1 150
+    samples at the default cut-off 0.01); ``delays``, the on/off delays (with the unit's own
+    off-delay, that once more). State that depends on all history (a latch, a held isolation,
+    ``dir()`` inputs) starts at the lead-in's start."""
     import math
 
     import numpy as np
-    import pandas as pd
     from scipy import signal
 
     ev = unit.ev
-    n = max((b.history for b in unit.builders.values()), default=0)
-    if unit.spread_cols.size:
-        n += 2 * unit.spread.window
+    out = {"lags": max((b.history for b in unit.builders.values()), default=0)}
+    out["spread"] = 2 * unit.spread.window if unit.spread_cols.size else 0
+    out["filter"] = 0
     if unit.lowpass is not None:
         _, poles, _ = signal.sos2zpk(unit.lowpass.sos_)
         slowest = float(np.abs(poles).max())
-        n += math.ceil(math.log(SETTLED) / math.log(slowest)) if 0 < slowest < 1 else 0
-    n += ev["on_delay"] + ev["off_delay"] + (ev["off_delay"] if unit.alarm_hold else 0)
-    return min(n, int(pd.Timedelta(LEAD_CAP) / pd.Timedelta(unit.period)))
+        if 0 < slowest < 1:
+            out["filter"] = math.ceil(math.log(SETTLED) / math.log(slowest))
+    alarm = ev["off_delay"] if unit.alarm_hold else 0
+    out["delays"] = ev["on_delay"] + ev["off_delay"] + alarm
+    return out
 
 
 def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0):
