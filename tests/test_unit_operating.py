@@ -123,3 +123,40 @@ def test_inputs_inside_but_not_together_or_without_a_value_are_said_so():
     # an empty piece says nothing and keeps what it carried
     ol = OutsideLearned(ranges)
     assert ol.transform(f.iloc[:0], unknown[:0], report[:0]).size == 0
+
+
+def test_a_lagged_input_is_judged_by_the_value_the_model_reads():
+    """A model reading A[k-3] is judged by A three samples back, named so, its history carried
+    across pieces; the current value of A does not count (issue 34: a unit at 1 s reading
+    lags up to k-595 blamed, or cleared, the input by its value now)."""
+    a = np.r_[np.full(6, 2.0), np.full(4, 9.0), np.full(6, 2.0)]
+    f = _frame("1s", A=a)
+    t = f.index
+    ranges = [Range(0, "A", 0.0, 5.0, lag=3)]
+    unknown = np.ones((16, 1), bool)
+    whole = (
+        OutsideLearned(ranges, names={"A": "FT1"}).reset().transform(f, unknown, np.ones(16, bool))
+    )
+    # A is out at rows 6-9; the model reads it at rows 9-12; rows 0-2 have no A[k-3] yet
+    assert list(whole[:3]) == ["FT1[k-3] without a value"] * 3
+    for i in range(3, 16):
+        if 9 <= i <= 12:
+            assert (
+                whole[i]
+                == f"FT1[k-3] = 9 outside what the unit learned (0 … 5) since {t[9].isoformat()}"
+            ), i
+        else:
+            assert (
+                whole[i] == "FT1[k-3] = 2: each within what the unit learned, but not together"
+            ), i
+    ol = OutsideLearned(ranges, names={"A": "FT1"}).reset()
+    cuts = [0, 2, 8, 10, 16]
+    parts = [
+        ol.transform(f.iloc[i:j], unknown[i:j], np.ones(j - i, bool))
+        for i, j in zip(cuts[:-1], cuts[1:], strict=True)
+    ]
+    assert list(np.concatenate(parts)) == list(whole)
+    # the live loop's shortcut asks for the value at the lag: idle while A[k-3] is inside
+    ol = OutsideLearned(ranges).reset()
+    assert ol.idle(lambda tag, lag: {0: 9.0, 3: 2.0}[lag])
+    assert not ol.idle(lambda tag, lag: {0: 2.0, 3: 9.0}[lag])

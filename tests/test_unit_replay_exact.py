@@ -214,10 +214,12 @@ def _ref_outside(self, frame, unknown, report):
     out = np.full(n, "", dtype=object)
     idx = frame.index
     todo = report.copy()
+    # the values the models read (lagged as they read them: OutsideLearned.lagged)
+    cols = self.lagged({t: frame[t].to_numpy(float) for t in self.tags if t in frame.columns})
     for k, r in enumerate(self.ranges):
-        if r.tag not in frame.columns:
+        if r.key not in cols:
             continue
-        x = frame[r.tag].to_numpy(float)
+        x = cols[r.key]
         with np.errstate(invalid="ignore"):
             off = (x < r.lo) | (x > r.hi)
         starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
@@ -236,7 +238,7 @@ def _ref_outside(self, frame, unknown, report):
                 self.since[k] = carried if keep else idx[first[-1]]
             else:
                 self.since[k] = None
-    self._combination(frame, unknown, todo, out)
+    self._combination(cols, unknown, todo, out)
     return out
 
 

@@ -421,3 +421,43 @@ def test_a_loop_actuator_is_a_tag_name_or_an_error_with_its_line(folder):
         Unit.load(path)
     n = next(i for i, ln in enumerate(bad.splitlines(), 1) if ln.startswith("r1 ="))
     assert any(p.startswith(f"{path}:{n}: test 'r1': actuator must name") for p in e.value.problems)
+
+
+def test_diagnose_from_reads_the_history_its_lags_filter_and_delays_need(folder, db, tmp_path):
+    """``diag diagnose --from T0`` mid-record (issue 34): from T0 on, the statuses, symptoms and
+    residuals a diagnosis of the whole record has there — the lags (an hour: CV[k-360]), the
+    filter and the delays read the historian before T0, the rows before it are not shown; at
+    the record's start the unit warms up, and says so, as before."""
+    from diag_plugin.diagnose.cli import lead_in, lead_in_parts
+
+    m = folder / "valve_r1.toml"
+    m.write_text(m.read_text().replace('spec = "CV[k]"', 'spec = "CV[k-360]"', 1))
+    unit = Unit.load(folder / "valve_unit.unit.toml", folder)
+    assert unit.test_depth.max() == 360
+    # the lag, the filter's settling (1 150 samples at 0.01) and the on/off delays
+    parts = {"lags": 360, "spread": 0, "filter": 1150, "delays": 60}
+    assert lead_in_parts(unit) == parts and lead_in(unit) == 1570
+
+    def run(*extra) -> pd.DataFrame:
+        csv = tmp_path / "d.csv"
+        args = ["--db", db, "--rulebases", str(folder), "diagnose", "valve_unit"]
+        assert main([*args, "--csv", str(csv), *extra]) == 0
+        return pd.read_csv(csv, keep_default_na=False, index_col="ts")
+
+    whole = run()
+    t0 = "2026-01-01T11:00:00+0000"
+    part = run("--from", "2026-01-01T11:00", "--chunk", "2h")
+    assert part.index[0] == t0 and len(part) == len(whole.loc[t0:]) == 8640 - 3960
+    cols = ["status", "faults", "s_r1", "s_r2", "s_r3", "s_r4", "detected"]
+    pd.testing.assert_frame_equal(part[cols].astype(str), whole.loc[t0:, cols].astype(str))
+    r = [pd.to_numeric(d["r_r1"], errors="coerce") for d in (part, whole.loc[t0:])]
+    assert np.allclose(*r, rtol=0, atol=1e-4, equal_nan=True)
+    assert (part["status"] == int(NE107.FAILURE)).any()  # the fault at 12:00 is in it
+    assert not (part["status"].iloc[:400] == int(NE107.CHECK_FUNCTION)).any()
+    # from the record's start (or before it) nothing comes before: it warms up, as before
+    first = run("--from", "2026-01-01T00:00")
+    pd.testing.assert_frame_equal(first, whole)
+    cold = first.iloc[:360]
+    assert (cold["status"] == int(NE107.CHECK_FUNCTION)).all()
+    assert cold["why"].str.startswith("warming up, ").all(), cold["why"].iloc[0]
+    assert "360 samples of history for r1" in cold["why"].iloc[0]

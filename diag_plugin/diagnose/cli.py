@@ -202,6 +202,7 @@ def unit_summary(unit) -> dict:
         "build": getattr(f, "build", {}) or {},
         "matrix": None,
         "combined": _combined_summary(unit),
+        "lead_in": {**lead_in_parts(unit), "samples": lead_in(unit), "cap": LEAD_CAP},
     }
     if unit.matrix is not None:
         mx = unit.matrix
@@ -305,6 +306,13 @@ def cmd_unit_show(args) -> int:
     else:
         con.print(f"no thresholds learned yet: diag unit learn {s['unit']} --from … --to …")
     _print_learned(con, s["tests"])
+    lead = s["lead_in"]
+    why = ", ".join(f"{k} {lead[k]}" for k in ("lags", "spread", "filter", "delays") if lead[k])
+    con.print(
+        f"diag diagnose --from T0 first reads {lead['samples']:,} samples before T0 "
+        f"({why or 'none needed'}; at most {lead['cap']})",
+        markup=False,
+    )
     _print_combined(con, s)
     _print_build(con, s["build"])
     mx = s["matrix"]
@@ -443,8 +451,54 @@ def _print_build(con, build: dict) -> None:
         con.print(f"  not tested: {tag}: {why}", markup=False)
 
 
-def unit_frames(args, unit, start, end, chunk="7D"):
-    """Consecutive aligned pieces of the unit's tags from the historian."""
+#: the longest lead-in ``diag diagnose --from`` reads (the default chunk: one more read at most)
+LEAD_CAP = "7D"
+#: what is left of a cold start's transient in the low-pass filter after its settling time
+SETTLED = 1e-6
+
+
+def lead_in(unit) -> int:
+    """Samples a replay from ``--from`` reads before it: the sum of :func:`lead_in_parts`,
+    capped at :data:`LEAD_CAP` of data."""
+    import pandas as pd
+
+    n = sum(lead_in_parts(unit).values())
+    return min(n, int(pd.Timedelta(LEAD_CAP) / pd.Timedelta(unit.period)))
+
+
+def lead_in_parts(unit) -> dict[str, int]:
+    """What a replay from ``--from`` reads before it, in samples, so that at ``--from`` the
+    unit's carried state is what the live plug-in, running since earlier, had there: ``lags``,
+    the longest lag its models read (``rate`` one more); ``spread``, a spread test's two
+    windows (the running median, then the median of the deviations from it); ``filter``, the
+    low-pass filter's settling — the samples after which a cold start's transient is below
+    :data:`SETTLED` of it, ``ln(SETTLED) / ln|p|`` for the filter's slowest pole ``p`` (1 150
+    samples at the default cut-off 0.01); ``delays``, the on/off delays (with the unit's own
+    off-delay, that once more). State that depends on all history (a latch, a held isolation,
+    ``dir()`` inputs) starts at the lead-in's start."""
+    import math
+
+    import numpy as np
+    from scipy import signal
+
+    ev = unit.ev
+    out = {"lags": max((b.history for b in unit.builders.values()), default=0)}
+    out["spread"] = 2 * unit.spread.window if unit.spread_cols.size else 0
+    out["filter"] = 0
+    if unit.lowpass is not None:
+        _, poles, _ = signal.sos2zpk(unit.lowpass.sos_)
+        slowest = float(np.abs(poles).max())
+        if 0 < slowest < 1:
+            out["filter"] = math.ceil(math.log(SETTLED) / math.log(slowest))
+    alarm = ev["off_delay"] if unit.alarm_hold else 0
+    out["delays"] = ev["on_delay"] + ev["off_delay"] + alarm
+    return out
+
+
+def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0):
+    """Consecutive aligned pieces of the unit's tags from the historian; with ``lead`` and a
+    ``start``, from ``lead`` samples before it where the historian has them (the rows before
+    ``start`` are the caller's to drop, :func:`since`)."""
     import pandas as pd
 
     from historian.store import Historian
@@ -462,6 +516,8 @@ def unit_frames(args, unit, start, end, chunk="7D"):
         t1 = end if end is not None else b + pd.Timedelta(unit.period)
         if t1 <= t0:
             raise UserError(f"--to {t1} is not after --from {t0}")
+        if start is not None and lead > 0:  # not before the record: there it starts cold
+            t0 = min(t0, max(a, t0 - lead * pd.Timedelta(unit.period)))
         for frame in h.iter_windows(unit.tags, t0, t1, unit.period, chunk=chunk):
             frame.attrs = {}  # the quality summary is not read here; pandas would copy it
             yield frame  # into every derived frame
@@ -495,9 +551,11 @@ def cmd_diagnose(args) -> int:
         chunk = pd.Timedelta(args.chunk)
     except ValueError:
         raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D") from None
-    frames = _prefetch(unit_frames(args, unit, parse_time(args.start), parse_time(args.end), chunk))
+    start = parse_time(args.start)
+    # the history before --from its lags, filter and delays need (lead_in), evaluated, not shown
+    frames = _prefetch(unit_frames(args, unit, start, parse_time(args.end), chunk, lead_in(unit)))
     with _one_blas_thread():  # the combined test's small inverses: no thread per core
-        parts = [unit.evaluate(f) for f in frames]
+        parts = [since(unit.evaluate(f), start) for f in frames]
     parts = [p for p in parts if len(p)]
     if not parts:
         raise UserError("no data in the window")
@@ -524,6 +582,23 @@ def cmd_diagnose(args) -> int:
         return 0
     _print_timeline(unit, d, iv, args.csv)
     return 0
+
+
+def since(d, start):
+    """The diagnosis ``d`` from ``start`` on (all of it when ``start`` is None)."""
+    import dataclasses
+
+    import pandas as pd
+
+    if start is None or not len(d) or d.status.index[0] >= start:
+        return d
+    keep = d.status.index >= start
+    cut = {
+        f.name: v[keep]
+        for f in dataclasses.fields(d)
+        if isinstance(v := getattr(d, f.name), pd.Series | pd.DataFrame)
+    }
+    return dataclasses.replace(d, **cut)
 
 
 def _one_blas_thread():

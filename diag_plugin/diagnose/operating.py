@@ -7,7 +7,9 @@ al., eq. 5: a rule exists only where training samples fell), from the lowest suc
 centre minus half a step to the highest's plus half a step; for a model without a rule grid
 (``linear``, ``narmax2``, ``track``) its nominal input span. :class:`OutsideLearned` names,
 per sample of CHECK_FUNCTION, the input of an unknown test that is outside its range, its
-value, and when it left (carried from piece to piece, as every stage's state is).
+value, and when it left (carried from piece to piece, as every stage's state is). An input read
+with a lag (``FLOW[k-595]``) is judged by the value the model reads, the one 595 samples back,
+and named so (``FLOW[k-595] = …``); the history it needs is carried too.
 """
 
 from __future__ import annotations
@@ -29,6 +31,12 @@ class Range:
     tag: str  # the model's tag name
     lo: float
     hi: float
+    lag: int = 0  # samples back the model reads it
+
+    @property
+    def key(self) -> tuple[str, int]:
+        """``(tag, lag)``: the value judged, as :meth:`OutsideLearned.columns` is given it."""
+        return (self.tag, self.lag)
 
 
 def model_ranges(model, specs: Sequence[str]) -> list[tuple[str, float, float]]:
@@ -62,8 +70,9 @@ def learned_ranges(models: Mapping[str, object], tests: Sequence[str]) -> list[R
     out = []
     for i, name in enumerate(tests):
         m = models[name]
-        for tag, lo, hi in model_ranges(m.model, m.inputs):
-            out.append(Range(i, tag, lo, hi))
+        lags = [s.lag for s in map(InputSpec.parse, m.inputs) if s.fn == ""]
+        for (tag, lo, hi), lag in zip(model_ranges(m.model, m.inputs), lags, strict=False):
+            out.append(Range(i, tag, lo, hi, lag))
     return out
 
 
@@ -74,19 +83,25 @@ class OutsideLearned:
         self.ranges = list(ranges)
         self.names = dict(names or {})  # model tag → plant tag
         self.since: dict[int, pd.Timestamp | None] = {}
+        self.depth: dict[str, int] = {}  # per tag the longest lag judged
+        for r in self.ranges:
+            self.depth[r.tag] = max(self.depth.get(r.tag, 0), r.lag)
+        self.tails: dict[str, np.ndarray] = {}
 
     def reset(self) -> OutsideLearned:
         self.since = {}
+        self.tails = {t: np.full(d, np.nan) for t, d in self.depth.items()}
         return self
 
-    def idle(self, value: Callable[[str], float]) -> bool:
+    def idle(self, value: Callable[[str, int], float]) -> bool:
         """True when :meth:`transform` of one row that is not reported would say nothing and
-        change nothing: no input outside its range now (``value(plant tag)``) nor before. The
-        live loop's shortcut: most cycles, for most units."""
+        change nothing: no input outside its range now (``value(plant tag, lag)``: the value
+        ``lag`` samples back) nor before. The live loop's shortcut: most cycles, for most
+        units."""
         if any(v is not None for v in self.since.values()):
             return False
         for r in self.ranges:
-            x = value(self.names.get(r.tag, r.tag))
+            x = value(self.names.get(r.tag, r.tag), r.lag)
             if x < r.lo or x > r.hi:  # NaN: not outside, as in transform
                 return False
         return True
@@ -96,10 +111,14 @@ class OutsideLearned:
         head, tail = self._parts(r)
         return f"{head}{x:.4g}{tail}{pd.Timestamp(since).isoformat()}"
 
+    def label(self, tag: str, lag: int) -> str:
+        """The plant's tag, with the lag the model reads it at (``FT1[k-595]``) if any."""
+        return self.names.get(tag, tag) + (f"[k-{lag}]" if lag else "")
+
     def _parts(self, r: Range) -> tuple[str, str]:
         """:meth:`sentence` before and after the value, up to the time."""
         return (
-            f"{self.names.get(r.tag, r.tag)} = ",
+            f"{self.label(r.tag, r.lag)} = ",
             f" outside what the unit learned ({r.lo:.4g} … {r.hi:.4g}) since ",
         )
 
@@ -110,7 +129,22 @@ class OutsideLearned:
         carried start of every input's excursion."""
         have = set(frame.columns)
         cols = {t: frame[t].to_numpy(float) for t in self.tags if t in have}
-        return self.columns(cols, frame.index, unknown, report)
+        return self.columns(self.lagged(cols), frame.index, unknown, report)
+
+    def lagged(self, cols: Mapping[str, np.ndarray]) -> dict[tuple[str, int], np.ndarray]:
+        """Per range's :attr:`Range.key` the value its model reads at each row of ``cols``
+        (model tag → this piece's values), from the history carried before the piece (NaN
+        before any); advances that history."""
+        out = {}
+        for t, x in cols.items():
+            d = self.depth.get(t, 0)
+            tail = self.tails.get(t, np.full(d, np.nan))
+            both = np.r_[tail, x]
+            n = len(x)
+            for lag in {r.lag for r in self.ranges if r.tag == t}:
+                out[(t, lag)] = both[d - lag : d - lag + n]
+            self.tails[t] = both[len(both) - d :]
+        return out
 
     @property
     def tags(self) -> list[str]:
@@ -124,16 +158,17 @@ class OutsideLearned:
         unknown: np.ndarray,
         report: np.ndarray,
     ) -> np.ndarray:
-        """:meth:`transform` of the rows ``idx`` given as arrays (model tag → values; a tag
-        absent is not judged): the live loop's one row a cycle without a frame."""
+        """:meth:`transform` of the rows ``idx`` given as arrays (:attr:`Range.key`, model
+        tag and lag → the values the model reads at those rows; a key absent is not judged):
+        the live loop's one row a cycle without a frame."""
         n = len(idx)
         out = np.full(n, "", dtype=object)
         todo = report.copy()
         none = np.empty(0, np.intp)
         for k, r in enumerate(self.ranges):
-            if r.tag not in cols:
+            if r.key not in cols:
                 continue
-            x = cols[r.tag]
+            x = cols[r.key]
             with np.errstate(invalid="ignore"):
                 off = (x < r.lo) | (x > r.hi)
             carried = self.since.get(k)
@@ -165,12 +200,12 @@ class OutsideLearned:
         return out
 
     def _combination(self, cols, unknown, todo, out) -> None:
-        """The rows still unnamed (``cols``: model tag → values, a mapping or a frame): each
-        input of the first unknown test is inside what it learned, but not together (a grid
-        cell without a rule), or has no value."""
-        tests: dict[int, list[str]] = {}
+        """The rows still unnamed (``cols``: :attr:`Range.key` → values the model reads):
+        each input of the first unknown test is inside what it learned, but not together (a
+        grid cell without a rule), or has no value."""
+        tests: dict[int, list[tuple[str, int]]] = {}
         for r in self.ranges:
-            tests.setdefault(r.test, []).append(r.tag)
+            tests.setdefault(r.test, []).append(r.key)
         for j, tags in tests.items():
             rows = np.flatnonzero(todo & unknown[:, j])
             if not rows.size:
@@ -180,7 +215,7 @@ class OutsideLearned:
             vals = np.empty((rows.size, len(have)))
             for c, t in enumerate(have):
                 vals[:, c] = np.asarray(cols[t], float)[rows]
-            names = [self.names.get(t, t) for t in have]
+            names = [self.label(*t) for t in have]
             ok = np.isfinite(vals)
             full = ok.all(axis=1)
             # rows with an input missing: one sentence per pattern of missing inputs

@@ -267,9 +267,14 @@ class Plant:
             first_slot.setdefault(s.unit, i)
         self._first = first_slot
         self._has_th = [u.has_thresholds for u in units]
-        # per unit the inputs its reasons judge: (model tag, plant tag) read by some unit
+        # per unit the inputs its reasons judge: ((model tag, lag), plant tag) read by some unit
         self._judged = [
-            [(t, p) for t in u.outside.tags if (p := u.file.tags.get(t, t)) in tags] for u in units
+            [
+                (key, p)
+                for key in dict.fromkeys(r.key for r in u.outside.ranges)
+                if (p := u.file.tags.get(key[0], key[0])) in tags
+            ]
+            for u in units
         ]
         # units with a combined test or isolation to tags: (unit, its model, delay, enabled)
         self._multi = [
@@ -571,11 +576,10 @@ class Plant:
                 faults[ui] = [tags[ui][0][0]] if u.tag_isolation and tags[ui] else ["unit"]
         det_held = self._hold_alarms(active, status, faults, tags, notes)
         out = []
-        now = self._hist[0]
         index = self.tag_index
 
-        def value(tag: str) -> float:
-            return float(now[index[tag]]) if tag in index else np.nan
+        def value(tag: str, lag: int = 0) -> float:  # what a model reads, lag cycles back
+            return float(self._hist[lag, index[tag]]) if tag in index else np.nan
 
         for ui, u in enumerate(units):
             a = self._first[ui]
@@ -587,7 +591,7 @@ class Plant:
             checking = status[ui] == NE107.CHECK_FUNCTION
             if checking or not u.outside.idle(value):
                 # the reason without a frame: the unit's judged inputs as one-value arrays
-                cols = {t: np.array([value(p)]) for t, p in self._judged[ui]}
+                cols = {key: np.array([value(p, key[1])]) for key, p in self._judged[ui]}
                 unknown = np.isnan(s[a:b])[None, :]
                 warm, left = warm_up(
                     unknown,
