@@ -160,3 +160,27 @@ def test_a_lagged_input_is_judged_by_the_value_the_model_reads():
     ol = OutsideLearned(ranges).reset()
     assert ol.idle(lambda tag, lag: {0: 9.0, 3: 2.0}[lag])
     assert not ol.idle(lambda tag, lag: {0: 2.0, 3: 9.0}[lag])
+
+
+def test_a_restart_from_the_saved_state_judges_as_without_the_restart():
+    """The range check's carried state (each excursion's start, each tag's last values for
+    its lags) goes through JSON: pieces judged after a restart from it read as the whole
+    run, and a fresh check after the restart does not (a unit run one by one saves it in
+    ``Unit.to_state``)."""
+    import json
+
+    a = np.r_[np.full(6, 2.0), np.full(4, 9.0), np.full(6, 2.0)]
+    f = _frame("1s", A=a)
+    ranges = [Range(0, "A", 0.0, 5.0, lag=3)]
+    unknown = np.ones((16, 1), bool)
+    report = np.ones(16, bool)
+    whole = OutsideLearned(ranges).reset().transform(f, unknown, report)
+    for cut in (2, 8, 10, 11):
+        before = OutsideLearned(ranges).reset()
+        head = before.transform(f.iloc[:cut], unknown[:cut], report[:cut])
+        state = json.loads(json.dumps(before.to_state()))
+        after = OutsideLearned(ranges).reset().load_state(state)
+        tail = after.transform(f.iloc[cut:], unknown[cut:], report[cut:])
+        assert list(np.r_[head, tail]) == list(whole), cut
+        cold = OutsideLearned(ranges).reset().transform(f.iloc[cut:], unknown[cut:], report[cut:])
+        assert list(cold) != list(whole[cut:]), cut

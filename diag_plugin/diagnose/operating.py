@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -91,6 +92,31 @@ class OutsideLearned:
     def reset(self) -> OutsideLearned:
         self.since = {}
         self.tails = {t: np.full(d, np.nan) for t, d in self.depth.items()}
+        return self
+
+    def to_state(self) -> dict[str, Any]:
+        """The carried state as JSON: each input's excursion start and each tag's last
+        values for its lags (a restart judges ``TAG[k-L]`` at once, not after L samples)."""
+        return {
+            "since": {
+                str(k): None if t is None else pd.Timestamp(t).isoformat()
+                for k, t in self.since.items()
+            },
+            "tails": {
+                t: [None if np.isnan(v) else float(v) for v in x] for t, x in self.tails.items()
+            },
+        }
+
+    def load_state(self, state: Mapping[str, Any]) -> OutsideLearned:
+        """Back from :meth:`to_state` (a tail saved for another depth starts empty)."""
+        self.since = {
+            int(k): None if t is None else pd.Timestamp(t)
+            for k, t in state.get("since", {}).items()
+        }
+        for t, x in state.get("tails", {}).items():
+            v = np.array([np.nan if a is None else a for a in x], float)
+            if t in self.depth and v.size == self.depth[t]:
+                self.tails[t] = v
         return self
 
     def idle(self, value: Callable[[str, int], float]) -> bool:

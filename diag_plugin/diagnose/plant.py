@@ -358,7 +358,7 @@ class Plant:
             "combined_delays": [d.to_state() for _, _, d, _ in self._multi],
             "episodes": {str(ui): h.to_state() for ui, h in self._holds.items()},
             "isolation": [m[5].to_state() for m in self._matrices],
-            "outside": {u.name: _since_json(u.outside.since) for u in self._units},
+            "outside": {u.name: u.outside.to_state()["since"] for u in self._units},
             "slow": {n: self.units[n].to_state() for n in self.slow},
         }
 
@@ -414,7 +414,7 @@ class Plant:
             for m, st in zip(self._matrices, state["isolation"], strict=True)
         ]
         for u in self._units:
-            u.outside.since = _since_back(state["outside"].get(u.name, {}))
+            u.outside.load_state({"since": state["outside"].get(u.name, {})})
         for n in self.slow:
             self.units[n].reset().load_state(state["slow"][n])
         return self
@@ -702,11 +702,3 @@ def _array(v: list) -> np.ndarray:
     """Back from :func:`_json`."""
     a = np.array(v, dtype=object)
     return np.where(a == None, np.nan, a).astype(float)  # noqa: E711 - elementwise
-
-
-def _since_json(since: Mapping[int, pd.Timestamp | None]) -> dict[str, str | None]:
-    return {str(k): None if t is None else pd.Timestamp(t).isoformat() for k, t in since.items()}
-
-
-def _since_back(state: Mapping[str, str | None]) -> dict[int, pd.Timestamp | None]:
-    return {int(k): None if t is None else pd.Timestamp(t) for k, t in state.items()}

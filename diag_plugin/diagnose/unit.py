@@ -502,6 +502,7 @@ class Unit:
             "episode": self.episode.to_state(),
             "alarm_hold": None if self.alarm_hold is None else self.alarm_hold.to_state(),
             "seen": self.seen,
+            "outside": self.outside.to_state(),
             "last_alarm": None
             if self._last_alarm is None
             else [int(self._last_alarm[0]), self._last_alarm[1], self._last_alarm[2]],
@@ -517,6 +518,8 @@ class Unit:
         self.held = np.array([np.nan if v is None else v for v in state["held"]], float)
         self.unknown_run = np.asarray(state["unknown_run"], np.int64)
         self.seen = int(state.get("seen", 1 << 40))  # states saved before it: warmed up
+        if "outside" in state:  # states saved before it: no excursion, no lag history
+            self.outside.load_state(state["outside"])
         if "isolation" in state:  # states saved before it start without a held isolation
             self.isolation = IsolationHold.from_state(state["isolation"])
         if "combined_delay" in state:
