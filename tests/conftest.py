@@ -12,6 +12,14 @@ import uuid
 
 import pytest
 from helpers import MISSING, require, run_diag, trained_valve_file
+from threadpoolctl import threadpool_limits
+
+#: BLAS held to one thread in the test processes and the ``diag`` processes they start (as
+#: ``diag diagnose`` and the unit builder hold it): three xdist workers share two cores, so a
+#: second BLAS thread only spins — a 7000 × 67 QR (narmax2's least squares) cost 0.41 CPU s
+#: on two OpenBLAS threads and 0.012 on one at a load of 17 (issue 33 item 6)
+os.environ["OPENBLAS_NUM_THREADS"] = "1"
+threadpool_limits(1, user_api="blas")
 
 
 @pytest.fixture(scope="module")

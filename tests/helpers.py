@@ -288,3 +288,32 @@ def cli_new_train_compare(folder: Path, name: str, method: str) -> tuple[dict, s
     doc = json.loads(r.stdout)
     assert doc["coverage"] > 0.99 and np.isfinite(doc["rmse_pct"])
     return doc, (folder / "rulebases" / f"{name}.toml").read_text()
+
+
+def free_run_is_the_reference(make) -> None:
+    """``make(output_lags, input_spans)`` — an untrained estimator of a free-running method —
+    fitted on a stable plant y[k] = f(y[k−1], y[k−2], u[k−1]): its compiled ``simulate``
+    gives :func:`~diag_plugin.models.estimation.free_run` over its one-row prediction (the
+    reference), with missing inputs (the recursion restarts from the measured values after
+    them) and inputs outside their spans (clipped); the measured lags are never read past
+    the start."""
+    from diag_plugin.models.estimation import free_run
+
+    rng = np.random.default_rng(12)
+    n = 1500
+    u = rng.uniform(0, 100, n)
+    yv = np.zeros(n)
+    for k in range(2, n):
+        yv[k] = 0.5 * yv[k - 1] - 0.2 * yv[k - 2] + 0.3 * u[k - 1] + 0.002 * u[k - 1] ** 2
+    X, y = np.column_stack([yv[1:-1], yv[:-2], u[1:-1]]), yv[2:]
+    m = make([1, 2, 0], [(0.0, 60.0), (0.0, 60.0), (0.0, 90.0)]).fit(X, y)
+    X[[100, 101, 700], 2] = np.nan  # missing inputs: no estimate, then a restart
+    X[900:905, 2] = 150.0  # outside the span: clipped
+    sim = m.simulate(X)
+    ref = free_run(X, m.output_lags, m.spans_, m._predict_rows)
+    np.testing.assert_array_equal(np.isnan(sim), np.isnan(ref))
+    assert np.isnan(sim).sum() == 3
+    np.testing.assert_allclose(sim, ref, rtol=1e-12, atol=1e-9 * np.ptp(y))
+    spoilt = X.copy()
+    spoilt[2:100, :2] = -1.0  # measured lags the free run does not read
+    np.testing.assert_array_equal(m.simulate(spoilt), sim)

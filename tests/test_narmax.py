@@ -11,6 +11,7 @@ from helpers import (
     broken_edit_is_named,
     cli_new_train_compare,
     compares_and_explains,
+    free_run_is_the_reference,
     run_diag,
     trained_valve_file,
 )
@@ -208,3 +209,9 @@ def test_cli_model_new_train_compare(cli_plant):
     assert shown.returncode == 0 and "CV[k-1]^2" in shown.stdout, shown.stderr
     fcl = run_diag(plant, "rules", "export-fcl", "nx")
     assert fcl.returncode != 0 and "no IEC 61131-7 FCL form" in fcl.stderr
+
+
+def test_the_compiled_free_run_is_the_row_by_row_one():
+    free_run_is_the_reference(
+        lambda lags, spans: Narmax2Regressor(output_lags=lags, input_spans=spans)
+    )

@@ -9,6 +9,7 @@ from helpers import (
     broken_edit_is_named,
     cli_new_train_compare,
     compares_and_explains,
+    free_run_is_the_reference,
     run_diag,
     trained_valve_file,
 )
@@ -246,3 +247,12 @@ def test_cli_model_new_train_compare(cli_plant):
     assert shown.returncode == 0 and "centre CV[k-1]" in shown.stdout, shown.stderr
     fcl = run_diag(plant, "rules", "export-fcl", "ts")
     assert fcl.returncode != 0 and "no IEC 61131-7 FCL form" in fcl.stderr
+
+
+@pytest.mark.parametrize("m", [2.0, 1.7])
+def test_the_compiled_free_run_is_the_row_by_row_one(m):
+    free_run_is_the_reference(
+        lambda lags, spans: TakagiSugenoRegressor(
+            n_clusters=6, m=m, output_lags=lags, input_spans=spans
+        )
+    )

@@ -52,6 +52,7 @@ from diag_plugin.models.estimation import (
     as_2d,
     as_xy,
     detail,
+    fed_row,
     finite_rows,
     free_run,
     observed_span,
@@ -108,6 +109,22 @@ def memberships(Z: np.ndarray, V: np.ndarray, m: float) -> np.ndarray:
 BLOCKS = 16
 
 
+@nb.njit(cache=True, nogil=True)
+def _ratios(d2, dmin, m):  # pragma: no cover - compiled
+    """Eqs. 19 and 26 for one row, in place: each squared distance ``d2[j]`` becomes
+    ``(dmin / d2[j])^(1/(m−1))`` (ratios to the nearest centre keep the powers in range);
+    returns their sum, which divides them into the memberships."""
+    expo = 1.0 / (m - 1.0)
+    tot = 0.0
+    for j in range(d2.size):
+        w = dmin / d2[j]
+        if m != 2.0:
+            w = w**expo
+        d2[j] = w
+        tot += w
+    return tot
+
+
 @nb.njit(cache=True, nogil=True, parallel=True)
 def _fcm_pass(X, lo, width, V, m, num, den):  # pragma: no cover - compiled
     """One pass of eqs. 19–20 over the rows of ``X`` (scaled by ``lo``, ``width``): per block of
@@ -116,7 +133,6 @@ def _fcm_pass(X, lo, width, V, m, num, den):  # pragma: no cover - compiled
     N = V.shape[0]
     nb_blocks = num.shape[0]
     size = (n + nb_blocks - 1) // nb_blocks
-    expo = 1.0 / (m - 1.0)
     for b in nb.prange(nb_blocks):
         z = np.empty(d)
         d2 = np.empty(N)
@@ -132,19 +148,54 @@ def _fcm_pass(X, lo, width, V, m, num, den):  # pragma: no cover - compiled
                 acc = max(acc, 1e-300)
                 d2[j] = acc
                 dmin = min(dmin, acc)
-            tot = 0.0
-            for j in range(N):
-                w = dmin / d2[j]
-                if m != 2.0:
-                    w = w**expo
-                d2[j] = w
-                tot += w
+            tot = _ratios(d2, dmin, m)
             for j in range(N):
                 u = d2[j] / tot
                 um = u * u if m == 2.0 else u**m
                 den[b, j] += um
                 for k in range(d):
                     num[b, j, k] += um * z[k]
+
+
+@nb.njit(cache=True, nogil=True)
+def _free_run_kernel(X, cols, lags, lo, hi, width, V, vv, coef, intercept, m):  # pragma: no cover
+    """:func:`~diag_plugin.models.estimation.free_run` of the Takagi–Sugeno model compiled:
+    row by row, each lag column ``cols[c]`` gets the estimate ``lags[c]`` rows earlier (the
+    measured value before it exists or after a row without one), the row is clipped to its
+    span, scaled (``lo``, ``width``) for the memberships of eq. 26 against the scaled centres
+    ``V`` (``vv``: their squared norms) and its output is eq. 14 over the rules of eq. 13 in
+    engineering units — the arithmetic of :func:`memberships` and ``_predict_rows``."""
+    n, d = X.shape
+    N = V.shape[0]
+    yhat = np.full(n, np.nan)
+    x = np.empty(d)
+    z = np.empty(d)
+    w = np.empty(N)
+    for k in range(n):
+        if not fed_row(X, k, cols, lags, yhat, x):
+            continue
+        zz = 0.0
+        for j in range(d):
+            x[j] = min(max(x[j], lo[j]), hi[j])
+            z[j] = (x[j] - lo[j]) / width[j]
+            zz += z[j] * z[j]
+        dmin = np.inf
+        for r in range(N):
+            zv = 0.0
+            for j in range(d):
+                zv += z[j] * V[r, j]
+            d2 = max(zz - 2.0 * zv + vv[r], TINY)
+            w[r] = d2
+            dmin = min(dmin, d2)
+        tot = _ratios(w, dmin, m)
+        y = 0.0
+        for r in range(N):
+            rule = intercept[r]
+            for j in range(d):
+                rule += x[j] * coef[r, j]
+            y += w[r] / tot * rule
+        yhat[k] = y
+    return yhat
 
 
 def initial_centres(lo: np.ndarray, hi: np.ndarray, n: int, rng: np.random.Generator):
@@ -426,8 +477,25 @@ class TakagiSugenoRegressor(ParamsMixin):
         (eqs. 7–11) carry the estimates ŷ(k−1), ŷ(k−2), …"""
         self._check_fitted()
         X = self._check_X(X)
-        lags = self.output_lags or [0] * self.n_features_in_
-        return free_run(X, lags, self.spans_, self._predict_rows)
+        lags = np.asarray(self.output_lags or [0] * self.n_features_in_, dtype=np.int64)
+        cols = np.flatnonzero(lags > 0)
+        if cols.size == 0 or self.centers_.shape[0] == 0:
+            return free_run(X, lags, self.spans_, self._predict_rows)
+        lo, width = self._scale
+        V = (self.centers_ - lo) / width
+        return _free_run_kernel(
+            np.ascontiguousarray(X, dtype=np.float64),
+            cols,
+            lags[cols],
+            np.ascontiguousarray(lo),
+            np.ascontiguousarray(self.spans_[:, 1]),
+            np.ascontiguousarray(width),
+            np.ascontiguousarray(V),
+            np.einsum("ij,ij->i", V, V),
+            np.ascontiguousarray(self.coef_, dtype=np.float64),
+            np.ascontiguousarray(self.intercept_, dtype=np.float64),
+            float(self.m),
+        )
 
     @property
     def n_rules_(self) -> int:

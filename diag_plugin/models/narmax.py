@@ -33,6 +33,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+import numba as nb
 import numpy as np
 
 from diag_plugin.models.codec import RuleCodec
@@ -44,6 +45,7 @@ from diag_plugin.models.estimation import (
     as_2d,
     as_xy,
     detail,
+    fed_row,
     finite_rows,
     free_run,
     spans_and_lags,
@@ -77,6 +79,34 @@ def _features(Z: np.ndarray) -> np.ndarray:
     n, d = Z.shape
     iu, ju = np.triu_indices(d)
     return np.hstack([np.ones((n, 1)), Z, Z[:, iu] * Z[:, ju]])
+
+
+@nb.njit(cache=True, nogil=True)
+def _free_run_kernel(X, cols, lags, lo, hi, centre, half, coef):  # pragma: no cover - compiled
+    """:func:`~diag_plugin.models.estimation.free_run` of eq. 12 compiled: row by row, each lag
+    column ``cols[c]`` gets the estimate ``lags[c]`` rows earlier (the measured value before it
+    exists or after a row without one), the row is clipped to its span (``lo``, ``hi``),
+    scaled to ``z = (x − centre) / half`` and its output is ``φ(z) · coef`` over the terms of
+    :func:`term_pairs` (constant, linear, then ``z_i z_j`` for ``i ≤ j``) — the arithmetic of
+    :func:`_features` and ``_predict_rows``."""
+    n, d = X.shape
+    yhat = np.full(n, np.nan)
+    x = np.empty(d)
+    z = np.empty(d)
+    for k in range(n):
+        if not fed_row(X, k, cols, lags, yhat, x):
+            continue
+        y = coef[0]
+        for j in range(d):
+            z[j] = (min(max(x[j], lo[j]), hi[j]) - centre[j]) / half[j]
+            y += z[j] * coef[1 + j]
+        t = 1 + d
+        for i in range(d):
+            for j in range(i, d):
+                y += z[i] * z[j] * coef[t]
+                t += 1
+        yhat[k] = y
+    return yhat
 
 
 def _raw_basis(centre: np.ndarray, half: np.ndarray) -> np.ndarray:
@@ -283,8 +313,20 @@ class Narmax2Regressor(SpanEstimator):
         :func:`~diag_plugin.models.estimation.free_run`)."""
         self._check_fitted()
         X = self._check_X(X)
-        lags = self.output_lags or [0] * self.n_features_in_
-        return free_run(X, lags, self.spans_, self._predict_rows)
+        lags = np.asarray(self.output_lags or [0] * self.n_features_in_, dtype=np.int64)
+        cols = np.flatnonzero(lags > 0)
+        if cols.size == 0 or type(self)._phi is not Narmax2Regressor._phi:
+            return free_run(X, lags, self.spans_, self._predict_rows)
+        return _free_run_kernel(
+            np.ascontiguousarray(X, dtype=np.float64),
+            cols,
+            lags[cols],
+            np.ascontiguousarray(self.spans_[:, 0]),
+            np.ascontiguousarray(self.spans_[:, 1]),
+            np.ascontiguousarray(self._centre),
+            np.ascontiguousarray(self._half),
+            np.ascontiguousarray(self.coef_scaled_, dtype=np.float64),
+        )
 
     def term_names(self, specs: Sequence[str]) -> list[str]:
         """The terms written with the input specs: ``1``, ``A``, ``A^2``, ``A*B``."""
