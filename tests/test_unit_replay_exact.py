@@ -135,8 +135,8 @@ def _ref_episode(self, share, active):
     return out
 
 
-def _ref_combined(self, r):
-    z = self.z(r)
+def _ref_combined(self, r, point=None):
+    z = self.z(r, point)
     n, T = z.shape
     t2 = np.full(n, np.nan)
     share = np.full((n, len(self.tags)), np.nan)

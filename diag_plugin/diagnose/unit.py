@@ -640,7 +640,7 @@ class Unit:
         c_on = np.zeros(n, bool)
         combined = share = None
         if self.cmodel is not None:
-            t2, share = self.cmodel.evaluate(r.to_numpy())
+            t2, share = self.cmodel.evaluate(r.to_numpy(), self.cmodel.point_of(frame))
             s_t2 = np.full(n, np.nan)
             if self.ev["combined"] and self.cmodel.high is not None:
                 with np.errstate(invalid="ignore"):
