@@ -134,12 +134,42 @@ def test_the_new_position_is_named_accepted_and_answered_and_rolled_back(plant):
         alarm[:half].mean(),
         alarm[half:].mean(),
     )
+    # the live cycle (diag run) computes the combined T² at each sample's operating point
+    # as the replay does (centred at the first point, it was 3.4× off here)
+    at75 = line(6, 0.1, seed=13, valve=lambda h: np.full(h.size, 75.0))
+    assert _plant_t2_matches(tmp / "rb", at75)
     # 5. rollback: the unit as it was before the accept
     rc, text = diag(g, "unit", "rollback", "line")
     assert rc == 0, text
     assert unit_file.read_bytes() == before
     rc, text = diag(g, "unit", "rollback", "line")
     assert rc == 2 and "no backup" in text, text
+
+
+def _plant_t2_matches(rb, frame: pd.DataFrame) -> bool:
+    """The combined T² of unit ``line`` cycled sample by sample (:class:`Plant`, as ``diag
+    run`` does) equals the replay's (:meth:`Unit.evaluate`) on ``frame`` (at 15 s)."""
+    from diag_plugin.diagnose.plant import Plant
+    from diag_plugin.diagnose.unit import Unit
+
+    frame = frame.set_axis(frame.index.floor("15s"))
+    frame = frame[~frame.index.duplicated()]
+    t2 = Unit.load(rb / "line.unit.toml", rb).evaluate(frame).combined["T2"].to_numpy()
+    plant = Plant({"line": Unit.load(rb / "line.unit.toml", rb)}, {})
+    cm = plant._multi[0][1]
+    assert cm.centers is not None and len(cm.centers) == 2
+    got = []
+    evaluate = cm.evaluate
+
+    def recorded(r, point=None):
+        out = evaluate(r, point)
+        got.append(out[0][0])
+        return out
+
+    cm.evaluate = recorded
+    for ts, row in frame.iterrows():
+        plant.cycle(ts, row.to_dict())
+    return bool(np.allclose(np.array(got), t2, rtol=1e-9, equal_nan=True))
 
 
 def test_a_period_weeks_away_from_the_build_is_accepted(tmp_path):
@@ -221,7 +251,16 @@ def test_a_joint_test_after_accept_answers_at_both_points(tmp_path):
     accelerometers took its principal component and mean from both points pooled — the line
     between them, each point at one end — and alarmed on every one of those normal samples
     (0 % before the accept); now its component is the one within the points, and each sample
-    is scored against its nearest point's mean and spread (``[rules] points``)."""
+    is scored against its nearest point's mean and spread (``[rules] points``).
+
+    And the combined T² still detects valve1/1's fault after the accept (76 % of its
+    anomalous samples in alarm; 78 % before the accept): each test's residual is centred and
+    scaled at its sample's nearest operating point (the windows' means of the tags), its
+    covariance the pooled within-point one. Before, its centre and covariance were taken once
+    across both points — the flow's level test (a tag no model predicts, against its window's
+    mean) differs between them by 60 of its scale at the accepted point, the current's tests
+    by 5–7, and the accelerometers' residuals spread 17× wider there than at the build's —
+    its threshold grew 49.5 → 125,671 and the unit detected none of the fault."""
     import tomllib
 
     from diag_plugin.bench import publicplants as pp
@@ -245,21 +284,28 @@ def test_a_joint_test_after_accept_answers_at_both_points(tmp_path):
     rc, text = diag(g, "unit", "build", "rig", "--from", fmt(run.index[0]),
                     "--to", fmt(run.index[pp.SKAB_LEARN]))  # fmt: skip
     assert rc == 0, text
+    rb = tmp_path / "rb"
+    high0 = Unit.load(rb / "rig.unit.toml", rb).file.combined.high
     hour = free.index[0] + pd.Timedelta(hours=1)
     rc, text = diag(g, "unit", "accept", "rig", "--from", fmt(free.index[0]), "--to", fmt(hour))
     assert rc == 0, text
-    rb = tmp_path / "rb"
     unit = Unit.load(rb / "rig.unit.toml", rb)
 
     def alarms(frame: pd.DataFrame) -> np.ndarray:
         st = unit.reset().evaluate(frame).status.to_numpy()
         return np.isin(st, [NE107.FAILURE, NE107.OFF_SPEC])
 
-    normal = alarms(run)[pp.SKAB_LEARN : onset]
+    on_run = alarms(run)
+    normal = on_run[pp.SKAB_LEARN : onset]
+    fault = on_run[labels > 0]
     rest = alarms(free.iloc[3600:])
-    print(f"after accept: valve1/1 normal in alarm {normal.mean():.3f}, "
-          f"anomaly-free rest {rest.mean():.3f}")  # fmt: skip
+    high = unit.file.combined.high
+    print(f"after accept: valve1/1 normal in alarm {normal.mean():.3f}, fault "
+          f"{fault.mean():.3f}, anomaly-free rest {rest.mean():.3f}; combined threshold "
+          f"{high0:.4g} -> {high:.4g}")  # fmt: skip
     assert normal.mean() < 0.05 and rest.mean() < 0.05, (normal.mean(), rest.mean())
+    assert fault.mean() > 0.5, fault.mean()
+    assert high < 10 * high0, (high0, high)
     joint = [n for n, r in unit.file.build["tests"].items() if r.get("method") == "joint"]
     assert joint, unit.file.build["tests"]
     for name in joint:

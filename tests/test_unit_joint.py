@@ -241,6 +241,23 @@ def test_a_joint_test_over_two_points_keeps_each_points_component_and_merges_exa
     assert np.allclose(coded.predict(X), whole.predict(X), rtol=1e-9, atol=1e-12)
 
 
+def _accept_second_point(tmp_path, first: pd.DataFrame):
+    """The pump's unit built from ``first``'s first 400 s, then an hour at a second operating
+    point (vibration 4×, flow 45) accepted: the second point's run (an hour and 1,200 s),
+    the unit as built and as accepted."""
+    from diag_plugin.diagnose.unit import Unit
+    from tests.test_any_plant_tour import fmt, import_csv
+
+    second = pump(42, 3600 + 1200, level=1.0, flow_at=45.0, start="2026-05-06 08:00")
+    g, _, built = _build(tmp_path, first)
+    import_csv(g, first.iloc[ROWS:], tmp_path / "rest.csv")
+    import_csv(g, second, tmp_path / "second.csv")
+    hour = second.index[3600]
+    rc, text = diag(g, "unit", "accept", "u", "--from", fmt(second.index[0]), "--to", fmt(hour))
+    assert rc == 0, text
+    return second, built, Unit.load(tmp_path / "rb" / "u.unit.toml", tmp_path / "rb")
+
+
 def test_after_accepting_a_second_point_the_first_point_stays_quiet(tmp_path):
     """A unit from 400 s of the pump (its accelerometers a joint test), then an hour at a
     second operating point confirmed with ``diag unit accept`` (vibration 4×, more flow: as
@@ -248,19 +265,9 @@ def test_after_accepting_a_second_point_the_first_point_stays_quiet(tmp_path):
     unit stays quiet, and at the second point too; a vibration rise at the first point is
     still seen. Before, the accepted joint test took its component and mean from both points
     pooled — the line between them — and alarmed on most fault-free samples at either."""
-    from diag_plugin.diagnose.unit import Unit
-    from tests.test_any_plant_tour import fmt, import_csv
-
     first = pump(41, ROWS + 1800, rise_from=ROWS + 900)
-    second = pump(42, 3600 + 1200, level=1.0, flow_at=45.0, start="2026-05-06 08:00")
-    g, _, unit = _build(tmp_path, first)
-    assert any(r.get("method") == "joint" for r in unit.file.build["tests"].values())
-    import_csv(g, first.iloc[ROWS:], tmp_path / "rest.csv")
-    import_csv(g, second, tmp_path / "second.csv")
-    hour = second.index[3600]
-    rc, text = diag(g, "unit", "accept", "u", "--from", fmt(second.index[0]), "--to", fmt(hour))
-    assert rc == 0, text
-    unit = Unit.load(tmp_path / "rb" / "u.unit.toml", tmp_path / "rb")
+    second, built, unit = _accept_second_point(tmp_path, first)
+    assert any(r.get("method") == "joint" for r in built.file.build["tests"].values())
     alarm, cf, _ = _statuses(unit, first)
     quiet = slice(ROWS, ROWS + 900)
     k = np.arange(len(first))
@@ -270,3 +277,36 @@ def test_after_accepting_a_second_point_the_first_point_stays_quiet(tmp_path):
           f"rise {alarm[rise].mean():.2f}; second point: alarm {alarm2.mean():.3f}")  # fmt: skip
     assert alarm[quiet].mean() < 0.05 and alarm2.mean() < 0.05
     assert alarm[rise].mean() > 0.5
+
+
+def test_after_accepting_a_second_point_the_combined_test_still_detects(tmp_path):
+    """The combined T² after ``diag unit accept`` (the pump at two operating points as above:
+    vibration 4× and noisier, flow 45 instead of 32 at the second). Each test's residual is
+    centred and scaled at its sample's nearest point and the covariance is the pooled
+    within-point one, so the T²'s threshold stays of the order it had (38 before the accept,
+    24 after), fault-free samples at both points stay under it, and a bias of the flow at the
+    first point (2 m³/h, a tag no model predicts: a level test against its window's mean) is
+    seen by the combined test. Before, its centre and covariance were taken once across both
+    points (the flow 32 against 45 m³/h, its level test against the build window's mean):
+    the threshold grew to 272,200 and the combined test saw none of the bias (95 % before the
+    accept)."""
+    first = pump(41, ROWS + 1800)
+    second, built, unit = _accept_second_point(tmp_path, first)
+    high0 = built.file.combined.high
+    spec = unit.file.combined
+    assert len(spec.point_center) == len(spec.point_scale) == 2, spec
+    assert "FLOW" in spec.point_tags
+
+    def combined(frame: pd.DataFrame) -> np.ndarray:
+        return unit.reset().evaluate(frame).combined["s_T2"].to_numpy() > 0
+
+    quiet1, quiet2 = combined(first)[ROWS:], combined(second.iloc[3600:])
+    biased = first.copy()
+    biased.iloc[ROWS + 600 :, biased.columns.get_loc("FLOW")] += 2.0
+    seen = combined(biased)[ROWS + 660 :]  # a minute after the bias starts
+    print(f"combined test: high {high0:.3g} -> {spec.high:.3g}; fault-free in alarm "
+          f"{quiet1.mean():.3f} (first point), {quiet2.mean():.3f} (second); flow bias "
+          f"seen {seen.mean():.2f}")  # fmt: skip
+    assert spec.high < 10 * high0, (high0, spec.high)
+    assert quiet1.mean() < 0.05 and quiet2.mean() < 0.05, (quiet1.mean(), quiet2.mean())
+    assert seen.mean() > 0.9, seen.mean()

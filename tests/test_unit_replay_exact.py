@@ -135,8 +135,8 @@ def _ref_episode(self, share, active):
     return out
 
 
-def _ref_combined(self, r, shares=True):  # T² and every sample's shares, whatever is asked
-    z = self.z(r)
+def _ref_combined(self, r, point=None, shares=True):  # T² and every sample's shares
+    z = self.z(r, point)
     n, T = z.shape
     t2 = np.full(n, np.nan)
     share = np.full((n, len(self.tags)), np.nan)
@@ -180,8 +180,8 @@ def _ref_episode_at(self, share_at, active):  # the episode over every sample, a
     return _ref_episode(self, full, act)[act]
 
 
-def _ref_shares(self, r, rows):  # every sample's shares computed, those asked for kept
-    return _ref_combined(self, r)[1][np.asarray(rows, bool)]
+def _ref_shares(self, r, rows, point=None):  # every sample's shares, those asked for kept
+    return _ref_combined(self, r, point)[1][np.asarray(rows, bool)]
 
 
 def _ref_inverse(self, pat):  # each pattern's pseudo-inverse, nothing shared with the replay

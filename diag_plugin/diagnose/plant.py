@@ -282,6 +282,13 @@ class Plant:
             for ui, u in enumerate(units)
             if u.cmodel is not None
         ]
+        # per combined test with operating points, its point tags' columns of the history
+        self._point_cols = {
+            ui: np.array([self.tag_names.index(t) if t in self.tag_names else -1
+                          for t in cm.point_tags], np.intp)
+            for ui, cm, _, _ in self._multi
+            if cm.centers is not None and cm.point_tags
+        }  # fmt: skip
         # the tags named, averaged over each alarm episode (unitloops.EpisodeHold)
         self._holds = {ui: EpisodeHold(len(cm.tags)) for ui, cm, _, _ in self._multi}
         for uis in by_matrix.values():
@@ -525,7 +532,12 @@ class Plant:
         multi: dict[int, tuple] = {}
         for ui, cm, delay, enabled in self._multi:
             a = self._first[ui]
-            t2, share = cm.evaluate(r[a : a + len(units[ui].tests)][None, :])
+            point = None
+            if ui in self._point_cols:  # the operating point of this cycle's readings
+                cols = self._point_cols[ui]
+                x = np.where(cols >= 0, self._hist[0, cols], np.nan)[None, :]
+                point = cm.nearest_point(x)
+            t2, share = cm.evaluate(r[a : a + len(units[ui].tests)][None, :], point)
             s_t2 = np.nan
             if enabled and cm.high is not None:
                 raw = np.nan if np.isnan(t2[0]) else float(t2[0] > cm.high)

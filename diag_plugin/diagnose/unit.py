@@ -669,7 +669,8 @@ class Unit:
         c_on = np.zeros(n, bool)
         combined = None
         if self.cmodel is not None:
-            t2, _ = self.cmodel.evaluate(r.to_numpy(), shares=False)  # shares: alarms only
+            point = self.cmodel.point_of(frame)
+            t2, _ = self.cmodel.evaluate(r.to_numpy(), point, shares=False)  # shares: alarms
             s_t2 = np.full(n, np.nan)
             if self.ev["combined"] and self.cmodel.high is not None:
                 with np.errstate(invalid="ignore"):
@@ -701,7 +702,7 @@ class Unit:
             # the tags named: each one's share averaged over the alarm episode so far; the
             # shares computed on the alarm samples only (the episode and the ranking read
             # no others; the rest when Diagnosis.contributions is asked for)
-            shares = LazyShares(self.cmodel, r.to_numpy(), active, frame.index)
+            shares = LazyShares(self.cmodel, r.to_numpy(), active, frame.index, point)
             held = self.episode.transform_at(shares.share_at, active)
             top = top_tags_at(held, self.cmodel.tags, active)
             top.index = frame.index
@@ -818,14 +819,22 @@ class LazyShares:
     """Each tag's share of T² per sample for :class:`Diagnosis`: those of the alarm samples
     (``at``) computed now (the episode's ranking reads them), the others when called."""
 
-    def __init__(self, cmodel: CombinedModel, r: np.ndarray, at: np.ndarray, index) -> None:
+    def __init__(
+        self,
+        cmodel: CombinedModel,
+        r: np.ndarray,
+        at: np.ndarray,
+        index,
+        point: np.ndarray | None = None,
+    ) -> None:
         self.cmodel, self.r, self.at, self.index = cmodel, r, np.asarray(at, bool), index
-        self.share_at = cmodel.shares(r, self.at)
+        self.point = point  # each sample's operating point (CombinedModel.point_of)
+        self.share_at = cmodel.shares(r, self.at, point)
 
     def __call__(self) -> pd.DataFrame:
         out = np.empty((self.r.shape[0], len(self.cmodel.tags)))
         out[self.at] = self.share_at
-        out[~self.at] = self.cmodel.shares(self.r, ~self.at)
+        out[~self.at] = self.cmodel.shares(self.r, ~self.at, self.point)
         return pd.DataFrame(out, index=self.index, columns=self.cmodel.tags, copy=False)
 
 

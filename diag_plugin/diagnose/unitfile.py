@@ -268,8 +268,21 @@ class CombinedSpec:
     responses: dict[str, dict[str, float]] = field(default_factory=dict)
     #: what the threshold rests on (far, method, supported, hours, …), written as is
     notes: dict[str, Any] = field(default_factory=dict)
+    #: operating points (``diag unit accept``; empty: one, ``center`` alone): the plant tags
+    #: that place a sample, per point their mean (``point_at``, points × tags), the tags'
+    #: spans the distance is measured in, and per point each test's centre and scale
+    #: (``point_center``, ``point_scale``, points × tests; ``center`` and ``scale`` are the
+    #: first point's); a sample's residuals are centred and scaled at its nearest point, and
+    #: ``cov`` is the pooled within-point one
+    point_tags: list[str] = field(default_factory=list)
+    point_at: list[list[float]] = field(default_factory=list)
+    point_span: list[float] = field(default_factory=list)
+    point_center: list[list[float]] = field(default_factory=list)
+    point_scale: list[list[float]] = field(default_factory=list)
 
 
+#: keys of [combined] for its operating points (:class:`CombinedSpec`)
+POINT_KEYS = ("point_tags", "point_at", "point_span", "point_center", "point_scale")
 #: keys of [combined] besides the arrays, what they hold
 COMBINED_NOTES = ("far", "method", "supported", "hours", "hours_needed", "independent", "share")
 
@@ -539,7 +552,7 @@ class UnitFile(LinedFile):
         line = lambda k: self.line_of("combined", k)  # noqa: E731
         known = {
             "tests", "center", "scale", "cov", "shrinkage", "high", "gains", "responses",
-            *COMBINED_NOTES,
+            *POINT_KEYS, *COMBINED_NOTES,
         }  # fmt: skip
         for key in sorted(set(v) - known):
             self.error(line(key), f"unknown key {key!r} in [combined]")
@@ -600,6 +613,7 @@ class UnitFile(LinedFile):
             for test in row:
                 if names and test not in names:
                     self.error(self.line_of("combined.responses", sp), f"unknown test {test!r}")
+        points = self._combined_points(v, k, line)
         if len(self.problems) > n0:
             return None
         return CombinedSpec(
@@ -612,7 +626,57 @@ class UnitFile(LinedFile):
             gains=gains,
             responses=responses,
             notes={kk: v[kk] for kk in COMBINED_NOTES if kk in v},
+            **points,
         )
+
+    def _combined_points(self, v: dict, k: int, line) -> dict[str, list]:
+        """``[combined]``'s operating points (:data:`POINT_KEYS`, all or none): tag names,
+        per point their means and ``k`` tests' centres, the tags' spans (> 0)."""
+        have = [key for key in POINT_KEYS if key in v]
+        if not have:
+            return {}
+        if len(have) < len(POINT_KEYS):
+            missing = sorted(set(POINT_KEYS) - set(have))
+            self.error(line(have[0]), f"[combined] operating points lack {', '.join(missing)}")
+            return {}
+        tags = v["point_tags"]
+        if not isinstance(tags, list) or not tags or not all(isinstance(t, str) for t in tags):
+            self.error(line("point_tags"), "[combined] point_tags must list tag names")
+            return {}
+
+        def rows(key: str, width: int, what: str) -> list[list[float]]:
+            raw = v[key]
+            ok = isinstance(raw, list) and len(raw) >= 2 and all(
+                isinstance(r, list) and len(r) == width
+                and all(isinstance(x, int | float) and not isinstance(x, bool)
+                        and math.isfinite(x) for x in r)
+                for r in raw
+            )  # fmt: skip
+            if not ok:
+                self.error(line(key), f"[combined] {key} must be rows of {width} finite {what}")
+                return []
+            return [[float(x) for x in r] for r in raw]
+
+        at = rows("point_at", len(tags), "tag means, one row per point")
+        center = rows("point_center", k, "centres, one row per point")
+        scale = rows("point_scale", k, "scales, one row per point")
+        if not all(x > 0 for r in scale for x in r):
+            self.error(line("point_scale"), "[combined] point_scale must be > 0 everywhere")
+        raw = v["point_span"]
+        if not (
+            isinstance(raw, list)
+            and len(raw) == len(tags)
+            and all(isinstance(x, int | float) and not isinstance(x, bool) and x > 0 for x in raw)
+        ):
+            self.error(line("point_span"), f"[combined] point_span must be {len(tags)} spans > 0")
+            return {}
+        span = [float(x) for x in raw]
+        if at and not len(at) == len(center) == len(scale):
+            self.error(line("point_center"), "[combined] point_center, point_scale: a row a point")
+        return {
+            "point_tags": list(tags), "point_at": at, "point_span": span,
+            "point_center": center, "point_scale": scale,
+        }  # fmt: skip
 
     # ------------------------------------------------------------ paths
     def resolve(self, name: str) -> Path:
@@ -773,6 +837,15 @@ class UnitFile(LinedFile):
                 cov.append([float(f"{x:.5g}") for x in row])
             cov.multiline(True)
             t["cov"] = cov
+            if spec.point_center:
+                t["point_tags"] = list(spec.point_tags)
+                t["point_span"] = [float(f"{x:.6g}") for x in spec.point_span]
+                for key in ("point_at", "point_center", "point_scale"):
+                    arr = tomlkit.array()
+                    for row in getattr(spec, key):
+                        arr.append([float(f"{x:.6g}") for x in row])
+                    arr.multiline(True)
+                    t[key] = arr
             g = tomlkit.table()
             for test in spec.tests:
                 row = tomlkit.inline_table()

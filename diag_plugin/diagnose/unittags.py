@@ -11,7 +11,10 @@ combined statistic is Hotelling's
 
     ``T² = zᵀ S⁻¹ z``   (MacGregor & Kourti, 1995, eq. 3)
 
-with ``S`` the covariance of ``z`` over the same window shrunk toward its diagonal,
+(after ``diag unit accept``, each window an operating point: ``c_j`` and ``s_j`` those of the
+point whose means of the tags are nearest the sample, ``S`` the pooled within-point one,
+:func:`~diag_plugin.learn.thresholds.learn_combined`) with ``S`` the covariance of ``z``
+over the same window shrunk toward its diagonal,
 ``S = (1 − λ) Ŝ + λ diag(Ŝ)``, ``λ = T / (T + n_eff)`` (``T`` tests, ``n_eff`` the fewest
 independent values of a test's residual, :func:`~diag_plugin.diagnose.symptoms.effective_samples`:
 a filtered residual holds few, and an unshrunk inverse would chase noise). A coordinated small
@@ -307,6 +310,14 @@ class CombinedModel:
     loop: np.ndarray | None = None
     #: per tag a second direction, a change of the true quantity (:func:`process_directions`)
     process: np.ndarray | None = None
+    #: operating points (``[combined] point_*``): each test's centre and scale per point
+    #: (points × T), the plant tags placing a sample, their mean per point (points × tags)
+    #: and spans
+    centers: np.ndarray | None = None
+    scales: np.ndarray | None = None
+    point_tags: list[str] = field(default_factory=list)
+    point_at: np.ndarray | None = None
+    point_span: np.ndarray | None = None
     #: per pattern of known tests: S⁻¹ restricted to them and the directions' norms
     _inverses: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray | None]] = field(
         default_factory=dict
@@ -382,6 +393,15 @@ class CombinedModel:
         order = [spec.tests.index(t) for t in unit.tests]
         cov = np.asarray(spec.cov, float)[np.ix_(order, order)]
         xi, loop = directions(unit, spec)
+        points = {}
+        if spec.point_center:
+            points = {
+                "centers": np.asarray(spec.point_center, float)[:, order],
+                "scales": np.asarray(spec.point_scale, float)[:, order],
+                "point_tags": list(spec.point_tags),
+                "point_at": np.asarray(spec.point_at, float),
+                "point_span": np.asarray(spec.point_span, float),
+            }
         return cls(
             tags,
             np.asarray(spec.center, float)[order],
@@ -391,19 +411,48 @@ class CombinedModel:
             spec.high,
             loop if (loop >= 0).any() else None,
             process_directions(unit, spec, xi),
+            **points,
         )
 
-    def z(self, r: np.ndarray) -> np.ndarray:
-        """Scaled residuals ``(r − c) / s`` (n × T, NaN unknown)."""
-        z = np.subtract(r, self.center, dtype=float)
-        z /= self.scale  # in place: one n × T array, not two
+    def point_of(self, frame: pd.DataFrame) -> np.ndarray | None:
+        """Each sample's operating point (None: the model has one): the nearest point's mean
+        in the plant tags ``point_tags`` of ``frame``, each tag's distance in its span (the
+        joint test's rule, :meth:`~diag_plugin.models.joint.JointRegressor.nearest`), over
+        the tags known at the sample; point 0 where none is."""
+        if self.centers is None or self.point_at is None or self.point_span is None:
+            return None
+        if not self.point_tags:
+            return np.zeros(len(frame), np.int64)
+        return self.nearest_point(frame.reindex(columns=self.point_tags).to_numpy(float))
+
+    def nearest_point(self, x: np.ndarray) -> np.ndarray:
+        """:meth:`point_of` of rows ``x`` (n × ``point_tags``, NaN unknown)."""
+        assert self.point_at is not None and self.point_span is not None
+        x = x / self.point_span
+        at = self.point_at / self.point_span
+        d = np.stack([np.nansum((x - a) ** 2, axis=1) for a in at], axis=1)
+        return np.argmin(d, axis=1)
+
+    def z(self, r: np.ndarray, point: np.ndarray | None = None) -> np.ndarray:
+        """Scaled residuals ``(r − c) / s`` (n × T, NaN unknown); ``c``, ``s`` those of each
+        sample's operating point (``point``, :meth:`point_of`) where the model has points."""
+        if point is None or self.centers is None or self.scales is None:
+            center, scale = self.center, self.scale
+        else:
+            center, scale = self.centers[point], self.scales[point]
+        z = np.subtract(r, center, dtype=float)
+        z /= scale  # in place: one n × T array, not two
         return z
 
-    def evaluate(self, r: np.ndarray, shares: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    def evaluate(
+        self, r: np.ndarray, point: np.ndarray | None = None, shares: bool = True
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """``T²`` per sample (NaN unknown) and each tag's share of it, ``RBC_X / T²`` (n × tags),
-        from filtered residuals ``r`` (n × T): see the module doc. ``shares=False``: T² alone
-        (the shares None; :meth:`shares` gives them for the rows that need them)."""
-        z = self.z(r)
+        from filtered residuals ``r`` (n × T), each centred at its sample's operating point
+        (``point``, :meth:`point_of`; None: the one centre): see the module doc.
+        ``shares=False``: T² alone (the shares None; :meth:`shares` gives them for the rows
+        that need them)."""
+        z = self.z(r, point)
         n, T = z.shape
         t2 = np.full(n, np.nan)
         share = np.full((n, len(self.tags)), np.nan) if shares else None
@@ -421,11 +470,14 @@ class CombinedModel:
             t2[rows] = stats.chi2.isf(stats.chi2.sf(q, df), T)
         return t2, share
 
-    def shares(self, r: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    def shares(
+        self, r: np.ndarray, rows: np.ndarray, point: np.ndarray | None = None
+    ) -> np.ndarray:
         """Each tag's share of T² (as :meth:`evaluate`'s) at ``rows`` only (a boolean mask
-        over the n samples of ``r``): ``len(rows[rows]) × tags``, in the rows' order."""
+        over the n samples of ``r``; ``point``: each of the n samples' operating point, as
+        :meth:`evaluate`'s): ``len(rows[rows]) × tags``, in the rows' order."""
         at = np.flatnonzero(rows)
-        z = self.z(r[at])
+        z = self.z(r[at], None if point is None else point[at])
         share = np.full((at.size, len(self.tags)), np.nan)
         for sub, k, inv, mz, q in self._blocks(z):
             share[sub] = self._share(mz, q, k, inv)

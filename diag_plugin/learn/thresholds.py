@@ -69,6 +69,9 @@ DEFAULT_BLOCKS = 5
 MIN_LEVEL_SAMPLES = 30
 #: known residual values a test needs in the window
 MIN_KNOWN = 30
+#: ``by_run`` of :func:`learn_thresholds`: the cross-fitting's blocks cut every run (window)
+#: into equal spans, block ``b`` the ``b``-th span of each (:func:`block_of`)
+WITHIN_RUNS = "within"
 #: samples without data that separate two runs of a window (the unit's filter forgets its
 #: state after as many, :class:`~diag_plugin.diagnose.residuals.LowPass`)
 RUN_GAP = 100
@@ -165,11 +168,23 @@ def _training_range(rb) -> tuple[pd.Timestamp, pd.Timestamp] | None:
     return a, b
 
 
-def block_of(index: pd.DatetimeIndex, blocks: int, data: np.ndarray | None = None) -> np.ndarray:
+def block_of(
+    index: pd.DatetimeIndex, blocks: int, data: np.ndarray | None = None, within: bool = False
+) -> np.ndarray:
     """Time block (0 … blocks − 1) of each timestamp. A window of several runs (stretches of
     data separated by more than :data:`RUN_GAP` samples without, ``data`` False) is cut between
     runs, consecutive runs grouped into at most ``blocks`` blocks (leave-runs-out: a run's
-    residuals come from models that never saw it); otherwise equal spans of time."""
+    residuals come from models that never saw it); otherwise equal spans of time. ``within``
+    (and ``data``): each run cut into ``blocks`` equal spans of its own, block ``b`` the
+    ``b``-th of every run (``diag unit accept``: each window an operating point, so a block
+    held out leaves the models most of every point)."""
+    if within and data is not None and data.size == len(index):
+        run = _runs(data)
+        out = np.zeros(len(index), np.int64)
+        for r in np.unique(run):
+            rows = np.flatnonzero(run == r)
+            out[rows] = block_of(index[rows], blocks)
+        return out
     if data is not None and data.size == len(index):
         run = _runs(data)
         n = int(run.max()) + 1 if run.size else 0
@@ -225,11 +240,12 @@ def test_residuals(
     blocks: int,
     cross_fit: bool | None,
     mapper: Mapper | None = None,
-    by_run: bool = True,
+    by_run: bool | str = True,
 ) -> dict[str, TestResiduals]:
     """Raw residuals of every test over ``frame``, each block's from a model that did not see
     that block (see :func:`held_out`); ``cross_fit`` False: the models' own residuals;
-    ``by_run`` False: equal time blocks even where the window holds several runs. Each
+    ``by_run`` False: equal time blocks even where the window holds several runs;
+    :data:`WITHIN_RUNS`: every run cut into equal time blocks (:func:`block_of`). Each
     test's are independent of the others': ``mapper`` may compute them in several
     processes."""
     frame = unit._model_frame(frame)
@@ -248,7 +264,7 @@ def _test_residual(
     frame: pd.DataFrame,
     blocks: int,
     cross_fit: bool | None,
-    by_run: bool = True,
+    by_run: bool | str = True,
 ) -> TestResiduals | str:
     """One test's residuals for :func:`test_residuals` (a message if the window lacks a tag
     its model reads)."""
@@ -267,7 +283,8 @@ def _test_residual(
     else:
         data = frame.notna().any(axis=1).to_numpy()
         runs = data if by_run else None
-        block = block_of(frame.index, blocks, runs)[rows] if len(rows) else rows
+        within = by_run == WITHIN_RUNS
+        block = block_of(frame.index, blocks, runs, within)[rows] if len(rows) else rows
         pred, source = held_out(
             RuleBase.load(m.path), m.model, d, block, blocks, t.name, force=bool(cross_fit)
         )
@@ -433,17 +450,23 @@ def learn_thresholds(
     blocks: int = DEFAULT_BLOCKS,
     cross_fit: bool | None = None,
     spread: bool = True,
-    by_run: bool = True,
+    by_run: bool | str = True,
     mapper: Mapper | None = None,
+    points: pd.DataFrame | None = None,
 ) -> Learned:
     """Thresholds of every test of ``unit`` from a window the user declares fault-free
     (``frames``: consecutive pieces of it), holding the unit to ``far`` false alarms per hour
     of operation (see the module doc). Raises :class:`LearnError` naming each test the window
-    cannot serve and what to do. ``by_run`` False: the cross-fitting's blocks are equal spans
-    of time even where the window holds several runs (``diag unit accept``: windows at
-    different operating points, none of which the others' models cover; each run's filter
-    still settles on its own). ``mapper``: how the tests' residuals are computed
-    (:data:`Mapper`; default one after the other in this process)."""
+    cannot serve and what to do. ``by_run`` :data:`WITHIN_RUNS`: the cross-fitting's block
+    ``b`` is the ``b``-th of equal spans of every run (``diag unit accept``: each window an
+    operating point, each point's residuals from models that saw most of it). ``by_run``
+    False: equal spans of the whole window even where it holds several runs (each run's
+    filter still settles on its own). ``mapper``: how the tests' residuals are computed
+    (:data:`Mapper`; default one after the other in this process). ``points``: the unit's
+    operating points (``diag unit accept``: one row per window it learned, the window's mean
+    of each plant tag); with two or more, the combined test's residuals are centred at each
+    sample's nearest point and its scale and covariance are the pooled within-point ones
+    (:func:`learn_combined`)."""
     if blocks < 0 or blocks == 1:
         raise LearnError([f"blocks must be 0 (no cross-fitting) or at least 2, got {blocks}"])
     frame = _window(frames)
@@ -514,13 +537,18 @@ def learn_thresholds(
     if unit.ev["combined"] or unit.ev["isolation"] == "tags":
         data = frame.notna().any(axis=1).to_numpy()
         keep = settled(data)
-        block = block_of(frame.index, max(blocks, 1), data if by_run else None)[keep]
+        within = by_run == WITHIN_RUNS
+        block = block_of(frame.index, max(blocks, 1), data if by_run else None, within)[keep]
+        located = None
+        if points is not None and len(points) >= 2:
+            located = operating_points(frame.loc[body.index], points)
         combined = learn_combined(
             unit,
             body,
             block,
             far * COMBINED_SHARE if unit.ev["combined"] else None,
             model_gains(unit, frame),
+            located,
         )
         combined.responses = setpoint_responses(unit, frame.loc[body.index], body, combined)
         n = combined.notes
@@ -602,18 +630,85 @@ def _check_body(body: pd.DataFrame) -> list[str]:
     return out
 
 
-def _combined_params(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def operating_points(
+    frame: pd.DataFrame, points: pd.DataFrame
+) -> tuple[np.ndarray, dict[str, list]] | None:
+    """Each row's operating point among ``points`` (one row per point: its mean of each plant
+    tag, the columns) and how a sample is placed: the nearest point, each tag's distance in its
+    span over ``frame`` (the joint test's rule,
+    :meth:`~diag_plugin.models.joint.JointRegressor.nearest`), over the tags known at the
+    row. Tags ``frame`` lacks, without a finite mean at every point or constant over the
+    window are left out (None: no tag is left). Returns the points per row and the
+    :class:`~diag_plugin.diagnose.unitfile.CombinedSpec` fields ``point_tags``, ``point_at``,
+    ``point_span``."""
+    from diag_plugin.diagnose.unittags import CombinedModel
+
+    tags = [c for c in points.columns if c in frame.columns]
+    at = points[tags].to_numpy(float)
+    x = frame[tags].to_numpy(float)
+    with np.errstate(invalid="ignore"):
+        span = np.nanmax(x, axis=0) - np.nanmin(x, axis=0) if len(x) else np.zeros(len(tags))
+    keep = np.isfinite(at).all(axis=0) & (np.nan_to_num(span) > 0)
+    fields = {
+        "point_tags": [t for t, k in zip(tags, keep, strict=True) if k],
+        "point_at": at[:, keep].tolist(),
+        "point_span": span[keep].tolist(),
+    }
+    if not fields["point_tags"]:
+        return None
+    model = CombinedModel(
+        [], np.zeros(0), np.ones(0), np.eye(0), np.zeros((0, 0)), None,
+        centers=np.zeros((len(at), 0)), point_tags=fields["point_tags"],
+        point_at=at[:, keep], point_span=span[keep],
+    )  # fmt: skip
+    return model.point_of(frame), fields
+
+
+def _centre_scale(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Median and robust scale (1.4826 MAD; the sd where the MAD is 0, else 1) of each
+    column of ``x`` (a column never known: NaN and 1)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a column never known: NaN
+        center = np.nanmedian(x, axis=0)
+        scale = 1.4826 * np.nanmedian(np.abs(x - center), axis=0)
+        sd = np.nanstd(x, axis=0)
+    return center, np.where(scale > 0, scale, np.where(sd > 0, sd, 1.0))
+
+
+def _combined_params(
+    x: np.ndarray, point: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Centre (median), robust scale (1.4826 MAD; the sd where the MAD is 0) of each column of
     fault-free filtered residuals ``x`` (n × T), the covariance of the scaled residuals over
     the rows where all are known, shrunk toward its diagonal by ``λ = T / (T + n_eff)``, and
-    ``λ`` (:mod:`~diag_plugin.diagnose.unittags`)."""
+    ``λ`` (:mod:`~diag_plugin.diagnose.unittags`).
+
+    With ``point`` (each row's operating point, :func:`operating_points`) the centre and the
+    scale are one row per point (points × T: each point's own; NaN for a point without rows;
+    the whole window's for a test never known at a point), and the covariance is that of the
+    residuals scaled at their own point: the pooled within-point scatter, not the spread
+    between the points (nor one point's noise taken for another's: SKAB's pump vibrates
+    four times as much at its calibration run's flow)."""
+    if point is not None:
+        P = int(point.max()) + 1 if point.size else 1
+        centers = np.full((P, x.shape[1]), np.nan)
+        scales = np.full((P, x.shape[1]), np.nan)
+        whole = _centre_scale(x)
+        for p in np.unique(point):
+            c, s_ = _centre_scale(x[point == p])
+            unknown = ~np.isfinite(x[point == p]).any(axis=0)
+            centers[p] = np.where(unknown, whole[0], c)
+            scales[p] = np.where(unknown, whole[1], s_)
+        with np.errstate(invalid="ignore"):
+            z = (x - centers[point]) / scales[point]
+        c0, s0, cov, lam = _combined_params(z)
+        return centers + c0 * scales, scales * s0, cov, lam
     from diag_plugin.diagnose.symptoms import effective_samples
 
     T = x.shape[1]
-    center = np.nanmedian(x, axis=0)
-    scale = 1.4826 * np.nanmedian(np.abs(x - center), axis=0)
-    sd = np.nanstd(x, axis=0)
-    scale = np.where(scale > 0, scale, np.where(sd > 0, sd, 1.0))
+    center, scale = _centre_scale(x)
     z = (x - center) / scale
     rows = np.isfinite(z).all(axis=1)
     if rows.sum() <= T + 1:
@@ -631,6 +726,7 @@ def learn_combined(
     block: np.ndarray,
     far: float | None,
     gains: dict[str, dict[str, float]],
+    located: tuple[np.ndarray, dict[str, list]] | None = None,
 ) -> CombinedSpec:
     """The unit-level test from the settled, filtered, cross-fitted fault-free residuals
     ``body`` (one column per test, ``block``: each row's time block): centre, scale and shrunk
@@ -640,21 +736,35 @@ def learn_combined(
     residuals), with the unit's on/off delays
     (:func:`~diag_plugin.learn.budget.calibrate_side`); where the window is too short even
     for a tail fit, Rice's Gaussian rate is fitted to √T² (Gaussian-tailed) rather than to the
-    skewed T²."""
+    skewed T².
+
+    ``located``: each row's operating point and how a sample is placed
+    (:func:`operating_points`). Then each test's residual is centred and scaled at its row's
+    point and the covariance is the pooled within-point one (:func:`_combined_params`):
+    a level that differs between the points (a tag no model predicts, tested against its
+    window's mean) no longer counts as fault-free scatter (SKAB: the threshold grew 49.5 →
+    125,671 when the anomaly-free run's first hour was accepted into a unit built from
+    valve1/1's first 400 s, and the fault went unseen). The held-out blocks' T² takes a
+    point's centre from the whole window where the other blocks hold none of its rows."""
     from diag_plugin.diagnose.unittags import CombinedModel
     from diag_plugin.learn.budget import calibrate_side
 
     x = body[unit.tests].to_numpy(float)
     T = len(unit.tests)
-    center, scale, cov, lam = _combined_params(x)
+    point = None if located is None else located[0]
+    center, scale, cov, lam = _combined_params(x, point)
     spec = CombinedSpec(
         tests=list(unit.tests),
-        center=center.tolist(),
-        scale=scale.tolist(),
+        center=(center if point is None else center[0]).tolist(),
+        scale=(scale if point is None else scale[0]).tolist(),
         cov=cov.tolist(),
         shrinkage=lam,
         gains=gains,
     )
+    if point is not None and located is not None:
+        spec.point_center, spec.point_scale = center.tolist(), scale.tolist()
+        for k, v in located[1].items():
+            setattr(spec, k, v)
     if far is None:
         return spec
     t2 = np.full(len(x), np.nan)
@@ -662,9 +772,18 @@ def learn_combined(
     for b in blocks:
         held = block == b
         fit = x[~held] if blocks.size > 1 else x
-        c, s, S, _ = _combined_params(fit)
-        model = CombinedModel([], c, s, S, np.zeros((T, 0)), None)
-        t2[held] = model.evaluate(x[held])[0]
+        if point is None:
+            c, s, S, _ = _combined_params(fit)
+            model = CombinedModel([], c, s, S, np.zeros((T, 0)), None)
+            t2[held] = model.evaluate(x[held])[0]
+            continue
+        c, s, S, _ = _combined_params(fit, point[~held] if blocks.size > 1 else point)
+        pad = np.full((max(0, center.shape[0] - c.shape[0]), T), np.nan)
+        c = np.where(np.isfinite(np.vstack([c, pad])), np.vstack([c, pad]), center)
+        s = np.where(np.isfinite(np.vstack([s, pad])), np.vstack([s, pad]), scale)
+        # (a point only the held block has: its centre and scale from the whole window)
+        model = CombinedModel([], c[0], s[0], S, np.zeros((T, 0)), None, centers=c, scales=s)
+        t2[held] = model.evaluate(x[held], point[held])[0]
     dt_h = pd.Timedelta(unit.period) / pd.Timedelta(hours=1)
     h = float(np.isfinite(t2).sum()) * dt_h
     on, off = unit.ev["on_delay"], unit.ev["off_delay"]

@@ -19,9 +19,14 @@ period there as fault-free, :func:`accept` learns it into the unit:
    sample is scored against the nearest point's mean.
 3. **Thresholds re-learned** over all the windows together (cross-fitted, to the unit's own
    budget), as ``diag unit learn`` learns them; the windows are set one after another on one
-   time grid (a window weeks away re-timed to follow a gap), and the cross-fitting's blocks
-   are equal spans of that frame, not whole windows (a window at a new operating point held
-   out whole has no model that covers it).
+   time grid (a window weeks away re-timed to follow a gap), and the cross-fitting's block
+   ``b`` is the ``b``-th of equal spans of every window, never a whole window (a window at a
+   new operating point held out whole has no model that covers it; as equal spans of the
+   joined frame a 400 s build window fell in one block, and its residuals came from models
+   of the accepted point alone). Each window is an operating point of the combined
+   test (its mean of every tag): each sample's residuals are centred at its nearest point's,
+   the T²'s scale and covariance are the pooled within-point ones
+   (:func:`~diag_plugin.learn.thresholds.learn_combined`).
 """
 
 from __future__ import annotations
@@ -155,9 +160,9 @@ def _joined(frames: list[pd.DataFrame], period: str, history: int = 0) -> pd.Dat
     the frame must be on a regular grid: a window that starts later than the gap's end is
     moved up to follow it. It stays inside the models' training range (between the first
     window's start and the last one's end), which the cross-fitting reads; the windows' own
-    times are what the caller records. The cross-fitting's blocks are equal spans of this
-    frame (``by_run=False``), not the windows: a window at a new operating point held out
-    whole would leave no model that covers it."""
+    times are what the caller records. The cross-fitting cuts each window (run) into its
+    blocks (``by_run=WITHIN_RUNS``), never holding out a whole window: a window at a new
+    operating point held out whole would leave no model that covers it."""
     from diag_plugin.learn.thresholds import RUN_GAP
 
     parts = []
@@ -188,7 +193,12 @@ def accept(
     ``read(a, b)`` yields the unit's aligned frames (plant tag names) of ``[a, b)``."""
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitFile
-    from diag_plugin.learn.thresholds import DEFAULT_FAR, LearnError, learn_thresholds
+    from diag_plugin.learn.thresholds import (
+        DEFAULT_FAR,
+        WITHIN_RUNS,
+        LearnError,
+        learn_thresholds,
+    )
     from diag_plugin.rulebase.document import RuleBase
     from diag_plugin.training.chunked import train
 
@@ -266,8 +276,11 @@ def accept(
         history = max((max_lag(m.inputs) for m in fresh.models.values()), default=0)
         frame = _joined([window(a, b) for a, b in windows], fresh.period, history)
         frame = frame.rename(columns={k: v for k, v in fresh.file.tags.items()})
+        # each window an operating point of the combined test: its mean of every tag
+        points = pd.DataFrame([window(a, b).mean() for a, b in windows])
+        points = points.rename(columns={k: v for k, v in fresh.file.tags.items()})
         try:
-            learned = learn_thresholds(fresh, [frame], far=far, by_run=False)
+            learned = learn_thresholds(fresh, [frame], far=far, by_run=WITHIN_RUNS, points=points)
         except LearnError as exc:
             raise UserError(
                 f"unit {unit.name}: cannot learn thresholds:\n"
