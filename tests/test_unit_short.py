@@ -201,3 +201,17 @@ def test_a_tag_no_other_predicts_gets_a_level_test_that_detects_its_fault(tmp_pa
           f"normal samples before it; PCA {pca[during].mean():.2f}, "
           f"{pca[before].mean():.2f}")  # fmt: skip
     assert fault > 0.5 and normal < 0.1, (fault, normal)
+    # the live plug-in runs it too: its batched path (a level test reads no input; Plant's
+    # slots used to fail with IndexError on its empty input array) gives the one-by-one path's
+    # statuses and messages, cycle by cycle, into the fault
+    from diag_plugin.diagnose.plant import Plant
+
+    path = [tmp_path / "rb" / "u.unit.toml"]
+    fast = Plant.load(path, tmp_path / "rb")
+    slow = Plant(Plant.load(path, tmp_path / "rb").units, batched=False)
+    assert fast.fast == ["u"] and slow.slow == ["u"]
+    part = frame.iloc[ROWS : run.onset + 200]
+    for ts, row in part.iterrows():
+        values = row.to_dict()
+        (x,), (y,) = fast.cycle(ts, values), slow.cycle(ts, values)
+        assert (x.status, x.faults, x.message) == (y.status, y.faults, y.message), ts

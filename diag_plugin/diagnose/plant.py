@@ -151,7 +151,9 @@ class Plant:
                 out = (o.lag, tags.setdefault(u.file.tags.get(o.tags[0], o.tags[0]), len(tags)))
                 depth = max(depth, o.lag)
                 scale = t.ymax if u.ev["scale"] == "max" and t.ymax else m.span
-                slots.append(_Slot(ui, ti, m.model, np.array(ins, np.intp), out, float(scale)))
+                slots.append(
+                    _Slot(ui, ti, m.model, np.array(ins, np.intp).reshape(-1, 2), out, float(scale))
+                )
         self.tag_names = list(tags)
         self.tag_index = tags
         self.depth = depth
