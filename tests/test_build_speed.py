@@ -163,3 +163,58 @@ def test_the_winners_fits_reused_are_the_fits_made_again():
     # the spec read once is the one the file gives for those inputs
     assert FrozenRuleBase(base, variables).spec == _rulebase("t", ctx.vars[out], variables,
                                                              "60s").spec  # fmt: skip
+
+
+@pytest.mark.parametrize("d", [1, 2, 3])
+@pytest.mark.parametrize("shape", ["trapezoidal", "triangular"])
+def test_coarse_node_fit_compiled_equals_numpy_to_the_bit(monkeypatch, d, shape):
+    """A coarse level's design made by the compiled loops (corners, nodes, smoothness
+    Gram matrix) gives the node values numpy's loops give, bit for bit, on every level —
+    dense and sparse fits, sets uneven per input, data on part of the grid only."""
+    import diag_plugin.fuzzy.wang_mendel as W
+
+    rng = np.random.default_rng(40 + d)
+    n = 6000
+    X = rng.uniform(0.0, 1.0, (n, d)) ** np.arange(1, d + 1)  # thin corners of the grid
+    X[: n // 3, 0] *= 0.4  # a band the data leave empty
+    y = np.sin(3 * X).sum(axis=1) + rng.normal(0, 0.05, n)
+    sets = [31, 21, 11][:d] if d > 1 else [41]
+
+    def fitted(loops):
+        monkeypatch.setattr(W, "_design_loops", loops)
+        m = WangMendelRegressor([(0.0, 1.0)] * d, (-3.0, 3.0), n_sets=sets, shape=shape)
+        m.fit(X, y)
+        return [m.level_nodes(lv) for lv in range(1, m.n_levels_)]
+
+    compiled = fitted(lambda nsets: W.kernels())
+    plain = fitted(lambda nsets: None)
+    assert len(compiled) == len(plain) >= 2
+    for (k1, v1, f1), (k2, v2, f2) in zip(compiled, plain, strict=True):
+        assert np.array_equal(k1, k2) and np.array_equal(f1, f2)
+        assert k1.size > 1
+        assert np.array_equal(v1.view(np.int64), v2.view(np.int64))
+
+
+@pytest.mark.parametrize("d", [1, 2, 3])
+def test_sets_for_data_compiled_search_equals_numpy(monkeypatch, d):
+    """The set count the compiled search finds is numpy's loop's, on data that fill a grid
+    evenly, only a band of it, or sit on a few values (the count then falls to the bottom);
+    rows with a gap are left out by both."""
+    import sys
+
+    from diag_plugin.fuzzy import _kernels  # noqa: F401 - loads numba: the compiled path
+    from diag_plugin.selection.sets import sets_for_data
+
+    rng = np.random.default_rng(7 + d)
+    spans = [(0.0, 10.0)] * d
+    cases = []
+    for n in (40, 700, 5000, 30000):
+        cases.append([rng.uniform(0, 10, n) for _ in range(d)])
+        cases.append([rng.normal(5, 0.3 + k, n).clip(0, 10) for k in range(d)])
+        cases.append([rng.integers(0, 3, n).astype(float) for _ in range(d)])
+    cases[0][0][3] = np.nan
+    got = [sets_for_data(c, spans) for c in cases]
+    monkeypatch.delitem(sys.modules, "numba")
+    want = [sets_for_data(c, spans) for c in cases]
+    assert got == want
+    assert len(set(want)) > 2

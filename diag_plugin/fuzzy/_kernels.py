@@ -359,3 +359,140 @@ def infer_fine(
         if sl < enough and coarse and inside:
             again[r] = True
         reason[r] = code if level[r] >= 0 else 2
+
+
+@nb.njit(cache=True, nogil=True)
+def coarse_corners(fine, blocks, nsets, plateau, radix, cells):
+    """The multilinear design of a coarse level's node fit
+    (:func:`~diag_plugin.fuzzy.wang_mendel._fit_nodes`): each fine rule (``fine``: its set
+    index per input) at its set centres in the coarse partition (``blocks`` fine sets per
+    coarse set, ``nsets`` coarse sets, ``plateau`` per input, ``radix`` of the coarse keys,
+    ``cells`` coarse cells in all), and for every corner of its coarse cell with a positive
+    weight: the row, the node's index among the nodes met and the weight. Returned in numpy's
+    order (corner by corner, rows ascending within each) with the nodes ascending — the same
+    arithmetic in the same order as the numpy code it replaces, so the same bits, without its
+    dozens of small array calls per fit."""
+    n, d = fine.shape
+    lower = np.empty((n, d), np.int64)
+    upper_w = np.empty((n, d), np.float64)
+    lower_w = np.empty((n, d), np.float64)
+    for k in range(d):
+        b = blocks[k]
+        hi = nsets[k] - 1.0
+        pl = plateau[k]
+        for r in range(n):
+            t = (fine[r, k] - 0.5 * (b - 1)) / b
+            if t < 0.0:
+                t = 0.0
+            elif t > hi:
+                t = hi
+            j = np.int64(math.floor(t))
+            if j > nsets[k] - 2:
+                j = nsets[k] - 2
+            u = (t - j - 0.5 * pl) / (1.0 - pl)
+            if u < 0.0:
+                u = 0.0
+            elif u > 1.0:
+                u = 1.0
+            lower[r, k] = j
+            upper_w[r, k] = u
+            lower_w[r, k] = 1.0 - u
+    corners = 1 << d
+    total = 0
+    key = np.empty(corners * n, np.int64)
+    rows = np.empty(corners * n, np.int64)
+    vals = np.empty(corners * n, np.float64)
+    mark = np.full(cells, -1, np.int64)
+    for c in range(corners):
+        for r in range(n):
+            w = upper_w[r, 0] if c & 1 else lower_w[r, 0]
+            for k in range(1, d):
+                w = w * (upper_w[r, k] if (c >> k) & 1 else lower_w[r, k])
+            if w > 0.0:
+                kk = 0
+                for k in range(d):
+                    kk += (lower[r, k] + ((c >> k) & 1)) * radix[k]
+                key[total] = kk
+                rows[total] = r
+                vals[total] = w
+                mark[kk] = 0
+                total += 1
+    nodes = np.empty(cells, np.int64)
+    m = 0
+    for kk in range(cells):
+        if mark[kk] == 0:
+            mark[kk] = m
+            nodes[m] = kk
+            m += 1
+    col = np.empty(total, np.int64)
+    for i in range(total):
+        col[i] = mark[key[i]]
+    return nodes[:m].copy(), rows[:total].copy(), col, vals[:total].copy()
+
+
+@nb.njit(cache=True, nogil=True)
+def smooth_gram(nodes, radix, nsets):
+    """``P.T @ P`` of the node fit's smoothness prior (one row of 1, -2, 1 per second
+    difference along an input where both neighbours are nodes; ``nodes`` ascending): small
+    integers summed, so exactly the dense product, without forming ``P``."""
+    k = nodes.size
+    d = radix.size
+    out = np.zeros((k, k))
+    at = np.empty(3, np.int64)
+    v = np.array([1.0, -2.0, 1.0])
+    for j in range(d):
+        for i in range(k):
+            idx = (nodes[i] // radix[j]) % nsets[j]
+            if idx <= 0 or idx >= nsets[j] - 1:
+                continue
+            b = np.searchsorted(nodes, nodes[i] - radix[j])
+            a = np.searchsorted(nodes, nodes[i] + radix[j])
+            if (
+                b >= k
+                or a >= k
+                or nodes[b] != nodes[i] - radix[j]
+                or nodes[a] != nodes[i] + radix[j]
+            ):
+                continue
+            at[0], at[1], at[2] = b, i, a
+            for p in range(3):
+                for q in range(3):
+                    out[at[p], at[q]] += v[p] * v[q]
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def sets_filled(pos, top, bottom, per_cell):
+    """:func:`~diag_plugin.selection.sets.sets_for_data`'s search: the most sets from ``top``
+    down to ``bottom`` for which the cells the rows of ``pos`` (each sample's place in every
+    input's span, finite) occupy hold ``per_cell`` samples on average, else ``bottom`` — the
+    same set indices (``floor(pos · (sets - 1) + 0.5)`` clipped) and counts in one loop per
+    count tried, through one table of ``top^d`` cells."""
+    n, d = pos.shape
+    cells = 1
+    for _ in range(d):
+        cells *= top
+    seen = np.zeros(cells, np.bool_)
+    keys = np.empty(n, np.int64)
+    for sets in range(top, bottom - 1, -1):
+        occupied = 0
+        for r in range(n):
+            key = 0
+            mul = 1
+            for k in range(d):
+                t = math.floor(pos[r, k] * (sets - 1) + 0.5)
+                if t < 0.0:
+                    t = 0.0
+                elif t > sets - 1:
+                    t = sets - 1
+                key += np.int64(t) * mul
+                mul *= sets
+            keys[r] = key
+            if not seen[key]:
+                seen[key] = True
+                occupied += 1
+        for r in range(n):
+            seen[keys[r]] = False
+        if n >= per_cell * occupied:
+            return sets
+    return bottom

@@ -456,6 +456,9 @@ class WangMendelRegressor(ParamsMixin):
     def _merge_state(self, keys, count, qsum, qsq, best_w, best_set, skipped) -> None:
         self.n_skipped_ += skipped
         self.n_samples_seen_ += int(count.sum())
+        if not self.keys_.size:  # a first chunk (keys sorted, unique): its state as it is
+            self._first_state(keys, count, qsum, qsq, best_w, best_set)
+            return
         allk = np.union1d(self.keys_, keys)
         a = np.searchsorted(allk, self.keys_)
         b = np.searchsorted(allk, keys)
@@ -483,6 +486,24 @@ class WangMendelRegressor(ParamsMixin):
             new_sq[b] += qsq
             self.qsum_, self.qsq_ = new_sum, new_sq
         self.keys_, self.count_ = allk, new_count
+        self._touch()
+
+    def _first_state(self, keys, count, qsum, qsq, best_w, best_set) -> None:
+        """:meth:`_merge_state` into an empty state: the union is ``keys`` and every sum is
+        the chunk's own (copies of them, the same numbers), without the union's sort."""
+        if count.size and count.max() > MAX_CELL_COUNT:
+            raise OverflowError(
+                f"a rule cell holds more than {MAX_CELL_COUNT} samples; "
+                "split the training range or use more sets"
+            )
+        self.keys_ = np.array(keys, np.int64)
+        self.count_ = np.array(count, np.int64)
+        if self.method == "wm":
+            # every weight beats the empty state's -1
+            self.best_w_ = np.array(best_w, np.float64)
+            self.best_set_ = np.array(best_set, np.int64)
+        else:
+            self.qsum_, self.qsq_ = np.array(qsum, np.int64), np.array(qsq, np.int64)
         self._touch()
 
     def merge(self, other: WangMendelRegressor) -> WangMendelRegressor:
@@ -998,27 +1019,15 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     radix = _radix(nsets)
     # each fine rule at its set centres, in the coarse partition: lower node and weight
     fine = m.cell_indices(m.keys_[has])
-    lower = np.empty_like(fine)
-    upper_w = np.empty(fine.shape)
-    for k, p in enumerate(m.partitions_):
-        b = int(blocks[k])
-        t = np.clip((fine[:, k] - 0.5 * (b - 1)) / b, 0.0, nsets[k] - 1.0)
-        j = np.minimum(np.floor(t).astype(np.int64), nsets[k] - 2)
-        pl = p.plateau if p.shape == "trapezoidal" else 0.0
-        lower[:, k] = j
-        upper_w[:, k] = np.clip((t - j - 0.5 * pl) / (1.0 - pl), 0.0, 1.0)
-    rows, cols, vals = [], [], []
-    lower_w = 1.0 - upper_w
-    for c in range(1 << d):
-        up = np.array([(c >> k) & 1 for k in range(d)], bool)
-        w = corner_weight(upper_w, lower_w, up)
-        ok = w > 0
-        rows.append(np.flatnonzero(ok))
-        cols.append((lower[ok] + up) @ radix)
-        vals.append(w[ok])
-    r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
-    nodes, col = np.unique(c, return_inverse=True)
-    col = col.reshape(-1)
+    loops = _design_loops(nsets)
+    if loops is not None:  # the same arithmetic compiled: the same r, col, w and nodes
+        plateau = np.array([p.plateau if p.shape == "trapezoidal" else 0.0
+                            for p in m.partitions_])  # fmt: skip
+        nodes, r, col, w = loops.coarse_corners(
+            fine, blocks.astype(np.int64), nsets, plateau, radix, int(np.prod(nsets))
+        )
+    else:
+        nodes, r, col, w = _corners(m, fine, blocks, nsets, radix)
     data = np.isin(nodes, cells.keys)
     sw = np.sqrt(n)
     if nodes.size * n.size <= DENSE_FIT:  # small levels: dense numpy, no sparse overhead
@@ -1053,6 +1062,49 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     return nodes, values, data
 
 
+#: coarse grids of at most this many cells have their node fit's design made by the
+#: compiled loop (it marks the nodes met in a table of every cell)
+DESIGN_CELLS = 1 << 22
+
+
+def _design_loops(nsets: np.ndarray) -> ModuleType | None:
+    """The compiled loops for a coarse level's design (:func:`._kernels.coarse_corners`,
+    :func:`._kernels.smooth_gram`) where numba is loaded (the build loads it before its pools
+    fork) and the level's grid is small enough, else None (:func:`_corners`, numpy's loops:
+    the same bits)."""
+    if "numba" not in sys.modules or nsets.min() < 2 or np.prod(nsets) > DESIGN_CELLS:
+        return None
+    return kernels()
+
+
+def _corners(m: WangMendelRegressor, fine: np.ndarray, blocks, nsets, radix):
+    """:func:`._kernels.coarse_corners` in numpy: the nodes met (ascending) and, for each
+    corner with a positive weight of each fine rule's coarse cell, the rule, the node's index
+    and the weight (corner by corner)."""
+    d = m.n_features_in_
+    lower = np.empty_like(fine)
+    upper_w = np.empty(fine.shape)
+    for k, p in enumerate(m.partitions_):
+        b = int(blocks[k])
+        t = np.clip((fine[:, k] - 0.5 * (b - 1)) / b, 0.0, nsets[k] - 1.0)
+        j = np.minimum(np.floor(t).astype(np.int64), nsets[k] - 2)
+        pl = p.plateau if p.shape == "trapezoidal" else 0.0
+        lower[:, k] = j
+        upper_w[:, k] = np.clip((t - j - 0.5 * pl) / (1.0 - pl), 0.0, 1.0)
+    rows, cols, vals = [], [], []
+    lower_w = 1.0 - upper_w
+    for c in range(1 << d):
+        up = np.array([(c >> k) & 1 for k in range(d)], bool)
+        w = corner_weight(upper_w, lower_w, up)
+        ok = w > 0
+        rows.append(np.flatnonzero(ok))
+        cols.append((lower[ok] + up) @ radix)
+        vals.append(w[ok])
+    r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+    nodes, col = np.unique(c, return_inverse=True)
+    return nodes, r, col.reshape(-1), w
+
+
 def corner_weight(upper_w: np.ndarray, lower_w: np.ndarray, up: np.ndarray) -> np.ndarray:
     """Each row's multilinear weight of one corner of its coarse cell: the product over the
     inputs of ``upper_w`` where the corner is the upper node (``up``), else ``lower_w``,
@@ -1071,6 +1123,22 @@ def _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets) -> np.ndarray:
     # each (fine rule, node) pair at most once: the sums of np.add.at, without its loop
     A = np.bincount(r * k + col, w * sw[r], minlength=n.size * k).reshape(n.size, k)
     y = np.asarray(m.conclusions_, float)[m.count_ > 0]
+    per_node = n.sum() / k
+    ridge = 1e-6 * per_node
+    loops = _design_loops(nsets)
+    PtP = (
+        loops.smooth_gram(nodes, radix, nsets)
+        if loops is not None
+        else _smooth_gram(nodes, d, radix, nsets)
+    )
+    M = A.T @ A + SMOOTHING * per_node * PtP + ridge * np.eye(k)
+    rhs = A.T @ (sw * y) + ridge * float(np.average(y, weights=n))
+    return np.linalg.solve(M, rhs)
+
+
+def _smooth_gram(nodes: np.ndarray, d: int, radix, nsets) -> np.ndarray:
+    """:func:`._kernels.smooth_gram` in numpy: ``P.T @ P`` of the second differences."""
+    k = nodes.size
     idx = np.column_stack([(nodes // radix[j]) % nsets[j] for j in range(d)])
     below_all, mid_all, above_all = [], [], []
     for j in range(d):
@@ -1089,11 +1157,7 @@ def _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets) -> np.ndarray:
     P[at, np.concatenate(below_all)] = 1.0
     P[at, mid] = -2.0
     P[at, np.concatenate(above_all)] = 1.0
-    per_node = n.sum() / k
-    ridge = 1e-6 * per_node
-    M = A.T @ A + SMOOTHING * per_node * (P.T @ P) + ridge * np.eye(k)
-    rhs = A.T @ (sw * y) + ridge * float(np.average(y, weights=n))
-    return np.linalg.solve(M, rhs)
+    return P.T @ P
 
 
 def _copy_state(m: WangMendelRegressor) -> dict:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 
 import numpy as np
@@ -25,6 +26,11 @@ def sets_for_data(cols: Sequence[np.ndarray], spans: Sequence[tuple[float, float
     width = np.array([s[1] - s[0] for s in spans])
     if n:
         pos = (X - lo) / width  # each sample's place in the span, computed once
+        if "numba" in sys.modules and SETS_RANGE[1] ** X.shape[1] <= OCCUPANCY_CELLS:
+            if np.isfinite(pos).all():  # the compiled search: the same counts, one loop each
+                from diag_plugin.fuzzy import _kernels
+
+                return int(_kernels.sets_filled(pos, SETS_RANGE[1], SETS_RANGE[0], MIN_PER_CELL))
     for sets in range(SETS_RANGE[1], SETS_RANGE[0] - 1, -1):
         if n == 0:
             break

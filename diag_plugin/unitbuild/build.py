@@ -601,15 +601,18 @@ CHATTER_WINDOW_S = 600.0
 
 
 def warm_kernels() -> None:
-    """Load the compiled Wang–Mendel kernels (fit, every level's inference) into this process
-    before the build's worker pools fork, so every worker of every pool inherits them instead
-    of loading them from numba's cache again (~0.3 s CPU a process)."""
+    """Load the compiled Wang–Mendel kernels (fit, every level's inference, a coarse level's
+    design, the search of set counts) into this process before the build's worker pools fork,
+    so every worker of every pool inherits them instead of loading them from numba's cache
+    again (~0.3 s CPU a process)."""
     from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
 
     x = np.linspace(0.0, 0.5, 40)
     X = np.column_stack([x, x[::-1]])
     m = WangMendelRegressor([(0.0, 1.0), (0.0, 1.0)], (0.0, 1.0), n_sets=9)
     m.fit(X, X.sum(axis=1) / 2).predict_detail(np.column_stack([x + 0.1, x]))
+    m.level_nodes(1)  # a coarse level's design (compiled corners and smoothness)
+    sets_for_data([x], [(0.0, 1.0)])  # the compiled search of set counts
 
 
 def _reader(frame: pd.DataFrame):
