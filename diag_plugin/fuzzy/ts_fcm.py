@@ -52,7 +52,6 @@ from diag_plugin.models.estimation import (
     as_2d,
     as_xy,
     detail,
-    fed_row,
     finite_rows,
     free_run,
     observed_span,
@@ -61,6 +60,7 @@ from diag_plugin.models.estimation import (
     solve_triangle,
     triangles,
 )
+from diag_plugin.models.fedrow import fed_row
 from diag_plugin.models.params import ParamsMixin
 from diag_plugin.models.protocol import REASON_NAN, REASON_UNSUPPORTED, Capabilities, Prediction
 from diag_plugin.models.spec import ModelSpec

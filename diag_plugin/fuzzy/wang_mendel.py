@@ -1074,7 +1074,10 @@ def _design_loops(nsets: np.ndarray) -> ModuleType | None:
     the same bits)."""
     if "numba" not in sys.modules or nsets.min() < 2 or np.prod(nsets) > DESIGN_CELLS:
         return None
-    return kernels()
+    from diag_plugin.fuzzy import _kernels  # numba is loaded: the compiled loops, whatever
+    # :func:`kernels` would give a call of few rows
+
+    return _kernels
 
 
 def _corners(m: WangMendelRegressor, fine: np.ndarray, blocks, nsets, radix):

@@ -14,7 +14,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
-import numba as nb
 import numpy as np
 
 from diag_plugin.models.params import ParamsMixin
@@ -233,19 +232,6 @@ class FreeRunCapabilities:
             return self.base
         lags = getattr(obj, "output_lags", None) or []
         return replace(self.base, free_run=self.base.free_run and any(d > 0 for d in lags))
-
-
-@nb.njit(cache=True, nogil=True)
-def fed_row(X, k, cols, lags, yhat, x):  # pragma: no cover - compiled
-    """Row ``k`` of a free run into ``x`` (for the compiled free runs of the methods, the
-    step of :func:`free_run`): ``X[k]`` with each lag column ``cols[c]`` given the estimate
-    ``lags[c]`` rows earlier where there is one; True when every input has a value."""
-    x[:] = X[k]
-    for c in range(cols.size):
-        i = k - lags[c]
-        if i >= 0 and np.isfinite(yhat[i]):
-            x[cols[c]] = yhat[i]
-    return np.isfinite(x).all()
 
 
 def free_run(

@@ -45,11 +45,11 @@ from diag_plugin.models.estimation import (
     as_2d,
     as_xy,
     detail,
-    fed_row,
     finite_rows,
     free_run,
     spans_and_lags,
 )
+from diag_plugin.models.fedrow import fed_row
 from diag_plugin.models.protocol import Capabilities, Prediction
 from diag_plugin.models.spec import ModelSpec
 
