@@ -121,6 +121,8 @@ SLOW_FILES: frozenset[str] = frozenset(
         "test_live.py",  # `diag run` end to end
         "test_benchmark.py",  # 27 s + 17 s: the quick DAMADICS run, fault-free days
         "test_historian_crash.py",  # 19-26 s: SIGKILL mid-ingest
+        "test_live_crash.py",  # 17 + 10 + 4 s: diag run killed and restarted
+        "test_live_startup_faults.py",  # 6-8 s a test: diag run started on broken files
         "test_plant_built.py",  # 25 CPU s, one test: units built, cycled row by row twice
         "test_unit_replay_exact.py",  # 19 CPU s: a unit built at two rates, the slow reference
     }
@@ -147,7 +149,10 @@ SLOW_TESTS: frozenset[str] = frozenset(
         "test_ts_fcm.py::test_cli_model_new_train_compare",
         "test_compare_methods.py::test_the_wm_row_is_classic_wm_and_averaging_wins_on_noisy_data",
         "test_modbus_faults.py::test_plc_killed_mid_run_and_restarted",
-        "test_publicplants.py::test_cli_matched_benchmark_writes_its_page",
+        "test_publicplants.py::test_cli_matched_benchmark_writes_a_page_only_when_asked",  # 12 s
+        "test_opcua_trust.py::test_rogue_server_gets_no_password_until_trusted",  # 8 s
+        "test_opcua_trust.py::test_pinned_certificate_mismatch_refused",  # 7.5 s
+        "test_opcua_logins.py::test_backoff_engages_and_every_refusal_is_logged",  # 9 s
         "test_any_plant_tour.py::test_the_whole_tour_and_the_error_falls",  # 19-27 s a tour
         "test_jobs.py::test_dask_engine_gives_the_same_rule_base",  # 21-27 s: Dask
         # a day at 1 s built: 11 of the 24 CPU s the file's check tier took
