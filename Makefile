@@ -43,8 +43,9 @@ $(OPCUA_STAMP): $(OPCUA_PEER)/package-lock.json
 # the whole suite (CI runs this), on TEST_JOBS pytest-xdist workers, a test file per worker
 # at a time so that a file's module fixtures are built once (TEST_JOBS=0: one process).
 # Three workers on two cores: many tests wait on real time (live loops, held locks,
-# restarts), and the third fills those waits (fresh clone: 7.5 min at 1,247 tests,
-# 10 min 52 s at 1,303 on 2026-11-28; docs/reference/testing.md has the tiers' costs)
+# restarts), and the third fills those waits (fresh clone, quiet machine: 8 min 10 s at
+# 1,353 tests on 2026-11-28, `make check` 2 min 43 s; docs/reference/testing.md has the
+# tiers' costs)
 TEST_JOBS ?= 3
 XDIST = $(if $(filter 0,$(TEST_JOBS)),,-n $(TEST_JOBS) --dist loadfile)
 
