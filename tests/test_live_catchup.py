@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from helpers import free_port
+from helpers import Out, free_port
+from test_live import PLANT_TOML as LIVE_TOML
 
 from connectors.modbus_server import PLANT_TAGS
 from diag_plugin.diagnose.plant import Plant
@@ -27,25 +28,6 @@ from historian.store import Historian
 STEP = pd.Timedelta(seconds=10)
 N_PRE = 1500  # fault-free samples before the stop (the history replay's lead-in needs them)
 ONSET, END = 100, 300  # the fault in the gap: samples after the stop
-
-
-class Out:
-    """A non-terminal stdout that keeps the lines."""
-
-    def __init__(self) -> None:
-        self.text: list[str] = []
-
-    def write(self, s: str) -> None:
-        self.text.append(s)
-
-    def flush(self) -> None:
-        pass
-
-    def isatty(self) -> bool:
-        return False
-
-    def __str__(self) -> str:
-        return "".join(self.text)
 
 
 @pytest.fixture(scope="module")
@@ -184,22 +166,8 @@ def test_the_time_out_cuts_the_catch_up_and_says_what_is_left(unit_dir, tmp_path
     assert "catch-up stopped at its time-out" in text and "is not diagnosed" in text, text
 
 
-PLANT_TOML = """\
-[plant]
-cycle = 10
-historian = "sqlite:///cfg.db"
-units = ["rb/valve_unit.unit.toml"]
-catch_up_timeout = {timeout}
-
-[source]
-host = "127.0.0.1"
-port = {port}
-map = "plc.csv"
-
-[outputs]
-modbus_port = {modbus}
-opcua_port = 0
-"""
+#: test_live's plant.toml at the unit's own period (10 s: one cycle in a short run)
+PLANT_TOML = LIVE_TOML.replace("cycle = 0.05", "cycle = 10\ncatch_up_timeout = {timeout}")
 
 
 def _config(unit_dir: Path, tmp_path: Path, timeout: float) -> tuple[Path, int]:
@@ -230,8 +198,8 @@ def _run(cfg, port: int, row: dict) -> str:
             await plc.set_row(row)
             return await run_config(cfg, duration=0.5, out=out)
 
-    assert asyncio.run(main()) == 0, str(out)
-    return str(out)
+    assert asyncio.run(main()) == 0, out.text
+    return out.text
 
 
 def test_diag_run_restarted_after_downtime_logs_the_missed_alarm(unit_dir, tmp_path):
@@ -290,3 +258,42 @@ def test_diag_run_first_cycle_does_not_wait_past_the_time_out(unit_dir, tmp_path
     assert "stopped after 1 cycles" in out, out
     saved = json.loads(cfg.state.read_text(encoding="utf-8"))
     assert N_PRE + 1 <= saved["cycles"] < N_PRE + 700, saved["cycles"]
+
+
+def test_embedded_default_saves_and_restores_its_state(tmp_path):
+    """`diag run` without a config: the state saved in its data folder on stop, restored at
+    the next start and said; the scenario resumes after the state's cycle (every sample
+    stored once, none skipped); a changed unit file is refused and said."""
+    import numpy as np
+
+    from diag_plugin.live.embedded import STATE_FILE, run_embedded
+
+    data = tmp_path / "diag-data"
+    state = data / STATE_FILE
+
+    def once() -> str:
+        out = Out()
+        ports = {k: free_port() for k in ("plc_port", "modbus_port", "opcua_port")}
+        rc = asyncio.run(run_embedded(data, cycle=0.04, duration=2.0, tty=False, out=out, **ports))
+        assert rc == 0, out.text
+        return out.text
+
+    out = once()
+    assert f"state {state}: none yet, units start fresh" in out, out
+    first = json.loads(state.read_text(encoding="utf-8"))
+    assert first["cycles"] >= 1 and list(first["versions"]) == ["valve_unit"]
+    out = once()
+    assert f"state {state} restored: 1 units go on where they stopped" in out, out
+    assert f"embedded scenario resumes at its sample {first['cycles']} of run 1" in out, out
+    second = json.loads(state.read_text(encoding="utf-8"))
+    assert second["cycles"] > first["cycles"]
+    h = Historian.open(f"sqlite:///{data / 'plant.db'}")
+    live = h.read_samples("P0", start=pd.Timestamp(first["ts"]) - (first["cycles"] - 1) * STEP)
+    h.close()
+    assert len(live) == second["cycles"], (len(live), second["cycles"])
+    assert (np.diff(live.index.asi8) == STEP.value // 1000).all()  # µs: one run, no gap
+    unit = data / "rulebases" / "valve_unit.unit.toml"
+    unit.write_text(unit.read_text(encoding="utf-8") + "# edited\n", encoding="utf-8")
+    out = once()
+    assert "not restored (units changed since the state was saved: valve_unit)" in out, out
+    assert "resumes" not in out, out

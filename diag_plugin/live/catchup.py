@@ -176,7 +176,8 @@ class CatchUp:
             seconds=self.period_s
         ):
             out.append(
-                f"catch-up: the historian holds no samples from {_t(self.last_sample)} to {_t(b)}"
+                f"catch-up: the historian holds no samples after {_t(self.last_sample)} "
+                f"(to {_t(b)})"
             )
         if self.timed_out:
             short = [

@@ -111,7 +111,8 @@ class LiveLoop:
     (default: limits learned live). ``feed(i)``: optional async hook run before the poll of
     cycle ``i``; it may return the time stamp of the sample (default: the poll's wall time).
     ``after(loop, i, statuses)``: optional async hook run after publishing (the embedded
-    scenario's operator). ``duration`` in seconds (0: until a signal or :meth:`stop`).
+    scenario's operator). ``duration`` in seconds from the first cycle (0: until a signal or
+    :meth:`stop`).
     ``out``: event lines go there when not on a terminal; ``tty`` forces the live table.
     ``state``: where the plant's state is saved (:mod:`~diag_plugin.live.state`) every
     ``state_every`` cycles and on stop (None: not saved). ``catch_up``: with a restored
@@ -478,7 +479,6 @@ class LiveLoop:
         for sig in (signal.SIGINT, signal.SIGTERM):
             with contextlib.suppress(NotImplementedError, RuntimeError):
                 loop.add_signal_handler(sig, self.stop)
-        end = time.monotonic() + self.duration if self.duration > 0 else math.inf
         live_cm: Any = contextlib.nullcontext()
         if self.tty:
             from rich.console import Console
@@ -492,6 +492,8 @@ class LiveLoop:
                 self._live = live
                 if self.catch_up is not None:
                     await self._catch_up(self.catch_up)
+                # the duration counts from the first cycle (after the catch-up)
+                end = time.monotonic() + self.duration if self.duration > 0 else math.inf
                 i = 0
                 next_t = time.monotonic()
                 while not self._stop.is_set() and time.monotonic() < end:
