@@ -44,11 +44,13 @@ def plant_of(d: Path) -> Plant:
     return Plant.load([d / "rb" / "valve_unit.unit.toml"], d / "rb")
 
 
-def scenario(t_stop: pd.Timestamp, n_gap: int) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """N_PRE fault-free samples up to ``t_stop``, then ``n_gap`` with fault f14 (P0 sensor)
-    from sample ONSET to END of the gap."""
+def scenario(
+    t_stop: pd.Timestamp, n_gap: int, onset: int = ONSET, end: int = END
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """N_PRE samples up to ``t_stop``, then ``n_gap``; fault f14 (P0 sensor) from sample
+    ``onset`` to ``end`` after the stop (negative: before it)."""
     t0 = t_stop - (N_PRE - 1) * STEP
-    fault = FaultSpec("f14", -0.3, onset=t_stop + ONSET * STEP, end=t_stop + END * STEP)
+    fault = FaultSpec("f14", -0.3, onset=t_stop + onset * STEP, end=t_stop + end * STEP)
     frame = simulate_valve((N_PRE + n_gap) * 10 / 86400, seed=7, start=t0, faults=[fault])
     frame = frame[list(PLANT_TAGS)]
     return frame.iloc[:N_PRE], frame.iloc[N_PRE : N_PRE + n_gap]
@@ -127,6 +129,59 @@ def test_a_long_gap_is_replayed_as_diag_diagnose_and_the_units_warm_up(unit_dir,
     assert res.mode == "warm-up" and not res.episodes and res.rows == res.lead
     text = "\n".join(line for _, line, _ in res.lines())
     assert f"{gap.index[0]:%Y-%m-%d %H:%M:%S} to" in text and "is not diagnosed" in text, text
+
+
+def test_an_alarm_across_the_stop_and_one_still_on_at_the_end(unit_dir, tmp_path):
+    """A fault from before the stop into the gap: on at the gap's first sample in both ways
+    (the history replay reads its lead-in before the stop, so its delays are where the live
+    run's were); a fault still on at the end: no end, said, left to the first cycle."""
+    pre, gap = scenario(T_STOP, 2500, onset=-150, end=200)
+    plant = stopped_plant(unit_dir, pre)
+    want, _ = reference(plant, gap)
+    assert want[0][1] == gap.index[0], want  # alarming when it stopped
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    historian_with(url, pre, gap)
+    res = catch_up(copy.deepcopy(plant), url, gap.index[-1], 10.0)
+    assert res.mode == "history", res
+    assert [(e.unit, e.start, e.end, e.status) for e in res.episodes] == want
+    assert res.episodes[0].at_gap_start
+    text = "\n".join(line for _, line, _ in res.lines())
+    assert f"on at the gap's start {gap.index[0]:%Y-%m-%d %H:%M:%S} to" in text, text
+    # the gap ends while the fault is on
+    short = gap.iloc[:100]
+    want, _ = reference(plant, short)
+    res = catch_up(plant, url, short.index[-1], 10.0)
+    assert res.mode == "replayed" and [(e.unit, e.start, e.end) for e in res.episodes] == [
+        w[:3] for w in want
+    ]
+    assert res.episodes[-1].end is None
+    text = "\n".join(line for _, line, _ in res.lines())
+    assert "still on at the end of the catch-up" in text and "not raised now" not in text, text
+
+
+def test_the_restart_gap_begins_after_the_samples_caught_up(tmp_path):
+    """The writer marks the time since the previous run's last cycle as a restart gap; the
+    samples the catch-up found there (another collector's) move its start after them."""
+    import numpy as np
+
+    from diag_plugin.live.writer import LAST_FILE, HistorianWriter
+
+    spill = tmp_path / "spill"
+    spill.mkdir()
+
+    async def run(caught: bool):
+        last = {"ts": int(T_STOP.value // 1000), "period_us": 10_000_000}
+        (spill / LAST_FILE).write_text(json.dumps(last), encoding="utf-8")
+        w = HistorianWriter(f"sqlite:///{tmp_path / 'h.db'}", ["F"], spill_dir=spill, cycle=10)
+        await w.start()
+        if caught:
+            w.samples_until(T_STOP + 100 * STEP)
+        w.put(T_STOP + 101 * STEP, np.ones(1), np.zeros(1, np.uint8))
+        await w.close()
+        return w.restart_gap
+
+    assert asyncio.run(run(False)) == (T_STOP + STEP, T_STOP + 101 * STEP)
+    assert asyncio.run(run(True)) is None
 
 
 def test_a_gap_without_samples_is_said_and_the_state_kept(unit_dir, tmp_path):
