@@ -280,7 +280,7 @@ def test_diag_run_restarted_after_downtime_logs_the_missed_alarm(unit_dir, tmp_p
             f"{unit}: while diag run was down: alarm condition FAILURE faults"
         ) in out and f"from {a:%Y-%m-%d %H:%M:%S} to {b:%Y-%m-%d %H:%M:%S}" in out, out
     m = re.search(rf"(\d+) missed cycles from {gap.index[0]:%Y-%m-%d %H:%M:%S}", out)
-    assert m and int(m.group(1)) >= len(gap), out  # and the grid points after the last sample
+    assert m and int(m.group(1)) == len(gap), out  # not the grid points after the last sample
     assert "stopped after 1 cycles" in out, out
     h = Historian.open(cfg.historian)
     ev = h.events(unit="valve_unit")
@@ -352,3 +352,56 @@ def test_embedded_default_saves_and_restores_its_state(tmp_path):
     out = once()
     assert "not restored (units changed since the state was saved: valve_unit)" in out, out
     assert "resumes" not in out, out
+
+
+def test_a_killed_run_is_caught_up_from_its_journal(tmp_path):
+    """`diag run --config` killed with SIGKILL between two state saves: the next start stores
+    the killed run's journal first, then diagnoses its cycles after the last save (and the
+    restart's own wait) from the historian before its first cycle."""
+    import os
+    import signal
+    import subprocess
+
+    from helpers import diag_run_polling, plant_toml, valve_plant
+    from test_live_sources import start_plc
+
+    d = tmp_path
+    valve_plant(d)
+    port = free_port()
+    cfg = plant_toml(d, port, "sqlite:///k.db", cycle=0.2, flush_every=50, extra="state_every = 8")
+    state = cfg.with_suffix(".state.json")
+    plc, _ = start_plc(port)
+    try:
+        run, argv, env = diag_run_polling(d, cfg)
+        deadline = time.monotonic() + 60
+        while not state.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(1.0)  # a few cycles after a save (the next is 8 cycles on)
+        os.kill(run.pid, signal.SIGKILL)
+        killed = pd.Timestamp.now(tz="UTC")
+        run.wait(10)
+        saved = json.loads(state.read_text(encoding="utf-8"))
+        again = subprocess.run(
+            [*argv, "--duration", "1"], cwd=d, env=env, capture_output=True, text=True, timeout=120
+        )
+    finally:
+        plc.kill()
+        plc.wait()
+    out = again.stdout
+    assert again.returncode == 0, out + again.stderr
+    assert "recovered from its journal" in out and f"state {state} restored" in out, out
+    t_s = pd.Timestamp(saved["ts"])
+    assert f"catch-up: the state is of {t_s:%Y-%m-%d %H:%M:%S} UTC" in out, out
+    with Historian(f"sqlite:///{d / 'k.db'}") as h:
+        f = h.read_samples("F", with_quality=True)
+    after = f[(f.index > t_s) & (f.index < killed) & (f["quality"] == 0)]
+    assert len(after), (t_s, killed, f.tail())  # the killed run's cycles after its last save
+    m = re.search(r"(\d+) missed cycles from (\S+ \S+) to", out)
+    assert m, out
+    first = pd.Timestamp(m.group(2), tz="UTC")
+    # the first sample after the save, on its grid point (± half a cycle; the log gives
+    # whole seconds)
+    assert -0.1 <= (after.index[0] - first).total_seconds() < 1.2, (first, after.index[0])
+    live = int(re.search(r"stopped after (\d+) cycles", out).group(1))
+    end = json.loads(state.read_text(encoding="utf-8"))
+    assert end["cycles"] == saved["cycles"] + int(m.group(1)) + live, (end["cycles"], out)

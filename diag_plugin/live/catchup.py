@@ -127,6 +127,7 @@ class CatchUp:
         head = f"catch-up: the state is of {_t(self.since)} UTC, {gap} before now"
         if self.mode == "none":
             return [(None, f"{head}: no cycle missed", {})]
+        p = pd.Timedelta(seconds=self.period_s)
         out: list[str] = []
         if self.not_stored:
             out.append(f"catch-up: tags {', '.join(self.not_stored)} are not in the historian")
@@ -161,10 +162,10 @@ class CatchUp:
                 f"fresh and warmed up on the historian's last {self.rows} samples "
                 f"({_t(self.first)} to {_t(self.last)}) ({cpu})"
             )
-        if self.mode == "replayed" and self.first is not None and self.first > a:
+        if self.mode == "replayed" and self.first is not None and self.first - a >= p:
             out.append(
                 f"catch-up: the historian holds no samples from {_t(a)} to "
-                f"{_t(self.first - pd.Timedelta(seconds=self.period_s))}: the units jumped "
+                f"{_t(self.first - p)}: the units jumped "
                 "over it"
             )
         if self.no_samples:
@@ -172,12 +173,10 @@ class CatchUp:
                 f"catch-up: the historian holds no samples of {', '.join(self.no_samples)} "
                 f"from {_t(a)} to {_t(b)} (the tests reading them were unknown)"
             )
-        if self.last_sample is not None and self.last_sample < b - pd.Timedelta(
-            seconds=self.period_s
-        ):
+        if self.last_sample is not None and self.last_sample < b - p:
             out.append(
                 f"catch-up: the historian holds no samples after {_t(self.last_sample)} "
-                f"(to {_t(b)})"
+                f"(to {_t(b)}): the units jumped over it"
             )
         if self.timed_out:
             short = [
@@ -275,39 +274,51 @@ def _feed(
     *,
     track: bool,
 ) -> None:
-    """The live plant through the historian's rows ``lo``..``until`` (from the first one
-    holding a sample), one :meth:`Plant.cycle` each; episodes tracked when ``track``."""
+    """The live plant through the historian's rows ``lo``..``until`` from the first to the
+    last one holding a sample (before and after them the plant jumps, as a bare restart;
+    rows without a sample between them go through as missing values, as the live loop's Bad
+    samples do), one :meth:`Plant.cycle` each; episodes tracked when ``track``."""
     if not read:
         return
     on: dict[str, bool] = {}
     open_: dict[str, Episode] = {}
+    nan = dict.fromkeys(read, math.nan)
+    empty: list[pd.Timestamp] = []  # rows without a sample since the last one fed
+
+    def cycle(ts: pd.Timestamp, row: dict[str, float]) -> bool:
+        if time.monotonic() > deadline:
+            res.timed_out = True
+            return False
+        statuses = plant.cycle(ts, row)
+        res.rows += 1
+        res.last = ts
+        if track:
+            for s in statuses:
+                _step(s.unit, int(s.status), s.faults, s.tags, int(s.quality), ts, on, open_, res)
+        return True
+
     frames = h.iter_windows(read, lo, until + p, p, chunk=chunk_rows * p, summary=False)
     for frame in frames:
         vals = frame.to_numpy(np.float64)
         has = np.isfinite(vals)
         _seen(res, read, has, frame.index)
-        i0 = 0
-        if res.first is None:  # before the first sample the plant jumps, as a bare restart
-            rows = np.flatnonzero(has.any(axis=1))
-            if not rows.size:
-                continue
-            i0 = int(rows[0])
-            res.first = frame.index[i0]
-            if not track:  # the warm-up: fresh units, once there is something to warm on
-                plant.reset()
-        for i in range(i0, len(frame)):
-            if time.monotonic() > deadline:
-                res.timed_out = True
-                return
+        any_row = has.any(axis=1)
+        for i in range(len(frame)):
             ts = frame.index[i]
-            statuses = plant.cycle(ts, dict(zip(read, vals[i].tolist(), strict=True)))
-            res.rows += 1
-            res.last = ts
-            if track:
-                for s in statuses:
-                    _step(
-                        s.unit, int(s.status), s.faults, s.tags, int(s.quality), ts, on, open_, res
-                    )
+            if not any_row[i]:
+                if res.first is not None:
+                    empty.append(ts)
+                continue
+            if res.first is None:  # before the first sample the plant jumps
+                res.first = ts
+                if not track:  # the warm-up: fresh units, once there is something to warm on
+                    plant.reset()
+            for t in empty:
+                if not cycle(t, nan):
+                    return
+            empty.clear()
+            if not cycle(ts, dict(zip(read, vals[i].tolist(), strict=True))):
+                return
 
 
 def _history(
