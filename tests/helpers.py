@@ -175,6 +175,18 @@ opcua_port = 0
     return p
 
 
+def diag_run_polling(d: Path, cfg: Path) -> tuple[subprocess.Popen, list[str], dict[str, str]]:
+    """``diag run --config cfg --plain`` started in ``d`` (its own process), returned once it
+    polls, with its argv and environment (for the restart)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")}
+    argv = [sys.executable, "-m", "diag_plugin", "run", "--config", cfg.name, "--plain"]
+    run = subprocess.Popen(argv, cwd=d, env=env, stdout=subprocess.PIPE, text=True)
+    for line in run.stdout:
+        if "polling" in line:
+            break
+    return run, argv, env
+
+
 def free_port() -> int:
     """A TCP port on 127.0.0.1 that was free a moment ago."""
     with socket.socket() as s:

@@ -226,7 +226,7 @@ def test_diag_run_killed_with_sigkill_and_restarted(tmp_path):
     killed with SIGKILL 4 s in — before its first block was due, so without the journal
     nothing of those 20 cycles would be stored. The next start stores them, says so, and
     marks the gap."""
-    from helpers import plant_toml, valve_plant
+    from helpers import diag_run_polling, plant_toml, valve_plant
     from test_live_sources import free_port, start_plc
 
     d = tmp_path
@@ -234,13 +234,8 @@ def test_diag_run_killed_with_sigkill_and_restarted(tmp_path):
     port = free_port()
     cfg = plant_toml(d, port, "sqlite:///k.db", cycle=0.2, flush_every=50)
     plc, _ = start_plc(port)
-    env = {k: v for k, v in os.environ.items() if not k.startswith("DIAG_")}
-    argv = [sys.executable, "-m", "diag_plugin", "run", "--config", cfg.name, "--plain"]
     try:
-        run = subprocess.Popen(argv, cwd=d, env=env, stdout=subprocess.PIPE, text=True)
-        for line in run.stdout:
-            if "polling" in line:
-                break
+        run, argv, env = diag_run_polling(d, cfg)
         time.sleep(4.0)
         os.kill(run.pid, signal.SIGKILL)
         killed = pd.Timestamp.now(tz="UTC")

@@ -317,6 +317,12 @@ class Plant:
         extra = [t for n in self.slow for t in self.units[n].tags]
         return list(dict.fromkeys([*self.tag_names, *extra]))
 
+    @property
+    def last_ts(self) -> pd.Timestamp | None:
+        """The time of the last cycle evaluated (or restored by :meth:`load_state`); None
+        for a fresh plant."""
+        return self._ts
+
     def reset(self) -> Plant:
         self._build()
         for n in self.slow:

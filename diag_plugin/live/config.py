@@ -13,6 +13,8 @@ Example (paths are relative to the file; docs/reference/live.md explains every k
     buffer_samples = 2000000                      # samples held in memory before spilling
     state = "plant.state.json"                    # the units' state; default: beside this file
     state_every = 60                              # cycles between saves (and on stop)
+    catch_up_max = 604800                         # s: gaps since the state diagnosed at start
+    catch_up_timeout = 30                         # s the first cycle waits for it at most
 
     [[source]]                                    # one table per PLC or server
     name = "plc1"
@@ -140,6 +142,8 @@ class LiveConfig:
     buffer_samples: int = 2_000_000
     state: Path | None = None
     state_every: int = 60
+    catch_up_max: float = 7 * 86_400.0
+    catch_up_timeout: float = 30.0
     sources: list[SourceConfig] = field(default_factory=list)
     modbus_port: int = 5020
     opcua_port: int = 4840
@@ -190,6 +194,8 @@ _KEYS = {
         "buffer_samples",
         "state",
         "state_every",
+        "catch_up_max",
+        "catch_up_timeout",
     },
     "source": set().union(*_SOURCE_KEYS.values()),
     "outputs": {"modbus_port", "opcua_port"},
@@ -356,6 +362,14 @@ def load_config(path: str | Path) -> LiveConfig:
     state = get("plant", "state", str, None)
     cfg.state = (base / state).resolve() if state else path.resolve().with_suffix(".state.json")
     cfg.state_every = int(positive("plant", "state_every", get("plant", "state_every", int, 60)))
+    cfg.catch_up_max = float(get("plant", "catch_up_max", (int, float), 7 * 86_400))
+    if cfg.catch_up_max < 0:
+        raise fail(
+            "plant", "catch_up_max", f"must be 0 (no catch-up) or more, not {cfg.catch_up_max!r}"
+        )
+    cfg.catch_up_timeout = float(
+        positive("plant", "catch_up_timeout", get("plant", "catch_up_timeout", (int, float), 30))
+    )
 
     for i in range(len(tables["source"])):
         cfg.sources.append(_source(i, get, positive, port, existing, fail, base))
@@ -803,6 +817,7 @@ async def run_config(
     import pandas as pd
 
     from connectors.modbus_server import StatusServer, UnitLayout
+    from diag_plugin.live.catchup import CatchUpPlan
     from diag_plugin.live.loop import LiveLoop, close_all
     from diag_plugin.live.stale import StaleDetector
     from diag_plugin.live.writer import HistorianWriter
@@ -894,6 +909,9 @@ async def run_config(
             after=after,
             state=cfg.state,
             state_every=cfg.state_every,
+            catch_up=CatchUpPlan(cfg.historian, cfg.catch_up_timeout, cfg.catch_up_max)
+            if cfg.historian and cfg.catch_up_max > 0
+            else None,
         )
         return await loop.run()
     finally:

@@ -5,6 +5,12 @@ the example unit trained on it, cached for later starts) is served as a Modbus T
 127.0.0.1; the live loop (:class:`~diag_plugin.live.loop.LiveLoop`) polls it, diagnoses the
 unit and publishes over OPC UA and Modbus, while a scripted P0-sensor fault (f14) is raised,
 acknowledged by a scripted operator and cleared.
+
+The units' state is saved in ``data``/plant.state.json (every 60 cycles and on stop,
+:mod:`~diag_plugin.live.state`) and restored on the next start when the unit files are the
+same. The simulated plant stops with the plug-in, so there is no downtime to catch up on: a
+restored run resumes the scenario at the sample after the state's last cycle (samples a
+killed run stored after its last save are sent again: stored once, diagnosed again live).
 """
 
 from __future__ import annotations
@@ -30,6 +36,8 @@ SCENARIO_FAULT, SCENARIO_STRENGTH = "f14", -0.3
 FAULT_ON, FAULT_OFF = 120, 400  # samples after the start of the live run
 SCENARIO_DAYS = 1.0  # the pre-simulated live run (8640 samples; then it starts again)
 ACK_AFTER = 20  # cycles between the alarm being raised and the operator acknowledging
+STATE_FILE = "plant.state.json"  # in --data
+STATE_EVERY = 60  # cycles between state saves (and on stop)
 
 
 @dataclass
@@ -97,6 +105,14 @@ def scenario_rows(history_end: pd.Timestamp) -> pd.DataFrame:
     return simulate_valve(SCENARIO_DAYS, seed=SCENARIO_SEED, start=start, faults=[fault])
 
 
+def resume_index(last: pd.Timestamp | None, start: pd.Timestamp, step: pd.Timedelta) -> int:
+    """The scenario sample after ``last`` (a restored state's last cycle; 0 without one or
+    before the scenario's start): the live timeline is ``start + i · step``."""
+    if last is None or last < start:
+        return 0
+    return int((last - start) // step) + 1
+
+
 async def run_embedded(
     data: Any,
     *,
@@ -123,6 +139,8 @@ async def run_embedded(
     def say(s: str) -> None:
         print(s, file=out, flush=True)
 
+    from diag_plugin.live.state import restore_state
+
     emb = await asyncio.to_thread(prepare_embedded, data, say)
     rows = await asyncio.to_thread(scenario_rows, emb.history_end)
     plant = Plant.load([emb.unit_file], emb.unit_file.parent)
@@ -134,6 +152,15 @@ async def run_embedded(
     step = pd.Timedelta(seconds=10)
     span = len(rows) * step
     values = rows.to_dict("records")
+    state = emb.data / STATE_FILE
+    say(restore_state(plant, state, now=None))
+    i0 = resume_index(plant.last_ts, rows.index[0], step)
+    if i0:
+        k, j = divmod(i0, len(values))
+        say(
+            f"embedded scenario resumes at its sample {j} of run {k + 1} "
+            f"({rows.index[j] + k * span:%Y-%m-%d %H:%M:%S} UTC, the cycle after the state's)"
+        )
 
     plc = PlantServer(default_plant_map(), "127.0.0.1", plc_port)
     status = StatusServer(layouts, "127.0.0.1", modbus_port)
@@ -145,7 +172,7 @@ async def run_embedded(
     raised: dict[str, int] = {}
 
     async def feed(i: int) -> pd.Timestamp:
-        k, j = divmod(i, len(values))
+        k, j = divmod(i + i0, len(values))
         row = values[j]
         await plc.set_row(row)
         await opcua.update_plant({t: row[t] for t in opcua.plant_tags if t in row})
@@ -196,6 +223,8 @@ async def run_embedded(
             after=operator,
             tty=tty,
             out=out,
+            state=state,
+            state_every=STATE_EVERY,
         )
         return await loop.run()
     finally:

@@ -53,6 +53,7 @@ from diag_plugin.status import NE107, Quality, UnitStatus
 if TYPE_CHECKING:
     from connectors.opcua_server import Action
     from connectors.sources import SourceSet, Transition
+    from diag_plugin.live.catchup import CatchUp, CatchUpPlan
     from diag_plugin.live.writer import HistorianWriter
 
 #: the number published in the Modbus ``U.alarm`` register for each alarm state
@@ -110,10 +111,13 @@ class LiveLoop:
     (default: limits learned live). ``feed(i)``: optional async hook run before the poll of
     cycle ``i``; it may return the time stamp of the sample (default: the poll's wall time).
     ``after(loop, i, statuses)``: optional async hook run after publishing (the embedded
-    scenario's operator). ``duration`` in seconds (0: until a signal or :meth:`stop`).
+    scenario's operator). ``duration`` in seconds from the first cycle (0: until a signal or
+    :meth:`stop`).
     ``out``: event lines go there when not on a terminal; ``tty`` forces the live table.
     ``state``: where the plant's state is saved (:mod:`~diag_plugin.live.state`) every
-    ``state_every`` cycles and on stop (None: not saved).
+    ``state_every`` cycles and on stop (None: not saved). ``catch_up``: with a restored
+    state, the cycles missed while the plug-in was down are diagnosed from the historian
+    before the first cycle, within the plan's time-out (:mod:`~diag_plugin.live.catchup`).
     """
 
     def __init__(
@@ -134,8 +138,12 @@ class LiveLoop:
         out: Any = None,
         state: Path | None = None,
         state_every: int = 60,
+        catch_up: CatchUpPlan | None = None,
     ) -> None:
         self.plant, self.source = plant, source
+        self.catch_up = catch_up
+        #: what the catch-up before the first cycle did (None: none ran)
+        self.caught_up: CatchUp | None = None
         self.state_path, self.state_every = state, int(state_every)
         self._state_task: asyncio.Task[None] | None = None
         self.historian, self.opcua, self.status_server = historian, opcua, status_server
@@ -471,7 +479,6 @@ class LiveLoop:
         for sig in (signal.SIGINT, signal.SIGTERM):
             with contextlib.suppress(NotImplementedError, RuntimeError):
                 loop.add_signal_handler(sig, self.stop)
-        end = time.monotonic() + self.duration if self.duration > 0 else math.inf
         live_cm: Any = contextlib.nullcontext()
         if self.tty:
             from rich.console import Console
@@ -483,6 +490,10 @@ class LiveLoop:
         try:
             with live_cm as live:
                 self._live = live
+                if self.catch_up is not None:
+                    await self._catch_up(self.catch_up)
+                # the duration counts from the first cycle (after the catch-up)
+                end = time.monotonic() + self.duration if self.duration > 0 else math.inf
                 i = 0
                 next_t = time.monotonic()
                 while not self._stop.is_set() and time.monotonic() < end:
@@ -520,6 +531,43 @@ class LiveLoop:
                     loop.remove_signal_handler(sig)
         self.event(self.summary())
         return 0
+
+    async def _catch_up(self, plan: CatchUpPlan) -> None:
+        """Before the first cycle, in a thread, within ``plan.timeout`` seconds: the earlier
+        run's spill stored first, then the missed cycles diagnosed from the historian
+        (:func:`~diag_plugin.live.catchup.catch_up`), its lines and episodes reported."""
+        from diag_plugin.live.catchup import catch_up
+
+        if self.plant.last_ts is None:
+            return
+        deadline = time.monotonic() + plan.timeout
+        if self.historian is not None and not await self.historian.settle(deadline):
+            self.event(
+                f"catch-up: the earlier run's samples in {self.historian.spool.folder} are "
+                f"not stored yet after {plan.timeout:g} s: they are not in the catch-up"
+            )
+        until = pd.Timestamp.now(tz="UTC")
+        try:
+            res = await asyncio.to_thread(
+                catch_up,
+                self.plant,
+                plan.url,
+                until,
+                self.cycle_s,
+                deadline=deadline,
+                max_gap_s=plan.max_gap_s,
+            )
+        except Exception as exc:  # noqa: BLE001 - the catch-up is a help, never a stop
+            self.event(f"catch-up failed ({type(exc).__name__}: {exc}); the units go on")
+            return
+        self.caught_up = res
+        if res is None:
+            return
+        for ts, text, fields in res.lines():
+            unit = fields.pop("unit", None)
+            self.event(text, ts, unit, **fields)
+        if self.historian is not None and res.last_sample is not None:
+            self.historian.samples_until(res.last_sample)
 
     def save_state(self) -> None:
         """Save the plant's state now (when a path is given); a failure is an event, never a

@@ -268,6 +268,23 @@ class HistorianWriter:
                 with contextlib.suppress(OSError):
                     self.journal.remove(seq)
 
+    async def settle(self, deadline: float) -> bool:
+        """Wait until the earlier runs' spill (and recovered journal) is stored, or until
+        ``time.monotonic()`` passes ``deadline``; True when stored."""
+        while self._spool_rows or self._spool_any or self._inflight is not None:
+            if time.monotonic() >= deadline or self._task is None or self._task.done():
+                return False
+            await asyncio.sleep(0.05)
+        return True
+
+    def samples_until(self, ts: pd.Timestamp) -> None:
+        """The historian holds samples up to ``ts`` from elsewhere (the catch-up found them):
+        the restart gap, if any, begins after them."""
+        if self._prev is None:
+            return
+        last, step, crashed = self._prev
+        self._prev = (max(last, int(ts.value // 1000)), step, crashed)
+
     def _mark_gap(self, t: int) -> None:
         """The first cycle of this run: mark the time since the previous run's last cycle
         (one Bad sample per tag at the first missed cycle, and a note)."""

@@ -1,0 +1,407 @@
+"""A restart catches up on what it missed (issue 34, item 5/6, live): the embedded default
+saves and restores its units' state; the samples the historian holds for the time the
+plug-in was down are diagnosed before the first cycle — the alarm episodes logged with
+their times, the units going on from the caught-up state — and a gap without samples, a
+gap too long and a catch-up cut by its time-out are said. Real parts: a SQLite historian,
+our Modbus PLC server polled by the Modbus client of ``diag run --config``."""
+
+from __future__ import annotations
+
+import asyncio
+import copy
+import json
+import re
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from helpers import Out, free_port
+from test_live import PLANT_TOML as LIVE_TOML
+
+from connectors.modbus_server import PLANT_TAGS
+from diag_plugin.diagnose.plant import Plant
+from diag_plugin.live.catchup import CatchUp, _step, catch_up
+from diag_plugin.simulate import FaultSpec, simulate_valve
+from historian.store import Historian
+
+STEP = pd.Timedelta(seconds=10)
+N_PRE = 1500  # fault-free samples before the stop (the history replay's lead-in needs them)
+ONSET, END = 100, 300  # the fault in the gap: samples after the stop
+
+
+@pytest.fixture(scope="module")
+def unit_dir(tmp_path_factory) -> Path:
+    from diag_plugin.examples.build import build_valve_unit
+
+    d = tmp_path_factory.mktemp("catchup")
+    (d / "rb").mkdir()
+    build_valve_unit(d / "rb", simulate_valve(1, seed=5), "test")
+    return d
+
+
+def plant_of(d: Path) -> Plant:
+    return Plant.load([d / "rb" / "valve_unit.unit.toml"], d / "rb")
+
+
+def scenario(
+    t_stop: pd.Timestamp, n_gap: int, onset: int = ONSET, end: int = END
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """N_PRE samples up to ``t_stop``, then ``n_gap``; fault f14 (P0 sensor) from sample
+    ``onset`` to ``end`` after the stop (negative: before it)."""
+    t0 = t_stop - (N_PRE - 1) * STEP
+    fault = FaultSpec("f14", -0.3, onset=t_stop + onset * STEP, end=t_stop + end * STEP)
+    frame = simulate_valve((N_PRE + n_gap) * 10 / 86400, seed=7, start=t0, faults=[fault])
+    frame = frame[list(PLANT_TAGS)]
+    return frame.iloc[:N_PRE], frame.iloc[N_PRE : N_PRE + n_gap]
+
+
+def stopped_plant(d: Path, pre: pd.DataFrame) -> Plant:
+    """The plant of a run that stopped after ``pre`` (its state is what a restart restores)."""
+    plant = plant_of(d)
+    for ts, row in zip(pre.index, pre.to_dict("records"), strict=True):
+        plant.cycle(ts, row)
+    return plant
+
+
+def reference(plant: Plant, gap: pd.DataFrame) -> list[tuple]:
+    """The episodes an uninterrupted plug-in would have had: the gap's rows fed one by one to
+    a copy of the stopped plant (never through the historian)."""
+    ref = copy.deepcopy(plant)
+    res = CatchUp(plant.last_ts, gap.index[-1], 10.0)
+    on: dict = {}
+    open_: dict = {}
+    for ts, row in zip(gap.index, gap.to_dict("records"), strict=True):
+        for s in ref.cycle(ts, row):
+            _step(s.unit, int(s.status), s.faults, s.tags, int(s.quality), ts, on, open_, res)
+    return [(e.unit, e.start, e.end, e.status) for e in res.episodes], ref
+
+
+def historian_with(url: str, *frames: pd.DataFrame) -> None:
+    """Samples stored by another collector."""
+    h = Historian.open(url)
+    for f in frames:
+        h.write_samples(f)
+    h.close()
+
+
+T_STOP = pd.Timestamp("2026-03-01 04:00", tz="UTC")
+
+
+def test_a_short_gap_is_replayed_on_the_live_plant(unit_dir, tmp_path):
+    """A gap shorter than the lead-in: every missed cycle through the live plant from the
+    restored state — the episodes of an uninterrupted run, the same state after it."""
+    pre, gap = scenario(T_STOP, 700)
+    plant = stopped_plant(unit_dir, pre)
+    want, ref = reference(plant, gap)
+    assert want and all(e[2] is not None for e in want), want  # over before the restart
+    fault_on = T_STOP + ONSET * STEP
+    assert fault_on <= want[0][1] <= T_STOP + END * STEP, want
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    historian_with(url, pre, gap)
+    res = catch_up(plant, url, gap.index[-1], 10.0)
+    assert res.mode == "replayed" and res.rows == res.total == len(gap), res
+    assert [(e.unit, e.start, e.end, e.status) for e in res.episodes] == want
+    assert plant.last_ts == gap.index[-1]
+    assert json.dumps(plant.to_state()) == json.dumps(ref.to_state())
+    text = "\n".join(line for _, line, _ in res.lines())
+    a, b = want[0][1], want[0][2]
+    assert f"from {a:%Y-%m-%d %H:%M:%S} to {b:%Y-%m-%d %H:%M:%S}" in text, text
+    assert "not raised now" in text and "700 missed cycles" in text, text
+
+
+def test_a_long_gap_is_replayed_as_diag_diagnose_and_the_units_warm_up(unit_dir, tmp_path):
+    """A gap longer than the lead-in: its episodes by the replay's path (the same as an
+    uninterrupted run's), the live plant warmed up on the last lead-in before now."""
+    pre, gap = scenario(T_STOP, 2500)
+    plant = stopped_plant(unit_dir, pre)
+    want, _ = reference(plant, gap)
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    historian_with(url, pre, gap)
+    res = catch_up(plant, url, gap.index[-1], 10.0)
+    assert res.mode == "history", res
+    assert [(e.unit, e.start, e.end, e.status) for e in res.episodes] == want
+    assert res.rows == res.lead < len(gap) and res.first == gap.index[-res.lead]
+    assert plant.last_ts == gap.index[-1]
+    # beyond the limit: only the warm-up, the gap said not diagnosed
+    plant = stopped_plant(unit_dir, pre)
+    res = catch_up(plant, url, gap.index[-1], 10.0, max_gap_s=3600)
+    assert res.mode == "warm-up" and not res.episodes and res.rows == res.lead
+    text = "\n".join(line for _, line, _ in res.lines())
+    assert f"{gap.index[0]:%Y-%m-%d %H:%M:%S} to" in text and "is not diagnosed" in text, text
+
+
+def test_an_alarm_across_the_stop_and_one_still_on_at_the_end(unit_dir, tmp_path):
+    """A fault from before the stop into the gap: on at the gap's first sample in both ways
+    (the history replay reads its lead-in before the stop, so its delays are where the live
+    run's were); a fault still on at the end: no end, said, left to the first cycle."""
+    pre, gap = scenario(T_STOP, 2500, onset=-150, end=200)
+    plant = stopped_plant(unit_dir, pre)
+    want, _ = reference(plant, gap)
+    assert want[0][1] == gap.index[0], want  # alarming when it stopped
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    historian_with(url, pre, gap)
+    res = catch_up(copy.deepcopy(plant), url, gap.index[-1], 10.0)
+    assert res.mode == "history", res
+    assert [(e.unit, e.start, e.end, e.status) for e in res.episodes] == want
+    assert res.episodes[0].at_gap_start
+    text = "\n".join(line for _, line, _ in res.lines())
+    assert f"on at the gap's start {gap.index[0]:%Y-%m-%d %H:%M:%S} to" in text, text
+    # the gap ends while the fault is on
+    short = gap.iloc[:100]
+    want, _ = reference(plant, short)
+    res = catch_up(plant, url, short.index[-1], 10.0)
+    assert res.mode == "replayed" and [(e.unit, e.start, e.end) for e in res.episodes] == [
+        w[:3] for w in want
+    ]
+    assert res.episodes[-1].end is None
+    text = "\n".join(line for _, line, _ in res.lines())
+    assert "still on at the end of the catch-up" in text and "not raised now" not in text, text
+
+
+def test_the_restart_gap_begins_after_the_samples_caught_up(tmp_path):
+    """The writer marks the time since the previous run's last cycle as a restart gap; the
+    samples the catch-up found there (another collector's) move its start after them."""
+    import numpy as np
+
+    from diag_plugin.live.writer import LAST_FILE, HistorianWriter
+
+    spill = tmp_path / "spill"
+    spill.mkdir()
+
+    async def run(caught: bool):
+        last = {"ts": int(T_STOP.value // 1000), "period_us": 10_000_000}
+        (spill / LAST_FILE).write_text(json.dumps(last), encoding="utf-8")
+        w = HistorianWriter(f"sqlite:///{tmp_path / 'h.db'}", ["F"], spill_dir=spill, cycle=10)
+        await w.start()
+        if caught:
+            w.samples_until(T_STOP + 100 * STEP)
+        w.put(T_STOP + 101 * STEP, np.ones(1), np.zeros(1, np.uint8))
+        await w.close()
+        return w.restart_gap
+
+    assert asyncio.run(run(False)) == (T_STOP + STEP, T_STOP + 101 * STEP)
+    assert asyncio.run(run(True)) is None
+
+
+def test_a_gap_without_samples_is_said_and_the_state_kept(unit_dir, tmp_path):
+    pre, gap = scenario(T_STOP, 300)
+    plant = stopped_plant(unit_dir, pre)
+    before = json.dumps(plant.to_state())
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    historian_with(url, pre)  # nobody collected while we were down
+    res = catch_up(plant, url, gap.index[-1], 10.0)
+    assert res.mode == "empty" and res.rows == 0 and set(res.no_samples) == set(plant.tags)
+    assert json.dumps(plant.to_state()) == before
+    text = "\n".join(line for _, line, _ in res.lines())
+    assert (
+        f"holds no samples of {', '.join(plant.tags)} from {gap.index[0]:%Y-%m-%d %H:%M:%S} "
+        f"to {gap.index[-1]:%Y-%m-%d %H:%M:%S}"
+    ) in text, text
+    # samples of a part of the gap only: the range without them is said
+    historian_with(url, gap.iloc[150:])
+    res = catch_up(plant, url, gap.index[-1], 10.0)
+    assert res.mode == "replayed" and res.first == gap.index[150] and res.rows == 150
+    text = "\n".join(line for _, line, _ in res.lines())
+    assert (
+        f"no samples from {gap.index[0]:%Y-%m-%d %H:%M:%S} to "
+        f"{gap.index[149]:%Y-%m-%d %H:%M:%S}: the units jumped over it"
+    ) in text, text
+
+
+def test_the_time_out_cuts_the_catch_up_and_says_what_is_left(unit_dir, tmp_path):
+    pre, gap = scenario(T_STOP, 700)
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    historian_with(url, pre, gap)
+    plant = stopped_plant(unit_dir, pre)
+    res = catch_up(plant, url, gap.index[-1], 10.0, deadline=time.monotonic())
+    assert res.timed_out and res.rows < res.total == len(gap), res
+    assert plant.last_ts == (res.last or pre.index[-1])
+    text = "\n".join(line for _, line, _ in res.lines())
+    assert "catch-up stopped at its time-out" in text and "is not diagnosed" in text, text
+
+
+#: test_live's plant.toml at the unit's own period (10 s: one cycle in a short run)
+PLANT_TOML = LIVE_TOML.replace("cycle = 0.05", "cycle = 10\ncatch_up_timeout = {timeout}")
+
+
+def _config(unit_dir: Path, tmp_path: Path, timeout: float) -> tuple[Path, int]:
+    from connectors.modbus_server import default_plant_map
+
+    rb = tmp_path / "rb"
+    rb.mkdir()
+    for f in (unit_dir / "rb").iterdir():
+        (rb / f.name).write_bytes(f.read_bytes())
+    rows = ["tag,table,address,type"] + [
+        f"{t.tag},{t.table},{t.address},{t.type}" for t in default_plant_map().tags
+    ]
+    (tmp_path / "plc.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    port = free_port()
+    text = PLANT_TOML.format(timeout=timeout, port=port, modbus=free_port())
+    (tmp_path / "plant.toml").write_text(text, encoding="utf-8")
+    return tmp_path / "plant.toml", port
+
+
+def _run(cfg, port: int, row: dict) -> str:
+    from connectors.modbus_server import PlantServer
+    from diag_plugin.live.config import run_config
+
+    out = Out()
+
+    async def main() -> int:
+        async with PlantServer(port=port) as plc:
+            await plc.set_row(row)
+            return await run_config(cfg, duration=0.5, out=out)
+
+    assert asyncio.run(main()) == 0, out.text
+    return out.text
+
+
+def test_diag_run_restarted_after_downtime_logs_the_missed_alarm(unit_dir, tmp_path):
+    """`diag run --config` (Modbus PLC, SQLite historian) restarted with a state of 2 h ago
+    and another collector's samples meanwhile: the episode logged with its times, in the
+    event log at them; the first cycle goes on from the caught-up state."""
+    from diag_plugin.live.config import load_config
+    from diag_plugin.live.state import save_state
+
+    path, port = _config(unit_dir, tmp_path, 60)
+    cfg = load_config(path)
+    now = pd.Timestamp.now(tz="UTC").floor("10s")
+    pre, gap = scenario(now - 700 * STEP, 700)
+    gap = gap[gap.index <= now - STEP]
+    plant = stopped_plant(tmp_path, pre)
+    want, _ = reference(plant, gap)
+    save_state(plant, cfg.state)
+    historian_with(cfg.historian, pre, gap)
+    out = _run(cfg, port, gap.iloc[-1].to_dict())
+    assert f"state {cfg.state} restored" in out, out
+    for unit, a, b, _ in want:
+        assert (
+            f"{unit}: while diag run was down: alarm condition FAILURE faults"
+        ) in out and f"from {a:%Y-%m-%d %H:%M:%S} to {b:%Y-%m-%d %H:%M:%S}" in out, out
+    m = re.search(rf"(\d+) missed cycles from {gap.index[0]:%Y-%m-%d %H:%M:%S}", out)
+    assert m and int(m.group(1)) == len(gap), out  # not the grid points after the last sample
+    assert "stopped after 1 cycles" in out, out
+    h = Historian.open(cfg.historian)
+    ev = h.events(unit="valve_unit")
+    h.close()
+    for _, a, b, status in want:
+        at_a = ev[ev["ts"] == a]
+        assert len(at_a) == 1 and int(at_a["status"].iloc[0]) == status, ev
+        assert "while diag run was down" in at_a["message"].iloc[0]
+        at_b = ev[ev["ts"] == b]
+        assert len(at_b) == 1 and int(at_b["status"].iloc[0]) == 0, ev
+    saved = json.loads(cfg.state.read_text(encoding="utf-8"))
+    assert saved["cycles"] == N_PRE + int(m.group(1)) + 1  # caught up, then the live cycle
+
+
+def test_diag_run_first_cycle_does_not_wait_past_the_time_out(unit_dir, tmp_path):
+    """A catch-up that needs longer than ``catch_up_timeout``: cut there, said, and the live
+    loop runs its cycle from where it got."""
+    from diag_plugin.live.config import load_config
+    from diag_plugin.live.state import save_state
+
+    path, port = _config(unit_dir, tmp_path, 0.001)
+    cfg = load_config(path)
+    now = pd.Timestamp.now(tz="UTC").floor("10s")
+    pre, gap = scenario(now - 700 * STEP, 700)
+    plant = stopped_plant(tmp_path, pre)
+    save_state(plant, cfg.state)
+    historian_with(cfg.historian, pre, gap)
+    out = _run(cfg, port, gap.iloc[-1].to_dict())
+    assert "catch-up stopped at its time-out" in out, out
+    assert "stopped after 1 cycles" in out, out
+    saved = json.loads(cfg.state.read_text(encoding="utf-8"))
+    assert N_PRE + 1 <= saved["cycles"] < N_PRE + 700, saved["cycles"]
+
+
+def test_embedded_default_saves_and_restores_its_state(tmp_path):
+    """`diag run` without a config: the state saved in its data folder on stop, restored at
+    the next start and said; the scenario resumes after the state's cycle (every sample
+    stored once, none skipped); a changed unit file is refused and said."""
+    import numpy as np
+
+    from diag_plugin.live.embedded import STATE_FILE, run_embedded
+
+    data = tmp_path / "diag-data"
+    state = data / STATE_FILE
+
+    def once() -> str:
+        out = Out()
+        ports = {k: free_port() for k in ("plc_port", "modbus_port", "opcua_port")}
+        rc = asyncio.run(run_embedded(data, cycle=0.04, duration=2.0, tty=False, out=out, **ports))
+        assert rc == 0, out.text
+        return out.text
+
+    out = once()
+    assert f"state {state}: none yet, units start fresh" in out, out
+    first = json.loads(state.read_text(encoding="utf-8"))
+    assert first["cycles"] >= 1 and list(first["versions"]) == ["valve_unit"]
+    out = once()
+    assert f"state {state} restored: 1 units go on where they stopped" in out, out
+    assert f"embedded scenario resumes at its sample {first['cycles']} of run 1" in out, out
+    second = json.loads(state.read_text(encoding="utf-8"))
+    assert second["cycles"] > first["cycles"]
+    h = Historian.open(f"sqlite:///{data / 'plant.db'}")
+    live = h.read_samples("P0", start=pd.Timestamp(first["ts"]) - (first["cycles"] - 1) * STEP)
+    h.close()
+    assert len(live) == second["cycles"], (len(live), second["cycles"])
+    assert (np.diff(live.index.asi8) == STEP.value // 1000).all()  # µs: one run, no gap
+    unit = data / "rulebases" / "valve_unit.unit.toml"
+    unit.write_text(unit.read_text(encoding="utf-8") + "# edited\n", encoding="utf-8")
+    out = once()
+    assert "not restored (units changed since the state was saved: valve_unit)" in out, out
+    assert "resumes" not in out, out
+
+
+def test_a_killed_run_is_caught_up_from_its_journal(tmp_path):
+    """`diag run --config` killed with SIGKILL between two state saves: the next start stores
+    the killed run's journal first, then diagnoses its cycles after the last save (and the
+    restart's own wait) from the historian before its first cycle."""
+    import os
+    import signal
+    import subprocess
+
+    from helpers import diag_run_polling, plant_toml, valve_plant
+    from test_live_sources import start_plc
+
+    d = tmp_path
+    valve_plant(d)
+    port = free_port()
+    cfg = plant_toml(d, port, "sqlite:///k.db", cycle=0.2, flush_every=50, extra="state_every = 8")
+    state = cfg.with_suffix(".state.json")
+    plc, _ = start_plc(port)
+    try:
+        run, argv, env = diag_run_polling(d, cfg)
+        deadline = time.monotonic() + 60
+        while not state.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(1.0)  # a few cycles after a save (the next is 8 cycles on)
+        os.kill(run.pid, signal.SIGKILL)
+        killed = pd.Timestamp.now(tz="UTC")
+        run.wait(10)
+        saved = json.loads(state.read_text(encoding="utf-8"))
+        again = subprocess.run(
+            [*argv, "--duration", "1"], cwd=d, env=env, capture_output=True, text=True, timeout=120
+        )
+    finally:
+        plc.kill()
+        plc.wait()
+    out = again.stdout
+    assert again.returncode == 0, out + again.stderr
+    assert "recovered from its journal" in out and f"state {state} restored" in out, out
+    t_s = pd.Timestamp(saved["ts"])
+    assert f"catch-up: the state is of {t_s:%Y-%m-%d %H:%M:%S} UTC" in out, out
+    with Historian(f"sqlite:///{d / 'k.db'}") as h:
+        f = h.read_samples("F", with_quality=True)
+    after = f[(f.index > t_s) & (f.index < killed) & (f["quality"] == 0)]
+    assert len(after), (t_s, killed, f.tail())  # the killed run's cycles after its last save
+    m = re.search(r"(\d+) missed cycles from (\S+ \S+) to", out)
+    assert m, out
+    first = pd.Timestamp(m.group(2), tz="UTC")
+    # the first sample after the save, on its grid point (± half a cycle; the log gives
+    # whole seconds)
+    assert -0.1 <= (after.index[0] - first).total_seconds() < 1.2, (first, after.index[0])
+    live = int(re.search(r"stopped after (\d+) cycles", out).group(1))
+    end = json.loads(state.read_text(encoding="utf-8"))
+    assert end["cycles"] == saved["cycles"] + int(m.group(1)) + live, (end["cycles"], out)
