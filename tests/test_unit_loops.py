@@ -263,3 +263,29 @@ def test_a_fresh_start_says_it_is_warming_up_not_what_is_wrong(line):
         else:
             assert "warming up" not in a.message, (k, a.message)
     assert left[0] == depth * line7.PERIOD_S and np.all(np.diff(left) <= 0), left
+
+
+# ---------------------------------------------------------------- a loop's two fault modes
+
+
+def test_a_loops_actuator_and_sensor_each_have_a_second_direction(line):
+    """The valve: its level direction leaves its spread test out, its second direction is
+    the spread test alone (sticking); the loop's sensor: its second direction is its own
+    with the loop test at zero (compensated by its loop). A deviation exactly along either
+    is explained in full by that tag (share 1, named first); with one mixed direction the
+    valve's level or the compensated sensor explained part of it only."""
+    _, unit, _, _ = line
+    cm = unit.cmodel
+    tests = unit.tests
+    valve, meter = cm.tags.index("VALVE_A"), cm.tags.index("FEED_FLOW")
+    spread, loop = tests.index("FEED_FLOW_spread"), tests.index("FEED_FLOW")
+    assert cm.xi[spread, valve] == 0.0 and cm.process[spread, valve] > 0.0
+    assert np.count_nonzero(cm.process[:, valve]) == 1
+    assert cm.xi[loop, meter] != 0.0 and cm.process[loop, meter] == 0.0
+    others = np.arange(len(tests)) != loop
+    np.testing.assert_array_equal(cm.process[others, meter], cm.xi[others, meter])
+    for k, direction in ((valve, cm.xi[:, valve]), (valve, cm.process[:, valve]),
+                         (meter, cm.process[:, meter])):  # fmt: skip
+        share = cm.shares_of(3.0 * direction[None, :])[0]
+        assert share[k] == pytest.approx(1.0, abs=1e-9), (cm.tags[k], share[k])
+        assert share[k] >= np.nanmax(share) - 1e-9

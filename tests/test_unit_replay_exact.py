@@ -304,10 +304,32 @@ def _same(a, b) -> None:
     for key in a:
         x, y = a[key], b[key]
         near = [c for c in x.columns if key == "contributions" or re.fullmatch(r"T2|share\d+", c)]
+        names = [c for c in x.columns if re.fullmatch(r"top\d+", c)]
+        x, y = _untied(x, names), _untied(y, names)
         pd.testing.assert_frame_equal(x.drop(columns=near), y.drop(columns=near), check_exact=True)
         pd.testing.assert_frame_equal(
             x[near], y[near], check_exact=False, rtol=RTOL, atol=1e-12, obj=key
         )
+
+
+def _untied(x: pd.DataFrame, names: list[str]) -> pd.DataFrame:
+    """``x`` with the tags named at tied ranks (shares equal to RTOL: tags whose directions
+    are parallel over the known tests, as a loop's compensated sensor and a tag its valve's
+    model reads, explain the same share, and the last bit decides their order) in one
+    order, by name."""
+    if not names:
+        return x
+    x = x.copy()
+    top = x[names].to_numpy(object)
+    share = x[[f"share{c[3:]}" for c in names]].to_numpy(float)
+    for i in np.flatnonzero(np.isfinite(share).sum(axis=1) > 1):
+        s = share[i]
+        for j in range(len(names) - 1):
+            if np.isfinite(s[j + 1]) and abs(s[j] - s[j + 1]) <= RTOL * abs(s[j]) + 1e-12:
+                a, b = sorted([top[i, j], top[i, j + 1]])
+                top[i, j], top[i, j + 1] = a, b
+    x[names] = top
+    return x
 
 
 def _near(a, b) -> None:
@@ -379,18 +401,23 @@ def test_shares_computed_on_alarms_and_when_asked_are_the_eager_ones(built, faul
     got = d.contributions
     assert got is d.contributions  # computed once
     assert got.columns.tolist() == u.cmodel.tags and got.index.equals(frame.index)
-    np.testing.assert_array_equal(got.to_numpy(), eager)
+    # the same values, to the last bit or one rounding: a sample's row of the matrix products
+    # sits elsewhere in the alarm samples' block than in all samples' (BLAS's tiles)
+    np.testing.assert_allclose(got.to_numpy(), eager, rtol=1e-14, atol=1e-15)
     ranked = unittags.top_tags(
         unitloops.EpisodeHold(len(u.cmodel.tags)).transform(eager, lazy.at), u.cmodel.tags, lazy.at
     )
     held = d.status.to_numpy() != 0
-    for c in ranked.columns:  # the alarm samples (the unit's hold repeats them after)
-        np.testing.assert_array_equal(d.top[c].to_numpy()[lazy.at], ranked[c].to_numpy()[lazy.at])
+    names = [c for c in ranked.columns if c.startswith("top")]
+    mine, theirs = _untied(d.top[ranked.columns], names), _untied(ranked, names)
+    for c in names:  # the alarm samples (the unit's hold repeats them after)
+        np.testing.assert_array_equal(mine[c].to_numpy()[lazy.at], theirs[c].to_numpy()[lazy.at])
     assert held[lazy.at].all()
     piece = max(7, len(frame) // 9)
     u.reset()
     parts = [u.evaluate(frame.iloc[s : s + piece]) for s in range(0, len(frame), piece)]
-    np.testing.assert_array_equal(concat(parts).contributions.to_numpy(), eager)
+    whole = concat(parts).contributions.to_numpy()
+    np.testing.assert_allclose(whole, eager, rtol=1e-14, atol=1e-15)
 
 
 def _spd(rng, T: int, lam: float) -> np.ndarray:

@@ -179,9 +179,10 @@ def directions(unit, spec: CombinedSpec | None) -> tuple[np.ndarray, np.ndarray]
     for j, t in enumerate(unit.tests):
         test = unit.file.test(t)
         if _spread_test(unit, t):  # only a sticking actuator widens its loop's error
+            # (learned: a direction of its own, the actuator's second, process_directions)
             for k, x in enumerate(tags):
-                if x == test.actuator:
-                    xi[j, k] = 1.0 if spec is None else 1.0 / spec.scale[spec.tests.index(t)]
+                if x == test.actuator and spec is None:
+                    xi[j, k] = 1.0
             continue
         for k, x in enumerate(tags):
             if spec is None:
@@ -220,7 +221,20 @@ def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
     ``X``, so the two differ wherever a model reads ``X``. Loops' sensors and actuators keep
     their column of ``xi`` (a loop holds its measurement; an actuator has its plane); spread
     tests keep theirs. The ranking takes the larger of the two contributions
-    (:meth:`CombinedModel.evaluate`)."""
+    (:meth:`CombinedModel.evaluate`).
+
+    A loop's two fault modes get the second direction too. A loop's **actuator**: sticking,
+    the spread of its loop's error alone (``1 / s_j`` on its spread test), its level
+    direction in :func:`directions` without it — one direction for both let the spread test
+    dilute a biased valve's match (its level test moved, its spread did not) and the tag an
+    input of the valve's model took the valve's deviation. A loop's own **sensor**,
+    compensated: the loop holds the reading at the set-point, so its loop test stays at zero
+    and only the rest of its direction moves (the loop's compensating move, the tests reading
+    it and the set-point's learned responses): its direction with its loop test's entry ``0``.
+    A drifting sensor the loop follows shows that way and not as its loop's error (chemical
+    plant, tuning seeds, at 1 % of calibration samples: faulted tag in the top three 36/45 →
+    38/45; the compensated sensor alone, with the mixed actuator direction, 33/45: it took the
+    biased and the fouled cooler's valve; docs/how-to/unit-loops.md)."""
     tags, outputs, _ = structure(unit)
     T, n = len(unit.tests), len(tags)
     col = {x: k for k, x in enumerate(tags)}
@@ -229,13 +243,19 @@ def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
     f = np.zeros(T)  # 100 / span_j / s_j
     spread = np.array([_spread_test(unit, t) for t in unit.tests])
     fixed = set()  # loops' sensors and actuators
+    stiction: dict[int, list[int]] = {}  # actuator's column → its spread tests
+    sensor_of: dict[int, int] = {}  # loop sensor's column → its loop test
     for j, t in enumerate(unit.tests):
         test = unit.file.test(t)
         if test.actuator:
             fixed.add(test.actuator)
             if not spread[j]:
                 fixed.add(outputs[t])
+                if outputs[t] in col and outputs[t] != test.actuator:
+                    sensor_of[col[outputs[t]]] = j
         if spread[j]:
+            if test.actuator in col:
+                stiction.setdefault(col[test.actuator], []).append(j)
             continue
         span = test.ymax if unit.ev["scale"] == "max" and test.ymax else unit.models[t].span
         f[j] = 100.0 / span / spec.scale[spec.tests.index(t)]
@@ -251,6 +271,12 @@ def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
     out[spread] = xi[spread]
     keep = [k for k, x in enumerate(tags) if x in fixed]
     out[:, keep] = xi[:, keep]
+    for k, j in sensor_of.items():  # compensated: its loop test held at zero
+        out[j, k] = 0.0
+    for k, rows in stiction.items():  # sticking: its spread tests alone
+        out[:, k] = 0.0
+        for j in rows:
+            out[j, k] = 1.0 / spec.scale[spec.tests.index(unit.tests[j])]
     return out
 
 
@@ -477,8 +503,13 @@ class CombinedModel:
         over the n samples of ``r``; ``point``: each of the n samples' operating point, as
         :meth:`evaluate`'s): ``len(rows[rows]) × tags``, in the rows' order."""
         at = np.flatnonzero(rows)
-        z = self.z(r[at], None if point is None else point[at])
-        share = np.full((at.size, len(self.tags)), np.nan)
+        return self.shares_of(self.z(r[at], None if point is None else point[at]))
+
+    def shares_of(self, z: np.ndarray) -> np.ndarray:
+        """Each tag's share of T² (as :meth:`shares`) from scaled residuals ``z`` (n × T, NaN
+        unknown; :meth:`z`, or their mean over an alarm episode,
+        :class:`~diag_plugin.diagnose.unitloops.EpisodeHold`)."""
+        share = np.full((len(z), len(self.tags)), np.nan)
         for sub, k, inv, mz, q in self._blocks(z):
             share[sub] = self._share(mz, q, k, inv)
         return share
@@ -540,7 +571,9 @@ class CombinedModel:
     def _loop_rbc(self, rbc: np.ndarray, mz: np.ndarray, m: np.ndarray, k: np.ndarray) -> None:
         """In place: each loop actuator's contribution over the plane of its direction ``a``
         and its loop test's axis ``b`` (Alcala & Qin, 2009, the multidimensional form:
-        ``uᵀ (ΞᵀS⁻¹Ξ)⁻¹ u`` with ``Ξ = [a b]``, ``u = ΞᵀS⁻¹z``), where that test is known."""
+        ``uᵀ (ΞᵀS⁻¹Ξ)⁻¹ u`` with ``Ξ = [a b]``, ``u = ΞᵀS⁻¹z``), where that test is known;
+        the larger of it and the one along its second direction (``rbc`` on entry: sticking,
+        :func:`process_directions`)."""
         pos = {int(t): i for i, t in enumerate(k)}
         for c in np.flatnonzero(self.loop >= 0):
             j = pos.get(int(self.loop[c]))
@@ -552,10 +585,12 @@ class CombinedModel:
             if not m[j, j] > 1e-12:
                 continue
             if abs(np.linalg.det(g)) <= 1e-9 * g[0, 0] * g[1, 1]:  # no own direction beside
-                rbc[:, c] = mz[:, j] ** 2 / m[j, j]
-                continue
-            u = np.column_stack([mz @ a, mz[:, j]])
-            rbc[:, c] = np.einsum("ij,jk,ik->i", u, np.linalg.inv(g), u)
+                plane = mz[:, j] ** 2 / m[j, j]
+            else:
+                u = np.column_stack([mz @ a, mz[:, j]])
+                plane = np.einsum("ij,jk,ik->i", u, np.linalg.inv(g), u)
+            # the larger of the plane and its second direction (sticking: the spread alone)
+            np.maximum(rbc[:, c], plane, out=rbc[:, c])
 
 
 def _rbc(mz: np.ndarray, xi: np.ndarray, den: np.ndarray) -> np.ndarray:
