@@ -121,6 +121,20 @@ def _command_word(argv: Sequence[str]) -> str | None:
     return None
 
 
+#: the Arrow memory pool a ``diag`` process uses unless ``ARROW_DEFAULT_MEMORY_POOL`` says
+#: another: the C library's allocator. With pyarrow's default (mimalloc) the per-tag threads
+#: of a window read from the cold store cost 0.51 s CPU instead of 0.36 s for six months of
+#: four tags (pages given back and faulted in again); with this one 0.38 s (issue 37)
+ARROW_POOL = "system"
+
+
+def arrow_pool_default(environ, modules) -> None:
+    """Choose :data:`ARROW_POOL` for this process where the user chose none; only before
+    pyarrow is loaded (it reads the setting once, at its import)."""
+    if "pyarrow" not in modules:
+        environ.setdefault("ARROW_DEFAULT_MEMORY_POOL", ARROW_POOL)
+
+
 #: exit statuses, the one contract of every command (docs/reference/cli.md)
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_ENVIRONMENT = 0, 1, 2, 3
 
@@ -131,6 +145,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     busy). No traceback reaches the user unless ``-vv`` asks for one."""
     if argv is None:
         argv = sys.argv[1:]
+    arrow_pool_default(os.environ, sys.modules)
     parser = build_parser(argv)
     args = parser.parse_args(argv)
     import logging  # after parsing: `diag --help` and usage errors never need it

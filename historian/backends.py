@@ -47,6 +47,12 @@ def _empty():
 #: sixth less CPU than through read() calls into SQLite's page cache (bench_train). Reads
 #: only: SQLite still writes through its journal, so durability is unchanged.
 MMAP_BYTES = 1 << 31
+#: rows per Arrow batch of a SQLite read (the driver's default is 1,024): a training read of
+#: a 30-day chunk comes as one batch instead of 253, and four tags' half-year costs the
+#: fetch 13 % less CPU (0.93 → 0.81 s, issue 37; the arrays are the same)
+READ_BATCH_ROWS = 1 << 18
+#: the ADBC SQLite driver's statement option for it (adbc_driver_sqlite.StatementOptions)
+_BATCH_ROWS_OPTION = "adbc.sqlite.query.batch_rows"
 
 
 class SqliteBulk:
@@ -134,18 +140,12 @@ class SqliteBulk:
         sample comes as a NaN value and every quality as GOOD, which an aligned window
         treats alike (not usable), and the driver fetches one column less per row (a third
         of a SQLite read's time: the driver's per-value work, not the scan, is the cost)."""
-        conn = self.conn
-        cur = conn.cursor()
         value_sql = f"CASE WHEN quality < {BAD} THEN value END" if usable else "value, quality"
-        try:
-            cur.execute(
-                f"SELECT ts, {value_sql} FROM samples "
-                f"WHERE tag_id = {int(tag_id)} AND ts >= {int(start)} AND ts < {int(end)} "
-                "ORDER BY ts"
-            )
-            tb = cur.fetch_arrow_table()
-        finally:
-            cur.close()
+        tb = self.fetch(
+            f"SELECT ts, {value_sql} FROM samples "
+            f"WHERE tag_id = {int(tag_id)} AND ts >= {int(start)} AND ts < {int(end)} "
+            "ORDER BY ts"
+        )
         if tb.num_rows == 0:
             return _empty()
         ts = tb.column(0).to_numpy().astype(np.int64, copy=False)
@@ -155,17 +155,21 @@ class SqliteBulk:
         quality = tb.column(2).to_numpy().astype(np.int64, copy=False)
         return ts, value, quality
 
-    def recent_ts(self, tag_id: int, n: int) -> np.ndarray:
-        """Times of the tag's last ``n`` samples in the database, ascending."""
+    def fetch(self, sql: str) -> pa.Table:
+        """The rows of a query as an Arrow table, in batches of :data:`READ_BATCH_ROWS`."""
         cur = self.conn.cursor()
         try:
-            cur.execute(
-                f"SELECT ts FROM samples WHERE tag_id = {int(tag_id)} ORDER BY ts DESC "
-                f"LIMIT {int(n)}"
-            )
-            tb = cur.fetch_arrow_table()
+            cur.adbc_statement.set_options(**{_BATCH_ROWS_OPTION: str(READ_BATCH_ROWS)})
+            cur.execute(sql)
+            return cur.fetch_arrow_table()
         finally:
             cur.close()
+
+    def recent_ts(self, tag_id: int, n: int) -> np.ndarray:
+        """Times of the tag's last ``n`` samples in the database, ascending."""
+        tb = self.fetch(
+            f"SELECT ts FROM samples WHERE tag_id = {int(tag_id)} ORDER BY ts DESC LIMIT {int(n)}"
+        )
         return tb.column(0).to_numpy().astype(np.int64, copy=False)[::-1]
 
     def size_bytes(self) -> int:
