@@ -121,19 +121,26 @@ class SqliteBulk:
                 "quality": pa.array(np.asarray(quality, np.int64)),
             }
         )
-        conn = self.conn
-        cur = conn.cursor()
+        move = (
+            "INSERT INTO samples (tag_id, ts, value, quality) "
+            f"SELECT tag_id, ts, value, quality FROM temp._stage WHERE true {clause}"
+        )
+        return self._staged("_stage", table, [move])
+
+    def _staged(self, name: str, table: pa.Table, moves: list[str]) -> int:
+        """In one transaction: ``table`` into the temporary table ``name``, then each
+        statement of ``moves`` (from it into ``samples``); returns the rows they changed."""
+        n = 0
+        cur = self.conn.cursor()
         cur.execute("BEGIN IMMEDIATE")
         try:
-            cur.execute("DROP TABLE IF EXISTS temp._stage")
-            cur.adbc_ingest("_stage", table, mode="create", temporary=True)
-            cur.execute(
-                "INSERT INTO samples (tag_id, ts, value, quality) "
-                f"SELECT tag_id, ts, value, quality FROM temp._stage WHERE true {clause}"
-            )
-            cur.execute("SELECT changes()")
-            n = int(cur.fetchone()[0])
-            cur.execute("DROP TABLE temp._stage")
+            cur.execute(f"DROP TABLE IF EXISTS temp.{name}")
+            cur.adbc_ingest(name, table, mode="create", temporary=True)
+            for sql in moves:
+                cur.execute(sql)
+                cur.execute("SELECT changes()")
+                n += int(cur.fetchone()[0])
+            cur.execute(f"DROP TABLE temp.{name}")
             cur.execute("COMMIT")
         except BaseException:
             cur.execute("ROLLBACK")
@@ -174,26 +181,7 @@ class SqliteBulk:
                 "INSERT INTO samples (tag_id, ts, value, quality) "
                 f"SELECT {int(tag_id)}, ts, v{j}, {code} FROM temp._wide WHERE {present} {clause}"
             )
-        if not moves:
-            return 0
-        n = 0
-        cur = self.conn.cursor()
-        cur.execute("BEGIN IMMEDIATE")
-        try:
-            cur.execute("DROP TABLE IF EXISTS temp._wide")
-            cur.adbc_ingest("_wide", pa.table(cols), mode="create", temporary=True)
-            for sql in moves:
-                cur.execute(sql)
-                cur.execute("SELECT changes()")
-                n += int(cur.fetchone()[0])
-            cur.execute("DROP TABLE temp._wide")
-            cur.execute("COMMIT")
-        except BaseException:
-            cur.execute("ROLLBACK")
-            raise
-        finally:
-            cur.close()
-        return n
+        return self._staged("_wide", pa.table(cols), moves) if moves else 0
 
     def read(self, tag_id: int, start: int, end: int, usable: bool = False):
         """Samples of one tag with start <= ts < end, ordered by ts. ``usable``: a Bad
