@@ -216,3 +216,22 @@ def test_a_killed_import_leaves_whole_pieces(tmp_path):
         report = import_file(h, csv)
         assert report.written == (rows - len(first)) * len(tags)
         assert len(h.read_samples("T7")) == rows
+
+
+def test_write_wide_counts_alike_on_both_backends(historian):
+    """PostgreSQL takes the piece as long rows: the same samples kept and rows counted."""
+    values, quality = _piece(np.random.default_rng(5), n=300)
+    expected = int((values.notna().to_numpy() | (quality.to_numpy() == BAD)).sum())
+    for t in values.columns:
+        historian.ensure_tag(t)
+    assert historian.write_wide(values, quality) == expected
+    assert historian.write_wide(values, quality) == 0
+    changed = values.copy()
+    changed.iloc[:7, 0] = -1.0  # A: 7 changed (a gap among them becomes a sample)
+    new = int(values.iloc[:7, 0].isna().sum())
+    assert historian.write_wide(changed, quality) == new
+    assert historian.write_wide(changed, quality, policy="update") == 7 - new
+    b = historian.read_samples("B", with_quality=True)
+    assert (b["quality"] == BAD).sum() == (quality["B"] == BAD).sum()
+    assert b["value"].isna().sum() == values["B"].isna().sum() > 0
+    assert (historian.read_samples("A").iloc[:7] == -1.0).all()
