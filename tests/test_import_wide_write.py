@@ -235,3 +235,22 @@ def test_write_wide_counts_alike_on_both_backends(historian):
     assert (b["quality"] == BAD).sum() == (quality["B"] == BAD).sum()
     assert b["value"].isna().sum() == values["B"].isna().sum() > 0
     assert (historian.read_samples("A").iloc[:7] == -1.0).all()
+
+
+def test_an_import_into_a_rolled_month_writes_only_what_is_new(historian, tmp_path):
+    """A piece reaching a month rolled to the cold store goes as long rows past the cold
+    file: a re-import adds nothing, a changed value is a conflict, a new tag is added."""
+    idx = pd.date_range("2024-01-31 23:00", periods=120, freq="1min").rename("ts")
+    frame = pd.DataFrame({"A": np.arange(120.0), "B": 1.0}, index=idx)
+    csv = tmp_path / "f.csv"
+    frame.to_csv(csv)
+    assert import_file(historian, csv).written == 240
+    assert historian.roll_months(before="2024-02-01") == ["2024-01"]
+    assert import_file(historian, csv).written == 0
+    frame.iloc[3, 0] = -5.0  # in the rolled January
+    frame["C"] = 2.0
+    frame.to_csv(csv)
+    r = import_file(historian, csv)
+    assert (r.written, r.conflicts) == (120, 1)
+    assert r.first_conflict.tag == "A" and r.first_conflict.stored == 3.0
+    assert historian.read_samples("A").iloc[3] == 3.0
