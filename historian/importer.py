@@ -980,10 +980,13 @@ def import_file(
                 if name not in tags_seen:
                     tags_seen.append(str(name))
             if has.any():
-                report.samples += int(present.sum())
+                n = int(present.sum())
+                report.samples += n
                 if writing is not None:
                     writing.result()
-                writing = writer.submit(_write, h, frame, quality, lines, line_at, policy, report)
+                writing = writer.submit(
+                    _write, h, frame, quality, n, lines, line_at, policy, report
+                )
                 lo, hi = frame.index.min(), frame.index.max()
                 report.first = lo if report.first is None else min(report.first, lo)
                 report.last = hi if report.last is None else max(report.last, hi)
@@ -1286,38 +1289,21 @@ def read_tags_csv(path: str | Path) -> list[dict]:
     return out
 
 
-def _write(h, frame, quality, rows, line_of, policy, report: ImportReport) -> None:
-    """Write one piece (no time repeats in it: :class:`_Repeats`), counting conflicts with
-    stored samples. With ``"ignore"`` the stored values are compared after the write, and
-    only when some samples were not new (the write keeps stored values, so what differs
-    then is a conflict); with ``"update"`` before it. ``rows``: the line of each row."""
-    long = _long(frame, quality)
+def _write(h, frame, quality, n, rows, line_of, policy, report: ImportReport) -> None:
+    """Write one piece of ``n`` samples (no time repeats in it: :class:`_Repeats`; wide,
+    in one transaction: :meth:`Historian.write_wide`), counting conflicts with stored
+    samples. With ``"ignore"`` the stored values are compared after the write, and only
+    when some samples were not new (the write keeps stored values, so what differs then is
+    a conflict); with ``"update"`` before it. ``rows``: the line of each row."""
     everything = np.arange(len(frame))
     if policy == "update":
         _count_conflicts(h, frame, quality, everything, rows, line_of, report)
-        report.written += h.write_samples(long, policy=policy)
+        report.written += h.write_wide(frame, quality, policy=policy)
         return
-    written = h.write_samples(long, policy=policy)
+    written = h.write_wide(frame, quality, policy=policy)
     report.written += written
-    if written < len(long):
+    if written < n:
         _count_conflicts(h, frame, quality, everything, rows, line_of, report)
-
-
-def _long(values: pd.DataFrame, quality: pd.DataFrame) -> pd.DataFrame:
-    """The samples of a wide chunk (a number, or a Bad cell) as a long frame, tag by tag
-    (the order the store writes; tags as a categorical, so nothing is hashed per row)."""
-    v = values.to_numpy(np.float64).T
-    q = quality.to_numpy(np.int64).T
-    c, r = np.nonzero(~np.isnan(v) | (q == BAD))
-    ts = index_us(values.index)[r].view("datetime64[us]")
-    return pd.DataFrame(
-        {
-            "tag": pd.Categorical.from_codes(c, categories=[str(x) for x in values.columns]),
-            "ts": pd.DatetimeIndex(ts).tz_localize("UTC"),
-            "value": v[c, r],
-            "quality": q[c, r],
-        }
-    )
 
 
 def _count_conflicts(h, part, part_q, now, rows, line_of, report: ImportReport) -> None:

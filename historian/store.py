@@ -23,14 +23,14 @@ from sqlalchemy import create_engine, event, func, select, update
 from sqlalchemy.engine import make_url
 
 from . import coldstore, schema
-from .backends import PostgresBulk, SqliteBulk
+from .backends import SQLITE_PRAGMAS, PostgresBulk, SqliteBulk
 from .coldmonths import ColdMonths
 from .frames import sorted_unique, tag_arrays
-from .quality import GOOD
+from .quality import BAD, GOOD
 from .registry import Registry
 from .sampling import SAMPLING_ROWS, Sampling, hold_us, sampling_of, snap_near, snap_up
 from .tagreport import TagReport
-from .times import from_us, period_us, to_us, us_index
+from .times import from_us, index_us, period_us, to_us, us_index
 from .window import align, summarize, summary_attrs
 
 DEFAULT_BATCH_ROWS = 500_000
@@ -207,6 +207,45 @@ class Historian(ColdMonths, Registry, TagReport):
                 tag_id, ts, value, q = tag_id[new], ts[new], value[new], q[new]
             if len(ts):
                 total += self._bulk.insert(tag_id, ts, value, q, policy=policy)
+        return total
+
+    def write_wide(
+        self, values: pd.DataFrame, quality: pd.DataFrame, *, policy: str = "ignore"
+    ) -> int:
+        """Store a wide piece of an import; returns the rows added (``"update"``: added or
+        changed), as :meth:`write_samples` counts them. ``values``: a DatetimeIndex, one
+        column per existing tag; ``quality``: the codes, the same shape. Unlike
+        :meth:`write_samples`, a cell is a sample when it holds a number *or* its quality is
+        Bad (a cell of text kept as a Bad sample). A time given twice keeps its first row.
+
+        On SQLite the piece goes in one transaction, staged as wide rows
+        (:meth:`~historian.backends.SqliteBulk.insert_wide`); on PostgreSQL, or where it
+        reaches a month rolled to the cold store, as the long rows of :meth:`write_samples`."""
+        if policy not in ("ignore", "update"):
+            raise ValueError(f"policy must be 'ignore' or 'update', not {policy!r}")
+        ts = index_us(values.index)
+        if not len(ts):
+            return 0
+        v = values.to_numpy(np.float64).T
+        q = quality.to_numpy(np.int64).T
+        if len(ts) > 1 and not np.all(ts[1:] > ts[:-1]):
+            order = np.argsort(ts, kind="stable")
+            ts, v, q = ts[order], v[:, order], q[:, order]
+            first = np.r_[True, ts[1:] != ts[:-1]]
+            ts, v, q = ts[first], v[:, first], q[:, first]
+        ids = np.array([self._tag(str(name))[0] for name in values.columns], np.int64)
+        rolled = self._segments(int(ts[0]), int(ts[-1]) + 1)
+        if not rolled and hasattr(self._bulk, "insert_wide"):
+            return self._bulk.insert_wide(ts, ids, v, q, policy=policy)
+        c, r = np.nonzero(~np.isnan(v) | (q == BAD))  # tag-major, each tag in time order
+        tag_id, ts, v, q = ids[c], ts[r], v[c, r], q[c, r]
+        if rolled:
+            new = self._not_in_cold(rolled, tag_id, ts, v, q, policy)
+            tag_id, ts, v, q = tag_id[new], ts[new], v[new], q[new]
+        total = 0
+        for i in range(0, len(ts), DEFAULT_BATCH_ROWS):
+            part = slice(i, i + DEFAULT_BATCH_ROWS)
+            total += self._bulk.insert(tag_id[part], ts[part], v[part], q[part], policy=policy)
         return total
 
     def _batches(self, data, quality, batch_rows, create_tags):
@@ -564,6 +603,6 @@ def create_schema(engine, tries: int = 8) -> None:
 def _sqlite_pragmas(dbapi_conn, _record, busy_ms: int = 60_000) -> None:
     cur = dbapi_conn.cursor()
     cur.execute(f"PRAGMA busy_timeout={int(busy_ms)}")
-    cur.execute("PRAGMA journal_mode=WAL")
-    cur.execute("PRAGMA synchronous=FULL")
+    for pragma in SQLITE_PRAGMAS:
+        cur.execute(pragma)
     cur.close()
