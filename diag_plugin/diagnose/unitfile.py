@@ -102,6 +102,11 @@ so a coarser, less exact answer needs a proportionally larger deviation to raise
 test without ``levels`` counts only answers of the fine grid; answers at levels beyond the list
 are unknown (never calibrated).
 
+``point_center = [...]``, ``point_scale = [...]`` (written by ``diag unit accept`` for a level
+test, a tag against its mean: one number per ``[combined]`` operating point): the test's raw
+residual is ``(r − point_center[k]) / point_scale[k]`` at the sample's nearest point ``k``
+(:func:`~diag_plugin.learn.thresholds.level_points`).
+
 ``combined = true`` and ``isolation = "tags"`` (both off by default, so a unit without them
 behaves as before) and the ``[combined]`` table are described in
 :mod:`diag_plugin.diagnose.unittags`.

@@ -506,7 +506,7 @@ class CombinedModel:
         ``shares=False``: T² alone (the shares None; :meth:`shares` gives them for the rows
         that need them)."""
         if shares and point is not None and self.point_xi is not None:
-            t2 = self.evaluate(r, point, shares=False)[0]
+            t2 = CombinedModel.evaluate(self, r, point, shares=False)[0]
             return t2, self._per_point_shares(r, np.ones(len(r), bool), point)
         z = self.z(r, point)
         n, T = z.shape
