@@ -310,3 +310,41 @@ def test_after_accepting_a_second_point_the_combined_test_still_detects(tmp_path
     assert spec.high < 10 * high0, (high0, spec.high)
     assert quiet1.mean() < 0.05 and quiet2.mean() < 0.05, (quiet1.mean(), quiet2.mean())
     assert seen.mean() > 0.9, seen.mean()
+
+
+def test_a_parity_test_over_two_points_keeps_the_within_point_slope_and_merges_exactly():
+    """A linear (parity) test given a second operating point by ``diag unit accept``
+    (:class:`~diag_plugin.models.joint.PointLinearRegressor`): the slope is fitted within
+    the points, each point keeps its own constant, and the models of the two windows merged
+    are the model of the union. One least-squares line over both is the line between them
+    (a slope of 5 here, where the tag moves 2 per unit of its input at each point), and its
+    residuals at each point carry the input's noise times the wrong slope."""
+    from diag_plugin.models.joint import PointLinearRegressor
+    from diag_plugin.models.linear import LinearRegressor
+
+    rng = np.random.default_rng(7)
+    rows = []
+    for k, (x0, y0) in enumerate([(10.0, 20.0), (12.0, 30.0)]):
+        x = x0 + 0.3 * rng.normal(size=1500)
+        rows.append(np.column_stack([x, y0 + 2.0 * (x - x0) + 0.05 * rng.normal(size=1500),
+                                     np.full(1500, k)]))  # fmt: skip
+    U = np.vstack(rows)
+    X, y, at = U[:, :1], U[:, 1], U[:, 2].astype(int)
+    spans = [(8.0, 14.0)]
+    points = [[U[at == k, 0].mean(), U[at == k, 1].mean()] for k in (0, 1)]
+    whole = PointLinearRegressor(input_spans=spans, points=points).fit(X, y)
+    parts = [PointLinearRegressor(input_spans=spans, points=points).fit(X[at == k], y[at == k])
+             for k in (0, 1)]  # fmt: skip
+    merged = parts[0].merge(parts[1])
+    assert np.allclose(merged.coef_, whole.coef_, rtol=1e-9, atol=1e-12)
+    assert np.allclose(merged.shifts_, whole.shifts_, rtol=1e-9, atol=1e-12)
+    r = y - whole.predict(X)
+    for k in (0, 1):
+        assert abs(r[at == k].mean()) < 0.01 and r[at == k].std() < 0.06, (k, r[at == k].std())
+    pooled = LinearRegressor(input_spans=spans).fit(X, y)
+    rp = y - pooled.predict(X)
+    assert rp[at == 0].std() > 5 * r[at == 0].std()
+    # the file's form: the terms and each point's shift and spread give the same prediction
+    coded = PointLinearRegressor(input_spans=spans, points=points).init(1)
+    coded.set_coefficients(whole.coef_).set_shifts(whole.shifts_)
+    assert np.allclose(coded.predict(X), whole.predict(X), rtol=1e-9, atol=1e-12)

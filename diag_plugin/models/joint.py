@@ -413,3 +413,55 @@ def set_points(
         for k, v in items.items():
             rules[k] = v
     rb._dirty_head = True
+
+
+class PointLinearRegressor(JointRegressor):
+    """A ``linear`` parity test with operating points (``diag unit accept``): the tag
+    against a least-squares combination of its inputs, the slopes fitted *within* the
+    points (the pooled within-point scatter ``W``: ``b = W_xx⁻¹ W_xy``) and a constant per
+    point (its means: ``c_k = m_yk − b · m_xk``), each sample predicted with its nearest
+    point's constant (in the inputs, scaled to their spans) and its residual divided by
+    that point's spread relative to the quietest point's. One least-squares line over two
+    points far apart is the line *between* them: on SKAB (a unit from valve1/0's first
+    400 s, anomaly-free's first hour accepted) Temperature against Thermocouple took a
+    slope of 3.5 from the two points and its residual's spread at the build point doubled.
+    Outside an input's span the prediction has no support, as a linear test's."""
+
+    def _solve(self) -> None:
+        k = len(self.terms_) + 1
+        grams = [_gram(q, k) for q in (self.qrs_ or [self.qr_])]
+        d = k - 2
+        W = np.zeros((d + 1, d + 1))
+        means, scatters = [], []
+        for g in grams:
+            n = g[0, 0]
+            m = g[0, 1:] / n if n > 0 else np.full(d + 1, np.nan)
+            S = g[1:, 1:] - n * np.outer(m, m) if n > 0 else np.zeros((d + 1, d + 1))
+            means.append(m)
+            scatters.append(S)
+            W += S
+        b = np.linalg.lstsq(W[:d, :d], W[:d, d], rcond=None)[0]
+        consts = []
+        for j, m in enumerate(means):
+            if not np.isfinite(m).all():  # a point without rows (held out): its own values
+                at = self.points_[j]
+                m = np.concatenate([self._scaled(at[None, :-1])[0], at[-1:]])
+            consts.append(m[-1] - b @ m[:-1])
+        self._coef = np.concatenate([[consts[0]], b])
+        self._shift = np.asarray(consts) - consts[0]
+        a = np.concatenate([-b, [1.0]])
+        var = np.array([a @ S @ a / (g[0, 0] - 1) if g[0, 0] > 1 else np.nan
+                        for S, g in zip(scatters, grams, strict=True)])  # fmt: skip
+        low = np.nanmin(var) if np.isfinite(var).any() and np.nanmin(var) > 0 else np.nan
+        self._spread = np.where(np.isfinite(var) & (low > 0), np.sqrt(var / low), 1.0)
+
+    def predict_detail(self, X: Any) -> Prediction:
+        """As a linear test's (no support outside an input's span), with each sample's
+        point's constant and spread."""
+        p = LinearRegressor.predict_detail(self, X)
+        Xc = self._check_X(X)
+        ok = np.isfinite(Xc).all(axis=1)
+        spread = np.full(Xc.shape[0], np.nan)
+        if ok.any():
+            spread[ok] = self.spreads_[self.nearest(Xc[ok])]
+        return Prediction(p.y, p.support, p.reason, p.level, spread)

@@ -15,6 +15,11 @@ constant and one term per input::
         { term = "1", coef = 12.5 },
         { term = "FI101[k]", coef = 0.42 },
     ]
+
+After ``diag unit accept`` a test with inputs also has ``[rules] points`` (as a joint test's:
+per point ``at``, ``shift``, ``spread``): the slopes fitted within the points, each sample
+predicted with its nearest point's constant
+(:class:`~diag_plugin.models.joint.PointLinearRegressor`).
 """
 
 from __future__ import annotations
@@ -81,3 +86,47 @@ class LinearCodec(NarmaxCodec):
     def allows(self, term: tuple[int, ...]) -> bool:
         """The constant and the inputs, no products."""
         return len(term) <= 1
+
+    # operating points (``diag unit accept``, ``[rules] points``): a parity test per point,
+    # :class:`~diag_plugin.models.joint.PointLinearRegressor`; a file without is as before
+    def new_estimator(self, spec: Any) -> Any:
+        """An untrained model; with ``[rules] points``, one per operating point."""
+        from dataclasses import replace
+
+        from diag_plugin.models.estimation import spans_and_lags
+        from diag_plugin.models.joint import POINTS, PointLinearRegressor
+
+        points = spec.options.get(POINTS) if spec.options else None
+        if not points:
+            return super().new_estimator(spec)
+        opts = {k: v for k, v in spec.options.items() if k != POINTS}
+        kw = spans_and_lags(replace(spec, options=opts), self.method)
+        return PointLinearRegressor(**kw, points=[p["at"] for p in points])
+
+    def to_model(self, rb: Any) -> Any:
+        """The model the file describes (with points: each point's shift and spread)."""
+        from diag_plugin.models.joint import POINTS
+
+        m = super().to_model(rb)
+        points = rb.options.get(POINTS)
+        if points:
+            m.set_shifts([float(p.get("shift", 0.0)) for p in points])
+            m.set_spreads([float(p.get("spread", 1.0)) for p in points])
+        return m
+
+    def apply_training(self, rb: Any, model: Any) -> list:
+        """The terms and, for a model with points, ``[rules] points``."""
+        from diag_plugin.models.joint import set_points
+
+        out = super().apply_training(rb, model)
+        if len(getattr(model, "points_", ())) >= 2:
+            set_points(rb, model.points_, model.shifts_, model.spreads_)
+        return out
+
+    def check_options(self, rb: Any) -> None:
+        """``points`` (as a joint test's) is the one key ``[rules]`` takes."""
+        from diag_plugin.models.joint import POINTS, JointCodec
+
+        if POINTS in rb.options:
+            return JointCodec.check_options(self, rb)  # type: ignore[arg-type]
+        return super().check_options(rb)

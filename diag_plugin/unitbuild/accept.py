@@ -16,7 +16,9 @@ period there as fault-free, :func:`accept` learns it into the unit:
    rule's count and sums add). Locked rules stay as the expert set them.
    A joint test (:mod:`diag_plugin.models.joint`) gets the accepted window as an operating
    point of its own (:func:`add_point`): its component is the within-point one, and each
-   sample is scored against the nearest point's mean.
+   sample is scored against the nearest point's mean. So does a linear parity test (a
+   ``linear`` model with inputs, :class:`~diag_plugin.models.joint.PointLinearRegressor`):
+   its slopes are fitted within the points, its constant is the nearest point's.
 3. **Thresholds re-learned** over all the windows together (cross-fitted, to the unit's own
    budget), as ``diag unit learn`` learns them; the windows are set one after another on one
    time grid (a window weeks away re-timed to follow a gap), and the cross-fitting's block
@@ -242,7 +244,8 @@ def accept(
                 f"({', '.join(f'{a} … {b}' for a, b in old)})"
             )
         rb, said = widen_spans(rb, new)
-        if rb.method == short.JOINT:
+        if rb.method == short.JOINT or (rb.method == short.LINEAR and rb.inputs):
+            # a joint test, or a parity test: a point of its own (models/joint.py)
             rb = add_point(rb, [window(a, b) for a, b in old], new)
         plans.append((t, path, rb, old))
         warnings.extend(f"{path.name}: {w}" for w in said)
