@@ -330,23 +330,6 @@ class JointCodec(LinearCodec):
         kw = spans_and_lags(replace(spec, options=opts), self.method)
         return self.estimator(**kw, points=[p["at"] for p in points] if points else None)
 
-    def to_model(self, rb: RuleBase) -> JointRegressor:
-        """The model the file describes: its terms, and each point's shift of the constant."""
-        m = super().to_model(rb)
-        points = rb.options.get(POINTS)
-        if points:
-            m.set_shifts([float(p.get("shift", 0.0)) for p in points])
-            m.set_spreads([float(p.get("spread", 1.0)) for p in points])
-        return m
-
-    def apply_training(self, rb: RuleBase, model: JointRegressor) -> list:
-        """The terms (the ``"1"`` term: the first point's constant) and, with two points or
-        more, ``[rules] points`` with each point's shift of the constant."""
-        out = super().apply_training(rb, model)
-        if len(model.points_) >= 2:
-            set_points(rb, model.points_, model.shifts_, model.spreads_)
-        return out
-
     def check_options(self, rb: RuleBase) -> None:
         """``points`` is the one key ``[rules]`` takes: per point ``at`` (the inputs' and
         the output's values there), ``shift`` (its constant less the ``"1"`` term) and
