@@ -311,3 +311,81 @@ def test_a_joint_test_after_accept_answers_at_both_points(tmp_path):
     for name in joint:
         doc = tomllib.loads(unit.models[name].path.read_text())
         assert len(doc["rules"]["points"]) == 2, doc["rules"]
+
+
+def _rig(start: pd.Timestamp, n: int, seed: int, at: int, bias: float = 0.0) -> pd.DataFrame:
+    """A 1 s rig at operating point ``at`` (0 or 1): a pump speed SC1 set by hand (50 or
+    80 %), the flow FT1 it drives (0.5 × speed, read with noise) and a bearing temperature
+    TT1 that no other tag predicts (mean 10 or 14 °C, ±0.2 °C): a short window's level test.
+    ``bias`` is added to TT1 from the middle of the run on (°C)."""
+    rng = np.random.default_rng(seed)
+    speed = (50.0, 80.0)[at] + rng.normal(0, 0.5, n)
+    temp = (10.0, 14.0)[at] + rng.normal(0, 0.2, n)
+    temp[n // 2 :] += bias
+    return pd.DataFrame(
+        {"SC1": speed, "FT1": 0.5 * speed + rng.normal(0, 0.3, n), "TT1": temp},
+        index=pd.date_range(start, periods=n, freq="1s"),
+    )
+
+
+def test_a_level_test_answers_at_the_accepted_point(tmp_path):
+    """A short unit's level test (a tag no other tag predicts, against its mean) after
+    ``unit accept`` has a mean and spread per operating point, the point nearest the sample
+    (as the combined T² places it): built from 400 s at the first point, an hour at the
+    second accepted, a bearing temperature's rise of 0.6 °C (3 of its standard deviations)
+    at the second point is seen by its level test on most of the samples, and a fault-free
+    run there stays quiet. Before, the level test kept one mean over both windows, 4 °C
+    apart, its thresholds spanned them, and it saw none of the rise."""
+    from diag_plugin.diagnose.unit import Unit
+
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    t0 = pd.Timestamp("2026-05-01", tz="UTC")
+    build = _rig(t0, 400, seed=1, at=0)
+    other = _rig(t0 + pd.Timedelta(days=1), 3600, seed=2, at=1)
+    free = _rig(t0 + pd.Timedelta(days=2), 1800, seed=3, at=1)
+    faulty = _rig(t0 + pd.Timedelta(days=3), 1800, seed=4, at=1, bias=0.6)
+    first = _rig(t0 + pd.Timedelta(days=4), 1800, seed=5, at=0)
+    for k, f in enumerate((build, other)):
+        import_csv(g, f, tmp_path / f"part{k}.csv")
+    rc, text = diag(g, "unit", "build", "rig", "--from", fmt(build.index[0]),
+                    "--to", fmt(build.index[-1] + pd.Timedelta(seconds=1)))  # fmt: skip
+    assert rc == 0, text
+    rb = tmp_path / "rb"
+    unit = Unit.load(rb / "rig.unit.toml", rb)
+    level = [n for n in unit.tests if unit.models[n].output.startswith("TT1") and
+             not unit.models[n].inputs]  # fmt: skip
+    assert level, unit.file.build["tests"]
+    rc, text = diag(g, "unit", "accept", "rig", "--from", fmt(other.index[0]),
+                    "--to", fmt(other.index[-1] + pd.Timedelta(seconds=1)))  # fmt: skip
+    assert rc == 0, text
+    unit = Unit.load(rb / "rig.unit.toml", rb)
+
+    def run(frame: pd.DataFrame):
+        d = unit.reset().evaluate(frame)
+        alarm = np.isin(d.status.to_numpy(), [NE107.FAILURE, NE107.OFF_SPEC])
+        return alarm, np.nan_to_num(d.symptoms[level[0]].to_numpy()) != 0
+
+    on, test_on = run(faulty)
+    half = len(faulty) // 2 + 60  # past the filter and the on-delay
+    quiet, _ = run(free)
+    quiet0, _ = run(first)
+    print(
+        f"level test on the rise {test_on[half:].mean():.3f}, unit {on[half:].mean():.3f}; "
+        f"fault-free in alarm: accepted point {quiet.mean():.3f}, first {quiet0.mean():.3f}"
+    )
+    assert test_on[half:].mean() > 0.8, test_on[half:].mean()
+    assert on[half:].mean() > 0.8, on[half:].mean()
+    assert quiet.mean() < 0.02 and quiet0.mean() < 0.02, (quiet.mean(), quiet0.mean())
+    assert not test_on[: len(faulty) // 2].any()
+    assert len(unit.file.test(level[0]).point_center) == 2
+    # diag run's cycle (Plant, the fast path) centres the level test at the same point
+    from diag_plugin.diagnose.plant import Plant
+
+    part = faulty.iloc[len(faulty) // 2 - 200 : len(faulty) // 2 + 200]
+    want = unit.reset().evaluate(part)
+    plant = Plant({"rig": Unit.load(rb / "rig.unit.toml", rb)}, {})
+    assert plant.fast == ["rig"]
+    got = [plant.cycle(ts, row.to_dict())[0] for ts, row in part.iterrows()]
+    assert [int(s.status) for s in got] == want.status.astype(int).tolist()
+    r = np.array([s.residuals[level[0]] for s in got])
+    assert np.allclose(r, want.residuals[level[0]].to_numpy(), rtol=1e-9, equal_nan=True)

@@ -291,6 +291,13 @@ class Plant:
             for ui, cm, _, _ in self._multi
             if cm.centers is not None and cm.point_tags
         }  # fmt: skip
+        # level tests with operating points of their own (Unit.at_points): per unit its
+        # point tags' columns, the tests' slots and their centres and scales per point
+        self._level_points = [
+            (cm, self._point_cols.get(ui), first_slot[ui] + lp[0], lp[1], lp[2])
+            for ui, cm, _, _ in self._multi
+            if (lp := units[ui].level_points) is not None
+        ]
         # the tags named, averaged over each alarm episode (unitloops.EpisodeHold)
         self._holds = {ui: EpisodeHold(len(cm.tags)) for ui, cm, _, _ in self._multi}
         for uis in by_matrix.values():
@@ -494,6 +501,11 @@ class Plant:
         y = self._hist[self._out_lag, self._out_col]
         y[self._out_lag > have] = np.nan
         r = (y - yhat) / self._scale * 100.0 / factor  # Kościelny et al., eq. 6; levels
+        for cm, cols, idx, center, scale in self._level_points:  # Unit.at_points
+            p = 0
+            if cols is not None:  # the operating point of this cycle's readings
+                p = cm.nearest_point(np.where(cols >= 0, self._hist[0, cols], np.nan)[None, :])[0]
+            r[idx] = (r[idx] - center[p]) / scale[p]
         s = np.full(n, np.nan)
         for idx, spread in self._spreads:  # a spread test judges its residual's running spread
             self._raw_known[idx] = np.isfinite(r[idx])

@@ -374,6 +374,7 @@ class Unit:
         self.cmodel = (
             CombinedModel.of(self) if (self.ev["combined"] or self.tag_isolation) else None
         )
+        self.level_points = level_points(self)
         #: per test the longest lag its model reads (unknown for that many samples at start)
         specs = [parse_specs([*models[t].inputs, models[t].output]) for t in self.tests]
         self.test_depth = np.array([max(s.lag for s in sp) for sp in specs], np.int64)
@@ -658,9 +659,22 @@ class Unit:
         return c
 
     # ------------------------------------------------------------ evaluate
+    def at_points(self, raw: pd.DataFrame, point: np.ndarray | None) -> pd.DataFrame:
+        """The raw residuals with each level test that has operating points centred and
+        scaled at its sample's point (``point``: :meth:`CombinedModel.point_of`):
+        ``(r − point_center[k]) / point_scale[k]`` (:func:`level_points`); as they are for a
+        unit without."""
+        if self.level_points is None or point is None:
+            return raw
+        cols, center, scale = self.level_points
+        x = raw.to_numpy(float, copy=True)
+        x[:, cols] = (x[:, cols] - center[point]) / scale[point]
+        return pd.DataFrame(x, index=raw.index, columns=raw.columns, copy=False)
+
     def evaluate(self, frame: pd.DataFrame) -> Diagnosis:
         """Diagnose the next piece of data (continues the carried state)."""
-        raw = self.raw_residuals(frame)
+        point = self.cmodel.point_of(frame) if self.cmodel is not None else None
+        raw = self.at_points(self.raw_residuals(frame), point)
         r = self.filtered(raw)
         s, mem = self.symptoms(r.to_numpy())
         n, T = s.shape
@@ -669,7 +683,6 @@ class Unit:
         c_on = np.zeros(n, bool)
         combined = None
         if self.cmodel is not None:
-            point = self.cmodel.point_of(frame)
             t2, _ = self.cmodel.evaluate(r.to_numpy(), point, shares=False)  # shares: alarms
             s_t2 = np.full(n, np.nan)
             if self.ev["combined"] and self.cmodel.high is not None:
@@ -852,6 +865,31 @@ class _Concat:
 def _plain(v):
     """A numpy scalar as a plain Python value (the carried state is JSON)."""
     return v.item() if hasattr(v, "item") else v
+
+
+def level_points(unit: Unit) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The tests with operating points of their own (a level test after ``diag unit
+    accept``: ``point_center``, ``point_scale`` in the unit file), as the columns, and their
+    centres and scales, points × those tests; None where no test has them. Each needs the
+    ``[combined]`` operating points that place a sample, as many as it lists: else
+    :class:`UnitError`."""
+    tests = [(j, t) for j, t in enumerate(unit.file.tests) if t.point_center is not None]
+    if not tests:
+        return None
+    cm = unit.cmodel
+    have = 0 if cm is None or cm.centers is None or cm.point_at is None else len(cm.point_at)
+    problems = [
+        f"{unit.file.path}:{t.line}: test {t.name!r} lists {len(t.point_center)} operating "
+        f"points, [combined] has {have}: run `diag unit learn {unit.name}` again"
+        for _, t in tests
+        if len(t.point_center) != have
+    ]
+    if problems:
+        raise UnitError(problems)
+    cols = np.array([j for j, _ in tests], np.intp)
+    center = np.array([t.point_center for _, t in tests], float).T
+    scale = np.array([t.point_scale for _, t in tests], float).T
+    return cols, np.ascontiguousarray(center), np.ascontiguousarray(scale)
 
 
 def level_factor(levels: tuple[float, ...] | None, level: np.ndarray | None) -> np.ndarray | float:

@@ -102,6 +102,11 @@ so a coarser, less exact answer needs a proportionally larger deviation to raise
 test without ``levels`` counts only answers of the fine grid; answers at levels beyond the list
 are unknown (never calibrated).
 
+``point_center = [...]``, ``point_scale = [...]`` (written by ``diag unit accept`` for a level
+test, a tag against its mean: one number per ``[combined]`` operating point): the test's raw
+residual is ``(r − point_center[k]) / point_scale[k]`` at the sample's nearest point ``k``
+(:func:`~diag_plugin.learn.thresholds.level_points`).
+
 ``combined = true`` and ``isolation = "tags"`` (both off by default, so a unit without them
 behaves as before) and the ``[combined]`` table are described in
 :mod:`diag_plugin.diagnose.unittags`.
@@ -239,6 +244,12 @@ class TestSpec:
     statistic: str = "level"
     #: the set-point of the loop (declared or found by ``diag unit build``): never a tag at fault
     set_point: str | None = None
+    #: a level test's operating points (``diag unit accept``; None: one, the model's mean):
+    #: per point of ``[combined]`` the centre of its raw residual (% of span: the point's mean
+    #: of the tag less the model's) and its spread relative to the quietest point's; a
+    #: sample's residual is ``(r − point_center[k]) / point_scale[k]`` at its nearest point k
+    point_center: tuple[float, ...] | None = None
+    point_scale: tuple[float, ...] | None = None
 
     @property
     def limits(self) -> tuple[float, float] | None:
@@ -420,7 +431,7 @@ class UnitFile(LinedFile):
                 continue
             v = {k: _plain(x) for k, x in raw.items()}
             known = {"model", "high", "low", "ymax", "levels", "spread", "fuzzy", "actuator",
-                     "statistic", "set_point"}  # fmt: skip
+                     "statistic", "set_point", "point_center", "point_scale"}  # fmt: skip
             for key in sorted(set(v) - known):
                 self.error(line, f"test {name!r}: unknown key {key!r}")
             model = v.get("model")
@@ -505,6 +516,7 @@ class UnitFile(LinedFile):
             if set_point is not None and (not isinstance(set_point, str) or not set_point):
                 self.error(line, f"test {name!r}: set_point must name a tag, got {set_point!r}")
                 set_point = None
+            center, scale = self._test_points(name, v, line)
             tests.append(
                 TestSpec(
                     name,
@@ -519,6 +531,8 @@ class UnitFile(LinedFile):
                     actuator,
                     statistic,
                     set_point,
+                    center,
+                    scale,
                 )
             )
         if table and not tests and not self.problems:
@@ -526,6 +540,35 @@ class UnitFile(LinedFile):
         elif not table:
             self.error(self.line_of("tests"), "[tests] lists no test (one line per model)")
         return tests
+
+    def _test_points(
+        self, name: str, v: dict, line: int
+    ) -> tuple[tuple[float, ...] | None, tuple[float, ...] | None]:
+        """A test's ``point_center`` and ``point_scale`` (both or neither): one finite number
+        per operating point, the scales > 0; their count is checked against ``[combined]``'s
+        points by :class:`~diag_plugin.diagnose.unit.Unit`."""
+        c, s = v.get("point_center"), v.get("point_scale")
+        if c is None and s is None:
+            return None, None
+
+        def numbers(x: Any) -> bool:
+            return (
+                isinstance(x, list)
+                and len(x) >= 2
+                and all(
+                    isinstance(e, int | float) and not isinstance(e, bool) and math.isfinite(e)
+                    for e in x
+                )
+            )
+
+        if not (numbers(c) and numbers(s) and len(c) == len(s) and min(s) > 0):
+            self.error(
+                line,
+                f"test {name!r}: point_center and point_scale must list one finite number per "
+                f"operating point (two or more, the scales > 0), got {c!r}, {s!r}",
+            )
+            return None, None
+        return tuple(float(x) for x in c), tuple(float(x) for x in s)
 
     def _faults(self, table: dict) -> dict[str, NE107]:
         out = {}
@@ -710,6 +753,7 @@ class UnitFile(LinedFile):
             spread=learned.spread,
             notes=learned.notes(),
             fuzzy=learned.fuzzy,
+            points=getattr(learned, "level_points", {}),
         )
         if getattr(learned, "combined", None) is not None or self.combined is not None:
             self.set_combined(getattr(learned, "combined", None))
@@ -727,9 +771,12 @@ class UnitFile(LinedFile):
         spread: dict[str, bool] | None = None,
         notes: dict[str, dict[str, Any]] | None = None,
         fuzzy: dict[str, tuple[float, float, float, float]] | None = None,
+        points: dict[str, tuple[list[float], list[float]]] | None = None,
     ) -> None:
         """Write thresholds per test and the fault-free window they came from (and, when
-        given, the budget, level scales and the ``[learned]`` notes)."""
+        given, the budget, level scales and the ``[learned]`` notes; ``points``: per level
+        test with operating points its ``point_center`` and ``point_scale``, any other
+        test's removed)."""
         for name, (lo, hi) in limits.items():
             if not (math.isfinite(lo) and math.isfinite(hi) and lo < 0 < hi):
                 raise ValueError(
@@ -771,6 +818,12 @@ class UnitFile(LinedFile):
                 row.pop("fuzzy", None)
                 if name in fuzzy:
                     row["fuzzy"] = [round(float(x), 4) for x in fuzzy[name]]
+            if points is not None:
+                row.pop("point_center", None)
+                row.pop("point_scale", None)
+                if name in points:
+                    row["point_center"] = [float(f"{x:.6g}") for x in points[name][0]]
+                    row["point_scale"] = [float(f"{x:.6g}") for x in points[name][1]]
             fresh_row = tomlkit.inline_table()
             fresh_row.update(row)  # rebuilt, so tomlkit spaces it like a hand-written line
             tests[name] = fresh_row

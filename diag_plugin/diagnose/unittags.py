@@ -72,7 +72,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -205,6 +205,27 @@ def directions(unit, spec: CombinedSpec | None) -> tuple[np.ndarray, np.ndarray]
     if spec is not None:
         _compensated_sensors(unit, spec, tags, outputs, xi)
     return xi, loop
+
+
+def point_directions(unit, spec: CombinedSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Per operating point of ``spec`` (``diag unit accept``) the tags' directions
+    (:func:`directions`) and true-change directions (:func:`process_directions`), points ×
+    the unit's tests × tags, each in the residuals scaled at that point: a bias
+    moves test ``j``'s residual by the same amount in % of span at every point, divided by
+    the point's scale ``point_scale[p][j]`` and, for a level test with points of its own, by
+    its ``point_scale[p]`` (:meth:`~diag_plugin.diagnose.unit.Unit.at_points`). The first
+    point's scale alone ranked every sample by it (SKAB: the accelerometers' residuals
+    spread 17× wider at the calibration run's point)."""
+    level = {t.name: t.point_scale for t in unit.file.tests if t.point_scale is not None}
+    xis, procs = [], []
+    for p, row in enumerate(spec.point_scale):
+        scale = [float(row[i]) * (level[n][p] if n in level else 1.0)
+                 for i, n in enumerate(spec.tests)]  # fmt: skip
+        at = replace(spec, scale=scale)
+        xi, _ = directions(unit, at)
+        xis.append(xi)
+        procs.append(process_directions(unit, at, xi))
+    return np.stack(xis), np.stack(procs)
 
 
 def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
@@ -344,6 +365,12 @@ class CombinedModel:
     point_tags: list[str] = field(default_factory=list)
     point_at: np.ndarray | None = None
     point_span: np.ndarray | None = None
+    #: per operating point the tags' directions (points × T × tags) and their true-change
+    #: directions (:func:`point_directions`): each in the scaled residuals of that point
+    point_xi: np.ndarray | None = None
+    point_process: np.ndarray | None = None
+    #: per operating point the model that ranks its samples (:meth:`_at_point`)
+    _views: dict[int, CombinedModel] = field(default_factory=dict, repr=False)
     #: per pattern of known tests: S⁻¹ restricted to them and the directions' norms
     _inverses: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray | None]] = field(
         default_factory=dict
@@ -421,7 +448,10 @@ class CombinedModel:
         xi, loop = directions(unit, spec)
         points = {}
         if spec.point_center:
+            pxi, pproc = point_directions(unit, spec)
             points = {
+                "point_xi": pxi,
+                "point_process": pproc,
                 "centers": np.asarray(spec.point_center, float)[:, order],
                 "scales": np.asarray(spec.point_scale, float)[:, order],
                 "point_tags": list(spec.point_tags),
@@ -459,6 +489,29 @@ class CombinedModel:
         d = np.stack([np.nansum((x - a) ** 2, axis=1) for a in at], axis=1)
         return np.argmin(d, axis=1)
 
+    def _at_point(self, p: int) -> CombinedModel:
+        """The model that ranks the samples of operating point ``p``: its directions, the
+        rest (T², covariance) shared."""
+        if p not in self._views:
+            assert self.point_xi is not None
+            self._views[p] = replace(
+                self, xi=self.point_xi[p],
+                process=None if self.point_process is None else self.point_process[p],
+                point_xi=None, point_process=None, _views={}, _inverses={}, _cond_ok=None,
+            )  # fmt: skip
+        return self._views[p]
+
+    def _per_point_shares(self, r: np.ndarray, rows: np.ndarray, point: np.ndarray) -> np.ndarray:
+        """:meth:`shares` where each operating point has its own directions."""
+        at = np.flatnonzero(rows)
+        out = np.full((at.size, len(self.tags)), np.nan)
+        for p in np.unique(point[at]):
+            sel = point[at] == p
+            mask = np.zeros(len(r), bool)
+            mask[at[sel]] = True
+            out[sel] = self._at_point(int(p)).shares(r, mask, point)
+        return out
+
     def z(self, r: np.ndarray, point: np.ndarray | None = None) -> np.ndarray:
         """Scaled residuals ``(r − c) / s`` (n × T, NaN unknown); ``c``, ``s`` those of each
         sample's operating point (``point``, :meth:`point_of`) where the model has points."""
@@ -478,6 +531,9 @@ class CombinedModel:
         (``point``, :meth:`point_of`; None: the one centre): see the module doc.
         ``shares=False``: T² alone (the shares None; :meth:`shares` gives them for the rows
         that need them)."""
+        if shares and point is not None and self.point_xi is not None:
+            t2 = CombinedModel.evaluate(self, r, point, shares=False)[0]
+            return t2, self._per_point_shares(r, np.ones(len(r), bool), point)
         z = self.z(r, point)
         n, T = z.shape
         t2 = np.full(n, np.nan)
@@ -502,6 +558,8 @@ class CombinedModel:
         """Each tag's share of T² (as :meth:`evaluate`'s) at ``rows`` only (a boolean mask
         over the n samples of ``r``; ``point``: each of the n samples' operating point, as
         :meth:`evaluate`'s): ``len(rows[rows]) × tags``, in the rows' order."""
+        if point is not None and self.point_xi is not None:
+            return self._per_point_shares(r, np.asarray(rows, bool), point)
         at = np.flatnonzero(rows)
         return self.shares_of(self.z(r[at], None if point is None else point[at]))
 

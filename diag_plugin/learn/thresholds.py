@@ -123,6 +123,9 @@ class Learned:
     combined: CombinedSpec | None = None
     #: per test: breakpoints (n1, n0, p0, p1) of its N, 0, P sets (:func:`fuzzy_sets`)
     fuzzy: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
+    #: per level test, with operating points: each point's centre and relative scale of its
+    #: raw residual (:func:`level_points`)
+    level_points: dict[str, tuple[list[float], list[float]]] = field(default_factory=dict)
 
     @property
     def independent(self) -> dict[str, int]:
@@ -486,6 +489,21 @@ def learn_thresholds(
     problems = _check(res, unit)
     if problems:
         raise LearnError(problems)
+    data = frame.notna().any(axis=1).to_numpy()
+    keep = settled(data)
+    located = at = None
+    if points is not None and len(points) >= 2:
+        # each sample's operating point, placed as the combined test places it (the spans
+        # over the settled samples it learns from)
+        found = operating_points(frame.loc[keep], points, place=frame)
+        if found is not None:
+            at, fields = found
+            located = (at[keep], fields)
+    lp = {}
+    if unit.ev["combined"] or unit.ev["isolation"] == "tags":
+        blocked = block_of(frame.index, max(blocks, 1), data if by_run else None,
+                           by_run == WITHIN_RUNS)  # fmt: skip
+        lp = level_points(unit, frame, res, at, keep, blocked)
     # each test's residual, in units of its model's local spread where the model has one,
     # divided by the scale of the level that answered
     scaled, scales, in_spread = {}, {}, {}
@@ -535,13 +553,7 @@ def learn_thresholds(
             )
     combined = None
     if unit.ev["combined"] or unit.ev["isolation"] == "tags":
-        data = frame.notna().any(axis=1).to_numpy()
-        keep = settled(data)
-        within = by_run == WITHIN_RUNS
-        block = block_of(frame.index, max(blocks, 1), data if by_run else None, within)[keep]
-        located = None
-        if points is not None and len(points) >= 2:
-            located = operating_points(frame.loc[body.index], points)
+        block = blocked[keep]
         combined = learn_combined(
             unit,
             body,
@@ -550,7 +562,9 @@ def learn_thresholds(
             model_gains(unit, frame),
             located,
         )
-        combined.responses = setpoint_responses(unit, frame.loc[body.index], body, combined)
+        combined.responses = setpoint_responses(
+            unit, frame.loc[body.index], body, combined, None if located is None else located[0]
+        )
         n = combined.notes
         if unit.ev["combined"] and not n.get("supported", True):
             warnings.append(
@@ -574,6 +588,7 @@ def learn_thresholds(
         warnings=warnings,
         combined=combined,
         fuzzy=fuzzy,
+        level_points=lp,
     )
 
 
@@ -631,7 +646,7 @@ def _check_body(body: pd.DataFrame) -> list[str]:
 
 
 def operating_points(
-    frame: pd.DataFrame, points: pd.DataFrame
+    frame: pd.DataFrame, points: pd.DataFrame, place: pd.DataFrame | None = None
 ) -> tuple[np.ndarray, dict[str, list]] | None:
     """Each row's operating point among ``points`` (one row per point: its mean of each plant
     tag, the columns) and how a sample is placed: the nearest point, each tag's distance in its
@@ -640,7 +655,7 @@ def operating_points(
     row. Tags ``frame`` lacks, without a finite mean at every point or constant over the
     window are left out (None: no tag is left). Returns the points per row and the
     :class:`~diag_plugin.diagnose.unitfile.CombinedSpec` fields ``point_tags``, ``point_at``,
-    ``point_span``."""
+    ``point_span``. ``place``: the rows whose points are returned (default ``frame``'s)."""
     from diag_plugin.diagnose.unittags import CombinedModel
 
     tags = [c for c in points.columns if c in frame.columns]
@@ -661,7 +676,101 @@ def operating_points(
         centers=np.zeros((len(at), 0)), point_tags=fields["point_tags"],
         point_at=at[:, keep], point_span=span[keep],
     )  # fmt: skip
-    return model.point_of(frame), fields
+    return model.point_of(frame if place is None else place), fields
+
+
+def is_level_test(unit: Unit, name: str) -> bool:
+    """A test of a tag against its mean (:func:`~diag_plugin.unitbuild.short.level_test`: a
+    model without inputs), judged by its level."""
+    t = unit.file.test(name)
+    return not unit.models[name].inputs and getattr(t, "statistic", "level") == "level"
+
+
+def level_points(
+    unit: Unit,
+    frame: pd.DataFrame,
+    res: dict[str, TestResiduals],
+    point: np.ndarray | None,
+    keep: np.ndarray,
+    block: np.ndarray,
+) -> dict[str, tuple[list[float], list[float]]]:
+    """Per level test (:func:`is_level_test`) with operating points (``point``: each
+    sample's, None: one), each point's centre and relative scale of its raw residual; and
+    ``res``' raw residuals of those tests replaced, in place, by the tag against its point's
+    mean, scaled at the point: ``(y − m_k) · 100 / span / s_k``, the unit's own operation at
+    run time (:meth:`~diag_plugin.diagnose.unit.Unit.at_points`: ``(r − c_k) / s_k`` with
+    ``r`` the model's residual and ``c_k = (m_k − ŷ) · 100 / span``). ``m_k`` is the mean of
+    the tag over the point's samples — cross-fitted as the tests' residuals are (``block``:
+    each row's time block; a cross-fitted test's row takes its point's mean over the other
+    blocks): the model's one constant, held out block by block, moved with the slow wander
+    of the window that weighs most (SKAB's calibration hour) and put that wander into every
+    other point's residuals. ``s_k`` is the robust scale (1.4826 MAD) of the point's residuals
+    *as the thresholds judge them* (filtered by the unit's low-pass, over the settled samples
+    ``keep``), relative to the quietest point's (≥ 1; the joint test's ``spread``,
+    :mod:`~diag_plugin.models.joint`).
+
+    A level test has no input that says where the plant is, so after ``diag unit accept``
+    its one mean was the mean over every window and its thresholds spanned the distance
+    between the points. A point without two known residuals keeps the model's mean and
+    scale 1."""
+    from diag_plugin.diagnose.residuals import LowPass
+    from diag_plugin.regressors import InputSpec
+
+    out: dict[str, tuple[list[float], list[float]]] = {}
+    if point is None or not point.size:
+        return out
+    P = int(point.max()) + 1
+    mf = unit._model_frame(frame)
+    names, centred, centres = [], [], {}
+    for name, r in res.items():
+        if not is_level_test(unit, name) or np.isfinite(r.raw).sum() < 2:
+            continue
+        t, m = unit.file.test(name), unit.models[name]
+        tag = InputSpec.parse(m.output).tags[0]
+        if tag not in mf.columns:
+            continue
+        scale = t.ymax if unit.ev["scale"] == "max" and t.ymax else m.span
+        y = mf[tag].to_numpy(float)
+        ok = np.isfinite(r.raw) & np.isfinite(y)
+        yhat = float(m.model.predict_detail(np.zeros((1, 0))).y[0])
+        mean = np.full(P, yhat)
+        own = np.full(len(y), np.nan)  # each row's point mean, held out as the residuals
+        crossed = "cross-fitted" in r.source
+        for k in range(P):
+            at = ok & (point == k)
+            if at.sum() < 2:
+                continue
+            mean[k] = float(np.mean(y[at]))
+            own[at] = mean[k]
+            if crossed:
+                for b in np.unique(block[at]):
+                    rest = at & (block != b)
+                    if rest.sum() >= 2:
+                        own[at & (block == b)] = float(np.mean(y[rest]))
+        c = np.array([float(f"{v:.6g}") for v in (mean - yhat) * 100.0 / scale])
+        x = np.where(np.isfinite(own), (y - own) * 100.0 / scale, r.raw - c[point])
+        x[~np.isfinite(r.raw)] = np.nan
+        names.append(name)
+        centred.append(x)
+        centres[name] = c
+    if not names:
+        return out
+    X = np.column_stack(centred)
+    ev = unit.ev
+    if ev["lowpass"] > 0:
+        X = LowPass(ev["lowpass"], ev["order"]).transform(X)
+    for j, name in enumerate(names):
+        sd = np.full(P, np.nan)
+        for k in range(P):
+            v = X[keep & (point == k), j]
+            if np.isfinite(v).sum() >= 2:
+                sd[k] = float(_centre_scale(v[:, None])[1][0])
+        low = np.nanmin(sd) if np.isfinite(sd).any() else np.nan
+        s = np.where(np.isfinite(sd) & (low > 0), sd / low, 1.0)
+        s = np.array([float(f"{v:.6g}") for v in s])
+        res[name].raw = centred[j] / s[point]
+        out[name] = (centres[name].tolist(), s.tolist())
+    return out
 
 
 def _centre_scale(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -810,7 +919,11 @@ RESPONSE_T = 3.0
 
 
 def setpoint_responses(
-    unit: Unit, frame: pd.DataFrame, body: pd.DataFrame, spec: CombinedSpec
+    unit: Unit,
+    frame: pd.DataFrame,
+    body: pd.DataFrame,
+    spec: CombinedSpec,
+    point: np.ndarray | None = None,
 ) -> dict[str, dict[str, float]]:
     """Per loop set-point tag ``SP`` (a loop test's ``set_point`` that ``frame`` holds; a fixed
     number has none), the response ``β_j`` of each test's scaled residual
@@ -822,7 +935,11 @@ def setpoint_responses(
     (Bartlett, 1935; ``ρ`` the sample autocorrelations of the set-point and of the fit's
     residual ``e``, summed up to the first lag where ``ρ_e`` is no longer positive, as
     :func:`~diag_plugin.diagnose.symptoms.effective_samples` sums). Neither the loop's own test
-    nor a spread test is answered.
+    nor a spread test is answered. With operating points (``point``: each row's; ``spec``'s
+    ``point_center``, ``point_scale``, ``diag unit accept``) ``z_j`` is centred and scaled at
+    the row's point and the slope is the pooled within-point one (``SP`` and ``z_j`` less
+    their point's means): a set-point that differs between the points says nothing of how a
+    residual answers it within one (the points' residuals are centred apart by construction).
 
     A set-point move ``Δ`` moves the true measurement by ``Δ``; a bias ``b`` of the loop's
     sensor, once the loop compensates it, moves the true measurement by ``−b`` with the reading
@@ -836,6 +953,7 @@ def setpoint_responses(
         if sp and sp in frame.columns:
             loops.setdefault(sp, set()).add(t.name)
     out: dict[str, dict[str, float]] = {}
+    at = point if point is not None and spec.point_center else None
     for sp, own in sorted(loops.items()):
         x = frame[sp].to_numpy(float)
         row: dict[str, float] = {}
@@ -843,12 +961,19 @@ def setpoint_responses(
             test = unit.file.test(name)
             if name in own or getattr(test, "statistic", "level") == "spread":
                 continue
-            z = (body[name].to_numpy(float) - spec.center[j]) / spec.scale[j]
+            if at is not None:  # at each sample's own point
+                c = np.asarray(spec.point_center, float)[at, j]
+                s = np.asarray(spec.point_scale, float)[at, j]
+                z = (body[name].to_numpy(float) - c) / s
+            else:
+                z = (body[name].to_numpy(float) - spec.center[j]) / spec.scale[j]
             ok = np.isfinite(x) & np.isfinite(z)
             if ok.sum() < MIN_KNOWN:
                 continue
-            xc = x[ok] - x[ok].mean()
-            zc = z[ok] - z[ok].mean()
+            xc, zc = (
+                _centred(x[ok], None if at is None else at[ok]),
+                _centred(z[ok], None if at is None else at[ok]),
+            )
             sxx = float(xc @ xc)
             if not sxx > 0:
                 continue
@@ -863,6 +988,18 @@ def setpoint_responses(
                 row[name] = beta
         if row:
             out[sp] = row
+    return out
+
+
+def _centred(a: np.ndarray, group: np.ndarray | None) -> np.ndarray:
+    """``a`` less its mean, or less its group's mean in each group (``group``: per value its
+    operating point): the within-point deviations."""
+    if group is None:
+        return a - a.mean()
+    out = a.astype(float, copy=True)
+    for k in np.unique(group):
+        sel = group == k
+        out[sel] -= a[sel].mean()
     return out
 
 

@@ -26,7 +26,11 @@ period there as fault-free, :func:`accept` learns it into the unit:
    of the accepted point alone). Each window is an operating point of the combined
    test (its mean of every tag): each sample's residuals are centred at its nearest point's,
    the T²'s scale and covariance are the pooled within-point ones
-   (:func:`~diag_plugin.learn.thresholds.learn_combined`).
+   (:func:`~diag_plugin.learn.thresholds.learn_combined`). A level test (a tag against its
+   mean, no inputs) gets a mean and a spread per point (``point_center``, ``point_scale`` in
+   ``[tests]``, :func:`~diag_plugin.learn.thresholds.level_points`): its residual is taken
+   at the sample's nearest point, so it still sees a fault there. The set-points' responses
+   are the within-point ones and the tags' directions each point's.
 """
 
 from __future__ import annotations
