@@ -74,3 +74,27 @@ def test_a_wander_of_the_slow_test_weighs_less_in_t2_a_bias_of_the_fast_one_as_m
     assert t2_w == pytest.approx(t2_w0 / w**2, rel=1e-9)
     assert t2_w < 0.6 * t2_w0
     assert t2_b == pytest.approx(t2_b0, rel=0.02)
+
+
+def test_at_two_operating_points_the_independent_values_add_up():
+    """After ``diag unit accept`` each window is an operating point: a test's independent
+    values are counted within each window and summed, not over the two joined (a slow wander
+    over the accepted hour would count the build window's values as a handful, and widen a
+    test the build window knew well: SKAB's valve1/1 fault went from 76 % to 0 % detected)."""
+    rng = np.random.default_rng(7)
+    a = _window(400, seed=1)  # the build window
+    slow = np.cumsum(rng.normal(size=3600)) * 0.05  # an hour that wanders at the other point
+    b = np.c_[slow + 10.0, rng.normal(size=3600) + 5.0]
+    x = np.r_[a, b]
+    point = np.r_[np.zeros(400, int), np.ones(3600, int)]
+    c, s, S, _ = _combined_params(x, point)
+    z = np.empty_like(x)
+    scales = np.empty((2, 2))
+    for p, rows in enumerate((slice(0, 400), slice(400, None))):
+        cp, sp = _centre_scale(x[rows])
+        z[rows] = (x[rows] - cp) / sp
+        scales[p] = sp
+    per = [sum(effective_samples(z[point == p, j]) for p in (0, 1)) for j in (0, 1)]
+    joined = [effective_samples(z[:, j]) for j in (0, 1)]
+    assert joined[0] < 0.5 * per[0]  # the joined series would count far fewer
+    np.testing.assert_allclose(s / scales, np.tile(predictive_widening(np.array(per)), (2, 1)))

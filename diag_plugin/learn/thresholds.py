@@ -704,7 +704,7 @@ def predictive_widening(n_eff: np.ndarray, tail: float = PREDICTIVE_TAIL) -> np.
 
 
 def _combined_params(
-    x: np.ndarray, point: np.ndarray | None = None
+    x: np.ndarray, point: np.ndarray | None = None, independent: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Centre (median), robust scale (1.4826 MAD; the sd where the MAD is 0) of each column of
     fault-free filtered residuals ``x`` (n × T), the covariance of the scaled residuals over
@@ -718,7 +718,12 @@ def _combined_params(
     the whole window's for a test never known at a point), and the covariance is that of the
     residuals scaled at their own point: the pooled within-point scatter, not the spread
     between the points (nor one point's noise taken for another's: SKAB's pump vibrates
-    four times as much at its calibration run's flow)."""
+    four times as much at its calibration run's flow). Each test's independent values are
+    then those of its residual within each point, summed over the points (``independent``,
+    per test): the windows are separate runs, and a wander over the longer one does not make
+    the shorter one's values fewer."""
+    from diag_plugin.diagnose.symptoms import effective_samples
+
     if point is not None:
         P = int(point.max()) + 1 if point.size else 1
         centers = np.full((P, x.shape[1]), np.nan)
@@ -731,9 +736,13 @@ def _combined_params(
             scales[p] = np.where(unknown, whole[1], s_)
         with np.errstate(invalid="ignore"):
             z = (x - centers[point]) / scales[point]
-        c0, s0, cov, lam = _combined_params(z)
+        each = np.zeros(x.shape[1])
+        for p in np.unique(point):
+            zp = z[point == p]
+            zp = zp[np.isfinite(zp).all(axis=1)]
+            each += [effective_samples(zp[:, j]) for j in range(x.shape[1])]
+        c0, s0, cov, lam = _combined_params(z, independent=each)
         return centers + c0 * scales, scales * s0, cov, lam
-    from diag_plugin.diagnose.symptoms import effective_samples
 
     T = x.shape[1]
     center, scale = _centre_scale(x)
@@ -746,7 +755,12 @@ def _combined_params(
     lam = T / (T + max(float(each.min()), 1.0))
     cov = (1.0 - lam) * cov + lam * np.diag(np.diag(cov))
     # the covariance is that of the window's z; each test enters T² at its predictive spread
-    return center, scale * predictive_widening(each), cov, float(lam)
+    return (
+        center,
+        scale * predictive_widening(each if independent is None else independent),
+        cov,
+        float(lam),
+    )
 
 
 def learn_combined(
