@@ -253,8 +253,9 @@ def test_a_joint_test_after_accept_answers_at_both_points(tmp_path):
     (0 % before the accept); now its component is the one within the points, and each sample
     is scored against its nearest point's mean and spread (``[rules] points``).
 
-    And the combined T² still detects valve1/1's fault after the accept (76 % of its
-    anomalous samples in alarm; 78 % before the accept): each test's residual is centred and
+    And the combined T² still detects valve1/1's fault after the accept (56 % of its
+    anomalous samples in alarm with each test at its predictive spread, 76 % before it; 78 %
+    before the accept): each test's residual is centred and
     scaled at its sample's nearest operating point (the windows' means of the tags), its
     covariance the pooled within-point one. Before, its centre and covariance were taken once
     across both points — the flow's level test (a tag no model predicts, against its window's

@@ -6,8 +6,10 @@ let it see and name what single tests miss.
 **The combined test** (``combined = true`` in the unit file's ``[evaluation]``). Each test's
 filtered residual ``r_j`` (the one its thresholds judge) is centred and scaled by what it does
 on fault-free data the models did not see, ``z_j = (r_j − c_j) / s_j`` with ``c_j`` the median
-and ``s_j`` the robust standard deviation (1.4826 · MAD) of the cross-fitted residuals; the
-combined statistic is Hotelling's
+and ``s_j`` the robust standard deviation (1.4826 · MAD) of the cross-fitted residuals,
+widened by how few independent values the window holds of that residual (its predictive
+spread, :func:`~diag_plugin.learn.thresholds.predictive_widening`); the combined statistic is
+Hotelling's
 
     ``T² = zᵀ S⁻¹ z``   (MacGregor & Kourti, 1995, eq. 3)
 

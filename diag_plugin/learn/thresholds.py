@@ -786,20 +786,53 @@ def _centre_scale(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return center, np.where(scale > 0, scale, np.where(sd > 0, sd, 1.0))
 
 
+#: the one-sided tail probability at which :func:`predictive_widening` matches Student's t to
+#: the normal distribution (a 3.1σ excursion of a test known exactly)
+PREDICTIVE_TAIL = 0.001
+
+
+def predictive_widening(n_eff: np.ndarray, tail: float = PREDICTIVE_TAIL) -> np.ndarray:
+    """How much wider than the window's robust scale each test's residual is taken in the
+    combined ``T²``, from the independent values ``n_eff`` its window holds
+    (:func:`~diag_plugin.diagnose.symptoms.effective_samples`). A centre and a scale learned
+    from ``n`` independent values leave a new value's standardised distance Student-t
+    distributed with ``ν = n − 1`` degrees of freedom (the predictive distribution; the
+    Gaussian budget's thresholds use the same, :mod:`~diag_plugin.learn.budget`); the factor
+    is the ratio of its quantile to the normal's at ``tail``, ``t_ν⁻¹(1 − tail) / Φ⁻¹(1 −
+    tail)``, at least 1 (``ν`` at least 1): 3.3 at 4 values, 1.4 at 10, 1.16 at 20, 1.03 at
+    100. A test whose residual wanders slower than the window (a temperature in 400 s of a
+    1 s rig: 3–10 values) then weighs in ``T²`` what its window can vouch for, not the
+    ``(spread seen / spread learned)²`` of a level the window never showed, and no longer
+    sets the tail of ``T²`` (nor, through the threshold's extrapolation from that tail, its
+    limit) on fault-free data outside the window; a test the window knows well is
+    unchanged."""
+    from scipy import stats
+
+    nu = np.maximum(np.asarray(n_eff, float) - 1.0, 1.0)
+    return np.maximum(stats.t.isf(tail, nu) / stats.norm.isf(tail), 1.0)
+
+
 def _combined_params(
-    x: np.ndarray, point: np.ndarray | None = None
+    x: np.ndarray, point: np.ndarray | None = None, independent: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Centre (median), robust scale (1.4826 MAD; the sd where the MAD is 0) of each column of
     fault-free filtered residuals ``x`` (n × T), the covariance of the scaled residuals over
     the rows where all are known, shrunk toward its diagonal by ``λ = T / (T + n_eff)``, and
-    ``λ`` (:mod:`~diag_plugin.diagnose.unittags`).
+    ``λ`` (:mod:`~diag_plugin.diagnose.unittags`). The scale returned is widened to each
+    test's predictive spread (:func:`predictive_widening` of its independent values), the
+    covariance left that of the window's scaled residuals.
 
     With ``point`` (each row's operating point, :func:`operating_points`) the centre and the
     scale are one row per point (points × T: each point's own; NaN for a point without rows;
     the whole window's for a test never known at a point), and the covariance is that of the
     residuals scaled at their own point: the pooled within-point scatter, not the spread
     between the points (nor one point's noise taken for another's: SKAB's pump vibrates
-    four times as much at its calibration run's flow)."""
+    four times as much at its calibration run's flow). Each test's independent values are
+    then those of its residual within each point, summed over the points (``independent``,
+    per test): the windows are separate runs, and a wander over the longer one does not make
+    the shorter one's values fewer."""
+    from diag_plugin.diagnose.symptoms import effective_samples
+
     if point is not None:
         P = int(point.max()) + 1 if point.size else 1
         centers = np.full((P, x.shape[1]), np.nan)
@@ -812,9 +845,13 @@ def _combined_params(
             scales[p] = np.where(unknown, whole[1], s_)
         with np.errstate(invalid="ignore"):
             z = (x - centers[point]) / scales[point]
-        c0, s0, cov, lam = _combined_params(z)
+        each = np.zeros(x.shape[1])
+        for p in np.unique(point):
+            zp = z[point == p]
+            zp = zp[np.isfinite(zp).all(axis=1)]
+            each += [effective_samples(zp[:, j]) for j in range(x.shape[1])]
+        c0, s0, cov, lam = _combined_params(z, independent=each)
         return centers + c0 * scales, scales * s0, cov, lam
-    from diag_plugin.diagnose.symptoms import effective_samples
 
     T = x.shape[1]
     center, scale = _centre_scale(x)
@@ -823,10 +860,16 @@ def _combined_params(
     if rows.sum() <= T + 1:
         return center, scale, np.eye(T), 1.0
     cov = np.atleast_2d(np.cov(z[rows].T))
-    n_eff = min(effective_samples(z[rows, j]) for j in range(T))
-    lam = T / (T + max(n_eff, 1.0))
+    each = np.array([effective_samples(z[rows, j]) for j in range(T)])
+    lam = T / (T + max(float(each.min()), 1.0))
     cov = (1.0 - lam) * cov + lam * np.diag(np.diag(cov))
-    return center, scale, cov, float(lam)
+    # the covariance is that of the window's z; each test enters T² at its predictive spread
+    return (
+        center,
+        scale * predictive_widening(each if independent is None else independent),
+        cov,
+        float(lam),
+    )
 
 
 def learn_combined(
