@@ -189,22 +189,35 @@ class OutsideLearned:
         the live loop's one row a cycle without a frame."""
         n = len(idx)
         out = np.full(n, "", dtype=object)
-        todo = report.copy()
+        # the rows to name (CHECK_FUNCTION: few, in most pieces) looked at alone; an input's
+        # whole column only where it is outside at one of them or at the piece's end (the
+        # start of the excursion it is in, carried to the next piece)
+        at = np.flatnonzero(report)
+        left = np.ones(at.size, bool)  # still to name
+        unk = unknown[at]
         none = np.empty(0, np.intp)
         for k, r in enumerate(self.ranges):
             if r.key not in cols:
                 continue
             x = cols[r.key]
+            carried = self.since.get(k)
+            sel = none
+            if left.any():
+                xa = x[at]
+                with np.errstate(invalid="ignore"):
+                    sel = np.flatnonzero(left & ((xa < r.lo) | (xa > r.hi)) & unk[:, r.test])
+            hit = at[sel]
+            end_off = bool(n) and (x[-1] < r.lo or x[-1] > r.hi)  # NaN: not outside
+            if not hit.size and not end_off:
+                if n:
+                    self.since[k] = None
+                continue
             with np.errstate(invalid="ignore"):
                 off = (x < r.lo) | (x > r.hi)
-            carried = self.since.get(k)
-            hit = np.flatnonzero(todo & off & unknown[:, r.test]) if todo.any() else none
-            first = none
-            if hit.size or (n and off[-1]):
-                # the row each excursion started at (carried over the piece's start): for an
-                # outside row, the last start at or before it
-                starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
-                first = starts[np.searchsorted(starts, np.r_[hit, n - 1], side="right") - 1]
+            # the row each excursion started at (carried over the piece's start): for an
+            # outside row, the last start at or before it
+            starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
+            first = starts[np.searchsorted(starts, np.r_[hit, n - 1], side="right") - 1]
             if hit.size:
                 head, tail = self._parts(r)
                 when: dict[int, str] = {}  # each excursion's start written once, not per row
@@ -215,25 +228,30 @@ class OutsideLearned:
                         t0 = carried if carried is not None and st == 0 and off[0] else idx[st]
                         w = when[st] = pd.Timestamp(t0).isoformat()
                     out[i] = f"{head}{x[i]:.4g}{tail}{w}"
-            todo[hit] = False
-            if n:
-                if off[-1]:
-                    all_off = off.all()
-                    self.since[k] = carried if (all_off and carried is not None) else idx[first[-1]]
-                else:
-                    self.since[k] = None
-        self._combination(cols, unknown, todo, out)
+            left[sel] = False
+            if end_off:
+                all_off = off.all()
+                self.since[k] = carried if (all_off and carried is not None) else idx[first[-1]]
+            else:
+                self.since[k] = None
+        self._combination(cols, unk, at[left], left, out)
         return out
 
-    def _combination(self, cols, unknown, todo, out) -> None:
-        """The rows still unnamed (``cols``: :attr:`Range.key` → values the model reads):
-        each input of the first unknown test is inside what it learned, but not together (a
-        grid cell without a rule), or has no value."""
+    def _combination(self, cols, unk, rows_left, left, out) -> None:
+        """The rows still unnamed (``rows_left``; ``unk``: the unknown tests at the rows to
+        name, ``left`` of them those still unnamed; ``cols``: :attr:`Range.key` → values the
+        model reads): each input of the first unknown test is inside what it learned, but
+        not together (a grid cell without a rule), or has no value."""
         tests: dict[int, list[tuple[str, int]]] = {}
         for r in self.ranges:
             tests.setdefault(r.test, []).append(r.key)
+        unk = unk[left]
+        todo = np.ones(rows_left.size, bool)
         for j, tags in tests.items():
-            rows = np.flatnonzero(todo & unknown[:, j])
+            if not todo.any():
+                break
+            mine = todo & unk[:, j]
+            rows = rows_left[mine]
             if not rows.size:
                 continue
             have = [t for t in tags if t in cols]
@@ -256,4 +274,4 @@ class OutsideLearned:
                     ", ".join(f"{nm} = {x:.4g}" for nm, x in zip(names, v, strict=True))
                     + ": each within what the unit learned, but not together"
                 )
-            todo[rows] = False
+            todo[mine] = False
