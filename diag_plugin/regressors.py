@@ -557,15 +557,18 @@ class DesignBuilder:
             for s, b in zip(self.all_specs, self._bases, strict=True)
         ]
         ok = np.ones(n, bool)
+        nan = np.empty(n, bool)
         for c in cols:  # a row is complete without a NaN in any column
-            ok &= ~np.isnan(c)
-        pos = self.seen + np.arange(n)
+            ok &= ~np.isnan(c, out=nan)
         dropped: dict[str, int] = {}
-        attributed = pos < self.history
-        if attributed.any():
-            dropped["history for the lags"] = int(attributed.sum())
+        if not lean:  # a replay counts no reasons
+            attributed = self.seen + np.arange(n) < self.history
+            if attributed.any():
+                dropped["history for the lags"] = int(attributed.sum())
         raw_nan = {}
         for tag in self.tags:
+            if lean and not self.nan_tails[tag].size:
+                continue  # read for the reasons and the carried NaN tails only: neither here
             if isinstance(frame, Columns):
                 raw = np.isnan(frame.values(tag))
             else:
@@ -591,10 +594,15 @@ class DesignBuilder:
         self.seen += n
         positions = np.flatnonzero(ok)
         d = len(self.specs)
-        X = np.column_stack([c[positions] for c in cols[:d]]) if d else np.empty((ok.sum(), 0))
+        every = positions.size == n  # every row complete: the columns as they are
+        X = np.empty((positions.size, d))
+        for j, c in enumerate(cols[:d]):  # written into one C-ordered array, no stacking
+            X[:, j] = c if every else c[positions]
         return Design(
-            X=np.ascontiguousarray(X, dtype=float),
-            y=np.asarray(cols[d][positions], float) if self.out_spec is not None else None,
+            X=X,
+            y=np.array(cols[d] if every else cols[d][positions], float)
+            if self.out_spec is not None
+            else None,
             index=None if lean else pd.DatetimeIndex(frame.index[positions]),
             inputs=list(self.input_names),
             output=None if self.out_spec is None else str(self.out_spec),

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from diag_plugin.fuzzy.stack import WangMendelStack
-from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
+from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor, _fields, pack
 
 
 def _models(seed: int) -> list[WangMendelRegressor]:
@@ -47,6 +47,13 @@ def test_stacked_prediction_equals_each_models_own(seed):
         np.testing.assert_array_equal(got.level[rows], want.level)
         checked |= set(np.unique(want.reason).tolist())
         levels |= set(np.unique(want.level).tolist())
+        # once every level's rules are packed (a replay's later pieces) the coarse levels are
+        # asked in one call: the same bits
+        last = m.n_levels_ - 1
+        m.__dict__.setdefault("_packs", {})[last] = pack([m.inference_grid(last)], dense=True)
+        again = m.predict_detail(X[rows, : m.n_features_in_])
+        for a, b in zip(_fields(again), _fields(want), strict=True):
+            np.testing.assert_array_equal(a, b)
     assert checked >= {0, 1, 2, 3}  # ok, NaN input, unsupported and outside all exercised
     assert levels >= {-1, 0, 1, 2}  # unanswered, the fine grid and coarser levels
 

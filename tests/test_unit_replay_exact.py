@@ -24,7 +24,8 @@ import pytest
 from scipy import signal, stats
 
 from diag_plugin.diagnose import operating, residuals, symptoms, unit, unitloops, unittags
-from diag_plugin.diagnose.unit import Unit, concat
+from diag_plugin.diagnose.unit import PRIORITY, Unit, concat
+from diag_plugin.status import NE107
 from diag_plugin.unitbuild.build import build_unit
 from diag_plugin.unitbuild.loops import parse_loop
 from tests import line7
@@ -238,8 +239,64 @@ def _ref_outside(self, frame, unknown, report):
                 self.since[k] = carried if keep else idx[first[-1]]
             else:
                 self.since[k] = None
-    self._combination(cols, unknown, todo, out)
+    _ref_combination(self, cols, unknown, todo, out)
     return out
+
+
+def _ref_combination(self, cols, unknown, todo, out):  # every row, test by test
+    tests: dict[int, list[tuple[str, int]]] = {}
+    for r in self.ranges:
+        tests.setdefault(r.test, []).append(r.key)
+    for j, tags in tests.items():
+        rows = np.flatnonzero(todo & unknown[:, j])
+        have = [t for t in tags if t in cols]
+        names = [self.label(*t) for t in have]
+        for i in rows:
+            v = [float(cols[t][i]) for t in have]
+            if all(np.isfinite(v)):
+                out[i] = (
+                    ", ".join(f"{nm} = {x:.4g}" for nm, x in zip(names, v, strict=True))
+                    + ": each within what the unit learned, but not together"
+                )
+            else:
+                out[i] = (
+                    ", ".join(nm for nm, x in zip(names, v, strict=True) if not np.isfinite(x))
+                    + " without a value"
+                )
+        todo[rows] = False
+
+
+def _ref_warming(self, unknown, raw):  # every row of the piece
+    n = len(raw)
+    spread_left = np.zeros(raw.shape, np.int64)
+    if self.spread_cols.size:
+        spread_left[:, self.spread_cols] = self.spread.left_
+    test = np.zeros(raw.shape[1], bool)
+    test[self.spread_cols] = True
+    seen = self.seen + np.arange(n)
+    self.seen += n
+    warm, left = unitloops.warm_up(
+        unknown, np.isfinite(raw), seen, self.test_depth, spread_left, test
+    )
+    return np.arange(n), warm, left
+
+
+def _ref_isolate(self, cert, active, status, s):  # every sample through the hold
+    n = cert.shape[0]
+    c = np.nan_to_num(cert, nan=0.0)
+    best = c.max(axis=1) if c.shape[1] else np.zeros(n)
+    iso = active[:, None] & (c >= self.ev["certainty"]) & (c >= best[:, None] - 1e-12)
+    if self.ev["hold_isolation"]:
+        iso = self.isolation.transform(iso[:, None, :], s[:, None, :])[:, 0, :]
+    fault_status = [int(self.file.fault_status.get(f, NE107.FAILURE)) for f in self.faults]
+    rank = {int(s): i for i, s in enumerate(PRIORITY)}
+    out_status = status.copy()
+    faults = np.full(n, "", dtype=object)
+    for i in np.flatnonzero(iso.any(axis=1)):
+        sel = np.flatnonzero(iso[i])
+        faults[i] = "|".join(self.faults[j] for j in sel)
+        out_status[i] = fault_status[min(sel, key=lambda j: rank[fault_status[j]])]
+    return out_status, faults
 
 
 @pytest.fixture
@@ -259,6 +316,8 @@ def reference(monkeypatch):
         monkeypatch.setattr(unittags.CombinedModel, "_inverse", _ref_inverse)
         monkeypatch.setattr(Unit, "raw_residuals", _ref_raw_residuals)
         monkeypatch.setattr(operating.OutsideLearned, "transform", _ref_outside)
+        monkeypatch.setattr(Unit, "_warming", _ref_warming)
+        monkeypatch.setattr(Unit, "_isolate", _ref_isolate)
 
     return use
 
@@ -382,6 +441,23 @@ def test_replay_matches_the_reference_path_bit_for_bit(built, fault, reference):
     if fault is not None:  # the run is not trivially quiet: the fault is seen and named
         assert (slow["frame"]["status"] != 0).any()
         assert (slow["frame"].get("top1", pd.Series(dtype=object)) != "").any()
+    SEEN[fault] = slow["frame"]
+
+
+#: each run's reference frame (the paths they met are checked after them)
+SEEN: dict = {}
+
+
+def test_the_runs_met_every_path_of_the_reference():
+    """The runs above named faults (the matrix and the isolation hold), warmed up, and gave
+    CHECK_FUNCTION's reasons of both kinds — else the comparison proved little."""
+    if len(SEEN) < 4:
+        pytest.skip("runs after the replay comparison")
+    frames = pd.concat(SEEN.values())
+    assert (frames["faults"] != "").any()
+    why = frames["why"].astype(str)
+    assert why.str.startswith("warming up").any()
+    assert why.str.contains("without a value|not together").any()
 
 
 @pytest.mark.parametrize("fault", ["stiction", "flow_bias"])

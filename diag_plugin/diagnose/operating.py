@@ -164,9 +164,12 @@ class OutsideLearned:
         out = {}
         for t, x in cols.items():
             d = self.depth.get(t, 0)
-            tail = self.tails.get(t, np.full(d, np.nan))
-            both = np.r_[tail, x]
             n = len(x)
+            if d == 0:  # read unlagged only: the piece itself, no history to carry
+                out[(t, 0)] = x
+                continue
+            tail = self.tails.get(t, np.full(d, np.nan))
+            both = np.concatenate([tail, x])
             for lag in {r.lag for r in self.ranges if r.tag == t}:
                 out[(t, lag)] = both[d - lag : d - lag + n]
             self.tails[t] = both[len(both) - d :]
@@ -189,51 +192,77 @@ class OutsideLearned:
         the live loop's one row a cycle without a frame."""
         n = len(idx)
         out = np.full(n, "", dtype=object)
-        todo = report.copy()
-        none = np.empty(0, np.intp)
-        for k, r in enumerate(self.ranges):
-            if r.key not in cols:
+        at = np.flatnonzero(report)  # the rows to name (CHECK_FUNCTION: few, in most pieces)
+        unk = unknown[at]
+        judged = [k for k, r in enumerate(self.ranges) if r.key in cols]
+        if not n or not judged:
+            self._combination(cols, unk, at, np.ones(at.size, bool), out)
+            return out
+        # every judged range at once, at the rows to name and at the piece's end: a row is
+        # named by the first range (in order) outside there whose test is unknown
+        keys = list(dict.fromkeys(self.ranges[k].key for k in judged))
+        col = np.array([keys.index(self.ranges[k].key) for k in judged])
+        lo = np.array([self.ranges[k].lo for k in judged])
+        hi = np.array([self.ranges[k].hi for k in judged])
+        test = np.array([self.ranges[k].test for k in judged], np.int64)
+        end = np.array([cols[key][-1] for key in keys], float)[col]
+        with np.errstate(invalid="ignore"):  # NaN: not outside
+            end_off = (end < lo) | (end > hi)
+            xa = np.empty((at.size, len(keys)))
+            for c, key in enumerate(keys):
+                xa[:, c] = cols[key][at]
+            xa = xa[:, col]
+            cand = ((xa < lo) | (xa > hi)) & unk[:, test]
+        named = cand.any(axis=1)
+        by = np.argmax(cand, axis=1)  # the first range outside, where any is
+        hits = {int(p): at[named & (by == p)] for p in np.unique(by[named])}
+        for p, k in enumerate(judged):
+            r = self.ranges[k]
+            hit = hits.get(p)
+            if hit is None and not end_off[p]:
+                self.since[k] = None
                 continue
             x = cols[r.key]
+            carried = self.since.get(k)
             with np.errstate(invalid="ignore"):
                 off = (x < r.lo) | (x > r.hi)
-            carried = self.since.get(k)
-            hit = np.flatnonzero(todo & off & unknown[:, r.test]) if todo.any() else none
-            first = none
-            if hit.size or (n and off[-1]):
-                # the row each excursion started at (carried over the piece's start): for an
-                # outside row, the last start at or before it
-                starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
-                first = starts[np.searchsorted(starts, np.r_[hit, n - 1], side="right") - 1]
-            if hit.size:
+            # the row each excursion started at (carried over the piece's start): for an
+            # outside row, the last start at or before it
+            starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
+            if hit is not None:
+                first = starts[np.searchsorted(starts, hit, side="right") - 1]
                 head, tail = self._parts(r)
                 when: dict[int, str] = {}  # each excursion's start written once, not per row
-                for i, st in zip(hit.tolist(), first.tolist(), strict=False):
+                for i, st in zip(hit.tolist(), first.tolist(), strict=True):
                     w = when.get(st)
                     if w is None:
                         # an excursion that began in an earlier piece keeps its start
                         t0 = carried if carried is not None and st == 0 and off[0] else idx[st]
                         w = when[st] = pd.Timestamp(t0).isoformat()
                     out[i] = f"{head}{x[i]:.4g}{tail}{w}"
-            todo[hit] = False
-            if n:
-                if off[-1]:
-                    all_off = off.all()
-                    self.since[k] = carried if (all_off and carried is not None) else idx[first[-1]]
-                else:
-                    self.since[k] = None
-        self._combination(cols, unknown, todo, out)
+            if end_off[p]:
+                last = starts[-1]  # the excursion the piece ends in
+                self.since[k] = carried if (off.all() and carried is not None) else idx[last]
+            else:
+                self.since[k] = None
+        self._combination(cols, unk, at[~named], ~named, out)
         return out
 
-    def _combination(self, cols, unknown, todo, out) -> None:
-        """The rows still unnamed (``cols``: :attr:`Range.key` → values the model reads):
-        each input of the first unknown test is inside what it learned, but not together (a
-        grid cell without a rule), or has no value."""
+    def _combination(self, cols, unk, rows_left, left, out) -> None:
+        """The rows still unnamed (``rows_left``; ``unk``: the unknown tests at the rows to
+        name, ``left`` of them those still unnamed; ``cols``: :attr:`Range.key` → values the
+        model reads): each input of the first unknown test is inside what it learned, but
+        not together (a grid cell without a rule), or has no value."""
         tests: dict[int, list[tuple[str, int]]] = {}
         for r in self.ranges:
             tests.setdefault(r.test, []).append(r.key)
+        unk = unk[left]
+        todo = np.ones(rows_left.size, bool)
         for j, tags in tests.items():
-            rows = np.flatnonzero(todo & unknown[:, j])
+            if not todo.any():
+                break
+            mine = todo & unk[:, j]
+            rows = rows_left[mine]
             if not rows.size:
                 continue
             have = [t for t in tags if t in cols]
@@ -256,4 +285,4 @@ class OutsideLearned:
                     ", ".join(f"{nm} = {x:.4g}" for nm, x in zip(names, v, strict=True))
                     + ": each within what the unit learned, but not together"
                 )
-            todo[rows] = False
+            todo[mine] = False

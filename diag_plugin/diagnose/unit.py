@@ -729,10 +729,16 @@ class Unit:
         message = ""
         checking = status == NE107.CHECK_FUNCTION
         unknown = np.isnan(s)
-        warm, left = self._warming(unknown, raw.to_numpy())
-        why = self.outside.transform(self._model_frame(frame), unknown & ~warm, checking)
+        rows, warm, left = self._warming(unknown, raw.to_numpy())
+        judged = unknown
         if warm.any():
-            why = warming_up(why, warm, left, checking, self.warm_labels, self.period_s)
+            judged = unknown.copy()
+            judged[rows] &= ~warm
+        why = self.outside.transform(self._model_frame(frame), judged, checking)
+        if warm.any():
+            why[rows] = warming_up(
+                why[rows], warm, left, checking[rows], self.warm_labels, self.period_s
+            )
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
             if self.ev["combined"] and (self.file.combined is None or self.cmodel.high is None):
@@ -756,18 +762,34 @@ class Unit:
             why=pd.Series(why, index=idx),
         )
 
-    def _warming(self, unknown: np.ndarray, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _warming(
+        self, unknown: np.ndarray, raw: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The tests unknown only for the warm-up, and the samples each still needs
-        (:func:`~diag_plugin.diagnose.unitloops.warm_up`); advances :attr:`seen`."""
+        (:func:`~diag_plugin.diagnose.unitloops.warm_up`), on the rows that can be warming
+        up (returned first: those before the longest lag is seen, and those a spread window
+        still fills; elsewhere no test is): ``rows``, then ``rows × tests`` arrays. Advances
+        :attr:`seen`."""
         n = len(raw)
-        spread_left = np.zeros(raw.shape, np.int64)
+        lag_rows = max(0, min(n, int(self.test_depth.max(initial=0)) - self.seen))
+        spread_left = None
         if self.spread_cols.size:  # the spread ran on this piece (Unit.filtered)
-            spread_left[:, self.spread_cols] = self.spread.left_
+            spread_left = self.spread.left_
+            filling = np.flatnonzero((spread_left > 0).any(axis=1))
+            rows = np.union1d(np.arange(lag_rows), filling)
+        else:
+            rows = np.arange(lag_rows)
+        seen = self.seen + rows
+        self.seen += n
+        left_at = np.zeros((rows.size, raw.shape[1]), np.int64)
+        if spread_left is not None:
+            left_at[:, self.spread_cols] = spread_left[rows]
         test = np.zeros(raw.shape[1], bool)
         test[self.spread_cols] = True
-        seen = self.seen + np.arange(n)
-        self.seen += n
-        return warm_up(unknown, np.isfinite(raw), seen, self.test_depth, spread_left, test)
+        warm, left = warm_up(
+            unknown[rows], np.isfinite(raw[rows]), seen, self.test_depth, left_at, test
+        )
+        return rows, warm, left
 
     def _hold_alarm(self, active, detected, status, faults, top):
         """The unit's off-delay (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`): a
@@ -795,6 +817,25 @@ class Unit:
             self._last_alarm = (int(status[i]), str(faults[i]), row)
         return detected, status, faults, top
 
+    def _hold_isolation(self, iso: np.ndarray, s: np.ndarray, on: np.ndarray, n: int) -> np.ndarray:
+        """:class:`~diag_plugin.diagnose.isolation.IsolationHold` over the alarm samples
+        ``on`` of the piece's ``n`` (``iso``: their isolated faults, ``s``: every sample's
+        symptoms): the hold sees every run of alarm samples, and one sample without a symptom
+        before a run (and after the last) where the piece has such samples — what it does on
+        every one of them (it forgets its reference) is done once."""
+        if not on.size:
+            if n:
+                self.isolation.has_ref[:] = False
+            return iso
+        gap = np.r_[on[0] > 0, np.diff(on) > 1]
+        at = np.arange(on.size) + np.cumsum(gap)  # each alarm sample's place among them
+        m = on.size + int(gap.sum()) + int(on[-1] < n - 1)
+        iso_m = np.zeros((m, 1, iso.shape[1]), bool)
+        s_m = np.zeros((m, 1, s.shape[1]))
+        iso_m[at, 0] = iso
+        s_m[at, 0] = s[on]
+        return self.isolation.transform(iso_m, s_m)[at, 0, :]
+
     def _isolate(
         self, cert: np.ndarray, active: np.ndarray, status: np.ndarray, s: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -802,11 +843,14 @@ class Unit:
         ``hold_isolation`` fading symptoms do not move them to other faults
         (:mod:`~diag_plugin.diagnose.isolation`)."""
         n = cert.shape[0]
-        c = np.nan_to_num(cert, nan=0.0)
-        best = c.max(axis=1) if c.shape[1] else np.zeros(n)
-        iso = active[:, None] & (c >= self.ev["certainty"]) & (c >= best[:, None] - 1e-12)
+        # only the alarm samples can isolate a fault: the rest are reasoned over as the
+        # samples without a symptom they are (the hold forgets its reference on them)
+        on = np.flatnonzero(active)
+        c = np.nan_to_num(cert[on], nan=0.0)
+        best = c.max(axis=1) if c.shape[1] else np.zeros(on.size)
+        iso_on = (c >= self.ev["certainty"]) & (c >= best[:, None] - 1e-12)
         if self.ev["hold_isolation"]:
-            iso = self.isolation.transform(iso[:, None, :], s[:, None, :])[:, 0, :]
+            iso_on = self._hold_isolation(iso_on, s, on, n)
         fault_status = np.array(
             [int(self.file.fault_status.get(f, NE107.FAILURE)) for f in self.faults], np.int8
         )
@@ -814,11 +858,12 @@ class Unit:
         prio = np.array([rank[int(s)] for s in fault_status])
         out_status = status.copy()
         faults = np.full(n, "", dtype=object)
-        rows = np.flatnonzero(iso.any(axis=1))
+        some = iso_on.any(axis=1)
+        rows = on[some]
         if not rows.size:
             return out_status, faults
         # one pass per distinct pattern of isolated faults, not per sample
-        patterns, inverse = np.unique(iso[rows], axis=0, return_inverse=True)
+        patterns, inverse = np.unique(iso_on[some], axis=0, return_inverse=True)
         inverse = inverse.reshape(-1)
         for k, pat in enumerate(patterns):
             sel = np.flatnonzero(pat)

@@ -791,8 +791,11 @@ class WangMendelRegressor(ParamsMixin):
         depth = 0
         while rows.size:
             depth += 1
-            if rows.size > n // 2 and n > LAZY_ROWS:
-                depth = last  # most of many rows asked again: every level of them at once
+            if (rows.size > n // 2 and n > LAZY_ROWS) or last in packs:
+                # most of many rows asked again, or every level's rules packed already (by
+                # an earlier call): every level of them at once (the same answers: each row
+                # stops at the same level; the finer levels are not evaluated again for it)
+                depth = last
             if depth not in packs:
                 packs[depth] = pack([self.inference_grid(depth)], dense=True)
             sub = run_kernel(packs[depth], none, X[rows])
