@@ -24,7 +24,7 @@ import math
 import numba as nb
 import numpy as np
 
-from diag_plugin.fuzzy._numpy_kernels import QCLIP, QUANT  # noqa: F401 - one definition
+from diag_plugin.fuzzy._numpy_kernels import QCLIP, QUANT, REACH  # noqa: F401 - one definition
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -187,11 +187,13 @@ def _lower_weight(t, nl, p):
 @nb.njit(cache=True, nogil=True, inline="always")
 def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads):
     """The ``2^d`` rules around cell ``base`` (upper memberships ``ws``): the weighted sums
-    of the existing rules' conclusions and spreads and their weights ``(vl, sl, ql, wl)``."""
+    of the existing rules' conclusions and spreads and their weights ``(vl, sl, ql, wl)``,
+    and whether a fired corner (a positive weight) has no rule (``miss``)."""
     vl = 0.0
     sl = 0.0
     ql = 0.0
     wl = 0.0
+    miss = False
     for c in range(1 << d):
         wt = 1.0
         key = base
@@ -210,13 +212,71 @@ def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads):
             if not math.isnan(spreads[ix]):
                 ql += wt * spreads[ix]
                 wl += wt
-    return vl, sl, ql, wl
+        else:
+            miss = True
+    return vl, sl, ql, wl, miss
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _past(xv, lo_k, hi_k, slope):
+    """The linear trend's move (``slope``) for an input ``xv`` beyond its span ``[lo_k,
+    hi_k]``, at most :data:`REACH` of the span past its end (0 inside the span)."""
+    reach = REACH * (hi_k - lo_k)
+    if xv < lo_k:
+        far = xv if xv > lo_k - reach else lo_k - reach
+        return slope * (far - lo_k)
+    if xv > hi_k:
+        far = xv if xv < hi_k + reach else hi_k + reach
+        return slope * (far - hi_k)
+    return 0.0
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _trend_at(trend, x, d):
+    """The model's linear trend ``b0 + Σ b_k x_k`` at ``x`` (inputs in order)."""
+    acc = trend[0]
+    for k in range(d):
+        acc += trend[k + 1] * x[k]
+    return acc
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _edge_fill(ws, d, base, radix, keys, dense, sa, sb, da, cb, hb, trend, vl, sl):
+    """A fine level's answer where a fired corner has no rule: each missing corner takes the
+    linear trend at its centres plus the mean deviation from the trend of the rules that
+    exist, ``T(x~) + (Σ w v − Σ w T(c)) / Σ w`` over the existing rules, ``x~`` the sample's
+    position as the partition sees it (``cb + ws·hb``: the corners' weighted centres). Where
+    every fired corner has a rule this is ``vl / sl`` (not called there: the same bits)."""
+    cl = 0.0
+    for c in range(1 << d):
+        wt = 1.0
+        key = base
+        for k in range(d):
+            if (c >> k) & 1:
+                wt *= ws[k]
+                key += radix[k]
+            else:
+                wt *= 1.0 - ws[k]
+        if wt == 0.0:
+            continue
+        if _find(keys, dense, sa, sb, da, key) >= 0:
+            lin = trend[0]
+            for k in range(d):
+                if (c >> k) & 1:
+                    lin += trend[k + 1] * (cb[k] + hb[k])
+                else:
+                    lin += trend[k + 1] * cb[k]
+            cl += wt * lin
+    at = trend[0]
+    for k in range(d):
+        at += trend[k + 1] * (cb[k] + ws[k] * hb[k])
+    return at + (vl - cl) / sl
 
 
 @nb.njit(cache=True, nogil=True)
 def infer_levels(
-    which, X, n_inputs, lo, step, plateau, nsets, inner, blocks, radix, n_levels, seg, dense_at,
-    keys, values, spreads, data, dense, enough, out, support, reason, level, spread,
+    which, X, n_inputs, lo, step, plateau, nsets, inner, trend, blocks, radix, n_levels, seg,
+    dense_at, keys, values, spreads, data, dense, enough, out, support, reason, level, spread,
 ):  # fmt: skip
     """Inference over the fine rule grid and the coarser levels behind it, for many models.
 
@@ -243,10 +303,23 @@ def infer_levels(
     ``spread`` the same weighted average of the fired rules' ``spreads`` (their outputs'
     spread; NaN where none is known), ``reason`` 0 (ok), 1 (NaN input), 2 (no trained rule
     fires at any level), 3 (input clipped to its span).
+
+    **Edges follow the trend.** ``trend[m]`` is the model's linear trend ``[b0, b1 … bd]``
+    (:attr:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.trend_`). The fine level's
+    answer where a fired corner has no rule (at the data's edge, beyond it, in a hole) fills
+    each missing corner with the trend at its centres plus the existing rules' mean deviation
+    from it (:func:`_edge_fill`), instead of dropping its weight and so answering the
+    neighbours' level; where every fired corner has a rule, the answer is ``vl / sl`` as
+    before. A coarse level's node values are deviations from the trend (the node fit's
+    targets are the fine conclusions minus the trend at their centres), and its answer is the
+    trend at the sample (clipped to the span) plus their interpolation: a coarse cell's
+    plateau no longer holds the answer flat at a value fitted to data on its inner side.
     """
     n = X.shape[0]
     d_max = X.shape[1]
     ws = np.empty(d_max, dtype=np.float64)
+    cb = np.empty(d_max, dtype=np.float64)
+    hb = np.empty(d_max, dtype=np.float64)
     xs = np.empty(d_max, dtype=np.float64)
     own = np.empty(d_max, dtype=np.int64)
     per_row = which.shape[0] > 0
@@ -255,13 +328,17 @@ def infer_levels(
         d = n_inputs[m]
         code = 0
         inside = True
+        past = 0.0
         for k in range(d):
             xv = X[r, k]
             if math.isnan(xv):
                 code = 1
                 break
             lo_k = lo[m, k]
-            xv, code = _clipped(xv, lo_k, lo_k + step[m, k] * (nsets[m, k] - 1), code)
+            hi_k = lo_k + step[m, k] * (nsets[m, k] - 1)
+            if code == 3 or xv < lo_k or xv > hi_k:
+                past += _past(xv, lo_k, hi_k, trend[m, k + 1])
+            xv, code = _clipped(xv, lo_k, hi_k, code)
             xs[k] = xv
             i = math.floor((xv - lo_k) / step[m, k] + 0.5)
             if i > nsets[m, k] - 1:
@@ -285,30 +362,41 @@ def infer_levels(
             for k in range(d):
                 b = blocks[m, lv, k]
                 nl = (nsets[m, k] + b - 1) // b
-                t = (xs[k] - (lo[m, k] + 0.5 * step[m, k] * (b - 1))) / (step[m, k] * b)
+                off = lo[m, k] + 0.5 * step[m, k] * (b - 1)
+                hb[k] = step[m, k] * b
+                t = (xs[k] - off) / hb[k]
                 j, ws[k] = _lower_weight(t, nl, plateau[m, k])
+                cb[k] = off + j * hb[k]
                 base += j * radix[m, lv, k]
                 own_key += (own[k] // b) * radix[m, lv, k]
             if lv > 0:
                 io = _find(keys, dense, sa, sb, da, own_key)
                 if io < 0 or not data[io]:
                     continue  # a coarse cell answers only where the data reached it
-            vl, sl, ql, wl = _fire(
+            vl, sl, ql, wl, miss = _fire(
                 ws, d, base, radix[m, lv], keys, dense, sa, sb, da, values, spreads
             )
             if sl > 0.0 and (level[r] < 0 or sl >= enough):
-                out[r] = vl / sl
+                if lv > 0:  # node values are deviations from the trend
+                    out[r] = _trend_at(trend[m], xs, d) + vl / sl
+                elif miss:
+                    out[r] = _edge_fill(ws, d, base, radix[m, lv], keys, dense, sa, sb, da,
+                                        cb, hb, trend[m], vl, sl)  # fmt: skip
+                else:
+                    out[r] = vl / sl
                 support[r] = sl
                 level[r] = lv
                 spread[r] = ql / wl if wl > 0.0 else np.nan
             if sl >= enough:
                 break
+        if code == 3 and level[r] >= 0:  # past the span: along the trend (REACH at most)
+            out[r] = out[r] + past
         reason[r] = code if level[r] >= 0 else 2
 
 
 @nb.njit(cache=True, nogil=True)
 def infer_fine(
-    X, lo, step, plateau, nsets, inner, radix, table, values, spreads, enough, coarse,
+    X, lo, step, plateau, nsets, inner, trend, radix, table, values, spreads, enough, coarse,
     out, support, reason, level, spread, again,
 ):  # fmt: skip
     """:func:`infer_levels` of one model at its fine level only, through the level's dense
@@ -321,10 +409,13 @@ def infer_fine(
     n = X.shape[0]
     d = X.shape[1]
     ws = np.empty(d, dtype=np.float64)
+    cb = np.empty(d, dtype=np.float64)
+    hb = np.empty(d, dtype=np.float64)
     for r in range(n):
         code = 0
         inside = True
         base = 0
+        past = 0.0
         for k in range(d):
             xv = X[r, k]
             if math.isnan(xv):
@@ -333,7 +424,10 @@ def infer_fine(
             lo_k = lo[k]
             st = step[k]
             nk = nsets[k]
-            xv, code = _clipped(xv, lo_k, lo_k + st * (nk - 1), code)
+            hi_k = lo_k + st * (nk - 1)
+            if code == 3 or xv < lo_k or xv > hi_k:
+                past += _past(xv, lo_k, hi_k, trend[k + 1])
+            xv, code = _clipped(xv, lo_k, hi_k, code)
             t = (xv - lo_k) / st  # the fine level: b = 1, its centre offset 0
             i = int(t + 0.5)  # t >= 0 here (xv clipped), so the floor
             if i > nk - 1:
@@ -341,6 +435,9 @@ def infer_fine(
             if i < inner[k, 0] or i > inner[k, 1]:
                 inside = False
             j, ws[k] = _lower_weight(t, nk, plateau[k])
+            off = lo_k + 0.5 * st * 0  # infer_levels' centre offset at b = 1, the same bits
+            hb[k] = st * 1
+            cb[k] = off + j * hb[k]
             base += j * radix[k]
         out[r] = np.nan
         support[r] = 0.0
@@ -350,14 +447,20 @@ def infer_fine(
         if code == 1:
             reason[r] = 1
             continue
-        vl, sl, ql, wl = _fire(ws, d, base, radix, table, table, 0, 0, 0, values, spreads)
+        vl, sl, ql, wl, miss = _fire(ws, d, base, radix, table, table, 0, 0, 0, values, spreads)
         if sl > 0.0:
-            out[r] = vl / sl
+            if miss:
+                out[r] = _edge_fill(ws, d, base, radix, table, table, 0, 0, 0, cb, hb, trend,
+                                    vl, sl)  # fmt: skip
+            else:
+                out[r] = vl / sl
             support[r] = sl
             level[r] = 0
             spread[r] = ql / wl if wl > 0.0 else np.nan
         if sl < enough and coarse and inside:
             again[r] = True
+        if code == 3 and level[r] >= 0:
+            out[r] = out[r] + past
         reason[r] = code if level[r] >= 0 else 2
 
 

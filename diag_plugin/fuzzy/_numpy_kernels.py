@@ -19,6 +19,9 @@ QUANT = 65536
 QCLIP = 2 * QUANT
 #: float sums of integers below this are exact
 EXACT = float(1 << 53)
+#: an input beyond its span moves the answer along the model's linear trend for at most this
+#: share of the span past its end (then the answer holds): see :func:`._kernels.infer_levels`
+REACH = 0.25
 
 
 def _cells(x: np.ndarray, lo: float, step: float, n: int) -> np.ndarray:
@@ -69,8 +72,8 @@ def _find(keys, dense, sa: int, sb: int, da: int, key: np.ndarray) -> np.ndarray
 
 
 def infer_levels(
-    which, X, n_inputs, lo, step, plateau, nsets, inner, blocks, radix, n_levels, seg, dense_at,
-    keys, values, spreads, data, dense, enough, out, support, reason, level, spread,
+    which, X, n_inputs, lo, step, plateau, nsets, inner, trend, blocks, radix, n_levels, seg,
+    dense_at, keys, values, spreads, data, dense, enough, out, support, reason, level, spread,
 ):  # fmt: skip
     """:func:`._kernels.infer_levels` for one model (``which`` empty): the same outputs, the
     same bits."""
@@ -87,6 +90,7 @@ def infer_levels(
     inside = np.ones(n, bool)
     xs = np.empty((n, d))
     own = np.empty((n, d), np.int64)
+    past = np.zeros(n)  # the trend's move past the span (:data:`REACH`)
     for k in range(d):
         xv = X[:, k]
         nan |= np.isnan(xv)
@@ -94,6 +98,10 @@ def infer_levels(
         hi_k = lo_k + step[0, k] * (nsets[0, k] - 1)
         clipped |= (xv < lo_k) | (xv > hi_k)
         xs[:, k] = np.clip(xv, lo_k, hi_k)
+        reach = REACH * (hi_k - lo_k)
+        far = np.clip(xv, lo_k - reach, hi_k + reach)
+        out_k = (xv < lo_k) | (xv > hi_k)
+        past[out_k] += trend[0, k + 1] * (far[out_k] - xs[out_k, k])
         i = np.minimum(
             np.nan_to_num(np.floor((xs[:, k] - lo_k) / step[0, k] + 0.5)), nsets[0, k] - 1
         )
@@ -109,29 +117,36 @@ def infer_levels(
         sa, sb = int(seg[0, lv, 0]), int(seg[0, lv, 1])
         da = int(dense_at[0, lv])
         ws = np.empty((rows.size, d))
+        cb = np.empty((rows.size, d))
+        hb = np.empty(d)
         base = np.zeros(rows.size, np.int64)
         own_key = np.zeros(rows.size, np.int64)
         rad = radix[0, lv]
         for k in range(d):
             b = blocks[0, lv, k]
             nl = (nsets[0, k] + b - 1) // b
-            t = (xs[rows, k] - (lo[0, k] + 0.5 * step[0, k] * (b - 1))) / (step[0, k] * b)
+            off = lo[0, k] + 0.5 * step[0, k] * (b - 1)
+            hb[k] = step[0, k] * b
+            t = (xs[rows, k] - off) / hb[k]
             t = np.minimum(np.maximum(t, 0.0), nl - 1.0)
             j = np.minimum(t.astype(np.int64), nl - 2)
             f = t - j
             p = plateau[0, k]
             ws[:, k] = np.minimum(np.maximum((f - 0.5 * p) / (1.0 - p), 0.0), 1.0)
+            cb[:, k] = off + j * hb[k]
             base += j * rad[k]
             own_key += (own[rows, k] // b) * rad[k]
         if lv > 0:  # a coarse cell answers only where the data reached it
             io = _find(keys, dense, sa, sb, da, own_key)
             here = io >= 0
             here[here] = data[io[here]]
-            rows, ws, base = rows[here], ws[here], base[here]
+            rows, ws, cb, base = rows[here], ws[here], cb[here], base[here]
         vl = np.zeros(rows.size)
         sl = np.zeros(rows.size)
         ql = np.zeros(rows.size)
         wl = np.zeros(rows.size)
+        cl = np.zeros(rows.size)  # Σ w T(c) over the existing rules (the fine level's fill)
+        miss = np.zeros(rows.size, bool)
         for c in range(1 << d):
             wt = np.ones(rows.size)
             key = base.copy()
@@ -144,6 +159,7 @@ def infer_levels(
             fire = np.flatnonzero(wt != 0.0)
             ix = _find(keys, dense, sa, sb, da, key[fire])
             hit = ix >= 0
+            miss[fire[~hit]] = True
             fire, ix = fire[hit], ix[hit]
             w = wt[fire]
             vl[fire] += w * values[ix]
@@ -151,12 +167,30 @@ def infer_levels(
             known = ~np.isnan(spreads[ix])
             ql[fire[known]] += w[known] * spreads[ix[known]]
             wl[fire[known]] += w[known]
+            if lv == 0:
+                lin = np.full(fire.size, trend[0, 0])
+                for k in range(d):
+                    lin += trend[0, k + 1] * (cb[fire, k] + hb[k] if (c >> k) & 1 else cb[fire, k])
+                cl[fire] += w * lin
         take = (sl > 0.0) & ((level[rows] < 0) | (sl >= enough))
         r = rows[take]
-        out[r] = vl[take] / sl[take]
+        if lv > 0:  # node values are deviations from the trend, at the (clipped) sample
+            at = np.full(r.size, trend[0, 0])
+            for k in range(d):
+                at += trend[0, k + 1] * xs[r, k]
+            out[r] = at + vl[take] / sl[take]
+        else:  # a missing fired corner: the trend plus the existing rules' deviation
+            fill = take & miss
+            at = np.full(int(fill.sum()), trend[0, 0])
+            for k in range(d):
+                at += trend[0, k + 1] * (cb[fill, k] + ws[fill, k] * hb[k])
+            out[r] = vl[take] / sl[take]
+            out[rows[fill]] = at + (vl[fill] - cl[fill]) / sl[fill]
         support[r] = sl[take]
         level[r] = lv
         wq = wl[take]
         spread[r] = np.where(wq > 0.0, ql[take] / np.where(wq > 0.0, wq, 1.0), np.nan)
         active[rows[sl >= enough]] = False
+    moved = clipped & (level >= 0) & ~nan
+    out[moved] = out[moved] + past[moved]
     reason[:] = np.where(nan, 1, np.where(level >= 0, np.where(clipped, 3, 0), 2))

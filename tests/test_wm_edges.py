@@ -1,0 +1,124 @@
+"""A Wang–Mendel model at and past the edge of its data follows the data's slope (issue 34):
+the fine level fills a missing fired rule from the model's linear trend, coarse levels
+interpolate deviations from it; inside the data, where every fired rule exists, the answer is
+the rules' weighted mean as before. The stack, numpy's and the compiled loops agree bit for
+bit, and the trend comes back from a rule-base file with the rules."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from diag_plugin.fuzzy import _kernels as K
+from diag_plugin.fuzzy import _numpy_kernels as N
+from diag_plugin.fuzzy.stack import WangMendelStack
+from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor, pack
+from diag_plugin.rulebase.document import RuleBase, Variable
+
+
+def _line(seed: int = 0) -> WangMendelRegressor:
+    """y = 2x learned on x in [0, 1], the span [0, 1.5] (room past the data)."""
+    x = np.random.default_rng(seed).uniform(0, 1, 2000)
+    return WangMendelRegressor(input_spans=[(0.0, 1.5)], n_sets=31).fit(x[:, None], 2 * x)
+
+
+def _diagonal(seed: int = 1) -> tuple[WangMendelRegressor, np.ndarray, np.ndarray]:
+    """y = 3·x1 − x2 on two inputs that move together (x2 = x1 + noise), as a plant's
+    coupled temperatures do; and samples at and past the two ends of that diagonal."""
+    rng = np.random.default_rng(seed)
+    x1 = rng.uniform(0, 1, 3000)
+    X = np.column_stack([x1, x1 + rng.normal(0, 0.05, x1.size)])
+    m = WangMendelRegressor(n_sets=31).fit(X, 3 * X[:, 0] - X[:, 1])
+    Q = np.array([[0.9, 1.05], [1.0, 1.08], [0.95, 1.06], [0.1, -0.05], [0.05, -0.08]])
+    return m, Q, 3 * Q[:, 0] - Q[:, 1]
+
+
+def test_past_the_data_the_fine_level_follows_the_slope():
+    m = _line()
+    # x = 1.03: the fine rule at 1.0 exists, the one at 1.05 (weight 0.7) was never trained
+    d = m.predict_detail(np.array([[1.03]]))
+    assert d.level[0] == 0 and 0.2 < d.support[0] < 0.4
+    assert d.y[0] == pytest.approx(2.06, abs=0.02)  # was the edge rule's 1.975
+    # the trend is the data's line
+    assert m.trend_ == pytest.approx([0.0, 2.0], abs=0.01)
+
+
+def test_coarse_levels_at_the_data_edge_do_not_pull_to_the_middle():
+    m, Q, truth = _diagonal()
+    d = m.predict_detail(Q)
+    assert (d.level >= 1).sum() >= 3 and (d.support >= 0.9).all()  # as a unit scores them
+    err = np.abs(d.y - truth)
+    # as levels answered before: 0.19 and 0.13 too far toward the middle at the two ends
+    assert err.max() < 0.06, err
+    m1 = _line()
+    assert m1.predict(np.array([[1.02]]))[0] == pytest.approx(2.04, abs=0.025)
+
+
+def test_inside_the_data_with_every_fired_rule_trained_the_answer_is_the_rules_mean():
+    m = _line()
+    x = np.linspace(0.05, 0.95, 200)
+    d = m.predict_detail(x[:, None])
+    assert (d.level == 0).all() and (d.support == 1.0).all()
+    p = m.partitions_[0]
+    j, w = p.upper_weight(x)
+    v = dict(zip(m.keys_.tolist(), m.conclusions_.tolist(), strict=True))
+    vj = np.array([v[i] for i in j])
+    vk = np.array([v[i] for i in j + 1])
+    want = ((1.0 - w) * vj + w * vk) / ((1.0 - w) + w)  # the kernel's sums, in its order
+    np.testing.assert_array_equal(d.y, want)
+
+
+def test_an_edited_rule_moves_the_trend():
+    m = _line()
+    before = m.trend_.copy()
+    m.set_rules(m.keys_, m.conclusions_ + 1.0, counts=m.count_)
+    assert m.trend_[0] == pytest.approx(before[0] + 1.0)
+    assert m.trend_[1] == pytest.approx(before[1])
+
+
+def test_stack_numpy_and_compiled_loops_agree_at_the_edges_bit_for_bit():
+    m, Q, _ = _diagonal()
+    rng = np.random.default_rng(5)
+    X = np.vstack([Q, rng.uniform(-0.2, 1.2, (3000, 2))])
+    one = _line()
+    stack = WangMendelStack.from_models([m, one])
+    which = np.zeros(X.shape[0], np.int64)
+    got = stack.predict_detail(which, X)
+    own = m.predict_detail(X)  # the dense fine table, then the levels
+    n = X.shape[0]
+    out = {}
+    for name, loops in (("compiled", K), ("numpy", N)):
+        o = [np.empty(n), np.empty(n), np.empty(n, np.int8), np.empty(n, np.int8), np.empty(n)]
+        loops.infer_levels(np.empty(0, np.int64), X, *pack([m.inference_grid()], True), *o)
+        out[name] = o
+    fields = ("y", "support", "reason", "level", "spread")
+    for i, f in enumerate(fields):
+        a, b, c, e = getattr(got, f), getattr(own, f), out["compiled"][i], out["numpy"][i]
+        for u in (b, c, e):
+            assert np.array_equal(np.asarray(a).view(np.uint8), np.asarray(u).view(np.uint8))
+    filled = (own.level == 0) & (own.support > 0) & (own.support < 1)
+    assert filled.sum() > 10 and (own.level >= 1).sum() > 10  # both kinds of edge met
+    x1 = np.linspace(-0.2, 1.6, 50)[:, None]
+    np.testing.assert_array_equal(
+        stack.predict(np.ones(50, np.int64), np.hstack([x1, x1])), one.predict(x1)
+    )
+
+
+def test_the_trend_comes_back_from_the_rule_base_file(tmp_path):
+    rb = RuleBase.new(
+        "line",
+        Variable("Y[k]", "Y", "", (0.0, 3.0), 31),
+        [Variable("X[k]", "X", "", (0.0, 1.5), 31)],
+        period="60s",
+    )
+    x = np.random.default_rng(2).uniform(0, 1, 2000)
+    rb.apply_training(rb.new_model().fit(x[:, None], 2 * x), {"source": "test"})
+    path = rb.save(tmp_path / "line.toml")
+    back = RuleBase.load(path)
+    m = back.to_model()
+    assert "trend" not in path.read_text()  # derived from the rules, not stored
+    q = np.array([[1.02], [1.03]])
+    assert m.predict(q) == pytest.approx([2.04, 2.06], abs=0.025)
+    again = RuleBase.load(back.save(tmp_path / "again.toml")).to_model()
+    np.testing.assert_array_equal(again.trend_, m.trend_)
+    np.testing.assert_array_equal(again.predict(q), m.predict(q))
