@@ -122,3 +122,18 @@ def test_the_trend_comes_back_from_the_rule_base_file(tmp_path):
     again = RuleBase.load(back.save(tmp_path / "again.toml")).to_model()
     np.testing.assert_array_equal(again.trend_, m.trend_)
     np.testing.assert_array_equal(again.predict(q), m.predict(q))
+
+
+def test_past_the_span_the_answer_moves_along_the_trend_a_quarter_span_at_most():
+    x = np.random.default_rng(3).uniform(0, 1, 2000)
+    m = WangMendelRegressor(n_sets=31).fit(x[:, None], 2 * x)  # span: the range seen
+    lo, hi = m.partitions_[0].lo, m.partitions_[0].hi
+    q = np.array([[hi + 0.1], [hi + 0.25 * (hi - lo)], [hi + 5.0], [lo - 0.1], [0.5]])
+    d = m.predict_detail(q)
+    edge = m.predict(np.array([[hi], [lo]]))
+    b = m.trend_[1]
+    assert d.reason.tolist() == [3, 3, 3, 3, 0]  # still said: outside the span
+    np.testing.assert_allclose(d.y[:2], edge[0] + b * (q[:2, 0] - hi), rtol=0, atol=1e-12)
+    assert d.y[2] == pytest.approx(d.y[1], abs=1e-12)  # beyond the reach the answer holds
+    assert d.y[3] == pytest.approx(edge[1] - 0.1 * b, abs=1e-12)
+    assert d.y[0] == pytest.approx(2 * q[0, 0], abs=0.03)  # was the edge rule's ≈ 2.0
