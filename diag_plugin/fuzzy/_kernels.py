@@ -185,6 +185,22 @@ def _lower_weight(t, nl, p):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _corner(c, ws, d, base, radix):
+    """Corner ``c`` of the ``2^d`` rules around cell ``base``: its firing weight (the product
+    of the upper memberships ``ws`` where bit ``k`` of ``c`` is set, else their complements, in
+    the inputs' order) and its rule key."""
+    wt = 1.0
+    key = base
+    for k in range(d):
+        if (c >> k) & 1:
+            wt *= ws[k]
+            key += radix[k]
+        else:
+            wt *= 1.0 - ws[k]
+    return wt, key
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads):
     """The ``2^d`` rules around cell ``base`` (upper memberships ``ws``): the weighted sums
     of the existing rules' conclusions and spreads and their weights ``(vl, sl, ql, wl)``,
@@ -195,14 +211,7 @@ def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads):
     wl = 0.0
     miss = False
     for c in range(1 << d):
-        wt = 1.0
-        key = base
-        for k in range(d):
-            if (c >> k) & 1:
-                wt *= ws[k]
-                key += radix[k]
-            else:
-                wt *= 1.0 - ws[k]
+        wt, key = _corner(c, ws, d, base, radix)
         if wt == 0.0:
             continue
         ix = _find(keys, dense, sa, sb, da, key)
@@ -249,14 +258,7 @@ def _edge_fill(ws, d, base, radix, keys, dense, sa, sb, da, cb, hb, trend, vl, s
     every fired corner has a rule this is ``vl / sl`` (not called there: the same bits)."""
     cl = 0.0
     for c in range(1 << d):
-        wt = 1.0
-        key = base
-        for k in range(d):
-            if (c >> k) & 1:
-                wt *= ws[k]
-                key += radix[k]
-            else:
-                wt *= 1.0 - ws[k]
+        wt, key = _corner(c, ws, d, base, radix)
         if wt == 0.0:
             continue
         if _find(keys, dense, sa, sb, da, key) >= 0:

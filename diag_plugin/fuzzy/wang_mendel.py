@@ -1008,23 +1008,22 @@ class WangMendelRegressor(ParamsMixin):
         """What inference reads of ``level``: the node keys (ascending), the value at each node
         and whether the node's own cell holds training data.
 
-        Level 0: the fine rules as they are (every one counts as data). A coarser level: the
-        node values are the least-squares fit of the coarse grid's multilinear interpolation
-        to the fine rules (each fine conclusion at its set centres, weighted by its samples
-        ``n``), with a weak smoothness prior (second differences along each input, weight
-        :data:`SMOOTHING` of the data per node); the fit is made to the fine conclusions'
-        deviations from the model's linear trend (:attr:`trend_`), so a coarse level's values
-        are deviations (inference adds the trend at the sample). The plain cell mean (eq. 5 on the bigger
-        cell, :meth:`level_rules`) sits at the centroid of the cell's data, not at its centre,
-        and interpolated as if it were at the centre it errs by up to half the cell's change
-        of output; the fit puts each node where the interpolation needs it (on a 3-input heat
-        exchanger the held-out error where only coarse levels answer fell from 3.7 to 1.3 of
-        an output with spread 3.0). Nodes next to the data get values too (the fit extends the
-        trend one cell), but a coarse level answers only where the sample's own cell holds
-        data. Where fine rules × 2^inputs exceed :data:`FIT_LIMIT` (many inputs, hundreds of
-        thousands of rules) the coarse levels stay silent: the model is the fine grid alone
-        (their cells' means, centroids off-centre, were tried and answered worse, 2.5 % of
-        span in-sample with 9 inputs)."""
+        Level 0: the fine rules as they are (every one counts as data). A coarser level: the node
+        values are the least-squares fit of the coarse grid's multilinear interpolation to the fine
+        rules (each fine conclusion at its set centres, weighted by its samples ``n``), with a weak
+        smoothness prior (second differences along each input, weight :data:`SMOOTHING` of the data
+        per node); the fit is made to the fine conclusions' deviations from the model's linear trend
+        (:attr:`trend_`), so a coarse level's values are deviations (inference adds the trend at the
+        sample). The plain cell mean (eq. 5 on the bigger cell, :meth:`level_rules`) sits at the
+        centroid of the cell's data, not at its centre, and interpolated as if it were at the centre
+        it errs by up to half the cell's change of output; the fit puts each node where the
+        interpolation needs it (on a 3-input heat exchanger the held-out error where only coarse
+        levels answer fell from 3.7 to 1.3 of an output with spread 3.0). Nodes next to the data get
+        values too (the fit extends the trend one cell), but a coarse level answers only where the
+        sample's own cell holds data. Where fine rules × 2^inputs exceed :data:`FIT_LIMIT` (many
+        inputs, hundreds of thousands of rules) the coarse levels stay silent: the model is the fine
+        grid alone (their cells' means, centroids off-centre, were tried and answered worse, 2.5 %
+        of span in-sample with 9 inputs)."""
         self._check_fitted()
         if level == 0:
             return self.keys_, np.asarray(self.conclusions_, float), np.ones(self.keys_.size, bool)
