@@ -1,8 +1,8 @@
-"""A Wang–Mendel model at and past the edge of its data follows the data's slope (issue 34):
-the fine level fills a missing fired rule from the model's linear trend, coarse levels
-interpolate deviations from it; inside the data, where every fired rule exists, the answer is
-the rules' weighted mean as before. The stack, numpy's and the compiled loops agree bit for
-bit, and the trend comes back from a rule-base file with the rules."""
+"""A Wang–Mendel model with an input past its span follows the data's slope (issue 34): the
+answer moves along the model's linear trend (derived from the fine rules) for up to a quarter
+span past the span's end; inside the spans the answer is the rules' weighted mean as before.
+The stack, numpy's and the compiled loops agree bit for bit, and the trend comes back from a
+rule-base file with the rules."""
 
 from __future__ import annotations
 
@@ -33,27 +33,6 @@ def _diagonal(seed: int = 1) -> tuple[WangMendelRegressor, np.ndarray, np.ndarra
     return m, Q, 3 * Q[:, 0] - Q[:, 1]
 
 
-def test_past_the_data_the_fine_level_follows_the_slope():
-    m = _line()
-    # x = 1.03: the fine rule at 1.0 exists, the one at 1.05 (weight 0.7) was never trained
-    d = m.predict_detail(np.array([[1.03]]))
-    assert d.level[0] == 0 and 0.2 < d.support[0] < 0.4
-    assert d.y[0] == pytest.approx(2.06, abs=0.02)  # was the edge rule's 1.975
-    # the trend is the data's line
-    assert m.trend_ == pytest.approx([0.0, 2.0], abs=0.01)
-
-
-def test_coarse_levels_at_the_data_edge_do_not_pull_to_the_middle():
-    m, Q, truth = _diagonal()
-    d = m.predict_detail(Q)
-    assert (d.level >= 1).sum() >= 3 and (d.support >= 0.9).all()  # as a unit scores them
-    err = np.abs(d.y - truth)
-    # as levels answered before: 0.19 and 0.13 too far toward the middle at the two ends
-    assert err.max() < 0.06, err
-    m1 = _line()
-    assert m1.predict(np.array([[1.02]]))[0] == pytest.approx(2.04, abs=0.025)
-
-
 def test_inside_the_data_with_every_fired_rule_trained_the_answer_is_the_rules_mean():
     m = _line()
     x = np.linspace(0.05, 0.95, 200)
@@ -79,7 +58,7 @@ def test_an_edited_rule_moves_the_trend():
 def test_stack_numpy_and_compiled_loops_agree_at_the_edges_bit_for_bit():
     m, Q, _ = _diagonal()
     rng = np.random.default_rng(5)
-    X = np.vstack([Q, rng.uniform(-0.2, 1.2, (3000, 2))])
+    X = np.vstack([Q, rng.uniform(-0.5, 1.5, (3000, 2))])
     one = _line()
     stack = WangMendelStack.from_models([m, one])
     which = np.zeros(X.shape[0], np.int64)
@@ -96,8 +75,7 @@ def test_stack_numpy_and_compiled_loops_agree_at_the_edges_bit_for_bit():
         a, b, c, e = getattr(got, f), getattr(own, f), out["compiled"][i], out["numpy"][i]
         for u in (b, c, e):
             assert np.array_equal(np.asarray(a).view(np.uint8), np.asarray(u).view(np.uint8))
-    filled = (own.level == 0) & (own.support > 0) & (own.support < 1)
-    assert filled.sum() > 10 and (own.level >= 1).sum() > 10  # both kinds of edge met
+    assert (own.reason == 3).sum() > 100 and (own.level >= 1).sum() > 10  # past spans, levels
     x1 = np.linspace(-0.2, 1.6, 50)[:, None]
     np.testing.assert_array_equal(
         stack.predict(np.ones(50, np.int64), np.hstack([x1, x1])), one.predict(x1)
@@ -111,14 +89,14 @@ def test_the_trend_comes_back_from_the_rule_base_file(tmp_path):
         [Variable("X[k]", "X", "", (0.0, 1.5), 31)],
         period="60s",
     )
-    x = np.random.default_rng(2).uniform(0, 1, 2000)
+    x = np.random.default_rng(2).uniform(0, 1.5, 3000)
     rb.apply_training(rb.new_model().fit(x[:, None], 2 * x), {"source": "test"})
     path = rb.save(tmp_path / "line.toml")
     back = RuleBase.load(path)
     m = back.to_model()
     assert "trend" not in path.read_text()  # derived from the rules, not stored
-    q = np.array([[1.02], [1.03]])
-    assert m.predict(q) == pytest.approx([2.04, 2.06], abs=0.025)
+    q = np.array([[1.6], [1.7]])  # past the span's end, 1.5
+    assert m.predict(q) == pytest.approx([3.2, 3.4], abs=0.05)  # the edge rule's 3.0 before
     again = RuleBase.load(back.save(tmp_path / "again.toml")).to_model()
     np.testing.assert_array_equal(again.trend_, m.trend_)
     np.testing.assert_array_equal(again.predict(q), m.predict(q))

@@ -185,33 +185,22 @@ def _lower_weight(t, nl, p):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _corner(c, ws, d, base, radix):
-    """Corner ``c`` of the ``2^d`` rules around cell ``base``: its firing weight (the product
-    of the upper memberships ``ws`` where bit ``k`` of ``c`` is set, else their complements, in
-    the inputs' order) and its rule key."""
-    wt = 1.0
-    key = base
-    for k in range(d):
-        if (c >> k) & 1:
-            wt *= ws[k]
-            key += radix[k]
-        else:
-            wt *= 1.0 - ws[k]
-    return wt, key
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
 def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads):
     """The ``2^d`` rules around cell ``base`` (upper memberships ``ws``): the weighted sums
-    of the existing rules' conclusions and spreads and their weights ``(vl, sl, ql, wl)``,
-    and whether a fired corner (a positive weight) has no rule (``miss``)."""
+    of the existing rules' conclusions and spreads and their weights ``(vl, sl, ql, wl)``."""
     vl = 0.0
     sl = 0.0
     ql = 0.0
     wl = 0.0
-    miss = False
     for c in range(1 << d):
-        wt, key = _corner(c, ws, d, base, radix)
+        wt = 1.0
+        key = base
+        for k in range(d):
+            if (c >> k) & 1:
+                wt *= ws[k]
+                key += radix[k]
+            else:
+                wt *= 1.0 - ws[k]
         if wt == 0.0:
             continue
         ix = _find(keys, dense, sa, sb, da, key)
@@ -221,9 +210,7 @@ def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads):
             if not math.isnan(spreads[ix]):
                 ql += wt * spreads[ix]
                 wl += wt
-        else:
-            miss = True
-    return vl, sl, ql, wl, miss
+    return vl, sl, ql, wl
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -238,41 +225,6 @@ def _past(xv, lo_k, hi_k, slope):
         far = xv if xv < hi_k + reach else hi_k + reach
         return slope * (far - hi_k)
     return 0.0
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _trend_at(trend, x, d):
-    """The model's linear trend ``b0 + Σ b_k x_k`` at ``x`` (inputs in order)."""
-    acc = trend[0]
-    for k in range(d):
-        acc += trend[k + 1] * x[k]
-    return acc
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _edge_fill(ws, d, base, radix, keys, dense, sa, sb, da, cb, hb, trend, vl, sl):
-    """A fine level's answer where a fired corner has no rule: each missing corner takes the
-    linear trend at its centres plus the mean deviation from the trend of the rules that
-    exist, ``T(x~) + (Σ w v − Σ w T(c)) / Σ w`` over the existing rules, ``x~`` the sample's
-    position as the partition sees it (``cb + ws·hb``: the corners' weighted centres). Where
-    every fired corner has a rule this is ``vl / sl`` (not called there: the same bits)."""
-    cl = 0.0
-    for c in range(1 << d):
-        wt, key = _corner(c, ws, d, base, radix)
-        if wt == 0.0:
-            continue
-        if _find(keys, dense, sa, sb, da, key) >= 0:
-            lin = trend[0]
-            for k in range(d):
-                if (c >> k) & 1:
-                    lin += trend[k + 1] * (cb[k] + hb[k])
-                else:
-                    lin += trend[k + 1] * cb[k]
-            cl += wt * lin
-    at = trend[0]
-    for k in range(d):
-        at += trend[k + 1] * (cb[k] + ws[k] * hb[k])
-    return at + (vl - cl) / sl
 
 
 @nb.njit(cache=True, nogil=True)
@@ -306,22 +258,15 @@ def infer_levels(
     spread; NaN where none is known), ``reason`` 0 (ok), 1 (NaN input), 2 (no trained rule
     fires at any level), 3 (input clipped to its span).
 
-    **Edges follow the trend.** ``trend[m]`` is the model's linear trend ``[b0, b1 … bd]``
-    (:attr:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.trend_`). The fine level's
-    answer where a fired corner has no rule (at the data's edge, beyond it, in a hole) fills
-    each missing corner with the trend at its centres plus the existing rules' mean deviation
-    from it (:func:`_edge_fill`), instead of dropping its weight and so answering the
-    neighbours' level; where every fired corner has a rule, the answer is ``vl / sl`` as
-    before. A coarse level's node values are deviations from the trend (the node fit's
-    targets are the fine conclusions minus the trend at their centres), and its answer is the
-    trend at the sample (clipped to the span) plus their interpolation: a coarse cell's
-    plateau no longer holds the answer flat at a value fitted to data on its inner side.
+    **Past the span, along the trend.** ``trend[m]`` is the model's linear trend ``[b0, b1 …
+    bd]`` (:attr:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.trend_`). An input past
+    its span is clipped to it (reason 3) as before, and the answer then moves by the trend's
+    slope times the distance past the span's end, at most :data:`REACH` of the span
+    (:func:`_past`); inside the spans the answer is unchanged.
     """
     n = X.shape[0]
     d_max = X.shape[1]
     ws = np.empty(d_max, dtype=np.float64)
-    cb = np.empty(d_max, dtype=np.float64)
-    hb = np.empty(d_max, dtype=np.float64)
     xs = np.empty(d_max, dtype=np.float64)
     own = np.empty(d_max, dtype=np.int64)
     per_row = which.shape[0] > 0
@@ -364,28 +309,19 @@ def infer_levels(
             for k in range(d):
                 b = blocks[m, lv, k]
                 nl = (nsets[m, k] + b - 1) // b
-                off = lo[m, k] + 0.5 * step[m, k] * (b - 1)
-                hb[k] = step[m, k] * b
-                t = (xs[k] - off) / hb[k]
+                t = (xs[k] - (lo[m, k] + 0.5 * step[m, k] * (b - 1))) / (step[m, k] * b)
                 j, ws[k] = _lower_weight(t, nl, plateau[m, k])
-                cb[k] = off + j * hb[k]
                 base += j * radix[m, lv, k]
                 own_key += (own[k] // b) * radix[m, lv, k]
             if lv > 0:
                 io = _find(keys, dense, sa, sb, da, own_key)
                 if io < 0 or not data[io]:
                     continue  # a coarse cell answers only where the data reached it
-            vl, sl, ql, wl, miss = _fire(
+            vl, sl, ql, wl = _fire(
                 ws, d, base, radix[m, lv], keys, dense, sa, sb, da, values, spreads
             )
             if sl > 0.0 and (level[r] < 0 or sl >= enough):
-                if lv > 0:  # node values are deviations from the trend
-                    out[r] = _trend_at(trend[m], xs, d) + vl / sl
-                elif miss:
-                    out[r] = _edge_fill(ws, d, base, radix[m, lv], keys, dense, sa, sb, da,
-                                        cb, hb, trend[m], vl, sl)  # fmt: skip
-                else:
-                    out[r] = vl / sl
+                out[r] = vl / sl
                 support[r] = sl
                 level[r] = lv
                 spread[r] = ql / wl if wl > 0.0 else np.nan
@@ -411,8 +347,6 @@ def infer_fine(
     n = X.shape[0]
     d = X.shape[1]
     ws = np.empty(d, dtype=np.float64)
-    cb = np.empty(d, dtype=np.float64)
-    hb = np.empty(d, dtype=np.float64)
     for r in range(n):
         code = 0
         inside = True
@@ -437,9 +371,6 @@ def infer_fine(
             if i < inner[k, 0] or i > inner[k, 1]:
                 inside = False
             j, ws[k] = _lower_weight(t, nk, plateau[k])
-            off = lo_k + 0.5 * st * 0  # infer_levels' centre offset at b = 1, the same bits
-            hb[k] = st * 1
-            cb[k] = off + j * hb[k]
             base += j * radix[k]
         out[r] = np.nan
         support[r] = 0.0
@@ -449,13 +380,9 @@ def infer_fine(
         if code == 1:
             reason[r] = 1
             continue
-        vl, sl, ql, wl, miss = _fire(ws, d, base, radix, table, table, 0, 0, 0, values, spreads)
+        vl, sl, ql, wl = _fire(ws, d, base, radix, table, table, 0, 0, 0, values, spreads)
         if sl > 0.0:
-            if miss:
-                out[r] = _edge_fill(ws, d, base, radix, table, table, 0, 0, 0, cb, hb, trend,
-                                    vl, sl)  # fmt: skip
-            else:
-                out[r] = vl / sl
+            out[r] = vl / sl
             support[r] = sl
             level[r] = 0
             spread[r] = ql / wl if wl > 0.0 else np.nan

@@ -117,36 +117,29 @@ def infer_levels(
         sa, sb = int(seg[0, lv, 0]), int(seg[0, lv, 1])
         da = int(dense_at[0, lv])
         ws = np.empty((rows.size, d))
-        cb = np.empty((rows.size, d))
-        hb = np.empty(d)
         base = np.zeros(rows.size, np.int64)
         own_key = np.zeros(rows.size, np.int64)
         rad = radix[0, lv]
         for k in range(d):
             b = blocks[0, lv, k]
             nl = (nsets[0, k] + b - 1) // b
-            off = lo[0, k] + 0.5 * step[0, k] * (b - 1)
-            hb[k] = step[0, k] * b
-            t = (xs[rows, k] - off) / hb[k]
+            t = (xs[rows, k] - (lo[0, k] + 0.5 * step[0, k] * (b - 1))) / (step[0, k] * b)
             t = np.minimum(np.maximum(t, 0.0), nl - 1.0)
             j = np.minimum(t.astype(np.int64), nl - 2)
             f = t - j
             p = plateau[0, k]
             ws[:, k] = np.minimum(np.maximum((f - 0.5 * p) / (1.0 - p), 0.0), 1.0)
-            cb[:, k] = off + j * hb[k]
             base += j * rad[k]
             own_key += (own[rows, k] // b) * rad[k]
         if lv > 0:  # a coarse cell answers only where the data reached it
             io = _find(keys, dense, sa, sb, da, own_key)
             here = io >= 0
             here[here] = data[io[here]]
-            rows, ws, cb, base = rows[here], ws[here], cb[here], base[here]
+            rows, ws, base = rows[here], ws[here], base[here]
         vl = np.zeros(rows.size)
         sl = np.zeros(rows.size)
         ql = np.zeros(rows.size)
         wl = np.zeros(rows.size)
-        cl = np.zeros(rows.size)  # Σ w T(c) over the existing rules (the fine level's fill)
-        miss = np.zeros(rows.size, bool)
         for c in range(1 << d):
             wt = np.ones(rows.size)
             key = base.copy()
@@ -159,7 +152,6 @@ def infer_levels(
             fire = np.flatnonzero(wt != 0.0)
             ix = _find(keys, dense, sa, sb, da, key[fire])
             hit = ix >= 0
-            miss[fire[~hit]] = True
             fire, ix = fire[hit], ix[hit]
             w = wt[fire]
             vl[fire] += w * values[ix]
@@ -167,25 +159,9 @@ def infer_levels(
             known = ~np.isnan(spreads[ix])
             ql[fire[known]] += w[known] * spreads[ix[known]]
             wl[fire[known]] += w[known]
-            if lv == 0:
-                lin = np.full(fire.size, trend[0, 0])
-                for k in range(d):
-                    lin += trend[0, k + 1] * (cb[fire, k] + hb[k] if (c >> k) & 1 else cb[fire, k])
-                cl[fire] += w * lin
         take = (sl > 0.0) & ((level[rows] < 0) | (sl >= enough))
         r = rows[take]
-        if lv > 0:  # node values are deviations from the trend, at the (clipped) sample
-            at = np.full(r.size, trend[0, 0])
-            for k in range(d):
-                at += trend[0, k + 1] * xs[r, k]
-            out[r] = at + vl[take] / sl[take]
-        else:  # a missing fired corner: the trend plus the existing rules' deviation
-            fill = take & miss
-            at = np.full(int(fill.sum()), trend[0, 0])
-            for k in range(d):
-                at += trend[0, k + 1] * (cb[fill, k] + ws[fill, k] * hb[k])
-            out[r] = vl[take] / sl[take]
-            out[rows[fill]] = at + (vl[fill] - cl[fill]) / sl[fill]
+        out[r] = vl[take] / sl[take]
         support[r] = sl[take]
         level[r] = lv
         wq = wl[take]

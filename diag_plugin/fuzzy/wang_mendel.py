@@ -37,17 +37,12 @@ it the fine grid alone answers. A sample no level's rules reach is
 *unsupported*: NaN, with a reason code. ``levels=0`` is the paper's fine grid
 alone.
 
-**Edges follow the data's slope** (:attr:`WangMendelRegressor.trend_`, the least-squares
-plane through the fine rules, derived like the levels and never stored). Where a fired fine
-rule was never trained (at the data's edge, past it, in a hole) its weight is no longer
-dropped: the missing corner takes the trend at its set centres plus the existing rules' mean
-deviation from the trend. A coarse level interpolates deviations from the trend and adds the
-trend at the sample, so its wide plateaus no longer hold the answer at a value fitted to the
-data on the cell's inner side (pulled toward the middle of the data). An input past its span
-moves the answer along the trend for up to :data:`~._numpy_kernels.REACH` of the span (then
-the answer holds; the reason code still says *outside*). Where every fired fine rule exists
-and the inputs are inside their spans, the answer is the rules' weighted mean, bit for bit as
-before.
+**Past the span, along the data's slope** (:attr:`WangMendelRegressor.trend_`, the
+least-squares plane through the fine rules, derived like the levels and never stored). An
+input past its span is clipped to it as before (reason *outside*), and the answer then moves
+by the trend's slope times the distance past the span's end, for up to
+:data:`~._numpy_kernels.REACH` of the span (then it holds). Inside the spans the answer is
+unchanged, bit for bit.
 
 The rule storage is sparse (sorted cell keys), so models with many inputs
 never allocate the ``Π n_k`` grid; a dense look-up table is built only for
@@ -968,11 +963,10 @@ class WangMendelRegressor(ParamsMixin):
         rules do not vary gets slope 0). Derived from the rules like the levels, never stored,
         so an expert's edit carries into it.
 
-        Inference reads it where the rule grid runs out: a fine level's missing fired corner
-        takes the trend at its centres plus the existing rules' mean deviation from it, and a
-        coarse level interpolates deviations from it (see :func:`._kernels.infer_levels`). So
-        at and past the edge of the data the answer follows the data's slope instead of a
-        coarse cell's value, fitted on the cell's inner side."""
+        Inference reads it where an input is past its span: the answer moves along the
+        trend (see :func:`._kernels.infer_levels`), so a slow excursion of the plant beyond
+        the training's range is followed along the data's own relation instead of held at
+        the grid's edge."""
         if getattr(self, "_trend", None) is None:
             self._trend = _linear_trend(self)
         return self._trend
@@ -1008,22 +1002,21 @@ class WangMendelRegressor(ParamsMixin):
         """What inference reads of ``level``: the node keys (ascending), the value at each node
         and whether the node's own cell holds training data.
 
-        Level 0: the fine rules as they are (every one counts as data). A coarser level: the node
-        values are the least-squares fit of the coarse grid's multilinear interpolation to the fine
-        rules (each fine conclusion at its set centres, weighted by its samples ``n``), with a weak
-        smoothness prior (second differences along each input, weight :data:`SMOOTHING` of the data
-        per node); the fit is made to the fine conclusions' deviations from the model's linear trend
-        (:attr:`trend_`), so a coarse level's values are deviations (inference adds the trend at the
-        sample). The plain cell mean (eq. 5 on the bigger cell, :meth:`level_rules`) sits at the
-        centroid of the cell's data, not at its centre, and interpolated as if it were at the centre
-        it errs by up to half the cell's change of output; the fit puts each node where the
-        interpolation needs it (on a 3-input heat exchanger the held-out error where only coarse
-        levels answer fell from 3.7 to 1.3 of an output with spread 3.0). Nodes next to the data get
-        values too (the fit extends the trend one cell), but a coarse level answers only where the
-        sample's own cell holds data. Where fine rules × 2^inputs exceed :data:`FIT_LIMIT` (many
-        inputs, hundreds of thousands of rules) the coarse levels stay silent: the model is the fine
-        grid alone (their cells' means, centroids off-centre, were tried and answered worse, 2.5 %
-        of span in-sample with 9 inputs)."""
+        Level 0: the fine rules as they are (every one counts as data). A coarser level: the
+        node values are the least-squares fit of the coarse grid's multilinear interpolation
+        to the fine rules (each fine conclusion at its set centres, weighted by its samples
+        ``n``), with a weak smoothness prior (second differences along each input, weight
+        :data:`SMOOTHING` of the data per node). The plain cell mean (eq. 5 on the bigger
+        cell, :meth:`level_rules`) sits at the centroid of the cell's data, not at its centre,
+        and interpolated as if it were at the centre it errs by up to half the cell's change
+        of output; the fit puts each node where the interpolation needs it (on a 3-input heat
+        exchanger the held-out error where only coarse levels answer fell from 3.7 to 1.3 of
+        an output with spread 3.0). Nodes next to the data get values too (the fit extends the
+        trend one cell), but a coarse level answers only where the sample's own cell holds
+        data. Where fine rules × 2^inputs exceed :data:`FIT_LIMIT` (many inputs, hundreds of
+        thousands of rules) the coarse levels stay silent: the model is the fine grid alone
+        (their cells' means, centroids off-centre, were tried and answered worse, 2.5 % of
+        span in-sample with 9 inputs)."""
         self._check_fitted()
         if level == 0:
             return self.keys_, np.asarray(self.conclusions_, float), np.ones(self.keys_.size, bool)
@@ -1072,7 +1065,7 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     if nodes.size * n.size <= DENSE_FIT:  # small levels: dense numpy, no sparse overhead
         return nodes, _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets), data
     A = sp.csr_matrix((w * sw[r], (r, col)), shape=(n.size, nodes.size))
-    y = _deviations(m, fine, has)
+    y = np.asarray(m.conclusions_, float)[has]
     # smoothness: second differences along each input where both neighbours are nodes
     idx = np.column_stack([(nodes // radix[k]) % nsets[k] for k in range(d)])
     pr, pc, pv = [], [], []
@@ -1099,17 +1092,6 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     rhs = A.T @ (sw * y) + ridge * float(np.average(y, weights=n))
     values = np.atleast_1d(spsolve(M, rhs))
     return nodes, values, data
-
-
-def _deviations(m: WangMendelRegressor, fine: np.ndarray, has: np.ndarray) -> np.ndarray:
-    """The fine rules ``has`` (set indices ``fine``) as deviations from the model's linear
-    trend at their set centres: the targets of a coarse level's node fit."""
-    lo, step, _, _, _ = m._arrays()
-    b = m.trend_
-    at = np.full(fine.shape[0], b[0])
-    for k in range(m.n_features_in_):
-        at += b[k + 1] * (lo[k] + step[k] * fine[:, k])
-    return np.asarray(m.conclusions_, float)[has] - at
 
 
 def _linear_trend(m: WangMendelRegressor) -> np.ndarray:
@@ -1203,8 +1185,7 @@ def _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets) -> np.ndarray:
     d = m.n_features_in_
     # each (fine rule, node) pair at most once: the sums of np.add.at, without its loop
     A = np.bincount(r * k + col, w * sw[r], minlength=n.size * k).reshape(n.size, k)
-    has = m.count_ > 0
-    y = _deviations(m, m.cell_indices(m.keys_[has]), has)
+    y = np.asarray(m.conclusions_, float)[m.count_ > 0]
     per_node = n.sum() / k
     ridge = 1e-6 * per_node
     loops = _design_loops(nsets)
