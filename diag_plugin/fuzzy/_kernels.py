@@ -24,7 +24,7 @@ import math
 import numba as nb
 import numpy as np
 
-from diag_plugin.fuzzy._numpy_kernels import QCLIP, QUANT  # noqa: F401 - one definition
+from diag_plugin.fuzzy._numpy_kernels import QCLIP, QUANT, REACH  # noqa: F401 - one definition
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -213,10 +213,24 @@ def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads):
     return vl, sl, ql, wl
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _past(xv, lo_k, hi_k, slope):
+    """The linear trend's move (``slope``) for an input ``xv`` beyond its span ``[lo_k,
+    hi_k]``, at most :data:`REACH` of the span past its end (0 inside the span)."""
+    reach = REACH * (hi_k - lo_k)
+    if xv < lo_k:
+        far = xv if xv > lo_k - reach else lo_k - reach
+        return slope * (far - lo_k)
+    if xv > hi_k:
+        far = xv if xv < hi_k + reach else hi_k + reach
+        return slope * (far - hi_k)
+    return 0.0
+
+
 @nb.njit(cache=True, nogil=True)
 def infer_levels(
-    which, X, n_inputs, lo, step, plateau, nsets, inner, blocks, radix, n_levels, seg, dense_at,
-    keys, values, spreads, data, dense, enough, out, support, reason, level, spread,
+    which, X, n_inputs, lo, step, plateau, nsets, inner, trend, blocks, radix, n_levels, seg,
+    dense_at, keys, values, spreads, data, dense, enough, out, support, reason, level, spread,
 ):  # fmt: skip
     """Inference over the fine rule grid and the coarser levels behind it, for many models.
 
@@ -243,6 +257,12 @@ def infer_levels(
     ``spread`` the same weighted average of the fired rules' ``spreads`` (their outputs'
     spread; NaN where none is known), ``reason`` 0 (ok), 1 (NaN input), 2 (no trained rule
     fires at any level), 3 (input clipped to its span).
+
+    **Past the span, along the trend.** ``trend[m]`` is the model's linear trend ``[b0, b1 …
+    bd]`` (:attr:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.trend_`). An input past
+    its span is clipped to it (reason 3) as before, and the answer then moves by the trend's
+    slope times the distance past the span's end, at most :data:`REACH` of the span
+    (:func:`_past`); inside the spans the answer is unchanged.
     """
     n = X.shape[0]
     d_max = X.shape[1]
@@ -255,13 +275,17 @@ def infer_levels(
         d = n_inputs[m]
         code = 0
         inside = True
+        past = 0.0
         for k in range(d):
             xv = X[r, k]
             if math.isnan(xv):
                 code = 1
                 break
             lo_k = lo[m, k]
-            xv, code = _clipped(xv, lo_k, lo_k + step[m, k] * (nsets[m, k] - 1), code)
+            hi_k = lo_k + step[m, k] * (nsets[m, k] - 1)
+            if code == 3 or xv < lo_k or xv > hi_k:
+                past += _past(xv, lo_k, hi_k, trend[m, k + 1])
+            xv, code = _clipped(xv, lo_k, hi_k, code)
             xs[k] = xv
             i = math.floor((xv - lo_k) / step[m, k] + 0.5)
             if i > nsets[m, k] - 1:
@@ -303,12 +327,14 @@ def infer_levels(
                 spread[r] = ql / wl if wl > 0.0 else np.nan
             if sl >= enough:
                 break
+        if code == 3 and level[r] >= 0:  # past the span: along the trend (REACH at most)
+            out[r] = out[r] + past
         reason[r] = code if level[r] >= 0 else 2
 
 
 @nb.njit(cache=True, nogil=True)
 def infer_fine(
-    X, lo, step, plateau, nsets, inner, radix, table, values, spreads, enough, coarse,
+    X, lo, step, plateau, nsets, inner, trend, radix, table, values, spreads, enough, coarse,
     out, support, reason, level, spread, again,
 ):  # fmt: skip
     """:func:`infer_levels` of one model at its fine level only, through the level's dense
@@ -325,6 +351,7 @@ def infer_fine(
         code = 0
         inside = True
         base = 0
+        past = 0.0
         for k in range(d):
             xv = X[r, k]
             if math.isnan(xv):
@@ -333,7 +360,10 @@ def infer_fine(
             lo_k = lo[k]
             st = step[k]
             nk = nsets[k]
-            xv, code = _clipped(xv, lo_k, lo_k + st * (nk - 1), code)
+            hi_k = lo_k + st * (nk - 1)
+            if code == 3 or xv < lo_k or xv > hi_k:
+                past += _past(xv, lo_k, hi_k, trend[k + 1])
+            xv, code = _clipped(xv, lo_k, hi_k, code)
             t = (xv - lo_k) / st  # the fine level: b = 1, its centre offset 0
             i = int(t + 0.5)  # t >= 0 here (xv clipped), so the floor
             if i > nk - 1:
@@ -358,6 +388,8 @@ def infer_fine(
             spread[r] = ql / wl if wl > 0.0 else np.nan
         if sl < enough and coarse and inside:
             again[r] = True
+        if code == 3 and level[r] >= 0:
+            out[r] = out[r] + past
         reason[r] = code if level[r] >= 0 else 2
 
 

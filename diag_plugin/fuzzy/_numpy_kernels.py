@@ -19,6 +19,9 @@ QUANT = 65536
 QCLIP = 2 * QUANT
 #: float sums of integers below this are exact
 EXACT = float(1 << 53)
+#: an input beyond its span moves the answer along the model's linear trend for at most this
+#: share of the span past its end (then the answer holds): see :func:`._kernels.infer_levels`
+REACH = 0.25
 
 
 def _cells(x: np.ndarray, lo: float, step: float, n: int) -> np.ndarray:
@@ -69,8 +72,8 @@ def _find(keys, dense, sa: int, sb: int, da: int, key: np.ndarray) -> np.ndarray
 
 
 def infer_levels(
-    which, X, n_inputs, lo, step, plateau, nsets, inner, blocks, radix, n_levels, seg, dense_at,
-    keys, values, spreads, data, dense, enough, out, support, reason, level, spread,
+    which, X, n_inputs, lo, step, plateau, nsets, inner, trend, blocks, radix, n_levels, seg,
+    dense_at, keys, values, spreads, data, dense, enough, out, support, reason, level, spread,
 ):  # fmt: skip
     """:func:`._kernels.infer_levels` for one model (``which`` empty): the same outputs, the
     same bits."""
@@ -87,6 +90,7 @@ def infer_levels(
     inside = np.ones(n, bool)
     xs = np.empty((n, d))
     own = np.empty((n, d), np.int64)
+    past = np.zeros(n)  # the trend's move past the span (:data:`REACH`)
     for k in range(d):
         xv = X[:, k]
         nan |= np.isnan(xv)
@@ -94,6 +98,10 @@ def infer_levels(
         hi_k = lo_k + step[0, k] * (nsets[0, k] - 1)
         clipped |= (xv < lo_k) | (xv > hi_k)
         xs[:, k] = np.clip(xv, lo_k, hi_k)
+        reach = REACH * (hi_k - lo_k)
+        far = np.clip(xv, lo_k - reach, hi_k + reach)
+        out_k = (xv < lo_k) | (xv > hi_k)
+        past[out_k] += trend[0, k + 1] * (far[out_k] - xs[out_k, k])
         i = np.minimum(
             np.nan_to_num(np.floor((xs[:, k] - lo_k) / step[0, k] + 0.5)), nsets[0, k] - 1
         )
@@ -159,4 +167,6 @@ def infer_levels(
         wq = wl[take]
         spread[r] = np.where(wq > 0.0, ql[take] / np.where(wq > 0.0, wq, 1.0), np.nan)
         active[rows[sl >= enough]] = False
+    moved = clipped & (level >= 0) & ~nan
+    out[moved] = out[moved] + past[moved]
     reason[:] = np.where(nan, 1, np.where(level >= 0, np.where(clipped, 3, 0), 2))

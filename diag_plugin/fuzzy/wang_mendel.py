@@ -37,6 +37,13 @@ it the fine grid alone answers. A sample no level's rules reach is
 *unsupported*: NaN, with a reason code. ``levels=0`` is the paper's fine grid
 alone.
 
+**Past the span, along the data's slope** (:attr:`WangMendelRegressor.trend_`, the
+least-squares plane through the fine rules, derived like the levels and never stored). An
+input past its span is clipped to it as before (reason *outside*), and the answer then moves
+by the trend's slope times the distance past the span's end, for up to
+:data:`~._numpy_kernels.REACH` of the span (then it holds). Inside the spans the answer is
+unchanged, bit for bit.
+
 The rule storage is sparse (sorted cell keys), so models with many inputs
 never allocate the ``Π n_k`` grid; a dense look-up table is built only for
 inference on small grids.
@@ -78,6 +85,7 @@ class InferenceGrid(NamedTuple):
     nsets: np.ndarray
     plateau: np.ndarray
     inner: np.ndarray  # (d, 2): first and last fine set of each input holding training data
+    trend: np.ndarray  # (d + 1,): the model's linear trend b0, b1 … bd (:attr:`trend_`)
     blocks: np.ndarray  # (levels, d)
     radix: np.ndarray  # (levels, d)
     keys: list[np.ndarray]
@@ -134,6 +142,7 @@ def pack(grids: Sequence[InferenceGrid], dense: bool) -> tuple:
     plateau = np.zeros((m, d_max))
     nsets = np.full((m, d_max), 2, np.int64)
     inner = np.zeros((m, d_max, 2), np.int64)
+    trend = np.zeros((m, d_max + 1))
     blocks = np.ones((m, l_max, d_max), np.int64)
     radix = np.zeros((m, l_max, d_max), np.int64)
     n_levels = np.array([g.blocks.shape[0] for g in grids], np.int64)
@@ -146,6 +155,7 @@ def pack(grids: Sequence[InferenceGrid], dense: bool) -> tuple:
         d = g.lo.size
         lo[i, :d], step[i, :d], nsets[i, :d], plateau[i, :d] = g.lo, g.step, g.nsets, g.plateau
         inner[i, :d] = g.inner
+        trend[i, : d + 1] = g.trend
         L = g.blocks.shape[0]
         blocks[i, :L, :d], radix[i, :L, :d] = g.blocks, g.radix
         for lv in range(L):
@@ -168,8 +178,8 @@ def pack(grids: Sequence[InferenceGrid], dense: bool) -> tuple:
     cat_s = np.concatenate(spreads) if spreads else np.empty(0)
     cat_f = np.concatenate(data) if data else np.empty(0, np.bool_)
     cat_d = np.concatenate(tables) if tables else np.empty(0, np.int64)
-    return (n_inputs, lo, step, plateau, nsets, inner, blocks, radix, n_levels, seg, dense_at,
-            cat_k, cat_v, cat_s, cat_f, cat_d, LEVEL_SUPPORT)  # fmt: skip
+    return (n_inputs, lo, step, plateau, nsets, inner, trend, blocks, radix, n_levels, seg,
+            dense_at, cat_k, cat_v, cat_s, cat_f, cat_d, LEVEL_SUPPORT)  # fmt: skip
 
 
 def kernels(rows: int | None = None) -> ModuleType:
@@ -233,6 +243,9 @@ MAX_CELL_COUNT = 1 << 29
 #: a level answers a sample where its rules carry at least this share of the firing weight
 #: (the unit's default ``min_support``); else the next coarser level is asked
 LEVEL_SUPPORT = 0.9
+#: ridge on the linear trend's slopes (:attr:`WangMendelRegressor.trend_`), a share of each
+#: input's weighted sum of squares about its mean over the fine rules
+TREND_RIDGE = 1e-3
 #: weight of the smoothness prior of a coarse level's node fit, relative to the data per node
 SMOOTHING = 0.1
 #: samples' worth of the model's typical spread a cell's own spread is pooled with
@@ -351,6 +364,7 @@ class WangMendelRegressor(ParamsMixin):
         self._spreads: dict[int, np.ndarray] = {}
         self._packs: dict[int, tuple] = {}
         self._fine: tuple | None = None
+        self._trend: np.ndarray | None = None
 
     def _arrays(self):
         P = self.partitions_
@@ -818,9 +832,9 @@ class WangMendelRegressor(ParamsMixin):
             table = np.full(self.n_cells_, -1, np.int64)
             table[g.keys[0]] = np.arange(g.keys[0].size)
             self._fine = (g.lo, g.step, g.plateau, g.nsets, np.ascontiguousarray(g.inner),
-                          g.radix[0].copy(), table, np.asarray(g.conclusions[0], float),
-                          np.asarray(g.spreads[0], float), LEVEL_SUPPORT,
-                          self.n_levels_ > 1)  # fmt: skip
+                          np.ascontiguousarray(g.trend), g.radix[0].copy(), table,
+                          np.asarray(g.conclusions[0], float), np.asarray(g.spreads[0], float),
+                          LEVEL_SUPPORT, self.n_levels_ > 1)  # fmt: skip
         return self._fine
 
     def _predict_levels(self, X: np.ndarray) -> Prediction:
@@ -934,6 +948,7 @@ class WangMendelRegressor(ParamsMixin):
             nsets,
             plateau,
             inner,
+            self.trend_.copy(),
             self.level_blocks_[:levels].copy(),
             radix,
             [k for k, _, _ in nodes],
@@ -941,6 +956,23 @@ class WangMendelRegressor(ParamsMixin):
             [f for _, _, f in nodes],
             spreads,
         )
+
+    @property
+    def trend_(self) -> np.ndarray:
+        """The model's linear trend ``[b0, b1 … bd]`` (output = ``b0 + Σ b_k x_k``): the
+        least-squares plane through the fine rules' conclusions at their set centres, each
+        weighted by its training samples (every rule alike where none has a count), with a
+        ridge of :data:`TREND_RIDGE` of each input's own spread on the slopes (an input the
+        rules do not vary gets slope 0). Derived from the rules like the levels, never stored,
+        so an expert's edit carries into it.
+
+        Inference reads it where an input is past its span: the answer moves along the
+        trend (see :func:`._kernels.infer_levels`), so a slow excursion of the plant beyond
+        the training's range is followed along the data's own relation instead of held at
+        the grid's edge."""
+        if getattr(self, "_trend", None) is None:
+            self._trend = _linear_trend(self)
+        return self._trend
 
     @property
     def spread_(self) -> float:
@@ -1063,6 +1095,34 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     rhs = A.T @ (sw * y) + ridge * float(np.average(y, weights=n))
     values = np.atleast_1d(spsolve(M, rhs))
     return nodes, values, data
+
+
+def _linear_trend(m: WangMendelRegressor) -> np.ndarray:
+    """:attr:`WangMendelRegressor.trend_`: weighted least squares of the fine conclusions on
+    their set centres, slopes with a ridge of :data:`TREND_RIDGE` of each input's weighted sum
+    of squares (in set spacings, so the solve is well scaled)."""
+    d = m.n_features_in_
+    out = np.zeros(d + 1)
+    conc = np.asarray(m.conclusions_, float)
+    ok = np.isfinite(conc)
+    w = np.where(ok & (m.count_ > 0), m.count_, 0).astype(float)
+    if not w.sum():
+        w = ok.astype(float)
+    total = w.sum()
+    if not total:
+        return out
+    lo, step, _, _, _ = m._arrays()
+    z = m.cell_indices().astype(float)  # set centres in set spacings from lo
+    y = np.where(ok, conc, 0.0)
+    mz = (w @ z) / total
+    my = float(w @ y) / total
+    zc = z - mz
+    G = (zc * w[:, None]).T @ zc
+    G[np.diag_indices(d)] += TREND_RIDGE * np.diag(G) + 1e-12 * total
+    s = np.linalg.solve(G, zc.T @ (w * (y - my)))
+    out[1:] = s / step
+    out[0] = my - float(s @ (mz + lo / step))
+    return out
 
 
 #: coarse grids of at most this many cells have their node fit's design made by the
