@@ -231,6 +231,7 @@ def _past(xv, lo_k, hi_k, slope):
 def infer_levels(
     which, X, n_inputs, lo, step, plateau, nsets, inner, trend, blocks, radix, n_levels, seg,
     dense_at, keys, values, spreads, data, dense, enough, out, support, reason, level, spread,
+    first=0,
 ):  # fmt: skip
     """Inference over the fine rule grid and the coarser levels behind it, for many models.
 
@@ -263,6 +264,13 @@ def infer_levels(
     its span is clipped to it (reason 3) as before, and the answer then moves by the trend's
     slope times the distance past the span's end, at most :data:`REACH` of the span
     (:func:`_past`); inside the spans the answer is unchanged.
+
+    ``first`` > 0: the levels from ``first`` on only, for rows whose ``out``, ``support``,
+    ``level`` and ``spread`` already hold the answer of the levels before it (none of which
+    reached ``enough``: the rows :meth:`WangMendelRegressor.predict_detail` asks again).
+    The levels are a fold from the finest on, so the answers are the same bits as from
+    level 0, without evaluating the finer levels a second time (the trend's move past the
+    span added only to an answer of these levels: the earlier answer holds it already).
     """
     n = X.shape[0]
     d_max = X.shape[1]
@@ -293,14 +301,16 @@ def infer_levels(
             own[k] = i
             if i < inner[m, k, 0] or i > inner[m, k, 1]:
                 inside = False
-        out[r] = np.nan
-        support[r] = 0.0
-        level[r] = -1
-        spread[r] = np.nan
+        if first == 0:
+            out[r] = np.nan
+            support[r] = 0.0
+            level[r] = -1
+            spread[r] = np.nan
         if code == 1:
             reason[r] = 1
             continue
-        for lv in range(n_levels[m] if inside else 1):
+        answered = False  # by a level of this call
+        for lv in range(first, n_levels[m] if inside else 1):
             sa = seg[m, lv, 0]
             sb = seg[m, lv, 1]
             da = dense_at[m, lv]
@@ -325,9 +335,10 @@ def infer_levels(
                 support[r] = sl
                 level[r] = lv
                 spread[r] = ql / wl if wl > 0.0 else np.nan
+                answered = True
             if sl >= enough:
                 break
-        if code == 3 and level[r] >= 0:  # past the span: along the trend (REACH at most)
+        if code == 3 and answered:  # past the span: along the trend (REACH at most)
             out[r] = out[r] + past
         reason[r] = code if level[r] >= 0 else 2
 
