@@ -105,6 +105,55 @@ def test_coarse_levels_fitted_on_demand_answer_as_all_levels(kind):
         assert (got.level > 0).any()  # coarse levels did answer some samples
 
 
+@pytest.mark.parametrize("kind", ["tank", "heatex"])
+def test_rows_asked_again_past_the_span_answer_as_all_levels(kind):
+    """The rows the fine level leaves short are asked only the coarser levels (continuing
+    the fine answer): past the span, the trend's move is added once, whether a coarse level
+    answers or the fine answer holds."""
+    frame = _plant(kind, 2.0, 44)
+    cols = list(frame.columns)
+    out, inputs = cols[-1], cols[:2]
+    for sets in (31, 9):
+        m, X = _model(frame, inputs, out, sets)
+        # the box of the spans and 5 % past each end, at random: inside the data's range
+        # and not, short of support on the fine grid and at the coarse levels
+        rng = np.random.default_rng(3)
+        lo = np.array([p.lo for p in m.partitions_])
+        hi = np.array([p.lo + p.step * (p.n - 1) for p in m.partitions_])
+        X = np.vstack([X, rng.uniform(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo), (20000, 2))])
+        full = run_kernel(pack([m.inference_grid()], dense=True), np.empty(0, np.int64), X)
+        lazy, _ = _model(frame, inputs, out, sets)
+        got = lazy.predict_detail(X)
+        again = lazy.predict_detail(X)  # every level packed: the rows asked all at once
+        for a, b, c in zip(
+            (full.y, full.support, full.reason, full.level, full.spread),
+            (got.y, got.support, got.reason, got.level, got.spread),
+            (again.y, again.support, again.reason, again.level, again.spread),
+            strict=True,
+        ):
+            np.testing.assert_array_equal(a, b)
+            np.testing.assert_array_equal(a, c)
+        assert ((got.reason == 3) & (got.level > 0)).any()  # coarse answers past the span
+        # where no coarse level answers, the fine answer (its move past the span included)
+        # holds as it is: coarse cells marked without data, the rows short on the fine grid
+        packed = list(pack([m.inference_grid()], dense=True))
+        packed[15] = np.zeros_like(packed[15])  # the data flags: no coarse cell answers
+        none = np.empty(0, np.int64)
+        fine = run_kernel(pack([m.inference_grid(0)], dense=True), none, X)
+        short = (fine.support < 0.9) & (fine.reason != 1)
+        ref = run_kernel(tuple(packed), none, X[short])
+        assert ((ref.reason == 3) & (ref.level == 0)).any()
+        prior = type(fine)(*(f[short] for f in (fine.y, fine.support, fine.reason,
+                                                fine.level, fine.spread)))  # fmt: skip
+        cont = run_kernel(tuple(packed), none, X[short], prior, first=1)
+        for a, b in zip(
+            (ref.y, ref.support, ref.reason, ref.level, ref.spread),
+            (cont.y, cont.support, cont.reason, cont.level, cont.spread),
+            strict=True,
+        ):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_no_coarse_level_fitted_where_the_fine_grid_answers_every_sample():
     frame = _plant("tank", 2.0, 45)
     cols = list(frame.columns)

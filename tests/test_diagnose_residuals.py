@@ -264,3 +264,24 @@ def test_effective_samples_stop_summing_at_the_first_lag_not_positive(n):
     rho = rho / rho[0]
     assert rho[1] <= 0 < rho[2] and rho[1] + rho[2] > 0.5  # the case is the one described
     assert effective_samples(x) == pytest.approx(n)
+
+
+def test_lowpass_in_place_gives_the_same_bits_and_no_new_array():
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(400, 3)) + 2.0
+    x[50:60, 1] = np.nan
+    x[70, 2] = np.inf  # non-finite: NaN out, in place as in a new array
+    ref = LowPass(max_gap=5).transform(x)
+    mine = x.copy()
+    got = LowPass(max_gap=5).transform(mine, overwrite=True)
+    assert got is mine
+    np.testing.assert_array_equal(got, ref)
+    assert np.isnan(got[70, 2])
+    # a frame (the caller's values) or a column-major array is never written
+    f = pd.DataFrame(x.copy())
+    LowPass().transform(f, overwrite=True)
+    np.testing.assert_array_equal(f.to_numpy(), x)
+    col = np.asfortranarray(x)
+    out = LowPass().transform(col, overwrite=True)
+    assert out is not col
+    np.testing.assert_array_equal(col, x)

@@ -66,18 +66,20 @@ def _per_column(value: Any, columns: Any, m: int, what: str) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _lowpass_kernel(x, sos, zi, gap, max_gap):  # pragma: no cover - numba
-    """``x`` (samples × columns) filtered by the second-order sections ``sos`` from the state
-    ``zi`` (columns × sections × 2), skipping non-finite samples (NaN out, state held), the
-    state back at rest after more than ``max_gap`` of them; ``zi`` and ``gap`` advanced.
-    Row by row, so the samples are read in memory order; each column's recursion is its own."""
+def _lowpass_kernel(x, sos, zi, gap, max_gap, out):  # pragma: no cover - numba
+    """``x`` (samples × columns) filtered into ``out`` (its shape; ``x`` itself to filter in
+    place: each value is read before it is written) by the second-order sections ``sos``
+    from the state ``zi`` (columns × sections × 2), skipping non-finite samples (NaN out,
+    state held), the state back at rest after more than ``max_gap`` of them; ``zi`` and
+    ``gap`` advanced. Row by row, so the samples are read in memory order; each column's
+    recursion is its own."""
     n, m = x.shape
-    out = np.full((n, m), np.nan)
     ns = sos.shape[0]
     for i in range(n):
         for j in range(m):
             x_cur = x[i, j]
             if not np.isfinite(x_cur):
+                out[i, j] = np.nan
                 gap[j] += 1
                 continue
             if gap[j] > max_gap:
@@ -134,9 +136,11 @@ class LowPass:
         elif self.zi_.shape[0] != m:
             raise ValueError(f"filter state has {self.zi_.shape[0]} columns, input has {m}")
 
-    def transform(self, r: ArrayLike) -> ArrayLike:
-        """Filter residuals (seed 000 Sec. IV), continuing from the carried state."""
-        a, wrap = _as_2d(r, copy=False)  # read only: the kernel writes a new array
+    def transform(self, r: ArrayLike, *, overwrite: bool = False) -> ArrayLike:
+        """Filter residuals (seed 000 Sec. IV), continuing from the carried state.
+        ``overwrite=True`` with a C-ordered float array ``r`` the caller owns: filtered in
+        place, no second array of the residuals' size (``r`` is returned)."""
+        a, wrap = _as_2d(r, copy=False)  # read only unless overwrite
         n, m = a.shape
         self._init_state(m)
         assert self.zi_ is not None and self.gap_ is not None
@@ -145,7 +149,9 @@ class LowPass:
         # one compiled pass per column over the finite samples (the recursion of scipy's
         # sosfilt, direct form II transposed, the same operations in the same order)
         x = np.ascontiguousarray(a)
-        return wrap(_lowpass_kernel(x, self.sos_, self.zi_, self.gap_, self.max_gap))
+        inplace = overwrite and x is a and isinstance(r, np.ndarray) and x.ndim == r.ndim
+        out = x if inplace else np.empty_like(x)
+        return wrap(_lowpass_kernel(x, self.sos_, self.zi_, self.gap_, self.max_gap, out))
 
     def to_state(self) -> dict[str, Any]:
         """Parameters and carried state as plain JSON-able values."""

@@ -550,8 +550,9 @@ class Unit:
             d = self.builders[t.name].transform(cols, lean=True)
             if d.positions.size:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
-        out = np.ascontiguousarray(out.T)
-        return pd.DataFrame(out, index=frame.index, columns=self.tests, copy=False)
+        # samples × tests as a view of it (column-major): :meth:`filtered` writes the C-ordered
+        # copy it filters in place, so no third array of the residuals' size
+        return pd.DataFrame(out.T, index=frame.index, columns=self.tests, copy=False)
 
     def _residual_into(
         self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y: np.ndarray,
@@ -584,13 +585,15 @@ class Unit:
     def filtered(self, raw: pd.DataFrame) -> pd.DataFrame:
         """The residuals as judged: a spread test's column replaced by the running spread of
         its residual (:mod:`~diag_plugin.diagnose.unitloops`), then the low-pass filter."""
-        if self.spread_cols.size:
-            x = raw.to_numpy(float, copy=True)
-            x[:, self.spread_cols] = self.spread.transform(x[:, self.spread_cols])
-            raw = pd.DataFrame(x, index=raw.index, columns=raw.columns, copy=False)
-        if self.lowpass is None:
+        if not self.spread_cols.size and self.lowpass is None:
             return raw
-        x = self.lowpass.transform(raw.to_numpy())
+        # one C-ordered copy (``raw`` may be column-major, :meth:`raw_residuals`), replaced
+        # and filtered in place
+        x = np.array(raw.to_numpy(float), float, order="C")
+        if self.spread_cols.size:
+            x[:, self.spread_cols] = self.spread.transform(x[:, self.spread_cols])
+        if self.lowpass is not None:
+            x = self.lowpass.transform(x, overwrite=True)
         return pd.DataFrame(x, index=raw.index, columns=raw.columns, copy=False)
 
     def _limits(self) -> tuple[np.ndarray, np.ndarray]:

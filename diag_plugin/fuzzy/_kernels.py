@@ -185,25 +185,35 @@ def _lower_weight(t, nl, p):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads):
+def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads, cw, ck):
     """The ``2^d`` rules around cell ``base`` (upper memberships ``ws``): the weighted sums
-    of the existing rules' conclusions and spreads and their weights ``(vl, sl, ql, wl)``."""
+    of the existing rules' conclusions and spreads and their weights ``(vl, sl, ql, wl)``.
+
+    Corner ``c`` (bit ``k`` set: the upper set of input ``k``) weighs
+    ``((1·f_0)·f_1)·…·f_{d-1}``, ``f_k`` = ``ws[k]`` or ``1 − ws[k]``: the products are
+    built input by input into the scratch ``cw`` (and the keys into ``ck``, both ``2^d``
+    long), each corner's factors multiplied in the same order as one product per corner, so
+    the same bits with ``2^(d+1)`` multiplications instead of ``d·2^d``."""
+    cw[0] = 1.0
+    ck[0] = base
+    m = 1
+    for k in range(d):
+        w = ws[k]
+        rk = radix[k]
+        for c in range(m):
+            cw[c + m] = cw[c] * w
+            ck[c + m] = ck[c] + rk
+            cw[c] = cw[c] * (1.0 - w)
+        m <<= 1
     vl = 0.0
     sl = 0.0
     ql = 0.0
     wl = 0.0
-    for c in range(1 << d):
-        wt = 1.0
-        key = base
-        for k in range(d):
-            if (c >> k) & 1:
-                wt *= ws[k]
-                key += radix[k]
-            else:
-                wt *= 1.0 - ws[k]
+    for c in range(m):
+        wt = cw[c]
         if wt == 0.0:
             continue
-        ix = _find(keys, dense, sa, sb, da, key)
+        ix = _find(keys, dense, sa, sb, da, ck[c])
         if ix >= 0:
             vl += wt * values[ix]
             sl += wt
@@ -231,6 +241,7 @@ def _past(xv, lo_k, hi_k, slope):
 def infer_levels(
     which, X, n_inputs, lo, step, plateau, nsets, inner, trend, blocks, radix, n_levels, seg,
     dense_at, keys, values, spreads, data, dense, enough, out, support, reason, level, spread,
+    first=0,
 ):  # fmt: skip
     """Inference over the fine rule grid and the coarser levels behind it, for many models.
 
@@ -263,10 +274,19 @@ def infer_levels(
     its span is clipped to it (reason 3) as before, and the answer then moves by the trend's
     slope times the distance past the span's end, at most :data:`REACH` of the span
     (:func:`_past`); inside the spans the answer is unchanged.
+
+    ``first`` > 0: the levels from ``first`` on only, for rows whose ``out``, ``support``,
+    ``level`` and ``spread`` already hold the answer of the levels before it (none of which
+    reached ``enough``: the rows :meth:`WangMendelRegressor.predict_detail` asks again).
+    The levels are a fold from the finest on, so the answers are the same bits as from
+    level 0, without evaluating the finer levels a second time (the trend's move past the
+    span added only to an answer of these levels: the earlier answer holds it already).
     """
     n = X.shape[0]
     d_max = X.shape[1]
     ws = np.empty(d_max, dtype=np.float64)
+    cw = np.empty(1 << d_max, dtype=np.float64)
+    ck = np.empty(1 << d_max, dtype=np.int64)
     xs = np.empty(d_max, dtype=np.float64)
     own = np.empty(d_max, dtype=np.int64)
     per_row = which.shape[0] > 0
@@ -293,14 +313,16 @@ def infer_levels(
             own[k] = i
             if i < inner[m, k, 0] or i > inner[m, k, 1]:
                 inside = False
-        out[r] = np.nan
-        support[r] = 0.0
-        level[r] = -1
-        spread[r] = np.nan
+        if first == 0:
+            out[r] = np.nan
+            support[r] = 0.0
+            level[r] = -1
+            spread[r] = np.nan
         if code == 1:
             reason[r] = 1
             continue
-        for lv in range(n_levels[m] if inside else 1):
+        answered = False  # by a level of this call
+        for lv in range(first, n_levels[m] if inside else 1):
             sa = seg[m, lv, 0]
             sb = seg[m, lv, 1]
             da = dense_at[m, lv]
@@ -318,16 +340,17 @@ def infer_levels(
                 if io < 0 or not data[io]:
                     continue  # a coarse cell answers only where the data reached it
             vl, sl, ql, wl = _fire(
-                ws, d, base, radix[m, lv], keys, dense, sa, sb, da, values, spreads
+                ws, d, base, radix[m, lv], keys, dense, sa, sb, da, values, spreads, cw, ck
             )
             if sl > 0.0 and (level[r] < 0 or sl >= enough):
                 out[r] = vl / sl
                 support[r] = sl
                 level[r] = lv
                 spread[r] = ql / wl if wl > 0.0 else np.nan
+                answered = True
             if sl >= enough:
                 break
-        if code == 3 and level[r] >= 0:  # past the span: along the trend (REACH at most)
+        if code == 3 and answered:  # past the span: along the trend (REACH at most)
             out[r] = out[r] + past
         reason[r] = code if level[r] >= 0 else 2
 
@@ -347,6 +370,8 @@ def infer_fine(
     n = X.shape[0]
     d = X.shape[1]
     ws = np.empty(d, dtype=np.float64)
+    cw = np.empty(1 << d, dtype=np.float64)
+    ck = np.empty(1 << d, dtype=np.int64)
     for r in range(n):
         code = 0
         inside = True
@@ -380,7 +405,7 @@ def infer_fine(
         if code == 1:
             reason[r] = 1
             continue
-        vl, sl, ql, wl = _fire(ws, d, base, radix, table, table, 0, 0, 0, values, spreads)
+        vl, sl, ql, wl = _fire(ws, d, base, radix, table, table, 0, 0, 0, values, spreads, cw, ck)
         if sl > 0.0:
             out[r] = vl / sl
             support[r] = sl

@@ -198,21 +198,36 @@ def _fields(det: Prediction) -> tuple[np.ndarray, ...]:
     return det.y, det.support, det.reason, det.level, det.spread
 
 
-def run_kernel(packed: tuple, which: np.ndarray, X: np.ndarray) -> Prediction:
-    """Prediction, support, reason and level per row of ``X`` by the packed models."""
+def run_kernel(
+    packed: tuple, which: np.ndarray, X: np.ndarray, prior: Prediction | None = None,
+    first: int = 0,
+) -> Prediction:  # fmt: skip
+    """Prediction, support, reason and level per row of ``X`` by the packed models.
+
+    ``first`` > 0 (one model, compiled loops): the levels from ``first`` on only, continuing
+    ``prior``, the answer of the finer levels for the same rows, none of them reaching
+    ``LEVEL_SUPPORT`` (see :func:`._kernels.infer_levels`); ``prior``'s arrays are written
+    in place and returned."""
     n = X.shape[0]
-    out = np.empty(n)
-    sup = np.empty(n)
-    reason = np.empty(n, np.int8)
-    level = np.empty(n, np.int8)
-    spread = np.empty(n)
-    loops = kernels(None if which.size else n)  # numpy: one model's inference
+    if first:
+        assert prior is not None and not which.size
+        out, sup, reason, level, spread = _fields(prior)
+        loops = kernels(None)
+    else:
+        out = np.empty(n)
+        sup = np.empty(n)
+        reason = np.empty(n, np.int8)
+        level = np.empty(n, np.int8)
+        spread = np.empty(n)
+        loops = kernels(None if which.size else n)  # numpy: one model's inference
     for s in range(0, n, CHUNK_ROWS):
         e = s + CHUNK_ROWS
         rows = which[s:e] if which.size else which
-        loops.infer_levels(
-            rows, X[s:e], *packed, out[s:e], sup[s:e], reason[s:e], level[s:e], spread[s:e]
-        )
+        args = (out[s:e], sup[s:e], reason[s:e], level[s:e], spread[s:e])
+        if first:
+            loops.infer_levels(rows, X[s:e], *packed, *args, first)
+        else:
+            loops.infer_levels(rows, X[s:e], *packed, *args)
     return Prediction(out, sup, reason, level, spread)
 
 
@@ -804,6 +819,7 @@ class WangMendelRegressor(ParamsMixin):
         last = self.n_levels_ - 1
         depth = 0
         while rows.size:
+            done = depth  # the levels up to it answered these rows short of LEVEL_SUPPORT
             depth += 1
             if (rows.size > n // 2 and n > LAZY_ROWS) or last in packs:
                 # most of many rows asked again, or every level's rules packed already (by
@@ -812,7 +828,8 @@ class WangMendelRegressor(ParamsMixin):
                 depth = last
             if depth not in packs:
                 packs[depth] = pack([self.inference_grid(depth)], dense=True)
-            sub = run_kernel(packs[depth], none, X[rows])
+            prior = Prediction(*(f[rows] for f in _fields(det)))
+            sub = run_kernel(packs[depth], none, X[rows], prior, first=done + 1)
             for full, part in zip(_fields(det), _fields(sub), strict=True):
                 full[rows] = part
             if depth == last:
