@@ -87,15 +87,33 @@ def _points(rb: RuleBase, seed: int = 1, n: int = 1000, outside: float = 0.0):
     return np.column_stack(cols)
 
 
+def _trend_move(model: WangMendelRegressor, X: np.ndarray) -> np.ndarray:
+    """How far the model's answer moves past its spans along its linear trend (``trend_``,
+    at most REACH of a span past its end): FCL has no such thing, the peer clips."""
+    from diag_plugin.fuzzy._numpy_kernels import REACH
+
+    move = np.zeros(X.shape[0])
+    for k, p in enumerate(model.partitions_):
+        lo, hi = p.lo, p.lo + p.step * (p.n - 1)
+        reach = REACH * (hi - lo)
+        move += model.trend_[k + 1] * (
+            np.clip(X[:, k], lo - reach, hi + reach) - np.clip(X[:, k], lo, hi)
+        )
+    return move
+
+
 def _compare(
     rb: RuleBase, X: np.ndarray, y_peer: np.ndarray, min_finite: int, mixed: bool = True
 ) -> None:
     # FCL holds the fine rule grid (IEC 61131-7 has no coarser levels behind it): the peer
-    # reproduces the model's fine grid alone
+    # reproduces the model's fine grid alone; past an input's span the model's answer moves
+    # along its trend, the peer's holds at the edge: the peer plus that move is the model
     state = rb.to_model().to_state()
     state["params"]["levels"] = 0
-    pred = WangMendelRegressor.from_state(state).predict_detail(X)
+    model = WangMendelRegressor.from_state(state)
+    pred = model.predict_detail(X)
     y = pred.y
+    y_peer = y_peer + _trend_move(model, X)
     finite = np.isfinite(y)
     assert finite.sum() >= min_finite, f"only {finite.sum()} supported points"
     if mixed:  # points where no rule fires, and where only some of the fired rules exist
@@ -164,7 +182,8 @@ def test_fuzzylite_cli_reads_fcl_and_agrees(tmp_path, n_inputs, shape):
     rb = _rulebase(tmp_path, n_inputs, shape)
     X = _points(rb)
     _compare(rb, X, _run_fuzzylite(tmp_path, rb, X), min_finite=900)
-    # beyond the span the model clips the inputs; the shoulders give the same
+    # beyond the span the model clips the inputs, the shoulders give the same, and the
+    # model's answer then moves along its trend (_compare adds that move to the peer's)
     Xo = _points(rb, seed=2, n=300, outside=0.3)
     _compare(rb, Xo, _run_fuzzylite(tmp_path, rb, Xo), min_finite=250, mixed=False)
 
