@@ -353,6 +353,7 @@ class WangMendelRegressor(ParamsMixin):
         self._fine: tuple | None = None
         self._grid_base: tuple | None = None
         self._spread_ref: float | None = None
+        self._fine_fit: tuple | None = None
 
     def _arrays(self):
         P = self.partitions_
@@ -1041,8 +1042,7 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     from scipy.sparse.linalg import spsolve
 
     cells = m.level_rules(level)
-    has = m.count_ > 0
-    n = m.count_[has].astype(float)
+    has, n, sw, fine, y_fine, plateau = _fine_rules(m)
     if not n.size:
         return cells.keys, cells.conclusions, np.ones(cells.keys.size, bool)
     d = m.n_features_in_
@@ -1052,11 +1052,8 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     nsets = m.level_nsets(level)
     radix = _radix(nsets)
     # each fine rule at its set centres, in the coarse partition: lower node and weight
-    fine = m.cell_indices(m.keys_[has])
     loops = _design_loops(nsets)
     if loops is not None:  # the same arithmetic compiled: the same r, col, w and nodes
-        plateau = np.array([p.plateau if p.shape == "trapezoidal" else 0.0
-                            for p in m.partitions_])  # fmt: skip
         nodes, r, col, w = loops.coarse_corners(
             fine, blocks.astype(np.int64), nsets, plateau, radix, int(np.prod(nsets))
         )
@@ -1065,11 +1062,10 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     # nodes and keys both ascending and unique: membership by one search (np.isin's answer)
     at = np.minimum(np.searchsorted(cells.keys, nodes), max(cells.keys.size - 1, 0))
     data = cells.keys[at] == nodes if cells.keys.size else np.zeros(nodes.size, bool)
-    sw = np.sqrt(n)
     if nodes.size * n.size <= DENSE_FIT:  # small levels: dense numpy, no sparse overhead
-        return nodes, _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets), data
+        return nodes, _fit_dense(nodes, r, col, w, sw, n, y_fine, d, radix, nsets), data
     A = sp.csr_matrix((w * sw[r], (r, col)), shape=(n.size, nodes.size))
-    y = np.asarray(m.conclusions_, float)[has]
+    y = y_fine
     # smoothness: second differences along each input where both neighbours are nodes
     idx = np.column_stack([(nodes // radix[k]) % nsets[k] for k in range(d)])
     pr, pc, pv = [], [], []
@@ -1155,13 +1151,28 @@ def corner_weight(upper_w: np.ndarray, lower_w: np.ndarray, up: np.ndarray) -> n
     return w
 
 
-def _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets) -> np.ndarray:
-    """:func:`_fit_nodes`' least squares with dense arrays (a level of few nodes)."""
+def _fine_rules(m: WangMendelRegressor) -> tuple:
+    """What every coarse level's node fit reads of the fine rules holding samples, derived
+    once per trained state: the mask, their counts ``n`` and ``sqrt(n)``, their set indices,
+    their conclusions, and each input's plateau."""
+    got = m.__dict__.get("_fine_fit")
+    if got is None:
+        has = m.count_ > 0
+        n = m.count_[has].astype(float)
+        plateau = np.array([p.plateau if p.shape == "trapezoidal" else 0.0
+                            for p in m.partitions_])  # fmt: skip
+        got = (has, n, np.sqrt(n), m.cell_indices(m.keys_[has]),
+               np.asarray(m.conclusions_, float)[has], plateau)  # fmt: skip
+        m._fine_fit = got
+    return got
+
+
+def _fit_dense(nodes, r, col, w, sw, n, y, d, radix, nsets) -> np.ndarray:
+    """:func:`_fit_nodes`' least squares with dense arrays (a level of few nodes): ``n``,
+    ``sw`` and ``y`` are the fine rules' counts, their square roots and conclusions."""
     k = nodes.size
-    d = m.n_features_in_
     # each (fine rule, node) pair at most once: the sums of np.add.at, without its loop
     A = np.bincount(r * k + col, w * sw[r], minlength=n.size * k).reshape(n.size, k)
-    y = np.asarray(m.conclusions_, float)[m.count_ > 0]
     per_node = n.sum() / k
     ridge = 1e-6 * per_node
     loops = _design_loops(nsets)
