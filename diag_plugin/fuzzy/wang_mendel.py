@@ -282,6 +282,8 @@ class WangMendelRegressor(ParamsMixin):
     _params = PARAMS
 
     capabilities = Capabilities(incremental=True, mergeable=True, rule_regions=True)
+    #: :meth:`extrapolate` takes the prediction the caller has already (``pred``)
+    extrapolate_takes_pred = True
 
     def __init__(
         self,
@@ -1042,12 +1044,13 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     from scipy.sparse.linalg import spsolve
 
     cells = m.level_rules(level)
-    has, n, sw, fine, y_fine, plateau = _fine_rules(m)
-    if not n.size:
+    n_rules = int(np.count_nonzero(m.count_ > 0))
+    if not n_rules:
         return cells.keys, cells.conclusions, np.ones(cells.keys.size, bool)
     d = m.n_features_in_
-    if n.size << d > FIT_LIMIT:  # too big to fit: the level stays silent
+    if n_rules << d > FIT_LIMIT:  # too big to fit: the level stays silent
         return np.empty(0, np.int64), np.empty(0), np.empty(0, bool)
+    _, n, sw, fine, y_fine, plateau = _fine_rules(m)
     blocks = m.level_blocks_[level]
     nsets = m.level_nsets(level)
     radix = _radix(nsets)
