@@ -338,3 +338,34 @@ def test_without_takes_out_exactly_the_samples_given_and_refuses_any_it_never_ha
         with pytest.raises(ValueError, match="never in this model"):
             model.without(other)
             pytest.fail(what)
+
+
+def test_coarse_levels_and_stand_in_as_a_group_by_computes_them():
+    """A coarse level's rules are the group-by of the fine cells' integer accumulators (as
+    np.unique and np.add.at give them), and extrapolate with the prediction passed in answers
+    as it does computing it (the build's scoring passes it)."""
+    rng = np.random.default_rng(3)
+    X = rng.uniform(0, 1, (3000, 3))
+    y = np.sin(3 * X[:, 0]) + X[:, 1] * X[:, 2] + rng.normal(0, 0.05, 3000)
+    m = WangMendelRegressor([(0, 1)] * 3, (-1, 3), n_sets=[21, 15, 9]).fit(X, y)
+    for lv in range(1, m.n_levels_):
+        has = m.count_ > 0
+        keys = m._coarse_keys(m.keys_[has], lv)
+        uk, inv = np.unique(keys, return_inverse=True)
+        want = [np.zeros(uk.size, np.int64) for _ in range(3)]
+        for w, a in zip(want, (m.count_, m.qsum_, m.qsq_), strict=True):
+            np.add.at(w, inv, a[has])
+        got = m.level_rules(lv)
+        assert np.array_equal(got.keys, uk) and np.array_equal(got.count, want[0])
+        mean = want[1] / want[0]
+        assert np.array_equal(got.conclusions, m.output_partition_.lo + mean * m._yquant)
+    # a fine grid alone on few samples: many cells without a rule, the nearest rule answers
+    Q = rng.uniform(0, 1, (500, 3))
+    Q[:5, 1] = np.nan  # an input missing: no answer either way
+    thin = lambda: WangMendelRegressor([(0, 1)] * 3, (-1, 3), n_sets=15, levels=0)  # noqa: E731
+    a, b = thin().fit(X[:200], y[:200]), thin().fit(X[:200], y[:200])
+    pred = a.predict(Q)
+    assert (~np.isfinite(pred)).sum() > 50
+    got = a.extrapolate(Q, pred=pred)
+    assert np.array_equal(got, b.extrapolate(Q), equal_nan=True)
+    assert np.isfinite(got[5:]).all() and np.isnan(got[:5]).all()

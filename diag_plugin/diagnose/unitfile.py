@@ -754,9 +754,14 @@ class UnitFile(LinedFile):
             notes=learned.notes(),
             fuzzy=learned.fuzzy,
             points=getattr(learned, "level_points", {}),
+            _reread=False,
         )
+        # the file is read back once, after both are written (a unit of 200 tests: ~1.5 s a
+        # read); the combined table as read before is the one set_thresholds left in place
         if getattr(learned, "combined", None) is not None or self.combined is not None:
             self.set_combined(getattr(learned, "combined", None))
+        else:
+            self._reread()
 
     def set_thresholds(
         self,
@@ -772,11 +777,13 @@ class UnitFile(LinedFile):
         notes: dict[str, dict[str, Any]] | None = None,
         fuzzy: dict[str, tuple[float, float, float, float]] | None = None,
         points: dict[str, tuple[list[float], list[float]]] | None = None,
+        _reread: bool = True,
     ) -> None:
         """Write thresholds per test and the fault-free window they came from (and, when
         given, the budget, level scales and the ``[learned]`` notes; ``points``: per level
         test with operating points its ``point_center`` and ``point_scale``, any other
-        test's removed)."""
+        test's removed). ``_reread`` False: the file is not read back (the caller writes more
+        and reads it back once)."""
         for name, (lo, hi) in limits.items():
             if not (math.isfinite(lo) and math.isfinite(hi) and lo < 0 < hi):
                 raise ValueError(
@@ -839,8 +846,12 @@ class UnitFile(LinedFile):
             if "learned" in self.doc:
                 del self.doc["learned"]
             self.doc["learned"] = lt
-        text = self.dumps()
-        fresh = UnitFile(text, self.path)
+        if _reread:
+            self._reread()
+
+    def _reread(self) -> None:
+        """Read the document back as written (its lines, tests and checks)."""
+        fresh = UnitFile(self.dumps(), self.path)
         self.__dict__.update(fresh.__dict__)
 
     def _number_tables(
@@ -913,8 +924,7 @@ class UnitFile(LinedFile):
                     rs[sp] = row
                 t["responses"] = rs
             self.doc["combined"] = t
-        fresh = UnitFile(self.dumps(), self.path)
-        self.__dict__.update(fresh.__dict__)
+        self._reread()
 
     def dumps(self) -> str:
         return tomlkit.dumps(self.doc)

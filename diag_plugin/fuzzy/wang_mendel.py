@@ -310,6 +310,8 @@ class WangMendelRegressor(ParamsMixin):
     _params = PARAMS
 
     capabilities = Capabilities(incremental=True, mergeable=True, rule_regions=True)
+    #: :meth:`extrapolate` takes the prediction the caller has already (``pred``)
+    extrapolate_takes_pred = True
 
     def __init__(
         self,
@@ -380,6 +382,9 @@ class WangMendelRegressor(ParamsMixin):
         self._packs: dict[int, tuple] = {}
         self._fine: tuple | None = None
         self._trend: np.ndarray | None = None
+        self._grid_base: tuple | None = None
+        self._spread_ref: float | None = None
+        self._fine_fit: tuple | None = None
 
     def _arrays(self):
         P = self.partitions_
@@ -739,6 +744,23 @@ class WangMendelRegressor(ParamsMixin):
             return LevelRules(self.keys_, self.conclusions_, self.count_, self.sd_)
         has = self.count_ > 0
         keys = self._coarse_keys(self.keys_[has], level)
+        if self.method != "wm":
+            # the integer accumulators summed per coarse cell: over the keys sorted, one
+            # reduceat per accumulator (integer sums: the same numbers as np.add.at's in any
+            # order, without its per-element loop)
+            order = np.argsort(keys, kind="stable")
+            sk = keys[order]
+            new = np.ones(sk.size, bool)
+            new[1:] = sk[1:] != sk[:-1]
+            first = np.flatnonzero(new)
+            ukeys = sk[first]
+            count = np.add.reduceat(self.count_[has][order], first) if sk.size else sk.copy()
+            qsum = np.add.reduceat(self.qsum_[has][order], first) if sk.size else sk.copy()
+            qsq = np.add.reduceat(self.qsq_[has][order], first) if sk.size else sk.copy()
+            mean = qsum / count
+            conc = self.output_partition_.lo + mean * self._yquant
+            sd = np.sqrt(np.maximum(qsq / count - mean * mean, 0.0)) * self._yquant
+            return LevelRules(ukeys, conc, count, sd)
         ukeys, inv = np.unique(keys, return_inverse=True)
         inv = inv.reshape(-1)
         count = np.zeros(ukeys.size, np.int64)
@@ -915,15 +937,17 @@ class WangMendelRegressor(ParamsMixin):
         """Model output; NaN where no trained rule covers the sample."""
         return self.predict_detail(X).y
 
-    def extrapolate(self, X) -> np.ndarray:
+    def extrapolate(self, X, pred: np.ndarray | None = None) -> np.ndarray:
         """A value for every sample: the prediction where the model has one, else the
         conclusion of the nearest trained rule (set centres in units of set spacing).
+        ``pred``: this model's prediction of ``X`` where the caller has it already (not
+        computed again).
 
         Used only to *score* samples the model does not cover (so an error figure
         counts every sample); the model itself still reports them as unsupported.
         """
         X = _as_2d(X)
-        y = self.predict(X)
+        y = self.predict(X) if pred is None else np.array(pred, float)
         miss = np.flatnonzero(~np.isfinite(y) & np.isfinite(X).all(axis=1))
         if miss.size and self.keys_.size:
             from scipy.spatial import cKDTree
@@ -945,14 +969,21 @@ class WangMendelRegressor(ParamsMixin):
         evaluators that run many models at once (:class:`diag_plugin.fuzzy.stack.
         WangMendelStack`); keys ascending."""
         self._check_fitted()
-        lo, step, nsets, plateau, _ = self._arrays()
         levels = self.n_levels_ if depth is None else min(depth + 1, self.n_levels_)
-        radix = np.stack([_radix(self.level_nsets(lv)) for lv in range(levels)])
-        inner = np.column_stack([np.zeros(nsets.size, np.int64), nsets - 1])
-        rem = self.keys_[self.count_ > 0]
-        for k in range(self.n_features_in_ if rem.size else 0):
-            idx, rem = np.divmod(rem, self.radix_[k])
-            inner[k] = idx.min(), idx.max()
+        # what every depth shares (partitions, the data's range, each level's radix), derived
+        # once per trained state: predict_detail asks one depth after another
+        if self.__dict__.get("_grid_base") is None:
+            lo, step, nsets, plateau, _ = self._arrays()
+            inner = np.column_stack([np.zeros(nsets.size, np.int64), nsets - 1])
+            rem = self.keys_[self.count_ > 0]
+            for k in range(self.n_features_in_ if rem.size else 0):
+                idx, rem = np.divmod(rem, self.radix_[k])
+                inner[k] = idx.min(), idx.max()
+            all_radix = np.stack([_radix(self.level_nsets(lv)) for lv in range(self.n_levels_)])
+            self._grid_base = (lo, step, nsets, plateau, inner, all_radix)
+        lo, step, nsets, plateau, inner, all_radix = self._grid_base
+        lo, step, nsets, plateau, inner = (a.copy() for a in (lo, step, nsets, plateau, inner))
+        radix = all_radix[:levels].copy()
         nodes = [self.level_nodes(lv) for lv in range(levels)]
         spread = self.__dict__.setdefault("_spreads", {})
         for lv, (k, _, _) in enumerate(nodes):
@@ -995,10 +1026,13 @@ class WangMendelRegressor(ParamsMixin):
     def spread_(self) -> float:
         """The model's typical spread: the pooled standard deviation of the training outputs
         within the fine cells, ``sqrt(Σ n sd² / Σ n)`` (NaN for the classic method)."""
-        n = self.count_.astype(float)
-        if self.method == "wm" or not n.sum():
-            return float("nan")
-        return float(np.sqrt(np.sum(n * self.sd_**2) / n.sum()))
+        if self.__dict__.get("_spread_ref") is None:  # once per trained state
+            n = self.count_.astype(float)
+            if self.method == "wm" or not n.sum():
+                self._spread_ref = float("nan")
+            else:
+                self._spread_ref = float(np.sqrt(np.sum(n * self.sd_**2) / n.sum()))
+        return self._spread_ref
 
     def _node_spread(self, level: int, nodes: np.ndarray) -> np.ndarray:
         """Per node of ``level``: the spread of its cell's training outputs relative to the
@@ -1059,33 +1093,31 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     from scipy.sparse.linalg import spsolve
 
     cells = m.level_rules(level)
-    has = m.count_ > 0
-    n = m.count_[has].astype(float)
-    if not n.size:
+    n_rules = int(np.count_nonzero(m.count_ > 0))
+    if not n_rules:
         return cells.keys, cells.conclusions, np.ones(cells.keys.size, bool)
     d = m.n_features_in_
-    if n.size << d > FIT_LIMIT:  # too big to fit: the level stays silent
+    if n_rules << d > FIT_LIMIT:  # too big to fit: the level stays silent
         return np.empty(0, np.int64), np.empty(0), np.empty(0, bool)
+    _, n, sw, fine, y_fine, plateau = _fine_rules(m)
     blocks = m.level_blocks_[level]
     nsets = m.level_nsets(level)
     radix = _radix(nsets)
     # each fine rule at its set centres, in the coarse partition: lower node and weight
-    fine = m.cell_indices(m.keys_[has])
     loops = _design_loops(nsets)
     if loops is not None:  # the same arithmetic compiled: the same r, col, w and nodes
-        plateau = np.array([p.plateau if p.shape == "trapezoidal" else 0.0
-                            for p in m.partitions_])  # fmt: skip
         nodes, r, col, w = loops.coarse_corners(
             fine, blocks.astype(np.int64), nsets, plateau, radix, int(np.prod(nsets))
         )
     else:
         nodes, r, col, w = _corners(m, fine, blocks, nsets, radix)
-    data = np.isin(nodes, cells.keys)
-    sw = np.sqrt(n)
+    # nodes and keys both ascending and unique: membership by one search (np.isin's answer)
+    at = np.minimum(np.searchsorted(cells.keys, nodes), max(cells.keys.size - 1, 0))
+    data = cells.keys[at] == nodes if cells.keys.size else np.zeros(nodes.size, bool)
     if nodes.size * n.size <= DENSE_FIT:  # small levels: dense numpy, no sparse overhead
-        return nodes, _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets), data
+        return nodes, _fit_dense(nodes, r, col, w, sw, n, y_fine, d, radix, nsets), data
     A = sp.csr_matrix((w * sw[r], (r, col)), shape=(n.size, nodes.size))
-    y = np.asarray(m.conclusions_, float)[has]
+    y = y_fine
     # smoothness: second differences along each input where both neighbours are nodes
     idx = np.column_stack([(nodes // radix[k]) % nsets[k] for k in range(d)])
     pr, pc, pv = [], [], []
@@ -1199,13 +1231,28 @@ def corner_weight(upper_w: np.ndarray, lower_w: np.ndarray, up: np.ndarray) -> n
     return w
 
 
-def _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets) -> np.ndarray:
-    """:func:`_fit_nodes`' least squares with dense arrays (a level of few nodes)."""
+def _fine_rules(m: WangMendelRegressor) -> tuple:
+    """What every coarse level's node fit reads of the fine rules holding samples, derived
+    once per trained state: the mask, their counts ``n`` and ``sqrt(n)``, their set indices,
+    their conclusions, and each input's plateau."""
+    got = m.__dict__.get("_fine_fit")
+    if got is None:
+        has = m.count_ > 0
+        n = m.count_[has].astype(float)
+        plateau = np.array([p.plateau if p.shape == "trapezoidal" else 0.0
+                            for p in m.partitions_])  # fmt: skip
+        got = (has, n, np.sqrt(n), m.cell_indices(m.keys_[has]),
+               np.asarray(m.conclusions_, float)[has], plateau)  # fmt: skip
+        m._fine_fit = got
+    return got
+
+
+def _fit_dense(nodes, r, col, w, sw, n, y, d, radix, nsets) -> np.ndarray:
+    """:func:`_fit_nodes`' least squares with dense arrays (a level of few nodes): ``n``,
+    ``sw`` and ``y`` are the fine rules' counts, their square roots and conclusions."""
     k = nodes.size
-    d = m.n_features_in_
     # each (fine rule, node) pair at most once: the sums of np.add.at, without its loop
     A = np.bincount(r * k + col, w * sw[r], minlength=n.size * k).reshape(n.size, k)
-    y = np.asarray(m.conclusions_, float)[m.count_ > 0]
     per_node = n.sum() / k
     ridge = 1e-6 * per_node
     loops = _design_loops(nsets)
@@ -1214,8 +1261,10 @@ def _fit_dense(nodes, r, col, w, sw, n, m, level, radix, nsets) -> np.ndarray:
         if loops is not None
         else _smooth_gram(nodes, d, radix, nsets)
     )
-    M = A.T @ A + SMOOTHING * per_node * PtP + ridge * np.eye(k)
-    rhs = A.T @ (sw * y) + ridge * float(np.average(y, weights=n))
+    M = A.T @ A + SMOOTHING * per_node * PtP
+    M.flat[:: k + 1] += ridge  # + ridge·I: the same sums, off the diagonal + 0 left out
+    # np.average(y, weights=n) as it computes it: Σ y·n / Σ n
+    rhs = A.T @ (sw * y) + ridge * float(np.multiply(y, n).sum() / n.sum())
     return np.linalg.solve(M, rhs)
 
 

@@ -60,6 +60,7 @@ class HeldOutScorer:
         self.cut = cut
         self.span = rb.output.span[1] - rb.output.span[0]
         tr_y = np.isfinite(y[:cut])
+        self._tr_y = tr_y  # every variant's training rows have a measured output
         self.mean = float(y[:cut][tr_y].mean()) if tr_y.any() else math.nan
         self.va = np.flatnonzero(np.isfinite(y[cut:])) + cut
         self.last_fine = 0.0
@@ -76,11 +77,11 @@ class HeldOutScorer:
         self.base_rmse = self._rmse(self.base_pred)
         self.base_rules = rb.codec.size(self.base_model) if self.base_model is not None else 0
 
-    def _fit_predict(self, variables, cols):
+    def _fit_predict(self, variables, cols, X: np.ndarray | None = None):
         if not len(cols):  # no input yet: the training mean stands in everywhere
             return np.full(self.va.size, np.nan), None, int(np.isfinite(self.y[: self.cut]).sum())
-        X = np.column_stack(cols)
-        tr = np.isfinite(X[: self.cut]).all(axis=1) & np.isfinite(self.y[: self.cut])
+        X = np.column_stack(cols) if X is None else X
+        tr = np.isfinite(X[: self.cut]).all(axis=1) & self._tr_y
         if tr.sum() < 10 or self.va.size < 10:
             return np.full(self.va.size, np.nan), None, int(tr.sum())
         spec = dc_replace(self.rb.spec, inputs=list(variables))
@@ -91,14 +92,18 @@ class HeldOutScorer:
         )  # the share the fine grid answered: levels behind it hide a thin grid otherwise
         return det.y, m, int(tr.sum())
 
-    def _stand_in(self, pred: np.ndarray, model, cols) -> np.ndarray:
+    def _stand_in(self, pred: np.ndarray, model, cols, X: np.ndarray | None = None) -> np.ndarray:
         """``pred`` with the model's stand-in (its ``extrapolate``: the nearest rule) where it
-        has no prediction, and the training mean where an input is missing."""
+        has no prediction, and the training mean where an input is missing (``X``: the
+        columns stacked, where the caller has them)."""
         out = pred.copy()
         miss = ~np.isfinite(out)
         if model is not None and miss.any():
-            X = np.column_stack(cols)[self.va[miss]]
-            out[miss] = model.extrapolate(X)
+            X = (np.column_stack(cols) if X is None else X)[self.va[miss]]
+            if getattr(model, "extrapolate_takes_pred", False):  # predicted already: no answer
+                out[miss] = model.extrapolate(X, pred=out[miss])
+            else:
+                out[miss] = model.extrapolate(X)
         return np.where(np.isfinite(out), out, self.mean)
 
     def _rmse(self, pred: np.ndarray) -> float:
@@ -107,17 +112,20 @@ class HeldOutScorer:
         r = residual_pct(self.y[self.va], pred, self.span)
         return float(np.sqrt(np.mean(r * r)))
 
-    def score(self, variables, cols) -> tuple[float, float, float, float]:
+    def score(
+        self, variables, cols, X: np.ndarray | None = None
+    ) -> tuple[float, float, float, float]:
         """Held-out RMSE in % of span on the common samples, own coverage, training samples
-        per rule, and the share its fine rule grid answered, of a variant."""
+        per rule, and the share its fine rule grid answered, of a variant (``X``: ``cols``
+        stacked, where the caller has them)."""
         self.last_fine = 0.0
         self.last_fit = None
-        pred, m, n_train = self._fit_predict(variables, cols)
+        pred, m, n_train = self._fit_predict(variables, cols, X)
         if m is None:
             return math.nan, 0.0, 0.0, 0.0
         own = np.isfinite(pred)
         per_cell = n_train / max(self.rb.codec.size(m), 1)
-        full = self._stand_in(pred, m, cols)
+        full = self._stand_in(pred, m, cols, X)
         self.last_fit = (pred, m, n_train, self.last_fine, full)
         rmse = self._rmse(full)
         return rmse, float(own.mean()), per_cell, self.last_fine
@@ -193,10 +201,12 @@ class BlockScorer:
 
     def score(self, variables, cols) -> tuple[float, float]:
         """Pooled held-out RMSE (% of span) and own coverage of a variant."""
-        got = [
-            p.score(variables, [c[o] for c in cols])
-            for p, (o, _) in zip(self.parts, self.folds, strict=True)
-        ]
+        # the columns stacked once; each block's rows taken from the stack (the same values)
+        X = np.column_stack(cols) if len(cols) else np.empty((self.y.size, 0))
+        got = []
+        for p, (o, _) in zip(self.parts, self.folds, strict=True):
+            Xo = X[o]
+            got.append(p.score(variables, list(Xo.T), Xo if len(cols) else None))
         n = np.array([p.va.size for p in self.parts], float)
         cov = float(np.sum(n * np.array([g[1] for g in got])) / max(n.sum(), 1.0))
         return self._pool([g[0] for g in got]), cov
