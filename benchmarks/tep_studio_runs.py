@@ -52,6 +52,22 @@ RUNS = {
     "tunefree": [(s, None, 3 * 24.0) for s in (31, 32, 33, 34)],
 }
 ONSET_H = 8.0
+DEFAULT_ROLES = "train,calibration,free,fault,tuning"
+
+
+def run_name(role: str, seed: int, idv: int | None) -> str:
+    """A run's file stem, e.g. ``tuning_s101_idv03``."""
+    return f"{role}_s{seed}" + (f"_idv{idv:02d}" if idv else "")
+
+
+# each run's start, in weeks after START: its place in the default order, whatever roles or
+# seeds are asked for and in which order (runs of other roles are numbered as asked)
+WEEK = {
+    run_name(role, seed, idv): k + 1
+    for k, (role, (seed, idv, _)) in enumerate(
+        (role, run) for role in DEFAULT_ROLES.split(",") for run in RUNS[role]
+    )
+}
 
 
 def simulate(seed: int, idv: int | None, hours: float) -> tuple[pd.DataFrame, float | None]:
@@ -81,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     default = os.environ.get("DIAG_TEP_STUDIO_DIR") or "~/.cache/diag-plugin/tep-studio"
     p.add_argument("--out", default=default)
-    p.add_argument("--roles", default="train,calibration,free,fault,tuning")
+    p.add_argument("--roles", default=DEFAULT_ROLES)
     p.add_argument("--seeds", default="", help="only these seeds (comma-separated)")
     args = p.parse_args(argv)
     only = {int(x) for x in args.seeds.split(",") if x}
@@ -94,13 +110,13 @@ def main(argv: list[str] | None = None) -> int:
         for seed, idv, hours in RUNS[role]:
             if only and seed not in only:
                 continue
-            name = f"{role}_s{seed}" + (f"_idv{idv:02d}" if idv else "")
+            name = run_name(role, seed, idv)
             offset += 1
             if name in manifest["runs"] and (out / f"{name}.csv").exists():
                 continue
             t0 = time.perf_counter()
             frame, trip = simulate(seed, idv, hours)
-            start = START + pd.Timedelta(days=7 * offset)
+            start = START + pd.Timedelta(days=7 * WEEK.get(name, offset))
             frame.insert(0, "ts", start + pd.to_timedelta(frame.pop("hours"), unit="h"))
             frame.to_csv(out / f"{name}.csv", index=False, float_format="%.6g")
             manifest["runs"][name] = {
