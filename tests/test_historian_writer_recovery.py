@@ -286,3 +286,67 @@ def test_closing_twice_while_the_historian_is_away_spills_each_sample_once(tmp_p
     blocks = [spool.read(p) for p in spool.segments()]
     ts = np.concatenate([b.ts for b in blocks])
     assert len(ts) == len(set(ts.tolist())) == 12
+
+
+def test_a_close_that_cancels_a_spill_half_way_leaves_it_spilled_and_no_journal(tmp_path):
+    """close() out of time cancels the writer's task; if the task is inside a spill's write
+    then (the database locked, memory full), the thread finishes the segment and close()
+    releases its cycles: every sample spilled exactly once and the journal deleted, so the
+    next start has nothing to replay twice (the flaky test_live_hardened assertion)."""
+    import threading
+
+    from diag_plugin.live.writer import HistorianWriter
+    from historian.spool import Spool
+    from historian.store import Historian
+
+    db = tmp_path / "h.db"
+    url = f"sqlite:///{db}"
+    Historian(url).close()
+    spill = tmp_path / "spill"
+    t0 = pd.Timestamp("2026-03-01T00:00:00Z")
+    entered, go = threading.Event(), threading.Event()
+
+    async def main() -> HistorianWriter:
+        w = HistorianWriter(
+            url,
+            ["A", "B"],
+            spill_dir=spill,
+            flush_every=5,
+            cycle=0.01,
+            memory_rows=8,  # 4 cycles in memory, then a spill
+            busy_timeout=0.1,
+        )
+        real = w.spool.write
+
+        def held_write(block):  # the real write, held until the cancel has happened
+            entered.set()
+            go.wait(10)
+            return real(block)
+
+        w.spool.write = held_write
+        lock = Locker(db)
+        try:
+            await w.start()
+            i = 0
+            while not entered.is_set() and i < 200:
+                w.put(t0 + pd.Timedelta(seconds=i), np.array([i, -i]), np.zeros(2, np.uint8))
+                i += 1
+                await asyncio.sleep(0.01)
+            assert entered.is_set(), "no spill began"
+            w.spool.write = real  # close()'s own spill of what is left writes at once
+            closing = asyncio.ensure_future(w.close(timeout=0.2))
+            await asyncio.sleep(0.5)  # the task is cancelled while the thread is held
+            go.set()
+            await closing
+        finally:
+            go.set()
+            lock.release()
+        w.put_count = i
+        return w
+
+    w = asyncio.run(main())
+    spool = Spool(spill)
+    ts = np.concatenate([spool.read(p).ts for p in spool.segments()])
+    assert len(ts) == len(set(ts.tolist())) == w.put_count
+    assert spool.rows() == 2 * w.put_count == w.stats.spilled
+    assert not list(spill.glob("journal-*.bin")), sorted(p.name for p in spill.iterdir())

@@ -161,6 +161,8 @@ class HistorianWriter:
         self._event_seqs: list[int] = []  # the journal file of each pending event
         self._spool_any = False  # spill segments may wait (some with events only)
         self._inflight: _Item | None = None
+        #: a spill being written in its thread: (the write, its block, its journal cycles)
+        self._spilling: tuple[asyncio.Future[Path], Block, list[int]] | None = None
         self._wake = asyncio.Event()
         self._stopping = False
         self._closed = False
@@ -187,10 +189,13 @@ class HistorianWriter:
     # ------------------------------------------------------------------ the loop's side
     @property
     def backlog(self) -> int:
-        """Samples waiting: in flight, in memory and in the spill (the spill as last counted)."""
+        """Samples waiting: in flight, in memory, being spilled and in the spill (the spill
+        as last counted)."""
         n = len(self._mem) * len(self.tags)
         if self._inflight is not None:
             n += self._inflight.block.rows
+        if self._spilling is not None:
+            n += self._spilling[1].rows
         return n + self._spool_rows
 
     def put(self, ts: pd.Timestamp, values: np.ndarray, quality: np.ndarray) -> None:
@@ -419,7 +424,7 @@ class HistorianWriter:
                 self._task.cancel()
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await self._task
-        left: list[tuple[Block, list[int]]] = []
+        left = await self._finish_spill()
         if self._inflight is not None and self._inflight.segment is None:
             # may be stored too: idempotent at replay
             left.append((self._inflight.block, self._inflight.seqs or []))
@@ -604,9 +609,14 @@ class HistorianWriter:
         if len(self._mem) * n <= self.memory_rows:
             return
         block, seqs = self._take(len(self._mem) - self.memory_rows // (2 * n))
-        try:  # shielded: a cancel (close() out of time) must not drop the block half-way
-            path = await asyncio.shield(asyncio.to_thread(self.spool.write, block))
+        # shielded: a cancel (close() out of time) must not drop the block half-way; close()
+        # then waits for this write and releases its cycles (_finish_spill)
+        write = asyncio.ensure_future(asyncio.to_thread(self.spool.write, block))
+        self._spilling = (write, block, seqs)
+        try:
+            path = await asyncio.shield(write)
         except OSError as exc:
+            self._spilling = None
             log.error(
                 "historian: cannot spill to %s: %s; keeping in memory", self.spool.folder, exc
             )
@@ -615,10 +625,8 @@ class HistorianWriter:
             self._events[:0] = block.events
             self._event_seqs[:0] = seqs[len(block.ts) :]
             return
-        self._release(seqs)
-        self._spool_any = True
-        self.stats.spilled += block.rows
-        self._spool_rows += block.rows
+        self._spilling = None
+        self._spilled(block, seqs)
         if not self._told_spill:
             self._told_spill = True
             self._tell(
@@ -626,6 +634,28 @@ class HistorianWriter:
                 f"historian away: memory holds {self.memory_rows} samples, older ones go "
                 f"to {path.parent}",
             )
+
+    def _spilled(self, block: Block, seqs: list[int]) -> None:
+        """``block`` is durable in a spill segment: its journal cycles are released."""
+        self._release(seqs)
+        self._spool_any = True
+        self.stats.spilled += block.rows
+        self._spool_rows += block.rows
+
+    async def _finish_spill(self) -> list[tuple[Block, list[int]]]:
+        """At close, after the task was cancelled: wait for a spill its thread was still
+        writing. Written, its cycles are released (else they would stay both spilled and
+        journaled); failed, the block is handed back to be spilled with the rest."""
+        if self._spilling is None:
+            return []
+        write, block, seqs = self._spilling
+        self._spilling = None
+        try:
+            await write
+        except OSError:
+            return [(block, seqs)]
+        self._spilled(block, seqs)
+        return []
 
     def _report_quarantined(self) -> None:
         """Each spill segment found damaged: an event (the spool has logged it by name)."""
