@@ -350,3 +350,60 @@ def test_a_close_that_cancels_a_spill_half_way_leaves_it_spilled_and_no_journal(
     assert len(ts) == len(set(ts.tolist())) == w.put_count
     assert spool.rows() == 2 * w.put_count == w.stats.spilled
     assert not list(spill.glob("journal-*.bin")), sorted(p.name for p in spill.iterdir())
+
+
+def test_a_spill_slower_than_the_retry_wait_is_not_cut_off_by_it(tmp_path):
+    """While the database is locked the writer waits between retries and spills memory
+    meanwhile; a spill whose write outlasts that wait was cancelled by the wait's timeout
+    (the block written but its cycles never released: journal files left at a clean stop,
+    one run in three of test_live_hardened's locked exit). Every spill write here takes
+    0.7 s, longer than the first waits (0.5 s, 1 s)."""
+    import time as _time
+
+    from diag_plugin.live.writer import HistorianWriter
+    from historian.spool import Spool
+    from historian.store import Historian
+
+    db = tmp_path / "h.db"
+    url = f"sqlite:///{db}"
+    Historian(url).close()
+    spill = tmp_path / "spill"
+    t0 = pd.Timestamp("2026-03-01T00:00:00Z")
+    n = 60
+
+    async def main() -> HistorianWriter:
+        w = HistorianWriter(
+            url,
+            ["A", "B"],
+            spill_dir=spill,
+            flush_every=5,
+            cycle=0.01,
+            memory_rows=8,  # 4 cycles in memory, then a spill
+            busy_timeout=0.1,
+        )
+        real = w.spool.write
+
+        def slow_write(block):  # the real write, slower than a retry wait
+            _time.sleep(0.7)
+            return real(block)
+
+        w.spool.write = slow_write
+        lock = Locker(db)
+        try:
+            await w.start()
+            for i in range(n):
+                w.put(t0 + pd.Timedelta(seconds=i), np.array([i, -i]), np.zeros(2, np.uint8))
+                await asyncio.sleep(0.05)
+            await asyncio.sleep(2.0)
+            w.spool.write = real
+            await w.close(timeout=5.0)
+        finally:
+            lock.release()
+        return w
+
+    w = asyncio.run(main())
+    spool = Spool(spill)
+    ts = np.concatenate([spool.read(p).ts for p in spool.segments()])
+    assert len(ts) == len(set(ts.tolist())) == n
+    assert spool.rows() == 2 * n == w.stats.spilled
+    assert not list(spill.glob("journal-*.bin")), sorted(p.name for p in spill.iterdir())

@@ -424,7 +424,10 @@ class HistorianWriter:
                 self._task.cancel()
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await self._task
-        left = await self._finish_spill()
+        await (
+            self._settle_spill()
+        )  # a spill the cancel caught half-way (back in memory if it failed)
+        left: list[tuple[Block, list[int]]] = []
         if self._inflight is not None and self._inflight.segment is None:
             # may be stored too: idempotent at replay
             left.append((self._inflight.block, self._inflight.seqs or []))
@@ -557,12 +560,15 @@ class HistorianWriter:
             if self._stopping:
                 return
             await self._spill_if_full()
-            with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(backoff):
-                    while not self._stopping:
-                        await self._wake.wait()
-                        self._wake.clear()
-                        await self._spill_if_full()
+            # the timeout covers the wait alone: a spill is never cut off by it
+            end = time.monotonic() + backoff
+            while not self._stopping and (wait := end - time.monotonic()) > 0:
+                try:
+                    await asyncio.wait_for(self._wake.wait(), wait)
+                except TimeoutError:
+                    break
+                self._wake.clear()
+                await self._spill_if_full()
             backoff = min(backoff * 2, 10.0)
 
     async def _store(self, item: _Item) -> bool:
@@ -605,14 +611,25 @@ class HistorianWriter:
 
     async def _spill_if_full(self) -> None:
         """Move the oldest memory cycles to a spill segment while memory is over its bound."""
+        await self._settle_spill()  # one an earlier call began and was cancelled out of
         n = len(self.tags)
         if len(self._mem) * n <= self.memory_rows:
             return
         block, seqs = self._take(len(self._mem) - self.memory_rows // (2 * n))
-        # shielded: a cancel (close() out of time) must not drop the block half-way; close()
-        # then waits for this write and releases its cycles (_finish_spill)
         write = asyncio.ensure_future(asyncio.to_thread(self.spool.write, block))
         self._spilling = (write, block, seqs)
+        await self._settle_spill()
+
+    async def _settle_spill(self) -> None:
+        """Wait for the spill segment being written, then account for it: written, its
+        journal cycles are released; failed, the block goes back to the front of memory.
+
+        The write is shielded and stays in ``_spilling`` until settled: a cancel of the
+        caller (``close()`` out of time, a timeout around a wait) never leaves a block both
+        spilled and journaled, nor drops it; the next call, or ``close()``, settles it."""
+        if self._spilling is None:
+            return
+        write, block, seqs = self._spilling
         try:
             path = await asyncio.shield(write)
         except OSError as exc:
@@ -626,7 +643,10 @@ class HistorianWriter:
             self._event_seqs[:0] = seqs[len(block.ts) :]
             return
         self._spilling = None
-        self._spilled(block, seqs)
+        self._release(seqs)
+        self._spool_any = True
+        self.stats.spilled += block.rows
+        self._spool_rows += block.rows
         if not self._told_spill:
             self._told_spill = True
             self._tell(
@@ -634,28 +654,6 @@ class HistorianWriter:
                 f"historian away: memory holds {self.memory_rows} samples, older ones go "
                 f"to {path.parent}",
             )
-
-    def _spilled(self, block: Block, seqs: list[int]) -> None:
-        """``block`` is durable in a spill segment: its journal cycles are released."""
-        self._release(seqs)
-        self._spool_any = True
-        self.stats.spilled += block.rows
-        self._spool_rows += block.rows
-
-    async def _finish_spill(self) -> list[tuple[Block, list[int]]]:
-        """At close, after the task was cancelled: wait for a spill its thread was still
-        writing. Written, its cycles are released (else they would stay both spilled and
-        journaled); failed, the block is handed back to be spilled with the rest."""
-        if self._spilling is None:
-            return []
-        write, block, seqs = self._spilling
-        self._spilling = None
-        try:
-            await write
-        except OSError:
-            return [(block, seqs)]
-        self._spilled(block, seqs)
-        return []
 
     def _report_quarantined(self) -> None:
         """Each spill segment found damaged: an event (the spool has logged it by name)."""
