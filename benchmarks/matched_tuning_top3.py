@@ -97,7 +97,8 @@ def tep_tuning(studio: bool):
     """Classic TEP or tep-studio with the tuning runs as the runs scored (module doc)."""
     from diag_plugin.bench.publicplants import load_braatz, load_tep_studio
 
-    plant = load_tep_studio() if studio else load_braatz()
+    need = ("train", "calibration", "tuning")  # the scoring runs are not read
+    plant = load_tep_studio(need=need) if studio else load_braatz()
     if studio:
         plant.faults, plant.free = list(plant.tuning), []
     else:
