@@ -59,9 +59,9 @@ def _sim(cache: Path | None, name: str, days: float, seed: int, fault: str | Non
 
 def chemplant_tuning(cache: Path | None = None):
     """The chemical plant with its tuning seeds as the runs scored (see module doc)."""
-    from diag_plugin.bench.publicbench import CHEMPLANT_LOOPS
-    from diag_plugin.bench.publicplants import PlantRun, PublicPlant
-    from diag_plugin.simulate.chemplant import CHEMPLANT_TAGS, FAULTS
+    from diag_plugin.bench.publicbench import chemplant_public
+    from diag_plugin.bench.publicplants import PlantRun
+    from diag_plugin.simulate.chemplant import FAULTS
 
     start = pd.Timestamp("2026-01-01", tz="UTC")
     train = []
@@ -76,21 +76,10 @@ def chemplant_tuning(cache: Path | None = None):
         for s in (101, 102, 103):
             x, k = _sim(cache, f"{name}_{s}", 3.0, s, fault=name)
             faults.append(PlantRun(f"{name} seed {s}", x, name, k, tuple(FAULTS[name].tags)))
-    return PublicPlant(  # as chemplant_plant, the tuning seeds in place of the scoring seeds
-        name="chemplant",
-        title="the chemical plant simulator, tuning seeds",
-        period_s=180.0,
-        tags=[c for c, v in CHEMPLANT_TAGS.items() if v[4] != "set-point"],
-        tag_info={t: (v[0], v[3]) for t, v in CHEMPLANT_TAGS.items()},
-        train=train,
-        calibration=cal,
-        free=free,
-        faults=faults,
-        fault_info={n: FAULTS[n].kind for n in FAULTS},
-        source="diag_plugin.simulate.chemplant",
-        loops=[f"{pv}={c}.SP:{c}.OUT" for c, pv in CHEMPLANT_LOOPS.items()],
-        split=["train 1-3 x 10 d, calibration 150-152, fault-free 153-154, faults 101-103"],
-    )
+    return chemplant_public(
+        train, cal, free, faults, "the chemical plant simulator, tuning seeds",
+        ["train 1-3 x 10 d, calibration 150-152, fault-free 153-154, faults 101-103"],
+    )  # fmt: skip
 
 
 def tep_tuning(studio: bool):
