@@ -149,3 +149,21 @@ def test_tep_studio_declares_rickers_loops_and_the_data_hold_them():
     for lp in map(parse_loop, p.loops):
         x = train[lp.pv]
         assert abs(x.mean() - lp.fixed) < max(0.5 * x.std(), 0.001 * abs(lp.fixed)), lp
+
+
+def test_tep_studio_tuning_check_needs_no_scoring_runs(tmp_path):
+    """A folder with training, calibration and tuning runs only (the scoring runs not yet
+    simulated) loads for a tuning check (``need``), and the default still refuses it,
+    naming the roles it lacks."""
+    idx = pd.date_range("2026-01-01", periods=4, freq="180s", tz="UTC")
+    frame = pd.DataFrame(1.0, index=idx.rename("ts"), columns=list(pp.TEP_TAGS))
+    runs = {"train_s1": {"role": "train"}, "calibration_s11": {"role": "calibration"},
+            "tuning_s101_idv01": {"role": "tuning", "idv": 1, "onset_h": 0.1}}  # fmt: skip
+    for name in runs:
+        frame.to_csv(tmp_path / f"{name}.csv")
+    (tmp_path / "manifest.json").write_text(json.dumps({"runs": runs}))
+    with pytest.raises(pp.DataMissing, match="none for free, fault"):
+        pp.load_tep_studio(tmp_path)
+    p = pp.load_tep_studio(tmp_path, need=("train", "calibration", "tuning"))
+    assert [r.name for r in p.tuning] == ["tuning_s101_idv01"] and not p.faults and not p.free
+    assert p.tuning[0].fault == "IDV1" and p.tuning[0].onset == 2

@@ -388,7 +388,7 @@ def chemplant_plant(quick: bool = False, faults: Sequence[str] | None = None) ->
     days, calibration 9161–9163 × 3 days, fault-free scoring 9151–9153 × 3 days, faults
     9101–9103 × 3 days from day 1 (``quick``: 2 × 6 days, one seed each, three faults).
     Tuning seeds 101–103 (faults) and 150–154 (fault-free) are not run here."""
-    from diag_plugin.simulate.chemplant import CHEMPLANT_TAGS, FAULTS, sample, simulate_chemplant
+    from diag_plugin.simulate.chemplant import FAULTS, sample, simulate_chemplant
 
     train_seeds, days = ((1, 2), 6.0) if quick else ((1, 2, 3), 10.0)
     cal_seeds = (9161,) if quick else (9161, 9162, 9163)
@@ -401,11 +401,6 @@ def chemplant_plant(quick: bool = False, faults: Sequence[str] | None = None) ->
             raise ValueError(f"unknown fault(s) {', '.join(unknown)}; known: {', '.join(FAULTS)}")
         names = tuple(faults)
     run_days, onset_days = (2.0, 0.5) if quick else (3.0, 1.0)
-    # PCA's columns: the measurements and outputs (the unit's historian holds the set-points
-    # too, as before); the loops declared as a user would in the tags CSV (each controller:
-    # the tag it holds, its set-point, its output)
-    cols = [c for c, v in CHEMPLANT_TAGS.items() if v[4] != "set-point"]
-    loops = [f"{pv}={c}.SP:{c}.OUT" for c, pv in CHEMPLANT_LOOPS.items()]
     start = pd.Timestamp("2026-01-01", tz="UTC")
     train = []
     for s in train_seeds:
@@ -424,21 +419,14 @@ def chemplant_plant(quick: bool = False, faults: Sequence[str] | None = None) ->
                 onset = onset.tz_localize(x.index.tz)
             k = int(np.searchsorted(x.index, onset))
             faults.append(PlantRun(f"{name} seed {s}", x, name, k, tuple(FAULTS[name].tags)))
-    info = {t: (v[0], v[3]) for t, v in CHEMPLANT_TAGS.items()}
-    return PublicPlant(
-        name="chemplant",
-        title="the project's chemical plant simulator (3-min means)",
-        period_s=180.0,
-        tags=cols,
-        tag_info=info,
-        train=train,
-        calibration=cal,
-        free=free,
-        faults=faults,
-        fault_info={n: FAULTS[n].kind for n in names},
-        source="diag_plugin.simulate.chemplant",
-        loops=loops,
-        split=[
+    loops = chemplant_loops()
+    return chemplant_public(
+        train,
+        cal,
+        free,
+        faults,
+        "the project's chemical plant simulator (3-min means)",
+        [
             f"train: fault-free seeds {', '.join(map(str, train_seeds))} × {days:g} days",
             f"calibration (the matched limits): fault-free seeds "
             f"{', '.join(map(str, cal_seeds))} × {run_days:g} days",
@@ -449,6 +437,42 @@ def chemplant_plant(quick: bool = False, faults: Sequence[str] | None = None) ->
             "loops declared to the unit build (issue 34, docs/how-to/unit-loops.md): "
             + ", ".join(loops),
         ],
+    )
+
+
+def chemplant_loops() -> list[str]:
+    """The chemical plant's loops as a user declares them in the tags CSV (each controller:
+    the tag it holds, its set-point, its output)."""
+    return [f"{pv}={c}.SP:{c}.OUT" for c, pv in CHEMPLANT_LOOPS.items()]
+
+
+def chemplant_public(
+    train: list[PlantRun],
+    calibration: list[PlantRun],
+    free: list[PlantRun],
+    faults: list[PlantRun],
+    title: str,
+    split: list[str],
+) -> PublicPlant:
+    """The chemical plant's runs as a :class:`PublicPlant` (:func:`chemplant_plant`; the
+    tuning check, ``benchmarks/matched_tuning_top3.py``): PCA's columns the measurements and
+    outputs (the unit's historian holds the set-points too), the loops declared."""
+    from diag_plugin.simulate.chemplant import CHEMPLANT_TAGS, FAULTS
+
+    return PublicPlant(
+        name="chemplant",
+        title=title,
+        period_s=180.0,
+        tags=[c for c, v in CHEMPLANT_TAGS.items() if v[4] != "set-point"],
+        tag_info={t: (v[0], v[3]) for t, v in CHEMPLANT_TAGS.items()},
+        train=train,
+        calibration=calibration,
+        free=free,
+        faults=faults,
+        fault_info={n: FAULTS[n].kind for n in dict.fromkeys(f.fault for f in faults) if n},
+        source="diag_plugin.simulate.chemplant",
+        loops=chemplant_loops(),
+        split=split,
     )
 
 

@@ -348,9 +348,13 @@ def tep_studio_dir(path: str | Path | None = None) -> Path:
 
 
 def load_tep_studio(
-    path: str | Path | None = None, faults: Sequence[str] | None = None
+    path: str | Path | None = None,
+    faults: Sequence[str] | None = None,
+    need: Sequence[str] = ("train", "calibration", "free", "fault"),
 ) -> PublicPlant:
-    """tep-studio runs (see ``benchmarks/tep_studio_runs.py`` for the seeds and roles)."""
+    """tep-studio runs (see ``benchmarks/tep_studio_runs.py`` for the seeds and roles);
+    :class:`DataMissing` when a role in ``need`` has none (a tuning check needs no scoring
+    runs: ``need=("train", "calibration", "tuning")``)."""
     d = tep_studio_dir(path)
     man = json.loads((d / "manifest.json").read_text())["runs"]
     want = set(faults) if faults else None
@@ -375,7 +379,7 @@ def load_tep_studio(
             onset = int(round(m["onset_h"] * 3600 / TEP_PERIOD_S))
         tags = TEP_STUDIO_FAULTS[idv][1] if idv else ()
         roles[m["role"]].append(PlantRun(name, frame[list(TEP_TAGS)], idv, onset, tags))
-    missing = [r for r in ("train", "calibration", "free", "fault") if not roles[r]]
+    missing = [r for r in need if not roles[r]]
     if missing:
         raise DataMissing(f"tep-studio runs in {d}: none for {', '.join(missing)}")
     return _tep_plant(
