@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.isolation import IsolationHold
-from diag_plugin.diagnose.residuals import LowPass, far_factor, span_ends, supported
+from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.symptoms import OnOffDelay
 from diag_plugin.diagnose.unit import (
     PRIORITY,
@@ -177,14 +177,10 @@ class Plant:
         self._wm_which = np.array([stacked[id(slots[i].model)] for i in wm], np.int64)
         self._wm_lags = np.zeros((len(wm), d_max), np.intp)
         self._wm_cols = np.zeros((len(wm), d_max), np.intp)
-        # per stacked row its inputs' span ends (NaN: no input there), for the extrapolation's
-        # factor past a span (residuals.far_factor), as Unit.residual divides by it
-        self._wm_ends = (np.full((len(wm), d_max), np.nan), np.full((len(wm), d_max), np.nan))
         for r, i in enumerate(wm):
             d = len(slots[i].inputs)
             self._wm_lags[r, :d] = slots[i].inputs[:, 0]
             self._wm_cols[r, :d] = slots[i].inputs[:, 1]
-            self._wm_ends[0][r, :d], self._wm_ends[1][r, :d] = span_ends(slots[i].model)
         # other methods: one predict per distinct model object over the slots it serves
         by_model: dict[int, list[int]] = {}
         for i, s in enumerate(slots):
@@ -489,9 +485,6 @@ class Plant:
             factor[self._wm_slots] = np.where(ok, got, np.nan) * np.where(
                 self._spread[self._wm_slots], spread_factor(pred.spread), 1.0
             )
-            far = far_factor(X, self._wm_ends)
-            if far.size:  # an input past its span (residuals.far_factor)
-                factor[self._wm_slots] *= far
         for model, idx, lags, cols in self._groups:
             X = self._hist[lags, cols]
             X[(lags > have)] = np.nan

@@ -26,13 +26,7 @@ from scipy import signal
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
 
-__all__ = ["FAR_SPREAD", "Latch", "LowPass", "MaxScaler", "far_factor", "residual_pct"]
-
-#: an answer past a rule grid's span is an extrapolation (Wang–Mendel: clipped to the edge, then
-#: along the model's trend), less certain than one inside: its residual is divided by
-#: ``1 + FAR_SPREAD · d``, ``d`` the farthest any input lies past its span, in spans
-#: (:func:`far_factor`; chosen on tep-studio's tuning runs, issue 34)
-FAR_SPREAD = 8.0
+__all__ = ["Latch", "LowPass", "MaxScaler", "residual_pct"]
 
 ArrayLike = np.ndarray | pd.DataFrame | pd.Series
 
@@ -268,41 +262,6 @@ class Latch:
         if state.get("latched") is not None:
             lt.latched_ = np.asarray(state["latched"], dtype=bool)
         return lt
-
-
-def span_ends(model: object) -> tuple[np.ndarray, np.ndarray] | None:
-    """The lower and upper ends of a rule-grid model's input spans (its partitions, the
-    grid the kernels clip to); None for a model without one (its answer past the span is
-    its own: a linear test's is unknown there)."""
-    parts = getattr(model, "partitions_", None)
-    if not parts:
-        return None
-    return np.array([p.lo for p in parts], float), np.array([p.hi for p in parts], float)
-
-
-def past_span(X: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Per row of ``X`` (rows × inputs) the farthest any input lies past its span ``[lo,
-    hi]``, in spans: 0 inside every span; a NaN input, or an input whose ends are NaN (no
-    input there: a stacked row's padding), counts 0."""
-    X = np.asarray(X, float)
-    if not X.size:
-        return np.zeros(X.shape[0])
-    with np.errstate(invalid="ignore"):
-        ex = np.maximum(lo - X, X - hi) / (hi - lo)
-    return np.fmax(ex, 0.0).max(axis=1, initial=0.0)
-
-
-def far_factor(X: np.ndarray, ends: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
-    """What each row's residual is divided by for its model's extrapolation: ``1 +
-    FAR_SPREAD · d`` (:func:`past_span`) — a predictive spread that grows with the distance
-    past the span, as a regression's does away from its data — exactly 1 inside the spans;
-    empty when no row is past a span (or ``ends`` is None: nothing to divide)."""
-    if ends is None:
-        return np.empty(0)
-    d = past_span(X, *ends)
-    if not (d > 0.0).any():
-        return np.empty(0)
-    return 1.0 + FAR_SPREAD * d
 
 
 def supported(pred: Prediction, min_support: float | np.ndarray) -> np.ndarray:

@@ -47,7 +47,7 @@ import pandas as pd
 from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
-from diag_plugin.diagnose.residuals import LowPass, far_factor, span_ends, supported
+from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay, three_valued
 from diag_plugin.diagnose.unitfile import SPREAD_FLOOR, TestSpec, UnitError, UnitFile, unit_path
 from diag_plugin.diagnose.unitloops import (
@@ -145,14 +145,12 @@ def _hold_kernel(s, limit, last, run):  # pragma: no cover - numba
 
 @numba.njit(cache=True)
 def _residual_kernel(
-    out, j, at, y, yp, support, min_support, scale, table, level, spread, floor, far
+    out, j, at, y, yp, support, min_support, scale, table, level, spread, floor
 ):  # pragma: no cover - numba
     # Unit.residual row by row: supported (NaN below min_support), % of scale (eq. 6), the
-    # answering level's factor (level_factor), the local spread's (spread_factor), the
-    # extrapolation's past the span (residuals.far_factor)
+    # answering level's factor (level_factor), the local spread's (spread_factor)
     has_level = level.shape[0] > 0
     has_spread = spread.shape[0] > 0
-    has_far = far.shape[0] > 0
     for i in range(at.shape[0]):
         yhat = yp[i] if support[i] >= min_support else np.nan
         r = (y[i] - yhat) / scale * 100.0
@@ -162,8 +160,6 @@ def _residual_kernel(
         if has_spread:
             sp = spread[i]
             r = r / (max(sp, floor) if np.isfinite(sp) else 1.0)
-        if has_far:
-            r = r / far[i]
         out[j, at[i]] = r
 
 
@@ -553,15 +549,14 @@ class Unit:
             m = self.models[t.name]
             d = self.builders[t.name].transform(cols, lean=True)
             if d.positions.size:
-                pred = m.model.predict_detail(d.X)
-                self._residual_into(out, j, d.positions, t, d.y, pred, d.X)
+                self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
         # samples × tests as a view of it (column-major): :meth:`filtered` writes the C-ordered
         # copy it filters in place, so no third array of the residuals' size
         return pd.DataFrame(out.T, index=frame.index, columns=self.tests, copy=False)
 
     def _residual_into(
         self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y: np.ndarray,
-        pred: Prediction, X: np.ndarray,
+        pred: Prediction,
     ) -> None:  # fmt: skip
         """:meth:`residual` written into row ``j`` of ``out`` (tests × samples) at samples
         ``at``, in one compiled pass (the same operations in the same order, so the same
@@ -573,26 +568,19 @@ class Unit:
         level = none.astype(np.int8) if pred.level is None else np.asarray(pred.level)
         spread = none if pred.spread is None or not test.spread else np.asarray(pred.spread)
         support = np.broadcast_to(np.asarray(pred.support, float), np.shape(pred.y))
-        far = far_factor(X, span_ends(m.model))
         _residual_kernel(out, j, at, np.asarray(y, float), np.asarray(pred.y, float),
                          np.ascontiguousarray(support), float(self.ev["min_support"]),
-                         float(scale), table, level, spread, SPREAD_FLOOR, far)  # fmt: skip
+                         float(scale), table, level, spread, SPREAD_FLOOR)  # fmt: skip
 
-    def residual(
-        self, test: TestSpec, y: np.ndarray, pred: Prediction, X: np.ndarray | None = None
-    ) -> np.ndarray:
+    def residual(self, test: TestSpec, y: np.ndarray, pred: Prediction) -> np.ndarray:
         """A test's raw residual from its model's prediction: % of span (eq. 6) or of ``ymax``,
-        NaN below ``min_support``, divided by the answering level's scale (:func:`level_factor`),
-        for a test with ``spread = true`` by the local spread (:func:`spread_factor`) and,
-        given the model's inputs ``X``, where one is past its span by the extrapolation's
-        spread (:func:`~diag_plugin.diagnose.residuals.far_factor`)."""
+        NaN below ``min_support``, divided by the answering level's scale (:func:`level_factor`)
+        and, for a test with ``spread = true``, by the local spread (:func:`spread_factor`)."""
         m = self.models[test.name]
         yhat = supported(pred, self.ev["min_support"])
         scale = test.ymax if self.ev["scale"] == "max" and test.ymax else m.span
         r = residual_pct(y, yhat, scale) / level_factor(test.levels, pred.level)
-        r = r / spread_factor(pred.spread) if test.spread else r
-        far = np.empty(0) if X is None else far_factor(X, span_ends(m.model))
-        return r / far if far.size else r
+        return r / spread_factor(pred.spread) if test.spread else r
 
     def filtered(self, raw: pd.DataFrame) -> pd.DataFrame:
         """The residuals as judged: a spread test's column replaced by the running spread of

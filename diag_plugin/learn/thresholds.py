@@ -292,7 +292,7 @@ def _test_residual(
             RuleBase.load(m.path), m.model, d, block, blocks, t.name, force=bool(cross_fit)
         )
     raw = np.full(len(frame), np.nan)
-    raw[rows] = unit.residual(_fine_only(t), d.y, pred, d.X)
+    raw[rows] = unit.residual(_fine_only(t), d.y, pred)
     level = spread = None
     if pred.level is not None:
         level = np.full(len(frame), -1, np.int64)
