@@ -96,7 +96,7 @@ _ORIGINAL: dict = {}
 
 
 def main(argv: list[str] | None = None) -> int:
-    from tep_matched_tuning import QUIET, _more_runs
+    from tep_matched_tuning import QUIET, TUNING_ONLY, _more_runs
 
     from diag_plugin.bench.matched import calibrate, method_score, rates
     from diag_plugin.bench.publicbench import build_unit_as_user, unit_statistics
@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--variants", default="reach=0.25",
                     help="';'-separated, each 'reach=R,widen=G,check=D' (any part)")  # fmt: skip
     args = ap.parse_args(argv)
-    plant = load_braatz() if args.plant == "tep" else load_tep_studio(scoring=False)
+    plant = load_braatz() if args.plant == "tep" else load_tep_studio(need=TUNING_ONLY)
     folder = Path(args.unit)
     if not (folder / "units").exists():
         built = build_unit_as_user(plant, plant.train, folder)

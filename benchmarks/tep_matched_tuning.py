@@ -43,6 +43,8 @@ import numpy as np
 
 #: tuning runs whose fault no method detects (IDV3, IDV9, IDV15): fault-free to every method
 QUIET = ("d03", "d09", "d15")
+#: tep-studio: the roles a tuning check needs (it runs before the scoring runs are simulated)
+TUNING_ONLY = ("train", "calibration", "tuning")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -66,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     targets = [float(t) for t in args.targets.split(",")]
 
-    plant = load_braatz() if args.plant == "tep" else load_tep_studio()
+    plant = load_braatz() if args.plant == "tep" else load_tep_studio(need=TUNING_ONLY)
     with scratch("tep_tuning_", args.dir) as work:
         built = build_unit_as_user(plant, plant.train, work)
     unit = built["unit"]
