@@ -41,6 +41,23 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--targets", default="0.02,0.05,0.1,0.25", help="shares of samples")
     ap.add_argument("--save", default=None, help="keep the raw statistics in this .npz")
+    ap.add_argument(
+        "--load",
+        action="append",
+        default=[],
+        help="raw statistics of runs already built (a --save of the same code)",
+    )
+    ap.add_argument(
+        "--build-only",
+        choices=("scoring",),
+        default=None,
+        help="build and --save the scoring runs' statistics only, no report",
+    )
+    ap.add_argument(
+        "--scoring",
+        action="store_true",
+        help="score the 21 scoring runs instead (once, after a choice is made)",
+    )
     add_scratch_args(ap, "nothing")
     args = ap.parse_args(argv)
     targets = [float(t) for t in args.targets.split(",")]
@@ -49,32 +66,42 @@ def main(argv: list[str] | None = None) -> int:
     cols = list(plant.tags)
     info = {t: {"unit": u, "description": d} for t, (u, d) in SKAB_TAGS.items()}
     raw: dict[str, np.ndarray] = {}
+    for f in args.load:
+        raw.update(np.load(f))
+    runs = list(plant.calibration) + (list(plant.faults) if args.scoring else [])
+    if args.build_only:
+        runs = list(plant.faults)
     scores: dict[str, dict[str, np.ndarray]] = {"unit": {}, "PCA": {}, "DPCA": {}}
     on = off = None
     cpu = time.process_time()
     with scratch("skab_tuning_", args.dir) as work:
-        for k, run in enumerate(plant.calibration):  # the tuning runs are among them
+        for k, run in enumerate(runs):  # the tuning runs are among the calibration runs
             grid = _sample_grid(run.frame, "1s")
-            res = build_unit("skab", grid.iloc[: run.learn], folder=work / f"run{k}",
-                             period="1s", tag_info=info, force=True)  # fmt: skip
-            unit = Unit.load(res.path, work / f"run{k}")
-            on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
-            stats = unit_statistics(unit, grid)[0]
-            raw[f"{run.name}|unit"] = stats
-            raw[f"{run.name}|unit_names"] = np.array(list(unit.tests) + ["T2"])
-            head = run.frame.iloc[: run.learn]
-            for m, lags in (("PCA", 0), ("DPCA", DPCA_LAGS)):
-                det = pca_fit([head], cols, lags, 0.85)
-                raw[f"{run.name}|{m}"] = pca_statistics(det, run.frame)[0]
+            if f"{run.name}|unit" not in raw:
+                res = build_unit("skab", grid.iloc[: run.learn], folder=work / f"run{k}",
+                                 period="1s", tag_info=info, force=True)  # fmt: skip
+                unit = Unit.load(res.path, work / f"run{k}")
+                on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
+                raw[f"{run.name}|unit"] = unit_statistics(unit, grid)[0]
+                raw[f"{run.name}|unit_names"] = np.array(list(unit.tests) + ["T2"])
+                head = run.frame.iloc[: run.learn]
+                for m, lags in (("PCA", 0), ("DPCA", DPCA_LAGS)):
+                    det = pca_fit([head], cols, lags, 0.85)
+                    raw[f"{run.name}|{m}"] = pca_statistics(det, run.frame)[0]
+                print(f"{run.name}: built and scored ({len(unit.tests)} tests)", flush=True)
+                raw["delays"] = np.array([on, off])
+            on, off = (int(v) for v in raw["delays"])
             for m in scores:
                 scores[m][run.name] = method_score(raw[f"{run.name}|{m}"], on, off)[run.learn :]
-            print(f"{run.name}: built and scored ({len(unit.tests)} tests)", flush=True)
     cpu = time.process_time() - cpu
     if args.save:
         np.savez_compressed(args.save, **raw)
+    if args.build_only:
+        return 0
 
-    tuning = {r.name: r for r in plant.tuning}
-    print(f"\nSKAB tuning runs ({len(tuning)}), limits matched on {len(plant.calibration)} "
+    tuning = {r.name: r for r in (plant.faults if args.scoring else plant.tuning)}
+    what = "scoring" if args.scoring else "tuning"
+    print(f"\nSKAB {what} runs ({len(tuning)}), limits matched on {len(plant.calibration)} "
           f"calibration runs; delays {on}/{off}; CPU {cpu:.0f} s")  # fmt: skip
     print("target | " + " | ".join(f"{m} F1 / FAR / MAR (cal)" for m in scores))
     det_rows = []
