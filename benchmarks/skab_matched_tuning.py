@@ -10,14 +10,17 @@ their first 400) and SKAB's F1 / FAR / MAR on the tuning runs' samples after the
 
 ``--save FILE`` keeps every run's raw statistics (the unit's per test and T², over their
 limits, before the delays) in a ``.npz`` for a look at what holds an alarm or misses a
-fault. Run: ``python benchmarks/skab_matched_tuning.py`` (SKAB's mirror or
-``$DIAG_SKAB_DIR``; about 10 min of CPU: 21 per-run builds).
+fault; ``--load FILE`` (repeatable) reuses them. ``--scoring`` reports the 21 scoring runs
+instead, with the same calibration — once, after a choice was made on the tuning runs
+(``--build-only scoring --save FILE`` builds those alone, beside a tuning run). Run:
+``python benchmarks/skab_matched_tuning.py`` (SKAB's mirror or ``$DIAG_SKAB_DIR``; 21
+per-run builds, CPU time printed: the process's and its forked workers').
 """
 
 from __future__ import annotations
 
 import argparse
-import time
+import resource
 
 import numpy as np
 
@@ -73,7 +76,15 @@ def main(argv: list[str] | None = None) -> int:
         runs = list(plant.faults)
     scores: dict[str, dict[str, np.ndarray]] = {"unit": {}, "PCA": {}, "DPCA": {}}
     on = off = None
-    cpu = time.process_time()
+
+    def cpu_now() -> float:
+        return sum(
+            u.ru_utime + u.ru_stime
+            for u in (resource.getrusage(resource.RUSAGE_SELF),
+                      resource.getrusage(resource.RUSAGE_CHILDREN))
+        )  # fmt: skip
+
+    cpu = cpu_now()
     with scratch("skab_tuning_", args.dir) as work:
         for k, run in enumerate(runs):  # the tuning runs are among the calibration runs
             grid = _sample_grid(run.frame, "1s")
@@ -93,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
             on, off = (int(v) for v in raw["delays"])
             for m in scores:
                 scores[m][run.name] = method_score(raw[f"{run.name}|{m}"], on, off)[run.learn :]
-    cpu = time.process_time() - cpu
+    cpu = cpu_now() - cpu
     if args.save:
         np.savez_compressed(args.save, **raw)
     if args.build_only:
