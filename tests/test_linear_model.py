@@ -1,12 +1,14 @@
 """The ``linear`` method (a short window's PCA-like test): least squares that merge exactly,
-no support outside the span it learned, a file that round-trips with any tag name."""
+past the span it learned an answer only while the line moves little, a file that
+round-trips with any tag name."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from diag_plugin.models.linear import LinearRegressor
+from diag_plugin.models.linear import EDGE_MOVE, LinearRegressor
+from diag_plugin.models.protocol import REASON_OUTSIDE
 from diag_plugin.models.spec import Variable
 from diag_plugin.rulebase.document import RuleBase
 
@@ -29,12 +31,27 @@ def test_coefficients_and_the_merge_of_parts_is_the_fit_of_all():
     assert np.allclose(back.predict(X), whole.predict(X))
 
 
-def test_no_support_outside_the_span_it_learned():
+def test_past_its_span_it_answers_only_while_the_lines_move_is_small():
+    """Past an input's span the test answers along the line while the line's move beyond
+    the edge is within EDGE_MOVE of the output's span; further out it has no support (the
+    prediction at the edge)."""
     X, y = _data()
     m = LinearRegressor(input_spans=[(0.0, 5.0), (10.0, 20.0)]).fit(X, y)
-    p = m.predict_detail(np.array([[2.0, 15.0], [7.0, 15.0], [np.nan, 15.0]]))
-    assert p.support.tolist() == [1.0, 0.0, 0.0]
-    assert np.isfinite(p.y[:2]).all()
+    lo, hi = m.output_span_
+    room = EDGE_MOVE * (hi - lo)  # about 0.25 * 22
+    b = m.coef_[1:]
+    near = 5.0 + 0.9 * room / abs(b[0])  # the first input past its span, a move of 0.9 room
+    far = 5.0 + 1.1 * room / abs(b[0])  # … of 1.1 room
+    rows = np.array([[2.0, 15.0], [near, 15.0], [far, 15.0], [2.0, 10.0 - 1.1 * room / abs(b[1])],
+                     [np.nan, 15.0]])  # fmt: skip
+    p = m.predict_detail(rows)
+    assert p.support.tolist() == [1.0, 1.0, 0.0, 0.0, 0.0]
+    assert (p.reason[1:4] == REASON_OUTSIDE).all()
+    line = m.coef_[0] + rows[:, :2] @ b
+    assert p.y[1] == pytest.approx(line[1], rel=1e-9)  # along the line, not at the edge
+    edge = m.coef_[0] + np.array([5.0, 15.0]) @ b
+    assert p.y[2] == pytest.approx(edge, rel=1e-9)  # unknown: the edge's value, as before
+    assert np.isfinite(p.y[:4]).all()
 
 
 def test_the_file_round_trips_a_quoted_tag_and_refuses_products():

@@ -215,3 +215,30 @@ def test_a_tag_no_other_predicts_gets_a_level_test_that_detects_its_fault(tmp_pa
         values = row.to_dict()
         (x,), (y,) = fast.cycle(ts, values), slow.cycle(ts, values)
         assert (x.status, x.faults, x.message) == (y.status, y.faults, y.message), ts
+
+
+def test_a_tag_slower_than_a_short_window_is_no_input_of_a_faster_one():
+    """A short window's tags with fewer than SHORT_INPUT_INDEPENDENT independent values
+    (a drift over the window) are left out of a faster tag's inputs, said in the plan's
+    reasons; two slow tags keep each other; a long window leaves every input in."""
+    from diag_plugin.unitbuild import short
+
+    rng = np.random.default_rng(5)
+    n = 400
+    t = np.arange(n)
+    cols = {
+        "fast": rng.normal(0, 1, n),  # ~400 independent values
+        "other": rng.normal(0, 1, n),
+        "drift": 29 + 0.2 * np.sin(2 * np.pi * t / 700) + rng.normal(0, 0.002, n),
+        "wander": np.cumsum(rng.normal(0, 1, n)),  # a random walk: a handful of values
+    }
+    plan = short.plan_for(n, "1s", 3, 0.01)
+    slow = short.slow_inputs(plan, list(cols), cols.__getitem__)
+    assert set(slow) == {"drift", "wander"} and plan.slow == slow
+    assert all(v < short.SHORT_INPUT_INDEPENDENT for v in slow.values())
+    assert any("drift (about" in r and "wander (about" in r for r in plan.reasons)
+    assert short.inputs_for(plan, "fast", ["other", "drift", "wander"]) == ["other"]
+    assert short.inputs_for(plan, "drift", ["fast", "wander"]) == ["fast", "wander"]
+    long = short.plan_for(20 * n, "1s", 3, 0.01)
+    assert short.slow_inputs(long, list(cols), cols.__getitem__) == {}
+    assert short.inputs_for(long, "fast", ["drift"]) == ["drift"]

@@ -34,6 +34,12 @@ HEADER = """\
 """
 
 
+#: how far past an input's span a linear test still answers: while the line's move beyond the
+#: span's edge stays within this share of the output's span (the input's margin,
+#: :data:`~diag_plugin.unitbuild.short.MARGIN`, in the output's terms)
+EDGE_MOVE = 0.25
+
+
 def linear_terms(d: int) -> list[tuple[int, ...]]:
     """The constant and one term per input, as input-index tuples."""
     return [(), *((i,) for i in range(d))]
@@ -43,14 +49,31 @@ class LinearRegressor(Narmax2Regressor):
     """``ŷ = β₀ + Σ β_i x_i`` by batch least squares (see module doc); parameters as
     :class:`~diag_plugin.models.narmax.Narmax2Regressor`.
 
-    Where an input is outside its span the prediction (at the span's edge) has no support:
-    a line learned from a few hundred samples says nothing about a range it never saw, so
-    a unit's test is unknown there and names the input (not a symptom)."""
+    Where an input is outside its span a line learned from a few hundred samples says little
+    about a range it never saw: the test answers only while the line's own move past the
+    span's edge stays within :data:`EDGE_MOVE` of the output's span (the prediction then
+    follows the line, the reason stays ``outside``, the input is named); beyond that the
+    prediction (at the span's edge) has no support, and a unit's test is unknown there (not
+    a symptom). A slow input that drifts a little past the range it showed (SKAB's fluid
+    temperature, a tenth of a degree) leaves the test answering — and seeing the flow
+    collapse it is there for — where a move of a quarter of the output's range would be
+    a guess."""
 
     def predict_detail(self, X: Any) -> Prediction:
         p = super().predict_detail(X)
-        support = np.where(p.reason == REASON_OUTSIDE, 0.0, p.support)
-        return Prediction(p.y, support, p.reason, p.level, p.spread)
+        out = p.reason == REASON_OUTSIDE
+        if not out.any():
+            return p
+        y, support = p.y.copy(), np.where(out, 0.0, p.support)
+        lo, hi = getattr(self, "output_span_", (np.nan, np.nan))
+        room = EDGE_MOVE * (hi - lo)
+        if room > 0:  # NaN (an unknown output span) or a flat output: unknown, as before
+            rows = np.flatnonzero(out)
+            line = self._predict_rows(self._check_X(X)[rows])
+            near = np.abs(line - p.y[rows]) <= room
+            y[rows[near]] = line[near]
+            support[rows[near]] = 1.0
+        return Prediction(y, support, p.reason, p.level, p.spread)
 
     @staticmethod
     def _term_list(d: int) -> list[tuple[int, ...]]:

@@ -409,6 +409,7 @@ def _choose(
     else:
         sp = None
         cands = [c for c in use.vars if c != tag and c not in excl and c != held.get(tag)]
+        cands = short.inputs_for(plan, tag, cands)
         ch = select_inputs(use, tag, cands, test=test, max_inputs=plan.max_inputs,
                            method=plan.select_method, max_sets=plan.max_sets)  # fmt: skip
         if plan.short and ch.steps:
@@ -729,6 +730,7 @@ def _build_unit(
     sel = ctx
     if plan.factor > 1:
         sel = _Context(short.coarse_frame(frame, plan.factor), info, plan.select_period)
+    short.slow_inputs(plan, list(ctx.vars), ctx.column)
     same = same_measurement(frame, list(ctx.vars))
     warm_kernels()
     seconds["read and screen"] = time.perf_counter() - t_start

@@ -1,0 +1,148 @@
+"""SKAB's matched false-alarm check on the **tuning** runs only (issue 34): the bench's
+protocol (``diag benchmark --plant skab``) with the tuning runs in the scoring runs' place.
+
+Per run a unit (``build_unit`` on the run's first 400 samples, as the bench builds every
+run's), PCA and DPCA (two lags) T² + Q on the same rows; every method one score per sample
+(:mod:`diag_plugin.bench.matched`, the unit's on/off delays); each limit matched on the
+bench's calibration runs (the anomaly-free chunks and the tuning runs' normal samples after
+their first 400) and SKAB's F1 / FAR / MAR on the tuning runs' samples after their first
+400, with the per-fault detection of the unit, PCA and DPCA. The scoring runs are not read.
+
+``--save FILE`` keeps every run's raw statistics (the unit's per test and T², over their
+limits, before the delays) in a ``.npz`` for a look at what holds an alarm or misses a
+fault; ``--load FILE`` (repeatable) reuses them. ``--scoring`` reports the 21 scoring runs
+instead, with the same calibration — once, after a choice was made on the tuning runs
+(``--build-only scoring --save FILE`` builds those alone, beside a tuning run). Run:
+``python benchmarks/skab_matched_tuning.py`` (SKAB's mirror or ``$DIAG_SKAB_DIR``; 21
+per-run builds, CPU time printed: the process's and its forked workers').
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+
+import numpy as np
+
+
+def main(argv: list[str] | None = None) -> int:
+    from _common import add_scratch_args, scratch
+
+    from diag_plugin.bench.matched import Scored, calibrate, method_score, rates
+    from diag_plugin.bench.publicbench import (
+        DPCA_LAGS,
+        _sample_grid,
+        pca_fit,
+        pca_statistics,
+        skab_metrics,
+        unit_statistics,
+    )
+    from diag_plugin.bench.publicplants import SKAB_TAGS, load_skab
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.unitbuild.build import build_unit
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--targets", default="0.02,0.05,0.1,0.25", help="shares of samples")
+    ap.add_argument("--save", default=None, help="keep the raw statistics in this .npz")
+    ap.add_argument(
+        "--load",
+        action="append",
+        default=[],
+        help="raw statistics of runs already built (a --save of the same code)",
+    )
+    ap.add_argument(
+        "--build-only",
+        choices=("scoring",),
+        default=None,
+        help="build and --save the scoring runs' statistics only, no report",
+    )
+    ap.add_argument(
+        "--scoring",
+        action="store_true",
+        help="score the 21 scoring runs instead (once, after a choice is made)",
+    )
+    add_scratch_args(ap, "nothing")
+    args = ap.parse_args(argv)
+    targets = [float(t) for t in args.targets.split(",")]
+
+    plant = load_skab()
+    cols = list(plant.tags)
+    info = {t: {"unit": u, "description": d} for t, (u, d) in SKAB_TAGS.items()}
+    raw: dict[str, np.ndarray] = {}
+    for f in args.load:
+        raw.update(np.load(f))
+    runs = list(plant.calibration) + (list(plant.faults) if args.scoring else [])
+    if args.build_only:
+        runs = list(plant.faults)
+    scores: dict[str, dict[str, np.ndarray]] = {"unit": {}, "PCA": {}, "DPCA": {}}
+    on = off = None
+
+    def cpu_now() -> float:
+        return sum(
+            u.ru_utime + u.ru_stime
+            for u in (resource.getrusage(resource.RUSAGE_SELF),
+                      resource.getrusage(resource.RUSAGE_CHILDREN))
+        )  # fmt: skip
+
+    cpu = cpu_now()
+    with scratch("skab_tuning_", args.dir) as work:
+        for k, run in enumerate(runs):  # the tuning runs are among the calibration runs
+            grid = _sample_grid(run.frame, "1s")
+            if f"{run.name}|unit" not in raw:
+                res = build_unit("skab", grid.iloc[: run.learn], folder=work / f"run{k}",
+                                 period="1s", tag_info=info, force=True)  # fmt: skip
+                unit = Unit.load(res.path, work / f"run{k}")
+                on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
+                raw[f"{run.name}|unit"] = unit_statistics(unit, grid)[0]
+                raw[f"{run.name}|unit_names"] = np.array(list(unit.tests) + ["T2"])
+                head = run.frame.iloc[: run.learn]
+                for m, lags in (("PCA", 0), ("DPCA", DPCA_LAGS)):
+                    det = pca_fit([head], cols, lags, 0.85)
+                    raw[f"{run.name}|{m}"] = pca_statistics(det, run.frame)[0]
+                print(f"{run.name}: built and scored ({len(unit.tests)} tests)", flush=True)
+                raw["delays"] = np.array([on, off])
+            on, off = (int(v) for v in raw["delays"])
+            for m in scores:
+                scores[m][run.name] = method_score(raw[f"{run.name}|{m}"], on, off)[run.learn :]
+    cpu = cpu_now() - cpu
+    if args.save:
+        np.savez_compressed(args.save, **raw)
+    if args.build_only:
+        return 0
+
+    tuning = {r.name: r for r in (plant.faults if args.scoring else plant.tuning)}
+    what = "scoring" if args.scoring else "tuning"
+    print(f"\nSKAB {what} runs ({len(tuning)}), limits matched on {len(plant.calibration)} "
+          f"calibration runs; delays {on}/{off}; CPU {cpu:.0f} s")  # fmt: skip
+    print("target | " + " | ".join(f"{m} F1 / FAR / MAR (cal)" for m in scores))
+    det_rows = []
+    for target in targets:
+        cells, det = [], {}
+        for m, by_run in scores.items():
+            cal = []
+            for run in plant.calibration:
+                x = by_run[run.name]
+                if run.labels is not None:
+                    x = x[run.labels[run.learn :] == 0]
+                cal.append(x)
+            lim = calibrate(cal, target, 1.0).limit
+            share = rates(cal, lim, 1.0)[0]
+            lab = [r.labels[r.learn :] for r in tuning.values()]
+            sk = skab_metrics([Scored(by_run[n]) for n in tuning], lab, lim)
+            cells.append(f"{sk['F1']:.2f} / {sk['FAR']:.1%} / {sk['MAR']:.1%} ({share:.2%})")
+            for n, r in tuning.items():
+                s = by_run[n]
+                act = r.labels[r.learn :] > 0
+                det.setdefault(n, {})[m] = float(np.mean(np.nan_to_num(s[act], nan=-1) > lim))
+        print(f"{target:g} | " + " | ".join(cells))
+        det_rows.append((target, det))
+    for target, det in det_rows:
+        print(f"\nfault samples in alarm at {target:g} (unit / PCA / DPCA):")
+        for n, d in det.items():
+            print(f"  {n:10s} {tuning[n].fault:40s} "
+                  + " / ".join(f"{d[m]:.0%}" for m in scores))  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
