@@ -8,7 +8,7 @@ happened meanwhile are known and the live loop goes on from where an uninterrupt
 would be. :func:`catch_up` does it in one of three ways, by the gap's length:
 
 ``replayed``
-    a gap of at most the units' lead-in (:func:`~diag_plugin.diagnose.cli.lead_in`: the
+    a gap of at most the units' lead-in (:func:`~diag_plugin.diagnose.leadin.lead_in`: the
     low-pass filter's settling, the delays, the lags and spread windows; 1,210 samples for
     the example valve unit): every sample is fed to :meth:`Plant.cycle
     <diag_plugin.diagnose.plant.Plant.cycle>` on the live loop's cycle grid, from the
@@ -333,7 +333,7 @@ def _history(
     """Each unit's alarm episodes in the gap by the replay's path (``diag diagnose UNIT
     --from start --to until``: the lead-in before ``start``, the unit's own period,
     :meth:`Unit.evaluate` chunk by chunk), on a copy of the unit started fresh."""
-    from diag_plugin.diagnose.cli import lead_in, since
+    from diag_plugin.diagnose.leadin import lead_in, since
 
     known = set(h.tags()["name"])
     for name, live_unit in plant.units.items():
@@ -436,7 +436,7 @@ def _us(p: pd.Timedelta) -> int:
 
 
 def _lead_in(unit: Any) -> int:
-    from diag_plugin.diagnose.cli import lead_in
+    from diag_plugin.diagnose.leadin import lead_in
 
     return int(lead_in(unit))
 
