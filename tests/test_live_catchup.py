@@ -541,8 +541,8 @@ def test_a_locked_historian_means_a_cold_start_on_time(unit_dir, tmp_path, pg_ur
 
     out, first = locked()
     assert (
-        "warm-up: no state to go on from, and the historian did not answer within 2 s "
-        "(slow or locked): the units start cold" in out
+        "warm-up: no state to go on from; stopped at its time-out: the historian did not "
+        "answer within 2 s (slow or locked): the units start cold" in out
     ), out
     assert "stopped after 1 cycles" in out, out
     assert first < 2 + 30, first  # the start-up and the 2 s bound, not the lock's 60 s
@@ -551,8 +551,8 @@ def test_a_locked_historian_means_a_cold_start_on_time(unit_dir, tmp_path, pg_ur
     out, _ = locked()
     assert f"state {cfg.state} restored" in out, out
     assert (
-        "catch-up: the historian did not answer within 2 s (slow or locked): the units go "
-        f"on from their state of {pre.index[-1]:%Y-%m-%d %H:%M:%S}" in out
+        "catch-up stopped at its time-out: the historian did not answer within 2 s (slow or "
+        f"locked); the units go on from their state of {pre.index[-1]:%Y-%m-%d %H:%M:%S}" in out
     ), out
 
 
@@ -592,4 +592,4 @@ def test_a_bounded_historian_read_fails_on_a_locked_table_instead_of_hanging(pg_
         assert th.is_alive()  # still waiting on the lock
         lock.rollback()
         th.join(30)
-        assert waited and waited[0] >= 3, waited
+        assert waited, "the unbounded read did not finish after the lock was released"

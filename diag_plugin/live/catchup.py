@@ -76,6 +76,7 @@ class Gate:
     def __init__(self) -> None:
         self.lock = threading.Lock()
         self.closed = False
+        self.fed = 0  #: samples the thread fed through the plant (under the lock)
 
     def close(self) -> None:
         with self.lock:
@@ -421,6 +422,7 @@ def _feed(
                 res.timed_out = True
                 return False
             statuses = plant.cycle(ts, row)
+            gate.fed += 1
         res.rows += 1
         res.last = ts
         if track:

@@ -562,20 +562,23 @@ class LiveLoop:
             res = await _bounded_thread(work, deadline)
         except TimeoutError:
             gate.close()  # from here on the plant is the loop's alone
+            why = (
+                f"{gate.fed} samples fed when it came"
+                if gate.fed
+                else f"the historian did not answer within {plan.timeout:g} s (slow or locked)"
+            )
             if fresh:
                 self.plant.reset()
                 self.event(
-                    "warm-up: no state to go on from, and the historian did not answer within "
-                    f"{plan.timeout:g} s (slow or locked): the units start cold (warming up "
-                    "live)"
+                    f"warm-up: no state to go on from; stopped at its time-out: {why}: the "
+                    "units start cold (warming up live)"
                 )
             else:  # the state restored, or as far as the catch-up got (a warm-up: reset)
                 last = self.plant.last_ts
                 where = f"their state of {last:%Y-%m-%d %H:%M:%S}" if last is not None else "cold"
                 self.event(
-                    f"catch-up: the historian did not answer within {plan.timeout:g} s (slow or "
-                    f"locked): the units go on from {where}; the rest is not diagnosed "
-                    "(`diag diagnose UNIT --from ... --to ...`)"
+                    f"catch-up stopped at its time-out: {why}; the units go on from {where}; "
+                    "the rest is not diagnosed (`diag diagnose UNIT --from ... --to ...`)"
                 )
             return
         except Exception as exc:  # noqa: BLE001 - the catch-up is a help, never a stop
