@@ -81,6 +81,11 @@ def reference(plant: Plant, gap: pd.DataFrame) -> list[tuple]:
     return [(e.unit, e.start, e.end, e.status) for e in res.episodes], ref
 
 
+def said(res: CatchUp) -> str:
+    """The catch-up's (or warm-up's) log lines, one text."""
+    return "\n".join(line for _, line, _ in res.lines())
+
+
 def historian_with(url: str, *frames: pd.DataFrame) -> None:
     """Samples stored by another collector."""
     h = Historian.open(url)
@@ -108,7 +113,7 @@ def test_a_short_gap_is_replayed_on_the_live_plant(unit_dir, db_url):
     assert [(e.unit, e.start, e.end, e.status) for e in res.episodes] == want
     assert plant.last_ts == gap.index[-1]
     assert json.dumps(plant.to_state()) == json.dumps(ref.to_state())
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     a, b = want[0][1], want[0][2]
     assert f"from {a:%Y-%m-%d %H:%M:%S} to {b:%Y-%m-%d %H:%M:%S}" in text, text
     assert "not raised now" in text and "700 missed cycles" in text, text
@@ -131,7 +136,7 @@ def test_a_long_gap_is_replayed_as_diag_diagnose_and_the_units_warm_up(unit_dir,
     plant = stopped_plant(unit_dir, pre)
     res = catch_up(plant, url, gap.index[-1], 10.0, max_gap_s=3600)
     assert res.mode == "warm-up" and not res.episodes and res.rows == res.lead
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert f"{gap.index[0]:%Y-%m-%d %H:%M:%S} to" in text and "is not diagnosed" in text, text
 
 
@@ -149,7 +154,7 @@ def test_an_alarm_across_the_stop_and_one_still_on_at_the_end(unit_dir, db_url):
     assert res.mode == "history", res
     assert [(e.unit, e.start, e.end, e.status) for e in res.episodes] == want
     assert res.episodes[0].at_gap_start
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert f"on at the gap's start {gap.index[0]:%Y-%m-%d %H:%M:%S} to" in text, text
     # the gap ends while the fault is on
     short = gap.iloc[:100]
@@ -159,7 +164,7 @@ def test_an_alarm_across_the_stop_and_one_still_on_at_the_end(unit_dir, db_url):
         w[:3] for w in want
     ]
     assert res.episodes[-1].end is None
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert "still on at the end of the catch-up" in text and "not raised now" not in text, text
 
 
@@ -197,7 +202,7 @@ def test_a_gap_without_samples_is_said_and_the_state_kept(unit_dir, db_url):
     res = catch_up(plant, url, gap.index[-1], 10.0)
     assert res.mode == "empty" and res.rows == 0 and set(res.no_samples) == set(plant.tags)
     assert json.dumps(plant.to_state()) == before
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert (
         f"holds no samples of {', '.join(plant.tags)} from {gap.index[0]:%Y-%m-%d %H:%M:%S} "
         f"to {gap.index[-1]:%Y-%m-%d %H:%M:%S}"
@@ -206,7 +211,7 @@ def test_a_gap_without_samples_is_said_and_the_state_kept(unit_dir, db_url):
     historian_with(url, gap.iloc[150:])
     res = catch_up(plant, url, gap.index[-1], 10.0)
     assert res.mode == "replayed" and res.first == gap.index[150] and res.rows == 150
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert (
         f"no samples from {gap.index[0]:%Y-%m-%d %H:%M:%S} to "
         f"{gap.index[149]:%Y-%m-%d %H:%M:%S}: the units jumped over it"
@@ -221,7 +226,7 @@ def test_the_time_out_cuts_the_catch_up_and_says_what_is_left(unit_dir, db_url):
     res = catch_up(plant, url, gap.index[-1], 10.0, deadline=time.monotonic())
     assert res.timed_out and res.rows < res.total == len(gap), res
     assert plant.last_ts == (res.last or pre.index[-1])
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert "catch-up stopped at its time-out" in text and "is not diagnosed" in text, text
 
 
@@ -439,7 +444,7 @@ def test_a_fresh_start_warms_up_on_the_historians_last_lead_in(unit_dir, db_url)
     assert statuses(warm, after) == want
     cold = statuses(plant_of(unit_dir), after)
     assert cold[0][1] != 1 and cold != want, cold[:3]  # cold: the on-delay counts again
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert (
         f"warm-up: no state to go on from: the units warmed up on the historian's last "
         f"{res.lead} samples ({res.first:%Y-%m-%d %H:%M:%S} to {T_STOP:%Y-%m-%d %H:%M:%S})"
@@ -453,12 +458,12 @@ def test_a_warm_up_cut_or_without_samples_starts_cold_and_says_so(unit_dir, db_u
     plant = plant_of(unit_dir)
     res = warm_up(plant, db_url, T_STOP, 10.0, deadline=time.monotonic())
     assert res.timed_out and json.dumps(plant.to_state()) == cold
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert "stopped at its time-out after 0: the units start cold" in text, text
     # the historian's last samples a day before now: nothing in the lead-in, cold
     res = warm_up(plant, db_url, T_STOP + pd.Timedelta("1D"), 10.0)
     assert res.rows == 0 and json.dumps(plant.to_state()) == cold, res
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert "the historian holds no samples of the units' tags from" in text, text
     assert "the units start cold (warming up live)" in text, text
 
