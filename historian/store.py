@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -47,6 +48,10 @@ class Historian(ColdMonths, Registry, TagReport):
     the database (PostgreSQL has no default: give it to the first roll).
     ``busy_timeout``: seconds a SQLite write waits for another writer's lock before it fails
     (the live loop's writer uses a short one and retries on its own).
+    ``timeout``: seconds any one statement may take at most, a wait for a lock included, and
+    a connection too (PostgreSQL: ``statement_timeout`` and ``connect_timeout``; SQLite: the
+    busy timeout, when shorter): a reader that must not hang on a locked or slow database
+    (the live plug-in's catch-up and warm-up) fails after it instead. None: no bound.
     """
 
     def __init__(
@@ -55,20 +60,30 @@ class Historian(ColdMonths, Registry, TagReport):
         *,
         cold_dir: str | Path | None = None,
         busy_timeout: float = 60.0,
+        timeout: float | None = None,
     ):
         self.url = str(url)
         u = make_url(self.url)
+        if timeout is not None and not timeout > 0:
+            raise ValueError(f"timeout must be a positive number of seconds, not {timeout!r}")
         if u.get_backend_name() == "sqlite":
             if not u.database or u.database == ":memory:":
                 raise ValueError("the SQLite historian needs a file: sqlite:///path/to/diag.db")
             path = Path(u.database)
             self.engine = create_engine(u.set(drivername="sqlite"))
-            busy_ms = int(busy_timeout * 1000)
+            if timeout is not None:
+                busy_timeout = min(busy_timeout, timeout)
+            busy_ms = max(1, int(busy_timeout * 1000))
             event.listen(self.engine, "connect", lambda c, r: _sqlite_pragmas(c, r, busy_ms))
             self._bulk = SqliteBulk(path, busy_timeout_ms=busy_ms)
             self._default_cold_dir = path.with_name(path.name + ".cold")
         elif u.get_backend_name() == "postgresql":
-            self.engine = create_engine(u.set(drivername="postgresql+psycopg"))
+            args = {}
+            if timeout is not None:
+                ms = max(1, int(timeout * 1000))
+                args = {"connect_timeout": max(1, math.ceil(timeout))}
+                args["options"] = f"-c statement_timeout={ms}"
+            self.engine = create_engine(u.set(drivername="postgresql+psycopg"), connect_args=args)
             self._bulk = PostgresBulk(self.engine)
             self._default_cold_dir = None
         else:

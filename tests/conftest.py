@@ -123,7 +123,9 @@ SLOW_FILES: frozenset[str] = frozenset(
         "test_historian_crash.py",  # 19-26 s: SIGKILL mid-ingest
         "test_live_crash.py",  # 17 + 10 + 4 s: diag run killed and restarted
         "test_live_catchup.py",  # 160 s wall on a loaded machine: the embedded plant's first
-        # start (7 days simulated, unit trained), units built, 1,500-3,000-cycle replays
+        # start (7 days simulated, unit trained), units built, 1,500-3,000-cycle replays; since
+        # i34-live2 on SQLite and PostgreSQL both, warm-ups too: 120 CPU s (user), 19 min wall
+        # at a load of 20 on 2 cores
         "test_live_startup_faults.py",  # 6-8 s a test: diag run started on broken files
         "test_plant_built.py",  # 25 CPU s, one test: units built, cycled row by row twice
         "test_unit_replay_exact.py",  # 19 CPU s: a unit built at two rates, the slow reference

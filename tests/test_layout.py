@@ -201,6 +201,28 @@ def test_no_import_runs_up_the_layer_order_except_the_allowed_ones():
     assert not stale, f"allowed arrows no longer in the code (remove here and in README): {stale}"
 
 
+def _is_command_module(module: str) -> bool:
+    """A command module: a package's ``cli.py`` (its commands' parsers and handlers), or the
+    ``diag`` command above them all."""
+    return module.rpartition(".")[2] == "cli" or module in TOP
+
+
+def test_no_library_module_imports_a_command_module():
+    """Commands sit on top of the library, never under it: a module that is not a command
+    module (``*/cli.py``) imports none (what two of them share belongs in a library module,
+    e.g. the lead-in in ``diagnose/leadin.py``, used by ``diag diagnose`` and the live
+    catch-up alike)."""
+    bad = []
+    for path in _our_files():
+        me = _module(path)
+        if _is_command_module(me):
+            continue
+        for target in arrows(path):
+            if _is_command_module(target) and _is_module(target):
+                bad.append(f"{path.relative_to(ROOT)}: imports the command module {target}")
+    assert not bad, "\n".join(sorted(bad))
+
+
 def test_the_readme_lists_each_allowed_arrow_with_its_reason():
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
     lines = readme.split("## Layout", 1)[1].split("\n## ", 1)[0].splitlines()

@@ -2,8 +2,12 @@
 saves and restores its units' state; the samples the historian holds for the time the
 plug-in was down are diagnosed before the first cycle — the alarm episodes logged with
 their times, the units going on from the caught-up state — and a gap without samples, a
-gap too long and a catch-up cut by its time-out are said. Real parts: a SQLite historian,
-our Modbus PLC server polled by the Modbus client of ``diag run --config``."""
+gap too long and a catch-up cut by its time-out are said. A start without a state warms the
+units up on the historian's last lead-in instead of starting cold; a historian that does not
+answer in time (a locked table) means a cold start, said, the first cycle on time. Real
+parts: a SQLite historian and the PostgreSQL server on 127.0.0.1:5432 (a scratch database
+each test, ``conftest.pg_url``), our Modbus PLC server polled by the Modbus client of
+``diag run --config``."""
 
 from __future__ import annotations
 
@@ -21,7 +25,7 @@ from test_live import PLANT_TOML as LIVE_TOML
 
 from connectors.modbus_server import PLANT_TAGS
 from diag_plugin.diagnose.plant import Plant
-from diag_plugin.live.catchup import CatchUp, _step, catch_up
+from diag_plugin.live.catchup import CatchUp, _step, catch_up, warm_up
 from diag_plugin.simulate import FaultSpec, simulate_valve
 from historian.store import Historian
 
@@ -77,6 +81,11 @@ def reference(plant: Plant, gap: pd.DataFrame) -> list[tuple]:
     return [(e.unit, e.start, e.end, e.status) for e in res.episodes], ref
 
 
+def said(res: CatchUp) -> str:
+    """The catch-up's (or warm-up's) log lines, one text."""
+    return "\n".join(line for _, line, _ in res.lines())
+
+
 def historian_with(url: str, *frames: pd.DataFrame) -> None:
     """Samples stored by another collector."""
     h = Historian.open(url)
@@ -88,7 +97,7 @@ def historian_with(url: str, *frames: pd.DataFrame) -> None:
 T_STOP = pd.Timestamp("2026-03-01 04:00", tz="UTC")
 
 
-def test_a_short_gap_is_replayed_on_the_live_plant(unit_dir, tmp_path):
+def test_a_short_gap_is_replayed_on_the_live_plant(unit_dir, db_url):
     """A gap shorter than the lead-in: every missed cycle through the live plant from the
     restored state — the episodes of an uninterrupted run, the same state after it."""
     pre, gap = scenario(T_STOP, 700)
@@ -97,26 +106,26 @@ def test_a_short_gap_is_replayed_on_the_live_plant(unit_dir, tmp_path):
     assert want and all(e[2] is not None for e in want), want  # over before the restart
     fault_on = T_STOP + ONSET * STEP
     assert fault_on <= want[0][1] <= T_STOP + END * STEP, want
-    url = f"sqlite:///{tmp_path / 'h.db'}"
+    url = db_url
     historian_with(url, pre, gap)
     res = catch_up(plant, url, gap.index[-1], 10.0)
     assert res.mode == "replayed" and res.rows == res.total == len(gap), res
     assert [(e.unit, e.start, e.end, e.status) for e in res.episodes] == want
     assert plant.last_ts == gap.index[-1]
     assert json.dumps(plant.to_state()) == json.dumps(ref.to_state())
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     a, b = want[0][1], want[0][2]
     assert f"from {a:%Y-%m-%d %H:%M:%S} to {b:%Y-%m-%d %H:%M:%S}" in text, text
     assert "not raised now" in text and "700 missed cycles" in text, text
 
 
-def test_a_long_gap_is_replayed_as_diag_diagnose_and_the_units_warm_up(unit_dir, tmp_path):
+def test_a_long_gap_is_replayed_as_diag_diagnose_and_the_units_warm_up(unit_dir, db_url):
     """A gap longer than the lead-in: its episodes by the replay's path (the same as an
     uninterrupted run's), the live plant warmed up on the last lead-in before now."""
     pre, gap = scenario(T_STOP, 2500)
     plant = stopped_plant(unit_dir, pre)
     want, _ = reference(plant, gap)
-    url = f"sqlite:///{tmp_path / 'h.db'}"
+    url = db_url
     historian_with(url, pre, gap)
     res = catch_up(plant, url, gap.index[-1], 10.0)
     assert res.mode == "history", res
@@ -127,11 +136,11 @@ def test_a_long_gap_is_replayed_as_diag_diagnose_and_the_units_warm_up(unit_dir,
     plant = stopped_plant(unit_dir, pre)
     res = catch_up(plant, url, gap.index[-1], 10.0, max_gap_s=3600)
     assert res.mode == "warm-up" and not res.episodes and res.rows == res.lead
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert f"{gap.index[0]:%Y-%m-%d %H:%M:%S} to" in text and "is not diagnosed" in text, text
 
 
-def test_an_alarm_across_the_stop_and_one_still_on_at_the_end(unit_dir, tmp_path):
+def test_an_alarm_across_the_stop_and_one_still_on_at_the_end(unit_dir, db_url):
     """A fault from before the stop into the gap: on at the gap's first sample in both ways
     (the history replay reads its lead-in before the stop, so its delays are where the live
     run's were); a fault still on at the end: no end, said, left to the first cycle."""
@@ -139,13 +148,13 @@ def test_an_alarm_across_the_stop_and_one_still_on_at_the_end(unit_dir, tmp_path
     plant = stopped_plant(unit_dir, pre)
     want, _ = reference(plant, gap)
     assert want[0][1] == gap.index[0], want  # alarming when it stopped
-    url = f"sqlite:///{tmp_path / 'h.db'}"
+    url = db_url
     historian_with(url, pre, gap)
     res = catch_up(copy.deepcopy(plant), url, gap.index[-1], 10.0)
     assert res.mode == "history", res
     assert [(e.unit, e.start, e.end, e.status) for e in res.episodes] == want
     assert res.episodes[0].at_gap_start
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert f"on at the gap's start {gap.index[0]:%Y-%m-%d %H:%M:%S} to" in text, text
     # the gap ends while the fault is on
     short = gap.iloc[:100]
@@ -155,7 +164,7 @@ def test_an_alarm_across_the_stop_and_one_still_on_at_the_end(unit_dir, tmp_path
         w[:3] for w in want
     ]
     assert res.episodes[-1].end is None
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert "still on at the end of the catch-up" in text and "not raised now" not in text, text
 
 
@@ -184,16 +193,16 @@ def test_the_restart_gap_begins_after_the_samples_caught_up(tmp_path):
     assert asyncio.run(run(True)) is None
 
 
-def test_a_gap_without_samples_is_said_and_the_state_kept(unit_dir, tmp_path):
+def test_a_gap_without_samples_is_said_and_the_state_kept(unit_dir, db_url):
     pre, gap = scenario(T_STOP, 300)
     plant = stopped_plant(unit_dir, pre)
     before = json.dumps(plant.to_state())
-    url = f"sqlite:///{tmp_path / 'h.db'}"
+    url = db_url
     historian_with(url, pre)  # nobody collected while we were down
     res = catch_up(plant, url, gap.index[-1], 10.0)
     assert res.mode == "empty" and res.rows == 0 and set(res.no_samples) == set(plant.tags)
     assert json.dumps(plant.to_state()) == before
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert (
         f"holds no samples of {', '.join(plant.tags)} from {gap.index[0]:%Y-%m-%d %H:%M:%S} "
         f"to {gap.index[-1]:%Y-%m-%d %H:%M:%S}"
@@ -202,22 +211,22 @@ def test_a_gap_without_samples_is_said_and_the_state_kept(unit_dir, tmp_path):
     historian_with(url, gap.iloc[150:])
     res = catch_up(plant, url, gap.index[-1], 10.0)
     assert res.mode == "replayed" and res.first == gap.index[150] and res.rows == 150
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert (
         f"no samples from {gap.index[0]:%Y-%m-%d %H:%M:%S} to "
         f"{gap.index[149]:%Y-%m-%d %H:%M:%S}: the units jumped over it"
     ) in text, text
 
 
-def test_the_time_out_cuts_the_catch_up_and_says_what_is_left(unit_dir, tmp_path):
+def test_the_time_out_cuts_the_catch_up_and_says_what_is_left(unit_dir, db_url):
     pre, gap = scenario(T_STOP, 700)
-    url = f"sqlite:///{tmp_path / 'h.db'}"
+    url = db_url
     historian_with(url, pre, gap)
     plant = stopped_plant(unit_dir, pre)
     res = catch_up(plant, url, gap.index[-1], 10.0, deadline=time.monotonic())
     assert res.timed_out and res.rows < res.total == len(gap), res
     assert plant.last_ts == (res.last or pre.index[-1])
-    text = "\n".join(line for _, line, _ in res.lines())
+    text = said(res)
     assert "catch-up stopped at its time-out" in text and "is not diagnosed" in text, text
 
 
@@ -225,7 +234,9 @@ def test_the_time_out_cuts_the_catch_up_and_says_what_is_left(unit_dir, tmp_path
 PLANT_TOML = LIVE_TOML.replace("cycle = 0.05", "cycle = 10\ncatch_up_timeout = {timeout}")
 
 
-def _config(unit_dir: Path, tmp_path: Path, timeout: float) -> tuple[Path, int]:
+def _config(
+    unit_dir: Path, tmp_path: Path, timeout: float, historian: str = "sqlite:///cfg.db"
+) -> tuple[Path, int]:
     from connectors.modbus_server import default_plant_map
 
     rb = tmp_path / "rb"
@@ -238,11 +249,12 @@ def _config(unit_dir: Path, tmp_path: Path, timeout: float) -> tuple[Path, int]:
     (tmp_path / "plc.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
     port = free_port()
     text = PLANT_TOML.format(timeout=timeout, port=port, modbus=free_port())
+    text = text.replace('historian = "sqlite:///cfg.db"', f"historian = {json.dumps(historian)}")
     (tmp_path / "plant.toml").write_text(text, encoding="utf-8")
     return tmp_path / "plant.toml", port
 
 
-def _run(cfg, port: int, row: dict) -> str:
+def _run(cfg, port: int, row: dict, after=None) -> str:
     from connectors.modbus_server import PlantServer
     from diag_plugin.live.config import run_config
 
@@ -251,20 +263,20 @@ def _run(cfg, port: int, row: dict) -> str:
     async def main() -> int:
         async with PlantServer(port=port) as plc:
             await plc.set_row(row)
-            return await run_config(cfg, duration=0.5, out=out)
+            return await run_config(cfg, duration=0.5, out=out, after=after)
 
     assert asyncio.run(main()) == 0, out.text
     return out.text
 
 
-def test_diag_run_restarted_after_downtime_logs_the_missed_alarm(unit_dir, tmp_path):
+def test_diag_run_restarted_after_downtime_logs_the_missed_alarm(unit_dir, tmp_path, db_url):
     """`diag run --config` (Modbus PLC, SQLite historian) restarted with a state of 2 h ago
     and another collector's samples meanwhile: the episode logged with its times, in the
     event log at them; the first cycle goes on from the caught-up state."""
     from diag_plugin.live.config import load_config
     from diag_plugin.live.state import save_state
 
-    path, port = _config(unit_dir, tmp_path, 60)
+    path, port = _config(unit_dir, tmp_path, 60, db_url)
     cfg = load_config(path)
     now = pd.Timestamp.now(tz="UTC").floor("10s")
     pre, gap = scenario(now - 700 * STEP, 700)
@@ -405,3 +417,184 @@ def test_a_killed_run_is_caught_up_from_its_journal(tmp_path):
     live = int(re.search(r"stopped after (\d+) cycles", out).group(1))
     end = json.loads(state.read_text(encoding="utf-8"))
     assert end["cycles"] == saved["cycles"] + int(m.group(1)) + live, (end["cycles"], out)
+
+
+def statuses(plant: Plant, rows: pd.DataFrame) -> list[tuple]:
+    """Each row's (unit, NE 107 status, faults) from ``plant``."""
+    out = []
+    for ts, row in zip(rows.index, rows.to_dict("records"), strict=True):
+        out.extend((s.unit, int(s.status), tuple(s.faults)) for s in plant.cycle(ts, row))
+    return out
+
+
+def test_a_fresh_start_warms_up_on_the_historians_last_lead_in(unit_dir, db_url):
+    """No state (first start, or the unit files changed): the fresh plant warmed up on the
+    historian's last lead-in goes on as the plant that ran all along — alarming with it from
+    the first cycle through a fault that began before the start — where a cold plant counts
+    its on-delay again; the log says what was read."""
+    pre, after = scenario(T_STOP, 300, onset=-150, end=100)  # the fault on across the start
+    running = stopped_plant(unit_dir, pre)
+    historian_with(db_url, pre)
+    warm = plant_of(unit_dir)
+    res = warm_up(warm, db_url, T_STOP, 10.0)
+    assert res.mode == "fresh" and not res.timed_out and res.rows == res.lead, res
+    assert res.lead > 1000 and res.first == pre.index[-res.lead] and res.last == T_STOP
+    want = statuses(running, after)
+    assert want[0][1] == 1 and want[0][2], want[:3]  # FAILURE, isolated, at the first cycle
+    assert statuses(warm, after) == want
+    cold = statuses(plant_of(unit_dir), after)
+    assert cold[0][1] != 1 and cold != want, cold[:3]  # cold: the on-delay counts again
+    text = said(res)
+    assert (
+        f"warm-up: no state to go on from: the units warmed up on the historian's last "
+        f"{res.lead} samples ({res.first:%Y-%m-%d %H:%M:%S} to {T_STOP:%Y-%m-%d %H:%M:%S})"
+    ) in text, text
+
+
+def test_a_warm_up_cut_or_without_samples_starts_cold_and_says_so(unit_dir, db_url):
+    pre, _ = scenario(T_STOP, 0)
+    historian_with(db_url, pre)
+    cold = json.dumps(plant_of(unit_dir).to_state())
+    plant = plant_of(unit_dir)
+    res = warm_up(plant, db_url, T_STOP, 10.0, deadline=time.monotonic())
+    assert res.timed_out and json.dumps(plant.to_state()) == cold
+    text = said(res)
+    assert "stopped at its time-out after 0: the units start cold" in text, text
+    # the historian's last samples a day before now: nothing in the lead-in, cold
+    res = warm_up(plant, db_url, T_STOP + pd.Timedelta("1D"), 10.0)
+    assert res.rows == 0 and json.dumps(plant.to_state()) == cold, res
+    text = said(res)
+    assert "the historian holds no samples of the units' tags from" in text, text
+    assert "the units start cold (warming up live)" in text, text
+
+
+def test_diag_run_without_a_state_starts_warm(unit_dir, tmp_path, db_url):
+    """`diag run --config` with no state file and the historian holding the last hours: the
+    units warm up before the first cycle, said; the first cycle goes on from there (the
+    state saved on stop counts the warm-up's cycles)."""
+    from diag_plugin.live.config import load_config
+
+    path, port = _config(unit_dir, tmp_path, 60, db_url)
+    cfg = load_config(path)
+    now = pd.Timestamp.now(tz="UTC").floor("10s")
+    pre, _ = scenario(now, 0)
+    historian_with(cfg.historian, pre)
+    out = _run(cfg, port, pre.iloc[-1].to_dict())
+    assert f"state {cfg.state}: none yet, units start fresh" in out, out
+    m = re.search(
+        r"warm-up: no state to go on from: the units warmed up on the historian's last "
+        r"(\d+)(?: of the lead-in's \d+)? samples",
+        out,
+    )
+    assert m, out
+    saved = json.loads(cfg.state.read_text(encoding="utf-8"))
+    assert saved["cycles"] == int(m.group(1)) + 1 and int(m.group(1)) > 1000, saved["cycles"]
+    assert "stopped after 1 cycles" in out, out
+
+
+@pytest.mark.postgres
+def test_a_locked_historian_means_a_cold_start_on_time(unit_dir, tmp_path, pg_url):
+    """The PostgreSQL historian's samples table locked by another session (ACCESS
+    EXCLUSIVE, as a long maintenance job takes it): the warm-up's read waits, the first
+    cycle does not — cold, said, after ``catch_up_timeout`` — and the lock released after it,
+    the run stops cleanly. With a restored state the same: the units go on from it."""
+    import psycopg
+
+    from diag_plugin.live.config import load_config
+    from diag_plugin.live.state import save_state
+
+    path, port = _config(unit_dir, tmp_path, 2, pg_url)
+    cfg = load_config(path)
+    now = pd.Timestamp.now(tz="UTC").floor("10s")
+    pre, _ = scenario(now, 0)
+    historian_with(cfg.historian, pre)
+    dsn = pg_url.replace(
+        "postgresql://postgres@127.0.0.1:5432/", "host=127.0.0.1 port=5432 user=postgres dbname="
+    )
+
+    def locked() -> tuple[str, float]:
+        """A run with the table locked; the lock released after its first cycle (or after
+        60 s, should the loop wait on it: then too late for the assertion)."""
+        import threading
+
+        lock = psycopg.connect(dsn)
+        lock.execute("LOCK TABLE samples IN ACCESS EXCLUSIVE MODE")
+        released = threading.Lock()
+        first: list[float] = []
+
+        def release() -> None:
+            with released:
+                if not lock.closed:
+                    lock.rollback()
+
+        timer = threading.Timer(60, release)
+
+        async def after(loop, i, statuses) -> None:
+            if i == 0:
+                first.append(time.monotonic())
+                await asyncio.to_thread(release)
+
+        t0 = time.monotonic()
+        timer.start()
+        try:
+            out = _run(cfg, port, pre.iloc[-1].to_dict(), after=after)
+        finally:
+            timer.cancel()
+            with released:
+                lock.close()
+        return out, first[0] - t0
+
+    out, first = locked()
+    assert (
+        "warm-up: no state to go on from; stopped at its time-out: the historian did not "
+        "answer within 2 s (slow or locked): the units start cold" in out
+    ), out
+    assert "stopped after 1 cycles" in out, out
+    assert first < 2 + 30, first  # the start-up and the 2 s bound, not the lock's 60 s
+    plant = stopped_plant(tmp_path, pre)
+    save_state(plant, cfg.state)
+    out, _ = locked()
+    assert f"state {cfg.state} restored" in out, out
+    assert (
+        "catch-up stopped at its time-out: the historian did not answer within 2 s (slow or "
+        f"locked); the units go on from their state of {pre.index[-1]:%Y-%m-%d %H:%M:%S}" in out
+    ), out
+
+
+@pytest.mark.postgres
+def test_a_bounded_historian_read_fails_on_a_locked_table_instead_of_hanging(pg_url):
+    """``Historian(timeout=...)``, as the catch-up's thread opens it: a read waiting on a lock
+    fails at the bound (PostgreSQL's statement_timeout), so the thread left behind by a loop
+    that stopped waiting ends too; unbounded, the same read waits for the lock."""
+    import threading
+
+    import psycopg
+
+    pre, _ = scenario(T_STOP, 0)
+    historian_with(pg_url, pre.iloc[-10:])
+    dsn = pg_url.replace(
+        "postgresql://postgres@127.0.0.1:5432/", "host=127.0.0.1 port=5432 user=postgres dbname="
+    )
+    with psycopg.connect(dsn) as lock:
+        lock.execute("LOCK TABLE samples IN ACCESS EXCLUSIVE MODE")
+        h = Historian(pg_url, timeout=1.0)
+        t0 = time.monotonic()
+        with pytest.raises(Exception, match="statement timeout"):
+            h.read_samples("P0")
+        assert time.monotonic() - t0 < 15
+        h.close()
+        waited: list[float] = []
+
+        def unbounded() -> None:
+            with Historian(pg_url) as h2:
+                t = time.monotonic()
+                h2.read_samples("P0")
+                waited.append(time.monotonic() - t)
+
+        th = threading.Thread(target=unbounded)
+        th.start()
+        th.join(3)
+        assert th.is_alive()  # still waiting on the lock
+        lock.rollback()
+        th.join(30)
+        assert waited, "the unbounded read did not finish after the lock was released"

@@ -428,7 +428,7 @@ def test_diagnose_from_reads_the_history_its_lags_filter_and_delays_need(folder,
     residuals a diagnosis of the whole record has there — the lags (an hour: CV[k-360]), the
     filter and the delays read the historian before T0, the rows before it are not shown; at
     the record's start the unit warms up, and says so, as before."""
-    from diag_plugin.diagnose.cli import lead_in, lead_in_parts
+    from diag_plugin.diagnose.leadin import lead_in, lead_in_parts
 
     m = folder / "valve_r1.toml"
     m.write_text(m.read_text().replace('spec = "CV[k]"', 'spec = "CV[k-360]"', 1))

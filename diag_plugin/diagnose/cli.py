@@ -167,6 +167,8 @@ def cmd_unit_check(args) -> int:
 
 def unit_summary(unit) -> dict:
     """What ``diag unit show`` prints: tests, thresholds, evaluation, matrix analysis."""
+    from diag_plugin.diagnose.leadin import LEAD_CAP, lead_in, lead_in_parts
+
     f = unit.file
     tests = []
     for t in f.tests:
@@ -451,54 +453,10 @@ def _print_build(con, build: dict) -> None:
         con.print(f"  not tested: {tag}: {why}", markup=False)
 
 
-#: the longest lead-in ``diag diagnose --from`` reads (the default chunk: one more read at most)
-LEAD_CAP = "7D"
-#: what is left of a cold start's transient in the low-pass filter after its settling time
-SETTLED = 1e-6
-
-
-def lead_in(unit) -> int:
-    """Samples a replay from ``--from`` reads before it: the sum of :func:`lead_in_parts`,
-    capped at :data:`LEAD_CAP` of data."""
-    import pandas as pd
-
-    n = sum(lead_in_parts(unit).values())
-    return min(n, int(pd.Timedelta(LEAD_CAP) / pd.Timedelta(unit.period)))
-
-
-def lead_in_parts(unit) -> dict[str, int]:
-    """What a replay from ``--from`` reads before it, in samples, so that at ``--from`` the
-    unit's carried state is what the live plug-in, running since earlier, had there: ``lags``,
-    the longest lag its models read (``rate`` one more); ``spread``, a spread test's two
-    windows (the running median, then the median of the deviations from it); ``filter``, the
-    low-pass filter's settling — the samples after which a cold start's transient is below
-    :data:`SETTLED` of it, ``ln(SETTLED) / ln|p|`` for the filter's slowest pole ``p`` (1 150
-    samples at the default cut-off 0.01); ``delays``, the on/off delays (with the unit's own
-    off-delay, that once more). State that depends on all history (a latch, a held isolation,
-    ``dir()`` inputs) starts at the lead-in's start."""
-    import math
-
-    import numpy as np
-    from scipy import signal
-
-    ev = unit.ev
-    out = {"lags": max((b.history for b in unit.builders.values()), default=0)}
-    out["spread"] = 2 * unit.spread.window if unit.spread_cols.size else 0
-    out["filter"] = 0
-    if unit.lowpass is not None:
-        _, poles, _ = signal.sos2zpk(unit.lowpass.sos_)
-        slowest = float(np.abs(poles).max())
-        if 0 < slowest < 1:
-            out["filter"] = math.ceil(math.log(SETTLED) / math.log(slowest))
-    alarm = ev["off_delay"] if unit.alarm_hold else 0
-    out["delays"] = ev["on_delay"] + ev["off_delay"] + alarm
-    return out
-
-
 def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0):
     """Consecutive aligned pieces of the unit's tags from the historian; with ``lead`` and a
     ``start``, from ``lead`` samples before it where the historian has them (the rows before
-    ``start`` are the caller's to drop, :func:`since`)."""
+    ``start`` are the caller's to drop, :func:`~diag_plugin.diagnose.leadin.since`)."""
     import pandas as pd
 
     from historian.store import Historian
@@ -544,6 +502,7 @@ def _prefetch(items):
 def cmd_diagnose(args) -> int:
     import pandas as pd
 
+    from diag_plugin.diagnose.leadin import lead_in, since
     from diag_plugin.diagnose.unit import concat
 
     unit = load_unit(args, args.name)
@@ -582,23 +541,6 @@ def cmd_diagnose(args) -> int:
         return 0
     _print_timeline(unit, d, iv, args.csv)
     return 0
-
-
-def since(d, start):
-    """The diagnosis ``d`` from ``start`` on (all of it when ``start`` is None)."""
-    import dataclasses
-
-    import pandas as pd
-
-    if start is None or not len(d) or d.status.index[0] >= start:
-        return d
-    keep = d.status.index >= start
-    cut = {
-        f.name: v[keep]
-        for f in dataclasses.fields(d)
-        if isinstance(v := getattr(d, f.name), pd.Series | pd.DataFrame)
-    }
-    return dataclasses.replace(d, **cut)
 
 
 def _one_blas_thread():

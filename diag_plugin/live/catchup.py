@@ -8,7 +8,7 @@ happened meanwhile are known and the live loop goes on from where an uninterrupt
 would be. :func:`catch_up` does it in one of three ways, by the gap's length:
 
 ``replayed``
-    a gap of at most the units' lead-in (:func:`~diag_plugin.diagnose.cli.lead_in`: the
+    a gap of at most the units' lead-in (:func:`~diag_plugin.diagnose.leadin.lead_in`: the
     low-pass filter's settling, the delays, the lags and spread windows; 1,210 samples for
     the example valve unit): every sample is fed to :meth:`Plant.cycle
     <diag_plugin.diagnose.plant.Plant.cycle>` on the live loop's cycle grid, from the
@@ -24,6 +24,11 @@ would be. :func:`catch_up` does it in one of three ways, by the gap's length:
 ``warm-up``
     a gap longer than ``max_gap_s``: only the warm-up; the gap is reported as not diagnosed.
 
+A start without a state to go on from (the first, or the unit files changed since it was
+saved) has no gap: :func:`warm_up` feeds the historian's last lead-in before now through the
+fresh plant (mode ``fresh``), so the first cycle starts with its lags, filters, delays, spread
+windows and holds where a plug-in running all along would have them, not cold.
+
 Episodes follow the OPC UA server's alarm rule (FAILURE, OFF_SPEC and MAINTENANCE_REQUIRED
 raise the condition, CHECK_FUNCTION holds it): one that began and ended in the gap is
 reported as past, with its times, never raised now; one still on at the end is raised by the
@@ -33,14 +38,19 @@ without catch-up); where the historian holds nothing (time range, tags), it is s
 Bounded: the live plant's part (replay or warm-up) is at most a lead-in of samples, done
 first; the history goes on while time is left. ``deadline`` (``time.monotonic()``) stops
 either between two samples (replay) or two chunks (history); the rest is reported as not
-diagnosed. The caller runs it in a thread before the live loop's first cycle
-(:meth:`~diag_plugin.live.loop.LiveLoop.run`), so the first cycle waits at most the time-out.
+diagnosed; a fresh start's warm-up cut so starts cold. Each historian statement is bounded by
+the time left too (``Historian(timeout=...)``: a locked or slow database fails the read
+instead of hanging on). The caller runs it in a thread of its own before the live loop's
+first cycle and waits for it no longer than the deadline
+(:meth:`~diag_plugin.live.loop.LiveLoop.run`); the thread touches the live plant only through
+a :class:`Gate` the loop closes when it stops waiting, so nothing moves the plant after.
 """
 
 from __future__ import annotations
 
 import copy
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -55,6 +65,22 @@ CHECK_FUNCTION = 2
 MAX_GAP_S = 7 * 86_400.0
 #: rows read from the historian per step (the deadline is checked between chunks)
 CHUNK_ROWS = 2_000
+
+
+class Gate:
+    """The live plant shared by the catch-up's thread and the live loop: the thread changes
+    the plant only under :attr:`lock` while the gate is open (one :meth:`Plant.cycle
+    <diag_plugin.diagnose.plant.Plant.cycle>` at a time); :meth:`close`, once the loop stops
+    waiting, waits for the cycle under way, so from then on the plant is the loop's alone."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.closed = False
+        self.fed = 0  #: samples the thread fed through the plant (under the lock)
+
+    def close(self) -> None:
+        with self.lock:
+            self.closed = True
 
 
 @dataclass
@@ -91,7 +117,7 @@ class CatchUp:
     missed). ``first``/``last``: the live plant's samples; ``history_to``: where each unit's
     history replay ended; ``timed_out``: the deadline stopped it."""
 
-    since: pd.Timestamp
+    since: pd.Timestamp | None  #: the restored state's last cycle (None: a fresh start)
     until: pd.Timestamp
     period_s: float
     mode: str = "none"
@@ -109,9 +135,12 @@ class CatchUp:
     lead: int = 0  #: the lead-in, samples
     max_gap_s: float = MAX_GAP_S
     cpu_s: float = 0.0
+    window_from: pd.Timestamp | None = None  #: a fresh start's warm-up: where it read from
 
     @property
     def gap_start(self) -> pd.Timestamp:
+        if self.since is None:  # a fresh start: the warm-up's window
+            return self.window_from if self.window_from is not None else self.until
         return self.since + pd.Timedelta(seconds=self.period_s)
 
     @property
@@ -123,6 +152,8 @@ class CatchUp:
         """The log: (time, text, event fields); the episodes at their own times, ``unit``
         in their fields."""
         a, b = self.gap_start, self.until
+        if self.since is None:
+            return [(None, x, {}) for x in self._fresh_lines()]
         gap = _span((b - self.since).total_seconds())
         head = f"catch-up: the state is of {_t(self.since)} UTC, {gap} before now"
         if self.mode == "none":
@@ -168,16 +199,7 @@ class CatchUp:
                 f"{_t(self.first - p)}: the units jumped "
                 "over it"
             )
-        if self.no_samples:
-            out.append(
-                f"catch-up: the historian holds no samples of {', '.join(self.no_samples)} "
-                f"from {_t(a)} to {_t(b)} (the tests reading them were unknown)"
-            )
-        if self.last_sample is not None and self.last_sample < b - p:
-            out.append(
-                f"catch-up: the historian holds no samples after {_t(self.last_sample)} "
-                f"(to {_t(b)}): the units jumped over it"
-            )
+        out.extend(self._holes("catch-up"))
         if self.timed_out:
             short = [
                 f"{u} to {_t(t)}" for u, t in self.history_to.items() if t < self.last_sample_or(b)
@@ -202,6 +224,52 @@ class CatchUp:
             lines.extend(_episode_lines(e))
         return lines
 
+    def _holes(self, what: str) -> list[str]:
+        """Tags without a sample, and the time after the last sample, in what was read."""
+        a, b = self.gap_start, self.until
+        out = []
+        if self.no_samples:
+            out.append(
+                f"{what}: the historian holds no samples of {', '.join(self.no_samples)} "
+                f"from {_t(a)} to {_t(b)} (the tests reading them were unknown)"
+            )
+        p = pd.Timedelta(seconds=self.period_s)
+        if self.last_sample is not None and self.last_sample < b - p:
+            out.append(
+                f"{what}: the historian holds no samples after {_t(self.last_sample)} "
+                f"(to {_t(b)}): the units jumped over it"
+            )
+        return out
+
+    def _fresh_lines(self) -> list[str]:
+        """A fresh start's warm-up (:func:`warm_up`), said."""
+        head = "warm-up: no state to go on from"
+        out = []
+        if self.not_stored:
+            out.append(f"warm-up: tags {', '.join(self.not_stored)} are not in the historian")
+        if self.timed_out:
+            out.append(
+                f"{head}; the warm-up on the historian's last lead-in ({self.lead} samples) "
+                f"stopped at its time-out after {self.rows}: the units start cold (warming "
+                f"up live) ({self.cpu_s:.2f} s CPU)"
+            )
+            return out
+        if not self.rows:
+            out.append(
+                f"{head}, and the historian holds no samples of the units' tags from "
+                f"{_t(self.gap_start)} to {_t(self.until)} (their lead-in, {self.lead} samples, "
+                "before now): the units start cold (warming up live)"
+            )
+            return out
+        short = f" of the lead-in's {self.lead}" if self.rows < self.lead else ""
+        out.append(
+            f"{head}: the units warmed up on the historian's last {self.rows}{short} samples "
+            f"({_t(self.first)} to {_t(self.last)}) before the first cycle, their lags, "
+            f"filters, delays and holds where a running plug-in's would be "
+            f"({self.cpu_s:.2f} s CPU)"
+        )
+        return out + self._holes("warm-up")
+
     def last_sample_or(self, b: pd.Timestamp) -> pd.Timestamp:
         return self.last_sample if self.last_sample is not None else b
 
@@ -215,12 +283,12 @@ def catch_up(
     deadline: float = math.inf,
     max_gap_s: float = MAX_GAP_S,
     chunk_rows: int = CHUNK_ROWS,
+    gate: Gate | None = None,
 ) -> CatchUp | None:
     """Diagnose what the historian at ``url`` holds between the plant's last cycle
     (``plant.last_ts``, the restored state's) and ``until``, the live plant on a grid of
     ``period_s`` (the live loop's cycle); module doc. None when the plant has no last cycle
-    (nothing restored)."""
-    from historian.store import Historian
+    (nothing restored). ``gate``: the live loop's (:class:`Gate`)."""
     from historian.times import to_us
 
     since = plant.last_ts
@@ -234,22 +302,20 @@ def catch_up(
     if until < start:
         return res
     res.total = int((to_us(until) - to_us(start)) // _us(p)) + 1
-    res.lead = max((_lead_in(u) for u in plant.units.values()), default=0) + 1
+    res.lead = _plant_lead_in(plant)
+    gate = gate or Gate()
     tags = list(plant.tags)
-    h = Historian.open(url)
+    h = _open(url, deadline)
     try:
-        known = set(h.tags()["name"])
-        res.not_stored = [t for t in tags if t not in known]
-        read = [t for t in tags if t in known]
-        res.seen = dict.fromkeys(tags, False)
+        read = _stored(h, tags, res)
         gap_s = (until - since).total_seconds()
         if res.total <= res.lead:
             res.mode = "replayed"
-            _feed(plant, h, read, start, until, p, deadline, res, chunk_rows, track=True)
+            _feed(plant, h, read, start, until, p, deadline, res, chunk_rows, gate, track=True)
         else:
             res.mode = "history" if gap_s <= max_gap_s else "warm-up"
             lo = max(start, until - (res.lead - 1) * p)
-            _feed(plant, h, read, lo, until, p, deadline, res, chunk_rows, track=False)
+            _feed(plant, h, read, lo, until, p, deadline, res, chunk_rows, gate, track=False)
             if res.mode == "history":
                 _history(plant, h, start, until, deadline, res, chunk_rows)
     finally:
@@ -259,6 +325,69 @@ def catch_up(
     res.episodes.sort(key=lambda e: (e.start, e.unit))
     res.cpu_s = time.process_time() - cpu0
     return res
+
+
+def warm_up(
+    plant: Any,
+    url: str,
+    until: pd.Timestamp,
+    period_s: float,
+    *,
+    deadline: float = math.inf,
+    chunk_rows: int = CHUNK_ROWS,
+    gate: Gate | None = None,
+) -> CatchUp:
+    """A fresh start (no state restored): the plant warmed up on the historian's samples of
+    its lead-in before ``until`` (the units' longest :func:`~diag_plugin.diagnose.leadin.
+    lead_in`, one :meth:`Plant.cycle` per row on the live loop's grid of ``period_s``, as
+    :func:`catch_up` warms up after a long gap), so the first cycle goes on from the state a
+    plug-in running all along would have. Cut by ``deadline``, or nothing stored in the
+    window: the plant is left cold (reset), and :meth:`CatchUp.lines` says so."""
+    cpu0 = time.process_time()
+    until = pd.Timestamp(until)
+    p = pd.Timedelta(seconds=float(period_s))
+    res = CatchUp(None, until, float(period_s), mode="fresh")
+    res.lead = _plant_lead_in(plant)
+    res.window_from = until - (res.lead - 1) * p
+    gate = gate or Gate()
+    tags = list(plant.tags)
+    h = _open(url, deadline)
+    try:
+        read = _stored(h, tags, res)
+        _feed(
+            plant, h, read, res.window_from, until, p, deadline, res, chunk_rows, gate, track=False
+        )
+    finally:
+        h.close()
+    if res.timed_out:
+        with gate.lock:
+            if not gate.closed:
+                plant.reset()  # a part of a lead-in, then a jump to now: start cold instead
+    res.cpu_s = time.process_time() - cpu0
+    return res
+
+
+def _open(url: str, deadline: float) -> Any:
+    """The historian, each statement bounded by the time left (at least 1 s: a read started
+    just before the deadline may finish) — never a read hanging on a locked database."""
+    from historian.store import Historian
+
+    left = deadline - time.monotonic()
+    return Historian.open(url, timeout=None if math.isinf(left) else max(1.0, left))
+
+
+def _stored(h: Any, tags: list[str], res: CatchUp) -> list[str]:
+    """The ``tags`` the historian knows (the others noted in ``res``), none seen yet."""
+    known = set(h.tags()["name"])
+    res.not_stored = [t for t in tags if t not in known]
+    res.seen = dict.fromkeys(tags, False)
+    return [t for t in tags if t in known]
+
+
+def _plant_lead_in(plant: Any) -> int:
+    """Rows the live plant reads to warm up: the units' longest lead-in, plus the row at
+    its start."""
+    return max((_lead_in(u) for u in plant.units.values()), default=0) + 1
 
 
 def _feed(
@@ -271,13 +400,15 @@ def _feed(
     deadline: float,
     res: CatchUp,
     chunk_rows: int,
+    gate: Gate,
     *,
     track: bool,
 ) -> None:
     """The live plant through the historian's rows ``lo``..``until`` from the first to the
     last one holding a sample (before and after them the plant jumps, as a bare restart;
     rows without a sample between them go through as missing values, as the live loop's Bad
-    samples do), one :meth:`Plant.cycle` each; episodes tracked when ``track``."""
+    samples do), one :meth:`Plant.cycle` each, each under the ``gate``; episodes tracked
+    when ``track``."""
     if not read:
         return
     on: dict[str, bool] = {}
@@ -286,10 +417,12 @@ def _feed(
     empty: list[pd.Timestamp] = []  # rows without a sample since the last one fed
 
     def cycle(ts: pd.Timestamp, row: dict[str, float]) -> bool:
-        if time.monotonic() > deadline:
-            res.timed_out = True
-            return False
-        statuses = plant.cycle(ts, row)
+        with gate.lock:
+            if gate.closed or time.monotonic() > deadline:
+                res.timed_out = True
+                return False
+            statuses = plant.cycle(ts, row)
+            gate.fed += 1
         res.rows += 1
         res.last = ts
         if track:
@@ -312,7 +445,11 @@ def _feed(
             if res.first is None:  # before the first sample the plant jumps
                 res.first = ts
                 if not track:  # the warm-up: fresh units, once there is something to warm on
-                    plant.reset()
+                    with gate.lock:
+                        if gate.closed:
+                            res.timed_out = True
+                            return
+                        plant.reset()
             for t in empty:
                 if not cycle(t, nan):
                     return
@@ -333,7 +470,7 @@ def _history(
     """Each unit's alarm episodes in the gap by the replay's path (``diag diagnose UNIT
     --from start --to until``: the lead-in before ``start``, the unit's own period,
     :meth:`Unit.evaluate` chunk by chunk), on a copy of the unit started fresh."""
-    from diag_plugin.diagnose.cli import lead_in, since
+    from diag_plugin.diagnose.leadin import lead_in, since
 
     known = set(h.tags()["name"])
     for name, live_unit in plant.units.items():
@@ -436,7 +573,7 @@ def _us(p: pd.Timedelta) -> int:
 
 
 def _lead_in(unit: Any) -> int:
-    from diag_plugin.diagnose.cli import lead_in
+    from diag_plugin.diagnose.leadin import lead_in
 
     return int(lead_in(unit))
 

@@ -14,7 +14,8 @@ Example (paths are relative to the file; docs/reference/live.md explains every k
     state = "plant.state.json"                    # the units' state; default: beside this file
     state_every = 60                              # cycles between saves (and on stop)
     catch_up_max = 604800                         # s: gaps since the state diagnosed at start
-    catch_up_timeout = 30                         # s the first cycle waits for it at most
+    catch_up_timeout = 30                         # s the first cycle waits for it (or, with
+                                                  # no state, the warm-up) at most
 
     [[source]]                                    # one table per PLC or server
     name = "plc1"

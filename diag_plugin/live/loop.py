@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import math
 import signal
 import sys
@@ -117,7 +118,8 @@ class LiveLoop:
     ``state``: where the plant's state is saved (:mod:`~diag_plugin.live.state`) every
     ``state_every`` cycles and on stop (None: not saved). ``catch_up``: with a restored
     state, the cycles missed while the plug-in was down are diagnosed from the historian
-    before the first cycle, within the plan's time-out (:mod:`~diag_plugin.live.catchup`).
+    before the first cycle, within the plan's time-out; without one, the units warm up on
+    the historian's last lead-in instead of starting cold (:mod:`~diag_plugin.live.catchup`).
     """
 
     def __init__(
@@ -533,32 +535,58 @@ class LiveLoop:
         return 0
 
     async def _catch_up(self, plan: CatchUpPlan) -> None:
-        """Before the first cycle, in a thread, within ``plan.timeout`` seconds: the earlier
-        run's spill stored first, then the missed cycles diagnosed from the historian
-        (:func:`~diag_plugin.live.catchup.catch_up`), its lines and episodes reported."""
-        from diag_plugin.live.catchup import catch_up
+        """Before the first cycle, within ``plan.timeout`` seconds: the earlier run's spill
+        stored first, then, with a restored state, the missed cycles diagnosed from the
+        historian (:func:`~diag_plugin.live.catchup.catch_up`), or, without one, the units
+        warmed up on its last lead-in (:func:`~diag_plugin.live.catchup.warm_up`); its lines
+        and episodes reported. The work runs in a thread of its own the loop waits for no
+        longer than the time-out: a historian that does not answer by then (slow, locked)
+        leaves the units as they are (a fresh start cold), and says so."""
+        from diag_plugin.live.catchup import Gate, catch_up, warm_up
 
-        if self.plant.last_ts is None:
-            return
+        fresh = self.plant.last_ts is None
+        what = "warm-up" if fresh else "catch-up"
         deadline = time.monotonic() + plan.timeout
         if self.historian is not None and not await self.historian.settle(deadline):
             self.event(
-                f"catch-up: the earlier run's samples in {self.historian.spool.folder} are "
-                f"not stored yet after {plan.timeout:g} s: they are not in the catch-up"
+                f"{what}: the earlier run's samples in {self.historian.spool.folder} are "
+                f"not stored yet after {plan.timeout:g} s: they are not in the {what}"
             )
         until = pd.Timestamp.now(tz="UTC")
+        gate = Gate()
+        job = warm_up if fresh else functools.partial(catch_up, max_gap_s=plan.max_gap_s)
+        work = functools.partial(
+            job, self.plant, plan.url, until, self.cycle_s, deadline=deadline, gate=gate
+        )
         try:
-            res = await asyncio.to_thread(
-                catch_up,
-                self.plant,
-                plan.url,
-                until,
-                self.cycle_s,
-                deadline=deadline,
-                max_gap_s=plan.max_gap_s,
+            res = await _bounded_thread(work, deadline)
+        except TimeoutError:
+            gate.close()  # from here on the plant is the loop's alone
+            why = (
+                f"{gate.fed} samples fed when it came"
+                if gate.fed
+                else f"the historian did not answer within {plan.timeout:g} s (slow or locked)"
             )
+            if fresh:
+                self.plant.reset()
+                self.event(
+                    f"warm-up: no state to go on from; stopped at its time-out: {why}: the "
+                    "units start cold (warming up live)"
+                )
+            else:  # the state restored, or as far as the catch-up got (a warm-up: reset)
+                last = self.plant.last_ts
+                where = f"their state of {last:%Y-%m-%d %H:%M:%S}" if last is not None else "cold"
+                self.event(
+                    f"catch-up stopped at its time-out: {why}; the units go on from {where}; "
+                    "the rest is not diagnosed (`diag diagnose UNIT --from ... --to ...`)"
+                )
+            return
         except Exception as exc:  # noqa: BLE001 - the catch-up is a help, never a stop
-            self.event(f"catch-up failed ({type(exc).__name__}: {exc}); the units go on")
+            gate.close()
+            if fresh:
+                self.plant.reset()
+            then = "the units start cold (warming up live)" if fresh else "the units go on"
+            self.event(f"{what} failed ({type(exc).__name__}: {exc}); {then}")
             return
         self.caught_up = res
         if res is None:
@@ -700,3 +728,29 @@ async def close_all(*parts: Any) -> None:
             done = part.stop() if hasattr(part, "stop") else part.close()
             if asyncio.iscoroutine(done):
                 await done
+
+
+async def _bounded_thread(work: Callable[[], Any], deadline: float) -> Any:
+    """``work()`` in a daemon thread of its own, awaited until ``deadline``
+    (``time.monotonic()``) at most: TimeoutError then, the thread left to finish alone (not
+    the event loop's default executor, which ``asyncio.run`` joins at its end: a read hanging
+    on a locked database would hold up the plug-in's exit)."""
+    import threading
+
+    loop = asyncio.get_running_loop()
+    done: asyncio.Future[Any] = loop.create_future()
+
+    def settle(ok: bool, value: Any) -> None:
+        if not done.done():
+            (done.set_result if ok else done.set_exception)(value)
+
+    def run() -> None:
+        try:
+            out: tuple[bool, Any] = (True, work())
+        except BaseException as exc:  # noqa: BLE001 - handed to the awaiting loop
+            out = (False, exc)
+        with contextlib.suppress(RuntimeError):  # the event loop closed meanwhile
+            loop.call_soon_threadsafe(settle, *out)
+
+    threading.Thread(target=run, name="diag-catch-up", daemon=True).start()
+    return await asyncio.wait_for(done, max(0.0, deadline - time.monotonic()))

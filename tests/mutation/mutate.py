@@ -103,6 +103,7 @@ TARGETS: dict[str, list[str]] = {
         "test_units.py",
         "test_real_unit.py",
     ],
+    "diag_plugin/diagnose/leadin.py": ["test_units.py", "test_live_catchup.py"],
     # issue 38: access, trust list, the live loop's historian writer
     "connectors/opcua_access.py": ["test_opcua_login_guards.py", "test_opcua_security.py"],
     "connectors/opcua_server.py": [
