@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import pandas as pd
 
@@ -72,14 +72,17 @@ def tag_sampling(
 
 @dataclass
 class WindowReader:
-    """A picklable ``read(a, b)`` over the historian (Dask workers open their own connection)."""
+    """A picklable ``read(a, b)`` over the historian (Dask workers open their own connection).
+    ``historian``: an open historian of ``url`` to read through (its owner closes it; a
+    pickled reader opens its own)."""
 
     url: str
     tags: tuple[str, ...]
     period: str
+    historian: Historian | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        self._h: Historian | None = None
+        self._h: Historian | None = self.historian
 
     def __call__(self, a: pd.Timestamp, b: pd.Timestamp) -> pd.DataFrame:
         if self._h is None:  # one connection per process, opened on first use
@@ -87,12 +90,15 @@ class WindowReader:
         return self._h.window(list(self.tags), a, b, self.period, summary=False)
 
     def close(self) -> None:
-        if self._h is not None:
+        if self._h is not None and self._h is not self.historian:
             self._h.close()
-            self._h = None
+        self._h = self.historian
 
     def __getstate__(self) -> dict:  # a Dask worker opens its own connection
-        return {"url": self.url, "tags": self.tags, "period": self.period, "_h": None}
+        return {"url": self.url, "tags": self.tags, "period": self.period}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, historian=None, _h=None)
 
 
 def experiments(url: str, model: str) -> pd.DataFrame:

@@ -276,3 +276,29 @@ def test_training_reads_of_rolled_months_equal_the_full_window(historian):
         reader.close()
     assert all(not p.attrs for p in parts)
     pd.testing.assert_frame_equal(pd.concat(parts), whole, check_freq=False)
+
+
+def test_a_reader_given_the_open_historian_reads_through_it_and_leaves_it_open(historian):
+    """A training job opens one historian for the data range, the reads and the record:
+    the reader it is given reads through it (the same window as a reader of its own),
+    closing the reader leaves it open, and a pickled reader (a Dask worker's) opens its own."""
+    import pickle
+
+    from historian.access import WindowReader
+
+    historian.write_samples(frame())
+    a, b = IDX[0], IDX[0] + pd.Timedelta("2D")
+    given = WindowReader(historian.url, ("A", "B"), "1min", historian=historian)
+    got = given(a, b)
+    assert given._h is historian
+    assert historian._pool is not None  # the reads ran on the given historian's threads
+    given.close()
+    assert historian._pool is not None, "closing the reader closed the given historian"
+    copy = pickle.loads(pickle.dumps(given))
+    assert copy.historian is None and copy._h is None
+    try:
+        pd.testing.assert_frame_equal(copy(a, b), got)
+        assert copy._h is not historian
+    finally:
+        copy.close()
+    assert copy._h is None

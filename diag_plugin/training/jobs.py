@@ -14,16 +14,14 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import sys
 import time
 from collections.abc import Mapping
+from contextlib import nullcontext
 from pathlib import Path
 
 import pandas as pd
-from rich.console import Console
-from rich.markup import escape
-from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-from rich.table import Table
 from sqlalchemy.engine import make_url
 
 from diag_plugin.metrics import coverage_note, levels_note
@@ -49,13 +47,19 @@ def safe_url(url: str) -> str:
 
 
 def data_window(
-    rb: RuleBase, url: str, start: str | None = None, end: str | None = None
+    rb: RuleBase,
+    url: str,
+    start: str | None = None,
+    end: str | None = None,
+    *,
+    historian: Historian | None = None,
 ) -> tuple[list[str], pd.Timestamp, pd.Timestamp]:
     """The tags a model file reads and the range to train it on, on the model's grid:
     ``start``/``end`` where given (any time; naive means UTC), else from the first to one
-    period past the last stored sample of those tags."""
+    period past the last stored sample of those tags. ``historian``: the open historian of
+    ``url`` to ask (the caller closes it); else one is opened for the question."""
     tags = needed_tags([*(v.spec for v in rb.inputs), rb.output.spec])
-    with Historian.open(url) as h:
+    with nullcontext(historian) if historian is not None else Historian.open(url) as h:
         known = set(h.tags()["name"])
         missing = [t for t in tags if t not in known]
         if missing:
@@ -92,48 +96,50 @@ def train_one(
     scheduler: str | None = None,
     progress=None,
 ) -> dict:
-    """Train the model in ``path`` and record the experiment; returns the result dict."""
+    """Train the model in ``path`` and record the experiment; returns the result dict.
+    One historian connection serves the data range, the reads and the record (each
+    ``Historian.open`` costs its engine, schema check and connections)."""
     rb = RuleBase.load(path)
-    tags, t0, t1 = data_window(rb, url, start, end)
-    reader = WindowReader(url, tuple(tags), rb.period)
-    fit_chunks = None
-    if engine == "dask":
-        from diag_plugin.training.dask_engine import dask_fitter
-
-        fit_chunks = dask_fitter(scheduler, reader)
-    started = time.perf_counter()
-    try:
-        res = train(
-            rb,
-            reader,
-            t0,
-            t1,
-            holdout=holdout,
-            chunk=chunk,
-            progress=progress,
-            fit_chunks=fit_chunks,
-        )
-    finally:
-        reader.close()
-    rb.apply_training(
-        res.model,
-        {
-            "source": safe_url(url),
-            "from": t0.isoformat(),
-            "to": t1.isoformat(),
-            "samples": res.samples,
-            "dropped": sum(res.dropped.values()),
-            "validation_rmse_pct": round(res.validation["rmse_pct"], 4)
-            if math.isfinite(res.validation["rmse_pct"])
-            else "n/a",
-            # the held-out block: from here to "to" (diag compare names it)
-            "validation_from": res.validation_range[0].isoformat(),
-            "trained_at": pd.Timestamp.now(tz="UTC").floor("s").isoformat(),
-        },
-    )
-    rb.save()
-    metrics = {k: v for k, v in res.validation.items() if not _is_nan(v)}
     with Historian.open(url) as h:
+        tags, t0, t1 = data_window(rb, url, start, end, historian=h)
+        reader = WindowReader(url, tuple(tags), rb.period, historian=h)
+        fit_chunks = None
+        if engine == "dask":
+            from diag_plugin.training.dask_engine import dask_fitter
+
+            fit_chunks = dask_fitter(scheduler, reader)
+        started = time.perf_counter()
+        try:
+            res = train(
+                rb,
+                reader,
+                t0,
+                t1,
+                holdout=holdout,
+                chunk=chunk,
+                progress=progress,
+                fit_chunks=fit_chunks,
+            )
+        finally:
+            reader.close()
+        rb.apply_training(
+            res.model,
+            {
+                "source": safe_url(url),
+                "from": t0.isoformat(),
+                "to": t1.isoformat(),
+                "samples": res.samples,
+                "dropped": sum(res.dropped.values()),
+                "validation_rmse_pct": round(res.validation["rmse_pct"], 4)
+                if math.isfinite(res.validation["rmse_pct"])
+                else "n/a",
+                # the held-out block: from here to "to" (diag compare names it)
+                "validation_from": res.validation_range[0].isoformat(),
+                "trained_at": pd.Timestamp.now(tz="UTC").floor("s").isoformat(),
+            },
+        )
+        rb.save()
+        metrics = {k: v for k, v in res.validation.items() if not _is_nan(v)}
         version = len(h.experiments(rb.name)) + 1
         h.record_model_version(rb.name, str(version), rb.dumps())
         h.record_experiment(
@@ -183,7 +189,7 @@ def cmd_train(args) -> int:
     except ValueError:
         raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D or 12h") from None
     results, failures = [], []
-    con = Console(stderr=True)
+    con = _stderr_console()
     for path in paths:
         if not path.exists():
             failures.append(
@@ -255,16 +261,34 @@ def cmd_train(args) -> int:
     return 2 if any(f.get("bad_input") for f in failures) else 1
 
 
+def _stderr_console():
+    """rich's console on stderr where it may be a terminal, else None (no progress bar).
+    rich says "terminal" only for a tty or when ``TTY_COMPATIBLE`` or ``FORCE_COLOR`` ask
+    for it, so elsewhere (a cron job, a pipe, a benchmark) rich is not imported: its import
+    was 0.07 s of a ``diag train`` process's CPU time (issue 37)."""
+    try:
+        tty = sys.stderr.isatty()
+    except (AttributeError, ValueError):
+        tty = False
+    if not (tty or os.environ.get("TTY_COMPATIBLE") or os.environ.get("FORCE_COLOR")):
+        return None
+    from rich.console import Console
+
+    return Console(stderr=True)
+
+
 class _progress:
     """A rich progress bar on a terminal, nothing otherwise."""
 
-    def __init__(self, console: Console, name: str):
+    def __init__(self, console, name: str):
         self.console, self.name = console, name
         self.bar = None
 
     def __enter__(self):
-        if not self.console.is_terminal:
+        if self.console is None or not self.console.is_terminal:
             return None
+        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
         self.bar = Progress(
             TextColumn(f"training {self.name}"),
             BarColumn(),
@@ -288,6 +312,10 @@ class _progress:
 
 
 def cmd_experiments(args) -> int:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
     path = resolve(args.name, args.rulebases)
     name = RuleBase.load(path).name if path.exists() else args.name
     df = experiments(args.db, name)
