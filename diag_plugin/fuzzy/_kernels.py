@@ -164,27 +164,6 @@ def _clipped(xv, lo_k, hi_k, code):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _lower_weight(t, nl, p):
-    """Lower set ``j`` of a sample at ``t`` (in set spacings from the first centre) among
-    ``nl`` sets of plateau ``p``, and the upper set's membership: the sample lies between
-    centres ``j`` and ``j + 1``."""
-    if t < 0.0:
-        t = 0.0
-    elif t > nl - 1:
-        t = nl - 1.0
-    j = int(t)
-    if j > nl - 2:
-        j = nl - 2
-    f = t - j
-    wv = (f - 0.5 * p) / (1.0 - p)
-    if wv < 0.0:
-        wv = 0.0
-    elif wv > 1.0:
-        wv = 1.0
-    return j, wv
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
 def _lower_weight_at(t, nl, half, den, inv):
     """:func:`_lower_weight` with its plateau ``p`` given as ``half`` = ``0.5·p`` and ``den``
     = ``1 − p``, and ``inv`` = ``1 / den`` where ``den`` is a power of two (else 0): dividing
@@ -204,6 +183,14 @@ def _lower_weight_at(t, nl, half, den, inv):
     elif wv > 1.0:
         wv = 1.0
     return j, wv
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _lower_weight(t, nl, p):
+    """Lower set ``j`` of a sample at ``t`` (in set spacings from the first centre) among
+    ``nl`` sets of plateau ``p``, and the upper set's membership: the sample lies between
+    centres ``j`` and ``j + 1``."""
+    return _lower_weight_at(t, nl, 0.5 * p, 1.0 - p, 0.0)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
