@@ -128,3 +128,33 @@ def test_prediction_by_numpy_loops_is_the_fine_kernels_bit_for_bit(
     for f in ("y", "support", "reason", "level", "spread"):
         a, b = getattr(fast, f), getattr(slow, f)
         assert np.array_equal(a.view(np.uint8), b.view(np.uint8)), f
+
+
+@pytest.mark.parametrize("plateau", [0.3, 0.5, 0.75, 0.6])  # 1 − p: 0.7, 0.5, 0.25, 0.4
+def test_fine_kernel_without_divisions_is_the_searched_levels_bit_for_bit(plateau, monkeypatch):
+    """``infer_fine`` multiplies by ``1 / (1 − p)`` where ``1 − p`` is a power of two (0.5,
+    0.25) and divides otherwise (0.7, 0.4), and takes a total weight of exactly 1 as the
+    average: the same bits as the searched levels (numpy's loops) at every plateau."""
+    from diag_plugin.fuzzy import wang_mendel
+    from diag_plugin.fuzzy.partition import UniformPartition
+
+    rng = np.random.default_rng(7)
+    X, y = _data(rng, 30_000, 2)
+    Xt, _ = _data(rng, 20_000, 2, -20, 120)
+    # the models' partitions at this plateau (a model's own is DEFAULT_PLATEAU)
+    monkeypatch.setattr(
+        wang_mendel, "UniformPartition", lambda *a: UniformPartition(*a, plateau=plateau)
+    )
+
+    def model() -> WangMendelRegressor:  # the fine grid answers most rows
+        return _model(2, "trapezoidal", 15).fit(X[:20_000], y[:20_000])
+
+    assert np.all(model()._arrays()[3] == plateau)
+    fast = model().predict_detail(Xt)
+    monkeypatch.setattr(wang_mendel, "kernels", lambda rows=None: N)
+    slow = model().predict_detail(Xt)
+    assert (fast.level == 0).mean() > 0.5
+    assert (fast.support == 1.0).any() and ((fast.support > 0) & (fast.support < 1)).any()
+    for f in ("y", "support", "reason", "level", "spread"):
+        a, b = getattr(fast, f), getattr(slow, f)
+        assert np.array_equal(a.view(np.uint8), b.view(np.uint8)), f

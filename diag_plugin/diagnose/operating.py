@@ -232,14 +232,16 @@ class OutsideLearned:
             if hit is not None:
                 first = starts[np.searchsorted(starts, hit, side="right") - 1]
                 head, tail = self._parts(r)
-                when: dict[int, str] = {}  # each excursion's start written once, not per row
-                for i, st in zip(hit.tolist(), first.tolist(), strict=True):
-                    w = when.get(st)
-                    if w is None:
-                        # an excursion that began in an earlier piece keeps its start
-                        t0 = carried if carried is not None and st == 0 and off[0] else idx[st]
-                        w = when[st] = pd.Timestamp(t0).isoformat()
-                    out[i] = f"{head}{x[i]:.4g}{tail}{w}"
+                # each excursion's start written once (the index read once for all of them)
+                sts, inv = np.unique(first, return_inverse=True)
+                when = [pd.Timestamp(t).isoformat() for t in _take(idx, sts)]
+                if carried is not None and sts[0] == 0 and off[0]:
+                    when[0] = pd.Timestamp(carried).isoformat()  # began in an earlier piece
+                out[hit] = np.array(
+                    [f"{head}{v:.4g}{tail}{when[w]}"
+                     for v, w in zip(x[hit].tolist(), inv.reshape(-1).tolist(), strict=True)],
+                    dtype=object,
+                )  # fmt: skip
             if end_off[p]:
                 last = starts[-1]  # the excursion the piece ends in
                 self.since[k] = carried if (off.all() and carried is not None) else idx[last]
@@ -280,9 +282,22 @@ class OutsideLearned:
                 said = [", ".join(nm for nm, m in zip(names, p, strict=True) if m)
                         + " without a value" for p in pats]  # fmt: skip
                 out[rows[gaps]] = np.array(said, dtype=object)[inv.reshape(-1)]
-            for i, v in zip(rows[full].tolist(), vals[full].tolist(), strict=True):
-                out[i] = (
-                    ", ".join(f"{nm} = {x:.4g}" for nm, x in zip(names, v, strict=True))
-                    + ": each within what the unit learned, but not together"
-                )
+            if full.any() and names:  # written input by input, then joined per row
+                each = [[f"{nm} = {x:.4g}" for x in vals[full, c].tolist()]
+                        for c, nm in enumerate(names)]  # fmt: skip
+                out[rows[full]] = np.array(
+                    [", ".join(parts) + ": each within what the unit learned, but not together"
+                     for parts in zip(*each, strict=True)],
+                    dtype=object,
+                )  # fmt: skip
+            elif full.any():
+                out[rows[full]] = ": each within what the unit learned, but not together"
             todo[mine] = False
+
+
+def _take(idx: Sequence[pd.Timestamp] | pd.Index, at: np.ndarray) -> Sequence:
+    """The timestamps of ``idx`` at positions ``at`` (one take from an index, not one
+    lookup per position)."""
+    if isinstance(idx, pd.Index):
+        return idx.take(at)
+    return [idx[i] for i in at.tolist()]

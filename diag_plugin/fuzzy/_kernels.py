@@ -164,10 +164,11 @@ def _clipped(xv, lo_k, hi_k, code):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _lower_weight(t, nl, p):
-    """Lower set ``j`` of a sample at ``t`` (in set spacings from the first centre) among
-    ``nl`` sets of plateau ``p``, and the upper set's membership: the sample lies between
-    centres ``j`` and ``j + 1``."""
+def _lower_weight_at(t, nl, half, den, inv):
+    """:func:`_lower_weight` with its plateau ``p`` given as ``half`` = ``0.5·p`` and ``den``
+    = ``1 − p``, and ``inv`` = ``1 / den`` where ``den`` is a power of two (else 0): dividing
+    by a power of two and multiplying by its reciprocal (exact) round the same real number,
+    so the same bits, without a division (a trapezoid's plateau of 0.5 gives ``den`` 0.5)."""
     if t < 0.0:
         t = 0.0
     elif t > nl - 1:
@@ -176,12 +177,20 @@ def _lower_weight(t, nl, p):
     if j > nl - 2:
         j = nl - 2
     f = t - j
-    wv = (f - 0.5 * p) / (1.0 - p)
+    wv = (f - half) * inv if inv > 0.0 else (f - half) / den
     if wv < 0.0:
         wv = 0.0
     elif wv > 1.0:
         wv = 1.0
     return j, wv
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _lower_weight(t, nl, p):
+    """Lower set ``j`` of a sample at ``t`` (in set spacings from the first centre) among
+    ``nl`` sets of plateau ``p``, and the upper set's membership: the sample lies between
+    centres ``j`` and ``j + 1``."""
+    return _lower_weight_at(t, nl, 0.5 * p, 1.0 - p, 0.0)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -366,12 +375,24 @@ def infer_fine(
     and per-level indexing. ``again[r]`` is set where :func:`infer_levels` would go on to a
     coarser level (``coarse``: the model has one): the fine rules carry less than ``enough``
     of the weight, no input is NaN and the sample lies inside the training data's range.
-    Elsewhere the answer is :func:`infer_levels`' answer."""
+    Elsewhere the answer is :func:`infer_levels`' answer.
+
+    Divisions only where they round: the plateau's (:func:`_lower_weight_at`), and the
+    weighted averages by a total weight of exactly 1 (every corner's rule there, or one
+    corner alone) are the sums themselves (``x / 1`` is ``x``)."""
     n = X.shape[0]
     d = X.shape[1]
     ws = np.empty(d, dtype=np.float64)
     cw = np.empty(1 << d, dtype=np.float64)
     ck = np.empty(1 << d, dtype=np.int64)
+    half = np.empty(d, dtype=np.float64)
+    den = np.empty(d, dtype=np.float64)
+    inv = np.zeros(d, dtype=np.float64)
+    for k in range(d):
+        half[k] = 0.5 * plateau[k]
+        den[k] = 1.0 - plateau[k]
+        if den[k] > 0.0 and math.frexp(den[k])[0] == 0.5:  # a power of two
+            inv[k] = 1.0 / den[k]
     for r in range(n):
         code = 0
         inside = True
@@ -395,7 +416,7 @@ def infer_fine(
                 i = nk - 1
             if i < inner[k, 0] or i > inner[k, 1]:
                 inside = False
-            j, ws[k] = _lower_weight(t, nk, plateau[k])
+            j, ws[k] = _lower_weight_at(t, nk, half[k], den[k], inv[k])
             base += j * radix[k]
         out[r] = np.nan
         support[r] = 0.0
@@ -407,10 +428,11 @@ def infer_fine(
             continue
         vl, sl, ql, wl = _fire(ws, d, base, radix, table, table, 0, 0, 0, values, spreads, cw, ck)
         if sl > 0.0:
-            out[r] = vl / sl
+            out[r] = vl if sl == 1.0 else vl / sl
             support[r] = sl
             level[r] = 0
-            spread[r] = ql / wl if wl > 0.0 else np.nan
+            if wl > 0.0:
+                spread[r] = ql if wl == 1.0 else ql / wl
         if sl < enough and coarse and inside:
             again[r] = True
         if code == 3 and level[r] >= 0:
