@@ -5,7 +5,10 @@ interpreter measured in the same run, the figure that holds under load): ``--hel
 ``tags --help``, ``tags`` on an empty SQLite database, ``train --help`` and a real
 ``train`` of a tiny model (one day of 10 s data, so the run is mostly start-up), plus the
 modules a ``--help`` imports; each process's CPU time (user + system) beside its wall
-time. Exit 1 when a ``--help`` or ``tags`` start is over budget.
+time. Exit 1 when a ``--help`` or ``tags`` start is over budget by CPU time: on a machine
+other work keeps busy (2 cores, a load of 10 or more) a process waits for a core most of its
+wall time, the floor itself taking 0.2 s, so the wall figure measures the queue (issue 37
+re-measure: ``--help`` 0.37 s wall at 0.10 s CPU, the floor 0.18 s wall at 0.05 s CPU).
 """
 
 from __future__ import annotations
@@ -105,14 +108,14 @@ def main() -> int:
             ),
         ]
         bare, bare_cpu = timed([sys.executable, "-c", "pass"], work)
-        print(f"start-up of {' '.join(diag)} (median of {RUNS} runs, budget {BUDGET_S} s)")
+        print(f"start-up of {' '.join(diag)} (median of {RUNS} runs, budget {BUDGET_S} s of CPU)")
         print(f"  {'python -c pass (floor)':34s} {bare:6.3f} s  ({bare_cpu:.3f} s CPU)")
         over = []
         for label, cmd, budgeted in rows:
             t, cpu = timed(cmd, work)
-            flag = "" if not budgeted else ("  ok" if t <= BUDGET_S else "  OVER BUDGET")
+            flag = "" if not budgeted else ("  ok" if cpu <= BUDGET_S else "  OVER BUDGET")
             print(f"  {label:34s} {t:6.3f} s  {t / bare:5.1f}x the floor  ({cpu:.3f} s CPU){flag}")
-            if budgeted and t > BUDGET_S:
+            if budgeted and cpu > BUDGET_S:
                 over.append(label)
         res = subprocess.run(
             [sys.executable, "-c", COUNT], cwd=work, capture_output=True, text=True, check=True
@@ -122,7 +125,7 @@ def main() -> int:
     finally:
         shutil.rmtree(work, ignore_errors=True)
     if over:
-        print(f"over the {BUDGET_S} s budget: {', '.join(over)}")
+        print(f"over the {BUDGET_S} s CPU budget: {', '.join(over)}")
         return 1
     return 0
 

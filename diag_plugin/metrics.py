@@ -15,7 +15,9 @@ LEVEL_KEY = "coverage_level_"
 
 def levels_note(fig: dict) -> str:
     """Where the answers came from, when coarser levels gave some: ``level 0 92.1 %, level 1
-    6.0 %, …`` (empty when the fine grid answered everything or the method has no levels)."""
+    6.0 %, …`` and what a coarser level is (a user saw the fine grid answer 8 % of the samples
+    with no word of who answered the rest, issue 37); empty when the fine grid answered
+    everything or the method has no levels."""
     by = {
         int(k.removeprefix(LEVEL_KEY)): v
         for k, v in fig.items()
@@ -24,7 +26,14 @@ def levels_note(fig: dict) -> str:
     if not by or set(by) == {0}:
         return ""
     parts = [f"level {k} {100 * v:.1f} %" for k, v in sorted(by.items())]
-    return "answered at " + ", ".join(parts) + " (0 = the fine rule grid)"
+    coarse = sorted(k for k in by if k > 0)
+    merged = ", ".join(f"{2**k}" for k in coarse)
+    return (
+        "answered at " + ", ".join(parts) + " (0 = the fine rule grid; where its cell has no "
+        f"rule a coarser level answers: level {', '.join(map(str, coarse))} = cells of up to "
+        f"{merged} neighbouring sets of each input, fitted to the fine rules; "
+        "docs/reference/models.md)"
+    )
 
 
 def coverage_note(fig: dict) -> str:

@@ -334,6 +334,8 @@ def test_file_errors_with_line_numbers(old, new, expected):
     for e in expected:
         assert any(p.startswith(e) or e in p for p in problems), (e, problems)
     assert all(p.startswith("m.toml:") for p in problems)
+    # one line number (issue 37): not the parser's own 'at line L, column C' beside ours
+    assert all("line" not in p.split("TOML syntax error")[-1] for p in problems), problems
 
 
 def test_unreadable_file(tmp_path):

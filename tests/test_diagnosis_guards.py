@@ -536,6 +536,31 @@ def test_unit_file_limits_are_checked_and_every_problem_is_reported(tmp_path):
     assert "test 'r3': high must be > 0" in joined
 
 
+def test_a_unit_file_error_is_said_once_with_one_line_number(tmp_path):
+    """Issue 37: a TOML syntax error in a unit file carried our file:line and the parser's own
+    'at line L col C'; a threshold given as text also drew 'low given without high', which
+    was not the problem. Each is now one message at one line."""
+    path = make_unit(tmp_path, GROUP_MATRIX, high=1.0, low=-1.0)
+    good = path.read_text()
+    lines = good.splitlines()
+    r1, r2 = (next(i for i, ln in enumerate(lines, 1) if ln.startswith(t)) for t in ("r1", "r2"))
+    path.write_text(good.replace("high = 1.0, low", "high = 1.0 low", 1))
+    with pytest.raises(UnitError) as e:
+        Unit.load(path)
+    (p,) = e.value.problems
+    assert p.startswith(f"{path}:{r1}: TOML syntax error: "), p
+    assert "line" not in p.split("TOML syntax error")[1] and p.endswith(")"), p
+    path.write_text(good.replace('id_y2.toml", high = 1.0', 'id_y2.toml", high = "high"', 1))
+    with pytest.raises(UnitError) as e:
+        Unit.load(path)
+    assert e.value.problems == [f"{path}:{r2}: test 'r2': high must be a finite number, got 'high'"]
+    # a low with no high at all is still refused
+    path.write_text(good.replace('id_y2.toml", high = 1.0, ', 'id_y2.toml", ', 1))
+    with pytest.raises(UnitError) as e:
+        Unit.load(path)
+    assert e.value.problems == [f"{path}:{r2}: test 'r2': low given without high"]
+
+
 def test_diag_unit_new_never_overwrites_unasked_and_show_prints_the_matrix(tmp_path, capsys):
     """A unit file is edited by hand: ``diag unit new`` over an existing one refuses unless
     told ``--force``. ``diag unit show`` of a unit without thresholds yet prints them as

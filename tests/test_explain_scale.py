@@ -124,6 +124,13 @@ def test_screen_keeps_the_order_of_full_scoring(tmp_path, monkeypatch):
     )
     assert all(s["screen_rmse_pct"] > 0 for s in quick.screened)
     assert len(quick.candidates) + len(quick.screened) == len(full.candidates)
+    # each screened candidate prints apart: a lag offered as a dead time (replacing the input)
+    # and as dynamics (added beside it) printed as the same 'CV[k-2] (…)' twice (issue 37 audit)
+    from diag_plugin.workbench.cli import screened_name
+
+    names = [screened_name(s).rpartition(" (")[0] for s in quick.screened]
+    assert len(set(names)) == len(names), names
+    assert len({s["input"] for s in quick.screened}) < len(names), "no lag offered both ways"
 
 
 def test_drift_needs_a_window_long_enough(tmp_path):

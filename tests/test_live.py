@@ -180,7 +180,7 @@ def test_config_errors_name_key_and_line(tmp_path):
         (good.replace("cycle = 0.05", "cycle = -1"), "plant.toml:2: plant.cycle: must be positive"),
         (good.replace("opcua_port", "opc_port"), "plant.toml:13: outputs.opc_port: unknown key"),
         (good.replace("units = ", "unit = "), "plant.toml:4: plant.unit: unknown key"),
-        (good.replace("[source]", "[source"), "plant.toml:6: not valid TOML"),
+        (good.replace("[source]", "[source"), "plant.toml:6: TOML syntax error: "),
     ):
         p.write_text(bad, encoding="utf-8")
         try:

@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from diag_plugin.tomllines import syntax_error
 from historian.errors import ProblemsError
 
 __all__ = [
@@ -418,8 +419,7 @@ def parse_matrix(text: str, path: str | Path = "<matrix>") -> DiagnosticMatrix:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        m = re.search(r"line (\d+)", str(exc))
-        raise MatrixError([f"{path}:{m.group(1) if m else 1}: TOML syntax error: {exc}"]) from None
+        raise MatrixError([syntax_error(path, exc)]) from None
 
     def line_of(key: str) -> int:
         hits = _lines_matching(lines, r"^\s*" + re.escape(key) + r"\s*=")

@@ -128,7 +128,7 @@ from tomlkit.exceptions import ParseError
 
 from diag_plugin.rulebase.folder import UNIT_SUFFIX
 from diag_plugin.status import NE107
-from diag_plugin.tomllines import LinedFile
+from diag_plugin.tomllines import LinedFile, syntax_error
 from historian.errors import ProblemsError
 
 TABLES = (
@@ -322,7 +322,7 @@ class UnitFile(LinedFile):
         try:
             self.doc = tomlkit.parse(text)
         except ParseError as exc:
-            raise UnitError([f"{self.path}:{exc.line}: TOML syntax error: {exc}"]) from None
+            raise UnitError([syntax_error(self.path, exc)]) from None
         self._read()
         if self.problems:
             raise UnitError(self.problems)
@@ -449,10 +449,10 @@ class UnitFile(LinedFile):
                 else:
                     nums[key] = float(x)
             if nums["high"] is not None and nums["high"] <= 0:
-                self.error(line, f"test {name!r}: high must be > 0 (% of span)")
-            if nums["low"] is not None and nums["high"] is None:
+                self.error(line, f"test {name!r}: high must be > 0 (in the residual's unit)")
+            if nums["low"] is not None and "high" not in v:
                 self.error(line, f"test {name!r}: low given without high")
-            elif nums["low"] is not None and nums["low"] >= nums["high"]:
+            elif None not in (nums["low"], nums["high"]) and nums["low"] >= nums["high"]:
                 self.error(line, f"test {name!r}: low must be below high")
             if nums["ymax"] is not None and nums["ymax"] <= 0:
                 self.error(line, f"test {name!r}: ymax must be > 0")

@@ -72,7 +72,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from diag_plugin.tomllines import line_of
+from diag_plugin.tomllines import line_of, syntax_error
 from historian.errors import UserError
 
 
@@ -256,8 +256,7 @@ def load_config(path: str | Path) -> LiveConfig:
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        m = re.search(r"line (\d+)", str(exc))
-        raise ConfigError(f"{path}:{m.group(1) if m else 1}: not valid TOML: {exc}") from None
+        raise ConfigError(syntax_error(path, exc)) from None
     lines = text.splitlines()
     base = path.parent
     many = {k for k in _LISTS if isinstance(doc.get(k), list) and len(doc[k]) > 1}

@@ -381,6 +381,14 @@ def cmd_compare(args) -> int:
     return 0
 
 
+def screened_name(s: dict) -> str:
+    """A screened-out candidate as ``explain`` lists it: the input, what it would replace
+    (a dead time: ``LEVEL[k-2] for LEVEL[k]``; the same input added for dynamics would
+    otherwise print twice with nothing to tell them apart) and its screening error."""
+    instead = f" for {s['replaces']}" if s.get("replaces") else ""
+    return f"{s['input']}{instead} ({s['screen_rmse_pct']:.2f})"
+
+
 def cmd_explain(args) -> int:
     from rich.console import Console
     from rich.markup import escape
@@ -416,7 +424,7 @@ def cmd_explain(args) -> int:
         t.add_row(str(i), escape(effect), err, f"{c.coverage:.0%}", escape(c.command))
     con.print(t)
     if e.screened:
-        shown = ", ".join(f"{s['input']} ({s['screen_rmse_pct']:.2f})" for s in e.screened[:8])
+        shown = ", ".join(screened_name(s) for s in e.screened[:8])
         more = f" and {len(e.screened) - 8} more" if len(e.screened) > 8 else ""
         con.print(
             f"screened out, not retrained ({len(e.screened)}; their screening error in "

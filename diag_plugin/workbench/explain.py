@@ -306,7 +306,8 @@ def explain(
             notes.append(
                 f"the rule grid would be thin ({r.per_cell:.0f} samples per rule, the fine grid "
                 f"answering {r.fine:.0%} of the samples; coarser rules answer the rest)"
-                + (f": consider fewer sets, e.g. --sets {fewer}" if fewer < r.sets else "")
+                # never fewer than 2 (one set is no input: the audit saw '--sets 1')
+                + (f": consider fewer sets, e.g. --sets {fewer}" if 2 <= fewer < r.sets else "")
             )
         effect_of_y = False
         if kind == "tag":
