@@ -29,7 +29,10 @@ then:
    answers with its edge rule, flat, whatever the input does beyond it (then along its trend
    for up to a quarter span past its span). And per method where the fault-free alarms fall:
    in the first 8 hours of the calibration and ``--more`` runs (each run starts from the
-   simulator's base state) or after them.
+   simulator's base state) or after them; and each of those runs scored again from hour 8,
+   every method cold there (the unit's lags, filters, delays and episodes start empty): if
+   its first hour then alarms, the early alarms are the method's cold start, if not the
+   plant's settling.
 
 The scoring runs are not read. Run: ``python benchmarks/tep_matched_tuning.py [--plant
 tep-studio] [--more DIR]`` (the data in ``~/.cache/diag-plugin``; a minute or a few of CPU).
@@ -38,6 +41,7 @@ tep-studio] [--more DIR]`` (the data in ``~/.cache/diag-plugin``; a minute or a 
 from __future__ import annotations
 
 import argparse
+import warnings
 
 import numpy as np
 
@@ -110,10 +114,12 @@ def main(argv: list[str] | None = None) -> int:
         return f"{100 * x:{spec}} %" if np.isfinite(x) else "—"
 
     early: list[str] = []  # tep-studio: the fault-free alarms in each run's first hours
+    s_cal_of: dict[str, list[np.ndarray]] = {}
     for m in ("unit", "PCA", "DPCA"):
         s_cal = [score(m, f) for f in cal]
         s_quiet = [score(m, f) for f in quiet]
         s_fault = [(score(m, f), k) for f, k in faulty]
+        s_cal_of[m] = s_cal
         if more:
             early += _early(m, s_cal, s_quiet[len(faulty) :], targets, period)
         for t in targets:
@@ -142,6 +148,10 @@ def main(argv: list[str] | None = None) -> int:
         print("\n".join(early))
         print("(share of samples in alarm, the limit matched on the calibration runs; every run "
               "starts from the simulator's base state)")  # fmt: skip
+    if more:
+        _cold(list(cal) + list(more.values()), s_cal_of, targets, period, score)
+        _first_hours(unit, more, calibrate(s_cal_of["unit"], min(targets), period).limit,
+                     min(targets), (on, off), period)  # fmt: skip
     if args.plant == "tep-studio":
         _beyond(unit, {r.name: r.frame for r in plant.calibration} | more,
                 {m: calibrate([score(m, f) for f in cal], 0.01, period).limit
@@ -172,6 +182,80 @@ def _early(method: str, cal: list, more: list, targets: list[float], period: flo
         lim = calibrate(cal, t, period).limit
         rows.append(f"| {method} | {100 * t:g} % | {split(cal, lim)} | {split(more, lim)} |")
     return rows
+
+
+def _cold(runs: list, s_cal: dict, targets: list[float], period: float, score) -> None:
+    """Plant or cold start? Each fault-free run scored again from hour :data:`EARLY_H` (the
+    unit, its lags, filters, delays and episodes starting cold there): the share in alarm in
+    its first hour and the next 7, beside the same hours scored from the run's start and the
+    run's own first hour. A cold start would alarm in the first hour of either scoring."""
+    from diag_plugin.bench.matched import calibrate
+
+    cut, hour = int(EARLY_H * 3600 / period), int(3600 / period)
+    print()
+    h = f"{EARLY_H:g}"
+    print(f"| method | target | from the start: hour 0 | hours 1-{EARLY_H - 1:g} | hour {h} | "
+          f"after | from hour {h} (cold): its first hour | after |")  # fmt: skip
+    print("|---" * 8 + "|")
+    for m, cal in s_cal.items():
+        warm = [np.nan_to_num(score(m, f), nan=-np.inf) for f in runs]
+        cold = [np.nan_to_num(score(m, f.iloc[cut:]), nan=-np.inf) for f in runs]
+        for t in targets:
+            lim = calibrate(cal, t, period).limit
+
+            def share(ss: list, a: int, b: int, lim: float = lim) -> str:
+                return f"{100 * np.mean(np.concatenate([x[a:b] > lim for x in ss])):.2f} %"
+
+            print(f"| {m} | {100 * t:g} % | {share(warm, 0, hour)} | {share(warm, hour, cut)} | "
+                  f"{share(warm, cut, cut + hour)} | {share(warm, cut + hour, 2 * cut)} | "
+                  f"{share(cold, 0, hour)} | {share(cold, hour, cut)} |")  # fmt: skip
+    print(f"(calibration and --more runs; 'after' is the next {EARLY_H - 1:g} hours)")
+
+
+def _first_hours(
+    unit, runs: dict, lim: float, target: float, delays: tuple[int, int], period: float
+) -> None:
+    """Per ``--more`` run, which of the unit's statistics (a test, or the combined T²) are
+    over ``lim`` (matched at ``target`` on the calibration runs) in the first
+    :data:`EARLY_H` hours / after (samples, after the delays); and per hour of the first 12
+    the tags that move most, as |x - its mean after hour 8| over its standard deviation
+    after hour 8, averaged over the runs (the plant's own settling), beside the tests whose
+    residual (over its limit) rises most then."""
+    from diag_plugin.bench.matched import delayed_score
+    from diag_plugin.bench.publicbench import unit_statistics
+
+    cut, hour = int(EARLY_H * 3600 / period), int(3600 / period)
+    names = [*unit.tests, "T2"]
+    print()
+    print(f"unit statistics over the limit matched at {100 * target:g} %: first {EARLY_H:g} h "
+          "/ after (samples in alarm)")  # fmt: skip
+    moved, resid = [], []
+    for name, f in runs.items():
+        st = unit_statistics(unit, f)[0]
+        with warnings.catch_warnings():  # a test unknown for a whole hour: NaN there
+            warnings.simplefilter("ignore", RuntimeWarning)
+            resid.append(np.nanmean(np.abs(st[: 12 * hour, :-1]).reshape(12, hour, -1), axis=1))
+        d = delayed_score(st, *delays)
+        over = np.nan_to_num(d, nan=-np.inf) > lim
+        fired = [f"{names[j]} {over[:cut, j].sum()}/{over[cut:, j].sum()}"
+                 for j in np.flatnonzero(over.any(axis=0))]  # fmt: skip
+        print(f"  {name}: {', '.join(fired) or 'none'}")
+        late = f.iloc[cut:]
+        z = ((f.iloc[: 12 * hour] - late.mean()) / late.std()).abs().to_numpy()
+        moved.append(z.reshape(12, hour, -1).mean(axis=1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        r = np.nanmean(resid, axis=0)  # hours × tests: |residual| over its limit
+        rise = np.nan_to_num(np.nanmax(r[1:8], axis=0) / np.nanmean(r[8:], axis=0))
+    print("tests whose |residual| / limit rises most in hours 1-7, per hour 0-11 (mean):")
+    for j in np.argsort(-rise)[:5]:
+        print(f"  {names[j]:8s} " + " ".join(f"{v:5.2f}" for v in r[:, j]))
+    z = np.mean(moved, axis=0)  # hours × tags
+    cols = list(next(iter(runs.values())).columns)
+    print("tags furthest from where they settle (|x - mean after hour 8| / std), hours 0-11:")
+    for j in np.argsort(-z[1:8].max(axis=0))[:6]:
+        print(f"  {cols[j]:8s} " + " ".join(f"{v:5.1f}" for v in z[:, j]))
+    print("  all tags " + " ".join(f"{v:5.1f}" for v in z.mean(axis=1)))
 
 
 def _more_runs(folder: str) -> dict:
