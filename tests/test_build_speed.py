@@ -49,6 +49,26 @@ def test_two_workers_build_the_unit_one_builds(tmp_path, kind):
         assert _text(tmp_path / "one" / name) == _text(tmp_path / "two" / name), name
 
 
+def test_the_parent_reads_no_model_file_back(tmp_path, monkeypatch):
+    """On two workers each model file is read back in the worker that wrote it (its model
+    comes back in memory): the parent parses none, and the unit is the one-worker unit's
+    (the test above)."""
+    from diag_plugin.rulebase.document import RuleBase
+
+    frame = _plant("tank", 3.0, 21)
+    read: list[str] = []  # the parent's reads (a forked worker appends to its own copy)
+    plain = RuleBase.load.__func__
+
+    def load(cls, path):
+        read.append(str(path))
+        return plain(cls, path)
+
+    monkeypatch.setattr(RuleBase, "load", classmethod(load))
+    res = build_unit("u", frame, folder=tmp_path, period="60s", far=0.05, workers=2)
+    assert len(res.tests) > 1 and res.learned.limits
+    assert read == []
+
+
 def test_all_candidates_screened_at_once_equal_one_by_one():
     frame = _plant("heatex", 2.0, 33)
     cols = {c: frame[c].to_numpy(float) for c in frame.columns}

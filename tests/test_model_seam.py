@@ -47,8 +47,8 @@ class MeanModel:
     def output_mean_(self):
         return self.sum_ / self.n_samples_seen_ if self.n_samples_seen_ else float("nan")
 
-    def extrapolate(self, X):
-        y = self.predict(X)
+    def extrapolate(self, X, pred=None):
+        y = self.predict(X) if pred is None else np.array(pred, float)
         return np.where(np.isfinite(y), y, self.output_mean_)
 
     def merge(self, other):
@@ -150,3 +150,36 @@ def test_an_unknown_method_is_a_file_line_error(tmp_path):
     (tmp_path / "x.toml").write_text(text.replace('method = "wm-avg"', 'method = "ts-xyz"'))
     with pytest.raises(RuleBaseError, match=r"x\.toml:\d+: method must be one of wm-avg, wm"):
         RuleBase.load(tmp_path / "x.toml")
+
+
+@pytest.mark.parametrize("method", [m for m, v in METHODS.items() if v.identifies])
+def test_every_method_extrapolates_from_the_prediction_it_is_given(method):
+    """The seam's ``extrapolate(X, pred)``: every method takes the prediction the caller has
+    (the held-out scorer passes it always) and answers as when it computes it; a ``pred``
+    shifted by one moves the answer by one where it has a value (so it is used, not
+    recomputed)."""
+    f = valve_frame(1, seed=3)
+    f = f.dropna()
+    X, y = f[["CV", "P1"]].to_numpy(float)[:3000], f["F"].to_numpy(float)[:3000]
+    rb = RuleBase.new(
+        "m",
+        Variable("F[k]", "F", "t/h", (0.0, 40.0), 7),
+        [
+            Variable("CV[k]", "CV", "%", (0.0, 100.0), 7),
+            Variable("P1[k]", "P1", "kPa", (300.0, 700.0), 7),
+        ],
+        method=method,
+    )
+    m = rb.codec.new_estimator(rb.spec).fit(X[:2000], y[:2000])
+    Q = X[2000:].copy()
+    Q[:5, 0] = np.nan  # no value: the stand-in
+    Q[5:10, 0] = 250.0  # far outside the window: no rule, for a grid
+    pred = m.predict(Q)
+    want = m.extrapolate(Q)
+    assert np.isfinite(want[5:]).all()
+    assert np.array_equal(m.extrapolate(Q, pred=pred), want, equal_nan=True)
+    has = np.isfinite(pred)
+    assert has.any()
+    moved = m.extrapolate(Q, pred=pred + 1.0)
+    assert np.array_equal(moved[has], want[has] + 1.0)
+    assert np.array_equal(moved[~has], want[~has], equal_nan=True)

@@ -62,7 +62,13 @@ from diag_plugin.models.estimation import (
 )
 from diag_plugin.models.fedrow import fed_row
 from diag_plugin.models.params import ParamsMixin
-from diag_plugin.models.protocol import REASON_NAN, REASON_UNSUPPORTED, Capabilities, Prediction
+from diag_plugin.models.protocol import (
+    REASON_NAN,
+    REASON_UNSUPPORTED,
+    Capabilities,
+    Prediction,
+    mean_stand_in,
+)
 from diag_plugin.models.spec import ModelSpec
 
 if TYPE_CHECKING:
@@ -466,10 +472,10 @@ class TakagiSugenoRegressor(ParamsMixin):
         """Model output (eq. 14); NaN where an input is missing."""
         return self.predict_detail(X).y
 
-    def extrapolate(self, X: Any) -> np.ndarray:
-        """The prediction; the mean training output where there is none."""
-        y = self.predict(X)
-        return np.where(np.isfinite(y), y, self.output_mean_)
+    def extrapolate(self, X: Any, pred: np.ndarray | None = None) -> np.ndarray:
+        """The prediction (``pred``, where the caller has it: not computed again); the mean
+        training output where there is none."""
+        return mean_stand_in(self.predict(X) if pred is None else pred, self.output_mean_)
 
     def simulate(self, X: Any) -> np.ndarray:
         """Free-run (output-error) output over consecutive rows: inputs that are lags of the

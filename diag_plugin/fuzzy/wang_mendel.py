@@ -310,8 +310,6 @@ class WangMendelRegressor(ParamsMixin):
     _params = PARAMS
 
     capabilities = Capabilities(incremental=True, mergeable=True, rule_regions=True)
-    #: :meth:`extrapolate` takes the prediction the caller has already (``pred``)
-    extrapolate_takes_pred = True
 
     def __init__(
         self,

@@ -23,6 +23,7 @@ from diag_plugin.models.protocol import (
     REASON_OUTSIDE,
     Capabilities,
     Prediction,
+    mean_stand_in,
 )
 
 log = logging.getLogger(__name__)
@@ -315,10 +316,10 @@ class SpanEstimator(ParamsMixin):
         params["output_span"] = list(self.output_span_)
         return params
 
-    def extrapolate(self, X: Any) -> np.ndarray:
-        """The prediction; the mean training output where an input is missing."""
-        y = self.predict(X)
-        return np.where(np.isfinite(y), y, self.output_mean_)
+    def extrapolate(self, X: Any, pred: np.ndarray | None = None) -> np.ndarray:
+        """The prediction (``pred``, where the caller has it: not computed again); the mean
+        training output where an input is missing."""
+        return mean_stand_in(self.predict(X) if pred is None else pred, self.output_mean_)
 
     def _check_fitted(self) -> None:
         if not hasattr(self, "spans_"):

@@ -73,6 +73,13 @@ class Prediction:
         return {i: float(c) / self.y.size for i, c in enumerate(counts) if c or i == 0}
 
 
+def mean_stand_in(pred: np.ndarray, mean: float) -> np.ndarray:
+    """``pred`` (a new array) with ``mean`` where it has no value: the stand-in of a model
+    without rules to fall back on (its mean training output)."""
+    y = np.asarray(pred, dtype=float)
+    return np.where(np.isfinite(y), y, mean)
+
+
 @runtime_checkable
 class Model(Protocol):
     """A model of one output from ``d`` inputs (rows × inputs in, one value per row out)."""
@@ -90,9 +97,11 @@ class Model(Protocol):
 
     def predict_detail(self, X: Any) -> Prediction: ...
 
-    def extrapolate(self, X: Any) -> np.ndarray:
+    def extrapolate(self, X: Any, pred: np.ndarray | None = None) -> np.ndarray:
         """The prediction, and where there is none the model's best stand-in (e.g. its
-        nearest rule, else its mean output): used only to score every sample."""
+        nearest rule, else its mean output): used only to score every sample. ``pred``:
+        this model's prediction of ``X`` where the caller has it already (``predict(X)``,
+        NaN where the model has none); every model takes it and does not predict again."""
         ...
 
     def merge(self, other: Self) -> Self: ...

@@ -100,10 +100,7 @@ class HeldOutScorer:
         miss = ~np.isfinite(out)
         if model is not None and miss.any():
             X = (np.column_stack(cols) if X is None else X)[self.va[miss]]
-            if getattr(model, "extrapolate_takes_pred", False):  # predicted already: no answer
-                out[miss] = model.extrapolate(X, pred=out[miss])
-            else:
-                out[miss] = model.extrapolate(X)
+            out[miss] = model.extrapolate(X, pred=out[miss])  # predicted already: no answer
         return np.where(np.isfinite(out), out, self.mean)
 
     def _rmse(self, pred: np.ndarray) -> float:

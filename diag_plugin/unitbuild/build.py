@@ -671,8 +671,8 @@ def _build_unit(
     loops: Sequence[Loop],
     workers: int | None,
 ) -> BuildResult:
-    from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.diagnose.unitfile import UnitError, UnitFile, new_unit_text
+    from diag_plugin.diagnose.unit import TestModel, Unit, load_test_model
+    from diag_plugin.diagnose.unitfile import UnitError, new_unit_text
     from diag_plugin.learn.thresholds import DEFAULT_FAR, LearnError, learn_thresholds
     from diag_plugin.rulebase.folder import UNIT_SUFFIX
     from diag_plugin.training.chunked import train
@@ -761,9 +761,11 @@ def _build_unit(
             "the window: the tags are judged and the unit learned over that span"
         )
 
-    def fit(ch: TestChoice) -> tuple[float, str]:
-        """Train ``ch``'s model on the window and write its model file: its validation error
-        and the file's path relative to the folder (a worker's share, see :mod:`.parallel`)."""
+    def fit(ch: TestChoice) -> tuple[float, str, TestModel | None]:
+        """Train ``ch``'s model on the window and write its model file: its validation error,
+        the file's path relative to the folder and the model as the unit loads it from that
+        file (a worker's share, see :mod:`.parallel`: each file is read back in the worker
+        that wrote it, so the parent parses none; the loaded model comes back in memory)."""
         specs = [InputSpec.parse(s) for s in ch.inputs]
         cols = [ctx.spec_column(s) for s in specs]
         ins = _with_sets([ctx.spec_variable(s) for s in specs], cols, len(frame))
@@ -795,7 +797,11 @@ def _build_unit(
             },
         )
         rb.save(mpath)
-        return validation, os.path.relpath(mpath.resolve(), folder.resolve())
+        try:
+            tm = load_test_model(ch.test, mpath)
+        except UnitError:  # Unit.load reads it again and says where it is broken
+            tm = None
+        return validation, os.path.relpath(mpath.resolve(), folder.resolve()), tm
 
     kept: list[TestChoice] = []
     for ch in choices:
@@ -815,11 +821,14 @@ def _build_unit(
         kept.extend(joint_tests(kept, ctx, taken, notes))
     # each model trained and written on its own: on every core, as the inputs were chosen
     tick = (lambda d, n: progress("train models", d, n)) if progress else None
-    for ch, (validation, rel) in zip(
+    loaded: dict[Path, TestModel] = {}  # model file → its model, as Unit.load reads it
+    for ch, (validation, rel, tm) in zip(
         kept, map_tests(fit, kept, workers=workers, progress=tick), strict=True
     ):
         ch.validation_rmse_pct = validation
         models[ch.test] = rel
+        if tm is not None:
+            loaded[tm.path.resolve()] = tm
     if not kept:
         raise UserError("no tag could be modelled from the others: nothing to test")
     kept.extend(spread_tests(kept, models, taken))
@@ -856,12 +865,12 @@ def _build_unit(
 
     t0 = time.perf_counter()
     try:
-        unit = Unit.load(path, folder)
+        unit = Unit.load(path, folder, models_cache=loaded)
         learned = learn_thresholds(
             unit, [frame], far=far, mapper=lambda fn, items, args: map_tests(fn, items, args,
                                                                             workers=workers)
         )  # fmt: skip
-        uf = UnitFile.load(path)
+        uf = unit.file  # the unit file as just written and read (learning only reads it)
         uf.set_learned(learned)
         uf.save()
     except UnitError as exc:

@@ -5,7 +5,10 @@ writes its own :class:`~diag_plugin.unitbuild.build.TestChoice`), and so are the
 its model (which writes its own model file) and its cross-fitted residuals for the thresholds
 (:func:`~diag_plugin.learn.thresholds.test_residuals`), so :func:`map_tests` runs each of
 the three in a pool of worker processes — forked, so each worker starts with the window (and
-the unit) already in memory; only the test names or choices go out and the results come back.
+the unit) already in memory; only the test names or choices go out and the results come back
+(a trained test's model too, as the unit reads it from the file the worker wrote and read
+back: the parent parses no model file; an in-memory transfer between our own processes, never
+a file a user loads).
 The workers' results are assembled in the tests' order, so the unit is the same as one process
 builds.
 
