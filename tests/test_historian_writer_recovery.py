@@ -288,6 +288,39 @@ def test_closing_twice_while_the_historian_is_away_spills_each_sample_once(tmp_p
     assert len(ts) == len(set(ts.tolist())) == 12
 
 
+def _spilling_writer(tmp_path):
+    """A writer over a fresh SQLite historian whose memory holds 4 cycles of two tags, so a
+    locked database spills at once; and its spill folder."""
+    from diag_plugin.live.writer import HistorianWriter
+    from historian.store import Historian
+
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    Historian(url).close()
+    spill = tmp_path / "spill"
+    w = HistorianWriter(
+        url, ["A", "B"], spill_dir=spill, flush_every=5, cycle=0.01, memory_rows=8,
+        busy_timeout=0.1,
+    )  # fmt: skip
+    return w, spill
+
+
+def _put(w, i: int) -> None:
+    t0 = pd.Timestamp("2026-03-01T00:00:00Z")
+    w.put(t0 + pd.Timedelta(seconds=i), np.array([i, -i]), np.zeros(2, np.uint8))
+
+
+def _spilled_once_and_no_journal(w, spill, n: int) -> None:
+    """Every one of the ``n`` cycles put is in the spill folder once, counted as spilled,
+    and the clean stop left no journal file."""
+    from historian.spool import Spool
+
+    spool = Spool(spill)
+    ts = np.concatenate([spool.read(p).ts for p in spool.segments()])
+    assert len(ts) == len(set(ts.tolist())) == n
+    assert spool.rows() == 2 * n == w.stats.spilled
+    assert not list(spill.glob("journal-*.bin")), sorted(p.name for p in spill.iterdir())
+
+
 def test_a_close_that_cancels_a_spill_half_way_leaves_it_spilled_and_no_journal(tmp_path):
     """close() out of time cancels the writer's task; if the task is inside a spill's write
     then (the database locked, memory full), the thread finishes the segment and close()
@@ -295,41 +328,23 @@ def test_a_close_that_cancels_a_spill_half_way_leaves_it_spilled_and_no_journal(
     next start has nothing to replay twice (the flaky test_live_hardened assertion)."""
     import threading
 
-    from diag_plugin.live.writer import HistorianWriter
-    from historian.spool import Spool
-    from historian.store import Historian
-
-    db = tmp_path / "h.db"
-    url = f"sqlite:///{db}"
-    Historian(url).close()
-    spill = tmp_path / "spill"
-    t0 = pd.Timestamp("2026-03-01T00:00:00Z")
     entered, go = threading.Event(), threading.Event()
+    w, spill = _spilling_writer(tmp_path)
+    real = w.spool.write
 
-    async def main() -> HistorianWriter:
-        w = HistorianWriter(
-            url,
-            ["A", "B"],
-            spill_dir=spill,
-            flush_every=5,
-            cycle=0.01,
-            memory_rows=8,  # 4 cycles in memory, then a spill
-            busy_timeout=0.1,
-        )
-        real = w.spool.write
+    def held_write(block):  # the real write, held until the cancel has happened
+        entered.set()
+        go.wait(10)
+        return real(block)
 
-        def held_write(block):  # the real write, held until the cancel has happened
-            entered.set()
-            go.wait(10)
-            return real(block)
-
+    async def main() -> int:
         w.spool.write = held_write
-        lock = Locker(db)
+        lock = Locker(tmp_path / "h.db")
         try:
             await w.start()
             i = 0
             while not entered.is_set() and i < 200:
-                w.put(t0 + pd.Timedelta(seconds=i), np.array([i, -i]), np.zeros(2, np.uint8))
+                _put(w, i)
                 i += 1
                 await asyncio.sleep(0.01)
             assert entered.is_set(), "no spill began"
@@ -341,15 +356,10 @@ def test_a_close_that_cancels_a_spill_half_way_leaves_it_spilled_and_no_journal(
         finally:
             go.set()
             lock.release()
-        w.put_count = i
-        return w
+        return i
 
-    w = asyncio.run(main())
-    spool = Spool(spill)
-    ts = np.concatenate([spool.read(p).ts for p in spool.segments()])
-    assert len(ts) == len(set(ts.tolist())) == w.put_count
-    assert spool.rows() == 2 * w.put_count == w.stats.spilled
-    assert not list(spill.glob("journal-*.bin")), sorted(p.name for p in spill.iterdir())
+    n = asyncio.run(main())
+    _spilled_once_and_no_journal(w, spill, n)
 
 
 def test_a_spill_slower_than_the_retry_wait_is_not_cut_off_by_it(tmp_path):
@@ -360,50 +370,27 @@ def test_a_spill_slower_than_the_retry_wait_is_not_cut_off_by_it(tmp_path):
     0.7 s, longer than the first waits (0.5 s, 1 s)."""
     import time as _time
 
-    from diag_plugin.live.writer import HistorianWriter
-    from historian.spool import Spool
-    from historian.store import Historian
-
-    db = tmp_path / "h.db"
-    url = f"sqlite:///{db}"
-    Historian(url).close()
-    spill = tmp_path / "spill"
-    t0 = pd.Timestamp("2026-03-01T00:00:00Z")
     n = 60
+    w, spill = _spilling_writer(tmp_path)
+    real = w.spool.write
 
-    async def main() -> HistorianWriter:
-        w = HistorianWriter(
-            url,
-            ["A", "B"],
-            spill_dir=spill,
-            flush_every=5,
-            cycle=0.01,
-            memory_rows=8,  # 4 cycles in memory, then a spill
-            busy_timeout=0.1,
-        )
-        real = w.spool.write
+    def slow_write(block):  # the real write, slower than a retry wait
+        _time.sleep(0.7)
+        return real(block)
 
-        def slow_write(block):  # the real write, slower than a retry wait
-            _time.sleep(0.7)
-            return real(block)
-
+    async def main() -> None:
         w.spool.write = slow_write
-        lock = Locker(db)
+        lock = Locker(tmp_path / "h.db")
         try:
             await w.start()
             for i in range(n):
-                w.put(t0 + pd.Timedelta(seconds=i), np.array([i, -i]), np.zeros(2, np.uint8))
+                _put(w, i)
                 await asyncio.sleep(0.05)
             await asyncio.sleep(2.0)
             w.spool.write = real
             await w.close(timeout=5.0)
         finally:
             lock.release()
-        return w
 
-    w = asyncio.run(main())
-    spool = Spool(spill)
-    ts = np.concatenate([spool.read(p).ts for p in spool.segments()])
-    assert len(ts) == len(set(ts.tolist())) == n
-    assert spool.rows() == 2 * n == w.stats.spilled
-    assert not list(spill.glob("journal-*.bin")), sorted(p.name for p in spill.iterdir())
+    asyncio.run(main())
+    _spilled_once_and_no_journal(w, spill, n)
