@@ -156,6 +156,9 @@ def explain(
     thousands of vector products of some 10^4 entries, which with a BLAS thread per core
     on a loaded machine spent most of their CPU time waiting (issue 37).
     """
+    # the compiled loops from the start (numba's import, ≈ 0.6 s CPU, pays back over the
+    # dozens of models explain fits; before it, each runs numpy's slower loops: the same bits)
+    from diag_plugin.fuzzy import _kernels  # noqa: F401
     from diag_plugin.unitbuild.parallel import one_blas_thread
 
     with one_blas_thread():
