@@ -1148,8 +1148,9 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
 #: relative residual ``|M x - b| / |b|`` the node fit's conjugate gradients stop at
 SOLVE_RTOL = 1e-12
 #: iterations after which the node fit falls back to the direct solve (the audit's 5-input
-#: levels converged in 50-700)
-CG_MAXITER = 2000
+#: levels converged in 50-1,500; the direct solve of such a level costs minutes, 20,000
+#: iterations of 10^4 nodes some 20 s)
+CG_MAXITER = 20_000
 
 
 def _solve_spd(M, rhs: np.ndarray) -> np.ndarray:
