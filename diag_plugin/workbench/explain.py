@@ -150,7 +150,32 @@ def explain(
     :class:`~historian.taginfo.TagInfo` (historian metadata); spans of new inputs come
     from it, else from the data. ``max_lag`` bounds the dead times screened (default
     :func:`default_max_lag`).
+
+    BLAS is held to one thread throughout (:func:`~diag_plugin.unitbuild.parallel.
+    one_blas_thread`): the coarse levels' node fits of every retrained candidate make
+    thousands of vector products of some 10^4 entries, which with a BLAS thread per core
+    on a loaded machine spent most of their CPU time waiting (issue 37).
     """
+    # the compiled loops from the start (numba's import, ≈ 0.6 s CPU, pays back over the
+    # dozens of models explain fits; before it, each runs numpy's slower loops: the same bits)
+    from diag_plugin.fuzzy import _kernels  # noqa: F401
+    from diag_plugin.fuzzy.wang_mendel import iterative_node_fit
+    from diag_plugin.unitbuild.parallel import one_blas_thread
+
+    with one_blas_thread(), iterative_node_fit():
+        return _explain(rb, frame, tag_info=tag_info, holdout=holdout, max_lag=max_lag, top=top)
+
+
+def _explain(
+    rb: RuleBase,
+    frame: pd.DataFrame,
+    *,
+    tag_info: Mapping[str, TagInfo | Mapping[str, object]] | None,
+    holdout: float,
+    max_lag: int | None,
+    top: int | None,
+) -> Explanation:
+    """:func:`explain`'s work."""
     check_regular(frame.index)
     tag_info = tag_infos(tag_info)
     known = {s.tags[0]: v.span for v in rb.inputs if (s := InputSpec.parse(v.spec)).fn == ""}

@@ -1,0 +1,94 @@
+"""``diag explain`` on the blending line nobody here tuned on (issue 37's audit), on a seed other
+than the benchmark's (7): the manual valve first, the header pressure flagged as a consequence;
+and the coarse levels' node fit by conjugate gradients agreeing with the direct solve it
+replaced."""
+
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pytest
+import scipy.sparse as sp
+from scipy.sparse.linalg import spsolve
+
+import diag_plugin.fuzzy.wang_mendel as wm
+from diag_plugin.models.spec import Variable
+from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.simulate.blendline import on_grid, simulate_blendline
+from diag_plugin.training.chunked import train
+from diag_plugin.workbench.explain import explain
+from diag_plugin.workbench.model_edit import new_model
+
+INPUTS = ["FEED_A[k]", "FEED_B[k]", "LEVEL[k]", "TEMP[k]"]
+
+
+@pytest.fixture(scope="module")
+def line():
+    """Ten days of the line (seed 11) on its 15 s grid, and the model a user makes of it:
+    ``diag model new`` without options (shape and sets from the data), then ``diag train``."""
+    import tempfile
+    from pathlib import Path
+
+    f = on_grid(simulate_blendline(10, seed=11))
+    with tempfile.TemporaryDirectory() as d:
+        rb = new_model(Path(d) / "line.toml", "line", "OUT_FLOW[k]", INPUTS, frame=f,
+                       tag_info={}, period="15s", shape=None)  # fmt: skip
+        a, b = f.index[0], f.index[-1] + pd.Timedelta("15s")
+        res = train(rb, lambda x, y: f[(f.index >= x) & (f.index < y)], a, b)
+        rb.apply_training(res.model)
+        rb.save()
+        yield f, RuleBase.load(rb.path)
+
+
+@pytest.mark.skip(
+    reason="seed 11's 10 days (sets 41/21/15/15, the fine grid answering 1 %) "
+    "still take minutes in explain: unfinished (docs/reference/workbench.md, issue 37)"
+)
+def test_manual_valve_first_header_pressure_a_consequence(line):
+    f, rb = line
+    e = explain(rb, f, tag_info={})
+    top = e.candidates[0]
+    assert top.input.startswith("HAND_VALVE[") and not top.consequence, e.as_dict(top=4)
+    assert top.rmse_pct_if_added < 0.5 * e.baseline_rmse_pct
+    hp = [c for c in e.candidates if c.input.startswith("HEADER_P[")]
+    assert hp and all(c.consequence for c in hp), e.as_dict(top=6)
+
+
+def _level_system(rb, f, monkeypatch):
+    """A five-input model (the line's four and the manual valve) and its first coarse level's
+    normal equations, as the node fit builds them."""
+    cols = INPUTS + ["HAND_VALVE[k]"]
+    X = np.column_stack([f[c.split("[")[0]].to_numpy() for c in cols])
+    y = f["OUT_FLOW"].to_numpy()
+    ok = np.isfinite(X).all(axis=1) & np.isfinite(y)
+    hv = Variable("HAND_VALVE[k]", "HANDVALVE", "%", (30.0, 90.0), 21)
+    spec = replace(rb.spec, inputs=list(rb.inputs) + [hv])
+    m = rb.codec.new_estimator(spec).fit(X[ok], y[ok])
+    got = {}
+    solve = wm._solve_spd
+
+    def keep(M, rhs):
+        got["M"], got["rhs"] = M, rhs
+        return solve(M, rhs)
+
+    monkeypatch.setattr(wm, "_solve_spd", keep)
+    _, outside, _ = wm._fit_nodes(m, 1)
+    assert "M" not in got, "outside explain the node fit keeps the direct solve"
+    with wm.iterative_node_fit():
+        _, values, _ = wm._fit_nodes(m, 1)
+    monkeypatch.setattr(wm, "_solve_spd", solve)
+    assert "M" in got, "the level was not fitted by the sparse path"
+    assert np.array_equal(outside, spsolve(sp.csc_matrix(got["M"]), got["rhs"]))
+    return m, values, got["M"], got["rhs"]
+
+
+def test_node_fit_by_conjugate_gradients_equals_the_direct_solve(line, monkeypatch):
+    f, rb = line
+    m, values, M, rhs = _level_system(rb, f, monkeypatch)
+    direct = spsolve(sp.csc_matrix(M), rhs)
+    scale = np.abs(direct).max()
+    assert values.size > 1000  # a level big enough that the direct solve fills in
+    assert np.abs(values - direct).max() <= 1e-8 * scale
+    # where conjugate gradients do not converge, the direct solve answers (the same values)
+    monkeypatch.setattr(wm, "CG_MAXITER", 1)
+    assert np.array_equal(wm._solve_spd(M, rhs), spsolve(M.tocsc(), rhs))
