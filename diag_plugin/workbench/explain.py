@@ -151,18 +151,19 @@ def explain(
     from it, else from the data. ``max_lag`` bounds the dead times screened (default
     :func:`default_max_lag`).
 
-    BLAS is held to one thread throughout (:func:`~diag_plugin.unitbuild.parallel.
-    one_blas_thread`): the coarse levels' node fits of every retrained candidate make
+    BLAS is held to one thread throughout (threadpoolctl's ``threadpool_limits(1)``): the
+    coarse levels' node fits of every retrained candidate make
     thousands of vector products of some 10^4 entries, which with a BLAS thread per core
     on a loaded machine spent most of their CPU time waiting (issue 37).
     """
+    from threadpoolctl import threadpool_limits
+
     # the compiled loops from the start (numba's import, ≈ 0.6 s CPU, pays back over the
     # dozens of models explain fits; before it, each runs numpy's slower loops: the same bits)
     from diag_plugin.fuzzy import _kernels  # noqa: F401
     from diag_plugin.fuzzy.wang_mendel import iterative_node_fit
-    from diag_plugin.unitbuild.parallel import one_blas_thread
 
-    with one_blas_thread(), iterative_node_fit():
+    with threadpool_limits(1), iterative_node_fit():
         return _explain(rb, frame, tag_info=tag_info, holdout=holdout, max_lag=max_lag, top=top)
 
 
