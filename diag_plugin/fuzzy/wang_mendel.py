@@ -52,6 +52,7 @@ inference on small grids.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import sys
 from collections.abc import Iterator, Sequence
 from types import ModuleType
@@ -1140,7 +1141,7 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     ridge = 1e-6 * per_node
     M = A.T @ A + SMOOTHING * per_node * (P.T @ P) + ridge * sp.identity(nodes.size)
     rhs = A.T @ (sw * y) + ridge * float(np.average(y, weights=n))
-    if _ITERATIVE[0]:
+    if _ITERATIVE.get():
         values = np.atleast_1d(_solve_spd(M.tocsr(), rhs))
     else:
         from scipy.sparse.linalg import spsolve
@@ -1150,7 +1151,9 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
 
 
 #: whether the node fit solves by conjugate gradients (:func:`iterative_node_fit`)
-_ITERATIVE = [False]
+_ITERATIVE: contextvars.ContextVar[bool] = contextvars.ContextVar(
+    "wm_iterative_node_fit", default=False
+)
 
 
 @contextlib.contextmanager
@@ -1158,13 +1161,13 @@ def iterative_node_fit() -> Iterator[None]:
     """Within it, coarse levels' node fits solve by conjugate gradients (:func:`_solve_spd`:
     the direct solve's values to about 1e-10 relative, seconds instead of minutes for models
     of five inputs). ``diag explain`` screens dozens of candidate models this way; a model
-    trained, built into a unit or replayed keeps the direct solve's exact bits."""
-    before = _ITERATIVE[0]
-    _ITERATIVE[0] = True
+    trained, built into a unit or replayed keeps the direct solve's exact bits (the switch
+    is the calling context's: another thread's fits are not touched)."""
+    token = _ITERATIVE.set(True)
     try:
         yield
     finally:
-        _ITERATIVE[0] = before
+        _ITERATIVE.reset(token)
 
 
 #: relative residual ``|M x - b| / |b|`` the node fit's conjugate gradients stop at
