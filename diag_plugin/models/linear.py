@@ -65,7 +65,7 @@ class LinearRegressor(Narmax2Regressor):
         if not out.any():
             return p
         y, support = p.y.copy(), np.where(out, 0.0, p.support)
-        lo, hi = getattr(self, "output_span_", (np.nan, np.nan))
+        lo, hi = self.output_span_  # (NaN, NaN) where the output span is unknown
         room = EDGE_MOVE * (hi - lo)
         if room > 0:  # NaN (an unknown output span) or a flat output: unknown, as before
             rows = np.flatnonzero(out)
