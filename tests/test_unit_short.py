@@ -242,3 +242,38 @@ def test_a_tag_slower_than_a_short_window_is_no_input_of_a_faster_one():
     long = short.plan_for(20 * n, "1s", 3, 0.01)
     assert short.slow_inputs(long, list(cols), cols.__getitem__) == {}
     assert short.inputs_for(long, "fast", ["drift"]) == ["drift"]
+
+
+def test_a_slow_tag_stays_an_input_where_its_relation_beats_chance():
+    """The slow tag is left out only where its correlation with the faster tag is what two
+    unrelated series with their autocorrelation show by chance (Bartlett's independent
+    values of the pair): a tag made of the slow one plus fast noise keeps it; an unrelated
+    tag with the same slow share wandering on its own does not; a white tag's chance
+    correlation with the slow one is judged on all its samples."""
+    from scipy import signal
+
+    from diag_plugin.unitbuild import short
+
+    rng = np.random.default_rng(11)
+    n = 400
+    # first-order lags of white noise (memory ~20 samples): 7-25 independent values in 400
+    slow = signal.lfilter([1.0], [1.0, -0.95], rng.normal(0, 1, n))
+    own = signal.lfilter([1.0], [1.0, -0.95], rng.normal(0, 1, n))  # unrelated to the first
+    scale = np.std(slow)
+    cols = {
+        "slow": slow,
+        "coupled": slow + rng.normal(0, scale, n),  # the slow tag is half its variance
+        "unrelated": own * scale / np.std(own) + rng.normal(0, scale, n),
+        "white": rng.normal(0, 1, n),
+    }
+    plan = short.plan_for(n, "1s", 3, 0.01)
+    plan.slow = {"slow": 10.0}  # as slow_inputs finds it (the others' count varies by seed)
+    r, n_pair = short.pair_samples(cols["slow"], cols["unrelated"])
+    assert n_pair < 0.4 * n, n_pair  # the pair shares the lags' few independent values
+    assert short.pair_samples(cols["slow"], cols["white"])[1] > 0.5 * n
+    assert not short.spurious(cols["slow"], cols["coupled"])
+    assert short.spurious(cols["slow"], cols["unrelated"]), r
+    ask = ["slow", "white"]
+    assert short.inputs_for(plan, "coupled", ask, cols.__getitem__) == ask
+    assert short.inputs_for(plan, "unrelated", ask, cols.__getitem__) == ["white"]
+    assert short.inputs_for(plan, "unrelated", ask) == ["white"]  # no values: left out

@@ -409,7 +409,7 @@ def _choose(
     else:
         sp = None
         cands = [c for c in use.vars if c != tag and c not in excl and c != held.get(tag)]
-        cands = short.inputs_for(plan, tag, cands)
+        cands = short.inputs_for(plan, tag, cands, use.column)
         ch = select_inputs(use, tag, cands, test=test, max_inputs=plan.max_inputs,
                            method=plan.select_method, max_sets=plan.max_sets)  # fmt: skip
         if plan.short and ch.steps:

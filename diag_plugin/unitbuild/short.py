@@ -170,9 +170,13 @@ def slow_inputs(plan: Plan, tags: Sequence[str], column) -> dict[str, float]:
     a degree: the test goes unknown and the flow's fault is not seen (SKAB's cavitation: the
     flow collapses from 126 to about 20 l/min while its test reads *unknown*). Without the
     slow input the tag gets the level test its own independent values allow
-    (:func:`level_test`). Two slow tags (the two accelerometers of a pump) keep each other:
-    neither has a level test to fall back on, and their joint test (:func:`joint_groups`)
-    watches their common rise."""
+    (:func:`level_test`). A slow tag stays an input of a faster one where their correlation
+    is more than the pair's shared independent values give by chance (:func:`spurious`):
+    its few values then carry a relation, not a common drift (classic TEP's 25 h hold slow
+    tags of about 12 values that move with faster ones; a bound on the slow tag's own
+    values alone cost the naming of its faults). Two slow tags (the two accelerometers of
+    a pump) keep each other: neither has a level test to fall back on, and their joint
+    test (:func:`joint_groups`) watches their common rise."""
     from diag_plugin.diagnose.symptoms import effective_samples
 
     if not plan.short:
@@ -183,19 +187,77 @@ def slow_inputs(plan: Plan, tags: Sequence[str], column) -> dict[str, float]:
         each = ", ".join(f"{t} (about {n:.0f})" for t, n in plan.slow.items())
         plan.reasons.append(
             f"no input of a tag with {SHORT_INPUT_INDEPENDENT} independent values in the "
-            f"window: {each} — independent values, under {SHORT_INPUT_INDEPENDENT}: a tag "
-            "that wanders slower than the window correlates with a faster one by chance, "
-            "and leaves the span its test learned as soon as it drifts on"
+            "window where their correlation is within chance (level "
+            f"{SHORT_INPUT_LEVEL:g} on the pair's independent values): {each} — independent "
+            f"values, under {SHORT_INPUT_INDEPENDENT}: a tag that wanders slower than the "
+            "window correlates with a faster one by chance, and leaves the span its test "
+            "learned as soon as it drifts on"
         )
     return plan.slow
 
 
-def inputs_for(plan: Plan, tag: str, candidates: Sequence[str]) -> list[str]:
+def _window(rho: np.ndarray) -> int:
+    """The lags a series' autocorrelation ``rho`` is summed over: up to the first where it
+    is no longer positive (Sokal's window, as
+    :func:`~diag_plugin.diagnose.symptoms.effective_samples`)."""
+    stop = np.flatnonzero(rho[1:] <= 0.0)
+    return int(stop[0]) + 1 if stop.size else rho.size
+
+
+def pair_samples(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """The correlation ``r`` of ``x`` and ``y`` (rows where both are known) and the
+    independent values it rests on: Bartlett's ``n / (1 + 2 Σ_k ρx(k) ρy(k))`` (Bartlett 1935;
+    Pyper and Peterman 1998, eq. 1), summed over the lags of the longer memory of the two
+    (:func:`_window`). Two series that wander slowly share few independent values however
+    long the window; a white one keeps all ``n`` beside a slow one, and a tag whose slow
+    part hides under fast noise keeps as few as its slow part allows beside a slow one."""
+    from scipy import signal
+
+    ok = np.isfinite(x) & np.isfinite(y)
+    a, b = x[ok] - x[ok].mean(), y[ok] - y[ok].mean()
+    n = a.size
+    if n < 3 or not np.any(a) or not np.any(b):
+        return 0.0, float(n)
+    r = float(a @ b / math.sqrt(float(a @ a) * float(b @ b)))
+    ra = signal.correlate(a, a, mode="full", method="fft")[n - 1 :]
+    rb = signal.correlate(b, b, mode="full", method="fft")[n - 1 :]
+    ra, rb = ra / ra[0], rb / rb[0]
+    k = max(_window(ra), _window(rb))
+    return r, n / max(1.0, 1.0 + 2.0 * float((ra[1:k] * rb[1:k]).sum()))
+
+
+#: two-sided level at which a slow input's correlation with a tag must be significant
+#: (:func:`spurious`) for it to remain an input in a short window
+SHORT_INPUT_LEVEL = 0.01
+
+
+def spurious(x: np.ndarray, y: np.ndarray, level: float = SHORT_INPUT_LEVEL) -> bool:
+    """Whether the window's correlation of ``x`` with ``y`` is what two unrelated series
+    with their autocorrelation show by chance: ``|r|`` under the two-sided ``level``
+    critical value of Student's t with ``n' − 2`` degrees of freedom, ``n'`` the pair's
+    independent values (:func:`pair_samples`; Pyper and Peterman 1998's modified test of
+    a correlation between autocorrelated series)."""
+    from scipy import stats
+
+    r, n = pair_samples(np.asarray(x, float), np.asarray(y, float))
+    dof = n - 2.0
+    if dof <= 0:
+        return True
+    t = abs(r) * math.sqrt(dof / max(1e-12, 1.0 - r * r))
+    return bool(t < stats.t.ppf(1.0 - level / 2.0, dof))
+
+
+def inputs_for(plan: Plan, tag: str, candidates: Sequence[str], column=None) -> list[str]:
     """``candidates`` less the slow tags (:func:`slow_inputs`) where ``tag`` itself is not
-    slow."""
+    slow and, given the window's values ``column(tag)``, whose correlation with ``tag`` is
+    :func:`spurious` — a slow tag that moves with ``tag`` beyond what the pair's independent
+    values allow by chance stays an input. Without ``column`` every slow tag is left out."""
     if tag in plan.slow:
         return list(candidates)
-    return [c for c in candidates if c not in plan.slow]
+    if column is None:
+        return [c for c in candidates if c not in plan.slow]
+    y = column(tag)
+    return [c for c in candidates if c not in plan.slow or not spurious(column(c), y)]
 
 
 def coarse_frame(frame: pd.DataFrame, factor: int) -> pd.DataFrame:
