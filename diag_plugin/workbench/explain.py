@@ -227,9 +227,8 @@ def _explain(
     model_tags = set(needed_tags([v.spec for v in rb.inputs]))
     out_tags = set(out_spec.tags)
 
-    def evaluate(spec: InputSpec, replace=None, sets=None, sc: HeldOutScorer | None = None):
-        sc = sc or scorer
-        step = stride if sc is not scorer else 1
+    def variant(spec: InputSpec, replace=None, sets=None, step: int = 1):
+        """The variables and columns (every ``step``-th row) of the model with ``spec``."""
         var = variable(spec)
         if var is None:
             return None
@@ -241,8 +240,26 @@ def _explain(
             vs.append(var)
         else:
             cols[replace], vs[replace] = feats.column(spec)[::step], var
+        return vs, cols
+
+    def evaluate(spec: InputSpec, replace=None, sets=None, sc: HeldOutScorer | None = None):
+        sc = sc or scorer
+        got = variant(spec, replace, sets, stride if sc is not scorer else 1)
+        if got is None:
+            return None
+        vs, cols = got
         rmse, cov, per_cell, fine = sc.score(vs, cols)
-        return _Score(rmse, cov, per_cell, var.sets, fine=fine)
+        return _Score(rmse, cov, per_cell, vs[-1 if replace is None else replace].sets, fine=fine)
+
+    def unfilled(spec: InputSpec, replace=None) -> float | None:
+        """Training samples per rule of ``spec`` as add-input writes it where that is below
+        :data:`SPARSE_PER_CELL` (the data cannot fill its grid: it is thin whatever it
+        scores), else None — from the fit alone, before any coarse level is fitted."""
+        got = variant(spec, replace)
+        if got is None:
+            return None
+        per = scorer.per_rule(*got)
+        return per if 0 < per < SPARSE_PER_CELL else None
 
     def thin(r: _Score) -> bool:
         return (
@@ -255,23 +272,34 @@ def _explain(
         """Scored as add-input writes it; if that grid is thin, also with fewer sets for
         the new input (a few coarse counts and what the data fill), compared on every
         ``stride``-th row; the best is scored on all rows and kept if it scores better."""
-        r = evaluate(spec, replace)
-        if r is None or not thin(r) or spec.fn in ("dir", "hour"):
-            return r
+        fewer_only = spec.fn not in ("dir", "hour") and unfilled(spec, replace)
+        if fewer_only:
+            # a grid the data cannot fill is not retrained (its coarse levels' node fit is
+            # the costliest of all, issue 37): only the fewer sets below are, from the start
+            var = variable(spec)
+            r = _Score(math.nan, 0.0, fewer_only, var.sets, fine=math.nan)
+        else:
+            r = evaluate(spec, replace)
+            if r is None or not thin(r) or spec.fn in ("dir", "hour"):
+                return r
         fit = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
-        ref = evaluate(spec, replace, sc=quick) if quick is not scorer else r
+        ref = evaluate(spec, replace, sc=quick) if quick is not scorer and not fewer_only else r
         best, best_sets = ref, r.sets
         for sets in sorted({2, 3, 5, fit, max(fit, r.sets // 4), max(fit, r.sets // 2)}):
             if sets >= r.sets:
                 continue
             r2 = evaluate(spec, replace, sets=sets, sc=quick)
-            if r2 is not None and _sortable(r2.rmse) < _sortable(best.rmse) * (1 - SETS_GAIN):
+            first = bool(fewer_only) and best_sets == r.sets  # nothing scored yet to beat
+            if r2 is not None and (
+                first or _sortable(r2.rmse) < _sortable(best.rmse) * (1 - SETS_GAIN)
+            ):
                 best, best_sets = r2, sets
         if best_sets == r.sets:
-            return r
-        full = evaluate(spec, replace, sets=best_sets)
+            return None if fewer_only else r
+        # on all rows already where the quick scorer is the scorer: not fitted again
+        full = best if quick is scorer else evaluate(spec, replace, sets=best_sets)
         if full is None or not _sortable(full.rmse) < _sortable(r.rmse):
-            return r
+            return None if fewer_only else r
         return dc_replace(full, fewer_from=r.sets, thin_before=(r.fine, r.per_cell))
 
     def screened(spec: InputSpec) -> float:
@@ -323,10 +351,16 @@ def _explain(
                     )
         if r.fewer_from:
             cov0, per0 = r.thin_before
-            notes.append(
-                f"with {r.fewer_from} sets the rule grid would be thin ({per0:.0f} samples per "
-                f"rule, the fine grid answering {cov0:.0%}): {r.sets} sets score better"
-            )
+            if math.isfinite(cov0):
+                notes.append(
+                    f"with {r.fewer_from} sets the rule grid would be thin ({per0:.0f} samples "
+                    f"per rule, the fine grid answering {cov0:.0%}): {r.sets} sets score better"
+                )
+            else:
+                notes.append(
+                    f"with {r.fewer_from} sets the data cannot fill the rule grid ({per0:.1f} "
+                    f"samples per rule; not retrained): {r.sets} sets scored best"
+                )
         elif thin(r):
             fewer = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
             notes.append(
