@@ -329,7 +329,7 @@ class Columns:
             second = pd.Timestamp(ts[1]) if rows > 1 else None
             self.ends = (pd.Timestamp(ts[0]), second, pd.Timestamp(ts[-1]))
         self.columns = {n: j for j, n in enumerate(have)}
-        block = frame[cols].to_numpy(dtype=float, na_value=np.nan) if cols else None
+        block = _float_block(frame, cols) if cols else None
         self._values = np.asfortranarray(block if block is not None else np.empty((len(frame), 0)))
         self._values.flags.writeable = False
 
@@ -339,6 +339,22 @@ class Columns:
     def values(self, tag: str) -> np.ndarray:
         """The tag's values (a view: not to be written)."""
         return self._values[:, self.columns[tag]]
+
+
+def _float_block(frame: pd.DataFrame, cols: list) -> np.ndarray:
+    """``frame[cols]`` as floats (NaN missing): taken from the frame's values as one float
+    array where it converts whole (a frame of floats: a view, no copy), else by pandas.
+    The same numbers; ``frame[cols].to_numpy()`` cost 1.3 ms a 7-day piece of 46 of 50
+    tags, the take 0.1 ms (issue 34). Only where ``cols`` are at least half the frame's
+    columns (a wide plant frame of mixed types is not converted whole for a few)."""
+    if 2 * len(cols) >= frame.shape[1] and frame.columns.is_unique:
+        try:
+            whole = frame.to_numpy(dtype=float, na_value=np.nan)
+        except (TypeError, ValueError):  # a column that is not a number: pandas' way
+            whole = None
+        if whole is not None:
+            return whole[:, frame.columns.get_indexer(cols)]  # a copy (fancy index)
+    return frame[cols].to_numpy(dtype=float, na_value=np.nan)
 
 
 def _values(frame: pd.DataFrame | Columns, tag: str) -> np.ndarray:
@@ -503,6 +519,13 @@ class DesignBuilder:
         first = pd.Timestamp(first)
         if self.period is None and second is not None:
             self.period = pd.Timedelta(second - first)
+        if (
+            self.last is not None
+            and self.period is not None
+            and first.value - self.last.value == self.period.value
+        ):  # the next sample of the grid (nanoseconds, exact): nothing skipped
+            self.last = pd.Timestamp(last)
+            return
         if self.last is not None and self.period is not None:
             step = (first - self.last) / self.period
             if step < 1 or step != round(step):
