@@ -328,9 +328,10 @@ class Columns:
             ts = frame.index
             second = pd.Timestamp(ts[1]) if rows > 1 else None
             self.ends = (pd.Timestamp(ts[0]), second, pd.Timestamp(ts[-1]))
-        self.columns = {n: j for j, n in enumerate(have)}
-        block = frame[cols].to_numpy(dtype=float, na_value=np.nan) if cols else None
-        self._values = np.asfortranarray(block if block is not None else np.empty((len(frame), 0)))
+        block, at = _float_block(frame, cols) if cols else (np.empty((rows, 0)), [])
+        #: each name's column in the values (those of the whole frame where they are a view)
+        self.columns = {n: int(j) for n, j in zip(have, at, strict=True)}
+        self._values = block
         self._values.flags.writeable = False
 
     def __len__(self) -> int:
@@ -339,6 +340,30 @@ class Columns:
     def values(self, tag: str) -> np.ndarray:
         """The tag's values (a view: not to be written)."""
         return self._values[:, self.columns[tag]]
+
+
+def _float_block(frame: pd.DataFrame, cols: list) -> tuple[np.ndarray, np.ndarray]:
+    """``frame[cols]`` as floats (NaN missing), columns contiguous, and each one's column in
+    it: the frame's own values where they convert whole to one float array with contiguous
+    columns (a frame of floats, or a piece of rows of one: a view, no copy, the columns at
+    their places in the frame), else a copy of ``cols`` (in order) from the converted frame
+    or, where it does not convert, from pandas. The same numbers either
+    way; ``frame[cols].to_numpy()`` cost 1.3 ms a 7-day piece of 46 of 50 tags, the view
+    none, and no copy of the piece is held while the unit evaluates it (issue 34). The
+    frame is converted whole only where ``cols`` are at least half its columns (a wide plant
+    frame of mixed types is not converted for a few)."""
+    if 2 * len(cols) >= frame.shape[1] and frame.columns.is_unique:
+        try:
+            whole = frame.to_numpy(dtype=float, na_value=np.nan)
+        except (TypeError, ValueError):  # a column that is not a number: pandas' way
+            whole = None
+        if whole is not None:
+            at = frame.columns.get_indexer(cols)
+            if len(whole) <= 1 or whole.strides[0] == whole.itemsize:  # columns contiguous
+                return whole, at
+            return np.asfortranarray(whole[:, at]), np.arange(len(cols))
+    block = np.asfortranarray(frame[cols].to_numpy(dtype=float, na_value=np.nan))
+    return block, np.arange(len(cols))
 
 
 def _values(frame: pd.DataFrame | Columns, tag: str) -> np.ndarray:
@@ -503,6 +528,13 @@ class DesignBuilder:
         first = pd.Timestamp(first)
         if self.period is None and second is not None:
             self.period = pd.Timedelta(second - first)
+        if (
+            self.last is not None
+            and self.period is not None
+            and first.value - self.last.value == self.period.value
+        ):  # the next sample of the grid (nanoseconds, exact): nothing skipped
+            self.last = pd.Timestamp(last)
+            return
         if self.last is not None and self.period is not None:
             step = (first - self.last) / self.period
             if step < 1 or step != round(step):

@@ -133,3 +133,29 @@ def test_columns_read_once_give_the_frames_design_rows():
         DesignBuilder(["diff(P1,P2)[k]"], "F[k]").transform(Columns(f, names))
     with pytest.raises(ValueError, match="regular"):
         Columns(f.drop(f.index[4]), names)
+
+
+@pytest.mark.parametrize("kind", ["floats", "ints", "text", "few", "nullable"])
+def test_columns_hold_the_frames_floats(kind):
+    """:class:`Columns` reads what ``frame[cols].to_numpy(float)`` gives, bit for bit: from the
+    frame's values taken whole (floats, ints beside them), or through pandas where the frame
+    holds a column that is not a number, reads few of many columns or has missing values."""
+    from diag_plugin.regressors import Columns
+
+    f = frame()
+    f.loc[f.index[3], "F"] = -0.0
+    f.loc[f.index[5], "CV"] = np.nan
+    if kind == "ints":
+        f["P1"] = np.arange(len(f), dtype=np.int64) * 3
+    elif kind == "text":
+        f["note"] = "x"
+    elif kind == "few":
+        for i in range(8):
+            f[f"other{i}"] = float(i)
+    elif kind == "nullable":
+        f["P1"] = pd.array([1.5, None] * 5, dtype="Float64")
+    names = {"F": "F", "P1": "P1", "CV": "CV"}
+    got = Columns(f, names)
+    want = f[list(names.values())].to_numpy(dtype=float, na_value=np.nan)
+    for j, t in enumerate(names):
+        assert got.values(t).tobytes() == want[:, j].tobytes()

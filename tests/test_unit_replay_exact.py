@@ -25,6 +25,7 @@ from scipy import signal, stats
 
 from diag_plugin.diagnose import operating, residuals, symptoms, unit, unitloops, unittags
 from diag_plugin.diagnose.unit import PRIORITY, Unit, concat
+from diag_plugin.regressors import Columns
 from diag_plugin.status import NE107
 from diag_plugin.unitbuild.build import build_unit
 from diag_plugin.unitbuild.loops import parse_loop
@@ -197,7 +198,7 @@ def _ref_inverse(self, pat):  # each pattern's pseudo-inverse, nothing shared wi
     )
 
 
-def _ref_raw_residuals(self, frame):
+def _ref_raw_residuals(self, frame, cols=None):  # the frame's columns read again, per tag
     frame = self._model_frame(frame)
     cols = {}
     for t in self.file.tests:
@@ -216,7 +217,8 @@ def _ref_outside(self, frame, unknown, report):
     idx = frame.index
     todo = report.copy()
     # the values the models read (lagged as they read them: OutsideLearned.lagged)
-    cols = self.lagged({t: frame[t].to_numpy(float) for t in self.tags if t in frame.columns})
+    read = frame.values if isinstance(frame, Columns) else (lambda t: frame[t].to_numpy(float))
+    cols = self.lagged({t: read(t) for t in self.tags if t in frame.columns})
     for k, r in enumerate(self.ranges):
         if r.key not in cols:
             continue

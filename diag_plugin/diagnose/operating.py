@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from diag_plugin.regressors import InputSpec
+from diag_plugin.regressors import Columns, InputSpec
 
 
 @dataclass(frozen=True)
@@ -148,13 +148,19 @@ class OutsideLearned:
             f" outside what the unit learned ({r.lo:.4g} … {r.hi:.4g}) since ",
         )
 
-    def transform(self, frame: pd.DataFrame, unknown: np.ndarray, report: np.ndarray) -> np.ndarray:
+    def transform(
+        self, frame: pd.DataFrame | Columns, unknown: np.ndarray, report: np.ndarray
+    ) -> np.ndarray:
         """Per row a sentence (``""`` elsewhere) for the rows in ``report`` (CHECK_FUNCTION):
         the first input of an unknown test (``unknown``: rows × tests) outside its learned
         range, ``TAG = value outside what the unit learned (lo … hi) since T``. Advances the
-        carried start of every input's excursion."""
-        have = set(frame.columns)
-        cols = {t: frame[t].to_numpy(float) for t in self.tags if t in have}
+        carried start of every input's excursion. ``frame``: the piece under the models' tag
+        names, or its :class:`~diag_plugin.regressors.Columns` (read once for the unit)."""
+        if isinstance(frame, Columns):
+            cols = {t: frame.values(t) for t in self.tags if t in frame.columns}
+        else:
+            have = set(frame.columns)
+            cols = {t: frame[t].to_numpy(float) for t in self.tags if t in have}
         return self.columns(self.lagged(cols), frame.index, unknown, report)
 
     def lagged(self, cols: Mapping[str, np.ndarray]) -> dict[tuple[str, int], np.ndarray]:
@@ -194,17 +200,12 @@ class OutsideLearned:
         out = np.full(n, "", dtype=object)
         at = np.flatnonzero(report)  # the rows to name (CHECK_FUNCTION: few, in most pieces)
         unk = unknown[at]
-        judged = [k for k, r in enumerate(self.ranges) if r.key in cols]
+        judged, keys, col, lo, hi, test = self._judged(cols)
         if not n or not judged:
             self._combination(cols, unk, at, np.ones(at.size, bool), out)
             return out
         # every judged range at once, at the rows to name and at the piece's end: a row is
         # named by the first range (in order) outside there whose test is unknown
-        keys = list(dict.fromkeys(self.ranges[k].key for k in judged))
-        col = np.array([keys.index(self.ranges[k].key) for k in judged])
-        lo = np.array([self.ranges[k].lo for k in judged])
-        hi = np.array([self.ranges[k].hi for k in judged])
-        test = np.array([self.ranges[k].test for k in judged], np.int64)
         end = np.array([cols[key][-1] for key in keys], float)[col]
         with np.errstate(invalid="ignore"):  # NaN: not outside
             end_off = (end < lo) | (end > hi)
@@ -250,14 +251,42 @@ class OutsideLearned:
         self._combination(cols, unk, at[~named], ~named, out)
         return out
 
+    def _judged(self, cols: Mapping[tuple[str, int], np.ndarray]) -> tuple:
+        """The ranges judged on a piece with the values ``cols`` (:attr:`Range.key` →
+        values): their positions in :attr:`ranges`, the keys they read (once each), each
+        one's key among those, its bounds and its test — the same for every piece that has
+        the same keys, so made once for them."""
+        have = frozenset(cols)
+        cache = self.__dict__.setdefault("_judged_cache", {})
+        if have not in cache:
+            judged = [k for k, r in enumerate(self.ranges) if r.key in have]
+            keys = list(dict.fromkeys(self.ranges[k].key for k in judged))
+            at = {key: c for c, key in enumerate(keys)}
+            cache[have] = (
+                judged,
+                keys,
+                np.array([at[self.ranges[k].key] for k in judged], np.int64),
+                np.array([self.ranges[k].lo for k in judged], float),
+                np.array([self.ranges[k].hi for k in judged], float),
+                np.array([self.ranges[k].test for k in judged], np.int64),
+            )
+        return cache[have]
+
+    def _tests_keys(self) -> dict[int, list[tuple[str, int]]]:
+        """Per test (by position) the :attr:`Range.key` of each of its ranges, in order."""
+        if "_tests" not in self.__dict__:
+            tests: dict[int, list[tuple[str, int]]] = {}
+            for r in self.ranges:
+                tests.setdefault(r.test, []).append(r.key)
+            self._tests = tests
+        return self._tests
+
     def _combination(self, cols, unk, rows_left, left, out) -> None:
         """The rows still unnamed (``rows_left``; ``unk``: the unknown tests at the rows to
         name, ``left`` of them those still unnamed; ``cols``: :attr:`Range.key` → values the
         model reads): each input of the first unknown test is inside what it learned, but
         not together (a grid cell without a rule), or has no value."""
-        tests: dict[int, list[tuple[str, int]]] = {}
-        for r in self.ranges:
-            tests.setdefault(r.test, []).append(r.key)
+        tests = self._tests_keys()
         unk = unk[left]
         todo = np.ones(rows_left.size, bool)
         for j, tags in tests.items():

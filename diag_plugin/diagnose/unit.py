@@ -65,7 +65,7 @@ from diag_plugin.diagnose.unittags import (
     CombinedModel,
     derived_matrix,
     describe_top,
-    top_tags_at,
+    top_columns_at,
 )
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
@@ -537,11 +537,17 @@ class Unit:
         return self
 
     # ------------------------------------------------------------ stages
-    def raw_residuals(self, frame: pd.DataFrame) -> pd.DataFrame:
-        """Residual per test in % (eq. 6 or of ``ymax``), NaN where unknown; advances state."""
-        # the piece's columns read once for all the builders (under the models' tag names)
+    def columns(self, frame: pd.DataFrame) -> Columns:
+        """The piece's columns read once, under the models' tag names (:class:`Columns`):
+        what every builder and the reasons for CHECK_FUNCTION read."""
         plant = {t: self.file.tags.get(t, t) for t in self.model_tags}
-        cols = Columns(frame, {t: p if p in frame.columns else t for t, p in plant.items()})
+        return Columns(frame, {t: p if p in frame.columns else t for t, p in plant.items()})
+
+    def raw_residuals(self, frame: pd.DataFrame, cols: Columns | None = None) -> pd.DataFrame:
+        """Residual per test in % (eq. 6 or of ``ymax``), NaN where unknown; advances state.
+        ``cols``: the piece's :meth:`columns`, if read already."""
+        if cols is None:
+            cols = self.columns(frame)
         # a test's residuals are one row of tests × samples (written in memory order, not a
         # column of samples × tests); turned to samples × tests once at the end
         out = np.full((len(self.tests), len(frame)), np.nan)
@@ -677,7 +683,8 @@ class Unit:
     def evaluate(self, frame: pd.DataFrame) -> Diagnosis:
         """Diagnose the next piece of data (continues the carried state)."""
         point = self.cmodel.point_of(frame) if self.cmodel is not None else None
-        raw = self.at_points(self.raw_residuals(frame), point)
+        cols = self.columns(frame)  # read once: the builders and the reasons
+        raw = self.at_points(self.raw_residuals(frame, cols), point)
         r = self.filtered(raw)
         s, mem = self.symptoms(r.to_numpy())
         n, T = s.shape
@@ -720,12 +727,12 @@ class Unit:
             # no others; the rest when Diagnosis.contributions is asked for)
             shares = LazyShares(self.cmodel, r.to_numpy(), active, frame.index, point)
             held = self.episode.transform_at(shares.share_at, active)
-            top = top_tags_at(held, self.cmodel.tags, active)
-            top.index = frame.index
+            # the ranking's columns as arrays (the alarm hold edits them), one frame at the end
+            top = top_columns_at(held, self.cmodel.tags, active)
         alone = c_on & ~tests_on & (faults == "")
         if alone.any():  # the combined test alone: the unit fails, at the best-ranked tag
             status[alone] = NE107.FAILURE
-            faults[alone] = top["top1"].to_numpy()[alone] if self.tag_isolation else "unit"
+            faults[alone] = top["top1"][alone] if self.tag_isolation else "unit"
             faults[alone & (faults == "")] = "unit"
         if self.alarm_hold is not None:
             detected, status, faults, top = self._hold_alarm(active, detected, status, faults, top)
@@ -737,7 +744,7 @@ class Unit:
         if warm.any():
             judged = unknown.copy()
             judged[rows] &= ~warm
-        why = self.outside.transform(self._model_frame(frame), judged, checking)
+        why = self.outside.transform(cols, judged, checking)
         if warm.any():
             why[rows] = warming_up(
                 why[rows], warm, left, checking[rows], self.warm_labels, self.period_s
@@ -761,7 +768,7 @@ class Unit:
             message=message,
             combined=combined,
             _contributions=shares,
-            top=top,
+            top=None if top is None else pd.DataFrame(top, index=idx),
             why=pd.Series(why, index=idx),
         )
 
@@ -796,7 +803,9 @@ class Unit:
 
     def _hold_alarm(self, active, detected, status, faults, top):
         """The unit's off-delay (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`): a
-        sample within it repeats the last alarm sample's status, faults and tags."""
+        sample within it repeats the last alarm sample's status, faults and tags (``top``:
+        the ranking's columns as arrays, :func:`~.unittags.top_columns_at`, edited in
+        place; a column at a time, not rows of a frame of strings)."""
         src = self.alarm_hold.sources(active)
         held = np.flatnonzero(src >= 0)
         detected, status, faults = detected.copy(), status.copy(), faults.copy()
@@ -805,18 +814,19 @@ class Unit:
             status[held] = status[src[held]]
             faults[held] = faults[src[held]]
             if top is not None:
-                top.iloc[held] = top.iloc[src[held]].to_numpy()
+                for col in top.values():
+                    col[held] = col[src[held]]
         carried = np.flatnonzero(src == -1)
         if carried.size and self._last_alarm is not None:
             st, fa, row = self._last_alarm
             detected[carried], status[carried], faults[carried] = 1.0, st, fa
             if top is not None:
                 for c, v in row.items():
-                    top.iloc[carried, top.columns.get_loc(c)] = v
+                    top[c][carried] = v
         on = np.flatnonzero(active)
         if on.size:
             i = on[-1]
-            row = {} if top is None else {c: _plain(v) for c, v in top.iloc[i].items()}
+            row = {} if top is None else {c: _plain(v[i]) for c, v in top.items()}
             self._last_alarm = (int(status[i]), str(faults[i]), row)
         return detected, status, faults, top
 

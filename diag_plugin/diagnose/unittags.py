@@ -672,6 +672,14 @@ def top_tags_at(
     share_at: np.ndarray, tags: list[str], rows: np.ndarray, top: int = TOP
 ) -> pd.DataFrame:
     """:func:`top_tags` from the shares at ``rows`` only (``rows.sum()`` × tags, in order)."""
+    return pd.DataFrame(top_columns_at(share_at, tags, rows, top))
+
+
+def top_columns_at(
+    share_at: np.ndarray, tags: list[str], rows: np.ndarray, top: int = TOP
+) -> dict[str, np.ndarray]:
+    """:func:`top_tags_at`'s columns as arrays (names as objects, shares as floats): what a
+    replay edits (the unit's alarm hold) before it makes the one frame of them."""
     n = len(rows)
     out: dict[str, np.ndarray] = {}
     at = np.flatnonzero(rows)  # ranked only where there is an alarm (the rest stay empty)
@@ -688,7 +696,7 @@ def top_tags_at(
         value[at[ok]] = val[ok]
         out[f"top{i + 1}"] = name
         out[f"share{i + 1}"] = value
-    return pd.DataFrame(out)
+    return out
 
 
 def describe_top(row: pd.Series) -> str:
