@@ -559,8 +559,9 @@ def learn_thresholds(
             body,
             block,
             far * COMBINED_SHARE if unit.ev["combined"] else None,
-            model_gains(unit, frame),
+            model_gains(unit, frame, mapper),
             located,
+            mapper=mapper,
         )
         combined.responses = setpoint_responses(
             unit, frame.loc[body.index], body, combined, None if located is None else located[0]
@@ -872,6 +873,38 @@ def _combined_params(
     )
 
 
+def _combined_part(
+    b: int | None,
+    x: np.ndarray,
+    block: np.ndarray,
+    n_blocks: int,
+    point: np.ndarray | None,
+    whole: tuple[np.ndarray, np.ndarray] | None,
+):
+    """One share of :func:`learn_combined`: ``b`` None, the whole window's parameters
+    (:func:`_combined_params`); else T² of block ``b``'s rows from the parameters of the other
+    blocks (``whole``: the whole window's centre and scale, for a point only block ``b``
+    has)."""
+    from diag_plugin.diagnose.unittags import CombinedModel
+
+    if b is None:
+        return _combined_params(x, point)
+    T = x.shape[1]
+    held = block == b
+    fit = x[~held] if n_blocks > 1 else x
+    if point is None:
+        c, s, S, _ = _combined_params(fit)
+        return CombinedModel([], c, s, S, np.zeros((T, 0)), None).evaluate(x[held])[0]
+    center, scale = whole
+    c, s, S, _ = _combined_params(fit, point[~held] if n_blocks > 1 else point)
+    pad = np.full((max(0, center.shape[0] - c.shape[0]), T), np.nan)
+    c = np.where(np.isfinite(np.vstack([c, pad])), np.vstack([c, pad]), center)
+    s = np.where(np.isfinite(np.vstack([s, pad])), np.vstack([s, pad]), scale)
+    # (a point only the held block has: its centre and scale from the whole window)
+    model = CombinedModel([], c[0], s[0], S, np.zeros((T, 0)), None, centers=c, scales=s)
+    return model.evaluate(x[held], point[held])[0]
+
+
 def learn_combined(
     unit: Unit,
     body: pd.DataFrame,
@@ -879,6 +912,8 @@ def learn_combined(
     far: float | None,
     gains: dict[str, dict[str, float]],
     located: tuple[np.ndarray, dict[str, list]] | None = None,
+    *,
+    mapper: Mapper | None = None,
 ) -> CombinedSpec:
     """The unit-level test from the settled, filtered, cross-fitted fault-free residuals
     ``body`` (one column per test, ``block``: each row's time block): centre, scale and shrunk
@@ -897,14 +932,30 @@ def learn_combined(
     window's mean) no longer counts as fault-free scatter (SKAB: the threshold grew 49.5 →
     125,671 when the anomaly-free run's first hour was accepted into a unit built from
     valve1/1's first 400 s, and the fault went unseen). The held-out blocks' T² takes a
-    point's centre from the whole window where the other blocks hold none of its rows."""
-    from diag_plugin.diagnose.unittags import CombinedModel
+    point's centre from the whole window where the other blocks hold none of its rows.
+
+    ``mapper`` (:data:`Mapper`) computes the whole window's parameters and each held-out
+    block's T² (independent of each other) in any number of processes."""
     from diag_plugin.learn.budget import calibrate_side
 
     x = body[unit.tests].to_numpy(float)
-    T = len(unit.tests)
     point = None if located is None else located[0]
-    center, scale, cov, lam = _combined_params(x, point)
+    blocks = np.unique(block)
+    run = mapper or _serial
+    held_t2: list[np.ndarray] = []
+    if point is None:  # the blocks need nothing of the whole window's parameters
+        parts = (
+            run(_combined_part, [None, *blocks.tolist()], (x, block, blocks.size, None, None))
+            if far is not None
+            else [_combined_params(x)]
+        )
+        (center, scale, cov, lam), held_t2 = parts[0], parts[1:]
+    else:
+        center, scale, cov, lam = _combined_params(x, point)
+        if far is not None:
+            held_t2 = run(
+                _combined_part, blocks.tolist(), (x, block, blocks.size, point, (center, scale))
+            )
     spec = CombinedSpec(
         tests=list(unit.tests),
         center=(center if point is None else center[0]).tolist(),
@@ -920,22 +971,8 @@ def learn_combined(
     if far is None:
         return spec
     t2 = np.full(len(x), np.nan)
-    blocks = np.unique(block)
-    for b in blocks:
-        held = block == b
-        fit = x[~held] if blocks.size > 1 else x
-        if point is None:
-            c, s, S, _ = _combined_params(fit)
-            model = CombinedModel([], c, s, S, np.zeros((T, 0)), None)
-            t2[held] = model.evaluate(x[held])[0]
-            continue
-        c, s, S, _ = _combined_params(fit, point[~held] if blocks.size > 1 else point)
-        pad = np.full((max(0, center.shape[0] - c.shape[0]), T), np.nan)
-        c = np.where(np.isfinite(np.vstack([c, pad])), np.vstack([c, pad]), center)
-        s = np.where(np.isfinite(np.vstack([s, pad])), np.vstack([s, pad]), scale)
-        # (a point only the held block has: its centre and scale from the whole window)
-        model = CombinedModel([], c[0], s[0], S, np.zeros((T, 0)), None, centers=c, scales=s)
-        t2[held] = model.evaluate(x[held], point[held])[0]
+    for b, got in zip(blocks.tolist(), held_t2, strict=True):
+        t2[block == b] = got
     dt_h = pd.Timedelta(unit.period) / pd.Timedelta(hours=1)
     h = float(np.isfinite(t2).sum()) * dt_h
     on, off = unit.ev["on_delay"], unit.ev["off_delay"]
@@ -1055,35 +1092,40 @@ def _autocorrelation(a: np.ndarray) -> np.ndarray:
     return ac / ac[0] if ac[0] > 0 else np.zeros(n)
 
 
-def model_gains(unit: Unit, frame: pd.DataFrame) -> dict[str, dict[str, float]]:
+def model_gains(
+    unit: Unit, frame: pd.DataFrame, mapper: Mapper | None = None
+) -> dict[str, dict[str, float]]:
     """Per test, the mean gain ``∂ŷ/∂X`` of its model for each tag ``X`` it reads plainly (any
     lag; a bias moves every lag alike, so the lags' gains add), over the samples of ``frame``
     the model answers, by a forward difference of 5 % of the tag's standard deviation; keyed by
-    the plant's tag names. Derived inputs (a rate, a direction) get none: a bias leaves them."""
+    the plant's tag names. Derived inputs (a rate, a direction) get none: a bias leaves them.
+    ``mapper`` (:data:`Mapper`): the tests' gains in any number of processes."""
+    mf = unit._model_frame(frame)
+    got = (mapper or _serial)(_test_gains, list(unit.tests), (unit, mf))
+    return dict(zip(unit.tests, got, strict=True))
+
+
+def _test_gains(t: str, unit: Unit, mf: pd.DataFrame) -> dict[str, float]:
+    """One test's gains for :func:`model_gains` (``mf``: the window under the models' names)."""
     from diag_plugin.regressors import DesignBuilder, parse_specs
 
-    mf = unit._model_frame(frame)
-    out: dict[str, dict[str, float]] = {}
-    for t in unit.tests:
-        m = unit.models[t]
-        d = DesignBuilder(m.inputs, m.output, period=m.period).transform(mf)
-        specs = parse_specs(m.inputs)
-        g: dict[str, float] = {}
-        if not len(d.y):
-            out[t] = g
+    m = unit.models[t]
+    d = DesignBuilder(m.inputs, m.output, period=m.period).transform(mf)
+    specs = parse_specs(m.inputs)
+    g: dict[str, float] = {}
+    if not len(d.y):
+        return g
+    base = supported(m.model.predict_detail(d.X), unit.ev["min_support"])
+    for tag in dict.fromkeys(sp.tags[0] for sp in specs if not sp.fn):
+        cols = [i for i, sp in enumerate(specs) if not sp.fn and sp.tags[0] == tag]
+        sd = float(np.nanstd(d.X[:, cols[0]]))
+        if not sd > 0:
             continue
-        base = supported(m.model.predict_detail(d.X), unit.ev["min_support"])
-        for tag in dict.fromkeys(sp.tags[0] for sp in specs if not sp.fn):
-            cols = [i for i, sp in enumerate(specs) if not sp.fn and sp.tags[0] == tag]
-            sd = float(np.nanstd(d.X[:, cols[0]]))
-            if not sd > 0:
-                continue
-            step = 0.05 * sd
-            X = d.X.copy()
-            X[:, cols] += step
-            moved = supported(m.model.predict_detail(X), unit.ev["min_support"])
-            diff = (moved - base) / step
-            if np.isfinite(diff).any():
-                g[unit.file.tags.get(tag, tag)] = float(np.nanmean(diff))
-        out[t] = g
-    return out
+        step = 0.05 * sd
+        X = d.X.copy()
+        X[:, cols] += step
+        moved = supported(m.model.predict_detail(X), unit.ev["min_support"])
+        diff = (moved - base) / step
+        if np.isfinite(diff).any():
+            g[unit.file.tags.get(tag, tag)] = float(np.nanmean(diff))
+    return g

@@ -234,21 +234,30 @@ def choose_tests(
     return chosen, skipped
 
 
-def same_measurement(frame: pd.DataFrame, tags: Sequence[str]) -> dict[str, list[str]]:
+def same_measurement(
+    frame: pd.DataFrame, tags: Sequence[str], workers: int | None = 1
+) -> dict[str, list[str]]:
     """For each tag, the others that are the same measurement: ``|r| >`` :data:`SAME_CORR`
     at lag 0 over the window, Pearson's or Spearman's (a redundant transmitter, a copy, a
     unit conversion, a monotone function of it). Neither is ever an input of the other's
-    model."""
+    model. ``workers``: processes for the two correlation matrices (:func:`map_tests`; None:
+    every core)."""
     X = frame[list(tags)].astype(float)
     # Pearson for a copy or a linear conversion, Spearman (ranks) for any monotone one
     # (a flow computed from a differential pressure, a level in % from one in m)
-    r = np.fmax(np.abs(X.corr().to_numpy()), np.abs(X.rank().corr().to_numpy()))
+    pearson, spearman = map_tests(_abs_corr, [False, True], (X,), workers=workers)
+    r = np.fmax(pearson, spearman)
     out = {t: [] for t in tags}
     for i, a in enumerate(tags):
         for j, b in enumerate(tags):
             if i != j and np.isfinite(r[i, j]) and abs(r[i, j]) > SAME_CORR:
                 out[a].append(b)
     return out
+
+
+def _abs_corr(ranks: bool, X: pd.DataFrame) -> np.ndarray:
+    """``|r|`` between the columns of ``X``: Pearson's, or of their ranks (Spearman's)."""
+    return np.abs((X.rank() if ranks else X).corr().to_numpy())
 
 
 class _Context:
@@ -731,7 +740,7 @@ def _build_unit(
     if plan.factor > 1:
         sel = _Context(short.coarse_frame(frame, plan.factor), info, plan.select_period)
     short.slow_inputs(plan, list(ctx.vars), ctx.column)
-    same = same_measurement(frame, list(ctx.vars))
+    same = same_measurement(frame, list(ctx.vars), workers)
     warm_kernels()
     seconds["read and screen"] = time.perf_counter() - t_start
 
