@@ -116,8 +116,15 @@ def child(plant: str, cache: Path, blend_days: float, blendline_days: float) -> 
         "baseline_pct": e.baseline_rmse_pct,
         "best": f"{best.input} ({best.kind}) {best.rmse_pct_if_added:.3f} %" if best else "-",
         "consequences": flagged,
+        "top3": [_label(c) for c in e.candidates[:3]],
         "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }
+
+
+def _label(c) -> str:
+    """A candidate as the top-three list shows it: input, kind, its ``--sets``, error."""
+    sets = f", --sets {c.command.split('--sets ')[-1]}" if "--sets " in c.command else ""
+    return f"{c.input} ({c.kind}{sets}) {c.rmse_pct_if_added:.3f} %"
 
 
 def run(plant: str, code: Path | None, args) -> dict | str:
@@ -147,7 +154,8 @@ def show(label: str, r: dict | str) -> None:
         f"CPU [CPU s per phase: {phases}], train "
         f"{r['train_s']:.1f} s, peak {r['peak_mb']:.0f} MB; {r['retrained']} retrained, "
         f"{r['screened']} screened; baseline {r['baseline_pct']:.3f} %, best {r['best']}; "
-        f"flagged as consequences: {', '.join(r.get('consequences', [])) or '-'}"
+        f"flagged as consequences: {', '.join(r.get('consequences', [])) or '-'}; "
+        f"top 3: {'; '.join(r.get('top3', [])) or '-'}"
     )
 
 

@@ -65,6 +65,9 @@ DRIFT_MIN_DAYS = 7.0
 #: fewer sets than add-input writes are suggested only when they score better by more
 #: than this share (the gain explain calls more than "barely")
 SETS_GAIN = 0.03
+#: fewer set counts in a row, tried coarse to fine, that do not beat the best coarser one by
+#: :data:`SETS_GAIN` after which a thin candidate's finer (costlier) counts are not tried
+SETS_PATIENCE = 2
 #: a candidate covering fewer samples than the current model by more than this is thin
 #: (each sample it loses is scored with its nearest rule)
 COVERAGE_SLACK = 0.01
@@ -270,8 +273,9 @@ def _explain(
 
     def evaluate_best(spec: InputSpec, replace: int | None = None):
         """Scored as add-input writes it; if that grid is thin, also with fewer sets for
-        the new input (a few coarse counts and what the data fill), compared on every
-        ``stride``-th row; the best is scored on all rows and kept if it scores better."""
+        the new input (a few coarse counts and what the data fill, coarse to fine until
+        :data:`SETS_PATIENCE` in a row bring nothing), compared on every ``stride``-th row;
+        the best is scored on all rows and kept if it scores better."""
         fewer_only = spec.fn not in ("dir", "hour") and unfilled(spec, replace)
         if fewer_only:
             # a grid the data cannot fill is not retrained (its coarse levels' node fit is
@@ -285,14 +289,18 @@ def _explain(
         fit = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
         ref = evaluate(spec, replace, sc=quick) if quick is not scorer and not fewer_only else r
         best, best_sets = ref, r.sets
+        # coarse to fine (the finer, the costlier the fit): stop once SETS_PATIENCE counts in
+        # a row do not beat the best coarser count by SETS_GAIN
+        coarser, misses = math.inf, 0
         for sets in sorted({2, 3, 5, fit, max(fit, r.sets // 4), max(fit, r.sets // 2)}):
-            if sets >= r.sets:
+            if sets >= r.sets or misses >= SETS_PATIENCE:
                 continue
             r2 = evaluate(spec, replace, sets=sets, sc=quick)
+            got = math.inf if r2 is None else _sortable(r2.rmse)
+            misses = 0 if got < coarser * (1 - SETS_GAIN) else misses + 1
+            coarser = min(coarser, got)
             first = bool(fewer_only) and best_sets == r.sets  # nothing scored yet to beat
-            if r2 is not None and (
-                first or _sortable(r2.rmse) < _sortable(best.rmse) * (1 - SETS_GAIN)
-            ):
+            if r2 is not None and (first or got < _sortable(best.rmse) * (1 - SETS_GAIN)):
                 best, best_sets = r2, sets
         if best_sets == r.sets:
             return None if fewer_only else r
