@@ -97,12 +97,20 @@ def effective_samples(x: ArrayLike) -> float:
     a = a - a.mean()
     if not np.any(a):
         return float(n)
+    rho, k = autocorrelation(a)
+    tau = max(1.0, 1.0 + 2.0 * float(rho[1:k].sum()))
+    return n / tau
+
+
+def autocorrelation(a: np.ndarray) -> tuple[np.ndarray, int]:
+    """The sample autocorrelation ``ρ_k`` (k = 0 … n−1) of a centred series ``a`` with some
+    non-zero value, and Sokal's window: the first lag where ``ρ_k`` is no longer positive
+    (``n`` where it stays positive); :func:`effective_samples` sums ``ρ`` below it."""
+    n = a.size
     ac = signal.correlate(a, a, mode="full", method="fft")[n - 1 :]
     rho = ac / ac[0]
     stop = np.flatnonzero(rho[1:] <= 0.0)
-    k = int(stop[0]) + 1 if stop.size else n
-    tau = max(1.0, 1.0 + 2.0 * float(rho[1:k].sum()))
-    return n / tau
+    return rho, int(stop[0]) + 1 if stop.size else n
 
 
 class LearnedThresholds(FixedThresholds):

@@ -196,22 +196,15 @@ def slow_inputs(plan: Plan, tags: Sequence[str], column) -> dict[str, float]:
     return plan.slow
 
 
-def _window(rho: np.ndarray) -> int:
-    """The lags a series' autocorrelation ``rho`` is summed over: up to the first where it
-    is no longer positive (Sokal's window, as
-    :func:`~diag_plugin.diagnose.symptoms.effective_samples`)."""
-    stop = np.flatnonzero(rho[1:] <= 0.0)
-    return int(stop[0]) + 1 if stop.size else rho.size
-
-
 def pair_samples(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     """The correlation ``r`` of ``x`` and ``y`` (rows where both are known) and the
     independent values it rests on: Bartlett's ``n / (1 + 2 Σ_k ρx(k) ρy(k))`` (Bartlett 1935;
     Pyper and Peterman 1998, eq. 1), summed over the lags of the longer memory of the two
-    (:func:`_window`). Two series that wander slowly share few independent values however
-    long the window; a white one keeps all ``n`` beside a slow one, and a tag whose slow
-    part hides under fast noise keeps as few as its slow part allows beside a slow one."""
-    from scipy import signal
+    (Sokal's window, :func:`~diag_plugin.diagnose.symptoms.autocorrelation`). Two series that
+    wander slowly share few independent values however long the window; a white one keeps all
+    ``n`` beside a slow one, and a tag whose slow part hides under fast noise keeps as few as
+    its slow part allows beside a slow one."""
+    from diag_plugin.diagnose.symptoms import autocorrelation
 
     ok = np.isfinite(x) & np.isfinite(y)
     a, b = x[ok] - x[ok].mean(), y[ok] - y[ok].mean()
@@ -219,10 +212,8 @@ def pair_samples(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     if n < 3 or not np.any(a) or not np.any(b):
         return 0.0, float(n)
     r = float(a @ b / math.sqrt(float(a @ a) * float(b @ b)))
-    ra = signal.correlate(a, a, mode="full", method="fft")[n - 1 :]
-    rb = signal.correlate(b, b, mode="full", method="fft")[n - 1 :]
-    ra, rb = ra / ra[0], rb / rb[0]
-    k = max(_window(ra), _window(rb))
+    (ra, ka), (rb, kb) = autocorrelation(a), autocorrelation(b)
+    k = max(ka, kb)
     return r, n / max(1.0, 1.0 + 2.0 * float((ra[1:k] * rb[1:k]).sum()))
 
 
