@@ -52,6 +52,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.residuals import supported
+from diag_plugin.diagnose.symptoms import autocorrelation
 from diag_plugin.diagnose.unit import Unit, spread_factor
 from diag_plugin.diagnose.unitfile import WHY, CombinedSpec, hours
 from diag_plugin.learn.budget import TestBudget, calibrate
@@ -1059,9 +1060,8 @@ def setpoint_responses(
                 continue
             beta = float(xc @ zc) / sxx
             e = zc - beta * xc
-            rx, re = _autocorrelation(xc), _autocorrelation(e)
-            stop = np.flatnonzero(re[1:] <= 0.0)
-            k = int(stop[0]) + 1 if stop.size else re.size
+            rx, _ = autocorrelation(xc)
+            re, k = autocorrelation(e) if np.any(e) else (rx, 1)  # an exact fit: no lag
             tau = max(1.0, 1.0 + 2.0 * float(rx[1:k] @ re[1:k]))
             se = math.sqrt(float(e @ e) / max(ok.sum() - 2, 1) / sxx * tau)
             if abs(beta) >= RESPONSE_T * se:
@@ -1081,15 +1081,6 @@ def _centred(a: np.ndarray, group: np.ndarray | None) -> np.ndarray:
         sel = group == k
         out[sel] -= a[sel].mean()
     return out
-
-
-def _autocorrelation(a: np.ndarray) -> np.ndarray:
-    """Sample autocorrelation of a centred series at every lag (NaN-free, taken as contiguous)."""
-    from scipy import signal
-
-    n = a.size
-    ac = signal.correlate(a, a, mode="full", method="fft")[n - 1 :]
-    return ac / ac[0] if ac[0] > 0 else np.zeros(n)
 
 
 def model_gains(
