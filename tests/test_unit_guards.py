@@ -110,6 +110,31 @@ def test_the_combined_statistic_keeps_its_false_alarm_level_with_tests_unknown(T
         assert np.quantile(part, q) == pytest.approx(stats.chi2.ppf(q, T), rel=0.05)
 
 
+@pytest.mark.parametrize("T, unknown", [(4, 1), (7, 2), (40, 20)])
+def test_a_large_combined_statistic_with_tests_unknown_stays_finite_and_ordered(T, unknown):
+    """Far out in the tail (a fault) the χ² survival of the known tests' statistic underflows
+    to 0 and its χ²_T quantile was infinite: every large deviation read ``inf`` and none
+    ranked above another. Mapped in logarithms it stays finite, grows with the deviation, and
+    joins the exact mapping where that is still finite; with every test known it is T² itself."""
+    model = _model(np.eye(T))
+    size = np.geomspace(1.0, 1e4, 200)
+    z = np.outer(size, np.ones(T)) / math.sqrt(T - unknown)
+    some = z.copy()
+    some[:, :unknown] = np.nan
+    part = model.evaluate(some)[0]
+    assert np.isfinite(part).all() and np.all(np.diff(part) > 0)
+    q = size**2  # T² over the known tests
+    exact = stats.chi2.isf(stats.chi2.sf(q, T - unknown), T)
+    ok = np.isfinite(exact)
+    assert ok.any() and not ok.all()
+    np.testing.assert_allclose(part[ok], exact[ok], rtol=1e-12)
+    last = int(np.flatnonzero(ok)[-1])  # across the switch: the same slope as just before it
+    before = (part[last] - part[last - 1]) / (q[last] - q[last - 1])
+    after = (part[last + 1] - part[last]) / (q[last + 1] - q[last])
+    assert after == pytest.approx(before, rel=0.05)
+    np.testing.assert_allclose(model.evaluate(z)[0], (z**2).sum(axis=1), rtol=1e-9)
+
+
 @pytest.mark.parametrize("T", [2, 3, 4, 5, 7])
 def test_the_combined_statistic_is_unknown_with_fewer_than_half_the_tests_known(T):
     z, cov = _correlated(10, T, seed=T)
