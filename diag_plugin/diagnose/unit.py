@@ -127,19 +127,21 @@ def load_test_model(name: str, path: Path) -> TestModel:
 
 @numba.njit(cache=True)
 def _hold_kernel(s, limit, last, run):  # pragma: no cover - numba
-    # row by row (memory order); each column's state is its own
+    # row by row (memory order); each column's state is its own; every element written
+    # once (no copy of ``s`` first: one pass less over an array of the symptoms' size)
     n, m = s.shape
-    out = s.copy()
+    out = np.empty_like(s)
     for i in range(n):
         for j in range(m):
             x = s[i, j]
             if np.isnan(x):
                 run[j] += 1
                 if run[j] <= limit and not np.isnan(last[j]):
-                    out[i, j] = last[j]
+                    x = last[j]
             else:
                 last[j] = x
                 run[j] = 0
+            out[i, j] = x
     return out
 
 
