@@ -11,8 +11,19 @@ With ``--profile N`` the one pass runs once more under :mod:`cProfile`, timed in
 of this process (the machine is shared), and the ``N`` functions with most time of their own
 are printed (the profile the speed work is chosen by).
 
+With ``--repeat N`` each replay runs N times and the run with the median CPU time is shown,
+with every run's CPU seconds (the first run is the unit's first pass over so many rows: it
+fits the coarse levels and the combined test's inverses it meets).
+
+Figures (issue 34 round nine, ``--unit`` of the default 50-tag unit, 45 tests, ``--repeat 5``,
+four runs of ``main`` and the branch interleaved at a load of 7–14 on 2 shared cores, medians
+of the four): one pass 2.22 → 1.88 CPU s (90,100 → 106,700 rows per CPU s; the first run
+2.40 → 2.04 s, 83,500 → 98,300), 7-day pieces 3.12 → 2.45 CPU s (64,100 → 81,800); PCA
+T² + Q scores the same rows in 0.33–0.61 CPU s. Details: docs/how-to/unit-short-windows.md,
+"Round nine".
+
 Run: ``nice -n 10 python benchmarks/bench_unit_replay.py [--tags 50] [--rows 200000]
-[--profile 15]``.
+[--profile 15] [--repeat 5]``.
 """
 
 from __future__ import annotations

@@ -189,15 +189,14 @@ def _lower_weight(t, nl, p):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads, cw, ck):
-    """The ``2^d`` rules around cell ``base`` (upper memberships ``ws``): the weighted sums
-    of the existing rules' conclusions and spreads and their weights ``(vl, sl, ql, wl)``.
+def _corners(ws, d, base, radix, cw, ck):
+    """The ``2^d`` corners of cell ``base`` (upper memberships ``ws``) into the scratch
+    ``cw`` (weights) and ``ck`` (keys), both ``2^d`` long; returns ``2^d``.
 
     Corner ``c`` (bit ``k`` set: the upper set of input ``k``) weighs
     ``((1·f_0)·f_1)·…·f_{d-1}``, ``f_k`` = ``ws[k]`` or ``1 − ws[k]``: the products are
-    built input by input into the scratch ``cw`` (and the keys into ``ck``, both ``2^d``
-    long), each corner's factors multiplied in the same order as one product per corner, so
-    the same bits with ``2^(d+1)`` multiplications instead of ``d·2^d``."""
+    built input by input, each corner's factors multiplied in the same order as one product
+    per corner, so the same bits with ``2^(d+1)`` multiplications instead of ``d·2^d``."""
     cw[0] = 1.0
     ck[0] = base
     m = 1
@@ -209,6 +208,16 @@ def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads, cw, ck):
             ck[c + m] = ck[c] + rk
             cw[c] = cw[c] * (1.0 - w)
         m <<= 1
+    return m
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads, cw, ck):
+    """The ``2^d`` rules around cell ``base`` (upper memberships ``ws``): the weighted sums
+    of the existing rules' conclusions and spreads and their weights ``(vl, sl, ql, wl)``.
+
+    The corners' weights and keys: :func:`_corners`."""
+    m = _corners(ws, d, base, radix, cw, ck)
     vl = 0.0
     sl = 0.0
     ql = 0.0
@@ -236,22 +245,8 @@ def _fire_table(ws, d, base, radix, table, rules, cw, ck):
     is never ``-0`` (it starts at ``+0``), so the same bits as :func:`_fire`'s skipping it
     while every conclusion and spread is finite (what :meth:`WangMendelRegressor._fine_table`
     requires) — without the branch on the weight, which a plateau makes 0 at random."""
-    cw[0] = 1.0
-    ck[0] = base
-    m = 1
-    for k in range(d):
-        w = ws[k]
-        rk = radix[k]
-        for c in range(m):
-            cw[c + m] = cw[c] * w
-            ck[c + m] = ck[c] + rk
-            cw[c] = cw[c] * (1.0 - w)
-        m <<= 1
-    vl = 0.0
-    sl = 0.0
-    ql = 0.0
-    wl = 0.0
-    for c in range(m):
+    vl = sl = ql = wl = 0.0
+    for c in range(_corners(ws, d, base, radix, cw, ck)):
         wt = cw[c]
         q = table[ck[c]]
         vl += wt * rules[q, 0]
