@@ -56,7 +56,7 @@ def _ref_lowpass(self, r, overwrite=False):  # a new array whether or not overwr
     return wrap(out)
 
 
-def _ref_delay(raw, on_delay, off_delay, state, count):
+def _ref_delay(raw, on_delay, off_delay, state, count, out=None):  # out: not used
     n, m = raw.shape
     out = np.empty_like(raw)
     for j in range(m):

@@ -261,10 +261,10 @@ def three_valued(
 
 
 @numba.njit(cache=True)
-def _delay_kernel(raw, on_delay, off_delay, state, count):  # pragma: no cover - numba
-    # row by row (memory order); each column's state machine is its own
+def _delay_kernel(raw, on_delay, off_delay, state, count, out):  # pragma: no cover - numba
+    # row by row (memory order); each column's state machine is its own; ``out`` may be
+    # ``raw`` itself (each element read before it is written)
     n, m = raw.shape
-    out = np.empty_like(raw)
     for i in range(n):
         for j in range(m):
             x = raw[i, j]
@@ -327,19 +327,23 @@ class OnOffDelay:
         self.count_ = None
         return self
 
-    def transform(self, symptoms: ArrayLike) -> ArrayLike:
-        """Delayed symptoms, continuing from the carried state."""
-        a, wrap = _as_2d(symptoms, copy=False)  # read only: the kernel writes a new array
+    def transform(self, symptoms: ArrayLike, overwrite: bool = False) -> ArrayLike:
+        """Delayed symptoms, continuing from the carried state. ``overwrite=True``: written
+        into ``symptoms`` itself where it is a C-ordered float array (the caller's own, not
+        read again; no new array of its size), else into a new one."""
+        a, wrap = _as_2d(symptoms, copy=False)  # read only unless overwrite
         m = a.shape[1]
         if self.state_ is None:
             self.state_ = np.zeros(m)
             self.count_ = np.zeros(m, dtype=np.int64)
         elif self.state_.shape[0] != m:
             raise ValueError(f"delay state has {self.state_.shape[0]} columns, input has {m}")
-        out = _delay_kernel(
-            np.ascontiguousarray(a), self.on_delay, self.off_delay, self.state_, self.count_
+        x = np.ascontiguousarray(a)
+        inplace = (
+            overwrite and x is a and isinstance(symptoms, np.ndarray) and x.ndim == symptoms.ndim
         )
-        return wrap(out)
+        out = x if inplace else np.empty_like(x)
+        return wrap(_delay_kernel(x, self.on_delay, self.off_delay, self.state_, self.count_, out))
 
     def to_state(self) -> dict[str, Any]:
         """Delays and carried state as plain JSON."""

@@ -127,20 +127,21 @@ def load_test_model(name: str, path: Path) -> TestModel:
 
 @numba.njit(cache=True)
 def _hold_kernel(s, limit, last, run):  # pragma: no cover - numba
-    # row by row (memory order); each column's state is its own
+    # row by row (memory order); each column's state is its own. In place: ``s`` (the
+    # caller's own array, C-ordered) gets the held symptoms and is returned — a new array of
+    # the symptoms' size costs its first touch (page faults), about three times this pass
     n, m = s.shape
-    out = s.copy()
     for i in range(n):
         for j in range(m):
             x = s[i, j]
             if np.isnan(x):
                 run[j] += 1
                 if run[j] <= limit and not np.isnan(last[j]):
-                    out[i, j] = last[j]
+                    s[i, j] = last[j]
             else:
                 last[j] = x
                 run[j] = 0
-    return out
+    return s
 
 
 @numba.njit(cache=True)
@@ -636,7 +637,9 @@ class Unit:
         else:
             raw = FixedThresholds(high=hi_, low=lo_).transform(r)
         raw[:, no_th] = np.nan
-        s = self.delay.transform(raw)
+        # ``raw`` is this call's own array: delayed, then held, in place (no new array of
+        # the symptoms' size for either)
+        s = self.delay.transform(raw, overwrite=True)
         # a test unknown for fewer samples than the on-delay keeps its last known symptom:
         # a brief gap neither clears a symptom nor flickers the unit to CHECK_FUNCTION
         s = _hold_kernel(

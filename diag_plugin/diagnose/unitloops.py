@@ -130,11 +130,12 @@ class RunningSpread:
 def _deadband_kernel(r, lo, hi, keep, state):  # pragma: no cover - numba
     # row by row (memory order); each column's state is its own
     n, m = r.shape
-    out = np.full((n, m), np.nan)
+    out = np.empty((n, m))  # every element written once (NaN where unknown), no fill first
     for i in range(n):
         for j in range(m):
             x = r[i, j]
             if np.isnan(x) or np.isnan(hi[j]):
+                out[i, j] = np.nan
                 continue
             s = state[j]
             if x > hi[j] or (s > 0 and x > keep * hi[j]):

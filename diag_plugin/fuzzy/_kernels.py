@@ -169,20 +169,15 @@ def _lower_weight_at(t, nl, half, den, inv):
     = ``1 − p``, and ``inv`` = ``1 / den`` where ``den`` is a power of two (else 0): dividing
     by a power of two and multiplying by its reciprocal (exact) round the same real number,
     so the same bits, without a division (a trapezoid's plateau of 0.5 gives ``den`` 0.5)."""
-    if t < 0.0:
-        t = 0.0
-    elif t > nl - 1:
-        t = nl - 1.0
+    # the clamps as min/max, not branches: a plateau puts half the samples on one (0 or 1
+    # at random), a branch mispredicted that often costs more than the rest of the row
+    t = min(max(t, 0.0), nl - 1.0)
     j = int(t)
     if j > nl - 2:
         j = nl - 2
     f = t - j
     wv = (f - half) * inv if inv > 0.0 else (f - half) / den
-    if wv < 0.0:
-        wv = 0.0
-    elif wv > 1.0:
-        wv = 1.0
-    return j, wv
+    return j, min(max(wv, 0.0), 1.0)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -194,15 +189,14 @@ def _lower_weight(t, nl, p):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads, cw, ck):
-    """The ``2^d`` rules around cell ``base`` (upper memberships ``ws``): the weighted sums
-    of the existing rules' conclusions and spreads and their weights ``(vl, sl, ql, wl)``.
+def _corners(ws, d, base, radix, cw, ck):
+    """The ``2^d`` corners of cell ``base`` (upper memberships ``ws``) into the scratch
+    ``cw`` (weights) and ``ck`` (keys), both ``2^d`` long; returns ``2^d``.
 
     Corner ``c`` (bit ``k`` set: the upper set of input ``k``) weighs
     ``((1·f_0)·f_1)·…·f_{d-1}``, ``f_k`` = ``ws[k]`` or ``1 − ws[k]``: the products are
-    built input by input into the scratch ``cw`` (and the keys into ``ck``, both ``2^d``
-    long), each corner's factors multiplied in the same order as one product per corner, so
-    the same bits with ``2^(d+1)`` multiplications instead of ``d·2^d``."""
+    built input by input, each corner's factors multiplied in the same order as one product
+    per corner, so the same bits with ``2^(d+1)`` multiplications instead of ``d·2^d``."""
     cw[0] = 1.0
     ck[0] = base
     m = 1
@@ -214,6 +208,16 @@ def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads, cw, ck):
             ck[c + m] = ck[c] + rk
             cw[c] = cw[c] * (1.0 - w)
         m <<= 1
+    return m
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads, cw, ck):
+    """The ``2^d`` rules around cell ``base`` (upper memberships ``ws``): the weighted sums
+    of the existing rules' conclusions and spreads and their weights ``(vl, sl, ql, wl)``.
+
+    The corners' weights and keys: :func:`_corners`."""
+    m = _corners(ws, d, base, radix, cw, ck)
     vl = 0.0
     sl = 0.0
     ql = 0.0
@@ -229,6 +233,26 @@ def _fire(ws, d, base, radix, keys, dense, sa, sb, da, values, spreads, cw, ck):
             if not math.isnan(spreads[ix]):
                 ql += wt * spreads[ix]
                 wl += wt
+    return vl, sl, ql, wl
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _fire_table(ws, d, base, radix, table, rules, cw, ck):
+    """:func:`_fire` through a dense table of rule rows without a branch per corner:
+    ``table`` maps every cell key to a row of ``rules`` (``[conclusion, 1, spread, 1]``, the
+    spread and its weight 0 where it is NaN; the last row all 0: no rule), and every corner
+    adds ``weight · row``. A corner of weight 0, or without a rule, adds ``±0`` to a sum that
+    is never ``-0`` (it starts at ``+0``), so the same bits as :func:`_fire`'s skipping it
+    while every conclusion and spread is finite (what :meth:`WangMendelRegressor._fine_table`
+    requires) — without the branch on the weight, which a plateau makes 0 at random."""
+    vl = sl = ql = wl = 0.0
+    for c in range(_corners(ws, d, base, radix, cw, ck)):
+        wt = cw[c]
+        q = table[ck[c]]
+        vl += wt * rules[q, 0]
+        sl += wt * rules[q, 1]
+        ql += wt * rules[q, 2]
+        wl += wt * rules[q, 3]
     return vl, sl, ql, wl
 
 
@@ -366,20 +390,21 @@ def infer_levels(
 
 @nb.njit(cache=True, nogil=True)
 def infer_fine(
-    X, lo, step, plateau, nsets, inner, trend, radix, table, values, spreads, enough, coarse,
+    X, lo, step, plateau, nsets, inner, trend, radix, table, rules, enough, coarse,
     out, support, reason, level, spread, again,
 ):  # fmt: skip
     """:func:`infer_levels` of one model at its fine level only, through the level's dense
-    table of rule indices (``table``: cell key → index into ``values``/``spreads``, -1 where
-    no rule): the same arithmetic in the same order, so the same bits, without the per-model
-    and per-level indexing. ``again[r]`` is set where :func:`infer_levels` would go on to a
-    coarser level (``coarse``: the model has one): the fine rules carry less than ``enough``
-    of the weight, no input is NaN and the sample lies inside the training data's range.
+    table of rule rows (``table``: cell key → row of ``rules``, :func:`_fire_table`): the
+    same arithmetic in the same order, so the same bits, without the per-model and per-level
+    indexing and without a branch per corner. ``again[r]`` is set where :func:`infer_levels`
+    would go on to a coarser level (``coarse``: the model has one): the fine rules carry less
+    than ``enough`` of the weight, no input is NaN and the sample lies inside the training
+    data's range.
     Elsewhere the answer is :func:`infer_levels`' answer.
 
-    Divisions only where they round: the plateau's (:func:`_lower_weight_at`), and the
-    weighted averages by a total weight of exactly 1 (every corner's rule there, or one
-    corner alone) are the sums themselves (``x / 1`` is ``x``)."""
+    Divisions only where they round: the plateau's (:func:`_lower_weight_at`); the weighted
+    averages are divided always (by a total weight of exactly 1 the sums themselves, ``x / 1``
+    is ``x``: a division is cheaper than a branch on it mispredicted)."""
     n = X.shape[0]
     d = X.shape[1]
     ws = np.empty(d, dtype=np.float64)
@@ -426,13 +451,13 @@ def infer_fine(
         if code == 1:
             reason[r] = 1
             continue
-        vl, sl, ql, wl = _fire(ws, d, base, radix, table, table, 0, 0, 0, values, spreads, cw, ck)
+        vl, sl, ql, wl = _fire_table(ws, d, base, radix, table, rules, cw, ck)
         if sl > 0.0:
-            out[r] = vl if sl == 1.0 else vl / sl
+            out[r] = vl / sl
             support[r] = sl
             level[r] = 0
             if wl > 0.0:
-                spread[r] = ql if wl == 1.0 else ql / wl
+                spread[r] = ql / wl
         if sl < enough and coarse and inside:
             again[r] = True
         if code == 3 and level[r] >= 0:

@@ -861,20 +861,40 @@ class WangMendelRegressor(ParamsMixin):
 
     def _fine_table(self) -> tuple | None:
         """What :func:`._kernels.infer_fine` reads: the input partitions, the range holding
-        training data, the fine level's radix, its dense table of rule indices, the rules'
-        conclusions and spreads, the support that suffices and whether coarser levels exist;
-        None where the fine grid has more than :data:`DENSE_LIMIT` cells."""
+        training data, the fine level's radix, its dense table of rule rows and the rows
+        (:func:`._kernels._fire_table`), the support that suffices and whether coarser levels
+        exist; None where the fine grid has more than :data:`DENSE_LIMIT` cells, an input a
+        single set, or a rule a conclusion or spread that is infinite (or a NaN conclusion):
+        the table's corners of weight 0 are summed, the same bits only for finite ones."""
         if "_fine" not in self.__dict__ or self._fine is None:
-            if self.n_cells_ > DENSE_LIMIT:
-                return None
-            g = self.inference_grid(0)
-            table = np.full(self.n_cells_, -1, np.int64)
-            table[g.keys[0]] = np.arange(g.keys[0].size)
-            self._fine = (g.lo, g.step, g.plateau, g.nsets, np.ascontiguousarray(g.inner),
-                          np.ascontiguousarray(g.trend), g.radix[0].copy(), table,
-                          np.asarray(g.conclusions[0], float), np.asarray(g.spreads[0], float),
-                          LEVEL_SUPPORT, self.n_levels_ > 1)  # fmt: skip
-        return self._fine
+            self._fine = self._make_fine_table()
+        return self._fine or None
+
+    def _make_fine_table(self) -> tuple:
+        """:meth:`_fine_table`, built (``()`` where there is none)."""
+        if self.n_cells_ > DENSE_LIMIT:
+            return ()
+        g = self.inference_grid(0)
+        values = np.asarray(g.conclusions[0], float)
+        spreads = np.asarray(g.spreads[0], float)
+        if (
+            (np.asarray(g.nsets) < 2).any()
+            or not np.isfinite(values).all()
+            or np.isinf(spreads).any()
+        ):
+            return ()
+        n = values.size
+        known = ~np.isnan(spreads)
+        rules = np.zeros((n + 1, 4))  # the last row: no rule
+        rules[:n, 0] = values
+        rules[:n, 1] = 1.0
+        rules[:n, 2] = np.where(known, spreads, 0.0)
+        rules[:n, 3] = known
+        table = np.full(self.n_cells_, n, np.int64)
+        table[g.keys[0]] = np.arange(n)
+        return (g.lo, g.step, g.plateau, g.nsets, np.ascontiguousarray(g.inner),
+                np.ascontiguousarray(g.trend), g.radix[0].copy(), table, rules,
+                LEVEL_SUPPORT, self.n_levels_ > 1)  # fmt: skip
 
     def _predict_levels(self, X: np.ndarray) -> Prediction:
         """:meth:`predict_detail` by :func:`._kernels.infer_levels` alone (searched rules)."""
