@@ -106,7 +106,7 @@ SAMPLE_ROWS = 100
 #: an import's first write joins this many pieces of the file where its samples land at
 #: the end of the samples' ``(tag_id, ts)`` key (:func:`_appends`): SQLite appends
 #: there for half the CPU of an insert inside the key, where every later piece's rows go
-#: (benchmarks/bench_insert_order.py: 0.32 against 0.74 µs a sample), so the larger piece
+#: (benchmarks/bench_insert_order.py: 0.31 against 0.62 µs a sample), so the larger piece
 #: holds the write lock no longer than a later one
 FIRST_PIECE_FACTOR = 2
 
