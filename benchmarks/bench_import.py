@@ -10,6 +10,14 @@ of each (all threads) is printed beside the wall time: on a machine other work k
 is the steadier figure; the import writes one piece while it reads the next, so on two free
 cores its wall time is below its CPU time.
 
+Last measured (H5 round of issue 37; each run a process of its own, 7 rounds in turns,
+load 7.5-14.8): the reference 9.95 s CPU (median), the import 20.2 s before the round and
+18.1 s after it: 2.02x -> 1.84x CPU (median of the rounds' ratios), 1.97x -> 1.82x wall
+(noise at that load); this script back to back at load 4.4-5.4, fastest of 2: 1.94x CPU
+before (19.0 s against 9.75 s), 1.65x after (16.5 s against 10.0 s; 1.52x wall). Not met:
+SQLite's move into the (tag_id, ts) key alone takes more CPU than the reference
+(``bench_insert_order.py``; docs/reference/historian.md, import).
+
     python benchmarks/bench_import.py [--rows 1000000] [--tags 20] [--runs 2] [--dir /tmp]
 """
 

@@ -134,23 +134,26 @@ class SqliteBulk:
         return self._staged("_stage", table, [move])
 
     def _staged(self, name: str, table: pa.Table, moves: list[str]) -> int:
-        """In one transaction: ``table`` into the temporary table ``name``, then each
-        statement of ``moves`` (from it into ``samples``); returns the rows they changed."""
+        """``table`` into the temporary table ``name``, then in one transaction each
+        statement of ``moves`` (from it into ``samples``); returns the rows they changed.
+        The staging writes only the connection's temporary database, so it runs before the
+        transaction takes the write lock: the lock is held for the moves alone."""
         n = 0
         cur = self.conn.cursor()
-        cur.execute("BEGIN IMMEDIATE")
         try:
             cur.execute(f"DROP TABLE IF EXISTS temp.{name}")
             cur.adbc_ingest(name, table, mode="create", temporary=True)
-            for sql in moves:
-                cur.execute(sql)
-                cur.execute("SELECT changes()")
-                n += int(cur.fetchone()[0])
+            cur.execute("BEGIN IMMEDIATE")
+            try:
+                for sql in moves:
+                    cur.execute(sql)
+                    cur.execute("SELECT changes()")
+                    n += int(cur.fetchone()[0])
+                cur.execute("COMMIT")
+            except BaseException:
+                cur.execute("ROLLBACK")
+                raise
             cur.execute(f"DROP TABLE temp.{name}")
-            cur.execute("COMMIT")
-        except BaseException:
-            cur.execute("ROLLBACK")
-            raise
         finally:
             cur.close()
         return n

@@ -167,6 +167,12 @@ class Historian(ColdMonths, Registry, TagReport):
             rows = c.execute(select(t).order_by(t.c.name)).all()
         return pd.DataFrame(rows, columns=[col.name for col in t.columns])
 
+    def last_sample_tag(self) -> int:
+        """The highest tag id holding a sample in the database (0: none), where the
+        samples' ``(tag_id, ts)`` key ends; months rolled to the cold store aside."""
+        with self.engine.connect() as c:
+            return int(c.execute(select(func.max(schema.samples.c.tag_id))).scalar() or 0)
+
     def _tag(self, name: str, create: bool = False) -> tuple[int, float | None, float | None]:
         hit = self._tags.get(name)
         if hit is not None:

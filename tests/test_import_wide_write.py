@@ -19,7 +19,7 @@ import pytest
 
 from historian import Historian
 from historian.backends import PAGE_BYTES
-from historian.importer import import_file
+from historian.importer import FileRefused, import_file
 from historian.quality import BAD, GOOD, UNCERTAIN
 
 
@@ -254,3 +254,69 @@ def test_an_import_into_a_rolled_month_writes_only_what_is_new(historian, tmp_pa
     assert (r.written, r.conflicts) == (120, 1)
     assert r.first_conflict.tag == "A" and r.first_conflict.stored == 3.0
     assert historian.read_samples("A").iloc[3] == 3.0
+
+
+def _sizes(monkeypatch) -> list[int]:
+    """The rows of each ``write_wide`` an import makes, recorded as they go."""
+    sizes: list[int] = []
+    write = Historian.write_wide
+
+    def recorded(self, values, quality, **kw):
+        sizes.append(len(values))
+        return write(self, values, quality, **kw)
+
+    monkeypatch.setattr(Historian, "write_wide", recorded)
+    return sizes
+
+
+def _csv(path, tags, start, rows=450):
+    idx = pd.date_range(start, periods=rows, freq="10s").rename("ts")
+    data = np.arange(rows, dtype=np.float64)[:, None] + np.arange(len(tags))
+    pd.DataFrame(data, index=idx, columns=tags).to_csv(path)
+    return idx
+
+
+def test_the_first_pieces_are_one_write_where_they_append(tmp_path, monkeypatch):
+    """Where an import's samples land at the end of the (tag_id, ts) key (a new database,
+    or tags newer than every stored sample's) its first FIRST_PIECE_FACTOR pieces are one
+    write; into the middle of the key (tags holding samples) each piece is one write. The
+    same samples are stored either way."""
+    from historian.importer import FIRST_PIECE_FACTOR
+
+    sizes = _sizes(monkeypatch)
+    writes = {}
+    with Historian(f"sqlite:///{tmp_path / 'h.db'}") as h:
+        for name, tags, start in [
+            ("new", ["A", "B"], "2025-01-01"),
+            ("inside", ["A", "B"], "2025-02-01"),  # later times of the same tags
+            ("new tags", ["C", "D"], "2025-01-01"),  # their ids end the key
+        ]:
+            sizes.clear()
+            idx = _csv(tmp_path / "f.csv", tags, start)
+            assert import_file(h, tmp_path / "f.csv", chunk_rows=100).written == 900
+            assert sum(sizes) == 450
+            writes[name] = list(sizes)
+        pieces = len(writes["inside"])  # 450 rows in chunks of 100: 5 pieces or more
+        assert pieces >= 5
+        assert len(writes["new"]) == len(writes["new tags"]) == pieces - FIRST_PIECE_FACTOR + 1
+        assert writes["new"][0] > max(writes["inside"])
+        got = h.read_samples("D")
+        np.testing.assert_array_equal(got.to_numpy(), np.arange(450.0) + 1)
+        assert got.index.equals(idx.tz_localize("UTC"))
+        assert len(h.read_samples("A")) == 900
+
+
+def test_a_held_first_piece_is_written_before_an_unreadable_line_refuses_the_file(tmp_path):
+    """The first piece waits for the second to be written with it; a line that cannot be
+    read in the second chunk still leaves the rows before it stored, as the message says."""
+    f = tmp_path / "f.csv"
+    _csv(f, ["A"], "2025-01-01", rows=300)
+    lines = f.read_text().splitlines()
+    lines[159] += ",7"  # line 160: one field too many, in the second chunk of 100
+    f.write_text("\n".join(lines) + "\n")
+    with Historian(f"sqlite:///{tmp_path / 'h.db'}") as h:
+        with pytest.raises(FileRefused, match=r"f.csv:160: .*the rows before it were imported"):
+            import_file(h, f, chunk_rows=100)
+        got = h.read_samples("A")
+        assert 0 < len(got) < 158
+        np.testing.assert_array_equal(got.to_numpy(), np.arange(len(got), dtype=np.float64))
