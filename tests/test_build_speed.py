@@ -7,7 +7,10 @@ screened in one product are :func:`~diag_plugin.selection.lags.lag_screen`'s, ga
 a model that fits its coarse levels only when a sample reaches them answers as one that
 fitted them all; the occupied cells counted in a dense table are the unique keys; a coarse
 level's corner weights are ``np.prod``'s to the bit; a selection step that takes the winning
-variant's block fits is the step that fits them again.
+variant's block fits is the step that fits them again; a coarse level's rules summed by the
+compiled group-by are numpy's to the bit; the scoring node fit (normal equations per rule) is
+the dense fit to rounding; a variant's bound never exceeds its error, and the candidates the
+bounds pass over change no choice.
 """
 
 from __future__ import annotations

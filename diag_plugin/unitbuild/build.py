@@ -20,7 +20,9 @@ hand-build:
    so a relation must hold in every period of the window, not only in its last fifth; the
    candidate that cuts the error most is kept if it cuts it by more than :data:`MIN_GAIN`.
    The shortest dead time scoring within :data:`~diag_plugin.selection.lags.TOLERANCE` of
-   the best is kept.
+   the best is kept. A candidate (or a dead time) whose lower bound of the error from its fine
+   rule level alone (:meth:`~diag_plugin.selection.scoring.BlockScorer.bound`) shows it
+   cannot be chosen is not finished: the same choice at a fraction of the fits.
    **A tag a controller holds** (:func:`tracked_set_point`: RMS of tag − set-point at most
    :data:`TRACKS` of the tag's standard deviation) is not modelled from the other tags: its
    test is the loop's own relation (:func:`loop_test`: the tag at its set-point plus the
