@@ -7,7 +7,10 @@ screened in one product are :func:`~diag_plugin.selection.lags.lag_screen`'s, ga
 a model that fits its coarse levels only when a sample reaches them answers as one that
 fitted them all; the occupied cells counted in a dense table are the unique keys; a coarse
 level's corner weights are ``np.prod``'s to the bit; a selection step that takes the winning
-variant's block fits is the step that fits them again.
+variant's block fits is the step that fits them again; a coarse level's rules summed by the
+compiled group-by are numpy's to the bit; the scoring node fit (normal equations per rule) is
+the dense fit to rounding; a variant's bound never exceeds its error, and the candidates the
+bounds pass over change no choice.
 """
 
 from __future__ import annotations
@@ -287,3 +290,119 @@ def test_sets_for_data_compiled_search_equals_numpy(monkeypatch, d):
     want = [sets_for_data(c, spans) for c in cases]
     assert got == want
     assert len(set(want)) > 2
+
+
+def _grid_data(d: int, seed: int, n: int = 6000):
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(0.0, 1.0, (n, d)) ** np.arange(1, d + 1)  # thin corners of the grid
+    X = X[(X[:, 0] < 0.45) | (X[:, 0] > 0.55)]  # a band the data leave empty
+    return X, np.sin(3 * X).sum(axis=1) + rng.normal(0, 0.05, len(X))
+
+
+@pytest.mark.parametrize("d", [1, 2, 3])
+def test_coarse_rules_compiled_equal_numpy_to_the_bit(monkeypatch, d):
+    """A coarse level's rules (keys, conclusions, counts, spreads) summed by the compiled
+    group-by are numpy's, bit for bit, on every level of an averaged model."""
+    import sys
+
+    from diag_plugin.fuzzy import _kernels  # noqa: F401 - loads numba: the compiled path
+
+    X, y = _grid_data(d, 60 + d)
+    sets = [31, 21, 11][:d] if d > 1 else [41]
+
+    def levels():
+        m = WangMendelRegressor([(0.0, 1.0)] * d, (-3.0, 3.0), n_sets=sets).fit(X, y)
+        return [m.level_rules(lv) for lv in range(1, m.n_levels_)]
+
+    got = levels()
+    monkeypatch.delitem(sys.modules, "numba")
+    want = levels()
+    assert len(got) == len(want) >= 2
+    for a, b in zip(got, want, strict=True):
+        for u, v in zip(a, b, strict=True):
+            assert u.dtype == v.dtype and u.tobytes() == v.tobytes()
+
+
+@pytest.mark.parametrize("d", [1, 2, 3])
+def test_scoring_node_fit_equals_the_dense_fit_to_rounding(d):
+    """Within scoring_node_fit a coarse level's normal equations summed over each rule's own
+    corners give the dense product's node values to rounding (not to the bit), the rows a
+    prediction asks again answer with the same levels, and outside it the dense fit's bits
+    are back."""
+    from diag_plugin.fuzzy.wang_mendel import scoring_node_fit
+
+    X, y = _grid_data(d, 70 + d)
+    sets = [31, 21, 11][:d] if d > 1 else [41]
+    Xq = np.random.default_rng(d).uniform(-0.05, 1.05, (4000, d))
+
+    def model():
+        return WangMendelRegressor([(0.0, 1.0)] * d, (-3.0, 3.0), n_sets=sets).fit(X, y)
+
+    dense = model()
+    want = dense.predict_detail(Xq)
+    with scoring_node_fit():
+        sparse = model()
+        got = sparse.predict_detail(Xq)
+    assert (want.level > 0).any()
+    np.testing.assert_array_equal(got.level, want.level)
+    np.testing.assert_array_equal(got.reason, want.reason)
+    np.testing.assert_allclose(got.y, want.y, rtol=1e-9, atol=1e-12)
+    for lv in range(1, dense.n_levels_):
+        np.testing.assert_allclose(sparse.level_nodes(lv)[1], dense.level_nodes(lv)[1],
+                                   rtol=1e-9, atol=1e-12)  # fmt: skip
+    again = model()
+    for lv in range(1, dense.n_levels_):
+        assert again.level_nodes(lv)[1].tobytes() == dense.level_nodes(lv)[1].tobytes()
+
+
+@pytest.mark.parametrize("kind", ["tank", "heatex"])
+def test_a_variants_bound_never_exceeds_its_error(kind):
+    """BlockScorer.bound (the fine level's final answers alone) is at most the pooled error
+    score() then gives the same variant from the bound's fits, which is the error of a
+    fresh score()."""
+    frame = _plant(kind, 3.0, 47)
+    ctx = _Context(frame, {}, "60s")
+    tags = list(ctx.vars)
+    out = tags[-1]
+    y = ctx.column(out)
+    base = FrozenRuleBase(_rulebase("t", ctx.vars[out], [], "60s"))
+    scorer = BlockScorer(base, [], y, ctx.block)
+    seen = 0
+    for t in tags[:-1]:
+        for lag in (0, 3):
+            cols = [ctx.column(t, lag)]
+            ins = _with_sets([ctx.variable(t, lag)], cols, len(y))
+            low, fits = scorer.bound(ins, cols)
+            rmse, cov = scorer.score(ins, cols, fits)
+            assert (rmse, cov) == scorer.score(ins, cols)
+            if np.isfinite(rmse):
+                assert 0.0 < low <= rmse
+                seen += 1
+    assert seen >= 4
+
+
+@pytest.mark.parametrize("kind", ["tank", "heatex"])
+def test_candidates_passed_over_by_their_bound_change_no_choice(monkeypatch, kind):
+    """select_inputs with the bounds (candidates and dead times that cannot win not
+    finished) chooses what it chooses with every variant scored in full."""
+    import diag_plugin.unitbuild.build as B
+
+    frame = _plant(kind, 3.0, 48)
+    ctx = _Context(frame, {}, "60s")
+    tags = list(ctx.vars)
+    calls = {"full": 0}
+    plain = BlockScorer.score
+
+    def counted(self, variables, cols, prefit=None):
+        calls["full"] += 1
+        return plain(self, variables, cols, prefit)
+
+    monkeypatch.setattr(BlockScorer, "score", counted)
+    got = [B.select_inputs(ctx, t, tags, test=f"t{i}").as_dict() for i, t in enumerate(tags)]
+    pruned = calls["full"]
+    calls["full"] = 0
+    monkeypatch.setattr(B, "BOUND_MARGIN", float("inf"))  # no bound ever passes one over
+    want = [B.select_inputs(ctx, t, tags, test=f"t{i}").as_dict() for i, t in enumerate(tags)]
+    assert got == want
+    assert any(g["inputs"] for g in got)
+    assert pruned < calls["full"]  # some variants were passed over

@@ -600,3 +600,96 @@ def sets_filled(pos, top, bottom, per_cell):
         if n >= per_cell * occupied:
             return sets
     return bottom
+
+
+@nb.njit(cache=True, nogil=True)
+def normal_equations(r, col, w, sw, y, n_rules, k):
+    """``A.T @ A`` and ``A.T @ (sw · y)`` of a coarse level's node fit from its sparse design
+    (:func:`coarse_corners`' ``r``, ``col``, ``w``: row, node and weight of each corner; the
+    design ``A[r, col] = w · sw[r]``), summed over each rule's own corners only — a rule meets
+    at most ``2^d`` nodes, where the dense product runs over every rule × node × node. The
+    same sums in another order: equal to the dense product to rounding, not to the bit
+    (used to score candidates, :func:`~diag_plugin.fuzzy.wang_mendel.sparse_node_fit`)."""
+    m = r.size
+    start = np.zeros(n_rules + 1, np.int64)
+    for i in range(m):
+        start[r[i] + 1] += 1
+    for i in range(n_rules):
+        start[i + 1] += start[i]
+    fill = start[:-1].copy()
+    at = np.empty(m, np.int64)
+    for i in range(m):
+        at[fill[r[i]]] = i
+        fill[r[i]] += 1
+    M = np.zeros((k, k))
+    rhs = np.zeros(k)
+    for row in range(n_rules):
+        a, b = start[row], start[row + 1]
+        s = sw[row]
+        for p in range(a, b):
+            ip = at[p]
+            vp = w[ip] * s
+            cp = col[ip]
+            rhs[cp] += vp * (s * y[row])
+            for q in range(a, b):
+                iq = at[q]
+                M[cp, col[iq]] += vp * (w[iq] * s)
+    return M, rhs
+
+
+@nb.njit(cache=True, nogil=True)
+def coarse_rules(keys, count, qsum, qsq, radix, blocks, coarse_radix, out_lo, yquant):
+    """A coarse level's rules of an averaged (``wm-avg``) model from its fine cells
+    (:meth:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.level_rules`): each fine key
+    with samples taken to its coarse key (every set index ``// blocks``), the integer
+    accumulators summed per coarse key in ascending order, and each cell's conclusion and
+    spread from the sums — the numpy code's integer sums (exact in any order) and its
+    element-wise arithmetic in its order, so the same bits without its dozen array calls."""
+    d = radix.size
+    m = 0
+    for i in range(keys.size):
+        if count[i] > 0:
+            m += 1
+    ck = np.empty(m, np.int64)
+    src = np.empty(m, np.int64)
+    j = 0
+    for i in range(keys.size):
+        if count[i] > 0:
+            rem = keys[i]
+            out = 0
+            for k in range(d):
+                idx = rem // radix[k]
+                rem = rem - idx * radix[k]
+                out += (idx // blocks[k]) * coarse_radix[k]
+            ck[j] = out
+            src[j] = i
+            j += 1
+    order = np.argsort(ck, kind="mergesort")
+    u = 0
+    for t in range(m):
+        if t == 0 or ck[order[t]] != ck[order[t - 1]]:
+            u += 1
+    ukeys = np.empty(u, np.int64)
+    ucount = np.zeros(u, np.int64)
+    usum = np.zeros(u, np.int64)
+    usq = np.zeros(u, np.int64)
+    g = -1
+    for t in range(m):
+        o = order[t]
+        if t == 0 or ck[o] != ck[order[t - 1]]:
+            g += 1
+            ukeys[g] = ck[o]
+        s = src[o]
+        ucount[g] += count[s]
+        usum[g] += qsum[s]
+        usq[g] += qsq[s]
+    conc = np.empty(u)
+    sd = np.empty(u)
+    for g in range(u):
+        mean = usum[g] / ucount[g]
+        conc[g] = out_lo + mean * yquant
+        v = usq[g] / ucount[g] - mean * mean
+        if v < 0.0:
+            v = 0.0
+        sd[g] = math.sqrt(v) * yquant
+    return ukeys, conc, ucount, sd

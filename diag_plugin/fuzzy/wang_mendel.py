@@ -742,6 +742,13 @@ class WangMendelRegressor(ParamsMixin):
     def _derive_level(self, level: int) -> LevelRules:
         if level == 0:
             return LevelRules(self.keys_, self.conclusions_, self.count_, self.sd_)
+        if self.method != "wm" and "numba" in sys.modules:  # the same sums, compiled
+            from diag_plugin.fuzzy import _kernels
+
+            return LevelRules(*_kernels.coarse_rules(
+                self.keys_, self.count_, self.qsum_, self.qsq_, self.radix_,
+                self.level_blocks_[level], _radix(self.level_nsets(level)),
+                self.output_partition_.lo, self._yquant))  # fmt: skip
         has = self.count_ > 0
         keys = self._coarse_keys(self.keys_[has], level)
         if self.method != "wm":
@@ -814,27 +821,49 @@ class WangMendelRegressor(ParamsMixin):
         return out
 
     # --------------------------------------------------------------- inference
-    def predict_detail(self, X) -> Prediction:
-        """Prediction with support, a reason code and the answering level for each sample."""
+    def predict_fine(self, X, rough: bool = False) -> tuple[Prediction, np.ndarray] | None:
+        """The fine level's answer of every row of ``X`` through its dense table, and the rows
+        :meth:`predict_detail` asks the coarser levels again (``again``: the fine rules carry
+        less than ``LEVEL_SUPPORT`` of the weight inside the data's range); elsewhere the
+        answer is :meth:`predict_detail`'s. None where the fine grid is too big for a dense
+        table or numba is not loaded (:meth:`predict_detail` then searches every level).
+        ``rough``: without the linear trend and the rules' spreads (not derived): the same
+        answers but on rows past an input's span (reason 3, which move along the trend), no
+        spread — a bound's pass, never :meth:`predict_detail`'s."""
         self._check_fitted()
         X = _as_2d(X)
         if X.shape[1] != self.n_features_in_:
             raise ValueError(f"model has {self.n_features_in_} inputs, X has {X.shape[1]}")
         n = X.shape[0]
         loops = kernels(n)
-        fine = self._fine_table()
+        fine = self._rough_table() if rough else self._fine_table()
         if fine is None or not hasattr(loops, "infer_fine"):
-            # a fine grid too big for a dense table, or numpy's loops (no numba loaded: one
-            # model's inference, :func:`kernels`): every level searched, the same bits
-            return self._predict_levels(X)
-        # the fine level of every row through its dense table; only the rows it leaves short
-        # of LEVEL_SUPPORT inside the data's range are asked again, level by level
+            return None
         det = Prediction(np.empty(n), np.empty(n), np.empty(n, np.int8), np.empty(n, np.int8),
                          np.empty(n))  # fmt: skip
         again = np.empty(n, np.bool_)
         for s in range(0, n, CHUNK_ROWS):
             e = s + CHUNK_ROWS
             loops.infer_fine(X[s:e], *fine, *(f[s:e] for f in _fields(det)), again[s:e])
+        return det, again
+
+    def predict_detail(self, X, fine: tuple[Prediction, np.ndarray] | None = None) -> Prediction:
+        """Prediction with support, a reason code and the answering level for each sample.
+        ``fine``: :meth:`predict_fine`'s answer for the same ``X`` where the caller has it
+        (its arrays are completed in place)."""
+        self._check_fitted()
+        X = _as_2d(X)
+        n = X.shape[0]
+        got = self.predict_fine(X) if fine is None else fine
+        if got is None:
+            # a fine grid too big for a dense table, or numpy's loops (no numba loaded: one
+            # model's inference, :func:`kernels`): every level searched, the same bits
+            if X.shape[1] != self.n_features_in_:
+                raise ValueError(f"model has {self.n_features_in_} inputs, X has {X.shape[1]}")
+            return self._predict_levels(X)
+        # the fine level of every row through its dense table; only the rows it leaves short
+        # of LEVEL_SUPPORT inside the data's range are asked again, level by level
+        det, again = got
         rows = np.flatnonzero(again)
         packs = self.__dict__.setdefault("_packs", {})
         none = np.empty(0, np.int64)
@@ -843,10 +872,11 @@ class WangMendelRegressor(ParamsMixin):
         while rows.size:
             done = depth  # the levels up to it answered these rows short of LEVEL_SUPPORT
             depth += 1
-            if (rows.size > n // 2 and n > LAZY_ROWS) or last in packs:
+            if (rows.size > n // 2 and n > LAZY_ROWS) or last in packs or _SPARSE.get():
                 # most of many rows asked again, or every level's rules packed already (by
-                # an earlier call): every level of them at once (the same answers: each row
-                # stops at the same level; the finer levels are not evaluated again for it)
+                # an earlier call), or a model scored once (scoring_node_fit): every level of
+                # them at once (the same answers: each row stops at the same level; the finer
+                # levels are not evaluated again for it)
                 depth = last
             if depth not in packs:
                 packs[depth] = pack([self.inference_grid(depth)], dense=True)
@@ -858,6 +888,19 @@ class WangMendelRegressor(ParamsMixin):
                 break
             rows = rows[(sub.support < LEVEL_SUPPORT) & (sub.reason != 1)]
         return det
+
+    def _rough_table(self) -> tuple | None:
+        """:meth:`_fine_table` with a zero trend and zero spreads (:meth:`predict_fine`'s
+        ``rough``): the fine rules' conclusions as they are, nothing else derived."""
+        if self.n_cells_ > DENSE_LIMIT:
+            return None
+        lo, step, nsets, plateau, _ = self._arrays()
+        inner = self._inner(nsets)
+        table = np.full(self.n_cells_, -1, np.int64)
+        table[self.keys_] = np.arange(self.keys_.size)
+        return (lo, step, plateau, nsets, inner, np.zeros(lo.size + 1), self.radix_.copy(), table,
+                np.asarray(self.conclusions_, float), np.zeros(self.keys_.size),
+                LEVEL_SUPPORT, self.n_levels_ > 1)  # fmt: skip
 
     def _fine_table(self) -> tuple | None:
         """What :func:`._kernels.infer_fine` reads: the input partitions, the range holding
@@ -990,18 +1033,7 @@ class WangMendelRegressor(ParamsMixin):
         WangMendelStack`); keys ascending."""
         self._check_fitted()
         levels = self.n_levels_ if depth is None else min(depth + 1, self.n_levels_)
-        # what every depth shares (partitions, the data's range, each level's radix), derived
-        # once per trained state: predict_detail asks one depth after another
-        if self.__dict__.get("_grid_base") is None:
-            lo, step, nsets, plateau, _ = self._arrays()
-            inner = np.column_stack([np.zeros(nsets.size, np.int64), nsets - 1])
-            rem = self.keys_[self.count_ > 0]
-            for k in range(self.n_features_in_ if rem.size else 0):
-                idx, rem = np.divmod(rem, self.radix_[k])
-                inner[k] = idx.min(), idx.max()
-            all_radix = np.stack([_radix(self.level_nsets(lv)) for lv in range(self.n_levels_)])
-            self._grid_base = (lo, step, nsets, plateau, inner, all_radix)
-        lo, step, nsets, plateau, inner, all_radix = self._grid_base
+        lo, step, nsets, plateau, inner, all_radix = self._base_grid()
         lo, step, nsets, plateau, inner = (a.copy() for a in (lo, step, nsets, plateau, inner))
         radix = all_radix[:levels].copy()
         nodes = [self.level_nodes(lv) for lv in range(levels)]
@@ -1024,6 +1056,26 @@ class WangMendelRegressor(ParamsMixin):
             [f for _, _, f in nodes],
             spreads,
         )
+
+    def _inner(self, nsets: np.ndarray) -> np.ndarray:
+        """The first and last fine set of every input holding training data (inputs × 2)."""
+        inner = np.column_stack([np.zeros(nsets.size, np.int64), nsets - 1])
+        rem = self.keys_[self.count_ > 0]
+        for k in range(self.n_features_in_ if rem.size else 0):
+            idx, rem = np.divmod(rem, self.radix_[k])
+            inner[k] = idx.min(), idx.max()
+        return inner
+
+    def _base_grid(self) -> tuple:
+        """What every depth of :meth:`inference_grid` shares (partitions, the data's range,
+        each level's radix), derived once per trained state: predict_detail asks one depth
+        after another."""
+        if self.__dict__.get("_grid_base") is None:
+            lo, step, nsets, plateau, _ = self._arrays()
+            inner = self._inner(nsets)
+            all_radix = np.stack([_radix(self.level_nsets(lv)) for lv in range(self.n_levels_)])
+            self._grid_base = (lo, step, nsets, plateau, inner, all_radix)
+        return self._grid_base
 
     @property
     def trend_(self) -> np.ndarray:
@@ -1190,6 +1242,30 @@ def iterative_node_fit() -> Iterator[None]:
         _ITERATIVE.reset(token)
 
 
+#: whether the node fit sums its normal equations over each rule's corners
+#: (:func:`scoring_node_fit`)
+_SPARSE: contextvars.ContextVar[bool] = contextvars.ContextVar("wm_sparse_normal", default=False)
+
+
+@contextlib.contextmanager
+def scoring_node_fit() -> Iterator[None]:
+    """Within it, models are fitted to be scored once (``diag unit build``'s choice of
+    inputs, :mod:`diag_plugin.unitbuild.build`): a coarse level's node fit forms its normal
+    equations from each fine rule's own corners (:func:`._kernels.normal_equations`, at most
+    ``4^d`` products a rule where the dense ``A.T @ A`` multiplies every rule by every node
+    pair: the same sums in another order, equal to rounding, not to the bit), and a
+    prediction's rows asked again after the fine level are answered by every coarse level at
+    once (the same answers; levels no row reaches are fitted too, which costs less than a
+    pass per level for the few rows a held-out block asks again). Models trained, built into
+    a unit or replayed keep the dense products' exact bits (the switch is the calling
+    context's, like :func:`iterative_node_fit`)."""
+    token = _SPARSE.set(True)
+    try:
+        yield
+    finally:
+        _SPARSE.reset(token)
+
+
 #: relative residual ``|M x - b| / |b|`` the node fit's conjugate gradients stop at
 SOLVE_RTOL = 1e-12
 #: iterations after which the node fit falls back to the direct solve (the audit's 5-input
@@ -1324,8 +1400,6 @@ def _fit_dense(nodes, r, col, w, sw, n, y, d, radix, nsets) -> np.ndarray:
     """:func:`_fit_nodes`' least squares with dense arrays (a level of few nodes): ``n``,
     ``sw`` and ``y`` are the fine rules' counts, their square roots and conclusions."""
     k = nodes.size
-    # each (fine rule, node) pair at most once: the sums of np.add.at, without its loop
-    A = np.bincount(r * k + col, w * sw[r], minlength=n.size * k).reshape(n.size, k)
     per_node = n.sum() / k
     ridge = 1e-6 * per_node
     loops = _design_loops(nsets)
@@ -1334,10 +1408,16 @@ def _fit_dense(nodes, r, col, w, sw, n, y, d, radix, nsets) -> np.ndarray:
         if loops is not None
         else _smooth_gram(nodes, d, radix, nsets)
     )
-    M = A.T @ A + SMOOTHING * per_node * PtP
+    if loops is not None and _SPARSE.get():  # scoring: the products over each rule's corners
+        AtA, Aty = loops.normal_equations(r, col, w, sw, y, n.size, k)
+    else:
+        # each (fine rule, node) pair at most once: the sums of np.add.at, without its loop
+        A = np.bincount(r * k + col, w * sw[r], minlength=n.size * k).reshape(n.size, k)
+        AtA, Aty = A.T @ A, A.T @ (sw * y)
+    M = AtA + SMOOTHING * per_node * PtP
     M.flat[:: k + 1] += ridge  # + ridge·I: the same sums, off the diagonal + 0 left out
     # np.average(y, weights=n) as it computes it: Σ y·n / Σ n
-    rhs = A.T @ (sw * y) + ridge * float(np.multiply(y, n).sum() / n.sum())
+    rhs = Aty + ridge * float(np.multiply(y, n).sum() / n.sum())
     return np.linalg.solve(M, rhs)
 
 

@@ -77,20 +77,50 @@ class HeldOutScorer:
         self.base_rmse = self._rmse(self.base_pred)
         self.base_rules = rb.codec.size(self.base_model) if self.base_model is not None else 0
 
-    def _fit_predict(self, variables, cols, X: np.ndarray | None = None):
+    def _fit(self, variables, X: np.ndarray):
+        """A variant fitted on the training rows (None where too few) and its training rows."""
+        tr = np.isfinite(X[: self.cut]).all(axis=1) & self._tr_y
+        n_train = int(tr.sum())
+        if n_train < 10 or self.va.size < 10:
+            return None, n_train
+        spec = dc_replace(self.rb.spec, inputs=list(variables))
+        m = self.rb.codec.new_estimator(spec).fit(X[: self.cut][tr], self.y[: self.cut][tr])
+        return m, n_train
+
+    def _fit_predict(self, variables, cols, X: np.ndarray | None = None, prefit=None):
         if not len(cols):  # no input yet: the training mean stands in everywhere
             return np.full(self.va.size, np.nan), None, int(np.isfinite(self.y[: self.cut]).sum())
         X = np.column_stack(cols) if X is None else X
-        tr = np.isfinite(X[: self.cut]).all(axis=1) & self._tr_y
-        if tr.sum() < 10 or self.va.size < 10:
-            return np.full(self.va.size, np.nan), None, int(tr.sum())
-        spec = dc_replace(self.rb.spec, inputs=list(variables))
-        m = self.rb.codec.new_estimator(spec).fit(X[: self.cut][tr], self.y[: self.cut][tr])
-        det = m.predict_detail(X[self.va])
+        m, n_train, fine = (*self._fit(variables, X), None) if prefit is None else prefit
+        if m is None:
+            return np.full(self.va.size, np.nan), None, n_train
+        det = m.predict_detail(X[self.va]) if fine is None else m.predict_detail(X[self.va], fine)
         self.last_fine = (
             float(np.mean(det.level == 0)) if det.level is not None else det.coverage
         )  # the share the fine grid answered: levels behind it hide a thin grid otherwise
-        return det.y, m, int(tr.sum())
+        return det.y, m, n_train
+
+    def bound(self, variables, cols, X: np.ndarray | None = None) -> tuple[float, tuple | None]:
+        """A lower bound of a variant's held-out sum of squared errors (% of span, the sum
+        :meth:`score`'s RMSE is the root mean of), from its fine rule level alone: the
+        squared errors of the held-out samples the fine level answers for good (none that
+        :meth:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.predict_detail` asks a
+        coarser level again, none without an answer); 0 where the model has no fine pass.
+        With it the fit, for :meth:`score` of the same variant (``prefit``) to finish
+        instead of fitting again."""
+        if not len(cols):
+            return 0.0, None
+        X = np.column_stack(cols) if X is None else X
+        m, n_train = self._fit(variables, X)
+        fine = m.predict_fine(X[self.va], rough=True) if hasattr(m, "predict_fine") else None
+        if fine is None:
+            return 0.0, (m, n_train, None)
+        det, again = fine
+        # past an input's span (reason 3) the answer moves along the trend the rough pass
+        # leaves out: those samples are left out of the bound too
+        final = ~again & np.isfinite(det.y) & (det.reason != 3)
+        r = residual_pct(self.y[self.va][final], det.y[final], self.span)
+        return float(r @ r), (m, n_train, None)
 
     def _stand_in(self, pred: np.ndarray, model, cols, X: np.ndarray | None = None) -> np.ndarray:
         """``pred`` with the model's stand-in (its ``extrapolate``: the nearest rule) where it
@@ -110,14 +140,14 @@ class HeldOutScorer:
         return float(np.sqrt(np.mean(r * r)))
 
     def score(
-        self, variables, cols, X: np.ndarray | None = None
+        self, variables, cols, X: np.ndarray | None = None, prefit: tuple | None = None
     ) -> tuple[float, float, float, float]:
         """Held-out RMSE in % of span on the common samples, own coverage, training samples
         per rule, and the share its fine rule grid answered, of a variant (``X``: ``cols``
-        stacked, where the caller has them)."""
+        stacked, where the caller has them; ``prefit``: :meth:`bound`'s fit of it)."""
         self.last_fine = 0.0
         self.last_fit = None
-        pred, m, n_train = self._fit_predict(variables, cols, X)
+        pred, m, n_train = self._fit_predict(variables, cols, X, prefit)
         if m is None:
             return math.nan, 0.0, 0.0, 0.0
         own = np.isfinite(pred)
@@ -210,14 +240,33 @@ class BlockScorer:
             return math.nan
         return float(np.sqrt(np.sum(n[n > 0] * r[n > 0] ** 2) / n.sum()))
 
-    def score(self, variables, cols) -> tuple[float, float]:
-        """Pooled held-out RMSE (% of span) and own coverage of a variant."""
+    def bound(self, variables, cols) -> tuple[float, list | None]:
+        """A lower bound of :meth:`score`'s pooled RMSE of a variant from each block's fine
+        rule level alone (:meth:`HeldOutScorer.bound`), and the blocks' fits for
+        :meth:`score` to finish (``prefit``): a variant whose bound exceeds an error already
+        reached cannot do better, and its coarse levels need not be fitted."""
+        if not len(cols):
+            return 0.0, None
+        X = np.column_stack(cols)
+        sse, fits = 0.0, []
+        for p, (o, _) in zip(self.parts, self.folds, strict=True):
+            Xo = X[o]
+            s, fit = p.bound(variables, list(Xo.T), Xo)
+            sse += s
+            fits.append(fit)
+        n = sum(p.va.size for p in self.parts)
+        return (math.sqrt(sse / n) if n else 0.0), fits
+
+    def score(self, variables, cols, prefit: list | None = None) -> tuple[float, float]:
+        """Pooled held-out RMSE (% of span) and own coverage of a variant (``prefit``: the
+        blocks' fits from :meth:`bound`)."""
         # the columns stacked once; each block's rows taken from the stack (the same values)
         X = np.column_stack(cols) if len(cols) else np.empty((self.y.size, 0))
         got = []
-        for p, (o, _) in zip(self.parts, self.folds, strict=True):
+        pre = prefit or [None] * len(self.parts)
+        for p, (o, _), f in zip(self.parts, self.folds, pre, strict=True):
             Xo = X[o]
-            got.append(p.score(variables, list(Xo.T), Xo if len(cols) else None))
+            got.append(p.score(variables, list(Xo.T), Xo if len(cols) else None, f))
         n = np.array([p.va.size for p in self.parts], float)
         cov = float(np.sum(n * np.array([g[1] for g in got])) / max(n.sum(), 1.0))
         return self._pool([g[0] for g in got]), cov

@@ -20,7 +20,9 @@ hand-build:
    so a relation must hold in every period of the window, not only in its last fifth; the
    candidate that cuts the error most is kept if it cuts it by more than :data:`MIN_GAIN`.
    The shortest dead time scoring within :data:`~diag_plugin.selection.lags.TOLERANCE` of
-   the best is kept.
+   the best is kept. A candidate (or a dead time) whose lower bound of the error from its fine
+   rule level alone (:meth:`~diag_plugin.selection.scoring.BlockScorer.bound`) shows it
+   cannot be chosen is not finished: the same choice at a fraction of the fits.
    **A tag a controller holds** (:func:`tracked_set_point`: RMS of tag − set-point at most
    :data:`TRACKS` of the tag's standard deviation) is not modelled from the other tags: its
    test is the loop's own relation (:func:`loop_test`: the tag at its set-point plus the
@@ -92,6 +94,10 @@ MIN_GAIN = 0.03
 SCREENED = 5
 #: dead times retrained per screened candidate (the best by correlation)
 LAGS_RETRAINED = 2
+#: relative margin by which a candidate's lower bound of the held-out error must exceed the
+#: best error reached for it to be passed over (:meth:`BlockScorer.bound`: the bound and the
+#: error sum the same squares in another order; rounding is ~1e-16)
+BOUND_MARGIN = 1e-9
 #: |r| at lag 0 above which two tags count as the same measurement
 SAME_CORR = 0.995
 #: a tag is held at a set-point when RMS(tag − set-point) ≤ TRACKS × its standard deviation
@@ -358,12 +364,27 @@ def select_inputs(
         best = None  # (rmse, coverage, tag, lag, the variant's inputs, columns and fits)
         base_cols = [ctx.column(t, lag) for t, lag in chosen]
         for _, c, lags in screened[:SCREENED]:
-            scored = []
+            variants = []
             for lag in lags:
                 cols = [*base_cols, ctx.column(c, lag)]
                 pairs = [*chosen, (c, lag)]
                 ins = _with_sets([ctx.variable(t, g) for t, g in pairs], cols, rows, max_sets)
-                rmse, cov = scorer.score(ins, cols)
+                variants.append((lag, ins, cols))
+            # each dead time's lower bound of its error from the fine rule level alone
+            # (BlockScorer.bound): a dead time that cannot be the candidate's best nor within
+            # TOLERANCE of it, and a candidate that cannot beat the best error reached, are
+            # never chosen, so their coarse rule levels are not fitted (the choice is the same)
+            bounds = [scorer.bound(ins, cols) for _, ins, cols in variants]
+            if best is not None and min(b for b, _ in bounds) > best[0] * (1 + BOUND_MARGIN):
+                continue
+            scored = []
+            for i in sorted(range(len(variants)), key=lambda i: bounds[i][0]):
+                lag, ins, cols = variants[i]
+                if scored and bounds[i][0] > min(s[0] for s in scored) * (1 + TOLERANCE) * (
+                    1 + BOUND_MARGIN
+                ):
+                    continue
+                rmse, cov = scorer.score(ins, cols, bounds[i][1])
                 if math.isfinite(rmse):
                     scored.append((rmse, lag, cov, (ins, cols, scorer.fitted())))
             if not scored:
@@ -387,6 +408,18 @@ def select_inputs(
 
 
 def _choose(
+    tag: str, names, same, ctx: _Context, sel: _Context, plan, frame, info, declared, held
+) -> TestChoice:
+    """:func:`_choose_test` with the candidates' coarse rule levels fitted to be scored once
+    (:func:`~diag_plugin.fuzzy.wang_mendel.scoring_node_fit`); the chosen models are trained
+    afterwards as ever."""
+    from diag_plugin.fuzzy.wang_mendel import scoring_node_fit
+
+    with scoring_node_fit():
+        return _choose_test(tag, names, same, ctx, sel, plan, frame, info, declared, held)
+
+
+def _choose_test(
     tag: str, names, same, ctx: _Context, sel: _Context, plan, frame, info, declared, held
 ) -> TestChoice:
     """One test's choice (a worker's share of the build, see :mod:`.parallel`); ``declared``
