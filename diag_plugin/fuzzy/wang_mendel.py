@@ -891,16 +891,25 @@ class WangMendelRegressor(ParamsMixin):
 
     def _rough_table(self) -> tuple | None:
         """:meth:`_fine_table` with a zero trend and zero spreads (:meth:`predict_fine`'s
-        ``rough``): the fine rules' conclusions as they are, nothing else derived."""
+        ``rough``): the fine rules' conclusions as they are, nothing else derived; None where
+        :meth:`_fine_table` has none for the same reasons (a grid past :data:`DENSE_LIMIT`, an
+        input of one set, a conclusion that is not finite)."""
         if self.n_cells_ > DENSE_LIMIT:
             return None
         lo, step, nsets, plateau, _ = self._arrays()
+        values = np.asarray(self.conclusions_, float)
+        if (np.asarray(nsets) < 2).any() or not np.isfinite(values).all():
+            return None
         inner = self._inner(nsets)
-        table = np.full(self.n_cells_, -1, np.int64)
-        table[self.keys_] = np.arange(self.keys_.size)
+        n = values.size
+        rules = np.zeros((n + 1, 4))  # the last row: no rule; spreads 0, each known
+        rules[:n, 0] = values
+        rules[:n, 1] = 1.0
+        rules[:n, 3] = 1.0
+        table = np.full(self.n_cells_, n, np.int64)
+        table[self.keys_] = np.arange(n)
         return (lo, step, plateau, nsets, inner, np.zeros(lo.size + 1), self.radix_.copy(), table,
-                np.asarray(self.conclusions_, float), np.zeros(self.keys_.size),
-                LEVEL_SUPPORT, self.n_levels_ > 1)  # fmt: skip
+                rules, LEVEL_SUPPORT, self.n_levels_ > 1)  # fmt: skip
 
     def _fine_table(self) -> tuple | None:
         """What :func:`._kernels.infer_fine` reads: the input partitions, the range holding
