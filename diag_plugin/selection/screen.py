@@ -83,13 +83,7 @@ class Screen:
 
     def rmse(self, col: np.ndarray, sets: int | None = None) -> float:
         """Screening error (held-out RMSE, % of span) with ``col`` added to the model's
-        inputs (or put in place of one); ``sets``: the candidate's set count (see
-        :meth:`judge`)."""
-        return self.judge(col, sets)[0]
-
-    def judge(self, col: np.ndarray, sets: int | None = None) -> tuple[float, float]:
-        """Screening error of ``col`` (:meth:`rmse`) and the share of the held-out rows the
-        screen cannot judge it on (:meth:`_unjudged`).
+        inputs (or put in place of one); ``sets``: the candidate's set count.
 
         The correction is looked up in cells of the candidate alone and of the candidate
         paired with each of the model's inputs (at the resolution two inputs' cells fill:
@@ -103,13 +97,13 @@ class Screen:
         # of f(x[k]) is a function of x[k] and x[k-L])
         for k in range(len(self.cols)):
             best = min(best, self._score([self.pair_idx[k], own], [self.pair_sets, s_c]))
-        return best, self._unjudged(col, own, s_c)
+        return best
 
-    def _unjudged(self, col: np.ndarray, own: np.ndarray, sets: int) -> float:
-        """Share of the held-out rows (``col`` measured) whose value lies within the range of
-        the training rows but in a cell of ``col`` alone (``own``: the set index of every
-        row, ``sets`` cells) that fewer than :data:`PRIOR` training rows visit before the
-        last of the :data:`BLOCKS` time blocks.
+    def unjudged(self, col: np.ndarray, sets: int | None = None) -> float:
+        """Share of the held-out rows (``col`` measured) the screen cannot judge ``col`` on:
+        its value lies within the range of the training rows but in a cell of ``col`` alone
+        (``sets`` as :meth:`rmse` takes them) that fewer than :data:`PRIOR` training rows
+        visit before the last of the :data:`BLOCKS` time blocks.
 
         The correction there rests on the last block's rows alone, or on none. The fold
         layout ends at the cut: the last block's out-of-fold residual is what a model
@@ -119,12 +113,14 @@ class Screen:
         correction +29.6 % of span where the held-out residual averages −11.3 %. A value
         beyond the training range (a drift's ``days()``) is an extrapolation the retrained
         model answers with its nearest rule too: not counted."""
+        s_c = max(2, int(min(sets or self.pair_sets, self.pair_sets)))
+        own = self.index(col, s_c)
         kv = own[self.va]
         seen = kv >= 0
         before = np.flatnonzero(self.train[: self.edge] & (own[: self.edge] >= 0))
         if not seen.any() or not before.size:
             return 0.0
-        cnt = np.bincount(own[before], minlength=sets)
+        cnt = np.bincount(own[before], minlength=s_c)
         x = col[: self.cut][self.train & (own[: self.cut] >= 0)]
         v = col[self.va]
         thin = seen & (v >= x.min()) & (v <= x.max()) & (cnt[np.maximum(kv, 0)] < PRIOR)

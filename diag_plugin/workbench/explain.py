@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
 
@@ -61,7 +61,7 @@ LAGS_SCREENED = 4
 #: candidates best on the screen that are retrained and scored on the held-out samples
 REFINED = 8
 #: share of the held-out rows the screen cannot judge a candidate on (a value seen only at
-#: the edge of the training part, :meth:`Screen.judge`) from which it is retrained whatever
+#: the edge of the training part, :meth:`Screen.unjudged`) from which it is retrained whatever
 #: its screening error ...
 UNJUDGED = 0.5
 #: ... beyond the :data:`REFINED` best, at most this many, the least judged first
@@ -316,14 +316,18 @@ def _explain(
             return None if fewer_only else r
         return dc_replace(full, fewer_from=r.sets, thin_before=(r.fine, r.per_cell))
 
-    def screened(spec: InputSpec) -> tuple[float, float]:
-        """Screening error of ``spec`` and the share of the held-out rows the screen cannot
-        judge it on (:meth:`Screen.judge`; a replaced input is paired with the candidate
-        there, so adding and replacing screen alike and retraining tells them apart)."""
+    def screened(spec: InputSpec) -> float:
+        """Screening error of ``spec`` (:class:`Screen`; a replaced input is paired with the
+        candidate there, so adding and replacing screen alike and retraining tells them
+        apart)."""
         var = variable(spec)
         if var is None:
-            return math.nan, 0.0
-        return screen.judge(feats.column(spec), var.sets)
+            return math.nan
+        return screen.rmse(feats.column(spec), var.sets)
+
+    def unjudged(p: _Pending) -> float:
+        """Share of the held-out rows the screen cannot judge ``p`` on (:meth:`Screen.unjudged`)."""
+        return screen.unjudged(feats.column(p.spec), variable(p.spec).sets)
 
     def best_lag(base: InputSpec, lags: Sequence[int], target: np.ndarray, replace=None):
         """Screen ``lags`` by correlation with ``target``, the best few on the screen."""
@@ -335,15 +339,15 @@ def _explain(
         # the best few by correlation, and the shortest lag (no dead time) always
         order = sorted(lags, key=lambda lag: -corr[lag])[:LAGS_SCREENED]
         order = sorted({*order, min(lags)})
-        scored = {lag: screened(base.with_lag(lag)) for lag in order}
-        scored = {lag: t for lag, t in scored.items() if math.isfinite(t[0])}
+        scored = [(screened(base.with_lag(lag)), lag) for lag in order]
+        scored = [t for t in scored if math.isfinite(t[0])]
         if not scored:
             return None
         # the shortest lag that screens within TOLERANCE of the best: a dead time is
         # suggested only where it clearly matters
-        best = min(t[0] for t in scored.values())
-        lag = min(lag for lag, t in scored.items() if t[0] <= best * (1 + TOLERANCE))
-        return lag, scored[lag]
+        best = min(t[0] for t in scored)
+        lag = min(t[1] for t in scored if t[0] <= best * (1 + TOLERANCE))
+        return lag, dict((b, a) for a, b in scored)[lag]
 
     found: list[Candidate] = []
     pending: list[_Pending] = []
@@ -409,10 +413,9 @@ def _explain(
             )
         )
 
-    def offer(spec: InputSpec, kind: str, judged: tuple[float, float], replace=None):
-        """Put ``spec`` on the list with its screening error and unjudged share."""
-        if math.isfinite(judged[0]):
-            pending.append(_Pending(spec, kind, judged[0], replace, judged[1]))
+    def offer(spec: InputSpec, kind: str, rmse: float, replace: int | None = None):
+        if math.isfinite(rmse):
+            pending.append(_Pending(spec, kind, rmse, replace))
 
     numeric = [c for c in frame.columns if np.issubdtype(frame[c].dtype, np.number)]
     # every plant tag that is not in the model, at its best lag
@@ -423,7 +426,7 @@ def _explain(
         got = best_lag(InputSpec("", (tag,)), range(0, horizon + 1), resid)
         if got is not None:
             offer(InputSpec("", (tag,), got[0]), "tag", got[1])
-            tag_rmse[tag] = got[1][0]
+            tag_rmse[tag] = got[1]
     # differences of tags with the same unit (a pressure drop), kept only when the
     # difference explains more than either tag alone
     units: dict[str, list[str]] = {}
@@ -440,7 +443,7 @@ def _explain(
                     continue
                 r = screened(spec)
                 alone = min(tag_rmse.get(a, base_rmse), tag_rmse.get(b, base_rmse))
-                if math.isfinite(r[0]) and r[0] < alone:
+                if math.isfinite(r) and r < alone:
                     offer(spec, "difference", r)
     # dead time / more lags, direction of travel, rate of change of each input
     for k, s in enumerate(in_specs):
@@ -475,7 +478,7 @@ def _explain(
     # those the screen cannot judge (their held-out values seen only at the edge of the
     # training part) beside them
     pending.sort(key=lambda p: p.screen_rmse)
-    refined = _refined(pending)
+    refined = _refined(pending, unjudged)
     retrained = {id(p) for p in refined}
     for p in refined:
         r = evaluate_best(p.spec, p.replace)
@@ -556,24 +559,22 @@ class _Clock:
 
 @dataclass(frozen=True)
 class _Pending:
-    """A candidate on the screen: its spec, kind, screening error, the input it replaces and
-    the share of the held-out rows the screen could not judge it on."""
+    """A candidate on the screen: its spec, kind, screening error and the input it replaces."""
 
     spec: InputSpec
     kind: str
     screen_rmse: float
     replace: int | None = None
-    unjudged: float = 0.0
 
 
-def _refined(pending: Sequence[_Pending]) -> list[_Pending]:
+def _refined(pending: Sequence[_Pending], unjudged: Callable[[_Pending], float]) -> list[_Pending]:
     """The candidates to retrain, from ``pending`` sorted by screening error: the
     :data:`REFINED` best, then at most :data:`UNJUDGED_EXTRA` of the others the screen could
-    not judge on :data:`UNJUDGED` of the held-out rows or more, the least judged first (their
-    screening error says nothing)."""
-    rest = [p for p in pending[REFINED:] if p.unjudged >= UNJUDGED]
-    rest.sort(key=lambda p: -p.unjudged)  # stable: equal shares keep the screen's order
-    return list(pending[:REFINED]) + rest[:UNJUDGED_EXTRA]
+    not judge on :data:`UNJUDGED` of the held-out rows or more (``unjudged``: that share), the
+    least judged first (their screening error says nothing)."""
+    share = [(unjudged(p), i) for i, p in enumerate(pending[REFINED:], REFINED)]
+    rest = sorted((-u, i) for u, i in share if u >= UNJUDGED)  # equal shares: screen's order
+    return list(pending[:REFINED]) + [pending[i] for _, i in rest[:UNJUDGED_EXTRA]]
 
 
 @dataclass(frozen=True)
