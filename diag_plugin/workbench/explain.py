@@ -293,8 +293,9 @@ def _explain(
             if r is None or not thin(r) or spec.fn in ("dir", "hour"):
                 return r
         fit = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
-        ref = evaluate(spec, replace, sc=quick) if quick is not scorer and not fewer_only else r
-        best, best_sets = ref, r.sets
+        # the bar is the count add-input writes as scored on all rows: fitted again on the
+        # quick rows it costs as much (the coarse levels' nodes, not the rows, are the cost)
+        best, best_sets = r, r.sets
         # coarse to fine (the finer, the costlier the fit): stop once SETS_PATIENCE counts in
         # a row do not beat the best coarser count by SETS_GAIN
         coarser, misses = math.inf, 0
