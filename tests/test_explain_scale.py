@@ -180,3 +180,29 @@ def test_sets_per_input_searched_on_held_out_data(tmp_path):
     searched = [n for n in notes if n.startswith("sets per input chosen on held-out data")]
     if searched:  # the data-filled start was thin: the search ran and its choice was written
         assert len({v.sets for v in m.inputs}) > 1
+
+
+def test_screen_tells_which_held_out_values_it_cannot_judge(tmp_path):
+    """A held-out value the training rows reach only in the last time block before the cut (a
+    manual valve moved just before it) is one the screen cannot judge; one seen all along, or
+    beyond the training range (an extrapolation either way), is not counted."""
+    from diag_plugin.selection.scoring import HeldOutScorer, cut_row
+    from diag_plugin.selection.screen import BLOCKS, Screen
+
+    f = header_plant(6, 2)
+    rb = trained(tmp_path, f, ["CV[k]", "T1[k]"], HEADER)
+    cols = [f["CV"].to_numpy(), f["T1"].to_numpy()]
+    y = f["F"].to_numpy()
+    cut = cut_row(f.index, 0.2)
+    sc = HeldOutScorer(rb, cols, y, cut)
+    screen = Screen(rb, cols, y, cut, sc.va, sc.base_pred)
+    rng = np.random.default_rng(0)
+    n = y.size
+    spread = rng.uniform(0, 100, n)
+    assert screen.unjudged(spread) < 0.05
+    # 0 … 100 but never 35 … 65 until the last block's final rows, then 50 through the held-out
+    edge = np.where(rng.random(n) < 0.5, rng.uniform(0, 35, n), rng.uniform(65, 100, n))
+    edge[cut - (cut // BLOCKS) // 4 :] = 50.0
+    assert screen.unjudged(edge) == pytest.approx(1.0)
+    # a drift's days(): its last cell too is reached only at the edge, the held-out beyond it
+    assert screen.unjudged(np.arange(n, dtype=float)) == 0.0

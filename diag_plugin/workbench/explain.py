@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
 
@@ -60,6 +60,12 @@ QUICK_ROWS = 100_000
 LAGS_SCREENED = 4
 #: candidates best on the screen that are retrained and scored on the held-out samples
 REFINED = 8
+#: share of the held-out rows the screen cannot judge a candidate on (a value seen only at
+#: the edge of the training part, :meth:`Screen.unjudged`) from which it is retrained whatever
+#: its screening error ...
+UNJUDGED = 0.5
+#: ... beyond the :data:`REFINED` best, at most this many, the least judged first
+UNJUDGED_EXTRA = REFINED // 2
 #: a slow drift (``days()``) is offered only when the training part spans this many days
 DRIFT_MIN_DAYS = 7.0
 #: fewer sets than add-input writes are suggested only when they score better by more
@@ -287,8 +293,9 @@ def _explain(
             if r is None or not thin(r) or spec.fn in ("dir", "hour"):
                 return r
         fit = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
-        ref = evaluate(spec, replace, sc=quick) if quick is not scorer and not fewer_only else r
-        best, best_sets = ref, r.sets
+        # the bar is the count add-input writes as scored on all rows: fitted again on the
+        # quick rows it costs as much (the coarse levels' nodes, not the rows, are the cost)
+        best, best_sets = r, r.sets
         # coarse to fine (the finer, the costlier the fit): stop once SETS_PATIENCE counts in
         # a row do not beat the best coarser count by SETS_GAIN
         coarser, misses = math.inf, 0
@@ -318,6 +325,10 @@ def _explain(
         if var is None:
             return math.nan
         return screen.rmse(feats.column(spec), var.sets)
+
+    def unjudged(p: _Pending) -> float:
+        """Share of the held-out rows the screen cannot judge ``p`` on (:meth:`Screen.unjudged`)."""
+        return screen.unjudged(feats.column(p.spec), variable(p.spec).sets)
 
     def best_lag(base: InputSpec, lags: Sequence[int], target: np.ndarray, replace=None):
         """Screen ``lags`` by correlation with ``target``, the best few on the screen."""
@@ -464,9 +475,13 @@ def _explain(
         spec = InputSpec(fn, ())
         offer(spec, kind, screened(spec))
     clock.lap("screen")
-    # the best on the screen are retrained and scored as training would score them
+    # the best on the screen are retrained and scored as training would score them, and
+    # those the screen cannot judge (their held-out values seen only at the edge of the
+    # training part) beside them
     pending.sort(key=lambda p: p.screen_rmse)
-    for p in pending[:REFINED]:
+    refined = _refined(pending, unjudged)
+    retrained = {id(p) for p in refined}
+    for p in refined:
         r = evaluate_best(p.spec, p.replace)
         if r is not None:
             add(p.spec, p.kind, r, replaces=None if p.replace is None else str(in_specs[p.replace]))
@@ -477,7 +492,8 @@ def _explain(
             "replaces": None if p.replace is None else str(in_specs[p.replace]),
             "screen_rmse_pct": _num(p.screen_rmse),
         }
-        for p in pending[REFINED:]
+        for p in pending
+        if id(p) not in retrained
     ]
     clock.lap("retrain the best")
     # the model's own resolution: spans narrowed to the operating range, more or fewer sets
@@ -550,6 +566,16 @@ class _Pending:
     kind: str
     screen_rmse: float
     replace: int | None = None
+
+
+def _refined(pending: Sequence[_Pending], unjudged: Callable[[_Pending], float]) -> list[_Pending]:
+    """The candidates to retrain, from ``pending`` sorted by screening error: the
+    :data:`REFINED` best, then at most :data:`UNJUDGED_EXTRA` of the others the screen could
+    not judge on :data:`UNJUDGED` of the held-out rows or more (``unjudged``: that share), the
+    least judged first (their screening error says nothing)."""
+    share = [(unjudged(p), i) for i, p in enumerate(pending[REFINED:], REFINED)]
+    rest = sorted((-u, i) for u, i in share if u >= UNJUDGED)  # equal shares: screen's order
+    return list(pending[:REFINED]) + [pending[i] for _, i in rest[:UNJUDGED_EXTRA]]
 
 
 @dataclass(frozen=True)
