@@ -19,6 +19,7 @@ import pyarrow as pa
 from sqlalchemy.engine import Engine
 
 from .quality import BAD, GOOD
+from .sqlitefile import sqlite_file
 
 #: ``update`` leaves a row holding the same value and quality alone, so the row count the
 #: database reports is the rows added or changed (``IS DISTINCT FROM`` is NULL-safe; SQLite
@@ -74,7 +75,8 @@ class SqliteBulk:
 
     WAL journal and ``synchronous=FULL`` are set on every connection, so a committed batch
     survives a crash of the process (and of the machine); pages are read through a memory
-    map (:data:`MMAP_BYTES`).
+    map (:data:`MMAP_BYTES`). Each write transaction holds the file's in-process write lock
+    (:mod:`historian.sqlitefile`), waiting for it at most the busy timeout.
     """
 
     name = "sqlite"
@@ -82,6 +84,7 @@ class SqliteBulk:
     def __init__(self, path: Path, busy_timeout_ms: int = 60_000):
         self.path = Path(path)
         self.busy_timeout_ms = busy_timeout_ms
+        self.file = sqlite_file(self.path)
         self._local = threading.local()  # one connection per thread (parallel tag reads)
         self._all: list = []
         self._lock = threading.Lock()
@@ -143,16 +146,17 @@ class SqliteBulk:
         try:
             cur.execute(f"DROP TABLE IF EXISTS temp.{name}")
             cur.adbc_ingest(name, table, mode="create", temporary=True)
-            cur.execute("BEGIN IMMEDIATE")
-            try:
-                for sql in moves:
-                    cur.execute(sql)
-                    cur.execute("SELECT changes()")
-                    n += int(cur.fetchone()[0])
-                cur.execute("COMMIT")
-            except BaseException:
-                cur.execute("ROLLBACK")
-                raise
+            with self.file.writing(self.busy_timeout_ms / 1000):
+                cur.execute("BEGIN IMMEDIATE")
+                try:
+                    for sql in moves:
+                        cur.execute(sql)
+                        cur.execute("SELECT changes()")
+                        n += int(cur.fetchone()[0])
+                    cur.execute("COMMIT")
+                except BaseException:
+                    cur.execute("ROLLBACK")
+                    raise
             cur.execute(f"DROP TABLE temp.{name}")
         finally:
             cur.close()
@@ -251,10 +255,11 @@ class SqliteBulk:
         changes nothing on SQLite."""
         cur = self.conn.cursor()
         try:
-            cur.execute("VACUUM")
-            cur.fetchall()
-            cur.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-            cur.fetchall()
+            with self.file.writing(self.busy_timeout_ms / 1000):
+                cur.execute("VACUUM")
+                cur.fetchall()
+                cur.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+                cur.fetchall()
         finally:
             cur.close()
 

@@ -29,7 +29,7 @@ class MonthChanged(RuntimeError):
 
 
 class ColdMonths:
-    """Needs ``self.engine``, ``self._bulk`` (hot reads), ``self.cold_dir``,
+    """Needs ``self.engine``, ``self._writing()``, ``self._bulk`` (hot reads), ``self.cold_dir``,
     ``self._default_cold_dir`` and ``self.tags()``."""
 
     def _cold_path(self, name: str) -> Path:
@@ -60,7 +60,7 @@ class ColdMonths:
                 "open it without cold_dir (or with that folder)"
             )
         t = schema.settings
-        with self.engine.begin() as c:
+        with self._writing() as c:
             c.execute(delete(t).where(t.c.key == COLD_DIR_KEY))
             if self._default_cold_dir is None or self._default_cold_dir.resolve() != here:
                 c.execute(insert(t).values(key=COLD_DIR_KEY, value=str(here)))
@@ -244,7 +244,7 @@ class ColdMonths:
             self._cold_path(name).unlink(missing_ok=True)
             return False
         try:
-            with self.engine.begin() as c:
+            with self._writing() as c:
                 gone = c.execute(
                     delete(s).where(s.c.tag_id.in_(ids), s.c.ts >= m0, s.c.ts < m1)
                 ).rowcount

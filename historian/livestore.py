@@ -72,7 +72,7 @@ class LiveStore:
         if missing:
             t = schema.tags
             got: dict[str, int] = {}
-            with h.engine.begin() as c:
+            with h._writing() as c:
                 c.execute(h._insert(t).on_conflict_do_nothing(), [{"name": n} for n in missing])
                 for i in range(0, len(missing), 900):  # SQLite's bound-parameter limit
                     part = missing[i : i + 900]
@@ -135,7 +135,7 @@ class LiveStore:
         h = self.open()
         t = schema.diag_events
         lo, hi = min(r["ts"] for r in rows), max(r["ts"] for r in rows)
-        with h.engine.begin() as c:
+        with h._writing() as c:
             have = {
                 (int(ts), u, m)
                 for ts, u, m in c.execute(

@@ -14,7 +14,8 @@ from .times import from_us, now_us, to_us
 
 
 class Registry:
-    """Model versions, experiments and diagnostic events. Needs ``self.engine``."""
+    """Model versions, experiments and diagnostic events. Needs ``self.engine`` and
+    ``self._writing()`` (a write transaction)."""
 
     # -- model registry and experiment log -----------------------------------------------
     def record_model_version(
@@ -24,7 +25,7 @@ class Registry:
         (name, version) replaces the text."""
         t = schema.model_versions
         at = to_us(created_at) if created_at is not None else now_us()
-        with self.engine.begin() as c:
+        with self._writing() as c:
             row = c.execute(
                 select(t.c.id).where(t.c.name == name, t.c.version == str(version))
             ).first()
@@ -62,7 +63,7 @@ class Registry:
     ) -> int:
         """Log a training/validation run; returns its id."""
         t = schema.experiments
-        with self.engine.begin() as c:
+        with self._writing() as c:
             res = c.execute(
                 insert(t).values(
                     model=model,
@@ -107,7 +108,7 @@ class Registry:
     ) -> int:
         """Store one diagnosis (NE 107 ``status``, fault ``certainty``); returns its id."""
         t = schema.diag_events
-        with self.engine.begin() as c:
+        with self._writing() as c:
             res = c.execute(
                 insert(t).values(
                     ts=to_us(ts),

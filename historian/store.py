@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -52,6 +53,11 @@ class Historian(ColdMonths, Registry, TagReport):
     a connection too (PostgreSQL: ``statement_timeout`` and ``connect_timeout``; SQLite: the
     busy timeout, when shorter): a reader that must not hang on a locked or slow database
     (the live plug-in's catch-up and warm-up) fails after it instead. None: no bound.
+
+    SQLite: the metadata (SQLAlchemy, the system's SQLite) and the samples (ADBC, its own
+    SQLite) are two copies of SQLite in one process; every write transaction of either holds
+    the file's in-process write lock and connections close only under it
+    (:mod:`historian.sqlitefile`). The lock is waited for at most the busy timeout.
     """
 
     def __init__(
@@ -76,6 +82,8 @@ class Historian(ColdMonths, Registry, TagReport):
             busy_ms = max(1, int(busy_timeout * 1000))
             event.listen(self.engine, "connect", lambda c, r: _sqlite_pragmas(c, r, busy_ms))
             self._bulk = SqliteBulk(path, busy_timeout_ms=busy_ms)
+            self._file = self._bulk.file
+            self._lock_s: float | None = busy_ms / 1000
             self._default_cold_dir = path.with_name(path.name + ".cold")
         elif u.get_backend_name() == "postgresql":
             args = {}
@@ -85,10 +93,15 @@ class Historian(ColdMonths, Registry, TagReport):
                 args["options"] = f"-c statement_timeout={ms}"
             self.engine = create_engine(u.set(drivername="postgresql+psycopg"), connect_args=args)
             self._bulk = PostgresBulk(self.engine)
+            self._file = None
             self._default_cold_dir = None
         else:
             raise ValueError(f"unsupported database URL {self.url!r} (sqlite or postgresql)")
-        create_schema(self.engine)
+        self._closed = False
+        if self._file is None:
+            create_schema(self.engine)
+        else:
+            self._file.attach(lambda: create_schema(self.engine), self._lock_s)
         self.cold_dir = (
             Path(cold_dir) if cold_dir else self._recorded_cold_dir() or self._default_cold_dir
         )
@@ -120,12 +133,29 @@ class Historian(ColdMonths, Registry, TagReport):
             self._pool = ThreadPoolExecutor(READ_THREADS, thread_name_prefix="historian-read")
         return self._pool
 
+    @contextmanager
+    def _writing(self):
+        """``engine.begin()`` for a write transaction through SQLAlchemy; on SQLite under
+        the file's in-process write lock (never beside a write of the ADBC connections)."""
+        if self._file is None:
+            with self.engine.begin() as c:
+                yield c
+            return
+        with self._file.writing(self._lock_s), self.engine.begin() as c:
+            yield c
+
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
-        self._bulk.close()
-        self.engine.dispose()
+        if self._closed:
+            return
+        self._closed = True
+        if self._file is None:
+            self._bulk.close()
+            self.engine.dispose()
+        else:  # under the write lock: no close drops the locks of a transaction open
+            self._file.detach(lambda: (self._bulk.close(), self.engine.dispose()))
 
     def __enter__(self) -> Historian:
         return self
@@ -152,7 +182,7 @@ class Historian(ColdMonths, Registry, TagReport):
             if v is not None
         }
         t = schema.tags
-        with self.engine.begin() as c:
+        with self._writing() as c:
             c.execute(self._insert(t).values(name=name).on_conflict_do_nothing())
             tag_id = c.execute(select(t.c.id).where(t.c.name == name)).scalar_one()
             if fields:
