@@ -157,19 +157,18 @@ class HeldOutScorer:
         rmse = self._rmse(full)
         return rmse, float(own.mean()), per_cell, self.last_fine
 
-    def per_rule(self, variables, cols) -> float:
+    def per_rule(self, variables, cols) -> tuple[float, tuple | None]:
         """Training samples per rule of a variant from its fit alone — no coarse level fitted,
         nothing predicted: whether the data can fill its grid at a small share of
-        :meth:`score`'s cost (the same figure :meth:`score` reports; 0 where nothing fits)."""
+        :meth:`score`'s cost (the same figure :meth:`score` reports; 0 where nothing fits) —
+        and the fit, for :meth:`score` of the same variant (``prefit``) to finish instead of
+        fitting again."""
         if not len(cols):
-            return 0.0
-        X = np.column_stack(cols)
-        tr = np.isfinite(X[: self.cut]).all(axis=1) & self._tr_y
-        if tr.sum() < 10 or self.va.size < 10:
-            return 0.0
-        spec = dc_replace(self.rb.spec, inputs=list(variables))
-        m = self.rb.codec.new_estimator(spec).fit(X[: self.cut][tr], self.y[: self.cut][tr])
-        return int(tr.sum()) / max(self.rb.codec.size(m), 1)
+            return 0.0, None
+        m, n_train = self._fit(variables, np.column_stack(cols))
+        if m is None:
+            return 0.0, None
+        return n_train / max(self.rb.codec.size(m), 1), (m, n_train, None)
 
     def residual(self, cols) -> np.ndarray:
         """The current model's in-sample residual on the training rows (NaN where none)."""

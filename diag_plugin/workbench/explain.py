@@ -251,24 +251,32 @@ def _explain(
             cols[replace], vs[replace] = feats.column(spec)[::step], var
         return vs, cols
 
-    def evaluate(spec: InputSpec, replace=None, sets=None, sc: HeldOutScorer | None = None):
+    def evaluate(
+        spec: InputSpec, replace=None, sets=None, sc: HeldOutScorer | None = None, fitted=None
+    ):
+        """``fitted``: :func:`unfilled`'s variant and fit of ``spec`` as add-input writes it
+        (all rows, ``scorer``), finished instead of built and fitted again."""
         sc = sc or scorer
-        got = variant(spec, replace, sets, stride if sc is not scorer else 1)
+        if fitted is None:
+            got, prefit = variant(spec, replace, sets, stride if sc is not scorer else 1), None
+        else:
+            got, prefit = fitted
         if got is None:
             return None
         vs, cols = got
-        rmse, cov, per_cell, fine = sc.score(vs, cols)
+        rmse, cov, per_cell, fine = sc.score(vs, cols, prefit=prefit)
         return _Score(rmse, cov, per_cell, vs[-1 if replace is None else replace].sets, fine=fine)
 
-    def unfilled(spec: InputSpec, replace=None) -> float | None:
+    def unfilled(spec: InputSpec, replace=None) -> tuple[float | None, tuple | None]:
         """Training samples per rule of ``spec`` as add-input writes it where that is below
         :data:`SPARSE_PER_CELL` (the data cannot fill its grid: it is thin whatever it
-        scores), else None — from the fit alone, before any coarse level is fitted."""
+        scores), else None — from the fit alone, before any coarse level is fitted; with
+        the variant and its fit (:func:`evaluate`'s ``fitted``; None where none fits)."""
         got = variant(spec, replace)
         if got is None:
-            return None
-        per = scorer.per_rule(*got)
-        return per if 0 < per < SPARSE_PER_CELL else None
+            return None, None
+        per, prefit = scorer.per_rule(*got)
+        return (per if 0 < per < SPARSE_PER_CELL else None), (got, prefit)
 
     def thin(r: _Score) -> bool:
         return (
@@ -282,14 +290,14 @@ def _explain(
         the new input (a few coarse counts and what the data fill, coarse to fine until
         :data:`SETS_PATIENCE` in a row bring nothing), compared on every ``stride``-th row;
         the best is scored on all rows and kept if it scores better."""
-        fewer_only = spec.fn not in ("dir", "hour") and unfilled(spec, replace)
+        fewer_only, fitted = (None, None) if spec.fn in ("dir", "hour") else unfilled(spec, replace)
         if fewer_only:
             # a grid the data cannot fill is not retrained (its coarse levels' node fit is
             # the costliest of all, issue 37): only the fewer sets below are, from the start
             var = variable(spec)
             r = _Score(math.nan, 0.0, fewer_only, var.sets, fine=math.nan)
         else:
-            r = evaluate(spec, replace)
+            r = evaluate(spec, replace, fitted=fitted)
             if r is None or not thin(r) or spec.fn in ("dir", "hour"):
                 return r
         fit = sets_for_cells(scorer.base_rows, scorer.base_rules, r.sets - 1)
