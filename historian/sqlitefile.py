@@ -65,7 +65,7 @@ class SqliteFile:
                 "(the two SQLite libraries would hold write locks at once)"
             )
         if not self._lock.acquire(timeout=-1 if timeout_s is None else max(0.0, timeout_s)):
-            raise DatabaseLocked(LOCKED)
+            raise DatabaseLocked(f"{self.path}: {LOCKED}")
         self._owner = me
         try:
             yield
