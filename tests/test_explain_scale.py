@@ -8,7 +8,7 @@ import pytest
 
 import diag_plugin.workbench.explain as explain_mod
 from diag_plugin.rulebase.document import RuleBase
-from diag_plugin.selection.consequence import consequence
+from diag_plugin.selection.consequence import MIN_ESS, consequence, effective_samples
 from diag_plugin.training.chunked import train
 from diag_plugin.workbench.compare import compare
 from diag_plugin.workbench.explain import explain
@@ -107,6 +107,18 @@ def test_consequence_evidence_on_a_pure_chain_and_a_collider():
     follower = np.r_[np.zeros(3), walk[:-3]] + rng.normal(0, 0.1, n)
     assert consequence(follower, walk, [], cut, max_lag=10).lag == 3
     assert consequence(walk, follower, [], cut, max_lag=10).lag == 0
+
+
+def test_effective_sample_size():
+    """White noise: about one independent value per sample; a series of 12 levels held for
+    1,000 samples each: about a dozen (Geyer's initial positive sequence)."""
+    rng = np.random.default_rng(5)
+    assert 8_000 < effective_samples(rng.normal(size=10_000)) < 12_500
+    steps = np.repeat(rng.uniform(30, 90, 12), 1_000) + rng.normal(0, 0.1, 12_000)
+    assert 3 < effective_samples(steps) < 40 < MIN_ESS
+    gaps = rng.normal(size=10_000)
+    gaps[::7] = np.nan  # missing samples are not counted
+    assert 7_000 < effective_samples(gaps) < 11_000
 
 
 def test_screen_keeps_the_order_of_full_scoring(tmp_path, monkeypatch):

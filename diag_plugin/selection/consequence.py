@@ -15,6 +15,16 @@ on data (held-out where anything is fitted):
 * **lag structure.** The changes of ``c`` follow the changes of ``y``: the correlation of
   their first differences peaks with ``c`` lagging ``y`` (by at least one sample), clearly
   above (:data:`LAG_MARGIN`) any peak with ``c`` leading.
+
+The chain test can only tell where what ``y`` leaves of ``c`` varies often enough to be
+learned and scored: a manual valve moved a few times in the window leaves a handful of
+levels, each new one putting the held-out rows in (output, input) cells the training rows
+never visited, and every fit with a model input then scores worse than ``y`` alone — which
+read as "the inputs add nothing", a consequence. So the test is judged only where the
+training rows' residual of ``c`` from ``y`` holds :data:`MIN_ESS` effective independent values
+or more (the effective sample size ``n / τ``, ``τ = 1 + 2 Σ ρ_k`` its integrated
+autocorrelation time, summed over Geyer's initial positive sequence — Geyer 1992, Statist.
+Sci. 7, eq. 3.3); below it :attr:`Consequence.unjudged` says so and nothing is flagged by it.
 """
 
 from __future__ import annotations
@@ -35,6 +45,10 @@ MIN_R2 = 0.2
 MAX_GAIN = 0.25
 #: a lagging peak must beat every leading one by this factor
 LAG_MARGIN = 1.5
+#: effective independent values the residual of the candidate from the output must hold in the
+#: training part for the chain test to judge: a held-out ratio of errors over ``m`` independent
+#: values is uncertain by about ``sqrt(2 / m)``; twice that must stay within :data:`MAX_GAIN`
+MIN_ESS = 8.0 / MAX_GAIN**2
 #: sets of the output and of a model input in the cell-mean fits (the output finer: what a
 #: model input adds within one of the output's sets is what a coarse output grid leaves)
 Y_SETS, X_SETS = 40, 8
@@ -44,16 +58,33 @@ Y_SETS, X_SETS = 40, 8
 class Consequence:
     """The evidence: ``r2_y`` — held-out R² of the candidate from the output alone;
     ``r2_yx`` — with the output and the best model input; ``lag`` — samples by which the
-    candidate's changes follow the output's (0: no such lag)."""
+    candidate's changes follow the output's (0: no such lag); ``ess`` — effective independent
+    values of what the output leaves of the candidate in the training part
+    (:func:`effective_samples`)."""
 
     r2_y: float
     r2_yx: float
     lag: int
+    ess: float = math.inf
+
+    @property
+    def _reads_as_chain(self) -> bool:
+        room = max(1.0 - self.r2_y, 1e-9)
+        return self.r2_y >= MIN_R2 and (self.r2_yx - self.r2_y) / room < MAX_GAIN
+
+    @property
+    def judged(self) -> bool:
+        """Whether the data can tell a chain from a collider (:data:`MIN_ESS`)."""
+        return self.ess >= MIN_ESS
 
     @property
     def chain(self) -> bool:
-        room = max(1.0 - self.r2_y, 1e-9)
-        return self.r2_y >= MIN_R2 and (self.r2_yx - self.r2_y) / room < MAX_GAIN
+        return self.judged and self._reads_as_chain
+
+    @property
+    def unjudged(self) -> bool:
+        """The chain test would read a consequence, but the data cannot tell (not flagged)."""
+        return not self.judged and self._reads_as_chain
 
     @property
     def likely(self) -> bool:
@@ -73,6 +104,15 @@ class Consequence:
             f"{tag} predicts the output from its own effect, and a fault would move both"
         )
 
+    def unjudged_note(self, tag: str, output: str) -> str:
+        """Plain words for :attr:`unjudged`."""
+        return (
+            f"cause or consequence of {output}? these data cannot tell: {output} explains "
+            f"{self.r2_y:.0%} of {tag}, but what it leaves of {tag} takes about "
+            f"{self.ess:.0f} independent values in the training part (it changes in a few "
+            f"steps or slowly; {MIN_ESS:.0f} are needed to tell) — not flagged"
+        )
+
 
 def consequence(
     cand: np.ndarray,
@@ -83,7 +123,7 @@ def consequence(
 ) -> Consequence:
     """Evidence that ``cand`` is driven by ``y`` (see the module doc); rows before ``cut``
     fit, rows after it score."""
-    r2_y = _heldout_r2(cand, [y], [Y_SETS], cut)
+    r2_y, left = _heldout_r2(cand, [y], [Y_SETS], cut, residual=True)
     r2_yx = max([r2_y, *(_heldout_r2(cand, [y, x], [Y_SETS, X_SETS], cut) for x in inputs)])
     lag = 0
     if max_lag > 0:
@@ -93,7 +133,29 @@ def consequence(
         best = int(np.argmax(lagging))
         if best > 0 and lagging[best] > LAG_MARGIN * max(leading.max(), lagging[0], 1e-12):
             lag = best
-    return Consequence(r2_y, r2_yx, lag)
+    return Consequence(r2_y, r2_yx, lag, effective_samples(left))
+
+
+def effective_samples(e: np.ndarray) -> float:
+    """Effective sample size ``n / τ`` of the series ``e`` (NaN: not counted, zero in the
+    autocorrelation), ``τ = 1 + 2 Σ ρ_k`` summed over Geyer's initial positive sequence (pairs
+    ``ρ_2m + ρ_2m+1`` while positive; Geyer 1992, Statist. Sci. 7, 473–483, eq. 3.3)."""
+    from scipy.signal import correlate
+
+    ok = np.isfinite(e)
+    n = int(ok.sum())
+    if n < 3:
+        return 0.0
+    d = np.where(ok, e - e[ok].mean(), 0.0)
+    ac = correlate(d, d, mode="full", method="fft")[e.size - 1 :]
+    if ac[0] <= 0:
+        return 0.0
+    rho = ac / ac[0]
+    m = (rho.size - 1) // 2
+    pairs = rho[1 : 2 * m : 2] + rho[2 : 2 * m + 1 : 2]
+    stop = np.flatnonzero(pairs <= 0)
+    tau = 1.0 + 2.0 * float(pairs[: stop[0] if stop.size else pairs.size].sum())
+    return n / max(tau, 1.0)
 
 
 def _index(col: np.ndarray, cut: int, sets: int) -> np.ndarray:
@@ -102,9 +164,15 @@ def _index(col: np.ndarray, cut: int, sets: int) -> np.ndarray:
 
 
 def _heldout_r2(
-    target: np.ndarray, cols: Sequence[np.ndarray], sets: Sequence[int], cut: int
-) -> float:
-    """Held-out R² of ``target`` from the cell means of ``cols`` (fitted before ``cut``)."""
+    target: np.ndarray,
+    cols: Sequence[np.ndarray],
+    sets: Sequence[int],
+    cut: int,
+    residual: bool = False,
+) -> float | tuple[float, np.ndarray]:
+    """Held-out R² of ``target`` from the cell means of ``cols`` (fitted before ``cut``);
+    with ``residual``, also the training rows' residual from those means (NaN where a row
+    is not fitted)."""
     key = np.zeros(target.size, np.int64)
     bad = ~np.isfinite(target)
     for c, n in zip(cols, sets, strict=True):
@@ -115,7 +183,7 @@ def _heldout_r2(
     tr = ~bad & (rows < cut)
     ho = ~bad & (rows >= cut)
     if tr.sum() < 20 or ho.sum() < 10:
-        return math.nan
+        return (math.nan, np.full(cut, math.nan)) if residual else math.nan
     cells = int(np.prod(sets))
     cnt = np.bincount(key[tr], minlength=cells)
     sm = np.bincount(key[tr], target[tr], minlength=cells)
@@ -123,6 +191,8 @@ def _heldout_r2(
     fit = np.where(cnt > 0, sm / np.maximum(cnt, 1), mean)
     t = target[ho]
     ss = float(np.sum((t - t.mean()) ** 2))
-    if ss <= 0:
-        return math.nan
-    return 1.0 - float(np.sum((t - fit[key[ho]]) ** 2)) / ss
+    r2 = math.nan if ss <= 0 else 1.0 - float(np.sum((t - fit[key[ho]]) ** 2)) / ss
+    if not residual:
+        return r2
+    left = np.where(tr, target - fit[np.where(bad, 0, key)], math.nan)[:cut]
+    return r2, left

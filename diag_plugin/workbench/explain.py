@@ -402,6 +402,8 @@ def _explain(
             if ev.likely:
                 effect_of_y = True
                 notes.insert(0, ev.note(spec.tags[0], str(out_spec)))
+            elif ev.unjudged:
+                notes.insert(0, ev.unjudged_note(spec.tags[0], str(out_spec)))
         cmd = f"diag model add-input {name} '{spec}'"
         if replaces:
             cmd += f" --replace '{replaces}'"
