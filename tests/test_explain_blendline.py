@@ -100,6 +100,22 @@ def test_a_valve_moved_a_few_times_is_not_read_as_a_consequence(days, seed):
     assert hp.chain and hp.judged and not hp.unjudged, hp
 
 
+def test_compare_table_says_cannot_tell_for_the_valve():
+    """`diag compare`'s residual-vs-tag table uses the same test: on the 3-day seed-13 window
+    the manual valve is marked "cannot tell" (not "likely"), the header pressure "likely"."""
+    from diag_plugin.workbench.compare import residual_vs_tags
+
+    f = on_grid(simulate_blendline(3, seed=13))
+    y = f["OUT_FLOW"].to_numpy(float)
+    x = np.column_stack([f[c.split("[")[0]].to_numpy(float) for c in INPUTS])
+    res = y - np.nanmean(y)  # the flag reads the output and inputs, not the residual
+    t = residual_vs_tags(f, f.index, res, {"OUT_FLOW"}, y, x).set_index("tag")
+    assert not t.loc["HAND_VALVE", "likely_consequence"]
+    assert t.loc["HAND_VALVE", "consequence_unjudged"]
+    assert t.loc["HEADER_P", "likely_consequence"]
+    assert not t.loc["HEADER_P", "consequence_unjudged"]
+
+
 def _level_system(rb, f, monkeypatch):
     """A five-input model (the line's four and the manual valve) and its first coarse level's
     normal equations, as the node fit builds them."""

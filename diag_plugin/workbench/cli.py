@@ -368,7 +368,11 @@ def cmd_compare(args) -> int:
                 r["tag"],
                 f"{r['explained_pct']:.1f}",
                 f"{r['corr']:+.2f}",
-                "likely" if r.get("likely_consequence") else "",
+                "likely"
+                if r.get("likely_consequence")
+                else "cannot tell"
+                if r.get("consequence_unjudged")
+                else "",
             )
         con.print(t)
         con.print(

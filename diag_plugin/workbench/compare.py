@@ -247,7 +247,9 @@ def residual_vs_tags(
     with the tag (where the tag acts together with the model's inputs, that counts), causes
     before consequences. With the output ``y`` and the model's input rows ``inputs``,
     ``likely_consequence`` flags a tag driven by the output
-    (:func:`~diag_plugin.selection.consequence.consequence`, the same test ``explain`` uses).
+    (:func:`~diag_plugin.selection.consequence.consequence`, the same test ``explain`` uses);
+    ``consequence_unjudged`` marks a tag the output seems to drive where the data cannot tell
+    (:attr:`~diag_plugin.selection.consequence.Consequence.unjudged`: not flagged).
     """
     from diag_plugin.selection.consequence import consequence
     from diag_plugin.selection.lags import default_max_lag
@@ -273,17 +275,20 @@ def residual_vs_tags(
         var = rv.var()
         explained = 1 - resid.var() / var if var > 0 else 0.0
         corr = float(np.corrcoef(xv, rv)[0, 1]) if xv.std() > 0 and rv.std() > 0 else 0.0
-        effect = False
+        effect = unjudged = False
         if y is not None and inputs is not None and len(y) == len(index):
             cols = [inputs[:, k] for k in range(inputs.shape[1])]
-            effect = consequence(x.to_numpy(float), y, cols, cut, horizon).likely
+            ev = consequence(x.to_numpy(float), y, cols, cut, horizon)
+            effect, unjudged = ev.likely, ev.unjudged and not ev.likely
         rows.append(
             {
                 "tag": tag,
                 "explained_pct": 100 * explained,
                 "corr": corr,
                 "likely_consequence": effect,
+                "consequence_unjudged": unjudged,
             }
         )
-    df = pd.DataFrame(rows, columns=["tag", "explained_pct", "corr", "likely_consequence"])
+    columns = ["tag", "explained_pct", "corr", "likely_consequence", "consequence_unjudged"]
+    df = pd.DataFrame(rows, columns=columns)
     return df.sort_values("explained_pct", ascending=False).reset_index(drop=True)
