@@ -8,6 +8,15 @@ bench's calibration runs (the anomaly-free chunks and the tuning runs' normal sa
 their first 400) and SKAB's F1 / FAR / MAR on the tuning runs' samples after their first
 400, with the per-fault detection of the unit, PCA and DPCA. The scoring runs are not read.
 
+``--leave-out`` scores each tuning run at limits matched without its own normal samples
+(:func:`~diag_plugin.bench.matched.calibrate_leaving_out`), as the scoring runs are scored at
+limits they did not set: with the common limits every target up to 0.01 sits on the largest
+tuning fault's tail (its alarm held into the run's normal samples by the off-delay), which
+leaves every method at F1 0 there and cannot tell two builds apart. ``--drop-held`` leaves
+the off-delay's samples after each tuning fault (the fault's alarm, held) out of the
+calibration — not the bench's protocol, which counts them: a look at what the low targets
+compare.
+
 ``--save FILE`` keeps every run's raw statistics (the unit's per test and T², over their
 limits, before the delays) in a ``.npz`` for a look at what holds an alarm or misses a
 fault; ``--load FILE`` (repeatable) reuses them. ``--scoring`` reports the 21 scoring runs
@@ -28,7 +37,13 @@ import numpy as np
 def main(argv: list[str] | None = None) -> int:
     from _common import add_scratch_args, scratch
 
-    from diag_plugin.bench.matched import Scored, calibrate, method_score, rates
+    from diag_plugin.bench.matched import (
+        Scored,
+        calibrate,
+        calibrate_leaving_out,
+        method_score,
+        rates,
+    )
     from diag_plugin.bench.publicbench import (
         DPCA_LAGS,
         _sample_grid,
@@ -60,6 +75,17 @@ def main(argv: list[str] | None = None) -> int:
         "--scoring",
         action="store_true",
         help="score the 21 scoring runs instead (once, after a choice is made)",
+    )
+    ap.add_argument(
+        "--leave-out",
+        action="store_true",
+        help="score each tuning run at limits matched without its own normal samples",
+    )
+    ap.add_argument(
+        "--drop-held",
+        action="store_true",
+        help="leave the off-delay's samples after each tuning fault out of the calibration "
+        "(a question of the yardstick, for the bench's owner: not the bench's protocol)",
     )
     add_scratch_args(ap, "nothing")
     args = ap.parse_args(argv)
@@ -119,21 +145,33 @@ def main(argv: list[str] | None = None) -> int:
     for target in targets:
         cells, det = [], {}
         for m, by_run in scores.items():
-            cal = []
+            cal = {}
             for run in plant.calibration:
                 x = by_run[run.name]
                 if run.labels is not None:
-                    x = x[run.labels[run.learn :] == 0]
-                cal.append(x)
-            lim = calibrate(cal, target, 1.0).limit
-            share = rates(cal, lim, 1.0)[0]
+                    lab = run.labels[run.learn :]
+                    keep = lab == 0
+                    if args.drop_held:  # the off-delay's hold after a fault: its alarm
+                        for e in np.flatnonzero((lab[:-1] > 0) & (lab[1:] == 0)):
+                            keep[e + 1 : e + 1 + off] = False
+                    x = x[keep]
+                cal[run.name] = x
+            lim = calibrate(list(cal.values()), target, 1.0).limit
+            share = rates(list(cal.values()), lim, 1.0)[0]
+            # per scored run its limit: the common one, or (--leave-out) one matched without
+            # that run's own normal samples, as a scoring run is scored at limits it never set
             lab = [r.labels[r.learn :] for r in tuning.values()]
-            sk = skab_metrics([Scored(by_run[n]) for n in tuning], lab, lim)
+            lims = {n: lim for n in tuning}
+            if args.leave_out:
+                lims = {
+                    n: v.limit for n, v in calibrate_leaving_out(cal, tuning, target, 1.0).items()
+                }
+            sk = skab_metrics([Scored(by_run[n]) for n in tuning], lab, [lims[n] for n in tuning])
             cells.append(f"{sk['F1']:.2f} / {sk['FAR']:.1%} / {sk['MAR']:.1%} ({share:.2%})")
             for n, r in tuning.items():
                 s = by_run[n]
                 act = r.labels[r.learn :] > 0
-                det.setdefault(n, {})[m] = float(np.mean(np.nan_to_num(s[act], nan=-1) > lim))
+                det.setdefault(n, {})[m] = float(np.mean(np.nan_to_num(s[act], nan=-1) > lims[n]))
         print(f"{target:g} | " + " | ".join(cells))
         det_rows.append((target, det))
     for target, det in det_rows:

@@ -10,6 +10,7 @@ from diag_plugin.bench.matched import (
     FaultRun,
     Scored,
     calibrate,
+    calibrate_leaving_out,
     curve,
     delayed_score,
     episode_count,
@@ -204,3 +205,34 @@ def test_a_built_units_score_at_one_is_its_own_alarm(tmp_path):
         seen += int(native.sum())
         assert list(contrib.columns) == unit.cmodel.tags
     assert seen > 0  # the fault raised alarms: the comparison compared something
+
+
+def test_a_run_is_scored_at_a_limit_its_own_tail_did_not_set():
+    """SKAB's tuning runs calibrate too: a fault's alarm held into the run's normal samples
+    after it is the calibration's largest score, so at a low target the common limit sits on
+    that tail and the fault under it is never seen; left out, the run meets the limit the other
+    runs set (the scoring runs' situation), and SKAB's metrics take one limit per run."""
+    from diag_plugin.bench.publicbench import skab_metrics
+
+    rng = np.random.default_rng(7)
+    runs = {f"free{k}": rng.standard_normal(1000) for k in range(3)}
+    fault = np.r_[rng.standard_normal(300), np.full(200, 40.0), np.full(40, 50.0)]
+    labels = np.r_[np.zeros(300), np.ones(200), np.zeros(40)]
+    runs["tuning"] = fault[labels == 0]  # its normal samples, the held tail among them
+    common = calibrate(list(runs.values()), 0.005, 1.0).limit
+    assert common >= 40.0  # the tail sets it: the fault is under it
+    alone = calibrate_leaving_out(runs, ["tuning", "free0"], 0.005, 1.0)
+    assert (
+        alone["tuning"].limit == calibrate([runs[f"free{k}"] for k in range(3)], 0.005, 1.0).limit
+    )
+    assert alone["tuning"].limit < 5.0
+    assert alone["free0"].limit >= 40.0  # the tail stays for every other run
+    sk_common = skab_metrics([Scored(fault)], [labels], common)
+    sk_alone = skab_metrics([Scored(fault)], [labels], [alone["tuning"].limit])
+    assert sk_common["MAR"] == 1.0 and sk_alone["MAR"] == 0.0
+    other = np.r_[np.zeros(50), np.full(50, 3.0)]
+    lab2 = np.r_[np.zeros(50), np.ones(50)]
+    both = skab_metrics(
+        [Scored(fault), Scored(other)], [labels, lab2], [alone["tuning"].limit, 4.0]
+    )
+    assert both["MAR"] == pytest.approx(50 / 250)  # each run at its own limit: the 3s under 4

@@ -361,12 +361,15 @@ def run_matched_benchmark(
     }
 
 
-def skab_metrics(scores: Sequence[Scored], labels: Sequence[np.ndarray], limit: float) -> dict:
+def skab_metrics(
+    scores: Sequence[Scored], labels: Sequence[np.ndarray], limit: float | Sequence[float]
+) -> dict:
     """F1, FAR and MAR per sample over all runs, as the SKAB README's binary metric:
     ``F1 = TP / (TP + (FN + FP) / 2)``, ``FAR = FP / (FP + TN)``, ``MAR = FN / (FN + TP)``
-    (unknown samples are not in alarm)."""
+    (unknown samples are not in alarm); ``limit`` one for all runs or one per run."""
     tp = tn = fp = fn = 0
-    for s, lab in zip(scores, labels, strict=True):
+    limits = np.broadcast_to(np.asarray(limit, float), (len(scores),))
+    for s, lab, limit in zip(scores, labels, limits, strict=True):
         pred = np.where(np.isnan(s.score), -np.inf, s.score) > limit
         true = lab > 0
         tp += int(np.sum(pred & true))
