@@ -67,6 +67,8 @@ SQLITE_PRAGMAS = (
     f"PRAGMA page_size={PAGE_BYTES}",
     "PRAGMA journal_mode=WAL",
     "PRAGMA synchronous=FULL",
+    # the historian checkpoints, never a connection on its own (historian.sqlitefile (c))
+    "PRAGMA wal_autocheckpoint=0",
 )
 
 
@@ -76,7 +78,8 @@ class SqliteBulk:
     WAL journal and ``synchronous=FULL`` are set on every connection, so a committed batch
     survives a crash of the process (and of the machine); pages are read through a memory
     map (:data:`MMAP_BYTES`). Each write transaction holds the file's in-process write lock
-    (:mod:`historian.sqlitefile`), waiting for it at most the busy timeout.
+    (:mod:`historian.sqlitefile`), waiting for it at most the busy timeout; each read is
+    counted there while it is open (no checkpoint runs under it).
     """
 
     name = "sqlite"
@@ -88,6 +91,7 @@ class SqliteBulk:
         self._local = threading.local()  # one connection per thread (parallel tag reads)
         self._all: list = []
         self._lock = threading.Lock()
+        self._released = False
 
     @property
     def conn(self):
@@ -97,15 +101,16 @@ class SqliteBulk:
 
             conn = adbc.connect(str(self.path), autocommit=True)
             cur = conn.cursor()
-            for pragma in (
-                f"PRAGMA busy_timeout={int(self.busy_timeout_ms)}",
-                *SQLITE_PRAGMAS,
-                "PRAGMA temp_store=MEMORY",
-                "PRAGMA cache_size=-65536",
-                f"PRAGMA mmap_size={MMAP_BYTES}",
-            ):
-                cur.execute(pragma)
-                cur.fetchall()
+            with self.file.reading(self.busy_timeout_ms / 1000):
+                for pragma in (
+                    f"PRAGMA busy_timeout={int(self.busy_timeout_ms)}",
+                    *SQLITE_PRAGMAS,
+                    "PRAGMA temp_store=MEMORY",
+                    "PRAGMA cache_size=-65536",
+                    f"PRAGMA mmap_size={MMAP_BYTES}",
+                ):
+                    cur.execute(pragma)
+                    cur.fetchall()
             cur.close()
             self._local.conn = conn
             with self._lock:
@@ -118,6 +123,9 @@ class SqliteBulk:
         for conn in conns:
             conn.close()
         self._local = threading.local()
+        if not self._released:
+            self._released = True
+            self.file.release()
 
     def insert(self, tag_id, ts, value, quality, policy: str = "ignore") -> int:
         """Insert one batch in one transaction; returns rows inserted (or changed)."""
@@ -218,13 +226,21 @@ class SqliteBulk:
 
     def fetch(self, sql: str) -> pa.Table:
         """The rows of a query as an Arrow table, in batches of :data:`READ_BATCH_ROWS`."""
-        cur = self.conn.cursor()
-        try:
-            cur.adbc_statement.set_options(**{_BATCH_ROWS_OPTION: str(READ_BATCH_ROWS)})
-            cur.execute(sql)
-            return cur.fetch_arrow_table()
-        finally:
-            cur.close()
+        with self.batches(sql) as reader:
+            return reader.read_all()
+
+    @contextmanager
+    def batches(self, sql: str) -> Iterator[pa.RecordBatchReader]:
+        """The rows of a query as a stream of Arrow batches of :data:`READ_BATCH_ROWS`,
+        read while the context is open (one read transaction, counted as open meanwhile)."""
+        with self.file.reading(self.busy_timeout_ms / 1000):
+            cur = self.conn.cursor()
+            try:
+                cur.adbc_statement.set_options(**{_BATCH_ROWS_OPTION: str(READ_BATCH_ROWS)})
+                cur.execute(sql)
+                yield cur.fetch_record_batch()
+            finally:
+                cur.close()
 
     def recent_ts(self, tag_id: int, n: int) -> np.ndarray:
         """Times of the tag's last ``n`` samples in the database, ascending."""
@@ -240,14 +256,15 @@ class SqliteBulk:
 
     def free_bytes(self) -> int:
         """Bytes of free pages in the file (reused by later writes; ``vacuum`` returns them)."""
-        cur = self.conn.cursor()
-        try:
-            cur.execute("PRAGMA page_size")
-            page = int(cur.fetchone()[0])
-            cur.execute("PRAGMA freelist_count")
-            return page * int(cur.fetchone()[0])
-        finally:
-            cur.close()
+        with self.file.reading(self.busy_timeout_ms / 1000):
+            cur = self.conn.cursor()
+            try:
+                cur.execute("PRAGMA page_size")
+                page = int(cur.fetchone()[0])
+                cur.execute("PRAGMA freelist_count")
+                return page * int(cur.fetchone()[0])
+            finally:
+                cur.close()
 
     def vacuum(self, full: bool = False) -> None:
         """``VACUUM`` (rebuilds the file without its free pages; needs as much free disk as
@@ -258,23 +275,26 @@ class SqliteBulk:
             with self.file.writing(self.busy_timeout_ms / 1000):
                 cur.execute("VACUUM")
                 cur.fetchall()
-                cur.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-                cur.fetchall()
         finally:
             cur.close()
+        try:
+            self.file.checkpoint(self.busy_timeout_ms / 1000)
+        except TimeoutError:  # reads kept the log: a later write's checkpoint empties it
+            pass
 
     def integrity_check(self) -> list[str]:
         """``PRAGMA integrity_check``; a file too damaged for it to run is reported too."""
         import adbc_driver_sqlite.dbapi as adbc
 
-        cur = self.conn.cursor()
-        try:
-            cur.execute("PRAGMA integrity_check")
-            rows = [str(r[0]) for r in cur.fetchall()]
-        except adbc.Error as exc:
-            return [f"PRAGMA integrity_check failed: {exc}"]
-        finally:
-            cur.close()
+        with self.file.reading(self.busy_timeout_ms / 1000):
+            cur = self.conn.cursor()
+            try:
+                cur.execute("PRAGMA integrity_check")
+                rows = [str(r[0]) for r in cur.fetchall()]
+            except adbc.Error as exc:
+                return [f"PRAGMA integrity_check failed: {exc}"]
+            finally:
+                cur.close()
         return [] if rows == ["ok"] else rows
 
 

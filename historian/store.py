@@ -31,6 +31,7 @@ from .frames import sorted_unique, tag_arrays
 from .quality import BAD, GOOD
 from .registry import Registry
 from .sampling import SAMPLING_ROWS, Sampling, hold_us, sampling_of, snap_near, snap_up
+from .sqlitefile import SqliteFile
 from .tagreport import TagReport
 from .times import from_us, index_us, period_us, to_us, us_index
 from .window import align, summarize, summary_attrs
@@ -80,9 +81,9 @@ class Historian(ColdMonths, Registry, TagReport):
             if timeout is not None:
                 busy_timeout = min(busy_timeout, timeout)
             busy_ms = max(1, int(busy_timeout * 1000))
-            event.listen(self.engine, "connect", lambda c, r: _sqlite_pragmas(c, r, busy_ms))
             self._bulk = SqliteBulk(path, busy_timeout_ms=busy_ms)
             self._file = self._bulk.file
+            _count_reads(self.engine, self._file, busy_ms)
             self._lock_s: float | None = busy_ms / 1000
             self._default_cold_dir = path.with_name(path.name + ".cold")
         elif u.get_backend_name() == "postgresql":
@@ -651,7 +652,31 @@ def create_schema(engine, tries: int = 8) -> None:
             time.sleep(0.05 * (attempt + 1))
 
 
-def _sqlite_pragmas(dbapi_conn, _record, busy_ms: int = 60_000) -> None:
+def _count_reads(engine, file: SqliteFile, busy_ms: int) -> None:
+    """SQLAlchemy's connections on the SQLite file: the historian's pragmas on each new one,
+    and a connection in use (checked out of the pool) counted as a read of the file until it
+    is returned (rolled back), so no checkpoint runs under it (:mod:`historian.sqlitefile`)."""
+    wait_s = busy_ms / 1000
+
+    def connect(dbapi_conn, _record) -> None:
+        with file.reading(wait_s):
+            _sqlite_pragmas(dbapi_conn, busy_ms)
+
+    def checkout(_dbapi_conn, record, _proxy) -> None:
+        file.enter_read(wait_s)
+        record.record_info["reading"] = True
+
+    def checkin(_dbapi_conn, record) -> None:
+        # only a counted checkout: the pool checks a connection in after a failed one too
+        if record.record_info.pop("reading", False):
+            file.leave_read()
+
+    event.listen(engine, "connect", connect)
+    event.listen(engine, "checkout", checkout)
+    event.listen(engine, "checkin", checkin)
+
+
+def _sqlite_pragmas(dbapi_conn, busy_ms: int = 60_000) -> None:
     cur = dbapi_conn.cursor()
     cur.execute(f"PRAGMA busy_timeout={int(busy_ms)}")
     for pragma in SQLITE_PRAGMAS:

@@ -199,3 +199,214 @@ def test_a_forked_child_opens_the_file_while_the_parent_holds_its_lock(tmp_path)
 def _child_write(url: str) -> None:
     with Historian(url, busy_timeout=60.0) as h:
         h.write_samples(_samples("A", 10, "2024-03-01"), create_tags=False)
+
+
+# -- (c) checkpoints: one library's checkpoint does not see the other library's readers -----
+
+
+def _pause_read(h: Historian, tag_id: int, out: dict) -> tuple[threading.Thread, threading.Event]:
+    """An ADBC read of a tag (the historian's own read path) in another thread, paused after
+    its first batch; returns the thread and the event that lets it read the rest."""
+    inside, go = threading.Event(), threading.Event()
+
+    def run():
+        try:
+            sql = f"SELECT ts, value FROM samples WHERE tag_id = {tag_id} ORDER BY ts"
+            with h._bulk.batches(sql) as batches:
+                first = batches.read_next_batch()
+                inside.set()
+                go.wait(60)
+                rest = batches.read_all()
+            out["values"] = np.concatenate(
+                [first.column(1).to_numpy(), rest.column(1).to_numpy(zero_copy_only=False)]
+            )
+        except Exception as exc:  # noqa: BLE001 - reported by the test
+            out["error"] = exc
+        finally:
+            inside.set()
+
+    t = threading.Thread(target=run)
+    t.start()
+    assert inside.wait(60)
+    return t, go
+
+
+def test_a_read_of_one_library_keeps_its_snapshot_across_a_checkpoint_of_the_other(
+    tmp_path, monkeypatch
+):
+    """An ADBC read of a tag is open (a training read mid-fetch) while samples are rewritten
+    and more than 1,000 log pages are committed, then a metadata commit (stdlib) follows.
+    Before the rule, that commit's automatic checkpoint copied the rewritten pages into the
+    database file under the open read: it failed ("database disk image is malformed") or
+    saw values written after it began. The read must see its snapshot: the old values."""
+    from historian import backends
+
+    monkeypatch.setattr(backends, "READ_BATCH_ROWS", 1024)
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    h = Historian(url)
+    h.write_samples(_samples("A", 20_000) * 0.0)
+    h.close()  # the last close checkpoints: the samples are in the database file
+    h = Historian(url)
+    tag_id = int(h.tags().set_index("name").loc["A", "id"])
+    out: dict = {}
+    reader, go = _pause_read(h, tag_id, out)
+    h.write_samples(_samples("A", 20_000) * 0.0 + 1.0, create_tags=False, policy="update")
+    h.write_samples(_samples("B", 1_000_000))  # 20 MB of log: past 1,000 pages of 16 KiB
+    h.ensure_tag("C")  # a stdlib commit: its copy checkpointed here
+    go.set()
+    reader.join(60)
+    assert "error" not in out, out.get("error")
+    assert len(out["values"]) == 20_000
+    assert (out["values"] == 0.0).all(), f"{int((out['values'] != 0).sum())} newer values seen"
+    assert (h.read_samples("A") == 1.0).all()
+    assert h.integrity_check() == []
+    h.close()
+
+
+def test_a_metadata_read_keeps_its_snapshot_across_vacuum(tmp_path):
+    """A SQLAlchemy read of the tag list is open (paused after its first row) while
+    ``vacuum`` (ADBC) rebuilds the file and checkpoints. Before the rule the checkpoint ran
+    under the read, which then read pages of the rebuilt file. The read must finish with
+    every tag, and the vacuum wait for it."""
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    h = Historian(url)
+    names = [f"T{i:05d}" for i in range(6000)]
+    store = LiveStore(url)
+    store.tag_ids(names)
+    store.close()
+    with h._writing() as c:  # free room in the tags' pages: VACUUM moves them around
+        c.exec_driver_sql("DELETE FROM tags WHERE id % 2 = 0")
+    names = list(h.tags()["name"])
+    assert len(names) == 3000
+    h.close()  # the last close checkpoints: the tags are in the database file
+    h = Historian(url)
+    inside, go, out = threading.Event(), threading.Event(), {}
+
+    def after(conn, cursor, statement, params, context, executemany):
+        if statement.lstrip().upper().startswith("SELECT TAGS.ID") and not inside.is_set():
+            inside.set()
+            go.wait(60)
+
+    event.listen(h.engine, "after_cursor_execute", after)
+
+    def read():
+        try:
+            out["names"] = list(h.tags()["name"])
+        except Exception as exc:  # noqa: BLE001 - reported by the test
+            out["error"] = exc
+
+    t = threading.Thread(target=read)
+    t.start()
+    assert inside.wait(30)
+    vac = threading.Thread(target=h.vacuum)
+    vac.start()
+    vac.join(PASS_S)
+    go.set()
+    t.join(60)
+    vac.join(60)
+    assert "error" not in out, out.get("error")
+    assert out["names"] == names
+    assert h.integrity_check() == []
+    h.close()
+
+
+def test_the_log_stays_bounded_under_a_live_writer_and_reads_that_overlap(tmp_path, monkeypatch):
+    """A live writer stores blocks while two threads read a tag back to back, so a read is
+    open nearly all the time: checkpoints are skipped while one is, then new reads wait for
+    the open ones to end (the log past DRAIN_BYTES) and the checkpoint runs. The log stays
+    under DRAIN_BYTES plus a block or two, and every read sees the tag whole."""
+    from historian import sqlitefile
+
+    monkeypatch.setattr(sqlitefile, "CHECKPOINT_BYTES", 1 << 20)
+    monkeypatch.setattr(sqlitefile, "DRAIN_BYTES", 4 << 20)
+    db = tmp_path / "h.db"
+    url = f"sqlite:///{db}"
+    store = LiveStore(url, busy_timeout=30.0)
+    h = store.open()
+    h.write_samples(_samples("S", 100_000))
+    reader = Historian(url)
+    stop, reads, bad = threading.Event(), [0], []
+
+    def read():
+        while not stop.is_set():
+            s = reader.read_samples("S")
+            if len(s) != 100_000 or s.iloc[-1] != 99_999.0:
+                bad.append(len(s))
+            reads[0] += 1
+
+    threads = [threading.Thread(target=read) for _ in range(2)]
+    for t in threads:
+        t.start()
+    tags = [f"L{i}" for i in range(50)]
+    wal, ts0 = [], 1_700_000_000_000_000
+    for b in range(120):
+        ts = ts0 + (np.arange(100) + 100 * b) * 1_000_000
+        store.write_block(tags, ts, np.random.default_rng(b).random((100, 50)), np.zeros((100, 50)))
+        wal.append((db.parent / "h.db-wal").stat().st_size)
+    stop.set()
+    for t in threads:
+        t.join(60)
+    # log bytes of one block (~2 MB)
+    block = max(b - a for a, b in zip(wal[:-1], wal[1:], strict=True))
+    assert not bad and reads[0] > 10
+    assert h._file.checkpoints >= 3
+    # without new reads waiting, 1 checkpoint in 120 blocks and a log of 281 MB at the end
+    assert max(wal) < (4 << 20) + 4 * block, (max(wal), block)
+    assert len(h.read_samples("L0")) == 12_000
+    assert h.integrity_check() == []
+    reader.close()
+    store.close()
+
+
+def test_the_process_forgets_a_file_when_its_last_historian_closes(tmp_path):
+    """The process's entry of a file lives while a historian has it open, no longer."""
+    from historian import sqlitefile
+
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    key = str((tmp_path / "h.db").resolve())
+    a, b = Historian(url), Historian(url)
+    assert sqlitefile._FILES[key] is a._file is b._file
+    a.close()
+    assert key in sqlitefile._FILES
+    b.close()
+    assert key not in sqlitefile._FILES
+    with Historian(url) as c:
+        assert sqlitefile._FILES[key] is c._file is not a._file
+        c.write_samples(_samples("A", 10))
+    assert key not in sqlitefile._FILES
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs fork")
+def test_a_forked_child_cannot_use_a_historian_of_its_parent(tmp_path):
+    """SQLite connections must not cross a fork: an inherited historian refuses reads and
+    writes in the child (its parent's lock was held at the fork: before, the child was told
+    it nested two writes, and its close raised too) and its close leaves the parent's
+    connections alone; a historian the child opens works, and so does the parent's."""
+    import multiprocessing
+
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    with Historian(url) as h:
+        h.write_samples(_samples("A", 10))
+        ctx = multiprocessing.get_context("fork")
+        with h._bulk.file.writing():
+            child = ctx.Process(target=_child_with_inherited, args=(h, url))
+            child.start()
+        child.join(120)
+        assert child.exitcode == 0
+        assert len(h.read_samples("A")) == 20
+        h.write_samples(_samples("A", 10, "2024-05-01"), create_tags=False)
+        assert h.integrity_check() == []
+
+
+def _child_with_inherited(h: Historian, url: str) -> None:
+    from historian.sqlitefile import ForkedHistorian
+
+    for use in (
+        lambda: h.read_samples("A"),
+        lambda: h.tags(),
+        lambda: h.write_samples(_samples("A", 10, "2024-04-01"), create_tags=False),
+    ):
+        with pytest.raises(ForkedHistorian):
+            use()
+    h.close()
+    _child_write(url)
