@@ -928,7 +928,7 @@ def _build_unit(
         )  # fmt: skip
         uf = unit.file  # the unit file as just written and read (learning only reads it)
         uf.set_learned(learned)
-        uf.save()
+        uf.save(as_read=True)  # the text set_learned read back: not dumped again
     except UnitError as exc:
         raise UserError("the built unit has problems:\n" + "\n".join(exc.problems)) from None
     except LearnError as exc:
