@@ -22,7 +22,9 @@ hand-build:
    The shortest dead time scoring within :data:`~diag_plugin.selection.lags.TOLERANCE` of
    the best is kept. A candidate (or a dead time) whose lower bound of the error from its fine
    rule level alone (:meth:`~diag_plugin.selection.scoring.BlockScorer.bound`) shows it
-   cannot be chosen is not finished: the same choice at a fraction of the fits.
+   cannot be chosen — it cannot beat the best error reached, or cannot cut the current one
+   by :data:`MIN_GAIN` — is not finished, and the candidates are finished in the order of
+   their bounds (the likeliest winner first): the same choice at a fraction of the fits.
    **A tag a controller holds** (:func:`tracked_set_point`: RMS of tag − set-point at most
    :data:`TRACKS` of the tag's standard deviation) is not modelled from the other tags: its
    test is the loop's own relation (:func:`loop_test`: the tag at its set-point plus the
