@@ -22,9 +22,11 @@ Issue 34's speed target: 200 tags × 10 days at 1 min (``--tags 200 --period 60`
 printed beside it: the parent's (the serial parts), each worker process's (the per-test work
 handed to :func:`~diag_plugin.unitbuild.parallel.map_tests`, timed inside the worker), and
 the wall two idle cores would take — the parent's CPU plus, for each pool, its busiest
-worker's — with the same run's PCA fit time. Measured (branch i34-build7, interleaved with
-main, load 3–6): the busiest choice worker 64.8 → 48.8 s CPU, parent 10–11 s, two idle cores
-≈ 91 → 74 s; the goal is not met (docs/how-to/unit-from-history.md).
+worker's — with the same run's PCA fit time. Measured (branch i34-build8, interleaved with
+main d39e220 on this session's faster machine, load 5–10): the busiest choice worker 29.7 →
+21.8 s CPU (medians of three), parent 6.9 → 5.7 s, two idle cores ≈ 45.6 → 37.2 s, under the
+60 s goal by that estimate (docs/how-to/unit-from-history.md; the wall on idle cores was not
+measured: the machine was shared).
 
 Run: ``python benchmarks/bench_unit_build.py [--tags 50] [--days 10] [--period 60]
 [--workers N] [--quality] [--rig hx]``.

@@ -406,3 +406,36 @@ def test_candidates_passed_over_by_their_bound_change_no_choice(monkeypatch, kin
     assert got == want
     assert any(g["inputs"] for g in got)
     assert pruned < calls["full"]  # some variants were passed over
+
+
+@pytest.mark.parametrize("kind", ["tank", "heatex"])
+def test_no_candidate_finished_that_cannot_cut_the_error(monkeypatch, kind):
+    """select_inputs finishes (fits the coarse levels of) only variants whose bound is within
+    reach of a kept step: the candidates in the order of their bounds, none finished whose
+    bound exceeds the cut by MIN_GAIN of the current error (a step that keeps no input
+    finishes none it could not keep; main finished the best-screened candidate of every step)."""
+    import diag_plugin.unitbuild.build as B
+    from diag_plugin.selection.lags import TOLERANCE
+
+    frame = _plant(kind, 3.0, 48)
+    ctx = _Context(frame, {}, "60s")
+    tags = list(ctx.vars)
+    bound_of: dict[int, float] = {}
+    finished: list[tuple[float, float]] = []  # (bound, the step's current error)
+    plain_bound, plain_score = BlockScorer.bound, BlockScorer.score
+
+    def bound(self, variables, cols):
+        low, fits = plain_bound(self, variables, cols)
+        bound_of[id(fits)] = low
+        return low, fits
+
+    def score(self, variables, cols, prefit=None):
+        finished.append((bound_of[id(prefit)], self.base_rmse))
+        return plain_score(self, variables, cols, prefit)
+
+    monkeypatch.setattr(BlockScorer, "bound", bound)
+    monkeypatch.setattr(BlockScorer, "score", score)
+    got = [B.select_inputs(ctx, t, tags, test=f"t{i}") for i, t in enumerate(tags)]
+    assert any(g.steps for g in got) and finished
+    reach = (1 - B.MIN_GAIN) * (1 + TOLERANCE) * (1 + B.BOUND_MARGIN)
+    assert all(low <= cur * reach for low, cur in finished)

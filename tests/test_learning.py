@@ -220,3 +220,27 @@ def test_blocks_are_equal_spans_of_time():
     idx = pd.date_range("2026-01-01", periods=100, freq="1min", tz="UTC")
     b = block_of(idx, 5)
     assert list(np.bincount(b)) == [20] * 5 and (np.diff(b) >= 0).all()
+
+
+def test_calibrate_in_worker_processes_gives_the_serial_thresholds():
+    """calibrate with a mapper (each test's thresholds in the build's worker pool) returns
+    exactly the thresholds computed one test after another, in the columns' order."""
+    from diag_plugin.unitbuild.parallel import map_tests
+
+    rng = np.random.default_rng(3)
+    n = 20_000
+    res = pd.DataFrame(
+        {
+            f"t{i}": np.convolve(rng.standard_normal(n), np.ones(5 + i) / (5 + i), "same")
+            for i in range(5)
+        }  # fmt: skip
+    )
+    res.iloc[:300, 2] = np.nan
+    want = calibrate(res, "1min", 0.01, on_delay=3, off_delay=3)
+
+    def pool(fn, items, args):
+        return map_tests(fn, items, args, workers=2)
+
+    got = calibrate(res, "1min", 0.01, on_delay=3, off_delay=3, mapper=pool)
+    assert list(got) == list(res.columns)
+    assert got == want

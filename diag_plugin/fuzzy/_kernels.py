@@ -571,7 +571,8 @@ def sets_filled(pos, top, bottom, per_cell):
     down to ``bottom`` for which the cells the rows of ``pos`` (each sample's place in every
     input's span, finite) occupy hold ``per_cell`` samples on average, else ``bottom`` — the
     same set indices (``floor(pos · (sets - 1) + 0.5)`` clipped) and counts in one loop per
-    count tried, through one table of ``top^d`` cells."""
+    count tried, through one table of ``top^d`` cells; a count's loop stops at the first
+    cell that makes it too many (cells are only ever added: the count fails then)."""
     n, d = pos.shape
     cells = 1
     for _ in range(d):
@@ -580,6 +581,7 @@ def sets_filled(pos, top, bottom, per_cell):
     keys = np.empty(n, np.int64)
     for sets in range(top, bottom - 1, -1):
         occupied = 0
+        done = n  # rows whose cells are marked (a count stops once it is too many)
         for r in range(n):
             key = 0
             mul = 1
@@ -595,7 +597,10 @@ def sets_filled(pos, top, bottom, per_cell):
             if not seen[key]:
                 seen[key] = True
                 occupied += 1
-        for r in range(n):
+                if n < per_cell * occupied:  # this count fails whatever the other rows hold
+                    done = r + 1
+                    break
+        for r in range(done):
             seen[keys[r]] = False
         if n >= per_cell * occupied:
             return sets

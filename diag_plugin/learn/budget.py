@@ -35,7 +35,9 @@ the unit's alarm rate is at most the sum of its tests' (an alarm on any test is 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numba
 import numpy as np
@@ -193,39 +195,52 @@ def calibrate(
     *,
     on_delay: int = 1,
     off_delay: int = 1,
+    mapper: Callable[[Callable[..., Any], Sequence[Any], tuple], list[Any]] | None = None,
 ) -> dict[str, TestBudget]:
     """Thresholds per test (column) holding the unit's false alarms to ``far`` per hour of
     operation, all tests together: each side of each test gets ``far / (2 T)``.
 
     ``residuals``: the fault-free filtered residuals the unit would threshold (NaN unknown),
-    one column per test, one row per sampling ``period``.
+    one column per test, one row per sampling ``period``. ``mapper(fn, items, args)``:
+    ``[fn(item, *args) for item in items]`` in any number of processes, in order (each
+    test's thresholds are its own; ``diag unit build`` passes its worker pool's).
     """
     if not far > 0:
         raise ValueError(f"the false-alarm budget must be > 0 per hour, got {far}")
     dt_h = pd.Timedelta(period) / pd.Timedelta(hours=1)
     share = far / (2 * residuals.shape[1])
-    out = {}
-    for name in residuals.columns:
-        x = residuals[name].to_numpy(float)
-        known = np.isfinite(x)
-        hours = float(known.sum()) * dt_h
-        hi = calibrate_side(x, hours, share, on_delay, off_delay)
-        lo = calibrate_side(-x, hours, share, on_delay, off_delay)
-        both = (hi, lo)
-        out[str(name)] = TestBudget(
-            test=str(name),
-            low=-lo.threshold,
-            high=hi.threshold,
-            rate=hi.rate + lo.rate,
-            method=hi.method if hi.method == lo.method else f"{hi.method}/{lo.method}",
-            supported=all(s.supported for s in both),
-            hours=hours,
-            hours_needed=max(s.hours_needed for s in both),
-            samples=int(known.sum()),
-            independent=int(effective_samples(x)),
-            unknown=float(1.0 - known.mean()) if x.size else 1.0,
-        )
-    return out
+    names = list(residuals.columns)
+    args = (residuals, dt_h, share, on_delay, off_delay)
+    if mapper is None:
+        got = [_test_budget(name, *args) for name in names]
+    else:
+        got = mapper(_test_budget, names, args)
+    return {b.test: b for b in got}
+
+
+def _test_budget(
+    name: Any, residuals: pd.DataFrame, dt_h: float, share: float, on_delay: int, off_delay: int
+) -> TestBudget:
+    """One test's :class:`TestBudget` (:func:`calibrate`'s share of one column)."""
+    x = residuals[name].to_numpy(float)
+    known = np.isfinite(x)
+    hours = float(known.sum()) * dt_h
+    hi = calibrate_side(x, hours, share, on_delay, off_delay)
+    lo = calibrate_side(-x, hours, share, on_delay, off_delay)
+    both = (hi, lo)
+    return TestBudget(
+        test=str(name),
+        low=-lo.threshold,
+        high=hi.threshold,
+        rate=hi.rate + lo.rate,
+        method=hi.method if hi.method == lo.method else f"{hi.method}/{lo.method}",
+        supported=all(s.supported for s in both),
+        hours=hours,
+        hours_needed=max(s.hours_needed for s in both),
+        samples=int(known.sum()),
+        independent=int(effective_samples(x)),
+        unknown=float(1.0 - known.mean()) if x.size else 1.0,
+    )
 
 
 def observed_rate(

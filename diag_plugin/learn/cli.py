@@ -74,7 +74,7 @@ def cmd_unit_learn(args) -> int:
         )) from None  # fmt: skip
     uf = UnitFile.load(unit.file.path)
     uf.set_learned(got)
-    uf.save()
+    uf.save(as_read=True)
     notes = got.notes()
     out = {
         "unit": unit.name,

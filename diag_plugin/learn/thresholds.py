@@ -528,9 +528,8 @@ def learn_thresholds(
     from diag_plugin.diagnose.unittags import COMBINED_SHARE
 
     far_tests = far * (1.0 - COMBINED_SHARE) if unit.ev["combined"] else far
-    budgets = calibrate(
-        body, unit.period, far_tests, on_delay=unit.ev["on_delay"], off_delay=unit.ev["off_delay"]
-    )
+    budgets = calibrate(body, unit.period, far_tests, on_delay=unit.ev["on_delay"],
+                        off_delay=unit.ev["off_delay"], mapper=mapper)  # fmt: skip
     for name, b in budgets.items():  # unknown over the whole window, as the reasons count it
         b.unknown = float(np.mean(~np.isfinite(scaled[name])))
     limits = {

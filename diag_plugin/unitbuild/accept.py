@@ -293,7 +293,7 @@ def accept(
         learned.window = (windows[0][0].isoformat(), windows[-1][1].isoformat())
         out = UnitFile.load(uf.path)
         out.set_learned(learned)
-        out.save()
+        out.save(as_read=True)
         res.limits = {k: (float(a), float(b)) for k, (a, b) in learned.limits.items()}
         res.warnings = warnings + list(learned.warnings)
     except BaseException:

@@ -22,7 +22,9 @@ hand-build:
    The shortest dead time scoring within :data:`~diag_plugin.selection.lags.TOLERANCE` of
    the best is kept. A candidate (or a dead time) whose lower bound of the error from its fine
    rule level alone (:meth:`~diag_plugin.selection.scoring.BlockScorer.bound`) shows it
-   cannot be chosen is not finished: the same choice at a fraction of the fits.
+   cannot be chosen — it cannot beat the best error reached, or cannot cut the current one
+   by :data:`MIN_GAIN` — is not finished, and the candidates are finished in the order of
+   their bounds (the likeliest winner first): the same choice at a fraction of the fits.
    **A tag a controller holds** (:func:`tracked_set_point`: RMS of tag − set-point at most
    :data:`TRACKS` of the tag's standard deviation) is not modelled from the other tags: its
    test is the loop's own relation (:func:`loop_test`: the tag at its set-point plus the
@@ -363,26 +365,38 @@ def select_inputs(
         screened.sort(key=lambda s: -s[0])
         best = None  # (rmse, coverage, tag, lag, the variant's inputs, columns and fits)
         base_cols = [ctx.column(t, lag) for t, lag in chosen]
-        for _, c, lags in screened[:SCREENED]:
+        # each dead time's lower bound of its error from the fine rule level alone
+        # (BlockScorer.bound), for every screened candidate before any is finished
+        bounded = []
+        for rank, (_, c, lags) in enumerate(screened[:SCREENED]):
             variants = []
             for lag in lags:
                 cols = [*base_cols, ctx.column(c, lag)]
                 pairs = [*chosen, (c, lag)]
                 ins = _with_sets([ctx.variable(t, g) for t, g in pairs], cols, rows, max_sets)
                 variants.append((lag, ins, cols))
-            # each dead time's lower bound of its error from the fine rule level alone
-            # (BlockScorer.bound): a dead time that cannot be the candidate's best nor within
-            # TOLERANCE of it, and a candidate that cannot beat the best error reached, are
-            # never chosen, so their coarse rule levels are not fitted (the choice is the same)
             bounds = [scorer.bound(ins, cols) for _, ins, cols in variants]
-            if best is not None and min(b for b, _ in bounds) > best[0] * (1 + BOUND_MARGIN):
+            bounded.append((min(b for b, _ in bounds), rank, c, variants, bounds))
+        # the candidates in the order of their bounds (the likeliest winner finished first):
+        # a dead time that cannot be the candidate's best nor within TOLERANCE of it, and a
+        # candidate that cannot beat the best error reached nor cut the current one by
+        # MIN_GAIN (the step is kept only then), are never chosen, so their coarse rule levels
+        # are not fitted; the winner is the least error, ties to the better screened — the
+        # choice of every order (the bounds are lower bounds)
+        gain = current * (1 - MIN_GAIN)
+        for low_bound, rank, c, variants, bounds in sorted(bounded, key=lambda b: b[:2]):
+            reach = math.inf if best is None else best[0]
+            reach = gain if gain < reach else reach
+            if low_bound > reach * (1 + BOUND_MARGIN):
                 continue
             scored = []
             for i in sorted(range(len(variants)), key=lambda i: bounds[i][0]):
                 lag, ins, cols = variants[i]
-                if scored and bounds[i][0] > min(s[0] for s in scored) * (1 + TOLERANCE) * (
-                    1 + BOUND_MARGIN
-                ):
+                # a dead time past TOLERANCE of the cut by MIN_GAIN is never the kept one
+                # (were it in TOLERANCE of its candidate's best, that best would miss the cut)
+                near = min((s[0] for s in scored), default=math.inf)
+                near = gain if gain < near else near
+                if bounds[i][0] > near * (1 + TOLERANCE) * (1 + BOUND_MARGIN):
                     continue
                 rmse, cov = scorer.score(ins, cols, bounds[i][1])
                 if math.isfinite(rmse):
@@ -392,11 +406,11 @@ def select_inputs(
             low = min(s[0] for s in scored)
             rmse, lag, cov, kept = min((s for s in scored if s[0] <= low * (1 + TOLERANCE)),
                                        key=lambda s: s[1])  # fmt: skip
-            if best is None or rmse < best[0]:
-                best = (rmse, cov, c, lag, kept)
-        if best is None or not best[0] < current * (1 - MIN_GAIN):
+            if best is None or (rmse, rank) < (best[0], best[-1]):
+                best = (rmse, cov, c, lag, kept, rank)
+        if best is None or not best[0] < gain:
             break
-        rmse, cov, c, lag, (ins, cols, fits) = best
+        rmse, cov, c, lag, (ins, cols, fits), _ = best
         chosen.append((c, lag))
         pool.remove(c)
         choice.steps.append(Step(str(InputSpec("", (c,), lag)), rmse, cov))
@@ -645,16 +659,18 @@ CHATTER_WINDOW_S = 600.0
 
 def warm_kernels() -> None:
     """Load the compiled Wang–Mendel kernels (fit, every level's inference, a coarse level's
-    design, the search of set counts) into this process before the build's worker pools fork,
-    so every worker of every pool inherits them instead of loading them from numba's cache
-    again (~0.3 s CPU a process)."""
-    from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
+    design and the choice's normal equations, the search of set counts) into this process
+    before the build's worker pools fork, so every worker of every pool inherits them
+    instead of loading them from numba's cache again (~0.3 s CPU a process)."""
+    from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor, scoring_node_fit
 
     x = np.linspace(0.0, 0.5, 40)
     X = np.column_stack([x, x[::-1]])
     m = WangMendelRegressor([(0.0, 1.0), (0.0, 1.0)], (0.0, 1.0), n_sets=9)
     m.fit(X, X.sum(axis=1) / 2).predict_detail(np.column_stack([x + 0.1, x]))
     m.level_nodes(1)  # a coarse level's design (compiled corners and smoothness)
+    with scoring_node_fit():  # the choice's normal equations over each rule's corners
+        m.fit(X, X.sum(axis=1) / 2).level_nodes(1)
     sets_for_data([x], [(0.0, 1.0)])  # the compiled search of set counts
 
 
@@ -914,7 +930,7 @@ def _build_unit(
         )  # fmt: skip
         uf = unit.file  # the unit file as just written and read (learning only reads it)
         uf.set_learned(learned)
-        uf.save()
+        uf.save(as_read=True)  # the text set_learned read back: not dumped again
     except UnitError as exc:
         raise UserError("the built unit has problems:\n" + "\n".join(exc.problems)) from None
     except LearnError as exc:
