@@ -689,6 +689,11 @@ class Unit:
         cols = self.columns(frame)  # read once: the builders and the reasons
         raw = self.at_points(self.raw_residuals(frame, cols), point)
         r = self.filtered(raw)
+        # what the warm-up reads of the raw residuals, taken now: the raw array is let go
+        # before the symptoms and the combined test make theirs (one n × tests array fewer
+        # at the replay's peak; a first pass pays the first touch of every new page)
+        raw_known = np.isfinite(raw.to_numpy())
+        del raw
         s, mem = self.symptoms(r.to_numpy())
         n, T = s.shape
         known = ~np.isnan(s)
@@ -742,7 +747,7 @@ class Unit:
         message = ""
         checking = status == NE107.CHECK_FUNCTION
         unknown = np.isnan(s)
-        rows, warm, left = self._warming(unknown, raw.to_numpy())
+        rows, warm, left = self._warming(unknown, raw_known)
         judged = unknown
         if warm.any():
             judged = unknown.copy()
@@ -776,14 +781,15 @@ class Unit:
         )
 
     def _warming(
-        self, unknown: np.ndarray, raw: np.ndarray
+        self, unknown: np.ndarray, raw_known: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The tests unknown only for the warm-up, and the samples each still needs
         (:func:`~diag_plugin.diagnose.unitloops.warm_up`), on the rows that can be warming
         up (returned first: those before the longest lag is seen, and those a spread window
         still fills; elsewhere no test is): ``rows``, then ``rows × tests`` arrays. Advances
-        :attr:`seen`."""
-        n = len(raw)
+        :attr:`seen`. ``raw_known``: where the raw residuals (before the spread and the
+        filter) are finite, samples × tests."""
+        n = len(raw_known)
         lag_rows = max(0, min(n, int(self.test_depth.max(initial=0)) - self.seen))
         spread_left = None
         if self.spread_cols.size:  # the spread ran on this piece (Unit.filtered)
@@ -794,14 +800,12 @@ class Unit:
             rows = np.arange(lag_rows)
         seen = self.seen + rows
         self.seen += n
-        left_at = np.zeros((rows.size, raw.shape[1]), np.int64)
+        left_at = np.zeros((rows.size, raw_known.shape[1]), np.int64)
         if spread_left is not None:
             left_at[:, self.spread_cols] = spread_left[rows]
-        test = np.zeros(raw.shape[1], bool)
+        test = np.zeros(raw_known.shape[1], bool)
         test[self.spread_cols] = True
-        warm, left = warm_up(
-            unknown[rows], np.isfinite(raw[rows]), seen, self.test_depth, left_at, test
-        )
+        warm, left = warm_up(unknown[rows], raw_known[rows], seen, self.test_depth, left_at, test)
         return rows, warm, left
 
     def _hold_alarm(self, active, detected, status, faults, top):
