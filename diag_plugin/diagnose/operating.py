@@ -379,7 +379,13 @@ class LaggedColumns(Mapping):
 
     def last(self, key: tuple[str, int]) -> float:
         """The value at the piece's last row."""
-        return float(self.at(key, np.array([len(self._cols[key[0]]) - 1]))[0])
+        if key not in self._have:
+            raise KeyError(key)
+        t, lag = key
+        x = self._cols[t]
+        tail = self._tails.get(t)
+        i = len(x) - 1 - (0 if tail is None else lag)
+        return float(x[i]) if i >= 0 else float(tail[tail.size + i])
 
     def outside(self, key: tuple[str, int], lo: float, hi: float) -> np.ndarray:
         """Per row whether the value is below ``lo`` or above ``hi`` (NaN: not), judged on
@@ -405,6 +411,8 @@ class LaggedColumns(Mapping):
         if tail is None or lag == 0:
             return x[rows]
         back = np.asarray(rows, np.int64) - lag  # the row read: before the piece if < 0
+        if not back.size or back.min() >= 0:
+            return x[back]
         out = np.empty(back.size)
         inside = back >= 0
         out[inside] = x[back[inside]]

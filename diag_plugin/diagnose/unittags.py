@@ -343,6 +343,8 @@ def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray
 BATCH_COND = 1e4
 #: rows per block of the combined test's evaluation (its arrays of rows × tests in the cache)
 BLOCK_ROWS = 1024
+#: rows from which :meth:`CombinedModel.evaluate` makes the scaled residuals per block
+LAZY_Z_ROWS = 1 << 16
 
 
 @dataclass
@@ -536,9 +538,10 @@ class CombinedModel:
         if shares and point is not None and self.point_xi is not None:
             t2 = CombinedModel.evaluate(self, r, point, shares=False)[0]
             return t2, self._per_point_shares(r, np.ones(len(r), bool), point)
-        # the scaled residuals made block by block as _blocks asks (the same values): no
-        # n × T array of them beside the residuals (a first pass pays each new page)
-        z = _ScaledRows(self, r, point)
+        # over many rows the scaled residuals made block by block as _blocks asks (the same
+        # values): no n × T array of them beside the residuals; a piece's few rows at once
+        # (making them twice, for the patterns and per block, cost more there)
+        z = _ScaledRows(self, r, point) if len(r) > LAZY_Z_ROWS else self.z(r, point)
         n, T = z.shape
         t2 = np.full(n, np.nan)
         share = np.full((n, len(self.tags)), np.nan) if shares else None
