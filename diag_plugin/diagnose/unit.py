@@ -164,6 +164,23 @@ def _residual_kernel(
         out[j, at[i]] = r
 
 
+def _names(names) -> pd.Index:
+    """The column names ``names`` as an Index of their own, made from one kept per tuple of
+    names (a view: its name is its own). A frame given a list builds its Index anew, a
+    column of pandas strings each time: six per 7-day piece replayed (issue 34)."""
+    return _names_index(tuple(names)).view()
+
+
+@functools.lru_cache(maxsize=1024)
+def _names_index(names: tuple[str, ...]) -> pd.Index:
+    return pd.Index(list(names))
+
+
+#: the kernels' empty arrays for a prediction without levels or spreads (never written)
+_NONE = np.empty(0)
+_NONE_INT8 = np.empty(0, np.int8)
+
+
 def _on(s: np.ndarray) -> np.ndarray:
     """Where a symptom is on: nonzero and known (``nan_to_num(s) != 0`` in one compiled pass,
     without a temporary of the symptoms' size)."""
@@ -559,7 +576,7 @@ class Unit:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
         # samples × tests as a view of it (column-major): :meth:`filtered` writes the C-ordered
         # copy it filters in place, so no third array of the residuals' size
-        return pd.DataFrame(out.T, index=frame.index, columns=self.tests, copy=False)
+        return pd.DataFrame(out.T, index=frame.index, columns=_names(self.tests), copy=False)
 
     def _residual_into(
         self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y: np.ndarray,
@@ -570,11 +587,14 @@ class Unit:
         bits)."""
         m = self.models[test.name]
         scale = test.ymax if self.ev["scale"] == "max" and test.ymax else m.span
-        none = np.empty(0)
         table = np.asarray(test.levels if test.levels is not None else (1.0,), float)
-        level = none.astype(np.int8) if pred.level is None else np.asarray(pred.level)
+        none = _NONE
+        level = _NONE_INT8 if pred.level is None else np.asarray(pred.level)
         spread = none if pred.spread is None or not test.spread else np.asarray(pred.spread)
-        support = np.broadcast_to(np.asarray(pred.support, float), np.shape(pred.y))
+        support = pred.support
+        if not (isinstance(support, np.ndarray) and support.dtype == float
+                and support.shape == np.shape(pred.y)):  # fmt: skip
+            support = np.broadcast_to(np.asarray(support, float), np.shape(pred.y))
         _residual_kernel(out, j, at, np.asarray(y, float), np.asarray(pred.y, float),
                          np.ascontiguousarray(support), float(self.ev["min_support"]),
                          float(scale), table, level, spread, SPREAD_FLOOR)  # fmt: skip
@@ -708,7 +728,9 @@ class Unit:
                     raw_c = np.where(np.isnan(t2), np.nan, (t2 > self.cmodel.high) * 1.0)
                 s_t2 = self.combined_delay.transform(raw_c[:, None])[:, 0]
                 c_on = _on(s_t2)
-            combined = pd.DataFrame({"T2": t2, "s_T2": s_t2}, index=frame.index)
+            combined = pd.DataFrame(
+                {"T2": t2, "s_T2": s_t2}, index=frame.index, columns=_names(("T2", "s_T2"))
+            )
         tests_on = active
         active = active | c_on
         detected = np.where(active, 1.0, np.where(known.all(axis=1), 0.0, np.nan))
@@ -767,8 +789,8 @@ class Unit:
         return Diagnosis(
             unit=self.name,
             residuals=r,
-            symptoms=pd.DataFrame(s, index=idx, columns=self.tests, copy=False),
-            certainties=pd.DataFrame(cert, index=idx, columns=self.faults, copy=False),
+            symptoms=pd.DataFrame(s, index=idx, columns=_names(self.tests), copy=False),
+            certainties=pd.DataFrame(cert, index=idx, columns=_names(self.faults), copy=False),
             detected=pd.Series(detected, index=idx),
             status=pd.Series(status, index=idx),
             quality=pd.Series(quality, index=idx),
@@ -776,7 +798,7 @@ class Unit:
             message=message,
             combined=combined,
             _contributions=shares,
-            top=None if top is None else pd.DataFrame(top, index=idx),
+            top=None if top is None else pd.DataFrame(top, index=idx, columns=_names(top)),
             why=pd.Series(why, index=idx),
         )
 

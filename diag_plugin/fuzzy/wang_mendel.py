@@ -842,6 +842,9 @@ class WangMendelRegressor(ParamsMixin):
         det = Prediction(np.empty(n), np.empty(n), np.empty(n, np.int8), np.empty(n, np.int8),
                          np.empty(n))  # fmt: skip
         again = np.empty(n, np.bool_)
+        if n <= CHUNK_ROWS:  # one call on the arrays themselves (a replay's 7-day piece)
+            loops.infer_fine(X, *fine, *_fields(det), again)
+            return det, again
         for s in range(0, n, CHUNK_ROWS):
             e = s + CHUNK_ROWS
             loops.infer_fine(X[s:e], *fine, *(f[s:e] for f in _fields(det)), again[s:e])
@@ -880,8 +883,12 @@ class WangMendelRegressor(ParamsMixin):
                 depth = last
             if depth not in packs:
                 packs[depth] = pack([self.inference_grid(depth)], dense=True)
-            prior = Prediction(*(f[rows] for f in _fields(det)))
-            sub = run_kernel(packs[depth], none, X[rows], prior, first=done + 1)
+            prior = [f[rows] for f in _fields(det)]
+            if rows.size <= CHUNK_ROWS:  # run_kernel's one call, without its wrapping
+                kernels(None).infer_levels(none, X[rows], *packs[depth], *prior, done + 1)
+                sub = Prediction(*prior)
+            else:
+                sub = run_kernel(packs[depth], none, X[rows], Prediction(*prior), first=done + 1)
             for full, part in zip(_fields(det), _fields(sub), strict=True):
                 full[rows] = part
             if depth == last:
