@@ -274,6 +274,10 @@ FIT_LIMIT = 1 << 20
 #: a prediction of more rows than this asks every level of all of them once more than half
 #: of them need a coarse level (instead of copying the rows asked)
 LAZY_ROWS = 1 << 16
+#: from this many rows a call asks its rows' coarser levels all in one kernel call (packing
+#: every level once, on the model's first such call): a replay's 7-day pieces, not a live
+#: loop's single rows
+ALL_LEVELS_ROWS = 1 << 10
 
 
 def _as_2d(X) -> np.ndarray:
@@ -875,7 +879,12 @@ class WangMendelRegressor(ParamsMixin):
         while rows.size:
             done = depth  # the levels up to it answered these rows short of LEVEL_SUPPORT
             depth += 1
-            if (rows.size > n // 2 and n > LAZY_ROWS) or last in packs or _SPARSE.get():
+            if (
+                (rows.size > n // 2 and n > LAZY_ROWS)
+                or last in packs
+                or _SPARSE.get()
+                or n >= ALL_LEVELS_ROWS
+            ):
                 # most of many rows asked again, or every level's rules packed already (by
                 # an earlier call), or a model scored once (scoring_node_fit): every level of
                 # them at once (the same answers: each row stops at the same level; the finer
