@@ -19,8 +19,13 @@ Figures (issue 34 round nine, ``--unit`` of the default 50-tag unit, 45 tests, `
 four runs of ``main`` and the branch interleaved at a load of 7–14 on 2 shared cores, medians
 of the four): one pass 2.22 → 1.88 CPU s (90,100 → 106,700 rows per CPU s; the first run
 2.40 → 2.04 s, 83,500 → 98,300), 7-day pieces 3.12 → 2.45 CPU s (64,100 → 81,800); PCA
-T² + Q scores the same rows in 0.33–0.61 CPU s. Details: docs/how-to/unit-short-windows.md,
-"Round nine".
+T² + Q scores the same rows in 0.33–0.61 CPU s. Round ten (``--repeat 3``, four pairs
+interleaved at a load of 3.4–6.7, medians): the first run 1.35 → 1.21 CPU s (148,000 →
+165,000 rows per CPU s), 7-day pieces 1.52 → 1.46 s (132,000 → 137,000), the warm one pass
+1.04 s both; ``main`` was above 100,000 rows per CPU s that day in all three, about 1.5× the
+quiet figures of ae03181 (first run 2.13 s, pieces 2.27 s): compare only within one
+interleaved run. Three pairs quiet (load 1.3–1.6): first run 1.47 → 1.00 s (136,000 →
+200,000), one pass 0.99 → 0.89 s, 7-day pieces 1.46 → 1.34 s (137,000 → 149,000). Details: docs/how-to/unit-short-windows.md, "Round nine" and "Round ten".
 
 Run: ``nice -n 10 python benchmarks/bench_unit_replay.py [--tags 50] [--rows 200000]
 [--profile 15] [--repeat 5]``.

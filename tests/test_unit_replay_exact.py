@@ -268,18 +268,16 @@ def _ref_combination(self, cols, unknown, todo, out):  # every row, test by test
         todo[rows] = False
 
 
-def _ref_warming(self, unknown, raw):  # every row of the piece
-    n = len(raw)
-    spread_left = np.zeros(raw.shape, np.int64)
+def _ref_warming(self, unknown, raw_known):  # every row of the piece
+    n = len(raw_known)
+    spread_left = np.zeros(raw_known.shape, np.int64)
     if self.spread_cols.size:
         spread_left[:, self.spread_cols] = self.spread.left_
-    test = np.zeros(raw.shape[1], bool)
+    test = np.zeros(raw_known.shape[1], bool)
     test[self.spread_cols] = True
     seen = self.seen + np.arange(n)
     self.seen += n
-    warm, left = unitloops.warm_up(
-        unknown, np.isfinite(raw), seen, self.test_depth, spread_left, test
-    )
+    warm, left = unitloops.warm_up(unknown, raw_known, seen, self.test_depth, spread_left, test)
     return np.arange(n), warm, left
 
 

@@ -87,6 +87,8 @@ class OutsideLearned:
         self.depth: dict[str, int] = {}  # per tag the longest lag judged
         for r in self.ranges:
             self.depth[r.tag] = max(self.depth.get(r.tag, 0), r.lag)
+        #: per tag the lags its ranges read
+        self._lags = {t: sorted({r.lag for r in self.ranges if r.tag == t}) for t in self.depth}
         self.tails: dict[str, np.ndarray] = {}
 
     def reset(self) -> OutsideLearned:
@@ -163,23 +165,25 @@ class OutsideLearned:
             cols = {t: frame[t].to_numpy(float) for t in self.tags if t in have}
         return self.columns(self.lagged(cols), frame.index, unknown, report)
 
-    def lagged(self, cols: Mapping[str, np.ndarray]) -> dict[tuple[str, int], np.ndarray]:
+    def lagged(self, cols: Mapping[str, np.ndarray]) -> LaggedColumns:
         """Per range's :attr:`Range.key` the value its model reads at each row of ``cols``
         (model tag → this piece's values), from the history carried before the piece (NaN
-        before any); advances that history."""
-        out = {}
+        before any), made when first asked (:class:`LaggedColumns`); advances that history."""
+        keys = []
+        tails = {}
         for t, x in cols.items():
             d = self.depth.get(t, 0)
-            n = len(x)
             if d == 0:  # read unlagged only: the piece itself, no history to carry
-                out[(t, 0)] = x
+                keys.append((t, 0))
                 continue
             tail = self.tails.get(t, np.full(d, np.nan))
-            both = np.concatenate([tail, x])
-            for lag in {r.lag for r in self.ranges if r.tag == t}:
-                out[(t, lag)] = both[d - lag : d - lag + n]
-            self.tails[t] = both[len(both) - d :]
-        return out
+            tails[t] = tail
+            keys.extend((t, lag) for lag in self._lags[t])
+            n = len(x)
+            # the last d values of the tail and the piece joined (a copy: not a view of the
+            # caller's frame)
+            self.tails[t] = x[n - d :].copy() if n >= d else np.concatenate([tail, x])[n:]
+        return LaggedColumns(cols, tails, keys)
 
     @property
     def tags(self) -> list[str]:
@@ -206,12 +210,12 @@ class OutsideLearned:
             return out
         # every judged range at once, at the rows to name and at the piece's end: a row is
         # named by the first range (in order) outside there whose test is unknown
-        end = np.array([cols[key][-1] for key in keys], float)[col]
+        end = np.array([_last(cols, key) for key in keys], float)[col]
         with np.errstate(invalid="ignore"):  # NaN: not outside
             end_off = (end < lo) | (end > hi)
             xa = np.empty((at.size, len(keys)))
             for c, key in enumerate(keys):
-                xa[:, c] = cols[key][at]
+                xa[:, c] = _at(cols, key, at)
             xa = xa[:, col]
             cand = ((xa < lo) | (xa > hi)) & unk[:, test]
         named = cand.any(axis=1)
@@ -223,10 +227,8 @@ class OutsideLearned:
             if hit is None and not end_off[p]:
                 self.since[k] = None
                 continue
-            x = cols[r.key]
             carried = self.since.get(k)
-            with np.errstate(invalid="ignore"):
-                off = (x < r.lo) | (x > r.hi)
+            off = _outside(cols, r.key, r.lo, r.hi)
             # the row each excursion started at (carried over the piece's start): for an
             # outside row, the last start at or before it
             starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
@@ -240,7 +242,8 @@ class OutsideLearned:
                     when[0] = pd.Timestamp(carried).isoformat()  # began in an earlier piece
                 out[hit] = np.array(
                     [f"{head}{v:.4g}{tail}{when[w]}"
-                     for v, w in zip(x[hit].tolist(), inv.reshape(-1).tolist(), strict=True)],
+                     for v, w in zip(_at(cols, r.key, hit).tolist(), inv.reshape(-1).tolist(),
+                                     strict=True)],
                     dtype=object,
                 )  # fmt: skip
             if end_off[p]:
@@ -300,7 +303,7 @@ class OutsideLearned:
             # column by column (a frame of the columns, per test and piece, cost more)
             vals = np.empty((rows.size, len(have)))
             for c, t in enumerate(have):
-                vals[:, c] = np.asarray(cols[t], float)[rows]
+                vals[:, c] = _at(cols, t, rows)
             names = [self.label(*t) for t in have]
             ok = np.isfinite(vals)
             full = ok.all(axis=1)
@@ -330,3 +333,110 @@ def _take(idx: Sequence[pd.Timestamp] | pd.Index, at: np.ndarray) -> Sequence:
     if isinstance(idx, pd.Index):
         return idx.take(at)
     return [idx[i] for i in at.tolist()]
+
+
+class LaggedColumns(Mapping):
+    """Per :attr:`Range.key` (model tag, lag) the values a piece's rows read, each column
+    made when first asked: the carried tail (the ``d`` values before the piece, ``d`` the
+    tag's longest lag) and the piece joined, shifted by the lag. :meth:`last` and :meth:`at`
+    read single rows without making it: a replay names few rows of most pieces, so most
+    columns are never made (issue 34: one new array per lagged tag and piece was a first
+    pass's 0.09 s of new memory at 200,000 rows)."""
+
+    def __init__(
+        self,
+        cols: Mapping[str, np.ndarray],
+        tails: Mapping[str, np.ndarray],
+        keys: Sequence[tuple[str, int]],
+    ) -> None:
+        self._cols, self._tails = cols, tails
+        self._keys = list(keys)
+        self._have = frozenset(self._keys)
+        self._made: dict[tuple[str, int], np.ndarray] = {}
+
+    def __iter__(self):
+        return iter(self._keys)
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._have
+
+    def __getitem__(self, key: tuple[str, int]) -> np.ndarray:
+        if key not in self._have:
+            raise KeyError(key)
+        if key not in self._made:
+            t, lag = key
+            x = self._cols[t]
+            tail = self._tails.get(t)
+            if tail is None or lag == 0:
+                self._made[key] = x
+            else:
+                d, n = tail.size, len(x)
+                self._made[key] = np.concatenate([tail, x])[d - lag : d - lag + n]
+        return self._made[key]
+
+    def last(self, key: tuple[str, int]) -> float:
+        """The value at the piece's last row."""
+        if key not in self._have:
+            raise KeyError(key)
+        t, lag = key
+        x = self._cols[t]
+        tail = self._tails.get(t)
+        i = len(x) - 1 - (0 if tail is None else lag)
+        return float(x[i]) if i >= 0 else float(tail[tail.size + i])
+
+    def outside(self, key: tuple[str, int], lo: float, hi: float) -> np.ndarray:
+        """Per row whether the value is below ``lo`` or above ``hi`` (NaN: not), judged on
+        the tail and the piece apart and joined as booleans (no column of floats made)."""
+        t, lag = key
+        x = np.asarray(self._cols[t], float)
+        tail = self._tails.get(t)
+        with np.errstate(invalid="ignore"):
+            off = (x < lo) | (x > hi)
+            if tail is None or lag == 0:
+                return off
+            d = tail.size
+            before = (tail < lo) | (tail > hi)
+        return np.concatenate([before, off])[d - lag : d - lag + x.size]
+
+    def at(self, key: tuple[str, int], rows: np.ndarray) -> np.ndarray:
+        """The values at ``rows`` (positions in the piece) as floats."""
+        if key not in self._have:
+            raise KeyError(key)
+        t, lag = key
+        x = np.asarray(self._cols[t], float)
+        tail = self._tails.get(t)
+        if tail is None or lag == 0:
+            return x[rows]
+        back = np.asarray(rows, np.int64) - lag  # the row read: before the piece if < 0
+        if not back.size or back.min() >= 0:
+            return x[back]
+        out = np.empty(back.size)
+        inside = back >= 0
+        out[inside] = x[back[inside]]
+        out[~inside] = tail[tail.size + back[~inside]]
+        return out
+
+
+def _last(cols: Mapping, key) -> float:
+    """The value of ``cols[key]`` at the last row (:meth:`LaggedColumns.last`)."""
+    return cols.last(key) if isinstance(cols, LaggedColumns) else cols[key][-1]
+
+
+def _outside(cols: Mapping, key, lo: float, hi: float) -> np.ndarray:
+    """Per row whether ``cols[key]`` is outside ``[lo, hi]`` (:meth:`LaggedColumns.outside`;
+    NaN: not outside)."""
+    if isinstance(cols, LaggedColumns):
+        return cols.outside(key, lo, hi)
+    x = cols[key]
+    with np.errstate(invalid="ignore"):
+        return (x < lo) | (x > hi)
+
+
+def _at(cols: Mapping, key, rows: np.ndarray) -> np.ndarray:
+    """The values of ``cols[key]`` at ``rows`` as floats (:meth:`LaggedColumns.at`)."""
+    if isinstance(cols, LaggedColumns):
+        return cols.at(key, rows)
+    return np.asarray(cols[key], float)[rows]

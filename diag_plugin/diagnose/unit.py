@@ -164,6 +164,23 @@ def _residual_kernel(
         out[j, at[i]] = r
 
 
+def _names(names) -> pd.Index:
+    """The column names ``names`` as an Index of their own, made from one kept per tuple of
+    names (a view: its name is its own). A frame given a list builds its Index anew, a
+    column of pandas strings each time: six per 7-day piece replayed (issue 34)."""
+    return _names_index(tuple(names)).view()
+
+
+@functools.lru_cache(maxsize=1024)
+def _names_index(names: tuple[str, ...]) -> pd.Index:
+    return pd.Index(list(names))
+
+
+#: the kernels' empty arrays for a prediction without levels or spreads (never written)
+_NONE = np.empty(0)
+_NONE_INT8 = np.empty(0, np.int8)
+
+
 def _on(s: np.ndarray) -> np.ndarray:
     """Where a symptom is on: nonzero and known (``nan_to_num(s) != 0`` in one compiled pass,
     without a temporary of the symptoms' size)."""
@@ -559,7 +576,7 @@ class Unit:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
         # samples × tests as a view of it (column-major): :meth:`filtered` writes the C-ordered
         # copy it filters in place, so no third array of the residuals' size
-        return pd.DataFrame(out.T, index=frame.index, columns=self.tests, copy=False)
+        return pd.DataFrame(out.T, index=frame.index, columns=_names(self.tests), copy=False)
 
     def _residual_into(
         self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y: np.ndarray,
@@ -570,11 +587,14 @@ class Unit:
         bits)."""
         m = self.models[test.name]
         scale = test.ymax if self.ev["scale"] == "max" and test.ymax else m.span
-        none = np.empty(0)
         table = np.asarray(test.levels if test.levels is not None else (1.0,), float)
-        level = none.astype(np.int8) if pred.level is None else np.asarray(pred.level)
+        none = _NONE
+        level = _NONE_INT8 if pred.level is None else np.asarray(pred.level)
         spread = none if pred.spread is None or not test.spread else np.asarray(pred.spread)
-        support = np.broadcast_to(np.asarray(pred.support, float), np.shape(pred.y))
+        support = pred.support
+        if not (isinstance(support, np.ndarray) and support.dtype == float
+                and support.shape == np.shape(pred.y)):  # fmt: skip
+            support = np.broadcast_to(np.asarray(support, float), np.shape(pred.y))
         _residual_kernel(out, j, at, np.asarray(y, float), np.asarray(pred.y, float),
                          np.ascontiguousarray(support), float(self.ev["min_support"]),
                          float(scale), table, level, spread, SPREAD_FLOOR)  # fmt: skip
@@ -689,6 +709,11 @@ class Unit:
         cols = self.columns(frame)  # read once: the builders and the reasons
         raw = self.at_points(self.raw_residuals(frame, cols), point)
         r = self.filtered(raw)
+        # what the warm-up reads of the raw residuals, taken now: the raw array is let go
+        # before the symptoms and the combined test make theirs (one n × tests array fewer
+        # at the replay's peak; a first pass pays the first touch of every new page)
+        raw_known = np.isfinite(raw.to_numpy())
+        del raw
         s, mem = self.symptoms(r.to_numpy())
         n, T = s.shape
         known = ~np.isnan(s)
@@ -703,7 +728,9 @@ class Unit:
                     raw_c = np.where(np.isnan(t2), np.nan, (t2 > self.cmodel.high) * 1.0)
                 s_t2 = self.combined_delay.transform(raw_c[:, None])[:, 0]
                 c_on = _on(s_t2)
-            combined = pd.DataFrame({"T2": t2, "s_T2": s_t2}, index=frame.index)
+            combined = pd.DataFrame(
+                {"T2": t2, "s_T2": s_t2}, index=frame.index, columns=_names(("T2", "s_T2"))
+            )
         tests_on = active
         active = active | c_on
         detected = np.where(active, 1.0, np.where(known.all(axis=1), 0.0, np.nan))
@@ -742,7 +769,7 @@ class Unit:
         message = ""
         checking = status == NE107.CHECK_FUNCTION
         unknown = np.isnan(s)
-        rows, warm, left = self._warming(unknown, raw.to_numpy())
+        rows, warm, left = self._warming(unknown, raw_known)
         judged = unknown
         if warm.any():
             judged = unknown.copy()
@@ -762,8 +789,8 @@ class Unit:
         return Diagnosis(
             unit=self.name,
             residuals=r,
-            symptoms=pd.DataFrame(s, index=idx, columns=self.tests, copy=False),
-            certainties=pd.DataFrame(cert, index=idx, columns=self.faults, copy=False),
+            symptoms=pd.DataFrame(s, index=idx, columns=_names(self.tests), copy=False),
+            certainties=pd.DataFrame(cert, index=idx, columns=_names(self.faults), copy=False),
             detected=pd.Series(detected, index=idx),
             status=pd.Series(status, index=idx),
             quality=pd.Series(quality, index=idx),
@@ -771,19 +798,20 @@ class Unit:
             message=message,
             combined=combined,
             _contributions=shares,
-            top=None if top is None else pd.DataFrame(top, index=idx),
+            top=None if top is None else pd.DataFrame(top, index=idx, columns=_names(top)),
             why=pd.Series(why, index=idx),
         )
 
     def _warming(
-        self, unknown: np.ndarray, raw: np.ndarray
+        self, unknown: np.ndarray, raw_known: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The tests unknown only for the warm-up, and the samples each still needs
         (:func:`~diag_plugin.diagnose.unitloops.warm_up`), on the rows that can be warming
         up (returned first: those before the longest lag is seen, and those a spread window
         still fills; elsewhere no test is): ``rows``, then ``rows × tests`` arrays. Advances
-        :attr:`seen`."""
-        n = len(raw)
+        :attr:`seen`. ``raw_known``: where the raw residuals (before the spread and the
+        filter) are finite, samples × tests."""
+        n = len(raw_known)
         lag_rows = max(0, min(n, int(self.test_depth.max(initial=0)) - self.seen))
         spread_left = None
         if self.spread_cols.size:  # the spread ran on this piece (Unit.filtered)
@@ -794,14 +822,12 @@ class Unit:
             rows = np.arange(lag_rows)
         seen = self.seen + rows
         self.seen += n
-        left_at = np.zeros((rows.size, raw.shape[1]), np.int64)
+        left_at = np.zeros((rows.size, raw_known.shape[1]), np.int64)
         if spread_left is not None:
             left_at[:, self.spread_cols] = spread_left[rows]
-        test = np.zeros(raw.shape[1], bool)
+        test = np.zeros(raw_known.shape[1], bool)
         test[self.spread_cols] = True
-        warm, left = warm_up(
-            unknown[rows], np.isfinite(raw[rows]), seen, self.test_depth, left_at, test
-        )
+        warm, left = warm_up(unknown[rows], raw_known[rows], seen, self.test_depth, left_at, test)
         return rows, warm, left
 
     def _hold_alarm(self, active, detected, status, faults, top):

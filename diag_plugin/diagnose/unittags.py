@@ -343,6 +343,8 @@ def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray
 BATCH_COND = 1e4
 #: rows per block of the combined test's evaluation (its arrays of rows × tests in the cache)
 BLOCK_ROWS = 1024
+#: rows from which :meth:`CombinedModel.evaluate` makes the scaled residuals per block
+LAZY_Z_ROWS = 1 << 16
 
 
 @dataclass
@@ -536,7 +538,10 @@ class CombinedModel:
         if shares and point is not None and self.point_xi is not None:
             t2 = CombinedModel.evaluate(self, r, point, shares=False)[0]
             return t2, self._per_point_shares(r, np.ones(len(r), bool), point)
-        z = self.z(r, point)
+        # over many rows the scaled residuals made block by block as _blocks asks (the same
+        # values): no n × T array of them beside the residuals; a piece's few rows at once
+        # (making them twice, for the patterns and per block, cost more there)
+        z = _ScaledRows(self, r, point) if len(r) > LAZY_Z_ROWS else self.z(r, point)
         n, T = z.shape
         t2 = np.full(n, np.nan)
         share = np.full((n, len(self.tags)), np.nan) if shares else None
@@ -580,7 +585,7 @@ class CombinedModel:
         tests ``k``, their :meth:`_inverse`, ``S_kk⁻¹ z`` and ``T² = zᵀ S_kk⁻¹ z`` (before
         the degrees of freedom)."""
         n, T = z.shape
-        known = np.isfinite(z)
+        known = z.finite() if isinstance(z, _ScaledRows) else np.isfinite(z)
         enough = known.sum(axis=1) >= max(1, math.ceil(MIN_KNOWN_SHARE * T))
         if not enough.any():
             return
@@ -610,7 +615,10 @@ class CombinedModel:
             # was memory-bound: ~8 passes over 200 k × 45 doubles per replay)
             for a in range(at, ends[p], BLOCK_ROWS):
                 rows = by[a : min(a + BLOCK_ROWS, ends[p])]
-                zk = z[rows] if k.size == T else z[np.ix_(rows, k)]
+                if isinstance(z, _ScaledRows):
+                    zk = z.take(rows, None if k.size == T else k)
+                else:
+                    zk = z[rows] if k.size == T else z[np.ix_(rows, k)]
                 mz = zk @ m
                 yield rows, k, inv, mz, np.einsum("ij,ij->i", mz, zk)
 
@@ -651,6 +659,36 @@ class CombinedModel:
                 plane = np.einsum("ij,jk,ik->i", u, np.linalg.inv(g), u)
             # the larger of the plane and its second direction (sticking: the spread alone)
             np.maximum(rbc[:, c], plane, out=rbc[:, c])
+
+
+class _ScaledRows:
+    """:meth:`CombinedModel.z` of residuals ``r`` (n × T; ``point``: each sample's operating
+    point or None) made for the rows asked, when asked: what :meth:`CombinedModel._blocks`
+    reads of the scaled residuals, without holding all of them (the same operations on the
+    same numbers, so the same bits)."""
+
+    def __init__(self, model: CombinedModel, r: np.ndarray, point: np.ndarray | None) -> None:
+        self.model, self.r, self.point = model, r, point
+        self.shape = r.shape
+
+    def _z(self, rows) -> np.ndarray:
+        return self.model.z(self.r[rows], None if self.point is None else self.point[rows])
+
+    def finite(self) -> np.ndarray:
+        """Where the scaled residuals are finite (n × T), made in blocks of rows."""
+        n = self.shape[0]
+        known = np.empty(self.shape, bool)
+        for a in range(0, n, BLOCK_ROWS):
+            np.isfinite(self._z(slice(a, min(a + BLOCK_ROWS, n))), out=known[a : a + BLOCK_ROWS])
+        return known
+
+    def take(self, rows: np.ndarray, k: np.ndarray | None = None) -> np.ndarray:
+        """The scaled residuals at ``rows`` (of the tests ``k``; None: all)."""
+        if k is None:
+            return self._z(rows)
+        # C-ordered, as ``z[np.ix_(rows, k)]`` is (``z[:, k]`` is column-major: the products
+        # that read it would sum in another order)
+        return np.ascontiguousarray(self._z(rows)[:, k])
 
 
 def same_level(q: np.ndarray, df: np.ndarray, T: int) -> np.ndarray:

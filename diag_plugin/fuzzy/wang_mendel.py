@@ -274,6 +274,10 @@ FIT_LIMIT = 1 << 20
 #: a prediction of more rows than this asks every level of all of them once more than half
 #: of them need a coarse level (instead of copying the rows asked)
 LAZY_ROWS = 1 << 16
+#: from this many rows a call asks its rows' coarser levels all in one kernel call (packing
+#: every level once, on the model's first such call): a replay's 7-day pieces, not a live
+#: loop's single rows
+ALL_LEVELS_ROWS = 1 << 10
 
 
 def _as_2d(X) -> np.ndarray:
@@ -842,6 +846,9 @@ class WangMendelRegressor(ParamsMixin):
         det = Prediction(np.empty(n), np.empty(n), np.empty(n, np.int8), np.empty(n, np.int8),
                          np.empty(n))  # fmt: skip
         again = np.empty(n, np.bool_)
+        if n <= CHUNK_ROWS:  # one call on the arrays themselves (a replay's 7-day piece)
+            loops.infer_fine(X, *fine, *_fields(det), again)
+            return det, again
         for s in range(0, n, CHUNK_ROWS):
             e = s + CHUNK_ROWS
             loops.infer_fine(X[s:e], *fine, *(f[s:e] for f in _fields(det)), again[s:e])
@@ -872,7 +879,12 @@ class WangMendelRegressor(ParamsMixin):
         while rows.size:
             done = depth  # the levels up to it answered these rows short of LEVEL_SUPPORT
             depth += 1
-            if (rows.size > n // 2 and n > LAZY_ROWS) or last in packs or _SPARSE.get():
+            if (
+                (rows.size > n // 2 and n > LAZY_ROWS)
+                or last in packs
+                or _SPARSE.get()
+                or n >= ALL_LEVELS_ROWS
+            ):
                 # most of many rows asked again, or every level's rules packed already (by
                 # an earlier call), or a model scored once (scoring_node_fit): every level of
                 # them at once (the same answers: each row stops at the same level; the finer
@@ -880,8 +892,12 @@ class WangMendelRegressor(ParamsMixin):
                 depth = last
             if depth not in packs:
                 packs[depth] = pack([self.inference_grid(depth)], dense=True)
-            prior = Prediction(*(f[rows] for f in _fields(det)))
-            sub = run_kernel(packs[depth], none, X[rows], prior, first=done + 1)
+            prior = [f[rows] for f in _fields(det)]
+            if rows.size <= CHUNK_ROWS:  # run_kernel's one call, without its wrapping
+                kernels(None).infer_levels(none, X[rows], *packs[depth], *prior, done + 1)
+                sub = Prediction(*prior)
+            else:
+                sub = run_kernel(packs[depth], none, X[rows], Prediction(*prior), first=done + 1)
             for full, part in zip(_fields(det), _fields(sub), strict=True):
                 full[rows] = part
             if depth == last:
