@@ -167,11 +167,22 @@ def cmd_model_new(args) -> int:
     if args.sets is None and not searched and rb.new_model().capabilities.rule_regions:
         sets = sorted({v.sets for v in rb.inputs})
         print(
-            f"sets per input: {', '.join(map(str, sets))}, what {len(frame):,} samples can fill "
-            "(give --sets to choose)"
+            f"sets per input: {', '.join(map(str, sets))}, what {_filled(frame, rb):,} samples "
+            "can fill (give --sets to choose)"
         )
     print(f"next: diag train {args.name}")
     return 0
+
+
+def _filled(frame, rb: RuleBase) -> int:
+    """The grid points where every input of ``rb`` holds a value: the samples its sets are
+    chosen on (``sets_for_data``), not the empty points of the gaps between runs."""
+    import numpy as np
+
+    from diag_plugin.regressors import InputSpec, feature
+
+    cols = [feature(frame, InputSpec.parse(v.spec)) for v in rb.inputs]
+    return int(np.isfinite(np.column_stack(cols)).all(axis=1).sum()) if cols else len(frame)
 
 
 def _specs(specs: list[str]) -> list[str]:
