@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from diag_plugin.cliargs import add_json
+from diag_plugin.cliargs import add_json, table_console
 from diag_plugin.models.registry import METHODS
 from historian.errors import UserError
 
@@ -306,7 +306,6 @@ def _model_frame(args, rb: RuleBase):
 
 
 def cmd_compare(args) -> int:
-    from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
@@ -326,7 +325,7 @@ def cmd_compare(args) -> int:
     if args.json:
         print(json.dumps(c.as_dict(), indent=2, allow_nan=False, default=str))
         return 0
-    con = Console()
+    con = table_console()
     m = c.metrics
     con.print(
         f"{rb.name}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)}) on "
@@ -405,7 +404,6 @@ def screened_name(s: dict) -> str:
 
 
 def cmd_explain(args) -> int:
-    from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
@@ -420,7 +418,7 @@ def cmd_explain(args) -> int:
     if args.json:
         print(json.dumps(e.as_dict(), indent=2))
         return 0
-    con = Console()
+    con = table_console()
     con.print(
         f"[bold]{escape(rb.name)}[/]: held-out error {e.baseline_rmse_pct:.2f} % of span, "
         f"coverage {e.baseline_coverage:.0%} (validation from {e.validation_from:%Y-%m-%d %H:%M}; "
@@ -432,7 +430,7 @@ def cmd_explain(args) -> int:
     t.add_column("effect")
     t.add_column("error %", justify="right")
     t.add_column("own coverage", justify="right")
-    t.add_column("next command")
+    t.add_column("next command", no_wrap=True)  # whole, to be copied
     for i, c in enumerate(e.candidates, 1):
         effect = c.effect + "".join(f"\n  ⚠ {n}" for n in c.notes)
         err = "n/a" if not math.isfinite(c.rmse_pct_if_added) else f"{c.rmse_pct_if_added:.2f}"
