@@ -170,8 +170,43 @@ def cmd_model_new(args) -> int:
             f"sets per input: {', '.join(map(str, sets))}, what {_filled(frame, rb):,} samples "
             "can fill (give --sets to choose)"
         )
+    for line in _sliver_notes(frame, rb):
+        print(line)
     print(f"next: diag train {args.name}")
     return 0
+
+
+#: an input whose data use less than this share of its span is named by ``model new``
+SLIVER = 0.25
+
+
+def _sliver_notes(frame, rb: RuleBase) -> list[str]:
+    """A line per input of ``rb`` whose data use under :data:`SLIVER` of its span (a valve's
+    0–100 % from the tags file, the data at 39–43 %): few of its sets hold data, so the
+    model is a coarse staircase there whatever the set count; with the command that fits
+    the span to the data (``diag compare``'s span use, :func:`~.compare.span_use`)."""
+    import numpy as np
+
+    from diag_plugin.regressors import InputSpec, feature
+    from diag_plugin.workbench.compare import span_use
+
+    if frame is None or not len(frame) or not rb.inputs:
+        return []
+    X = np.column_stack([feature(frame, InputSpec.parse(v.spec)) for v in rb.inputs])
+    lines = []
+    for v, u in zip(rb.inputs, span_use(rb, X), strict=True):
+        used = u["used_fraction"]
+        if v.spec.startswith(("dir(", "hour(", "days(")) or not used < SLIVER:
+            continue
+        lo, hi = u["used"]
+        held = min(v.sets, int(np.floor(used * (v.sets - 1))) + 2)
+        lines.append(
+            f"{v.spec}: the data use {lo:.4g} … {hi:.4g}, {used:.0%} of its span "
+            f"{v.span[0]:g} … {v.span[1]:g}: about {held} of its {v.sets} sets hold data, "
+            f"a coarse model there; diag model set-input {rb.name} '{v.spec}' --span "
+            f"{lo:.4g} {hi:.4g} fits the sets to the data (diag explain scores it)"
+        )
+    return lines
 
 
 def _filled(frame, rb: RuleBase) -> int:
