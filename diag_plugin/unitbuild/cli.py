@@ -48,6 +48,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="loops declared in a tags CSV's 'loop' and 'role' (pv|sp|out|sensor|actuator) "
         "columns; a fixed set-point in a 'set_point' column of the pv row",
     )
+    p.add_argument(
+        "--period",
+        help="grid period of the unit, e.g. 10s, 1min (default: from the data, the longest "
+        "typical spacing of the tags; a faster tag is averaged over each period)",
+    )
     p.add_argument("--force", action="store_true", help="overwrite an existing unit and models")
     add_json(p)
     p.set_defaults(func=cmd_unit_build)
@@ -129,6 +134,7 @@ def cmd_unit_build(args) -> int:
             force=args.force,
             progress=progress,
             loops=loops,
+            period=args.period,
         )
     if _printed_json(args, res.as_dict()):
         return 0
