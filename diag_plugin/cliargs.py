@@ -25,8 +25,11 @@ def add_json(p: argparse.ArgumentParser, help: str | None = None) -> None:
 def table_console() -> Console:
     """The console a command prints its tables to: the terminal's width, or
     :data:`PIPE_WIDTH` columns into a pipe or a file, where rich would take 80 and cut a
-    table's last column short (``diag explain``'s next commands ended in ``…``)."""
+    table's last column short (``diag explain``'s next commands ended in ``…``); a width
+    set in ``COLUMNS`` is kept."""
+    import os
+
     from rich.console import Console
 
     con = Console()
-    return con if con.is_terminal else Console(width=PIPE_WIDTH)
+    return con if con.is_terminal or os.environ.get("COLUMNS") else Console(width=PIPE_WIDTH)

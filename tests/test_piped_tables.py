@@ -43,3 +43,12 @@ def test_explain_prints_every_next_command_whole_into_a_pipe(tmp_path, capsys):
     out = capsys.readouterr().out
     for cmd in commands:
         assert cmd in out, (cmd, out)
+
+
+def test_a_width_set_in_columns_is_kept(monkeypatch):
+    from diag_plugin.cliargs import PIPE_WIDTH, table_console
+
+    monkeypatch.delenv("COLUMNS", raising=False)
+    assert table_console().width == PIPE_WIDTH  # pytest's stdout is no terminal
+    monkeypatch.setenv("COLUMNS", "260")
+    assert table_console().width == 260
