@@ -305,7 +305,7 @@ def cmd_tags(args) -> int:
             f"{r['samples']:,}",
             _when(r["first"]),
             _when(r["last"]),
-            "" if to_jsonable(r["interval_s"]) is None else f"{r['interval_s']:g} s",
+            _interval(to_jsonable(r["interval_s"])),
             f"{100 * r['coverage']:.1f} %",
             f"{r['bad']:,}",
             f"{r['gaps']} ({r['gap_s'] / 3600:.1f} h)" if r["gaps"] else "0",
@@ -345,6 +345,17 @@ def _stored_tags(url: str) -> int | None:
 
 def _fmt(x):
     return "" if x is None else f"{x:g}"
+
+
+def _interval(seconds: float | None) -> str:
+    """A tag's typical sampling interval as a person reads it: ``1 s``, ``1.01 s`` (a
+    jittered 1 s export: the median spacing, not ``1.01409 s``), ``3 min``, ``1 h``."""
+    if seconds is None:
+        return ""
+    for size, unit in ((3600, "h"), (60, "min")):
+        if seconds >= size and seconds % size == 0:
+            return f"{seconds / size:g} {unit}"
+    return f"{seconds:.3g} s"
 
 
 def _when(t):

@@ -62,3 +62,23 @@ def test_detected_is_one_with_a_symptom_zero_with_none_and_unknown_otherwise(tmp
         quiet = ~on & d.symptoms.notna().all(axis=1).to_numpy()
         assert quiet.sum() >= 3 and (d.detected.to_numpy()[quiet] == 0.0).all()
         assert np.isnan(d.detected.to_numpy()[~on & ~quiet]).all() and (~on & ~quiet).any()
+
+
+def test_a_check_function_run_splits_where_its_reason_changes_not_its_values():
+    """After a gap in the data (SKAB's valve1 run, a user's walk, issue 37) the unit is
+    unknown first for a missing lag, then for an input outside what it learned; the timeline
+    read "without a value" for all 127 s. A value moving on within one reason stays one run."""
+    C = NE107.CHECK_FUNCTION
+    d = _diagnosis([C] * 7, [np.nan] * 7, [np.nan] * 7)
+    since = "since 2020-03-09T10:34:35+00:00"
+    d.why = pd.Series(
+        ["T[k-2], FT1 without a value"] * 3
+        + [
+            f"T[k-2] = {v} outside what the unit learned (86 … 94) {since}"
+            for v in (75.5, 75.6, 75.63, 76)
+        ],
+        index=d.status.index,
+    )
+    runs = d.intervals()
+    assert list(runs["samples"]) == [3, 4]
+    assert runs["why"].iloc[1].startswith("T[k-2] = 75.5 outside")

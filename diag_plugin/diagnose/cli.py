@@ -11,7 +11,7 @@ import os
 import sys
 from pathlib import Path
 
-from diag_plugin.cliargs import add_json
+from diag_plugin.cliargs import add_json, table_console
 from historian.errors import UserError
 
 
@@ -255,10 +255,9 @@ def cmd_unit_show(args) -> int:
     if args.json:
         print(json.dumps(s, indent=2, default=str))
         return 0
-    from rich.console import Console
     from rich.table import Table
 
-    con = Console()
+    con = table_console()
     con.print(f"unit {s['unit']} ({s['file']}): {s['description']}", markup=False)
     ev = s["evaluation"]
     con.print(
@@ -580,10 +579,9 @@ def write_csv(d, path: str) -> None:
 
 
 def _print_timeline(unit, d, iv, csv) -> None:
-    from rich.console import Console
     from rich.table import Table
 
-    con = Console()
+    con = table_console()
     con.print(
         f"unit {unit.name}: {len(d):,} samples {d.status.index[0]:%Y-%m-%d %H:%M} … "
         f"{d.status.index[-1]:%Y-%m-%d %H:%M}",

@@ -211,6 +211,11 @@ def _sticky(s: np.ndarray, carry: np.ndarray) -> np.ndarray:
     return out
 
 
+#: a number in a ``why`` (a value, a bound, a count of seconds left), not one in a name
+#: (``XMEAS16``, ``FT1[k-3]``): left out of the why's kind (:meth:`Diagnosis.intervals`)
+NUMBER = r"(?<![\w.\[-])[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?"
+
+
 @dataclass
 class Diagnosis:
     """A unit's diagnosis per sample (all frames indexed by the samples' timestamps).
@@ -326,14 +331,23 @@ class Diagnosis:
         return "; ".join(parts)
 
     def intervals(self) -> pd.DataFrame:
-        """Runs of equal status and isolated faults: ``from``, ``to`` (exclusive), ``status``,
-        ``faults``, ``samples`` and the tests with symptoms in the run — the timeline a person
-        reads."""
+        """Runs of equal status, isolated faults and kind of ``why``: ``from``, ``to``
+        (exclusive), ``status``, ``faults``, ``samples``, the tests with symptoms in the run
+        and ``why`` at its start — the timeline a person reads. The kind of a ``why`` is its
+        text with the numbers left out: a value moving on within "outside what the unit
+        learned" is one run, "without a value" then "outside …" two (a run after a gap in
+        the data read "without a value" for 127 s of which 94 s were values outside the
+        learned range, SKAB)."""
         if not len(self.status):
             return pd.DataFrame(columns=["from", "to", "status", "faults", "samples", "tests"])
         st = self.status.to_numpy()
         fa = self.faults.to_numpy()
-        starts = np.flatnonzero(np.r_[True, (st[1:] != st[:-1]) | (fa[1:] != fa[:-1])])
+        change = (st[1:] != st[:-1]) | (fa[1:] != fa[:-1])
+        if self.why is not None:
+            kind = self.why.fillna("").astype(str).str.replace(NUMBER, "#", regex=True)
+            kind = kind.to_numpy()
+            change |= kind[1:] != kind[:-1]
+        starts = np.flatnonzero(np.r_[True, change])
         ends = np.r_[starts[1:], len(st)]  # exclusive
         idx = self.status.index
         period = (idx[1] - idx[0]) if len(idx) > 1 else pd.Timedelta(0)

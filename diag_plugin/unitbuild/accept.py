@@ -55,6 +55,9 @@ LINEAR_METHODS = ("linear", "joint")
 #: the folder, beside the unit file, that keeps each accept's backup
 BACKUPS = ".unit-backups"
 
+#: a test whose threshold band an accept widens more than this many times is named
+WIDER = 3.0
+
 Reader = Callable[[pd.Timestamp, pd.Timestamp], Iterable[pd.DataFrame]]
 
 
@@ -67,7 +70,22 @@ class AcceptResult:
     samples: dict[str, int] = field(default_factory=dict)  # per test: rows added
     rules: dict[str, tuple[int, int]] = field(default_factory=dict)  # per test: before, after
     limits: dict[str, tuple[float, float]] = field(default_factory=dict)
+    #: per test: its thresholds before the accept (low, high; NaN where it had none)
+    before: dict[str, tuple[float, float]] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+
+    def widened(self) -> dict[str, float]:
+        """Per test whose band (high − low) the accept widened more than :data:`WIDER`
+        times: how many times. Such a test now passes what it flagged before: its inputs do
+        not tell the accepted operating point from the learned ones, so both points'
+        residuals share one band (SKAB: the pump's current modelled from its voltage, the
+        valve1 run at a third of the anomaly-free run's flow, 13.2 → 68.3 % of span)."""
+        out = {}
+        for k, (lo, hi) in self.limits.items():
+            lo0, hi0 = self.before.get(k, (math.nan, math.nan))
+            if hi0 - lo0 > 0 and (hi - lo) / (hi0 - lo0) > WIDER:
+                out[k] = (hi - lo) / (hi0 - lo0)
+        return out
 
     def as_dict(self) -> dict:
         return {
@@ -78,6 +96,8 @@ class AcceptResult:
             "samples": self.samples,
             "rules": {k: list(v) for k, v in self.rules.items()},
             "thresholds": {k: {"low": a, "high": b} for k, (a, b) in self.limits.items()},
+            "thresholds_before": {k: {"low": a, "high": b} for k, (a, b) in self.before.items()},
+            "widened": self.widened(),
             "warnings": self.warnings,
         }
 
@@ -251,6 +271,11 @@ def accept(
         unit, {"accepted": [start.isoformat(), end.isoformat()], "at": _now()}
     )
     res = AcceptResult(unit.name, (start.isoformat(), end.isoformat()), backup, [])
+    nan = math.nan
+    res.before = {
+        t.name: (nan if t.low is None else t.low, nan if t.high is None else t.high)
+        for t in uf.tests
+    }
     try:
         for t, path, rb, old in plans:
             model = None

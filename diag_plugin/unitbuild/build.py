@@ -1051,13 +1051,16 @@ def build_from_historian(
     force: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
     loops: Sequence[Loop] = (),
+    period: str | None = None,
 ) -> BuildResult:
     """:func:`build_unit` on the historian's window ``[start, end)``: every tag it holds is
-    a candidate input; the grid period comes from the data (the longest typical spacing of
-    the tags, as ``diag model new`` chooses it)."""
+    a candidate input; the grid period is ``period`` (``--period``: a faster tag averaged
+    over each period, as ``diag model new --period``), else it comes from the data (the
+    longest typical spacing of the tags, as ``diag model new`` chooses it)."""
     from historian.access import open_data, tag_sampling
     from historian.sampling import format_period, model_period
     from historian.store import Historian
+    from historian.times import period_us
 
     if end <= start:
         raise UserError(f"--to {end} is not after --from {start}")
@@ -1076,10 +1079,18 @@ def build_from_historian(
     sampled = [s for s in sampling.values() if s.median_us > 0]
     if not sampled:
         raise UserError(f"no samples in the window {start} … {end}")
-    try:
-        period = format_period(model_period(sampled))
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    said = "(--period)"
+    if period is not None:
+        try:
+            period = format_period(period_us(period))
+        except ValueError:
+            raise UserError(f"--period {period!r} is not a duration like 10s or 3min") from None
+    else:
+        said = "from the data (the longest typical spacing of the tags)"
+        try:
+            period = format_period(model_period(sampled))
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
     try:
         frame, info = open_data(url, known, start, end, period)
     except (KeyError, ValueError) as exc:
@@ -1103,5 +1114,5 @@ def build_from_historian(
     )
     res.seconds = {"read": read_s, **res.seconds}
     res.seconds["total"] += read_s
-    res.notes.insert(0, f"period {period} from the data (the longest typical spacing of the tags)")
+    res.notes.insert(0, f"period {period} {said}")
     return res

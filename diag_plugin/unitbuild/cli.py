@@ -48,6 +48,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="loops declared in a tags CSV's 'loop' and 'role' (pv|sp|out|sensor|actuator) "
         "columns; a fixed set-point in a 'set_point' column of the pv row",
     )
+    p.add_argument(
+        "--period",
+        help="grid period of the unit, e.g. 10s, 1min (default: from the data, the longest "
+        "typical spacing of the tags; a faster tag is averaged over each period)",
+    )
     p.add_argument("--force", action="store_true", help="overwrite an existing unit and models")
     add_json(p)
     p.set_defaults(func=cmd_unit_build)
@@ -129,6 +134,7 @@ def cmd_unit_build(args) -> int:
             force=args.force,
             progress=progress,
             loops=loops,
+            period=args.period,
         )
     if _printed_json(args, res.as_dict()):
         return 0
@@ -188,13 +194,21 @@ def cmd_unit_accept(args) -> int:
         f"unit {res.unit}: learned {res.window[0]} … {res.window[1]} (old version kept in "
         f"{res.backup}; diag unit rollback {res.unit} puts it back)"
     )
+    nan = (float("nan"), float("nan"))
     for k, (before, after) in res.rules.items():
-        lo, hi = res.limits.get(k, (float("nan"), float("nan")))
+        lo, hi = res.limits.get(k, nan)
+        lo0, hi0 = res.before.get(k, nan)
         print(
             f"  {k}: {res.samples.get(k, 0):,} samples merged; rules {before} → {after}; "
-            f"thresholds {lo:+.3f} … {hi:+.3f}"
+            f"thresholds {lo0:+.3f} … {hi0:+.3f} → {lo:+.3f} … {hi:+.3f}"
         )
     print("  windows learned: " + "; ".join(f"{a} … {b}" for a, b in res.windows))
+    for k, x in res.widened().items():
+        print(
+            f"  ⚠ {k}: its band is {x:.1f}× as wide: it now passes what it flagged before — "
+            "its inputs do not tell the accepted period from the windows it learned, so both "
+            f"share one band; diag unit rollback {res.unit} undoes the accept"
+        )
     for w in res.warnings[:4]:
         print(f"  note: {w}")
     return 0

@@ -186,12 +186,11 @@ def slow_inputs(plan: Plan, tags: Sequence[str], column) -> dict[str, float]:
     if plan.slow and len(plan.slow) < len(n_eff):
         each = ", ".join(f"{t} (about {n:.0f})" for t, n in plan.slow.items())
         plan.reasons.append(
-            f"no input of a tag with {SHORT_INPUT_INDEPENDENT} independent values in the "
-            "window where their correlation is within chance (level "
-            f"{SHORT_INPUT_LEVEL:g} on the pair's independent values): {each} — independent "
-            f"values, under {SHORT_INPUT_INDEPENDENT}: a tag that wanders slower than the "
-            "window correlates with a faster one by chance, and leaves the span its test "
-            "learned as soon as it drifts on"
+            f"slow tags (under {SHORT_INPUT_INDEPENDENT} independent values in the window): "
+            f"{each}; each is an input of a faster tag only where their correlation beats "
+            f"chance (level {SHORT_INPUT_LEVEL:g} on the pair's independent values): a tag "
+            "that wanders slower than the window correlates with a faster one by chance, and "
+            "leaves the span its test learned as soon as it drifts on"
         )
     return plan.slow
 

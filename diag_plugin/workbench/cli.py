@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from diag_plugin.cliargs import add_json
+from diag_plugin.cliargs import add_json, table_console
 from diag_plugin.models.registry import METHODS
 from historian.errors import UserError
 
@@ -167,11 +167,57 @@ def cmd_model_new(args) -> int:
     if args.sets is None and not searched and rb.new_model().capabilities.rule_regions:
         sets = sorted({v.sets for v in rb.inputs})
         print(
-            f"sets per input: {', '.join(map(str, sets))}, what {len(frame):,} samples can fill "
-            "(give --sets to choose)"
+            f"sets per input: {', '.join(map(str, sets))}, what {_filled(frame, rb):,} samples "
+            "can fill (give --sets to choose)"
         )
+    for line in _sliver_notes(frame, rb):
+        print(line)
     print(f"next: diag train {args.name}")
     return 0
+
+
+#: an input whose data use less than this share of its span is named by ``model new``
+SLIVER = 0.25
+
+
+def _sliver_notes(frame, rb: RuleBase) -> list[str]:
+    """A line per input of ``rb`` whose data use under :data:`SLIVER` of its span (a valve's
+    0–100 % from the tags file, the data at 39–43 %): few of its sets hold data, so the
+    model is a coarse staircase there whatever the set count; with the command that fits
+    the span to the data (``diag compare``'s span use, :func:`~.compare.span_use`)."""
+    import numpy as np
+
+    from diag_plugin.regressors import InputSpec, feature
+    from diag_plugin.workbench.compare import span_use
+
+    if frame is None or not len(frame) or not rb.inputs:
+        return []
+    X = np.column_stack([feature(frame, InputSpec.parse(v.spec)) for v in rb.inputs])
+    lines = []
+    for v, u in zip(rb.inputs, span_use(rb, X), strict=True):
+        used = u["used_fraction"]
+        if v.spec.startswith(("dir(", "hour(", "days(")) or not used < SLIVER:
+            continue
+        lo, hi = u["used"]
+        held = min(v.sets, int(np.floor(used * (v.sets - 1))) + 2)
+        lines.append(
+            f"{v.spec}: the data use {lo:.4g} … {hi:.4g}, {used:.0%} of its span "
+            f"{v.span[0]:g} … {v.span[1]:g}: about {held} of its {v.sets} sets hold data, "
+            f"a coarse model there; diag model set-input {rb.name} '{v.spec}' --span "
+            f"{lo:.4g} {hi:.4g} fits the sets to the data (diag explain scores it)"
+        )
+    return lines
+
+
+def _filled(frame, rb: RuleBase) -> int:
+    """The grid points where every input of ``rb`` holds a value: the samples its sets are
+    chosen on (``sets_for_data``), not the empty points of the gaps between runs."""
+    import numpy as np
+
+    from diag_plugin.regressors import InputSpec, feature
+
+    cols = [feature(frame, InputSpec.parse(v.spec)) for v in rb.inputs]
+    return int(np.isfinite(np.column_stack(cols)).all(axis=1).sum()) if cols else len(frame)
 
 
 def _specs(specs: list[str]) -> list[str]:
@@ -295,7 +341,6 @@ def _model_frame(args, rb: RuleBase):
 
 
 def cmd_compare(args) -> int:
-    from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
@@ -315,7 +360,7 @@ def cmd_compare(args) -> int:
     if args.json:
         print(json.dumps(c.as_dict(), indent=2, allow_nan=False, default=str))
         return 0
-    con = Console()
+    con = table_console()
     m = c.metrics
     con.print(
         f"{rb.name}: {rb.output.spec} = f({', '.join(v.spec for v in rb.inputs)}) on "
@@ -394,7 +439,6 @@ def screened_name(s: dict) -> str:
 
 
 def cmd_explain(args) -> int:
-    from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
@@ -409,7 +453,7 @@ def cmd_explain(args) -> int:
     if args.json:
         print(json.dumps(e.as_dict(), indent=2))
         return 0
-    con = Console()
+    con = table_console()
     con.print(
         f"[bold]{escape(rb.name)}[/]: held-out error {e.baseline_rmse_pct:.2f} % of span, "
         f"coverage {e.baseline_coverage:.0%} (validation from {e.validation_from:%Y-%m-%d %H:%M}; "
@@ -421,7 +465,7 @@ def cmd_explain(args) -> int:
     t.add_column("effect")
     t.add_column("error %", justify="right")
     t.add_column("own coverage", justify="right")
-    t.add_column("next command")
+    t.add_column("next command", no_wrap=True)  # whole, to be copied
     for i, c in enumerate(e.candidates, 1):
         effect = c.effect + "".join(f"\n  ⚠ {n}" for n in c.notes)
         err = "n/a" if not math.isfinite(c.rmse_pct_if_added) else f"{c.rmse_pct_if_added:.2f}"
