@@ -25,7 +25,8 @@ interleaved at a load of 3.4–6.7, medians): the first run 1.35 → 1.21 CPU s 
 1.04 s both; ``main`` was above 100,000 rows per CPU s that day in all three, about 1.5× the
 quiet figures of ae03181 (first run 2.13 s, pieces 2.27 s): compare only within one
 interleaved run. Three pairs quiet (load 1.3–1.6): first run 1.47 → 1.00 s (136,000 →
-200,000), one pass 0.99 → 0.89 s, 7-day pieces 1.46 → 1.34 s (137,000 → 149,000). Details: docs/how-to/unit-short-windows.md, "Round nine" and "Round ten".
+200,000), one pass 0.99 → 0.89 s, 7-day pieces 1.46 → 1.34 s (137,000 → 149,000).
+Details: docs/how-to/unit-short-windows.md, "Round nine" and "Round ten".
 
 Run: ``nice -n 10 python benchmarks/bench_unit_replay.py [--tags 50] [--rows 200000]
 [--profile 15] [--repeat 5]``.

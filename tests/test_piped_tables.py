@@ -18,8 +18,10 @@ from historian import Historian
 T0 = pd.Timestamp("2026-04-01T00:00:00Z")
 
 
-def test_explain_prints_every_next_command_whole_into_a_pipe(tmp_path, capsys):
+def test_explain_prints_every_next_command_whole_into_a_pipe(tmp_path, capsys, monkeypatch):
     from diag_plugin.cli import main
+
+    monkeypatch.delenv("COLUMNS", raising=False)  # pytest-xdist's workers set 80
 
     db = f"sqlite:///{tmp_path / 'h.db'}"
     rng = np.random.default_rng(4)
