@@ -283,6 +283,7 @@ def cmd_tags(args) -> int:
     else:
         with _open(args) as h:
             records = h.tag_report(args.start, args.end).to_dict("records")
+    records.sort(key=lambda r: natural_key(r["tag"]))
     if args.json:
         rows = [{k: to_jsonable(v) for k, v in r.items()} for r in records]
         print(json.dumps(rows, indent=2))
@@ -317,6 +318,17 @@ def cmd_tags(args) -> int:
         console = Console(width=160)
     console.print(table)
     return 0
+
+
+def natural_key(name: str) -> tuple:
+    """Sort key of a tag name with its digit runs read as numbers: XMEAS2 before XMEAS10
+    (``diag tags`` listed classic TEP's XMEAS1, XMEAS10, XMEAS11, …, XMEAS2)."""
+    import re
+
+    return tuple(
+        (0, int(part), "") if part.isdigit() else (1, 0, part.casefold())
+        for part in re.split(r"(\d+)", name)
+    )
 
 
 def _stored_tags(url: str) -> int | None:

@@ -30,3 +30,23 @@ def test_tags_prints_the_interval_rounded_and_in_minutes(tmp_path, capsys):
     fast = rows["FAST"].split("│")[7].strip()
     assert fast.endswith(" s") and len(fast.split()[0]) <= 4, rows["FAST"]
     assert rows["SLOW"].split("│")[7].strip() == "3 min", rows["SLOW"]
+
+
+def test_tags_lists_numbered_tags_in_number_order(tmp_path, capsys):
+    """Classic TEP's tags came out XMEAS1, XMEAS10, XMEAS11, …, XMEAS2 (text order)."""
+    from diag_plugin.cli import main
+
+    db = f"sqlite:///{tmp_path / 'h.db'}"
+    ts = T0 + pd.to_timedelta(np.arange(50) * 180, unit="s")
+    names = ["XMEAS10", "XMV2", "XMEAS2", "XMEAS1", "XMV11"]
+    with Historian(db) as h:
+        for k, name in enumerate(names):
+            h.write_samples(pd.Series(np.arange(50.0) + k, index=ts, name=name))
+    assert main(["--db", db, "tags", "--json"]) == 0
+    import json
+
+    got = [r["tag"] for r in json.loads(capsys.readouterr().out)]
+    assert got == ["XMEAS1", "XMEAS2", "XMEAS10", "XMV2", "XMV11"]
+    assert main(["--db", db, "tags"]) == 0
+    table = [ln.split("│")[1].strip() for ln in capsys.readouterr().out.splitlines() if "│" in ln]
+    assert table == got

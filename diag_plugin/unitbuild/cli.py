@@ -61,9 +61,22 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="learn an operator-confirmed fault-free period (a new operating point) into the "
         "unit: models merged, thresholds re-learned, the old version kept (unit rollback)",
     )
-    p.add_argument("name")
-    p.add_argument("--from", dest="start", required=True, metavar="T0")
-    p.add_argument("--to", dest="end", required=True, metavar="T1")
+    p.add_argument("name", help="the unit (as in diag unit show)")
+    p.add_argument(
+        "--from",
+        dest="start",
+        required=True,
+        metavar="T0",
+        help="start of the fault-free period the operator confirmed, e.g. 2026-03-01T06:00 "
+        "(ISO 8601; naive times are UTC)",
+    )
+    p.add_argument(
+        "--to",
+        dest="end",
+        required=True,
+        metavar="T1",
+        help="end of that period (exclusive), the same form as --from",
+    )
     add_far(p, "(default: the unit's own)")
     add_json(p)
     p.set_defaults(func=cmd_unit_accept)
