@@ -45,6 +45,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="grid period of the model, e.g. 1s, 10s, 3min (default: from the data, the "
         "longest typical spacing of its tags' samples)",
     )
+    p.add_argument(
+        "--from",
+        dest="start",
+        help="start of the data the period, spans, sets and shape are chosen on (default: all "
+        "data; give a fault-free stretch; diag train takes its own --from/--to)",
+    )
+    p.add_argument("--to", dest="end", help="end of that data")
     p.add_argument("--description", default="")
     p.set_defaults(func=cmd_model_new)
     p = msub.add_parser("add-input", help="add an input (or replace one with --replace)")
