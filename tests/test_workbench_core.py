@@ -167,3 +167,26 @@ def test_set_input_changes_the_resolution_and_names_file_and_input_in_errors(tmp
         set_input(rb, "P1[k]")
     with pytest.raises(ValueError, match=r"T1\[k\] is not an input of m"):
         set_input(rb, "T1[k]", sets=5)
+
+
+def test_compare_windows_fit_short_runs_spread_over_weeks():
+    """A user's walk (issue 37): SKAB's runs of 20 min at 1 s over 30 days got 12-h windows,
+    one per run; the window is now 1/60 of the time the samples cover there. Continuous data
+    keep whole hours (10 days: 4 h)."""
+    from diag_plugin.workbench.compare import worst_periods
+
+    t0 = pd.Timestamp("2026-01-01", tz="UTC")
+    runs = [
+        t0 + pd.Timedelta(days=d) + pd.to_timedelta(np.arange(1200), unit="s") for d in (0, 10, 29)
+    ]
+    idx = runs[0].append(runs[1]).append(runs[2])
+    res = np.zeros(len(idx))
+    res[1800:1860] = 10.0  # one minute of the second run
+    p = worst_periods(pd.DatetimeIndex(idx), res)
+    assert (p["end"] - p["start"]).max() <= pd.Timedelta(minutes=2)
+    assert len(p) >= 3 * 10
+    worst = p.loc[p["rmse_pct"].idxmax()]
+    assert worst["start"] <= idx[1800] < worst["end"]
+    flat = pd.date_range(t0, periods=14400, freq="min")
+    q = worst_periods(flat, np.zeros(len(flat)))
+    assert (q["end"] - q["start"]).iloc[0] == pd.Timedelta(hours=4)
