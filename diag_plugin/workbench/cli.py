@@ -137,6 +137,8 @@ def args_end(args):
 
 
 def cmd_model_new(args) -> int:
+    import numpy as np
+
     from diag_plugin.regressors import needed_tags
     from diag_plugin.workbench.model_edit import new_model
 
@@ -171,13 +173,15 @@ def cmd_model_new(args) -> int:
     searched = [line for line in chosen if not line.startswith(SHAPE_NOTE)]
     for line in chosen:  # the shape and the sets per input chosen on held-out data
         print(line + (" (give --sets to choose)" if line in searched else " (give --shape)"))
+    X = _inputs(frame, rb)
     if args.sets is None and not searched and rb.new_model().capabilities.rule_regions:
         sets = sorted({v.sets for v in rb.inputs})
+        filled = int(np.isfinite(X).all(axis=1).sum()) if X is not None else len(frame)
         print(
-            f"sets per input: {', '.join(map(str, sets))}, what {_filled(frame, rb):,} samples "
+            f"sets per input: {', '.join(map(str, sets))}, what {filled:,} samples "
             "can fill (give --sets to choose)"
         )
-    for line in _sliver_notes(frame, rb):
+    for line in _sliver_notes(X, rb):
         print(line)
     print(f"next: diag train {args.name}")
     return 0
@@ -187,19 +191,18 @@ def cmd_model_new(args) -> int:
 SLIVER = 0.25
 
 
-def _sliver_notes(frame, rb: RuleBase) -> list[str]:
+def _sliver_notes(X, rb: RuleBase) -> list[str]:
     """A line per input of ``rb`` whose data use under :data:`SLIVER` of its span (a valve's
     0–100 % from the tags file, the data at 39–43 %): few of its sets hold data, so the
     model is a coarse staircase there whatever the set count; with the command that fits
-    the span to the data (``diag compare``'s span use, :func:`~.compare.span_use`)."""
+    the span to the data (``diag compare``'s span use, :func:`~.compare.span_use`). ``X``:
+    the inputs' values (:func:`_inputs`)."""
     import numpy as np
 
-    from diag_plugin.regressors import InputSpec, feature
     from diag_plugin.workbench.compare import span_use
 
-    if frame is None or not len(frame) or not rb.inputs:
+    if X is None or not len(X):
         return []
-    X = np.column_stack([feature(frame, InputSpec.parse(v.spec)) for v in rb.inputs])
     lines = []
     for v, u in zip(rb.inputs, span_use(rb, X), strict=True):
         used = u["used_fraction"]
@@ -216,15 +219,18 @@ def _sliver_notes(frame, rb: RuleBase) -> list[str]:
     return lines
 
 
-def _filled(frame, rb: RuleBase) -> int:
-    """The grid points where every input of ``rb`` holds a value: the samples its sets are
-    chosen on (``sets_for_data``), not the empty points of the gaps between runs."""
+def _inputs(frame, rb: RuleBase):
+    """The values of ``rb``'s inputs on ``frame``'s grid (samples × inputs; None without
+    inputs or data): what ``model new`` counts and checks its sets on — the grid points
+    where every input holds a value are the samples its sets are chosen on
+    (``sets_for_data``), not the empty points of the gaps between runs."""
     import numpy as np
 
     from diag_plugin.regressors import InputSpec, feature
 
-    cols = [feature(frame, InputSpec.parse(v.spec)) for v in rb.inputs]
-    return int(np.isfinite(np.column_stack(cols)).all(axis=1).sum()) if cols else len(frame)
+    if frame is None or not len(frame) or not rb.inputs:
+        return None
+    return np.column_stack([feature(frame, InputSpec.parse(v.spec)) for v in rb.inputs])
 
 
 def _specs(specs: list[str]) -> list[str]:
