@@ -222,14 +222,18 @@ def run_kernel(
         level = np.empty(n, np.int8)
         spread = np.empty(n)
         loops = kernels(None if which.size else n)  # numpy: one model's inference
+    fields = (out, sup, reason, level, spread)
     for s in range(0, n, CHUNK_ROWS):
         e = s + CHUNK_ROWS
-        rows = which[s:e] if which.size else which
-        args = (out[s:e], sup[s:e], reason[s:e], level[s:e], spread[s:e])
-        if first:
-            loops.infer_levels(rows, X[s:e], *packed, *args, first)
+        if n <= CHUNK_ROWS:  # one call on the arrays themselves (no slices to make)
+            rows, Xs, args = which, X, fields
         else:
-            loops.infer_levels(rows, X[s:e], *packed, *args)
+            rows = which[s:e] if which.size else which
+            Xs, args = X[s:e], tuple(f[s:e] for f in fields)
+        if first:
+            loops.infer_levels(rows, Xs, *packed, *args, first)
+        else:
+            loops.infer_levels(rows, Xs, *packed, *args)
     return Prediction(out, sup, reason, level, spread)
 
 
@@ -892,12 +896,8 @@ class WangMendelRegressor(ParamsMixin):
                 depth = last
             if depth not in packs:
                 packs[depth] = pack([self.inference_grid(depth)], dense=True)
-            prior = [f[rows] for f in _fields(det)]
-            if rows.size <= CHUNK_ROWS:  # run_kernel's one call, without its wrapping
-                kernels(None).infer_levels(none, X[rows], *packs[depth], *prior, done + 1)
-                sub = Prediction(*prior)
-            else:
-                sub = run_kernel(packs[depth], none, X[rows], Prediction(*prior), first=done + 1)
+            prior = Prediction(*(f[rows] for f in _fields(det)))
+            sub = run_kernel(packs[depth], none, X[rows], prior, first=done + 1)
             for full, part in zip(_fields(det), _fields(sub), strict=True):
                 full[rows] = part
             if depth == last:
