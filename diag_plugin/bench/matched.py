@@ -49,8 +49,10 @@ __all__ = [
     "calibrate_leaving_out",
     "delayed_score",
     "episode_count",
+    "episode_interval",
     "method_score",
     "side_ratio",
+    "split_spread",
 ]
 
 #: a target is resolved by the calibration runs when at least this many alarm samples (per
@@ -247,6 +249,59 @@ def calibrate_leaving_out(
     return {
         n: calibrate([x for k, x in runs.items() if k != n], target, period_s, per) for n in scored
     }
+
+
+def episode_interval(episodes: int, hours: float, level: float = 0.95) -> tuple[float, float]:
+    """The exact (Garwood) two-sided interval of an alarm-episode rate per hour from
+    ``episodes`` counted in ``hours``: ``χ²_{α/2}(2k)/2`` to ``χ²_{1−α/2}(2k+2)/2`` over
+    ``hours`` (``α = 1 − level``; the lower end 0 at ``k = 0``). Episodes, not samples, are
+    the independent events of a fault-free run: one episode holds the on/off delays' several
+    samples."""
+    from scipy import stats
+
+    if hours <= 0 or episodes < 0:
+        raise ValueError("an interval needs hours > 0 and episodes ≥ 0")
+    a = 1.0 - level
+    lo = stats.chi2.ppf(a / 2, 2 * episodes) / 2 if episodes else 0.0
+    hi = stats.chi2.ppf(1 - a / 2, 2 * episodes + 2) / 2
+    return float(lo / hours), float(hi / hours)
+
+
+def split_spread(
+    pieces: Mapping[str, Sequence[np.ndarray]],
+    n_cal: int,
+    target: float,
+    period_s: float,
+    per: str = "sample",
+    draws: int = 2000,
+    seed: int = 0,
+) -> dict[str, np.ndarray]:
+    """How far a matched limit's out-of-sample rate moves by chance alone: per method
+    (name → the score arrays of the same fault-free pieces, in the same order), over
+    ``draws`` random splits of the pieces, ``n_cal`` of them set the limit
+    (:func:`calibrate` at ``target``) and the others are scored at it (:func:`rates`: the
+    share of samples in alarm, or episodes per hour with ``per="hour"``). Every method gets
+    the same split in a draw, so the arrays returned (one rate per draw) pair up: their
+    difference is one method's excess over another's on the same data. Where the pieces are
+    exchangeable (fault-free, alike in length and start), the rate one fixed split gave is
+    one draw of this distribution."""
+    names = list(pieces)
+    k = {len(pieces[n]) for n in names}
+    if len(k) != 1:
+        raise ValueError("every method needs the same pieces")
+    n = k.pop()
+    if not 0 < n_cal < n:
+        raise ValueError(f"n_cal must leave pieces on both sides of the split (0 < {n_cal} < {n})")
+    rng = np.random.default_rng(seed)
+    out = {m: np.empty(draws) for m in names}
+    which = 0 if per == "sample" else 1
+    for i in range(draws):
+        idx = rng.permutation(n)
+        for m in names:
+            p = pieces[m]
+            lim = calibrate([p[j] for j in idx[:n_cal]], target, period_s, per).limit
+            out[m][i] = rates([p[j] for j in idx[n_cal:]], lim, period_s)[which]
+    return out
 
 
 # ---------------------------------------------------------------- scoring at a limit
