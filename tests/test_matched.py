@@ -177,6 +177,11 @@ def test_alarming_more_does_not_win():
         ma, mb = p["methods"]["A"], p["methods"]["B"]
         assert ma["mean_detection"] == pytest.approx(mb["mean_detection"])
         assert ma["free_share"] == pytest.approx(mb["free_share"])
+        # the episodes behind the held-out rate, and an interval that holds it
+        assert ma["free_episodes"] == mb["free_episodes"] > 0
+        lo, hi = ma["free_per_hour_95"]
+        assert lo < ma["free_per_hour"] < hi
+        assert ma["free_per_hour"] == pytest.approx(ma["free_episodes"] / (6000 / 60))
 
 
 def test_truly_better_method_ranks_first_and_names_its_tag():

@@ -374,9 +374,11 @@ def curve(
     methods learned from), ``"free"`` (score arrays of other fault-free runs, to show the
     rate holds out of sample) and ``"faults"`` (a :class:`Scored` per entry of
     ``fault_runs``, same order). Returns per target and method the calibrated :class:`Limit`,
-    the fault-free scoring rates, and per fault the mean detection rate, median delay, mean
-    episodes after the onset and the runs whose faulted tag is among the ``top`` tags named
-    over the samples in alarm after the onset (a run without such an alarm names nothing).
+    the fault-free scoring rates with the alarm episodes behind them and the exact 95 %
+    interval of their rate per hour (:func:`episode_interval`), and per fault the mean
+    detection rate, median delay, mean episodes after the onset and the runs whose faulted
+    tag is among the ``top`` tags named over the samples in alarm after the onset (a run
+    without such an alarm names nothing).
     """
     out: dict = {"per": per, "targets": list(targets), "period_s": period_s, "points": []}
     faults = list(dict.fromkeys(f.fault for f in fault_runs))
@@ -385,6 +387,12 @@ def curve(
         for name, m in methods.items():
             lim = calibrate(m["calibration"], target, period_s, per)
             share, ph = rates(m["free"], lim.limit, period_s) if m["free"] else (None, None)
+            free_ep = free_ci = None
+            if m["free"]:  # the episodes behind the rate, and how far chance alone moves it
+                free_h = sum(len(r) for r in m["free"]) * period_s / 3600.0
+                free_ep = sum(episode_count(_finite(np.asarray(r, float)) > lim.limit)
+                              for r in m["free"])  # fmt: skip
+                free_ci = list(episode_interval(free_ep, free_h)) if free_h > 0 else None
             rows = {}
             for f in faults:
                 per_run = []
@@ -418,6 +426,8 @@ def curve(
                 "limit": lim.as_dict(),
                 "free_share": share,
                 "free_per_hour": ph,
+                "free_episodes": free_ep,
+                "free_per_hour_95": free_ci,
                 "faults": rows,
                 "mean_detection": float(np.mean(det)) if det else None,
                 "in_top": sum(r["in_top"] for r in counted),
