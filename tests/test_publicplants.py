@@ -110,6 +110,12 @@ def test_cli_matched_benchmark_writes_a_page_only_when_asked(tmp_path):
     text = page.read_text()
     assert "diag benchmark --plant tep" in text and "built by the plain commands" in text
     assert "d00_te.dat" in text and "| IDV4 |" in text and "| IDV6 |" not in text
+    # the held-out false alarms carry their episodes and the interval chance leaves them
+    for m in res["methods"]:
+        x = res["curve"]["points"][0]["methods"][m]
+        lo, hi = x["free_per_hour_95"]
+        assert 0 <= lo <= x["free_per_hour"] < hi and x["free_episodes"] >= 0
+    assert "false alarms (share, /h: episodes, 95 %)" in text
 
 
 def test_tep_studio_loops_have_fixed_set_points_that_the_tags_csv_carries(tmp_path):
