@@ -34,6 +34,9 @@ def test_braatz_shapes_onsets_and_split():
     assert [r.onset for r in p.faults] == [160, 160, 160]
     assert all(len(r.frame) == 160 and r.onset is None for r in p.free)
     assert p.faults[2].tags[0] == "XMV10"
+    # d05_te's fault-free first 8 h repeat d04_te's value for value: one scoring piece, not two
+    both = _or_skip(pp.load_braatz, faults=["IDV4", "IDV5"])
+    assert [r.name for r in both.free] == ["d04_te[:160]"] and len(both.faults) == 2
     idx = p.faults[0].frame.index
     assert (idx[1] - idx[0]) == pd.Timedelta("3min")
     # IDV6 (A feed loss): the A feed reads normal before the onset and near zero after it
