@@ -7,8 +7,9 @@ import pandas as pd
 import pytest
 
 import diag_plugin.workbench.explain as explain_mod
+from diag_plugin.models.series import effective_samples
 from diag_plugin.rulebase.document import RuleBase
-from diag_plugin.selection.consequence import MIN_ESS, consequence, effective_samples
+from diag_plugin.selection.consequence import MIN_ESS, consequence
 from diag_plugin.training.chunked import train
 from diag_plugin.workbench.compare import compare
 from diag_plugin.workbench.explain import explain
@@ -111,7 +112,7 @@ def test_consequence_evidence_on_a_pure_chain_and_a_collider():
 
 def test_effective_sample_size():
     """White noise: about one independent value per sample; a series of 12 levels held for
-    1,000 samples each: about a dozen (Geyer's initial positive sequence)."""
+    1,000 samples each: about a dozen, the count the consequence check reads."""
     rng = np.random.default_rng(5)
     assert 8_000 < effective_samples(rng.normal(size=10_000)) < 12_500
     steps = np.repeat(rng.uniform(30, 90, 12), 1_000) + rng.normal(0, 0.1, 12_000)

@@ -23,8 +23,9 @@ never visited, and every fit with a model input then scores worse than ``y`` alo
 read as "the inputs add nothing", a consequence. So the test is judged only where the
 training rows' residual of ``c`` from ``y`` holds :data:`MIN_ESS` effective independent values
 or more (the effective sample size ``n / τ``, ``τ = 1 + 2 Σ ρ_k`` its integrated
-autocorrelation time, summed over Geyer's initial positive sequence — Geyer 1992, Statist.
-Sci. 7, eq. 3.3); below it :attr:`Consequence.unjudged` says so and nothing is flagged by it.
+autocorrelation time, summed up to the first lag where ``ρ_k`` is no longer positive — the
+estimate the thresholds use, :func:`diag_plugin.models.series.effective_samples`); below it
+:attr:`Consequence.unjudged` says so and nothing is flagged by it.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from diag_plugin.models.series import effective_samples
 from diag_plugin.selection.lags import lag_screen
 from diag_plugin.selection.sets import set_index
 
@@ -60,7 +62,7 @@ class Consequence:
     ``r2_yx`` — with the output and the best model input; ``lag`` — samples by which the
     candidate's changes follow the output's (0: no such lag); ``ess`` — effective independent
     values of what the output leaves of the candidate in the training part
-    (:func:`effective_samples`)."""
+    (:func:`~diag_plugin.models.series.effective_samples`)."""
 
     r2_y: float
     r2_yx: float
@@ -134,28 +136,6 @@ def consequence(
         if best > 0 and lagging[best] > LAG_MARGIN * max(leading.max(), lagging[0], 1e-12):
             lag = best
     return Consequence(r2_y, r2_yx, lag, effective_samples(left))
-
-
-def effective_samples(e: np.ndarray) -> float:
-    """Effective sample size ``n / τ`` of the series ``e`` (NaN: not counted, zero in the
-    autocorrelation), ``τ = 1 + 2 Σ ρ_k`` summed over Geyer's initial positive sequence (pairs
-    ``ρ_2m + ρ_2m+1`` while positive; Geyer 1992, Statist. Sci. 7, 473–483, eq. 3.3)."""
-    from scipy.signal import correlate
-
-    ok = np.isfinite(e)
-    n = int(ok.sum())
-    if n < 3:
-        return 0.0
-    d = np.where(ok, e - e[ok].mean(), 0.0)
-    ac = correlate(d, d, mode="full", method="fft")[e.size - 1 :]
-    if ac[0] <= 0:
-        return 0.0
-    rho = ac / ac[0]
-    m = (rho.size - 1) // 2
-    pairs = rho[1 : 2 * m : 2] + rho[2 : 2 * m + 1 : 2]
-    stop = np.flatnonzero(pairs <= 0)
-    tau = 1.0 + 2.0 * float(pairs[: stop[0] if stop.size else pairs.size].sum())
-    return n / max(tau, 1.0)
 
 
 def _index(col: np.ndarray, cut: int, sets: int) -> np.ndarray:
