@@ -100,6 +100,27 @@ def test_a_valve_moved_a_few_times_is_not_read_as_a_consequence(days, seed):
     assert hp.chain and hp.judged and not hp.unjudged, hp
 
 
+def test_header_pressure_flagged_where_the_held_out_output_is_new():
+    """Three days of the line on seed 113 (not tuned on: the mend was made on 101-110): nine
+    tenths of the held-out outputs lie in sets of the output the training part never
+    visited. Main scored the header pressure there too (r²ᵧ −1.3: an unvisited set answers
+    the training mean) and missed it; scored where the training rows saw the output it is a
+    chain, and the manual valve is still not flagged."""
+    from diag_plugin.selection.consequence import Y_SETS, _index
+
+    f = on_grid(simulate_blendline(3, seed=113))
+    y = f["OUT_FLOW"].to_numpy(float)
+    inputs = [f[c.split("[")[0]].to_numpy(float) for c in INPUTS]
+    cut, horizon = cut_row(f.index, 0.2), default_max_lag(f.index)
+    ix = _index(y, cut, Y_SETS, clip=False)
+    visited = np.bincount(ix[:cut][ix[:cut] >= 0], minlength=Y_SETS) > 0
+    held = ix[cut:][np.isfinite(y[cut:])]
+    assert np.mean((held < 0) | ~visited[np.maximum(held, 0)]) > 0.5  # what main missed on
+    hp = consequence(f["HEADER_P"].to_numpy(float), y, inputs, cut, horizon)
+    assert hp.chain and hp.likely, hp
+    assert not consequence(f["HAND_VALVE"].to_numpy(float), y, inputs, cut, horizon).likely
+
+
 def test_compare_table_says_cannot_tell_for_the_valve():
     """`diag compare`'s residual-vs-tag table uses the same test: on the 3-day seed-13 window
     the manual valve is marked "cannot tell" (not "likely"), the header pressure "likely"."""
