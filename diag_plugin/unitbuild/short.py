@@ -160,7 +160,7 @@ def slow_inputs(plan: Plan, tags: Sequence[str], column) -> dict[str, float]:
     """A short window's tags that wander slower than the window shows (``plan.slow``, with a
     reason in ``plan.reasons``): tags whose window holds fewer than
     :data:`SHORT_INPUT_INDEPENDENT` independent values
-    (:func:`~diag_plugin.diagnose.symptoms.effective_samples` of ``column(tag)``). They are
+    (:func:`~diag_plugin.models.series.effective_samples` of ``column(tag)``). They are
     no input of a tag the window holds that many values of (:func:`inputs_for`).
 
     A slow input explains a fast tag's slow wander over the window by chance (Granger and
@@ -179,7 +179,7 @@ def slow_inputs(plan: Plan, tags: Sequence[str], column) -> dict[str, float]:
     values alone cost the naming of its faults). Two slow tags (the two accelerometers of
     a pump) keep each other: neither has a level test to fall back on, and their joint
     test (:func:`joint_groups`) watches their common rise."""
-    from diag_plugin.diagnose.symptoms import effective_samples
+    from diag_plugin.models.series import effective_samples
 
     if not plan.short:
         return {}
@@ -201,11 +201,11 @@ def pair_samples(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     """The correlation ``r`` of ``x`` and ``y`` (rows where both are known) and the
     independent values it rests on: Bartlett's ``n / (1 + 2 Σ_k ρx(k) ρy(k))`` (Bartlett 1935;
     Pyper and Peterman 1998, eq. 1), summed over the lags of the longer memory of the two
-    (Sokal's window, :func:`~diag_plugin.diagnose.symptoms.autocorrelation`). Two series that
+    (Sokal's window, :func:`~diag_plugin.models.series.autocorrelation`). Two series that
     wander slowly share few independent values however long the window; a white one keeps all
     ``n`` beside a slow one, and a tag whose slow part hides under fast noise keeps as few as
     its slow part allows beside a slow one."""
-    from diag_plugin.diagnose.symptoms import autocorrelation
+    from diag_plugin.models.series import autocorrelation
 
     ok = np.isfinite(x) & np.isfinite(y)
     a, b = x[ok] - x[ok].mean(), y[ok] - y[ok].mean()
@@ -309,10 +309,10 @@ def level_test(ch, y: np.ndarray, min_gain: float) -> str | None:
     the window (a linear test without inputs) -- a univariate T²-like chart, so that every
     tag that varies is watched (``ch.method`` and ``ch.why`` set). Only where the window
     holds :data:`SHORT_LEVEL_INDEPENDENT` independent values of the tag ``y``
-    (:func:`~diag_plugin.diagnose.symptoms.effective_samples`): a tag that wanders slower
+    (:func:`~diag_plugin.models.series.effective_samples`): a tag that wanders slower
     than the window has not shown its fault-free range, and its mean says nothing; then the
     reason it is left untested is returned."""
-    from diag_plugin.diagnose.symptoms import effective_samples
+    from diag_plugin.models.series import effective_samples
 
     n = effective_samples(y)
     if n < SHORT_LEVEL_INDEPENDENT:
@@ -352,8 +352,8 @@ def joint_groups(
     values its score holds, and why it is left out ("" where it is tested): only where the
     window holds :data:`SHORT_LEVEL_INDEPENDENT` independent values of the score, as a level
     test."""
-    from diag_plugin.diagnose.symptoms import effective_samples
     from diag_plugin.models.joint import first_component
+    from diag_plugin.models.series import effective_samples
 
     order = [t for t, _ in tests]
     ins = {t: set(i) for t, i in tests}
