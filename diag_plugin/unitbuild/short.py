@@ -429,7 +429,7 @@ def rate_test(ch, y: np.ndarray, why: str) -> bool:
     independent values, are wide; their maxima, 0.5–1.5, were the fault-free chunks' as much
     as the faults'); what they changed is the combined T² they join
     (docs/how-to/unit-short-windows.md, round 11)."""
-    from diag_plugin.diagnose.symptoms import effective_samples
+    from diag_plugin.models.series import effective_samples
     from diag_plugin.regressors import InputSpec
 
     y = np.asarray(y, float)
