@@ -330,6 +330,8 @@ def test_a_slow_tag_gets_a_rate_test_that_sees_its_rate_change(tmp_path, monkeyp
     assert np.isfinite(d.combined["T2"].to_numpy()[ROWS:]).all()
     # a long window: no short plan, no rate test (the tag's level is tested as before)
     assert short.plan_for(20 * ROWS, "1s", 3, 0.01).short is False
+
+
 def test_the_plan_changes_with_the_window_s_length_not_at_1000_samples():
     """Issue 34, item 3: from 1,000 to 5,000 samples a window is built as a short one with
     each test beside the long window's rule grid; the residual filter meets the period's own
