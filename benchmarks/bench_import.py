@@ -23,6 +23,11 @@ into the (tag_id, ts) key (7.5 s) alone takes more CPU than the reference's to_s
 write for the whole file (every sample appended) gave 9.64 s against 11.33 in turns, 1.42x,
 at the cost of the write lock held 5.0 s CPU instead of 2.0 and 1.08 GB peak memory instead of 0.68
 (``bench_insert_order.py``; docs/reference/historian.md, import).
+i37-csv (the time column's type inferred, a chunk of number-looking times read again as
+text; each a process of its own, 6 rounds in turns, load 4.2-12.4, medians): the reference
+6.76 s CPU, the import 11.20 -> 10.48 s: 1.65x -> 1.55x CPU (median of the rounds' ratios);
+the chunked parse alone 1.49 -> 1.00 s; this script once each at load 3-6, fastest of 2:
+1.74x before (10.50 s against 6.04), 1.69x after (10.38 s against 6.16).
 
     python benchmarks/bench_import.py [--rows 1000000] [--tags 20] [--runs 2] [--dir /tmp]
 """
