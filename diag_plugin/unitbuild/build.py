@@ -472,11 +472,8 @@ def _choose_test(
         cands = short.inputs_for(plan, tag, cands, use.column)
         ch = select_inputs(use, tag, cands, test=test, max_inputs=plan.max_inputs,
                            method=plan.select_method, max_sets=plan.max_sets)  # fmt: skip
-        short_err = ch.baseline_rmse_pct
         if plan.short and ch.steps:
-            short_err = _short_method(ctx, ch)
-        if plan.blend:
-            ch = _grid_or_short(use, ch, short_err, cands, plan)
+            _short_method(ctx, ch)
         if tag in held:
             ch = actuator_test(use, ch, cands)
     for st in ch.steps:  # dead times chosen on the coarse grid, on the data's grid
@@ -512,38 +509,10 @@ def actuator_test(ctx: _Context, ch: TestChoice, candidates: Sequence[str]) -> T
     return keep
 
 
-def _grid_or_short(
-    ctx: _Context, ch: TestChoice, short_err: float, candidates: Sequence[str], plan
-) -> TestChoice:
-    """A window between :data:`short.SHORT_ROWS` and :data:`short.BLEND_ROWS` (``plan.blend``):
-    the long window's test of ``ch.tag`` — a rule grid of up to ``plan.grid_inputs`` inputs
-    chosen as rule grids (:func:`select_inputs`, ``wm-avg``) — in place of the short window's
-    ``ch`` (held-out error ``short_err``, its level test's where it has no input) where its
-    held-out error on the same time blocks is lower by more than :data:`MIN_GAIN`; ``why``
-    says which and on what errors."""
-    grid = select_inputs(ctx, ch.tag, candidates, test=ch.test, max_inputs=plan.grid_inputs)
-    if not grid.steps:
-        return ch
-    err = grid.steps[-1].rmse_pct
-    said = f"{ch.method} test" if ch.steps else "level test"
-    if err < short_err * (1 - MIN_GAIN):
-        grid.why = (
-            f"long window's rule grid of {len(grid.steps)} input(s): held-out error "
-            f"{err:.2f} % against {short_err:.2f} % for the short window's {said}"
-        )
-        return grid
-    ch.why = (ch.why + "; " if ch.why else "") + (
-        f"kept against the long window's rule grid of {len(grid.steps)} input(s) "
-        f"(held-out error {err:.2f} %)"
-    )
-    return ch
-
-
-def _short_method(ctx: _Context, ch: TestChoice) -> float:
+def _short_method(ctx: _Context, ch: TestChoice) -> None:
     """A short window's test: a rule grid of :func:`short.short_sets` sets where the data
     fill its cells and it beats the linear test's held-out error by more than
-    :data:`MIN_GAIN`, else the linear test (``ch.method``, ``ch.sets``, ``ch.why`` set).
-    Returns the chosen test's held-out error."""
+    :data:`MIN_GAIN`, else the linear test (``ch.method``, ``ch.sets``, ``ch.why`` set)."""
     specs = [InputSpec.parse(s) for s in ch.inputs]
     cols = [ctx.column(s.tags[0], s.lag) for s in specs]
     ins = [ctx.variable(s.tags[0], s.lag) for s in specs]
@@ -555,7 +524,7 @@ def _short_method(ctx: _Context, ch: TestChoice) -> float:
             f"too few samples for a grid of {SETS_RANGE[0]} sets per input "
             f"({short.SHORT_PER_CELL} a cell): linear test, held-out error {lin:.2f} %"
         )
-        return lin
+        return
     grid_ins = [dc_replace(v, sets=sets) for v in ins]
     scorer = BlockScorer(
         _rulebase(ch.test, ctx.vars[ch.tag], [], ctx.period), [], ctx.column(ch.tag), ctx.block
@@ -567,12 +536,11 @@ def _short_method(ctx: _Context, ch: TestChoice) -> float:
             f"rule grid of {sets} sets per input: held-out error {grid:.2f} % against "
             f"{lin:.2f} % linear"
         )
-        return grid
-    ch.why = (
-        f"linear test: held-out error {lin:.2f} % against {grid:.2f} % for a grid of "
-        f"{sets} sets per input"
-    )
-    return lin
+    else:
+        ch.why = (
+            f"linear test: held-out error {lin:.2f} % against {grid:.2f} % for a grid of "
+            f"{sets} sets per input"
+        )
 
 
 def tracked_set_point(
@@ -820,14 +788,6 @@ def _build_unit(
         )
     ctx = _Context(frame, info, period)
     plan = short.plan_for(rows, period, max_inputs, evaluation_for(period)["lowpass"])
-    if plan.blend:
-        plan.reasons.append(
-            f"per test the long window's test too (a rule grid of up to {plan.grid_inputs} "
-            "inputs chosen as rule grids, its sets as the data fill them), kept where its "
-            f"held-out error beats the short window's test by more than {MIN_GAIN:.0%}: the "
-            f"unit changes with the window's length as the held-out error says, not at "
-            f"{short.SHORT_ROWS} samples"
-        )
     # a long fast window: inputs chosen on a coarser grid (short.coarse_frame)
     sel = ctx
     if plan.factor > 1:
@@ -1001,17 +961,11 @@ def joint_tests(
     direction; the output is the group's tag with the largest |loading| on its first
     component (:func:`short.joint_groups` puts it first), the others its inputs (method
     ``joint``, :mod:`diag_plugin.models.joint`), and its ``why`` names it. Groups left out
-    are said in ``notes``, as is a group holding two tags of the same measurement
-    (:func:`same_measurement`: each is never the other's input, nor its partner in a joint
-    test — their common direction is the copy, not the process)."""
+    are said in ``notes``."""
     lin = [ch for ch in kept if ch.steps and not ch.tracks and ch.method != short.JOINT]
     pairs = [(ch.tag, [InputSpec.parse(s).tags[0] for s in ch.inputs]) for ch in lin]
-    same = {ch.tag: set(ch.excluded) for ch in lin}
     out = []
     for group, n, why in short.joint_groups(pairs, ctx.column):
-        dup = next(((a, b) for a in group for b in group if b in same.get(a, ())), None)
-        if dup:
-            why = f"{dup[0]} and {dup[1]} are the same measurement"
         if why:
             notes.append(f"no joint test of {', '.join(group)}: {why}")
             continue
@@ -1021,7 +975,6 @@ def joint_tests(
             group[0],
             base.baseline_rmse_pct,
             steps=[Step(str(InputSpec("", (t,))), math.nan, 1.0) for t in group[1:]],
-            excluded=list(base.excluded),
             method=short.JOINT,
             why=(
                 f"joint test of {', '.join(group)}: their tests predict each other, so a "

@@ -16,17 +16,6 @@
   residuals hold about :data:`SHORT_INDEPENDENT` independent values for the thresholds.
   A tag too slow for a level test can get a **rate test** (:func:`rate_test`, off:
   :data:`RATE_TESTS`): its change over :func:`rate_span` samples against its window mean.
-* **A window between the two** (:data:`SHORT_ROWS` to :data:`BLEND_ROWS` grid points): built
-  as a short window (its tests, level tests, joint tests, residual filter), and per test the
-  long window's test — a rule grid of up to the build's ``max_inputs`` inputs chosen as rule
-  grids — is scored on the same held-out blocks and kept where it beats the short window's
-  test by more than ``MIN_GAIN`` (:attr:`Plan.blend`). A unit built from 990 samples and one
-  from 1,010 then differ only where the held-out error says a grid is better, not in kind;
-  from :data:`BLEND_ROWS` on the build is the long one (no level or joint tests): the
-  second selection per test would cost a long window's build too much. There the plan
-  still changes in kind (``benchmarks/unit_build_lengths.py``: the chemical plant's
-  continuation error 0.30 % at 4,990 samples, 0.49 % at 5,010; docs/how-to/
-  unit-short-windows.md).
 * **A long window on a fast grid** (more than :data:`SELECT_ROWS` grid points, e.g. a day at
   1 s): the inputs and dead times are chosen on a grid :func:`coarse_factor` times coarser
   (means over consecutive samples), the dead times scaled back; the models are then trained,
@@ -50,9 +39,6 @@ from diag_plugin.selection.sets import SETS_RANGE
 MIN_ROWS = 200
 #: below this many grid points the window is short (see module doc)
 SHORT_ROWS = 1000
-#: from :data:`SHORT_ROWS` to this many grid points a short window's tests compete per test
-#: with the long window's rule grids on held-out error (:attr:`Plan.blend`)
-BLEND_ROWS = 5000
 #: inputs per test at most in a short window
 SHORT_MAX_INPUTS = 2
 #: sets per input at most in a short window's rule grid
@@ -81,10 +67,6 @@ class Plan:
     rows: int
     period: str
     short: bool = False
-    #: a window from :data:`SHORT_ROWS` to :data:`BLEND_ROWS`: a short window's tests, each
-    #: beside the long window's rule grid of up to :attr:`grid_inputs` inputs (module doc)
-    blend: bool = False
-    grid_inputs: int = 3
     max_inputs: int = 3
     select_method: str = "wm-avg"
     max_sets: int | None = None
@@ -105,7 +87,6 @@ class Plan:
         return {
             "rows": self.rows,
             "short": self.short,
-            "blend": self.blend,
             "max_inputs": self.max_inputs,
             "select_method": self.select_method,
             "max_sets": self.max_sets,
@@ -141,21 +122,14 @@ def plan_for(rows: int, period: str, max_inputs: int, lowpass: float | None = No
     """The build's plan for a window of ``rows`` grid points of ``period`` (module doc);
     ``lowpass``: the period's residual filter (cut-off / Nyquist), which a short window
     raises (:func:`short_lowpass`)."""
-    p = Plan(rows, period, max_inputs=max_inputs, grid_inputs=max_inputs)
-    if rows < BLEND_ROWS:
+    p = Plan(rows, period, max_inputs=max_inputs)
+    if rows < SHORT_ROWS:
         p.short = True
-        p.blend = rows >= SHORT_ROWS
         p.max_inputs = min(max_inputs, SHORT_MAX_INPUTS)
         p.select_method = LINEAR
         p.max_sets = SHORT_MAX_SETS
-        what = (
-            f"short window ({rows} samples of {period}, under {SHORT_ROWS})"
-            if not p.blend
-            else f"window of {rows} samples of {period} (from {SHORT_ROWS} to {BLEND_ROWS}: "
-            "built as a short window, each test beside a long window's rule grid)"
-        )
         p.reasons.append(
-            f"{what}: at most "
+            f"short window ({rows} samples of {period}, under {SHORT_ROWS}): at most "
             f"{p.max_inputs} inputs per test, chosen with a linear model; a rule grid (at most "
             f"{SHORT_MAX_SETS} sets per input) only where its cells hold {SHORT_PER_CELL} "
             "samples each and it beats the linear test on held-out error, else a linear "
