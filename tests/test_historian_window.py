@@ -199,3 +199,58 @@ def test_tags_judges_coverage_and_gaps_on_the_tags_own_period_with_jitter(histor
     )
     row = historian.tag_report().set_index("tag").loc["REG"]
     assert (row["coverage"], row["gaps"], row["interval_s"]) == (1.0, 0, 60.0)
+
+
+def _bits(frame: pd.DataFrame) -> np.ndarray:
+    """The frame's float64 cells as their bytes (NaN payloads and signed zeros included)."""
+    return np.ascontiguousarray(frame.to_numpy(np.float64)).view(np.int64)
+
+
+def test_tags_read_in_parallel_give_the_frame_of_one_tag_at_a_time(historian):
+    """A window of several tags reads them on the historian's reader threads, each with its
+    own connection (min(tags, cores, READ_THREADS) of them); a window of one tag reads in
+    the calling thread. The frames must agree bit for bit, hot, after a month is rolled to
+    the cold store (cold and hot rows in one window), with and without the quality summary
+    and in chunks; closing the historian closes every reader connection."""
+    from historian.store import READ_THREADS, read_threads
+
+    rng = np.random.default_rng(29)  # not the data of the other tests
+    t0 = pd.Timestamp("2024-03-30", tz="UTC")  # two days in March, two in April
+    span = 4 * 86400
+    tags = ["F1", "F2", "S", "J"]
+    for name, step in (("F1", 5), ("F2", 10), ("S", 90), ("J", 7)):
+        grid = np.arange(0, span, step)
+        t = t0 + pd.to_timedelta(grid + rng.uniform(-1, 1, len(grid)), "s")
+        v = rng.normal(20, 4, len(t))
+        v[rng.choice(len(v), len(v) // 50, replace=False)] = np.nan
+        q = rng.choice([0, 0, 0, 0, UNCERTAIN, BAD], len(t))
+        historian.write_samples(
+            pd.DataFrame({name: v}, index=t), quality=pd.DataFrame({name: q}, index=t)
+        )
+    args = (t0 - pd.Timedelta("2h"), t0 + pd.Timedelta("4D"), "10s")
+
+    def compare() -> None:
+        for summary in (True, False):
+            together = historian.window(tags, *args, summary=summary)
+            alone = [historian.window([t], *args, summary=summary) for t in tags]
+            assert list(together.columns) == tags
+            assert all(a.index.equals(together.index) for a in alone)
+            assert np.array_equal(_bits(together), _bits(pd.concat(alone, axis=1)))
+            if summary:
+                for a, t in zip(alone, tags, strict=True):
+                    assert together.attrs["quality"][t] == a.attrs["quality"][t]
+        chunks = historian.iter_windows(tags, *args, chunk="9h", summary=False)
+        assert np.array_equal(_bits(pd.concat(list(chunks))), _bits(together))
+
+    compare()
+    assert historian.roll_months(before="2024-04-01") == ["2024-03"]
+    compare()
+    threads = read_threads(len(tags))
+    assert 1 <= threads <= min(len(tags), READ_THREADS)
+    if threads > 1:
+        assert historian._pool is not None and len(historian._pool._threads) <= threads
+    if historian.backend == "sqlite":
+        bulk = historian._bulk
+        assert 1 <= len(bulk._all) <= threads + 1  # the readers' and the calling thread's
+        historian.close()
+        assert bulk._all == [] and historian._pool is None
