@@ -134,7 +134,7 @@ def test_lowpass_starts_in_steady_state_not_from_rest(seed):
         got = y[start:stop]
         assert np.isnan(got[: k - 1]).all()  # unknown while the start settles
         err = np.abs(got[k - 1 :] - ref[k - 1 :])
-        assert err.max() < 1.5 * sd, (err.max() / sd)
+        assert err.max() < 1.5 * sd, err.max() / sd
         assert err[-100:].max() < 0.05 * sd
         # from rest (the old start) it was far off
         rest = LowPass(settle=0).transform(x[start:stop])

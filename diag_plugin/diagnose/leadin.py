@@ -40,9 +40,10 @@ def lead_in_parts(unit: Any) -> dict[str, int]:
     low-pass filter's start and settling — its start's held samples
     (:attr:`~diag_plugin.diagnose.residuals.LowPass.settle`, unknown, 218 at the default
     cut-off 0.01), then the samples after which the start's transient is below :data:`SETTLED`
-    of it, ``ln(SETTLED) / ln|p|`` for the filter's slowest pole ``p`` (1 150 at 0.01); ``delays``, the on/off delays (with the unit's own
-    off-delay, that once more). State that depends on all history (a latch, a held isolation,
-    ``dir()`` inputs) starts at the lead-in's start."""
+    of it, ``ln(SETTLED) / ln|p|`` for the filter's slowest pole ``p`` (1 150 at 0.01);
+    ``delays``, the on/off delays (with the unit's own off-delay, that once more). State that
+    depends on all history (a latch, a held isolation, ``dir()`` inputs) starts at the
+    lead-in's start."""
     from scipy import signal
 
     ev = unit.ev

@@ -219,6 +219,12 @@ class LowPass:
         """Parameters and carried state as plain JSON-able values (a start's held samples
         only while it holds them)."""
         held = None if self.held_ is None else self.held_.tolist()
+        buf = None
+        if held is not None and self.buf_ is not None:
+            buf = [
+                r[:k].tolist() if k < self.settle else []
+                for r, k in zip(self.buf_, held, strict=True)
+            ]
         return {
             "wn": self.wn,
             "order": self.order,
@@ -227,9 +233,7 @@ class LowPass:
             "zi": None if self.zi_ is None else self.zi_.tolist(),
             "gap": None if self.gap_ is None else self.gap_.tolist(),
             "held": held,
-            "buf": None
-            if held is None or self.buf_ is None
-            else [row[:k].tolist() if k < self.settle else [] for row, k in zip(self.buf_, held)],
+            "buf": buf,
         }
 
     @classmethod
