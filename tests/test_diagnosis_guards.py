@@ -519,15 +519,19 @@ def test_a_faults_table_takes_names_or_numbers_and_refuses_others_with_a_line(tm
 
 def test_a_unit_file_without_a_filter_setting_filters_as_seed_000_does(tmp_path):
     """Left out of [evaluation], the filter is Laukonen et al.'s: 4th-order Butterworth at
-    π/100 rad/sample (scipy's wn = 0.01). A +5 % step in r1 comes out as that filter's
-    step response."""
+    π/100 rad/sample (scipy's wn = 0.01). A +5 % step in r1, once the filter has started
+    (its first ``settle`` samples unknown, then in steady state at 0), comes out as that
+    filter's step response."""
     from scipy import signal
 
     path = make_unit(tmp_path, GROUP_MATRIX)
     path.write_text(path.read_text().replace("lowpass = 0.0\n", ""))
-    got = Unit.load(path).evaluate(frame(300, r1=5.0)).residuals["r1"].to_numpy()
+    r1 = np.r_[np.zeros(300), np.full(300, 5.0)]
+    got = Unit.load(path).evaluate(frame(600, r1=r1)).residuals["r1"].to_numpy()
+    settle = LowPass(0.01).settle
+    assert np.isnan(got[: settle - 1]).all() and (got[settle - 1 : 300] == 0.0).all()
     want = 5.0 * signal.sosfilt(signal.butter(4, 0.01, output="sos"), np.ones(300))
-    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(got[300:], want, rtol=1e-9, atol=1e-12)
 
 
 def test_unit_file_limits_are_checked_and_every_problem_is_reported(tmp_path):
