@@ -141,15 +141,16 @@ class LowPass:
     Start (issue 34): a filter started from rest (zero state) ramps from 0 to the residual's
     level and overshoots it — a residual whose local mean is off zero (an accepted operating
     point, any test's own offset) then crosses its thresholds while the filter settles. So a
-    column starts *in steady state*: its first ``settle`` finite samples are unknown (NaN
-    out — an unknown test is not a symptom) and kept; at the last of them the state is set to
-    the steady state (``scipy.signal.sosfilt_zi``) at their median and run over them, so the
-    output from there is as if the filter had seen that level for ever. ``settle`` defaults
-    to the filter's settling time (:func:`settling_samples`, 218 samples at ``wn=0.01``; the
-    start's error is then the filter's response to the median's error, decayed over the held
-    samples: measured on white and AR(1) noise, 95 % of starts within 0.3 of the filtered
-    residual's standard deviation, against 8–30 of it from rest for a level 3 standard
-    deviations of the raw residual off zero). ``settle=0``: from rest, as seed 000 printed it.
+    column starts *in steady state*: its first ``settle`` finite samples are kept, the output
+    unknown (NaN — an unknown test is not a symptom) before the last of them; there the state
+    is set to the steady state (``scipy.signal.sosfilt_zi``) at their median and run over
+    them, so the output from there is as if the filter had seen that level for ever.
+    ``settle`` defaults to the filter's settling time (:func:`settling_samples`, 218 samples
+    at ``wn=0.01``; the start's error is then the filter's response to the median's error,
+    decayed over the held samples: measured on white and AR(1) noise, 95 % of starts within
+    0.3 of the filtered residual's standard deviation, against 7–31 of it from rest for a
+    level 3 standard deviations of the raw residual off zero). ``settle=0``: from rest, as
+    seed 000 printed it.
 
     NaN handling: a NaN input sample gives a NaN output and leaves that column's state
     untouched (the filter holds, it is not fed the NaN). After a gap of more than ``max_gap``
