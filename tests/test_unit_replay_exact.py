@@ -38,6 +38,7 @@ def _ref_lowpass(self, r, overwrite=False):  # a new array whether or not overwr
     n, m = a.shape
     self._init_state(m)
     out = np.full_like(a, np.nan)
+    k = self.settle
     for j in range(m):
         idx = np.flatnonzero(np.isfinite(a[:, j]))
         if not idx.size:
@@ -48,10 +49,23 @@ def _ref_lowpass(self, r, overwrite=False):  # a new array whether or not overwr
         for s, e in zip(np.r_[0, cuts], np.r_[cuts, idx.size], strict=True):
             if e <= s:
                 continue
-            if before[s] > self.max_gap:
+            if before[s] > self.max_gap:  # a start: its first k samples held, then steady
                 self.zi_[j] = 0.0
+                self.held_[j] = 0
             at = idx[s:e]
-            out[at, j], self.zi_[j] = signal.sosfilt(self.sos_, a[at, j], zi=self.zi_[j])
+            if self.held_[j] < k:
+                h = int(self.held_[j])
+                take = min(k - h, at.size)
+                self.buf_[j, h : h + take] = a[at[:take], j]
+                self.held_[j] += take
+                if self.held_[j] < k:
+                    continue
+                self.zi_[j] = self.zss_ * np.median(self.buf_[j])
+                y, self.zi_[j] = signal.sosfilt(self.sos_, self.buf_[j], zi=self.zi_[j])
+                out[at[take - 1], j] = y[-1]
+                at = at[take:]
+            if at.size:
+                out[at, j], self.zi_[j] = signal.sosfilt(self.sos_, a[at, j], zi=self.zi_[j])
         self.gap_[j] = n - 1 - idx[-1]
     return wrap(out)
 
