@@ -14,8 +14,14 @@ Last measured (H5 round of issue 37; each run a process of its own, 7 rounds in 
 load 7.5-14.8): the reference 9.95 s CPU (median), the import 20.2 s before the round and
 18.1 s after it: 2.02x -> 1.84x CPU (median of the rounds' ratios), 1.97x -> 1.82x wall
 (noise at that load); this script back to back at load 4.4-5.4, fastest of 2: 1.94x CPU
-before (19.0 s against 9.75 s), 1.65x after (16.5 s against 10.0 s; 1.52x wall). Not met:
-SQLite's move into the (tag_id, ts) key alone takes more CPU than the reference
+before (19.0 s against 9.75 s), 1.65x after (16.5 s against 10.0 s; 1.52x wall).
+Re-measured (i37-store, the same code; each a process of its own, 3 rounds in turns, load
+15-25, medians): the reference 6.81 s CPU (read_csv 1.0 s, to_sql 6.0 s measured apart), the
+import 11.37 s: 1.67x CPU (rounds 1.62-1.67x); this script once at load 15-19, fastest of 2:
+1.55x CPU (11.65 s against 7.54 s; 1.91x wall). Not met: SQLite's move of the 20 M samples
+into the (tag_id, ts) key (7.5 s) alone takes more CPU than the reference's to_sql; one
+write for the whole file (every sample appended) gave 9.64 s against 11.33 in turns, 1.42x,
+at the cost of the write lock held 5.0 s CPU instead of 2.0 and 1.08 GB peak memory instead of 0.68
 (``bench_insert_order.py``; docs/reference/historian.md, import).
 
     python benchmarks/bench_import.py [--rows 1000000] [--tags 20] [--runs 2] [--dir /tmp]

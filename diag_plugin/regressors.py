@@ -7,7 +7,9 @@ A model input is written as a *spec* (Kościelny et al., eqs. 7–9:
 ``TAG[k]``          the tag at the current sample
 ``TAG[k-d]``        the tag ``d`` samples earlier (dead time, dynamics)
 ``diff(A,B)[k-d]``  ``A − B``, e.g. the pressure drop ``diff(P1,P2)[k]``
-``rate(TAG)[k-d]``  change per sample ``TAG[k] − TAG[k-1]``
+``rate(TAG)[k-d]``  change per sample ``TAG[k] − TAG[k-1]``; ``rate(TAG,L)``
+                    over ``L`` samples, ``(TAG[k] − TAG[k-L]) / L`` (a slow
+                    tag's rate, judged over its decorrelation time)
 ``dir(TAG)[k-d]``   direction of the last significant move of TAG: +1, −1
                     (hysteresis, backlash); ``dir(TAG,0.5)`` sets the move
                     threshold in engineering units (default 0.5 % of the
@@ -168,7 +170,7 @@ class _SpecParser:
             while self.peek() not in (")", ""):
                 if args or param is not None:
                     self.expect(",", "',' between arguments")
-                if (fn == "dir" and len(args) == 1) or fn == "const":
+                if (fn in ("dir", "rate") and len(args) == 1) or fn == "const":
                     m = re.compile(r"\s*([-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)").match(
                         self.text, self.i
                     )
@@ -176,9 +178,13 @@ class _SpecParser:
                         self.fail(
                             "expected the move threshold of dir() as a number"
                             if fn == "dir"
+                            else "expected the samples of rate() as a whole number"
+                            if fn == "rate"
                             else "expected the value of const() as a number"
                         )
                     param, self.i = float(m.group(1)), m.end()
+                    if fn == "rate" and (param < 1 or param != int(param)):
+                        self.fail("rate(TAG,L) takes a whole number of samples L ≥ 1")
                     continue
                 args.append(self.name()[0])
             self.expect(")", "')' closing the arguments")
@@ -223,11 +229,17 @@ def needed_tags(specs: Sequence[str | InputSpec]) -> list[str]:
 
 
 def max_lag(specs: Sequence[str | InputSpec]) -> int:
-    """Samples of history the specs need (rate() needs one more)."""
+    """Samples of history the specs need (``rate(TAG,L)`` needs ``L`` more, ``rate(TAG)``
+    one)."""
     return max(
-        (s.lag + (1 if s.fn == "rate" else 0) for s in parse_specs(specs)),
+        (s.lag + (rate_samples(s) if s.fn == "rate" else 0) for s in parse_specs(specs)),
         default=0,
     )
+
+
+def rate_samples(spec: InputSpec) -> int:
+    """The samples ``L`` a ``rate(TAG,L)`` spans (1 for ``rate(TAG)``)."""
+    return int(spec.param) if spec.param is not None else 1
 
 
 def dir_threshold(
@@ -388,7 +400,8 @@ class _FeatureState:
         if spec.fn == "dir" and spec.param is None and spec.tags[0] in (spans or {}):
             lo, hi = spans[spec.tags[0]]
             self.threshold = DIR_THRESHOLD_SHARE * (hi - lo)
-        self.carry = np.full(2, np.nan)  # rate: (previous sample, –); dir: (reference, dir)
+        # rate: its last L samples (oldest first); dir: (reference, direction)
+        self.carry = np.full(max(2, rate_samples(spec)) if spec.fn == "rate" else 2, np.nan)
 
     def compute(self, frame: pd.DataFrame | Columns) -> np.ndarray:
         spec = self.spec
@@ -401,9 +414,15 @@ class _FeatureState:
             return _values(frame, spec.tags[0]) - _values(frame, spec.tags[1])
         if spec.fn == "rate":
             x = _values(frame, spec.tags[0])
-            out = np.diff(x, prepend=self.carry[0]) if x.size else x
-            if x.size:
-                self.carry[0] = x[-1]
+            n = rate_samples(spec)
+            if n == 1:
+                out = np.diff(x, prepend=self.carry[0]) if x.size else x
+                if x.size:
+                    self.carry[0] = x[-1]
+                return out
+            xx = np.concatenate([self.carry[-n:], x])  # the last L samples before x
+            out = (xx[n:] - xx[:-n]) / n
+            self.carry[-n:] = xx[-n:]
             return out
         if spec.fn == "dir":
             x = _values(frame, spec.tags[0])

@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from diag_plugin.diagnose.symptoms import effective_samples
 from diag_plugin.diagnose.unittags import CombinedModel
 from diag_plugin.learn.thresholds import (
     PREDICTIVE_TAIL,
@@ -21,6 +20,7 @@ from diag_plugin.learn.thresholds import (
     _combined_params,
     predictive_widening,
 )
+from diag_plugin.models.series import effective_samples
 
 
 def test_the_widening_is_students_quantile_over_the_normals():

@@ -15,9 +15,9 @@ from diag_plugin.diagnose.symptoms import (
     FuzzyThreeValued,
     LearnedThresholds,
     OnOffDelay,
-    effective_samples,
     is_unknown,
 )
+from diag_plugin.models.series import effective_samples
 
 
 def _chunks(n: int, k: int, rng: np.random.Generator) -> list[slice]:

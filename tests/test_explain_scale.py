@@ -7,8 +7,9 @@ import pandas as pd
 import pytest
 
 import diag_plugin.workbench.explain as explain_mod
+from diag_plugin.models.series import effective_samples
 from diag_plugin.rulebase.document import RuleBase
-from diag_plugin.selection.consequence import MIN_ESS, consequence, effective_samples
+from diag_plugin.selection.consequence import MIN_ESS, consequence
 from diag_plugin.training.chunked import train
 from diag_plugin.workbench.compare import compare
 from diag_plugin.workbench.explain import explain
@@ -109,9 +110,42 @@ def test_consequence_evidence_on_a_pure_chain_and_a_collider():
     assert consequence(walk, follower, [], cut, max_lag=10).lag == 0
 
 
+def _rows(rng, m, keep):
+    """``m`` rows of the collider ``x → y ← cause`` whose output ``keep`` accepts."""
+    x, cause = rng.uniform(0, 1, 10 * m), rng.uniform(0, 1, 10 * m)
+    y = x * (0.3 + cause) + rng.normal(0, 0.01, 10 * m)
+    k = np.flatnonzero(keep(y))[:m]
+    return x[k], cause[k], y[k]
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_a_chain_held_out_where_the_training_output_never_was(seed):
+    """Issue 37 (blending line seeds 105 and 113: the header pressure missed): the training
+    part never runs the output between 0.5 and 0.7, the held-out part mostly does. There a
+    cell-mean fit from ``y`` answers the training mean — main read r²ᵧ below zero and missed
+    the consequence. Scored where the training rows saw the output, the consequence is a
+    chain and the cause, with the same output, is not."""
+    rng = np.random.default_rng(seed)
+    n, cut = 20_000, 16_000
+    tr = _rows(rng, cut, lambda y: np.abs(y - 0.6) > 0.1)
+    ho = _rows(rng, n - cut, lambda y: np.abs(y - 0.6) < 0.15)
+    x, cause, y = (np.r_[a, b] for a, b in zip(tr, ho, strict=True))
+    effect = -(y**2) + rng.normal(0, 0.02, n)
+    ev = consequence(effect, y, [x], cut)
+    assert ev.chain and ev.r2_y > 0.9, ev
+    cv = consequence(cause, y, [x], cut)
+    assert not cv.chain and cv.r2_yx - cv.r2_y > 0.5, cv
+    # the rows scored: the output's sets the training part visited, none beyond its range
+    from diag_plugin.selection.consequence import _seen
+
+    seen = _seen(effect, y, cut)
+    assert seen[:cut].mean() > 0.99
+    assert 0.1 < seen[cut:].mean() < 0.5  # most held-out rows are where training never was
+
+
 def test_effective_sample_size():
     """White noise: about one independent value per sample; a series of 12 levels held for
-    1,000 samples each: about a dozen (Geyer's initial positive sequence)."""
+    1,000 samples each: about a dozen, the count the consequence check reads."""
     rng = np.random.default_rng(5)
     assert 8_000 < effective_samples(rng.normal(size=10_000)) < 12_500
     steps = np.repeat(rng.uniform(30, 90, 12), 1_000) + rng.normal(0, 0.1, 12_000)

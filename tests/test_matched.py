@@ -14,9 +14,11 @@ from diag_plugin.bench.matched import (
     curve,
     delayed_score,
     episode_count,
+    episode_interval,
     method_score,
     rates,
     side_ratio,
+    split_spread,
 )
 from diag_plugin.diagnose.symptoms import OnOffDelay
 
@@ -92,6 +94,45 @@ def test_calibrated_episode_rate_holds_on_held_out_runs():
     assert abs(ph - target) < 4 * np.sqrt(target / hours) + 0.15
 
 
+def test_episode_interval_is_garwoods_and_covers():
+    lo, hi = episode_interval(10, 2.0)
+    # the tabulated exact 95 % interval of a Poisson count of 10: 4.795 to 18.39
+    assert lo == pytest.approx(4.795 / 2, abs=1e-3) and hi == pytest.approx(18.39 / 2, abs=1e-2)
+    assert episode_interval(0, 5.0)[0] == 0.0
+    # it covers the true rate about 95 % of the time (counts from a known rate)
+    rng = np.random.default_rng(11)
+    k = rng.poisson(3.0 * 4.0, 2000)
+    cover = np.mean([lo <= 3.0 <= hi for lo, hi in (episode_interval(int(x), 4.0) for x in k)])
+    assert 0.93 <= cover <= 0.995
+    with pytest.raises(ValueError):
+        episode_interval(1, 0.0)
+
+
+def test_split_spread_pairs_methods_and_centres_on_the_target():
+    rng = np.random.default_rng(12)
+    pieces = [_ar1(rng, 400, 0.7) for _ in range(24)]
+    got = split_spread(
+        {"a": pieces, "same": [p.copy() for p in pieces], "scaled": [3 * p + 1 for p in pieces]},
+        8, 0.02, 60.0, draws=300, seed=4,
+    )  # fmt: skip
+    # the same split for every method: the same scores give the same rates, and so does any
+    # increasing transform of them (a limit is a quantile)
+    np.testing.assert_array_equal(got["a"], got["same"])
+    np.testing.assert_allclose(got["a"], got["scaled"])
+    # exchangeable pieces: the held-out share spreads about the target (a limit read off a
+    # finite calibration set is a little optimistic, never far)
+    assert 0.5 * 0.02 < np.median(got["a"]) < 1.5 * 0.02
+    assert np.quantile(got["a"], 0.95) > np.quantile(got["a"], 0.05)
+    # a method whose pieces differ (half of them noisier) spreads wider than one whose do not
+    mixed = [p * (1.6 if i % 2 else 1.0) for i, p in enumerate(pieces)]
+    wide = split_spread({"m": mixed}, 8, 0.02, 60.0, draws=300, seed=4)["m"]
+    assert np.std(wide) > np.std(got["a"])
+    with pytest.raises(ValueError):
+        split_spread({"a": pieces, "b": pieces[:-1]}, 8, 0.02, 60.0)
+    with pytest.raises(ValueError):
+        split_spread({"a": pieces}, 24, 0.02, 60.0)
+
+
 def test_thin_calibration_is_flagged():
     rng = np.random.default_rng(3)
     lim = calibrate([rng.standard_normal(500)], 0.001, 180.0)
@@ -136,6 +177,11 @@ def test_alarming_more_does_not_win():
         ma, mb = p["methods"]["A"], p["methods"]["B"]
         assert ma["mean_detection"] == pytest.approx(mb["mean_detection"])
         assert ma["free_share"] == pytest.approx(mb["free_share"])
+        # the episodes behind the held-out rate, and an interval that holds it
+        assert ma["free_episodes"] == mb["free_episodes"] > 0
+        lo, hi = ma["free_per_hour_95"]
+        assert lo < ma["free_per_hour"] < hi
+        assert ma["free_per_hour"] == pytest.approx(ma["free_episodes"] / (6000 / 60))
 
 
 def test_truly_better_method_ranks_first_and_names_its_tag():

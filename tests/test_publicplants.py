@@ -34,6 +34,9 @@ def test_braatz_shapes_onsets_and_split():
     assert [r.onset for r in p.faults] == [160, 160, 160]
     assert all(len(r.frame) == 160 and r.onset is None for r in p.free)
     assert p.faults[2].tags[0] == "XMV10"
+    # d05_te's fault-free first 8 h repeat d04_te's value for value: one scoring piece, not two
+    both = _or_skip(pp.load_braatz, faults=["IDV4", "IDV5"])
+    assert [r.name for r in both.free] == ["d04_te[:160]"] and len(both.faults) == 2
     idx = p.faults[0].frame.index
     assert (idx[1] - idx[0]) == pd.Timedelta("3min")
     # IDV6 (A feed loss): the A feed reads normal before the onset and near zero after it
@@ -110,6 +113,12 @@ def test_cli_matched_benchmark_writes_a_page_only_when_asked(tmp_path):
     text = page.read_text()
     assert "diag benchmark --plant tep" in text and "built by the plain commands" in text
     assert "d00_te.dat" in text and "| IDV4 |" in text and "| IDV6 |" not in text
+    # the held-out false alarms carry their episodes and the interval chance leaves them
+    for m in res["methods"]:
+        x = res["curve"]["points"][0]["methods"][m]
+        lo, hi = x["free_per_hour_95"]
+        assert 0 <= lo <= x["free_per_hour"] < hi and x["free_episodes"] >= 0
+    assert "false alarms (share, /h: episodes, 95 %)" in text
 
 
 def test_tep_studio_loops_have_fixed_set_points_that_the_tags_csv_carries(tmp_path):

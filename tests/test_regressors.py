@@ -159,3 +159,34 @@ def test_columns_hold_the_frames_floats(kind):
     want = f[list(names.values())].to_numpy(dtype=float, na_value=np.nan)
     for j, t in enumerate(names):
         assert got.values(t).tobytes() == want[:, j].tobytes()
+
+
+def test_rate_over_l_samples_is_the_change_over_l_per_sample_across_pieces():
+    """``rate(TAG,L)[k]`` is ``(TAG[k] − TAG[k-L]) / L`` (a slow tag's rate test, issue 34):
+    it parses and prints back, needs ``L`` samples of history, and gives the same values fed
+    in pieces shorter than ``L`` (its last ``L`` samples carried, also through its state) as
+    in one pass; ``L`` must be a whole number of samples."""
+    from diag_plugin.regressors import DesignBuilder, SpecError
+
+    s = InputSpec.parse('rate("T 1",7)[k-2]')
+    assert (s.fn, s.tags, s.lag, s.param) == ("rate", ("T 1",), 2, 7.0)
+    assert InputSpec.parse(str(s)) == s and str(s) == 'rate("T 1",7)[k-2]'
+    assert max_lag(["rate(T,7)[k-2]", "P1[k]"]) == 9 and max_lag(["rate(T)[k]"]) == 1
+    for bad in ("rate(T,0)[k]", "rate(T,2.5)[k]", "rate(T,x)[k]"):
+        with pytest.raises(SpecError, match="rate"):
+            InputSpec.parse(bad)
+    rng = np.random.default_rng(3)
+    idx = pd.date_range("2026-01-01", periods=60, freq="1s", tz="UTC")
+    x = np.cumsum(rng.normal(0, 1, 60))
+    f = pd.DataFrame({"T": x, "F": rng.normal(0, 1, 60)}, index=idx)
+    whole = DesignBuilder(["rate(T,7)[k]"], "F[k]").transform(f)
+    want = (x[7:] - x[:-7]) / 7
+    np.testing.assert_allclose(whole.X[:, 0], want)
+    assert whole.X.shape[0] == 53  # the first 7 samples have no sample 7 earlier
+    b = DesignBuilder(["rate(T,7)[k]"], "F[k]")
+    parts = [b.transform(f.iloc[:3]).X]
+    c = DesignBuilder(["rate(T,7)[k]"], "F[k]")
+    c.load_state(b.to_state())  # the carried samples survive a restart
+    for lo, hi in ((3, 5), (5, 30), (30, 60)):
+        parts.append(c.transform(f.iloc[lo:hi]).X)
+    np.testing.assert_array_equal(np.vstack(parts)[:, 0], whole.X[:, 0])

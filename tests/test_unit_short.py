@@ -280,3 +280,53 @@ def test_a_slow_tag_stays_an_input_where_its_relation_beats_chance():
     assert short.inputs_for(plan, "coupled", ask, cols.__getitem__) == ask
     assert short.inputs_for(plan, "unrelated", ask, cols.__getitem__) == ["white"]
     assert short.inputs_for(plan, "unrelated", ask) == ["white"]  # no values: left out
+
+
+def test_a_slow_tag_gets_a_rate_test_that_sees_its_rate_change(tmp_path, monkeypatch):
+    """Issue 34, round 11: a tag that wanders slower than a short window shows gets no level
+    test (its window holds a few independent values of its level), but its change over
+    ``rows / SHORT_LEVEL_INDEPENDENT`` samples holds many: the build gives it a rate test
+    (output ``rate(TAG,10)[k]`` from 400 samples, against its window mean) and says why. On a
+    continuation the window never saw, the test stays quiet while the tag goes on wandering
+    as before and is over its threshold through most of a ramp 40 times the window's fastest
+    change (its threshold, extrapolated from the window's few dozen independent values of the
+    filtered rate, sits about 16 times over the window's largest residual: a ramp 4 times
+    the window's fastest change stays under it); the combined test beside it stays finite.
+    A long window builds no rate test. The build's rate tests are off (``short.RATE_TESTS``,
+    round 11 says why); switched on here, and off the slow tag stays untested."""
+    from diag_plugin.unitbuild import short
+    from diag_plugin.unitbuild.build import build_unit
+
+    rng = np.random.default_rng(11)
+    n = 1400
+    t = np.arange(n, dtype=float)
+    a = rng.normal(0, 1, n)
+    temp = 29 + 0.2 * np.sin(2 * np.pi * t / 700) + rng.normal(0, 0.02, n)
+    onset = 1000
+    slope = 40 * 0.2 * 2 * np.pi / 700  # 40 times the sine's fastest change per second
+    temp[onset:] += slope * (t[onset:] - onset)
+    frame = pd.DataFrame(
+        {"a": a, "b": 2 * a + rng.normal(0, 0.3, n), "temp": temp},
+        index=pd.date_range("2026-03-01", periods=n, freq="1s", tz="UTC"),
+    )
+    off = build_unit("u", frame.iloc[:ROWS], folder=tmp_path / "off", period="1s", force=True)
+    assert "temp" in off.skipped and all(c.tag != "temp" for c in off.tests), off.skipped
+    monkeypatch.setattr(short, "RATE_TESTS", True)
+    res = build_unit("u", frame.iloc[:ROWS], folder=tmp_path, period="1s", force=True)
+    rate = next(c for c in res.tests if c.tag == "temp")
+    assert rate.test == "temp_rate" and rate.output == "rate(temp,10)[k]", rate
+    assert rate.method == "linear" and rate.why.startswith("rate test:"), rate.why
+    assert short.rate_span(ROWS) == 10 and "temp" not in res.skipped
+    from diag_plugin.diagnose.unit import Unit
+
+    unit = Unit.load(res.path, tmp_path)
+    d = unit.reset().evaluate(frame)
+    lo, hi = unit._limits()
+    j = unit.tests.index("temp_rate")
+    r = d.residuals.to_numpy()[:, j]
+    over = (r > hi[j]) | (r < lo[j])
+    quiet, fault = over[ROWS + 50 : onset].mean(), over[onset + 30 :].mean()
+    assert quiet < 0.05 and fault > 0.8, (quiet, fault)
+    assert np.isfinite(d.combined["T2"].to_numpy()[ROWS:]).all()
+    # a long window: no short plan, no rate test (the tag's level is tested as before)
+    assert short.plan_for(20 * ROWS, "1s", 3, 0.01).short is False

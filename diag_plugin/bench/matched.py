@@ -49,8 +49,10 @@ __all__ = [
     "calibrate_leaving_out",
     "delayed_score",
     "episode_count",
+    "episode_interval",
     "method_score",
     "side_ratio",
+    "split_spread",
 ]
 
 #: a target is resolved by the calibration runs when at least this many alarm samples (per
@@ -249,6 +251,59 @@ def calibrate_leaving_out(
     }
 
 
+def episode_interval(episodes: int, hours: float, level: float = 0.95) -> tuple[float, float]:
+    """The exact (Garwood) two-sided interval of an alarm-episode rate per hour from
+    ``episodes`` counted in ``hours``: ``χ²_{α/2}(2k)/2`` to ``χ²_{1−α/2}(2k+2)/2`` over
+    ``hours`` (``α = 1 − level``; the lower end 0 at ``k = 0``). Episodes, not samples, are
+    the independent events of a fault-free run: one episode holds the on/off delays' several
+    samples."""
+    from scipy import stats
+
+    if hours <= 0 or episodes < 0:
+        raise ValueError("an interval needs hours > 0 and episodes ≥ 0")
+    a = 1.0 - level
+    lo = stats.chi2.ppf(a / 2, 2 * episodes) / 2 if episodes else 0.0
+    hi = stats.chi2.ppf(1 - a / 2, 2 * episodes + 2) / 2
+    return float(lo / hours), float(hi / hours)
+
+
+def split_spread(
+    pieces: Mapping[str, Sequence[np.ndarray]],
+    n_cal: int,
+    target: float,
+    period_s: float,
+    per: str = "sample",
+    draws: int = 2000,
+    seed: int = 0,
+) -> dict[str, np.ndarray]:
+    """How far a matched limit's out-of-sample rate moves by chance alone: per method
+    (name → the score arrays of the same fault-free pieces, in the same order), over
+    ``draws`` random splits of the pieces, ``n_cal`` of them set the limit
+    (:func:`calibrate` at ``target``) and the others are scored at it (:func:`rates`: the
+    share of samples in alarm, or episodes per hour with ``per="hour"``). Every method gets
+    the same split in a draw, so the arrays returned (one rate per draw) pair up: their
+    difference is one method's excess over another's on the same data. Where the pieces are
+    exchangeable (fault-free, alike in length and start), the rate one fixed split gave is
+    one draw of this distribution."""
+    names = list(pieces)
+    k = {len(pieces[n]) for n in names}
+    if len(k) != 1:
+        raise ValueError("every method needs the same pieces")
+    n = k.pop()
+    if not 0 < n_cal < n:
+        raise ValueError(f"n_cal must leave pieces on both sides of the split (0 < {n_cal} < {n})")
+    rng = np.random.default_rng(seed)
+    out = {m: np.empty(draws) for m in names}
+    which = 0 if per == "sample" else 1
+    for i in range(draws):
+        idx = rng.permutation(n)
+        for m in names:
+            p = pieces[m]
+            lim = calibrate([p[j] for j in idx[:n_cal]], target, period_s, per).limit
+            out[m][i] = rates([p[j] for j in idx[n_cal:]], lim, period_s)[which]
+    return out
+
+
 # ---------------------------------------------------------------- scoring at a limit
 
 
@@ -319,9 +374,11 @@ def curve(
     methods learned from), ``"free"`` (score arrays of other fault-free runs, to show the
     rate holds out of sample) and ``"faults"`` (a :class:`Scored` per entry of
     ``fault_runs``, same order). Returns per target and method the calibrated :class:`Limit`,
-    the fault-free scoring rates, and per fault the mean detection rate, median delay, mean
-    episodes after the onset and the runs whose faulted tag is among the ``top`` tags named
-    over the samples in alarm after the onset (a run without such an alarm names nothing).
+    the fault-free scoring rates with the alarm episodes behind them and the exact 95 %
+    interval of their rate per hour (:func:`episode_interval`), and per fault the mean
+    detection rate, median delay, mean episodes after the onset and the runs whose faulted
+    tag is among the ``top`` tags named over the samples in alarm after the onset (a run
+    without such an alarm names nothing).
     """
     out: dict = {"per": per, "targets": list(targets), "period_s": period_s, "points": []}
     faults = list(dict.fromkeys(f.fault for f in fault_runs))
@@ -330,6 +387,12 @@ def curve(
         for name, m in methods.items():
             lim = calibrate(m["calibration"], target, period_s, per)
             share, ph = rates(m["free"], lim.limit, period_s) if m["free"] else (None, None)
+            free_ep = free_ci = None
+            if m["free"]:  # the episodes behind the rate, and how far chance alone moves it
+                free_h = sum(len(r) for r in m["free"]) * period_s / 3600.0
+                free_ep = sum(episode_count(_finite(np.asarray(r, float)) > lim.limit)
+                              for r in m["free"])  # fmt: skip
+                free_ci = list(episode_interval(free_ep, free_h)) if free_h > 0 else None
             rows = {}
             for f in faults:
                 per_run = []
@@ -363,6 +426,8 @@ def curve(
                 "limit": lim.as_dict(),
                 "free_share": share,
                 "free_per_hour": ph,
+                "free_episodes": free_ep,
+                "free_per_hour_95": free_ci,
                 "faults": rows,
                 "mean_detection": float(np.mean(det)) if det else None,
                 "in_top": sum(r["in_top"] for r in counted),

@@ -510,7 +510,8 @@ def _summary(pts: list[dict], methods: list[str], per: str) -> list[str]:
     """The curve as a table: per target and method the mean detection, the runs named, the
     false alarms on the fault-free scoring runs and the calibration rate reached."""
     head = "| target | " + " | ".join(
-        f"{m} detection | {m} top 3 | {m} false alarms (share, /h) | {m} calibration"
+        f"{m} detection | {m} top 3 | {m} false alarms (share, /h: episodes, 95 %) | "
+        f"{m} calibration"
         for m in methods
     )
     lines = [head + " |", "|" + "---|" * (1 + 4 * len(methods))]
@@ -524,6 +525,9 @@ def _summary(pts: list[dict], methods: list[str], per: str) -> list[str]:
                 if x["free_share"] is None
                 else f"{_pct(x['free_share'], 2)}, {x['free_per_hour']:.3g}"
             )
+            if x.get("free_per_hour_95"):
+                lo, hi = x["free_per_hour_95"]
+                fa += f": {x['free_episodes']}, {lo:.3g}–{hi:.3g}"
             cal = f"{_pct(lim['share'], 2)}, {lim['per_hour']:.3g}/h" + (
                 "" if lim["supported"] else " †"
             )
@@ -570,7 +574,10 @@ def render_page(out: dict, command: str) -> str:
         "or where a labelled data set marks the fault; unknown samples count as not in "
         "alarm), the tag at fault in the top three (runs where one is defined), and the "
         "false alarms on the fault-free scoring runs, per "
-        "target. *Calibration* is the rate reached on the calibration runs; a target the "
+        "target: the share of samples and the alarm episodes per hour, with the episodes "
+        "counted and the exact 95 % interval of their rate (an episode's samples are one "
+        "event: a rate from a handful of episodes is known to a factor of two or three). "
+        "*Calibration* is the rate reached on the calibration runs; a target the "
         "calibration runs cannot resolve (under 5 alarm samples or episodes expected) is "
         "marked †.",
         "",

@@ -290,9 +290,10 @@ def _tep_plant(
 def load_braatz(path: str | Path | None = None, faults: Sequence[str] | None = None) -> PublicPlant:
     """The classic TEP data (3 min): learn on ``d00.dat`` (500 samples, 25 h), set the matched
     limits on ``d00_te.dat`` (960, 48 h, another run), count false alarms out of sample on
-    the 160 fault-free samples before the onset of each ``dXX_te.dat`` (8 h each, their own
-    noise), score the faults on ``d01_te`` … ``d21_te`` (onset at sample 160); ``d01.dat`` …
-    ``d21.dat`` (faulty throughout) are for tuning."""
+    the 160 fault-free samples before the onset of each ``dXX_te.dat`` (8 h each; a piece
+    that repeats an earlier one value for value is counted once: ``d05_te``'s first 160
+    samples are ``d04_te``'s), score the faults on ``d01_te`` … ``d21_te`` (onset at sample
+    160); ``d01.dat`` … ``d21.dat`` (faulty throughout) are for tuning."""
     d = braatz_dir(path)
     day = pd.Timedelta(days=3)
     t0 = pd.Timestamp("2001-01-01", tz="UTC")
@@ -303,13 +304,16 @@ def load_braatz(path: str | Path | None = None, faults: Sequence[str] | None = N
     if bad:
         raise ValueError(f"unknown fault(s) {', '.join(bad)}; known: IDV1 … IDV21")
     fault_runs, free, tuning = [], [], []
+    seen: list[np.ndarray] = []
     for k, idv in enumerate(names):
         n = int(idv[3:])
         te = _read_dat(d / f"d{n:02d}_te.dat")
         frame = _tep_frame(te, t0 + day * (2 + k))
         tags = TEP_FAULTS[idv][1]
         fault_runs.append(PlantRun(f"d{n:02d}_te", frame, idv, 160, tags))
-        free.append(PlantRun(f"d{n:02d}_te[:160]", frame.iloc[:160]))
+        if not any(np.array_equal(te[:160], p) for p in seen):  # one piece, counted once
+            free.append(PlantRun(f"d{n:02d}_te[:160]", frame.iloc[:160]))
+            seen.append(te[:160])
         tr = _read_dat(d / f"d{n:02d}.dat")
         tuning.append(PlantRun(f"d{n:02d}", _tep_frame(tr, t0 + day * (40 + k)), idv, 0, tags))
     return _tep_plant(
@@ -323,7 +327,8 @@ def load_braatz(path: str | Path | None = None, faults: Sequence[str] | None = N
             "train: d00.dat (500 samples at 3 min, 25 h, fault-free)",
             "calibration (the matched limits): d00_te.dat (960 samples, 48 h, fault-free)",
             "fault-free scoring: the first 160 samples (8 h) of each d01_te … d21_te, before "
-            "the onset (each run its own noise)",
+            "the onset (each run its own noise; d05_te's first 160 samples repeat d04_te's "
+            "value for value and are counted once)",
             "fault scoring: d01_te … d21_te, the fault from sample 160 (8 h) to the end (40 h)",
             "tuning (not scored here): d01.dat … d21.dat, faulty from their first sample",
             "loop declared to the unit build (issue 34, docs/how-to/unit-loops.md): "

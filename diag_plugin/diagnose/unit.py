@@ -69,7 +69,7 @@ from diag_plugin.diagnose.unittags import (
 )
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
-from diag_plugin.regressors import Columns, DesignBuilder, needed_tags, parse_specs
+from diag_plugin.regressors import Columns, DesignBuilder, max_lag, needed_tags, parse_specs
 from diag_plugin.status import NE107, Quality, UnitStatus
 
 log = logging.getLogger(__name__)
@@ -407,9 +407,10 @@ class Unit:
             CombinedModel.of(self) if (self.ev["combined"] or self.tag_isolation) else None
         )
         self.level_points = level_points(self)
-        #: per test the longest lag its model reads (unknown for that many samples at start)
+        #: per test the history its model reads (unknown for that many samples at start): its
+        #: longest lag, and a rate's samples (``rate(TAG,L)``, a slow tag's rate test: L more)
         specs = [parse_specs([*models[t].inputs, models[t].output]) for t in self.tests]
-        self.test_depth = np.array([max(s.lag for s in sp) for sp in specs], np.int64)
+        self.test_depth = np.array([max_lag(sp) for sp in specs], np.int64)
         spread = np.zeros(len(self.tests), bool)
         spread[self.spread_cols] = True
         self.warm_labels = warm_labels(self.tests, self.test_depth, spread)

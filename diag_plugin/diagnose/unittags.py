@@ -18,7 +18,7 @@ point whose means of the tags are nearest the sample, ``S`` the pooled within-po
 :func:`~diag_plugin.learn.thresholds.learn_combined`) with ``S`` the covariance of ``z``
 over the same window shrunk toward its diagonal,
 ``S = (1 − λ) Ŝ + λ diag(Ŝ)``, ``λ = T / (T + n_eff)`` (``T`` tests, ``n_eff`` the fewest
-independent values of a test's residual, :func:`~diag_plugin.diagnose.symptoms.effective_samples`:
+independent values of a test's residual, :func:`~diag_plugin.models.series.effective_samples`:
 a filtered residual holds few, and an unshrunk inverse would chase noise). A coordinated small
 move of several tags, each residual inside its thresholds, adds up in ``T²``. Where some tests
 are unknown ``T²`` is taken over the known ones (``S`` restricted to them) and mapped to the

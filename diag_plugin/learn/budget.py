@@ -26,7 +26,7 @@ threshold whose episode rate is the budget.
   scaled by ``√(1 + 1/n)``: the fewer values, the wider (the normal case as ``n`` grows).
 
 Each result says which, how many independent values the series holds
-(:func:`~diag_plugin.diagnose.symptoms.effective_samples`), whether the window *supports* the
+(:func:`~diag_plugin.models.series.effective_samples`), whether the window *supports* the
 budget (observes it :data:`MIN_EPISODES` times) and, if not, how long a window would.
 The budget of a unit is split evenly over its tests and the two sides of each (``2 T`` shares):
 the unit's alarm rate is at most the sum of its tests' (an alarm on any test is the unit's).
@@ -43,7 +43,7 @@ import numba
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.symptoms import effective_samples
+from diag_plugin.models.series import effective_samples
 
 #: episodes at the budgeted rate a window must show for the threshold to be read off directly
 MIN_EPISODES = 5

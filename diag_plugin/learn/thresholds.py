@@ -52,11 +52,11 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.residuals import supported
-from diag_plugin.diagnose.symptoms import autocorrelation
 from diag_plugin.diagnose.unit import Unit, spread_factor
 from diag_plugin.diagnose.unitfile import WHY, CombinedSpec, hours
 from diag_plugin.learn.budget import TestBudget, calibrate
 from diag_plugin.models.protocol import REASON_NAN, Prediction
+from diag_plugin.models.series import autocorrelation
 
 #: samples skipped at the start of a learning window (and of each run in it): the filter
 #: starts there (:class:`~diag_plugin.diagnose.residuals.LowPass`: its first ``settle``
@@ -798,7 +798,7 @@ PREDICTIVE_TAIL = 0.001
 def predictive_widening(n_eff: np.ndarray, tail: float = PREDICTIVE_TAIL) -> np.ndarray:
     """How much wider than the window's robust scale each test's residual is taken in the
     combined ``T²``, from the independent values ``n_eff`` its window holds
-    (:func:`~diag_plugin.diagnose.symptoms.effective_samples`). A centre and a scale learned
+    (:func:`~diag_plugin.models.series.effective_samples`). A centre and a scale learned
     from ``n`` independent values leave a new value's standardised distance Student-t
     distributed with ``ν = n − 1`` degrees of freedom (the predictive distribution; the
     Gaussian budget's thresholds use the same, :mod:`~diag_plugin.learn.budget`); the factor
@@ -835,7 +835,7 @@ def _combined_params(
     then those of its residual within each point, summed over the points (``independent``,
     per test): the windows are separate runs, and a wander over the longer one does not make
     the shorter one's values fewer."""
-    from diag_plugin.diagnose.symptoms import effective_samples
+    from diag_plugin.models.series import effective_samples
 
     if point is not None:
         P = int(point.max()) + 1 if point.size else 1
@@ -1017,7 +1017,7 @@ def setpoint_responses(
     filtered residual), so the slope's variance is ``σ_e² / Σx² · (1 + 2 Σ_k ρ_x(k) ρ_e(k))``
     (Bartlett, 1935; ``ρ`` the sample autocorrelations of the set-point and of the fit's
     residual ``e``, summed up to the first lag where ``ρ_e`` is no longer positive, as
-    :func:`~diag_plugin.diagnose.symptoms.effective_samples` sums). Neither the loop's own test
+    :func:`~diag_plugin.models.series.effective_samples` sums). Neither the loop's own test
     nor a spread test is answered. With operating points (``point``: each row's; ``spec``'s
     ``point_center``, ``point_scale``, ``diag unit accept``) ``z_j`` is centred and scaled at
     the row's point and the slope is the pooled within-point one (``SP`` and ``z_j`` less

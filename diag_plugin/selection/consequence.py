@@ -23,8 +23,9 @@ never visited, and every fit with a model input then scores worse than ``y`` alo
 read as "the inputs add nothing", a consequence. So the test is judged only where the
 training rows' residual of ``c`` from ``y`` holds :data:`MIN_ESS` effective independent values
 or more (the effective sample size ``n / τ``, ``τ = 1 + 2 Σ ρ_k`` its integrated
-autocorrelation time, summed over Geyer's initial positive sequence — Geyer 1992, Statist.
-Sci. 7, eq. 3.3); below it :attr:`Consequence.unjudged` says so and nothing is flagged by it.
+autocorrelation time, summed up to the first lag where ``ρ_k`` is no longer positive — the
+estimate the thresholds use, :func:`diag_plugin.models.series.effective_samples`); below it
+:attr:`Consequence.unjudged` says so and nothing is flagged by it.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from diag_plugin.models.series import effective_samples
 from diag_plugin.selection.lags import lag_screen
 from diag_plugin.selection.sets import set_index
 
@@ -60,7 +62,7 @@ class Consequence:
     ``r2_yx`` — with the output and the best model input; ``lag`` — samples by which the
     candidate's changes follow the output's (0: no such lag); ``ess`` — effective independent
     values of what the output leaves of the candidate in the training part
-    (:func:`effective_samples`)."""
+    (:func:`~diag_plugin.models.series.effective_samples`)."""
 
     r2_y: float
     r2_yx: float
@@ -83,8 +85,10 @@ class Consequence:
 
     @property
     def unjudged(self) -> bool:
-        """The chain test would read a consequence, but the data cannot tell (not flagged)."""
-        return not self.judged and self._reads_as_chain
+        """The chain test would read a consequence, or has no held-out row to score (none at
+        an output the training part saw varies the candidate), but the data cannot tell (not
+        flagged)."""
+        return not self.judged and (self._reads_as_chain or math.isnan(self.r2_y))
 
     @property
     def likely(self) -> bool:
@@ -106,9 +110,15 @@ class Consequence:
 
     def unjudged_note(self, tag: str, output: str) -> str:
         """Plain words for :attr:`unjudged`."""
+        read = (
+            f"the held-out rows at values of {output} the training part saw are too few or "
+            f"hold one value of {tag}, and"
+            if math.isnan(self.r2_y)
+            else f"{output} explains {self.r2_y:.0%} of {tag}, but"
+        )
         return (
-            f"cause or consequence of {output}? these data cannot tell: {output} explains "
-            f"{self.r2_y:.0%} of {tag}, but what it leaves of {tag} takes about "
+            f"cause or consequence of {output}? these data cannot tell: {read} what "
+            f"{output} leaves of {tag} takes about "
             f"{self.ess:.0f} independent values in the training part (it changes in a few "
             f"steps or slowly; {MIN_ESS:.0f} are needed to tell) — not flagged"
         )
@@ -123,8 +133,9 @@ def consequence(
 ) -> Consequence:
     """Evidence that ``cand`` is driven by ``y`` (see the module doc); rows before ``cut``
     fit, rows after it score."""
-    r2_y, left = _heldout_r2(cand, [y], [Y_SETS], cut, residual=True)
-    r2_yx = max([r2_y, *(_heldout_r2(cand, [y, x], [Y_SETS, X_SETS], cut) for x in inputs)])
+    seen = _seen(cand, y, cut)
+    r2_y, left = _heldout_r2(cand, [y], [Y_SETS], cut, seen, residual=True)
+    r2_yx = max([r2_y, *(_heldout_r2(cand, [y, x], [Y_SETS, X_SETS], cut, seen) for x in inputs)])
     lag = 0
     if max_lag > 0:
         dc, dy = np.diff(cand[:cut]), np.diff(y[:cut])
@@ -136,31 +147,22 @@ def consequence(
     return Consequence(r2_y, r2_yx, lag, effective_samples(left))
 
 
-def effective_samples(e: np.ndarray) -> float:
-    """Effective sample size ``n / τ`` of the series ``e`` (NaN: not counted, zero in the
-    autocorrelation), ``τ = 1 + 2 Σ ρ_k`` summed over Geyer's initial positive sequence (pairs
-    ``ρ_2m + ρ_2m+1`` while positive; Geyer 1992, Statist. Sci. 7, 473–483, eq. 3.3)."""
-    from scipy.signal import correlate
-
-    ok = np.isfinite(e)
-    n = int(ok.sum())
-    if n < 3:
-        return 0.0
-    d = np.where(ok, e - e[ok].mean(), 0.0)
-    ac = correlate(d, d, mode="full", method="fft")[e.size - 1 :]
-    if ac[0] <= 0:
-        return 0.0
-    rho = ac / ac[0]
-    m = (rho.size - 1) // 2
-    pairs = rho[1 : 2 * m : 2] + rho[2 : 2 * m + 1 : 2]
-    stop = np.flatnonzero(pairs <= 0)
-    tau = 1.0 + 2.0 * float(pairs[: stop[0] if stop.size else pairs.size].sum())
-    return n / max(tau, 1.0)
+def _seen(cand: np.ndarray, y: np.ndarray, cut: int) -> np.ndarray:
+    """Rows whose output lies in one of its :data:`Y_SETS` sets that training rows (before
+    ``cut``, ``cand`` known) visited: where the fit of ``cand`` from ``y`` answers from rows
+    with the same output. Elsewhere — an output set the training part never reached, inside
+    its range or beyond it — a cell-mean fit answers the training mean or the outer set's,
+    which tells nothing of ``cand`` given ``y``, and neither fit is scored there."""
+    ix = _index(y, cut, Y_SETS, clip=False)
+    rows = np.arange(y.size)
+    tr = (ix >= 0) & np.isfinite(cand) & (rows < cut)
+    visited = np.bincount(ix[tr], minlength=Y_SETS) > 0
+    return (ix >= 0) & visited[np.maximum(ix, 0)]
 
 
-def _index(col: np.ndarray, cut: int, sets: int) -> np.ndarray:
+def _index(col: np.ndarray, cut: int, sets: int, clip: bool = True) -> np.ndarray:
     x = col[:cut][np.isfinite(col[:cut])]
-    return set_index(col, x, sets, 0.005, least=10)
+    return set_index(col, x, sets, 0.005, least=10, clip=clip)
 
 
 def _heldout_r2(
@@ -168,11 +170,12 @@ def _heldout_r2(
     cols: Sequence[np.ndarray],
     sets: Sequence[int],
     cut: int,
+    seen: np.ndarray,
     residual: bool = False,
 ) -> float | tuple[float, np.ndarray]:
-    """Held-out R² of ``target`` from the cell means of ``cols`` (fitted before ``cut``);
-    with ``residual``, also the training rows' residual from those means (NaN where a row
-    is not fitted)."""
+    """Held-out R² of ``target`` from the cell means of ``cols`` (fitted before ``cut``),
+    scored on the rows after it where ``seen``; with ``residual``, also the training rows'
+    residual from those means (NaN where a row is not fitted)."""
     key = np.zeros(target.size, np.int64)
     bad = ~np.isfinite(target)
     for c, n in zip(cols, sets, strict=True):
@@ -181,8 +184,8 @@ def _heldout_r2(
         bad |= ix < 0
     rows = np.arange(target.size)
     tr = ~bad & (rows < cut)
-    ho = ~bad & (rows >= cut)
-    if tr.sum() < 20 or ho.sum() < 10:
+    ho = ~bad & (rows >= cut) & seen
+    if tr.sum() < 20:
         return (math.nan, np.full(cut, math.nan)) if residual else math.nan
     cells = int(np.prod(sets))
     cnt = np.bincount(key[tr], minlength=cells)
@@ -190,8 +193,10 @@ def _heldout_r2(
     mean = float(target[tr].mean())
     fit = np.where(cnt > 0, sm / np.maximum(cnt, 1), mean)
     t = target[ho]
-    ss = float(np.sum((t - t.mean()) ** 2))
-    r2 = math.nan if ss <= 0 else 1.0 - float(np.sum((t - fit[key[ho]]) ** 2)) / ss
+    # too few rows to score, or one value held out (its mean's rounding is no spread)
+    r2 = math.nan
+    if t.size >= 10 and np.ptp(t) > 0:
+        r2 = 1.0 - float(np.sum((t - fit[key[ho]]) ** 2)) / float(np.sum((t - t.mean()) ** 2))
     if not residual:
         return r2
     left = np.where(tr, target - fit[np.where(bad, 0, key)], math.nan)[:cut]

@@ -59,10 +59,14 @@ def sets_for_cells(n_train: int, cells: int, current: int) -> int:
     return int(min(max(fit, 2), current))
 
 
-def set_index(col: np.ndarray, x: np.ndarray, sets: int, tail: float, least: int = 1) -> np.ndarray:
+def set_index(
+    col: np.ndarray, x: np.ndarray, sets: int, tail: float, least: int = 1, clip: bool = True
+) -> np.ndarray:
     """Set index (0 … sets-1) of every row of ``col``, the nearest of ``sets`` evenly spaced
     centres over the ``tail`` … 1-``tail`` quantiles of the finite training values ``x``;
     -1 where ``col`` is missing, and everywhere when ``x`` has fewer than ``least`` values.
+    Rows beyond the outer centres fall in the outer sets; with ``clip=False`` those more than
+    half a set beyond them are -1 too (off the training values' support).
     """
     out = np.full(col.size, -1, np.int64)
     if x.size < least:
@@ -72,6 +76,7 @@ def set_index(col: np.ndarray, x: np.ndarray, sets: int, tail: float, least: int
     if hi <= lo:
         out[ok] = 0
         return out
-    t = (col[ok] - lo) / (hi - lo) * (sets - 1)
-    out[ok] = np.clip(np.floor(t + 0.5), 0, sets - 1).astype(np.int64)
+    t = np.floor((col[ok] - lo) / (hi - lo) * (sets - 1) + 0.5)
+    off = (t < 0) | (t > sets - 1)
+    out[ok] = np.where(off & (not clip), -1, np.clip(t, 0, sets - 1)).astype(np.int64)
     return out

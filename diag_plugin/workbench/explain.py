@@ -44,7 +44,7 @@ from diag_plugin.rulebase.document import RuleBase
 from diag_plugin.selection.consequence import consequence
 from diag_plugin.selection.features import Features
 from diag_plugin.selection.lags import TOLERANCE, default_max_lag, lag_screen
-from diag_plugin.selection.scoring import HeldOutScorer, cut_row
+from diag_plugin.selection.scoring import BlockScorer, HeldOutScorer, cut_row
 from diag_plugin.selection.screen import Screen
 from diag_plugin.selection.sets import sets_for_cells
 from diag_plugin.selection.spans import operating_span, variable_for
@@ -68,6 +68,9 @@ UNJUDGED = 0.5
 UNJUDGED_EXTRA = REFINED // 2
 #: a slow drift (``days()``) is offered only when the training part spans this many days
 DRIFT_MIN_DAYS = 7.0
+#: a drift that cuts the error on the held-out tail is offered only when it also cuts it with
+#: each of this many equal stretches of the window held out in turn (the tail's share each)
+DRIFT_BLOCKS = 5
 #: fewer sets than add-input writes are suggested only when they score better by more
 #: than this share (the gain explain calls more than "barely")
 SETS_GAIN = 0.03
@@ -277,6 +280,25 @@ def _explain(
             return None, None
         per, prefit = scorer.per_rule(*got)
         return (per if 0 < per < SPARSE_PER_CELL else None), (got, prefit)
+
+    def drift_across_blocks(spec: InputSpec, sets: int) -> tuple[float, float] | None:
+        """Where a drift's cut on the held-out tail does not hold over time-blocked folds:
+        the window cut in :data:`DRIFT_BLOCKS` equal stretches, each held out in turn
+        (:class:`BlockScorer`, every ``stride``-th row), the pooled errors without and with
+        ``spec``; None where it cuts there too. On the tail a drift's every held-out value
+        lies beyond the training part's, so it can only carry the last stretch's level
+        forward: a hidden step scores as a drift there, and across the blocks it does not."""
+        got = variant(spec, sets=sets, step=stride)
+        if got is None:
+            return None
+        vs, cols = got
+        rows = cols[0].size if cols else y[::stride].size
+        block = np.minimum(np.arange(rows) * DRIFT_BLOCKS // max(rows, 1), DRIFT_BLOCKS - 1)
+        blocked = BlockScorer(scorer.rb, cols[:-1], y[::stride], block)
+        rmse, _ = blocked.score(vs, cols)
+        if math.isfinite(rmse) and rmse < CUTS * blocked.base_rmse:
+            return None
+        return blocked.base_rmse, rmse
 
     def thin(r: _Score) -> bool:
         return (
@@ -494,6 +516,17 @@ def _explain(
     for p in refined:
         r = evaluate_best(p.spec, p.replace)
         if r is not None:
+            if p.kind == "drift" and r.rmse < CUTS * base_rmse:
+                held = drift_across_blocks(p.spec, r.sets)
+                if held is not None:
+                    notes.append(
+                        f"slow drift not offered: {p.spec} cuts the error on the held-out "
+                        f"last part ({base_rmse:.2f} → {r.rmse:.2f} % of span) but not with "
+                        f"each of {DRIFT_BLOCKS} stretches of the window held out in turn "
+                        f"({held[0]:.2f} → {held[1]:.2f} %): the slow wander of one stretch "
+                        "carried forward, not a drift"
+                    )
+                    continue
             add(p.spec, p.kind, r, replaces=None if p.replace is None else str(in_specs[p.replace]))
     screened_out = [
         {

@@ -60,6 +60,12 @@ TARGETS: dict[str, list[str]] = {
         "test_plant.py",
     ],
     "diag_plugin/status.py": ["test_diagnosis_guards.py", "test_units.py"],
+    # the independent-value count the thresholds and the budget rest on (moved from symptoms.py)
+    "diag_plugin/models/series.py": [
+        "test_diagnose_residuals.py",
+        "test_learning.py",
+        "test_explain_scale.py",
+    ],
     "diag_plugin/diagnose/matrix.py": [
         "test_diagnose_matrix.py",
         "test_diagnose_stage_edges.py",
