@@ -78,7 +78,7 @@ def _sections(sos, zi, j, x_cur):  # pragma: no cover - numba
 
 
 @numba.njit(cache=True)
-def _lowpass_kernel(x, sos, zss, zi, gap, buf, held, max_gap, out):  # pragma: no cover - numba
+def _lowpass_kernel(x, sos, zss, zi, gap, buf, held, max_gap, out, left):  # pragma: no cover
     """``x`` (samples × columns) filtered into ``out`` (its shape; ``x`` itself to filter in
     place: each value is read before it is written) by the second-order sections ``sos``
     from the state ``zi`` (columns × sections × 2), skipping non-finite samples (NaN out,
@@ -86,13 +86,17 @@ def _lowpass_kernel(x, sos, zss, zi, gap, buf, held, max_gap, out):  # pragma: n
     next ``buf.shape[1]`` finite samples are kept in ``buf`` (``held`` of them so far), NaN
     out, and at the last of them the state is set to the steady state ``zss`` (per unit
     input) at their median and run over them (``buf`` of width 0: the state at rest).
-    ``zi``, ``gap``, ``buf`` and ``held`` advanced. Row by row, so the samples are read in
-    memory order; each column's recursion is its own."""
+    ``zi``, ``gap``, ``buf`` and ``held`` advanced; ``left`` (``x``'s shape, written only
+    while ``settle`` > 0) the samples each value still waits for the start, itself counted:
+    ``settle − 1 − held`` before it while the column holds, 0 once known. Row by row, so the
+    samples are read in memory order; each column's recursion is its own."""
     n, m = x.shape
     settle = buf.shape[1]
     for i in range(n):
         for j in range(m):
             x_cur = x[i, j]
+            if settle:
+                left[i, j] = max(settle - 1 - held[j], 0)
             if not np.isfinite(x_cur):
                 out[i, j] = np.nan
                 gap[j] += 1
@@ -100,6 +104,8 @@ def _lowpass_kernel(x, sos, zss, zi, gap, buf, held, max_gap, out):  # pragma: n
             if gap[j] > max_gap:
                 held[j] = 0
                 zi[j] = 0.0
+                if settle:
+                    left[i, j] = settle - 1
             gap[j] = 0
             if held[j] >= settle:
                 out[i, j] = _sections(sos, zi, j, x_cur)
@@ -176,6 +182,9 @@ class LowPass:
         self.gap_: np.ndarray | None = None  # (m,) consecutive NaNs at the end of the last call
         self.buf_: np.ndarray | None = None  # (m, settle) a start's finite samples kept
         self.held_: np.ndarray | None = None  # (m,) of them so far (settle: started)
+        #: per sample of the last :meth:`transform` and column the samples it waits for the
+        #: start, itself counted (0: known or held for a gap; (0, m) when ``settle`` is 0)
+        self.left_ = np.zeros((0, 0), np.int32)
 
     def reset(self) -> LowPass:
         """Forget the carried state (the filter starts again, see the class)."""
@@ -203,16 +212,18 @@ class LowPass:
         assert self.zi_ is not None and self.gap_ is not None
         assert self.buf_ is not None and self.held_ is not None
         if not n:
+            self.left_ = np.zeros((0, m), np.int32)
             return wrap(np.full_like(a, np.nan))
         # one compiled pass per column over the finite samples (the recursion of scipy's
         # sosfilt, direct form II transposed, the same operations in the same order)
         x = np.ascontiguousarray(a)
         inplace = overwrite and x is a and isinstance(r, np.ndarray) and x.ndim == r.ndim
         out = x if inplace else np.empty_like(x)
+        self.left_ = np.zeros((n, m) if self.settle else (0, m), np.int32)
         return wrap(
             _lowpass_kernel(
                 x, self.sos_, self.zss_, self.zi_, self.gap_, self.buf_, self.held_,
-                self.max_gap, out,
+                self.max_gap, out, self.left_,
             )
         )  # fmt: skip
 
