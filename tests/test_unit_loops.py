@@ -253,7 +253,7 @@ def test_a_fresh_start_says_it_is_warming_up_not_what_is_wrong(line):
     depth = int(unit.test_depth.max())
     assert depth >= 10  # the line's dead times: a warm-up worth saying
     hold = unit.lowpass.settle - 1  # the filter's start: unknown until its settle-th sample
-    assert 10 <= hold < depth - int(np.sort(unit.test_depth)[-2])  # the others' holds inside
+    assert 5 <= hold < depth - int(np.sort(unit.test_depth)[-2])  # the others' holds inside
     rows = line7.simulate(0.3, 150).iloc[: depth + 5]
     left, settling = [], []
     for k, (ts, row) in enumerate(rows.iterrows()):

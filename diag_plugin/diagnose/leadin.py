@@ -38,7 +38,7 @@ def lead_in_parts(unit: Any) -> dict[str, int]:
     the longest lag its models read (``rate`` one more); ``spread``, a spread test's two
     windows (the running median, then the median of the deviations from it); ``filter``, the
     low-pass filter's start and settling — its start's held samples
-    (:attr:`~diag_plugin.diagnose.residuals.LowPass.settle`, unknown, 218 at the default
+    (:attr:`~diag_plugin.diagnose.residuals.LowPass.settle`, unknown, 150 at the default
     cut-off 0.01), then the samples after which the start's transient is below :data:`SETTLED`
     of it, ``ln(SETTLED) / ln|p|`` for the filter's slowest pole ``p`` (1 150 at 0.01);
     ``delays``, the on/off delays (with the unit's own off-delay, that once more). State that

@@ -60,7 +60,7 @@ from diag_plugin.models.series import autocorrelation
 
 #: samples skipped at the start of a learning window (and of each run in it): the filter
 #: starts there (:class:`~diag_plugin.diagnose.residuals.LowPass`: its first ``settle``
-#: samples, 218 at the default cut-off, unknown, then in steady state at their median), and
+#: samples, 150 at the default cut-off, unknown, then in steady state at their median), and
 #: so do the models' lags and a spread test's windows
 SETTLE_SAMPLES = 500
 #: the default false-alarm budget: alarms per hour of operation of a unit (about one in six
