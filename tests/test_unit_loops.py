@@ -273,6 +273,38 @@ def test_a_fresh_start_says_it_is_warming_up_not_what_is_wrong(line):
     assert np.flatnonzero(settling).tolist() == list(range(lag, lag + hold)), settling
 
 
+def test_after_a_long_gap_the_filters_start_is_said_not_blamed_on_the_inputs(line):
+    """After a gap longer than the filter's ``max_gap`` every test's filter starts again: while
+    it holds (its residual known), the unit says ``warming up, N s left (the filter's start
+    on TEST)``, counting down, on the fast path as one by one, and the test is known right
+    after (an unseen seed, 151; the lags' refill after a gap is not a warm-up: its inputs
+    are said to be without a value, as before)."""
+    from diag_plugin.diagnose.plant import Plant
+
+    _, unit, _, g = line
+    rb = g[g.index("--rulebases") + 1]
+    fast = Plant.load([unit.file.path], rb)
+    slow = Plant(Plant.load([unit.file.path], rb).units, batched=False)
+    rows = line7.simulate(0.5, 151).iloc[1400:1760].copy()
+    stop = 100 + unit.lowpass.max_gap + 50
+    rows.iloc[100:stop] = np.nan
+    hold = unit.lowpass.settle - 1
+    lag = int(unit.test_depth[unit.tests.index("OUT_FLOW")])
+    said, left, known = [], [], []
+    for k, (ts, row) in enumerate(rows.iterrows()):
+        a, b = fast.cycle(ts, row.to_dict())[0], slow.cycle(ts, row.to_dict())[0]
+        assert (a.status, a.message) == (b.status, b.message), k
+        if k >= stop:
+            said.append("the filter's start on OUT_FLOW" in a.message)
+            known.append(np.isfinite(a.symptoms["OUT_FLOW"]))
+            if said[-1]:
+                assert a.message.startswith("warming up, "), a.message
+                left.append(float(a.message.split()[2]))
+    assert np.flatnonzero(said).tolist() == list(range(lag, lag + hold)), said
+    assert not any(known[: lag + hold]) and known[lag + hold], known
+    assert left == [(hold - i) * line7.PERIOD_S for i in range(hold)], left
+
+
 # ---------------------------------------------------------------- a loop's two fault modes
 
 

@@ -41,8 +41,8 @@ def _ref_hold_left(a, k, held, gap, max_gap):  # sample by sample, before the st
         h, g = int(held[j]), int(gap[j])
         for i in range(a.shape[0]):
             if not np.isfinite(a[i, j]):
-                left[i, j] = max(k - 1 - h, 0)
                 g += 1
+                left[i, j] = k - 1 if g > max_gap else max(k - 1 - h, 0)
                 continue
             if g > max_gap:
                 h = 0

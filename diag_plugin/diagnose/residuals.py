@@ -88,7 +88,8 @@ def _lowpass_kernel(x, sos, zss, zi, gap, buf, held, max_gap, out, left):  # pra
     input) at their median and run over them (``buf`` of width 0: the state at rest).
     ``zi``, ``gap``, ``buf`` and ``held`` advanced; ``left`` (``x``'s shape, written only
     while ``settle`` > 0) the samples each value still waits for the start, itself counted:
-    ``settle − 1 − held`` before it while the column holds, 0 once known. Row by row, so the
+    ``settle − 1 − held`` before it while the column holds (``settle − 1`` within a gap
+    longer than ``max_gap``: it starts again), 0 once known. Row by row, so the
     samples are read in memory order; each column's recursion is its own."""
     n, m = x.shape
     settle = buf.shape[1]
@@ -100,6 +101,8 @@ def _lowpass_kernel(x, sos, zss, zi, gap, buf, held, max_gap, out, left):  # pra
             if not np.isfinite(x_cur):
                 out[i, j] = np.nan
                 gap[j] += 1
+                if settle and gap[j] > max_gap:  # it starts again at the next finite sample
+                    left[i, j] = settle - 1
                 continue
             if gap[j] > max_gap:
                 held[j] = 0
