@@ -7,7 +7,6 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from scipy import signal
 
 from diag_plugin.diagnose.residuals import Latch, LowPass, MaxScaler, residual_pct
 from diag_plugin.diagnose.symptoms import (
@@ -49,7 +48,7 @@ def test_lowpass_chunked_equals_one_pass():
     h2 = LowPass.from_state(json.loads(json.dumps(h.to_state())))
     np.testing.assert_allclose(np.vstack([first, h2.transform(x[700:])]), one, rtol=1e-12)
     # Not trivially equal to the input: the filter does smooth.
-    assert np.nanstd(np.diff(one[:, 0])) < 0.1 * np.std(np.diff(x[:, 0]))
+    assert np.std(np.diff(one[:, 0])) < 0.1 * np.std(np.diff(x[:, 0]))
 
 
 def test_lowpass_dataframe_roundtrip():
@@ -80,105 +79,26 @@ def test_lowpass_minus_3db_at_cutoff():
 
 def test_lowpass_nan_holds_state_and_restarts_after_long_gap():
     rng = np.random.default_rng(2)
-    x = rng.normal(size=900) + 3.0
+    x = rng.normal(size=600) + 3.0
     xn = x.copy()
-    xn[400:405] = np.nan
+    xn[200:205] = np.nan
     f = LowPass(max_gap=10)
     y = f.transform(xn)
-    k = f.settle
-    assert np.isnan(y[: k - 1]).all() and np.isnan(y[400:405]).all()
-    assert np.isfinite(y[k - 1 : 400]).all() and np.isfinite(y[405:]).all()
+    assert np.isnan(y[200:205]).all()
+    assert np.isfinite(y[:200]).all() and np.isfinite(y[205:]).all()
     # Short gap: state held, i.e. equal to filtering the series with the NaNs cut out.
-    ref = LowPass().transform(np.r_[x[:400], x[405:]])
-    np.testing.assert_allclose(np.r_[y[:400], y[405:]], ref, rtol=1e-12, equal_nan=True)
+    ref = LowPass().transform(np.r_[x[:200], x[205:]])
+    np.testing.assert_allclose(np.r_[y[:200], y[205:]], ref, rtol=1e-12)
     # Chunked with the gap crossing a chunk boundary gives the same.
     g = LowPass(max_gap=10)
-    yc = np.r_[g.transform(xn[:402]), g.transform(xn[402:])]
+    yc = np.r_[g.transform(xn[:202]), g.transform(xn[202:])]
     np.testing.assert_allclose(yc, y, rtol=1e-12, equal_nan=True)
-    # Long gap (> max_gap, split over chunks): started again as a fresh filter is.
+    # Long gap (> max_gap, split over chunks): restart from rest as on a fresh filter.
     xl = x.copy()
     xl[300:320] = np.nan
     h = LowPass(max_gap=10)
     yl = np.r_[h.transform(xl[:310]), h.transform(xl[310:])]
-    np.testing.assert_allclose(yl[320:], LowPass().transform(x[320:]), rtol=1e-12, equal_nan=True)
-
-
-def _filtered_sd(f: LowPass, sd: float = 1.0) -> float:
-    """The standard deviation of white noise of ``sd`` through the filter (its impulse
-    response's energy)."""
-    return sd * float(np.sqrt(np.sum(signal.sosfilt(f.sos_, np.r_[1.0, np.zeros(20000)]) ** 2)))
-
-
-@pytest.mark.parametrize("seed", [11, 12, 13])
-def test_lowpass_starts_in_steady_state_not_from_rest(seed):
-    """Issue 34: a residual off zero (level 3, noise 1) after a gap longer than ``max_gap``
-    and at the start. From rest the filter ramped from 0 and overshot: its output was off the
-    level's steady output by up to the level itself (about 30 of the filtered noise's standard
-    deviations). Now the start's ``settle`` samples are unknown, then the output is the
-    steady-state filter's within a few standard deviations of the filtered noise, and equal
-    to a filter that saw the level for ever once the start has decayed."""
-    rng = np.random.default_rng(seed)
-    n, level = 3000, 3.0
-    x = rng.normal(size=n) + level
-    x[1000:1300] = np.nan  # > max_gap
-    f = LowPass()
-    y = f.transform(x)
-    k, sd = f.settle, _filtered_sd(f)
-    assert 100 < k < 400
-    # the steady-state reference: the same samples filtered as if the level had always been
-    ss = LowPass(settle=0)
-    for start, stop in ((0, 1000), (1300, n)):
-        ss.zi_ = signal.sosfilt_zi(ss.sos_)[None] * level
-        ss.gap_ = np.zeros(1, np.int64)
-        ref = ss.transform(x[start:stop])
-        got = y[start:stop]
-        assert np.isnan(got[: k - 1]).all()  # unknown while the start settles
-        err = np.abs(got[k - 1 :] - ref[k - 1 :])
-        assert err.max() < 1.5 * sd, err.max() / sd
-        assert err[-100:].max() < 0.05 * sd
-        # from rest (the old start) it was far off
-        rest = LowPass(settle=0).transform(x[start:stop])
-        assert np.abs(rest - ref).max() > 5 * sd
-
-
-def test_lowpass_start_chunked_and_saved_mid_hold_equals_one_pass():
-    """A start's held samples are carried across chunks and through the saved state."""
-    rng = np.random.default_rng(21)
-    x = rng.normal(size=(1500, 2)) + [2.0, -5.0]
-    x[600:750, 0] = np.nan  # column 0 starts again, column 1 not
-    one = LowPass().transform(x)
-    f = LowPass()
-    chunked = np.vstack([f.transform(x[s]) for s in _chunks(len(x), 23, rng)])
-    np.testing.assert_array_equal(chunked, one)
-    for cut in (5, 100, 700, 800):  # inside the first hold, after it, in the gap, in the 2nd
-        h = LowPass()
-        first = h.transform(x[:cut])
-        h2 = LowPass.from_state(json.loads(json.dumps(h.to_state())))
-        np.testing.assert_array_equal(np.vstack([first, h2.transform(x[cut:])]), one)
-
-
-def test_lowpass_state_saved_before_the_hold_still_loads():
-    """A state file written before the start's hold (no ``settle``/``held``/``buf``): its
-    columns carry on from their state, as they did, and start again after a long gap."""
-    rng = np.random.default_rng(22)
-    x = rng.normal(size=(500, 2)) + 4.0
-    f = LowPass(settle=0)
-    f.transform(x[:300])
-    old = {k: v for k, v in f.to_state().items() if k not in ("settle", "held", "buf")}
-    g = LowPass.from_state(json.loads(json.dumps(old)))
-    assert g.settle == LowPass().settle
-    np.testing.assert_array_equal(g.transform(x[300:]), f.transform(x[300:]))
-    # a fresh (never run) old state starts with the hold
-    h = LowPass.from_state({"wn": 0.01, "order": 4, "max_gap": 100, "zi": None, "gap": None})
-    assert np.isnan(h.transform(x)[: h.settle - 1]).all()
-
-
-def test_lowpass_settle_zero_is_scipy_from_rest():
-    rng = np.random.default_rng(23)
-    x = rng.normal(size=(400, 2)) + 1.0
-    np.testing.assert_allclose(
-        LowPass(settle=0).transform(x), signal.sosfilt(LowPass().sos_, x, axis=0), rtol=1e-12
-    )
+    np.testing.assert_allclose(yl[320:], LowPass().transform(x[320:]), rtol=1e-12)
 
 
 def test_max_scaler_and_latch():

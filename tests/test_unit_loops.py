@@ -239,10 +239,8 @@ def test_a_loop_naming_an_unknown_tag_is_refused(line):
 
 def test_a_fresh_start_says_it_is_warming_up_not_what_is_wrong(line):
     """Started fresh, the built line is CHECK_FUNCTION while its tests wait for their lags'
-    history (the outlet's 38-sample dead time), the spread window and the filter's start
-    (its held samples, LowPass: the tests with short lags hold while the outlet still waits)
-    — and says so, counting down, on the live loop's fast path as one by one; never an input
-    blamed for it."""
+    history (the outlet's 38-sample dead time) and the spread window — and says so, counting
+    down, on the live loop's fast path as one by one; never an input blamed for it."""
     from diag_plugin.diagnose.plant import Plant
 
     _, unit, _, g = line
@@ -252,10 +250,8 @@ def test_a_fresh_start_says_it_is_warming_up_not_what_is_wrong(line):
     assert fast.fast == ["line"] and slow.slow == ["line"]
     depth = int(unit.test_depth.max())
     assert depth >= 10  # the line's dead times: a warm-up worth saying
-    hold = unit.lowpass.settle - 1  # the filter's start: unknown until its settle-th sample
-    assert 5 <= hold < depth - int(np.sort(unit.test_depth)[-2])  # the others' holds inside
     rows = line7.simulate(0.3, 150).iloc[: depth + 5]
-    left, settling = [], []
+    left = []
     for k, (ts, row) in enumerate(rows.iterrows()):
         a, b = fast.cycle(ts, row.to_dict())[0], slow.cycle(ts, row.to_dict())[0]
         assert (a.status, a.message) == (b.status, b.message), k
@@ -264,45 +260,9 @@ def test_a_fresh_start_says_it_is_warming_up_not_what_is_wrong(line):
             assert a.message.startswith("warming up, "), a.message
             assert "within what the unit learned" not in a.message, a.message
             left.append(float(a.message.split()[2]))
-            settling.append("the filter's start on TANK_LEVEL" in a.message)
-        else:  # the outlet's model has no support here: its region says so, not the warm-up
+        else:
             assert "warming up" not in a.message, (k, a.message)
-    # the countdown reaches past the outlet's lags to its filter's start
-    assert left[0] == (depth + hold) * line7.PERIOD_S and np.all(np.diff(left) <= 0), left
-    lag = int(unit.test_depth[unit.tests.index("TANK_LEVEL")])
-    assert np.flatnonzero(settling).tolist() == list(range(lag, lag + hold)), settling
-
-
-def test_after_a_long_gap_the_filters_start_is_said_not_blamed_on_the_inputs(line):
-    """After a gap longer than the filter's ``max_gap`` every test's filter starts again: while
-    it holds (its residual known), the unit says ``warming up, N s left (the filter's start
-    on TEST)``, counting down, on the fast path as one by one, and the test is known right
-    after (an unseen seed, 151; the lags' refill after a gap is not a warm-up: its inputs
-    are said to be without a value, as before)."""
-    from diag_plugin.diagnose.plant import Plant
-
-    _, unit, _, g = line
-    rb = g[g.index("--rulebases") + 1]
-    fast = Plant.load([unit.file.path], rb)
-    slow = Plant(Plant.load([unit.file.path], rb).units, batched=False)
-    rows = line7.simulate(0.5, 151).iloc[1400:1760].copy()
-    stop = 100 + unit.lowpass.max_gap + 50
-    rows.iloc[100:stop] = np.nan
-    hold = unit.lowpass.settle - 1
-    lag = int(unit.test_depth[unit.tests.index("OUT_FLOW")])
-    said, left, known = [], [], []
-    for k, (ts, row) in enumerate(rows.iterrows()):
-        a, b = fast.cycle(ts, row.to_dict())[0], slow.cycle(ts, row.to_dict())[0]
-        assert (a.status, a.message) == (b.status, b.message), k
-        if k >= stop:
-            said.append("the filter's start on OUT_FLOW" in a.message)
-            known.append(np.isfinite(a.symptoms["OUT_FLOW"]))
-            if said[-1]:
-                assert a.message.startswith("warming up, "), a.message
-                left.append(float(a.message.split()[2]))
-    assert np.flatnonzero(said).tolist() == list(range(lag, lag + hold)), said
-    assert not any(known[: lag + hold]) and known[lag + hold], known
-    assert left == [(hold - i) * line7.PERIOD_S for i in range(hold)], left
+    assert left[0] == depth * line7.PERIOD_S and np.all(np.diff(left) <= 0), left
 
 
 # ---------------------------------------------------------------- a loop's two fault modes

@@ -33,32 +33,11 @@ from tests import line7
 
 
 # ---------------------------------------------------------------- the reference path
-def _ref_hold_left(a, k, held, gap, max_gap):  # sample by sample, before the state moves on
-    left = np.zeros(a.shape if k else (0, a.shape[1]), np.int32)
-    if not k:
-        return left
-    for j in range(a.shape[1]):
-        h, g = int(held[j]), int(gap[j])
-        for i in range(a.shape[0]):
-            if not np.isfinite(a[i, j]):
-                g += 1
-                left[i, j] = k - 1 if g > max_gap else max(k - 1 - h, 0)
-                continue
-            if g > max_gap:
-                h = 0
-            g = 0
-            left[i, j] = max(k - 1 - h, 0)
-            h = min(h + 1, k)
-    return left
-
-
 def _ref_lowpass(self, r, overwrite=False):  # a new array whether or not overwrite is allowed
     a, wrap = residuals._as_2d(r)
     n, m = a.shape
     self._init_state(m)
     out = np.full_like(a, np.nan)
-    k = self.settle
-    self.left_ = _ref_hold_left(a, k, self.held_, self.gap_, self.max_gap)
     for j in range(m):
         idx = np.flatnonzero(np.isfinite(a[:, j]))
         if not idx.size:
@@ -69,23 +48,10 @@ def _ref_lowpass(self, r, overwrite=False):  # a new array whether or not overwr
         for s, e in zip(np.r_[0, cuts], np.r_[cuts, idx.size], strict=True):
             if e <= s:
                 continue
-            if before[s] > self.max_gap:  # a start: its first k samples held, then steady
+            if before[s] > self.max_gap:
                 self.zi_[j] = 0.0
-                self.held_[j] = 0
             at = idx[s:e]
-            if self.held_[j] < k:
-                h = int(self.held_[j])
-                take = min(k - h, at.size)
-                self.buf_[j, h : h + take] = a[at[:take], j]
-                self.held_[j] += take
-                if self.held_[j] < k:
-                    continue
-                self.zi_[j] = self.zss_ * np.median(self.buf_[j])
-                y, self.zi_[j] = signal.sosfilt(self.sos_, self.buf_[j], zi=self.zi_[j])
-                out[at[take - 1], j] = y[-1]
-                at = at[take:]
-            if at.size:
-                out[at, j], self.zi_[j] = signal.sosfilt(self.sos_, a[at, j], zi=self.zi_[j])
+            out[at, j], self.zi_[j] = signal.sosfilt(self.sos_, a[at, j], zi=self.zi_[j])
         self.gap_[j] = n - 1 - idx[-1]
     return wrap(out)
 
@@ -311,10 +277,8 @@ def _ref_warming(self, unknown, raw_known):  # every row of the piece
     test[self.spread_cols] = True
     seen = self.seen + np.arange(n)
     self.seen += n
-    hold = None if self.lowpass is None else self.lowpass.left_
-    return np.arange(n), *unitloops.warm_up(
-        unknown, raw_known, seen, self.test_depth, spread_left, test, hold
-    )
+    warm, left = unitloops.warm_up(unknown, raw_known, seen, self.test_depth, spread_left, test)
+    return np.arange(n), warm, left
 
 
 def _ref_isolate(self, cert, active, status, s):  # every sample through the hold

@@ -434,9 +434,9 @@ def test_diagnose_from_reads_the_history_its_lags_filter_and_delays_need(folder,
     m.write_text(m.read_text().replace('spec = "CV[k]"', 'spec = "CV[k-360]"', 1))
     unit = Unit.load(folder / "valve_unit.unit.toml", folder)
     assert unit.test_depth.max() == 360
-    # the lag, the filter's start (150 samples held) and settling (1 150) at 0.01, the delays
-    parts = {"lags": 360, "spread": 0, "filter": 150 + 1150, "delays": 60}
-    assert lead_in_parts(unit) == parts and lead_in(unit) == 1720
+    # the lag, the filter's settling (1 150 samples at 0.01) and the on/off delays
+    parts = {"lags": 360, "spread": 0, "filter": 1150, "delays": 60}
+    assert lead_in_parts(unit) == parts and lead_in(unit) == 1570
 
     def run(*extra) -> pd.DataFrame:
         csv = tmp_path / "d.csv"

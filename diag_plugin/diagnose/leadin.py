@@ -21,7 +21,7 @@ import pandas as pd
 
 #: the longest lead-in ``diag diagnose --from`` reads (the default chunk: one more read at most)
 LEAD_CAP = "7D"
-#: what is left of a start's transient in the low-pass filter after its settling time
+#: what is left of a cold start's transient in the low-pass filter after its settling time
 SETTLED = 1e-6
 
 
@@ -37,13 +37,11 @@ def lead_in_parts(unit: Any) -> dict[str, int]:
     unit's carried state is what the live plug-in, running since earlier, had there: ``lags``,
     the longest lag its models read (``rate`` one more); ``spread``, a spread test's two
     windows (the running median, then the median of the deviations from it); ``filter``, the
-    low-pass filter's start and settling — its start's held samples
-    (:attr:`~diag_plugin.diagnose.residuals.LowPass.settle`, unknown, 150 at the default
-    cut-off 0.01), then the samples after which the start's transient is below :data:`SETTLED`
-    of it, ``ln(SETTLED) / ln|p|`` for the filter's slowest pole ``p`` (1 150 at 0.01);
-    ``delays``, the on/off delays (with the unit's own off-delay, that once more). State that
-    depends on all history (a latch, a held isolation, ``dir()`` inputs) starts at the
-    lead-in's start."""
+    low-pass filter's settling — the samples after which a cold start's transient is below
+    :data:`SETTLED` of it, ``ln(SETTLED) / ln|p|`` for the filter's slowest pole ``p`` (1 150
+    samples at the default cut-off 0.01); ``delays``, the on/off delays (with the unit's own
+    off-delay, that once more). State that depends on all history (a latch, a held isolation,
+    ``dir()`` inputs) starts at the lead-in's start."""
     from scipy import signal
 
     ev = unit.ev
@@ -55,7 +53,6 @@ def lead_in_parts(unit: Any) -> dict[str, int]:
         slowest = float(np.abs(poles).max())
         if 0 < slowest < 1:
             out["filter"] = math.ceil(math.log(SETTLED) / math.log(slowest))
-        out["filter"] += unit.lowpass.settle
     alarm = ev["off_delay"] if unit.alarm_hold else 0
     out["delays"] = ev["on_delay"] + ev["off_delay"] + alarm
     return out

@@ -247,7 +247,6 @@ class Plant:
             self._spread_test[idx] = True
         self._spread_left = np.zeros(n, np.int64)
         self._raw_known = np.zeros(n, bool)
-        self._hold_left = np.zeros(n, np.int64)  # samples a slot's filter still holds (LowPass)
         self._labels = [u.warm_labels for u in units]
         # the unit's own off-delay (unitloops.AlarmHold): samples since its last alarm sample
         # and that sample's (status, faults, tags)
@@ -508,8 +507,8 @@ class Plant:
                 p = cm.nearest_point(np.where(cols >= 0, self._hist[0, cols], np.nan)[None, :])[0]
             r[idx] = (r[idx] - center[p]) / scale[p]
         s = np.full(n, np.nan)
-        self._raw_known = np.isfinite(r)  # before the spread and the filter (the warm-up)
         for idx, spread in self._spreads:  # a spread test judges its residual's running spread
+            self._raw_known[idx] = np.isfinite(r[idx])
             r[idx] = spread.transform(r[idx][None, :])[0]
             self._spread_left[idx] = spread.left_[0]
         rf = r.copy()
@@ -517,8 +516,6 @@ class Plant:
             x = r[idx][None, :]
             if lp is not None:
                 x = lp.transform(x)
-                if lp.settle:
-                    self._hold_left[idx] = lp.left_[0]
             rf[idx] = x[0]
             raw = band.transform(x, self._lo[idx], self._hi[idx])
             raw[:, self._no_th[idx]] = np.nan
@@ -628,21 +625,18 @@ class Plant:
                 # the reason without a frame: the unit's judged inputs as one-value arrays
                 cols = {key: np.array([value(p, key[1])]) for key, p in self._judged[ui]}
                 unknown = np.isnan(s[a:b])[None, :]
-                warm, left, settling = warm_up(
+                warm, left = warm_up(
                     unknown,
                     self._raw_known[a:b][None, :],
                     self._cycles - 1,
                     self._slot_depth[a:b],
                     self._spread_left[a:b][None, :],
                     self._spread_test[a:b],
-                    self._hold_left[a:b][None, :],
                 )
                 report = np.array([checking])
                 why = u.outside.columns(cols, [ts], unknown & ~warm, report)
                 if warm.any():
-                    why = warming_up(
-                        why, warm, left, report, self._labels[ui], u.period_s, settling
-                    )
+                    why = warming_up(why, warm, left, report, self._labels[ui], u.period_s)
                 why = why[0]
             msg = "; ".join([why, *notes[ui]] if why else notes[ui])
             st = NE107(int(status[ui]))

@@ -26,7 +26,7 @@ from scipy import signal
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
 
-__all__ = ["Latch", "LowPass", "MaxScaler", "residual_pct", "start_hold"]
+__all__ = ["Latch", "LowPass", "MaxScaler", "residual_pct"]
 
 ArrayLike = np.ndarray | pd.DataFrame | pd.Series
 
@@ -65,82 +65,35 @@ def _per_column(value: Any, columns: Any, m: int, what: str) -> np.ndarray:
     return arr
 
 
-@numba.njit(cache=True, inline="always")
-def _sections(sos, zi, j, x_cur):  # pragma: no cover - numba
-    """One sample ``x_cur`` through column ``j``'s second-order sections (direct form II
-    transposed, scipy's ``sosfilt``), its state ``zi[j]`` advanced; the output."""
-    for s in range(sos.shape[0]):
-        x_new = sos[s, 0] * x_cur + zi[j, s, 0]
-        zi[j, s, 0] = sos[s, 1] * x_cur - sos[s, 4] * x_new + zi[j, s, 1]
-        zi[j, s, 1] = sos[s, 2] * x_cur - sos[s, 5] * x_new
-        x_cur = x_new
-    return x_cur
-
-
 @numba.njit(cache=True)
-def _lowpass_kernel(x, sos, zss, zi, gap, buf, held, max_gap, out, left):  # pragma: no cover
+def _lowpass_kernel(x, sos, zi, gap, max_gap, out):  # pragma: no cover - numba
     """``x`` (samples × columns) filtered into ``out`` (its shape; ``x`` itself to filter in
     place: each value is read before it is written) by the second-order sections ``sos``
     from the state ``zi`` (columns × sections × 2), skipping non-finite samples (NaN out,
-    state held). A column (re)starts after more than ``max_gap`` non-finite samples: its
-    next ``buf.shape[1]`` finite samples are kept in ``buf`` (``held`` of them so far), NaN
-    out, and at the last of them the state is set to the steady state ``zss`` (per unit
-    input) at their median and run over them (``buf`` of width 0: the state at rest).
-    ``zi``, ``gap``, ``buf`` and ``held`` advanced; ``left`` (``x``'s shape, written only
-    while ``settle`` > 0) the samples each value still waits for the start, itself counted:
-    ``settle − 1 − held`` before it while the column holds (``settle − 1`` within a gap
-    longer than ``max_gap``: it starts again), 0 once known. Row by row, so the
-    samples are read in memory order; each column's recursion is its own."""
+    state held), the state back at rest after more than ``max_gap`` of them; ``zi`` and
+    ``gap`` advanced. Row by row, so the samples are read in memory order; each column's
+    recursion is its own."""
     n, m = x.shape
-    settle = buf.shape[1]
+    ns = sos.shape[0]
     for i in range(n):
         for j in range(m):
             x_cur = x[i, j]
-            if settle:
-                left[i, j] = max(settle - 1 - held[j], 0)
             if not np.isfinite(x_cur):
                 out[i, j] = np.nan
                 gap[j] += 1
-                if settle and gap[j] > max_gap:  # it starts again at the next finite sample
-                    left[i, j] = settle - 1
                 continue
             if gap[j] > max_gap:
-                held[j] = 0
-                zi[j] = 0.0
-                if settle:
-                    left[i, j] = settle - 1
+                for s in range(ns):
+                    zi[j, s, 0] = 0.0
+                    zi[j, s, 1] = 0.0
             gap[j] = 0
-            if held[j] >= settle:
-                out[i, j] = _sections(sos, zi, j, x_cur)
-                continue
-            buf[j, held[j]] = x_cur
-            held[j] += 1
-            out[i, j] = np.nan
-            if held[j] == settle:
-                level = np.median(buf[j])
-                zi[j] = zss * level
-                for k in range(settle):
-                    out[i, j] = _sections(sos, zi, j, buf[j, k])
+            for s in range(ns):
+                x_new = sos[s, 0] * x_cur + zi[j, s, 0]
+                zi[j, s, 0] = sos[s, 1] * x_cur - sos[s, 4] * x_new + zi[j, s, 1]
+                zi[j, s, 1] = sos[s, 2] * x_cur - sos[s, 5] * x_new
+                x_cur = x_new
+            out[i, j] = x_cur
     return out
-
-
-#: a filter's start holds this many times its memory ``1 / wn`` (:func:`start_hold`)
-START_HOLD = 1.5
-
-
-def start_hold(wn: float) -> int:
-    """The samples a :class:`LowPass` start holds by default: :data:`START_HOLD` × ``1 / wn``
-    (150 at the cut-off 0.01, between the filter's memory 1/wn and its 5 % settling time,
-    218). Chosen on the start's error and the blindness it costs, at the 4th order: the
-    largest error over the first 300 known samples, 95 % of starts of a level 3 raw standard
-    deviations off zero, in the filtered residual's standard deviation — white noise
-    1.80/0.48/0.27 at 100/150/218 held, AR(0.9) 1.48/0.44/0.24, AR(0.99) 0.71/0.24/0.13 (a
-    threshold learned at the 0.999 quantile × 1.2 is about 4 of them); the simulated
-    positioner valve (tests/test_valve_isolation), unseen fault-free seeds 303–1010, 71
-    restarts: alarm share in the 400 samples after a restart 0.0237 from rest, 0.0308/
-    0.0139/0.0123 at 100/150/218 (elsewhere 0.007); its eroded plug (f3, seed 101, three
-    restarts in the scored 11 h) detected 0.525 from rest, 0.516/0.501/0.483 at 100/150/218."""
-    return int(np.ceil(START_HOLD / wn - 1e-9))
 
 
 class LowPass:
@@ -151,54 +104,29 @@ class LowPass:
     frequency (1.0 = π rad/sample), so the default ``wn=0.01`` *is* π/100 rad/sample; the filter
     is ``scipy.signal.butter(order, wn, output="sos")`` run by ``sosfilt``. The state ``zi`` of
     every residual column is carried between calls, so one pass, any chunking and one sample per
-    cycle give the same values.
-
-    Start (issue 34): a filter started from rest (zero state) ramps from 0 to the residual's
-    level and overshoots it — a residual whose local mean is off zero (an accepted operating
-    point, any test's own offset) then crosses its thresholds while the filter settles. So a
-    column starts *in steady state*: its first ``settle`` finite samples are kept, the output
-    unknown (NaN — an unknown test is not a symptom) before the last of them; there the state
-    is set to the steady state (``scipy.signal.sosfilt_zi``) at their median and run over
-    them, so the output from there is as if the filter had seen that level for ever.
-    ``settle`` defaults to 1.5 × the filter's memory (:func:`start_hold`, 150 samples at
-    ``wn=0.01``; the start's error is then the filter's response to the median's error,
-    decayed over the held samples: measured on white and AR(1) noise, 95 % of starts within
-    0.5 of the filtered residual's standard deviation, against 7–31 of it from rest for a
-    level 3 standard deviations of the raw residual off zero; the 5 % settling time, 218,
-    halves that error but blinds each start 68 samples longer). ``settle=0``: from rest, as
-    seed 000 printed it.
+    cycle give the same values. The filter starts from rest (zero state).
 
     NaN handling: a NaN input sample gives a NaN output and leaves that column's state
     untouched (the filter holds, it is not fed the NaN). After a gap of more than ``max_gap``
-    consecutive NaN samples (default 100 = 1/wn, about the filter's memory) the column starts
-    again as above at the next finite sample, so a stale pre-gap value does not leak into new
-    data. The gap counter and a start's held samples are carried across chunks too.
+    consecutive NaN samples (default 100 = 1/wn, about the filter's memory) the state is reset
+    to rest at the next finite sample, so a stale pre-gap value does not leak into new data.
+    The gap counter is carried across chunks too.
     """
 
-    def __init__(
-        self, wn: float = 0.01, order: int = 4, max_gap: int = 100, settle: int | None = None
-    ) -> None:
+    def __init__(self, wn: float = 0.01, order: int = 4, max_gap: int = 100) -> None:
         if not 0.0 < wn < 1.0:
             raise ValueError("wn must be in (0, 1) (1.0 = Nyquist = π rad/sample)")
         self.wn = float(wn)
         self.order = int(order)
         self.max_gap = int(max_gap)
         self.sos_ = signal.butter(self.order, self.wn, output="sos")
-        self.settle = start_hold(self.wn) if settle is None else int(settle)
-        if self.settle < 0:
-            raise ValueError("settle must be >= 0 (0 = start from rest)")
-        self.zss_ = signal.sosfilt_zi(self.sos_)  # (n_sections, 2): steady state per unit input
         self.zi_: np.ndarray | None = None  # (m, n_sections, 2)
         self.gap_: np.ndarray | None = None  # (m,) consecutive NaNs at the end of the last call
-        self.buf_: np.ndarray | None = None  # (m, settle) a start's finite samples kept
-        self.held_: np.ndarray | None = None  # (m,) of them so far (settle: started)
-        #: per sample of the last :meth:`transform` and column the samples it waits for the
-        #: start, itself counted (0: known or held for a gap; (0, m) when ``settle`` is 0)
-        self.left_ = np.zeros((0, 0), np.int32)
 
     def reset(self) -> LowPass:
-        """Forget the carried state (the filter starts again, see the class)."""
-        self.zi_ = self.gap_ = self.buf_ = self.held_ = None
+        """Forget the carried state (the filter restarts from rest)."""
+        self.zi_ = None
+        self.gap_ = None
         return self
 
     def _init_state(self, m: int) -> None:
@@ -207,10 +135,6 @@ class LowPass:
             self.gap_ = np.zeros(m, dtype=np.int64)
         elif self.zi_.shape[0] != m:
             raise ValueError(f"filter state has {self.zi_.shape[0]} columns, input has {m}")
-        if self.held_ is None:  # a fresh start, or a state saved before the start's hold
-            fresh = not self.zi_.any() and not self.gap_.any()
-            self.held_ = np.full(m, 0 if fresh else self.settle, dtype=np.int64)
-            self.buf_ = np.zeros((m, self.settle))
 
     def transform(self, r: ArrayLike, *, overwrite: bool = False) -> ArrayLike:
         """Filter residuals (seed 000 Sec. IV), continuing from the carried state.
@@ -220,58 +144,32 @@ class LowPass:
         n, m = a.shape
         self._init_state(m)
         assert self.zi_ is not None and self.gap_ is not None
-        assert self.buf_ is not None and self.held_ is not None
         if not n:
-            self.left_ = np.zeros((0, m), np.int32)
             return wrap(np.full_like(a, np.nan))
         # one compiled pass per column over the finite samples (the recursion of scipy's
         # sosfilt, direct form II transposed, the same operations in the same order)
         x = np.ascontiguousarray(a)
         inplace = overwrite and x is a and isinstance(r, np.ndarray) and x.ndim == r.ndim
         out = x if inplace else np.empty_like(x)
-        self.left_ = np.zeros((n, m) if self.settle else (0, m), np.int32)
-        return wrap(
-            _lowpass_kernel(
-                x, self.sos_, self.zss_, self.zi_, self.gap_, self.buf_, self.held_,
-                self.max_gap, out, self.left_,
-            )
-        )  # fmt: skip
+        return wrap(_lowpass_kernel(x, self.sos_, self.zi_, self.gap_, self.max_gap, out))
 
     def to_state(self) -> dict[str, Any]:
-        """Parameters and carried state as plain JSON-able values (a start's held samples
-        only while it holds them)."""
-        held = None if self.held_ is None else self.held_.tolist()
-        buf = None
-        if held is not None and self.buf_ is not None:
-            buf = [
-                r[:k].tolist() if k < self.settle else []
-                for r, k in zip(self.buf_, held, strict=True)
-            ]
+        """Parameters and carried state as plain JSON-able values."""
         return {
             "wn": self.wn,
             "order": self.order,
             "max_gap": self.max_gap,
-            "settle": self.settle,
             "zi": None if self.zi_ is None else self.zi_.tolist(),
             "gap": None if self.gap_ is None else self.gap_.tolist(),
-            "held": held,
-            "buf": buf,
         }
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> LowPass:
-        """Rebuild a filter from :meth:`to_state` output (a state saved before the start's
-        hold: ``settle`` the default, a column with carried state started)."""
-        f = cls(wn=state["wn"], order=state["order"], max_gap=state["max_gap"],
-                settle=state.get("settle"))  # fmt: skip
+        """Rebuild a filter from :meth:`to_state` output."""
+        f = cls(wn=state["wn"], order=state["order"], max_gap=state["max_gap"])
         if state.get("zi") is not None:
             f.zi_ = np.asarray(state["zi"], dtype=float)
             f.gap_ = np.asarray(state["gap"], dtype=np.int64)
-        if state.get("held") is not None:
-            f.held_ = np.asarray(state["held"], dtype=np.int64)
-            f.buf_ = np.zeros((f.held_.size, f.settle))
-            for j, row in enumerate(state.get("buf") or []):
-                f.buf_[j, : len(row)] = row
         return f
 
 

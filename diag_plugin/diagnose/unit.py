@@ -413,9 +413,8 @@ class Unit:
         self.test_depth = np.array([max_lag(sp) for sp in specs], np.int64)
         spread = np.zeros(len(self.tests), bool)
         spread[self.spread_cols] = True
+        self.warm_labels = warm_labels(self.tests, self.test_depth, spread)
         self.reset()
-        settle = 0 if self.lowpass is None else self.lowpass.settle
-        self.warm_labels = warm_labels(self.tests, self.test_depth, spread, settle)
 
     # ------------------------------------------------------------ loading
     @classmethod
@@ -785,7 +784,7 @@ class Unit:
         message = ""
         checking = status == NE107.CHECK_FUNCTION
         unknown = np.isnan(s)
-        rows, warm, left, settling = self._warming(unknown, raw_known)
+        rows, warm, left = self._warming(unknown, raw_known)
         judged = unknown
         if warm.any():
             judged = unknown.copy()
@@ -793,7 +792,7 @@ class Unit:
         why = self.outside.transform(cols, judged, checking)
         if warm.any():
             why[rows] = warming_up(
-                why[rows], warm, left, checking[rows], self.warm_labels, self.period_s, settling
+                why[rows], warm, left, checking[rows], self.warm_labels, self.period_s
             )
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
@@ -820,25 +819,22 @@ class Unit:
 
     def _warming(
         self, unknown: np.ndarray, raw_known: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The tests unknown only for the warm-up, the samples each still needs and those
-        waiting for the filter's start alone (:func:`~diag_plugin.diagnose.unitloops.warm_up`),
-        on the rows that can be warming up (returned first: those before the longest lag is
-        seen, those a spread window still fills and those the filter holds at its start;
-        elsewhere no test is): ``rows``, then ``rows × tests`` arrays. Advances
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The tests unknown only for the warm-up, and the samples each still needs
+        (:func:`~diag_plugin.diagnose.unitloops.warm_up`), on the rows that can be warming
+        up (returned first: those before the longest lag is seen, and those a spread window
+        still fills; elsewhere no test is): ``rows``, then ``rows × tests`` arrays. Advances
         :attr:`seen`. ``raw_known``: where the raw residuals (before the spread and the
         filter) are finite, samples × tests."""
         n = len(raw_known)
         lag_rows = max(0, min(n, int(self.test_depth.max(initial=0)) - self.seen))
-        rows = np.arange(lag_rows)
         spread_left = None
         if self.spread_cols.size:  # the spread ran on this piece (Unit.filtered)
             spread_left = self.spread.left_
-            rows = np.union1d(rows, np.flatnonzero((spread_left > 0).any(axis=1)))
-        hold = None
-        if self.lowpass is not None and self.lowpass.left_.shape[0] == n:  # it ran (filtered)
-            hold = self.lowpass.left_
-            rows = np.union1d(rows, np.flatnonzero((hold > 0).any(axis=1)))
+            filling = np.flatnonzero((spread_left > 0).any(axis=1))
+            rows = np.union1d(np.arange(lag_rows), filling)
+        else:
+            rows = np.arange(lag_rows)
         seen = self.seen + rows
         self.seen += n
         left_at = np.zeros((rows.size, raw_known.shape[1]), np.int64)
@@ -846,10 +842,8 @@ class Unit:
             left_at[:, self.spread_cols] = spread_left[rows]
         test = np.zeros(raw_known.shape[1], bool)
         test[self.spread_cols] = True
-        return rows, *warm_up(
-            unknown[rows], raw_known[rows], seen, self.test_depth, left_at, test,
-            None if hold is None else hold[rows],
-        )  # fmt: skip
+        warm, left = warm_up(unknown[rows], raw_known[rows], seen, self.test_depth, left_at, test)
+        return rows, warm, left
 
     def _hold_alarm(self, active, detected, status, faults, top):
         """The unit's off-delay (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`): a

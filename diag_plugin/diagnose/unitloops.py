@@ -263,42 +263,30 @@ def warm_up(
     depth: np.ndarray,
     spread_left: np.ndarray,
     spread_test: np.ndarray,
-    hold_left: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray]:
     """Which unknown tests are unknown only because the unit has not yet seen enough samples
-    since it (or its filter) started, how many more samples each needs (rows × tests), and
-    which of them wait for the filter's start alone.
+    since it started, and how many more samples each needs (rows × tests).
 
     ``seen``: samples before each row since the start; ``depth``: per test the longest lag
     its model reads (unknown while ``seen < depth``); ``spread_left``:
     :attr:`RunningSpread.left_` per row for the spread tests (0 elsewhere); ``spread_test``:
-    the spread tests; ``raw_known``: their residual known before the spread; ``hold_left``:
-    :attr:`~diag_plugin.diagnose.residuals.LowPass.left_` per row (None: no filter). A test
-    behind its lags needs its lags' samples, then a spread test its window's, then the
-    filter's start its held samples (at the start and after a gap longer than the filter's
-    ``max_gap``); a held sample whose residual itself is unknown is not warming up."""
+    the spread tests; ``raw_known``: their residual known before the spread. A spread test
+    behind its lags needs its lags' samples, then its window's."""
     lag_left = np.maximum(np.asarray(depth)[None, :] - np.reshape(seen, (-1, 1)), 0)
     lag_warm = lag_left > 0
     spread = spread_test[None, :] & (spread_left > 0) & (raw_known | lag_warm)
-    left = lag_left + np.where(spread_test[None, :], spread_left, 0)
-    if hold_left is None:
-        return unknown & (lag_warm | spread), left, np.zeros(unknown.shape, bool)
-    settling = (hold_left > 0) & raw_known & ~lag_warm & ~spread
-    warm = unknown & (lag_warm | spread | settling)
-    return warm, left + hold_left, unknown & settling
+    warm = unknown & (lag_warm | spread)
+    return warm, lag_left + np.where(spread_test[None, :], spread_left, 0)
 
 
-def warm_labels(
-    tests: list[str], depth: np.ndarray, spread_test: np.ndarray, settle: int = 0
-) -> list[tuple[str, str]]:
-    """Per test what it waits for in a warm-up (:func:`warming_up`): its history or spread
-    window (then, with a filter whose start holds ``settle`` samples, the filter's start),
-    and the filter's start alone."""
-    then = ", then its filter's start" if settle > 1 else ""
+def warm_labels(tests: list[str], depth: np.ndarray, spread_test: np.ndarray) -> list[str]:
+    """Per test what it waits for in a warm-up (:func:`warming_up`)."""
     out = []
     for name, d, sp in zip(tests, depth, spread_test, strict=True):
-        first = f"the spread window of {name}" if sp else f"{int(d)} samples of history for {name}"
-        out.append((first + then, f"the filter's start on {name}"))
+        if sp:
+            out.append(f"the spread window of {name}")
+        else:
+            out.append(f"{int(d)} samples of history for {name}")
     return out
 
 
@@ -307,20 +295,17 @@ def warming_up(
     warm: np.ndarray,
     left: np.ndarray,
     report: np.ndarray,
-    labels: list[tuple[str, str]],
+    labels: list[str],
     period_s: float,
-    settling: np.ndarray | None = None,
 ) -> np.ndarray:
     """``why`` (a reason per row) with the warm-up put first on the rows in ``report`` where a
     test is unknown only because the unit has not seen enough samples since it started
-    (``warm``, ``left``, ``settling``: :func:`warm_up`; ``labels``: :func:`warm_labels`):
+    (``warm``, ``left``: :func:`warm_up`; ``labels``: :func:`warm_labels`):
     ``warming up, N s left (the spread window of TEST)`` — the unit is not at fault."""
     out = why.copy()
     for i in np.flatnonzero(report & warm.any(axis=1)):
         cols = np.flatnonzero(warm[i])
         secs = float(left[i, cols].max()) * period_s
-        alone = np.zeros(len(cols), bool) if settling is None else settling[i, cols]
-        said = "; ".join(labels[c][int(a)] for c, a in zip(cols, alone, strict=True))
-        text = f"warming up, {secs:.0f} s left ({said})"
+        text = f"warming up, {secs:.0f} s left ({'; '.join(labels[c] for c in cols)})"
         out[i] = f"{text}; {out[i]}" if out[i] else text
     return out

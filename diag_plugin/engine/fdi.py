@@ -381,12 +381,10 @@ def estimates(em: EngineModels, df: pd.DataFrame) -> pd.DataFrame:
 def residuals(em: EngineModels, df: pd.DataFrame, scaler: MaxScaler) -> pd.DataFrame:
     """Filtered, scaled residuals ``ŷ − y`` (§IV: Butterworth 4th order at π/100, divided by
     the signal maximum over a fault-free cycle) of :data:`SIGNALS`: Table II's four and
-    T̂_L − T_L (``scaler`` fitted on the five signals). NaN warm-up rows count as zero, so
-    the residuals start at 0 and the filter starts from rest as the paper's does (``settle=0``:
-    at rest *is* the steady state there, and no sample is held unknown)."""
+    T̂_L − T_L (``scaler`` fitted on the five signals). NaN warm-up rows count as zero."""
     est = estimates(em, df)[list(SIGNALS)]
     raw = (est - df[list(SIGNALS)]).fillna(0.0)
-    return scaler.transform(LowPass(wn=0.01, order=4, settle=0).transform(raw))
+    return scaler.transform(LowPass(wn=0.01, order=4).transform(raw))
 
 
 def _window(df: pd.DataFrame, window: tuple[int, int]) -> pd.DataFrame:

@@ -59,9 +59,7 @@ from diag_plugin.models.protocol import REASON_NAN, Prediction
 from diag_plugin.models.series import autocorrelation
 
 #: samples skipped at the start of a learning window (and of each run in it): the filter
-#: starts there (:class:`~diag_plugin.diagnose.residuals.LowPass`: its first ``settle``
-#: samples, 150 at the default cut-off, unknown, then in steady state at their median), and
-#: so do the models' lags and a spread test's windows
+#: starts from rest
 SETTLE_SAMPLES = 500
 #: the default false-alarm budget: alarms per hour of operation of a unit (about one in six
 #: weeks); a plant policy, not something data can tell, so `diag unit learn` prints it
@@ -75,8 +73,8 @@ MIN_KNOWN = 30
 #: ``by_run`` of :func:`learn_thresholds`: the cross-fitting's blocks cut every run (window)
 #: into equal spans, block ``b`` the ``b``-th span of each (:func:`block_of`)
 WITHIN_RUNS = "within"
-#: samples without data that separate two runs of a window (the unit's filter starts again
-#: after as many, :class:`~diag_plugin.diagnose.residuals.LowPass` ``max_gap``)
+#: samples without data that separate two runs of a window (the unit's filter forgets its
+#: state after as many, :class:`~diag_plugin.diagnose.residuals.LowPass`)
 RUN_GAP = 100
 
 
@@ -203,8 +201,7 @@ def block_of(
 
 def settled(data: np.ndarray) -> np.ndarray:
     """Rows whose filtered residual has settled: each run's first :data:`SETTLE_SAMPLES` are
-    left out (a quarter of a shorter run), as the filter starts again in every run (unknown
-    for its ``settle`` samples, then in steady state: the same rule as at run time)."""
+    left out (a quarter of a shorter run), as the filter starts from rest in every run."""
     run = _runs(data)
     keep = np.ones(data.size, bool)
     for r in np.unique(run):
