@@ -490,6 +490,18 @@ def test_breaks_only_where_gaps_dominate():
     assert b[0]["from"] == pytest.approx(starts[0] + 719 * 10)
     kept = 2160 * 10 - 20  # the three runs' 10 s samples, less the two steps over a gap
     assert b[0]["w"] == b[1]["w"] == pytest.approx(0.02 * kept)
+    # two 20-minute runs 6 h apart, three weeks after a 2-h run: the 6 h are 1 % of the
+    # calendar span but most of what is left once the three weeks are a break
+    one = [
+        pd.date_range(a, periods=k, freq="10s", tz="UTC")
+        for a, k in (
+            ("2026-02-01 08:00", 720),
+            ("2026-02-22 10:00", 120),
+            ("2026-02-22 16:00", 120),
+        )
+    ]
+    nested = time_breaks(one[0].append(one[1]).append(one[2]))
+    assert [pd.Timestamp(x["to"], unit="s", tz="UTC") for x in nested] == [one[1][0], one[2][0]]
     # the levels cut the drawn axis: the three runs and two breaks, not the ten days
     y = np.arange(len(runs), dtype=float)
     lv = time_levels(runs, y, y, y, overview=200, detail=2000, breaks=b)

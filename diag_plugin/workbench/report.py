@@ -137,7 +137,9 @@ def time_breaks(index: pd.DatetimeIndex) -> list[dict]:
     ``GAP_SHARE`` of the span and ``GAP_PERIODS`` median sampling periods; the
     long gaps are collapsed only when together they cover at least
     ``GAPS_DOMINATE`` of the span (short runs spread over weeks), so a
-    continuous record, or one with an outage, keeps its calendar axis. Each
+    continuous record, or one with an outage, keeps its calendar axis. Then
+    gaps longer than ``GAP_SHARE`` of the shortened span are collapsed too,
+    until none is (two runs on one day among runs weeks apart). Each
     break is drawn ``w`` s wide (``BREAK_WIDTH`` of the record without its gaps,
     all together at most ``BREAKS_WIDTH``). Per break: ``from`` and ``to``, the
     true times (s since the epoch, UTC) of the samples either side, and ``at``,
@@ -156,6 +158,12 @@ def time_breaks(index: pd.DatetimeIndex) -> list[dict]:
     gaps = float(d[long].sum())
     if not long.any() or gaps < GAPS_DOMINATE * span:
         return []
+    while True:  # the runs left may still be far apart on the shorter axis (runs in a day)
+        more = ~long & (d > GAP_SHARE * (span - gaps)) & (d > GAP_PERIODS * period)
+        if not more.any():
+            break
+        long |= more
+        gaps = float(d[long].sum())
     i = np.flatnonzero(long)
     w = max(period, (span - gaps) * min(BREAK_WIDTH, BREAKS_WIDTH / i.size))
     before = np.r_[0.0, np.cumsum(d[i] - w)[:-1]]  # the time taken out before each break
