@@ -31,6 +31,7 @@ from diag_plugin.workbench.explain import explain
 from diag_plugin.workbench.report import (
     OVERVIEW_BUCKETS,
     experiment_rows,
+    time_breaks,
     time_levels,
     write_report,
 )
@@ -461,3 +462,113 @@ def test_warnings_are_worded_for_a_plant_engineer(report):
     prose = " ".join(re.findall(r'<p class="(?:note|warn)">(.*?)</p>', text, re.S))
     for jargon in ("unsupported", "rule cell", "bucket", "supported)"):
         assert jargon not in prose, jargon
+
+
+# ------------------------------------------------- short runs far apart: a broken time axis
+RUNS = (("2026-01-01 06:00", 720), ("2026-01-05 14:00", 540), ("2026-01-10 22:00", 900))
+
+
+def _runs_frame(seed: int) -> pd.DataFrame:
+    """Three 1.5–2.5 h runs of 10 s samples, days apart, on the regular grid the historian
+    aligns them on (empty rows between the runs, which ``compare`` drops)."""
+    f = valve_frame(11, seed=seed)
+    parts = [f.iloc[f.index.get_loc(pd.Timestamp(a, tz="UTC")) :][:n] for a, n in RUNS]
+    runs = pd.concat(parts)
+    return runs.reindex(pd.date_range(runs.index[0], runs.index[-1], freq="10s", name="ts"))
+
+
+def test_breaks_only_where_gaps_dominate():
+    idx = pd.date_range("2026-01-01", periods=1000, freq="10s", tz="UTC")
+    assert time_breaks(idx) == []  # continuous
+    out = idx.delete(slice(400, 480))  # an outage of 8 % of the span: the calendar stays
+    assert time_breaks(out) == []
+    runs = _runs_frame(5).dropna(subset=["F"]).index
+    b = time_breaks(runs)
+    assert len(b) == 2
+    starts = [pd.Timestamp(a, tz="UTC").timestamp() for a, _ in RUNS]
+    assert [x["to"] for x in b] == pytest.approx(starts[1:])
+    assert b[0]["from"] == pytest.approx(starts[0] + 719 * 10)
+    kept = 2160 * 10 - 20  # the three runs' 10 s samples, less the two steps over a gap
+    assert b[0]["w"] == b[1]["w"] == pytest.approx(0.02 * kept)
+    # two 20-minute runs 6 h apart, three weeks after a 2-h run: the 6 h are 1 % of the
+    # calendar span but most of what is left once the three weeks are a break
+    one = [
+        pd.date_range(a, periods=k, freq="10s", tz="UTC")
+        for a, k in (
+            ("2026-02-01 08:00", 720),
+            ("2026-02-22 10:00", 120),
+            ("2026-02-22 16:00", 120),
+        )
+    ]
+    nested = time_breaks(one[0].append(one[1]).append(one[2]))
+    assert [pd.Timestamp(x["to"], unit="s", tz="UTC") for x in nested] == [one[1][0], one[2][0]]
+    # the levels cut the drawn axis: the three runs and two breaks, not the ten days
+    y = np.arange(len(runs), dtype=float)
+    lv = time_levels(runs, y, y, y, overview=200, detail=2000, breaks=b)
+    assert lv[0]["n"] == 200 and lv[0]["w"] * 200 == pytest.approx(kept + 2 * b[0]["w"])
+    ext = _f32(lv[-1]["y"])
+    assert np.nanmin(ext) == 0 and np.nanmax(ext) == len(runs) - 1  # every sample inside
+    # each run's buckets hold its own samples only, and the breaks' buckets none
+    t = np.array([x["at"] for x in b]) - lv[-1]["x0"]
+    fin = np.isfinite(ext.reshape(-1, 2)[:, 0])
+    inside = (np.arange(lv[-1]["n"]) + 0.5) * lv[-1]["w"]
+    for at in t:
+        gap = (inside > at + lv[-1]["w"]) & (inside < at + b[0]["w"] - lv[-1]["w"])
+        assert gap.sum() > 5 and not fin[gap].any()
+
+
+@needs_chromium
+def test_runs_days_apart_share_the_width_with_marked_breaks(tmp_path):
+    """Three short runs over ten days: each takes a visible share of the chart, the two
+    gaps are marked breaks, and the axis labels carry each run's true date and time."""
+    rb, _ = _story(tmp_path, 3, ("CV[k-1]", "P1[k]"))
+    f = _runs_frame(7)  # not the training data
+    c = compare(rb, f)
+    path = write_report(tmp_path / "runs.html", rb, c, None, None, f)
+    page = path.read_text("utf-8")
+    assert "3 runs far apart in time" in page and "the longest 5 days 7 h" in page
+    shot = tmp_path / "runs.png"
+    res = _chromium(
+        path.as_uri(), tmp_path / "profile-runs", f"--screenshot={shot}", "--window-size=1400,1400"
+    )
+    assert res.returncode == 0 and shot.exists(), res.stderr[-2000:]
+    _render(path, tmp_path)  # no script error at the default size
+    res = _chromium(path.as_uri(), tmp_path / "p-wide", "--dump-dom", "--window-size=1400,1400")
+    el = re.search(r'<div id="chart-y"[^>]*>', res.stdout).group(0)
+    attr = dict(re.findall(r'data-(\w+)="([^"]*)"', el))
+    assert attr["breaks"] == "2", el
+    runs = [tuple(map(int, r.split(":"))) for r in attr["runs"].split()]
+    width = runs[-1][1] - runs[0][0]
+    shares = [(b - a) / width for a, b in runs]
+    # shares follow the runs' lengths (720 : 540 : 900 samples) less the two ~2 % breaks
+    assert shares == pytest.approx([0.32, 0.24, 0.40], abs=0.02), shares
+    ticks = attr["ticks"].split("|")
+    assert len(ticks) >= 6, ticks
+    # every label with a date is a true time inside a run, and every run has one
+    dated = [pd.Timestamp(f"{t.split()[1]} {t.split()[0]}", tz="UTC") for t in ticks if " " in t]
+    run = [
+        (pd.Timestamp(a, tz="UTC"), pd.Timestamp(a, tz="UTC") + n * pd.Timedelta("10s"))
+        for a, n in RUNS
+    ]
+    assert all(any(a <= t <= b for a, b in run) for t in dated), ticks
+    assert all(any(a <= t <= b for t in dated) for a, b in run), ticks
+    # the breaks are drawn: a strip of their shade across the time chart
+    px = _png_pixels(shot)
+    shade = np.all(px == (0xE4, 0xE0, 0xEC), axis=-1)
+    cols = np.flatnonzero(shade.sum(axis=0) > 150)
+    assert cols.size >= 2 * 10 and np.diff(cols).max() > 200, cols
+    # a zoom from the address is in true times: the second run alone, at the detail level
+    dom = _render(path, tmp_path, "#zoom=2026-01-05T14:05:00Z/2026-01-05T15:20:00Z")
+    el = re.search(r'<div id="chart-y"[^>]*>', dom).group(0)
+    attr = dict(re.findall(r'data-(\w+)="([^"]*)"', el))
+    assert attr["breaks"] == "0" and "2026-01-05" in attr["ticks"], attr
+    assert attr["ticks"].split("|")[0].startswith("14:"), attr["ticks"]
+
+
+@needs_chromium
+def test_a_continuous_record_keeps_its_calendar_axis(report, tmp_path):
+    path, _, _ = report
+    assert _data(path.read_text("utf-8"))["breaks"] == []
+    dom = _render(path, tmp_path)
+    el = re.search(r'<div id="chart-y"[^>]*>', dom).group(0)
+    assert "data-breaks" not in el and "data-ticks" not in el, el

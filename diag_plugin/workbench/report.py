@@ -17,7 +17,10 @@ detail level (up to 50,000 buckets, raw samples for short ranges); zooming in
 switches to the detail level for the visible window. The page draws, per pixel
 column of the chart, the band from the lowest to the highest value there
 (min/max envelope: every sample lies inside, and no two series blur into one
-zigzag), and lines where there are fewer samples than pixels. Beside it, the
+zigzag), and lines where there are fewer samples than pixels. Short runs spread
+over weeks (gaps that dominate the calendar span) are drawn side by side: each
+long gap is collapsed into a narrow marked break of the time axis, whose labels
+and readout still give true times (see :func:`time_breaks`). Beside it, the
 residual against the tag ``explain`` suggests first (or the tag the residual
 follows most), with the residual's mean along that tag. Series are embedded as
 base64 little-endian float32 (NaN marks a gap), everything else as JSON with
@@ -47,6 +50,15 @@ from historian.jsonable import finite_float
 OVERVIEW_BUCKETS = 2_000
 #: buckets of the detail level (used when zoomed in)
 DETAIL_BUCKETS = 50_000
+#: a gap between two samples is collapsed into a break of the time axis when it is longer
+#: than this share of the record's span and than GAP_PERIODS sampling periods ...
+GAP_SHARE = 0.05
+GAP_PERIODS = 20
+#: ... and only when such gaps together take at least this share of the span
+GAPS_DOMINATE = 0.5
+#: the drawn width of one break (share of the record without its gaps), and of all together
+BREAK_WIDTH = 0.02
+BREAKS_WIDTH = 0.10
 #: histogram bins of the residual
 HIST_BINS = 80
 #: rows of the tables of worst cells / windows
@@ -90,11 +102,13 @@ def render_report(
     """The report page as one HTML string (see module doc)."""
     c = comparison
     out_unit = rb.output.unit or ""
-    levels = time_levels(c.index, c.y, c.yhat, c.residual)
+    breaks = time_breaks(c.index)
+    levels = time_levels(c.index, c.y, c.yhat, c.residual, breaks=breaks)
     data = {
         "model": rb.name,
         "output": {"spec": rb.output.spec, "unit": out_unit, "span": list(rb.output.span)},
         "levels": levels,
+        "breaks": breaks,
         "hist": residual_histogram(c.residual),
         "map": error_map(rb, c.regions),
         "experiments": experiment_rows(experiments),
@@ -102,7 +116,7 @@ def render_report(
     }
     body = [
         _header(rb, c, explanation),
-        _time_section(levels, c),
+        _time_section(levels, c, breaks),
         _scatter_section(data["scatter"]),
         _hist_section(data["hist"]),
         _map_section(rb, c.regions, data["map"]),
@@ -116,6 +130,49 @@ def render_report(
 
 
 # ----------------------------------------------------------------- downsampling
+def time_breaks(index: pd.DatetimeIndex) -> list[dict]:
+    """The long gaps of ``index`` to collapse into breaks of the time axis.
+
+    A gap (between two consecutive samples) is long when it exceeds both
+    ``GAP_SHARE`` of the span and ``GAP_PERIODS`` median sampling periods; the
+    long gaps are collapsed only when together they cover at least
+    ``GAPS_DOMINATE`` of the span (short runs spread over weeks), so a
+    continuous record, or one with an outage, keeps its calendar axis. Then
+    gaps longer than ``GAP_SHARE`` of the shortened span are collapsed too,
+    until none is (two runs on one day among runs weeks apart). Each
+    break is drawn ``w`` s wide (``BREAK_WIDTH`` of the record without its gaps,
+    all together at most ``BREAKS_WIDTH``). Per break: ``from`` and ``to``, the
+    true times (s since the epoch, UTC) of the samples either side, and ``at``,
+    the drawn position of ``from`` on the chart's axis (true time of the first
+    sample plus the drawn time since it). Empty for no break.
+    """
+    n = len(index)
+    if n < 3:
+        return []
+    t = pd.DatetimeIndex(index).as_unit("ns").asi8.astype(np.int64) / 1e9
+    d = np.diff(t)
+    period = float(np.median(d))
+    period = period if period > 0 else 1.0
+    span = float(t[-1] - t[0]) + period
+    long = (d > GAP_SHARE * span) & (d > GAP_PERIODS * period)
+    gaps = float(d[long].sum())
+    if not long.any() or gaps < GAPS_DOMINATE * span:
+        return []
+    while True:  # the runs left may still be far apart on the shorter axis (runs in a day)
+        more = ~long & (d > GAP_SHARE * (span - gaps)) & (d > GAP_PERIODS * period)
+        if not more.any():
+            break
+        long |= more
+        gaps = float(d[long].sum())
+    i = np.flatnonzero(long)
+    w = max(period, (span - gaps) * min(BREAK_WIDTH, BREAKS_WIDTH / i.size))
+    before = np.r_[0.0, np.cumsum(d[i] - w)[:-1]]  # the time taken out before each break
+    return [
+        {"at": float(t[k] - cut), "w": float(w), "from": float(t[k]), "to": float(t[k + 1])}
+        for k, cut in zip(i, before, strict=True)
+    ]
+
+
 def time_levels(
     index: pd.DatetimeIndex,
     y: np.ndarray,
@@ -123,6 +180,7 @@ def time_levels(
     residual: np.ndarray,
     overview: int = OVERVIEW_BUCKETS,
     detail: int = DETAIL_BUCKETS,
+    breaks: list[dict] | None = None,
 ) -> list[dict]:
     """Min/max-per-bucket levels of measured, model and residual over time.
 
@@ -130,13 +188,20 @@ def time_levels(
     ``n`` buckets, and per series ``2 n`` float32 values (first and second
     extreme of each bucket, in time order; NaN for an empty bucket) plus the
     bucket mean of the residual (``n`` values). ``per_bucket`` is the median
-    number of samples in a non-empty bucket (1 means raw samples).
+    number of samples in a non-empty bucket (1 means raw samples). With
+    ``breaks`` (:func:`time_breaks`) the buckets cut the drawn axis, on which
+    each long gap is only the break's width.
     """
     n = len(index)
     if n == 0:
         return []
     ns = pd.DatetimeIndex(index).as_unit("ns").asi8.astype(np.int64)
     t = (ns - ns[0]) / 1e9
+    if breaks:
+        # every sample after a break moves back by the gap less the break's width
+        mid = np.array([(b["from"] + b["to"]) / 2 for b in breaks]) - ns[0] / 1e9
+        cut = np.cumsum([b["to"] - b["from"] - b["w"] for b in breaks])
+        t = t - np.r_[0.0, cut][np.searchsorted(mid, t, side="right")]
     period = float(np.median(np.diff(t))) if n > 1 else 1.0
     period = period if period > 0 else 1.0
     rng = float(t[-1]) + period  # the last sample's bucket is the last bucket
@@ -522,7 +587,7 @@ def _header(rb: RuleBase, c: Comparison, explanation) -> str:
 </section>"""
 
 
-def _time_section(levels: list[dict], c: Comparison) -> str:
+def _time_section(levels: list[dict], c: Comparison, breaks: list[dict] | None = None) -> str:
     if not levels:
         return '<section id="time"><h2>Measured vs model over time</h2><p>No samples.</p></section>'
     per = levels[0]["per_bucket"]
@@ -540,6 +605,14 @@ def _time_section(levels: list[dict], c: Comparison) -> str:
             "down to single samples."
             if d["per_bucket"] <= 1
             else f"(down to ~{d['per_bucket']:,.0f} samples per step)."
+        )
+    if breaks:
+        longest = max(b["to"] - b["from"] for b in breaks)
+        detail += (
+            f" The samples form {len(breaks) + 1} runs far apart in time: each of the"
+            f" {len(breaks)} gaps between them (the longest"
+            f" {_lasting(longest)}) is drawn as a narrow hatched break,"
+            " so the runs share the width; the axis labels and the readout give true times."
         )
     return f"""
 <section id="time">
@@ -727,6 +800,16 @@ def _duration(td: pd.Timedelta) -> str:
             k = int(s // size)
             return f"{k} {unit}" + ("s" if k != 1 else "")
     return str(td)
+
+
+def _lasting(seconds: float) -> str:
+    """A gap's length: a day or more in days and whole hours (``5 days 7 h``), less in hours
+    and whole minutes (``3 h 20 min``)."""
+    if seconds >= 86400:
+        d, h = divmod(math.floor(seconds / 3600 + 0.5), 24)
+        return f"{d} day{'s' if d != 1 else ''} {h} h"
+    h, m = divmod(math.floor(seconds / 60 + 0.5), 60)
+    return f"{h} h {m} min" if h else f"{m} min"
 
 
 def _tags_section(tags: pd.DataFrame) -> str:

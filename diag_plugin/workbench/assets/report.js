@@ -85,6 +85,137 @@
     const finest = L[L.length - 1];
     const minSpan = Math.max(finest.w * 8, 1);
 
+    // ---- short runs far apart: the chart's x axis is the drawn time, on which each long
+    // gap is a break b.w s wide at b.at (report.py: time_breaks); labels, readout and the
+    // address give true times. Without breaks the drawn time is the true time.
+    const B = D.breaks || [];
+    function toTrue(x) {
+      let cut = 0;
+      for (const b of B) {
+        if (x <= b.at) break;
+        if (x < b.at + b.w) return b.from + ((x - b.at) / b.w) * (b.to - b.from);
+        cut += b.to - b.from - b.w;
+      }
+      return x + cut;
+    }
+    function toAxis(t) {
+      let cut = 0;
+      for (const b of B) {
+        if (t <= b.from) break;
+        if (t < b.to) return b.at + ((t - b.from) / (b.to - b.from)) * b.w;
+        cut += b.to - b.from - b.w;
+      }
+      return t - cut;
+    }
+    const runs = [];
+    for (let i = 0, a = full[0]; i <= B.length; i++) {
+      const b = B[i];
+      runs.push([a, b ? b.at : full[1]]);
+      if (b) a = b.at + b.w;
+    }
+    const iso = (t) => new Date(t * 1e3).toISOString();
+    const stamp = (t) => iso(t).slice(0, 19).replace("T", " ");
+    function lasting(s) {
+      // a day or more in whole hours, less in whole minutes (as report.py's _lasting)
+      if (s >= 86400) {
+        const hours = Math.round(s / 3600);
+        return Math.floor(hours / 24) + " d " + (hours % 24) + " h";
+      }
+      const mins = Math.round(s / 60), h = Math.floor(mins / 60), m = mins % 60;
+      return h ? h + " h " + m + " min" : m + " min";
+    }
+    function readout(u, x) {
+      if (x == null) return "—";
+      for (const b of B) {
+        if (x > b.at && x < b.at + b.w) {
+          return "gap of " + lasting(b.to - b.from) + ": " + stamp(b.from) + " to " + stamp(b.to);
+        }
+      }
+      return stamp(toTrue(x));
+    }
+    // per run round true times, at most one label per ~90 px, none within 70 px of the run's
+    // end (the next run's first label is there); a run too narrow for one gets its start
+    const STEPS = [1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 10800, 21600,
+      43200, 86400, 172800, 604800];
+    const tickLabels = new WeakMap();
+    function brokenTicks(u, axis, min, max) {
+      // before the first layout the plot's box is empty: the chart's width less the y axis
+      const px = u.bbox.width ? plotWidth(u) : Math.max(100, u.width - 80);
+      const perPx = (max - min) / px;
+      const out = [], labels = [];
+      for (const [r0, r1] of runs) {
+        const lo = Math.max(r0, min), hi = Math.min(r1, max);
+        if (!(hi >= lo)) continue;
+        const t0 = toTrue(lo), t1 = toTrue(hi);
+        const want = Math.max(1, Math.floor((hi - lo) / perPx / 90));
+        const step = STEPS.find((v) => v >= (t1 - t0) / want) || 604800;
+        let prevDate = null;
+        const add = (x, t) => {
+          const s = iso(t), date = s.slice(0, 10);
+          const time = step >= 86400 ? "" : s.slice(11, step < 60 ? 19 : 16);
+          out.push(x);
+          labels.push(!time ? date : date !== prevDate ? time + "\n" + date : time);
+          prevDate = date;
+        };
+        for (let t = Math.ceil(t0 / step) * step; t <= t1; t += step) {
+          const x = toAxis(t);
+          if (out.length && prevDate !== null && x > hi - 70 * perPx) break;
+          add(x, t);
+        }
+        if (prevDate === null) add(lo, t0);
+      }
+      tickLabels.set(u, labels);
+      return out;
+    }
+    const xAxis = () => (B.length ? {
+      splits: brokenTicks,
+      values: (u, splits) => tickLabels.get(u) || splits.map((v) => stamp(toTrue(v))),
+      size: 54,
+    } : {});
+    // a break: a shaded strip with the slashes of a broken axis and the gap's length; on the
+    // time chart its element records the breaks, runs (px) and labels drawn, for a reader
+    const breakMarks = (el) => (u) => {
+      const ctx = u.ctx, r = uPlot.pxRatio, top = u.bbox.top, h = u.bbox.height;
+      const left = u.bbox.left, right = left + u.bbox.width;
+      let shown = 0;
+      ctx.save();
+      for (const b of B) {
+        const x0 = Math.round(u.valToPos(b.at, "x", true));
+        const x1 = Math.round(u.valToPos(b.at + b.w, "x", true));
+        if (x1 < left || x0 > right) continue;
+        shown++;
+        ctx.fillStyle = "#e4e0ec";
+        ctx.fillRect(x0, top, Math.max(2 * r, x1 - x0), h);
+        ctx.strokeStyle = "#5b5570";
+        ctx.lineWidth = 1.5 * r;
+        ctx.beginPath();
+        for (const x of [x0, x1]) {
+          for (const y of [top, top + h]) {
+            ctx.moveTo(x - 4 * r, y + 6 * r);
+            ctx.lineTo(x + 4 * r, y - 6 * r);
+          }
+        }
+        ctx.stroke();
+        if (x1 - x0 >= 12 * r) {
+          ctx.save();
+          ctx.fillStyle = "#3d3850";
+          ctx.font = Math.round(10 * r) + "px system-ui, sans-serif";
+          ctx.textAlign = "center";
+          ctx.translate((x0 + x1) / 2 + 3.5 * r, top + h / 2);
+          ctx.rotate(-Math.PI / 2);
+          ctx.fillText("gap " + lasting(b.to - b.from), 0, 0);
+          ctx.restore();
+        }
+      }
+      ctx.restore();
+      if (el) {
+        const pos = (v) => Math.round(u.valToPos(v, "x"));
+        el.dataset.breaks = String(shown);
+        el.dataset.runs = runs.map(([a, b]) => pos(a) + ":" + pos(b)).join(" ");
+        el.dataset.ticks = (tickLabels.get(u) || []).map((s) => s.replace("\n", " ")).join("|");
+      }
+    };
+
     function pick(span) {
       for (const l of L) if (span / l.w >= 900) return l;
       return finest;
@@ -160,20 +291,24 @@
         },
       ],
     };
-    const common = (el, height, draw) => ({
-      width: widthOf(el),
-      height,
-      tzDate: UTC,
-      cursor: cursor(),
-      scales: { x: { time: true } },
-      hooks: Object.assign({}, zoomHook, draw ? { draw: [draw] } : {}),
-    });
+    const common = (el, height, draw, mark) => {
+      const draws = [draw, B.length ? breakMarks(mark) : null].filter(Boolean);
+      return {
+        width: widthOf(el),
+        height,
+        tzDate: UTC,
+        cursor: cursor(),
+        scales: { x: { time: !B.length } },
+        hooks: Object.assign({}, zoomHook, draws.length ? { draw: draws } : {}),
+      };
+    };
+    const timeSeries = () => (B.length ? { label: "time (UTC)", value: readout } : { label: "time (UTC)" });
     const s0 = slice(L[0], full[0], full[1], widthOf(elY) - 80);
     const band = (label, colour, value) => ({ label, stroke: colour, width: 1, value });
     const cy = new uPlot(
-      Object.assign(common(elY, 330), {
+      Object.assign(common(elY, 330, null, elY), {
         series: [
-          { label: "time (UTC)" },
+          timeSeries(),
           band("measured " + D.output.spec + unit + ", highest", "#1f5fa8", (u, v) => fmt(v)),
           band("measured, lowest", "#1f5fa8", (u, v) => fmt(v)),
           band("model, highest", "#e07b00", (u, v) => fmt(v)),
@@ -183,7 +318,7 @@
           { series: [1, 2], fill: "rgba(31,95,168,0.28)" },
           { series: [3, 4], fill: "rgba(224,123,0,0.20)" },
         ],
-        axes: [{}, { label: D.output.spec + unit, size: 60 }],
+        axes: [xAxis(), { label: D.output.spec + unit, size: 60 }],
       }),
       [s0.x, s0.yhi, s0.ylo, s0.hhi, s0.hlo],
       elY,
@@ -191,13 +326,13 @@
     const cr = new uPlot(
       Object.assign(common(elR, 230, zeroLine), {
         series: [
-          { label: "time (UTC)" },
+          timeSeries(),
           band("residual, highest [% of span]", "rgba(198,40,40,0.75)", (u, v) => fmt(v)),
           band("residual, lowest", "rgba(198,40,40,0.75)", (u, v) => fmt(v)),
           { label: "average", stroke: "#4a148c", width: 1.5, value: (u, v) => fmt(v) },
         ],
         bands: [{ series: [1, 2], fill: "rgba(198,40,40,0.22)" }],
-        axes: [{}, { label: "% of span", size: 60 }],
+        axes: [xAxis(), { label: "% of span", size: 60 }],
       }),
       [s0.x, s0.rhi, s0.rlo, s0.rm],
       elR,
@@ -228,10 +363,10 @@
       view = [a, b];
       const li = L.indexOf(l);
       try {
-        const iso = (v) => new Date(v * 1e3).toISOString().replace(".000Z", "Z");
+        const at = (v) => iso(toTrue(v)).replace(".000Z", "Z");
         const whole = a <= full[0] && b >= full[1];
         history.replaceState(null, "", whole ? location.pathname + location.search :
-          "#zoom=" + iso(a) + "/" + iso(b));
+          "#zoom=" + at(a) + "/" + at(b));
       } catch (err) {
         // a page opened from some viewers cannot change its address: zoom still works
       }
@@ -253,14 +388,15 @@
     // a new width re-cuts the pixel columns
     charts.resized = () => zoomTo(view[0], view[1]);
     const m = /zoom=([^/&]+)\/([^&]+)/.exec(decodeURIComponent(location.hash));
-    const a0 = m ? Date.parse(m[1]) / 1e3 : NaN, b0 = m ? Date.parse(m[2]) / 1e3 : NaN;
+    const a0 = m ? toAxis(Date.parse(m[1]) / 1e3) : NaN, b0 = m ? toAxis(Date.parse(m[2]) / 1e3) : NaN;
     if (b0 > a0) zoomTo(a0, b0);
     else zoomTo(full[0], full[1]);
     const reset = document.getElementById("zoom-reset");
     if (reset) reset.addEventListener("click", () => zoomTo(full[0], full[1]));
     for (const tr of document.querySelectorAll("tr.zoom")) {
       tr.addEventListener("click", () => {
-        const a = Date.parse(tr.dataset.start) / 1e3, b = Date.parse(tr.dataset.end) / 1e3;
+        const a = toAxis(Date.parse(tr.dataset.start) / 1e3);
+        const b = toAxis(Date.parse(tr.dataset.end) / 1e3);
         const pad = (b - a) * 0.25;
         zoomTo(a - pad, b + pad);
         elY.scrollIntoView({ behavior: "smooth", block: "start" });
