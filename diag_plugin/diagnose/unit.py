@@ -408,7 +408,7 @@ class Unit:
         )
         self.level_points = level_points(self)
         #: per test the history its model reads (unknown for that many samples at start): its
-        #: longest lag, and a rate's samples (``rate(TAG,L)``, a slow tag's rate test: L more)
+        #: longest lag, and a rate's samples (``rate(TAG,L)`` reads L more)
         specs = [parse_specs([*models[t].inputs, models[t].output]) for t in self.tests]
         self.test_depth = np.array([max_lag(sp) for sp in specs], np.int64)
         spread = np.zeros(len(self.tests), bool)

@@ -146,9 +146,6 @@ class TestChoice:
     declared: bool = False  # the loop was declared (--loop, a tags CSV), not found
     why: str = ""  # why this method (a short window's choice between a grid and a line)
     sets: int | None = None  # sets per input of a short window's grid
-    #: the model's output where it is not the tag itself: a short window's rate test of a slow
-    #: tag (:func:`short.rate_test`), ``rate(TAG)[k]``
-    output: str | None = None
 
     @property
     def inputs(self) -> list[str]:
@@ -169,7 +166,6 @@ class TestChoice:
             "statistic": self.statistic,
             "declared": self.declared,
             "why": self.why,
-            "output": self.output,
         }
 
 
@@ -840,8 +836,7 @@ def _build_unit(
                 for v, s in zip(ins, specs, strict=True)
             ]  # fmt: skip
         mpath = folder / f"{name}_{ch.test}.toml"
-        out = ctx.vars[ch.tag] if not ch.output else ctx.spec_variable(InputSpec.parse(ch.output))
-        rb = _rulebase(f"{name}_{ch.test}", out, ins, period, mpath, ch.method)
+        rb = _rulebase(f"{name}_{ch.test}", ctx.vars[ch.tag], ins, period, mpath, ch.method)
         rb.doc["model"]["description"] = (
             f"built by diag unit build {name} from {start.isoformat()} … {end.isoformat()}"
         )
@@ -870,9 +865,7 @@ def _build_unit(
     for ch in choices:
         if not ch.steps and plan.short and not ch.tracks:
             why = short.level_test(ch, ctx.column(ch.tag), MIN_GAIN)
-            if why and short.RATE_TESTS and short.rate_test(ch, ctx.column(ch.tag), why):
-                ch.test = test_name(f"{ch.tag}_rate", taken)
-            elif why:
+            if why:
                 skipped[ch.tag] = why
                 continue
         elif not ch.steps:
@@ -1039,8 +1032,6 @@ def _build_table(kept, skipped, start, end, period, far, max_inputs) -> tomlkit.
             row["statistic"] = ch.statistic
         if ch.declared:
             row["declared"] = True
-        if ch.output:
-            row["output"] = ch.output
         tests[ch.test] = row
     t["tests"] = tests
     t["skipped"] = sk

@@ -14,8 +14,6 @@
   inputs, the tag against its window mean), so every tag that varies is watched. The
   residual filter's cut-off is raised (:func:`short_lowpass`) so that the window's filtered
   residuals hold about :data:`SHORT_INDEPENDENT` independent values for the thresholds.
-  A tag too slow for a level test can get a **rate test** (:func:`rate_test`, off:
-  :data:`RATE_TESTS`): its change over :func:`rate_span` samples against its window mean.
 * **A long window on a fast grid** (more than :data:`SELECT_ROWS` grid points, e.g. a day at
   1 s): the inputs and dead times are chosen on a grid :func:`coarse_factor` times coarser
   (means over consecutive samples), the dead times scaled back; the models are then trained,
@@ -392,59 +390,3 @@ def joint_groups(
             )
         out.append((g, n, why))
     return out
-
-
-#: whether a short window gives a slow tag no level test can vouch for a rate test
-#: (:func:`rate_test`). Off: tried on SKAB's tuning runs (issue 34, round 11,
-#: docs/how-to/unit-short-windows.md) the tests stayed under their own thresholds through the
-#: faults and moved F1 only through the combined T² they join; a slow tag under a rate test
-#: no longer shows a sensor bias (the heat exchanger at 3 min, ``tests/test_unit_short.py``),
-#: and a unit with one leaves the live loop's batched path (its output is no plain tag)
-RATE_TESTS = False
-
-
-def rate_span(rows: int) -> int:
-    """The samples a slow tag's rate test spans in a window of ``rows``: the window's share
-    per independent value a level test needs, ``rows / SHORT_LEVEL_INDEPENDENT`` (10 of 400
-    samples). A tag is slow where its own decorrelation time is longer than that, so its change
-    over this span is judged on the window's own pace (chosen on SKAB's tuning runs: the
-    change per sample, low-passed only, lost the rotor imbalance at 0.001–0.01)."""
-    return max(1, rows // SHORT_LEVEL_INDEPENDENT)
-
-
-def rate_test(ch, y: np.ndarray, why: str) -> bool:
-    """A short window's test of a slow tag's rate of change (issue 34, round 11): a tag that
-    wanders slower than the window shows has no level test (:func:`level_test`, ``why``),
-    but its change per sample ``y[k] − y[k−1]`` holds many more independent values than its
-    level. The test is its change over :func:`rate_span` samples, ``rate(TAG,L)[k] = (y[k] −
-    y[k−L]) / L``, against its mean over the window (a linear test without inputs on that
-    output), its residual low-passed as every test's: a change in how fast the tag moves is
-    judged where its level cannot be. Only where the window holds
-    :data:`SHORT_LEVEL_INDEPENDENT` independent values of the change per sample (a tag that
-    holds still holds none); ``ch.method``, ``ch.output`` and ``ch.why`` set. Returns whether
-    it is tested.
-
-    On SKAB's tuning runs these tests stayed under their own thresholds through every fault
-    (median at most 0.3 of it: the thresholds, extrapolated from the filtered rate's few dozen
-    independent values, are wide; their maxima, 0.5–1.5, were the fault-free chunks' as much
-    as the faults'); what they changed is the combined T² they join
-    (docs/how-to/unit-short-windows.md, round 11)."""
-    from diag_plugin.models.series import effective_samples
-    from diag_plugin.regressors import InputSpec
-
-    y = np.asarray(y, float)
-    d = np.diff(y)
-    d = d[np.isfinite(d)]
-    if d.size < 3 or not np.any(d):
-        return False
-    n = effective_samples(d)
-    if n < SHORT_LEVEL_INDEPENDENT:
-        return False
-    span = rate_span(y.size)
-    ch.method = LINEAR
-    ch.output = str(InputSpec("rate", (ch.tag,), 0, float(span) if span > 1 else None))
-    ch.why = (
-        f"rate test: {why}; its change per sample holds about {n:.0f} independent values: "
-        f"its change over {span} samples against its mean over the window"
-    )
-    return True
