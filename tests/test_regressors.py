@@ -162,7 +162,7 @@ def test_columns_hold_the_frames_floats(kind):
 
 
 def test_rate_over_l_samples_is_the_change_over_l_per_sample_across_pieces():
-    """``rate(TAG,L)[k]`` is ``(TAG[k] − TAG[k-L]) / L`` (a slow tag's rate test, issue 34):
+    """``rate(TAG,L)[k]`` is ``(TAG[k] − TAG[k-L]) / L`` (a slow tag's rate, issue 34):
     it parses and prints back, needs ``L`` samples of history, and gives the same values fed
     in pieces shorter than ``L`` (its last ``L`` samples carried, also through its state) as
     in one pass; ``L`` must be a whole number of samples."""
