@@ -17,7 +17,9 @@ the off-delay's samples after each tuning fault (the fault's alarm, held) out of
 calibration — not the bench's protocol, which counts them: a look at what the low targets
 compare.
 
-``--save FILE`` keeps every run's raw statistics (the unit's per test and T², over their
+``--dpca-t2 W`` scores the unit with ``W`` times DPCA's ``T²`` over its limit beside its own
+statistics (a DPCA-like test among the unit's, emulated on the saved statistics; issue 34
+round 12). ``--save FILE`` keeps every run's raw statistics (the unit's per test and T², over their
 limits, before the delays) in a ``.npz`` for a look at what holds an alarm or misses a
 fault; ``--load FILE`` (repeatable) reuses them. ``--scoring`` reports the 21 scoring runs
 instead, with the same calibration — once, after a choice was made on the tuning runs
@@ -87,6 +89,14 @@ def main(argv: list[str] | None = None) -> int:
         help="leave the off-delay's samples after each tuning fault out of the calibration "
         "(a question of the yardstick, for the bench's owner: not the bench's protocol)",
     )
+    ap.add_argument(
+        "--dpca-t2",
+        type=float,
+        default=None,
+        metavar="W",
+        help="add W times DPCA's T² (over its limit) to the unit's statistics: an emulation "
+        "of a DPCA-like test among the unit's own (issue 34 round 12), not a build",
+    )
     add_scratch_args(ap, "nothing")
     args = ap.parse_args(argv)
     targets = [float(t) for t in args.targets.split(",")]
@@ -129,7 +139,10 @@ def main(argv: list[str] | None = None) -> int:
                 raw["delays"] = np.array([on, off])
             on, off = (int(v) for v in raw["delays"])
             for m in scores:
-                scores[m][run.name] = method_score(raw[f"{run.name}|{m}"], on, off)[run.learn :]
+                x = raw[f"{run.name}|{m}"]
+                if m == "unit" and args.dpca_t2 is not None:
+                    x = np.c_[x, args.dpca_t2 * raw[f"{run.name}|DPCA"][:, :1]]
+                scores[m][run.name] = method_score(x, on, off)[run.learn :]
     cpu = cpu_now() - cpu
     if args.save:
         np.savez_compressed(args.save, **raw)
