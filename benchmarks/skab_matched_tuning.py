@@ -17,6 +17,11 @@ the off-delay's samples after each tuning fault (the fault's alarm, held) out of
 calibration — not the bench's protocol, which counts them: a look at what the low targets
 compare.
 
+``--dpca-t2 W`` scores the unit with ``W`` times DPCA's ``T²`` over its limit beside its own
+statistics (a DPCA-like test among the unit's, emulated on the saved statistics; issue 34
+round 12); ``--dpca-t2 budget`` takes each run's ``W`` from the unit's own budget
+(:func:`dpca_weight`).
+
 ``--save FILE`` keeps every run's raw statistics (the unit's per test and T², over their
 limits, before the delays) in a ``.npz`` for a look at what holds an alarm or misses a
 fault; ``--load FILE`` (repeatable) reuses them. ``--scoring`` reports the 21 scoring runs
@@ -32,6 +37,32 @@ import argparse
 import resource
 
 import numpy as np
+
+#: the combined test's share of a SKAB unit's budget, alarms an hour (its ``[combined]`` notes)
+COMBINED_FAR = 0.0005
+
+
+def dpca_weight(run, cols: list[str], on: int, off: int, blocks: int = 5) -> float:
+    """The weight a DPCA ``T²`` test would get among a unit's tests from the unit's own budget:
+    DPCA's F limit over the threshold that :func:`~diag_plugin.learn.budget.calibrate_side`
+    sets on the held-out ``T²`` of the run's first rows (DPCA fitted without each of
+    ``blocks`` time blocks, as ``learn_combined`` takes the combined test's), at the combined
+    test's share, Rice's Gaussian rate on ``√T²`` where the window is too short for a tail."""
+    from diag_plugin.bench.publicbench import DPCA_LAGS, pca_fit
+    from diag_plugin.learn.budget import calibrate_side
+
+    head = run.frame.iloc[: run.learn].reset_index(drop=True)
+    block = np.arange(len(head)) * blocks // len(head)
+    t2 = np.full(len(head), np.nan)
+    for b in range(blocks):
+        det = pca_fit([head[block != b]], cols, DPCA_LAGS, 0.85)
+        t2[block == b] = det.score(head)["T2"].to_numpy()[block == b]
+    hours = float(np.isfinite(t2).sum()) / 3600.0
+    side = calibrate_side(t2, hours, COMBINED_FAR, on, off)
+    thr = side.threshold
+    if side.method == "gaussian":
+        thr = calibrate_side(np.sqrt(t2), hours, COMBINED_FAR, on, off).threshold ** 2
+    return float(pca_fit([head], cols, DPCA_LAGS, 0.85).t2_limit_ / thr)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -87,6 +118,14 @@ def main(argv: list[str] | None = None) -> int:
         help="leave the off-delay's samples after each tuning fault out of the calibration "
         "(a question of the yardstick, for the bench's owner: not the bench's protocol)",
     )
+    ap.add_argument(
+        "--dpca-t2",
+        default=None,
+        metavar="W",
+        help="add W times DPCA's T² (over its limit) to the unit's statistics: an emulation "
+        "of a DPCA-like test among the unit's own (issue 34 round 12), not a build; "
+        "'budget': each run's W from the unit's budget (dpca_weight)",
+    )
     add_scratch_args(ap, "nothing")
     args = ap.parse_args(argv)
     targets = [float(t) for t in args.targets.split(",")]
@@ -129,7 +168,12 @@ def main(argv: list[str] | None = None) -> int:
                 raw["delays"] = np.array([on, off])
             on, off = (int(v) for v in raw["delays"])
             for m in scores:
-                scores[m][run.name] = method_score(raw[f"{run.name}|{m}"], on, off)[run.learn :]
+                x = raw[f"{run.name}|{m}"]
+                if m == "unit" and args.dpca_t2 is not None:
+                    w = args.dpca_t2
+                    w = dpca_weight(run, cols, on, off) if w == "budget" else float(w)
+                    x = np.c_[x, w * raw[f"{run.name}|DPCA"][:, :1]]
+                scores[m][run.name] = method_score(x, on, off)[run.learn :]
     cpu = cpu_now() - cpu
     if args.save:
         np.savez_compressed(args.save, **raw)
