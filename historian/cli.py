@@ -76,6 +76,19 @@ def add_commands(subparsers) -> None:
         "default), or keep each tag's first or last sample there, or the mean of its usable "
         "ones",
     )
+    p.add_argument(
+        "--hot",
+        action="store_true",
+        help="store every sample in the database's samples table (default: the samples of "
+        "closed months go to their Parquet month files in the cold folder, as 'diag "
+        "historian roll' keeps them; the current month always to the table)",
+    )
+    p.add_argument(
+        "--cold-dir",
+        metavar="DIR",
+        help="folder of the Parquet month files (SQLite default: <db file>.cold; PostgreSQL: "
+        "the one recorded by an earlier roll or import, else none: every sample to the table)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_import)
 
@@ -174,7 +187,8 @@ def cmd_import(args) -> int:
         if side.exists():
             args.tags_csv = str(side)
             print(f"tag metadata from {side}", file=sys.stderr)
-    with _open(args) as h, Progress(*columns, console=err, disable=not show, transient=True) as bar:
+    opened = _open(args, cold_dir=args.cold_dir) if args.cold_dir else _open(args)
+    with opened as h, Progress(*columns, console=err, disable=not show, transient=True) as bar:
         task = bar.add_task("import", total=None)
 
         def progress(done, total):
@@ -197,6 +211,7 @@ def cmd_import(args) -> int:
                 rename=_renames(args.rename),
                 duplicates=args.duplicates,
                 progress=progress,
+                hot=args.hot,
             )
         except ImportRefused as exc:
             for msg in exc.messages[:20]:
@@ -230,6 +245,14 @@ def cmd_import(args) -> int:
     conflicts = report.conflict_message()
     if conflicts:
         print(f"{path}: {conflicts}", file=sys.stderr)
+    if report.cold_months:
+        months = report.cold_months
+        which = months[0] if len(months) == 1 else f"{months[0]} .. {months[-1]}"
+        print(
+            f"{path}: closed months {which} stored as Parquet month files in "
+            f"{report.cold_dir} (--hot: keep them in the database's table)",
+            file=sys.stderr,
+        )
     span = f"{report.first} .. {report.last}" if report.first is not None else "no data"
     counts = f"{report.new} new samples, {report.already} already stored"
     if report.repeats:
@@ -274,6 +297,8 @@ def _report_json(r) -> dict:
         "bad_cells": r.bad_cells,
         "bad_cell_messages": r.cells,
         "notes": r.notes,
+        "cold_months": r.cold_months,
+        "cold_dir": r.cold_dir,
     }
 
 
