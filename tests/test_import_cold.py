@@ -114,7 +114,7 @@ def pg_url2(pg_available):
 def test_closed_months_cold_current_month_hot_reads_identical(pair, tmp_path):
     cold, hot = pair
     start = MONTH0 - pd.Timedelta(days=40)
-    periods = int((pd.Timedelta(days=41) / pd.Timedelta("10min")))  # into the current month
+    periods = int(pd.Timedelta(days=41) / pd.Timedelta("10min"))  # into the current month
     export(tmp_path / "f.csv", start, periods)
     rc = import_file(cold, tmp_path / "f.csv")
     rh = import_file(hot, tmp_path / "f.csv", hot=True)
@@ -124,7 +124,7 @@ def test_closed_months_cold_current_month_hot_reads_identical(pair, tmp_path):
     closed = [str(p) for p in pd.period_range(first, last, freq="M")]
     assert rc.cold_months == closed
     assert cold.cold_months() == closed
-    current = int((pd.Timedelta(days=1) / pd.Timedelta("10min")))
+    current = int(pd.Timedelta(days=1) / pd.Timedelta("10min"))
     assert hot_rows(cold) == 3 * current  # only the current month's samples in the table
     assert hot_rows(hot) == rh.written
     assert_same(state(cold), state(hot))
