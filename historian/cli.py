@@ -245,14 +245,6 @@ def cmd_import(args) -> int:
     conflicts = report.conflict_message()
     if conflicts:
         print(f"{path}: {conflicts}", file=sys.stderr)
-    if report.cold_months:
-        months = report.cold_months
-        which = months[0] if len(months) == 1 else f"{months[0]} .. {months[-1]}"
-        print(
-            f"{path}: closed months {which} stored as Parquet month files in "
-            f"{report.cold_dir} (--hot: keep them in the database's table)",
-            file=sys.stderr,
-        )
     span = f"{report.first} .. {report.last}" if report.first is not None else "no data"
     counts = f"{report.new} new samples, {report.already} already stored"
     if report.repeats:
@@ -264,6 +256,9 @@ def cmd_import(args) -> int:
         + (f"; {report.n_bad} bad rows skipped" if report.n_bad else "")
         + (f"; {report.n_bad_cells} bad cells stored as Bad" if report.n_bad_cells else "")
     )
+    where = report.stored_where()
+    if where:
+        print(f"{path}: {where}")
     return 0
 
 
@@ -299,6 +294,7 @@ def _report_json(r) -> dict:
         "notes": r.notes,
         "cold_months": r.cold_months,
         "cold_dir": r.cold_dir,
+        "stored": r.stored_where(),
     }
 
 

@@ -177,6 +177,23 @@ class ImportReport:
     duplicates: str = "error"  # what was kept at a repeated time
     cold_months: list[str] = field(default_factory=list)  # closed months written to Parquet
     cold_dir: str | None = None  # where they went (None: every sample went to the table)
+    no_cold_folder: bool = False  # closed months went to the table: no cold folder known
+
+    def stored_where(self) -> str | None:
+        """The sentence saying where closed months went (None: nothing to say)."""
+        if self.cold_months:
+            m = self.cold_months
+            which = m[0] if len(m) == 1 else f"{m[0]} .. {m[-1]}"
+            return (
+                f"closed months {which} stored as Parquet month files in {self.cold_dir} "
+                "(--hot: keep them in the database's table)"
+            )
+        if self.no_cold_folder:
+            return (
+                "closed months stored in the samples table: this historian has no cold "
+                "folder (--cold-dir DIR stores them as Parquet month files)"
+            )
+        return None
 
     def _bad(self, msg: str) -> None:
         self.n_bad += 1
@@ -1033,11 +1050,6 @@ def import_file(
     writing = None
     cold_before = None if hot else _cold_before(h)
     report.cold_dir = None if cold_before is None else str(h.cold_dir)
-    if cold_before is None and not hot and h.backend == "postgresql":
-        report.notes.append(
-            "closed months stored in the samples table: this PostgreSQL historian has no cold "
-            "folder (give one with --cold-dir to store them as Parquet month files)"
-        )
     cold: dict[str, list[tuple]] = {}  # closed month -> its pieces, until the file is written
     cold_held = [0]  # samples in them
 
@@ -1129,6 +1141,11 @@ def import_file(
         if writing is not None:
             writing.result()
     report.repeats, report.repeat_example = repeats.count, repeats.example
+    closed = report.first is not None and report.first < pd.Timestamp.now(
+        tz="UTC"
+    ).normalize().replace(day=1)
+    if closed and cold_before is None and not hot:
+        report.no_cold_folder = True
     report.duplicates = duplicates
     if repeats.refused:
         raise FileRefused(repeats.refusal(written=report.samples > 0))

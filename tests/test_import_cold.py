@@ -198,7 +198,7 @@ def test_hot_flag_and_postgres_without_cold_folder(tmp_path, request):
     with Historian(request.getfixturevalue("pg_url")) as h:
         r = import_file(h, tmp_path / "f.csv")
         assert r.cold_months == [] and hot_rows(h) == 2965
-        assert any("no cold folder" in n for n in r.notes)
+        assert r.no_cold_folder and "no cold folder" in r.stored_where()
 
 
 def _months_whole(h: Historian, full: dict[str, pd.DataFrame]) -> list[str]:
