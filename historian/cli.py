@@ -512,8 +512,9 @@ def cmd_check(args) -> int:
             print(f"{args.db}: {p}")
         for p in orphans:
             print(
-                f"{p}: listed by no rolled month (left by an interrupted roll; its rows are "
-                "still in the database, so it can be deleted)"
+                f"{p}: listed by no rolled month (left by an interrupted roll or import; "
+                "nothing reads it — the month's recorded file and rows are the data — so it "
+                "can be deleted)"
             )
         months = store["cold_months"]
         print(

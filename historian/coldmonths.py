@@ -1,5 +1,5 @@
 """Months rolled to the Parquet cold store, on the database side: rolling a closed month
-into its file (:mod:`historian.coldstore` writes and reads the files), the list of rolled
+into its file (or merging an import's samples of it straight into it) (:mod:`historian.coldstore` writes and reads the files), the list of rolled
 months and where their folder is, the key check that keeps writes into them idempotent, and
 the check of the files. Mixed into :class:`historian.store.Historian`."""
 
@@ -391,9 +391,10 @@ class ColdMonths:
         return problems
 
     def cold_orphans(self) -> list[Path]:
-        """Files in the cold folder that no rolled month lists: left by a roll interrupted
-        between writing its file and recording it (the month's rows are still in the
-        database, so they can be deleted)."""
+        """Files in the cold folder that no rolled month lists: left by a roll or an import
+        interrupted between writing a month's file and recording it, or between recording
+        it and removing the file it replaced (nothing reads them: the month's recorded file
+        and its database rows are its data, so they can be deleted)."""
         if self.cold_dir is None or not self.cold_dir.is_dir():
             return []
         listed = {seg["path"] for seg in self._segments(None, None)}

@@ -51,6 +51,13 @@ stored with a *different* value or quality is a *conflict*: counted in
 the stored value is kept (``policy="ignore"``) or overwritten (``policy="update"``, the CLI's
 ``--replace``). A time that repeats within the file is compared the same way with the row
 stored first. See :func:`stored_conflicts`.
+
+Samples of closed months (before the current UTC month) go straight into the cold store's
+Parquet month files (:meth:`Historian.import_month`: merged with the month's earlier file and
+its rows in the table, under the same policy and counts), so a training over imported history
+reads columnar data (issue 37); the current month goes to the samples table. ``hot=True``
+(``--hot``) keeps everything in the table; a historian without a cold folder (PostgreSQL
+unless one is recorded or given) does too, and the report says so.
 """
 
 from __future__ import annotations
