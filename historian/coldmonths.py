@@ -1,7 +1,8 @@
 """Months rolled to the Parquet cold store, on the database side: rolling a closed month
-into its file (or merging an import's samples of it straight into it) (:mod:`historian.coldstore` writes and reads the files), the list of rolled
-months and where their folder is, the key check that keeps writes into them idempotent, and
-the check of the files. Mixed into :class:`historian.store.Historian`."""
+into its file, or merging an import's samples of a closed month straight into it
+(:mod:`historian.coldstore` writes and reads the files), the list of rolled months and where
+their folder is, the key check that keeps writes into them idempotent, and the check of the
+files. Mixed into :class:`historian.store.Historian`."""
 
 from __future__ import annotations
 
