@@ -29,6 +29,11 @@ text; each a process of its own, 6 rounds in turns, load 4.2-12.4, medians): the
 the chunked parse alone 1.49 -> 1.00 s; this script once each at load 3-6, fastest of 2:
 1.74x before (10.50 s against 6.04), 1.69x after (10.38 s against 6.16).
 
+i37-cold (closed months straight to Parquet month files; this file's months are all closed;
+5 rounds in turns in one process, medians, load 18.8-29.3): the reference 7.97 s CPU, the
+import into the table (``hot=True``, the path before) 13.80 s, 1.59x CPU; the default import
+4.44 s, 0.58x CPU (0.56x wall).
+
 Since issue 37's cold import, the closed months of an import go straight to their Parquet
 month files: the rounds run the reference, ``import_file(hot=True)`` (every sample to the
 samples table, the path before) and the default import in turns; medians.

@@ -91,26 +91,6 @@ def pair(db_url, tmp_path, request):
         hot.close()
 
 
-@pytest.fixture
-def pg_url2(pg_available):
-    """A second fresh PostgreSQL database (conftest's ``pg_url`` gives one per test)."""
-    import uuid
-
-    import psycopg
-
-    if not pg_available:
-        pytest.skip("PostgreSQL not reachable")
-    name = f"diag_test_{uuid.uuid4().hex[:12]}"
-    dsn = "host=127.0.0.1 port=5432 user=postgres dbname=postgres"
-    with psycopg.connect(dsn, autocommit=True) as c:
-        c.execute(f'CREATE DATABASE "{name}"')
-    try:
-        yield f"postgresql://postgres@127.0.0.1:5432/{name}"
-    finally:
-        with psycopg.connect(dsn, autocommit=True) as c:
-            c.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-
-
 def test_closed_months_cold_current_month_hot_reads_identical(pair, tmp_path):
     cold, hot = pair
     start = MONTH0 - pd.Timedelta(days=40)
