@@ -243,3 +243,23 @@ def test_killed_import_leaves_whole_months_and_rerun_ends_identical(db_url, tmp_
         assert h.integrity_check() == []
         for orphan in h.cold_orphans():  # a file written but not recorded at the kill
             orphan.unlink()
+
+
+def test_the_cli_says_where_closed_months_went(tmp_path, capsys):
+    from diag_plugin.cli import main
+
+    export(tmp_path / "f.csv", MONTH0 - pd.Timedelta(days=40), 1000, bad=False)
+    db = f"sqlite:///{tmp_path / 'h.db'}"
+    assert main(["--db", db, "import", "--hot", str(tmp_path / "f.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "2965 new samples" in out and "Parquet" not in out
+    assert main(["--db", db, "import", "--json", str(tmp_path / "g.csv")]) == 2  # no file
+    capsys.readouterr()
+    export(tmp_path / "g.csv", MONTH0 - pd.Timedelta(days=40), 1000, bad=False, seed=4)
+    assert main(["--db", db, "import", "--replace", str(tmp_path / "g.csv")]) == 0
+    out = capsys.readouterr().out
+    month = (MONTH0 - pd.Timedelta(days=40)).strftime("%Y-%m")
+    assert f"closed months {month} stored as Parquet month files in {tmp_path}" in out
+    assert "0 new samples, 1000 already stored, 1965 replaced" in out  # A, B differ; C not
+    with Historian(db) as h:
+        assert hot_rows(h) == 0 and h.cold_months()
