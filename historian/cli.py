@@ -76,6 +76,19 @@ def add_commands(subparsers) -> None:
         "default), or keep each tag's first or last sample there, or the mean of its usable "
         "ones",
     )
+    p.add_argument(
+        "--hot",
+        action="store_true",
+        help="store every sample in the database's samples table (default: the samples of "
+        "closed months go to their Parquet month files in the cold folder, as 'diag "
+        "historian roll' keeps them; the current month always to the table)",
+    )
+    p.add_argument(
+        "--cold-dir",
+        metavar="DIR",
+        help="folder of the Parquet month files (SQLite default: <db file>.cold; PostgreSQL: "
+        "the one recorded by an earlier roll or import, else none: every sample to the table)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_import)
 
@@ -174,7 +187,8 @@ def cmd_import(args) -> int:
         if side.exists():
             args.tags_csv = str(side)
             print(f"tag metadata from {side}", file=sys.stderr)
-    with _open(args) as h, Progress(*columns, console=err, disable=not show, transient=True) as bar:
+    opened = _open(args, cold_dir=args.cold_dir) if args.cold_dir else _open(args)
+    with opened as h, Progress(*columns, console=err, disable=not show, transient=True) as bar:
         task = bar.add_task("import", total=None)
 
         def progress(done, total):
@@ -197,6 +211,7 @@ def cmd_import(args) -> int:
                 rename=_renames(args.rename),
                 duplicates=args.duplicates,
                 progress=progress,
+                hot=args.hot,
             )
         except ImportRefused as exc:
             for msg in exc.messages[:20]:
@@ -241,6 +256,9 @@ def cmd_import(args) -> int:
         + (f"; {report.n_bad} bad rows skipped" if report.n_bad else "")
         + (f"; {report.n_bad_cells} bad cells stored as Bad" if report.n_bad_cells else "")
     )
+    where = report.stored_where()
+    if where:
+        print(f"{path}: {where}")
     return 0
 
 
@@ -274,6 +292,9 @@ def _report_json(r) -> dict:
         "bad_cells": r.bad_cells,
         "bad_cell_messages": r.cells,
         "notes": r.notes,
+        "cold_months": r.cold_months,
+        "cold_dir": r.cold_dir,
+        "stored": r.stored_where(),
     }
 
 
@@ -491,8 +512,9 @@ def cmd_check(args) -> int:
             print(f"{args.db}: {p}")
         for p in orphans:
             print(
-                f"{p}: listed by no rolled month (left by an interrupted roll; its rows are "
-                "still in the database, so it can be deleted)"
+                f"{p}: listed by no rolled month (left by an interrupted roll or import; "
+                "nothing reads it — the month's recorded file and rows are the data — so it "
+                "can be deleted)"
             )
         months = store["cold_months"]
         print(

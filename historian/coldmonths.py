@@ -1,17 +1,20 @@
 """Months rolled to the Parquet cold store, on the database side: rolling a closed month
-into its file (:mod:`historian.coldstore` writes and reads the files), the list of rolled
-months and where their folder is, the key check that keeps writes into them idempotent, and
-the check of the files. Mixed into :class:`historian.store.Historian`."""
+into its file, or merging an import's samples of a closed month straight into it
+(:mod:`historian.coldstore` writes and reads the files), the list of rolled months and where
+their folder is, the key check that keeps writes into them idempotent, and the check of the
+files. Mixed into :class:`historian.store.Historian`."""
 
 from __future__ import annotations
 
 import os
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 from sqlalchemy import delete, func, insert, select
+from sqlalchemy.exc import IntegrityError
 
 from . import coldstore, schema
 from .times import now_us, to_us
@@ -26,6 +29,36 @@ Progress = Callable[[int, int], None]
 
 class MonthChanged(RuntimeError):
     """Rows of a month were written while it was being rolled (nothing was changed)."""
+
+
+@dataclass
+class MonthMerge:
+    """What :meth:`ColdMonths.import_month` found: given samples at a (tag, ts) not stored
+    before (``added``), stored with another value or quality (``changed``: conflicts), the
+    earliest of those as ``(ts, tag id, stored value, stored quality, value, quality)``, and
+    whether a new file was written."""
+
+    added: int = 0
+    changed: int = 0
+    first: tuple[int, int, float, int, float, int] | None = None
+    wrote: bool = False
+
+    def count(self, tag_id: int, stored, new) -> None:
+        s_ts, s_v, s_q = stored
+        ts, v, q = new
+        if not len(s_ts):
+            self.added += len(ts)
+            return
+        pos = np.minimum(np.searchsorted(s_ts, ts), len(s_ts) - 1)
+        hit = s_ts[pos] == ts
+        sv = s_v[pos]
+        same = ((sv == v) | (np.isnan(sv) & np.isnan(v))) & (s_q[pos] == q)
+        differ = np.flatnonzero(hit & ~same)
+        self.added += int(np.count_nonzero(~hit))
+        self.changed += len(differ)
+        if len(differ) and (self.first is None or ts[differ[0]] < self.first[0]):
+            k, i = int(differ[0]), int(pos[differ[0]])
+            self.first = (int(ts[k]), tag_id, float(s_v[i]), int(s_q[i]), float(v[k]), int(q[k]))
 
 
 class ColdMonths:
@@ -226,23 +259,82 @@ class ColdMonths:
         the hot row winning at an equal (tag, ts)), then in one transaction record it and
         delete the rows it holds. If the delete meets more rows than were read, a writer added
         some meanwhile: the transaction is undone and :class:`MonthChanged` raised."""
+        return self._write_month(month, ids, step).wrote
+
+    def import_month(
+        self, month: str, rows: dict[int, tuple[np.ndarray, ...]], policy: str = "ignore"
+    ) -> MonthMerge:
+        """Store samples of a closed month straight into its cold file (``diag import``):
+        ``rows`` maps a tag id to its (ts, value, quality), sorted by time, one row per time.
+        The month's file is written anew from what the month holds (its earlier file and any
+        rows of it in the database, the database's winning, as a roll merges them) and the
+        given rows: at a (tag, ts) already stored, the stored sample stays (``"ignore"``) or
+        the given one replaces it (``"update"``). Then, in one transaction, the file is
+        recorded and the month's database rows deleted; a kill leaves the old file and record
+        or the new ones (the other file is an orphan, :meth:`cold_orphans`). Nothing is
+        written when nothing would change. Retried when a writer changed the month meanwhile.
+        Returns the counts (:class:`MonthMerge`)."""
+        if policy not in ("ignore", "update"):
+            raise ValueError(f"policy must be 'ignore' or 'update', not {policy!r}")
+        m0, m1 = coldstore.month_bounds(month)
+        if m1 > to_us(pd.Timestamp.now(tz="UTC").normalize().replace(day=1)):
+            raise ValueError(f"{month} is not a closed month")
+        if self.cold_dir is None:
+            raise RuntimeError(
+                "storing a closed month needs a cold folder: Historian(url, cold_dir=...)"
+            )
+        self._record_cold_dir()
+        ids = sorted({int(i) for i in self.tags()["id"]} | {int(i) for i in rows})
+        for attempt in range(ROLL_ATTEMPTS):
+            try:
+                return self._write_month(month, ids, None, rows, policy)
+            except MonthChanged:
+                if attempt == ROLL_ATTEMPTS - 1:
+                    raise RuntimeError(
+                        f"rows of {month} kept arriving while the import wrote it "
+                        f"({ROLL_ATTEMPTS} tries); nothing of it was stored: import again"
+                    ) from None
+        raise AssertionError("unreachable")
+
+    def _write_month(
+        self,
+        month: str,
+        ids: list[int],
+        step: Callable[[int], None] | None,
+        extra: dict[int, tuple[np.ndarray, ...]] | None = None,
+        policy: str = "ignore",
+    ) -> MonthMerge:
+        """Write the month's file tag by tag: its earlier file, its database rows (winning at
+        an equal (tag, ts)) and the ``extra`` rows (winning with ``"update"``, else losing);
+        then in one transaction record the file and delete the database rows it holds. If the
+        delete meets more rows than were read, or the month's record changed, another writer
+        wrote meanwhile: the transaction is undone and :class:`MonthChanged` raised."""
         s, t = schema.samples, schema.cold_segments
         m0, m1 = coldstore.month_bounds(month)
+        extra = extra or {}
         old = self._segments(m0, m1)
         old_index = self._segment_index(old[0]) if old else None
         name = f"samples-{month}-{now_us()}.parquet"
         hot = 0
+        out = MonthMerge()
         with coldstore.SegmentWriter(self._cold_path(name)) as w:
             for j, tid in enumerate(ids):
                 ts, v, q = self._bulk.read(tid, m0, m1)
                 hot += len(ts)
                 if old_index is not None:
                     ts, v, q = _merge(old_index.read(tid, m0, m1), (ts, v, q))
+                new = extra.get(tid)
+                if new is not None and len(new[0]):
+                    out.count(tid, (ts, v, q), new)
+                    pair = ((ts, v, q), new) if policy == "update" else (new, (ts, v, q))
+                    ts, v, q = _merge(*pair)
                 w.write(tid, ts, v, q)
-                step(j + 1)
-        if hot == 0:  # nothing in the database for this month (only other tags' rows, if any)
+                if step is not None:
+                    step(j + 1)
+        changes = out.added + (out.changed if policy == "update" else 0)
+        if hot == 0 and changes == 0:  # nothing in the database, nothing new: no new file
             self._cold_path(name).unlink(missing_ok=True)
-            return False
+            return out
         try:
             with self._writing() as c:
                 gone = c.execute(
@@ -250,7 +342,12 @@ class ColdMonths:
                 ).rowcount
                 if gone != hot:
                     raise MonthChanged(month)
-                c.execute(delete(t).where(t.c.month == month))
+                mine = delete(t).where(t.c.month == month)
+                if old:  # the record this file was merged from, still there
+                    if c.execute(mine.where(t.c.path == old[0]["path"])).rowcount != 1:
+                        raise MonthChanged(month)
+                elif c.execute(select(t.c.path).where(t.c.month == month)).first():
+                    raise MonthChanged(month)
                 c.execute(
                     insert(t).values(
                         month=month,
@@ -261,12 +358,16 @@ class ColdMonths:
                         created_at=now_us(),
                     )
                 )
+        except IntegrityError:  # PostgreSQL: another writer recorded the month meanwhile
+            self._cold_path(name).unlink(missing_ok=True)
+            raise MonthChanged(month) from None
         except BaseException:
             self._cold_path(name).unlink(missing_ok=True)
             raise
         if old and old[0]["path"] != name:
             self._cold_path(old[0]["path"]).unlink(missing_ok=True)
-        return True
+        out.wrote = True
+        return out
 
     def _cold_problems(self, progress: Progress | None = None) -> list[str]:
         """What is wrong with the rolled months: each file readable and holding the row count
@@ -291,9 +392,10 @@ class ColdMonths:
         return problems
 
     def cold_orphans(self) -> list[Path]:
-        """Files in the cold folder that no rolled month lists: left by a roll interrupted
-        between writing its file and recording it (the month's rows are still in the
-        database, so they can be deleted)."""
+        """Files in the cold folder that no rolled month lists: left by a roll or an import
+        interrupted between writing a month's file and recording it, or between recording
+        it and removing the file it replaced (nothing reads them: the month's recorded file
+        and its database rows are its data, so they can be deleted)."""
         if self.cold_dir is None or not self.cold_dir.is_dir():
             return []
         listed = {seg["path"] for seg in self._segments(None, None)}

@@ -51,6 +51,13 @@ stored with a *different* value or quality is a *conflict*: counted in
 the stored value is kept (``policy="ignore"``) or overwritten (``policy="update"``, the CLI's
 ``--replace``). A time that repeats within the file is compared the same way with the row
 stored first. See :func:`stored_conflicts`.
+
+Samples of closed months (before the current UTC month) go straight into the cold store's
+Parquet month files (:meth:`Historian.import_month`: merged with the month's earlier file and
+its rows in the table, under the same policy and counts), so a training over imported history
+reads columnar data (issue 37); the current month goes to the samples table. ``hot=True``
+(``--hot``) keeps everything in the table; a historian without a cold folder (PostgreSQL
+unless one is recorded or given) does too, and the report says so.
 """
 
 from __future__ import annotations
@@ -67,11 +74,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from . import coldstore
 from .errors import UserError
 from .quality import BAD, GOOD, NAMES
 from .store import Historian
 from .taginfo import tag_name_problem
-from .times import from_us, index_us
+from .times import from_us, index_us, to_us
 
 TIME_NAMES = ("ts", "time", "timestamp", "datetime", "date")
 #: what ``duplicates`` (``--duplicates``) may say about a time repeated within a file
@@ -109,6 +117,10 @@ SAMPLE_ROWS = 100
 #: (benchmarks/bench_insert_order.py: 0.31 against 0.62 µs a sample), so the larger piece
 #: holds the write lock no longer than a later one
 FIRST_PIECE_FACTOR = 2
+#: samples of closed months an import holds in memory before writing their month files
+#: (a file in time order writes each month once, when it leaves the month; past this, the
+#: months held are written and merged again with what comes later)
+COLD_HELD_SAMPLES = 20_000_000
 
 
 class ImportRefused(UserError):
@@ -170,6 +182,25 @@ class ImportReport:
     repeats: int = 0  # rows whose time repeats an earlier row's in the file
     repeat_example: str | None = None  # the first, 'file:line repeats file:line (time)'
     duplicates: str = "error"  # what was kept at a repeated time
+    cold_months: list[str] = field(default_factory=list)  # closed months written to Parquet
+    cold_dir: str | None = None  # where they went (None: every sample went to the table)
+    no_cold_folder: bool = False  # closed months went to the table: no cold folder known
+
+    def stored_where(self) -> str | None:
+        """The sentence saying where closed months went (None: nothing to say)."""
+        if self.cold_months:
+            m = self.cold_months
+            which = m[0] if len(m) == 1 else f"{m[0]} .. {m[-1]}"
+            return (
+                f"closed months {which} stored as Parquet month files in {self.cold_dir} "
+                "(--hot: keep them in the database's table)"
+            )
+        if self.no_cold_folder:
+            return (
+                "closed months stored in the samples table: this historian has no cold "
+                "folder (--cold-dir DIR stores them as Parquet month files)"
+            )
+        return None
 
     def _bad(self, msg: str) -> None:
         self.n_bad += 1
@@ -920,6 +951,7 @@ def import_file(
     duplicates: str = "error",
     chunk_rows: int = 200_000,
     progress: Callable[[int, int], None] | None = None,
+    hot: bool = False,
 ) -> ImportReport:
     """Import a wide CSV or Parquet file into ``h``; see the module docstring.
 
@@ -933,7 +965,10 @@ def import_file(
     naming the first repeat and the count; ``"first"``, ``"last"`` keep that sample of each
     tag, ``"mean"`` the mean of each tag's usable samples; the report says how many rows
     repeated a time. ``progress(done, total)`` is called after each
-    chunk (bytes for CSV, rows for Parquet). Raises :class:`FileRefused` (nothing written)
+    chunk (bytes for CSV, rows for Parquet). Samples of closed months (before the current
+    UTC month) go straight to the cold store's month files when the historian has a cold
+    folder (SQLite: always; :func:`_cold_before`), unless ``hot``: then, and for the current
+    month, to the database's table. Raises :class:`FileRefused` (nothing written)
     when the file cannot be imported as given or holds no sample, :class:`ImportRefused` in
     strict mode when any row or cell is bad (nothing written).
     """
@@ -1020,6 +1055,10 @@ def import_file(
     hold = FIRST_PIECE_FACTOR if _appends(h, names.values()) else 1
     held: list[tuple] = []
     writing = None
+    cold_before = None if hot else _cold_before(h)
+    report.cold_dir = None if cold_before is None else str(h.cold_dir)
+    cold: dict[str, list[tuple]] = {}  # closed month -> its pieces, until the file is written
+    cold_held = [0]  # samples in them
 
     def write_held() -> None:
         nonlocal writing, hold
@@ -1031,11 +1070,47 @@ def import_file(
         held.clear()
         hold = 1
 
+    def write_cold(months) -> None:
+        """Write the held pieces of ``months`` into their month files (in the writer)."""
+        nonlocal writing
+        for month in sorted(months):
+            parts = cold.pop(month)
+            cold_held[0] -= sum(p[2] for p in parts)
+            if writing is not None:
+                writing.result()
+            writing = writer.submit(_write_cold_month, h, month, parts, policy, line_at, report)
+
+    def take(frame, quality, n, lines) -> None:
+        """A piece to write: its closed months' rows held until the file leaves the month
+        (a month's file is written once for a file in time order), the rest written."""
+        if cold_before is not None:
+            t = index_us(frame.index)
+            lo, hi = int(t.min()), int(t.max())
+            if lo < cold_before:
+                for month in coldstore.months_between(lo, min(hi + 1, cold_before)):
+                    m0, m1 = coldstore.month_bounds(month)
+                    rows = np.flatnonzero((t >= m0) & (t < m1))
+                    part = (frame.iloc[rows], quality.iloc[rows])
+                    k = int((part[0].notna().to_numpy() | (part[1].to_numpy() == BAD)).sum())
+                    cold.setdefault(month, []).append((*part, k, lines[rows]))
+                    cold_held[0] += k
+                    n -= k
+                late = np.flatnonzero(t >= cold_before)
+                frame, quality, lines = frame.iloc[late], quality.iloc[late], lines[late]
+            done = [m for m in cold if coldstore.month_bounds(m)[1] <= lo]
+            write_cold(list(cold) if cold_held[0] > COLD_HELD_SAMPLES else done)
+            if not len(frame):
+                return
+        held.append((frame, quality, n, lines))
+        if len(held) >= hold:
+            write_held()
+
     with _reading(path, report), ThreadPoolExecutor(1, "import-writer") as writer:
         try:
             for frame, quality, lines in pieces(advance, report, repeats):
                 if repeats.refused:
                     write_held()  # read before the repeat: written, as every earlier piece
+                    write_cold(list(cold))
                     continue  # --duplicates error: the rest of the file is only read, to count
                 present = frame.notna().to_numpy() | (quality.to_numpy() == BAD)
                 has = present.any(axis=0)
@@ -1060,19 +1135,24 @@ def import_file(
                 if has.any():
                     n = int(present.sum())
                     report.samples += n
-                    held.append((frame, quality, n, lines))
-                    if len(held) >= hold:
-                        write_held()
                     lo, hi = frame.index.min(), frame.index.max()
+                    take(frame, quality, n, lines)
                     report.first = lo if report.first is None else min(report.first, lo)
                     report.last = hi if report.last is None else max(report.last, hi)
         except Exception:
             write_held()  # the rows read before the file was refused are imported, as before
+            write_cold(list(cold))
             raise
         write_held()
+        write_cold(list(cold))
         if writing is not None:
             writing.result()
     report.repeats, report.repeat_example = repeats.count, repeats.example
+    closed = report.first is not None and report.first < pd.Timestamp.now(
+        tz="UTC"
+    ).normalize().replace(day=1)
+    if closed and cold_before is None and not hot:
+        report.no_cold_folder = True
     report.duplicates = duplicates
     if repeats.refused:
         raise FileRefused(repeats.refusal(written=report.samples > 0))
@@ -1404,6 +1484,53 @@ def _write(h, frame, quality, n, rows, line_of, policy, report: ImportReport) ->
     report.written += written
     if written < n:
         _count_conflicts(h, frame, quality, everything, rows, line_of, report)
+
+
+def _cold_before(h: Historian) -> int | None:
+    """Where the samples an import writes to the database's table begin (µs): the start of
+    the current UTC month when the historian has a cold folder (SQLite: ``<db>.cold``
+    beside the file; PostgreSQL: one recorded or given), the months before it being
+    written to their Parquet files; None when it has none (every sample to the table)."""
+    if h.cold_dir is None:
+        return None
+    return to_us(pd.Timestamp.now(tz="UTC").normalize().replace(day=1))
+
+
+def _write_cold_month(h, month: str, parts: list[tuple], policy, line_of, report: ImportReport):
+    """Store the pieces of one closed month in its cold file (:meth:`Historian.import_month`)
+    and count what was new and what conflicted, as :func:`_write` counts them."""
+    frame, quality, _n, lines = _join(parts)
+    ts = index_us(frame.index)
+    order = np.argsort(ts, kind="stable")
+    ts, lines = ts[order], lines[order]
+    V = frame.to_numpy(np.float64)[order]
+    Q = quality.to_numpy(np.int64)[order]
+    names, rows = {}, {}
+    for j, name in enumerate(frame.columns):
+        keep = ~np.isnan(V[:, j]) | (Q[:, j] == BAD)
+        if keep.any():  # (a column without a sample may be no tag yet)
+            tid = h._tag(str(name))[0]
+            names[tid] = str(name)
+            rows[tid] = (ts[keep], V[keep, j], Q[keep, j])
+    res = h.import_month(month, rows, policy)
+    report.written += res.added + (res.changed if policy == "update" else 0)
+    report.conflicts += res.changed
+    if res.wrote:
+        report.cold_months.append(month)
+    if res.first is not None:
+        t, tid, stored, stored_q, value, q = res.first
+        old = report.first_conflict
+        if old is None or from_us(t) < old.ts:
+            k = int(np.searchsorted(ts, t))
+            report.first_conflict = Conflict(
+                tag=names[tid],
+                ts=from_us(t),
+                stored=stored,
+                stored_quality=stored_q,
+                value=value,
+                quality=q,
+                where=line_of(int(lines[k])),
+            )
 
 
 def _count_conflicts(h, part, part_q, now, rows, line_of, report: ImportReport) -> None:

@@ -60,6 +60,16 @@ def pg_available() -> bool:
 @pytest.fixture
 def pg_url(pg_available):
     """URL of a new, empty PostgreSQL database, dropped after the test."""
+    yield from _pg_database(pg_available)
+
+
+@pytest.fixture
+def pg_url2(pg_available):
+    """A second one, for tests that compare two databases."""
+    yield from _pg_database(pg_available)
+
+
+def _pg_database(pg_available):
     require(
         "PostgreSQL server",
         pg_available,

@@ -252,7 +252,7 @@ def test_conflicts_in_months_rolled_to_the_cold_store(tmp_path, capsys):
     a, b = tmp_path / "a.csv", tmp_path / "b.csv"
     a.write_text(FIRST)
     b.write_text(SECOND)
-    assert _diag(capsys, "--db", db, "import", str(a))[0] == 0
+    assert _diag(capsys, "--db", db, "import", "--hot", str(a))[0] == 0  # into the table
     with Historian(db) as h:
         assert h.roll_months(before="2026-02-01") == ["2026-01"]
     rc, out, err = _diag(capsys, "--db", db, "import", str(a))

@@ -147,7 +147,7 @@ IMPORTER = textwrap.dedent(
     url, csv = sys.argv[1], sys.argv[2]
     with Historian(url) as h:
         print("START", flush=True)
-        import_file(h, csv, chunk_rows=2_000)
+        import_file(h, csv, chunk_rows=2_000, hot=True)  # the samples table's pieces
     print("DONE", flush=True)
     """
 )
@@ -239,18 +239,20 @@ def test_write_wide_counts_alike_on_both_backends(historian):
 
 def test_an_import_into_a_rolled_month_writes_only_what_is_new(historian, tmp_path):
     """A piece reaching a month rolled to the cold store goes as long rows past the cold
-    file: a re-import adds nothing, a changed value is a conflict, a new tag is added."""
+    file (``hot``: into the samples table; the default import merges it into the month's
+    file, tests/test_import_cold.py): a re-import adds nothing, a changed value is a
+    conflict, a new tag is added."""
     idx = pd.date_range("2024-01-31 23:00", periods=120, freq="1min").rename("ts")
     frame = pd.DataFrame({"A": np.arange(120.0), "B": 1.0}, index=idx)
     csv = tmp_path / "f.csv"
     frame.to_csv(csv)
-    assert import_file(historian, csv).written == 240
+    assert import_file(historian, csv, hot=True).written == 240
     assert historian.roll_months(before="2024-02-01") == ["2024-01"]
-    assert import_file(historian, csv).written == 0
+    assert import_file(historian, csv, hot=True).written == 0
     frame.iloc[3, 0] = -5.0  # in the rolled January
     frame["C"] = 2.0
     frame.to_csv(csv)
-    r = import_file(historian, csv)
+    r = import_file(historian, csv, hot=True)
     assert (r.written, r.conflicts) == (120, 1)
     assert r.first_conflict.tag == "A" and r.first_conflict.stored == 3.0
     assert historian.read_samples("A").iloc[3] == 3.0
@@ -293,7 +295,8 @@ def test_the_first_pieces_are_one_write_where_they_append(tmp_path, monkeypatch)
         ]:
             sizes.clear()
             idx = _csv(tmp_path / "f.csv", tags, start)
-            assert import_file(h, tmp_path / "f.csv", chunk_rows=100).written == 900
+            r = import_file(h, tmp_path / "f.csv", chunk_rows=100, hot=True)  # the table's
+            assert r.written == 900
             assert sum(sizes) == 450
             writes[name] = list(sizes)
         pieces = len(writes["inside"])  # 450 rows in chunks of 100: 5 pieces or more
