@@ -40,6 +40,25 @@ def test_a_text_cell_deep_in_a_big_file_gives_no_dtype_warning(tmp_path, capsys)
         assert np.allclose(h.read_samples("T5").to_numpy(), frame["T5"].to_numpy())
 
 
+def test_times_with_mixed_offsets_give_no_warning(tmp_path, capsys):
+    """A summer-time switch in an export's offsets: pandas 2.x warned (FutureWarning,
+    printed to the user) when it parsed times with mixed offsets; they are stored in UTC."""
+    f = tmp_path / "dst.csv"
+    f.write_text(
+        "time,A\n2026-03-29T01:00:00+01:00,1\n2026-03-29T03:00:00+02:00,2\n"
+        "2026-03-29T04:00:00+02:00,3\n"
+    )
+    db = f"sqlite:///{tmp_path / 'h.db'}"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any warning fails the import
+        rc = main(["--db", db, "import", str(f), "--no-progress"])
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    with Historian(db) as h:
+        s = h.read_samples("A")
+    assert list(s.index.strftime("%H:%M")) == ["00:00", "01:00", "02:00"]
+
+
 def _xlsx(path):
     with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
         z.writestr("[Content_Types].xml", '<?xml version="1.0"?><Types/>')
