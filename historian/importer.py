@@ -66,6 +66,7 @@ import codecs
 import os
 import re
 import shlex
+import warnings
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -408,7 +409,11 @@ def parse_times(
             number = pd.to_numeric(text[short], errors="coerce").notna()
             text = text.mask(number.reindex(text.index, fill_value=False))
         try:
-            t = pd.to_datetime(text, errors="coerce", format="ISO8601")
+            with warnings.catch_warnings():
+                # pandas 2.x warns (FutureWarning) of times with mixed offsets, which it
+                # returns as objects: they are read again with utc=True below
+                warnings.simplefilter("ignore", FutureWarning)
+                t = pd.to_datetime(text, errors="coerce", format="ISO8601")
         except (ValueError, TypeError):
             t = pd.to_datetime(text, errors="coerce", utc=True)
         if t.isna().sum() > text.isna().sum() and not pd.api.types.is_datetime64_any_dtype(t):

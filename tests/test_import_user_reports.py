@@ -15,6 +15,18 @@ from diag_plugin.cli import main
 from historian import Historian
 
 
+def _import_without_warnings(tmp_path, f, capsys) -> tuple[str, str]:
+    """``diag import`` of ``f`` into a new SQLite historian, any warning an error: the
+    database URL and what was printed to stderr."""
+    db = f"sqlite:///{tmp_path / 'h.db'}"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any warning fails the import
+        rc = main(["--db", db, "import", str(f), "--no-progress"])
+    _, err = capsys.readouterr()
+    assert rc == 0, err
+    return db, err
+
+
 def test_a_text_cell_deep_in_a_big_file_gives_no_dtype_warning(tmp_path, capsys):
     """pandas read each chunk in pieces and met numbers in one piece and text in another
     (DtypeWarning, printed to the user); the chunk's column types now come from the whole
@@ -27,17 +39,26 @@ def test_a_text_cell_deep_in_a_big_file_gives_no_dtype_warning(tmp_path, capsys)
     frame.loc[40_000, "T3"] = "Bad"
     f = tmp_path / "big.csv"
     frame.to_csv(f, index=False, date_format="%Y-%m-%dT%H:%M:%S")
-    db = f"sqlite:///{tmp_path / 'h.db'}"
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # any warning fails the import
-        rc = main(["--db", db, "import", str(f), "--no-progress"])
-    out, err = capsys.readouterr()
-    assert rc == 0, err
+    db, err = _import_without_warnings(tmp_path, f, capsys)
     assert f"{f}:40002: T3: no number in 'Bad'; stored as a Bad sample" in err
     with Historian(db) as h:
         s = h.read_samples("T3", with_quality=True)
         assert len(s) == n and int(s["quality"].sum()) == 2
         assert np.allclose(h.read_samples("T5").to_numpy(), frame["T5"].to_numpy())
+
+
+def test_times_with_mixed_offsets_give_no_warning(tmp_path, capsys):
+    """A summer-time switch in an export's offsets: pandas 2.x warned (FutureWarning,
+    printed to the user) when it parsed times with mixed offsets; they are stored in UTC."""
+    f = tmp_path / "dst.csv"
+    f.write_text(
+        "time,A\n2026-03-29T01:00:00+01:00,1\n2026-03-29T03:00:00+02:00,2\n"
+        "2026-03-29T04:00:00+02:00,3\n"
+    )
+    db, err = _import_without_warnings(tmp_path, f, capsys)
+    with Historian(db) as h:
+        s = h.read_samples("A")
+    assert list(s.index.strftime("%H:%M")) == ["00:00", "01:00", "02:00"]
 
 
 def _xlsx(path):

@@ -572,3 +572,69 @@ def test_a_continuous_record_keeps_its_calendar_axis(report, tmp_path):
     dom = _render(path, tmp_path)
     el = re.search(r'<div id="chart-y"[^>]*>', dom).group(0)
     assert "data-breaks" not in el and "data-ticks" not in el, el
+
+
+# a script appended to a copy of the page: moves the pointer over every pixel column from 3 px
+# before each break to 3 px after it on the time chart (uPlot's own mousemove handler) and
+# records what the readout (legend) says at each
+_HOVER = """
+<script>
+setTimeout(() => {
+  const el = document.getElementById("chart-y"), over = el.querySelector(".u-over");
+  const box = over.getBoundingClientRect(), out = [];
+  const runs = el.dataset.runs.split(" ").map((s) => s.split(":").map(Number));
+  for (let i = 0; i + 1 < runs.length; i++) {
+    for (let x = runs[i][1] - 3; x <= runs[i + 1][0] + 3; x++) {
+      if (x < 0 || x > box.width) continue;
+      const at = { clientX: box.left + x, clientY: box.top + 20 };
+      over.dispatchEvent(new MouseEvent("mousemove", at));
+      const cells = [...el.querySelectorAll(".u-legend .u-series .u-value")];
+      out.push(cells.map((c) => c.textContent).join("|"));
+    }
+  }
+  document.body.dataset.hover = out.join("~");
+}, 300);
+</script>
+"""
+
+
+@needs_chromium
+@pytest.mark.parametrize("fragment", ["", "#zoom=2026-01-05T15:10:00Z/2026-01-10T22:20:00Z"])
+def test_the_readout_over_a_break_names_the_gap_not_a_value(tmp_path, fragment):
+    """Pointer over a break (the whole range, and zoomed to a break): the readout names the
+    gap and shows no value; wherever it shows values, its time is a true time inside a run
+    (before, a column centred inside the break gave the run's edge value beside the gap's
+    name)."""
+    rb, _ = _story(tmp_path, 3, ("CV[k-1]", "P1[k]"))
+    f = _runs_frame(9)
+    c = compare(rb, f)
+    path = write_report(tmp_path / "runs.html", rb, c, None, None, f)
+    probe = tmp_path / "hover.html"
+    probe.write_text(path.read_text("utf-8").replace("</body>", _HOVER + "</body>"), "utf-8")
+    res = _chromium(
+        probe.as_uri() + fragment, tmp_path / "p-hover", "--dump-dom", "--window-size=1400,1400"
+    )
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert 'data-rendered="ok"' in res.stdout
+    rows = [
+        r.split("|") for r in re.search(r'data-hover="([^"]*)"', res.stdout).group(1).split("~")
+    ]
+    assert len(rows) >= 20, rows
+    run = [
+        (pd.Timestamp(a, tz="UTC"), pd.Timestamp(a, tz="UTC") + n * pd.Timedelta("10s"))
+        for a, n in RUNS
+    ]
+    gaps = values = 0
+    for when, *vals in rows:
+        assert len(vals) == 4, vals
+        if when.startswith("gap of "):
+            gaps += 1
+            assert all(v == "—" for v in vals), (when, vals)
+            continue
+        shown = [v for v in vals if v != "—"]
+        values += bool(shown)
+        if shown:
+            t = pd.Timestamp(when, tz="UTC")
+            assert any(a <= t <= b for a, b in run), (when, vals)
+            assert all(0 <= float(v) <= 40 for v in shown), vals  # a flow in its span, t/h
+    assert gaps >= 10 and values >= 4, rows

@@ -475,9 +475,10 @@ def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0):
             raise UserError(f"--to {t1} is not after --from {t0}")
         if start is not None and lead > 0:  # not before the record: there it starts cold
             t0 = min(t0, max(a, t0 - lead * pd.Timedelta(unit.period)))
-        for frame in h.iter_windows(unit.tags, t0, t1, unit.period, chunk=chunk):
-            frame.attrs = {}  # the quality summary is not read here; pandas would copy it
-            yield frame  # into every derived frame
+        # no quality summary: diagnose does not read it (it cost a quarter of the read's CPU,
+        # 50 tags × 200,000 rows: 3.9 → 3.0 s), and in attrs pandas would copy it into every
+        # derived frame
+        yield from h.iter_windows(unit.tags, t0, t1, unit.period, chunk=chunk, summary=False)
     finally:
         h.close()
 

@@ -124,15 +124,46 @@
       const mins = Math.round(s / 60), h = Math.floor(mins / 60), m = mins % 60;
       return h ? h + " h " + m + " min" : m + " min";
     }
-    function readout(u, x) {
+    // where a break is, on the drawn axis: the break x lies in (-1: none), and the run (0 ..
+    // B.length) a point outside every break belongs to
+    function breakAt(x) {
+      for (let k = 0; k < B.length; k++) if (x > B[k].at && x < B[k].at + B[k].w) return k;
+      return -1;
+    }
+    function runOf(x) {
+      let k = 0;
+      while (k < B.length && x >= B[k].at + B[k].w) k++;
+      return k;
+    }
+    // the columns drawn now (slice: out.gap) that hold no value of one run: a point inside a
+    // break (its bucket reaches into the gap) or points of runs either side of one
+    let gapCols = null, runCols = null;
+    const inGap = (idx) => idx != null && gapCols !== null && gapCols[idx] === 1;
+    function readout(u, x, si, idx) {
       if (x == null) return "—";
-      for (const b of B) {
-        if (x > b.at && x < b.at + b.w) {
-          return "gap of " + lasting(b.to - b.from) + ": " + stamp(b.from) + " to " + stamp(b.to);
-        }
+      let k = breakAt(x);
+      const r = idx != null && runCols !== null ? runCols[idx] : -1;
+      if (k >= 0 && !inGap(idx) && r >= 0) {
+        // a column centred just inside a break whose values are all of the run beside it:
+        // the time of that run's end (or start)
+        return stamp(toTrue(r <= k ? B[k].at : B[k].at + B[k].w));
+      }
+      if (k < 0 && inGap(idx)) {
+        // a column over a break narrower than itself: the break nearest its centre
+        let best = Infinity;
+        B.forEach((b, j) => {
+          const d = Math.abs(b.at + b.w / 2 - x);
+          if (d < best) [best, k] = [d, j];
+        });
+      }
+      if (k >= 0) {
+        const b = B[k];
+        return "gap of " + lasting(b.to - b.from) + ": " + stamp(b.from) + " to " + stamp(b.to);
       }
       return stamp(toTrue(x));
     }
+    // a value's readout: none over a gap, where the time readout names the gap instead
+    const shown = (d) => (u, v, si, idx) => (inGap(idx) ? "—" : fmt(v, d));
     // per run round true times, at most one label per ~90 px, none within 70 px of the run's
     // end (the next run's first label is there); a run too narrow for one gets its start
     const STEPS = [1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 10800, 21600,
@@ -234,6 +265,9 @@
       const out = {};
       for (const k of ["ylo", "yhi", "hlo", "hhi", "rlo", "rhi", "rm"]) out[k] = new Array(cols).fill(null);
       const rsum = new Float64Array(cols), rcnt = new Float64Array(cols);
+      // per column the run of its points (-1: none yet); 1 in gap where it holds a point
+      // inside a break or points of two runs (its band would join values across the gap)
+      const run = new Int32Array(cols).fill(-1), gap = new Uint8Array(cols);
       const cw = (b - a) / cols;
       const lower = (arr, j, v) => { if (v !== null && (arr[j] === null || v < arr[j])) arr[j] = v; };
       const upper = (arr, j, v) => { if (v !== null && (arr[j] === null || v > arr[j])) arr[j] = v; };
@@ -252,6 +286,11 @@
           }
           const k = 2 * i + h;
           const y = nn(l.y[k]), yh = nn(l.yhat[k]), r = nn(l.r[k]);
+          if (B.length && (y !== null || yh !== null || r !== null)) {
+            const rk = breakAt(t) >= 0 ? -2 : runOf(t);
+            if (rk === -2 || (run[j] >= 0 && run[j] !== rk)) gap[j] = 1;
+            run[j] = rk;
+          }
           lower(out.ylo, j, y); upper(out.yhi, j, y);
           lower(out.hlo, j, yh); upper(out.hhi, j, yh);
           lower(out.rlo, j, r); upper(out.rhi, j, r);
@@ -265,6 +304,8 @@
       for (let j = 0; j < cols; j++) if (rcnt[j] > 0) out.rm[j] = rsum[j] / rcnt[j];
       out.x = x;
       out.perCol = perCol;
+      out.gap = gap;
+      out.run = run;
       return out;
     }
     const plotWidth = (u) => Math.max(100, Math.round(u.bbox.width / uPlot.pxRatio));
@@ -304,15 +345,17 @@
     };
     const timeSeries = () => (B.length ? { label: "time (UTC)", value: readout } : { label: "time (UTC)" });
     const s0 = slice(L[0], full[0], full[1], widthOf(elY) - 80);
+    gapCols = s0.gap;
+    runCols = s0.run;
     const band = (label, colour, value) => ({ label, stroke: colour, width: 1, value });
     const cy = new uPlot(
       Object.assign(common(elY, 330, null, elY), {
         series: [
           timeSeries(),
-          band("measured " + D.output.spec + unit + ", highest", "#1f5fa8", (u, v) => fmt(v)),
-          band("measured, lowest", "#1f5fa8", (u, v) => fmt(v)),
-          band("model, highest", "#e07b00", (u, v) => fmt(v)),
-          band("model, lowest", "#e07b00", (u, v) => fmt(v)),
+          band("measured " + D.output.spec + unit + ", highest", "#1f5fa8", shown()),
+          band("measured, lowest", "#1f5fa8", shown()),
+          band("model, highest", "#e07b00", shown()),
+          band("model, lowest", "#e07b00", shown()),
         ],
         bands: [
           { series: [1, 2], fill: "rgba(31,95,168,0.28)" },
@@ -327,9 +370,9 @@
       Object.assign(common(elR, 230, zeroLine), {
         series: [
           timeSeries(),
-          band("residual, highest [% of span]", "rgba(198,40,40,0.75)", (u, v) => fmt(v)),
-          band("residual, lowest", "rgba(198,40,40,0.75)", (u, v) => fmt(v)),
-          { label: "average", stroke: "#4a148c", width: 1.5, value: (u, v) => fmt(v) },
+          band("residual, highest [% of span]", "rgba(198,40,40,0.75)", shown()),
+          band("residual, lowest", "rgba(198,40,40,0.75)", shown()),
+          { label: "average", stroke: "#4a148c", width: 1.5, value: shown() },
         ],
         bands: [{ series: [1, 2], fill: "rgba(198,40,40,0.22)" }],
         axes: [xAxis(), { label: "% of span", size: 60 }],
@@ -352,6 +395,8 @@
       const l = pick(b - a);
       const px = plotWidth(cy);
       const s = slice(l, a, b, px);
+      gapCols = s.gap;
+      runCols = s.run;
       cy.batch(() => {
         cy.setData([s.x, s.yhi, s.ylo, s.hhi, s.hlo], false);
         cy.setScale("x", { min: a, max: b });
