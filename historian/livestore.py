@@ -15,13 +15,16 @@ detection: how long its value has stayed unchanged at most, and its sampling per
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pandas as pd
 from sqlalchemy import insert, select
 
-from . import schema
+from . import coldstore, schema
 from .quality import GOOD
 from .store import Historian
 
@@ -206,6 +209,53 @@ def _runs(ts: np.ndarray, v: np.ndarray) -> dict[str, Any]:
         "changed": bool(change[1:].any()),
         "n": len(ts),
     }
+
+
+@dataclass
+class RollResult:
+    """What :func:`roll_closed` did: each month rolled as ``(month, samples in its file,
+    seconds)``; ``no_cold``: the database has no cold folder (PostgreSQL without a recorded
+    one), nothing was tried; ``error``: why it stopped (the months before it are rolled);
+    ``left``: closed months still in the table afterwards."""
+
+    done: list[tuple[str, int, float]] = field(default_factory=list)
+    no_cold: bool = False
+    error: BaseException | None = None
+    left: bool = False
+
+
+def roll_closed(
+    url: str, before, *, stop: Callable[[], bool] = lambda: False, busy_timeout: float = 30.0
+) -> RollResult:
+    """Roll every month closed at ``before`` to the cold store on a connection of its own
+    (the live writer's roll thread), one month at a time, stopping between months when
+    ``stop()`` says so. Never raises: a failure is returned in ``error``."""
+    out = RollResult()
+    h = None
+    try:
+        h = Historian(url, busy_timeout=busy_timeout)
+        if h.cold_dir is None:
+            out.no_cold = True
+            return out
+        for month in h.months_to_roll(before):
+            if stop():
+                break
+            t0 = time.perf_counter()
+            end = coldstore.month_bounds(month)[1]
+            if month in h.roll_months(pd.Timestamp(end, unit="us", tz="UTC")):
+                rows = next(int(s["rows"]) for s in h._segments(None, None) if s["month"] == month)
+                out.done.append((month, rows, time.perf_counter() - t0))
+        out.left = bool(h.months_to_roll(before))
+    except Exception as exc:  # noqa: BLE001 - handed back to the writer, never raised
+        out.error = exc
+        out.left = True
+    finally:
+        if h is not None:
+            try:
+                h.close()
+            except Exception:  # noqa: BLE001 - the result stands
+                pass
+    return out
 
 
 def history_runs(url: str, tags: Sequence[str], last: int = 10_000) -> dict[str, dict[str, Any]]:

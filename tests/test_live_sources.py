@@ -229,6 +229,10 @@ def test_config_of_several_sources_names_source_key_and_line(plant_dir, monkeypa
     cfg = load_config(p)
     plc, scada = cfg.sources
     assert (plc.type, plc.port, plc.timeout, plc.map) == ("modbus", 5021, 0.09, d / "plc.csv")
+    assert cfg.roll_months is True  # closed months roll to the cold store by default
+    p.write_text(good.replace("flush_every = 5", "flush_every = 5\nroll_months = false"), "utf-8")
+    assert load_config(p).roll_months is False
+    p.write_text(good, encoding="utf-8")
     assert (scada.type, scada.url, scada.mode, scada.nodes) == (
         "opcua",
         "opc.tcp://127.0.0.1:4841/diag/",
@@ -269,6 +273,10 @@ def test_config_of_several_sources_names_source_key_and_line(plant_dir, monkeypa
             "several.toml:17: source[2].url: expected opc.tcp://",
         ),
         (good.replace('type = "opcua"', 'type = "bacnet"'), "several.toml:16: source[2].type"),
+        (
+            good.replace("flush_every = 5", "flush_every = 5\nroll_months = 1"),
+            "several.toml:5: plant.roll_months: must be true or false",
+        ),
         (good.replace("timeout = 0.1", "map = 'x.csv'"), "several.toml:18: source[2].map: unknown"),
         (
             good.replace("timeout = 0.1", "timeout = 2.0"),

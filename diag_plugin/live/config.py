@@ -11,6 +11,7 @@ Example (paths are relative to the file; docs/reference/live.md explains every k
     stale_after = 30                              # optional; default: from each tag's history
     spill = "plant.db.spill"                      # optional; default: beside the database
     buffer_samples = 2000000                      # samples held in memory before spilling
+    roll_months = true                            # closed months to the Parquet cold store
     state = "plant.state.json"                    # the units' state; default: beside this file
     state_every = 60                              # cycles between saves (and on stop)
     catch_up_max = 604800                         # s: gaps since the state diagnosed at start
@@ -141,6 +142,7 @@ class LiveConfig:
     stale_after: float | None = None
     spill: Path | None = None
     buffer_samples: int = 2_000_000
+    roll_months: bool = True
     state: Path | None = None
     state_every: int = 60
     catch_up_max: float = 7 * 86_400.0
@@ -193,6 +195,7 @@ _KEYS = {
         "stale_after",
         "spill",
         "buffer_samples",
+        "roll_months",
         "state",
         "state_every",
         "catch_up_max",
@@ -359,6 +362,7 @@ def load_config(path: str | Path) -> LiveConfig:
     cfg.buffer_samples = int(
         positive("plant", "buffer_samples", get("plant", "buffer_samples", int, 2_000_000))
     )
+    cfg.roll_months = get("plant", "roll_months", bool, True)
     state = get("plant", "state", str, None)
     cfg.state = (base / state).resolve() if state else path.resolve().with_suffix(".state.json")
     cfg.state_every = int(positive("plant", "state_every", get("plant", "state_every", int, 60)))
@@ -851,6 +855,7 @@ async def run_config(
             flush_every=cfg.flush_every,
             cycle=cfg.cycle,
             memory_rows=cfg.buffer_samples,
+            roll_months=cfg.roll_months,
         )
     try:
         for server, key in ((status, "modbus_port"), (opcua, "opcua_port")):

@@ -46,7 +46,7 @@ import numpy as np
 import pandas as pd
 
 from historian.journal import Journal, JournalCorrupt
-from historian.livestore import LiveStore
+from historian.livestore import LiveStore, RollResult, roll_closed
 from historian.quality import BAD
 from historian.spool import Block, SegmentCorrupt, Spool
 
@@ -133,6 +133,9 @@ class HistorianWriter:
         busy_timeout: float = 2.0,
         stall_after: float | None = None,
         notify: Callable[[bool, str], None] | None = None,
+        roll_months: bool = True,
+        roll_every: float = 3600.0,
+        clock: Callable[[], pd.Timestamp] | None = None,
     ) -> None:
         self.url = url
         self.tags = list(tags)
@@ -185,6 +188,17 @@ class HistorianWriter:
         self.on_note: Callable[[str], None] | None = None
         #: every note so far (those of :meth:`start` come before a listener can be set)
         self.notes: list[str] = []
+        #: roll closed months to the cold store (module doc); ``clock()``: the time now (UTC)
+        self.roll_months = bool(roll_months)
+        self.roll_every = float(roll_every)
+        self.clock = clock or (lambda: pd.Timestamp.now(tz="UTC"))
+        #: every month rolled so far: (month, samples, seconds)
+        self.rolled: list[tuple[str, int, float]] = []
+        self._roll_task: asyncio.Task[None] | None = None
+        self._roll_thread: _DbThread | None = None
+        self._roll_checked: pd.Timestamp | None = None  # the clock at the last check
+        self._roll_pending = False  # the last check left closed months in the table
+        self._told_no_cold = False
 
     # ------------------------------------------------------------------ the loop's side
     @property
@@ -418,6 +432,7 @@ class HistorianWriter:
         self._closed = True
         self._stopping = True
         self._wake.set()
+        end = time.monotonic() + timeout
         if self._task is not None:
             done, _ = await asyncio.wait({self._task}, timeout=timeout)
             if not done:
@@ -458,6 +473,24 @@ class HistorianWriter:
         await asyncio.to_thread(self._close_journal)
         self._db.submit(LiveStore.close, self.store)
         self._db.stop()
+        await self._stop_roll(end)
+
+    async def _stop_roll(self, end: float) -> None:
+        """Wait for a running roll until ``end`` (``time.monotonic()``), no longer: a roll
+        left running stops after its month in its own thread, or dies with the process (an
+        orphan file at worst, :meth:`historian.store.Historian.cold_orphans`)."""
+        task, self._roll_task = self._roll_task, None
+        if task is not None and not task.done():
+            done, _ = await asyncio.wait({task}, timeout=max(0.0, end - time.monotonic()))
+            if not done:
+                task.cancel()
+                log.warning(
+                    "historian: a roll of closed months was still running at stop; left to "
+                    "end after its month (a kill leaves at worst an orphan file)"
+                )
+        if self._roll_thread is not None:
+            self._roll_thread.stop()
+            self._roll_thread = None
 
     def _close_journal(self) -> None:
         """At a clean stop: delete the journal files whose cycles are all durable, and
@@ -474,6 +507,58 @@ class HistorianWriter:
                 )
             except OSError as exc:
                 log.warning("historian: cannot note the last cycle's time: %s", exc)
+
+    # ------------------------------------------------------------------ rolling months
+    def _check_roll(self) -> None:
+        """After a stored block: start a roll of closed months on the roll thread at the
+        first store, at the first store of each new UTC month (by ``clock()``), and every
+        ``roll_every`` seconds while the last check left closed months in the table."""
+        if not self.roll_months or self._stopping:
+            return
+        if self._roll_task is not None and not self._roll_task.done():
+            return
+        now = self.clock()
+        last = self._roll_checked
+        if last is not None and _month_start(now) == _month_start(last):
+            if not self._roll_pending or (now - last).total_seconds() < self.roll_every:
+                return
+        self._roll_checked = now
+        self._roll_task = asyncio.create_task(self._roll(now), name=f"historian roll {self.url}")
+
+    async def _roll(self, now: pd.Timestamp) -> None:
+        """Roll the months closed at ``now`` in the roll thread (its own connection; only
+        the final delete of each month takes the write lock), then log and record each."""
+        if self._roll_thread is None:
+            self._roll_thread = _DbThread(f"historian roll {self.url}")
+        before = _month_start(now)
+        try:
+            r = await self._roll_thread.submit(
+                lambda: roll_closed(self.url, before, stop=lambda: self._stopping)
+            )
+        except Exception as exc:  # noqa: BLE001 - roll_closed returns its failures
+            r = RollResult(error=exc, left=True)
+        self._roll_pending = r.left
+        for month, rows, seconds in r.done:
+            self.rolled.append((month, rows, seconds))
+            text = f"historian: rolled {month} to the cold store: {rows} samples in {seconds:.1f} s"
+            log.info("%s", text)
+            self.put_event(now, "diag run", text)
+        if r.no_cold:
+            if not self._told_no_cold:
+                self._told_no_cold = True
+                log.warning(
+                    "historian: %s has no cold folder recorded: closed months stay in the "
+                    "samples table (diag historian roll --cold-dir DIR records one)",
+                    self.url,
+                )
+            return
+        if r.error is not None:
+            text = (
+                f"historian: rolling closed months failed ({_why(r.error)}); "
+                f"retried in {self.roll_every:g} s"
+            )
+            log.error("%s", text)
+            self.put_event(now, "diag run", text)
 
     # ------------------------------------------------------------------ the task
     def _take(self, cycles: int) -> tuple[Block, list[int]]:
@@ -556,6 +641,7 @@ class HistorianWriter:
                         await self._recovered()
                 backoff = 0.5
                 self._fail_streak = 0
+                self._check_roll()
                 continue
             if self._stopping:
                 return
@@ -717,6 +803,13 @@ class HistorianWriter:
                 self.notify(degraded, text)
             except Exception:  # noqa: BLE001 - a listener must not stop storage
                 log.exception("historian notify failed")
+
+
+def _month_start(ts: pd.Timestamp) -> pd.Timestamp:
+    """The start of ``ts``'s UTC month."""
+    ts = pd.Timestamp(ts)
+    ts = ts.tz_localize("UTC") if ts.tzinfo is None else ts.tz_convert("UTC")
+    return ts.normalize().replace(day=1)
 
 
 def _why(exc: BaseException) -> str:
