@@ -694,10 +694,10 @@ class Plant:
 
 def _top(share: np.ndarray, names: list[str]) -> list[tuple[str, float]]:
     """The top tags by share, as :func:`~diag_plugin.diagnose.unittags.top_tags` ranks them."""
-    from diag_plugin.diagnose.unittags import TOP
+    from diag_plugin.diagnose.unittags import TOP, rank
 
     s = np.nan_to_num(share, nan=-1.0)
-    order = np.argsort(-s, kind="stable")[:TOP]
+    order = rank(s)[0, :TOP]
     return [(names[k], float(s[k])) for k in order if s[k] > 0]
 
 

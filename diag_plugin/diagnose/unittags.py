@@ -755,6 +755,27 @@ def top_tags_at(
     return pd.DataFrame(top_columns_at(share_at, tags, rows, top))
 
 
+#: shares equal to this relative tolerance are one share (:func:`rank`)
+TIE = 1e-9
+
+
+def rank(s: np.ndarray) -> np.ndarray:
+    """Per row of shares ``s`` (samples × tags; NaN as -1) the tags' positions, largest share
+    first; shares equal to :data:`TIE` (relative) in the tags' order. Tags whose directions
+    are parallel over the known tests (a loop's compensated sensor and a tag its valve's
+    model reads; two linear tests reading each other) explain the same share, equal but for
+    the last bit, which the path that computed them (one stacked inverse or each pattern's)
+    decides: ranked by the last bit, which of them is named third — and which left out —
+    would change with the piece a replay was cut into."""
+    s = np.atleast_2d(s)
+    order = np.argsort(-s, axis=1, kind="stable")
+    v = np.take_along_axis(s, order, axis=1)
+    tied = np.abs(np.diff(v, axis=1)) <= TIE * np.abs(v[:, :-1]) + 1e-12
+    group = np.concatenate([np.zeros((len(v), 1), int), np.cumsum(~tied, axis=1)], axis=1)
+    by = np.lexsort((order, group), axis=-1)
+    return np.take_along_axis(order, by, axis=1)
+
+
 def top_columns_at(
     share_at: np.ndarray, tags: list[str], rows: np.ndarray, top: int = TOP
 ) -> dict[str, np.ndarray]:
@@ -764,7 +785,7 @@ def top_columns_at(
     out: dict[str, np.ndarray] = {}
     at = np.flatnonzero(rows)  # ranked only where there is an alarm (the rest stay empty)
     s = np.nan_to_num(share_at, nan=-1.0)
-    order = np.argsort(-s, axis=1, kind="stable")[:, :top] if len(tags) else np.zeros((0, 0), int)
+    order = rank(s)[:, :top] if len(tags) else np.zeros((0, 0), int)
     names = np.asarray(tags, dtype=object)
     for i in range(min(top, len(tags))):
         col = order[:, i]
