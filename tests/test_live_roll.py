@@ -136,6 +136,31 @@ def test_first_store_of_a_new_month_rolls_the_closed_month(url, tmp_path, caplog
     assert "rolled 2026-02 to the cold store" in caplog.text
 
 
+def test_the_month_the_cycles_go_into_is_never_rolled(tmp_path):
+    """A feed writing into the past (the embedded simulation, a replay): the month its cycles
+    go into stays in the table, though the clock has it closed; the month before it rolls."""
+    url = f"sqlite:///{tmp_path / 'plant.db'}"
+    clock = Clock(pd.Timestamp("2026-11-29 12:00", tz="UTC"))
+
+    async def run():
+        w = writer(url, tmp_path, clock)
+        await w.start()
+        put_cycles(w, FEB, 20)  # February, closed by the clock, and the cycles' month
+        await drained(w)
+        assert w.rolled == [] and table_months(url) == {"2026-02": 120}
+        put_cycles(w, MAR, 21)  # the feed moves on to March: February rolls
+        await drained(w)
+        await until(lambda: w.rolled)
+        await w.close()
+        return w
+
+    w = asyncio.run(run())
+    assert [m for m, _, _ in w.rolled] == ["2026-02"]
+    assert table_months(url) == {"2026-03": 126}
+    with Historian(url) as h:
+        assert h.cold_months() == ["2026-02"] and h.integrity_check() == []
+
+
 def test_switched_off_it_keeps_every_month(tmp_path):
     url = f"sqlite:///{tmp_path / 'plant.db'}"
     clock = Clock(FEB)

@@ -197,6 +197,7 @@ class HistorianWriter:
         self._roll_task: asyncio.Task[None] | None = None
         self._roll_thread: _DbThread | None = None
         self._roll_checked: pd.Timestamp | None = None  # the clock at the last check
+        self._roll_data: pd.Timestamp | None = None  # the cycles' month at the last check
         self._roll_pending = False  # the last check left closed months in the table
         self._told_no_cold = False
 
@@ -511,26 +512,36 @@ class HistorianWriter:
     # ------------------------------------------------------------------ rolling months
     def _check_roll(self) -> None:
         """After a stored block: start a roll of closed months on the roll thread at the
-        first store, at the first store of each new UTC month (by ``clock()``), and every
-        ``roll_every`` seconds while the last check left closed months in the table."""
+        first store, at the first store of each new UTC month (by ``clock()``, or of the
+        cycles' own times), and every ``roll_every`` seconds while the last check left closed
+        months in the table."""
         if not self.roll_months or self._stopping:
             return
         if self._roll_task is not None and not self._roll_task.done():
             return
         now = self.clock()
         last = self._roll_checked
-        if last is not None and _month_start(now) == _month_start(last):
+        data = (
+            None
+            if self._last_ts is None
+            else _month_start(pd.Timestamp(self._last_ts, unit="us", tz="UTC"))
+        )
+        if last is not None and _month_start(now) == _month_start(last) and data == self._roll_data:
             if not self._roll_pending or (now - last).total_seconds() < self.roll_every:
                 return
-        self._roll_checked = now
+        self._roll_checked, self._roll_data = now, data
         self._roll_task = asyncio.create_task(self._roll(now), name=f"historian roll {self.url}")
 
     async def _roll(self, now: pd.Timestamp) -> None:
-        """Roll the months closed at ``now`` in the roll thread (its own connection; only
+        """Roll the months closed at ``now`` and before the newest cycle's month in the roll
+        thread (its own connection; only
         the final delete of each month takes the write lock), then log and record each."""
         if self._roll_thread is None:
             self._roll_thread = _DbThread(f"historian roll {self.url}")
         before = _month_start(now)
+        if self._last_ts is not None:  # never the month the cycles go into (a feed in the past,
+            # a simulation or a replay: its month would be rewritten at every check)
+            before = min(before, _month_start(pd.Timestamp(self._last_ts, unit="us", tz="UTC")))
         try:
             r = await self._roll_thread.submit(
                 lambda: roll_closed(self.url, before, stop=lambda: self._stopping)
