@@ -419,7 +419,9 @@ def _month_limit(text: str | None):
 
     import pandas as pd
 
-    now = pd.Timestamp.now(tz="UTC").normalize().replace(day=1)
+    from .coldstore import month_start
+
+    now = month_start()
     if text is None:
         return now
     if not re.fullmatch(r"\d{4}-\d{2}", text.strip()):

@@ -12,7 +12,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 from sqlalchemy import delete, func, insert, select
 from sqlalchemy.exc import IntegrityError
 
@@ -190,11 +189,7 @@ class ColdMonths:
     def months_to_roll(self, before=None) -> list[str]:
         """The closed months (ending at or before ``before``, default: the start of the
         current UTC month) that still hold rows in the database."""
-        limit = (
-            to_us(before)
-            if before is not None
-            else to_us(pd.Timestamp.now(tz="UTC").normalize().replace(day=1))
-        )
+        limit = to_us(before if before is not None else coldstore.month_start())
         s = schema.samples
         ids = [int(i) for i in self.tags()["id"]]
         months = []
@@ -277,7 +272,7 @@ class ColdMonths:
         if policy not in ("ignore", "update"):
             raise ValueError(f"policy must be 'ignore' or 'update', not {policy!r}")
         m0, m1 = coldstore.month_bounds(month)
-        if m1 > to_us(pd.Timestamp.now(tz="UTC").normalize().replace(day=1)):
+        if m1 > to_us(coldstore.month_start()):
             raise ValueError(f"{month} is not a closed month")
         if self.cold_dir is None:
             raise RuntimeError(

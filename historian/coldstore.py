@@ -52,6 +52,19 @@ def month_bounds(month: str) -> tuple[int, int]:
     return to_us(start), to_us(start + pd.offsets.MonthBegin(1))
 
 
+def month_start(ts=None) -> pd.Timestamp:
+    """The start of ``ts``'s UTC month (a time, or µs since the epoch; None: now): the first
+    time that is not in a closed month."""
+    if ts is None:
+        ts = pd.Timestamp.now(tz="UTC")
+    elif isinstance(ts, (int, np.integer)):
+        ts = pd.Timestamp(int(ts), unit="us", tz="UTC")
+    else:
+        ts = pd.Timestamp(ts)
+        ts = ts.tz_localize("UTC") if ts.tzinfo is None else ts.tz_convert("UTC")
+    return ts.normalize().replace(day=1)
+
+
 def month_of(us: int) -> str:
     return pd.Timestamp(int(us), unit="us", tz="UTC").strftime("%Y-%m")
 

@@ -1153,9 +1153,7 @@ def import_file(
         if writing is not None:
             writing.result()
     report.repeats, report.repeat_example = repeats.count, repeats.example
-    closed = report.first is not None and report.first < pd.Timestamp.now(
-        tz="UTC"
-    ).normalize().replace(day=1)
+    closed = report.first is not None and report.first < coldstore.month_start()
     if closed and cold_before is None and not hot:
         report.no_cold_folder = True
     report.duplicates = duplicates
@@ -1498,7 +1496,7 @@ def _cold_before(h: Historian) -> int | None:
     written to their Parquet files; None when it has none (every sample to the table)."""
     if h.cold_dir is None:
         return None
-    return to_us(pd.Timestamp.now(tz="UTC").normalize().replace(day=1))
+    return to_us(coldstore.month_start())
 
 
 def _write_cold_month(h, month: str, parts: list[tuple], policy, line_of, report: ImportReport):

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from historian.coldstore import month_start
 from historian.journal import Journal, JournalCorrupt
 from historian.livestore import LiveStore, RollResult, roll_closed
 from historian.quality import BAD
@@ -521,12 +522,8 @@ class HistorianWriter:
             return
         now = self.clock()
         last = self._roll_checked
-        data = (
-            None
-            if self._last_ts is None
-            else _month_start(pd.Timestamp(self._last_ts, unit="us", tz="UTC"))
-        )
-        if last is not None and _month_start(now) == _month_start(last) and data == self._roll_data:
+        data = None if self._last_ts is None else month_start(self._last_ts)
+        if last is not None and month_start(now) == month_start(last) and data == self._roll_data:
             if not self._roll_pending or (now - last).total_seconds() < self.roll_every:
                 return
         self._roll_checked, self._roll_data = now, data
@@ -538,10 +535,10 @@ class HistorianWriter:
         the final delete of each month takes the write lock), then log and record each."""
         if self._roll_thread is None:
             self._roll_thread = _DbThread(f"historian roll {self.url}")
-        before = _month_start(now)
+        before = month_start(now)
         if self._last_ts is not None:  # never the month the cycles go into (a feed in the past,
             # a simulation or a replay: its month would be rewritten at every check)
-            before = min(before, _month_start(pd.Timestamp(self._last_ts, unit="us", tz="UTC")))
+            before = min(before, month_start(self._last_ts))
         try:
             r = await self._roll_thread.submit(
                 lambda: roll_closed(self.url, before, stop=lambda: self._stopping)
@@ -814,13 +811,6 @@ class HistorianWriter:
                 self.notify(degraded, text)
             except Exception:  # noqa: BLE001 - a listener must not stop storage
                 log.exception("historian notify failed")
-
-
-def _month_start(ts: pd.Timestamp) -> pd.Timestamp:
-    """The start of ``ts``'s UTC month."""
-    ts = pd.Timestamp(ts)
-    ts = ts.tz_localize("UTC") if ts.tzinfo is None else ts.tz_convert("UTC")
-    return ts.normalize().replace(day=1)
 
 
 def _why(exc: BaseException) -> str:
