@@ -119,6 +119,38 @@ def test_a_short_gap_is_replayed_on_the_live_plant(unit_dir, db_url):
     assert "not raised now" in text and "700 missed cycles" in text, text
 
 
+@pytest.mark.parametrize("late_s", [0.0, 4.4, 4.9, 5.0, 6.0, 9.9])
+def test_cycles_stamped_off_the_grid_are_all_caught_up(unit_dir, db_url, late_s):
+    """A live cycle is stamped with its poll's time, late under load: every missed cycle is
+    still caught up, from the grid row after the one the last cycle's sample went into (its
+    start was ``since + period`` rounded up, which skipped the first missed cycle when the
+    stamps were late by less than half a period: 699 of 700 at 4.4 s late on 10 s)."""
+    pre, gap = scenario(T_STOP, 700)
+    late = pd.Timedelta(seconds=late_s)
+    pre.index, gap.index = pre.index + late, gap.index + late
+    plant = stopped_plant(unit_dir, pre)
+    historian_with(db_url, pre, gap)
+    res = catch_up(plant, db_url, gap.index[-1], 10.0)
+    # the rows of the gap's samples: each sample on its nearest grid point (half up)
+    rows = (gap.index + STEP / 2).floor(STEP)
+    assert res.mode == "replayed" and res.first == rows[0] and res.last == rows[-1], res
+    assert res.rows == res.total == len(gap), res
+    assert res.gap_start == rows[0]
+
+
+def test_a_cycle_early_in_the_next_row_is_caught_up(unit_dir, db_url):
+    """The killed run's one cycle after its last save, stamped 6 s after it on a 10 s grid
+    (the next row's sample), restarted at once: it is caught up, not said to be "no cycle
+    missed" because ``until`` came before ``since + period``."""
+    pre, gap = scenario(T_STOP, 1)
+    gap.index = gap.index - pd.Timedelta(seconds=4)
+    plant = stopped_plant(unit_dir, pre)
+    historian_with(db_url, pre, gap)
+    res = catch_up(plant, db_url, gap.index[-1], 10.0)
+    assert res.mode == "replayed" and res.rows == res.total == 1, res
+    assert res.first == T_STOP + STEP
+
+
 def test_a_long_gap_is_replayed_as_diag_diagnose_and_the_units_warm_up(unit_dir, db_url):
     """A gap longer than the lead-in: its episodes by the replay's path (the same as an
     uninterrupted run's), the live plant warmed up on the last lead-in before now."""

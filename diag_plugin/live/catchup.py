@@ -141,7 +141,7 @@ class CatchUp:
     def gap_start(self) -> pd.Timestamp:
         if self.since is None:  # a fresh start: the warm-up's window
             return self.window_from if self.window_from is not None else self.until
-        return self.since + pd.Timedelta(seconds=self.period_s)
+        return next_row(self.since, pd.Timedelta(seconds=self.period_s))
 
     @property
     def no_samples(self) -> list[str]:
@@ -289,6 +289,7 @@ def catch_up(
     (``plant.last_ts``, the restored state's) and ``until``, the live plant on a grid of
     ``period_s`` (the live loop's cycle); module doc. None when the plant has no last cycle
     (nothing restored). ``gate``: the live loop's (:class:`Gate`)."""
+    from historian.sampling import snap_near
     from historian.times import to_us
 
     since = plant.last_ts
@@ -298,10 +299,11 @@ def catch_up(
     until = pd.Timestamp(until)
     p = pd.Timedelta(seconds=float(period_s))
     res = CatchUp(since, until, float(period_s), max_gap_s=float(max_gap_s))
-    start = since + p
-    if until < start:
+    start = next_row(since, p)
+    end = snap_near(to_us(until), _us(p))  # the row a sample stamped ``until`` goes into
+    if end < to_us(start):
         return res
-    res.total = int((to_us(until) - to_us(start)) // _us(p)) + 1
+    res.total = int((end - to_us(start)) // _us(p)) + 1
     res.lead = _plant_lead_in(plant)
     gate = gate or Gate()
     tags = list(plant.tags)
@@ -566,6 +568,18 @@ def _step(
     elif e is not None:
         e.end = ts
         del open_[unit]
+
+
+def next_row(since: pd.Timestamp, p: pd.Timedelta) -> pd.Timestamp:
+    """The historian's grid row (``k·p``, epoch-anchored; a sample belongs to its nearest
+    point) after the one the cycle at ``since`` went into: where a catch-up starts. A live
+    cycle is stamped with its poll's time, off the grid under load; ``since + p`` rounded up
+    to the grid skipped the next cycle's row whenever the last one came late by less than
+    half a period."""
+    from historian.sampling import snap_near
+    from historian.times import from_us, to_us
+
+    return from_us(snap_near(to_us(since), _us(p)) + _us(p))
 
 
 def _us(p: pd.Timedelta) -> int:
