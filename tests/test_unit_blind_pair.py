@@ -54,6 +54,21 @@ def pipe(seed: int, n: int, rise_from: int | None = None, start: str = "2026-05-
     )
 
 
+def record_t2(cm) -> list[float]:
+    """The combined T² of each call of ``cm.evaluate`` (a live plant's model, one sample a
+    cycle), appended to the list returned as the plant runs."""
+    got: list[float] = []
+    evaluate = cm.evaluate
+
+    def recorded(r, point=None):
+        out = evaluate(r, point)
+        got.append(out[0][0])
+        return out
+
+    cm.evaluate = recorded
+    return got
+
+
 def _pair_test(unit) -> str:
     return next(t.name for t in unit.file.tests if t.name.endswith("_pair"))
 
@@ -134,15 +149,7 @@ def test_the_setting_round_trips_and_the_live_path_equals_the_replay_with_it(bui
     assert fast.fast == ["u"] and slow.slow == ["u"]
     part = frame.iloc[ROWS : ROWS + 1000]
     replay = again.reset().evaluate(part)
-    cm = fast._multi[0][1]
-    got, evaluate = [], cm.evaluate
-
-    def recorded(r, point=None):
-        out = evaluate(r, point)
-        got.append(out[0][0])
-        return out
-
-    cm.evaluate = recorded
+    got = record_t2(fast._multi[0][1])
     for ts, row in part.iterrows():
         values = row.to_dict()
         (x,), (y,) = fast.cycle(ts, values), slow.cycle(ts, values)
