@@ -151,6 +151,7 @@ def _plant_t2_matches(rb, frame: pd.DataFrame) -> bool:
     run`` does) equals the replay's (:meth:`Unit.evaluate`) on ``frame`` (at 15 s)."""
     from diag_plugin.diagnose.plant import Plant
     from diag_plugin.diagnose.unit import Unit
+    from tests.test_unit_blind_pair import record_t2
 
     frame = frame.set_axis(frame.index.floor("15s"))
     frame = frame[~frame.index.duplicated()]
@@ -158,15 +159,7 @@ def _plant_t2_matches(rb, frame: pd.DataFrame) -> bool:
     plant = Plant({"line": Unit.load(rb / "line.unit.toml", rb)}, {})
     cm = plant._multi[0][1]
     assert cm.centers is not None and len(cm.centers) == 2
-    got = []
-    evaluate = cm.evaluate
-
-    def recorded(r, point=None):
-        out = evaluate(r, point)
-        got.append(out[0][0])
-        return out
-
-    cm.evaluate = recorded
+    got = record_t2(cm)
     for ts, row in frame.iterrows():
         plant.cycle(ts, row.to_dict())
     return bool(np.allclose(np.array(got), t2, rtol=1e-9, equal_nan=True))

@@ -39,6 +39,7 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     r1 = { model = "valve_r1.toml", high = 9.8, low = -9.6, spread = true, levels = [1.0, 1.7] }
     r2 = { model = "valve_r2.toml", high = 4.1 }    # low defaults to -high
     TI103 = { model = "u_TI103.toml", high = 0.6, actuator = "TIC103.OUT" }  # a loop's test
+    A1_joint = { model = "u_A1_joint.toml", high = 3.2, combined = false }  # not in T²
 
     [learned]            # written by `diag unit learn`: what each test's thresholds rest on
     r1 = { far = 0.00012, method = "tail", supported = false, hours = 336.0, ...}
@@ -101,6 +102,13 @@ model's fine grid: a residual answered at level ``l`` is divided by ``levels[l]`
 so a coarser, less exact answer needs a proportionally larger deviation to raise a symptom. A
 test without ``levels`` counts only answers of the fine grid; answers at levels beyond the list
 are unknown (never calibrated).
+
+``combined = false`` (written by ``diag unit build`` for a test added only to cover a tag
+the window leaves blind, :func:`~diag_plugin.unitbuild.build.blind_pair_tests`; editable): the
+test stays out of the unit's combined ``T²`` (not one of its dimensions; its residual is
+neither centred, scaled nor ranked there) and keeps its own thresholds, alarm and share of the
+budget. A test that sees nothing of a fault the others see would otherwise add a dimension to
+``T²`` and lower it under its limit (SKAB, docs/how-to/unit-short-windows.md, round 14).
 
 ``point_center = [...]``, ``point_scale = [...]`` (written by ``diag unit accept`` for a level
 test, a tag against its mean: one number per ``[combined]`` operating point): the test's raw
@@ -250,6 +258,9 @@ class TestSpec:
     #: sample's residual is ``(r − point_center[k]) / point_scale[k]`` at its nearest point k
     point_center: tuple[float, ...] | None = None
     point_scale: tuple[float, ...] | None = None
+    #: False (``combined = false``, written by ``diag unit build``): the test stays out of
+    #: the combined ``T²`` — its own thresholds and budget share as any test's
+    combined: bool = True
 
     @property
     def limits(self) -> tuple[float, float] | None:
@@ -464,7 +475,8 @@ class UnitFile(LinedFile):
                 continue
             v = {k: _plain(x) for k, x in raw.items()}
             known = {"model", "high", "low", "ymax", "levels", "spread", "fuzzy", "actuator",
-                     "statistic", "set_point", "point_center", "point_scale"}  # fmt: skip
+                     "statistic", "set_point", "point_center", "point_scale",
+                     "combined"}  # fmt: skip
             for key in sorted(set(v) - known):
                 self.error(line, f"test {name!r}: unknown key {key!r}")
             model = v.get("model")
@@ -550,6 +562,10 @@ class UnitFile(LinedFile):
                 self.error(line, f"test {name!r}: set_point must name a tag, got {set_point!r}")
                 set_point = None
             center, scale = self._test_points(name, v, line)
+            combined = v.get("combined", True)
+            if not isinstance(combined, bool):
+                self.error(line, f"test {name!r}: combined must be true or false, got {combined!r}")
+                combined = True
             tests.append(
                 TestSpec(
                     name,
@@ -566,6 +582,7 @@ class UnitFile(LinedFile):
                     set_point,
                     center,
                     scale,
+                    combined,
                 )
             )
         if table and not tests and not self.problems:

@@ -337,6 +337,14 @@ def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray
             xi[j, k] += -g * 100.0 / span / spec.scale[spec.tests.index(other)]
 
 
+def outside_tests(unit) -> np.ndarray | None:
+    """Per test of ``unit`` (its tests' order) whether it stays out of the combined ``T²``
+    (``combined = false`` in its ``[tests]`` row, :class:`~diag_plugin.diagnose.unitfile.
+    TestSpec`); None where every test is in — or none is, as ``T²`` needs one."""
+    out = np.array([not t.combined for t in unit.file.tests], bool)  # unit.tests' order
+    return out if out.any() and not out.all() else None
+
+
 #: the combined test's covariance up to this condition number has every pattern's inverse
 #: computed in one stacked call, not one pseudo-inverse (an SVD) each: equal to within
 #: ~T · BATCH_COND · 2.2e-16 relative (1e-10 for 45 tests), tests/test_unit_replay_exact.py
@@ -373,6 +381,10 @@ class CombinedModel:
     #: directions (:func:`point_directions`): each in the scaled residuals of that point
     point_xi: np.ndarray | None = None
     point_process: np.ndarray | None = None
+    #: per test whether it stays out of ``T²`` (the unit file's ``combined = false``,
+    #: :func:`outside_tests`; None: every test is in): its scaled residual is unknown here,
+    #: and ``T²``, the known share and the degrees of freedom count the other tests only
+    outside: np.ndarray | None = None
     #: per operating point the model that ranks its samples (:meth:`_at_point`)
     _views: dict[int, CombinedModel] = field(default_factory=dict, repr=False)
     #: per pattern of known tests: S⁻¹ restricted to them and the directions' norms
@@ -446,7 +458,7 @@ class CombinedModel:
         if spec is None:
             hi = np.array([t.high if t.high else 1.0 for t in unit.file.tests], float)
             xi, _ = directions(unit, None)
-            return cls(tags, np.zeros(T), hi, np.eye(T), xi, None)
+            return cls(tags, np.zeros(T), hi, np.eye(T), xi, None, outside=outside_tests(unit))
         order = [spec.tests.index(t) for t in unit.tests]
         cov = np.asarray(spec.cov, float)[np.ix_(order, order)]
         xi, loop = directions(unit, spec)
@@ -471,6 +483,7 @@ class CombinedModel:
             spec.high,
             loop if (loop >= 0).any() else None,
             process_directions(unit, spec, xi),
+            outside=outside_tests(unit),
             **points,
         )
 
@@ -525,7 +538,15 @@ class CombinedModel:
             center, scale = self.centers[point], self.scales[point]
         z = np.subtract(r, center, dtype=float)
         z /= scale  # in place: one n × T array, not two
+        if self.outside is not None:
+            z[:, self.outside] = np.nan
         return z
+
+    @property
+    def dims(self) -> int:
+        """The tests ``T²`` is taken over: the unit's, less those kept out (:attr:`outside`)."""
+        T = len(self.center)
+        return T if self.outside is None else T - int(self.outside.sum())
 
     def evaluate(
         self, r: np.ndarray, point: np.ndarray | None = None, shares: bool = True
@@ -542,7 +563,8 @@ class CombinedModel:
         # values): no n × T array of them beside the residuals; a piece's few rows at once
         # (making them twice, for the patterns and per block, cost more there)
         z = _ScaledRows(self, r, point) if len(r) > LAZY_Z_ROWS else self.z(r, point)
-        n, T = z.shape
+        n = z.shape[0]
+        T = self.dims
         t2 = np.full(n, np.nan)
         share = np.full((n, len(self.tags)), np.nan) if shares else None
         partial: list[tuple[np.ndarray, np.ndarray, int]] = []
@@ -586,7 +608,7 @@ class CombinedModel:
         the degrees of freedom)."""
         n, T = z.shape
         known = z.finite() if isinstance(z, _ScaledRows) else np.isfinite(z)
-        enough = known.sum(axis=1) >= max(1, math.ceil(MIN_KNOWN_SHARE * T))
+        enough = known.sum(axis=1) >= max(1, math.ceil(MIN_KNOWN_SHARE * self.dims))
         if not enough.any():
             return
         # the patterns of known tests, as one integer key per sample when they fit in 63

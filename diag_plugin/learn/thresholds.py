@@ -905,6 +905,26 @@ def _combined_part(
     return model.evaluate(x[held], point[held])[0]
 
 
+def _with_outside(
+    outside: np.ndarray, x_all: np.ndarray, center: np.ndarray, scale: np.ndarray, cov: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The combined test's parameters over the tests ``T²`` is taken over (``center`` and
+    ``scale`` one row, or one row per operating point; ``cov``) written out for every test
+    of the unit, in its order: a test kept out (``outside``,
+    :func:`~diag_plugin.diagnose.unittags.outside_tests`) gets the whole window's centre and
+    robust scale of its residuals ``x_all`` (the file's checks want them; ``T²`` never reads
+    them) and the identity's row and column of the covariance."""
+    inside = ~outside
+    c_out, s_out = _centre_scale(x_all[:, outside])
+    shape = center.shape[:-1] + (outside.size,)
+    c, s = np.empty(shape), np.empty(shape)
+    c[..., inside], s[..., inside] = center, scale
+    c[..., outside], s[..., outside] = c_out, s_out
+    full = np.eye(outside.size)
+    full[np.ix_(inside, inside)] = cov
+    return c, s, full
+
+
 def learn_combined(
     unit: Unit,
     body: pd.DataFrame,
@@ -936,9 +956,12 @@ def learn_combined(
 
     ``mapper`` (:data:`Mapper`) computes the whole window's parameters and each held-out
     block's T² (independent of each other) in any number of processes."""
+    from diag_plugin.diagnose.unittags import outside_tests
     from diag_plugin.learn.budget import calibrate_side
 
-    x = body[unit.tests].to_numpy(float)
+    x_all = body[unit.tests].to_numpy(float)
+    outside = outside_tests(unit)
+    x = x_all if outside is None else x_all[:, ~outside]  # the tests T² is taken over
     point = None if located is None else located[0]
     blocks = np.unique(block)
     run = mapper or _serial
@@ -956,6 +979,8 @@ def learn_combined(
             held_t2 = run(
                 _combined_part, blocks.tolist(), (x, block, blocks.size, point, (center, scale))
             )
+    if outside is not None:
+        center, scale, cov = _with_outside(outside, x_all, center, scale, cov)
     spec = CombinedSpec(
         tests=list(unit.tests),
         center=(center if point is None else center[0]).tolist(),

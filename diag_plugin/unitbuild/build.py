@@ -146,6 +146,7 @@ class TestChoice:
     declared: bool = False  # the loop was declared (--loop, a tags CSV), not found
     why: str = ""  # why this method (a short window's choice between a grid and a line)
     sets: int | None = None  # sets per input of a short window's grid
+    combined: bool = True  # False: kept out of the combined T² (a blind tag's pair test)
 
     @property
     def inputs(self) -> list[str]:
@@ -877,6 +878,7 @@ def _build_unit(
         kept.append(ch)
     if plan.short:
         kept.extend(joint_tests(kept, ctx, taken, notes))
+        kept.extend(blind_pair_tests(kept, list(skipped), plan, ctx, taken))
     # each model trained and written on its own: on every core, as the inputs were chosen
     tick = (lambda d, n: progress("train models", d, n)) if progress else None
     loaded: dict[Path, TestModel] = {}  # model file → its model, as Unit.load reads it
@@ -905,6 +907,8 @@ def _build_unit(
             doc["tests"][ch.test]["set_point"] = ch.tracks
         if ch.statistic != "level":
             doc["tests"][ch.test]["statistic"] = ch.statistic
+        if not ch.combined:
+            doc["tests"][ch.test]["combined"] = False
     for k, v in {**evaluation_for(period), **alarm_settings(period)}.items():
         doc["evaluation"][k] = v
     if plan.lowpass is not None:
@@ -978,6 +982,52 @@ def joint_tests(
             ),
         )
         out.append(ch)
+    return out
+
+
+def blind_pair_tests(
+    kept: Sequence[TestChoice],
+    untested: Sequence[str],
+    plan: short.Plan,
+    ctx: _Context,
+    taken: set[str],
+) -> list[TestChoice]:
+    """A short window's joint test of each slow tag left blind with the slow tag whose test
+    reads it (:func:`short.blind_pairs`): the pair's score on its first component (method
+    ``joint``, :func:`short.component`; the output the tag whose test reads the other, the
+    other at the dead time that test found — two tags' standardised loadings are equal, and
+    at its dead time the pair's relation, and so its common direction, is the test's),
+    whatever the independent values it holds — it covers a tag that has no test at all. It
+    stays out of the combined ``T²`` (``combined = false``): a test added for a blind tag
+    sees nothing of the faults the unit's other tests see, and as one more dimension of
+    ``T²`` it would lower ``T²`` under its limit through them (SKAB's tuning runs, round 13:
+    the leak other/4 75 → 0 % at 0.1); it keeps its own thresholds and share of the budget."""
+    lin = [ch for ch in kept if ch.steps and not ch.tracks and ch.method != short.JOINT]
+    out = []
+    for a, spec in short.blind_pairs([(ch.tag, ch.inputs) for ch in lin], untested, plan.slow):
+        b = InputSpec.parse(spec)
+        got = short.component([ctx.column(a), ctx.spec_column(b)])
+        if got is None:
+            continue
+        base = next(ch for ch in lin if ch.tag == a)
+        out.append(
+            TestChoice(
+                test_name(f"{a}_pair", taken),
+                a,
+                base.baseline_rmse_pct,
+                steps=[Step(spec, math.nan, 1.0)],
+                method=short.JOINT,
+                combined=False,
+                why=(
+                    f"pair test of {a} and {spec}: {b.tags[0]} is too slow for a test of its "
+                    f"own ({plan.slow[b.tags[0]]:.0f} independent values) and {a}'s test reads "
+                    "it, so their common move is seen by no test; this one watches the pair's "
+                    f"score on its first principal component ({got[1]:.0f} independent values "
+                    "in the window), at the dead time the test found; kept out of the "
+                    "combined T² (combined = false): it covers a blind tag"
+                ),
+            )
+        )
     return out
 
 

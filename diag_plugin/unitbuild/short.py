@@ -24,7 +24,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -350,9 +350,6 @@ def joint_groups(
     values its score holds, and why it is left out ("" where it is tested): only where the
     window holds :data:`SHORT_LEVEL_INDEPENDENT` independent values of the score, as a level
     test."""
-    from diag_plugin.models.joint import first_component
-    from diag_plugin.models.series import effective_samples
-
     order = [t for t, _ in tests]
     ins = {t: set(i) for t, i in tests}
     parent = {t: t for t in order}
@@ -371,17 +368,9 @@ def joint_groups(
         groups.setdefault(root(t), []).append(t)
     out = []
     for g in groups.values():
-        if len(g) < 2:
+        if len(g) < 2 or (got := group_component(g, column)) is None:
             continue
-        U = np.column_stack([column(t) for t in g])
-        U = U[np.isfinite(U).all(axis=1)]
-        if len(U) < 3:
-            continue
-        P = np.column_stack([np.ones(len(U)), U])
-        m, s, v = first_component(P.T @ P)
-        n = effective_samples(((U - m) / s) @ v)
-        out_at = int(np.argmax(np.abs(v)))  # the first of equal loadings in tests' order
-        g = [g[out_at]] + g[:out_at] + g[out_at + 1 :]
+        g, n = got
         why = ""
         if n < SHORT_LEVEL_INDEPENDENT:
             why = (
@@ -389,4 +378,60 @@ def joint_groups(
                 f"direction (a joint test needs {SHORT_LEVEL_INDEPENDENT})"
             )
         out.append((g, n, why))
+    return out
+
+
+def group_component(g: Sequence[str], column) -> tuple[list[str], float] | None:
+    """A group of tags ordered for its joint test, the output first — the tag with the
+    largest |loading| on the first principal component of their standardised values
+    (:func:`component`; the first of equal loadings in ``g``'s order), then the others in
+    ``g``'s order — and the independent values of the group's score in the window; None
+    where fewer than 3 rows know every tag."""
+    got = component([column(t) for t in g])
+    if got is None:
+        return None
+    v, n = got
+    out_at = int(np.argmax(np.abs(v)))
+    g = list(g)
+    return [g[out_at]] + g[:out_at] + g[out_at + 1 :], n
+
+
+def component(cols: Sequence[np.ndarray]) -> tuple[np.ndarray, float] | None:
+    """The loadings ``v`` of the first principal component of the columns' standardised
+    values (:func:`~diag_plugin.models.joint.first_component`, over the rows that know every
+    column) and the independent values of the score on it
+    (:func:`~diag_plugin.models.series.effective_samples`); None under 3 such rows."""
+    from diag_plugin.models.joint import first_component
+    from diag_plugin.models.series import effective_samples
+
+    U = np.column_stack(cols)
+    U = U[np.isfinite(U).all(axis=1)]
+    if len(U) < 3:
+        return None
+    P = np.column_stack([np.ones(len(U)), U])
+    m, s, v = first_component(P.T @ P)
+    return v, float(effective_samples(((U - m) / s) @ v))
+
+
+def blind_pairs(
+    tests: Sequence[tuple[str, Sequence[str]]], untested: Sequence[str], slow: Mapping[str, float]
+) -> list[tuple[str, str]]:
+    """A short window's slow tags left blind, each with the slow tag whose test reads it:
+    ``(A, spec)`` where ``B`` (in ``untested``: no test of its own, too slow for a level
+    test, :func:`level_test`) is an input of ``A``'s parity test, ``spec`` that input as the
+    test reads it (its dead time: ``B[k-25]``), and both are slow (``slow``,
+    :func:`slow_inputs`). ``tests``: per linear or grid test its tag and its input specs, in
+    the build's order (the first such ``A``). Their common move cancels in ``A``'s test and
+    ``B`` has none: the pair's joint test is what watches it (SKAB's two accelerometers of a
+    pump, docs/how-to/unit-short-windows.md, rounds 13-14). :func:`joint_groups` joins only
+    tags whose tests read each other."""
+    out = []
+    for b in untested:
+        if b not in slow:
+            continue
+        for a, specs in tests:
+            spec = next((sp for sp in specs if InputSpec.parse(sp).tags == (b,)), None)
+            if a in slow and a != b and spec is not None and not InputSpec.parse(spec).fn:
+                out.append((a, spec))
+                break
     return out
