@@ -5,10 +5,11 @@ one by one, ``Unit.evaluate`` a cycle each).
 Two units of the coupled process with the settings ``diag unit build`` writes (deadband,
 off-delay in seconds, a spread test, combined test, isolation to tags): ``u1`` reads
 ``rate(B,3)[k]`` and ``rate(A)[k-1]`` in Wang–Mendel models and ``rate(C)[k]`` in a linear one;
-``u2`` reads ``diff``, ``dir`` with its threshold, ``hour()`` and ``days()``. Cycled row by row
-through the fast path and one by one (``batched=False``), they give the same statuses, faults,
-named tags, messages (the warm-up while a rate has no history yet and CHECK_FUNCTION's reasons
-included), symptoms and residuals — through biases that come and go, a gap in the rate's tag
+``u2`` reads ``diff``, ``const``, ``dir`` with its threshold, ``hour()`` and ``days()``. Cycled
+row by row through the fast path and one by one (``batched=False``), they give the same
+statuses, faults, named tags, messages (the warm-up while a rate has no history yet and
+CHECK_FUNCTION's reasons included) and symptoms, and residuals equal to 1e-9 (the inputs the
+models read are equal bit for bit) — through biases that come and go, gaps in the rates' tags
 and a restart from the saved state."""
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ UNITS = {
         "rF": ("F[k]", ["E[k]", "rate(C)[k]"]),  # linear (below): the other methods' group
     },
     "u2": {
-        "rC": ("C[k]", ["diff(A,B)[k]", "B[k]"]),
+        "rC": ("C[k]", ["diff(A,B)[k]", "B[k]", "const(50)[k-1]"]),
         "rD": ("D[k]", ["C[k]", "dir(B,0.5)[k-1]"]),
         "rE": ("E[k]", ["D[k]", "A[k]", "hour()[k]"]),
         "rF": ("F[k]", ["E[k]", "C[k]", "days()[k-2]"]),
