@@ -22,10 +22,19 @@ same 100 built units fed the training day's rows (no PLC, no servers, no histori
 (``time.process_time``) per cycle, for the first 30 cycles after a fresh start (the spread
 tests warming up: CHECK_FUNCTION with its reason each cycle) and for the next 90.
 
+``--plant --rate`` gives each unit a fifth test reading a ``rate()`` (``r5``: the flow from
+the stem position, P1 and ``rate(X,3)[k]``, as a balance test reads a level's rate), on the
+fast path since branch ``i34-ratefast``; ``--units N`` plants only the first N units;
+``--against DIR`` times the ``Plant`` of another checkout's ``diag_plugin/diagnose/plant.py``
+beside this one (e.g. ``git archive main | tar -x -C DIR``; the rest of the package is this
+one's), ``--one-by-one`` the same units with ``batched=False``, in ``--rounds`` interleaved
+rounds (A B, B A, …).
+
 ``--embedded`` instead runs the embedded default for 40 s at 0.05 s per cycle (issue 10's
 figure: one whole cycle of the 7-tag plant, target < 100 ms median).
 
     python benchmarks/bench_live.py [--duration 180] [--built] [--plant] [--embedded]
+    python benchmarks/bench_live.py --plant [--rate] [--units 20] [--rounds 5] [--against DIR]
 """
 
 from __future__ import annotations
@@ -314,8 +323,8 @@ def plant_cycles(
     """CPU per :meth:`Plant.cycle` of ``units`` built units (see module doc); ``rate``: each
     with a test reading ``rate()``; ``against``: a checkout whose ``diagnose/plant.py`` is
     timed beside this one (the rest of the package this one's); ``one_by_one``: the same
-    units with ``batched=False`` beside. The variants run in turn, ``rounds`` times (A B A B
-    …), a fresh plant each."""
+    units with ``batched=False`` beside. The variants run in turn, ``rounds`` times (A B,
+    B A, …), a fresh plant each."""
     import numpy as np
     import pandas as pd
 
@@ -334,8 +343,8 @@ def plant_cycles(
         if one_by_one:
             variants["one by one"] = lambda: Plant(Plant.load(paths, rb).units, batched=False)
         got: dict[str, list] = {name: [] for name in variants}
-        for r in range(rounds):
-            for name, make in variants.items():
+        for r in range(rounds):  # A B, B A, A B, …: neither always first
+            for name, make in list(variants.items())[:: -1 if r % 2 else 1]:
                 plant = make()
                 if r == 0:
                     print(f"{name}: {len(plant.fast)} units fast, {len(plant.slow)} one by one")
