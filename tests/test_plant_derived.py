@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import plant_statuses, same_status
 
 from diag_plugin.diagnose.plant import Plant
 from diag_plugin.diagnose.unit import Unit
@@ -27,15 +28,10 @@ from diag_plugin.diagnose.unitfile import UnitFile
 from diag_plugin.examples.coupled import DAY, TAGS, build, process
 from diag_plugin.learn.thresholds import learn_thresholds
 from diag_plugin.status import NE107
+from diag_plugin.unitbuild.build import alarm_settings
 
-BUILT = {
-    "combined": True,
-    "isolation": "tags",
-    "on_delay_s": 180.0,
-    "off_delay_s": 600.0,
-    "deadband": 0.1,
-    "spread_window_s": 1200.0,
-}
+#: what ``diag unit build`` writes at the process's 60 s, a combined test and isolation to tags
+BUILT = {"combined": True, "isolation": "tags", **alarm_settings(pd.Timedelta("60s"))}
 UNITS = {
     "u1": {
         "rC": ("C[k]", ["A[k]", "B[k]"]),
@@ -125,42 +121,15 @@ def _plant(folder: Path, batched: bool = True) -> Plant:
     return Plant(units, batched=batched)
 
 
-def _run(plant: Plant, rows: pd.DataFrame) -> dict[str, list]:
-    got: dict[str, list] = {}
-    for ts, row in rows.iterrows():
-        for st in plant.cycle(ts, row.to_dict()):
-            got.setdefault(st.unit, []).append(st)
-    return got
-
-
-def _same(x, y, where) -> None:
-    """The same status in every field, the floats bit for bit."""
-    assert (x.status, x.quality, x.detected, x.faults, x.message) == (
-        y.status,
-        y.quality,
-        y.detected,
-        y.faults,
-        y.message,
-    ), where
-    assert [t for t, _ in x.tags] == [t for t, _ in y.tags], where
-    np.testing.assert_allclose([v for _, v in x.tags], [v for _, v in y.tags], rtol=1e-12)
-    assert x.symptoms.keys() == y.symptoms.keys() and x.residuals.keys() == y.residuals.keys()
-    np.testing.assert_array_equal(list(x.symptoms.values()), list(y.symptoms.values()))
-    np.testing.assert_allclose(
-        list(x.residuals.values()), list(y.residuals.values()), rtol=1e-9, atol=1e-9
-    )
-    assert x.certainties == pytest.approx(y.certainties, nan_ok=True), where
-
-
 def test_units_reading_derived_inputs_take_the_fast_path_with_the_one_by_one_results(folder):
     fast, slow = _plant(folder), _plant(folder, batched=False)
     assert fast.fast == ["u1", "u2"] and fast.slow == []
     assert slow.slow == ["u1", "u2"]
     rows = _rows()
-    a, b = _run(fast, rows), _run(slow, rows)
+    a, b = plant_statuses(fast, rows), plant_statuses(slow, rows)
     for name in UNITS:
         for i, (x, y) in enumerate(zip(a[name], b[name], strict=True)):
-            _same(x, y, (name, i))
+            same_status(x, y, (name, i), exact=False)
     # the run exercises what matters: the warm-up while rate(B,3) has no history (3 samples)
     # and after it, the rate unknown around its tag's short gap, alarms with tags named, and
     # CHECK_FUNCTION with its reason
@@ -188,18 +157,18 @@ def test_a_restarted_plant_with_derived_inputs_goes_on_where_it_stopped(folder):
     unknown, u2's dir(B) restarting) and restarted from its JSON state, the fast path gives
     what an uninterrupted run of the one-by-one path gives; a fresh plant does not."""
     rows = _rows().iloc[:480]
-    whole = _run(_plant(folder, batched=False), rows)
+    whole = plant_statuses(_plant(folder, batched=False), rows)
     first = _plant(folder)
     stop = 453
-    _run(first, rows.iloc[:stop])
+    plant_statuses(first, rows.iloc[:stop])
     state = json.loads(json.dumps(first.to_state()))  # what the live loop writes and reads
     again = _plant(folder).load_state(state)
     assert first.fast == again.fast == ["u1", "u2"]
-    rest = _run(again, rows.iloc[stop:])
-    fresh = _run(_plant(folder), rows.iloc[stop:])
+    rest = plant_statuses(again, rows.iloc[stop:])
+    fresh = plant_statuses(_plant(folder), rows.iloc[stop:])
     for name in UNITS:
         for i, (x, y) in enumerate(zip(rest[name], whole[name][stop:], strict=True)):
-            _same(x, y, (name, stop + i))
+            same_status(x, y, (name, stop + i), exact=False)
     assert "warming up" in fresh["u1"][0].message
     assert "warming up" not in rest["u1"][0].message
 
