@@ -22,10 +22,19 @@ same 100 built units fed the training day's rows (no PLC, no servers, no histori
 (``time.process_time``) per cycle, for the first 30 cycles after a fresh start (the spread
 tests warming up: CHECK_FUNCTION with its reason each cycle) and for the next 90.
 
+``--plant --rate`` gives each unit a fifth test reading a ``rate()`` (``r5``: the flow from
+the stem position, P1 and ``rate(X,3)[k]``, as a balance test reads a level's rate), on the
+fast path since branch ``i34-ratefast``; ``--units N`` plants only the first N units;
+``--against DIR`` times the ``Plant`` of another checkout's ``diag_plugin/diagnose/plant.py``
+beside this one (e.g. ``git archive main | tar -x -C DIR``; the rest of the package is this
+one's), ``--one-by-one`` the same units with ``batched=False``, in ``--rounds`` interleaved
+rounds (A B, B A, …).
+
 ``--embedded`` instead runs the embedded default for 40 s at 0.05 s per cycle (issue 10's
 figure: one whole cycle of the 7-tag plant, target < 100 ms median).
 
     python benchmarks/bench_live.py [--duration 180] [--built] [--plant] [--embedded]
+    python benchmarks/bench_live.py --plant [--rate] [--units 20] [--rounds 5] [--against DIR]
 """
 
 from __future__ import annotations
@@ -113,9 +122,39 @@ def with_built_alarms(path: Path, frame) -> None:
     uf.save()
 
 
-def build(d: Path, built: bool = False) -> tuple[Path, Path]:
+def with_rate_test(path: Path, frame) -> None:
+    """The unit file at ``path`` with a fifth test reading a ``rate()``: ``r5``, the flow from
+    the stem position, P1 and the position's rate over 3 samples (``rate(X,3)[k]``, as a
+    balance test reads a level's rate), trained on ``frame``; its matrix row r4's (the
+    flow's); every threshold learned again."""
+    import re
+
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unitfile import UnitFile
+    from diag_plugin.examples.build import UNIT_FAR, _fit
+    from diag_plugin.learn.thresholds import learn_thresholds
+    from diag_plugin.simulate.valve import TAGS
+    from diag_plugin.workbench.model_edit import new_model
+
+    rb = new_model(path.with_name("valve_r5.toml"), "valve_r5", "F[k]",
+                   ["X[k]", "P1[k]", "rate(X,3)[k]"], frame=frame, tag_info=TAGS)  # fmt: skip
+    _fit(rb, frame, "bench_live")
+    text = path.read_text(encoding="utf-8")
+    test = 'r5 = {model = "valve_r5.toml"}\n'
+    path.write_text(text.replace("\n[thresholds]", f"{test}\n[thresholds]", 1), encoding="utf-8")
+    mx = path.with_name("valve_unit.matrix.toml")
+    rows = re.sub(r"(tests = \[[^\]]*)\]", r'\1, "r5"]', mx.read_text(encoding="utf-8"), count=1)
+    row = '  { test = "r5", row = ["0", "0", "0", "1", "1"] },\n]'
+    mx.write_text(rows[: rows.rindex("]")] + row + rows[rows.rindex("]") + 1 :], encoding="utf-8")
+    uf = UnitFile.load(path)
+    uf.set_learned(learn_thresholds(Unit.load(path), [frame], far=UNIT_FAR))
+    uf.save()
+
+
+def build(d: Path, built: bool = False, rate: bool = False) -> tuple[Path, Path]:
     """The trained example unit, 100 unit files reading their own tags, the PLC's map;
-    ``built``: the unit with what ``diag unit build`` writes (:func:`with_built_alarms`)."""
+    ``built``: the unit with what ``diag unit build`` writes (:func:`with_built_alarms`);
+    ``rate``: with a test reading a ``rate()`` (:func:`with_rate_test`)."""
     from diag_plugin.examples.build import build_valve_unit
     from diag_plugin.simulate import simulate_valve
 
@@ -125,6 +164,8 @@ def build(d: Path, built: bool = False) -> tuple[Path, Path]:
     build_valve_unit(rb, frame, "bench_live")
     if built:
         with_built_alarms(rb / "valve_unit.unit.toml", frame)
+    if rate:
+        with_rate_test(rb / "valve_unit.unit.toml", frame)
     template = (rb / "valve_unit.unit.toml").read_text(encoding="utf-8")
     tags = []
     for u in range(N_UNITS):
@@ -269,38 +310,93 @@ def embedded() -> int:
     return 0 if ok else 1
 
 
-def plant_cycles(start: int = 30, steady: int = 90) -> int:
-    """CPU per :meth:`Plant.cycle` of the 100 built units (see module doc)."""
+def plant_cycles(
+    start: int = 30,
+    steady: int = 90,
+    *,
+    units: int = N_UNITS,
+    rate: bool = False,
+    rounds: int = 1,
+    against: Path | None = None,
+    one_by_one: bool = False,
+) -> int:
+    """CPU per :meth:`Plant.cycle` of ``units`` built units (see module doc); ``rate``: each
+    with a test reading ``rate()``; ``against``: a checkout whose ``diagnose/plant.py`` is
+    timed beside this one (the rest of the package this one's); ``one_by_one``: the same
+    units with ``batched=False`` beside. The variants run in turn, ``rounds`` times (A B,
+    B A, …), a fresh plant each."""
     import numpy as np
     import pandas as pd
 
     from diag_plugin.diagnose.plant import Plant
 
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
-        rb, _ = build(d, built=True)
+        rb, _ = build(d, built=True, rate=rate)
         rows = pd.read_parquet(d / "rows.parquet")
-        plant = Plant.load([rb / f"u{u:03d}.unit.toml" for u in range(N_UNITS)], rb)
-        cpu, checking = [], []
-        for k in range(start + steady):
-            row = rows.iloc[205 + k]
-            values = {f"u{u:03d}.{t}": float(row[t]) for u in range(N_UNITS) for t in UNIT_TAGS}
-            t0 = time.process_time()
-            st = plant.cycle(rows.index[205 + k], values)
-            cpu.append(1000 * (time.process_time() - t0))
-            checking.append(sum(s.status.name == "CHECK_FUNCTION" for s in st))
-    for name, part, chk in (
-        (f"first {start} cycles", cpu[1:start], checking[1:start]),
-        (f"next {steady}", cpu[start:], checking[start:]),
-    ):
-        a = np.array(part)
-        print(
-            f"Plant.cycle, {N_UNITS} built units, {name}: CPU median {np.median(a):.1f} ms, "
-            f"p99 {np.percentile(a, 99):.1f} ms, max {a.max():.1f} ms; units in "
-            f"CHECK_FUNCTION per cycle: median {int(np.median(chk))}"
-        )
-    print(f"(the first cycle, compiling and caching, {cpu[0]:.0f} ms, left out)")
+        paths = [rb / f"u{u:03d}.unit.toml" for u in range(units)]
+        variants = {"this fast path": lambda: Plant.load(paths, rb)}
+        if against is not None:
+            other = _plant_class(against)
+            variants[f"fast path of {against}"] = lambda: other.load(paths, rb)
+        if one_by_one:
+            variants["one by one"] = lambda: Plant(Plant.load(paths, rb).units, batched=False)
+        got: dict[str, list] = {name: [] for name in variants}
+        for r in range(rounds):  # A B, B A, A B, …: neither always first
+            for name, make in list(variants.items())[:: -1 if r % 2 else 1]:
+                plant = make()
+                if r == 0:
+                    print(f"{name}: {len(plant.fast)} units fast, {len(plant.slow)} one by one")
+                got[name].append(_cycles(plant, rows, units, start + steady))
+    print(f"(the first cycle, compiling and caching, left out; {rounds} round(s), medians)")
+    for name, runs in got.items():
+        for part, at in (
+            (f"first {start} cycles", slice(1, start)),
+            (f"next {steady}", slice(start, None)),
+        ):
+            cpu = [np.median(c[at]) for c, _, _ in runs]
+            wall = [np.median(w[at]) for _, w, _ in runs]
+            chk = int(np.median(runs[0][2][at]))
+            print(
+                f"Plant.cycle, {units} built units{' with a rate() test' if rate else ''}, "
+                f"{name}, {part}: CPU median {np.median(cpu):.2f} ms (rounds "
+                f"{', '.join(f'{x:.2f}' for x in cpu)}), wall median {np.median(wall):.2f} ms; "
+                f"units in CHECK_FUNCTION per cycle: median {chk}"
+            )
+    print(f"load average {os.getloadavg()[0]:.1f}")
     return 0
+
+
+def _cycles(plant, rows, units: int, n: int) -> tuple:
+    """CPU and wall ms of each of ``n`` cycles of ``plant`` on the training day's rows, and
+    the units in CHECK_FUNCTION each cycle."""
+    import numpy as np
+
+    cpu, wall, checking = [], [], []
+    for k in range(n):
+        row = rows.iloc[205 + k]
+        values = {f"u{u:03d}.{t}": float(row[t]) for u in range(units) for t in UNIT_TAGS}
+        t0, w0 = time.process_time(), time.perf_counter()
+        st = plant.cycle(rows.index[205 + k], values)
+        cpu.append(1000 * (time.process_time() - t0))
+        wall.append(1000 * (time.perf_counter() - w0))
+        checking.append(sum(s.status.name == "CHECK_FUNCTION" for s in st))
+    return np.array(cpu), np.array(wall), np.array(checking)
+
+
+def _plant_class(root: Path):
+    """The ``Plant`` class of ``root``/diag_plugin/diagnose/plant.py (another checkout's, e.g.
+    ``git archive main``), loaded beside this package's."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "reference_plant", Path(root) / "diag_plugin" / "diagnose" / "plant.py"
+    )
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # its dataclasses look their module up
+    spec.loader.exec_module(mod)
+    return mod.Plant
 
 
 def main() -> int:
@@ -313,9 +409,20 @@ def main() -> int:
         action="store_true",
         help="units with the deadband, off-delay and spread test `diag unit build` writes",
     )
+    ap.add_argument("--rate", action="store_true", help="--plant: units with a rate() test")
+    ap.add_argument("--units", type=int, default=N_UNITS, help="--plant: units in the plant")
+    ap.add_argument("--rounds", type=int, default=1, help="--plant: interleaved rounds")
+    ap.add_argument("--against", type=Path, help="--plant: a checkout's plant.py beside")
+    ap.add_argument("--one-by-one", action="store_true", help="--plant: batched=False beside")
     args = ap.parse_args()
     if args.plant:
-        return plant_cycles()
+        return plant_cycles(
+            units=args.units,
+            rate=args.rate,
+            rounds=args.rounds,
+            against=args.against,
+            one_by_one=args.one_by_one,
+        )
     return embedded() if args.embedded else plant_size(args.duration, args.built)
 
 

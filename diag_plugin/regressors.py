@@ -432,14 +432,21 @@ class _FeatureState:
             return direction(x, self.threshold, self.carry)
         if spec.fn == "const":
             return np.full(len(frame), float(spec.param))
-        idx = pd.DatetimeIndex(frame.index)
-        if idx.tz is None:
-            idx = idx.tz_localize("UTC")
-        if spec.fn == "hour":
-            return ((idx - idx.normalize()) / pd.Timedelta(hours=1)).to_numpy(float)
-        if spec.fn == "days":
-            return ((idx - EPOCH) / pd.Timedelta(days=1)).to_numpy(float)
-        raise AssertionError(spec.fn)
+        return clock(frame.index, spec.fn)
+
+
+def clock(index: pd.Index, fn: str) -> np.ndarray:
+    """``hour()`` (hours since midnight, 0–24) or ``days()`` (days since :data:`EPOCH`) at
+    each timestamp of ``index``; a naive index is taken as UTC. The one computation of both,
+    for a frame's rows and for the live plant's one timestamp a cycle."""
+    idx = pd.DatetimeIndex(index)
+    if idx.tz is None:
+        idx = idx.tz_localize("UTC")
+    if fn == "hour":
+        return ((idx - idx.normalize()) / pd.Timedelta(hours=1)).to_numpy(float)
+    if fn == "days":
+        return ((idx - EPOCH) / pd.Timedelta(days=1)).to_numpy(float)
+    raise AssertionError(fn)
 
 
 @dataclass

@@ -329,3 +329,39 @@ def free_run_is_the_reference(make) -> None:
     spoilt = X.copy()
     spoilt[2:100, :2] = -1.0  # measured lags the free run does not read
     np.testing.assert_array_equal(m.simulate(spoilt), sim)
+
+
+def plant_statuses(plant, rows: pd.DataFrame) -> dict[str, list]:
+    """Per unit the statuses of ``plant`` (a :class:`~diag_plugin.diagnose.plant.Plant`)
+    cycled row by row over ``rows``."""
+    got: dict[str, list] = {}
+    for ts, row in rows.iterrows():
+        for st in plant.cycle(ts, row.to_dict()):
+            got.setdefault(st.unit, []).append(st)
+    return got
+
+
+def same_status(x, y, where, *, exact: bool = True) -> None:
+    """Two unit statuses alike: status, quality, detected, faults, message, the tags named and
+    the symptoms equal; the residuals, tag shares and certainties bit for bit (``exact``) or
+    to 1e-9 (the fast path against the one-by-one path: the same inputs, the residual's
+    arithmetic differing in the last bits)."""
+    assert (x.status, x.quality, x.detected, x.faults, x.message) == (
+        y.status,
+        y.quality,
+        y.detected,
+        y.faults,
+        y.message,
+    ), where
+    assert [t for t, _ in x.tags] == [t for t, _ in y.tags], where
+    assert x.symptoms.keys() == y.symptoms.keys() and x.residuals.keys() == y.residuals.keys()
+    np.testing.assert_array_equal(list(x.symptoms.values()), list(y.symptoms.values()))
+    if exact:
+        assert x.tags == y.tags and x.certainties == y.certainties, where
+        np.testing.assert_array_equal(list(x.residuals.values()), list(y.residuals.values()))
+        return
+    np.testing.assert_allclose([v for _, v in x.tags], [v for _, v in y.tags], rtol=1e-9)
+    np.testing.assert_allclose(
+        list(x.residuals.values()), list(y.residuals.values()), rtol=1e-9, atol=1e-9
+    )
+    assert x.certainties == pytest.approx(y.certainties, rel=1e-9, nan_ok=True), where

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import plant_statuses, same_status
 
 from diag_plugin.diagnose.plant import Plant
 from diag_plugin.diagnose.unit import Unit
@@ -92,14 +93,6 @@ def _rows() -> pd.DataFrame:
     return pd.DataFrame(parts)
 
 
-def _run(plant: Plant, rows: pd.DataFrame) -> dict[str, list]:
-    got: dict[str, list] = {}
-    for ts, row in rows.iterrows():
-        for st in plant.cycle(ts, row.to_dict()):
-            got.setdefault(st.unit, []).append(st)
-    return got
-
-
 def test_built_units_take_the_fast_path_with_the_one_by_one_results(folder):
     names = [folder / f"u{i}.unit.toml" for i in (1, 2, 3)]
     fast, slow = Plant.load(names, folder), Plant.load(names, folder)
@@ -109,25 +102,10 @@ def test_built_units_take_the_fast_path_with_the_one_by_one_results(folder):
     u1 = fast.units["u1"]
     assert u1.deadband is not None and u1.alarm_hold is not None and u1.spread_cols.size == 1
     rows = _rows()
-    a, b = _run(fast, rows), _run(slow, rows)
+    a, b = plant_statuses(fast, rows), plant_statuses(slow, rows)
     for name in ("u1", "u2", "u3"):
         for i, (x, y) in enumerate(zip(a[name], b[name], strict=True)):
-            where = (name, i)
-            assert (x.status, x.quality, x.detected, x.faults) == (
-                y.status,
-                y.quality,
-                y.detected,
-                y.faults,
-            ), where
-            assert x.message == y.message, where
-            assert [t for t, _ in x.tags] == [t for t, _ in y.tags], where
-            np.testing.assert_allclose([v for _, v in x.tags], [v for _, v in y.tags])
-            assert x.symptoms.keys() == y.symptoms.keys()
-            np.testing.assert_array_equal(list(x.symptoms.values()), list(y.symptoms.values()))
-            np.testing.assert_allclose(
-                list(x.residuals.values()), list(y.residuals.values()), rtol=1e-9, atol=1e-9
-            )
-            assert x.certainties.keys() == y.certainties.keys()
+            same_status(x, y, (name, i), exact=False)
     # the run exercises what the state carries: alarms held with no symptom on (the unit's
     # off-delay), a symptom kept on inside the deadband, the spread test on, CHECK_FUNCTION
     # with its reason, and a failure naming tags
@@ -146,20 +124,6 @@ def test_built_units_take_the_fast_path_with_the_one_by_one_results(folder):
     assert any(s.tags for s in u) and any(s.status == NE107.FAILURE for s in u)
 
 
-def _same(x, y, where) -> None:
-    assert (x.status, x.quality, x.detected, x.faults, x.message) == (
-        y.status,
-        y.quality,
-        y.detected,
-        y.faults,
-        y.message,
-    ), where
-    assert x.tags == y.tags, where
-    np.testing.assert_array_equal(list(x.symptoms.values()), list(y.symptoms.values()))
-    np.testing.assert_array_equal(list(x.residuals.values()), list(y.residuals.values()))
-    assert x.certainties == y.certainties, where
-
-
 @pytest.mark.parametrize("batched", [True, False])
 def test_a_restarted_plant_goes_on_where_it_stopped(folder, batched):
     """Stopped mid-fault (u1 alarming on the toggling bias of C, held by its off-delay)
@@ -172,18 +136,18 @@ def test_a_restarted_plant_goes_on_where_it_stopped(folder, batched):
         return p if batched else Plant(p.units, batched=False)
 
     rows = _rows().iloc[:460]
-    whole = _run(plant(), rows)
+    whole = plant_statuses(plant(), rows)
     first = plant()
     stop = 300  # inside the toggling bias of rows 240–420, the alarm on
-    _run(first, rows.iloc[:stop])
+    plant_statuses(first, rows.iloc[:stop])
     assert all(s.detected for s in whole["u1"][stop - 5 : stop])
     state = json.loads(json.dumps(first.to_state()))  # what the live loop writes and reads
     again = plant().load_state(state)
-    rest = _run(again, rows.iloc[stop:])
-    fresh = _run(plant(), rows.iloc[stop:])
+    rest = plant_statuses(again, rows.iloc[stop:])
+    fresh = plant_statuses(plant(), rows.iloc[stop:])
     for name in ("u1", "u2", "u3"):
         for i, (x, y) in enumerate(zip(rest[name], whole[name][stop:], strict=True)):
-            _same(x, y, (name, stop + i))
+            same_status(x, y, (name, stop + i))
     # the state matters: started fresh, the units warm up again and miss the alarm held on
     assert fresh["u1"][0].status == NE107.CHECK_FUNCTION
     assert "warming up" in fresh["u1"][0].message
@@ -198,7 +162,7 @@ def test_a_state_of_other_unit_versions_is_refused(folder, tmp_path):
         shutil.copy(f, tmp_path / f.name)
     names = [tmp_path / f"u{i}.unit.toml" for i in (1, 2, 3)]
     p = Plant.load(names, tmp_path)
-    _run(p, _rows().iloc[:40])
+    plant_statuses(p, _rows().iloc[:40])
     state = json.loads(json.dumps(p.to_state()))
     u2 = tmp_path / "u2.unit.toml"
     u2.write_text(u2.read_text().replace("deadband = 0.25", "deadband = 0.2"))

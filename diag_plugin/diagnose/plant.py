@@ -12,9 +12,12 @@ stays local. :class:`Plant` keeps that structure and evaluates every unit each c
   at once, and one matrix call per distinct matrix with units as rows.
 
 A unit whose file, models or matrix are broken is reported CHECK_FUNCTION with Bad quality and
-its ``file:line`` problems every cycle; the others go on. Units whose models use derived inputs
-(``dir``, ``rate``, …) or whose symptoms are fuzzy (N/0/P, isolated by rules (10)–(14)) are
-evaluated one by one with :meth:`Unit.evaluate` (same result, slower). The alarm settings
+its ``file:line`` problems every cycle; the others go on. Derived inputs (``rate(T,L)``,
+``diff(A,B)``, ``const``, ``hour()``, ``days()``, ``dir(T,h)``) are columns of the history
+computed each cycle (:mod:`~diag_plugin.diagnose.derived`), read with their lags like tags.
+Units whose models read ``dir(T)`` without its threshold, or whose symptoms are fuzzy (N/0/P,
+isolated by rules (10)–(14)), are evaluated one by one with :meth:`Unit.evaluate` (same
+result, slower). The alarm settings
 ``diag unit build`` writes on every unit (:mod:`~diag_plugin.diagnose.unitloops`) stay on the
 fast path, their state carried per slot or unit across cycles: the running spread of a spread
 test's residual (:class:`~diag_plugin.diagnose.unitloops.RunningSpread`, its last ``W − 1``
@@ -39,6 +42,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from diag_plugin.diagnose.derived import DerivedInputs, stackable
 from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.symptoms import OnOffDelay
@@ -60,7 +64,7 @@ from diag_plugin.diagnose.unitloops import (
     warming_up,
 )
 from diag_plugin.fuzzy.stack import WangMendelStack
-from diag_plugin.regressors import parse_specs
+from diag_plugin.regressors import InputSpec, parse_specs
 from diag_plugin.status import NE107, Quality, UnitStatus
 
 log = logging.getLogger(__name__)
@@ -78,13 +82,13 @@ class _Slot:
     scale: float
 
 
-def _plain_lags(unit: Unit) -> bool:
-    """True when every model input and output is a plain tag with a lag (the fast path)."""
-    for m in unit.models.values():
-        for s in parse_specs([*m.inputs, m.output]):
-            if s.fn != "":
-                return False
-    return True
+def _stackable(unit: Unit) -> bool:
+    """True when every model input and output is a plain tag with a lag or a derived input the
+    fast path computes (:func:`~diag_plugin.diagnose.derived.stackable`: ``rate``, ``diff``,
+    ``const``, ``hour``, ``days``, ``dir`` with its threshold)."""
+    return all(
+        stackable(s) for m in unit.models.values() for s in parse_specs([*m.inputs, m.output])
+    )
 
 
 def _crisp(unit: Unit) -> bool:
@@ -111,7 +115,7 @@ class Plant:
     ):
         self.units = dict(units)
         self.broken = dict(broken or {})
-        self.fast = [n for n, u in self.units.items() if batched and _plain_lags(u) and _crisp(u)]
+        self.fast = [n for n, u in self.units.items() if batched and _stackable(u) and _crisp(u)]
         self.slow = [n for n in self.units if n not in self.fast]
         self._versions = _versions(self.units)  # of the files as loaded, not as they become
         self._build()
@@ -137,6 +141,16 @@ class Plant:
     def _build(self) -> None:
         units = [self.units[n] for n in self.fast]
         tags: dict[str, int] = {}
+        derived = DerivedInputs()
+
+        def column(u: Unit, s: InputSpec) -> int:
+            """A tag's column, or −1 − the number of a derived feature (its column is known
+            once every tag has one: after them)."""
+            names = tuple(u.file.tags.get(t, t) for t in s.tags)
+            for p in names:
+                tags.setdefault(p, len(tags))
+            return tags[names[0]] if s.fn == "" else -1 - derived.add(s, names)
+
         depth = 0
         slots: list[_Slot] = []
         for ui, u in enumerate(units):
@@ -144,19 +158,24 @@ class Plant:
                 m = u.models[t.name]
                 ins = []
                 for s in parse_specs(m.inputs):
-                    tag = u.file.tags.get(s.tags[0], s.tags[0])
-                    ins.append((s.lag, tags.setdefault(tag, len(tags))))
+                    ins.append((s.lag, column(u, s)))
                     depth = max(depth, s.lag)
                 o = parse_specs([m.output])[0]
-                out = (o.lag, tags.setdefault(u.file.tags.get(o.tags[0], o.tags[0]), len(tags)))
+                out = (o.lag, column(u, o))
                 depth = max(depth, o.lag)
                 scale = t.ymax if u.ev["scale"] == "max" and t.ymax else m.span
                 slots.append(
                     _Slot(ui, ti, m.model, np.array(ins, np.intp).reshape(-1, 2), out, float(scale))
                 )
+        n_tags = len(tags)
+        for s in slots:  # the derived features' columns after the tags'
+            s.inputs[:, 1] = _after(s.inputs[:, 1], n_tags)
+            s.output = (s.output[0], int(_after(np.array([s.output[1]]), n_tags)[0]))
+        derived.freeze(tags)
+        self._derived = derived if len(derived) else None
         self.tag_names = list(tags)
         self.tag_index = tags
-        self.depth = depth
+        self.depth = max(depth, derived.depth)
         self.slots = slots
         self._failing: set[int] = set()  # ids of models whose prediction raised (logged once)
         self._units = units
@@ -239,9 +258,8 @@ class Plant:
         # the warm-up (unitloops.warm_up): per slot its longest lag, whether it is a spread
         # test, the known samples its spread window still needs and whether its residual was
         # known before the spread; per unit what each test waits for
-        self._slot_depth = np.array(
-            [max(int(s.inputs[:, 0].max(initial=0)), s.output[0]) for s in slots], np.int64
-        )
+        # (Unit.test_depth: the longest lag, a rate's samples added)
+        self._slot_depth = np.array([units[s.unit].test_depth[s.test] for s in slots], np.int64)
         self._spread_test = np.zeros(n, bool)
         for idx, _ in self._spreads:
             self._spread_test[idx] = True
@@ -314,7 +332,7 @@ class Plant:
                     IsolationHold(len(uis), len(mx.tests), len(mx.faults)),
                 )
             )
-        self._hist = np.full((depth + 1, len(tags)), np.nan)
+        self._hist = np.full((self.depth + 1, len(tags) + len(derived)), np.nan)
         self._cycles = 0
         self._ts: pd.Timestamp | None = None  # the last cycle's (saved with the state)
 
@@ -360,6 +378,7 @@ class Plant:
             "cycles": self._cycles,
             "tags": self.tag_names,
             "hist": _json(self._hist),
+            "derived": None if self._derived is None else _json(self._derived.carry),
             "stages": [
                 {
                     "lowpass": None if lp is None else lp.to_state(),
@@ -403,11 +422,16 @@ class Plant:
             and len(state["combined_delays"]) == len(self._multi)
             and len(state["isolation"]) == len(self._matrices)
         )
+        carry = _array(state.get("derived") or [])
+        if self._derived is not None:
+            layout = layout and self._derived.fits(carry)
         if not layout:
             raise ValueError("the state's layout differs from the plant's (tags or stages)")
         self._build()
         self._ts = None if state["ts"] is None else pd.Timestamp(state["ts"])
         self._cycles = int(state["cycles"])
+        if self._derived is not None:  # a dir() input's carried reference and direction
+            self._derived.load_carry(carry)
         self._hist = hist
         stages = []
         for (idx, _lp, band, _delay, hold), st in zip(self._stages, state["stages"], strict=True):
@@ -447,7 +471,7 @@ class Plant:
         missing, stale or bad quality); returns one :class:`UnitStatus` per unit, broken ones
         included. Consecutive calls must be consecutive sampling periods."""
         ts = pd.Timestamp(ts)
-        vec = np.full(len(self.tag_names), np.nan)
+        vec = np.full(self._hist.shape[1], np.nan)
         get = values.get
         for tag, i in self.tag_index.items():
             v = get(tag)
@@ -455,6 +479,8 @@ class Plant:
                 vec[i] = float(v)
         self._hist = np.roll(self._hist, 1, axis=0)
         self._hist[0] = vec
+        if self._derived is not None:  # the derived inputs' columns (derived.py)
+            self._derived.update(self._hist, ts)
         self._cycles += 1
         self._ts = ts
         out = self._fast_cycle(ts) if self.slots else []
@@ -690,6 +716,12 @@ class Plant:
         for ui in np.flatnonzero(has & active):
             self._last_alarm[int(ui)] = (int(status[ui]), list(faults[ui]), list(tags[ui]))
         return held
+
+
+def _after(cols: np.ndarray, n_tags: int) -> np.ndarray:
+    """Columns with each derived feature's ``−1 − number`` turned into its column after the
+    ``n_tags`` tags' (:class:`~diag_plugin.diagnose.derived.DerivedInputs`)."""
+    return np.where(cols < 0, n_tags - 1 - cols, cols)
 
 
 def _top(share: np.ndarray, names: list[str]) -> list[tuple[str, float]]:
