@@ -152,7 +152,7 @@ def choose_balance(bp: BalancePlan, ctx: _Context, sel: _Context, plan) -> TestC
     cands = short.inputs_for(plan, bp.tag, cands, use.column)
     ch = select_inputs(use, bp.tag, cands, test=bp.test, max_inputs=BALANCE_MAX_INPUTS,
                        method=short.LINEAR)  # fmt: skip
-    ch.method = short.LINEAR
+    ch.method, ch.balance = short.LINEAR, True
     if ch.steps:
         add_level_rates(use, ch)
     for st in ch.steps:

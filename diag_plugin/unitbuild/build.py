@@ -147,6 +147,7 @@ class TestChoice:
     why: str = ""  # why this method (a short window's choice between a grid and a line)
     sets: int | None = None  # sets per input of a short window's grid
     combined: bool = True  # False: kept out of the combined T² (a blind tag's pair test)
+    balance: bool = False  # a manipulated flow's balance test (:mod:`.balance`)
 
     @property
     def inputs(self) -> list[str]:
@@ -167,6 +168,7 @@ class TestChoice:
             "statistic": self.statistic,
             "declared": self.declared,
             "why": self.why,
+            "balance": self.balance,
         }
 
 
@@ -918,6 +920,8 @@ def _build_unit(
             doc["tests"][ch.test]["statistic"] = ch.statistic
         if not ch.combined:
             doc["tests"][ch.test]["combined"] = False
+        if ch.balance:
+            doc["tests"][ch.test]["balance"] = True
     for k, v in {**evaluation_for(period), **alarm_settings(period)}.items():
         doc["evaluation"][k] = v
     if plan.lowpass is not None:
@@ -1109,6 +1113,8 @@ def _build_table(kept, skipped, start, end, period, far, max_inputs) -> tomlkit.
             row["statistic"] = ch.statistic
         if ch.declared:
             row["declared"] = True
+        if ch.balance:
+            row["balance"] = True
         tests[ch.test] = row
     t["tests"] = tests
     t["skipped"] = sk
