@@ -79,20 +79,21 @@ class BalancePlan:
 
 def tag_kind(tag: str, info: TagInfo | None = None) -> str | None:
     """``"flow"``, ``"level"`` or ``"pressure"``: what ``tag`` measures by its ISA-5.1 name's
-    first letter, else its description's words, else its unit; None for anything else, a
-    set-point or a controller output (``LIC101.OUT``, ``%``, "level controller output")."""
+    first letter (``X``, unclassified, read on), else its description's words (a "flow" in
+    ``%`` is a valve's position), else its unit; None for anything else, a set-point or a
+    controller output (``LIC101.OUT``, ``%``, "level controller output")."""
     if is_set_point(tag, info) or _OUTPUT.search(tag):
         return None
     m = _ISA.fullmatch(tag.strip())
     if m is not None and m.group(1).upper() != "X":  # X: unclassified (XMEAS1), read on
         return _ISA_KIND.get(m.group(1).upper())
     text = (info.description if info else "").lower()
+    unit = (info.unit if info else "").strip().lower().replace("³", "3").replace(" ", "")
     if "output" in text or "valve" in text:
         return None
     for word, kind in _WORDS:
-        if word in text:
-            return kind
-    unit = (info.unit if info else "").strip().lower().replace("³", "3").replace(" ", "")
+        if word in text:  # a "flow" in % of opening is a valve's (TEP's XMV7)
+            return None if kind == "flow" and unit == "%" else kind
     if unit in _PRESSURE_UNITS:
         return "pressure"
     return "flow" if unit and _FLOW_UNITS.fullmatch(unit) else None
