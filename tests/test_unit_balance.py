@@ -68,6 +68,19 @@ def test_the_outflow_gets_a_balance_test_without_its_valve(built):
     assert unit.file.test("FI102_balance").high is not None  # its own thresholds
 
 
+def test_a_bad_balance_key_is_a_file_line_error(built, tmp_path):
+    from diag_plugin.diagnose.unitfile import UnitError
+
+    res, _ = built
+    text = res.path.read_text().replace("balance = true", 'balance = "yes"', 1)
+    bad = tmp_path / "bad.unit.toml"
+    bad.write_text(text)
+    with pytest.raises(UnitError) as err:
+        Unit.load(bad, res.path.parent)
+    assert any("FI102_balance" in p and "balance must be true or false" in p
+               for p in err.value.problems), err.value.problems  # fmt: skip
+
+
 @pytest.mark.parametrize("seed", [2, 3])
 def test_a_leak_fires_the_balance_test_and_names_the_outflow(built, seed):
     _, unit = built
