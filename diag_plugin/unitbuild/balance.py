@@ -112,7 +112,8 @@ def balance_plans(
 ) -> list[BalancePlan]:
     """The balance tests to choose (module doc): one per flow whose own test reads a
     controller output (``held``: each output → the tag its loop holds, None where not
-    declared) and that no loop holds (no loop test, no loop's measurement). Kept out of its
+    declared) and that no loop holds (no loop test, no loop's measurement; a short window's
+    pair test, kept out of T², is not the flow's test). Kept out of its
     candidates: the flow and what is the same measurement (``same``), the valves its test
     reads, their loops' set-points (``set_point_of``: an output found by its name → its
     set-point; a declared loop's own) and measurements, and the pressures its test reads."""
@@ -128,7 +129,7 @@ def balance_plans(
     plans = []
     for ch in choices:
         if (ch.tracks or ch.tag in held or ch.tag in held_tags or ch.statistic != "level"
-                or tag_kind(ch.tag, info.get(ch.tag)) != "flow"):  # fmt: skip
+                or not ch.combined or tag_kind(ch.tag, info.get(ch.tag)) != "flow"):  # fmt: skip
             continue
         reads = [InputSpec.parse(s).tags for s in ch.inputs]
         read = list(dict.fromkeys(t for tags in reads for t in tags))
