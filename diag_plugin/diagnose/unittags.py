@@ -257,7 +257,14 @@ def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
     A drifting sensor the loop follows shows that way and not as its loop's error (chemical
     plant, tuning seeds, at 1 % of calibration samples: faulted tag in the top three 36/45 →
     38/45; the compensated sensor alone, with the mixed actuator direction, 33/45: it took the
-    biased and the fouled cooler's valve; docs/how-to/unit-loops.md)."""
+    biased and the fouled cooler's valve; docs/how-to/unit-loops.md).
+
+    A manipulated flow with a **balance test** (``balance = true``, :mod:`~diag_plugin.
+    unitbuild.balance`): its true quantity is what its valve sets (the valve's own test and
+    direction), and what enters through the flow's line unseen is a loss or gain of the
+    vessel its balance reads — that balance's residual alone (``1 / s_j`` on each balance
+    test of the flow). A leak of the tank the flow drains then names the flow, not the
+    balance's inflow meter, whose bias moves its own test too (docs/how-to/unit-loops.md)."""
     tags, outputs, _ = structure(unit)
     T, n = len(unit.tests), len(tags)
     col = {x: k for k, x in enumerate(tags)}
@@ -300,6 +307,19 @@ def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
         out[:, k] = 0.0
         for j in rows:
             out[j, k] = 1.0 / spec.scale[spec.tests.index(unit.tests[j])]
+    for k, rows in _balances(unit, outputs, col).items():  # a loss no meter sees: its balance
+        out[:, k] = 0.0
+        for j in rows:
+            out[j, k] = 1.0 / spec.scale[spec.tests.index(unit.tests[j])]
+    return out
+
+
+def _balances(unit, outputs: dict[str, str], col: dict[str, int]) -> dict[int, list[int]]:
+    """Each manipulated flow's column → its balance tests' rows (``balance = true``)."""
+    out: dict[int, list[int]] = {}
+    for j, t in enumerate(unit.tests):
+        if getattr(unit.file.test(t), "balance", False) and outputs[t] in col:
+            out.setdefault(col[outputs[t]], []).append(j)
     return out
 
 

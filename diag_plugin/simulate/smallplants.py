@@ -136,7 +136,7 @@ def _counterflow(c1, c2, ua):  # pragma: no cover - numba
 
 
 @nb.njit(cache=True)
-def _tank_loop(fin, sp, kv, area_m2, height_m, kp, ti_s, level0):  # pragma: no cover
+def _tank_loop(fin, sp, kv, area_m2, height_m, kp, ti_s, level0, leak):  # pragma: no cover
     n = fin.shape[0]
     level = np.empty(n)
     u = np.empty(n)
@@ -151,7 +151,7 @@ def _tank_loop(fin, sp, kv, area_m2, height_m, kp, ti_s, level0):  # pragma: no 
         level[i] = x
         u[i] = out
         fout[i] = q
-        x += (fin[i] - q) / 3600.0 / area_m2 / height_m * 100.0
+        x += (fin[i] - q - leak[i]) / 3600.0 / area_m2 / height_m * 100.0
         x = min(max(x, 0.0), 100.0)
     return level, u, fout
 
@@ -174,14 +174,21 @@ def simulate_tank(
 
 
 def tank_run(
-    index: pd.DatetimeIndex, inflow: np.ndarray, set_point: np.ndarray, rng: np.random.Generator
+    index: pd.DatetimeIndex,
+    inflow: np.ndarray,
+    set_point: np.ndarray,
+    rng: np.random.Generator,
+    leak: np.ndarray | None = None,
 ) -> pd.DataFrame:
     """The tank's level loop on a 1 s ``index`` for a given ``inflow`` (m³/h) and the
     operators' ``set_point`` schedule (%), with its tags as measured (noise from ``rng``): the
-    level LT101, inflow FI101, outflow FI102 and the controller's output and set-point."""
+    level LT101, inflow FI101, outflow FI102 and the controller's output and set-point.
+    ``leak``: liquid lost from the tank (m³/h, per sample; no meter sees it), none by
+    default."""
     fin = np.asarray(inflow, float)
     sp = np.asarray(set_point, float)
-    level, u, fout = _tank_loop(fin, sp, 60.0, 12.0, 4.0, 4.0, 900.0, 50.0)
+    lost = np.zeros_like(fin) if leak is None else np.broadcast_to(leak, fin.shape).astype(float)
+    level, u, fout = _tank_loop(fin, sp, 60.0, 12.0, 4.0, 4.0, 900.0, 50.0, lost)
     noisy = {"LT101": (level, 0.15), "FI101": (fin, 0.3), "FI102": (fout, 0.3)}
     return _measured(index, rng, 4, noisy, {"LIC101.OUT": u, "LIC101.SP": sp})
 

@@ -147,6 +147,7 @@ class TestChoice:
     why: str = ""  # why this method (a short window's choice between a grid and a line)
     sets: int | None = None  # sets per input of a short window's grid
     combined: bool = True  # False: kept out of the combined T² (a blind tag's pair test)
+    balance: bool = False  # a manipulated flow's balance test (:mod:`.balance`)
 
     @property
     def inputs(self) -> list[str]:
@@ -167,6 +168,7 @@ class TestChoice:
             "statistic": self.statistic,
             "declared": self.declared,
             "why": self.why,
+            "balance": self.balance,
         }
 
 
@@ -796,11 +798,13 @@ def _build_unit(
 
     t0 = time.perf_counter()
     tick = (lambda d, n: progress("choose inputs", d, n)) if progress else None
-    held: dict[str, str | None] = {
-        out: None
+    named = {
+        out: sp
         for sp in frame.columns
         if is_set_point(sp, info.get(sp)) and (out := controller_output(sp, list(ctx.vars)))
-    }  # a controller output found by its name → (an undeclared loop's measurement unknown)
+    }  # a controller output found by its name → its set-point
+    # each controller output → the tag its loop holds (an undeclared loop's unknown: None)
+    held: dict[str, str | None] = dict.fromkeys(named)
     held.update({lp.out: lp.pv for lp in loops if lp.out})  # declared: the tag it holds
     choices = map_tests(_choose, tests, (names, same, ctx, sel, plan, frame, info, declared, held),
                         workers=workers, progress=tick)  # fmt: skip
@@ -879,6 +883,13 @@ def _build_unit(
     if plan.short:
         kept.extend(joint_tests(kept, ctx, taken, notes))
         kept.extend(blind_pair_tests(kept, list(skipped), plan, ctx, taken))
+    t1 = time.perf_counter()
+    kept.extend(
+        _balance_tests(kept, names, taken, notes, ctx, sel, plan, info=info, held=held,
+                       loops=loops, set_point_of=named, same=same, workers=workers)
+    )  # fmt: skip
+    seconds["choose inputs"] += time.perf_counter() - t1
+    t0 += time.perf_counter() - t1  # the training's time without the balance tests' choice
     # each model trained and written on its own: on every core, as the inputs were chosen
     tick = (lambda d, n: progress("train models", d, n)) if progress else None
     loaded: dict[Path, TestModel] = {}  # model file → its model, as Unit.load reads it
@@ -909,6 +920,8 @@ def _build_unit(
             doc["tests"][ch.test]["statistic"] = ch.statistic
         if not ch.combined:
             doc["tests"][ch.test]["combined"] = False
+        if ch.balance:
+            doc["tests"][ch.test]["balance"] = True
     for k, v in {**evaluation_for(period), **alarm_settings(period)}.items():
         doc["evaluation"][k] = v
     if plan.lowpass is not None:
@@ -948,6 +961,24 @@ def _build_unit(
         progress("learn thresholds", 1, 1)
     window = (start.isoformat(), end.isoformat())
     return BuildResult(name, path, period, window, kept, skipped, far, learned, seconds, notes)
+
+
+def _balance_tests(kept, names, taken, notes, ctx, sel, plan, *, workers, **plans):
+    """A second test for each manipulated flow, its balance (:mod:`.balance`): chosen on
+    every core, kept where its held-out error is small enough; the others said in
+    ``notes``."""
+    from diag_plugin.unitbuild import balance
+
+    todo = balance.balance_plans(kept, names, taken, **plans)
+    out = []
+    for bp, ch in zip(todo, map_tests(balance.choose_balance, todo, (ctx, sel, plan),
+                                      workers=workers), strict=True):  # fmt: skip
+        if balance.kept(ch):
+            out.append(ch)
+        else:
+            taken.discard(bp.test)
+            notes.append(f"no balance test of {bp.tag}: {ch.why}")
+    return out
 
 
 def joint_tests(
@@ -1082,6 +1113,8 @@ def _build_table(kept, skipped, start, end, period, far, max_inputs) -> tomlkit.
             row["statistic"] = ch.statistic
         if ch.declared:
             row["declared"] = True
+        if ch.balance:
+            row["balance"] = True
         tests[ch.test] = row
     t["tests"] = tests
     t["skipped"] = sk

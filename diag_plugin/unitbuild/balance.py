@@ -1,0 +1,216 @@
+"""A second test for a manipulated flow: its balance (issue 34, items 4 and 7).
+
+A flow that a controller output drives — the valve of a declared loop, or of a loop found by
+its names (``LIC102.OUT`` beside ``LIC102.SP``) — is modelled by the build from that valve and
+the pressure across it (``FI109`` from ``LIC102.OUT`` and ``PI101``): the best fit, and a
+relation a leak does not break (the level loop closes the valve and the flow falls as the
+valve says). The mass balance the leak breaks — the vessel's inflows against its outflows and
+its level's rate — is fitted less closely, so the one test per tag never reads it.
+
+So such a flow, where no loop holds the flow itself, gets a second test ``<tag>_balance``:
+a linear (parity) relation of up to :data:`BALANCE_MAX_INPUTS` inputs chosen by the build's
+forward selection (each kept where it cuts the held-out error over the window's time blocks
+by :data:`~diag_plugin.unitbuild.build.MIN_GAIN`), with the valve, its loop's set-point and
+measurement and the valve's pressure tags (the pressures the flow's own test reads) kept out
+of its candidates; then a level's change per sample (``rate(LI102)[k]``, the accumulation
+term) added where it cuts the held-out error by ``MIN_GAIN`` again. It is kept where its
+held-out error is at most :data:`BALANCE_MAX_ERROR_PCT` % of the flow's span. It is a test
+like any other (its own share of the false-alarm budget) and it models the flow, so its alarm
+names the flow's tag.
+
+What a tag measures (:func:`tag_kind`) is read from its ISA-5.1 name (first letter ``F``,
+``L``, ``P``), else its description (``flow``, ``level``, ``pressure``), else its unit (a
+quantity per time, a pressure unit); a set-point or a controller output is none of these.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+from diag_plugin.diagnose.unittags import is_set_point
+from diag_plugin.regressors import InputSpec
+from diag_plugin.unitbuild import short
+from diag_plugin.unitbuild.build import (
+    ACTUATOR_MAX_INPUTS,
+    MIN_GAIN,
+    OUTPUT_NAMES,
+    Step,
+    TestChoice,
+    _Context,
+    _rulebase,
+    select_inputs,
+    test_name,
+)
+from diag_plugin.unitbuild.loops import Loop
+from historian.taginfo import TagInfo
+
+#: inputs of a balance test at most (as a controller output's linear test)
+BALANCE_MAX_INPUTS = ACTUATOR_MAX_INPUTS
+#: a balance test is kept where its held-out error is at most this share of the flow's span (%)
+BALANCE_MAX_ERROR_PCT = 3.0
+#: the suffix of a balance test's name (``FI109`` → ``FI109_balance``)
+SUFFIX = "_balance"
+
+#: an ISA-5.1 tag: a first letter (the measured variable), up to three more, a number
+_ISA = re.compile(r"([A-Z])[A-Z]{0,3}[-_ ]?\d+[A-Z]?", re.IGNORECASE)
+_ISA_KIND = {"F": "flow", "L": "level", "P": "pressure"}
+_WORDS = (("flow", "flow"), ("level", "level"), ("pressure", "pressure"))
+_FLOW_UNITS = re.compile(
+    r"(kscmh|scfm|gpm|sccm|slpm|nm3h|.+/(h|hr|min|s|d))", re.IGNORECASE
+)  # fmt: skip
+_PRESSURE_UNITS = {"pa", "kpa", "mpa", "hpa", "bar", "barg", "bara", "mbar", "psi", "psig",
+                   "psia", "atm", "torr", "mmhg", "inh2o", "mmh2o", "kg/cm2"}  # fmt: skip
+_OUTPUT = re.compile(rf"[._\-\s]({'|'.join(OUTPUT_NAMES)})$", re.IGNORECASE)
+
+
+@dataclass(frozen=True)
+class BalancePlan:
+    """A manipulated flow's balance test to choose: the flow, the test's name, the valves its
+    own test reads and every tag kept out of the candidates."""
+
+    tag: str
+    test: str
+    valves: tuple[str, ...]
+    kept_out: frozenset[str]
+
+
+def tag_kind(tag: str, info: TagInfo | None = None) -> str | None:
+    """``"flow"``, ``"level"`` or ``"pressure"``: what ``tag`` measures by its ISA-5.1 name's
+    first letter (``X``, unclassified, read on), else its description's words (a "flow" in
+    ``%`` is a valve's position), else its unit; None for anything else, a set-point or a
+    controller output (``LIC101.OUT``, ``%``, "level controller output")."""
+    if is_set_point(tag, info) or _OUTPUT.search(tag):
+        return None
+    m = _ISA.fullmatch(tag.strip())
+    if m is not None and m.group(1).upper() != "X":  # X: unclassified (XMEAS1), read on
+        return _ISA_KIND.get(m.group(1).upper())
+    text = (info.description if info else "").lower()
+    unit = (info.unit if info else "").strip().lower().replace("³", "3").replace(" ", "")
+    if "output" in text or "valve" in text:
+        return None
+    for word, kind in _WORDS:
+        if word in text:  # a "flow" in % of opening is a valve's (TEP's XMV7)
+            return None if kind == "flow" and unit == "%" else kind
+    if unit in _PRESSURE_UNITS:
+        return "pressure"
+    return "flow" if unit and _FLOW_UNITS.fullmatch(unit) else None
+
+
+def balance_plans(
+    choices: Sequence[TestChoice],
+    names: Mapping[str, str],
+    taken: set[str],
+    *,
+    info: Mapping[str, TagInfo],
+    held: Mapping[str, str | None],
+    loops: Sequence[Loop],
+    set_point_of: Mapping[str, str],
+    same: Mapping[str, Sequence[str]],
+) -> list[BalancePlan]:
+    """The balance tests to choose (module doc): one per flow whose own test reads a
+    controller output (``held``: each output → the tag its loop holds, None where not
+    declared) and that no loop holds (no loop test, no loop's measurement; a short window's
+    pair test, kept out of T², is not the flow's test). Kept out of its
+    candidates: the flow and what is the same measurement (``same``), the valves its test
+    reads, their loops' set-points (``set_point_of``: an output found by its name → its
+    set-point; a declared loop's own) and measurements, and the pressures its test reads."""
+    loop_of: dict[str, set[str]] = {v: {t for t in (pv, set_point_of.get(v)) if t}
+                                    for v, pv in held.items()}  # fmt: skip
+    for lp in loops:
+        if lp.out:
+            loop_of.setdefault(lp.out, set()).update({lp.pv, lp.sp})
+    held_tags = {lp.pv for lp in loops} | {ch.tag for ch in choices if ch.tracks}
+    for ch in choices:  # a loop found by its set-point: its measurement is the loop test's
+        if ch.tracks and ch.actuator:
+            loop_of.setdefault(ch.actuator, set()).update({ch.tag, ch.tracks})
+    plans = []
+    for ch in choices:
+        if (ch.tracks or ch.tag in held or ch.tag in held_tags or ch.statistic != "level"
+                or not ch.combined or tag_kind(ch.tag, info.get(ch.tag)) != "flow"):  # fmt: skip
+            continue
+        reads = [InputSpec.parse(s).tags for s in ch.inputs]
+        read = list(dict.fromkeys(t for tags in reads for t in tags))
+        valves = tuple(t for t in read if t in held)
+        if not valves:
+            continue
+        pressures = {t for t in read if tag_kind(t, info.get(t)) == "pressure"}
+        out = {ch.tag, *same.get(ch.tag, ()), *valves, *pressures}
+        out.update(t for v in valves for t in loop_of.get(v, ()))
+        name = test_name(f"{names[ch.tag]}{SUFFIX}", taken)
+        plans.append(BalancePlan(ch.tag, name, valves, frozenset(out)))
+    return plans
+
+
+def choose_balance(bp: BalancePlan, ctx: _Context, sel: _Context, plan) -> TestChoice:
+    """A flow's balance test (module doc), chosen on the grid its own test was chosen on (a
+    long fast window's coarse grid, its dead times then scaled to the data's); the caller
+    keeps it where :func:`kept` says so."""
+    use = sel if bp.tag in sel.vars else ctx
+    k = plan.factor if use is sel else 1
+    cands = [c for c in use.vars if c not in bp.kept_out]
+    cands = short.inputs_for(plan, bp.tag, cands, use.column)
+    ch = select_inputs(use, bp.tag, cands, test=bp.test, max_inputs=BALANCE_MAX_INPUTS,
+                       method=short.LINEAR)  # fmt: skip
+    ch.method, ch.balance = short.LINEAR, True
+    if ch.steps:
+        add_level_rates(use, ch)
+    for st in ch.steps:
+        st.input = _scaled(st.input, k)
+    err = ch.steps[-1].rmse_pct if ch.steps else ch.baseline_rmse_pct
+    ch.why = (
+        f"the balance of a manipulated flow (driven by {', '.join(bp.valves)}): linear test "
+        f"of {len(ch.steps)} inputs, held-out error {err:.2f} % of span (kept at most "
+        f"{BALANCE_MAX_ERROR_PCT:g} %); kept out: {', '.join(sorted(bp.kept_out - {bp.tag}))}"
+    )
+    return ch
+
+
+def kept(ch: TestChoice) -> bool:
+    """A balance test is kept where it has inputs and its held-out error is at most
+    :data:`BALANCE_MAX_ERROR_PCT` % of the flow's span."""
+    return bool(ch.steps) and ch.steps[-1].rmse_pct <= BALANCE_MAX_ERROR_PCT
+
+
+def add_level_rates(ctx: _Context, ch: TestChoice) -> None:
+    """Add to ``ch`` (a linear test) the level's change per sample ``rate(L)[k]`` that cuts its
+    held-out error most, where it cuts it by more than ``MIN_GAIN``; again while it has fewer
+    than :data:`BALANCE_MAX_INPUTS` inputs. The levels: every tag of the window
+    :func:`tag_kind` calls one (the accumulation term of a vessel's balance)."""
+    from diag_plugin.selection.scoring import BlockScorer
+
+    levels = [t for t in ctx.vars if tag_kind(t, ctx.info.get(t)) == "level"]
+    specs = [InputSpec.parse(s) for s in ch.inputs]
+    rb = _rulebase(ch.test, ctx.vars[ch.tag], [], ctx.period, method=short.LINEAR)
+    scorer = BlockScorer(rb, [], ctx.column(ch.tag), ctx.block)
+    current = ch.steps[-1].rmse_pct
+    while len(specs) < BALANCE_MAX_INPUTS:
+        best = None
+        for lv in levels:
+            spec = InputSpec("rate", (lv,), 0)
+            if spec in specs:
+                continue
+            trial = [*specs, spec]
+            rmse, cov = scorer.score([ctx.spec_variable(s) for s in trial],
+                                     [ctx.spec_column(s) for s in trial])  # fmt: skip
+            if math.isfinite(rmse) and (best is None or rmse < best[0]):
+                best = (rmse, cov, spec)
+        if best is None or not best[0] < current * (1 - MIN_GAIN):
+            return
+        current, cov, spec = best
+        specs.append(spec)
+        ch.steps.append(Step(str(spec), current, cov))
+
+
+def _scaled(spec: str, factor: int) -> str:
+    """An input chosen on the coarse grid on the data's grid: its dead time scaled, and a
+    rate per coarse sample the rate over as many of the data's samples (``rate(L,f)``)."""
+    if factor <= 1:
+        return spec
+    s = InputSpec.parse(spec)
+    if s.fn != "rate":
+        return short.scale_lag(spec, factor)
+    span = factor * (int(s.param) if s.param is not None else 1)
+    return str(InputSpec("rate", s.tags, s.lag * factor, float(span)))
