@@ -354,7 +354,7 @@ def main(argv=None) -> int:
         print(f"    imports of diag_plugin.training.jobs      {imp:6.3f} s")
         print(f"    the job (train_one, warm)                 {job:6.3f} s")
         # the first call's lazy imports (the validation's node fit, issue 37) and first calls
-        print(f"    the first train_one's more than a warm one {first - job:6.3f} s")
+        print(f"    {'the first train_one beyond a warm one':42s}{first - job:6.3f} s")
         print(f"      (it loaded {late.replace(',', ', ') if late != '-' else 'none'} of "
               f"{', '.join(LATE)})")  # fmt: skip
         print(f"    unaccounted                               {proc - bare - imp - first:6.3f} s")

@@ -1259,18 +1259,20 @@ def dense_node_fit(n_rules: int, nodes: int) -> bool:
 
     Measured (issue 37; CPU time of one warm fit, BLAS at one thread, the 2-core machine
     under load), dense against sparse: 0.1 against 1-1.7 ms for the example valve models of
-    one and two inputs (21 rules × 11 nodes, 175 × 52); 2.4-3.9 against 3-6 ms for the
-    valve unit's three-input models' level 3 (7,774-8,161 rules × 48 nodes, 2·10^7
-    multiply-adds); 5.7-7 against 3.3-5.3 ms for ``benchmarks/bench_train.py``'s model's
-    level 1 (1,365 rules × 248 nodes, 10^8); 26-34 against 7-10 ms for the unit models'
-    level 2 (≈ 8,000 × 320, 8·10^8) and 0.46-0.77 s against 20-26 ms for their level 1
-    (≈ 8,000 × 1,330, 1.6·10^10). The first sparse fit of a process also imports
-    scipy.sparse and scipy.sparse.linalg (0.19-0.21 s on a quiet machine): a fresh process
-    fitting the bench model's four coarse levels spent 0.03 s CPU dense, 0.23 s sparse.
-    So the bound lets the dense path cost up to about twice the sparse one warm (a few ms
-    a level) and keeps the import out of processes that fit only levels of that size, as
-    a trained model of a few inputs and some thousand rules has; the old bound (rules ×
-    nodes ≤ 2^17) sent that model's level 1 to scipy.sparse."""
+    one and two inputs (21 rules × 11 nodes, 175 × 52) and the TEP unit's models (1-12
+    rules); 2.4-3.9 against 3-6 ms for the valve unit's three-input models' level 3
+    (7,774-8,161 rules × 48 nodes, 2·10^7 multiply-adds); 0.8-3.7 against 1-4 ms for the
+    chemical plant unit's three-input levels of 208-349 nodes (458-714 rules); 5.7-7
+    against 3.3-5.3 ms for ``benchmarks/bench_train.py``'s model's level 1 (1,365 rules ×
+    248 nodes, 10^8); 26-34 against 7-10 ms for the valve unit's level 2 (≈ 8,000 × 320,
+    8·10^8) and 0.46-0.77 s against 20-26 ms for its level 1 (≈ 8,000 × 1,330, 1.6·10^10).
+    The first sparse fit of a process also imports scipy.sparse and scipy.sparse.linalg
+    (0.19-0.21 s on a quiet machine): a fresh process fitting the bench model's four
+    coarse levels spent 0.03 s CPU dense, 0.23 s sparse. So the bound lets the dense path
+    cost up to about twice the sparse one warm (a few ms a level) and keeps the import out
+    of processes that fit only levels of that size, as a trained model of a few inputs and
+    some thousand rules has; the old bound (rules × nodes ≤ 2^17) sent that model's level 1
+    to scipy.sparse."""
     return n_rules * nodes <= DENSE_CELLS and (n_rules + nodes) * nodes * nodes <= DENSE_FLOPS
 
 
