@@ -21,8 +21,9 @@ what the targets are about:
   sees).
 
 Then where the time goes: per phase of ``train_one`` (wall time inside the call) and of the
-process (Python and imports, numba's start at the first compiled call where the training's
-imports load numba — since issue 37 its loops run in numpy and they do not — the job).
+process (Python and imports, the job warm, and what the first call in a fresh process adds,
+with the modules it imports lazily named: since issue 37 the training loads neither numba
+nor, for this model, scipy.sparse).
 
     python benchmarks/bench_train.py [--runs 5] [--dir /tmp] [--check]
 """
@@ -98,24 +99,21 @@ def reference(path: str) -> int:
 
 
 PROCESS_PARTS = """
+import sys
 import time
 t0 = time.perf_counter()
 import diag_plugin.cli
 import diag_plugin.training.jobs
 t1 = time.perf_counter()
-import scipy.sparse.linalg
+diag_plugin.training.jobs.train_one(sys.argv[1], sys.argv[2])
 t2 = time.perf_counter()
-import scipy.spatial
-t3 = time.perf_counter()
-import sys
-loaded = "numba" in sys.modules
-import numpy as np
-from diag_plugin.fuzzy import _kernels as K
-z, one, n = np.zeros(1), np.ones(1), np.ones(1, np.int64)
-K.accumulate_dense(np.zeros((1, 1)), z, z, one, n, n, 0.0, 1.0, n * 0, n * 0, n * 0)
-t4 = time.perf_counter()
-print(t1 - t0, t4 - t3, t3 - t2, t2 - t1, int(loaded))
+late = [m for m in LATE if m in sys.modules]
+print(t1 - t0, t2 - t1, ",".join(late) or "-")
 """
+#: what the first training of a process may import lazily (the coarse levels' node fit:
+#: threadpoolctl for the dense solve, scipy.sparse(.linalg) above ``DENSE_FLOPS``; the
+#: nearest-rule fallback's KD tree; numba where a compiled loop is asked for)
+LATE = ("threadpoolctl", "scipy.sparse", "scipy.sparse.linalg", "scipy.spatial", "numba")
 
 
 def build(work: Path) -> dict[str, tuple[str, Path]]:
@@ -338,34 +336,28 @@ def main(argv=None) -> int:
                 f"{total - sum(parts.values()):6.3f} s"
             )
         starts = []
+        job_file = str(cold / "rulebases" / "m.toml")
         for _ in range(args.runs):
             out = subprocess.run(
-                [sys.executable, "-c", PROCESS_PARTS], capture_output=True, text=True, check=True
-            )
-            starts.append([float(x) for x in out.stdout.split()])
-        imp, nb, sp, ss, loaded = (min(col) for col in zip(*starts, strict=True))
+                [sys.executable, "-c", f"LATE = {LATE!r}\n{PROCESS_PARTS}", job_file, cold_url],
+                capture_output=True, text=True, check=True,
+            )  # fmt: skip
+            starts.append(out.stdout.split())
+        imp = min(float(col[0]) for col in starts)
+        first = min(float(col[1]) for col in starts)
+        late = starts[-1][2]
         bare = min(wall([sys.executable, "-c", "pass"]) for _ in range(3))
         proc = min(calls["cold", "process"])
         job = min(calls["cold", "job"])
         print(f"where the diag train process's {proc:.3f} s go (rolled):")
         print(f"    python itself                             {bare:6.3f} s")
         print(f"    imports of diag_plugin.training.jobs      {imp:6.3f} s")
-        if loaded:
-            print(f"    numba's start (first compiled call)       {nb:6.3f} s")
-        else:  # the training loops run in numpy (issue 37): numba is never loaded
-            nb = 0.0
-            print("    numba: not imported by the training (its start elsewhere: "
-                  f"{min(col[1] for col in starts):.3f} s)")  # fmt: skip
-        print(f"    scipy.spatial (extrapolate's KD tree)     {sp:6.3f} s")
-        # the validation's first coarse-level node fit imports them lazily, before anything
-        # reaches scipy.spatial (0.19 s in a fresh process against 0.005 s warm, where the
-        # phase table above is taken)
-        print(f"    scipy.sparse(.linalg) (node fit's solve)  {ss:6.3f} s")
         print(f"    the job (train_one, warm)                 {job:6.3f} s")
-        print(
-            f"    unaccounted                               "
-            f"{proc - bare - imp - nb - sp - ss - job:6.3f} s"
-        )
+        # the first call's lazy imports (the validation's node fit, issue 37) and first calls
+        print(f"    {'the first train_one beyond a warm one':42s}{first - job:6.3f} s")
+        print(f"      (it loaded {late.replace(',', ', ') if late != '-' else 'none'} of "
+              f"{', '.join(LATE)})")  # fmt: skip
+        print(f"    unaccounted                               {proc - bare - imp - first:6.3f} s")
     return exit_status(ok_call and ok_proc, args.check)
 
 

@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import functools
 import sys
 from collections.abc import Iterator, Sequence
 from types import ModuleType
@@ -271,8 +272,11 @@ TREND_RIDGE = 1e-3
 SMOOTHING = 0.1
 #: samples' worth of the model's typical spread a cell's own spread is pooled with
 SPREAD_PRIOR = 5.0
-#: coarse levels whose nodes × fine rules stay below this are fitted with dense arrays
-DENSE_FIT = 1 << 17
+#: a coarse level's node fit is solved with dense arrays where its normal equations and solve
+#: cost at most this many multiply-adds (:func:`dense_node_fit`), else with scipy.sparse
+DENSE_FLOPS = 1 << 27
+#: ... and its dense design matrix (fine rules × nodes) holds at most this many entries
+DENSE_CELLS = 1 << 22
 #: coarse levels whose fit would weigh more (fine rules × 2^inputs) stay silent
 FIT_LIMIT = 1 << 20
 #: a prediction of more rows than this asks every level of all of them once more than half
@@ -1186,8 +1190,6 @@ class WangMendelRegressor(ParamsMixin):
 
 def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Node keys, values and data flags of a coarse level (see :meth:`level_nodes`)."""
-    import scipy.sparse as sp
-
     cells = m.level_rules(level)
     n_rules = int(np.count_nonzero(m.count_ > 0))
     if not n_rules:
@@ -1210,8 +1212,10 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
     # nodes and keys both ascending and unique: membership by one search (np.isin's answer)
     at = np.minimum(np.searchsorted(cells.keys, nodes), max(cells.keys.size - 1, 0))
     data = cells.keys[at] == nodes if cells.keys.size else np.zeros(nodes.size, bool)
-    if nodes.size * n.size <= DENSE_FIT:  # small levels: dense numpy, no sparse overhead
+    if dense_node_fit(n.size, nodes.size):  # dense numpy, no sparse overhead (nor import)
         return nodes, _fit_dense(nodes, r, col, w, sw, n, y_fine, d, radix, nsets), data
+    import scipy.sparse as sp
+
     A = sp.csr_matrix((w * sw[r], (r, col)), shape=(n.size, nodes.size))
     y = y_fine
     # smoothness: second differences along each input where both neighbours are nodes
@@ -1245,6 +1249,51 @@ def _fit_nodes(m: WangMendelRegressor, level: int) -> tuple[np.ndarray, np.ndarr
 
         values = np.atleast_1d(spsolve(M.tocsc(), rhs))
     return nodes, values, data
+
+
+def dense_node_fit(n_rules: int, nodes: int) -> bool:
+    """Whether a coarse level of ``nodes`` nodes fitted to ``n_rules`` fine rules is solved
+    with dense arrays (:func:`_fit_dense`) rather than scipy.sparse: where the normal
+    equations ``A.T @ A`` (``n_rules · nodes²`` multiply-adds) and their solve (``nodes³``)
+    stay within :data:`DENSE_FLOPS` and the design ``A`` within :data:`DENSE_CELLS` entries.
+
+    Measured (issue 37; CPU time of one warm fit, BLAS at one thread, the 2-core machine
+    under load), dense against sparse: 0.1 against 1-1.7 ms for the example valve models of
+    one and two inputs (21 rules × 11 nodes, 175 × 52) and the TEP unit's models (1-12
+    rules); 2.4-3.9 against 3-6 ms for the valve unit's three-input models' level 3
+    (7,774-8,161 rules × 48 nodes, 2·10^7 multiply-adds); 0.8-3.7 against 1-4 ms for the
+    chemical plant unit's three-input levels of 208-349 nodes (458-714 rules); 5.7-7
+    against 3.3-5.3 ms for ``benchmarks/bench_train.py``'s model's level 1 (1,365 rules ×
+    248 nodes, 10^8); 26-34 against 7-10 ms for the valve unit's level 2 (≈ 8,000 × 320,
+    8·10^8) and 0.46-0.77 s against 20-26 ms for its level 1 (≈ 8,000 × 1,330, 1.6·10^10).
+    The first sparse fit of a process also imports scipy.sparse and scipy.sparse.linalg
+    (0.19-0.21 s on a quiet machine): a fresh process fitting the bench model's four
+    coarse levels spent 0.03 s CPU dense, 0.23 s sparse. So the bound lets the dense path
+    cost up to about twice the sparse one warm (a few ms a level) and keeps the import out
+    of processes that fit only levels of that size, as a trained model of a few inputs and
+    some thousand rules has; the old bound (rules × nodes ≤ 2^17) sent that model's level 1
+    to scipy.sparse."""
+    return n_rules * nodes <= DENSE_CELLS and (n_rules + nodes) * nodes * nodes <= DENSE_FLOPS
+
+
+@functools.cache
+def _blas_controller():
+    """threadpoolctl's handle on the BLAS numpy loaded, made once per process (None without
+    threadpoolctl)."""
+    try:
+        from threadpoolctl import ThreadpoolController
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        return None
+    return ThreadpoolController()
+
+
+def _one_blas_thread() -> contextlib.AbstractContextManager:
+    """BLAS held to one thread for a dense node fit: with a thread per core on a loaded
+    2-core machine a 1,365 × 81 ``A.T @ A`` and its solve took 0.2 s instead of 2 ms (the
+    threads spin, CPU time too), and the threads' share of the products can change the
+    values' last bits; one thread gives the same bits on any machine."""
+    c = _blas_controller()
+    return contextlib.nullcontext() if c is None else c.limit(limits=1, user_api="blas")
 
 
 #: whether the node fit solves by conjugate gradients (:func:`iterative_node_fit`)
@@ -1433,21 +1482,24 @@ def _fit_dense(nodes, r, col, w, sw, n, y, d, radix, nsets) -> np.ndarray:
         if loops is not None
         else _smooth_gram(nodes, d, radix, nsets)
     )
-    if loops is not None and _SPARSE.get():  # scoring: the products over each rule's corners
-        AtA, Aty = loops.normal_equations(r, col, w, sw, y, n.size, k)
-    else:
-        # each (fine rule, node) pair at most once: the sums of np.add.at, without its loop
-        A = np.bincount(r * k + col, w * sw[r], minlength=n.size * k).reshape(n.size, k)
-        AtA, Aty = A.T @ A, A.T @ (sw * y)
-    M = AtA + SMOOTHING * per_node * PtP
-    M.flat[:: k + 1] += ridge  # + ridge·I: the same sums, off the diagonal + 0 left out
-    # np.average(y, weights=n) as it computes it: Σ y·n / Σ n
-    rhs = Aty + ridge * float(np.multiply(y, n).sum() / n.sum())
-    return np.linalg.solve(M, rhs)
+    with _one_blas_thread():
+        if loops is not None and _SPARSE.get():  # scoring: the products over each corner
+            AtA, Aty = loops.normal_equations(r, col, w, sw, y, n.size, k)
+        else:
+            # each (fine rule, node) pair at most once: the sums of np.add.at, without its loop
+            A = np.bincount(r * k + col, w * sw[r], minlength=n.size * k).reshape(n.size, k)
+            AtA, Aty = A.T @ A, A.T @ (sw * y)
+        M = AtA + SMOOTHING * per_node * PtP
+        M.flat[:: k + 1] += ridge  # + ridge·I: the same sums, off the diagonal + 0 left out
+        # np.average(y, weights=n) as it computes it: Σ y·n / Σ n
+        rhs = Aty + ridge * float(np.multiply(y, n).sum() / n.sum())
+        return np.linalg.solve(M, rhs)
 
 
 def _smooth_gram(nodes: np.ndarray, d: int, radix, nsets) -> np.ndarray:
-    """:func:`._kernels.smooth_gram` in numpy: ``P.T @ P`` of the second differences."""
+    """:func:`._kernels.smooth_gram` in numpy: ``P.T @ P`` of the second differences, summed
+    pair by pair (``np.bincount`` over each difference's nine node pairs: small integers, so
+    the dense product's exact values, without its ``d·k³`` multiplications of mostly zeros)."""
     k = nodes.size
     idx = np.column_stack([(nodes // radix[j]) % nsets[j] for j in range(d)])
     below_all, mid_all, above_all = [], [], []
@@ -1461,13 +1513,11 @@ def _smooth_gram(nodes: np.ndarray, d: int, radix, nsets) -> np.ndarray:
         mid_all.append(mid)
         above_all.append(above[mid])
     # one row per second difference: 1, -2, 1 at the node below, the node, the node above
-    mid = np.concatenate(mid_all)
-    P = np.zeros((mid.size, k))
-    at = np.arange(mid.size)
-    P[at, np.concatenate(below_all)] = 1.0
-    P[at, mid] = -2.0
-    P[at, np.concatenate(above_all)] = 1.0
-    return P.T @ P
+    at = np.stack([np.concatenate(below_all), np.concatenate(mid_all), np.concatenate(above_all)])
+    v = np.array([1.0, -2.0, 1.0])
+    pairs = (at[:, None, :] * k + at[None, :, :]).ravel()
+    weights = np.repeat(np.outer(v, v).ravel(), at.shape[1])
+    return np.bincount(pairs, weights, minlength=k * k).reshape(k, k)
 
 
 def _copy_state(m: WangMendelRegressor) -> dict:
