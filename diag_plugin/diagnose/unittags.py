@@ -67,7 +67,9 @@ read the mixed temperature, not those reading the feed). The share
 ``RBC_X / T²`` ranks the tags (1: a bias of X alone explains the deviation). Tags touching
 the same tests in the same proportions cannot be told apart and share a rank. Before
 ``diag unit learn`` has written ``[combined]`` the ranking uses ``z = r / high``, ``S = I`` and
-the derived matrix's 0/1 columns as directions (rough, sign-blind).
+the derived matrix's 0/1 columns as directions (rough, sign-blind). A test kept out of ``T²``
+(``combined = false``) adds to no share; in alarm it names its own tags ahead of them
+(:class:`KeptOut`).
 """
 
 from __future__ import annotations
