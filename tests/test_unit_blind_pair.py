@@ -179,3 +179,41 @@ def test_unit_accept_keeps_a_test_out_of_the_combined_t2(built, tmp_path):
         acc.cmodel.evaluate(wild, point, shares=False)[0],
         acc.cmodel.evaluate(r, point, shares=False)[0],
     )
+
+
+def test_the_pair_tests_alarm_names_the_blind_tag_in_the_replay_and_live(built, tmp_path):
+    """Issue 34 item 4: the kept-out pair test adds nothing to ``T²`` and so to no tag's share
+    of it; in alarm it names its own tags (``TI2``, the tag it models, and ``TI1``, the blind
+    one it reads) ahead of the ``T²`` contributions (:class:`~diag_plugin.diagnose.unittags.
+    KeptOut`). On main the rise is named from ``T²`` alone, without ``TI1``. The live
+    plug-in, batched and one by one, names the replay's tags."""
+    from diag_plugin.diagnose.plant import Plant
+
+    g, text, unit, frame = built
+    name = _pair_test(unit)
+    d = unit.reset().evaluate(frame)
+    k = np.arange(len(frame))
+    rise = k >= ROWS + 1200
+    pair_on = (d.symptoms[name].to_numpy() != 0) & rise
+    assert pair_on[rise].mean() > 0.9
+    top = d.top[["top1", "top2", "top3"]].to_numpy(object)
+    named = (top == "TI1").any(axis=1)
+    print(f"pair test in alarm: TI1 in the top three {named[pair_on].mean():.2f}")
+    assert named[pair_on].mean() > 0.9  # fails on main: 0
+    assert set(top[pair_on, 0]) <= {"TI1", "TI2"}  # ranked first: its statistic over 1
+    rb = [unit.file.path]
+    fast = Plant.load(rb, tmp_path / "rb")
+    slow = Plant(Plant.load(rb, tmp_path / "rb").units, batched=False)
+    part = frame.iloc[ROWS + 1100 : ROWS + 1400]
+    replay = unit.reset().evaluate(part).top
+    seen = 0
+    for i, (ts, row) in enumerate(part.iterrows()):
+        values = row.to_dict()
+        (x,), (y,) = fast.cycle(ts, values), slow.cycle(ts, values)
+        assert x.tags == y.tags, ts
+        want = [t for t in replay.iloc[i][["top1", "top2", "top3"]] if t]
+        assert [t for t, _ in x.tags] == want, ts
+        want_v = [v for v in replay.iloc[i][["share1", "share2", "share3"]] if v == v]
+        np.testing.assert_allclose([v for _, v in x.tags], want_v, rtol=1e-9)
+        seen += "TI1" in want
+    assert seen > 200

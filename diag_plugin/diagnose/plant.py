@@ -583,7 +583,10 @@ class Plant:
                 cols = self._point_cols[ui]
                 x = np.where(cols >= 0, self._hist[0, cols], np.nan)[None, :]
                 point = cm.nearest_point(x)
-            t2, share = cm.evaluate(r[a : a + len(units[ui].tests)][None, :], point)
+            b = a + len(units[ui].tests)
+            t2, share = cm.evaluate(r[a:b][None, :], point)
+            if units[ui].kept_out is not None:  # a kept-out test in alarm names its own tags
+                share = units[ui].kept_out.name(share, r[a:b][None, :], s[a:b][None, :])
             s_t2 = np.nan
             if enabled and cm.high is not None:
                 raw = np.nan if np.isnan(t2[0]) else float(t2[0] > cm.high)

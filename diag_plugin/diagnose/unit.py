@@ -63,6 +63,7 @@ from diag_plugin.diagnose.unitloops import (
 )
 from diag_plugin.diagnose.unittags import (
     CombinedModel,
+    KeptOut,
     derived_matrix,
     describe_top,
     top_columns_at,
@@ -406,6 +407,8 @@ class Unit:
         self.cmodel = (
             CombinedModel.of(self) if (self.ev["combined"] or self.tag_isolation) else None
         )
+        #: the tests kept out of T² as the alarm's top tags name them (None: every test in)
+        self.kept_out = None if self.cmodel is None else KeptOut.of(self, self.cmodel.tags)
         self.level_points = level_points(self)
         #: per test the history its model reads (unknown for that many samples at start): its
         #: longest lag, and a rate's samples (``rate(TAG,L)`` reads L more)
@@ -771,6 +774,10 @@ class Unit:
             # shares computed on the alarm samples only (the episode and the ranking read
             # no others; the rest when Diagnosis.contributions is asked for)
             shares = LazyShares(self.cmodel, r.to_numpy(), active, frame.index, point)
+            if self.kept_out is not None:  # a kept-out test in alarm names its own tags
+                shares.share_at = self.kept_out.name(
+                    shares.share_at, r.to_numpy()[active], s[active]
+                )
             held = self.episode.transform_at(shares.share_at, active)
             # the ranking's columns as arrays (the alarm hold edits them), one frame at the end
             top = top_columns_at(held, self.cmodel.tags, active)

@@ -67,7 +67,9 @@ read the mixed temperature, not those reading the feed). The share
 ``RBC_X / T²`` ranks the tags (1: a bias of X alone explains the deviation). Tags touching
 the same tests in the same proportions cannot be told apart and share a rank. Before
 ``diag unit learn`` has written ``[combined]`` the ranking uses ``z = r / high``, ``S = I`` and
-the derived matrix's 0/1 columns as directions (rough, sign-blind).
+the derived matrix's 0/1 columns as directions (rough, sign-blind). A test kept out of ``T²``
+(``combined = false``) adds to no share; in alarm it names its own tags ahead of them
+(:class:`KeptOut`).
 """
 
 from __future__ import annotations
@@ -156,14 +158,16 @@ def derived_matrix(unit) -> DiagnosticMatrix:
     """The matrix of a unit without an expert one: tests × tags, ``1`` where the test reads
     the tag (input, any lag) or models it (output), ``0`` elsewhere (see module doc)."""
     tags, outputs, reads = structure(unit)
-
-    def on(t: str, x: str) -> int:
-        if _spread_test(unit, t):  # the spread of a loop's error: its actuator (stiction)
-            return 1 if x == unit.file.test(t).actuator else 0
-        return 1 if (x == outputs[t] or x in reads[t]) else 0
-
-    rows = [[on(t, x) for x in tags] for t in unit.tests]
+    rows = [[_names_tag(unit, t, x, outputs, reads) for x in tags] for t in unit.tests]
     return DiagnosticMatrix(list(unit.tests), tags, rows, name=f"{unit.name} (derived: tags)")
+
+
+def _names_tag(unit, t: str, x: str, outputs: dict[str, str], reads: dict[str, list[str]]) -> int:
+    """1 where test ``t``'s alarm points at tag ``x`` (its row of :func:`derived_matrix`): the
+    tag it models or one it reads; a spread test (a loop's error) its actuator only."""
+    if _spread_test(unit, t):  # the spread of a loop's error: its actuator (stiction)
+        return 1 if x == unit.file.test(t).actuator else 0
+    return 1 if (x == outputs[t] or x in reads[t]) else 0
 
 
 def directions(unit, spec: CombinedSpec | None) -> tuple[np.ndarray, np.ndarray]:
@@ -363,6 +367,76 @@ def outside_tests(unit) -> np.ndarray | None:
     TestSpec`); None where every test is in — or none is, as ``T²`` needs one."""
     out = np.array([not t.combined for t in unit.file.tests], bool)  # unit.tests' order
     return out if out.any() and not out.all() else None
+
+
+@dataclass(frozen=True)
+class KeptOut:
+    """The tests kept out of ``T²`` (:func:`outside_tests`) as the unit's alarm names them.
+
+    A kept-out test contributes nothing to ``T²`` and so to no tag's share of it; in alarm
+    (its own symptom on) it names the tags a single test's alarm names in the derived
+    matrix (:func:`derived_matrix`: the tag it models and those it reads; a spread test its
+    actuator), each with the value ``v = max(ρ, 1)``, ``ρ`` its filtered residual over its
+    threshold on the side it leaves (``r / high`` above zero, ``r / low`` below; unknown,
+    as over a gap its symptom is held through: 1). A tag's share of ``T²`` is at most 1
+    (``RBC_X ≤ T²``), so a kept-out test in alarm ranks its tags first, before the ``T²``
+    contributions, among themselves by ``ρ`` and at equal ``v`` in the tags' order (the
+    test's output before the tags it reads); a tag named both ways keeps the larger value.
+    The rule is structural (no tuning run chose it): the test's own statistic says how far
+    out it is, and the tags are those the unit already blames for that test's alarm."""
+
+    #: the kept-out tests' positions in the unit's tests
+    tests: np.ndarray
+    #: their thresholds, low and high (NaN: none)
+    low: np.ndarray
+    high: np.ndarray
+    #: per kept-out test the tags (:func:`structure` order) its alarm names
+    names: np.ndarray
+
+    @classmethod
+    def of(cls, unit, tags: list[str]) -> KeptOut | None:
+        """From the unit file's tests (``combined = false``) over the ranking's ``tags``;
+        None where no test is kept out (the ranking then is exactly the shares of ``T²``)."""
+        out = outside_tests(unit)
+        if out is None:
+            return None
+        _, outputs, reads = structure(unit)
+        idx = np.flatnonzero(out)
+        tests = [unit.tests[j] for j in idx]
+        lims = [unit.file.tests[j].limits or (np.nan, np.nan) for j in idx]
+        names = np.array([[_names_tag(unit, t, x, outputs, reads) for x in tags] for t in tests])
+        return cls(
+            idx,
+            np.array([a for a, _ in lims], float),
+            np.array([b for _, b in lims], float),
+            names.reshape(len(tests), len(tags)).astype(bool),
+        )
+
+    def values(self, r: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Per sample (rows of the unit's filtered residuals ``r`` and symptoms ``s``, n × the
+        unit's tests) each tag's value from the kept-out tests in alarm (see the class doc),
+        0 where none names it (n × tags)."""
+        r = np.asarray(r, float)[:, self.tests]
+        on = _on_any(np.asarray(s, float)[:, self.tests])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            up = np.where(self.high > 0, r / self.high, np.nan)
+            down = np.where(self.low < 0, r / self.low, np.nan)
+        v = np.where(on, np.fmax(np.fmax(up, down), 1.0), 0.0)  # n × kept-out tests
+        return np.max(v[:, :, None] * self.names[None, :, :], axis=1, initial=0.0)
+
+    def name(self, share: np.ndarray, r: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """``share`` (n × tags, shares of ``T²``, NaN unknown) with each tag's value from the
+        kept-out tests in alarm where larger (a new array; ``share`` where none is)."""
+        v = self.values(r, s)
+        hit = v > 0
+        if not hit.any():
+            return share
+        return np.where(hit & ~(share >= v), v, share)
+
+
+def _on_any(s: np.ndarray) -> np.ndarray:
+    """Where a symptom is on: nonzero and known."""
+    return np.nan_to_num(s, nan=0.0) != 0
 
 
 #: the combined test's covariance up to this condition number has every pattern's inverse
