@@ -42,6 +42,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from diag_plugin.diagnose.unittags import side_ratio
+
 __all__ = [
     "MIN_EXPECTED",
     "Limit",
@@ -58,20 +60,6 @@ __all__ = [
 #: a target is resolved by the calibration runs when at least this many alarm samples (per
 #: sample) or episodes (per hour) are expected at it
 MIN_EXPECTED = 5
-
-
-def side_ratio(r: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """A two-sided test's statistic over its limit: ``r / high`` above zero, ``r / low`` below
-    (``low`` < 0 < ``high``, per column), so 1 is the threshold on either side; NaN where
-    ``r`` is unknown or the test has no threshold."""
-    r = np.asarray(r, float)
-    hi = np.asarray(high, float)
-    lo = np.asarray(low, float)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        up = np.where(hi > 0, r / hi, np.nan)
-        down = np.where(lo < 0, r / lo, np.nan)
-    out = np.fmax(up, down)
-    return np.where(np.isfinite(r), out, np.nan)
 
 
 @numba.njit(cache=True)

@@ -418,10 +418,7 @@ class KeptOut:
         0 where none names it (n × tags)."""
         r = np.asarray(r, float)[:, self.tests]
         on = _on_any(np.asarray(s, float)[:, self.tests])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            up = np.where(self.high > 0, r / self.high, np.nan)
-            down = np.where(self.low < 0, r / self.low, np.nan)
-        v = np.where(on, np.fmax(np.fmax(up, down), 1.0), 0.0)  # n × kept-out tests
+        v = np.where(on, np.fmax(side_ratio(r, self.low, self.high), 1.0), 0.0)  # n × kept out
         return np.max(v[:, :, None] * self.names[None, :, :], axis=1, initial=0.0)
 
     def name(self, share: np.ndarray, r: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -432,6 +429,21 @@ class KeptOut:
         if not hit.any():
             return share
         return np.where(hit & ~(share >= v), v, share)
+
+
+def side_ratio(r: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """A two-sided test's statistic over its limit: ``r / high`` above zero, ``r / low`` below
+    (``low`` < 0 < ``high``, per column), so 1 is the threshold on either side; NaN where
+    ``r`` is unknown or the test has no threshold (:class:`KeptOut`, and the benchmarks'
+    per-test statistics, :mod:`diag_plugin.bench.matched`)."""
+    r = np.asarray(r, float)
+    hi = np.asarray(high, float)
+    lo = np.asarray(low, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        up = np.where(hi > 0, r / hi, np.nan)
+        down = np.where(lo < 0, r / lo, np.nan)
+    out = np.fmax(up, down)
+    return np.where(np.isfinite(r), out, np.nan)
 
 
 def _on_any(s: np.ndarray) -> np.ndarray:
