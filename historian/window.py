@@ -79,6 +79,54 @@ def align(
     return out
 
 
+def align_pieces(pieces, t0: int, period: int, n: int, how: str = "mean", hold: int = 0):
+    """:func:`align` of one tag's samples given as consecutive (ts, value, quality) pieces
+    in time order (the row groups of the rolled months as decoded), the same values to the
+    bit. When there is no hold and every piece is a regular series exactly on the grid (one
+    sample per grid point ``t0 + k·period``, the pieces after one another), binning is an
+    index computation: each piece's usable values are copied to its rows
+    (:func:`_on_grid`) without joining the pieces first; else they are joined and aligned."""
+    out = _on_grid(pieces, t0, period, n) if hold == 0 and how in ("mean", "last") else None
+    if out is not None:
+        return out
+    if not pieces:
+        empty = np.empty(0, np.int64)
+        return align(empty, np.empty(0), empty, t0, period, n, how, hold)
+    if len(pieces) == 1:
+        return align(*pieces[0], t0, period, n, how, hold)
+    ts, value, quality = (np.concatenate(col) for col in zip(*pieces, strict=True))
+    return align(ts, value, quality, t0, period, n, how, hold)
+
+
+def _on_grid(pieces, t0: int, period: int, n: int) -> np.ndarray | None:
+    """The aligned values (no hold) when every piece's times are ``t0 + k·period`` for
+    consecutive k, each piece's after the one before: grid point k then holds its one sample
+    when it is usable (mean and last of one sample are the sample), else NaN; None otherwise.
+    """
+    if n <= 0:
+        return None
+    out = np.full(n, np.nan)
+    after = None  # the last grid index of the pieces so far
+    for ts, value, quality in pieces:
+        m = len(ts)
+        if not m:
+            continue
+        k0, off = divmod(int(ts[0]) - t0, period)
+        if off or int(ts[-1]) - int(ts[0]) != (m - 1) * period:
+            return None
+        if m > 1 and not np.all(ts[1:] - ts[:-1] == period):
+            return None
+        if after is not None and k0 <= after:
+            return None
+        after = k0 + m - 1
+        a, b = max(k0, 0), min(k0 + m, n)
+        if a >= b:
+            continue
+        v, q = value[a - k0 : b - k0], quality[a - k0 : b - k0]
+        np.copyto(out[a:b], v, where=(q < BAD) & np.isfinite(v))
+    return out
+
+
 def _runs(mask: np.ndarray):
     """Start and end (exclusive) indices of the runs of True in a boolean array."""
     if not mask.any():
