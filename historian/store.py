@@ -518,14 +518,18 @@ class Historian(ColdMonths, Registry, TagReport):
         back_max = max((int(v) for v in hold.values()), default=0)
         segments = self._segments(lo - back_max, hi)
 
+        # the frame's block, one row per tag, each tag's values aligned straight into it
+        block = np.full((len(tags), n), np.nan)
+
         def one(i):
             tag_id, t_lo, t_hi = meta[i]
             back = int(hold.get(tags[i], 0))
             if not summary:  # the pieces as read, each put on the grid where it lies
                 pieces = self._read_pieces(tag_id, lo - back, hi, segments, usable=True)
-                return align_pieces(pieces, t0, p, n, how, back), None
+                return align_pieces(pieces, t0, p, n, how, back, out=block[i]), None
             ts, v, q = self._read_raw(tag_id, lo - back, hi, segments)
-            col = align(ts, v, q, t0, p, n, how, back)
+            col = block[i]
+            col[:] = align(ts, v, q, t0, p, n, how, back)
             inside = np.searchsorted(ts, lo)
             ts, v, q = ts[inside:], v[inside:], q[inside:]
             return col, summarize(
@@ -540,8 +544,7 @@ class Historian(ColdMonths, Registry, TagReport):
         if segments != self._segments(lo - back_max, hi):  # a roll committed meanwhile
             return self._window(tags, e, t0, p, how, gap, flat, hold, summary)
         index = us_index(t0 + p * np.arange(n, dtype=np.int64))
-        cols = {name: col for name, (col, _) in zip(tags, results, strict=True)}
-        frame = pd.DataFrame(cols, index=index, columns=tags)
+        frame = pd.DataFrame(block.T, index=index, columns=tags, copy=False)
         if summary:
             frame.attrs["quality"] = summary_attrs(
                 {name: summ for name, (_, summ) in zip(tags, results, strict=True)}
