@@ -336,14 +336,7 @@ class Historian(ColdMonths, Registry, TagReport):
             yield tuple(np.concatenate(col) for col in zip(*pending, strict=True))
 
     # -- reading -------------------------------------------------------------------------
-    def _read_raw(
-        self,
-        tag_id: int,
-        start: int,
-        end: int,
-        segments: list[dict] | None = None,
-        usable: bool = False,
-    ):
+    def _read_raw(self, tag_id: int, start: int, end: int, segments=None, usable=False):
         """(ts, value, quality) of one tag in [start, end), hot and cold rows combined.
         ``segments``: the list of rolled months, when the caller read it before this read;
         ``usable``: database rows may come with Bad samples as NaN values of GOOD quality
