@@ -127,8 +127,9 @@ class ColdMonths:
     def _read_cold(
         self, tag_id: int, start: int, end: int, segments: list[dict] | None = None
     ) -> list[tuple[np.ndarray, ...]]:
-        """(ts, value, quality) of one tag in [start, end) from each rolled month it meets
-        (``segments``: the list of rolled months when the caller has it already)."""
+        """(ts, value, quality) of one tag in [start, end) from the rolled months it meets, as
+        consecutive pieces in time order, none empty (:meth:`SegmentIndex.read_pieces`;
+        ``segments``: the list of rolled months when the caller has it already)."""
         parts = []
         for seg in self._segments(None, None) if segments is None else segments:
             m0, m1 = coldstore.month_bounds(seg["month"])
@@ -136,7 +137,7 @@ class ColdMonths:
                 continue
             index = self._segment_index(seg)
             cache = self.__dict__.setdefault("_row_group_cache", coldstore.RowGroupCache())
-            parts.append(index.read(tag_id, max(start, m0), min(end, m1), cache))
+            parts += index.read_pieces(tag_id, max(start, m0), min(end, m1), cache)
         return parts
 
     def _cold_bounds(self, tag_id: int, segments: list[dict]) -> tuple[int | None, int | None]:

@@ -241,9 +241,22 @@ class SegmentIndex:
     def read(self, tag_id: int, start: int, end: int, cache: RowGroupCache | None = None):
         """(ts, value, quality) of one tag in [start, end), decoding only its row groups
         (row groups of one tag through ``cache``: consecutive chunked reads decode each once)."""
+        pieces = self.read_pieces(tag_id, start, end, cache)
+        if not pieces:
+            return np.empty(0, np.int64), np.empty(0, np.float64), np.empty(0, np.int64)
+        if len(pieces) == 1:
+            return pieces[0]
+        return tuple(np.concatenate(col) for col in zip(*pieces, strict=True))
+
+    def read_pieces(
+        self, tag_id: int, start: int, end: int, cache: RowGroupCache | None = None
+    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """:meth:`read` as consecutive pieces in time order, none empty, not joined (an
+        aligned read puts each piece on the grid where it lies, without copying them into one
+        array first: :func:`historian.window.align_pieces`)."""
         g = self.groups(tag_id, start, end)
         if not len(g):
-            return np.empty(0, np.int64), np.empty(0, np.float64), np.empty(0, np.int64)
+            return []
         if cache is not None and np.all(self.tag_lo[g] == self.tag_hi[g]):
             # row groups inside [start, end) are decoded together (no later read wants
             # them); those at its edges, which the next chunk shares, through the cache
@@ -259,14 +272,14 @@ class SegmentIndex:
                 parts.append(cache.get(self, int(i)))
             if run:
                 parts.append(self._decode(run))
-            ts, value, quality = (
-                col[0] if len(parts) == 1 else np.concatenate(col)
-                for col in zip(*parts, strict=True)
-            )
         else:
-            ts, value, quality = self._decode([int(i) for i in g], tag_id)
-        a, b = np.searchsorted(ts, [start, end])  # one tag's rows are sorted by time
-        return ts[a:b], value[a:b], quality[a:b]
+            parts = [self._decode([int(i) for i in g], tag_id)]
+        pieces = []
+        for ts, value, quality in parts:  # one tag's rows are sorted by time
+            a, b = np.searchsorted(ts, [start, end])
+            if b > a:
+                pieces.append((ts[a:b], value[a:b], quality[a:b]))
+        return pieces
 
     def _decode(self, groups: list[int], tag_id: int | None = None):
         """Rows of row groups as (ts int64, value float64, quality int64); only ``tag_id``'s

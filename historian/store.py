@@ -35,7 +35,7 @@ from .sampling import SAMPLING_ROWS, Sampling, hold_us, sampling_of, snap_near, 
 from .sqlitefile import SqliteFile
 from .tagreport import TagReport
 from .times import from_us, index_us, period_us, to_us, us_index
-from .window import align, summarize, summary_attrs
+from .window import align, align_pieces, summarize, summary_attrs
 
 DEFAULT_BATCH_ROWS = 500_000
 #: the most threads of parallel per-tag reads in window(); a window of n tags uses
@@ -336,34 +336,41 @@ class Historian(ColdMonths, Registry, TagReport):
             yield tuple(np.concatenate(col) for col in zip(*pending, strict=True))
 
     # -- reading -------------------------------------------------------------------------
-    def _read_raw(
+    def _read_raw(self, tag_id: int, start: int, end: int, segments=None, usable=False):
+        """(ts, value, quality) of one tag in [start, end), hot and cold rows combined.
+        ``segments``: the list of rolled months, when the caller read it before this read;
+        ``usable``: database rows may come with Bad samples as NaN values of GOOD quality
+        (the same to an aligned window, and faster to read from SQLite)."""
+        pieces = self._read_pieces(tag_id, start, end, segments, usable)
+        if len(pieces) == 1:
+            return pieces[0]
+        return tuple(np.concatenate(col) for col in zip(*pieces, strict=True))
+
+    def _read_pieces(
         self,
         tag_id: int,
         start: int,
         end: int,
         segments: list[dict] | None = None,
         usable: bool = False,
-    ):
-        """(ts, value, quality) of one tag in [start, end), hot and cold rows combined.
-        ``segments``: the list of rolled months, when the caller read it before this read;
-        ``usable``: database rows may come with Bad samples as NaN values of GOOD quality
-        (the same to an aligned window, and faster to read from SQLite)."""
+    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """:meth:`_read_raw` as consecutive pieces in time order, not joined: the rolled
+        months' row groups as they were decoded when the database holds no rows there, else
+        one piece (the hot and cold rows merged)."""
         # hot first, then the segment list: a roll committing in between gives duplicates
         # (removed below), never a loss
         hot = self._bulk.read(tag_id, start, end, usable=usable)
-        parts = [p for p in self._read_cold(tag_id, start, end, segments) if len(p[0])]
+        parts = self._read_cold(tag_id, start, end, segments)
         if not parts:
-            return hot
-        if len(parts) == 1 and not len(hot[0]):
-            return parts[0]
+            return [hot]
+        if not len(hot[0]):
+            return parts
         parts.append(hot)
         ts, v, q = (np.concatenate(col) for col in zip(*parts, strict=True))
-        if len(parts) > 1 and len(hot[0]):
-            order = np.argsort(ts, kind="stable")  # cold before hot at equal times
-            ts, v, q = ts[order], v[order], q[order]
-            last = np.r_[ts[1:] != ts[:-1], True]  # the hot row wins: an update
-            ts, v, q = ts[last], v[last], q[last]
-        return ts, v, q
+        order = np.argsort(ts, kind="stable")  # cold before hot at equal times
+        ts, v, q = ts[order], v[order], q[order]
+        last = np.r_[ts[1:] != ts[:-1], True]  # the hot row wins: an update
+        return [(ts[last], v[last], q[last])]
 
     def read_samples(
         self, tag: str, start=None, end=None, *, with_quality: bool = False
@@ -504,13 +511,18 @@ class Historian(ColdMonths, Registry, TagReport):
         back_max = max((int(v) for v in hold.values()), default=0)
         segments = self._segments(lo - back_max, hi)
 
+        # the frame's block, one row per tag, each tag's values aligned straight into it
+        block = np.full((len(tags), n), np.nan)
+
         def one(i):
             tag_id, t_lo, t_hi = meta[i]
             back = int(hold.get(tags[i], 0))
-            ts, v, q = self._read_raw(tag_id, lo - back, hi, segments, usable=not summary)
-            col = align(ts, v, q, t0, p, n, how, back)
-            if not summary:
-                return col, None
+            if not summary:  # the pieces as read, each put on the grid where it lies
+                pieces = self._read_pieces(tag_id, lo - back, hi, segments, usable=True)
+                return align_pieces(pieces, t0, p, n, how, back, out=block[i]), None
+            ts, v, q = self._read_raw(tag_id, lo - back, hi, segments)
+            col = block[i]
+            col[:] = align(ts, v, q, t0, p, n, how, back)
             inside = np.searchsorted(ts, lo)
             ts, v, q = ts[inside:], v[inside:], q[inside:]
             return col, summarize(
@@ -525,8 +537,7 @@ class Historian(ColdMonths, Registry, TagReport):
         if segments != self._segments(lo - back_max, hi):  # a roll committed meanwhile
             return self._window(tags, e, t0, p, how, gap, flat, hold, summary)
         index = us_index(t0 + p * np.arange(n, dtype=np.int64))
-        cols = {name: col for name, (col, _) in zip(tags, results, strict=True)}
-        frame = pd.DataFrame(cols, index=index, columns=tags)
+        frame = pd.DataFrame(block.T, index=index, columns=tags, copy=False)
         if summary:
             frame.attrs["quality"] = summary_attrs(
                 {name: summ for name, (_, summ) in zip(tags, results, strict=True)}

@@ -79,6 +79,57 @@ def align(
     return out
 
 
+def align_pieces(
+    pieces, t0: int, period: int, n: int, how: str = "mean", hold: int = 0, out=None
+) -> np.ndarray:
+    """:func:`align` of one tag's samples given as consecutive (ts, value, quality) pieces
+    in time order (the row groups of the rolled months as decoded), the same values to the
+    bit. When there is no hold and every piece is a regular series exactly on the grid (one
+    sample per grid point ``t0 + k·period``, the pieces after one another), binning is an
+    index computation: each piece's usable values are copied to its rows
+    (:func:`_on_grid`) without joining the pieces first; else they are joined and aligned.
+    ``out``: an array of ``n`` NaN to write the values into (a row of the window's block)."""
+    out = np.full(n, np.nan) if out is None else out
+    if hold == 0 and how in ("mean", "last") and _on_grid(pieces, t0, period, n, out):
+        return out
+    if not pieces:
+        empty = np.empty(0, np.int64)
+        pieces = [(empty, np.empty(0), empty)]
+    joined = (np.concatenate(col) for col in zip(*pieces, strict=True))
+    out[:] = align(*(pieces[0] if len(pieces) == 1 else joined), t0, period, n, how, hold)
+    return out
+
+
+def _on_grid(pieces, t0: int, period: int, n: int, out: np.ndarray) -> bool:
+    """Whether every piece's times are ``t0 + k·period`` for consecutive k, each piece's
+    after the one before, and then the aligned values (no hold) written into ``out`` (NaN
+    before): grid point k holds its one sample when it is usable (mean and last of one sample
+    are the sample), else NaN. ``out`` is unchanged when False is returned."""
+    if n <= 0:
+        return False
+    spans = []  # (first grid index, piece) of each piece
+    after = None  # the last grid index of the pieces so far
+    for ts, value, quality in pieces:
+        m = len(ts)
+        if not m:
+            continue
+        k0, off = divmod(int(ts[0]) - t0, period)
+        if off or int(ts[-1]) - int(ts[0]) != (m - 1) * period:
+            return False
+        if m > 1 and not np.all(ts[1:] - ts[:-1] == period):
+            return False
+        if after is not None and k0 <= after:
+            return False
+        after = k0 + m - 1
+        spans.append((k0, value, quality))
+    for k0, value, quality in spans:
+        a, b = max(k0, 0), min(k0 + len(value), n)
+        if a < b:
+            v, q = value[a - k0 : b - k0], quality[a - k0 : b - k0]
+            np.copyto(out[a:b], v, where=(q < BAD) & np.isfinite(v))
+    return True
+
+
 def _runs(mask: np.ndarray):
     """Start and end (exclusive) indices of the runs of True in a boolean array."""
     if not mask.any():

@@ -254,3 +254,80 @@ def test_tags_read_in_parallel_give_the_frame_of_one_tag_at_a_time(historian):
         assert 1 <= len(bulk._all) <= threads + 1  # the readers' and the calling thread's
         historian.close()
         assert bulk._all == [] and historian._pool is None
+
+
+def test_aligned_pieces_equal_the_aligned_joined_samples_to_the_bit():
+    """align_pieces (the rolled months' row groups put on the grid one by one, issue 37)
+    gives align's values of the joined samples, bit for bit: regular series on the grid
+    (the index fast path) with Bad, Uncertain, NaN and infinite samples, pieces before and
+    past the grid, gaps between pieces; and the cases it must leave to align: off-grid
+    times, a missing sample, a repeated time, overlapping pieces, a hold, how="last"."""
+    from historian.window import align, align_pieces
+
+    rng = np.random.default_rng(7)
+    p, t0, n = 10_000_000, 1_700_000_000_000_000, 400
+
+    def pieces_of(ts):
+        v = rng.normal(50, 5, len(ts))
+        v[rng.choice(len(ts), 20, replace=False)] = np.nan
+        v[rng.choice(len(ts), 3, replace=False)] = np.inf
+        q = rng.choice([0, 0, 0, UNCERTAIN, BAD], len(ts)).astype(np.int64)
+        cuts = np.sort(rng.choice(np.arange(1, len(ts)), 4, replace=False))
+        return [
+            (ts[a:b], v[a:b], q[a:b])
+            for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(ts)], strict=True)
+        ]
+
+    k = np.arange(-30, 450)
+    regular = t0 + k * p
+    cases = {
+        "on the grid": regular,
+        "a gap": np.r_[regular[:100], regular[130:]],
+        "off the grid": regular + 3_000_000,
+        "jitter": regular + rng.integers(-4_000_000, 4_000_000, len(k)),
+        "a repeated time": np.sort(np.r_[regular, regular[50]]),
+    }
+    for name, ts in cases.items():
+        pieces = pieces_of(ts)
+        joined = tuple(np.concatenate(col) for col in zip(*pieces, strict=True))
+        for how, hold in (("mean", 0), ("last", 0), ("mean", 25_000_000)):
+            got = align_pieces(pieces, t0, p, n, how, hold)
+            want = align(*joined, t0, p, n, how, hold)
+            assert got.view(np.int64).tolist() == want.view(np.int64).tolist(), (name, how)
+    # pieces sharing a time (the next piece starts where the last one ended): two samples
+    # at one grid point, so not the fast path
+    (ts, v, q) = pieces_of(regular)[0]
+    shared = [(ts[:10], v[:10], q[:10]), (ts[9:], v[9:] + 1.0, q[9:])]
+    joined = tuple(np.concatenate(col) for col in zip(*shared, strict=True))
+    for how in ("mean", "last"):
+        got = align_pieces(shared, t0, p, n, how)
+        want = align(*joined, t0, p, n, how)
+        assert got.view(np.int64).tolist() == want.view(np.int64).tolist(), how
+    assert np.isnan(align_pieces([], t0, p, n)).all()
+
+
+def test_a_training_read_of_rolled_regular_months_equals_the_full_window(historian):
+    """A regular 10 s series rolled to the cold store (several row groups a month, read in
+    chunks through the row-group cache, the fast path of align_pieces) aligns as the full
+    window does, Bad, Uncertain and NaN samples included, on its grid and on another."""
+    from historian import coldstore
+
+    idx = pd.date_range("2024-01-29", "2024-02-03", freq="10s", inclusive="left", tz="UTC")
+    rng = np.random.default_rng(5)
+    v = rng.normal(50, 5, len(idx))
+    v[rng.choice(len(v), 300, replace=False)] = np.nan
+    q = rng.choice([0, 0, 0, 0, UNCERTAIN, BAD], len(v))
+    historian.write_samples(
+        pd.DataFrame({"A": v, "B": -v}, index=idx),
+        quality=pd.DataFrame({"A": q, "B": 0}, index=idx),
+    )
+    assert historian.roll_months(before="2024-03-01") == ["2024-01", "2024-02"]
+    old_rows = coldstore.ROW_GROUP_ROWS
+    for period in ("10s", "20s", "7s"):
+        args = (["A", "B"], idx[3] - pd.Timedelta("1s"), idx[-5], period)
+        full = historian.window(*args)
+        full.attrs = {}
+        chunks = historian.iter_windows(*args, chunk="9h", summary=False)
+        pd.testing.assert_frame_equal(pd.concat(list(chunks)), full, check_freq=False)
+        pd.testing.assert_frame_equal(historian.window(*args, summary=False), full)
+    assert old_rows == coldstore.ROW_GROUP_ROWS
