@@ -136,6 +136,10 @@ def test_cycles_stamped_off_the_grid_are_all_caught_up(unit_dir, db_url, late_s)
     assert res.mode == "replayed" and res.first == rows[0] and res.last == rows[-1], res
     assert res.rows == res.total == len(gap), res
     assert res.gap_start == rows[0]
+    # restarted before the last sample: nothing of it (its row's samples are after ``until``)
+    plant = stopped_plant(unit_dir, pre)
+    res = catch_up(plant, db_url, gap.index[-2], 10.0)
+    assert res.rows == res.total == len(gap) - 1 and res.last == rows[-2], res
 
 
 def test_a_cycle_early_in_the_next_row_is_caught_up(unit_dir, db_url):

@@ -432,7 +432,9 @@ def _feed(
                 _step(s.unit, int(s.status), s.faults, s.tags, int(s.quality), ts, on, open_, res)
         return True
 
-    frames = h.iter_windows(read, lo, until + p, p, chunk=chunk_rows * p, summary=False)
+    # rows up to the one a sample stamped ``until`` goes into (not the next: its samples are
+    # later than ``until``)
+    frames = h.iter_windows(read, lo, next_row(until, p), p, chunk=chunk_rows * p, summary=False)
     for frame in frames:
         vals = frame.to_numpy(np.float64)
         has = np.isfinite(vals)
@@ -492,7 +494,7 @@ def _history(
         open_: dict[str, Episode] = {}
         res.history_to[name] = start
         for frame in h.iter_windows(
-            unit.tags, t0, until + period, period, chunk=chunk_rows * period, summary=False
+            unit.tags, t0, next_row(until, period), period, chunk=chunk_rows * period, summary=False
         ):
             if time.monotonic() > deadline:
                 res.timed_out = True
