@@ -115,6 +115,7 @@ def _regenerated_like_shipped(regenerated, name: str):
     for ta, tb in zip(a.tests, b.tests, strict=True):
         assert (ta.name, ta.model) == (tb.name, tb.model)
         assert ta.high == pytest.approx(tb.high, rel=1e-3)
+        assert ta.low == pytest.approx(tb.low, rel=1e-3)
         assert ta.fuzzy == pytest.approx(tb.fuzzy, rel=1e-2)
     return a
 
