@@ -102,8 +102,11 @@ class DerivedInputs:
         dst, value = self.const
         if dst.size:
             hist[0, dst] = value
-        for c, fn in self.clock:
-            hist[0, c] = clock(pd.DatetimeIndex([ts]), fn)[0]
+        if self.clock:  # one index a cycle, each clock function once
+            idx = pd.DatetimeIndex([ts])
+            now = {fn: clock(idx, fn)[0] for fn in {fn for _, fn in self.clock}}
+            for c, fn in self.clock:
+                hist[0, c] = now[fn]
         dst, src, threshold = self.dir
         if dst.size:
             hist[0, dst] = direction_step(hist[0, src], threshold, self.ref, self.state)
