@@ -70,6 +70,21 @@ def test_the_dask_build_is_the_local_build(tmp_path, cluster, kind):
     _same_files(tmp_path / "local", tmp_path / "dask")
 
 
+def test_the_command_with_dask_writes_the_local_unit(tmp_path, cluster):
+    """``diag unit build --dask ADDRESS`` from a historian: the files of the build without it."""
+    from tests.test_any_plant_tour import fmt, import_csv
+
+    frame = _plant("heatex", 3.0, 22)
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}"]
+    import_csv([*g, "--rulebases", str(tmp_path / "rb")], frame, tmp_path / "x.csv")
+    window = ["--from", fmt(frame.index[0]), "--to", fmt(frame.index[-1]), "--far", "0.05"]
+    for where, more in (("local", []), ("dask", ["--dask", cluster.scheduler_address])):
+        rc, text = diag([*g, "--rulebases", str(tmp_path / where)], "unit", "build", "u",
+                        *window, *more)  # fmt: skip
+        assert rc == 0, text
+    _same_files(tmp_path / "local", tmp_path / "dask")
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
