@@ -162,10 +162,13 @@ class DaskPool:
 
         try:
             client = Client(address, timeout=f"{timeout}s", set_as_default=False)
-        except (OSError, TimeoutError, ValueError) as exc:
+        except Exception as exc:  # noqa: BLE001 - refused, timed out, a bad address or TLS
+            hint = ""
+            if address.startswith("tls://"):
+                hint = "; a tls:// address needs the distributed.comm.tls settings"
             raise UserError(
                 f"--dask {address}: cannot reach the Dask scheduler within {timeout:g} s "
-                f"({type(exc).__name__}: {exc})"
+                f"({type(exc).__name__}: {exc}){hint}"
             ) from None
         try:
             try:
