@@ -28,8 +28,17 @@ main d39e220 on this session's faster machine, load 5–10): the busiest choice 
 60 s goal by that estimate (docs/how-to/unit-from-history.md; the wall on idle cores was not
 measured: the machine was shared).
 
+With ``--dask``: the local pool and a Dask LocalCluster (bound to 127.0.0.1 only: two worker
+processes of one thread each, started by this script and closed at its end) build the same
+historian window ``--repeat`` times each, interleaved (the order alternating), each build
+from ``build_from_historian`` as ``diag unit build [--dask ADDRESS]`` runs it. Printed per
+build and as medians: the wall, the CPU of this process (the client; with Dask also the
+scheduler, which a LocalCluster runs in this process), the CPU of the workers (the local
+pool's ended children; each Dask worker's own ``getrusage``, before and after), the load
+average, and whether the unit's files are the first local build's (but the times written).
+
 Run: ``python benchmarks/bench_unit_build.py [--tags 50] [--days 10] [--period 60]
-[--workers N] [--quality] [--rig hx]``.
+[--workers N] [--quality] [--rig hx] [--dask [--repeat 3]]``.
 """
 
 from __future__ import annotations
@@ -112,9 +121,13 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
     ap.add_argument("--quality", action="store_true")
     ap.add_argument("--rig", choices=["hx"], help="build on the rig instead, beside PCA")
+    ap.add_argument("--dask", action="store_true", help="local pool vs a Dask LocalCluster")
+    ap.add_argument("--repeat", type=int, default=3, help="builds of each (with --dask)")
     a = ap.parse_args()
     if a.rig:
         return rig(a.rig)
+    if a.dask:
+        return local_vs_dask(a)
     import os
 
     from diag_plugin.bench.pca import PCADetector
@@ -194,6 +207,80 @@ def main() -> None:
             det_u.append(u_al[half:].mean())
             det_p.append(p_al[half:].mean())
         print(f"| {size:.0%} | {np.mean(det_u):.0%} | {np.mean(det_p):.0%} |")
+
+
+def _worker_cpu() -> float:
+    """CPU seconds of the process this runs in (a Dask worker)."""
+    me = resource.getrusage(resource.RUSAGE_SELF)
+    return me.ru_utime + me.ru_stime
+
+
+def _unit_text(folder: Path) -> dict[str, str]:
+    import re
+
+    return {
+        p.name: re.sub(r"(?m)^.*(_at|learned) = .*$", "", p.read_text(encoding="utf-8"))
+        for p in sorted(folder.iterdir())
+    }
+
+
+def local_vs_dask(a) -> None:
+    """The local pool and a Dask LocalCluster on 127.0.0.1, interleaved (see the module)."""
+    import os
+    import statistics
+
+    from distributed import LocalCluster
+
+    from diag_plugin.unitbuild.parallel import DaskPool
+
+    frame, _ = coupled.simulate(a.days, period_s=a.period, n_tags=a.tags, seed=1)
+    tmp = Path(tempfile.mkdtemp())
+    url = f"sqlite:///{tmp / 'h.db'}"
+    store(url, frame)
+    t0, t1 = frame.index[0], frame.index[-1] + pd.Timedelta(seconds=a.period)
+    print(f"{a.tags} tags × {len(frame):,} rows of {a.period:g} s; {os.cpu_count()} cores; "
+          f"local pool: {a.workers or 'every core'}; Dask: LocalCluster 127.0.0.1, "
+          "2 worker processes × 1 thread")  # fmt: skip
+    if a.workers:
+        os.environ["DIAG_WORKERS"] = str(a.workers)
+    rows: dict[str, list[tuple[float, float, float, float]]] = {"local": [], "dask": []}
+    ref: dict[str, str] | None = None
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                     dashboard_address=None, protocol="tcp") as cluster,
+        DaskPool.connect(cluster.scheduler_address) as pool,
+    ):  # fmt: skip
+        pool.client.run(_worker_cpu)  # the workers up and importing
+        for i in range(a.repeat):
+            for mode in ("local", "dask") if i % 2 == 0 else ("dask", "local"):
+                folder = tmp / f"rb-{mode}-{i}"
+                load0 = os.getloadavg()[0]
+                before = pool.client.run(_worker_cpu) if mode == "dask" else None
+                kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+                t, own = time.perf_counter(), cpu_self()
+                build_from_historian(url, "u", t0, t1, folder=folder, far=a.far,
+                                     workers=pool if mode == "dask" else None)  # fmt: skip
+                wall, parent = time.perf_counter() - t, cpu_self() - own
+                if mode == "dask":
+                    after = pool.client.run(_worker_cpu)
+                    workers = sum(after[w] - before.get(w, 0.0) for w in after)
+                else:
+                    k = resource.getrusage(resource.RUSAGE_CHILDREN)
+                    workers = (k.ru_utime + k.ru_stime) - (kids.ru_utime + kids.ru_stime)
+                load = (load0 + os.getloadavg()[0]) / 2
+                text = _unit_text(folder)
+                ref = ref or text
+                rows[mode].append((wall, parent, workers, load))
+                print(f"  {mode:5s} #{i + 1}: wall {wall:6.1f} s, CPU parent {parent:5.1f} s, "
+                      f"workers {workers:5.1f} s, load {load:4.1f}; {len(text)} files, "
+                      f"{'the same unit' if text == ref else 'A DIFFERENT UNIT'}")  # fmt: skip
+    print("| build | wall | CPU parent | CPU workers | CPU total | load average |")
+    print("|---|---|---|---|---|---|")
+    for mode, got in rows.items():
+        med = [statistics.median(x[k] for x in got) for k in range(4)]
+        tot = statistics.median(x[1] + x[2] for x in got)
+        print(f"| {mode} (median of {len(got)}) | {med[0]:.1f} s | {med[1]:.1f} s | "
+              f"{med[2]:.1f} s | {tot:.1f} s | {med[3]:.1f} |")  # fmt: skip
 
 
 def rig(plant: str) -> None:

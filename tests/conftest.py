@@ -123,6 +123,7 @@ SLOW_FILES: frozenset[str] = frozenset(
         "test_hidden_effects.py",  # 33-79 s a test: the workbench finds planted effects
         "test_harder_data.py",  # 21-54 s a test
         "test_unit_build.py",  # 16-59 s a test: units built on the rigs and the valve
+        "test_build_dask.py",  # 55-65 s: LocalClusters started, each unit built twice
         "test_fig8.py",  # 56 s: its module fixture (the real hour)
         "test_plant_benchmark.py",  # 63 s: the plant benchmark's CLI run
         "test_real_unit.py",  # 40 s: a unit from the real hour

@@ -48,7 +48,7 @@ ARGV = {
     "unit check": ["unit", "check", "u.unit.toml", "--json"],
     "unit show": ["unit", "show", "u", "--json"],
     "unit learn": ["unit", "learn", "u", "--from", "2026-01-01", "--to", "2026-01-02"],
-    "unit build": ["unit", "build", "u", "--from", "2026-01-01", "--to", "2026-01-02"],
+    "unit build": ["unit", "build", "u", "--from", "2026-01", "--to", "2026-02", "--dask", "h:1"],
     "unit accept": ["unit", "accept", "u", "--from", "2026-01-01", "--to", "2026-01-02"],
     "unit rollback": ["unit", "rollback", "u"],
     "diagnose": ["diagnose", "u", "--csv", "d.csv", "--from", "2026-01-01"],

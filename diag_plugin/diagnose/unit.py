@@ -111,13 +111,24 @@ def load_test_model(name: str, path: Path) -> TestModel:
 
     try:
         rb = RuleBase.load(path)
+    except RuleBaseError as exc:
+        raise UnitError(exc.problems) from None
+    return model_of_test(name, rb)
+
+
+def model_of_test(name: str, rb: Any) -> TestModel:
+    """The model of one test from its rule base as read from its file (``RuleBase(text,
+    path)``: a Dask worker reads the text it made, the file is written by the client)."""
+    from diag_plugin.rulebase.document import RuleBaseError
+
+    try:
         model = rb.to_model()
     except RuleBaseError as exc:
         raise UnitError(exc.problems) from None
     lo, hi = rb.output.span
     return TestModel(
         name=name,
-        path=path,
+        path=rb.path,
         model=model,
         inputs=[v.spec for v in rb.inputs],
         output=rb.output.spec,

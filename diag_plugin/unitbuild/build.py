@@ -51,6 +51,7 @@ coverage; ``diag unit show`` prints it.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -60,6 +61,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -77,9 +79,12 @@ from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
 from diag_plugin.unitbuild import short
 from diag_plugin.unitbuild.loops import Loop, checked_loops
-from diag_plugin.unitbuild.parallel import map_tests, one_blas_thread
+from diag_plugin.unitbuild.parallel import DaskPool, map_tests, one_blas_thread
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
+
+if TYPE_CHECKING:
+    from diag_plugin.diagnose.unit import TestModel
 
 log = logging.getLogger(__name__)
 
@@ -246,7 +251,7 @@ def choose_tests(
 
 
 def same_measurement(
-    frame: pd.DataFrame, tags: Sequence[str], workers: int | None = 1
+    frame: pd.DataFrame, tags: Sequence[str], workers: int | DaskPool | None = 1
 ) -> dict[str, list[str]]:
     """For each tag, the others that are the same measurement: ``|r| >`` :data:`SAME_CORR`
     at lag 0 over the window, Pearson's or Spearman's (a redundant transmitter, a copy, a
@@ -686,6 +691,85 @@ def _reader(frame: pd.DataFrame):
     return read
 
 
+@dataclass
+class _FitJob:
+    """What training one test's model needs (:func:`_fit_test`) beside the window and its
+    context: the same for every test."""
+
+    name: str
+    folder: Path
+    info: dict
+    period: str
+    start: pd.Timestamp
+    end: pd.Timestamp
+    source: str
+    write: bool  # the worker writes the model file (a local pool); else the client does
+
+
+def _fit_test(
+    ch: TestChoice, job: _FitJob, frame: pd.DataFrame, ctx: _Context
+) -> tuple[float, str, str, TestModel | None]:
+    """Train ``ch``'s model on the window: its validation error, the model file's name, its
+    text and the model as the unit loads it from that text. With ``job.write`` (a local
+    worker's share, see :mod:`.parallel`) the worker writes the file and reads it back, so
+    the parent parses none; on a Dask cluster the worker cannot reach the folder, and the
+    client writes the text once every test is trained."""
+    from diag_plugin.diagnose.unit import model_of_test
+    from diag_plugin.diagnose.unitfile import UnitError
+    from diag_plugin.training.chunked import train
+
+    info, period = job.info, job.period
+    specs = [InputSpec.parse(s) for s in ch.inputs]
+    cols = [ctx.spec_column(s) for s in specs]
+    ins = _with_sets([ctx.spec_variable(s) for s in specs], cols, len(frame))
+    if ch.sets:  # a short window's grid: the sets its cells were judged at
+        ins = [dc_replace(v, sets=ch.sets) for v in ins]
+    if ch.method == short.LINEAR:  # a span from a few hundred samples only scales
+        ins = [
+            v if s.fn or (info.get(s.tags[0]) and info[s.tags[0]].span) else
+            dc_replace(v, span=short.widened(v.span))
+            for v, s in zip(ins, specs, strict=True)
+        ]  # fmt: skip
+    mpath = job.folder / f"{job.name}_{ch.test}.toml"
+    rb = _rulebase(f"{job.name}_{ch.test}", ctx.vars[ch.tag], ins, period, mpath, ch.method)
+    rb.doc["model"]["description"] = (
+        f"built by diag unit build {job.name} from {job.start.isoformat()} … {job.end.isoformat()}"
+    )
+    rb.edited()
+    res = train(rb, _reader(frame), job.start, job.end, holdout=HOLDOUT)
+    validation = float(res.validation.get("rmse_pct", math.nan))
+    rb.apply_training(
+        res.model,
+        {
+            "source": job.source or "diag unit build",
+            "from": job.start.isoformat(),
+            "to": job.end.isoformat(),
+            "samples": res.samples,
+            "validation_rmse_pct": _r(validation) or "n/a",
+            "trained_at": pd.Timestamp.now(tz="UTC").floor("s").isoformat(),
+        },
+    )
+    if job.write:
+        rb.save(mpath)  # the file as written, read back (RuleBase.save)
+    else:
+        rb = RuleBase(rb.dumps(), mpath)  # the file as it will be written and read
+    try:
+        tm = model_of_test(ch.test, rb)
+    except UnitError:  # Unit.load reads it again and says where it is broken
+        tm = None
+    return validation, mpath.name, rb.text, tm
+
+
+def _written(folder: Path, fits: list, kept: Sequence[TestChoice], name: str) -> None:
+    """The model files trained on a cluster, written by the client (atomically, as
+    ``RuleBase.save``)."""
+    for ch, (_, _, text, _) in zip(kept, fits, strict=True):
+        path = folder / f"{name}_{ch.test}.toml"
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(path)
+
+
 def build_unit(
     name: str,
     frame: pd.DataFrame,
@@ -700,20 +784,60 @@ def build_unit(
     source: str = "",
     progress: Callable[[str, int, int], None] | None = None,
     loops: Sequence[Loop] = (),
-    workers: int | None = None,
+    workers: int | DaskPool | None = None,
 ) -> BuildResult:
     """Build unit ``name`` from ``frame`` (the fault-free window, aligned on ``period``; every
     column a candidate input) into ``folder``: model files ``NAME_TEST.toml`` and
     ``NAME.unit.toml`` with thresholds learned to ``far`` false alarms per hour of
     operation. ``tags``: the tests (default: :func:`choose_tests`). ``progress(stage, done,
     total)`` is called as the stages advance; ``workers``: processes that choose the
-    tests' inputs (default: every core, :mod:`~diag_plugin.unitbuild.parallel`). Raises
-    :class:`~historian.errors.UserError` on input the build cannot use."""
-    with one_blas_thread():
-        return _build_unit(name, frame, folder=folder, period=period, tag_info=tag_info,
-                           tags=tags, far=far, max_inputs=max_inputs, force=force,
-                           source=source, progress=progress, loops=loops,
-                           workers=workers)  # fmt: skip
+    tests' inputs, train their models and compute their residuals for the thresholds
+    (default: every core, :mod:`~diag_plugin.unitbuild.parallel`), or a
+    :class:`~diag_plugin.unitbuild.parallel.DaskPool` to do that work on a Dask cluster (the
+    same unit). Raises :class:`~historian.errors.UserError` on input the build cannot use;
+    a build that fails leaves none of the files it wrote (:func:`_remove_partial`)."""
+    folder = Path(folder)
+    made = not folder.exists()
+    since = time.time_ns() - 100_000_000  # file times lag the clock by a tick
+    try:
+        with one_blas_thread():
+            return _build_unit(name, frame, folder=folder, period=period, tag_info=tag_info,
+                               tags=tags, far=far, max_inputs=max_inputs, force=force,
+                               source=source, progress=progress, loops=loops,
+                               workers=workers)  # fmt: skip
+    except BaseException:
+        _remove_partial(folder, name, since, made)
+        raise
+    finally:
+        if isinstance(workers, DaskPool):
+            workers.release()
+
+
+def _remove_partial(folder: Path, name: str, since: int, made: bool) -> None:
+    """After a failed build: the unit's files this build wrote (written since ``since``, ns)
+    removed, and ``folder`` too if the build made it and it is left empty — no half-written
+    unit (a file the build overwrote under ``--force`` is gone with it)."""
+    if not folder.is_dir():
+        return
+    from diag_plugin.rulebase.folder import UNIT_SUFFIX
+
+    gone = []
+    for p in folder.iterdir():
+        ours = p.name in (f"{name}{UNIT_SUFFIX}", f"{name}{UNIT_SUFFIX}.tmp") or (
+            p.name.startswith(f"{name}_") and p.name.endswith((".toml", ".toml.tmp"))
+        )
+        try:
+            if ours and p.is_file() and p.stat().st_mtime_ns >= since:
+                p.unlink()
+                gone.append(p.name)
+        except OSError:  # pragma: no cover - removed meanwhile
+            continue
+    if gone:
+        log.warning("build of %s failed: removed %d file(s) it wrote in %s", name, len(gone),
+                    folder)  # fmt: skip
+    if made:
+        with contextlib.suppress(OSError):
+            folder.rmdir()  # only if empty
 
 
 def _build_unit(
@@ -730,13 +854,12 @@ def _build_unit(
     source: str,
     progress,
     loops: Sequence[Loop],
-    workers: int | None,
+    workers: int | DaskPool | None,
 ) -> BuildResult:
-    from diag_plugin.diagnose.unit import TestModel, Unit, load_test_model
+    from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitError, new_unit_text
     from diag_plugin.learn.thresholds import DEFAULT_FAR, LearnError, learn_thresholds
     from diag_plugin.rulebase.folder import UNIT_SUFFIX
-    from diag_plugin.training.chunked import train
 
     far = DEFAULT_FAR if far is None else far
     if not far > 0:
@@ -812,7 +935,6 @@ def _build_unit(
 
     t0 = time.perf_counter()
     folder.mkdir(parents=True, exist_ok=True)
-    read = _reader(frame)
     idx = frame.index
     start, end = idx[0], idx[-1] + pd.Timedelta(period)
     models: dict[str, str] = {}
@@ -823,48 +945,6 @@ def _build_unit(
             f"the data cover {frame.index[0]} … {frame.index[-1] + pd.Timedelta(period)} of "
             "the window: the tags are judged and the unit learned over that span"
         )
-
-    def fit(ch: TestChoice) -> tuple[float, str, TestModel | None]:
-        """Train ``ch``'s model on the window and write its model file: its validation error,
-        the file's path relative to the folder and the model as the unit loads it from that
-        file (a worker's share, see :mod:`.parallel`: each file is read back in the worker
-        that wrote it, so the parent parses none; the loaded model comes back in memory)."""
-        specs = [InputSpec.parse(s) for s in ch.inputs]
-        cols = [ctx.spec_column(s) for s in specs]
-        ins = _with_sets([ctx.spec_variable(s) for s in specs], cols, len(frame))
-        if ch.sets:  # a short window's grid: the sets its cells were judged at
-            ins = [dc_replace(v, sets=ch.sets) for v in ins]
-        if ch.method == short.LINEAR:  # a span from a few hundred samples only scales
-            ins = [
-                v if s.fn or (info.get(s.tags[0]) and info[s.tags[0]].span) else
-                dc_replace(v, span=short.widened(v.span))
-                for v, s in zip(ins, specs, strict=True)
-            ]  # fmt: skip
-        mpath = folder / f"{name}_{ch.test}.toml"
-        rb = _rulebase(f"{name}_{ch.test}", ctx.vars[ch.tag], ins, period, mpath, ch.method)
-        rb.doc["model"]["description"] = (
-            f"built by diag unit build {name} from {start.isoformat()} … {end.isoformat()}"
-        )
-        rb.edited()
-        res = train(rb, read, start, end, holdout=HOLDOUT)
-        validation = float(res.validation.get("rmse_pct", math.nan))
-        rb.apply_training(
-            res.model,
-            {
-                "source": source or "diag unit build",
-                "from": start.isoformat(),
-                "to": end.isoformat(),
-                "samples": res.samples,
-                "validation_rmse_pct": _r(validation) or "n/a",
-                "trained_at": pd.Timestamp.now(tz="UTC").floor("s").isoformat(),
-            },
-        )
-        rb.save(mpath)
-        try:
-            tm = load_test_model(ch.test, mpath)
-        except UnitError:  # Unit.load reads it again and says where it is broken
-            tm = None
-        return validation, os.path.relpath(mpath.resolve(), folder.resolve()), tm
 
     kept: list[TestChoice] = []
     for ch in choices:
@@ -893,11 +973,15 @@ def _build_unit(
     # each model trained and written on its own: on every core, as the inputs were chosen
     tick = (lambda d, n: progress("train models", d, n)) if progress else None
     loaded: dict[Path, TestModel] = {}  # model file → its model, as Unit.load reads it
-    for ch, (validation, rel, tm) in zip(
-        kept, map_tests(fit, kept, workers=workers, progress=tick), strict=True
-    ):
+    job = _FitJob(name, folder, info, period, start, end, source,
+                  write=not isinstance(workers, DaskPool))  # fmt: skip
+    # the window and its context: on a cluster, the objects the choice already scattered
+    fits = map_tests(_fit_test, kept, (job, frame, ctx), workers=workers, progress=tick)
+    if not job.write:
+        _written(folder, fits, kept, name)
+    for ch, (validation, fname, _, tm) in zip(kept, fits, strict=True):
         ch.validation_rmse_pct = validation
-        models[ch.test] = rel
+        models[ch.test] = os.path.relpath((folder / fname).resolve(), folder.resolve())
         if tm is not None:
             loaded[tm.path.resolve()] = tm
     if not kept:
@@ -1135,6 +1219,7 @@ def build_from_historian(
     progress: Callable[[str, int, int], None] | None = None,
     loops: Sequence[Loop] = (),
     period: str | None = None,
+    workers: int | DaskPool | None = None,
 ) -> BuildResult:
     """:func:`build_unit` on the historian's window ``[start, end)``: every tag it holds is
     a candidate input; the grid period is ``period`` (``--period``: a faster tag averaged
@@ -1194,6 +1279,7 @@ def build_from_historian(
         progress=progress,
         source="diag unit build",
         loops=loops,
+        workers=workers,
     )
     res.seconds = {"read": read_s, **res.seconds}
     res.seconds["total"] += read_s

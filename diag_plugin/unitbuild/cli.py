@@ -6,6 +6,7 @@ Only argparse is imported at start-up; the command imports what it needs when it
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 from pathlib import Path
@@ -54,6 +55,20 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "typical spacing of the tags; a faster tag is averaged over each period)",
     )
     p.add_argument("--force", action="store_true", help="overwrite an existing unit and models")
+    p.add_argument(
+        "--dask",
+        metavar="ADDRESS",
+        help="run the per-test work (inputs, training, threshold residuals) on the Dask "
+        "scheduler at ADDRESS, e.g. tls://HOST:8786: the same unit; only a cluster you "
+        "control (it runs what clients send; docs/how-to/unit-from-history.md)",
+    )
+    p.add_argument(
+        "--dask-timeout",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="seconds to reach the scheduler and see a worker there (10)",
+    )
     add_json(p)
     p.set_defaults(func=cmd_unit_build)
     p = usub.add_parser(
@@ -105,20 +120,13 @@ def _tags_from(path: str) -> list[str]:
     return tags
 
 
-def cmd_unit_build(args) -> int:
+def _build(args, tags, loops, t0, t1, workers):
+    """The build, its progress drawn on a terminal's standard error."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
     from diag_plugin.unitbuild.build import build_from_historian
-    from diag_plugin.unitbuild.loops import loops_from_tags_csv, parse_loop
 
-    tags = args.tags or (_tags_from(args.tags_from) if args.tags_from else None)
-    loops = [parse_loop(x) for x in args.loop]
-    if args.loops_from:
-        loops += loops_from_tags_csv(args.loops_from)
-    if args.max_inputs < 1:
-        raise UserError(f"--max-inputs {args.max_inputs}: at least 1")
-    t0, t1 = parse_time(args.start), parse_time(args.end)
     err = Console(stderr=True)
     with Progress(
         TextColumn("{task.description}"),
@@ -135,7 +143,7 @@ def cmd_unit_build(args) -> int:
                 tasks[stage] = bar.add_task(stage, total=total)
             bar.update(tasks[stage], completed=done)
 
-        res = build_from_historian(
+        return build_from_historian(
             args.db,
             args.name,
             t0,
@@ -148,7 +156,29 @@ def cmd_unit_build(args) -> int:
             progress=progress,
             loops=loops,
             period=args.period,
+            workers=workers,
         )
+
+
+def cmd_unit_build(args) -> int:
+    from diag_plugin.unitbuild.loops import loops_from_tags_csv, parse_loop
+
+    tags = args.tags or (_tags_from(args.tags_from) if args.tags_from else None)
+    loops = [parse_loop(x) for x in args.loop]
+    if args.loops_from:
+        loops += loops_from_tags_csv(args.loops_from)
+    if args.max_inputs < 1:
+        raise UserError(f"--max-inputs {args.max_inputs}: at least 1")
+    if not args.dask_timeout > 0:
+        raise UserError(f"--dask-timeout {args.dask_timeout:g}: must be positive")
+    t0, t1 = parse_time(args.start), parse_time(args.end)
+    with contextlib.ExitStack() as stack:
+        workers = None
+        if args.dask:  # reached and checked before any work
+            from diag_plugin.unitbuild.parallel import DaskPool
+
+            workers = stack.enter_context(DaskPool.connect(args.dask, args.dask_timeout))
+        res = _build(args, tags, loops, t0, t1, workers)
     if _printed_json(args, res.as_dict()):
         return 0
     print(

@@ -67,12 +67,15 @@ def map_tests(
     items: Sequence[Any],
     args: tuple = (),
     *,
-    workers: int | None = None,
+    workers: int | DaskPool | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> list[Any]:
     """``[fn(item, *args) for item in items]``, on ``workers`` forked processes when more
-    than one (and the platform forks), in order."""
+    than one (and the platform forks), or on a Dask cluster (a :class:`DaskPool`), in
+    order."""
     global _JOB
+    if isinstance(workers, DaskPool):
+        return workers.map(fn, items, args, progress)
     workers = default_workers() if workers is None else workers
     n = len(items)
     if workers <= 1 or n <= 1 or "fork" not in multiprocessing.get_all_start_methods():
@@ -97,3 +100,166 @@ def map_tests(
             return out
     finally:
         _JOB = None
+
+
+#: seconds to reach the scheduler and to see a worker there (``diag unit build --dask``)
+DASK_CONNECT_TIMEOUT = 10.0
+#: seconds one map (one stage's tests) may take on the cluster before the build stops
+DASK_MAP_TIMEOUT = 3600.0
+
+
+#: arguments sent with each task as they are (small); any other is scattered once
+_INLINE = (int, float, bool, str, bytes, type(None))
+
+
+def _call(item: Any, fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(item, *args)`` on a Dask worker, BLAS held to one thread as in the local pool."""
+    with one_blas_thread():
+        return fn(item, *args)
+
+
+def package_version() -> str:
+    """This package's installed version (the client's and each worker's must agree)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("diag-plugin")
+    except PackageNotFoundError:  # pragma: no cover - run from a source tree
+        return "unknown"
+
+
+class DaskPool:
+    """The build's per-test work on a dask.distributed cluster (``diag unit build --dask``).
+
+    Give it to :func:`map_tests` as ``workers``: each argument of a map (the window, the
+    unit) is scattered to the workers once per build (by identity, to every worker so that a
+    lost worker loses no copy), each test is one task, and the results are gathered in the
+    tests' order, so the unit is the one the local pool builds. A worker lost mid-map has
+    its tasks rerun by Dask on another worker (the scheduler's ``allowed-failures``); the
+    tasks are pure functions of their arguments, so a rerun gives the same result.
+
+    A cluster runs whatever its clients send: use only one you control (see
+    docs/how-to/unit-from-history.md, "Speed"). Nothing here listens on a port.
+    """
+
+    def __init__(self, client: Any, address: str, map_timeout: float = DASK_MAP_TIMEOUT):
+        self.client = client
+        self.address = address
+        self.map_timeout = map_timeout
+        self._scattered: dict[int, tuple[Any, Any]] = {}  # id → (object, its future)
+        self.scattered: list[str] = []  # the type of each object scattered, in order
+
+    @classmethod
+    def connect(cls, address: str, timeout: float = DASK_CONNECT_TIMEOUT) -> DaskPool:
+        """A pool on the scheduler at ``address``, checked before any work: reachable within
+        ``timeout`` s, at least one worker, and this package's version on every worker.
+        Raises :class:`~historian.errors.UserError` naming the address otherwise."""
+        from distributed import Client
+
+        from historian.errors import UserError
+
+        mine = package_version()
+
+        try:
+            client = Client(address, timeout=f"{timeout}s", set_as_default=False)
+        except Exception as exc:  # noqa: BLE001 - refused, timed out, a bad address or TLS
+            hint = ""
+            if address.startswith("tls://"):
+                hint = "; a tls:// address needs the distributed.comm.tls settings"
+            raise UserError(
+                f"--dask {address}: cannot reach the Dask scheduler within {timeout:g} s "
+                f"({type(exc).__name__}: {exc}){hint}"
+            ) from None
+        try:
+            try:
+                client.wait_for_workers(1, timeout=timeout)
+            except (TimeoutError, OSError):
+                raise UserError(
+                    f"--dask {address}: the scheduler has no worker after {timeout:g} s"
+                ) from None
+            try:
+                versions = client.run(package_version)
+            except Exception as exc:  # noqa: BLE001 - a worker without the package
+                raise UserError(
+                    f"--dask {address}: the workers cannot import diag_plugin ({exc}); "
+                    f"install diag-plugin {mine} on every worker"
+                ) from None
+            other = {w: v for w, v in versions.items() if v != mine}
+            if other:
+                raise UserError(
+                    f"--dask {address}: workers run diag-plugin "
+                    + ", ".join(sorted(set(other.values())))
+                    + f", this client {mine}: install the same version on every worker"
+                )
+        except BaseException:
+            client.close()
+            raise
+        log.info("Dask scheduler %s: %d workers", address, len(versions))
+        return cls(client, address)
+
+    def __enter__(self) -> DaskPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Release the scattered data and disconnect (the cluster itself keeps running)."""
+        self.release()
+        self.client.close()
+
+    def release(self) -> None:
+        """Let the cluster drop what was scattered (a build's end)."""
+        self._scattered.clear()
+
+    def _scatter(self, obj: Any) -> Any:
+        got = self._scattered.get(id(obj))
+        if got is None or got[0] is not obj:
+            # in a list: a dict, list or tuple is one object, not one per element
+            fut = self.client.scatter([obj], broadcast=True, hash=False)[0]
+            got = self._scattered[id(obj)] = (obj, fut)
+            self.scattered.append(type(obj).__name__)
+        return got[1]
+
+    def map(
+        self,
+        fn: Callable[..., Any],
+        items: Sequence[Any],
+        args: tuple = (),
+        progress: Callable[[int, int], None] | None = None,
+    ) -> list[Any]:
+        """``[fn(item, *args) for item in items]`` on the cluster, in order. Raises
+        :class:`~historian.errors.UserError` when the cluster fails the work (a task's
+        own exception is raised as it is)."""
+        from distributed import as_completed
+        from distributed.client import FutureCancelledError
+        from distributed.scheduler import KilledWorker
+
+        from historian.errors import UserError
+
+        n = len(items)
+        if n == 0:
+            return []
+        shared = [a if isinstance(a, _INLINE) else self._scatter(a) for a in args]
+        tag = f"{fn.__name__}-{os.urandom(4).hex()}"  # the tasks' keys: the map, the test
+        futures = [
+            self.client.submit(_call, it, fn, *shared, key=f"{tag}-{i}")
+            for i, it in enumerate(items)
+        ]
+        try:
+            done_in = as_completed(futures, loop=self.client.loop, timeout=self.map_timeout)
+            for done, _ in enumerate(done_in, 1):
+                if progress:
+                    progress(done, n)
+            return self.client.gather(futures)
+        except TimeoutError:
+            raise UserError(
+                f"--dask {self.address}: {fn.__name__} of {n} tests not done within "
+                f"{self.map_timeout:g} s"
+            ) from None
+        except (KilledWorker, FutureCancelledError, OSError) as exc:
+            raise UserError(
+                f"--dask {self.address}: the cluster lost the work ({type(exc).__name__}: {exc})"
+            ) from None
+        finally:
+            self.client.cancel(futures)
