@@ -159,3 +159,24 @@ def test_a_failed_build_leaves_none_of_its_files(tmp_path, monkeypatch):
             build_unit("u", frame, folder=folder, period="60s", far=0.05, workers=1)
     assert not (tmp_path / "new").exists()
     assert [p.name for p in (tmp_path / "old").iterdir()] == ["other.toml"]
+
+
+def test_a_failed_rebuild_puts_the_old_unit_back(tmp_path, monkeypatch):
+    """A ``--force`` rebuild that fails after overwriting the unit's model files leaves the
+    unit that was there byte for byte as it was (it was deleted with the new files before)."""
+    import diag_plugin.learn.thresholds as T
+
+    frame = _plant("tank", 3.0, 21)
+    folder = tmp_path / "units"
+    build_unit("u", frame, folder=folder, period="60s", far=0.05, workers=1)
+    old = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert any(n.startswith("u_") for n in old) and "u.unit.toml" in old
+
+    def broken(*a, **k):
+        raise RuntimeError("lost")
+
+    monkeypatch.setattr(T, "learn_thresholds", broken)
+    with pytest.raises(RuntimeError, match="lost"):
+        build_unit("u", _plant("tank", 3.0, 22), folder=folder, period="60s", far=0.05,
+                   workers=1, force=True)  # fmt: skip
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == old

@@ -795,10 +795,12 @@ def build_unit(
     (default: every core, :mod:`~diag_plugin.unitbuild.parallel`), or a
     :class:`~diag_plugin.unitbuild.parallel.DaskPool` to do that work on a Dask cluster (the
     same unit). Raises :class:`~historian.errors.UserError` on input the build cannot use;
-    a build that fails leaves none of the files it wrote (:func:`_remove_partial`)."""
+    a build that fails leaves none of the files it wrote and puts back those it overwrote
+    (:func:`_remove_partial`)."""
     folder = Path(folder)
     made = not folder.exists()
     since = time.time_ns() - 100_000_000  # file times lag the clock by a tick
+    before = _unit_files(folder, name)
     try:
         with one_blas_thread():
             return _build_unit(name, frame, folder=folder, period=period, tag_info=tag_info,
@@ -806,35 +808,60 @@ def build_unit(
                                source=source, progress=progress, loops=loops,
                                workers=workers)  # fmt: skip
     except BaseException:
-        _remove_partial(folder, name, since, made)
+        _remove_partial(folder, name, since, made, before)
         raise
     finally:
         if isinstance(workers, DaskPool):
             workers.release()
 
 
-def _remove_partial(folder: Path, name: str, since: int, made: bool) -> None:
-    """After a failed build: the unit's files this build wrote (written since ``since``, ns)
-    removed, and ``folder`` too if the build made it and it is left empty — no half-written
-    unit (a file the build overwrote under ``--force`` is gone with it)."""
-    if not folder.is_dir():
-        return
+def _ours(p: Path, name: str) -> bool:
+    """Whether ``p`` is one of unit ``name``'s files (its unit file, a model file, their
+    temporary copies while written)."""
     from diag_plugin.rulebase.folder import UNIT_SUFFIX
 
-    gone = []
+    return p.name in (f"{name}{UNIT_SUFFIX}", f"{name}{UNIT_SUFFIX}.tmp") or (
+        p.name.startswith(f"{name}_") and p.name.endswith((".toml", ".toml.tmp"))
+    )
+
+
+def _unit_files(folder: Path, name: str) -> dict[str, bytes]:
+    """Unit ``name``'s files in ``folder`` before a build, by content (what a failed
+    ``--force`` rebuild puts back)."""
+    if not folder.is_dir():
+        return {}
+    return {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file() and _ours(p, name)}
+
+
+def _remove_partial(
+    folder: Path, name: str, since: int, made: bool, before: dict[str, bytes] | None = None
+) -> None:
+    """After a failed build: the unit's files this build wrote (written since ``since``, ns)
+    removed, those it overwrote (under ``--force``) put back as they were (``before``), and
+    ``folder`` removed too if the build made it and it is left empty — no half-written unit,
+    and a unit that was there before is there as it was."""
+    if not folder.is_dir():
+        return
+    before = before or {}
+    gone, back = [], []
     for p in folder.iterdir():
-        ours = p.name in (f"{name}{UNIT_SUFFIX}", f"{name}{UNIT_SUFFIX}.tmp") or (
-            p.name.startswith(f"{name}_") and p.name.endswith((".toml", ".toml.tmp"))
-        )
         try:
-            if ours and p.is_file() and p.stat().st_mtime_ns >= since:
+            if not (_ours(p, name) and p.is_file() and p.stat().st_mtime_ns >= since):
+                continue
+            old = before.get(p.name)
+            if old is None:
                 p.unlink()
                 gone.append(p.name)
+            elif p.read_bytes() != old:
+                tmp = p.with_name(p.name + ".restore")
+                tmp.write_bytes(old)
+                os.replace(tmp, p)
+                back.append(p.name)
         except OSError:  # pragma: no cover - removed meanwhile
             continue
-    if gone:
-        log.warning("build of %s failed: removed %d file(s) it wrote in %s", name, len(gone),
-                    folder)  # fmt: skip
+    if gone or back:
+        log.warning("build of %s failed: removed %d file(s) it wrote and put back %d it "
+                    "overwrote in %s", name, len(gone), len(back), folder)  # fmt: skip
     if made:
         with contextlib.suppress(OSError):
             folder.rmdir()  # only if empty
