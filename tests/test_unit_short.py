@@ -280,3 +280,36 @@ def test_a_slow_tag_stays_an_input_where_its_relation_beats_chance():
     assert short.inputs_for(plan, "coupled", ask, cols.__getitem__) == ask
     assert short.inputs_for(plan, "unrelated", ask, cols.__getitem__) == ["white"]
     assert short.inputs_for(plan, "unrelated", ask) == ["white"]  # no values: left out
+
+
+@pytest.mark.parametrize(
+    "plant",
+    [
+        pytest.param(
+            "tank",
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="CHECK_FUNCTION 0 % at 990 samples, 18 % at 1,010: the grids' inputs "
+                "FI101 and LIC101.OUT leave their spans after the window (issue 34, item 3)",
+            ),
+        ),
+        "heatex",
+    ],
+)
+def test_990_and_1010_samples_answer_the_continuation_alike(tmp_path, plant):
+    """The change of plan at 1,000 samples (issue 34, item 3): a unit built from 990 samples
+    at 15 s (the short plan) and one built from 1,010 (the band) are unknown (CHECK_FUNCTION)
+    on the 600 samples after their windows within 10 points of each other."""
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.unitbuild.build import build_unit
+
+    run = SIM[plant]((1010 + 600) * 15 / 86400 + 0.02, seed=61, start="2026-03-02")
+    frame = sp.export(run, 15.0)
+    frame.index = pd.date_range("2026-03-02", periods=len(frame), freq="15s", tz="UTC")
+    unknown = {}
+    for n in (990, 1010):
+        res = build_unit(f"u{n}", frame.iloc[:n], folder=tmp_path, period="15s", force=True)
+        unit = Unit.load(res.path, tmp_path)
+        _, unk, _ = _statuses(unit, frame.iloc[n : n + 600])
+        unknown[n] = float(unk.mean())
+    assert abs(unknown[1010] - unknown[990]) <= 0.10, unknown
