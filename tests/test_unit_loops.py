@@ -289,3 +289,31 @@ def test_a_loops_actuator_and_sensor_each_have_a_second_direction(line):
         share = cm.shares_of(3.0 * direction[None, :])[0]
         assert share[k] == pytest.approx(1.0, abs=1e-9), (cm.tags[k], share[k])
         assert share[k] >= np.nanmax(share) - 1e-9
+
+
+def test_a_declared_loops_set_point_that_never_moved_is_still_its_loops_test(tmp_path):
+    """A set-point tag constant over the window (a window between two of the operators'
+    moves): the declared loop is still built on it, and the build says so. On main the
+    loop was dropped without a word and the flow was modelled from the other tags."""
+    from diag_plugin.unitbuild.build import build_unit
+
+    run = line7.simulate(0.5, seed=3)
+    sp = run["FEED_TARGET"].to_numpy()
+    moves = np.flatnonzero(np.diff(sp) != 0) + 1
+    window = run.iloc[: moves[0]]  # the set-point held over the whole window
+    assert window["FEED_TARGET"].nunique() == 1 and len(window) >= 400
+    res = build_unit("held", window, folder=tmp_path, period="15s", far=0.01, workers=1,
+                     loops=[Loop("FEED_FLOW", "FEED_TARGET", "VALVE_A")])  # fmt: skip
+    tests = {t.test: t for t in res.tests}
+    pv = tests["FEED_FLOW"]
+    assert pv.method == "track" and pv.tracks == "FEED_TARGET" and pv.declared
+    assert pv.actuator == "VALVE_A" and "FEED_FLOW_spread" in tests
+    assert any("FEED_TARGET did not move over the window" in n for n in res.notes)
+    # the operators' next set-points, never seen in the window: the loop's test follows them
+    unit = Unit.load("held", tmp_path)
+    d = unit.evaluate(run)
+    settled = np.ones(len(run), bool)
+    for m in moves:
+        settled[m : m + 40] = False  # 10 min for the loop to reach the new set-point
+    after = np.arange(len(run)) >= moves[0]
+    assert (d.symptoms["FEED_FLOW"].fillna(0).to_numpy()[after & settled] == 0).all()
