@@ -383,3 +383,28 @@ def test_a_level_test_answers_at_the_accepted_point(tmp_path):
     assert [int(s.status) for s in got] == want.status.astype(int).tolist()
     r = np.array([s.residuals[level[0]] for s in got])
     assert np.allclose(r, want.residuals[level[0]].to_numpy(), rtol=1e-9, equal_nan=True)
+
+
+def test_a_period_too_short_to_be_an_operating_point_is_refused(tmp_path):
+    """A period of 150 samples (2.5 min at 1 s) confirmed with ``unit accept``: refused as a
+    build's window of that size is, naming the period, its samples and the minimum, and the
+    unit left as it was. On main it was accepted (a 5 min unit took 3 samples as a new
+    operating point: rules merged, thresholds re-learned, a level test's band a third as
+    wide after 16 samples)."""
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    t0 = pd.Timestamp("2026-05-01", tz="UTC")
+    build = _rig(t0, 400, seed=11, at=0)
+    other = _rig(t0 + pd.Timedelta(days=1), 150, seed=12, at=1)
+    for k, f in enumerate((build, other)):
+        import_csv(g, f, tmp_path / f"part{k}.csv")
+    rc, text = diag(g, "unit", "build", "rig", "--from", fmt(build.index[0]),
+                    "--to", fmt(build.index[-1] + pd.Timedelta(seconds=1)))  # fmt: skip
+    assert rc == 0, text
+    unit_file = tmp_path / "rb" / "rig.unit.toml"
+    before = unit_file.read_text(encoding="utf-8")
+    rc, text = diag(g, "unit", "accept", "rig", "--from", fmt(other.index[0]),
+                    "--to", fmt(other.index[-1] + pd.Timedelta(seconds=1)))  # fmt: skip
+    assert rc == 2, text
+    assert "holds 150 samples of the unit's 1s grid" in text and "at least 200" in text, text
+    assert unit_file.read_text(encoding="utf-8") == before
+    assert not (tmp_path / "rb" / ".unit-backups").exists()

@@ -242,8 +242,17 @@ def accept(
         return cache[(a, b)]
 
     new = window(start, end)
-    if not new.notna().any(axis=1).any():
+    rows = int(new.notna().any(axis=1).sum())
+    if not rows:
         raise UserError(f"no samples of the unit's tags in {start} … {end}")
+    if rows < short.MIN_ROWS:
+        # an operating point rests on the period: its merged rules, a level test's mean and
+        # spread there, the combined test's point; no fewer samples than a build's window
+        raise UserError(
+            f"{start} … {end} holds {rows} samples of the unit's {unit.period} grid; an "
+            f"operating point needs at least {short.MIN_ROWS}, as a build's window does "
+            "(confirm a longer period)"
+        )
     plans = []
     warnings: list[str] = []
     all_windows: set[tuple[pd.Timestamp, pd.Timestamp]] = {(start, end)}
