@@ -509,6 +509,82 @@ def test_status_registers_say_initialising_before_the_first_diagnosis():
     assert asyncio.run(main()) == [[2, 1], [2, 1]]
 
 
+def test_a_modbus_only_plant_still_raises_and_acknowledges_its_alarms(plant_dir, tmp_path):
+    """plant.toml without the OPC UA server (``opcua_port = 0``, a Modbus-only SCADA): the
+    unit's ISA-18.2 alarm is still raised (event line, event log, ``U.alarm`` = 1) and a
+    Modbus client's write to the ack coil acknowledges it (``U.alarm`` = 2). On main the
+    alarm lived only in the OPC UA server: ``U.alarm`` read 0 through a FAILURE, no alarm
+    event was logged and the ack coil did nothing."""
+    from pymodbus.client import AsyncModbusTcpClient
+
+    from connectors.modbus_server import PlantServer
+    from diag_plugin.simulate import FaultSpec, simulate_valve
+
+    d, _ = plant_dir
+    start = pd.Timestamp("2026-03-01", tz="UTC")
+    rows = simulate_valve(
+        0.1, seed=23, start=start,
+        faults=[FaultSpec("f14", -0.3, onset=start + pd.Timedelta(seconds=400))],
+    )  # fmt: skip
+    port, modbus = free_port(), free_port()
+    url = f"sqlite:///{tmp_path / 'modbus_only.db'}"
+    cfg = plant_toml(d, port, url, cycle=0.05)
+    text = cfg.read_text().replace("modbus_port = 0", f"modbus_port = {modbus}")
+    assert "opcua_port = 0" in text
+    cfg.write_text(text, encoding="utf-8")
+    state: dict = {}
+
+    async def scada() -> None:
+        mb = AsyncModbusTcpClient("127.0.0.1", port=modbus)
+        await mb.connect()
+        try:
+            state["raised"] = (await mb.read_holding_registers(3, count=1)).registers[0]
+            await mb.write_coil(0, True)  # valve_unit is unit 0: its ack coil
+            for _ in range(100):
+                word = (await mb.read_holding_registers(3, count=1)).registers[0]
+                if word == 2:
+                    break
+                await asyncio.sleep(0.05)
+            state["acked"] = word
+        finally:
+            mb.close()
+        state["done"] = time.monotonic()
+
+    async def serve():
+        from diag_plugin.live.config import load_config, run_config
+
+        out = Out()
+        async with PlantServer(port=port) as plc:
+            await plc.set_row(rows.iloc[0].to_dict())
+
+            async def after(loop, i, statuses):
+                view = loop.stats.units.get("valve_unit")
+                raised = view is not None and view.alarm == "active-unacknowledged"
+                if "task" not in state and raised:
+                    state["task"] = asyncio.get_running_loop().create_task(scada())
+                if ("done" in state and time.monotonic() - state["done"] > 0.5) or i > 2000:
+                    loop.stop()
+                    return
+                await plc.set_row(rows.iloc[min(i + 1, len(rows) - 1)].to_dict())
+
+            rc = await run_config(load_config(cfg), duration=180, out=out, after=after)
+            if "task" in state:
+                await state["task"]
+            return rc, out.text
+
+    rc, out = asyncio.run(serve())
+    assert rc == 0, out
+    assert "task" in state, out  # the alarm was raised
+    assert state["raised"] == 1 and state["acked"] == 2, state
+    msgs = list(events(url)["message"])
+    joined = "\n".join(msgs)
+    assert any("alarm raised: FAILURE" in m for m in msgs), joined
+    assert any(
+        re.search(r"alarm acknowledged by Modbus client 127\.0\.0\.1:\d+ over Modbus", m)
+        for m in msgs
+    ), joined
+
+
 # ---------------------------------------------------------------- a secured plant.toml
 def test_secured_plant_actions_over_opcua_and_modbus_land_in_one_event_log(plant_dir, tmp_path):
     """plant.toml with [opcua] security and users: the server certificate is made on first

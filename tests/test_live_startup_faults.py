@@ -153,6 +153,28 @@ def test_check_needs_config(tmp_path):
     assert r.returncode == 2 and "--check needs --config" in r.stderr
 
 
+# ------------------------------------------------------------------ cycle and period
+def test_a_cycle_that_is_not_the_units_period_is_said_with_file_line(plant_dir, tmp_path):
+    """The live loop gives a unit one sample a cycle: the example unit (10 s) polled every
+    1 s would read its lags and delays in seconds where it learned them in 10 s steps. Said
+    at --check (the plant still sound: a fast cycle replays a unit on a test bench) with the
+    file, the line and the cycle that fits; not said when the cycle is the period. On main
+    nothing was said."""
+    text = (plant_dir / "plant.toml").read_text(encoding="utf-8")
+    p = plant_dir / "plant-1s.toml"
+    p.write_text(text, encoding="utf-8")
+    r = diag_run(plant_dir, "--config", str(p), "--check")
+    assert r.returncode == 0, r.stderr
+    line = text.splitlines().index("cycle = 1.0") + 1
+    assert (
+        f"{p}:{line}: warning: plant.cycle 1 s is not the period of unit valve_unit" in r.stdout
+    ), r.stdout
+    assert "set cycle = 10 to diagnose in real time" in r.stdout and "sound" in r.stdout
+    p.write_text(text.replace("cycle = 1.0", "cycle = 10.0"), encoding="utf-8")
+    r = diag_run(plant_dir, "--config", str(p), "--check")
+    assert r.returncode == 0 and "warning" not in r.stdout + r.stderr, r.stdout + r.stderr
+
+
 # ------------------------------------------------------------------ plant.toml not UTF-8
 def test_plant_toml_not_utf8_names_file_line_and_byte(plant_dir, tmp_path):
     text = (plant_dir / "plant.toml").read_text(encoding="utf-8")

@@ -307,6 +307,15 @@ def test_a_joint_test_after_accept_answers_at_both_points(tmp_path):
         assert len(doc["rules"]["points"]) == 2, doc["rules"]
 
 
+def _build_rig(g: list[str], tmp_path, build: pd.DataFrame, other: pd.DataFrame) -> None:
+    """Both rig runs imported, the unit ``rig`` built from ``build``."""
+    for k, f in enumerate((build, other)):
+        import_csv(g, f, tmp_path / f"part{k}.csv")
+    rc, text = diag(g, "unit", "build", "rig", "--from", fmt(build.index[0]),
+                    "--to", fmt(build.index[-1] + pd.Timedelta(seconds=1)))  # fmt: skip
+    assert rc == 0, text
+
+
 def _rig(start: pd.Timestamp, n: int, seed: int, at: int, bias: float = 0.0) -> pd.DataFrame:
     """A 1 s rig at operating point ``at`` (0 or 1): a pump speed SC1 set by hand (50 or
     80 %), the flow FT1 it drives (0.5 × speed, read with noise) and a bearing temperature
@@ -339,11 +348,7 @@ def test_a_level_test_answers_at_the_accepted_point(tmp_path):
     free = _rig(t0 + pd.Timedelta(days=2), 1800, seed=3, at=1)
     faulty = _rig(t0 + pd.Timedelta(days=3), 1800, seed=4, at=1, bias=0.6)
     first = _rig(t0 + pd.Timedelta(days=4), 1800, seed=5, at=0)
-    for k, f in enumerate((build, other)):
-        import_csv(g, f, tmp_path / f"part{k}.csv")
-    rc, text = diag(g, "unit", "build", "rig", "--from", fmt(build.index[0]),
-                    "--to", fmt(build.index[-1] + pd.Timedelta(seconds=1)))  # fmt: skip
-    assert rc == 0, text
+    _build_rig(g, tmp_path, build, other)
     rb = tmp_path / "rb"
     unit = Unit.load(rb / "rig.unit.toml", rb)
     level = [n for n in unit.tests if unit.models[n].output.startswith("TT1") and
@@ -383,3 +388,24 @@ def test_a_level_test_answers_at_the_accepted_point(tmp_path):
     assert [int(s.status) for s in got] == want.status.astype(int).tolist()
     r = np.array([s.residuals[level[0]] for s in got])
     assert np.allclose(r, want.residuals[level[0]].to_numpy(), rtol=1e-9, equal_nan=True)
+
+
+def test_a_period_too_short_to_be_an_operating_point_is_refused(tmp_path):
+    """A period of 150 samples (2.5 min at 1 s) confirmed with ``unit accept``: refused as a
+    build's window of that size is, naming the period, its samples and the minimum, and the
+    unit left as it was. On main it was accepted (a 5 min unit took 3 samples as a new
+    operating point: rules merged, thresholds re-learned, a level test's band a third as
+    wide after 16 samples)."""
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    t0 = pd.Timestamp("2026-05-01", tz="UTC")
+    build = _rig(t0, 400, seed=11, at=0)
+    other = _rig(t0 + pd.Timedelta(days=1), 150, seed=12, at=1)
+    _build_rig(g, tmp_path, build, other)
+    unit_file = tmp_path / "rb" / "rig.unit.toml"
+    before = unit_file.read_text(encoding="utf-8")
+    rc, text = diag(g, "unit", "accept", "rig", "--from", fmt(other.index[0]),
+                    "--to", fmt(other.index[-1] + pd.Timedelta(seconds=1)))  # fmt: skip
+    assert rc == 2, text
+    assert "holds 150 samples of the unit's 1s grid" in text and "at least 200" in text, text
+    assert unit_file.read_text(encoding="utf-8") == before
+    assert not (tmp_path / "rb" / ".unit-backups").exists()

@@ -11,6 +11,7 @@ with the figure (xfail, strict).
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -289,3 +290,64 @@ def test_a_loops_actuator_and_sensor_each_have_a_second_direction(line):
         share = cm.shares_of(3.0 * direction[None, :])[0]
         assert share[k] == pytest.approx(1.0, abs=1e-9), (cm.tags[k], share[k])
         assert share[k] >= np.nanmax(share) - 1e-9
+
+
+def test_a_declared_loops_set_point_that_never_moved_is_still_its_loops_test(tmp_path):
+    """A set-point tag constant over the window (a window between two of the operators'
+    moves): the declared loop is still built on it, and the build says so. On main the
+    loop was dropped without a word and the flow was modelled from the other tags."""
+    from diag_plugin.unitbuild.build import build_unit
+
+    run = line7.simulate(0.5, seed=3)
+    sp = run["FEED_TARGET"].to_numpy()
+    moves = np.flatnonzero(np.diff(sp) != 0) + 1
+    window = run.iloc[: moves[0]]  # the set-point held over the whole window
+    assert window["FEED_TARGET"].nunique() == 1 and len(window) >= 400
+    res = build_unit("held", window, folder=tmp_path, period="15s", far=0.01, workers=1,
+                     loops=[Loop("FEED_FLOW", "FEED_TARGET", "VALVE_A")])  # fmt: skip
+    tests = {t.test: t for t in res.tests}
+    pv = tests["FEED_FLOW"]
+    assert pv.method == "track" and pv.tracks == "FEED_TARGET" and pv.declared
+    assert pv.actuator == "VALVE_A" and "FEED_FLOW_spread" in tests
+    assert any("FEED_TARGET did not move over the window" in n for n in res.notes)
+    # the operators' next set-points, never seen in the window: the loop's test follows them
+    unit = Unit.load("held", tmp_path)
+    d = unit.evaluate(run)
+    settled = np.ones(len(run), bool)
+    for m in moves:
+        settled[m : m + 40] = False  # 10 min for the loop to reach the new set-point
+    after = np.arange(len(run)) >= moves[0]
+    assert (d.symptoms["FEED_FLOW"].fillna(0).to_numpy()[after & settled] == 0).all()
+
+
+def test_accept_reports_a_spread_tests_one_threshold_as_the_file_holds_it(tmp_path, capsys):
+    """A loop's spread test has a high threshold only. ``diag unit accept`` reports each
+    test's thresholds as the unit file then holds them: the spread test's low is null (JSON)
+    and it is printed as ``high …``. On main the JSON gave it the learning's symmetric low
+    (-25.637 for a file with none) and the text printed ``+nan … +26.102 → -25.637 …``."""
+    from diag_plugin.cli import main
+    from diag_plugin.diagnose.unitfile import UnitFile
+
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    run = line7.simulate(1.0, seed=5)
+    line7.tags_csv().to_csv(tmp_path / "tags.csv", index=False)
+    import_csv(g, run, tmp_path / "line.csv", tags=tmp_path / "tags.csv")
+    mid = run.index[len(run) // 2]
+    rc, text = diag(g, "unit", "build", "half", "--from", fmt(run.index[0]), "--to", fmt(mid),
+                    "--loops-from", str(tmp_path / "tags.csv"), "--far", "0.05")  # fmt: skip
+    assert rc == 0, text
+    end = fmt(run.index[-1] + pd.Timedelta("15s"))
+    assert main([*g, "unit", "accept", "half", "--from", fmt(mid), "--to", end, "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    spread = res["thresholds"]["FEED_FLOW_spread"]
+    assert spread["low"] is None and spread["high"] > 0, spread
+    held = {
+        t.name: (t.low, t.high) for t in UnitFile.load(tmp_path / "rb" / "half.unit.toml").tests
+    }
+    for name, lim in res["thresholds"].items():
+        assert (lim["low"], lim["high"]) == held[name], (name, lim, held[name])
+    assert main([*g, "unit", "rollback", "half"]) == 0
+    capsys.readouterr()
+    assert main([*g, "unit", "accept", "half", "--from", fmt(mid), "--to", end]) == 0
+    out = capsys.readouterr().out
+    assert "nan" not in out and re.search(r"FEED_FLOW_spread: .* thresholds high \+", out), out

@@ -66,6 +66,7 @@ source, the output ports free.
 from __future__ import annotations
 
 import csv
+import math
 import os
 import re
 import tomllib
@@ -708,10 +709,33 @@ def check_config(cfg: LiveConfig) -> str:
     plant = load_plant(cfg)
     commission(cfg, plant, ports=False)
     tags = sum(len(s.regmap.names if s.regmap else s.nodes) for s in cfg.sources)
-    return (
-        f"{cfg.path}: sound: {len(plant.units)} units, {len(cfg.sources)} sources, {tags} tags"
-        + (f", historian {cfg.historian}" if cfg.historian else "")
+    return "\n".join(
+        [
+            *period_warnings(cfg, plant),
+            f"{cfg.path}: sound: {len(plant.units)} units, {len(cfg.sources)} sources, "
+            f"{tags} tags" + (f", historian {cfg.historian}" if cfg.historian else ""),
+        ]
     )
+
+
+def period_warnings(cfg: LiveConfig, plant: Any) -> list[str]:
+    """A line per unit whose period is not the cycle: the loop gives a unit one sample a
+    cycle and :meth:`~diag_plugin.diagnose.plant.Plant.cycle` takes consecutive calls as
+    consecutive periods, so its lags, rates, filters and delays count cycles — a 1 min unit
+    polled every second reads ``FLOW[k-18]`` 18 s back, not 18 min. Said, not refused: a
+    faster cycle replays a unit quickly on a test bench."""
+    by_name = {p.name.removesuffix(".unit.toml").removesuffix(".toml"): p for p in cfg.units}
+    out = []
+    for name, unit in plant.units.items():
+        period = float(unit.period_s)
+        if not math.isclose(period, cfg.cycle, rel_tol=1e-6):
+            out.append(
+                f"{cfg.path}:{cfg.line('plant', 'cycle')}: warning: plant.cycle {cfg.cycle:g} s "
+                f"is not the period of unit {name} ({by_name.get(name, name)}: {period:g} s): "
+                f"each cycle is taken as one {period:g} s sample, so its lags, rates and "
+                f"delays count cycles, not time; set cycle = {period:g} to diagnose in real time"
+            )
+    return out
 
 
 def commission(cfg: LiveConfig, plant: Any, *, ports: bool = True) -> None:
@@ -836,6 +860,8 @@ async def run_config(
 
     plant = load_plant(cfg)
     commission(cfg, plant)
+    for line in period_warnings(cfg, plant):
+        say(line)
     first = plant.cycle(pd.Timestamp.now(tz="UTC"), {})
     plant.reset()
     say(restore_state(plant, cfg.state, pd.Timestamp.now(tz="UTC")))

@@ -16,8 +16,9 @@ Each cycle :class:`LiveLoop`
    only; a unit still filling its history is CHECK_FUNCTION/Uncertain "initialising", and a
    CHECK_FUNCTION gets a message naming its unknown tests and the tags behind them;
 5. publishes each :class:`UnitStatus` to the OPC UA server (which drives the unit's
-   ISA-18.2 alarm) and to the Modbus status server (``U.alarm`` = :data:`ALARM_CODES`);
-   acknowledgements written to a unit's Modbus ``U.ack`` coil acknowledge the OPC UA alarm;
+   ISA-18.2 alarm; without one the loop drives the alarm itself, alike) and to the Modbus
+   status server (``U.alarm`` = :data:`ALARM_CODES`); acknowledgements written to a unit's
+   Modbus ``U.ack`` coil acknowledge that alarm;
 6. reports events — alarm transitions, operator actions with their user (OPC UA and Modbus
    alike), sources going and coming back, frozen sources, the historian degraded and whole
    again — as lines and in the historian's event log; the plug-in's own conditions (a source
@@ -40,13 +41,14 @@ import time
 from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field, replace
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
-from connectors.alarms import AlarmState
+from connectors.alarms import Alarm, AlarmState, severity
 from connectors.base import TagQuality
 from diag_plugin.live.stale import StaleDetector
 from diag_plugin.status import NE107, Quality, UnitStatus
@@ -173,6 +175,9 @@ class LiveLoop:
         self._stale_mask = np.zeros(len(self._tags), bool)
         self._age = np.zeros(len(self._tags))
         self._notify_tasks: set[asyncio.Task[None]] = set()
+        #: each unit's ISA-18.2 alarm where no OPC UA server keeps it (a Modbus-only SCADA:
+        #: ``U.alarm``, the ack coil and the alarm event lines still follow it)
+        self._alarms: dict[str, Alarm] = {}
         #: the last 60 cycles' work besides polling (store, diagnose, publish), seconds
         self._other_s: deque[float] = deque(maxlen=60)
         self._poll_s = 0.0
@@ -236,16 +241,47 @@ class LiveLoop:
             view.alarm = self._alarm(a.unit or "")
 
     async def acknowledge(self, unit: str, who: str = "operator", via: str = "local") -> None:
-        """Acknowledge ``unit``'s alarm (the OPC UA server's alarm; published at once)."""
-        if self.opcua is None or unit not in self.opcua.alarms:
+        """Acknowledge ``unit``'s alarm (the OPC UA server's alarm, else the loop's own;
+        published at once)."""
+        if self.opcua is None:
+            alarm = self._alarms.get(unit)
+            if alarm is None:
+                return
+            t = alarm.acknowledge()
+            over = "" if via == "local" else f" over {via}"
+            if t.changed:
+                text = f"{unit}: alarm acknowledged by {who}{over} ({t.before} -> {t.after})"
+            else:
+                text = f"{unit}: acknowledge by {who}{over}: nothing to acknowledge ({t.before})"
+            self.event(text, self._ts, unit)
+            view = self.stats.units.get(unit)
+            if view is not None:
+                view.alarm = alarm.state
+        elif unit in self.opcua.alarms:
+            await self.opcua.acknowledge(unit, who=who, via=via)
+        else:
             return
-        await self.opcua.acknowledge(unit, who=who, via=via)
         await self._publish_alarm(unit)
 
+    def _alarm_of(self, unit: str) -> Alarm | None:
+        return self._alarms.get(unit) if self.opcua is None else self.opcua.alarms.get(unit)
+
     def _alarm(self, unit: str) -> AlarmState:
-        if self.opcua is None or unit not in self.opcua.alarms:
-            return AlarmState.NORMAL
-        return self.opcua.alarms[unit].state
+        alarm = self._alarm_of(unit)
+        return AlarmState.NORMAL if alarm is None else alarm.state
+
+    def _drive_alarm(self, s: UnitStatus) -> None:
+        """The unit's alarm without an OPC UA server, driven as that server drives its own
+        (:meth:`connectors.opcua_server.OpcUaServer.publish`): on in FAILURE, OFF_SPEC and
+        MAINTENANCE_REQUIRED, held through CHECK_FUNCTION (the diagnosis cannot be trusted)."""
+        from diag_plugin.live.catchup import ALARM_STATUSES
+
+        alarm = self._alarms.setdefault(s.unit, Alarm(s.unit))
+        code = int(s.status)
+        on = alarm.condition if code == int(NE107.CHECK_FUNCTION) else code in ALARM_STATUSES
+        top = max((v for v in s.certainties.values() if math.isfinite(v)), default=0.0)
+        sev = severity(code, top) if on else 0
+        alarm.update(on, sev, now=datetime.now(UTC))
 
     async def _publish_alarm(self, unit: str) -> None:
         view = self.stats.units.get(unit)
@@ -310,6 +346,8 @@ class LiveLoop:
             before = self._alarm(s.unit)
             if self.opcua is not None:
                 await self.opcua.publish(s)
+            else:
+                self._drive_alarm(s)
             after = self._alarm(s.unit)
             prev = self.stats.units.get(s.unit)
             self.stats.units[s.unit] = UnitView(s, after)
@@ -464,7 +502,8 @@ class LiveLoop:
                 AlarmState.SHELVED: "alarm shelved",
             }[after]
         faults = f" faults {', '.join(s.faults)}" if s.faults else ""
-        sev = self.opcua.alarms[s.unit].severity if self.opcua is not None else None
+        alarm = self._alarm_of(s.unit)
+        sev = alarm.severity if alarm is not None else None
         self.event(
             f"{s.unit}: {what}: {s.status.name}{faults} ({before} -> {after})",
             s.ts,

@@ -95,8 +95,8 @@ class AcceptResult:
             "windows": [list(w) for w in self.windows],
             "samples": self.samples,
             "rules": {k: list(v) for k, v in self.rules.items()},
-            "thresholds": {k: {"low": a, "high": b} for k, (a, b) in self.limits.items()},
-            "thresholds_before": {k: {"low": a, "high": b} for k, (a, b) in self.before.items()},
+            "thresholds": _as_json(self.limits),
+            "thresholds_before": _as_json(self.before),
             "widened": self.widened(),
             "warnings": self.warnings,
         }
@@ -242,8 +242,17 @@ def accept(
         return cache[(a, b)]
 
     new = window(start, end)
-    if not new.notna().any(axis=1).any():
+    rows = int(new.notna().any(axis=1).sum())
+    if not rows:
         raise UserError(f"no samples of the unit's tags in {start} … {end}")
+    if rows < short.MIN_ROWS:
+        # an operating point rests on the period: its merged rules, a level test's mean and
+        # spread there, the combined test's point; no fewer samples than a build's window
+        raise UserError(
+            f"{start} … {end} holds {rows} samples of the unit's {unit.period} grid; an "
+            f"operating point needs at least {short.MIN_ROWS}, as a build's window does "
+            "(confirm a longer period)"
+        )
     plans = []
     warnings: list[str] = []
     all_windows: set[tuple[pd.Timestamp, pd.Timestamp]] = {(start, end)}
@@ -271,11 +280,7 @@ def accept(
         unit, {"accepted": [start.isoformat(), end.isoformat()], "at": _now()}
     )
     res = AcceptResult(unit.name, (start.isoformat(), end.isoformat()), backup, [])
-    nan = math.nan
-    res.before = {
-        t.name: (nan if t.low is None else t.low, nan if t.high is None else t.high)
-        for t in uf.tests
-    }
+    res.before = _limits(uf)
     try:
         for t, path, rb, old in plans:
             model = None
@@ -319,12 +324,31 @@ def accept(
         out = UnitFile.load(uf.path)
         out.set_learned(learned)
         out.save(as_read=True)
-        res.limits = {k: (float(a), float(b)) for k, (a, b) in learned.limits.items()}
+        # as the file holds them: a one-sided test (a spread's, a T²-like one) has no low
+        res.limits = _limits(UnitFile.load(uf.path))
         res.warnings = warnings + list(learned.warnings)
     except BaseException:
         rollback(uf.path)  # leave the unit as it was
         raise
     return res
+
+
+def _as_json(limits: dict[str, tuple[float, float]]) -> dict[str, dict[str, float | None]]:
+    """``{test: {"low": …, "high": …}}``, null where a test has no such threshold (NaN is
+    not JSON)."""
+    return {
+        k: {"low": None if a != a else a, "high": None if b != b else b}
+        for k, (a, b) in limits.items()
+    }
+
+
+def _limits(uf) -> dict[str, tuple[float, float]]:
+    """Per test of unit file ``uf``: its (low, high) thresholds, NaN where it has none."""
+    nan = math.nan
+    return {
+        t.name: (nan if t.low is None else t.low, nan if t.high is None else t.high)
+        for t in uf.tests
+    }
 
 
 def reader(frame: pd.DataFrame):

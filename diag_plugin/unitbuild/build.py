@@ -285,6 +285,8 @@ class _Context:
         self.period = period
         self.spans: dict[str, tuple[float, float]] = {}
         self.vars: dict[str, Variable] = {}
+        #: declared loops' set-point tags constant over the window (:meth:`hold_set_point`)
+        self.fixed_sp: dict[str, Variable] = {}
         for t in frame.columns:
             col = frame[t].to_numpy(float)
             if not np.isfinite(col).any() or np.nanmax(col) == np.nanmin(col):
@@ -298,9 +300,24 @@ class _Context:
         # every candidate centred once: each step of each test screens them in one product
         self.lags = LagScreen({t: self.column(t) for t in self.vars}, self.max_lag)
 
+    def hold_set_point(self, sp: str, pv: str) -> bool:
+        """A declared loop's set-point tag that did not move over the window: never a
+        candidate input (a constant teaches no other model anything), but its loop's test
+        still reads it, so the test follows the operators' next set-point. Its span: the
+        tag's metadata range, else the measurement's it sets (the same quantity). False
+        where the window holds no value of it."""
+        col = self.frame[sp].to_numpy(float)
+        if not np.isfinite(col).any():
+            return False
+        v = variable_for(str(InputSpec("", (sp,), 0)), frame=self.frame, tag_info=self.info)
+        has_range = sp in self.info and self.info[sp].span is not None
+        self.fixed_sp[sp] = v if has_range else dc_replace(v, span=self.vars[pv].span)
+        return True
+
     def variable(self, tag: str, lag: int) -> Variable:
         spec = InputSpec("", (tag,), lag)
-        return dc_replace(self.vars[tag], spec=str(spec), label=self.vars[tag].label)
+        v = self.vars[tag] if tag in self.vars else self.fixed_sp[tag]
+        return dc_replace(v, spec=str(spec), label=v.label)
 
     def column(self, tag: str, lag: int = 0) -> np.ndarray:
         return self.feats.column(InputSpec("", (tag,), lag))
@@ -460,7 +477,7 @@ def _choose_test(
         ch = loop_test(ctx, tag, InputSpec("const", (), 0, lp.fixed), test=test)
         ch.actuator, ch.declared = lp.out, True
         sp = None
-    elif sp is not None and sp in ctx.vars:
+    elif sp is not None and (sp in ctx.vars or sp in ctx.fixed_sp):
         # a loop's response time at the data's own rate: one input, a dozen lags, cheap;
         # on the coarse grid it would be a whole coarse step off, and the residual of a
         # loop that holds its set-point would carry the loop's dynamics
@@ -608,7 +625,8 @@ def loop_test(ctx: _Context, tag: str, sp: str | InputSpec, *, test: str) -> Tes
     # the loop's response time: the set-point as it was d samples ago, d on held-out error
     # over the dead-time horizon (a slow loop — an averaging level — lags a set-point step)
     scored = []
-    for lag in loop_lags(ctx.max_lag) if not base.fn else [0]:
+    # (no response time either from a set-point that never moved in the window)
+    for lag in loop_lags(ctx.max_lag) if not base.fn and sp not in ctx.fixed_sp else [0]:
         spec = base.with_lag(lag)
         ins, cols = [ctx.spec_variable(spec)], [ctx.spec_column(spec)]
         rmse, cov = scorer.score(ins, cols)
@@ -936,6 +954,21 @@ def _build_unit(
             + " exist (use --force to overwrite, or another unit name)"
         )
     ctx = _Context(frame, info, period)
+    loop_notes = []
+    for lp in loops:
+        if lp.fixed is not None or lp.sp in ctx.vars or lp.pv not in ctx.vars:
+            continue
+        if ctx.hold_set_point(lp.sp, lp.pv):
+            loop_notes.append(
+                f"{lp.pv}: its set-point {lp.sp} did not move over the window: the loop's "
+                f"test reads it as it is (the control error, at any set-point an operator "
+                "enters), with no response time (a window with set-point moves learns it)"
+            )
+        else:
+            loop_notes.append(
+                f"{lp.pv}: its set-point {lp.sp} has no value in the window: no loop test, "
+                f"{lp.pv} is modelled from the other tags"
+            )
     plan = short.plan_for(rows, period, max_inputs, evaluation_for(period)["lowpass"])
     # a long fast window: inputs chosen on a coarser grid (short.coarse_frame)
     sel = ctx
@@ -967,6 +1000,7 @@ def _build_unit(
     models: dict[str, str] = {}
     notes: list[str] = []
     notes.extend(plan.reasons)
+    notes.extend(loop_notes)
     if trimmed:
         notes.append(
             f"the data cover {frame.index[0]} … {frame.index[-1] + pd.Timedelta(period)} of "

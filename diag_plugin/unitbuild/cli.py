@@ -238,12 +238,14 @@ def cmd_unit_accept(args) -> int:
         f"{res.backup}; diag unit rollback {res.unit} puts it back)"
     )
     nan = (float("nan"), float("nan"))
+
+    def band(lo: float, hi: float) -> str:
+        return f"{lo:+.3f} … {hi:+.3f}" if lo == lo else f"high {hi:+.3f}"  # NaN: none
+
     for k, (before, after) in res.rules.items():
-        lo, hi = res.limits.get(k, nan)
-        lo0, hi0 = res.before.get(k, nan)
         print(
             f"  {k}: {res.samples.get(k, 0):,} samples merged; rules {before} → {after}; "
-            f"thresholds {lo0:+.3f} … {hi0:+.3f} → {lo:+.3f} … {hi:+.3f}"
+            f"thresholds {band(*res.before.get(k, nan))} → {band(*res.limits.get(k, nan))}"
         )
     print("  windows learned: " + "; ".join(f"{a} … {b}" for a, b in res.windows))
     for k, x in res.widened().items():
