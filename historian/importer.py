@@ -8,11 +8,12 @@ values). Otherwise :class:`FileRefused` names the file, the columns found and
 ``--time-column``.
 
 Date-time text with an offset is converted to UTC; naive times are in ``tz`` (default UTC;
-ambiguous or non-existent local times are bad rows). A time column of plain numbers is refused
-unless ``time_unit`` says what they count (``s``, ``ms``, ``us``, ``min``, ``h``): they are
-then that many units after ``start`` (a time; naive means ``tz``), or after 1970-01-01 UTC
-(Unix time) when no ``start`` is given. A relative time column (e.g. DAMADICS: seconds from
-0) needs its origin as ``start``.
+the hour repeated when the clock goes back is read in the rows' order where they run through
+it in order; otherwise its times, and times the clock skips, are bad rows saying so). A time
+column of plain numbers is refused unless ``time_unit`` says what they count (``s``, ``ms``,
+``us``, ``min``, ``h``): they are then that many units after ``start`` (a time; naive means
+``tz``), or after 1970-01-01 UTC (Unix time) when no ``start`` is given. A relative time
+column (e.g. DAMADICS: seconds from 0) needs its origin as ``start``.
 
 Separator and decimal mark are ``sep`` and ``decimal`` (``--sep``, ``--decimal``); when not
 given they are detected from the first lines where that is unambiguous (a header split by
@@ -421,8 +422,52 @@ def parse_times(
         if t.dtype == object:  # mixed offsets
             t = pd.to_datetime(text, errors="coerce", utc=True)
     if getattr(t.dt, "tz", None) is None:
-        t = t.dt.tz_localize(tz, ambiguous="NaT", nonexistent="NaT")
+        t = _localize(t, tz)
     return t.dt.tz_convert("UTC")
+
+
+def _localize(t: pd.Series, tz: str) -> pd.Series:
+    """Naive times read as local times in ``tz``. The hour repeated when the clock goes back
+    is settled by the rows' order where they run through it in order (pandas'
+    ``ambiguous="infer"``: the times going back mark the second pass); otherwise, and for a
+    time the clock skips, NaT (reported by :func:`_time_reason`)."""
+    strict = t.dt.tz_localize(tz, ambiguous="NaT", nonexistent="NaT")
+    unsure = strict.isna() & t.notna()
+    if not unsure.any():
+        return strict
+    try:
+        inferred = t.dt.tz_localize(tz, ambiguous="infer", nonexistent="NaT")
+    except ValueError:  # out of order through the repeated hour, or only one pass of it
+        return strict
+    run = inferred[unsure].dropna()
+    if not run.is_monotonic_increasing:  # the order settles it only where time then runs on
+        return strict
+    return inferred
+
+
+def _time_reason(text: object, tz: str) -> str:
+    """Why a time in local time ``tz`` was not read: ambiguous, skipped by the clock, or not
+    a time at all."""
+    try:
+        naive = pd.Timestamp(str(text).strip())
+    except (ValueError, TypeError):
+        return f"unparseable time {str(text)!r}"
+    if naive is pd.NaT or naive.tzinfo is not None:
+        return f"unparseable time {str(text)!r}"
+    try:
+        naive.tz_localize(tz)
+    except ValueError as exc:
+        if "nonexistent" in str(exc):
+            return (
+                f"time {str(text)!r} does not exist in {tz} (the hour the clock skips "
+                "forward); write times with their UTC offset"
+            )
+        return (
+            f"time {str(text)!r} is ambiguous in {tz} (the hour repeated when the clock goes "
+            "back, and the rows do not run through it in order); write times with their "
+            "UTC offset"
+        )
+    return f"unparseable time {str(text)!r}"
 
 
 def _strip(raw: pd.Series) -> pd.Series:
@@ -485,7 +530,7 @@ def _clean_chunk(
         elif not pd.isna(rv) and dialect.time_format:
             why += f" (--time-format {dialect.time_format})"
         elif not pd.isna(rv) and tz != "UTC":
-            why += f" (or ambiguous/non-existent in {tz})"
+            why = _time_reason(rv, tz)
         reason[i] = why
     implausible = ~blank & ~t.isna().to_numpy()  # every row with a time, judged below
     if implausible.any():

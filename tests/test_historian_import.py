@@ -85,6 +85,28 @@ def test_tz_and_tags_csv(historian, tmp_path):
     assert (t["unit"], t["lo"], t["hi"]) == ("kPa", 0.0, 600.0)
 
 
+def test_the_repeated_hour_at_the_clock_change_is_read_in_the_rows_order(historian, tmp_path):
+    """Local times through the autumn clock change: the repeated hour is the first pass (CEST)
+    then the second (CET), as the rows run; out of order, and a time the spring change skips,
+    they are bad rows that say which (main: every repeated time skipped as 'unparseable')."""
+    times = pd.date_range("2024-10-27 00:30", "2024-10-27 02:30", freq="10min", tz="UTC")
+    local = times.tz_convert("Europe/Berlin").tz_localize(None)  # 02:00-02:59 twice
+    f = tmp_path / "autumn.csv"
+    f.write_text("time,X\n" + "".join(f"{t},{i}\n" for i, t in enumerate(local)))
+    r = import_file(historian, f, tz="Europe/Berlin")
+    assert r.n_bad == 0, r.bad
+    s = historian.read_samples("X")
+    assert list(s.index) == list(times) and list(s.to_numpy()) == list(range(len(times)))
+    g = tmp_path / "shuffled.csv"
+    rows = [f"2024-10-27 02:{m},{i}" for i, m in enumerate((40, 10, 20, 5))]  # back twice
+    g.write_text("time,Y\n" + "\n".join([*rows, "2024-03-31 02:30,9", "2024-10-27 04:00,8"]) + "\n")
+    r = import_file(historian, g, tz="Europe/Berlin")
+    assert r.n_bad == 5
+    assert sum("ambiguous in Europe/Berlin" in b for b in r.bad) == 4, r.bad
+    assert f"{g}:6: time '2024-03-31 02:30' does not exist in Europe/Berlin" in r.bad[-1]
+    assert list(historian.read_samples("Y").to_numpy()) == [8.0]
+
+
 def test_parquet_import(historian, tmp_path):
     idx = pd.date_range("2024-01-01", periods=50, freq="10s", tz="UTC")
     df = pd.DataFrame({"time": idx, "A": np.arange(50.0), "B": ["1"] * 49 + ["x"]})
