@@ -576,7 +576,82 @@ def write_csv(d, path: str) -> None:
     tags that explain an alarm, their share of T²)."""
     frame = d.to_frame()
     frame["detected"] = frame["detected"].map(lambda v: "" if v != v else str(int(v)))
-    frame.to_csv(path, float_format="%.6g", date_format="%Y-%m-%dT%H:%M:%S%z")
+    write_frame_csv(frame, path)
+
+
+#: how :func:`write_csv` writes numbers and times (``DataFrame.to_csv``'s arguments)
+CSV_FLOAT, CSV_DATE = "%.6g", "%Y-%m-%dT%H:%M:%S%z"
+
+
+def write_frame_csv(frame, path: str) -> None:
+    """``frame.to_csv(path, float_format=CSV_FLOAT, date_format=CSV_DATE)``, the same bytes,
+    about three times faster (issue 34: pandas formats each float through two Python calls;
+    200,000 rows × 141 float columns took 19 CPU s of a 27 s ``diag diagnose``). A column of
+    few distinct values (symptoms, certainties) is formatted once per value; others in one
+    ``map``; the rows go through the same :mod:`csv` writer pandas uses. A frame with another
+    kind of column or index is written by pandas itself."""
+    import csv
+
+    cols = [_csv_column(frame[c]) for c in frame.columns]
+    index = _csv_times(frame.index)
+    if index is None or any(c is None for c in cols):
+        frame.to_csv(path, float_format=CSV_FLOAT, date_format=CSV_DATE)
+        return
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        fh.write(frame.iloc[:0].to_csv(float_format=CSV_FLOAT, date_format=CSV_DATE))
+        csv.writer(fh, lineterminator=os.linesep).writerows(zip(index, *cols, strict=True))
+
+
+def _csv_column(col) -> list[str] | None:
+    """A column's text as ``to_csv`` writes it (NaN or missing: empty), or None for a kind
+    this does not know (float64, integers, strings only)."""
+    import numpy as np
+    import pandas as pd
+
+    dt = col.dtype
+    if dt == np.float64:
+        return _csv_floats(col.to_numpy())
+    if isinstance(dt, np.dtype) and dt.kind in "iu":
+        return list(map(str, col.to_numpy().tolist()))
+    if dt == object or isinstance(dt, pd.StringDtype):
+        v = col.to_numpy(dtype=object, na_value=None).tolist()
+        if not all(x is None or type(x) is str for x in v):
+            return None
+        return ["" if x is None else x for x in v]
+    return None
+
+
+def _csv_floats(v) -> list[str]:
+    """``CSV_FLOAT % x`` of each value, NaN as empty."""
+    import numpy as np
+    import pandas as pd
+
+    fmt = CSV_FLOAT.__mod__
+    head = v[:4096]
+    few = len(pd.unique(head)) * 8 < len(head)
+    if few and not np.signbit(v[v == 0]).any():  # few values (-0.0 apart): each formatted once
+        codes, uniq = pd.factorize(v)  # NaN: code -1, the last entry
+        text = np.array([*map(fmt, uniq.tolist()), ""], dtype=object)
+        return text[codes].tolist()
+    out = list(map(fmt, v.tolist()))
+    for i in np.flatnonzero(np.isnan(v)).tolist():
+        out[i] = ""
+    return out
+
+
+def _csv_times(index) -> list[str] | None:
+    """The index as ``CSV_DATE`` text: UTC times on whole seconds without strftime, any other
+    DatetimeIndex with it; None for another index."""
+    import numpy as np
+    import pandas as pd
+
+    if not isinstance(index, pd.DatetimeIndex):
+        return None
+    per_s = {"s": 1, "ms": 1_000, "us": 1_000_000, "ns": 1_000_000_000}.get(index.unit)
+    if str(index.tz) == "UTC" and per_s and not (index.asi8 % per_s).any():
+        text = np.datetime_as_string(index.tz_localize(None).to_numpy(), unit="s").tolist()
+        return [t + "+0000" for t in text]
+    return index.strftime(CSV_DATE).tolist()
 
 
 def _print_timeline(unit, d, iv, csv) -> None:
