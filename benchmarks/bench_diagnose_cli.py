@@ -141,11 +141,14 @@ def setup(folder: Path, tags: int, rows: int, period: float) -> tuple[Path, str]
     return rb, url
 
 
-def run_once(tree: Path, rb: Path, url: str, out: Path, extra: list[str]) -> dict:
+def run_once(
+    tree: Path, rb: Path, url: str, out: Path, extra: list[str], csv_too: bool = True
+) -> dict:
     """One ``diag diagnose`` process: wall, CPU, peak RSS, stages, outputs' md5."""
     csv, js = out / "out.csv", out / "out.json"
+    csv.unlink(missing_ok=True)
     cmd = [sys.executable, "-c", WRAPPER, "--db", url, "--rulebases", str(rb)]
-    cmd += ["diagnose", NAME, "--json", "--csv", str(csv), *extra]
+    cmd += ["diagnose", NAME, "--json", *(["--csv", str(csv)] if csv_too else []), *extra]
     env = {**os.environ, "PYTHONPATH": str(tree)}
     load0 = os.getloadavg()[0]
     t = time.perf_counter()
@@ -166,7 +169,7 @@ def run_once(tree: Path, rb: Path, url: str, out: Path, extra: list[str]) -> dic
         "samples": samples,
         "stages": stages,
         "md5_json": hashlib.md5(js.read_bytes()).hexdigest(),
-        "md5_csv": hashlib.md5(csv.read_bytes()).hexdigest(),
+        "md5_csv": hashlib.md5(csv.read_bytes()).hexdigest() if csv_too else "-",
     }
 
 
@@ -199,6 +202,7 @@ def main() -> int:
     ap.add_argument("--period", type=float, default=180.0)
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--tree", action="append", help="checkout to run (repeat to interleave)")
+    ap.add_argument("--no-csv", action="store_true", help="--json only (no --csv FILE)")
     ap.add_argument("--warm", type=int, default=1, help="untimed runs per tree first (numba)")
     ap.add_argument("extra", nargs="*", help="more options for diag diagnose (after --)")
     a = ap.parse_args()
@@ -213,10 +217,10 @@ def main() -> int:
         outs[t] = folder / f"out{i}"
         outs[t].mkdir(exist_ok=True)
         for _ in range(a.warm):  # the checkout's numba cache filled, its files read once
-            run_once(t, rb, url, outs[t], a.extra)
+            run_once(t, rb, url, outs[t], a.extra, not a.no_csv)
     for k in range(a.runs):
         for t in trees:
-            r = run_once(t, rb, url, outs[t], a.extra)
+            r = run_once(t, rb, url, outs[t], a.extra, not a.no_csv)
             results[t].append(r)
             show(f"run {k + 1} {t.name}", r)
     for t in trees:
