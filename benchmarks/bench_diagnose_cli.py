@@ -51,22 +51,16 @@ def cmd(args):
     import diag_plugin.diagnose.unit as du, diag_plugin.diagnose.leadin  # noqa: F401
     import historian.store  # noqa: F401
     st["imports"] = cpu()
-    ev = du.Unit.evaluate
-    def evaluate(self, *a, **k):
-        t = time.thread_time()
-        try:
-            return ev(self, *a, **k)
-        finally:
-            st["replay"] += time.thread_time() - t
-    du.Unit.evaluate = evaluate
-    lu = cli.load_unit
-    def load_unit(*a, **k):
-        t = time.thread_time()
-        try:
-            return lu(*a, **k)
-        finally:
-            st["load"] = time.thread_time() - t
-    cli.load_unit = load_unit
+    def timed(f, key, add):
+        def g(*a, **k):
+            t = time.thread_time()
+            try:
+                return f(*a, **k)
+            finally:
+                st[key] = st.get(key, 0.0) * add + time.thread_time() - t
+        return g
+    du.Unit.evaluate = timed(du.Unit.evaluate, "replay", True)
+    cli.load_unit = timed(cli.load_unit, "load", False)
     uf = cli.unit_frames
     def unit_frames(*a, **k):
         it = uf(*a, **k)
@@ -80,14 +74,7 @@ def cmd(args):
             st["read"] += time.thread_time() - t
             yield x
     cli.unit_frames = unit_frames
-    wc = cli.write_csv
-    def write_csv(*a, **k):
-        t = time.thread_time()
-        try:
-            return wc(*a, **k)
-        finally:
-            st["csv"] = time.thread_time() - t
-    cli.write_csv = write_csv
+    cli.write_csv = timed(cli.write_csv, "csv", False)
     import historian.store as hs
     lock = threading.Lock()
     def pooled(f):  # the per-tag reads of a window in the historian's reader threads

@@ -14,7 +14,6 @@ from pathlib import Path
 from diag_plugin.cliargs import add_json, table_console
 from historian.errors import UserError
 
-
 #: values (samples × tags) ``diag diagnose`` reads per piece by default, when that is more
 #: than 7 days: 200,000 rows of a 46-tag unit at 180 s in 5 pieces instead of 60 (the read
 #: 2.7 → 1.8 CPU s, the replay 2.0 → 1.4 s; one piece of all rows was no faster)
@@ -644,7 +643,7 @@ def _csv_known(col) -> bool:
         return True
     if isinstance(dt, pd.StringDtype):
         return True
-    if dt == object:
+    if isinstance(dt, np.dtype) and dt.kind == "O":
         return all(x is None or type(x) is str for x in col.to_numpy(na_value=None).tolist())
     return False
 
