@@ -495,8 +495,9 @@ def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0):
 
 def default_chunk(period: str, tags: int):
     """The default piece of ``diag diagnose``: 7 days, or :data:`CHUNK_VALUES` samples over
-    ``tags`` tags when that is longer (fewer, larger reads and replays; the output is the
-    same whatever the pieces)."""
+    ``tags`` tags when that is longer (fewer, larger reads and replays; the state is carried
+    between pieces, and the JSON and CSV were the same bytes as with 7-day pieces:
+    tests/test_diagnose_output.py)."""
     import pandas as pd
 
     week = pd.Timedelta("7D")
