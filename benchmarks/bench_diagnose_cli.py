@@ -1,0 +1,236 @@
+"""``diag diagnose`` end to end, as a user runs it (issue 34: a 50-tag unit ≥ 100 k rows/s).
+
+The default 50-tag unit of ``bench_unit_replay.py`` (built once from 10 days of the coupled
+process at 180 s, ``build_unit`` as ``diag unit build`` does) and ``--rows`` fault-free rows
+(200,000 by default) written once into a SQLite historian under ``--dir`` (kept, so later runs
+and other checkouts reuse them). Then ``diag diagnose NAME --json --csv FILE`` runs ``--runs``
+times, each a process of its own, and prints per run: wall seconds, CPU seconds of the process
+and its threads (user + system, from ``wait4``), rows per second of each, peak resident memory,
+the load average, and the CPU seconds per stage: start-up and imports, the unit's load, the
+historian read and frame building (the reading thread's own CPU), the replay (``Unit.evaluate``
+in the main thread) and the output (the rest: concatenation, JSON, CSV). The stages come from a
+small wrapper that times the command's own functions (``load_unit``, ``unit_frames``,
+``Unit.evaluate``) from outside: the same for any checkout, the command itself unchanged.
+
+``--tree DIR`` runs the command from another checkout (e.g. ``git archive`` of ``main`` into
+DIR), this interpreter; ``--tree`` may be given twice to interleave two checkouts run by run
+(medians printed per checkout). The JSON and CSV outputs' md5 are printed per checkout.
+
+Figures (issue 34, branch ``i34-diagcli``; ``main`` and the branch interleaved, 5 runs each,
+medians, load 5–11 on 2 shared cores): ``--json --csv`` 28.26 → 12.78 CPU s (7,080 → 15,660
+rows per CPU s; the CSV 19.8 → 6.0 s), ``--json`` 8.27 → 7.03 CPU s (24,200 → 28,500);
+outputs identical (md5). Details: docs/how-to/unit-short-windows.md, "Speed".
+
+Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
+[--tree /tmp/main --tree .]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+NAME = "replay"
+
+#: the stage timer: runs ``diag`` in this process with its functions wrapped (imports of the
+#: modules ``diagnose`` uses first, each stage's CPU seconds to stderr as one JSON line)
+WRAPPER = r"""
+import json, resource, sys, time, threading
+def cpu():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+import diag_plugin.cli as dc
+import diag_plugin.diagnose.cli as cli
+st = {"read": 0.0, "replay": 0.0}
+orig = cli.cmd_diagnose
+def cmd(args):
+    import pandas, numpy, numba  # noqa: F401
+    import diag_plugin.diagnose.unit as du, diag_plugin.diagnose.leadin  # noqa: F401
+    import historian.store  # noqa: F401
+    st["imports"] = cpu()
+    def timed(f, key, add):
+        def g(*a, **k):
+            t = time.thread_time()
+            try:
+                return f(*a, **k)
+            finally:
+                st[key] = st.get(key, 0.0) * add + time.thread_time() - t
+        return g
+    du.Unit.evaluate = timed(du.Unit.evaluate, "replay", True)
+    cli.load_unit = timed(cli.load_unit, "load", False)
+    uf = cli.unit_frames
+    def unit_frames(*a, **k):
+        it = uf(*a, **k)
+        while True:
+            t = time.thread_time()
+            try:
+                x = next(it)
+            except StopIteration:
+                st["read"] += time.thread_time() - t
+                return
+            st["read"] += time.thread_time() - t
+            yield x
+    cli.unit_frames = unit_frames
+    cli.write_csv = timed(cli.write_csv, "csv", False)
+    import historian.store as hs
+    lock = threading.Lock()
+    def pooled(f):  # the per-tag reads of a window in the historian's reader threads
+        def g(*a, **k):
+            if not threading.current_thread().name.startswith("historian-read"):
+                return f(*a, **k)
+            t = time.thread_time()
+            try:
+                return f(*a, **k)
+            finally:
+                with lock:
+                    st["read"] += time.thread_time() - t
+        return g
+    hs.Historian._read_pieces = pooled(hs.Historian._read_pieces)
+    hs.align_pieces = pooled(hs.align_pieces)
+    try:
+        return orig(args)
+    finally:
+        st["total_at_end"] = cpu()
+cli.cmd_diagnose = cmd
+rc = dc.main(sys.argv[1:])
+st["total"] = cpu()
+print("STAGES " + json.dumps(st), file=sys.stderr)
+sys.exit(rc)
+"""
+
+
+def setup(folder: Path, tags: int, rows: int, period: float) -> tuple[Path, str]:
+    """The unit's folder and the historian's URL under ``folder``, made if not there."""
+    rb = folder / "rulebases"
+    db = folder / "h.db"
+    url = f"sqlite:///{db}"
+    if (rb / f"{NAME}.unit.toml").exists() and db.exists():
+        return rb, url
+    from diag_plugin.simulate import coupled
+    from diag_plugin.unitbuild.build import build_unit
+    from historian.store import Historian
+
+    rb.mkdir(parents=True, exist_ok=True)
+    train, _ = coupled.simulate(10, period_s=period, n_tags=tags, seed=1)
+    t = time.perf_counter()
+    res = build_unit(NAME, train, folder=rb, period=f"{period:g}s", far=0.01)
+    print(f"built {len(res.tests)} tests in {time.perf_counter() - t:.1f} s: {res.path}")
+    days = rows * period / 86400
+    frame, _ = coupled.simulate(days, period_s=period, n_tags=tags, seed=7, start="2026-06-01")
+    frame = frame.iloc[:rows]
+    t = time.perf_counter()
+    with Historian.open(url) as h:
+        h.write_samples(frame)
+    print(f"wrote {frame.size:,} samples in {time.perf_counter() - t:.1f} s: {db}")
+    return rb, url
+
+
+def run_once(
+    tree: Path, rb: Path, url: str, out: Path, extra: list[str], csv_too: bool = True
+) -> dict:
+    """One ``diag diagnose`` process: wall, CPU, peak RSS, stages, outputs' md5."""
+    csv, js = out / "out.csv", out / "out.json"
+    csv.unlink(missing_ok=True)
+    cmd = [sys.executable, "-c", WRAPPER, "--db", url, "--rulebases", str(rb)]
+    cmd += ["diagnose", NAME, "--json", *(["--csv", str(csv)] if csv_too else []), *extra]
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    load0 = os.getloadavg()[0]
+    t = time.perf_counter()
+    with open(js, "wb") as fo, open(out / "err.txt", "wb") as fe:
+        p = subprocess.Popen(cmd, cwd=tree, env=env, stdout=fo, stderr=fe)
+        _, status, ru = os.wait4(p.pid, 0)
+    wall = time.perf_counter() - t
+    err = (out / "err.txt").read_text()
+    if status != 0:
+        raise SystemExit(f"diag diagnose failed ({status}):\n{err}")
+    stages = json.loads(next(x for x in err.splitlines() if x.startswith("STAGES "))[7:])
+    samples = json.loads(js.read_text())["samples"]
+    return {
+        "wall": wall,
+        "cpu": ru.ru_utime + ru.ru_stime,
+        "rss_mb": ru.ru_maxrss / 1024,
+        "load": (load0 + os.getloadavg()[0]) / 2,
+        "samples": samples,
+        "stages": stages,
+        "md5_json": hashlib.md5(js.read_bytes()).hexdigest(),
+        "md5_csv": hashlib.md5(csv.read_bytes()).hexdigest() if csv_too else "-",
+    }
+
+
+def split(st: dict) -> dict[str, float]:
+    """CPU seconds per stage from the wrapper's figures."""
+    imports = st["imports"]
+    load, read, replay = st.get("load", 0.0), st["read"], st["replay"]
+    csv = st.get("csv", 0.0)
+    output = st["total"] - imports - load - read - replay - csv
+    return {"imports": imports, "load": load, "read": read, "replay": replay, "csv": csv,
+            "other": output}  # fmt: skip
+
+
+def show(label: str, r: dict) -> None:
+    n = r["samples"]
+    s = " ".join(f"{k} {v:.2f}" for k, v in split(r["stages"]).items())
+    print(
+        f"{label}: load {r['load']:.1f}  wall {r['wall']:.2f} s ({n / r['wall']:,.0f} rows/s)  "
+        f"CPU {r['cpu']:.2f} s ({n / r['cpu']:,.0f} rows/CPU s)  peak RSS {r['rss_mb']:.0f} MB"
+        f"  | CPU s: {s}",
+        flush=True,
+    )
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--dir", required=True, help="folder of the unit and historian (kept)")
+    ap.add_argument("--tags", type=int, default=50)
+    ap.add_argument("--rows", type=int, default=200_000)
+    ap.add_argument("--period", type=float, default=180.0)
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--tree", action="append", help="checkout to run (repeat to interleave)")
+    ap.add_argument("--no-csv", action="store_true", help="--json only (no --csv FILE)")
+    ap.add_argument("--warm", type=int, default=1, help="untimed runs per tree first (numba)")
+    ap.add_argument("extra", nargs="*", help="more options for diag diagnose (after --)")
+    a = ap.parse_args()
+    folder = Path(a.dir).resolve()
+    folder.mkdir(parents=True, exist_ok=True)
+    rb, url = setup(folder, a.tags, a.rows, a.period)
+    trees = [Path(t).resolve() for t in (a.tree or [str(ROOT)])]
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; {url}")
+    results: dict[Path, list[dict]] = {t: [] for t in trees}
+    outs = {}
+    for i, t in enumerate(trees):
+        outs[t] = folder / f"out{i}"
+        outs[t].mkdir(exist_ok=True)
+        for _ in range(a.warm):  # the checkout's numba cache filled, its files read once
+            run_once(t, rb, url, outs[t], a.extra, not a.no_csv)
+    for k in range(a.runs):
+        for t in trees:
+            r = run_once(t, rb, url, outs[t], a.extra, not a.no_csv)
+            results[t].append(r)
+            show(f"run {k + 1} {t.name}", r)
+    for t in trees:
+        rs = results[t]
+        med = {key: statistics.median(r[key] for r in rs) for key in ("wall", "cpu", "rss_mb")}
+        sp = {key: statistics.median(split(r["stages"])[key] for r in rs) for key in split(
+            rs[0]["stages"])}  # fmt: skip
+        n = rs[0]["samples"]
+        loads = [r["load"] for r in rs]
+        print(
+            f"{t}: median of {len(rs)} at load {min(loads):.1f}–{max(loads):.1f}: wall "
+            f"{med['wall']:.2f} s ({n / med['wall']:,.0f} rows/s), CPU {med['cpu']:.2f} s "
+            f"({n / med['cpu']:,.0f} rows/CPU s), peak RSS {med['rss_mb']:.0f} MB; CPU s "
+            + ", ".join(f"{k} {v:.2f}" for k, v in sp.items())
+        )
+        print(f"  md5 JSON {rs[-1]['md5_json']}  CSV {rs[-1]['md5_csv']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
