@@ -9,11 +9,12 @@ as before. A plant engineer expects tank 1's hypotheses (``FI1``, ``FI2``, ``P1`
 never tank 2's (``LT2``, ``FI3``).
 
 The ranking (``top1``–``top3``) names tank 1's tags. The isolation of the matrix derived from
-the models (``isolation = "tags"``, crisp nearest signature) does not: no tag's column fits the
-leak's symptoms, and the nearest is the sparsest column holding two of them, a tank-2 tag read
-by the pump's and the balance's tests (docs/how-to/unit-loops.md, "A leak the derived matrix
-cannot isolate"). Kept as a strict xfail: it documents that limit and turns into a pass (and
-so a failure to remove the mark) when the isolation names the vessel the leak is in.
+the models (``isolation = "tags"``, crisp nearest signature) did not (main: a tank-2 tag in
+``faults`` on 548 of 1,190 alarm samples): no tag's column fits the leak's symptoms, and the
+nearest was the sparsest column holding two of them, a tank-2 tag read by the pump's and the
+balance's tests. A derived matrix now isolates only a column the symptoms match exactly, and
+a pattern no column explains names the ranking's first tag (docs/how-to/unit-loops.md, "A
+leak the derived matrix cannot isolate").
 """
 
 from __future__ import annotations
@@ -97,7 +98,6 @@ def test_the_leak_is_detected_and_ranked_on_tank_one(leak):
     assert a["top1"].isin(TANK1).mean() > 0.9, a["top1"].value_counts()
 
 
-@pytest.mark.xfail(strict=True, reason="derived matrix: a process fault has no column (limit)")
 def test_the_leak_is_isolated_on_tank_one(leak):
     d, onset = leak
     a = _alarm(d, onset)
