@@ -285,7 +285,7 @@ def _ref_isolate(self, cert, active, status, s):  # every sample through the hol
     n = cert.shape[0]
     c = np.nan_to_num(cert, nan=0.0)
     best = c.max(axis=1) if c.shape[1] else np.zeros(n)
-    iso = active[:, None] & (c >= self.ev["certainty"]) & (c >= best[:, None] - 1e-12)
+    iso = active[:, None] & (c >= self.iso_certainty - 1e-12) & (c >= best[:, None] - 1e-12)
     if self.ev["hold_isolation"]:
         iso = self.isolation.transform(iso[:, None, :], s[:, None, :])[:, 0, :]
     fault_status = [int(self.file.fault_status.get(f, NE107.FAILURE)) for f in self.faults]

@@ -327,7 +327,7 @@ class Plant:
                     mx,
                     np.array(uis, np.intp),
                     cols,
-                    np.array([units[ui].ev["certainty"] for ui in uis]),
+                    np.array([units[ui].iso_certainty for ui in uis]),
                     np.array([units[ui].ev["hold_isolation"] for ui in uis], bool),
                     IsolationHold(len(uis), len(mx.tests), len(mx.faults)),
                 )
@@ -610,7 +610,7 @@ class Plant:
             c = np.where(on[:, None], c, 0.0)
             cz = np.nan_to_num(c, nan=0.0)
             best = cz.max(axis=1, keepdims=True)
-            iso = on[:, None] & (cz >= certainty[:, None]) & (cz >= best - 1e-12)
+            iso = on[:, None] & (cz >= certainty[:, None] - 1e-12) & (cz >= best - 1e-12)
             held = isolation.transform(iso[None], sm[None])[0]
             iso = np.where(hold[:, None], held, iso)
             for k, ui in enumerate(uis):
@@ -631,9 +631,10 @@ class Plant:
                 notes[ui].append(f"combined test on (T² {t2:.3g})")
             if tags[ui]:
                 notes[ui].append("tags: " + ", ".join(f"{t} {v:.2f}" for t, v in tags[ui]))
-            if c_on[ui] and not tests_on[ui] and not faults[ui]:  # the combined test alone
+            u = units[ui]
+            # the combined test alone, or (exact_only) symptoms no column explains
+            if not faults[ui] and (u.exact_only and active[ui] or c_on[ui] and not tests_on[ui]):
                 status[ui] = NE107.FAILURE
-                u = units[ui]
                 faults[ui] = [tags[ui][0][0]] if u.tag_isolation and tags[ui] else ["unit"]
         det_held = self._hold_alarms(active, status, faults, tags, notes)
         out = []

@@ -415,6 +415,13 @@ class Unit:
         self.derived = self.tag_isolation and matrix is None
         if self.derived:
             self.matrix = derived_matrix(self)
+        #: the derived matrix read crisply isolates only a column the symptoms match exactly
+        #: (a hypothesis consistent with every test); a pattern no tag's column explains (a
+        #: process fault: a leak, fouling) names the ranking's first tag, as the combined test
+        #: alone does (docs/how-to/unit-loops.md, "A leak the derived matrix cannot isolate")
+        self.exact_only = self.derived and self.ev["symptoms"] == "crisp"
+        #: the certainty an isolated fault needs (``certainty``, or 1 with :attr:`exact_only`)
+        self.iso_certainty = 1.0 if self.exact_only else float(self.ev["certainty"])
         self.cmodel = (
             CombinedModel.of(self) if (self.ev["combined"] or self.tag_isolation) else None
         )
@@ -792,8 +799,9 @@ class Unit:
             held = self.episode.transform_at(shares.share_at, active)
             # the ranking's columns as arrays (the alarm hold edits them), one frame at the end
             top = top_columns_at(held, self.cmodel.tags, active)
-        alone = c_on & ~tests_on & (faults == "")
-        if alone.any():  # the combined test alone: the unit fails, at the best-ranked tag
+        alone = (active if self.exact_only else c_on & ~tests_on) & (faults == "")
+        if alone.any():  # the combined test alone (or symptoms no column explains, with
+            # exact_only): the unit fails, at the best-ranked tag
             status[alone] = NE107.FAILURE
             faults[alone] = top["top1"][alone] if self.tag_isolation else "unit"
             faults[alone & (faults == "")] = "unit"
@@ -923,7 +931,7 @@ class Unit:
         on = np.flatnonzero(active)
         c = np.nan_to_num(cert[on], nan=0.0)
         best = c.max(axis=1) if c.shape[1] else np.zeros(on.size)
-        iso_on = (c >= self.ev["certainty"]) & (c >= best[:, None] - 1e-12)
+        iso_on = (c >= self.iso_certainty - 1e-12) & (c >= best[:, None] - 1e-12)
         if self.ev["hold_isolation"]:
             iso_on = self._hold_isolation(iso_on, s, on, n)
         fault_status = np.array(

@@ -35,7 +35,12 @@ top-ranked tag (``isolation = "tags"``) or ``unit``.
 **Isolation to tags** (``isolation = "tags"``). Without an expert matrix the unit's matrix is
 derived from its models (:func:`derived_matrix`): one fault column per tag, named by the tag,
 with ``1`` in every test that reads the tag (an input, any lag, derived or not) or models it
-(its output), ``0`` elsewhere, so the crisp nearest-signature isolation names tags. An expert
+(its output), ``0`` elsewhere, so the crisp nearest-signature isolation names tags: only a
+column the symptoms match exactly (``Unit.exact_only``; a nearer column that gets a test wrong
+is not a hypothesis consistent with them), and a sample in alarm no column explains names the
+ranking's first tag, as the combined test alone does (a leak from tank A was isolated as
+tank B's level, the shortest column holding two of its three symptoms;
+docs/how-to/unit-loops.md). An expert
 matrix file, when given, takes precedence for the faults; the ranking below is still reported.
 A test with an ``actuator`` (a loop's control error, written by ``diag unit build``) has ``1``
 in that controller output's column too; set-points are never columns (an operator's entry has
