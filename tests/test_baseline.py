@@ -148,3 +148,12 @@ def test_explain_puts_the_baseline_beside_its_held_out_error(env, capsys):
     assert "HistGradientBoosting" not in _run(
         capsys, *g, "explain", "right", "--max-lag", "2", "--no-baseline"
     )
+
+
+def test_compare_outside_train_s_range_says_why_there_is_no_baseline(env, capsys):
+    g, _ = env
+    trained = json.loads(_run(capsys, *g, "train", "right", "--json"))
+    cut = pd.Timestamp(trained["validation_range"][0])
+    doc = json.loads(_run(capsys, *g, "compare", "right", "--from", str(cut), "--json"))
+    assert doc["baseline"]["rmse_pct"] is None
+    assert "holds none of the samples diag train trained on" in doc["baseline"]["note"]

@@ -119,6 +119,12 @@ def heldout_baseline(rb: RuleBase, index: pd.DatetimeIndex, X: np.ndarray, y: np
     tr = (index >= start) & (index < cut)
     va = (index >= cut) & (index < end)
     b = hgb_baseline(X[tr], y[tr], X[va], y[va], span)
+    if b["rmse_pct"] is None and "rows" in b and not (tr.any() and va.any()):
+        b["note"] = (
+            "the compared range holds none of the samples diag train "
+            + ("trained on" if not tr.any() else "held out")
+            + " (--from/--to over its range for a baseline)"
+        )
     return {**b, "heldout_from": cut, "heldout_to": end}
 
 
