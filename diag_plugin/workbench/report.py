@@ -579,6 +579,11 @@ def _header(rb: RuleBase, c: Comparison, explanation) -> str:
     # RMSE under the held-out one with no word why: the i34-qa2 pass)
     scoped = scope_note(c.scope) if c.scope else ""
     scoped = scoped[:1].upper() + scoped[1:] + ("." if scoped else "")
+    if ref is not None and _num(ref.get("rmse_pct")) is not None:
+        scoped += (
+            " HistGradientBoosting: scikit-learn's regressor on the model's inputs, trained and "
+            "scored on the same rows as the held-out figure: the established baseline."
+        )
     warn = ""
     if cov is not None and cov < COVERAGE_WARN:
         warn = (
