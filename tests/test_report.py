@@ -10,6 +10,7 @@ any script error in ``#errors``; Chromium's console log is checked too.
 from __future__ import annotations
 
 import base64
+import html
 import json
 import re
 import shutil
@@ -638,3 +639,32 @@ def test_the_readout_over_a_break_names_the_gap_not_a_value(tmp_path, fragment):
             assert any(a <= t <= b for a, b in run), (when, vals)
             assert all(0 <= float(v) <= 40 for v in shown), vals  # a flow in its span, t/h
     assert gaps >= 10 and values >= 4, rows
+
+
+# ------------------------------------------------------------------ the baseline beside the claim
+@needs_chromium
+def test_the_page_shows_hist_gradient_boosting_beside_the_held_out_error(tmp_path):
+    pytest.importorskip("sklearn")
+    rb, f = _story(tmp_path, 3, ("CV[k-1]",))
+    c = compare(rb, f, baseline=True)
+    e = explain(rb, f, tag_info=TAG_INFO, max_lag=2, baseline=True)
+    b = e.baseline
+    assert b["rows"]["held_out"] == int(np.isfinite(f["F"][e.validation_from :]).sum())
+    dom = _render(write_report(tmp_path / "r.html", rb, c, e, None), tmp_path)
+    held = re.search(r'<div class="k">held-out RMSE</div><div class="v">([^<]*)</div>', dom)
+    hgb = re.search(
+        r'title="([^"]*)"><div class="k">HistGradientBoosting held-out RMSE</div>'
+        r'<div class="v">([^<]*)</div>',
+        dom,
+    )
+    assert held and hgb, "no held-out or baseline card"
+    assert held.group(1) == f"{e.baseline_rmse_pct:.2f} %"
+    assert hgb.group(2) == f"{b['rmse_pct']:.2f} %"
+    assert f"scored on the same {b['rows']['held_out']:,} held-out rows" in html.unescape(
+        hgb.group(1)
+    )
+    assert "early stopping off" in html.unescape(hgb.group(1))
+    assert "HistGradientBoosting on the model's inputs" in dom  # beside the candidates
+    # without --no-baseline's opposite, none of it
+    plain = write_report(tmp_path / "p.html", rb, compare(rb, f), explain(rb, f, max_lag=2), None)
+    assert "HistGradientBoosting" not in plain.read_text("utf-8")

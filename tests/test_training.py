@@ -88,12 +88,12 @@ def test_dask_training_equals_in_process(tmp_path):
     rb = rulebase(tmp_path, ("CV[k-1]", "P1[k]"))
     a, b = f.index[0], f.index[-1] + pd.Timedelta("10s")
     chunk = pd.Timedelta(hours=9)
-    local = train(rb, reader(f), a, b, chunk=chunk)
+    local = train(rb, reader(f), a, b, chunk=chunk, keep_rows=True)
     with LocalCluster(
         n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None, processes=True
     ) as cluster:
         fitter = dask_fitter(cluster.scheduler_address, ParquetReader(str(path)))
-        remote = train(rb, reader(f), a, b, chunk=chunk, fit_chunks=fitter)
+        remote = train(rb, reader(f), a, b, chunk=chunk, fit_chunks=fitter, keep_rows=True)
     for attr in ("keys_", "count_", "qsum_", "qsq_"):
         np.testing.assert_array_equal(getattr(local.model, attr), getattr(remote.model, attr))
     rb_local = rulebase(tmp_path, ("CV[k-1]", "P1[k]"))
@@ -103,6 +103,11 @@ def test_dask_training_equals_in_process(tmp_path):
     assert rb_local.dumps() == rb_remote.dumps()
     assert local.samples == remote.samples and local.dropped == remote.dropped
     assert local.validation == pytest.approx(remote.validation)
+    # the rows a baseline is fitted and scored on: the same whichever engine trained
+    assert len(local.design[1]) == local.training["samples"]
+    assert len(local.design[3]) == local.validation["samples"]
+    for x, y in zip(local.design, remote.design, strict=True):
+        np.testing.assert_array_equal(x, y)
 
 
 class ParquetReader:

@@ -123,6 +123,9 @@ class TrainResult:
     dropped: dict[str, int]
     train_range: tuple[pd.Timestamp, pd.Timestamp]
     validation_range: tuple[pd.Timestamp, pd.Timestamp]
+    #: with ``train(keep_rows=True)``: the design rows trained on and held out, as
+    #: ``(X_train, y_train, X_held, y_held)`` (for a baseline on exactly those rows)
+    design: tuple | None = None
 
     def as_dict(self) -> dict:
         return {
@@ -167,11 +170,14 @@ def train(
     spans: Mapping[str, tuple[float, float]] | None = None,
     progress: Callable[[int, int], None] | None = None,
     fit_chunks: ChunkFitter | None = None,
+    keep_rows: bool = False,
 ) -> TrainResult:
     """Train ``rb``'s model on ``[start, end)`` read chunk by chunk by ``read(a, b)``.
 
     ``fit_chunks`` can replace the in-process training pass (the Dask engine
-    trains the chunks on workers and merges the partial models).
+    trains the chunks on workers and merges the partial models). ``keep_rows``: keep the
+    design rows of both parts in :attr:`TrainResult.design` (memory grows with the range;
+    with ``fit_chunks`` the training part is read a second time here).
     """
     period = pd.Timedelta(rb.period)
     given = pd.Timestamp(start), pd.Timestamp(end)
@@ -202,10 +208,17 @@ def train(
     if whole and fit_chunks is not None:
         raise ValueError(f"method {rb.method} cannot be trained chunk by chunk on workers")
     rows: list[tuple] = []
+    kept: dict[str, list[tuple]] = {"train": [], "held": []}
 
     builder = design_builder(rb, spans)
     prime(builder, read, start, period)
     if fit_chunks is not None:
+        if keep_rows:
+            local = design_builder(rb, spans)
+            prime(local, read, start, period)
+            for a, b in train_iv:
+                d = local.transform(read(a, b))
+                kept["train"].append((d.X, d.y))
         model, tally = fit_chunks(rb, train_iv, builder, read)
         done += len(train_iv)
         if progress:
@@ -215,6 +228,8 @@ def train(
         for a, b in train_iv:
             d = builder.transform(read(a, b))
             tally.add_design(d)
+            if keep_rows:
+                kept["train"].append((d.X, d.y))
             if len(d.y) and whole:
                 rows.append((d.X, d.y))
             elif len(d.y):
@@ -234,6 +249,8 @@ def train(
     for a, b in val_iv:
         d = builder.transform(read(a, b))
         tally.add_design(d)
+        if keep_rows:
+            kept["held"].append((d.X, d.y))
         if len(d.y):
             det = predictor.predict_detail(d.X)
             val_stats.update(
@@ -262,6 +279,7 @@ def train(
         dropped=tally.dropped,
         train_range=(start, cut),
         validation_range=(cut, end),
+        design=(*_stack(kept["train"]), *_stack(kept["held"])) if keep_rows else None,
     )
 
 
@@ -283,6 +301,8 @@ def _stack(rows: list[tuple]) -> tuple:
     """The design rows of several chunks as one ``X``, ``y``."""
     import numpy as np
 
+    if not rows:
+        return np.empty((0, 0)), np.empty(0)
     return np.vstack([x for x, _ in rows]), np.concatenate([y for _, y in rows])
 
 

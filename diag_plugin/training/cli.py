@@ -28,6 +28,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "--chunk",
         help="time span read at once (default: 262,144 periods of the model, 30 days at 10 s)",
     )
+    p.add_argument(
+        "--no-baseline",
+        action="store_true",
+        help="skip scikit-learn's HistGradientBoosting on the same rows beside the held-out error",
+    )
     p.add_argument("--engine", choices=["local", "dask"], default="local")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
     add_json(p, "print the result as JSON")

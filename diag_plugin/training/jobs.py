@@ -29,6 +29,7 @@ from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase.backups import backups
 from diag_plugin.rulebase.document import RuleBase, RuleBaseError, resolve
 from diag_plugin.rulebase.folder import is_model_file
+from diag_plugin.training.baseline import describe
 from diag_plugin.training.chunked import DEFAULT_CHUNK, on_grid, train
 from historian.access import WindowReader, experiments
 from historian.errors import UserError
@@ -95,8 +96,12 @@ def train_one(
     engine: str = "local",
     scheduler: str | None = None,
     progress=None,
+    baseline: bool = True,
 ) -> dict:
     """Train the model in ``path`` and record the experiment; returns the result dict.
+    ``baseline``: put HistGradientBoosting's held-out error on the same design rows beside
+    the model's (``baseline`` in the dict, :func:`~diag_plugin.training.baseline.hgb_baseline`;
+    none where nothing is held out).
     One historian connection serves the data range, the reads and the record (each
     ``Historian.open`` costs its engine, schema check and connections)."""
     rb = RuleBase.load(path)
@@ -119,6 +124,7 @@ def train_one(
                 chunk=chunk,
                 progress=progress,
                 fit_chunks=fit_chunks,
+                keep_rows=baseline and holdout > 0,
             )
         finally:
             reader.close()
@@ -153,6 +159,11 @@ def train_one(
     out = {"model": rb.name, "version": version, **res.as_dict()}
     out["seconds"] = round(time.perf_counter() - started, 3)
     out["rulebase"] = str(path)
+    if res.design is not None and res.validation.get("samples"):
+        from diag_plugin.training.baseline import hgb_baseline
+
+        span = rb.output.span[1] - rb.output.span[0]
+        out["baseline"] = hgb_baseline(*res.design, span)
     return out
 
 
@@ -213,6 +224,7 @@ def cmd_train(args) -> int:
                         engine=args.engine,
                         scheduler=args.scheduler,
                         progress=cb,
+                        baseline=not args.no_baseline,
                     )
                 )
         except RuleBaseError as exc:
@@ -248,6 +260,8 @@ def cmd_train(args) -> int:
                 f"MAE {v['mae_pct']:.2f} %, coverage {v['coverage']:.1%}; {tail}"
             )
             print(f"  {heldout_note(r)}")
+            if line := describe(r.get("baseline")):
+                print(f"  {line}")
             if note := levels_note(v):
                 print(f"  {note}")
             if note := coverage_note(v):

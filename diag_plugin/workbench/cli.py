@@ -83,6 +83,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         p.add_argument("name")
         p.add_argument("--from", dest="start", help="start time (default: all data)")
         p.add_argument("--to", dest="end", help="end time")
+        p.add_argument(
+            "--no-baseline",
+            action="store_true",
+            help="skip scikit-learn's HistGradientBoosting on the same rows beside the "
+            "held-out error",
+        )
         if name == "compare":
             p.add_argument("--report", metavar="FILE.html")
             add_json(p)
@@ -358,12 +364,13 @@ def cmd_compare(args) -> int:
     from rich.table import Table
 
     from diag_plugin.metrics import coverage_note, levels_note
+    from diag_plugin.training.baseline import describe
     from diag_plugin.workbench.compare import compare, scope_note
 
     rb = _load(args)
     frame, info = _model_frame(args, rb)
     try:
-        c = compare(rb, frame)
+        c = compare(rb, frame, baseline=not args.no_baseline)
     except (KeyError, ValueError) as exc:
         raise UserError(str(exc)) from None
     if args.report:
@@ -387,6 +394,8 @@ def cmd_compare(args) -> int:
         f"max {m['max_abs_pct']:.1f} % of span; coverage {m['coverage']:.1%}"
     )
     con.print(scope_note(c.scope), markup=False, soft_wrap=True)
+    if line := describe(c.baseline):
+        con.print(line + " — beside diag train's held-out RMSE", markup=False, soft_wrap=True)
     if note := levels_note(m):
         con.print(note, markup=False)
     if note := coverage_note(m):
@@ -455,12 +464,20 @@ def cmd_explain(args) -> int:
     from rich.markup import escape
     from rich.table import Table
 
+    from diag_plugin.training.baseline import describe
     from diag_plugin.workbench.explain import explain
 
     rb = _load(args)
     frame, info = _data(args, None, rb.period)
     try:
-        e = explain(rb, frame, tag_info=info, max_lag=args.max_lag, top=args.top)
+        e = explain(
+            rb,
+            frame,
+            tag_info=info,
+            max_lag=args.max_lag,
+            top=args.top,
+            baseline=not args.no_baseline,
+        )
     except (KeyError, ValueError) as exc:
         raise UserError(str(exc)) from None
     if args.json:
@@ -473,6 +490,8 @@ def cmd_explain(args) -> int:
         "every candidate scored on these samples, its nearest rule standing in where it has "
         "none)"
     )
+    if line := describe(e.baseline):
+        con.print(line, markup=False, soft_wrap=True)
     t = Table(title="candidate missing effects, best first")
     t.add_column("#", justify="right")
     t.add_column("effect")
@@ -524,11 +543,14 @@ def cmd_report(args) -> int:
 
     rb = _load(args)
     frame, info = _model_frame(args, rb)
-    c = compare(rb, frame)
-    e = explain(rb, frame, tag_info=info)
+    c = compare(rb, frame, baseline=not args.no_baseline)
+    e = explain(rb, frame, tag_info=info, baseline=not args.no_baseline)
     write_report(args.out, rb, c, e, _experiments(args, rb), frame)
     if args.json:
-        print(json.dumps({"model": rb.name, "report": args.out, "metrics": c.metrics}, default=str))
+        doc = {"model": rb.name, "report": args.out, "metrics": c.metrics}
+        if c.baseline is not None:
+            doc["baseline"] = c.baseline
+        print(json.dumps(doc, default=str))
         return 0
     print(f"wrote {args.out}", file=sys.stderr)
     return 0

@@ -39,6 +39,8 @@ class Comparison:
     dropped: dict[str, int] = field(default_factory=dict)
     inputs: list[dict] = field(default_factory=list)  # each input's span and the part used
     scope: dict = field(default_factory=dict)  # what the figures measure (:func:`scope`)
+    #: HistGradientBoosting on diag train's held-out block (:func:`heldout_baseline`)
+    baseline: dict | None = None
 
     def as_dict(self, top: int = 5) -> dict:
         worst_r = self.regions[self.regions["count"] > 0].nlargest(top, "rmse_pct")
@@ -56,6 +58,7 @@ class Comparison:
             "tags": _records(self.tags.head(top)),
             "inputs": to_jsonable(self.inputs),
             "scope": to_jsonable(self.scope),
+            **({"baseline": to_jsonable(self.baseline)} if self.baseline is not None else {}),
         }
 
 
@@ -69,8 +72,11 @@ def compare(
     *,
     window: pd.Timedelta | None = None,
     spans: Mapping[str, tuple[float, float]] | None = None,
+    baseline: bool = False,
 ) -> Comparison:
-    """Run ``rb``'s model over an aligned frame and locate its errors."""
+    """Run ``rb``'s model over an aligned frame and locate its errors. ``baseline``: also
+    HistGradientBoosting's error on the held-out block ``diag train`` scored
+    (:func:`heldout_baseline`)."""
     model = rb.to_model()
     d = build_design(frame, [v.spec for v in rb.inputs], rb.output.spec, spans=spans)
     det = model.predict_detail(d.X)
@@ -92,7 +98,34 @@ def compare(
         dropped=d.dropped,
         inputs=span_use(rb, d.X),
         scope=scope(rb, d.index),
+        baseline=heldout_baseline(rb, d.index, d.X, d.y) if baseline else None,
     )
+
+
+def heldout_baseline(rb: RuleBase, index: pd.DatetimeIndex, X: np.ndarray, y: np.ndarray) -> dict:
+    """HistGradientBoosting on the model's design rows, trained on the rows of the model
+    file's training range before its held-out block and scored on the rows of that block
+    (``[training]`` ``from``, ``validation_from``, ``to``): the figure beside
+    ``diag train``'s held-out RMSE, on the rows of ``index`` inside those ranges."""
+    from diag_plugin.training.baseline import hgb_baseline
+
+    t = rb.training
+    start, cut, end = _time(t.get("from")), _time(t.get("validation_from")), _time(t.get("to"))
+    span = rb.output.span[1] - rb.output.span[0]
+    if start is None or cut is None or end is None:
+        none = np.zeros(len(index), bool)
+        b = hgb_baseline(X[none], y[none], X[none], y[none], span)
+        return {**b, "note": "the model file does not say which samples diag train held out"}
+    tr = (index >= start) & (index < cut)
+    va = (index >= cut) & (index < end)
+    b = hgb_baseline(X[tr], y[tr], X[va], y[va], span)
+    if b["rmse_pct"] is None and "rows" in b and not (tr.any() and va.any()):
+        b["note"] = (
+            "the compared range holds none of the samples diag train "
+            + ("trained on" if not tr.any() else "held out")
+            + " (--from/--to over its range for a baseline)"
+        )
+    return {**b, "heldout_from": cut, "heldout_to": end}
 
 
 def scope(rb: RuleBase, index: pd.DatetimeIndex) -> dict:

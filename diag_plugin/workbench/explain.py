@@ -131,6 +131,9 @@ class Explanation:
     #: wall and CPU seconds of each phase
     seconds: dict[str, float] = field(default_factory=dict)
     cpu_seconds: dict[str, float] = field(default_factory=dict)
+    #: HistGradientBoosting on the model's inputs, same training and held-out rows
+    #: (:func:`~diag_plugin.training.baseline.hgb_baseline`), with ``explain(baseline=True)``
+    baseline: dict | None = None
 
     def as_dict(self, top: int | None = None) -> dict:
         c = self.candidates if top is None else self.candidates[:top]
@@ -143,6 +146,7 @@ class Explanation:
             "screened": self.screened,
             "screen_sets": self.screen_sets,
             "notes": self.notes,
+            **({"baseline": self.baseline} if self.baseline is not None else {}),
         }
 
 
@@ -154,6 +158,7 @@ def explain(
     holdout: float = 0.2,
     max_lag: int | None = None,
     top: int | None = None,
+    baseline: bool = False,
 ) -> Explanation:
     """Candidate missing effects of ``rb``'s model, best first.
 
@@ -176,7 +181,15 @@ def explain(
     from diag_plugin.fuzzy.wang_mendel import iterative_node_fit
 
     with threadpool_limits(1), iterative_node_fit():
-        return _explain(rb, frame, tag_info=tag_info, holdout=holdout, max_lag=max_lag, top=top)
+        return _explain(
+            rb,
+            frame,
+            tag_info=tag_info,
+            holdout=holdout,
+            max_lag=max_lag,
+            top=top,
+            baseline=baseline,
+        )
 
 
 def _explain(
@@ -187,6 +200,7 @@ def _explain(
     holdout: float,
     max_lag: int | None,
     top: int | None,
+    baseline: bool = False,
 ) -> Explanation:
     """:func:`explain`'s work."""
     check_regular(frame.index)
@@ -212,6 +226,13 @@ def _explain(
     if stride > 1:
         quick = HeldOutScorer(rb, [c[::stride] for c in in_cols], y[::stride], -(-cut // stride))
     base_rmse, base_cov = scorer.base_rmse, scorer.base_cov
+    reference = None
+    if baseline:  # on the model's inputs, its training rows and the held-out rows it scores
+        from diag_plugin.training.baseline import hgb_baseline
+
+        X = np.column_stack(in_cols) if in_cols else np.empty((n, 0))
+        reference = hgb_baseline(X[:cut], y[:cut], X[scorer.va], y[scorer.va], scorer.span)
+        clock.lap("baseline")
     resid = scorer.residual(in_cols)
     clock.lap("model and held-out block")
     screen = Screen(rb, in_cols, y, cut, scorer.va, scorer.base_pred)
@@ -588,6 +609,7 @@ def _explain(
         notes=notes,
         seconds=clock.laps,
         cpu_seconds=clock.cpu,
+        baseline=reference,
     )
 
 

@@ -547,6 +547,24 @@ def _header(rb: RuleBase, c: Comparison, explanation) -> str:
                 + ", scored after it (time-ordered, never shuffled)",
             )
         )
+    ref = explanation.baseline if explanation is not None else None
+    ref = ref if ref is not None else c.baseline
+    if ref is not None:  # the established baseline beside the held-out figure
+        p = ref.get("params", {})
+        cards.append(
+            (
+                "HistGradientBoosting held-out RMSE",
+                _fmt(ref.get("rmse_pct"), 2, " %"),
+                ref.get("note")
+                or (
+                    "scikit-learn's HistGradientBoostingRegressor on the model's inputs, "
+                    f"trained on the same {ref['rows']['train']:,} rows and scored on the same "
+                    f"{ref['rows']['held_out']:,} held-out rows (max_iter {p.get('max_iter')}, "
+                    f"early stopping {'on' if p.get('early_stopping') else 'off'}, "
+                    f"random_state {p.get('random_state')})"
+                ),
+            )
+        )
     card_html = "".join(
         f'<div class="card" title="{esc(t)}"><div class="k">{esc(k)}</div>'
         f'<div class="v">{esc(v)}</div></div>'
@@ -561,6 +579,11 @@ def _header(rb: RuleBase, c: Comparison, explanation) -> str:
     # RMSE under the held-out one with no word why: the i34-qa2 pass)
     scoped = scope_note(c.scope) if c.scope else ""
     scoped = scoped[:1].upper() + scoped[1:] + ("." if scoped else "")
+    if ref is not None and _num(ref.get("rmse_pct")) is not None:
+        scoped += (
+            " HistGradientBoosting: scikit-learn's regressor on the model's inputs, trained and "
+            "scored on the same rows as the held-out figure: the established baseline."
+        )
     warn = ""
     if cov is not None and cov < COVERAGE_WARN:
         warn = (
@@ -843,8 +866,9 @@ def _candidates_section(explanation) -> str:
 <code>diag explain</code>).</p></section>"""
     base = _num(explanation.baseline_rmse_pct)
     vf = explanation.validation_from
+    hgb = _num((explanation.baseline or {}).get("rmse_pct"))
     top = max(
-        [base or 0.0]
+        [base or 0.0, hgb or 0.0]
         + [x for x in (_num(c.rmse_pct_if_added) for c in explanation.candidates) if x is not None]
     )
     top = top if top > 0 else 1.0
@@ -861,6 +885,13 @@ def _candidates_section(explanation) -> str:
         f"<tr class='baseline'><td></td><td>the model as it is</td><td>{bar(base, 'base')}</td>"
         "<td></td></tr>"
     ]
+    if hgb is not None:
+        rows.append(
+            "<tr class='baseline hgb'><td></td><td>HistGradientBoosting on the model's inputs"
+            "<div class='dim'>scikit-learn, same training and held-out rows: a reference, "
+            f"not a candidate</div></td><td>{bar(hgb, 'base')}</td>"
+            "<td></td></tr>"
+        )
     for i, c in enumerate(explanation.candidates, 1):
         v = _num(c.rmse_pct_if_added)
         better = v is not None and base is not None and v < 0.97 * base
