@@ -7,16 +7,34 @@ relation a leak does not break (the level loop closes the valve and the flow fal
 valve says). The mass balance the leak breaks — the vessel's inflows against its outflows and
 its level's rate — is fitted less closely, so the one test per tag never reads it.
 
-So such a flow, where no loop holds the flow itself, gets a second test ``<tag>_balance``:
-a linear (parity) relation of up to :data:`BALANCE_MAX_INPUTS` inputs chosen by the build's
-forward selection (each kept where it cuts the held-out error over the window's time blocks
-by :data:`~diag_plugin.unitbuild.build.MIN_GAIN`), with the valve, its loop's set-point and
-measurement and the valve's pressure tags (the pressures the flow's own test reads) kept out
-of its candidates; then a level's change per sample (``rate(LI102)[k]``, the accumulation
-term) added where it cuts the held-out error by ``MIN_GAIN`` again. It is kept where its
-held-out error is at most :data:`BALANCE_MAX_ERROR_PCT` % of the flow's span. It is a test
-like any other (its own share of the false-alarm budget) and it models the flow, so its alarm
-names the flow's tag.
+So a manipulated flow, where no loop holds the flow itself, gets a second test
+``<tag>_balance``, chosen from the plant's structure, never from the inputs the flow's own test
+happened to pick (a disturbance or a downstream flow can read a valve as well as the flow it
+drives; H3's tank pair: the feed and tank B's gravity drain got balance tests "driven by" the
+pump, the pumped flow none):
+
+- **which flow, by what** (:func:`driven_by`): the controller outputs are the declared loops'
+  (``--loop PV=SP:OUT``, the tags CSV's ``role = out``) and those found by their names beside
+  a set-point; the flows are the tags :func:`tag_kind` calls one. An output drives a flow where
+  its moves precede and explain the flow's: the flow's changes over a few samples follow the
+  output's within :data:`DRIVE_MAX_DEAD_S` (a liquid-full line answers in seconds), with
+  ``|r| ≥`` :data:`DRIVE_MIN_R`, and more than the output's changes follow the flow's (a
+  disturbance the loop answers leads the valve; a flow that follows minutes later does so
+  through a vessel's inventory and is that vessel's). Of several, the one that explains most.
+- **which level** (:func:`vessel_of`): the level the output's loop holds, where it is a level;
+  else the level whose rate of change the flow explains most (``|r| ≥``
+  :data:`VESSEL_MIN_R`); none, no balance test (a steam or coolant flow). The vessel's other
+  flows: each flow that cuts the variance of that level's rate left by the flows so far by
+  :data:`STREAM_MIN_GAIN` (the mass balance fitted), so a third flow of another vessel, which
+  only moves with these, is not one.
+- **the test** (:func:`mass_balance`): the vessel's mass balance, a linear (parity) relation of
+  its other flows as they are and the level's change per sample ``rate(L)[k]`` (the
+  accumulation term); kept where the level's rate cuts the held-out error by ``MIN_GAIN`` and
+  the error is at most :data:`BALANCE_MAX_ERROR_PCT` % of the flow's span. It never reads the
+  valve, its loop's set-point and measurement, nor any tag of another vessel. It is a test like
+  any other (its own share of the false-alarm budget) and it models the flow, so its alarm
+  names the flow's tag. The build's notes say, per flow, what drove it and which level it
+  balances against, and why a flow whose test reads a valve got none.
 
 What a tag measures (:func:`tag_kind`) is read from its ISA-5.1 name (first letter ``F``,
 ``L``, ``P``), else its description (``flow``, ``level``, ``pressure``), else its unit (a
@@ -43,7 +61,6 @@ from diag_plugin.unitbuild.build import (
     TestChoice,
     _Context,
     _rulebase,
-    select_inputs,
     test_name,
 )
 from diag_plugin.unitbuild.loops import Loop
@@ -77,9 +94,9 @@ class BalancePlan:
     test: str
     valves: tuple[str, ...]
     kept_out: frozenset[str]
-    level: str | None = None  # the level of the vessel it balances against
-    streams: tuple[str, ...] = ()  # that vessel's other flows: the test's candidates
-    loop: frozenset[str] = frozenset()  # the flow, its actuator and the actuator's loop
+    level: str  # the level of the vessel it balances against
+    streams: tuple[str, ...]  # that vessel's other flows: the test's inputs with the rate
+    loop: frozenset[str]  # the flow, its actuator and the actuator's loop: never read
 
 
 def tag_kind(tag: str, info: TagInfo | None = None) -> str | None:
@@ -151,10 +168,10 @@ def balance_plans(
         drive = driven_by(ctx, ch.tag, actuators)
         if drive is None:
             read = {InputSpec.parse(s).tags[0] for s in ch.inputs if InputSpec.parse(s).tags}
-            if read & set(actuators):
+            if reads := sorted(read & set(actuators)):
                 said.append(
-                    f"{ch.tag}: no balance test: its test reads {', '.join(sorted(read & set(actuators)))}"
-                    " but no controller output's moves precede and explain its own (it is no "
+                    f"{ch.tag}: no balance test: its test reads {', '.join(reads)} but"
+                    " no controller output's moves precede and explain its own (it is no "
                     "manipulated flow)"
                 )
             continue
@@ -163,8 +180,10 @@ def balance_plans(
         vessel = vessel_of(ctx, ch.tag, levels, flows, pv=pv,
                            pv_level=pv is not None and pv in levels)  # fmt: skip
         if vessel is None:
-            said.append(f"{ch.tag}: driven by {valve} ({why}); no balance test: no level's "
-                        "rate it explains (no vessel it fills or drains is measured)")
+            said.append(
+                f"{ch.tag}: driven by {valve} ({why}); no balance test: no level's "
+                "rate it explains (no vessel it fills or drains is measured)"
+            )
             continue
         level, streams, vwhy = vessel
         loop = {ch.tag, *same.get(ch.tag, ()), valve, *same.get(valve, ()),
@@ -199,7 +218,7 @@ def _change(x: np.ndarray, s: int) -> np.ndarray:
     return d
 
 
-def _r(a: np.ndarray, b: np.ndarray) -> float:
+def _corr(a: np.ndarray, b: np.ndarray) -> float:
     """Pearson's ``r`` over the samples both have (0 where fewer than 10 or no spread)."""
     ok = np.isfinite(a) & np.isfinite(b)
     if ok.sum() < 10:
@@ -222,8 +241,8 @@ def response(ctx: _Context, valve: str, flow: str) -> tuple[float, int, float, i
     horizon = max(1, min(ctx.max_lag, len(x) // 10))
     for s in CHANGE_SPANS:
         dx, dy = _change(x, s), _change(y, s)
-        fwd = [abs(_r(dx[: len(dx) - d], dy[d:])) for d in range(horizon + 1)]
-        back = max(abs(_r(dx[d:], dy[: len(dy) - d])) for d in range(1, horizon + 1))
+        fwd = [abs(_corr(dx[: len(dx) - d], dy[d:])) for d in range(horizon + 1)]
+        back = max(abs(_corr(dx[d:], dy[: len(dy) - d])) for d in range(1, horizon + 1))
         d = int(np.argmax(fwd))
         if d <= max_dead(ctx) and fwd[d] > best[0]:
             best = (fwd[d], d, back, s)
@@ -242,9 +261,7 @@ def max_dead(ctx: _Context) -> int:
     return max(1, int(DRIVE_MAX_DEAD_S // pd.Timedelta(ctx.period).total_seconds()))
 
 
-def driven_by(
-    ctx: _Context, flow: str, actuators: Sequence[str]
-) -> tuple[str, str] | None:
+def driven_by(ctx: _Context, flow: str, actuators: Sequence[str]) -> tuple[str, str] | None:
     """The controller output that drives ``flow`` and why, or None: of ``actuators``, the one
     whose changes precede and explain the flow's most (:func:`response`: ``|r| ≥``
     :data:`DRIVE_MIN_R` within :func:`max_dead` samples, above the ``|r|`` the other way)."""
@@ -256,8 +273,10 @@ def driven_by(
     if best is None:
         return None
     v, r, d, back, s = best
-    return v, (f"its changes over {s} sample(s) follow {v}'s {d} sample(s) later, |r| "
-               f"{r:.2f}; {back:.2f} the other way")
+    return v, (
+        f"its changes over {s} sample(s) follow {v}'s {d} sample(s) later, |r| "
+        f"{r:.2f}; {back:.2f} the other way"
+    )
 
 
 def _mean_over(x: np.ndarray, s: int) -> np.ndarray:
@@ -293,7 +312,7 @@ def vessel_of(
     for s in CHANGE_SPANS:
         y = _mean_over(ctx.column(flow), s)
         for lv in levels:
-            scored.append((abs(_r(y, _level_rate(ctx, lv, s))), lv, s))
+            scored.append((abs(_corr(y, _level_rate(ctx, lv, s))), lv, s))
     if pv_level and pv is not None:
         r, level, s = max(x for x in scored if x[1] == pv)
         why = f"the level its actuator's loop holds; |r| with its rate {r:.2f}"
@@ -338,15 +357,7 @@ def choose_balance(bp: BalancePlan, ctx: _Context, sel: _Context, plan) -> TestC
     keeps it where :func:`kept` says so."""
     use = sel if bp.tag in sel.vars else ctx
     k = plan.factor if use is sel else 1
-    if bp.level:
-        ch = mass_balance(use, bp)
-    else:
-        cands = [c for c in use.vars if c not in bp.kept_out]
-        cands = short.inputs_for(plan, bp.tag, cands, use.column)
-        ch = select_inputs(use, bp.tag, cands, test=bp.test, max_inputs=BALANCE_MAX_INPUTS,
-                           method=short.LINEAR)  # fmt: skip
-        if ch.steps:
-            add_level_rates(use, ch)
+    ch = mass_balance(use, bp)
     ch.method, ch.balance = short.LINEAR, True
     for st in ch.steps:
         st.input = _scaled(st.input, k)
@@ -356,9 +367,9 @@ def choose_balance(bp: BalancePlan, ctx: _Context, sel: _Context, plan) -> TestC
         f"of {len(ch.steps)} inputs, held-out error {err:.2f} % of span (kept at most "
         f"{BALANCE_MAX_ERROR_PCT:g} %); from {bp.level}'s vessel: its rate and its other "
         f"flows ({', '.join(bp.streams) or 'none'}); kept out: "
-        f"{', '.join(sorted((bp.loop or bp.kept_out) - {bp.tag}))}"
+        f"{', '.join(sorted(bp.loop - {bp.tag}))}"
     )
-    if bp.level and not any(s.startswith(f"rate({bp.level}") for s in ch.inputs):
+    if not any(s.startswith(f"rate({bp.level}") for s in ch.inputs):
         ch.why += f"; not kept: {bp.level}'s rate cut no error (no balance)"
     return ch
 
@@ -395,38 +406,6 @@ def kept(ch: TestChoice) -> bool:
     the flow's span."""
     return (bool(ch.steps) and ch.steps[-1].rmse_pct <= BALANCE_MAX_ERROR_PCT
             and "not kept:" not in (ch.why or ""))  # fmt: skip
-
-
-def add_level_rates(ctx: _Context, ch: TestChoice, levels: Sequence[str] | None = None) -> None:
-    """Add to ``ch`` (a linear test) the level's change per sample ``rate(L)[k]`` that cuts its
-    held-out error most, where it cuts it by more than ``MIN_GAIN``; again while it has fewer
-    than :data:`BALANCE_MAX_INPUTS` inputs. The levels: ``levels`` (the flow's vessel's),
-    else every tag of the window :func:`tag_kind` calls one (the accumulation term of a
-    vessel's balance)."""
-    from diag_plugin.selection.scoring import BlockScorer
-
-    if levels is None:
-        levels = [t for t in ctx.vars if tag_kind(t, ctx.info.get(t)) == "level"]
-    specs = [InputSpec.parse(s) for s in ch.inputs]
-    rb = _rulebase(ch.test, ctx.vars[ch.tag], [], ctx.period, method=short.LINEAR)
-    scorer = BlockScorer(rb, [], ctx.column(ch.tag), ctx.block)
-    current = ch.steps[-1].rmse_pct
-    while len(specs) < BALANCE_MAX_INPUTS:
-        best = None
-        for lv in levels:
-            spec = InputSpec("rate", (lv,), 0)
-            if spec in specs:
-                continue
-            trial = [*specs, spec]
-            rmse, cov = scorer.score([ctx.spec_variable(s) for s in trial],
-                                     [ctx.spec_column(s) for s in trial])  # fmt: skip
-            if math.isfinite(rmse) and (best is None or rmse < best[0]):
-                best = (rmse, cov, spec)
-        if best is None or not best[0] < current * (1 - MIN_GAIN):
-            return
-        current, cov, spec = best
-        specs.append(spec)
-        ch.steps.append(Step(str(spec), current, cov))
 
 
 def _scaled(spec: str, factor: int) -> str:
