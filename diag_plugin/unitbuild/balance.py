@@ -155,8 +155,8 @@ def balance_plans(
         if ch.tracks and ch.actuator:
             loop_of.setdefault(ch.actuator, set()).update({ch.tag, ch.tracks})
             pv_of.setdefault(ch.actuator, ch.tag)
-    flows = [t for t in ctx.vars if tag_kind(t, info.get(t)) == "flow" and t not in held
-             and t not in held_tags]  # fmt: skip
+    every_flow = [t for t in ctx.vars if tag_kind(t, info.get(t)) == "flow" and t not in held]
+    flows = [t for t in every_flow if t not in held_tags]  # a loop's measurement: not tested
     levels = [t for t in ctx.vars if tag_kind(t, info.get(t)) == "level"]
     actuators = [v for v in held if v in ctx.vars]
     said = notes if notes is not None else []
@@ -177,7 +177,7 @@ def balance_plans(
             continue
         valve, why = drive
         pv = pv_of.get(valve)
-        vessel = vessel_of(ctx, ch.tag, levels, flows, pv=pv,
+        vessel = vessel_of(ctx, ch.tag, levels, every_flow, pv=pv,
                            pv_level=pv is not None and pv in levels)  # fmt: skip
         if vessel is None:
             said.append(
@@ -306,8 +306,9 @@ def vessel_of(
     level its actuator's loop holds (``pv``, where ``pv_level``), else the level whose rate of
     change the flow explains most (``|r| ≥`` :data:`VESSEL_MIN_R`); the vessel's other flows,
     forward from the flow: each flow that cuts the variance of the level's rate left by the
-    flows so far by :data:`STREAM_MIN_GAIN` (a linear fit: the mass balance). A flow of
-    another vessel that only moves with these (a third flow) cuts nothing once they are in."""
+    flows so far by :data:`STREAM_MIN_GAIN` (a linear fit: the mass balance); then back, each
+    flow whose removal raises it by less than that share is dropped. A flow of another vessel
+    that only moves with the vessel's own (a third flow) cuts nothing once they are in."""
     scored = []
     for s in CHANGE_SPANS:
         y = _mean_over(ctx.column(flow), s)
@@ -335,6 +336,13 @@ def vessel_of(
             break
         chosen.append(g)
         pool.remove(g)
+        left = var
+    while len(chosen) > 1:  # then back: a flow the later ones made redundant (a third flow)
+        trial = [(_residual_var(rate, [col[f] for f in chosen if f != g]), g) for g in chosen[1:]]
+        var, g = min(trial)
+        if not var * (1 - STREAM_MIN_GAIN) < left:
+            break
+        chosen.remove(g)
         left = var
     streams = chosen[1:]
     why += f"; its other flows {', '.join(streams) if streams else 'none'}"
