@@ -177,7 +177,8 @@ def balance_plans(
             continue
         valve, why = drive
         pv = pv_of.get(valve)
-        vessel = vessel_of(ctx, ch.tag, levels, every_flow, pv=pv,
+        others = [f for f in every_flow if f not in same.get(ch.tag, ())]  # not its twin
+        vessel = vessel_of(ctx, ch.tag, levels, others, pv=pv,
                            pv_level=pv is not None and pv in levels)  # fmt: skip
         if vessel is None:
             said.append(
