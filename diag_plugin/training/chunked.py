@@ -302,8 +302,7 @@ class _Ranges:
 
         if X is None or not len(X):
             return
-        with np.errstate(invalid="ignore"):
-            lo, hi = np.nanmin(X, axis=0), np.nanmax(X, axis=0)
+        lo, hi = np.fmin.reduce(X, axis=0), np.fmax.reduce(X, axis=0)  # NaN: no value
         self.lo = lo if self.lo is None else np.fmin(self.lo, lo)
         self.hi = hi if self.hi is None else np.fmax(self.hi, hi)
 
