@@ -330,7 +330,9 @@ def _png_pixels(path: Path, max_rows: int = 1200) -> np.ndarray:
 def test_renders_in_headless_chromium_with_a_screenshot(report, tmp_path):
     path, _, _ = report
     dom = _render(path, tmp_path)
-    assert 'data-charts="5"' in dom  # time, residual, residual against a tag, histogram, runs
+    # time, residual, histogram, runs, and the residual against a tag where one cuts the error
+    drawn = 4 + ("x" in (_data(path.read_text("utf-8"))["scatter"] or {}))
+    assert f'data-charts="{drawn}"' in dom
     shot = tmp_path / "report.png"
     res = _chromium(
         path.as_uri(), tmp_path / "profile-shot", f"--screenshot={shot}", "--window-size=1400,3000"
@@ -404,11 +406,28 @@ def test_the_whole_range_is_an_envelope_per_pixel_column_not_a_zigzag(report, tm
 
 
 def test_residual_against_the_tag_explain_suggests(report):
+    """The chart is drawn against explain's first missing effect where one cuts the error;
+    where none does, the page says so (:func:`test_no_residual_chart_when_no_candidate_
+    cuts_the_error`)."""
+    from diag_plugin.workbench.explain import CUTS
+
     path, c, e = report
     d = _data(path.read_text("utf-8"))
     s = d["scatter"]
-    first = next(x for x in e.candidates if x.input not in ("CV[k-1]", "P1[k]"))
+    missing = [x for x in e.candidates if x.input not in ("CV[k-1]", "P1[k]")]
+    first = missing[0]
     assert s["spec"] == first.input and s["why"] == "the effect diag explain ranks first"
+    cuts = any(x.rmse_pct_if_added < CUTS * e.baseline_rmse_pct for x in missing)
+    assert bool(s.get("none_cuts")) == (not cuts), (s, e.as_dict())
+    if not cuts:
+        assert 'id="scatter-none"' in path.read_text("utf-8")
+        return
+    _check_scatter(s, c)
+    assert 'id="scatter"' in path.read_text("utf-8")
+
+
+def _check_scatter(s: dict, c: Comparison) -> None:
+    """The drawn residual-against-a-variable chart's data are consistent."""
     x, r = _f32(s["x"]), _f32(s["r"])
     assert len(x) == len(r) == s["shown"] == min(4000, s["samples"])
     assert np.all(np.diff(x) >= 0) and s["samples"] > 0.5 * np.isfinite(c.residual).sum()
@@ -417,7 +436,6 @@ def test_residual_against_the_tag_explain_suggests(report):
     assert 5 <= len(s["bin_x"]) == len(s["bin_mean"]) <= 30
     assert np.all(np.diff(s["bin_x"]) > 0)
     assert np.mean(s["bin_mean"]) == pytest.approx(np.nanmean(c.residual), abs=0.5)
-    assert 'id="scatter"' in path.read_text("utf-8")
 
 
 def test_without_explain_the_scatter_takes_the_tag_the_residual_follows(tmp_path):
@@ -668,3 +686,34 @@ def test_the_page_shows_hist_gradient_boosting_beside_the_held_out_error(tmp_pat
     # without --no-baseline's opposite, none of it
     plain = write_report(tmp_path / "p.html", rb, compare(rb, f), explain(rb, f, max_lag=2), None)
     assert "HistGradientBoosting" not in plain.read_text("utf-8")
+
+
+@needs_chromium
+def test_no_residual_chart_when_no_candidate_cuts_the_error(tmp_path):
+    """The i34-qa2 pass: after the last step explain's best effect took the held-out error
+    from 0.87 to 0.86 % and the page still plotted the residual against it under "the effect
+    diag explain ranks first", as if an effect were missing. When no candidate cuts the error
+    below CUTS × the model's (what explain calls "would cut"), the page says so instead."""
+    from diag_plugin.workbench.explain import CUTS, Candidate, Explanation
+
+    rb, f = _story(tmp_path, 2, ("CV[k-1]", "P1[k]"))
+    c = compare(rb, f)
+    base = 0.87
+
+    def cand(spec, rmse):
+        return Candidate(spec, "dynamics", f"adding {spec}", rmse, 1.0, f"add-input {spec}")
+
+    barely = Explanation("valve", base, 1.0, [cand("CV[k-2]", 0.99 * base), cand("F[k-1]", 2.0)])
+    path = write_report(tmp_path / "none.html", rb, c, barely, _experiments(), f)
+    s = _data(path.read_text("utf-8"))["scatter"]
+    assert s["none_cuts"] and "x" not in s, s
+    assert f"{100 * (1 - CUTS):.0f} %" in s["note"] and f"{0.99 * base:.2f} %" in s["note"]
+    dom = _render(path, tmp_path)
+    assert 'id="scatter-none"' in dom and 'id="chart-s"' not in dom
+    # one candidate that cuts: the chart is drawn against it, as before
+    cuts = Explanation("valve", base, 1.0, [cand("CV[k-2]", 0.9 * CUTS * base)])
+    path = write_report(tmp_path / "cuts.html", rb, c, cuts, _experiments(), f)
+    s = _data(path.read_text("utf-8"))["scatter"]
+    assert s["spec"] == "CV[k-2]" and not s.get("none_cuts")
+    _check_scatter(s, c)
+    assert 'id="chart-s"' in _render(path, tmp_path)

@@ -197,14 +197,25 @@ def test_explain_dead_time_is_the_best_lag_not_the_shortest_near_it(tmp_path):
     upstream (its head) left out of the model: lags 7 and 8 screen within 1 % of each other,
     and the shortest of them (k-7) retrained scored 2.2 % against k-8's 0.9 % on the i34-qa2
     pass. Once a dead time clearly matters, the offered lag is the best one screened."""
-    rng = np.random.default_rng(3)
-    n, d = 20_000, 8
-    holds = rng.integers(30, 300, n // 30)
-    u = np.repeat(rng.uniform(10, 95, holds.size), holds)[:n]
+    d = 8
+    f = valve_1s(3, 20_000, d)
+    e = explain(trained_1s(tmp_path, f, ["CV[k]"])[0], f, tag_info=INFO)
+    dead = [c for c in e.candidates if c.kind == "dead time"]
+    assert dead and dead[0].input == f"CV[k-{d}]", e.as_dict(top=5)
+
+
+def valve_1s(seed: int, n: int, d: int = 8, holds=(30, 300), levels=None) -> pd.DataFrame:
+    """A valve at 1 s whose opening ``CV`` (held ``holds`` s at a time, at ``levels`` in
+    turn where given) acts ``d`` s late on the flow ``F``, with the level upstream ``T1``
+    (its head) wandering slowly."""
+    rng = np.random.default_rng(seed)
+    held = rng.integers(*holds, n // holds[0] + 1)
+    at = rng.uniform(10, 95, held.size) if levels is None else np.resize(levels, held.size)
+    u = np.repeat(at, held)[:n]
     level = 20 + 60 * (0.5 + 0.5 * np.sin(2 * np.pi * np.arange(n) / 6000))
     ud = np.r_[np.full(d, u[0]), u[:-d]]
     idx = pd.date_range("2026-05-04", periods=n, freq="1s", tz="UTC", name="ts")
-    f = pd.DataFrame(
+    return pd.DataFrame(
         {
             "F": 0.4 * ud * np.sqrt(level) / 10 + rng.normal(0, 0.05, n),
             "CV": u + rng.normal(0, 0.1, n),
@@ -212,12 +223,85 @@ def test_explain_dead_time_is_the_best_lag_not_the_shortest_near_it(tmp_path):
         },
         index=idx,
     )
-    rb = new_model(tmp_path / "m.toml", "m", "F[k]", ["CV[k]"], frame=f, tag_info=INFO, period="1s")
-    res = train(
-        rb, lambda x, y: f[(f.index >= x) & (f.index < y)], idx[0], idx[-1] + pd.Timedelta("1s")
+
+
+def trained_1s(tmp_path, f: pd.DataFrame, inputs, notes=None):
+    """``new_model`` of ``F[k]`` on ``f`` at 1 s, trained on it (the model and the result)."""
+    rb = new_model(
+        tmp_path / "m.toml", "m", "F[k]", inputs, frame=f, tag_info=INFO, period="1s", notes=notes
     )
-    rb.apply_training(res.model)
+    res = train(
+        rb,
+        lambda x, y: f[(f.index >= x) & (f.index < y)],
+        f.index[0],
+        f.index[-1] + pd.Timedelta("1s"),
+    )
+    rb.apply_training(res.model, {"validation_from": res.validation_range[0].isoformat()})
     rb.save()
-    e = explain(RuleBase.load(rb.path), f, tag_info=INFO)
-    dead = [c for c in e.candidates if c.kind == "dead time"]
-    assert dead and dead[0].input == f"CV[k-{d}]", e.as_dict(top=5)
+    return RuleBase.load(rb.path), res
+
+
+def test_a_thin_grid_suggests_fewer_sets_only_when_materially_fewer(tmp_path):
+    """The i34-qa2 pass: a thin-grid note beside a 31-set candidate suggested '--sets 30'.
+    A smaller count is suggested only at most FEWER_SHARE (2/3) of the count; the warning
+    that the grid is thin stays."""
+    f = valve_1s(5, 20_000)
+    rb, _ = trained_1s(tmp_path, f, ["CV[k]"])
+    e = explain(rb, f, tag_info=INFO)
+    thin = [(c, n) for c in e.candidates for n in c.notes if "rule grid would be thin" in n]
+    assert thin, e.as_dict(top=8)
+    for c, note in thin:
+        m = re.search(r"consider fewer sets, e\.g\. --sets (\d+)", note)
+        sets = 24 if c.input.startswith("hour(") else rb.inputs[0].sets
+        assert m is None or int(m[1]) <= 2 / 3 * sets, (c.input, note)  # explain.FEWER_SHARE
+
+
+def test_a_stepped_input_gets_the_sets_its_levels_need_and_a_one_level_holdout_is_named(
+    tmp_path,
+):
+    """The i34-qa2 pass: 614 rows of a valve at 1 s stepped between 3 openings got 31 sets
+    ("what 609 samples can fill"), 3 rules were trained, and the held-out tail (124 samples)
+    was one constant opening: its RMSE, and the shape chosen on it, judged one point, and
+    nothing said so. The count now follows the levels the input visits, and model new,
+    train and compare (text and JSON) name the input and its range in the held-out rows."""
+    from diag_plugin.selection.sets import SETS_RANGE
+    from diag_plugin.training.jobs import heldout_note
+    from diag_plugin.workbench.compare import scope_note
+
+    rng = np.random.default_rng(17)
+    levels = np.sort(rng.uniform(15, 90, 3))
+    # three holds of 210-215 s: the last (the held-out 20 %) at one opening
+    f = valve_1s(17, 620, holds=(210, 216), levels=levels)
+    notes: list[str] = []
+    rb, res = trained_1s(tmp_path, f, ["CV[k]"], notes)
+    sets = rb.inputs[0].sets
+    assert SETS_RANGE[0] <= sets < SETS_RANGE[1], (sets, notes)
+    pos = (levels - rb.inputs[0].span[0]) / (rb.inputs[0].span[1] - rb.inputs[0].span[0])
+    assert np.unique(np.floor(pos * (sets - 1) + 0.5)).size == 3  # each level its own set
+    said = [n for n in notes if "operating levels" in n]
+    assert said and "3 operating levels" in said[0] and f"{sets} sets" in said[0], notes
+    assert res.size == 3  # the rules the levels train
+
+    held = f["CV"][f.index >= res.validation_range[0]]
+    narrow = res.as_dict()["heldout_narrow"], compare(rb, f).as_dict()["scope"]["heldout_narrow"]
+    for found in narrow:
+        assert [n["input"] for n in found] == ["CV[k]"], found
+        assert found[0]["heldout"] == pytest.approx([held.min(), held.max()])
+        assert found[0]["window"] == pytest.approx([f["CV"].min(), f["CV"].max()])
+        assert found[0]["share"] < 0.05 and abs(held.mean() - levels[-1]) < 1
+        json.dumps(found)
+    assert "one operating point" in heldout_note(res.as_dict())
+    assert "CV[k] at one operating point" in scope_note(compare(rb, f).scope)
+    from diag_plugin.workbench.cli import _heldout_notes, _inputs  # model new's lines
+
+    assert "CV[k] at one operating point" in _heldout_notes(_inputs(f, rb), f, rb, notes)[0]
+
+
+def test_an_input_that_moves_keeps_the_sets_the_data_fill_and_no_holdout_warning(tmp_path):
+    """The same valve over 5 h, the opening moved every few minutes: no level count, no
+    warning (the check names only a held-out block at one point)."""
+    notes: list[str] = []
+    f = valve_1s(23, 18_000)
+    rb, res = trained_1s(tmp_path, f, ["CV[k]"], notes)
+    assert not [n for n in notes if "operating levels" in n], notes
+    assert res.heldout_narrow == [] and compare(rb, f).scope["heldout_narrow"] == []

@@ -40,6 +40,42 @@ def sets_for_data(cols: Sequence[np.ndarray], spans: Sequence[tuple[float, float
     return SETS_RANGE[0] if n else SETS_RANGE[1]
 
 
+#: an input visits discrete operating levels (a stepped valve command) when at least this
+#: share of its samples sit at levels, each narrower than half a set of the finest grid and
+#: holding at least :data:`LEVEL_MIN_SHARE` of the samples
+LEVEL_SHARE = 0.95
+LEVEL_MIN_SHARE = 0.01
+
+
+def operating_levels(col: np.ndarray, span: tuple[float, float]) -> np.ndarray | None:
+    """The operating levels (each level's median, ascending) an input's values ``col``
+    dwell at, when they dwell at levels (:data:`LEVEL_SHARE`); None for an input that moves
+    over its range (sorted values with no gap wider than half a set of the finest grid,
+    :data:`SETS_RANGE`) or with too few values to tell."""
+    x = np.sort(col[np.isfinite(col)])
+    tol = (span[1] - span[0]) / (2 * (SETS_RANGE[1] - 1))
+    if x.size < MIN_PER_CELL or not tol > 0:
+        return None
+    groups = np.split(x, np.flatnonzero(np.diff(x) > tol) + 1)
+    least = max(2, LEVEL_MIN_SHARE * x.size)
+    levels = [g for g in groups if g[-1] - g[0] <= tol and g.size >= least]
+    if sum(g.size for g in levels) < LEVEL_SHARE * x.size:
+        return None
+    return np.array([float(np.median(g)) for g in levels])
+
+
+def sets_for_levels(levels: np.ndarray, span: tuple[float, float], most: int) -> int:
+    """The fewest sets (from :data:`SETS_RANGE`'s least, at most ``most``) whose evenly
+    spaced centres over ``span`` put each of ``levels`` in a set of its own — more sets
+    train no more rules; ``most`` where none up to it does."""
+    pos = (np.asarray(levels, float) - span[0]) / (span[1] - span[0])
+    for sets in range(SETS_RANGE[0], most):
+        idx = np.clip(np.floor(pos * (sets - 1) + 0.5), 0, sets - 1)
+        if np.unique(idx).size == idx.size:
+            return sets
+    return most
+
+
 def _occupied(idx: np.ndarray, sets: int) -> int:
     """Distinct rows of ``idx`` (set indices 0 … sets-1 per column): a count of a dense
     occupancy table where the grid is small (no sort), else of the unique keys."""

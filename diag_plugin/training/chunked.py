@@ -126,9 +126,12 @@ class TrainResult:
     #: with ``train(keep_rows=True)``: the design rows trained on and held out, as
     #: ``(X_train, y_train, X_held, y_held)`` (for a baseline on exactly those rows)
     design: tuple | None = None
+    #: inputs the held-out block sees at one operating point (:mod:`.heldout`)
+    heldout_narrow: list[dict] = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {
+            "heldout_narrow": self.heldout_narrow,
             "validation": self.validation,
             "training": self.training,
             "samples": self.samples,
@@ -212,6 +215,7 @@ def train(
 
     builder = design_builder(rb, spans)
     prime(builder, read, start, period)
+    train_range = _Ranges()  # (not seen with fit_chunks: no held-out check then)
     if fit_chunks is not None:
         if keep_rows:
             local = design_builder(rb, spans)
@@ -228,6 +232,7 @@ def train(
         for a, b in train_iv:
             d = builder.transform(read(a, b))
             tally.add_design(d)
+            train_range.add(d.X)
             if keep_rows:
                 kept["train"].append((d.X, d.y))
             if len(d.y) and whole:
@@ -246,12 +251,14 @@ def train(
 
     val_stats = ErrorStats()
     held = rb.new_model()
+    held_range = _Ranges()
     for a, b in val_iv:
         d = builder.transform(read(a, b))
         tally.add_design(d)
         if keep_rows:
             kept["held"].append((d.X, d.y))
         if len(d.y):
+            held_range.add(d.X)
             det = predictor.predict_detail(d.X)
             val_stats.update(
                 residual_pct(d.y, det.y, span),
@@ -279,8 +286,37 @@ def train(
         dropped=tally.dropped,
         train_range=(start, cut),
         validation_range=(cut, end),
+        heldout_narrow=held_range.narrow([v.spec for v in rb.inputs], train_range),
         design=(*_stack(kept["train"]), *_stack(kept["held"])) if keep_rows else None,
     )
+
+
+class _Ranges:
+    """The least and greatest value of each design column over the chunks added."""
+
+    def __init__(self):
+        self.lo = self.hi = None
+
+    def add(self, X) -> None:
+        import numpy as np
+
+        if X is None or not len(X):
+            return
+        lo, hi = np.fmin.reduce(X, axis=0), np.fmax.reduce(X, axis=0)  # NaN: no value
+        self.lo = lo if self.lo is None else np.fmin(self.lo, lo)
+        self.hi = hi if self.hi is None else np.fmax(self.hi, hi)
+
+    def narrow(self, specs, other: _Ranges) -> list[dict]:
+        """:func:`~.heldout.narrow_ranges` of these (held-out) ranges within these and
+        ``other``'s (training) together; empty where either saw nothing."""
+        import numpy as np
+
+        from diag_plugin.training.heldout import narrow_ranges
+
+        if self.lo is None or other.lo is None:
+            return []
+        lo, hi = np.fmin(self.lo, other.lo), np.fmax(self.hi, other.hi)
+        return narrow_ranges(specs, lo, hi, self.lo, self.hi)
 
 
 def _stand_in(predictor, X, y_hat):

@@ -169,7 +169,10 @@ def train_one(
 
 def heldout_note(r: Mapping) -> str:
     """What the held-out figure of a training result measures, in one sentence, so it is
-    never mistaken for ``diag compare``'s in-sample figure."""
+    never mistaken for ``diag compare``'s in-sample figure; a warning line more per input the
+    held-out block sees at one operating point (:mod:`.heldout`)."""
+    from diag_plugin.training.heldout import narrow_note
+
     a, b = (pd.Timestamp(t) for t in r["validation_range"])
     t0 = pd.Timestamp(r["train_range"][0])
     share = (b - a) / (b - t0) if b > t0 else float("nan")
@@ -178,7 +181,7 @@ def heldout_note(r: Mapping) -> str:
         f"{b:%Y-%m-%d %H:%M} ({r['validation']['samples']:,} samples), predicted by the "
         "model trained on the rest; the saved model then learned them too, so diag compare "
         "(which scores it on the samples it was trained on) gives an in-sample figure"
-    )
+    ) + "".join("\n" + narrow_note(n) for n in r.get("heldout_narrow", []))
 
 
 def _is_nan(v) -> bool:

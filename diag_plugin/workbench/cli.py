@@ -175,13 +175,17 @@ def cmd_model_new(args) -> int:
     for line in notes:
         print(line)
     from diag_plugin.selection.setsearch import SHAPE_NOTE
+    from diag_plugin.workbench.model_edit import LEVELS_NOTE
 
-    searched = [line for line in chosen if not line.startswith(SHAPE_NOTE)]
+    searched = [line for line in chosen if not line.startswith((SHAPE_NOTE, LEVELS_NOTE))]
     for line in chosen:  # the shape and the sets per input chosen on held-out data
-        print(line + (" (give --sets to choose)" if line in searched else " (give --shape)"))
+        sets_line = not line.startswith(SHAPE_NOTE)
+        print(line + (" (give --sets to choose)" if sets_line else " (give --shape)"))
     X = _inputs(frame, rb)
-    if args.sets is None and not searched and rb.new_model().capabilities.rule_regions:
-        sets = sorted({v.sets for v in rb.inputs})
+    at_levels = {v.spec for v in rb.inputs if any(f"{LEVELS_NOTE} {v.spec} " in c for c in chosen)}
+    filling = [v for v in rb.inputs if v.spec not in at_levels]
+    if args.sets is None and not searched and filling and rb.new_model().capabilities.rule_regions:
+        sets = sorted({v.sets for v in filling})
         filled = int(np.isfinite(X).all(axis=1).sum()) if X is not None else len(frame)
         print(
             f"sets per input: {', '.join(map(str, sets))}, what {filled:,} samples "
@@ -189,8 +193,27 @@ def cmd_model_new(args) -> int:
         )
     for line in _sliver_notes(X, rb):
         print(line)
+    for line in _heldout_notes(X, frame, rb, chosen):
+        print(line)
     print(f"next: diag train {args.name}")
     return 0
+
+
+def _heldout_notes(X, frame, rb: RuleBase, chosen: list[str]) -> list[str]:
+    """A warning line per input the held-out tail (the last 20 %, as ``diag train`` holds
+    out) sees at one operating point (:mod:`~diag_plugin.training.heldout`), saying that
+    what was chosen on it (``chosen``: the shape, the sets) was chosen at that point."""
+    import numpy as np
+
+    from diag_plugin.selection.scoring import cut_row
+    from diag_plugin.training.heldout import narrow_inputs, narrow_note
+
+    if X is None or frame is None or len(frame) != len(X):
+        return []
+    held = np.arange(len(X)) >= cut_row(frame.index, 0.2)
+    narrow = narrow_inputs([v.spec for v in rb.inputs], X, held)
+    also = " (the shape and set counts above were chosen on it too)" if chosen else ""
+    return [narrow_note(n) + also for n in narrow]
 
 
 #: an input whose data use less than this share of its span is named by ``model new``

@@ -97,7 +97,7 @@ def compare(
         tags=residual_vs_tags(frame, d.index, res, exclude=_model_tags(rb), y=d.y, inputs=d.X),
         dropped=d.dropped,
         inputs=span_use(rb, d.X),
-        scope=scope(rb, d.index),
+        scope=scope(rb, d.index, d.X),
         baseline=heldout_baseline(rb, d.index, d.X, d.y) if baseline else None,
     )
 
@@ -128,18 +128,26 @@ def heldout_baseline(rb: RuleBase, index: pd.DatetimeIndex, X: np.ndarray, y: np
     return {**b, "heldout_from": cut, "heldout_to": end}
 
 
-def scope(rb: RuleBase, index: pd.DatetimeIndex) -> dict:
+def scope(rb: RuleBase, index: pd.DatetimeIndex, X: np.ndarray | None = None) -> dict:
     """What ``compare``'s figures measure beside ``diag train``'s: the samples scored (count,
     first, last, the model's period), the share of them inside the range the saved model
     was trained on (``in_training``: 1.0 is an in-sample figure, 0.0 out-of-sample), and the
     held-out figure the training reported with the block it was measured on (from the
-    file's ``[training]``; None where the file does not say)."""
+    file's ``[training]``; None where the file does not say), and the inputs (of ``X``, the
+    inputs' values) that block sees at one operating point (:mod:`~diag_plugin.training.
+    heldout`)."""
+    from diag_plugin.training.heldout import narrow_inputs
+
     t = rb.training
     start, end = _time(t.get("from")), _time(t.get("to"))
     inside = None
     if start is not None and end is not None and len(index):
         inside = float(np.mean((index >= start) & (index < end)))
     held = t.get("validation_rmse_pct")
+    held_from = _time(t.get("validation_from"))
+    narrow = []
+    if held_from is not None and X is not None and len(index) == len(X):
+        narrow = narrow_inputs([v.spec for v in rb.inputs], X, np.asarray(index >= held_from))
     return {
         "samples": int(len(index)),
         "first": index[0] if len(index) else None,
@@ -148,7 +156,8 @@ def scope(rb: RuleBase, index: pd.DatetimeIndex) -> dict:
         "training_range": [start, end] if start is not None else None,
         "in_training": inside,
         "heldout_rmse_pct": float(held) if isinstance(held, (int, float)) else None,
-        "heldout_from": _time(t.get("validation_from")),
+        "heldout_from": held_from,
+        "heldout_narrow": narrow,
     }
 
 
@@ -185,7 +194,9 @@ def scope_note(s: Mapping) -> str:
         )
     elif held is not None:
         text += f"; diag train's held-out RMSE was {held:.2f} % (on its last block)"
-    return text
+    from diag_plugin.training.heldout import narrow_note
+
+    return text + "".join("\n" + narrow_note(n) for n in s.get("heldout_narrow", []))
 
 
 def span_use(rb: RuleBase, X: np.ndarray) -> list[dict]:

@@ -77,9 +77,17 @@ SETS_GAIN = 0.03
 #: fewer set counts in a row, tried coarse to fine, that do not beat the best coarser one by
 #: :data:`SETS_GAIN` after which a thin candidate's finer (costlier) counts are not tried
 SETS_PATIENCE = 2
+#: fewer sets are suggested for a thin grid only when at most this share of the count
+FEWER_SHARE = 2 / 3
 #: a candidate covering fewer samples than the current model by more than this is thin
 #: (each sample it loses is scored with its nearest rule)
 COVERAGE_SLACK = 0.01
+
+
+def materially_fewer(fewer: int, sets: int) -> bool:
+    """Whether ``fewer`` sets are worth suggesting instead of ``sets``: at least 2 (one set
+    is no input) and at most :data:`FEWER_SHARE` of ``sets`` (30 beside 31 is no change)."""
+    return 2 <= fewer <= FEWER_SHARE * sets
 
 
 @dataclass
@@ -442,7 +450,13 @@ def _explain(
                 f"the rule grid would be thin ({r.per_cell:.0f} samples per rule, the fine grid "
                 f"answering {r.fine:.0%} of the samples; coarser rules answer the rest)"
                 # never fewer than 2 (one set is no input: the audit saw '--sets 1')
-                + (f": consider fewer sets, e.g. --sets {fewer}" if 2 <= fewer < r.sets else "")
+                # and only when materially fewer (at most FEWER_SHARE of the count: the
+                # valve's '--sets 30' beside 31 was noise, the i34-qa2 pass)
+                + (
+                    f": consider fewer sets, e.g. --sets {fewer}"
+                    if materially_fewer(fewer, r.sets)
+                    else ""
+                )
             )
         effect_of_y = False
         if kind == "tag":

@@ -66,11 +66,14 @@ def new_model(
             v if v.spec.startswith(("dir(", "hour(", "days(")) else replace(v, sets=auto)
             for v in ins
         ]
+        ins = _level_sets(ins, cols, auto, notes)
     if shape is None:
         shape = _chosen_shape(name, out, ins, frame, method, period, notes)
     if fixed is None and frame is not None:
         if len(ins) > 1 and not any(v.spec.startswith(("dir(", "hour(", "days(")) for v in ins):
+            capped = {v.spec: v.sets for v in ins if v.sets < auto}
             ins = _searched_sets(name, out, ins, frame, method, shape, period, auto, notes)
+            ins = [replace(v, sets=min(v.sets, capped.get(v.spec, v.sets))) for v in ins]
     rb = RuleBase.new(
         name,
         out,
@@ -83,6 +86,40 @@ def new_model(
     )
     rb.save()
     return RuleBase.load(path)
+
+
+#: the start of ``model new``'s line for an input whose sets its operating levels set
+LEVELS_NOTE = "operating levels:"
+
+
+def _level_sets(ins, cols, auto: int, notes: list[str] | None):
+    """``ins`` with an input that dwells at a few operating levels (a stepped command,
+    :func:`~diag_plugin.selection.sets.operating_levels`) given the fewest sets that keep
+    each level in a set of its own (:func:`~diag_plugin.selection.sets.sets_for_levels`)
+    where that is fewer than ``auto`` (what the data fill): more sets would train no more
+    rules, only a finer grid of empty cells (the i34-qa2 pass: 31 sets for a valve stepped
+    to 3 openings, 3 rules trained). What was chosen and why is appended to ``notes``."""
+    from diag_plugin.selection.sets import operating_levels, sets_for_levels
+
+    out = []
+    for v, col in zip(ins, cols, strict=True):
+        levels = None
+        if not v.spec.startswith(("dir(", "hour(", "days(")):
+            levels = operating_levels(col, v.span)
+        n = auto if levels is None else sets_for_levels(levels, v.span, auto)
+        if n < auto:
+            if notes is not None:
+                shown = ", ".join(f"{x:.4g}" for x in levels[:8]) + (
+                    ", …" if len(levels) > 8 else ""
+                )
+                notes.append(
+                    f"{LEVELS_NOTE} {v.spec} gets {n} sets, not the {auto} the data could fill: "
+                    f"it dwells at {len(levels)} operating levels ({shown}) and {n} sets keep "
+                    "each in a set of its own; more would train no more rules"
+                )
+            v = replace(v, sets=n)
+        out.append(v)
+    return out
 
 
 def _chosen_shape(name, out, ins, frame, method, period, notes) -> str:

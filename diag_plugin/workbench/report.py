@@ -273,6 +273,41 @@ def scatter_spec(rb: RuleBase, c: Comparison, explanation=None) -> tuple[str, st
     return None
 
 
+def _nothing_cuts(rb: RuleBase, explanation) -> str | None:
+    """A sentence when no candidate of ``explain`` that is not an input of the model cuts
+    the held-out error below :data:`~.explain.CUTS` × the model's (the resolution explain
+    calls "would cut"); None when one does or there is no explanation."""
+    from diag_plugin.workbench.explain import CUTS
+
+    if explanation is None:
+        return None
+    base = explanation.baseline_rmse_pct
+    mine = {v.spec for v in rb.inputs}
+    cands = [x for x in explanation.candidates if x.input not in mine]
+    if not cands or not np.isfinite(base):
+        return None
+    errs = [x.rmse_pct_if_added for x in cands if np.isfinite(x.rmse_pct_if_added)]
+    if any(e < CUTS * base for e in errs):
+        return None
+    best = min(errs) if errs else math.nan
+    own = sorted(
+        (x for x in explanation.candidates if x.input in mine),
+        key=lambda x: x.rmse_pct_if_added if np.isfinite(x.rmse_pct_if_added) else math.inf,
+    )
+    own = [x for x in own[:1] if x.rmse_pct_if_added < CUTS * base]
+    tail = (
+        f" diag explain's best change is to the model's own resolution ({own[0].effect})."
+        if own
+        else " What remains is noise, or an effect of something not among the tags."
+    )
+    return (
+        "No missing effect diag explain tried cuts the held-out error by more than "
+        f"{100 * (1 - CUTS):.0f} % (the model: {base:.2f} % of span; the best of "
+        f"{len(cands)} candidates: {best:.2f} %), so no chart of the residual against one "
+        "is drawn: it would read as if an effect were missing." + tail
+    )
+
+
 def residual_scatter(
     rb: RuleBase,
     c: Comparison,
@@ -289,6 +324,9 @@ def residual_scatter(
     pick = scatter_spec(rb, c, explanation)
     if frame is None or pick is None or not len(c.index):
         return None
+    none = _nothing_cuts(rb, explanation)
+    if none is not None:  # no chart reading as if an effect were missing (i34-qa2 pass)
+        return {"spec": pick[0], "why": pick[1], "none_cuts": True, "note": none}
     spec, why = pick
     from diag_plugin.regressors import build_design
 
@@ -659,6 +697,12 @@ def _time_section(levels: list[dict], c: Comparison, breaks: list[dict] | None =
 def _scatter_section(sc: dict | None) -> str:
     if sc is None:
         return ""
+    if sc.get("none_cuts"):
+        return f"""
+<section id="scatter">
+  <h2>Residual against a missing effect</h2>
+  <p class="note" id="scatter-none">{esc(sc["note"])}</p>
+</section>"""
     return f"""
 <section id="scatter">
   <h2>Residual against {esc(sc["spec"])}</h2>
