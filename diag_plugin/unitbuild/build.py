@@ -1114,7 +1114,7 @@ def _balance_tests(kept, names, taken, notes, ctx, sel, plan, *, workers, **plan
     ``notes``."""
     from diag_plugin.unitbuild import balance
 
-    todo = balance.balance_plans(kept, names, taken, ctx=sel, notes=notes, **plans)
+    todo = balance.balance_plans(kept, names, taken, **plans)
     out = []
     for bp, ch in zip(todo, map_tests(balance.choose_balance, todo, (ctx, sel, plan),
                                       workers=workers), strict=True):  # fmt: skip
