@@ -3,9 +3,8 @@
 scikit-learn's :class:`~sklearn.ensemble.HistGradientBoostingRegressor` fitted on the model's
 own design rows (its inputs, lags and derived inputs as the model sees them), on the same
 training rows, and scored on the same held-out rows, in % of the output's span (Kościelny
-et al., eq. 6), as ``benchmarks/bench_wm_vs_hgb.py`` compares them. scikit-learn is
-optional (``pip install -e '.[dev]'``) and imported only here, when a command asks for the
-baseline: without it the baseline says so instead of a figure.
+et al., eq. 6), as ``benchmarks/bench_wm_vs_hgb.py`` compares them. scikit-learn (a dependency) is
+imported only here, when a command asks for the baseline (``--no-baseline`` skips it).
 """
 
 from __future__ import annotations
@@ -53,8 +52,7 @@ def hgb_baseline(
     input there is left to HistGradientBoosting's own handling (the model's nearest rule
     stands in for it). Returns ``method``, ``params``, ``rmse_pct``, ``mae_pct``, ``rows``
     (``train``, ``held_out``) and ``seconds`` (wall time of the fit and the prediction, on
-    one thread); ``rmse_pct`` None with a ``note`` where there is nothing to fit or score,
-    or scikit-learn is not installed.
+    one thread); ``rmse_pct`` None with a ``note`` where there is nothing to fit or score.
     """
     out: dict = {"method": METHOD, "params": dict(PARAMS)}
     X_train, X_held = np.asarray(X_train, float), np.asarray(X_held, float)
@@ -65,10 +63,7 @@ def hgb_baseline(
     empty = {"rmse_pct": None, "mae_pct": None, "seconds": 0.0}
     if not tr.any() or not va.any():
         return {**out, **empty, "note": "no training or no held-out rows"}
-    try:
-        from sklearn.ensemble import HistGradientBoostingRegressor
-    except ImportError:
-        return {**out, **empty, "note": "scikit-learn is not installed (pip install scikit-learn)"}
+    from sklearn.ensemble import HistGradientBoostingRegressor
     from threadpoolctl import threadpool_limits
 
     t = time.perf_counter()
