@@ -235,6 +235,27 @@ class Alarm:
 #: (low, high) severity band per NE 107 status number; CHECK_FUNCTION is a fixed 500
 BANDS: dict[int, tuple[int, int]] = {1: (801, 1000), 3: (601, 800), 4: (301, 400)}
 CHECK_FUNCTION_SEVERITY = 500
+#: NE 107 statuses that raise a unit's alarm: faults (CHECK_FUNCTION is none)
+ALARM_STATUSES = frozenset({1, 3, 4})
+
+
+def condition(
+    status: int,
+    certainty: float,
+    was_on: bool,
+    was_severity: int,
+    statuses: frozenset[int] = ALARM_STATUSES,
+) -> tuple[bool, int]:
+    """A unit's alarm condition and severity for this cycle's NE 107 ``status`` (``certainty``
+    its top fault's): on in ``statuses`` at :func:`severity`, off otherwise; through
+    CHECK_FUNCTION (the diagnosis cannot be trusted) the last condition and severity hold
+    (``was_on``, ``was_severity``). The one rule of the OPC UA server's alarm and of the live
+    loop's own where no server keeps it."""
+    status = int(status)
+    if status == 2:
+        return was_on, was_severity
+    on = status in statuses
+    return on, severity(status, certainty) if on else 0
 
 
 def severity(status: int, certainty: float) -> int:

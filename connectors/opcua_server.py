@@ -56,7 +56,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from connectors.alarms import Alarm, AlarmState, Transition, severity
+from connectors.alarms import ALARM_STATUSES, Alarm, AlarmState, Transition, condition
 from connectors.base import TagSample
 from connectors.opcua_logins import LoginGuard, LoginLimits
 
@@ -73,8 +73,6 @@ NAMESPACE = "urn:diag-plugin:diagnosis"
 #: the simulated valve plant's measured tags served in the Plant folder (diag_plugin.simulate)
 DEFAULT_PLANT_TAGS: tuple[str, ...] = ("F", "CV", "X", "P0", "P1", "P2", "T1")
 NE107_NAMES = ("NORMAL", "FAILURE", "CHECK_FUNCTION", "OFF_SPEC", "MAINTENANCE_REQUIRED")
-#: NE 107 statuses that raise the unit's alarm: faults (CHECK_FUNCTION is none)
-ALARM_STATUSES = frozenset({1, 3, 4})
 #: the severity of a notice (a source out, the historian away): the maintenance band
 NOTICE_SEVERITY = 350
 #: security policy names (plant.toml) → asyncua's Basic256Sha256 policy types
@@ -717,12 +715,9 @@ class DiagOpcUaServer:
                 await self._write(node, value, vt, vcode, ts)
             top = max((v for v in status.certainties.values() if _finite(v)), default=0.0)
             was_on = self._condition.get(status.unit, False)
-            if int(status.status) == 2:  # the diagnosis cannot be trusted: hold the condition
-                on, sev, msg = was_on, n.alarm.severity, n.alarm.message
-            else:
-                on = int(status.status) in self.alarm_statuses
-                sev = severity(int(status.status), top) if on else 0
-                msg = self._alarm_message(status, top)
+            on, sev = condition(status.status, top, was_on, n.alarm.severity, self.alarm_statuses)
+            # through CHECK_FUNCTION the condition holds, and so does its message
+            msg = n.alarm.message if int(status.status) == 2 else self._alarm_message(status, top)
             self._condition[status.unit] = on
             shown = self._shown_severity(n)
             t = n.alarm.update(on, sev, msg, now=datetime.now(UTC))  # shelving: wall time

@@ -11,6 +11,7 @@ from connectors.alarms import (
     Alarm,
     AlarmInput,
     AlarmState,
+    condition,
     next_state,
     severity,
 )
@@ -154,3 +155,16 @@ def test_confirmation_after_acknowledge_part9():
     plain.acknowledge()
     plain.update(False)
     assert plain.confirmed and not plain.retain and not plain.confirm()
+
+
+def test_condition_holds_condition_and_severity_through_check_function():
+    """The one rule of the OPC UA server's alarm and the live loop's own: a fault status raises
+    it at its band's severity, NORMAL clears it, CHECK_FUNCTION keeps both as they were (the
+    loop's copy set the minor CHECK_FUNCTION severity, 500, where the server held the fault's)."""
+    on, sev = condition(1, 1.0, False, 0)
+    assert on and sev == 1000
+    assert condition(2, 0.0, on, sev) == (True, 1000)
+    assert condition(2, 0.0, False, 0) == (False, 0)
+    assert condition(0, 0.0, True, 1000) == (False, 0)
+    assert condition(3, float("nan"), False, 0) == (True, 601)
+    assert condition(3, 1.0, False, 0, statuses=frozenset({1})) == (False, 0)

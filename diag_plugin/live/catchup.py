@@ -58,8 +58,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-#: NE 107 statuses that raise a unit's alarm (the OPC UA server's rule; CHECK_FUNCTION holds)
-ALARM_STATUSES = frozenset({1, 3, 4})
+from connectors.alarms import ALARM_STATUSES  # the OPC UA server's rule; CHECK_FUNCTION holds
+
 CHECK_FUNCTION = 2
 #: the longest gap diagnosed; longer: the units only warm up on the last lead-in
 MAX_GAP_S = 7 * 86_400.0

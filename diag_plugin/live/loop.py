@@ -48,7 +48,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from connectors.alarms import Alarm, AlarmState, severity
+from connectors.alarms import Alarm, AlarmState, condition
 from connectors.base import TagQuality
 from diag_plugin.live.stale import StaleDetector
 from diag_plugin.status import NE107, Quality, UnitStatus
@@ -274,13 +274,9 @@ class LiveLoop:
         """The unit's alarm without an OPC UA server, driven as that server drives its own
         (:meth:`connectors.opcua_server.OpcUaServer.publish`): on in FAILURE, OFF_SPEC and
         MAINTENANCE_REQUIRED, held through CHECK_FUNCTION (the diagnosis cannot be trusted)."""
-        from diag_plugin.live.catchup import ALARM_STATUSES
-
         alarm = self._alarms.setdefault(s.unit, Alarm(s.unit))
-        code = int(s.status)
-        on = alarm.condition if code == int(NE107.CHECK_FUNCTION) else code in ALARM_STATUSES
         top = max((v for v in s.certainties.values() if math.isfinite(v)), default=0.0)
-        sev = severity(code, top) if on else 0
+        on, sev = condition(s.status, top, alarm.condition, alarm.severity)
         alarm.update(on, sev, now=datetime.now(UTC))
 
     async def _publish_alarm(self, unit: str) -> None:
