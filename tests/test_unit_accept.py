@@ -406,6 +406,10 @@ def test_a_period_too_short_to_be_an_operating_point_is_refused(tmp_path):
     rc, text = diag(g, "unit", "accept", "rig", "--from", fmt(other.index[0]),
                     "--to", fmt(other.index[-1] + pd.Timedelta(seconds=1)))  # fmt: skip
     assert rc == 2, text
-    assert "holds 150 samples of the unit's 1s grid" in text and "at least 200" in text, text
+    assert (
+        "unit rig: " in text
+        and "holds 150 samples of its 1s grid" in text
+        and "at least 200" in text
+    ), text
     assert unit_file.read_text(encoding="utf-8") == before
     assert not (tmp_path / "rb" / ".unit-backups").exists()

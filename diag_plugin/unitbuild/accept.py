@@ -249,7 +249,7 @@ def accept(
         # an operating point rests on the period: its merged rules, a level test's mean and
         # spread there, the combined test's point; no fewer samples than a build's window
         raise UserError(
-            f"{start} … {end} holds {rows} samples of the unit's {unit.period} grid; an "
+            f"unit {unit.name}: {start} … {end} holds {rows} samples of its {unit.period} grid; an "
             f"operating point needs at least {short.MIN_ROWS}, as a build's window does "
             "(confirm a longer period)"
         )
