@@ -29,12 +29,17 @@ BEFORE = 720  # the 3 h before it
 
 
 @pytest.fixture(scope="module")
-def unit(tmp_path_factory):
+def built(tmp_path_factory):
     folder = tmp_path_factory.mktemp("spread_restart")
     train = line7.simulate(3.0, seed=1)
     res = build_unit("line", train, folder=folder, period="15s", far=0.01, workers=1,
                      loops=[parse_loop(line7.LOOP)])  # fmt: skip
-    return Unit.load(res.path, folder)
+    return res.path, folder
+
+
+@pytest.fixture
+def unit(built):
+    return Unit.load(*built)
 
 
 @pytest.mark.parametrize("seed", [201, 202, 203])
@@ -54,6 +59,29 @@ def test_a_spread_test_comes_back_from_an_outage_at_its_level_not_from_zero(unit
         assert normal > 0
         # on main the first value after the outage was 0.1-0.3 % of the normal level
         assert first > 0.25 * normal, (name, first, normal)
+
+
+def test_the_live_fast_path_restarts_a_spread_test_as_the_replay_does(built):
+    """The live loop's stacked path (:class:`~diag_plugin.diagnose.plant.Plant`, one row a
+    cycle) marks its spread tests as the unit does: the same statuses and residuals through
+    the outage and after it."""
+    from helpers import plant_statuses, same_status
+
+    from diag_plugin.diagnose.plant import Plant
+
+    path, folder = built
+    run = line7.simulate(0.25, seed=202)
+    a = len(run) // 2
+    run.iloc[a - 200 : a - 200 + 150] = np.nan  # longer than the filter's max_gap (100)
+    fast = Plant.load([path], folder)
+    slow = Plant(Plant.load([path], folder).units, batched=False)
+    assert fast.fast == ["line"] and slow.slow == ["line"]
+    x, y = plant_statuses(fast, run)["line"], plant_statuses(slow, run)["line"]
+    for i, (p, q) in enumerate(zip(x, y, strict=True)):
+        same_status(p, q, i, exact=False)
+    spread = [k for k in x[0].residuals if k.endswith("_spread")]
+    back = [s.residuals[spread[0]] for s in x[a - 50 :] if np.isfinite(s.residuals[spread[0]])]
+    assert back and back[0] > 0.25 * np.nanmedian([s.residuals[spread[0]] for s in x[: a - 200]])
 
 
 def test_only_the_steady_columns_restart_at_their_value():
