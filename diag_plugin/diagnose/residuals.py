@@ -21,8 +21,8 @@ from typing import Any
 import numba
 import numpy as np
 import pandas as pd
-from scipy import signal
 
+from diag_plugin.diagnose.butter import butter_sos
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
 
@@ -119,7 +119,7 @@ class LowPass:
         self.wn = float(wn)
         self.order = int(order)
         self.max_gap = int(max_gap)
-        self.sos_ = signal.butter(self.order, self.wn, output="sos")
+        self.sos_ = butter_sos(self.order, self.wn)  # scipy.signal.butter's, bit for bit
         self.zi_: np.ndarray | None = None  # (m, n_sections, 2)
         self.gap_: np.ndarray | None = None  # (m,) consecutive NaNs at the end of the last call
 
