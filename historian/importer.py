@@ -983,6 +983,20 @@ def stored_conflicts(
     return count, first
 
 
+def check_tz(tz: str) -> None:
+    """Refuse a time zone that is not one (:class:`FileRefused`, nothing written) before the
+    file is read. A file whose times carry their offsets localises no naive time, so a
+    misspelt ``--tz`` was accepted there without a word (and on a file of naive times
+    refused by a message that did not name the option: ``No time zone found with key
+    Europe/Berln``)."""
+    try:
+        pd.Timestamp("2026-01-01").tz_localize(tz)
+    except Exception:  # noqa: BLE001 - unknown key, or not a string
+        raise FileRefused(
+            f"--tz {tz!r}: not a time zone (an IANA name such as Europe/Berlin, or UTC)"
+        ) from None
+
+
 def import_file(
     h: Historian,
     path: str | Path,
@@ -1027,6 +1041,7 @@ def import_file(
     if duplicates not in DUPLICATES:
         raise ValueError(f"duplicates must be one of {', '.join(DUPLICATES)}, not {duplicates!r}")
     path = Path(path)
+    check_tz(tz)
     parquet, columns, sample, dialect, notes = inspect_file(path, sep, decimal)
     tcol = pick_time_column(columns, time_column, sample, where=str(path))
     if len(columns) < 2:

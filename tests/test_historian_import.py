@@ -85,6 +85,24 @@ def test_tz_and_tags_csv(historian, tmp_path):
     assert (t["unit"], t["lo"], t["hi"]) == ("kPa", 0.0, 600.0)
 
 
+def test_a_misspelt_time_zone_is_refused_naming_the_option(tmp_path, capsys):
+    """``--tz`` that is no time zone: refused before the file is read (exit 2, nothing
+    written), whether the file's times carry offsets or not. On main a file with offsets
+    was imported with the misspelt zone accepted without a word, and a file of naive times
+    was refused by ``No time zone found with key Europe/Berln`` (the option not named)."""
+    db = f"sqlite:///{tmp_path / 'tz.db'}"
+    offsets = tmp_path / "offsets.csv"
+    offsets.write_text("Time,A\n2026-03-02 01:00:00+01:00,1\n2026-03-02 01:00:05+01:00,2\n")
+    naive = tmp_path / "naive.csv"
+    naive.write_text("Time,B\n2026-03-02 01:00:00,1\n2026-03-02 01:00:05,2\n")
+    for f in (offsets, naive):
+        assert main(["--db", db, "import", str(f), "--tz", "Europe/Berln"]) == 2
+        err = capsys.readouterr().err
+        assert "--tz 'Europe/Berln': not a time zone" in err
+    assert main(["--db", db, "import", str(offsets), "--tz", "Europe/Berlin"]) == 0
+    assert set(Historian.open(db).tags()["name"]) == {"A"}  # nothing of the refused ones
+
+
 def test_the_repeated_hour_at_the_clock_change_is_read_in_the_rows_order(historian, tmp_path):
     """Local times through the autumn clock change: the repeated hour is the first pass (CEST)
     then the second (CET), as the rows run; out of order, and a time the spring change skips,

@@ -1,6 +1,6 @@
-"""The replay's own Butterworth design and χ² levels against scipy's, bit for bit, and that
-``diag diagnose`` imports neither ``scipy.signal`` nor ``scipy.stats`` (issue 34: together
-0.8–0.9 CPU s of every process)."""
+"""The replay's own Butterworth design, step state and χ² levels against scipy's, bit for
+bit, and that ``diag diagnose`` imports neither ``scipy.signal`` nor ``scipy.stats`` (issue
+34: together 0.8–0.9 CPU s of every process)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy import signal, stats
 
-from diag_plugin.diagnose.butter import butter_sos, slowest_pole
+from diag_plugin.diagnose.butter import butter_sos, slowest_pole, sosfilt_zi
 from diag_plugin.diagnose.residuals import LowPass
 from diag_plugin.diagnose.unittags import chi2_isf, chi2_sf, same_level
 
@@ -34,6 +34,7 @@ def test_butter_sos_is_scipys_bit_for_bit(order):
         assert got.tobytes() == ref.tobytes(), (order, wn)
         poles = signal.sos2zpk(ref)[1]
         assert slowest_pole(ref) == float(np.abs(poles).max()), (order, wn)
+        assert sosfilt_zi(ref).tobytes() == signal.sosfilt_zi(ref).tobytes(), (order, wn)
 
 
 def test_butter_sos_refuses_what_scipy_refuses():
@@ -48,9 +49,11 @@ def test_lowpass_filters_as_with_scipys_sections():
     rng = np.random.default_rng(7)
     x = rng.normal(size=(500, 3))
     x[100:130, 1] = np.nan
-    ours = LowPass(0.05, order=5).transform(x)
-    ref = LowPass(0.05, order=5)
+    steady = [False, True, False]
+    ours = LowPass(0.05, order=5, max_gap=20, steady=steady).transform(x)
+    ref = LowPass(0.05, order=5, max_gap=20, steady=steady)
     ref.sos_ = signal.butter(5, 0.05, output="sos")
+    ref.zi_step_ = np.ascontiguousarray(signal.sosfilt_zi(ref.sos_))
     assert ours.tobytes() == ref.transform(x).tobytes()
 
 

@@ -48,9 +48,10 @@ def _ref_lowpass(self, r, overwrite=False):  # a new array whether or not overwr
         for s, e in zip(np.r_[0, cuts], np.r_[cuts, idx.size], strict=True):
             if e <= s:
                 continue
-            if before[s] > self.max_gap:
-                self.zi_[j] = 0.0
             at = idx[s:e]
+            if before[s] > self.max_gap:  # at rest, a steady column at its first value
+                steady = self.steady is not None and self.steady[j]
+                self.zi_[j] = self.zi_step_ * (a[at[0], j] if steady else 0.0)
             out[at, j], self.zi_[j] = signal.sosfilt(self.sos_, a[at, j], zi=self.zi_[j])
         self.gap_[j] = n - 1 - idx[-1]
     return wrap(out)

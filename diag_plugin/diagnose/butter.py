@@ -1,6 +1,7 @@
 """The digital Butterworth low-pass of :class:`~diag_plugin.diagnose.residuals.LowPass` in
-numpy alone: ``scipy.signal.butter(order, wn, output="sos")`` and the slowest pole of
-``scipy.signal.sos2zpk``, the same operations in the same order, so the same bits.
+numpy alone: ``scipy.signal.butter(order, wn, output="sos")``, ``scipy.signal.sosfilt_zi``
+and the slowest pole of ``scipy.signal.sos2zpk``, the same operations in the same order, so
+the same bits.
 
 Why not scipy.signal itself: importing it imports ``scipy.stats`` (its peak finding) and
 parses the docstrings of its array-API wrappers, 0.8–0.9 CPU s of every ``diag diagnose``
@@ -8,15 +9,16 @@ process (issue 34: 200,000 rows replayed in about 7 CPU s end to end, of which 1
 imports). What is ported is scipy 1.17's path for a digital low-pass with the default
 ``pairing="nearest"``: ``buttap`` → pre-warping → ``lp2lp_zpk`` → ``bilinear_zpk`` →
 ``zpk2sos`` (scipy, BSD-3-Clause; Copyright (c) 2001-2002 Enthought, Inc., 2003-2024 SciPy
-Developers). ``tests/test_lowpass_port.py`` compares both functions with scipy's bit for bit
-over orders 1–10 and cut-offs across (0, 1).
+Developers), and ``sosfilt_zi`` (``lfilter_zi`` per section: the companion matrix and
+``np.linalg.solve``). ``tests/test_lowpass_port.py`` compares the three with scipy's bit for
+bit over orders 1–10 and cut-offs across (0, 1).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["butter_sos", "slowest_pole"]
+__all__ = ["butter_sos", "slowest_pole", "sosfilt_zi"]
 
 
 def butter_sos(order: int, wn: float) -> np.ndarray:
@@ -60,6 +62,48 @@ def slowest_pole(sos: np.ndarray) -> float:
         if len(p):
             out = max(out, float(np.abs(p).max()))
     return out
+
+
+def sosfilt_zi(sos: np.ndarray) -> np.ndarray:
+    """``scipy.signal.sosfilt_zi(sos)``: each section's state (sections × 2) after a unit
+    step held forever, the sections' gains carried from one to the next."""
+    sos = np.asarray(sos)
+    if sos.ndim != 2 or sos.shape[1] != 6:
+        raise ValueError("sos must be shape (n_sections, 6)")
+    if np.issubdtype(sos.dtype, np.integer) or sos.dtype == np.bool_:
+        sos = sos.astype(np.float64)
+    zi = np.empty((sos.shape[0], 2), dtype=sos.dtype)
+    scale = 1.0
+    for section in range(sos.shape[0]):
+        b = sos[section, :3]
+        a = sos[section, 3:]
+        zi[section, ...] = scale * _lfilter_zi(b, a)
+        scale *= np.sum(b) / np.sum(a)
+    return zi
+
+
+def _lfilter_zi(b: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """scipy.signal's ``lfilter_zi`` of one section (1-D ``b`` and ``a``)."""
+    while a.shape[0] > 1 and a[0] == 0.0:
+        a = a[1:]
+    if a.size < 1:
+        raise ValueError("There must be at least one nonzero `a` coefficient.")
+    if a[0] != 1.0:
+        b = b / a[0]
+        a = a / a[0]
+    n = max(a.shape[0], b.shape[0])
+    if a.shape[0] < n:
+        a = np.concatenate((a, np.zeros(n - a.shape[0], dtype=a.dtype)))
+    elif b.shape[0] < n:
+        b = np.concatenate((b, np.zeros(n - b.shape[0], dtype=b.dtype)))
+    dt = np.result_type(a, b)
+    # scipy.linalg.companion(a)
+    first_row = -a[1:] / (1.0 * a[0:1])
+    companion = np.zeros((n - 1, n - 1), dtype=first_row.dtype)
+    companion[0, :] = first_row
+    companion[np.arange(1, n - 1), np.arange(0, n - 2)] = 1
+    i_minus_a = np.asarray(np.eye(n - 1) - companion.T, dtype=dt)
+    return np.linalg.solve(i_minus_a, b[1:] - a[1:] * b[0])
 
 
 def _zpk2sos(z: np.ndarray, p: np.ndarray, k) -> np.ndarray:

@@ -235,11 +235,15 @@ class Plant:
             keys.setdefault(
                 (ev["lowpass"], ev["order"], band, ev["on_delay"], ev["off_delay"]), []
             ).append(i)
+        # a spread test's filter restarts after a gap at its value, not at rest (LowPass)
+        is_spread = np.array(
+            [units[s.unit].file.tests[s.test].statistic == "spread" for s in slots], bool
+        )
         for (wn, order, band, on, off), idx in keys.items():
             self._stages.append(
                 (
                     np.array(idx, np.intp),
-                    LowPass(wn, order) if wn > 0 else None,
+                    LowPass(wn, order, steady=is_spread[idx]) if wn > 0 else None,
                     Deadband(band, len(idx)),
                     OnOffDelay(on, off),
                     on - 1,
@@ -436,6 +440,8 @@ class Plant:
         stages = []
         for (idx, _lp, band, _delay, hold), st in zip(self._stages, state["stages"], strict=True):
             lp = None if st["lowpass"] is None else LowPass.from_state(st["lowpass"])
+            if lp is not None and _lp is not None:  # a state saved before it has no steady
+                lp.steady = _lp.steady
             band.state = _array(st["deadband"])
             stages.append((idx, lp, band, OnOffDelay.from_state(st["delay"]), hold))
         self._stages = stages

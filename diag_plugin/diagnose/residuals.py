@@ -22,7 +22,7 @@ import numba
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.butter import butter_sos
+from diag_plugin.diagnose.butter import butter_sos, sosfilt_zi
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
 
@@ -66,13 +66,15 @@ def _per_column(value: Any, columns: Any, m: int, what: str) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _lowpass_kernel(x, sos, zi, gap, max_gap, out):  # pragma: no cover - numba
+def _lowpass_kernel(x, sos, zi, gap, max_gap, steady, zi_step, out):  # pragma: no cover
     """``x`` (samples × columns) filtered into ``out`` (its shape; ``x`` itself to filter in
     place: each value is read before it is written) by the second-order sections ``sos``
     from the state ``zi`` (columns × sections × 2), skipping non-finite samples (NaN out,
-    state held), the state back at rest after more than ``max_gap`` of them; ``zi`` and
-    ``gap`` advanced. Row by row, so the samples are read in memory order; each column's
-    recursion is its own."""
+    state held), the state back at rest after more than ``max_gap`` of them — or, for a
+    column marked ``steady``, at the steady state of the sample that ends the gap
+    (``zi_step`` × that sample: ``sosfilt_zi``, the state after a step held forever);
+    ``zi`` and ``gap`` advanced. Row by row, so the samples are read in memory order; each
+    column's recursion is its own."""
     n, m = x.shape
     ns = sos.shape[0]
     for i in range(n):
@@ -83,9 +85,10 @@ def _lowpass_kernel(x, sos, zi, gap, max_gap, out):  # pragma: no cover - numba
                 gap[j] += 1
                 continue
             if gap[j] > max_gap:
+                level = x_cur if steady[j] else 0.0
                 for s in range(ns):
-                    zi[j, s, 0] = 0.0
-                    zi[j, s, 1] = 0.0
+                    zi[j, s, 0] = zi_step[s, 0] * level
+                    zi[j, s, 1] = zi_step[s, 1] * level
             gap[j] = 0
             for s in range(ns):
                 x_new = sos[s, 0] * x_cur + zi[j, s, 0]
@@ -111,15 +114,31 @@ class LowPass:
     consecutive NaN samples (default 100 = 1/wn, about the filter's memory) the state is reset
     to rest at the next finite sample, so a stale pre-gap value does not leak into new data.
     The gap counter is carried across chunks too.
+
+    ``steady``: per column whether it restarts after such a gap at the steady state of its
+    first sample instead of at rest — for a column whose normal value is far from zero, as a
+    running spread (a valve-stiction test's statistic, always positive) is: from rest it
+    would ramp up from zero, a deviation below its normal level as large as the level itself
+    (on a 5 s boiler unit after a 1.5 h outage the combined T² read 304 against a limit of 111,
+    a false alarm of 9 minutes; docs/reference/units.md). Default: none.
     """
 
-    def __init__(self, wn: float = 0.01, order: int = 4, max_gap: int = 100) -> None:
+    def __init__(
+        self,
+        wn: float = 0.01,
+        order: int = 4,
+        max_gap: int = 100,
+        steady: np.ndarray | list[bool] | None = None,
+    ) -> None:
         if not 0.0 < wn < 1.0:
             raise ValueError("wn must be in (0, 1) (1.0 = Nyquist = π rad/sample)")
         self.wn = float(wn)
         self.order = int(order)
         self.max_gap = int(max_gap)
+        self.steady = None if steady is None else np.asarray(steady, bool).copy()
         self.sos_ = butter_sos(self.order, self.wn)  # scipy.signal.butter's, bit for bit
+        #: the state after a unit step held forever (a steady column's restart, × its sample)
+        self.zi_step_ = np.ascontiguousarray(sosfilt_zi(self.sos_))  # scipy.signal's
         self.zi_: np.ndarray | None = None  # (m, n_sections, 2)
         self.gap_: np.ndarray | None = None  # (m,) consecutive NaNs at the end of the last call
 
@@ -151,7 +170,17 @@ class LowPass:
         x = np.ascontiguousarray(a)
         inplace = overwrite and x is a and isinstance(r, np.ndarray) and x.ndim == r.ndim
         out = x if inplace else np.empty_like(x)
-        return wrap(_lowpass_kernel(x, self.sos_, self.zi_, self.gap_, self.max_gap, out))
+        if self.steady is None:
+            steady = np.zeros(m, np.bool_)
+        elif len(self.steady) != m:
+            raise ValueError(f"steady has {len(self.steady)} columns, input has {m}")
+        else:
+            steady = self.steady
+        return wrap(
+            _lowpass_kernel(
+                x, self.sos_, self.zi_, self.gap_, self.max_gap, steady, self.zi_step_, out
+            )
+        )
 
     def to_state(self) -> dict[str, Any]:
         """Parameters and carried state as plain JSON-able values."""
@@ -159,6 +188,7 @@ class LowPass:
             "wn": self.wn,
             "order": self.order,
             "max_gap": self.max_gap,
+            "steady": None if self.steady is None else self.steady.tolist(),
             "zi": None if self.zi_ is None else self.zi_.tolist(),
             "gap": None if self.gap_ is None else self.gap_.tolist(),
         }
@@ -166,7 +196,12 @@ class LowPass:
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> LowPass:
         """Rebuild a filter from :meth:`to_state` output."""
-        f = cls(wn=state["wn"], order=state["order"], max_gap=state["max_gap"])
+        f = cls(
+            wn=state["wn"],
+            order=state["order"],
+            max_gap=state["max_gap"],
+            steady=state.get("steady"),  # states saved before it restart every column at rest
+        )
         if state.get("zi") is not None:
             f.zi_ = np.asarray(state["zi"], dtype=float)
             f.gap_ = np.asarray(state["gap"], dtype=np.int64)

@@ -524,11 +524,23 @@ class Unit:
         return tests and (not self.ev["combined"] or (c is not None and c.high is not None))
 
     # ------------------------------------------------------------ state
+    def _steady(self) -> np.ndarray:
+        """Per test whether its filter restarts after a gap at its first value rather than
+        at rest (:class:`LowPass` ``steady``): the spread tests, whose normal value is
+        their loop's running spread, never near zero."""
+        steady = np.zeros(len(self.tests), bool)
+        steady[self.spread_cols] = True
+        return steady
+
     def reset(self) -> Unit:
         """Start from rest: no history, filters at zero, no symptom on."""
         self.builders = {n: m.builder() for n, m in self.models.items()}
         ev = self.ev
-        self.lowpass = LowPass(ev["lowpass"], ev["order"]) if ev["lowpass"] > 0 else None
+        self.lowpass = (
+            LowPass(ev["lowpass"], ev["order"], steady=self._steady())
+            if ev["lowpass"] > 0
+            else None
+        )
         self.delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
         self.latched = np.zeros(len(self.tests))
         self.held = np.full(len(self.tests), np.nan)  # last known symptom per test
@@ -575,6 +587,7 @@ class Unit:
             b.load_state(state["builders"][n])
         if self.lowpass is not None and state.get("lowpass"):
             self.lowpass = LowPass.from_state(state["lowpass"])
+            self.lowpass.steady = self._steady()  # a state saved before it has none
         self.delay = OnOffDelay.from_state(state["delay"])
         self.latched = np.asarray(state["latched"], float)
         self.held = np.array([np.nan if v is None else v for v in state["held"]], float)

@@ -173,7 +173,11 @@ def _training_range(rb) -> tuple[pd.Timestamp, pd.Timestamp] | None:
 
 
 def block_of(
-    index: pd.DatetimeIndex, blocks: int, data: np.ndarray | None = None, within: bool = False
+    index: pd.DatetimeIndex,
+    blocks: int,
+    data: np.ndarray | None = None,
+    within: bool = False,
+    runs: np.ndarray | None = None,
 ) -> np.ndarray:
     """Time block (0 … blocks − 1) of each timestamp. A window of several runs (stretches of
     data separated by more than :data:`RUN_GAP` samples without, ``data`` False) is cut between
@@ -181,16 +185,22 @@ def block_of(
     residuals come from models that never saw it); otherwise equal spans of time. ``within``
     (and ``data``): each run cut into ``blocks`` equal spans of its own, block ``b`` the
     ``b``-th of every run (``diag unit accept``: each window an operating point, so a block
-    held out leaves the models most of every point)."""
+    held out leaves the models most of every point). ``runs``: each row's run given (the
+    caller knows where its runs are: ``diag unit accept``'s windows), not found from the
+    gaps in ``data``."""
+    if runs is not None:
+        if len(runs) != len(index):
+            raise ValueError(f"runs has {len(runs)} rows, the index {len(index)}")
+        data = np.ones(len(index), bool)  # the runs are given: only their sizes matter
     if within and data is not None and data.size == len(index):
-        run = _runs(data)
+        run = _runs(data) if runs is None else np.asarray(runs, np.int64)
         out = np.zeros(len(index), np.int64)
         for r in np.unique(run):
             rows = np.flatnonzero(run == r)
             out[rows] = block_of(index[rows], blocks)
         return out
     if data is not None and data.size == len(index):
-        run = _runs(data)
+        run = _runs(data) if runs is None else np.asarray(runs, np.int64)
         n = int(run.max()) + 1 if run.size else 0
         if n >= 2:
             groups = min(blocks, n)
@@ -245,16 +255,17 @@ def test_residuals(
     cross_fit: bool | None,
     mapper: Mapper | None = None,
     by_run: bool | str = True,
+    runs: np.ndarray | None = None,
 ) -> dict[str, TestResiduals]:
     """Raw residuals of every test over ``frame``, each block's from a model that did not see
     that block (see :func:`held_out`); ``cross_fit`` False: the models' own residuals;
     ``by_run`` False: equal time blocks even where the window holds several runs;
     :data:`WITHIN_RUNS`: every run cut into equal time blocks (:func:`block_of`). Each
     test's are independent of the others': ``mapper`` may compute them in several
-    processes."""
+    processes. ``runs``: each row's run, where the caller knows them (:func:`block_of`)."""
     frame = unit._model_frame(frame)
     names = [t.name for t in unit.file.tests]
-    args = (unit, frame, blocks, cross_fit, by_run)
+    args = (unit, frame, blocks, cross_fit, by_run, runs)
     got = (mapper or _serial)(_test_residual, names, args)
     missing = [r for r in got if isinstance(r, str)]
     if missing:
@@ -269,6 +280,7 @@ def _test_residual(
     blocks: int,
     cross_fit: bool | None,
     by_run: bool | str = True,
+    given: np.ndarray | None = None,
 ) -> TestResiduals | str:
     """One test's residuals for :func:`test_residuals` (a message if the window lacks a tag
     its model reads)."""
@@ -288,7 +300,8 @@ def _test_residual(
         data = frame.notna().any(axis=1).to_numpy()
         runs = data if by_run else None
         within = by_run == WITHIN_RUNS
-        block = block_of(frame.index, blocks, runs, within)[rows] if len(rows) else rows
+        block = block_of(frame.index, blocks, runs, within, given if by_run else None)
+        block = block[rows] if len(rows) else rows
         pred, source = held_out(
             RuleBase.load(m.path), m.model, d, block, blocks, t.name, force=bool(cross_fit)
         )
@@ -457,6 +470,7 @@ def learn_thresholds(
     by_run: bool | str = True,
     mapper: Mapper | None = None,
     points: pd.DataFrame | None = None,
+    runs: np.ndarray | None = None,
 ) -> Learned:
     """Thresholds of every test of ``unit`` from a window the user declares fault-free
     (``frames``: consecutive pieces of it), holding the unit to ``far`` false alarms per hour
@@ -470,7 +484,9 @@ def learn_thresholds(
     operating points (``diag unit accept``: one row per window it learned, the window's mean
     of each plant tag); with two or more, the combined test's residuals are centred at each
     sample's nearest point and its scale and covariance are the pooled within-point ones
-    (:func:`learn_combined`)."""
+    (:func:`learn_combined`). ``runs``: each row's run (of the window ``frames`` make), where
+    the caller knows them — accept's windows, however close in time — instead of runs found
+    from gaps of more than :data:`RUN_GAP` rows (:func:`block_of`)."""
     if blocks < 0 or blocks == 1:
         raise LearnError([f"blocks must be 0 (no cross-fitting) or at least 2, got {blocks}"])
     frame = _window(frames)
@@ -486,7 +502,7 @@ def learn_thresholds(
                     [f"test {t.name}: the maximum of {out} over the window is not positive"]
                 )
             t.ymax = ymax[t.name] = m
-    res = test_residuals(unit, frame, blocks, cross_fit, mapper, by_run)
+    res = test_residuals(unit, frame, blocks, cross_fit, mapper, by_run, runs)
     problems = _check(res, unit)
     if problems:
         raise LearnError(problems)
@@ -503,7 +519,7 @@ def learn_thresholds(
     lp = {}
     if unit.ev["combined"] or unit.ev["isolation"] == "tags":
         blocked = block_of(frame.index, max(blocks, 1), data if by_run else None,
-                           by_run == WITHIN_RUNS)  # fmt: skip
+                           by_run == WITHIN_RUNS, runs if by_run else None)  # fmt: skip
         lp = level_points(unit, frame, res, at, keep, blocked)
     # each test's residual, in units of its model's local spread where the model has one,
     # divided by the scale of the level that answered
