@@ -23,7 +23,8 @@ outputs identical (md5). Round two (branch ``i34-cli100k``: no scipy.signal nor 
 imported, the intervals per distinct why, nothing concatenated the JSON does not read), the
 same protocol at a load of 12–17: ``--json`` 10.74 → 8.96 CPU s (18,630 → 22,330 rows per
 CPU s; imports 2.28 → 1.32, the rest 1.61 → 0.68), ``--json --csv`` 18.62 → 15.43 CPU s
-(10,740 → 12,960). 100,000 rows per CPU s is out of reach at any ``--rows`` here: ~2.6 CPU s
+(10,740 → 12,960); after merging main, 3 pairs at a load of 9: ``--json`` 8.48 → 7.09 CPU s
+(23,590 → 28,200). 100,000 rows per CPU s is out of reach at any ``--rows`` here: ~2.6 CPU s
 fixed (1 row) and 28–32 µs a row at that load, ~8 of them the SQLite read of 46 tags.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
