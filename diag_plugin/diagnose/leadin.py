@@ -16,6 +16,7 @@ import dataclasses
 import math
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 #: the longest lead-in ``diag diagnose --from`` reads (the default chunk: one more read at most)
@@ -41,14 +42,15 @@ def lead_in_parts(unit: Any) -> dict[str, int]:
     samples at the default cut-off 0.01); ``delays``, the on/off delays (with the unit's own
     off-delay, that once more). State that depends on all history (a latch, a held isolation,
     ``dir()`` inputs) starts at the lead-in's start."""
-    from diag_plugin.diagnose.butter import slowest_pole
+    from scipy import signal
 
     ev = unit.ev
     out = {"lags": max((b.history for b in unit.builders.values()), default=0)}
     out["spread"] = 2 * unit.spread.window if unit.spread_cols.size else 0
     out["filter"] = 0
     if unit.lowpass is not None:
-        slowest = slowest_pole(unit.lowpass.sos_)  # of scipy.signal.sos2zpk's poles
+        _, poles, _ = signal.sos2zpk(unit.lowpass.sos_)
+        slowest = float(np.abs(poles).max())
         if 0 < slowest < 1:
             out["filter"] = math.ceil(math.log(SETTLED) / math.log(slowest))
     alarm = ev["off_delay"] if unit.alarm_hold else 0

@@ -21,8 +21,8 @@ from typing import Any
 import numba
 import numpy as np
 import pandas as pd
+from scipy import signal
 
-from diag_plugin.diagnose.butter import butter_sos, sosfilt_zi
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
 
@@ -136,9 +136,9 @@ class LowPass:
         self.order = int(order)
         self.max_gap = int(max_gap)
         self.steady = None if steady is None else np.asarray(steady, bool).copy()
-        self.sos_ = butter_sos(self.order, self.wn)  # scipy.signal.butter's, bit for bit
+        self.sos_ = signal.butter(self.order, self.wn, output="sos")
         #: the state after a unit step held forever (a steady column's restart, × its sample)
-        self.zi_step_ = np.ascontiguousarray(sosfilt_zi(self.sos_))  # scipy.signal's
+        self.zi_step_ = np.ascontiguousarray(signal.sosfilt_zi(self.sos_))
         self.zi_: np.ndarray | None = None  # (m, n_sections, 2)
         self.gap_: np.ndarray | None = None  # (m,) consecutive NaNs at the end of the last call
 

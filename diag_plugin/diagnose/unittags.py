@@ -85,6 +85,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
+from scipy import stats
 
 from diag_plugin.diagnose.matrix import DiagnosticMatrix
 from diag_plugin.diagnose.unitfile import CombinedSpec
@@ -837,8 +838,8 @@ def same_level(q: np.ndarray, df: np.ndarray, T: int) -> np.ndarray:
 
     q = np.asarray(q, float)
     df = np.broadcast_to(np.asarray(df, float), q.shape)
-    sf = chi2_sf(q, df)
-    out = chi2_isf(sf, T)
+    sf = stats.chi2.sf(q, df)
+    out = stats.chi2.isf(sf, T)
     far = np.isfinite(q) & ~np.isfinite(out)
     if far.any():
 
@@ -862,43 +863,6 @@ def same_level(q: np.ndarray, df: np.ndarray, T: int) -> np.ndarray:
                 - level
             )
         out[far] = 2.0 * x
-    return out
-
-
-def chi2_sf(x: np.ndarray, df: np.ndarray) -> np.ndarray:
-    """``scipy.stats.chi2.sf(x, df)`` of arrays of one shape, the same values: NaN where
-    ``x`` is NaN or ``df`` is not positive, 1 at ``x ≤ 0``, 0 at ``x = +inf``, else
-    ``scipy.special.chdtrc`` (what ``chi2.sf`` calls there). ``scipy.stats`` is not imported:
-    that took 0.7 CPU s of every ``diag diagnose`` process (issue 34)."""
-    from scipy import special
-
-    x = np.asarray(x, float)
-    df = np.asarray(df, float)
-    ok = df > 0
-    out = np.zeros(x.shape)
-    out[~ok | np.isnan(x)] = np.nan
-    out[ok & (x <= 0)] = 1.0
-    inner = ok & (x > 0) & (x < np.inf)
-    if inner.any():
-        out[inner] = special.chdtrc(df[inner], x[inner])
-    return out
-
-
-def chi2_isf(p: np.ndarray, df: float) -> np.ndarray:
-    """``scipy.stats.chi2.isf(p, df)`` of an array ``p`` and one ``df``, the same values:
-    NaN where ``p`` is NaN or outside [0, 1] or ``df`` is not positive, 0 at ``p = 1``, +inf
-    at ``p = 0``, else ``scipy.special.chdtri`` (``× 1 + 0`` as scipy's scale and location)."""
-    from scipy import special
-
-    p = np.asarray(p, float)
-    out = np.full(p.shape, np.nan)
-    if not df > 0:
-        return out
-    out[p == 1] = 0.0
-    out[p == 0] = np.inf
-    inner = (p > 0) & (p < 1)
-    if inner.any():
-        out[inner] = special.chdtri(float(df), p[inner]) * 1.0 + 0.0
     return out
 
 
