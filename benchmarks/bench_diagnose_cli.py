@@ -17,9 +17,18 @@ DIR), this interpreter; ``--tree`` may be given twice to interleave two checkout
 (medians printed per checkout). The JSON and CSV outputs' md5 are printed per checkout.
 
 Figures (issue 34, branch ``i34-diagcli``; ``main`` and the branch interleaved, 5 runs each,
-medians, load 5–11 on 2 shared cores): ``--json --csv`` 28.26 → 12.78 CPU s (7,080 → 15,660
-rows per CPU s; the CSV 19.8 → 6.0 s), ``--json`` 8.27 → 7.03 CPU s (24,200 → 28,500);
-outputs identical (md5). Details: docs/how-to/unit-short-windows.md, "Speed".
+medians, load 5–11 on 2 shared cores): ``--json --csv`` 28.26 → 12.78 CPU s (7,080 → 15,660 rows
+per CPU s; the CSV 19.8 → 6.0 s), ``--json`` 8.27 → 7.03 CPU s (24,200 → 28,500); outputs
+identical (md5). Round two (branch ``i34-cli100k``: no scipy.signal nor scipy.stats imported — a
+port of the filter design, not landed —, the intervals per distinct why, nothing concatenated
+the JSON does not read), the same protocol at a load of 12–17: ``--json`` 10.74 → 8.96 CPU s
+(18,630 → 22,330 rows per CPU s; imports 2.28 → 1.32, the rest 1.61 → 0.68), ``--json --csv``
+18.62 → 15.43 CPU s (10,740 → 12,960); after merging main, 3 pairs at a load of 9: ``--json``
+8.48 → 7.09 CPU s (23,590 → 28,200). As landed, without the port, 5 pairs at a load of 10–12:
+``--json`` 9.18 → 7.87 CPU s (21,790 → 25,420). 100,000 rows per CPU s is out of reach at any
+``--rows`` here: ~2.6 CPU s fixed (1 row) and 28–32 µs a row at that load, ~8 of them the SQLite
+read of 46 tags.
+Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
 [--tree /tmp/main --tree .]``.

@@ -66,7 +66,9 @@ class Sampling:
 def sampling_of(tag: str, ts: np.ndarray) -> Sampling:
     """The :class:`Sampling` of sorted sample times ``ts`` (int µs); repeated times count
     once."""
-    ts = np.unique(np.asarray(ts, dtype=np.int64))
+    ts = np.asarray(ts, dtype=np.int64)
+    if not (ts[1:] > ts[:-1]).all():  # strictly increasing (as read) is unique and sorted:
+        ts = np.unique(ts)  # the sort cost 0.12 CPU s for 46 tags' 20,000 (issue 34)
     if len(ts) < 2:
         return Sampling(tag, len(ts), 0, 0)
     d = np.diff(ts)

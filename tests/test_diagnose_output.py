@@ -112,3 +112,37 @@ def test_default_pieces_give_the_outputs_of_weekly_pieces(tmp_path, capsys):
     assert '"FAILURE"' in out["auto"][0]
     table = pd.read_csv(tmp_path / "auto.csv", keep_default_na=False, index_col="ts")
     assert len(table) == len(frame)
+
+
+def test_summary_is_the_same_with_and_without_the_csv(tmp_path, capsys):
+    """Without ``--csv`` the pieces' residuals, certainties and tags are not joined (issue 34):
+    the JSON and the timeline are those of a run that writes the CSV, on a historian with
+    gaps, NaN and Bad-quality samples, read in 2-day pieces and from ``--from``."""
+    from historian.quality import BAD, GOOD
+    from historian.store import Historian
+
+    onset = pd.Timestamp("2026-01-04T06:00", tz="UTC")
+    frame = simulate_valve(6, seed=8034, faults=[FaultSpec("f14", -0.3, onset)])
+    rng = np.random.default_rng(34)
+    frame = frame.mask(rng.random(frame.shape) < 0.003)  # single missing samples
+    frame = frame.drop(frame.index[20_000:21_500])  # a gap of all tags
+    quality = pd.DataFrame(GOOD, index=frame.index, columns=frame.columns)
+    quality.iloc[30_000:30_400, 1] = BAD
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    with Historian.open(url) as h:
+        h.write_samples(frame, quality)
+    base = ["--db", url, "--rulebases", str(SHIPPED), "diagnose", "valve_unit", "--chunk", "2D"]
+    for extra in ([], ["--from", "2026-01-02T03:00"]):
+        for fmt in (["--json"], []):
+            assert main([*base, *extra, *fmt]) == 0
+            alone = capsys.readouterr().out
+            csv = tmp_path / "out.csv"
+            assert main([*base, *extra, *fmt, "--csv", str(csv)]) == 0
+            with_csv = capsys.readouterr().out
+            if fmt:
+                assert alone == with_csv
+                assert '"FAILURE"' in alone and '"CHECK_FUNCTION"' in alone
+            else:  # the timeline, then the CSV's name
+                assert "timeline" in alone
+                assert with_csv.startswith(alone)  # then "wrote FILE" (wrapped when long)
+                assert with_csv[len(alone) :].startswith("wrote")

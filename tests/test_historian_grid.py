@@ -81,3 +81,23 @@ def test_an_open_window_ends_at_the_last_samples_nearest_grid_point(tmp_path, of
     assert w.index[-1] == nearest[-1]  # the last sample's own grid point is in the window
     got = w["T"].dropna()
     assert list(got.index) == nearest and got.tolist() == list(range(n))
+
+
+def test_sampling_of_sorted_unsorted_and_repeated_times_alike():
+    """``sampling_of`` skips the sort of times read in order (issue 34): the same figures as
+    of the distinct sorted times, for times in order, shuffled and with repeats."""
+    from historian.sampling import Sampling, sampling_of
+
+    rng = np.random.default_rng(34)
+    ts = np.cumsum(rng.integers(1, 30_000_000, 5_000)).astype(np.int64)
+
+    def reference(t):
+        u = np.unique(t)
+        med, q95 = np.quantile(np.diff(u), [0.5, 0.95])
+        return Sampling("x", len(u), int(round(med)), int(round(q95)))
+
+    for t in (ts, rng.permutation(ts), np.sort(np.r_[ts, ts[::7]]), ts[::-1]):
+        assert sampling_of("x", t) == reference(t)
+    assert sampling_of("x", ts[:1]) == Sampling("x", 1, 0, 0)
+    assert sampling_of("x", np.r_[ts[:1], ts[:1]]) == Sampling("x", 1, 0, 0)
+    assert sampling_of("x", np.empty(0, np.int64)) == Sampling("x", 0, 0, 0)
