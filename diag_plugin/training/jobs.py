@@ -24,6 +24,7 @@ from pathlib import Path
 import pandas as pd
 from sqlalchemy.engine import make_url
 
+from diag_plugin.cliargs import table_console
 from diag_plugin.metrics import coverage_note, levels_note
 from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase.backups import backups
@@ -128,6 +129,7 @@ def train_one(
             )
         finally:
             reader.close()
+        seconds = time.perf_counter() - started  # the training's (the baseline has its own)
         rb.apply_training(
             res.model,
             {
@@ -146,6 +148,13 @@ def train_one(
         )
         rb.save()
         metrics = {k: v for k, v in res.validation.items() if not _is_nan(v)}
+        hgb = None
+        if res.design is not None and res.validation.get("samples"):
+            from diag_plugin.training.baseline import hgb_baseline
+
+            span = rb.output.span[1] - rb.output.span[0]
+            hgb = hgb_baseline(*res.design, span)
+            metrics.update(baseline_metrics(hgb))
         version = len(h.experiments(rb.name)) + 1
         h.record_model_version(rb.name, str(version), rb.dumps())
         h.record_experiment(
@@ -157,14 +166,20 @@ def train_one(
             {**metrics, "rules": res.size, "trained_samples": res.samples},
         )
     out = {"model": rb.name, "version": version, **res.as_dict()}
-    out["seconds"] = round(time.perf_counter() - started, 3)
+    out["seconds"] = round(seconds, 3)
     out["rulebase"] = str(path)
-    if res.design is not None and res.validation.get("samples"):
-        from diag_plugin.training.baseline import hgb_baseline
-
-        span = rb.output.span[1] - rb.output.span[0]
-        out["baseline"] = hgb_baseline(*res.design, span)
+    if hgb is not None:
+        out["baseline"] = hgb
     return out
+
+
+def baseline_metrics(b: Mapping | None) -> dict:
+    """The HistGradientBoosting baseline's held-out figures as an experiment records them
+    (``hgb_baseline_rmse_pct``, ``hgb_baseline_mae_pct``, on the same held-out rows as the
+    model's ``rmse_pct``); empty where none was computed."""
+    if not b or b.get("rmse_pct") is None:
+        return {}
+    return {"hgb_baseline_rmse_pct": b["rmse_pct"], "hgb_baseline_mae_pct": b["mae_pct"]}
 
 
 def heldout_note(r: Mapping) -> str:
@@ -329,7 +344,6 @@ class _progress:
 
 
 def cmd_experiments(args) -> int:
-    from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
@@ -345,7 +359,9 @@ def cmd_experiments(args) -> int:
             "created_at",
             "inputs",
             "rmse_pct",
+            "hgb_baseline_rmse_pct",
             "mae_pct",
+            "hgb_baseline_mae_pct",
             "coverage",
             "samples",
             "data_from",
@@ -367,7 +383,15 @@ def cmd_experiments(args) -> int:
             print(f"earlier file kept: {b}")
         return 0
     t = Table(title=escape(f"experiments of {name}"))
-    for c in ("version", "created", "inputs", "held-out RMSE %", "MAE %", "coverage"):
+    for c in (
+        "version",
+        "created",
+        "inputs",
+        "held-out RMSE %",
+        "HGB baseline RMSE %",
+        "MAE %",
+        "coverage",
+    ):
         t.add_column(c)
     for rec in df.to_dict("records"):
         t.add_row(
@@ -375,10 +399,16 @@ def cmd_experiments(args) -> int:
             str(rec.get("created_at"))[:19],
             escape(", ".join(rec.get("inputs") or [])),
             _fmt(rec.get("rmse_pct"), ".2f"),
+            _fmt(rec.get("hgb_baseline_rmse_pct"), ".2f"),
             _fmt(rec.get("mae_pct"), ".2f"),
             _fmt(rec.get("coverage"), ".1%") + (" ⚠" if coverage_note(rec) else ""),
         )
-    Console().print(t)
+    table_console().print(t)
+    print(
+        "HGB baseline: scikit-learn's HistGradientBoostingRegressor on the version's inputs, "
+        "trained and scored on the same rows as its held-out RMSE (blank: not computed, "
+        "--no-baseline or --holdout 0, or a version recorded before it was)"
+    )
     for b in kept:
         print(f"earlier file kept: {b} (before an edit of the inputs)")
     return 0

@@ -485,6 +485,7 @@ def experiment_rows(experiments: pd.DataFrame | None) -> list[dict]:
                 "inputs": [str(x) for x in _as_list(pick("inputs"))],
                 "rmse_pct": _num(_float(pick("rmse_pct", "validation_rmse_pct"))),
                 "mae_pct": _num(_float(pick("mae_pct"))),
+                "hgb_baseline_rmse_pct": _num(_float(pick("hgb_baseline_rmse_pct"))),
                 "coverage": _num(_float(pick("coverage"))),
                 "rules": _num(_float(pick("rules", "n_rules"))),
                 "notes": str(pick("notes") or ""),
@@ -972,6 +973,7 @@ one per version).</p></section>"""
     body = "".join(
         f"<tr><td>v{esc(r['version'])}</td><td>{esc(_when(r['created_at']))}</td>"
         f"<td>{esc(', '.join(r['inputs']))}</td><td class='n'>{_fmt(r['rmse_pct'])}</td>"
+        f"<td class='n'>{_fmt(r.get('hgb_baseline_rmse_pct'))}</td>"
         f"<td class='n'>{_fmt(r['mae_pct'])}</td>"
         f"<td class='n'>{_fmt(100 * r['coverage'], 1) if r['coverage'] is not None else 'n/a'}</td>"
         f"<td>{esc(r['notes'])}</td></tr>"
@@ -981,9 +983,11 @@ one per version).</p></section>"""
 <section id="experiments">
   <h2>Experiment history</h2>
   <p class="note">Validation RMSE (held-out, time-ordered) of each trained version, labelled
-  with its inputs.</p>
+  with its inputs; beside it scikit-learn's HistGradientBoosting on the same inputs, trained
+  and scored on the same rows (n/a: not computed for that version).</p>
   <div id="chart-x" class="chart"></div>
   <table><thead><tr><th>version</th><th>trained</th><th>inputs</th><th>RMSE %</th>
+  <th>HGB baseline RMSE %</th>
   <th>MAE %</th><th>coverage %</th><th>notes</th></tr></thead><tbody>{body}</tbody></table>
 </section>"""
 
