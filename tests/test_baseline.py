@@ -201,3 +201,40 @@ def test_experiments_record_the_baseline_beside_the_model_s_held_out_error(
         None,
         pytest.approx(runs[2]["baseline"]["rmse_pct"]),
     ]
+
+
+def test_json_names_the_model_s_held_out_error_and_the_baseline_apart(env, capsys, tmp_path):
+    """Issue 34: explain's JSON had ``baseline_rmse_pct`` (the model's own held-out error)
+    beside ``baseline`` (HistGradientBoosting). Now the model's figure is ``heldout_rmse_pct``
+    and the regressor is ``hgb_baseline`` in train, compare, explain and report alike; the
+    old keys stay, with the same values, for one release."""
+    g, _ = env
+    docs = {
+        "train": json.loads(_run(capsys, *g, "train", "wrong", "--json")),
+        "compare": json.loads(_run(capsys, *g, "compare", "wrong", "--json")),
+        "explain": json.loads(_run(capsys, *g, "explain", "wrong", "--max-lag", "2", "--json")),
+        "report": json.loads(
+            _run(capsys, *g, "report", "wrong", "--out", str(tmp_path / "r.html"), "--json")
+        ),
+    }
+    for name, doc in docs.items():
+        b = doc["hgb_baseline"]
+        assert b["method"] == "HistGradientBoostingRegressor", name
+        assert doc["baseline"]["rmse_pct"] == pytest.approx(
+            docs["compare" if name == "report" else name]["hgb_baseline"]["rmse_pct"]
+        ), name
+    trained = docs["train"]["validation"]["rmse_pct"]
+    ex, rep = docs["explain"], docs["report"]
+    # the model's own held-out error: explain's cut is train's block (same range, 20 %)
+    assert ex["heldout_rmse_pct"] == pytest.approx(trained, rel=0.02)
+    assert ex["heldout_rmse_pct"] > 2 * ex["hgb_baseline"]["rmse_pct"] or trained > 1
+    assert ex["baseline_rmse_pct"] == ex["heldout_rmse_pct"]  # the deprecated name
+    assert ex["baseline_coverage"] == ex["heldout_coverage"]
+    # the report's figures are those its page shows: explain's held-out error and baseline
+    assert rep["heldout_rmse_pct"] == pytest.approx(ex["heldout_rmse_pct"], rel=1e-9)
+    assert rep["hgb_baseline"]["rmse_pct"] == pytest.approx(ex["hgb_baseline"]["rmse_pct"])
+    assert pd.Timestamp(rep["validation_from"]) == pd.Timestamp(ex["validation_from"])
+    # no key says "baseline" for the model's own figure any more, except the deprecated one
+    for name, doc in docs.items():
+        odd = [k for k in doc if "baseline" in k and k not in ("hgb_baseline", "baseline")]
+        assert odd == (["baseline_rmse_pct", "baseline_coverage"] if name == "explain" else [])

@@ -30,7 +30,7 @@ from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase.backups import backups
 from diag_plugin.rulebase.document import RuleBase, RuleBaseError, resolve
 from diag_plugin.rulebase.folder import is_model_file
-from diag_plugin.training.baseline import describe
+from diag_plugin.training.baseline import KEY, describe, json_keys
 from diag_plugin.training.chunked import DEFAULT_CHUNK, on_grid, train
 from historian.access import WindowReader, experiments
 from historian.errors import UserError
@@ -101,8 +101,8 @@ def train_one(
 ) -> dict:
     """Train the model in ``path`` and record the experiment; returns the result dict.
     ``baseline``: put HistGradientBoosting's held-out error on the same design rows beside
-    the model's (``baseline`` in the dict, :func:`~diag_plugin.training.baseline.hgb_baseline`;
-    none where nothing is held out).
+    the model's (``hgb_baseline`` in the dict, and ``baseline`` for one release:
+    :func:`~diag_plugin.training.baseline.hgb_baseline`; none where nothing is held out).
     One historian connection serves the data range, the reads and the record (each
     ``Historian.open`` costs its engine, schema check and connections)."""
     rb = RuleBase.load(path)
@@ -168,8 +168,7 @@ def train_one(
     out = {"model": rb.name, "version": version, **res.as_dict()}
     out["seconds"] = round(seconds, 3)
     out["rulebase"] = str(path)
-    if hgb is not None:
-        out["baseline"] = hgb
+    out.update(json_keys(hgb))
     return out
 
 
@@ -278,7 +277,7 @@ def cmd_train(args) -> int:
                 f"MAE {v['mae_pct']:.2f} %, coverage {v['coverage']:.1%}; {tail}"
             )
             print(f"  {heldout_note(r)}")
-            if line := describe(r.get("baseline")):
+            if line := describe(r.get(KEY)):
                 print(f"  {line}")
             if note := levels_note(v):
                 print(f"  {note}")

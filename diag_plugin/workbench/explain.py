@@ -48,6 +48,7 @@ from diag_plugin.selection.scoring import BlockScorer, HeldOutScorer, cut_row
 from diag_plugin.selection.screen import Screen
 from diag_plugin.selection.sets import sets_for_cells
 from diag_plugin.selection.spans import operating_span, variable_for
+from diag_plugin.training.baseline import json_keys
 from historian.taginfo import TagInfo, tag_infos
 
 #: |correlation| with a model input above which a candidate is flagged
@@ -147,14 +148,18 @@ class Explanation:
         c = self.candidates if top is None else self.candidates[:top]
         return {
             "model": self.model,
-            "baseline_rmse_pct": _num(self.baseline_rmse_pct),
-            "baseline_coverage": _num(self.baseline_coverage),
+            # the model as it is: trained before validation_from, scored after it
+            "heldout_rmse_pct": _num(self.baseline_rmse_pct),
+            "heldout_coverage": _num(self.baseline_coverage),
             "validation_from": self.validation_from.isoformat() if self.validation_from else None,
             "candidates": [x.as_dict() for x in c],
             "screened": self.screened,
             "screen_sets": self.screen_sets,
             "notes": self.notes,
-            **({"baseline": self.baseline} if self.baseline is not None else {}),
+            **json_keys(self.baseline),  # HistGradientBoosting on the same rows
+            # the names of heldout_rmse_pct and heldout_coverage until issue 34 (deprecated)
+            "baseline_rmse_pct": _num(self.baseline_rmse_pct),
+            "baseline_coverage": _num(self.baseline_coverage),
         }
 
 
