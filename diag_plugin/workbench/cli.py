@@ -515,6 +515,10 @@ def cmd_explain(args) -> int:
     )
     if line := describe(e.baseline):
         con.print(line, markup=False, soft_wrap=True)
+    from diag_plugin.training.heldout import narrow_note
+
+    for n in e.heldout_narrow:  # as train and compare say it of their held-out blocks
+        con.print(narrow_note(n), markup=False, soft_wrap=True)
     t = Table(title="candidate missing effects, best first")
     t.add_column("#", justify="right")
     t.add_column("effect")

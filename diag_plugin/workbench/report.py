@@ -556,6 +556,29 @@ def _var(v) -> str:
     return f"{v.spec} [{v.span[0]:g} … {v.span[1]:g}{unit}], {v.sets} sets"
 
 
+def _narrow_warnings(c: Comparison, explanation) -> list[str]:
+    """A warning per input a held-out block the page quotes sees at one operating point
+    (:func:`~diag_plugin.training.heldout.narrow_note`): the held-out RMSE card's (explain's
+    cut of these samples) and diag train's block the scope line quotes, each said once."""
+    from diag_plugin.training.heldout import narrow_note
+
+    out: list[str] = []
+    blocks = [
+        ("the held-out RMSE above", getattr(explanation, "heldout_narrow", None) or []),
+        ("diag train's held-out RMSE", (c.scope or {}).get("heldout_narrow") or []),
+    ]
+    seen: set[str] = set()
+    for whose, narrow in blocks:
+        for n in narrow:
+            key = f"{n['input']} {n['heldout']}"
+            if key in seen:
+                continue
+            seen.add(key)
+            note = narrow_note(n).replace("the held-out error judges", f"{whose} judges", 1)
+            out.append(note)
+    return out
+
+
 def _header(rb: RuleBase, c: Comparison, explanation) -> str:
     ins = ", ".join(v.spec for v in rb.inputs)
     spec = f"{rb.output.spec} = f({ins})"
@@ -616,16 +639,20 @@ def _header(rb: RuleBase, c: Comparison, explanation) -> str:
     cov = _num(m.get("coverage"))
     # which samples the cards score, as diag compare says it (the page showed an in-sample
     # RMSE under the held-out one with no word why: the i34-qa2 pass)
-    scoped = scope_note(c.scope) if c.scope else ""
+    # the held-out block at one operating point (train and compare print it): a warning of
+    # its own, not a clause of the scope sentence (issue 34)
+    narrow = _narrow_warnings(c, explanation)
+    scope = {**c.scope, "heldout_narrow": []} if c.scope else {}
+    scoped = scope_note(scope) if scope else ""
     scoped = scoped[:1].upper() + scoped[1:] + ("." if scoped else "")
     if ref is not None and _num(ref.get("rmse_pct")) is not None:
         scoped += (
             " HistGradientBoosting: scikit-learn's regressor on the model's inputs, trained and "
             "scored on the same rows as the held-out figure: the established baseline."
         )
-    warn = ""
+    warn = "".join(f'<p class="warn heldout-narrow">{esc(n)}</p>' for n in narrow)
     if cov is not None and cov < COVERAGE_WARN:
-        warn = (
+        warn += (
             f'<p class="warn">⚠ The model has an answer of its own for only {100 * cov:.0f} % '
             "of these samples: the plant often ran where the training data never went. Train "
             "on a period that includes those conditions, or give the inputs fewer sets, "
