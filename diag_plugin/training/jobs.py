@@ -11,6 +11,7 @@ builds its parser without importing this one).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -25,6 +26,7 @@ import pandas as pd
 from sqlalchemy.engine import make_url
 
 from diag_plugin.cliargs import table_console
+from diag_plugin.dask_connect import check_timeout, connect, dask_address
 from diag_plugin.metrics import coverage_note, levels_note
 from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase.backups import backups
@@ -98,11 +100,15 @@ def train_one(
     scheduler: str | None = None,
     progress=None,
     baseline: bool = True,
+    client=None,
 ) -> dict:
     """Train the model in ``path`` and record the experiment; returns the result dict.
     ``baseline``: put HistGradientBoosting's held-out error on the same design rows beside
     the model's (``hgb_baseline`` in the dict, and ``baseline`` for one release:
     :func:`~diag_plugin.training.baseline.hgb_baseline`; none where nothing is held out).
+    ``client``: a checked Dask client (:func:`diag_plugin.dask_connect.connect`) to train
+    the chunks on; ``engine="dask"`` with ``scheduler`` (an address, connected here) or
+    without (a cluster in this process) says the same the old way.
     One historian connection serves the data range, the reads and the record (each
     ``Historian.open`` costs its engine, schema check and connections)."""
     rb = RuleBase.load(path)
@@ -110,10 +116,10 @@ def train_one(
         tags, t0, t1 = data_window(rb, url, start, end, historian=h)
         reader = WindowReader(url, tuple(tags), rb.period, historian=h)
         fit_chunks = None
-        if engine == "dask":
+        if client is not None or engine == "dask":
             from diag_plugin.training.dask_engine import dask_fitter
 
-            fit_chunks = dask_fitter(scheduler, reader)
+            fit_chunks = dask_fitter(client if client is not None else scheduler, reader)
         started = time.perf_counter()
         try:
             res = train(
@@ -216,6 +222,18 @@ def cmd_train(args) -> int:
         chunk = pd.Timedelta(args.chunk) if args.chunk else None
     except ValueError:
         raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D or 12h") from None
+    address = dask_address(args)
+    check_timeout(args.dask_timeout)
+    with contextlib.ExitStack() as stack:
+        client = None
+        if address not in (None, "local"):  # reached and checked before any work
+            client = stack.enter_context(connect(address, args.dask_timeout))
+        return _train_all(args, paths, chunk, address, client)
+
+
+def _train_all(args, paths: list[Path], chunk, address: str | None, client) -> int:
+    """:func:`cmd_train`'s models, one after the other (``client``: a checked Dask client;
+    ``address`` ``local``: a cluster in this process, the deprecated ``--engine dask``)."""
     results, failures = [], []
     con = _stderr_console()
     for path in paths:
@@ -238,8 +256,8 @@ def cmd_train(args) -> int:
                         end=args.end,
                         holdout=args.holdout,
                         chunk=chunk,
-                        engine=args.engine,
-                        scheduler=args.scheduler,
+                        engine="dask" if address else "local",
+                        client=client,
                         progress=cb,
                         baseline=not args.no_baseline,
                     )
