@@ -11,38 +11,20 @@ tests/test_build_dask.py) is the cluster; the plant is a valve of our own making
 
 from __future__ import annotations
 
-import socket
-
 import numpy as np
 import pandas as pd
 import pytest
 
 from tests.test_any_plant_tour import diag
+from tests.test_build_dask import _cluster, _free_port
 
 distributed = pytest.importorskip("distributed")
-
-
-def _cluster(workers: int = 2):
-    return distributed.LocalCluster(
-        n_workers=workers,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address=None,
-        protocol="tcp",
-    )
 
 
 @pytest.fixture(scope="module")
 def cluster():
     with _cluster() as c:
         yield c
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _valve(days: float = 1.5, seed: int = 8) -> pd.DataFrame:
