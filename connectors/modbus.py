@@ -79,6 +79,9 @@ class Poll:
     seconds: float  #: wall time of the poll
     #: per tag, the source's own time stamp (Unix seconds; NaN where it gives none: Modbus)
     source_ts: np.ndarray | None = None
+    #: per tag, True where its source gave no answer within the cycle's poll deadline: the
+    #: tag was not read this cycle (Bad), which says nothing of whether its value moved
+    late: np.ndarray | None = None
 
     @property
     def good(self) -> bool:

@@ -142,6 +142,7 @@ class SourceSet:
         quality = np.full(n, TagQuality.BAD, np.uint8)
         source_ts = np.full(n, np.nan)
         reasons = [""] * n
+        late = np.zeros(n, bool)
         self._last = []
         for i, (name, sl) in enumerate(zip(self.source_names, self._slices, strict=True)):
             task = self._pending[i]
@@ -149,6 +150,7 @@ class SourceSet:
             if not task.done():
                 why = f"{name}: no answer within the cycle's poll deadline ({deadline:.2f} s)"
                 reasons[sl] = [why] * (sl.stop - sl.start)
+                late[sl] = True
                 # late is not down: the source keeps its state until its poll answers
                 self._last.append(self._down[name][1] if name in self._down else "")
                 self.late_polls[name] = self.late_polls.get(name, 0) + 1
@@ -168,7 +170,7 @@ class SourceSet:
             # a source is down when none of its tags could be read (vectorised: 5,000 tags)
             down = len(p.reasons) > 0 and bool((p.quality == _BAD).all())
             self._last.append((p.reasons[0] or "no tag readable") if down else "")
-        return Poll(ts, values, quality, reasons, time.perf_counter() - t0, source_ts)
+        return Poll(ts, values, quality, reasons, time.perf_counter() - t0, source_ts, late)
 
     def slices(self) -> list[tuple[str, slice]]:
         """Each source's name and the slice of its tags in the tag vector."""

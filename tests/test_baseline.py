@@ -11,6 +11,7 @@ dead time learns it perfectly; given the wrong one neither it nor the baseline c
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -157,3 +158,83 @@ def test_compare_outside_train_s_range_says_why_there_is_no_baseline(env, capsys
     doc = json.loads(_run(capsys, *g, "compare", "right", "--from", str(cut), "--json"))
     assert doc["baseline"]["rmse_pct"] is None
     assert "holds none of the samples diag train trained on" in doc["baseline"]["note"]
+
+
+def test_experiments_record_the_baseline_beside_the_model_s_held_out_error(
+    env, capsys, monkeypatch
+):
+    """Issue 34: train printed the baseline, but the record diag experiments (and the
+    report's history) read kept only the model's figure: the comparison was lost once the
+    terminal scrolled. Each version now records the baseline it was trained beside."""
+    g, _ = env
+    runs = [
+        json.loads(_run(capsys, *g, "train", "wrong", *extra, "--json"))
+        for extra in ((), ("--no-baseline",), ("--holdout", "0.3"))
+    ]
+    rows = json.loads(_run(capsys, *g, "experiments", "wrong", "--json"))["experiments"][-3:]
+    assert [r["version"] for r in rows] == [str(r["version"]) for r in runs]
+    for run, row in zip(runs, rows, strict=True):
+        assert row["rmse_pct"] == pytest.approx(run["validation"]["rmse_pct"], rel=1e-9)
+        if "baseline" in run:
+            assert row["hgb_baseline_rmse_pct"] == pytest.approx(run["baseline"]["rmse_pct"])
+            assert row["hgb_baseline_mae_pct"] == pytest.approx(run["baseline"]["mae_pct"])
+        else:  # --no-baseline: nothing recorded, not a zero
+            assert row.get("hgb_baseline_rmse_pct") is None
+    # the two held-out blocks differ, so the two baselines do
+    assert runs[0]["baseline"]["rmse_pct"] != pytest.approx(runs[2]["baseline"]["rmse_pct"])
+    monkeypatch.delenv("COLUMNS", raising=False)  # pytest-xdist's workers set 80
+    text = _run(capsys, *g, "experiments", "wrong")  # as into a pipe: 160 columns
+    assert "HGB baseline RMSE %" in text
+    for run in (runs[0], runs[2]):
+        line = next(
+            ln for ln in text.splitlines() if ln.strip("│ ").startswith(f"{run['version']} ")
+        )
+        v, b = run["validation"]["rmse_pct"], run["baseline"]["rmse_pct"]
+        assert re.search(rf"{v:.2f}\s*│\s*{b:.2f}", line), line
+    from diag_plugin.workbench.report import experiment_rows
+    from historian.access import experiments
+
+    db = g[g.index("--db") + 1]
+    hist = experiment_rows(experiments(db, "wrong"))[-3:]
+    assert [r["hgb_baseline_rmse_pct"] for r in hist] == [
+        pytest.approx(runs[0]["baseline"]["rmse_pct"]),
+        None,
+        pytest.approx(runs[2]["baseline"]["rmse_pct"]),
+    ]
+
+
+def test_json_names_the_model_s_held_out_error_and_the_baseline_apart(env, capsys, tmp_path):
+    """Issue 34: explain's JSON had ``baseline_rmse_pct`` (the model's own held-out error)
+    beside ``baseline`` (HistGradientBoosting). Now the model's figure is ``heldout_rmse_pct``
+    and the regressor is ``hgb_baseline`` in train, compare, explain and report alike; the
+    old keys stay, with the same values, for one release."""
+    g, _ = env
+    docs = {
+        "train": json.loads(_run(capsys, *g, "train", "wrong", "--json")),
+        "compare": json.loads(_run(capsys, *g, "compare", "wrong", "--json")),
+        "explain": json.loads(_run(capsys, *g, "explain", "wrong", "--max-lag", "2", "--json")),
+        "report": json.loads(
+            _run(capsys, *g, "report", "wrong", "--out", str(tmp_path / "r.html"), "--json")
+        ),
+    }
+    for name, doc in docs.items():
+        b = doc["hgb_baseline"]
+        assert b["method"] == "HistGradientBoostingRegressor", name
+        assert doc["baseline"]["rmse_pct"] == pytest.approx(
+            docs["compare" if name == "report" else name]["hgb_baseline"]["rmse_pct"]
+        ), name
+    trained = docs["train"]["validation"]["rmse_pct"]
+    ex, rep = docs["explain"], docs["report"]
+    # the model's own held-out error: explain's cut is train's block (same range, 20 %)
+    assert ex["heldout_rmse_pct"] == pytest.approx(trained, rel=0.02)
+    assert ex["heldout_rmse_pct"] > 2 * ex["hgb_baseline"]["rmse_pct"] or trained > 1
+    assert ex["baseline_rmse_pct"] == ex["heldout_rmse_pct"]  # the deprecated name
+    assert ex["baseline_coverage"] == ex["heldout_coverage"]
+    # the report's figures are those its page shows: explain's held-out error and baseline
+    assert rep["heldout_rmse_pct"] == pytest.approx(ex["heldout_rmse_pct"], rel=1e-9)
+    assert rep["hgb_baseline"]["rmse_pct"] == pytest.approx(ex["hgb_baseline"]["rmse_pct"])
+    assert pd.Timestamp(rep["validation_from"]) == pd.Timestamp(ex["validation_from"])
+    # no key says "baseline" for the model's own figure any more, except the deprecated one
+    for name, doc in docs.items():
+        odd = [k for k in doc if "baseline" in k and k not in ("hgb_baseline", "baseline")]
+        assert odd == (["baseline_rmse_pct", "baseline_coverage"] if name == "explain" else [])

@@ -27,9 +27,10 @@ from tests.test_build_speed import _plant, _text
 distributed = pytest.importorskip("distributed")
 
 
-def _cluster():
+def _cluster(workers: int = 2):
+    """A LocalCluster on 127.0.0.1: ``workers`` processes of one thread each."""
     return distributed.LocalCluster(
-        n_workers=2,
+        n_workers=workers,
         threads_per_worker=1,
         processes=True,
         host="127.0.0.1",

@@ -717,3 +717,40 @@ def test_no_residual_chart_when_no_candidate_cuts_the_error(tmp_path):
     assert s["spec"] == "CV[k-2]" and not s.get("none_cuts")
     _check_scatter(s, c)
     assert 'id="chart-s"' in _render(path, tmp_path)
+
+
+# ------------------------------------------------- a held-out block at one operating point
+@needs_chromium
+def test_the_page_warns_when_the_held_out_block_sees_one_operating_point(tmp_path):
+    """Issue 34: train and compare warn when the held-out samples see an input at one
+    operating point (:mod:`diag_plugin.training.heldout`); the page put it, if at all, as a
+    clause of the scope sentence. It is now a warning of its own beside the held-out card,
+    for explain's cut (the card's block, also in explain's JSON) as for train's; none when
+    the input moves in the held-out block."""
+    from test_workbench_core import INFO, trained_1s, valve_1s
+
+    rng = np.random.default_rng(29)
+    levels = np.sort(rng.uniform(15, 90, 3))
+    f = valve_1s(29, 640, holds=(216, 222), levels=levels)  # the last 20 %: one opening
+    (tmp_path / "a").mkdir(), (tmp_path / "b").mkdir()
+    rb, _ = trained_1s(tmp_path / "a", f, ["CV[k]"])
+    e = explain(rb, f, tag_info=INFO)
+    narrow = e.as_dict()["heldout_narrow"]
+    held = f["CV"][e.validation_from :]
+    assert [n["input"] for n in narrow] == ["CV[k]"], narrow
+    assert narrow[0]["heldout"] == pytest.approx([held.min(), held.max()])
+    dom = _render(write_report(tmp_path / "r.html", rb, compare(rb, f), e, None, f), tmp_path)
+    warns = re.findall(r'<p class="warn heldout-narrow">([^<]*)</p>', dom)
+    assert len(warns) == 1, warns  # explain's cut and train's block are the same rows here
+    text = html.unescape(warns[0])
+    assert "CV[k] at one operating point" in text and "the held-out RMSE above" in text
+    assert f"{held.min():.4g} … {held.max():.4g}" in text
+    scope = re.search(r'<p class="scope">([^<]*)</p>', dom).group(1)
+    assert "operating point" not in scope  # said once, as a warning
+    # the opening moved every few minutes: no warning
+    g = valve_1s(31, 18_000)
+    rb2, _ = trained_1s(tmp_path / "b", g, ["CV[k]"])
+    e2 = explain(rb2, g, tag_info=INFO)
+    assert e2.heldout_narrow == []
+    page = write_report(tmp_path / "q.html", rb2, compare(rb2, g), e2, None, g)
+    assert "heldout-narrow" not in _render(page, tmp_path)

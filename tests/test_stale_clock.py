@@ -78,3 +78,31 @@ def test_a_value_change_still_restarts_the_clock_and_bad_alone_is_never_stale():
         (104, False, 3.0),
         (104.5, True, 3.5),
     ]
+
+
+def test_a_cycle_that_did_not_read_the_tag_keeps_its_clock():
+    """Issue 34: a poll late for the cycle's deadline (a loaded machine) gives the tag Bad
+    for that cycle without reading it; taken as a Bad stretch it restarted the clock, and
+    with a late poll every few cycles a frozen PLC was never judged stale
+    (tests/test_live_hardened.py's frozen PLC at a load of 16-18). Such a cycle neither
+    restarts nor judges the tag; a Bad sample the source reported still restarts it."""
+    q_good, q_bad = np.array([GOOD], np.uint8), np.array([BAD], np.uint8)
+    runs = {}
+    for unread in (True, False):
+        det = StaleDetector(["T"], stale_after=3.0)
+        seen = []
+        for t in np.arange(0.0, 10.0, 0.5):  # frozen at 7.0; every 4th cycle not read
+            late = int(t * 2) % 4 == 3
+            q = q_bad if late else q_good
+            mask = np.array([late]) if unread else None
+            stale, age = det.update(float(t), np.array([np.nan if late else 7.0]), q, None, mask)
+            seen.append((float(t), bool(stale[0]), None if np.isnan(age[0]) else float(age[0])))
+        runs[unread] = seen
+    # not read: no judgement that cycle; the clock runs on from the first sample
+    for t, stale, age in runs[True]:
+        if int(t * 2) % 4 == 3:
+            assert age is None and not stale, t
+        else:
+            assert age == t and stale == (t > 3.0), (t, age)
+    # a Bad sample (the source said so) restarts it: never 3 s unchanged, never stale
+    assert not any(s for _, s, _ in runs[False])

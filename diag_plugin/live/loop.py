@@ -315,7 +315,9 @@ class LiveLoop:
         if absurd.any():  # NaN, +Inf, -Inf read as Good: Bad
             quality[absurd] = TagQuality.BAD
             self.stats.not_finite += int(absurd.sum())
-        stale, self._age = self.stale.update(ts.value / 1e9, values, quality, poll.source_ts)
+        stale, self._age = self.stale.update(
+            ts.value / 1e9, values, quality, poll.source_ts, getattr(poll, "late", None)
+        )
         if stale.any():
             quality[stale] = TagQuality.UNCERTAIN
             self.stats.stale += int(stale.sum())
@@ -446,10 +448,16 @@ class LiveLoop:
         self._bad_nodes = bad
 
     def _frozen_sources(self, stale: np.ndarray, quality: np.ndarray, ts: pd.Timestamp) -> None:
-        """A source whose judged tags are all frozen: reported once, and once when it moves."""
+        """A source whose judged tags are all frozen: reported once, and once when it moves.
+        A cycle that reads none of its judged tags (all Bad: its poll late on a loaded
+        machine, or failed) says nothing either way: a frozen source stays frozen until a
+        cycle reads it moving (a late poll in a frozen stretch reported it "moving again",
+        then "frozen" once more, under load: issue 34)."""
         judged = self.stale.judged
         for name, sl in self.source.slices():
             j = judged[sl] & (quality[sl] != TagQuality.BAD)
+            if not j.any() and name in self._frozen:
+                continue
             frozen = bool(j.any()) and bool(stale[sl][j].all())
             if frozen and name not in self._frozen:
                 self._frozen.add(name)

@@ -73,20 +73,27 @@ class StaleDetector:
         values: np.ndarray,
         quality: np.ndarray,
         source_ts: np.ndarray | None = None,
+        unread: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """One cycle at time ``t`` (seconds): the stale mask (Good samples frozen past their
-        limit) and how long each tag has been unchanged (seconds, NaN when not Good)."""
+        limit) and how long each tag has been unchanged (seconds, NaN when not Good).
+        ``unread``: tags this cycle did not read (their source's poll late): they keep their
+        clock, neither restarted nor judged (a Bad sample restarts it; a late poll on a
+        loaded machine is no sign the value moved, and restarting there kept a frozen PLC
+        from ever being judged stale: issue 34)."""
         good = (quality == TagQuality.GOOD) & np.isfinite(values)
         changed = values != self._last
         if source_ts is not None:  # NaN: the source gives none (Modbus)
             changed |= (source_ts != self._last_src) & ~np.isnan(source_ts)
         self._seen_change |= changed & good & self._last_good
         restart = changed | ~self._last_good | ~good  # a Bad stretch restarts the clock
+        if unread is not None:
+            restart &= ~unread
         self._since[restart] = t
         self._last = np.where(good, values, self._last)
         if source_ts is not None:
             self._last_src = np.where(good, source_ts, self._last_src)
-        self._last_good = good
+        self._last_good = good if unread is None else np.where(unread, self._last_good, good)
         limit = np.where(
             np.isnan(self.limit_), np.where(self._seen_change, self.fallback, np.inf), self.limit_
         )

@@ -22,6 +22,19 @@ METHOD = "HistGradientBoostingRegressor"
 PARAMS: dict[str, object] = {"max_iter": 100, "early_stopping": False, "random_state": 0}
 
 
+#: the JSON key of the baseline object in train, compare, explain and report ``--json``
+KEY = "hgb_baseline"
+#: its name until issue 34, beside the new one for one release (explain's JSON also had
+#: ``baseline_rmse_pct``, the model's own held-out error, next to it: two "baselines")
+OLD_KEY = "baseline"
+
+
+def json_keys(b: dict | None) -> dict:
+    """The baseline object under :data:`KEY`, and under :data:`OLD_KEY` for the scripts that
+    read it there (deprecated: dropped in the release after the next); empty without one."""
+    return {} if b is None else {KEY: b, OLD_KEY: b}
+
+
 def describe(b: dict | None) -> str:
     """One line: the baseline's held-out error and its settings, or why there is none."""
     if not b:

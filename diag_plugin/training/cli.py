@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 
 from diag_plugin.cliargs import add_json
+from diag_plugin.dask_connect import add_dask_args
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -33,8 +34,16 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="skip scikit-learn's HistGradientBoosting on the same rows beside the held-out error",
     )
-    p.add_argument("--engine", choices=["local", "dask"], default="local")
-    p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
+    add_dask_args(p, "the chunks' training")
+    p.add_argument(
+        "--engine",
+        choices=["local", "dask"],
+        default="local",
+        help="deprecated: say --dask ADDRESS (--engine dask alone: a cluster in this process)",
+    )
+    p.add_argument(
+        "--scheduler", metavar="ADDRESS", help="deprecated: say --dask ADDRESS (the same)"
+    )
     add_json(p, "print the result as JSON")
     p.set_defaults(func=cmd_train)
     p = sub.add_parser("experiments", help="versions of a model with inputs and error")

@@ -10,19 +10,27 @@ training bit for bit. Inputs with unbounded memory (``dir()``) get their
 state at every chunk start from a pass over the data on the client
 (:func:`diag_plugin.training.chunked.chunk_starts`).
 
-Point it at a real cluster with ``diag train NAME --engine dask --scheduler
-tcp://scheduler:8786``; the workers need this package installed and must
-reach the historian database (PostgreSQL for a multi-machine cluster).
+Point it at a real cluster with ``diag train NAME --dask tcp://scheduler:8786``
+(:mod:`diag_plugin.dask_connect`, as ``diag unit build --dask``); the workers need this
+package installed and must reach the historian database (PostgreSQL for a multi-machine
+cluster).
 """
 
 from __future__ import annotations
 
+from contextlib import nullcontext
+from typing import Any
+
 import pandas as pd
 
+from diag_plugin.dask_connect import connect
 from diag_plugin.models.protocol import Model
 from diag_plugin.regressors import DesignBuilder
 from diag_plugin.rulebase.document import RuleBase
 from diag_plugin.training.chunked import Interval, Reader, Tally, chunk_starts, fit_interval
+
+#: seconds one training's chunks may take on the cluster (as a build's stage, unitbuild)
+DASK_MAP_TIMEOUT = 3600.0
 
 
 def _fit_on_worker(rb_text: str, read: Reader, a, b, state, history_from):
@@ -40,28 +48,48 @@ def merge_states(rb: RuleBase, parts) -> tuple[Model, Tally]:
     return model, tally
 
 
-def dask_fitter(scheduler: str | None, worker_read: Reader):
+def dask_fitter(cluster: Any, worker_read: Reader, map_timeout: float = DASK_MAP_TIMEOUT):
     """A ``fit_chunks`` callable for :func:`diag_plugin.training.chunked.train` using Dask.
 
+    ``cluster``: a connected ``distributed.Client`` (from
+    :func:`diag_plugin.dask_connect.connect`; left open), a scheduler address (connected
+    and checked as ``--dask`` is, for each training), or None for a cluster in this process.
     ``worker_read`` is the picklable reader the workers call (each opens its own
-    connection); the client reads through the reader ``train`` gives it.
+    connection); the client reads through the reader ``train`` gives it. A training whose
+    chunks are not all back within ``map_timeout`` s is a
+    :class:`~historian.errors.UserError` naming the address.
     """
-    from distributed import Client
+    from distributed import Client, as_completed
+
+    from historian.errors import UserError
+
+    def session():
+        if cluster is None:
+            return Client(processes=False, dashboard_address=None)
+        if isinstance(cluster, str):
+            return connect(cluster)
+        return nullcontext(cluster)
 
     def fit_chunks(rb: RuleBase, intervals: list[Interval], builder: DesignBuilder, read):
         if not rb.new_model().capabilities.mergeable:
             raise ValueError(f"method {rb.method} cannot merge partial models: train locally")
         starts = chunk_starts(builder, read, intervals, pd.Timedelta(rb.period))
         text = rb.dumps()
-        with (
-            Client(scheduler, timeout="30s")
-            if scheduler
-            else Client(processes=False, dashboard_address=None) as client
-        ):
+        with session() as client:
             futures = [
                 client.submit(_fit_on_worker, text, worker_read, a, b, st, h0, pure=False)
                 for (a, b), (st, h0) in zip(intervals, starts, strict=True)
             ]
+            try:  # the client's own loop: a checked client is not the default one
+                for _ in as_completed(futures, loop=client.loop, timeout=map_timeout):
+                    pass
+            except TimeoutError:
+                client.cancel(futures)
+                where = client.scheduler.address if cluster is not None else "in-process"
+                raise UserError(
+                    f"--dask {where}: {len(futures)} chunks of {rb.name} not trained within "
+                    f"{map_timeout:g} s"
+                ) from None
             parts = client.gather(futures)
         return merge_states(rb, parts)
 

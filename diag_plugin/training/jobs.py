@@ -11,6 +11,7 @@ builds its parser without importing this one).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -24,12 +25,14 @@ from pathlib import Path
 import pandas as pd
 from sqlalchemy.engine import make_url
 
+from diag_plugin.cliargs import table_console
+from diag_plugin.dask_connect import check_timeout, connect, dask_address
 from diag_plugin.metrics import coverage_note, levels_note
 from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase.backups import backups
 from diag_plugin.rulebase.document import RuleBase, RuleBaseError, resolve
 from diag_plugin.rulebase.folder import is_model_file
-from diag_plugin.training.baseline import describe
+from diag_plugin.training.baseline import KEY, describe, json_keys
 from diag_plugin.training.chunked import DEFAULT_CHUNK, on_grid, train
 from historian.access import WindowReader, experiments
 from historian.errors import UserError
@@ -97,11 +100,15 @@ def train_one(
     scheduler: str | None = None,
     progress=None,
     baseline: bool = True,
+    client=None,
 ) -> dict:
     """Train the model in ``path`` and record the experiment; returns the result dict.
     ``baseline``: put HistGradientBoosting's held-out error on the same design rows beside
-    the model's (``baseline`` in the dict, :func:`~diag_plugin.training.baseline.hgb_baseline`;
-    none where nothing is held out).
+    the model's (``hgb_baseline`` in the dict, and ``baseline`` for one release:
+    :func:`~diag_plugin.training.baseline.hgb_baseline`; none where nothing is held out).
+    ``client``: a checked Dask client (:func:`diag_plugin.dask_connect.connect`) to train
+    the chunks on; ``engine="dask"`` with ``scheduler`` (an address, connected here) or
+    without (a cluster in this process) says the same the old way.
     One historian connection serves the data range, the reads and the record (each
     ``Historian.open`` costs its engine, schema check and connections)."""
     rb = RuleBase.load(path)
@@ -109,10 +116,10 @@ def train_one(
         tags, t0, t1 = data_window(rb, url, start, end, historian=h)
         reader = WindowReader(url, tuple(tags), rb.period, historian=h)
         fit_chunks = None
-        if engine == "dask":
+        if client is not None or engine == "dask":
             from diag_plugin.training.dask_engine import dask_fitter
 
-            fit_chunks = dask_fitter(scheduler, reader)
+            fit_chunks = dask_fitter(client if client is not None else scheduler, reader)
         started = time.perf_counter()
         try:
             res = train(
@@ -128,6 +135,7 @@ def train_one(
             )
         finally:
             reader.close()
+        seconds = time.perf_counter() - started  # the training's (the baseline has its own)
         rb.apply_training(
             res.model,
             {
@@ -146,6 +154,13 @@ def train_one(
         )
         rb.save()
         metrics = {k: v for k, v in res.validation.items() if not _is_nan(v)}
+        hgb = None
+        if res.design is not None and res.validation.get("samples"):
+            from diag_plugin.training.baseline import hgb_baseline
+
+            span = rb.output.span[1] - rb.output.span[0]
+            hgb = hgb_baseline(*res.design, span)
+            metrics.update(baseline_metrics(hgb))
         version = len(h.experiments(rb.name)) + 1
         h.record_model_version(rb.name, str(version), rb.dumps())
         h.record_experiment(
@@ -157,14 +172,19 @@ def train_one(
             {**metrics, "rules": res.size, "trained_samples": res.samples},
         )
     out = {"model": rb.name, "version": version, **res.as_dict()}
-    out["seconds"] = round(time.perf_counter() - started, 3)
+    out["seconds"] = round(seconds, 3)
     out["rulebase"] = str(path)
-    if res.design is not None and res.validation.get("samples"):
-        from diag_plugin.training.baseline import hgb_baseline
-
-        span = rb.output.span[1] - rb.output.span[0]
-        out["baseline"] = hgb_baseline(*res.design, span)
+    out.update(json_keys(hgb))
     return out
+
+
+def baseline_metrics(b: Mapping | None) -> dict:
+    """The HistGradientBoosting baseline's held-out figures as an experiment records them
+    (``hgb_baseline_rmse_pct``, ``hgb_baseline_mae_pct``, on the same held-out rows as the
+    model's ``rmse_pct``); empty where none was computed."""
+    if not b or b.get("rmse_pct") is None:
+        return {}
+    return {"hgb_baseline_rmse_pct": b["rmse_pct"], "hgb_baseline_mae_pct": b["mae_pct"]}
 
 
 def heldout_note(r: Mapping) -> str:
@@ -202,6 +222,18 @@ def cmd_train(args) -> int:
         chunk = pd.Timedelta(args.chunk) if args.chunk else None
     except ValueError:
         raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D or 12h") from None
+    address = dask_address(args)
+    check_timeout(args.dask_timeout)
+    with contextlib.ExitStack() as stack:
+        client = None
+        if address not in (None, "local"):  # reached and checked before any work
+            client = stack.enter_context(connect(address, args.dask_timeout))
+        return _train_all(args, paths, chunk, address, client)
+
+
+def _train_all(args, paths: list[Path], chunk, address: str | None, client) -> int:
+    """:func:`cmd_train`'s models, one after the other (``client``: a checked Dask client;
+    ``address`` ``local``: a cluster in this process, the deprecated ``--engine dask``)."""
     results, failures = [], []
     con = _stderr_console()
     for path in paths:
@@ -224,8 +256,8 @@ def cmd_train(args) -> int:
                         end=args.end,
                         holdout=args.holdout,
                         chunk=chunk,
-                        engine=args.engine,
-                        scheduler=args.scheduler,
+                        engine="dask" if address else "local",
+                        client=client,
                         progress=cb,
                         baseline=not args.no_baseline,
                     )
@@ -263,7 +295,7 @@ def cmd_train(args) -> int:
                 f"MAE {v['mae_pct']:.2f} %, coverage {v['coverage']:.1%}; {tail}"
             )
             print(f"  {heldout_note(r)}")
-            if line := describe(r.get("baseline")):
+            if line := describe(r.get(KEY)):
                 print(f"  {line}")
             if note := levels_note(v):
                 print(f"  {note}")
@@ -329,7 +361,6 @@ class _progress:
 
 
 def cmd_experiments(args) -> int:
-    from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
@@ -345,7 +376,9 @@ def cmd_experiments(args) -> int:
             "created_at",
             "inputs",
             "rmse_pct",
+            "hgb_baseline_rmse_pct",
             "mae_pct",
+            "hgb_baseline_mae_pct",
             "coverage",
             "samples",
             "data_from",
@@ -367,7 +400,15 @@ def cmd_experiments(args) -> int:
             print(f"earlier file kept: {b}")
         return 0
     t = Table(title=escape(f"experiments of {name}"))
-    for c in ("version", "created", "inputs", "held-out RMSE %", "MAE %", "coverage"):
+    for c in (
+        "version",
+        "created",
+        "inputs",
+        "held-out RMSE %",
+        "HGB baseline RMSE %",
+        "MAE %",
+        "coverage",
+    ):
         t.add_column(c)
     for rec in df.to_dict("records"):
         t.add_row(
@@ -375,10 +416,16 @@ def cmd_experiments(args) -> int:
             str(rec.get("created_at"))[:19],
             escape(", ".join(rec.get("inputs") or [])),
             _fmt(rec.get("rmse_pct"), ".2f"),
+            _fmt(rec.get("hgb_baseline_rmse_pct"), ".2f"),
             _fmt(rec.get("mae_pct"), ".2f"),
             _fmt(rec.get("coverage"), ".1%") + (" ⚠" if coverage_note(rec) else ""),
         )
-    Console().print(t)
+    table_console().print(t)
+    print(
+        "HGB baseline: scikit-learn's HistGradientBoostingRegressor on the version's inputs, "
+        "trained and scored on the same rows as its held-out RMSE (blank: not computed, "
+        "--no-baseline or --holdout 0, or a version recorded before it was)"
+    )
     for b in kept:
         print(f"earlier file kept: {b} (before an edit of the inputs)")
     return 0

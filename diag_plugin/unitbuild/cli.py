@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 
 from diag_plugin.cliargs import add_json
+from diag_plugin.dask_connect import add_dask_args, check_timeout
 from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_frames
 from diag_plugin.learn.cli import add_far
 from historian.errors import UserError
@@ -55,20 +56,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "typical spacing of the tags; a faster tag is averaged over each period)",
     )
     p.add_argument("--force", action="store_true", help="overwrite an existing unit and models")
-    p.add_argument(
-        "--dask",
-        metavar="ADDRESS",
-        help="run the per-test work (inputs, training, threshold residuals) on the Dask "
-        "scheduler at ADDRESS, e.g. tls://HOST:8786: the same unit; only a cluster you "
-        "control (it runs what clients send; docs/how-to/unit-from-history.md)",
-    )
-    p.add_argument(
-        "--dask-timeout",
-        type=float,
-        default=10.0,
-        metavar="S",
-        help="seconds to reach the scheduler and see a worker there (10)",
-    )
+    add_dask_args(p, "the per-test work (inputs, training, threshold residuals)")
     add_json(p)
     p.set_defaults(func=cmd_unit_build)
     p = usub.add_parser(
@@ -169,8 +157,7 @@ def cmd_unit_build(args) -> int:
         loops += loops_from_tags_csv(args.loops_from)
     if args.max_inputs < 1:
         raise UserError(f"--max-inputs {args.max_inputs}: at least 1")
-    if not args.dask_timeout > 0:
-        raise UserError(f"--dask-timeout {args.dask_timeout:g}: must be positive")
+    check_timeout(args.dask_timeout)
     t0, t1 = parse_time(args.start), parse_time(args.end)
     with contextlib.ExitStack() as stack:
         workers = None

@@ -27,6 +27,8 @@ import os
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+from diag_plugin.dask_connect import DASK_CONNECT_TIMEOUT, connect
+
 log = logging.getLogger(__name__)
 
 #: the function and arguments the forked workers call (set before the pool forks)
@@ -102,8 +104,6 @@ def map_tests(
         _JOB = None
 
 
-#: seconds to reach the scheduler and to see a worker there (``diag unit build --dask``)
-DASK_CONNECT_TIMEOUT = 10.0
 #: seconds one map (one stage's tests) may take on the cluster before the build stops
 DASK_MAP_TIMEOUT = 3600.0
 
@@ -116,16 +116,6 @@ def _call(item: Any, fn: Callable[..., Any], *args: Any) -> Any:
     """``fn(item, *args)`` on a Dask worker, BLAS held to one thread as in the local pool."""
     with one_blas_thread():
         return fn(item, *args)
-
-
-def package_version() -> str:
-    """This package's installed version (the client's and each worker's must agree)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("diag-plugin")
-    except PackageNotFoundError:  # pragma: no cover - run from a source tree
-        return "unknown"
 
 
 class DaskPool:
@@ -151,51 +141,11 @@ class DaskPool:
 
     @classmethod
     def connect(cls, address: str, timeout: float = DASK_CONNECT_TIMEOUT) -> DaskPool:
-        """A pool on the scheduler at ``address``, checked before any work: reachable within
-        ``timeout`` s, at least one worker, and this package's version on every worker.
-        Raises :class:`~historian.errors.UserError` naming the address otherwise."""
-        from distributed import Client
-
-        from historian.errors import UserError
-
-        mine = package_version()
-
-        try:
-            client = Client(address, timeout=f"{timeout}s", set_as_default=False)
-        except Exception as exc:  # noqa: BLE001 - refused, timed out, a bad address or TLS
-            hint = ""
-            if address.startswith("tls://"):
-                hint = "; a tls:// address needs the distributed.comm.tls settings"
-            raise UserError(
-                f"--dask {address}: cannot reach the Dask scheduler within {timeout:g} s "
-                f"({type(exc).__name__}: {exc}){hint}"
-            ) from None
-        try:
-            try:
-                client.wait_for_workers(1, timeout=timeout)
-            except (TimeoutError, OSError):
-                raise UserError(
-                    f"--dask {address}: the scheduler has no worker after {timeout:g} s"
-                ) from None
-            try:
-                versions = client.run(package_version)
-            except Exception as exc:  # noqa: BLE001 - a worker without the package
-                raise UserError(
-                    f"--dask {address}: the workers cannot import diag_plugin ({exc}); "
-                    f"install diag-plugin {mine} on every worker"
-                ) from None
-            other = {w: v for w, v in versions.items() if v != mine}
-            if other:
-                raise UserError(
-                    f"--dask {address}: workers run diag-plugin "
-                    + ", ".join(sorted(set(other.values())))
-                    + f", this client {mine}: install the same version on every worker"
-                )
-        except BaseException:
-            client.close()
-            raise
-        log.info("Dask scheduler %s: %d workers", address, len(versions))
-        return cls(client, address)
+        """A pool on the scheduler at ``address``, checked before any work
+        (:func:`diag_plugin.dask_connect.connect`: reachable within ``timeout`` s, at least
+        one worker, this package's version on every worker); raises
+        :class:`~historian.errors.UserError` naming the address otherwise."""
+        return cls(connect(address, timeout), address)
 
     def __enter__(self) -> DaskPool:
         return self

@@ -515,6 +515,10 @@ def cmd_explain(args) -> int:
     )
     if line := describe(e.baseline):
         con.print(line, markup=False, soft_wrap=True)
+    from diag_plugin.training.heldout import narrow_note
+
+    for n in e.heldout_narrow:  # as train and compare say it of their held-out blocks
+        con.print(narrow_note(n), markup=False, soft_wrap=True)
     t = Table(title="candidate missing effects, best first")
     t.add_column("#", justify="right")
     t.add_column("effect")
@@ -571,8 +575,17 @@ def cmd_report(args) -> int:
     write_report(args.out, rb, c, e, _experiments(args, rb), frame)
     if args.json:
         doc = {"model": rb.name, "report": args.out, "metrics": c.metrics}
-        if c.baseline is not None:
-            doc["baseline"] = c.baseline
+        # the held-out RMSE card: the model trained before validation_from, scored after
+        # it, as explain's JSON gives it
+        ed = e.as_dict(top=0)
+        doc.update({k: ed[k] for k in ("heldout_rmse_pct", "validation_from")})
+        from diag_plugin.training.baseline import KEY, OLD_KEY
+
+        # the page's HistGradientBoosting card: on the rows of heldout_rmse_pct
+        if (hgb := e.baseline if e.baseline is not None else c.baseline) is not None:
+            doc[KEY] = hgb
+        if c.baseline is not None:  # as before issue 34: compare's, on train's block
+            doc[OLD_KEY] = c.baseline
         print(json.dumps(doc, default=str))
         return 0
     print(f"wrote {args.out}", file=sys.stderr)

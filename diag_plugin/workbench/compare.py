@@ -19,6 +19,7 @@ import pandas as pd
 from diag_plugin.metrics import error_figures, residual_pct
 from diag_plugin.regressors import build_design, needed_tags
 from diag_plugin.rulebase.document import RuleBase
+from diag_plugin.training.baseline import json_keys
 from historian.jsonable import to_jsonable
 
 
@@ -58,7 +59,7 @@ class Comparison:
             "tags": _records(self.tags.head(top)),
             "inputs": to_jsonable(self.inputs),
             "scope": to_jsonable(self.scope),
-            **({"baseline": to_jsonable(self.baseline)} if self.baseline is not None else {}),
+            **json_keys(to_jsonable(self.baseline) if self.baseline is not None else None),
         }
 
 

@@ -48,6 +48,8 @@ from diag_plugin.selection.scoring import BlockScorer, HeldOutScorer, cut_row
 from diag_plugin.selection.screen import Screen
 from diag_plugin.selection.sets import sets_for_cells
 from diag_plugin.selection.spans import operating_span, variable_for
+from diag_plugin.training.baseline import json_keys
+from diag_plugin.training.heldout import narrow_inputs
 from historian.taginfo import TagInfo, tag_infos
 
 #: |correlation| with a model input above which a candidate is flagged
@@ -142,19 +144,27 @@ class Explanation:
     #: HistGradientBoosting on the model's inputs, same training and held-out rows
     #: (:func:`~diag_plugin.training.baseline.hgb_baseline`), with ``explain(baseline=True)``
     baseline: dict | None = None
+    #: the inputs the held-out rows see at one operating point
+    #: (:func:`~diag_plugin.training.heldout.narrow_inputs`): the held-out error judges there
+    heldout_narrow: list[dict] = field(default_factory=list)
 
     def as_dict(self, top: int | None = None) -> dict:
         c = self.candidates if top is None else self.candidates[:top]
         return {
             "model": self.model,
-            "baseline_rmse_pct": _num(self.baseline_rmse_pct),
-            "baseline_coverage": _num(self.baseline_coverage),
+            # the model as it is: trained before validation_from, scored after it
+            "heldout_rmse_pct": _num(self.baseline_rmse_pct),
+            "heldout_coverage": _num(self.baseline_coverage),
             "validation_from": self.validation_from.isoformat() if self.validation_from else None,
             "candidates": [x.as_dict() for x in c],
             "screened": self.screened,
             "screen_sets": self.screen_sets,
             "notes": self.notes,
-            **({"baseline": self.baseline} if self.baseline is not None else {}),
+            "heldout_narrow": self.heldout_narrow,
+            **json_keys(self.baseline),  # HistGradientBoosting on the same rows
+            # the names of heldout_rmse_pct and heldout_coverage until issue 34 (deprecated)
+            "baseline_rmse_pct": _num(self.baseline_rmse_pct),
+            "baseline_coverage": _num(self.baseline_coverage),
         }
 
 
@@ -241,6 +251,10 @@ def _explain(
         X = np.column_stack(in_cols) if in_cols else np.empty((n, 0))
         reference = hgb_baseline(X[:cut], y[:cut], X[scorer.va], y[scorer.va], scorer.span)
         clock.lap("baseline")
+    held = np.zeros(n, bool)
+    held[scorer.va] = True
+    X_in = np.column_stack(in_cols) if in_cols else None
+    narrow = narrow_inputs([v.spec for v in in_vars], X_in, held)
     resid = scorer.residual(in_cols)
     clock.lap("model and held-out block")
     screen = Screen(rb, in_cols, y, cut, scorer.va, scorer.base_pred)
@@ -624,6 +638,7 @@ def _explain(
         seconds=clock.laps,
         cpu_seconds=clock.cpu,
         baseline=reference,
+        heldout_narrow=narrow,
     )
 
 

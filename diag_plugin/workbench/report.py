@@ -485,6 +485,7 @@ def experiment_rows(experiments: pd.DataFrame | None) -> list[dict]:
                 "inputs": [str(x) for x in _as_list(pick("inputs"))],
                 "rmse_pct": _num(_float(pick("rmse_pct", "validation_rmse_pct"))),
                 "mae_pct": _num(_float(pick("mae_pct"))),
+                "hgb_baseline_rmse_pct": _num(_float(pick("hgb_baseline_rmse_pct"))),
                 "coverage": _num(_float(pick("coverage"))),
                 "rules": _num(_float(pick("rules", "n_rules"))),
                 "notes": str(pick("notes") or ""),
@@ -555,6 +556,29 @@ def _var(v) -> str:
     return f"{v.spec} [{v.span[0]:g} … {v.span[1]:g}{unit}], {v.sets} sets"
 
 
+def _narrow_warnings(c: Comparison, explanation) -> list[str]:
+    """A warning per input a held-out block the page quotes sees at one operating point
+    (:func:`~diag_plugin.training.heldout.narrow_note`): the held-out RMSE card's (explain's
+    cut of these samples) and diag train's block the scope line quotes, each said once."""
+    from diag_plugin.training.heldout import narrow_note
+
+    out: list[str] = []
+    blocks = [
+        ("the held-out RMSE above", getattr(explanation, "heldout_narrow", None) or []),
+        ("diag train's held-out RMSE", (c.scope or {}).get("heldout_narrow") or []),
+    ]
+    seen: set[str] = set()
+    for whose, narrow in blocks:
+        for n in narrow:
+            key = f"{n['input']} {n['heldout']}"
+            if key in seen:
+                continue
+            seen.add(key)
+            note = narrow_note(n).replace("the held-out error judges", f"{whose} judges", 1)
+            out.append(note)
+    return out
+
+
 def _header(rb: RuleBase, c: Comparison, explanation) -> str:
     ins = ", ".join(v.spec for v in rb.inputs)
     spec = f"{rb.output.spec} = f({ins})"
@@ -615,16 +639,20 @@ def _header(rb: RuleBase, c: Comparison, explanation) -> str:
     cov = _num(m.get("coverage"))
     # which samples the cards score, as diag compare says it (the page showed an in-sample
     # RMSE under the held-out one with no word why: the i34-qa2 pass)
-    scoped = scope_note(c.scope) if c.scope else ""
+    # the held-out block at one operating point (train and compare print it): a warning of
+    # its own, not a clause of the scope sentence (issue 34)
+    narrow = _narrow_warnings(c, explanation)
+    scope = {**c.scope, "heldout_narrow": []} if c.scope else {}
+    scoped = scope_note(scope) if scope else ""
     scoped = scoped[:1].upper() + scoped[1:] + ("." if scoped else "")
     if ref is not None and _num(ref.get("rmse_pct")) is not None:
         scoped += (
             " HistGradientBoosting: scikit-learn's regressor on the model's inputs, trained and "
             "scored on the same rows as the held-out figure: the established baseline."
         )
-    warn = ""
+    warn = "".join(f'<p class="warn heldout-narrow">{esc(n)}</p>' for n in narrow)
     if cov is not None and cov < COVERAGE_WARN:
-        warn = (
+        warn += (
             f'<p class="warn">⚠ The model has an answer of its own for only {100 * cov:.0f} % '
             "of these samples: the plant often ran where the training data never went. Train "
             "on a period that includes those conditions, or give the inputs fewer sets, "
@@ -972,6 +1000,7 @@ one per version).</p></section>"""
     body = "".join(
         f"<tr><td>v{esc(r['version'])}</td><td>{esc(_when(r['created_at']))}</td>"
         f"<td>{esc(', '.join(r['inputs']))}</td><td class='n'>{_fmt(r['rmse_pct'])}</td>"
+        f"<td class='n'>{_fmt(r.get('hgb_baseline_rmse_pct'))}</td>"
         f"<td class='n'>{_fmt(r['mae_pct'])}</td>"
         f"<td class='n'>{_fmt(100 * r['coverage'], 1) if r['coverage'] is not None else 'n/a'}</td>"
         f"<td>{esc(r['notes'])}</td></tr>"
@@ -981,9 +1010,11 @@ one per version).</p></section>"""
 <section id="experiments">
   <h2>Experiment history</h2>
   <p class="note">Validation RMSE (held-out, time-ordered) of each trained version, labelled
-  with its inputs.</p>
+  with its inputs; beside it scikit-learn's HistGradientBoosting on the same inputs, trained
+  and scored on the same rows (n/a: not computed for that version).</p>
   <div id="chart-x" class="chart"></div>
   <table><thead><tr><th>version</th><th>trained</th><th>inputs</th><th>RMSE %</th>
+  <th>HGB baseline RMSE %</th>
   <th>MAE %</th><th>coverage %</th><th>notes</th></tr></thead><tbody>{body}</tbody></table>
 </section>"""
 
