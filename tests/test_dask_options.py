@@ -2,7 +2,7 @@
 
 ``diag unit build --dask ADDRESS [--dask-timeout S]`` and ``diag train NAME --dask ADDRESS
 [--dask-timeout S]`` take the same options and connect through one helper
-(:mod:`diag_plugin.dask_connect`) with the same checks before any work: the scheduler
+(:mod:`diag_plugin.training.dask_connect`) with the same checks before any work: the scheduler
 reachable within the timeout, a worker there, the same package version; each failure exit 2
 naming the address. train's old spelling ``--engine dask --scheduler ADDRESS`` still works,
 marked deprecated in its ``--help``. A LocalCluster bound to 127.0.0.1 (as in

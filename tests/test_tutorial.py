@@ -15,9 +15,12 @@ def commands(text: str) -> list[list[str]]:
     return [shlex.split(m) for m in re.findall(r"^\$ diag (.+)$", text, flags=re.M)]
 
 
-def staircase(text: str) -> list[tuple[str, list[str], float]]:
-    rows = re.findall(r"^\| (\d+) \| ([^|]+) \| ([\d.]+) \|$", text, flags=re.M)
-    return [(v, [s.strip() for s in inputs.split(", ")], float(e)) for v, inputs, e in rows]
+def staircase(text: str) -> list[tuple[str, list[str], float, float]]:
+    """Step 4's table: version, inputs, held-out RMSE, the HGB baseline's."""
+    rows = re.findall(r"^\| (\d+) \| ([^|]+) \| ([\d.]+) \| ([\d.]+) \|$", text, flags=re.M)
+    return [
+        (v, [s.strip() for s in inputs.split(", ")], float(e), float(h)) for v, inputs, e, h in rows
+    ]
 
 
 RULE = re.compile(r'^\s*\{ if = \["(CV\d\d)"\], then = ([\d.]+), .*lock = true \},$')
@@ -82,9 +85,10 @@ def test_tutorial_reproduces(tmp_path):
     got = json.loads(log.stdout)["experiments"]
     want = staircase(text)
     assert len(want) == 2 == len(got)
-    for (v, inputs, err), g in zip(want, got, strict=True):
+    for (v, inputs, err, hgb), g in zip(want, got, strict=True):
         assert (g["version"], g["inputs"]) == (v, inputs)
         assert g["rmse_pct"] == pytest.approx(err, abs=0.05)
+        assert g["hgb_baseline_rmse_pct"] == pytest.approx(hgb, abs=0.05)
     explained = out["explain"][0]
     assert (
         "diff(P1,P2)[k] would cut the error" in explained and "7.6 % to 1.3 % of span" in explained

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 
 from diag_plugin.cliargs import add_json
-from diag_plugin.dask_connect import add_dask_args
+from diag_plugin.training.dask_connect import add_dask_args
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:

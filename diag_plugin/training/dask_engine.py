@@ -11,7 +11,7 @@ state at every chunk start from a pass over the data on the client
 (:func:`diag_plugin.training.chunked.chunk_starts`).
 
 Point it at a real cluster with ``diag train NAME --dask tcp://scheduler:8786``
-(:mod:`diag_plugin.dask_connect`, as ``diag unit build --dask``); the workers need this
+(:mod:`diag_plugin.training.dask_connect`, as ``diag unit build --dask``); the workers need this
 package installed and must reach the historian database (PostgreSQL for a multi-machine
 cluster).
 """
@@ -23,11 +23,11 @@ from typing import Any
 
 import pandas as pd
 
-from diag_plugin.dask_connect import connect
 from diag_plugin.models.protocol import Model
 from diag_plugin.regressors import DesignBuilder
 from diag_plugin.rulebase.document import RuleBase
 from diag_plugin.training.chunked import Interval, Reader, Tally, chunk_starts, fit_interval
+from diag_plugin.training.dask_connect import connect
 
 #: seconds one training's chunks may take on the cluster (as a build's stage, unitbuild)
 DASK_MAP_TIMEOUT = 3600.0
@@ -52,7 +52,7 @@ def dask_fitter(cluster: Any, worker_read: Reader, map_timeout: float = DASK_MAP
     """A ``fit_chunks`` callable for :func:`diag_plugin.training.chunked.train` using Dask.
 
     ``cluster``: a connected ``distributed.Client`` (from
-    :func:`diag_plugin.dask_connect.connect`; left open), a scheduler address (connected
+    :func:`diag_plugin.training.dask_connect.connect`; left open), a scheduler address (connected
     and checked as ``--dask`` is, for each training), or None for a cluster in this process.
     ``worker_read`` is the picklable reader the workers call (each opens its own
     connection); the client reads through the reader ``train`` gives it. A training whose

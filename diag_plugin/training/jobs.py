@@ -26,7 +26,6 @@ import pandas as pd
 from sqlalchemy.engine import make_url
 
 from diag_plugin.cliargs import table_console
-from diag_plugin.dask_connect import check_timeout, connect, dask_address
 from diag_plugin.metrics import coverage_note, levels_note
 from diag_plugin.regressors import needed_tags
 from diag_plugin.rulebase.backups import backups
@@ -34,6 +33,7 @@ from diag_plugin.rulebase.document import RuleBase, RuleBaseError, resolve
 from diag_plugin.rulebase.folder import is_model_file
 from diag_plugin.training.baseline import KEY, describe, json_keys
 from diag_plugin.training.chunked import DEFAULT_CHUNK, on_grid, train
+from diag_plugin.training.dask_connect import check_timeout, connect, dask_address
 from historian.access import WindowReader, experiments
 from historian.errors import UserError
 from historian.jsonable import to_jsonable
@@ -106,7 +106,7 @@ def train_one(
     ``baseline``: put HistGradientBoosting's held-out error on the same design rows beside
     the model's (``hgb_baseline`` in the dict, and ``baseline`` for one release:
     :func:`~diag_plugin.training.baseline.hgb_baseline`; none where nothing is held out).
-    ``client``: a checked Dask client (:func:`diag_plugin.dask_connect.connect`) to train
+    ``client``: a checked Dask client (:func:`diag_plugin.training.dask_connect.connect`) to train
     the chunks on; ``engine="dask"`` with ``scheduler`` (an address, connected here) or
     without (a cluster in this process) says the same the old way.
     One historian connection serves the data range, the reads and the record (each

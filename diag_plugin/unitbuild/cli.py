@@ -12,9 +12,9 @@ import math
 from pathlib import Path
 
 from diag_plugin.cliargs import add_json
-from diag_plugin.dask_connect import add_dask_args, check_timeout
 from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_frames
 from diag_plugin.learn.cli import add_far
+from diag_plugin.training.dask_connect import add_dask_args, check_timeout
 from historian.errors import UserError
 
 

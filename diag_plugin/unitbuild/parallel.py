@@ -27,7 +27,7 @@ import os
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
-from diag_plugin.dask_connect import DASK_CONNECT_TIMEOUT, connect
+from diag_plugin.training.dask_connect import DASK_CONNECT_TIMEOUT, connect
 
 log = logging.getLogger(__name__)
 
@@ -142,7 +142,7 @@ class DaskPool:
     @classmethod
     def connect(cls, address: str, timeout: float = DASK_CONNECT_TIMEOUT) -> DaskPool:
         """A pool on the scheduler at ``address``, checked before any work
-        (:func:`diag_plugin.dask_connect.connect`: reachable within ``timeout`` s, at least
+        (:func:`diag_plugin.training.dask_connect.connect`: reachable within ``timeout`` s, at least
         one worker, this package's version on every worker); raises
         :class:`~historian.errors.UserError` naming the address otherwise."""
         return cls(connect(address, timeout), address)
