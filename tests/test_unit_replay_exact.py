@@ -219,7 +219,22 @@ def _ref_outside(self, frame, unknown, report):
     todo = report.copy()
     # the values the models read (lagged as they read them: OutsideLearned.lagged)
     read = frame.values if isinstance(frame, Columns) else (lambda t: frame[t].to_numpy(float))
-    cols = self.lagged({t: read(t) for t in self.tags if t in frame.columns})
+    wanted = dict.fromkeys([*self.tags, *self.watch])
+    cols = self.lagged({t: read(t) for t in wanted if t in frame.columns})
+    # each watched tag's start of its run without a value, row by row (carried in)
+    watch = [t for t in self.watch if (t, 0) in cols]
+    start = np.full((n, len(watch)), None, dtype=object)
+    for c, t in enumerate(watch):
+        run = self.gone.get(t)
+        for i in range(n):
+            if np.isnan(cols[(t, 0)][i]):
+                run = idx[i] if run is None else run
+                start[i, c] = run
+            else:
+                run = None
+        self.gone.pop(t, None)
+        if run is not None:
+            self.gone[t] = run
     for k, r in enumerate(self.ranges):
         if r.key not in cols:
             continue
@@ -242,11 +257,27 @@ def _ref_outside(self, frame, unknown, report):
                 self.since[k] = carried if keep else idx[first[-1]]
             else:
                 self.since[k] = None
-    _ref_combination(self, cols, unknown, todo, out)
+    _ref_combination(self, cols, unknown, todo, out, (watch, start))
     return out
 
 
-def _ref_combination(self, cols, unknown, todo, out):  # every row, test by test
+def _ref_gone(self, watch, start_row):  # the sentence of one row's tags without a value
+    lost = [(self.label(t, 0), s) for t, s in zip(watch, start_row, strict=True) if s is not None]
+    since = pd.Timestamp(min(s for _, s in lost)).isoformat()
+    return operating.gone_sentence([nm for nm, _ in lost], len(watch), since)
+
+
+def _ref_combination(self, cols, unknown, todo, out, gone):  # every row, test by test
+    watch, start = gone
+    for i in np.flatnonzero(todo):  # an unknown test reading a tag without a value now
+        if any(
+            unknown[i, j] and start[i, c] is not None
+            for j, own in self.test_tags.items()
+            for c, t in enumerate(watch)
+            if t in own
+        ):
+            out[i] = _ref_gone(self, watch, start[i])
+            todo[i] = False
     tests: dict[int, list[tuple[str, int]]] = {}
     for r in self.ranges:
         tests.setdefault(r.test, []).append(r.key)
@@ -256,7 +287,9 @@ def _ref_combination(self, cols, unknown, todo, out):  # every row, test by test
         names = [self.label(*t) for t in have]
         for i in rows:
             v = [float(cols[t][i]) for t in have]
-            if all(np.isfinite(v)):
+            if not all(np.isfinite(v)) and any(x is not None for x in start[i]):
+                out[i] = _ref_gone(self, watch, start[i])  # a lagged input, and tags now
+            elif all(np.isfinite(v)):
                 out[i] = (
                     ", ".join(f"{nm} = {x:.4g}" for nm, x in zip(names, v, strict=True))
                     + ": each within what the unit learned, but not together"
@@ -344,6 +377,8 @@ def _run(fault: str | None, step: int) -> pd.DataFrame:
     for _ in range(12):  # gaps: short ones (held symptoms) and long ones (unknown tests)
         j, a = rng.integers(frame.shape[1]), rng.integers(n - 200)
         frame.iloc[a : a + int(rng.choice([1, 3, 40, 150])), j] = np.nan
+    a = n // 3  # and the source out: every tag without a value for 150 samples
+    frame.iloc[a : a + 150] = np.nan
     return frame
 
 
@@ -459,6 +494,7 @@ def test_the_runs_met_every_path_of_the_reference():
     why = frames["why"].astype(str)
     assert why.str.startswith("warming up").any()
     assert why.str.contains("without a value|not together").any()
+    assert why.str.contains("no values from any of the 7 tags since").any()
 
 
 @pytest.mark.parametrize("fault", ["stiction", "flow_bias"])

@@ -9,7 +9,9 @@ centre minus half a step to the highest's plus half a step; for a model without 
 per sample of CHECK_FUNCTION, the input of an unknown test that is outside its range, its
 value, and when it left (carried from piece to piece, as every stage's state is). An input read
 with a lag (``FLOW[k-595]``) is judged by the value the model reads, the one 595 samples back,
-and named so (``FLOW[k-595] = …``); the history it needs is carried too.
+and named so (``FLOW[k-595] = …``); the history it needs is carried too. An unknown test
+whose tags have no value is named by every tag of the unit without one and since when
+(:func:`gone_sentence`): one transmitter lost reads otherwise than the whole feed gone.
 """
 
 from __future__ import annotations
@@ -77,12 +79,40 @@ def learned_ranges(models: Mapping[str, object], tests: Sequence[str]) -> list[R
     return out
 
 
+#: tags a sentence of tags without a value lists by name; beyond them, a count and these
+SHORT = 3
+
+
+def gone_sentence(names: Sequence[str], total: int, since: str) -> str:
+    """Why a test is unknown when tags have no value: ``names`` the unit's tags without one,
+    of ``total`` it reads, ``since`` when the first of them went. The whole feed gone reads
+    ``no values from any of the 12 tags since T (source outage?)``; a few are named
+    (``FW_FLOW, DRUM_P without a value since T``); more are counted, the first named
+    (``7 of 12 tags without a value since T (FW_FLOW, DRUM_P, LVL, …)``)."""
+    k = len(names)
+    if k == total and total > 1:
+        return f"no values from any of the {total} tags since {since} (source outage?)"
+    if k <= SHORT:
+        return f"{', '.join(names)} without a value since {since}"
+    return f"{k} of {total} tags without a value since {since} ({', '.join(names[:SHORT])}, …)"
+
+
 class OutsideLearned:
     """Names, per sample, the input outside what the unit learned (module doc)."""
 
-    def __init__(self, ranges: Sequence[Range], names: Mapping[str, str] | None = None):
+    def __init__(
+        self,
+        ranges: Sequence[Range],
+        names: Mapping[str, str] | None = None,
+        tests: Sequence[Sequence[str]] = (),
+    ):
         self.ranges = list(ranges)
         self.names = dict(names or {})  # model tag → plant tag
+        #: per test (by position) the model tags it reads, inputs and output
+        self.test_tags = {i: frozenset(t) for i, t in enumerate(tests)}
+        #: the unit's tags whose runs without a value are followed, and each one's start
+        self.watch = list(dict.fromkeys(t for ts in tests for t in ts))
+        self.gone: dict[str, pd.Timestamp] = {}
         self.since: dict[int, pd.Timestamp | None] = {}
         self.depth: dict[str, int] = {}  # per tag the longest lag judged
         for r in self.ranges:
@@ -90,9 +120,13 @@ class OutsideLearned:
         #: per tag the lags its ranges read
         self._lags = {t: sorted({r.lag for r in self.ranges if r.tag == t}) for t in self.depth}
         self.tails: dict[str, np.ndarray] = {}
+        # the watched tags idle() reads besides the ranges read at lag 0
+        plain = {r.tag for r in self.ranges if r.lag == 0}
+        self._watch_extra = [self.names.get(t, t) for t in self.watch if t not in plain]
 
     def reset(self) -> OutsideLearned:
         self.since = {}
+        self.gone = {}
         self.tails = {t: np.full(d, np.nan) for t, d in self.depth.items()}
         return self
 
@@ -107,6 +141,7 @@ class OutsideLearned:
             "tails": {
                 t: [None if np.isnan(v) else float(v) for v in x] for t, x in self.tails.items()
             },
+            "gone": {t: pd.Timestamp(v).isoformat() for t, v in self.gone.items()},
         }
 
     def load_state(self, state: Mapping[str, Any]) -> OutsideLearned:
@@ -119,20 +154,23 @@ class OutsideLearned:
             v = np.array([np.nan if a is None else a for a in x], float)
             if t in self.depth and v.size == self.depth[t]:
                 self.tails[t] = v
+        self.gone = {t: pd.Timestamp(v) for t, v in state.get("gone", {}).items()}
         return self
 
     def idle(self, value: Callable[[str, int], float]) -> bool:
         """True when :meth:`transform` of one row that is not reported would say nothing and
         change nothing: no input outside its range now (``value(plant tag, lag)``: the value
-        ``lag`` samples back) nor before. The live loop's shortcut: most cycles, for most
-        units."""
-        if any(v is not None for v in self.since.values()):
+        ``lag`` samples back) nor before, and every watched tag with a value now and before.
+        The live loop's shortcut: most cycles, for most units."""
+        if self.gone or any(v is not None for v in self.since.values()):
             return False
         for r in self.ranges:
             x = value(self.names.get(r.tag, r.tag), r.lag)
             if x < r.lo or x > r.hi:  # NaN: not outside, as in transform
                 return False
-        return True
+            if x != x and r.lag == 0 and r.tag in self.test_tags.get(r.test, ()):
+                return False  # a watched tag without a value: its start is followed
+        return all(value(p, 0) == value(p, 0) for p in self._watch_extra)
 
     def sentence(self, r: Range, x: float, since) -> str:
         """``TAG = value outside what the unit learned (lo … hi) since T``."""
@@ -158,11 +196,12 @@ class OutsideLearned:
         range, ``TAG = value outside what the unit learned (lo … hi) since T``. Advances the
         carried start of every input's excursion. ``frame``: the piece under the models' tag
         names, or its :class:`~diag_plugin.regressors.Columns` (read once for the unit)."""
+        read = dict.fromkeys([*self.tags, *self.watch])
         if isinstance(frame, Columns):
-            cols = {t: frame.values(t) for t in self.tags if t in frame.columns}
+            cols = {t: frame.values(t) for t in read if t in frame.columns}
         else:
             have = set(frame.columns)
-            cols = {t: frame[t].to_numpy(float) for t in self.tags if t in have}
+            cols = {t: frame[t].to_numpy(float) for t in read if t in have}
         return self.columns(self.lagged(cols), frame.index, unknown, report)
 
     def lagged(self, cols: Mapping[str, np.ndarray]) -> LaggedColumns:
@@ -179,6 +218,8 @@ class OutsideLearned:
             tail = self.tails.get(t, np.full(d, np.nan))
             tails[t] = tail
             keys.extend((t, lag) for lag in self._lags[t])
+            if 0 not in self._lags[t] and t in self.watch:  # its own gaps are followed
+                keys.append((t, 0))
             n = len(x)
             # the last d values of the tail and the piece joined (a copy: not a view of the
             # caller's frame)
@@ -204,9 +245,10 @@ class OutsideLearned:
         out = np.full(n, "", dtype=object)
         at = np.flatnonzero(report)  # the rows to name (CHECK_FUNCTION: few, in most pieces)
         unk = unknown[at]
+        gaps = self._gaps(cols, idx, at)
         judged, keys, col, lo, hi, test = self._judged(cols)
         if not n or not judged:
-            self._combination(cols, unk, at, np.ones(at.size, bool), out)
+            self._combination(cols, unk, at, np.ones(at.size, bool), out, gaps)
             return out
         # every judged range at once, at the rows to name and at the piece's end: a row is
         # named by the first range (in order) outside there whose test is unknown
@@ -251,8 +293,57 @@ class OutsideLearned:
                 self.since[k] = carried if (off.all() and carried is not None) else idx[last]
             else:
                 self.since[k] = None
-        self._combination(cols, unk, at[~named], ~named, out)
+        self._combination(cols, unk, at[~named], ~named, out, gaps)
         return out
+
+    def _gaps(self, cols: Mapping, idx: Sequence[pd.Timestamp] | pd.Index, at: np.ndarray) -> tuple:
+        """At the rows ``at``, the watched tags read (model tags), which have no value
+        (rows × tags) and since when (UTC ns, rows × tags), and the index's time zone;
+        advances :attr:`gone` (each tag's start of the run without a value it ends in)."""
+        watch = [t for t in self.watch if (t, 0) in cols]
+        miss = np.zeros((at.size, len(watch)), bool)
+        when = np.zeros((at.size, len(watch)), np.int64)
+        if not len(idx):
+            return watch, miss, when, None
+        times = pd.DatetimeIndex(idx)
+        ns = None  # the index as UTC ns, made when a tag has a gap
+        for c, t in enumerate(watch):
+            carried = self.gone.pop(t, None)
+            if not at.size and _last(cols, (t, 0)) == _last(cols, (t, 0)):
+                continue  # nothing to name, and a value at the end
+            nan = np.isnan(np.asarray(cols[(t, 0)], float))
+            if not nan.any():
+                continue
+            if ns is None:
+                ns = times.as_unit("ns").asi8
+            good = np.flatnonzero(~nan)
+            # each row's run without a value starts after the last value before it
+            first = np.r_[-1, good][np.searchsorted(good, at)] + 1
+            miss[:, c] = nan[at]
+            when[:, c] = ns[first]
+            if carried is not None:  # a run begun in an earlier piece
+                when[first == 0, c] = carried.value
+            if nan[-1]:
+                s0 = good[-1] + 1 if good.size else 0
+                self.gone[t] = carried if s0 == 0 and carried is not None else times[s0]
+        return watch, miss, when, times.tz
+
+    def _gone_at(self, gaps: tuple, miss: np.ndarray, when: np.ndarray) -> np.ndarray:
+        """:func:`gone_sentence` per row of ``miss`` (rows × the watched tags of ``gaps``:
+        without a value) and ``when`` (each one's start, UTC ns): one per pattern and start."""
+        watch, _, _, tz = gaps
+        names = [self.label(t, 0) for t in watch]
+        since = np.where(miss, when, np.iinfo(np.int64).max).min(axis=1)
+        pats, inv = np.unique(np.c_[miss, since], axis=0, return_inverse=True)
+        said = [
+            gone_sentence(
+                [nm for nm, m in zip(names, p[:-1], strict=True) if m],
+                len(names),
+                pd.Timestamp(int(p[-1]), tz=tz).isoformat(),
+            )
+            for p in pats
+        ]
+        return np.array(said, dtype=object)[inv.reshape(-1)]
 
     def _judged(self, cols: Mapping[tuple[str, int], np.ndarray]) -> tuple:
         """The ranges judged on a piece with the values ``cols`` (:attr:`Range.key` →
@@ -284,14 +375,25 @@ class OutsideLearned:
             self._tests = tests
         return self._tests
 
-    def _combination(self, cols, unk, rows_left, left, out) -> None:
+    def _combination(self, cols, unk, rows_left, left, out, gaps) -> None:
         """The rows still unnamed (``rows_left``; ``unk``: the unknown tests at the rows to
         name, ``left`` of them those still unnamed; ``cols``: :attr:`Range.key` → values the
-        model reads): each input of the first unknown test is inside what it learned, but
-        not together (a grid cell without a rule), or has no value."""
+        model reads; ``gaps``: :meth:`_gaps` at the rows to name): each input of the first
+        unknown test is inside what it learned, but not together (a grid cell without a
+        rule), or a tag it reads has no value (then every tag of the unit without one is
+        named, :func:`gone_sentence`)."""
         tests = self._tests_keys()
         unk = unk[left]
+        watch, miss, when = gaps[0], gaps[1][left], gaps[2][left]
         todo = np.ones(rows_left.size, bool)
+        if miss.any():  # an unknown test reading a tag without a value now: named first
+            lost = np.zeros(rows_left.size, bool)
+            for j, own in self.test_tags.items():
+                cs = [c for c, t in enumerate(watch) if t in own]
+                lost |= unk[:, j] & miss[:, cs].any(axis=1)
+            if lost.any():
+                out[rows_left[lost]] = self._gone_at(gaps, miss[lost], when[lost])
+                todo &= ~lost
         for j, tags in tests.items():
             if not todo.any():
                 break
@@ -307,13 +409,20 @@ class OutsideLearned:
             names = [self.label(*t) for t in have]
             ok = np.isfinite(vals)
             full = ok.all(axis=1)
+            # rows where an input read with a lag has no value and some of the unit's tags
+            # have none now: named by all of the unit's without one
+            m, w = miss[mine], when[mine]
+            lost = m.any(axis=1) & ~full
+            if lost.any():
+                out[rows[lost]] = self._gone_at(gaps, m[lost], w[lost])
+            full &= ~lost
             # rows with an input missing: one sentence per pattern of missing inputs
-            gaps = np.flatnonzero(~full)
-            if gaps.size:
-                pats, inv = np.unique(~ok[gaps], axis=0, return_inverse=True)
+            holes = np.flatnonzero(~full & ~lost)
+            if holes.size:
+                pats, inv = np.unique(~ok[holes], axis=0, return_inverse=True)
                 said = [", ".join(nm for nm, m in zip(names, p, strict=True) if m)
                         + " without a value" for p in pats]  # fmt: skip
-                out[rows[gaps]] = np.array(said, dtype=object)[inv.reshape(-1)]
+                out[rows[holes]] = np.array(said, dtype=object)[inv.reshape(-1)]
             if full.any() and names:  # written input by input, then joined per row
                 each = [[f"{nm} = {x:.4g}" for x in vals[full, c].tolist()]
                         for c, nm in enumerate(names)]  # fmt: skip

@@ -292,10 +292,13 @@ class Plant:
         self._first = first_slot
         self._has_th = [u.has_thresholds for u in units]
         # per unit the inputs its reasons judge: ((model tag, lag), plant tag) read by some unit
+        # and the tags whose gaps it follows (OutsideLearned.watch), now
         self._judged = [
             [
                 (key, p)
-                for key in dict.fromkeys(r.key for r in u.outside.ranges)
+                for key in dict.fromkeys(
+                    [*(r.key for r in u.outside.ranges), *((t, 0) for t in u.outside.watch)]
+                )
                 if (p := u.file.tags.get(key[0], key[0])) in tags
             ]
             for u in units
@@ -404,6 +407,7 @@ class Plant:
             "episodes": {str(ui): h.to_state() for ui, h in self._holds.items()},
             "isolation": [m[5].to_state() for m in self._matrices],
             "outside": {u.name: u.outside.to_state()["since"] for u in self._units},
+            "gone": {u.name: u.outside.to_state()["gone"] for u in self._units},
             "slow": {n: self.units[n].to_state() for n in self.slow},
         }
 
@@ -466,7 +470,12 @@ class Plant:
             for m, st in zip(self._matrices, state["isolation"], strict=True)
         ]
         for u in self._units:
-            u.outside.load_state({"since": state["outside"].get(u.name, {})})
+            u.outside.load_state(
+                {
+                    "since": state["outside"].get(u.name, {}),
+                    "gone": state.get("gone", {}).get(u.name, {}),
+                }
+            )
         for n in self.slow:
             self.units[n].reset().load_state(state["slow"][n])
         return self

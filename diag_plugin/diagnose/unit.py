@@ -556,7 +556,11 @@ class Unit:
         self._last_alarm: tuple | None = None  # (status, faults, top row) the hold repeats
         self.seen = 0  # samples since the start (the warm-up)
         if not hasattr(self, "outside"):
-            self.outside = OutsideLearned(learned_ranges(self.models, self.tests), self.file.tags)
+            self.outside = OutsideLearned(
+                learned_ranges(self.models, self.tests),
+                self.file.tags,
+                [self.models[t].tags for t in self.tests],
+            )
         self.outside.reset()
         return self
 
