@@ -27,6 +27,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -59,6 +60,25 @@ class ClientSecurity:
 
 class UntrustedServer(ConnectionError):
     """The server's certificate is neither pinned nor in the trust list (nothing was sent)."""
+
+
+class ReadTimeout(TimeoutError):
+    """A Read request that got no answer within the reader's timeout: says from which server,
+    which tags, the timeout and how long the read waited (a loaded event loop waits longer)."""
+
+    def __init__(self, url: str, tags: list[str], timeout: float, waited: float) -> None:
+        named = ", ".join(tags[:5]) + (f" and {len(tags) - 5} more" if len(tags) > 5 else "")
+        n = f"{len(tags)} tag{'s' if len(tags) != 1 else ''}"
+        super().__init__(
+            f"no answer from {url} to the Read of {n} ({named}) within the {timeout:g} s "
+            f"timeout (waited {waited:.2f} s)"
+        )
+
+
+def _retrieved(task: asyncio.Future[Any]) -> None:
+    """Done callback of a request given up on: its late outcome is nobody's error."""
+    if not task.cancelled():
+        task.exception()
 
 
 @dataclass
@@ -139,6 +159,9 @@ class OpcUaReader:
         self.bad_nodes: dict[str, str] = {}
         self._reported_bad: dict[str, str] = {}
         self.outages = 0  # how many times the connection was lost or refused
+        #: Read requests that got no answer within the timeout (the connection kept)
+        self.read_timeouts = 0
+        self.timed_out = False  #: the last read's request got no answer within the timeout
         #: (start, end) of each outage; end is None while it lasts
         self.gaps: list[tuple[datetime, datetime | None]] = []
         self._set_all_bad("not connected yet")
@@ -380,22 +403,54 @@ class OpcUaReader:
             client.disconnect_socket()
 
     async def _poll(self) -> None:
+        """One Read request of every node, waited for up to the config's ``timeout``; raises
+        :class:`ReadTimeout` (what timed out, after how long, which tags) when it runs out.
+
+        The request runs as a task of its own, awaited with :func:`asyncio.wait`, not
+        inside ``asyncio.timeout``: asyncua waits for each answer in its own ``wait_for``
+        (``wait_for2`` before Python 3.12), and an answer that came in the same event-loop
+        iteration as our timeout (a loaded machine) came out of it as ``CancelledWithResultError``,
+        a CancelledError that ``asyncio.timeout`` does not turn into TimeoutError: it escaped
+        :meth:`read` and the poll task ended cancelled ("scada: poll failed: CancelledError()",
+        issue 34)."""
         assert self._client is not None
         tags = list(self._nodes)
         if not tags:
             return
-        async with asyncio.timeout(self.config.timeout):
-            dvs = await self._client.read_attributes([self._nodes[t] for t in tags])
-        for tag, dv in zip(tags, dvs, strict=True):
+        t0 = time.monotonic()
+        req = asyncio.ensure_future(self._client.read_attributes([self._nodes[t] for t in tags]))
+        try:
+            done, _ = await asyncio.wait({req}, timeout=self.config.timeout)
+        except BaseException:  # this read cancelled (the loop closing): stop the request
+            req.cancel()
+            req.add_done_callback(_retrieved)
+            raise
+        if not done:
+            req.cancel()
+            req.add_done_callback(_retrieved)
+            raise ReadTimeout(self.config.url, tags, self.config.timeout, time.monotonic() - t0)
+        if req.cancelled():  # by asyncua itself (a channel closing): not ours to propagate
+            raise ConnectionError(f"the Read request to {self.config.url} was cancelled")
+        for tag, dv in zip(tags, req.result(), strict=True):
             self._latest[tag] = sample_of(tag, dv)
 
     # -- the reader interface ---------------------------------------------------------------
 
     async def read(self) -> list[TagSample]:
-        """The latest sample of every configured tag (one Read request when polling)."""
+        """The latest sample of every configured tag (one Read request when polling).
+        :attr:`timed_out` says whether this read's request got no answer in time."""
+        self.timed_out = False
         if self.config.mode == "poll" and self._connected.is_set():
             try:
                 await self._poll()
+            except ReadTimeout as exc:
+                # a late answer (a loaded machine, a busy server) is no lost connection: the
+                # session is kept, the tags are Bad for this read only. A server that stops
+                # answering for good is found by asyncua's watchdog (its connection_lost
+                # callback), as before
+                self._set_all_bad(str(exc))
+                self.read_timeouts += 1
+                self.timed_out = True
             except Exception as exc:  # noqa: BLE001 - a failed poll means a lost connection
                 self._set_all_bad(f"read failed: {exc!r}")
                 self._lost.set()

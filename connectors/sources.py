@@ -71,7 +71,9 @@ class OpcUaSource:
         src = np.array([s.ts.timestamp() for s in samples], np.float64)
         values[quality == TagQuality.BAD] = np.nan
         reasons = [s.reason for s in samples]
-        return Poll(ts, values, quality, reasons, time.perf_counter() - t0, src)
+        # a Read that got no answer within its timeout is late, not down (its tags Bad)
+        late = np.full(len(samples), bool(getattr(self.reader, "timed_out", False)))
+        return Poll(ts, values, quality, reasons, time.perf_counter() - t0, src, late)
 
     async def close(self) -> None:
         await self.reader.close()
@@ -160,14 +162,26 @@ class SourceSet:
             if p is None:
                 p = task.result()
             if isinstance(p, BaseException):
-                why = f"{name}: poll failed: {p!r}"
+                if isinstance(p, asyncio.CancelledError):  # never ours: say so, not "()"
+                    tags = self.names[sl]
+                    named = ", ".join(tags[:5]) + (f" and {len(tags) - 5} more" * (len(tags) > 5))
+                    why = f"{name}: poll of {named} cancelled inside the source (no answer)"
+                else:
+                    why = f"{name}: poll failed: {p!r}"
                 reasons[sl] = [why] * (sl.stop - sl.start)
                 self._last.append(why)
                 continue
             values[sl], quality[sl], reasons[sl] = p.values, p.quality, p.reasons
             if p.source_ts is not None:
                 source_ts[sl] = p.source_ts
-            # a source is down when none of its tags could be read (vectorised: 5,000 tags)
+            # a source is down when none of its tags could be read (vectorised: 5,000 tags);
+            # one whose request got no answer within its own timeout is late, as above
+            # (an OPC UA Read on a loaded machine; issue 34), and keeps its state
+            late_p = getattr(p, "late", None)
+            if late_p is not None and bool(np.all(late_p)) and len(late_p):
+                late[sl] = True
+                self._last.append(self._down[name][1] if name in self._down else "")
+                continue
             down = len(p.reasons) > 0 and bool((p.quality == _BAD).all())
             self._last.append((p.reasons[0] or "no tag readable") if down else "")
         return Poll(ts, values, quality, reasons, time.perf_counter() - t0, source_ts, late)

@@ -258,3 +258,78 @@ async def test_close_returns_when_the_library_swallows_the_cancel(server, caplog
     assert r.outages == 0 and not await r.wait_connected(0.1)
     msgs = [m.getMessage() for m in caplog.records if m.name == "connectors.opcua_client"]
     assert not any("unavailable" in m or "lost" in m for m in msgs), msgs
+
+
+@pytest.fixture
+def threaded_server():
+    """Our OPC UA server on an event loop of its own thread: it answers while the test's
+    loop is held (as a loaded machine holds a live loop between two of its steps)."""
+    import threading
+
+    loop = asyncio.new_event_loop()
+    srv = DiagOpcUaServer(port=free_port())
+    ready = threading.Event()
+
+    def serve() -> None:
+        asyncio.set_event_loop(loop)
+        loop.run_until_complete(srv.start())
+        loop.run_until_complete(srv.update_plant(dict.fromkeys(DEFAULT_PLANT_TAGS, 3.0)))
+        ready.set()
+        loop.run_forever()
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    assert ready.wait(60)
+    yield srv
+    asyncio.run_coroutine_threadsafe(srv.stop(), loop).result(30)
+    loop.call_soon_threadsafe(loop.stop)
+    thread.join(30)
+
+
+async def test_a_read_answered_as_its_timeout_runs_out_is_a_timeout(threaded_server, caplog):
+    """The reader's loop held past the read timeout while the server answers: the answer and
+    the timeout land in one loop iteration, as on a loaded machine. Before, asyncua's nested
+    ``wait_for`` made that a ``CancelledWithResultError``, which escaped ``read()`` (the live
+    loop logged "scada: poll failed: CancelledError()"), and a read that timed out dropped
+    the connection. Now the read returns the tags Bad with a reason naming the server, the
+    tags, the timeout and the wait; the session is kept and the next read is Good."""
+    import time
+
+    srv = threaded_server
+    r = OpcUaReader(OpcUaConfig(srv.endpoint, plant_nodes(srv), timeout=0.2))
+    await r.start()
+    try:
+        assert await r.wait_connected(30)
+
+        async def good() -> bool:  # a read on a loaded machine may itself be late: retried
+            for _ in range(100):
+                samples = await r.read()
+                if all(s.quality is TagQuality.GOOD and s.value == 3.0 for s in samples):
+                    return True
+                await asyncio.sleep(0.1)
+            return False
+
+        assert await good()
+        timeouts = getattr(r, "read_timeouts", 0)  # (main has no such counter)
+        held = []
+        for _ in range(3):
+            task = asyncio.ensure_future(r.read())
+            await asyncio.sleep(0)  # the Read request goes out
+            # the loop held past the read's timeout (0.2 s), not past asyncua's watchdog probe's
+            # (0.5 s); the server answers meanwhile
+            time.sleep(0.35)
+            await asyncio.wait({task})
+            assert not task.cancelled(), "a CancelledError escaped read()"
+            held.append(task.result())
+        for samples in held:
+            assert all(s.quality is TagQuality.BAD for s in samples), samples
+            why = samples[0].reason
+            assert why.startswith(f"no answer from {srv.endpoint} to the Read of 7 tags"), why
+            assert "(F, CV, X, P0, P1 and 2 more) within the 0.2 s timeout" in why, why
+            assert float(why.split("(waited ")[1].split(" s)")[0]) >= 0.35, why
+        assert r.read_timeouts - timeouts == 3
+        assert await good() and r.connected and r.outages == 0
+    finally:
+        await r.close()
+    msgs = [m.getMessage() for m in caplog.records if m.name == "connectors.opcua_client"]
+    assert not any("unavailable" in m for m in msgs), msgs

@@ -322,6 +322,8 @@ class LiveLoop:
             quality[stale] = TagQuality.UNCERTAIN
             self.stats.stale += int(stale.sum())
         self._quality, self._reasons, self._stale_mask = quality, poll.reasons, stale
+        #: per tag, whether this cycle's poll of its source was late (no answer in time)
+        self._late = getattr(poll, "late", None)
         if self.historian is not None:
             self.historian.put(ts, values, quality)
         for t in self.source.transitions(poll.ts):
