@@ -46,6 +46,12 @@ def now() -> datetime:
     return datetime.now(UTC)
 
 
+def name_tags(tags: list[str], most: int = 5) -> str:
+    """``A, B, C, D, E and 2 more``: the first ``most`` tags of a message, then their count."""
+    extra = len(tags) - most
+    return ", ".join(tags[:most]) + (f" and {extra} more" if extra > 0 else "")
+
+
 class TagReader(Protocol):
     """Reads a fixed set of tags; a failed read gives Bad samples, never raises."""
 

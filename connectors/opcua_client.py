@@ -34,7 +34,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-from connectors.base import AllowList, Backoff, TagQuality, TagSample, now
+from connectors.base import AllowList, Backoff, TagQuality, TagSample, name_tags, now
 
 if TYPE_CHECKING:
     from asyncua import Client, Node, ua
@@ -67,7 +67,7 @@ class ReadTimeout(TimeoutError):
     which tags, the timeout and how long the read waited (a loaded event loop waits longer)."""
 
     def __init__(self, url: str, tags: list[str], timeout: float, waited: float) -> None:
-        named = ", ".join(tags[:5]) + (f" and {len(tags) - 5} more" if len(tags) > 5 else "")
+        named = name_tags(tags)
         n = f"{len(tags)} tag{'s' if len(tags) != 1 else ''}"
         super().__init__(
             f"no answer from {url} to the Read of {n} ({named}) within the {timeout:g} s "

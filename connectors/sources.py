@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from connectors.base import TagQuality, now
+from connectors.base import TagQuality, name_tags, now
 from connectors.modbus import Poll
 
 _BAD = int(TagQuality.BAD)
@@ -163,8 +163,7 @@ class SourceSet:
                 p = task.result()
             if isinstance(p, BaseException):
                 if isinstance(p, asyncio.CancelledError):  # never ours: say so, not "()"
-                    tags = self.names[sl]
-                    named = ", ".join(tags[:5]) + (f" and {len(tags) - 5} more" * (len(tags) > 5))
+                    named = name_tags(list(self.names[sl]))
                     why = f"{name}: poll of {named} cancelled inside the source (no answer)"
                 else:
                     why = f"{name}: poll failed: {p!r}"
