@@ -98,18 +98,24 @@ def parse_loop(text: str) -> Loop:
     return Loop(pv, sp, out or None)
 
 
-def loops_from_tags_csv(path: str | Path) -> list[Loop]:
-    """The loops a tags CSV declares in its ``loop`` and ``role`` columns (see module doc);
-    none when it has no ``loop`` column. Problems as ``file:line``."""
+def _tags_csv(path: Path):
+    """A tags CSV as text cells, its columns by lower-case name, and its name column (or
+    None)."""
     import pandas as pd
 
-    path = Path(path)
     try:
         frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
     except (OSError, ValueError) as exc:
         raise UserError(f"{path}: cannot read the tags CSV: {exc}") from None
     cols = {c.strip().lower(): c for c in frame.columns}
-    name = cols.get("name", cols.get("tag"))
+    return frame, cols, cols.get("name", cols.get("tag"))
+
+
+def loops_from_tags_csv(path: str | Path) -> list[Loop]:
+    """The loops a tags CSV declares in its ``loop`` and ``role`` columns (see module doc);
+    none when it has no ``loop`` column. Problems as ``file:line``."""
+    path = Path(path)
+    frame, cols, name = _tags_csv(path)
     if "loop" not in cols:
         return []
     if name is None or "role" not in cols:
@@ -183,15 +189,8 @@ class Manual:
 def manual_from_tags_csv(path: str | Path) -> list[Manual]:
     """The hand valves a tags CSV declares: rows whose ``role`` is ``manual`` (see module
     doc); none without a ``role`` column. A hand valve in a loop is refused as ``file:line``."""
-    import pandas as pd
-
     path = Path(path)
-    try:
-        frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
-    except (OSError, ValueError) as exc:
-        raise UserError(f"{path}: cannot read the tags CSV: {exc}") from None
-    cols = {c.strip().lower(): c for c in frame.columns}
-    name = cols.get("name", cols.get("tag"))
+    frame, cols, name = _tags_csv(path)
     if "role" not in cols:
         return []
     out = []
