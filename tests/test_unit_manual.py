@@ -245,3 +245,19 @@ def test_a_steam_valve_set_by_hand_is_check_function_when_moved(steam):
         assert alarm.mean() > 0.5, seed
         top = d.top_tags["top1"].iloc[on:][alarm]
         assert top.value_counts().index[0] == "F_STEAM", seed
+
+
+def test_the_plant_cycle_by_cycle_agrees_where_a_grid_left_what_it_learned(steam):
+    """The heater's valve moved: the tests reading it and, while it is outside, the grids whose
+    inputs left their learned cells are unknown — the plant's fast path (the live loop) as the
+    replay, through the move."""
+    res, unit = steam
+    on = int(86400 / heater.PERIOD_S)
+    f = heater.simulate(1.2, 104, "valve_moved", onset_days=1.0).iloc[on - 200 : on + 1000]
+    whole = unit.reset().evaluate(f)
+    assert (whole.status.iloc[210:] == NE107.CHECK_FUNCTION).mean() > 0.9
+    plant = Plant({"heater": Unit.load(res.path, res.path.parent)}, {})
+    got = [plant.cycle(ts, row.to_dict())[0] for ts, row in f.iterrows()]
+    assert [int(s.status) for s in got] == whole.status.astype(int).tolist()
+    sym = np.array([[s.symptoms[t] for t in unit.tests] for s in got])
+    np.testing.assert_array_equal(np.isnan(sym), whole.symptoms.isna().to_numpy())
