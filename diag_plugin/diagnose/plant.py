@@ -44,6 +44,7 @@ import pandas as pd
 
 from diag_plugin.diagnose.derived import DerivedInputs, stackable
 from diag_plugin.diagnose.isolation import IsolationHold
+from diag_plugin.diagnose.manual import PlantGuard
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.symptoms import OnOffDelay
 from diag_plugin.diagnose.unit import (
@@ -171,6 +172,7 @@ class Plant:
         for s in slots:  # the derived features' columns after the tags'
             s.inputs[:, 1] = _after(s.inputs[:, 1], n_tags)
             s.output = (s.output[0], int(_after(np.array([s.output[1]]), n_tags)[0]))
+        self._manual = _manual_guard(units, slots, tags)
         derived.freeze(tags)
         self._derived = derived if len(derived) else None
         self.tag_names = list(tags)
@@ -542,6 +544,8 @@ class Plant:
         y = self._hist[self._out_lag, self._out_col]
         y[self._out_lag > have] = np.nan
         r = (y - yhat) / self._scale * 100.0 / factor  # Kościelny et al., eq. 6; levels
+        if self._manual is not None:  # a hand valve outside its span: its tests unknown
+            self._manual.blank(r, self._hist)
         for cm, cols, idx, center, scale in self._level_points:  # Unit.at_points
             p = 0
             if cols is not None:  # the operating point of this cycle's readings
@@ -735,6 +739,22 @@ class Plant:
         for ui in np.flatnonzero(has & active):
             self._last_alarm[int(ui)] = (int(status[ui]), list(faults[ui]), list(tags[ui]))
         return held
+
+
+def _manual_guard(units: list[Unit], slots: list[_Slot], tags: dict[str, int]) -> PlantGuard | None:
+    """Every unit's hand-valve guard (:class:`~diag_plugin.diagnose.manual.ManualGuard`) on
+    the fast path's slots (``tags``: plant tag → column); None where no unit has one."""
+    rows, valves, first = [], [], 0
+    for ui, u in enumerate(units):
+        if u.manual is not None:
+            got, vs = u.manual.slots(first, [s.inputs for s in slots[first:]],
+                                     lambda t, u=u: tags[u.file.tags.get(t, t)])  # fmt: skip
+            rows.extend(got)
+            valves.append((ui, vs))
+        first += len(u.tests)
+    if not rows:
+        return None
+    return PlantGuard(rows, valves, np.array([s.unit for s in slots], np.intp))
 
 
 def _after(cols: np.ndarray, n_tags: int) -> np.ndarray:

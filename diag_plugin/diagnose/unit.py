@@ -47,6 +47,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.isolation import IsolationHold
+from diag_plugin.diagnose.manual import ManualGuard, manual_ranges
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
 from diag_plugin.diagnose.residuals import LowPass, supported
@@ -442,6 +443,8 @@ class Unit:
         spread = np.zeros(len(self.tests), bool)
         spread[self.spread_cols] = True
         self.warm_labels = warm_labels(self.tests, self.test_depth, spread)
+        #: the tests reading a hand valve, unknown where it is outside its span (None: none)
+        self.manual = ManualGuard.of(models, self.tests, file.manual)
         self.reset()
 
     # ------------------------------------------------------------ loading
@@ -557,7 +560,7 @@ class Unit:
         self.seen = 0  # samples since the start (the warm-up)
         if not hasattr(self, "outside"):
             self.outside = OutsideLearned(
-                learned_ranges(self.models, self.tests),
+                manual_ranges(learned_ranges(self.models, self.tests), self.file.manual),
                 self.file.tags,
                 [self.models[t].tags for t in self.tests],
             )
@@ -629,11 +632,14 @@ class Unit:
         # a test's residuals are one row of tests × samples (written in memory order, not a
         # column of samples × tests); turned to samples × tests once at the end
         out = np.full((len(self.tests), len(frame)), np.nan)
+        moved = self.manual.moved(cols.values) if self.manual is not None else False
         for j, t in enumerate(self.file.tests):
             m = self.models[t.name]
             d = self.builders[t.name].transform(cols, lean=True)
             if d.positions.size:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
+                if self.manual is not None:  # a hand valve outside its span: unknown
+                    self.manual.blank(out, j, d.positions, d.X, moved)
         # samples × tests as a view of it (column-major): :meth:`filtered` writes the C-ordered
         # copy it filters in place, so no third array of the residuals' size
         return pd.DataFrame(out.T, index=frame.index, columns=_names(self.tests), copy=False)

@@ -69,6 +69,16 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     [tags]               # optional: the plant tags this unit reads for the models' tags
     F = "V17.F"          # (one set of models serves a fleet of identical valves)
 
+    [manual]             # written by `diag unit build --manual`: hand valves, never tested;
+    HAND_VALVE = { min = 40.0, max = 47.0, margin = 0.0 }  # the span the unit learned
+
+``[manual]`` (written by ``diag unit build`` for a declared hand valve, widened by ``diag unit
+accept``): per hand valve (the models' tag name) the span the unit learned it in, ``min`` and
+``max`` of the window and a ``margin`` from the data (3 × its noise); where it is outside
+``[min − margin, max + margin]`` every test reading it is unknown and the unit
+CHECK_FUNCTION, naming the valve (:mod:`diag_plugin.diagnose.manual`). A file without the
+table: no test is made unknown by it.
+
 ``spread = true`` (learned per test): the test's Wang–Mendel residual is divided by the spread of
 the training outputs of the rules that answered, relative to the model's typical spread
 (``Prediction.spread``, never below :data:`SPREAD_FLOOR`): where the plant varies more for the
@@ -140,6 +150,7 @@ from typing import Any
 import tomlkit
 from tomlkit.exceptions import ParseError
 
+from diag_plugin.diagnose.manual import read_manual
 from diag_plugin.rulebase.folder import UNIT_SUFFIX
 from diag_plugin.status import NE107
 from diag_plugin.tomllines import LinedFile, syntax_error
@@ -155,6 +166,7 @@ TABLES = (
     "learned",
     "combined",
     "build",
+    "manual",
 )
 
 #: why a residual is unknown: the reasons ``diag unit learn`` counts (``unknown_<reason>``
@@ -429,6 +441,9 @@ class UnitFile(LinedFile):
         self.tests = self._tests(self._table("tests", required=True))
         self.fault_status = self._faults(self._table("faults"))
         self.combined = self._combined(self._table("combined"))
+        self.manual = read_manual(
+            self._table("manual"), self.error, lambda k: self.line_of("manual", k)
+        )
         self.tags: dict[str, str] = {}
         for k, v in self._table("tags").items():
             v = _plain(v)

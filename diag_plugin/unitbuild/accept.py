@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import tomlkit
 
 from diag_plugin.regressors import InputSpec, max_lag
 from diag_plugin.unitbuild import short
@@ -322,6 +323,7 @@ def accept(
             rb.save(path)
         windows = sorted(all_windows)
         res.windows = [(a.isoformat(), b.isoformat()) for a, b in windows]
+        warnings.extend(widen_manual(uf.path, new))  # before the thresholds: they judge there
         fresh = Unit.load(uf.path, uf.path.parent)
         history = max((max_lag(m.inputs) for m in fresh.models.values()), default=0)
         frame, runs = _joined([window(a, b) for a, b in windows], fresh.period, history)
@@ -349,6 +351,33 @@ def accept(
         rollback(uf.path)  # leave the unit as it was
         raise
     return res
+
+
+def widen_manual(path: Path, frame: pd.DataFrame) -> list[str]:
+    """The unit file's hand-valve spans (``[manual]``, :mod:`~diag_plugin.diagnose.manual`)
+    widened to hold the accepted window ``frame`` (models' tag names): ``min``/``max`` merged
+    exactly, the larger margin kept; saved when one changed. Returns what changed."""
+    from diag_plugin.diagnose.manual import learned_span, merged
+    from diag_plugin.diagnose.unitfile import UnitFile
+
+    uf = UnitFile.load(path)
+    said = []
+    for tag, old in uf.manual.items():
+        if tag not in frame.columns:
+            continue
+        new = merged(old, learned_span(tag, frame[tag].to_numpy(float)))
+        if new == old:
+            continue
+        row = tomlkit.inline_table()
+        row.update(new.as_row())
+        uf.doc["manual"][tag] = row
+        said.append(
+            f"hand valve {tag}: span {old.min:g} … {old.max:g} (margin {old.margin:g}) → "
+            f"{new.min:g} … {new.max:g} (margin {new.margin:g})"
+        )
+    if said:
+        uf.save()
+    return said
 
 
 def _as_json(limits: dict[str, tuple[float, float]]) -> dict[str, dict[str, float | None]]:

@@ -67,6 +67,7 @@ import numpy as np
 import pandas as pd
 import tomlkit
 
+from diag_plugin.diagnose.manual import MARGIN_SAYS, ManualSpan, learned_span
 from diag_plugin.diagnose.unittags import is_set_point
 from diag_plugin.learn.thresholds import DEFAULT_BLOCKS, block_of
 from diag_plugin.models.spec import Variable
@@ -78,7 +79,7 @@ from diag_plugin.selection.scoring import BlockScorer, FrozenRuleBase
 from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
 from diag_plugin.unitbuild import short
-from diag_plugin.unitbuild.loops import Loop, checked_loops
+from diag_plugin.unitbuild.loops import Loop, Manual, checked_loops, checked_manual
 from diag_plugin.unitbuild.parallel import DaskPool, map_tests, one_blas_thread
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
@@ -189,6 +190,8 @@ class BuildResult:
     learned: object | None = None
     seconds: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    #: the hand valves (--manual) and the span each was learned in
+    manual: list[ManualSpan] = field(default_factory=list)
 
     def as_dict(self) -> dict:
         lim = getattr(self.learned, "limits", {}) or {}
@@ -202,6 +205,7 @@ class BuildResult:
             "skipped": self.skipped,
             "seconds": {k: round(v, 2) for k, v in self.seconds.items()},
             "notes": self.notes,
+            "manual": {m.tag: m.as_row() for m in self.manual},
         }
 
 
@@ -226,17 +230,22 @@ def choose_tests(
     tag_info: Mapping[str, TagInfo | Mapping[str, object]] | None = None,
     tags: Sequence[str] | None = None,
     set_points: Sequence[str] = (),
+    manual: Mapping[str, str] | None = None,
 ) -> tuple[list[str], dict[str, str]]:
     """The tags to test and the others with the reason each is left out.
 
     ``tags`` (the user's list) are tested as given, unless constant or without enough data
-    (a test of a constant teaches nothing; that is an error the caller reports)."""
+    (a test of a constant teaches nothing; that is an error the caller reports), or a hand
+    valve (``manual``: tag → what the plan says of it, never tested)."""
     info = tag_infos(tag_info)
+    manual = manual or {}
     chosen, skipped = [], {}
     for t in tags if tags is not None else list(frame.columns):
         v = frame[t].to_numpy(float)
         good = np.isfinite(v)
-        if good.mean() < MIN_GOOD_SHARE:
+        if t in manual:
+            skipped[t] = manual[t]
+        elif good.mean() < MIN_GOOD_SHARE:
             skipped[t] = (
                 f"good samples in {good.mean():.0%} of the window's grid points "
                 f"(a test needs {MIN_GOOD_SHARE:.0%})"
@@ -803,6 +812,7 @@ def build_unit(
     progress: Callable[[str, int, int], None] | None = None,
     loops: Sequence[Loop] = (),
     workers: int | DaskPool | None = None,
+    manual: Sequence[Manual | str] = (),
 ) -> BuildResult:
     """Build unit ``name`` from ``frame`` (the fault-free window, aligned on ``period``; every
     column a candidate input) into ``folder``: model files ``NAME_TEST.toml`` and
@@ -812,9 +822,10 @@ def build_unit(
     tests' inputs, train their models and compute their residuals for the thresholds
     (default: every core, :mod:`~diag_plugin.unitbuild.parallel`), or a
     :class:`~diag_plugin.unitbuild.parallel.DaskPool` to do that work on a Dask cluster (the
-    same unit). Raises :class:`~historian.errors.UserError` on input the build cannot use;
-    a build that fails leaves none of the files it wrote and puts back those it overwrote
-    (:func:`_remove_partial`)."""
+    same unit). ``manual``: hand valves (:mod:`~diag_plugin.diagnose.manual`), never tested,
+    their span written in ``[manual]``. Raises :class:`~historian.errors.UserError` on input
+    the build cannot use; a build that fails leaves none of the files it wrote and puts back
+    those it overwrote (:func:`_remove_partial`)."""
     folder = Path(folder)
     made = not folder.exists()
     since = time.time_ns() - 100_000_000  # file times lag the clock by a tick
@@ -824,7 +835,7 @@ def build_unit(
             return _build_unit(name, frame, folder=folder, period=period, tag_info=tag_info,
                                tags=tags, far=far, max_inputs=max_inputs, force=force,
                                source=source, progress=progress, loops=loops,
-                               workers=workers)  # fmt: skip
+                               workers=workers, manual=manual)  # fmt: skip
     except BaseException:
         _remove_partial(folder, name, since, made, before)
         raise
@@ -900,6 +911,7 @@ def _build_unit(
     progress,
     loops: Sequence[Loop],
     workers: int | DaskPool | None,
+    manual: Sequence[Manual | str] = (),
 ) -> BuildResult:
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitError, new_unit_text
@@ -938,7 +950,9 @@ def _build_unit(
     info = tag_infos(tag_info)
     loops = checked_loops(loops, list(frame.columns))
     declared = {lp.pv: lp for lp in loops}
-    tests, skipped = choose_tests(frame, info, tags, [lp.sp for lp in loops])
+    hand = hand_valves(frame, info, manual, loops)
+    tests, skipped = choose_tests(frame, info, tags, [lp.sp for lp in loops],
+                                  {m.tag: hand_plan(m, info) for m in hand})  # fmt: skip
     if tags is not None and skipped:
         raise UserError("cannot test: " + "; ".join(f"{t}: {why}" for t, why in skipped.items()))
     if not tests:
@@ -1023,7 +1037,8 @@ def _build_unit(
         kept.append(ch)
     if plan.short:
         kept.extend(joint_tests(kept, ctx, taken, notes))
-        kept.extend(blind_pair_tests(kept, list(skipped), plan, ctx, taken))
+        blind = [t for t in skipped if t not in {m.tag for m in hand}]  # a hand valve: no test
+        kept.extend(blind_pair_tests(kept, blind, plan, ctx, taken))
     t1 = time.perf_counter()
     kept.extend(
         _balance_tests(kept, names, taken, notes, ctx, sel, plan, info=info, held=held,
@@ -1081,6 +1096,8 @@ def _build_unit(
     # the window's set-points, as judged here (name or description): the unit never blames
     # one (unittags.structure), and it has no historian metadata at run time
     doc["build"]["set_points"] = [t for t in frame.columns if is_set_point(t, info.get(t))]
+    if hand:
+        doc["manual"] = manual_table(hand)
     path.write_text(tomlkit.dumps(doc), encoding="utf-8")
 
     t0 = time.perf_counter()
@@ -1105,7 +1122,62 @@ def _build_unit(
     if progress:
         progress("learn thresholds", 1, 1)
     window = (start.isoformat(), end.isoformat())
-    return BuildResult(name, path, period, window, kept, skipped, far, learned, seconds, notes)
+    return BuildResult(
+        name, path, period, window, kept, skipped, far, learned, seconds, notes, manual=hand
+    )
+
+
+def hand_valves(
+    frame: pd.DataFrame, info: Mapping[str, TagInfo], manual: Sequence[Manual | str],
+    loops: Sequence[Loop],
+) -> list[ManualSpan]:  # fmt: skip
+    """The declared hand valves (``--manual``, a tags CSV's role ``manual``) with the span the
+    window holds each in (:func:`~diag_plugin.diagnose.manual.learned_span`); a tag not in the
+    data, in a loop, or without a value in the window is refused naming it and where it was
+    declared."""
+    decl = [m if isinstance(m, Manual) else Manual(m) for m in manual]
+    where = {}
+    for m in decl:
+        where.setdefault(m.tag, m.where)
+    out = []
+    for tag in checked_manual(decl, list(frame.columns), loops):
+        span = learned_span(tag, frame[tag].to_numpy(float))
+        if span is None:
+            raise UserError(f"{where[tag]}: hand valve {tag} (manual) has no value in the window")
+        out.append(span)
+    return out
+
+
+def hand_plan(span: ManualSpan, info: Mapping[str, TagInfo]) -> str:
+    """What the build's plan says of a hand valve: ``manual (an operator's setting): an input,
+    never tested; learned 20–35 %``, with the margin."""
+    unit = getattr(info.get(span.tag), "unit", "") or ""
+    unit = f" {unit}" if unit else ""
+    margin = (
+        f" (± {span.margin:.3g} margin: {MARGIN_SAYS})" if span.margin > 0
+        else " (no margin: it reads without noise)"
+    )  # fmt: skip
+    return (
+        f"manual (an operator's setting): an input, never tested; learned "
+        f"{span.min:.4g}–{span.max:.4g}{unit}{margin}"
+    )
+
+
+def manual_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:
+    """The unit file's ``[manual]`` table (docs/reference/units.md)."""
+    t = tomlkit.table()
+    t.add(
+        tomlkit.comment(
+            "written by `diag unit build --manual`: hand valves, never tested; min/max as the "
+            f"window learned them, margin {MARGIN_SAYS}; outside [min - margin, max + margin] "
+            "the tests reading one are unknown"
+        )
+    )
+    for s in spans:
+        row = tomlkit.inline_table()
+        row.update(s.as_row())
+        t[s.tag] = row
+    return t
 
 
 def _balance_tests(kept, names, taken, notes, ctx, sel, plan, *, workers, **plans):
@@ -1281,6 +1353,7 @@ def build_from_historian(
     loops: Sequence[Loop] = (),
     period: str | None = None,
     workers: int | DaskPool | None = None,
+    manual: Sequence[Manual | str] = (),
 ) -> BuildResult:
     """:func:`build_unit` on the historian's window ``[start, end)``: every tag it holds is
     a candidate input; the grid period is ``period`` (``--period``: a faster tag averaged
@@ -1341,6 +1414,7 @@ def build_from_historian(
         source="diag unit build",
         loops=loops,
         workers=workers,
+        manual=manual,
     )
     res.seconds = {"read": read_s, **res.seconds}
     res.seconds["total"] += read_s

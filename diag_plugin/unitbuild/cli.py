@@ -48,7 +48,17 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "--loops-from",
         metavar="TAGS_CSV",
         help="loops declared in a tags CSV's 'loop' and 'role' (pv|sp|out|sensor|actuator) "
-        "columns; a fixed set-point in a 'set_point' column of the pv row",
+        "columns; a fixed set-point in a 'set_point' column of the pv row; hand valves by "
+        "the role 'manual' (a row without a loop)",
+    )
+    p.add_argument(
+        "--manual",
+        action="append",
+        default=[],
+        metavar="TAG",
+        help="a hand valve (an operator's setting): an input, never tested; outside the span "
+        "the window learned it in, the tests reading it are unknown (CHECK_FUNCTION) until "
+        "diag unit accept learns the new position (repeatable; docs/how-to/unit-loops.md)",
     )
     p.add_argument(
         "--period",
@@ -108,7 +118,7 @@ def _tags_from(path: str) -> list[str]:
     return tags
 
 
-def _build(args, tags, loops, t0, t1, workers):
+def _build(args, tags, loops, manual, t0, t1, workers):
     """The build, its progress drawn on a terminal's standard error."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
@@ -145,15 +155,23 @@ def _build(args, tags, loops, t0, t1, workers):
             loops=loops,
             period=args.period,
             workers=workers,
+            manual=manual,
         )
 
 
 def cmd_unit_build(args) -> int:
-    from diag_plugin.unitbuild.loops import loops_from_tags_csv, parse_loop
+    from diag_plugin.unitbuild.loops import (
+        Manual,
+        loops_from_tags_csv,
+        manual_from_tags_csv,
+        parse_loop,
+    )
 
     tags = args.tags or (_tags_from(args.tags_from) if args.tags_from else None)
     loops = [parse_loop(x) for x in args.loop]
+    manual = [Manual(t.strip(), f"--manual {t}") for t in args.manual]
     if args.loops_from:
+        manual += manual_from_tags_csv(args.loops_from)  # first: a hand valve in a loop
         loops += loops_from_tags_csv(args.loops_from)
     if args.max_inputs < 1:
         raise UserError(f"--max-inputs {args.max_inputs}: at least 1")
@@ -165,7 +183,7 @@ def cmd_unit_build(args) -> int:
             from diag_plugin.unitbuild.parallel import DaskPool
 
             workers = stack.enter_context(DaskPool.connect(args.dask, args.dask_timeout))
-        res = _build(args, tags, loops, t0, t1, workers)
+        res = _build(args, tags, loops, manual, t0, t1, workers)
     if _printed_json(args, res.as_dict()):
         return 0
     print(
@@ -185,8 +203,12 @@ def cmd_unit_build(args) -> int:
         if not ch.tracks and ch.why:
             loop = f" ({ch.why})"
         print(f"  {ch.test}: {test_line(ch)}{loop}; held-out error {errs} % of span")
+    hand = {m.tag for m in res.manual}
+    for tag in hand:
+        print(f"  {tag}: {res.skipped[tag]}")
     for tag, why in res.skipped.items():
-        print(f"  not tested: {tag}: {why}")
+        if tag not in hand:
+            print(f"  not tested: {tag}: {why}")
     for n in res.notes[:4]:
         print(f"  note: {n}")
     if len(res.notes) > 4:

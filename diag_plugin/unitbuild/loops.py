@@ -25,6 +25,13 @@ output or valve position). A loop needs a ``pv`` and an ``sp``; ``out`` is optio
 column of the loop's ``pv`` row (then no ``sp`` row). The loop's test is then the measurement
 at that number plus the loop's steady offset (``track`` on ``const(120.4)[k]``): its residual is
 the control error, as for a set-point tag.
+
+**A hand valve** (issue 34, item 5): a tag an operator sets by hand (a manual drain valve, a
+blowdown valve moved twice a day) is the operator's choice, not a process variable, and its
+next position is a new operating point, not a fault. Declared with ``--manual TAG`` or the
+role ``manual`` in a tags CSV (a row without a ``loop``), it is never a test, stays a
+candidate input, and the unit records the span the window saw it in
+(:mod:`diag_plugin.diagnose.manual`).
 """
 
 from __future__ import annotations
@@ -38,6 +45,8 @@ from historian.errors import UserError
 
 #: role names of the tags CSV's ``role`` column, and the part of a loop each one is
 ROLES = {"pv": "pv", "sensor": "pv", "sp": "sp", "out": "out", "actuator": "out"}
+#: the role of a hand valve in the tags CSV (a row without a loop)
+MANUAL = "manual"
 
 
 @dataclass(frozen=True)
@@ -89,18 +98,24 @@ def parse_loop(text: str) -> Loop:
     return Loop(pv, sp, out or None)
 
 
-def loops_from_tags_csv(path: str | Path) -> list[Loop]:
-    """The loops a tags CSV declares in its ``loop`` and ``role`` columns (see module doc);
-    none when it has no ``loop`` column. Problems as ``file:line``."""
+def _tags_csv(path: Path):
+    """A tags CSV as text cells, its columns by lower-case name, and its name column (or
+    None)."""
     import pandas as pd
 
-    path = Path(path)
     try:
         frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
     except (OSError, ValueError) as exc:
         raise UserError(f"{path}: cannot read the tags CSV: {exc}") from None
     cols = {c.strip().lower(): c for c in frame.columns}
-    name = cols.get("name", cols.get("tag"))
+    return frame, cols, cols.get("name", cols.get("tag"))
+
+
+def loops_from_tags_csv(path: str | Path) -> list[Loop]:
+    """The loops a tags CSV declares in its ``loop`` and ``role`` columns (see module doc);
+    none when it has no ``loop`` column. Problems as ``file:line``."""
+    path = Path(path)
+    frame, cols, name = _tags_csv(path)
     if "loop" not in cols:
         return []
     if name is None or "role" not in cols:
@@ -160,6 +175,60 @@ def loops_from_tags_csv(path: str | Path) -> list[Loop]:
             first = min(v[1] for v in got.values())
             raise UserError(f"{path}:{first}: loop {loop} has no {' and no '.join(missing)} tag")
         out.append(Loop(got["pv"][0], got["sp"][0], got["out"][0] if "out" in got else None))
+    return out
+
+
+@dataclass(frozen=True)
+class Manual:
+    """A hand valve: its tag and where it was declared (``--manual`` or ``tags.csv:7``)."""
+
+    tag: str
+    where: str = "--manual"
+
+
+def manual_from_tags_csv(path: str | Path) -> list[Manual]:
+    """The hand valves a tags CSV declares: rows whose ``role`` is ``manual`` (see module
+    doc); none without a ``role`` column. A hand valve in a loop is refused as ``file:line``."""
+    path = Path(path)
+    frame, cols, name = _tags_csv(path)
+    if "role" not in cols:
+        return []
+    out = []
+    for i, row in enumerate(frame.to_dict("records")):
+        if row[cols["role"]].strip().lower() != MANUAL:
+            continue
+        where = f"{path}:{i + 2}"
+        tag = row[name].strip() if name is not None else ""
+        if not tag:
+            raise UserError(f"{where}: role manual without a tag name ('name' column)")
+        loop = row[cols["loop"]].strip() if "loop" in cols else ""
+        if loop:
+            raise UserError(
+                f"{where}: {tag} is a hand valve (role manual) and in loop {loop}: an "
+                "operator's setting is no loop's part (leave its loop cell empty)"
+            )
+        out.append(Manual(tag, where))
+    return out
+
+
+def checked_manual(
+    manual: Iterable[Manual], columns: Sequence[str], loops: Iterable[Loop] = ()
+) -> list[str]:
+    """The hand valves' tags, each in ``columns`` and in no loop, once each; a problem names
+    the tag and where it was declared."""
+    have = set(columns)
+    parts = {t: lp for lp in loops for t in (lp.pv, lp.sp, lp.out) if t}
+    out: list[str] = []
+    for m in manual:
+        if m.tag not in have:
+            raise UserError(f"{m.where}: hand valve {m.tag} (manual) is not in the data")
+        if m.tag in parts:
+            raise UserError(
+                f"{m.where}: hand valve {m.tag} (manual) is a tag of loop {parts[m.tag]}: "
+                "declare it one or the other"
+            )
+        if m.tag not in out:
+            out.append(m.tag)
     return out
 
 

@@ -1,0 +1,226 @@
+"""Hand valves: an operator's setting is an input, never tested, judged against the span the
+unit learned it in (issue 34, item 5).
+
+A hand valve (a manual drain valve, a blowdown valve moved twice a day) is set by an operator,
+not by the process: a model of it learns the operators' choices of the window (a chance
+correlation of a few moves), and its next position is a new operating point, not a fault.
+Declared (``diag unit build --manual TAG`` or the role ``manual`` in a tags CSV,
+:mod:`diag_plugin.unitbuild.loops`), the build never tests it, keeps it a candidate input of
+the other tests, and writes in the unit file the span the window saw it in::
+
+    [manual]
+    HAND_VALVE = { min = 40.0, max = 47.0, margin = 0.0 }
+
+``min``/``max`` as learned (the window's extremes), ``margin`` from the data: 3 × the tag's
+noise, the robust standard deviation of its sample-to-sample changes
+(1.4826 · MAD(Δx) / √2; an operator's moves are too few to move the median), so a reading at
+a learned position is never outside; 0 for a setting recorded without noise. At run time,
+where the tag is outside ``[min − margin, max + margin]``, every test reading it (any
+method, at the lag it reads it) is unknown — the unit CHECK_FUNCTION, naming the valve
+(:mod:`diag_plugin.diagnose.operating`) — and the tests that do not read it keep judging.
+``diag unit accept`` of a period at the new position widens the span (``min`` and ``max``
+merged exactly, the larger margin kept; :func:`merged`). Keys are the models' tag names.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from diag_plugin.diagnose.operating import Range
+from diag_plugin.regressors import parse_specs
+
+#: the margin is this many times the tag's noise (robust sd of its sample-to-sample changes)
+NOISE_MARGIN = 3.0
+#: what the margin is, as the unit file's comment and the build's plan say it
+MARGIN_SAYS = "3 × its noise (robust sd of its sample-to-sample changes)"
+
+
+@dataclass(frozen=True)
+class ManualSpan:
+    """A hand valve's span as learned: its extremes and the margin beyond them."""
+
+    tag: str
+    min: float
+    max: float
+    margin: float = 0.0
+
+    @property
+    def lo(self) -> float:
+        return self.min - self.margin
+
+    @property
+    def hi(self) -> float:
+        return self.max + self.margin
+
+    def as_row(self) -> dict[str, float]:
+        return {"min": float(self.min), "max": float(self.max), "margin": float(self.margin)}
+
+
+def learned_span(tag: str, x: np.ndarray) -> ManualSpan | None:
+    """``tag``'s span over the values ``x`` (module doc); None without a finite value."""
+    x = np.asarray(x, float)
+    good = x[np.isfinite(x)]
+    if not good.size:
+        return None
+    d = np.diff(x)
+    d = d[np.isfinite(d)]
+    noise = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2) if d.size else 0.0
+    return ManualSpan(tag, float(good.min()), float(good.max()), float(NOISE_MARGIN * noise))
+
+
+def merged(a: ManualSpan, b: ManualSpan | None) -> ManualSpan:
+    """The span of both windows: extremes merged exactly, the larger margin kept (the same
+    whatever order windows are accepted in)."""
+    if b is None:
+        return a
+    return ManualSpan(a.tag, min(a.min, b.min), max(a.max, b.max), max(a.margin, b.margin))
+
+
+def read_manual(table: Mapping, error, line_of) -> dict[str, ManualSpan]:
+    """The ``[manual]`` table of a unit file: tag → :class:`ManualSpan`; a bad row is
+    ``error(line, what)`` and left out (``line_of(key)``: its line)."""
+    out = {}
+    for tag, row in table.items():
+        row = dict(row) if isinstance(row, Mapping) else None
+        vals = {}
+        if row is not None:
+            vals = {
+                k: float(v) for k, v in row.items()
+                if isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v)
+            }  # fmt: skip
+        if row is None or set(row) != {"min", "max", "margin"} or len(vals) != 3:
+            error(line_of(tag), f"[manual] {tag}: must be {{ min = …, max = …, margin = … }}")
+            continue
+        if not (vals["min"] <= vals["max"] and vals["margin"] >= 0):
+            error(line_of(tag), f"[manual] {tag}: needs min ≤ max and margin ≥ 0")
+            continue
+        out[str(tag)] = ManualSpan(str(tag), vals["min"], vals["max"], vals["margin"])
+    return out
+
+
+def manual_ranges(ranges: Sequence[Range], spans: Mapping[str, ManualSpan]) -> list[Range]:
+    """The learned ranges with each hand valve's narrowed to its span and put first (the
+    range a test reading it is judged on, so the unit names the valve and the span it
+    learned before any input the valve's move took elsewhere)."""
+    if not spans:
+        return list(ranges)
+    first, rest = [], []
+    for r in ranges:
+        s = spans.get(r.tag)
+        if s is not None:
+            first.append(Range(r.test, r.tag, max(r.lo, s.lo), min(r.hi, s.hi), r.lag))
+        else:
+            rest.append(r)
+    return first + rest
+
+
+class ManualGuard:
+    """Per test the columns of its design that read a hand valve, and its plain inputs with
+    their learned ranges: :meth:`blank` makes the test unknown where a hand valve it reads is
+    outside its span, and, while any of the unit's hand valves is outside (:meth:`moved`),
+    where an input of its rule grid is outside the cells that carry a rule (the valve's move
+    took it there: the grid would answer from its edge; a linear or a loop's test extrapolates
+    and keeps judging). Tests whose inputs stay inside keep judging."""
+
+    def __init__(self, spans: Mapping[str, ManualSpan], cols: dict[int, tuple]):
+        self.spans = dict(spans)
+        #: test position → (design columns, lo, hi, whether each is a hand valve's)
+        self.cols = cols
+
+    @classmethod
+    def of(cls, models: Mapping, tests: Sequence[str], spans: Mapping[str, ManualSpan]):
+        """The guard of a unit's tests (``models``: test → its
+        :class:`~diag_plugin.diagnose.unit.TestModel`); None where the unit declares no hand
+        valve or no test reads one (a unit as before)."""
+        from diag_plugin.diagnose.operating import model_ranges
+
+        read = {s.tags[0] for name in tests for s in parse_specs(models[name].inputs)
+                if s.fn == ""}  # fmt: skip
+        spans = {t: s for t, s in spans.items() if t in read}
+        if not spans:
+            return None
+        cols = {}
+        for j, name in enumerate(tests):
+            m = models[name]
+            plain = [k for k, s in enumerate(parse_specs(m.inputs)) if s.fn == ""]
+            grid = getattr(m.model, "partitions_", None) is not None
+            learned = model_ranges(m.model, m.inputs) if grid else []
+            if len(learned) != len(plain):  # not a rule grid: its hand valves only
+                learned = [(parse_specs([m.inputs[k]])[0].tags[0], -np.inf, np.inf)
+                           for k in plain]  # fmt: skip
+            rows = []
+            for k, (tag, lo, hi) in zip(plain, learned, strict=True):
+                s = spans.get(tag)
+                rows.append((k, lo, hi, False) if s is None else (k, s.lo, s.hi, True))
+            if rows:
+                k, lo, hi, hand = zip(*rows, strict=True)
+                cols[j] = (np.array(k, np.intp), np.array(lo, float), np.array(hi, float),
+                           np.array(hand, bool))  # fmt: skip
+        return cls(spans, cols)
+
+    def moved(self, value) -> np.ndarray | bool:
+        """Where any hand valve is outside its span now (``value(tag)``: its values at the
+        rows, model tag names; a valve without a value is not outside)."""
+        off = False
+        for tag, s in self.spans.items():
+            x = np.asarray(value(tag), float)
+            with np.errstate(invalid="ignore"):
+                off = off | (x < s.lo) | (x > s.hi)
+        return off
+
+    def blank(self, out: np.ndarray, j: int, positions: np.ndarray, X: np.ndarray, moved) -> None:
+        """Test ``j``'s residuals (row ``j`` of ``out``, tests × samples, at ``positions``,
+        its design ``X``; ``moved``: :meth:`moved` over the piece's rows) unknown where a
+        hand valve it reads is outside its span, or where a valve moved and an input of it
+        is outside what it learned."""
+        got = self.cols.get(j)
+        if got is None or not positions.size:
+            return
+        k, lo, hi, hand = got
+        x = np.asarray(X, float)[:, k]
+        off = (x < lo) | (x > hi)
+        bad = off[:, hand].any(axis=1)
+        if np.any(moved):
+            bad |= np.asarray(moved)[positions] & off[:, ~hand].any(axis=1)
+        out[j, positions[bad]] = np.nan
+
+    def slots(self, first: int, inputs: Sequence[np.ndarray], column) -> tuple[list, list]:
+        """The plant's fast path (:class:`~diag_plugin.diagnose.plant.Plant`): per guarded
+        test (slot ``first`` + its position, ``inputs[j]`` its ``(lag, column)`` rows) its
+        judged inputs ``(slot, lag, column, lo, hi, hand valve?)``, and the valves' ``(column,
+        lo, hi)`` (``column(tag)``: a model tag's column in the plant's history)."""
+        rows = []
+        for j, (k, lo, hi, hand) in self.cols.items():
+            for c, a, b, h in zip(k.tolist(), lo.tolist(), hi.tolist(), hand.tolist(),
+                                  strict=True):  # fmt: skip
+                lag, col = inputs[j][c]
+                rows.append((first + j, int(lag), int(col), a, b, h))
+        valves = [(column(t), s.lo, s.hi) for t, s in self.spans.items()]
+        return rows, valves
+
+
+class PlantGuard:
+    """:meth:`ManualGuard.blank` on the plant's fast path, every unit's at once: one cycle's
+    residuals ``r`` (per slot) from the history ``hist`` (lag × columns)."""
+
+    def __init__(self, rows: list, valves: list, slot_unit: np.ndarray) -> None:
+        a = np.array(rows, float).reshape(-1, 6)
+        self.slot = a[:, 0].astype(np.intp)
+        self.lag, self.col = a[:, 1].astype(np.intp), a[:, 2].astype(np.intp)
+        self.lo, self.hi, self.hand = a[:, 3], a[:, 4], a[:, 5] > 0
+        self.unit = slot_unit[self.slot]  # each judged input's unit
+        v = np.array([(u, c, lo, hi) for u, vs in valves for c, lo, hi in vs], float)
+        self.v_unit, self.v_col = v[:, 0].astype(np.intp), v[:, 1].astype(np.intp)
+        self.v_lo, self.v_hi = v[:, 2], v[:, 3]
+
+    def blank(self, r: np.ndarray, hist: np.ndarray) -> None:
+        """``r`` NaN, in place, at the slots :meth:`ManualGuard.blank` makes unknown."""
+        x = hist[self.lag, self.col]
+        off = (x < self.lo) | (x > self.hi)
+        now = hist[0, self.v_col]
+        moved_units = self.v_unit[(now < self.v_lo) | (now > self.v_hi)]
+        bad = off & (self.hand | np.isin(self.unit, moved_units))
+        r[self.slot[bad]] = np.nan
