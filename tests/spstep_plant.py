@@ -1,0 +1,110 @@
+"""A heater with a cascade (issue 34, items 5/6: an operator's set-point step is no alarm).
+Written once from the physics below for the settle guard's tests; not tuned for.
+
+- ``INLET_T`` inlet temperature, °C (slow wander)
+- ``SUPPLY_P`` heating medium supply pressure, bar (slow wander)
+- ``HEAT_TGT`` the outlet temperature's set-point, °C (an operator steps it every 3–8 h)
+- ``TEMP`` outlet temperature, °C: first order with dead time in the heating flow,
+  ``τ dT/dt = INLET_T + G · FLOW(t − θ) − T``, τ = 600 s, θ = 60 s, G = 2 °C per m³/h
+- ``FLOW_SP`` the outer PI's output (TEMP at HEAT_TGT): the inner loop's set-point, a
+  cascade set-point that moves every sample
+- ``FLOW`` heating flow, m³/h (follows the valve in 10 s), held at FLOW_SP by the inner PI
+- ``VALVE`` the inner PI's output, %
+
+Faults from ``onset_s``: ``temp_bias`` the outlet sensor reads ``size`` °C high (default 1.5);
+``fouling`` the heater's gain G falls by ``size`` (default 25 %): the outer loop raises the
+cascade set-point FLOW_SP to hold TEMP.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+DT = 5.0
+LOOPS = ("TEMP=HEAT_TGT:FLOW_SP", "FLOW=FLOW_SP:VALVE")
+TAGS = ("INLET_T", "SUPPLY_P", "HEAT_TGT", "TEMP", "FLOW_SP", "FLOW", "VALVE")
+
+
+def simulate(
+    days: float,
+    seed: int,
+    fault: str | None = None,
+    onset_s: float | None = None,
+    size: float | None = None,
+    steps: list[tuple[float, float]] | None = None,
+) -> pd.DataFrame:
+    """5 s samples over ``days``; ``steps``: (seconds, value) of HEAT_TGT instead of the
+    seed's operator (who steps it every 3–8 h by 3–8 °C, between 55 and 75 °C)."""
+    rng = np.random.default_rng(seed)
+    n = int(days * 86400 / DT)
+    sp = np.empty(n)
+    if steps is None:
+        i, v = 0, 65.0
+        while i < n:
+            k = int(rng.uniform(3, 8) * 3600 / DT)
+            d = rng.uniform(3, 8) * rng.choice([-1, 1])
+            v = float(np.clip(round(v + d), 55.0, 75.0))
+            sp[i : i + k] = v
+            i += k
+        sp[: int(3600 / DT)] = 65.0
+    else:
+        sp[:] = 65.0
+        for t, v in steps:
+            sp[int(t / DT) :] = v
+    on = n if onset_s is None or fault is None else int(onset_s / DT)
+    th, delay, gain = 600.0, int(60.0 / DT), 2.0
+    temp, flow, integ_o, integ_i = 65.0, 22.5, 22.5, 45.0
+    inlet, supply = 20.0, 5.0
+    hist = np.full(delay + 1, 22.5)
+    out = np.empty((n, 7))
+    a_f = 1.0 - np.exp(-DT / 10.0)
+    kc, ti = 0.8, 600.0  # outer PI (IMC, λ = 300 s)
+    kci, tii = 0.8, 20.0  # inner PI
+    for i in range(n):
+        inlet = 20.0 + 0.9995 * (inlet - 20.0) + 0.03 * rng.standard_normal()
+        supply = 5.0 + 0.999 * (supply - 5.0) + 0.01 * rng.standard_normal()
+        g = gain
+        bias = 0.0
+        if i >= on:
+            if fault == "fouling":
+                g = gain * (1.0 - (0.25 if size is None else size))
+            elif fault == "temp_bias":
+                bias = 1.5 if size is None else size
+        hist = np.roll(hist, 1)
+        hist[0] = flow
+        temp += (inlet + g * hist[delay] - temp) * (1.0 - np.exp(-DT / th))
+        t_meas = temp + bias + 0.05 * rng.standard_normal()
+        e = sp[i] - t_meas
+        integ_o = float(np.clip(integ_o + kc * e * DT / ti, 0.0, 50.0))
+        fsp = float(np.clip(kc * e + integ_o, 0.0, 50.0))
+        f_meas = flow + 0.1 * rng.standard_normal()
+        ei = fsp - f_meas
+        integ_i = float(np.clip(integ_i + kci * ei * DT / tii, 0.0, 100.0))
+        valve = float(np.clip(kci * ei + integ_i, 0.0, 100.0))
+        flow += (0.5 * valve * np.sqrt(supply / 5.0) - flow) * a_f
+        out[i] = (
+            inlet + 0.05 * rng.standard_normal(),
+            supply + 0.01 * rng.standard_normal(),
+            sp[i],
+            t_meas,
+            fsp,
+            f_meas,
+            valve,
+        )
+    idx = pd.date_range("2026-03-02", periods=n, freq=f"{int(DT)}s", tz="UTC")
+    return pd.DataFrame(out, index=idx, columns=list(TAGS))
+
+
+def at_period(frame: pd.DataFrame, period_s: int) -> pd.DataFrame:
+    """The historian's means over ``period_s`` (5 s: as simulated)."""
+    if period_s <= DT:
+        return frame
+    return frame.resample(f"{period_s}s").mean()
+
+
+def step_rows(frame: pd.DataFrame) -> np.ndarray:
+    """The rows where HEAT_TGT moves (the operator's steps; a mean may split one in two)."""
+    d = np.abs(np.diff(frame["HEAT_TGT"].to_numpy()))
+    rows = np.flatnonzero(d > 0.5) + 1
+    return rows[np.r_[True, np.diff(rows) > 2]] if rows.size else rows
