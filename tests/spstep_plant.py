@@ -3,7 +3,8 @@ Written once from the physics below for the settle guard's tests; not tuned for.
 
 - ``INLET_T`` inlet temperature, °C (slow wander)
 - ``SUPPLY_P`` heating medium supply pressure, bar (slow wander)
-- ``HEAT_TGT`` the outlet temperature's set-point, °C (an operator steps it every 3–8 h)
+- ``HEAT_TGT`` the outlet temperature's set-point, °C (an operator steps it every 3–8 h
+  between 60, 65 and 70 °C)
 - ``TEMP`` outlet temperature, °C: first order with dead time in the heating flow,
   ``τ dT/dt = INLET_T + G · FLOW(t − θ) − T``, τ = 600 s, θ = 60 s, G = 2 °C per m³/h
 - ``FLOW_SP`` the outer PI's output (TEMP at HEAT_TGT): the inner loop's set-point, a
@@ -23,6 +24,10 @@ import pandas as pd
 
 DT = 5.0
 LOOPS = ("TEMP=HEAT_TGT:FLOW_SP", "FLOW=FLOW_SP:VALVE")
+#: the outlet temperatures an operator chooses, °C
+SET_POINTS = (60.0, 65.0, 70.0)
+#: a training window's steps: each set-point once, three steps in two days
+TRAIN_STEPS = [(6 * 3600.0, 60.0), (20 * 3600.0, 70.0), (34 * 3600.0, 65.0)]
 TAGS = ("INLET_T", "SUPPLY_P", "HEAT_TGT", "TEMP", "FLOW_SP", "FLOW", "VALVE")
 
 
@@ -35,19 +40,18 @@ def simulate(
     steps: list[tuple[float, float]] | None = None,
 ) -> pd.DataFrame:
     """5 s samples over ``days``; ``steps``: (seconds, value) of HEAT_TGT instead of the
-    seed's operator (who steps it every 3–8 h by 3–8 °C, between 55 and 75 °C)."""
+    seed's operator (who steps it every 3–8 h to another of :data:`SET_POINTS`)."""
     rng = np.random.default_rng(seed)
     n = int(days * 86400 / DT)
     sp = np.empty(n)
     if steps is None:
-        i, v = 0, 65.0
+        i, v = int(3600 / DT), 65.0
+        sp[:i] = v
         while i < n:
             k = int(rng.uniform(3, 8) * 3600 / DT)
-            d = rng.uniform(3, 8) * rng.choice([-1, 1])
-            v = float(np.clip(round(v + d), 55.0, 75.0))
+            v = float(rng.choice([x for x in SET_POINTS if x != v]))
             sp[i : i + k] = v
             i += k
-        sp[: int(3600 / DT)] = 65.0
     else:
         sp[:] = 65.0
         for t, v in steps:
@@ -62,7 +66,7 @@ def simulate(
     kc, ti = 0.8, 600.0  # outer PI (IMC, λ = 300 s)
     kci, tii = 0.8, 20.0  # inner PI
     for i in range(n):
-        inlet = 20.0 + 0.9995 * (inlet - 20.0) + 0.03 * rng.standard_normal()
+        inlet = 20.0 + 0.9995 * (inlet - 20.0) + 0.01 * rng.standard_normal()
         supply = 5.0 + 0.999 * (supply - 5.0) + 0.01 * rng.standard_normal()
         g = gain
         bias = 0.0

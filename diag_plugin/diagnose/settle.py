@@ -100,19 +100,40 @@ def settle_guard(unit: Any) -> SettleGuard | None:
     if not loops:
         return None
     max_n = max(1, math.ceil(max_s / unit.period_s - 1e-9))
-    return SettleGuard(loops, max_n, quiet_samples(unit), unit.period_s)
+    return SettleGuard(loops, max_n, quiet_samples(unit), unit.period_s, unit.ev["on_delay"])
 
 
 def quiet_samples(unit: Any) -> int:
-    """Samples a settle needs without a symptom to end: the longest lag the unit's models
-    read plus the on-delay (at least 1)."""
-    return max(1, int(unit.test_depth.max(initial=0)) + int(unit.ev["on_delay"]))
+    """Samples a settle needs without a symptom to end: the longest history a test reads
+    (its model's longest lag; a spread test's window) plus the on-delay (at least 1)."""
+    from diag_plugin.diagnose.unitloops import spread_samples
+
+    depth = int(unit.test_depth.max(initial=0))
+    if len(unit.spread_cols):
+        depth = max(depth, spread_samples(unit.ev["spread_window_s"] or 600.0, unit.period))
+    return max(1, depth + int(unit.ev["on_delay"]))
 
 
 @numba.njit(cache=True)
 def _settle_kernel(
-    sp, r, lo, hi, band, active, alarm, prev, anchor, run, moved, g, max_n, quiet_n,
-    begin_n, sup, sid, steps,
+    sp,
+    r,
+    lo,
+    hi,
+    band,
+    active,
+    alarm,
+    prev,
+    anchor,
+    run,
+    moved,
+    g,
+    max_n,
+    quiet_n,
+    begin_n,
+    sup,
+    sid,
+    steps,
 ):  # pragma: no cover - numba
     # g: open, elapsed, quiet, latched, loop, last alarm, samples since the unit's last alarm
     # (int64); row by row, state in place.
@@ -149,7 +170,7 @@ def _settle_kernel(
                 run[j] = 1
                 moved[j] += 1
             prev[j] = x
-        if step >= 0 and g[6] >= begin_n and not (g[0] == 1 and g[3] == 1):
+        if step >= 0 and g[6] >= quiet_n and not (g[0] == 1 and g[3] == 1):
             g[0] = 1
             g[1] = 0
             g[2] = 0
@@ -187,16 +208,20 @@ class SettleGuard:
     """The settle guard of one unit (see module doc); state carried across pieces."""
 
     def __init__(
-        self, loops: list[SettleLoop], max_n: int, quiet_n: int, period_s: float = 1.0
+        self,
+        loops: list[SettleLoop],
+        max_n: int,
+        quiet_n: int,
+        period_s: float = 1.0,
+        on_delay: int = 1,
     ) -> None:
         self.loops = loops
         self.period = pd.Timedelta(seconds=period_s)
         self.max_n = int(max_n)
         self.quiet_n = int(quiet_n)
-        #: a step's alarm begins within this many samples of it (half of ``max_n``, at
-        #: least the quiet time, at most ``max_n``); a unit in alarm within as many samples
-        #: before a step opens no settle
-        self.begin_n = max(1, min(self.max_n, max(self.quiet_n, self.max_n // 2)))
+        #: a step's alarm begins within this many samples of it: ``max_n`` less the quiet
+        #: time (the build's 2 × the median settling time), at least the on-delay
+        self.begin_n = max(1, int(on_delay), self.max_n - self.quiet_n)
         self.lo = np.array([lp.lo for lp in loops], float)
         self.hi = np.array([lp.hi for lp in loops], float)
         self.band = np.array([lp.band for lp in loops], float)

@@ -198,7 +198,12 @@ EVALUATION_DEFAULTS: dict[str, Any] = {
 #: keys new_unit_text writes only when they differ from the default (files written before
 #: them regenerate byte for byte)
 NEW_KEYS = (
-    "combined", "isolation", "on_delay_s", "off_delay_s", "deadband", "spread_window_s",
+    "combined",
+    "isolation",
+    "on_delay_s",
+    "off_delay_s",
+    "deadband",
+    "spread_window_s",
     "settle_max_s",
 )
 #: a residual is never amplified more than 1 / SPREAD_FLOOR by a small local spread. Of 0.5,
