@@ -13,6 +13,8 @@ Written once from the physics below for the settle guard's tests; not tuned for.
 - ``VALVE`` the inner PI's output, %
 
 Faults from ``onset_s``: ``temp_bias`` the outlet sensor reads ``size`` °C high (default 1.5);
+``flow_bias`` the flow meter reads ``size`` m³/h high (default 1.5; the inner loop holds the
+reading, the true flow falls, the outer loop raises the cascade set-point);
 ``fouling`` the heater's gain G falls by ``size`` (default 25 %): the outer loop raises the
 cascade set-point FLOW_SP to hold TEMP.
 """
@@ -69,12 +71,14 @@ def simulate(
         inlet = 20.0 + 0.9995 * (inlet - 20.0) + 0.01 * rng.standard_normal()
         supply = 5.0 + 0.999 * (supply - 5.0) + 0.01 * rng.standard_normal()
         g = gain
-        bias = 0.0
+        bias = f_bias = 0.0
         if i >= on:
             if fault == "fouling":
                 g = gain * (1.0 - (0.25 if size is None else size))
             elif fault == "temp_bias":
                 bias = 1.5 if size is None else size
+            elif fault == "flow_bias":
+                f_bias = 1.5 if size is None else size
         hist = np.roll(hist, 1)
         hist[0] = flow
         temp += (inlet + g * hist[delay] - temp) * (1.0 - np.exp(-DT / th))
@@ -82,7 +86,7 @@ def simulate(
         e = sp[i] - t_meas
         integ_o = float(np.clip(integ_o + kc * e * DT / ti, 0.0, 50.0))
         fsp = float(np.clip(kc * e + integ_o, 0.0, 50.0))
-        f_meas = flow + 0.1 * rng.standard_normal()
+        f_meas = flow + f_bias + 0.1 * rng.standard_normal()
         ei = fsp - f_meas
         integ_i = float(np.clip(integ_i + kci * ei * DT / tii, 0.0, 100.0))
         valve = float(np.clip(kci * ei + integ_i, 0.0, 100.0))

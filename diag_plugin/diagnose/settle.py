@@ -172,7 +172,7 @@ def _settle_kernel(
             prev[j] = x
         if step >= 0 and g[6] >= quiet_n and not (g[0] == 1 and g[3] == 1):
             g[0] = 1
-            g[1] = 0
+            g[1] = s_back  # counted from the sample the set-point left its hold
             g[2] = 0
             g[3] = 0
             g[4] = step
