@@ -116,3 +116,50 @@ def step_rows(frame: pd.DataFrame) -> np.ndarray:
     d = np.abs(np.diff(frame["HEAT_TGT"].to_numpy()))
     rows = np.flatnonzero(d > 0.5) + 1
     return rows[np.r_[True, np.diff(rows) > 2]] if rows.size else rows
+
+
+def how_to_table() -> str:
+    """The heater's rows in docs/how-to/unit-loops.md ("An operator's set-point step: the
+    settle"), as markdown: at 5 s (built on 2 days) and 2 min (6 days), each window with
+    :data:`TRAIN_STEPS`, loops declared, ``far=0.01``; judged on seeds 2 and 3 (1 day at 5 s,
+    2 days at 2 min), main being the same unit without its guard (no ``settle_max_s``), and a
+    flow meter bias 2 min after a step (seed 4). Run: ``python -m tests.spstep_plant``."""
+    import tempfile
+
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.unitbuild.build import build_unit
+    from diag_plugin.unitbuild.loops import parse_loop
+
+    rows = []
+    for period, days, judge in ((5, 2.0, 1.0), (120, 6.0, 2.0)):
+        folder = tempfile.mkdtemp()
+        res = build_unit("heater", at_period(simulate(days, 1, steps=TRAIN_STEPS), period),
+                         folder=folder, period=f"{period}s", far=0.01, force=True,
+                         loops=[parse_loop(lp) for lp in LOOPS])  # fmt: skip
+        unit, plain = Unit.load(res.path, folder), Unit.load(res.path, folder)
+        plain.settle = None
+        settle = unit.ev["settle_max_s"]
+        for seed in (2, 3):
+            x = at_period(simulate(judge, seed), period)
+            st0 = plain.reset().evaluate(x).status.to_numpy()
+            st = unit.reset().evaluate(x).status.to_numpy()
+            a0, a = (st0 == 1) | (st0 == 3), (st == 1) | (st == 3)
+            ep = [int((v & ~np.r_[False, v[:-1]]).sum()) for v in (a0, a)]
+            moved = ((st0 == 0) & (st == 2)).mean()
+            rows.append(f"| {period} s | {settle:.0f} s | seed {seed}: {len(step_rows(x))} steps "
+                        f"| {ep[0]} | {ep[1]} | {moved:.1%} |")  # fmt: skip
+        steps = [(3 * 3600.0, 60.0), (8 * 3600.0, 70.0)]
+        onset = steps[1][0] + 120.0
+        x = at_period(simulate(0.6, 4, "flow_bias", onset, steps=steps), period)
+        st = unit.reset().evaluate(x).status.to_numpy()
+        t = (x.index - x.index[0]).total_seconds().to_numpy()
+        after, late = t >= onset, t >= steps[1][0] + settle
+        rows.append(f"| {period} s | {settle:.0f} s | flow meter +1.5 m³/h 2 min after a step "
+                    f"| FAILURE from {t[after & (st == 1)][0] - steps[1][0]:.0f} s after the "
+                    f"step | {(st[late] == 1).mean():.1%} after settle_max_s, "
+                    f"{(st[after] == 1).mean():.1%} after the onset | |")  # fmt: skip
+    return "\n".join(rows)
+
+
+if __name__ == "__main__":
+    print(how_to_table())

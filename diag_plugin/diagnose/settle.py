@@ -7,26 +7,30 @@ transient raises an alarm for it. The **settle guard** suppresses that alarm, an
 alarm: the unit's judgement goes on.
 
 - **A step** of a loop's set-point (a test with ``set_point = "TAG"``, its residual the loop's
-  control error, ``statistic = "level"``): the set-point held still (two consecutive samples
-  equal, within a thousandth of the band) and then, within :data:`MOVE_SAMPLES` samples
-  (a historian's mean may split a step over two), more than the loop test's band away from
-  that held value (the band: the smaller of the test's thresholds, in % of its span, in the
-  set-point's units). A cascade set-point (the output of an outer controller) moves every
-  sample and is never held: its moves never open a settle, so a fault that moves it alarms
-  as before.
-- **A settle** opens at the step, unless the unit is in alarm on the sample before (a fault
-  in progress is not hidden). While it is open, a sample the unit would raise as an alarm
-  (``detected`` after the unit's off-delay) becomes CHECK_FUNCTION, its faults none, its
-  ``why`` ``LVL_TGT 0 → -20 at 2026-03-07T10:15Z: loop DRUM_LVL settling``; from the first
-  such sample on, every sample of the settle is (latched: no flicker). The other samples
-  are as without the guard (NORMAL stays NORMAL).
+  control error, ``statistic = "level"``, the tag read by the unit's models): the set-point
+  held (two consecutive samples equal, within :data:`HELD_SHARE` of the band), then within
+  :data:`MOVE_SAMPLES` samples (a historian's mean may split a step over two) more than the
+  loop test's band away from that held value (the band: the smaller of the test's thresholds,
+  in % of its span, in the set-point's units), and held again there (when it is confirmed).
+  A ramp (the chemical plant's production rate, an hour long) and a cascade set-point (the
+  output of an outer controller, which moves every sample) are never steps: a fault that
+  moves a cascade set-point alarms as before.
+- **A settle** opens at the step, unless the unit was in alarm within the quiet time (below)
+  before it (a fault in progress is not hidden). While it is open, a sample the unit would
+  raise as an alarm (``detected`` after the unit's off-delay) becomes CHECK_FUNCTION, its
+  faults none, its ``why`` ``LVL_TGT 0 → -20 at 2026-03-07T10:15Z: loop DRUM_LVL settling``;
+  from the first such sample on, every sample of the settle is (latched: no flicker). The
+  other samples are as without the guard (NORMAL stays NORMAL). A step's alarm must begin
+  within ``settle_max_s`` less the quiet time (the build's 2 × the median settling time; at
+  least the on-delay) of the step, else the settle closes unused.
 - **It ends** when the loop test's residual has been inside its thresholds with no test (nor
-  the combined test) on for ``quiet`` samples — the longest lag the unit's models read plus
-  the on-delay — or after ``settle_max_s`` (the unit file's ``[evaluation]``, written by
-  ``diag unit build`` from the window's own steps, :func:`~diag_plugin.unitbuild.loops.
-  settle_max`), whichever is first. A fault that persists past it is the unit's alarm again
-  (FAILURE). A step during a settle that has not suppressed anything restarts it (a latched
-  one keeps its end). ``settle_max_s = 0`` (unit files written before it): no guard.
+  the combined test) on for the quiet time — the longest history a test reads (its model's
+  longest lag; a spread test's window) plus the on-delay — or ``settle_max_s`` after the
+  sample the set-point left its hold (the unit file's ``[evaluation]``, written by ``diag
+  unit build`` from the window's own steps, :func:`~diag_plugin.unitbuild.loops.settle_max`),
+  whichever is first. A fault that persists past it is the unit's alarm again (FAILURE). A
+  step during a settle that has not suppressed anything restarts it (a latched one keeps its
+  end). ``settle_max_s = 0`` (unit files written before it): no guard.
 
 The replay (:meth:`~diag_plugin.diagnose.unit.Unit.evaluate`), the live loop's stacked path
 (:class:`~diag_plugin.diagnose.plant.Plant`) and a restart (the carried state) give the same

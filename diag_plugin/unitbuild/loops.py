@@ -198,12 +198,12 @@ def settle_max(unit, frame) -> tuple[float, str]:
     settled from the sample on which the loop's control error ``PV − SP`` (less its median
     over the window, the loop's steady offset) is back within :data:`SETTLE_BAND` of the
     step (the classic settling time's band; the error's own noise, 3 robust standard
-    deviations, where that is wider) and stays there for the guard's quiet time (the longest history a test reads — its lags, a spread
-    test's window — plus the on-delay); a
-    step the window ends (or the next step comes) before that is not counted. ``settle_max_s``
-    is :data:`SETTLE_FACTOR` × the median of those settling times plus the quiet time (the
-    guard ends a settle only after it); with none, :data:`SETTLE_FALLBACK` × the quiet time.
-    None of the unit's loops with a set-point tag: 0 (no guard)."""
+    deviations, where that is wider) and stays there for the guard's quiet time (the
+    longest history a test reads — its lags, a spread test's window — plus the on-delay); a
+    step the window ends (or the next step comes) before that is not counted.
+    ``settle_max_s`` is :data:`SETTLE_FACTOR` × the median of those settling times plus the
+    quiet time (the guard ends a settle only after it); with none, :data:`SETTLE_FALLBACK` ×
+    the quiet time. None of the unit's loops with a set-point tag: 0 (no guard)."""
     import numpy as np
 
     from diag_plugin.diagnose.settle import SettleGuard, quiet_samples, settle_loops
