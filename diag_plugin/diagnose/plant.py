@@ -46,6 +46,7 @@ from diag_plugin.diagnose.derived import DerivedInputs, stackable
 from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.manual import PlantGuard
 from diag_plugin.diagnose.residuals import LowPass, supported
+from diag_plugin.diagnose.settle import settle_guard
 from diag_plugin.diagnose.symptoms import OnOffDelay
 from diag_plugin.diagnose.unit import (
     PRIORITY,
@@ -341,6 +342,12 @@ class Plant:
                     IsolationHold(len(uis), len(mx.tests), len(mx.faults)),
                 )
             )
+        # per unit with a settle guard (settle.py): it, and its set-points' columns
+        self._settle = {
+            ui: (g, np.array([tags[u.file.tags.get(lp.sp, lp.sp)] for lp in g.loops], np.intp))
+            for ui, u in enumerate(units)
+            if (g := settle_guard(u)) is not None
+        }
         self._hist = np.full((self.depth + 1, len(tags) + len(derived)), np.nan)
         self._cycles = 0
         self._ts: pd.Timestamp | None = None  # the last cycle's (saved with the state)
@@ -411,6 +418,7 @@ class Plant:
             "outside": {u.name: u.outside.to_state()["since"] for u in self._units},
             "gone": {u.name: u.outside.to_state()["gone"] for u in self._units},
             "slow": {n: self.units[n].to_state() for n in self.slow},
+            "settle": {self._units[ui].name: g.to_state() for ui, (g, _) in self._settle.items()},
         }
 
     def load_state(self, state: Mapping[str, Any]) -> Plant:
@@ -478,6 +486,10 @@ class Plant:
                     "gone": state.get("gone", {}).get(u.name, {}),
                 }
             )
+        for ui, (g, _) in self._settle.items():  # states saved before it: from rest
+            st = state.get("settle", {}).get(self._units[ui].name)
+            if st is not None:
+                g.load_state(st)
         for n in self.slow:
             self.units[n].reset().load_state(state["slow"][n])
         return self
@@ -656,6 +668,7 @@ class Plant:
                 status[ui] = NE107.FAILURE
                 faults[ui] = [tags[ui][0][0]] if u.tag_isolation and tags[ui] else ["unit"]
         det_held = self._hold_alarms(active, status, faults, tags, notes)
+        settling = self._settle_units(ts, r, active, det_held, status, faults)
         out = []
         index = self.tag_index
 
@@ -687,6 +700,8 @@ class Plant:
                 if warm.any():
                     why = warming_up(why, warm, left, report, self._labels[ui], u.period_s)
                 why = why[0]
+            if ui in settling:  # Unit.evaluate: the settle's text first
+                why = f"{settling[ui]}; {why}" if why else settling[ui]
             msg = "; ".join([why, *notes[ui]] if why else notes[ui])
             st = NE107(int(status[ui]))
             if not self._has_th[ui]:
@@ -710,6 +725,24 @@ class Plant:
                     tags=tags[ui],
                 )
             )
+        return out
+
+    def _settle_units(self, ts, r, active, det_held, status, faults) -> dict[int, str]:
+        """The units' settle guards (:mod:`~diag_plugin.diagnose.settle`) on this cycle, in
+        place on ``status`` and ``faults``: per unit whose alarm is suppressed, the why."""
+        out = {}
+        index = pd.DatetimeIndex([ts])
+        for ui, (g, cols) in self._settle.items():
+            a = self._first[ui]
+            sup, why = g.transform(
+                index,
+                self._hist[0, cols][None, :],
+                r[a + g.tests][None, :],
+                active[ui : ui + 1],
+                np.array([bool(active[ui] or det_held[ui])]),
+            )
+            if sup[0]:
+                status[ui], faults[ui], out[ui] = NE107.CHECK_FUNCTION, [], why[0]
         return out
 
     def _hold_alarms(

@@ -51,6 +51,8 @@ from diag_plugin.diagnose.manual import ManualGuard, manual_ranges
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
 from diag_plugin.diagnose.residuals import LowPass, supported
+from diag_plugin.diagnose.settle import SettleGuard, prepend, settle_guard
+from diag_plugin.diagnose.settle import apply as apply_settle
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay, three_valued
 from diag_plugin.diagnose.unitfile import SPREAD_FLOOR, TestSpec, UnitError, UnitFile, unit_path
 from diag_plugin.diagnose.unitloops import (
@@ -445,6 +447,8 @@ class Unit:
         self.warm_labels = warm_labels(self.tests, self.test_depth, spread)
         #: the tests reading a hand valve, unknown where it is outside its span (None: none)
         self.manual = ManualGuard.of(models, self.tests, file.manual)
+        #: the settle guard after an operator's set-point step (:mod:`~.settle`; None: off)
+        self.settle: SettleGuard | None = settle_guard(self)
         self.reset()
 
     # ------------------------------------------------------------ loading
@@ -558,6 +562,8 @@ class Unit:
         self.alarm_hold = AlarmHold(ev["off_delay"]) if ev["off_delay_s"] > 0 else None
         self._last_alarm: tuple | None = None  # (status, faults, top row) the hold repeats
         self.seen = 0  # samples since the start (the warm-up)
+        if getattr(self, "settle", None) is not None:
+            self.settle.reset()
         if not hasattr(self, "outside"):
             self.outside = OutsideLearned(
                 manual_ranges(learned_ranges(self.models, self.tests), self.file.manual),
@@ -587,6 +593,7 @@ class Unit:
             "last_alarm": None
             if self._last_alarm is None
             else [int(self._last_alarm[0]), self._last_alarm[1], self._last_alarm[2]],
+            "settle": None if self.settle is None else self.settle.to_state(),
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -615,6 +622,8 @@ class Unit:
                 self.alarm_hold.load_state(state["alarm_hold"])
                 last = state.get("last_alarm")
                 self._last_alarm = None if last is None else (last[0], last[1], last[2])
+        if self.settle is not None and state.get("settle") is not None:
+            self.settle.load_state(state["settle"])  # states saved before it: from rest
         return self
 
     # ------------------------------------------------------------ stages
@@ -837,6 +846,9 @@ class Unit:
             faults[alone & (faults == "")] = "unit"
         if self.alarm_hold is not None:
             detected, status, faults, top = self._hold_alarm(active, detected, status, faults, top)
+        settled = None
+        if self.settle is not None:  # an operator's set-point step: its alarm suppressed
+            settled = self._settle(frame.index, cols, r, active, detected, status, faults)
         message = ""
         checking = status == NE107.CHECK_FUNCTION
         unknown = np.isnan(s)
@@ -850,6 +862,8 @@ class Unit:
             why[rows] = warming_up(
                 why[rows], warm, left, checking[rows], self.warm_labels, self.period_s
             )
+        if settled is not None:
+            why = prepend(why, *settled)
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
             if self.ev["combined"] and (self.file.combined is None or self.cmodel.high is None):
@@ -900,6 +914,16 @@ class Unit:
         test[self.spread_cols] = True
         warm, left = warm_up(unknown[rows], raw_known[rows], seen, self.test_depth, left_at, test)
         return rows, warm, left
+
+    def _settle(self, index, cols, r, active, detected, status, faults):
+        """The settle guard (:mod:`~diag_plugin.diagnose.settle`) over the piece, in place
+        on ``status`` and ``faults``; returns the suppressed samples and their whys."""
+        g = self.settle
+        sp = np.column_stack([cols.values(lp.sp) for lp in g.loops])
+        loop_r = r.to_numpy()[:, g.tests]
+        sup, why = g.transform(index, sp, loop_r, active, detected == 1.0)
+        apply_settle(status, faults, sup)
+        return sup, why
 
     def _hold_alarm(self, active, detected, status, faults, top):
         """The unit's off-delay (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`): a

@@ -98,7 +98,10 @@ stiction, a loop oscillating) instead of its level; the loop's set-point is neve
 fault. The alarm settings in time, ``on_delay_s``, ``off_delay_s`` (seconds, converted at the
 models' period; 0: the sample counts ``on_delay``/``off_delay``), ``deadband`` (a symptom,
 once on, clears only below ``(1 − deadband)`` × its threshold) and ``spread_window_s`` (the
-spread tests' window) are described in :mod:`diag_plugin.diagnose.unitloops`.
+spread tests' window) are described in :mod:`diag_plugin.diagnose.unitloops`;
+``settle_max_s`` (written by ``diag unit build``; 0 or absent: no guard) bounds the settle
+after an operator's set-point step, during which the unit's alarms are CHECK_FUNCTION
+(:mod:`diag_plugin.diagnose.settle`).
 
 ``balance = true`` (written by ``diag unit build`` for a manipulated flow's second test,
 ``<tag>_balance``, :mod:`~diag_plugin.unitbuild.balance`): the test is the flow's balance
@@ -202,10 +205,19 @@ EVALUATION_DEFAULTS: dict[str, Any] = {
     "off_delay_s": 0.0,
     "deadband": 0.0,
     "spread_window_s": 0.0,
+    "settle_max_s": 0.0,
 }
 #: keys new_unit_text writes only when they differ from the default (files written before
 #: them regenerate byte for byte)
-NEW_KEYS = ("combined", "isolation", "on_delay_s", "off_delay_s", "deadband", "spread_window_s")
+NEW_KEYS = (
+    "combined",
+    "isolation",
+    "on_delay_s",
+    "off_delay_s",
+    "deadband",
+    "spread_window_s",
+    "settle_max_s",
+)
 #: a residual is never amplified more than 1 / SPREAD_FLOOR by a small local spread. Of 0.5,
 #: 0.75 and 1 (attenuate only), 0.5 widened r3's thresholds (its cells at the travel limits
 #: have almost no spread, and their transients were doubled) and 1 left one marginal crossing
@@ -229,6 +241,7 @@ _KINDS = {
     "off_delay_s": float,
     "deadband": float,
     "spread_window_s": float,
+    "settle_max_s": float,
 }
 _CHOICES = {
     "scale": ("span", "max"),
@@ -484,6 +497,7 @@ class UnitFile(LinedFile):
             ("off_delay_s", ev["off_delay_s"] >= 0, "off_delay_s is seconds, ≥ 0 (0: off_delay)"),
             ("deadband", 0.0 <= ev["deadband"] < 1.0, "deadband: share of the threshold, [0, 1)"),
             ("spread_window_s", ev["spread_window_s"] >= 0, "spread_window_s is seconds, ≥ 0"),
+            ("settle_max_s", ev["settle_max_s"] >= 0, "settle_max_s is seconds, ≥ 0"),
         )
         for key, ok, msg in checks:
             if not ok:

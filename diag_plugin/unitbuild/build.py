@@ -79,7 +79,7 @@ from diag_plugin.selection.scoring import BlockScorer, FrozenRuleBase
 from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
 from diag_plugin.unitbuild import short
-from diag_plugin.unitbuild.loops import Loop, Manual, checked_loops, checked_manual
+from diag_plugin.unitbuild.loops import Loop, Manual, checked_loops, checked_manual, settle_max
 from diag_plugin.unitbuild.parallel import DaskPool, map_tests, one_blas_thread
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
@@ -1109,7 +1109,17 @@ def _build_unit(
         )  # fmt: skip
         uf = unit.file  # the unit file as just written and read (learning only reads it)
         uf.set_learned(learned)
-        uf.save(as_read=True)  # the text set_learned read back: not dumped again
+        # the settle after an operator's set-point step, from the window's own steps
+        # (diagnose/settle.py): on the unit with its thresholds
+        settle_s, settle_how = settle_max(Unit(uf, unit.models, unit.matrix), frame)
+        if settle_s > 0:
+            uf.doc["evaluation"]["settle_max_s"] = settle_s
+            uf.build["settle"] = settle_how
+            uf.doc["build"]["settle"] = settle_how
+            notes.append(settle_how)
+            uf.save()
+        else:
+            uf.save(as_read=True)  # the text set_learned read back: not dumped again
     except UnitError as exc:
         raise UserError("the built unit has problems:\n" + "\n".join(exc.problems)) from None
     except LearnError as exc:

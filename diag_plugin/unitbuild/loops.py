@@ -248,3 +248,79 @@ def checked_loops(loops: Iterable[Loop], columns: Sequence[str]) -> list[Loop]:
             seen[lp.pv] = lp
             out.append(lp)
     return out
+
+
+#: a step has settled once its loop's error stays within this share of it
+SETTLE_BAND = 0.05
+#: settle_max_s: this many times the median settling time of the window's own steps
+SETTLE_FACTOR = 2.0
+#: without a step in the window: this many times the settle's quiet time (the longest lag
+#: the models read plus the on-delay)
+SETTLE_FALLBACK = 4.0
+
+
+def settle_max(unit, frame) -> tuple[float, str]:
+    """``settle_max_s`` for a built unit (:mod:`diag_plugin.diagnose.settle`) from its window
+    ``frame``, and what it rests on, in words.
+
+    Each step of a loop's set-point the window holds (found as the guard finds them) has
+    settled from the sample on which the loop's control error ``PV − SP`` (less its median
+    over the window, the loop's steady offset) is back within :data:`SETTLE_BAND` of the
+    step (the classic settling time's band; the error's own noise, 3 robust standard
+    deviations, where that is wider) and stays there for the guard's quiet time (the
+    longest history a test reads — its lags, a spread test's window — plus the on-delay); a
+    step the window ends (or the next step comes) before that is not counted.
+    ``settle_max_s`` is :data:`SETTLE_FACTOR` × the median of those settling times plus the
+    quiet time (the guard ends a settle only after it); with none, :data:`SETTLE_FALLBACK` ×
+    the quiet time. None of the unit's loops with a set-point tag: 0 (no guard)."""
+    import numpy as np
+
+    from diag_plugin.diagnose.settle import SettleGuard, quiet_samples, settle_loops
+    from diag_plugin.regressors import parse_specs
+
+    loops = settle_loops(unit)
+    if not loops:
+        return 0.0, ""
+    quiet = quiet_samples(unit)
+    period = unit.period_s
+    have = [lp for lp in loops if lp.sp in frame.columns]
+    times: list[float] = []
+    if have:
+        guard = SettleGuard(have, 1, quiet, period, unit.ev["on_delay"])
+        sp = np.column_stack([frame[lp.sp].to_numpy(float) for lp in have])
+        found = guard.steps(sp)
+        rows = sorted(r for *_, r in found)
+        for j, a, b, i in found:
+            lp = have[j]
+            out = parse_specs([unit.models[unit.tests[lp.test]].output])[0].tags[0]
+            if out not in frame.columns:
+                continue
+            e = frame[out].to_numpy(float) - frame[lp.sp].to_numpy(float)
+            e = e - np.nanmedian(e)
+            # settled: within 5 % of the step (the classic settling band), or the error's
+            # own noise (3 robust sd) where that is wider
+            tol = max(SETTLE_BAND * abs(b - a), 3 * 1.4826 * float(np.nanmedian(np.abs(e))))
+            e = np.abs(e) <= tol
+            end = next((r for r in rows if r > i), len(e))
+            ok = np.r_[e[i:end], False].astype(int)
+            # the first row from which `quiet` rows in a row are in band
+            run = np.convolve(ok, np.ones(quiet, int), mode="valid") if len(ok) >= quiet else []
+            at = np.flatnonzero(np.asarray(run) >= quiet)
+            if at.size:
+                times.append(float(at[0]) * period)
+    if times:
+        med = float(np.median(times))
+        value = SETTLE_FACTOR * med + quiet * period
+        how = (
+            f"settle_max_s = {value:.0f} s: {SETTLE_FACTOR:g} × the median settling time "
+            f"({med:.0f} s) of {len(times)} set-point step(s) in the window, plus the quiet "
+            f"time ({quiet * period:.0f} s: the longest history a test reads plus the on-delay)"
+        )
+    else:
+        value = SETTLE_FALLBACK * quiet * period
+        how = (
+            f"settle_max_s = {value:.0f} s: no set-point step settled in the window; "
+            f"{SETTLE_FALLBACK:g} × the quiet time ({quiet * period:.0f} s: the longest history "
+            "a test reads plus the on-delay)"
+        )
+    return float(f"{value:.6g}"), how

@@ -1,0 +1,355 @@
+"""An operator's set-point step is not an alarm (issue 34, items 5 and 6; ISA-18.2's
+state-based alarming after a set-point change).
+
+A loop's set-point stepped by an operator moves its measurement, its controller output and
+every relation downstream for the loop's settling time; a unit that never learned that
+transient raises an alarm for it. The **settle guard** suppresses that alarm, and only the
+alarm: the unit's judgement goes on.
+
+- **A step** of a loop's set-point (a test with ``set_point = "TAG"``, its residual the loop's
+  control error, ``statistic = "level"``, the tag read by the unit's models): the set-point
+  held (two consecutive samples equal, within :data:`HELD_SHARE` of the band), then within
+  :data:`MOVE_SAMPLES` samples (a historian's mean may split a step over two) more than the
+  loop test's band away from that held value (the band: the smaller of the test's thresholds,
+  in % of its span, in the set-point's units), and held again there (when it is confirmed).
+  A ramp (the chemical plant's production rate, an hour long) and a cascade set-point (the
+  output of an outer controller, which moves every sample) are never steps: a fault that
+  moves a cascade set-point alarms as before.
+- **A settle** opens at the step, unless the unit was in alarm within the quiet time (below)
+  before it (a fault in progress is not hidden). While it is open, a sample the unit would
+  raise as an alarm (``detected`` after the unit's off-delay) becomes CHECK_FUNCTION, its
+  faults none, its ``why`` ``LVL_TGT 0 → -20 at 2026-03-07T10:15Z: loop DRUM_LVL settling``;
+  from the first such sample on, every sample of the settle is (latched: no flicker). The
+  other samples are as without the guard (NORMAL stays NORMAL). A step's alarm must begin
+  within ``settle_max_s`` less the quiet time (the build's 2 × the median settling time; at
+  least the on-delay) of the step, else the settle closes unused.
+- **It ends** when the loop test's residual has been inside its thresholds with no test (nor
+  the combined test) on for the quiet time — the longest history a test reads (its model's
+  longest lag; a spread test's window) plus the on-delay — or ``settle_max_s`` after the
+  sample the set-point left its hold (the unit file's ``[evaluation]``, written by ``diag
+  unit build`` from the window's own steps, :func:`~diag_plugin.unitbuild.loops.settle_max`),
+  whichever is first. A fault that persists past it is the unit's alarm again (FAILURE). A
+  step during a settle that has not suppressed anything restarts it (a latched one keeps its
+  end). ``settle_max_s = 0`` (unit files written before it): no guard.
+
+The replay (:meth:`~diag_plugin.diagnose.unit.Unit.evaluate`), the live loop's stacked path
+(:class:`~diag_plugin.diagnose.plant.Plant`) and a restart (the carried state) give the same
+statuses: one compiled kernel, row by row, its state carried across pieces.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numba
+import numpy as np
+import pandas as pd
+
+from diag_plugin.regressors import parse_specs
+
+#: samples a step may take to leave its held value by more than the band (a historian's
+#: mean over a period holds part of the old and part of the new value)
+MOVE_SAMPLES = 2
+#: the set-point counts as held when two samples differ by at most this share of the band
+HELD_SHARE = 1e-3
+#: samples since the unit's last alarm, for a unit that has never been in alarm
+NEVER = 1 << 40
+
+
+@dataclass(frozen=True)
+class SettleLoop:
+    """A loop the guard watches: its set-point (model tag), measurement (plant tag, for the
+    why), loop test (position among the unit's tests), thresholds and band in the
+    set-point's units."""
+
+    sp: str
+    pv: str
+    test: int
+    lo: float
+    hi: float
+    band: float
+
+
+def settle_loops(unit: Any) -> list[SettleLoop]:
+    """The loops of ``unit`` (a :class:`~diag_plugin.diagnose.unit.Unit`) whose set-point is
+    a tag its models read and whose loop test has thresholds."""
+    out = []
+    read = set(unit.model_tags)
+    for j, t in enumerate(unit.file.tests):
+        sp = t.set_point
+        if not sp or t.statistic != "level" or t.limits is None or sp not in read:
+            continue
+        try:
+            float(sp)
+            continue  # a fixed set-point: never steps
+        except ValueError:
+            pass
+        lo, hi = t.limits
+        m = unit.models[t.name]
+        band = min(abs(lo), abs(hi)) * m.span / 100.0
+        out_tag = parse_specs([m.output])[0].tags[0]
+        pv = unit.file.tags.get(out_tag, out_tag)
+        out.append(SettleLoop(sp, pv, j, float(lo), float(hi), float(band)))
+    return out
+
+
+def settle_guard(unit: Any) -> SettleGuard | None:
+    """The guard of ``unit`` from its file (None: ``settle_max_s`` 0, or no loop to watch)."""
+    max_s = float(unit.ev.get("settle_max_s", 0.0) or 0.0)
+    if max_s <= 0:
+        return None
+    loops = settle_loops(unit)
+    if not loops:
+        return None
+    max_n = max(1, math.ceil(max_s / unit.period_s - 1e-9))
+    return SettleGuard(loops, max_n, quiet_samples(unit), unit.period_s, unit.ev["on_delay"])
+
+
+def quiet_samples(unit: Any) -> int:
+    """Samples a settle needs without a symptom to end: the longest history a test reads
+    (its model's longest lag; a spread test's window) plus the on-delay (at least 1)."""
+    from diag_plugin.diagnose.unitloops import spread_samples
+
+    depth = int(unit.test_depth.max(initial=0))
+    if len(unit.spread_cols):
+        depth = max(depth, spread_samples(unit.ev["spread_window_s"] or 600.0, unit.period))
+    return max(1, depth + int(unit.ev["on_delay"]))
+
+
+@numba.njit(cache=True)
+def _settle_kernel(
+    sp,
+    r,
+    lo,
+    hi,
+    band,
+    active,
+    alarm,
+    prev,
+    anchor,
+    run,
+    moved,
+    g,
+    max_n,
+    quiet_n,
+    begin_n,
+    sup,
+    sid,
+    steps,
+):  # pragma: no cover - numba
+    # g: open, elapsed, quiet, latched, loop, last alarm, samples since the unit's last alarm
+    # (int64); row by row, state in place.
+    # sid per row: -1 no settle, -2 the settle carried in, k >= 0 the k-th step of this piece
+    n, m = sp.shape
+    k = 0
+    cur = -2
+    for i in range(n):
+        step = -1
+        s_from = 0.0
+        s_to = 0.0
+        s_back = 0
+        for j in range(m):
+            x = sp[i, j]
+            if np.isnan(x):
+                continue
+            p = prev[j]
+            if not np.isnan(p) and abs(x - p) <= HELD_SHARE * band[j]:
+                run[j] += 1
+                if run[j] >= 2:  # held again: a step if it left its last hold lately
+                    if (
+                        not np.isnan(anchor[j])
+                        and 0 < moved[j] <= MOVE_SAMPLES
+                        and abs(x - anchor[j]) > band[j]
+                        and step < 0
+                    ):
+                        step = j
+                        s_from = anchor[j]
+                        s_to = x
+                        s_back = moved[j]
+                    anchor[j] = x
+                    moved[j] = 0
+            else:
+                run[j] = 1
+                moved[j] += 1
+            prev[j] = x
+        if step >= 0 and g[6] >= quiet_n and not (g[0] == 1 and g[3] == 1):
+            g[0] = 1
+            g[1] = s_back  # counted from the sample the set-point left its hold
+            g[2] = 0
+            g[3] = 0
+            g[4] = step
+            steps[k, 0] = step
+            steps[k, 1] = s_from
+            steps[k, 2] = s_to
+            steps[k, 3] = i
+            steps[k, 4] = s_back
+            cur = k
+            k += 1
+        if g[0] == 1:
+            g[1] += 1
+            if alarm[i] and (g[3] == 1 or g[1] <= begin_n):
+                g[3] = 1
+            if g[3] == 1:
+                sup[i] = True
+                sid[i] = cur
+            j = g[4]
+            e = r[i, j]
+            if (not np.isnan(e)) and lo[j] <= e <= hi[j] and not active[i]:
+                g[2] += 1
+            else:
+                g[2] = 0
+            if g[2] >= quiet_n or g[1] >= max_n or (g[3] == 0 and g[1] >= begin_n):
+                g[0] = 0
+                g[3] = 0
+        g[5] = 1 if alarm[i] else 0
+        g[6] = 0 if alarm[i] else g[6] + 1
+    return k
+
+
+class SettleGuard:
+    """The settle guard of one unit (see module doc); state carried across pieces."""
+
+    def __init__(
+        self,
+        loops: list[SettleLoop],
+        max_n: int,
+        quiet_n: int,
+        period_s: float = 1.0,
+        on_delay: int = 1,
+    ) -> None:
+        self.loops = loops
+        self.period = pd.Timedelta(seconds=period_s)
+        self.max_n = int(max_n)
+        self.quiet_n = int(quiet_n)
+        #: a step's alarm begins within this many samples of it: ``max_n`` less the quiet
+        #: time (the build's 2 × the median settling time), at least the on-delay
+        self.begin_n = max(1, int(on_delay), self.max_n - self.quiet_n)
+        self.lo = np.array([lp.lo for lp in loops], float)
+        self.hi = np.array([lp.hi for lp in loops], float)
+        self.band = np.array([lp.band for lp in loops], float)
+        self.tests = np.array([lp.test for lp in loops], np.intp)
+        self.reset()
+
+    def reset(self) -> None:
+        m = len(self.loops)
+        self.prev = np.full(m, np.nan)
+        self.anchor = np.full(m, np.nan)
+        self.run = np.zeros(m, np.int64)
+        self.moved = np.zeros(m, np.int64)
+        # open, elapsed, quiet, latched, loop, last alarm, samples since the last alarm
+        self.g = np.array([0, 0, 0, 0, 0, 0, NEVER], np.int64)
+        self.text = ""  # the open settle's why
+
+    def transform(
+        self,
+        index: pd.Index,
+        sp: np.ndarray,
+        r: np.ndarray,
+        active: np.ndarray,
+        alarm: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per sample whether its alarm is suppressed, and the why there ('' elsewhere).
+
+        ``sp``: samples × loops, each loop's set-point; ``r``: samples × loops, its loop
+        test's filtered residual; ``active``: any test or the combined test on (before the
+        off-delay); ``alarm``: the unit would raise an alarm (``detected`` after it)."""
+        n = len(index)
+        sup = np.zeros(n, np.bool_)
+        sid = np.full(n, -1, np.int64)
+        steps = np.zeros((n, 5))
+        k = _settle_kernel(
+            np.ascontiguousarray(sp, float).reshape(n, len(self.loops)),
+            np.ascontiguousarray(r, float).reshape(n, len(self.loops)),
+            self.lo, self.hi, self.band,
+            np.asarray(active, np.bool_), np.asarray(alarm, np.bool_),
+            self.prev, self.anchor, self.run, self.moved, self.g,
+            self.max_n, self.quiet_n, self.begin_n, sup, sid, steps,
+        )  # fmt: skip
+        texts = [self.text]
+        for q in range(k):
+            lp = self.loops[int(steps[q, 0])]
+            # the sample the set-point left its hold (confirmed once held again)
+            at = _when(index[int(steps[q, 3])] - int(steps[q, 4]) * self.period)
+            texts.append(
+                f"{lp.sp} {steps[q, 1]:g} → {steps[q, 2]:g} at {at}: loop {lp.pv} settling"
+            )
+        if k:
+            self.text = texts[-1]
+        if not self.g[0]:
+            self.text = ""
+        why = np.full(n, "", dtype=object)
+        rows = np.flatnonzero(sup)
+        if rows.size:
+            why[rows] = np.asarray(texts, dtype=object)[sid[rows] + 1]
+        return sup, why
+
+    def steps(self, sp: np.ndarray) -> list[tuple[int, float, float, int]]:
+        """The set-point steps in ``sp`` (samples × loops) as the guard finds them, from
+        rest, its state untouched: (loop, from, to, row) each."""
+        g = SettleGuard(self.loops, self.max_n, self.quiet_n, self.period.total_seconds())
+        n = len(sp)
+        m = len(self.loops)
+        out = np.zeros((n, 5))
+        sup, sid = np.zeros(n, np.bool_), np.full(n, -1, np.int64)
+        no = np.zeros(n, np.bool_)
+        found = []
+        # one settle at a time: each step opens one (quiet_n = 1 closes it at once)
+        k = _settle_kernel(
+            np.ascontiguousarray(sp, float).reshape(n, m), np.zeros((n, m)), g.lo, g.hi,
+            g.band, no, no, g.prev, g.anchor, g.run, g.moved, g.g, 1, 1, 1, sup, sid, out,
+        )  # fmt: skip
+        for q in range(k):
+            row = int(out[q, 3]) - int(out[q, 4])  # where it left its hold
+            found.append((int(out[q, 0]), float(out[q, 1]), float(out[q, 2]), row))
+        return found
+
+    def to_state(self) -> dict[str, Any]:
+        def f(a):
+            return [None if np.isnan(v) else float(v) for v in a]
+
+        return {
+            "prev": f(self.prev),
+            "anchor": f(self.anchor),
+            "run": self.run.tolist(),
+            "moved": self.moved.tolist(),
+            "g": self.g.tolist(),
+            "text": self.text,
+        }
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        def f(v):
+            return np.array([np.nan if x is None else x for x in v], float)
+
+        self.prev, self.anchor = f(state["prev"]), f(state["anchor"])
+        self.run = np.asarray(state["run"], np.int64)
+        self.moved = np.asarray(state["moved"], np.int64)
+        self.g = np.asarray(state["g"], np.int64)
+        self.text = str(state["text"])
+
+
+def _when(ts: Any) -> str:
+    """A step's time as the why gives it: ``2026-03-07T10:15Z`` (seconds when not 0)."""
+    t = pd.Timestamp(ts)
+    z = ""
+    if t.tzinfo is not None:
+        t, z = t.tz_convert("UTC"), "Z"
+    fmt = "%Y-%m-%dT%H:%M" if t.second == 0 else "%Y-%m-%dT%H:%M:%S"
+    return t.strftime(fmt) + z
+
+
+def apply(status: np.ndarray, faults: np.ndarray, sup: np.ndarray) -> None:
+    """The suppressed samples' status CHECK_FUNCTION and faults none, in place."""
+    from diag_plugin.status import NE107
+
+    status[sup] = NE107.CHECK_FUNCTION
+    faults[sup] = ""
+
+
+def prepend(why: np.ndarray, sup: np.ndarray, text: np.ndarray) -> np.ndarray:
+    """``why`` with the settle's text first on the suppressed samples."""
+    out = np.asarray(why, dtype=object).copy()
+    for i in np.flatnonzero(sup):
+        out[i] = f"{text[i]}; {out[i]}" if out[i] else text[i]
+    return out
