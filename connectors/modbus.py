@@ -331,6 +331,8 @@ class ModbusTagClient:
         late = tb >= late_from
         if late_from == len(errors):
             self._account(ts, errors)
+        else:  # late: availability stays as it was (a late answer is no outage, no recovery)
+            self.polls += 1
         return Poll(ts, values, quality, tag_err, time.perf_counter() - t0, None, late)
 
     async def _read_block(self, b: ReadBlock, buf: np.ndarray) -> str:
