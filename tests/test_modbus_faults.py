@@ -372,10 +372,10 @@ def test_a_device_silent_past_silent_after_is_dropped_and_found_again(caplog):
                 if p.good:
                     break
                 await asyncio.sleep(0.05)
-            return out, c.connects
         finally:
             await c.close()
             srv.close()
+        return out, c.connects
 
     out, connects = run(main())
     silent = [p for ph, p in out if ph == "silent"]
