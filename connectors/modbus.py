@@ -117,7 +117,8 @@ class ModbusTagClient:
         name: name used in log lines (default ``host:port/device_id``).
         silent_after: seconds without any request answered in time after which a request
             that times out drops the connection (a device that accepts but never answers);
-            a shorter silence is late, not down.
+            a shorter silence is late, not down. At least twice ``timeout`` (one request late
+            by its whole timeout is never an outage).
     """
 
     def __init__(
@@ -137,7 +138,7 @@ class ModbusTagClient:
         self.regmap = regmap
         self.host, self.port, self.device_id = host, int(port), int(device_id)
         self.timeout = float(timeout)
-        self.silent_after = float(silent_after)
+        self.silent_after = max(float(silent_after), 2.0 * self.timeout)
         self.allow = allow if isinstance(allow, AllowList) else AllowList(allow)
         self.backoff = backoff or Backoff()
         self.plan = regmap.plan(max_gap=max_gap)

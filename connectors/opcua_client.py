@@ -97,7 +97,8 @@ class OpcUaConfig:
     backoff_cap: float = 30.0
     #: s: asyncua's watchdog reads the server's state this often and waits this long for the
     #: answer; no answer in time is a lost connection. A server silent this long is down; a
-    #: shorter silence (a late answer: a busy server, a loaded machine) is late, not down
+    #: shorter silence (a late answer: a busy server, a loaded machine) is late, not down.
+    #: At least twice ``timeout`` (one Read late by its whole timeout is never an outage)
     silent_after: float = 5.0
 
 
@@ -267,7 +268,7 @@ class OpcUaReader:
         client = Client(
             cfg.url,
             timeout=max(cfg.timeout, 4.0),
-            watchdog_intervall=cfg.silent_after,
+            watchdog_intervall=max(cfg.silent_after, 2.0 * cfg.timeout),
         )
         client.session_timeout = 60_000
         sec = cfg.security

@@ -310,6 +310,8 @@ def test_a_late_answer_is_late_never_an_outage_nor_misfiled(caplog):
     assert polls[2].quality.tolist() == [0, 0, 2, 2] and np.isnan(polls[2].values[2:]).all()
     assert polls[2].reasons[2].startswith("timeout after 1 s reading hr 10+2"), polls[2].reasons
     assert timeouts == 1 and available
+    # silent_after is at least twice the timeout: one request late by all of it is no outage
+    assert ModbusTagClient(TWO_BLOCKS, timeout=4.0).silent_after == 8.0
     # the late answer (to request 6: C, D) came while request 7 (A, B) waited: skipped by
     # its transaction id, not filed as A and B (or, on a machine so loaded that request 7
     # went out after it, ignored as an answer to nothing)
