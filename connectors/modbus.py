@@ -385,6 +385,8 @@ class ModbusTagClient:
         why, late = self._no_answer(where)
         if not late:
             return _Dropped(why)
+        if not self.connected:  # the device went away while the request waited
+            return _Dropped(f"connection lost reading {where}: closed without an answer")
         silent = time.monotonic() - self._answered
         if silent >= self.silent_after:
             return _Dropped(f"no request answered in time for {silent:.1f} s (last: {why})")

@@ -18,6 +18,8 @@ from modbus_peers import (
     answering_server,
     free_port,
     needs_pymodbustcp,
+    raw_server,
+    read_request,
     registers_reply,
     reply,
     start_plc,
@@ -390,3 +392,26 @@ def test_a_device_silent_past_silent_after_is_dropped_and_found_again(caplog):
     msgs = [r.getMessage() for r in caplog.records if r.name == MOD and r.levelno >= logging.INFO]
     assert sum("read blocks bad" in m for m in msgs) == 1, msgs
     assert sum("recovered" in m for m in msgs) == 1, msgs
+
+
+def test_a_device_gone_while_a_request_waits_is_down_not_late():
+    """A device that closes the connection while our request waits for its answer: the block
+    is Bad "connection lost" and the source down (reconnected in the background), not late."""
+
+    async def handler(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+        await read_request(r)
+        w.close()  # gone without an answer
+
+    async def main():
+        srv, port = await raw_server(handler)
+        c = ModbusTagClient(TWO_BLOCKS, port=port, timeout=0.5, backoff=Backoff(5.0, 5.0))
+        try:
+            return await c.poll(), c.connected, c.available
+        finally:
+            await c.close()
+            srv.close()
+
+    p, connected, available = run(main())
+    assert not p.late.any() and not connected and not available
+    assert p.reasons[0] == "connection lost reading hr 0+2: closed without an answer", p.reasons
+    assert p.reasons[2].startswith("not connected (dropped after: connection lost"), p.reasons
