@@ -7,9 +7,14 @@ go wrong on the wire comes back as samples of Bad quality with a reason, never a
 exception from :meth:`ModbusTagClient.read`:
 
 - an exception reply (e.g. illegal data address) → the tags of that block are Bad;
-- a reply from another unit id, a malformed or short reply, a timeout, a lost connection →
-  the block is Bad, the connection is dropped (the byte stream can no longer be trusted)
-  and the remaining blocks of this poll are Bad "not connected".
+- no answer within the timeout → the block and the rest of the poll are Bad and *late*
+  (:attr:`Poll.late`), the connection is kept: a late answer is no outage. pymodbus matches
+  each reply to its request by transaction id and skips any other, so the late request's
+  answer, when it comes, is never taken for a later request's (another block's tags). A
+  device that answers no request in time for ``silent_after`` seconds is dropped as below;
+- a reply from another unit id, a malformed or short reply, a lost connection → the block is
+  Bad, the connection is dropped (the byte stream can no longer be trusted) and the
+  remaining blocks of this poll are Bad "not connected".
 
 Reconnection runs in the background with :class:`~connectors.base.Backoff` (exponential,
 full jitter); the backoff is reset only by a poll that succeeds, so a server that accepts
@@ -27,6 +32,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import struct
 import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -79,8 +85,9 @@ class Poll:
     seconds: float  #: wall time of the poll
     #: per tag, the source's own time stamp (Unix seconds; NaN where it gives none: Modbus)
     source_ts: np.ndarray | None = None
-    #: per tag, True where its source gave no answer within the cycle's poll deadline: the
-    #: tag was not read this cycle (Bad), which says nothing of whether its value moved
+    #: per tag, True where its source gave no answer within the cycle's poll deadline or its
+    #: own timeout (a Modbus block and the rest of that poll, an OPC UA Read): the tag was not
+    #: read this cycle (Bad), which says nothing of whether its value moved; late is not down
     late: np.ndarray | None = None
 
     @property
@@ -90,6 +97,10 @@ class Poll:
 
 class _Dropped(Exception):
     """A block failure after which the connection cannot be trusted."""
+
+
+class _Late(Exception):
+    """A block whose request got no answer within the timeout (the connection is kept)."""
 
 
 class ModbusTagClient:
@@ -104,6 +115,10 @@ class ModbusTagClient:
         backoff: reconnect delays (default: 0.5 s doubling to 30 s, full jitter).
         max_gap: unused addresses a read block may span (see ``RegisterMap.plan``).
         name: name used in log lines (default ``host:port/device_id``).
+        silent_after: seconds without any request answered in time after which a request
+            that times out drops the connection (a device that accepts but never answers);
+            a shorter silence is late, not down. At least twice ``timeout`` (one request late
+            by its whole timeout is never an outage).
     """
 
     def __init__(
@@ -118,10 +133,12 @@ class ModbusTagClient:
         backoff: Backoff | None = None,
         max_gap: int = 0,
         name: str | None = None,
+        silent_after: float = 5.0,
     ) -> None:
         self.regmap = regmap
         self.host, self.port, self.device_id = host, int(port), int(device_id)
         self.timeout = float(timeout)
+        self.silent_after = max(float(silent_after), 2.0 * self.timeout)
         self.allow = allow if isinstance(allow, AllowList) else AllowList(allow)
         self.backoff = backoff or Backoff()
         self.plan = regmap.plan(max_gap=max_gap)
@@ -131,6 +148,7 @@ class ModbusTagClient:
         self._closed = False
         self._ever_tried = False
         self._rx = bytearray()
+        self._tx_tid = b""
         self.last_error = ""
         #: availability as the last poll left it, and since when it is failing
         self.available = False
@@ -138,6 +156,9 @@ class ModbusTagClient:
         self.polls = 0
         self.failed_polls = 0
         self.connects = 0
+        #: requests that got no answer within the timeout (the connection kept)
+        self.read_timeouts = 0
+        self._answered = 0.0  # time.monotonic() of the last request answered in time
         quiet_pymodbus()
 
     @property
@@ -164,6 +185,9 @@ class ModbusTagClient:
             name=self.name,
             trace_packet=self._trace,
         )
+        # pymodbus closes the connection itself after 3 requests in a row without an
+        # answer; a late answer is no outage here: silent_after decides (see _read_block)
+        client.set_max_no_responses(1 << 30)
         why = "refused or unreachable"
         try:
             async with asyncio.timeout(self.timeout + 0.5):
@@ -176,6 +200,7 @@ class ModbusTagClient:
             log.debug("%s: %s", self.name, self.last_error)
             return False
         self._client = client
+        self._answered = time.monotonic()
         self.connects += 1
         log.debug("%s: connected", self.name)
         return True
@@ -184,22 +209,39 @@ class ModbusTagClient:
         """pymodbus packet hook: keep what came back since the last request (diagnosis)."""
         if sending:
             self._rx.clear()
+            self._tx_tid = bytes(data[:2])
         elif len(self._rx) < 512:
             self._rx += data
         return data
 
-    def _no_answer(self, where: str) -> str:
-        """Why a request got no usable answer, from the bytes that did come back.
+    def _no_answer(self, where: str) -> tuple[str, bool]:
+        """Why a request got no usable answer, from the bytes that did come back, and
+        whether it is only late (nothing came, or only whole frames of this unit with another
+        transaction id: answers to earlier requests, which pymodbus skipped).
 
-        pymodbus drops frames it cannot use (garbage, another unit id, a short PDU) and
-        waits for the timeout; the raw bytes tell which it was.
+        pymodbus drops frames it cannot use (garbage, another unit id, a short PDU, another
+        transaction id) and waits for the timeout; the raw bytes tell which it was.
         """
         rx = bytes(self._rx)
         if not rx:
-            return f"timeout after {self.timeout:g} s reading {where}"
+            return f"timeout after {self.timeout:g} s reading {where}", True
+        stale, at = 0, 0
+        while at + 7 <= len(rx):  # MBAP: tid, protocol 0, length, unit
+            tid, proto, n, unit = struct.unpack_from(">2s2sHB", rx, at)
+            size = 6 + n
+            ours = proto == b"\x00\x00" and unit == self.device_id and tid != self._tx_tid
+            if not ours or at + size > len(rx):
+                break
+            stale, at = stale + 1, at + size
+        if stale and at == len(rx):
+            return (
+                f"timeout after {self.timeout:g} s reading {where} ({stale} late answer"
+                f"{'s' if stale > 1 else ''} to earlier requests came meanwhile, discarded)",
+                True,
+            )
         if len(rx) >= 8 and rx[2:4] == b"\x00\x00" and rx[6] != self.device_id:
-            return f"reply from unit id {rx[6]}, not {self.device_id}, reading {where}"
-        return f"malformed reply reading {where}: {len(rx)} bytes {rx[:16].hex(' ')}…"
+            return f"reply from unit id {rx[6]}, not {self.device_id}, reading {where}", False
+        return f"malformed reply reading {where}: {len(rx)} bytes {rx[:16].hex(' ')}…", False
 
     def _drop_client(self) -> None:
         if self._client is not None:
@@ -252,6 +294,7 @@ class ModbusTagClient:
             await self.connect()
         buf = self.plan.new_buffer()
         errors: list[str] = [""] * len(self.plan.blocks)
+        late_from = len(errors)  # blocks from here on got no answer in time (or were not read)
         if not self.connected:
             self._ensure_reconnect()
             errors = [f"not connected ({self.last_error or 'connecting'})"] * len(errors)
@@ -259,6 +302,15 @@ class ModbusTagClient:
             for i, block in enumerate(self.plan.blocks):
                 try:
                     errors[i] = await self._read_block(block, buf)
+                except _Late as exc:
+                    # late, not down: the connection is kept; the rest of this poll is not
+                    # read (a slow device would make each block wait its timeout)
+                    self.read_timeouts += 1
+                    late_from = i
+                    errors[i] = str(exc)
+                    for j in range(i + 1, len(errors)):
+                        errors[j] = f"not read: an earlier block got no answer in time ({exc})"
+                    break
                 except _Dropped as exc:
                     errors[i] = str(exc)
                     self.last_error = str(exc)
@@ -277,11 +329,15 @@ class ModbusTagClient:
             tag_err = [""] * len(tb)
         quality = np.where(bad, TagQuality.BAD, TagQuality.GOOD).astype(np.uint8)
         values[bad] = np.nan
-        self._account(ts, errors)
-        return Poll(ts, values, quality, tag_err, time.perf_counter() - t0)
+        late = tb >= late_from
+        if late_from == len(errors):
+            self._account(ts, errors)
+        else:  # late: availability stays as it was (a late answer is no outage, no recovery)
+            self.polls += 1
+        return Poll(ts, values, quality, tag_err, time.perf_counter() - t0, None, late)
 
     async def _read_block(self, b: ReadBlock, buf: np.ndarray) -> str:
-        """Read one block into ``buf``; "" or the reason it failed (raise _Dropped)."""
+        """Read one block into ``buf``; "" or the reason it failed (raise _Late, _Dropped)."""
         from pymodbus.exceptions import ConnectionException, ModbusIOException
 
         c = self._client
@@ -296,18 +352,19 @@ class ModbusTagClient:
             async with asyncio.timeout(self.timeout + 0.25):
                 rr = await fn(b.start, count=b.count, device_id=self.device_id)
         except TimeoutError:
-            raise _Dropped(self._no_answer(where)) from None
+            raise self._no_answer_error(where) from None
         except ModbusIOException as exc:
             msg = str(exc)
             if "device id" in msg:
                 raise _Dropped(f"reply from a wrong unit id reading {where}: {msg}") from None
             if "No response" in msg:
-                raise _Dropped(self._no_answer(where)) from None
+                raise self._no_answer_error(where) from None
             raise _Dropped(f"malformed reply reading {where}: {msg}") from None
         except ConnectionException as exc:
             raise _Dropped(f"connection lost reading {where}: {exc}") from None
         except Exception as exc:  # noqa: BLE001 - a broken reply must not end the poll
             raise _Dropped(f"malformed reply reading {where}: {exc!r}") from None
+        self._answered = time.monotonic()
         if rr.isError():
             code = int(getattr(rr, "exception_code", 0) or 0)
             if code:
@@ -321,6 +378,19 @@ class ModbusTagClient:
             raise _Dropped(f"malformed reply reading {where}: {n} values, expected {b.count}")
         buf[b.buf_offset : b.buf_offset + b.count] = np.asarray(data[: b.count], dtype=np.uint16)
         return ""
+
+    def _no_answer_error(self, where: str) -> Exception:
+        """:class:`_Late` for a request with no answer in time, :class:`_Dropped` when the
+        reply was unusable or no request has been answered in time for ``silent_after``."""
+        why, late = self._no_answer(where)
+        if not late:
+            return _Dropped(why)
+        if not self.connected:  # the device went away while the request waited
+            return _Dropped(f"connection lost reading {where}: closed without an answer")
+        silent = time.monotonic() - self._answered
+        if silent >= self.silent_after:
+            return _Dropped(f"no request answered in time for {silent:.1f} s (last: {why})")
+        return _Late(why)
 
     def _account(self, ts: datetime, errors: list[str]) -> None:
         """Availability from this poll; log the start of a failure once, the recovery once."""

@@ -95,6 +95,11 @@ class OpcUaConfig:
     outputs: tuple[str, ...] = ()  # the write allow-list (tag names of ``nodes``)
     backoff_base: float = 0.5
     backoff_cap: float = 30.0
+    #: s: asyncua's watchdog reads the server's state this often and waits this long for the
+    #: answer; no answer in time is a lost connection. A server silent this long is down; a
+    #: shorter silence (a late answer: a busy server, a loaded machine) is late, not down.
+    #: At least twice ``timeout`` (one Read late by its whole timeout is never an outage)
+    silent_after: float = 5.0
 
 
 def quality_of(code: Any) -> TagQuality:
@@ -257,11 +262,13 @@ class OpcUaReader:
 
         cfg = self.config
         # the session's own requests (CreateSession, ActivateSession, a secured handshake)
-        # get at least 4 s even when the reads' timeout is a short cycle's
+        # get at least 4 s even when the reads' timeout is a short cycle's. asyncua's
+        # watchdog probe waits as long as its interval: from the reads' timeout (0.5 s at a
+        # 0.1 s cycle) one answer late by that much dropped the session (issue 34)
         client = Client(
             cfg.url,
             timeout=max(cfg.timeout, 4.0),
-            watchdog_intervall=max(0.5, cfg.timeout / 2),
+            watchdog_intervall=max(cfg.silent_after, 2.0 * cfg.timeout),
         )
         client.session_timeout = 60_000
         sec = cfg.security

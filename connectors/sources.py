@@ -174,11 +174,11 @@ class SourceSet:
             if p.source_ts is not None:
                 source_ts[sl] = p.source_ts
             # a source is down when none of its tags could be read (vectorised: 5,000 tags);
-            # one whose request got no answer within its own timeout is late, as above
-            # (an OPC UA Read on a loaded machine; issue 34), and keeps its state
-            late_p = getattr(p, "late", None)
-            if late_p is not None and bool(np.all(late_p)) and len(late_p):
-                late[sl] = True
+            # one whose request got no answer within its own timeout is late, as above (an
+            # OPC UA Read, a Modbus block and the rest of its poll on a loaded machine; issue
+            # 34): those tags are late and the source keeps its state
+            if p.late is not None and bool(p.late.any()):
+                late[sl] = p.late
                 self._last.append(self._down[name][1] if name in self._down else "")
                 continue
             down = len(p.reasons) > 0 and bool((p.quality == _BAD).all())

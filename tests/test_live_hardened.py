@@ -43,12 +43,6 @@ def plant_dir(tmp_path_factory):
     return d, valve_plant(d)
 
 
-#: a cycle whose poll gave no answer within the cycle's deadline (a loaded machine): its
-#: tags are Bad, and the poll's answer, read before the next row was served, is the next
-#: cycle's sample (connectors.sources.SourceSet.poll)
-LATE = "no answer within the cycle's poll deadline"
-
-
 def run(
     cfg_path: Path,
     plc,
@@ -60,7 +54,9 @@ def run(
     """``run_config`` with the PLC serving one row per cycle; ``decide(loop, i, statuses)``
     returns the next row (None: leave the PLC as it is) or raises StopIteration to stop.
     Returns (exit code, output, timeline of (ts, status, quality, message)). ``late``: gets
-    per cycle whether its poll was late (:data:`LATE`). ``duration`` only bounds a hang: the
+    per cycle whether its poll was late (``LiveLoop.late``: no answer within the cycle's
+    deadline, whose answer, read before the next row was served, is the next cycle's sample;
+    or within the PLC's own timeout: a loaded machine). ``duration`` only bounds a hang: the
     plan stops the run (a loaded machine took 130 s for 250 cycles of 0.1 s)."""
     from diag_plugin.live.config import load_config, run_config
 
@@ -72,7 +68,7 @@ def run(
         (s,) = statuses
         timeline.append((s.ts, s.status.name, s.quality.name, s.message))
         if late is not None:
-            late.append(any(LATE in r for r in loop._reasons))
+            late.append(loop.late is not None and bool(loop.late.any()))
         try:
             row = decide(loop, i, statuses)
         except StopIteration:

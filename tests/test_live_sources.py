@@ -141,7 +141,7 @@ def test_two_sources_and_a_plc_killed_and_restarted(plant_dir):
         async def after(loop, i, statuses) -> None:
             (s,) = statuses
             timeline.append((time.monotonic() - t0, phase["now"], s.status.name, s.quality.name))
-            was = loop._late
+            was = loop.late
             late.append({n for n, sl in loop.source.slices() if was is not None and was[sl].all()})
             # the last 10 cycles that read both sources (a late one says nothing)
             last = [(p, st) for (_, p, st, _), lt in zip(timeline, late, strict=True) if not lt]

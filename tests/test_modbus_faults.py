@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import signal
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -17,6 +18,8 @@ from modbus_peers import (
     answering_server,
     free_port,
     needs_pymodbustcp,
+    raw_server,
+    read_request,
     registers_reply,
     reply,
     start_plc,
@@ -182,7 +185,8 @@ def test_reply_from_a_wrong_unit_id():
 
 @pytest.mark.parametrize("delay", [None, 2.0], ids=["never-answers", "answers-late"])
 def test_slow_server_times_out_and_backs_off(delay):
-    """Accepts, then never answers (or too late): Bad per poll, reconnects spaced out."""
+    """Accepts, then never answers (or too late): Bad per poll, late until no request has
+    been answered in time for ``silent_after`` (0.5 s), then dropped; reconnects spaced out."""
     accepted: list[float] = []
 
     async def answer(tid, unit, pdu):
@@ -195,7 +199,9 @@ def test_slow_server_times_out_and_backs_off(delay):
         srv, port = await answering_server(
             answer, lambda: accepted.append(asyncio.get_running_loop().time())
         )
-        c = ModbusTagClient(ONE, port=port, timeout=0.2, backoff=Backoff(0.1, 0.8, seed=2))
+        c = ModbusTagClient(
+            ONE, port=port, timeout=0.2, backoff=Backoff(0.1, 0.8, seed=2), silent_after=0.5
+        )
         loop = asyncio.get_running_loop()
         polls = []
         try:
@@ -216,6 +222,7 @@ def test_slow_server_times_out_and_backs_off(delay):
         assert all(s.quality == TagQuality.BAD for s in samples)
     reasons = {s.reason for _, samples in polls for s in samples}
     assert any("timeout after 0.2 s" in r for r in reasons), reasons
+    assert any("no request answered in time for" in r for r in reasons), reasons
     assert any("not connected" in r for r in reasons), reasons
     gaps = np.diff(accepted)
     assert 2 <= len(accepted) <= 12  # reconnects, but not one per poll (~45 polls)
@@ -256,3 +263,155 @@ def test_malformed_reply_is_bad_not_a_crash():
     )
     assert any("malformed reply reading hr 0+3: 11 bytes" in r for r in reasons), reasons
     assert connects >= 2
+
+
+TWO_BLOCKS = RegisterMap.parse(
+    "tag,table,address,type\nA,hr,0,uint16\nB,hr,1,uint16\nC,hr,10,uint16\nD,hr,11,uint16\n"
+)
+
+
+def tagged_reply(tid: int, unit: int, pdu: bytes) -> bytes:
+    """A read-registers reply whose every word says which request and address it answers:
+    100 * (transaction id % 600) + address."""
+    fc, addr, count = struct.unpack(">BHH", pdu[:5])
+    words = [100 * (tid % 600) + addr + k for k in range(count)]
+    return reply(tid, unit, struct.pack(f">BB{count}H", fc, 2 * count, *words))
+
+
+def test_a_late_answer_is_late_never_an_outage_nor_misfiled(caplog):
+    """A device that answers one request late (past the 1 s timeout) while the client has
+    already sent the next one (another block's): that poll's late block is Bad and late, the
+    connection is kept (no reconnect, no failure logged), and the late answer, which arrives
+    while the next request waits, is not taken for it: every Good word is the answer to its
+    own address from the newest request. Before, the timeout dropped the connection (the next
+    poll Bad "not connected", the source down for one late answer)."""
+    caplog.set_level(logging.INFO, logger=MOD)
+    caplog.set_level(logging.WARNING, logger="pymodbus.logging")  # its skipped frames
+    seen: list[tuple[int, int]] = []  # (transaction id, start address) of each request
+
+    async def answer(tid, unit, pdu):
+        seen.append((tid, struct.unpack(">H", pdu[1:3])[0]))
+        if len(seen) == 6:  # the third poll's second block (C, D): answered late
+            await asyncio.sleep(1.6)
+        return tagged_reply(tid, unit, pdu)
+
+    async def main():
+        srv, port = await answering_server(answer)
+        c = ModbusTagClient(TWO_BLOCKS, port=port, timeout=1.0)
+        try:
+            polls = [await c.poll() for _ in range(5)]  # one after another, as a loop polls
+            return polls, c.connects, getattr(c, "read_timeouts", None), c.available
+        finally:
+            await c.close()
+            srv.close()
+
+    polls, connects, timeouts, available = run(main())
+    # the polls after the late one Good on the same connection (main: "not connected")
+    assert all(p.good for p in polls[3:]) and connects == 1, [p.reasons for p in polls]
+    assert polls[2].late.tolist() == [False, False, True, True]
+    assert polls[2].quality.tolist() == [0, 0, 2, 2] and np.isnan(polls[2].values[2:]).all()
+    assert polls[2].reasons[2].startswith("timeout after 1 s reading hr 10+2"), polls[2].reasons
+    assert timeouts == 1 and available
+    # silent_after is at least twice the timeout: one request late by all of it is no outage
+    assert ModbusTagClient(TWO_BLOCKS, timeout=4.0).silent_after == 8.0
+    # the late answer (to request 6: C, D) came while request 7 (A, B) waited: skipped by
+    # its transaction id, not filed as A and B (or, on a machine so loaded that request 7
+    # went out after it, ignored as an answer to nothing)
+    skipped = [r.getMessage() for r in caplog.records if r.name == "pymodbus.logging"]
+    assert any(
+        "transaction_id=7 but got id=6, Skipping" in m or "IGNORING" in m for m in skipped
+    ), skipped
+    addr = {"A": 0, "B": 1, "C": 10, "D": 11}
+    for k, p in enumerate(polls):
+        for i, tag in enumerate(TWO_BLOCKS.names):
+            if p.quality[i] != 0:
+                continue
+            v = int(p.values[i])
+            assert v % 100 == addr[tag], (k, tag, v)  # its own address, no other block's
+            start = 0 if addr[tag] < 10 else 10
+            asked = [tid for tid, a in seen if a == start]
+            # the newest request for its block at that poll: 2 requests per poll (none
+            # for C, D after the late one in poll 3)
+            assert v // 100 == asked[k] % 600, (k, tag, v, seen)
+    assert not any(p.late.any() for p in polls[3:])
+    msgs = [r.getMessage() for r in caplog.records if r.name == MOD]
+    assert not any("bad" in m or "recovered" in m for m in msgs), msgs
+
+
+def test_a_device_silent_past_silent_after_is_dropped_and_found_again(caplog):
+    """The other side: a device that stops answering with its connection open is late until
+    no request has been answered in time for ``silent_after``, then the connection is dropped
+    (the source down: one warning), reconnected in the background (a new connection counts as
+    an answer: late again, still down, until it answers), and Good again once it answers (one
+    recovery)."""
+    caplog.set_level(logging.INFO, logger=MOD)
+    state = {"silent": False, "accepted": 0}
+
+    async def answer(tid, unit, pdu):
+        if state["silent"]:
+            return None
+        return tagged_reply(tid, unit, pdu)
+
+    def accepted():
+        state["accepted"] += 1
+
+    async def main():
+        srv, port = await answering_server(answer, accepted)
+        c = ModbusTagClient(
+            TWO_BLOCKS, port=port, timeout=0.2, silent_after=1.0, backoff=Backoff(0.05, 0.2)
+        )
+        loop = asyncio.get_running_loop()
+        out = []
+        try:
+            out.append(("up", await c.poll()))
+            state["silent"] = True
+            t0 = loop.time()
+            while loop.time() - t0 < 2.0:
+                out.append(("silent", await c.poll()))
+                await asyncio.sleep(0.05)
+            state["silent"] = False
+            for _ in range(100):
+                p = await c.poll()
+                out.append(("back", p))
+                if p.good:
+                    break
+                await asyncio.sleep(0.05)
+        finally:
+            await c.close()
+            srv.close()
+        return out, c.connects
+
+    out, connects = run(main())
+    silent = [p for ph, p in out if ph == "silent"]
+    assert silent[0].late.all() and "timeout after 0.2 s" in silent[0].reasons[0]
+    dropped = [p for p in silent if "no request answered in time for" in p.reasons[0]]
+    assert dropped and not dropped[0].late.any(), [p.reasons[0] for p in silent]
+    # from there on down (Bad, and late again on the new connection until it answers)
+    assert all(not p.good for p in silent[silent.index(dropped[0]) :])
+    assert out[-1][1].good and connects >= 2 and state["accepted"] >= 2
+    msgs = [r.getMessage() for r in caplog.records if r.name == MOD and r.levelno >= logging.INFO]
+    assert sum("read blocks bad" in m for m in msgs) == 1, msgs
+    assert sum("recovered" in m for m in msgs) == 1, msgs
+
+
+def test_a_device_gone_while_a_request_waits_is_down_not_late():
+    """A device that closes the connection while our request waits for its answer: the block
+    is Bad "connection lost" and the source down (reconnected in the background), not late."""
+
+    async def handler(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+        await read_request(r)
+        w.close()  # gone without an answer
+
+    async def main():
+        srv, port = await raw_server(handler)
+        c = ModbusTagClient(TWO_BLOCKS, port=port, timeout=0.5, backoff=Backoff(5.0, 5.0))
+        try:
+            return await c.poll(), c.connected, c.available
+        finally:
+            await c.close()
+            srv.close()
+
+    p, connected, available = run(main())
+    assert not p.late.any() and not connected and not available
+    assert p.reasons[0] == "connection lost reading hr 0+2: closed without an answer", p.reasons
+    assert p.reasons[2].startswith("not connected (dropped after: connection lost"), p.reasons

@@ -265,6 +265,7 @@ def threaded_server():
     """Our OPC UA server on an event loop of its own thread: it answers while the test's
     loop is held (as a loaded machine holds a live loop between two of its steps)."""
     import threading
+    import time
 
     loop = asyncio.new_event_loop()
     srv = DiagOpcUaServer(port=free_port())
@@ -280,6 +281,8 @@ def threaded_server():
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
     assert ready.wait(60)
+    # hold(s): the server's loop busy for s seconds (a slow server, or one on a loaded machine)
+    srv.hold = lambda seconds: loop.call_soon_threadsafe(time.sleep, seconds)
     yield srv
     asyncio.run_coroutine_threadsafe(srv.stop(), loop).result(30)
     loop.call_soon_threadsafe(loop.stop)
@@ -333,3 +336,61 @@ async def test_a_read_answered_as_its_timeout_runs_out_is_a_timeout(threaded_ser
         await r.close()
     msgs = [m.getMessage() for m in caplog.records if m.name == "connectors.opcua_client"]
     assert not any("unavailable" in m for m in msgs), msgs
+
+
+async def good_read(r: OpcUaReader, value: float = 3.0) -> bool:
+    """A read of every tag Good with ``value`` (retried: on a loaded machine a read may itself
+    be late)."""
+    for _ in range(100):
+        if all(s.quality is TagQuality.GOOD and s.value == value for s in await r.read()):
+            return True
+        await asyncio.sleep(0.1)
+    return False
+
+
+async def test_a_late_watchdog_answer_keeps_the_session(threaded_server, caplog):
+    """asyncua's watchdog reads the server's state every interval and waits as long as the
+    interval for the answer; a probe without an answer in time drops the session. Its interval
+    came from the reads' timeout (0.5 s at 0.1 s): a server held 1.2 s (busy, or on a loaded
+    machine; our stand-in server shares the live loop's event loop) dropped the session at
+    every hold, 3 of 3, the source "unavailable" and back. Now the watchdog waits
+    ``silent_after`` (5 s): the reads during the hold are late (Bad), the session is kept."""
+    srv = threaded_server
+    r = OpcUaReader(OpcUaConfig(srv.endpoint, plant_nodes(srv), timeout=0.1))
+    await r.start()
+    try:
+        assert await r.wait_connected(30)
+        assert await good_read(r)
+        for _ in range(2):
+            srv.hold(1.2)
+            loop = asyncio.get_running_loop()
+            end = loop.time() + 1.6
+            while loop.time() < end:  # polled as the live loop polls, through the hold
+                await r.read()
+                await asyncio.sleep(0.1)
+            assert r.outages == 0, "a late watchdog answer dropped the session"
+        assert r.read_timeouts >= 1  # the reads during the holds were late
+        assert await good_read(r) and r.connected and r.outages == 0
+    finally:
+        await r.close()
+    msgs = [m.getMessage() for m in caplog.records if m.name == "connectors.opcua_client"]
+    assert not any("unavailable" in m for m in msgs), msgs
+
+
+async def test_a_server_silent_past_silent_after_is_lost_and_found_again(threaded_server):
+    """The other side of the watchdog: a server that stops answering (the connection still
+    open) for longer than ``silent_after`` is a lost connection (tags Bad "no connection"),
+    and the reader reconnects by itself once it answers again."""
+    srv = threaded_server
+    r = OpcUaReader(OpcUaConfig(srv.endpoint, plant_nodes(srv), timeout=0.1, silent_after=0.5))
+    await r.start()
+    try:
+        assert await r.wait_connected(30)
+        assert await good_read(r)
+        srv.hold(3.0)
+        assert await until(lambda: r.outages == 1, timeout=2.8)
+        assert all("no connection" in s.reason for s in await r.read())
+        assert await good_read(r) and r.connected and r.outages == 1
+        assert r.gaps[0][1] is not None
+    finally:
+        await r.close()

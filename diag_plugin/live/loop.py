@@ -173,6 +173,7 @@ class LiveLoop:
         self._quality = np.zeros(len(self._tags), np.uint8)
         self._reasons: list[str] = [""] * len(self._tags)
         self._stale_mask = np.zeros(len(self._tags), bool)
+        self._late: np.ndarray | None = None
         self._age = np.zeros(len(self._tags))
         self._notify_tasks: set[asyncio.Task[None]] = set()
         #: each unit's ISA-18.2 alarm where no OPC UA server keeps it (a Modbus-only SCADA:
@@ -198,6 +199,13 @@ class LiveLoop:
             return None
         budget = self.cycle_s - 2.0 * float(np.median(self._other_s))
         return min(0.9 * self.cycle_s, max(0.5 * self.cycle_s, budget))
+
+    @property
+    def late(self) -> np.ndarray | None:
+        """Per tag, whether the last cycle's poll of its source was late (no answer within
+        the cycle's poll deadline or the source's own timeout): the tag was not read that
+        cycle. None before the first cycle, or from a source that does not say."""
+        return self._late
 
     # ------------------------------------------------------------------ control
     def stop(self) -> None:
@@ -316,14 +324,13 @@ class LiveLoop:
             quality[absurd] = TagQuality.BAD
             self.stats.not_finite += int(absurd.sum())
         stale, self._age = self.stale.update(
-            ts.value / 1e9, values, quality, poll.source_ts, getattr(poll, "late", None)
+            ts.value / 1e9, values, quality, poll.source_ts, poll.late
         )
         if stale.any():
             quality[stale] = TagQuality.UNCERTAIN
             self.stats.stale += int(stale.sum())
         self._quality, self._reasons, self._stale_mask = quality, poll.reasons, stale
-        #: per tag, whether this cycle's poll of its source was late (no answer in time)
-        self._late = getattr(poll, "late", None)
+        self._late = poll.late
         if self.historian is not None:
             self.historian.put(ts, values, quality)
         for t in self.source.transitions(poll.ts):
