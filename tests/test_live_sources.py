@@ -270,6 +270,14 @@ def test_config_of_several_sources_names_source_key_and_line(plant_dir, monkeypa
     p.write_text(good.replace("flush_every = 5", "flush_every = 5\nroll_months = false"), "utf-8")
     assert load_config(p).roll_months is False
     p.write_text(good, encoding="utf-8")
+    # silent_after: how long no answer in time is late, not down (docs/reference/live.md)
+    from diag_plugin.live.config import build_sources
+
+    assert (plc.silent_after, scada.silent_after) == (5.0, 5.0)
+    p.write_text(good.replace("timeout = 0.09", "timeout = 0.09\nsilent_after = 12"), "utf-8")
+    got = build_sources(load_config(p)).sources
+    assert got[0].silent_after == 12.0 and got[1].reader.config.silent_after == 5.0
+    p.write_text(good, encoding="utf-8")
     assert (scada.type, scada.url, scada.mode, scada.nodes) == (
         "opcua",
         "opc.tcp://127.0.0.1:4841/diag/",
@@ -321,6 +329,10 @@ def test_config_of_several_sources_names_source_key_and_line(plant_dir, monkeypa
         ),
         (good.replace('name = "scada"', 'name = "plc"'), "several.toml:15: source[2].name: 'plc'"),
         (good.replace("timeout = 0.09", "timeout = 0"), "several.toml:12: source[1].timeout: must"),
+        (
+            good.replace("timeout = 0.09", "timeout = 0.09\nsilent_after = -1"),
+            "several.toml:13: source[1].silent_after: must be positive",
+        ),
         (
             good.replace('[[source]]\nname = "scada"', '[[source]]\nname = "scada"\nhost = "x"'),
             "several.toml:16: source[2].host: unknown key",

@@ -89,6 +89,9 @@ class SourceConfig:
     name: str
     type: str = "modbus"
     timeout: float = 1.0
+    #: s without an answer in time before a source is down (shorter: late, not down); the
+    #: connectors raise it to at least twice ``timeout``
+    silent_after: float = 5.0
     # modbus
     host: str = "127.0.0.1"
     port: int = 502
@@ -168,7 +171,7 @@ _NAMES = {
     bool: "true or false",
 }
 
-_COMMON = {"name", "type", "timeout"}
+_COMMON = {"name", "type", "timeout", "silent_after"}
 _SOURCE_KEYS = {
     "modbus": _COMMON | {"host", "port", "device_id", "map"},
     "opcua": _COMMON
@@ -529,6 +532,9 @@ def _source(i: int, get, positive, port, existing, fail, base: Path) -> SourceCo
     if typ not in _SOURCE_KEYS:
         raise fail("source", "type", f"expected 'modbus' or 'opcua', not {typ!r}", i)
     s = SourceConfig(name="", type=typ)
+    s.silent_after = float(
+        positive("source", "silent_after", g("silent_after", (int, float), 5.0), i)
+    )
     if typ == "modbus":
         s.host = g("host", str, "127.0.0.1")
         s.port = port("source", "port", g("port", int, 502), False, i)
@@ -653,7 +659,14 @@ def build_sources(cfg: LiveConfig) -> Any:
         if s.type == "modbus":
             regmap = s.regmap if s.regmap is not None else RegisterMap.from_csv(s.map)
             clients.append(
-                ModbusTagClient(regmap, s.host, s.port, device_id=s.device_id, timeout=s.timeout)
+                ModbusTagClient(
+                    regmap,
+                    s.host,
+                    s.port,
+                    device_id=s.device_id,
+                    timeout=s.timeout,
+                    silent_after=s.silent_after,
+                )
             )
             continue
         security = None
@@ -674,6 +687,7 @@ def build_sources(cfg: LiveConfig) -> Any:
                 mode=s.mode,
                 period=s.period,
                 timeout=s.timeout,
+                silent_after=s.silent_after,
                 security=security,
             )
         )
