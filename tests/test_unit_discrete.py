@@ -18,10 +18,12 @@ import pytest
 from diag_plugin.unitbuild.build import build_unit, choose_tests
 
 
-def _station(days: float, seed: int) -> pd.DataFrame:
+def _station(days: float, seed: int, worn: float = 0.0) -> pd.DataFrame:
     """1-min samples: a demand with a daily cycle; pump 2 assists above 260 m3/h and stops
     below 200 (its run feedback RUN2 is 0/1); the header pressure falls with the flow a pump
-    gives; each motor's current is the power of its share, zero when it stands."""
+    gives; each motor's current is the power of its share, zero when it stands. ``worn``:
+    pump 2's motor draws that much more current for the same duty from day 1 on (a worn
+    impeller's lost efficiency)."""
     rng = np.random.default_rng(seed)
     n = int(days * 1440)
     t = np.arange(n) / 1440.0
@@ -37,6 +39,7 @@ def _station(days: float, seed: int) -> pd.DataFrame:
     press = 5.0 - 2.5e-5 * share**2 + rng.normal(0, 0.01, n)
     i1 = 5 + 0.002 * share**2 * press / 4 + rng.normal(0, 0.3, n)
     i2 = run2 * (5 + 0.002 * share**2 * press / 4 + rng.normal(0, 0.3, n))
+    i2 *= 1 + worn * (t >= 1.0)
     flow = demand + rng.normal(0, 2, n)
     idx = pd.date_range("2026-06-01", periods=n, freq="60s", tz="UTC")
     return pd.DataFrame({"FLOW": flow, "PRESS": press, "I1": i1, "I2": i2, "RUN2": run2},
@@ -55,6 +58,30 @@ def test_a_pump_run_feedback_is_not_a_test_and_the_unit_builds(tmp_path):
     assert {"FLOW", "PRESS", "I1", "I2"} <= tested
     assert "discrete state" in res.skipped["RUN2"]
     assert "candidate input" in res.skipped["RUN2"]
+
+
+def test_a_discrete_state_is_never_the_tag_at_fault(tmp_path):
+    """The station's pump 2 worn (its current 25 % higher for the same duty while it runs):
+    the isolation names the current, no alarm the run feedback, which the build writes in
+    ``[build] states``. On the pumping station of the acceptance pass the unit (with the
+    feedback a candidate input, as the current's test reads it) named `PMP1_ON` on 61.5 % of a
+    worn pump's alarm samples and `PMP3_ON` at a pump start; fails on main, where the
+    feedback is a tag the unit can name."""
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unittags import structure
+
+    res = build_unit("station", _station(4, 1), folder=tmp_path, period="60s", far=0.01)
+    unit = Unit.load(res.path, tmp_path)
+    assert unit.file.build["states"] == ["RUN2"]
+    assert "RUN2" not in structure(unit)[0]
+    d = unit.reset().evaluate(_station(2, 7, worn=0.25))
+    on = 1440
+    alarm = d.detected.to_numpy()[on:] == 1
+    assert alarm.mean() > 0.2
+    named = {t for c in ("top1", "top2", "top3") for t in d.top_tags[c].iloc[on:][alarm] if t}
+    assert "RUN2" not in named and "RUN2" not in {f for f in d.faults if f}
+    # the isolation (the derived matrix) names the worn pump's current
+    assert d.faults.iloc[on:][alarm].value_counts().index[0] == "I2"
 
 
 def test_a_state_the_grid_averaged_at_a_switch_is_still_discrete():

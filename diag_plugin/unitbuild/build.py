@@ -122,6 +122,8 @@ MIN_GOOD_SHARE = 0.5
 #: state (a pump's run feedback, a limit switch): the rest are grid points a switch fell
 #: within and the grid averaged (docs/reference/historian.md, "Aligned windows")
 DISCRETE_SHARE = 0.99
+#: how ``[build.skipped]`` says a tag is a discrete state
+DISCRETE_WHY = "a discrete state"
 #: grid points a window needs (a window under short.SHORT_ROWS is built as a short one, see
 #: :mod:`diag_plugin.unitbuild.short`)
 MIN_ROWS = short.MIN_ROWS
@@ -261,8 +263,8 @@ def choose_tests(
             skipped[t] = "a set-point (the operator's choice; kept as a candidate input)"
         elif tags is None and (two := two_states(v[good])) is not None:
             skipped[t] = (
-                f"a discrete state ({two[0]:g} or {two[1]:g}: a mode of the plant, as a "
-                "pump's run feedback; kept as a candidate input)"
+                f"{DISCRETE_WHY} ({two[0]:g} or {two[1]:g}: a mode of the plant, as a "
+                "pump's run feedback; kept as a candidate input, never a tag at fault)"
             )
         else:
             chosen.append(t)
@@ -1121,6 +1123,9 @@ def _build_unit(
     # the window's set-points, as judged here (name or description): the unit never blames
     # one (unittags.structure), and it has no historian metadata at run time
     doc["build"]["set_points"] = [t for t in frame.columns if is_set_point(t, info.get(t))]
+    # the discrete states left out of the tests (a pump's run feedback): a mode of the plant,
+    # never a tag at fault either (unittags.structure)
+    doc["build"]["states"] = [t for t, why in skipped.items() if why.startswith(DISCRETE_WHY)]
     if hand:
         doc["manual"] = manual_table(hand)
     path.write_text(tomlkit.dumps(doc), encoding="utf-8")
