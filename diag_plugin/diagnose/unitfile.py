@@ -447,10 +447,11 @@ class UnitFile(LinedFile):
         }
         # written by `diag unit build` (how each test's inputs were chosen); read, not checked
         self.build = _plain(self._table("build")) if "build" in self.doc else {}
-        sps = self.build.get("set_points", [])
-        if not isinstance(sps, list) or not all(isinstance(x, str) and x for x in sps):
-            self.error(self.line_of("build", "set_points"), "set_points must be a list of tags")
-            self.build.pop("set_points")
+        for key in ("set_points", "states"):
+            sps = self.build.get(key, [])
+            if not isinstance(sps, list) or not all(isinstance(x, str) and x for x in sps):
+                self.error(self.line_of("build", key), f"{key} must be a list of tags")
+                self.build.pop(key)
         self.tests = self._tests(self._table("tests", required=True))
         self.fault_status = self._faults(self._table("faults"))
         self.combined = self._combined(self._table("combined"))

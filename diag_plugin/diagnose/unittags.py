@@ -131,7 +131,8 @@ def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
     """The unit's tags that can be at fault (plant names, outputs first in test order, then
     inputs; never a set-point, by its name or as the unit file declares it (a loop test's
     ``set_point``, :func:`declared_set_points`): it is the operator's entry, with no sensor
-    or actuator that could fail; nor a hand valve, :func:`hand_valves`), each test's output
+    or actuator that could fail; nor a hand valve, :func:`hand_valves`, nor a discrete state,
+    :func:`states`), each test's output
     tag and the tags each test reads (inputs, any lag)."""
     outputs: dict[str, str] = {}
     reads: dict[str, list[str]] = {}
@@ -145,7 +146,7 @@ def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
         act = unit.file.test(t).actuator
         if act and act not in reads[t] and act != outputs[t]:
             reads[t].append(act)  # a loop's actuator: its fault moves the loop's error
-    sps = set_points(unit) | declared_set_points(unit) | hand_valves(unit)
+    sps = set_points(unit) | declared_set_points(unit) | hand_valves(unit) | states(unit)
     tags = list(dict.fromkeys([*outputs.values(), *(x for r in reads.values() for x in r)]))
     return [x for x in tags if not is_set_point(x) and x not in sps], outputs, reads
 
@@ -154,6 +155,15 @@ def hand_valves(unit) -> set[str]:
     """The hand valves the unit file declares (``[manual]``, plant names): an operator's
     setting, never a tag at fault (:mod:`~diag_plugin.diagnose.manual`)."""
     return {unit.file.tags.get(t, t) for t in getattr(unit.file, "manual", {})}
+
+
+def states(unit) -> set[str]:
+    """The discrete states the unit file declares (``[build] states``, plant names: a pump's
+    run feedback, which ``diag unit build`` does not test): a mode of the plant, read by the
+    tests as any input but never a tag at fault — a worn pump is named on its motor's current
+    and the speed, not on the feedback that says it runs."""
+    build = unit.file.build or {}
+    return {unit.file.tags.get(str(x), str(x)) for x in build.get("states", [])}
 
 
 def set_points(unit) -> set[str]:

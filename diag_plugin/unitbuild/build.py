@@ -7,7 +7,8 @@ hand-build:
    controller outputs — unless the user lists them. Left out, each with its reason: tags
    constant over the window, tags with too few good samples (:data:`MIN_GOOD_SHARE`),
    set-points (a name ending ``.SP`` or a description saying set-point: a set-point is the
-   operator's choice, not a consequence of the process, so a model of it detects nothing).
+   operator's choice, not a consequence of the process, so a model of it detects nothing),
+   discrete states (:func:`two_states`: a pump's run feedback; candidate inputs).
 2. **Inputs** (:func:`select_inputs`): greedy forward selection of up to
    :data:`MAX_INPUTS` inputs with the workbench's own held-out scoring
    (:class:`~diag_plugin.selection.scoring.HeldOutScorer`, what ``diag explain`` ranks
@@ -117,6 +118,12 @@ OUTPUT_NAMES = ("OUT", "OP", "MV", "CO", "OUTPUT")
 LOOP_METHOD = "track"
 #: a tag needs good samples in this share of the window's grid points to be tested
 MIN_GOOD_SHARE = 0.5
+#: a tag whose two commonest values hold this share of its good grid points is a discrete
+#: state (a pump's run feedback, a limit switch): the rest are grid points a switch fell
+#: within and the grid averaged (docs/reference/historian.md, "Aligned windows")
+DISCRETE_SHARE = 0.99
+#: how ``[build.skipped]`` says a tag is a discrete state
+DISCRETE_WHY = "a discrete state"
 #: grid points a window needs (a window under short.SHORT_ROWS is built as a short one, see
 #: :mod:`diag_plugin.unitbuild.short`)
 MIN_ROWS = short.MIN_ROWS
@@ -254,9 +261,29 @@ def choose_tests(
             skipped[t] = f"constant over the window ({float(v[good][0]):g})"
         elif tags is None and (is_set_point(t, info.get(t)) or t in set_points):
             skipped[t] = "a set-point (the operator's choice; kept as a candidate input)"
+        elif tags is None and (two := two_states(v[good])) is not None:
+            skipped[t] = (
+                f"{DISCRETE_WHY} ({two[0]:g} or {two[1]:g}: a mode of the plant, as a "
+                "pump's run feedback; kept as a candidate input, never a tag at fault)"
+            )
         else:
             chosen.append(t)
     return chosen, skipped
+
+
+def two_states(v: np.ndarray) -> tuple[float, float] | None:
+    """The two values of a discrete state (:data:`DISCRETE_SHARE` of ``v`` on them), else
+    None. Not tested by default: a model of an on/off feedback from the current it switches
+    reproduces it exactly, its residual is zero and no threshold can be learned; what the
+    state does to the process is seen by the tests that read it."""
+    vals, counts = np.unique(v, return_counts=True)
+    if len(vals) < 2:
+        return None
+    top = np.argsort(counts)[-2:]
+    if counts[top].sum() < DISCRETE_SHARE * len(v):
+        return None
+    lo, hi = sorted(float(x) for x in vals[top])
+    return lo, hi
 
 
 def same_measurement(
@@ -1096,6 +1123,9 @@ def _build_unit(
     # the window's set-points, as judged here (name or description): the unit never blames
     # one (unittags.structure), and it has no historian metadata at run time
     doc["build"]["set_points"] = [t for t in frame.columns if is_set_point(t, info.get(t))]
+    # the discrete states left out of the tests (a pump's run feedback): a mode of the plant,
+    # never a tag at fault either (unittags.structure)
+    doc["build"]["states"] = [t for t, why in skipped.items() if why.startswith(DISCRETE_WHY)]
     if hand:
         doc["manual"] = manual_table(hand)
     path.write_text(tomlkit.dumps(doc), encoding="utf-8")

@@ -1,0 +1,112 @@
+"""A discrete state (a pump's run feedback) in a plant's history (issue 34, items 3 and 6).
+
+Acceptance pass on a pumping station (docs/explanation/acceptance-pumps.md): `diag unit
+build` on all the tags that vary tested each pump's on/off feedback, modelled it from the
+pump's motor current (exactly: the current is zero when the pump stands), and then refused
+the whole unit, `test PMP2_ON: its residual is exactly zero over the window`, at 1 s and at
+1 min alike. A discrete state is a mode of the plant, not a measured quantity: it is left out
+of the tests, said why, and kept a candidate input. The plant here is written for this test
+(an assist pump started on demand with a hysteresis, its current from the flow it gives).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from diag_plugin.unitbuild.build import build_unit, choose_tests
+
+
+def _station(days: float, seed: int, worn: float = 0.0) -> pd.DataFrame:
+    """1-min samples: a demand with a daily cycle; pump 2 assists above 260 m3/h and stops
+    below 200 (its run feedback RUN2 is 0/1); the header pressure falls with the flow a pump
+    gives; each motor's current is the power of its share, zero when it stands. ``worn``:
+    pump 2's motor draws that much more current for the same duty from day 1 on (a worn
+    impeller's lost efficiency)."""
+    rng = np.random.default_rng(seed)
+    n = int(days * 1440)
+    t = np.arange(n) / 1440.0
+    walk = np.cumsum(rng.normal(0, 0.002, n))
+    demand = 220 + 80 * np.sin(2 * np.pi * (t - 0.3)) + 20 * walk + rng.normal(0, 5, n)
+    run2 = np.zeros(n)
+    on = False
+    for k in range(n):
+        on = demand[k] > 260 or (on and demand[k] > 200)
+        run2[k] = float(on)
+    pumps = 1 + run2
+    share = demand / pumps
+    press = 5.0 - 2.5e-5 * share**2 + rng.normal(0, 0.01, n)
+    i1 = 5 + 0.002 * share**2 * press / 4 + rng.normal(0, 0.3, n)
+    i2 = run2 * (5 + 0.002 * share**2 * press / 4 + rng.normal(0, 0.3, n))
+    i2 *= 1 + worn * (t >= 1.0)
+    flow = demand + rng.normal(0, 2, n)
+    idx = pd.date_range("2026-06-01", periods=n, freq="60s", tz="UTC")
+    return pd.DataFrame({"FLOW": flow, "PRESS": press, "I1": i1, "I2": i2, "RUN2": run2},
+                        index=idx)  # fmt: skip
+
+
+def test_a_pump_run_feedback_is_not_a_test_and_the_unit_builds(tmp_path):
+    """Fails on main, where RUN2 is tested (here `RUN2 = f(I2, PRESS)`, a model of a mode;
+    on the pumping station `PMP2_ON` from its motor's current exactly, and the build stopped:
+    `cannot learn thresholds: test PMP2_ON: its residual is exactly zero`)."""
+    train = _station(4, 1)
+    assert 0 < train["RUN2"].mean() < 1  # the assist pump starts and stops in the window
+    res = build_unit("station", train, folder=tmp_path, period="60s", far=0.01)
+    tested = {t.tag for t in res.tests}
+    assert "RUN2" not in tested
+    assert {"FLOW", "PRESS", "I1", "I2"} <= tested
+    assert "discrete state" in res.skipped["RUN2"]
+    assert "candidate input" in res.skipped["RUN2"]
+
+
+def test_a_discrete_state_is_never_the_tag_at_fault(tmp_path):
+    """The station's pump 2 worn (its current 25 % higher for the same duty while it runs):
+    the isolation names the current, no alarm the run feedback, which the build writes in
+    ``[build] states``. On the pumping station of the acceptance pass the unit (with the
+    feedback a candidate input, as the current's test reads it) named `PMP1_ON` on 61.5 % of a
+    worn pump's alarm samples and `PMP3_ON` at a pump start; fails on main, where the
+    feedback is a tag the unit can name."""
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unittags import structure
+
+    res = build_unit("station", _station(4, 1), folder=tmp_path, period="60s", far=0.01)
+    unit = Unit.load(res.path, tmp_path)
+    assert unit.file.build["states"] == ["RUN2"]
+    assert "RUN2" not in structure(unit)[0]
+    d = unit.reset().evaluate(_station(2, 7, worn=0.25))
+    on = 1440
+    alarm = d.detected.to_numpy()[on:] == 1
+    assert alarm.mean() > 0.2
+    named = {t for c in ("top1", "top2", "top3") for t in d.top_tags[c].iloc[on:][alarm] if t}
+    assert "RUN2" not in named and "RUN2" not in {f for f in d.faults if f}
+    # the isolation (the derived matrix) names the worn pump's current
+    assert d.faults.iloc[on:][alarm].value_counts().index[0] == "I2"
+
+
+def test_a_state_the_grid_averaged_at_a_switch_is_still_discrete():
+    """At 1 s a jittered export puts two samples in a few grid points, and the grid averages
+    them: a run feedback reads 0.5 where a switch fell. Still a discrete state; a measured
+    tag (the current) and a tag the user lists are tested."""
+    from diag_plugin.unitbuild.build import two_states
+
+    f = _station(2, 2)
+    run = f["RUN2"].to_numpy().copy()
+    switches = np.flatnonzero(np.diff(run) != 0)
+    assert len(switches) >= 2
+    run[switches] = 0.5
+    f["RUN2"] = run
+    assert two_states(run) == (0.0, 1.0)
+    assert two_states(f["I2"].to_numpy()) is None
+    chosen, skipped = choose_tests(f)
+    assert "RUN2" not in chosen and "I2" in chosen
+    assert "0 or 1" in skipped["RUN2"]
+    chosen, skipped = choose_tests(f, tags=["RUN2", "I2"])
+    assert chosen == ["RUN2", "I2"] and not skipped
+
+
+@pytest.mark.parametrize("values", [[0, 1, 2, 3] * 50, list(np.linspace(0, 1, 200))])
+def test_a_tag_of_more_than_two_values_is_not_a_state(values):
+    from diag_plugin.unitbuild.build import two_states
+
+    assert two_states(np.asarray(values, float)) is None
