@@ -118,19 +118,26 @@ def test_tests_not_reading_the_valve_keep_judging(line):
     assert (d.detected.to_numpy()[out] == 1).mean() > 0.3
 
 
+def _in_pieces_as_whole(unit: Unit, f: pd.DataFrame, k: int):
+    """``f`` replayed whole, then in pieces of ``k`` samples each from the state saved (through
+    JSON) after the one before: the same frames. Returns the whole replay."""
+    whole = unit.reset().evaluate(f)
+    unit.reset()
+    parts = []
+    for a in range(0, len(f), k):
+        state = json.loads(json.dumps(unit.to_state()))
+        parts.append(unit.load_state(state).evaluate(f.iloc[a : a + k]))
+    pd.testing.assert_frame_equal(whole.to_frame(), concat(parts).to_frame())
+    return whole
+
+
 def test_pieces_the_plant_and_a_restart_say_the_same(line):
     """The replay in pieces, through a saved state, and the plant cycle by cycle (the live
     loop; its message is what the OPC UA server publishes) give the same status and why."""
     _, unit, *_ = line
     f = line7.simulate(1.2, 103, "manual_moved", onset_days=1.0).iloc[ONSET - 300 :]
-    whole = unit.reset().evaluate(f)
+    whole = _in_pieces_as_whole(unit, f, 611)
     assert whole.why.map(lambda s: bool(SAID.match(s))).sum() > 100
-    unit.reset()
-    parts = []
-    for a in range(0, len(f), 611):
-        state = json.loads(json.dumps(unit.to_state()))
-        parts.append(unit.load_state(state).evaluate(f.iloc[a : a + 611]))
-    pd.testing.assert_frame_equal(whole.to_frame(), concat(parts).to_frame())
     plant = Plant({"line": unit.reset()}, {})
     got_status, got_msg = [], []
     for k, (ts, row) in enumerate(f.iterrows()):
@@ -351,14 +358,8 @@ def test_a_moves_settle_replay_pieces_restart_and_plant_agree(line):
     loop's stacked path restarted mid-settle give the same statuses and messages."""
     _, unit, *_ = line
     x = line7.simulate(2.0, 101).iloc[MOVED_AT - 200 : MOVED_AT + 400]
-    one = unit.reset().evaluate(x)
+    one = _in_pieces_as_whole(unit, x, 97)
     assert one.why.map(lambda s: bool(MOVE.match(s))).sum() > 50
-    unit.reset()
-    parts = []
-    for a in range(0, len(x), 97):
-        state = json.loads(json.dumps(unit.to_state()))
-        parts.append(unit.load_state(state).evaluate(x.iloc[a : a + 97]))
-    pd.testing.assert_frame_equal(one.to_frame(), concat(parts).to_frame())
     plant = Plant({"line": Unit.load(unit.file.path, unit.file.path.parent)}, {})
     for k, (ts, row) in enumerate(x.iterrows()):
         if k == 300:  # inside the settle
