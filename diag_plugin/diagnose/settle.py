@@ -32,6 +32,15 @@ alarm: the unit's judgement goes on.
   step during a settle that has not suppressed anything restarts it (a latched one keeps its
   end). ``settle_max_s = 0`` (unit files written before it): no guard.
 
+- **A hand valve's move** (its ``[manual]`` span, :mod:`~diag_plugin.diagnose.manual`;
+  ``manual_settle_max_s`` > 0): the same step rule on the valve's reading (held within its
+  noise margin; a jump beyond :data:`HAND_BAND_SHARE` of its learned span) **to a position
+  within that span** opens a settle as a set-point step does, its why ``HAND_VALVE 49 → 43
+  at …: settling after a hand valve's move``; it ends when no test is on for the quiet time
+  (the valve has no loop error to wait for), or ``manual_settle_max_s`` after the move
+  (:func:`~diag_plugin.unitbuild.loops.manual_settle_max`). Outside the span the manual
+  guard answers.
+
 The replay (:meth:`~diag_plugin.diagnose.unit.Unit.evaluate`), the live loop's stacked path
 (:class:`~diag_plugin.diagnose.plant.Plant`) and a restart (the carried state) give the same
 statuses: one compiled kernel, row by row, its state carried across pieces.
