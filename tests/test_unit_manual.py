@@ -118,19 +118,26 @@ def test_tests_not_reading_the_valve_keep_judging(line):
     assert (d.detected.to_numpy()[out] == 1).mean() > 0.3
 
 
+def _in_pieces_as_whole(unit: Unit, f: pd.DataFrame, k: int):
+    """``f`` replayed whole, then in pieces of ``k`` samples each from the state saved (through
+    JSON) after the one before: the same frames. Returns the whole replay."""
+    whole = unit.reset().evaluate(f)
+    unit.reset()
+    parts = []
+    for a in range(0, len(f), k):
+        state = json.loads(json.dumps(unit.to_state()))
+        parts.append(unit.load_state(state).evaluate(f.iloc[a : a + k]))
+    pd.testing.assert_frame_equal(whole.to_frame(), concat(parts).to_frame())
+    return whole
+
+
 def test_pieces_the_plant_and_a_restart_say_the_same(line):
     """The replay in pieces, through a saved state, and the plant cycle by cycle (the live
     loop; its message is what the OPC UA server publishes) give the same status and why."""
     _, unit, *_ = line
     f = line7.simulate(1.2, 103, "manual_moved", onset_days=1.0).iloc[ONSET - 300 :]
-    whole = unit.reset().evaluate(f)
+    whole = _in_pieces_as_whole(unit, f, 611)
     assert whole.why.map(lambda s: bool(SAID.match(s))).sum() > 100
-    unit.reset()
-    parts = []
-    for a in range(0, len(f), 611):
-        state = json.loads(json.dumps(unit.to_state()))
-        parts.append(unit.load_state(state).evaluate(f.iloc[a : a + 611]))
-    pd.testing.assert_frame_equal(whole.to_frame(), concat(parts).to_frame())
     plant = Plant({"line": unit.reset()}, {})
     got_status, got_msg = [], []
     for k, (ts, row) in enumerate(f.iterrows()):
@@ -161,6 +168,10 @@ def test_accept_widens_the_span_the_unit_answers_there_and_rollback_restores_it(
     span = UnitFile.load(unit_file).manual["HAND_VALVE"]
     assert (span.min, span.max) == (40.0, 78.0)
     unit = Unit.load(unit_file, tmp / "rb")
+    # the move's settle kept, over the widened span
+    was = re.search(rb"(?m)^manual_settle_max_s = (.*)$", before)
+    assert unit.ev["manual_settle_max_s"] == float(was.group(1)) > 0
+    assert [lp.span for lp in unit.settle.loops if lp.hand] == [(40.0, 78.0)]
     for seed in (202, 203):  # unseen days at 78 %
         d = unit.reset().evaluate(_moved(seed, 10.0).iloc[ONSET:])
         assert (d.detected == 1).mean() < 0.05, seed
@@ -261,3 +272,123 @@ def test_the_plant_cycle_by_cycle_agrees_where_a_grid_left_what_it_learned(steam
     assert [int(s.status) for s in got] == whole.status.astype(int).tolist()
     sym = np.array([[s.symptoms[t] for t in unit.tests] for s in got])
     np.testing.assert_array_equal(np.isnan(sym), whole.symptoms.isna().to_numpy())
+
+
+# ---------------------------------------------------------------- a move's settle
+MOVE = re.compile(r"^HAND_VALVE (\d+) → (\d+) at (\S+): settling after a hand valve's move")
+#: seed 101's valve: 49 → 43 % (into the learned 40–47 %) at this row, 43 → 41 % later
+MOVED_AT = 6005
+
+
+def _raised(st: np.ndarray) -> np.ndarray:
+    return (st != NE107.NORMAL) & (st != NE107.CHECK_FUNCTION)
+
+
+def _without_move_settle(unit: Unit) -> Unit:
+    """The same unit without the hand valve's settle (main: only set-point steps)."""
+    from diag_plugin.diagnose.settle import settle_guard
+
+    plain = Unit.load(unit.file.path, unit.file.path.parent)
+    plain.ev["manual_settle_max_s"] = 0.0
+    plain.settle = settle_guard(plain)
+    return plain
+
+
+def test_the_build_says_how_long_a_hand_valves_move_may_settle(line):
+    text, unit, *_ = line
+    max_s = unit.ev["manual_settle_max_s"]
+    assert max_s > unit.ev["settle_max_s"] > 0
+    said = unit.file.build["manual_settle"]
+    assert said.startswith(f"manual_settle_max_s = {max_s:.0f} s: 2 × the median settling time")
+    assert "hand valve move(s) in the window" in said and said in text
+    hand = [lp for lp in unit.settle.loops if lp.hand]
+    assert [(lp.sp, lp.span) for lp in hand] == [("HAND_VALVE", (40.0, 47.0))]
+
+
+def test_a_hand_valves_move_is_check_function_not_an_alarm(line):
+    """Seed 101 (never used to build), no fault: the outlet flow's transient after each move
+    of the valve within its span was FAILURE on main; now CHECK_FUNCTION naming the move, and
+    the unit's share of raised samples back below main's before the valve was declared (3.4 %)."""
+    _, unit, *_ = line
+    x = line7.simulate(2.0, 101)
+    d = unit.reset().evaluate(x)
+    main = _without_move_settle(unit).evaluate(x)
+    st, st0 = d.status.to_numpy(), main.status.to_numpy()
+    assert _raised(st0[ONSET:]).mean() > 0.04  # main: the moves' transients
+    assert _raised(st[ONSET:]).mean() < 0.034
+    why = d.why.to_numpy(dtype=object)
+    moving = np.array([bool(MOVE.match(w)) for w in why])
+    first = MOVE.match(why[np.argmax(moving)])
+    assert first.group(1, 2) == ("49", "43"), why[np.argmax(moving)]
+    at = pd.Timestamp(first.group(3).replace("Z", "+00:00"))
+    assert at == x.index[MOVED_AT]
+    # only alarms became CHECK_FUNCTION; elsewhere nothing changed
+    changed = st != st0
+    assert changed.any() and moving[changed].all() and (st[changed] == NE107.CHECK_FUNCTION).all()
+    assert _raised(st0[moving]).any()
+
+
+def test_a_fault_right_after_a_move_is_failure_after_manual_settle_max_s(line):
+    """A flow-meter bias 2 min after the valve's move: CHECK_FUNCTION at most
+    manual_settle_max_s, then FAILURE (main: FAILURE throughout)."""
+    _, unit, *_ = line
+    onset = MOVED_AT + 8
+    x = line7.simulate(2.0, 101, "flow_bias", onset_days=onset * line7.PERIOD_S / 86400)
+    x = x.iloc[: onset + 600]
+    st = unit.reset().evaluate(x).status.to_numpy()
+    st0 = _without_move_settle(unit).evaluate(x).status.to_numpy()
+    late = MOVED_AT + int(np.ceil(unit.ev["manual_settle_max_s"] / line7.PERIOD_S))
+    assert (st0[onset + 20 :] == NE107.FAILURE).mean() > 0.9
+    assert (st[late:] == NE107.FAILURE).mean() > 0.9
+    hidden = st[onset:late]
+    assert (hidden != NE107.FAILURE).all() and (hidden == NE107.CHECK_FUNCTION).mean() > 0.9
+
+
+def test_a_move_outside_the_span_opens_no_settle(line):
+    """The valve to 78 % (outside what the unit learned): the manual guard's
+    CHECK_FUNCTION naming it, no settle."""
+    _, _, runs, *_ = line
+    for seed in SEEDS:
+        d = runs[("manual_moved", seed)]
+        assert not d.why.str.contains("settling after a hand valve's move").any(), seed
+
+
+def test_a_moves_settle_replay_pieces_restart_and_plant_agree(line):
+    """Through the move of seed 101: one replay, pieces through saved states, and the live
+    loop's stacked path restarted mid-settle give the same statuses and messages."""
+    _, unit, *_ = line
+    x = line7.simulate(2.0, 101).iloc[MOVED_AT - 200 : MOVED_AT + 400]
+    one = _in_pieces_as_whole(unit, x, 97)
+    assert one.why.map(lambda s: bool(MOVE.match(s))).sum() > 50
+    plant = Plant({"line": Unit.load(unit.file.path, unit.file.path.parent)}, {})
+    for k, (ts, row) in enumerate(x.iterrows()):
+        if k == 300:  # inside the settle
+            state = json.loads(json.dumps(plant.to_state()))
+            assert state["settle"]["line"]["g"][0] == 1
+            plant = Plant({"line": Unit.load(unit.file.path, unit.file.path.parent)}, {})
+            plant.load_state(state)
+        s, ref = plant.cycle(ts, row.to_dict())[0], one.at(k)
+        assert (s.status, s.faults, s.message) == (ref.status, ref.faults, ref.message), k
+
+
+def test_a_unit_file_without_manual_settle_max_s_settles_no_move(line):
+    _, unit, *_ = line
+    path = unit.file.path.parent / "nomove.unit.toml"
+    text = re.sub(r"(?m)^manual_settle_max_s = .*\n", "", unit.file.path.read_text())
+    path.write_text(text.replace('name = "line"', 'name = "nomove"'))
+    old = Unit.load(path, path.parent)
+    assert old.ev["manual_settle_max_s"] == 0
+    assert not any(lp.hand for lp in old.settle.loops)
+
+
+def test_a_noisy_valve_steps_only_within_its_span():
+    """A hand valve read with noise (the heater's ±0.1 %): held within its margin, a move
+    beyond its band within the learned span is a step; one out of it is not."""
+    from diag_plugin.diagnose.settle import SettleGuard, SettleLoop
+
+    rng = np.random.default_rng(0)
+    valve = SettleLoop("V", "V", -1, 0.0, 0.0, 0.6, True, 0.3, (29.7, 49.0))
+    g = SettleGuard([valve], 50, 5, 20.0, 2)
+    x = np.r_[np.full(100, 35.0), np.full(100, 42.0), np.full(100, 70.0)]
+    x = x + rng.normal(0, 0.1, x.size)
+    assert [(j, round(a), round(b), r) for j, a, b, r in g.steps(x[:, None])] == [(0, 35, 42, 100)]

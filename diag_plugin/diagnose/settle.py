@@ -32,6 +32,15 @@ alarm: the unit's judgement goes on.
   step during a settle that has not suppressed anything restarts it (a latched one keeps its
   end). ``settle_max_s = 0`` (unit files written before it): no guard.
 
+- **A hand valve's move** (its ``[manual]`` span, :mod:`~diag_plugin.diagnose.manual`;
+  ``manual_settle_max_s`` > 0): the same step rule on the valve's reading (held within its
+  noise margin; a jump beyond :data:`HAND_BAND_SHARE` of its learned span) **to a position
+  within that span** opens a settle as a set-point step does, its why ``HAND_VALVE 49 → 43
+  at …: settling after a hand valve's move``; it ends when no test is on for the quiet time
+  (the valve has no loop error to wait for), or ``manual_settle_max_s`` after the move
+  (:func:`~diag_plugin.unitbuild.loops.manual_settle_max`). Outside the span the manual
+  guard answers.
+
 The replay (:meth:`~diag_plugin.diagnose.unit.Unit.evaluate`), the live loop's stacked path
 (:class:`~diag_plugin.diagnose.plant.Plant`) and a restart (the carried state) give the same
 statuses: one compiled kernel, row by row, its state carried across pieces.
@@ -56,13 +65,19 @@ MOVE_SAMPLES = 2
 HELD_SHARE = 1e-3
 #: samples since the unit's last alarm, for a unit that has never been in alarm
 NEVER = 1 << 40
+#: a hand valve's move is a step beyond this share of its learned span (at least twice its
+#: noise margin): the line's 40–47 % valve, 0.07 %; the heater's 29.7–49.0 %, 0.6 % (its
+#: margin's 0.3 % twice)
+HAND_BAND_SHARE = 0.01
 
 
 @dataclass(frozen=True)
 class SettleLoop:
     """A loop the guard watches: its set-point (model tag), measurement (plant tag, for the
     why), loop test (position among the unit's tests), thresholds and band in the
-    set-point's units."""
+    set-point's units. A hand valve (``hand``): ``sp`` its model tag, ``pv`` its plant tag,
+    no loop test (``test`` -1), ``held`` the change within which it counts as held (its
+    noise margin), and a step only to a position within its learned span ``span``."""
 
     sp: str
     pv: str
@@ -70,6 +85,14 @@ class SettleLoop:
     lo: float
     hi: float
     band: float
+    hand: bool = False
+    held: float = 0.0
+    span: tuple[float, float] = (-math.inf, math.inf)
+
+    @property
+    def tol(self) -> float:
+        """Two samples this close count as held."""
+        return max(self.held, HELD_SHARE * self.band)
 
 
 def settle_loops(unit: Any) -> list[SettleLoop]:
@@ -95,15 +118,38 @@ def settle_loops(unit: Any) -> list[SettleLoop]:
     return out
 
 
+def hand_valves(unit: Any) -> list[SettleLoop]:
+    """The hand valves of ``unit`` (its ``[manual]`` spans, :mod:`~.manual`) its models read,
+    as the guard watches them: a move beyond :data:`HAND_BAND_SHARE` of the learned span (at
+    least twice the valve's noise margin), held within that margin (or :data:`HELD_SHARE` of
+    the band, for a valve read without noise)."""
+    out = []
+    read = set(unit.model_tags)
+    for tag, s in getattr(unit.file, "manual", {}).items():
+        if tag not in read:
+            continue
+        band = max(HAND_BAND_SHARE * (s.max - s.min), 2.0 * s.margin)
+        if not band > 0:
+            continue  # a valve never moved in the window: no step to tell from noise
+        pv = unit.file.tags.get(tag, tag)
+        out.append(SettleLoop(tag, pv, -1, 0.0, 0.0, band, True, s.margin, (s.lo, s.hi)))
+    return out
+
+
 def settle_guard(unit: Any) -> SettleGuard | None:
-    """The guard of ``unit`` from its file (None: ``settle_max_s`` 0, or no loop to watch)."""
-    max_s = float(unit.ev.get("settle_max_s", 0.0) or 0.0)
-    if max_s <= 0:
-        return None
-    loops = settle_loops(unit)
+    """The guard of ``unit`` from its file (None: ``settle_max_s`` and
+    ``manual_settle_max_s`` 0, or nothing to watch): its loops at most ``settle_max_s``, its
+    hand valves at most ``manual_settle_max_s``."""
+    loops, max_n = [], []
+    for key, found in (("settle_max_s", settle_loops), ("manual_settle_max_s", hand_valves)):
+        max_s = float(unit.ev.get(key, 0.0) or 0.0)
+        if max_s <= 0:
+            continue
+        got = found(unit)
+        loops += got
+        max_n += [max(1, math.ceil(max_s / unit.period_s - 1e-9))] * len(got)
     if not loops:
         return None
-    max_n = max(1, math.ceil(max_s / unit.period_s - 1e-9))
     return SettleGuard(loops, max_n, quiet_samples(unit), unit.period_s, unit.ev["on_delay"])
 
 
@@ -125,6 +171,9 @@ def _settle_kernel(
     lo,
     hi,
     band,
+    tol,
+    s_lo,
+    s_hi,
     active,
     alarm,
     prev,
@@ -141,7 +190,8 @@ def _settle_kernel(
 ):  # pragma: no cover - numba
     # g: open, elapsed, quiet, latched, loop, last alarm, samples since the unit's last alarm
     # (int64); row by row, state in place.
-    # sid per row: -1 no settle, -2 the settle carried in, k >= 0 the k-th step of this piece
+    # sid per row: -1 no settle, -2 the settle carried in, k >= 0 the k-th step of this piece;
+    # max_n, begin_n per loop (a hand valve's own); a hand valve's r is 0 (lo = hi = 0)
     n, m = sp.shape
     k = 0
     cur = -2
@@ -155,13 +205,14 @@ def _settle_kernel(
             if np.isnan(x):
                 continue
             p = prev[j]
-            if not np.isnan(p) and abs(x - p) <= HELD_SHARE * band[j]:
+            if not np.isnan(p) and abs(x - p) <= tol[j]:
                 run[j] += 1
                 if run[j] >= 2:  # held again: a step if it left its last hold lately
                     if (
                         not np.isnan(anchor[j])
                         and 0 < moved[j] <= MOVE_SAMPLES
                         and abs(x - anchor[j]) > band[j]
+                        and s_lo[j] <= x <= s_hi[j]
                         and step < 0
                     ):
                         step = j
@@ -189,18 +240,18 @@ def _settle_kernel(
             k += 1
         if g[0] == 1:
             g[1] += 1
-            if alarm[i] and (g[3] == 1 or g[1] <= begin_n):
+            j = g[4]
+            if alarm[i] and (g[3] == 1 or g[1] <= begin_n[j]):
                 g[3] = 1
             if g[3] == 1:
                 sup[i] = True
                 sid[i] = cur
-            j = g[4]
             e = r[i, j]
             if (not np.isnan(e)) and lo[j] <= e <= hi[j] and not active[i]:
                 g[2] += 1
             else:
                 g[2] = 0
-            if g[2] >= quiet_n or g[1] >= max_n or (g[3] == 0 and g[1] >= begin_n):
+            if g[2] >= quiet_n or g[1] >= max_n[j] or (g[3] == 0 and g[1] >= begin_n[j]):
                 g[0] = 0
                 g[3] = 0
         g[5] = 1 if alarm[i] else 0
@@ -214,22 +265,28 @@ class SettleGuard:
     def __init__(
         self,
         loops: list[SettleLoop],
-        max_n: int,
+        max_n: int | list[int],
         quiet_n: int,
         period_s: float = 1.0,
         on_delay: int = 1,
     ) -> None:
         self.loops = loops
         self.period = pd.Timedelta(seconds=period_s)
-        self.max_n = int(max_n)
+        #: per loop, a settle ends at the latest this many samples after its step
+        self.max_n = np.broadcast_to(np.asarray(max_n, np.int64), (len(loops),)).copy()
         self.quiet_n = int(quiet_n)
+        self.on_delay = int(on_delay)
         #: a step's alarm begins within this many samples of it: ``max_n`` less the quiet
         #: time (the build's 2 × the median settling time), at least the on-delay
-        self.begin_n = max(1, int(on_delay), self.max_n - self.quiet_n)
+        self.begin_n = np.maximum(max(1, self.on_delay), self.max_n - self.quiet_n)
         self.lo = np.array([lp.lo for lp in loops], float)
         self.hi = np.array([lp.hi for lp in loops], float)
         self.band = np.array([lp.band for lp in loops], float)
-        self.tests = np.array([lp.test for lp in loops], np.intp)
+        self.tol = np.array([lp.tol for lp in loops], float)
+        self.s_lo = np.array([lp.span[0] for lp in loops], float)
+        self.s_hi = np.array([lp.span[1] for lp in loops], float)
+        self.hand = np.array([lp.hand for lp in loops], bool)
+        self.tests = np.array([max(lp.test, 0) for lp in loops], np.intp)
         self.reset()
 
     def reset(self) -> None:
@@ -259,10 +316,13 @@ class SettleGuard:
         sup = np.zeros(n, np.bool_)
         sid = np.full(n, -1, np.int64)
         steps = np.zeros((n, 5))
+        r = np.asarray(r, float).reshape(n, len(self.loops))
+        if self.hand.any():  # a hand valve has no loop test: only the unit's tests end it
+            r = np.where(self.hand, 0.0, r)
         k = _settle_kernel(
             np.ascontiguousarray(sp, float).reshape(n, len(self.loops)),
-            np.ascontiguousarray(r, float).reshape(n, len(self.loops)),
-            self.lo, self.hi, self.band,
+            np.ascontiguousarray(r),
+            self.lo, self.hi, self.band, self.tol, self.s_lo, self.s_hi,
             np.asarray(active, np.bool_), np.asarray(alarm, np.bool_),
             self.prev, self.anchor, self.run, self.moved, self.g,
             self.max_n, self.quiet_n, self.begin_n, sup, sid, steps,
@@ -272,9 +332,9 @@ class SettleGuard:
             lp = self.loops[int(steps[q, 0])]
             # the sample the set-point left its hold (confirmed once held again)
             at = _when(index[int(steps[q, 3])] - int(steps[q, 4]) * self.period)
-            texts.append(
-                f"{lp.sp} {steps[q, 1]:g} → {steps[q, 2]:g} at {at}: loop {lp.pv} settling"
-            )
+            what = "settling after a hand valve's move" if lp.hand else f"loop {lp.pv} settling"
+            texts.append(f"{lp.pv if lp.hand else lp.sp} {steps[q, 1]:g} → {steps[q, 2]:g} "
+                         f"at {at}: {what}")  # fmt: skip
         if k:
             self.text = texts[-1]
         if not self.g[0]:
@@ -294,11 +354,13 @@ class SettleGuard:
         out = np.zeros((n, 5))
         sup, sid = np.zeros(n, np.bool_), np.full(n, -1, np.int64)
         no = np.zeros(n, np.bool_)
+        one = np.ones(m, np.int64)
         found = []
         # one settle at a time: each step opens one (quiet_n = 1 closes it at once)
         k = _settle_kernel(
             np.ascontiguousarray(sp, float).reshape(n, m), np.zeros((n, m)), g.lo, g.hi,
-            g.band, no, no, g.prev, g.anchor, g.run, g.moved, g.g, 1, 1, 1, sup, sid, out,
+            g.band, g.tol, g.s_lo, g.s_hi, no, no, g.prev, g.anchor, g.run, g.moved, g.g,
+            one, 1, one, sup, sid, out,
         )  # fmt: skip
         for q in range(k):
             row = int(out[q, 3]) - int(out[q, 4])  # where it left its hold

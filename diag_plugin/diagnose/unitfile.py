@@ -101,7 +101,9 @@ once on, clears only below ``(1 − deadband)`` × its threshold) and ``spread_w
 spread tests' window) are described in :mod:`diag_plugin.diagnose.unitloops`;
 ``settle_max_s`` (written by ``diag unit build``; 0 or absent: no guard) bounds the settle
 after an operator's set-point step, during which the unit's alarms are CHECK_FUNCTION
-(:mod:`diag_plugin.diagnose.settle`).
+(:mod:`diag_plugin.diagnose.settle`); ``manual_settle_max_s`` (written by ``diag unit
+build`` for a unit with a hand valve) the settle after a hand valve's move within its
+learned span.
 
 ``balance = true`` (written by ``diag unit build`` for a manipulated flow's second test,
 ``<tag>_balance``, :mod:`~diag_plugin.unitbuild.balance`): the test is the flow's balance
@@ -206,6 +208,7 @@ EVALUATION_DEFAULTS: dict[str, Any] = {
     "deadband": 0.0,
     "spread_window_s": 0.0,
     "settle_max_s": 0.0,
+    "manual_settle_max_s": 0.0,
 }
 #: keys new_unit_text writes only when they differ from the default (files written before
 #: them regenerate byte for byte)
@@ -217,6 +220,7 @@ NEW_KEYS = (
     "deadband",
     "spread_window_s",
     "settle_max_s",
+    "manual_settle_max_s",
 )
 #: a residual is never amplified more than 1 / SPREAD_FLOOR by a small local spread. Of 0.5,
 #: 0.75 and 1 (attenuate only), 0.5 widened r3's thresholds (its cells at the travel limits
@@ -242,6 +246,7 @@ _KINDS = {
     "deadband": float,
     "spread_window_s": float,
     "settle_max_s": float,
+    "manual_settle_max_s": float,
 }
 _CHOICES = {
     "scale": ("span", "max"),
@@ -499,6 +504,7 @@ class UnitFile(LinedFile):
             ("deadband", 0.0 <= ev["deadband"] < 1.0, "deadband: share of the threshold, [0, 1)"),
             ("spread_window_s", ev["spread_window_s"] >= 0, "spread_window_s is seconds, ≥ 0"),
             ("settle_max_s", ev["settle_max_s"] >= 0, "settle_max_s is seconds, ≥ 0"),
+            ("manual_settle_max_s", ev["manual_settle_max_s"] >= 0, "seconds, ≥ 0"),
         )
         for key, ok, msg in checks:
             if not ok:

@@ -80,7 +80,14 @@ from diag_plugin.selection.scoring import BlockScorer, FrozenRuleBase
 from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
 from diag_plugin.unitbuild import short
-from diag_plugin.unitbuild.loops import Loop, Manual, checked_loops, checked_manual, settle_max
+from diag_plugin.unitbuild.loops import (
+    Loop,
+    Manual,
+    checked_loops,
+    checked_manual,
+    manual_settle_max,
+    settle_max,
+)
 from diag_plugin.unitbuild.parallel import DaskPool, map_tests, one_blas_thread
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
@@ -1141,12 +1148,19 @@ def _build_unit(
         uf.set_learned(learned)
         # the settle after an operator's set-point step, from the window's own steps
         # (diagnose/settle.py): on the unit with its thresholds
-        settle_s, settle_how = settle_max(Unit(uf, unit.models, unit.matrix), frame)
-        if settle_s > 0:
-            uf.doc["evaluation"]["settle_max_s"] = settle_s
-            uf.build["settle"] = settle_how
-            uf.doc["build"]["settle"] = settle_how
-            notes.append(settle_how)
+        # and after a hand valve's move, from the window's own moves
+        judged = Unit(uf, unit.models, unit.matrix)
+        settles = [
+            ("settle_max_s", "settle", *settle_max(judged, frame)),
+            ("manual_settle_max_s", "manual_settle", *manual_settle_max(judged, frame)),
+        ]
+        for key, says, value, how in settles:
+            if value > 0:
+                uf.doc["evaluation"][key] = value
+                uf.build[says] = how
+                uf.doc["build"][says] = how
+                notes.append(how)
+        if any(value > 0 for *_, value, _ in settles):
             uf.save()
         else:
             uf.save(as_read=True)  # the text set_learned read back: not dumped again

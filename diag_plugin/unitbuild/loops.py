@@ -275,52 +275,120 @@ def settle_max(unit, frame) -> tuple[float, str]:
     the quiet time. None of the unit's loops with a set-point tag: 0 (no guard)."""
     import numpy as np
 
-    from diag_plugin.diagnose.settle import SettleGuard, quiet_samples, settle_loops
+    from diag_plugin.diagnose.settle import settle_loops
     from diag_plugin.regressors import parse_specs
 
     loops = settle_loops(unit)
     if not loops:
         return 0.0, ""
-    quiet = quiet_samples(unit)
-    period = unit.period_s
-    have = [lp for lp in loops if lp.sp in frame.columns]
+    steps, quiet = _window_steps(unit, frame)
     times: list[float] = []
-    if have:
-        guard = SettleGuard(have, 1, quiet, period, unit.ev["on_delay"])
-        sp = np.column_stack([frame[lp.sp].to_numpy(float) for lp in have])
-        found = guard.steps(sp)
-        rows = sorted(r for *_, r in found)
-        for j, a, b, i in found:
-            lp = have[j]
-            out = parse_specs([unit.models[unit.tests[lp.test]].output])[0].tags[0]
-            if out not in frame.columns:
+    for lp, a, b, i, end in steps:
+        if lp.hand:
+            continue
+        out = parse_specs([unit.models[unit.tests[lp.test]].output])[0].tags[0]
+        if out not in frame.columns:
+            continue
+        e = frame[out].to_numpy(float) - frame[lp.sp].to_numpy(float)
+        e = e - np.nanmedian(e)
+        # settled: within 5 % of the step (the classic settling band), or the error's
+        # own noise (3 robust sd) where that is wider
+        tol = max(SETTLE_BAND * abs(b - a), 3 * 1.4826 * float(np.nanmedian(np.abs(e))))
+        at = _settled(np.abs(e) <= tol, i, end, quiet)
+        if at is not None:
+            times.append(at * unit.period_s)
+    return _max_and_how("settle_max_s", "set-point step", times, quiet * unit.period_s)
+
+
+def manual_settle_max(unit, frame) -> tuple[float, str]:
+    """``manual_settle_max_s`` for a built unit with a hand valve
+    (:mod:`diag_plugin.diagnose.settle`, :mod:`~diag_plugin.diagnose.manual`) from its
+    window ``frame``, and what it rests on, in words: :func:`settle_max`'s rule on the
+    window's own moves of its hand valves (found as the guard finds them), each move settled
+    from the sample from which **every** test's residual (less its median over the window)
+    is back within :data:`SETTLE_BAND` of its largest excursion before the next step (its own
+    noise, 3 robust sd, where that is wider) for the quiet time — every test, not only those
+    reading the valve: a hand valve moves what lies downstream of it (the line's outlet flow,
+    whose test reads neither the valve nor the level) as much as what reads it. No hand
+    valve the guard watches: 0."""
+    import numpy as np
+
+    from diag_plugin.diagnose.settle import hand_valves
+
+    if not hand_valves(unit):
+        return 0.0, ""
+    steps, quiet = _window_steps(unit, frame)
+    times: list[float] = []
+    if any(lp.hand for lp, *_ in steps):
+        r = unit.reset().evaluate(frame).residuals.to_numpy(float)
+        unit.reset()
+        e = r - np.nanmedian(r, axis=0)
+        noise = 3 * 1.4826 * np.nanmedian(np.abs(e), axis=0)
+        for lp, _, _, i, end in steps:
+            if not lp.hand:
                 continue
-            e = frame[out].to_numpy(float) - frame[lp.sp].to_numpy(float)
-            e = e - np.nanmedian(e)
-            # settled: within 5 % of the step (the classic settling band), or the error's
-            # own noise (3 robust sd) where that is wider
-            tol = max(SETTLE_BAND * abs(b - a), 3 * 1.4826 * float(np.nanmedian(np.abs(e))))
-            e = np.abs(e) <= tol
-            end = next((r for r in rows if r > i), len(e))
-            ok = np.r_[e[i:end], False].astype(int)
-            # the first row from which `quiet` rows in a row are in band
-            run = np.convolve(ok, np.ones(quiet, int), mode="valid") if len(ok) >= quiet else []
-            at = np.flatnonzero(np.asarray(run) >= quiet)
-            if at.size:
-                times.append(float(at[0]) * period)
+            # the move's own excursion: the largest within the quiet time after it
+            peak = np.nanmax(np.abs(e[i : min(i + quiet, end)]), axis=0, initial=0.0)
+            if not (peak > noise).any():
+                continue  # it moved no residual beyond its noise: tells nothing of a settle
+            tol = np.maximum(SETTLE_BAND * peak, noise)
+            at = _settled(~(np.abs(e) > tol).any(axis=1), i, end, quiet)
+            if at is not None:
+                times.append(at * unit.period_s)
+    return _max_and_how("manual_settle_max_s", "hand valve move", times, quiet * unit.period_s)
+
+
+def _window_steps(unit, frame) -> tuple[list, int]:
+    """The window's steps of the unit's set-points and hand valves, as the guard finds them:
+    ``(loop, from, to, row, the row its settling must end by)`` each, and the guard's quiet
+    time (samples)."""
+    import numpy as np
+
+    from diag_plugin.diagnose.settle import SettleGuard, hand_valves, quiet_samples, settle_loops
+
+    quiet = quiet_samples(unit)
+    have = [lp for lp in [*settle_loops(unit), *hand_valves(unit)] if lp.sp in frame.columns]
+    if not have:
+        return [], quiet
+    guard = SettleGuard(have, 1, quiet, unit.period_s, unit.ev["on_delay"])
+    found = guard.steps(np.column_stack([frame[lp.sp].to_numpy(float) for lp in have]))
+    # each settles before the next step of its kind: a set-point step's (its loop's error
+    # is all it reads), a hand valve's move (the set-point steps between: the loops' own)
+    out = []
+    for j, a, b, i in found:
+        after = (r for k, *_, r in found if have[k].hand == have[j].hand and r > i)
+        out.append((have[j], a, b, i, next(after, len(frame))))
+    return out, quiet
+
+
+def _settled(ok, i: int, end: int, quiet: int) -> int | None:
+    """Samples from row ``i`` to the first from which ``quiet`` rows in a row are ``ok``
+    before row ``end`` (None: none)."""
+    import numpy as np
+
+    ok = np.r_[ok[i:end], False].astype(int)
+    run = np.convolve(ok, np.ones(quiet, int), mode="valid") if len(ok) >= quiet else []
+    at = np.flatnonzero(np.asarray(run) >= quiet)
+    return int(at[0]) if at.size else None
+
+
+def _max_and_how(key: str, what: str, times: list[float], quiet_s: float) -> tuple[float, str]:
+    """The guard's longest settle from the window's settling times (seconds), in words."""
+    import numpy as np
+
     if times:
         med = float(np.median(times))
-        value = SETTLE_FACTOR * med + quiet * period
+        value = SETTLE_FACTOR * med + quiet_s
         how = (
-            f"settle_max_s = {value:.0f} s: {SETTLE_FACTOR:g} × the median settling time "
-            f"({med:.0f} s) of {len(times)} set-point step(s) in the window, plus the quiet "
-            f"time ({quiet * period:.0f} s: the longest history a test reads plus the on-delay)"
+            f"{key} = {value:.0f} s: {SETTLE_FACTOR:g} × the median settling time "
+            f"({med:.0f} s) of {len(times)} {what}(s) in the window, plus the quiet "
+            f"time ({quiet_s:.0f} s: the longest history a test reads plus the on-delay)"
         )
     else:
-        value = SETTLE_FALLBACK * quiet * period
+        value = SETTLE_FALLBACK * quiet_s
         how = (
-            f"settle_max_s = {value:.0f} s: no set-point step settled in the window; "
-            f"{SETTLE_FALLBACK:g} × the quiet time ({quiet * period:.0f} s: the longest history "
+            f"{key} = {value:.0f} s: no {what} settled in the window; "
+            f"{SETTLE_FALLBACK:g} × the quiet time ({quiet_s:.0f} s: the longest history "
             "a test reads plus the on-delay)"
         )
     return float(f"{value:.6g}"), how
