@@ -546,22 +546,21 @@ def cmd_diagnose(args) -> int:
     if args.csv:
         write_csv(d, args.csv)
     iv = d.intervals()
-    summary = {
-        "unit": unit.name,
-        "from": d.status.index[0].isoformat(),
-        "samples": len(d),
-        "message": d.message,
-        "status_share": {
-            _name(k): round(float(v), 6) for k, v in d.status.value_counts(normalize=True).items()
-        },
-        "detected_share": _share(d.detected),
-        "intervals": [
-            {**r, "from": r["from"].isoformat(), "to": r["to"].isoformat()}
-            for r in iv.to_dict("records")
-        ],
-    }
     if args.json:
-        print(json.dumps(summary, indent=2))
+        from diag_plugin.diagnose.summaryjson import summary_text
+
+        summary = {
+            "unit": unit.name,
+            "from": d.status.index[0].isoformat(),
+            "samples": len(d),
+            "message": d.message,
+            "status_share": {
+                _name(k): round(float(v), 6)
+                for k, v in d.status.value_counts(normalize=True).items()
+            },
+            "detected_share": _share(d.detected),
+        }
+        print(summary_text(summary, "intervals", iv))  # the intervals by column (issue 34)
         return 0
     _print_timeline(unit, d, iv, args.csv)
     return 0
