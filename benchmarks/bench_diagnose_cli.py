@@ -29,12 +29,13 @@ the JSON does not read), the same protocol at a load of 12–17: ``--json`` 10.7
 read with ``tomllib``, tomlkit only to edit; the JSON's intervals encoded by column; without
 ``--csv`` each piece cut to what the summary reads as it is replayed), 5 pairs interleaved
 against ``main``, each a ``git archive`` snapshot, at a load of 10–13 (this session's machine
-ran ``main`` 1.7× faster than the figures above at a like load): ``--json`` 5.42 → 4.74 CPU s (36,930 → 42,240 rows per
-CPU s; the unit's load 0.27 → 0.15, the rest 0.54 → 0.16; peak RSS 927 → 786 MB); with
-``--rows 1000000`` 16.17 → 13.43 CPU s (61,830 → 74,460; peak RSS 2.9 → 1.9 GB, most of it
-the database file through SQLite's memory map); 1 row 2.65 → 2.57 s. 100,000 rows per CPU s
-is not reached at any ``--rows`` at that load: ~2.6 CPU s fixed and 10.9 µs a row (``main``
-13.5–13.9), of which the ADBC read of 46 tags ~5.8 and the replay ~4.4.
+ran ``main`` 1.7× faster than the figures above at a like load): ``--json`` 5.42 → 4.74 CPU s
+(36,930 → 42,240 rows per CPU s; the unit's load 0.27 → 0.15, the rest 0.54 → 0.16; peak RSS
+927 → 786 MB); with ``--rows 1000000`` 16.17 → 13.43 CPU s (61,830 → 74,460; peak RSS 2.9 →
+1.9 GB, most of it the database file through SQLite's memory map); 1 row 2.65 → 2.57 s.
+100,000 rows per CPU s is not reached at any ``--rows`` at that load: ~2.6 CPU s fixed and
+10.9 µs a row (``main`` 13.5–13.9), of which the ADBC read of 46 tags ~5.8 and the replay
+~4.4.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
