@@ -35,7 +35,9 @@ ran ``main`` 1.7× faster than the figures above at a like load): ``--json`` 5.4
 1.9 GB, most of it the database file through SQLite's memory map); 1 row 2.65 → 2.57 s.
 100,000 rows per CPU s is not reached at any ``--rows`` at that load: ~2.6 CPU s fixed and
 10.9 µs a row (``main`` 13.5–13.9), of which the ADBC read of 46 tags ~5.8 and the replay
-~4.4.
+~4.4. The branch as it ends, at a load of 3.4–5.6: 1 row 2.32 → 2.12 CPU s, 200,000 rows 5.16
+→ 4.54 (38,740 → 44,070), 1,000,000 rows 14.57 → 12.52 (68,630 → 79,890): 10.4 µs a row,
+at most ~96,000 rows per CPU s however many rows.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
