@@ -25,9 +25,19 @@ the JSON does not read), the same protocol at a load of 12–17: ``--json`` 10.7
 (18,630 → 22,330 rows per CPU s; imports 2.28 → 1.32, the rest 1.61 → 0.68), ``--json --csv``
 18.62 → 15.43 CPU s (10,740 → 12,960); after merging main, 3 pairs at a load of 9: ``--json``
 8.48 → 7.09 CPU s (23,590 → 28,200). As landed, without the port, 5 pairs at a load of 10–12:
-``--json`` 9.18 → 7.87 CPU s (21,790 → 25,420). 100,000 rows per CPU s is out of reach at any
-``--rows`` here: ~2.6 CPU s fixed (1 row) and 28–32 µs a row at that load, ~8 of them the SQLite
-read of 46 tags.
+``--json`` 9.18 → 7.87 CPU s (21,790 → 25,420). Round three (branch ``i34-cli4``: the unit
+read with ``tomllib``, tomlkit only to edit; the JSON's intervals encoded by column; without
+``--csv`` each piece cut to what the summary reads as it is replayed), 5 pairs interleaved
+against ``main``, each a ``git archive`` snapshot, at a load of 10–13 (this session's machine
+ran ``main`` 1.7× faster than the figures above at a like load): ``--json`` 5.42 → 4.74 CPU s
+(36,930 → 42,240 rows per CPU s; the unit's load 0.27 → 0.15, the rest 0.54 → 0.16; peak RSS
+927 → 786 MB); with ``--rows 1000000`` 16.17 → 13.43 CPU s (61,830 → 74,460; peak RSS 2.9 →
+1.9 GB, most of it the database file through SQLite's memory map); 1 row 2.65 → 2.57 s.
+100,000 rows per CPU s is not reached at any ``--rows`` at that load: ~2.6 CPU s fixed and
+10.9 µs a row (``main`` 13.5–13.9), of which the ADBC read of 46 tags ~5.8 and the replay
+~4.4. The branch as it ends, at a load of 3.4–5.6: 1 row 2.32 → 2.12 CPU s, 200,000 rows 5.16
+→ 4.54 (38,740 → 44,070), 1,000,000 rows 14.57 → 12.52 (68,630 → 79,890): 10.4 µs a row,
+at most ~96,000 rows per CPU s however many rows.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]

@@ -24,13 +24,16 @@ import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from .times import to_us
+
+if TYPE_CHECKING:  # imported where a file is read or written (a database without cold
+    import pyarrow.parquet as pq  # months never is: ~0.01 CPU s of every process, issue 34)
 
 SCHEMA = pa.schema(
     [("tag_id", pa.int32()), ("ts", pa.int64()), ("value", pa.float64()), ("quality", pa.int8())]
@@ -95,6 +98,8 @@ class SegmentWriter:
         self._writer: pq.ParquetWriter | None = None
 
     def __enter__(self) -> SegmentWriter:
+        import pyarrow.parquet as pq
+
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._writer = pq.ParquetWriter(self._tmp, SCHEMA, **_WRITER_OPTIONS)
         return self
@@ -155,6 +160,8 @@ def read_segment(path: Path, tag_id=None, start: int | None = None, end=None):
         filters.append(("ts", ">=", int(start)))
     if end is not None:
         filters.append(("ts", "<", int(end)))
+    import pyarrow.parquet as pq
+
     table = pq.read_table(path, filters=filters or None)
     return (
         table.column("tag_id").to_numpy().astype(np.int64),
@@ -188,6 +195,8 @@ class SegmentIndex:
 
     @classmethod
     def open(cls, path: Path) -> SegmentIndex:
+        import pyarrow.parquet as pq
+
         fstat = os.stat(path)
         md = pq.ParquetFile(path).metadata
         names = [md.schema.column(i).name for i in range(md.num_columns)]
@@ -288,6 +297,8 @@ class SegmentIndex:
         q_all = self.q_all[groups]
         one_q = q_all[0] >= 0 and bool(np.all(q_all == q_all[0]))  # one quality: not decoded
         columns = (["tag_id"] if mixed else []) + (_DATA[:2] if one_q else _DATA)
+        import pyarrow.parquet as pq
+
         pf = pq.ParquetFile(self.path, metadata=self.metadata)
         table = pf.read_row_groups(groups, columns=columns, use_threads=False)
         ts = table.column("ts").to_numpy().astype(np.int64, copy=False)

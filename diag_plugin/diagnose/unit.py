@@ -367,7 +367,7 @@ class Diagnosis:
             # the kinds of the distinct texts only (a replay repeats a few thousand texts over
             # its rows: 200,000 substitutions took ~0.5 CPU s), compared by their codes
             codes, texts = pd.factorize(self.why.fillna("").astype(str))
-            kinds = [_NUMBER.sub("#", t) for t in texts]
+            kinds = [_NUMBER.sub("#", t) for t in texts.tolist()]  # not boxed one by one
             kind = pd.factorize(pd.Index(kinds, dtype=object))[0][codes]
             change |= kind[1:] != kind[:-1]
         starts = np.flatnonzero(np.r_[True, change])
@@ -387,7 +387,10 @@ class Diagnosis:
             "status": [NE107(s).name for s in st[starts].tolist()],
             "faults": fa[starts].tolist(),
             "samples": (ends - starts).tolist(),
-            "tests": [",".join(itertools.compress(names, r)) if r.any() else "" for r in on],
+            "tests": [
+                ",".join(itertools.compress(names, r)) if any_on else ""
+                for r, any_on in zip(on, on.any(axis=1).tolist(), strict=True)
+            ],
         }
         if why is not None:
             cols["why"] = why[starts].tolist()
