@@ -40,7 +40,9 @@ column the symptoms match exactly (``Unit.exact_only``; a nearer column that get
 is not a hypothesis consistent with them), and a sample in alarm no column explains names the
 ranking's first tag, as the combined test alone does (a leak from tank A was isolated as
 tank B's level, the shortest column holding two of its three symptoms;
-docs/how-to/unit-loops.md). An expert
+docs/how-to/unit-loops.md); where a column matches but the ranking's first tag is another
+whose column allows every symptom on (a small fault of it fires only its tests nearest their
+thresholds), that tag is named too (:func:`with_ranked`). An expert
 matrix file, when given, takes precedence for the faults; the ranking below is still reported.
 A test with an ``actuator`` (a loop's control error, written by ``diag unit build``) has ``1``
 in that controller output's column too; set-points are never columns (an operator's entry has
@@ -970,7 +972,7 @@ def with_ranked(
 
     Why: a column's ``1`` says the test reacts to the fault, not that a small fault crosses
     its threshold. A meter bias of 3 % of span moved the three tests of its column, but only
-    the one with the narrowest band fired (a pumping station: ``sumpLvl = f(DischFlow[k-7])``
+    the one it took nearest its threshold fired (a pumping station: ``sumpLvl = f(DischFlow[k-7])``
     fired, ``DischFlow``'s own test and ``InletFlow = f(DischFlow[k-7])`` stayed inside their
     bands); the exact match then named the tag whose column is that one test (``sumpLvl``),
     while the ranking, reading the residuals below their thresholds too, named the meter
