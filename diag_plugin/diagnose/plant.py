@@ -65,6 +65,7 @@ from diag_plugin.diagnose.unitloops import (
     warm_up,
     warming_up,
 )
+from diag_plugin.diagnose.unittags import with_ranked
 from diag_plugin.fuzzy.stack import WangMendelStack
 from diag_plugin.regressors import InputSpec, parse_specs
 from diag_plugin.status import NE107, Quality, UnitStatus
@@ -634,6 +635,7 @@ class Plant:
         )
         certs: list[dict[str, float]] = [{} for _ in range(nu)]
         faults: list[list[str]] = [[] for _ in range(nu)]
+        matrix_of: dict[int, tuple] = {}  # unit → its matrix and its tests' slots
         for mx, uis, cols, certainty, hold, isolation in self._matrices:
             sm = s[cols]  # units × tests (matrix order)
             c = mx.nearest(sm).certainties
@@ -646,6 +648,7 @@ class Plant:
             iso = np.where(hold[:, None], held, iso)
             for k, ui in enumerate(uis):
                 u = units[ui]
+                matrix_of[ui] = (mx, cols[k])
                 certs[ui] = dict(zip(mx.faults, c[k].tolist(), strict=True))
                 if iso[k].any():
                     names = [f for f, i in zip(mx.faults, iso[k], strict=True) if i]
@@ -667,6 +670,15 @@ class Plant:
             if not faults[ui] and (u.exact_only and active[ui] or c_on[ui] and not tests_on[ui]):
                 status[ui] = NE107.FAILURE
                 faults[ui] = [tags[ui][0][0]] if u.tag_isolation and tags[ui] else ["unit"]
+            elif faults[ui] and tags[ui] and u.exact_only:  # Unit.evaluate: with_ranked
+                mx, at = matrix_of[ui]
+                f = with_ranked(
+                    mx,
+                    np.array(["|".join(faults[ui])], object),
+                    np.array([tags[ui][0][0]], object),
+                    s[at][None, :],
+                )
+                faults[ui] = f[0].split("|")
         det_held = self._hold_alarms(active, status, faults, tags, notes)
         settling = self._settle_units(ts, r, active, det_held, status, faults)
         out = []

@@ -72,6 +72,7 @@ from diag_plugin.diagnose.unittags import (
     derived_matrix,
     describe_top,
     top_columns_at,
+    with_ranked,
 )
 from diag_plugin.metrics import residual_pct
 from diag_plugin.models.protocol import Prediction
@@ -847,6 +848,12 @@ class Unit:
             status[alone] = NE107.FAILURE
             faults[alone] = top["top1"][alone] if self.tag_isolation else "unit"
             faults[alone & (faults == "")] = "unit"
+        if self.exact_only and top is not None and active.any():
+            # the exact column and the ranking's first tag both named where the first tag's
+            # column holds every symptom on (a small fault fires only some of its tests)
+            at = np.flatnonzero(active)
+            order = [self.tests.index(t) for t in self.matrix.tests]
+            faults[at] = with_ranked(self.matrix, faults[at], top["top1"][at], s[at][:, order])
         if self.alarm_hold is not None:
             detected, status, faults, top = self._hold_alarm(active, detected, status, faults, top)
         settled = None

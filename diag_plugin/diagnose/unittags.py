@@ -40,7 +40,9 @@ column the symptoms match exactly (``Unit.exact_only``; a nearer column that get
 is not a hypothesis consistent with them), and a sample in alarm no column explains names the
 ranking's first tag, as the combined test alone does (a leak from tank A was isolated as
 tank B's level, the shortest column holding two of its three symptoms;
-docs/how-to/unit-loops.md). An expert
+docs/how-to/unit-loops.md); where a column matches but the ranking's first tag is another
+whose column allows every symptom on (a small fault of it fires only its tests nearest their
+thresholds), that tag is named too (:func:`with_ranked`). An expert
 matrix file, when given, takes precedence for the faults; the ranking below is still reported.
 A test with an ``actuator`` (a loop's control error, written by ``diag unit build``) has ``1``
 in that controller output's column too; set-points are never columns (an operator's entry has
@@ -957,3 +959,50 @@ def describe_top(row: pd.Series) -> str:
         if name:
             parts.append(f"{name} {row[f'share{i}']:.2f}")
     return "tags: " + ", ".join(parts) if parts else ""
+
+
+def with_ranked(
+    matrix: DiagnosticMatrix, faults: np.ndarray, first: np.ndarray, s: np.ndarray
+) -> np.ndarray:
+    """The isolated faults (``a|b``, per sample) with the ranking's first tag added where the
+    derived matrix's exact column names other tags but the first tag's column holds every
+    symptom that is on (``faults`` ``sumpLvl|DischFlow``): the two answers, never two
+    different confident ones. ``first``: the ranking's first tag per sample ("" none);
+    ``s``: the symptoms −1/0/+1/NaN (samples × the matrix's tests).
+
+    Why: a column's ``1`` says the test reacts to the fault, not that a small fault crosses
+    its threshold. A meter bias of 3 % of span moved the three tests of its column, but only
+    the one it took nearest its threshold fired (a pumping station: ``sumpLvl = f(DischFlow[k-7])``
+    fired, ``DischFlow``'s own test and ``InletFlow = f(DischFlow[k-7])`` stayed inside their
+    bands); the exact match then named the tag whose column is that one test (``sumpLvl``),
+    while the ranking, reading the residuals below their thresholds too, named the meter
+    (``DischFlow``) on 97.7 % of the same samples (docs/explanation/acceptance-pumps.md). The
+    pattern fits both: the first tag's fault with its other tests not (yet) over their
+    thresholds. A first tag whose column does not allow a symptom that is on (a test it
+    does not move fired, or with a sign it does not give) contradicts the matrix and is not
+    added; nor on samples whose faults are the ranking's already or ``unit``."""
+    out = np.asarray(faults, dtype=object).copy()
+    col = {f: k for k, f in enumerate(matrix.faults)}
+    pairs: dict[tuple[str, str], bool] = {}
+    rows, ks = [], []
+    for i, (f, x) in enumerate(zip(out, first, strict=True)):
+        if not f or f == "unit" or not x or x not in col:
+            continue
+        new = pairs.get((f, x))
+        if new is None:
+            new = pairs[(f, x)] = x not in f.split("|")
+        if new:
+            rows.append(i)
+            ks.append(col[x])
+    if not rows:
+        return out
+    rows_a, k = np.array(rows), np.array(ks)
+    sym = np.asarray(s, float)[rows_a]
+    on = np.nan_to_num(sym) != 0
+    idx = np.where(on, np.sign(np.nan_to_num(sym)), 0).astype(np.intp) + 1
+    tests = np.arange(sym.shape[1])[None, :]
+    allows = matrix.allowed[tests, k[:, None], idx]  # the column allows each test's symptom
+    add = on.any(axis=1) & (allows | ~on).all(axis=1)
+    for i in np.flatnonzero(add):
+        out[rows_a[i]] = f"{out[rows_a[i]]}|{first[rows_a[i]]}"
+    return out
