@@ -141,7 +141,7 @@ def test_a_fault_right_after_a_start_is_failure_after_state_settle_max_s(station
     assert late < k + 200
     assert _raised(st0[k + 20 :]).mean() > 0.9
     assert _raised(st[late:]).mean() > 0.9
-    assert not _raised(st[k:late - 1]).any()
+    assert not _raised(st[k : late - 1]).any()
 
 
 def test_replay_pieces_restart_and_plant_agree(station, tmp_path):

@@ -182,6 +182,8 @@ def state_tags(unit: Any) -> list[SettleLoop]:
     return out
 
 
+#: a settle's why after a step of a hand valve, a state
+SAYS = {"hand": "settling after a hand valve's move", "state": "settling after a state change"}
 #: the guard's keys in ``[evaluation]`` and what each watches
 WATCHED = (
     ("settle_max_s", settle_loops),
@@ -388,8 +390,7 @@ class SettleGuard:
             lp = self.loops[int(steps[q, 0])]
             # the sample the set-point left its hold (confirmed once held again)
             at = _when(index[int(steps[q, 3])] - int(steps[q, 4]) * self.period)
-            what = {"hand": "settling after a hand valve's move",
-                    "state": "settling after a state change"}.get(lp.kind, f"loop {lp.pv} settling")  # fmt: skip
+            what = SAYS.get(lp.kind, f"loop {lp.pv} settling")
             texts.append(f"{lp.sp if lp.kind == 'loop' else lp.pv} {steps[q, 1]:g} → "
                          f"{steps[q, 2]:g} at {at}: {what}")  # fmt: skip
         if k:
