@@ -197,3 +197,38 @@ def test_a_state_change_is_a_step_a_grid_mean_included():
     x = np.r_[np.zeros(50), [0.5], np.ones(50), np.zeros(50), [1.0], np.zeros(49)]
     got = [(j, a, b, r) for j, a, b, r in g.steps(x[:, None])]
     assert got == [(0, 0.0, 1.0, 50), (0, 1.0, 0.0, 101)]
+
+
+def test_accept_keeps_the_state_settle_and_the_paths_agree(station, tmp_path):
+    """``diag unit accept`` of a later confirmed period keeps ``state_settle_max_s``; the
+    accepted unit's replay and live loop agree through a start."""
+    import shutil
+
+    from diag_plugin.unitbuild.accept import accept
+
+    unit, _, _, window = station
+    work = tmp_path / "u"
+    shutil.copytree(unit.file.path.parent, work)
+    u = Unit.load(work / "station.unit.toml", work)
+    x = _station(2, 9)
+    x.index = x.index + pd.Timedelta(days=10)
+    both = pd.concat([window, x])
+
+    def read(a, b):
+        yield both.iloc[both.index.searchsorted(a) : both.index.searchsorted(b)]
+
+    accept(u, read, x.index[0], x.index[-1] + pd.Timedelta(seconds=60))
+    after = Unit.load(work / "station.unit.toml", work)
+    assert after.ev["state_settle_max_s"] == unit.ev["state_settle_max_s"]
+    assert any(lp.state for lp in after.settle.loops)
+    run = _station(3, 7)
+    k = _starts(run)[0]
+    run = run.iloc[k - 60 : k + 120]
+    one = after.reset().evaluate(run)
+    plant = Plant({"station": Unit.load(work / "station.unit.toml", work)}, {})
+    opened = 0
+    for i, (ts, row) in enumerate(run.iterrows()):
+        a, ref = plant.cycle(ts, row.to_dict())[0], one.at(i)
+        assert (a.status, a.faults, a.message) == (ref.status, ref.faults, ref.message), i
+        opened += plant.to_state()["settle"]["station"]["g"][0]
+    assert opened > 0  # the start opened a settle
