@@ -24,7 +24,8 @@ from diag_plugin.diagnose.settle import settle_guard
 from diag_plugin.diagnose.unit import Unit
 from diag_plugin.status import NE107
 from diag_plugin.unitbuild.build import build_unit
-from tests.test_unit_manual import _in_pieces_as_whole
+from tests.test_unit_discrete import demand_and_run
+from tests.test_unit_manual import _in_pieces_as_whole, without_key
 
 CF, NORMAL = int(NE107.CHECK_FUNCTION), int(NE107.NORMAL)
 CHANGE = re.compile(r"^RUN2 (\d) → (\d) at (\S+): settling after a state change")
@@ -36,16 +37,8 @@ def _station(days: float, seed: int, bias_at: int | None = None) -> pd.DataFrame
     the speed back, 4 min) and pump 2's current runs up (2 A over 3 min), at a stop the
     pressure dips 0.2 bar. ``bias_at``: pump 1's current meter reads 3 A high from that
     sample on."""
-    rng = np.random.default_rng(seed)
-    n = int(days * 1440)
-    t = np.arange(n) / 1440.0
-    walk = np.cumsum(rng.normal(0, 0.002, n))
-    demand = 220 + 80 * np.sin(2 * np.pi * (t - 0.3)) + 20 * walk + rng.normal(0, 5, n)
-    run2 = np.zeros(n)
-    on = False
-    for k in range(n):
-        on = demand[k] > 260 or (on and demand[k] > 200)
-        run2[k] = float(on)
+    rng, t, demand, run2 = demand_and_run(days, seed)
+    n = len(t)
     over, runup = np.zeros(n), np.zeros(n)
     for k in np.flatnonzero(np.diff(run2) != 0) + 1:
         d = np.arange(n - k)
@@ -175,10 +168,7 @@ def test_replay_pieces_restart_and_plant_agree(station, tmp_path):
 def test_a_unit_file_without_state_settle_max_s_is_mains(station):
     """A unit file written before the key: no state in the guard, main's statuses."""
     unit, plain, *_ = station
-    path = unit.file.path.parent / "old.unit.toml"
-    text = re.sub(r"(?m)^state_settle_max_s = .*\n", "", unit.file.path.read_text())
-    path.write_text(text.replace('name = "station"', 'name = "old"'))
-    old = Unit.load(path, path.parent)
+    old = without_key(unit, "state_settle_max_s", "old")
     assert old.ev["state_settle_max_s"] == 0
     assert old.settle is None or not any(lp.state for lp in old.settle.loops)
     x = _station(1.5, 8)
