@@ -344,6 +344,7 @@ def _free_settle_max(unit, frame, kind: str) -> tuple[float, str]:
                  "state": ("state_settle_max_s", "state change")}[kind]  # fmt: skip
     steps, quiet = _window_steps(unit, frame)
     times: list[float] = []
+    moved = 0  # steps that moved a residual beyond its noise (settled or not)
     if any(lp.kind == kind for lp, *_ in steps):
         r = unit.reset().evaluate(frame).residuals.to_numpy(float)
         unit.reset()
@@ -356,10 +357,21 @@ def _free_settle_max(unit, frame, kind: str) -> tuple[float, str]:
             peak = np.nanmax(np.abs(e[i : min(i + quiet, end)]), axis=0, initial=0.0)
             if not (peak > noise).any():
                 continue  # it moved no residual beyond its noise: tells nothing of a settle
+            moved += 1
             tol = np.maximum(SETTLE_BAND * peak, noise)
             at = _settled(~(np.abs(e) > tol).any(axis=1), i, end, quiet)
             if at is not None:
                 times.append(at * unit.period_s)
+    if 2 * len(times) < moved:
+        # a step that never settled before the next is censored: with most of them so, the
+        # median settling time is beyond what the window shows (the fallback, not the median
+        # of the few that did: those are the quick ones)
+        value, how = _max_and_how(key, what, [], quiet * unit.period_s)
+        return value, how.replace(
+            f"no {what} settled in the window",
+            f"{len(times)} of the window's {moved} {what}s settled (fewer than half: their "
+            "median settling time is not known)",
+        )
     return _max_and_how(key, what, times, quiet * unit.period_s)
 
 
