@@ -18,12 +18,10 @@ import pytest
 from diag_plugin.unitbuild.build import build_unit, choose_tests
 
 
-def _station(days: float, seed: int, worn: float = 0.0) -> pd.DataFrame:
-    """1-min samples: a demand with a daily cycle; pump 2 assists above 260 m3/h and stops
-    below 200 (its run feedback RUN2 is 0/1); the header pressure falls with the flow a pump
-    gives; each motor's current is the power of its share, zero when it stands. ``worn``:
-    pump 2's motor draws that much more current for the same duty from day 1 on (a worn
-    impeller's lost efficiency)."""
+def demand_and_run(days: float, seed: int):
+    """The station's 1-min demand (a daily cycle, a slow walk, noise) and pump 2's run
+    feedback (on above 260 m3/h, off below 200): ``(rng, t in days, demand, run2)``, the
+    generator left where the rest of the plant draws on."""
     rng = np.random.default_rng(seed)
     n = int(days * 1440)
     t = np.arange(n) / 1440.0
@@ -34,6 +32,17 @@ def _station(days: float, seed: int, worn: float = 0.0) -> pd.DataFrame:
     for k in range(n):
         on = demand[k] > 260 or (on and demand[k] > 200)
         run2[k] = float(on)
+    return rng, t, demand, run2
+
+
+def _station(days: float, seed: int, worn: float = 0.0) -> pd.DataFrame:
+    """1-min samples: a demand with a daily cycle; pump 2 assists above 260 m3/h and stops
+    below 200 (its run feedback RUN2 is 0/1); the header pressure falls with the flow a pump
+    gives; each motor's current is the power of its share, zero when it stands. ``worn``:
+    pump 2's motor draws that much more current for the same duty from day 1 on (a worn
+    impeller's lost efficiency)."""
+    rng, t, demand, run2 = demand_and_run(days, seed)
+    n = len(t)
     pumps = 1 + run2
     share = demand / pumps
     press = 5.0 - 2.5e-5 * share**2 + rng.normal(0, 0.01, n)

@@ -371,12 +371,18 @@ def test_a_moves_settle_replay_pieces_restart_and_plant_agree(line):
         assert (s.status, s.faults, s.message) == (ref.status, ref.faults, ref.message), k
 
 
+def without_key(unit: Unit, key: str, name: str) -> Unit:
+    """``unit``'s file less the ``[evaluation]`` ``key`` (a file written before it), saved
+    beside it as unit ``name``, loaded."""
+    path = unit.file.path.parent / f"{name}.unit.toml"
+    text = re.sub(rf"(?m)^{key} = .*\n", "", unit.file.path.read_text())
+    path.write_text(text.replace(f'name = "{unit.file.name}"', f'name = "{name}"'))
+    return Unit.load(path, path.parent)
+
+
 def test_a_unit_file_without_manual_settle_max_s_settles_no_move(line):
     _, unit, *_ = line
-    path = unit.file.path.parent / "nomove.unit.toml"
-    text = re.sub(r"(?m)^manual_settle_max_s = .*\n", "", unit.file.path.read_text())
-    path.write_text(text.replace('name = "line"', 'name = "nomove"'))
-    old = Unit.load(path, path.parent)
+    old = without_key(unit, "manual_settle_max_s", "nomove")
     assert old.ev["manual_settle_max_s"] == 0
     assert not any(lp.hand for lp in old.settle.loops)
 

@@ -21,6 +21,7 @@ OTHER = {
     "spread_window_s": 600.0,
     "settle_max_s": 1800.0,
     "manual_settle_max_s": 3600.0,
+    "state_settle_max_s": 1800.0,
 }
 
 

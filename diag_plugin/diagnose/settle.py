@@ -41,6 +41,15 @@ alarm: the unit's judgement goes on.
   (:func:`~diag_plugin.unitbuild.loops.manual_settle_max`). Outside the span the manual
   guard answers.
 
+- **A state change** (a discrete state the build listed in ``[build] states``, read by a model:
+  a pump's or a motor's run feedback; ``state_settle_max_s`` > 0): the same step rule on the
+  state's reading (held, a jump beyond :data:`STATE_BAND_SHARE` of the range the models
+  learned it in, held again) opens a settle as a hand valve's move does, its why ``PMP3_ON 0
+  → 1 at …: settling after a state change``; it ends when no test is on for the quiet time,
+  or ``state_settle_max_s`` after the change
+  (:func:`~diag_plugin.unitbuild.loops.state_settle_max`): ISA-18.2's state-based alarming
+  (a pump's start is not an alarm; a fault that outlasts the settle is).
+
 The replay (:meth:`~diag_plugin.diagnose.unit.Unit.evaluate`), the live loop's stacked path
 (:class:`~diag_plugin.diagnose.plant.Plant`) and a restart (the carried state) give the same
 statuses: one compiled kernel, row by row, its state carried across pieces.
@@ -69,6 +78,11 @@ NEVER = 1 << 40
 #: noise margin): the line's 40–47 % valve, 0.07 %; the heater's 29.7–49.0 %, 0.6 % (its
 #: margin's 0.3 % twice)
 HAND_BAND_SHARE = 0.01
+#: a state's change is a step beyond this share of the range its models learned it in (the
+#: two states 0 and 1 learned as 0–1, or a rule grid's −0.25–1.25: a change is 1, the band
+#: 0.25 or 0.375; a historian's mean of a minute a pump started in is a move, held on the
+#: next)
+STATE_BAND_SHARE = 0.25
 
 
 @dataclass(frozen=True)
@@ -77,7 +91,8 @@ class SettleLoop:
     why), loop test (position among the unit's tests), thresholds and band in the
     set-point's units. A hand valve (``hand``): ``sp`` its model tag, ``pv`` its plant tag,
     no loop test (``test`` -1), ``held`` the change within which it counts as held (its
-    noise margin), and a step only to a position within its learned span ``span``."""
+    noise margin), and a step only to a position within its learned span ``span``. A
+    discrete state (``state``): as a hand valve, its span the range its models learned."""
 
     sp: str
     pv: str
@@ -88,6 +103,12 @@ class SettleLoop:
     hand: bool = False
     held: float = 0.0
     span: tuple[float, float] = (-math.inf, math.inf)
+    state: bool = False
+
+    @property
+    def kind(self) -> str:
+        """What steps: ``loop`` (a set-point), ``hand`` (a hand valve), ``state``."""
+        return "state" if self.state else "hand" if self.hand else "loop"
 
     @property
     def tol(self) -> float:
@@ -136,12 +157,48 @@ def hand_valves(unit: Any) -> list[SettleLoop]:
     return out
 
 
+def state_tags(unit: Any) -> list[SettleLoop]:
+    """The discrete states of ``unit`` (``[build] states``, model tag names) its models read,
+    as the guard watches them: a change beyond :data:`STATE_BAND_SHARE` of the range its
+    models learned it in (the union over the tests reading it), to a value within it."""
+    from diag_plugin.diagnose.operating import learned_ranges
+
+    read = set(unit.model_tags)
+    states = [str(x) for x in (unit.file.build or {}).get("states", []) if str(x) in read]
+    if not states:
+        return []
+    ranges = learned_ranges(unit.models, unit.tests)
+    out = []
+    for tag in states:
+        got = [(r.lo, r.hi) for r in ranges if r.tag == tag]
+        if not got:
+            continue  # read only through a derived input: no learned range
+        lo, hi = min(a for a, _ in got), max(b for _, b in got)
+        band = STATE_BAND_SHARE * (hi - lo)
+        if not (np.isfinite(band) and band > 0):
+            continue
+        pv = unit.file.tags.get(tag, tag)
+        out.append(SettleLoop(tag, pv, -1, 0.0, 0.0, band, span=(lo, hi), state=True))
+    return out
+
+
+#: a settle's why after a step of a hand valve, a state
+SAYS = {"hand": "settling after a hand valve's move", "state": "settling after a state change"}
+#: the guard's keys in ``[evaluation]`` and what each watches
+WATCHED = (
+    ("settle_max_s", settle_loops),
+    ("manual_settle_max_s", hand_valves),
+    ("state_settle_max_s", state_tags),
+)
+
+
 def settle_guard(unit: Any) -> SettleGuard | None:
-    """The guard of ``unit`` from its file (None: ``settle_max_s`` and
-    ``manual_settle_max_s`` 0, or nothing to watch): its loops at most ``settle_max_s``, its
-    hand valves at most ``manual_settle_max_s``."""
+    """The guard of ``unit`` from its file (None: ``settle_max_s``, ``manual_settle_max_s``
+    and ``state_settle_max_s`` 0, or nothing to watch): its loops at most ``settle_max_s``,
+    its hand valves at most ``manual_settle_max_s``, its states at most
+    ``state_settle_max_s``."""
     loops, max_n = [], []
-    for key, found in (("settle_max_s", settle_loops), ("manual_settle_max_s", hand_valves)):
+    for key, found in WATCHED:
         max_s = float(unit.ev.get(key, 0.0) or 0.0)
         if max_s <= 0:
             continue
@@ -285,7 +342,8 @@ class SettleGuard:
         self.tol = np.array([lp.tol for lp in loops], float)
         self.s_lo = np.array([lp.span[0] for lp in loops], float)
         self.s_hi = np.array([lp.span[1] for lp in loops], float)
-        self.hand = np.array([lp.hand for lp in loops], bool)
+        #: no loop test (a hand valve, a state): only the unit's tests end its settle
+        self.free = np.array([lp.test < 0 for lp in loops], bool)
         self.tests = np.array([max(lp.test, 0) for lp in loops], np.intp)
         self.reset()
 
@@ -317,8 +375,8 @@ class SettleGuard:
         sid = np.full(n, -1, np.int64)
         steps = np.zeros((n, 5))
         r = np.asarray(r, float).reshape(n, len(self.loops))
-        if self.hand.any():  # a hand valve has no loop test: only the unit's tests end it
-            r = np.where(self.hand, 0.0, r)
+        if self.free.any():  # a hand valve, a state: no loop test, the unit's tests end it
+            r = np.where(self.free, 0.0, r)
         k = _settle_kernel(
             np.ascontiguousarray(sp, float).reshape(n, len(self.loops)),
             np.ascontiguousarray(r),
@@ -332,9 +390,9 @@ class SettleGuard:
             lp = self.loops[int(steps[q, 0])]
             # the sample the set-point left its hold (confirmed once held again)
             at = _when(index[int(steps[q, 3])] - int(steps[q, 4]) * self.period)
-            what = "settling after a hand valve's move" if lp.hand else f"loop {lp.pv} settling"
-            texts.append(f"{lp.pv if lp.hand else lp.sp} {steps[q, 1]:g} → {steps[q, 2]:g} "
-                         f"at {at}: {what}")  # fmt: skip
+            what = SAYS.get(lp.kind, f"loop {lp.pv} settling")
+            texts.append(f"{lp.sp if lp.kind == 'loop' else lp.pv} {steps[q, 1]:g} → "
+                         f"{steps[q, 2]:g} at {at}: {what}")  # fmt: skip
         if k:
             self.text = texts[-1]
         if not self.g[0]:

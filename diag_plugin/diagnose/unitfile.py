@@ -103,7 +103,8 @@ spread tests' window) are described in :mod:`diag_plugin.diagnose.unitloops`;
 after an operator's set-point step, during which the unit's alarms are CHECK_FUNCTION
 (:mod:`diag_plugin.diagnose.settle`); ``manual_settle_max_s`` (written by ``diag unit
 build`` for a unit with a hand valve) the settle after a hand valve's move within its
-learned span.
+learned span; ``state_settle_max_s`` (for a unit whose models read a discrete state, ``[build]
+states``) the settle after a state's change (a pump started or stopped).
 
 ``balance = true`` (written by ``diag unit build`` for a manipulated flow's second test,
 ``<tag>_balance``, :mod:`~diag_plugin.unitbuild.balance`): the test is the flow's balance
@@ -210,6 +211,7 @@ EVALUATION_DEFAULTS: dict[str, Any] = {
     "spread_window_s": 0.0,
     "settle_max_s": 0.0,
     "manual_settle_max_s": 0.0,
+    "state_settle_max_s": 0.0,
 }
 #: keys new_unit_text writes only when they differ from the default (files written before
 #: them regenerate byte for byte)
@@ -222,6 +224,7 @@ NEW_KEYS = (
     "spread_window_s",
     "settle_max_s",
     "manual_settle_max_s",
+    "state_settle_max_s",
 )
 #: a residual is never amplified more than 1 / SPREAD_FLOOR by a small local spread. Of 0.5,
 #: 0.75 and 1 (attenuate only), 0.5 widened r3's thresholds (its cells at the travel limits
@@ -248,6 +251,7 @@ _KINDS = {
     "spread_window_s": float,
     "settle_max_s": float,
     "manual_settle_max_s": float,
+    "state_settle_max_s": float,
 }
 _CHOICES = {
     "scale": ("span", "max"),
@@ -533,6 +537,7 @@ class UnitFile(LinedFile):
             ("spread_window_s", ev["spread_window_s"] >= 0, "spread_window_s is seconds, ≥ 0"),
             ("settle_max_s", ev["settle_max_s"] >= 0, "settle_max_s is seconds, ≥ 0"),
             ("manual_settle_max_s", ev["manual_settle_max_s"] >= 0, "seconds, ≥ 0"),
+            ("state_settle_max_s", ev["state_settle_max_s"] >= 0, "seconds, ≥ 0"),
         )
         for key, ok, msg in checks:
             if not ok:

@@ -87,6 +87,7 @@ from diag_plugin.unitbuild.loops import (
     checked_manual,
     manual_settle_max,
     settle_max,
+    state_settle_max,
 )
 from diag_plugin.unitbuild.parallel import DaskPool, map_tests, one_blas_thread
 from historian.errors import UserError
@@ -1148,11 +1149,13 @@ def _build_unit(
         uf.set_learned(learned)
         # the settle after an operator's set-point step, from the window's own steps
         # (diagnose/settle.py): on the unit with its thresholds
-        # and after a hand valve's move, from the window's own moves
+        # and after a hand valve's move or a state's change (a pump started), from the
+        # window's own
         judged = Unit(uf, unit.models, unit.matrix)
         settles = [
             ("settle_max_s", "settle", *settle_max(judged, frame)),
             ("manual_settle_max_s", "manual_settle", *manual_settle_max(judged, frame)),
+            ("state_settle_max_s", "state_settle", *state_settle_max(judged, frame)),
         ]
         for key, says, value, how in settles:
             if value > 0:

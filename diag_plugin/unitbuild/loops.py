@@ -284,7 +284,7 @@ def settle_max(unit, frame) -> tuple[float, str]:
     steps, quiet = _window_steps(unit, frame)
     times: list[float] = []
     for lp, a, b, i, end in steps:
-        if lp.hand:
+        if lp.kind != "loop":
             continue
         out = parse_specs([unit.models[unit.tests[lp.test]].output])[0].tags[0]
         if out not in frame.columns:
@@ -311,52 +311,90 @@ def manual_settle_max(unit, frame) -> tuple[float, str]:
     reading the valve: a hand valve moves what lies downstream of it (the line's outlet flow,
     whose test reads neither the valve nor the level) as much as what reads it. No hand
     valve the guard watches: 0."""
-    import numpy as np
-
     from diag_plugin.diagnose.settle import hand_valves
 
     if not hand_valves(unit):
         return 0.0, ""
+    return _free_settle_max(unit, frame, "hand")
+
+
+def state_settle_max(unit, frame) -> tuple[float, str]:
+    """``state_settle_max_s`` for a built unit with a discrete state its models read (a
+    pump's run feedback, ``[build] states``; :mod:`diag_plugin.diagnose.settle`) from its
+    window ``frame``, and what it rests on, in words: :func:`manual_settle_max`'s rule on the
+    window's own state changes (a pump's start moves the header pressure, the speed and every
+    current downstream of it). A state the build lists changed in the window (else it would be
+    constant, not a state); where no change moved a residual beyond its noise or settled,
+    :data:`SETTLE_FALLBACK` × the quiet time, as for a hand valve. No state the guard
+    watches: 0."""
+    from diag_plugin.diagnose.settle import state_tags
+
+    if not state_tags(unit):
+        return 0.0, ""
+    return _free_settle_max(unit, frame, "state")
+
+
+def _free_settle_max(unit, frame, kind: str) -> tuple[float, str]:
+    """The settle's longest time after the window's own steps of ``kind`` (``hand``,
+    ``state``: no loop test; every test's residual back within its band, module doc of
+    :func:`manual_settle_max`), and what it rests on."""
+    import numpy as np
+
+    key, what = {"hand": ("manual_settle_max_s", "hand valve move"),
+                 "state": ("state_settle_max_s", "state change")}[kind]  # fmt: skip
     steps, quiet = _window_steps(unit, frame)
     times: list[float] = []
-    if any(lp.hand for lp, *_ in steps):
+    moved = 0  # steps that moved a residual beyond its noise (settled or not)
+    if any(lp.kind == kind for lp, *_ in steps):
         r = unit.reset().evaluate(frame).residuals.to_numpy(float)
         unit.reset()
         e = r - np.nanmedian(r, axis=0)
         noise = 3 * 1.4826 * np.nanmedian(np.abs(e), axis=0)
         for lp, _, _, i, end in steps:
-            if not lp.hand:
+            if lp.kind != kind:
                 continue
             # the move's own excursion: the largest within the quiet time after it
             peak = np.nanmax(np.abs(e[i : min(i + quiet, end)]), axis=0, initial=0.0)
             if not (peak > noise).any():
                 continue  # it moved no residual beyond its noise: tells nothing of a settle
+            moved += 1
             tol = np.maximum(SETTLE_BAND * peak, noise)
             at = _settled(~(np.abs(e) > tol).any(axis=1), i, end, quiet)
             if at is not None:
                 times.append(at * unit.period_s)
-    return _max_and_how("manual_settle_max_s", "hand valve move", times, quiet * unit.period_s)
+    if 2 * len(times) < moved:
+        # a step that never settled before the next is censored: with most of them so, the
+        # median settling time is beyond what the window shows (the fallback, not the median
+        # of the few that did: those are the quick ones)
+        value, how = _max_and_how(key, what, [], quiet * unit.period_s)
+        return value, how.replace(
+            f"no {what} settled in the window",
+            f"{len(times)} of the window's {moved} {what}s settled (fewer than half: their "
+            "median settling time is not known)",
+        )
+    return _max_and_how(key, what, times, quiet * unit.period_s)
 
 
 def _window_steps(unit, frame) -> tuple[list, int]:
-    """The window's steps of the unit's set-points and hand valves, as the guard finds them:
-    ``(loop, from, to, row, the row its settling must end by)`` each, and the guard's quiet
-    time (samples)."""
+    """The window's steps of the unit's set-points, hand valves and states, as the guard
+    finds them: ``(loop, from, to, row, the row its settling must end by)`` each, and the
+    guard's quiet time (samples)."""
     import numpy as np
 
-    from diag_plugin.diagnose.settle import SettleGuard, hand_valves, quiet_samples, settle_loops
+    from diag_plugin.diagnose.settle import WATCHED, SettleGuard, quiet_samples
 
     quiet = quiet_samples(unit)
-    have = [lp for lp in [*settle_loops(unit), *hand_valves(unit)] if lp.sp in frame.columns]
+    have = [lp for _, found in WATCHED for lp in found(unit) if lp.sp in frame.columns]
     if not have:
         return [], quiet
     guard = SettleGuard(have, 1, quiet, unit.period_s, unit.ev["on_delay"])
     found = guard.steps(np.column_stack([frame[lp.sp].to_numpy(float) for lp in have]))
     # each settles before the next step of its kind: a set-point step's (its loop's error
-    # is all it reads), a hand valve's move (the set-point steps between: the loops' own)
+    # is all it reads), a hand valve's move (the set-point steps between: the loops' own), a
+    # state's change
     out = []
     for j, a, b, i in found:
-        after = (r for k, *_, r in found if have[k].hand == have[j].hand and r > i)
+        after = (r for k, *_, r in found if have[k].kind == have[j].kind and r > i)
         out.append((have[j], a, b, i, next(after, len(frame))))
     return out, quiet
 
