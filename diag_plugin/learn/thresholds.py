@@ -124,6 +124,9 @@ class Learned:
     combined: CombinedSpec | None = None
     #: per test: breakpoints (n1, n0, p0, p1) of its N, 0, P sets (:func:`fuzzy_sets`)
     fuzzy: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
+    #: per test: what ``diag unit accept`` kept of the unit's thresholds before it, written
+    #: beside the test's ``[learned]`` row (:func:`~diag_plugin.unitbuild.accept.never_narrower`)
+    kept: dict[str, dict] = field(default_factory=dict)
     #: per level test, with operating points: each point's centre and relative scale of its
     #: raw residual (:func:`level_points`)
     level_points: dict[str, tuple[list[float], list[float]]] = field(default_factory=dict)
@@ -149,6 +152,7 @@ class Learned:
                 "unknown": round(b.unknown, 5),
                 **{f"unknown_{k}": round(v, 5) for k, v in why.items()},
                 "residuals": self.sources[name],
+                **self.kept.get(name, {}),
             }
         return out
 

@@ -73,6 +73,9 @@ class AcceptResult:
     limits: dict[str, tuple[float, float]] = field(default_factory=dict)
     #: per test: its thresholds before the accept (low, high; NaN where it had none)
     before: dict[str, tuple[float, float]] = field(default_factory=dict)
+    #: per test (and ``combined``): what of its band before the accept was kept, because the
+    #: re-learned one was narrower (:func:`never_narrower`)
+    kept: dict[str, dict] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
     def widened(self) -> dict[str, float]:
@@ -99,6 +102,7 @@ class AcceptResult:
             "thresholds": _as_json(self.limits),
             "thresholds_before": _as_json(self.before),
             "widened": self.widened(),
+            "kept": self.kept,
             "warnings": self.warnings,
         }
 
@@ -341,6 +345,7 @@ def accept(
                 + "\n".join("  " + p for p in exc.problems)
             ) from None
         learned.window = (windows[0][0].isoformat(), windows[-1][1].isoformat())
+        res.kept = never_narrower(learned, uf)
         out = UnitFile.load(uf.path)
         out.set_learned(learned)
         out.save(as_read=True)
@@ -351,6 +356,71 @@ def accept(
         rollback(uf.path)  # leave the unit as it was
         raise
     return res
+
+
+def never_narrower(learned, before) -> dict[str, dict]:
+    """Make what ``learned`` (the thresholds re-learned over every window) holds no narrower
+    than what unit file ``before`` held, side by side; returns per test what was kept.
+
+    An operator confirms a period as fault-free: it adds evidence of normal variation and
+    removes none. Yet the re-learned bands can come out narrower where the unit already
+    answered (the pumping station at 4.8 bar: ``I_M2`` high +10.40 → +2.56,
+    docs/explanation/acceptance-pumps.md): every threshold there rests on a tail fit
+    extrapolated to 57 times the window's length, and a day more of data — and the merged
+    models' cross-fitted residuals on the old window — move that extrapolation a long way.
+    An unseen run at the old operating point then alarms more than before the accept. So:
+
+    * each side of a test: ``low = min(low_before, low_learned)``,
+      ``high = max(high_before, high_learned)`` (a one-sided test, its high alone);
+    * its level scales (a coarser rule level's residual is divided by its scale) each the
+      larger of before and learned, the longer list kept: a residual answered at level ``l``
+      alarms beyond ``limit × levels[l]``, so neither factor shrinking keeps that band;
+    * its fuzzy sets' ramps moved with the threshold they are centred on (same width);
+    * the combined test's ``high`` the larger of before and learned.
+
+    What is not kept: a model's local spread (a spread test's residual is divided by the
+    answering rules' spread, which the merged model holds), a level test's point scales,
+    the combined test's covariance — each is the merged data's own."""
+    kept: dict[str, dict] = {}
+    for t in before.tests:
+        if t.name not in learned.limits:
+            continue
+        lo, hi = learned.limits[t.name]
+        lo0 = -math.inf if t.low is None else float(t.low)
+        hi0 = -math.inf if t.high is None else float(t.high)
+        one_sided = t.low is None
+        note: dict = {}
+        if hi0 > hi:
+            note["kept_high"] = [float(f"{hi:.6g}"), float(f"{hi0:.6g}")]
+            hi = hi0
+        if not one_sided and lo0 < lo:
+            note["kept_low"] = [float(f"{lo:.6g}"), float(f"{lo0:.6g}")]
+            lo = lo0
+        if one_sided:
+            lo = -hi  # as learn_thresholds writes a spread's (its low is not a test)
+        old, new = list(t.levels or []), list(learned.levels.get(t.name) or [])
+        if old and new:
+            both = [max(a, b) for a, b in zip(old, new, strict=False)]
+            merged = both + (old if len(old) > len(new) else new)[len(both) :]
+            if merged != new:
+                note["kept_levels"] = [new, merged]
+                learned.levels[t.name] = merged
+        if not note:
+            continue
+        learned.limits[t.name] = (lo, hi)
+        if t.name in learned.fuzzy:
+            n1, n0, p0, p1 = learned.fuzzy[t.name]
+            dn, up = (n0 - n1) / 2.0, (p1 - p0) / 2.0
+            learned.fuzzy[t.name] = (lo - dn, lo + dn, hi - up, hi + up)
+        kept[t.name] = note
+    learned.kept = kept
+    c0, c = before.combined, getattr(learned, "combined", None)
+    if c0 is not None and c is not None and c0.high is not None and c.high is not None:
+        if c0.high > c.high:
+            kept["combined"] = {"kept_high": [float(f"{c.high:.6g}"), float(f"{c0.high:.6g}")]}
+            c.high = float(c0.high)
+            c.notes = {**c.notes, "kept_high": kept["combined"]["kept_high"]}
+    return kept
 
 
 def widen_manual(path: Path, frame: pd.DataFrame) -> list[str]:
