@@ -373,7 +373,7 @@ def never_narrower(learned, before) -> dict[str, dict]:
     * each side of a test: ``low = min(low_before, low_learned)``,
       ``high = max(high_before, high_learned)`` (a one-sided test, its high alone);
     * its level scales (a coarser rule level's residual is divided by its scale) each the
-      larger of before and learned, the longer list kept: a residual answered at level ``l``
+      larger of before and learned, as many as learned: a residual answered at level ``l``
       alarms beyond ``limit × levels[l]``, so neither factor shrinking keeps that band;
     * its fuzzy sets' ramps moved with the threshold they are centred on (same width);
     * the combined test's ``high`` the larger of before and learned.
@@ -400,8 +400,8 @@ def never_narrower(learned, before) -> dict[str, dict]:
             lo = -hi  # as learn_thresholds writes a spread's (its low is not a test)
         old, new = list(t.levels or []), list(learned.levels.get(t.name) or [])
         if old and new:
-            both = [max(a, b) for a, b in zip(old, new, strict=False)]
-            merged = both + (old if len(old) > len(new) else new)[len(both) :]
+            # the re-learned list's length: a level it cannot calibrate stays unknown
+            merged = [max(a, b) for a, b in zip(old, new, strict=False)] + new[len(old) :]
             if merged != new:
                 note["kept_levels"] = [new, merged]
                 learned.levels[t.name] = merged
