@@ -418,8 +418,7 @@ def never_narrower(learned, before) -> dict[str, dict]:
     if c0 is not None and c is not None and c0.high is not None and c.high is not None:
         if c0.high > c.high:
             kept["combined"] = {"kept_high": [float(f"{c.high:.6g}"), float(f"{c0.high:.6g}")]}
-            c.high = float(c0.high)
-            c.notes = {**c.notes, "kept_high": kept["combined"]["kept_high"]}
+            c.high = float(c0.high)  # said in the summary ([combined] takes no such key)
     return kept
 
 
