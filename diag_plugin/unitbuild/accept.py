@@ -378,13 +378,26 @@ def never_narrower(learned, before) -> dict[str, dict]:
     * its fuzzy sets' ramps moved with the threshold they are centred on (same width);
     * the combined test's ``high`` the larger of before and learned.
 
-    What is not kept: a model's local spread (a spread test's residual is divided by the
+    Not kept where the band before rested on too little to say what normal variation is, or
+    measured another residual: a test whose thresholds before were Rice's Gaussian model
+    (``method`` ``gaussian`` in ``[learned]``: too few episodes for a tail, the band widened
+    by the predictive Student t of few independent values — the more evidence, the
+    narrower, as a build of a longer window would give: a 400 s build's level test after an
+    hour accepted, tests/test_unit_accept.py), and a level test that gets operating points
+    in this accept (its residual now centred and scaled at each point, another unit); the
+    combined test alike (Gaussian, or its first points).
+
+    What is not kept either: a model's local spread (a spread test's residual is divided by the
     answering rules' spread, which the merged model holds), a level test's point scales,
     the combined test's covariance — each is the merged data's own."""
     kept: dict[str, dict] = {}
+    notes = before.doc.get("learned") or {}
+    points = getattr(learned, "level_points", {}) or {}
     for t in before.tests:
-        if t.name not in learned.limits:
+        if t.name not in learned.limits or _thin(notes.get(t.name)):
             continue
+        if t.name in points and t.point_scale is None:
+            continue  # its residual is scaled at each point from now on: another unit
         lo, hi = learned.limits[t.name]
         lo0 = -math.inf if t.low is None else float(t.low)
         hi0 = -math.inf if t.high is None else float(t.high)
@@ -415,11 +428,21 @@ def never_narrower(learned, before) -> dict[str, dict]:
         kept[t.name] = note
     learned.kept = kept
     c0, c = before.combined, getattr(learned, "combined", None)
-    if c0 is not None and c is not None and c0.high is not None and c.high is not None:
+    fresh = c0 is not None and not c0.point_at and c is not None and bool(c.point_at)
+    if (
+        c0 is not None and c is not None and c0.high is not None and c.high is not None
+        and not _thin(c0.notes) and not fresh
+    ):  # fmt: skip
         if c0.high > c.high:
             kept["combined"] = {"kept_high": [float(f"{c.high:.6g}"), float(f"{c0.high:.6g}")]}
             c.high = float(c0.high)  # said in the summary ([combined] takes no such key)
     return kept
+
+
+def _thin(note) -> bool:
+    """A ``[learned]`` (or combined) note whose thresholds rest on Rice's Gaussian model: too
+    few episodes in the window for a tail (:mod:`diag_plugin.learn.budget`)."""
+    return "gaussian" in str((note or {}).get("method", ""))
 
 
 def widen_manual(path: Path, frame: pd.DataFrame) -> list[str]:
