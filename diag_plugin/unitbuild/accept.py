@@ -345,7 +345,8 @@ def accept(
                 + "\n".join("  " + p for p in exc.problems)
             ) from None
         learned.window = (windows[0][0].isoformat(), windows[-1][1].isoformat())
-        res.kept = never_narrower(learned, uf)
+        k = windows.index((start, end))
+        res.kept = never_narrower(learned, uf, pd.Series(runs != k, index=frame.index))
         out = UnitFile.load(uf.path)
         out.set_learned(learned)
         out.save(as_read=True)
@@ -358,7 +359,7 @@ def accept(
     return res
 
 
-def never_narrower(learned, before) -> dict[str, dict]:
+def never_narrower(learned, before, old: pd.Series | None = None) -> dict[str, dict]:
     """Make what ``learned`` (the thresholds re-learned over every window) holds no narrower
     than what unit file ``before`` held, side by side; returns per test what was kept.
 
@@ -370,11 +371,18 @@ def never_narrower(learned, before) -> dict[str, dict]:
     models' cross-fitted residuals on the old window — move that extrapolation a long way.
     An unseen run at the old operating point then alarms more than before the accept. So:
 
-    * each side of a test: ``low = min(low_before, low_learned)``,
-      ``high = max(high_before, high_learned)`` (a one-sided test, its high alone);
-    * its level scales (a coarser rule level's residual is divided by its scale) each the
-      larger of before and learned, as many as learned: a residual answered at level ``l``
-      alarms beyond ``limit × levels[l]``, so neither factor shrinking keeps that band;
+    * each side of a test: ``low = min(low_before × s, low_learned)``,
+      ``high = max(high_before × s, high_learned)`` (a one-sided test, its high alone), where
+      ``s`` is the robust spread (1.4826 MAD) of the test's residual over the windows the
+      unit had learned (``old``: True on their rows), as the re-learning scales it, over
+      the same spread before (the half-width of its fuzzy ramps, :func:`~diag_plugin.learn.
+      thresholds.fuzzy_sets`): a residual in units of its model's local spread changes
+      units when the merged model's spread does (a quiet accepted period makes the old
+      cells' relative spread larger and their residuals smaller), and the band is kept in
+      the units of the old window's own residuals;
+    * its level scales (a coarser rule level's, relative to the fine grid's) as re-learned:
+      the larger of before and learned on top of the kept limit widened twice over (on a
+      quiet accepted period a 3 m³/h meter bias went from 59.8 % detected to 30 %);
     * its fuzzy sets' ramps moved with the threshold they are centred on (same width);
     * the combined test's ``high`` the larger of before and learned.
 
@@ -390,7 +398,12 @@ def never_narrower(learned, before) -> dict[str, dict]:
     What is not kept either: a model's local spread (a spread test's residual is divided by the
     answering rules' spread, which the merged model holds), a level test's point scales,
     the combined test's covariance — each is the merged data's own."""
+    from diag_plugin.learn.thresholds import robust_sd
+
     kept: dict[str, dict] = {}
+    body = getattr(learned, "body", None)
+    if body is not None and old is not None:
+        body = body[old.reindex(body.index, fill_value=False).to_numpy(bool)]
     notes = before.doc.get("learned") or {}
     points = getattr(learned, "level_points", {}) or {}
     for t in before.tests:
@@ -403,6 +416,13 @@ def never_narrower(learned, before) -> dict[str, dict]:
         hi0 = -math.inf if t.high is None else float(t.high)
         one_sided = t.low is None
         note: dict = {}
+        was = _ramp(t.fuzzy)
+        have = body is not None and t.name in body
+        now = robust_sd(body[t.name].to_numpy(float)) if have else 0.0
+        if was > 0 and now > 0:
+            s = now / was
+            lo0, hi0 = lo0 * s, hi0 * s
+            note["scale"] = float(f"{s:.4g}")
         if hi0 > hi:
             note["kept_high"] = [float(f"{hi:.6g}"), float(f"{hi0:.6g}")]
             hi = hi0
@@ -411,22 +431,15 @@ def never_narrower(learned, before) -> dict[str, dict]:
             lo = lo0
         if one_sided:
             lo = -hi  # as learn_thresholds writes a spread's (its low is not a test)
-        old, new = list(t.levels or []), list(learned.levels.get(t.name) or [])
-        if old and new:
-            # the re-learned list's length: a level it cannot calibrate stays unknown
-            merged = [max(a, b) for a, b in zip(old, new, strict=False)] + new[len(old) :]
-            if merged != new:
-                note["kept_levels"] = [new, merged]
-                learned.levels[t.name] = merged
-        if not note:
+        kept[t.name] = note
+        if set(note) <= {"scale"}:
             continue
         learned.limits[t.name] = (lo, hi)
         if t.name in learned.fuzzy:
             n1, n0, p0, p1 = learned.fuzzy[t.name]
             dn, up = (n0 - n1) / 2.0, (p1 - p0) / 2.0
             learned.fuzzy[t.name] = (lo - dn, lo + dn, hi - up, hi + up)
-        kept[t.name] = note
-    learned.kept = kept
+    learned.kept = {k: v for k, v in kept.items() if set(v) - {"scale"}}
     c0, c = before.combined, getattr(learned, "combined", None)
     fresh = c0 is not None and not c0.point_at and c is not None and bool(c.point_at)
     if (
@@ -437,6 +450,15 @@ def never_narrower(learned, before) -> dict[str, dict]:
             kept["combined"] = {"kept_high": [float(f"{c.high:.6g}"), float(f"{c0.high:.6g}")]}
             c.high = float(c0.high)  # said in the summary ([combined] takes no such key)
     return kept
+
+
+def _ramp(fuzzy) -> float:
+    """The robust spread a test's fuzzy ramps were drawn with: their half-width (the wider
+    of the two; a ramp is cut at 0.999 of its threshold only when the spread is wider)."""
+    if not fuzzy:
+        return 0.0
+    n1, n0, p0, p1 = fuzzy
+    return max((n0 - n1) / 2.0, (p1 - p0) / 2.0)
 
 
 def _thin(note) -> bool:
