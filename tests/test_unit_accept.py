@@ -34,11 +34,13 @@ def _ou(rng, n, sd, tau_s):
     return x
 
 
-def line(start_day: float, days: float, seed: int, valve, bias: float = 0.0) -> pd.DataFrame:
+def line(
+    start_day: float, days: float, seed: int, valve, bias: float = 0.0, meter: float = 0.15
+) -> pd.DataFrame:
     """Supply pressure PI101 (bar), manual valve HV101 (% open), flow FI101 (m³/h) through
-    it (valve characteristic × √Δp), downstream pressure PI102 and the temperature TI101 of
-    a heater the flow cools. ``valve(hours)`` the position; ``bias`` added to FI101's reading
-    from the middle of the run on (m³/h)."""
+    it (valve characteristic × √Δp, read with the meter's noise ``meter``), downstream
+    pressure PI102 and the temperature TI101 of a heater the flow cools. ``valve(hours)``
+    the position; ``bias`` added to FI101's reading from the middle of the run on (m³/h)."""
     rng = np.random.default_rng(seed)
     n = int(days * 86400 / PERIOD_S)
     t = T0 + pd.Timedelta(days=start_day) + pd.to_timedelta(np.arange(n) * PERIOD_S, "s")
@@ -50,7 +52,7 @@ def line(start_day: float, days: float, seed: int, valve, bias: float = 0.0) -> 
     p2 = 1.2 + 0.25 * p1 + _ou(rng, n, 0.03, 600.0)
     flow = 0.35 * hv * np.sqrt(np.maximum(p1 - p2, 0.1))
     temp = 95.0 - 0.9 * flow + _ou(rng, n, 0.25, 1800.0)
-    fi = flow + rng.normal(0, 0.15, n)
+    fi = flow + rng.normal(0, meter, n)
     fi[n // 2 :] += bias
     return pd.DataFrame(
         {"PI101": p1 + rng.normal(0, 0.01, n), "HV101": hv, "FI101": fi,

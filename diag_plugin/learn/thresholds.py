@@ -124,6 +124,12 @@ class Learned:
     combined: CombinedSpec | None = None
     #: per test: breakpoints (n1, n0, p0, p1) of its N, 0, P sets (:func:`fuzzy_sets`)
     fuzzy: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
+    #: per test: what ``diag unit accept`` kept of the unit's thresholds before it, written
+    #: beside the test's ``[learned]`` row (:func:`~diag_plugin.unitbuild.accept.never_narrower`)
+    kept: dict[str, dict] = field(default_factory=dict)
+    #: the filtered, scaled residuals the thresholds were learned from (settled rows; not
+    #: written: ``diag unit accept`` reads each window's spread from it)
+    body: pd.DataFrame | None = None
     #: per level test, with operating points: each point's centre and relative scale of its
     #: raw residual (:func:`level_points`)
     level_points: dict[str, tuple[list[float], list[float]]] = field(default_factory=dict)
@@ -149,6 +155,7 @@ class Learned:
                 "unknown": round(b.unknown, 5),
                 **{f"unknown_{k}": round(v, 5) for k, v in why.items()},
                 "residuals": self.sources[name],
+                **self.kept.get(name, {}),
             }
         return out
 
@@ -606,7 +613,14 @@ def learn_thresholds(
         combined=combined,
         fuzzy=fuzzy,
         level_points=lp,
+        body=body,
     )
+
+
+def robust_sd(residual: np.ndarray) -> float:
+    """1.4826 × the median absolute deviation of the finite values (0 when none)."""
+    x = residual[np.isfinite(residual)]
+    return 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size else 0.0
 
 
 def fuzzy_sets(residual: np.ndarray, low: float, high: float) -> tuple[float, float, float, float]:
@@ -616,8 +630,7 @@ def fuzzy_sets(residual: np.ndarray, low: float, high: float) -> tuple[float, fl
     residual) and is two robust standard deviations (1.4826 × MAD) of the fault-free residual wide —
     a residual one standard deviation past the threshold is wholly N or P, one short of it wholly 0
     — never reaching past zero."""
-    x = residual[np.isfinite(residual)]
-    sd = 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size else 0.0
+    sd = robust_sd(residual)
     up, dn = min(sd, 0.999 * high), min(sd, 0.999 * -low)
     return (low - dn, low + dn, high - up, high + up)
 

@@ -73,6 +73,9 @@ class AcceptResult:
     limits: dict[str, tuple[float, float]] = field(default_factory=dict)
     #: per test: its thresholds before the accept (low, high; NaN where it had none)
     before: dict[str, tuple[float, float]] = field(default_factory=dict)
+    #: per test (and ``combined``): what of its band before the accept was kept, because the
+    #: re-learned one was narrower (:func:`never_narrower`)
+    kept: dict[str, dict] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
     def widened(self) -> dict[str, float]:
@@ -99,6 +102,7 @@ class AcceptResult:
             "thresholds": _as_json(self.limits),
             "thresholds_before": _as_json(self.before),
             "widened": self.widened(),
+            "kept": self.kept,
             "warnings": self.warnings,
         }
 
@@ -341,6 +345,8 @@ def accept(
                 + "\n".join("  " + p for p in exc.problems)
             ) from None
         learned.window = (windows[0][0].isoformat(), windows[-1][1].isoformat())
+        k = windows.index((start, end))
+        res.kept = never_narrower(learned, uf, pd.Series(runs != k, index=frame.index))
         out = UnitFile.load(uf.path)
         out.set_learned(learned)
         out.save(as_read=True)
@@ -351,6 +357,116 @@ def accept(
         rollback(uf.path)  # leave the unit as it was
         raise
     return res
+
+
+def never_narrower(learned, before, old: pd.Series | None = None) -> dict[str, dict]:
+    """Make what ``learned`` (the thresholds re-learned over every window) holds no narrower
+    than what unit file ``before`` held, side by side; returns per test what was kept.
+
+    An operator confirms a period as fault-free: it adds evidence of normal variation and
+    removes none. Yet the re-learned bands can come out narrower where the unit already
+    answered (the pumping station at 4.8 bar: ``I_M2`` high +10.40 → +2.56,
+    docs/explanation/acceptance-pumps.md): every threshold there rests on a tail fit
+    extrapolated to 57 times the window's length, and a day more of data — and the merged
+    models' cross-fitted residuals on the old window — move that extrapolation a long way.
+    An unseen run at the old operating point then alarms more than before the accept. So:
+
+    * each side of a test: ``low = min(low_before × s, low_learned)``,
+      ``high = max(high_before × s, high_learned)`` (a one-sided test, its high alone), where
+      ``s`` is the robust spread (1.4826 MAD) of the test's residual over the windows the
+      unit had learned (``old``: True on their rows), as the re-learning scales it, over
+      the same spread before (the half-width of its fuzzy ramps, :func:`~diag_plugin.learn.
+      thresholds.fuzzy_sets`): a residual in units of its model's local spread changes
+      units when the merged model's spread does (a quiet accepted period makes the old
+      cells' relative spread larger and their residuals smaller), and the band is kept in
+      the units of the old window's own residuals;
+    * its level scales (a coarser rule level's, relative to the fine grid's) as re-learned:
+      the larger of before and learned on top of the kept limit would widen it twice over
+      (tried with the plain maximum of the stored limits: on a quiet accepted period a
+      3 m³/h meter bias went from 59.8 % detected before the accept to 0 %; with ``s`` and
+      the re-learned scales 30.0 %, tests/test_unit_accept_never_narrower.py);
+    * its fuzzy sets' ramps moved with the threshold they are centred on (same width);
+    * the combined test's ``high`` the larger of before and learned.
+
+    Not kept where the band before rested on too little to say what normal variation is, or
+    measured another residual: a test whose thresholds before were Rice's Gaussian model
+    (``method`` ``gaussian`` in ``[learned]``: too few episodes for a tail, the band widened
+    by the predictive Student t of few independent values — the more evidence, the
+    narrower, as a build of a longer window would give: a 400 s build's level test after an
+    hour accepted, tests/test_unit_accept.py), and a level test that gets operating points
+    in this accept (its residual now centred and scaled at each point, another unit); the
+    combined test alike (Gaussian, or its first points).
+
+    What is not kept either: a model's local spread (a spread test's residual is divided by the
+    answering rules' spread, which the merged model holds), a level test's point scales,
+    the combined test's covariance — each is the merged data's own."""
+    from diag_plugin.learn.thresholds import robust_sd
+
+    kept: dict[str, dict] = {}
+    body = getattr(learned, "body", None)
+    if body is not None and old is not None:
+        body = body[old.reindex(body.index, fill_value=False).to_numpy(bool)]
+    notes = before.doc.get("learned") or {}
+    points = getattr(learned, "level_points", {}) or {}
+    for t in before.tests:
+        if t.name not in learned.limits or _thin(notes.get(t.name)):
+            continue
+        if t.name in points and t.point_scale is None:
+            continue  # its residual is scaled at each point from now on: another unit
+        lo, hi = learned.limits[t.name]
+        lo0 = -math.inf if t.low is None else float(t.low)
+        hi0 = -math.inf if t.high is None else float(t.high)
+        one_sided = t.low is None
+        note: dict = {}
+        was = _ramp(t.fuzzy)
+        have = body is not None and t.name in body
+        now = robust_sd(body[t.name].to_numpy(float)) if have else 0.0
+        if was > 0 and now > 0:
+            s = now / was
+            lo0, hi0 = lo0 * s, hi0 * s
+            note["scale"] = float(f"{s:.4g}")
+        if hi0 > hi:
+            note["kept_high"] = [float(f"{hi:.6g}"), float(f"{hi0:.6g}")]
+            hi = hi0
+        if not one_sided and lo0 < lo:
+            note["kept_low"] = [float(f"{lo:.6g}"), float(f"{lo0:.6g}")]
+            lo = lo0
+        if one_sided:
+            lo = -hi  # as learn_thresholds writes a spread's (its low is not a test)
+        kept[t.name] = note
+        if set(note) <= {"scale"}:
+            continue
+        learned.limits[t.name] = (lo, hi)
+        if t.name in learned.fuzzy:
+            n1, n0, p0, p1 = learned.fuzzy[t.name]
+            dn, up = (n0 - n1) / 2.0, (p1 - p0) / 2.0
+            learned.fuzzy[t.name] = (lo - dn, lo + dn, hi - up, hi + up)
+    learned.kept = {k: v for k, v in kept.items() if set(v) - {"scale"}}
+    c0, c = before.combined, getattr(learned, "combined", None)
+    fresh = c0 is not None and not c0.point_at and c is not None and bool(c.point_at)
+    if (
+        c0 is not None and c is not None and c0.high is not None and c.high is not None
+        and not _thin(c0.notes) and not fresh
+    ):  # fmt: skip
+        if c0.high > c.high:
+            kept["combined"] = {"kept_high": [float(f"{c.high:.6g}"), float(f"{c0.high:.6g}")]}
+            c.high = float(c0.high)  # said in the summary ([combined] takes no such key)
+    return kept
+
+
+def _ramp(fuzzy) -> float:
+    """The robust spread a test's fuzzy ramps were drawn with: their half-width (the wider
+    of the two; a ramp is cut at 0.999 of its threshold only when the spread is wider)."""
+    if not fuzzy:
+        return 0.0
+    n1, n0, p0, p1 = fuzzy
+    return max((n0 - n1) / 2.0, (p1 - p0) / 2.0)
+
+
+def _thin(note) -> bool:
+    """A ``[learned]`` (or combined) note whose thresholds rest on Rice's Gaussian model: too
+    few episodes in the window for a tail (:mod:`diag_plugin.learn.budget`)."""
+    return "gaussian" in str((note or {}).get("method", ""))
 
 
 def widen_manual(path: Path, frame: pd.DataFrame) -> list[str]:

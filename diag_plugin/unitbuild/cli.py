@@ -255,7 +255,10 @@ def cmd_unit_accept(args) -> int:
         print(
             f"  {k}: {res.samples.get(k, 0):,} samples merged; rules {before} → {after}; "
             f"thresholds {band(*res.before.get(k, nan))} → {band(*res.limits.get(k, nan))}"
+            + _kept(res.kept.get(k, {}))
         )
+    if "combined" in res.kept:
+        print("  combined test: high" + _kept(res.kept["combined"]).removeprefix(";"))
     print("  windows learned: " + "; ".join(f"{a} … {b}" for a, b in res.windows))
     for k, x in res.widened().items():
         print(
@@ -266,6 +269,18 @@ def cmd_unit_accept(args) -> int:
     for w in res.warnings[:4]:
         print(f"  note: {w}")
     return 0
+
+
+def _kept(note: dict) -> str:
+    """What an accept kept of a test's band before it (``AcceptResult.kept``), said."""
+    said = [
+        f"{side} re-learned {note[key][0]:+.3f}, kept {note[key][1]:+.3f}"
+        for side, key in (("low", "kept_low"), ("high", "kept_high"))
+        if key in note
+    ]
+    if "kept_levels" in note:
+        said.append("level scales " + " ".join(f"{x:.3g}" for x in note["kept_levels"][1]))
+    return f"; kept: not narrowed ({'; '.join(said)})" if said else ""
 
 
 def cmd_unit_rollback(args) -> int:
