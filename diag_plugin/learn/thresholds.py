@@ -309,9 +309,11 @@ def _test_residual(
         within = by_run == WITHIN_RUNS
         block = block_of(frame.index, blocks, runs, within, given if by_run else None)
         block = block[rows] if len(rows) else rows
+        run = (_runs(data) if given is None else np.asarray(given)) if by_run else None
         pred, source = held_out(
-            RuleBase.load(m.path), m.model, d, block, blocks, t.name, force=bool(cross_fit)
-        )
+            RuleBase.load(m.path), m.model, d, block, blocks, t.name, force=bool(cross_fit),
+            said=held_out_said(block, blocks, run, within),
+        )  # fmt: skip
     raw = np.full(len(frame), np.nan)
     raw[rows] = unit.residual(_fine_only(t), d.y, pred)
     level = spread = None
@@ -326,7 +328,35 @@ def _test_residual(
     )
 
 
-def held_out(rb, model, d, block: np.ndarray, blocks: int, test: str, *, force: bool = False):
+def held_out_said(
+    block: np.ndarray, blocks: int, run: np.ndarray | None = None, within: bool = False
+) -> str:
+    """What the cross-fitting held out, as its note says it (``block``: each row's block,
+    :func:`block_of`; ``run``: each row's run, None where runs were not looked for): the
+    time blocks, the runs held out whole (a window of several runs, as ``diag unit build``
+    holds them out), or every run cut in ``blocks`` spans (:data:`WITHIN_RUNS`)."""
+    n = len(np.unique(block))
+    runs = len(np.unique(run)) if run is not None and len(run) else 1
+    if within and runs >= 2:
+        return f"{n} time blocks (each of the {runs} runs cut in {blocks} spans)"
+    if run is not None and runs >= 2:
+        if n == runs:
+            return f"{n} runs (each held out whole)"
+        return f"{n} groups of consecutive runs (of {runs}; each run held out whole)"
+    return f"{n} time blocks"
+
+
+def held_out(
+    rb,
+    model,
+    d,
+    block: np.ndarray,
+    blocks: int,
+    test: str,
+    *,
+    force: bool = False,
+    said: str | None = None,
+):
     """Each time block's prediction by the model without that block's samples.
 
     * The model was trained on a range the window overlaps (its file's ``[training]``) and
@@ -338,7 +368,9 @@ def held_out(rb, model, d, block: np.ndarray, blocks: int, test: str, *, force: 
     * Otherwise (other methods, no training range, or ``force``): a model trained from scratch
       on the window's other blocks.
 
-    Returns the prediction over all rows of ``d`` and a sentence saying how it was made."""
+    Returns the prediction over all rows of ``d`` and a sentence saying how it was made
+    (``said``: what the blocks are, :func:`held_out_said`; default ``blocks`` time blocks)."""
+    said = said or f"{blocks} time blocks"
     trained = _training_range(rb)
     idx = d.index
     outside = trained is not None and len(idx) and (trained[1] <= idx[0] or trained[0] > idx[-1])
@@ -347,7 +379,7 @@ def held_out(rb, model, d, block: np.ndarray, blocks: int, test: str, *, force: 
     exact = getattr(model, "method", None) == "wm-avg" and hasattr(model, "without")
     if force or trained is None or not exact:
         return _cross_fitted(rb, d.X, d.y, block, blocks, test), (
-            f"cross-fitted: retrained without each of {blocks} time blocks"
+            f"cross-fitted: retrained without each of {said}"
         )
     n = len(d.y)
     parts = []
@@ -367,7 +399,7 @@ def held_out(rb, model, d, block: np.ndarray, blocks: int, test: str, *, force: 
                 unseen += 1  # the block's samples were never in the model
         parts.append((held, rb.predictor(fold).predict_detail(d.X[held])))
     pred = _assemble(n, parts)
-    how = f"cross-fitted: the model without each of {blocks} time blocks"
+    how = f"cross-fitted: the model without each of {said}"
     if unseen:
         how += f" ({unseen} block(s) never in the model: its own prediction there)"
     return pred, how
