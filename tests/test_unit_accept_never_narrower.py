@@ -108,3 +108,24 @@ def test_a_bias_at_the_old_positions_is_still_detected_after_accept(plant):
         before["bias"][half:].mean(),
         after["bias"][half:].mean(),
     )
+
+
+def test_accept_holds_the_old_windows_runs_out_whole_as_the_build_did():
+    """The accept's cross-fitting: an old window of two runs (a gap of more than RUN_GAP rows
+    inside it) is held out run by run, each run whole, as its build held it; the accepted
+    window is cut in spans. Fails on main, where each window was one run cut in 5 spans (the
+    pumping station's I_M2 high re-learned +2.36 there, +9.87 so)."""
+    from diag_plugin.learn.thresholds import RUN_GAP, block_of
+    from diag_plugin.unitbuild.accept import _joined, old_runs
+
+    idx = pd.date_range("2026-06-01", periods=1000, freq="60s", tz="UTC")
+    old = pd.DataFrame({"A": np.arange(1000.0)}, index=idx)
+    old.iloc[400 : 400 + 2 * RUN_GAP] = np.nan  # the build window: two runs
+    later = pd.date_range(idx[-1] + pd.Timedelta("1D"), periods=500, freq="60s")
+    new = pd.DataFrame({"A": np.arange(500.0)}, index=later)  # the accepted window
+    frame, window = _joined([old, new], "60s")
+    split, whole = old_runs(frame, window, 1)
+    block = block_of(frame.index, 5, None, True, split, whole)
+    first, second = block[:400], block[400 + 2 * RUN_GAP : 1000]
+    assert len(set(first)) == 1 and len(set(second)) == 1 and first[0] != second[0]
+    assert sorted(set(block[window == 1])) == [0, 1, 2, 3, 4]

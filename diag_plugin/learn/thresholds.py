@@ -185,6 +185,7 @@ def block_of(
     data: np.ndarray | None = None,
     within: bool = False,
     runs: np.ndarray | None = None,
+    whole: np.ndarray | None = None,
 ) -> np.ndarray:
     """Time block (0 … blocks − 1) of each timestamp. A window of several runs (stretches of
     data separated by more than :data:`RUN_GAP` samples without, ``data`` False) is cut between
@@ -194,20 +195,29 @@ def block_of(
     ``b``-th of every run (``diag unit accept``: each window an operating point, so a block
     held out leaves the models most of every point). ``runs``: each row's run given (the
     caller knows where its runs are: ``diag unit accept``'s windows), not found from the
-    gaps in ``data``."""
+    gaps in ``data``. ``whole`` (with ``within``): each row True where its run is held out
+    whole, as a build holds its window's runs out (``diag unit accept``'s old windows, their
+    runs split at gaps of more than :data:`RUN_GAP` rows): two or more such runs grouped into
+    at most ``blocks`` blocks, the other runs (the accepted window) each cut in spans; a
+    single such run is cut in spans too, as a build cuts a window of one run."""
     if runs is not None:
         if len(runs) != len(index):
             raise ValueError(f"runs has {len(runs)} rows, the index {len(index)}")
         data = np.ones(len(index), bool)  # the runs are given: only their sizes matter
     if within and data is not None and data.size == len(index):
-        run = _runs(data) if runs is None else np.asarray(runs, np.int64)
+        run = runs_of(data) if runs is None else np.asarray(runs, np.int64)
         out = np.zeros(len(index), np.int64)
+        held = [r for r in np.unique(run) if whole is not None and bool(whole[run == r].all())]
+        held = held if len(held) >= 2 else []
         for r in np.unique(run):
             rows = np.flatnonzero(run == r)
-            out[rows] = block_of(index[rows], blocks)
+            if r in held:
+                out[rows] = held.index(r) * min(blocks, len(held)) // len(held)
+            else:
+                out[rows] = block_of(index[rows], blocks)
         return out
     if data is not None and data.size == len(index):
-        run = _runs(data) if runs is None else np.asarray(runs, np.int64)
+        run = runs_of(data) if runs is None else np.asarray(runs, np.int64)
         n = int(run.max()) + 1 if run.size else 0
         if n >= 2:
             groups = min(blocks, n)
@@ -219,7 +229,7 @@ def block_of(
 def settled(data: np.ndarray) -> np.ndarray:
     """Rows whose filtered residual has settled: each run's first :data:`SETTLE_SAMPLES` are
     left out (a quarter of a shorter run), as the filter starts from rest in every run."""
-    run = _runs(data)
+    run = runs_of(data)
     keep = np.ones(data.size, bool)
     for r in np.unique(run):
         rows = np.flatnonzero(run == r)
@@ -230,7 +240,7 @@ def settled(data: np.ndarray) -> np.ndarray:
     return keep
 
 
-def _runs(data: np.ndarray) -> np.ndarray:
+def runs_of(data: np.ndarray) -> np.ndarray:
     """Run number of each row (stretches of data separated by more than RUN_GAP rows
     without); rows in a gap take the run before them (the first run's number before it)."""
     start = np.flatnonzero(data)
@@ -263,16 +273,18 @@ def test_residuals(
     mapper: Mapper | None = None,
     by_run: bool | str = True,
     runs: np.ndarray | None = None,
+    whole: np.ndarray | None = None,
 ) -> dict[str, TestResiduals]:
     """Raw residuals of every test over ``frame``, each block's from a model that did not see
     that block (see :func:`held_out`); ``cross_fit`` False: the models' own residuals;
     ``by_run`` False: equal time blocks even where the window holds several runs;
     :data:`WITHIN_RUNS`: every run cut into equal time blocks (:func:`block_of`). Each
     test's are independent of the others': ``mapper`` may compute them in several
-    processes. ``runs``: each row's run, where the caller knows them (:func:`block_of`)."""
+    processes. ``runs``: each row's run, where the caller knows them; ``whole``: the rows of
+    runs held out whole (:func:`block_of`)."""
     frame = unit._model_frame(frame)
     names = [t.name for t in unit.file.tests]
-    args = (unit, frame, blocks, cross_fit, by_run, runs)
+    args = (unit, frame, blocks, cross_fit, by_run, runs, whole)
     got = (mapper or _serial)(_test_residual, names, args)
     missing = [r for r in got if isinstance(r, str)]
     if missing:
@@ -288,6 +300,7 @@ def _test_residual(
     cross_fit: bool | None,
     by_run: bool | str = True,
     given: np.ndarray | None = None,
+    whole: np.ndarray | None = None,
 ) -> TestResiduals | str:
     """One test's residuals for :func:`test_residuals` (a message if the window lacks a tag
     its model reads)."""
@@ -307,11 +320,14 @@ def _test_residual(
         data = frame.notna().any(axis=1).to_numpy()
         runs = data if by_run else None
         within = by_run == WITHIN_RUNS
-        block = block_of(frame.index, blocks, runs, within, given if by_run else None)
+        given = given if by_run else None
+        block = block_of(frame.index, blocks, runs, within, given, whole)
+        said = held_out_said(block, blocks, runs_of(data) if given is None else given, within)
         block = block[rows] if len(rows) else rows
         pred, source = held_out(
-            RuleBase.load(m.path), m.model, d, block, blocks, t.name, force=bool(cross_fit)
-        )
+            RuleBase.load(m.path), m.model, d, block, blocks, t.name, force=bool(cross_fit),
+            said=said if by_run else f"{blocks} time blocks",
+        )  # fmt: skip
     raw = np.full(len(frame), np.nan)
     raw[rows] = unit.residual(_fine_only(t), d.y, pred)
     level = spread = None
@@ -326,7 +342,39 @@ def _test_residual(
     )
 
 
-def held_out(rb, model, d, block: np.ndarray, blocks: int, test: str, *, force: bool = False):
+def held_out_said(
+    block: np.ndarray, blocks: int, run: np.ndarray | None = None, within: bool = False
+) -> str:
+    """What the cross-fitting held out, as its note says it (``block``: each row's block,
+    :func:`block_of`; ``run``: each row's run, None where runs were not looked for): the
+    time blocks, the runs held out whole (a window of several runs, as ``diag unit build``
+    holds them out), or every run cut in ``blocks`` spans (:data:`WITHIN_RUNS`)."""
+    n = len(np.unique(block))
+    runs = len(np.unique(run)) if run is not None and len(run) else 1
+    if within and runs >= 2:
+        cut = sum(len(np.unique(block[run == r])) > 1 for r in np.unique(run))
+        if cut < runs:
+            return (f"{n} blocks ({runs - cut} runs each held out whole, {cut} cut in "
+                    f"{blocks} spans)")  # fmt: skip
+        return f"{n} time blocks (each of the {runs} runs cut in {blocks} spans)"
+    if run is not None and runs >= 2:
+        if n == runs:
+            return f"{n} runs (each held out whole)"
+        return f"{n} groups of consecutive runs (of {runs}; each run held out whole)"
+    return f"{n} time blocks"
+
+
+def held_out(
+    rb,
+    model,
+    d,
+    block: np.ndarray,
+    blocks: int,
+    test: str,
+    *,
+    force: bool = False,
+    said: str | None = None,
+):
     """Each time block's prediction by the model without that block's samples.
 
     * The model was trained on a range the window overlaps (its file's ``[training]``) and
@@ -338,7 +386,9 @@ def held_out(rb, model, d, block: np.ndarray, blocks: int, test: str, *, force: 
     * Otherwise (other methods, no training range, or ``force``): a model trained from scratch
       on the window's other blocks.
 
-    Returns the prediction over all rows of ``d`` and a sentence saying how it was made."""
+    Returns the prediction over all rows of ``d`` and a sentence saying how it was made
+    (``said``: what the blocks are, :func:`held_out_said`; default ``blocks`` time blocks)."""
+    said = said or f"{blocks} time blocks"
     trained = _training_range(rb)
     idx = d.index
     outside = trained is not None and len(idx) and (trained[1] <= idx[0] or trained[0] > idx[-1])
@@ -347,7 +397,7 @@ def held_out(rb, model, d, block: np.ndarray, blocks: int, test: str, *, force: 
     exact = getattr(model, "method", None) == "wm-avg" and hasattr(model, "without")
     if force or trained is None or not exact:
         return _cross_fitted(rb, d.X, d.y, block, blocks, test), (
-            f"cross-fitted: retrained without each of {blocks} time blocks"
+            f"cross-fitted: retrained without each of {said}"
         )
     n = len(d.y)
     parts = []
@@ -367,7 +417,7 @@ def held_out(rb, model, d, block: np.ndarray, blocks: int, test: str, *, force: 
                 unseen += 1  # the block's samples were never in the model
         parts.append((held, rb.predictor(fold).predict_detail(d.X[held])))
     pred = _assemble(n, parts)
-    how = f"cross-fitted: the model without each of {blocks} time blocks"
+    how = f"cross-fitted: the model without each of {said}"
     if unseen:
         how += f" ({unseen} block(s) never in the model: its own prediction there)"
     return pred, how
@@ -478,6 +528,7 @@ def learn_thresholds(
     mapper: Mapper | None = None,
     points: pd.DataFrame | None = None,
     runs: np.ndarray | None = None,
+    whole: np.ndarray | None = None,
 ) -> Learned:
     """Thresholds of every test of ``unit`` from a window the user declares fault-free
     (``frames``: consecutive pieces of it), holding the unit to ``far`` false alarms per hour
@@ -493,7 +544,8 @@ def learn_thresholds(
     sample's nearest point and its scale and covariance are the pooled within-point ones
     (:func:`learn_combined`). ``runs``: each row's run (of the window ``frames`` make), where
     the caller knows them — accept's windows, however close in time — instead of runs found
-    from gaps of more than :data:`RUN_GAP` rows (:func:`block_of`)."""
+    from gaps of more than :data:`RUN_GAP` rows; ``whole``: the rows of runs held out whole
+    (:func:`block_of`)."""
     if blocks < 0 or blocks == 1:
         raise LearnError([f"blocks must be 0 (no cross-fitting) or at least 2, got {blocks}"])
     frame = _window(frames)
@@ -509,7 +561,7 @@ def learn_thresholds(
                     [f"test {t.name}: the maximum of {out} over the window is not positive"]
                 )
             t.ymax = ymax[t.name] = m
-    res = test_residuals(unit, frame, blocks, cross_fit, mapper, by_run, runs)
+    res = test_residuals(unit, frame, blocks, cross_fit, mapper, by_run, runs, whole)
     problems = _check(res, unit)
     if problems:
         raise LearnError(problems)
@@ -526,7 +578,7 @@ def learn_thresholds(
     lp = {}
     if unit.ev["combined"] or unit.ev["isolation"] == "tags":
         blocked = block_of(frame.index, max(blocks, 1), data if by_run else None,
-                           by_run == WITHIN_RUNS, runs if by_run else None)  # fmt: skip
+                           by_run == WITHIN_RUNS, runs if by_run else None, whole)  # fmt: skip
         lp = level_points(unit, frame, res, at, keep, blocked)
     # each test's residual, in units of its model's local spread where the model has one,
     # divided by the scale of the level that answered

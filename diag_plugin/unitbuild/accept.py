@@ -226,6 +226,26 @@ def _joined(
     return out.iloc[order], run[order].astype(np.int64)
 
 
+def old_runs(frame: pd.DataFrame, window: np.ndarray, new: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's run for the cross-fitting of :func:`_joined`'s frame (``window``: each
+    row's window, ``new`` the accepted one's): the old windows split into their runs at gaps
+    of more than ``RUN_GAP`` rows, as their build found them, and held out whole as it held
+    them (``whole``, :func:`~diag_plugin.learn.thresholds.block_of`); the accepted window one
+    run, cut in spans. Before, each old window was one run cut in 5 spans: the pumping
+    station's I_M2 high re-learned +2.42 where the build's way gave +10.40 on the same unit
+    and rows (docs/explanation/acceptance-pumps.md)."""
+    from diag_plugin.learn.thresholds import runs_of
+
+    data = frame.notna().any(axis=1).to_numpy()
+    out = np.zeros(len(window), np.int64)
+    nxt = 0
+    for w in np.unique(window):
+        rows = np.flatnonzero(window == w)
+        out[rows] = nxt + (runs_of(data[rows]) if w != new else 0)
+        nxt = int(out[rows].max()) + 1
+    return out, window != new
+
+
 def accept(
     unit,
     read: Reader,
@@ -335,17 +355,19 @@ def accept(
         # each window an operating point of the combined test: its mean of every tag
         points = pd.DataFrame([window(a, b).mean() for a, b in windows])
         points = points.rename(columns={k: v for k, v in fresh.file.tags.items()})
+        k = windows.index((start, end))
+        split, whole = old_runs(frame, runs, k)
         try:
             learned = learn_thresholds(
-                fresh, [frame], far=far, by_run=WITHIN_RUNS, points=points, runs=runs
-            )
+                fresh, [frame], far=far, by_run=WITHIN_RUNS, points=points, runs=split,
+                whole=whole,
+            )  # fmt: skip
         except LearnError as exc:
             raise UserError(
                 f"unit {unit.name}: cannot learn thresholds:\n"
                 + "\n".join("  " + p for p in exc.problems)
             ) from None
         learned.window = (windows[0][0].isoformat(), windows[-1][1].isoformat())
-        k = windows.index((start, end))
         res.kept = never_narrower(learned, uf, pd.Series(runs != k, index=frame.index))
         out = UnitFile.load(uf.path)
         out.set_learned(learned)
