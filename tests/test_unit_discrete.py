@@ -124,29 +124,20 @@ def test_a_tag_of_more_than_two_values_is_not_a_state(values):
     assert two_states(np.asarray(values, float)) is None
 
 
-@pytest.mark.parametrize("listed", [True, False], ids=["states-listed", "built-before-the-list"])
-def test_after_accept_a_discrete_state_is_still_never_named(tmp_path, listed):
+def test_after_accept_a_discrete_state_is_still_never_named(tmp_path):
     """``diag unit accept`` of a fault-free day, then pump 2 worn: no alarm sample names the
-    run feedback (top1..3, faults). ``built-before-the-list``: a unit file whose
-    ``[build.skipped]`` says RUN2 is a discrete state but without ``[build] states`` (built
-    before the list was written, as the pumping station's unit of the acceptance pass, which
-    named ``PMP1_ON`` first on 34 of 113 alarm samples the day after its accept); fails on main,
-    where only ``[build] states`` kept a state from being named."""
-    import re
+    run feedback (top1..3, faults): accept keeps the file's ``[build] states``."""
 
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.unitbuild.accept import accept, reader
 
     built = _station(4, 1)
     res = build_unit("station", built, folder=tmp_path, period="60s", far=0.01)
-    if not listed:
-        text = res.path.read_text(encoding="utf-8")
-        res.path.write_text(re.sub(r"(?m)^states = .*\n", "", text), encoding="utf-8")
     day = _station(6, 3).iloc[4 * 1440 : 5 * 1440]  # a later fault-free day, unseen
     read = reader(pd.concat([built, day]))
     accept(Unit.load(res.path, tmp_path), lambda a, b: [read(a, b)], day.index[0], day.index[-1])
     unit = Unit.load(res.path, tmp_path)
-    assert ("states" in unit.file.build) is listed  # accept keeps the file's [build] as it was
+    assert "states" in unit.file.build  # accept keeps the file's [build] as it was
     d = unit.reset().evaluate(_station(2, 7, worn=0.25))
     on = 1440
     alarm = d.detected.to_numpy()[on:] == 1

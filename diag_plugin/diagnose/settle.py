@@ -158,15 +158,13 @@ def hand_valves(unit: Any) -> list[SettleLoop]:
 
 
 def state_tags(unit: Any) -> list[SettleLoop]:
-    """The discrete states of ``unit`` (``unittags.declared_states``, model tag names) its
-    models read, as the guard watches them: a change beyond :data:`STATE_BAND_SHARE` of the
-    range its models learned it in (the union over the tests reading it), to a value within
-    it."""
+    """The discrete states of ``unit`` (``[build] states``, model tag names) its models read,
+    as the guard watches them: a change beyond :data:`STATE_BAND_SHARE` of the range its
+    models learned it in (the union over the tests reading it), to a value within it."""
     from diag_plugin.diagnose.operating import learned_ranges
-    from diag_plugin.diagnose.unittags import declared_states
 
     read = set(unit.model_tags)
-    states = [x for x in declared_states(unit.file.build) if x in read]
+    states = [str(x) for x in (unit.file.build or {}).get("states", []) if str(x) in read]
     if not states:
         return []
     ranges = learned_ranges(unit.models, unit.tests)

@@ -159,29 +159,13 @@ def hand_valves(unit) -> set[str]:
     return {unit.file.tags.get(t, t) for t in getattr(unit.file, "manual", {})}
 
 
-#: how ``[build.skipped]`` says a tag is a discrete state (``diag unit build``)
-DISCRETE_WHY = "a discrete state"
-
-
-def declared_states(build: dict | None) -> list[str]:
-    """The discrete states of a unit file's ``[build]`` table (model tag names): its
-    ``states``; in a file built before that list was written, the tags ``[build.skipped]``
-    says are a discrete state (the pumping station's unit of docs/explanation/
-    acceptance-pumps.md, built so and accepted into: it named ``PMP1_ON`` first on 34 of the
-    next day's 113 alarm samples at 4.8 bar)."""
-    build = build or {}
-    if "states" in build:
-        return [str(x) for x in build["states"]]
-    skipped = build.get("skipped") or {}
-    return [str(t) for t, why in skipped.items() if str(why).startswith(DISCRETE_WHY)]
-
-
 def states(unit) -> set[str]:
-    """The discrete states the unit file declares (:func:`declared_states`, plant names: a
-    pump's run feedback, which ``diag unit build`` does not test): a mode of the plant, read
-    by the tests as any input but never a tag at fault — a worn pump is named on its motor's
-    current and the speed, not on the feedback that says it runs."""
-    return {unit.file.tags.get(x, x) for x in declared_states(unit.file.build)}
+    """The discrete states the unit file declares (``[build] states``, plant names: a pump's
+    run feedback, which ``diag unit build`` does not test): a mode of the plant, read by the
+    tests as any input but never a tag at fault — a worn pump is named on its motor's current
+    and the speed, not on the feedback that says it runs."""
+    build = unit.file.build or {}
+    return {unit.file.tags.get(str(x), str(x)) for x in build.get("states", [])}
 
 
 def set_points(unit) -> set[str]:

@@ -69,7 +69,7 @@ import pandas as pd
 import tomlkit
 
 from diag_plugin.diagnose.manual import MARGIN_SAYS, ManualSpan, learned_span
-from diag_plugin.diagnose.unittags import DISCRETE_WHY, is_set_point
+from diag_plugin.diagnose.unittags import is_set_point
 from diag_plugin.learn.thresholds import DEFAULT_BLOCKS, block_of
 from diag_plugin.models.spec import Variable
 from diag_plugin.regressors import InputSpec
@@ -130,6 +130,8 @@ MIN_GOOD_SHARE = 0.5
 #: state (a pump's run feedback, a limit switch): the rest are grid points a switch fell
 #: within and the grid averaged (docs/reference/historian.md, "Aligned windows")
 DISCRETE_SHARE = 0.99
+#: how ``[build.skipped]`` says a tag is a discrete state
+DISCRETE_WHY = "a discrete state"
 #: grid points a window needs (a window under short.SHORT_ROWS is built as a short one, see
 #: :mod:`diag_plugin.unitbuild.short`)
 MIN_ROWS = short.MIN_ROWS
