@@ -25,7 +25,8 @@ alarm: the unit's judgement goes on.
   least the on-delay) of the step, else the settle closes unused.
 - **It ends** when the loop test's residual has been inside its thresholds with no test (nor
   the combined test) on for the quiet time — the longest history a test reads (its model's
-  longest lag; a spread test's window) plus the on-delay — or ``settle_max_s`` after the
+  longest lag; a spread test's window), plus the residual filter's delay (its step response
+  to 95 %: :func:`filter_samples`), plus the on-delay — or ``settle_max_s`` after the
   sample the set-point left its hold (the unit file's ``[evaluation]``, written by ``diag
   unit build`` from the window's own steps, :func:`~diag_plugin.unitbuild.loops.settle_max`),
   whichever is first. A fault that persists past it is the unit's alarm again (FAILURE). A
@@ -210,15 +211,43 @@ def settle_guard(unit: Any) -> SettleGuard | None:
     return SettleGuard(loops, max_n, quiet_samples(unit), unit.period_s, unit.ev["on_delay"])
 
 
+#: the residual filter's delay: samples its step response takes to reach this share of the
+#: step (a residual's jump just past a threshold crosses it about then)
+FILTER_REACH = 0.95
+
+
+def filter_samples(wn: float, order: int) -> int:
+    """Samples the unit's residual low-pass (Butterworth ``order``, cut-off ``wn`` of Nyquist,
+    :class:`~diag_plugin.diagnose.residuals.LowPass`) takes from a residual's step to
+    :data:`FILTER_REACH` of it (0: no filter). At 1 min (``wn`` 0.2, order 4) 7 samples;
+    at 1 s (0.01) 133."""
+    if not wn or wn <= 0:
+        return 0
+    from scipy.signal import butter, sosfilt
+
+    n = int(np.ceil(40.0 / wn))  # well past the step response's rise at any cut-off
+    step = sosfilt(butter(int(order), float(wn), output="sos"), np.ones(n))
+    return int(np.argmax(step >= FILTER_REACH))
+
+
 def quiet_samples(unit: Any) -> int:
     """Samples a settle needs without a symptom to end: the longest history a test reads
-    (its model's longest lag; a spread test's window) plus the on-delay (at least 1)."""
+    (its model's longest lag; a spread test's window), plus the residual filter's delay
+    (:func:`filter_samples`: a residual that moves at the last sample a test reads is
+    filtered up to its threshold that much later), plus the on-delay (at least 1)."""
+    return max(1, sum(quiet_parts(unit)))
+
+
+def quiet_parts(unit: Any) -> tuple[int, int, int]:
+    """The quiet time's parts in samples: the longest history a test reads, the residual
+    filter's delay, the on-delay."""
     from diag_plugin.diagnose.unitloops import spread_samples
 
     depth = int(unit.test_depth.max(initial=0))
     if len(unit.spread_cols):
         depth = max(depth, spread_samples(unit.ev["spread_window_s"] or 600.0, unit.period))
-    return max(1, depth + int(unit.ev["on_delay"]))
+    lag = filter_samples(unit.ev["lowpass"], unit.ev["order"])
+    return depth, lag, int(unit.ev["on_delay"])
 
 
 @numba.njit(cache=True)

@@ -255,7 +255,7 @@ SETTLE_BAND = 0.05
 #: settle_max_s: this many times the median settling time of the window's own steps
 SETTLE_FACTOR = 2.0
 #: without a step in the window: this many times the settle's quiet time (the longest lag
-#: the models read plus the on-delay)
+#: the models read, the residual filter's delay, the on-delay)
 SETTLE_FALLBACK = 4.0
 
 
@@ -268,7 +268,8 @@ def settle_max(unit, frame) -> tuple[float, str]:
     over the window, the loop's steady offset) is back within :data:`SETTLE_BAND` of the
     step (the classic settling time's band; the error's own noise, 3 robust standard
     deviations, where that is wider) and stays there for the guard's quiet time (the
-    longest history a test reads — its lags, a spread test's window — plus the on-delay); a
+    longest history a test reads — its lags, a spread test's window —, the residual filter's
+    delay and the on-delay); a
     step the window ends (or the next step comes) before that is not counted.
     ``settle_max_s`` is :data:`SETTLE_FACTOR` × the median of those settling times plus the
     quiet time (the guard ends a settle only after it); with none, :data:`SETTLE_FALLBACK` ×
@@ -297,7 +298,7 @@ def settle_max(unit, frame) -> tuple[float, str]:
         at = _settled(np.abs(e) <= tol, i, end, quiet)
         if at is not None:
             times.append(at * unit.period_s)
-    return _max_and_how("settle_max_s", "set-point step", times, quiet * unit.period_s)
+    return _max_and_how("settle_max_s", "set-point step", times, unit)
 
 
 def manual_settle_max(unit, frame) -> tuple[float, str]:
@@ -366,13 +367,13 @@ def _free_settle_max(unit, frame, kind: str) -> tuple[float, str]:
         # a step that never settled before the next is censored: with most of them so, the
         # median settling time is beyond what the window shows (the fallback, not the median
         # of the few that did: those are the quick ones)
-        value, how = _max_and_how(key, what, [], quiet * unit.period_s)
+        value, how = _max_and_how(key, what, [], unit)
         return value, how.replace(
             f"no {what} settled in the window",
             f"{len(times)} of the window's {moved} {what}s settled (fewer than half: their "
             "median settling time is not known)",
         )
-    return _max_and_how(key, what, times, quiet * unit.period_s)
+    return _max_and_how(key, what, times, unit)
 
 
 def _window_steps(unit, frame) -> tuple[list, int]:
@@ -410,23 +411,31 @@ def _settled(ok, i: int, end: int, quiet: int) -> int | None:
     return int(at[0]) if at.size else None
 
 
-def _max_and_how(key: str, what: str, times: list[float], quiet_s: float) -> tuple[float, str]:
+def _max_and_how(key: str, what: str, times: list[float], unit) -> tuple[float, str]:
     """The guard's longest settle from the window's settling times (seconds), in words."""
     import numpy as np
 
+    from diag_plugin.diagnose.settle import quiet_parts
+
+    depth, lag, delay = quiet_parts(unit)
+    quiet_s = max(1, depth + lag + delay) * unit.period_s
+    quiet = (
+        f"({quiet_s:.0f} s: the longest history a test reads, {depth} samples, plus the "
+        f"residual filter's delay, {lag} (its step response to 95 %: order "
+        f"{unit.ev['order']}, cut-off {unit.ev['lowpass']:g} of Nyquist), plus the on-delay, "
+        f"{delay})"
+    )
     if times:
         med = float(np.median(times))
         value = SETTLE_FACTOR * med + quiet_s
         how = (
             f"{key} = {value:.0f} s: {SETTLE_FACTOR:g} × the median settling time "
-            f"({med:.0f} s) of {len(times)} {what}(s) in the window, plus the quiet "
-            f"time ({quiet_s:.0f} s: the longest history a test reads plus the on-delay)"
+            f"({med:.0f} s) of {len(times)} {what}(s) in the window, plus the quiet time {quiet}"
         )
     else:
         value = SETTLE_FALLBACK * quiet_s
         how = (
             f"{key} = {value:.0f} s: no {what} settled in the window; "
-            f"{SETTLE_FALLBACK:g} × the quiet time ({quiet_s:.0f} s: the longest history "
-            "a test reads plus the on-delay)"
+            f"{SETTLE_FALLBACK:g} × the quiet time {quiet}"
         )
     return float(f"{value:.6g}"), how
