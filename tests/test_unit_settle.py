@@ -67,6 +67,24 @@ def test_the_build_says_what_it_chose(heater):
     assert [lp.sp for lp in unit.settle.loops] == ["HEAT_TGT", "FLOW_SP"]
 
 
+def test_steps_that_do_not_settle_are_censored_not_dropped(heater):
+    """A step the window (or the next step) cuts off before it settles is censored: where
+    fewer than half of the judged steps settled, their median is unknown and the build falls
+    back to 4 × the quiet time instead of the median of the few that did (1 of 3: the
+    fallback; 2 of 3: their median); the heater's whole window: its steps' median."""
+    from diag_plugin.unitbuild.loops import SETTLE_FALLBACK, _max_and_how, settle_max
+
+    _, unit, _, _, _ = heater
+    value, how = settle_max(unit, unit.window)
+    assert "× the median settling time" in how and value == unit.ev["settle_max_s"]
+    fallback, said = _max_and_how("settle_max_s", "set-point step", [600.0], 3, unit)
+    assert "1 of the window's 3 set-point steps settled" in said, said
+    none, _ = _max_and_how("settle_max_s", "set-point step", [], 3, unit)
+    assert fallback == none and "4 × the quiet time" in said.replace(f"{SETTLE_FALLBACK:g}", "4")
+    kept, said2 = _max_and_how("settle_max_s", "set-point step", [600.0, 700.0], 3, unit)
+    assert "median settling time (650 s) of 2" in said2 and kept != fallback
+
+
 @pytest.mark.parametrize("seed", [2, 3])
 def test_an_operators_step_is_check_function_not_an_alarm(heater, seed):
     """Unseen seeds, several steps a day: main raises an alarm at (nearly) every step; with

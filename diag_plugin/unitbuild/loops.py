@@ -284,12 +284,14 @@ def settle_max(unit, frame) -> tuple[float, str]:
         return 0.0, ""
     steps, quiet = _window_steps(unit, frame)
     times: list[float] = []
+    judged = 0  # steps whose settling was looked for (settled or not)
     for lp, a, b, i, end in steps:
         if lp.kind != "loop":
             continue
         out = parse_specs([unit.models[unit.tests[lp.test]].output])[0].tags[0]
         if out not in frame.columns:
             continue
+        judged += 1
         e = frame[out].to_numpy(float) - frame[lp.sp].to_numpy(float)
         e = e - np.nanmedian(e)
         # settled: within 5 % of the step (the classic settling band), or the error's
@@ -298,7 +300,7 @@ def settle_max(unit, frame) -> tuple[float, str]:
         at = _settled(np.abs(e) <= tol, i, end, quiet)
         if at is not None:
             times.append(at * unit.period_s)
-    return _max_and_how("settle_max_s", "set-point step", times, unit)
+    return _max_and_how("settle_max_s", "set-point step", times, judged, unit)
 
 
 def manual_settle_max(unit, frame) -> tuple[float, str]:
@@ -363,17 +365,7 @@ def _free_settle_max(unit, frame, kind: str) -> tuple[float, str]:
             at = _settled(~(np.abs(e) > tol).any(axis=1), i, end, quiet)
             if at is not None:
                 times.append(at * unit.period_s)
-    if 2 * len(times) < moved:
-        # a step that never settled before the next is censored: with most of them so, the
-        # median settling time is beyond what the window shows (the fallback, not the median
-        # of the few that did: those are the quick ones)
-        value, how = _max_and_how(key, what, [], unit)
-        return value, how.replace(
-            f"no {what} settled in the window",
-            f"{len(times)} of the window's {moved} {what}s settled (fewer than half: their "
-            "median settling time is not known)",
-        )
-    return _max_and_how(key, what, times, unit)
+    return _max_and_how(key, what, times, moved, unit)
 
 
 def _window_steps(unit, frame) -> tuple[list, int]:
@@ -411,8 +403,12 @@ def _settled(ok, i: int, end: int, quiet: int) -> int | None:
     return int(at[0]) if at.size else None
 
 
-def _max_and_how(key: str, what: str, times: list[float], unit) -> tuple[float, str]:
-    """The guard's longest settle from the window's settling times (seconds), in words."""
+def _max_and_how(key: str, what: str, times: list[float], judged: int, unit) -> tuple[float, str]:
+    """The guard's longest settle from the settling times (seconds) of the window's
+    ``judged`` steps, in words. A step that did not settle before the next (or the window's
+    end) is censored: where fewer than half settled, their median settling time is beyond
+    what the window shows and the median of the few that did stands for nothing, so the
+    fallback (:data:`SETTLE_FALLBACK` × the quiet time) is used, as with none."""
     import numpy as np
 
     from diag_plugin.diagnose.settle import quiet_parts
@@ -425,7 +421,7 @@ def _max_and_how(key: str, what: str, times: list[float], unit) -> tuple[float, 
         f"{unit.ev['order']}, cut-off {unit.ev['lowpass']:g} of Nyquist), plus the on-delay, "
         f"{delay})"
     )
-    if times:
+    if times and 2 * len(times) >= judged:
         med = float(np.median(times))
         value = SETTLE_FACTOR * med + quiet_s
         how = (
@@ -434,8 +430,11 @@ def _max_and_how(key: str, what: str, times: list[float], unit) -> tuple[float, 
         )
     else:
         value = SETTLE_FALLBACK * quiet_s
-        how = (
-            f"{key} = {value:.0f} s: no {what} settled in the window; "
-            f"{SETTLE_FALLBACK:g} × the quiet time {quiet}"
+        settled = (
+            f"{len(times)} of the window's {judged} {what}s settled (fewer than half: their "
+            "median settling time is not known)"
+            if times
+            else f"no {what} settled in the window"
         )
+        how = f"{key} = {value:.0f} s: {settled}; {SETTLE_FALLBACK:g} × the quiet time {quiet}"
     return float(f"{value:.6g}"), how
