@@ -87,7 +87,7 @@ PLANTS = {
         opts=["--loop", "TEMP=HEAT_TGT:FLOW_SP", "--loop", "FLOW=FLOW_SP:VALVE"],
     ),
     "heater": dict(
-        build=lambda: heater_run(1.0, 1),
+        build=lambda: heater_run(2.0, 1),
         free=lambda: heater_run(1.0, 2),
         fault=lambda: heater_run(1.0, 3, "steam_bias", onset_days=0.5),
         onset_s=0.5 * 86400,
