@@ -26,19 +26,22 @@ alarm: the unit's judgement goes on.
 - **It ends** when the loop test's residual has been inside its thresholds with no test (nor
   the combined test) on for the quiet time — the longest history a test reads (its model's
   longest lag; a spread test's window), plus the residual filter's delay (its step response
-  to 95 %: :func:`filter_samples`), plus the on-delay — or ``settle_max_s`` after the
-  sample the set-point left its hold (the unit file's ``[evaluation]``, written by ``diag
-  unit build`` from the window's own steps, :func:`~diag_plugin.unitbuild.loops.settle_max`),
-  whichever is first. A fault that persists past it is the unit's alarm again (FAILURE). A
-  step during a settle that has not suppressed anything restarts it (a latched one keeps its
-  end). ``settle_max_s = 0`` (unit files written before it): no guard.
+  to 95 %: :func:`filter_samples`), plus the on-delay — and the unit's alarm, held by its
+  off-delay (``off_delay_s``, 240 s: longer than a short quiet time at 1 s), has dropped —
+  or ``settle_max_s`` after the sample the set-point left its hold (the unit file's
+  ``[evaluation]``, written by ``diag unit build`` from the window's own steps,
+  :func:`~diag_plugin.unitbuild.loops.settle_max`), whichever is first. A fault that
+  persists past it is the unit's alarm again (FAILURE). A step during a settle that has not
+  suppressed anything restarts it (a latched one keeps its end). ``settle_max_s = 0`` (unit
+  files written before it): no guard.
 
 - **A hand valve's move** (its ``[manual]`` span, :mod:`~diag_plugin.diagnose.manual`;
   ``manual_settle_max_s`` > 0): the same step rule on the valve's reading (held within its
   noise margin; a jump beyond :data:`HAND_BAND_SHARE` of its learned span) **to a position
   within that span** opens a settle as a set-point step does, its why ``HAND_VALVE 49 → 43
-  at …: settling after a hand valve's move``; it ends when no test is on for the quiet time
-  (the valve has no loop error to wait for), or ``manual_settle_max_s`` after the move
+  at …: settling after a hand valve's move``; it ends when no test is on for the quiet
+  time and its alarm dropped (the valve has no loop error to wait for), or
+  ``manual_settle_max_s`` after the move
   (:func:`~diag_plugin.unitbuild.loops.manual_settle_max`). Outside the span the manual
   guard answers.
 
@@ -46,8 +49,8 @@ alarm: the unit's judgement goes on.
   a pump's or a motor's run feedback; ``state_settle_max_s`` > 0): the same step rule on the
   state's reading (held, a jump beyond :data:`STATE_BAND_SHARE` of the range the models
   learned it in, held again) opens a settle as a hand valve's move does, its why ``PMP3_ON 0
-  → 1 at …: settling after a state change``; it ends when no test is on for the quiet time,
-  or ``state_settle_max_s`` after the change
+  → 1 at …: settling after a state change``; it ends when no test is on for the quiet time
+  and its alarm dropped, or ``state_settle_max_s`` after the change
   (:func:`~diag_plugin.unitbuild.loops.state_settle_max`): ISA-18.2's state-based alarming
   (a pump's start is not an alarm; a fault that outlasts the settle is).
 
@@ -337,7 +340,10 @@ def _settle_kernel(
                 g[2] += 1
             else:
                 g[2] = 0
-            if g[2] >= quiet_n or g[1] >= max_n[j] or (g[3] == 0 and g[1] >= begin_n[j]):
+            # quiet: and a latched settle's alarm, held by the unit's off-delay, dropped
+            # (at 1 s the hold, 240 s, outlasts a short quiet time: 163 samples)
+            quiet = g[2] >= quiet_n and not (g[3] == 1 and alarm[i])
+            if quiet or g[1] >= max_n[j] or (g[3] == 0 and g[1] >= begin_n[j]):
                 g[0] = 0
                 g[3] = 0
         g[5] = 1 if alarm[i] else 0

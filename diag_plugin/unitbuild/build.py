@@ -85,9 +85,7 @@ from diag_plugin.unitbuild.loops import (
     Manual,
     checked_loops,
     checked_manual,
-    manual_settle_max,
-    settle_max,
-    state_settle_max,
+    settle_bounds,
 )
 from diag_plugin.unitbuild.parallel import DaskPool, map_tests, one_blas_thread
 from historian.errors import UserError
@@ -1151,12 +1149,8 @@ def _build_unit(
         # (diagnose/settle.py): on the unit with its thresholds
         # and after a hand valve's move or a state's change (a pump started), from the
         # window's own
-        judged = Unit(uf, unit.models, unit.matrix)
-        settles = [
-            ("settle_max_s", "settle", *settle_max(judged, frame)),
-            ("manual_settle_max_s", "manual_settle", *manual_settle_max(judged, frame)),
-            ("state_settle_max_s", "state_settle", *state_settle_max(judged, frame)),
-        ]
+        # (one pass: the window's steps found once, its residuals replayed at most once)
+        settles = settle_bounds(Unit(uf, unit.models, unit.matrix), frame)
         for key, says, value, how in settles:
             if value > 0:
                 uf.doc["evaluation"][key] = value

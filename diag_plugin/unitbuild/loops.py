@@ -259,6 +259,28 @@ SETTLE_FACTOR = 2.0
 SETTLE_FALLBACK = 4.0
 
 
+def settle_bounds(unit, frame) -> list[tuple[str, str, float, str]]:
+    """The guard's three bounds for a built unit from its window ``frame``, in one pass:
+    ``(key, the [build] note's name, value, what it rests on)`` for ``settle_max_s``
+    (:func:`settle_max`), ``manual_settle_max_s`` (:func:`manual_settle_max`) and
+    ``state_settle_max_s`` (:func:`state_settle_max`). The window's steps are found once for
+    all kinds, and its residuals replayed at most once (only where a hand valve or a state
+    stepped), as each function alone would find them: the same values and notes."""
+    from diag_plugin.diagnose.settle import hand_valves, settle_loops, state_tags
+
+    steps, quiet = _window_steps(unit, frame)
+    residuals = _Replay(unit, frame)
+    loop = _loop_settle(unit, frame, steps, quiet) if settle_loops(unit) else (0.0, "")
+    out = [("settle_max_s", "settle", *loop)]
+    for key, says, kind, found in (
+        ("manual_settle_max_s", "manual_settle", "hand", hand_valves),
+        ("state_settle_max_s", "state_settle", "state", state_tags),
+    ):
+        value = _free_settle(unit, kind, steps, quiet, residuals) if found(unit) else (0.0, "")
+        out.append((key, says, *value))
+    return out
+
+
 def settle_max(unit, frame) -> tuple[float, str]:
     """``settle_max_s`` for a built unit (:mod:`diag_plugin.diagnose.settle`) from its window
     ``frame``, and what it rests on, in words.
@@ -274,15 +296,15 @@ def settle_max(unit, frame) -> tuple[float, str]:
     ``settle_max_s`` is :data:`SETTLE_FACTOR` × the median of those settling times plus the
     quiet time (the guard ends a settle only after it); with none, :data:`SETTLE_FALLBACK` ×
     the quiet time. None of the unit's loops with a set-point tag: 0 (no guard)."""
+    return settle_bounds(unit, frame)[0][2:]
+
+
+def _loop_settle(unit, frame, steps: list, quiet: int) -> tuple[float, str]:
+    """:func:`settle_max` on the window's ``steps`` (:func:`_window_steps`)."""
     import numpy as np
 
-    from diag_plugin.diagnose.settle import settle_loops
     from diag_plugin.regressors import parse_specs
 
-    loops = settle_loops(unit)
-    if not loops:
-        return 0.0, ""
-    steps, quiet = _window_steps(unit, frame)
     times: list[float] = []
     judged = 0  # steps whose settling was looked for (settled or not)
     for lp, a, b, i, end in steps:
@@ -314,11 +336,7 @@ def manual_settle_max(unit, frame) -> tuple[float, str]:
     reading the valve: a hand valve moves what lies downstream of it (the line's outlet flow,
     whose test reads neither the valve nor the level) as much as what reads it. No hand
     valve the guard watches: 0."""
-    from diag_plugin.diagnose.settle import hand_valves
-
-    if not hand_valves(unit):
-        return 0.0, ""
-    return _free_settle_max(unit, frame, "hand")
+    return settle_bounds(unit, frame)[1][2:]
 
 
 def state_settle_max(unit, frame) -> tuple[float, str]:
@@ -330,41 +348,50 @@ def state_settle_max(unit, frame) -> tuple[float, str]:
     constant, not a state); where no change moved a residual beyond its noise or settled,
     :data:`SETTLE_FALLBACK` × the quiet time, as for a hand valve. No state the guard
     watches: 0."""
-    from diag_plugin.diagnose.settle import state_tags
-
-    if not state_tags(unit):
-        return 0.0, ""
-    return _free_settle_max(unit, frame, "state")
+    return settle_bounds(unit, frame)[2][2:]
 
 
-def _free_settle_max(unit, frame, kind: str) -> tuple[float, str]:
-    """The settle's longest time after the window's own steps of ``kind`` (``hand``,
+class _Replay:
+    """The window's residuals (less each one's median over the window) and each one's noise
+    (3 robust sd), replayed once, when first asked for."""
+
+    def __init__(self, unit, frame) -> None:
+        self.unit, self.frame, self.got = unit, frame, None
+
+    def __call__(self):
+        import numpy as np
+
+        if self.got is None:
+            r = self.unit.reset().evaluate(self.frame).residuals.to_numpy(float)
+            self.unit.reset()
+            e = r - np.nanmedian(r, axis=0)
+            self.got = e, 3 * 1.4826 * np.nanmedian(np.abs(e), axis=0)
+        return self.got
+
+
+def _free_settle(unit, kind: str, steps: list, quiet: int, residuals: _Replay):
+    """The settle's longest time after the window's own ``steps`` of ``kind`` (``hand``,
     ``state``: no loop test; every test's residual back within its band, module doc of
     :func:`manual_settle_max`), and what it rests on."""
     import numpy as np
 
     key, what = {"hand": ("manual_settle_max_s", "hand valve move"),
                  "state": ("state_settle_max_s", "state change")}[kind]  # fmt: skip
-    steps, quiet = _window_steps(unit, frame)
     times: list[float] = []
     moved = 0  # steps that moved a residual beyond its noise (settled or not)
-    if any(lp.kind == kind for lp, *_ in steps):
-        r = unit.reset().evaluate(frame).residuals.to_numpy(float)
-        unit.reset()
-        e = r - np.nanmedian(r, axis=0)
-        noise = 3 * 1.4826 * np.nanmedian(np.abs(e), axis=0)
-        for lp, _, _, i, end in steps:
-            if lp.kind != kind:
-                continue
-            # the move's own excursion: the largest within the quiet time after it
-            peak = np.nanmax(np.abs(e[i : min(i + quiet, end)]), axis=0, initial=0.0)
-            if not (peak > noise).any():
-                continue  # it moved no residual beyond its noise: tells nothing of a settle
-            moved += 1
-            tol = np.maximum(SETTLE_BAND * peak, noise)
-            at = _settled(~(np.abs(e) > tol).any(axis=1), i, end, quiet)
-            if at is not None:
-                times.append(at * unit.period_s)
+    for lp, _, _, i, end in steps:
+        if lp.kind != kind:
+            continue
+        e, noise = residuals()
+        # the move's own excursion: the largest within the quiet time after it
+        peak = np.nanmax(np.abs(e[i : min(i + quiet, end)]), axis=0, initial=0.0)
+        if not (peak > noise).any():
+            continue  # it moved no residual beyond its noise: tells nothing of a settle
+        moved += 1
+        tol = np.maximum(SETTLE_BAND * peak, noise)
+        at = _settled(~(np.abs(e) > tol).any(axis=1), i, end, quiet)
+        if at is not None:
+            times.append(at * unit.period_s)
     return _max_and_how(key, what, times, moved, unit)
 
 
