@@ -231,6 +231,26 @@ def test_loop_specs_and_their_errors(tmp_path):
     assert loops_from_tags_csv(p) == []
 
 
+def test_a_loop_tag_not_in_the_data_is_refused_with_its_file_and_line(tmp_path):
+    """A tags CSV's loop naming a tag the data do not hold (a misspelt valve) names the file
+    and the line, as its other errors do; ``--loop`` names the option. On main: `loop
+    ColPress=1.5:CW_VLV_X: tag(s) CW_VLV_X not in the data`, no file, no line (the column
+    acceptance pass, docs/explanation/acceptance-column.md)."""
+    from diag_plugin.unitbuild.loops import checked_loops
+
+    p = tmp_path / "tags.csv"
+    p.write_text(
+        "name,unit,loop,role,set_point\nP,bar,press,pv,1.5\nT,degC,,,\nCW_VLV_X,%,press,out,\n"
+    )
+    with pytest.raises(UserError, match=r"tags.csv:4: loop P=1.5:CW_VLV_X: tag\(s\) CW_VLV_X"):
+        checked_loops(loops_from_tags_csv(p), ["P", "T", "CW_VLV"])
+    with pytest.raises(UserError, match=r"--loop 'P=NO_SP:V': loop P=NO_SP:V: tag\(s\) NO_SP"):
+        checked_loops([parse_loop("P=NO_SP:V")], ["P", "V"])
+    assert checked_loops(loops_from_tags_csv(p), ["P", "CW_VLV_X"]) == [
+        Loop("P", "1.5", "CW_VLV_X")
+    ]
+
+
 def test_a_loop_naming_an_unknown_tag_is_refused(line):
     *_, g = line
     rc, text = diag(g, "unit", "build", "x", "--from", "2026-03-02", "--to", "2026-03-03",

@@ -184,3 +184,37 @@ def test_a_restart_from_the_saved_state_judges_as_without_the_restart():
         assert list(np.r_[head, tail]) == list(whole), cut
         cold = OutsideLearned(ranges).reset().transform(f.iloc[cut:], unknown[cut:], report[cut:])
         assert list(cold) != list(whole[cut:]), cut
+
+
+def test_the_input_that_left_first_is_named_not_the_first_test_in_order():
+    """A column's feed cut below any throughput learned, the steam the operators set two
+    minutes after it, the condenser valve later (the column acceptance pass,
+    docs/explanation/acceptance-column.md: `cw_valve[k-18] = 13.33 outside …` on 99.6 % of the
+    CHECK_FUNCTION samples, the feed never named, its test the fifth of the unit). Test 0
+    reads the valve, test 1 the steam, test 2 the feed two samples back: from row 6 all three
+    are unknown and outside, and the feed, which left at row 2 (read at row 4), is named.
+    Fails on main, which named the valve (the first range in order)."""
+    feed = [50.0, 50.0, 35.0, 35.0, 35.0, 35.0, 35.0, 35.0, 35.0]
+    steam = [10.0, 10.0, 10.0, 10.0, 7.0, 7.0, 7.0, 7.0, 7.0]
+    valve = [20.0, 20.0, 20.0, 20.0, 20.0, 20.0, 13.0, 13.0, 13.0]
+    f = _frame("1min", FEED=feed, STEAM=steam, CWV=valve)
+    ranges = [Range(0, "CWV", 15.0, 38.0), Range(1, "STEAM", 7.5, 12.5),
+              Range(2, "FEED", 40.0, 62.0, lag=2)]  # fmt: skip
+    unknown = np.ones((9, 3), bool)
+    ol = OutsideLearned(ranges, period_s=60.0).reset()
+    out = ol.transform(f, unknown, np.ones(9, bool))
+    t = f.index
+    assert (
+        out[6] == f"FEED[k-2] = 35 outside what the unit learned (40 … 62) since {t[4].isoformat()}"
+    )
+    assert out[8].startswith("FEED[k-2] = 35")
+    assert out[5].startswith("FEED[k-2] = 35")  # the steam (row 4) left after the feed (row 2)
+    # read at lag 0 the feed would have left at row 4 with the steam: a tie, the first in order
+    tie = OutsideLearned([ranges[1], Range(2, "FEED", 40.0, 62.0)], period_s=60.0).reset()
+    g = _frame("1min", FEED=[50, 50, 50, 50, 35, 35], STEAM=[10, 10, 10, 10, 7, 7])
+    assert tie.transform(g, np.ones((6, 3), bool), np.ones(6, bool))[5].startswith("STEAM = 7")
+    # across pieces: the feed's excursion carried from the first piece still wins
+    ol.reset()
+    ol.transform(f.iloc[:5], unknown[:5], np.ones(5, bool))
+    later = ol.transform(f.iloc[5:], unknown[5:], np.ones(4, bool))
+    assert later[1] == out[6]

@@ -1,17 +1,18 @@
 """Where a unit's tests learned to answer, and which input left it (issue 34, item 5).
 
 A test is *unknown* (the unit CHECK_FUNCTION) where its model has no rule: the plant is at an
-operating point the unit never learned. :func:`learned_ranges` gives each test's inputs the
-range its model learned — for a Wang–Mendel model the sets that carry a rule (Kościelny et
-al., eq. 5: a rule exists only where training samples fell), from the lowest such set's
-centre minus half a step to the highest's plus half a step; for a model without a rule grid
-(``linear``, ``narmax2``, ``track``) its nominal input span. :class:`OutsideLearned` names,
-per sample of CHECK_FUNCTION, the input of an unknown test that is outside its range, its
-value, and when it left (carried from piece to piece, as every stage's state is). An input read
-with a lag (``FLOW[k-595]``) is judged by the value the model reads, the one 595 samples back,
-and named so (``FLOW[k-595] = …``); the history it needs is carried too. An unknown test
-whose tags have no value is named by every tag of the unit without one and since when
-(:func:`gone_sentence`): one transmitter lost reads otherwise than the whole feed gone.
+operating point the unit never learned. :func:`learned_ranges` gives each test's inputs the range
+its model learned — for a Wang–Mendel model the sets that carry a rule (Kościelny et al., eq. 5: a
+rule exists only where training samples fell), from the lowest such set's centre minus half a step
+to the highest's plus half a step; for a model without a rule grid (``linear``, ``narmax2``,
+``track``) its nominal input span. :class:`OutsideLearned` names, per sample of CHECK_FUNCTION, the
+input of an unknown test that is outside its range, its value, and when it left (carried from piece
+to piece, as every stage's state is); of several such inputs, the one that left first (the plant
+moved there first; the others followed). An input read with a lag (``FLOW[k-595]``) is judged by the
+value the model reads, the one 595 samples back, and named so (``FLOW[k-595] = …``); the history it
+needs is carried too. An unknown test whose tags have no value is named by every tag of the unit
+without one and since when (:func:`gone_sentence`): one transmitter lost reads otherwise than the
+whole feed gone.
 """
 
 from __future__ import annotations
@@ -105,8 +106,16 @@ class OutsideLearned:
         ranges: Sequence[Range],
         names: Mapping[str, str] | None = None,
         tests: Sequence[Sequence[str]] = (),
+        period_s: float = 0.0,
+        first: Sequence[str] = (),
     ):
         self.ranges = list(ranges)
+        #: model tags named before any other outside (hand valves: the operator moved them,
+        #: the plant followed; :func:`~diag_plugin.diagnose.manual.manual_ranges`)
+        self.first = frozenset(first)
+        #: the sampling period (s): an input read ``L`` samples back left ``L`` periods
+        #: before its model reads it (:meth:`_first_out`)
+        self.period_s = float(period_s)
         self.names = dict(names or {})  # model tag → plant tag
         #: per test (by position) the model tags it reads, inputs and output
         self.test_tags = {i: frozenset(t) for i, t in enumerate(tests)}
@@ -191,11 +200,12 @@ class OutsideLearned:
     def transform(
         self, frame: pd.DataFrame | Columns, unknown: np.ndarray, report: np.ndarray
     ) -> np.ndarray:
-        """Per row a sentence (``""`` elsewhere) for the rows in ``report`` (CHECK_FUNCTION):
-        the first input of an unknown test (``unknown``: rows × tests) outside its learned
-        range, ``TAG = value outside what the unit learned (lo … hi) since T``. Advances the
-        carried start of every input's excursion. ``frame``: the piece under the models' tag
-        names, or its :class:`~diag_plugin.regressors.Columns` (read once for the unit)."""
+        """Per row a sentence (``""`` elsewhere) for the rows in ``report`` (CHECK_FUNCTION): the
+        input of an unknown test (``unknown``: rows × tests) outside its learned range that left it
+        first (:meth:`_first_out`), ``TAG = value outside what the unit learned (lo … hi) since T``.
+        Advances the carried start of every input's excursion. ``frame``: the piece under the
+        models' tag names, or its :class:`~diag_plugin.regressors.Columns` (read once for the
+        unit)."""
         read = dict.fromkeys([*self.tags, *self.watch])
         if isinstance(frame, Columns):
             cols = {t: frame.values(t) for t in read if t in frame.columns}
@@ -251,7 +261,8 @@ class OutsideLearned:
             self._combination(cols, unk, at, np.ones(at.size, bool), out, gaps)
             return out
         # every judged range at once, at the rows to name and at the piece's end: a row is
-        # named by the first range (in order) outside there whose test is unknown
+        # named by the range outside there whose test is unknown and whose input left first
+        # (:meth:`_first_out`)
         end = np.array([_last(cols, key) for key in keys], float)[col]
         with np.errstate(invalid="ignore"):  # NaN: not outside
             end_off = (end < lo) | (end > hi)
@@ -261,7 +272,7 @@ class OutsideLearned:
             xa = xa[:, col]
             cand = ((xa < lo) | (xa > hi)) & unk[:, test]
         named = cand.any(axis=1)
-        by = np.argmax(cand, axis=1)  # the first range outside, where any is
+        by = self._first_out(cols, idx, at, cand, judged)
         hits = {int(p): at[named & (by == p)] for p in np.unique(by[named])}
         for p, k in enumerate(judged):
             r = self.ranges[k]
@@ -295,6 +306,41 @@ class OutsideLearned:
                 self.since[k] = None
         self._combination(cols, unk, at[~named], ~named, out, gaps)
         return out
+
+    def _first_out(
+        self,
+        cols: Mapping,
+        idx: Sequence[pd.Timestamp] | pd.Index,
+        at: np.ndarray,
+        cand: np.ndarray,
+        judged: Sequence[int],
+    ) -> np.ndarray:
+        """Per row to name (``at``; ``cand``: rows × judged ranges outside whose test is
+        unknown) the range whose input left what it learned first: the plant moved there
+        first, the others followed (a feed cut below any throughput learned, then the steam
+        the operators set after it, then the condenser's valve). An input read ``L``
+        samples back left ``L`` periods before its excursion's start as read; an excursion
+        begun in an earlier piece left when carried; a hand valve's (:attr:`first`) before any.
+        Ties, and rows with one range outside, go to the first range in order."""
+        by = np.argmax(cand, axis=1)
+        multi = cand.sum(axis=1) > 1
+        if not multi.any():
+            return by
+        times = pd.DatetimeIndex(idx).as_unit("ns").asi8
+        left = np.full(cand.shape, np.inf)
+        for p in np.flatnonzero(cand[multi].any(axis=0)):
+            k = judged[p]
+            r = self.ranges[k]
+            rows = np.flatnonzero(cand[:, p] & multi)
+            off = _outside(cols, r.key, r.lo, r.hi)
+            starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
+            first = starts[np.searchsorted(starts, at[rows], side="right") - 1]
+            t = times[first].astype(float)
+            carried = self.since.get(k)
+            if carried is not None and off[0]:
+                t[first == 0] = float(pd.Timestamp(carried).value)
+            left[rows, p] = -np.inf if r.tag in self.first else t - r.lag * self.period_s * 1e9
+        return np.where(multi, np.argmin(left, axis=1), by)
 
     def _gaps(self, cols: Mapping, idx: Sequence[pd.Timestamp] | pd.Index, at: np.ndarray) -> tuple:
         """At the rows ``at``, the watched tags read (model tags), which have no value

@@ -573,6 +573,8 @@ class Unit:
                 manual_ranges(learned_ranges(self.models, self.tests), self.file.manual),
                 self.file.tags,
                 [self.models[t].tags for t in self.tests],
+                period_s=self.period_s,
+                first=list(self.file.manual or {}),
             )
         self.outside.reset()
         return self

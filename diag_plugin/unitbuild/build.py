@@ -513,7 +513,15 @@ def _choose_test(
     use = sel if tag in sel.vars else ctx
     k = plan.factor if use is sel else 1
     lp = declared.get(tag)
-    sp = lp.sp if lp is not None else tracked_set_point(tag, frame, list(ctx.vars), info)
+    # a set-point declared for another measurement is that loop's (one controller holds it):
+    # a tag whose numbers merely coincide with it (a feed beside a steam set-point the
+    # operators enter at the same number) is not held at it
+    theirs = {d.sp for d in declared.values() if d.pv != tag}
+    sp = (
+        lp.sp
+        if lp is not None
+        else tracked_set_point(tag, frame, [c for c in ctx.vars if c not in theirs], info)
+    )
     if lp is not None and lp.fixed is not None:
         # a fixed set-point (not a tag): the loop's error against that number
         ch = loop_test(ctx, tag, InputSpec("const", (), 0, lp.fixed), test=test)

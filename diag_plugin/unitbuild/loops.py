@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from historian.errors import UserError
@@ -56,6 +56,13 @@ class Loop:
     pv: str
     sp: str
     out: str | None = None
+    #: where each tag was declared (tag, ``tags.csv:7`` or ``--loop 'PV=SP:OUT'``), for errors
+    at: tuple[tuple[str, str], ...] = field(default=(), compare=False, repr=False)
+
+    def where(self, tag: str) -> str:
+        """Where ``tag`` of this loop was declared (``tags.csv:7``, ``--loop '…'``), or the
+        loop itself when not known."""
+        return dict(self.at).get(tag, f"loop {self}")
 
     def __str__(self) -> str:
         return f"{self.pv}={self.sp}" + (f":{self.out}" if self.out else "")
@@ -95,7 +102,8 @@ def parse_loop(text: str) -> Loop:
         raise UserError(f"--loop {text!r}: the set-point {sp!r} is not a finite number")
     if len({pv, sp, out or None} - {None}) < (3 if out else 2):
         raise UserError(f"--loop {text!r}: the measurement, set-point and output must differ")
-    return Loop(pv, sp, out or None)
+    here = f"--loop {text!r}"
+    return Loop(pv, sp, out or None, at=tuple((t, here) for t in (pv, sp, out) if t))
 
 
 def _tags_csv(path: Path):
@@ -174,7 +182,8 @@ def loops_from_tags_csv(path: str | Path) -> list[Loop]:
         if missing:
             first = min(v[1] for v in got.values())
             raise UserError(f"{path}:{first}: loop {loop} has no {' and no '.join(missing)} tag")
-        out.append(Loop(got["pv"][0], got["sp"][0], got["out"][0] if "out" in got else None))
+        at = tuple((t, f"{path}:{line}") for t, line in got.values())
+        out.append(Loop(got["pv"][0], got["sp"][0], got["out"][0] if "out" in got else None, at=at))
     return out
 
 
@@ -241,7 +250,9 @@ def checked_loops(loops: Iterable[Loop], columns: Sequence[str]) -> list[Loop]:
         sp = None if lp.fixed is not None else lp.sp
         unknown = [t for t in (lp.pv, sp, lp.out) if t and t not in have]
         if unknown:
-            raise UserError(f"loop {lp}: tag(s) {', '.join(unknown)} not in the data")
+            raise UserError(
+                f"{lp.where(unknown[0])}: loop {lp}: tag(s) {', '.join(unknown)} not in the data"
+            )
         if lp.pv in seen and seen[lp.pv] != lp:
             raise UserError(f"loop {lp}: {lp.pv} is already the measurement of loop {seen[lp.pv]}")
         if lp.pv not in seen:
