@@ -141,6 +141,7 @@ class FixedGuard:
         return self
 
     def to_state(self) -> dict[str, Any]:
+        """The carried state as JSON (each tag's run outside, its start, the samples back)."""
         return {
             "run": self.run.tolist(),
             "back": self.back.tolist(),

@@ -309,19 +309,12 @@ def constant_tags(
 
 def fixed_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:
     """The unit file's ``[fixed]`` table (docs/reference/units.md)."""
-    t = tomlkit.table()
-    t.add(
-        tomlkit.comment(
-            "written by `diag unit build`: tags constant over its window, read by no test; "
-            "outside [min - margin, max + margin] for the on-delay the unit is CHECK_FUNCTION "
-            "naming the tag (margin: the build's test of a constant, 1e-9 * max(1, |value|))"
-        )
+    return span_table(
+        spans,
+        "written by `diag unit build`: tags constant over its window, read by no test; "
+        "outside [min - margin, max + margin] for the on-delay the unit is CHECK_FUNCTION "
+        "naming the tag (margin: the build's test of a constant, 1e-9 * max(1, |value|))",
     )
-    for s in spans:
-        row = tomlkit.inline_table()
-        row.update(s.as_row())
-        t[s.tag] = row
-    return t
 
 
 def fixed_note(spans: Sequence[ManualSpan]) -> str:
@@ -1283,14 +1276,18 @@ def hand_plan(span: ManualSpan, info: Mapping[str, TagInfo]) -> str:
 
 def manual_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:
     """The unit file's ``[manual]`` table (docs/reference/units.md)."""
-    t = tomlkit.table()
-    t.add(
-        tomlkit.comment(
-            "written by `diag unit build --manual`: hand valves, never tested; min/max as the "
-            f"window learned them, margin {MARGIN_SAYS}; outside [min - margin, max + margin] "
-            "the tests reading one are unknown"
-        )
+    return span_table(
+        spans,
+        "written by `diag unit build --manual`: hand valves, never tested; min/max as the "
+        f"window learned them, margin {MARGIN_SAYS}; outside [min - margin, max + margin] "
+        "the tests reading one are unknown",
     )
+
+
+def span_table(spans: Sequence[ManualSpan], comment: str) -> tomlkit.items.Table:
+    """A table of ``{min, max, margin}`` rows under ``comment`` (``[manual]``, ``[fixed]``)."""
+    t = tomlkit.table()
+    t.add(tomlkit.comment(comment))
     for s in spans:
         row = tomlkit.inline_table()
         row.update(s.as_row())
