@@ -178,25 +178,32 @@ class FixedGuard:
         held = on.any(axis=1)
         why = np.full(len(index), "", dtype=object)
         rows = np.flatnonzero(held)
-        if rows.size:
-            said = {}
-            for i in rows.tolist():
-                key = tuple((j, val[i, j], when[i, j]) for j in np.flatnonzero(on[i]).tolist())
-                if key not in said:
-                    said[key] = "; ".join(self.sentence(j, v, w, times.tz) for j, v, w in key)
-                why[i] = said[key]
+        for j in range(len(self.tags)):  # each tag's sentences, written value by value
+            at = on[rows, j]
+            if not at.any():
+                continue
+            r = rows[at]
+            starts, inv = np.unique(when[r, j], return_inverse=True)
+            tails = [self._tail(j, w, times.tz) for w in starts.tolist()]
+            head = f"{self.plant[j]} = "
+            text = np.array([f"{head}{v:.4g}{tails[i]}"
+                             for v, i in zip(val[r, j].tolist(), inv.reshape(-1).tolist(),
+                                             strict=True)], dtype=object)  # fmt: skip
+            before = why[r]
+            why[r] = np.where(before == "", text, before + "; " + text)
         return held, why
 
-    def sentence(self, j: int, value: float, ns: int, tz) -> str:
-        """``PMP3_ON = 1 outside what the unit learned (0 over its window) since T``."""
+    def _tail(self, j: int, ns: int, tz) -> str:
+        """:meth:`sentence` after the value."""
         s = self.spans[self.tags[j]]
         when = pd.Timestamp(int(ns), tz="UTC")
         if tz is not None:
             when = when.tz_convert(tz)
-        return (
-            f"{self.plant[j]} = {value:.4g} outside what the unit learned ({learned_text(s)}) "
-            f"since {when.isoformat()}"
-        )
+        return f" outside what the unit learned ({learned_text(s)}) since {when.isoformat()}"
+
+    def sentence(self, j: int, value: float, ns: int, tz) -> str:
+        """``PMP3_ON = 1 outside what the unit learned (0 over its window) since T``."""
+        return f"{self.plant[j]} = {value:.4g}{self._tail(j, ns, tz)}"
 
 
 def apply(held: np.ndarray, status: np.ndarray, faults: np.ndarray, detected: np.ndarray) -> None:
