@@ -163,6 +163,15 @@ class FixedGuard:
         self.last = np.array([np.nan if v is None else v for v in state["last"]], float)
         return self
 
+    def idle(self, x: np.ndarray) -> bool:
+        """True when :meth:`transform` of the one row ``x`` (plant values) would hold nothing
+        and change nothing: no tag outside now nor in a run outside before (the live loop's
+        shortcut, most cycles)."""
+        if self.active.any() or self.run.any():
+            return False
+        with np.errstate(invalid="ignore"):
+            return not ((x < self.lo) | (x > self.hi)).any()
+
     def transform(self, index, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per row of ``x`` (rows × :attr:`tags`, plant values; ``index`` their times)
         whether the unit is held CHECK_FUNCTION, and why (``""`` elsewhere). Advances the

@@ -778,10 +778,12 @@ class Plant:
     def _fixed_units(self, ts, status, faults, tags, notes) -> dict[int, str]:
         """The units' constant-tag guards (:mod:`~diag_plugin.diagnose.fixed`) on this cycle,
         in place on ``status``, ``faults`` and the tags named: per unit held, the why."""
-        out = {}
-        index = pd.DatetimeIndex([ts])
+        out: dict[int, str] = {}
         for ui, (g, cols) in self._fixed.items():
-            held, why = g.transform(index, self._hist[0, cols][None, :])
+            x = self._hist[0, cols]
+            if g.idle(x):  # every tag at its value, none in a run outside: nothing to do
+                continue
+            held, why = g.transform(pd.DatetimeIndex([ts]), x[None, :])
             if held[0]:
                 status[ui], faults[ui], tags[ui], out[ui] = NE107.CHECK_FUNCTION, [], [], why[0]
                 notes[ui] = [n for n in notes[ui] if not n.startswith("tags: ")]
