@@ -79,9 +79,10 @@ def merged(a: ManualSpan, b: ManualSpan | None) -> ManualSpan:
     return ManualSpan(a.tag, min(a.min, b.min), max(a.max, b.max), max(a.margin, b.margin))
 
 
-def read_manual(table: Mapping, error, line_of) -> dict[str, ManualSpan]:
+def read_manual(table: Mapping, error, line_of, name: str = "manual") -> dict[str, ManualSpan]:
     """The ``[manual]`` table of a unit file: tag → :class:`ManualSpan`; a bad row is
-    ``error(line, what)`` and left out (``line_of(key)``: its line)."""
+    ``error(line, what)`` and left out (``line_of(key)``: its line). ``name``: the table's,
+    in the errors (``[fixed]`` has the same rows, :mod:`~diag_plugin.diagnose.fixed`)."""
     out = {}
     for tag, row in table.items():
         row = dict(row) if isinstance(row, Mapping) else None
@@ -92,10 +93,10 @@ def read_manual(table: Mapping, error, line_of) -> dict[str, ManualSpan]:
                 if isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v)
             }  # fmt: skip
         if row is None or set(row) != {"min", "max", "margin"} or len(vals) != 3:
-            error(line_of(tag), f"[manual] {tag}: must be {{ min = …, max = …, margin = … }}")
+            error(line_of(tag), f"[{name}] {tag}: must be {{ min = …, max = …, margin = … }}")
             continue
         if not (vals["min"] <= vals["max"] and vals["margin"] >= 0):
-            error(line_of(tag), f"[manual] {tag}: needs min ≤ max and margin ≥ 0")
+            error(line_of(tag), f"[{name}] {tag}: needs min ≤ max and margin ≥ 0")
             continue
         out[str(tag)] = ManualSpan(str(tag), vals["min"], vals["max"], vals["margin"])
     return out

@@ -43,6 +43,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.derived import DerivedInputs, stackable
+from diag_plugin.diagnose.fixed import FixedGuard
 from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.manual import PlantGuard
 from diag_plugin.diagnose.residuals import LowPass, supported
@@ -170,6 +171,13 @@ class Plant:
                 slots.append(
                     _Slot(ui, ti, m.model, np.array(ins, np.intp).reshape(-1, 2), out, float(scale))
                 )
+        # the tags constant over each unit's build window (fixed.py): read, never modelled
+        fixed_cols = {}
+        for ui, u in enumerate(units):
+            if (g := FixedGuard.of(u)) is not None:
+                cs = [tags.setdefault(p, len(tags)) for p in g.plant]
+                fixed_cols[ui] = (g, np.array(cs, np.intp))
+        self._fixed = fixed_cols
         n_tags = len(tags)
         for s in slots:  # the derived features' columns after the tags'
             s.inputs[:, 1] = _after(s.inputs[:, 1], n_tags)
@@ -420,6 +428,7 @@ class Plant:
             "gone": {u.name: u.outside.to_state()["gone"] for u in self._units},
             "slow": {n: self.units[n].to_state() for n in self.slow},
             "settle": {self._units[ui].name: g.to_state() for ui, (g, _) in self._settle.items()},
+            "fixed": {self._units[ui].name: g.to_state() for ui, (g, _) in self._fixed.items()},
         }
 
     def load_state(self, state: Mapping[str, Any]) -> Plant:
@@ -489,6 +498,10 @@ class Plant:
             )
         for ui, (g, _) in self._settle.items():  # states saved before it: from rest
             st = state.get("settle", {}).get(self._units[ui].name)
+            if st is not None:
+                g.load_state(st)
+        for ui, (g, _) in self._fixed.items():  # states saved before it: from rest
+            st = state.get("fixed", {}).get(self._units[ui].name)
             if st is not None:
                 g.load_state(st)
         for n in self.slow:
@@ -681,6 +694,7 @@ class Plant:
                 faults[ui] = f[0].split("|")
         det_held = self._hold_alarms(active, status, faults, tags, notes)
         settling = self._settle_units(ts, r, active, det_held, status, faults)
+        fixed = self._fixed_units(ts, status, faults, tags, notes)
         out = []
         index = self.tag_index
 
@@ -714,6 +728,8 @@ class Plant:
                 why = why[0]
             if ui in settling:  # Unit.evaluate: the settle's text first
                 why = f"{settling[ui]}; {why}" if why else settling[ui]
+            if ui in fixed:  # Unit.evaluate: a constant tag moved, its text first
+                why = f"{fixed[ui]}; {why}" if why else fixed[ui]
             msg = "; ".join([why, *notes[ui]] if why else notes[ui])
             st = NE107(int(status[ui]))
             if not self._has_th[ui]:
@@ -722,6 +738,8 @@ class Plant:
             det = None if not active[ui] and not all_known[ui] else bool(active[ui])
             if det_held[ui]:
                 det = True
+            if ui in fixed:  # the diagnosis unknown (Unit.evaluate: detected NaN)
+                det = None
             out.append(
                 UnitStatus(
                     unit=u.name,
@@ -755,6 +773,20 @@ class Plant:
             )
             if sup[0]:
                 status[ui], faults[ui], out[ui] = NE107.CHECK_FUNCTION, [], why[0]
+        return out
+
+    def _fixed_units(self, ts, status, faults, tags, notes) -> dict[int, str]:
+        """The units' constant-tag guards (:mod:`~diag_plugin.diagnose.fixed`) on this cycle,
+        in place on ``status``, ``faults`` and the tags named: per unit held, the why."""
+        out: dict[int, str] = {}
+        for ui, (g, cols) in self._fixed.items():
+            x = self._hist[0, cols]
+            if g.idle(x):  # every tag at its value, none in a run outside: nothing to do
+                continue
+            held, why = g.transform(pd.DatetimeIndex([ts]), x[None, :])
+            if held[0]:
+                status[ui], faults[ui], tags[ui], out[ui] = NE107.CHECK_FUNCTION, [], [], why[0]
+                notes[ui] = [n for n in notes[ui] if not n.startswith("tags: ")]
         return out
 
     def _hold_alarms(

@@ -46,6 +46,8 @@ import numba
 import numpy as np
 import pandas as pd
 
+from diag_plugin.diagnose.fixed import FixedGuard
+from diag_plugin.diagnose.fixed import apply as apply_fixed
 from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.manual import ManualGuard, manual_ranges
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
@@ -453,6 +455,8 @@ class Unit:
         self.manual = ManualGuard.of(models, self.tests, file.manual)
         #: the settle guard after an operator's set-point step (:mod:`~.settle`; None: off)
         self.settle: SettleGuard | None = settle_guard(self)
+        #: the tags constant over the build window (``[fixed]``): one moved, CHECK_FUNCTION
+        self.fixed: FixedGuard | None = FixedGuard.of(self)
         self.reset()
 
     # ------------------------------------------------------------ loading
@@ -514,14 +518,17 @@ class Unit:
 
     @property
     def tags(self) -> list[str]:
-        """Every tag the unit reads, by the plant's names (the file's ``[tags]`` mapping)."""
-        return [self.file.tags.get(t, t) for t in self.model_tags]
+        """Every tag the unit reads, by the plant's names (the file's ``[tags]`` mapping):
+        its models', and the tags constant over its build window (``[fixed]``)."""
+        own = [*self.model_tags, *getattr(self.file, "fixed", {})]
+        return list(dict.fromkeys(self.file.tags.get(t, t) for t in own))
 
     def _model_frame(self, frame: pd.DataFrame) -> pd.DataFrame:
         """The plant's columns under the models' tag names."""
         if not self.file.tags:
             return frame
-        return frame.rename(columns={self.file.tags.get(t, t): t for t in self.model_tags})
+        own = [*self.model_tags, *getattr(self.file, "fixed", {})]
+        return frame.rename(columns={self.file.tags.get(t, t): t for t in own})
 
     @property
     def faults(self) -> list[str]:
@@ -568,6 +575,8 @@ class Unit:
         self.seen = 0  # samples since the start (the warm-up)
         if getattr(self, "settle", None) is not None:
             self.settle.reset()
+        if getattr(self, "fixed", None) is not None:
+            self.fixed.reset()
         if not hasattr(self, "outside"):
             self.outside = OutsideLearned(
                 manual_ranges(learned_ranges(self.models, self.tests), self.file.manual),
@@ -600,6 +609,7 @@ class Unit:
             if self._last_alarm is None
             else [int(self._last_alarm[0]), self._last_alarm[1], self._last_alarm[2]],
             "settle": None if self.settle is None else self.settle.to_state(),
+            "fixed": None if self.fixed is None else self.fixed.to_state(),
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -630,6 +640,8 @@ class Unit:
                 self._last_alarm = None if last is None else (last[0], last[1], last[2])
         if self.settle is not None and state.get("settle") is not None:
             self.settle.load_state(state["settle"])  # states saved before it: from rest
+        if self.fixed is not None and state.get("fixed") is not None:
+            self.fixed.load_state(state["fixed"])  # states saved before it: from rest
         return self
 
     # ------------------------------------------------------------ stages
@@ -876,6 +888,14 @@ class Unit:
             )
         if settled is not None:
             why = prepend(why, *settled)
+        if self.fixed is not None:  # a tag constant over the build window moved
+            held, text = self.fixed.transform(frame.index, self._fixed_values(frame))
+            if held.any():
+                apply_fixed(held, status, faults, detected)
+                if top is not None:  # no tag named where the diagnosis is unknown
+                    for c, col in top.items():
+                        col[held] = "" if c.startswith("top") else np.nan
+                why = prepend(why, held, text)
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
             if self.ev["combined"] and (self.file.combined is None or self.cmodel.high is None):
@@ -898,6 +918,15 @@ class Unit:
             top=None if top is None else pd.DataFrame(top, index=idx, columns=_names(top)),
             why=pd.Series(why, index=idx),
         )
+
+    def _fixed_values(self, frame: pd.DataFrame) -> np.ndarray:
+        """The piece's values of the ``[fixed]`` tags (rows × tags; NaN where absent)."""
+        out = np.full((len(frame), len(self.fixed.tags)), np.nan)
+        for j, (t, p) in enumerate(zip(self.fixed.tags, self.fixed.plant, strict=True)):
+            c = p if p in frame.columns else t
+            if c in frame.columns:
+                out[:, j] = frame[c].to_numpy(float)
+        return out
 
     def _warming(
         self, unknown: np.ndarray, raw_known: np.ndarray

@@ -72,12 +72,22 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     [manual]             # written by `diag unit build --manual`: hand valves, never tested;
     HAND_VALVE = { min = 40.0, max = 47.0, margin = 0.0 }  # the span the unit learned
 
+    [fixed]              # written by `diag unit build`: tags constant over its window
+    PMP3_ON = { min = 0.0, max = 0.0, margin = 1e-09 }  # where it moves: CHECK_FUNCTION
+
 ``[manual]`` (written by ``diag unit build`` for a declared hand valve, widened by ``diag unit
 accept``): per hand valve (the models' tag name) the span the unit learned it in, ``min`` and
 ``max`` of the window and a ``margin`` from the data (3 × its noise); where it is outside
 ``[min − margin, max + margin]`` every test reading it is unknown and the unit
 CHECK_FUNCTION, naming the valve (:mod:`diag_plugin.diagnose.manual`). A file without the
 table: no test is made unknown by it.
+
+``[fixed]`` (written by ``diag unit build`` for a tag constant over its window that is not a
+set-point nor a hand valve, widened by ``diag unit accept``): the same rows, ``min = max`` the
+value the window held it at and ``margin`` the build's own test of a constant (``1e-9 ·
+max(1, |value|)``); no test reads the tag, but the unit does: where it is outside for the
+on-delay, the unit is CHECK_FUNCTION naming it, the value and since when, until it is back
+for the off-delay (:mod:`diag_plugin.diagnose.fixed`). A file without the table: as before.
 
 ``spread = true`` (learned per test): the test's Wang–Mendel residual is divided by the spread of
 the training outputs of the rules that answered, relative to the model's typical spread
@@ -154,6 +164,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from diag_plugin.diagnose.fixed import read_fixed
 from diag_plugin.diagnose.manual import read_manual
 from diag_plugin.rulebase.folder import UNIT_SUFFIX
 from diag_plugin.status import NE107
@@ -174,6 +185,7 @@ TABLES = (
     "combined",
     "build",
     "manual",
+    "fixed",
 )
 
 #: why a residual is unknown: the reasons ``diag unit learn`` counts (``unknown_<reason>``
@@ -494,6 +506,9 @@ class UnitFile(LinedFile):
         self.combined = self._combined(self._table("combined"))
         self.manual = read_manual(
             self._table("manual"), self.error, lambda k: self.line_of("manual", k)
+        )
+        self.fixed = read_fixed(
+            self._table("fixed"), self.error, lambda k: self.line_of("fixed", k)
         )
         self.tags: dict[str, str] = {}
         for k, v in self._table("tags").items():

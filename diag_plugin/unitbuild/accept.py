@@ -494,23 +494,31 @@ def _thin(note) -> bool:
 def widen_manual(path: Path, frame: pd.DataFrame) -> list[str]:
     """The unit file's hand-valve spans (``[manual]``, :mod:`~diag_plugin.diagnose.manual`)
     widened to hold the accepted window ``frame`` (models' tag names): ``min``/``max`` merged
-    exactly, the larger margin kept; saved when one changed. Returns what changed."""
+    exactly, the larger margin kept; and its constant tags' (``[fixed]``,
+    :mod:`~diag_plugin.diagnose.fixed`) to the values the window held them at, the margin
+    kept. Saved when one changed. Returns what changed."""
+    from diag_plugin.diagnose.fixed import widen
     from diag_plugin.diagnose.manual import learned_span, merged
     from diag_plugin.diagnose.unitfile import UnitFile
 
     uf = UnitFile.load(path)
     said = []
-    for tag, old in uf.manual.items():
-        if tag not in frame.columns:
-            continue
-        new = merged(old, learned_span(tag, frame[tag].to_numpy(float)))
-        if new == old:
-            continue
+    changed = [
+        ("manual", "hand valve", tag, old, new)
+        for tag, old in uf.manual.items()
+        if tag in frame.columns
+        and (new := merged(old, learned_span(tag, frame[tag].to_numpy(float)))) != old
+    ]
+    # the tags constant over the build window (diagnose/fixed.py): the values the accepted
+    # window held them at are learned, margin kept
+    changed += [("fixed", "constant tag", tag, uf.fixed[tag], new)
+                for tag, new in widen(uf.fixed, frame).items()]  # fmt: skip
+    for table, what, tag, old, new in changed:
         row = tomlkit.inline_table()
         row.update(new.as_row())
-        uf.doc["manual"][tag] = row
+        uf.doc[table][tag] = row
         said.append(
-            f"hand valve {tag}: span {old.min:g} … {old.max:g} (margin {old.margin:g}) → "
+            f"{what} {tag}: span {old.min:g} … {old.max:g} (margin {old.margin:g}) → "
             f"{new.min:g} … {new.max:g} (margin {new.margin:g})"
         )
     if said:

@@ -68,6 +68,7 @@ import numpy as np
 import pandas as pd
 import tomlkit
 
+from diag_plugin.diagnose.fixed import learned_text, tolerance
 from diag_plugin.diagnose.manual import MARGIN_SAYS, ManualSpan, learned_span
 from diag_plugin.diagnose.unittags import is_set_point
 from diag_plugin.learn.thresholds import DEFAULT_BLOCKS, block_of
@@ -130,6 +131,8 @@ MIN_GOOD_SHARE = 0.5
 DISCRETE_SHARE = 0.99
 #: how ``[build.skipped]`` says a tag is a discrete state
 DISCRETE_WHY = "a discrete state"
+#: how :func:`choose_tests` begins the reason of a tag constant over the window
+CONSTANT_WHY = "constant over the window"
 #: grid points a window needs (a window under short.SHORT_ROWS is built as a short one, see
 #: :mod:`diag_plugin.unitbuild.short`)
 MIN_ROWS = short.MIN_ROWS
@@ -263,8 +266,8 @@ def choose_tests(
                 f"good samples in {good.mean():.0%} of the window's grid points "
                 f"(a test needs {MIN_GOOD_SHARE:.0%})"
             )
-        elif np.ptp(v[good]) <= 1e-9 * max(1.0, float(np.abs(v[good]).max())):
-            skipped[t] = f"constant over the window ({float(v[good][0]):g})"
+        elif np.ptp(v[good]) <= tolerance(float(np.abs(v[good]).max())):
+            skipped[t] = f"{CONSTANT_WHY} ({float(v[good][0]):g})"
         elif tags is None and (is_set_point(t, info.get(t)) or t in set_points):
             skipped[t] = "a set-point (the operator's choice; kept as a candidate input)"
         elif tags is None and (two := two_states(v[good])) is not None:
@@ -275,6 +278,53 @@ def choose_tests(
         else:
             chosen.append(t)
     return chosen, skipped
+
+
+def constant_tags(
+    frame: pd.DataFrame,
+    info: Mapping[str, TagInfo],
+    set_points: Sequence[str] = (),
+    manual: Sequence[str] = (),
+) -> list[ManualSpan]:
+    """The tags constant over the window (:func:`choose_tests`' test, with enough good
+    samples) that are not a set-point nor a hand valve (their own handling: a loop's held
+    set-point, ``[manual]``), each with the value it was held at: the unit's ``[fixed]``
+    rows (:mod:`~diag_plugin.diagnose.fixed`)."""
+    out = []
+    for t in frame.columns:
+        if t in manual or t in set_points or is_set_point(t, info.get(t)):
+            continue
+        v = frame[t].to_numpy(float)
+        good = np.isfinite(v)
+        if not good.any() or good.mean() < MIN_GOOD_SHARE:
+            continue
+        x = v[good]
+        if np.ptp(x) <= tolerance(float(np.abs(x).max())):
+            lo, hi = float(x.min()), float(x.max())
+            out.append(ManualSpan(str(t), lo, hi, tolerance(float(np.abs(x).max()))))
+    return out
+
+
+def fixed_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:
+    """The unit file's ``[fixed]`` table (docs/reference/units.md)."""
+    return span_table(
+        spans,
+        "written by `diag unit build`: tags constant over its window, read by no test; "
+        "outside [min - margin, max + margin] for the on-delay the unit is CHECK_FUNCTION "
+        "naming the tag (margin: the build's test of a constant, 1e-9 * max(1, |value|))",
+    )
+
+
+def fixed_note(spans: Sequence[ManualSpan]) -> str:
+    """What the build's note says of the ``[fixed]`` rows."""
+    each = ", ".join(f"{s.tag} = {learned_text(s).removesuffix(' over its window')}"
+                     for s in spans)  # fmt: skip
+    return (
+        f"{len(spans)} tag(s) constant over the window recorded in [fixed] ({each}): read by no "
+        "test; where one is outside its value for the on-delay (beyond 1e-9 × max(1, |value|), "
+        "the build's test of a constant) the unit is CHECK_FUNCTION naming it, until it is "
+        "back for the off-delay; `diag unit accept` of a period where it moved learns it"
+    )
 
 
 def two_states(v: np.ndarray) -> tuple[float, float] | None:
@@ -1142,6 +1192,10 @@ def _build_unit(
     doc["build"]["states"] = [t for t, why in skipped.items() if why.startswith(DISCRETE_WHY)]
     if hand:
         doc["manual"] = manual_table(hand)
+    fixed = constant_tags(frame, info, [lp.sp for lp in loops], [m.tag for m in hand])
+    if fixed:
+        doc["fixed"] = fixed_table(fixed)
+        notes.append(fixed_note(fixed))
     path.write_text(tomlkit.dumps(doc), encoding="utf-8")
 
     t0 = time.perf_counter()
@@ -1224,14 +1278,18 @@ def hand_plan(span: ManualSpan, info: Mapping[str, TagInfo]) -> str:
 
 def manual_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:
     """The unit file's ``[manual]`` table (docs/reference/units.md)."""
-    t = tomlkit.table()
-    t.add(
-        tomlkit.comment(
-            "written by `diag unit build --manual`: hand valves, never tested; min/max as the "
-            f"window learned them, margin {MARGIN_SAYS}; outside [min - margin, max + margin] "
-            "the tests reading one are unknown"
-        )
+    return span_table(
+        spans,
+        "written by `diag unit build --manual`: hand valves, never tested; min/max as the "
+        f"window learned them, margin {MARGIN_SAYS}; outside [min - margin, max + margin] "
+        "the tests reading one are unknown",
     )
+
+
+def span_table(spans: Sequence[ManualSpan], comment: str) -> tomlkit.items.Table:
+    """A table of ``{min, max, margin}`` rows under ``comment`` (``[manual]``, ``[fixed]``)."""
+    t = tomlkit.table()
+    t.add(tomlkit.comment(comment))
     for s in spans:
         row = tomlkit.inline_table()
         row.update(s.as_row())
