@@ -38,10 +38,24 @@ ran ``main`` 1.7× faster than the figures above at a like load): ``--json`` 5.4
 ~4.4. The branch as it ends, at a load of 3.4–5.6: 1 row 2.32 → 2.12 CPU s, 200,000 rows 5.16
 → 4.54 (38,740 → 44,070), 1,000,000 rows 14.57 → 12.52 (68,630 → 79,890): 10.4 µs a row,
 at most ~96,000 rows per CPU s however many rows.
+
+``--rolled`` reads a second historian, ``rolled/h.db`` under ``--dir``, made once: the same
+values moved in time to end at 2026-11-08, the months before 2026-11 rolled to the Parquet cold
+store (``Historian.roll_months`` and ``vacuum``, as ``diag historian roll --vacuum`` does), the
+rest hot, as a user keeps months of history (200,000 rows: 14 months rolled, 3,840 rows hot;
+1,000,000 rows: 69 months). Its JSON is the JSON of the same rows unrolled (md5 checked once).
+Round four (branch ``i34-cli5``: no garbage collection during the command's start-up, then
+``gc.freeze()``; the intervals' times written at once), 5 pairs interleaved against ``main``,
+each a ``git archive`` snapshot, medians: 200,000 rows 7.44 → 6.21 CPU s hot (26,870 → 32,190
+rows per CPU s, load 12–13), 7.57 → 6.15 rolled (26,420 → 32,520, load 9–10); 1,000,000 rows
+18.24 → 18.10 hot (pairs' median ratio 0.95, load 6–13), 15.85 → 14.88 rolled (63,090 →
+67,200, load 4–6). The rolled months halve the read (1,000,000 rows: 7.8 → 4.0 CPU s), but
+100,000 rows per CPU s is not reached hot or rolled at either size on this machine: at
+1,000,000 rows rolled the replay alone took 7.3 CPU s.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
-[--tree /tmp/main --tree .]``.
+[--tree /tmp/main --tree .] [--rolled] [--rows 1000000] [-- --to 2026-06-01T00:03]``.
 """
 
 from __future__ import annotations
