@@ -582,7 +582,8 @@ def _start_up():
     collection: 0.3–0.5 CPU s of each run (4 full and ~50 middle collections during the
     imports, the unit's load and numba's first dispatch, issue 34), nothing of which
     was garbage to free, and the interpreter's exit ~0.3 s more. Collections of the objects
-    made later run as before."""
+    made later run as before. (A process that calls the command and lives on, a test run,
+    keeps what was frozen, cyclic garbage of the start-up too: a command's process ends.)"""
     import gc
 
     enabled = gc.isenabled()
