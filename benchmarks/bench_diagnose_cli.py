@@ -38,10 +38,24 @@ ran ``main`` 1.7× faster than the figures above at a like load): ``--json`` 5.4
 ~4.4. The branch as it ends, at a load of 3.4–5.6: 1 row 2.32 → 2.12 CPU s, 200,000 rows 5.16
 → 4.54 (38,740 → 44,070), 1,000,000 rows 14.57 → 12.52 (68,630 → 79,890): 10.4 µs a row,
 at most ~96,000 rows per CPU s however many rows.
+
+``--rolled`` reads a second historian, ``rolled/h.db`` under ``--dir``, made once: the same
+values moved in time to end at 2026-11-08, the months before 2026-11 rolled to the Parquet cold
+store (``Historian.roll_months`` and ``vacuum``, as ``diag historian roll --vacuum`` does), the
+rest hot, as a user keeps months of history (200,000 rows: 14 months rolled, 3,840 rows hot;
+1,000,000 rows: 69 months). Its JSON is the JSON of the same rows unrolled (md5 checked once).
+Round four (branch ``i34-cli5``: no garbage collection during the command's start-up, then
+``gc.freeze()``; the intervals' times written at once), 5 pairs interleaved against ``main``,
+each a ``git archive`` snapshot, medians: 200,000 rows 7.44 → 6.21 CPU s hot (26,870 → 32,190
+rows per CPU s, load 12–13), 7.57 → 6.15 rolled (26,420 → 32,520, load 9–10); 1,000,000 rows
+18.24 → 18.10 hot (pairs' median ratio 0.95, load 6–13), 15.85 → 14.88 rolled (63,090 →
+67,200, load 4–6). The rolled months halve the read (1,000,000 rows: 7.8 → 4.0 CPU s), but
+100,000 rows per CPU s is not reached hot or rolled at either size on this machine: at
+1,000,000 rows rolled the replay alone took 7.3 CPU s.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
-[--tree /tmp/main --tree .]``.
+[--tree /tmp/main --tree .] [--rolled] [--rows 1000000] [-- --to 2026-06-01T00:03]``.
 """
 
 from __future__ import annotations
@@ -50,6 +64,7 @@ import argparse
 import hashlib
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -59,8 +74,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 NAME = "replay"
 
-#: the stage timer: runs ``diag`` in this process with its functions wrapped (imports of the
-#: modules ``diagnose`` uses first, each stage's CPU seconds to stderr as one JSON line)
+#: the stage timer: runs ``diag`` in this process with its functions wrapped, each stage's CPU
+#: seconds to stderr as one JSON line; "imports" is the process's CPU until the command loads
+#: the unit (the wrapper imports nothing of the command's ahead of it: the command's own
+#: start-up, garbage collection included, is what is timed)
 WRAPPER = r"""
 import json, resource, sys, time, threading
 def cpu():
@@ -69,37 +86,20 @@ def cpu():
 import diag_plugin.cli as dc
 import diag_plugin.diagnose.cli as cli
 st = {"read": 0.0, "replay": 0.0}
-orig = cli.cmd_diagnose
-def cmd(args):
-    import pandas, numpy, numba  # noqa: F401
-    import diag_plugin.diagnose.unit as du, diag_plugin.diagnose.leadin  # noqa: F401
-    import historian.store  # noqa: F401
+def timed(f, key, add):
+    def g(*a, **k):
+        t = time.thread_time()
+        try:
+            return f(*a, **k)
+        finally:
+            st[key] = st.get(key, 0.0) * add + time.thread_time() - t
+    return g
+orig_load = cli.load_unit
+def load_unit(*a, **k):  # the command's imports are done when it loads the unit
     st["imports"] = cpu()
-    def timed(f, key, add):
-        def g(*a, **k):
-            t = time.thread_time()
-            try:
-                return f(*a, **k)
-            finally:
-                st[key] = st.get(key, 0.0) * add + time.thread_time() - t
-        return g
-    du.Unit.evaluate = timed(du.Unit.evaluate, "replay", True)
-    cli.load_unit = timed(cli.load_unit, "load", False)
-    uf = cli.unit_frames
-    def unit_frames(*a, **k):
-        it = uf(*a, **k)
-        while True:
-            t = time.thread_time()
-            try:
-                x = next(it)
-            except StopIteration:
-                st["read"] += time.thread_time() - t
-                return
-            st["read"] += time.thread_time() - t
-            yield x
-    cli.unit_frames = unit_frames
-    cli.write_csv = timed(cli.write_csv, "csv", False)
+    import diag_plugin.diagnose.unit as du
     import historian.store as hs
+    du.Unit.evaluate = timed(du.Unit.evaluate, "replay", True)
     lock = threading.Lock()
     def pooled(f):  # the per-tag reads of a window in the historian's reader threads
         def g(*a, **k):
@@ -114,11 +114,22 @@ def cmd(args):
         return g
     hs.Historian._read_pieces = pooled(hs.Historian._read_pieces)
     hs.align_pieces = pooled(hs.align_pieces)
-    try:
-        return orig(args)
-    finally:
-        st["total_at_end"] = cpu()
-cli.cmd_diagnose = cmd
+    return timed(orig_load, "load", False)(*a, **k)
+cli.load_unit = load_unit
+uf = cli.unit_frames
+def unit_frames(*a, **k):
+    it = uf(*a, **k)
+    while True:
+        t = time.thread_time()
+        try:
+            x = next(it)
+        except StopIteration:
+            st["read"] += time.thread_time() - t
+            return
+        st["read"] += time.thread_time() - t
+        yield x
+cli.unit_frames = unit_frames
+cli.write_csv = timed(cli.write_csv, "csv", False)
 rc = dc.main(sys.argv[1:])
 st["total"] = cpu()
 print("STAGES " + json.dumps(st), file=sys.stderr)
@@ -126,11 +137,28 @@ sys.exit(rc)
 """
 
 
-def setup(folder: Path, tags: int, rows: int, period: float) -> tuple[Path, str]:
-    """The unit's folder and the historian's URL under ``folder``, made if not there."""
+#: ``--rolled``: the same rows end here (the first week of a month, kept in the database) and
+#: every month before it is rolled to the Parquet cold store, as a user's history would be
+ROLLED_END = "2026-11-08"
+ROLLED_BEFORE = "2026-11"
+
+
+def setup(
+    folder: Path, tags: int, rows: int, period: float, rolled: bool = False
+) -> tuple[Path, str]:
+    """The unit's folder and the historian's URL under ``folder``, made if not there; with
+    ``rolled`` also a historian ``rolled/h.db`` of the same values (their times moved to end
+    at :data:`ROLLED_END`) whose months before :data:`ROLLED_BEFORE` are rolled to Parquet
+    (``Historian.roll_months``, as ``diag historian roll --vacuum`` does), made once."""
     rb = folder / "rulebases"
     db = folder / "h.db"
     url = f"sqlite:///{db}"
+    if rolled:
+        cold = folder / "rolled" / "h.db"
+        if not cold.with_name("done").exists():  # else made and rolled already
+            _rolled(cold, tags, rows, period)
+        rb, _ = setup(folder, tags, rows, period)
+        return rb, f"sqlite:///{cold}"
     if (rb / f"{NAME}.unit.toml").exists() and db.exists():
         return rb, url
     from diag_plugin.simulate import coupled
@@ -142,14 +170,49 @@ def setup(folder: Path, tags: int, rows: int, period: float) -> tuple[Path, str]
     t = time.perf_counter()
     res = build_unit(NAME, train, folder=rb, period=f"{period:g}s", far=0.01)
     print(f"built {len(res.tests)} tests in {time.perf_counter() - t:.1f} s: {res.path}")
-    days = rows * period / 86400
-    frame, _ = coupled.simulate(days, period_s=period, n_tags=tags, seed=7, start="2026-06-01")
-    frame = frame.iloc[:rows]
+    frame = _frame(tags, rows, period)
     t = time.perf_counter()
     with Historian.open(url) as h:
         h.write_samples(frame)
     print(f"wrote {frame.size:,} samples in {time.perf_counter() - t:.1f} s: {db}")
     return rb, url
+
+
+def _frame(tags: int, rows: int, period: float):
+    """The bench's fault-free rows (the coupled process, seed 7, from 2026-06-01)."""
+    from diag_plugin.simulate import coupled
+
+    days = rows * period / 86400
+    frame, _ = coupled.simulate(days, period_s=period, n_tags=tags, seed=7, start="2026-06-01")
+    return frame.iloc[:rows]
+
+
+def _rolled(db: Path, tags: int, rows: int, period: float) -> None:
+    """The historian of ``--rolled``: the bench's rows moved in time to end at
+    :data:`ROLLED_END`, written, and the months before :data:`ROLLED_BEFORE` rolled."""
+    import pandas as pd
+
+    from historian.store import Historian
+
+    frame = _frame(tags, rows, period)
+    end = pd.Timestamp(ROLLED_END, tz="UTC")
+    frame.index = frame.index + (end - frame.index[-1] - pd.Timedelta(seconds=period))
+    if db.parent.exists():  # an interrupted set-up
+        shutil.rmtree(db.parent)
+    db.parent.mkdir(parents=True)
+    t = time.perf_counter()
+    with Historian.open(f"sqlite:///{db}") as h:  # the cold store beside it: h.db.cold
+        h.write_samples(frame)
+        months = h.roll_months(pd.Timestamp(f"{ROLLED_BEFORE}-01", tz="UTC"))
+        h.vacuum()
+        store = h.storage()
+    print(
+        f"wrote {frame.size:,} samples {frame.index[0]} … {frame.index[-1]} and rolled "
+        f"{len(months)} months ({store['cold_rows']:,} samples, {store['cold_bytes'] / 1e6:.0f}"
+        f" MB of Parquet; {store['db_bytes'] / 1e6:.0f} MB left in the database) in "
+        f"{time.perf_counter() - t:.1f} s: {db}"
+    )
+    db.with_name("done").touch()
 
 
 def run_once(
@@ -214,12 +277,17 @@ def main() -> int:
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--tree", action="append", help="checkout to run (repeat to interleave)")
     ap.add_argument("--no-csv", action="store_true", help="--json only (no --csv FILE)")
+    ap.add_argument(
+        "--rolled",
+        action="store_true",
+        help=f"read a historian whose months before {ROLLED_BEFORE} are rolled to Parquet",
+    )
     ap.add_argument("--warm", type=int, default=1, help="untimed runs per tree first (numba)")
     ap.add_argument("extra", nargs="*", help="more options for diag diagnose (after --)")
     a = ap.parse_args()
     folder = Path(a.dir).resolve()
     folder.mkdir(parents=True, exist_ok=True)
-    rb, url = setup(folder, a.tags, a.rows, a.period)
+    rb, url = setup(folder, a.tags, a.rows, a.period, a.rolled)
     trees = [Path(t).resolve() for t in (a.tree or [str(ROOT)])]
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; {url}")
     results: dict[Path, list[dict]] = {t: [] for t in trees}
@@ -234,7 +302,7 @@ def main() -> int:
             r = run_once(t, rb, url, outs[t], a.extra, not a.no_csv)
             results[t].append(r)
             show(f"run {k + 1} {t.name}", r)
-    for t in trees:
+    for t in trees if a.runs else ():
         rs = results[t]
         med = {key: statistics.median(r[key] for r in rs) for key in ("wall", "cpu", "rss_mb")}
         sp = {key: statistics.median(split(r["stages"])[key] for r in rs) for key in split(

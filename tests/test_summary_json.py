@@ -54,3 +54,20 @@ def test_times_in_any_zone_and_an_empty_timeline(tz):
     assert summary_text(SUMMARY, "intervals", f) == reference(SUMMARY, f)
     empty = f.iloc[:0]
     assert summary_text(SUMMARY, "intervals", empty) == reference(SUMMARY, empty)
+
+
+@pytest.mark.parametrize("unit", ["s", "ms", "us", "ns"])
+@pytest.mark.parametrize("tz", ["UTC", "Europe/Warsaw", None])
+def test_times_on_whole_seconds_and_off_them_in_any_unit(unit, tz):
+    """UTC times on whole seconds are formatted at once (issue 34): the text ``isoformat``
+    writes, in every time unit, before 1970 and far after, and a column with one time off a
+    whole second (then each time as before)."""
+    t = pd.DatetimeIndex(
+        ["1969-12-31T23:59:59", "1970-01-01", "2026-06-01T00:03:00", "2200-02-28T23:59:59"],
+        tz=tz,
+    ).as_unit(unit)
+    f = pd.DataFrame({"from": t, "to": t + pd.Timedelta("180s")}, index=pd.RangeIndex(4))
+    assert summary_text(SUMMARY, "intervals", f) == reference(SUMMARY, f)
+    if unit != "s":
+        f["to"] = f["to"] + pd.Timedelta(1, unit=unit)
+        assert summary_text(SUMMARY, "intervals", f) == reference(SUMMARY, f)

@@ -42,12 +42,32 @@ def summary_text(summary: dict[str, Any], key: str, records) -> str:
 
 
 def _times_as_text(frame):
-    """``frame`` with each time column's values as their ``isoformat()`` text (a Timestamp
-    boxed once per value, as ``to_dict`` boxes it)."""
+    """``frame`` with each time column's values as their ``isoformat()`` text: UTC times on
+    whole seconds (every interval of a replay at a period of whole seconds) formatted at once
+    (:func:`_utc_seconds`), others as before, a Timestamp boxed once per value, as ``to_dict``
+    boxes it (31,079 intervals of 1,000,000 rows: 62,158 Timestamps, issue 34)."""
     times = [c for c in frame.columns if frame[c].dtype.kind == "M"]
     if not times:
         return frame
-    return frame.assign(**{c: [t.isoformat() for t in frame[c].tolist()] for c in times})
+    out = {}
+    for c in times:
+        text = _utc_seconds(frame[c])
+        out[c] = [t.isoformat() for t in frame[c].tolist()] if text is None else text
+    return frame.assign(**out)
+
+
+def _utc_seconds(col) -> list[str] | None:
+    """``[t.isoformat() for t in col]`` for a column of UTC times on whole seconds, none
+    missing (``2026-06-01T00:03:00+00:00``); None for any other column."""
+    import numpy as np
+
+    per_s = {"s": 1, "ms": 1_000, "us": 1_000_000, "ns": 1_000_000_000}.get(col.dt.unit)
+    if str(col.dt.tz) != "UTC" or not per_s or col.isna().any():
+        return None
+    values = col.dt.tz_localize(None).to_numpy()
+    if (values.view(np.int64) % per_s).any():
+        return None
+    return [t + "+00:00" for t in np.datetime_as_string(values, unit="s").tolist()]
 
 
 def _encoded_columns(frame) -> list[list[str]] | None:
