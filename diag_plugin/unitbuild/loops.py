@@ -283,7 +283,7 @@ def settle_bounds(unit, frame) -> list[tuple[str, str, float, str]]:
     residuals = _Replay(unit, frame)
     loop = _loop_settle(unit, frame, steps, quiet) if settle_loops(unit) else (0.0, "")
     if loop[1]:
-        loop = (loop[0], loop[1] + _under_band(frame, settle_loops(unit)))
+        loop = (loop[0], loop[1] + _under_band(frame, settle_loops(unit), quiet))
     out = [("settle_max_s", "settle", *loop)]
     for key, says, kind, found in (
         ("manual_settle_max_s", "manual_settle", "hand", hand_valves),
@@ -436,13 +436,16 @@ def _window_steps(unit, frame) -> tuple[list, int]:
 UNDER_BAND_NAMED = 3
 
 
-def _under_band(frame, loops) -> str:
+def _under_band(frame, loops, quiet: int) -> str:
     """What the guard will not take for a step, in words for the ``settle_max_s`` note: the
-    window's moves of each loop's set-point from one held value to another (each held two
-    samples, within the loop's held tolerance) by no more than its loop test's band (the
-    smaller threshold, in the set-point's units; :mod:`diag_plugin.diagnose.settle`). Such a
-    move opens no settle, so its transient alarms wherever it moves a test beyond its
-    thresholds (the actuators', the spread tests'), as any other change would. ``""``: none.
+    window's jumps of each loop's set-point from one held value to another by no more than its
+    loop test's band (the smaller threshold, in the set-point's units;
+    :mod:`diag_plugin.diagnose.settle`) — held meaning within the loop's held tolerance for at
+    least ``quiet`` samples (the guard's quiet time) on either side, the jump taking at most
+    ``MOVE_SAMPLES`` between them, as an operator's entry does (a cascade set-point that
+    rests a moment and moves on is none). Such a move opens no settle, so its transient
+    alarms wherever it moves a test beyond its thresholds (the actuators', the spread
+    tests'), as any other change would. ``""``: none.
 
     An aeration basin's day/night schedule (dissolved oxygen 2.0 by day, 1.5 by night) built
     at 1 s: the DO loops' bands were 0.52 and 0.85 mg/l, the schedule's 0.5 mg/l steps none
@@ -451,17 +454,25 @@ def _under_band(frame, loops) -> str:
     step settled."""
     import numpy as np
 
+    from diag_plugin.diagnose.settle import MOVE_SAMPLES
+
     moves: dict[str, list[tuple[float, float, float]]] = {}
     for lp in loops:
         if lp.kind != "loop" or lp.sp not in frame.columns:
             continue
         x = frame[lp.sp].to_numpy(float)
         x = x[np.isfinite(x)]
-        held = np.flatnonzero(np.abs(np.diff(x)) <= lp.tol)  # x[k] held to x[k + 1]
-        v = x[held]
-        for j in np.flatnonzero(np.abs(np.diff(v)) > lp.tol):
-            if abs(v[j + 1] - v[j]) <= lp.band:
-                moves.setdefault(lp.sp, []).append((float(v[j]), float(v[j + 1]), lp.band))
+        if x.size < 2:
+            continue
+        # runs of held samples: [start, end] with every step within the tolerance
+        cut = np.flatnonzero(np.abs(np.diff(x)) > lp.tol) + 1
+        starts, ends = np.r_[0, cut], np.r_[cut - 1, x.size - 1]
+        long = ends - starts + 1 >= max(2, quiet)
+        starts, ends = starts[long], ends[long]
+        for j in range(len(starts) - 1):
+            a, b = float(x[ends[j]]), float(x[starts[j + 1]])
+            if starts[j + 1] - ends[j] - 1 <= MOVE_SAMPLES and lp.tol < abs(b - a) <= lp.band:
+                moves.setdefault(lp.sp, []).append((a, b, lp.band))
     if not moves:
         return ""
     n = sum(map(len, moves.values()))
