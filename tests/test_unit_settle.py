@@ -61,6 +61,9 @@ def test_the_build_says_what_it_chose(heater):
     assert settle > 0 and unit.settle is not None
     note = [n for n in res.notes if n.startswith("settle_max_s")]
     assert note and "3 set-point step(s) in the window" in note[0], res.notes
+    # the cascade set-point FLOW_SP rests and moves on: no operator's move within the band
+    # (held pairs alone counted 273 at 5 s; tests/test_unit_settle_band.py has a schedule's)
+    assert "within their loop test's band" not in note[0], note[0]
     assert unit.file.build["settle"] == note[0]
     # the guard watches the outer loop (its set-point a tag an operator steps) and the inner
     # one (its set-point the cascade's, which moves every sample and never steps)

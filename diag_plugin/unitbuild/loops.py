@@ -282,6 +282,8 @@ def settle_bounds(unit, frame) -> list[tuple[str, str, float, str]]:
     steps, quiet = _window_steps(unit, frame)
     residuals = _Replay(unit, frame)
     loop = _loop_settle(unit, frame, steps, quiet) if settle_loops(unit) else (0.0, "")
+    if loop[1]:
+        loop = (loop[0], loop[1] + _under_band(frame, settle_loops(unit), quiet))
     out = [("settle_max_s", "settle", *loop)]
     for key, says, kind, found in (
         ("manual_settle_max_s", "manual_settle", "hand", hand_valves),
@@ -428,6 +430,61 @@ def _window_steps(unit, frame) -> tuple[list, int]:
         after = (r for k, *_, r in found if have[k].kind == have[j].kind and r > i)
         out.append((have[j], a, b, i, next(after, len(frame))))
     return out, quiet
+
+
+#: set-points a note of moves within the band names (the rest are counted)
+UNDER_BAND_NAMED = 3
+
+
+def _under_band(frame, loops, quiet: int) -> str:
+    """What the guard will not take for a step, in words for the ``settle_max_s`` note: the
+    window's jumps of each loop's set-point from one held value to another by no more than its
+    loop test's band (the smaller threshold, in the set-point's units;
+    :mod:`diag_plugin.diagnose.settle`) — held meaning within the loop's held tolerance for at
+    least ``quiet`` samples (the guard's quiet time) on either side, the jump taking at most
+    ``MOVE_SAMPLES`` between them, as an operator's entry does (a cascade set-point that
+    rests a moment and moves on is none). Such a move opens no settle, so its transient
+    alarms wherever it moves a test beyond its thresholds (the actuators', the spread
+    tests'), as any other change would. ``""``: none.
+
+    An aeration basin's day/night schedule (dissolved oxygen 2.0 by day, 1.5 by night) built
+    at 1 s: the DO loops' bands were 0.52 and 0.85 mg/l, the schedule's 0.5 mg/l steps none
+    of them, and each fault-free day alarmed at 06:02 and 22:02 (the fourth acceptance
+    pass, docs/explanation/acceptance-aeration.md); the build said only that no set-point
+    step settled."""
+    import numpy as np
+
+    from diag_plugin.diagnose.settle import MOVE_SAMPLES
+
+    moves: dict[str, list[tuple[float, float, float]]] = {}
+    for lp in loops:
+        if lp.kind != "loop" or lp.sp not in frame.columns:
+            continue
+        x = frame[lp.sp].to_numpy(float)
+        x = x[np.isfinite(x)]
+        if x.size < 2:
+            continue
+        # runs of held samples: [start, end] with every step within the tolerance
+        cut = np.flatnonzero(np.abs(np.diff(x)) > lp.tol) + 1
+        starts, ends = np.r_[0, cut], np.r_[cut - 1, x.size - 1]
+        long = ends - starts + 1 >= max(2, quiet)
+        starts, ends = starts[long], ends[long]
+        for j in range(len(starts) - 1):
+            a, b = float(x[ends[j]]), float(x[starts[j + 1]])
+            if starts[j + 1] - ends[j] - 1 <= MOVE_SAMPLES and lp.tol < abs(b - a) <= lp.band:
+                moves.setdefault(lp.sp, []).append((a, b, lp.band))
+    if not moves:
+        return ""
+    n = sum(map(len, moves.values()))
+    named = []
+    for sp, got in list(moves.items())[:UNDER_BAND_NAMED]:
+        a, b, band = max(got, key=lambda m: abs(m[1] - m[0]))
+        named.append(f"{sp} {a:.4g} → {b:.4g}, its loop's band {band:.4g}")
+    more = ", …" if len(moves) > UNDER_BAND_NAMED else ""
+    return (
+        f"; {n} set-point move(s) within their loop test's band are not steps and open no "
+        f"settle: their transients alarm as any change ({'; '.join(named)}{more})"
+    )
 
 
 def _settled(ok, i: int, end: int, quiet: int) -> int | None:
