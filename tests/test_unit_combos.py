@@ -24,8 +24,15 @@ import pytest
 
 from diag_plugin.simulate import smallplants as sp
 from diag_plugin.status import NE107
-from tests.test_any_plant_tour import diag, fmt, import_csv
-from tests.test_unit_newstate import DAY, T0, _diagnosed, live_equals_replay, station
+from tests.test_any_plant_tour import diag, fmt
+from tests.test_unit_newstate import (
+    DAY,
+    T0,
+    _diagnosed,
+    built_on_day_0,
+    live_equals_replay,
+    station,
+)
 
 LEARNED = ["0,0,1", "1,0,0", "1,0,1", "1,1,0"]
 NIGHT = (
@@ -48,14 +55,7 @@ def exported(period: float) -> pd.DataFrame:
 def built(request, tmp_path_factory):
     """Unit ``st`` built as a user would on day 0 (pumps 1, 1 + 2, 1 + 3, 3)."""
     period = request.param
-    tmp = tmp_path_factory.mktemp(f"combos{period:g}")
-    g = ["--db", f"sqlite:///{tmp / 'h.db'}", "--rulebases", str(tmp / "rb")]
-    x = exported(period)
-    import_csv(g, x, tmp / "all.csv", "%Y-%m-%dT%H:%M:%S.%f")
-    rc, text = diag(g, "unit", "build", "st", "--from", fmt(T0), "--to", fmt(T0 + DAY),
-                    "--far", "0.01")  # fmt: skip
-    assert rc == 0, text
-    return period, g, tmp, x, text
+    return built_on_day_0(period, tmp_path_factory.mktemp(f"combos{period:g}"), exported(period))
 
 
 def test_pump_2_alone_at_night_is_named(built):

@@ -98,9 +98,13 @@ def _diagnosed(g, a: pd.Timestamp, b: pd.Timestamp, tmp) -> pd.DataFrame:
 def built(request, tmp_path_factory):
     """Unit ``st`` built as a user would on day 0 (duties 1 then 2; pump 3 never ran)."""
     period = request.param
-    tmp = tmp_path_factory.mktemp(f"newstate{period:g}")
+    return built_on_day_0(period, tmp_path_factory.mktemp(f"newstate{period:g}"), exported(period))
+
+
+def built_on_day_0(period: float, tmp, x: pd.DataFrame) -> tuple:
+    """``x`` imported into a historian in ``tmp`` and unit ``st`` built on day 0 (the CLI):
+    ``(period, the CLI's global options, tmp, x, the build's text)``."""
     g = ["--db", f"sqlite:///{tmp / 'h.db'}", "--rulebases", str(tmp / "rb")]
-    x = exported(period)
     import_csv(g, x, tmp / "all.csv", "%Y-%m-%dT%H:%M:%S.%f")
     rc, text = diag(g, "unit", "build", "st", "--from", fmt(T0), "--to", fmt(T0 + DAY),
                     "--far", "0.01")  # fmt: skip
