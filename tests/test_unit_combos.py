@@ -16,21 +16,20 @@ accepted as a user would (the CLI).
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pandas as pd
 import pytest
 
 from diag_plugin.simulate import smallplants as sp
 from diag_plugin.status import NE107
-from tests.test_any_plant_tour import diag, fmt
 from tests.test_unit_newstate import (
     DAY,
     T0,
     _diagnosed,
     built_on_day_0,
+    day_1_accepted,
     live_equals_replay,
+    same_in_pieces,
     station,
 )
 
@@ -102,27 +101,16 @@ def test_accept_learns_the_night_and_a_fault_there_is_detected(built):
     the unit answers — NORMAL — until the header pressure transmitter reads 1 bar low from
     02:00, detected (no test reads pump 2's current there: an 8 A bias of it is not, on main
     either); rollback restores the unit byte for byte."""
-    period, g, tmp, _, _ = built
-    unit_file = tmp / "rb" / "st.unit.toml"
-    before = unit_file.read_bytes()
-    rc, text = diag(g, "unit", "accept", "st", "--from", fmt(T0 + DAY), "--to",
-                    fmt(T0 + 2 * DAY), "--json")  # fmt: skip
-    assert rc == 0, text
-    res = json.loads(text)
-    assert any(w.startswith("combination(s) of RUN1, RUN2, RUN3 learned: 0,1,0 (held")
-               for w in res["warnings"]), res["warnings"]  # fmt: skip
-    try:
-        d = _diagnosed(g, T0 + 4 * DAY, T0 + 4 * DAY + pd.Timedelta(hours=6), tmp)
+    period = built[0]
+    said = "combination(s) of RUN1, RUN2, RUN3 learned: 0,1,0 (held"
+    with day_1_accepted(built, lambda w: w.startswith(said)) as diagnosed:
+        d = diagnosed(T0 + 4 * DAY, T0 + 4 * DAY + pd.Timedelta(hours=6))
         ok = d[d.index < T0 + 4 * DAY + pd.Timedelta(hours=2)]["status"]
         fault = d[d.index >= T0 + 4 * DAY + pd.Timedelta(hours=2)]["status"]
         print(f"{period:g} s day 4 night after accept: {ok.value_counts().to_dict()}, "
               f"the bias {fault.value_counts().to_dict()}")  # fmt: skip
         assert (ok == "NORMAL").mean() > 0.85, ok.value_counts()
         assert (fault.isin(["FAILURE", "OFF_SPEC"])).mean() > 0.4, fault.value_counts()
-    finally:
-        rc, text = diag(g, "unit", "rollback", "st")
-        assert rc == 0, text
-    assert unit_file.read_bytes() == before
 
 
 def _guard(on: int = 3, off: int = 4):
@@ -149,13 +137,25 @@ def test_a_switch_a_gap_and_the_return():
     assert why[9] == ("PMP1_ON = 0, PMP2_ON = 1: a combination of states the unit never "
                       "learned (it learned 1,0; 1,1) since 2026-06-02T00:00:05+00:00")  # fmt: skip
     assert why[13] == why[9] and why[14] == ""
-    g = _guard()
-    parts = []
-    for i, j in ((0, 6), (6, 11), (11, 18)):
-        g = _guard().load_state(json.loads(json.dumps(g.to_state())))
-        parts.append(g.transform(idx[i:j], x[i:j]))
-    assert np.concatenate([p[0] for p in parts]).tolist() == held.tolist()
-    assert np.concatenate([p[1] for p in parts]).tolist() == why.tolist()
+    same_in_pieces(_guard, idx, x, (0, 6, 11, 18), held, why)
     f = pd.DataFrame(x, index=idx, columns=["A", "B"])
     assert held_combos(f, ["A", "B"], 3.0) == ["1,0"]
     assert held_combos(f, ["A", "B"], 2.0) == ["0,1", "1,0"]
+
+
+def test_a_bad_states_table_is_a_file_line_problem(built, tmp_path):
+    """A ``seen`` entry that is not one number per state: ``file:line`` naming it; the
+    table without ``seen`` too; the table hand-edited right (a combination added) is read."""
+    from diag_plugin.diagnose.unitfile import UnitError, UnitFile
+
+    text = (built[2] / "rb" / "st.unit.toml").read_text()
+    assert 'seen = ["0,0,1", "1,0,0", "1,0,1", "1,1,0"]' in text
+    bad = text.replace('seen = ["0,0,1",', 'seen = ["0,1",', 1)
+    with pytest.raises(UnitError) as exc:
+        UnitFile(bad, tmp_path / "st.unit.toml")
+    line_no = bad.splitlines().index(next(s for s in bad.splitlines() if s.startswith("seen"))) + 1
+    assert f"st.unit.toml:{line_no}: [states] seen: '0,1' is not 3 numbers" in str(exc.value)
+    with pytest.raises(UnitError, match=r"\[states\] needs tags"):
+        UnitFile(text.replace('seen = ["0,0,1",', 'sen = ["0,0,1",', 1), tmp_path / "s.unit.toml")
+    edited = text.replace('seen = ["0,0,1",', 'seen = ["0,1,0", "0,0,1",', 1)
+    assert UnitFile(edited, tmp_path / "st.unit.toml").states["seen"][0] == "0,1,0"

@@ -13,6 +13,7 @@ off the grid, and imported, built, diagnosed and accepted as a user would (the C
 
 from __future__ import annotations
 
+import contextlib
 import json
 
 import numpy as np
@@ -195,17 +196,10 @@ def test_accept_learns_the_new_duty_and_a_fault_there_is_detected(built):
     what it showed, and on day 4 (pump 3 on duty again from 06:00, pump 1 assisting at the
     peaks) the unit answers — NORMAL — and pump 1's current transmitter reading 8 A more
     from noon is detected; rollback restores the unit."""
-    period, g, tmp, _, _ = built
-    unit_file = tmp / "rb" / "st.unit.toml"
-    before = unit_file.read_bytes()
-    rc, text = diag(g, "unit", "accept", "st", "--from", fmt(T0 + DAY), "--to",
-                    fmt(T0 + 2 * DAY), "--json")  # fmt: skip
-    assert rc == 0, text
-    res = json.loads(text)
-    assert any(w.startswith("constant tag RUN3: span 0 … 0") and w.endswith("0 … 1 (margin 1e-09)")
-               for w in res["warnings"]), res["warnings"]  # fmt: skip
-    try:
-        d = _diagnosed(g, T0 + 4 * DAY, T0 + 5 * DAY, tmp)
+    period = built[0]
+    with day_1_accepted(built, lambda w: w.startswith("constant tag RUN3: span 0 … 0")
+                        and w.endswith("0 … 1 (margin 1e-09)")) as diagnosed:  # fmt: skip
+        d = diagnosed(T0 + 4 * DAY, T0 + 5 * DAY)
         swap, noon = (T0 + 4 * DAY + pd.Timedelta(hours=h) for h in (6, 12))
         duty3 = d[(d.index >= swap) & (d.index < noon)]["status"]
         fault = d[d.index >= noon]["status"]
@@ -213,6 +207,23 @@ def test_accept_learns_the_new_duty_and_a_fault_there_is_detected(built):
               f"the bias {fault.value_counts().to_dict()}")  # fmt: skip
         assert (duty3 == "NORMAL").mean() > 0.9, duty3.value_counts()
         assert (fault.isin(["FAILURE", "OFF_SPEC"])).mean() > 0.5, fault.value_counts()
+
+
+@contextlib.contextmanager
+def day_1_accepted(built, said):
+    """``diag unit accept`` of day 1 (one of its warnings ``said(w)``); yields ``diagnosed(a,
+    b)`` (``diag diagnose`` of a … b), then ``diag unit rollback``: the unit file byte for
+    byte as before."""
+    _, g, tmp, _, _ = built
+    unit_file = tmp / "rb" / "st.unit.toml"
+    before = unit_file.read_bytes()
+    rc, text = diag(g, "unit", "accept", "st", "--from", fmt(T0 + DAY), "--to",
+                    fmt(T0 + 2 * DAY), "--json")  # fmt: skip
+    assert rc == 0, text
+    res = json.loads(text)
+    assert any(said(w) for w in res["warnings"]), res["warnings"]
+    try:
+        yield lambda a, b: _diagnosed(g, a, b, tmp)
     finally:
         rc, text = diag(g, "unit", "rollback", "st")
         assert rc == 0, text
@@ -238,10 +249,16 @@ def test_a_blip_a_gap_and_the_return():
     assert why[10] == ("PUMP_ON = 1 outside what the unit learned (0 over its window) since "
                        "2026-06-02T06:00:07+00:00")  # fmt: skip
     assert why[14] == why[10] and why[15] == ""
-    g = _guard()
+    same_in_pieces(_guard, idx, x[:, None], (0, 5, 11, 18), held, why)
+
+
+def same_in_pieces(make, idx, x, cuts, held, why) -> None:
+    """The guard ``make()`` over ``x`` in the pieces between ``cuts``, each a new guard
+    loaded from the last one's state through JSON: ``held`` and ``why`` as in one piece."""
+    g = make()
     parts = []
-    for a, b in ((0, 5), (5, 11), (11, 18)):
-        g = _guard().load_state(json.loads(json.dumps(g.to_state())))
-        parts.append(g.transform(idx[a:b], x[a:b, None]))
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        g = make().load_state(json.loads(json.dumps(g.to_state())))
+        parts.append(g.transform(idx[a:b], x[a:b]))
     assert np.concatenate([p[0] for p in parts]).tolist() == held.tolist()
     assert np.concatenate([p[1] for p in parts]).tolist() == why.tolist()
