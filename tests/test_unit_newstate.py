@@ -13,6 +13,7 @@ off the grid, and imported, built, diagnosed and accepted as a user would (the C
 
 from __future__ import annotations
 
+import contextlib
 import json
 
 import numpy as np
@@ -28,7 +29,7 @@ DAY = pd.Timedelta(days=1)
 
 
 def station(days: float, seed: int, bias: tuple[str, float] = ("FLOW", 0.0),
-            bias_from_h: float = 0.0) -> pd.DataFrame:  # fmt: skip
+            bias_from_h: float = 0.0, schedule: str = "rotate") -> pd.DataFrame:  # fmt: skip
     """1 s samples of a station of three pumps on one header. The duty rotates at 06:00 each
     day (pump 1 until 06:00 of day 0, then 2, from 06:00 of day 1 pump 3, from 06:00 of day 2
     pump 1 again); an assist pump starts above 290 m³/h of draw and stops below 250 (pump 1
@@ -37,7 +38,11 @@ def station(days: float, seed: int, bias: tuple[str, float] = ("FLOW", 0.0),
     pumps' common speed (%, an operator's slow moves); the header pressure the pump curve
     ``a·n² − b·(q/N)²`` (N pumps running); each running motor's current the power of its share
     of the flow (0 when a pump stands); ``RUN1``..``RUN3`` the run feedbacks (0/1). ``bias``:
-    a transmitter's (tag, bias), from hour ``bias_from_h`` of the run on."""
+    a transmitter's (tag, bias), from hour ``bias_from_h`` of the run on. ``schedule``
+    ``"night2"``: pump 1 on duty until 12:00 (pump 2 assisting at the peak), pump 3 after
+    (pump 1 assisting), but from day 1 on pump 2 on duty from 00:00 to 06:00 (at night's draw
+    it runs alone), and each day at 22:00 a 20 s changeover test (pump 2 alone, then pump 3
+    back)."""
     rng = np.random.default_rng(seed)
     n = int(days * 86400)
     t = np.arange(n) / 86400.0
@@ -45,6 +50,11 @@ def station(days: float, seed: int, bias: tuple[str, float] = ("FLOW", 0.0),
     demand = 240 + 80 * np.sin(2 * np.pi * (t - 0.3)) + 20 * walk + rng.normal(0, 3, n)
     speed = 90 + 6 * np.sin(2 * np.pi * t * 2.3 + rng.uniform(0, 6)) + rng.normal(0, 0.2, n)
     duty = (np.floor((t * 24 - 6) / 24).astype(int) + 1) % 3
+    if schedule == "night2":
+        sec = np.round((t % 1) * 86400)
+        duty = np.where(sec < 12 * 3600, 0, 2)
+        night = (t >= 1) & (sec < 6 * 3600)
+        duty[night | ((sec >= 22 * 3600) & (sec < 22 * 3600 + 20))] = 1
     assist_of = np.array([1, 0, 0])  # pump 2 assists pump 1; pump 1 assists 2 and 3
     high = np.zeros(n, bool)
     on = False
@@ -89,9 +99,13 @@ def _diagnosed(g, a: pd.Timestamp, b: pd.Timestamp, tmp) -> pd.DataFrame:
 def built(request, tmp_path_factory):
     """Unit ``st`` built as a user would on day 0 (duties 1 then 2; pump 3 never ran)."""
     period = request.param
-    tmp = tmp_path_factory.mktemp(f"newstate{period:g}")
+    return built_on_day_0(period, tmp_path_factory.mktemp(f"newstate{period:g}"), exported(period))
+
+
+def built_on_day_0(period: float, tmp, x: pd.DataFrame) -> tuple:
+    """``x`` imported into a historian in ``tmp`` and unit ``st`` built on day 0 (the CLI):
+    ``(period, the CLI's global options, tmp, x, the build's text)``."""
     g = ["--db", f"sqlite:///{tmp / 'h.db'}", "--rulebases", str(tmp / "rb")]
-    x = exported(period)
     import_csv(g, x, tmp / "all.csv", "%Y-%m-%dT%H:%M:%S.%f")
     rc, text = diag(g, "unit", "build", "st", "--from", fmt(T0), "--to", fmt(T0 + DAY),
                     "--far", "0.01")  # fmt: skip
@@ -131,18 +145,26 @@ def test_the_live_plant_says_what_the_replay_says(built):
     """The live plug-in's fast path (:class:`Plant`, one cycle a sample, restarted from its
     saved state half-way) gives each sample the status and message of :meth:`Unit.evaluate`
     around the swap."""
+    period, _, tmp, x, _ = built
+    a, b = T0 + DAY + pd.Timedelta(hours=5), T0 + DAY + pd.Timedelta(hours=7)
+    live_equals_replay(period, tmp / "rb", x, a, b, {"RUN3", "I3"})
+
+
+def live_equals_replay(period, rb, x, a, b, reads) -> np.ndarray:
+    """:meth:`Unit.evaluate` of ``x`` in ``a`` … ``b`` on the unit's grid, in two pieces with
+    the state carried through JSON, and the live :class:`Plant` one cycle a sample,
+    restarted from its saved state half-way: the same status every sample, the same first
+    sentence where CHECK_FUNCTION (> 40 % of the samples); the unit reads ``reads``. The
+    statuses."""
     from diag_plugin.diagnose.plant import Plant
     from diag_plugin.diagnose.unit import Unit
 
-    period, _, tmp, x, _ = built
-    rb = tmp / "rb"
     p = f"{period:g}s"
-    a, b = T0 + DAY + pd.Timedelta(hours=5), T0 + DAY + pd.Timedelta(hours=7)
     f = x[(x.index >= a) & (x.index < b)]
     f = f.set_axis(f.index.floor(p))
     f = f[~f.index.duplicated()].reindex(pd.date_range(a, b, freq=p, inclusive="left"))
     unit = Unit.load(rb / "st.unit.toml", rb)
-    assert set(unit.tags) >= {"RUN3", "I3"}  # the unit reads them (diag diagnose, live)
+    assert set(unit.tags) >= reads  # the unit reads them (diag diagnose, live)
     half = len(f) // 2
     d1 = unit.evaluate(f.iloc[:half])
     state = json.loads(json.dumps(unit.to_state()))
@@ -151,7 +173,7 @@ def test_the_live_plant_says_what_the_replay_says(built):
     status = np.r_[d1.status.to_numpy(), d2.status.to_numpy()]
     assert (status == NE107.CHECK_FUNCTION).sum() > 0.4 * len(f)
     plant = Plant({"st": Unit.load(rb / "st.unit.toml", rb)}, {})
-    assert plant.fast == ["st"] and {"RUN3", "I3"} <= set(plant.tags)
+    assert plant.fast == ["st"] and reads <= set(plant.tags)
     got, msgs = [], []
     for i, (ts, row) in enumerate(f.iterrows()):
         if i == half:  # a restart from the saved state
@@ -166,6 +188,7 @@ def test_the_live_plant_says_what_the_replay_says(built):
     assert [m.split(";")[0] for m, h in zip(msgs, held, strict=True) if h] == [
         m.split(";")[0] for m, h in zip(said, held, strict=True) if h
     ]
+    return status
 
 
 def test_accept_learns_the_new_duty_and_a_fault_there_is_detected(built):
@@ -173,17 +196,10 @@ def test_accept_learns_the_new_duty_and_a_fault_there_is_detected(built):
     what it showed, and on day 4 (pump 3 on duty again from 06:00, pump 1 assisting at the
     peaks) the unit answers — NORMAL — and pump 1's current transmitter reading 8 A more
     from noon is detected; rollback restores the unit."""
-    period, g, tmp, _, _ = built
-    unit_file = tmp / "rb" / "st.unit.toml"
-    before = unit_file.read_bytes()
-    rc, text = diag(g, "unit", "accept", "st", "--from", fmt(T0 + DAY), "--to",
-                    fmt(T0 + 2 * DAY), "--json")  # fmt: skip
-    assert rc == 0, text
-    res = json.loads(text)
-    assert any(w.startswith("constant tag RUN3: span 0 … 0") and w.endswith("0 … 1 (margin 1e-09)")
-               for w in res["warnings"]), res["warnings"]  # fmt: skip
-    try:
-        d = _diagnosed(g, T0 + 4 * DAY, T0 + 5 * DAY, tmp)
+    period = built[0]
+    with day_1_accepted(built, lambda w: w.startswith("constant tag RUN3: span 0 … 0")
+                        and w.endswith("0 … 1 (margin 1e-09)")) as diagnosed:  # fmt: skip
+        d = diagnosed(T0 + 4 * DAY, T0 + 5 * DAY)
         swap, noon = (T0 + 4 * DAY + pd.Timedelta(hours=h) for h in (6, 12))
         duty3 = d[(d.index >= swap) & (d.index < noon)]["status"]
         fault = d[d.index >= noon]["status"]
@@ -191,6 +207,23 @@ def test_accept_learns_the_new_duty_and_a_fault_there_is_detected(built):
               f"the bias {fault.value_counts().to_dict()}")  # fmt: skip
         assert (duty3 == "NORMAL").mean() > 0.9, duty3.value_counts()
         assert (fault.isin(["FAILURE", "OFF_SPEC"])).mean() > 0.5, fault.value_counts()
+
+
+@contextlib.contextmanager
+def day_1_accepted(built, said):
+    """``diag unit accept`` of day 1 (one of its warnings ``said(w)``); yields ``diagnosed(a,
+    b)`` (``diag diagnose`` of a … b), then ``diag unit rollback``: the unit file byte for
+    byte as before."""
+    _, g, tmp, _, _ = built
+    unit_file = tmp / "rb" / "st.unit.toml"
+    before = unit_file.read_bytes()
+    rc, text = diag(g, "unit", "accept", "st", "--from", fmt(T0 + DAY), "--to",
+                    fmt(T0 + 2 * DAY), "--json")  # fmt: skip
+    assert rc == 0, text
+    res = json.loads(text)
+    assert any(said(w) for w in res["warnings"]), res["warnings"]
+    try:
+        yield lambda a, b: _diagnosed(g, a, b, tmp)
     finally:
         rc, text = diag(g, "unit", "rollback", "st")
         assert rc == 0, text
@@ -216,10 +249,16 @@ def test_a_blip_a_gap_and_the_return():
     assert why[10] == ("PUMP_ON = 1 outside what the unit learned (0 over its window) since "
                        "2026-06-02T06:00:07+00:00")  # fmt: skip
     assert why[14] == why[10] and why[15] == ""
-    g = _guard()
+    same_in_pieces(_guard, idx, x[:, None], (0, 5, 11, 18), held, why)
+
+
+def same_in_pieces(make, idx, x, cuts, held, why) -> None:
+    """The guard ``make()`` over ``x`` in the pieces between ``cuts``, each a new guard
+    loaded from the last one's state through JSON: ``held`` and ``why`` as in one piece."""
+    g = make()
     parts = []
-    for a, b in ((0, 5), (5, 11), (11, 18)):
-        g = _guard().load_state(json.loads(json.dumps(g.to_state())))
-        parts.append(g.transform(idx[a:b], x[a:b, None]))
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        g = make().load_state(json.loads(json.dumps(g.to_state())))
+        parts.append(g.transform(idx[a:b], x[a:b]))
     assert np.concatenate([p[0] for p in parts]).tolist() == held.tolist()
     assert np.concatenate([p[1] for p in parts]).tolist() == why.tolist()

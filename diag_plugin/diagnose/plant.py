@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from diag_plugin.diagnose.combos import CombosGuard
 from diag_plugin.diagnose.derived import DerivedInputs, stackable
 from diag_plugin.diagnose.fixed import FixedGuard
 from diag_plugin.diagnose.isolation import IsolationHold
@@ -171,13 +172,15 @@ class Plant:
                 slots.append(
                     _Slot(ui, ti, m.model, np.array(ins, np.intp).reshape(-1, 2), out, float(scale))
                 )
-        # the tags constant over each unit's build window (fixed.py): read, never modelled
-        fixed_cols = {}
+        # the tags constant over each unit's build window (fixed.py): read, never modelled;
+        # its discrete states, whose combinations it learned (combos.py)
+        guards: dict[str, dict] = {"fixed": {}, "combos": {}}
         for ui, u in enumerate(units):
-            if (g := FixedGuard.of(u)) is not None:
-                cs = [tags.setdefault(p, len(tags)) for p in g.plant]
-                fixed_cols[ui] = (g, np.array(cs, np.intp))
-        self._fixed = fixed_cols
+            for kind, cls in (("fixed", FixedGuard), ("combos", CombosGuard)):
+                if (g := cls.of(u)) is not None:
+                    cs = [tags.setdefault(p, len(tags)) for p in g.plant]
+                    guards[kind][ui] = (g, np.array(cs, np.intp))
+        self._fixed, self._combos = guards["fixed"], guards["combos"]
         n_tags = len(tags)
         for s in slots:  # the derived features' columns after the tags'
             s.inputs[:, 1] = _after(s.inputs[:, 1], n_tags)
@@ -429,6 +432,7 @@ class Plant:
             "slow": {n: self.units[n].to_state() for n in self.slow},
             "settle": {self._units[ui].name: g.to_state() for ui, (g, _) in self._settle.items()},
             "fixed": {self._units[ui].name: g.to_state() for ui, (g, _) in self._fixed.items()},
+            "combos": {self._units[ui].name: g.to_state() for ui, (g, _) in self._combos.items()},
         }
 
     def load_state(self, state: Mapping[str, Any]) -> Plant:
@@ -500,10 +504,11 @@ class Plant:
             st = state.get("settle", {}).get(self._units[ui].name)
             if st is not None:
                 g.load_state(st)
-        for ui, (g, _) in self._fixed.items():  # states saved before it: from rest
-            st = state.get("fixed", {}).get(self._units[ui].name)
-            if st is not None:
-                g.load_state(st)
+        for key, guards in (("fixed", self._fixed), ("combos", self._combos)):
+            for ui, (g, _) in guards.items():  # states saved before it: from rest
+                st = state.get(key, {}).get(self._units[ui].name)
+                if st is not None:
+                    g.load_state(st)
         for n in self.slow:
             self.units[n].reset().load_state(state["slow"][n])
         return self
@@ -694,7 +699,8 @@ class Plant:
                 faults[ui] = f[0].split("|")
         det_held = self._hold_alarms(active, status, faults, tags, notes)
         settling = self._settle_units(ts, r, active, det_held, status, faults)
-        fixed = self._fixed_units(ts, status, faults, tags, notes)
+        fixed = self._fixed_units(ts, status, faults, tags, notes, self._fixed)
+        combos = self._fixed_units(ts, status, faults, tags, notes, self._combos)
         out = []
         index = self.tag_index
 
@@ -728,8 +734,9 @@ class Plant:
                 why = why[0]
             if ui in settling:  # Unit.evaluate: the settle's text first
                 why = f"{settling[ui]}; {why}" if why else settling[ui]
-            if ui in fixed:  # Unit.evaluate: a constant tag moved, its text first
-                why = f"{fixed[ui]}; {why}" if why else fixed[ui]
+            for said in (combos, fixed):  # Unit.evaluate: the states in a combination never
+                if ui in said:  # learned, a constant tag moved: their texts first
+                    why = f"{said[ui]}; {why}" if why else said[ui]
             msg = "; ".join([why, *notes[ui]] if why else notes[ui])
             st = NE107(int(status[ui]))
             if not self._has_th[ui]:
@@ -738,7 +745,7 @@ class Plant:
             det = None if not active[ui] and not all_known[ui] else bool(active[ui])
             if det_held[ui]:
                 det = True
-            if ui in fixed:  # the diagnosis unknown (Unit.evaluate: detected NaN)
+            if ui in fixed or ui in combos:  # the diagnosis unknown (Unit.evaluate: NaN)
                 det = None
             out.append(
                 UnitStatus(
@@ -775,11 +782,12 @@ class Plant:
                 status[ui], faults[ui], out[ui] = NE107.CHECK_FUNCTION, [], why[0]
         return out
 
-    def _fixed_units(self, ts, status, faults, tags, notes) -> dict[int, str]:
-        """The units' constant-tag guards (:mod:`~diag_plugin.diagnose.fixed`) on this cycle,
-        in place on ``status``, ``faults`` and the tags named: per unit held, the why."""
+    def _fixed_units(self, ts, status, faults, tags, notes, guards) -> dict[int, str]:
+        """The units' constant-tag guards (:mod:`~diag_plugin.diagnose.fixed`) or state
+        combination guards (:mod:`~diag_plugin.diagnose.combos`) on this cycle, in place on
+        ``status``, ``faults`` and the tags named: per unit held, the why."""
         out: dict[int, str] = {}
-        for ui, (g, cols) in self._fixed.items():
+        for ui, (g, cols) in guards.items():
             x = self._hist[0, cols]
             if g.idle(x):  # every tag at its value, none in a run outside: nothing to do
                 continue

@@ -46,6 +46,7 @@ import numba
 import numpy as np
 import pandas as pd
 
+from diag_plugin.diagnose.combos import CombosGuard
 from diag_plugin.diagnose.fixed import FixedGuard
 from diag_plugin.diagnose.fixed import apply as apply_fixed
 from diag_plugin.diagnose.isolation import IsolationHold
@@ -457,6 +458,9 @@ class Unit:
         self.settle: SettleGuard | None = settle_guard(self)
         #: the tags constant over the build window (``[fixed]``): one moved, CHECK_FUNCTION
         self.fixed: FixedGuard | None = FixedGuard.of(self)
+        #: the combinations of the discrete states it learned (``[states]``): another one,
+        #: CHECK_FUNCTION (:mod:`~.combos`)
+        self.combos: CombosGuard | None = CombosGuard.of(self)
         self.reset()
 
     # ------------------------------------------------------------ loading
@@ -519,16 +523,20 @@ class Unit:
     @property
     def tags(self) -> list[str]:
         """Every tag the unit reads, by the plant's names (the file's ``[tags]`` mapping):
-        its models', and the tags constant over its build window (``[fixed]``)."""
-        own = [*self.model_tags, *getattr(self.file, "fixed", {})]
-        return list(dict.fromkeys(self.file.tags.get(t, t) for t in own))
+        its models', the tags constant over its build window (``[fixed]``) and its discrete
+        states (``[states]``)."""
+        return list(dict.fromkeys(self.file.tags.get(t, t) for t in self._own_tags()))
+
+    def _own_tags(self) -> list[str]:
+        """The models' tags, the ``[fixed]`` tags and the ``[states]`` tags (models' names)."""
+        states = (getattr(self.file, "states", None) or {}).get("tags", [])
+        return [*self.model_tags, *getattr(self.file, "fixed", {}), *states]
 
     def _model_frame(self, frame: pd.DataFrame) -> pd.DataFrame:
         """The plant's columns under the models' tag names."""
         if not self.file.tags:
             return frame
-        own = [*self.model_tags, *getattr(self.file, "fixed", {})]
-        return frame.rename(columns={self.file.tags.get(t, t): t for t in own})
+        return frame.rename(columns={self.file.tags.get(t, t): t for t in self._own_tags()})
 
     @property
     def faults(self) -> list[str]:
@@ -577,6 +585,8 @@ class Unit:
             self.settle.reset()
         if getattr(self, "fixed", None) is not None:
             self.fixed.reset()
+        if getattr(self, "combos", None) is not None:
+            self.combos.reset()
         if not hasattr(self, "outside"):
             self.outside = OutsideLearned(
                 manual_ranges(learned_ranges(self.models, self.tests), self.file.manual),
@@ -610,6 +620,7 @@ class Unit:
             else [int(self._last_alarm[0]), self._last_alarm[1], self._last_alarm[2]],
             "settle": None if self.settle is None else self.settle.to_state(),
             "fixed": None if self.fixed is None else self.fixed.to_state(),
+            "combos": None if self.combos is None else self.combos.to_state(),
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -642,6 +653,8 @@ class Unit:
             self.settle.load_state(state["settle"])  # states saved before it: from rest
         if self.fixed is not None and state.get("fixed") is not None:
             self.fixed.load_state(state["fixed"])  # states saved before it: from rest
+        if self.combos is not None and state.get("combos") is not None:
+            self.combos.load_state(state["combos"])  # states saved before it: from rest
         return self
 
     # ------------------------------------------------------------ stages
@@ -888,8 +901,12 @@ class Unit:
             )
         if settled is not None:
             why = prepend(why, *settled)
-        if self.fixed is not None:  # a tag constant over the build window moved
-            held, text = self.fixed.transform(frame.index, self._fixed_values(frame))
+        # the states in a combination never learned; a tag constant over the build window
+        # moved (its text first: the more telling)
+        for guard in (self.combos, self.fixed):
+            if guard is None:
+                continue
+            held, text = guard.transform(frame.index, self._fixed_values(frame, guard))
             if held.any():
                 apply_fixed(held, status, faults, detected)
                 if top is not None:  # no tag named where the diagnosis is unknown
@@ -919,10 +936,11 @@ class Unit:
             why=pd.Series(why, index=idx),
         )
 
-    def _fixed_values(self, frame: pd.DataFrame) -> np.ndarray:
-        """The piece's values of the ``[fixed]`` tags (rows × tags; NaN where absent)."""
-        out = np.full((len(frame), len(self.fixed.tags)), np.nan)
-        for j, (t, p) in enumerate(zip(self.fixed.tags, self.fixed.plant, strict=True)):
+    def _fixed_values(self, frame: pd.DataFrame, guard: FixedGuard) -> np.ndarray:
+        """The piece's values of a guard's tags (``[fixed]``, ``[states]``; rows × tags; NaN
+        where absent)."""
+        out = np.full((len(frame), len(guard.tags)), np.nan)
+        for j, (t, p) in enumerate(zip(guard.tags, guard.plant, strict=True)):
             c = p if p in frame.columns else t
             if c in frame.columns:
                 out[:, j] = frame[c].to_numpy(float)

@@ -75,6 +75,11 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     [fixed]              # written by `diag unit build`: tags constant over its window
     PMP3_ON = { min = 0.0, max = 0.0, margin = 1e-09 }  # where it moves: CHECK_FUNCTION
 
+    [states]             # written by `diag unit build`: the combinations of states learned
+    tags = ["PMP1_ON", "PMP2_ON"]
+    seen = ["1,0", "1,1"]  # another one held for the on-delay: CHECK_FUNCTION
+    held_s = 163.0
+
 ``[manual]`` (written by ``diag unit build`` for a declared hand valve, widened by ``diag unit
 accept``): per hand valve (the models' tag name) the span the unit learned it in, ``min`` and
 ``max`` of the window and a ``margin`` from the data (3 × its noise); where it is outside
@@ -88,6 +93,13 @@ value the window held it at and ``margin`` the build's own test of a constant (`
 max(1, |value|)``); no test reads the tag, but the unit does: where it is outside for the
 on-delay, the unit is CHECK_FUNCTION naming it, the value and since when, until it is back
 for the off-delay (:mod:`diag_plugin.diagnose.fixed`). A file without the table: as before.
+
+``[states]`` (written by ``diag unit build`` for a unit with discrete states, extended by
+``diag unit accept``): ``tags`` the states in order, ``seen`` the combinations of their values
+the window held for ``held_s`` or longer (``"1,0"``: the first at 1, the second at 0); where
+the states are in another combination for the on-delay, the unit is CHECK_FUNCTION naming the
+states and their values, until a learned one has held for the off-delay
+(:mod:`diag_plugin.diagnose.combos`). A file without the table: as before.
 
 ``spread = true`` (learned per test): the test's Wang–Mendel residual is divided by the spread of
 the training outputs of the rules that answered, relative to the model's typical spread
@@ -164,6 +176,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from diag_plugin.diagnose.combos import read_states
 from diag_plugin.diagnose.fixed import read_fixed
 from diag_plugin.diagnose.manual import read_manual
 from diag_plugin.rulebase.folder import UNIT_SUFFIX
@@ -186,6 +199,7 @@ TABLES = (
     "build",
     "manual",
     "fixed",
+    "states",
 )
 
 #: why a residual is unknown: the reasons ``diag unit learn`` counts (``unknown_<reason>``
@@ -509,6 +523,9 @@ class UnitFile(LinedFile):
         )
         self.fixed = read_fixed(
             self._table("fixed"), self.error, lambda k: self.line_of("fixed", k)
+        )
+        self.states = read_states(
+            self._table("states"), self.error, lambda k: self.line_of("states", k)
         )
         self.tags: dict[str, str] = {}
         for k, v in self._table("tags").items():

@@ -497,6 +497,7 @@ def widen_manual(path: Path, frame: pd.DataFrame) -> list[str]:
     exactly, the larger margin kept; and its constant tags' (``[fixed]``,
     :mod:`~diag_plugin.diagnose.fixed`) to the values the window held them at, the margin
     kept. Saved when one changed. Returns what changed."""
+    from diag_plugin.diagnose.combos import widen as more_combos
     from diag_plugin.diagnose.fixed import widen
     from diag_plugin.diagnose.manual import learned_span, merged
     from diag_plugin.diagnose.unitfile import UnitFile
@@ -513,6 +514,13 @@ def widen_manual(path: Path, frame: pd.DataFrame) -> list[str]:
     # window held them at are learned, margin kept
     changed += [("fixed", "constant tag", tag, uf.fixed[tag], new)
                 for tag, new in widen(uf.fixed, frame).items()]  # fmt: skip
+    # the combinations of the discrete states it held long enough (diagnose/combos.py)
+    if added := more_combos(uf.states, frame):
+        seen = uf.doc["states"]["seen"]
+        for c in added:
+            seen.append(c)
+        said.append(f"combination(s) of {', '.join(uf.states['tags'])} learned: "
+                    f"{'; '.join(added)} (held {uf.states['held_s']:g} s or longer)")  # fmt: skip
     for table, what, tag, old, new in changed:
         row = tomlkit.inline_table()
         row.update(new.as_row())

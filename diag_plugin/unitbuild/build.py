@@ -62,12 +62,13 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 import tomlkit
 
+from diag_plugin.diagnose.combos import states_table
 from diag_plugin.diagnose.fixed import learned_text, tolerance
 from diag_plugin.diagnose.manual import MARGIN_SAYS, ManualSpan, learned_span
 from diag_plugin.diagnose.unittags import is_set_point
@@ -324,6 +325,40 @@ def fixed_note(spans: Sequence[ManualSpan]) -> str:
         "test; where one is outside its value for the on-delay (beyond 1e-9 × max(1, |value|), "
         "the build's test of a constant) the unit is CHECK_FUNCTION naming it, until it is "
         "back for the off-delay; `diag unit accept` of a period where it moved learns it"
+    )
+
+
+def state_combos(
+    unit: Any, frame: pd.DataFrame, states: Sequence[str]
+) -> tuple[list[str], list[str], float] | None:
+    """The unit's ``[states]`` (:mod:`~diag_plugin.diagnose.combos`): its discrete states
+    (``[build] states``, those in ``frame``), the combinations ``frame`` held for the dwell
+    and the dwell (s): the unit's quiet time (:func:`~diag_plugin.diagnose.settle.quiet_samples`:
+    the longest history a test reads + the residual filter's delay + the on-delay) — a
+    combination held that long has a sample where every test read only it, its residual
+    filtered. None without states."""
+    from diag_plugin.diagnose.combos import held_combos
+    from diag_plugin.diagnose.settle import quiet_samples
+
+    states = [t for t in states if t in frame.columns]
+    if not states:
+        return None
+    held_s = float(quiet_samples(unit) * unit.period_s)
+    return states, held_combos(frame, states, held_s), held_s
+
+
+def combos_note(unit: Any, tags: Sequence[str], seen: Sequence[str], held_s: float) -> str:
+    """What the build's note says of the ``[states]`` table."""
+    from diag_plugin.diagnose.settle import quiet_parts
+
+    depth, lag, on = quiet_parts(unit)
+    return (
+        f"{len(seen)} combination(s) of the discrete states {', '.join(tags)} recorded in "
+        f"[states] ({'; '.join(seen) or 'none'}): those the window held for {held_s:g} s or "
+        f"longer, the unit's quiet time ({depth} samples of the longest history a test reads "
+        f"+ {lag} of the residual filter + {on} of the on-delay); another combination held "
+        "for the on-delay makes the unit CHECK_FUNCTION naming it, until a learned one held "
+        "for the off-delay; `diag unit accept` of a period where it ran learns it"
     )
 
 
@@ -1219,7 +1254,13 @@ def _build_unit(
                 uf.build[says] = how
                 uf.doc["build"][says] = how
                 notes.append(how)
-        if any(value > 0 for *_, value, _ in settles):
+        # the combinations of the discrete states the window held long enough to teach the
+        # models (diagnose/combos.py): their dwell the unit's quiet time
+        combos = state_combos(unit, frame, list(doc["build"]["states"]))
+        if combos is not None:
+            uf.doc["states"] = states_table(*combos)
+            notes.append(combos_note(unit, *combos))
+        if any(value > 0 for *_, value, _ in settles) or combos is not None:
             uf.save()
         else:
             uf.save(as_read=True)  # the text set_learned read back: not dumped again
