@@ -51,6 +51,7 @@ from diag_plugin.diagnose.manual import ManualGuard, manual_ranges
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
 from diag_plugin.diagnose.residuals import LowPass, supported
+from diag_plugin.diagnose.saturation import Saturation
 from diag_plugin.diagnose.settle import SettleGuard, prepend, settle_guard
 from diag_plugin.diagnose.settle import apply as apply_settle
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay, three_valued
@@ -96,6 +97,9 @@ class TestModel:
     output: str
     span: float
     period: str
+    #: the output variable's span (its metadata range, else the build window's): a loop's
+    #: actuator at an edge of it is at its limit (:mod:`~.saturation`)
+    out_range: tuple[float, float] | None = None
 
     def builder(self) -> DesignBuilder:
         return DesignBuilder(self.inputs, self.output, period=self.period)
@@ -140,6 +144,7 @@ def model_of_test(name: str, rb: Any) -> TestModel:
         output=rb.output.spec,
         span=float(hi - lo),
         period=rb.period,
+        out_range=(float(lo), float(hi)),
     )
 
 
@@ -453,6 +458,8 @@ class Unit:
         self.manual = ManualGuard.of(models, self.tests, file.manual)
         #: the settle guard after an operator's set-point step (:mod:`~.settle`; None: off)
         self.settle: SettleGuard | None = settle_guard(self)
+        #: a loop's actuator at its limit named first (:mod:`~.saturation`; None: no loop)
+        self.saturation = Saturation.of(self)
         self.reset()
 
     # ------------------------------------------------------------ loading
@@ -568,6 +575,8 @@ class Unit:
         self.seen = 0  # samples since the start (the warm-up)
         if getattr(self, "settle", None) is not None:
             self.settle.reset()
+        if getattr(self, "saturation", None) is not None:
+            self.saturation.reset()
         if not hasattr(self, "outside"):
             self.outside = OutsideLearned(
                 manual_ranges(learned_ranges(self.models, self.tests), self.file.manual),
@@ -600,6 +609,7 @@ class Unit:
             if self._last_alarm is None
             else [int(self._last_alarm[0]), self._last_alarm[1], self._last_alarm[2]],
             "settle": None if self.settle is None else self.settle.to_state(),
+            "saturation": None if self.saturation is None else self.saturation.to_state(),
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -630,6 +640,8 @@ class Unit:
                 self._last_alarm = None if last is None else (last[0], last[1], last[2])
         if self.settle is not None and state.get("settle") is not None:
             self.settle.load_state(state["settle"])  # states saved before it: from rest
+        if self.saturation is not None and state.get("saturation") is not None:
+            self.saturation.load_state(state["saturation"])
         return self
 
     # ------------------------------------------------------------ stages
@@ -856,6 +868,12 @@ class Unit:
             at = np.flatnonzero(active)
             order = [self.tests.index(t) for t in self.matrix.tests]
             faults[at] = with_ranked(self.matrix, faults[at], top["top1"][at], s[at][:, order])
+        saturated = None
+        if self.saturation is not None:  # a loop's valve at its limit: named first
+            which, sat_text = self.saturation.transform(cols, _on(s), active)
+            if (which >= 0).any():
+                self.saturation.name_first(which, sat_text, faults, top)
+                saturated = (which >= 0, sat_text)
         if self.alarm_hold is not None:
             detected, status, faults, top = self._hold_alarm(active, detected, status, faults, top)
         settled = None
@@ -876,6 +894,8 @@ class Unit:
             )
         if settled is not None:
             why = prepend(why, *settled)
+        if saturated is not None:
+            why = prepend(why, *saturated)
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
             if self.ev["combined"] and (self.file.combined is None or self.cmodel.high is None):
