@@ -420,6 +420,11 @@ class Plant:
             "gone": {u.name: u.outside.to_state()["gone"] for u in self._units},
             "slow": {n: self.units[n].to_state() for n in self.slow},
             "settle": {self._units[ui].name: g.to_state() for ui, (g, _) in self._settle.items()},
+            "saturation": {
+                u.name: u.saturation.to_state()
+                for u in self._units
+                if getattr(u, "saturation", None) is not None
+            },
         }
 
     def load_state(self, state: Mapping[str, Any]) -> Plant:
@@ -487,6 +492,10 @@ class Plant:
                     "gone": state.get("gone", {}).get(u.name, {}),
                 }
             )
+        for u in self._units:  # a valve named at its limit (states saved before it: none)
+            st = state.get("saturation", {}).get(u.name)
+            if st is not None and getattr(u, "saturation", None) is not None:
+                u.saturation.load_state(st)
         for ui, (g, _) in self._settle.items():  # states saved before it: from rest
             st = state.get("settle", {}).get(self._units[ui].name)
             if st is not None:
