@@ -494,29 +494,15 @@ def select_inputs(
     return choice
 
 
-def _choose(
-    tag: str,
-    names,
-    same,
-    ctx: _Context,
-    sel: _Context,
-    plan,
-    frame,
-    info,
-    declared,
-    held,
-    asks=None,
-    cascades=None,
-) -> TestChoice:
-    """:func:`_choose_test` with the candidates' coarse rule levels fitted to be scored once
+def _choose(tag: str, *args) -> TestChoice:
+    """:func:`_choose_test` (``args`` its arguments after ``tag``) with the candidates' coarse
+    rule levels fitted to be scored once
     (:func:`~diag_plugin.fuzzy.wang_mendel.scoring_node_fit`); the chosen models are trained
     afterwards as ever."""
     from diag_plugin.fuzzy.wang_mendel import scoring_node_fit
 
     with scoring_node_fit():
-        return _choose_test(
-            tag, names, same, ctx, sel, plan, frame, info, declared, held, asks, cascades
-        )
+        return _choose_test(tag, *args)
 
 
 def _choose_test(
