@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+from helpers import operator_steps
 
 from diag_plugin.diagnose.unit import Unit
 from diag_plugin.unitbuild.build import build_unit
@@ -32,13 +33,7 @@ def _cascade(days: float, seed: int, bias: float = 0.0, onset_h: float = 1e9) ->
     the pressure drop a slow walk around 9."""
     rng = np.random.default_rng(seed)
     n = int(days * 1440)
-    feed = np.empty(n)
-    i, level = 0, 10.0
-    while i < n:
-        j = min(n, i + int(rng.uniform(240, 720)))
-        level = float(rng.choice([v for v in (8.0, 9.0, 10.0, 11.0, 12.0) if v != level]))
-        feed[i:j] = level
-        i = j
+    feed = operator_steps(rng, n, (8.0, 9.0, 10.0, 11.0, 12.0))
     z = np.clip(0.5 + np.cumsum(rng.normal(0, 0.002, n)), 0.35, 0.65)
     dp = np.clip(9.0 + np.cumsum(rng.normal(0, 0.002, n)), 7.0, 11.0)
     b = np.where(np.arange(n) >= onset_h * 60, bias, 0.0)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+from helpers import operator_steps
 
 from diag_plugin.diagnose.unit import Unit
 from diag_plugin.unitbuild.build import build_unit
@@ -24,13 +25,7 @@ def _tank(days: float, seed: int, over_h: float = 1e9) -> pd.DataFrame:
     valve can pass."""
     rng = np.random.default_rng(seed)
     n = int(days * 1440)
-    feed = np.empty(n)
-    i, level = 0, 10.0
-    while i < n:
-        j = min(n, i + int(rng.uniform(240, 720)))
-        level = float(rng.choice([v for v in (4.0, 7.0, 10.0, 13.0, 16.0) if v != level]))
-        feed[i:j] = level
-        i = j
+    feed = operator_steps(rng, n, (4.0, 7.0, 10.0, 13.0, 16.0))
     feed[int(over_h * 60) :] = 22.0
     dp = np.clip(4.0 + np.cumsum(rng.normal(0, 0.02, n)), 3.0, 5.0)  # the supply's, a walk
     lvl, v, integ = 50.0, 50.0, 50.0
