@@ -365,3 +365,16 @@ def same_status(x, y, where, *, exact: bool = True) -> None:
         list(x.residuals.values()), list(y.residuals.values()), rtol=1e-9, atol=1e-9
     )
     assert x.certainties == pytest.approx(y.certainties, rel=1e-9, nan_ok=True), where
+
+
+def operator_steps(rng, n: int, levels, first: float = 10.0, hold=(240, 720)) -> np.ndarray:
+    """``n`` samples of a quantity the operators step among ``levels`` (never to the level it
+    is at, starting from ``first``), each held ``hold`` samples (uniform)."""
+    out = np.empty(n)
+    i, level = 0, first
+    while i < n:
+        j = min(n, i + int(rng.uniform(*hold)))
+        level = float(rng.choice([v for v in levels if v != level]))
+        out[i:j] = level
+        i = j
+    return out

@@ -433,6 +433,11 @@ class Plant:
             "settle": {self._units[ui].name: g.to_state() for ui, (g, _) in self._settle.items()},
             "fixed": {self._units[ui].name: g.to_state() for ui, (g, _) in self._fixed.items()},
             "combos": {self._units[ui].name: g.to_state() for ui, (g, _) in self._combos.items()},
+            "saturation": {
+                u.name: u.saturation.to_state()
+                for u in self._units
+                if getattr(u, "saturation", None) is not None
+            },
         }
 
     def load_state(self, state: Mapping[str, Any]) -> Plant:
@@ -500,6 +505,10 @@ class Plant:
                     "gone": state.get("gone", {}).get(u.name, {}),
                 }
             )
+        for u in self._units:  # a valve named at its limit (states saved before it: none)
+            st = state.get("saturation", {}).get(u.name)
+            if st is not None and getattr(u, "saturation", None) is not None:
+                u.saturation.load_state(st)
         for ui, (g, _) in self._settle.items():  # states saved before it: from rest
             st = state.get("settle", {}).get(self._units[ui].name)
             if st is not None:
@@ -697,15 +706,17 @@ class Plant:
                     s[at][None, :],
                 )
                 faults[ui] = f[0].split("|")
+        index = self.tag_index
+
+        def value(tag: str, lag: int = 0) -> float:  # what a model reads, lag cycles back
+            return float(self._hist[lag, index[tag]]) if tag in index else np.nan
+
+        saturated = self._saturated_units(s, active, faults, tags, notes, value)
         det_held = self._hold_alarms(active, status, faults, tags, notes)
         settling = self._settle_units(ts, r, active, det_held, status, faults)
         fixed = self._fixed_units(ts, status, faults, tags, notes, self._fixed)
         combos = self._fixed_units(ts, status, faults, tags, notes, self._combos)
         out = []
-        index = self.tag_index
-
-        def value(tag: str, lag: int = 0) -> float:  # what a model reads, lag cycles back
-            return float(self._hist[lag, index[tag]]) if tag in index else np.nan
 
         for ui, u in enumerate(units):
             a = self._first[ui]
@@ -734,6 +745,8 @@ class Plant:
                 why = why[0]
             if ui in settling:  # Unit.evaluate: the settle's text first
                 why = f"{settling[ui]}; {why}" if why else settling[ui]
+            if ui in saturated:  # Unit.evaluate: a valve at its limit (after [fixed], [states])
+                why = f"{saturated[ui]}; {why}" if why else saturated[ui]
             for said in (combos, fixed):  # Unit.evaluate: the states in a combination never
                 if ui in said:  # learned, a constant tag moved: their texts first
                     why = f"{said[ui]}; {why}" if why else said[ui]
@@ -762,6 +775,35 @@ class Plant:
                     tags=tags[ui],
                 )
             )
+        return out
+
+    def _saturated_units(self, s, active, faults, tags, notes, value) -> dict[int, str]:
+        """Each unit's loop valve at its limit on this cycle (:mod:`~.saturation`, as
+        :meth:`Unit.evaluate` names it), in place on ``faults``, ``tags`` and the ``tags:``
+        note: per unit whose valve is named, the why."""
+        out = {}
+        for ui, u in enumerate(self._units):
+            sat = getattr(u, "saturation", None)
+            if sat is None:
+                continue
+            a = self._first[ui]
+            row = _OneRow({lp.model_tag: value(lp.actuator) for lp in sat.loops})
+            on = (np.nan_to_num(s[a : a + len(u.tests)]) != 0)[None, :]
+            which, text = sat.transform(row, on, np.array([bool(active[ui])]))
+            if which[0] < 0:
+                continue
+            act = sat.loops[which[0]].actuator
+            faults[ui] = [act]
+            if tags[ui]:
+                own = dict(tags[ui]).get(act, tags[ui][0][1])
+                tags[ui] = [(act, own), *(x for x in tags[ui] if x[0] != act)][: len(tags[ui])]
+                notes[ui] = [
+                    "tags: " + ", ".join(f"{t} {v:.2f}" for t, v in tags[ui])
+                    if n.startswith("tags: ")
+                    else n
+                    for n in notes[ui]
+                ]
+            out[ui] = str(text[0])
         return out
 
     def _settle_units(self, ts, r, active, det_held, status, faults) -> dict[int, str]:
@@ -890,3 +932,13 @@ def _array(v: list) -> np.ndarray:
     """Back from :func:`_json`."""
     a = np.array(v, dtype=object)
     return np.where(a == None, np.nan, a).astype(float)  # noqa: E711 - elementwise
+
+
+class _OneRow:
+    """One cycle's readings as :class:`~.unit.Columns` gives a piece's: ``values(tag)``."""
+
+    def __init__(self, row: dict[str, float]) -> None:
+        self.row = row
+
+    def values(self, tag: str) -> np.ndarray:
+        return np.array([self.row.get(tag, np.nan)], float)

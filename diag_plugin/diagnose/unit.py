@@ -54,6 +54,7 @@ from diag_plugin.diagnose.manual import ManualGuard, manual_ranges
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
 from diag_plugin.diagnose.residuals import LowPass, supported
+from diag_plugin.diagnose.saturation import Saturation
 from diag_plugin.diagnose.settle import SettleGuard, prepend, settle_guard
 from diag_plugin.diagnose.settle import apply as apply_settle
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay, three_valued
@@ -99,6 +100,9 @@ class TestModel:
     output: str
     span: float
     period: str
+    #: the output variable's span (its metadata range, else the build window's): a loop's
+    #: actuator at an edge of it is at its limit (:mod:`~.saturation`)
+    out_range: tuple[float, float] | None = None
 
     def builder(self) -> DesignBuilder:
         return DesignBuilder(self.inputs, self.output, period=self.period)
@@ -143,6 +147,7 @@ def model_of_test(name: str, rb: Any) -> TestModel:
         output=rb.output.spec,
         span=float(hi - lo),
         period=rb.period,
+        out_range=(float(lo), float(hi)),
     )
 
 
@@ -461,6 +466,8 @@ class Unit:
         #: the combinations of the discrete states it learned (``[states]``): another one,
         #: CHECK_FUNCTION (:mod:`~.combos`)
         self.combos: CombosGuard | None = CombosGuard.of(self)
+        #: a loop's actuator at its limit named first (:mod:`~.saturation`; None: no loop)
+        self.saturation = Saturation.of(self)
         self.reset()
 
     # ------------------------------------------------------------ loading
@@ -587,6 +594,8 @@ class Unit:
             self.fixed.reset()
         if getattr(self, "combos", None) is not None:
             self.combos.reset()
+        if getattr(self, "saturation", None) is not None:
+            self.saturation.reset()
         if not hasattr(self, "outside"):
             self.outside = OutsideLearned(
                 manual_ranges(learned_ranges(self.models, self.tests), self.file.manual),
@@ -621,6 +630,7 @@ class Unit:
             "settle": None if self.settle is None else self.settle.to_state(),
             "fixed": None if self.fixed is None else self.fixed.to_state(),
             "combos": None if self.combos is None else self.combos.to_state(),
+            "saturation": None if self.saturation is None else self.saturation.to_state(),
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -655,6 +665,8 @@ class Unit:
             self.fixed.load_state(state["fixed"])  # states saved before it: from rest
         if self.combos is not None and state.get("combos") is not None:
             self.combos.load_state(state["combos"])  # states saved before it: from rest
+        if self.saturation is not None and state.get("saturation") is not None:
+            self.saturation.load_state(state["saturation"])
         return self
 
     # ------------------------------------------------------------ stages
@@ -881,6 +893,12 @@ class Unit:
             at = np.flatnonzero(active)
             order = [self.tests.index(t) for t in self.matrix.tests]
             faults[at] = with_ranked(self.matrix, faults[at], top["top1"][at], s[at][:, order])
+        saturated = None
+        if self.saturation is not None:  # a loop's valve at its limit: named first
+            which, sat_text = self.saturation.transform(cols, _on(s), active)
+            if (which >= 0).any():
+                self.saturation.name_first(which, sat_text, faults, top)
+                saturated = (which >= 0, sat_text)
         if self.alarm_hold is not None:
             detected, status, faults, top = self._hold_alarm(active, detected, status, faults, top)
         settled = None
@@ -901,6 +919,8 @@ class Unit:
             )
         if settled is not None:
             why = prepend(why, *settled)
+        if saturated is not None:
+            why = prepend(why, *saturated)
         # the states in a combination never learned; a tag constant over the build window
         # moved (its text first: the more telling)
         for guard in (self.combos, self.fixed):

@@ -133,9 +133,10 @@ def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
     """The unit's tags that can be at fault (plant names, outputs first in test order, then
     inputs; never a set-point, by its name or as the unit file declares it (a loop test's
     ``set_point``, :func:`declared_set_points`): it is the operator's entry, with no sensor
-    or actuator that could fail; nor a hand valve, :func:`hand_valves`, nor a discrete state,
-    :func:`states`), each test's output
-    tag and the tags each test reads (inputs, any lag)."""
+    or actuator that could fail — unless it is a loop's actuator with a test of its own, a
+    cascade's inner set-point, which the outer controller sets (issue 34, item 7); nor a
+    hand valve, :func:`hand_valves`, nor a discrete state, :func:`states`), each test's
+    output tag and the tags each test reads (inputs, any lag)."""
     outputs: dict[str, str] = {}
     reads: dict[str, list[str]] = {}
     mapping = unit.file.tags
@@ -150,7 +151,11 @@ def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
             reads[t].append(act)  # a loop's actuator: its fault moves the loop's error
     sps = set_points(unit) | declared_set_points(unit) | hand_valves(unit) | states(unit)
     tags = list(dict.fromkeys([*outputs.values(), *(x for r in reads.values() for x in r)]))
-    return [x for x in tags if not is_set_point(x) and x not in sps], outputs, reads
+    # a controller output with a test of its own is a tag at fault though another loop holds
+    # its measurement at it (a cascade's inner set-point: the outer controller's output)
+    acts = {unit.file.test(t).actuator for t in unit.tests} & set(outputs.values())
+    keep = [x for x in tags if x in acts or (not is_set_point(x) and x not in sps)]
+    return keep, outputs, reads
 
 
 def hand_valves(unit) -> set[str]:

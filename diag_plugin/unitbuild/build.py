@@ -248,12 +248,16 @@ def choose_tests(
     tags: Sequence[str] | None = None,
     set_points: Sequence[str] = (),
     manual: Mapping[str, str] | None = None,
+    outputs: Sequence[str] = (),
 ) -> tuple[list[str], dict[str, str]]:
     """The tags to test and the others with the reason each is left out.
 
     ``tags`` (the user's list) are tested as given, unless constant or without enough data
     (a test of a constant teaches nothing; that is an error the caller reports), or a hand
-    valve (``manual``: tag → what the plan says of it, never tested)."""
+    valve (``manual``: tag → what the plan says of it, never tested). ``outputs``: the
+    declared loops' controller outputs, tested though named or declared a set-point — a
+    cascade's inner set-point is the outer controller's output, not an operator's entry
+    (issue 34, item 7)."""
     info = tag_infos(tag_info)
     manual = manual or {}
     chosen, skipped = [], {}
@@ -269,7 +273,9 @@ def choose_tests(
             )
         elif np.ptp(v[good]) <= tolerance(float(np.abs(v[good]).max())):
             skipped[t] = f"{CONSTANT_WHY} ({float(v[good][0]):g})"
-        elif tags is None and (is_set_point(t, info.get(t)) or t in set_points):
+        elif (
+            tags is None and (is_set_point(t, info.get(t)) or t in set_points) and t not in outputs
+        ):
             skipped[t] = "a set-point (the operator's choice; kept as a candidate input)"
         elif tags is None and (two := two_states(v[good])) is not None:
             skipped[t] = (
@@ -573,26 +579,40 @@ def select_inputs(
     return choice
 
 
-def _choose(
-    tag: str, names, same, ctx: _Context, sel: _Context, plan, frame, info, declared, held
-) -> TestChoice:
-    """:func:`_choose_test` with the candidates' coarse rule levels fitted to be scored once
+def _choose(tag: str, *args) -> TestChoice:
+    """:func:`_choose_test` (``args`` its arguments after ``tag``) with the candidates' coarse
+    rule levels fitted to be scored once
     (:func:`~diag_plugin.fuzzy.wang_mendel.scoring_node_fit`); the chosen models are trained
     afterwards as ever."""
     from diag_plugin.fuzzy.wang_mendel import scoring_node_fit
 
     with scoring_node_fit():
-        return _choose_test(tag, names, same, ctx, sel, plan, frame, info, declared, held)
+        return _choose_test(tag, *args)
 
 
 def _choose_test(
-    tag: str, names, same, ctx: _Context, sel: _Context, plan, frame, info, declared, held
+    tag: str,
+    names,
+    same,
+    ctx: _Context,
+    sel: _Context,
+    plan,
+    frame,
+    info,
+    declared,
+    held,
+    asks=None,
+    cascades=None,
 ) -> TestChoice:
     """One test's choice (a worker's share of the build, see :mod:`.parallel`); ``declared``
     maps a loop's measurement to its declared :class:`Loop`, ``held`` each controller output
     (declared, or found by its name beside a set-point's) to the tag its loop holds (never
     one of its inputs; None where the loop is not declared): its test is
-    :func:`actuator_test`."""
+    :func:`actuator_test`. ``asks`` (:func:`asked_for`): each controller output's own loop's
+    set-point, a candidate input of the output's test even where the same-measurement screen
+    drops it; ``cascades`` (:func:`cascade_outputs`): an outer controller's output → the
+    inner loop's measurement and valve, never its inputs (what it drives)."""
+    asks, cascades = asks or {}, cascades or {}
     test = names[tag]
     excl = same.get(tag, [])
     use = sel if tag in sel.vars else ctx
@@ -624,7 +644,15 @@ def _choose_test(
         ch.declared = lp is not None
     else:
         sp = None
-        cands = [c for c in use.vars if c != tag and c not in excl and c != held.get(tag)]
+        # an output's own set-point (the flow asked for) read though the screen drops it;
+        # a cascade's outer output never reads the inner loop it drives
+        ask = asks.get(tag)
+        down = cascades.get(tag, ())
+        cands = [
+            c
+            for c in use.vars
+            if c != tag and (c not in excl or c == ask) and c != held.get(tag) and c not in down
+        ]
         cands = short.inputs_for(plan, tag, cands, use.column)
         ch = select_inputs(use, tag, cands, test=test, max_inputs=plan.max_inputs,
                            method=plan.select_method, max_sets=plan.max_sets)  # fmt: skip
@@ -634,7 +662,8 @@ def _choose_test(
             ch = actuator_test(use, ch, cands)
     for st in ch.steps:  # dead times chosen on the coarse grid, on the data's grid
         st.input = short.scale_lag(st.input, k)
-    ch.excluded = [c for c in excl if c != sp]
+    read = {t for i in ch.inputs for t in InputSpec.parse(i).tags}
+    ch.excluded = [c for c in excl if c != sp and c not in read]
     return ch
 
 
@@ -720,6 +749,33 @@ def tracked_set_point(
         if rms <= TRACKS * sd and (best is None or rms < best[0]):
             best = (rms, c)
     return best[1] if best else None
+
+
+def asked_for(loops: Sequence[Loop], named: Mapping[str, str]) -> dict[str, str]:
+    """Each controller output → its own loop's set-point tag (declared, or found by its name,
+    ``named``: output → set-point): the quantity asked for, which a fault-free valve follows
+    (a flow loop's valve opens with the flow asked for, at the pressures that drive it). A
+    candidate input of the output's test even where :func:`same_measurement` drops it — the
+    flow set-point and its valve move together — because under a cascade the loop's own
+    measurement agrees with the set-point whatever its bias: the outer loop moves the
+    set-point by the bias, and only the valve against the flow asked for shows it (issue 34,
+    item 4; docs/how-to/unit-loops.md, "A flow loop under a cascade")."""
+    out = dict(named)
+    out.update({lp.out: lp.sp for lp in loops if lp.out and lp.fixed is None and lp.sp})
+    return out
+
+
+def cascade_outputs(loops: Sequence[Loop]) -> dict[str, tuple[str, ...]]:
+    """A cascade's outer controller outputs (a declared loop's ``out`` that is another
+    declared loop's set-point) → the inner loop's measurement and valve: what the output
+    drives, never an input of its test (the inner loop holds its measurement at it), which
+    is predicted from the process conditions that drive it (item 7)."""
+    inner = {lp.sp: lp for lp in loops if lp.fixed is None and lp.sp}
+    return {
+        lp.out: tuple(t for t in (inner[lp.out].pv, inner[lp.out].out) if t)
+        for lp in loops
+        if lp.out and lp.out in inner
+    }
 
 
 def controller_output(sp: str, tags: Sequence[str]) -> str | None:
@@ -1077,8 +1133,10 @@ def _build_unit(
     loops = checked_loops(loops, list(frame.columns))
     declared = {lp.pv: lp for lp in loops}
     hand = hand_valves(frame, info, manual, loops)
+    outs = cascade_outputs(loops)
     tests, skipped = choose_tests(frame, info, tags, [lp.sp for lp in loops],
-                                  {m.tag: hand_plan(m, info) for m in hand})  # fmt: skip
+                                  {m.tag: hand_plan(m, info) for m in hand},
+                                  [lp.out for lp in loops if lp.out])  # fmt: skip
     if tags is not None and skipped:
         raise UserError("cannot test: " + "; ".join(f"{t}: {why}" for t, why in skipped.items()))
     if not tests:
@@ -1129,8 +1187,9 @@ def _build_unit(
     # each controller output → the tag its loop holds (an undeclared loop's unknown: None)
     held: dict[str, str | None] = dict.fromkeys(named)
     held.update({lp.out: lp.pv for lp in loops if lp.out})  # declared: the tag it holds
-    choices = map_tests(_choose, tests, (names, same, ctx, sel, plan, frame, info, declared, held),
-                        workers=workers, progress=tick)  # fmt: skip
+    asks = asked_for(loops, named)
+    choices = map_tests(_choose, tests, (names, same, ctx, sel, plan, frame, info, declared, held,
+                        asks, outs), workers=workers, progress=tick)  # fmt: skip
     seconds["choose inputs"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -1221,7 +1280,10 @@ def _build_unit(
         doc["build"]["plan"] = plan.reasons
     # the window's set-points, as judged here (name or description): the unit never blames
     # one (unittags.structure), and it has no historian metadata at run time
-    doc["build"]["set_points"] = [t for t in frame.columns if is_set_point(t, info.get(t))]
+    # (a cascade's inner set-point, the outer controller's output, is no operator's entry)
+    doc["build"]["set_points"] = [
+        t for t in frame.columns if is_set_point(t, info.get(t)) and t not in outs
+    ]
     # the discrete states left out of the tests (a pump's run feedback): a mode of the plant,
     # never a tag at fault either (unittags.structure)
     doc["build"]["states"] = [t for t, why in skipped.items() if why.startswith(DISCRETE_WHY)]
