@@ -235,6 +235,9 @@ def _ref_outside(self, frame, unknown, report):
         self.gone.pop(t, None)
         if run is not None:
             self.gone[t] = run
+    # per range outside at each row: when its input left (an input read L samples back left
+    # L periods before its model reads it; a hand valve's before any), and its sentence
+    left, said = {}, {}
     for k, r in enumerate(self.ranges):
         if r.key not in cols:
             continue
@@ -246,17 +249,21 @@ def _ref_outside(self, frame, unknown, report):
         first[starts] = starts
         first = np.maximum.accumulate(first)
         carried = self.since.get(k)
-        hit = np.flatnonzero(todo & off & unknown[:, r.test])
-        for i in hit:
+        rows = np.flatnonzero(todo & off & unknown[:, r.test])
+        for i in rows:
             t0 = carried if carried is not None and first[i] == 0 and off[0] else idx[first[i]]
-            out[i] = self.sentence(r, x[i], t0)
-        todo[hit] = False
+            when = -math.inf if r.tag in self.first else pd.Timestamp(t0).value
+            left.setdefault(i, []).append((when - r.lag * self.period_s * 1e9, k))
+            said[(i, k)] = self.sentence(r, x[i], t0)
         if n:
             if off[-1]:
                 keep = off.all() and carried is not None
                 self.since[k] = carried if keep else idx[first[-1]]
             else:
                 self.since[k] = None
+    for i, cands in left.items():  # the input that left first; ties: the first range
+        out[i] = said[(i, min(cands)[1])]
+        todo[i] = False
     _ref_combination(self, cols, unknown, todo, out, (watch, start))
     return out
 
