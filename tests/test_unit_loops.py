@@ -251,6 +251,17 @@ def test_a_loop_tag_not_in_the_data_is_refused_with_its_file_and_line(tmp_path):
     ]
 
 
+def test_a_decimal_comma_in_a_tags_csv_is_refused_at_its_line(tmp_path):
+    """A set-point written with a decimal comma (``1,5``) splits the row into one cell more
+    than the header: the error names the file and the line as the tags CSV's other errors
+    do, and says what to write (was pandas' words: `cannot read the tags CSV: Error
+    tokenizing data. C error: Expected 5 fields in line 3, saw 6`; the column pass)."""
+    p = tmp_path / "tags.csv"
+    p.write_text("name,unit,loop,role,set_point\nP,bar,press,pv,\nS,bar,press,sp,1,5\n")
+    with pytest.raises(UserError, match=r"tags.csv:3: 6 cells where the header has 5 .*1\.5"):
+        loops_from_tags_csv(p)
+
+
 def test_a_loop_naming_an_unknown_tag_is_refused(line):
     *_, g = line
     rc, text = diag(g, "unit", "build", "x", "--from", "2026-03-02", "--to", "2026-03-03",

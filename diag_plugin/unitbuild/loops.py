@@ -114,9 +114,24 @@ def _tags_csv(path: Path):
     try:
         frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
     except (OSError, ValueError) as exc:
-        raise UserError(f"{path}: cannot read the tags CSV: {exc}") from None
+        raise UserError(_tags_csv_error(path, exc)) from None
     cols = {c.strip().lower(): c for c in frame.columns}
     return frame, cols, cols.get("name", cols.get("tag"))
+
+
+def _tags_csv_error(path: Path, exc: Exception) -> str:
+    """A tags CSV that cannot be read, as ``file:line`` where the parser says which line
+    (a row with more cells than the header: a decimal comma, ``1,5``, splits a number)."""
+    import re
+
+    m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", str(exc))
+    if m is None:
+        return f"{path}: cannot read the tags CSV: {exc}"
+    want, line, saw = m.groups()
+    return (
+        f"{path}:{line}: {saw} cells where the header has {want} (a comma inside a value? a "
+        "decimal comma splits a number: write 1.5, or quote the cell)"
+    )
 
 
 def loops_from_tags_csv(path: str | Path) -> list[Loop]:
