@@ -159,3 +159,21 @@ def test_a_bad_states_table_is_a_file_line_problem(built, tmp_path):
         UnitFile(text.replace('seen = ["0,0,1",', 'sen = ["0,0,1",', 1), tmp_path / "s.unit.toml")
     edited = text.replace('seen = ["0,0,1",', 'seen = ["0,1,0", "0,0,1",', 1)
     assert UnitFile(edited, tmp_path / "st.unit.toml").states["seen"][0] == "0,1,0"
+
+
+def test_a_hole_in_ungridded_rows_is_no_time_held():
+    """An ungridded window (a historian's rows, 10 s apart) with a 6 h outage: the
+    combination on both sides of the hole, 2 min each side, is not held for an hour (on
+    main the hole was counted as held: the run's length went to the next row's time), nor
+    the 5 min its two sides would make together; each side alone is held 2 min."""
+    from diag_plugin.diagnose.combos import held_combos
+
+    t0 = pd.Timestamp("2026-06-02 00:00", tz="UTC")
+    before = pd.date_range(t0, periods=13, freq="10s")  # 00:00:00 … 00:02:00
+    after = pd.date_range(t0 + pd.Timedelta("6h"), periods=13, freq="10s")
+    idx = before.append(after)
+    f = pd.DataFrame({"A": 0.0, "B": 1.0}, index=idx)
+    f.iloc[-1] = [1.0, 0.0]  # the run ends before the last row: its end is a next run's start
+    assert held_combos(f, ["A", "B"], 3600.0) == []
+    assert held_combos(f, ["A", "B"], 300.0) == []
+    assert held_combos(f, ["A", "B"], 120.0) == ["0,1"]

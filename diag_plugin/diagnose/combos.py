@@ -58,20 +58,26 @@ def parse_combo(text: str, k: int) -> tuple[float, ...] | None:
 
 def held_combos(frame: pd.DataFrame, tags: Sequence[str], held_s: float) -> list[str]:
     """The combinations of ``tags`` in ``frame`` (rows in time order) held at least
-    ``held_s`` in one run: a run's length is from its first row to the next run's first row
-    (the last run: to its last row plus the median spacing). A row where a state has no
-    value ends a run and starts none. Sorted as written."""
+    ``held_s`` in one run: a run's length is from its first row to the next run's first row,
+    and at most to its last row plus the median spacing (the last run, and a run that ends
+    at a hole in the rows: an outage of an ungridded frame is no time the plant was seen in
+    the combination). A row where a state has no value ends a run and starts none; so does a
+    spacing of more than twice the median (the row after a hole starts a run). Sorted as
+    written."""
     x = frame[list(tags)].to_numpy(float)
     if not len(x):
         return []
     t = frame.index.as_unit("ns").asi8 if isinstance(frame.index, pd.DatetimeIndex) else None
     if t is None:
         return []
-    step = int(np.median(np.diff(t))) if len(t) > 1 else 0
+    dt = np.diff(t)
+    step = int(np.median(dt)) if len(t) > 1 else 0
     ok = np.isfinite(x).all(axis=1)
-    change = np.r_[True, (x[1:] != x[:-1]).any(axis=1) | (ok[1:] != ok[:-1])]
+    hole = dt > 2 * step
+    change = np.r_[True, (x[1:] != x[:-1]).any(axis=1) | (ok[1:] != ok[:-1]) | hole]
     starts = np.flatnonzero(change)
-    ends_t = np.r_[t[starts[1:]], t[-1] + step]
+    last = np.r_[starts[1:] - 1, len(t) - 1]  # each run's last row
+    ends_t = np.minimum(np.r_[t[starts[1:]], t[-1] + step], t[last] + step)
     out = set()
     need = int(round(float(held_s) * 1e9))
     for a, e in zip(starts.tolist(), ends_t.tolist(), strict=True):
