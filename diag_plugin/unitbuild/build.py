@@ -83,8 +83,10 @@ from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
 from diag_plugin.unitbuild import short
 from diag_plugin.unitbuild.loops import (
+    Disturbance,
     Loop,
     Manual,
+    checked_declared,
     checked_loops,
     checked_manual,
     settle_bounds,
@@ -995,6 +997,7 @@ def build_unit(
     loops: Sequence[Loop] = (),
     workers: int | DaskPool | None = None,
     manual: Sequence[Manual | str] = (),
+    disturbances: Sequence[Disturbance | str] = (),
 ) -> BuildResult:
     """Build unit ``name`` from ``frame`` (the fault-free window, aligned on ``period``; every
     column a candidate input) into ``folder``: model files ``NAME_TEST.toml`` and
@@ -1005,9 +1008,10 @@ def build_unit(
     (default: every core, :mod:`~diag_plugin.unitbuild.parallel`), or a
     :class:`~diag_plugin.unitbuild.parallel.DaskPool` to do that work on a Dask cluster (the
     same unit). ``manual``: hand valves (:mod:`~diag_plugin.diagnose.manual`), never tested,
-    their span written in ``[manual]``. Raises :class:`~historian.errors.UserError` on input
-    the build cannot use; a build that fails leaves none of the files it wrote and puts back
-    those it overwrote (:func:`_remove_partial`)."""
+    their span written in ``[manual]``; ``disturbances``: measured disturbances
+    (:mod:`~diag_plugin.unitbuild.loops`), never tested, candidate inputs. Raises
+    :class:`~historian.errors.UserError` on input the build cannot use; a build that fails
+    leaves none of the files it wrote and puts back those it overwrote (:func:`_remove_partial`)."""
     folder = Path(folder)
     made = not folder.exists()
     since = time.time_ns() - 100_000_000  # file times lag the clock by a tick
@@ -1017,7 +1021,8 @@ def build_unit(
             return _build_unit(name, frame, folder=folder, period=period, tag_info=tag_info,
                                tags=tags, far=far, max_inputs=max_inputs, force=force,
                                source=source, progress=progress, loops=loops,
-                               workers=workers, manual=manual)  # fmt: skip
+                               workers=workers, manual=manual,
+                               disturbances=disturbances)  # fmt: skip
     except BaseException:
         _remove_partial(folder, name, since, made, before)
         raise
@@ -1094,6 +1099,7 @@ def _build_unit(
     loops: Sequence[Loop],
     workers: int | DaskPool | None,
     manual: Sequence[Manual | str] = (),
+    disturbances: Sequence[Disturbance | str] = (),
 ) -> BuildResult:
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitError, new_unit_text
@@ -1133,9 +1139,11 @@ def _build_unit(
     loops = checked_loops(loops, list(frame.columns))
     declared = {lp.pv: lp for lp in loops}
     hand = hand_valves(frame, info, manual, loops)
+    driven = declared_disturbances(frame, manual, disturbances, loops)
     outs = cascade_outputs(loops)
     tests, skipped = choose_tests(frame, info, tags, [lp.sp for lp in loops],
-                                  {m.tag: hand_plan(m, info) for m in hand},
+                                  {**{m.tag: hand_plan(m, info) for m in hand},
+                                   **{t: DISTURBANCE_PLAN for t in driven}},
                                   [lp.out for lp in loops if lp.out])  # fmt: skip
     if tags is not None and skipped:
         raise UserError("cannot test: " + "; ".join(f"{t}: {why}" for t, why in skipped.items()))
@@ -1222,7 +1230,8 @@ def _build_unit(
         kept.append(ch)
     if plan.short:
         kept.extend(joint_tests(kept, ctx, taken, notes))
-        blind = [t for t in skipped if t not in {m.tag for m in hand}]  # a hand valve: no test
+        # a hand valve, a declared disturbance: no test
+        blind = [t for t in skipped if t not in {m.tag for m in hand} and t not in driven]
         kept.extend(blind_pair_tests(kept, blind, plan, ctx, taken))
     t1 = time.perf_counter()
     kept.extend(
@@ -1362,6 +1371,26 @@ def hand_valves(
             raise UserError(f"{where[tag]}: hand valve {tag} (manual) has no value in the window")
         out.append(span)
     return out
+
+
+#: what the build's plan says of a declared measured disturbance
+DISTURBANCE_PLAN = (
+    "a measured disturbance (declared: it drives the process, nothing here sets it): an "
+    "input, never tested"
+)
+
+
+def declared_disturbances(
+    frame: pd.DataFrame, manual: Sequence[Manual | str],
+    disturbances: Sequence[Disturbance | str], loops: Sequence[Loop],
+) -> list[str]:  # fmt: skip
+    """The declared measured disturbances' tags (``--disturbance``, a tags CSV's role
+    ``disturbance``); one not in the data, in a loop or also declared a hand valve is refused
+    naming it and where it was declared."""
+    decl = [d if isinstance(d, Disturbance) else Disturbance(d) for d in disturbances]
+    hands = [m if isinstance(m, Manual) else Manual(m) for m in manual]
+    have = set(checked_declared([*hands, *decl], list(frame.columns), loops))
+    return [t for t in dict.fromkeys(d.tag for d in decl) if t in have]
 
 
 def hand_plan(span: ManualSpan, info: Mapping[str, TagInfo]) -> str:
@@ -1574,6 +1603,7 @@ def build_from_historian(
     period: str | None = None,
     workers: int | DaskPool | None = None,
     manual: Sequence[Manual | str] = (),
+    disturbances: Sequence[Disturbance | str] = (),
 ) -> BuildResult:
     """:func:`build_unit` on the historian's window ``[start, end)``: every tag it holds is
     a candidate input; the grid period is ``period`` (``--period``: a faster tag averaged
@@ -1635,6 +1665,7 @@ def build_from_historian(
         loops=loops,
         workers=workers,
         manual=manual,
+        disturbances=disturbances,
     )
     res.seconds = {"read": read_s, **res.seconds}
     res.seconds["total"] += read_s

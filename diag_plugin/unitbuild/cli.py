@@ -49,7 +49,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         metavar="TAGS_CSV",
         help="loops declared in a tags CSV's 'loop' and 'role' (pv|sp|out|sensor|actuator) "
         "columns; a fixed set-point in a 'set_point' column of the pv row; hand valves by "
-        "the role 'manual' (a row without a loop)",
+        "the role 'manual', measured disturbances by the role 'disturbance' (rows without "
+        "a loop)",
     )
     p.add_argument(
         "--manual",
@@ -59,6 +60,15 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="a hand valve (an operator's setting): an input, never tested; outside the span "
         "the window learned it in, the tests reading it are unknown (CHECK_FUNCTION) until "
         "diag unit accept learns the new position (repeatable; docs/how-to/unit-loops.md)",
+    )
+    p.add_argument(
+        "--disturbance",
+        action="append",
+        default=[],
+        metavar="TAG",
+        help="a measured disturbance (the weather, an upstream flow, an influent): it drives "
+        "the process and nothing in it sets it; an input, never tested (repeatable; "
+        "docs/how-to/unit-loops.md)",
     )
     p.add_argument(
         "--period",
@@ -118,7 +128,7 @@ def _tags_from(path: str) -> list[str]:
     return tags
 
 
-def _build(args, tags, loops, manual, t0, t1, workers):
+def _build(args, tags, loops, manual, disturbances, t0, t1, workers):
     """The build, its progress drawn on a terminal's standard error."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
@@ -156,12 +166,15 @@ def _build(args, tags, loops, manual, t0, t1, workers):
             period=args.period,
             workers=workers,
             manual=manual,
+            disturbances=disturbances,
         )
 
 
 def cmd_unit_build(args) -> int:
     from diag_plugin.unitbuild.loops import (
+        Disturbance,
         Manual,
+        disturbances_from_tags_csv,
         loops_from_tags_csv,
         manual_from_tags_csv,
         parse_loop,
@@ -170,8 +183,10 @@ def cmd_unit_build(args) -> int:
     tags = args.tags or (_tags_from(args.tags_from) if args.tags_from else None)
     loops = [parse_loop(x) for x in args.loop]
     manual = [Manual(t.strip(), f"--manual {t}") for t in args.manual]
+    driven = [Disturbance(t.strip(), f"--disturbance {t}") for t in args.disturbance]
     if args.loops_from:
         manual += manual_from_tags_csv(args.loops_from)  # first: a hand valve in a loop
+        driven += disturbances_from_tags_csv(args.loops_from)
         loops += loops_from_tags_csv(args.loops_from)
     if args.max_inputs < 1:
         raise UserError(f"--max-inputs {args.max_inputs}: at least 1")
@@ -183,7 +198,7 @@ def cmd_unit_build(args) -> int:
             from diag_plugin.unitbuild.parallel import DaskPool
 
             workers = stack.enter_context(DaskPool.connect(args.dask, args.dask_timeout))
-        res = _build(args, tags, loops, manual, t0, t1, workers)
+        res = _build(args, tags, loops, manual, driven, t0, t1, workers)
     if _printed_json(args, res.as_dict()):
         return 0
     print(

@@ -32,6 +32,16 @@ next position is a new operating point, not a fault. Declared with ``--manual TA
 role ``manual`` in a tags CSV (a row without a ``loop``), it is never a test, stays a
 candidate input, and the unit records the span the window saw it in
 (:mod:`diag_plugin.diagnose.manual`).
+
+**A measured disturbance** (issue 34, item 4): a tag the process does not set but is set by —
+the weather, an upstream unit's flow, a plant's influent — is a cause, not an effect: a test
+of it is a relation the wrong way round (the water temperature "predicted" from the blower's
+power, the influent from an air valve), and alarms when the disturbance does what it does
+(a storm). Declared with ``--disturbance TAG`` or the role ``disturbance`` (or ``driver``,
+``exogenous``) in a tags CSV (a row without a ``loop``), it is never a test and stays a
+candidate input; where it leaves what a test learned, that test answers as for any input
+(:mod:`diag_plugin.diagnose.operating`). A row without a loop whose role is none of these is
+refused as ``file:line``.
 """
 
 from __future__ import annotations
@@ -47,6 +57,8 @@ from historian.errors import UserError
 ROLES = {"pv": "pv", "sensor": "pv", "sp": "sp", "out": "out", "actuator": "out"}
 #: the role of a hand valve in the tags CSV (a row without a loop)
 MANUAL = "manual"
+#: the roles of a measured disturbance in the tags CSV (a row without a loop)
+DISTURBANCE = ("disturbance", "driver", "exogenous")
 
 
 @dataclass(frozen=True)
@@ -213,25 +225,84 @@ class Manual:
 def manual_from_tags_csv(path: str | Path) -> list[Manual]:
     """The hand valves a tags CSV declares: rows whose ``role`` is ``manual`` (see module
     doc); none without a ``role`` column. A hand valve in a loop is refused as ``file:line``."""
-    path = Path(path)
+    return [Manual(tag, where) for tag, where in _loopless(Path(path), (MANUAL,), "a hand valve")]
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """A measured disturbance: its tag and where it was declared (``--disturbance`` or
+    ``tags.csv:7``)."""
+
+    tag: str
+    where: str = "--disturbance"
+
+
+def disturbances_from_tags_csv(path: str | Path) -> list[Disturbance]:
+    """The measured disturbances a tags CSV declares: rows whose ``role`` is ``disturbance``,
+    ``driver`` or ``exogenous`` (see module doc); none without a ``role`` column."""
+    rows = _loopless(Path(path), DISTURBANCE, "a measured disturbance")
+    return [Disturbance(tag, where) for tag, where in rows]
+
+
+def _loopless(path: Path, roles: Sequence[str], what: str) -> list[tuple[str, str]]:
+    """(tag, ``file:line``) of the tags CSV's rows whose ``role`` is one of ``roles``; such a
+    row in a loop, or a row without a loop whose role is no loop-less one, is refused as
+    ``file:line``."""
     frame, cols, name = _tags_csv(path)
     if "role" not in cols:
         return []
+    loopless = (MANUAL, *DISTURBANCE)
     out = []
     for i, row in enumerate(frame.to_dict("records")):
-        if row[cols["role"]].strip().lower() != MANUAL:
-            continue
+        role = row[cols["role"]].strip().lower()
         where = f"{path}:{i + 2}"
         tag = row[name].strip() if name is not None else ""
-        if not tag:
-            raise UserError(f"{where}: role manual without a tag name ('name' column)")
         loop = row[cols["loop"]].strip() if "loop" in cols else ""
+        if role and not loop and role not in loopless:
+            raise UserError(
+                f"{where}: role {role!r} of {tag or 'a row without a name'} without a loop: a "
+                f"row without a loop is one of {', '.join(loopless)} (a loop's "
+                f"{', '.join(ROLES)} needs its loop's name in the 'loop' column)"
+            )
+        if role not in roles:
+            continue
+        if not tag:
+            raise UserError(f"{where}: role {role} without a tag name ('name' column)")
         if loop:
             raise UserError(
-                f"{where}: {tag} is a hand valve (role manual) and in loop {loop}: an "
-                "operator's setting is no loop's part (leave its loop cell empty)"
+                f"{where}: {tag} is {what} (role {role}) and in loop {loop}: it is no loop's "
+                "part (leave its loop cell empty)"
             )
-        out.append(Manual(tag, where))
+        out.append((tag, where))
+    return out
+
+
+def checked_declared(
+    declared: Iterable[Manual | Disturbance], columns: Sequence[str], loops: Iterable[Loop] = ()
+) -> list[str]:
+    """The tags of declared hand valves and disturbances, each in ``columns``, in no loop,
+    and declared one kind only, once each; a problem names the tag and where it was declared."""
+    have = set(columns)
+    parts = {t: lp for lp in loops for t in (lp.pv, lp.sp, lp.out) if t}
+    kinds: dict[str, type] = {}
+    out: list[str] = []
+    for m in declared:
+        what = "hand valve" if isinstance(m, Manual) else "disturbance"
+        role = "manual" if isinstance(m, Manual) else "disturbance"
+        if m.tag not in have:
+            raise UserError(f"{m.where}: {what} {m.tag} ({role}) is not in the data")
+        if m.tag in parts:
+            raise UserError(
+                f"{m.where}: {what} {m.tag} ({role}) is a tag of loop {parts[m.tag]}: "
+                "declare it one or the other"
+            )
+        if kinds.setdefault(m.tag, type(m)) is not type(m):
+            raise UserError(
+                f"{m.where}: {m.tag} is declared a hand valve and a measured disturbance: "
+                "declare it one or the other"
+            )
+        if m.tag not in out:
+            out.append(m.tag)
     return out
 
 
@@ -239,21 +310,8 @@ def checked_manual(
     manual: Iterable[Manual], columns: Sequence[str], loops: Iterable[Loop] = ()
 ) -> list[str]:
     """The hand valves' tags, each in ``columns`` and in no loop, once each; a problem names
-    the tag and where it was declared."""
-    have = set(columns)
-    parts = {t: lp for lp in loops for t in (lp.pv, lp.sp, lp.out) if t}
-    out: list[str] = []
-    for m in manual:
-        if m.tag not in have:
-            raise UserError(f"{m.where}: hand valve {m.tag} (manual) is not in the data")
-        if m.tag in parts:
-            raise UserError(
-                f"{m.where}: hand valve {m.tag} (manual) is a tag of loop {parts[m.tag]}: "
-                "declare it one or the other"
-            )
-        if m.tag not in out:
-            out.append(m.tag)
-    return out
+    the tag and where it was declared (:func:`checked_declared`)."""
+    return checked_declared(manual, columns, loops)
 
 
 def checked_loops(loops: Iterable[Loop], columns: Sequence[str]) -> list[Loop]:
