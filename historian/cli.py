@@ -322,7 +322,7 @@ def cmd_tags(args) -> int:
         rng = "" if lo is None and hi is None else f"{_fmt(lo)} .. {_fmt(hi)}"
         table.add_row(
             r["tag"],
-            r["unit"] or "",
+            to_jsonable(r["unit"]) or "",  # no unit: None, or NaN in a column of strings
             rng,
             f"{r['samples']:,}",
             _when(r["first"]),

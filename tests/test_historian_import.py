@@ -159,3 +159,29 @@ def test_cli_import_and_tags(tmp_path, capsys):
     assert "F17" in capsys.readouterr().out
     with Historian(db) as h:
         assert h.integrity_check() == []
+
+
+def test_cli_tags_lists_a_tag_whose_unit_cell_is_empty(tmp_path, capsys):
+    """A tags CSV whose mode tag has no unit (``AHU1 Occ Mode,,0,1,…`` beside tags with
+    units): ``diag tags`` lists it with an empty unit. On main it crashed, ``diag: internal
+    error: NotRenderableError: unable to render float`` (the report's unit column is strings,
+    the empty cell NaN; the AHU acceptance pass)."""
+    db = f"sqlite:///{tmp_path / 'u.db'}"
+    data = tmp_path / "ahu.csv"
+    data.write_text(
+        "ts,SA_TEMP,AHU1 Occ Mode\n2026-04-13 06:00:00,17.1,1\n2026-04-13 06:05:00,17.0,1\n"
+    )
+    tags = tmp_path / "tags.csv"
+    tags.write_text(
+        "name,unit,lo,hi,description\n"
+        "SA_TEMP,degC,0,50,supply air temperature\n"
+        "AHU1 Occ Mode,,0,1,occupied (1) / unoccupied (0)\n"
+    )
+    assert main(["--db", db, "import", str(data), "--tags", str(tags)]) == 0
+    capsys.readouterr()
+    assert main(["--db", db, "tags"]) == 0
+    out = capsys.readouterr().out
+    assert "AHU1 Occ Mode" in out and "degC" in out
+    assert main(["--db", db, "tags", "--json"]) == 0
+    rows = {r["tag"]: r for r in json.loads(capsys.readouterr().out)}
+    assert rows["AHU1 Occ Mode"]["unit"] is None and rows["SA_TEMP"]["unit"] == "degC"

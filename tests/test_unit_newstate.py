@@ -262,3 +262,49 @@ def same_in_pieces(make, idx, x, cuts, held, why) -> None:
         parts.append(g.transform(idx[a:b], x[a:b]))
     assert np.concatenate([p[0] for p in parts]).tolist() == held.tolist()
     assert np.concatenate([p[1] for p in parts]).tolist() == why.tolist()
+
+
+def test_accept_says_which_constant_tag_it_learned_without_json(built):
+    """``diag unit accept`` without ``--json`` prints the notes of what the unit now answers
+    at (the constant tags, the states learned) before the models' notes, and counts those
+    it does not print: here 9 notes (``--json``), 4 printed, then ``… 5 more notes``. Main
+    printed the first 4 and dropped the rest without a word (on the air-handling unit of
+    docs/explanation/acceptance-ahu.md the cooling valve's learned span was the fifth)."""
+    _, g, tmp, _, _ = built
+    accept = ["unit", "accept", "st", "--from", fmt(T0 + DAY), "--to", fmt(T0 + 2 * DAY)]
+    rc, text = diag(g, *accept, "--json")
+    assert rc == 0, text
+    every = json.loads(text)["warnings"]
+    assert diag(g, "unit", "rollback", "st")[0] == 0
+    rc, text = diag(g, *accept)
+    try:
+        assert rc == 0, text
+        notes = [
+            ln.removeprefix("  note: ") for ln in text.splitlines() if ln.startswith("  note: ")
+        ]
+        more = [ln for ln in text.splitlines() if ln.startswith("  … ")]
+        assert any(n.startswith("constant tag RUN3: span 0 … 0") for n in notes), text
+        assert len(every) > 4 and notes == every[:4], (every, text)
+        assert more == [f"  … {len(every) - 4} more notes of the same kind (--json lists them all)"]
+    finally:
+        rc, text = diag(g, "unit", "rollback", "st")
+        assert rc == 0, text
+
+
+def test_the_notes_beyond_the_fourth_are_counted_not_dropped():
+    """The five notes of the air-handling unit's accept (docs/explanation/acceptance-ahu.md):
+    four printed, then how many more. Main's ``unit accept`` printed the first four and
+    dropped the fifth without a word — there, that the cooling valve's span was learned."""
+    from diag_plugin.unitbuild.cli import note_lines
+
+    notes = [
+        "constant tag CHWV-1: span 0 … 0 (margin 1e-09) → 0 … 24.2 (margin 1e-09)",
+        "ahu_DSP_1.toml: output: span 0 … 500 → -50 … 500 (the window reaches -6.87 … 264.3)",
+        "ahu_FLT_DP.toml: output: span 0 … 500 → -50 … 500 (the window reaches -3.54 … 127.78)",
+        "ahu_HW_VLV.toml: input DSP_1[k]: span 0 … 500 → -16.6667 … 500, 31 → 32 sets",
+        "ahu_OutsideRH.toml: input DSP_1[k-4]: span 0 … 500 → -16.6667 … 500, 31 → 32 sets",
+    ]
+    lines = note_lines(notes)
+    assert lines[:4] == [f"  note: {n}" for n in notes[:4]]
+    assert lines[4:] == ["  … 1 more notes of the same kind (--json lists them all)"]
+    assert note_lines(notes[:4]) == lines[:4]

@@ -347,7 +347,10 @@ def accept(
             rb.save(path)
         windows = sorted(all_windows)
         res.windows = [(a.isoformat(), b.isoformat()) for a, b in windows]
-        warnings.extend(widen_manual(uf.path, new))  # before the thresholds: they judge there
+        # before the thresholds: they judge there; first among the notes, which the text
+        # output cuts to four: a tag the unit now answers at (a constant tag's, a hand
+        # valve's span, a state learned) outweighs a model's span note
+        warnings[:0] = widen_manual(uf.path, new)
         fresh = Unit.load(uf.path, uf.path.parent)
         history = max((max_lag(m.inputs) for m in fresh.models.values()), default=0)
         frame, runs = _joined([window(a, b) for a, b in windows], fresh.period, history)

@@ -224,10 +224,8 @@ def cmd_unit_build(args) -> int:
     for tag, why in res.skipped.items():
         if tag not in hand:
             print(f"  not tested: {tag}: {why}")
-    for n in res.notes[:4]:
-        print(f"  note: {n}")
-    if len(res.notes) > 4:
-        print(f"  … {len(res.notes) - 4} more notes of the same kind (--json lists them all)")
+    for line in note_lines(res.notes):
+        print(line)
     print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in res.seconds.items()))
     print(f"next: diag unit show {args.name}; diag diagnose {args.name} --from … --to …")
     return 0
@@ -281,9 +279,21 @@ def cmd_unit_accept(args) -> int:
             "its inputs do not tell the accepted period from the windows it learned, so both "
             f"share one band; diag unit rollback {res.unit} undoes the accept"
         )
-    for w in res.warnings[:4]:
-        print(f"  note: {w}")
+    for line in note_lines(res.warnings):
+        print(line)
     return 0
+
+
+def note_lines(notes: list[str], shown: int = 4) -> list[str]:
+    """The lines ``unit build`` and ``unit accept`` print of their notes: the first
+    ``shown``, then how many more there are (``--json`` lists them all). Until 2026-11-30
+    the accept dropped the rest without a word (the AHU's pass, acceptance-ahu.md)."""
+    lines = [f"  note: {n}" for n in notes[:shown]]
+    if len(notes) > shown:
+        lines.append(
+            f"  … {len(notes) - shown} more notes of the same kind (--json lists them all)"
+        )
+    return lines
 
 
 def _kept(note: dict) -> str:
