@@ -98,3 +98,27 @@ def test_at_two_operating_points_the_independent_values_add_up():
     joined = [effective_samples(z[:, j]) for j in (0, 1)]
     assert joined[0] < 0.5 * per[0]  # the joined series would count far fewer
     np.testing.assert_allclose(s / scales, np.tile(predictive_widening(np.array(per)), (2, 1)))
+
+
+def test_a_test_that_fits_a_computed_tag_exactly_is_taken_at_a_converters_resolution():
+    """A valve command computed from its split-range output and shut most of the window
+    leaves its test float rounding for residuals (the AHU pass: robust scale 2e-77 %, the
+    scaled residual's variance 8e+150, ``T²`` of 1e-199 with negative values, the test
+    carrying all of it, docs/explanation/acceptance-ahu.md). Its scale is at least one 16-bit
+    count of the span (``RESOLUTION_PCT``): its scaled residuals vanish below that, the
+    covariance stays of the order of one, and ``T²`` is the other test's alone, non-negative
+    (its own threshold still judges the exact test)."""
+    from diag_plugin.learn.thresholds import RESOLUTION_PCT
+
+    rng = np.random.default_rng(3)
+    n = 2000
+    exact = np.where(rng.random(n) < 0.7, 0.0, rng.normal(0, 1e-76, n))  # rounding
+    x = np.c_[rng.normal(size=n), exact]
+    c, s, S, _ = _combined_params(x)
+    assert s[1] >= RESOLUTION_PCT
+    assert np.all(np.isfinite(S)) and np.abs(S).max() < 10, S
+    model = CombinedModel([], c, s, S, np.zeros((2, 0)), None)
+    t2, _ = model.evaluate(x[:300], None, shares=False)
+    alone = ((x[:300, 0] - c[0]) / s[0]) ** 2 / S[0, 0]
+    assert np.all(t2 >= 0)
+    np.testing.assert_allclose(t2, alone, rtol=1e-6)

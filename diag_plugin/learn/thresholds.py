@@ -855,9 +855,19 @@ def level_points(
     return out
 
 
+#: the smallest residual scale the combined test takes, in % of the span: one count of a
+#: 16-bit converter over the span. A test that fits a computed tag exactly (a valve command
+#: from its split-range output, shut most of the window) leaves residuals of float rounding:
+#: a robust scale of 2e-77 %, a variance of 8e+150 of its scaled residual, a ``T²`` of
+#: 1e-199 with negative values, and a limit fitted to that (docs/explanation/acceptance-ahu.md);
+#: no transmitter resolves a span finer than this
+RESOLUTION_PCT = 100.0 / 2**16
+
+
 def _centre_scale(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Median and robust scale (1.4826 MAD; the sd where the MAD is 0, else 1) of each
-    column of ``x`` (a column never known: NaN and 1)."""
+    column of ``x`` (a column never known: NaN and 1); a scale is at least
+    :data:`RESOLUTION_PCT`."""
     import warnings
 
     with warnings.catch_warnings():
@@ -865,7 +875,8 @@ def _centre_scale(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         center = np.nanmedian(x, axis=0)
         scale = 1.4826 * np.nanmedian(np.abs(x - center), axis=0)
         sd = np.nanstd(x, axis=0)
-    return center, np.where(scale > 0, scale, np.where(sd > 0, sd, 1.0))
+    scale = np.where(scale > 0, scale, np.where(sd > 0, sd, 1.0))
+    return center, np.maximum(scale, RESOLUTION_PCT)
 
 
 #: the one-sided tail probability at which :func:`predictive_widening` matches Student's t to
