@@ -38,9 +38,7 @@ hand-build:
    rank correlation — a redundant transmitter, a copy, a unit conversion or a monotone
    function of the tag).
 3. **Models**: each test's model (``wm-avg``; sets per input what the data fill,
-   :func:`~diag_plugin.selection.sets.sets_for_data`; an input's span from the window's
-   range keeps its extremes in the grid's edge sets, :func:`edge_span`, so the grid answers
-   a modest step past the window along its trend) is written as an ordinary model
+   :func:`~diag_plugin.selection.sets.sets_for_data`) is written as an ordinary model
    file and trained like ``diag train`` does (80 % / 20 % time-ordered validation, then all
    of the window), with the window as its provenance.
 4. **Thresholds**: :func:`~diag_plugin.learn.thresholds.learn_thresholds` on the same
@@ -82,7 +80,7 @@ from diag_plugin.selection.features import Features
 from diag_plugin.selection.lags import TOLERANCE, LagScreen, default_max_lag
 from diag_plugin.selection.scoring import BlockScorer, FrozenRuleBase
 from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
-from diag_plugin.selection.spans import nice_span, variable_for
+from diag_plugin.selection.spans import variable_for
 from diag_plugin.unitbuild import short
 from diag_plugin.unitbuild.loops import (
     Disturbance,
@@ -111,8 +109,6 @@ MAX_INPUTS = 3
 ACTUATOR_MAX_INPUTS = 6
 #: a step must cut the held-out error by more than this share to be kept
 MIN_GAIN = 0.03
-#: the methods whose model is a rule grid (its inputs' spans, :func:`edge_span`)
-GRIDS = ("wm-avg", "wm")
 #: candidate tags retrained and scored per step (the rest screened out by correlation)
 SCREENED = 5
 #: dead times retrained per screened candidate (the best by correlation)
@@ -424,9 +420,6 @@ class _Context:
         self.period = period
         self.spans: dict[str, tuple[float, float]] = {}
         self.vars: dict[str, Variable] = {}
-        #: the window's range of each tag whose span is taken from it (no declared range):
-        #: a rule grid's edge sets hold its extremes (:func:`edge_span`)
-        self.ranges: dict[str, tuple[float, float]] = {}
         #: declared loops' set-point tags constant over the window (:meth:`hold_set_point`)
         self.fixed_sp: dict[str, Variable] = {}
         for t in frame.columns:
@@ -436,8 +429,6 @@ class _Context:
             v = variable_for(str(InputSpec("", (t,), 0)), frame=frame, tag_info=info)
             self.vars[t] = v
             self.spans[t] = v.span
-            if not (t in info and info[t].span is not None):
-                self.ranges[t] = (float(np.nanmin(col)), float(np.nanmax(col)))
         self.feats = Features(frame, self.spans)
         self.block = block_of(frame.index, FOLDS, frame.notna().any(axis=1).to_numpy())
         self.max_lag = default_max_lag(frame.index)
@@ -489,67 +480,15 @@ def _rulebase(
 
 
 def _with_sets(
-    ins: Sequence[Variable],
-    cols: Sequence[np.ndarray],
-    cut: int,
-    max_sets: int | None = None,
-    ranges: Mapping[str, tuple[float, float]] | None = None,
+    ins: Sequence[Variable], cols: Sequence[np.ndarray], cut: int, max_sets: int | None = None
 ) -> list[Variable]:
     """The inputs with the sets the training rows fill (what ``diag model new`` writes), at
-    most ``max_sets`` (a short window's coarser grid); with ``ranges`` (a rule grid's inputs,
-    :attr:`_Context.ranges`) each span taken from the window's range keeps its extremes in
-    the edge sets (:func:`edged`)."""
+    most ``max_sets`` (a short window's coarser grid)."""
     if not ins:
         return []
     sets = sets_for_data([c[:cut] for c in cols], [v.span for v in ins])
     sets = sets if max_sets is None else min(sets, max_sets)
-    out = [dc_replace(v, sets=sets) for v in ins]
-    return out if ranges is None else edged(out, ranges)
-
-
-#: a rule grid's edge set that would hold none of the window's samples: the window's extreme
-#: placed this share of a set's step inside the span's end instead (:func:`edge_span`)
-EDGE_STEP = 0.25
-
-
-def edge_span(
-    span: tuple[float, float], data: tuple[float, float], sets: int
-) -> tuple[float, float]:
-    """A rule grid's input span taken from the window's range ``data`` (``span``: that range
-    padded, :func:`~diag_plugin.selection.spans.variable_for`) such that each edge set holds
-    the window's extreme: ``span`` itself where it does, else the range padded by
-    :data:`EDGE_STEP` of a set's step on each side.
-
-    A Wang–Mendel model answers an input past its span from its edge set, along the data's
-    slope, for up to a quarter span (:mod:`diag_plugin.fuzzy.wang_mendel`, "Past the span"),
-    and its coarse levels answer only between the first and last sets holding data. A fixed
-    pad of 2 % of the range is more than half a step from 27 sets on: the edge sets then hold
-    no sample, no rule answers there, and the test is unknown a hair past the window's
-    extremes — where a grid of fewer sets, or a short window's linear test (its inputs trusted
-    a quarter of their range past it, :func:`.short.widened`), answers. A window just over
-    :data:`.short.SHORT_ROWS` samples got 31 sets on a one-input grid and went unknown on
-    its continuation where the same window 20 samples shorter answered (issue 34, item 3)."""
-    lo, hi = span
-    a, b = data
-    if sets < 2 or not hi > lo or not b > a:
-        return span
-    step = (hi - lo) / (sets - 1)
-    if (a - lo) / step < 0.5 and (b - lo) / step >= sets - 1.5:
-        return span  # the kernel's set of a value: floor((x - lo) / step + 0.5)
-    pad = (b - a) * EDGE_STEP / (sets - 1 - 2 * EDGE_STEP)
-    return nice_span(a - pad, b + pad)
-
-
-def edged(ins: Sequence[Variable], ranges: Mapping[str, tuple[float, float]]) -> list[Variable]:
-    """``ins`` (with their sets) with :func:`edge_span` applied to each plain input whose
-    span is taken from the window's range (``ranges``: tag → that range)."""
-    out = []
-    for v in ins:
-        s = InputSpec.parse(v.spec)
-        if not s.fn and s.tags[0] in ranges:
-            v = dc_replace(v, span=edge_span(v.span, ranges[s.tags[0]], v.sets))
-        out.append(v)
-    return out
+    return [dc_replace(v, sets=sets) for v in ins]
 
 
 def select_inputs(
@@ -594,8 +533,7 @@ def select_inputs(
             for lag in lags:
                 cols = [*base_cols, ctx.column(c, lag)]
                 pairs = [*chosen, (c, lag)]
-                ins = _with_sets([ctx.variable(t, g) for t, g in pairs], cols, rows, max_sets,
-                                 ctx.ranges if method in GRIDS else None)  # fmt: skip
+                ins = _with_sets([ctx.variable(t, g) for t, g in pairs], cols, rows, max_sets)
                 variants.append((lag, ins, cols))
             bounds = [scorer.bound(ins, cols) for _, ins, cols in variants]
             bounded.append((min(b for b, _ in bounds), rank, c, variants, bounds))
@@ -997,8 +935,6 @@ def _fit_test(
     ins = _with_sets([ctx.spec_variable(s) for s in specs], cols, len(frame))
     if ch.sets:  # a short window's grid: the sets its cells were judged at
         ins = [dc_replace(v, sets=ch.sets) for v in ins]
-    if ch.method in GRIDS:  # as its inputs were scored (select_inputs)
-        ins = edged(ins, ctx.ranges)
     if ch.method == short.LINEAR:  # a span from a few hundred samples only scales
         ins = [
             v if s.fn or (info.get(s.tags[0]) and info[s.tags[0]].span) else
