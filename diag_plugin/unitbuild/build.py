@@ -1256,6 +1256,10 @@ def _build_unit(
             loaded[tm.path.resolve()] = tm
     if not kept:
         raise UserError("no tag could be modelled from the others: nothing to test")
+    edges = edgeless_note([(ch.test, loaded.get((folder / models[ch.test]).resolve()))
+                           for ch in kept])  # fmt: skip
+    if edges:
+        notes.append(edges)
     kept.extend(spread_tests(kept, models, taken))
     seconds["train models"] = time.perf_counter() - t0
 
@@ -1526,6 +1530,56 @@ def blind_pair_tests(
             )
         )
     return out
+
+
+#: grids a note names by test before it counts the rest (:func:`edgeless_note`)
+EDGELESS_NAMED = 3
+
+
+def edgeless_note(tests: Sequence[tuple[str, TestModel | None]]) -> str:
+    """The build's note on the rule grids that answer nothing past the window's range of an
+    input (issue 34, item 3): a grid whose first or last set of an input holds no rule (a span
+    from the window's range, padded by 2 %, is more than half a set's step wider than that
+    range from 27 sets on, :func:`~diag_plugin.selection.spans.variable_for`). A Wang–Mendel
+    model clips an input past its span to the edge set and answers there only from a rule, and
+    its coarse levels only between the first and last sets holding data
+    (:mod:`diag_plugin.fuzzy.wang_mendel`): right past the window the test is unknown, the unit
+    CHECK_FUNCTION naming the input (:mod:`diag_plugin.diagnose.operating`), where a window under
+    :data:`.short.SHORT_ROWS` samples' linear test answers a quarter of the input's range
+    further (:func:`.short.widened`). Answering there instead cost the long windows' detection
+    (docs/how-to/unit-short-windows.md, seventh try), so the build says it. ``tests``: per
+    test its name and model as the unit loads it (None: not loaded); "" where no grid is
+    edgeless."""
+    from diag_plugin.diagnose.operating import model_ranges
+
+    grids, said = 0, []
+    for name, tm in tests:
+        m = getattr(tm, "model", None)
+        parts = getattr(m, "partitions_", None)
+        if parts is None or not getattr(m, "keys_", np.empty(0)).size:
+            continue
+        grids += 1
+        cells = m.cell_indices()
+        plain = [InputSpec.parse(s).fn == "" for s in tm.inputs]
+        ranges = iter(model_ranges(m, tm.inputs))
+        for j, p in enumerate(parts):
+            if not plain[j]:
+                continue
+            tag, lo, hi = next(ranges)
+            if cells[:, j].min() > 0 or cells[:, j].max() < p.n - 1:
+                said.append(f"{name} ({InputSpec.parse(tm.inputs[j])} {lo:.4g} … {hi:.4g}, its "
+                            f"span {p.lo:.4g} … {p.hi:.4g} in {p.n} sets)")  # fmt: skip
+                break
+    if not said:
+        return ""
+    more = f" and {len(said) - EDGELESS_NAMED} more" if len(said) > EDGELESS_NAMED else ""
+    return (
+        f"{len(said)} of {grids} rule grids answer nothing past the range their rules cover "
+        f"of an input (no rule in an edge set): {'; '.join(said[:EDGELESS_NAMED])}{more}; "
+        "past it the unit is CHECK_FUNCTION and names the input (diag unit accept learns the "
+        f"new range), where a window under {short.SHORT_ROWS:,} samples' linear test answers "
+        "a quarter of the input's range past the window"
+    )
 
 
 def spread_tests(kept: Sequence[TestChoice], models: dict[str, str], taken: set[str]):
