@@ -55,8 +55,8 @@ rows per CPU s, load 12–13), 7.57 → 6.15 rolled (26,420 → 32,520, load 9�
 filter's Butterworth design in numpy and the χ² levels from ``scipy.special``, neither
 ``scipy.signal`` nor ``scipy.stats`` imported), 5 pairs against ``main`` at a load of 8–9.5,
 ``--rolled --no-csv``: 200,000 rows 4.94 → 4.43 CPU s (40,480 → 45,150 rows per CPU s;
-imports 1.64 → 1.03); 1,000,000 rows, 7 pairs at a load of 10–15, 16.15 → 16.57 (61,900 →
-60,350; pairs' median ratio 0.98: the 0.7 s saved is inside that load's ±20 % per run); the
+imports 1.64 → 1.03); 1,000,000 rows, 12 pairs at a load of 10–15, 16.52 → 16.47 (60,530 →
+60,720; pairs' median ratio 0.97: the 0.7 s saved is inside that load's ±20 % per run); the
 same JSON.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
