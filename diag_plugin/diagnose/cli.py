@@ -525,6 +525,14 @@ def cmd_diagnose(args) -> int:
     with _start_up():  # the imports and the unit's objects: no collections, then frozen
         import pandas as pd
 
+        # scipy.linalg and scipy.special: what the first piece's replay imports, here with
+        # the collector off (scipy.stats imported both with the unit's modules before):
+        # numba's first dispatch imports scipy.linalg (its BLAS check), the combined test's
+        # χ² levels scipy.special; after the freeze they made one full collection
+        # (tests/test_diagnose_output.py)
+        import scipy.linalg  # noqa: F401
+        import scipy.special  # noqa: F401
+
         from diag_plugin.diagnose.leadin import lead_in, since
         from diag_plugin.diagnose.unit import concat
         from historian.store import Historian  # noqa: F401 - here, not in the reading thread

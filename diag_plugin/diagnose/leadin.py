@@ -42,14 +42,14 @@ def lead_in_parts(unit: Any) -> dict[str, int]:
     samples at the default cut-off 0.01); ``delays``, the on/off delays (with the unit's own
     off-delay, that once more). State that depends on all history (a latch, a held isolation,
     ``dir()`` inputs) starts at the lead-in's start."""
-    from scipy import signal
+    from diag_plugin.diagnose.butterworth import sos_poles
 
     ev = unit.ev
     out = {"lags": max((b.history for b in unit.builders.values()), default=0)}
     out["spread"] = 2 * unit.spread.window if unit.spread_cols.size else 0
     out["filter"] = 0
     if unit.lowpass is not None:
-        _, poles, _ = signal.sos2zpk(unit.lowpass.sos_)
+        poles = sos_poles(unit.lowpass.sos_)  # scipy.signal.sos2zpk's
         slowest = float(np.abs(poles).max())
         if 0 < slowest < 1:
             out["filter"] = math.ceil(math.log(SETTLED) / math.log(slowest))
