@@ -15,8 +15,9 @@ A unit whose file, models or matrix are broken is reported CHECK_FUNCTION with B
 its ``file:line`` problems every cycle; the others go on. Derived inputs (``rate(T,L)``,
 ``diff(A,B)``, ``const``, ``hour()``, ``days()``, ``dir(T,h)``) are columns of the history
 computed each cycle (:mod:`~diag_plugin.diagnose.derived`), read with their lags like tags.
-Units whose models read ``dir(T)`` without its threshold, or whose symptoms are fuzzy (N/0/P,
-isolated by rules (10)–(14)), are evaluated one by one with :meth:`Unit.evaluate` (same
+Units whose models read ``dir(T)`` without its threshold, whose symptoms are fuzzy (N/0/P,
+isolated by rules (10)–(14)), or that are judged only while they run (a run condition,
+:mod:`~diag_plugin.diagnose.running`), are evaluated one by one with :meth:`Unit.evaluate` (same
 result, slower). The alarm settings
 ``diag unit build`` writes on every unit (:mod:`~diag_plugin.diagnose.unitloops`) stay on the
 fast path, their state carried per slot or unit across cycles: the running spread of a spread
@@ -97,8 +98,10 @@ def _stackable(unit: Unit) -> bool:
 
 
 def _crisp(unit: Unit) -> bool:
-    """True for crisp symptoms (the fast path); fuzzy N/0/P units go one by one."""
-    return unit.ev["symptoms"] == "crisp"
+    """True for crisp symptoms and no run condition (the fast path); fuzzy N/0/P units, and
+    units judged only while they run (``[running]``, :mod:`~diag_plugin.diagnose.running`),
+    go one by one."""
+    return unit.ev["symptoms"] == "crisp" and unit.file.running is None
 
 
 class Plant:

@@ -169,10 +169,16 @@ def state_tags(unit: Any) -> list[SettleLoop]:
 
     read = set(unit.model_tags)
     states = [str(x) for x in (unit.file.build or {}).get("states", []) if str(x) in read]
-    if not states:
-        return []
-    ranges = learned_ranges(unit.models, unit.tests)
+    rc = getattr(unit.file, "running", None)
     out = []
+    if rc is not None:  # the run condition (diagnose/running.py): a start is a state change
+        lo, hi = min(rc.run, rc.stop), max(rc.run, rc.stop)
+        pv = unit.file.tags.get(rc.tag, rc.tag)
+        band = STATE_BAND_SHARE * (hi - lo)
+        out.append(SettleLoop(rc.tag, pv, -1, 0.0, 0.0, band, span=(lo, hi), state=True))
+    if not states:
+        return out
+    ranges = learned_ranges(unit.models, unit.tests)
     for tag in states:
         got = [(r.lo, r.hi) for r in ranges if r.tag == tag]
         if not got:

@@ -54,6 +54,7 @@ from diag_plugin.diagnose.manual import ManualGuard, manual_ranges
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
 from diag_plugin.diagnose.residuals import LowPass, supported
+from diag_plugin.diagnose.running import segments
 from diag_plugin.diagnose.saturation import Saturation
 from diag_plugin.diagnose.settle import SettleGuard, prepend, settle_guard
 from diag_plugin.diagnose.settle import apply as apply_settle
@@ -537,7 +538,9 @@ class Unit:
     def _own_tags(self) -> list[str]:
         """The models' tags, the ``[fixed]`` tags and the ``[states]`` tags (models' names)."""
         states = (getattr(self.file, "states", None) or {}).get("tags", [])
-        return [*self.model_tags, *getattr(self.file, "fixed", {}), *states]
+        rc = getattr(self.file, "running", None)
+        run = [rc.tag] if rc is not None else []
+        return [*self.model_tags, *getattr(self.file, "fixed", {}), *states, *run]
 
     def _model_frame(self, frame: pd.DataFrame) -> pd.DataFrame:
         """The plant's columns under the models' tag names."""
@@ -588,6 +591,7 @@ class Unit:
         self.alarm_hold = AlarmHold(ev["off_delay"]) if ev["off_delay_s"] > 0 else None
         self._last_alarm: tuple | None = None  # (status, faults, top row) the hold repeats
         self.seen = 0  # samples since the start (the warm-up)
+        self.was_running = True  # the last sample's run condition (running.py)
         if getattr(self, "settle", None) is not None:
             self.settle.reset()
         if getattr(self, "fixed", None) is not None:
@@ -631,6 +635,7 @@ class Unit:
             "fixed": None if self.fixed is None else self.fixed.to_state(),
             "combos": None if self.combos is None else self.combos.to_state(),
             "saturation": None if self.saturation is None else self.saturation.to_state(),
+            "running": self.was_running,
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -667,13 +672,16 @@ class Unit:
             self.combos.load_state(state["combos"])  # states saved before it: from rest
         if self.saturation is not None and state.get("saturation") is not None:
             self.saturation.load_state(state["saturation"])
+        self.was_running = bool(state.get("running", True))  # saved before it: running
         return self
 
     # ------------------------------------------------------------ stages
     def columns(self, frame: pd.DataFrame) -> Columns:
         """The piece's columns read once, under the models' tag names (:class:`Columns`):
         what every builder and the reasons for CHECK_FUNCTION read."""
-        plant = {t: self.file.tags.get(t, t) for t in self.model_tags}
+        rc = self.file.running
+        read = [*self.model_tags, *([rc.tag] if rc is not None else [])]
+        plant = {t: self.file.tags.get(t, t) for t in read}
         return Columns(frame, {t: p if p in frame.columns else t for t, p in plant.items()})
 
     def raw_residuals(self, frame: pd.DataFrame, cols: Columns | None = None) -> pd.DataFrame:
@@ -822,7 +830,66 @@ class Unit:
         return pd.DataFrame(x, index=raw.index, columns=raw.columns, copy=False)
 
     def evaluate(self, frame: pd.DataFrame) -> Diagnosis:
-        """Diagnose the next piece of data (continues the carried state)."""
+        """Diagnose the next piece of data (continues the carried state). A unit with a run
+        condition (``[running]``, :mod:`~.running`) judges only the samples where it runs:
+        elsewhere its tags are read as missing and its status is CHECK_FUNCTION, not
+        running; at each stop the alarm's carriers start from rest (:meth:`_stopped`)."""
+        rc = self.file.running
+        col = None if rc is None else self.file.tags.get(rc.tag, rc.tag)
+        if rc is None or col not in frame.columns:
+            return self._evaluate(frame)
+        runs = rc.runs(frame[col].to_numpy(float))
+        if runs.all():
+            self.was_running = True
+            return self._evaluate(frame)
+        masked = frame.copy()
+        masked.loc[~runs, [c for c in frame.columns if c != col]] = np.nan
+        parts = []
+        for a, b, on in segments(runs):
+            since = None
+            if not on:
+                if self.was_running:  # a stop (not the rest of one a piece began in)
+                    self._stopped()
+                since = None if self.settle is None else int(self.settle.g[6])
+            d = self._evaluate(masked.iloc[a:b])
+            if not on:
+                d = not_running(d, rc.why())
+                self._last_alarm = None
+                if since is not None:  # the time stopped is no quiet time: an alarm at the
+                    # last stop keeps the next start's settle shut (a fault is not hidden)
+                    self.settle.g[6] = since
+            self.was_running = on
+            parts.append(d)
+        return concat(parts)
+
+    def _stopped(self) -> None:
+        """At a stop: what carries an alarm forward starts from rest (the residual filter,
+        the spread tests' window, the tests' and the combined test's on/off delays, the held
+        symptoms, the deadband, the unit's off-delay and its last alarm, the isolation and
+        episode holds, the valve-at-limit rule), so none is carried across the stop into the
+        next start (:mod:`~.running`). The models' histories, the settle and
+        operating-point guards go on (they read the stopped samples as missing)."""
+        ev = self.ev
+        if self.lowpass is not None:
+            self.lowpass = LowPass(ev["lowpass"], ev["order"], steady=self._steady())
+        self.spread = RunningSpread(spread_samples(ev["spread_window_s"] or 600.0, self.period),
+                                    len(self.spread_cols))  # fmt: skip
+        self.delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
+        self.combined_delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
+        self.held[:] = np.nan
+        self.unknown_run[:] = 0
+        if self.deadband is not None:
+            self.deadband = Deadband(ev["deadband"], len(self.tests))
+        self.isolation = IsolationHold(1, len(self.tests), len(self.faults))
+        self.episode = EpisodeHold(len(self.cmodel.tags) if self.cmodel is not None else 0)
+        if self.alarm_hold is not None:
+            self.alarm_hold = AlarmHold(ev["off_delay"])
+        self._last_alarm = None
+        if self.saturation is not None:
+            self.saturation.reset()
+
+    def _evaluate(self, frame: pd.DataFrame) -> Diagnosis:
+        """:meth:`evaluate` of a piece judged throughout."""
         point = self.cmodel.point_of(frame) if self.cmodel is not None else None
         cols = self.columns(frame)  # read once: the builders and the reasons
         raw = self.at_points(self.raw_residuals(frame, cols), point)
@@ -998,7 +1065,10 @@ class Unit:
         """The settle guard (:mod:`~diag_plugin.diagnose.settle`) over the piece, in place
         on ``status`` and ``faults``; returns the suppressed samples and their whys."""
         g = self.settle
-        sp = np.column_stack([cols.values(lp.sp) for lp in g.loops])
+        n = len(index)
+        sp = np.column_stack(
+            [cols.values(lp.sp) if lp.sp in cols.columns else np.full(n, np.nan) for lp in g.loops]
+        )
         loop_r = r.to_numpy()[:, g.tests]
         sup, why = g.transform(index, sp, loop_r, active, detected == 1.0)
         apply_settle(status, faults, sup)
@@ -1178,6 +1248,28 @@ def broken_status(name: str, ts: pd.Timestamp, message: str) -> UnitStatus:
     """What a unit that cannot be evaluated reports: CHECK_FUNCTION with Bad quality."""
     return UnitStatus(
         unit=name, ts=ts, status=NE107.CHECK_FUNCTION, quality=Quality.BAD, message=message
+    )
+
+
+def not_running(d: Diagnosis, why: str) -> Diagnosis:
+    """``d`` (a piece where the unit is stopped, :mod:`~.running`) as not judged: no test's
+    symptom, no alarm, no fault, no tag named; CHECK_FUNCTION with ``why``."""
+    n = len(d.status)
+    idx = d.status.index
+    top = None
+    if d.top is not None:
+        top = d.top.copy()
+        for c in top.columns:
+            top[c] = "" if str(c).startswith("top") else np.nan
+    return dataclasses.replace(
+        d,
+        symptoms=d.symptoms * np.nan,
+        certainties=d.certainties * 0.0,
+        detected=pd.Series(np.full(n, np.nan), index=idx),
+        status=pd.Series(np.full(n, NE107.CHECK_FUNCTION, np.int8), index=idx),
+        faults=pd.Series(np.full(n, "", dtype=object), index=idx),
+        top=top,
+        why=pd.Series(np.full(n, why, dtype=object), index=idx),
     )
 
 

@@ -80,6 +80,11 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     seen = ["1,0", "1,1"]  # another one held for the on-delay: CHECK_FUNCTION
     held_s = 163.0
 
+    [running]            # written by `diag unit build --running`: judged only while it runs
+    tag = "AHU_ON"
+    run = 1.0            # the value it runs at (stop: its other value); elsewhere nothing
+    stop = 0.0           # is judged, CHECK_FUNCTION `not running …` (diagnose/running.py)
+
 ``[manual]`` (written by ``diag unit build`` for a declared hand valve, widened by ``diag unit
 accept``): per hand valve (the models' tag name) the span the unit learned it in, ``min`` and
 ``max`` of the window and a ``margin`` from the data (3 × its noise); where it is outside
@@ -179,6 +184,7 @@ from typing import TYPE_CHECKING, Any
 from diag_plugin.diagnose.combos import read_states
 from diag_plugin.diagnose.fixed import read_fixed
 from diag_plugin.diagnose.manual import read_manual
+from diag_plugin.diagnose.running import read_running
 from diag_plugin.rulebase.folder import UNIT_SUFFIX
 from diag_plugin.status import NE107
 from diag_plugin.tomllines import LinedFile, syntax_error
@@ -200,6 +206,7 @@ TABLES = (
     "manual",
     "fixed",
     "states",
+    "running",
 )
 
 #: why a residual is unknown: the reasons ``diag unit learn`` counts (``unknown_<reason>``
@@ -526,6 +533,9 @@ class UnitFile(LinedFile):
         )
         self.states = read_states(
             self._table("states"), self.error, lambda k: self.line_of("states", k)
+        )
+        self.running = read_running(
+            self._table("running"), self.error, lambda k: self.line_of("running", k)
         )
         self.tags: dict[str, str] = {}
         for k, v in self._table("tags").items():

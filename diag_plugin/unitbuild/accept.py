@@ -256,6 +256,7 @@ def accept(
 ) -> AcceptResult:
     """Learn the fault-free window ``[start, end)`` into ``unit`` (see module doc).
     ``read(a, b)`` yields the unit's aligned frames (plant tag names) of ``[a, b)``."""
+    from diag_plugin.diagnose.running import learnable
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitFile
     from diag_plugin.learn.thresholds import (
@@ -279,7 +280,8 @@ def accept(
             parts = [f for f in read(a, b) if len(f)]
             if not parts:
                 raise UserError(f"no samples of the unit's tags in {a} … {b}")
-            cache[(a, b)] = unit._model_frame(pd.concat(parts))
+            # the stopped rows as an outage: only the running plant is learned (running.py)
+            cache[(a, b)] = learnable(unit._model_frame(pd.concat(parts)), unit.file.running)
         return cache[(a, b)]
 
     new = window(start, end)

@@ -71,6 +71,7 @@ import tomlkit
 from diag_plugin.diagnose.combos import states_table
 from diag_plugin.diagnose.fixed import learned_text, tolerance
 from diag_plugin.diagnose.manual import MARGIN_SAYS, ManualSpan, learned_span
+from diag_plugin.diagnose.running import RunCondition, learnable
 from diag_plugin.diagnose.unittags import is_set_point
 from diag_plugin.learn.thresholds import DEFAULT_BLOCKS, block_of
 from diag_plugin.models.spec import Variable
@@ -86,9 +87,11 @@ from diag_plugin.unitbuild.loops import (
     Disturbance,
     Loop,
     Manual,
+    Running,
     checked_declared,
     checked_loops,
     checked_manual,
+    parse_running,
     settle_bounds,
 )
 from diag_plugin.unitbuild.parallel import DaskPool, map_tests, one_blas_thread
@@ -998,6 +1001,7 @@ def build_unit(
     workers: int | DaskPool | None = None,
     manual: Sequence[Manual | str] = (),
     disturbances: Sequence[Disturbance | str] = (),
+    running: Running | str | None = None,
 ) -> BuildResult:
     """Build unit ``name`` from ``frame`` (the fault-free window, aligned on ``period``; every
     column a candidate input) into ``folder``: model files ``NAME_TEST.toml`` and
@@ -1009,7 +1013,9 @@ def build_unit(
     :class:`~diag_plugin.unitbuild.parallel.DaskPool` to do that work on a Dask cluster (the
     same unit). ``manual``: hand valves (:mod:`~diag_plugin.diagnose.manual`), never tested,
     their span written in ``[manual]``; ``disturbances``: measured disturbances
-    (:mod:`~diag_plugin.unitbuild.loops`), never tested, candidate inputs. Raises
+    (:mod:`~diag_plugin.unitbuild.loops`), never tested, candidate inputs; ``running``: the
+    run condition (:mod:`~diag_plugin.diagnose.running`): everything is learned from the rows
+    where the unit runs, the stopped ones as an outage. Raises
     :class:`~historian.errors.UserError` on input the build cannot use; a build that fails
     leaves none of the files it wrote and puts back those it overwrote (:func:`_remove_partial`)."""
     folder = Path(folder)
@@ -1022,7 +1028,7 @@ def build_unit(
                                tags=tags, far=far, max_inputs=max_inputs, force=force,
                                source=source, progress=progress, loops=loops,
                                workers=workers, manual=manual,
-                               disturbances=disturbances)  # fmt: skip
+                               disturbances=disturbances, running=running)  # fmt: skip
     except BaseException:
         _remove_partial(folder, name, since, made, before)
         raise
@@ -1100,6 +1106,7 @@ def _build_unit(
     workers: int | DaskPool | None,
     manual: Sequence[Manual | str] = (),
     disturbances: Sequence[Disturbance | str] = (),
+    running: Running | str | None = None,
 ) -> BuildResult:
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitError, new_unit_text
@@ -1115,10 +1122,18 @@ def _build_unit(
         raise UserError(f"{path} exists (use --force to overwrite)")
     if isinstance(frame.index, pd.DatetimeIndex) and frame.index.tz is None:
         frame = frame.tz_localize("UTC")  # naive timestamps: UTC, as diag import reads them
+    run_col = None
+    run_note = ""
+    if running is not None:  # the stopped rows as an outage; the run tag no candidate
+        rc, run_col, run_note = run_condition(frame, running, loops, manual, disturbances)
+        frame = learnable(frame, rc).drop(columns=[rc.tag])
     have = frame.notna().any(axis=1).to_numpy()
     rows = int(have.sum())
     if rows == 0:
-        raise UserError("the window holds no samples of these tags")
+        raise UserError(
+            "the window holds no samples of these tags"
+            + (f" where the unit runs ({run_note})" if run_col is not None else "")
+        )
     # the declared window may reach past the data: judge the tags over the span they cover
     first, last = np.flatnonzero(have)[[0, -1]]
     trimmed = first > 0 or last < len(frame) - 1
@@ -1141,7 +1156,9 @@ def _build_unit(
     hand = hand_valves(frame, info, manual, loops)
     driven = declared_disturbances(frame, manual, disturbances, loops)
     outs = cascade_outputs(loops)
-    tests, skipped = choose_tests(frame, info, tags, [lp.sp for lp in loops],
+    # with a run condition a tag's good samples are counted among the rows where it runs
+    judged = frame if run_col is None else frame.loc[frame.notna().any(axis=1)]
+    tests, skipped = choose_tests(judged, info, tags, [lp.sp for lp in loops],
                                   {**{m.tag: hand_plan(m, info) for m in hand},
                                    **{t: DISTURBANCE_PLAN for t in driven}},
                                   [lp.out for lp in loops if lp.out])  # fmt: skip
@@ -1207,6 +1224,8 @@ def _build_unit(
     models: dict[str, str] = {}
     notes: list[str] = []
     notes.extend(plan.reasons)
+    if run_note:
+        notes.append(run_note)
     notes.extend(loop_notes)
     if trimmed:
         notes.append(
@@ -1300,9 +1319,12 @@ def _build_unit(
     # the discrete states left out of the tests (a pump's run feedback): a mode of the plant,
     # never a tag at fault either (unittags.structure)
     doc["build"]["states"] = [t for t, why in skipped.items() if why.startswith(DISCRETE_WHY)]
+    if run_col is not None:
+        doc["build"]["running"] = run_note
+        doc["running"] = running_table(rc)
     if hand:
         doc["manual"] = manual_table(hand)
-    fixed = constant_tags(frame, info, [lp.sp for lp in loops], [m.tag for m in hand])
+    fixed = constant_tags(judged, info, [lp.sp for lp in loops], [m.tag for m in hand])
     if fixed:
         doc["fixed"] = fixed_table(fixed)
         notes.append(fixed_note(fixed))
@@ -1322,7 +1344,9 @@ def _build_unit(
         # and after a hand valve's move or a state's change (a pump started), from the
         # window's own
         # (one pass: the window's steps found once, its residuals replayed at most once)
-        settles = settle_bounds(Unit(uf, unit.models, unit.matrix), frame)
+        # (the run tag beside the learned rows: its starts are the run condition's changes)
+        settle_frame = frame if run_col is None else frame.assign(**{rc.tag: run_col})
+        settles = settle_bounds(Unit(uf, unit.models, unit.matrix), settle_frame)
         for key, says, value, how in settles:
             if value > 0:
                 uf.doc["evaluation"][key] = value
@@ -1354,6 +1378,74 @@ def _build_unit(
     return BuildResult(
         name, path, period, window, kept, skipped, far, learned, seconds, notes, manual=hand
     )
+
+
+def run_condition(
+    frame: pd.DataFrame,
+    running: Running | str,
+    loops: Sequence[Loop],
+    manual: Sequence[Manual | str],
+    disturbances: Sequence[Disturbance | str],
+) -> tuple[RunCondition, pd.Series, str]:
+    """The declared run condition (``--running TAG[=VALUE]``, a tags CSV's role ``running``;
+    :mod:`~diag_plugin.diagnose.running`) checked against the window: its tag in the data,
+    in no loop, no hand valve nor disturbance, two-valued over the window, ``VALUE`` one of
+    the two (default: the higher). Returns the condition (with the share of the window's
+    samples it ran on), the tag's column and the plan's note of it. A problem names the tag
+    and where it was declared."""
+    rc = running if isinstance(running, Running) else parse_running(running)
+    where, tag = rc.where, rc.tag
+    if tag not in frame.columns:
+        raise UserError(f"{where}: run condition {tag} (running) is not in the data")
+    parts = {t: lp for lp in loops for t in (lp.pv, lp.sp, lp.out) if t}
+    if tag in parts:
+        raise UserError(
+            f"{where}: run condition {tag} (running) is a tag of loop {parts[tag]}: a run "
+            "condition is a state, no loop's part"
+        )
+    named = {m.tag if isinstance(m, Manual) else m for m in manual}
+    named |= {d.tag if isinstance(d, Disturbance) else d for d in disturbances}
+    if tag in named:
+        raise UserError(
+            f"{where}: run condition {tag} (running) is also declared a hand valve or a "
+            "measured disturbance: declare it one or the other"
+        )
+    col = frame[tag].astype(float)
+    x = col.to_numpy()
+    x = x[np.isfinite(x)]
+    values = np.unique(x)
+    if values.size != 2:
+        seen = ", ".join(f"{v:g}" for v in values[:5]) + (" …" if values.size > 5 else "")
+        raise UserError(
+            f"{where}: run condition {tag} (running) is not two-valued over the window "
+            f"({values.size} value(s): {seen or 'none'}); it must be a state, e.g. a run "
+            "feedback 0/1"
+        )
+    lo, hi = float(values[0]), float(values[1])
+    run = hi if rc.value is None else rc.value
+    if run not in (lo, hi):
+        raise UserError(
+            f"{where}: run condition {tag} (running) is {lo:g} or {hi:g} over the window, "
+            f"never {run:g}"
+        )
+    stop = lo if run == hi else hi
+    share = float(np.mean(x == run))
+    got = RunCondition(tag, run, stop, share)
+    note = (
+        f"{tag}: the run condition (declared: judged only while {tag} = {run:g}); the unit "
+        f"ran on {share:.1%} of the window's samples ({int((x == run).sum())} of {x.size}): "
+        "learned from those only, the stopped ones as an outage"
+    )
+    return got, col, note
+
+
+def running_table(rc: RunCondition) -> tomlkit.items.Table:
+    """The unit file's ``[running]`` table (:mod:`~diag_plugin.diagnose.running`)."""
+    t = tomlkit.table()
+    t.comment("written by `diag unit build --running`: judged only while it runs")
+    for k, v in rc.as_table().items():
+        t[k] = v
+    return t
 
 
 def hand_valves(
@@ -1658,6 +1750,7 @@ def build_from_historian(
     workers: int | DaskPool | None = None,
     manual: Sequence[Manual | str] = (),
     disturbances: Sequence[Disturbance | str] = (),
+    running: Running | str | None = None,
 ) -> BuildResult:
     """:func:`build_unit` on the historian's window ``[start, end)``: every tag it holds is
     a candidate input; the grid period is ``period`` (``--period``: a faster tag averaged
@@ -1720,6 +1813,7 @@ def build_from_historian(
         workers=workers,
         manual=manual,
         disturbances=disturbances,
+        running=running,
     )
     res.seconds = {"read": read_s, **res.seconds}
     res.seconds["total"] += read_s

@@ -71,6 +71,14 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "docs/how-to/unit-loops.md)",
     )
     p.add_argument(
+        "--running",
+        metavar="TAG[=VALUE]",
+        help="the run condition: a two-valued state (a run feedback, an occupied mode); the "
+        "unit runs where TAG is at its higher value (or at VALUE), learns only from those "
+        "rows and judges nothing elsewhere (CHECK_FUNCTION, not running; ISA-18.2's "
+        "state-based alarming; docs/how-to/unit-loops.md). In a tags CSV: the role 'running'",
+    )
+    p.add_argument(
         "--period",
         help="grid period of the unit, e.g. 10s, 1min (default: from the data, the longest "
         "typical spacing of the tags; a faster tag is averaged over each period)",
@@ -128,7 +136,7 @@ def _tags_from(path: str) -> list[str]:
     return tags
 
 
-def _build(args, tags, loops, manual, disturbances, t0, t1, workers):
+def _build(args, tags, loops, manual, disturbances, t0, t1, workers, running=None):
     """The build, its progress drawn on a terminal's standard error."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
@@ -167,6 +175,7 @@ def _build(args, tags, loops, manual, disturbances, t0, t1, workers):
             workers=workers,
             manual=manual,
             disturbances=disturbances,
+            running=running,
         )
 
 
@@ -178,16 +187,25 @@ def cmd_unit_build(args) -> int:
         loops_from_tags_csv,
         manual_from_tags_csv,
         parse_loop,
+        parse_running,
+        running_from_tags_csv,
     )
 
     tags = args.tags or (_tags_from(args.tags_from) if args.tags_from else None)
     loops = [parse_loop(x) for x in args.loop]
     manual = [Manual(t.strip(), f"--manual {t}") for t in args.manual]
     driven = [Disturbance(t.strip(), f"--disturbance {t}") for t in args.disturbance]
+    running = [parse_running(args.running)] if args.running else []
     if args.loops_from:
         manual += manual_from_tags_csv(args.loops_from)  # first: a hand valve in a loop
         driven += disturbances_from_tags_csv(args.loops_from)
+        running += running_from_tags_csv(args.loops_from)  # a run condition in a loop too
         loops += loops_from_tags_csv(args.loops_from)
+    if len(running) > 1:
+        raise UserError(
+            f"{running[1].where}: a second run condition ({running[1].tag}; the first "
+            f"{running[0].tag}, {running[0].where}): a unit has one"
+        )
     if args.max_inputs < 1:
         raise UserError(f"--max-inputs {args.max_inputs}: at least 1")
     check_timeout(args.dask_timeout)
@@ -198,7 +216,8 @@ def cmd_unit_build(args) -> int:
             from diag_plugin.unitbuild.parallel import DaskPool
 
             workers = stack.enter_context(DaskPool.connect(args.dask, args.dask_timeout))
-        res = _build(args, tags, loops, manual, driven, t0, t1, workers)
+        res = _build(args, tags, loops, manual, driven, t0, t1, workers,
+                     running[0] if running else None)  # fmt: skip
     if _printed_json(args, res.as_dict()):
         return 0
     print(

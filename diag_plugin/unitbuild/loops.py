@@ -42,6 +42,16 @@ power, the influent from an air valve), and alarms when the disturbance does wha
 candidate input; where it leaves what a test learned, that test answers as for any input
 (:mod:`diag_plugin.diagnose.operating`). A row without a loop whose role is none of these is
 refused as ``file:line``.
+
+**A run condition** (issue 34, item 6; ISA-18.2's state-based alarming): a plant that stops —
+an air-handling unit off every night, a pump on standby, a compressor between batches — is not
+judged while it is stopped (a loop switched off with its plant is no loop that cannot hold its
+set-point). Declared with ``--running TAG`` (the unit runs where the two-valued ``TAG`` is at
+its higher value) or ``--running TAG=VALUE`` (where it equals ``VALUE``), or the role
+``running`` in a tags CSV (a row without a loop; a ``set_point`` cell is not read for it: the
+higher value), the build learns only from the rows where the unit runs (the stopped rows are
+as an outage) and the unit judges nothing while it is stopped
+(:mod:`diag_plugin.diagnose.running`).
 """
 
 from __future__ import annotations
@@ -59,6 +69,8 @@ ROLES = {"pv": "pv", "sensor": "pv", "sp": "sp", "out": "out", "actuator": "out"
 MANUAL = "manual"
 #: the roles of a measured disturbance in the tags CSV (a row without a loop)
 DISTURBANCE = ("disturbance", "driver", "exogenous")
+#: the role of a run condition in the tags CSV (a row without a loop)
+RUNNING = "running"
 
 
 @dataclass(frozen=True)
@@ -244,6 +256,38 @@ def disturbances_from_tags_csv(path: str | Path) -> list[Disturbance]:
     return [Disturbance(tag, where) for tag, where in rows]
 
 
+@dataclass(frozen=True)
+class Running:
+    """A run condition: the state tag, the value at which the unit runs (None: the higher of
+    its two values) and where it was declared (``--running …`` or ``tags.csv:7``)."""
+
+    tag: str
+    value: float | None = None
+    where: str = "--running"
+
+
+def parse_running(text: str) -> Running:
+    """``--running TAG`` or ``--running TAG=VALUE`` as a :class:`Running`; a value that is no
+    number is refused, naming the flag."""
+    tag, eq, value = (x.strip() for x in text.partition("="))
+    where = f"--running {text}"
+    if not tag or (eq and not value):
+        raise UserError(f"{where}: write TAG (runs at its higher value) or TAG=VALUE")
+    if not eq:
+        return Running(tag, None, where)
+    v = fixed_value(value)
+    if v is None:
+        raise UserError(f"{where}: the value {value!r} the unit runs at is not a number")
+    return Running(tag, v, where)
+
+
+def running_from_tags_csv(path: str | Path) -> list[Running]:
+    """The run conditions a tags CSV declares: rows whose ``role`` is ``running`` (see module
+    doc); none without a ``role`` column."""
+    rows = _loopless(Path(path), (RUNNING,), "a run condition")
+    return [Running(tag, None, where) for tag, where in rows]
+
+
 def _loopless(path: Path, roles: Sequence[str], what: str) -> list[tuple[str, str]]:
     """(tag, ``file:line``) of the tags CSV's rows whose ``role`` is one of ``roles``; such a
     row in a loop, or a row without a loop whose role is no loop-less one, is refused as
@@ -251,7 +295,7 @@ def _loopless(path: Path, roles: Sequence[str], what: str) -> list[tuple[str, st
     frame, cols, name = _tags_csv(path)
     if "role" not in cols:
         return []
-    loopless = (MANUAL, *DISTURBANCE)
+    loopless = (MANUAL, *DISTURBANCE, RUNNING)
     out = []
     for i, row in enumerate(frame.to_dict("records")):
         role = row[cols["role"]].strip().lower()

@@ -1,0 +1,126 @@
+"""A unit is judged only while it runs (issue 34, items 5 and 6; ISA-18.2's state-based
+alarming, its designed suppression: the alarms of equipment that is not running are
+suppressed by design).
+
+A plant that stops — an air-handling unit switched off every night, a pump on standby, a
+compressor between batches — is a different plant while stopped: the loops are off, the
+valves closed, the measurements drift to ambient. A unit that learned those rows learned two
+plants at once (its bands wide enough for both); one that judges them raises alarms on a
+plant that is not there (a valve "at its limit" with the fan off).
+
+``diag unit build --running TAG`` (or ``TAG=VALUE``, or the role ``running`` in a tags CSV,
+:mod:`diag_plugin.unitbuild.loops`) declares the run condition: a two-valued state tag, the
+unit running where it is at its higher value (or at ``VALUE``). The unit file's ``[running]``
+table keeps it::
+
+    [running]      # written by `diag unit build --running`: judged only while it runs
+    tag = "AHU_ON"
+    run = 1.0      # the value at which the unit runs
+    stop = 0.0     # its other value
+    share = 0.54   # of the build window's samples, the unit ran on this share
+
+- **Learning** (the build, ``diag unit accept``): the stopped rows are as an outage, every
+  tag NaN there (:func:`learnable`): the models, their inputs, the thresholds, the settle
+  bounds, ``[fixed]`` and ``[states]`` learn only the running plant.
+- **Judging** (:meth:`~diag_plugin.diagnose.unit.Unit.evaluate`, ``diag diagnose``, the live
+  :class:`~diag_plugin.diagnose.plant.Plant`): where the unit is stopped its tags are read
+  as missing (its models' histories hold no stopped row after a start), no test is judged,
+  nothing alarms, nothing is named, and the status is CHECK_FUNCTION with the why
+  ``not running (AHU_ON = 0): judged only while it runs``. At each stop the alarm's
+  carriers (the tests' on/off delays, the held symptoms, the unit's off-delay, the isolation
+  and episode holds, the valve-at-limit rule) start from rest: no alarm is carried across a
+  stop into the next start. The start itself is a state change of the settle guard
+  (:func:`~diag_plugin.diagnose.settle.state_tags`): its transient is CHECK_FUNCTION for at
+  most ``state_settle_max_s``, the build's bound from the window's own starts.
+- A sample whose run tag has no value is judged (as without the declaration); a frame
+  without the run tag (the learning's own, already masked) is judged everywhere.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+
+@dataclass(frozen=True)
+class RunCondition:
+    """The unit's run condition: the state tag (the models' name), the value at which the
+    unit runs, its other value, and the share of the build window it ran on."""
+
+    tag: str
+    run: float
+    stop: float
+    share: float | None = None
+
+    def runs(self, values: np.ndarray) -> np.ndarray:
+        """Per sample whether the unit runs: the tag at ``run`` (nearer to it than to
+        ``stop``, as a historian's mean of a period it started in is not yet running); a
+        missing value counts as running (judged as without the declaration)."""
+        x = np.asarray(values, float)
+        with np.errstate(invalid="ignore"):
+            stopped = np.abs(x - self.stop) < np.abs(x - self.run)
+        return ~stopped
+
+    def why(self) -> str:
+        """CHECK_FUNCTION's why on a stopped sample."""
+        return f"not running ({self.tag} = {self.stop:g}): judged only while it runs"
+
+    def as_table(self) -> dict[str, object]:
+        """The unit file's ``[running]`` row (module doc)."""
+        out: dict[str, object] = {"tag": self.tag, "run": float(self.run), "stop": float(self.stop)}
+        if self.share is not None:
+            out["share"] = round(float(self.share), 4)
+        return out
+
+
+def read_running(table: Mapping, error: Callable[[int, str], None], line_of) -> RunCondition | None:
+    """The ``[running]`` table of a unit file (module doc), or None without one; problems
+    reported through ``error(line, text)``."""
+    if not table:
+        return None
+    tag = table.get("tag")
+    if not isinstance(tag, str) or not tag:
+        error(line_of("tag"), "[running] tag must be the run condition's tag name")
+        return None
+    vals = {}
+    for key in ("run", "stop"):
+        v = table.get(key)
+        if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
+            error(line_of(key), f"[running] {key} must be a number (the tag's value)")
+            return None
+        vals[key] = float(v)
+    if vals["run"] == vals["stop"]:
+        error(line_of("run"), "[running] run and stop must differ")
+        return None
+    share = table.get("share")
+    share = float(share) if isinstance(share, int | float) and not isinstance(share, bool) else None
+    return RunCondition(tag, vals["run"], vals["stop"], share)
+
+
+def learnable(frame: pd.DataFrame, rc: RunCondition | None) -> pd.DataFrame:
+    """``frame`` (models' tag names) with every tag, the run tag's own too, NaN where the
+    unit is stopped (an outage: what a build and an accept learn from). Without ``rc`` or
+    its column: ``frame`` as it is."""
+    col = None if rc is None else rc.tag
+    if rc is None or col not in frame.columns:
+        return frame
+    stopped = ~rc.runs(frame[col].to_numpy(float))
+    if not stopped.any():
+        return frame
+    out = frame.copy()
+    out.loc[stopped, :] = np.nan
+    return out
+
+
+def segments(runs: np.ndarray) -> Iterator[tuple[int, int, bool]]:
+    """The runs of equal values of ``runs``: ``(start, end, running)`` each, in order."""
+    n = len(runs)
+    if not n:
+        return
+    cut = np.flatnonzero(np.diff(runs.astype(np.int8))) + 1
+    bounds = np.r_[0, cut, n]
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        yield int(a), int(b), bool(runs[a])
