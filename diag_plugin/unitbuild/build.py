@@ -1277,8 +1277,6 @@ def _build_unit(
         raise UserError("no tag could be modelled from the others: nothing to test")
     edges = edgeless_note([(ch.test, loaded.get((folder / models[ch.test]).resolve()))
                            for ch in kept])  # fmt: skip
-    if edges:
-        notes.append(edges)
     kept.extend(spread_tests(kept, models, taken))
     seconds["train models"] = time.perf_counter() - t0
 
@@ -1370,6 +1368,8 @@ def _build_unit(
             f"unit {name}: cannot learn thresholds:\n" + "\n".join("  " + p for p in exc.problems)
         ) from None
     notes.extend(learned.warnings)
+    if edges:  # after what the unit decided (settles, states): the terminal shows four notes
+        notes.append(edges)
     seconds["learn thresholds"] = time.perf_counter() - t0
     seconds["total"] = time.perf_counter() - t_start
     if progress:
