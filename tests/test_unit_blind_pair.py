@@ -185,7 +185,7 @@ def test_the_pair_tests_alarm_names_the_blind_tag_in_the_replay_and_live(built, 
     """Issue 34 item 4: the kept-out pair test adds nothing to ``T²`` and so to no tag's share
     of it; in alarm it names its own tags (``TI2``, the tag it models, and ``TI1``, the blind
     one it reads) ahead of the ``T²`` contributions (:class:`~diag_plugin.diagnose.unittags.
-    KeptOut`). On main the rise is named from ``T²`` alone, without ``TI1``. The live
+    TestNames`). On main the rise is named from ``T²`` alone, without ``TI1``. The live
     plug-in, batched and one by one, names the replay's tags."""
     from diag_plugin.diagnose.plant import Plant
 

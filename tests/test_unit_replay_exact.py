@@ -530,8 +530,14 @@ def test_shares_computed_on_alarms_and_when_asked_are_the_eager_ones(built, faul
     held = d.status.to_numpy() != 0
     names = [c for c in ranked.columns if c.startswith("top")]
     mine, theirs = _untied(d.top[ranked.columns], names), _untied(ranked, names)
-    for c in names:  # the alarm samples (the unit's hold repeats them after)
-        np.testing.assert_array_equal(mine[c].to_numpy()[lazy.at], theirs[c].to_numpy()[lazy.at])
+    # the alarm samples (the unit's hold repeats them after) where the shares name a tag; where
+    # they name none, the tests on name theirs (TestNames.fill, issue 34 item 4: main named
+    # nothing there, 1-15 samples a run here)
+    some = lazy.at & (theirs["top1"].to_numpy(object) != "")
+    for c in names:
+        np.testing.assert_array_equal(mine[c].to_numpy()[some], theirs[c].to_numpy()[some])
+    on = (np.nan_to_num(d.symptoms.to_numpy()) != 0).any(axis=1)
+    assert (mine["top1"].to_numpy(object)[lazy.at & ~some & on] != "").all()
     assert held[lazy.at].all()
     piece = max(7, len(frame) // 9)
     u.reset()

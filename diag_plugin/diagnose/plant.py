@@ -343,6 +343,7 @@ class Plant:
         ]
         # the tags named, averaged over each alarm episode (unitloops.EpisodeHold)
         self._holds = {ui: EpisodeHold(len(cm.tags)) for ui, cm, _, _ in self._multi}
+        self._test_holds = {ui: EpisodeHold(len(cm.tags)) for ui, cm, _, _ in self._multi}
         for uis in by_matrix.values():
             mx = units[uis[0]].matrix
             order = [units[uis[0]].tests.index(t) for t in mx.tests]
@@ -429,6 +430,7 @@ class Plant:
             },
             "combined_delays": [d.to_state() for _, _, d, _ in self._multi],
             "episodes": {str(ui): h.to_state() for ui, h in self._holds.items()},
+            "test_episodes": {str(ui): h.to_state() for ui, h in self._test_holds.items()},
             "isolation": [m[5].to_state() for m in self._matrices],
             "outside": {u.name: u.outside.to_state()["since"] for u in self._units},
             "gone": {u.name: u.outside.to_state()["gone"] for u in self._units},
@@ -497,6 +499,8 @@ class Plant:
         ]
         for ui, st in state["episodes"].items():
             self._holds[int(ui)].load_state(st)
+        for ui, st in state.get("test_episodes", {}).items():  # none saved before them
+            self._test_holds[int(ui)].load_state(st)
         self._matrices = [
             (*m[:5], IsolationHold.from_state(st))
             for m, st in zip(self._matrices, state["isolation"], strict=True)
@@ -647,14 +651,15 @@ class Plant:
                 point = cm.nearest_point(x)
             b = a + len(units[ui].tests)
             t2, share = cm.evaluate(r[a:b][None, :], point)
-            if units[ui].kept_out is not None:  # a kept-out test in alarm names its own tags
-                share = units[ui].kept_out.name(share, r[a:b][None, :], s[a:b][None, :])
+            ru, sr = r[a:b][None, :], s[a:b][None, :]
+            share = units[ui].test_names.name(share, ru, sr)  # a kept-out test: its tags
+            on_v = units[ui].test_names.on_values(ru, sr)[0]  # any test on (TestNames.fill)
             s_t2 = np.nan
             if enabled and cm.high is not None:
                 raw = np.nan if np.isnan(t2[0]) else float(t2[0] > cm.high)
                 s_t2 = float(delay.transform(np.array([[raw]]))[0, 0])
                 c_on[ui] = np.nan_to_num(s_t2) != 0
-            multi[ui] = (t2[0], s_t2, share[0], cm.tags)
+            multi[ui] = (t2[0], s_t2, share[0], on_v, cm.tags)
         active = active | c_on
         status = np.where(
             active, NE107.OFF_SPEC, np.where(all_known, NE107.NORMAL, NE107.CHECK_FUNCTION)
@@ -687,8 +692,11 @@ class Plant:
                     status[ui] = min(st, key=PRIORITY.index)
         tags: list[list[tuple[str, float]]] = [[] for _ in range(nu)]
         notes: list[list[str]] = [[] for _ in range(nu)]
-        for ui, (t2, _s_t2, share, names) in multi.items():
-            held = self._holds[ui].transform(share[None, :], np.array([active[ui]]))[0]
+        for ui, (t2, _s_t2, share, on_v, names) in multi.items():
+            alarm = np.array([active[ui]])
+            held = self._holds[ui].transform(share[None, :], alarm)
+            held_on = self._test_holds[ui].transform(on_v[None, :], alarm)
+            held = units[ui].test_names.fill(held, held_on)[0]
             if active[ui]:
                 tags[ui] = _top(held, names)
             if c_on[ui]:

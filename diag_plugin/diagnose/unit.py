@@ -73,7 +73,7 @@ from diag_plugin.diagnose.unitloops import (
 )
 from diag_plugin.diagnose.unittags import (
     CombinedModel,
-    KeptOut,
+    TestNames,
     derived_matrix,
     describe_top,
     top_columns_at,
@@ -448,8 +448,9 @@ class Unit:
         self.cmodel = (
             CombinedModel.of(self) if (self.ev["combined"] or self.tag_isolation) else None
         )
-        #: the tests kept out of T² as the alarm's top tags name them (None: every test in)
-        self.kept_out = None if self.cmodel is None else KeptOut.of(self, self.cmodel.tags)
+        #: the tags the tests in alarm name beside the shares of T² (a kept-out test's
+        #: always, any test's where T² names none)
+        self.test_names = None if self.cmodel is None else TestNames.of(self, self.cmodel.tags)
         self.level_points = level_points(self)
         #: per test the history its model reads (unknown for that many samples at start): its
         #: longest lag, and a rate's samples (``rate(TAG,L)`` reads L more)
@@ -588,6 +589,7 @@ class Unit:
         self.deadband = Deadband(ev["deadband"], len(self.tests)) if ev["deadband"] > 0 else None
         ntags = len(self.cmodel.tags) if self.cmodel is not None else 0
         self.episode = EpisodeHold(ntags)
+        self.test_episode = EpisodeHold(ntags)  # the tests on's names (TestNames.fill)
         self.alarm_hold = AlarmHold(ev["off_delay"]) if ev["off_delay_s"] > 0 else None
         self._last_alarm: tuple | None = None  # (status, faults, top row) the hold repeats
         self.seen = 0  # samples since the start (the warm-up)
@@ -625,6 +627,7 @@ class Unit:
             "spread": self.spread.to_state(),
             "deadband": None if self.deadband is None else self.deadband.state.tolist(),
             "episode": self.episode.to_state(),
+            "test_episode": self.test_episode.to_state(),
             "alarm_hold": None if self.alarm_hold is None else self.alarm_hold.to_state(),
             "seen": self.seen,
             "outside": self.outside.to_state(),
@@ -658,6 +661,8 @@ class Unit:
         if "spread" in state:  # states saved before issue 34 start these from rest
             self.spread.load_state(state["spread"])
             self.episode.load_state(state["episode"])
+            if "test_episode" in state:  # a state saved before it had none
+                self.test_episode.load_state(state["test_episode"])
             if self.deadband is not None and state.get("deadband") is not None:
                 self.deadband.state = np.asarray(state["deadband"], float)
             if self.alarm_hold is not None and state.get("alarm_hold") is not None:
@@ -941,11 +946,13 @@ class Unit:
             # shares computed on the alarm samples only (the episode and the ranking read
             # no others; the rest when Diagnosis.contributions is asked for)
             shares = LazyShares(self.cmodel, r.to_numpy(), active, frame.index, point)
-            if self.kept_out is not None:  # a kept-out test in alarm names its own tags
-                shares.share_at = self.kept_out.name(
-                    shares.share_at, r.to_numpy()[active], s[active]
-                )
+            r_on, s_on = r.to_numpy()[active], s[active]
+            # a kept-out test in alarm names its own tags
+            shares.share_at = self.test_names.name(shares.share_at, r_on, s_on)
             held = self.episode.transform_at(shares.share_at, active)
+            # and any test in alarm where the held shares name none (T² unknown, or 0)
+            held_on = self.test_episode.transform_at(self.test_names.on_values(r_on, s_on), active)
+            held = self.test_names.fill(held, held_on)
             # the ranking's columns as arrays (the alarm hold edits them), one frame at the end
             top = top_columns_at(held, self.cmodel.tags, active)
         alone = (active if self.exact_only else c_on & ~tests_on) & (faults == "")

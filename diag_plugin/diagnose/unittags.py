@@ -76,7 +76,7 @@ the same tests in the same proportions cannot be told apart and share a rank. Be
 ``diag unit learn`` has written ``[combined]`` the ranking uses ``z = r / high``, ``S = I`` and
 the derived matrix's 0/1 columns as directions (rough, sign-blind). A test kept out of ``T²``
 (``combined = false``) adds to no share; in alarm it names its own tags ahead of them
-(:class:`KeptOut`).
+(:class:`TestNames`); so does any test in alarm where ``T²`` names no tag.
 """
 
 from __future__ import annotations
@@ -100,6 +100,14 @@ COMBINED_SHARE = 0.5
 MIN_KNOWN_SHARE = 0.5
 #: tags reported per alarm
 TOP = 3
+#: shares of ``T²`` at most this name no tag where only they would (:class:`TestNames`): the
+#: absolute tolerance :func:`rank` ties shares at, and the floor :meth:`CombinedModel._share`
+#: takes for ``T²`` (a ``T²`` of 1e-56 gave shares of 1e-43, lost in an episode's mean)
+NO_SHARE = 1e-12
+#: where a test in alarm names tags because ``T²`` names none, the tags it reads rank after
+#: the tag it models at equal ``ρ``: their value lower by this much, relative (more than
+#: :data:`TIE`; a tie-break, not a weight)
+READ_BELOW = 1e-6
 
 
 def _tag(spec_tags: list[str], mapping: dict[str, str]) -> list[str]:
@@ -397,71 +405,115 @@ def outside_tests(unit) -> np.ndarray | None:
 
 
 @dataclass(frozen=True)
-class KeptOut:
-    """The tests kept out of ``T²`` (:func:`outside_tests`) as the unit's alarm names them.
+class TestNames:
+    """The tags the unit's tests in alarm name in its ranking, beside their shares of ``T²``.
 
-    A kept-out test contributes nothing to ``T²`` and so to no tag's share of it; in alarm
-    (its own symptom on) it names the tags a single test's alarm names in the derived
-    matrix (:func:`derived_matrix`: the tag it models and those it reads; a spread test its
-    actuator), each with the value ``v = max(ρ, 1)``, ``ρ`` its filtered residual over its
-    threshold on the side it leaves (``r / high`` above zero, ``r / low`` below; unknown,
-    as over a gap its symptom is held through: 1). A tag's share of ``T²`` is at most 1
-    (``RBC_X ≤ T²``), so a kept-out test in alarm ranks its tags first, before the ``T²``
-    contributions, among themselves by ``ρ`` and at equal ``v`` in the tags' order (the
-    test's output before the tags it reads); a tag named both ways keeps the larger value.
+    A test in alarm (its own symptom on) names the tags a single test's alarm names in the
+    derived matrix (:func:`derived_matrix`: the tag it models and those it reads; a spread
+    test its actuator), each with the value ``v = max(ρ, 1)``, ``ρ`` its filtered residual
+    over its threshold on the side it leaves (``r / high`` above zero, ``r / low`` below;
+    unknown, as over a gap its symptom is held through: 1). Where it does:
+
+    - a test kept out of ``T²`` (``combined = false``, :func:`outside_tests`) contributes
+      nothing to ``T²`` and so to no tag's share of it: in alarm it always names its tags.
+      A tag's share of ``T²`` is at most 1 (``RBC_X ≤ T²``), so they rank first, before the
+      ``T²`` contributions, among themselves by ``ρ`` and at equal ``v`` in the tags' order
+      (the test's output before the tags it reads); a tag named both ways keeps the larger
+      value;
+    - every test on names its tags where the ``T²`` shares, held over the episode, name
+      none (:meth:`fill`): ``T²`` unknown (fewer than :data:`MIN_KNOWN_SHARE` of the tests
+      known) or giving no tag a share above :data:`NO_SHARE` (``T²`` 0 or next to it). The
+      unit's alarm then named no tag (``faults`` ``unit``, ``top1`` empty) though the test
+      on says where it is: the AHU acceptance pass at 1 min, 8-99 % of the alarm samples of
+      its runs (docs/explanation/acceptance-ahu.md). These values are held over the episode
+      by their own mean (:meth:`on_values`, a second
+      :class:`~diag_plugin.diagnose.unitloops.EpisodeHold`), not mixed into the shares': a
+      sample whose held shares name a tag names what it did. Here the tag the test models
+      ranks first at equal ``ρ``, then the tags it reads (:data:`READ_BELOW`).
+
     The rule is structural (no tuning run chose it): the test's own statistic says how far
     out it is, and the tags are those the unit already blames for that test's alarm."""
 
-    #: the kept-out tests' positions in the unit's tests
-    tests: np.ndarray
-    #: their thresholds, low and high (NaN: none)
+    #: per test of the unit whether it is kept out of ``T²``
+    kept: np.ndarray
+    #: the tests' thresholds, low and high (NaN: none)
     low: np.ndarray
     high: np.ndarray
-    #: per kept-out test the tags (:func:`structure` order) its alarm names
+    #: per test the tags (:func:`structure` order) its alarm names
     names: np.ndarray
+    #: ``names`` with the tags a test reads at ``1 - READ_BELOW``, the tag it models at 1
+    first: np.ndarray
 
     @classmethod
-    def of(cls, unit, tags: list[str]) -> KeptOut | None:
-        """From the unit file's tests (``combined = false``) over the ranking's ``tags``;
-        None where no test is kept out (the ranking then is exactly the shares of ``T²``)."""
+    def of(cls, unit, tags: list[str]) -> TestNames:
+        """From the unit file's tests over the ranking's ``tags``."""
         out = outside_tests(unit)
-        if out is None:
-            return None
         _, outputs, reads = structure(unit)
-        idx = np.flatnonzero(out)
-        tests = [unit.tests[j] for j in idx]
-        lims = [unit.file.tests[j].limits or (np.nan, np.nan) for j in idx]
+        lims = [t.limits or (np.nan, np.nan) for t in unit.file.tests]  # unit.tests' order
+        tests = unit.tests
         names = np.array([[_names_tag(unit, t, x, outputs, reads) for x in tags] for t in tests])
+        names = names.reshape(len(unit.tests), len(tags)).astype(bool)
+        own = np.array([[x == outputs[t] for x in tags] for t in unit.tests], bool)
         return cls(
-            idx,
+            np.zeros(len(unit.tests), bool) if out is None else out,
             np.array([a for a, _ in lims], float),
             np.array([b for _, b in lims], float),
-            names.reshape(len(tests), len(tags)).astype(bool),
+            names,
+            names * np.where(own.reshape(names.shape), 1.0, 1.0 - READ_BELOW),
         )
 
     def values(self, r: np.ndarray, s: np.ndarray) -> np.ndarray:
         """Per sample (rows of the unit's filtered residuals ``r`` and symptoms ``s``, n × the
         unit's tests) each tag's value from the kept-out tests in alarm (see the class doc),
         0 where none names it (n × tags)."""
-        r = np.asarray(r, float)[:, self.tests]
-        on = _on_any(np.asarray(s, float)[:, self.tests])
-        v = np.where(on, np.fmax(side_ratio(r, self.low, self.high), 1.0), 0.0)  # n × kept out
-        return np.max(v[:, :, None] * self.names[None, :, :], axis=1, initial=0.0)
+        k = np.flatnonzero(self.kept)
+        r = np.asarray(r, float)[:, k]
+        on = _on_any(np.asarray(s, float)[:, k])
+        v = np.where(on, np.fmax(side_ratio(r, self.low[k], self.high[k]), 1.0), 0.0)
+        return np.max(v[:, :, None] * self.names[k][None, :, :], axis=1, initial=0.0)
 
     def name(self, share: np.ndarray, r: np.ndarray, s: np.ndarray) -> np.ndarray:
         """``share`` (n × tags, shares of ``T²``, NaN unknown) with each tag's value from the
         kept-out tests in alarm where larger (a new array; ``share`` where none is)."""
+        if not self.kept.any():
+            return share
         v = self.values(r, s)
         hit = v > 0
         if not hit.any():
             return share
         return np.where(hit & ~(share >= v), v, share)
 
+    def on_values(self, r: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Per sample (as :meth:`values`) each tag's value from every test in alarm, the tag
+        a test models first (:attr:`first`), 0 where none names it (n × tags): worked over
+        the tests on only."""
+        out = np.zeros((len(r), self.first.shape[1]))
+        rows, tests = np.nonzero(_on_any(np.asarray(s, float)))
+        if rows.size:
+            x = np.asarray(r, float)[rows, tests]
+            v = np.fmax(side_ratio(x, self.low[tests], self.high[tests]), 1.0)
+            np.maximum.at(out, rows, v[:, None] * self.first[tests])
+        return out
+
+    @staticmethod
+    def fill(held: np.ndarray, held_on: np.ndarray) -> np.ndarray:
+        """The ranking's values per alarm sample: the held shares ``held`` (n × tags, NaN
+        unknown), or where none is above :data:`NO_SHARE` the held values of the tests on
+        ``held_on`` (:meth:`on_values` over the episode) where any is (the shares there next
+        to 0 name nothing: 0; unknown stays NaN). A new array where any sample is filled."""
+        empty = ~(held > NO_SHARE).any(axis=1) & (held_on > 0).any(axis=1)  # NaN: none
+        if not empty.any():
+            return held
+        out = held.copy()
+        h, v = held[empty], held_on[empty]
+        out[empty] = np.where(v > 0, v, np.where(h > 0, 0.0, h))
+        return out
+
 
 def side_ratio(r: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """A two-sided test's statistic over its limit: ``r / high`` above zero, ``r / low`` below
     (``low`` < 0 < ``high``, per column), so 1 is the threshold on either side; NaN where
-    ``r`` is unknown or the test has no threshold (:class:`KeptOut`, and the benchmarks'
+    ``r`` is unknown or the test has no threshold (:class:`TestNames`, and the benchmarks'
     per-test statistics, :mod:`diag_plugin.bench.matched`)."""
     r = np.asarray(r, float)
     hi = np.asarray(high, float)
@@ -961,7 +1013,7 @@ def rank(s: np.ndarray) -> np.ndarray:
     s = np.atleast_2d(s)
     order = np.argsort(-s, axis=1, kind="stable")
     v = np.take_along_axis(s, order, axis=1)
-    tied = np.abs(np.diff(v, axis=1)) <= TIE * np.abs(v[:, :-1]) + 1e-12
+    tied = np.abs(np.diff(v, axis=1)) <= TIE * np.abs(v[:, :-1]) + NO_SHARE
     group = np.concatenate([np.zeros((len(v), 1), int), np.cumsum(~tied, axis=1)], axis=1)
     by = np.lexsort((order, group), axis=-1)
     return np.take_along_axis(order, by, axis=1)
