@@ -22,7 +22,9 @@ Tags, at 20 s:
 Faults from ``onset_days`` on: ``steam_bias`` the steam flow meter reads +0.6 t/h (as
 :mod:`tests.heater`'s); ``probe_drift`` the outlet probe drifts +8 °C over a day (a sensor
 inside the loop, a failing thermocouple: the loop holds the wrong temperature, the valve
-closes, the steam falls).
+closes, the steam falls); ``fouling`` the heater's η falls 1 → 0.85 over a day (the loop
+opens the valve to hold the outlet, the steam flow follows the valve: only the valve's
+position says it).
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ PERIOD_S = 20.0
 TAGS = ("F_PROC_A", "F_PROC_B", "T_IN", "T_SP", "T_OUT", "STEAM_V", "F_STEAM", "P_STEAM")
 LOOP = "T_OUT=T_SP:STEAM_V"
 #: the tag at fault of each fault, as an operator would want it named
-AT_FAULT = {"steam_bias": "F_STEAM", "probe_drift": "T_OUT"}
+AT_FAULT = {"steam_bias": "F_STEAM", "probe_drift": "T_OUT", "fouling": "STEAM_V"}
 #: the outlet temperatures an operator chooses, °C
 SET_POINTS = (60.0, 63.0, 66.0, 70.0)
 
@@ -83,7 +85,10 @@ def simulate(
         op, integ, pos = pi_valve(e, integ, pos, kp, dt, ti, None)
         target = 0.45 * pos * np.sqrt(max(p[i], 0.1) / 8.0)
         flow = a_flow * flow + (1 - a_flow) * target
-        heat = t_in[i] + 2200.0 * flow / (4.19 * f_proc[i])
+        eta = 1.0
+        if fault == "fouling" and i >= onset:
+            eta = 1.0 - 0.15 * min((i - onset) * dt / 86400.0, 1.0)
+        heat = t_in[i] + 2200.0 * flow * eta / (4.19 * f_proc[i])
         t_true = a_out * t_true + (1 - a_out) * heat
         probe = a_probe * probe + (1 - a_probe) * t_true
         if (i + 1) % sub == 0:

@@ -152,7 +152,7 @@ def _ref_combined(self, r, point=None, shares=True):  # T² and every sample's s
     for p, pat in enumerate(patterns):
         rows = rows_all[inverse.reshape(-1) == p]
         k = np.flatnonzero(pat)
-        m, den, den_process = self._inverse(pat)
+        m, den, den_process, den_moved = self._inverse(pat)
         zk = z[np.ix_(rows, k)]
         mz = zk @ m
         q = np.einsum("ij,ij->i", mz, zk)
@@ -164,6 +164,15 @@ def _ref_combined(self, r, point=None, shares=True):  # T² and every sample's s
                     np.where(
                         den_process > 1e-12,
                         (mz @ self.process[k]) ** 2 / np.maximum(den_process, 1e-12),
+                        0.0,
+                    ),
+                )
+            if den_moved is not None:  # and an actuator's true move
+                rbc = np.maximum(
+                    rbc,
+                    np.where(
+                        den_moved > 1e-12,
+                        (mz @ self.moved[k]) ** 2 / np.maximum(den_moved, 1e-12),
                         0.0,
                     ),
                 )
@@ -192,10 +201,12 @@ def _ref_inverse(self, pat):  # each pattern's pseudo-inverse, nothing shared wi
     m = np.linalg.pinv(self.cov[np.ix_(k, k)])
     xi = self.xi[k]
     pr = None if self.process is None else self.process[k]
+    mv = None if self.moved is None else self.moved[k]
     return (
         m,
         np.einsum("tk,tu,uk->k", xi, m, xi),
         None if pr is None else np.einsum("tk,tu,uk->k", pr, m, pr),
+        None if mv is None else np.einsum("tk,tu,uk->k", mv, m, mv),
     )
 
 
@@ -555,17 +566,19 @@ def test_stacked_inverses_are_the_pseudo_inverses(T):
     pats = rng.random((40, T)) > 0.2
     pats[0] = True
     process = rng.normal(size=(T, T + 3))  # the second, true-change directions
+    moved = rng.normal(size=(T, T + 3))  # the actuators' true moves
     for cov, batched in ((_spd(rng, T, 0.2), True), (np.ones((T, T)), False)):
         cm = unittags.CombinedModel([f"x{i}" for i in range(T + 3)], np.zeros(T), np.ones(T),
-                                    cov, xi, None, process=process)  # fmt: skip
+                                    cov, xi, None, process=process, moved=moved)  # fmt: skip
         cm._prepare(pats)
         assert (len(cm._inverses) == len({p.tobytes() for p in pats})) is batched
         for p in pats:
-            m, den, den_p = cm._inverse(p)
-            ref_m, ref_den, ref_den_p = _ref_inverse(cm, p)
+            m, den, den_p, den_m = cm._inverse(p)
+            ref_m, ref_den, ref_den_p, ref_den_m = _ref_inverse(cm, p)
             if batched:
                 np.testing.assert_allclose(m, ref_m, rtol=RTOL, atol=RTOL * np.abs(ref_m).max())
                 np.testing.assert_allclose(den, ref_den, rtol=RTOL)
                 np.testing.assert_allclose(den_p, ref_den_p, rtol=RTOL)
+                np.testing.assert_allclose(den_m, ref_den_m, rtol=RTOL)
             else:
                 np.testing.assert_array_equal(m, ref_m)
