@@ -50,6 +50,18 @@ def _alarm(d) -> np.ndarray:
     return (st == NE107.FAILURE) | (st == NE107.OFF_SPEC)
 
 
+def _named_in_top_three(unit, fault: str, tag: str) -> None:
+    """On each seed ``fault`` is in alarm on more than 30 % of the samples after its onset and
+    ``tag`` is in the top three on more than 90 % of those."""
+    for seed in SEEDS:
+        d = unit.reset().evaluate(steamloop.simulate(2.0, seed, fault))
+        on = _alarm(d)
+        assert on.mean() > 0.3, (seed, on.mean())
+        top = d.top[["top1", "top2", "top3"]].to_numpy()[ON:][on]
+        in3 = (top == tag).any(axis=1).mean()
+        assert in3 > 0.9, (seed, in3)
+
+
 def test_the_flow_reads_its_valve_the_valve_never_its_flow(built):
     frame, res, _ = built
     same = same_measurement(frame, list(frame.columns))
@@ -82,14 +94,7 @@ def test_the_steam_meter_bias_is_found_and_named(built):
 
 
 def test_the_drifting_probe_in_the_loop_is_still_named(built):
-    _, _, unit = built
-    for seed in SEEDS:
-        d = unit.reset().evaluate(steamloop.simulate(2.0, seed, "probe_drift"))
-        on = _alarm(d)
-        assert on.mean() > 0.3, (seed, on.mean())
-        top = d.top[["top1", "top2", "top3"]].to_numpy()[ON:][on]
-        in3 = (top == "T_OUT").any(axis=1).mean()
-        assert in3 > 0.9, (seed, in3)
+    _named_in_top_three(built[2], "probe_drift", "T_OUT")
 
 
 def test_a_fouled_heater_names_the_valve_its_loop_opened(built):
@@ -97,11 +102,4 @@ def test_a_fouled_heater_names_the_valve_its_loop_opened(built):
     test the valve's characteristic stays quiet): the valve's true move, not a bias of it
     (``unittags.moved_directions``). Without that direction the valve was in the top three
     on 1 / 56 / 64 % of the alarm samples."""
-    _, _, unit = built
-    for seed in SEEDS:
-        d = unit.reset().evaluate(steamloop.simulate(2.0, seed, "fouling"))
-        on = _alarm(d)
-        assert on.mean() > 0.3, (seed, on.mean())
-        top = d.top[["top1", "top2", "top3"]].to_numpy()[ON:][on]
-        in3 = (top == "STEAM_V").any(axis=1).mean()
-        assert in3 > 0.9, (seed, in3)
+    _named_in_top_three(built[2], "fouling", "STEAM_V")

@@ -157,25 +157,11 @@ def _ref_combined(self, r, point=None, shares=True):  # T² and every sample's s
         mz = zk @ m
         q = np.einsum("ij,ij->i", mz, zk)
         with np.errstate(invalid="ignore", divide="ignore"):
-            rbc = np.where(den > 1e-12, (mz @ self.xi[k]) ** 2 / np.maximum(den, 1e-12), 0.0)
+            rbc = _ref_rbc(mz, self.xi[k], den)
             if den_process is not None:  # the larger of a sensor's and a true change's
-                rbc = np.maximum(
-                    rbc,
-                    np.where(
-                        den_process > 1e-12,
-                        (mz @ self.process[k]) ** 2 / np.maximum(den_process, 1e-12),
-                        0.0,
-                    ),
-                )
+                rbc = np.maximum(rbc, _ref_rbc(mz, self.process[k], den_process))
             if den_moved is not None:  # and an actuator's true move
-                rbc = np.maximum(
-                    rbc,
-                    np.where(
-                        den_moved > 1e-12,
-                        (mz @ self.moved[k]) ** 2 / np.maximum(den_moved, 1e-12),
-                        0.0,
-                    ),
-                )
+                rbc = np.maximum(rbc, _ref_rbc(mz, self.moved[k], den_moved))
             if self.loop is not None:
                 self._loop_rbc(rbc, mz, m, k)
             share[rows] = np.clip(rbc / np.maximum(q, 1e-12)[:, None], 0.0, 1.0)
@@ -183,6 +169,10 @@ def _ref_combined(self, r, point=None, shares=True):  # T² and every sample's s
             q = stats.chi2.isf(stats.chi2.sf(q, k.size), T)
         t2[rows] = q
     return t2, share
+
+
+def _ref_rbc(mz, xi, den):  # each direction's contribution, as eq. 13 reads
+    return np.where(den > 1e-12, (mz @ xi) ** 2 / np.maximum(den, 1e-12), 0.0)
 
 
 def _ref_episode_at(self, share_at, active):  # the episode over every sample, alarms' kept
