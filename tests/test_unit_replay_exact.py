@@ -152,21 +152,16 @@ def _ref_combined(self, r, point=None, shares=True):  # T² and every sample's s
     for p, pat in enumerate(patterns):
         rows = rows_all[inverse.reshape(-1) == p]
         k = np.flatnonzero(pat)
-        m, den, den_process = self._inverse(pat)
+        m, den, den_process, den_moved = self._inverse(pat)
         zk = z[np.ix_(rows, k)]
         mz = zk @ m
         q = np.einsum("ij,ij->i", mz, zk)
         with np.errstate(invalid="ignore", divide="ignore"):
-            rbc = np.where(den > 1e-12, (mz @ self.xi[k]) ** 2 / np.maximum(den, 1e-12), 0.0)
+            rbc = _ref_rbc(mz, self.xi[k], den)
             if den_process is not None:  # the larger of a sensor's and a true change's
-                rbc = np.maximum(
-                    rbc,
-                    np.where(
-                        den_process > 1e-12,
-                        (mz @ self.process[k]) ** 2 / np.maximum(den_process, 1e-12),
-                        0.0,
-                    ),
-                )
+                rbc = np.maximum(rbc, _ref_rbc(mz, self.process[k], den_process))
+            if den_moved is not None:  # and an actuator's true move
+                rbc = np.maximum(rbc, _ref_rbc(mz, self.moved[k], den_moved))
             if self.loop is not None:
                 self._loop_rbc(rbc, mz, m, k)
             share[rows] = np.clip(rbc / np.maximum(q, 1e-12)[:, None], 0.0, 1.0)
@@ -174,6 +169,10 @@ def _ref_combined(self, r, point=None, shares=True):  # T² and every sample's s
             q = stats.chi2.isf(stats.chi2.sf(q, k.size), T)
         t2[rows] = q
     return t2, share
+
+
+def _ref_rbc(mz, xi, den):  # each direction's contribution, as eq. 13 reads
+    return np.where(den > 1e-12, (mz @ xi) ** 2 / np.maximum(den, 1e-12), 0.0)
 
 
 def _ref_episode_at(self, share_at, active):  # the episode over every sample, alarms' kept
@@ -192,10 +191,12 @@ def _ref_inverse(self, pat):  # each pattern's pseudo-inverse, nothing shared wi
     m = np.linalg.pinv(self.cov[np.ix_(k, k)])
     xi = self.xi[k]
     pr = None if self.process is None else self.process[k]
+    mv = None if self.moved is None else self.moved[k]
     return (
         m,
         np.einsum("tk,tu,uk->k", xi, m, xi),
         None if pr is None else np.einsum("tk,tu,uk->k", pr, m, pr),
+        None if mv is None else np.einsum("tk,tu,uk->k", mv, m, mv),
     )
 
 
@@ -561,17 +562,19 @@ def test_stacked_inverses_are_the_pseudo_inverses(T):
     pats = rng.random((40, T)) > 0.2
     pats[0] = True
     process = rng.normal(size=(T, T + 3))  # the second, true-change directions
+    moved = rng.normal(size=(T, T + 3))  # the actuators' true moves
     for cov, batched in ((_spd(rng, T, 0.2), True), (np.ones((T, T)), False)):
         cm = unittags.CombinedModel([f"x{i}" for i in range(T + 3)], np.zeros(T), np.ones(T),
-                                    cov, xi, None, process=process)  # fmt: skip
+                                    cov, xi, None, process=process, moved=moved)  # fmt: skip
         cm._prepare(pats)
         assert (len(cm._inverses) == len({p.tobytes() for p in pats})) is batched
         for p in pats:
-            m, den, den_p = cm._inverse(p)
-            ref_m, ref_den, ref_den_p = _ref_inverse(cm, p)
+            m, den, den_p, den_m = cm._inverse(p)
+            ref_m, ref_den, ref_den_p, ref_den_m = _ref_inverse(cm, p)
             if batched:
                 np.testing.assert_allclose(m, ref_m, rtol=RTOL, atol=RTOL * np.abs(ref_m).max())
                 np.testing.assert_allclose(den, ref_den, rtol=RTOL)
                 np.testing.assert_allclose(den_p, ref_den_p, rtol=RTOL)
+                np.testing.assert_allclose(den_m, ref_den_m, rtol=RTOL)
             else:
                 np.testing.assert_array_equal(m, ref_m)

@@ -63,7 +63,10 @@ is how much of ``T²`` a bias along ``ξ_X`` explains (``0 ≤ RBC_X ≤ T²``).
 moves its loop test's residual by an amount and sign no gain says (zero while the loop
 compensates, either way once the valve sticks or saturates): its contribution is taken over the
 plane of its own direction and that test's axis, the multidimensional form ``uᵀ(ΞᵀS⁻¹Ξ)⁻¹u``,
-``Ξ = [ξ_X e_loop]``, ``u = ΞᵀS⁻¹z`` (Alcala & Qin, 2009). A loop's own sensor is not given
+``Ξ = [ξ_X e_loop]``, ``u = ΞᵀS⁻¹z`` (Alcala & Qin, 2009); and a third direction, the
+valve truly moved with the tags whose models read it following (:func:`moved_directions`: a
+loop compensating a fouled cooler, the flow through the valve following it). A loop's own
+sensor is not given
 that plane: its direction is ``1`` on its loop test, as any tag's own test, plus the move of
 the compensating loop on the tests reading the set-point (``−g_SP``); a plane would give it one
 more degree of freedom than the tags it is ranked against, and a share of every deviation
@@ -248,7 +251,7 @@ def directions(unit, spec: CombinedSpec | None) -> tuple[np.ndarray, np.ndarray]
     return xi, loop
 
 
-def point_directions(unit, spec: CombinedSpec) -> tuple[np.ndarray, np.ndarray]:
+def point_directions(unit, spec: CombinedSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per operating point of ``spec`` (``diag unit accept``) the tags' directions
     (:func:`directions`) and true-change directions (:func:`process_directions`), points ×
     the unit's tests × tags, each in the residuals scaled at that point: a bias
@@ -258,7 +261,7 @@ def point_directions(unit, spec: CombinedSpec) -> tuple[np.ndarray, np.ndarray]:
     point's scale alone ranked every sample by it (SKAB: the accelerometers' residuals
     spread 17× wider at the calibration run's point)."""
     level = {t.name: t.point_scale for t in unit.file.tests if t.point_scale is not None}
-    xis, procs = [], []
+    xis, procs, moves = [], [], []
     for p, row in enumerate(spec.point_scale):
         scale = [float(row[i]) * (level[n][p] if n in level else 1.0)
                  for i, n in enumerate(spec.tests)]  # fmt: skip
@@ -266,7 +269,8 @@ def point_directions(unit, spec: CombinedSpec) -> tuple[np.ndarray, np.ndarray]:
         xi, _ = directions(unit, at)
         xis.append(xi)
         procs.append(process_directions(unit, at, xi))
-    return np.stack(xis), np.stack(procs)
+        moves.append(moved_directions(unit, at))
+    return np.stack(xis), np.stack(procs), np.stack(moves)
 
 
 def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
@@ -305,11 +309,7 @@ def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
     test of the flow). A leak of the tank the flow drains then names the flow, not the
     balance's inflow meter, whose bias moves its own test too (docs/how-to/unit-loops.md)."""
     tags, outputs, _ = structure(unit)
-    T, n = len(unit.tests), len(tags)
     col = {x: k for k, x in enumerate(tags)}
-    own = np.zeros((T, n))  # e_out(j)
-    gain = np.zeros((T, n))  # g_jX
-    f = np.zeros(T)  # 100 / span_j / s_j
     spread = np.array([_spread_test(unit, t) for t in unit.tests])
     fixed = set()  # loops' sensors and actuators
     stiction: dict[int, list[int]] = {}  # actuator's column → its spread tests
@@ -322,21 +322,9 @@ def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
                 fixed.add(outputs[t])
                 if outputs[t] in col and outputs[t] != test.actuator:
                     sensor_of[col[outputs[t]]] = j
-        if spread[j]:
-            if test.actuator in col:
-                stiction.setdefault(col[test.actuator], []).append(j)
-            continue
-        span = test.ymax if unit.ev["scale"] == "max" and test.ymax else unit.models[t].span
-        f[j] = 100.0 / span / spec.scale[spec.tests.index(t)]
-        if outputs[t] in col:
-            own[j, col[outputs[t]]] = 1.0
-        for x, g in spec.gains.get(t, {}).items():
-            if x in col:
-                gain[j, col[x]] = g
-    # d[:, X]: the readings a true change of X moves (X itself and its followers)
-    follow = np.where(own.sum(axis=1, keepdims=True) > 0, gain, 0.0) * (1.0 - own)
-    d = np.eye(n) + own.T @ follow
-    out = ((own - gain) @ d) * f[:, None]
+        if spread[j] and test.actuator in col:
+            stiction.setdefault(col[test.actuator], []).append(j)
+    out = _true_changes(unit, spec, tags, outputs, spread)
     out[spread] = xi[spread]
     keep = [k for k, x in enumerate(tags) if x in fixed]
     out[:, keep] = xi[:, keep]
@@ -350,6 +338,54 @@ def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
         out[:, k] = 0.0
         for j in rows:
             out[j, k] = 1.0 / spec.scale[spec.tests.index(unit.tests[j])]
+    return out
+
+
+def _true_changes(unit, spec: CombinedSpec, tags, outputs, spread: np.ndarray) -> np.ndarray:
+    """Each tag's true-change direction, tests × tags (:func:`process_directions`: ``((e_out
+    − g) · d) · 100 / span / s``, the readings ``d`` a true change moves, the tag and the
+    tags whose models read it), zero on the spread tests."""
+    T, n = len(unit.tests), len(tags)
+    col = {x: k for k, x in enumerate(tags)}
+    own = np.zeros((T, n))  # e_out(j)
+    gain = np.zeros((T, n))  # g_jX
+    f = np.zeros(T)  # 100 / span_j / s_j
+    for j, t in enumerate(unit.tests):
+        if spread[j]:
+            continue
+        test = unit.file.test(t)
+        span = test.ymax if unit.ev["scale"] == "max" and test.ymax else unit.models[t].span
+        f[j] = 100.0 / span / spec.scale[spec.tests.index(t)]
+        if outputs[t] in col:
+            own[j, col[outputs[t]]] = 1.0
+        for x, g in spec.gains.get(t, {}).items():
+            if x in col:
+                gain[j, col[x]] = g
+    # d[:, X]: the readings a true change of X moves (X itself and its followers)
+    follow = np.where(own.sum(axis=1, keepdims=True) > 0, gain, 0.0) * (1.0 - own)
+    d = np.eye(n) + own.T @ follow
+    return ((own - gain) @ d) * f[:, None]
+
+
+def moved_directions(unit, spec: CombinedSpec) -> np.ndarray:
+    """A loop's actuator's third direction, tests × tags (zero for every other tag): its
+    **true move**, the tags whose models read it following it (:func:`_true_changes`). Its
+    first direction (:func:`directions`) is a bias of the valve, the valve not where its
+    output says: the tests reading the output see ``−g`` (a biased valve, a flow meter
+    reading the valve's characteristic wrong); its second the spread of its loop's error
+    (sticking). A loop that compensates a process fault (a fouled cooler) truly moves its
+    valve, and a flow that follows the valve (its test the valve's characteristic,
+    :func:`~diag_plugin.unitbuild.build.driven_reads_output`) follows it: the valve's own test
+    moves, the flow's does not — neither of the other two directions. A balance test
+    (``balance = true``) does not move either: what a valve truly passes, the vessel's level
+    and other flows account for (its one-step followers would say otherwise, and took a
+    leak's balance alarm for the valve)."""
+    tags, outputs, _ = structure(unit)
+    spread = np.array([_spread_test(unit, t) for t in unit.tests])
+    acts = {unit.file.test(t).actuator for j, t in enumerate(unit.tests) if not spread[j]}
+    out = _true_changes(unit, spec, tags, outputs, spread)
+    out[:, [k for k, x in enumerate(tags) if x not in acts]] = 0.0
+    out[[getattr(unit.file.test(t), "balance", False) for t in unit.tests]] = 0.0
     return out
 
 
@@ -554,6 +590,8 @@ class CombinedModel:
     loop: np.ndarray | None = None
     #: per tag a second direction, a change of the true quantity (:func:`process_directions`)
     process: np.ndarray | None = None
+    #: a loop's actuator's third direction, its true move (:func:`moved_directions`)
+    moved: np.ndarray | None = None
     #: operating points (``[combined] point_*``): each test's centre and scale per point
     #: (points × T), the plant tags placing a sample, their mean per point (points × tags)
     #: and spans
@@ -566,6 +604,7 @@ class CombinedModel:
     #: directions (:func:`point_directions`): each in the scaled residuals of that point
     point_xi: np.ndarray | None = None
     point_process: np.ndarray | None = None
+    point_moved: np.ndarray | None = None
     #: per test whether it stays out of ``T²`` (the unit file's ``combined = false``,
     #: :func:`outside_tests`; None: every test is in): its scaled residual is unknown here,
     #: and ``T²``, the known share and the degrees of freedom count the other tests only
@@ -573,8 +612,8 @@ class CombinedModel:
     #: per operating point the model that ranks its samples (:meth:`_at_point`)
     _views: dict[int, CombinedModel] = field(default_factory=dict, repr=False)
     #: per pattern of known tests: S⁻¹ restricted to them and the directions' norms
-    _inverses: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray | None]] = field(
-        default_factory=dict
+    _inverses: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]] = (
+        field(default_factory=dict)
     )
     #: whether ``S`` is well conditioned (:meth:`_well_conditioned`), once known
     _cond_ok: bool | None = field(default=None, repr=False)
@@ -586,10 +625,12 @@ class CombinedModel:
             m = np.linalg.pinv(self.cov[np.ix_(k, k)])
             xi = self.xi[k]
             pr = None if self.process is None else self.process[k]
+            mv = None if self.moved is None else self.moved[k]
             self._inverses[key] = (
                 m,
                 np.einsum("tk,tu,uk->k", xi, m, xi),
                 None if pr is None else np.einsum("tk,tu,uk->k", pr, m, pr),
+                None if mv is None else np.einsum("tk,tu,uk->k", mv, m, mv),
             )
         return self._inverses[key]
 
@@ -626,12 +667,13 @@ class CombinedModel:
         inv = 0.5 * (inv + inv.transpose(0, 2, 1))  # as pinv's: symmetric to the last bit
         inv *= both  # the unknown tests' rows and columns out: ξᵀ S_kk⁻¹ ξ over the known
         den = np.einsum("ptk,tk->pk", inv @ self.xi, self.xi)
-        pr = self.process
+        pr, mv = self.process, self.moved
         dens_p = [None] * len(new) if pr is None else np.einsum("ptk,tk->pk", inv @ pr, pr)
-        for pat, m_full, d, dp in zip(new, inv, den, dens_p, strict=True):
+        dens_m = [None] * len(new) if mv is None else np.einsum("ptk,tk->pk", inv @ mv, mv)
+        for pat, m_full, d, dp, dm in zip(new, inv, den, dens_p, dens_m, strict=True):
             k = np.flatnonzero(pat)
             m = m_full if k.size == T else m_full[np.ix_(k, k)]
-            self._inverses[pat.tobytes()] = (m, d, dp)
+            self._inverses[pat.tobytes()] = (m, d, dp, dm)
 
     @classmethod
     def of(cls, unit) -> CombinedModel:
@@ -649,10 +691,11 @@ class CombinedModel:
         xi, loop = directions(unit, spec)
         points = {}
         if spec.point_center:
-            pxi, pproc = point_directions(unit, spec)
+            pxi, pproc, pmoved = point_directions(unit, spec)
             points = {
                 "point_xi": pxi,
                 "point_process": pproc,
+                "point_moved": pmoved if pmoved.any() else None,
                 "centers": np.asarray(spec.point_center, float)[:, order],
                 "scales": np.asarray(spec.point_scale, float)[:, order],
                 "point_tags": list(spec.point_tags),
@@ -668,6 +711,7 @@ class CombinedModel:
             spec.high,
             loop if (loop >= 0).any() else None,
             process_directions(unit, spec, xi),
+            moved=moved if (moved := moved_directions(unit, spec)).any() else None,
             outside=outside_tests(unit),
             **points,
         )
@@ -699,7 +743,9 @@ class CombinedModel:
             self._views[p] = replace(
                 self, xi=self.point_xi[p],
                 process=None if self.point_process is None else self.point_process[p],
-                point_xi=None, point_process=None, _views={}, _inverses={}, _cond_ok=None,
+                moved=None if self.point_moved is None else self.point_moved[p],
+                point_xi=None, point_process=None, point_moved=None, _views={}, _inverses={},
+                _cond_ok=None,
             )  # fmt: skip
         return self._views[p]
 
@@ -833,11 +879,13 @@ class CombinedModel:
         """Each tag's ``RBC / T²`` in [0, 1] for one block of :meth:`_blocks` (known tests
         ``k``, their inverse, ``S_kk⁻¹ z`` and ``T²``): Alcala & Qin (2009), eq. 13, over each tag's
         direction, the larger of a sensor's bias and a true change, loops over their plane."""
-        m, den, den_process = inv
+        m, den, den_process, den_moved = inv
         with np.errstate(invalid="ignore", divide="ignore"):
             rbc = _rbc(mz, self.xi[k], den)
             if den_process is not None:  # a bias of the sensor or a true change
                 np.maximum(rbc, _rbc(mz, self.process[k], den_process), out=rbc)
+            if den_moved is not None:  # an actuator the loop truly moved
+                np.maximum(rbc, _rbc(mz, self.moved[k], den_moved), out=rbc)
             if self.loop is not None:
                 self._loop_rbc(rbc, mz, m, k)
             rbc /= np.maximum(q, 1e-12)[:, None]

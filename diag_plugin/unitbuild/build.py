@@ -36,7 +36,9 @@ hand-build:
    a fault as fast as the fault moves ``y`` and so hides it), nor a tag that is the same
    measurement (:func:`same_measurement`: ``|r| >`` :data:`SAME_CORR` at lag 0, linear or
    rank correlation — a redundant transmitter, a copy, a unit conversion or a monotone
-   function of the tag).
+   function of the tag); a controller output is no such copy: a tag it drives may read it
+   through the screen, the output's own test never reads that tag
+   (:func:`driven_reads_output`).
 3. **Models**: each test's model (``wm-avg``; sets per input what the data fill,
    :func:`~diag_plugin.selection.sets.sets_for_data`) is written as an ordinary model
    file and trained like ``diag train`` does (80 % / 20 % time-ordered validation, then all
@@ -58,7 +60,7 @@ import math
 import os
 import re
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
 from pathlib import Path
@@ -394,8 +396,8 @@ def same_measurement(
     """For each tag, the others that are the same measurement: ``|r| >`` :data:`SAME_CORR`
     at lag 0 over the window, Pearson's or Spearman's (a redundant transmitter, a copy, a
     unit conversion, a monotone function of it). Neither is ever an input of the other's
-    model. ``workers``: processes for the two correlation matrices (:func:`map_tests`; None:
-    every core)."""
+    model, unless one is a controller output (:func:`driven_reads_output`). ``workers``:
+    processes for the two correlation matrices (:func:`map_tests`; None: every core)."""
     X = frame[list(tags)].astype(float)
     # Pearson for a copy or a linear conversion, Spearman (ranks) for any monotone one
     # (a flow computed from a differential pressure, a level in % from one in m)
@@ -407,6 +409,33 @@ def same_measurement(
             if i != j and np.isfinite(r[i, j]) and abs(r[i, j]) > SAME_CORR:
                 out[a].append(b)
     return out
+
+
+def driven_reads_output(
+    same: Mapping[str, Sequence[str]], outputs: Iterable[str]
+) -> dict[str, list[str]]:
+    """``same`` (:func:`same_measurement`) with each controller output (``outputs``: a
+    declared loop's ``out``, or one found by its name beside a set-point) left readable by
+    the tags that pass the screen with it: a cause and its effect, not one measurement.
+
+    A controller output is no transmitter: the controller computes it from its loop's error,
+    and the valve it moves sets what flows through it. Where the valve is the only thing
+    that moves the flow (a header held at its pressure) the two correlate above
+    :data:`SAME_CORR` over any fault-free window — the air through a DO loop's valve at r
+    0.9993 (docs/explanation/acceptance-aeration.md) — and the screen, meant for a redundant
+    transmitter, a copy or a unit conversion, dropped the one relation a bias of the flow's
+    meter breaks (the flow was modelled from the load instead, and the bias was found on
+    12.7 % of the samples). So the tag may read the output: its test is the valve's
+    characteristic, ``F = f(valve)`` (the seed's Model B, ``F_k = f(U_{k-1})``).
+
+    One way only: the output's own test still never reads what it drives. A valve predicted
+    from its own flow follows the flow whatever moved it; its test (:func:`actuator_test`)
+    predicts it from the process conditions that drive it, so it still fires when its loop
+    closes the valve on a drifting sensor. Two controller outputs that pass the screen
+    together stay screened (neither drives the other), and so do two measurements (a
+    redundant pair): the screen is unchanged for every pair without exactly one output."""
+    outs = set(outputs)
+    return {t: [c for c in cs if not (c in outs and t not in outs)] for t, cs in same.items()}
 
 
 def _abs_corr(ranks: bool, X: pd.DataFrame) -> np.ndarray:
@@ -1213,6 +1242,8 @@ def _build_unit(
     held: dict[str, str | None] = dict.fromkeys(named)
     held.update({lp.out: lp.pv for lp in loops if lp.out})  # declared: the tag it holds
     asks = asked_for(loops, named)
+    # a controller output and what it drives are a cause and its effect, not one measurement
+    same = driven_reads_output(same, held)
     choices = map_tests(_choose, tests, (names, same, ctx, sel, plan, frame, info, declared, held,
                         asks, outs), workers=workers, progress=tick)  # fmt: skip
     seconds["choose inputs"] = time.perf_counter() - t0
