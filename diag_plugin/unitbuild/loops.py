@@ -40,8 +40,8 @@ power, the influent from an air valve), and alarms when the disturbance does wha
 (a storm). Declared with ``--disturbance TAG`` or the role ``disturbance`` (or ``driver``,
 ``exogenous``) in a tags CSV (a row without a ``loop``), it is never a test and stays a
 candidate input; where it leaves what a test learned, that test answers as for any input
-(:mod:`diag_plugin.diagnose.operating`). A row without a loop whose role is none of these is
-refused as ``file:line``.
+(:mod:`diag_plugin.diagnose.operating`). A row without a loop whose role is none of
+``manual``, these, or ``running`` (below) is refused as ``file:line``.
 
 **A run condition** (issue 34, item 6; ISA-18.2's state-based alarming): a plant that stops —
 an air-handling unit off every night, a pump on standby, a compressor between batches — is not
