@@ -40,16 +40,16 @@ def test_accept_says_a_shared_model_files_widened_span_once(tmp_path, capsys):
 
     db = f"sqlite:///{tmp_path / 'h.db'}"
     with Historian(db) as h:
-        _loop(h, T0, 12, [45.0, 50.0, 55.0, 50.0, 45.0, 55.0], 1)
-        _loop(h, T0 + pd.Timedelta(days=1), 3, [65.0], 2)  # a set-point the build never saw
+        _loop(h, T0, 6, [45.0, 50.0, 55.0, 50.0, 45.0, 55.0], 1)
+        _loop(h, T0 + pd.Timedelta(days=1), 2, [65.0], 2)  # a set-point the build never saw
     base = ["--db", db, "--rulebases", str(tmp_path / "rb"), "unit"]
-    rc = main([*base, "build", "lv", "--from", "2026-05-04", "--to", "2026-05-04T12:00",
+    rc = main([*base, "build", "lv", "--from", "2026-05-04", "--to", "2026-05-04T06:00",
                "--loop", "LVL=LVL_SP:V_OUT", "--far", "0.01"])  # fmt: skip
     assert rc == 0, capsys.readouterr().err
     capsys.readouterr()
     unit = (tmp_path / "rb" / "lv.unit.toml").read_text()
     assert "LVL_spread" in unit and unit.count('model = "lv_LVL.toml"') == 2, unit
-    window = ["--from", "2026-05-05T00:30", "--to", "2026-05-05T03:00"]
+    window = ["--from", "2026-05-05T00:20", "--to", "2026-05-05T02:00"]
     assert main([*base, "accept", "lv", *window, "--json"]) == 0
     notes = json.loads(capsys.readouterr().out)["warnings"]
     spans = [w for w in notes if w.startswith("lv_LVL.toml: ") and ": span " in w]
