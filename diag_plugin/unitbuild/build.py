@@ -1221,7 +1221,9 @@ def _build_unit(
                 f"{lp.pv}: its set-point {lp.sp} has no value in the window: no loop test, "
                 f"{lp.pv} is modelled from the other tags"
             )
-    plan = short.plan_for(rows, period, max_inputs, evaluation_for(period)["lowpass"])
+    plan = short.plan_for(
+        rows, period, max_inputs, evaluation_for(period)["lowpass"], ACTUATOR_MAX_INPUTS
+    )
     # a long fast window: inputs chosen on a coarser grid (short.coarse_frame)
     sel = ctx
     if plan.factor > 1:

@@ -116,10 +116,18 @@ def short_lowpass(rows: int, lowpass: float) -> float:
     return float(f"{min(SHORT_MAX_LOWPASS, max(lowpass, SHORT_INDEPENDENT / rows)):.3g}")
 
 
-def plan_for(rows: int, period: str, max_inputs: int, lowpass: float | None = None) -> Plan:
+def plan_for(
+    rows: int,
+    period: str,
+    max_inputs: int,
+    lowpass: float | None = None,
+    output_max_inputs: int | None = None,
+) -> Plan:
     """The build's plan for a window of ``rows`` grid points of ``period`` (module doc);
     ``lowpass``: the period's residual filter (cut-off / Nyquist), which a short window
-    raises (:func:`short_lowpass`)."""
+    raises (:func:`short_lowpass`); ``output_max_inputs``: the inputs a controller output's
+    test (and a flow's balance test) may take, which a short window does not cut, said in
+    its note (until 2026-11-30 the note said the per-test limit alone, acceptance-chiller.md)."""
     p = Plan(rows, period, max_inputs=max_inputs)
     if rows < SHORT_ROWS:
         p.short = True
@@ -128,7 +136,14 @@ def plan_for(rows: int, period: str, max_inputs: int, lowpass: float | None = No
         p.max_sets = SHORT_MAX_SETS
         p.reasons.append(
             f"short window ({rows} samples of {period}, under {SHORT_ROWS}): at most "
-            f"{p.max_inputs} inputs per test, chosen with a linear model; a rule grid (at most "
+            f"{p.max_inputs} inputs per test"
+            + (
+                f" (a controller output's test up to {output_max_inputs}, as a flow's balance "
+                "test, each input kept only where it cuts the held-out error)"
+                if output_max_inputs and output_max_inputs > p.max_inputs
+                else ""
+            )
+            + ", chosen with a linear model; a rule grid (at most "
             f"{SHORT_MAX_SETS} sets per input) only where its cells hold {SHORT_PER_CELL} "
             "samples each and it beats the linear test on held-out error, else a linear "
             "(PCA-like) test; a tag no other tag predicts: a level test (the tag against its "
