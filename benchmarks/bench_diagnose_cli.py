@@ -120,6 +120,9 @@ def load_unit(*a, **k):  # the command's imports are done when it loads the unit
         return g
     hs.Historian._read_pieces = pooled(hs.Historian._read_pieces)
     hs.align_pieces = pooled(hs.align_pieces)
+    import historian.backends as hb
+    if hasattr(hb.SqliteBulk, "read_grid"):  # a regular series' values alone (round six)
+        hb.SqliteBulk.read_grid = pooled(hb.SqliteBulk.read_grid)
     return timed(orig_load, "load", False)(*a, **k)
 cli.load_unit = load_unit
 uf = cli.unit_frames
