@@ -72,9 +72,19 @@ def _hard_kernel(x, p10, out):  # pragma: no cover - numba
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _put_g6(v, p10, out, pos, dig):  # pragma: no cover - numba
-    """``%.6g`` of a finite ``v`` (one :func:`_g6_digits` is certain of, or 0) at ``pos``
-    (``dig``: room for six digits)."""
+def _digits_back(d, nd, out, last):  # pragma: no cover - numba
+    """The ``nd`` digits of ``d`` written ending at ``last``; returns the place before them."""
+    for _ in range(nd):
+        out[last] = 48 + d % 10
+        d //= 10
+        last -= 1
+    return last
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _put_g6(v, p10, out, pos):  # pragma: no cover - numba
+    """``%.6g`` of a finite ``v`` (one :func:`_g6_digits` is certain of, or 0) at ``pos``;
+    returns the place after it."""
     if v == 0.0:
         if np.signbit(v):
             out[pos] = 45  # -
@@ -85,42 +95,37 @@ def _put_g6(v, p10, out, pos, dig):  # pragma: no cover - numba
         out[pos] = 45
         pos += 1
     d, x, _ = _g6_digits(abs(v), p10)
-    for i in range(5, -1, -1):
-        dig[i] = 48 + d % 10
+    nd = 6  # the digits shown: trailing zeros dropped (no '#' flag)
+    while d % 10 == 0:
         d //= 10
-    last = 5  # the last digit shown: trailing zeros dropped (no '#' flag)
-    while last > 0 and dig[last] == 48:
-        last -= 1
-    if -4 <= x < 6:  # fixed notation, 5 − x decimals
-        if x >= 0:
-            for i in range(x + 1):
-                out[pos] = dig[i]
-                pos += 1
-            if last > x:
-                out[pos] = 46  # .
-                pos += 1
-                for i in range(x + 1, last + 1):
-                    out[pos] = dig[i]
-                    pos += 1
-        else:
-            out[pos] = 48
-            out[pos + 1] = 46
-            pos += 2
-            for _ in range(-x - 1):
-                out[pos] = 48
-                pos += 1
-            for i in range(last + 1):
-                out[pos] = dig[i]
-                pos += 1
-        return pos
-    out[pos] = dig[0]  # exponent notation: d[.ddddd]e±XX
-    pos += 1
-    if last > 0:
-        out[pos] = 46
-        pos += 1
-        for i in range(1, last + 1):
-            out[pos] = dig[i]
-            pos += 1
+        nd -= 1
+    if 0 <= x < 6:  # fixed notation, x + 1 digits before the point
+        whole = x + 1
+        if nd <= whole:  # an integer: the digits, then zeros
+            _digits_back(d, nd, out, pos + nd - 1)
+            for i in range(pos + nd, pos + whole):
+                out[i] = 48
+            return pos + whole
+        end = pos + nd + 1
+        at = _digits_back(d, nd - whole, out, end - 1)
+        out[at] = 46  # .
+        _digits_back(d // 10 ** (nd - whole), whole, out, at - 1)  # the integer part
+        return end
+    if -4 <= x < 0:  # 0.000ddd
+        out[pos] = 48
+        out[pos + 1] = 46
+        for i in range(-x - 1):
+            out[pos + 2 + i] = 48
+        end = pos + 1 - x + nd
+        _digits_back(d, nd, out, end - 1)
+        return end
+    end = pos + (nd + 1 if nd > 1 else 1)  # d[.ddddd]e±XX
+    at = _digits_back(d, nd - 1, out, end - 1)
+    if nd > 1:
+        out[at] = 46
+        at -= 1
+    out[at] = 48 + d // 10 ** (nd - 1)
+    pos = end
     out[pos] = 101  # e
     out[pos + 1] = 45 if x < 0 else 43
     pos += 2
@@ -144,7 +149,6 @@ def _block_kernel(
     pos = 0
     h = 0
     nf = floats.shape[1]
-    dig = np.empty(6, np.uint8)
     for r in range(floats.shape[0]):
         for c in range(kind.size):
             if c:
@@ -161,7 +165,7 @@ def _block_kernel(
                         pos += 1
                     h += 1
                     continue
-                pos = _put_g6(v, p10, out, pos, dig)
+                pos = _put_g6(v, p10, out, pos)
             else:
                 k = codes[r, j]
                 for i in range(text_at[k], text_at[k + 1]):
