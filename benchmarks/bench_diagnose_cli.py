@@ -57,7 +57,18 @@ filter's Butterworth design in numpy and the χ² levels from ``scipy.special``,
 ``--rolled --no-csv``: 200,000 rows 4.94 → 4.43 CPU s (40,480 → 45,150 rows per CPU s;
 imports 1.64 → 1.03); 1,000,000 rows, 12 pairs at a load of 10–15, 16.52 → 16.47 (60,530 →
 60,720; pairs' median ratio 0.97: the 0.7 s saved is inside that load's ±20 % per run); the
-same JSON.
+same JSON. Round six (branch ``i34-replay``: a regular series read as its values alone,
+``SqliteBulk.read_grid``; the CSV written by a compiled ``%.6g``, ``diagnose/csvfast.py``),
+``--rows 1000000`` hot, ``--json --csv``, 5 pairs against ``main`` (07c9aaa, a ``git archive``
+snapshot) at a load of 6.2–9.8, medians: 71.09 → 35.60 CPU s (14,070 → 28,090 rows per CPU s;
+pairs' ratios 0.48–0.61, median 0.51), wall 126 → 62 s; per stage read 12.36 → 9.95 (80,900 →
+100,500 rows per CPU s), replay 9.09 → 8.86 (the same code), CSV 42.10 → 11.21 (23,750 →
+89,200), imports 1.16 → 1.13, the rest 4.63 → 4.54; peak RSS 2.93 → 3.08 GB; JSON and CSV the
+same bytes (md5 ``47b16325…``, ``71b40c4a…``); ``--no-csv``, 5 pairs at a load of 8.7–13.5:
+24.87 → 20.00 CPU s (40,200 → 50,000 rows per CPU s; pairs' median ratio 0.83; the read 13.30
+→ 9.47). 100,000 rows per CPU s end to end is not reached: the read and the replay ~7–10 CPU s
+each at 1,000,000 rows.
+The stage "read" now also counts ``read_grid`` in the reading threads.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
@@ -120,6 +131,9 @@ def load_unit(*a, **k):  # the command's imports are done when it loads the unit
         return g
     hs.Historian._read_pieces = pooled(hs.Historian._read_pieces)
     hs.align_pieces = pooled(hs.align_pieces)
+    import historian.backends as hb
+    if hasattr(hb.SqliteBulk, "read_grid"):  # a regular series' values alone (round six)
+        hb.SqliteBulk.read_grid = pooled(hb.SqliteBulk.read_grid)
     return timed(orig_load, "load", False)(*a, **k)
 cli.load_unit = load_unit
 uf = cli.unit_frames

@@ -224,6 +224,36 @@ class SqliteBulk:
         quality = tb.column(2).to_numpy().astype(np.int64, copy=False)
         return ts, value, quality
 
+    def read_grid(self, tag_id: int, t0: int, period: int, n: int) -> np.ndarray | None:
+        """The tag's usable values at the grid points ``t0 + k·period`` (k < n) when its
+        samples in ``[t0 − period/2, t0 + n·period − period/2)`` are exactly one on each of
+        them (a regular series on the grid), else None (nothing is known then: read the
+        samples with :meth:`read`). A Bad sample is NaN, as in an aligned window.
+
+        One column per row instead of (ts, value): the driver's per-value work is most of a
+        read's cost (issue 34: 1,000,000 rows of one tag 0.21 → 0.15 CPU s). A sample off
+        the grid answers +inf, a marker no usable value is (an infinite value is not usable
+        either: :func:`~historian.window.align`); then, or with a grid point without a
+        sample (fewer rows than ``n``), None."""
+        if n <= 0:
+            return None
+        half = period // 2
+        lo, hi = t0 - half, t0 + n * period - half
+        tb = self.fetch(
+            f"SELECT CASE WHEN (ts - {int(t0)}) % {int(period)} THEN 9e999 "
+            f"WHEN quality < {BAD} THEN value END FROM samples "
+            f"WHERE tag_id = {int(tag_id)} AND ts >= {int(lo)} AND ts < {int(hi)} ORDER BY ts"
+        )
+        if tb.num_rows != n:
+            return None
+        col = tb.column(0)
+        if not (pa.types.is_floating(col.type) or pa.types.is_null(col.type)):
+            return None  # values stored as another type: the full read decides
+        value = col.cast(pa.float64()).to_numpy(zero_copy_only=False)
+        if np.isinf(value).any():  # a sample off the grid (or an infinite value)
+            return None
+        return value
+
     def fetch(self, sql: str) -> pa.Table:
         """The rows of a query as an Arrow table, in batches of :data:`READ_BATCH_ROWS`."""
         with self.batches(sql) as reader:

@@ -513,10 +513,19 @@ class Historian(ColdMonths, Registry, TagReport):
 
         # the frame's block, one row per tag, each tag's values aligned straight into it
         block = np.full((len(tags), n), np.nan)
+        # without a hold, the database alone holding the rows (no rolled month) and the mean
+        # or last of a bin: a tag's one sample on each grid point is its aligned column
+        # (:func:`~historian.window.align`), read without its times
+        grid = not segments and how in ("mean", "last") and hasattr(self._bulk, "read_grid")
 
         def one(i):
             tag_id, t_lo, t_hi = meta[i]
             back = int(hold.get(tags[i], 0))
+            if not summary and grid and back == 0:  # a regular series on the grid: its values
+                values = self._bulk.read_grid(tag_id, t0, p, n)
+                if values is not None:
+                    block[i] = values
+                    return block[i], None
             if not summary:  # the pieces as read, each put on the grid where it lies
                 pieces = self._read_pieces(tag_id, lo - back, hi, segments, usable=True)
                 return align_pieces(pieces, t0, p, n, how, back, out=block[i]), None

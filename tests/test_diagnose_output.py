@@ -40,7 +40,7 @@ def _mixed(n: int, tz: str | None = "UTC", unit: str = "ns", seed: int = 0) -> p
     wide = rng.standard_normal(n) * 10.0 ** rng.integers(-9, 9, n)
     wide[rng.random(n) < 0.1] = np.nan
     wide[: min(n, 4)] = [np.inf, -np.inf, -0.0, 123456789.0][: min(n, 4)]
-    words = rng.choice(["", "f_P0", "a, b", 'say "x"', "two\nlines", "ü|ß"], n)
+    words = rng.choice(["", "f_P0", "a, b", 'say "x"', "two\nlines", "cr\r", "ü|ß"], n)
     text = pd.Series(words, index=index, dtype="str").where(rng.random(n) > 0.2)
     obj = pd.Series(rng.choice(["", "0", "1"], n), index=index, dtype=object)
     return pd.DataFrame(

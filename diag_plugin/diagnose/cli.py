@@ -659,8 +659,14 @@ def write_csv(d, path: str) -> None:
     (1/0, empty when unknown), quality, faults; with a combined test or isolation to tags also
     T2 (the combined statistic), s_T2 (its symptom) and top1, share1, … top3, share3 (the
     tags that explain an alarm, their share of T²)."""
+    import numpy as np
+    import pandas as pd
+
     frame = d.to_frame()
-    frame["detected"] = frame["detected"].map(lambda v: "" if v != v else str(int(v)))
+    # each distinct value's text once ("" unknown), not a call per sample
+    codes, uniq = pd.factorize(frame["detected"].to_numpy())  # NaN: -1, the last text
+    text = np.array([*(str(int(v)) for v in uniq.tolist()), ""], dtype=object)
+    frame["detected"] = pd.Series(text[codes], index=frame.index, dtype="str")
     write_frame_csv(frame, path)
 
 
@@ -670,24 +676,50 @@ CSV_FLOAT, CSV_DATE = "%.6g", "%Y-%m-%dT%H:%M:%S%z"
 
 def write_frame_csv(frame, path: str) -> None:
     """``frame.to_csv(path, float_format=CSV_FLOAT, date_format=CSV_DATE)``, the same bytes,
-    about three times faster (issue 34: pandas formats each float through two Python calls;
-    200,000 rows × 141 float columns took 19 CPU s of a 27 s ``diag diagnose``). A column of
-    few distinct values (symptoms, certainties) is formatted once per value; others in one
-    ``map``; the rows go through the same :mod:`csv` writer pandas uses. A frame with another
-    kind of column or index is written by pandas itself."""
-    import csv
+    in one compiled pass a block of rows (:mod:`~diag_plugin.diagnose.csvfast`, issue 34:
+    pandas formats each float through two Python calls; 1,000,000 rows × ~150 columns took
+    ~46 CPU s through ``%`` and the :mod:`csv` writer). Float64 columns are formatted there;
+    integer and text columns and the times are tables of their distinct texts. A frame with
+    another kind of column or index is written by pandas itself."""
+    from diag_plugin.diagnose.csvfast import G6, TextTable, write_rows
 
     index = _csv_times(frame.index)
-    if index is None or not all(_csv_known(frame[c]) for c in frame.columns):
+    known = CSV_FLOAT == G6 and all(_csv_known(frame[c]) for c in frame.columns)
+    if index is None or not known:
         frame.to_csv(path, float_format=CSV_FLOAT, date_format=CSV_DATE)
         return
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        fh.write(frame.iloc[:0].to_csv(float_format=CSV_FLOAT, date_format=CSV_DATE))
-        out = csv.writer(fh, lineterminator=os.linesep)
-        for a in range(0, len(frame), CSV_ROWS):  # in blocks: the text of all rows at once
-            part = frame.iloc[a : a + CSV_ROWS]  # took 0.7 GB more (200,000 × 148)
-            cols = [_csv_column(part[c]) for c in part.columns]
-            out.writerows(zip(index[a : a + CSV_ROWS], *cols, strict=True))
+    import numpy as np
+
+    table = TextTable()
+    floats, texts = [], []
+    order = [(1, 0)]
+    texts.append(table.add_times(index))
+    for c in frame.columns:
+        col = frame[c]
+        if col.dtype == np.float64:
+            order.append((0, len(floats)))
+            floats.append(col.to_numpy())
+        else:
+            order.append((1, len(texts)))
+            texts.append(table.add(*_csv_codes(col)))
+    with open(path, "wb") as fh:
+        head = frame.iloc[:0].to_csv(float_format=CSV_FLOAT, date_format=CSV_DATE)
+        fh.write(head.encode("utf-8"))
+        write_rows(fh, floats, texts, order, table, os.linesep, len(frame), CSV_ROWS)
+
+
+def _csv_codes(col):
+    """An integer or text column (:func:`_csv_known`) as codes into its distinct texts (as
+    ``to_csv`` writes them) and whether some are missing (code −1: empty)."""
+    import numpy as np
+    import pandas as pd
+
+    dt = col.dtype
+    if isinstance(dt, np.dtype) and dt.kind in "iu":
+        codes, uniq = pd.factorize(col.to_numpy())
+        return codes, list(map(str, uniq.tolist())), False
+    codes, uniq = pd.factorize(col.to_numpy(dtype=object, na_value=None))
+    return codes, list(uniq), bool((codes < 0).any())
 
 
 #: rows :func:`write_frame_csv` formats at a time
@@ -695,8 +727,8 @@ CSV_ROWS = 16_384
 
 
 def _csv_known(col) -> bool:
-    """Whether :func:`_csv_column` writes this column: float64, integers, or strings (a
-    string dtype, or objects that are all strings or missing)."""
+    """Whether :func:`write_frame_csv` writes this column itself: float64, integers, or
+    strings (a string dtype, or objects that are all strings or missing)."""
     import numpy as np
     import pandas as pd
 
@@ -710,41 +742,9 @@ def _csv_known(col) -> bool:
     return False
 
 
-def _csv_column(col) -> list[str]:
-    """A column's text as ``to_csv`` writes it (NaN or missing: empty); a column
-    :func:`_csv_known` accepts."""
-    import numpy as np
-
-    dt = col.dtype
-    if dt == np.float64:
-        return _csv_floats(col.to_numpy())
-    if isinstance(dt, np.dtype) and dt.kind in "iu":
-        return list(map(str, col.to_numpy().tolist()))
-    v = col.to_numpy(dtype=object, na_value=None).tolist()
-    return ["" if x is None else x for x in v]
-
-
-def _csv_floats(v) -> list[str]:
-    """``CSV_FLOAT % x`` of each value, NaN as empty."""
-    import numpy as np
-    import pandas as pd
-
-    fmt = CSV_FLOAT.__mod__
-    head = v[:4096]
-    few = len(pd.unique(head)) * 8 < len(head)
-    if few and not np.signbit(v[v == 0]).any():  # few values (-0.0 apart): each formatted once
-        codes, uniq = pd.factorize(v)  # NaN: code -1, the last entry
-        text = np.array([*map(fmt, uniq.tolist()), ""], dtype=object)
-        return text[codes].tolist()
-    out = list(map(fmt, v.tolist()))
-    for i in np.flatnonzero(np.isnan(v)).tolist():
-        out[i] = ""
-    return out
-
-
-def _csv_times(index) -> list[str] | None:
-    """The index as ``CSV_DATE`` text: UTC times on whole seconds without strftime, any other
-    DatetimeIndex with it; None for another index."""
+def _csv_times(index):
+    """The index as ``CSV_DATE`` text (a numpy array of str): UTC times on whole seconds
+    without strftime, any other DatetimeIndex with it; None for another index."""
     import numpy as np
     import pandas as pd
 
@@ -752,9 +752,9 @@ def _csv_times(index) -> list[str] | None:
         return None
     per_s = {"s": 1, "ms": 1_000, "us": 1_000_000, "ns": 1_000_000_000}.get(index.unit)
     if str(index.tz) == "UTC" and per_s and not (index.asi8 % per_s).any():
-        text = np.datetime_as_string(index.tz_localize(None).to_numpy(), unit="s").tolist()
-        return [t + "+0000" for t in text]
-    return index.strftime(CSV_DATE).tolist()
+        text = np.datetime_as_string(index.tz_localize(None).to_numpy(), unit="s")
+        return np.char.add(text, "+0000")
+    return np.array(index.strftime(CSV_DATE).tolist(), dtype=str)
 
 
 def _print_timeline(unit, d, iv, csv) -> None:

@@ -244,6 +244,10 @@ NUMBER = r"(?<![\w.\[-])[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?"
 _NUMBER = re.compile(NUMBER)
 
 
+#: each :class:`Quality`'s name, by its number (:meth:`Diagnosis.to_frame`)
+QUALITY_NAMES = {int(q): q.name for q in Quality}
+
+
 @dataclass
 class Diagnosis:
     """A unit's diagnosis per sample (all frames indexed by the samples' timestamps).
@@ -305,7 +309,8 @@ class Diagnosis:
             self.symptoms.add_prefix("s_"),
             self.certainties.add_prefix("c_"),
             self.detected.rename("detected"),
-            self.quality.map(lambda q: Quality(q).name).rename("quality"),
+            # by a table, not an enum per sample (1,000,000 rows: 2.3 → 0.1 CPU s, issue 34)
+            self.quality.map(QUALITY_NAMES).rename("quality"),
             self.faults.rename("faults"),
         ]
         if self.combined is not None:
