@@ -72,7 +72,7 @@ class LinearRegressor(Narmax2Regressor):
 
     ``learned_output`` (optional ``(lo, hi)``): the output's range the model learned, where
     ``output_span`` is wider (an instrument's range): the allowance is :data:`EDGE_MOVE` of
-    it (a pump's line learned at 80-88 % speed, its power's span the meter's 0-60 kW, moved
+    it (a pump's line learned at 74-82 % speed, its power's span the meter's 0-60 kW, moved
     15 kW past the edge before it went unknown: the whole night at 57 %)."""
 
     _params = (*Narmax2Regressor._params, LEARNED_OUTPUT)
@@ -93,7 +93,8 @@ class LinearRegressor(Narmax2Regressor):
             return p
         y, support = p.y.copy(), np.where(out, 0.0, p.support)
         # (NaN, NaN) where the output span is unknown
-        lo, hi = self.output_span_ if self.learned_output is None else self.learned_output
+        learned = getattr(self, LEARNED_OUTPUT, None)  # a subclass may not take it
+        lo, hi = self.output_span_ if learned is None else learned
         room = EDGE_MOVE * (hi - lo)
         if room > 0:  # NaN (an unknown output span) or a flat output: unknown, as before
             rows = np.flatnonzero(out)
