@@ -58,7 +58,7 @@ def test_a_tags_csv_range_keeps_a_short_window_s_guard(tmp_path):
     frame = sp.export(run, 15.0, timing="grid", seed=43)
     build, rest = frame.iloc[:ROWS], frame.iloc[ROWS:]
     tags = tmp_path / "tags.csv"
-    ranges = {c: (0.0, 3.0 * float(frame[c].abs().max())) for c in frame.columns}
+    ranges = {c: (0.0, float(f"{3.0 * frame[c].abs().max():g}")) for c in frame.columns}
     tags.write_text(
         "name,unit,lo,hi\n" + "".join(f"{c},,{lo:g},{hi:g}\n" for c, (lo, hi) in ranges.items())
     )
