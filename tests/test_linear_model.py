@@ -67,3 +67,33 @@ def test_the_file_round_trips_a_quoted_tag_and_refuses_products():
     )
     with pytest.raises(Exception, match="a linear model has only"):
         RuleBase(bad, "bad.toml").to_model()
+
+
+def test_the_allowance_past_the_span_is_a_share_of_the_output_s_learned_range():
+    """``[rules] learned_output`` (a short window's output range where its span is a meter's,
+    issue 34 item 3): the line's move past an input's span is held to EDGE_MOVE of that range,
+    not of the meter's; the file keeps it, and a malformed one is refused."""
+    from diag_plugin.rulebase.document import RuleBaseError
+
+    X, y = _data()
+    ins = [Variable("a[k]", "a", "", (0.0, 5.0)), Variable("b[k]", "b", "", (10.0, 20.0))]
+    rb = RuleBase.new("m", Variable("y[k]", "y", "", (-200.0, 200.0)), ins, method="linear")
+    rb.doc["rules"]["learned_output"] = [-37.0, -15.0]  # about what y spans over the data
+    rb.edited()
+    rb.apply_training(rb.new_model().fit(X, y), {"source": "test"})
+    text = rb.dumps()
+    back = RuleBase(text, "m.toml")
+    assert back.options["learned_output"] == [-37.0, -15.0]
+    meter = RuleBase(text.replace("learned_output = [-37.0, -15.0]\n", ""), "n.toml")
+    assert "learned_output" not in meter.options
+    m = back.to_model()
+    room = EDGE_MOVE * 22.0
+    mid = 5.0 + 2.0 * room / abs(m.coef_[1])  # twice the learned allowance, within the meter's
+    rows = np.array([[2.0, 15.0], [mid, 15.0]])
+    assert m.predict_detail(rows).support.tolist() == [1.0, 0.0]
+    assert meter.to_model().predict_detail(rows).support.tolist() == [1.0, 1.0]
+    for bad in ("[-15.0, -37.0]", "[1.0]", '"x"'):
+        with pytest.raises(RuleBaseError, match="learned_output must be"):
+            RuleBase(text.replace("[-37.0, -15.0]", bad), "bad.toml")
+    with pytest.raises(RuleBaseError, match="takes no option 'learned_input'"):
+        RuleBase(text.replace("learned_output", "learned_input"), "o.toml")

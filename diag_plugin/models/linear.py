@@ -19,12 +19,18 @@ constant and one term per input::
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from diag_plugin.models.estimation import spans_and_lags
 from diag_plugin.models.narmax import Narmax2Regressor, NarmaxCodec
 from diag_plugin.models.protocol import REASON_OUTSIDE, Prediction
+
+if TYPE_CHECKING:
+    from diag_plugin.models.spec import ModelSpec
+    from diag_plugin.rulebase.document import RuleBase
 
 HEADER = """\
 # Model file (diag-plugin), method linear: y = b0 + sum of b_i * input_i (the first-order
@@ -38,6 +44,11 @@ HEADER = """\
 #: span's edge stays within this share of the output's span (the input's margin,
 #: :data:`~diag_plugin.unitbuild.short.MARGIN`, in the output's terms)
 EDGE_MOVE = 0.25
+
+#: the ``[rules]`` option giving the output's range the test learned (``[lo, hi]``), where the
+#: output's span is an instrument's (a tags CSV's ``lo``/``hi``): :data:`EDGE_MOVE` is a share
+#: of it, not of all the instrument reads (issue 34, item 3)
+LEARNED_OUTPUT = "learned_output"
 
 
 def linear_terms(d: int) -> list[tuple[int, ...]]:
@@ -57,7 +68,23 @@ class LinearRegressor(Narmax2Regressor):
     a symptom). A slow input that drifts a little past the range it showed (SKAB's fluid
     temperature, a tenth of a degree) leaves the test answering — and seeing the flow
     collapse it is there for — where a move of a quarter of the output's range would be
-    a guess."""
+    a guess.
+
+    ``learned_output`` (optional ``(lo, hi)``): the output's range the model learned, where
+    ``output_span`` is wider (an instrument's range): the allowance is :data:`EDGE_MOVE` of
+    it (a pump's line learned at 74-82 % speed, its power's span the meter's 0-60 kW, moved
+    15 kW past the edge before it went unknown: the whole night at 57 %)."""
+
+    _params = (*Narmax2Regressor._params, LEARNED_OUTPUT)
+
+    def __init__(
+        self,
+        input_spans: Any = None,
+        output_span: tuple[float, float] | None = None,
+        output_lags: Any = None,
+        learned_output: tuple[float, float] | None = None,
+    ) -> None:
+        self._keep(locals())
 
     def predict_detail(self, X: Any) -> Prediction:
         p = super().predict_detail(X)
@@ -65,7 +92,9 @@ class LinearRegressor(Narmax2Regressor):
         if not out.any():
             return p
         y, support = p.y.copy(), np.where(out, 0.0, p.support)
-        lo, hi = self.output_span_  # (NaN, NaN) where the output span is unknown
+        # (NaN, NaN) where the output span is unknown
+        learned = getattr(self, LEARNED_OUTPUT, None)  # a subclass may not take it
+        lo, hi = self.output_span_ if learned is None else learned
         room = EDGE_MOVE * (hi - lo)
         if room > 0:  # NaN (an unknown output span) or a flat output: unknown, as before
             rows = np.flatnonzero(out)
@@ -104,3 +133,24 @@ class LinearCodec(NarmaxCodec):
     def allows(self, term: tuple[int, ...]) -> bool:
         """The constant and the inputs, no products."""
         return len(term) <= 1
+
+    def new_estimator(self, spec: ModelSpec) -> LinearRegressor:
+        """An untrained model with the spec's spans and its ``[rules] learned_output``."""
+        opts = dict(spec.options)
+        learned = opts.pop(LEARNED_OUTPUT, None)
+        kw = spans_and_lags(replace(spec, options=opts), self.method)
+        return self.estimator(
+            **kw, learned_output=None if learned is None else tuple(float(v) for v in learned)
+        )
+
+    def check_options(self, rb: RuleBase) -> None:
+        """``learned_output`` (``[lo, hi]``, ``lo < hi``) is the one key ``[rules]`` takes."""
+        for key, value in rb.options.items():
+            line = rb.line_of("rules", key)
+            if key != LEARNED_OUTPUT:
+                rb.error(line, f"{self.method} takes no option {key!r} in [rules]")
+                continue
+            ok = isinstance(value, list) and len(value) == 2
+            ok = ok and all(isinstance(v, int | float) and np.isfinite(v) for v in value)
+            if not (ok and value[0] < value[1]):
+                rb.error(line, f"{key} must be [lo, hi] with lo < hi, got {value!r}")

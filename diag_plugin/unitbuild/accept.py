@@ -622,6 +622,7 @@ def widen_spans(rb, frame: pd.DataFrame):
             + (f", {v.sets} → {v.sets + below + above} sets (the step kept)" if grid else "")
             + f" (the window reaches {reach[0]:g} … {reach[1]:g})"
         )
+    said.extend(_widen_learned_output(rb, frame))
     if not said:
         return rb, said
     rb.clear_rules("spans widened by diag unit accept")
@@ -631,6 +632,27 @@ def widen_spans(rb, frame: pd.DataFrame):
     out = RuleBase(rb.dumps(), rb.path)
     out.training.update({k: v for k, v in training.items() if k != "status"})
     return out, said
+
+
+def _widen_learned_output(rb, frame: pd.DataFrame) -> list[str]:
+    """A linear test's ``[rules] learned_output`` (a short window's output range where its span
+    is an instrument's, :data:`~diag_plugin.models.linear.LEARNED_OUTPUT`) grown to hold the
+    accepted window's values: what it says, or nothing."""
+    from diag_plugin.models.linear import LEARNED_OUTPUT
+
+    have = rb.options.get(LEARNED_OUTPUT) if rb.method == "linear" else None
+    tag = InputSpec.parse(rb.output.spec).tags[0]
+    if have is None or tag not in frame.columns:
+        return []
+    x = frame[tag].to_numpy(float)
+    if not np.isfinite(x).any():
+        return []
+    lo0, hi0 = (float(v) for v in have)
+    lo, hi = min(lo0, float(np.nanmin(x))), max(hi0, float(np.nanmax(x)))
+    if lo >= lo0 and hi <= hi0:
+        return []
+    rb.doc["rules"][LEARNED_OUTPUT] = [float(f"{lo:.10g}"), float(f"{hi:.10g}")]
+    return [f"output's learned range {lo0:g} … {hi0:g} → {lo:g} … {hi:g}"]
 
 
 def add_point(rb, old: list[pd.DataFrame], new: pd.DataFrame):

@@ -76,6 +76,7 @@ from diag_plugin.diagnose.manual import MARGIN_SAYS, ManualSpan, learned_span
 from diag_plugin.diagnose.running import RunCondition, learnable
 from diag_plugin.diagnose.unittags import is_set_point
 from diag_plugin.learn.thresholds import DEFAULT_BLOCKS, block_of
+from diag_plugin.models.linear import LEARNED_OUTPUT
 from diag_plugin.models.spec import Variable
 from diag_plugin.regressors import InputSpec
 from diag_plugin.rulebase.document import RuleBase
@@ -947,6 +948,7 @@ class _FitJob:
     end: pd.Timestamp
     source: str
     write: bool  # the worker writes the model file (a local pool); else the client does
+    short: bool = False  # a short window (short.Plan.short): a linear test guards its range
 
 
 def _fit_test(
@@ -961,23 +963,23 @@ def _fit_test(
     from diag_plugin.diagnose.unitfile import UnitError
     from diag_plugin.training.chunked import train
 
-    info, period = job.info, job.period
+    period = job.period
     specs = [InputSpec.parse(s) for s in ch.inputs]
     cols = [ctx.spec_column(s) for s in specs]
     ins = _with_sets([ctx.spec_variable(s) for s in specs], cols, len(frame))
     if ch.sets:  # a short window's grid: the sets its cells were judged at
         ins = [dc_replace(v, sets=ch.sets) for v in ins]
     if ch.method == short.LINEAR:  # a span from a few hundred samples only scales
-        ins = [
-            v if s.fn or (info.get(s.tags[0]) and info[s.tags[0]].span) else
-            dc_replace(v, span=short.widened(v.span))
-            for v, s in zip(ins, specs, strict=True)
-        ]  # fmt: skip
+        ins = [_linear_span(v, s, ctx, job.short) for v, s in zip(ins, specs, strict=True)]
     mpath = job.folder / f"{job.name}_{ch.test}.toml"
     rb = _rulebase(f"{job.name}_{ch.test}", ctx.vars[ch.tag], ins, period, mpath, ch.method)
     rb.doc["model"]["description"] = (
         f"built by diag unit build {job.name} from {job.start.isoformat()} … {job.end.isoformat()}"
     )
+    if ch.method == short.LINEAR and ins and job.short:
+        learned = _learned_output(ch.tag, ctx)
+        if learned is not None:
+            rb.doc["rules"][LEARNED_OUTPUT] = [float(f"{v:.10g}") for v in learned]
     rb.edited()
     res = train(rb, _reader(frame), job.start, job.end, holdout=HOLDOUT)
     validation = float(res.validation.get("rmse_pct", math.nan))
@@ -1001,6 +1003,37 @@ def _fit_test(
     except UnitError:  # Unit.load reads it again and says where it is broken
         tm = None
     return validation, mpath.name, rb.text, tm
+
+
+def _linear_span(v: Variable, spec: InputSpec, ctx: _Context, short_window: bool) -> Variable:
+    """A linear test's input ``v`` with the span its test guards (past it the line answers only
+    within ``linear.EDGE_MOVE``, then the test is unknown): a tag without an instrument range,
+    its observed range :func:`short.widened`; in a short window a tag with one (a tags CSV's
+    ``lo``/``hi``), that widened range clipped to it (:func:`short.guarded`; issue 34, item 3).
+    A long window's ranged tag, a function's input and a constant set-point keep their span."""
+    tag = spec.tags[0] if not spec.fn else ""
+    if not tag:
+        return v
+    info = ctx.info.get(tag)
+    if not (info and info.span):
+        return dc_replace(v, span=short.widened(v.span))
+    if not short_window or tag not in ctx.vars:
+        return v
+    seen = variable_for(str(InputSpec("", (tag,), 0)), frame=ctx.frame, tag_info={}).span
+    return dc_replace(v, span=short.guarded(seen, info.span))
+
+
+def _learned_output(tag: str, ctx: _Context) -> tuple[float, float] | None:
+    """A short window's linear test's output range as learned (the observed range, as a tag
+    without an instrument range gets for its span), where the tag's span is an instrument's
+    and wider: the line's allowance past an input's span is a share of it
+    (:data:`~diag_plugin.models.linear.LEARNED_OUTPUT`; issue 34, item 3). None otherwise."""
+    info = ctx.info.get(tag)
+    if not (info and info.span) or tag not in ctx.vars:
+        return None
+    seen = variable_for(str(InputSpec("", (tag,), 0)), frame=ctx.frame, tag_info={}).span
+    lo, hi = max(seen[0], info.span[0]), min(seen[1], info.span[1])
+    return (lo, hi) if lo < hi and hi - lo < info.span[1] - info.span[0] else None
 
 
 def _written(folder: Path, fits: list, kept: Sequence[TestChoice], name: str) -> None:
@@ -1296,7 +1329,7 @@ def _build_unit(
     tick = (lambda d, n: progress("train models", d, n)) if progress else None
     loaded: dict[Path, TestModel] = {}  # model file → its model, as Unit.load reads it
     job = _FitJob(name, folder, info, period, start, end, source,
-                  write=not isinstance(workers, DaskPool))  # fmt: skip
+                  write=not isinstance(workers, DaskPool), short=plan.short)  # fmt: skip
     # the window and its context: on a cluster, the objects the choice already scattered
     fits = map_tests(_fit_test, kept, (job, frame, ctx), workers=workers, progress=tick)
     if not job.write:

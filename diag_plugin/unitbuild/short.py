@@ -317,6 +317,16 @@ def widened(span: tuple[float, float]) -> tuple[float, float]:
     return (lo - w, hi + w)
 
 
+def guarded(seen: tuple[float, float], instrument: tuple[float, float]) -> tuple[float, float]:
+    """A short window's linear test's input span where the tag has an instrument range (a
+    tags CSV's ``lo``/``hi``): the observed range ``seen`` :func:`widened`, clipped to the
+    instrument's range -- what the unit learned, not all the instrument can read (issue 34,
+    item 3: a pump's line learned at 80-88 % speed was judged at 57 % as in alarm). Never
+    narrower than ``seen`` (a range the data already leave says nothing of the window)."""
+    lo, hi = widened(seen)
+    return (max(lo, min(instrument[0], seen[0])), min(hi, max(instrument[1], seen[1])))
+
+
 def level_test(ch, y: np.ndarray, min_gain: float) -> str | None:
     """A short window's test of a tag no other tag predicts: the tag against its mean over
     the window (a linear test without inputs) -- a univariate T²-like chart, so that every
