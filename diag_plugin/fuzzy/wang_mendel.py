@@ -399,22 +399,13 @@ class WangMendelRegressor(ParamsMixin):
         self._fine_fit: tuple | None = None
 
     def _arrays(self):
-        """The input partitions as arrays (``lo, step, nsets, plateau, core``), derived once
-        per list of partitions (a fit, its inference and its bound ask for them again and
-        again: ~6,000 times for 20 tests' choice of inputs). Shared: no caller writes them
-        (writeable arrays still, so the compiled loops keep their signatures)."""
         P = self.partitions_
-        got = self.__dict__.get("_arrays_of")
-        if got is not None and got[0] is P:
-            return got[1]
         lo = np.array([p.lo for p in P])
         step = np.array([p.step for p in P])
         nsets = np.array([p.n for p in P], dtype=np.int64)
         plateau = np.array([p.plateau if p.shape == "trapezoidal" else 0.0 for p in P])
         core = np.array([p.core_halfwidth for p in P])
-        out = (lo, step, nsets, plateau, core)
-        self._arrays_of = (P, out)
-        return out
+        return lo, step, nsets, plateau, core
 
     @property
     def _yquant(self) -> float:
