@@ -26,7 +26,12 @@ worker's — with the same run's PCA fit time. Measured (branch i34-build8, inte
 main d39e220 on this session's faster machine, load 5–10): the busiest choice worker 29.7 →
 21.8 s CPU (medians of three), parent 6.9 → 5.7 s, two idle cores ≈ 45.6 → 37.2 s, under the
 60 s goal by that estimate (docs/how-to/unit-from-history.md; the wall on idle cores was not
-measured: the machine was shared).
+measured: the machine was shared). The first run after a fresh checkout or install compiles
+numba's kernels into their cache (the parent's ``warm_kernels``): main 07c9aaa's parent took
+18.8 s CPU in that run against 7.2 s with the cache warm (load 7–12), so run it once before
+measuring. Since branch i34-build (H2) the historian's two reads (the tags' sampling, then the
+window) run by shares of the tags in the local pool (:mod:`diag_plugin.unitbuild.read`): they
+are the first two pools printed, the choice the fourth.
 
 With ``--dask``: the local pool and a Dask LocalCluster (bound to 127.0.0.1 only: two worker
 processes of one thread each, started by this script and closed at its end) build the same

@@ -439,3 +439,77 @@ def test_no_candidate_finished_that_cannot_cut_the_error(monkeypatch, kind):
     assert any(g.steps for g in got) and finished
     reach = (1 - B.MIN_GAIN) * (1 + TOLERANCE) * (1 + B.BOUND_MARGIN)
     assert all(low <= cur * reach for low, cur in finished)
+
+
+def _historian(tmp_path, kind: str, seed: int) -> tuple[str, object, object]:
+    """A historian of the plant's tags, each exported with irregular spacings, and one tag
+    every 3 min (held between its samples on the 1 min grid)."""
+    import pandas as pd
+
+    from diag_plugin.simulate import smallplants
+    from historian.store import Historian
+
+    sim = {"tank": sp.simulate_tank, "heatex": sp.simulate_heat_exchanger}[kind]
+    run = sim(3.0, seed=seed, start="2026-03-02")
+    fast = smallplants.export(run, 60.0, timing="irregular", seed=seed)
+    slow = smallplants.export(run, 180.0, timing="jitter", seed=seed)
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    with Historian.open(url) as h:
+        h.write_samples(fast.iloc[:, 1:])
+        h.write_samples(slow.iloc[:, :1])
+    return url, fast.index[0], fast.index[-1] + pd.Timedelta("1min")
+
+
+@pytest.mark.parametrize("kind", ["tank", "heatex"])
+def test_the_window_read_in_shares_is_one_read(tmp_path, kind):
+    """The tags' sampling and the window read in shares of the tags by worker processes are
+    one read's, column for column and bit for bit (irregular and slow tags included)."""
+    import pandas as pd
+
+    from diag_plugin.unitbuild.parallel import map_tests
+    from diag_plugin.unitbuild.read import read_sampling, read_window
+    from historian.access import open_data, tag_sampling
+    from historian.store import Historian
+
+    url, a, b = _historian(tmp_path, kind, 31)
+    with Historian.open(url) as h:
+        tags = sorted(str(t) for t in h.tags()["name"])
+
+    def mapper(fn, items, args):
+        return map_tests(fn, items, args, workers=2)
+
+    one, info = open_data(url, tags, a, b, "1min")
+    one.attrs = {}
+    for n in (2, 3, len(tags) + 1):
+        assert read_sampling(url, tags, a, b, n, mapper) == tag_sampling(url, tags, a, b)
+        got, got_info = read_window(url, tags, a, b, "1min", n, mapper)
+        pd.testing.assert_frame_equal(got, one, check_exact=True)
+        assert got_info == info and got.attrs == {}
+
+
+def test_the_parent_reads_no_raw_sample_on_two_workers(tmp_path, monkeypatch):
+    """``build_from_historian`` on two workers leaves every raw read to the workers (a forked
+    worker records in its own copy), and builds the one-worker unit file for file."""
+    from historian.store import Historian
+
+    url, a, b = _historian(tmp_path, "heatex", 32)
+    read: list[int] = []
+    plain = Historian._read_raw
+
+    def raw(self, tag_id, *args, **kw):
+        read.append(tag_id)
+        return plain(self, tag_id, *args, **kw)
+
+    monkeypatch.setattr(Historian, "_read_raw", raw)
+    from diag_plugin.unitbuild.build import build_from_historian
+
+    one = build_from_historian(url, "u", a, b, folder=tmp_path / "one", far=0.05, workers=1)
+    assert read  # one worker: the parent reads
+    read.clear()
+    two = build_from_historian(url, "u", a, b, folder=tmp_path / "two", far=0.05, workers=2)
+    assert read == []
+    assert one.period == two.period and len(two.tests) > 1
+    files = sorted(p.name for p in (tmp_path / "one").iterdir())
+    assert files == sorted(p.name for p in (tmp_path / "two").iterdir())
+    for name in files:
+        assert _text(tmp_path / "one" / name) == _text(tmp_path / "two" / name), name

@@ -97,7 +97,8 @@ from diag_plugin.unitbuild.loops import (
     parse_running,
     settle_bounds,
 )
-from diag_plugin.unitbuild.parallel import DaskPool, map_tests, one_blas_thread
+from diag_plugin.unitbuild.parallel import DaskPool, default_workers, map_tests, one_blas_thread
+from diag_plugin.unitbuild.read import read_sampling, read_window
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
 
@@ -1840,7 +1841,19 @@ def build_from_historian(
                 f"tag(s) {', '.join(unknown)} not in the historian (it has: {', '.join(known)})"
             )
     t_read = time.perf_counter()
-    sampling = tag_sampling(url, known, start, end)
+    # the tags read in shares on the local pool's workers (a Dask cluster's workers have no
+    # access to the historian: read here); the same sampling and window as one read
+    shares = (
+        1 if isinstance(workers, DaskPool) else default_workers() if workers is None else workers
+    )
+
+    def mapper(fn, items, args):
+        return map_tests(fn, items, args, workers=workers)
+
+    if shares > 1:
+        sampling = read_sampling(url, known, start, end, shares, mapper)
+    else:
+        sampling = tag_sampling(url, known, start, end)
     sampled = [s for s in sampling.values() if s.median_us > 0]
     if not sampled:
         raise UserError(f"no samples in the window {start} … {end}")
@@ -1857,7 +1870,10 @@ def build_from_historian(
         except ValueError as exc:
             raise UserError(str(exc)) from None
     try:
-        frame, info = open_data(url, known, start, end, period)
+        if shares > 1:
+            frame, info = read_window(url, known, start, end, period, shares, mapper)
+        else:
+            frame, info = open_data(url, known, start, end, period)
     except (KeyError, ValueError) as exc:
         raise UserError(str(exc)) from None
     frame.attrs = {}
