@@ -20,15 +20,21 @@ $(BIN)/python:
 # not compile its modules from source each start where PYTHONDONTWRITEBYTECODE is set
 # (0.08-0.1 s CPU of a `diag train` process, issue 37)
 COMPILE := $(BIN)/python -m compileall -q diag_plugin historian connectors
+# and the Wang-Mendel kernels compiled into numba's cache at install, not in the user's first
+# `diag unit build` (200 tags x 10 days at 1 min: parent 18.8 s CPU on a fresh checkout
+# against 7.2 s warm, docs/how-to/unit-from-history.md)
+WARM := $(BIN)/python -c "from diag_plugin.unitbuild.build import warm_kernels; warm_kernels()"
 
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e .
 	$(COMPILE)
+	$(WARM)
 	touch $@
 
 $(DEVSTAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	$(COMPILE)
+	$(WARM)
 	touch $(STAMP) $@
 
 # test-only peers in their own venv (pyfuzzylite pins numpy<2), from pyproject's `peers` extra
