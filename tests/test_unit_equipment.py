@@ -166,15 +166,22 @@ def test_the_cli_writes_the_equipment_and_diagnose_says_it_stopped(tmp_path):
     assert "B: runs while B_RUN = 1" in text, text
     unit = Unit.load(tmp_path / "rb" / "chw.unit.toml", tmp_path / "rb")
     assert [e.name for e in unit.file.equipment] == ["B"]
-    judged = _maintenance(8)
-    g2 = ["--db", f"sqlite:///{tmp_path / 'j.db'}", "--rulebases", str(tmp_path / "rb")]
-    import_csv(g2, judged, tmp_path / "judged.csv")
+    judged = twinplant.simulate(4, 8, stop_days=(1.0, 3.0), start="2026-06-08")
+    import_csv(g, judged, tmp_path / "judged.csv")
     a, b = judged.index[0], judged.index[-1] + pd.Timedelta("1min")
     csv = tmp_path / "d.csv"
-    rc, out = diag(g2, "diagnose", "chw", "--from", fmt(a), "--to", fmt(b), "--csv", str(csv))
+    rc, out = diag(g, "diagnose", "chw", "--from", fmt(a), "--to", fmt(b), "--csv", str(csv))
     assert rc == 0, out
     d = pd.read_csv(csv, low_memory=False)
     stopped = judged["B_RUN"].to_numpy() == 0
     why = d["why"].fillna("").astype(str).to_numpy()
     assert all(w.startswith("B stopped (B_RUN = 0)") for w in why[stopped])
     assert (d["status"].to_numpy()[stopped] == NE107.CHECK_FUNCTION).mean() < 0.5
+    # accepting two days B was stopped on (one a maintenance day): B's tests learn B's
+    # running rows only, the others every row
+    c = a + pd.Timedelta(days=2)
+    rc, text = diag(g, "unit", "accept", "chw", "--from", fmt(a), "--to", fmt(c), "--json")
+    assert rc == 0, text
+    samples = json.loads(text)["samples"]
+    w = judged.loc[judged.index < c, "B_RUN"].to_numpy()
+    assert 0 < samples["B_T"] <= (w == 1).sum() < samples["A_T"], (samples, (w == 1).sum())
