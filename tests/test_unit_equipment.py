@@ -19,13 +19,14 @@ import pandas as pd
 import pytest
 
 from diag_plugin.diagnose.plant import Plant
-from diag_plugin.diagnose.unit import Unit, concat
+from diag_plugin.diagnose.unit import Unit
 from diag_plugin.status import NE107
 from diag_plugin.unitbuild.build import build_unit
 from diag_plugin.unitbuild.loops import Loop, parse_running
 from historian.errors import UserError
 from tests import twinplant
 from tests.test_any_plant_tour import diag, fmt, import_csv
+from tests.test_unit_running import same_in_pieces
 
 LOOPS = [Loop("A_T", "A_SP", "A_CAP"), Loop("B_T", "B_SP", "B_CAP")]
 B = "B:B_RUN:B_T,B_CAP,B_KW"
@@ -114,13 +115,7 @@ def test_a_fault_of_the_running_chiller_is_found_while_the_other_is_stopped(decl
 def test_pieces_a_restart_and_the_live_plant_say_the_same(declared):
     _, unit = declared
     f = _maintenance(9, "a_bias").iloc[DAY - 300 : DAY + 400]
-    whole = unit.reset().evaluate(f)
-    unit.reset()
-    parts = []
-    for a in range(0, len(f), 157):
-        state = json.loads(json.dumps(unit.to_state()))
-        parts.append(unit.load_state(state).evaluate(f.iloc[a : a + 157]))
-    pd.testing.assert_frame_equal(whole.to_frame(), concat(parts).to_frame())
+    whole = same_in_pieces(unit, f, 157)
     plant = Plant({"chw": unit.reset()}, {})
     got = [plant.cycle(ts, row.to_dict())[0] for ts, row in f.iterrows()]
     assert [int(s.status) for s in got] == whole.status.astype(int).tolist()

@@ -320,7 +320,13 @@ def accept(
                 f"{start} … {end} overlaps the window {path.name} already learned "
                 f"({', '.join(f'{a} … {b}' for a, b in old)})"
             )
-        rb, said = widen_spans(rb, own(new, t))
+        mine = own(new, t)
+        out = output_tag(unit.models[t.name].output)
+        if out in mine.columns and not mine[out].notna().any():  # its equipment stopped
+            warnings.append(f"{t.name}: its equipment did not run in the window: its model "
+                            "keeps what it learned")  # fmt: skip
+            continue
+        rb, said = widen_spans(rb, mine)
         if rb.method == short.JOINT:
             rb = add_point(rb, [window(a, b) for a, b in old], new)
         # a loop's test and its spread test share one model file: its spans said once
