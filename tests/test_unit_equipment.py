@@ -180,3 +180,10 @@ def test_the_cli_writes_the_equipment_and_diagnose_says_it_stopped(tmp_path):
     samples = json.loads(text)["samples"]
     w = judged.loc[judged.index < c, "B_RUN"].to_numpy()
     assert 0 < samples["B_T"] <= (w == 1).sum() < samples["A_T"], (samples, (w == 1).sum())
+    # a day B never ran (its maintenance): B's models keep what they learned, said so
+    rc, text = diag(g, "unit", "accept", "chw", "--from", fmt(c), "--to",
+                    fmt(c + pd.Timedelta(days=1)), "--json")  # fmt: skip
+    assert rc == 0, text
+    doc = json.loads(text)
+    assert "B_T" not in doc["samples"] and doc["samples"]["A_T"] > 0, doc["samples"]
+    assert any(n.startswith("B_T: its equipment did not run") for n in doc["warnings"]), doc
