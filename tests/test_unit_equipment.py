@@ -26,7 +26,7 @@ from diag_plugin.unitbuild.loops import Loop, parse_running
 from historian.errors import UserError
 from tests import twinplant
 from tests.test_any_plant_tour import diag, fmt, import_csv
-from tests.test_unit_running import same_in_pieces
+from tests.test_unit_running import build_refused, same_in_pieces
 
 LOOPS = [Loop("A_T", "A_SP", "A_CAP"), Loop("B_T", "B_SP", "B_CAP")]
 B = "B:B_RUN:B_T,B_CAP,B_KW"
@@ -79,10 +79,10 @@ def test_the_equipment_s_tests_learn_where_it_runs(declared, undeclared):
 # ---------------------------------------------------------------- judging
 @pytest.mark.parametrize("seed", [7, 8])
 def test_a_stopped_equipment_s_tests_are_off_and_the_unit_judges_the_rest(declared, seed):
-    _, unit = declared
+    unit = declared[1]
     f = _maintenance(seed)
-    d = unit.reset().evaluate(f)
     stopped = f["B_RUN"].to_numpy() == 0
+    d = unit.reset().evaluate(f)
     b_tests = [t for t in unit.tests if t.startswith("B_")]
     assert np.isnan(d.symptoms[b_tests].to_numpy()[stopped]).all()
     why = d.why.to_numpy()
@@ -133,11 +133,8 @@ def test_pieces_a_restart_and_the_live_plant_say_the_same(declared):
     ],
 )  # fmt: skip
 def test_a_bad_equipment_names_the_tag_and_where(tmp_path, text, says):
-    frame = twinplant.simulate(1, 1)
-    with pytest.raises(UserError) as exc:
-        build_unit("x", frame, folder=tmp_path, period="1min", loops=LOOPS,
-                   equipment=[parse_running(text)])  # fmt: skip
-    assert str(exc.value).startswith(says), str(exc.value)
+    build_refused(tmp_path, twinplant.simulate(1, 1), "1min", says, loops=LOOPS,
+                  equipment=[parse_running(text)])  # fmt: skip
 
 
 def test_the_syntax_names_the_equipment_its_tags_and_the_value():

@@ -198,10 +198,14 @@ def test_pieces_a_restart_and_the_live_plant_say_the_same(fan):
     ],
 )  # fmt: skip
 def test_a_bad_run_condition_names_the_tag_and_where(tmp_path, running, says):
-    frame = fanplant.simulate(3, 1)
+    build_refused(tmp_path, fanplant.simulate(3, 1), "5min", says, running=running,
+                  loops=[Loop("DP", "DP_SP", "FAN_SPD")])  # fmt: skip
+
+
+def build_refused(tmp_path, frame: pd.DataFrame, period: str, says: str, **kw) -> None:
+    """``build_unit`` of ``frame`` refused with a message starting ``says``, nothing written."""
     with pytest.raises(UserError) as exc:
-        build_unit("x", frame, folder=tmp_path, period="5min", running=running,
-                   loops=[Loop("DP", "DP_SP", "FAN_SPD")])  # fmt: skip
+        build_unit("x", frame, folder=tmp_path, period=period, **kw)
     assert str(exc.value).startswith(says), str(exc.value)
     assert not any(tmp_path.iterdir())
 
