@@ -150,18 +150,25 @@ def test_an_alarm_is_not_carried_across_a_stop(fan):
     assert held == NE107.FAILURE
 
 
+def same_in_pieces(unit: Unit, f: pd.DataFrame, step: int):
+    """``unit``'s replay of ``f`` whole, checked equal to its replay in pieces of ``step``
+    samples, each from the state the last one saved (JSON); the whole one returned."""
+    whole = unit.reset().evaluate(f)
+    unit.reset()
+    parts = []
+    for a in range(0, len(f), step):
+        state = json.loads(json.dumps(unit.to_state()))
+        parts.append(unit.load_state(state).evaluate(f.iloc[a : a + step]))
+    pd.testing.assert_frame_equal(whole.to_frame(), concat(parts).to_frame())
+    return whole
+
+
 def test_pieces_a_restart_and_the_live_plant_say_the_same(fan):
     """Through stops and starts: the replay whole, in pieces from a saved state (cut in the
     night and by day), and the plant cycle by cycle with a restart at night."""
     _, unit = fan
     f = _judged(8, "flow_bias").iloc[WEEK - 400 : WEEK + 500]
-    whole = unit.reset().evaluate(f)
-    unit.reset()
-    parts = []
-    for a in range(0, len(f), 137):
-        state = json.loads(json.dumps(unit.to_state()))
-        parts.append(unit.load_state(state).evaluate(f.iloc[a : a + 137]))
-    pd.testing.assert_frame_equal(whole.to_frame(), concat(parts).to_frame())
+    whole = same_in_pieces(unit, f, 137)
     plant = Plant({"fan": unit.reset()}, {})
     got = []
     night = int(np.flatnonzero(f["FAN_RUN"].to_numpy() == 0)[50])
@@ -191,10 +198,14 @@ def test_pieces_a_restart_and_the_live_plant_say_the_same(fan):
     ],
 )  # fmt: skip
 def test_a_bad_run_condition_names_the_tag_and_where(tmp_path, running, says):
-    frame = fanplant.simulate(3, 1)
+    build_refused(tmp_path, fanplant.simulate(3, 1), "5min", says, running=running,
+                  loops=[Loop("DP", "DP_SP", "FAN_SPD")])  # fmt: skip
+
+
+def build_refused(tmp_path, frame: pd.DataFrame, period: str, says: str, **kw) -> None:
+    """``build_unit`` of ``frame`` refused with a message starting ``says``, nothing written."""
     with pytest.raises(UserError) as exc:
-        build_unit("x", frame, folder=tmp_path, period="5min", running=running,
-                   loops=[Loop("DP", "DP_SP", "FAN_SPD")])  # fmt: skip
+        build_unit("x", frame, folder=tmp_path, period=period, **kw)
     assert str(exc.value).startswith(says), str(exc.value)
     assert not any(tmp_path.iterdir())
 

@@ -100,8 +100,10 @@ def _stackable(unit: Unit) -> bool:
 def _crisp(unit: Unit) -> bool:
     """True for crisp symptoms and no run condition (the fast path); fuzzy N/0/P units, and
     units judged only while they run (``[running]``, :mod:`~diag_plugin.diagnose.running`),
-    go one by one."""
-    return unit.ev["symptoms"] == "crisp" and unit.file.running is None
+    go one by one, as units with a piece of equipment's run condition (``[equipment]``,
+    :mod:`~diag_plugin.diagnose.equipment`)."""
+    crisp = unit.ev["symptoms"] == "crisp" and unit.file.running is None
+    return crisp and not getattr(unit.file, "equipment", None)
 
 
 class Plant:

@@ -36,6 +36,7 @@ import dataclasses
 import functools
 import itertools
 import logging
+import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -47,6 +48,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.combos import CombosGuard
+from diag_plugin.diagnose.equipment import members, off_mask
 from diag_plugin.diagnose.fixed import FixedGuard
 from diag_plugin.diagnose.fixed import apply as apply_fixed
 from diag_plugin.diagnose.isolation import IsolationHold
@@ -434,6 +436,14 @@ class Unit:
         self.period_s = pd.Timedelta(self.period).total_seconds()
         #: the file's evaluation with delays given in seconds turned into samples at the period
         self.ev = resolved_evaluation(file.evaluation, self.period)
+        #: per piece of equipment (``[equipment]``, :mod:`~.equipment`) its tests' positions
+        self.equipment = list(getattr(file, "equipment", None) or [])
+        self.equipment_tests = members(self.equipment, [models[t.name].output for t in file.tests],
+                                       [models[t.name].tags for t in file.tests])  # fmt: skip
+        #: a piece's start settles: its tests off for the unit's state-change settle bound
+        hold_s = self.ev.get("state_settle_max_s") or self.ev.get("settle_max_s") or 0.0
+        self.equipment_hold = int(math.ceil(float(hold_s) / self.period_s)) if self.equipment else 0
+        self._off: tuple | None = None  # the last piece's tests off (raw_residuals)
         #: the tests judged by the spread of their residual (valve stiction), by position
         self.spread_cols = np.array(
             [i for i, t in enumerate(file.tests) if t.statistic == "spread"], np.int64
@@ -546,6 +556,7 @@ class Unit:
         states = (getattr(self.file, "states", None) or {}).get("tags", [])
         rc = getattr(self.file, "running", None)
         run = [rc.tag] if rc is not None else []
+        run += [e.rc.tag for e in getattr(self.file, "equipment", None) or []]
         return [*self.model_tags, *getattr(self.file, "fixed", {}), *states, *run]
 
     def _model_frame(self, frame: pd.DataFrame) -> pd.DataFrame:
@@ -599,6 +610,8 @@ class Unit:
         self._last_alarm: tuple | None = None  # (status, faults, top row) the hold repeats
         self.seen = 0  # samples since the start (the warm-up)
         self.was_running = True  # the last sample's run condition (running.py)
+        #: per piece of equipment the samples since its last start (equipment.py)
+        self.eq_since = np.full(len(getattr(self, "equipment", ())), 1 << 40, np.int64)
         if getattr(self, "settle", None) is not None:
             self.settle.reset()
         if getattr(self, "fixed", None) is not None:
@@ -644,6 +657,7 @@ class Unit:
             "combos": None if self.combos is None else self.combos.to_state(),
             "saturation": None if self.saturation is None else self.saturation.to_state(),
             "running": self.was_running,
+            "equipment": self.eq_since.tolist(),
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -683,6 +697,8 @@ class Unit:
         if self.saturation is not None and state.get("saturation") is not None:
             self.saturation.load_state(state["saturation"])
         self.was_running = bool(state.get("running", True))  # saved before it: running
+        if len(state.get("equipment") or []) == len(self.eq_since):  # else: running long
+            self.eq_since = np.asarray(state["equipment"], np.int64)
         return self
 
     # ------------------------------------------------------------ stages
@@ -691,6 +707,7 @@ class Unit:
         what every builder and the reasons for CHECK_FUNCTION read."""
         rc = self.file.running
         read = [*self.model_tags, *([rc.tag] if rc is not None else [])]
+        read += [e.rc.tag for e in self.equipment]
         plant = {t: self.file.tags.get(t, t) for t in read}
         return Columns(frame, {t: p if p in frame.columns else t for t, p in plant.items()})
 
@@ -710,6 +727,9 @@ class Unit:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
                 if self.manual is not None:  # a hand valve outside its span: unknown
                     self.manual.blank(out, j, d.positions, d.X, moved)
+        self._off = self._equipment_off(cols, len(frame))
+        if self._off is not None:  # a stopped piece of equipment's tests: off (equipment.py)
+            out[self._off[0].T] = np.nan
         # samples × tests as a view of it (column-major): :meth:`filtered` writes the C-ordered
         # copy it filters in place, so no third array of the residuals' size
         return pd.DataFrame(out.T, index=frame.index, columns=_names(self.tests), copy=False)
@@ -872,6 +892,20 @@ class Unit:
             parts.append(d)
         return concat(parts)
 
+    def _equipment_off(
+        self, cols: Columns, n: int
+    ) -> tuple[np.ndarray, list[tuple[np.ndarray, str]]] | None:
+        """Samples × tests where a piece of equipment's tests are off (it is stopped,
+        :mod:`~.equipment`), and per stopped piece its samples and the reason; None where
+        nothing is off (no ``[equipment]``, all running)."""
+        if not self.equipment:
+            return None
+        runs = {e.rc.tag: cols.values(e.rc.tag) for e in self.equipment
+                if e.rc.tag in cols.columns}  # fmt: skip
+        off, said = off_mask(self.equipment, self.equipment_tests, runs, self.eq_since,
+                             self.equipment_hold, self.tests, n)  # fmt: skip
+        return None if off is None else (off, said)
+
     def _stopped(self) -> None:
         """At a stop: what carries an alarm forward starts from rest (the residual filter,
         the spread tests' window, the tests' and the combined test's on/off delays, the held
@@ -911,7 +945,10 @@ class Unit:
         del raw
         s, mem = self.symptoms(r.to_numpy())
         n, T = s.shape
-        known = ~np.isnan(s)
+        off = self._off
+        if off is not None:  # a stopped piece's tests: off, neither on nor unknown
+            s[off[0]] = np.nan
+        known = ~np.isnan(s) if off is None else ~np.isnan(s) | off[0]
         active = _on(s).any(axis=1)
         c_on = np.zeros(n, bool)
         combined = None
@@ -932,6 +969,8 @@ class Unit:
         # Good only when every test was evaluated on this very sample; a symptom held over a
         # gap (see symptoms) is Uncertain, like OPC UA's Uncertain_LastUsableValue
         fresh = known & ~np.isnan(r.to_numpy())
+        if off is not None:
+            fresh |= off[0]
         quality = np.where(
             fresh.all(axis=1),
             Quality.GOOD,
@@ -985,7 +1024,7 @@ class Unit:
             settled = self._settle(frame.index, cols, r, active, detected, status, faults)
         message = ""
         checking = status == NE107.CHECK_FUNCTION
-        unknown = np.isnan(s)
+        unknown = np.isnan(s) if off is None else np.isnan(s) & ~off[0]
         rows, warm, left = self._warming(unknown, raw_known)
         judged = unknown
         if warm.any():
@@ -998,6 +1037,9 @@ class Unit:
             )
         if settled is not None:
             why = prepend(why, *settled)
+        if off is not None:  # a stopped piece of equipment: its tests off, said
+            for at, text in off[1]:
+                why = prepend(why, at, np.full(n, text, dtype=object))
         if saturated is not None:
             why = prepend(why, *saturated)
         # the states in a combination never learned; a tag constant over the build window

@@ -182,6 +182,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from diag_plugin.diagnose.combos import read_states
+from diag_plugin.diagnose.equipment import read_equipment
 from diag_plugin.diagnose.fixed import read_fixed
 from diag_plugin.diagnose.manual import read_manual
 from diag_plugin.diagnose.running import read_running
@@ -207,6 +208,7 @@ TABLES = (
     "fixed",
     "states",
     "running",
+    "equipment",
 )
 
 #: why a residual is unknown: the reasons ``diag unit learn`` counts (``unknown_<reason>``
@@ -536,6 +538,9 @@ class UnitFile(LinedFile):
         )
         self.running = read_running(
             self._table("running"), self.error, lambda k: self.line_of("running", k)
+        )
+        self.equipment = read_equipment(
+            self._table("equipment"), self.error, lambda k: self.line_of("equipment", k)
         )
         self.tags: dict[str, str] = {}
         for k, v in self._table("tags").items():

@@ -240,6 +240,29 @@ def settled(data: np.ndarray) -> np.ndarray:
     return keep
 
 
+def equipment_settled(unit: Unit, frame: pd.DataFrame, filtered: pd.DataFrame) -> pd.DataFrame:
+    """``filtered`` with a piece of equipment's tests (``[equipment]``,
+    :mod:`~diag_plugin.diagnose.equipment`) unknown where it has not settled: stopped, and
+    each of its runs' first samples as :func:`settled` leaves out a window's (its starts'
+    transients, as a unit-wide run condition's starts are left out)."""
+    eqs = getattr(unit, "equipment", None)
+    if not eqs:
+        return filtered
+    x = None
+    for e, cols in zip(eqs, unit.equipment_tests, strict=True):
+        col = unit.file.tags.get(e.rc.tag, e.rc.tag)
+        if not cols.size or col not in frame.columns:
+            continue
+        runs = e.rc.runs(frame[col].to_numpy(float))
+        out = ~(runs & settled(runs))
+        if out.any():
+            x = filtered.to_numpy(float, copy=True) if x is None else x
+            x[np.ix_(out, cols)] = np.nan
+    if x is None:
+        return filtered
+    return pd.DataFrame(x, index=filtered.index, columns=filtered.columns)
+
+
 def runs_of(data: np.ndarray) -> np.ndarray:
     """Run number of each row (stretches of data separated by more than RUN_GAP rows
     without); rows in a gap take the run before them (the first run's number before it)."""
@@ -304,13 +327,16 @@ def _test_residual(
 ) -> TestResiduals | str:
     """One test's residuals for :func:`test_residuals` (a message if the window lacks a tag
     its model reads)."""
+    from diag_plugin.diagnose.equipment import learnable_for, output_tag, owner
     from diag_plugin.regressors import DesignBuilder
     from diag_plugin.rulebase.document import RuleBase
 
     t = next(t for t in unit.file.tests if t.name == name)
     m = unit.models[t.name]
+    # a piece of equipment's test learns from the rows where it runs (diagnose/equipment.py)
+    own = learnable_for(frame, owner(getattr(unit, "equipment", ()), output_tag(m.output)))
     try:
-        d = DesignBuilder(m.inputs, m.output, period=m.period).transform(frame)
+        d = DesignBuilder(m.inputs, m.output, period=m.period).transform(own)
     except KeyError as exc:
         return f"test {t.name}: {exc.args[0]}: learn over a window that holds them"
     rows = frame.index.get_indexer(d.index)
@@ -596,6 +622,7 @@ def learn_thresholds(
     unit.reset()
     filtered = unit.filtered(pd.DataFrame(scaled, index=frame.index, columns=unit.tests))
     unit.reset()
+    filtered = equipment_settled(unit, frame, filtered)
     body = filtered[settled(frame.notna().any(axis=1).to_numpy())]
     problems = _check_body(body)
     if problems:

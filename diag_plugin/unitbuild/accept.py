@@ -256,6 +256,7 @@ def accept(
 ) -> AcceptResult:
     """Learn the fault-free window ``[start, end)`` into ``unit`` (see module doc).
     ``read(a, b)`` yields the unit's aligned frames (plant tag names) of ``[a, b)``."""
+    from diag_plugin.diagnose.equipment import learnable_for, output_tag, owner
     from diag_plugin.diagnose.running import learnable
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitFile
@@ -283,6 +284,12 @@ def accept(
             # the stopped rows as an outage: only the running plant is learned (running.py)
             cache[(a, b)] = learnable(unit._model_frame(pd.concat(parts)), unit.file.running)
         return cache[(a, b)]
+
+    def own(frame: pd.DataFrame, t) -> pd.DataFrame:
+        """What test ``t`` learns from: a piece of equipment's test the rows where it runs
+        (diagnose/equipment.py)."""
+        out = output_tag(unit.models[t.name].output)
+        return learnable_for(frame, owner(getattr(unit, "equipment", ()), out))
 
     new = window(start, end)
     rows = int(new.notna().any(axis=1).sum())
@@ -313,7 +320,13 @@ def accept(
                 f"{start} … {end} overlaps the window {path.name} already learned "
                 f"({', '.join(f'{a} … {b}' for a, b in old)})"
             )
-        rb, said = widen_spans(rb, new)
+        mine = own(new, t)
+        out = output_tag(unit.models[t.name].output)
+        if out in mine.columns and not mine[out].notna().any():  # its equipment stopped
+            warnings.append(f"{t.name}: its equipment did not run in the window: its model "
+                            "keeps what it learned")  # fmt: skip
+            continue
+        rb, said = widen_spans(rb, mine)
         if rb.method == short.JOINT:
             rb = add_point(rb, [window(a, b) for a, b in old], new)
         # a loop's test and its spread test share one model file: its spans said once
@@ -330,10 +343,10 @@ def accept(
         for t, path, rb, old in plans:
             model = None
             for a, b in old:
-                m = train(rb, reader(window(a, b)), a, b, holdout=0).model
+                m = train(rb, reader(own(window(a, b), t)), a, b, holdout=0).model
                 model = m if model is None else model.merge(m)
             before = rb.codec.size(model)
-            got = train(rb, reader(new), start, end, holdout=0)
+            got = train(rb, reader(own(new, t)), start, end, holdout=0)
             model.merge(got.model)
             res.samples[t.name] = int(got.samples)
             res.rules[t.name] = (before, rb.codec.size(model))

@@ -71,6 +71,7 @@ import pandas as pd
 import tomlkit
 
 from diag_plugin.diagnose.combos import states_table
+from diag_plugin.diagnose.equipment import learnable_for
 from diag_plugin.diagnose.fixed import learned_text, tolerance
 from diag_plugin.diagnose.manual import MARGIN_SAYS, ManualSpan, learned_span
 from diag_plugin.diagnose.running import RunCondition, learnable
@@ -86,6 +87,7 @@ from diag_plugin.selection.scoring import BlockScorer, FrozenRuleBase
 from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
 from diag_plugin.unitbuild import short
+from diag_plugin.unitbuild.equipment import equipment_conditions, equipment_table, map_by_equipment
 from diag_plugin.unitbuild.loops import (
     Disturbance,
     Loop,
@@ -1065,6 +1067,7 @@ def build_unit(
     manual: Sequence[Manual | str] = (),
     disturbances: Sequence[Disturbance | str] = (),
     running: Running | str | None = None,
+    equipment: Sequence[Running] = (),
 ) -> BuildResult:
     """Build unit ``name`` from ``frame`` (the fault-free window, aligned on ``period``; every
     column a candidate input) into ``folder``: model files ``NAME_TEST.toml`` and
@@ -1091,7 +1094,8 @@ def build_unit(
                                tags=tags, far=far, max_inputs=max_inputs, force=force,
                                source=source, progress=progress, loops=loops,
                                workers=workers, manual=manual,
-                               disturbances=disturbances, running=running)  # fmt: skip
+                               disturbances=disturbances, running=running,
+                               equipment=equipment)  # fmt: skip
     except BaseException:
         _remove_partial(folder, name, since, made, before)
         raise
@@ -1170,6 +1174,7 @@ def _build_unit(
     manual: Sequence[Manual | str] = (),
     disturbances: Sequence[Disturbance | str] = (),
     running: Running | str | None = None,
+    equipment: Sequence[Running] = (),
 ) -> BuildResult:
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitError, new_unit_text
@@ -1190,6 +1195,8 @@ def _build_unit(
     if running is not None:  # the stopped rows as an outage; the run tag no candidate
         rc, run_col, run_note = run_condition(frame, running, loops, manual, disturbances)
         frame = learnable(frame, rc).drop(columns=[rc.tag])
+    # pieces of equipment (diagnose/equipment.py): their tests learn where each runs
+    eqs, eq_notes = equipment_conditions(frame, equipment, None if running is None else rc.tag)
     have = frame.notna().any(axis=1).to_numpy()
     rows = int(have.sum())
     if rows == 0:
@@ -1280,8 +1287,27 @@ def _build_unit(
     asks = asked_for(loops, named)
     # a controller output and what it drives are a cause and its effect, not one measurement
     same = driven_reads_output(same, held)
-    choices = map_tests(_choose, tests, (names, same, ctx, sel, plan, frame, info, declared, held,
-                        asks, outs), workers=workers, progress=tick)  # fmt: skip
+    ctxs = {None: (ctx, sel, frame)}
+    for e in eqs:  # a piece's tests choose their inputs from the rows where it runs
+        f_e = learnable_for(frame, e)
+        c_e = _Context(f_e, info, period)
+        for lp in loops:  # a loop's held set-point, as the window's
+            if lp.sp in ctx.fixed_sp:
+                c_e.fixed_sp[lp.sp] = ctx.fixed_sp[lp.sp]
+            elif lp.sp in ctx.vars and lp.sp not in c_e.vars and lp.pv in c_e.vars:
+                c_e.hold_set_point(lp.sp, lp.pv)
+        s_e = c_e if plan.factor <= 1 else _Context(short.coarse_frame(f_e, plan.factor), info,
+                                                      plan.select_period)  # fmt: skip
+        ctxs[e.name] = (c_e, s_e, f_e)
+
+    def _choice_args(e):
+        c, s_, f = ctxs[None if e is None else e.name]
+        return (names, same, c, s_, plan, f, info, declared, held, asks, outs)
+
+    choices = map_by_equipment(
+        _choose, tests, lambda t: t, _choice_args, eqs,
+        lambda fn, items, args: map_tests(fn, items, args, workers=workers, progress=tick),
+    )  # fmt: skip
     seconds["choose inputs"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -1293,6 +1319,7 @@ def _build_unit(
     notes.extend(plan.reasons)
     if run_note:
         notes.append(run_note)
+    notes.extend(eq_notes)
     notes.extend(loop_notes)
     if trimmed:
         notes.append(
@@ -1332,7 +1359,12 @@ def _build_unit(
     job = _FitJob(name, folder, info, period, start, end, source,
                   write=not isinstance(workers, DaskPool), short=plan.short)  # fmt: skip
     # the window and its context: on a cluster, the objects the choice already scattered
-    fits = map_tests(_fit_test, kept, (job, frame, ctx), workers=workers, progress=tick)
+    fits = map_by_equipment(
+        _fit_test, kept, lambda ch: None if ch.balance else ch.tag,
+        lambda e: (job, ctxs[None if e is None else e.name][2],
+                   ctxs[None if e is None else e.name][0]), eqs,
+        lambda fn, items, args: map_tests(fn, items, args, workers=workers, progress=tick),
+    )  # fmt: skip
     if not job.write:
         _written(folder, fits, kept, name)
     for ch, (validation, fname, _, tm) in zip(kept, fits, strict=True):
@@ -1387,9 +1419,13 @@ def _build_unit(
     if run_col is not None:
         doc["build"]["running"] = run_note
         doc["running"] = running_table(rc)
+    if eqs:
+        doc["equipment"] = equipment_table(eqs)
     if hand:
         doc["manual"] = manual_table(hand)
-    fixed = constant_tags(judged, info, [lp.sp for lp in loops], [m.tag for m in hand])
+    # a piece's run tag constant over the window (it ran throughout) is no [fixed] tag
+    fixed = constant_tags(judged, info, [lp.sp for lp in loops],
+                          [m.tag for m in hand] + [e.rc.tag for e in eqs])  # fmt: skip
     if fixed:
         doc["fixed"] = fixed_table(fixed)
         notes.append(fixed_note(fixed))
@@ -1818,6 +1854,7 @@ def build_from_historian(
     manual: Sequence[Manual | str] = (),
     disturbances: Sequence[Disturbance | str] = (),
     running: Running | str | None = None,
+    equipment: Sequence[Running] = (),
 ) -> BuildResult:
     """:func:`build_unit` on the historian's window ``[start, end)``: every tag it holds is
     a candidate input; the grid period is ``period`` (``--period``: a faster tag averaged
@@ -1896,6 +1933,7 @@ def build_from_historian(
         manual=manual,
         disturbances=disturbances,
         running=running,
+        equipment=equipment,
     )
     res.seconds = {"read": read_s, **res.seconds}
     res.seconds["total"] += read_s

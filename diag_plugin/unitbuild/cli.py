@@ -72,11 +72,15 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--running",
+        action="append",
+        default=[],
         metavar="TAG[=VALUE]",
         help="the run condition: a two-valued state (a run feedback, an occupied mode); the "
         "unit runs where TAG is at its higher value (or at VALUE), learns only from those "
         "rows and judges nothing elsewhere (CHECK_FUNCTION, not running; ISA-18.2's "
-        "state-based alarming; docs/how-to/unit-loops.md). In a tags CSV: the role 'running'",
+        "state-based alarming; docs/how-to/unit-loops.md). In a tags CSV: the role 'running'. "
+        "'[NAME:]TAG[=VALUE]:TAG1,TAG2,…': a piece of equipment's run condition (repeatable): "
+        "while it is stopped the tests of TAG1, TAG2, … are off, the rest judged",
     )
     p.add_argument(
         "--period",
@@ -136,7 +140,8 @@ def _tags_from(path: str) -> list[str]:
     return tags
 
 
-def _build(args, tags, loops, manual, disturbances, t0, t1, workers, running=None):
+def _build(args, tags, loops, manual, disturbances, t0, t1, workers, running=None,
+           equipment=()):  # fmt: skip
     """The build, its progress drawn on a terminal's standard error."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
@@ -176,6 +181,7 @@ def _build(args, tags, loops, manual, disturbances, t0, t1, workers, running=Non
             manual=manual,
             disturbances=disturbances,
             running=running,
+            equipment=equipment,
         )
 
 
@@ -195,7 +201,9 @@ def cmd_unit_build(args) -> int:
     loops = [parse_loop(x) for x in args.loop]
     manual = [Manual(t.strip(), f"--manual {t}") for t in args.manual]
     driven = [Disturbance(t.strip(), f"--disturbance {t}") for t in args.disturbance]
-    running = [parse_running(args.running)] if args.running else []
+    running = [parse_running(x) for x in args.running]
+    equipment = [r for r in running if r.tags]
+    running = [r for r in running if not r.tags]
     if args.loops_from:
         manual += manual_from_tags_csv(args.loops_from)  # first: a hand valve in a loop
         driven += disturbances_from_tags_csv(args.loops_from)
@@ -217,7 +225,7 @@ def cmd_unit_build(args) -> int:
 
             workers = stack.enter_context(DaskPool.connect(args.dask, args.dask_timeout))
         res = _build(args, tags, loops, manual, driven, t0, t1, workers,
-                     running[0] if running else None)  # fmt: skip
+                     running[0] if running else None, equipment)  # fmt: skip
     if _printed_json(args, res.as_dict()):
         return 0
     print(

@@ -264,13 +264,31 @@ class Running:
     tag: str
     value: float | None = None
     where: str = "--running"
+    #: a piece of equipment's (:mod:`diag_plugin.diagnose.equipment`): its name and the tags
+    #: that belong to it; () for the unit's own run condition
+    name: str | None = None
+    tags: tuple[str, ...] = ()
 
 
 def parse_running(text: str) -> Running:
     """``--running TAG`` or ``--running TAG=VALUE`` as a :class:`Running`; a value that is no
-    number is refused, naming the flag."""
-    tag, eq, value = (x.strip() for x in text.partition("="))
+    number is refused, naming the flag. ``--running [NAME:]TAG[=VALUE]:TAG1,TAG2,…``: a
+    piece of equipment's run condition and the tags that belong to it (NAME default: TAG;
+    :mod:`diag_plugin.diagnose.equipment`)."""
     where = f"--running {text}"
+    if ":" in text:
+        parts = [x.strip() for x in text.split(":")]
+        if len(parts) > 3 or not parts[-1]:
+            raise UserError(
+                f"{where}: write [NAME:]TAG[=VALUE]:TAG1,TAG2,… for a piece of equipment"
+            )
+        tags = tuple(dict.fromkeys(t.strip() for t in parts[-1].split(",") if t.strip()))
+        got = parse_running(parts[-2])
+        name = parts[0] if len(parts) == 3 and parts[0] else got.tag
+        if got.tag in tags:
+            raise UserError(f"{where}: the run tag {got.tag} cannot be one of the equipment's tags")
+        return Running(got.tag, got.value, where, name, tags)
+    tag, eq, value = (x.strip() for x in text.partition("="))
     if not tag or (eq and not value):
         raise UserError(f"{where}: write TAG (runs at its higher value) or TAG=VALUE")
     if not eq:

@@ -1,0 +1,173 @@
+"""A run condition per piece of equipment (issue 34, item 5: a stop is not a blackout).
+
+A chilled-water plant runs on one chiller or two; an air-handling unit's heat-recovery wheel
+stops in mild weather. The unit-wide run condition (:mod:`~diag_plugin.diagnose.running`)
+judges nothing while it is stopped, the wrong answer for a plant that goes on running on its
+other equipment. ``diag unit build --running 'CH2:Chlr2 Status=1:CH2_LWT,Chlr2 Cap%'`` (a
+name, the run tag and its value, and the tags that belong to the equipment;
+:func:`~diag_plugin.unitbuild.loops.parse_running`) declares a piece of equipment. The unit
+file keeps one table per piece::
+
+    [equipment.CH2]  # written by `diag unit build --running`: its tests judged while it runs
+    tag = "Chlr2 Status"
+    run = 1.0
+    stop = 0.0
+    share = 0.294     # of the build window's samples, it ran on this share
+    tags = ["CH2_LWT", "Chlr2 Cap%"]
+
+- **Its tests** are those whose tested tag (the model's output) is one of ``tags`` (a loop's
+  spread test too: it shares the loop's model).
+- **Learning** (the build's input choice and models, the thresholds' residuals, the settle
+  bounds, ``diag unit accept``): its tests learn from the rows where it runs only
+  (:func:`learnable_for`); the other tests learn from every row, its tags among their
+  candidate inputs as measured (a stopped chiller's power 0 is information).
+- **Judging** (:meth:`~diag_plugin.diagnose.unit.Unit.evaluate`): where it is stopped its
+  tests are off — no symptom, no alarm, not counted as unknown (the unit is NORMAL or in
+  alarm by its other tests, never CHECK_FUNCTION for them) — and the sample's why says
+  ``CH2 stopped (Chlr2 Status = 0): tests … off``. Tests of other tags that read its tags
+  stay as they are (their own guards say when an input leaves what they learned). A start
+  is a state change of the unit's settle guard where the run tag is a ``[states]`` tag (the
+  whole unit's settle, not its tests' only: the settle is unit-wide).
+- Old unit files have no ``[equipment]``: nothing changes for them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from diag_plugin.diagnose.running import RunCondition
+
+
+@dataclass(frozen=True)
+class Equipment:
+    """A piece of equipment: its name, run condition and the tags that belong to it (the
+    models' names)."""
+
+    name: str
+    rc: RunCondition
+    tags: tuple[str, ...]
+
+    def stopped(self, values: np.ndarray) -> np.ndarray:
+        """Per sample whether it is stopped (a missing run tag: running)."""
+        return ~self.rc.runs(values)
+
+    def why(self, tests: Sequence[str] = ()) -> str:
+        """The reason on a sample where it is stopped."""
+        off = f": tests {', '.join(tests)} off" if tests else ""
+        return f"{self.name} stopped ({self.rc.tag} = {self.rc.stop:g}){off}"
+
+    def as_table(self) -> dict[str, object]:
+        """The unit file's ``[equipment.NAME]`` row (module doc)."""
+        return {**self.rc.as_table(), "tags": list(self.tags)}
+
+
+def read_equipment(
+    table: Mapping, error: Callable[[int, str], None], line_of: Callable[[str], int]
+) -> list[Equipment]:
+    """The ``[equipment]`` tables of a unit file (module doc); none without one; problems
+    reported through ``error(line, text)``."""
+    from diag_plugin.diagnose.running import read_running
+
+    out = []
+    for name, row in (table or {}).items():
+        if not isinstance(row, Mapping):
+            error(line_of(name), f"[equipment.{name}] must be a table")
+            continue
+        rc = read_running(row, error, lambda k, n=name: line_of(n))
+        tags = row.get("tags")
+        if not isinstance(tags, list) or not tags or not all(isinstance(t, str) for t in tags):
+            error(line_of(name), f"[equipment.{name}] tags must be a list of its tag names")
+            continue
+        if rc is not None:
+            out.append(Equipment(str(name), rc, tuple(str(t) for t in tags)))
+    return out
+
+
+def output_tag(output: str) -> str:
+    """A model's output spec's tag (``TAG`` of ``TAG[k]``)."""
+    return output.split("[")[0].strip().strip('"')
+
+
+def members(
+    equipment: Sequence[Equipment], outputs: Sequence[str], reads: Sequence[Sequence[str]] = ()
+) -> list[np.ndarray]:
+    """Per piece the indices of the tests (their models' ``outputs``, in order) whose
+    tested tag belongs to it; for a piece that never stopped over the build window (its
+    ``share`` 1) also the tests that read its tags (``reads``: each test's model's tags): a
+    stopped piece's tags are then values those tests never learned."""
+    tags = [output_tag(o) for o in outputs]
+    out = []
+    for e in equipment:
+        own = np.isin(tags, list(e.tags))
+        if e.rc.share is not None and e.rc.share >= 1.0 and reads:
+            own |= np.array([bool(set(r) & set(e.tags)) for r in reads], bool)
+        out.append(np.flatnonzero(own))
+    return out
+
+
+def owner(equipment: Sequence[Equipment], tag: str) -> Equipment | None:
+    """The piece ``tag`` belongs to, if any."""
+    return next((e for e in equipment if tag in e.tags), None)
+
+
+def learnable_for(frame: pd.DataFrame, eq: Equipment | None) -> pd.DataFrame:
+    """``frame`` with every tag NaN where ``eq`` is stopped (what its tests learn from, as
+    :func:`~diag_plugin.diagnose.running.learnable`); as it is without ``eq`` or its tag."""
+    if eq is None or eq.rc.tag not in frame.columns:
+        return frame
+    stopped = eq.stopped(frame[eq.rc.tag].to_numpy(float))
+    if not stopped.any():
+        return frame
+    out = frame.copy()
+    out.loc[stopped, :] = np.nan
+    return out
+
+
+def since_start(runs: np.ndarray, before: int) -> np.ndarray:
+    """Per sample the samples since the piece last started (0 on the start's sample), -1
+    where it is stopped; ``before``: the same at the sample before the piece (carried: -1
+    stopped, large when running long)."""
+    n = runs.size
+    idx = np.arange(n)
+    prev = np.r_[before >= 0, runs[:-1]]
+    start = runs & ~prev
+    last = np.maximum.accumulate(np.where(start, idx, -1))
+    since = np.where(last >= 0, idx - last, before + 1 + idx)
+    return np.where(runs, since, -1)
+
+
+def off_mask(
+    equipment: Sequence[Equipment], tests: Sequence[np.ndarray], runs: Mapping[str, np.ndarray],
+    since: np.ndarray, hold: int, names: Sequence[str], n: int,
+) -> tuple[np.ndarray | None, list[tuple[np.ndarray, str]]]:  # fmt: skip
+    """Samples × tests: the tests off (their piece stopped, or started fewer than ``hold``
+    samples ago: its start settles), from each run tag's values ``runs`` (models' names);
+    None where nothing is off. ``since``: per piece :func:`since_start` at the sample before
+    (updated in place). Also the samples and reason of each piece's off stretch."""
+    off = None
+    said = []
+    for k, (e, cols) in enumerate(zip(equipment, tests, strict=True)):
+        v = runs.get(e.rc.tag)
+        if v is None or not cols.size:
+            continue
+        running = ~e.stopped(v)
+        s = since_start(running, int(since[k]))
+        since[k] = s[-1] if n else since[k]
+        stopped = ~running
+        settling = running & (s < hold)
+        if not (stopped.any() or settling.any()):
+            continue
+        if off is None:
+            off = np.zeros((n, len(names)), bool)
+        off[np.ix_(stopped | settling, cols)] = True
+        which = [names[j] for j in cols]
+        if stopped.any():
+            said.append((stopped, e.why(which)))
+        if settling.any():
+            said.append((settling, f"{e.name} started ({e.rc.tag} = {e.rc.run:g}): tests "
+                                   f"{', '.join(which)} off while it settles"))  # fmt: skip
+    return off, said

@@ -1,0 +1,106 @@
+"""The build's side of a piece of equipment's run condition (:mod:`diag_plugin.diagnose.equipment`):
+the declarations checked against the window, the ``[equipment]`` tables, and the tests
+grouped by the piece whose rows they learn from."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import tomlkit
+
+from diag_plugin.diagnose.equipment import Equipment, owner
+from diag_plugin.diagnose.running import RunCondition
+from diag_plugin.unitbuild.loops import Running
+from historian.errors import UserError
+
+
+def equipment_conditions(
+    frame: pd.DataFrame, declared: Sequence[Running], unit_run: str | None = None
+) -> tuple[list[Equipment], list[str]]:
+    """Each declared piece (``--running [NAME:]TAG[=VALUE]:TAG1,…``) checked against the
+    window: its run tag and tags in the data, a tag in one piece only, the run tag two-valued
+    (or one-valued with the ``VALUE`` it runs at: a piece that ran throughout the window).
+    Returns the pieces and the plan's notes. ``unit_run``: the unit's own run tag (no piece's)."""
+    out: list[Equipment] = []
+    notes: list[str] = []
+    seen: dict[str, str] = {}
+    for d in declared:
+        name, where = d.name or d.tag, d.where
+        missing = [t for t in (d.tag, *d.tags) if t not in frame.columns]
+        if missing:
+            raise UserError(f"{where}: {', '.join(missing)} not in the data")
+        if d.tag == unit_run:
+            raise UserError(f"{where}: {d.tag} is the unit's run condition already")
+        if name in {e.name for e in out}:
+            raise UserError(f"{where}: a second piece of equipment named {name}")
+        for t in d.tags:
+            if t in seen:
+                raise UserError(f"{where}: {t} belongs to {seen[t]} already")
+            seen[t] = name
+        x = frame[d.tag].to_numpy(float)
+        x = x[np.isfinite(x)]
+        values = np.unique(x)
+        if values.size > 2 or values.size == 0 or (values.size == 1 and d.value is None):
+            shown = ", ".join(f"{v:g}" for v in values[:5])
+            raise UserError(
+                f"{where}: run condition {d.tag} of {name} is not two-valued over the window "
+                f"({values.size} value(s): {shown or 'none'}); a piece that ran throughout: "
+                f"{d.tag}=VALUE"
+            )
+        run = float(values.max()) if d.value is None else d.value
+        if values.size == 2 and run not in values:
+            raise UserError(
+                f"{where}: run condition {d.tag} of {name} is {values[0]:g} or {values[1]:g} "
+                f"over the window, never {run:g}"
+            )
+        others = values[values != run]
+        stop = float(others[0]) if others.size else (0.0 if run != 0 else 1.0)
+        share = float(np.mean(x == run))
+        out.append(Equipment(name, RunCondition(d.tag, run, stop, share), tuple(d.tags)))
+        notes.append(
+            f"{name}: runs while {d.tag} = {run:g} ({share:.1%} of the window's samples); "
+            f"the tests of {', '.join(d.tags)} learned from those only, off while it is stopped"
+        )
+    return out, notes
+
+
+def equipment_table(equipment: Sequence[Equipment]) -> tomlkit.items.Table:
+    """The unit file's ``[equipment]`` tables (:mod:`diag_plugin.diagnose.equipment`)."""
+    t = tomlkit.table(is_super_table=True)
+    for e in equipment:
+        row = tomlkit.table()
+        row.comment("written by `diag unit build --running`: its tests judged while it runs")
+        for k, v in e.as_table().items():
+            row[k] = v
+        t[e.name] = row
+    return t
+
+
+def map_by_equipment(
+    fn: Callable[..., Any],
+    items: Sequence[Any],
+    tag_of: Callable[[Any], str | None],
+    args_for: Callable[[Equipment | None], tuple],
+    equipment: Sequence[Equipment],
+    mapper: Callable[..., list[Any]],
+) -> list[Any]:
+    """``mapper(fn, group, args_for(piece))`` per group of ``items`` by the piece their tag
+    (``tag_of``; None: no piece) belongs to, the results in ``items``' order: a piece's tests
+    chosen and trained on the rows where it runs."""
+    groups: dict[int, list[int]] = {}
+    owners: list[Equipment | None] = [None]
+    for i, it in enumerate(items):
+        tag = tag_of(it)
+        e = owner(equipment, tag) if tag is not None else None
+        if e not in owners:
+            owners.append(e)
+        groups.setdefault(owners.index(e), []).append(i)
+    out: list[Any] = [None] * len(items)
+    for k, idx in groups.items():
+        got = mapper(fn, [items[i] for i in idx], args_for(owners[k]))
+        for i, g in zip(idx, got, strict=True):
+            out[i] = g
+    return out

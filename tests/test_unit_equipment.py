@@ -1,0 +1,186 @@
+"""A run condition per piece of equipment (issue 34, item 5: a stop is not a blackout;
+docs/how-to/unit-loops.md, "A piece of equipment that stops").
+
+The two chillers of :mod:`tests.twinplant` (B staged on by day only) built on 10 days
+(seed 1) with and without B declared (``--running 'B:B_RUN:B_T,B_CAP,B_KW'``), judged on
+seeds never used to build (7, 8, 9), B stopped for two days of maintenance: B's tests learn
+from the rows where it runs (its loop's band narrower), are off while it is stopped (no
+symptom, not unknown, the why says so), and the unit goes on judging chiller A: A's sensor
+bias during B's maintenance is an alarm named on A. The replay in pieces from a saved state
+and the live plant say the same; the CLI writes and reads ``[equipment]``.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from diag_plugin.diagnose.plant import Plant
+from diag_plugin.diagnose.unit import Unit
+from diag_plugin.status import NE107
+from diag_plugin.unitbuild.build import build_unit
+from diag_plugin.unitbuild.loops import Loop, parse_running
+from historian.errors import UserError
+from tests import twinplant
+from tests.test_any_plant_tour import diag, fmt, import_csv
+from tests.test_unit_running import build_refused, same_in_pieces
+
+LOOPS = [Loop("A_T", "A_SP", "A_CAP"), Loop("B_T", "B_SP", "B_CAP")]
+B = "B:B_RUN:B_T,B_CAP,B_KW"
+DAY = 1440
+
+
+def _build(tmp, equipment):
+    frame = twinplant.simulate(10, 1)
+    res = build_unit("chw", frame, folder=tmp, period="1min", far=0.01, loops=LOOPS,
+                     disturbances=["LOAD"], equipment=equipment)  # fmt: skip
+    return res, Unit.load(res.path, tmp)
+
+
+@pytest.fixture(scope="module")
+def declared(tmp_path_factory):
+    return _build(tmp_path_factory.mktemp("equipment"), [parse_running(B)])
+
+
+@pytest.fixture(scope="module")
+def undeclared(tmp_path_factory):
+    return _build(tmp_path_factory.mktemp("equipment_none"), [])
+
+
+def _maintenance(seed: int, fault: str | None = None) -> pd.DataFrame:
+    """4 days, B stopped on days 1 and 2; a fault from day 2 (B still stopped)."""
+    return twinplant.simulate(4, seed, fault, onset_days=2.0, stop_days=(1.0, 3.0))
+
+
+def _band(unit: Unit, test: str) -> float:
+    t = next(t for t in unit.file.tests if t.name == test)
+    return t.high - t.low
+
+
+# ---------------------------------------------------------------- the build
+def test_the_equipment_s_tests_learn_where_it_runs(declared, undeclared):
+    res, unit = declared
+    (eq,) = unit.file.equipment
+    assert (eq.name, eq.rc.tag, eq.rc.run, eq.rc.stop) == ("B", "B_RUN", 1.0, 0.0)
+    assert eq.tags == ("B_T", "B_CAP", "B_KW")
+    assert 0.4 < eq.rc.share < 0.6
+    assert any(n.startswith("B: runs while B_RUN = 1") for n in res.notes), res.notes
+    # B's loop band without the nights' plant-room water: far narrower than built on all rows
+    assert _band(unit, "B_T") < 0.5 * _band(undeclared[1], "B_T"), (
+        _band(unit, "B_T"), _band(undeclared[1], "B_T"))  # fmt: skip
+    # A's tests learned from every row: the same inputs as without the declaration
+    for t in ("A_T", "A_CAP", "A_KW"):
+        assert unit.models[t].inputs == undeclared[1].models[t].inputs
+
+
+# ---------------------------------------------------------------- judging
+@pytest.mark.parametrize("seed", [7, 8])
+def test_a_stopped_equipment_s_tests_are_off_and_the_unit_judges_the_rest(declared, seed):
+    unit = declared[1]
+    f = _maintenance(seed)
+    stopped = f["B_RUN"].to_numpy() == 0
+    d = unit.reset().evaluate(f)
+    b_tests = [t for t in unit.tests if t.startswith("B_")]
+    assert np.isnan(d.symptoms[b_tests].to_numpy()[stopped]).all()
+    why = d.why.to_numpy()
+    assert all(w.startswith("B stopped (B_RUN = 0): tests B_T, B_CAP") for w in why[stopped])
+    assert not any("B stopped" in w for w in why[~stopped])
+    # the unit judges the rest where B is stopped: rarely CHECK_FUNCTION (a unit-wide run
+    # condition: all of it), never an alarm named on B's tags
+    status = d.status.to_numpy()
+    # (A alone by day at the full load is new to A's tests: their guards may say so)
+    cf = (status[stopped] == NE107.CHECK_FUNCTION).mean()
+    assert cf < 0.5, pd.Series(status[stopped]).value_counts()
+    assert not d.top["top1"].to_numpy()[stopped].astype(str).tolist().count("B_T")
+    # its nights (A alone as it was built on): NORMAL
+    night = stopped & ~((np.arange(len(f)) >= DAY) & (np.arange(len(f)) < 3 * DAY))
+    assert (status[night] == NE107.NORMAL).mean() > 0.95, pd.Series(status[night]).value_counts()
+
+
+@pytest.mark.parametrize("seed", [8, 9])
+def test_a_fault_of_the_running_chiller_is_found_while_the_other_is_stopped(declared, seed):
+    _, unit = declared
+    f = _maintenance(seed, "a_bias")
+    d = unit.reset().evaluate(f)
+    at = (np.arange(len(f)) >= 2 * DAY) & (f["B_RUN"].to_numpy() == 0)
+    fail = d.status.to_numpy()[at] == NE107.FAILURE
+    assert fail.mean() > 0.5, fail.mean()
+    top = pd.Series(d.top["top1"].to_numpy()[at][fail])
+    assert top.str.startswith("A_").mean() > 0.8, top.value_counts()
+
+
+def test_pieces_a_restart_and_the_live_plant_say_the_same(declared):
+    _, unit = declared
+    f = _maintenance(9, "a_bias").iloc[DAY - 300 : DAY + 400]
+    whole = same_in_pieces(unit, f, 157)
+    plant = Plant({"chw": unit.reset()}, {})
+    got = [plant.cycle(ts, row.to_dict())[0] for ts, row in f.iterrows()]
+    assert [int(s.status) for s in got] == whole.status.astype(int).tolist()
+
+
+# ---------------------------------------------------------------- declaration errors
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("B:NOPE:B_T", "--running B:NOPE:B_T: NOPE not in the data"),
+        ("B:B_RUN:B_T,NOPE", "--running B:B_RUN:B_T,NOPE: NOPE not in the data"),
+        ("B:A_SP:B_T", "--running B:A_SP:B_T: run condition A_SP of B is not two-valued"),
+        ("B:B_RUN=5:B_T", "--running B:B_RUN=5:B_T: run condition B_RUN of B is 0 or 1 over "
+         "the window, never 5"),
+    ],
+)  # fmt: skip
+def test_a_bad_equipment_names_the_tag_and_where(tmp_path, text, says):
+    build_refused(tmp_path, twinplant.simulate(1, 1), "1min", says, loops=LOOPS,
+                  equipment=[parse_running(text)])  # fmt: skip
+
+
+def test_the_syntax_names_the_equipment_its_tags_and_the_value():
+    r = parse_running("CH2:Chlr2 Status=1:CH2_LWT, Chlr2 Cap%,CH2 Power")
+    assert (r.name, r.tag, r.value) == ("CH2", "Chlr2 Status", 1.0)
+    assert r.tags == ("CH2_LWT", "Chlr2 Cap%", "CH2 Power")
+    assert parse_running("B_RUN:B_T").name == "B_RUN"  # no name: the run tag's
+    with pytest.raises(UserError, match="cannot be one of the equipment's tags"):
+        parse_running("B:B_RUN:B_T,B_RUN")
+
+
+# ---------------------------------------------------------------- the CLI
+def test_the_cli_writes_the_equipment_and_diagnose_says_it_stopped(tmp_path):
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    frame = twinplant.simulate(6, 3)
+    import_csv(g, frame, tmp_path / "train.csv")
+    t0, t1 = frame.index[0], frame.index[-1] + pd.Timedelta("1min")
+    rc, text = diag(g, "unit", "build", "chw", "--from", fmt(t0), "--to", fmt(t1), "--loop",
+                    "B_T=B_SP:B_CAP", "--running", B, "--far", "0.01")  # fmt: skip
+    assert rc == 0, text
+    assert "B: runs while B_RUN = 1" in text, text
+    unit = Unit.load(tmp_path / "rb" / "chw.unit.toml", tmp_path / "rb")
+    assert [e.name for e in unit.file.equipment] == ["B"]
+    judged = twinplant.simulate(4, 8, stop_days=(1.0, 3.0), start="2026-06-08")
+    import_csv(g, judged, tmp_path / "judged.csv")
+    a, b = judged.index[0], judged.index[-1] + pd.Timedelta("1min")
+    csv = tmp_path / "d.csv"
+    rc, out = diag(g, "diagnose", "chw", "--from", fmt(a), "--to", fmt(b), "--csv", str(csv))
+    assert rc == 0, out
+    d = pd.read_csv(csv, low_memory=False)
+    stopped = judged["B_RUN"].to_numpy() == 0
+    why = d["why"].fillna("").astype(str).to_numpy()
+    assert all(w.startswith("B stopped (B_RUN = 0)") for w in why[stopped])
+    assert (d["status"].to_numpy()[stopped] == NE107.CHECK_FUNCTION).mean() < 0.5
+    # accepting two days B was stopped on (one a maintenance day): B's tests learn B's
+    # running rows only, the others every row
+    c = a + pd.Timedelta(days=2)
+    rc, text = diag(g, "unit", "accept", "chw", "--from", fmt(a), "--to", fmt(c), "--json")
+    assert rc == 0, text
+    samples = json.loads(text)["samples"]
+    w = judged.loc[judged.index < c, "B_RUN"].to_numpy()
+    assert 0 < samples["B_T"] <= (w == 1).sum() < samples["A_T"], (samples, (w == 1).sum())
+    # a day B never ran (its maintenance): B's models keep what they learned, said so
+    rc, text = diag(g, "unit", "accept", "chw", "--from", fmt(c), "--to",
+                    fmt(c + pd.Timedelta(days=1)), "--json")  # fmt: skip
+    assert rc == 0, text
+    doc = json.loads(text)
+    assert "B_T" not in doc["samples"] and doc["samples"]["A_T"] > 0, doc["samples"]
+    assert any(n.startswith("B_T: its equipment did not run") for n in doc["warnings"]), doc
