@@ -90,11 +90,11 @@ def test_the_build_says_how_long_a_state_change_may_settle(station):
     max_s = unit.ev["state_settle_max_s"]
     assert max_s > 0
     said = unit.file.build["state_settle"]
-    assert said.startswith(f"state_settle_max_s = {max_s:.0f} s: 2 × the median settling time")
-    assert "state change(s) in the window" in said and said in res.notes
-    # the quiet time from the unit's own settings, the residual filter's delay among them
-    lag = "residual filter's delay, 7 (its step response to 95 %: order 4, cut-off 0.2 "
-    assert unit.ev["lowpass"] == 0.2 and lag in said, said
+    assert said.startswith(f"state_settle_max_s = {max_s:.0f} s: the 90% quantile (")
+    assert "state change(s) that settled" in said and said in res.notes
+    # the quiet time from the unit's own settings (the residual filter's delay among them)
+    quiet = f"plus the quiet time ({unit.settle.quiet_n * 60:.0f} s)"
+    assert unit.ev["lowpass"] == 0.2 and quiet in said, said
     states = [lp for lp in unit.settle.loops if lp.state]
     assert [lp.sp for lp in states] == ["RUN2"]
 
@@ -293,3 +293,52 @@ def test_at_1s_off_the_grid_a_change_s_alarm_ends_inside_its_settle(tmp_path):
     said = d["why"].fillna("").astype(str).str.contains("settling after a state change")
     assert (said.to_numpy() & (st == CF)).sum() > 300  # the changes' alarms suppressed
     assert not _raised(st[near]).any()
+
+
+# ------------------------------------------------- the bound (issue 34, H7)
+# state_settle_max_s was 2 × the median settling time of the window's changes plus the quiet
+# time; a fault present through a start kept a test on, so the settle ran to that bound (the
+# air-handling unit 8.75 h, chiller 2 9.9 h: docs/explanation/acceptance-ahu.md, H7). Now the
+# 90 % quantile of the window's settling times plus the quiet time.
+SAID = re.compile(r"the 90% quantile \((\d+) s\) of the settling times of the (\d+) of the "
+                  r"window's (\d+) state change\(s\) that settled \(([\d, ]+) s\), plus the "
+                  r"quiet time")  # fmt: skip
+
+
+def _said(unit) -> tuple[np.ndarray, float]:
+    """The settled changes' times the note lists, and the quiet time (seconds)."""
+    said = unit.file.build["state_settle"]
+    got = SAID.search(said)
+    assert got, said
+    times = np.array([float(t) for t in got.group(4).split(",")])
+    assert len(times) == int(got.group(2)) and 2 * len(times) >= int(got.group(3))
+    assert float(got.group(1)) == np.quantile(times, 0.9, method="higher")
+    return times, unit.settle.quiet_n * unit.period_s
+
+
+def test_the_bound_is_a_high_quantile_of_the_window_s_settling_times(station):
+    """The note lists the settled changes' times; the bound is their 90 % quantile (an
+    observed time) plus the quiet time: shorter than 2 × their median plus the quiet time
+    (main's rule). Fails on main (its note: ``2 × the median settling time``)."""
+    unit, *_ = station
+    times, quiet_s = _said(unit)
+    bound = unit.ev["state_settle_max_s"]
+    assert bound == np.quantile(times, 0.9, method="higher") + quiet_s
+    assert bound < 2 * np.median(times) + quiet_s
+
+
+@pytest.mark.parametrize("seed", [8, 9])
+def test_a_fault_through_a_start_is_raised_once_the_start_has_settled(station, seed):
+    """Pump 1's current meter 3 A high from 2 min after each of a run's first three starts
+    (the runs cut 5 h after it): raised before main's rule (2 × the median of the window's
+    settling times plus the quiet time) would have ended the settle, and from then on. Main
+    held it CHECK_FUNCTION 56 min (its bound)."""
+    unit, *_ = station
+    times, quiet_s = _said(unit)
+    mains = (2 * np.median(times) + quiet_s) / unit.period_s
+    for k in _starts(_station(3, seed))[:3]:
+        x = _station(3, seed, bias_at=k + 2).iloc[: k + 300]
+        st = unit.reset().evaluate(x).status.to_numpy()
+        raised = np.flatnonzero(_raised(st[k:]))
+        assert raised.size and raised[0] < mains, (k, raised[:1], mains)
+        assert _raised(st[k + raised[0] :]).mean() > 0.9
