@@ -115,6 +115,7 @@ ALLOWED_UP: dict[tuple[str, str], str] = {
     ("diag_plugin.fuzzy.ts_fcm", "diag_plugin.rulebase.document"): _CODEC,
     ("diag_plugin.fuzzy.wm_codec", "diag_plugin.rulebase.document"): _CODEC,
     ("diag_plugin.models.joint", "diag_plugin.rulebase.document"): _CODEC,
+    ("diag_plugin.models.linear", "diag_plugin.rulebase.document"): _CODEC,
     ("diag_plugin.models.narmax", "diag_plugin.rulebase.document"): _CODEC,
     ("diag_plugin.models.track", "diag_plugin.rulebase.document"): _CODEC,
     ("diag_plugin.rulebase.cli", "diag_plugin.diagnose.matrix"): _CHECK,
