@@ -184,3 +184,98 @@ def test_the_cli_writes_the_equipment_and_diagnose_says_it_stopped(tmp_path):
     doc = json.loads(text)
     assert "B_T" not in doc["samples"] and doc["samples"]["A_T"] > 0, doc["samples"]
     assert any(n.startswith("B_T: its equipment did not run") for n in doc["warnings"]), doc
+
+
+# ---------------------------------------------------------------- the stages (H4)
+def _sample_arrays(obj, n: int, depth: int = 0) -> list:
+    """The arrays of ``n`` rows ``obj``'s attributes hold (in tuples, lists, dicts too)."""
+    if isinstance(obj, np.ndarray):
+        return [obj.shape] if obj.ndim and obj.shape[0] == n else []
+    if depth > 2:
+        return []
+    if isinstance(obj, (tuple, list)):
+        items = obj
+    elif isinstance(obj, dict):
+        items = list(obj.values())
+    else:
+        return []
+    return [s for x in items for s in _sample_arrays(x, n, depth + 1)]
+
+
+def test_the_stopped_mask_goes_with_the_residuals_not_through_the_unit(declared):
+    """The stopped pieces' mask is returned with the residuals it blanks, not left on the
+    unit for the next stage: after an evaluate no attribute of the unit holds an array of
+    the frame's samples, and the residuals of a frame say where B's tests were off."""
+    unit = declared[1]
+    f = _maintenance(7).iloc[600:1300]  # 10:00 to 21:40: B stops at 19:00
+    n = len(f)
+    unit.reset().evaluate(f)
+    left = {k: _sample_arrays(v, n) for k, v in vars(unit).items()}
+    assert not {k: v for k, v in left.items() if v}, left
+    r = unit.reset().raw_residuals(f)
+    stopped = f["B_RUN"].to_numpy() == 0
+    b = [t for t in unit.tests if t.startswith("B_")]
+    assert np.isnan(r[b].to_numpy()[stopped]).all()
+    assert 0 < stopped.sum() < n and np.isfinite(r[b].to_numpy()[~stopped]).all(axis=0).any()
+
+
+# ---------------------------------------------------------------- a tags CSV declares it (H4)
+#: the twin plant's tags CSV: chiller B's loop, and B by its 'equipment' column
+TAGS = """name,loop,role,equipment
+LOAD,,disturbance,
+B_RUN,,running,B
+A_T,LA,pv,
+A_SP,LA,sp,
+A_CAP,LA,out,
+B_T,LB,pv,B
+B_SP,LB,sp,
+B_CAP,LB,out,B
+A_KW,,,
+B_KW,,,B
+"""
+
+
+def test_a_tags_csv_declares_the_equipment_as_the_flag_does(tmp_path):
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    frame = twinplant.simulate(3, 3)
+    tags = tmp_path / "tags.csv"
+    tags.write_text(TAGS)
+    import_csv(g, frame, tmp_path / "train.csv", tags=tags)
+    t0, t1 = frame.index[0], frame.index[-1] + pd.Timedelta("1min")
+    rc, text = diag(g, "unit", "build", "chw", "--from", fmt(t0), "--to", fmt(t1),
+                    "--loops-from", str(tags), "--far", "0.01")  # fmt: skip
+    assert rc == 0, text
+    assert "B: runs while B_RUN = 1" in text, text
+    unit = Unit.load(tmp_path / "rb" / "chw.unit.toml", tmp_path / "rb")
+    (eq,) = unit.file.equipment
+    assert (eq.name, eq.rc.tag, eq.rc.run, eq.tags) == ("B", "B_RUN", 1.0, ("B_T", "B_CAP", "B_KW"))
+    assert unit.file.running is None  # B's run tag is B's, not the unit's
+    # a tag the data lacks: named at its own line
+    (tmp_path / "bad.csv").write_text(TAGS.replace("B_KW,,,B", "B_KWH,,,B"))
+    rc, text = diag(g, "unit", "build", "x", "--from", fmt(t0), "--to", fmt(t1),
+                    "--loops-from", str(tmp_path / "bad.csv"))  # fmt: skip
+    assert rc == 2 and f"{tmp_path / 'bad.csv'}:11: B_KWH not in the data" in text, text
+
+
+@pytest.mark.parametrize(
+    ("edits", "says"),
+    [
+        ([("B_RUN,,running,B", "B_RUN,,,")], ":7: equipment B has no run tag (a row of role"),
+        ([("A_KW,,,", "A_KW,,running,B")], ":10: equipment B has two run tags (B_RUN on line 3, "
+         "A_KW)"),
+        ([("A_KW,,,", "B_KW,,,A")], ":11: B_KW in equipment B and in A (line 10)"),
+        ([("B_T,LB,pv,B", "B_T,LB,pv,"), ("B_CAP,LB,out,B", "B_CAP,LB,out,"),
+          ("B_KW,,,B", "B_KW,,,")], ":3: equipment B has no tag but its run tag B_RUN"),
+    ],
+)  # fmt: skip
+def test_a_tags_csv_s_bad_equipment_is_refused_at_its_line(tmp_path, edits, says):
+    from diag_plugin.unitbuild.loops import equipment_from_tags_csv
+
+    text = TAGS
+    for a, b in edits:
+        text = text.replace(a, b)
+    p = tmp_path / "tags.csv"
+    p.write_text(text)
+    with pytest.raises(UserError) as exc:
+        equipment_from_tags_csv(p)
+    assert str(exc.value).startswith(f"{p}{says}"), str(exc.value)
