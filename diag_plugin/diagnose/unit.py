@@ -283,6 +283,9 @@ class Diagnosis:
     top: pd.DataFrame | None = None
     #: per sample of CHECK_FUNCTION the input outside what the unit learned (operating.py)
     why: pd.Series | None = None
+    #: samples × pieces of equipment (``[equipment]``): 0 running, 1 stopped, 2 settling
+    #: after its start (its tests off, not unknown: :mod:`~.equipment`); None without
+    equipment: pd.DataFrame | None = None
 
     @property
     def contributions(self) -> pd.DataFrame | None:
@@ -718,7 +721,7 @@ class Unit:
 
     def _residuals(
         self, frame: pd.DataFrame, cols: Columns | None = None
-    ) -> tuple[pd.DataFrame, tuple[np.ndarray, list[tuple[np.ndarray, str]]] | None]:
+    ) -> tuple[pd.DataFrame, tuple[np.ndarray, list[tuple[np.ndarray, str]], np.ndarray] | None]:
         """:meth:`raw_residuals` and, of the same samples, where a piece of equipment's tests
         are off (:meth:`_equipment_off`, called once: it advances the pieces' starts)."""
         if cols is None:
@@ -902,17 +905,18 @@ class Unit:
 
     def _equipment_off(
         self, cols: Columns, n: int
-    ) -> tuple[np.ndarray, list[tuple[np.ndarray, str]]] | None:
+    ) -> tuple[np.ndarray, list[tuple[np.ndarray, str]], np.ndarray] | None:
         """Samples × tests where a piece of equipment's tests are off (it is stopped,
-        :mod:`~.equipment`), and per stopped piece its samples and the reason; None where
-        nothing is off (no ``[equipment]``, all running)."""
+        :mod:`~.equipment`), per stopped piece its samples and the reason, and samples ×
+        pieces their states (:func:`~.equipment.off_mask`); None where nothing is off (no
+        ``[equipment]``, all running)."""
         if not self.equipment:
             return None
         runs = {e.rc.tag: cols.values(e.rc.tag) for e in self.equipment
                 if e.rc.tag in cols.columns}  # fmt: skip
-        off, said = off_mask(self.equipment, self.equipment_tests, runs, self.eq_since,
-                             self.equipment_hold, self.tests, n)  # fmt: skip
-        return None if off is None else (off, said)
+        off, said, state = off_mask(self.equipment, self.equipment_tests, runs, self.eq_since,
+                                    self.equipment_hold, self.tests, n)  # fmt: skip
+        return None if off is None else (off, said, state)
 
     def _stopped(self) -> None:
         """At a stop: what carries an alarm forward starts from rest (the residual filter,
@@ -1069,6 +1073,10 @@ class Unit:
             message = f"no thresholds for {', '.join(missing)}: run `diag unit learn {self.name}`"
             status[:] = NE107.CHECK_FUNCTION
         idx = frame.index
+        equipment = None
+        if self.equipment:  # per piece: running, stopped or settling (equipment.py)
+            state = off[2] if off is not None else np.zeros((n, len(self.equipment)), np.int8)
+            equipment = pd.DataFrame(state, index=idx, columns=[e.name for e in self.equipment])
         return Diagnosis(
             unit=self.name,
             residuals=r,
@@ -1083,6 +1091,7 @@ class Unit:
             _contributions=shares,
             top=None if top is None else pd.DataFrame(top, index=idx, columns=_names(top)),
             why=pd.Series(why, index=idx),
+            equipment=equipment,
         )
 
     def _fixed_values(self, frame: pd.DataFrame, guard: FixedGuard) -> np.ndarray:
@@ -1364,4 +1373,5 @@ def concat(parts: list[Diagnosis]) -> Diagnosis:
         else _Concat([p._contributions for p in parts]),
         top=opt("top"),
         why=opt("why"),
+        equipment=opt("equipment"),
     )
