@@ -189,8 +189,12 @@ def test_the_cli_writes_the_equipment_and_diagnose_says_it_stopped(tmp_path):
             learned[t])  # fmt: skip
         assert learned[t]["off_equipment"] == "B"
     assert "off" not in learned["A_T"] and learned["A_T"]["unknown"] < 0.02
+    (piece,) = json.loads(out)["equipment"]
+    assert (piece["name"], piece["tag"], piece["tags"]) == ("B", "B_RUN", ["B_T", "B_CAP", "B_KW"])
+    assert set(piece["tests"]) == {"B_T", "B_CAP", "B_KW", "B_T_spread"}
     rc, out = diag(g, "unit", "show", "chw")
     assert rc == 0 and "B_T: " in out and "off: B stopped 50.0% (its tests off, not unknown)" in out
+    assert "equipment B: runs while B_RUN = 1 (50.0% of the build window); tests " in out, out
     # accepting two days B was stopped on (one a maintenance day): B's tests learn B's
     # running rows only, the others every row
     c = a + pd.Timedelta(days=2)

@@ -216,6 +216,11 @@ def unit_summary(unit) -> dict:
         "matrix": None,
         "combined": _combined_summary(unit),
         "lead_in": {**lead_in_parts(unit), "samples": lead_in(unit), "cap": LEAD_CAP},
+        # the pieces of equipment (``[equipment]``) and the tests off while each is stopped
+        "equipment": [
+            {"name": e.name, **e.as_table(), "tests": [unit.tests[j] for j in cols]}
+            for e, cols in zip(unit.equipment, unit.equipment_tests, strict=True)
+        ],
     }
     if unit.matrix is not None:
         mx = unit.matrix
@@ -304,6 +309,14 @@ def cmd_unit_show(args) -> int:
             *([] if not off else ["—" if "off" not in n else f"{n['off']:.1%}"]),
         )
     con.print(t)
+    for e in s["equipment"]:
+        con.print(
+            f"equipment {e['name']}: runs while {e['tag']} = {e['run']:g}"
+            + (f" ({e['share']:.1%} of the build window)" if e.get("share") is not None else "")
+            + f"; tests {', '.join(e['tests']) or 'none'} off while it is stopped or settling "
+            "after a start (counted as off, not unknown)",
+            markup=False,
+        )
     th = s["thresholds"]
     if th.get("from"):
         how = (
