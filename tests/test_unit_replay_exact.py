@@ -213,6 +213,11 @@ def _ref_raw_residuals(self, frame, cols=None):  # the frame's columns read agai
     return pd.DataFrame(cols, index=frame.index, columns=self.tests)
 
 
+def _ref_residuals(self, frame, cols=None):  # Unit._residuals: no equipment on this unit
+    assert not self.equipment
+    return _ref_raw_residuals(self, frame, cols), None
+
+
 def _ref_outside(self, frame, unknown, report):
     n = len(frame)
     out = np.full(n, "", dtype=object)
@@ -356,7 +361,7 @@ def reference(monkeypatch):
         monkeypatch.setattr(unittags.CombinedModel, "evaluate", _ref_combined)
         monkeypatch.setattr(unittags.CombinedModel, "shares", _ref_shares)
         monkeypatch.setattr(unittags.CombinedModel, "_inverse", _ref_inverse)
-        monkeypatch.setattr(Unit, "raw_residuals", _ref_raw_residuals)
+        monkeypatch.setattr(Unit, "_residuals", _ref_residuals)
         monkeypatch.setattr(operating.OutsideLearned, "transform", _ref_outside)
         monkeypatch.setattr(Unit, "_warming", _ref_warming)
         monkeypatch.setattr(Unit, "_isolate", _ref_isolate)

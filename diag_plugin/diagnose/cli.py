@@ -216,6 +216,11 @@ def unit_summary(unit) -> dict:
         "matrix": None,
         "combined": _combined_summary(unit),
         "lead_in": {**lead_in_parts(unit), "samples": lead_in(unit), "cap": LEAD_CAP},
+        # the pieces of equipment (``[equipment]``) and the tests off while each is stopped
+        "equipment": [
+            {"name": e.name, **e.as_table(), "tests": [unit.tests[j] for j in cols]}
+            for e, cols in zip(unit.equipment, unit.equipment_tests, strict=True)
+        ],
     }
     if unit.matrix is not None:
         mx = unit.matrix
@@ -286,7 +291,9 @@ def cmd_unit_show(args) -> int:
     )
     t = Table(title="tests (low and high in the residual's unit, per test)")
     cols = ("test", "model", "output = f(inputs)", "low", "high", "unit", "false alarms/h")
-    for c in (*cols, "unknown"):
+    # a piece of equipment's tests: the share its piece was stopped, off (not unknown)
+    off = any("off" in r["learned"] for r in s["tests"])
+    for c in (*cols, "unknown", *(["off (piece stopped)"] if off else [])):
         t.add_column(c)
     for r in s["tests"]:
         n = r["learned"]
@@ -299,8 +306,17 @@ def cmd_unit_show(args) -> int:
             r["residual_unit"],
             "—" if "far" not in n else f"{n['far']:.2g} ({n.get('method', '?')})",
             "—" if "unknown" not in n else f"{n['unknown']:.1%}",
+            *([] if not off else ["—" if "off" not in n else f"{n['off']:.1%}"]),
         )
     con.print(t)
+    for e in s["equipment"]:
+        con.print(
+            f"equipment {e['name']}: runs while {e['tag']} = {e['run']:g}"
+            + (f" ({e['share']:.1%} of the build window)" if e.get("share") is not None else "")
+            + f"; tests {', '.join(e['tests']) or 'none'} off while it is stopped or settling "
+            "after a start (counted as off, not unknown)",
+            markup=False,
+        )
     th = s["thresholds"]
     if th.get("from"):
         how = (
@@ -375,6 +391,11 @@ def _print_learned(con, tests: list[dict]) -> None:
         why = [f"{WHY[k[8:]]} {v:.1%}" for k, v in n.items() if k.startswith("unknown_")]
         if why:
             parts.append("unknown: " + "; ".join(why))
+        if "off" in n:
+            parts.append(
+                f"off: {n.get('off_equipment', 'its piece of equipment')} stopped "
+                f"{n['off']:.1%} (its tests off, not unknown)"
+            )
         if len(r["levels"]) > 1:
             parts.append(
                 "coarser rule levels scaled ×" + ", ×".join(f"{x:.2g}" for x in r["levels"][1:])
@@ -576,10 +597,32 @@ def cmd_diagnose(args) -> int:
             },
             "detected_share": _share(d.detected),
         }
+        if d.equipment is not None:  # a stopped piece's samples: off, counted on their own
+            summary["equipment_off"] = equipment_off(d)
         print(summary_text(summary, "intervals", iv))  # the intervals by column (issue 34)
         return 0
     _print_timeline(unit, d, iv, args.csv)
     return 0
+
+
+def equipment_off(d) -> dict[str, dict[str, float]]:
+    """Per piece of equipment (``Diagnosis.equipment``) the samples its tests were off: it
+    stopped, and settling after its starts — neither unknown nor CHECK_FUNCTION (the unit
+    judged by its other tests there)."""
+    from diag_plugin.diagnose.equipment import SETTLING, STOPPED
+
+    n = max(len(d.equipment), 1)
+    out = {}
+    for name in d.equipment.columns:
+        x = d.equipment[name].to_numpy()
+        stopped, settling = int((x == STOPPED).sum()), int((x == SETTLING).sum())
+        out[str(name)] = {
+            "stopped": stopped,
+            "stopped_share": round(stopped / n, 6),
+            "settling": settling,
+            "settling_share": round(settling / n, 6),
+        }
+    return out
 
 
 @contextlib.contextmanager
@@ -784,5 +827,13 @@ def _print_timeline(unit, d, iv, csv) -> None:
     con.print(t)
     if len(shown) < len(iv):
         con.print(f"({len(iv) - len(shown)} more intervals; --json or --csv for all)")
+    if d.equipment is not None:
+        for name, o in equipment_off(d).items():
+            con.print(
+                f"off: {name} stopped on {o['stopped']:,} samples ({o['stopped_share']:.1%}), "
+                f"settling after its starts on {o['settling']:,} ({o['settling_share']:.1%}): "
+                "its tests off there, not unknown (the unit judged by its other tests)",
+                markup=False,
+            )
     if csv:
         con.print(f"wrote {csv}")

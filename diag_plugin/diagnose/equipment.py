@@ -25,9 +25,14 @@ file keeps one table per piece::
   tests are off — no symptom, no alarm, not counted as unknown (the unit is NORMAL or in
   alarm by its other tests, never CHECK_FUNCTION for them) — and the sample's why says
   ``CH2 stopped (Chlr2 Status = 0): tests … off``. Tests of other tags that read its tags
-  stay as they are (their own guards say when an input leaves what they learned). A start
-  is a state change of the unit's settle guard where the run tag is a ``[states]`` tag (the
-  whole unit's settle, not its tests' only: the settle is unit-wide).
+  stay as they are (their own guards say when an input leaves what they learned). After a
+  start its tests stay off for the unit's ``state_settle_max_s`` (else ``settle_max_s``):
+  its transient; the rest of the unit answers on (a run tag its models read, a ``[build]
+  states`` tag, is no state change of the unit-wide settle guard,
+  :mod:`~diag_plugin.diagnose.settle`).
+- The summaries count its samples off on their own, not as unknown: ``diag unit show``'s
+  ``off`` beside ``unknown`` (``[learned]`` ``off``, ``off_equipment``), ``diag diagnose``'s
+  ``equipment_off`` (``Diagnosis.equipment``: per sample running, stopped or settling).
 - Old unit files have no ``[equipment]``: nothing changes for them.
 """
 
@@ -127,6 +132,11 @@ def learnable_for(frame: pd.DataFrame, eq: Equipment | None) -> pd.DataFrame:
     return out
 
 
+#: a piece's state per sample (:func:`off_mask`, ``Diagnosis.equipment``): running (its tests
+#: judged), stopped, or settling after its start (its tests off in both)
+RUNNING, STOPPED, SETTLING = 0, 1, 2
+
+
 def since_start(runs: np.ndarray, before: int) -> np.ndarray:
     """Per sample the samples since the piece last started (0 on the start's sample), -1
     where it is stopped; ``before``: the same at the sample before the piece (carried: -1
@@ -143,13 +153,15 @@ def since_start(runs: np.ndarray, before: int) -> np.ndarray:
 def off_mask(
     equipment: Sequence[Equipment], tests: Sequence[np.ndarray], runs: Mapping[str, np.ndarray],
     since: np.ndarray, hold: int, names: Sequence[str], n: int,
-) -> tuple[np.ndarray | None, list[tuple[np.ndarray, str]]]:  # fmt: skip
+) -> tuple[np.ndarray | None, list[tuple[np.ndarray, str]], np.ndarray]:  # fmt: skip
     """Samples × tests: the tests off (their piece stopped, or started fewer than ``hold``
     samples ago: its start settles), from each run tag's values ``runs`` (models' names);
     None where nothing is off. ``since``: per piece :func:`since_start` at the sample before
-    (updated in place). Also the samples and reason of each piece's off stretch."""
+    (updated in place). Also the samples and reason of each piece's off stretch, and samples
+    × pieces the pieces' states (:data:`RUNNING`, :data:`STOPPED`, :data:`SETTLING`)."""
     off = None
     said = []
+    state = np.zeros((n, len(equipment)), np.int8)
     for k, (e, cols) in enumerate(zip(equipment, tests, strict=True)):
         v = runs.get(e.rc.tag)
         if v is None or not cols.size:
@@ -164,10 +176,12 @@ def off_mask(
         if off is None:
             off = np.zeros((n, len(names)), bool)
         off[np.ix_(stopped | settling, cols)] = True
+        state[stopped, k] = STOPPED
+        state[settling, k] = SETTLING
         which = [names[j] for j in cols]
         if stopped.any():
             said.append((stopped, e.why(which)))
         if settling.any():
             said.append((settling, f"{e.name} started ({e.rc.tag} = {e.rc.run:g}): tests "
                                    f"{', '.join(which)} off while it settles"))  # fmt: skip
-    return off, said
+    return off, said, state

@@ -52,7 +52,9 @@ alarm: the unit's judgement goes on.
   → 1 at …: settling after a state change``; it ends when no test is on for the quiet time
   and its alarm dropped, or ``state_settle_max_s`` after the change
   (:func:`~diag_plugin.unitbuild.loops.state_settle_max`): ISA-18.2's state-based alarming
-  (a pump's start is not an alarm; a fault that outlasts the settle is).
+  (a pump's start is not an alarm; a fault that outlasts the settle is). A piece of
+  equipment's run tag (``[equipment]``, :mod:`~.equipment`) is no such state: its start
+  holds its own tests off for ``state_settle_max_s``, the rest of the unit answers on.
 
 The replay (:meth:`~diag_plugin.diagnose.unit.Unit.evaluate`), the live loop's stacked path
 (:class:`~diag_plugin.diagnose.plant.Plant`) and a restart (the carried state) give the same
@@ -213,6 +215,9 @@ def settle_guard(unit: Any) -> SettleGuard | None:
         if max_s <= 0:
             continue
         got = found(unit)
+        if key == "state_settle_max_s":  # a piece's start holds its own tests only
+            pieces = {e.rc.tag for e in getattr(unit, "equipment", None) or ()}
+            got = [lp for lp in got if lp.sp not in pieces]
         loops += got
         max_n += [max(1, math.ceil(max_s / unit.period_s - 1e-9))] * len(got)
     if not loops:

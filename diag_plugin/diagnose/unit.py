@@ -283,6 +283,9 @@ class Diagnosis:
     top: pd.DataFrame | None = None
     #: per sample of CHECK_FUNCTION the input outside what the unit learned (operating.py)
     why: pd.Series | None = None
+    #: samples × pieces of equipment (``[equipment]``): 0 running, 1 stopped, 2 settling
+    #: after its start (its tests off, not unknown: :mod:`~.equipment`); None without
+    equipment: pd.DataFrame | None = None
 
     @property
     def contributions(self) -> pd.DataFrame | None:
@@ -443,7 +446,6 @@ class Unit:
         #: a piece's start settles: its tests off for the unit's state-change settle bound
         hold_s = self.ev.get("state_settle_max_s") or self.ev.get("settle_max_s") or 0.0
         self.equipment_hold = int(math.ceil(float(hold_s) / self.period_s)) if self.equipment else 0
-        self._off: tuple | None = None  # the last piece's tests off (raw_residuals)
         #: the tests judged by the spread of their residual (valve stiction), by position
         self.spread_cols = np.array(
             [i for i, t in enumerate(file.tests) if t.statistic == "spread"], np.int64
@@ -712,8 +714,16 @@ class Unit:
         return Columns(frame, {t: p if p in frame.columns else t for t, p in plant.items()})
 
     def raw_residuals(self, frame: pd.DataFrame, cols: Columns | None = None) -> pd.DataFrame:
-        """Residual per test in % (eq. 6 or of ``ymax``), NaN where unknown; advances state.
-        ``cols``: the piece's :meth:`columns`, if read already."""
+        """Residual per test in % (eq. 6 or of ``ymax``), NaN where unknown (a stopped piece
+        of equipment's tests too); advances state. ``cols``: the piece's :meth:`columns`, if
+        read already."""
+        return self._residuals(frame, cols)[0]
+
+    def _residuals(
+        self, frame: pd.DataFrame, cols: Columns | None = None
+    ) -> tuple[pd.DataFrame, tuple[np.ndarray, list[tuple[np.ndarray, str]], np.ndarray] | None]:
+        """:meth:`raw_residuals` and, of the same samples, where a piece of equipment's tests
+        are off (:meth:`_equipment_off`, called once: it advances the pieces' starts)."""
         if cols is None:
             cols = self.columns(frame)
         # a test's residuals are one row of tests × samples (written in memory order, not a
@@ -727,12 +737,13 @@ class Unit:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
                 if self.manual is not None:  # a hand valve outside its span: unknown
                     self.manual.blank(out, j, d.positions, d.X, moved)
-        self._off = self._equipment_off(cols, len(frame))
-        if self._off is not None:  # a stopped piece of equipment's tests: off (equipment.py)
-            out[self._off[0].T] = np.nan
+        off = self._equipment_off(cols, len(frame))
+        if off is not None:  # a stopped piece of equipment's tests: off (equipment.py)
+            out[off[0].T] = np.nan
         # samples × tests as a view of it (column-major): :meth:`filtered` writes the C-ordered
         # copy it filters in place, so no third array of the residuals' size
-        return pd.DataFrame(out.T, index=frame.index, columns=_names(self.tests), copy=False)
+        raw = pd.DataFrame(out.T, index=frame.index, columns=_names(self.tests), copy=False)
+        return raw, off
 
     def _residual_into(
         self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y: np.ndarray,
@@ -894,17 +905,18 @@ class Unit:
 
     def _equipment_off(
         self, cols: Columns, n: int
-    ) -> tuple[np.ndarray, list[tuple[np.ndarray, str]]] | None:
+    ) -> tuple[np.ndarray, list[tuple[np.ndarray, str]], np.ndarray] | None:
         """Samples × tests where a piece of equipment's tests are off (it is stopped,
-        :mod:`~.equipment`), and per stopped piece its samples and the reason; None where
-        nothing is off (no ``[equipment]``, all running)."""
+        :mod:`~.equipment`), per stopped piece its samples and the reason, and samples ×
+        pieces their states (:func:`~.equipment.off_mask`); None where nothing is off (no
+        ``[equipment]``, all running)."""
         if not self.equipment:
             return None
         runs = {e.rc.tag: cols.values(e.rc.tag) for e in self.equipment
                 if e.rc.tag in cols.columns}  # fmt: skip
-        off, said = off_mask(self.equipment, self.equipment_tests, runs, self.eq_since,
-                             self.equipment_hold, self.tests, n)  # fmt: skip
-        return None if off is None else (off, said)
+        off, said, state = off_mask(self.equipment, self.equipment_tests, runs, self.eq_since,
+                                    self.equipment_hold, self.tests, n)  # fmt: skip
+        return None if off is None else (off, said, state)
 
     def _stopped(self) -> None:
         """At a stop: what carries an alarm forward starts from rest (the residual filter,
@@ -936,7 +948,8 @@ class Unit:
         """:meth:`evaluate` of a piece judged throughout."""
         point = self.cmodel.point_of(frame) if self.cmodel is not None else None
         cols = self.columns(frame)  # read once: the builders and the reasons
-        raw = self.at_points(self.raw_residuals(frame, cols), point)
+        raw, off = self._residuals(frame, cols)  # off: a stopped piece's tests (equipment.py)
+        raw = self.at_points(raw, point)
         r = self.filtered(raw)
         # what the warm-up reads of the raw residuals, taken now: the raw array is let go
         # before the symptoms and the combined test make theirs (one n × tests array fewer
@@ -945,7 +958,6 @@ class Unit:
         del raw
         s, mem = self.symptoms(r.to_numpy())
         n, T = s.shape
-        off = self._off
         if off is not None:  # a stopped piece's tests: off, neither on nor unknown
             s[off[0]] = np.nan
         known = ~np.isnan(s) if off is None else ~np.isnan(s) | off[0]
@@ -1061,6 +1073,10 @@ class Unit:
             message = f"no thresholds for {', '.join(missing)}: run `diag unit learn {self.name}`"
             status[:] = NE107.CHECK_FUNCTION
         idx = frame.index
+        equipment = None
+        if self.equipment:  # per piece: running, stopped or settling (equipment.py)
+            state = off[2] if off is not None else np.zeros((n, len(self.equipment)), np.int8)
+            equipment = pd.DataFrame(state, index=idx, columns=[e.name for e in self.equipment])
         return Diagnosis(
             unit=self.name,
             residuals=r,
@@ -1075,6 +1091,7 @@ class Unit:
             _contributions=shares,
             top=None if top is None else pd.DataFrame(top, index=idx, columns=_names(top)),
             why=pd.Series(why, index=idx),
+            equipment=equipment,
         )
 
     def _fixed_values(self, frame: pd.DataFrame, guard: FixedGuard) -> np.ndarray:
@@ -1356,4 +1373,5 @@ def concat(parts: list[Diagnosis]) -> Diagnosis:
         else _Concat([p._contributions for p in parts]),
         top=opt("top"),
         why=opt("why"),
+        equipment=opt("equipment"),
     )

@@ -113,6 +113,9 @@ def cmd_unit_learn(args) -> int:
         why = {w: v for w, v in got.unknown[k].items() if v > 0}
         if why:
             print("      unknown: " + "; ".join(f"{WHY[w]} {v:.1%}" for w, v in why.items()))
+        if k in got.off:
+            share, piece = got.off[k]
+            print(f"      off: {piece} stopped {share:.1%} (its tests off, not unknown)")
     c = got.combined
     if c is not None and c.high is not None:
         print(

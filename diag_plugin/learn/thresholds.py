@@ -97,6 +97,10 @@ class TestResiduals:
     source: str
     #: the answering rules' spread relative to the model's (None: the method keeps none)
     spread: np.ndarray | None = None
+    #: where its piece of equipment was stopped (its test off, not unknown: not among the
+    #: ``unknown`` reasons; None: no piece, or it ran throughout) and the piece's name
+    stopped: np.ndarray | None = None
+    piece: str = ""
 
 
 @dataclass
@@ -133,6 +137,9 @@ class Learned:
     #: per level test, with operating points: each point's centre and relative scale of its
     #: raw residual (:func:`level_points`)
     level_points: dict[str, tuple[list[float], list[float]]] = field(default_factory=dict)
+    #: per test of a piece of equipment: the share of the window it was off (its piece
+    #: stopped; not unknown) and the piece
+    off: dict[str, tuple[float, str]] = field(default_factory=dict)
 
     @property
     def independent(self) -> dict[str, int]:
@@ -154,6 +161,11 @@ class Learned:
                 "independent": int(b.independent),
                 "unknown": round(b.unknown, 5),
                 **{f"unknown_{k}": round(v, 5) for k, v in why.items()},
+                **(
+                    {"off": round(self.off[name][0], 5), "off_equipment": self.off[name][1]}
+                    if name in self.off
+                    else {}
+                ),
                 "residuals": self.sources[name],
                 **self.kept.get(name, {}),
             }
@@ -334,7 +346,8 @@ def _test_residual(
     t = next(t for t in unit.file.tests if t.name == name)
     m = unit.models[t.name]
     # a piece of equipment's test learns from the rows where it runs (diagnose/equipment.py)
-    own = learnable_for(frame, owner(getattr(unit, "equipment", ()), output_tag(m.output)))
+    eq = owner(getattr(unit, "equipment", ()), output_tag(m.output))
+    own = learnable_for(frame, eq)
     try:
         d = DesignBuilder(m.inputs, m.output, period=m.period).transform(own)
     except KeyError as exc:
@@ -363,9 +376,16 @@ def _test_residual(
     if pred.spread is not None:
         spread = np.full(len(frame), np.nan)
         spread[rows] = pred.spread
+    why = _unknown_reasons(len(frame), rows, d.y, pred, unit)
+    stopped = None
+    if eq is not None and eq.rc.tag in frame.columns:
+        stopped = eq.stopped(frame[eq.rc.tag].to_numpy(float))
+        # its stopped rows (every tag blanked: each counted missing once) off, not unknown
+        why["missing"] = max(why["missing"] - int(stopped.sum()), 0)
     return TestResiduals(
-        raw, level, _unknown_reasons(len(frame), rows, d.y, pred, unit), source, spread
-    )
+        raw, level, why, source, spread, stopped if stopped is not None and stopped.any()
+        else None, "" if eq is None else eq.name,
+    )  # fmt: skip
 
 
 def held_out_said(
@@ -632,8 +652,14 @@ def learn_thresholds(
     far_tests = far * (1.0 - COMBINED_SHARE) if unit.ev["combined"] else far
     budgets = calibrate(body, unit.period, far_tests, on_delay=unit.ev["on_delay"],
                         off_delay=unit.ev["off_delay"], mapper=mapper)  # fmt: skip
+    off = {}
     for name, b in budgets.items():  # unknown over the whole window, as the reasons count it
-        b.unknown = float(np.mean(~np.isfinite(scaled[name])))
+        unknown = ~np.isfinite(scaled[name])
+        stopped = res[name].stopped
+        if stopped is not None:  # a piece of equipment stopped: its test off, not unknown
+            unknown &= ~stopped
+            off[name] = (float(np.mean(stopped)), res[name].piece)
+        b.unknown = float(np.mean(unknown))
     limits = {
         k: (min(b.low, -1e-4), max(b.high, 1e-4)) for k, b in budgets.items()
     }  # a band around 0 even for a biased residual
@@ -693,6 +719,7 @@ def learn_thresholds(
         fuzzy=fuzzy,
         level_points=lp,
         body=body,
+        off=off,
     )
 
 

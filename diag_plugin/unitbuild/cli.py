@@ -50,7 +50,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="loops declared in a tags CSV's 'loop' and 'role' (pv|sp|out|sensor|actuator) "
         "columns; a fixed set-point in a 'set_point' column of the pv row; hand valves by "
         "the role 'manual', measured disturbances by the role 'disturbance' (rows without "
-        "a loop)",
+        "a loop); a piece of equipment by an 'equipment' column naming the piece of each of "
+        "its tags, its run tag the piece's row of role 'running'",
     )
     p.add_argument(
         "--manual",
@@ -190,6 +191,7 @@ def cmd_unit_build(args) -> int:
         Disturbance,
         Manual,
         disturbances_from_tags_csv,
+        equipment_from_tags_csv,
         loops_from_tags_csv,
         manual_from_tags_csv,
         parse_loop,
@@ -208,6 +210,7 @@ def cmd_unit_build(args) -> int:
         manual += manual_from_tags_csv(args.loops_from)  # first: a hand valve in a loop
         driven += disturbances_from_tags_csv(args.loops_from)
         running += running_from_tags_csv(args.loops_from)  # a run condition in a loop too
+        equipment += equipment_from_tags_csv(args.loops_from)
         loops += loops_from_tags_csv(args.loops_from)
     if len(running) > 1:
         raise UserError(

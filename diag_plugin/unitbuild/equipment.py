@@ -31,14 +31,14 @@ def equipment_conditions(
         name, where = d.name or d.tag, d.where
         missing = [t for t in (d.tag, *d.tags) if t not in frame.columns]
         if missing:
-            raise UserError(f"{where}: {', '.join(missing)} not in the data")
+            raise UserError(f"{d.where_of(missing[0])}: {', '.join(missing)} not in the data")
         if d.tag == unit_run:
             raise UserError(f"{where}: {d.tag} is the unit's run condition already")
         if name in {e.name for e in out}:
             raise UserError(f"{where}: a second piece of equipment named {name}")
         for t in d.tags:
             if t in seen:
-                raise UserError(f"{where}: {t} belongs to {seen[t]} already")
+                raise UserError(f"{d.where_of(t)}: {t} belongs to {seen[t]} already")
             seen[t] = name
         x = frame[d.tag].to_numpy(float)
         x = x[np.isfinite(x)]

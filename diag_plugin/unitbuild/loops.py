@@ -52,6 +52,14 @@ its higher value) or ``--running TAG=VALUE`` (where it equals ``VALUE``), or the
 higher value), the build learns only from the rows where the unit runs (the stopped rows are
 as an outage) and the unit judges nothing while it is stopped
 (:mod:`diag_plugin.diagnose.running`).
+
+**A piece of equipment** (issue 34, item 5: a chiller of two, a heat-recovery wheel): its own
+run condition and the tags that belong to it (:mod:`diag_plugin.diagnose.equipment`).
+Declared with ``--running [NAME:]TAG[=VALUE]:TAG1,TAG2,…`` or, in a tags CSV, an
+``equipment`` column naming the piece each tag belongs to: the piece's row of role
+``running`` is its run tag (exactly one per piece; it runs at the tag's higher value), its
+other rows (a loop's, a plain tag's) its tags. A ``running`` row without an ``equipment`` cell
+is the unit's own run condition.
 """
 
 from __future__ import annotations
@@ -268,6 +276,12 @@ class Running:
     #: that belong to it; () for the unit's own run condition
     name: str | None = None
     tags: tuple[str, ...] = ()
+    #: where each of ``tags`` was declared (tag, ``tags.csv:7``), where not ``where``
+    at: tuple[tuple[str, str], ...] = field(default=(), compare=False, repr=False)
+
+    def where_of(self, tag: str) -> str:
+        """Where ``tag`` (the run tag or one of ``tags``) was declared."""
+        return dict(self.at).get(tag, self.where)
 
 
 def parse_running(text: str) -> Running:
@@ -302,8 +316,71 @@ def parse_running(text: str) -> Running:
 def running_from_tags_csv(path: str | Path) -> list[Running]:
     """The run conditions a tags CSV declares: rows whose ``role`` is ``running`` (see module
     doc); none without a ``role`` column."""
-    rows = _loopless(Path(path), (RUNNING,), "a run condition")
-    return [Running(tag, None, where) for tag, where in rows]
+    path = Path(path)
+    rows = _loopless(path, (RUNNING,), "a run condition")
+    pieces = {r.where for r in equipment_from_tags_csv(path)}  # a piece's run tag: not the unit's
+    return [Running(tag, None, where) for tag, where in rows if where not in pieces]
+
+
+def equipment_from_tags_csv(path: str | Path) -> list[Running]:
+    """The pieces of equipment a tags CSV declares in its ``equipment`` column (see module
+    doc): per piece its row of role ``running`` (the run tag, ``where`` its line) and its
+    other rows' tags; none without the column. A piece with no run tag or two, none but its
+    run tag, or a tag in two pieces is refused as ``file:line``."""
+    path = Path(path)
+    frame, cols, name = _tags_csv(path)
+    if "equipment" not in cols:
+        return []
+    if name is None:
+        raise UserError(f"{path}:1: an 'equipment' column needs a 'name' column beside it")
+    role_col = cols.get("role")
+    run: dict[str, tuple[str, int]] = {}
+    tags: dict[str, dict[str, int]] = {}
+    first: dict[str, int] = {}
+    owner: dict[str, tuple[str, int]] = {}
+    for i, row in enumerate(frame.to_dict("records")):
+        line, piece = i + 2, row[cols["equipment"]].strip()
+        if not piece:
+            continue
+        tag = row[name].strip()
+        if not tag:
+            raise UserError(f"{path}:{line}: equipment {piece} on a row without a tag name")
+        first.setdefault(piece, line)
+        if tag in owner and owner[tag][0] != piece:
+            raise UserError(
+                f"{path}:{line}: {tag} in equipment {piece} and in {owner[tag][0]} (line "
+                f"{owner[tag][1]}): a tag belongs to one piece"
+            )
+        owner.setdefault(tag, (piece, line))
+        role = row[role_col].strip().lower() if role_col else ""
+        if role == RUNNING:
+            if piece in run and run[piece][0] != tag:
+                raise UserError(
+                    f"{path}:{line}: equipment {piece} has two run tags ({run[piece][0]} on "
+                    f"line {run[piece][1]}, {tag}): a piece runs on one"
+                )
+            run[piece] = (tag, line)
+        else:
+            tags.setdefault(piece, {}).setdefault(tag, line)
+    out = []
+    for piece, at in first.items():
+        if piece not in run:
+            raise UserError(
+                f"{path}:{at}: equipment {piece} has no run tag (a row of role {RUNNING} with "
+                f"equipment {piece})"
+            )
+        tag, line = run[piece]
+        mine = tags.get(piece, {})
+        mine.pop(tag, None)
+        if not mine:
+            raise UserError(
+                f"{path}:{line}: equipment {piece} has no tag but its run tag {tag} (name the "
+                f"piece in the equipment cell of its tags' rows)"
+            )
+        where = f"{path}:{line}"
+        here = tuple((t, f"{path}:{n}") for t, n in mine.items())
+        out.append(Running(tag, None, where, piece, tuple(mine), at=((tag, where), *here)))
+    return out
 
 
 def _loopless(path: Path, roles: Sequence[str], what: str) -> list[tuple[str, str]]:
