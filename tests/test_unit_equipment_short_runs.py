@@ -11,19 +11,24 @@ it runs on day 2 from ``days_off`` to 19:00 only.
 
 from __future__ import annotations
 
+import json
+
+import pandas as pd
 import pytest
 
 from diag_plugin.unitbuild.build import build_unit
 from diag_plugin.unitbuild.loops import Loop, parse_running
 from historian.errors import UserError
 from tests import twinplant
+from tests.test_any_plant_tour import diag, fmt, import_csv
 
 LOOPS = [Loop("A_T", "A_SP", "A_CAP"), Loop("B_T", "B_SP", "B_CAP")]
+B = "B:B_RUN:B_T,B_CAP,B_KW"
 
 
 def _build(tmp_path, hour_on: float):
     frame = twinplant.simulate(2, 1, stop_days=(0.0, 1.0 + hour_on / 24))
-    b = [parse_running("B:B_RUN:B_T,B_CAP,B_KW")]
+    b = [parse_running(B)]
     with pytest.raises(UserError) as err:
         build_unit("chw", frame, folder=tmp_path, period="1min", far=0.01, loops=LOOPS,
                    disturbances=["LOAD"], equipment=b)  # fmt: skip
@@ -46,3 +51,29 @@ def test_thresholds_not_learned_say_how_little_the_piece_ran(tmp_path):
     assert "cannot learn thresholds" in msg and "test B_T:" in msg, msg
     assert "  B ran on 299 of the window's 2880 samples (10.4%) in 1 run(s), the longest 299: " \
         "its tests (B_T) learn from its running rows only" in msg, msg  # fmt: skip
+
+
+def test_unit_show_says_the_unknown_share_counts_the_stopped_rows(tmp_path):
+    """``diag unit show`` said of a piece's test `unknown: an input or the output missing
+    (NaN, bad quality, lags not yet filled) 51.0%` (a compressor stopped half the window):
+    the rows where it was stopped, learned from by none of its tests by design."""
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    frame = twinplant.simulate(4, 3)
+    import_csv(g, frame, tmp_path / "train.csv")
+    t0, t1 = frame.index[0], frame.index[-1] + pd.Timedelta("1min")
+    rc, text = diag(g, "unit", "build", "chw", "--from", fmt(t0), "--to", fmt(t1), "--loop",
+                    "B_T=B_SP:B_CAP", "--running", B, "--far", "0.01")  # fmt: skip
+    assert rc == 0, text
+    stopped = float((frame["B_RUN"] == 0).mean())
+    rc, text = diag(g, "unit", "show", "chw")
+    assert rc == 0, text
+    flat = " ".join(text.split())  # the terminal's line breaks
+    said = f"B stopped (B_RUN = 0) on {stopped:.1%} of the window, counted as missing: its " \
+        "tests learn and judge only while it runs"  # fmt: skip
+    assert flat.count(said) >= 2, flat  # B_T and B_CAP (B_KW's test too where built)
+    assert "A stopped" not in flat
+    rc, text = diag(g, "unit", "show", "chw", "--json")
+    tests = {t["test"]: t for t in json.loads(text)["tests"]}
+    assert tests["B_T"]["stopped"] == {"piece": "B", "tag": "B_RUN", "stop": 0.0,
+                                       "share": pytest.approx(stopped, abs=1e-3)}  # fmt: skip
+    assert tests["A_T"]["stopped"] is None

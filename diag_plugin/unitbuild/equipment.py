@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import tomlkit
 
-from diag_plugin.diagnose.equipment import Equipment, owner
+from diag_plugin.diagnose.equipment import Equipment, output_tag, owner
 from diag_plugin.diagnose.running import RunCondition
 from diag_plugin.unitbuild.loops import Running
 from historian.errors import UserError
@@ -95,7 +95,7 @@ def short_run_hints(
     failed = {p.split(":", 1)[0].removeprefix("test ").strip() for p in problems}
     out = []
     for e in equipment:
-        tests = sorted(t for t in failed if (output_of(t) or "").split("[")[0] in e.tags)
+        tests = sorted(t for t in failed if output_tag(output_of(t) or "") in e.tags)
         if not tests:
             continue
         runs = stretches(frame[e.rc.tag].to_numpy(float) == e.rc.run)
