@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import json
 
-import pandas as pd
 import pytest
 
 from diag_plugin.unitbuild.build import build_unit
 from diag_plugin.unitbuild.loops import Loop, parse_running
 from historian.errors import UserError
 from tests import twinplant
-from tests.test_any_plant_tour import diag, fmt, import_csv
+from tests.test_any_plant_tour import diag
 
 LOOPS = [Loop("A_T", "A_SP", "A_CAP"), Loop("B_T", "B_SP", "B_CAP")]
 B = "B:B_RUN:B_T,B_CAP,B_KW"
@@ -57,13 +56,10 @@ def test_unit_show_says_the_unknown_share_counts_the_stopped_rows(tmp_path):
     """``diag unit show`` said of a piece's test `unknown: an input or the output missing
     (NaN, bad quality, lags not yet filled) 51.0%` (a compressor stopped half the window):
     the rows where it was stopped, learned from by none of its tests by design."""
-    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
     frame = twinplant.simulate(4, 3)
-    import_csv(g, frame, tmp_path / "train.csv")
-    t0, t1 = frame.index[0], frame.index[-1] + pd.Timedelta("1min")
-    rc, text = diag(g, "unit", "build", "chw", "--from", fmt(t0), "--to", fmt(t1), "--loop",
-                    "B_T=B_SP:B_CAP", "--running", B, "--far", "0.01")  # fmt: skip
-    assert rc == 0, text
+    build_unit("chw", frame, folder=tmp_path, period="1min", far=0.01, loops=LOOPS[1:],
+               equipment=[parse_running(B)])  # fmt: skip
+    g = ["--rulebases", str(tmp_path)]
     stopped = float((frame["B_RUN"] == 0).mean())
     rc, text = diag(g, "unit", "show", "chw")
     assert rc == 0, text
