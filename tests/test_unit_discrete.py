@@ -145,3 +145,23 @@ def test_after_accept_a_discrete_state_is_still_never_named(tmp_path):
     named = {t for c in ("top1", "top2", "top3") for t in d.top_tags[c].iloc[on:][alarm] if t}
     faults = {x for f in d.faults.iloc[on:][alarm] if f for x in f.split("|")}
     assert "RUN2" not in named | faults
+
+
+def test_a_state_of_three_modes_is_said_with_its_three_values():
+    """A filter's state (0 filtering, 1 backwash, 2 filter-to-waste; the third mode 0.6 % of
+    the window, so the two commonest values hold 99 % and it is a discrete state): the build's
+    note names all three values it held. Acceptance pass 8 (docs/explanation/acceptance-filters.md):
+    on main the note said `(0 or 1: a mode of the plant …)` for the four filters' states."""
+    rng = np.random.default_rng(5)
+    n = 6000
+    state = np.zeros(n)
+    for start in range(500, n - 100, 1800):  # a backwash (12 samples) then filter-to-waste (10)
+        state[start : start + 12] = 1
+        state[start + 12 : start + 22] = 2
+    idx = pd.date_range("2026-03-02", periods=n, freq="60s", tz="UTC")
+    flow = 400 + 30 * np.sin(np.arange(n) / 300) + rng.normal(0, 3, n)
+    f = pd.DataFrame({"FLOW": np.where(state == 1, 0.0, flow), "STATE": state}, index=idx)
+    assert 0.003 < (state == 2).mean() < 0.01
+    chosen, skipped = choose_tests(f)
+    assert "STATE" not in chosen
+    assert "(0, 1 or 2:" in skipped["STATE"]

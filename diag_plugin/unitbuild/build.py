@@ -295,7 +295,7 @@ def choose_tests(
             skipped[t] = "a set-point (the operator's choice; kept as a candidate input)"
         elif tags is None and (two := two_states(v[good])) is not None:
             skipped[t] = (
-                f"{DISCRETE_WHY} ({two[0]:g} or {two[1]:g}: a mode of the plant, as a "
+                f"{DISCRETE_WHY} ({held_values_text(v[good], two)}: a mode of the plant, as a "
                 "pump's run feedback; kept as a candidate input, never a tag at fault)"
             )
         else:
@@ -397,6 +397,18 @@ def two_states(v: np.ndarray) -> tuple[float, float] | None:
         return None
     lo, hi = sorted(float(x) for x in vals[top])
     return lo, hi
+
+
+def held_values_text(v: np.ndarray, two: tuple[float, float]) -> str:
+    """The values a discrete state held, for the build's note: :func:`two_states`' two and
+    any other held on two grid points running (a filter's third mode, filter-to-waste, 0.6 %
+    of the window: ``0, 1 or 2``); a value on single grid points is where the grid averaged
+    a switch (0.5) and is left out."""
+    held = set(two)
+    if len(v) > 1:
+        held |= {float(x) for x in v[1:][v[1:] == v[:-1]]}
+    vals = [f"{x:g}" for x in sorted(held)]
+    return ", ".join(vals[:-1]) + f" or {vals[-1]}"
 
 
 def same_measurement(

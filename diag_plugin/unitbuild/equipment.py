@@ -43,8 +43,16 @@ def equipment_conditions(
         x = frame[d.tag].to_numpy(float)
         x = x[np.isfinite(x)]
         values = np.unique(x)
-        if values.size > 2 or values.size == 0 or (values.size == 1 and d.value is None):
-            shown = ", ".join(f"{v:g}" for v in values[:5])
+        shown = ", ".join(f"{v:g}" for v in values[:5]) + (" …" if values.size > 5 else "")
+        if values.size > 2 and (d.value is None or d.value not in (values[0], values[-1])):
+            # a mode tag (a filter's 0 filtering, 1 backwash, 2 filter-to-waste) runs at one
+            # end of its values: stopped nearer the next one (RunCondition.runs)
+            raise UserError(
+                f"{where}: run condition {d.tag} of {name} takes {values.size} values over the "
+                f"window ({shown}); give the one it runs at, the lowest or the highest: "
+                f"{d.tag}={values[0]:g} or {d.tag}={values[-1]:g}"
+            )
+        if values.size == 0 or (values.size == 1 and d.value is None):
             raise UserError(
                 f"{where}: run condition {d.tag} of {name} is not two-valued over the window "
                 f"({values.size} value(s): {shown or 'none'}); a piece that ran throughout: "
@@ -57,7 +65,8 @@ def equipment_conditions(
                 f"over the window, never {run:g}"
             )
         others = values[values != run]
-        stop = float(others[0]) if others.size else (0.0 if run != 0 else 1.0)
+        near = others[np.argmin(np.abs(others - run))] if others.size else None
+        stop = float(near) if near is not None else (0.0 if run != 0 else 1.0)
         share = float(np.mean(x == run))
         out.append(Equipment(name, RunCondition(d.tag, run, stop, share), tuple(d.tags)))
         notes.append(
