@@ -178,13 +178,27 @@ def cmd_unit_check(args) -> int:
 
 def unit_summary(unit) -> dict:
     """What ``diag unit show`` prints: tests, thresholds, evaluation, matrix analysis."""
+    from diag_plugin.diagnose.equipment import output_tag, owner
     from diag_plugin.diagnose.leadin import LEAD_CAP, lead_in, lead_in_parts
 
     f = unit.file
+    pieces = getattr(f, "equipment", None) or []
     tests = []
     for t in f.tests:
         m = unit.models[t.name]
         lim = t.limits
+        # a piece's test: its unknown share counts the rows where the piece was stopped
+        piece = owner(pieces, output_tag(m.output))
+        stopped = (
+            None
+            if piece is None or piece.rc.share is None
+            else {
+                "piece": piece.name,
+                "tag": piece.rc.tag,
+                "stop": piece.rc.stop,
+                "share": 1.0 - piece.rc.share,
+            }
+        )
         tests.append(
             {
                 "test": t.name,
@@ -200,6 +214,7 @@ def unit_summary(unit) -> dict:
                 "set_point": t.set_point,
                 "residual_unit": residual_unit(t.spread, f.evaluation.get("scale", "span")),
                 "learned": f.learned.get(t.name, {}),
+                "stopped": stopped,
             }
         )
     out = {
@@ -389,6 +404,12 @@ def _print_learned(con, tests: list[dict]) -> None:
         if not n.get("supported"):
             parts.append(f"a window of {hours(n.get('hours_needed', 0))} would support it")
         why = [f"{WHY[k[8:]]} {v:.1%}" for k, v in n.items() if k.startswith("unknown_")]
+        st = r.get("stopped")
+        if why and st and st["share"] > 0 and "off" not in n:  # learned before "off" was kept
+            why.append(
+                f"{st['piece']} stopped ({st['tag']} = {st['stop']:g}) on {st['share']:.1%} "
+                "of the window, counted as missing: its tests learn and judge only while it runs"
+            )
         if why:
             parts.append("unknown: " + "; ".join(why))
         if "off" in n:

@@ -87,7 +87,12 @@ from diag_plugin.selection.scoring import BlockScorer, FrozenRuleBase
 from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
 from diag_plugin.unitbuild import short
-from diag_plugin.unitbuild.equipment import equipment_conditions, equipment_table, map_by_equipment
+from diag_plugin.unitbuild.equipment import (
+    equipment_conditions,
+    equipment_table,
+    map_by_equipment,
+    short_run_hints,
+)
 from diag_plugin.unitbuild.loops import (
     Disturbance,
     Loop,
@@ -873,6 +878,12 @@ def loop_test(ctx: _Context, tag: str, sp: str | InputSpec, *, test: str) -> Tes
         rmse, cov = scorer.score(ins, cols)
         if math.isfinite(rmse):
             scored.append((rmse, lag, cov))
+    if not scored:  # no held-out block scored: too few rows (a piece that barely ran)
+        raise UserError(
+            f"loop {tag}: its test could not be scored on any held-out block of the "
+            f"{int(np.isfinite(y).sum())} rows it learns from (a declared piece's: where it "
+            "runs): too few; build on a longer window"
+        )
     low = min(r for r, _, _ in scored)
     rmse, lag, cov = min((x for x in scored if x[0] <= low * (1 + TOLERANCE)), key=lambda x: x[1])
     choice.steps.append(Step(str(base.with_lag(lag)), rmse, cov))
@@ -1479,8 +1490,13 @@ def _build_unit(
     except UnitError as exc:
         raise UserError("the built unit has problems:\n" + "\n".join(exc.problems)) from None
     except LearnError as exc:
+        models = unit.models
+        hints = short_run_hints(
+            eqs, frame, exc.problems, lambda t: models[t].output if t in models else None
+        )
         raise UserError(
-            f"unit {name}: cannot learn thresholds:\n" + "\n".join("  " + p for p in exc.problems)
+            f"unit {name}: cannot learn thresholds:\n"
+            + "\n".join("  " + p for p in [*exc.problems, *hints])
         ) from None
     notes.extend(learned.warnings)
     if edges:  # after what the unit decided (settles, states): the terminal shows four notes

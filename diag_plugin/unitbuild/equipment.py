@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import tomlkit
 
-from diag_plugin.diagnose.equipment import Equipment, owner
+from diag_plugin.diagnose.equipment import Equipment, output_tag, owner
 from diag_plugin.diagnose.running import RunCondition
 from diag_plugin.unitbuild.loops import Running
 from historian.errors import UserError
@@ -74,6 +74,47 @@ def equipment_conditions(
             f"the tests of {', '.join(d.tags)} learned from those only, off while it is stopped"
         )
     return out, notes
+
+
+def stretches(on: np.ndarray) -> list[int]:
+    """Lengths of the runs of consecutive True in ``on``."""
+    edges = np.diff(np.concatenate(([0], on.astype(np.int8), [0])))
+    return (np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)).tolist()
+
+
+def ran(runs: Sequence[int], n: int) -> str:
+    """'ran on 1509 of the window's 86400 samples (1.7%) in 2 run(s), the longest 910'."""
+    k = sum(runs)
+    longest = f", the longest {max(runs)}" if runs else ""
+    return (
+        f"ran on {k} of the window's {n} samples ({k / max(n, 1):.1%}) in {len(runs)} run(s)"
+        + longest
+    )
+
+
+def short_run_hints(
+    equipment: Sequence[Equipment], frame: pd.DataFrame, problems: Sequence[str],
+    output_of: Callable[[str], str | None],
+) -> list[str]:  # fmt: skip
+    """For a build whose thresholds could not be learned: a line per declared piece whose
+    tests are among ``problems`` (``test NAME: …``; ``output_of(NAME)`` its output,
+    ``TAG[k]``), saying how little it ran. A piece's tests learn from its running rows only,
+    each start's first samples left out and their inputs' history refilled after it: short
+    runs leave none."""
+    failed = {p.split(":", 1)[0].removeprefix("test ").strip() for p in problems}
+    out = []
+    for e in equipment:
+        tests = sorted(t for t in failed if output_tag(output_of(t) or "") in e.tags)
+        if not tests:
+            continue
+        runs = stretches(frame[e.rc.tag].to_numpy(float) == e.rc.run)
+        out.append(
+            f"{e.name} {ran(runs, len(frame))}: its tests ({', '.join(tests)}) learn from its "
+            f"running rows only, each start's first samples left out and their inputs' "
+            f"history filled again after it; build on a window where {e.name} runs longer, "
+            "or leave it undeclared"
+        )
+    return out
 
 
 def equipment_table(equipment: Sequence[Equipment]) -> tomlkit.items.Table:
