@@ -548,19 +548,35 @@ def cmd_diagnose(args) -> int:
     start = parse_time(args.start)
     # the history before --from its lags, filter and delays need (lead_in), evaluated, not shown
     frames = _prefetch(unit_frames(args, unit, start, parse_time(args.end), chunk, lead_in(unit)))
-    with _one_blas_thread():  # the combined test's small inverses: no thread per core
-        # without a CSV each piece is cut to what the summary reads as soon as it is made:
-        # the pieces' residuals and certainties were all held until the end (1,000,000 rows
-        # of the bench's 45 tests: peak RSS 2.9 → 1.9 GB, most of the rest the database
-        # file's pages read through SQLite's memory map; 16.2 → 13.4 CPU s, issue 34)
-        keep = (lambda p: p) if args.csv else _summary_part
-        parts = [keep(since(unit.evaluate(f), start)) for f in frames]
-    parts = [p for p in parts if len(p)]
-    if not parts:
-        raise UserError("no data in the window")
+    # the CSV written piece by piece in a thread of its own while the next piece is replayed
+    # (CsvPieces); the full pieces kept only for a CSV it cannot write so (then as before)
+    stream = CsvPieces(args.csv) if args.csv and CsvPieces.can_write(args.csv) else None
+    full: list = []
+    try:
+        with _one_blas_thread():  # the combined test's small inverses: no thread per core
+            # each piece is cut to what the summary reads as soon as it is made: the pieces'
+            # residuals and certainties were all held until the end (1,000,000 rows of the
+            # bench's 45 tests: peak RSS 2.9 → 1.9 GB without a CSV, most of the rest the
+            # database file's pages read through SQLite's memory map; 16.2 → 13.4 CPU s)
+            parts = []
+            for f in frames:
+                p = since(unit.evaluate(f), start)
+                if not len(p):
+                    continue
+                parts.append(_summary_part(p))
+                if args.csv:
+                    full.append(p)
+                if stream is not None:
+                    stream.add(p)
+        if not parts:
+            raise UserError("no data in the window")
+        if args.csv and (stream is None or not stream.close()):
+            write_csv(concat(full), args.csv)
+    finally:
+        if stream is not None:
+            stream.abort()
+    del full
     d = concat(parts)
-    if args.csv:
-        write_csv(d, args.csv)
     iv = d.intervals()
     if args.json:
         from diag_plugin.diagnose.summaryjson import summary_text
@@ -659,6 +675,16 @@ def write_csv(d, path: str) -> None:
     (1/0, empty when unknown), quality, faults; with a combined test or isolation to tags also
     T2 (the combined statistic), s_T2 (its symptom) and top1, share1, … top3, share3 (the
     tags that explain an alarm, their share of T²)."""
+    write_frame_csv(csv_frame(d), path)
+
+
+#: how :func:`write_csv` writes numbers and times (``DataFrame.to_csv``'s arguments)
+CSV_FLOAT, CSV_DATE = "%.6g", "%Y-%m-%dT%H:%M:%S%z"
+
+
+def csv_frame(d):
+    """The frame :func:`write_csv` writes of the diagnosis ``d``: :meth:`~diag_plugin.
+    diagnose.unit.Diagnosis.to_frame`, ``detected`` as text (1, 0, empty when unknown)."""
     import numpy as np
     import pandas as pd
 
@@ -667,11 +693,7 @@ def write_csv(d, path: str) -> None:
     codes, uniq = pd.factorize(frame["detected"].to_numpy())  # NaN: -1, the last text
     text = np.array([*(str(int(v)) for v in uniq.tolist()), ""], dtype=object)
     frame["detected"] = pd.Series(text[codes], index=frame.index, dtype="str")
-    write_frame_csv(frame, path)
-
-
-#: how :func:`write_csv` writes numbers and times (``DataFrame.to_csv``'s arguments)
-CSV_FLOAT, CSV_DATE = "%.6g", "%Y-%m-%dT%H:%M:%S%z"
+    return frame
 
 
 def write_frame_csv(frame, path: str) -> None:
@@ -681,31 +703,178 @@ def write_frame_csv(frame, path: str) -> None:
     ~46 CPU s through ``%`` and the :mod:`csv` writer). Float64 columns are formatted there;
     integer and text columns and the times are tables of their distinct texts. A frame with
     another kind of column or index is written by pandas itself."""
-    from diag_plugin.diagnose.csvfast import G6, TextTable, write_rows
-
-    index = _csv_times(frame.index)
-    known = CSV_FLOAT == G6 and all(_csv_known(frame[c]) for c in frame.columns)
-    if index is None or not known:
+    got = csv_arrays(frame)
+    if got is None:
         frame.to_csv(path, float_format=CSV_FLOAT, date_format=CSV_DATE)
         return
+    from diag_plugin.diagnose.csvfast import write_rows
+
+    with open(path, "wb") as fh:
+        fh.write(csv_head(frame))
+        write_rows(fh, *got[:4], os.linesep, CSV_ROWS)
+
+
+def csv_head(frame) -> bytes:
+    """The header line :func:`write_frame_csv` writes of ``frame``."""
+    return frame.iloc[:0].to_csv(float_format=CSV_FLOAT, date_format=CSV_DATE).encode("utf-8")
+
+
+def csv_arrays(frame):
+    """What :func:`~diag_plugin.diagnose.csvfast.write_rows` writes of ``frame``: the float64
+    columns (rows × columns, a column contiguous), the codes of the times and the other
+    columns into a :class:`~diag_plugin.diagnose.csvfast.TextTable`, the order of the columns,
+    the table, and each column's kind (``f`` float, ``i`` integer, ``t`` text); None where
+    pandas writes the frame (another kind of column or index)."""
+    from diag_plugin.diagnose.csvfast import G6, TextTable
+
+    index = _csv_times(frame.index)
+    if index is None or CSV_FLOAT != G6 or not all(_csv_known(frame[c]) for c in frame.columns):
+        return None
     import numpy as np
 
+    kinds = [_csv_kind(frame[c].dtype) for c in frame.columns]
+    n, nf = len(frame), kinds.count("f")
+    floats = np.empty((nf, n)).T  # a column's rows together: copied as they are
+    codes = np.empty((len(kinds) - nf + 1, n), np.int64).T
     table = TextTable()
-    floats, texts = [], []
+    codes[:, 0] = table.add_times(index)
     order = [(1, 0)]
-    texts.append(table.add_times(index))
-    for c in frame.columns:
+    for c, kind in zip(frame.columns, kinds, strict=True):
         col = frame[c]
-        if col.dtype == np.float64:
-            order.append((0, len(floats)))
-            floats.append(col.to_numpy())
+        if kind == "f":
+            order.append((0, sum(k == 0 for k, _ in order)))
+            floats[:, order[-1][1]] = col.to_numpy()
         else:
-            order.append((1, len(texts)))
-            texts.append(table.add(*_csv_codes(col)))
-    with open(path, "wb") as fh:
-        head = frame.iloc[:0].to_csv(float_format=CSV_FLOAT, date_format=CSV_DATE)
-        fh.write(head.encode("utf-8"))
-        write_rows(fh, floats, texts, order, table, os.linesep, len(frame), CSV_ROWS)
+            order.append((1, sum(k == 1 for k, _ in order)))
+            codes[:, order[-1][1]] = table.add(*_csv_codes(col))
+    return floats, codes, order, table, kinds
+
+
+def _csv_kind(dt) -> str:
+    import numpy as np
+
+    if dt == np.float64:
+        return "f"
+    return "i" if isinstance(dt, np.dtype) and dt.kind in "iu" else "t"
+
+
+class CsvPieces:
+    """:func:`write_csv` of the concatenated pieces of a replay, written piece by piece in a
+    thread of its own while the next pieces are replayed (issue 34: the CSV of 1,000,000
+    rows was ~9 CPU s on one core after the replay). Each piece's rows are the bytes the
+    concatenation's would be where every piece has the same columns of the same kinds (the
+    formats are value by value); the one column that may come and go, ``why`` (the last,
+    there when some sample has one), is written from the first piece with one on: the rows
+    before it then get its empty field (their ends noted while written). Written to
+    ``FILE.part`` beside ``FILE``, moved to it when complete; :meth:`close` says False where
+    the pieces differ otherwise (then the caller writes the CSV as before)."""
+
+    def __init__(self, path: str) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.path = path
+        self.part = f"{path}.part"
+        self.fh = None
+        self.spec: list | None = None  # per column but why: (name, kind) of the first piece
+        #: None: no why yet; False: a piece without a why series (so none); True: written
+        self.why: bool | None = None
+        self.ends: list = []  # while no why is written: each piece's row ends in the file
+        self.head = b""
+        self.failed = False
+        self.pool = ThreadPoolExecutor(1, thread_name_prefix="diag-csv")
+        self.jobs: list = []
+
+    @staticmethod
+    def can_write(path: str) -> bool:
+        """A regular file or none yet (not a device, a pipe, …: written as before)."""
+        p = Path(path)
+        return (p.is_file() or not p.exists()) and p.parent.is_dir()
+
+    def add(self, d) -> None:
+        """Write ``d``'s rows next (in the writing thread)."""
+        self.jobs.append(self.pool.submit(self._write, d))
+
+    def close(self) -> bool:
+        """The pieces written (a writing error raised here): True where the CSV is complete
+        at the path, False where the caller must write it."""
+        for job in self.jobs:
+            job.result()
+        self.pool.shutdown()
+        if self.failed or self.fh is None:
+            return False
+        self.fh.close()
+        if Path(self.path).exists():
+            import shutil
+
+            shutil.copymode(self.path, self.part)
+        os.replace(self.part, self.path)
+        self.fh = None
+        return True
+
+    def abort(self) -> None:
+        """Stop and remove the partial file (nothing where :meth:`close` moved it)."""
+        for job in self.jobs:
+            job.cancel()
+        self.pool.shutdown()
+        if self.fh is not None:
+            self.fh.close()
+            self.fh = None
+            Path(self.part).unlink(missing_ok=True)
+
+    def _write(self, d) -> None:
+        if self.failed:
+            return
+        import numpy as np
+
+        from diag_plugin.diagnose.csvfast import write_rows
+
+        frame = csv_frame(d)
+        said = "why" in frame.columns  # some sample of this piece has a why
+        if d.why is None:  # then the concatenation has no why column at all
+            self.failed = self.failed or self.why is True
+            self.why = self.why or False
+        elif said:
+            self.failed = self.failed or self.why is False
+        elif self.why:  # written: this piece's are all empty
+            frame["why"] = d.why.rename("why")
+        got = None if self.failed else csv_arrays(frame)
+        if got is None:
+            self.failed = True
+            return
+        spec = [(c, k) for c, k in zip(frame.columns, got[4], strict=True) if c != "why"]
+        if self.spec is not None and spec != self.spec:
+            self.failed = True
+            return
+        if self.fh is None:  # the first piece
+            self.spec = spec
+            self.fh = open(self.part, "wb")  # noqa: SIM115 - closed by close or abort
+            self.head = csv_head(frame)
+            self.fh.write(self.head)
+        elif said and not self.why:
+            self._add_why(csv_head(frame))
+        if said:
+            self.why = True
+        rows = None if self.why else np.empty(len(frame), np.int64)
+        at = self.fh.tell() - len(self.head)
+        write_rows(self.fh, *got[:4], os.linesep, CSV_ROWS, rows)
+        if rows is not None:
+            self.ends.append(rows + at)
+
+    def _add_why(self, head: bytes) -> None:
+        """The rows written so far get the empty ``why`` field at their end, the header its
+        name."""
+        import numpy as np
+
+        self.fh.flush()
+        with open(self.part, "rb") as fh:
+            fh.seek(len(self.head))
+            rows = np.frombuffer(fh.read(), np.uint8)
+        ends = np.concatenate(self.ends)
+        self.fh.seek(0)
+        self.fh.truncate()
+        self.fh.write(head)
+        self.fh.write(np.insert(rows, ends, ord(",")).data)
+        self.head, self.ends, self.why = head, [], True
 
 
 def _csv_codes(col):

@@ -139,42 +139,59 @@ def _put_g6(v, p10, out, pos):  # pragma: no cover - numba
 
 
 @nb.njit(cache=True, nogil=True)
-def _block_kernel(
-    floats, codes, kind, col, text, text_at, hard_at, hard_text, hard_off, eol, p10, out
+def _rows_kernel(
+    floats, codes, nrows, kind, col, text, text_at, eol, p10, out, r, c, pos, row_end
 ):  # pragma: no cover - numba
-    """The CSV rows of a block into ``out`` (returns the bytes written): column ``c`` is
-    float column ``col[c]`` of ``floats`` (``kind[c]`` 0: NaN empty) or text column
-    ``col[c]`` of ``codes`` (1: row's text ``text[text_at[k]:text_at[k + 1]]``). Floats at
-    the flat positions ``hard_at`` (ascending) are the texts ``hard_text`` instead."""
-    pos = 0
-    h = 0
-    nf = floats.shape[1]
-    for r in range(floats.shape[0]):
-        for c in range(kind.size):
+    """CSV rows into ``out`` from row ``r``, column ``c`` and byte ``pos`` on: column ``c`` is
+    float column ``col[c]`` of ``floats`` (``kind[c]`` 0: NaN empty) or text column ``col[c]``
+    of ``codes`` (1: the row's text ``text[text_at[k]:text_at[k + 1]]``); any layout of
+    either (a piece's columns as they are, no copy into rows). Returns ``(pos, r, c)``: ``r``
+    the row count when done, else the float the kernel is not certain of (:func:`_g6_digits`),
+    its separator written, for the caller to write and resume at ``(r, c + 1)``. With
+    ``row_end`` of a row per row, each row's end (where its line end starts) is noted there."""
+    ncols = kind.size
+    while r < nrows:
+        while c < ncols:
             if c:
                 out[pos] = 44  # ,
                 pos += 1
             j = col[c]
             if kind[c] == 0:
                 v = floats[r, j]
-                if v != v:
-                    continue
-                if h < hard_at.size and hard_at[h] == r * nf + j:
-                    for i in range(hard_off[h], hard_off[h + 1]):
-                        out[pos] = hard_text[i]
-                        pos += 1
-                    h += 1
-                    continue
-                pos = _put_g6(v, p10, out, pos)
+                if v == v:
+                    if v == 0.0 or (abs(v) != np.inf and _g6_digits(abs(v), p10)[2]):
+                        pos = _put_g6(v, p10, out, pos)
+                    else:
+                        return pos, r, c
             else:
                 k = codes[r, j]
                 for i in range(text_at[k], text_at[k + 1]):
                     out[pos] = text[i]
                     pos += 1
+            c += 1
+        if row_end.size:
+            row_end[r] = pos
         for i in range(eol.size):
             out[pos] = eol[i]
             pos += 1
-    return pos
+        r += 1
+        c = 0
+    return pos, r, c
+
+
+def _fill(floats, codes, rows, kind, col, text, text_at, eol, out, row_end) -> int:
+    """:func:`_rows_kernel` over ``rows`` rows, the floats it is not certain of written by
+    Python's ``%`` where it stops; returns the bytes written."""
+    r, c, pos = 0, 0, 0
+    while True:
+        pos, r, c = _rows_kernel(floats, codes, rows, kind, col, text, text_at, eol, _P10, out,
+                                 r, c, pos, row_end)  # fmt: skip
+        if r >= rows:
+            return pos
+        hard = _g6(floats[r, col[c]]).encode()  # at most 13 bytes: the room of any float
+        out[pos : pos + len(hard)] = np.frombuffer(hard, np.uint8)
+        pos += len(hard)
+        c += 1
 
 
 def hard_floats(x: np.ndarray) -> np.ndarray:
@@ -189,17 +206,11 @@ def format_g6(x: np.ndarray) -> list[str]:
     """``"%.6g" % v`` of each value (NaN: ``""``) through the kernel (hard ones by Python):
     what :func:`write_rows` writes of a float."""
     x = np.ascontiguousarray(x, float).reshape(-1, 1)
-    hard = np.flatnonzero(hard_floats(x))
-    texts = list(map(_g6, x[hard, 0].tolist()))
-    hard_text, hard_off = _joined(texts)
-    kind = np.zeros(1, np.int8)
-    col = np.zeros(1, np.int64)
-    out = np.empty(x.shape[0] * 16 + len(hard_text) + 1, np.uint8)
-    nothing = np.zeros(1, np.int64)
-    eol = np.array([10], np.uint8)
+    out = np.empty(x.shape[0] * 14 + 1, np.uint8)
     codes = np.zeros((x.shape[0], 0), np.int64)
-    n = _block_kernel(x, codes, kind, col, np.zeros(0, np.uint8), nothing, hard, hard_text,
-                      hard_off, eol, _P10, out)  # fmt: skip
+    n = _fill(x, codes, x.shape[0], np.zeros(1, np.int8), np.zeros(1, np.int64),
+              np.zeros(0, np.uint8), np.zeros(1, np.int64), np.array([10], np.uint8), out,
+              np.zeros(0, np.int64))  # fmt: skip
     return out[:n].tobytes().decode().split("\n")[:-1]
 
 
@@ -288,27 +299,28 @@ def _escaped_all(texts: list[str]) -> list[str]:
     return [escaped(t) for t in texts]
 
 
-def write_rows(fh, floats: list[np.ndarray], texts: list[np.ndarray], order, table, eol: str,
-               rows: int, step: int = 16_384) -> None:  # fmt: skip
-    """Write ``rows`` CSV rows to the binary file ``fh`` in blocks of ``step``: ``order`` lists per
-    column ``(0, i)`` (float column ``floats[i]``) or ``(1, i)`` (codes ``texts[i]`` into
-    ``table``, a :class:`TextTable`)."""
+def write_rows(fh, floats: np.ndarray, codes: np.ndarray, order, table, eol: str,
+               step: int = 16_384, row_end: np.ndarray | None = None) -> None:  # fmt: skip
+    """Write the CSV rows of ``floats`` (rows × float columns) and ``codes`` (rows × text
+    columns, codes into ``table``, a :class:`TextTable`) to the binary file ``fh`` in blocks
+    of ``step`` rows: ``order`` lists per column ``(0, i)`` (float column ``i``) or ``(1, i)``
+    (text column ``i``). The arrays are read in their own layout (a frame's columns, no copy
+    into rows). With ``row_end`` (a row per row), each row's end is noted there: the offset
+    from the first row's start where its line end starts."""
+    rows = codes.shape[0]
     kind = np.array([k for k, _ in order], np.int8)
     col = np.array([i for _, i in order], np.int64)
     text, text_at, longest = table.arrays()
     end = np.frombuffer(eol.encode(), np.uint8)
+    size = min(rows, step) * (14 * floats.shape[1] + (longest + 1) * codes.shape[1] + end.size)
+    out = np.empty(size + 1, np.uint8)
+    none = np.zeros(0, np.int64)
+    done = 0
     for a in range(0, rows, step):
         b = min(rows, a + step)
-        fb = np.empty((b - a, len(floats)))
-        for j, v in enumerate(floats):
-            fb[:, j] = v[a:b]
-        cb = np.empty((b - a, len(texts)), np.int64)
-        for j, v in enumerate(texts):
-            cb[:, j] = v[a:b]
-        hard = np.flatnonzero(hard_floats(fb))
-        hard_text, hard_off = _joined(list(map(_g6, fb.reshape(-1)[hard].tolist())))
-        size = (b - a) * (14 * len(floats) + (longest + 1) * len(texts) + end.size + 1)
-        out = np.empty(size + len(hard_text), np.uint8)
-        n = _block_kernel(fb, cb, kind, col, text, text_at, hard, hard_text, hard_off, end,
-                          _P10, out)  # fmt: skip
+        ends = none if row_end is None else row_end[a:b]
+        n = _fill(floats[a:b], codes[a:b], b - a, kind, col, text, text_at, end, out, ends)
+        if row_end is not None:
+            ends += done
         fh.write(out[:n].data)
+        done += n
