@@ -463,10 +463,11 @@ def _print_build(con, build: dict) -> None:
         con.print(f"  not tested: {tag}: {why}", markup=False)
 
 
-def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0):
+def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0, bounds=None):
     """Consecutive aligned pieces of the unit's tags from the historian; with ``lead`` and a
     ``start``, from ``lead`` samples before it where the historian has them (the rows before
-    ``start`` are the caller's to drop, :func:`~diag_plugin.diagnose.leadin.since`)."""
+    ``start`` are the caller's to drop, :func:`~diag_plugin.diagnose.leadin.since`). The
+    window's end is noted in ``bounds["end"]`` when given (a dict)."""
     import pandas as pd
 
     from historian.store import Historian
@@ -486,6 +487,8 @@ def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0):
             raise UserError(f"--to {t1} is not after --from {t0}")
         if start is not None and lead > 0:  # not before the record: there it starts cold
             t0 = min(t0, max(a, t0 - lead * pd.Timedelta(unit.period)))
+        if bounds is not None:
+            bounds["end"] = t1
         # no quality summary: diagnose does not read it (it cost a quarter of the read's CPU,
         # 50 tags × 200,000 rows: 3.9 → 3.0 s), and in attrs pandas would copy it into every
         # derived frame
@@ -545,13 +548,14 @@ def cmd_diagnose(args) -> int:
             chunk = pd.Timedelta(args.chunk)
         except ValueError:
             raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D") from None
-    start = parse_time(args.start)
+    start, end = parse_time(args.start), parse_time(args.end)
+    bounds: dict = {}  # the window unit_frames read (its end where --to is not given)
     # the history before --from its lags, filter and delays need (lead_in), evaluated, not shown
-    frames = _prefetch(unit_frames(args, unit, start, parse_time(args.end), chunk, lead_in(unit)))
-    # the CSV written piece by piece in a thread of its own while the next piece is replayed
-    # (CsvPieces); the full pieces kept only for a CSV it cannot write so (then as before)
+    frames = _prefetch(unit_frames(args, unit, start, end, chunk, lead_in(unit), bounds))
+    # the CSV written piece by piece in a thread of its own while the next pieces are replayed
+    # (CsvPieces); the pieces kept whole and joined only where it cannot write the file
     stream = CsvPieces(args.csv) if args.csv and CsvPieces.can_write(args.csv) else None
-    full: list = []
+    full: list | None = [] if args.csv and stream is None else None
     try:
         with _one_blas_thread():  # the combined test's small inverses: no thread per core
             # each piece is cut to what the summary reads as soon as it is made: the pieces'
@@ -564,13 +568,16 @@ def cmd_diagnose(args) -> int:
                 if not len(p):
                     continue
                 parts.append(_summary_part(p))
-                if args.csv:
+                if full is not None:
                     full.append(p)
                 if stream is not None:
                     stream.add(p)
+                del p
         if not parts:
             raise UserError("no data in the window")
-        if args.csv and (stream is None or not stream.close()):
+        if stream is not None and not stream.close():
+            full = _replayed(args, start, bounds["end"], chunk)  # pieces unlike each other
+        if full is not None:
             write_csv(concat(full), args.csv)
     finally:
         if stream is not None:
@@ -596,6 +603,19 @@ def cmd_diagnose(args) -> int:
         return 0
     _print_timeline(unit, d, iv, args.csv)
     return 0
+
+
+def _replayed(args, start, end, chunk) -> list:
+    """The whole pieces of the window replayed once more by the unit loaded afresh: for a CSV
+    :class:`CsvPieces` could not write piece by piece (its pieces' columns differ in kind),
+    which the pieces' concatenation gives (never seen in a replay: each piece has the unit's
+    columns, of the same kinds)."""
+    from diag_plugin.diagnose.leadin import lead_in, since
+
+    unit = load_unit(args, args.name)
+    with _one_blas_thread():
+        frames = unit_frames(args, unit, start, end, chunk, lead_in(unit))
+        return [p for f in frames if len(p := since(unit.evaluate(f), start))]
 
 
 @contextlib.contextmanager
@@ -767,7 +787,8 @@ class CsvPieces:
     there when some sample has one), is written from the first piece with one on: the rows
     before it then get its empty field (their ends noted while written). Written to
     ``FILE.part`` beside ``FILE``, moved to it when complete; :meth:`close` says False where
-    the pieces differ otherwise (then the caller writes the CSV as before)."""
+    the pieces differ otherwise (then the caller writes the CSV of the pieces joined). The
+    pieces are not kept: at most two wait for the writer."""
 
     def __init__(self, path: str) -> None:
         from concurrent.futures import ThreadPoolExecutor
@@ -791,7 +812,10 @@ class CsvPieces:
         return (p.is_file() or not p.exists()) and p.parent.is_dir()
 
     def add(self, d) -> None:
-        """Write ``d``'s rows next (in the writing thread)."""
+        """Write ``d``'s rows next (in the writing thread); waits while two pieces are not
+        written yet (at most those held besides the one replayed)."""
+        if len(self.jobs) >= 2:
+            self.jobs.pop(0).result()
         self.jobs.append(self.pool.submit(self._write, d))
 
     def close(self) -> bool:
@@ -912,8 +936,9 @@ def _csv_known(col) -> bool:
 
 
 def _csv_times(index):
-    """The index as ``CSV_DATE`` text (a numpy array of str): UTC times on whole seconds
-    without strftime, any other DatetimeIndex with it; None for another index."""
+    """The index as ``CSV_DATE`` text (a numpy array of str, or of 24-byte strings): UTC times
+    on whole seconds without strftime (:func:`~diag_plugin.diagnose.csvfast.utc_texts`), any
+    other DatetimeIndex with it; None for another index."""
     import numpy as np
     import pandas as pd
 
@@ -921,6 +946,11 @@ def _csv_times(index):
         return None
     per_s = {"s": 1, "ms": 1_000, "us": 1_000_000, "ns": 1_000_000_000}.get(index.unit)
     if str(index.tz) == "UTC" and per_s and not (index.asi8 % per_s).any():
+        from diag_plugin.diagnose.csvfast import utc_texts
+
+        fast = utc_texts(index.asi8 // per_s)  # fixed-width bytes
+        if fast is not None:
+            return fast
         text = np.datetime_as_string(index.tz_localize(None).to_numpy(), unit="s")
         return np.char.add(text, "+0000")
     return np.array(index.strftime(CSV_DATE).tolist(), dtype=str)
