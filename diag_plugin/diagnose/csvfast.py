@@ -284,15 +284,29 @@ _SPECIAL = (",", '"', "\r", "\n")
 _NEEDS = re.compile('[,"\r\n]')
 
 
+def _writer_quotes(text: str) -> str:
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator=os.linesep).writerow([text, ""])
+    return buf.getvalue()[: -1 - len(os.linesep)]
+
+
+#: whether :func:`csv.writer` quotes a field as ``"…"`` with its quotes doubled, as it did
+#: for every text tried here; else each text is written by a writer
+_MINIMAL = all(
+    _writer_quotes(t) == '"' + t.replace('"', '""') + '"'
+    for t in ("a,b", 'say "x"', "two\nlines", "cr\r", '",\r\n"', " a, ")
+)
+
+
 def escaped(text: str) -> str:
     """``text`` as :func:`csv.writer` (the default dialect, rows ended by ``os.linesep`` as
     ``to_csv`` ends them) writes a field of it among others: quoted where it holds a comma,
     a quote or a line break."""
     if not _NEEDS.search(text):
         return text
-    buf = io.StringIO()
-    csv.writer(buf, lineterminator=os.linesep).writerow([text, ""])
-    return buf.getvalue()[: -1 - len(os.linesep)]  # the row's "," and line end
+    if _MINIMAL:  # the writer's QUOTE_MINIMAL with doubled quotes, without a writer a text
+        return '"' + text.replace('"', '""') + '"'
+    return _writer_quotes(text)  # the row's "," and line end dropped
 
 
 class TextTable:
@@ -362,20 +376,27 @@ def _escaped_all(texts: list[str]) -> list[str]:
 
 
 def write_rows(fh, floats: np.ndarray, codes: np.ndarray, order, table, eol: str,
-               step: int = 16_384, row_end: np.ndarray | None = None) -> None:  # fmt: skip
+               step: int = 16_384, row_end: np.ndarray | None = None,
+               spare: list | None = None) -> None:  # fmt: skip
     """Write the CSV rows of ``floats`` (rows × float columns) and ``codes`` (rows × text
     columns, codes into ``table``, a :class:`TextTable`) to the binary file ``fh`` in blocks
     of ``step`` rows: ``order`` lists per column ``(0, i)`` (float column ``i``) or ``(1, i)``
     (text column ``i``). The arrays are read in their own layout (a frame's columns, no copy
     into rows). With ``row_end`` (a row per row), each row's end is noted there: the offset
-    from the first row's start where its line end starts."""
+    from the first row's start where its line end starts. ``spare``, a list, keeps the bytes'
+    buffer for the next call (a new one is a page fault per 4 kB of it)."""
     rows = codes.shape[0]
     kind = np.array([k for k, _ in order], np.int8)
     col = np.array([i for _, i in order], np.int64)
     text, text_at, longest = table.arrays()
     end = np.frombuffer(eol.encode(), np.uint8)
     size = min(rows, step) * (14 * floats.shape[1] + (longest + 1) * codes.shape[1] + end.size)
-    out = np.empty(size + 1, np.uint8)
+    if spare and spare[0].size >= size + 1:
+        out = spare[0]
+    else:
+        out = np.empty(size + 1, np.uint8)
+        if spare is not None:
+            spare[:] = [out]
     none = np.zeros(0, np.int64)
     done = 0
     for a in range(0, rows, step):
