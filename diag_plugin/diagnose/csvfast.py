@@ -71,68 +71,66 @@ def _hard_kernel(x, p10, out):  # pragma: no cover - numba
             out[i] = not _g6_digits(abs(v), p10)[2]
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
-def _digits_back(d, nd, out, last):  # pragma: no cover - numba
-    """The ``nd`` digits of ``d`` (< 2^32) written ending at ``last``; returns the place
-    before them. Unsigned: a signed ``//`` and ``%`` are Python's, rounded down."""
-    u = np.uint32(d)
-    for _ in range(nd):
-        q = u // np.uint32(10)
-        out[last] = np.uint8(48 + (u - q * np.uint32(10)))
-        u = q
-        last -= 1
-    return last
+#: the two digits of 0 … 99 as bytes, side by side
+_D2 = np.array([ord(c) for i in range(100) for c in f"{i:02d}"], np.uint8)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _drop(d, k):  # pragma: no cover - numba
-    """``d // 10**k`` of a ``d`` < 2^32."""
-    u = np.uint32(d)
-    for _ in range(k):
-        u //= np.uint32(10)
-    return np.int64(u)
+def _six(d, out, at):  # pragma: no cover - numba
+    """The six digits of ``d`` (100000 … 999999) at ``out[at:at + 6]``, two by two."""
+    u = np.uint32(d)  # unsigned: a signed // and % are Python's, rounded down
+    a = u // np.uint32(10000)
+    r = u - a * np.uint32(10000)
+    b = r // np.uint32(100)
+    c = r - b * np.uint32(100)
+    out[at] = _D2[2 * a]
+    out[at + 1] = _D2[2 * a + 1]
+    out[at + 2] = _D2[2 * b]
+    out[at + 3] = _D2[2 * b + 1]
+    out[at + 4] = _D2[2 * c]
+    out[at + 5] = _D2[2 * c + 1]
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _put_g6(neg, d, x, out, pos):  # pragma: no cover - numba
     """``%.6g`` of a value that :func:`_g6_digits` gave ``(d, x)`` (its sign ``neg``) at
-    ``pos``; returns the place after it."""
+    ``pos``; returns the place after it. The six digits are written whole and the shown ones
+    kept (trailing zeros dropped, no '#' flag): up to 13 bytes from ``pos`` are written."""
     if neg:
         out[pos] = 45  # -
         pos += 1
-    nd = 6  # the digits shown: trailing zeros dropped (no '#' flag)
+    nd = 6  # the digits shown
     u = np.uint32(d)
     while u % np.uint32(10) == 0:
         u //= np.uint32(10)
         nd -= 1
-    d = np.int64(u)
+    if -4 <= x < 0:  # 0.000ddd
+        z = -x - 1
+        out[pos] = 48
+        out[pos + 1] = 46  # .
+        out[pos + 2] = 48
+        out[pos + 3] = 48
+        out[pos + 4] = 48
+        _six(d, out, pos + 2 + z)
+        return pos + 2 + z + nd
     if 0 <= x < 6:  # fixed notation, x + 1 digits before the point
         whole = x + 1
+        _six(d, out, pos)
         if nd <= whole:  # an integer: the digits, then zeros
-            _digits_back(d, nd, out, pos + nd - 1)
             for i in range(pos + nd, pos + whole):
                 out[i] = 48
             return pos + whole
-        end = pos + nd + 1
-        at = _digits_back(d, nd - whole, out, end - 1)
-        out[at] = 46  # .
-        _digits_back(_drop(d, nd - whole), whole, out, at - 1)  # the integer part
-        return end
-    if -4 <= x < 0:  # 0.000ddd
-        out[pos] = 48
-        out[pos + 1] = 46
-        for i in range(-x - 1):
-            out[pos + 2 + i] = 48
-        end = pos + 1 - x + nd
-        _digits_back(d, nd, out, end - 1)
-        return end
-    end = pos + (nd + 1 if nd > 1 else 1)  # d[.ddddd]e±XX
-    at = _digits_back(d, nd - 1, out, end - 1)
+        for i in range(pos + nd, pos + whole, -1):  # the fraction one place on
+            out[i] = out[i - 1]
+        out[pos + whole] = 46
+        return pos + nd + 1
+    _six(d, out, pos + 1)  # d[.ddddd]e±XX
+    out[pos] = out[pos + 1]
     if nd > 1:
-        out[at] = 46
-        at -= 1
-    out[at] = 48 + _drop(d, nd - 1)
-    pos = end
+        out[pos + 1] = 46
+        pos += nd + 1
+    else:
+        pos += 1
     out[pos] = 101  # e
     out[pos + 1] = 45 if x < 0 else 43
     pos += 2
