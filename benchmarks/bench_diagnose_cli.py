@@ -71,17 +71,18 @@ each at 1,000,000 rows.
 The stage "read" now also counts ``read_grid`` in the reading threads. Round seven (branch
 ``i34-diag100k``: the CSV written piece by piece in a thread of its own while the next pieces
 replay, ``CsvPieces``; the kernel reads the piece's columns in place, finds a value's digits
-once and stops at the rare value Python formats; the times by a compiled date; the first and
-last pieces an eighth of a piece), 3 pairs against ``main`` (26f0f92, a ``git archive``
-snapshot) at a load of 8–12, medians, ``--rows 1000000 --json --csv``: 22.37 → 15.38 CPU s
-(44,710 → 65,030 rows per CPU s); per stage read 4.75 → 4.90, replay 5.36 → 4.55, CSV 8.08 →
-4.25 (now in its own thread), imports 0.68 → 0.69, the rest 3.22 → 0.83 (nothing joined); peak
-RSS 3.13 → 2.25 GB; the same JSON and CSV (md5 ``47b16325…``, ``71b40c4a…``). The stage "csv"
-is the writing thread's CPU, "main thread" the main thread's own (imports, load, replay, its
-part of the rest): 17.29 → 6.06 s. With both cores free a run takes at least the larger of the
-main thread and half the CPU: ~7.7 s, ~130,000 rows/s, against main's ~16.9 s (lead, idle).
-200,000 rows ``--json`` alone: 3.23 → 2.95–3.18 CPU s, the main thread 1.93 → 1.71–1.87 (the
-floor of an idle run: ~1.9 s with the exit, ~105,000 rows/s; main measured 2.05 s idle).
+once, writes them two by two and stops at the rare value Python formats; the times by a
+compiled date; the first and last pieces an eighth of a piece), 3 pairs against ``main``
+(26f0f92, a ``git archive`` snapshot) at a load of 7.3–11.5, medians, ``--rows 1000000``:
+23.07 → 15.60 CPU s (43,340 → 64,090 rows per CPU s); per stage read 5.00 → 5.10, replay
+5.57 → 4.48, CSV 8.54 → 4.09 (now in its own thread), imports 0.69 → 0.74, the rest 3.17 →
+0.90 (nothing joined); peak RSS 3.13 → 2.13 GB; the same JSON and CSV (md5 ``47b16325…``,
+``71b40c4a…``). The stage "csv" is the writing thread's CPU, "main thread" the main thread's
+own (imports, load, replay, its part of the rest): 17.78 → 6.11 s. With both cores free a run
+takes at least the larger of the main thread and half the CPU: ~7.8 s, ~128,000 rows/s,
+against main's 16.89 s measured idle (one branch run at a load of 9.9: 16.7 s wall). 200,000
+rows ``--json`` alone, 5 pairs at a load of 7.5–9.3: 3.22 → 3.18 CPU s, the main thread 1.92
+→ 1.90 (its floor when idle, plus the waits at the ends the ramp shortens; main took 2.05 s).
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
