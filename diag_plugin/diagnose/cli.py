@@ -898,7 +898,8 @@ class CsvPieces:
             self.failed = self.failed or self.why is False
         elif self.why:  # written: this piece's are all empty
             frame["why"] = d.why.rename("why")
-        got = None if self.failed else csv_arrays(frame, self.spare)
+        last = "why" not in frame.columns or frame.columns[-1] == "why"  # its field is added last
+        got = None if self.failed or not last else csv_arrays(frame, self.spare)
         if got is None:
             self.failed = True
             return
