@@ -82,7 +82,9 @@ own (imports, load, replay, its part of the rest): 17.78 → 6.11 s. With both c
 takes at least the larger of the main thread and half the CPU: ~7.8 s, ~128,000 rows/s,
 against main's 16.89 s measured idle (one branch run at a load of 9.9: 16.7 s wall). 200,000
 rows ``--json`` alone, 5 pairs at a load of 7.5–9.3: 3.22 → 3.18 CPU s, the main thread 1.92
-→ 1.90 (its floor when idle, plus the waits at the ends the ramp shortens; main took 2.05 s).
+→ 1.90 (its floor when idle, plus the waits at the ends the ramp shortens; main took 2.05 s);
+with ``--csv``, 3 pairs at 9.1–9.4: 5.55 → 4.41 CPU s (CSV 1.67 → 0.81, main thread 4.20 →
+2.15), the same md5.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
