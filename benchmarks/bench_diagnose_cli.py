@@ -68,7 +68,23 @@ same bytes (md5 ``47b16325…``, ``71b40c4a…``); ``--no-csv``, 5 pairs at a lo
 24.87 → 20.00 CPU s (40,200 → 50,000 rows per CPU s; pairs' median ratio 0.83; the read 13.30
 → 9.47). 100,000 rows per CPU s end to end is not reached: the read and the replay ~7–10 CPU s
 each at 1,000,000 rows.
-The stage "read" now also counts ``read_grid`` in the reading threads.
+The stage "read" now also counts ``read_grid`` in the reading threads. Round seven (branch
+``i34-diag100k``: the CSV written piece by piece in a thread of its own while the next pieces
+replay, ``CsvPieces``; the kernel reads the piece's columns in place, finds a value's digits
+once, writes them two by two and stops at the rare value Python formats; the times by a
+compiled date; the first and last pieces an eighth of a piece), 3 pairs against ``main``
+(26f0f92, a ``git archive`` snapshot) at a load of 7.3–11.5, medians, ``--rows 1000000``:
+23.07 → 15.60 CPU s (43,340 → 64,090 rows per CPU s); per stage read 5.00 → 5.10, replay
+5.57 → 4.48, CSV 8.54 → 4.09 (now in its own thread), imports 0.69 → 0.74, the rest 3.17 →
+0.90 (nothing joined); peak RSS 3.13 → 2.13 GB; the same JSON and CSV (md5 ``47b16325…``,
+``71b40c4a…``). The stage "csv" is the writing thread's CPU, "main thread" the main thread's
+own (imports, load, replay, its part of the rest): 17.78 → 6.11 s. With both cores free a run
+takes at least the larger of the main thread and half the CPU: ~7.8 s, ~128,000 rows/s,
+against main's 16.89 s measured idle (one branch run at a load of 9.9: 16.7 s wall). 200,000
+rows ``--json`` alone, 5 pairs at a load of 7.5–9.3: 3.22 → 3.18 CPU s, the main thread 1.92
+→ 1.90 (its floor when idle, plus the waits at the ends the ramp shortens; main took 2.05 s);
+with ``--csv``, 3 pairs at 9.1–9.4: 5.55 → 4.41 CPU s (CSV 1.67 → 0.81, main thread 4.20 →
+2.15), the same md5.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
@@ -150,7 +166,18 @@ def unit_frames(*a, **k):
         yield x
 cli.unit_frames = unit_frames
 cli.write_csv = timed(cli.write_csv, "csv", False)
+if hasattr(cli, "CsvPieces"):  # the CSV written piece by piece in a thread (round seven)
+    def piece(f):
+        def g(*a, **k):
+            t = time.thread_time()
+            try:
+                return f(*a, **k)
+            finally:
+                st["csv"] = st.get("csv", 0.0) + time.thread_time() - t
+        return g
+    cli.CsvPieces._write = piece(cli.CsvPieces._write)
 rc = dc.main(sys.argv[1:])
+st["main"] = time.thread_time()
 st["total"] = cpu()
 print("STAGES " + json.dumps(st), file=sys.stderr)
 sys.exit(rc)
@@ -273,8 +300,11 @@ def split(st: dict) -> dict[str, float]:
     load, read, replay = st.get("load", 0.0), st["read"], st["replay"]
     csv = st.get("csv", 0.0)
     output = st["total"] - imports - load - read - replay - csv
-    return {"imports": imports, "load": load, "read": read, "replay": replay, "csv": csv,
-            "other": output}  # fmt: skip
+    out = {"imports": imports, "load": load, "read": read, "replay": replay, "csv": csv,
+           "other": output}  # fmt: skip
+    if "main" in st:  # the main thread's own CPU (imports, load, replay, its share of other)
+        out["main thread"] = st["main"]
+    return out
 
 
 def show(label: str, r: dict) -> None:

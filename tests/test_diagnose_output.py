@@ -185,3 +185,77 @@ def test_diagnose_runs_no_full_collection_over_its_start_up(tmp_path):
     assert '"samples": 8640' in res.stdout
     assert full == 0, f"{full} full collections"
     assert frozen > 100_000, frozen
+
+
+def _gappy_valve(tmp_path) -> str:
+    """6 days of the valve with a fault, single missing samples, a gap and Bad samples."""
+    from historian.quality import BAD, GOOD
+    from historian.store import Historian
+
+    onset = pd.Timestamp("2026-01-04T06:00", tz="UTC")
+    frame = simulate_valve(6, seed=8034, faults=[FaultSpec("f14", -0.3, onset)])
+    rng = np.random.default_rng(34)
+    frame = frame.mask(rng.random(frame.shape) < 0.003)
+    frame = frame.drop(frame.index[20_000:21_500])
+    quality = pd.DataFrame(GOOD, index=frame.index, columns=frame.columns)
+    quality.iloc[30_000:30_400, 1] = BAD
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    with Historian.open(url) as h:
+        h.write_samples(frame, quality)
+    return url
+
+
+def test_csv_is_written_while_the_pieces_replay(tmp_path, capsys, monkeypatch):
+    """``--csv`` is written piece by piece in a thread of its own while the next pieces are
+    replayed (issue 34, round seven), not after the last: rows are in the file before the
+    last piece is evaluated; the bytes are those of the pieces joined and written at once
+    (as before), the JSON the same. Read in 12-hour pieces from ``--from``: the first pieces
+    have no ``why`` (the column the rows before it get), the last a fault; a piece the
+    stream cannot write is replayed again and the CSV written joined, no partial file left."""
+    import diag_plugin.diagnose.cli as dcli
+    from diag_plugin.diagnose.unit import Unit
+
+    url = _gappy_valve(tmp_path)
+    csv = tmp_path / "out.csv"
+    base = ["--db", url, "--rulebases", str(SHIPPED), "diagnose", "valve_unit", "--json",
+            "--chunk", "12h", "--from", "2026-01-02T03:00", "--csv", str(csv)]  # fmt: skip
+
+    def run(patch: dict) -> tuple[str, bytes]:
+        with monkeypatch.context() as m:
+            for (obj, attr), value in patch.items():
+                m.setattr(obj, attr, value)
+            assert main(base) == 0
+        return capsys.readouterr().out, csv.read_bytes()
+
+    seen = []  # per evaluate: the bytes of the CSV (or its partial file) so far
+    evaluate = Unit.evaluate
+
+    def spy(self, frame):
+        seen.append(max((p.stat().st_size for p in tmp_path.glob("out.csv*")), default=0))
+        return evaluate(self, frame)
+
+    streamed = run({(Unit, "evaluate"): spy})
+    assert len(seen) >= 8 and seen[-1] > 0  # rows written before the last piece replayed
+    add_why, added = dcli.CsvPieces._add_why, []
+
+    def why_later(self, head):
+        added.append(1)
+        return add_why(self, head)
+
+    assert run({(dcli.CsvPieces, "_add_why"): why_later}) == streamed
+    assert len(added) == 1  # the why column from a later piece on
+    joined = run({(dcli.CsvPieces, "can_write"): staticmethod(lambda path: False)})
+    assert streamed == joined
+    assert '"FAILURE"' in streamed[0]
+    write = dcli.CsvPieces._write
+    count = []
+
+    def fails_second(self, d):
+        count.append(1)
+        if len(count) == 2:
+            self.failed = True  # as where a piece's columns differ in kind
+            return None
+        return write(self, d)
+
+    assert run({(dcli.CsvPieces, "_write"): fails_second}) == joined
+    assert sorted(p.name for p in tmp_path.glob("out.csv*")) == ["out.csv"]

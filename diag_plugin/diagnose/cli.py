@@ -505,10 +505,11 @@ def _print_build(con, build: dict) -> None:
         con.print(f"  not tested: {tag}: {why}", markup=False)
 
 
-def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0):
+def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0, bounds=None):
     """Consecutive aligned pieces of the unit's tags from the historian; with ``lead`` and a
     ``start``, from ``lead`` samples before it where the historian has them (the rows before
-    ``start`` are the caller's to drop, :func:`~diag_plugin.diagnose.leadin.since`)."""
+    ``start`` are the caller's to drop, :func:`~diag_plugin.diagnose.leadin.since`). The
+    window's end is noted in ``bounds["end"]`` when given (a dict)."""
     import pandas as pd
 
     from historian.store import Historian
@@ -528,12 +529,40 @@ def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0):
             raise UserError(f"--to {t1} is not after --from {t0}")
         if start is not None and lead > 0:  # not before the record: there it starts cold
             t0 = min(t0, max(a, t0 - lead * pd.Timedelta(unit.period)))
+        if bounds is not None:
+            bounds["end"] = t1
         # no quality summary: diagnose does not read it (it cost a quarter of the read's CPU,
         # 50 tags × 200,000 rows: 3.9 → 3.0 s), and in attrs pandas would copy it into every
         # derived frame
-        yield from h.iter_windows(unit.tags, t0, t1, unit.period, chunk=chunk, summary=False)
+        for a, b in ramped(t0, t1, unit.period, chunk):
+            yield from h.iter_windows(unit.tags, a, b, unit.period, chunk=chunk, summary=False)
     finally:
         h.close()
+
+
+#: the first and the last piece of a long window are this fraction of a piece (:func:`ramped`)
+RAMP = 8
+
+
+def ramped(t0, t1, period: str, chunk) -> list:
+    """The parts of [t0, t1) read piece by piece: where it is at least two pieces of ``chunk``
+    long, its first and last ``chunk / RAMP`` (whole periods) apart. The replay waits for
+    the first piece's read, and the last's replay (and CSV) follows all reads: a smaller
+    piece at either end is less time with one core idle (200,000 rows of the bench's unit,
+    5 pieces: ~0.3 s of an idle ~2.1 s run); the pieces between are as many as before, the
+    rows the same (the grid of ``t0``, each edge one of its points)."""
+    from historian.sampling import snap_up
+    from historian.times import from_us, period_us, to_us
+
+    p = period_us(period)
+    g0, e = snap_up(to_us(t0), p), to_us(t1)
+    step = max(1, period_us(chunk) // p)  # rows per piece, as Historian.iter_windows
+    rows = max(0, -(-(e - g0) // p))
+    small = step // RAMP
+    if small < 1 or rows < 2 * step:
+        return [(t0, t1)]
+    a, b = from_us(g0 + small * p), from_us(g0 + (rows - small) * p)
+    return [(t0, a), (a, b), (b, t1)]
 
 
 def default_chunk(period: str, tags: int):
@@ -587,22 +616,42 @@ def cmd_diagnose(args) -> int:
             chunk = pd.Timedelta(args.chunk)
         except ValueError:
             raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D") from None
-    start = parse_time(args.start)
+    start, end = parse_time(args.start), parse_time(args.end)
+    bounds: dict = {}  # the window unit_frames read (its end where --to is not given)
     # the history before --from its lags, filter and delays need (lead_in), evaluated, not shown
-    frames = _prefetch(unit_frames(args, unit, start, parse_time(args.end), chunk, lead_in(unit)))
-    with _one_blas_thread():  # the combined test's small inverses: no thread per core
-        # without a CSV each piece is cut to what the summary reads as soon as it is made:
-        # the pieces' residuals and certainties were all held until the end (1,000,000 rows
-        # of the bench's 45 tests: peak RSS 2.9 → 1.9 GB, most of the rest the database
-        # file's pages read through SQLite's memory map; 16.2 → 13.4 CPU s, issue 34)
-        keep = (lambda p: p) if args.csv else _summary_part
-        parts = [keep(since(unit.evaluate(f), start)) for f in frames]
-    parts = [p for p in parts if len(p)]
-    if not parts:
-        raise UserError("no data in the window")
+    frames = _prefetch(unit_frames(args, unit, start, end, chunk, lead_in(unit), bounds))
+    # the CSV written piece by piece in a thread of its own while the next pieces are replayed
+    # (CsvPieces); the pieces kept whole and joined only where it cannot write the file
+    stream = CsvPieces(args.csv) if args.csv and CsvPieces.can_write(args.csv) else None
+    full: list | None = [] if args.csv and stream is None else None
+    try:
+        with _one_blas_thread():  # the combined test's small inverses: no thread per core
+            # each piece is cut to what the summary reads as soon as it is made: the pieces'
+            # residuals and certainties were all held until the end (1,000,000 rows of the
+            # bench's 45 tests: peak RSS 2.9 → 1.9 GB without a CSV, most of the rest the
+            # database file's pages read through SQLite's memory map; 16.2 → 13.4 CPU s)
+            parts = []
+            for f in frames:
+                p = since(unit.evaluate(f), start)
+                if not len(p):
+                    continue
+                parts.append(_summary_part(p))
+                if full is not None:
+                    full.append(p)
+                if stream is not None:
+                    stream.add(p)
+                del p
+        if not parts:
+            raise UserError("no data in the window")
+        if stream is not None and not stream.close():
+            full = _replayed(args, start, bounds["end"], chunk)  # pieces unlike each other
+        if full is not None:
+            write_csv(concat(full), args.csv)
+    finally:
+        if stream is not None:
+            stream.abort()
+    del full
     d = concat(parts)
-    if args.csv:
-        write_csv(d, args.csv)
     iv = d.intervals()
     if args.json:
         from diag_plugin.diagnose.summaryjson import summary_text
@@ -644,6 +693,19 @@ def equipment_off(d) -> dict[str, dict[str, float]]:
             "settling_share": round(settling / n, 6),
         }
     return out
+
+
+def _replayed(args, start, end, chunk) -> list:
+    """The whole pieces of the window replayed once more by the unit loaded afresh: for a CSV
+    :class:`CsvPieces` could not write piece by piece (its pieces' columns differ in kind),
+    which the pieces' concatenation gives (never seen in a replay: each piece has the unit's
+    columns, of the same kinds)."""
+    from diag_plugin.diagnose.leadin import lead_in, since
+
+    unit = load_unit(args, args.name)
+    with _one_blas_thread():
+        frames = unit_frames(args, unit, start, end, chunk, lead_in(unit))
+        return [p for f in frames if len(p := since(unit.evaluate(f), start))]
 
 
 @contextlib.contextmanager
@@ -723,6 +785,16 @@ def write_csv(d, path: str) -> None:
     (1/0, empty when unknown), quality, faults; with a combined test or isolation to tags also
     T2 (the combined statistic), s_T2 (its symptom) and top1, share1, … top3, share3 (the
     tags that explain an alarm, their share of T²)."""
+    write_frame_csv(csv_frame(d), path)
+
+
+#: how :func:`write_csv` writes numbers and times (``DataFrame.to_csv``'s arguments)
+CSV_FLOAT, CSV_DATE = "%.6g", "%Y-%m-%dT%H:%M:%S%z"
+
+
+def csv_frame(d):
+    """The frame :func:`write_csv` writes of the diagnosis ``d``: :meth:`~diag_plugin.
+    diagnose.unit.Diagnosis.to_frame`, ``detected`` as text (1, 0, empty when unknown)."""
     import numpy as np
     import pandas as pd
 
@@ -731,11 +803,7 @@ def write_csv(d, path: str) -> None:
     codes, uniq = pd.factorize(frame["detected"].to_numpy())  # NaN: -1, the last text
     text = np.array([*(str(int(v)) for v in uniq.tolist()), ""], dtype=object)
     frame["detected"] = pd.Series(text[codes], index=frame.index, dtype="str")
-    write_frame_csv(frame, path)
-
-
-#: how :func:`write_csv` writes numbers and times (``DataFrame.to_csv``'s arguments)
-CSV_FLOAT, CSV_DATE = "%.6g", "%Y-%m-%dT%H:%M:%S%z"
+    return frame
 
 
 def write_frame_csv(frame, path: str) -> None:
@@ -745,31 +813,194 @@ def write_frame_csv(frame, path: str) -> None:
     ~46 CPU s through ``%`` and the :mod:`csv` writer). Float64 columns are formatted there;
     integer and text columns and the times are tables of their distinct texts. A frame with
     another kind of column or index is written by pandas itself."""
-    from diag_plugin.diagnose.csvfast import G6, TextTable, write_rows
-
-    index = _csv_times(frame.index)
-    known = CSV_FLOAT == G6 and all(_csv_known(frame[c]) for c in frame.columns)
-    if index is None or not known:
+    got = csv_arrays(frame)
+    if got is None:
         frame.to_csv(path, float_format=CSV_FLOAT, date_format=CSV_DATE)
         return
+    from diag_plugin.diagnose.csvfast import write_rows
+
+    with open(path, "wb") as fh:
+        fh.write(csv_head(frame))
+        write_rows(fh, *got[:4], os.linesep, CSV_ROWS)
+
+
+def csv_head(frame) -> bytes:
+    """The header line :func:`write_frame_csv` writes of ``frame``."""
+    return frame.iloc[:0].to_csv(float_format=CSV_FLOAT, date_format=CSV_DATE).encode("utf-8")
+
+
+def csv_arrays(frame, spare=None):
+    """What :func:`~diag_plugin.diagnose.csvfast.write_rows` writes of ``frame``: the float64
+    columns (rows × columns, a column contiguous), the codes of the times and the other
+    columns into a :class:`~diag_plugin.diagnose.csvfast.TextTable`, the order of the columns,
+    the table, and each column's kind (``f`` float, ``i`` integer, ``t`` text); None where
+    pandas writes the frame (another kind of column or index). ``spare``, a list, keeps the
+    floats' array for the next call of the same shape (a new one is a page fault per 4 kB:
+    ~half the cost of a piece's 47 MB of floats)."""
+    from diag_plugin.diagnose.csvfast import G6, TextTable
+
+    index = _csv_times(frame.index)
+    cols = [col for _, col in frame.items()]  # each column once (~20 µs a Series)
+    if index is None or CSV_FLOAT != G6 or not all(map(_csv_known, cols)):
+        return None
     import numpy as np
 
+    kinds = [_csv_kind(col.dtype) for col in cols]
+    n, nf = len(frame), kinds.count("f")
+    if spare and spare[0].shape == (n, nf):
+        floats = spare[0]
+    else:
+        floats = np.empty((nf, n)).T  # a column's rows together: copied as they are
+        if spare is not None:
+            spare[:] = [floats]
+    codes = np.empty((len(kinds) - nf + 1, n), np.int64).T
     table = TextTable()
-    floats, texts = [], []
+    codes[:, 0] = table.add_times(index)
     order = [(1, 0)]
-    texts.append(table.add_times(index))
-    for c in frame.columns:
-        col = frame[c]
-        if col.dtype == np.float64:
-            order.append((0, len(floats)))
-            floats.append(col.to_numpy())
+    count = [0, 1]  # float and text columns so far
+    for col, kind in zip(cols, kinds, strict=True):
+        k = 0 if kind == "f" else 1
+        order.append((k, count[k]))
+        count[k] += 1
+        if k == 0:
+            floats[:, order[-1][1]] = col.to_numpy()
         else:
-            order.append((1, len(texts)))
-            texts.append(table.add(*_csv_codes(col)))
-    with open(path, "wb") as fh:
-        head = frame.iloc[:0].to_csv(float_format=CSV_FLOAT, date_format=CSV_DATE)
-        fh.write(head.encode("utf-8"))
-        write_rows(fh, floats, texts, order, table, os.linesep, len(frame), CSV_ROWS)
+            codes[:, order[-1][1]] = table.add(*_csv_codes(col))
+    return floats, codes, order, table, kinds
+
+
+def _csv_kind(dt) -> str:
+    import numpy as np
+
+    if dt == np.float64:
+        return "f"
+    return "i" if isinstance(dt, np.dtype) and dt.kind in "iu" else "t"
+
+
+class CsvPieces:
+    """:func:`write_csv` of the concatenated pieces of a replay, written piece by piece in a
+    thread of its own while the next pieces are replayed (issue 34: the CSV of 1,000,000
+    rows was ~9 CPU s on one core after the replay). Each piece's rows are the bytes the
+    concatenation's would be where every piece has the same columns of the same kinds (the
+    formats are value by value); the one column that may come and go, ``why`` (the last,
+    there when some sample has one), is written from the first piece with one on: the rows
+    before it then get its empty field (their ends noted while written). Written to
+    ``FILE.part`` beside ``FILE``, moved to it when complete; :meth:`close` says False where
+    the pieces differ otherwise (then the caller writes the CSV of the pieces joined). The
+    pieces are not kept: at most two wait for the writer."""
+
+    def __init__(self, path: str) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.path = path
+        self.part = f"{path}.part"
+        self.fh = None
+        self.spec: list | None = None  # per column but why: (name, kind) of the first piece
+        #: None: no why yet; False: a piece without a why series (so none); True: written
+        self.why: bool | None = None
+        self.ends: list = []  # while no why is written: each piece's row ends in the file
+        self.head = b""
+        self.failed = False
+        self.spare: list = []  # the floats' array of the last piece, for the next
+        self.buffer: list = []  # the bytes' buffer of the last piece, for the next
+        self.pool = ThreadPoolExecutor(1, thread_name_prefix="diag-csv")
+        self.jobs: list = []
+
+    @staticmethod
+    def can_write(path: str) -> bool:
+        """A regular file or none yet (not a device, a pipe, …: written as before)."""
+        p = Path(path)
+        return (p.is_file() or not p.exists()) and p.parent.is_dir()
+
+    def add(self, d) -> None:
+        """Write ``d``'s rows next (in the writing thread); waits while two pieces are not
+        written yet (at most those held besides the one replayed)."""
+        if len(self.jobs) >= 2:
+            self.jobs.pop(0).result()
+        self.jobs.append(self.pool.submit(self._write, d))
+
+    def close(self) -> bool:
+        """The pieces written (a writing error raised here): True where the CSV is complete
+        at the path, False where the caller must write it."""
+        for job in self.jobs:
+            job.result()
+        self.pool.shutdown()
+        if self.failed or self.fh is None:
+            return False
+        self.fh.close()
+        if Path(self.path).exists():
+            import shutil
+
+            shutil.copymode(self.path, self.part)
+        os.replace(self.part, self.path)
+        self.fh = None
+        return True
+
+    def abort(self) -> None:
+        """Stop and remove the partial file (nothing where :meth:`close` moved it)."""
+        for job in self.jobs:
+            job.cancel()
+        self.pool.shutdown()
+        if self.fh is not None:
+            self.fh.close()
+            self.fh = None
+            Path(self.part).unlink(missing_ok=True)
+
+    def _write(self, d) -> None:
+        if self.failed:
+            return
+        import numpy as np
+
+        from diag_plugin.diagnose.csvfast import write_rows
+
+        frame = csv_frame(d)
+        said = "why" in frame.columns  # some sample of this piece has a why
+        if d.why is None:  # then the concatenation has no why column at all
+            self.failed = self.failed or self.why is True
+            self.why = self.why or False
+        elif said:
+            self.failed = self.failed or self.why is False
+        elif self.why:  # written: this piece's are all empty
+            frame["why"] = d.why.rename("why")
+        last = "why" not in frame.columns or frame.columns[-1] == "why"  # its field is added last
+        got = None if self.failed or not last else csv_arrays(frame, self.spare)
+        if got is None:
+            self.failed = True
+            return
+        spec = [(c, k) for c, k in zip(frame.columns, got[4], strict=True) if c != "why"]
+        if self.spec is not None and spec != self.spec:
+            self.failed = True
+            return
+        if self.fh is None:  # the first piece
+            self.spec = spec
+            self.fh = open(self.part, "wb")  # noqa: SIM115 - closed by close or abort
+            self.head = csv_head(frame)
+            self.fh.write(self.head)
+        elif said and not self.why:
+            self._add_why(csv_head(frame))
+        if said:
+            self.why = True
+        rows = None if self.why else np.empty(len(frame), np.int64)
+        at = self.fh.tell() - len(self.head)
+        write_rows(self.fh, *got[:4], os.linesep, CSV_ROWS, rows, self.buffer)
+        if rows is not None:
+            self.ends.append(rows + at)
+
+    def _add_why(self, head: bytes) -> None:
+        """The rows written so far get the empty ``why`` field at their end, the header its
+        name."""
+        import numpy as np
+
+        self.fh.flush()
+        with open(self.part, "rb") as fh:
+            fh.seek(len(self.head))
+            rows = np.frombuffer(fh.read(), np.uint8)
+        ends = np.concatenate(self.ends)
+        self.fh.seek(0)
+        self.fh.truncate()
+        self.fh.write(head)
+        self.fh.write(np.insert(rows, ends, ord(",")).data)
+        self.head, self.ends, self.why = head, [], True
 
 
 def _csv_codes(col):
@@ -807,8 +1038,9 @@ def _csv_known(col) -> bool:
 
 
 def _csv_times(index):
-    """The index as ``CSV_DATE`` text (a numpy array of str): UTC times on whole seconds
-    without strftime, any other DatetimeIndex with it; None for another index."""
+    """The index as ``CSV_DATE`` text (a numpy array of str, or of 24-byte strings): UTC times
+    on whole seconds without strftime (:func:`~diag_plugin.diagnose.csvfast.utc_texts`), any
+    other DatetimeIndex with it; None for another index."""
     import numpy as np
     import pandas as pd
 
@@ -816,6 +1048,11 @@ def _csv_times(index):
         return None
     per_s = {"s": 1, "ms": 1_000, "us": 1_000_000, "ns": 1_000_000_000}.get(index.unit)
     if str(index.tz) == "UTC" and per_s and not (index.asi8 % per_s).any():
+        from diag_plugin.diagnose.csvfast import utc_texts
+
+        fast = utc_texts(index.asi8 // per_s)  # fixed-width bytes
+        if fast is not None:
+            return fast
         text = np.datetime_as_string(index.tz_localize(None).to_numpy(), unit="s")
         return np.char.add(text, "+0000")
     return np.array(index.strftime(CSV_DATE).tolist(), dtype=str)
