@@ -12,18 +12,19 @@ import numpy as np
 #: the rest are points a switch fell within and a grid averaged (docs/reference/historian.md,
 #: "Aligned windows")
 DISCRETE_SHARE = 0.99
-#: the most levels a discrete state takes (a filter's 0/1/2, a four-step sequence)
-MAX_LEVELS = 4
+#: the most levels a discrete state takes (a filter's 0/1/2). Not 4: SKAB's quantized
+#: pressure (steps of 0.33, four values on a tuning run's 400 samples) would be one
+MAX_LEVELS = 3
 
 
 def discrete_levels(v: np.ndarray) -> tuple[float, ...] | None:
     """The levels of a discrete state, sorted, else None: its two commonest values holding
-    :data:`DISCRETE_SHARE` of its finite values, or its three or four commonest (at most
-    :data:`MAX_LEVELS`) holding that share, each beyond the first two held on two values
-    running (a mode, not where a grid averaged a switch). A filter washed once in 400
-    samples — 0 on 97.5 %, backwash 1 and filter-to-waste 2 on the rest — is one; an analog
-    tag (hundreds of values), a tag cycling through four values without holding one, or a
-    constant (one value) are not."""
+    :data:`DISCRETE_SHARE` of its finite values, or its three commonest
+    (:data:`MAX_LEVELS`) holding that share, the third held on two values running (a mode,
+    not where a grid averaged a switch). A filter washed once in 400 samples — 0 on 97.5 %,
+    backwash 1 and filter-to-waste 2 on the rest — is one; an analog tag (hundreds of
+    values), a quantized one of four values or more, a third value never held, or a constant
+    (one value) are not."""
     x = np.asarray(v, float)
     x = x[np.isfinite(x)]
     vals, counts = np.unique(x, return_counts=True)
