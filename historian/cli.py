@@ -316,7 +316,7 @@ def cmd_tags(args) -> int:
     for col in ("tag", "unit", "range", "samples", "first", "last", "interval", "coverage"):
         table.add_column(col, justify="right" if col in ("samples", "coverage") else "left")
     for col in ("bad", "gaps", "flat", "out of range"):
-        table.add_column(col, justify="right")
+        table.add_column(col, justify="right", no_wrap=col == "flat")
     for r in records:
         lo, hi = to_jsonable(r["lo"]), to_jsonable(r["hi"])
         rng = "" if lo is None and hi is None else f"{_fmt(lo)} .. {_fmt(hi)}"
@@ -331,7 +331,7 @@ def cmd_tags(args) -> int:
             f"{100 * r['coverage']:.1f} %",
             f"{r['bad']:,}",
             f"{r['gaps']} ({r['gap_s'] / 3600:.1f} h)" if r["gaps"] else "0",
-            f"{r['flat']} ({r['flat_s'] / 3600:.1f} h)" if r["flat"] else "0",
+            _flat(r),
             f"{r['out_of_range']:,}",
         )
     console = Console()
@@ -339,6 +339,14 @@ def cmd_tags(args) -> int:
         console = Console(width=160)
     console.print(table)
     return 0
+
+
+def _flat(r: dict) -> str:
+    """The flat column: the flat-lined runs, or a discrete state's longest hold (a filter
+    filtering for 30 h holds 0: a state, not a frozen sensor)."""
+    if to_jsonable(r.get("state")) is not None:
+        return f"holds {r['held']:g} for {r['held_s'] / 3600:.1f} h (a state)"
+    return f"{r['flat']} ({r['flat_s'] / 3600:.1f} h)" if r["flat"] else "0"
 
 
 def natural_key(name: str) -> tuple:

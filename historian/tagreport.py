@@ -6,9 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from .discrete import discrete_levels, levels_text
+from .quality import BAD
 from .sampling import nice_period_us, snap_near
-from .times import period_us, to_us
-from .window import summarize, summary_frame
+from .times import US, period_us, to_us
+from .window import flat_runs, summarize, summary_frame
 
 
 class TagReport:
@@ -35,11 +37,38 @@ class TagReport:
                 s2, e2 = 0, 1
             row = summarize(ts, v, q, s2, e2, own, lo=_num(lo), hi=_num(hi), flat=period_us(flat))
             row["interval_s"] = dt / 1e6 if len(ts) > 2 else np.nan
+            row.update(_state_holds(ts, v, q, period_us(flat)) if row["flat"] else NO_STATE)
             rows[name] = row
         report = summary_frame(rows).reset_index()
-        report["interval_s"] = [rows[n]["interval_s"] for n in report["tag"]]
+        for col in ("interval_s", *NO_STATE):
+            report[col] = [rows[n][col] for n in report["tag"]]
         meta = tags.rename(columns={"name": "tag"}).drop(columns=["id"])
         return meta.merge(report, on="tag", how="left")
+
+
+#: a tag that is no discrete state: what :func:`_state_holds` adds to its row
+NO_STATE = {"state": None, "held": None, "held_s": 0.0}
+
+
+def _state_holds(ts, v, q, flat_us: int) -> dict:
+    """A tag whose values are a few discrete levels (:func:`~historian.discrete.discrete_levels`,
+    the rule ``diag unit build`` finds a discrete state by: a filter's 0/1/2) holding one for
+    hours is a state, not a frozen sensor: its long runs are no flat line. Its levels
+    (``state``, as ``0, 1 or 2``), the value of its longest run (``held``) and how long
+    (``held_s``); ``flat`` and ``flat_s`` 0. Any other tag: :data:`NO_STATE`."""
+    usable = (q < BAD) & np.isfinite(v)
+    levels = discrete_levels(v[usable])
+    if levels is None:
+        return NO_STATE
+    value, dur = flat_runs(ts[usable], v[usable], flat_us)
+    longest = int(np.argmax(dur))
+    return {
+        "state": levels_text(v[usable], levels),
+        "held": float(value[longest]),
+        "held_s": float(dur[longest]) / US,
+        "flat": 0,
+        "flat_s": 0.0,
+    }
 
 
 def _num(x):

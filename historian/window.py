@@ -138,6 +138,17 @@ def _runs(mask: np.ndarray):
     return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
 
 
+def flat_runs(t_u: np.ndarray, v_u: np.ndarray, flat_us: int) -> tuple[np.ndarray, np.ndarray]:
+    """The runs of an unchanged value lasting at least ``flat_us`` µs among usable samples
+    (times ``t_u``, values ``v_u``): each run's value and duration in µs."""
+    if len(v_u) < 2:
+        return np.empty(0), np.empty(0, np.int64)
+    s_idx, e_idx = _runs(v_u[1:] == v_u[:-1])
+    dur = t_u[e_idx] - t_u[s_idx]
+    long = dur >= flat_us
+    return v_u[s_idx[long]], dur[long]
+
+
 def summarize(
     ts,
     value,
@@ -185,16 +196,8 @@ def summarize(
     gap_s = float(d[big].sum()) / US
     stale = bool(n_samples == 0 or (end - ts[-1]) > gap_us)
     # flat-lined stretches among usable values
-    flat_n, flat_s = 0, 0.0
-    if np.count_nonzero(usable) > 1:
-        t_u, v_u = ts[usable], value[usable]
-        same = v_u[1:] == v_u[:-1]
-        s_idx, e_idx = _runs(same)
-        if len(s_idx):
-            dur = t_u[e_idx] - t_u[s_idx]
-            long = dur >= flat_us
-            flat_n = int(np.count_nonzero(long))
-            flat_s = float(dur[long].sum()) / US
+    _, dur = flat_runs(ts[usable], value[usable], flat_us)
+    flat_n, flat_s = len(dur), float(dur.sum()) / US
     oor = 0
     if lo is not None or hi is not None:
         v_u = value[usable]

@@ -165,3 +165,26 @@ def test_a_state_of_three_modes_is_said_with_its_three_values():
     chosen, skipped = choose_tests(f)
     assert "STATE" not in chosen
     assert "(0, 1 or 2:" in skipped["STATE"]
+
+
+def test_a_three_mode_state_washed_once_in_a_short_window_is_a_state():
+    """400 samples of a filter washed once (acceptance-filters.md, the short window): 0 on
+    380, backwash 1 on 12, filter-to-waste 2 on 8. Its two commonest values hold 98 %, under
+    the 99 % two states need, so it was tested… as an input of a pair test. Its three levels,
+    each held, hold all of it: a state. Four levels each held (SKAB's quantized pressure),
+    or values never held, are not one."""
+    from diag_plugin.unitbuild.build import two_states
+
+    state = np.r_[np.zeros(200), np.ones(12), np.full(8, 2.0), np.zeros(180)]
+    assert two_states(state) == (0.0, 1.0, 2.0)
+    rng = np.random.default_rng(5)
+    frame = pd.DataFrame({"F1_STATE": state, "F1_FLOW": 400 + rng.normal(0, 3, 400)})
+    chosen, skipped = choose_tests(frame)
+    assert chosen == ["F1_FLOW"]
+    assert skipped["F1_STATE"].startswith("a discrete state (0, 1 or 2: ")
+    steps = np.repeat(np.arange(4.0), [330, 30, 20, 20])  # four levels, each held
+    assert two_states(steps) is None
+    blips = state.copy()
+    blips[[50, 100, 150]] = 3.0  # a fourth value on single samples: no mode
+    assert two_states(blips) == (0.0, 1.0, 2.0)
+    assert two_states(np.r_[np.zeros(380), [1.0, 2.0] * 10]) is None  # 1, 2 never held

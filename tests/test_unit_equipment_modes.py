@@ -46,3 +46,24 @@ def test_a_mode_tag_runs_at_the_value_given_and_is_stopped_in_every_other_mode()
 def test_a_mode_tag_without_an_end_value_is_refused_saying_which_to_give(text):
     with pytest.raises(UserError, match=r"takes 3 values .*F1_STATE=0 or F1_STATE=2"):
         equipment_conditions(_filter(), [parse_running(text)])
+
+
+def test_a_stopped_piece_is_said_at_the_value_its_run_tag_holds():
+    """Its why named the stop value (``F1_STATE = 1``) also during filter-to-waste (2)."""
+    from diag_plugin.diagnose.equipment import off_mask
+
+    frame = _filter()
+    (piece,), _ = equipment_conditions(frame, [parse_running("F1:F1_STATE=0:F1_FLOW")])
+    v = frame["F1_STATE"].to_numpy()
+    since = np.array([10**6])
+    off, said, _ = off_mask(
+        [piece], [np.array([0])], {"F1_STATE": v}, since, 0, ["F1_FLOW"], len(v)
+    )
+    assert np.array_equal(off[:, 0], v != 0)
+    texts = {text: at for at, text in said}
+    assert set(texts) == {
+        "F1 stopped (F1_STATE = 1): tests F1_FLOW off",
+        "F1 stopped (F1_STATE = 2): tests F1_FLOW off",
+    }
+    assert np.array_equal(texts["F1 stopped (F1_STATE = 2): tests F1_FLOW off"], v == 2)
+    assert np.array_equal(texts["F1 stopped (F1_STATE = 1): tests F1_FLOW off"], v == 1)

@@ -342,3 +342,38 @@ def test_a_fault_through_a_start_is_raised_once_the_start_has_settled(station, s
         raised = np.flatnonzero(_raised(st[k:]))
         assert raised.size and raised[0] < mains, (k, raised[:1], mains)
         assert _raised(st[k + raised[0] :]).mean() > 0.9
+
+
+def test_a_settle_names_the_last_change_of_its_state():
+    """A filter's wash, 0 → 1 (backwash) → 2 (filter-to-waste) → 0, its alarm latching the
+    settle the first change opened (acceptance-filters.md): after the wash the why named
+    ``F3_STATE 0 → 1 at …`` for the rest of the settle, the filter long back at 0. It names
+    the last change and when, and since when the settle is open (its end unchanged)."""
+    from diag_plugin.diagnose.settle import SettleGuard, SettleLoop
+
+    state = SettleLoop("F3_STATE", "F3_STATE", -1, 0.0, 0.0, 0.5, span=(0.0, 2.0), state=True)
+    x = np.r_[np.zeros(30), np.ones(12), np.full(15, 2.0), np.zeros(60)]
+    n = len(x)
+    index = pd.date_range("2026-03-25T09:00Z", periods=n, freq="1min")
+    alarm = np.zeros(n, bool)
+    alarm[33:60] = True  # from the on-delay after the wash began, to its off-delay after it
+    sup_at = {}
+    for pieces in ([n], [45, n - 45]):  # whole, and in two pieces (the state carried)
+        g = SettleGuard([state], 100, 5, 60.0, 2)
+        sups, whys, a = [], [], 0
+        for m in pieces:
+            s, w = g.transform(index[a : a + m], x[a : a + m, None], np.zeros((m, 1)),
+                               alarm[a : a + m], alarm[a : a + m])  # fmt: skip
+            sups.append(s)
+            whys.append(w)
+            a += m
+        sup, why = np.concatenate(sups), np.concatenate(whys)
+        sup_at[len(pieces)] = sup
+        assert why[35] == "F3_STATE 0 → 1 at 2026-03-25T09:30Z: settling after a state change"
+        assert why[50].startswith("F3_STATE 1 → 2 at 2026-03-25T09:42Z")
+        assert why[60] == (
+            "F3_STATE 2 → 0 at 2026-03-25T09:57Z: settling after a state change "
+            "(the settle open since 2026-03-25T09:30Z)"
+        )
+        assert sup[33:60].all() and not sup[:33].any() and not sup[80:].any()
+    assert np.array_equal(sup_at[1], sup_at[2])

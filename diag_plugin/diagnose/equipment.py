@@ -24,11 +24,12 @@ file keeps one table per piece::
 - **Judging** (:meth:`~diag_plugin.diagnose.unit.Unit.evaluate`): where it is stopped its
   tests are off — no symptom, no alarm, not counted as unknown (the unit is NORMAL or in
   alarm by its other tests, never CHECK_FUNCTION for them) — and the sample's why says
-  ``CH2 stopped (Chlr2 Status = 0): tests … off``. Tests of other tags that read its tags
-  stay as they are (their own guards say when an input leaves what they learned). After a
-  start its tests stay off for the unit's ``state_settle_max_s`` (else ``settle_max_s``):
-  its transient; the rest of the unit answers on (a run tag its models read, a ``[build]
-  states`` tag, is no state change of the unit-wide settle guard,
+  ``CH2 stopped (Chlr2 Status = 0): tests … off``, the value the run tag holds there (a
+  filter run at 0 is stopped at backwash, 1, and at filter-to-waste, 2). Tests of other
+  tags that read its tags stay as they are (their own guards say when an input leaves what
+  they learned). After a start its tests stay off for the unit's ``state_settle_max_s``
+  (else ``settle_max_s``): its transient; the rest of the unit answers on (a run tag its
+  models read, a ``[build] states`` tag, is no state change of the unit-wide settle guard,
   :mod:`~diag_plugin.diagnose.settle`).
 - The summaries count its samples off on their own, not as unknown: ``diag unit show``'s
   ``off`` beside ``unknown`` (``[learned]`` ``off``, ``off_equipment``), ``diag diagnose``'s
@@ -60,10 +61,12 @@ class Equipment:
         """Per sample whether it is stopped (a missing run tag: running)."""
         return ~self.rc.runs(values)
 
-    def why(self, tests: Sequence[str] = ()) -> str:
-        """The reason on a sample where it is stopped."""
+    def why(self, tests: Sequence[str] = (), value: float | None = None) -> str:
+        """The reason on a sample where it is stopped, the run tag at ``value`` (its stop
+        value when not given: a filter is stopped at backwash 1 and at filter-to-waste 2)."""
         off = f": tests {', '.join(tests)} off" if tests else ""
-        return f"{self.name} stopped ({self.rc.tag} = {self.rc.stop:g}){off}"
+        at = self.rc.stop if value is None else value
+        return f"{self.name} stopped ({self.rc.tag} = {at:g}){off}"
 
     def as_table(self) -> dict[str, object]:
         """The unit file's ``[equipment.NAME]`` row (module doc)."""
@@ -179,8 +182,8 @@ def off_mask(
         state[stopped, k] = STOPPED
         state[settling, k] = SETTLING
         which = [names[j] for j in cols]
-        if stopped.any():
-            said.append((stopped, e.why(which)))
+        for value in np.unique(v[stopped]):  # the value it is stopped at (1 or 2)
+            said.append((stopped & (v == value), e.why(which, float(value))))
         if settling.any():
             said.append((settling, f"{e.name} started ({e.rc.tag} = {e.rc.run:g}): tests "
                                    f"{', '.join(which)} off while it settles"))  # fmt: skip

@@ -265,6 +265,19 @@ def quiet_parts(unit: Any) -> tuple[int, int, int]:
 
 
 @numba.njit(cache=True)
+def _record(steps, k, step, s_from, s_to, i, s_back, again):  # pragma: no cover - numba
+    """Row ``k`` of the steps found: the loop, from, to, the row it was confirmed at, the
+    samples back it left its hold, and whether it steps inside an open settle (1) or opens
+    one (0)."""
+    steps[k, 0] = step
+    steps[k, 1] = s_from
+    steps[k, 2] = s_to
+    steps[k, 3] = i
+    steps[k, 4] = s_back
+    steps[k, 5] = again
+
+
+@numba.njit(cache=True)
 def _settle_kernel(
     sp,
     r,
@@ -331,11 +344,14 @@ def _settle_kernel(
             g[2] = 0
             g[3] = 0
             g[4] = step
-            steps[k, 0] = step
-            steps[k, 1] = s_from
-            steps[k, 2] = s_to
-            steps[k, 3] = i
-            steps[k, 4] = s_back
+            _record(steps, k, step, s_from, s_to, i, s_back, 0)
+            cur = k
+            k += 1
+        elif step >= 0 and g[0] == 1 and step == g[4]:
+            # the tag the settle is for steps again (a filter's backwash 1, then
+            # filter-to-waste 2, then filtering 0) without reopening it (latched, or the unit
+            # in alarm lately): the settle keeps its end, its why names this latest step
+            _record(steps, k, step, s_from, s_to, i, s_back, 1)
             cur = k
             k += 1
         if g[0] == 1:
@@ -402,6 +418,7 @@ class SettleGuard:
         # open, elapsed, quiet, latched, loop, last alarm, samples since the last alarm
         self.g = np.array([0, 0, 0, 0, 0, 0, NEVER], np.int64)
         self.text = ""  # the open settle's why
+        self.opened = ""  # when the open settle's step was
 
     def transform(
         self,
@@ -419,7 +436,7 @@ class SettleGuard:
         n = len(index)
         sup = np.zeros(n, np.bool_)
         sid = np.full(n, -1, np.int64)
-        steps = np.zeros((n, 5))
+        steps = np.zeros((n, 6))
         r = np.asarray(r, float).reshape(n, len(self.loops))
         if self.free.any():  # a hand valve, a state: no loop test, the unit's tests end it
             r = np.where(self.free, 0.0, r)
@@ -437,16 +454,23 @@ class SettleGuard:
             # the sample the set-point left its hold (confirmed once held again)
             at = _when(index[int(steps[q, 3])] - int(steps[q, 4]) * self.period)
             what = SAYS.get(lp.kind, f"loop {lp.pv} settling")
+            again = ""
+            if steps[q, 5]:  # a later step of the same tag inside the open settle
+                again = f" (the settle open since {self.opened})" if self.opened else ""
+            else:
+                self.opened = at
             texts.append(f"{lp.sp if lp.kind == 'loop' else lp.pv} {steps[q, 1]:g} → "
-                         f"{steps[q, 2]:g} at {at}: {what}")  # fmt: skip
+                         f"{steps[q, 2]:g} at {at}: {what}{again}")  # fmt: skip
         if k:
             self.text = texts[-1]
         if not self.g[0]:
             self.text = ""
+            self.opened = ""
         why = np.full(n, "", dtype=object)
         rows = np.flatnonzero(sup)
         if rows.size:
-            why[rows] = np.asarray(texts, dtype=object)[sid[rows] + 1]
+            # -2 (the settle carried in): its text as carried, texts[0]; step k: texts[k + 1]
+            why[rows] = np.asarray(texts, dtype=object)[np.maximum(sid[rows] + 1, 0)]
         return sup, why
 
     def steps(self, sp: np.ndarray) -> list[tuple[int, float, float, int]]:
@@ -455,7 +479,7 @@ class SettleGuard:
         g = SettleGuard(self.loops, self.max_n, self.quiet_n, self.period.total_seconds())
         n = len(sp)
         m = len(self.loops)
-        out = np.zeros((n, 5))
+        out = np.zeros((n, 6))
         sup, sid = np.zeros(n, np.bool_), np.full(n, -1, np.int64)
         no = np.zeros(n, np.bool_)
         one = np.ones(m, np.int64)
@@ -467,6 +491,8 @@ class SettleGuard:
             one, 1, one, sup, sid, out,
         )  # fmt: skip
         for q in range(k):
+            if out[q, 5]:
+                continue  # a step inside an open settle (none here: nothing latches)
             row = int(out[q, 3]) - int(out[q, 4])  # where it left its hold
             found.append((int(out[q, 0]), float(out[q, 1]), float(out[q, 2]), row))
         return found
@@ -482,6 +508,7 @@ class SettleGuard:
             "moved": self.moved.tolist(),
             "g": self.g.tolist(),
             "text": self.text,
+            "opened": self.opened,
         }
 
     def load_state(self, state: dict[str, Any]) -> None:
@@ -493,6 +520,7 @@ class SettleGuard:
         self.moved = np.asarray(state["moved"], np.int64)
         self.g = np.asarray(state["g"], np.int64)
         self.text = str(state["text"])
+        self.opened = str(state.get("opened", ""))  # states saved before it: none
 
 
 def _when(ts: Any) -> str:

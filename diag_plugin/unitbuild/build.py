@@ -8,7 +8,8 @@ hand-build:
    constant over the window, tags with too few good samples (:data:`MIN_GOOD_SHARE`),
    set-points (a name ending ``.SP`` or a description saying set-point: a set-point is the
    operator's choice, not a consequence of the process, so a model of it detects nothing),
-   discrete states (:func:`two_states`: a pump's run feedback; candidate inputs).
+   discrete states (:func:`~historian.discrete.discrete_levels`: a pump's run feedback, a
+   filter's 0/1/2 state; candidate inputs).
 2. **Inputs** (:func:`select_inputs`): greedy forward selection of up to
    :data:`MAX_INPUTS` inputs with the workbench's own held-out scoring
    (:class:`~diag_plugin.selection.scoring.HeldOutScorer`, what ``diag explain`` ranks
@@ -106,6 +107,7 @@ from diag_plugin.unitbuild.loops import (
 )
 from diag_plugin.unitbuild.parallel import DaskPool, default_workers, map_tests, one_blas_thread
 from diag_plugin.unitbuild.read import read_sampling, read_window
+from historian.discrete import discrete_levels, levels_text
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
 
@@ -142,10 +144,6 @@ OUTPUT_NAMES = ("OUT", "OP", "MV", "CO", "OUTPUT")
 LOOP_METHOD = "track"
 #: a tag needs good samples in this share of the window's grid points to be tested
 MIN_GOOD_SHARE = 0.5
-#: a tag whose two commonest values hold this share of its good grid points is a discrete
-#: state (a pump's run feedback, a limit switch): the rest are grid points a switch fell
-#: within and the grid averaged (docs/reference/historian.md, "Aligned windows")
-DISCRETE_SHARE = 0.99
 #: how ``[build.skipped]`` says a tag is a discrete state
 DISCRETE_WHY = "a discrete state"
 #: how :func:`choose_tests` begins the reason of a tag constant over the window
@@ -384,31 +382,19 @@ def combos_note(unit: Any, tags: Sequence[str], seen: Sequence[str], held_s: flo
     )
 
 
-def two_states(v: np.ndarray) -> tuple[float, float] | None:
-    """The two values of a discrete state (:data:`DISCRETE_SHARE` of ``v`` on them), else
-    None. Not tested by default: a model of an on/off feedback from the current it switches
-    reproduces it exactly, its residual is zero and no threshold can be learned; what the
-    state does to the process is seen by the tests that read it."""
-    vals, counts = np.unique(v, return_counts=True)
-    if len(vals) < 2:
-        return None
-    top = np.argsort(counts)[-2:]
-    if counts[top].sum() < DISCRETE_SHARE * len(v):
-        return None
-    lo, hi = sorted(float(x) for x in vals[top])
-    return lo, hi
+def two_states(v: np.ndarray) -> tuple[float, ...] | None:
+    """The levels of a discrete state (:func:`~historian.discrete.discrete_levels`: its two
+    commonest values, or three, the third held, holding 99 % of ``v``), else None. Not tested
+    by default: a model of an on/off feedback from the current it switches reproduces it
+    exactly, its residual is zero and no threshold can be learned; what the state does to the
+    process is seen by the tests that read it."""
+    return discrete_levels(v)
 
 
-def held_values_text(v: np.ndarray, two: tuple[float, float]) -> str:
-    """The values a discrete state held, for the build's note: :func:`two_states`' two and
-    any other held on two grid points running (a filter's third mode, filter-to-waste, 0.6 %
-    of the window: ``0, 1 or 2``); a value on single grid points is where the grid averaged
-    a switch (0.5) and is left out."""
-    held = set(two)
-    if len(v) > 1:
-        held |= {float(x) for x in v[1:][v[1:] == v[:-1]]}
-    vals = [f"{x:g}" for x in sorted(held)]
-    return ", ".join(vals[:-1]) + f" or {vals[-1]}"
+def held_values_text(v: np.ndarray, levels: tuple[float, ...]) -> str:
+    """The values a discrete state held, for the build's note
+    (:func:`~historian.discrete.levels_text`: ``0, 1 or 2``)."""
+    return levels_text(v, levels)
 
 
 def same_measurement(
@@ -1366,8 +1352,16 @@ def _build_unit(
         kept.append(ch)
     if plan.short:
         kept.extend(joint_tests(kept, ctx, taken, notes))
-        # a hand valve, a declared disturbance: no test
-        blind = [t for t in skipped if t not in {m.tag for m in hand} and t not in driven]
+        # a hand valve, a declared disturbance: no test; a discrete state is a mode of the
+        # plant, never a tag at fault: no pair test watches it (a filter's state washed once
+        # in 400 samples, acceptance-filters.md)
+        blind = [
+            t
+            for t, why in skipped.items()
+            if t not in {m.tag for m in hand}
+            and t not in driven
+            and not why.startswith(DISCRETE_WHY)
+        ]
         kept.extend(blind_pair_tests(kept, blind, plan, ctx, taken))
     t1 = time.perf_counter()
     kept.extend(

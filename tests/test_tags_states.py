@@ -1,0 +1,54 @@
+"""``diag tags`` and a discrete state held for hours (issue 34, acceptance-filters.md): a
+filter's 0/1/2 state that holds 0 for 30 h between washes was listed as flat-lined
+(``15 (498.6 h)``), as a frozen transmitter is. It is a state; a frozen analog sensor is still
+flat-lined."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+
+from historian import Historian
+
+T0 = pd.Timestamp("2026-03-02T00:00:00Z")
+
+
+def _filter_bank(n_days: float = 3.0, seed: int = 4) -> pd.DataFrame:
+    """A filter at 1 min: filtering (0) for 30 h, backwash (1) 12 min, filter-to-waste (2)
+    15 min, again; its effluent flow, a noisy analog reading, frozen for 2 h on day 2."""
+    rng = np.random.default_rng(seed)
+    n = int(n_days * 1440)
+    state = np.zeros(n)
+    for start in range(600, n, 30 * 60 + 27):
+        state[start : start + 12] = 1.0
+        state[start + 12 : start + 27] = 2.0
+    flow = np.round(400 + 20 * np.sin(np.arange(n) / 90) + rng.normal(0, 3, n), 2)
+    flow[state > 0] = np.round(rng.normal(0, 3, int((state > 0).sum())), 2)
+    flow[2000:2120] = flow[1999]  # the transmitter freezes for 2 h
+    idx = T0 + pd.to_timedelta(np.arange(n), unit="min")
+    return pd.DataFrame({"F1_STATE": state, "F1_FLOW": flow}, index=idx)
+
+
+def test_a_state_held_for_hours_is_no_flat_line(tmp_path, capsys):
+    from diag_plugin.cli import main
+
+    db = f"sqlite:///{tmp_path / 'h.db'}"
+    with Historian(db) as h:
+        h.write_samples(_filter_bank())
+    assert main(["--db", db, "tags", "--json"]) == 0
+    rows = {r["tag"]: r for r in json.loads(capsys.readouterr().out)}
+    st, fl = rows["F1_STATE"], rows["F1_FLOW"]
+    assert st["flat"] == 0 and st["flat_s"] == 0, st
+    assert st["state"] == "0, 1 or 2" and st["held"] == 0
+    assert 29.5 * 3600 <= st["held_s"] <= 30.5 * 3600, st["held_s"]
+    # the frozen analog reading is still flat-lined, and no state
+    assert fl["flat"] == 1 and fl["flat_s"] == 120 * 60, fl
+    assert fl["state"] is None
+    assert main(["--db", db, "tags"]) == 0
+    table = {
+        ln.split("│")[1].strip(): ln for ln in capsys.readouterr().out.splitlines() if "│" in ln
+    }
+    assert "holds 0 for 30.0 h (a state)" in table["F1_STATE"], table["F1_STATE"]
+    assert "1 (2.0 h)" in table["F1_FLOW"], table["F1_FLOW"]
