@@ -106,6 +106,28 @@ def test_fault_free_nights_are_not_running_never_an_alarm(fan, seed):
     assert fail.mean() < 0.02, fail.mean()
 
 
+def test_a_stopped_sample_is_said_at_the_value_its_run_tag_holds(fan):
+    """The why named the stop value (``FAN_RUN = 0``) whatever the run tag held: a fan locked
+    out for maintenance (its feedback 2, nearer the stop than the run) is said at 2; an analog
+    run tag's many values keep the stop value (one text, not one per value)."""
+    _, unit = fan
+    f = _judged(7)
+    run = f["FAN_RUN"].to_numpy().copy()
+    stopped = run == 0
+    night = np.flatnonzero(stopped)[: stopped.sum() // 3]
+    run[night] = -1.0  # locked out: stopped, nearer 0 than 1
+    d = unit.reset().evaluate(f.assign(FAN_RUN=run))
+    why = d.why.to_numpy()
+    assert (d.status.to_numpy()[stopped] == NE107.CHECK_FUNCTION).all()
+    assert (why[night] == "not running (FAN_RUN = -1): judged only while it runs").all()
+    rest = np.setdiff1d(np.flatnonzero(stopped), night)
+    assert (why[rest] == WHY).all()
+    rng = np.random.default_rng(0)
+    analog = np.where(stopped, rng.uniform(-0.3, 0.3, len(run)), 1.0)  # a current near 0
+    d = unit.reset().evaluate(f.assign(FAN_RUN=analog))
+    assert (d.why.to_numpy()[stopped] == WHY).all()
+
+
 @pytest.mark.parametrize("seed", [7, 8])
 @pytest.mark.parametrize(
     ("fault", "named"), [("belt_slip", {"FAN_SPD", "DP"}), ("flow_bias", {"FLOW"})]

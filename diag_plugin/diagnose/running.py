@@ -44,6 +44,10 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+#: at most this many distinct values of the run tag over a stopped stretch are each named in
+#: its why (a discrete state's levels); more (an analog run tag): the stop value
+WHY_LEVELS = 4
+
 
 @dataclass(frozen=True)
 class RunCondition:
@@ -64,9 +68,24 @@ class RunCondition:
             stopped = np.abs(x - self.stop) < np.abs(x - self.run)
         return ~stopped
 
-    def why(self) -> str:
-        """CHECK_FUNCTION's why on a stopped sample."""
-        return f"not running ({self.tag} = {self.stop:g}): judged only while it runs"
+    def why(self, value: float | None = None) -> str:
+        """CHECK_FUNCTION's why on a stopped sample, the run tag at ``value`` (its stop value
+        when not given)."""
+        at = self.stop if value is None else value
+        return f"not running ({self.tag} = {at:g}): judged only while it runs"
+
+    def whys(self, values: np.ndarray) -> str | np.ndarray:
+        """The why of each stopped sample of ``values`` (the run tag's): the value it holds
+        where the tag takes a few levels (a filter stopped at backwash, 1, and at
+        filter-to-waste, 2), else the stop value; one text where all say the same."""
+        x = np.asarray(values, float)
+        levels = np.unique(x[np.isfinite(x)])
+        if len(levels) <= 1 or len(levels) > WHY_LEVELS:
+            return self.why(levels[0] if len(levels) == 1 else None)
+        out = np.full(len(x), self.why(), dtype=object)
+        for v in levels:
+            out[x == v] = self.why(float(v))
+        return out
 
     def as_table(self) -> dict[str, object]:
         """The unit file's ``[running]`` row (module doc)."""

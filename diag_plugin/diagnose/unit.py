@@ -894,7 +894,7 @@ class Unit:
                 since = None if self.settle is None else int(self.settle.g[6])
             d = self._evaluate(masked.iloc[a:b])
             if not on:
-                d = not_running(d, rc.why())
+                d = not_running(d, rc.whys(frame[col].to_numpy(float)[a:b]))
                 self._last_alarm = None
                 if since is not None:  # the time stopped is no quiet time: an alarm at the
                     # last stop keeps the next start's settle shut (a fault is not hidden)
@@ -1322,9 +1322,10 @@ def broken_status(name: str, ts: pd.Timestamp, message: str) -> UnitStatus:
     )
 
 
-def not_running(d: Diagnosis, why: str) -> Diagnosis:
+def not_running(d: Diagnosis, why: str | np.ndarray) -> Diagnosis:
     """``d`` (a piece where the unit is stopped, :mod:`~.running`) as not judged: no test's
-    symptom, no alarm, no fault, no tag named; CHECK_FUNCTION with ``why``."""
+    symptom, no alarm, no fault, no tag named; CHECK_FUNCTION with ``why`` (one text, or
+    one per sample)."""
     n = len(d.status)
     idx = d.status.index
     top = None
@@ -1340,7 +1341,7 @@ def not_running(d: Diagnosis, why: str) -> Diagnosis:
         status=pd.Series(np.full(n, NE107.CHECK_FUNCTION, np.int8), index=idx),
         faults=pd.Series(np.full(n, "", dtype=object), index=idx),
         top=top,
-        why=pd.Series(np.full(n, why, dtype=object), index=idx),
+        why=pd.Series(np.full(n, why, dtype=object) if isinstance(why, str) else why, index=idx),
     )
 
 
