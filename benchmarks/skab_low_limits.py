@@ -18,7 +18,8 @@ over its limit, after the on/off delays, their maximum). Printed:
    unknown (an input past its span), its largest value over its threshold on the run's normal
    and fault samples, and ``g``: the combined T² over its limit per squared ratio of that test
    alone (``(threshold / scale)² · (S⁻¹)ᵢᵢ / limit``), so ``√(λ / g)`` is the ratio the test
-   must reach for T² to pass a matched limit ``λ``;
+   must reach for T² to pass a matched limit ``λ``; with the unit's T² threshold (its tests in
+   T², the threshold over χ²'s 0.999 quantile of as many degrees of freedom);
 3. per tuning fault the median over its samples of the unit's largest delayed statistic (and
    which), of its T², and of PCA's and DPCA's scores, beside the limits.
 
@@ -66,6 +67,7 @@ def gains(unit) -> dict[str, float]:
 
 def main(argv: list[str] | None = None) -> int:
     from _common import add_scratch_args, scratch
+    from scipy.stats import chi2
     from skab_matched_tuning import build_run, cpu_seconds
 
     from diag_plugin.bench.matched import calibrate, delayed_score, method_score, tail_levels
@@ -92,11 +94,14 @@ def main(argv: list[str] | None = None) -> int:
             on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
             names[run.name] = [str(n) for n in one.pop("unit_names")]
             stats[run.name] = one
-            g = gains(unit)
+            cm = unit.cmodel
+            inside = len(cm.scale) - (0 if cm.outside is None else int(np.sum(cm.outside)))
             rows[run.name] = {
                 "tests": {t.test: t for t in res.tests},
                 "skipped": dict(res.skipped),
-                "gain": g,
+                "gain": gains(unit),
+                "high": float(cm.high),
+                "inside": inside,
             }
     cpu = cpu_seconds() - cpu0
 
@@ -155,6 +160,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     for r in cal_runs:
         row = rows[r.name]
+        print(
+            f"  {r.name:16s} T² of {row['inside']} tests, threshold {row['high']:.4g} "
+            f"({row['high'] / chi2.ppf(0.999, row['inside']):.3g} × χ²'s 0.999 quantile)"
+        )
         after = np.arange(len(r.frame)) >= r.learn
         lab = r.labels if r.labels is not None else np.zeros(len(r.frame))
         for tag in SLOW:

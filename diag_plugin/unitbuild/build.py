@@ -1328,13 +1328,19 @@ def _build_unit(
         )
 
     kept: list[TestChoice] = []
+    # the tags no test reads a relation of, in order: those left untested, then a short
+    # window's slow tags tested only on their level
+    untested = list(skipped)
     for ch in choices:
         if not ch.steps and plan.short and not ch.tracks:
             why = short.level_test(ch, ctx.column(ch.tag), MIN_GAIN)
-            if why:
+            if why:  # a slow level test (True) reads no relation; a reason: no test
+                untested.append(ch.tag)
+            if isinstance(why, str):
                 skipped[ch.tag] = why
                 continue
         elif not ch.steps:
+            untested.append(ch.tag)
             skipped[ch.tag] = (
                 "no other tag predicts it on held-out data (best cut of the error under "
                 f"{MIN_GAIN:.0%}): nothing to model it from"
@@ -1343,8 +1349,9 @@ def _build_unit(
         kept.append(ch)
     if plan.short:
         kept.extend(joint_tests(kept, ctx, taken, notes))
-        # a hand valve, a declared disturbance: no test
-        blind = [t for t in skipped if t not in {m.tag for m in hand} and t not in driven]
+        # a hand valve, a declared disturbance: no test; a slow level test does not see the
+        # common move of a slow pair whose other tag's test reads it (a pair test does)
+        blind = [t for t in untested if t not in {m.tag for m in hand} and t not in driven]
         kept.extend(blind_pair_tests(kept, blind, plan, ctx, taken))
     t1 = time.perf_counter()
     kept.extend(
