@@ -73,3 +73,43 @@ def test_a_slow_tag_no_other_predicts_gets_a_level_test_out_of_t2(tmp_path, seed
     wild[:, unit.tests.index("TS")] = 1e6
     t2 = unit.cmodel.evaluate(r, shares=False)[0]
     np.testing.assert_array_equal(unit.cmodel.evaluate(wild, shares=False)[0], t2)
+
+
+def test_the_slow_level_test_runs_live_and_stays_out_after_unit_accept(tmp_path):
+    """The live plug-in, batched and one by one, gives the replay's statuses with the slow
+    level test in the unit; ``diag unit accept`` of a later fault-free hour keeps it out of
+    ``T²`` (``T²`` unmoved by its residual at every operating point)."""
+    from diag_plugin.diagnose.plant import Plant
+    from diag_plugin.diagnose.unit import Unit
+    from tests.test_any_plant_tour import diag, fmt, import_csv
+
+    frame = loop(1, ROWS + HOT_FROM + 600)
+    g, text, unit = build_short_unit(tmp_path, frame.iloc[:ROWS])
+    assert unit.file.test("TS").combined is False  # fails on main: no test of TS
+    rb = [unit.file.path]
+    fast = Plant.load(rb, tmp_path / "rb")
+    slow = Plant(Plant.load(rb, tmp_path / "rb").units, batched=False)
+    assert fast.fast == ["u"] and slow.slow == ["u"]
+    part = frame.iloc[ROWS + HOT_FROM - 100 : ROWS + HOT_FROM + 200]
+    replay = unit.reset().evaluate(part)
+    for ts, row in part.iterrows():
+        values = row.to_dict()
+        (x,), (y,) = fast.cycle(ts, values), slow.cycle(ts, values)
+        assert (x.status, x.faults, x.message) == (y.status, y.faults, y.message), ts
+    assert x.status == replay.status.iloc[-1]  # in alarm on the hotter supply, as replayed
+    later = loop(5, 3600, hot=0.0)
+    later.index = pd.date_range("2026-05-04 12:00", periods=len(later), freq="1s", name="ts")
+    import_csv(g, later, tmp_path / "later.csv")
+    rc, out = diag(g, "unit", "accept", "u", "--from", fmt(later.index[0]),
+                   "--to", fmt(later.index[-1]))  # fmt: skip
+    assert rc == 0, out
+    acc = Unit.load(unit.file.path, tmp_path / "rb")
+    assert acc.file.test("TS").combined is False
+    r = acc.reset().evaluate(later).residuals.to_numpy()
+    wild = r.copy()
+    wild[:, acc.tests.index("TS")] = 1e6
+    point = acc.cmodel.point_of(later)
+    np.testing.assert_array_equal(
+        acc.cmodel.evaluate(wild, point, shares=False)[0],
+        acc.cmodel.evaluate(r, point, shares=False)[0],
+    )
