@@ -349,7 +349,8 @@ def level_test(ch, y: np.ndarray, min_gain: float) -> bool | str:
     through the faults the other tests see, SKAB's tuning runs, rounds 8 and 13) and judged
     on its own threshold, which Student's t of those few values widens (issue 34, H1: a slow
     tag's own excursion — SKAB's fluid temperature in the tuning run other/10 — was seen by
-    no test). In between the tag is left untested."""
+    no test). In between the tag is left untested, and the build drops a slow level test of
+    a tag another test reads (:func:`~diag_plugin.unitbuild.build.unread_slow_levels`)."""
     from diag_plugin.models.series import effective_samples
 
     n = effective_samples(y)
