@@ -65,6 +65,44 @@ def dpca_weight(run, cols: list[str], on: int, off: int, blocks: int = 5) -> flo
     return float(pca_fit([head], cols, DPCA_LAGS, 0.85).t2_limit_ / thr)
 
 
+def cpu_seconds() -> float:
+    """CPU seconds so far, the process's and its finished forked workers' (user + system)."""
+    return sum(
+        u.ru_utime + u.ru_stime
+        for u in (resource.getrusage(resource.RUSAGE_SELF),
+                  resource.getrusage(resource.RUSAGE_CHILDREN))
+    )  # fmt: skip
+
+
+def build_run(run, folder, cols: list[str]):
+    """One SKAB run as the bench builds and scores it: the unit built on the run's first
+    ``run.learn`` samples (in ``folder``), PCA and DPCA (two lags) on the same rows. Returns
+    the build's result, the unit and the raw statistics (``unit`` with ``unit_names``, ``PCA``,
+    ``DPCA``: each statistic over its limit, per sample of the whole run)."""
+    from diag_plugin.bench.publicbench import (
+        DPCA_LAGS,
+        _sample_grid,
+        pca_fit,
+        pca_statistics,
+        unit_statistics,
+    )
+    from diag_plugin.bench.publicplants import SKAB_TAGS
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.unitbuild.build import build_unit
+
+    info = {t: {"unit": u, "description": d} for t, (u, d) in SKAB_TAGS.items()}
+    grid = _sample_grid(run.frame, "1s")
+    res = build_unit("skab", grid.iloc[: run.learn], folder=folder, period="1s", tag_info=info,
+                     force=True)  # fmt: skip
+    unit = Unit.load(res.path, folder)
+    raw = {"unit": unit_statistics(unit, grid)[0],
+           "unit_names": np.array(list(unit.tests) + ["T2"])}  # fmt: skip
+    head = run.frame.iloc[: run.learn]
+    for m, lags in (("PCA", 0), ("DPCA", DPCA_LAGS)):
+        raw[m] = pca_statistics(pca_fit([head], cols, lags, 0.85), run.frame)[0]
+    return res, unit, raw
+
+
 def main(argv: list[str] | None = None) -> int:
     from _common import add_scratch_args, scratch
 
@@ -75,17 +113,8 @@ def main(argv: list[str] | None = None) -> int:
         method_score,
         rates,
     )
-    from diag_plugin.bench.publicbench import (
-        DPCA_LAGS,
-        _sample_grid,
-        pca_fit,
-        pca_statistics,
-        skab_metrics,
-        unit_statistics,
-    )
-    from diag_plugin.bench.publicplants import SKAB_TAGS, load_skab
-    from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.unitbuild.build import build_unit
+    from diag_plugin.bench.publicbench import skab_metrics
+    from diag_plugin.bench.publicplants import load_skab
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--targets", default="0.02,0.05,0.1,0.25", help="shares of samples")
@@ -132,7 +161,6 @@ def main(argv: list[str] | None = None) -> int:
 
     plant = load_skab()
     cols = list(plant.tags)
-    info = {t: {"unit": u, "description": d} for t, (u, d) in SKAB_TAGS.items()}
     raw: dict[str, np.ndarray] = {}
     for f in args.load:
         raw.update(np.load(f))
@@ -142,28 +170,13 @@ def main(argv: list[str] | None = None) -> int:
     scores: dict[str, dict[str, np.ndarray]] = {"unit": {}, "PCA": {}, "DPCA": {}}
     on = off = None
 
-    def cpu_now() -> float:
-        return sum(
-            u.ru_utime + u.ru_stime
-            for u in (resource.getrusage(resource.RUSAGE_SELF),
-                      resource.getrusage(resource.RUSAGE_CHILDREN))
-        )  # fmt: skip
-
-    cpu = cpu_now()
+    cpu = cpu_seconds()
     with scratch("skab_tuning_", args.dir) as work:
         for k, run in enumerate(runs):  # the tuning runs are among the calibration runs
-            grid = _sample_grid(run.frame, "1s")
             if f"{run.name}|unit" not in raw:
-                res = build_unit("skab", grid.iloc[: run.learn], folder=work / f"run{k}",
-                                 period="1s", tag_info=info, force=True)  # fmt: skip
-                unit = Unit.load(res.path, work / f"run{k}")
+                _, unit, one = build_run(run, work / f"run{k}", cols)
                 on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
-                raw[f"{run.name}|unit"] = unit_statistics(unit, grid)[0]
-                raw[f"{run.name}|unit_names"] = np.array(list(unit.tests) + ["T2"])
-                head = run.frame.iloc[: run.learn]
-                for m, lags in (("PCA", 0), ("DPCA", DPCA_LAGS)):
-                    det = pca_fit([head], cols, lags, 0.85)
-                    raw[f"{run.name}|{m}"] = pca_statistics(det, run.frame)[0]
+                raw.update({f"{run.name}|{key}": v for key, v in one.items()})
                 print(f"{run.name}: built and scored ({len(unit.tests)} tests)", flush=True)
                 raw["delays"] = np.array([on, off])
             on, off = (int(v) for v in raw["delays"])
@@ -174,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
                     w = dpca_weight(run, cols, on, off) if w == "budget" else float(w)
                     x = np.c_[x, w * raw[f"{run.name}|DPCA"][:, :1]]
                 scores[m][run.name] = method_score(x, on, off)[run.learn :]
-    cpu = cpu_now() - cpu
+    cpu = cpu_seconds() - cpu
     if args.save:
         np.savez_compressed(args.save, **raw)
     if args.build_only:

@@ -282,3 +282,35 @@ def test_a_run_is_scored_at_a_limit_its_own_tail_did_not_set():
         [Scored(fault), Scored(other)], [labels, lab2], [alone["tuning"].limit, 4.0]
     )
     assert both["MAR"] == pytest.approx(50 / 250)  # each run at its own limit: the 3s under 4
+
+
+def test_tail_levels_count_a_held_plateau_as_one_value_and_one_episode():
+    """A fault's alarm held by the off-delay over a run's normal samples after it is one value
+    of the score for all of them: the calibration's largest 2 % are then a handful of such
+    plateaus (SKAB's tuning runs: two values), and a limit matched there can only be one of
+    them. ``tail_levels`` says which values, how many samples and episodes each holds, and in
+    which runs; ties at the cut-off are all in."""
+    from diag_plugin.bench.matched import tail_levels
+
+    rng = np.random.default_rng(11)
+    on, off = 3, 240
+    free = [0.5 * rng.random(1000) for _ in range(3)]  # the fault-free runs: under 0.5
+    x = np.r_[0.5 * rng.random(300), np.linspace(5.0, 40.0, 200), 0.5 * rng.random(170)]
+    held = delayed_score(x, on, off)[500:]  # the normal samples after the fault
+    assert np.all(held == held[0]) and held[0] > 30.0  # one plateau: 170 samples, one value
+    runs = [*free, held]
+    levels = tail_levels(runs, 0.02)  # 64 of 3,170 samples: all inside the plateau
+    assert len(levels) == 1
+    (top,) = levels
+    assert (top.value, top.samples, top.episodes, top.runs) == (held[0], 170, 1, (3,))
+    # a target under the plateau's share can only be matched at it (or above everything)
+    assert calibrate(runs, 0.01, 1.0).limit == held[0]
+    # a wider share reaches the fault-free runs' own values: each a level of its own
+    wide = tail_levels(runs, 0.1)
+    assert wide[0] == top and len(wide) > 100
+    assert {r for lv in wide[1:] for r in lv.runs} <= {0, 1, 2}
+    # ties at the cut-off: every sample at that value is in, counted once per run
+    tied = tail_levels([np.r_[np.full(4, 2.0), np.zeros(96)], np.r_[2.0, 0.0, 2.0]], 0.01)
+    assert [(lv.value, lv.samples, lv.episodes, lv.runs) for lv in tied] == [(2.0, 6, 3, (0, 1))]
+    with pytest.raises(ValueError):
+        tail_levels(runs, 0.0)

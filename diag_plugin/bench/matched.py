@@ -47,6 +47,7 @@ from diag_plugin.diagnose.unittags import side_ratio
 __all__ = [
     "MIN_EXPECTED",
     "Limit",
+    "TailLevel",
     "calibrate",
     "calibrate_leaving_out",
     "delayed_score",
@@ -55,6 +56,7 @@ __all__ = [
     "method_score",
     "side_ratio",
     "split_spread",
+    "tail_levels",
 ]
 
 #: a target is resolved by the calibration runs when at least this many alarm samples (per
@@ -237,6 +239,51 @@ def calibrate_leaving_out(
     return {
         n: calibrate([x for k, x in runs.items() if k != n], target, period_s, per) for n in scored
     }
+
+
+@dataclass(frozen=True)
+class TailLevel:
+    """One value a method's score takes among the calibration's largest samples: the value,
+    how many samples hold it, in how many alarm episodes (runs never joined) and which runs."""
+
+    value: float
+    samples: int
+    episodes: int
+    runs: tuple[int, ...]
+
+
+def tail_levels(runs: Sequence[np.ndarray], share: float) -> list[TailLevel]:
+    """The distinct values of the largest ``share`` of the calibration ``runs``' samples (each
+    a score array; ties at the cut-off all in), largest first, each with its samples, its
+    episodes (a run of consecutive samples at that value) and the runs (indices) holding it.
+
+    A limit matched at a target under ``share`` is one of these values (or above them all), so
+    their number is how many different limits the calibration can give there, and a value
+    held by one episode is one event however many samples it spans: an off-delay holding a
+    fault's alarm over the normal samples after it gives one value for all of them."""
+    if not 0 < share < 1:
+        raise ValueError(f"share {share!r} out of range")
+    runs = [_finite(np.asarray(r, float)) for r in runs]
+    n = sum(len(r) for r in runs)
+    d = np.concatenate(runs) if runs else np.empty(0)
+    fin = d[np.isfinite(d) | (d == np.inf)]
+    if not fin.size:
+        return []
+    k = min(fin.size, max(1, int(np.ceil(share * n))))
+    cut = np.sort(fin)[::-1][k - 1]
+    out: dict[float, list] = {}
+    for i, r in enumerate(runs):
+        top = r >= cut
+        for v in np.unique(r[top]):
+            at = r == v
+            ep = episode_count(at)
+            rec = out.setdefault(float(v), [0, 0, []])
+            rec[0] += int(at.sum())
+            rec[1] += ep
+            rec[2].append(i)
+    return [
+        TailLevel(v, c, e, tuple(w)) for v, (c, e, w) in sorted(out.items(), key=lambda kv: -kv[0])
+    ]
 
 
 def episode_interval(episodes: int, hours: float, level: float = 0.95) -> tuple[float, float]:

@@ -1337,13 +1337,22 @@ def _build_unit(
         )
 
     kept: list[TestChoice] = []
+    # the tags no test reads a relation of, in order: those left untested, then a short
+    # window's slow tags tested only on their level
+    untested = list(skipped)
+    slow_level: set[str] = set()
     for ch in choices:
         if not ch.steps and plan.short and not ch.tracks:
             why = short.level_test(ch, ctx.column(ch.tag), MIN_GAIN)
-            if why:
+            if why:  # a slow level test (True) reads no relation; a reason: no test
+                untested.append(ch.tag)
+            if why is True:
+                slow_level.add(ch.tag)
+            if isinstance(why, str):
                 skipped[ch.tag] = why
                 continue
         elif not ch.steps:
+            untested.append(ch.tag)
             skipped[ch.tag] = (
                 "no other tag predicts it on held-out data (best cut of the error under "
                 f"{MIN_GAIN:.0%}): nothing to model it from"
@@ -1352,17 +1361,19 @@ def _build_unit(
         kept.append(ch)
     if plan.short:
         kept.extend(joint_tests(kept, ctx, taken, notes))
-        # a hand valve, a declared disturbance: no test; a discrete state is a mode of the
-        # plant, never a tag at fault: no pair test watches it (a filter's state washed once
-        # in 400 samples, acceptance-filters.md)
+        # a hand valve, a declared disturbance: no test; a slow level test does not see the
+        # common move of a slow pair whose other tag's test reads it (a pair test does); a
+        # discrete state is a mode of the plant, never a tag at fault: no pair test watches it
+        # (a filter's state washed once in 400 samples, acceptance-filters.md)
         blind = [
             t
-            for t, why in skipped.items()
+            for t in untested
             if t not in {m.tag for m in hand}
             and t not in driven
-            and not why.startswith(DISCRETE_WHY)
+            and not skipped.get(t, "").startswith(DISCRETE_WHY)
         ]
         kept.extend(blind_pair_tests(kept, blind, plan, ctx, taken))
+        kept = unread_slow_levels(kept, slow_level, skipped)
     t1 = time.perf_counter()
     kept.extend(
         _balance_tests(kept, names, taken, notes, ctx, sel, plan, info=info, held=held,
@@ -1699,6 +1710,34 @@ def joint_tests(
                 "tag with the largest loading on that component"
             ),
         )
+        out.append(ch)
+    return out
+
+
+def unread_slow_levels(
+    kept: Sequence[TestChoice], slow_level: set[str], skipped: dict[str, str]
+) -> list[TestChoice]:
+    """The tests kept, less the slow level tests (:func:`short.level_test`) of tags another
+    test reads: such a tag is watched through that relation (a pair test where both are slow,
+    :func:`blind_pair_tests`), and a level test of it would only share the budget, raising
+    every other test's threshold (the cooler's sticking valve, ``tests/test_unit_valves.py``:
+    its cooling-water temperature read by two tests, 4 independent values). The tag is then
+    left untested (``skipped``, naming the tests that read it)."""
+    readers: dict[str, list[str]] = {}
+    for ch in kept:
+        for spec in ch.inputs:
+            for tag in InputSpec.parse(spec).tags:
+                if tag in slow_level and ch.test not in readers.setdefault(tag, []):
+                    readers[tag].append(ch.test)
+    out = []
+    for ch in kept:
+        if ch.tag in slow_level and not ch.steps and not ch.combined and readers.get(ch.tag):
+            skipped[ch.tag] = (
+                f"no other tag predicts it on held-out data and it is too slow for a level test "
+                f"in T² (under {short.SHORT_LEVEL_INDEPENDENT} independent values); read by "
+                f"{', '.join(readers[ch.tag])}, which watch it"
+            )
+            continue
         out.append(ch)
     return out
 
