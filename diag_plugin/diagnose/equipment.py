@@ -14,6 +14,7 @@ file keeps one table per piece::
     stop = 0.0
     share = 0.294     # of the build window's samples, it ran on this share
     tags = ["CH2_LWT", "Chlr2 Cap%"]
+    settle_max_s = 3600.0  # its start's settle at most this long (the build's, from its starts)
 
 - **Its tests** are those whose tested tag (the model's output) is one of ``tags`` (a loop's
   spread test too: it shares the loop's model).
@@ -26,10 +27,13 @@ file keeps one table per piece::
   alarm by its other tests, never CHECK_FUNCTION for them) — and the sample's why says
   ``CH2 stopped (Chlr2 Status = 0): tests … off``. Tests of other tags that read its tags
   stay as they are (their own guards say when an input leaves what they learned). After a
-  start its tests stay off for the unit's ``state_settle_max_s`` (else ``settle_max_s``):
-  its transient; the rest of the unit answers on (a run tag its models read, a ``[build]
-  states`` tag, is no state change of the unit-wide settle guard,
-  :mod:`~diag_plugin.diagnose.settle`).
+  start its tests stay off while it settles (:func:`settling`): until none of them has been
+  on for the unit-wide settle's quiet time (:func:`~diag_plugin.diagnose.settle.quiet_samples`),
+  at most its own ``settle_max_s`` (``[equipment.NAME]``, measured by the build on its own
+  starts, :func:`~diag_plugin.unitbuild.loops.piece_settle_bounds`; a file without it: the
+  unit's ``state_settle_max_s``, else ``settle_max_s``); the rest of the unit answers on (a
+  run tag its models read, a ``[build] states`` tag, is no state change of the unit-wide
+  settle guard, :mod:`~diag_plugin.diagnose.settle`).
 - The summaries count its samples off on their own, not as unknown: ``diag unit show``'s
   ``off`` beside ``unknown`` (``[learned]`` ``off``, ``off_equipment``), ``diag diagnose``'s
   ``equipment_off`` (``Diagnosis.equipment``: per sample running, stopped or settling).
