@@ -56,8 +56,8 @@ def test_a_stopped_piece_is_said_at_the_value_its_run_tag_holds():
     (piece,), _ = equipment_conditions(frame, [parse_running("F1:F1_STATE=0:F1_FLOW")])
     v = frame["F1_STATE"].to_numpy()
     since = np.array([10**6])
-    off, said, _ = off_mask(
-        [piece], [np.array([0])], {"F1_STATE": v}, since, 0, ["F1_FLOW"], len(v)
+    off, said, _, _ = off_mask(
+        [piece], [np.array([0])], {"F1_STATE": v}, since, ["F1_FLOW"], len(v)
     )
     assert np.array_equal(off[:, 0], v != 0)
     texts = {text: at for at, text in said}

@@ -17,7 +17,8 @@ Tags, at 1 min (a 10 s simulation, spot samples):
 - ``A_KW``, ``B_KW`` the powers, kW: ``20 + 0.2·q``; B's 0 while stopped
 
 Noise 0.03 K on the temperatures, 2 kW on the powers, 0.3 % on the valves. Faults from
-``onset_days``: ``a_bias`` A's leaving-water sensor reads +1 K (inside its loop).
+``onset_days``: ``a_bias`` A's leaving-water sensor reads +1 K (inside its loop); ``b_bias``
+B's reads +1 K (inside its loop, while B runs: a fault right after B's start).
 """
 
 from __future__ import annotations
@@ -53,7 +54,8 @@ def simulate(
     if stop_days is not None:
         b_run[(day >= stop_days[0]) & (day < stop_days[1])] = 0.0
     bias = np.where((fault == "a_bias") & (day >= onset_days), 1.0, 0.0)
-    if fault not in (None, "a_bias"):
+    b_bias = np.where((fault == "b_bias") & (day >= onset_days), 1.0, 0.0)
+    if fault not in (None, "a_bias", "b_bias"):
         raise ValueError(fault)
     a_t = np.empty(n)
     b_t = np.empty(n)
@@ -72,7 +74,7 @@ def simulate(
         ua = min(100.0, max(0.0, ia - 6.0 * ea))
         if both:
             tb += f * (13 + 7 * q / 800 - 0.12 * ub - tb)
-            eb = 7.0 - (tb + noise[i, 1])
+            eb = 7.0 - (tb + b_bias[i] + noise[i, 1])
             ib = min(100.0, max(0.0, ib - 1.0 * eb))
             ub = min(100.0, max(0.0, ib - 6.0 * eb))
         else:
@@ -87,7 +89,7 @@ def simulate(
             "A_SP": np.full(n, 7.0),
             "B_SP": np.full(n, 7.0),
             "A_T": a_t + bias + noise[:, 0],
-            "B_T": b_t + noise[:, 1],
+            "B_T": b_t + b_bias + noise[:, 1],
             "A_CAP": a_cap + rng.standard_normal(n) * 0.3,
             "B_CAP": b_cap + rng.standard_normal(n) * 0.3 * b_run,
             "A_KW": 20 + 0.2 * qa + rng.standard_normal(n) * 2.0,

@@ -14,6 +14,7 @@ file keeps one table per piece::
     stop = 0.0
     share = 0.294     # of the build window's samples, it ran on this share
     tags = ["CH2_LWT", "Chlr2 Cap%"]
+    settle_max_s = 3600.0  # its start's settle at most this long (the build's, from its starts)
 
 - **Its tests** are those whose tested tag (the model's output) is one of ``tags`` (a loop's
   spread test too: it shares the loop's model).
@@ -27,10 +28,14 @@ file keeps one table per piece::
   ``CH2 stopped (Chlr2 Status = 0): tests … off``, the value the run tag holds there (a
   filter run at 0 is stopped at backwash, 1, and at filter-to-waste, 2). Tests of other
   tags that read its tags stay as they are (their own guards say when an input leaves what
-  they learned). After a start its tests stay off for the unit's ``state_settle_max_s``
-  (else ``settle_max_s``): its transient; the rest of the unit answers on (a run tag its
-  models read, a ``[build] states`` tag, is no state change of the unit-wide settle guard,
-  :mod:`~diag_plugin.diagnose.settle`).
+  they learned). After a start its tests stay off while it settles (:func:`settling`):
+  until none of them has been on for the unit-wide settle's quiet time
+  (:func:`~diag_plugin.diagnose.settle.quiet_samples`), at most its own ``settle_max_s``
+  (``[equipment.NAME]``, measured by the build on its own starts,
+  :func:`~diag_plugin.unitbuild.loops.piece_settle_bounds`; a file without it: the unit's
+  ``state_settle_max_s``, else ``settle_max_s``); the rest of the unit answers on (a run tag
+  its models read, a ``[build] states`` tag, is no state change of the unit-wide settle
+  guard, :mod:`~diag_plugin.diagnose.settle`).
 - The summaries count its samples off on their own, not as unknown: ``diag unit show``'s
   ``off`` beside ``unknown`` (``[learned]`` ``off``, ``off_equipment``), ``diag diagnose``'s
   ``equipment_off`` (``Diagnosis.equipment``: per sample running, stopped or settling).
@@ -42,6 +47,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import pandas as pd
 
@@ -56,6 +62,9 @@ class Equipment:
     name: str
     rc: RunCondition
     tags: tuple[str, ...]
+    #: the longest its start holds its tests off (``settle_max_s``, measured by the build on
+    #: its own starts); None: the unit's ``state_settle_max_s`` (else ``settle_max_s``)
+    settle_max_s: float | None = None
 
     def stopped(self, values: np.ndarray) -> np.ndarray:
         """Per sample whether it is stopped (a missing run tag: running)."""
@@ -70,7 +79,10 @@ class Equipment:
 
     def as_table(self) -> dict[str, object]:
         """The unit file's ``[equipment.NAME]`` row (module doc)."""
-        return {**self.rc.as_table(), "tags": list(self.tags)}
+        out = {**self.rc.as_table(), "tags": list(self.tags)}
+        if self.settle_max_s is not None:
+            out["settle_max_s"] = float(self.settle_max_s)
+        return out
 
 
 def read_equipment(
@@ -90,8 +102,15 @@ def read_equipment(
         if not isinstance(tags, list) or not tags or not all(isinstance(t, str) for t in tags):
             error(line_of(name), f"[equipment.{name}] tags must be a list of its tag names")
             continue
+        hold = row.get("settle_max_s")
+        if hold is not None and (
+            isinstance(hold, bool) or not isinstance(hold, int | float) or not hold > 0
+        ):
+            error(line_of(name), f"[equipment.{name}] settle_max_s must be a number of seconds > 0")
+            continue
         if rc is not None:
-            out.append(Equipment(str(name), rc, tuple(str(t) for t in tags)))
+            out.append(Equipment(str(name), rc, tuple(str(t) for t in tags),
+                                 None if hold is None else float(hold)))  # fmt: skip
     return out
 
 
@@ -153,38 +172,93 @@ def since_start(runs: np.ndarray, before: int) -> np.ndarray:
     return np.where(runs, since, -1)
 
 
+#: a piece's quiet count (:func:`settling`) where no settle is open (running long, stopped)
+DONE = 1 << 40
+
+
+@numba.njit(cache=True)
+def _settle_kernel(running, since, on, hold, quiet_n, q):  # pragma: no cover - numba
+    # q[0]: samples in a row none of the piece's tests was on since its start (DONE: closed)
+    n = running.size
+    out = np.zeros(n, np.bool_)
+    for i in range(n):
+        if not running[i]:
+            q[0] = DONE
+            continue
+        if since[i] == 0:  # a start opens its settle
+            q[0] = 0
+        if q[0] < quiet_n and since[i] < hold:
+            out[i] = True
+            q[0] = 0 if on[i] else q[0] + 1
+    return out
+
+
 def off_mask(
     equipment: Sequence[Equipment], tests: Sequence[np.ndarray], runs: Mapping[str, np.ndarray],
-    since: np.ndarray, hold: int, names: Sequence[str], n: int,
-) -> tuple[np.ndarray | None, list[tuple[np.ndarray, str]], np.ndarray]:  # fmt: skip
-    """Samples × tests: the tests off (their piece stopped, or started fewer than ``hold``
-    samples ago: its start settles), from each run tag's values ``runs`` (models' names);
-    None where nothing is off. ``since``: per piece :func:`since_start` at the sample before
-    (updated in place). Also the samples and reason of each piece's off stretch, and samples
-    × pieces the pieces' states (:data:`RUNNING`, :data:`STOPPED`, :data:`SETTLING`)."""
+    since: np.ndarray, names: Sequence[str], n: int,
+) -> tuple[np.ndarray | None, list[tuple[np.ndarray, str]], np.ndarray, list]:  # fmt: skip
+    """Samples × tests: the tests off where their piece is stopped, from each run tag's
+    values ``runs`` (models' names); None where nothing is. ``since``: per piece
+    :func:`since_start` at the sample before (updated in place). Also the samples and reason
+    of each piece's stopped stretch, samples × pieces the pieces' states (:data:`RUNNING`,
+    :data:`STOPPED`), and per piece ``(running, since_start)`` (None: no run tag or tests),
+    what :func:`settling` reads once the tests' symptoms are known."""
     off = None
     said = []
     state = np.zeros((n, len(equipment)), np.int8)
+    starts: list = []
     for k, (e, cols) in enumerate(zip(equipment, tests, strict=True)):
         v = runs.get(e.rc.tag)
         if v is None or not cols.size:
+            starts.append(None)
             continue
         running = ~e.stopped(v)
         s = since_start(running, int(since[k]))
         since[k] = s[-1] if n else since[k]
+        starts.append((running, s))
         stopped = ~running
-        settling = running & (s < hold)
-        if not (stopped.any() or settling.any()):
+        if not stopped.any():
             continue
         if off is None:
             off = np.zeros((n, len(names)), bool)
-        off[np.ix_(stopped | settling, cols)] = True
+        off[np.ix_(stopped, cols)] = True
         state[stopped, k] = STOPPED
-        state[settling, k] = SETTLING
         which = [names[j] for j in cols]
         for value in np.unique(v[stopped]):  # the value it is stopped at (1 or 2)
             said.append((stopped & (v == value), e.why(which, float(value))))
-        if settling.any():
-            said.append((settling, f"{e.name} started ({e.rc.tag} = {e.rc.run:g}): tests "
-                                   f"{', '.join(which)} off while it settles"))  # fmt: skip
-    return off, said, state
+    return off, said, state, starts
+
+
+def settling(
+    equipment: Sequence[Equipment], tests: Sequence[np.ndarray], starts: Sequence,
+    on: np.ndarray, holds: Sequence[int], quiet_n: int, quiet: np.ndarray,
+    names: Sequence[str],
+) -> tuple[np.ndarray | None, list[tuple[np.ndarray, str]], np.ndarray | None]:  # fmt: skip
+    """Samples × tests: a piece's tests held off after its start while it settles (as the
+    unit's settle, :mod:`~.settle`): until none of ITS tests (``on``: samples × tests, each
+    test's symptom on, before the hold) has been on for ``quiet_n`` samples in a row, at
+    most ``holds[k]`` samples; None where none is. ``quiet``: per piece its count of quiet
+    samples at the sample before (:data:`DONE`: no settle open; updated in place). Also the
+    samples and reason of each settle, and samples × pieces where each settles."""
+    n = on.shape[0]
+    off = None
+    said = []
+    where = None
+    for k, (e, cols, got) in enumerate(zip(equipment, tests, starts, strict=True)):
+        if got is None:
+            continue
+        running, since = got
+        q = quiet[k : k + 1]
+        mine = on[:, cols].any(axis=1)
+        held = _settle_kernel(running, since, mine, int(holds[k]), int(quiet_n), q)
+        if not held.any():
+            continue
+        if off is None:
+            off = np.zeros((n, len(names)), bool)
+            where = np.zeros((n, len(equipment)), bool)
+        off[np.ix_(held, cols)] = True
+        where[held, k] = True
+        which = ", ".join(names[j] for j in cols)
+        said.append((held, f"{e.name} started ({e.rc.tag} = {e.rc.run:g}): tests {which} "
+                           "off while it settles"))  # fmt: skip
+    return off, said, where

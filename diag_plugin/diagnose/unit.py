@@ -48,7 +48,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.combos import CombosGuard
-from diag_plugin.diagnose.equipment import members, off_mask
+from diag_plugin.diagnose.equipment import DONE, SETTLING, members, off_mask, settling
 from diag_plugin.diagnose.fixed import FixedGuard
 from diag_plugin.diagnose.fixed import apply as apply_fixed
 from diag_plugin.diagnose.isolation import IsolationHold
@@ -443,9 +443,15 @@ class Unit:
         self.equipment = list(getattr(file, "equipment", None) or [])
         self.equipment_tests = members(self.equipment, [models[t.name].output for t in file.tests],
                                        [models[t.name].tags for t in file.tests])  # fmt: skip
-        #: a piece's start settles: its tests off for the unit's state-change settle bound
+        #: a piece's start settles: its tests off until none of them has been on for the
+        #: quiet time, at most its own ``settle_max_s`` (else the unit's state-change bound)
         hold_s = self.ev.get("state_settle_max_s") or self.ev.get("settle_max_s") or 0.0
         self.equipment_hold = int(math.ceil(float(hold_s) / self.period_s)) if self.equipment else 0
+        self.equipment_holds = [
+            self.equipment_hold if e.settle_max_s is None
+            else int(math.ceil(e.settle_max_s / self.period_s - 1e-9))
+            for e in self.equipment
+        ]  # fmt: skip
         #: the tests judged by the spread of their residual (valve stiction), by position
         self.spread_cols = np.array(
             [i for i, t in enumerate(file.tests) if t.statistic == "spread"], np.int64
@@ -614,6 +620,8 @@ class Unit:
         self.was_running = True  # the last sample's run condition (running.py)
         #: per piece of equipment the samples since its last start (equipment.py)
         self.eq_since = np.full(len(getattr(self, "equipment", ())), 1 << 40, np.int64)
+        #: per piece the samples in a row none of its tests was on since its start
+        self.eq_quiet = np.full(len(getattr(self, "equipment", ())), DONE, np.int64)
         if getattr(self, "settle", None) is not None:
             self.settle.reset()
         if getattr(self, "fixed", None) is not None:
@@ -660,6 +668,7 @@ class Unit:
             "saturation": None if self.saturation is None else self.saturation.to_state(),
             "running": self.was_running,
             "equipment": self.eq_since.tolist(),
+            "equipment_quiet": self.eq_quiet.tolist(),
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -701,6 +710,8 @@ class Unit:
         self.was_running = bool(state.get("running", True))  # saved before it: running
         if len(state.get("equipment") or []) == len(self.eq_since):  # else: running long
             self.eq_since = np.asarray(state["equipment"], np.int64)
+        if len(state.get("equipment_quiet") or []) == len(self.eq_quiet):  # else: none open
+            self.eq_quiet = np.asarray(state["equipment_quiet"], np.int64)
         return self
 
     # ------------------------------------------------------------ stages
@@ -721,7 +732,7 @@ class Unit:
 
     def _residuals(
         self, frame: pd.DataFrame, cols: Columns | None = None
-    ) -> tuple[pd.DataFrame, tuple[np.ndarray, list[tuple[np.ndarray, str]], np.ndarray] | None]:
+    ) -> tuple[pd.DataFrame, tuple | None]:
         """:meth:`raw_residuals` and, of the same samples, where a piece of equipment's tests
         are off (:meth:`_equipment_off`, called once: it advances the pieces' starts)."""
         if cols is None:
@@ -738,7 +749,7 @@ class Unit:
                 if self.manual is not None:  # a hand valve outside its span: unknown
                     self.manual.blank(out, j, d.positions, d.X, moved)
         off = self._equipment_off(cols, len(frame))
-        if off is not None:  # a stopped piece of equipment's tests: off (equipment.py)
+        if off is not None and off[0] is not None:  # a stopped piece's tests: off
             out[off[0].T] = np.nan
         # samples × tests as a view of it (column-major): :meth:`filtered` writes the C-ordered
         # copy it filters in place, so no third array of the residuals' size
@@ -903,20 +914,41 @@ class Unit:
             parts.append(d)
         return concat(parts)
 
-    def _equipment_off(
-        self, cols: Columns, n: int
-    ) -> tuple[np.ndarray, list[tuple[np.ndarray, str]], np.ndarray] | None:
+    def _equipment_off(self, cols: Columns, n: int) -> tuple | None:
         """Samples × tests where a piece of equipment's tests are off (it is stopped,
-        :mod:`~.equipment`), per stopped piece its samples and the reason, and samples ×
-        pieces their states (:func:`~.equipment.off_mask`); None where nothing is off (no
-        ``[equipment]``, all running)."""
+        :mod:`~.equipment`; None: none), per stopped piece its samples and the reason,
+        samples × pieces their states, and what the settle after each start reads
+        (:func:`~.equipment.off_mask`); None without ``[equipment]``."""
         if not self.equipment:
             return None
         runs = {e.rc.tag: cols.values(e.rc.tag) for e in self.equipment
                 if e.rc.tag in cols.columns}  # fmt: skip
-        off, said, state = off_mask(self.equipment, self.equipment_tests, runs, self.eq_since,
-                                    self.equipment_hold, self.tests, n)  # fmt: skip
-        return None if off is None else (off, said, state)
+        return off_mask(self.equipment, self.equipment_tests, runs, self.eq_since, self.tests, n)
+
+    def _equipment_settle(self, eq, s: np.ndarray):
+        """The stopped pieces' ``eq`` (:meth:`_equipment_off`) with each started piece's tests
+        held off while it settles (:func:`~.equipment.settling`, from the symptoms ``s``
+        before the hold; advances the pieces' quiet counts): ``(off, said, state)`` or None
+        where nothing is off, and samples × tests where a settle holds a test (None: none)."""
+        if eq is None:
+            return None, None
+        off, said, state, starts = eq
+        held, why, where = settling(self.equipment, self.equipment_tests, starts, _on(s),
+                                    self.equipment_holds, self._quiet_n(), self.eq_quiet,
+                                    self.tests)  # fmt: skip
+        if held is not None:
+            state[where & (state == 0)] = SETTLING
+            off = held if off is None else off | held
+            said = [*said, *why]
+        return (None if off is None else (off, said, state)), held
+
+    def _quiet_n(self) -> int:
+        """The settle's quiet time in samples (:func:`~.settle.quiet_samples`)."""
+        if getattr(self, "_quiet", None) is None:
+            from diag_plugin.diagnose.settle import quiet_samples
+
+            self._quiet = quiet_samples(self)
+        return self._quiet
 
     def _stopped(self) -> None:
         """At a stop: what carries an alarm forward starts from rest (the residual filter,
@@ -958,6 +990,15 @@ class Unit:
         del raw
         s, mem = self.symptoms(r.to_numpy())
         n, T = s.shape
+        # a started piece's tests held off while it settles (equipment.py): from their
+        # symptoms, then off as a stopped piece's (the combined test never reads them)
+        off, held = self._equipment_settle(off, s)
+        if held is not None:
+            x = r.to_numpy(float, copy=True)
+            x[held] = np.nan
+            r = pd.DataFrame(x, index=r.index, columns=r.columns, copy=False)
+            if mem is not None:
+                mem[held] = np.nan
         if off is not None:  # a stopped piece's tests: off, neither on nor unknown
             s[off[0]] = np.nan
         known = ~np.isnan(s) if off is None else ~np.isnan(s) | off[0]

@@ -98,11 +98,13 @@ from diag_plugin.unitbuild.loops import (
     Disturbance,
     Loop,
     Manual,
+    Replay,
     Running,
     checked_declared,
     checked_loops,
     checked_manual,
     parse_running,
+    piece_settle_bounds,
     settle_bounds,
 )
 from diag_plugin.unitbuild.parallel import DaskPool, default_workers, map_tests, one_blas_thread
@@ -1475,20 +1477,30 @@ def _build_unit(
         # (one pass: the window's steps found once, its residuals replayed at most once)
         # (the run tag beside the learned rows: its starts are the run condition's changes)
         settle_frame = frame if run_col is None else frame.assign(**{rc.tag: run_col})
-        settles = settle_bounds(Unit(uf, unit.models, unit.matrix), settle_frame)
+        settle_unit = Unit(uf, unit.models, unit.matrix)
+        replay = Replay(settle_unit, settle_frame)  # the window's residuals, replayed once
+        settles = settle_bounds(settle_unit, settle_frame, replay)
         for key, says, value, how in settles:
             if value > 0:
                 uf.doc["evaluation"][key] = value
                 uf.build[says] = how
                 uf.doc["build"][says] = how
                 notes.append(how)
+        # each piece's own start's bound, from its own starts on its own tests
+        pieces = piece_settle_bounds(settle_unit, settle_frame, replay)
+        for piece, value, how in pieces:
+            if value is not None:
+                uf.doc["equipment"][piece]["settle_max_s"] = value
+            notes.append(how)
+        if pieces:
+            uf.doc["build"]["equipment_settle"] = [how for *_, how in pieces]
         # the combinations of the discrete states the window held long enough to teach the
         # models (diagnose/combos.py): their dwell the unit's quiet time
         combos = state_combos(unit, frame, list(doc["build"]["states"]))
         if combos is not None:
             uf.doc["states"] = states_table(*combos)
             notes.append(combos_note(unit, *combos))
-        if any(value > 0 for *_, value, _ in settles) or combos is not None:
+        if any(value > 0 for *_, value, _ in settles) or combos is not None or pieces:
             uf.save()
         else:
             uf.save(as_read=True)  # the text set_learned read back: not dumped again

@@ -486,7 +486,7 @@ SETTLE_FALLBACK = 4.0
 STATE_SETTLE_QUANTILE = 0.9
 
 
-def settle_bounds(unit, frame) -> list[tuple[str, str, float, str]]:
+def settle_bounds(unit, frame, residuals=None) -> list[tuple[str, str, float, str]]:
     """The guard's three bounds for a built unit from its window ``frame``, in one pass:
     ``(key, the [build] note's name, value, what it rests on)`` for ``settle_max_s``
     (:func:`settle_max`), ``manual_settle_max_s`` (:func:`manual_settle_max`) and
@@ -496,7 +496,7 @@ def settle_bounds(unit, frame) -> list[tuple[str, str, float, str]]:
     from diag_plugin.diagnose.settle import hand_valves, settle_loops, state_tags
 
     steps, quiet = _window_steps(unit, frame)
-    residuals = _Replay(unit, frame)
+    residuals = residuals or Replay(unit, frame)
     loop = _loop_settle(unit, frame, steps, quiet) if settle_loops(unit) else (0.0, "")
     if loop[1]:
         loop = (loop[0], loop[1] + _under_band(frame, settle_loops(unit), quiet))
@@ -507,6 +507,60 @@ def settle_bounds(unit, frame) -> list[tuple[str, str, float, str]]:
     ):
         value = _free_settle(unit, kind, steps, quiet, residuals) if found(unit) else (0.0, "")
         out.append((key, says, *value))
+    return out
+
+
+def piece_settle_bounds(unit, frame, residuals=None) -> list[tuple[str, float | None, str]]:
+    """Per piece of equipment (``[equipment]``, :mod:`diag_plugin.diagnose.equipment`) the
+    bound of its start's settle, measured on the window ``frame`` (models' tag names, its
+    run tag among them) from its own starts on its own tests, as
+    :func:`state_settle_max` measures a state's: each start settled from the sample from
+    which every one of its tests' residuals (less its median) is back within
+    :data:`SETTLE_BAND` of its excursion after the start (its noise where wider) for the
+    quiet time, before the piece stops again; the bound the :data:`STATE_SETTLE_QUANTILE`
+    quantile of those times plus the quiet time (:func:`_quantile_and_how`). ``(name,
+    settle_max_s, what it rests on)`` each; ``settle_max_s`` None where no start moved its
+    tests or fewer than half settled (the unit's bound kept)."""
+    import numpy as np
+
+    from diag_plugin.diagnose.settle import quiet_samples
+
+    out: list[tuple[str, float | None, str]] = []
+    eqs = getattr(unit, "equipment", None) or []
+    if not eqs:
+        return out
+    residuals = residuals or Replay(unit, frame)
+    quiet = quiet_samples(unit)
+    for e, cols in zip(eqs, unit.equipment_tests, strict=True):
+        if not cols.size or e.rc.tag not in frame.columns:
+            continue
+        runs = e.rc.runs(frame[e.rc.tag].to_numpy(float))
+        starts = np.flatnonzero(runs & ~np.r_[True, runs[:-1]])
+        stops = np.flatnonzero(~runs)
+        times: list[float] = []
+        moved = 0
+        for i in starts:
+            later = stops[stops > i]
+            end = int(later[0]) if later.size else len(runs)
+            e_all, noise_all = residuals()
+            err, noise = e_all[:, cols], noise_all[cols]
+            peak = np.nanmax(np.abs(err[i : min(i + quiet, end)]), axis=0, initial=0.0)
+            if not (peak > noise).any():
+                continue  # it moved none of its tests beyond their noise
+            moved += 1
+            tol = np.maximum(SETTLE_BAND * peak, noise)
+            at = _settled(~(np.abs(err) > tol).any(axis=1), int(i), end, quiet)
+            if at is not None:
+                times.append(at * unit.period_s)
+        key = f"[equipment.{e.name}] settle_max_s"
+        if not times or 2 * len(times) < moved:
+            how = (f"{key} not written: {len(times)} of {e.name}'s {moved} start(s) that "
+                   f"moved its tests settled (of {len(starts)} in the window); the unit's "
+                   "bound kept")  # fmt: skip
+            out.append((e.name, None, how))
+            continue
+        value, how = _quantile_and_how(key, f"{e.name} start", times, moved, unit)
+        out.append((e.name, value, how))
     return out
 
 
@@ -582,7 +636,7 @@ def state_settle_max(unit, frame) -> tuple[float, str]:
     return settle_bounds(unit, frame)[2][2:]
 
 
-class _Replay:
+class Replay:
     """The window's residuals (less each one's median over the window) and each one's noise
     (3 robust sd), replayed once, when first asked for."""
 
@@ -600,7 +654,7 @@ class _Replay:
         return self.got
 
 
-def _free_settle(unit, kind: str, steps: list, quiet: int, residuals: _Replay):
+def _free_settle(unit, kind: str, steps: list, quiet: int, residuals: Replay):
     """The settle's longest time after the window's own ``steps`` of ``kind`` (``hand``,
     ``state``: no loop test; every test's residual back within its band, module doc of
     :func:`manual_settle_max`), and what it rests on."""
