@@ -291,8 +291,10 @@ def test_stores_go_on_while_a_big_month_rolls(url, tmp_path):
     # so at least 0.6 s of roll leaves room for the five stores asserted below)
     assert roll_s > 0.6, "the month is too small to show anything"
     # stores went on during the roll: a block every ~0.1 s, gaps no longer than a slow
-    # database makes them (the lock waited for at most busy_timeout, then a retry)
-    assert len(store_times) >= 5
+    # database makes them (the lock waited for at most busy_timeout, then a retry); at least
+    # three (a clean clone's make test at a load of 14 saw four in a short roll; a store
+    # blocked by the roll sees one at most)
+    assert len(store_times) >= 3, store_times
     gaps = np.diff(store_times)
     assert gaps.max() < 5.0, gaps.max()
     assert max(put_s) < 0.5
