@@ -16,6 +16,7 @@ import pandas as pd
 import pytest
 
 from diag_plugin.unitbuild.build import build_unit, choose_tests
+from historian.errors import UserError
 
 
 def demand_and_run(days: float, seed: int):
@@ -188,3 +189,60 @@ def test_a_three_mode_state_washed_once_in_a_short_window_is_a_state():
     blips[[50, 100, 150]] = 3.0  # a fourth value on single samples: no mode
     assert two_states(blips) == (0.0, 1.0, 2.0)
     assert two_states(np.r_[np.zeros(380), [1.0, 2.0] * 10]) is None  # 1, 2 never held
+
+
+def _batches(days: float, seed: int) -> pd.DataFrame:
+    """1-min samples of a batch reactor's recipe: idle 0, charge 1, heat-up 2, hold 3,
+    cool-down 4, discharge 5 (``PHASE``), the reactor's temperature following the recipe's
+    set-point through a first-order lag, its weight rising in the charge and falling in the
+    discharge, the agitator's power with the weight."""
+    rng = np.random.default_rng(seed)
+    phase, sp, w = [], [], []
+    s, m = 30.0, 150.0
+    while len(phase) < days * 1440:
+        size = rng.uniform(4000, 6000)
+        for ph, n in ((0, int(rng.integers(20, 80))), (1, 25), (2, 55), (3, 120), (4, 40), (5, 25)):
+            for _ in range(n):
+                ramp = {2: min(85.0, s + 1), 3: 85.0, 4: max(40.0, s - 1.5)}
+                s = 30.0 if ph < 2 else ramp.get(ph, s)
+                m = {1: m + size / 25, 5: max(150.0, m - size / 25)}.get(ph, m)
+                phase.append(ph), sp.append(s), w.append(m)
+    n = int(days * 1440)
+    phase, sp, w = np.array(phase[:n], float), np.array(sp[:n]), np.array(w[:n])
+    temp = np.empty(n)
+    temp[0] = 30.0
+    for k in range(1, n):
+        temp[k] = temp[k - 1] + (sp[k - 1] - temp[k - 1]) / 8
+    idx = pd.date_range("2026-03-02", periods=n, freq="60s", tz="UTC")
+    return pd.DataFrame({"PHASE": phase, "TR_SP": sp, "TR_TEMP": temp + rng.normal(0, 0.05, n),
+                         "TR_WEIGHT": w + rng.normal(0, 4, n),
+                         "AGIT_PWR": 10 + w / 400 + rng.normal(0, 0.2, n)}, index=idx)  # fmt: skip
+
+
+def test_a_recipe_phase_declared_a_state_is_never_tested_nor_named(tmp_path):
+    """A batch recipe's phase tag takes six values (acceptance-batch.md): more than the three
+    levels the build finds a state by (``MAX_LEVELS``), so on main it is a tag the unit tests
+    (`PHASE = f(AGIT_PWR, TR_TEMP, …)`) and may name, and a user had no way to say it is a
+    mode. ``--state PHASE`` (``build_unit(states=…)``, a tags CSV's role ``state``) leaves it
+    out as a found state is: untested, a candidate input, in ``[build] states``, never a tag
+    at fault. Fails on main (no ``states``, no role ``state``)."""
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unittags import structure
+    from diag_plugin.unitbuild.loops import states_from_tags_csv
+
+    train = _batches(4, 1)
+    assert set(np.unique(train["PHASE"])) == {0.0, 1.0, 2.0, 3.0, 4.0, 5.0}
+    chosen, skipped = choose_tests(train)
+    assert "PHASE" in chosen  # not found by itself: six levels
+    tags = tmp_path / "tags.csv"
+    tags.write_text("name,unit,description,loop,role\nPHASE,,recipe phase,,state\n"
+                    "TR_TEMP,degC,reactor temperature,,\n")  # fmt: skip
+    assert states_from_tags_csv(tags) == ["PHASE"]
+    res = build_unit("rx", train, folder=tmp_path, period="60s", far=0.01, states=["PHASE"])
+    assert "PHASE" not in {t.tag for t in res.tests}
+    assert res.skipped["PHASE"].startswith("a discrete state (declared; 0, 1, 2, 3, 4 or 5: ")
+    unit = Unit.load(res.path, tmp_path)
+    assert unit.file.build["states"] == ["PHASE"]
+    assert "PHASE" not in structure(unit)[0]
+    with pytest.raises(UserError, match="--state LEVEL: not in the data"):
+        build_unit("rx2", train, folder=tmp_path, period="60s", far=0.01, states=["LEVEL"])

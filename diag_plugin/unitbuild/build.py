@@ -265,6 +265,7 @@ def choose_tests(
     set_points: Sequence[str] = (),
     manual: Mapping[str, str] | None = None,
     outputs: Sequence[str] = (),
+    states: Sequence[str] = (),
 ) -> tuple[list[str], dict[str, str]]:
     """The tags to test and the others with the reason each is left out.
 
@@ -273,7 +274,8 @@ def choose_tests(
     valve (``manual``: tag → what the plan says of it, never tested). ``outputs``: the
     declared loops' controller outputs, tested though named or declared a set-point — a
     cascade's inner set-point is the outer controller's output, not an operator's entry
-    (issue 34, item 7)."""
+    (issue 34, item 7). ``states``: declared discrete states (``--state``, a recipe's phase
+    of more levels than :func:`two_states` finds), left out as a found one is."""
     info = tag_infos(tag_info)
     manual = manual or {}
     chosen, skipped = [], {}
@@ -293,6 +295,11 @@ def choose_tests(
             tags is None and (is_set_point(t, info.get(t)) or t in set_points) and t not in outputs
         ):
             skipped[t] = "a set-point (the operator's choice; kept as a candidate input)"
+        elif tags is None and t in states:
+            skipped[t] = (
+                f"{DISCRETE_WHY} (declared; {held_values_text(v[good], ())}: a mode of the "
+                "plant, as a recipe's phase; kept as a candidate input, never a tag at fault)"
+            )
         elif tags is None and (two := two_states(v[good])) is not None:
             skipped[t] = (
                 f"{DISCRETE_WHY} ({held_values_text(v[good], two)}: a mode of the plant, as a "
@@ -1079,6 +1086,7 @@ def build_unit(
     disturbances: Sequence[Disturbance | str] = (),
     running: Running | str | None = None,
     equipment: Sequence[Running] = (),
+    states: Sequence[str] = (),
 ) -> BuildResult:
     """Build unit ``name`` from ``frame`` (the fault-free window, aligned on ``period``; every
     column a candidate input) into ``folder``: model files ``NAME_TEST.toml`` and
@@ -1106,7 +1114,7 @@ def build_unit(
                                source=source, progress=progress, loops=loops,
                                workers=workers, manual=manual,
                                disturbances=disturbances, running=running,
-                               equipment=equipment)  # fmt: skip
+                               equipment=equipment, states=states)  # fmt: skip
     except BaseException:
         _remove_partial(folder, name, since, made, before)
         raise
@@ -1186,6 +1194,7 @@ def _build_unit(
     disturbances: Sequence[Disturbance | str] = (),
     running: Running | str | None = None,
     equipment: Sequence[Running] = (),
+    states: Sequence[str] = (),
 ) -> BuildResult:
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitError, new_unit_text
@@ -1242,7 +1251,8 @@ def _build_unit(
     tests, skipped = choose_tests(judged, info, tags, [lp.sp for lp in loops],
                                   {**{m.tag: hand_plan(m, info) for m in hand},
                                    **{t: DISTURBANCE_PLAN for t in driven}},
-                                  [lp.out for lp in loops if lp.out])  # fmt: skip
+                                  [lp.out for lp in loops if lp.out],
+                                  checked_states(states, list(frame.columns), loops))  # fmt: skip
     if tags is not None and skipped:
         raise UserError("cannot test: " + "; ".join(f"{t}: {why}" for t, why in skipped.items()))
     if not tests:
@@ -1624,6 +1634,20 @@ DISTURBANCE_PLAN = (
 )
 
 
+def checked_states(
+    states: Sequence[str], columns: Sequence[str], loops: Sequence[Loop]
+) -> list[str]:
+    """The declared discrete states (``--state``, a tags CSV's role ``state``), each in
+    ``columns`` and in no declared loop; else :class:`~historian.errors.UserError`."""
+    in_loops = {t for lp in loops for t in (lp.pv, lp.sp, lp.out) if t}
+    for t in states:
+        if t not in columns:
+            raise UserError(f"--state {t}: not in the data")
+        if t in in_loops:
+            raise UserError(f"--state {t}: a tag of a declared loop, not a mode of the plant")
+    return list(states)
+
+
 def declared_disturbances(
     frame: pd.DataFrame, manual: Sequence[Manual | str],
     disturbances: Sequence[Disturbance | str], loops: Sequence[Loop],
@@ -1928,6 +1952,7 @@ def build_from_historian(
     disturbances: Sequence[Disturbance | str] = (),
     running: Running | str | None = None,
     equipment: Sequence[Running] = (),
+    states: Sequence[str] = (),
 ) -> BuildResult:
     """:func:`build_unit` on the historian's window ``[start, end)``: every tag it holds is
     a candidate input; the grid period is ``period`` (``--period``: a faster tag averaged
@@ -2007,6 +2032,7 @@ def build_from_historian(
         disturbances=disturbances,
         running=running,
         equipment=equipment,
+        states=states,
     )
     res.seconds = {"read": read_s, **res.seconds}
     res.seconds["total"] += read_s

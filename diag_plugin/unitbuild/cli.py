@@ -72,6 +72,16 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "docs/how-to/unit-loops.md)",
     )
     p.add_argument(
+        "--state",
+        action="append",
+        default=[],
+        metavar="TAG",
+        help="a discrete state of more levels than the build finds by itself (a batch "
+        "recipe's phase or step number): a mode of the plant, never tested nor named, an "
+        "input; its values the unit held go into [states] (repeatable; in a tags CSV: the "
+        "role 'state'; docs/how-to/unit-loops.md)",
+    )
+    p.add_argument(
         "--running",
         action="append",
         default=[],
@@ -142,7 +152,7 @@ def _tags_from(path: str) -> list[str]:
 
 
 def _build(args, tags, loops, manual, disturbances, t0, t1, workers, running=None,
-           equipment=()):  # fmt: skip
+           equipment=(), states=()):  # fmt: skip
     """The build, its progress drawn on a terminal's standard error."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
@@ -183,6 +193,7 @@ def _build(args, tags, loops, manual, disturbances, t0, t1, workers, running=Non
             disturbances=disturbances,
             running=running,
             equipment=equipment,
+            states=states,
         )
 
 
@@ -197,6 +208,7 @@ def cmd_unit_build(args) -> int:
         parse_loop,
         parse_running,
         running_from_tags_csv,
+        states_from_tags_csv,
     )
 
     tags = args.tags or (_tags_from(args.tags_from) if args.tags_from else None)
@@ -204,6 +216,7 @@ def cmd_unit_build(args) -> int:
     manual = [Manual(t.strip(), f"--manual {t}") for t in args.manual]
     driven = [Disturbance(t.strip(), f"--disturbance {t}") for t in args.disturbance]
     running = [parse_running(x) for x in args.running]
+    states = [t.strip() for t in args.state]
     equipment = [r for r in running if r.tags]
     running = [r for r in running if not r.tags]
     if args.loops_from:
@@ -211,6 +224,7 @@ def cmd_unit_build(args) -> int:
         driven += disturbances_from_tags_csv(args.loops_from)
         running += running_from_tags_csv(args.loops_from)  # a run condition in a loop too
         equipment += equipment_from_tags_csv(args.loops_from)
+        states += states_from_tags_csv(args.loops_from)
         loops += loops_from_tags_csv(args.loops_from)
     if len(running) > 1:
         raise UserError(
@@ -228,7 +242,7 @@ def cmd_unit_build(args) -> int:
 
             workers = stack.enter_context(DaskPool.connect(args.dask, args.dask_timeout))
         res = _build(args, tags, loops, manual, driven, t0, t1, workers,
-                     running[0] if running else None, equipment)  # fmt: skip
+                     running[0] if running else None, equipment, states)  # fmt: skip
     if _printed_json(args, res.as_dict()):
         return 0
     print(

@@ -77,6 +77,9 @@ ROLES = {"pv": "pv", "sensor": "pv", "sp": "sp", "out": "out", "actuator": "out"
 MANUAL = "manual"
 #: the roles of a measured disturbance in the tags CSV (a row without a loop)
 DISTURBANCE = ("disturbance", "driver", "exogenous")
+#: the roles of a declared discrete state in the tags CSV (a row without a loop): a recipe's
+#: phase or step, a mode of more levels than the build finds by itself
+STATE = ("state", "phase", "step")
 #: the role of a run condition in the tags CSV (a row without a loop)
 RUNNING = "running"
 
@@ -264,6 +267,12 @@ def disturbances_from_tags_csv(path: str | Path) -> list[Disturbance]:
     return [Disturbance(tag, where) for tag, where in rows]
 
 
+def states_from_tags_csv(path: str | Path) -> list[str]:
+    """The discrete states a tags CSV declares: rows whose ``role`` is ``state``, ``phase`` or
+    ``step`` (a batch recipe's phase tag); none without a ``role`` column."""
+    return [tag for tag, _ in _loopless(Path(path), STATE, "a discrete state")]
+
+
 @dataclass(frozen=True)
 class Running:
     """A run condition: the state tag, the value at which the unit runs (None: the higher of
@@ -390,7 +399,7 @@ def _loopless(path: Path, roles: Sequence[str], what: str) -> list[tuple[str, st
     frame, cols, name = _tags_csv(path)
     if "role" not in cols:
         return []
-    loopless = (MANUAL, *DISTURBANCE, RUNNING)
+    loopless = (MANUAL, *DISTURBANCE, RUNNING, *STATE)
     out = []
     for i, row in enumerate(frame.to_dict("records")):
         role = row[cols["role"]].strip().lower()
