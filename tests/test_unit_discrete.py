@@ -188,3 +188,24 @@ def test_a_three_mode_state_washed_once_in_a_short_window_is_a_state():
     blips[[50, 100, 150]] = 3.0  # a fourth value on single samples: no mode
     assert two_states(blips) == (0.0, 1.0, 2.0)
     assert two_states(np.r_[np.zeros(380), [1.0, 2.0] * 10]) is None  # 1, 2 never held
+
+
+def test_a_standby_s_current_on_a_few_samples_is_no_state():
+    """The compressed-air station's short window (acceptance-compressors.md): the standby
+    ran 4 of 400 samples, its current 0 on 396 and 32.3-34.8 A on 4, and it became `a
+    discrete state (0 or 34.83 …)` — the two commonest values, 0 and one of the four, held
+    99 %. A state's other level is read exactly on two samples at least; a few analog
+    values each seen once are not one. Fails on main. Its run tag, 1 on the same 4
+    samples, stays a state."""
+    from diag_plugin.unitbuild.build import two_states
+
+    amps = np.zeros(400)
+    amps[[101, 102, 103, 104]] = [32.3, 33.9, 34.83, 34.8]
+    assert two_states(amps) is None
+    run = (amps > 0).astype(float)
+    assert two_states(run) == (0.0, 1.0)
+    rng = np.random.default_rng(2)
+    frame = pd.DataFrame({"C2_AMPS": amps, "C2_RUN": run, "FLOW": 20 + rng.normal(0, 1, 400)})
+    chosen, skipped = choose_tests(frame)
+    assert "C2_AMPS" in chosen and "C2_RUN" not in chosen
+    assert not skipped.get("C2_AMPS", "").startswith("a discrete state")
