@@ -15,6 +15,10 @@ DISCRETE_SHARE = 0.99
 #: the most levels a discrete state takes (a filter's 0/1/2). Not 4: SKAB's quantized
 #: pressure (steps of 0.33, four values on a tuning run's 400 samples) would be one
 MAX_LEVELS = 3
+#: the fewest samples on which each level of a state is read exactly: the one commonest
+#: value and a few others each seen once are an analog tag that mostly reads one value (a
+#: standby's current, 0 on 396 of 400 samples and 32.3-34.8 A on 4), not a state
+MIN_REPEATS = 2
 
 
 def discrete_levels(v: np.ndarray) -> tuple[float, ...] | None:
@@ -23,8 +27,9 @@ def discrete_levels(v: np.ndarray) -> tuple[float, ...] | None:
     (:data:`MAX_LEVELS`) holding that share, the third held on two values running (a mode,
     not where a grid averaged a switch). A filter washed once in 400 samples — 0 on 97.5 %,
     backwash 1 and filter-to-waste 2 on the rest — is one; an analog tag (hundreds of
-    values), a quantized one of four values or more, a third value never held, or a constant
-    (one value) are not."""
+    values), a quantized one of four values or more, a third value never held, a level read
+    on one sample only (:data:`MIN_REPEATS`: a standby that ran 4 samples at 32.3-34.8 A,
+    0 on the rest), or a constant (one value) are not."""
     x = np.asarray(v, float)
     x = x[np.isfinite(x)]
     vals, counts = np.unique(x, return_counts=True)
@@ -35,6 +40,8 @@ def discrete_levels(v: np.ndarray) -> tuple[float, ...] | None:
     held = None
     for k in range(2, min(MAX_LEVELS, len(vals)) + 1):
         top = order[:k]
+        if counts[top[-1]] < MIN_REPEATS:
+            return None  # a value seen once is no level: an analog reading (a standby's amps)
         if k > 2:
             if held is None:
                 held = set(np.unique(x[1:][x[1:] == x[:-1]]).tolist())

@@ -246,3 +246,29 @@ def test_a_recipe_phase_declared_a_state_is_never_tested_nor_named(tmp_path):
     assert "PHASE" not in structure(unit)[0]
     with pytest.raises(UserError, match="--state LEVEL: not in the data"):
         build_unit("rx2", train, folder=tmp_path, period="60s", far=0.01, states=["LEVEL"])
+
+
+def test_a_standby_s_current_on_a_few_samples_is_no_state():
+    """The compressed-air station's short window (acceptance-compressors.md): the standby
+    ran 4 of 400 samples, its current 0 on 396 and 32.3-34.8 A on 4, and it became `a
+    discrete state (0 or 34.83 …)` — the two commonest values, 0 and one of the four, held
+    99 %. A state's other level is read exactly on two samples at least; a few analog
+    values each seen once are not one. Fails on main. Its run tag, 1 on the same 4
+    samples, stays a state. Nor is the current tested: a level test against the window's
+    mean (0) alarmed whenever the standby ran (57 % of the pass's fault-free days); the
+    window shows too little of it running (`holds one value …`, a candidate input)."""
+    from diag_plugin.unitbuild.build import two_states
+
+    amps = np.zeros(400)
+    amps[[101, 102, 103, 104]] = [32.3, 33.9, 34.83, 34.8]
+    assert two_states(amps) is None
+    run = (amps > 0).astype(float)
+    assert two_states(run) == (0.0, 1.0)
+    rng = np.random.default_rng(2)
+    frame = pd.DataFrame({"C2_AMPS": amps, "C2_RUN": run, "FLOW": 20 + rng.normal(0, 1, 400)})
+    chosen, skipped = choose_tests(frame)
+    assert chosen == ["FLOW"]
+    assert skipped["C2_RUN"].startswith("a discrete state (0 or 1: ")
+    assert skipped["C2_AMPS"].startswith("holds one value (0) on 396 of 400 samples, others on 4")
+    amps[[300, 301]] = 40.0  # a second level read twice: a state (0 and 40 hold 99 %)
+    assert two_states(amps) == (0.0, 40.0)

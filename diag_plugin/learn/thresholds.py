@@ -55,7 +55,7 @@ from diag_plugin.diagnose.residuals import supported
 from diag_plugin.diagnose.unit import Unit, spread_factor
 from diag_plugin.diagnose.unitfile import WHY, CombinedSpec, hours
 from diag_plugin.learn.budget import TestBudget, calibrate
-from diag_plugin.models.protocol import REASON_NAN, Prediction
+from diag_plugin.models.protocol import REASON_NAN, REASON_OUTSIDE, Prediction
 from diag_plugin.models.series import autocorrelation
 
 #: samples skipped at the start of a learning window (and of each run in it): the filter
@@ -68,6 +68,14 @@ DEFAULT_FAR = 0.001
 DEFAULT_BLOCKS = 5
 #: a coarser level answering fewer samples of the window than this is not calibrated
 MIN_LEVEL_SAMPLES = 30
+#: an input whose values over a fold's training rows lie within this share of their size
+#: (at least of 1) never varied there (:func:`unseen_inputs`)
+UNSEEN_TOL = 1e-9
+#: a test whose thresholds lie beyond this many times its output's span (residuals in % of
+#: span or of the maximum) gets a warning naming it: no fault-free residual reaches them
+WIDE_LIMITS = 10.0
+#: what such a warning says (``diag unit build`` prints each, not among its first notes only)
+WIDE_SAID = "no fault-free residual reaches them"
 #: known residual values a test needs in the window
 MIN_KNOWN = 30
 #: ``by_run`` of :func:`learn_thresholds`: the cross-fitting's blocks cut every run (window)
@@ -506,8 +514,30 @@ def _cross_fitted(rb, X, y, block, blocks: int, test: str) -> Prediction:
             )
         if held.any():
             model = rb.new_model().fit(X[train], y[train])
-            parts.append((held, rb.predictor(model).predict_detail(X[held])))
+            pred = rb.predictor(model).predict_detail(X[held])
+            parts.append((held, unseen_inputs(pred, X[train], X[held])))
     return _assemble(len(y), parts)
+
+
+def unseen_inputs(pred: Prediction, seen: np.ndarray, X: np.ndarray) -> Prediction:
+    """``pred`` of rows ``X`` by a fold's model, unknown (``outside``) where an input the
+    fold's training rows ``seen`` held at one value takes another: the fold never saw it
+    vary, so its model says nothing of what a change does (a line through a pump's
+    running rows only, extrapolated to its stopped ones, gave residuals of 10¹⁴ % of span;
+    at run time the span guard keeps the plant's model to the range it learned)."""
+    if not len(seen) or not len(X):
+        return pred
+    lo, hi = np.nanmin(seen, axis=0), np.nanmax(seen, axis=0)
+    tol = UNSEEN_TOL * np.maximum(1.0, np.abs(lo))
+    flat = np.isfinite(lo) & (hi - lo <= tol)
+    if not flat.any():
+        return pred
+    other = (np.abs(X[:, flat] - lo[flat]) > tol[flat]).any(axis=1)
+    if not other.any():
+        return pred
+    y, support, reason = pred.y.copy(), pred.support.copy(), pred.reason.copy()
+    y[other], support[other], reason[other] = np.nan, 0.0, REASON_OUTSIDE
+    return Prediction(y, support, reason, pred.level, pred.spread)
 
 
 def _unknown_reasons(n: int, rows: np.ndarray, y: np.ndarray, pred: Prediction, unit: Unit):
@@ -679,6 +709,7 @@ def learn_thresholds(
                 f"{far_tests:g} per hour (a window of {hours(b.hours_needed)} would); "
                 f"thresholds extrapolated by a {b.method} fit"
             )
+    warnings += wide_limits(limits, in_spread, unit.ev["scale"] == "max")
     combined = None
     if unit.ev["combined"] or unit.ev["isolation"] == "tags":
         block = blocked[keep]
@@ -721,6 +752,27 @@ def learn_thresholds(
         body=body,
         off=off,
     )
+
+
+def wide_limits(
+    limits: dict[str, tuple[float, float]], in_spread: dict[str, bool], of_max: bool = False
+) -> list[str]:
+    """A warning per test whose thresholds lie beyond :data:`WIDE_LIMITS` times its output's
+    span (its residual in % of span, or of the maximum with ``of_max``; a test in units of
+    its model's spread is not judged): no fault-free residual reaches such a band, so the
+    test never alarms — a model that extrapolated where the cross-fitting held a block out."""
+    unit = "% of its maximum" if of_max else "% of span"
+    out = []
+    for name, (lo, hi) in limits.items():
+        if in_spread.get(name) or max(abs(lo), abs(hi)) <= 100.0 * WIDE_LIMITS:
+            continue
+        times = max(abs(lo), abs(hi)) / 100.0
+        out.append(
+            f"{name}: thresholds {lo:+.4g} … {hi:+.4g} {unit}, {times:.3g} times its output's "
+            f"span: {WIDE_SAID} (a model that extrapolated where the "
+            f"cross-fitting held a block out); build over a longer window or check its inputs"
+        )
+    return out
 
 
 def robust_sd(residual: np.ndarray) -> float:

@@ -183,14 +183,24 @@ def triangles(M: np.ndarray) -> np.ndarray:
     return np.linalg.qr(M, mode="r")
 
 
+#: singular values of ``R_A`` below this share of its largest count as zero in
+#: :func:`solve_triangle`: a column the rows do not determine (an input constant over them,
+#: so a copy of the constant) leaves rounding of about ``eps·√rows`` there, not an exact 0,
+#: and ``lstsq``'s default cut-off (``eps·columns``) kept it — a short window's fold where a
+#: pump ran throughout got coefficients of ±4·10¹³ on its run tag and the constant
+#: (issue 34: thresholds of 10¹⁴ % of span)
+RANK_RCOND = 1e-10
+
+
 def solve_triangle(R: np.ndarray) -> np.ndarray:
     """The least-squares solution held by the ``R`` of ``[A | b]`` (see
-    :class:`QRLeastSquares`); minimum norm where the rows do not determine it."""
+    :class:`QRLeastSquares`); minimum norm where the rows do not determine it (singular
+    values under :data:`RANK_RCOND` of the largest taken as zero)."""
     p = R.shape[1] - 1
     k = min(p, R.shape[0])
     if k == 0:
         return np.zeros(p)
-    return np.linalg.lstsq(R[:k, :p], R[:k, p], rcond=None)[0]
+    return np.linalg.lstsq(R[:k, :p], R[:k, p], rcond=RANK_RCOND)[0]
 
 
 def output_lags_of(output_spec: str, input_specs: Sequence[str]) -> list[int]:

@@ -109,7 +109,7 @@ from diag_plugin.unitbuild.loops import (
 )
 from diag_plugin.unitbuild.parallel import DaskPool, default_workers, map_tests, one_blas_thread
 from diag_plugin.unitbuild.read import read_sampling, read_window
-from historian.discrete import discrete_levels, levels_text
+from historian.discrete import DISCRETE_SHARE, discrete_levels, levels_text
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
 
@@ -150,6 +150,10 @@ MIN_GOOD_SHARE = 0.5
 DISCRETE_WHY = "a discrete state"
 #: how :func:`choose_tests` begins the reason of a tag constant over the window
 CONSTANT_WHY = "constant over the window"
+#: how :func:`choose_tests` begins the reason of a tag that holds one value on
+#: :data:`~historian.discrete.DISCRETE_SHARE` of the window, its other values no level
+#: (:func:`rarely_away`)
+RARE_WHY = "holds one value"
 #: grid points a window needs (a window under short.SHORT_ROWS is built as a short one, see
 #: :mod:`diag_plugin.unitbuild.short`)
 MIN_ROWS = short.MIN_ROWS
@@ -305,9 +309,35 @@ def choose_tests(
                 f"{DISCRETE_WHY} ({held_values_text(v[good], two)}: a mode of the plant, as a "
                 "pump's run feedback; kept as a candidate input, never a tag at fault)"
             )
+        elif tags is None and (away := rarely_away(v[good])) is not None:
+            skipped[t] = away
         else:
             chosen.append(t)
     return chosen, skipped
+
+
+def rarely_away(v: np.ndarray) -> str | None:
+    """What the build says of a tag that holds one value on
+    :data:`~historian.discrete.DISCRETE_SHARE` of its good samples, its other values too few
+    or too scattered to be a level (no discrete state, :func:`two_states`), else None: the
+    window shows too little of it away from that value to learn what it does there. A
+    standby compressor that ran 4 of a short window's 400 samples, its current 0 on 396 and
+    32.3–34.8 A on 4: a level test against the window's mean alarmed whenever it ran (57 % of
+    the fault-free days), a discrete state made every other combination CHECK_FUNCTION
+    (acceptance-compressors.md). Not tested, not a state; a candidate input."""
+    vals, counts = np.unique(v, return_counts=True)
+    if len(vals) < 2:
+        return None
+    top = int(np.argmax(counts))
+    if counts[top] < DISCRETE_SHARE * len(v):
+        return None
+    away = len(v) - int(counts[top])
+    return (
+        f"{RARE_WHY} ({vals[top]:g}) on {int(counts[top])} of {len(v)} samples, others on "
+        f"{away} ({len(vals) - 1} distinct, no level a state holds): too few to learn what it "
+        "does away from it (a standby that barely ran); not tested, kept as a candidate "
+        "input; build on a window where it moves more"
+    )
 
 
 def constant_tags(
@@ -1382,7 +1412,7 @@ def _build_unit(
             for t in untested
             if t not in {m.tag for m in hand}
             and t not in driven
-            and not skipped.get(t, "").startswith(DISCRETE_WHY)
+            and not skipped.get(t, "").startswith((DISCRETE_WHY, RARE_WHY))
         ]
         kept.extend(blind_pair_tests(kept, blind, plan, ctx, taken))
         kept = unread_slow_levels(kept, slow_level, skipped)

@@ -268,7 +268,12 @@ def cmd_unit_build(args) -> int:
     for tag, why in res.skipped.items():
         if tag not in hand:
             print(f"  not tested: {tag}: {why}")
-    for line in note_lines(res.notes):
+    from diag_plugin.learn.thresholds import WIDE_SAID
+
+    wide = [n for n in res.notes if WIDE_SAID in n]  # a test that never alarms: each said
+    for n in wide:
+        print(f"  ⚠ {n}")
+    for line in note_lines([n for n in res.notes if WIDE_SAID not in n]):
         print(line)
     print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in res.seconds.items()))
     print(f"next: diag unit show {args.name}; diag diagnose {args.name} --from … --to …")
