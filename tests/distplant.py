@@ -22,20 +22,20 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from scipy.signal import lfilter
+
+from tests import heater
 
 PERIOD_S = 60.0
 AT_FAULT = {"dew_bias": "P_DEW", "load_bias": "F_LOAD"}
 
 
 def _ou(rng: np.random.Generator, n: int, sd: float, tau_s: float) -> np.ndarray:
-    a = np.exp(-PERIOD_S / tau_s)
-    return lfilter([1], [1, -a], rng.standard_normal(n) * sd * np.sqrt(1 - a * a))
+    """:func:`tests.heater._ou` at this plant's period (the same filter, ``τ`` rescaled)."""
+    return heater._ou(rng, n, sd, tau_s * heater.PERIOD_S / PERIOD_S)
 
 
 def _lag(x: np.ndarray, tau_s: float) -> np.ndarray:
-    a = np.exp(-PERIOD_S / tau_s)
-    return lfilter([1 - a], [1, -a], x, zi=[a * x[0]])[0]
+    return heater._lag(x, tau_s * heater.PERIOD_S / PERIOD_S)
 
 
 def simulate(days: float, seed: int, fault: str | None = None, onset_days: float = 1.0,
