@@ -700,7 +700,7 @@ class Plant:
             held_on = self._test_holds[ui].transform(on_v[None, :], alarm)
             held = units[ui].test_names.fill(held, held_on)[0]
             if active[ui]:
-                tags[ui] = _top(held, names)
+                tags[ui] = _top(held, names, units[ui].untested)
             if c_on[ui]:
                 notes[ui].append(f"combined test on (T² {t2:.3g})")
             if tags[ui]:
@@ -903,12 +903,15 @@ def _after(cols: np.ndarray, n_tags: int) -> np.ndarray:
     return np.where(cols < 0, n_tags - 1 - cols, cols)
 
 
-def _top(share: np.ndarray, names: list[str]) -> list[tuple[str, float]]:
-    """The top tags by share, as :func:`~diag_plugin.diagnose.unittags.top_tags` ranks them."""
+def _top(share: np.ndarray, names: list[str], untested=None) -> list[tuple[str, float]]:
+    """The top tags by share, as :func:`~diag_plugin.diagnose.unittags.top_tags` ranks them
+    (``untested``: the unit's :class:`~diag_plugin.diagnose.unittags.Untested`)."""
     from diag_plugin.diagnose.unittags import TOP, rank
 
-    s = np.nan_to_num(share, nan=-1.0)
-    order = rank(s)[0, :TOP]
+    s = np.nan_to_num(np.atleast_2d(share), nan=-1.0)
+    key = untested.key(s) if untested is not None else None
+    order = rank(s if key is None else key)[0, :TOP]
+    s = s[0]
     return [(names[k], float(s[k])) for k in order if s[k] > 0]
 
 

@@ -76,6 +76,7 @@ from diag_plugin.diagnose.unitloops import (
 from diag_plugin.diagnose.unittags import (
     CombinedModel,
     TestNames,
+    Untested,
     derived_matrix,
     describe_top,
     top_columns_at,
@@ -474,6 +475,8 @@ class Unit:
         #: the tags the tests in alarm name beside the shares of T² (a kept-out test's
         #: always, any test's where T² names none)
         self.test_names = None if self.cmodel is None else TestNames.of(self, self.cmodel.tags)
+        #: the inputs no test models, ranked after a tested output that explains as much
+        self.untested = None if self.cmodel is None else Untested.of(self, self.cmodel.tags)
         self.level_points = level_points(self)
         #: per test the history its model reads (unknown for that many samples at start): its
         #: longest lag, and a rate's samples (``rate(TAG,L)`` reads L more)
@@ -1051,7 +1054,7 @@ class Unit:
             held_on = self.test_episode.transform_at(self.test_names.on_values(r_on, s_on), active)
             held = self.test_names.fill(held, held_on)
             # the ranking's columns as arrays (the alarm hold edits them), one frame at the end
-            top = top_columns_at(held, self.cmodel.tags, active)
+            top = top_columns_at(held, self.cmodel.tags, active, untested=self.untested)
         alone = (active if self.exact_only else c_on & ~tests_on) & (faults == "")
         if alone.any():  # the combined test alone (or symptoms no column explains, with
             # exact_only): the unit fails, at the best-ranked tag
