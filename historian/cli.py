@@ -98,6 +98,12 @@ def add_commands(subparsers) -> None:
     t.add_argument("--json", action="store_true", help="print JSON instead of a table")
     t.add_argument("--start", help="summarise from this time (default: each tag's first)")
     t.add_argument("--end", help="summarise up to this time (default: each tag's last)")
+    t.add_argument(
+        "--tags",
+        dest="tags_csv",
+        help="tags CSV whose 'role' column declares states (state, phase, step, running): "
+        "such a tag holding one value for hours is a state, not flat-lined",
+    )
     t.set_defaults(func=cmd_tags)
 
     h = subparsers.add_parser(
@@ -299,11 +305,21 @@ def _report_json(r) -> dict:
 
 
 def cmd_tags(args) -> int:
+    states: set[str] = set()
+    if getattr(args, "tags_csv", None):
+        from historian.importer import read_state_tags
+
+        try:
+            states = read_state_tags(args.tags_csv)
+        except FileNotFoundError:
+            raise UserError(f"--tags {args.tags_csv}: no such file") from None
+        except ValueError as e:
+            raise UserError(str(e)) from None
     if args.start is None and args.end is None and _stored_tags(args.db) == 0:
         records: list[dict] = []  # an empty historian: nothing to summarise (no pandas)
     else:
         with _open(args) as h:
-            records = h.tag_report(args.start, args.end).to_dict("records")
+            records = h.tag_report(args.start, args.end, states=states).to_dict("records")
     records.sort(key=lambda r: natural_key(r["tag"]))
     if args.json:
         rows = [{k: to_jsonable(v) for k, v in r.items()} for r in records]

@@ -1512,6 +1512,27 @@ def read_tags_csv(path: str | Path) -> list[dict]:
     return out
 
 
+#: a tags CSV's roles that declare a discrete state (``diag unit build``'s, unitbuild/loops.py):
+#: a recipe's phase or step, a state, a run condition
+STATE_ROLES = ("state", "phase", "step", "running")
+
+
+def read_state_tags(path: str | Path) -> set[str]:
+    """The tags a tags CSV declares discrete states (:data:`STATE_ROLES` in its ``role``
+    column; none without one), for ``diag tags --tags``. A file without a ``name`` (or
+    ``tag``) column raises ValueError ``file:1``."""
+    path = Path(path)
+    frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+    cols = {c.strip().lower(): c for c in frame.columns}
+    c_name = cols.get("name", cols.get("tag"))
+    if c_name is None:
+        raise ValueError(f"{path}:1: a tags CSV needs a 'name' (or 'tag') column")
+    if "role" not in cols:
+        return set()
+    roles = frame[cols["role"]].str.strip().str.lower()
+    return {n.strip() for n in frame.loc[roles.isin(STATE_ROLES), c_name] if n.strip()}
+
+
 def _join(pieces: list[tuple]) -> tuple[pd.DataFrame, pd.DataFrame, int, np.ndarray]:
     """Pieces ``(values, quality, samples, lines)`` in file order as one (no time is in
     two: :class:`_Repeats`)."""

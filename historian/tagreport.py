@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 import numpy as np
 import pandas as pd
 
@@ -17,9 +19,13 @@ class TagReport:
     """``tag_report``. Needs ``self.tags()``, ``self._tag(name)`` and
     ``self._read_raw(tag_id, start, end)``."""
 
-    def tag_report(self, start=None, end=None, *, flat="30min") -> pd.DataFrame:
+    def tag_report(
+        self, start=None, end=None, *, flat="30min", states: Collection[str] = ()
+    ) -> pd.DataFrame:
         """Per tag: metadata, sampling interval and the data-quality summary over its own
-        time span (or [start, end)); what ``diag tags`` shows."""
+        time span (or [start, end)); what ``diag tags`` shows. ``states``: tags declared
+        discrete states (a tags CSV's role ``state``, ``phase``, ``step`` or ``running``): a
+        state whatever the rule says (a recipe's phase of six values)."""
         tags = self.tags()
         rows = {}
         for name, lo, hi in zip(tags["name"], tags["lo"], tags["hi"], strict=True):
@@ -37,7 +43,11 @@ class TagReport:
                 s2, e2 = 0, 1
             row = summarize(ts, v, q, s2, e2, own, lo=_num(lo), hi=_num(hi), flat=period_us(flat))
             row["interval_s"] = dt / 1e6 if len(ts) > 2 else np.nan
-            row.update(_state_holds(ts, v, q, period_us(flat)) if row["flat"] else NO_STATE)
+            row.update(
+                _state_holds(ts, v, q, period_us(flat), declared=name in states)
+                if row["flat"]
+                else NO_STATE
+            )
             rows[name] = row
         report = summary_frame(rows).reset_index()
         for col in ("interval_s", *NO_STATE):
@@ -50,14 +60,24 @@ class TagReport:
 NO_STATE = {"state": None, "held": None, "held_s": 0.0}
 
 
-def _state_holds(ts, v, q, flat_us: int) -> dict:
+#: the most values a declared state's levels are listed by (a recipe's phases; more: an
+#: analog tag declared by mistake, left to the rule)
+DECLARED_MAX_LEVELS = 20
+
+
+def _state_holds(ts, v, q, flat_us: int, *, declared: bool = False) -> dict:
     """A tag whose values are a few discrete levels (:func:`~historian.discrete.discrete_levels`,
     the rule ``diag unit build`` finds a discrete state by: a filter's 0/1/2) holding one for
     hours is a state, not a frozen sensor: its long runs are no flat line. Its levels
     (``state``, as ``0, 1 or 2``), the value of its longest run (``held``) and how long
-    (``held_s``); ``flat`` and ``flat_s`` 0. Any other tag: :data:`NO_STATE`."""
+    (``held_s``); ``flat`` and ``flat_s`` 0. A ``declared`` state (a tags CSV's role) is one
+    on at most :data:`DECLARED_MAX_LEVELS` values whatever the rule says. Any other tag:
+    :data:`NO_STATE`."""
     usable = (q < BAD) & np.isfinite(v)
     levels = discrete_levels(v[usable])
+    if levels is None and declared:
+        vals = np.unique(v[usable])
+        levels = tuple(vals.tolist()) if 2 <= len(vals) <= DECLARED_MAX_LEVELS else None
     if levels is None:
         return NO_STATE
     value, dur = flat_runs(ts[usable], v[usable], flat_us)

@@ -52,3 +52,41 @@ def test_a_state_held_for_hours_is_no_flat_line(tmp_path, capsys):
     }
     assert "holds 0 for 30.0 h (a state)" in table["F1_STATE"], table["F1_STATE"]
     assert "1 (2.0 h)" in table["F1_FLOW"], table["F1_FLOW"]
+
+
+def _reactor(n_days: float = 2.0) -> pd.DataFrame:
+    """A batch reactor's recipe phase at 1 min, six values (idle 0 for 8 h, then charge 1,
+    heat-up 2, hold 3, cool-down 4, discharge 5): more levels than the rule finds a state by;
+    its stirrer's speed, a constant set-point held for the whole window."""
+    n = int(n_days * 1440)
+    phase = np.zeros(n)
+    for start in range(480, n, 16 * 60):
+        for k, minutes in enumerate((30, 90, 240, 90, 20), start=1):
+            phase[start : start + minutes] = k
+            start += minutes
+    idx = T0 + pd.to_timedelta(np.arange(n), unit="min")
+    return pd.DataFrame({"PHASE": phase, "AGIT_SPEED": np.full(n, 120.0)}, index=idx)
+
+
+def test_a_phase_declared_in_the_tags_csv_is_a_state(tmp_path, capsys):
+    """A recipe's phase (six values) is no state by the rule: ``diag tags`` listed it as
+    flat-lined. With ``--tags`` and its role ``phase`` (as ``diag unit build`` reads it), it
+    is a state; a tag of no such role is judged as before, and a missing file is said."""
+    from diag_plugin.cli import main
+
+    db = f"sqlite:///{tmp_path / 'h.db'}"
+    with Historian(db) as h:
+        h.write_samples(_reactor())
+    tags = tmp_path / "tags.csv"
+    tags.write_text("name,unit,role\nPHASE,,phase\nAGIT_SPEED,rpm,\n")
+    assert main(["--db", db, "tags", "--json"]) == 0
+    rows = {r["tag"]: r for r in json.loads(capsys.readouterr().out)}
+    assert rows["PHASE"]["state"] is None and rows["PHASE"]["flat"] >= 1, rows["PHASE"]
+    assert main(["--db", db, "tags", "--json", "--tags", str(tags)]) == 0
+    rows = {r["tag"]: r for r in json.loads(capsys.readouterr().out)}
+    ph = rows["PHASE"]
+    assert ph["flat"] == 0 and ph["state"] == "0, 1, 2, 3, 4 or 5", ph
+    assert ph["held"] == 0 and 8 * 3600 <= ph["held_s"] <= 8.25 * 3600, ph  # idle between batches
+    assert rows["AGIT_SPEED"]["state"] is None and rows["AGIT_SPEED"]["flat"] == 1
+    assert main(["--db", db, "tags", "--tags", str(tmp_path / "none.csv")]) == 2
+    assert "none.csv: no such file" in capsys.readouterr().err
