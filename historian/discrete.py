@@ -8,6 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 
+#: the roles of a declared discrete state in a tags CSV (a row without a loop): a recipe's
+#: phase or step, a mode of more levels than :func:`discrete_levels` finds (``diag unit
+#: build --state``, ``diag tags --tags``)
+STATE_ROLES = ("state", "phase", "step")
+#: the role of a run condition in a tags CSV (a two-valued state the unit or a piece runs by)
+RUNNING_ROLE = "running"
+
 #: a tag whose few commonest values hold this share of its good values is a discrete state:
 #: the rest are points a switch fell within and a grid averaged (docs/reference/historian.md,
 #: "Aligned windows")

@@ -1467,8 +1467,7 @@ def read_tags_csv(path: str | Path) -> list[dict]:
     description, source, as keyword dicts for :meth:`Historian.ensure_tag`. A bad number
     raises ValueError ``file:line``."""
     path = Path(path)
-    frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
-    cols = {c.strip().lower(): c for c in frame.columns}
+    frame, cols, c_name = _tags_frame(path)
 
     def col(*names):
         for n in names:
@@ -1476,9 +1475,6 @@ def read_tags_csv(path: str | Path) -> list[dict]:
                 return cols[n]
         return None
 
-    c_name = col("name", "tag")
-    if c_name is None:
-        raise ValueError(f"{path}:1: a tags CSV needs a 'name' (or 'tag') column")
     c_unit, c_desc, c_src = col("unit"), col("description"), col("source")
     c_lo, c_hi = col("lo", "min", "range_lo"), col("hi", "max", "range_hi")
     out = []
@@ -1512,25 +1508,29 @@ def read_tags_csv(path: str | Path) -> list[dict]:
     return out
 
 
-#: a tags CSV's roles that declare a discrete state (``diag unit build``'s, unitbuild/loops.py):
-#: a recipe's phase or step, a state, a run condition
-STATE_ROLES = ("state", "phase", "step", "running")
-
-
-def read_state_tags(path: str | Path) -> set[str]:
-    """The tags a tags CSV declares discrete states (:data:`STATE_ROLES` in its ``role``
-    column; none without one), for ``diag tags --tags``. A file without a ``name`` (or
-    ``tag``) column raises ValueError ``file:1``."""
-    path = Path(path)
+def _tags_frame(path: Path) -> tuple[pd.DataFrame, dict[str, str], str]:
+    """A tags CSV as text cells, its columns by lower-case name and its name (or tag)
+    column; a file without one raises ValueError ``file:1``."""
     frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
     cols = {c.strip().lower(): c for c in frame.columns}
     c_name = cols.get("name", cols.get("tag"))
     if c_name is None:
         raise ValueError(f"{path}:1: a tags CSV needs a 'name' (or 'tag') column")
+    return frame, cols, c_name
+
+
+def read_state_tags(path: str | Path) -> set[str]:
+    """The tags a tags CSV declares discrete states (a ``role`` of
+    :data:`~historian.discrete.STATE_ROLES` or :data:`~historian.discrete.RUNNING_ROLE`, as
+    ``diag unit build`` reads them; none without a ``role`` column), for ``diag tags --tags``."""
+    from .discrete import RUNNING_ROLE, STATE_ROLES
+
+    frame, cols, c_name = _tags_frame(Path(path))
     if "role" not in cols:
         return set()
     roles = frame[cols["role"]].str.strip().str.lower()
-    return {n.strip() for n in frame.loc[roles.isin(STATE_ROLES), c_name] if n.strip()}
+    declared = roles.isin((*STATE_ROLES, RUNNING_ROLE))
+    return {n.strip() for n in frame.loc[declared, c_name] if n.strip()}
 
 
 def _join(pieces: list[tuple]) -> tuple[pd.DataFrame, pd.DataFrame, int, np.ndarray]:

@@ -67,3 +67,13 @@ def test_a_stopped_piece_is_said_at_the_value_its_run_tag_holds():
     }
     assert np.array_equal(texts["F1 stopped (F1_STATE = 2): tests F1_FLOW off"], v == 2)
     assert np.array_equal(texts["F1 stopped (F1_STATE = 1): tests F1_FLOW off"], v == 1)
+    # a run tag of many values while stopped (a historian's means across switches): one
+    # reason at the stop value, not one a value
+    rng = np.random.default_rng(3)
+    analog = np.where(v != 0, 1.0 + rng.uniform(0.0, 0.4, len(v)), 0.0)
+    _, said, _, _ = off_mask(
+        [piece], [np.array([0])], {"F1_STATE": analog}, np.array([10**6]), ["F1_FLOW"], len(v)
+    )
+    assert [text for _, text in said] == [
+        f"F1 stopped (F1_STATE = {piece.rc.stop:g}): tests F1_FLOW off"
+    ]

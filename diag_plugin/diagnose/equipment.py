@@ -51,7 +51,7 @@ import numba
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.running import RunCondition
+from diag_plugin.diagnose.running import RunCondition, stop_levels
 
 
 @dataclass(frozen=True)
@@ -224,8 +224,11 @@ def off_mask(
         off[np.ix_(stopped, cols)] = True
         state[stopped, k] = STOPPED
         which = [names[j] for j in cols]
-        for value in np.unique(v[stopped]):  # the value it is stopped at (1 or 2)
-            said.append((stopped & (v == value), e.why(which, float(value))))
+        levels = stop_levels(v[stopped])  # the value it is stopped at (1 or 2; None: analog)
+        if levels is None:
+            said.append((stopped, e.why(which)))
+        for value in levels or ():
+            said.append((stopped & (v == value), e.why(which, value)))
     return off, said, state, starts
 
 

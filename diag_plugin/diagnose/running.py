@@ -79,12 +79,12 @@ class RunCondition:
         where the tag takes a few levels (a filter stopped at backwash, 1, and at
         filter-to-waste, 2), else the stop value; one text where all say the same."""
         x = np.asarray(values, float)
-        levels = np.unique(x[np.isfinite(x)])
-        if len(levels) <= 1 or len(levels) > WHY_LEVELS:
-            return self.why(levels[0] if len(levels) == 1 else None)
+        levels = stop_levels(x)
+        if levels is None or len(levels) == 1:
+            return self.why(None if levels is None else levels[0])
         out = np.full(len(x), self.why(), dtype=object)
         for v in levels:
-            out[x == v] = self.why(float(v))
+            out[x == v] = self.why(v)
         return out
 
     def as_table(self) -> dict[str, object]:
@@ -93,6 +93,15 @@ class RunCondition:
         if self.share is not None:
             out["share"] = round(float(self.share), 4)
         return out
+
+
+def stop_levels(values: np.ndarray) -> list[float] | None:
+    """The values a run tag held over stopped samples, each named in their why where there
+    are at most :data:`WHY_LEVELS` (a discrete state's levels); None for more (an analog run
+    tag: its why names the stop value) or none."""
+    x = np.asarray(values, float)
+    levels = np.unique(x[np.isfinite(x)])
+    return None if not 1 <= len(levels) <= WHY_LEVELS else [float(v) for v in levels]
 
 
 def read_running(table: Mapping, error: Callable[[int, str], None], line_of) -> RunCondition | None:

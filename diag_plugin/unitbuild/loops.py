@@ -69,6 +69,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from historian.discrete import RUNNING_ROLE, STATE_ROLES
 from historian.errors import UserError
 
 #: role names of the tags CSV's ``role`` column, and the part of a loop each one is
@@ -77,11 +78,9 @@ ROLES = {"pv": "pv", "sensor": "pv", "sp": "sp", "out": "out", "actuator": "out"
 MANUAL = "manual"
 #: the roles of a measured disturbance in the tags CSV (a row without a loop)
 DISTURBANCE = ("disturbance", "driver", "exogenous")
-#: the roles of a declared discrete state in the tags CSV (a row without a loop): a recipe's
-#: phase or step, a mode of more levels than the build finds by itself
-STATE = ("state", "phase", "step")
-#: the role of a run condition in the tags CSV (a row without a loop)
-RUNNING = "running"
+#: the roles of a declared discrete state and of a run condition in the tags CSV (rows
+#: without a loop; historian/discrete.py, which ``diag tags --tags`` reads them by too)
+STATE, RUNNING = STATE_ROLES, RUNNING_ROLE
 
 
 @dataclass(frozen=True)
