@@ -63,13 +63,13 @@ def test_the_input_outside_is_named_with_its_value_and_when_it_left(period):
         sent.format("6", t[2].isoformat()),  # the same excursion: since it began
         sent.format("1", t[5].isoformat()),
     ]
-    # inside the range the sentence is the combination's (each inside, not together)
-    assert out[0] == "PI-101 = 3: each within what the unit learned, but not together"
-    assert out[4].startswith("PI-101 = 4: each within") and out[6] == ""
+    # inside the range a test of one input has its value in a gap (no rule there)
+    assert out[0] == "PI-101 = 3: in a gap of what the unit learned (1.5 … 4.5)"
+    assert out[4].startswith("PI-101 = 4: in a gap") and out[6] == ""
     # the edges themselves were learned
     edge = ol.reset().transform(_frame(period, A=[1.5, 4.5]), np.ones((2, 1), bool),
                                 np.ones(2, bool))  # fmt: skip
-    assert all("not together" in s for s in edge)
+    assert all("in a gap of" in s for s in edge)
 
 
 def test_only_an_unknown_tests_input_is_named_and_the_first_one_out_wins():
@@ -105,6 +105,27 @@ def test_an_excursion_keeps_its_start_across_pieces():
     ol.transform(f.iloc[:15], np.ones((15, 1), bool), np.ones(15, bool))
     again = ol.transform(f.iloc[15:], np.ones((10, 1), bool), np.ones(10, bool))
     assert again[5].endswith(f"since {t[20].isoformat()}")
+
+
+def test_one_input_inside_its_range_is_in_a_gap_not_together():
+    """A test of one input with no rule at a value inside its learned range (acceptance pass
+    10, docs/explanation/acceptance-pasteuriser.md: a pasteuriser's new production rate,
+    12.6 m³/h, between the runs' 8.5-11 and the cleaning's 14 m³/h, `FEED_VFD =
+    f(FEED_FLOW_SP)`): main said `FEED_FLOW_SP = 12.6: each within what the unit learned,
+    but not together`, of one value; it is a gap in what the unit learned, with its range.
+    A test of two inputs keeps its sentence, and each test is named by its own inputs."""
+    f = _frame("1s", SP=[12.6, 12.6, 9.0], B=[1.0, 1.0, 2.0])
+    ranges = [Range(0, "SP", 0.0, 14.0), Range(1, "SP", 0.0, 14.0, lag=2), Range(1, "B", 0.0, 4.0)]
+    unknown = np.array([[True, False], [False, True], [False, True]])
+    out = OutsideLearned(ranges, names={"SP": "FEED_FLOW_SP"}).transform(
+        f, unknown, np.ones(3, bool)
+    )
+    assert out[0] == "FEED_FLOW_SP = 12.6: in a gap of what the unit learned (0 … 14)"
+    assert "not together" not in out[0]
+    assert out[1] == "FEED_FLOW_SP[k-2] without a value"
+    assert out[2] == (
+        "FEED_FLOW_SP[k-2] = 12.6, B = 2: each within what the unit learned, but not together"
+    )
 
 
 def test_inputs_inside_but_not_together_or_without_a_value_are_said_so():
@@ -146,9 +167,7 @@ def test_a_lagged_input_is_judged_by_the_value_the_model_reads():
                 == f"FT1[k-3] = 9 outside what the unit learned (0 … 5) since {t[9].isoformat()}"
             ), i
         else:
-            assert (
-                whole[i] == "FT1[k-3] = 2: each within what the unit learned, but not together"
-            ), i
+            assert whole[i] == "FT1[k-3] = 2: in a gap of what the unit learned (0 … 5)", i
     ol = OutsideLearned(ranges, names={"A": "FT1"}).reset()
     cuts = [0, 2, 8, 10, 16]
     parts = [

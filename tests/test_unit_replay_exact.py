@@ -302,6 +302,12 @@ def _ref_combination(self, cols, unknown, todo, out, gone):  # every row, test b
             v = [float(cols[t][i]) for t in have]
             if not all(np.isfinite(v)) and any(x is not None for x in start[i]):
                 out[i] = _ref_gone(self, watch, start[i])  # a lagged input, and tags now
+            elif all(np.isfinite(v)) and len(v) == 1:
+                r = next(r for r in self.ranges if r.test == j and r.key == have[0])
+                out[i] = (
+                    f"{names[0]} = {v[0]:.4g}: in a gap of what the unit learned "
+                    f"({r.lo:.4g} … {r.hi:.4g})"
+                )
             elif all(np.isfinite(v)):
                 out[i] = (
                     ", ".join(f"{nm} = {x:.4g}" for nm, x in zip(names, v, strict=True))

@@ -421,12 +421,22 @@ class OutsideLearned:
             self._tests = tests
         return self._tests
 
+    def _in_a_gap(self, test: int, key: tuple[str, int], name: str, x: np.ndarray) -> np.ndarray:
+        """The sentence of a test of one input that has no rule at the input's value though
+        the value is inside its learned range (a gap between the values the window held:
+        acceptance pass 10, a pasteuriser's new production rate between the runs' and the
+        cleaning's flows): ``TAG = value: in a gap of what the unit learned (lo … hi)``."""
+        r = next(r for r in self.ranges if r.test == test and r.key == key)
+        tail = f": in a gap of what the unit learned ({r.lo:.4g} … {r.hi:.4g})"
+        return np.array([f"{name} = {v:.4g}{tail}" for v in x.tolist()], dtype=object)
+
     def _combination(self, cols, unk, rows_left, left, out, gaps) -> None:
         """The rows still unnamed (``rows_left``; ``unk``: the unknown tests at the rows to
         name, ``left`` of them those still unnamed; ``cols``: :attr:`Range.key` → values the
         model reads; ``gaps``: :meth:`_gaps` at the rows to name): each input of the first
         unknown test is inside what it learned, but not together (a grid cell without a
-        rule), or a tag it reads has no value (then every tag of the unit without one is
+        rule; a test of one input: its value in a gap, :meth:`_in_a_gap`), or a tag it reads
+        has no value (then every tag of the unit without one is
         named, :func:`gone_sentence`)."""
         tests = self._tests_keys()
         unk = unk[left]
@@ -469,7 +479,9 @@ class OutsideLearned:
                 said = [", ".join(nm for nm, m in zip(names, p, strict=True) if m)
                         + " without a value" for p in pats]  # fmt: skip
                 out[rows[holes]] = np.array(said, dtype=object)[inv.reshape(-1)]
-            if full.any() and names:  # written input by input, then joined per row
+            if full.any() and len(names) == 1:  # one input: no "together" to speak of
+                out[rows[full]] = self._in_a_gap(j, have[0], names[0], vals[full, 0])
+            elif full.any() and names:  # written input by input, then joined per row
                 each = [[f"{nm} = {x:.4g}" for x in vals[full, c].tolist()]
                         for c, nm in enumerate(names)]  # fmt: skip
                 out[rows[full]] = np.array(

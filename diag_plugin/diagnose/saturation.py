@@ -37,6 +37,22 @@ class _Loop:
     hi: float
 
 
+def _sentence(lp: _Loop, value: float, at_limit: bool, tol: float) -> str:
+    """The reason of a sample on which ``lp``'s actuator is named: at its limit now, or (the
+    name held to the episode's end) earlier in this alarm, with the value it reads now
+    (acceptance pass 10: a pasteuriser's balance-tank valve, shut at a production start,
+    named for the 6.5 h alarm after it, said `at its limit (50.4, …)` at 50.4 %)."""
+    span = f"its span {lp.lo:g} … {lp.hi:g}"
+    if not at_limit:
+        return (
+            f"{lp.actuator} at its limit earlier in this alarm (now {value:.4g}, {span}): "
+            f"loop {lp.pv} could not hold its set-point"
+        )
+    edge = lp.hi if value >= lp.hi - tol else lp.lo
+    val = value if np.isfinite(value) else edge
+    return f"{lp.actuator} at its limit ({val:.4g}, {span}): loop {lp.pv} cannot hold its set-point"
+
+
 class Saturation:
     """The loops whose actuator's limits the unit knows, and per loop whether the current
     alarm episode has named its actuator (carried across pieces)."""
@@ -105,12 +121,7 @@ class Saturation:
             free = named & (which < 0)
             which[free] = k
             for i in np.flatnonzero(free):
-                edge = lp.hi if v[i] >= lp.hi - tol else lp.lo
-                val = v[i] if np.isfinite(v[i]) else edge
-                text[i] = (
-                    f"{lp.actuator} at its limit ({val:.4g}, its span {lp.lo:g} … {lp.hi:g}): "
-                    f"loop {lp.pv} cannot hold its set-point"
-                )
+                text[i] = _sentence(lp, float(v[i]), bool(at[i]) or not np.isfinite(v[i]), tol)
             if n:
                 self.named[k] = bool(named[-1])
         if n:
