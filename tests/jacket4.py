@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from tests.line7 import operator_steps, tags_frame
+
 PERIOD_S = 15.0
 TAGS = ("FEED_T", "TEMP_TARGET", "TEMP", "COOL_OUT", "COOL_FLOW")
 
@@ -28,17 +30,10 @@ def simulate(
     days: float, seed: int, fault: str | None = None, onset_days: float = 1.0
 ) -> pd.DataFrame:
     """The vessel's 15 s samples over ``days`` (``fault`` from ``onset_days`` on)."""
+    n, onset = (int(d * 86400 / PERIOD_S) for d in (days, onset_days))
     rng = np.random.default_rng(seed)
-    n = int(days * 86400 / PERIOD_S)
-    onset = int(onset_days * 86400 / PERIOD_S)
     dt = PERIOD_S / 60.0  # minutes
-    sp = np.empty(n)
-    i, v = 0, 60.0
-    while i < n:
-        k = int(rng.uniform(3, 8) * 3600 / PERIOD_S)
-        v = float(np.clip(v + rng.normal(0, 1.5), 55.0, 65.0))
-        sp[i : i + k] = round(v, 1)
-        i += k
+    sp = operator_steps(rng, n, PERIOD_S, (3, 8), 60.0, 1.5, (55.0, 65.0))
     cap, w, kf, t_cw = 20.0, 0.5, 0.08, 20.0  # per minute: heat capacity, feed, coolant
     kp, ti = 4.0, 8.0  # %/K, minutes
     temp, feed, q, pos = 60.0, 30.0, 40.0, 50.0
@@ -64,11 +59,10 @@ def simulate(
 
 def tags_csv() -> pd.DataFrame:
     """The vessel's tags CSV, the loop declared in its ``loop`` and ``role`` columns."""
-    rows = [
+    return tags_frame([
         ("FEED_T", "degC", "feed temperature", "", ""),
         ("TEMP_TARGET", "degC", "reactor temperature target", "temp", "sp"),
         ("TEMP", "degC", "reactor temperature", "temp", "pv"),
         ("COOL_OUT", "%", "jacket coolant valve output", "temp", "out"),
         ("COOL_FLOW", "m3/h", "jacket coolant flow", "", ""),
-    ]
-    return pd.DataFrame(rows, columns=["name", "unit", "description", "loop", "role"])
+    ])  # fmt: skip
