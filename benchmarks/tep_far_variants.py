@@ -98,8 +98,8 @@ _ORIGINAL: dict = {}
 def main(argv: list[str] | None = None) -> int:
     from tep_matched_tuning import QUIET, TUNING_ONLY, _more_runs
 
-    from diag_plugin.bench.matched import calibrate, method_score, rates
-    from diag_plugin.bench.publicbench import build_unit_as_user, unit_statistics
+    from diag_plugin.bench.matched import calibrate, rates
+    from diag_plugin.bench.publicbench import build_unit_as_user, unit_score
     from diag_plugin.bench.publicplants import load_braatz, load_tep_studio
     from diag_plugin.diagnose.unit import Unit
 
@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
               float(kv.get("check", "inf")))  # fmt: skip
 
         def score(f: pd.DataFrame) -> np.ndarray:
-            return method_score(unit_statistics(unit, f)[0], on, off)
+            return unit_score(unit, f, on, off)[0]
 
         s_cal = [score(f) for f in cal]
         s_more = [score(f) for f in more.values()]

@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
         build_unit_as_user,
         pca_fit,
         pca_statistics,
-        unit_statistics,
+        unit_score,
     )
     from diag_plugin.bench.publicplants import load_braatz, load_tep_studio
 
@@ -86,10 +86,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def score(method: str, frame) -> np.ndarray:
         if method == "unit":
-            stats = unit_statistics(unit, frame)[0]
-        else:
-            stats = pca_statistics(dets[method], frame)[0]
-        return method_score(stats, on, off)
+            return unit_score(unit, frame, on, off)[0]
+        return method_score(pca_statistics(dets[method], frame)[0], on, off)
 
     if args.plant == "tep":
         quiet = [r.frame for r in plant.tuning if r.name in QUIET]

@@ -46,14 +46,8 @@ def simulate(
         x = 0.999 * x + 0.02 * rng.standard_normal()
         p[i] = 5.0 + x + 0.3 * np.sin(2 * np.pi * t[i] / 24.0)
     # operators: the set-point every 2–6 h, the manual valve every 6–18 h
-    sp = np.empty(n)
+    sp = operator_steps(rng, n, PERIOD_S, (2, 6), 10.0, 1.0, (8.0, 12.0))
     hv = np.empty(n)
-    i, v = 0, 10.0
-    while i < n:
-        k = int(rng.uniform(2, 6) * 3600 / PERIOD_S)
-        v = float(np.clip(v + rng.normal(0, 1.0), 8.0, 12.0))
-        sp[i : i + k] = round(v, 1)
-        i += k
     i, h = 0, 50.0
     while i < n:
         k = int(rng.uniform(6, 18) * 3600 / PERIOD_S)
@@ -92,6 +86,32 @@ def simulate(
     return pd.DataFrame(out, index=idx, columns=list(TAGS))
 
 
+def operator_steps(
+    rng: np.random.Generator,
+    n: int,
+    period_s: float,
+    hours: tuple[float, float],
+    start: float,
+    sd: float,
+    bounds: tuple[float, float],
+) -> np.ndarray:
+    """``n`` samples of a set-point an operator moves every ``hours`` (uniform) by a normal
+    step of ``sd`` within ``bounds``, entered to one decimal."""
+    out = np.empty(n)
+    i, v = 0, start
+    while i < n:
+        k = int(rng.uniform(*hours) * 3600 / period_s)
+        v = float(np.clip(v + rng.normal(0, sd), *bounds))
+        out[i : i + k] = round(v, 1)
+        i += k
+    return out
+
+
+def tags_frame(rows: list[tuple[str, str, str, str, str]]) -> pd.DataFrame:
+    """A tags CSV of ``(name, unit, description, loop, role)`` rows."""
+    return pd.DataFrame(rows, columns=["name", "unit", "description", "loop", "role"])
+
+
 def pi_valve(
     e: float, integ: float, pos: float, kp: float, dt: float, ti: float, stick: float | None
 ) -> tuple[float, float, float]:
@@ -117,7 +137,7 @@ def tags_csv() -> pd.DataFrame:
         ("HAND_VALVE", "%", "manual drain valve", "", ""),
         ("OUT_FLOW", "m3/h", "outlet flow", "", ""),
     ]
-    return pd.DataFrame(rows, columns=["name", "unit", "description", "loop", "role"])
+    return tags_frame(rows)
 
 
 def how_to_table(seed: int = 101, train_days: float = 6.0) -> str:

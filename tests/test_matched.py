@@ -223,9 +223,9 @@ def test_infinite_statistic_is_over_every_limit_and_unknown_never():
 @pytest.mark.slow
 def test_a_built_units_score_at_one_is_its_own_alarm(tmp_path):
     """The unit's score (tests over their thresholds, combined T² over its limit, each after
-    the unit's delays, then the maximum) is over 1 exactly where the unit itself alarms, on
-    a run it never saw, with a fault and without."""
-    from diag_plugin.bench.publicbench import unit_statistics
+    the unit's delays, its oscillation hold's, then the maximum) is over 1 exactly where the
+    unit itself alarms, on a run it never saw, with a fault and without."""
+    from diag_plugin.bench.publicbench import unit_score
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.simulate import coupled
     from diag_plugin.status import NE107
@@ -241,8 +241,7 @@ def test_a_built_units_score_at_one_is_its_own_alarm(tmp_path):
     on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
     seen = 0
     for frame in (run, faulty):
-        stats, contrib = unit_statistics(unit, frame)
-        s = method_score(stats, on, off)
+        s, contrib = unit_score(unit, frame, on, off)
         d = unit.reset().evaluate(frame)
         st = d.status.to_numpy()
         native = (st != NE107.NORMAL) & (st != NE107.CHECK_FUNCTION)

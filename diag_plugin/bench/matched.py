@@ -21,6 +21,12 @@ as the unit does per test, is one threshold on one scalar. Delays applied after 
 instead would let different statistics take turns to hold an alarm on; per statistic is how
 a unit (and a PCA chart per statistic) runs. Every method gets the same delays.
 
+A unit with an oscillation hold (``oscillation_window_s``, :class:`~diag_plugin.diagnose.
+unitloops.OscillationHold`: a test on on both sides within the window stays on) adds per test
+:func:`oscillation_score`, ``o(t) = min(max_w d⁺, max_w d⁻)`` of its two sides' delayed
+ratios over the last ``w`` samples: ``o(t) > λ`` exactly where both sides' alarms at ``λ``
+were on within the window, so the held alarm is again one threshold on one scalar.
+
 Counting, so a method cannot win by being unknown or by alarming more:
 
 * a sample where a method knows nothing (score NaN) is *not in alarm*, and stays in every
@@ -41,6 +47,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+import pandas as pd
 
 from diag_plugin.diagnose.unittags import side_ratio
 
@@ -52,6 +59,7 @@ __all__ = [
     "calibrate_leaving_out",
     "delayed_score",
     "episode_count",
+    "oscillation_score",
     "episode_interval",
     "method_score",
     "side_ratio",
@@ -102,10 +110,31 @@ def delayed_score(x: np.ndarray, on: int = 1, off: int = 1) -> np.ndarray:
     return d[:, 0] if one else d
 
 
-def method_score(stats: np.ndarray, on: int = 1, off: int = 1) -> np.ndarray:
+def oscillation_score(
+    up: np.ndarray, down: np.ndarray, on: int, off: int, window: int
+) -> np.ndarray:
+    """Per column (a test) the oscillation hold's statistic (module doc): the smaller of its
+    two sides' largest delayed ratio over the last ``window`` samples (``up``: ``r / high``,
+    ``down``: ``r / low``); NaN throughout for a window of 0 (no hold)."""
+    u = np.asarray(up, float).reshape(len(up), -1)
+    if window < 1 or not u.size:
+        return np.full(u.shape, np.nan)
+    sides = []
+    for x in (u, np.asarray(down, float).reshape(u.shape)):
+        d = delayed_score(x, on, off)
+        sides.append(pd.DataFrame(d).rolling(int(window), min_periods=1).max().to_numpy())
+    return np.minimum(*sides)  # unknown on either side: never held
+
+
+def method_score(
+    stats: np.ndarray, on: int = 1, off: int = 1, held: np.ndarray | None = None
+) -> np.ndarray:
     """One alarm score per sample: the maximum over a method's statistics (columns, each over
-    its own limit) after each statistic's own on/off delays; NaN where none is known."""
+    its own limit) after each statistic's own on/off delays, and over ``held`` (columns
+    already delayed: :func:`oscillation_score`); NaN where none is known."""
     d = delayed_score(np.asarray(stats, float).reshape(len(stats), -1), on, off)
+    if held is not None:
+        d = np.c_[d, held]
     with np.errstate(all="ignore"):
         known = (~np.isnan(d)).any(axis=1)
         out = np.full(len(d), np.nan)

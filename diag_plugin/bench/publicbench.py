@@ -131,13 +131,42 @@ def tags_frame(plant: PublicPlant) -> pd.DataFrame:
 def unit_statistics(unit, frame: pd.DataFrame) -> tuple[np.ndarray, pd.DataFrame | None]:
     """Per sample the unit's statistics over their limits (each test's filtered residual on
     the side it leaves; the combined T²) and its per-tag contributions, from rest."""
+    stats, contrib, _ = _unit_parts(unit, frame, 0, 0)
+    return stats, contrib
+
+
+def unit_score(
+    unit, frame: pd.DataFrame, on: int, off: int
+) -> tuple[np.ndarray, pd.DataFrame | None]:
+    """The unit's one alarm score per sample (:func:`~diag_plugin.bench.matched.method_score`
+    of :func:`unit_statistics` after the delays ``on``/``off``, with its oscillation hold's
+    columns, :func:`~diag_plugin.bench.matched.oscillation_score`) and its per-tag
+    contributions, from rest: over 1 where the unit itself alarms."""
+    stats, contrib, held = _unit_parts(unit, frame, on, off)
+    return method_score(stats, on, off, held), contrib
+
+
+def _unit_parts(unit, frame: pd.DataFrame, on: int, off: int):
+    """:func:`unit_statistics`' statistics and contributions and, with delays (``on`` ≥ 1),
+    the oscillation hold's delayed columns (None without a hold)."""
+    from diag_plugin.bench.matched import oscillation_score
+    from diag_plugin.diagnose.unitloops import oscillation_samples
+
     d = unit.reset().evaluate(frame)
     lo, hi = unit._limits()
-    stats = side_ratio(d.residuals.to_numpy(), lo, hi)
+    r = d.residuals.to_numpy()
+    stats = side_ratio(r, lo, hi)
+    held = None
+    w = oscillation_samples(unit.ev, unit.period)
+    if on >= 1 and w:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            up = np.where(hi > 0, r / hi, np.nan)
+            down = np.where(lo < 0, r / lo, np.nan)
+        held = oscillation_score(up, down, on, off, w)
     cm = getattr(unit, "cmodel", None)
     if d.combined is not None and cm is not None and cm.high:
         stats = np.c_[stats, d.combined["T2"].to_numpy() / cm.high]
-    return stats, d.contributions
+    return stats, d.contributions, held
 
 
 def _sample_grid(frame: pd.DataFrame, period: str) -> pd.DataFrame:
@@ -272,10 +301,10 @@ def run_matched_benchmark(
             if m == "unit":
                 u = run_unit(run) if plant.per_run else unit
                 grid = _sample_grid(frame, period) if plant.per_run else frame
-                stats, contrib = unit_statistics(u, grid)
+                s, contrib = unit_score(u, grid, on, off)
             else:
                 stats, contrib = pca_statistics(dets[m], frame)
-            s = method_score(stats, on, off)
+                s = method_score(stats, on, off)
             cut = run.learn if plant.per_run else 0
             c = None if contrib is None else contrib.iloc[cut:]
             out[m] = Scored(s[cut:], c)

@@ -300,6 +300,11 @@ def cmd_unit_show(args) -> int:
             else ""
         )
         + (f"; deadband {ev['deadband']:.0%} of the threshold" if ev.get("deadband") else "")
+        + (
+            f"; a test on on both sides within {ev['oscillation_window_s']:g} s stays on"
+            if ev.get("oscillation_window_s")
+            else ""
+        )
         + ("; latched" if ev["latch"] else "")
         + ("" if ev.get("hold_isolation", True) else "; isolated afresh each sample"),
         markup=False,

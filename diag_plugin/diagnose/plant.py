@@ -63,7 +63,9 @@ from diag_plugin.diagnose.unitloops import (
     AlarmHold,
     Deadband,
     EpisodeHold,
+    OscillationHold,
     RunningSpread,
+    oscillation_samples,
     spread_samples,
     warm_up,
     warming_up,
@@ -259,6 +261,9 @@ class Plant:
         is_spread = np.array(
             [units[s.unit].file.tests[s.test].statistic == "spread" for s in slots], bool
         )
+        # each slot's oscillation hold (unitloops.OscillationHold): its unit's window
+        swing = np.array([oscillation_samples(units[s.unit].ev, units[s.unit].period)
+                          for s in slots], np.int64)  # fmt: skip
         for (wn, order, band, on, off), idx in keys.items():
             self._stages.append(
                 (
@@ -267,6 +272,7 @@ class Plant:
                     Deadband(band, len(idx)),
                     OnOffDelay(on, off),
                     on - 1,
+                    OscillationHold(swing[idx]),
                 )
             )
         # the spread tests (statistic "spread"): a running spread per window length
@@ -418,8 +424,9 @@ class Plant:
                     "lowpass": None if lp is None else lp.to_state(),
                     "deadband": _json(band.state),
                     "delay": delay.to_state(),
+                    "oscillation": swing.to_state(),
                 }
-                for _, lp, band, delay, _ in self._stages
+                for _, lp, band, delay, _, swing in self._stages
             ],
             "held": _json(self._held),
             "run": self._run.tolist(),
@@ -478,12 +485,16 @@ class Plant:
             self._derived.load_carry(carry)
         self._hist = hist
         stages = []
-        for (idx, _lp, band, _delay, hold), st in zip(self._stages, state["stages"], strict=True):
+        for (idx, _lp, band, _delay, hold, swing), st in zip(
+            self._stages, state["stages"], strict=True
+        ):
             lp = None if st["lowpass"] is None else LowPass.from_state(st["lowpass"])
             if lp is not None and _lp is not None:  # a state saved before it has no steady
                 lp.steady = _lp.steady
             band.state = _array(st["deadband"])
-            stages.append((idx, lp, band, OnOffDelay.from_state(st["delay"]), hold))
+            if "oscillation" in st:  # a state saved before it starts the hold from rest
+                swing.load_state(st["oscillation"])
+            stages.append((idx, lp, band, OnOffDelay.from_state(st["delay"]), hold, swing))
         self._stages = stages
         self._held = _array(state["held"])
         self._run = np.asarray(state["run"], np.int64)
@@ -606,14 +617,14 @@ class Plant:
             r[idx] = spread.transform(r[idx][None, :])[0]
             self._spread_left[idx] = spread.left_[0]
         rf = r.copy()
-        for idx, lp, band, delay, hold in self._stages:
+        for idx, lp, band, delay, hold, swing in self._stages:
             x = r[idx][None, :]
             if lp is not None:
                 x = lp.transform(x)
             rf[idx] = x[0]
             raw = band.transform(x, self._lo[idx], self._hi[idx])
             raw[:, self._no_th[idx]] = np.nan
-            d = delay.transform(raw)
+            d = swing.transform(delay.transform(raw))
             held = self._held[idx]
             run = self._run[idx]
             d = _hold_kernel(np.ascontiguousarray(d), hold, held, run)

@@ -66,7 +66,9 @@ from diag_plugin.diagnose.unitloops import (
     AlarmHold,
     Deadband,
     EpisodeHold,
+    OscillationHold,
     RunningSpread,
+    oscillation_samples,
     resolved_evaluation,
     spread_samples,
     warm_labels,
@@ -596,6 +598,12 @@ class Unit:
         steady[self.spread_cols] = True
         return steady
 
+    def _oscillation_hold(self) -> OscillationHold:
+        """Every test's symptom held through an oscillation (:class:`OscillationHold`) over
+        ``oscillation_window_s``; a window of 0 samples (no key): none held."""
+        w = oscillation_samples(self.ev, self.period)
+        return OscillationHold(np.full(len(self.tests), w, np.int64))
+
     def reset(self) -> Unit:
         """Start from rest: no history, filters at zero, no symptom on."""
         self.builders = {n: m.builder() for n, m in self.models.items()}
@@ -614,6 +622,7 @@ class Unit:
         window = spread_samples(ev["spread_window_s"] or 600.0, self.period)
         self.spread = RunningSpread(window, len(self.spread_cols))
         self.deadband = Deadband(ev["deadband"], len(self.tests)) if ev["deadband"] > 0 else None
+        self.oscillation = self._oscillation_hold()
         ntags = len(self.cmodel.tags) if self.cmodel is not None else 0
         self.episode = EpisodeHold(ntags)
         self.test_episode = EpisodeHold(ntags)  # the tests on's names (TestNames.fill)
@@ -657,6 +666,7 @@ class Unit:
             "combined_delay": self.combined_delay.to_state(),
             "spread": self.spread.to_state(),
             "deadband": None if self.deadband is None else self.deadband.state.tolist(),
+            "oscillation": self.oscillation.to_state(),
             "episode": self.episode.to_state(),
             "test_episode": self.test_episode.to_state(),
             "alarm_hold": None if self.alarm_hold is None else self.alarm_hold.to_state(),
@@ -702,6 +712,8 @@ class Unit:
                 self.alarm_hold.load_state(state["alarm_hold"])
                 last = state.get("last_alarm")
                 self._last_alarm = None if last is None else (last[0], last[1], last[2])
+        if "oscillation" in state:  # a state saved before it starts the hold from rest
+            self.oscillation.load_state(state["oscillation"])
         if self.settle is not None and state.get("settle") is not None:
             self.settle.load_state(state["settle"])  # states saved before it: from rest
         if self.fixed is not None and state.get("fixed") is not None:
@@ -841,6 +853,7 @@ class Unit:
         # ``raw`` is this call's own array: delayed, then held, in place (no new array of
         # the symptoms' size for either)
         s = self.delay.transform(raw, overwrite=True)
+        s = self.oscillation.transform(s)  # a swing across both thresholds is one alarm
         # a test unknown for fewer samples than the on-delay keeps its last known symptom:
         # a brief gap neither clears a symptom nor flickers the unit to CHECK_FUNCTION
         s = _hold_kernel(
@@ -971,6 +984,7 @@ class Unit:
         self.unknown_run[:] = 0
         if self.deadband is not None:
             self.deadband = Deadband(ev["deadband"], len(self.tests))
+        self.oscillation = self._oscillation_hold()
         self.isolation = IsolationHold(1, len(self.tests), len(self.faults))
         self.episode = EpisodeHold(len(self.cmodel.tags) if self.cmodel is not None else 0)
         if self.alarm_hold is not None:

@@ -124,8 +124,10 @@ loop, editable): the test judges the running standard deviation of its residual 
 stiction, a loop oscillating) instead of its level; the loop's set-point is never a tag at
 fault. The alarm settings in time, ``on_delay_s``, ``off_delay_s`` (seconds, converted at the
 models' period; 0: the sample counts ``on_delay``/``off_delay``), ``deadband`` (a symptom,
-once on, clears only below ``(1 − deadband)`` × its threshold) and ``spread_window_s`` (the
-spread tests' window) are described in :mod:`diag_plugin.diagnose.unitloops`;
+once on, clears only below ``(1 − deadband)`` × its threshold), ``spread_window_s`` (the
+spread tests' window) and ``oscillation_window_s`` (a symptom on on both sides within it is
+held on: an oscillation is one alarm; 0 or absent: no hold) are described in
+:mod:`diag_plugin.diagnose.unitloops`;
 ``settle_max_s`` (written by ``diag unit build``; 0 or absent: no guard) bounds the settle
 after an operator's set-point step, during which the unit's alarms are CHECK_FUNCTION
 (:mod:`diag_plugin.diagnose.settle`); ``manual_settle_max_s`` (written by ``diag unit
@@ -244,6 +246,7 @@ EVALUATION_DEFAULTS: dict[str, Any] = {
     "off_delay_s": 0.0,
     "deadband": 0.0,
     "spread_window_s": 0.0,
+    "oscillation_window_s": 0.0,
     "settle_max_s": 0.0,
     "manual_settle_max_s": 0.0,
     "state_settle_max_s": 0.0,
@@ -257,6 +260,7 @@ NEW_KEYS = (
     "off_delay_s",
     "deadband",
     "spread_window_s",
+    "oscillation_window_s",
     "settle_max_s",
     "manual_settle_max_s",
     "state_settle_max_s",
@@ -284,6 +288,7 @@ _KINDS = {
     "off_delay_s": float,
     "deadband": float,
     "spread_window_s": float,
+    "oscillation_window_s": float,
     "settle_max_s": float,
     "manual_settle_max_s": float,
     "state_settle_max_s": float,
@@ -582,6 +587,7 @@ class UnitFile(LinedFile):
             ("off_delay_s", ev["off_delay_s"] >= 0, "off_delay_s is seconds, ≥ 0 (0: off_delay)"),
             ("deadband", 0.0 <= ev["deadband"] < 1.0, "deadband: share of the threshold, [0, 1)"),
             ("spread_window_s", ev["spread_window_s"] >= 0, "spread_window_s is seconds, ≥ 0"),
+            ("oscillation_window_s", ev["oscillation_window_s"] >= 0, "seconds, ≥ 0 (0: off)"),
             ("settle_max_s", ev["settle_max_s"] >= 0, "settle_max_s is seconds, ≥ 0"),
             ("manual_settle_max_s", ev["manual_settle_max_s"] >= 0, "seconds, ≥ 0"),
             ("state_settle_max_s", ev["state_settle_max_s"] >= 0, "seconds, ≥ 0"),

@@ -18,6 +18,20 @@ the brief transient of a set-point step, a few samples, does not move it; a loop
 more than half the window does), learned and thresholded like any test's residual; ``diag unit
 build`` writes one beside each loop's level test and names the loop's actuator for it.
 
+**An oscillation is one alarm** (:class:`OscillationHold`; issue 34 item 6, ISA-18.2: one
+standing alarm for a standing fault). A sticking valve's limit cycle swings the residuals of
+the tags it moves (the flow through the valve, the controller's output) across both
+thresholds in turn; with plain on/off delays each swing is an alarm of its own (63 episodes
+in two days of the chemical plant's ``tv104_stiction``, one each half cycle). A test whose
+symptom was on on *both* sides within the last ``oscillation_window_s`` stays on, on the side
+it last left, until one side has not been crossed for that long. ``diag unit build`` writes
+four spread windows (:data:`~diag_plugin.unitbuild.build.OSCILLATION_WINDOWS`): the spread
+test's running MAD over ``W`` sees a cycle of period up to ``2W``, both sides' alarms of such
+a cycle fall within one period, and a stick-slip cycle's period varies by a factor of two.
+A fault-free residual rarely crosses both thresholds within it, so the false alarms do not
+rise (none more on the chemical plant's tuning runs). The price: an alarm held by it ends up
+to the window after the oscillation stops.
+
 **The named tag held through an episode** (:class:`EpisodeHold`): each tag's share of the
 alarm is averaged over the samples of the current alarm episode, and the tags are ranked by
 that mean, so the tags named do not flicker from sample to sample within one alarm (as the
@@ -45,6 +59,14 @@ def resolved_evaluation(ev: dict[str, Any], period: str) -> dict[str, Any]:
         if sec > 0 and s > 0:
             out[key] = max(1, math.ceil(sec / s - 1e-9))
     return out
+
+
+def oscillation_samples(ev: dict[str, Any], period: str) -> int:
+    """Samples in the oscillation hold's window, ``ceil(oscillation_window_s / period)``
+    (0: no hold, a unit file without the key)."""
+    sec = float(ev.get("oscillation_window_s", 0.0) or 0.0)
+    s = pd.Timedelta(period).total_seconds()
+    return max(1, math.ceil(sec / s - 1e-9)) if sec > 0 and s > 0 else 0
 
 
 def spread_samples(window_s: float, period: str) -> int:
@@ -161,6 +183,54 @@ class Deadband:
         a = np.ascontiguousarray(np.asarray(r, float))
         return _deadband_kernel(a, np.asarray(lo, float), np.asarray(hi, float), self.keep,
                                 self.state)  # fmt: skip
+
+
+@numba.njit(cache=True)
+def _swing_kernel(s, window, since_p, since_n, last):  # pragma: no cover - numba
+    # row by row (memory order), in place; since_p/since_n: samples since the symptom was
+    # last on above / below (0 on that sample); last: the side it was last on
+    n, m = s.shape
+    for i in range(n):
+        for j in range(m):
+            since_p[j] += 1
+            since_n[j] += 1
+            x = s[i, j]
+            if x > 0:
+                since_p[j] = 0
+                last[j] = 1.0
+            elif x < 0:
+                since_n[j] = 0
+                last[j] = -1.0
+            elif x == 0 and since_p[j] < window[j] and since_n[j] < window[j]:
+                s[i, j] = last[j]
+    return s
+
+
+class OscillationHold:
+    """Delayed symptoms −1/0/+1 (NaN unknown) held on while the test was on on both sides
+    within the last ``window`` samples (per column; 0: never held), on the side it was last
+    on (see module doc); state carried across pieces."""
+
+    def __init__(self, window: np.ndarray) -> None:
+        self.window = np.asarray(window, np.int64).copy()
+        self.since_p = self.window.copy()  # nothing on within the window yet
+        self.since_n = self.window.copy()
+        self.last = np.zeros(len(self.window))
+
+    def transform(self, s: np.ndarray) -> np.ndarray:
+        """``s`` held (in place when it is a C-ordered float array, as the delays give)."""
+        a = np.ascontiguousarray(np.asarray(s, float))
+        if not self.window.any():
+            return a
+        return _swing_kernel(a, self.window, self.since_p, self.since_n, self.last)
+
+    def to_state(self) -> dict[str, Any]:
+        return {"p": self.since_p.tolist(), "n": self.since_n.tolist(), "last": self.last.tolist()}
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        self.since_p = np.asarray(state["p"], np.int64)
+        self.since_n = np.asarray(state["n"], np.int64)
+        self.last = np.asarray(state["last"], float)
 
 
 class EpisodeHold:
