@@ -8,14 +8,7 @@ The example valve unit on a simulator seed used nowhere else (812).
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import threading
-from pathlib import Path
-
-from diag_plugin.simulate import simulate_valve
-
-SHIPPED = Path(__file__).resolve().parents[1] / "rulebases"
 
 #: run ``diag`` with the command's read of pieces watched: when ``scipy.linalg`` (what the
 #: replay's first numba dispatch imports) is first imported, was the read of the first piece
@@ -48,18 +41,11 @@ def test_first_piece_read_before_the_replays_imports(tmp_path):
     """The first piece is being read when ``scipy.linalg`` is imported (numba's registries
     and ``scipy.special`` follow it): the read overlaps the rest of the start-up. On ``main``
     the pieces were asked for only after those imports ([False])."""
-    from historian.store import Historian
+    from helpers import probed_valve_diagnose
 
-    url = f"sqlite:///{tmp_path / 'h.db'}"
-    with Historian.open(url) as h:
-        h.write_samples(simulate_valve(1, seed=812))
-    argv = ["--db", url, "--rulebases", str(SHIPPED), "diagnose", "valve_unit", "--json"]
-    res = subprocess.run(
-        [sys.executable, "-c", PROBE, *argv], capture_output=True, text=True, timeout=300
-    )
-    line = next(x for x in res.stderr.splitlines() if x.startswith("RESULT "))
-    assert line == "RESULT 0 [True]", res.stderr
-    assert '"samples": 8640' in res.stdout
+    out, line = probed_valve_diagnose(tmp_path, PROBE, seed=812)
+    assert line == "RESULT 0 [True]", line
+    assert '"samples": 8640' in out
 
 
 def test_read_ahead_starts_at_once_and_keeps_order():
