@@ -85,6 +85,16 @@ rows ``--json`` alone, 5 pairs at a load of 7.5–9.3: 3.22 → 3.18 CPU s, the 
 → 1.90 (its floor when idle, plus the waits at the ends the ramp shortens; main took 2.05 s);
 with ``--csv``, 3 pairs at 9.1–9.4: 5.55 → 4.41 CPU s (CSV 1.67 → 0.81, main thread 4.20 →
 2.15), the same md5.
+Round eight (branch ``i34-start``: the first piece read from when the unit is loaded,
+``diagnose/readahead.py``, while the start-up ends with ``scipy.linalg``, ``scipy.special`` and
+numba's registries, loaded under the collector's freeze instead of in the first replay), pairs
+against ``main`` (17cdb99, a ``git archive`` snapshot), medians: 200,000 rows ``--json``, 7
+pairs at a load of 11.1–14.7, 3.83 → 3.52 CPU s (main thread 2.31 → 2.11, lower in 7 of 7);
+with ``--csv``, 3 pairs at 10.3–11.0, 4.65 → 4.39; 1,000,000 rows ``--json``, 3 pairs at
+11.4–12.0, 11.90 → 11.53 (main thread 6.21 → 5.85); with ``--csv``, 3 pairs at 8.0–13.4,
+16.78 → 16.72 (main thread 6.50 → 6.48); the same md5. On the branch the stage
+"other" holds those imports and registries (~0.36 CPU s at that load; "imports" ends at the
+unit's load); the idle wall at 200,000 rows (``main`` 2.13 s) is to be measured.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]

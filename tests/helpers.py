@@ -71,6 +71,26 @@ def run_diag(
     )
 
 
+def probed_valve_diagnose(tmp_path: Path, probe: str, seed: int) -> tuple[str, str]:
+    """``diag diagnose valve_unit --json`` on a day of the valve (simulator ``seed``) in a
+    fresh process running ``probe`` (Python that runs the command and prints a line
+    ``RESULT …`` to stderr): the command's stdout and that line."""
+    from diag_plugin.simulate import simulate_valve
+    from historian.store import Historian
+
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    with Historian.open(url) as h:
+        h.write_samples(simulate_valve(1, seed=seed))
+    rulebases = str(REPO / "rulebases")
+    argv = ["--db", url, "--rulebases", rulebases, "diagnose", "valve_unit", "--json"]
+    res = subprocess.run(
+        [sys.executable, "-c", probe, *argv], capture_output=True, text=True, timeout=300
+    )
+    line = next((x for x in res.stderr.splitlines() if x.startswith("RESULT ")), None)
+    assert line is not None, res.stderr
+    return res.stdout, line
+
+
 LOCKER = """\
 import sqlite3, sys
 c = sqlite3.connect(sys.argv[1], isolation_level=None)

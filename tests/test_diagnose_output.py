@@ -167,22 +167,12 @@ def test_diagnose_runs_no_full_collection_over_its_start_up(tmp_path):
     issue 34): ``diag diagnose`` makes them without a collection and freezes them. A day of
     the valve in a fresh process: no full collection at all, and the start-up's objects
     frozen (on ``main``: 5 full collections, nothing frozen)."""
-    import subprocess
-    import sys
+    from helpers import probed_valve_diagnose
 
-    from historian.store import Historian
-
-    url = f"sqlite:///{tmp_path / 'h.db'}"
-    with Historian.open(url) as h:
-        h.write_samples(simulate_valve(1, seed=809))
-    argv = ["--db", url, "--rulebases", str(SHIPPED), "diagnose", "valve_unit", "--json"]
-    res = subprocess.run(
-        [sys.executable, "-c", PROBE_GC, *argv], capture_output=True, text=True, timeout=300
-    )
-    line = next(x for x in res.stderr.splitlines() if x.startswith("RESULT "))
+    out, line = probed_valve_diagnose(tmp_path, PROBE_GC, seed=809)
     rc, full, frozen = map(int, line.split()[1:])
-    assert rc == 0, res.stderr
-    assert '"samples": 8640' in res.stdout
+    assert rc == 0, line
+    assert '"samples": 8640' in out
     assert full == 0, f"{full} full collections"
     assert frozen > 100_000, frozen
 

@@ -581,50 +581,48 @@ def default_chunk(period: str, tags: int):
     return max(week, pd.Timedelta(period) * (CHUNK_VALUES // max(1, tags)))
 
 
-def _prefetch(items):
-    """Yield from ``items`` while a thread already reads the next one (the historian read
-    releases the GIL, so reading and evaluating overlap)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    it = iter(items)
-    with ThreadPoolExecutor(1) as ex:
-        nxt = ex.submit(next, it, None)
-        while True:
-            item = nxt.result()
-            if item is None:
-                return
-            nxt = ex.submit(next, it, None)
-            yield item
-
-
 def cmd_diagnose(args) -> int:
-    with _start_up():  # the imports and the unit's objects: no collections, then frozen
-        import pandas as pd
+    with contextlib.ExitStack() as stack:
+        with _start_up():  # the imports and the unit's objects: no collections, then frozen
+            import pandas as pd
 
-        # scipy.linalg and scipy.special: what the first piece's replay imports, here with
-        # the collector off (scipy.stats imported both with the unit's modules before):
-        # numba's first dispatch imports scipy.linalg (its BLAS check), the combined test's
-        # χ² levels scipy.special; after the freeze they made one full collection
-        # (tests/test_diagnose_output.py)
-        import scipy.linalg  # noqa: F401
-        import scipy.special  # noqa: F401
+            from diag_plugin.diagnose.leadin import lead_in
+            from diag_plugin.diagnose.readahead import ReadAhead, numba_ready
+            from historian.store import Historian  # noqa: F401 - here, not in the reading thread
 
-        from diag_plugin.diagnose.leadin import lead_in, since
-        from diag_plugin.diagnose.unit import concat
-        from historian.store import Historian  # noqa: F401 - here, not in the reading thread
+            unit = load_unit(args, args.name)
+            if args.chunk is None:
+                chunk = default_chunk(unit.period, len(unit.tags))
+            else:
+                try:
+                    chunk = pd.Timedelta(args.chunk)
+                except ValueError:
+                    raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D") from None
+            start, end = parse_time(args.start), parse_time(args.end)
+            bounds: dict = {}  # the window unit_frames read (its end where --to is not given)
+            # the history before --from its lags, filter and delays need (lead_in), evaluated,
+            # not shown; the first piece read from here on, while the rest of the start-up runs
+            pieces = unit_frames(args, unit, start, end, chunk, lead_in(unit), bounds)
+            frames = stack.enter_context(ReadAhead(pieces))
+            # scipy.linalg and scipy.special: what the first piece's replay imports, here with
+            # the collector off (scipy.stats imported both with the unit's modules before):
+            # numba's first dispatch imports scipy.linalg (its BLAS check), the combined
+            # test's χ² levels scipy.special; after the freeze they made one full collection
+            # (tests/test_diagnose_output.py); then numba's registries, which the first
+            # piece's replay loaded (issue 34: ~0.2 CPU s moved beside the first read)
+            import scipy.linalg  # noqa: F401
+            import scipy.special  # noqa: F401
 
-        unit = load_unit(args, args.name)
-    if args.chunk is None:
-        chunk = default_chunk(unit.period, len(unit.tags))
-    else:
-        try:
-            chunk = pd.Timedelta(args.chunk)
-        except ValueError:
-            raise UserError(f"--chunk {args.chunk!r} is not a duration like 7D") from None
-    start, end = parse_time(args.start), parse_time(args.end)
-    bounds: dict = {}  # the window unit_frames read (its end where --to is not given)
-    # the history before --from its lags, filter and delays need (lead_in), evaluated, not shown
-    frames = _prefetch(unit_frames(args, unit, start, end, chunk, lead_in(unit), bounds))
+            numba_ready()
+        return _diagnose(args, unit, frames, start, bounds, chunk)
+
+
+def _diagnose(args, unit, frames, start, bounds: dict, chunk) -> int:
+    """:func:`cmd_diagnose` once started: each piece of ``frames`` replayed, its summary
+    kept (and its CSV rows written), then the JSON or the timeline."""
+    from diag_plugin.diagnose.leadin import since
+    from diag_plugin.diagnose.unit import concat
+
     # the CSV written piece by piece in a thread of its own while the next pieces are replayed
     # (CsvPieces); the pieces kept whole and joined only where it cannot write the file
     stream = CsvPieces(args.csv) if args.csv and CsvPieces.can_write(args.csv) else None

@@ -1,0 +1,94 @@
+"""``diag diagnose`` reads its first piece while its start-up ends (issue 34, "Speed": 200,000
+rows were ~1 s of start-up before the first replayed row): the historian's read is under way
+before the libraries only the replay needs are imported, and the reader
+(:class:`~diag_plugin.diagnose.readahead.ReadAhead`) starts its first read when made.
+
+The example valve unit on a simulator seed used nowhere else (812).
+"""
+
+from __future__ import annotations
+
+import threading
+
+#: run ``diag`` with the command's read of pieces watched: when ``scipy.linalg`` (what the
+#: replay's first numba dispatch imports) is first imported, was the read of the first piece
+#: already under way in its thread? (waits for it, up to 60 s, once the pieces were asked for)
+PROBE = """
+import sys, threading
+import diag_plugin.diagnose.cli as cli
+asked, reading, seen = threading.Event(), threading.Event(), []
+uf = cli.unit_frames
+def unit_frames(*a, **k):
+    asked.set()
+    def pieces():
+        reading.set()
+        yield from uf(*a, **k)
+    return pieces()
+cli.unit_frames = unit_frames
+class Watch:
+    def find_spec(self, name, path=None, target=None):
+        if name == "scipy.linalg" and not seen:
+            seen.append(asked.is_set() and reading.wait(60))
+        return None
+sys.meta_path.insert(0, Watch())
+from diag_plugin.cli import main
+rc = main(sys.argv[1:])
+print("RESULT", rc, seen, file=sys.stderr)
+"""
+
+
+def test_first_piece_read_before_the_replays_imports(tmp_path):
+    """The first piece is being read when ``scipy.linalg`` is imported (numba's registries
+    and ``scipy.special`` follow it): the read overlaps the rest of the start-up. On ``main``
+    the pieces were asked for only after those imports ([False])."""
+    from helpers import probed_valve_diagnose
+
+    out, line = probed_valve_diagnose(tmp_path, PROBE, seed=812)
+    assert line == "RESULT 0 [True]", line
+    assert '"samples": 8640' in out
+
+
+def test_read_ahead_starts_at_once_and_keeps_order():
+    """The first item is asked for when the reader is made (before any iteration), the
+    items come in order, and each next one is asked for while the caller has the last."""
+    from diag_plugin.diagnose.readahead import ReadAhead
+
+    started, asked = threading.Event(), []
+
+    def items():
+        started.set()
+        for i in range(4):
+            asked.append(i)
+            yield i
+
+    with ReadAhead(items()) as r:
+        assert started.wait(30)
+        got = []
+        for x in r:
+            got.append(x)
+            if x < 3:
+                r._next.result()  # the next item is read while this one is used
+                assert asked[-1] == x + 1
+    assert got == [0, 1, 2, 3]
+
+
+def test_read_ahead_closes_its_items_when_left_early():
+    """Left before the end (an error in the caller's start-up), the reader waits for the
+    read under way and closes the generator of items: the historian it holds is closed."""
+    from diag_plugin.diagnose.readahead import ReadAhead
+
+    closed = threading.Event()
+
+    def items():
+        try:
+            yield from range(10)
+        finally:
+            closed.set()
+
+    try:
+        with ReadAhead(items()) as r:
+            next(iter(r))
+            raise RuntimeError("start-up failed")
+    except RuntimeError:
+        pass
+    assert closed.is_set()
