@@ -90,3 +90,46 @@ def test_a_phase_declared_in_the_tags_csv_is_a_state(tmp_path, capsys):
     assert rows["AGIT_SPEED"]["state"] is None and rows["AGIT_SPEED"]["flat"] == 1
     assert main(["--db", db, "tags", "--tags", str(tmp_path / "none.csv")]) == 2
     assert "none.csv: no such file" in capsys.readouterr().err
+
+
+def test_a_phase_imported_from_a_csv_as_a_user_does_is_a_state(tmp_path):
+    """The same reactor as a user has it (H4 item 5): a plain CSV with timestamps off the
+    minute grid (each sample 0-25 s late, written to the second: jitter, no gap), the phase
+    written as integers and one of its cells as the text ``3.0``, imported into SQLite with
+    ``diag import --tags`` and its tags CSV; ``diag tags --tags`` lists the phase as a state
+    of six values held 8 h between batches, without ``--tags`` as flat-lined. (Coverage of
+    bb998c9 on imported data: passes on main too.)"""
+    from tests.test_any_plant_tour import diag
+
+    frame = _reactor()
+    rng = np.random.default_rng(5)
+    late = pd.to_timedelta(rng.integers(0, 26, len(frame)), unit="s")
+    times = (frame.index + late).strftime("%Y-%m-%d %H:%M:%S")
+    phase = frame["PHASE"].astype(int).astype(str).to_numpy()
+    hold = int(np.flatnonzero(frame["PHASE"].to_numpy() == 3)[10])
+    phase[hold] = "3.0"
+    csv = tmp_path / "reactor.csv"
+    lines = ["time,PHASE,AGIT_SPEED"]
+    lines += [f"{t},{p},{s:g}" for t, p, s in zip(times, phase, frame["AGIT_SPEED"], strict=True)]
+    csv.write_text("\n".join(lines) + "\n")
+    tags = tmp_path / "tags.csv"
+    tags.write_text("name,unit,role\nPHASE,,phase\nAGIT_SPEED,rpm,\n")
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}"]
+    rc, text = diag(g, "import", str(csv), "--tags", str(tags))
+    assert rc == 0, text
+    rc, text = diag(g, "tags", "--json")
+    assert rc == 0, text
+    rows = {r["tag"]: r for r in json.loads(text)}
+    assert rows["PHASE"]["state"] is None and rows["PHASE"]["flat"] >= 1, rows["PHASE"]
+    rc, text = diag(g, "tags", "--json", "--tags", str(tags))
+    assert rc == 0, text
+    rows = {r["tag"]: r for r in json.loads(text)}
+    ph = rows["PHASE"]
+    assert ph["samples"] == len(frame) and ph["gaps"] == 0 and ph["coverage"] == 1.0, ph
+    assert ph["flat"] == 0 and ph["state"] == "0, 1, 2, 3, 4 or 5", ph
+    assert ph["held"] == 0 and 7.9 * 3600 <= ph["held_s"] <= 8.25 * 3600, ph
+    assert rows["AGIT_SPEED"]["state"] is None and rows["AGIT_SPEED"]["flat"] == 1
+    rc, text = diag(g, "tags", "--tags", str(tags))
+    assert rc == 0, text
+    table = {ln.split("│")[1].strip(): ln for ln in text.splitlines() if "│" in ln}
+    assert "(a state)" in table["PHASE"], table["PHASE"]

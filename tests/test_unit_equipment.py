@@ -13,6 +13,7 @@ and the live plant say the same; the CLI writes and reads ``[equipment]``.
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -245,6 +246,43 @@ def test_the_stopped_mask_goes_with_the_residuals_not_through_the_unit(declared)
     b = [t for t in unit.tests if t.startswith("B_")]
     assert np.isnan(r[b].to_numpy()[stopped]).all()
     assert 0 < stopped.sum() < n and np.isfinite(r[b].to_numpy()[~stopped]).all(axis=0).any()
+
+
+def _lags(specs: list[str], tag: str) -> set[int]:
+    """The lags at which a model's input specs read ``tag`` (``TAG[k-3]``: 3)."""
+    got = (re.fullmatch(r'"?([^"\[]+)"?\[k(?:-(\d+))?\]', s.strip()) for s in specs)
+    return {int(m[2] or 0) for m in got if m and m[1] == tag}
+
+
+def test_a_stopped_piece_s_rows_are_left_out_of_its_unknown_counts(declared):
+    """The learning's unknown counts of a piece's test are taken on its running rows (issue
+    34 review, H4 item 1): a NaN of a unit-wide input (LOAD) on B's stopped rows counts
+    nowhere, one on its running rows is missing exactly on the rows whose design reads it;
+    the counts do not rest on every stopped row having been counted missing once. (A
+    refactor: main's subtraction gave the same counts here.)"""
+    from diag_plugin.learn.thresholds import test_residuals
+
+    unit = declared[1]
+    f = _maintenance(7)
+    stopped = f["B_RUN"].to_numpy() == 0
+    base = test_residuals(unit, f, 5, True)
+    g = f.copy()
+    load = g.columns.get_loc("LOAD")
+    off_rows = np.flatnonzero(stopped)[100::37]
+    g.iloc[off_rows, load] = np.nan
+    got = test_residuals(unit, g, 5, True)
+    # running rows by day, well inside B's runs, 50 samples apart
+    on_rows = np.flatnonzero(~stopped)[600:700:50]
+    h = g.copy()
+    h.iloc[on_rows, load] = np.nan
+    more = test_residuals(unit, h, 5, True)
+    for t in unit.tests:
+        if got[t].piece != "B":
+            continue
+        assert got[t].unknown["missing"] == base[t].unknown["missing"], t
+        lags = _lags(unit.models[t].inputs, "LOAD")
+        hit = {int(i) + k for i in on_rows for k in lags}
+        assert more[t].unknown["missing"] == base[t].unknown["missing"] + len(hit), (t, lags)
 
 
 # ---------------------------------------------------------------- a tags CSV declares it (H4)

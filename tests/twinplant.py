@@ -31,25 +31,29 @@ PERIOD_S = 60.0
 STEP_S = 10.0
 
 
-def _ou(rng: np.random.Generator, n: int, sd: float, tau_s: float) -> np.ndarray:
-    a = np.exp(-STEP_S / tau_s)
+def _ou(
+    rng: np.random.Generator, n: int, sd: float, tau_s: float, step_s: float = STEP_S
+) -> np.ndarray:
+    a = np.exp(-step_s / tau_s)
     return lfilter([1], [1, -a], rng.standard_normal(n) * sd * np.sqrt(1 - a * a))
 
 
 def simulate(
     days: float, seed: int, fault: str | None = None, onset_days: float = 0.0,
     stop_days: tuple[float, float] | None = None, start: str = "2026-06-01",
+    period_s: float = PERIOD_S, step_s: float = STEP_S,
 ) -> pd.DataFrame:  # fmt: skip
     """``days`` of 1 min samples from ``start`` (UTC), ``fault`` from ``onset_days`` on,
-    chiller B stopped over ``stop_days`` (days from the start)."""
+    chiller B stopped over ``stop_days`` (days from the start); ``period_s``, ``step_s``: the
+    samples' period and the simulation's step (the PI's integral 1 %/K per 10 s either way)."""
     rng = np.random.default_rng(seed)
-    sub = int(PERIOD_S / STEP_S)
-    n = int(days * 86400 / PERIOD_S) * sub
-    t = pd.Timestamp(start, tz="UTC") + pd.to_timedelta(np.arange(n) * STEP_S, unit="s")
+    sub = int(period_s / step_s)
+    n = int(days * 86400 / period_s) * sub
+    t = pd.Timestamp(start, tz="UTC") + pd.to_timedelta(np.arange(n) * step_s, unit="s")
     hour = (t.hour + t.minute / 60.0).to_numpy()
-    day = np.arange(n) * STEP_S / 86400.0
+    day = np.arange(n) * step_s / 86400.0
     occ = np.clip((hour - 6.0), 0, 1) * np.clip(19.0 - hour, 0, 1)
-    load = np.maximum(300.0 + 800.0 * occ + _ou(rng, n, 60.0, 7200.0), 100.0)
+    load = np.maximum(300.0 + 800.0 * occ + _ou(rng, n, 60.0, 7200.0, step_s), 100.0)
     b_run = ((hour >= 7.0) & (hour < 19.0)).astype(float)
     if stop_days is not None:
         b_run[(day >= stop_days[0]) & (day < stop_days[1])] = 0.0
@@ -64,21 +68,22 @@ def simulate(
     noise = rng.standard_normal((n, 2)) * 0.03
     ta, tb, ua, ub = 7.0, 7.0, 50.0, 50.0
     ia, ib = 50.0, 50.0
-    f = STEP_S / 180.0
+    f = step_s / 180.0
+    ki = step_s / 10.0  # the integral's 1 %/K per 10 s
     for i in range(n):
         both = b_run[i] > 0
         q = load[i] / 2 if both else load[i]
         ta += f * (13 + 7 * q / 800 - 0.12 * ua - ta)
         ea = 7.0 - (ta + bias[i] + noise[i, 0])
-        ia = min(100.0, max(0.0, ia - 1.0 * ea))
+        ia = min(100.0, max(0.0, ia - ki * ea))
         ua = min(100.0, max(0.0, ia - 6.0 * ea))
         if both:
             tb += f * (13 + 7 * q / 800 - 0.12 * ub - tb)
             eb = 7.0 - (tb + b_bias[i] + noise[i, 1])
-            ib = min(100.0, max(0.0, ib - 1.0 * eb))
+            ib = min(100.0, max(0.0, ib - ki * eb))
             ub = min(100.0, max(0.0, ib - 6.0 * eb))
         else:
-            tb += STEP_S / 5400.0 * (21.0 - tb)
+            tb += step_s / 5400.0 * (21.0 - tb)
             ib, ub = 50.0, 0.0
         a_t[i], b_t[i], a_cap[i], b_cap[i] = ta, tb, ua, ub
     qa = np.where(b_run > 0, load / 2, load)

@@ -1094,18 +1094,17 @@ class Untested:
                 pairs.append((k, np.array(ys, np.intp)))
         return cls(pairs)
 
-    def key(self, s: np.ndarray, ratio: float | None = None) -> np.ndarray | None:
+    def key(self, s: np.ndarray) -> np.ndarray | None:
         """The values :func:`rank` orders ``s`` (samples × tags, NaN as −1) by: ``s`` with
         each input's value put just under its best output's where that output's is at least
-        ``ratio`` of the input's and below it (None where no input moves)."""
+        :data:`UNTESTED_RATIO` of the input's and below it (None where no input moves)."""
         if not self.pairs or not len(s):
             return None
-        ratio = UNTESTED_RATIO if ratio is None else ratio
         out = None
         for k, ys in self.pairs:
             best = s[:, ys].max(axis=1)
             x = s[:, k]
-            move = (x > best) & (best > NO_SHARE) & (best >= ratio * x)
+            move = (x > best) & (best > NO_SHARE) & (best >= UNTESTED_RATIO * x)
             if move.any():
                 if out is None:
                     out = s.copy()

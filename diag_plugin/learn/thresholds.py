@@ -384,12 +384,11 @@ def _test_residual(
     if pred.spread is not None:
         spread = np.full(len(frame), np.nan)
         spread[rows] = pred.spread
-    why = _unknown_reasons(len(frame), rows, d.y, pred, unit)
     stopped = None
     if eq is not None and eq.rc.tag in frame.columns:
         stopped = eq.stopped(frame[eq.rc.tag].to_numpy(float))
-        # its stopped rows (every tag blanked: each counted missing once) off, not unknown
-        why["missing"] = max(why["missing"] - int(stopped.sum()), 0)
+    # its stopped rows are off, not unknown: the reasons are counted on its running rows
+    why = _unknown_reasons(len(frame), rows, d.y, pred, unit, stopped)
     return TestResiduals(
         raw, level, why, source, spread, stopped if stopped is not None and stopped.any()
         else None, "" if eq is None else eq.name,
@@ -540,14 +539,32 @@ def unseen_inputs(pred: Prediction, seen: np.ndarray, X: np.ndarray) -> Predicti
     return Prediction(y, support, reason, pred.level, pred.spread)
 
 
-def _unknown_reasons(n: int, rows: np.ndarray, y: np.ndarray, pred: Prediction, unit: Unit):
+def _unknown_reasons(
+    n: int,
+    rows: np.ndarray,
+    y: np.ndarray,
+    pred: Prediction,
+    unit: Unit,
+    stopped: np.ndarray | None = None,
+) -> dict[str, int]:
     """Samples of the window without a residual, counted by reason
-    (:data:`~diag_plugin.diagnose.unitfile.WHY`)."""
-    missing = n - rows.size + int(np.count_nonzero(~np.isfinite(y) | (pred.reason == REASON_NAN)))
+    (:data:`~diag_plugin.diagnose.unitfile.WHY`); ``rows``: the window's row of each of
+    ``y``'s. ``stopped`` (the window's rows where the test's piece of equipment was
+    stopped): those rows are off, not unknown, and left out of every count, whatever else
+    they lack (issue 34: not subtracted from a count over all rows)."""
+    run = np.ones(n, bool) if stopped is None else ~stopped
+    missing = np.ones(n, bool)
+    missing[rows] = ~np.isfinite(y) | (pred.reason == REASON_NAN)
+    on = run[rows]
     answered = np.isfinite(pred.y) & np.isfinite(y)
-    no_rule = int(np.count_nonzero(~np.isfinite(pred.y) & np.isfinite(y) & (pred.reason != 1)))
-    low = int(np.count_nonzero(answered & ~np.isfinite(supported(pred, unit.ev["min_support"]))))
-    return {"missing": missing, "no_rule": no_rule, "low_support": low, "level": 0}
+    no_rule = ~np.isfinite(pred.y) & np.isfinite(y) & (pred.reason != 1)
+    low = answered & ~np.isfinite(supported(pred, unit.ev["min_support"]))
+    return {
+        "missing": int(np.count_nonzero(missing & run)),
+        "no_rule": int(np.count_nonzero(no_rule & on)),
+        "low_support": int(np.count_nonzero(low & on)),
+        "level": 0,
+    }
 
 
 def level_scales(raw: np.ndarray, level: np.ndarray | None) -> list[float]:
