@@ -1342,7 +1342,7 @@ def _build_unit(
     same = driven_reads_output(same, held)
     ctxs = {None: (ctx, sel, frame)}
     for e in eqs:  # a piece's tests choose their inputs from the rows where it runs
-        # and from its own tags and the unit-wide ones: never another piece's (issue 34)
+        # among its own tags, the unit-wide ones and the others' run tags (issue 34)
         left = foreign_tags(e, eqs, loops, ctx.vars)
         f_e = learnable_for(frame, e).drop(columns=[t for ts in left.values() for t in ts])
         if left:
