@@ -20,8 +20,10 @@ file keeps one table per piece::
   spread test too: it shares the loop's model).
 - **Learning** (the build's input choice and models, the thresholds' residuals, the settle
   bounds, ``diag unit accept``): its tests learn from the rows where it runs only
-  (:func:`learnable_for`); the other tests learn from every row, its tags among their
-  candidate inputs as measured (a stopped chiller's power 0 is information).
+  (:func:`learnable_for`), their inputs its own tags and the unit-wide ones, never another
+  piece's (:func:`~diag_plugin.unitbuild.equipment.foreign_tags`); the other tests learn
+  from every row, its tags among their candidate inputs as measured (a stopped chiller's
+  power 0 is information).
 - **Judging** (:meth:`~diag_plugin.diagnose.unit.Unit.evaluate`): where it is stopped its
   tests are off — no symptom, no alarm, not counted as unknown (the unit is NORMAL or in
   alarm by its other tests, never CHECK_FUNCTION for them) — and the sample's why says

@@ -91,7 +91,9 @@ from diag_plugin.unitbuild import short
 from diag_plugin.unitbuild.equipment import (
     equipment_conditions,
     equipment_table,
+    foreign_tags,
     map_by_equipment,
+    own_inputs_note,
     short_run_hints,
 )
 from diag_plugin.unitbuild.loops import (
@@ -1352,7 +1354,11 @@ def _build_unit(
     same = driven_reads_output(same, held)
     ctxs = {None: (ctx, sel, frame)}
     for e in eqs:  # a piece's tests choose their inputs from the rows where it runs
-        f_e = learnable_for(frame, e)
+        # among its own tags, the unit-wide ones and the others' run tags (issue 34)
+        left = foreign_tags(e, eqs, loops, ctx.vars)
+        f_e = learnable_for(frame, e).drop(columns=[t for ts in left.values() for t in ts])
+        if left:
+            eq_notes.append(own_inputs_note(e, left))
         c_e = _Context(f_e, info, period)
         for lp in loops:  # a loop's held set-point, as the window's
             if lp.sp in ctx.fixed_sp:

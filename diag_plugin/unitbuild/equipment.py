@@ -4,7 +4,7 @@ grouped by the piece whose rows they learn from."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Container, Sequence
 from typing import Any
 
 import numpy as np
@@ -13,7 +13,7 @@ import tomlkit
 
 from diag_plugin.diagnose.equipment import Equipment, output_tag, owner
 from diag_plugin.diagnose.running import RunCondition
-from diag_plugin.unitbuild.loops import Running
+from diag_plugin.unitbuild.loops import Loop, Running
 from historian.errors import UserError
 
 
@@ -115,6 +115,47 @@ def short_run_hints(
             "or leave it undeclared"
         )
     return out
+
+
+def foreign_tags(
+    e: Equipment, equipment: Sequence[Equipment], loops: Sequence[Loop] = (),
+    candidates: Container[str] | None = None,
+) -> dict[str, list[str]]:  # fmt: skip
+    """Per other piece the tags that belong to it (among ``candidates``, the window's
+    candidate inputs, when given) ``e``'s tests never read (issue 34, items 4-5): a
+    sibling's measurement is at best a proxy for a common cause (the header, the room, the
+    load, which are unit-wide tags), means nothing while the sibling is stopped, and makes
+    ``e``'s tests fire on the sibling's faults (the compressors' ``C2_TD = f(C2_TAC, C1_TD,
+    DRY_PDP)``, acceptance-compressors.md). A declared loop of ``e``'s tags keeps its
+    set-point and output wherever they belong (the loop's relation is the user's). The
+    sibling's run tag stays a candidate: it says whether the sibling runs, which is true
+    while it is stopped, never at fault, and is what shares a load between the pieces (a
+    chiller's load halves when the other starts: on the twin chillers, both declared,
+    chiller A's sensor bias was found on 9-15 % of its samples with the sibling's run tag
+    left out too, 54-61 % with it read; 97-99 % when A's tests read B's power). Tests of
+    no piece read any tag: a header is what the pieces feed."""
+    partners = {t for lp in loops if {lp.pv, lp.out} & set(e.tags) for t in (lp.sp, lp.out)}
+    out: dict[str, list[str]] = {}
+    for other in equipment:
+        if other.name == e.name:
+            continue
+        tags = [t for t in other.tags if t not in partners and t not in e.tags]
+        tags = [t for t in tags if candidates is None or t in candidates]
+        if tags:
+            out[other.name] = tags
+    return out
+
+
+def own_inputs_note(e: Equipment, left: dict[str, list[str]]) -> str:
+    """The build's note, once per piece, naming the candidate inputs :func:`foreign_tags`
+    left out of its tests and why."""
+    shown = "; ".join(f"{name}'s {', '.join(tags)}" for name, tags in left.items())
+    return (
+        f"{e.name}: its tests read its own tags, the unit-wide ones and whether the other "
+        f"pieces run, not {shown} (another piece's measurement means nothing while it is "
+        f"stopped and would make {e.name}'s tests fire on its faults; a common cause, the "
+        "load, a header, the room, is a unit-wide tag)"
+    )
 
 
 def equipment_table(equipment: Sequence[Equipment]) -> tomlkit.items.Table:
