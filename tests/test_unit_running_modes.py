@@ -118,9 +118,11 @@ def test_a_start_into_production_settles_as_a_running_start(built):
     for i in starts:
         first = slice(i, i + 12)
         assert (status[first] != NE107.FAILURE).all(), (f.index[i], why[first])
+        # also on Mondays and Fridays, the set-point 200 Pa after the stop, 250 before it
+        # (or back): a set-point's move across a stop is the start's, no operator's step
         said = f"MODE 0 → 1 at {f.index[i]:%Y-%m-%dT%H:%MZ}: settling after a state change"
-        # Mondays and Fridays the set-point steps at the start: its loop's settle
-        assert any(said in w or "loop DP settling" in w for w in why[first]), why[first]
+        assert any(said in w for w in why[first]), why[first]
+        assert not any("loop DP settling" in w for w in why[first]), why[first]
 
 
 @pytest.mark.parametrize(("fault", "named"), [("flow_bias", {"FLOW"})])
