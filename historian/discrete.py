@@ -26,13 +26,18 @@ MAX_LEVELS = 3
 #: value and a few others each seen once are an analog tag that mostly reads one value (a
 #: standby's current, 0 on 396 of 400 samples and 32.3-34.8 A on 4), not a state
 MIN_REPEATS = 2
+#: the most levels a mode a unit or a piece runs in takes (``--running MODE=1``: idle 0,
+#: production 1, CIP 2-4) and a declared state is listed by: a recipe's phases, an HTST
+#: pasteuriser's five modes (docs/explanation/acceptance-pasteuriser.md); more is an analog tag
+MAX_MODE_LEVELS = 20
 
 
-def discrete_levels(v: np.ndarray) -> tuple[float, ...] | None:
+def discrete_levels(v: np.ndarray, most: int = MAX_LEVELS) -> tuple[float, ...] | None:
     """The levels of a discrete state, sorted, else None: its two commonest values holding
-    :data:`DISCRETE_SHARE` of its finite values, or its three commonest
-    (:data:`MAX_LEVELS`) holding that share, the third held on two values running (a mode,
-    not where a grid averaged a switch). A filter washed once in 400 samples — 0 on 97.5 %,
+    :data:`DISCRETE_SHARE` of its finite values, or its three commonest (up to ``most``,
+    :data:`MAX_LEVELS`; a run condition's mode :data:`MAX_MODE_LEVELS`) holding that share,
+    each beyond the second held on two values running (a mode, not where a grid averaged a
+    switch). A filter washed once in 400 samples — 0 on 97.5 %,
     backwash 1 and filter-to-waste 2 on the rest — is one; an analog tag (hundreds of
     values), a quantized one of four values or more, a third value never held, a level read
     on one sample only (:data:`MIN_REPEATS`: a standby that ran 4 samples at 32.3-34.8 A,
@@ -45,7 +50,7 @@ def discrete_levels(v: np.ndarray) -> tuple[float, ...] | None:
     order = np.argsort(-counts, kind="stable")
     need = DISCRETE_SHARE * len(x)
     held = None
-    for k in range(2, min(MAX_LEVELS, len(vals)) + 1):
+    for k in range(2, min(most, len(vals)) + 1):
         top = order[:k]
         if counts[top[-1]] < MIN_REPEATS:
             return None  # a value seen once is no level: an analog reading (a standby's amps)

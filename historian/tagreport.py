@@ -8,7 +8,7 @@ from collections.abc import Collection
 import numpy as np
 import pandas as pd
 
-from .discrete import discrete_levels, levels_text
+from .discrete import MAX_MODE_LEVELS, discrete_levels, levels_text
 from .quality import BAD
 from .sampling import nice_period_us, snap_near
 from .times import US, period_us, to_us
@@ -62,7 +62,7 @@ NO_STATE = {"state": None, "held": None, "held_s": 0.0}
 
 #: the most values a declared state's levels are listed by (a recipe's phases; more: an
 #: analog tag declared by mistake, left to the rule)
-DECLARED_MAX_LEVELS = 20
+DECLARED_MAX_LEVELS = MAX_MODE_LEVELS
 
 
 def _state_holds(ts, v, q, flat_us: int, *, declared: bool = False) -> dict:

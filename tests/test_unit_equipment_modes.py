@@ -5,7 +5,9 @@ filters, 1 in backwash, 2 filtering to waste. `--running 'F1:F1_STATE=0:F1_FLOW,
 the value it runs at, yet main refused it, `run condition F1_STATE of F1 is not two-valued
 over the window (3 value(s): 0, 1, 2); a piece that ran throughout: F1_STATE=VALUE`, the
 fix it offered the one given. A run value at one end of the tag's values is taken (stopped
-nearer the next value: every other mode); one in the middle is refused, saying which to give.
+nearer the next value: every other mode); since acceptance pass 10 (a pasteuriser's
+production, 1 of 0-4) one in the middle too (tests/test_unit_running_modes.py); none is
+refused, saying to give one.
 """
 
 from __future__ import annotations
@@ -42,10 +44,17 @@ def test_a_mode_tag_runs_at_the_value_given_and_is_stopped_in_every_other_mode()
     assert np.array_equal(piece.stopped(frame["F1_STATE"].to_numpy()), frame["F1_STATE"] != 2)
 
 
-@pytest.mark.parametrize("text", ["F1:F1_STATE=1:F1_FLOW", "F1:F1_STATE:F1_FLOW"])
-def test_a_mode_tag_without_an_end_value_is_refused_saying_which_to_give(text):
-    with pytest.raises(UserError, match=r"takes 3 values .*F1_STATE=0 or F1_STATE=2"):
-        equipment_conditions(_filter(), [parse_running(text)])
+def test_a_mode_tag_without_a_value_is_refused_saying_to_give_one():
+    with pytest.raises(UserError, match=r"takes 3 values .*\(0, 1 or 2\); give the one it runs at"):
+        equipment_conditions(_filter(), [parse_running("F1:F1_STATE:F1_FLOW")])
+
+
+def test_a_mode_tag_runs_at_a_middle_value_stopped_at_both_others():
+    frame = _filter()
+    (piece,), _ = equipment_conditions(frame, [parse_running("F1:F1_STATE=1:F1_FLOW")])
+    assert (piece.rc.run, piece.rc.levels) == (1.0, (0.0, 1.0, 2.0))
+    v = frame["F1_STATE"].to_numpy()
+    assert np.array_equal(piece.stopped(v), v != 1)
 
 
 def test_a_stopped_piece_is_said_at_the_value_its_run_tag_holds():

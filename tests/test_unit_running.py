@@ -214,7 +214,7 @@ def test_pieces_a_restart_and_the_live_plant_say_the_same(fan):
         (Running("DP", None, "tags.csv:3"), "tags.csv:3: run condition DP (running) is a tag "
          "of loop DP=DP_SP:FAN_SPD"),
         (Running("VAV", None, "--running VAV"), "--running VAV: run condition VAV (running) is "
-         "not two-valued over the window"),
+         "not a state over the window"),
         (Running("FAN_RUN", 5.0, "--running FAN_RUN=5"), "--running FAN_RUN=5: run condition "
          "FAN_RUN (running) is 0 or 1 over the window, never 5"),
     ],

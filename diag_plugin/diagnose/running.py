@@ -19,6 +19,18 @@ table keeps it::
     stop = 0.0     # its other value
     share = 0.54   # of the build window's samples, the unit ran on this share
 
+A mode of more levels (issue 34 item 5, acceptance pass 10: an HTST pasteuriser's idle 0,
+production 1, CIP 2-4; ``--running MODE=1``) runs at ``VALUE``, any of its levels, and is
+stopped at every other; ``levels`` lists them (``stop`` the nearest other, for the why) and a
+sample runs where its nearest level is ``run`` (:meth:`RunCondition.runs`)::
+
+    [running]
+    tag = "MODE"
+    run = 1.0
+    stop = 0.0
+    share = 0.62
+    levels = [0.0, 1.0, 2.0, 3.0, 4.0]
+
 - **Learning** (the build, ``diag unit accept``): the stopped rows are as an outage, every
   tag NaN there (:func:`learnable`): the models, their inputs, the thresholds, the settle
   bounds, ``[fixed]`` and ``[states]`` learn only the running plant.
@@ -58,14 +70,20 @@ class RunCondition:
     run: float
     stop: float
     share: float | None = None
+    #: a mode's levels over the build window, where more than two (module doc); () for a
+    #: two-valued run tag
+    levels: tuple[float, ...] = ()
 
     def runs(self, values: np.ndarray) -> np.ndarray:
         """Per sample whether the unit runs: the tag at ``run`` (nearer to it than to
-        ``stop``, as a historian's mean of a period it started in is not yet running); a
+        ``stop``, as a historian's mean of a period it started in is not yet running; a
+        mode's: nearer to ``run`` than to any other of its ``levels``, a tie running); a
         missing value counts as running (judged as without the declaration)."""
         x = np.asarray(values, float)
+        others = [v for v in self.levels if v != self.run] or [self.stop]
         with np.errstate(invalid="ignore"):
-            stopped = np.abs(x - self.stop) < np.abs(x - self.run)
+            near = np.abs(x[..., None] - np.asarray(others, float)).min(axis=-1)
+            stopped = near < np.abs(x - self.run)
         return ~stopped
 
     def why(self, value: float | None = None) -> str:
@@ -92,6 +110,8 @@ class RunCondition:
         out: dict[str, object] = {"tag": self.tag, "run": float(self.run), "stop": float(self.stop)}
         if self.share is not None:
             out["share"] = round(float(self.share), 4)
+        if self.levels:
+            out["levels"] = [float(v) for v in self.levels]
         return out
 
 
@@ -125,7 +145,25 @@ def read_running(table: Mapping, error: Callable[[int, str], None], line_of) -> 
         return None
     share = table.get("share")
     share = float(share) if isinstance(share, int | float) and not isinstance(share, bool) else None
-    return RunCondition(tag, vals["run"], vals["stop"], share)
+    levels = read_levels(table.get("levels"), vals["run"], vals["stop"])
+    if levels is None:
+        error(line_of("levels"), "[running] levels must be a list of three or more numbers, "
+              "run and stop among them (the mode's values)")  # fmt: skip
+        return None
+    return RunCondition(tag, vals["run"], vals["stop"], share, levels)
+
+
+def read_levels(got: object, run: float, stop: float) -> tuple[float, ...] | None:
+    """A ``[running]`` table's ``levels`` (module doc): () without one, None when it is no
+    list of three or more numbers holding ``run`` and ``stop``."""
+    if got is None:
+        return ()
+    if not isinstance(got, list) or len(got) < 3:
+        return None
+    if any(isinstance(v, bool) or not isinstance(v, int | float) for v in got):
+        return None
+    levels = tuple(sorted(float(v) for v in got))
+    return levels if run in levels and stop in levels else None
 
 
 def learnable(frame: pd.DataFrame, rc: RunCondition | None) -> pd.DataFrame:

@@ -420,6 +420,20 @@ class SettleGuard:
         self.text = ""  # the open settle's why
         self.opened = ""  # when the open settle's step was
 
+    def forget_holds(self, keep: str | None = None) -> None:
+        """At a unit's stop (:mod:`~.running`): every set-point's, hand valve's and state's
+        held value is let go but the run tag's (``keep``), whose start is the state change
+        the next settle is for. Across a stop a set-point moves with the plant (a
+        pasteuriser's flow 9 m³/h in one production run, 14 in CIP, 0 idle, 9.7 in the
+        next): its value after the start against the one before the stop is no operator's
+        step, and a loop's settle in its stead would end at ``settle_max_s``, shorter than
+        the start's ``state_settle_max_s`` (issue 34 item 5, acceptance pass 10)."""
+        lose = np.array([lp.sp != keep for lp in self.loops], bool)
+        self.prev[lose] = np.nan
+        self.anchor[lose] = np.nan
+        self.run[lose] = 0
+        self.moved[lose] = 0
+
     def transform(
         self,
         index: pd.Index,

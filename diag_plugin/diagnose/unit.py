@@ -971,7 +971,9 @@ class Unit:
         the spread tests' window, the tests' and the combined test's on/off delays, the held
         symptoms, the deadband, the unit's off-delay and its last alarm, the isolation and
         episode holds, the valve-at-limit rule), so none is carried across the stop into the
-        next start (:mod:`~.running`). The models' histories, the settle and
+        next start (:mod:`~.running`); the settle guard lets go of every held set-point but
+        the run tag's (:meth:`~.settle.SettleGuard.forget_holds`: the start is the state
+        change it settles). The models' histories, the settle's other state and the
         operating-point guards go on (they read the stopped samples as missing)."""
         ev = self.ev
         if self.lowpass is not None:
@@ -992,6 +994,9 @@ class Unit:
         self._last_alarm = None
         if self.saturation is not None:
             self.saturation.reset()
+        if self.settle is not None:
+            rc = self.file.running
+            self.settle.forget_holds(None if rc is None else rc.tag)
 
     def _evaluate(self, frame: pd.DataFrame) -> Diagnosis:
         """:meth:`evaluate` of a piece judged throughout."""

@@ -111,6 +111,7 @@ from diag_plugin.unitbuild.loops import (
 )
 from diag_plugin.unitbuild.parallel import DaskPool, default_workers, map_tests, one_blas_thread
 from diag_plugin.unitbuild.read import read_sampling, read_window
+from diag_plugin.unitbuild.runlevels import listed, unit_run
 from historian.discrete import DISCRETE_SHARE, discrete_levels, levels_text
 from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
@@ -1259,6 +1260,9 @@ def _build_unit(
     if running is not None:  # the stopped rows as an outage; the run tag no candidate
         rc, run_col, run_note = run_condition(frame, running, loops, manual, disturbances)
         frame = learnable(frame, rc).drop(columns=[rc.tag])
+        # a mode declared a state too (a tags CSV's role state, --running MODE=1): the run
+        # condition says what it does; where the unit runs it holds one value
+        states = [t for t in states if t != rc.tag]
     # pieces of equipment (diagnose/equipment.py): their tests learn where each runs
     eqs, eq_notes = equipment_conditions(frame, equipment, None if running is None else rc.tag)
     have = frame.notna().any(axis=1).to_numpy()
@@ -1599,9 +1603,10 @@ def run_condition(
     """The declared run condition (``--running TAG[=VALUE]``, a tags CSV's role ``running``;
     :mod:`~diag_plugin.diagnose.running`) checked against the window: its tag in the data,
     in no loop, no hand valve nor disturbance, two-valued over the window, ``VALUE`` one of
-    the two (default: the higher). Returns the condition (with the share of the window's
-    samples it ran on), the tag's column and the plan's note of it. A problem names the tag
-    and where it was declared."""
+    the two (default: the higher), or a mode of more values, ``VALUE`` one of them
+    (:func:`~diag_plugin.unitbuild.runlevels.unit_run`). Returns the condition (with the
+    share of the window's samples it ran on), the tag's column and the plan's note of it. A
+    problem names the tag and where it was declared."""
     rc = running if isinstance(running, Running) else parse_running(running)
     where, tag = rc.where, rc.tag
     if tag not in frame.columns:
@@ -1622,27 +1627,12 @@ def run_condition(
     col = frame[tag].astype(float)
     x = col.to_numpy()
     x = x[np.isfinite(x)]
-    values = np.unique(x)
-    if values.size != 2:
-        seen = ", ".join(f"{v:g}" for v in values[:5]) + (" …" if values.size > 5 else "")
-        raise UserError(
-            f"{where}: run condition {tag} (running) is not two-valued over the window "
-            f"({values.size} value(s): {seen or 'none'}); it must be a state, e.g. a run "
-            "feedback 0/1"
-        )
-    lo, hi = float(values[0]), float(values[1])
-    run = hi if rc.value is None else rc.value
-    if run not in (lo, hi):
-        raise UserError(
-            f"{where}: run condition {tag} (running) is {lo:g} or {hi:g} over the window, "
-            f"never {run:g}"
-        )
-    stop = lo if run == hi else hi
-    share = float(np.mean(x == run))
-    got = RunCondition(tag, run, stop, share)
+    got = unit_run(rc, x)
+    n_run = int(got.runs(x).sum())
     note = (
-        f"{tag}: the run condition (declared: judged only while {tag} = {run:g}); the unit "
-        f"ran on {share:.1%} of the window's samples ({int((x == run).sum())} of {x.size}): "
+        f"{tag}: the run condition (declared: judged only while {tag} = {got.run:g}"
+        + (f", stopped at {listed([v for v in got.levels if v != got.run])}" if got.levels else "")
+        + f"); the unit ran on {got.share:.1%} of the window's samples ({n_run} of {x.size}): "
         "learned from those only, the stopped ones as an outage"
     )
     return got, col, note

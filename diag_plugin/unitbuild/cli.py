@@ -87,7 +87,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         default=[],
         metavar="TAG[=VALUE]",
         help="the run condition: a two-valued state (a run feedback, an occupied mode); the "
-        "unit runs where TAG is at its higher value (or at VALUE), learns only from those "
+        "unit runs where TAG is at its higher value (or at VALUE: also one of a mode's many, "
+        "MODE=1 of idle 0, production 1, CIP 2-4), learns only from those "
         "rows and judges nothing elsewhere (CHECK_FUNCTION, not running; ISA-18.2's "
         "state-based alarming; docs/how-to/unit-loops.md). In a tags CSV: the role 'running'. "
         "'[NAME:]TAG[=VALUE]:TAG1,TAG2,…': a piece of equipment's run condition (repeatable): "

@@ -14,6 +14,13 @@ import tomlkit
 from diag_plugin.diagnose.equipment import Equipment, output_tag, owner
 from diag_plugin.diagnose.running import RunCondition
 from diag_plugin.unitbuild.loops import Loop, Running
+from diag_plugin.unitbuild.runlevels import (
+    give_a_value,
+    listed,
+    mode_condition,
+    mode_levels,
+    not_a_state,
+)
 from historian.errors import UserError
 
 
@@ -22,7 +29,8 @@ def equipment_conditions(
 ) -> tuple[list[Equipment], list[str]]:
     """Each declared piece (``--running [NAME:]TAG[=VALUE]:TAG1,…``) checked against the
     window: its run tag and tags in the data, a tag in one piece only, the run tag two-valued
-    (or one-valued with the ``VALUE`` it runs at: a piece that ran throughout the window).
+    (or one-valued with the ``VALUE`` it runs at: a piece that ran throughout the window), or
+    a mode of more values with the ``VALUE`` it runs at (:func:`piece_run`).
     Returns the pieces and the plan's notes. ``unit_run``: the unit's own run tag (no piece's)."""
     out: list[Equipment] = []
     notes: list[str] = []
@@ -41,39 +49,53 @@ def equipment_conditions(
                 raise UserError(f"{d.where_of(t)}: {t} belongs to {seen[t]} already")
             seen[t] = name
         x = frame[d.tag].to_numpy(float)
-        x = x[np.isfinite(x)]
-        values = np.unique(x)
-        shown = ", ".join(f"{v:g}" for v in values[:5]) + (" …" if values.size > 5 else "")
-        if values.size > 2 and (d.value is None or d.value not in (values[0], values[-1])):
-            # a mode tag (a filter's 0 filtering, 1 backwash, 2 filter-to-waste) runs at one
-            # end of its values: stopped nearer the next one (RunCondition.runs)
-            raise UserError(
-                f"{where}: run condition {d.tag} of {name} takes {values.size} values over the "
-                f"window ({shown}); give the one it runs at, the lowest or the highest: "
-                f"{d.tag}={values[0]:g} or {d.tag}={values[-1]:g}"
-            )
-        if values.size == 0 or (values.size == 1 and d.value is None):
-            raise UserError(
-                f"{where}: run condition {d.tag} of {name} is not two-valued over the window "
-                f"({values.size} value(s): {shown or 'none'}); a piece that ran throughout: "
-                f"{d.tag}=VALUE"
-            )
-        run = float(values.max()) if d.value is None else d.value
-        if values.size == 2 and run not in values:
-            raise UserError(
-                f"{where}: run condition {d.tag} of {name} is {values[0]:g} or {values[1]:g} "
-                f"over the window, never {run:g}"
-            )
-        others = values[values != run]
-        near = others[np.argmin(np.abs(others - run))] if others.size else None
-        stop = float(near) if near is not None else (0.0 if run != 0 else 1.0)
-        share = float(np.mean(x == run))
-        out.append(Equipment(name, RunCondition(d.tag, run, stop, share), tuple(d.tags)))
+        rc = piece_run(d, name, x[np.isfinite(x)])
+        out.append(Equipment(name, rc, tuple(d.tags)))
         notes.append(
-            f"{name}: runs while {d.tag} = {run:g} ({share:.1%} of the window's samples); "
+            f"{name}: runs while {d.tag} = {rc.run:g} ({rc.share:.1%} of the window's samples); "
             f"the tests of {', '.join(d.tags)} learned from those only, off while it is stopped"
         )
     return out, notes
+
+
+def piece_run(d: Running, name: str, x: np.ndarray) -> RunCondition:
+    """A piece's run condition from its run tag's finite values ``x`` over the window: a mode
+    of more than two values (:func:`~diag_plugin.unitbuild.runlevels.mode_levels`: a filter's
+    0 filtering, 1 backwash, 2 filter-to-waste; a pasteuriser's idle 0, production 1, CIP
+    2-4) runs at the ``VALUE`` given, any of them, stopped at every other; a two-valued tag at
+    its higher value or ``VALUE``; one value with ``VALUE``, a piece that ran throughout."""
+    where = d.where
+    levels = mode_levels(x)
+    if levels is not None:
+        if d.value is None:
+            raise UserError(f"{where}: run condition {d.tag} of {name} "
+                            f"{give_a_value(d.tag, levels)}")  # fmt: skip
+        if d.value not in levels:
+            raise UserError(f"{where}: run condition {d.tag} of {name} is {listed(levels)} "
+                            f"over the window, never {d.value:g}")  # fmt: skip
+        return mode_condition(d.tag, d.value, levels, x)
+    values = np.unique(x)
+    shown = ", ".join(f"{v:g}" for v in values[:5]) + (" …" if values.size > 5 else "")
+    if values.size > 2 and (d.value is None or d.value not in (values[0], values[-1])):
+        # no state (an analog tag, a grid's means of switches): at one end of its values
+        # only, stopped nearer the next one (RunCondition.runs), as before modes
+        raise UserError(f"{where}: run condition {d.tag} of {name} {not_a_state(values)}")
+    if values.size == 0 or (values.size == 1 and d.value is None):
+        raise UserError(
+            f"{where}: run condition {d.tag} of {name} is not two-valued over the window "
+            f"({values.size} value(s): {shown or 'none'}); a piece that ran throughout: "
+            f"{d.tag}=VALUE"
+        )
+    run = float(values.max()) if d.value is None else d.value
+    if values.size == 2 and run not in values:
+        raise UserError(
+            f"{where}: run condition {d.tag} of {name} is {values[0]:g} or {values[1]:g} "
+            f"over the window, never {run:g}"
+        )
+    others = values[values != run]
+    near = others[np.argmin(np.abs(others - run))] if others.size else None
+    stop = float(near) if near is not None else (0.0 if run != 0 else 1.0)
+    return RunCondition(d.tag, run, stop, float(np.mean(x == run)))
 
 
 def stretches(on: np.ndarray) -> list[int]:
