@@ -313,3 +313,36 @@ def test_tail_levels_count_a_held_plateau_as_one_value_and_one_episode():
     assert [(lv.value, lv.samples, lv.episodes, lv.runs) for lv in tied] == [(2.0, 6, 3, (0, 1))]
     with pytest.raises(ValueError):
         tail_levels(runs, 0.0)
+
+
+def test_the_oscillation_score_is_the_hold_s_own_rule_at_every_level():
+    """``oscillation_score`` over ``λ`` (or either side over it) exactly where the unit's
+    :class:`OscillationHold` of the alarms at ``λ`` is on, for every ``λ``: random swings,
+    windows and side changes asked (the hold arms on ``K`` changes within ``K`` windows and
+    is kept while on or both sides are within one). A single + then − (a twin stopping and
+    restarting) is held at no positive level; + − + is, until a side is quiet a window."""
+    from diag_plugin.bench.matched import oscillation_score
+    from diag_plugin.diagnose.unitloops import OscillationHold
+
+    rng = np.random.default_rng(5)
+    checked = held = 0
+    for _ in range(120):
+        n, w, k = int(rng.integers(5, 90)), int(rng.integers(1, 12)), int(rng.integers(1, 4))
+        up = rng.normal(0.4, 1.0, (n, 2))
+        down = -up * rng.uniform(0.5, 2.0, (n, 2))  # one side or the other: r/high, r/low
+        score = np.where(np.isnan(o := oscillation_score(up, down, 1, 1, w, k)), -np.inf, o)
+        for c in range(2):
+            for lam in np.quantile(np.r_[up[:, c], down[:, c]], [0.5, 0.7, 0.85]):
+                lam = max(lam, 0.0)
+                s = np.where(up[:, c] > lam, 1.0, np.where(down[:, c] > lam, -1.0, 0.0))
+                unit = OscillationHold(np.array([w]), k).transform(s[:, None].copy())[:, 0]
+                mine = (score[:, c] > lam) | (s != 0)
+                np.testing.assert_array_equal(unit != 0, mine)
+                checked += 1
+                held += int(((unit != 0) & (s == 0)).sum())
+    assert checked == 720 and held > 100  # the hold held: the comparison compared something
+    r = np.r_[np.zeros(5), np.full(20, 3.0), np.full(20, -3.0), np.zeros(200)]  # + then −
+    assert np.nanmax(oscillation_score(r, -r, 3, 3, 100)) <= 0.0  # over no positive level
+    r2 = np.r_[r[:45], np.full(20, 3.0), np.zeros(180)]  # + − +: a swing there and back
+    o = oscillation_score(r2, -r2, 3, 3, 100)
+    assert np.all(o[70:140] == 3.0) and np.nanmax(o[170:]) <= 0.0  # held, then off

@@ -10,6 +10,8 @@ onset on these seeds (main). Faults are scored on seeds never used to build.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -69,18 +71,68 @@ def test_fault_free_runs_of_unseen_seeds_alarm_no_more_with_the_hold(vessel):
         assert h.sum() <= p.sum() and _episodes(h) <= _episodes(p)
 
 
+def _held(s: list[int], window: int = 4) -> list[int]:
+    from diag_plugin.diagnose.unitloops import OscillationHold
+
+    x = np.array(s, float)[:, None]
+    return OscillationHold(np.array([window])).transform(x)[:, 0].astype(int).tolist()
+
+
+def test_one_bipolar_transient_is_not_held():
+    """A load moved onto a twin when it stops and back when it restarts is + then −: one
+    side change, not a cycle. The hold of e2ea008 (both sides within the window) kept the −
+    on for the window after it; here nothing is held, however close the two are, and a
+    third swing further than two windows back does not arm it either."""
+    s = [1, 1, 1, 0, 0, -1, -1, 0, 0, 0, 0, 0, 0]
+    assert _held(s) == s
+    s = [1, 0, -1, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0]  # + − then + 8 samples after the −
+    assert _held(s) == s
+
+
+def test_a_swing_there_and_back_arms_the_hold_until_one_side_is_quiet():
+    """+ − + within two windows arms the hold (a limit cycle repeats); armed, it holds while
+    both sides were on within the window, through a run longer than the window, and drops
+    once one side has been quiet for it (window 4)."""
+    s = [1, 0, -1, 0, 1, 0, 0, 0, 0, 0]
+    assert _held(s) == [1, 0, -1, 0, 1, 1, 0, 0, 0, 0]  # armed at the second change
+    s = [1, 0, -1, 0, 1, 0, -1, 0, 0, 0, 0]
+    assert _held(s) == [1, 0, -1, 0, 1, 1, -1, -1, 0, 0, 0]
+    # armed, then a − run longer than the window: kept while on, off after it
+    s = [1, 0, -1, 0, 1, 0, -1, -1, -1, -1, -1, -1, 0, 0, 1, 0, 0]
+    assert _held(s) == [1, 0, -1, 0, 1, 1, -1, -1, -1, -1, -1, -1, 0, 0, 1, 0, 0]
+
+
 def test_the_hold_carries_its_state_across_pieces():
     from diag_plugin.diagnose.unitloops import OscillationHold
 
-    s = np.array([[1, 0, -1, 0, 0, 0, 0, 1, 0, -1, 0, 0, 0, 0, 0, 0]], float).T
+    s = np.array([[1, 0, -1, 0, 1, 0, -1, 0, 0, 0, 0, 0, 1, 0, -1, 0, 0, 1, 0, -1, 0, 0]], float).T
     one = OscillationHold(np.array([4])).transform(s.copy())
-    h = OscillationHold(np.array([4]))
-    parts = []
-    for a in range(0, len(s), 5):
-        h2 = OscillationHold(np.array([4]))
-        h2.load_state(h.to_state())
-        parts.append(h2.transform(s[a : a + 5].copy()))
-        h = h2
-    np.testing.assert_array_equal(np.vstack(parts), one)
-    # on above, then below within 4 samples: held on the side last on while both are in it
-    assert one[:, 0].tolist() == [1, 0, -1, -1, 0, 0, 0, 1, 0, -1, -1, 0, 0, 0, 0, 0]
+    for step in (1, 3, 5):
+        h = OscillationHold(np.array([4]))
+        parts = []
+        for a in range(0, len(s), step):
+            h2 = OscillationHold(np.array([4]))
+            h2.load_state(json.loads(json.dumps(h.to_state())))
+            parts.append(h2.transform(s[a : a + step].copy()))
+            h = h2
+        np.testing.assert_array_equal(np.vstack(parts), one)
+    # armed at the second change, off once a side is quiet for the window (t = 8); + − with
+    # the + before further back than two windows (t = 12, 14) does not arm it, a third
+    # change within them does (t = 17)
+    assert one[:, 0].tolist() == [1, 0, -1, 0, 1, 1, -1, -1, 0, 0, 0, 0, 1, 0, -1, 0, 0, 1, 0,
+                                  -1, -1, 0]  # fmt: skip
+
+
+def test_a_state_saved_before_the_changes_were_counted_loads():
+    """e2ea008's state (samples since each side was on, the side last on) gives the run
+    before the current one: the next change arms the hold if that run is recent enough."""
+    from diag_plugin.diagnose.unitloops import OscillationHold
+
+    h = OscillationHold(np.array([4, 4]))
+    h.load_state({"p": [2, 9], "n": [0, 0], "last": [-1.0, -1.0]})
+    s = np.array([[0, 1, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0]], float).T
+    out = h.transform(s)
+    # column 0: above 2 samples before the − it was on: the + arms it, held until the − is
+    # 4 samples back; column 1: above long before, not armed
+    assert out[:, 0].tolist() == [0, 1, 1, 0, 0, 0] and out[:, 1].tolist() == [0, 1, 0, 0, 0, 0]
+    assert set(h.to_state()) == {"since", "ends", "last", "armed"}

@@ -22,10 +22,15 @@ instead would let different statistics take turns to hold an alarm on; per stati
 a unit (and a PCA chart per statistic) runs. Every method gets the same delays.
 
 A unit with an oscillation hold (``oscillation_window_s``, :class:`~diag_plugin.diagnose.
-unitloops.OscillationHold`: a test on on both sides within the window stays on) adds per test
-:func:`oscillation_score`, ``o(t) = min(max_w d⁺, max_w d⁻)`` of its two sides' delayed
-ratios over the last ``w`` samples: ``o(t) > λ`` exactly where both sides' alarms at ``λ``
-were on within the window, so the held alarm is again one threshold on one scalar.
+unitloops.OscillationHold`: armed by ``K`` side changes within ``K`` windows, kept while the
+test is on or both sides were on within the window) adds per test :func:`oscillation_score`
+from its two sides' delayed ratios ``d⁺``, ``d⁻``: ``a(t)``, the best chain of ``K + 1``
+samples alternating in side within the last ``K·w`` (the largest min of their ratios),
+``b(t)`` that of 2 samples within the last ``w``, and ``h(t) = max(min(a, b)(t),
+min(max(b, d⁺, d⁻)(t), h(t − 1)))``: the alarm at ``λ`` has ``K`` changes within ``K·w``
+exactly where ``a > λ``, both sides within ``w`` where ``b > λ``, and ``h(t) > λ`` exactly
+where the hold at ``λ`` is armed, so the held alarm is again one threshold on one scalar
+(``K = 1``: the hold of e2ea008, ``min(max_w d⁺, max_w d⁻)`` but for one sample on both).
 
 Counting, so a method cannot win by being unknown or by alarming more:
 
@@ -47,8 +52,8 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-import pandas as pd
 
+from diag_plugin.diagnose.unitloops import OSCILLATION_CHANGES
 from diag_plugin.diagnose.unittags import side_ratio
 
 __all__ = [
@@ -110,20 +115,97 @@ def delayed_score(x: np.ndarray, on: int = 1, off: int = 1) -> np.ndarray:
     return d[:, 0] if one else d
 
 
+@numba.njit(cache=True)
+def _chains(v, first, last, step, out):  # pragma: no cover - numba
+    # from sample ``first`` to ``last`` by ``step`` (±1), out[t, a, j]: over the samples from
+    # ``first`` to t, the best chain of j + 1 samples alternating in side whose sample nearest
+    # t is on side a (0 above, 1 below): the largest min of its samples' side values v[·, ·]
+    # (-inf: none). A chain through t is t's value and the best shorter one begun on the
+    # other side before it
+    k = out.shape[2]
+    for t in range(first, last + step, step):
+        for a in range(2):
+            for j in range(k):
+                new = v[t, a]
+                if j > 0:
+                    new = min(new, out[t - step, 1 - a, j - 1]) if t != first else -np.inf
+                out[t, a, j] = max(out[t - step, a, j], new) if t != first else new
+    return out
+
+
+@numba.njit(cache=True)
+def _swing_score_kernel(up, down, window, k):  # pragma: no cover - numba
+    # per column the best chain of k + 1 samples alternating in side within each window
+    # [t - w + 1, t]: a block's suffix (chains from s to the block's end, by their first
+    # sample's side) joined to the next block's prefix (from its start to t, by their last
+    # sample's side), blocks of w samples (van Herk / Gil-Werman): O(n k²) a column
+    n, m = up.shape
+    res = np.empty((n, m))
+    v = np.empty((n, 2))
+    pre = np.empty((n, 2, k + 1))
+    suf = np.empty((n, 2, k + 1))
+    for c in range(m):
+        for t in range(n):
+            a, b = up[t, c], down[t, c]
+            v[t, 0] = a if a == a else -np.inf
+            v[t, 1] = b if b == b else -np.inf
+        for lo in range(0, n, window):
+            hi = min(lo + window, n) - 1
+            _chains(v, lo, hi, 1, pre)
+            _chains(v, hi, lo, -1, suf)
+        for t in range(n):
+            s = t - window + 1
+            best = max(pre[t, 0, k], pre[t, 1, k])
+            if s > 0 and s % window != 0:  # the window begins in the block before t's
+                for a in range(2):  # the chain's first side
+                    best = max(best, suf[s, a, k])
+                    for i in range(1, k + 1):  # its first i samples there, the rest after
+                        e = a if i % 2 == 1 else 1 - a  # the side of its i-th sample
+                        rest = k + 1 - i
+                        f = 1 - e if rest % 2 == 1 else e  # the side of its last sample
+                        best = max(best, min(suf[s, a, i - 1], pre[t, f, rest - 1]))
+            res[t, c] = best if best > -np.inf else np.nan
+    return res
+
+
+@numba.njit(cache=True)
+def _armed_kernel(arm, keep):  # pragma: no cover - numba
+    # per column h(t) = max(arm(t), min(keep(t), h(t - 1))): h > λ exactly where, at λ, the
+    # hold armed at some sample and was kept on every sample since
+    n, m = arm.shape
+    out = np.empty((n, m))
+    for j in range(m):
+        prev = -np.inf
+        for t in range(n):
+            a, b = arm[t, j], keep[t, j]
+            h = max(a if a == a else -np.inf, min(b if b == b else -np.inf, prev))
+            out[t, j] = h
+            prev = h
+    return out
+
+
 def oscillation_score(
-    up: np.ndarray, down: np.ndarray, on: int, off: int, window: int
+    up: np.ndarray, down: np.ndarray, on: int, off: int, window: int, changes: int | None = None
 ) -> np.ndarray:
-    """Per column (a test) the oscillation hold's statistic (module doc): the smaller of its
-    two sides' largest delayed ratio over the last ``window`` samples (``up``: ``r / high``,
-    ``down``: ``r / low``); NaN throughout for a window of 0 (no hold)."""
+    """Per column (a test) the oscillation hold's statistic (module doc) from its two sides'
+    delayed ratios (``up``: ``r / high``, ``down``: ``r / low``): over ``λ`` exactly where the
+    hold of the alarms at ``λ`` is armed, ``changes`` side changes (default the hold's
+    :data:`~diag_plugin.diagnose.unitloops.OSCILLATION_CHANGES`) within ``changes`` ×
+    ``window`` samples and since then on every sample the test on or both sides on within
+    ``window``; NaN throughout for a window of 0 (no hold), NaN where never armed."""
     u = np.asarray(up, float).reshape(len(up), -1)
     if window < 1 or not u.size:
         return np.full(u.shape, np.nan)
-    sides = []
-    for x in (u, np.asarray(down, float).reshape(u.shape)):
-        d = delayed_score(x, on, off)
-        sides.append(pd.DataFrame(d).rolling(int(window), min_periods=1).max().to_numpy())
-    return np.minimum(*sides)  # unknown on either side: never held
+    k = OSCILLATION_CHANGES if changes is None else int(changes)
+    du = np.ascontiguousarray(delayed_score(u, on, off))
+    dd = np.ascontiguousarray(delayed_score(np.asarray(down, float).reshape(u.shape), on, off))
+    arm = _swing_score_kernel(du, dd, k * int(window), k)
+    both = _swing_score_kernel(du, dd, int(window), 1)
+    with np.errstate(invalid="ignore"):
+        keep = np.fmax(both, np.fmax(du, dd))  # NaN only where all three are
+    h = _armed_kernel(np.minimum(arm, both), keep)  # armed where both sides are, too
+    h[np.isneginf(h)] = np.nan
+    return h
 
 
 def method_score(

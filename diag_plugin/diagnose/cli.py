@@ -301,7 +301,8 @@ def cmd_unit_show(args) -> int:
         )
         + (f"; deadband {ev['deadband']:.0%} of the threshold" if ev.get("deadband") else "")
         + (
-            f"; a test on on both sides within {ev['oscillation_window_s']:g} s stays on"
+            f"; a test swung there and back within 2 x {ev['oscillation_window_s']:g} s stays"
+            f" on until a side is quiet for {ev['oscillation_window_s']:g} s"
             if ev.get("oscillation_window_s")
             else ""
         )

@@ -125,8 +125,9 @@ stiction, a loop oscillating) instead of its level; the loop's set-point is neve
 fault. The alarm settings in time, ``on_delay_s``, ``off_delay_s`` (seconds, converted at the
 models' period; 0: the sample counts ``on_delay``/``off_delay``), ``deadband`` (a symptom,
 once on, clears only below ``(1 − deadband)`` × its threshold), ``spread_window_s`` (the
-spread tests' window) and ``oscillation_window_s`` (a symptom on on both sides within it is
-held on: an oscillation is one alarm; 0 or absent: no hold) are described in
+spread tests' window) and ``oscillation_window_s`` (a symptom that swung there and back
+within two of it is held on until a side is quiet for one: an oscillation is one alarm; 0
+or absent: no hold) are described in
 :mod:`diag_plugin.diagnose.unitloops`;
 ``settle_max_s`` (written by ``diag unit build``; 0 or absent: no guard) bounds the settle
 after an operator's set-point step, during which the unit's alarms are CHECK_FUNCTION

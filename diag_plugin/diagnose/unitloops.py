@@ -22,15 +22,19 @@ build`` writes one beside each loop's level test and names the loop's actuator f
 standing alarm for a standing fault). A sticking valve's limit cycle swings the residuals of
 the tags it moves (the flow through the valve, the controller's output) across both
 thresholds in turn; with plain on/off delays each swing is an alarm of its own (63 episodes
-in two days of the chemical plant's ``tv104_stiction``, one each half cycle). A test whose
-symptom was on on *both* sides within the last ``oscillation_window_s`` stays on, on the side
-it last left, until one side has not been crossed for that long. ``diag unit build`` writes
-four spread windows (:data:`~diag_plugin.unitbuild.build.OSCILLATION_WINDOWS`): the spread
-test's running MAD over ``W`` sees a cycle of period up to ``2W``, both sides' alarms of such
-a cycle fall within one period, and a stick-slip cycle's period varies by a factor of two.
-A fault-free residual rarely crosses both thresholds within it, so the false alarms do not
-rise (none more on the chemical plant's tuning runs). The price: an alarm held by it ends up
-to the window after the oscillation stops.
+in two days of the chemical plant's ``tv104_stiction``, one each half cycle). A limit cycle
+repeats: once a test's symptom has changed side :data:`OSCILLATION_CHANGES` times (+ − + or
+− + −) within as many ``oscillation_window_s``, the hold is armed, and it stays on, on the
+side last on, while the symptom is on or both sides were on within the last
+``oscillation_window_s``; it drops once one side has not been on for that long. A single
+bipolar transient (+ then −: a load moved onto a twin when it stops and back when it
+restarts) is one change and never held. ``diag unit build`` writes four spread windows
+(:data:`~diag_plugin.unitbuild.build.OSCILLATION_WINDOWS`): the spread test's running MAD
+over ``W`` sees a cycle of period up to ``2W``, both sides' alarms of such a cycle fall
+within one period, and a stick-slip cycle's period varies by a factor of two. A fault-free
+residual rarely swings across both thresholds, so the false alarms do not rise (none more on
+the chemical plant's tuning runs). The price: an alarm held by it ends up to the window after
+the oscillation stops, and an oscillation's first swing there and back is alarms of its own.
 
 **The named tag held through an episode** (:class:`EpisodeHold`): each tag's share of the
 alarm is averaged over the samples of the current alarm episode, and the tags are ranked by
@@ -185,52 +189,105 @@ class Deadband:
                                 self.state)  # fmt: skip
 
 
+#: side changes that arm the oscillation hold (:class:`OscillationHold`): two, a swing there
+#: and back (+ − + or − + −), within two windows. One change is a single bipolar transient
+#: (a load moved onto a twin when it stops and back when it restarts: + then −), not a
+#: cycle. The window takes one change of a cycle (half a period: both sides, up to ``2W``
+#: for a period ``4W``, twice what the spread test's ``W`` sees), so ``K`` changes are asked
+#: within ``K`` windows (a full period for ``K = 2``; the jacket's stick-slip periods run
+#: 43–244 samples against a window of 160). ``K = 1`` is the hold of e2ea008 exactly
+OSCILLATION_CHANGES = 2
+
+
 @numba.njit(cache=True)
-def _swing_kernel(s, window, since_p, since_n, last):  # pragma: no cover - numba
-    # row by row (memory order), in place; since_p/since_n: samples since the symptom was
-    # last on above / below (0 on that sample); last: the side it was last on
+def _swing_kernel(s, window, on_at, ends, last, armed):  # pragma: no cover - numba
+    # row by row (memory order), in place; rows counted from this piece's first (earlier
+    # ones negative): on_at, the row the symptom was last on; ends[j, b], the last row of the
+    # (b+1)-th run before the current one (a run: the on samples of one side, the off ones
+    # between ignored); last: the side it was last on; armed: the hold is on. It holds where
+    # the hold of K = 1 does (the run before the current one ended within the window: both
+    # sides on within it) once armed: armed when the K-th run back ended within K windows
+    # (K side changes, K = ends.shape[1]), kept while the symptom is on or both sides are
+    # on within the window
     n, m = s.shape
+    k = ends.shape[1]
     for i in range(n):
         for j in range(m):
-            since_p[j] += 1
-            since_n[j] += 1
             x = s[i, j]
-            if x > 0:
-                since_p[j] = 0
-                last[j] = 1.0
-            elif x < 0:
-                since_n[j] = 0
-                last[j] = -1.0
-            elif x == 0 and since_p[j] < window[j] and since_n[j] < window[j]:
+            on = x > 0 or x < 0
+            if on:
+                side = 1.0 if x > 0 else -1.0
+                if last[j] != 0.0 and side != last[j]:  # a side change: one run more back
+                    for b in range(k - 1, 0, -1):
+                        ends[j, b] = ends[j, b - 1]
+                    ends[j, 0] = on_at[j]
+                on_at[j] = i
+                last[j] = side
+            both = i - ends[j, 0] < window[j]  # both sides on within the window
+            armed[j] = (
+                both and (i - ends[j, k - 1] < k * window[j] or armed[j]) or (armed[j] and on)
+            )
+            if x == 0 and armed[j]:
                 s[i, j] = last[j]
     return s
 
 
 class OscillationHold:
-    """Delayed symptoms −1/0/+1 (NaN unknown) held on while the test was on on both sides
-    within the last ``window`` samples (per column; 0: never held), on the side it was last
-    on (see module doc); state carried across pieces."""
+    """Delayed symptoms −1/0/+1 (NaN unknown) held on, on the side last on, from the sample
+    the test has changed side ``changes`` times within the last ``changes`` × ``window``
+    samples until, off, one side has not been on for ``window`` samples (per column; 0:
+    never held; see module doc); state carried across pieces."""
 
-    def __init__(self, window: np.ndarray) -> None:
+    def __init__(self, window: np.ndarray, changes: int = OSCILLATION_CHANGES) -> None:
+        if changes < 1:
+            raise ValueError("the hold asks for at least one side change")
         self.window = np.asarray(window, np.int64).copy()
-        self.since_p = self.window.copy()  # nothing on within the window yet
-        self.since_n = self.window.copy()
-        self.last = np.zeros(len(self.window))
+        m = len(self.window)
+        self.since = self.window.copy()  # nothing on within the window yet
+        self.ends = self._far(int(changes))  # no run before: none within the windows
+        self.last = np.zeros(m)
+        self.armed = np.zeros(m, bool)
+
+    def _far(self, changes: int) -> np.ndarray:
+        """Per column and run back, samples since a run out of all ``changes`` windows."""
+        return np.repeat((changes * self.window)[:, None], changes, axis=1)
 
     def transform(self, s: np.ndarray) -> np.ndarray:
         """``s`` held (in place when it is a C-ordered float array, as the delays give)."""
         a = np.ascontiguousarray(np.asarray(s, float))
         if not self.window.any():
             return a
-        return _swing_kernel(a, self.window, self.since_p, self.since_n, self.last)
+        # the counts (samples since, as of the last row) as rows of this piece and back
+        on_at, ends = -1 - self.since, -1 - self.ends
+        _swing_kernel(a, self.window, on_at, ends, self.last, self.armed)
+        n = len(a)
+        self.since, self.ends = n - 1 - on_at, n - 1 - ends
+        return a
 
     def to_state(self) -> dict[str, Any]:
-        return {"p": self.since_p.tolist(), "n": self.since_n.tolist(), "last": self.last.tolist()}
+        return {"since": self.since.tolist(), "ends": self.ends.tolist(),
+                "last": self.last.tolist(), "armed": self.armed.tolist()}  # fmt: skip
 
     def load_state(self, state: dict[str, Any]) -> None:
-        self.since_p = np.asarray(state["p"], np.int64)
-        self.since_n = np.asarray(state["n"], np.int64)
+        """Go on from :meth:`to_state`. A state saved before the side changes were counted
+        (``p``, ``n``: samples since each side was on) gives the run before the current one
+        (the other side's last sample), none further back and the hold off: the next change
+        arms it if that run is recent enough. A state of another ``changes`` is cut, or
+        padded with runs out of the windows."""
         self.last = np.asarray(state["last"], float)
+        ends = self._far(self.ends.shape[1])
+        if "ends" in state:
+            old = np.asarray(state["ends"], np.int64).reshape(len(self.window), -1)
+            k = min(old.shape[1], ends.shape[1])
+            ends[:, :k] = old[:, :k]
+            self.since = np.asarray(state["since"], np.int64)
+            self.armed = np.asarray(state["armed"], bool)
+        else:
+            p, n = np.asarray(state["p"], np.int64), np.asarray(state["n"], np.int64)
+            self.since = np.where(self.last > 0, p, np.where(self.last < 0, n, np.minimum(p, n)))
+            ends[:, 0] = np.where(self.last > 0, n, np.where(self.last < 0, p, ends[:, 0]))
+            self.armed = np.zeros(len(self.window), bool)
+        self.ends = ends
 
 
 class EpisodeHold:

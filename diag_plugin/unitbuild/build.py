@@ -944,8 +944,9 @@ def alarm_settings(period: str) -> dict[str, float]:
     third of :data:`CHATTER_WINDOW_S`, so no fault raises more than 3 episodes in it); a
     :data:`DEADBAND` of the threshold; the spread tests' window :data:`SPREAD_WINDOW_S`, at
     least 20 samples; the oscillation hold's window, :data:`OSCILLATION_WINDOWS` spread
-    windows (a symptom on on both sides within it stays on: a limit cycle is one alarm,
-    issue 34 item 6; :class:`~diag_plugin.diagnose.unitloops.OscillationHold`)."""
+    windows (a test that swung there and back, + − +, within two of it stays on until a side
+    is quiet for one: a limit cycle is one alarm, issue 34 item 6;
+    :class:`~diag_plugin.diagnose.unitloops.OscillationHold`)."""
     s = pd.Timedelta(period).total_seconds()
     ev = evaluation_for(period)
     on_s = ev["on_delay"] * s
@@ -1491,7 +1492,8 @@ def _build_unit(
     for k, v in {**evaluation_for(period), **alarm_settings(period)}.items():
         doc["evaluation"][k] = v
     doc["evaluation"]["oscillation_window_s"].comment(
-        "4 x spread_window_s: a test on on both sides within it stays on (a limit cycle, one alarm)"
+        "4 x spread_window_s: a test swung there and back (+ - +) within two of it stays on"
+        " until a side is quiet for one (a limit cycle, one alarm)"
     )
     if plan.lowpass is not None:
         doc["evaluation"]["lowpass"] = plan.lowpass
