@@ -406,6 +406,17 @@ def _plain(v: Any) -> Any:
     return v.unwrap() if hasattr(v, "unwrap") else v
 
 
+def kept_digits(x: float, places: int = 4) -> float:
+    """``x`` as the unit file keeps a learned number: ``places`` decimals, except a non-zero
+    value those decimals would write as 0 keeps 4 significant digits (issue 34, H8). Rounding
+    is monotone, so ``n1 ≤ n0 < 0 < p0 ≤ p1`` and ``low < 0 < high`` hold as written: a test
+    whose fault-free residual never crosses 0 has its threshold on that side at the 1e-4
+    floor and its fuzzy ramp within 0.1 % of it (``p0 ≈ 1e-7``), which 4 decimals wrote as
+    0.0 and the file then refused to read."""
+    r = round(float(x), places)
+    return r if r != 0.0 or x == 0.0 else float(f"{float(x):.4g}")
+
+
 def _tomlkit_parse(text: str, path: Path) -> tomlkit.TOMLDocument:
     """tomlkit's document of a unit file's text; a syntax error as ``file:line``."""
     import tomlkit
@@ -996,12 +1007,12 @@ class UnitFile(LinedFile):
         tests = self.doc["tests"]
         for name, (lo, hi) in limits.items():
             row = {k: _plain(v) for k, v in tests[name].items()}
-            row["high"] = round(float(hi), 4)
+            row["high"] = kept_digits(hi)
             row.pop("low", None)
             if abs(lo + hi) > 1e-12:
-                row["low"] = round(float(lo), 4)
+                row["low"] = kept_digits(lo)
             if ymax and name in ymax:
-                row["ymax"] = round(float(ymax[name]), 6)
+                row["ymax"] = kept_digits(ymax[name], 6)
             if spread is not None:
                 row.pop("spread", None)
                 if spread.get(name):
@@ -1013,7 +1024,7 @@ class UnitFile(LinedFile):
             if fuzzy is not None:
                 row.pop("fuzzy", None)
                 if name in fuzzy:
-                    row["fuzzy"] = [round(float(x), 4) for x in fuzzy[name]]
+                    row["fuzzy"] = [kept_digits(x) for x in fuzzy[name]]
             if points is not None:
                 row.pop("point_center", None)
                 row.pop("point_scale", None)

@@ -74,6 +74,8 @@ UNSEEN_TOL = 1e-9
 #: a test whose thresholds lie beyond this many times its output's span (residuals in % of
 #: span or of the maximum) gets a warning naming it: no fault-free residual reaches them
 WIDE_LIMITS = 10.0
+#: the least threshold on either side of 0 (a band around 0 even for a biased residual)
+FLOOR = 1e-4
 #: what such a warning says (``diag unit build`` prints each, not among its first notes only)
 WIDE_SAID = "no fault-free residual reaches them"
 #: known residual values a test needs in the window
@@ -708,11 +710,13 @@ def learn_thresholds(
             off[name] = (float(np.mean(stopped)), res[name].piece)
         b.unknown = float(np.mean(unknown))
     limits = {
-        k: (min(b.low, -1e-4), max(b.high, 1e-4)) for k, b in budgets.items()
+        k: (min(b.low, -FLOOR), max(b.high, FLOOR)) for k, b in budgets.items()
     }  # a band around 0 even for a biased residual
+    spreads = set()
     for t in unit.file.tests:  # a spread is never negative: only its high side is a test
         if getattr(t, "statistic", "level") == "spread" and t.name in limits:
             limits[t.name] = (-limits[t.name][1], limits[t.name][1])
+            spreads.add(t.name)
     fuzzy = {k: fuzzy_sets(body[k].to_numpy(), *limits[k]) for k in limits}
     idx = frame.index
     period = pd.Timedelta(unit.period)
@@ -727,6 +731,9 @@ def learn_thresholds(
                 f"thresholds extrapolated by a {b.method} fit"
             )
     warnings += wide_limits(limits, in_spread, unit.ev["scale"] == "max")
+    warnings += one_sided(
+        {k: (b.low, b.high) for k, b in budgets.items() if k not in spreads}, body
+    )
     combined = None
     if unit.ev["combined"] or unit.ev["isolation"] == "tags":
         block = blocked[keep]
@@ -788,6 +795,27 @@ def wide_limits(
             f"{name}: thresholds {lo:+.4g} … {hi:+.4g} {unit}, {times:.3g} times its output's "
             f"span: {WIDE_SAID} (a model that extrapolated where the "
             f"cross-fitting held a block out); build over a longer window or check its inputs"
+        )
+    return out
+
+
+def one_sided(bounds: dict[str, tuple[float, float]], body: pd.DataFrame) -> list[str]:
+    """A warning per test whose fault-free residual stays on one side of 0 over the window
+    (its budget's bound on the other side past 0, ``bounds`` before the :data:`FLOOR`): that
+    side's threshold is the floor, so any residual across 0 alarms -- a model that does not
+    fit the window (a transmitter drifted since the build, another operating point; issue 34,
+    H8: such a window wrote fuzzy ramps the unit file then refused to read)."""
+    out = []
+    for name, (lo, hi) in bounds.items():
+        if lo < -FLOOR and hi > FLOOR:
+            continue
+        side, other, floor = ("above", "low", -FLOOR) if lo >= -FLOOR else ("below", "high", FLOOR)
+        med = float(np.nanmedian(body[name].to_numpy(float))) if name in body else math.nan
+        out.append(
+            f"{name}: its residual stays {side} 0 over the window (median {med:+.4g}): its "
+            f"{other} threshold is the floor {floor:g}, so any residual across 0 alarms; its "
+            "model does not fit this window (a drifted transmitter, another operating "
+            "point?): build over it, or learn over a window the model fits"
         )
     return out
 
