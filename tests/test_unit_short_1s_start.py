@@ -113,40 +113,34 @@ def test_a_bias_after_a_start_is_still_raised(unit):
     assert (st[at:] == FAILURE).mean() > 10 * (st[:at] == FAILURE).mean()
 
 
-def test_steps_at_one_sample_settle_as_the_longest_of_them():
-    """A set-point (settle 10 samples) and a state (50) stepping at one sample, the unit in
-    alarm from the next sample for 40: suppressed throughout (main: the set-point's 10)."""
+def _set_point_and_state(state: str, state_at: int) -> tuple[np.ndarray, np.ndarray]:
+    """A set-point (settle 10 samples) stepping at sample 20 and a state (50) at ``state_at``,
+    the unit in alarm from sample 21 for 40: the guard's suppressed samples and whys."""
     from diag_plugin.diagnose.settle import SettleGuard, SettleLoop
 
     loop = SettleLoop("SP", "PV", 0, -1.0, 1.0, 0.5)
-    state = SettleLoop("MODE", "MODE", -1, 0.0, 0.0, 0.25, span=(0.0, 3.0), state=True)
+    st = SettleLoop(state, state, -1, 0.0, 0.0, 0.25, span=(0.0, 3.0), state=True)
     n = 120
     x = np.zeros((n, 2))
-    x[20:, 0], x[20:, 1] = 10.0, 1.0
+    x[20:, 0], x[state_at:, 1] = 10.0, 1.0
     alarm = np.zeros(n, bool)
     alarm[21:61] = True
-    g = SettleGuard([loop, state], [10, 50], 5, 1.0, 1)
+    g = SettleGuard([loop, st], [10, 50], 5, 1.0, 1)
     index = pd.date_range("2026-05-04", periods=n, freq="1s", tz="UTC")
-    sup, why = g.transform(index, x, np.zeros((n, 2)), alarm, alarm)
+    return g.transform(index, x, np.zeros((n, 2)), alarm, alarm)
+
+
+def test_steps_at_one_sample_settle_as_the_longest_of_them():
+    """Both at one sample: suppressed throughout (main: the set-point's 10 samples)."""
+    sup, why = _set_point_and_state("MODE", 20)
     assert sup[21:61].all() and not sup[:21].any()
     assert why[30] == "MODE 0 → 1 at 2026-05-04T00:00:20Z: settling after a state change"
 
 
 def test_a_later_step_of_a_longer_settle_carries_the_open_one_on():
-    """The set-point steps (settle 10), the unit in alarm at once; a state steps 5 samples
-    later (50): the settle runs on to the state's bound, its why naming both."""
-    from diag_plugin.diagnose.settle import SettleGuard, SettleLoop
-
-    loop = SettleLoop("SP", "PV", 0, -1.0, 1.0, 0.5)
-    state = SettleLoop("FWD", "FWD", -1, 0.0, 0.0, 0.25, span=(0.0, 1.0), state=True)
-    n = 120
-    x = np.zeros((n, 2))
-    x[20:, 0], x[25:, 1] = 10.0, 1.0
-    alarm = np.zeros(n, bool)
-    alarm[21:61] = True
-    g = SettleGuard([loop, state], [10, 50], 5, 1.0, 1)
-    index = pd.date_range("2026-05-04", periods=n, freq="1s", tz="UTC")
-    sup, why = g.transform(index, x, np.zeros((n, 2)), alarm, alarm)
+    """The state 5 samples after the set-point, the settle latched: it runs on to the
+    state's bound, its why naming both (main: ends at the set-point's 10 samples)."""
+    sup, why = _set_point_and_state("FWD", 25)
     assert sup[21:61].all()
     assert why[40] == (
         "FWD 0 → 1 at 2026-05-04T00:00:25Z: settling after a state change "
