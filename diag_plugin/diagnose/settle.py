@@ -56,6 +56,15 @@ alarm: the unit's judgement goes on.
   equipment's run tag (``[equipment]``, :mod:`~.equipment`) is no such state: its start
   holds its own tests off for ``state_settle_max_s``, the rest of the unit answers on.
 
+- **A start's steps are one event** (issue 34, items 3 and 6): a production start steps the
+  rate's set-point, the mode and, minutes later, the diversion valve. Tags stepping at one
+  sample open the settle of the one whose ``*_max_s`` is longest; a tag stepping inside an
+  open settle whose own settle would outlast the open one's rest carries it on (from its
+  step, to its bound; its why names it and when the settle opened). The pasteuriser at 1 s on
+  one day: the rate's set-point step's 873 s ended while the start's transient was still in
+  a spread test's window, on 10 of its 12 fault-free episodes; the state change's bound is
+  3,052 s. It still ends as soon as the unit is quiet.
+
 The replay (:meth:`~diag_plugin.diagnose.unit.Unit.evaluate`), the live loop's stacked path
 (:class:`~diag_plugin.diagnose.plant.Plant`) and a restart (the carried state) give the same
 statuses: one compiled kernel, row by row, its state carried across pieces.
@@ -186,12 +195,31 @@ def state_tags(unit: Any) -> list[SettleLoop]:
         if not got:
             continue  # read only through a derived input: no learned range
         lo, hi = min(a for a, _ in got), max(b for _, b in got)
-        band = STATE_BAND_SHARE * (hi - lo)
+        band = STATE_BAND_SHARE * min(hi - lo, level_gap(unit, tag))
         if not (np.isfinite(band) and band > 0):
             continue
         pv = unit.file.tags.get(tag, tag)
         out.append(SettleLoop(tag, pv, -1, 0.0, 0.0, band, span=(lo, hi), state=True))
     return out
+
+
+def level_gap(unit: Any, tag: str) -> float:
+    """The smallest gap between the values ``tag`` held in the combinations of states the
+    unit learned (``[states] seen``; inf where it is not listed or held one value). A mode of
+    five values (idle 0, production 1, CIP 2-4) learned over 0-4 moves by 1: the band of
+    :data:`STATE_BAND_SHARE` of its range (1.0) saw no step between neighbouring values, so a
+    production start opened no state settle (issue 34, items 3 and 6); of the gap it is 0.25."""
+    from diag_plugin.diagnose.combos import parse_combo
+
+    st = getattr(unit.file, "states", None) or {}
+    tags = list(st.get("tags", ()))
+    if tag not in tags:
+        return math.inf
+    j = tags.index(tag)
+    rows = (parse_combo(c, len(tags)) for c in st.get("seen", ()))
+    vals = np.unique([r[j] for r in rows if r is not None])
+    gaps = np.diff(vals)
+    return float(gaps.min()) if gaps.size else math.inf
 
 
 #: a settle's why after a step of a hand valve, a state
@@ -326,7 +354,7 @@ def _settle_kernel(
                         and 0 < moved[j] <= MOVE_SAMPLES
                         and abs(x - anchor[j]) > band[j]
                         and s_lo[j] <= x <= s_hi[j]
-                        and step < 0
+                        and (step < 0 or max_n[j] > max_n[step])
                     ):
                         step = j
                         s_from = anchor[j]
@@ -347,10 +375,15 @@ def _settle_kernel(
             _record(steps, k, step, s_from, s_to, i, s_back, 0)
             cur = k
             k += 1
-        elif step >= 0 and g[0] == 1 and step == g[4]:
+        elif step >= 0 and g[0] == 1 and (step == g[4] or max_n[step] > max_n[g[4]] - g[1]):
             # the tag the settle is for steps again (a filter's backwash 1, then
             # filter-to-waste 2, then filtering 0) without reopening it (latched, or the unit
-            # in alarm lately): the settle keeps its end, its why names this latest step
+            # in alarm lately): the settle keeps its end, its why names this latest step.
+            # Another tag whose settle outlasts the open one's rest (a production start's
+            # diversion valve forward minutes after the rate's step) carries it on: one event
+            if step != g[4]:
+                g[1] = s_back
+                g[4] = step
             _record(steps, k, step, s_from, s_to, i, s_back, 1)
             cur = k
             k += 1
