@@ -39,7 +39,7 @@ STATE_SAYS = re.compile(r"^I1 beyond what (\d+) state changes showed (\d+) min a
 def _without_envelope(unit: Unit, name: str) -> Unit:
     """``unit``'s file less its ``[envelope]`` (a file written before it), beside it."""
     doc = tomlkit.parse(unit.file.path.read_text(encoding="utf-8"))
-    doc.pop("envelope")
+    doc.pop("envelope", None)
     path = unit.file.path.parent / f"{name}.unit.toml"
     text = tomlkit.dumps(doc).replace(f'name = "{unit.file.name}"', f'name = "{name}"')
     path.write_text(text, encoding="utf-8")
