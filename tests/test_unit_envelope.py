@@ -179,3 +179,27 @@ def test_a_bad_envelope_is_an_error_at_its_line(station, tmp_path):
     path.write_text(bad, encoding="utf-8")
     with pytest.raises(UnitError, match=r"\[envelope\.state\] needs starts"):
         Unit.load(path, unit.file.path.parent)
+
+
+def test_a_piece_s_envelope_in_pieces_and_in_the_live_plant_says_the_same(twin):
+    """B's bias present at its start: the replay whole and in pieces of 23 samples from a
+    saved state (cut inside the settle and the alarm the envelope raised) say the same,
+    why included; the live plant restarted inside B's settle gives the same statuses."""
+    from tests.test_unit_running import same_in_pieces
+
+    unit, *_ = twin
+    start = DAY + 7 * 60
+    f = twinplant.simulate(2, 10, "b_bias", onset_days=(DAY + 6 * 60) / DAY)
+    f = f.iloc[start - 60 : start + 90]
+    whole = same_in_pieces(unit, f, 23)
+    assert whole.why.str.contains("beyond what 10 starts of B").sum() > 10
+    path = unit.file.path
+    plant = Plant({"chw": Unit.load(path, path.parent)}, {})
+    got = []
+    for k, (ts, row) in enumerate(f.iterrows()):
+        if k == 70:  # B started at 60: inside its settle
+            state = json.loads(json.dumps(plant.to_state()))
+            plant = Plant({"chw": Unit.load(path, path.parent)}, {})
+            plant.load_state(state)
+        got.append(plant.cycle(ts, row.to_dict())[0])
+    assert [int(s.status) for s in got] == whole.status.astype(int).tolist()
