@@ -35,7 +35,9 @@ file keeps one table per piece::
   (:func:`~diag_plugin.diagnose.settle.quiet_samples`), at most its own ``settle_max_s``
   (``[equipment.NAME]``, measured by the build on its own starts,
   :func:`~diag_plugin.unitbuild.loops.piece_settle_bounds`; a file without it: the unit's
-  ``state_settle_max_s``, else ``settle_max_s``); the rest of the unit answers on (a run tag
+  ``state_settle_max_s``, else ``settle_max_s``), or until one of them stays beyond its
+  start's envelope (``[envelope.NAME]``, :mod:`~.envelope`) for the on-delay; the rest of
+  the unit answers on (a run tag
   its models read, a ``[build] states`` tag, is no state change of the unit-wide settle
   guard, :mod:`~diag_plugin.diagnose.settle`).
 - The summaries count its samples off on their own, not as unknown: ``diag unit show``'s
@@ -53,6 +55,7 @@ import numba
 import numpy as np
 import pandas as pd
 
+from diag_plugin.diagnose.envelope import Envelope, beyond, says
 from diag_plugin.diagnose.running import RunCondition, stop_levels
 
 
@@ -179,20 +182,77 @@ DONE = 1 << 40
 
 
 @numba.njit(cache=True)
-def _settle_kernel(running, since, on, hold, quiet_n, q):  # pragma: no cover - numba
+def _settle_kernel(
+    running, since, on, hold, quiet_n, q, u, edges, env, over, on_n, hit, after, brk
+):  # pragma: no cover - numba
     # q[0]: samples in a row none of the piece's tests was on since its start (DONE: closed)
+    # an envelope (envelope.py; ``edges`` empty: none): a test beyond it at that age (``u``:
+    # samples × its tests, threshold units) for ``on_n`` samples ends the settle, ``hit``
+    # the test and age on that row; ``after`` the rows of the alarm it raised (``brk[0]``:
+    # carried, while a test of the piece stays on)
     n = running.size
     out = np.zeros(n, np.bool_)
     for i in range(n):
         if not running[i]:
             q[0] = DONE
+            brk[0] = 0
             continue
         if since[i] == 0:  # a start opens its settle
             q[0] = 0
+            over[:] = 0
+            brk[0] = 0
         if q[0] < quiet_n and since[i] < hold:
-            out[i] = True
-            q[0] = 0 if on[i] else q[0] + 1
+            t = beyond(u[i], edges, env, since[i], over, on_n)
+            if t >= 0:  # a residual far beyond what the window's starts showed: judged
+                q[0] = DONE
+                hit[i, 0] = t
+                hit[i, 1] = since[i]
+                brk[0] = 1
+            else:
+                out[i] = True
+                q[0] = 0 if on[i] else q[0] + 1
+        elif brk[0] == 1 and not on[i]:
+            brk[0] = 0
+        after[i] = brk[0] == 1
     return out
+
+
+def piece_envelopes(
+    equipment: Sequence[Equipment], tests: Sequence[np.ndarray], envelopes: Mapping,
+    names: Sequence[str], period_s: float,
+) -> list[tuple[Envelope, np.ndarray, np.ndarray] | None]:  # fmt: skip
+    """Per piece its start's envelope (``[envelope.NAME]``, :mod:`~.envelope`) over its
+    tests (``tests``: their positions): ``(envelope, each bin's first age in samples, bins ×
+    its tests)``; None without one."""
+    out = []
+    for e, cols in zip(equipment, tests, strict=True):
+        env = (envelopes or {}).get(e.name)
+        out.append(None if env is None else (env, *env.arrays([names[j] for j in cols],
+                                                                 period_s)))  # fmt: skip
+    return out
+
+
+class PieceState:
+    """What a piece's envelope carries from one piece of data to the next: per piece of
+    equipment the count of samples each test has been beyond its envelope, whether the
+    alarm it raised is on, and that alarm's why."""
+
+    def __init__(self, tests: Sequence[np.ndarray]) -> None:
+        self.over = [np.zeros(len(c), np.int64) for c in tests]
+        self.brk = [np.zeros(1, np.int64) for _ in tests]
+        self.text = ["" for _ in tests]
+
+    def to_state(self) -> dict:
+        return {"over": [o.tolist() for o in self.over],
+                "brk": [int(b[0]) for b in self.brk], "text": list(self.text)}  # fmt: skip
+
+    def load_state(self, state: dict | None) -> None:
+        """From :meth:`to_state` (None, or another shape: from rest)."""
+        if not state or [len(o) for o in state["over"]] != [len(o) for o in self.over]:
+            return
+        self.over = [np.asarray(o, np.int64) for o in state["over"]]
+        self.brk = [np.array([b], np.int64) for b in state["brk"]]
+        self.text = [str(t) for t in state["text"]]
 
 
 def off_mask(
@@ -237,14 +297,18 @@ def off_mask(
 def settling(
     equipment: Sequence[Equipment], tests: Sequence[np.ndarray], starts: Sequence,
     on: np.ndarray, holds: Sequence[int], quiet_n: int, quiet: np.ndarray,
-    names: Sequence[str],
+    names: Sequence[str], u: np.ndarray | None = None, envelopes: Sequence = (),
+    carried: PieceState | None = None, on_n: int = 1, period_s: float = 1.0,
 ) -> tuple[np.ndarray | None, list[tuple[np.ndarray, str]], np.ndarray | None]:  # fmt: skip
     """Samples × tests: a piece's tests held off after its start while it settles (as the
     unit's settle, :mod:`~.settle`): until none of ITS tests (``on``: samples × tests, each
     test's symptom on, before the hold) has been on for ``quiet_n`` samples in a row, at
-    most ``holds[k]`` samples; None where none is. ``quiet``: per piece its count of quiet
-    samples at the sample before (:data:`DONE`: no settle open; updated in place). Also the
-    samples and reason of each settle, and samples × pieces where each settles."""
+    most ``holds[k]`` samples, or until one of them stays beyond its envelope (``envelopes``
+    per piece, :func:`piece_envelopes`; ``u``: samples × tests, the filtered residuals in
+    threshold units) for ``on_n`` samples; None where none is. ``quiet``: per piece its count
+    of quiet samples at the sample before (:data:`DONE`: no settle open; updated in place),
+    ``carried`` the envelopes' (updated in place). Also the samples and reason of each
+    settle (and of each alarm an envelope raised), and samples × pieces where each settles."""
     n = on.shape[0]
     off = None
     said = []
@@ -255,7 +319,19 @@ def settling(
         running, since = got
         q = quiet[k : k + 1]
         mine = on[:, cols].any(axis=1)
-        held = _settle_kernel(running, since, mine, int(holds[k]), int(quiet_n), q)
+        env = envelopes[k] if k < len(envelopes) else None
+        state = carried or PieceState(tests)
+        if env is None or u is None:
+            edges, bound, uk = np.zeros(0, np.int64), np.zeros((0, cols.size)), np.zeros((n, 0))
+        else:
+            edges, bound, uk = env[1], env[2], np.ascontiguousarray(u[:, cols])
+        hit, after = np.full((n, 2), -1, np.int64), np.zeros(n, np.bool_)
+        held = _settle_kernel(running, since, mine, int(holds[k]), int(quiet_n), q, uk,
+                              edges, bound, state.over[k], max(1, on_n), hit, after,
+                              state.brk[k])  # fmt: skip
+        if after.any() or state.text[k]:
+            said += _broke(e, env, [names[j] for j in cols], uk, bound, edges, hit, after,
+                           state, k, period_s)  # fmt: skip
         if not held.any():
             continue
         if off is None:
@@ -267,3 +343,27 @@ def settling(
         said.append((held, f"{e.name} started ({e.rc.tag} = {e.rc.run:g}): tests {which} "
                            "off while it settles"))  # fmt: skip
     return off, said, where
+
+
+def _broke(e, env, names, u, bound, edges, hit, after, state: PieceState, k: int,
+           period_s: float) -> list[tuple[np.ndarray, str]]:  # fmt: skip
+    """The rows of the alarms piece ``k``'s envelope raised and their whys (the one carried
+    in first); the last one carried on in ``state``."""
+    out = []
+    text = state.text[k]
+    rows = np.flatnonzero(after)
+    cut = np.flatnonzero(hit[rows, 0] >= 0)
+    for a, b in zip(np.r_[0, cut], np.r_[cut, rows.size], strict=True):
+        if a < b and a < rows.size:
+            i = rows[a]
+            t, age = int(hit[i, 0]), int(hit[i, 1])
+            if t >= 0:
+                j = int(np.searchsorted(edges, age, side="right")) - 1
+                text = says(names[t], env[0], age * period_s, float(u[i, t]),
+                            float(bound[j, t]), f"starts of {e.name}", "its start")  # fmt: skip
+            mask = np.zeros(after.size, bool)
+            mask[rows[a:b]] = True
+            if text:
+                out.append((mask, text))
+    state.text[k] = text if after.size and after[-1] else ""
+    return out

@@ -45,6 +45,7 @@ import pandas as pd
 
 from diag_plugin.diagnose.combos import CombosGuard
 from diag_plugin.diagnose.derived import DerivedInputs, stackable
+from diag_plugin.diagnose.envelope import scaled
 from diag_plugin.diagnose.fixed import FixedGuard
 from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.manual import PlantGuard
@@ -837,15 +838,22 @@ class Plant:
         index = pd.DatetimeIndex([ts])
         for ui, (g, cols) in self._settle.items():
             a = self._first[ui]
+            u = None
+            if g.envelope is not None:  # a start's envelope (envelope.py) reads every test
+                lo, hi = self._units[ui]._limits()
+                u = scaled(r[a : a + lo.size], lo, hi)[None, :]
             sup, why = g.transform(
                 index,
                 self._hist[0, cols][None, :],
                 r[a + g.tests][None, :],
                 active[ui : ui + 1],
                 np.array([bool(active[ui] or det_held[ui])]),
+                u,
             )
             if sup[0]:
                 status[ui], faults[ui], out[ui] = NE107.CHECK_FUNCTION, [], why[0]
+            elif why[0]:  # the alarm an envelope raised: its why
+                out[ui] = why[0]
         return out
 
     def _fixed_units(self, ts, status, faults, tags, notes, guards) -> dict[int, str]:

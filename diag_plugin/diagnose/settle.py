@@ -52,7 +52,11 @@ alarm: the unit's judgement goes on.
   → 1 at …: settling after a state change``; it ends when no test is on for the quiet time
   and its alarm dropped, or ``state_settle_max_s`` after the change
   (:func:`~diag_plugin.unitbuild.loops.state_settle_max`): ISA-18.2's state-based alarming
-  (a pump's start is not an alarm; a fault that outlasts the settle is). A piece of
+  (a pump's start is not an alarm; a fault that outlasts the settle is). With the unit
+  file's ``[envelope.state]`` (:mod:`~.envelope`, learned by the build from the window's own
+  changes) a test beyond what those changes showed at the settle's age, for the on-delay,
+  ends the settle at once: a fault present at the change is raised, its why ``I1 beyond
+  what 8 state changes showed 12 min after a change (…)``. A piece of
   equipment's run tag (``[equipment]``, :mod:`~.equipment`) is no such state: its start
   holds its own tests off for ``state_settle_max_s``, the rest of the unit answers on.
 
@@ -80,6 +84,7 @@ import numba
 import numpy as np
 import pandas as pd
 
+from diag_plugin.diagnose.envelope import STATE, Envelope, beyond, says
 from diag_plugin.regressors import parse_specs
 
 #: samples a step may take to leave its held value by more than the band (a historian's
@@ -250,7 +255,9 @@ def settle_guard(unit: Any) -> SettleGuard | None:
         max_n += [max(1, math.ceil(max_s / unit.period_s - 1e-9))] * len(got)
     if not loops:
         return None
-    return SettleGuard(loops, max_n, quiet_samples(unit), unit.period_s, unit.ev["on_delay"])
+    env = (getattr(unit.file, "envelope", None) or {}).get(STATE)
+    return SettleGuard(loops, max_n, quiet_samples(unit), unit.period_s, unit.ev["on_delay"],
+                       None if env is None else (env, unit.tests))  # fmt: skip
 
 
 #: the residual filter's delay: samples its step response takes to reach this share of the
@@ -328,9 +335,20 @@ def _settle_kernel(
     sup,
     sid,
     steps,
+    u,
+    edges,
+    env,
+    enveloped,
+    over,
+    on_n,
+    hit,
+    after,
 ):  # pragma: no cover - numba
-    # g: open, elapsed, quiet, latched, loop, last alarm, samples since the unit's last alarm
-    # (int64); row by row, state in place.
+    # g: open, elapsed, quiet, latched, loop, last alarm, samples since the unit's last alarm,
+    # an envelope's alarm on (int64); row by row, state in place.
+    # an envelope (envelope.py) on a loop ``enveloped``: a test beyond it at the settle's age
+    # (``u``: samples × tests, threshold units) for ``on_n`` samples ends the settle; ``hit``
+    # that test on the row, ``after`` the rows of the alarm it raised
     # sid per row: -1 no settle, -2 the settle carried in, k >= 0 the k-th step of this piece;
     # max_n, begin_n per loop (a hand valve's own); a hand valve's r is 0 (lo = hi = 0)
     n, m = sp.shape
@@ -372,6 +390,7 @@ def _settle_kernel(
             g[2] = 0
             g[3] = 0
             g[4] = step
+            over[:] = 0
             _record(steps, k, step, s_from, s_to, i, s_back, 0)
             cur = k
             k += 1
@@ -395,8 +414,19 @@ def _settle_kernel(
             if g[3] == 1:
                 sup[i] = True
                 sid[i] = cur
+            t = beyond(u[i], edges, env, g[1], over, on_n) if enveloped[j] else -1
+            if t >= 0:  # a residual far beyond what the window's changes showed: raised
+                g[0] = 0
+                g[3] = 0
+                g[7] = 1
+                sup[i] = False
+                sid[i] = -1
+                hit[i, 0] = t
+                hit[i, 1] = g[1]
             e = r[i, j]
-            if (not np.isnan(e)) and lo[j] <= e <= hi[j] and not active[i]:
+            if g[0] == 0:
+                pass
+            elif (not np.isnan(e)) and lo[j] <= e <= hi[j] and not active[i]:
                 g[2] += 1
             else:
                 g[2] = 0
@@ -406,6 +436,9 @@ def _settle_kernel(
             if quiet or g[1] >= max_n[j] or (g[3] == 0 and g[1] >= begin_n[j]):
                 g[0] = 0
                 g[3] = 0
+        if not alarm[i]:
+            g[7] = 0
+        after[i] = g[7] == 1
         g[5] = 1 if alarm[i] else 0
         g[6] = 0 if alarm[i] else g[6] + 1
     return k
@@ -421,6 +454,7 @@ class SettleGuard:
         quiet_n: int,
         period_s: float = 1.0,
         on_delay: int = 1,
+        envelope: tuple[Envelope, list[str]] | None = None,
     ) -> None:
         self.loops = loops
         self.period = pd.Timedelta(seconds=period_s)
@@ -440,6 +474,13 @@ class SettleGuard:
         #: no loop test (a hand valve, a state): only the unit's tests end its settle
         self.free = np.array([lp.test < 0 for lp in loops], bool)
         self.tests = np.array([max(lp.test, 0) for lp in loops], np.intp)
+        #: a state change's envelope (:mod:`~.envelope`; None: the settle as before)
+        self.envelope = envelope
+        self.enveloped = np.array([lp.state and envelope is not None for lp in loops], bool)
+        if envelope is not None:
+            self.edges, self.env = envelope[0].arrays(envelope[1], period_s)
+        else:
+            self.edges, self.env = np.zeros(0, np.int64), np.zeros((0, 0))
         self.reset()
 
     def reset(self) -> None:
@@ -448,10 +489,13 @@ class SettleGuard:
         self.anchor = np.full(m, np.nan)
         self.run = np.zeros(m, np.int64)
         self.moved = np.zeros(m, np.int64)
-        # open, elapsed, quiet, latched, loop, last alarm, samples since the last alarm
-        self.g = np.array([0, 0, 0, 0, 0, 0, NEVER], np.int64)
+        # open, elapsed, quiet, latched, loop, last alarm, samples since the last alarm, an
+        # envelope's alarm on
+        self.g = np.array([0, 0, 0, 0, 0, 0, NEVER, 0], np.int64)
+        self.over = np.zeros(self.env.shape[1], np.int64)  # per test: beyond its envelope
         self.text = ""  # the open settle's why
         self.opened = ""  # when the open settle's step was
+        self.broke = ""  # the why of the alarm an envelope raised (while it is on)
 
     def forget_holds(self, keep: str | None = None) -> None:
         """At a unit's stop (:mod:`~.running`): every set-point's, hand valve's and state's
@@ -474,16 +518,24 @@ class SettleGuard:
         r: np.ndarray,
         active: np.ndarray,
         alarm: np.ndarray,
+        u: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Per sample whether its alarm is suppressed, and the why there ('' elsewhere).
+        """Per sample whether its alarm is suppressed, and the why there ('' elsewhere;
+        where an envelope ended a settle, its why while the alarm it raised is on).
 
         ``sp``: samples × loops, each loop's set-point; ``r``: samples × loops, its loop
         test's filtered residual; ``active``: any test or the combined test on (before the
-        off-delay); ``alarm``: the unit would raise an alarm (``detected`` after it)."""
+        off-delay); ``alarm``: the unit would raise an alarm (``detected`` after it); ``u``:
+        samples × tests, the filtered residuals in units of their thresholds
+        (:func:`~.envelope.scaled`; read only with an envelope)."""
         n = len(index)
         sup = np.zeros(n, np.bool_)
         sid = np.full(n, -1, np.int64)
         steps = np.zeros((n, 6))
+        hit = np.full((n, 2), -1, np.int64)
+        after = np.zeros(n, np.bool_)
+        if u is None or self.envelope is None:
+            u = np.zeros((n, self.env.shape[1]))
         r = np.asarray(r, float).reshape(n, len(self.loops))
         if self.free.any():  # a hand valve, a state: no loop test, the unit's tests end it
             r = np.where(self.free, 0.0, r)
@@ -494,7 +546,10 @@ class SettleGuard:
             np.asarray(active, np.bool_), np.asarray(alarm, np.bool_),
             self.prev, self.anchor, self.run, self.moved, self.g,
             self.max_n, self.quiet_n, self.begin_n, sup, sid, steps,
+            np.ascontiguousarray(u, float), self.edges, self.env, self.enveloped, self.over,
+            max(1, self.on_delay), hit, after,
         )  # fmt: skip
+        broke = self._broke(u, hit, after)
         texts = [self.text]
         for q in range(k):
             lp = self.loops[int(steps[q, 0])]
@@ -518,7 +573,26 @@ class SettleGuard:
         if rows.size:
             # -2 (the settle carried in): its text as carried, texts[0]; step k: texts[k + 1]
             why[rows] = np.asarray(texts, dtype=object)[np.maximum(sid[rows] + 1, 0)]
+        why[after] = broke[after]
         return sup, why
+
+    def _broke(self, u: np.ndarray, hit: np.ndarray, after: np.ndarray) -> np.ndarray:
+        """Per sample the why of the alarm an envelope raised: from the row it ended the
+        settle on (``hit``: the test and the settle's age there) while that alarm is on
+        (``after``), the one carried in before the first; '' elsewhere."""
+        out = np.full(len(hit), "", dtype=object)
+        text = self.broke
+        for i in np.flatnonzero(after):
+            t, age = int(hit[i, 0]), int(hit[i, 1])
+            if t >= 0:
+                env, names = self.envelope
+                b = int(np.searchsorted(self.edges, age, side="right")) - 1
+                age_s = age * self.period.total_seconds()
+                text = says(names[t], env, age_s, float(u[i, t]), float(self.env[b, t]),
+                            "state changes", "a change")  # fmt: skip
+            out[i] = text
+        self.broke = text if len(after) and after[-1] else ""
+        return out
 
     def steps(self, sp: np.ndarray) -> list[tuple[int, float, float, int]]:
         """The set-point steps in ``sp`` (samples × loops) as the guard finds them, from
@@ -535,7 +609,8 @@ class SettleGuard:
         k = _settle_kernel(
             np.ascontiguousarray(sp, float).reshape(n, m), np.zeros((n, m)), g.lo, g.hi,
             g.band, g.tol, g.s_lo, g.s_hi, no, no, g.prev, g.anchor, g.run, g.moved, g.g,
-            one, 1, one, sup, sid, out,
+            one, 1, one, sup, sid, out, np.zeros((n, 0)), g.edges, g.env, g.enveloped,
+            g.over, 1, np.full((n, 2), -1, np.int64), np.zeros(n, np.bool_),
         )  # fmt: skip
         for q in range(k):
             if out[q, 5]:
@@ -556,6 +631,8 @@ class SettleGuard:
             "g": self.g.tolist(),
             "text": self.text,
             "opened": self.opened,
+            "over": self.over.tolist(),
+            "broke": self.broke,
         }
 
     def load_state(self, state: dict[str, Any]) -> None:
@@ -565,8 +642,13 @@ class SettleGuard:
         self.prev, self.anchor = f(state["prev"]), f(state["anchor"])
         self.run = np.asarray(state["run"], np.int64)
         self.moved = np.asarray(state["moved"], np.int64)
-        self.g = np.asarray(state["g"], np.int64)
+        g = np.asarray(state["g"], np.int64)
+        self.g = np.r_[g, np.zeros(8 - g.size, np.int64)]  # states saved before: 7 long
         self.text = str(state["text"])
+        over = state.get("over")  # states saved before the envelope: none beyond it
+        if over is not None and len(over) == self.over.size:
+            self.over = np.asarray(over, np.int64)
+        self.broke = str(state.get("broke", ""))
         self.opened = str(state.get("opened", ""))  # states saved before it: none
 
 

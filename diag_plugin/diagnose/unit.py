@@ -48,7 +48,16 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.combos import CombosGuard
-from diag_plugin.diagnose.equipment import DONE, SETTLING, members, off_mask, settling
+from diag_plugin.diagnose.envelope import scaled
+from diag_plugin.diagnose.equipment import (
+    DONE,
+    SETTLING,
+    PieceState,
+    members,
+    off_mask,
+    piece_envelopes,
+    settling,
+)
 from diag_plugin.diagnose.fixed import FixedGuard
 from diag_plugin.diagnose.fixed import apply as apply_fixed
 from diag_plugin.diagnose.isolation import IsolationHold
@@ -455,6 +464,11 @@ class Unit:
             else int(math.ceil(e.settle_max_s / self.period_s - 1e-9))
             for e in self.equipment
         ]  # fmt: skip
+        #: per piece its start's envelope (``[envelope.NAME]``, :mod:`~.envelope`; None: none)
+        self.equipment_envelopes = piece_envelopes(
+            self.equipment, self.equipment_tests, getattr(file, "envelope", None) or {},
+            self.tests, self.period_s,
+        )  # fmt: skip
         #: the tests judged by the spread of their residual (valve stiction), by position
         self.spread_cols = np.array(
             [i for i, t in enumerate(file.tests) if t.statistic == "spread"], np.int64
@@ -634,6 +648,8 @@ class Unit:
         self.eq_since = np.full(len(getattr(self, "equipment", ())), 1 << 40, np.int64)
         #: per piece the samples in a row none of its tests was on since its start
         self.eq_quiet = np.full(len(getattr(self, "equipment", ())), DONE, np.int64)
+        #: per piece what its envelope carries (equipment.py)
+        self.eq_env = PieceState(getattr(self, "equipment_tests", ()))
         if getattr(self, "settle", None) is not None:
             self.settle.reset()
         if getattr(self, "fixed", None) is not None:
@@ -682,6 +698,7 @@ class Unit:
             "running": self.was_running,
             "equipment": self.eq_since.tolist(),
             "equipment_quiet": self.eq_quiet.tolist(),
+            "equipment_envelope": self.eq_env.to_state(),
         }
 
     def load_state(self, state: dict[str, Any]) -> Unit:
@@ -727,6 +744,7 @@ class Unit:
             self.eq_since = np.asarray(state["equipment"], np.int64)
         if len(state.get("equipment_quiet") or []) == len(self.eq_quiet):  # else: none open
             self.eq_quiet = np.asarray(state["equipment_quiet"], np.int64)
+        self.eq_env.load_state(state.get("equipment_envelope"))  # saved before it: from rest
         return self
 
     # ------------------------------------------------------------ stages
@@ -941,7 +959,7 @@ class Unit:
                 if e.rc.tag in cols.columns}  # fmt: skip
         return off_mask(self.equipment, self.equipment_tests, runs, self.eq_since, self.tests, n)
 
-    def _equipment_settle(self, eq, s: np.ndarray):
+    def _equipment_settle(self, eq, s: np.ndarray, r: np.ndarray):
         """The stopped pieces' ``eq`` (:meth:`_equipment_off`) with each started piece's tests
         held off while it settles (:func:`~.equipment.settling`, from the symptoms ``s``
         before the hold; advances the pieces' quiet counts): ``(off, said, state)`` or None
@@ -949,9 +967,14 @@ class Unit:
         if eq is None:
             return None, None
         off, said, state, starts = eq
+        u = scaled(r, *self._limits()) if any(self.equipment_envelopes) else None
         held, why, where = settling(self.equipment, self.equipment_tests, starts, _on(s),
                                     self.equipment_holds, self._quiet_n(), self.eq_quiet,
-                                    self.tests)  # fmt: skip
+                                    self.tests, u, self.equipment_envelopes, self.eq_env,
+                                    int(self.ev["on_delay"]), self.period_s)  # fmt: skip
+        if held is None and why:  # only the whys of alarms an envelope raised
+            off = np.zeros(s.shape, bool) if off is None else off
+            said = [*said, *why]
         if held is not None:
             state[where & (state == 0)] = SETTLING
             off = held if off is None else off | held
@@ -1014,7 +1037,7 @@ class Unit:
         n, T = s.shape
         # a started piece's tests held off while it settles (equipment.py): from their
         # symptoms, then off as a stopped piece's (the combined test never reads them)
-        off, held = self._equipment_settle(off, s)
+        off, held = self._equipment_settle(off, s, r.to_numpy())
         if held is not None:
             x = r.to_numpy(float, copy=True)
             x[held] = np.nan
@@ -1204,9 +1227,10 @@ class Unit:
             [cols.values(lp.sp) if lp.sp in cols.columns else np.full(n, np.nan) for lp in g.loops]
         )
         loop_r = r.to_numpy()[:, g.tests]
-        sup, why = g.transform(index, sp, loop_r, active, detected == 1.0)
+        u = None if g.envelope is None else scaled(r.to_numpy(), *self._limits())
+        sup, why = g.transform(index, sp, loop_r, active, detected == 1.0, u)
         apply_settle(status, faults, sup)
-        return sup, why
+        return sup | (why != ""), why  # and the alarms an envelope raised: their why
 
     def _hold_alarm(self, active, detected, status, faults, top):
         """The unit's off-delay (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`): a

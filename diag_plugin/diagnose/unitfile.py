@@ -134,7 +134,10 @@ after an operator's set-point step, during which the unit's alarms are CHECK_FUN
 (:mod:`diag_plugin.diagnose.settle`); ``manual_settle_max_s`` (written by ``diag unit
 build`` for a unit with a hand valve) the settle after a hand valve's move within its
 learned span; ``state_settle_max_s`` (for a unit whose models read a discrete state, ``[build]
-states``) the settle after a state's change (a pump started or stopped).
+states``) the settle after a state's change (a pump started or stopped). ``[envelope.state]``
+and ``[envelope.NAME]`` (written by ``diag unit build``): what the window's fault-free state
+changes (a piece NAME's starts) showed per test and age; beyond it, a settle ends
+(:mod:`diag_plugin.diagnose.envelope`).
 
 ``balance = true`` (written by ``diag unit build`` for a manipulated flow's second test,
 ``<tag>_balance``, :mod:`~diag_plugin.unitbuild.balance`): the test is the flow's balance
@@ -185,6 +188,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from diag_plugin.diagnose.combos import read_states
+from diag_plugin.diagnose.envelope import read_envelopes
 from diag_plugin.diagnose.equipment import read_equipment
 from diag_plugin.diagnose.fixed import read_fixed
 from diag_plugin.diagnose.manual import read_manual
@@ -212,6 +216,7 @@ TABLES = (
     "states",
     "running",
     "equipment",
+    "envelope",
 )
 
 #: why a residual is unknown: the reasons ``diag unit learn`` counts (``unknown_<reason>``
@@ -558,6 +563,9 @@ class UnitFile(LinedFile):
         )
         self.equipment = read_equipment(
             self._table("equipment"), self.error, lambda k: self.line_of("equipment", k)
+        )
+        self.envelope = read_envelopes(
+            _plain(self._table("envelope")), self.error, lambda k: self.line_of("envelope", k)
         )
         self.tags: dict[str, str] = {}
         for k, v in self._table("tags").items():

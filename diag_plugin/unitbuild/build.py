@@ -108,6 +108,7 @@ from diag_plugin.unitbuild.loops import (
     parse_running,
     piece_settle_bounds,
     settle_bounds,
+    settle_envelopes,
 )
 from diag_plugin.unitbuild.parallel import DaskPool, default_workers, map_tests, one_blas_thread
 from diag_plugin.unitbuild.read import read_sampling, read_window
@@ -1561,13 +1562,22 @@ def _build_unit(
             notes.append(how)
         if pieces:
             uf.doc["build"]["equipment_settle"] = [how for *_, how in pieces]
+        # a start's envelope (diagnose/envelope.py): a fault present at a start ends its settle
+        envs = settle_envelopes(settle_unit, settle_frame, replay,
+                                {key: value for key, _, value, _ in settles},
+                                {piece: value for piece, value, _ in pieces})  # fmt: skip
+        if any(env is not None for _, env, _ in envs):
+            uf.doc["envelope"] = {k: env.as_table() for k, env, _ in envs if env is not None}
+        if envs:
+            uf.doc["build"]["envelope"] = [how for *_, how in envs]
+            notes.extend(how for *_, how in envs)
         # the combinations of the discrete states the window held long enough to teach the
         # models (diagnose/combos.py): their dwell the unit's quiet time
         combos = state_combos(unit, frame, list(doc["build"]["states"]))
         if combos is not None:
             uf.doc["states"] = states_table(*combos)
             notes.append(combos_note(unit, *combos))
-        if any(value > 0 for *_, value, _ in settles) or combos is not None or pieces:
+        if any(value > 0 for *_, value, _ in settles) or combos is not None or pieces or envs:
             uf.save()
         else:
             uf.save(as_read=True)  # the text set_learned read back: not dumped again
