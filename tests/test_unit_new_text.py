@@ -19,6 +19,7 @@ OTHER = {
     "off_delay_s": 240.0,
     "deadband": 0.1,
     "spread_window_s": 600.0,
+    "oscillation_window_s": 2400.0,
     "settle_max_s": 1800.0,
     "manual_settle_max_s": 3600.0,
     "state_settle_max_s": 1800.0,

@@ -135,4 +135,50 @@ def test_a_state_saved_before_the_changes_were_counted_loads():
     # column 0: above 2 samples before the − it was on: the + arms it, held until the − is
     # 4 samples back; column 1: above long before, not armed
     assert out[:, 0].tolist() == [0, 1, 1, 0, 0, 0] and out[:, 1].tolist() == [0, 1, 0, 0, 0, 0]
-    assert set(h.to_state()) == {"since", "ends", "last", "armed"}
+    assert set(h.to_state()) == {"since", "ends", "last", "armed", "left", "calm"}
+
+
+def test_a_settles_transient_neither_arms_nor_feeds_the_hold():
+    """Issue 34 H11: swings while a settle is open (an operator's step, a piece's start) are
+    a known transient: the hold neither arms on them nor counts them once the settle is
+    over; a column with a symptom on within the quiet time before the step (a fault in
+    progress) is held as before; the settle's bound is carried across pieces."""
+    from diag_plugin.diagnose.unitloops import OscillationHold
+
+    x = [0, 0, 1, 0, -1, 0, 1, 0, 0, 0, 0, 0, -1, 0, 0]
+    s = np.array([x, x], float).T
+    opens = np.zeros((len(x), 2), np.int64)
+    opens[2, 0] = 8  # group 0: a settle opens at row 2 for 8 rows, quiet before it
+    plain = OscillationHold(np.array([4, 4]), quiet=2).transform(s.copy())
+    assert plain[:, 0].tolist()[6:8] == [1, 1]  # armed by + − +: held
+    h = OscillationHold(np.array([4, 4]), quiet=2)
+    out = h.transform(s.copy(), opens, np.array([0, 1]))
+    assert out[:, 0].tolist() == x  # nothing held: the swing was the settle's
+    assert out[:, 1].tolist() == plain[:, 1].tolist()  # group 1: no settle, held
+    # a fault in progress: the column on within the quiet time before the step
+    y = [1, 0, -1, 0, 1, 0, 0, 0]
+    busy = np.zeros((len(y), 1), np.int64)
+    busy[1, 0] = 5
+    held = OscillationHold(np.array([4]), quiet=2).transform(np.array([y], float).T, busy)
+    ref = OscillationHold(np.array([4]), quiet=2).transform(np.array([y], float).T)
+    assert held[:, 0].tolist() == ref[:, 0].tolist()
+    # pieces: the settle's bound carried across a restart from the saved state
+    h = OscillationHold(np.array([4, 4]), quiet=2)
+    a = h.transform(s[:5].copy(), opens[:5], np.array([0, 0]))
+    h2 = OscillationHold(np.array([4, 4]), quiet=2)
+    h2.load_state(json.loads(json.dumps(h.to_state())))
+    b = h2.transform(s[5:].copy(), opens[5:], np.array([0, 0]))
+    assert np.r_[a[:, 0], b[:, 0]].tolist() == x
+
+
+def test_a_short_windows_hold_fits_a_block_of_its_thresholds():
+    """Issue 34 H11: the build caps the hold's window so that its two windows fit in one of
+    the time blocks the thresholds were learned over (400 samples at 3 min: 40 samples, not
+    four spread windows' 80); a long window keeps four spread windows."""
+    from diag_plugin.unitbuild.build import FOLDS, alarm_settings
+
+    short = alarm_settings("180s", 400)
+    assert short["oscillation_window_s"] == 400 // (2 * FOLDS) * 180.0 == 7200.0
+    assert short["spread_window_s"] == 3600.0
+    long = alarm_settings("60s", 14400)
+    assert long["oscillation_window_s"] == 4 * long["spread_window_s"]

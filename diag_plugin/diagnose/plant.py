@@ -265,6 +265,10 @@ class Plant:
         # each slot's oscillation hold (unitloops.OscillationHold): its unit's window
         swing = np.array([oscillation_samples(units[s.unit].ev, units[s.unit].period)
                           for s in slots], np.int64)  # fmt: skip
+        # and its settle's quiet time (a step's transient unseen by it, Unit._openings)
+        quiet = [units[ui]._quiet_n() for ui in range(len(units))]
+        #: each slot's unit: the group of its column in the holds' settle openings
+        self._slot_unit = np.array([s.unit for s in slots], np.intp)
         for (wn, order, band, on, off), idx in keys.items():
             self._stages.append(
                 (
@@ -273,7 +277,9 @@ class Plant:
                     Deadband(band, len(idx)),
                     OnOffDelay(on, off),
                     on - 1,
-                    OscillationHold(swing[idx]),
+                    OscillationHold(
+                        swing[idx], quiet=np.array([quiet[slots[k].unit] for k in idx], np.int64)
+                    ),
                 )
             )
         # the spread tests (statistic "spread"): a running spread per window length
@@ -373,6 +379,12 @@ class Plant:
             for ui, u in enumerate(units)
             if (g := settle_guard(u)) is not None
         }
+        #: the same steps for the oscillation hold (its own state, Unit.transients)
+        self._transients = {
+            ui: (g, np.array([tags[u.file.tags.get(lp.sp, lp.sp)] for lp in g.loops], np.intp))
+            for ui, u in enumerate(units)
+            if (g := settle_guard(u)) is not None
+        }
         self._hist = np.full((self.depth + 1, len(tags) + len(derived)), np.nan)
         self._cycles = 0
         self._ts: pd.Timestamp | None = None  # the last cycle's (saved with the state)
@@ -446,6 +458,9 @@ class Plant:
             "gone": {u.name: u.outside.to_state()["gone"] for u in self._units},
             "slow": {n: self.units[n].to_state() for n in self.slow},
             "settle": {self._units[ui].name: g.to_state() for ui, (g, _) in self._settle.items()},
+            "transients": {
+                self._units[ui].name: g.to_state() for ui, (g, _) in self._transients.items()
+            },
             "fixed": {self._units[ui].name: g.to_state() for ui, (g, _) in self._fixed.items()},
             "combos": {self._units[ui].name: g.to_state() for ui, (g, _) in self._combos.items()},
             "saturation": {
@@ -530,10 +545,11 @@ class Plant:
             st = state.get("saturation", {}).get(u.name)
             if st is not None and getattr(u, "saturation", None) is not None:
                 u.saturation.load_state(st)
-        for ui, (g, _) in self._settle.items():  # states saved before it: from rest
-            st = state.get("settle", {}).get(self._units[ui].name)
-            if st is not None:
-                g.load_state(st)
+        for key, guards in (("settle", self._settle), ("transients", self._transients)):
+            for ui, (g, _) in guards.items():  # states saved before it: from rest
+                st = state.get(key, {}).get(self._units[ui].name)
+                if st is not None:
+                    g.load_state(st)
         for key, guards in (("fixed", self._fixed), ("combos", self._combos)):
             for ui, (g, _) in guards.items():  # states saved before it: from rest
                 st = state.get(key, {}).get(self._units[ui].name)
@@ -618,6 +634,7 @@ class Plant:
             r[idx] = spread.transform(r[idx][None, :])[0]
             self._spread_left[idx] = spread.left_[0]
         rf = r.copy()
+        opens = self._openings()
         for idx, lp, band, delay, hold, swing in self._stages:
             x = r[idx][None, :]
             if lp is not None:
@@ -625,7 +642,7 @@ class Plant:
             rf[idx] = x[0]
             raw = band.transform(x, self._lo[idx], self._hi[idx])
             raw[:, self._no_th[idx]] = np.nan
-            d = swing.transform(delay.transform(raw))
+            d = swing.transform(delay.transform(raw), opens, self._slot_unit[idx])
             held = self._held[idx]
             run = self._run[idx]
             d = _hold_kernel(np.ascontiguousarray(d), hold, held, run)
@@ -636,6 +653,15 @@ class Plant:
             self._latched[on] = s[on]
             s = np.where(self._latch & (self._latched != 0), self._latched, s)
         return self._statuses(ts, rf, s)
+
+    def _openings(self) -> np.ndarray:
+        """Per unit the bound in samples of a settle a set-point step opens on this cycle
+        (0: none; :meth:`~.settle.SettleGuard.openings`), one row: what each slot's
+        oscillation hold reads as its unit's known transient (as ``Unit._openings``)."""
+        out = np.zeros((1, len(self._units)), np.int64)
+        for ui, (g, cols) in self._transients.items():
+            out[0, ui] = g.openings(self._hist[0, cols][None, :])[0]
+        return out
 
     def _slot_label(self, i: int) -> str:
         """``unit.test`` of slot ``i``."""

@@ -619,6 +619,33 @@ class SettleGuard:
             found.append((int(out[q, 0]), float(out[q, 1]), float(out[q, 2]), row))
         return found
 
+    def openings(self, sp: np.ndarray) -> np.ndarray:
+        """Per sample of ``sp`` (samples × loops, the piece :meth:`transform` reads next)
+        the bound in samples of a settle a step opens there (``max_n`` less the samples it
+        took to leave its hold; 0 elsewhere), every step found, the held values carried (a
+        guard of its own, not one that :meth:`transform` reads): what the oscillation hold
+        reads as a known transient (:class:`~diag_plugin.diagnose.unitloops.OscillationHold`,
+        issue 34 H11)."""
+        n, m = len(sp), len(self.loops)
+        out = np.zeros(n, np.int64)
+        if not n:
+            return out
+        rows = np.zeros((n, 6))
+        sup, sid = np.zeros(n, np.bool_), np.full(n, -1, np.int64)
+        no = np.zeros(n, np.bool_)
+        one = np.ones(m, np.int64)
+        g = np.array([0, 0, 0, 0, 0, 0, NEVER], np.int64)
+        # each step opens a settle that closes at once (quiet_n = max_n = 1): every step found
+        k = _settle_kernel(
+            np.ascontiguousarray(sp, float).reshape(n, m), np.zeros((n, m)), self.lo, self.hi,
+            self.band, self.tol, self.s_lo, self.s_hi, no, no, self.prev, self.anchor,
+            self.run, self.moved, g, one, 1, one, sup, sid, rows,
+        )  # fmt: skip
+        for q in range(k):
+            i, j = int(rows[q, 3]), int(rows[q, 0])
+            out[i] = max(out[i], int(self.max_n[j]) - int(rows[q, 4]), 1)
+        return out
+
     def to_state(self) -> dict[str, Any]:
         def f(a):
             return [None if np.isnan(v) else float(v) for v in a]

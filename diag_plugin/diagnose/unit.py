@@ -505,6 +505,9 @@ class Unit:
         self.manual = ManualGuard.of(models, self.tests, file.manual)
         #: the settle guard after an operator's set-point step (:mod:`~.settle`; None: off)
         self.settle: SettleGuard | None = settle_guard(self)
+        #: the same steps found for the oscillation hold (its own state: the hold reads a
+        #: settle's transient whether or not the guard suppresses its alarm; None: none)
+        self.transients: SettleGuard | None = settle_guard(self)
         #: the tags constant over the build window (``[fixed]``): one moved, CHECK_FUNCTION
         self.fixed: FixedGuard | None = FixedGuard.of(self)
         #: the combinations of the discrete states it learned (``[states]``): another one,
@@ -616,7 +619,36 @@ class Unit:
         """Every test's symptom held through an oscillation (:class:`OscillationHold`) over
         ``oscillation_window_s``; a window of 0 samples (no key): none held."""
         w = oscillation_samples(self.ev, self.period)
-        return OscillationHold(np.full(len(self.tests), w, np.int64))
+        return OscillationHold(np.full(len(self.tests), w, np.int64), quiet=self._quiet_n())
+
+    def _openings(self, cols: Columns, eq) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Where a settle opens in this piece, for the oscillation hold
+        (:meth:`OscillationHold.transform`): samples × groups the settle's bound in samples
+        (group 0: the settle guard's steps, every test; group 1 + k: those and piece k's
+        starts, its tests), and each test's group; ``(None, None)`` where none can."""
+        n = len(cols)
+        unit = None
+        if self.transients is not None:
+            g = self.transients
+            sp = np.column_stack([cols.values(lp.sp) if lp.sp in cols.columns
+                                  else np.full(n, np.nan) for lp in g.loops])  # fmt: skip
+            unit = g.openings(sp)
+        starts = None if eq is None else eq[3]
+        if unit is None and not (starts and any(s is not None for s in starts)):
+            return None, None
+        pieces = len(self.equipment) if starts else 0
+        opens = np.zeros((n, 1 + pieces), np.int64)
+        if unit is not None:
+            opens[:] = unit[:, None]
+        group = np.zeros(len(self.tests), np.intp)
+        for k in range(pieces):
+            if starts[k] is None:
+                continue
+            running, since = starts[k]
+            at = running & (since == 0)
+            opens[at, 1 + k] = np.maximum(opens[at, 1 + k], self.equipment_holds[k])
+            group[self.equipment_tests[k]] = 1 + k
+        return opens, group
 
     def reset(self) -> Unit:
         """Start from rest: no history, filters at zero, no symptom on."""
@@ -652,6 +684,8 @@ class Unit:
         self.eq_env = PieceState(getattr(self, "equipment_tests", ()))
         if getattr(self, "settle", None) is not None:
             self.settle.reset()
+        if getattr(self, "transients", None) is not None:
+            self.transients.reset()
         if getattr(self, "fixed", None) is not None:
             self.fixed.reset()
         if getattr(self, "combos", None) is not None:
@@ -692,6 +726,7 @@ class Unit:
             if self._last_alarm is None
             else [int(self._last_alarm[0]), self._last_alarm[1], self._last_alarm[2]],
             "settle": None if self.settle is None else self.settle.to_state(),
+            "transients": None if self.transients is None else self.transients.to_state(),
             "fixed": None if self.fixed is None else self.fixed.to_state(),
             "combos": None if self.combos is None else self.combos.to_state(),
             "saturation": None if self.saturation is None else self.saturation.to_state(),
@@ -733,6 +768,8 @@ class Unit:
             self.oscillation.load_state(state["oscillation"])
         if self.settle is not None and state.get("settle") is not None:
             self.settle.load_state(state["settle"])  # states saved before it: from rest
+        if self.transients is not None and state.get("transients") is not None:
+            self.transients.load_state(state["transients"])  # before it: from rest
         if self.fixed is not None and state.get("fixed") is not None:
             self.fixed.load_state(state["fixed"])  # states saved before it: from rest
         if self.combos is not None and state.get("combos") is not None:
@@ -852,8 +889,11 @@ class Unit:
                 pts[:, i] = t.fuzzy
         return tuple(pts)
 
-    def symptoms(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """Delayed (and latched) symptoms −1/0/+1/NaN, and the fuzzy memberships if fuzzy."""
+    def symptoms(
+        self, r: np.ndarray, opens: np.ndarray | None = None, group: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Delayed (and latched) symptoms −1/0/+1/NaN, and the fuzzy memberships if fuzzy;
+        ``opens``, ``group``: where a settle opens (:meth:`_openings`)."""
         lo, hi = self._limits()
         no_th = np.isnan(hi)
         hi_ = np.where(no_th, 1.0, hi)
@@ -871,7 +911,8 @@ class Unit:
         # ``raw`` is this call's own array: delayed, then held, in place (no new array of
         # the symptoms' size for either)
         s = self.delay.transform(raw, overwrite=True)
-        s = self.oscillation.transform(s)  # a swing across both thresholds is one alarm
+        # a swing across both thresholds is one alarm; a settle's transient none
+        s = self.oscillation.transform(s, opens, group)
         # a test unknown for fewer samples than the on-delay keeps its last known symptom:
         # a brief gap neither clears a symptom nor flickers the unit to CHECK_FUNCTION
         s = _hold_kernel(
@@ -1017,9 +1058,10 @@ class Unit:
         self._last_alarm = None
         if self.saturation is not None:
             self.saturation.reset()
-        if self.settle is not None:
-            rc = self.file.running
-            self.settle.forget_holds(None if rc is None else rc.tag)
+        rc = self.file.running
+        for g in (self.settle, self.transients):
+            if g is not None:
+                g.forget_holds(None if rc is None else rc.tag)
 
     def _evaluate(self, frame: pd.DataFrame) -> Diagnosis:
         """:meth:`evaluate` of a piece judged throughout."""
@@ -1033,7 +1075,7 @@ class Unit:
         # at the replay's peak; a first pass pays the first touch of every new page)
         raw_known = np.isfinite(raw.to_numpy())
         del raw
-        s, mem = self.symptoms(r.to_numpy())
+        s, mem = self.symptoms(r.to_numpy(), *self._openings(cols, off))
         n, T = s.shape
         # a started piece's tests held off while it settles (equipment.py): from their
         # symptoms, then off as a stopped piece's (the combined test never reads them)

@@ -197,10 +197,14 @@ class Deadband:
 #: within ``K`` windows (a full period for ``K = 2``; the jacket's stick-slip periods run
 #: 43–244 samples against a window of 160). ``K = 1`` is the hold of e2ea008 exactly
 OSCILLATION_CHANGES = 2
+#: samples without a symptom of a column that has never had one
+CALM = 1 << 40
 
 
 @numba.njit(cache=True)
-def _swing_kernel(s, window, on_at, ends, last, armed):  # pragma: no cover - numba
+def _swing_kernel(
+    s, window, on_at, ends, last, armed, opens, group, quiet, left, calm
+):  # pragma: no cover - numba
     # row by row (memory order), in place; rows counted from this piece's first (earlier
     # ones negative): on_at, the row the symptom was last on; ends[j, b], the last row of the
     # (b+1)-th run before the current one (a run: the on samples of one side, the off ones
@@ -208,13 +212,26 @@ def _swing_kernel(s, window, on_at, ends, last, armed):  # pragma: no cover - nu
     # the hold of K = 1 does (the run before the current one ended within the window: both
     # sides on within it) once armed: armed when the K-th run back ended within K windows
     # (K side changes, K = ends.shape[1]), kept while the symptom is on or both sides are
-    # on within the window
+    # on within the window. A settle (opens[i, group[j]] > 0: its bound in samples) opening
+    # on a column quiet for ``quiet`` samples (calm) disarms it and forgets its runs; for
+    # ``left`` samples its symptoms pass as they are, unseen by the hold (a known transient)
     n, m = s.shape
     k = ends.shape[1]
     for i in range(n):
         for j in range(m):
             x = s[i, j]
             on = x > 0 or x < 0
+            o = opens[i, group[j]]
+            if o > 0 and calm[j] >= quiet[j]:
+                left[j] = max(left[j], o)
+                armed[j] = False
+                last[j] = 0.0
+                for b in range(k):
+                    ends[j, b] = i - k * window[j]
+            if left[j] > 0:
+                left[j] -= 1
+                calm[j] = 0 if on else calm[j] + 1
+                continue
             if on:
                 side = 1.0 if x > 0 else -1.0
                 if last[j] != 0.0 and side != last[j]:  # a side change: one run more back
@@ -229,6 +246,7 @@ def _swing_kernel(s, window, on_at, ends, last, armed):  # pragma: no cover - nu
             )
             if x == 0 and armed[j]:
                 s[i, j] = last[j]
+            calm[j] = 0 if (on or (x == 0 and armed[j])) else calm[j] + 1
     return s
 
 
@@ -236,45 +254,70 @@ class OscillationHold:
     """Delayed symptoms −1/0/+1 (NaN unknown) held on, on the side last on, from the sample
     the test has changed side ``changes`` times within the last ``changes`` × ``window``
     samples until, off, one side has not been on for ``window`` samples (per column; 0:
-    never held; see module doc); state carried across pieces."""
+    never held; see module doc); state carried across pieces. A settle's opening (an
+    operator's step, a hand valve's move, a state change, a piece's start: ``opens`` of
+    :meth:`transform`) on a column without a symptom for ``quiet`` samples (per column: its
+    unit's settle quiet time) disarms it, and
+    the column's symptoms until the settle's bound are a known transient: they neither arm
+    nor feed it."""
 
-    def __init__(self, window: np.ndarray, changes: int = OSCILLATION_CHANGES) -> None:
+    def __init__(
+        self, window: np.ndarray, changes: int = OSCILLATION_CHANGES, quiet: Any = 1
+    ) -> None:
         if changes < 1:
             raise ValueError("the hold asks for at least one side change")
         self.window = np.asarray(window, np.int64).copy()
         m = len(self.window)
+        self.quiet = np.broadcast_to(np.asarray(quiet, np.int64), (m,)).copy()
         self.since = self.window.copy()  # nothing on within the window yet
         self.ends = self._far(int(changes))  # no run before: none within the windows
         self.last = np.zeros(m)
         self.armed = np.zeros(m, bool)
+        self.left = np.zeros(m, np.int64)  # samples of an open settle left
+        self.calm = np.full(m, CALM, np.int64)  # samples without a symptom (held or not)
 
     def _far(self, changes: int) -> np.ndarray:
         """Per column and run back, samples since a run out of all ``changes`` windows."""
         return np.repeat((changes * self.window)[:, None], changes, axis=1)
 
-    def transform(self, s: np.ndarray) -> np.ndarray:
-        """``s`` held (in place when it is a C-ordered float array, as the delays give)."""
+    def transform(
+        self, s: np.ndarray, opens: np.ndarray | None = None, group: np.ndarray | None = None
+    ) -> np.ndarray:
+        """``s`` held (in place when it is a C-ordered float array, as the delays give).
+        ``opens``: rows × groups, a settle's bound in samples where one opens (0 elsewhere;
+        None: none); ``group``: each column's group (None: all in group 0)."""
         a = np.ascontiguousarray(np.asarray(s, float))
         if not self.window.any():
             return a
+        n, m = a.shape
+        if opens is None:
+            opens = np.zeros((n, 1), np.int64)
+        opens = np.ascontiguousarray(np.asarray(opens, np.int64).reshape(n, -1))
+        group = np.zeros(m, np.intp) if group is None else np.asarray(group, np.intp)
         # the counts (samples since, as of the last row) as rows of this piece and back
         on_at, ends = -1 - self.since, -1 - self.ends
-        _swing_kernel(a, self.window, on_at, ends, self.last, self.armed)
+        _swing_kernel(a, self.window, on_at, ends, self.last, self.armed, opens, group,
+                      self.quiet, self.left, self.calm)  # fmt: skip
         n = len(a)
         self.since, self.ends = n - 1 - on_at, n - 1 - ends
         return a
 
     def to_state(self) -> dict[str, Any]:
         return {"since": self.since.tolist(), "ends": self.ends.tolist(),
-                "last": self.last.tolist(), "armed": self.armed.tolist()}  # fmt: skip
+                "last": self.last.tolist(), "armed": self.armed.tolist(),
+                "left": self.left.tolist(), "calm": self.calm.tolist()}  # fmt: skip
 
     def load_state(self, state: dict[str, Any]) -> None:
         """Go on from :meth:`to_state`. A state saved before the side changes were counted
         (``p``, ``n``: samples since each side was on) gives the run before the current one
         (the other side's last sample), none further back and the hold off: the next change
         arms it if that run is recent enough. A state of another ``changes`` is cut, or
-        padded with runs out of the windows."""
+        padded with runs out of the windows. A state saved before the settles were seen
+        (no ``left``, ``calm``): no settle open, every column quiet."""
         self.last = np.asarray(state["last"], float)
+        m = len(self.window)
+        self.left = np.asarray(state.get("left", np.zeros(m)), np.int64)
+        self.calm = np.asarray(state.get("calm", np.full(m, CALM)), np.int64)
         ends = self._far(self.ends.shape[1])
         if "ends" in state:
             old = np.asarray(state["ends"], np.int64).reshape(len(self.window), -1)

@@ -938,7 +938,7 @@ def evaluation_for(period: str) -> dict[str, float | int]:
     return {"lowpass": lowpass, "on_delay": delay, "off_delay": delay}
 
 
-def alarm_settings(period: str) -> dict[str, float]:
+def alarm_settings(period: str, rows: int | None = None) -> dict[str, float]:
     """ISA-18.2 alarm settings in time for the unit file (:mod:`~diag_plugin.diagnose.
     unitloops`): the on-delay of :func:`evaluation_for` in seconds; an off-delay of at least
     :data:`OFF_DELAY_S` (with the on-delay it spaces two alarms of one test by more than a
@@ -947,7 +947,8 @@ def alarm_settings(period: str) -> dict[str, float]:
     least 20 samples; the oscillation hold's window, :data:`OSCILLATION_WINDOWS` spread
     windows (a test that swung there and back, + − +, within two of it stays on until a side
     is quiet for one: a limit cycle is one alarm, issue 34 item 6;
-    :class:`~diag_plugin.diagnose.unitloops.OscillationHold`)."""
+    :class:`~diag_plugin.diagnose.unitloops.OscillationHold`), at most
+    :func:`oscillation_cap` of a window of ``rows`` samples (None: no cap)."""
     s = pd.Timedelta(period).total_seconds()
     ev = evaluation_for(period)
     on_s = ev["on_delay"] * s
@@ -957,8 +958,23 @@ def alarm_settings(period: str) -> dict[str, float]:
         "off_delay_s": float(max(ev["off_delay"] * s, OFF_DELAY_S)),
         "deadband": DEADBAND,
         "spread_window_s": spread,
-        "oscillation_window_s": OSCILLATION_WINDOWS * spread,
+        "oscillation_window_s": min(OSCILLATION_WINDOWS * spread, oscillation_cap(rows, s)),
     }
+
+
+def oscillation_cap(rows: int | None, period_s: float) -> float:
+    """The longest oscillation hold window (seconds) a window of ``rows`` samples supports:
+    the hold arms on :data:`~diag_plugin.diagnose.unitloops.OSCILLATION_CHANGES` side changes
+    within as many windows, and that span must fit in one of the :data:`FOLDS` time blocks
+    the thresholds were learned and checked over (a swing longer than a block is one the
+    thresholds never saw as one; issue 34 H11: 400 samples at 3 min, a spread window of 20
+    samples, four of them 80 and the span 160 of the window's 400; capped: 40). None: no
+    cap."""
+    from diag_plugin.diagnose.unitloops import OSCILLATION_CHANGES
+
+    if rows is None:
+        return math.inf
+    return float(math.floor(rows / (FOLDS * OSCILLATION_CHANGES)) * period_s)
 
 
 #: ISA-18.2 settings ``diag unit build`` writes (seconds; a share of the threshold)
@@ -1490,11 +1506,12 @@ def _build_unit(
             doc["tests"][ch.test]["combined"] = False
         if ch.balance:
             doc["tests"][ch.test]["balance"] = True
-    for k, v in {**evaluation_for(period), **alarm_settings(period)}.items():
+    for k, v in {**evaluation_for(period), **alarm_settings(period, rows)}.items():
         doc["evaluation"][k] = v
     doc["evaluation"]["oscillation_window_s"].comment(
-        "4 x spread_window_s: a test swung there and back (+ - +) within two of it stays on"
-        " until a side is quiet for one (a limit cycle, one alarm)"
+        "4 x spread_window_s (at most a tenth of the window): a test swung there and back"
+        " (+ - +) within two of it stays on until a side is quiet for one (a limit cycle,"
+        " one alarm)"
     )
     if plan.lowpass is not None:
         doc["evaluation"]["lowpass"] = plan.lowpass
