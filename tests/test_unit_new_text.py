@@ -23,7 +23,6 @@ OTHER = {
     "settle_max_s": 1800.0,
     "manual_settle_max_s": 3600.0,
     "state_settle_max_s": 1800.0,
-    "oscillation_window_s": 2400.0,
 }
 
 
