@@ -634,12 +634,15 @@ class SettleGuard:
         sup, sid = np.zeros(n, np.bool_), np.full(n, -1, np.int64)
         no = np.zeros(n, np.bool_)
         one = np.ones(m, np.int64)
-        g = np.array([0, 0, 0, 0, 0, 0, NEVER], np.int64)
-        # each step opens a settle that closes at once (quiet_n = max_n = 1): every step found
+        g = np.array([0, 0, 0, 0, 0, 0, NEVER, 0], np.int64)
+        # each step opens a settle that closes at once (quiet_n = max_n = 1): every step
+        # found; no envelope read (none of the loops enveloped, its counts a copy)
         k = _settle_kernel(
             np.ascontiguousarray(sp, float).reshape(n, m), np.zeros((n, m)), self.lo, self.hi,
             self.band, self.tol, self.s_lo, self.s_hi, no, no, self.prev, self.anchor,
-            self.run, self.moved, g, one, 1, one, sup, sid, rows,
+            self.run, self.moved, g, one, 1, one, sup, sid, rows, np.zeros((n, 0)),
+            self.edges, self.env, np.zeros_like(self.enveloped), np.zeros_like(self.over), 1,
+            np.full((n, 2), -1, np.int64), np.zeros(n, np.bool_),
         )  # fmt: skip
         for q in range(k):
             i, j = int(rows[q, 3]), int(rows[q, 0])
