@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -71,4 +72,20 @@ def test_unit_modules_import_neither():
         "print(sorted(m for m in sys.modules if m in ('scipy.signal', 'scipy.stats')))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_a_units_load_imports_neither():
+    """Loading a unit (its settle's quiet time reads the residual filter's step response) does
+    not import scipy.signal either: i34-holdsettle's hold read it at the load, ~0.9 s of each
+    ``diag diagnose`` (lead, 2026-11-30: 200,000 rows 2.13 -> 2.53 s wall)."""
+    code = (
+        "import sys; from diag_plugin.diagnose.unit import Unit; "
+        "Unit.load('rulebases/valve_unit.unit.toml', 'rulebases'); "
+        "print(sorted(m for m in sys.modules if m in ('scipy.signal', 'scipy.stats')))"
+    )
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=root
+    )
     assert out.stdout.strip() == "[]"
