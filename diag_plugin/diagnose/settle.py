@@ -272,13 +272,24 @@ def filter_samples(wn: float, order: int) -> int:
     at 1 s (0.01) 133."""
     if not wn or wn <= 0:
         return 0
-    from diag_plugin.diagnose.residuals import LowPass
+    from diag_plugin.diagnose.butterworth import butter_sos
 
-    n = int(np.ceil(40.0 / wn))  # well past the step response's rise at any cut-off
-    # the filter itself (scipy's butter and sosfilt, the same bits, without importing
-    # scipy.signal: ~0.9 s of each diag diagnose's start, which loads this at the unit's load)
-    step = LowPass(float(wn), int(order)).transform(np.ones((n, 1)))[:, 0]
-    return int(np.argmax(step >= FILTER_REACH))
+    # the filter's own design (scipy's butter, the same bits) and sosfilt's recursion
+    # (direct form II transposed) on a unit step, in Python until it reaches the share: a
+    # unit's load reads this, and neither scipy.signal (~0.9 s of each diag diagnose's
+    # start) nor a first numba dispatch (which imports scipy.linalg before the read starts)
+    sos = butter_sos(int(order), float(wn))
+    z = np.zeros((len(sos), 2))
+    for i in range(int(np.ceil(40.0 / wn))):  # well past the rise at any cut-off
+        x = 1.0
+        for k, (b0, b1, b2, _, a1, a2) in enumerate(sos):
+            y = b0 * x + z[k, 0]
+            z[k, 0] = b1 * x - a1 * y + z[k, 1]
+            z[k, 1] = b2 * x - a2 * y
+            x = y
+        if x >= FILTER_REACH:
+            return i
+    return int(np.ceil(40.0 / wn))
 
 
 def quiet_samples(unit: Any) -> int:
