@@ -177,39 +177,3 @@ def test_a_hole_in_ungridded_rows_is_no_time_held():
     assert held_combos(f, ["A", "B"], 3600.0) == []
     assert held_combos(f, ["A", "B"], 300.0) == []
     assert held_combos(f, ["A", "B"], 120.0) == ["0,1"]
-
-
-def test_a_state_held_longer_than_the_window_held_it_is_new_operating_data():
-    """Idle learned at most 2 h (the window's longest idle): the 3 h idle of a judged day is
-    CHECK_FUNCTION from 2 h on the on-delay, naming the state and the bound (on main
-    judged: the regeneration's test raised FAILURE in run 231's 2.7 h idle,
-    docs/explanation/acceptance-pasteuriser.md); production, cut by the window, has no
-    bound; the same in pieces with the state carried; ``diag unit accept`` of the long idle
-    raises the bound."""
-    from diag_plugin.diagnose.combos import CombosGuard, combo_visits, learned_combos, widen
-
-    def guard():
-        return CombosGuard(["MODE"], ["0", "1"], {"MODE": "PLANT_MODE"}, 3, 2,
-                           longest=[7200.0, np.inf])  # fmt: skip
-
-    mode = np.r_[np.full(3 * 360, 0.0), np.full(12 * 360, 1.0)]  # 3 h idle, 12 h production
-    idx = pd.date_range("2026-03-17", periods=len(mode), freq="10s", tz="UTC")
-    held, why = guard().transform(idx, mode[:, None])
-    on = np.flatnonzero(held)
-    assert on[0] == 720 + 3 and on[-1] == 3 * 360  # 2 h + the on-delay; to the off-delay
-    assert why[on[0]] == (
-        "PLANT_MODE = 0: held longer than the unit learned it (at most 7200 s "
-        "in its window: new operating data) since 2026-03-17T02:00:10+00:00"
-    )
-    same_in_pieces(guard, idx, mode[:, None], (0, 500, 725, 1081, len(mode)), held, why)
-    f = pd.DataFrame({"MODE": mode}, index=idx)
-    st = {"tags": ["MODE"], "seen": ["0", "1"], "held_s": 760.0, "longest_s": [7200.0, np.inf]}
-    assert widen(st, f) == ([], {"0": 3 * 3600.0})
-    # the build: each combination's longest run, none where the window cut the longest
-    day = np.r_[np.full(360, 1.0), np.full(720, 0.0), np.full(1440, 1.0), np.full(360, 0.0),
-                np.full(360, 1.0)]  # fmt: skip
-    w = pd.DataFrame({"MODE": day}, index=pd.date_range("2026-03-16", periods=len(day),
-                                                         freq="10s", tz="UTC"))  # fmt: skip
-    assert learned_combos(combo_visits(w, ["MODE"]), 760.0) == {"0": 7200.0, "1": 14400.0}
-    w.iloc[-1800:] = 1.0  # production to the window's end, longer than any before: no bound
-    assert learned_combos(combo_visits(w, ["MODE"]), 760.0) == {"0": 7200.0, "1": np.inf}

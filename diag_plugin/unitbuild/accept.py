@@ -535,25 +535,12 @@ def widen_manual(path: Path, frame: pd.DataFrame) -> list[str]:
     changed += [("fixed", "constant tag", tag, uf.fixed[tag], new)
                 for tag, new in widen(uf.fixed, frame).items()]  # fmt: skip
     # the combinations of the discrete states it held long enough (diagnose/combos.py)
-    added, bounds = more_combos(uf.states, frame)
-    if added:
+    if added := more_combos(uf.states, frame):
         seen = uf.doc["states"]["seen"]
         for c in added:
             seen.append(c)
         said.append(f"combination(s) of {', '.join(uf.states['tags'])} learned: "
                     f"{'; '.join(added)} (held {uf.states['held_s']:g} s or longer)")  # fmt: skip
-    if bounds and "longest_s" in uf.doc["states"]:
-        table = uf.doc["states"]
-        longest = [float(v) for v in table["longest_s"]]
-        for i, c in enumerate(list(table["seen"])):
-            if c in bounds and i < len(longest):
-                said.append(f"combination {c} of {', '.join(uf.states['tags'])}: held up to "
-                            f"{bounds[c]:.0f} s (was {longest[i]:.0f} s)")  # fmt: skip
-                longest[i] = bounds[c]
-        longest += [bounds[c] for c in added]
-        arr = tomlkit.array()
-        arr.extend(longest)
-        table["longest_s"] = arr
     for table, what, tag, old, new in changed:
         row = tomlkit.inline_table()
         row.update(new.as_row())

@@ -393,43 +393,35 @@ def fixed_note(spans: Sequence[ManualSpan]) -> str:
 
 def state_combos(
     unit: Any, frame: pd.DataFrame, states: Sequence[str]
-) -> tuple[list[str], list[str], float, list[float]] | None:
+) -> tuple[list[str], list[str], float] | None:
     """The unit's ``[states]`` (:mod:`~diag_plugin.diagnose.combos`): its discrete states
     (``[build] states``, those in ``frame``), the combinations ``frame`` held for the dwell
     and the dwell (s): the unit's quiet time (:func:`~diag_plugin.diagnose.settle.quiet_samples`:
     the longest history a test reads + the residual filter's delay + the on-delay) — a
     combination held that long has a sample where every test read only it, its residual
-    filtered; and the longest the window held each (inf: a run the window cut). None
-    without states."""
-    from diag_plugin.diagnose.combos import combo_visits, learned_combos
+    filtered. None without states."""
+    from diag_plugin.diagnose.combos import held_combos
     from diag_plugin.diagnose.settle import quiet_samples
 
     states = [t for t in states if t in frame.columns]
     if not states:
         return None
     held_s = float(quiet_samples(unit) * unit.period_s)
-    learned = learned_combos(combo_visits(frame, states), held_s)
-    return states, list(learned), held_s, list(learned.values())
+    return states, held_combos(frame, states, held_s), held_s
 
 
-def combos_note(
-    unit: Any, tags: Sequence[str], seen: Sequence[str], held_s: float, longest: Sequence[float]
-) -> str:
+def combos_note(unit: Any, tags: Sequence[str], seen: Sequence[str], held_s: float) -> str:
     """What the build's note says of the ``[states]`` table."""
     from diag_plugin.diagnose.settle import quiet_parts
 
     depth, lag, on = quiet_parts(unit)
-    each = "; ".join(f"{c} (at most {s:.0f} s)" if np.isfinite(s) else c
-                     for c, s in zip(seen, longest, strict=True))  # fmt: skip
     return (
         f"{len(seen)} combination(s) of the discrete states {', '.join(tags)} recorded in "
-        f"[states] ({each or 'none'}): those the window held for {held_s:g} s or "
+        f"[states] ({'; '.join(seen) or 'none'}): those the window held for {held_s:g} s or "
         f"longer, the unit's quiet time ({depth} samples of the longest history a test reads "
         f"+ {lag} of the residual filter + {on} of the on-delay); another combination held "
-        "for the on-delay, or a learned one held "
-        "longer than the window ever held it (the at most: new operating data), makes the "
-        "unit CHECK_FUNCTION naming it, until a learned one held for the off-delay; `diag "
-        "unit accept` of a period where it ran learns it"
+        "for the on-delay makes the unit CHECK_FUNCTION naming it, until a learned one held "
+        "for the off-delay; `diag unit accept` of a period where it ran learns it"
     )
 
 
