@@ -261,6 +261,7 @@ def accept(
     ``read(a, b)`` yields the unit's aligned frames (plant tag names) of ``[a, b)``."""
     from diag_plugin.diagnose.equipment import learnable_for, output_tag, owner
     from diag_plugin.diagnose.running import learnable
+    from diag_plugin.diagnose.settle import state_tags
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitFile
     from diag_plugin.learn.thresholds import (
@@ -399,12 +400,15 @@ def accept(
         out.save(as_read=True)
         # the starts' envelopes re-learned over all the windows, from the same held-out
         # residuals, in the thresholds just written (as the build learns them)
+        # (none where nothing settles after a change)
         rc = fresh.file.running
-        starts = frame.rename(columns={v: k for k, v in fresh.file.tags.items()})
-        if rc is not None and rc.tag in starts.columns:  # its stopped rows as read
-            run = _joined([as_read[w][[rc.tag]] for w in windows], fresh.period, history)[0]
-            starts = starts.assign(**{rc.tag: run[rc.tag].reindex(starts.index).to_numpy()})
-        res.envelope = relearn_envelopes(uf.path, starts, learned)
+        if state_tags(fresh) or getattr(fresh, "equipment", None):
+            starts = frame.rename(columns={v: k for k, v in fresh.file.tags.items()})
+            if rc is not None and rc.tag in starts.columns:  # its stopped rows as read
+                run = _joined([as_read[w][[rc.tag]] for w in windows], fresh.period, history)
+                got = run[0][rc.tag].reindex(starts.index).to_numpy()
+                starts = starts.assign(**{rc.tag: got})
+            res.envelope = relearn_envelopes(uf.path, starts, learned)
         # as the file holds them: a one-sided test (a spread's, a T²-like one) has no low
         res.limits = _limits(UnitFile.load(uf.path))
         res.warnings = warnings + list(learned.warnings)
