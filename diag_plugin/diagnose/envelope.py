@@ -12,8 +12,11 @@ a residual far beyond what the fault-free starts ever showed *at that age*.
 :func:`~diag_plugin.unitbuild.loops.state_settle_max` and
 :func:`~diag_plugin.unitbuild.loops.piece_settle_bounds` measure), per test the largest
 ``|residual|`` in units of its threshold (:func:`scaled`) in a few age bins after the change
-(edges: the quartiles of the settling times), widened by a margin from the number of starts
-seen (:func:`~diag_plugin.unitbuild.loops.envelope_bound`), and writes it to the unit file::
+(edges: the quartiles of the settling times, the first bin cut in four), widened by a margin
+from the number of starts seen (:func:`~diag_plugin.unitbuild.loops.envelope_bound`), and
+writes it to the unit file. The residuals are the cross-fitted, held-out ones the thresholds
+are learned from (:class:`~diag_plugin.unitbuild.loops.HeldOut`), and ``diag unit accept``
+learns the envelope again over every window it learned::
 
     [envelope.state]  # written by `diag unit build`: ...
     starts = 14           # the fault-free changes it rests on

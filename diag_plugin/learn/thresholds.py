@@ -150,6 +150,10 @@ class Learned:
     #: per test of a piece of equipment: the share of the window it was off (its piece
     #: stopped; not unknown) and the piece
     off: dict[str, tuple[float, str]] = field(default_factory=dict)
+    #: the scaled held-out residuals over the whole window, before the filter (not written:
+    #: a start's envelope is learned from them, as the thresholds are,
+    #: :class:`~diag_plugin.unitbuild.loops.HeldOut`)
+    scaled: pd.DataFrame | None = None
 
     @property
     def independent(self) -> dict[str, int]:
@@ -689,7 +693,8 @@ def learn_thresholds(
             r.unknown["level"] = int((np.isfinite(r.raw) & (r.level >= len(table))).sum())
         scaled[t.name] = x
     unit.reset()
-    filtered = unit.filtered(pd.DataFrame(scaled, index=frame.index, columns=unit.tests))
+    held = pd.DataFrame(scaled, index=frame.index, columns=unit.tests)
+    filtered = unit.filtered(held)  # a copy: ``held`` is kept for the envelope
     unit.reset()
     filtered = equipment_settled(unit, frame, filtered)
     body = filtered[settled(frame.notna().any(axis=1).to_numpy())]
@@ -775,6 +780,7 @@ def learn_thresholds(
         level_points=lp,
         body=body,
         off=off,
+        scaled=held,
     )
 
 

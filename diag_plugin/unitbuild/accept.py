@@ -77,6 +77,8 @@ class AcceptResult:
     #: re-learned one was narrower (:func:`never_narrower`)
     kept: dict[str, dict] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    #: what each start's envelope re-learned rests on (``[build] envelope``)
+    envelope: list[str] = field(default_factory=list)
 
     def widened(self) -> dict[str, float]:
         """Per test whose band (high − low) the accept widened more than :data:`WIDER`
@@ -104,6 +106,7 @@ class AcceptResult:
             "widened": self.widened(),
             "kept": self.kept,
             "warnings": self.warnings,
+            "envelope": self.envelope,
         }
 
 
@@ -258,6 +261,7 @@ def accept(
     ``read(a, b)`` yields the unit's aligned frames (plant tag names) of ``[a, b)``."""
     from diag_plugin.diagnose.equipment import learnable_for, output_tag, owner
     from diag_plugin.diagnose.running import learnable
+    from diag_plugin.diagnose.settle import state_tags
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitFile
     from diag_plugin.learn.thresholds import (
@@ -275,14 +279,16 @@ def accept(
     uf = unit.file
     far = far if far is not None else float(uf.thresholds.get("far", DEFAULT_FAR))
     cache: dict[tuple, pd.DataFrame] = {}
+    as_read: dict[tuple, pd.DataFrame] = {}  # the run tag's own values: its starts
 
     def window(a: pd.Timestamp, b: pd.Timestamp) -> pd.DataFrame:
         if (a, b) not in cache:
             parts = [f for f in read(a, b) if len(f)]
             if not parts:
                 raise UserError(f"no samples of the unit's tags in {a} … {b}")
+            as_read[(a, b)] = unit._model_frame(pd.concat(parts))
             # the stopped rows as an outage: only the running plant is learned (running.py)
-            cache[(a, b)] = learnable(unit._model_frame(pd.concat(parts)), unit.file.running)
+            cache[(a, b)] = learnable(as_read[(a, b)], unit.file.running)
         return cache[(a, b)]
 
     def own(frame: pd.DataFrame, t) -> pd.DataFrame:
@@ -392,6 +398,17 @@ def accept(
         out = UnitFile.load(uf.path)
         out.set_learned(learned)
         out.save(as_read=True)
+        # the starts' envelopes re-learned over all the windows, from the same held-out
+        # residuals, in the thresholds just written (as the build learns them)
+        # (none where nothing settles after a change)
+        rc = fresh.file.running
+        if state_tags(fresh) or getattr(fresh, "equipment", None):
+            starts = frame.rename(columns={v: k for k, v in fresh.file.tags.items()})
+            if rc is not None and rc.tag in starts.columns:  # its stopped rows as read
+                run = _joined([as_read[w][[rc.tag]] for w in windows], fresh.period, history)
+                got = run[0][rc.tag].reindex(starts.index).to_numpy()
+                starts = starts.assign(**{rc.tag: got})
+            res.envelope = relearn_envelopes(uf.path, starts, learned)
         # as the file holds them: a one-sided test (a spread's, a T²-like one) has no low
         res.limits = _limits(UnitFile.load(uf.path))
         res.warnings = warnings + list(learned.warnings)
@@ -399,6 +416,37 @@ def accept(
         rollback(uf.path)  # leave the unit as it was
         raise
     return res
+
+
+def relearn_envelopes(path: Path, frame: pd.DataFrame, learned) -> list[str]:
+    """The unit file ``path``'s starts' envelopes (``[envelope]``, :mod:`diag_plugin.diagnose.
+    envelope`) learned again from ``frame`` (every window the unit learned, models' tag names,
+    the run tag as read) and the held-out residuals its thresholds were just learned from
+    (``learned``), in units of those thresholds, under the settles' bounds the file keeps;
+    the ``[build] envelope`` notes replaced. Before, an accept kept the build's envelope: in
+    units of thresholds it had replaced, from the build's starts alone. A unit with no state
+    nor piece of equipment to settle is left as it was. Returns the notes."""
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.diagnose.unitfile import UnitFile
+    from diag_plugin.unitbuild.loops import HeldOut, settle_envelopes
+
+    unit = Unit.load(path, path.parent)
+    bounds = {k: float(unit.ev.get(k, 0.0) or 0.0)
+              for k in ("settle_max_s", "state_settle_max_s")}  # fmt: skip
+    pieces = {e.name: e.settle_max_s for e in getattr(unit, "equipment", None) or ()}
+    envs = settle_envelopes(unit, frame, HeldOut(unit, frame, learned.scaled), bounds, pieces)
+    if not envs:
+        return []
+    uf = UnitFile.load(path)
+    got = {k: env.as_table() for k, env, _ in envs if env is not None}
+    if got:
+        uf.doc["envelope"] = got
+    elif "envelope" in uf.doc:
+        del uf.doc["envelope"]
+    if "build" in uf.doc:
+        uf.doc["build"]["envelope"] = [how for *_, how in envs]
+    uf.save()
+    return [how for *_, how in envs]
 
 
 def never_narrower(learned, before, old: pd.Series | None = None) -> dict[str, dict]:

@@ -98,6 +98,7 @@ from diag_plugin.unitbuild.equipment import (
 )
 from diag_plugin.unitbuild.loops import (
     Disturbance,
+    HeldOut,
     Loop,
     Manual,
     Replay,
@@ -1579,8 +1580,10 @@ def _build_unit(
             notes.append(how)
         if pieces:
             uf.doc["build"]["equipment_settle"] = [how for *_, how in pieces]
-        # a start's envelope (diagnose/envelope.py): a fault present at a start ends its settle
-        envs = settle_envelopes(settle_unit, settle_frame, replay,
+        # a start's envelope (diagnose/envelope.py): a fault present at a start ends its
+        # settle; learned from the held-out residuals the thresholds were learned from
+        held = HeldOut(settle_unit, settle_frame, learned.scaled)
+        envs = settle_envelopes(settle_unit, settle_frame, held,
                                 {key: value for key, _, value, _ in settles},
                                 {piece: value for piece, value, _ in pieces})  # fmt: skip
         if any(env is not None for _, env, _ in envs):

@@ -323,6 +323,8 @@ def cmd_unit_accept(args) -> int:
     if "combined" in res.kept:
         print("  combined test: high" + _kept(res.kept["combined"]).removeprefix(";"))
     print("  windows learned: " + "; ".join(f"{a} … {b}" for a, b in res.windows))
+    for how in res.envelope:  # a start's envelope re-learned (diagnose/envelope.py)
+        print(f"  {how}")
     for k, x in res.widened().items():
         print(
             f"  ⚠ {k}: its band is {x:.1f}× as wide: it now passes what it flagged before — "

@@ -671,6 +671,51 @@ class Replay:
         return scaled(self.raw, *self.unit._limits())
 
 
+class HeldOut(Replay):
+    """:class:`Replay`'s residuals from the thresholds' own held-out residuals
+    (``scaled``: :attr:`~diag_plugin.learn.thresholds.Learned.scaled`, each block's from a
+    model that did not see it) rather than the unit replayed on the window it was trained on,
+    filtered as the unit filters them at run time: centred at each sample's operating point
+    (a level test of a unit with several, :meth:`~diag_plugin.diagnose.unit.Unit.at_points`)
+    and each run of the run condition from rest (the unit restarts its filter at every stop,
+    :meth:`~diag_plugin.diagnose.unit.Unit._stopped`). A figure learned from the window is
+    judged on data its models did not see: an envelope read from in-sample residuals is as
+    narrow as the models over-fit the starts (issue 34, items 5/6)."""
+
+    def __init__(self, unit, frame, scaled) -> None:
+        super().__init__(unit, frame)
+        self.held = scaled
+
+    def __call__(self):
+        import numpy as np
+        import pandas as pd
+
+        from diag_plugin.diagnose.running import segments
+
+        if self.got is None:
+            unit, frame = self.unit, self.frame
+            x = self.held.reindex(index=frame.index, columns=unit.tests)
+            if unit.level_points is not None and unit.cmodel is not None:
+                plant = frame.rename(columns=unit.file.tags)
+                x = unit.at_points(x, unit.cmodel.point_of(plant))
+            rc = unit.file.running
+            have = () if rc is None else (rc.tag, unit.file.tags.get(rc.tag))
+            col = next((c for c in have if c in frame.columns), None)
+            runs = (np.ones(len(frame), bool) if col is None
+                    else rc.runs(frame[col].to_numpy(float)))  # fmt: skip
+            x, names = x.to_numpy(float), x.columns
+            r = np.full(x.shape, np.nan)
+            for a, b, on in segments(runs):
+                if on:  # each run filtered from rest, as the unit restarts at a stop
+                    part = pd.DataFrame(x[a:b], columns=names)
+                    r[a:b] = unit.reset().filtered(part).to_numpy(float)
+            unit.reset()
+            self.raw = r
+            e = r - np.nanmedian(r, axis=0)
+            self.got = e, 3 * 1.4826 * np.nanmedian(np.abs(e), axis=0)
+        return self.got
+
+
 def _free_settle(unit, kind: str, steps: list, quiet: int, residuals: Replay):
     """The settle's longest time after the window's own ``steps`` of ``kind`` (``hand``,
     ``state``: no loop test; every test's residual back within its band, module doc of
@@ -874,6 +919,13 @@ def _max_and_how(key: str, what: str, times: list[float], judged: int, unit) -> 
 
 #: an envelope's age bins begin at 0 and at these quantiles of the window's settling times
 ENVELOPE_QUANTILES = (0.25, 0.5, 0.75)
+#: an envelope's first bin (from 0 to the first quantile) cut in this many equal spans: a
+#: start's transient is largest in its first minutes and gone by its settling time (B's own
+#: water on the twin chillers: 247 × its threshold 6 min after B's start, 3.5 at 18 min, 0.5
+#: at 22), so one bin to the first quartile (28 min) held a fault present at a start until
+#: then. 4: 30 -> 23 min there, 8: 19-23 min with bins from fewer samples; the fault-free
+#: samples the same either way (chosen on the twin chillers and the station, tuning plants)
+ENVELOPE_SPLIT = 4
 #: an envelope's margin: the largest peak seen widened by this / √(changes seen) of itself
 #: (:func:`envelope_bound`)
 ENVELOPE_WIDEN = 3.0
@@ -906,9 +958,11 @@ def learn_envelope(a, changes: list[tuple[int, int]], times: list[float], bound_
     (``names``) the residuals in threshold units, and what it rests on in words; None where
     fewer than :data:`~diag_plugin.diagnose.envelope.MIN_STARTS` changes. Bins: from 0 and
     from the :data:`ENVELOPE_QUANTILES` of the settling times ``times`` (seconds; fewer than
-    :data:`~diag_plugin.diagnose.envelope.MIN_STARTS`: one bin) up to the settle's bound
+    :data:`~diag_plugin.diagnose.envelope.MIN_STARTS`: the same shares of the bound), the
+    first of them cut in :data:`ENVELOPE_SPLIT` equal spans, up to the settle's bound
     ``bound_s``; a bin fewer changes reached than that ends the envelope (the last bin
-    kept holds from its age on). Per test and bin :func:`envelope_bound`."""
+    kept holds from its age on). Per test and bin :func:`envelope_bound`; a bin a test is
+    unknown throughout (a spread test's window filling) takes its widest bin's."""
     import numpy as np
 
     from diag_plugin.diagnose.envelope import MIN_STARTS, Envelope
@@ -921,7 +975,10 @@ def learn_envelope(a, changes: list[tuple[int, int]], times: list[float], bound_
     else:  # too few settled: the same shares of the bound
         q = np.asarray(ENVELOPE_QUANTILES) * bound_s
     cuts = [int(np.ceil(c / period_s)) for c in q]
-    edges = sorted({0, *(c for c in cuts if 0 < c < bound_n)})
+    cuts = [c for c in cuts if 0 < c < bound_n]
+    first = min(cuts, default=bound_n)  # the first bin: cut in ENVELOPE_SPLIT equal spans
+    split = [first * k // ENVELOPE_SPLIT for k in range(1, ENVELOPE_SPLIT)]
+    edges = sorted({0, *(c for c in split if c > 0), *cuts})
     ends = [*edges[1:], bound_n]
     a = np.abs(np.asarray(a, float))
     peaks = []  # per bin: changes × tests
@@ -935,15 +992,17 @@ def learn_envelope(a, changes: list[tuple[int, int]], times: list[float], bound_
     edges = edges[: len(peaks)]
     tests = {}
     for t, name in enumerate(names):
-        got = [envelope_bound(p[:, t]) for p in peaks]
-        if all(np.isfinite(got)):
-            tests[name] = tuple(got)
+        got = np.array([envelope_bound(p[:, t]) for p in peaks])
+        known = np.isfinite(got)
+        if known.any():  # a bin it is unknown in (a spread test's window filling): its widest
+            tests[name] = tuple(float(v) for v in np.where(known, got, got[known].max()))
     env = Envelope(len(changes), tuple(float(e * period_s) for e in edges), tests)
     widest = max(tests, key=lambda k: tests[k][0], default="")
     how = (
         f"an envelope from {len(changes)} fault-free change(s), {len(edges)} age bin(s) from "
-        f"{', '.join(f'{e * period_s:.0f}' for e in edges)} s (0 and the quartiles of the "
-        f"settling times), per test the largest |residual| (threshold units, at least 1) × "
+        f"{', '.join(f'{e * period_s:.0f}' for e in edges)} s (0, the quartiles of the "
+        f"settling times, the first cut in {ENVELOPE_SPLIT}), per test the largest held-out "
+        f"|residual| (threshold units, at least 1) × "
         f"(1 + {ENVELOPE_WIDEN:g}/√n): a test beyond it for the on-delay ends the settle"
         + (f"; the widest first, {widest} {tests[widest][0]:.3g}" if widest else "")
     )
@@ -958,14 +1017,16 @@ def settle_envelopes(
     (:func:`piece_settle_bounds`), from its window ``frame``: ``(key, envelope or None, what
     it rests on)`` each (:mod:`diag_plugin.diagnose.envelope`). ``bounds``: the settles'
     bounds as the build wrote them (``[evaluation]``, :func:`settle_bounds`), ``pieces`` each
-    piece's (None: the unit's state bound, else ``settle_max_s``)."""
+    piece's (None: the unit's state bound, else ``settle_max_s``). ``residuals``: the
+    window's held-out residuals the thresholds were learned from (:class:`HeldOut`; the
+    settling times that cut the bins too), so the envelope is judged on residuals the
+    models did not see (issue 34: before, the unit replayed on its own window)."""
     import numpy as np
 
     from diag_plugin.diagnose.envelope import STATE
     from diag_plugin.diagnose.settle import quiet_samples, state_tags
 
     out = []
-    residuals = residuals or Replay(unit, frame)
     quiet = quiet_samples(unit)
     state_s = float(bounds.get("state_settle_max_s") or 0.0)
     unit_s = state_s or float(bounds.get("settle_max_s") or 0.0)
