@@ -346,3 +346,38 @@ def test_the_oscillation_score_is_the_hold_s_own_rule_at_every_level():
     r2 = np.r_[r[:45], np.full(20, 3.0), np.zeros(180)]  # + − +: a swing there and back
     o = oscillation_score(r2, -r2, 3, 3, 100)
     assert np.all(o[70:140] == 3.0) and np.nanmax(o[170:]) <= 0.0  # held, then off
+
+
+def test_the_oscillation_score_applies_the_hold_s_settle_rule_at_every_level():
+    """Issue 34 H2 (a): where settles open (an operator's step, a hand valve's move, a
+    piece's start), ``oscillation_score`` with the openings and the quiet time is over ``λ``
+    exactly where the unit's :class:`OscillationHold` of the alarms at ``λ``, given the same
+    openings, is on, for every ``λ``: a settle opening on a test off for the quiet time at
+    ``λ`` disarms the hold and its swings pass unseen until the bound; one opening on a test
+    on (a fault in progress) at ``λ`` is not seen at that level. Without the openings the
+    score (main's) holds swings the unit does not."""
+    from diag_plugin.bench.matched import oscillation_score
+    from diag_plugin.diagnose.unitloops import OscillationHold
+
+    rng = np.random.default_rng(7)
+    checked = held = differs = 0
+    for _ in range(150):
+        n, w, k = int(rng.integers(5, 120)), int(rng.integers(1, 12)), int(rng.integers(1, 4))
+        up = rng.normal(0.4, 1.0, (n, 2))
+        down = -up * rng.uniform(0.5, 2.0, (n, 2))
+        opens = np.where(rng.random((n, 2)) < 0.05, rng.integers(1, 30, (n, 2)), 0)
+        quiet = int(rng.integers(1, 10))
+        o = oscillation_score(up, down, 1, 1, w, k, opens=opens, quiet=quiet)
+        score = np.where(np.isnan(o), -np.inf, o)
+        plain = np.where(np.isnan(p := oscillation_score(up, down, 1, 1, w, k)), -np.inf, p)
+        for c in range(2):
+            for lam in np.quantile(np.r_[up[:, c], down[:, c]], [0.3, 0.5, 0.7, 0.85]):
+                lam = max(lam, 0.0)
+                s = np.where(up[:, c] > lam, 1.0, np.where(down[:, c] > lam, -1.0, 0.0))
+                hold = OscillationHold(np.array([w]), k, quiet=quiet)
+                unit = hold.transform(s[:, None].copy(), opens[:, c : c + 1])[:, 0]
+                np.testing.assert_array_equal(unit != 0, (score[:, c] > lam) | (s != 0))
+                differs += int(((plain[:, c] > lam) != (score[:, c] > lam)).sum())
+                checked += 1
+                held += int(((unit != 0) & (s == 0)).sum())
+    assert checked == 1200 and held > 1000 and differs > 500  # the settles changed the hold

@@ -182,3 +182,38 @@ def test_a_short_windows_hold_fits_a_block_of_its_thresholds():
     assert short["spread_window_s"] == 3600.0
     long = alarm_settings("60s", 14400)
     assert long["oscillation_window_s"] == 4 * long["spread_window_s"]
+
+
+def test_the_benchmark_reads_the_settles_the_replay_opens(vessel):
+    """Issue 34 H2 (a): the benchmark's hold (``publicbench._unit_parts``) reads the settles
+    the unit's own replay opens (:attr:`Unit.openings_seen`: each operator's step on the
+    vessel's temperature set-point, every test, the settle's bound) and the unit's quiet
+    time, not none; collecting them leaves the replay as it was."""
+    from diag_plugin.bench.matched import oscillation_score
+    from diag_plugin.bench.publicbench import _unit_parts
+    from diag_plugin.diagnose.unitloops import oscillation_samples
+
+    frame = jacket4.simulate(2.0, 101, "stiction")
+    plain = vessel.reset().evaluate(frame)
+    vessel.reset().openings_seen = []
+    seen = vessel.evaluate(frame)
+    opens = np.concatenate(vessel.openings_seen)
+    vessel.openings_seen = None
+    pd.testing.assert_frame_equal(seen.symptoms, plain.symptoms)
+    steps = vessel.transients.steps(frame[["TEMP_TARGET"]].to_numpy())
+    rows = np.flatnonzero(opens.any(axis=1))
+    # each step opens its settle where the guard confirms it (the samples it took to leave
+    # its hold after it), for the bound less those samples
+    left = np.array([row for *_, row in steps])
+    assert len(rows) == len(left) >= 2 and ((rows - left >= 0) & (rows - left <= 5)).all()
+    assert (opens[rows] == opens[rows, :1]).all() and (opens[rows] > 0).all()
+    on, off = vessel.ev["on_delay"], vessel.ev["off_delay"]
+    _, _, held = _unit_parts(vessel, frame, on, off)
+    assert vessel.openings_seen is None
+    lo, hi = vessel._limits()
+    r = plain.residuals.to_numpy()
+    w = oscillation_samples(vessel.ev, vessel.period)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        up, down = r / hi, r / lo
+    want = oscillation_score(up, down, on, off, w, opens=opens, quiet=vessel._quiet_n())
+    np.testing.assert_array_equal(held, want)

@@ -184,15 +184,123 @@ def _armed_kernel(arm, keep):  # pragma: no cover - numba
     return out
 
 
+@numba.njit(cache=True)
+def _settled_kernel(du, dd, arm0, both0, opens, quiet, window, k):  # pragma: no cover - numba
+    # per column the hold's statistic where settles open (opens[t, j] > 0: the bound in
+    # samples), row by row. At a level λ a settle at t disarms the hold when the column was
+    # off at λ over the ``quiet`` rows before t (calm), i.e. when λ ≥ M(t), the largest output
+    # score O there (O = max(d, h): on or held); from t its symptoms pass unseen until the
+    # bound, then the hold starts afresh. So the levels fall into regimes [L_r, U_r) sharing
+    # one history: the hold restarts at B[r] (rows before it pass through). In a regime the
+    # hold is the unsettled rule begun at B[r]: its chains over windows clipped at B[r] (a
+    # prefix from B[r], P) until a window lies past it (then the run's own, arm0 / both0),
+    # h = max(min(arm, both), min(max(both, d), h(t − 1))). The score at t is the largest λ
+    # whose regime's hold is over it: max over r of min(h_r, U_r) where h_r > L_r
+    n, m = du.shape
+    out = np.full((n, m), -np.inf)
+    kw = k * window
+    for j in range(m):
+        cap = 2
+        for t in range(n):
+            if opens[t, j] > 0:
+                cap += 1
+        lv = np.empty(cap)
+        bs = np.empty(cap, np.int64)
+        hs = np.empty(cap)
+        ps = np.empty((cap, 2, k + 1))
+        nl = np.empty(cap)
+        nb = np.empty(cap, np.int64)
+        nh = np.empty(cap)
+        npf = np.empty((cap, 2, k + 1))
+        r_n = 1
+        lv[0], bs[0], hs[0] = -np.inf, 0, -np.inf
+        ps[0] = -np.inf
+        big = np.empty(n)  # O: the column's output score (on or held)
+        tmp = np.empty((2, k + 1))
+        for t in range(n):
+            o = opens[t, j]
+            if o > 0:
+                lim = -np.inf  # M: calm at every level from it
+                for q in range(max(0, t - quiet[j]), t):
+                    lim = max(lim, big[q])
+                q_n = 0
+                for r in range(r_n):
+                    lo_r = lv[r]
+                    hi_r = lv[r + 1] if r + 1 < r_n else np.inf
+                    if lo_r < lim:  # the levels of it below M: the settle not seen
+                        nl[q_n], nb[q_n], nh[q_n] = lo_r, bs[r], hs[r]
+                        npf[q_n] = ps[r]
+                        q_n += 1
+                    if hi_r > lim:  # those at or above M: unseen until the bound, then afresh
+                        b2 = max(bs[r], t + o)
+                        nl[q_n], nb[q_n] = max(lo_r, lim), b2
+                        if b2 == bs[r]:
+                            nh[q_n] = hs[r]
+                            npf[q_n] = ps[r]
+                        else:
+                            nh[q_n] = -np.inf
+                            npf[q_n] = -np.inf
+                        q_n += 1
+                r_n = 0
+                for r in range(q_n):  # one history per restart: neighbours of one B merge
+                    if r_n > 0 and nb[r] == bs[r_n - 1]:
+                        continue
+                    lv[r_n], bs[r_n], hs[r_n] = nl[r], nb[r], nh[r]
+                    ps[r_n] = npf[r]
+                    r_n += 1
+            a_up, a_dn = du[t, j], dd[t, j]
+            d = max(a_up, a_dn)
+            best = -np.inf
+            for r in range(r_n):
+                b = bs[r]
+                if t < b:
+                    continue
+                if t < b + kw:  # the chains' windows reach back past B: from B on
+                    for a in range(2):
+                        v = a_up if a == 0 else a_dn
+                        for c in range(k + 1):
+                            new = v
+                            if c > 0:
+                                new = min(v, ps[r, 1 - a, c - 1]) if t > b else -np.inf
+                            tmp[a, c] = max(ps[r, a, c], new) if t > b else new
+                    ps[r] = tmp
+                    arm = max(ps[r, 0, k], ps[r, 1, k])
+                else:
+                    arm = arm0[t, j]
+                both = max(ps[r, 0, 1], ps[r, 1, 1]) if t < b + window else both0[t, j]
+                h = max(min(arm, both), min(max(both, d), hs[r]))
+                hs[r] = h
+                hi_r = lv[r + 1] if r + 1 < r_n else np.inf
+                if h > lv[r]:
+                    best = max(best, min(h, hi_r))
+            out[t, j] = best
+            big[t] = max(d, best)
+    return out
+
+
 def oscillation_score(
-    up: np.ndarray, down: np.ndarray, on: int, off: int, window: int, changes: int | None = None
+    up: np.ndarray,
+    down: np.ndarray,
+    on: int,
+    off: int,
+    window: int,
+    changes: int | None = None,
+    opens: np.ndarray | None = None,
+    quiet: int | np.ndarray = 1,
 ) -> np.ndarray:
     """Per column (a test) the oscillation hold's statistic (module doc) from its two sides'
     delayed ratios (``up``: ``r / high``, ``down``: ``r / low``): over ``λ`` exactly where the
     hold of the alarms at ``λ`` is armed, ``changes`` side changes (default the hold's
     :data:`~diag_plugin.diagnose.unitloops.OSCILLATION_CHANGES`) within ``changes`` ×
     ``window`` samples and since then on every sample the test on or both sides on within
-    ``window``; NaN throughout for a window of 0 (no hold), NaN where never armed."""
+    ``window``; NaN throughout for a window of 0 (no hold), NaN where never armed.
+
+    ``opens`` (samples × columns, the settle's bound in samples where one opens on the
+    test: :attr:`~diag_plugin.diagnose.unit.Unit.openings_seen`; None: none) and ``quiet``
+    (samples, per column or one) apply the hold's settle rule as the unit does: at each level
+    a settle opening on a test off (neither on nor held) for ``quiet`` samples disarms the
+    hold, and the test's alarms until its bound pass as they are, unseen by it
+    (:func:`_settled_kernel`; :class:`~diag_plugin.diagnose.unitloops.OscillationHold`)."""
     u = np.asarray(up, float).reshape(len(up), -1)
     if window < 1 or not u.size:
         return np.full(u.shape, np.nan)
@@ -201,9 +309,15 @@ def oscillation_score(
     dd = np.ascontiguousarray(delayed_score(np.asarray(down, float).reshape(u.shape), on, off))
     arm = _swing_score_kernel(du, dd, k * int(window), k)
     both = _swing_score_kernel(du, dd, int(window), 1)
-    with np.errstate(invalid="ignore"):
-        keep = np.fmax(both, np.fmax(du, dd))  # NaN only where all three are
-    h = _armed_kernel(np.minimum(arm, both), keep)  # armed where both sides are, too
+    op = None if opens is None else np.asarray(opens, np.int64).reshape(u.shape)
+    if op is not None and (op > 0).any():
+        qn = np.broadcast_to(np.asarray(quiet, np.int64), (u.shape[1],)).copy()
+        h = _settled_kernel(_finite(du), _finite(dd), _finite(arm), _finite(both),
+                            np.ascontiguousarray(op), qn, int(window), k)  # fmt: skip
+    else:
+        with np.errstate(invalid="ignore"):
+            keep = np.fmax(both, np.fmax(du, dd))  # NaN only where all three are
+        h = _armed_kernel(np.minimum(arm, both), keep)  # armed where both sides are, too
     h[np.isneginf(h)] = np.nan
     return h
 

@@ -152,7 +152,12 @@ def _unit_parts(unit, frame: pd.DataFrame, on: int, off: int):
     from diag_plugin.bench.matched import oscillation_score
     from diag_plugin.diagnose.unitloops import oscillation_samples
 
-    d = unit.reset().evaluate(frame)
+    unit.reset().openings_seen = []  # the hold's settles, as the unit's replay opens them
+    try:
+        d = unit.evaluate(frame)
+        seen = unit.openings_seen
+    finally:
+        unit.openings_seen = None
     lo, hi = unit._limits()
     r = d.residuals.to_numpy()
     stats = side_ratio(r, lo, hi)
@@ -162,7 +167,8 @@ def _unit_parts(unit, frame: pd.DataFrame, on: int, off: int):
         with np.errstate(invalid="ignore", divide="ignore"):
             up = np.where(hi > 0, r / hi, np.nan)
             down = np.where(lo < 0, r / lo, np.nan)
-        held = oscillation_score(up, down, on, off, w)
+        opens = np.concatenate(seen) if seen else None
+        held = oscillation_score(up, down, on, off, w, opens=opens, quiet=unit._quiet_n())
     cm = getattr(unit, "cmodel", None)
     if d.combined is not None and cm is not None and cm.high:
         stats = np.c_[stats, d.combined["T2"].to_numpy() / cm.high]

@@ -451,6 +451,11 @@ class Unit:
         self.period_s = pd.Timedelta(self.period).total_seconds()
         #: the file's evaluation with delays given in seconds turned into samples at the period
         self.ev = resolved_evaluation(file.evaluation, self.period)
+        #: a list to collect, per evaluated piece, samples × tests where a settle opens for
+        #: the oscillation hold (its bound in samples, 0 elsewhere; :meth:`_openings`), so a
+        #: benchmark scores the hold's own settle rule (``bench.matched.oscillation_score``);
+        #: None (default): not collected
+        self.openings_seen: list[np.ndarray] | None = None
         #: per piece of equipment (``[equipment]``, :mod:`~.equipment`) its tests' positions
         self.equipment = list(getattr(file, "equipment", None) or [])
         self.equipment_tests = members(self.equipment, [models[t.name].output for t in file.tests],
@@ -1075,7 +1080,11 @@ class Unit:
         # at the replay's peak; a first pass pays the first touch of every new page)
         raw_known = np.isfinite(raw.to_numpy())
         del raw
-        s, mem = self.symptoms(r.to_numpy(), *self._openings(cols, off))
+        opens, group = self._openings(cols, off)
+        if self.openings_seen is not None:
+            self.openings_seen.append(np.zeros((len(r), len(self.tests)), np.int64)
+                                      if opens is None else opens[:, group])  # fmt: skip
+        s, mem = self.symptoms(r.to_numpy(), opens, group)
         n, T = s.shape
         # a started piece's tests held off while it settles (equipment.py): from their
         # symptoms, then off as a stopped piece's (the combined test never reads them)
