@@ -7,7 +7,10 @@ on CI every part is installed, so such a skip means a broken set-up step.
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 import uuid
 
 import pytest
@@ -20,6 +23,11 @@ from threadpoolctl import threadpool_limits
 #: on two OpenBLAS threads and 0.012 on one at a load of 17 (issue 33 item 6)
 os.environ["OPENBLAS_NUM_THREADS"] = "1"
 threadpool_limits(1, user_api="blas")
+#: ``diag diagnose``'s cache of models (diagnose/modelcache.py) in a folder of this process's,
+#: removed at its exit, not the user's ~/.cache (the processes the tests start share it)
+if "DIAG_MODEL_CACHE" not in os.environ:
+    os.environ["DIAG_MODEL_CACHE"] = tempfile.mkdtemp(prefix="diag-model-cache-")
+    atexit.register(shutil.rmtree, os.environ["DIAG_MODEL_CACHE"], True)
 
 
 @pytest.fixture(scope="module")

@@ -73,7 +73,11 @@ def unit_actions(sub: argparse._SubParsersAction) -> argparse._SubParsersAction:
     return next(a for a in actions if isinstance(a, argparse._SubParsersAction))
 
 
-def load_unit(args, name: str):
+def load_unit(args, name: str, cached: bool = False):
+    """The unit ``name`` of ``args.rulebases``; ``cached``: its tests' models through the
+    cache of models read before (:mod:`~diag_plugin.diagnose.modelcache`, ``diag diagnose``;
+    ``$DIAG_MODEL_CACHE=off`` turns it off)."""
+    from diag_plugin.diagnose.modelcache import ModelCache
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.diagnose.unitfile import UnitError, unit_path
     from diag_plugin.rulebase.folder import UNIT_SUFFIX
@@ -86,7 +90,7 @@ def load_unit(args, name: str):
     if not path.exists():
         raise UserError(f"no unit file {path} (make one with `diag unit new`)")
     try:
-        return Unit.load(path, args.rulebases)
+        return Unit.load(path, args.rulebases, store=ModelCache.default() if cached else None)
     except UnitError as exc:
         raise UserError("unit file has problems:\n" + "\n".join(exc.problems)) from None
 
@@ -591,7 +595,7 @@ def cmd_diagnose(args) -> int:
             from diag_plugin.diagnose.readahead import ReadAhead, numba_ready
             from historian.store import Historian  # noqa: F401 - here, not in the reading thread
 
-            unit = load_unit(args, args.name)
+            unit = load_unit(args, args.name, cached=True)
             if args.chunk is None:
                 chunk = default_chunk(unit.period, len(unit.tags))
             else:
@@ -706,7 +710,7 @@ def _replayed(args, start, end, chunk) -> list:
     columns, of the same kinds)."""
     from diag_plugin.diagnose.leadin import lead_in, since
 
-    unit = load_unit(args, args.name)
+    unit = load_unit(args, args.name, cached=True)
     with _one_blas_thread():
         frames = unit_frames(args, unit, start, end, chunk, lead_in(unit))
         return [p for f in frames if len(p := since(unit.evaluate(f), start))]

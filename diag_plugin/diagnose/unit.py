@@ -133,15 +133,96 @@ def _needed_tags(inputs: tuple[str, ...], output: str) -> tuple[str, ...]:
     return tuple(needed_tags([*inputs, output]))
 
 
-def load_test_model(name: str, path: Path) -> TestModel:
-    """The model of one test from its rule-base file (problems as ``file:line``)."""
+def load_test_model(name: str, path: Path, store: Any = None) -> TestModel:
+    """The model of one test from its rule-base file (problems as ``file:line``). With a
+    ``store`` (a :class:`~diag_plugin.diagnose.modelcache.ModelCache`) a Wang–Mendel model
+    read before from the same bytes is taken from it, and one read now is kept in it."""
     from diag_plugin.rulebase.document import RuleBase, RuleBaseError
 
+    data = None
+    if store is not None:
+        try:
+            data = Path(path).read_bytes()
+        except OSError:
+            data = None  # RuleBase.load says why
+        else:
+            got = store.get(data)
+            if got is not None and (tm := _cached_model(name, path, got)) is not None:
+                return tm
     try:
         rb = RuleBase.load(path)
     except RuleBaseError as exc:
         raise UnitError(exc.problems) from None
-    return model_of_test(name, rb)
+    tm = model_of_test(name, rb)
+    if data is not None:
+        _keep_model(store, data, tm)
+    return tm
+
+
+def _keep_model(store: Any, data: bytes, tm: TestModel) -> None:
+    """``tm``'s model in ``store`` under the file's bytes: a Wang–Mendel model's exact state
+    and its conclusions as written, the test's variables as JSON (no pickle)."""
+    from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
+
+    m = tm.model
+    if type(m) is not WangMendelRegressor:
+        return
+    state = m.to_state()
+    meta = {
+        "params": state.pop("params"),
+        "n_samples_seen": state.pop("n_samples_seen"),
+        "n_skipped": state.pop("n_skipped"),
+        "inputs": list(tm.inputs),
+        "output": tm.output,
+        "span": tm.span,
+        "period": tm.period,
+        "out_range": None if tm.out_range is None else list(tm.out_range),
+    }
+    arrays = dict(state)
+    if m._conclusions is not None:
+        arrays["conclusions"] = m._conclusions
+    # the coarse levels' nodes: a least-squares fit per level that the first piece's replay
+    # made (~0.05 CPU s of the bench's 45 tests), the same arrays whenever the rules are
+    meta["node_levels"] = m.n_levels_
+    for lv in range(1, m.n_levels_):
+        for part, a in zip("kvf", m.level_nodes(lv), strict=True):
+            arrays[f"nodes_{part}{lv}"] = a
+    store.put(data, meta, arrays)
+
+
+def _cached_model(name: str, path: Path, got: dict) -> TestModel | None:
+    """The :class:`TestModel` :func:`_keep_model` kept, or None where the entry is not one."""
+    from diag_plugin.fuzzy.wang_mendel import STATE_ARRAYS, WangMendelRegressor
+
+    meta, arrays = got["meta"], got["arrays"]
+    try:
+        state = {
+            "params": meta["params"],
+            "n_samples_seen": meta["n_samples_seen"],
+            "n_skipped": meta["n_skipped"],
+            **{k: arrays[k] for k in STATE_ARRAYS},
+        }
+        m = WangMendelRegressor.from_state(state)
+        if "conclusions" in arrays:
+            m._conclusions = np.asarray(arrays["conclusions"], float)
+        if int(meta["node_levels"]) != m.n_levels_:
+            return None
+        m._nodes = {
+            lv: tuple(arrays[f"nodes_{part}{lv}"] for part in "kvf") for lv in range(1, m.n_levels_)
+        }
+        rng = meta["out_range"]
+        return TestModel(
+            name=name,
+            path=Path(path),
+            model=m,
+            inputs=[str(v) for v in meta["inputs"]],
+            output=str(meta["output"]),
+            span=float(meta["span"]),
+            period=meta["period"],
+            out_range=None if rng is None else (float(rng[0]), float(rng[1])),
+        )
+    except (KeyError, TypeError, ValueError):
+        return None
 
 
 def model_of_test(name: str, rb: Any) -> TestModel:
@@ -529,11 +610,14 @@ class Unit:
         path: str | Path,
         folder: str | Path = "rulebases",
         models_cache: dict[Path, TestModel | UnitError] | None = None,
+        store: Any = None,
     ) -> Unit:
         """Load a unit file, its models and matrix; all problems at once as ``file:line``.
 
         ``models_cache`` (resolved rule-base path → loaded model or its error), shared between
         calls, reads each rule-base file once: units that name the same file share its model.
+        ``store``: a :class:`~diag_plugin.diagnose.modelcache.ModelCache` of the models read
+        before, by their files' bytes (``diag diagnose``).
         """
         file = UnitFile.load(unit_path(str(path), folder))
         problems: list[str] = []
@@ -547,7 +631,7 @@ class Unit:
             key = p.resolve()
             if key not in cache:
                 try:
-                    cache[key] = load_test_model(t.name, p)
+                    cache[key] = load_test_model(t.name, p, store)
                 except UnitError as exc:
                     cache[key] = exc
             got = cache[key]

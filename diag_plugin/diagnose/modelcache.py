@@ -1,0 +1,123 @@
+"""``diag diagnose``'s cache of its tests' models, keyed by each rule-base file's content.
+
+Reading a unit's rule bases was most of its load (issue 34, "Speed": the bench's 45 files,
+8,225 rules, each checked line by line: ~0.1 CPU s of a ~2 s run at 200,000 rows). A
+Wang–Mendel model read once is kept as a NumPy ``.npz`` file — its exact state
+(:meth:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.to_state`, integer and float
+arrays), the conclusions as written in the file and the test's variables as JSON text —
+and loaded with ``allow_pickle=False``: no Python object is ever unpickled from it.
+
+The key is the SHA-256 of the file's bytes and of the source of the modules that turn a file
+into a model (:data:`CODE`): an edited file, or a changed parser, is a new key. Only a file
+read without problems is kept (a broken one is read, and reported, every time); other
+methods than Wang–Mendel's are read as before. An entry that cannot be read is ignored and
+written again; one that cannot be written (a read-only home) is simply not kept.
+
+Where: ``$DIAG_MODEL_CACHE`` (a folder), or ``off`` (also ``0``, ``no``, empty) for no cache;
+by default ``$XDG_CACHE_HOME/diag-plugin/models`` (``~/.cache/diag-plugin/models``), made
+readable by its owner alone. Entries are a few tens of kB; delete the folder at any time.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+#: the entries' layout; a new value is a new key for every file
+FORMAT = "diag-model-cache 1"
+#: the modules whose source is part of the key (relative to the ``diag_plugin`` package)
+CODE = (
+    "rulebase/document.py",
+    "models/codec.py",
+    "models/spec.py",
+    "models/registry.py",
+    "regressors.py",
+    "tomllines.py",
+    "fuzzy/wm_codec.py",
+    "fuzzy/wang_mendel.py",
+    "fuzzy/partition.py",
+    "diagnose/unit.py",
+    "diagnose/modelcache.py",
+)
+#: ``$DIAG_MODEL_CACHE`` values that turn the cache off
+OFF = ("", "0", "off", "no", "false")
+
+
+def default_folder() -> Path | None:
+    """The cache's folder, or None when ``$DIAG_MODEL_CACHE`` turns it off."""
+    env = os.environ.get("DIAG_MODEL_CACHE")
+    if env is not None:
+        return None if env.strip().lower() in OFF else Path(env).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or "~/.cache"
+    return Path(base).expanduser() / "diag-plugin" / "models"
+
+
+class ModelCache:
+    """The models of rule-base files kept in ``folder`` (see the module's text)."""
+
+    def __init__(self, folder: str | Path) -> None:
+        self.folder = Path(folder)
+        self._code: bytes | None = None
+
+    @classmethod
+    def default(cls) -> ModelCache | None:
+        folder = default_folder()
+        return None if folder is None else cls(folder)
+
+    def _code_digest(self) -> bytes:
+        if self._code is None:
+            root = Path(__file__).resolve().parents[1]
+            h = hashlib.sha256(FORMAT.encode())
+            for rel in CODE:
+                h.update(rel.encode() + b"\0")
+                try:
+                    h.update((root / rel).read_bytes())
+                except OSError:
+                    h.update(b"-")
+            self._code = h.digest()
+        return self._code
+
+    def key(self, data: bytes) -> str:
+        """The entry's name for a file of these bytes."""
+        return hashlib.sha256(self._code_digest() + data).hexdigest()
+
+    def get(self, data: bytes) -> dict[str, Any] | None:
+        """What :meth:`put` kept for a file of these bytes, or None."""
+        import numpy as np
+
+        path = self.folder / f"{self.key(data)}.npz"
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                meta = json.loads(z["meta"].tobytes().decode("utf-8"))
+                arrays = {k: z[k] for k in z.files if k != "meta"}
+        except (OSError, ValueError, KeyError, UnicodeDecodeError, EOFError):
+            return None
+        if meta.get("format") != FORMAT:
+            return None
+        return {"meta": meta, "arrays": arrays}
+
+    def put(self, data: bytes, meta: dict[str, Any], arrays: dict[str, Any]) -> None:
+        """Keep ``meta`` (JSON) and ``arrays`` for a file of these bytes; errors are ignored."""
+        import numpy as np
+
+        text = json.dumps({**meta, "format": FORMAT}, allow_nan=True).encode("utf-8")
+        tmp = None
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+            fd, tmp = tempfile.mkstemp(dir=self.folder, suffix=".tmp")
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, meta=np.frombuffer(text, np.uint8), **arrays)
+            os.replace(tmp, self.folder / f"{self.key(data)}.npz")
+            tmp = None
+        except OSError:
+            pass
+        finally:
+            if tmp is not None:
+                try:
+                    os.unlink(tmp)
+                except OSError:
+                    pass
