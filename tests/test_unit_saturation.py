@@ -129,7 +129,7 @@ def test_a_valve_named_after_it_left_its_limit_is_not_said_at_it():
     v = np.array([60.0, 0.0, 0.2, 35.0, 50.4, 70.0, 0.0])
     on = np.array([[True], [True], [True], [False], [False], [False], [True]])
     active = np.array([True, True, True, True, True, False, True])
-    which, text = sat.transform(_Cols({"BT_INLET_VLV": v}), on, active)
+    which, text, _ = sat.transform(_Cols({"BT_INLET_VLV": v}), on, active)
     assert list(which) == [-1, 0, 0, 0, 0, -1, 0]
     at = "BT_INLET_VLV at its limit ({}, its span 0 … 100): loop BT_LEVEL cannot hold its set-point"
     assert text[1] == at.format("0") and text[2] == at.format("0.2")
@@ -139,3 +139,55 @@ def test_a_valve_named_after_it_left_its_limit_is_not_said_at_it():
     )
     assert text[3].startswith("BT_INLET_VLV at its limit earlier in this alarm (now 35,")
     assert text[6] == at.format("0")  # a new episode at the limit again
+
+
+def test_a_valve_at_a_limit_its_process_puts_it_at_gives_way_to_another_tags_test():
+    """Issue 34 item 4 (branch ``i34-naming``): on the pasteuriser built with ``--running
+    MODE=1`` the balance tank's inlet valve, shut at every production start while its level
+    loop's test fires, was named first on 73–91 % of every fault's alarm samples, its name
+    held through the episode that the fault's own test carried. Now it gives way where a test
+    of another tag is on and the valve's own test is quiet: that tag stays first, the valve
+    listed second with its reason. Where its own test is on too (a position its process
+    conditions do not explain) or no other test is on, it is first as before. Main has no
+    notion of the loop's own tests (``_Loop`` takes no ``own``/``act``)."""
+    from diag_plugin.diagnose.saturation import Saturation, _Loop
+
+    # tests: 0 the level loop's, 1 the valve's own, 2 the holding-tube temperature's
+    sat = Saturation(
+        [_Loop(0, "BT_LEVEL", "BT_INLET_VLV", "BT_INLET_VLV", 0.0, 100.0, (0, 1), (1,))]
+    )
+    v = np.array([0.0, 0.0, 30.0, 0.0, 0.0, 40.0])
+    on = np.array([
+        [True, False, False],  # the loop alone, at the limit: first
+        [True, False, True],  # another tag's test on, the valve's quiet: gives way
+        [False, False, True],  # held, another tag's test on: gives way
+        [True, True, True],  # the valve's own test on too: first
+        [True, False, False],  # the other test off again: first
+        [False, False, False],  # held, nothing else on: first
+    ])  # fmt: skip
+    active = np.ones(6, bool)
+    which, text, first = sat.transform(_Cols({"BT_INLET_VLV": v}), on, active)
+    assert list(which) == [0] * 6
+    assert list(first) == [True, False, False, True, True, True]
+    faults = np.array(["unit", "HOLD_TEMP", "HOLD_TEMP", "HOLD_TEMP", "unit", "unit"], object)
+    top = {
+        "top1": np.array(["BT_LEVEL"] + ["HOLD_TEMP"] * 3 + ["BT_LEVEL"] * 2, object),
+        "share1": np.array([0.9, 0.8, 0.7, 0.8, 0.9, 0.9]),
+        "top2": np.array(["", "BT_LEVEL", "REGEN_RAW_OUT", "", "", ""], object),
+        "share2": np.array([np.nan, 0.3, 0.2, np.nan, np.nan, np.nan]),
+        "top3": np.array(["", "", "", "", "", ""], object),
+        "share3": np.full(6, np.nan),
+    }  # fmt: skip
+    sat.name_first(which, text, faults, top, first)
+    assert (
+        list(faults)
+        == ["BT_INLET_VLV", "HOLD_TEMP", "HOLD_TEMP", "BT_INLET_VLV"] + ["BT_INLET_VLV"] * 2
+    )
+    assert (
+        list(top["top1"])
+        == ["BT_INLET_VLV", "HOLD_TEMP", "HOLD_TEMP", "BT_INLET_VLV"] + ["BT_INLET_VLV"] * 2
+    )
+    assert list(top["top2"][1:3]) == ["BT_INLET_VLV", "BT_INLET_VLV"]
+    assert list(top["top3"][1:3]) == ["BT_LEVEL", "REGEN_RAW_OUT"]
+    assert text[1].startswith("BT_INLET_VLV at its limit (0,")
+    assert text[2].startswith("BT_INLET_VLV at its limit earlier in this alarm (now 30,")
