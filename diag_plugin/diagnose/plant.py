@@ -840,14 +840,20 @@ class Plant:
             a = self._first[ui]
             row = _OneRow({lp.model_tag: value(lp.actuator) for lp in sat.loops})
             on = (np.nan_to_num(s[a : a + len(u.tests)]) != 0)[None, :]
-            which, text = sat.transform(row, on, np.array([bool(active[ui])]))
+            which, text, first = sat.transform(row, on, np.array([bool(active[ui])]))
             if which[0] < 0:
                 continue
             act = sat.loops[which[0]].actuator
-            faults[ui] = [act]
-            if tags[ui]:
-                own = dict(tags[ui]).get(act, tags[ui][0][1])
-                tags[ui] = [(act, own), *(x for x in tags[ui] if x[0] != act)][: len(tags[ui])]
+            if first[0]:
+                faults[ui] = [act]
+            ranked = dict(tags[ui]) if tags[ui] else {}
+            if tags[ui] and (first[0] or act not in ranked):
+                # first, or (giving way to another tag's test) listed second: as name_first
+                rest = [x for x in tags[ui] if x[0] != act]
+                at = 0 if first[0] or not rest else 1
+                fill = tags[ui][at][1] if at < len(tags[ui]) else rest[-1][1]
+                rest.insert(at, (act, ranked.get(act, fill)))
+                tags[ui] = rest[: len(tags[ui]) if first[0] else max(len(tags[ui]), 2)]
                 notes[ui] = [
                     "tags: " + ", ".join(f"{t} {v:.2f}" for t, v in tags[ui])
                     if n.startswith("tags: ")

@@ -14,6 +14,16 @@ metadata range where the historian gives one, else the range the build window sa
 never passed — names the actuator first (the ranking's first tag, the isolated fault), held
 to the end of the alarm episode as the other names are (:class:`~.unitloops.EpisodeHold`).
 Detection is unchanged: only the names and the reason are.
+
+It gives way (issue 34 item 4, branch ``i34-naming``) on a sample on which a test of another
+tag is on — not the loop's own test, nor its measurement's or its actuator's other tests —
+while the actuator's own test (its position predicted from the process conditions, learned
+on the fault-free window) is quiet: the fault's own test carries the alarm, and a valve at a
+limit its process conditions put it at is not news. There the first tag and the isolated
+fault are left as they are and the actuator is listed after the first tag, with its reason.
+The pasteuriser's balance-tank inlet valve (docs/explanation/acceptance-pasteuriser.md, built
+``--running MODE=1``), shut at every production start while its level loop's test fires, was
+named first on 73–91 % of every fault's alarm samples.
 """
 
 from __future__ import annotations
@@ -35,6 +45,11 @@ class _Loop:
     model_tag: str  # the actuator's name in the models (what Columns reads)
     lo: float
     hi: float
+    #: the columns of the loop's own tests (its measurement's and its actuator's): any other
+    #: test on is a test of another tag, the fault's own
+    own: tuple[int, ...] = ()
+    #: the columns of the actuator's own tests (its position predicted from the process)
+    act: tuple[int, ...] = ()
 
 
 def _sentence(lp: _Loop, value: float, at_limit: bool, tol: float) -> str:
@@ -72,6 +87,7 @@ class Saturation:
             tag = m.output.split("[")[0]
             if m.out_range is not None:
                 out_of.setdefault(tag, m.out_range)
+        outs = [unit.models[u].output.split("[")[0] for u in unit.tests]
         loops = []
         for j, t in enumerate(unit.tests):
             spec = unit.file.test(t)
@@ -85,7 +101,9 @@ class Saturation:
             if rng is None:
                 continue
             pv = unit.models[t].output.split("[")[0]
-            loops.append(_Loop(j, mapping.get(pv, pv), act, model_tag, *map(float, rng)))
+            own = tuple(i for i, o in enumerate(outs) if o in (pv, model_tag))
+            mine = tuple(i for i, o in enumerate(outs) if o == model_tag)
+            loops.append(_Loop(j, mapping.get(pv, pv), act, model_tag, *map(float, rng), own, mine))
         return cls(loops) if loops else None
 
     def reset(self) -> None:
@@ -101,10 +119,19 @@ class Saturation:
 
     def transform(self, cols, on: np.ndarray, active: np.ndarray):
         """Per sample the loop whose actuator is named (-1: none; the first loop in the
-        file's order where two are) and the sentence: ``on`` the symptoms on (samples × tests),
-        ``active`` the unit's alarm. Advances the carried state."""
+        file's order where two are), the sentence, and whether it is named first: ``on`` the
+        symptoms on (samples × tests), ``active`` the unit's alarm. Advances the carried state.
+
+        An actuator named gives way (``first`` False: listed after the first tag, with its
+        reason) on a sample on which a test of another tag is on — not the loop's own test,
+        its measurement's or its actuator's — while the actuator's own test (its position
+        predicted from the process conditions) is quiet: a valve at a limit its process
+        conditions put it at (the balance tank's inlet valve, shut at every production start)
+        is not the news that another tag's test is (the pasteuriser's pass: the at-limit name
+        first on 73–91 % of every fault's alarm samples)."""
         n = len(active)
         which = np.full(n, -1, np.int64)
+        first = np.zeros(n, bool)
         text = np.full(n, "", dtype=object)
         starts = active & ~np.r_[self.active, active[:-1]]
         for k, lp in enumerate(self.loops):
@@ -120,19 +147,26 @@ class Saturation:
             named = active & (((cum - base) > 0) | carried)
             free = named & (which < 0)
             which[free] = k
+            others = np.ones(on.shape[1], bool)
+            others[list(lp.own)] = False
+            other_on = on[:, others].any(axis=1) if others.any() else np.zeros(n, bool)
+            act_on = on[:, list(lp.act)].any(axis=1) if lp.act else np.zeros(n, bool)
+            first[free] = (~other_on | act_on)[free]
             for i in np.flatnonzero(free):
                 text[i] = _sentence(lp, float(v[i]), bool(at[i]) or not np.isfinite(v[i]), tol)
             if n:
                 self.named[k] = bool(named[-1])
         if n:
             self.active = bool(active[-1])
-        return which, text
+        return which, text, first
 
-    def name_first(self, which: np.ndarray, text: np.ndarray, faults, top) -> None:
+    def name_first(self, which: np.ndarray, text: np.ndarray, faults, top, first=None) -> None:
         """In place: on the samples ``which`` names, the actuator as the fault and first in
         the ranking (``top``: the columns of :func:`~.unittags.top_columns_at`) where there is
-        one, with its own share (else the first tag's); the sentence keeps the last known
-        value over a sample the actuator has none (held)."""
+        one, with its own share (else the first tag's); where it gives way (``first`` False)
+        the fault and the first tag are left as they are and the actuator is listed second,
+        with its own share (else the share of the tag it displaces). The sentence keeps the
+        last known value over a sample the actuator has none (held)."""
         last = ""
         for i in range(len(which)):
             k = which[i]
@@ -143,17 +177,29 @@ class Saturation:
             elif last:
                 text[i] = last
             act = self.loops[k].actuator
-            faults[i] = act
+            lead = first is None or bool(first[i])
+            if lead:
+                faults[i] = act
             if top is None:
                 continue
             names = [top[f"top{j}"][i] for j in range(1, 4) if f"top{j}" in top]
             shares = [top[f"share{j}"][i] for j in range(1, 4) if f"share{j}" in top]
             if not any(names):  # no ranking here (the combined test unknown): none invented
                 continue
-            pairs = [(a, s) for a, s in zip(names, shares, strict=True) if a and a != act]
             own = next((s for a, s in zip(names, shares, strict=True) if a == act), None)
-            first = own if own is not None else (shares[0] if shares else np.nan)
-            pairs = [(act, first), *pairs][: len(names)]
+            if not lead and own is not None:  # ranked already: left where the shares put it
+                continue
+            pairs = [(a, s) for a, s in zip(names, shares, strict=True) if a and a != act]
+            at = 0 if lead or not pairs else 1
+            fill = (
+                shares[at]
+                if at < len(shares) and np.isfinite(shares[at])
+                else pairs[-1][1]
+                if pairs
+                else np.nan
+            )
+            pairs.insert(at, (act, own if own is not None else fill))
+            pairs = pairs[: len(names)]
             for j, (a, s) in enumerate(pairs, start=1):
                 top[f"top{j}"][i] = a
                 top[f"share{j}"][i] = s

@@ -1246,9 +1246,9 @@ class Unit:
             faults[at] = with_ranked(self.matrix, faults[at], top["top1"][at], s[at][:, order])
         saturated = None
         if self.saturation is not None:  # a loop's valve at its limit: named first
-            which, sat_text = self.saturation.transform(cols, _on(s), active)
+            which, sat_text, first = self.saturation.transform(cols, _on(s), active)
             if (which >= 0).any():
-                self.saturation.name_first(which, sat_text, faults, top)
+                self.saturation.name_first(which, sat_text, faults, top, first)
                 saturated = (which >= 0, sat_text)
         if self.alarm_hold is not None:
             detected, status, faults, top = self._hold_alarm(active, detected, status, faults, top)
