@@ -57,6 +57,7 @@ from diag_plugin.diagnose.unit import (
     Unit,
     _hold_kernel,
     broken_status,
+    held_text,
     spread_factor,
 )
 from diag_plugin.diagnose.unitfile import UnitError
@@ -763,10 +764,14 @@ class Plant:
             return float(self._hist[lag, index[tag]]) if tag in index else np.nan
 
         saturated = self._saturated_units(s, active, faults, tags, notes, value)
-        det_held = self._hold_alarms(active, status, faults, tags, notes)
-        settling = self._settle_units(ts, r, active, det_held, status, faults)
+        # Unit.evaluate: [fixed] and [states] before the off-delay, which repeats only an
+        # alarm the unit shows
         fixed = self._fixed_units(ts, status, faults, tags, notes, self._fixed)
         combos = self._fixed_units(ts, status, faults, tags, notes, self._combos)
+        unknown = np.zeros(nu, bool)
+        unknown[list({*fixed, *combos})] = True
+        det_held = self._hold_alarms(active, status, faults, tags, notes, unknown)
+        settling = self._settle_units(ts, r, active, det_held, status, faults)
         out = []
 
         for ui, u in enumerate(units):
@@ -801,6 +806,8 @@ class Plant:
             for said in (combos, fixed):  # Unit.evaluate: the states in a combination never
                 if ui in said:  # learned, a constant tag moved: their texts first
                     why = f"{said[ui]}; {why}" if why else said[ui]
+            if det_held[ui] and status[ui] != NE107.CHECK_FUNCTION:  # an alarm held on
+                why = f"{held_text(u.ev)}; {why}" if why else held_text(u.ev)
             msg = "; ".join([why, *notes[ui]] if why else notes[ui])
             st = NE107(int(status[ui]))
             if not self._has_th[ui]:
@@ -910,18 +917,24 @@ class Plant:
         faults: list[list[str]],
         tags: list[list[tuple[str, float]]],
         notes: list[list[str]],
+        unknown: np.ndarray,
     ) -> np.ndarray:
         """The units' own off-delay (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`), in
         place: a unit out of alarm for fewer than its off-delay's samples repeats its last
-        alarm sample's status, faults and tags. Returns where a unit was held."""
+        alarm sample's status, faults and tags. Returns where a unit was held. ``unknown``:
+        the units made CHECK_FUNCTION by ``[fixed]`` or ``[states]`` on this cycle (already
+        applied): an alarm there is not shown, so neither repeated nor repeating."""
         has = self._alarm_hold.off > 0
         if not has.any():
             return np.zeros(len(has), bool)
+        active = active & ~unknown
         held = self._alarm_hold.sources(active[None, :])[0] == -1  # one row: the last cycle's
         for ui in np.flatnonzero(held):
             last = self._last_alarm.get(int(ui))
             if last is None:
                 held[ui] = False
+                continue
+            if unknown[ui]:  # held, but its diagnosis unknown (Unit.evaluate: CHECK_FUNCTION)
                 continue
             status[ui], faults[ui], tags[ui] = last[0], list(last[1]), list(last[2])
             notes[ui] = [n for n in notes[ui] if not n.startswith("tags: ")]

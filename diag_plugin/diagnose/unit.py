@@ -1250,8 +1250,23 @@ class Unit:
             if (which >= 0).any():
                 self.saturation.name_first(which, sat_text, faults, top, first)
                 saturated = (which >= 0, sat_text)
+        # the states in a combination never learned; a tag constant over the build window
+        # moved: read before the off-delay, which repeats only an alarm the unit shows (one
+        # they make CHECK_FUNCTION, never seen, would surface after it as a FAILURE with no
+        # symptom on and no test to name: issue 34 item 6, run 171 of the pasteuriser)
+        guarded = [
+            guard.transform(frame.index, self._fixed_values(frame, guard))
+            for guard in (self.combos, self.fixed)
+            if guard is not None
+        ]
+        repeated = None
         if self.alarm_hold is not None:
-            detected, status, faults, top = self._hold_alarm(active, detected, status, faults, top)
+            shown = active
+            for held, _ in guarded:
+                shown = shown & ~held
+            detected, status, faults, top, repeated = self._hold_alarm(
+                shown, detected, status, faults, top
+            )
         settled = None
         if self.settle is not None:  # an operator's set-point step: its alarm suppressed
             settled = self._settle(frame.index, cols, r, active, detected, status, faults)
@@ -1277,16 +1292,16 @@ class Unit:
             why = prepend(why, *saturated)
         # the states in a combination never learned; a tag constant over the build window
         # moved (its text first: the more telling)
-        for guard in (self.combos, self.fixed):
-            if guard is None:
-                continue
-            held, text = guard.transform(frame.index, self._fixed_values(frame, guard))
+        for held, text in guarded:
             if held.any():
                 apply_fixed(held, status, faults, detected)
                 if top is not None:  # no tag named where the diagnosis is unknown
                     for c, col in top.items():
                         col[held] = "" if c.startswith("top") else np.nan
                 why = prepend(why, held, text)
+        if repeated is not None and repeated.any():  # an alarm held on: said why
+            said = repeated & (status != NE107.CHECK_FUNCTION)
+            why = prepend(why, said, np.full(n, held_text(self.ev), dtype=object))
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
             if self.ev["combined"] and (self.file.combined is None or self.cmodel.high is None):
@@ -1374,6 +1389,7 @@ class Unit:
         place; a column at a time, not rows of a frame of strings)."""
         src = self.alarm_hold.sources(active)
         held = np.flatnonzero(src >= 0)
+        repeated = src >= 0
         detected, status, faults = detected.copy(), status.copy(), faults.copy()
         if held.size:
             detected[held] = 1.0
@@ -1386,6 +1402,7 @@ class Unit:
         if carried.size and self._last_alarm is not None:
             st, fa, row = self._last_alarm
             detected[carried], status[carried], faults[carried] = 1.0, st, fa
+            repeated[carried] = True
             if top is not None:
                 for c, v in row.items():
                     top[c][carried] = v
@@ -1394,7 +1411,7 @@ class Unit:
             i = on[-1]
             row = {} if top is None else {c: _plain(v[i]) for c, v in top.items()}
             self._last_alarm = (int(status[i]), str(faults[i]), row)
-        return detected, status, faults, top
+        return detected, status, faults, top, repeated
 
     def _hold_isolation(self, iso: np.ndarray, s: np.ndarray, on: np.ndarray, n: int) -> np.ndarray:
         """:class:`~diag_plugin.diagnose.isolation.IsolationHold` over the alarm samples
@@ -1484,6 +1501,12 @@ class _Concat:
 
     def __call__(self) -> pd.DataFrame:
         return pd.concat([p() if callable(p) else p for p in self.parts])
+
+
+def held_text(ev: dict[str, Any]) -> str:
+    """Why a unit is in alarm with no symptom on: its off-delay holds the alarm it showed
+    (the tag named is the alarm's)."""
+    return f"no symptom on: the alarm held for the unit's off-delay ({ev['off_delay_s']:g} s)"
 
 
 def _plain(v):
