@@ -807,7 +807,7 @@ class Plant:
                 if ui in said:  # learned, a constant tag moved: their texts first
                     why = f"{said[ui]}; {why}" if why else said[ui]
             if det_held[ui] and status[ui] != NE107.CHECK_FUNCTION:  # an alarm held on
-                why = f"{held_text(u.ev)}; {why}" if why else held_text(u.ev)
+                why = f"{why}; {held_text(u.ev)}" if why else held_text(u.ev)
             msg = "; ".join([why, *notes[ui]] if why else notes[ui])
             st = NE107(int(status[ui]))
             if not self._has_th[ui]:

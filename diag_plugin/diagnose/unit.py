@@ -1299,9 +1299,12 @@ class Unit:
                     for c, col in top.items():
                         col[held] = "" if c.startswith("top") else np.nan
                 why = prepend(why, held, text)
-        if repeated is not None and repeated.any():  # an alarm held on: said why
-            said = repeated & (status != NE107.CHECK_FUNCTION)
-            why = prepend(why, said, np.full(n, held_text(self.ev), dtype=object))
+        if repeated is not None and repeated.any():  # an alarm held on: said why, after
+            said = repeated & (status != NE107.CHECK_FUNCTION)  # the reasons above (a stop)
+            why = np.asarray(why, dtype=object).copy()
+            text = held_text(self.ev)
+            for i in np.flatnonzero(said):
+                why[i] = f"{why[i]}; {text}" if why[i] else text
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
             if self.ev["combined"] and (self.file.combined is None or self.cmodel.high is None):
