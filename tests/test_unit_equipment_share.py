@@ -93,6 +93,29 @@ def test_a_s_bias_is_found_and_named_on_a_with_both_declared(both, seed):
     assert first.str.startswith("A_").mean() > 0.95, first.value_counts()
 
 
+@pytest.mark.parametrize("seed", [12, 13])
+def test_the_morning_hour_a_carries_alone_raises_no_more_than_on_main(both, seed):
+    """Fault-free, A carries the whole morning load alone (06:30-07:30, before B has started
+    and settled): its T² (1,000-47,000) was in the build's held-out T² on nine of ten days,
+    but the combined threshold's tail fit sat below them all (3,952; main 31,717): fault-free
+    FAILURE 2.99 / 2.78 % on seeds 12 / 13 (main 0.00 / 1.60 %, now 0.00 / 1.67 %), and B's
+    bias named on B's tags first 89 / 90 % (main 96 / 97 %, now 100 / 97 %).
+    :func:`~diag_plugin.learn.budget.calibrate_side` keeps an extrapolated threshold above
+    the episodes the window shows more of than the budget allows."""
+    _, unit = both
+    assert unit.file.combined.high > 20_000, unit.file.combined.high
+    f = _twins(2, seed)
+    d = unit.reset().evaluate(f)
+    after = np.arange(len(f)) >= DAY
+    assert (d.status.to_numpy()[after] == NE107.FAILURE).mean() < 0.02
+    f = _twins(2, seed, "b_bias")
+    d = unit.reset().evaluate(f)
+    judged = after & (f["B_RUN"].to_numpy() > 0)
+    fail = d.status.to_numpy()[judged] == NE107.FAILURE
+    first = pd.Series(d.top["top1"].to_numpy()[judged][fail]).astype(str)
+    assert fail.mean() > 0.9 and first.str.startswith("B_").mean() > 0.95, first.value_counts()
+
+
 def test_the_live_plant_and_pieces_read_the_share_as_the_replay(both):
     """The same statuses over B's start whole, in pieces from a saved state and live."""
     _, unit = both
