@@ -18,6 +18,10 @@ A model input is written as a *spec* (Kościelny et al., eqs. 7–9:
 ``days()[k]``       time in days since 2000-01-01 (slow drift)
 ``const(120.4)[k]`` a fixed number: the set-point of a loop whose set-point
                     is not a tag (``diag unit build --loop PV=120.4:OUT``)
+``share(X,R1,…)``   ``X / (1 + n)``, ``n`` how many of the run tags ``R1, …``
+                    are at 1 (running): a load ``X`` shared by a declared piece
+                    and the other pieces that run (``diag unit build --running``;
+                    NaN where a run tag is)
 ==================  ==========================================================
 
 Frames are pandas DataFrames indexed by a regular timestamp grid, one column
@@ -36,7 +40,9 @@ import pandas as pd
 
 from historian.errors import UserError
 
-FUNCTIONS = {"diff": 2, "rate": 1, "dir": 1, "hour": 0, "days": 0, "const": 0}
+FUNCTIONS = {"diff": 2, "rate": 1, "dir": 1, "hour": 0, "days": 0, "const": 0, "share": 2}
+#: the functions taking at least, not exactly, their number of tags
+VARIADIC = ("share",)
 EPOCH = pd.Timestamp("2000-01-01", tz="UTC")
 #: default move threshold of dir(): this share of the tag's span
 DIR_THRESHOLD_SHARE = 0.005
@@ -99,7 +105,8 @@ class SpecError(UserError, ValueError):
             f"bad input spec {text!r}: {what} (at character {pos + 1})\n"
             f"  {text}\n  {' ' * pos}^\n"
             '  specs: TAG[k], TAG[k-d], "a tag name"[k-d], diff(A,B)[k], rate(TAG)[k-1], '
-            "dir(TAG)[k], dir(TAG,0.5)[k], hour()[k], days()[k], const(120.4)[k]"
+            "dir(TAG)[k], dir(TAG,0.5)[k], hour()[k], days()[k], const(120.4)[k], "
+            "share(LOAD,B_RUN)[k]"
         )
 
 
@@ -188,7 +195,9 @@ class _SpecParser:
                     continue
                 args.append(self.name()[0])
             self.expect(")", "')' closing the arguments")
-            if len(args) != FUNCTIONS[fn]:
+            if fn in VARIADIC and len(args) < FUNCTIONS[fn]:
+                self.fail(f"{fn}() takes at least {FUNCTIONS[fn]} tags, got {len(args)}", fn_at)
+            if fn not in VARIADIC and len(args) != FUNCTIONS[fn]:
                 self.fail(f"{fn}() takes {FUNCTIONS[fn]} tag(s), got {len(args)}", fn_at)
             if fn == "const" and param is None:
                 self.fail("const() takes a number, e.g. const(120.4)[k]", fn_at)
@@ -412,6 +421,9 @@ class _FeatureState:
             return _values(frame, spec.tags[0])
         if spec.fn == "diff":
             return _values(frame, spec.tags[0]) - _values(frame, spec.tags[1])
+        if spec.fn == "share":
+            return shared(_values(frame, spec.tags[0]),
+                          [_values(frame, t) for t in spec.tags[1:]])  # fmt: skip
         if spec.fn == "rate":
             x = _values(frame, spec.tags[0])
             n = rate_samples(spec)
@@ -433,6 +445,17 @@ class _FeatureState:
         if spec.fn == "const":
             return np.full(len(frame), float(spec.param))
         return clock(frame.index, spec.fn)
+
+
+def shared(x: np.ndarray, runs: Sequence[np.ndarray]) -> np.ndarray:
+    """``share(X,R1,…)``: ``x / (1 + n)``, ``n`` how many of ``runs`` (run tags, 1 running,
+    0 stopped: nearer 1 than 0) run; NaN where ``x`` or a run tag is."""
+    n = np.ones_like(np.asarray(x, float))
+    with np.errstate(invalid="ignore"):
+        for r in runs:
+            r = np.asarray(r, float)
+            n = n + np.where(np.isfinite(r), r > 0.5, np.nan)
+    return x / n
 
 
 def clock(index: pd.Index, fn: str) -> np.ndarray:

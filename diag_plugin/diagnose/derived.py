@@ -12,6 +12,8 @@ numbers :class:`~diag_plugin.regressors.DesignBuilder` computes for :meth:`Unit.
 ``rate(T,L)``      ``(T[k] − T[k−L]) / L`` (``L = 1`` for ``rate(T)``): rows 0 and ``L``
 ``diff(A,B)``      ``A[k] − B[k]``
 ``const(v)``       ``v``
+``share(X,R…)``    ``X[k] / (1 + n)``, ``n`` the run tags ``R…`` at 1 (:func:`~diag_plugin.
+                   regressors.shared`)
 ``hour()``         hours since midnight of the cycle's timestamp (:func:`~diag_plugin.
                    regressors.clock`)
 ``days()``         days since 2000-01-01 (:func:`~diag_plugin.regressors.clock`)
@@ -31,10 +33,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from diag_plugin.regressors import InputSpec, clock, rate_samples
+from diag_plugin.regressors import InputSpec, clock, rate_samples, shared
 
 #: the functions the fast path computes (``dir`` only with its threshold written)
-FUNCTIONS = ("", "rate", "diff", "const", "hour", "days", "dir")
+FUNCTIONS = ("", "rate", "diff", "const", "hour", "days", "dir", "share")
 
 
 def stackable(spec: InputSpec) -> bool:
@@ -80,6 +82,8 @@ class DerivedInputs:
         self.rate = (dst("rate"), cols("rate"), samples)
         self.rate_div = samples.astype(float)
         self.diff = (dst("diff"), cols("diff"), cols("diff", 1))
+        self.share = [(c, columns[t[0]], np.array([columns[r] for r in t[1:]], np.intp))
+                      for c, t, _ in by.get("share", [])]  # fmt: skip
         self.const = (dst("const"), np.array([p for _, _, p in by.get("const", [])], float))
         self.clock = [(c, fn) for fn in ("hour", "days") for c, _, _ in by.get(fn, [])]
         self.dir = (dst("dir"), cols("dir"), np.array([p for _, _, p in by.get("dir", [])], float))
@@ -99,6 +103,8 @@ class DerivedInputs:
         dst, a, b = self.diff
         if dst.size:
             hist[0, dst] = hist[0, a] - hist[0, b]
+        for c, x, runs in self.share:
+            hist[0, c] = shared(hist[0, [x]], hist[0, runs][:, None])[0]
         dst, value = self.const
         if dst.size:
             hist[0, dst] = value

@@ -16,7 +16,9 @@ threshold whose episode rate is the budget.
   peaks above a high level are taken as exponential (the generalised Pareto tail of shape 0,
   the limit for Gaussian-like residuals; Davison & Smith, 1990, peaks over threshold with
   declustering), their mean excess ``β`` estimated from the episode counts up the ladder, and
-  the threshold put at ``u + β ln(E(u) / c*)``.
+  the threshold put at ``u + β ln(E(u) / c*)``. Never below a level the window itself
+  crosses :data:`MIN_EPISODES` times or more and more often than the budget explains
+  (:func:`_seen`; the Gaussian model's likewise).
 * **Gaussian** when the window holds fewer than :data:`TAIL_EPISODES` episodes even at a
   moderate level (a window of a few hundred samples, a residual correlated for hours): Rice's
   formula for a stationary Gaussian series, ``E(u) = E(μ) exp(−(u − μ)² / 2σ²)``, with ``E(μ)``
@@ -54,6 +56,9 @@ TAIL_EPISODES = 30
 TAIL_Z = 0.84
 #: thresholds tried per side
 LADDER = 96
+#: an extrapolated threshold is raised where the window shows more episodes above it than
+#: a Poisson count of the budget's reaches but with this probability (:func:`_seen`)
+SEEN_P = 0.01
 
 
 @numba.njit(cache=True)
@@ -148,7 +153,7 @@ def calibrate_side(
         beta = float(np.trapezoid(counts[j:].astype(float), levels[j:])) / e_u
         beta *= e_u / max(e_u - TAIL_Z * math.sqrt(e_u), 1.0)  # upper confidence bound
         if beta > 0:
-            k = u + beta * math.log(e_u / want)
+            k = _seen(u + beta * math.log(e_u / want), levels, counts, want)
             return SideThreshold(float(k), rate, "tail", e_u, False, needed)
     # too few episodes for a tail: a Gaussian series (Rice), episodes counted at the mean,
     # the spread on this side of it (a skewed residual has two)
@@ -162,8 +167,36 @@ def calibrate_side(
     nu = n_eff - 1.0
     ratio = e_mu / want
     z = math.sqrt(nu * (ratio ** (2.0 / (nu + 1.0)) - 1.0)) if ratio > 1 else 1.0
-    k = mu + sd * math.sqrt(1.0 + 1.0 / n_eff) * z
+    k = _seen(mu + sd * math.sqrt(1.0 + 1.0 / n_eff) * z, levels, counts, want)
     return SideThreshold(float(k), rate, "gaussian", e_mu, False, needed)
+
+
+def most_episodes(want: float, p: float = SEEN_P) -> int:
+    """The most episodes a window expecting ``want`` (Poisson) shows but with probability
+    ``p``: the smallest ``c`` with ``P(N > c) <= p``."""
+    c, term = 0, math.exp(-want)
+    total = term
+    while 1.0 - total > p:
+        c += 1
+        term *= want / c
+        total += term
+    return c
+
+
+def _seen(k: float, levels: np.ndarray, counts: np.ndarray, want: float) -> float:
+    """An extrapolated threshold ``k`` (tail or Gaussian), raised to the lowest ``levels``
+    where the window's own episode ``counts`` are no more than the budget's ``want`` explains
+    (:func:`most_episodes`): a fit to the bulk of a series does not see a cluster of episodes
+    far above it (the twin chillers' morning hour, chiller A alone at the whole load before
+    B has started and settled: nine episodes of T² 1,000-38,000 in ten days, a tail fitted
+    below them at 3,558 where the budget allows 1.2), and a threshold the window itself
+    crosses more often than the budget allows is not held to it. Fewer than
+    :data:`MIN_EPISODES` episodes above it never raise it (a short window's few, which the
+    fit weighs)."""
+    ok = np.flatnonzero(counts <= max(most_episodes(want), MIN_EPISODES - 1))
+    if not ok.size:
+        return k
+    return max(k, float(levels[ok[0]]))
 
 
 @dataclass

@@ -94,7 +94,11 @@ from diag_plugin.unitbuild.equipment import (
     foreign_tags,
     map_by_equipment,
     own_inputs_note,
+    share_inputs,
+    share_note,
+    shared_loads,
     short_run_hints,
+    with_shares,
 )
 from diag_plugin.unitbuild.loops import (
     Disturbance,
@@ -505,6 +509,9 @@ class _Context:
         self.vars: dict[str, Variable] = {}
         #: declared loops' set-point tags constant over the window (:meth:`hold_set_point`)
         self.fixed_sp: dict[str, Variable] = {}
+        #: a derived candidate's column name → its spec's base (a piece's shared load,
+        #: ``share(LOAD,B_RUN)``: :func:`~diag_plugin.unitbuild.equipment.with_shares`)
+        self.derived: dict[str, InputSpec] = {}
         for t in frame.columns:
             col = frame[t].to_numpy(float)
             if not np.isfinite(col).any() or np.nanmax(col) == np.nanmin(col):
@@ -532,8 +539,13 @@ class _Context:
         self.fixed_sp[sp] = v if has_range else dc_replace(v, span=self.vars[pv].span)
         return True
 
+    def spec_of(self, tag: str, lag: int = 0) -> InputSpec:
+        """A candidate's spec: a tag's ``TAG[k-lag]``, a derived candidate's its function's."""
+        d = self.derived.get(tag)
+        return InputSpec("", (tag,), lag) if d is None else d.with_lag(lag)
+
     def variable(self, tag: str, lag: int) -> Variable:
-        spec = InputSpec("", (tag,), lag)
+        spec = self.spec_of(tag, lag)
         v = self.vars[tag] if tag in self.vars else self.fixed_sp[tag]
         return dc_replace(v, spec=str(spec), label=v.label)
 
@@ -656,7 +668,7 @@ def select_inputs(
         rmse, cov, c, lag, (ins, cols, fits), _ = best
         chosen.append((c, lag))
         pool.remove(c)
-        choice.steps.append(Step(str(InputSpec("", (c,), lag)), rmse, cov))
+        choice.steps.append(Step(str(ctx.spec_of(c, lag)), rmse, cov))
         current = rmse
         # the winner's block fits as its scoring made them: the next step's base model
         scorer = BlockScorer(FrozenRuleBase(base, ins), cols, y, ctx.block, fitted=fits)
@@ -1382,6 +1394,11 @@ def _build_unit(
         f_e = learnable_for(frame, e).drop(columns=[t for ts in left.values() for t in ts])
         if left:
             eq_notes.append(own_inputs_note(e, left))
+        # the load it carries where the pieces share one: a unit-wide derived input
+        shares = share_inputs(e, eqs, shared_loads([t for t in driven if t in ctx.vars], info))
+        if shares:
+            eq_notes.append(share_note(e, shares))
+        f_e = with_shares(f_e, shares)
         c_e = _Context(f_e, info, period)
         for lp in loops:  # a loop's held set-point, as the window's
             if lp.sp in ctx.fixed_sp:
@@ -1390,6 +1407,7 @@ def _build_unit(
                 c_e.hold_set_point(lp.sp, lp.pv)
         s_e = c_e if plan.factor <= 1 else _Context(short.coarse_frame(f_e, plan.factor), info,
                                                       plan.select_period)  # fmt: skip
+        c_e.derived = s_e.derived = {s.base: s for s in shares}
         ctxs[e.name] = (c_e, s_e, f_e)
 
     def _choice_args(e):

@@ -4,7 +4,7 @@ grouped by the piece whose rows they learn from."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Container, Sequence
+from collections.abc import Callable, Container, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -13,6 +13,7 @@ import tomlkit
 
 from diag_plugin.diagnose.equipment import Equipment, output_tag, owner
 from diag_plugin.diagnose.running import RunCondition
+from diag_plugin.regressors import InputSpec, feature
 from diag_plugin.unitbuild.loops import Loop, Running
 from diag_plugin.unitbuild.runlevels import (
     give_a_value,
@@ -154,8 +155,9 @@ def foreign_tags(
     while it is stopped, never at fault, and is what shares a load between the pieces (a
     chiller's load halves when the other starts: on the twin chillers, both declared,
     chiller A's sensor bias was found on 9-15 % of its samples with the sibling's run tag
-    left out too, 54-61 % with it read; 97-99 % when A's tests read B's power). Tests of
-    no piece read any tag: a header is what the pieces feed."""
+    left out too, 54-61 % with it read; 97-99 % when A's tests read B's power; 99 % with
+    the load A carries, :func:`share_inputs`, offered besides). Tests of no piece read any
+    tag: a header is what the pieces feed."""
     partners = {t for lp in loops if {lp.pv, lp.out} & set(e.tags) for t in (lp.sp, lp.out)}
     out: dict[str, list[str]] = {}
     for other in equipment:
@@ -168,6 +170,50 @@ def foreign_tags(
     return out
 
 
+def share_inputs(
+    e: Equipment, equipment: Sequence[Equipment], unit_wide: Sequence[str]
+) -> list[InputSpec]:
+    """The unit-wide loads shared by ``e`` and the other pieces that run, candidate inputs of
+    ``e``'s tests (issue 34, item 4): ``share(X,R1,…)`` = ``X / (1 + n)`` per unit-wide tag
+    ``X`` in ``unit_wide`` (the declared disturbances: the load, the plant's draw), ``n`` how
+    many of the other pieces run (``R1, …`` their run tags; ``e`` itself runs wherever its
+    tests judge). Two chillers sharing a building's load each cool half of it while both run,
+    all of it alone: the load a chiller carries is ``share(LOAD,B_RUN)``, read without reading
+    the sibling's measurements (its power, which :func:`foreign_tags` keeps out, and which a
+    fault of the sibling's moves). Only run tags that run at 1 and stop at 0 are counted (a
+    mode's levels, a filter's ``STATE=0`` running, are not): none, no share."""
+    runs = tuple(
+        o.rc.tag for o in equipment
+        if o.name != e.name and not o.rc.levels and (o.rc.run, o.rc.stop) == (1.0, 0.0)
+    )  # fmt: skip
+    if not runs:
+        return []
+    return [InputSpec("share", (x, *runs)) for x in unit_wide if x not in runs]
+
+
+#: units of a temperature: a unit-wide tag in one (the room's) is no load the pieces share
+TEMPERATURE_UNITS = frozenset({"degc", "°c", "c", "k", "degf", "°f", "f", "degk"})
+
+
+def shared_loads(tags: Sequence[str], info: Mapping[str, Any]) -> list[str]:
+    """The declared disturbances a share is offered of (:func:`share_inputs`): all but those
+    whose unit is a temperature's (the room's temperature is no load the pieces share; on the
+    compressed-air station ``share(T_AMB,…)`` was chosen as a proxy of how many run)."""
+    unit = {t: str(getattr(info.get(t), "unit", "") or "").strip().lower() for t in tags}
+    return [t for t in tags if unit[t] not in TEMPERATURE_UNITS]
+
+
+def share_note(e: Equipment, shares: Sequence[InputSpec]) -> str:
+    """The build's note, once per piece, naming the shared loads :func:`share_inputs` offered
+    its tests."""
+    runs = ", ".join(shares[0].tags[1:])
+    return (
+        f"{e.name}: its tests may read {', '.join(s.base for s in shares)}: the load over the "
+        f"pieces running, {e.name} and those of {runs} at 1 (what {e.name} carries where the "
+        "pieces share a load, read without the other pieces' measurements)"
+    )
+
+
 def own_inputs_note(e: Equipment, left: dict[str, list[str]]) -> str:
     """The build's note, once per piece, naming the candidate inputs :func:`foreign_tags`
     left out of its tests and why."""
@@ -178,6 +224,15 @@ def own_inputs_note(e: Equipment, left: dict[str, list[str]]) -> str:
         f"stopped and would make {e.name}'s tests fire on its faults; a common cause, the "
         "load, a header, the room, is a unit-wide tag)"
     )
+
+
+def with_shares(frame: pd.DataFrame, shares: Sequence[InputSpec]) -> pd.DataFrame:
+    """``frame`` with a column per shared load (:func:`share_inputs`) under its spec's base
+    (``share(LOAD,B_RUN)``): a piece's candidate input, read as its spec
+    (``_Context.spec_of``)."""
+    if not shares:
+        return frame
+    return frame.assign(**{s.base: feature(frame, s) for s in shares})
 
 
 def equipment_table(equipment: Sequence[Equipment]) -> tomlkit.items.Table:
