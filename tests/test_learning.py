@@ -280,3 +280,14 @@ def test_calibrate_in_worker_processes_gives_the_serial_thresholds():
     got = calibrate(res, "1min", 0.01, on_delay=3, off_delay=3, mapper=pool)
     assert list(got) == list(res.columns)
     assert got == want
+
+
+@pytest.mark.parametrize("want", [0.3, 1.2, 30.0, 700.0, 800.0, 5000.0])
+def test_most_episodes_is_poisson_s_quantile_for_long_windows_too(want):
+    """A year's window at a loose budget expects hundreds of episodes: the count's
+    exp(-want) underflowed past ~745 and the loop never ended (it hangs on 0079691)."""
+    from scipy.stats import poisson
+
+    from diag_plugin.learn.budget import SEEN_P, most_episodes
+
+    assert most_episodes(want) == int(poisson.ppf(1.0 - SEEN_P, want))

@@ -174,12 +174,13 @@ def calibrate_side(
 def most_episodes(want: float, p: float = SEEN_P) -> int:
     """The most episodes a window expecting ``want`` (Poisson) shows but with probability
     ``p``: the smallest ``c`` with ``P(N > c) <= p``."""
-    c, term = 0, math.exp(-want)
-    total = term
+    # each term from its logarithm: exp(-want) underflows to 0 past want ~745 (a year's
+    # window at a loose budget), and a running product from it never grew: the loop never ended
+    c, total = 0, math.exp(-want)
+    log_want = math.log(want) if want > 0 else -math.inf
     while 1.0 - total > p:
         c += 1
-        term *= want / c
-        total += term
+        total += math.exp(c * log_want - want - math.lgamma(c + 1))
     return c
 
 
