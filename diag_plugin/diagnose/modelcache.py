@@ -113,7 +113,7 @@ class ModelCache:
                 np.savez(f, meta=np.frombuffer(text, np.uint8), **arrays)
             os.replace(tmp, self.folder / f"{self.key(data)}.npz")
             tmp = None
-        except OSError:
+        except (OSError, ValueError):  # a full disk, a read-only home: not kept, not fatal
             pass
         finally:
             if tmp is not None:

@@ -1302,9 +1302,8 @@ class Unit:
         if repeated is not None and repeated.any():  # an alarm held on: said why, after
             said = repeated & (status != NE107.CHECK_FUNCTION)  # the reasons above (a stop)
             why = np.asarray(why, dtype=object).copy()
-            text = held_text(self.ev)
-            for i in np.flatnonzero(said):
-                why[i] = f"{why[i]}; {text}" if why[i] else text
+            text, had = held_text(self.ev), why[said]
+            why[said] = np.where(had.astype(bool), had + f"; {text}", text)
         if not self.has_thresholds:
             missing = [t.name for t in self.file.tests if t.high is None]
             if self.ev["combined"] and (self.file.combined is None or self.cmodel.high is None):
