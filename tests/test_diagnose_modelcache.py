@@ -134,3 +134,48 @@ def test_diag_diagnose_keeps_the_models_and_says_the_same(tmp_path, capsys, monk
     assert '"FAILURE"' in out[0][0]
     assert len(list(cache.glob("*.npz"))) >= 4
     assert cache.stat().st_mode & 0o077 == 0
+
+
+def test_a_folder_others_may_write_is_not_trusted(station, tmp_path, caplog):
+    """An existing cache folder that others may write to (a model planted there would be
+    believed) is not used: nothing read from it, nothing written, the reason logged once,
+    and the unit loads from its files as without a cache."""
+    path, folder = station
+    shared = tmp_path / "models"
+    shared.mkdir(mode=0o700)
+    ModelCache(shared)  # made by its owner: trusted
+    assert ModelCache(shared).usable()
+    Unit.load(path, folder, store=ModelCache(shared))
+    planted = sorted(shared.glob("*.npz"))
+    assert planted
+    shared.chmod(0o777)
+    store = ModelCache(shared)
+    for f in planted:
+        f.write_bytes(b"planted")
+    with caplog.at_level("WARNING", logger="diag_plugin.diagnose.modelcache"):
+        loaded = Unit.load(path, folder, store=store)
+        Unit.load(path, folder, store=store)
+    assert not store.usable()
+    said = [r.getMessage() for r in caplog.records if "not used" in r.getMessage()]
+    assert len(said) == 1 and "777" in said[0], said
+    assert all(f.read_bytes() == b"planted" for f in planted)  # nothing written over
+    _same_models(Unit.load(path, folder), loaded)
+    shared.chmod(0o700)
+
+
+def test_the_key_covers_every_module_a_model_is_read_with(station, tmp_path):
+    """Each module of the rule-base reader, the models' codecs and the fuzzy models that
+    loading a unit imports is part of the key: a change to any of them is a new key."""
+    import sys
+
+    path, folder = station
+    Unit.load(path, folder, store=ModelCache(tmp_path / "models"))
+    root = Path(__file__).resolve().parents[1] / "diag_plugin"
+    used = {
+        Path(m.__file__).resolve().relative_to(root).as_posix()
+        for name, m in list(sys.modules.items())
+        if name.startswith(("diag_plugin.fuzzy.", "diag_plugin.models.", "diag_plugin.rulebase."))
+        and getattr(m, "__file__", None)
+    }
+    assert used
+    assert used <= set(ModelCache.code_files()), sorted(used - set(ModelCache.code_files()))

@@ -7,44 +7,48 @@ Wang–Mendel model read once is kept as a NumPy ``.npz`` file — its exact sta
 arrays), the conclusions as written in the file and the test's variables as JSON text —
 and loaded with ``allow_pickle=False``: no Python object is ever unpickled from it.
 
-The key is the SHA-256 of the file's bytes and of the source of the modules that turn a file
-into a model (:data:`CODE`): an edited file, or a changed parser, is a new key. Only a file
+The key is the SHA-256 of the file's bytes and of the source of the code that turns a file
+into a model (every module of the packages in :data:`CODE_PACKAGES` and the modules in
+:data:`CODE`): an edited file, or changed code there, is a new key. Only a file
 read without problems is kept (a broken one is read, and reported, every time); other
 methods than Wang–Mendel's are read as before. An entry that cannot be read is ignored and
 written again; one that cannot be written (a read-only home) is simply not kept.
 
 Where: ``$DIAG_MODEL_CACHE`` (a folder), or ``off`` (also ``0``, ``no``, empty) for no cache;
 by default ``$XDG_CACHE_HOME/diag-plugin/models`` (``~/.cache/diag-plugin/models``), made
-readable by its owner alone. Entries are a few tens of kB; delete the folder at any time.
+readable by its owner alone. A folder that already exists is used only if it is owned by the
+user running the command and no one else may write to it (a model planted there would be
+trusted); otherwise the cache is not used and the command says why once (logging). Entries are
+a few tens of kB; delete the folder at any time.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
+import stat
 import tempfile
 from pathlib import Path
 from typing import Any
 
 #: the entries' layout; a new value is a new key for every file
 FORMAT = "diag-model-cache 1"
-#: the modules whose source is part of the key (relative to the ``diag_plugin`` package)
+#: packages (relative to ``diag_plugin``) every module of which is part of the key: the rule-base
+#: reader, the models' codecs and the fuzzy models themselves
+CODE_PACKAGES = ("rulebase", "models", "fuzzy")
+#: single modules whose source is part of the key (relative to the ``diag_plugin`` package)
 CODE = (
-    "rulebase/document.py",
-    "models/codec.py",
-    "models/spec.py",
-    "models/registry.py",
     "regressors.py",
     "tomllines.py",
-    "fuzzy/wm_codec.py",
-    "fuzzy/wang_mendel.py",
-    "fuzzy/partition.py",
     "diagnose/unit.py",
     "diagnose/modelcache.py",
 )
 #: ``$DIAG_MODEL_CACHE`` values that turn the cache off
 OFF = ("", "0", "off", "no", "false")
+
+log = logging.getLogger(__name__)
 
 
 def default_folder() -> Path | None:
@@ -62,17 +66,61 @@ class ModelCache:
     def __init__(self, folder: str | Path) -> None:
         self.folder = Path(folder)
         self._code: bytes | None = None
+        self._safe: bool | None = None
 
     @classmethod
     def default(cls) -> ModelCache | None:
         folder = default_folder()
         return None if folder is None else cls(folder)
 
+    def usable(self) -> bool:
+        """Whether the folder may be trusted: absent (it is made owner-only), or a folder owned
+        by this user that no one else may write to. Checked once; the reason is logged."""
+        if self._safe is None:
+            self._safe = True
+            try:
+                st = os.stat(self.folder)
+            except FileNotFoundError:
+                return True
+            except OSError as e:
+                why = f"cannot be read ({e.strerror})"
+                self._safe = False
+            else:
+                mine = not hasattr(os, "getuid") or st.st_uid == os.getuid()
+                if not stat.S_ISDIR(st.st_mode):
+                    why = "is not a folder"
+                    self._safe = False
+                elif not mine:
+                    why = f"is owned by user id {st.st_uid}, not this user"
+                    self._safe = False
+                elif st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+                    why = f"may be written by others (mode {stat.S_IMODE(st.st_mode):o})"
+                    self._safe = False
+            if not self._safe:
+                log.warning(
+                    "model cache %s not used: it %s; rule bases are read from their files "
+                    "(chmod go-w the folder, or set DIAG_MODEL_CACHE)",
+                    self.folder,
+                    why,
+                )
+        return self._safe
+
+    @staticmethod
+    def code_files() -> list[str]:
+        """The sources in the key (relative to ``diag_plugin``), in a fixed order."""
+        root = Path(__file__).resolve().parents[1]
+        rels = [
+            p.relative_to(root).as_posix()
+            for pkg in CODE_PACKAGES
+            for p in (root / pkg).glob("*.py")
+        ]
+        return sorted(rels) + list(CODE)
+
     def _code_digest(self) -> bytes:
         if self._code is None:
             root = Path(__file__).resolve().parents[1]
             h = hashlib.sha256(FORMAT.encode())
-            for rel in CODE:
+            for rel in self.code_files():
                 h.update(rel.encode() + b"\0")
                 try:
                     h.update((root / rel).read_bytes())
@@ -89,6 +137,8 @@ class ModelCache:
         """What :meth:`put` kept for a file of these bytes, or None."""
         import numpy as np
 
+        if not self.usable():
+            return None
         path = self.folder / f"{self.key(data)}.npz"
         try:
             with np.load(path, allow_pickle=False) as z:
@@ -104,6 +154,8 @@ class ModelCache:
         """Keep ``meta`` (JSON) and ``arrays`` for a file of these bytes; errors are ignored."""
         import numpy as np
 
+        if not self.usable():
+            return
         text = json.dumps({**meta, "format": FORMAT}, allow_nan=True).encode("utf-8")
         tmp = None
         try:
