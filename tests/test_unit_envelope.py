@@ -18,6 +18,7 @@ import json
 import re
 
 import numpy as np
+import pandas as pd
 import pytest
 import tomlkit
 
@@ -279,3 +280,77 @@ def test_accept_relearns_the_envelope_over_every_window(station, tmp_path):
     rollback(work / "station.unit.toml")
     back = Unit.load(work / "station.unit.toml", work).file.envelope["state"]
     assert back == unit.file.envelope["state"]
+
+
+def _accepted(unit: Unit, tmp_path, build: pd.DataFrame, more: pd.DataFrame, period: str):
+    """``unit`` copied to ``tmp_path`` and ``more`` (shifted past ``build``, the build's own
+    window) accepted into it: the accept's result, the unit after it, and the copy's path."""
+    import shutil
+
+    from diag_plugin.unitbuild.accept import accept
+
+    work = tmp_path / "u"
+    shutil.copytree(unit.file.path.parent, work)
+    path = work / unit.file.path.name
+    u = Unit.load(path, work)
+    both = pd.concat([build, more])
+
+    def read(a, b):
+        yield both.iloc[both.index.searchsorted(a) : both.index.searchsorted(b)]
+
+    res = accept(u, read, more.index[0], more.index[-1] + pd.Timedelta(period))
+    return res, Unit.load(path, work), path
+
+
+def test_accept_relearns_a_piece_s_envelope_from_its_own_starts(twin, tmp_path):
+    """A piece's envelope (``[envelope.B]``, chiller B and its loop's tests; not a ``[build]
+    states`` tag): ``diag unit accept`` of three more fault-free days (seed 9, B starting at
+    07:00 on each) learns it again over B's 10 + 3 starts, every bin at least its threshold
+    widened by 3/√13. On main it counted 14: the missing rows between the build's window and
+    the accepted one (the run tag NaN, read as running) a start of B of 101 rows. A rollback
+    puts the build's envelope back; B's fault at its start is still raised before its bound."""
+    from diag_plugin.unitbuild.accept import rollback
+
+    unit, *_ = twin
+    more = twinplant.simulate(3, 9)
+    more.index = more.index + pd.Timedelta(days=12)
+    runs = more["B_RUN"].to_numpy() > 0.5
+    n = 10 + int((runs & ~np.r_[True, runs[:-1]]).sum())
+    assert n == 13
+    res, after, path = _accepted(unit, tmp_path, twinplant.simulate(10, 1), more, "1min")
+    env = after.file.envelope["B"]
+    assert env.starts == n, env.starts
+    assert res.envelope == after.file.build["envelope"]
+    assert res.envelope[0].startswith(f"[envelope.B]: an envelope from {n} fault-free change(s)")
+    assert set(env.tests) == {after.tests[j] for j in after.equipment_tests[0]}
+    assert all(v >= 1 + 3 / np.sqrt(n) - 1e-3 for b in env.tests.values() for v in b)
+    start = DAY + 7 * 60
+    f = twinplant.simulate(2, 10, "b_bias", onset_days=(DAY + 6 * 60) / DAY)
+    fail = np.flatnonzero(after.reset().evaluate(f).status.to_numpy()[start:] == NE107.FAILURE)
+    assert fail.size and fail[0] <= after.equipment_holds[0] - 15, fail[:3]
+    rollback(path)
+    assert Unit.load(path, path.parent).file.envelope["B"] == unit.file.envelope["B"]
+
+
+def test_accept_relearns_the_run_condition_s_envelope(tmp_path):
+    """The unit-wide run condition's starts and stops (the air-handling fan of
+    tests/fanplant.py, ``--running FAN_RUN``: ``[envelope.state]`` from no ``[build] states``
+    tag): accepting three more days (seed 9) adds their changes, read from the run tag as
+    read (the learning frame has it NaN where the unit is stopped), to the build's."""
+    from diag_plugin.unitbuild.loops import Loop, Running
+    from tests import fanplant
+
+    build = fanplant.simulate(12, 1)
+    res = build_unit("fan", build, folder=tmp_path / "b", period="5min", far=0.01,
+                     running=Running("FAN_RUN"), loops=[Loop("DP", "DP_SP", "FAN_SPD")],
+                     disturbances=["T_OUT"])  # fmt: skip
+    unit = Unit.load(res.path, tmp_path / "b")
+    assert not (unit.file.build or {}).get("states")
+    before = unit.file.envelope["state"].starts
+    more = fanplant.simulate(3, 9)
+    more.index = more.index + pd.Timedelta(days=20)
+    changes = int((np.diff(more["FAN_RUN"].to_numpy()) != 0).sum())
+    got, after, _ = _accepted(unit, tmp_path, build, more, "5min")
+    n = after.file.envelope["state"].starts
+    assert before < n <= before + changes, (before, n, changes)
+    assert got.envelope[0].startswith(f"[envelope.state]: an envelope from {n} fault-free")

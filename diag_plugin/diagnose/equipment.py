@@ -39,7 +39,10 @@ file keeps one table per piece::
   start's envelope (``[envelope.NAME]``, :mod:`~.envelope`) for the on-delay; the rest of
   the unit answers on (a run tag
   its models read, a ``[build] states`` tag, is no state change of the unit-wide settle
-  guard, :mod:`~diag_plugin.diagnose.settle`).
+  guard, :mod:`~diag_plugin.diagnose.settle`). A piece found running on the first sample
+  with no history (a replay's, a fresh live start's lead-in: :data:`UNKNOWN_AGE`) is a
+  start of unknown age: its settle opens there; a restart from a saved state goes on from
+  the carried one.
 - The summaries count its samples off on their own, not as unknown: ``diag unit show``'s
   ``off`` beside ``unknown`` (``[learned]`` ``off``, ``off_equipment``), ``diag diagnose``'s
   ``equipment_off`` (``Diagnosis.equipment``: per sample running, stopped or settling).
@@ -164,10 +167,20 @@ def learnable_for(frame: pd.DataFrame, eq: Equipment | None) -> pd.DataFrame:
 RUNNING, STOPPED, SETTLING = 0, 1, 2
 
 
+#: ``before`` of :func:`since_start` from rest (no sample before, a replay's or a fresh live
+#: start's first): a piece running there started at an unknown time, and is taken as
+#: starting there (its settle opens; the build's thresholds leave each run's first samples
+#: out likewise, :func:`~diag_plugin.learn.thresholds.settled`). The compressed-air station
+#: (docs/explanation/acceptance-compressors.md): C3 running cold on a judged run's first
+#: sample, its discharge temperature 31 °C rising to 64 in 9 min, was judged at once: FAILURE
+UNKNOWN_AGE = -2
+
+
 def since_start(runs: np.ndarray, before: int) -> np.ndarray:
     """Per sample the samples since the piece last started (0 on the start's sample), -1
     where it is stopped; ``before``: the same at the sample before the piece (carried: -1
-    stopped, large when running long)."""
+    stopped, large when running long; :data:`UNKNOWN_AGE` from rest, so that a piece running
+    on the first sample starts there)."""
     n = runs.size
     idx = np.arange(n)
     prev = np.r_[before >= 0, runs[:-1]]

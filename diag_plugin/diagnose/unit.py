@@ -52,6 +52,7 @@ from diag_plugin.diagnose.envelope import scaled
 from diag_plugin.diagnose.equipment import (
     DONE,
     SETTLING,
+    UNKNOWN_AGE,
     PieceState,
     members,
     off_mask,
@@ -765,8 +766,9 @@ class Unit:
         self._last_alarm: tuple | None = None  # (status, faults, top row) the hold repeats
         self.seen = 0  # samples since the start (the warm-up)
         self.was_running = True  # the last sample's run condition (running.py)
-        #: per piece of equipment the samples since its last start (equipment.py)
-        self.eq_since = np.full(len(getattr(self, "equipment", ())), 1 << 40, np.int64)
+        #: per piece of equipment the samples since its last start (equipment.py); from
+        #: rest UNKNOWN_AGE: a piece running at the first sample starts there
+        self.eq_since = np.full(len(getattr(self, "equipment", ())), UNKNOWN_AGE, np.int64)
         #: per piece the samples in a row none of its tests was on since its start
         self.eq_quiet = np.full(len(getattr(self, "equipment", ())), DONE, np.int64)
         #: per piece what its envelope carries (equipment.py)
@@ -866,8 +868,10 @@ class Unit:
         if self.saturation is not None and state.get("saturation") is not None:
             self.saturation.load_state(state["saturation"])
         self.was_running = bool(state.get("running", True))  # saved before it: running
-        if len(state.get("equipment") or []) == len(self.eq_since):  # else: running long
+        if len(state.get("equipment") or []) == len(self.eq_since):
             self.eq_since = np.asarray(state["equipment"], np.int64)
+        else:  # a state saved before it: running long (not a start of unknown age)
+            self.eq_since = np.full(len(self.eq_since), 1 << 40, np.int64)
         if len(state.get("equipment_quiet") or []) == len(self.eq_quiet):  # else: none open
             self.eq_quiet = np.asarray(state["equipment_quiet"], np.int64)
         self.eq_env.load_state(state.get("equipment_envelope"))  # saved before it: from rest

@@ -518,6 +518,23 @@ def settle_bounds(unit, frame, residuals=None) -> list[tuple[str, str, float, st
     return out
 
 
+def piece_starts(rc, values):
+    """Per sample whether a piece runs (its run condition ``rc`` on the run tag's ``values``;
+    a missing value counts as running, as judged) and the samples it starts on: running and
+    known, the sample before known and stopped. A start seen only across missing values (a
+    historian's gap, the join of ``diag unit accept``'s windows) is of unknown age and not
+    one of the window's starts: counted, it was one more fault-free start of the envelope
+    (:func:`settle_envelopes`; the twin chillers' accept counted 14 where B started 13
+    times, the NaN rows between the two windows a start of 101 rows)."""
+    import numpy as np
+
+    v = np.asarray(values, float)
+    runs = rc.runs(v)
+    known = np.isfinite(v)
+    before = np.r_[False, known[:-1] & ~runs[:-1]]
+    return runs, np.flatnonzero(runs & known & before)
+
+
 def piece_settle_bounds(unit, frame, residuals=None) -> list[tuple[str, float | None, str]]:
     """Per piece of equipment (``[equipment]``, :mod:`diag_plugin.diagnose.equipment`) the
     bound of its start's settle, measured on the window ``frame`` (models' tag names, its
@@ -542,8 +559,7 @@ def piece_settle_bounds(unit, frame, residuals=None) -> list[tuple[str, float | 
     for e, cols in zip(eqs, unit.equipment_tests, strict=True):
         if not cols.size or e.rc.tag not in frame.columns:
             continue
-        runs = e.rc.runs(frame[e.rc.tag].to_numpy(float))
-        starts = np.flatnonzero(runs & ~np.r_[True, runs[:-1]])
+        runs, starts = piece_starts(e.rc, frame[e.rc.tag].to_numpy(float))
         stops = np.flatnonzero(~runs)
         times: list[float] = []
         moved = 0
@@ -1042,8 +1058,7 @@ def settle_envelopes(
         hold_s = pieces.get(e.name) or unit_s
         if not cols.size or e.rc.tag not in frame.columns or not hold_s > 0:
             continue
-        runs = e.rc.runs(frame[e.rc.tag].to_numpy(float))
-        starts = np.flatnonzero(runs & ~np.r_[True, runs[:-1]])
+        runs, starts = piece_starts(e.rc, frame[e.rc.tag].to_numpy(float))
         stops = np.flatnonzero(~runs)
         changes = []
         for i in starts:
