@@ -64,6 +64,40 @@ def held_combos(frame: pd.DataFrame, tags: Sequence[str], held_s: float) -> list
     the combination). A row where a state has no value ends a run and starts none; so does a
     spacing of more than twice the median (the row after a hole starts a run). Sorted as
     written."""
+    need = int(round(float(held_s) * 1e9))
+    return sorted({c for c, ns in combo_runs(frame, tags) if ns >= need})
+
+
+#: a combination visited this many times in the window, each visit shorter than ``held_s``,
+#: is learned where the unit has a state settle (:func:`visited_combos`)
+MIN_VISITS = 2
+
+
+def visited_combos(
+    frame: pd.DataFrame, tags: Sequence[str], held_s: float, least_s: float
+) -> list[str]:
+    """The combinations of ``tags`` in ``frame`` never held ``held_s`` in one run but visited
+    :data:`MIN_VISITS` times or more for ``least_s`` (the unit's on-delay: a switch passing
+    through one for less raises nothing) each, sorted: a short state the plant returns to (a
+    CIP's rinse, 10 min, three a CIP; the start's diversion), whose changes the state settle
+    holds (issue 34 item 5, ``i34-cip``). A visit shorter than the quiet time teaches the
+    models nothing of its own, but it is one the plant makes: the unit judges it through the
+    settle its change opens rather than naming it never learned on every visit."""
+    need = int(round(float(held_s) * 1e9))
+    least = int(round(float(least_s) * 1e9))
+    runs = combo_runs(frame, tags)
+    held = {c for c, ns in runs if ns >= need}
+    count: dict[str, int] = {}
+    for c, ns in runs:
+        if c not in held and ns >= least:
+            count[c] = count.get(c, 0) + 1
+    return sorted(c for c, k in count.items() if k >= MIN_VISITS)
+
+
+def combo_runs(frame: pd.DataFrame, tags: Sequence[str]) -> list[tuple[str, int]]:
+    """The runs of one combination of ``tags`` in ``frame``, in time order: ``(combination,
+    its length in ns)`` each (:func:`held_combos`' rule; rows where a state has no value
+    none)."""
     x = frame[list(tags)].to_numpy(float)
     if not len(x):
         return []
@@ -78,12 +112,8 @@ def held_combos(frame: pd.DataFrame, tags: Sequence[str], held_s: float) -> list
     starts = np.flatnonzero(change)
     last = np.r_[starts[1:] - 1, len(t) - 1]  # each run's last row
     ends_t = np.minimum(np.r_[t[starts[1:]], t[-1] + step], t[last] + step)
-    out = set()
-    need = int(round(float(held_s) * 1e9))
-    for a, e in zip(starts.tolist(), ends_t.tolist(), strict=True):
-        if ok[a] and e - t[a] >= need:
-            out.add(combo_text(x[a]))
-    return sorted(out)
+    return [(combo_text(x[a]), e - t[a])
+            for a, e in zip(starts.tolist(), ends_t.tolist(), strict=True) if ok[a]]  # fmt: skip
 
 
 class CombosGuard(FixedGuard):
