@@ -897,7 +897,9 @@ def _quantile_and_how(
     import numpy as np
 
     if censored:  # the changes that did not settle in their visit: censored (km_quantile)
-        return _censored_and_how(key, what, times, censored, unit)
+        got = _censored_and_how(key, what, times, censored, unit)
+        if got is not None:
+            return got
     if not times or 2 * len(times) < judged:
         return _max_and_how(key, what, times, judged, unit)
     from diag_plugin.diagnose.settle import quiet_samples
@@ -918,16 +920,18 @@ def _quantile_and_how(
 
 def _censored_and_how(
     key: str, what: str, times: list[float], censored: list[float], unit
-) -> tuple[float, str]:
+) -> tuple[float, str] | None:
     """A state's settle bound where some of the window's changes did not settle before the
     next change (a CIP's 10 min rinse at a 760 s quiet time; issue 34 item 5, ``i34-cip``):
     the :data:`STATE_SETTLE_QUANTILE` quantile of the settling time by :func:`km_quantile`,
     each such change censored at its visit less the quiet time, plus the quiet time. A short
     visit tells only that its change had not settled by then; the changes into the long
     ones say how long the plant takes. Where the estimate never reaches the quantile (none
-    settled, or the visits end before the slow ones would): :func:`_max_and_how`'s fallback.
-    Before, fewer than half settled was the fallback, and a unit whose states no model read
-    learned none (the pasteuriser at 10 s)."""
+    settled, or the visits end before the slow ones would): None, and the rule as before
+    (:func:`_quantile_and_how`: the settled ones' quantile where at least half settled, else
+    :func:`_max_and_how`'s fallback; the pumping station's starts, whose one change that did
+    not settle before the stop is censored late, keep their bound). Before, a unit whose
+    states no model read learned none (the pasteuriser at 10 s)."""
     import numpy as np
 
     from diag_plugin.diagnose.settle import quiet_samples
@@ -935,7 +939,7 @@ def _censored_and_how(
     slow = km_quantile(times, censored, STATE_SETTLE_QUANTILE)
     judged = len(times) + len(censored)
     if slow is None:
-        return _max_and_how(key, what, times, judged, unit)
+        return None
     quiet_s = quiet_samples(unit) * unit.period_s
     value = slow + quiet_s
     seen = ", ".join(f"{t:.0f}" for t in np.sort(np.asarray(times, float)))
