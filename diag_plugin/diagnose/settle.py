@@ -220,13 +220,16 @@ def unit_combos(unit: Any) -> dict[str, list[tuple[float, float]]]:
     plant: the pasteuriser at 10 s reads neither its ``MODE`` nor its diversion valve in any
     model (their effects, the flow's set-point, are read), and its CIP's changes opened no
     settle (issue 34 item 5, ``i34-cip``). A state a model reads is watched over the range
-    its models learned it in (:func:`state_tags`); ``{}`` without the table."""
+    its models learned it in (:func:`state_tags`); a piece of equipment's run tag is not
+    (its start holds its own tests, :mod:`~.equipment`); ``{}`` without the table."""
     from diag_plugin.diagnose.combos import parse_combo
 
     st = getattr(unit.file, "states", None) or {}
     tags = [str(t) for t in st.get("tags", ())]
     rows = [r for r in (parse_combo(c, len(tags)) for c in st.get("seen", ())) if r is not None]
     read = set(unit.model_tags)
+    # a piece of equipment's run tag is no such state: its start holds its own tests
+    read |= {e.rc.tag for e in getattr(unit.file, "equipment", None) or ()}
     out = {}
     for j, tag in enumerate(tags):
         vals = [r[j] for r in rows]
