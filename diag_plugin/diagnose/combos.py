@@ -64,6 +64,55 @@ def held_combos(frame: pd.DataFrame, tags: Sequence[str], held_s: float) -> list
     the combination). A row where a state has no value ends a run and starts none; so does a
     spacing of more than twice the median (the row after a hole starts a run). Sorted as
     written."""
+    need = int(round(float(held_s) * 1e9))
+    return sorted({c for c, ns, _, _ in combo_runs(frame, tags) if ns >= need})
+
+
+#: a combination visited this many times in the window, each visit shorter than ``held_s``,
+#: is learned where the unit has a state settle (:func:`visited_combos`)
+MIN_VISITS = 2
+
+
+def visited_combos(
+    frame: pd.DataFrame, tags: Sequence[str], held_s: float, least_s: float
+) -> list[str]:
+    """The combinations of ``tags`` in ``frame`` never held ``held_s`` in one run but visited
+    :data:`MIN_VISITS` times or more for ``least_s`` (the unit's on-delay: a switch passing
+    through one for less raises nothing) each, and never as a step of a sequence, sorted: a
+    short state the plant returns to (a CIP's rinse, 10 min, three a CIP; a filter's
+    backwash), whose changes the state settle holds (issue 34 item 5, ``i34-cip``). A visit
+    shorter than the quiet time teaches the models nothing of its own, but it is one the
+    plant makes: the unit judges it through the settle its change opens rather than naming
+    it never learned on every visit.
+
+    A visit entered through one state's change and left through another's, none changing at
+    both ends (a production start's diversion: ``MODE`` 0 → 1, then the diversion valve
+    forward minutes later), is a step inside a sequence, not a state: a combination with
+    such a visit is not learned (it stays CHECK_FUNCTION while it lasts). Learned, the
+    pasteuriser's start at 1 s showed the start's alarm over the diversion, FAILURE 0.62 →
+    0.95 % of each fault-free day; its rinses (``MODE`` in and out) are learned."""
+    need = int(round(float(held_s) * 1e9))
+    least = int(round(float(least_s) * 1e9))
+    runs = combo_runs(frame, tags)
+    held = {c for c, ns, _, _ in runs if ns >= need}
+    count: dict[str, int] = {}
+    transit: set[str] = set()
+    for c, ns, came, left in runs:
+        if c in held or ns < least:
+            continue
+        count[c] = count.get(c, 0) + 1
+        if came.any() and left.any() and not (came & left).any():
+            transit.add(c)
+    return sorted(c for c, k in count.items() if k >= MIN_VISITS and c not in transit)
+
+
+def combo_runs(
+    frame: pd.DataFrame, tags: Sequence[str]
+) -> list[tuple[str, int, np.ndarray, np.ndarray]]:
+    """The runs of one combination of ``tags`` in ``frame``, in time order: ``(combination,
+    its length in ns, the states whose change began it, those whose change ended it)`` each
+    (:func:`held_combos`' rule; rows where a state has no value none; the masks all False
+    at the frame's ends, a hole or a row without a value)."""
     x = frame[list(tags)].to_numpy(float)
     if not len(x):
         return []
@@ -74,16 +123,19 @@ def held_combos(frame: pd.DataFrame, tags: Sequence[str], held_s: float) -> list
     step = int(np.median(dt)) if len(t) > 1 else 0
     ok = np.isfinite(x).all(axis=1)
     hole = dt > 2 * step
-    change = np.r_[True, (x[1:] != x[:-1]).any(axis=1) | (ok[1:] != ok[:-1]) | hole]
+    moved = (x[1:] != x[:-1]) & (ok[1:] & ok[:-1] & ~hole)[:, None]
+    change = np.r_[True, moved.any(axis=1) | (ok[1:] != ok[:-1]) | hole]
     starts = np.flatnonzero(change)
     last = np.r_[starts[1:] - 1, len(t) - 1]  # each run's last row
     ends_t = np.minimum(np.r_[t[starts[1:]], t[-1] + step], t[last] + step)
-    out = set()
-    need = int(round(float(held_s) * 1e9))
-    for a, e in zip(starts.tolist(), ends_t.tolist(), strict=True):
-        if ok[a] and e - t[a] >= need:
-            out.add(combo_text(x[a]))
-    return sorted(out)
+    none = np.zeros(len(tags), bool)
+    out = []
+    for a, b, e in zip(starts.tolist(), last.tolist(), ends_t.tolist(), strict=True):
+        if ok[a]:
+            came = moved[a - 1] if a > 0 else none
+            left = moved[b] if b < len(moved) else none
+            out.append((combo_text(x[a]), e - t[a], came, left))
+    return out
 
 
 class CombosGuard(FixedGuard):

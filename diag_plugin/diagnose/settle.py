@@ -46,7 +46,8 @@ alarm: the unit's judgement goes on.
   guard answers.
 
 - **A state change** (a discrete state the build listed in ``[build] states``, read by a model:
-  a pump's or a motor's run feedback; ``state_settle_max_s`` > 0): the same step rule on the
+  a pump's or a motor's run feedback, or one of ``[states]`` no model reads, a plant's mode;
+  ``state_settle_max_s`` > 0): the same step rule on the
   state's reading (held, a jump beyond :data:`STATE_BAND_SHARE` of the range the models
   learned it in, held again) opens a settle as a hand valve's move does, its why ``PMP3_ON 0
   → 1 at …: settling after a state change``; it ends when no test is on for the quiet time
@@ -180,11 +181,14 @@ def hand_valves(unit: Any) -> list[SettleLoop]:
 def state_tags(unit: Any) -> list[SettleLoop]:
     """The discrete states of ``unit`` (``[build] states``, model tag names) its models read,
     as the guard watches them: a change beyond :data:`STATE_BAND_SHARE` of the range its
-    models learned it in (the union over the tests reading it), to a value within it."""
+    models learned it in (the union over the tests reading it), to a value within it; and
+    the ``[states]`` tags no model reads, over the values ``seen`` holds them at
+    (:func:`unit_combos`)."""
     from diag_plugin.diagnose.operating import learned_ranges
 
     read = set(unit.model_tags)
     states = [str(x) for x in (unit.file.build or {}).get("states", []) if str(x) in read]
+    combos = unit_combos(unit)
     rc = getattr(unit.file, "running", None)
     out = []
     if rc is not None:  # the run condition (diagnose/running.py): a start is a state change
@@ -192,11 +196,13 @@ def state_tags(unit: Any) -> list[SettleLoop]:
         pv = unit.file.tags.get(rc.tag, rc.tag)
         band = STATE_BAND_SHARE * (hi - lo)
         out.append(SettleLoop(rc.tag, pv, -1, 0.0, 0.0, band, span=(lo, hi), state=True))
-    if not states:
+    if not states and not combos:
         return out
     ranges = learned_ranges(unit.models, unit.tests)
-    for tag in states:
-        got = [(r.lo, r.hi) for r in ranges if r.tag == tag]
+    # a state no model reads, of the [states] table: over the values the table holds it at
+    taken = {*states, *([rc.tag] if rc is not None else [])}
+    for tag in [*states, *(t for t in combos if t not in taken)]:
+        got = [(r.lo, r.hi) for r in ranges if r.tag == tag] or combos.get(tag, [])
         if not got:
             continue  # read only through a derived input: no learned range
         lo, hi = min(a for a, _ in got), max(b for _, b in got)
@@ -205,6 +211,30 @@ def state_tags(unit: Any) -> list[SettleLoop]:
             continue
         pv = unit.file.tags.get(tag, tag)
         out.append(SettleLoop(tag, pv, -1, 0.0, 0.0, band, span=(lo, hi), state=True))
+    return out
+
+
+def unit_combos(unit: Any) -> dict[str, list[tuple[float, float]]]:
+    """The unit's ``[states]`` tags (:mod:`~.combos`) no model reads, each with the range of
+    the values ``seen`` holds it at (one ``(lo, hi)``). A mode no test reads still moves the
+    plant: the pasteuriser at 10 s reads neither its ``MODE`` nor its diversion valve in any
+    model (their effects, the flow's set-point, are read), and its CIP's changes opened no
+    settle (issue 34 item 5, ``i34-cip``). A state a model reads is watched over the range
+    its models learned it in (:func:`state_tags`); a piece of equipment's run tag is not
+    (its start holds its own tests, :mod:`~.equipment`); ``{}`` without the table."""
+    from diag_plugin.diagnose.combos import parse_combo
+
+    st = getattr(unit.file, "states", None) or {}
+    tags = [str(t) for t in st.get("tags", ())]
+    rows = [r for r in (parse_combo(c, len(tags)) for c in st.get("seen", ())) if r is not None]
+    read = set(unit.model_tags)
+    # a piece of equipment's run tag is no such state: its start holds its own tests
+    read |= {e.rc.tag for e in getattr(unit.file, "equipment", None) or ()}
+    out = {}
+    for j, tag in enumerate(tags):
+        vals = [r[j] for r in rows]
+        if tag not in read and len(set(vals)) > 1:
+            out[tag] = [(min(vals), max(vals))]
     return out
 
 

@@ -884,6 +884,9 @@ class Unit:
         rc = self.file.running
         read = [*self.model_tags, *([rc.tag] if rc is not None else [])]
         read += [e.rc.tag for e in self.equipment]
+        # the [states] tags no model reads: the state settle watches their changes too
+        read += [t for t in (getattr(self.file, "states", None) or {}).get("tags", ())
+                 if t not in read]  # fmt: skip
         plant = {t: self.file.tags.get(t, t) for t in read}
         return Columns(frame, {t: p if p in frame.columns else t for t, p in plant.items()})
 

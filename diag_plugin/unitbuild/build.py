@@ -415,18 +415,42 @@ def state_combos(
     return states, held_combos(frame, states, held_s), held_s
 
 
-def combos_note(unit: Any, tags: Sequence[str], seen: Sequence[str], held_s: float) -> str:
+def short_combos(
+    unit: Any, frame: pd.DataFrame, combos: tuple[list[str], list[str], float], state_s
+) -> list[str]:
+    """The combinations of the states ``combos`` (:func:`state_combos`) never held for its
+    dwell but visited repeatedly (:func:`~diag_plugin.diagnose.combos.visited_combos`), where
+    the unit has a state settle (``state_s``, its ``state_settle_max_s``; none: ``[]``): the
+    settle opened by the change into one holds its transient, so it is judged, not named
+    never learned on every visit (issue 34 item 5, ``i34-cip``)."""
+    from diag_plugin.diagnose.combos import visited_combos
+
+    if not state_s or float(state_s) <= 0:
+        return []
+    tags, _, held_s = combos
+    return visited_combos(frame, tags, held_s, unit.ev["on_delay"] * unit.period_s)
+
+
+def combos_note(
+    unit: Any, tags: Sequence[str], seen: Sequence[str], held_s: float, short: Sequence[str] = ()
+) -> str:
     """What the build's note says of the ``[states]`` table."""
+    from diag_plugin.diagnose.combos import MIN_VISITS
     from diag_plugin.diagnose.settle import quiet_parts
 
     depth, lag, on = quiet_parts(unit)
+    visited = (
+        f" ({'; '.join(short)}: each visited {MIN_VISITS} times or more, every visit "
+        "shorter, learned because the state settle holds the changes into them)"
+        if short else ""
+    )  # fmt: skip
     return (
         f"{len(seen)} combination(s) of the discrete states {', '.join(tags)} recorded in "
         f"[states] ({'; '.join(seen) or 'none'}): those the window held for {held_s:g} s or "
         f"longer, the unit's quiet time ({depth} samples of the longest history a test reads "
-        f"+ {lag} of the residual filter + {on} of the on-delay); another combination held "
-        "for the on-delay makes the unit CHECK_FUNCTION naming it, until a learned one held "
-        "for the off-delay; `diag unit accept` of a period where it ran learns it"
+        f"+ {lag} of the residual filter + {on} of the on-delay){visited}; another combination "
+        "held for the on-delay makes the unit CHECK_FUNCTION naming it, until a learned one "
+        "held for the off-delay; `diag unit accept` of a period where it ran learns it"
     )
 
 
@@ -1563,6 +1587,10 @@ def _build_unit(
     if fixed:
         doc["fixed"] = fixed_table(fixed)
         notes.append(fixed_note(fixed))
+    narrow = narrow_spans(judged, info, kept, skipped)
+    if narrow:  # the inputs learned over a narrow part of their span: said whatever the count
+        doc["build"]["narrow"] = narrow
+        notes.append(narrow_note(narrow))
     path.write_text(tomlkit.dumps(doc), encoding="utf-8")
 
     t0 = time.perf_counter()
@@ -1581,6 +1609,13 @@ def _build_unit(
         # (one pass: the window's steps found once, its residuals replayed at most once)
         # (the run tag beside the learned rows: its starts are the run condition's changes)
         settle_frame = frame if run_col is None else frame.assign(**{rc.tag: run_col})
+        # the combinations of the discrete states the window held long enough to teach the
+        # models (diagnose/combos.py), their dwell the unit's quiet time: first, so that the
+        # states no model reads are watched by the state settle too (settle.unit_combos)
+        combos = state_combos(unit, frame, list(doc["build"]["states"]))
+        if combos is not None:
+            uf.doc["states"] = states_table(*combos)
+            uf.states = {"tags": combos[0], "seen": combos[1], "held_s": combos[2]}
         settle_unit = Unit(uf, unit.models, unit.matrix)
         replay = Replay(settle_unit, settle_frame)  # the window's residuals, replayed once
         settles = settle_bounds(settle_unit, settle_frame, replay)
@@ -1609,12 +1644,16 @@ def _build_unit(
         if envs:
             uf.doc["build"]["envelope"] = [how for *_, how in envs]
             notes.extend(how for *_, how in envs)
-        # the combinations of the discrete states the window held long enough to teach the
-        # models (diagnose/combos.py): their dwell the unit's quiet time
-        combos = state_combos(unit, frame, list(doc["build"]["states"]))
         if combos is not None:
-            uf.doc["states"] = states_table(*combos)
-            notes.append(combos_note(unit, *combos))
+            # and those visited repeatedly, each visit shorter, once a state settle holds
+            # the changes into them (state_settle_max_s)
+            visited = short_combos(unit, frame, combos,
+                                 uf.doc["evaluation"].get("state_settle_max_s"))  # fmt: skip
+            if visited:
+                combos = (combos[0], sorted({*combos[1], *visited}), combos[2])
+                uf.doc["states"] = states_table(*combos)
+                uf.states = {"tags": combos[0], "seen": combos[1], "held_s": combos[2]}
+            notes.append(combos_note(unit, *combos, short=visited))
         if any(value > 0 for *_, value, _ in settles) or combos is not None or pieces or envs:
             uf.save()
         else:
@@ -1917,6 +1956,62 @@ def blind_pair_tests(
 
 #: grids a note names by test before it counts the rest (:func:`edgeless_note`)
 EDGELESS_NAMED = 3
+
+
+#: an input learned over less than this share of its span (the tag's ``lo`` … ``hi``) is
+#: named by the build's narrow-span note (:func:`narrow_spans`)
+NARROW_SHARE = 0.05
+#: how the narrow-span note begins: the CLI prints it whatever the count of notes
+NARROW_SAID = "learned over a narrow part of their span"
+
+
+def narrow_spans(
+    frame: pd.DataFrame,
+    info: Mapping[str, TagInfo],
+    kept: Sequence[TestChoice],
+    skipped: Mapping[str, str],
+) -> list[str]:
+    """The unit's inputs whose window covers less than :data:`NARROW_SHARE` of their span
+    (the tag's ``lo`` … ``hi``, as the models scale it): every plain input of a kept test,
+    and the tags left out as a discrete state, a set-point or a constant (kept candidate
+    inputs, read by the unit). One line each: the tag, the span the window shows (its
+    learned span), its span and the share; ``[]`` where none (a tag without ``lo``/``hi``
+    is not judged). The short window of the pasteuriser (400 samples of 10 s, one rate)
+    learned its feed pump's speed at 70.7 or 72 % (a discrete state) and the rate's
+    set-point at 10.6 of 0 … 20 m³/h; its notes were cut at four and this was not on the
+    screen (issue 34 item 5, ``i34-cip``)."""
+    read = [InputSpec.parse(s).tags[0] for ch in kept for s in ch.inputs
+            if InputSpec.parse(s).fn == ""]  # fmt: skip
+    left = [t for t, why in skipped.items()
+            if why.startswith((DISCRETE_WHY, CONSTANT_WHY, "a set-point"))]  # fmt: skip
+    out = []
+    for t in dict.fromkeys([*read, *left]):
+        span = getattr(info.get(t), "span", None)
+        if span is None or t not in frame.columns:
+            continue
+        v = frame[t].to_numpy(float)
+        v = v[np.isfinite(v)]
+        if not v.size:
+            continue
+        lo, hi = float(v.min()), float(v.max())
+        share = (hi - lo) / (span[1] - span[0])
+        if share < NARROW_SHARE:
+            why = skipped.get(t, "an input").split(" (")[0]
+            out.append(f"{t} {lo:.4g} … {hi:.4g} ({share:.1%} of its span {span[0]:.4g} … "
+                       f"{span[1]:.4g}; {why})")  # fmt: skip
+    return out
+
+
+def narrow_note(spans: Sequence[str]) -> str:
+    """The build's note of :func:`narrow_spans` (``""``: none)."""
+    if not spans:
+        return ""
+    return (
+        f"{len(spans)} input(s) {NARROW_SAID} (under {NARROW_SHARE:.0%}): "
+        f"{'; '.join(spans)}: the unit knows the plant only there; where one leaves it the "
+        "unit says so (CHECK_FUNCTION), and a longer window, or `diag unit accept` of a "
+        "period where it moved, teaches it more"
+    )
 
 
 def edgeless_note(tests: Sequence[tuple[str, TestModel | None]]) -> str:

@@ -270,11 +270,13 @@ def cmd_unit_build(args) -> int:
         if tag not in hand:
             print(f"  not tested: {tag}: {why}")
     from diag_plugin.learn.thresholds import WIDE_SAID
+    from diag_plugin.unitbuild.build import NARROW_SAID
 
-    wide = [n for n in res.notes if WIDE_SAID in n]  # a test that never alarms: each said
+    # a test that never alarms, the inputs learned over a narrow span: each said, not counted
+    wide = [n for n in res.notes if WIDE_SAID in n or NARROW_SAID in n]
     for n in wide:
         print(f"  ⚠ {n}")
-    for line in note_lines([n for n in res.notes if WIDE_SAID not in n]):
+    for line in note_lines([n for n in res.notes if n not in wide]):
         print(line)
     print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in res.seconds.items()))
     print(f"next: diag unit show {args.name}; diag diagnose {args.name} --from … --to …")

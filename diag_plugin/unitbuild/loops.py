@@ -739,15 +739,20 @@ def _free_settle(unit, kind: str, steps: list, quiet: int, residuals: Replay):
 
     key, what = {"hand": ("manual_settle_max_s", "hand valve move"),
                  "state": ("state_settle_max_s", "state change")}[kind]  # fmt: skip
-    times, moved = _free_times(unit, kind, steps, quiet, residuals)
+    censored: list[float] = []
+    times, moved = _free_times(unit, kind, steps, quiet, residuals, censored)
     if kind == "state":
-        return _quantile_and_how(key, what, times, moved, unit)
+        return _quantile_and_how(key, what, times, moved, unit, censored)
     return _max_and_how(key, what, times, moved, unit)
 
 
-def _free_times(unit, kind: str, steps: list, quiet: int, residuals: Replay):
+def _free_times(unit, kind: str, steps: list, quiet: int, residuals: Replay,
+                censored: list[float] | None = None):  # fmt: skip
     """The settling times (seconds) of the window's ``steps`` of ``kind`` that settled
-    (:func:`_free_settle`), and how many moved a residual beyond its noise."""
+    (:func:`_free_settle`), and how many moved a residual beyond its noise. ``censored``: a
+    list to collect, per step that moved a residual but did not settle before the next step
+    of its kind (or the window's end), the time it is known not to have settled by (s): its
+    visit less the quiet time (a settling time is where the quiet time begins), at least 0."""
     import numpy as np
 
     times: list[float] = []
@@ -765,7 +770,31 @@ def _free_times(unit, kind: str, steps: list, quiet: int, residuals: Replay):
         at = _settled(~(np.abs(e) > tol).any(axis=1), i, end, quiet)
         if at is not None:
             times.append(at * unit.period_s)
+        elif censored is not None:
+            censored.append(max(0, end - i - quiet) * unit.period_s)
     return times, moved
+
+
+def km_quantile(times, censored, q: float) -> float | None:
+    """The ``q`` quantile of a settling time from the ``times`` seen and the ``censored``
+    ones (known only to be longer), by Kaplan and Meier's product-limit estimate (J. Amer.
+    Statist. Assoc. 53, 1958, eq. 2: ``S(t) = Π_{t_j ≤ t} (1 − d_j / n_j)``, ``n_j`` the
+    changes not settled nor censored before ``t_j``): the first settling time ``t`` with
+    ``1 − S(t) ≥ q`` (an observed one), None where the estimate never reaches ``q`` (the
+    window's visits end before the slowest changes would settle). A censoring at a tied time
+    counts as after the settlings there (the usual convention)."""
+    import numpy as np
+
+    t = np.r_[np.asarray(times, float), np.asarray(censored, float)]
+    d = np.r_[np.ones(len(times), bool), np.zeros(len(censored), bool)]
+    if not d.any():
+        return None
+    order = np.lexsort((~d, t))
+    t, d = t[order], d[order]
+    at_risk = len(t) - np.arange(len(t))
+    surv = np.cumprod(np.where(d, 1.0 - 1.0 / at_risk, 1.0))
+    hit = np.flatnonzero(d & (1.0 - surv >= q - 1e-12))
+    return float(t[hit[0]]) if hit.size else None
 
 
 def _window_steps(unit, frame) -> tuple[list, int]:
@@ -859,7 +888,12 @@ def _settled(ok, i: int, end: int, quiet: int) -> int | None:
 
 
 def _quantile_and_how(
-    key: str, what: str, times: list[float], judged: int, unit
+    key: str,
+    what: str,
+    times: list[float],
+    judged: int,
+    unit,
+    censored: list[float] | None = None,
 ) -> tuple[float, str]:
     """A state's settle bound from the settling times (seconds) of the window's ``judged``
     changes, in words: the :data:`STATE_SETTLE_QUANTILE` quantile (``higher``: an observed
@@ -878,6 +912,10 @@ def _quantile_and_how(
     (acceptance-chiller.md)."""
     import numpy as np
 
+    if censored:  # the changes that did not settle in their visit: censored (km_quantile)
+        got = _censored_and_how(key, what, times, censored, unit)
+        if got is not None:
+            return got
     if not times or 2 * len(times) < judged:
         return _max_and_how(key, what, times, judged, unit)
     from diag_plugin.diagnose.settle import quiet_samples
@@ -892,6 +930,43 @@ def _quantile_and_how(
         f"the settling times of the {len(times)} of the window's {judged} {what}(s) that "
         f"settled ({seen} s), plus the quiet time ({quiet_s:.0f} s): a fault that outlasts "
         "the change's transient is raised after it"
+    )
+    return float(f"{value:.6g}"), how
+
+
+def _censored_and_how(
+    key: str, what: str, times: list[float], censored: list[float], unit
+) -> tuple[float, str] | None:
+    """A state's settle bound where some of the window's changes did not settle before the
+    next change (a CIP's 10 min rinse at a 760 s quiet time; issue 34 item 5, ``i34-cip``):
+    the :data:`STATE_SETTLE_QUANTILE` quantile of the settling time by :func:`km_quantile`,
+    each such change censored at its visit less the quiet time, plus the quiet time. A short
+    visit tells only that its change had not settled by then; the changes into the long
+    ones say how long the plant takes. Where the estimate never reaches the quantile (none
+    settled, or the visits end before the slow ones would): None, and the rule as before
+    (:func:`_quantile_and_how`: the settled ones' quantile where at least half settled, else
+    :func:`_max_and_how`'s fallback; the pumping station's starts, whose one change that did
+    not settle before the stop is censored late, keep their bound). Before, a unit whose
+    states no model read learned none (the pasteuriser at 10 s)."""
+    import numpy as np
+
+    from diag_plugin.diagnose.settle import quiet_samples
+
+    slow = km_quantile(times, censored, STATE_SETTLE_QUANTILE)
+    judged = len(times) + len(censored)
+    if slow is None:
+        return None
+    quiet_s = quiet_samples(unit) * unit.period_s
+    value = slow + quiet_s
+    seen = ", ".join(f"{t:.0f}" for t in np.sort(np.asarray(times, float)))
+    short = sum(c <= 0 for c in censored)
+    how = (
+        f"{key} = {value:.0f} s: the {STATE_SETTLE_QUANTILE:.0%} quantile ({slow:.0f} s) of "
+        f"the settling times of the {len(times)} of the window's {judged} {what}(s) that "
+        f"settled ({seen} s), {len(censored)} more censored where the next change came first "
+        f"({short} of them a visit shorter than the quiet time; Kaplan and Meier's "
+        f"product-limit estimate), plus the quiet time ({quiet_s:.0f} s): a fault that "
+        "outlasts the change's transient is raised after it"
     )
     return float(f"{value:.6g}"), how
 
