@@ -102,8 +102,10 @@ snapshot), medians, the machine at a load of 30–35 (six sessions' test runs): 
 ``--json`` 4.72 → 4.49 CPU s (42,360 → 44,590 rows per CPU s), main thread 3.08 → 2.55 (3 of
 3 lower); ``--json --csv`` 6.05 → 5.92, main thread 3.04 → 2.65; 1,000,000 rows ``--json``
 16.98 → 16.44 (58,900 → 60,830; pairs' ratios 0.86 / 0.96 / 0.98), main thread 10.08 → 8.03
-(ratios 0.66 / 0.77 / 0.81); peak RSS unchanged (720 MB, 1.9 GB); the same JSON and CSV
-(200,000 rows ``804a00c3…``/``31fec695…``, 1,000,000 JSON ``e177ec7b…``). The helper's CPU
+(ratios 0.66 / 0.77 / 0.81); ``--json --csv`` at 1,000,000 rows (both cores full with the
+read, the CSV and the replay) 24.77 → 23.55, pairs' ratios 1.07 / 1.29 / 0.89: no gain
+shown; peak RSS unchanged (720 MB, 1.9 GB; 2.0 → 2.1 GB with the CSV); the same JSON and CSV
+(200,000 rows ``804a00c3…``/``31fec695…``; 1,000,000 ``e177ec7b…``/``9ee70412…``). The helper's CPU
 is now in "replay" (it was in "other" before this round's wrapper). Wall seconds at that load
 say nothing of an idle run (35–45 s for 200,000 rows); not measured idle.
 Details: docs/how-to/unit-short-windows.md, "Speed".
