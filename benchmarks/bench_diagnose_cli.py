@@ -95,6 +95,19 @@ with ``--csv``, 3 pairs at 10.3–11.0, 4.65 → 4.39; 1,000,000 rows ``--json``
 16.78 → 16.72 (main thread 6.50 → 6.48); the same md5. On the branch the stage
 "other" holds those imports and registries (~0.36 CPU s at that load; "imports" ends at the
 unit's load); the idle wall at 200,000 rows (``main`` 2.13 s) is to be measured.
+Round nine (branch ``i34-fast``: a piece's per-test residuals — design rows, Wang–Mendel
+inference, residual — shared by the main thread and a helper, ``diagnose/pertest.py``, and the
+replay's compiled kernels ``nogil``), 3 pairs against ``main`` (8654f41, a ``git archive``
+snapshot), medians, the machine at a load of 30–35 (six sessions' test runs): 200,000 rows
+``--json`` 4.72 → 4.49 CPU s (42,360 → 44,590 rows per CPU s), main thread 3.08 → 2.55 (3 of
+3 lower); ``--json --csv`` 6.05 → 5.92, main thread 3.04 → 2.65; 1,000,000 rows ``--json``
+16.98 → 16.44 (58,900 → 60,830; pairs' ratios 0.86 / 0.96 / 0.98), main thread 10.08 → 8.03
+(ratios 0.66 / 0.77 / 0.81); ``--json --csv`` at 1,000,000 rows (both cores full with the
+read, the CSV and the replay) 24.77 → 23.55, pairs' ratios 1.07 / 1.29 / 0.89: no gain
+shown; peak RSS unchanged (720 MB, 1.9 GB; 2.0 → 2.1 GB with the CSV); the same JSON and CSV
+(200,000 rows ``804a00c3…``/``31fec695…``; 1,000,000 ``e177ec7b…``/``9ee70412…``). The helper's CPU
+is now in "replay" (it was in "other" before this round's wrapper). Wall seconds at that load
+say nothing of an idle run (35–45 s for 200,000 rows); not measured idle.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
@@ -157,6 +170,24 @@ def load_unit(*a, **k):  # the command's imports are done when it loads the unit
         return g
     hs.Historian._read_pieces = pooled(hs.Historian._read_pieces)
     hs.align_pieces = pooled(hs.align_pieces)
+    try:  # a piece's per-test rows in helper threads too (round nine): their CPU is replay
+        import diag_plugin.diagnose.pertest as pt
+    except ImportError:
+        pt = None
+    if pt is not None:
+        each = pt.each
+        def each_timed(row, n, workers=1):
+            def timed_row(j):
+                if not threading.current_thread().name.startswith("diagnose-tests"):
+                    return row(j)
+                t = time.thread_time()
+                try:
+                    return row(j)
+                finally:
+                    with lock:
+                        st["replay"] += time.thread_time() - t
+            return each(timed_row, n, workers)
+        pt.each = du.each = each_timed
     import historian.backends as hb
     if hasattr(hb.SqliteBulk, "read_grid"):  # a regular series' values alone (round six)
         hb.SqliteBulk.read_grid = pooled(hb.SqliteBulk.read_grid)

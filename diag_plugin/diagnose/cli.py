@@ -592,10 +592,12 @@ def cmd_diagnose(args) -> int:
             import pandas as pd
 
             from diag_plugin.diagnose.leadin import lead_in
+            from diag_plugin.diagnose.pertest import cores
             from diag_plugin.diagnose.readahead import ReadAhead, numba_ready
             from historian.store import Historian  # noqa: F401 - here, not in the reading thread
 
             unit = load_unit(args, args.name, cached=True)
+            unit.workers = cores()  # a piece's tests on every core (pertest: the same bits)
             if args.chunk is None:
                 chunk = default_chunk(unit.period, len(unit.tags))
             else:
@@ -709,8 +711,10 @@ def _replayed(args, start, end, chunk) -> list:
     which the pieces' concatenation gives (never seen in a replay: each piece has the unit's
     columns, of the same kinds)."""
     from diag_plugin.diagnose.leadin import lead_in, since
+    from diag_plugin.diagnose.pertest import cores
 
     unit = load_unit(args, args.name, cached=True)
+    unit.workers = cores()
     with _one_blas_thread():
         frames = unit_frames(args, unit, start, end, chunk, lead_in(unit))
         return [p for f in frames if len(p := since(unit.evaluate(f), start))]

@@ -113,7 +113,7 @@ def scaled(r: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         return np.where(r >= 0, r / hi, -r / np.abs(lo))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def beyond(u, edges, env, age, over, on_n):  # pragma: no cover - numba
     """The test whose ``u`` (one sample, threshold units) has been beyond its envelope at
     ``age`` (samples since the change) for ``on_n`` samples in a row (``over``: per test the

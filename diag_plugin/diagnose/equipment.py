@@ -194,7 +194,7 @@ def since_start(runs: np.ndarray, before: int) -> np.ndarray:
 DONE = 1 << 40
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _settle_kernel(
     running, since, on, hold, quiet_n, q, u, edges, env, over, on_n, hit, after, brk
 ):  # pragma: no cover - numba

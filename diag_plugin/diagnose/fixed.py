@@ -69,7 +69,7 @@ def learned_text(s: ManualSpan) -> str:
     return f"{s.min:.4g} … {s.max:.4g}"
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _kernel(code, ns, on_delay, off_delay, run, back, active, start, since, last, x):
     # per tag (column), row by row: ``code`` 1 outside, 0 back inside, -1 no value. Returns
     # per row and tag whether the guard is on and since when (UTC ns)

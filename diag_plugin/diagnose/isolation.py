@@ -31,7 +31,7 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _isolation_kernel(iso, s, ref_iso, ref_sym, ref_known, has_ref):  # pragma: no cover - numba
     n, units, n_faults = iso.shape
     n_tests = s.shape[2]

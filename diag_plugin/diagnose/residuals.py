@@ -65,7 +65,7 @@ def _per_column(value: Any, columns: Any, m: int, what: str) -> np.ndarray:
     return arr
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _lowpass_kernel(x, sos, zi, gap, max_gap, steady, zi_step, out):  # pragma: no cover
     """``x`` (samples × columns) filtered into ``out`` (its shape; ``x`` itself to filter in
     place: each value is read before it is written) by the second-order sections ``sos``

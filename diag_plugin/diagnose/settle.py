@@ -342,7 +342,7 @@ def quiet_parts(unit: Any) -> tuple[int, int, int]:
     return depth, lag, int(unit.ev["on_delay"])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _record(steps, k, step, s_from, s_to, i, s_back, again):  # pragma: no cover - numba
     """Row ``k`` of the steps found: the loop, from, to, the row it was confirmed at, the
     samples back it left its hold, and whether it steps inside an open settle (1) or opens
@@ -355,7 +355,7 @@ def _record(steps, k, step, s_from, s_to, i, s_back, again):  # pragma: no cover
     steps[k, 5] = again
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _settle_kernel(
     sp,
     r,

@@ -228,7 +228,7 @@ def three_valued(
     return mu_n, mu_z, mu_p
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _delay_kernel(raw, on_delay, off_delay, state, count, out):  # pragma: no cover - numba
     # row by row (memory order); each column's state machine is its own; ``out`` may be
     # ``raw`` itself (each element read before it is written)

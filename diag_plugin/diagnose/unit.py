@@ -65,6 +65,7 @@ from diag_plugin.diagnose.isolation import IsolationHold
 from diag_plugin.diagnose.manual import ManualGuard, manual_ranges
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
+from diag_plugin.diagnose.pertest import each
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.running import segments
 from diag_plugin.diagnose.saturation import Saturation
@@ -248,7 +249,7 @@ def model_of_test(name: str, rb: Any) -> TestModel:
     )
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _hold_kernel(s, limit, last, run):  # pragma: no cover - numba
     # row by row (memory order); each column's state is its own. In place: ``s`` (the
     # caller's own array, C-ordered) gets the held symptoms and is returned — a new array of
@@ -267,7 +268,7 @@ def _hold_kernel(s, limit, last, run):  # pragma: no cover - numba
     return s
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _residual_kernel(
     out, j, at, y, yp, support, min_support, scale, table, level, spread, floor
 ):  # pragma: no cover - numba
@@ -311,7 +312,7 @@ def _on(s: np.ndarray) -> np.ndarray:
     return _on_kernel(a.reshape(-1)).reshape(a.shape)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _on_kernel(s):  # pragma: no cover - numba
     out = np.empty(s.shape[0], np.bool_)
     for i in range(s.shape[0]):
@@ -517,6 +518,10 @@ class Unit:
     Use :meth:`load` for a unit file. :meth:`evaluate` takes consecutive pieces of an aligned
     frame holding :attr:`tags` (one row per sampling period; NaN = missing, stale or bad).
     """
+
+    #: threads of a piece's per-test residuals (:func:`~.pertest.each`; ``diag diagnose``:
+    #: one per core): the same residuals with any number
+    workers: int = 1
 
     def __init__(
         self, file: UnitFile, models: dict[str, TestModel], matrix: DiagnosticMatrix | None
@@ -907,13 +912,17 @@ class Unit:
         # column of samples × tests); turned to samples × tests once at the end
         out = np.full((len(self.tests), len(frame)), np.nan)
         moved = self.manual.moved(cols.values) if self.manual is not None else False
-        for j, t in enumerate(self.file.tests):
+
+        def row(j: int) -> None:  # test j's row of ``out`` (its own builder and model)
+            t = self.file.tests[j]
             m = self.models[t.name]
             d = self.builders[t.name].transform(cols, lean=True)
             if d.positions.size:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
                 if self.manual is not None:  # a hand valve outside its span: unknown
                     self.manual.blank(out, j, d.positions, d.X, moved)
+
+        each(row, len(self.file.tests), self.workers)  # the same rows in any thread (pertest)
         off = self._equipment_off(cols, len(frame))
         if off is not None and off[0] is not None:  # a stopped piece's tests: off
             out[off[0].T] = np.nan

@@ -152,7 +152,7 @@ class RunningSpread:
         self.r_tail, self.d_tail = arr(state["r"]), arr(state["d"])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _deadband_kernel(r, lo, hi, keep, state):  # pragma: no cover - numba
     # row by row (memory order); each column's state is its own
     n, m = r.shape
@@ -201,7 +201,7 @@ OSCILLATION_CHANGES = 2
 CALM = 1 << 40
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _swing_kernel(
     s, window, on_at, ends, last, armed, opens, group, quiet, left, calm
 ):  # pragma: no cover - numba
