@@ -109,7 +109,9 @@ def roles(t: pd.DatetimeIndex, out: np.ndarray) -> np.ndarray:
     return r
 
 
-@numba.njit(cache=True)
+# not cached on disk: the simulator is run as a script and loaded by tests under other module
+# names, and numba's cache read back under another name fails ("No module named '<dynamic>'")
+@numba.njit(cache=False)
 def _run(dt, dem, room0, role, leak_on, hdr_bias, foul, p0):  # pragma: no cover - numba
     n = dem.size
     p = p0
