@@ -48,12 +48,13 @@ class WangMendelStack:
     @classmethod
     def from_models(cls, models: Sequence[WangMendelRegressor]) -> WangMendelStack:
         """Stack fitted models (their rules as they are now: rebuild after retraining)."""
+        packed = pack([mod.inference_grid() for mod in models], dense=False)  # fitted ones
         gaps = {}
         for i, mod in enumerate(models):
             g = mod.input_gaps() if mod.keys_.size else []
             if any(x.size for x in g):
                 gaps[i] = g
-        return cls(pack([mod.inference_grid() for mod in models], dense=False), gaps)
+        return cls(packed, gaps)
 
     @staticmethod
     def accepts(model: object) -> bool:
