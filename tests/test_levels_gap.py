@@ -41,7 +41,10 @@ def _setpoint_plant(seed: int, n: int = 20_000):
 
 
 def _fit(X, y):
-    return WangMendelRegressor(input_spans=[(0.0, 20.0), (1.0, 3.0)], n_sets=31).fit(X, y)
+    """The model, its set-point (input 0) marked as a unit marks an operator's input."""
+    m = WangMendelRegressor(input_spans=[(0.0, 20.0), (1.0, 3.0)], n_sets=31).fit(X, y)
+    m.unbridged = (0,)
+    return m
 
 
 def test_an_answer_across_a_set_points_gap_is_withdrawn():
@@ -52,6 +55,10 @@ def test_an_answer_across_a_set_points_gap_is_withdrawn():
     assert gaps[0].tolist() == [[0, 14], [17, 21]]
     assert gaps[1].size == 0  # the continuous pressure: none
     q = np.column_stack([[12.7, 12.3, 13.2, 10.3, 14.0, 5.0], np.full(6, 2.0)])
+    # unmarked, the levels bridge it as the paper's levels do (a measured input's gap)
+    m.unbridged = ()
+    assert np.isfinite(m.predict_detail(q).y).all()
+    m.unbridged = (0,)
     det = m.predict_detail(q)
     # in the gap (12.3-13.2 and 5.0): no answer, reason gap
     for r in (0, 1, 2, 5):

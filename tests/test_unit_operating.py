@@ -253,6 +253,7 @@ def test_a_two_input_tests_set_point_in_a_gap_is_named_with_its_neighbours_and_s
     m = WangMendelRegressor(input_spans=[(0.0, 20.0), (1.0, 3.0)], n_sets=31).fit(
         np.c_[held, p], 5 * held + 3 * p
     )
+    m.unbridged = (0,)  # the set-point, as a unit marks it (unittags.unbridge)
     tm = type("TM", (), {"model": m, "inputs": ["SP[k]", "P[k-6]"]})()
     ranges = learned_ranges({"pump": tm}, ["pump"])
     gap = [r for r in ranges if r.gap and r.tag == "SP"]

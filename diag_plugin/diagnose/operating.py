@@ -81,10 +81,10 @@ def model_ranges(model, specs: Sequence[str]) -> list[tuple[str, float, float]]:
 
 def model_gaps(model, specs: Sequence[str]) -> list[tuple[int, str, float, float, float, float]]:
     """``(input, tag, lo, hi, a, b)`` per gap no level of ``model`` bridges in a plain input
-    (:meth:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.input_gaps`; none for a model
+    (:meth:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.unbridged_gaps`; none for a model
     without a rule grid): its values strictly between ``lo`` and ``hi`` own a fine set of the
     empty run, ``a`` and ``b`` the centres of the occupied sets on either side."""
-    gaps = getattr(model, "input_gaps", None)
+    gaps = getattr(model, "unbridged_gaps", None)
     if gaps is None or not getattr(model, "keys_", np.empty(0)).size:
         return []
     out = []

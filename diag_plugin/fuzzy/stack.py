@@ -51,7 +51,7 @@ class WangMendelStack:
         packed = pack([mod.inference_grid() for mod in models], dense=False)  # fitted ones
         gaps = {}
         for i, mod in enumerate(models):
-            g = mod.input_gaps() if mod.keys_.size else []
+            g = mod.unbridged_gaps() if mod.keys_.size else []
             if any(x.size for x in g):
                 gaps[i] = g
         return cls(packed, gaps)

@@ -47,7 +47,11 @@ data, had it kept the density of the thinner of its two edge sets (``m`` samples
 run, would have put more samples in it than the input's typical occupied set holds (the median
 over its occupied sets, ``M``): ``g·m > M``. A continuous input's sparse tail (edge sets of a
 few samples against a core of thousands) is bridged as before; a value held for hours on both
-sides of an empty run is not. A sample whose own fine set of any input is in such a gap is
+sides of an empty run is not. Only the inputs in :attr:`WangMendelRegressor.unbridged` are
+judged so (none by default: the levels answer as before); a unit marks the inputs an operator
+chooses (set-points, hand valves, states), where a gap is an operating point never run, and
+leaves a measured input's bridged (a fault may move it into a gap, and the bridged answer is
+what detects it). A sample whose own fine set of a marked input is in such a gap is
 answered by the fine grid alone (its rules carry at most the neighbouring set's membership, so
 under ``LEVEL_SUPPORT``); an answer of a coarse level there is withdrawn: NaN, reason
 *gap* (:data:`~diag_plugin.models.protocol.REASON_GAP`).
@@ -1109,19 +1113,29 @@ class WangMendelRegressor(ParamsMixin):
             self._gaps = [occupancy_gaps(c) for c in self.set_counts()]
         return self._gaps
 
+    def unbridged_gaps(self) -> list[np.ndarray]:
+        """:meth:`input_gaps` of the inputs in :attr:`unbridged` (positions; none by default:
+        every level answers as the paper's levels do), the others' left empty. A unit sets it
+        to the inputs an operator chooses — set-points, hand valves, discrete states
+        (:func:`~diag_plugin.diagnose.unittags.unbridge`): there a gap is an operating point
+        never run; a measured input in a gap may be a fault's own move (a meter's bias), where
+        the bridged answer is what detects it."""
+        keep = set(getattr(self, "unbridged", ()))
+        return [g if k in keep else g[:0] for k, g in enumerate(self.input_gaps())]
+
     def in_gap(self, X) -> np.ndarray:
-        """Rows of ``X`` whose own fine set of some input lies in one of :meth:`input_gaps`
-        (:func:`rows_in_gap`)."""
+        """Rows of ``X`` whose own fine set of some input lies in one of
+        :meth:`unbridged_gaps` (:func:`rows_in_gap`)."""
         X = _as_2d(X)
         if not self.keys_.size:
             return np.zeros(X.shape[0], bool)
         lo, step, nsets, _, _ = self._arrays()
-        return rows_in_gap(X, lo, step, nsets, self.input_gaps())
+        return rows_in_gap(X, lo, step, nsets, self.unbridged_gaps())
 
     def _no_bridge(self, X: np.ndarray, det: Prediction) -> Prediction:
         """``det`` with every coarse level's answer in a gap of an input withdrawn (module
         doc): NaN, support 0, level -1, reason :data:`REASON_GAP`; in place."""
-        if det.level is None or not any(g.size for g in self.input_gaps()):
+        if det.level is None or not any(g.size for g in self.unbridged_gaps()):
             return det
         rows = np.flatnonzero(det.level > 0)
         if rows.size:
