@@ -173,7 +173,18 @@ def unbridge(unit) -> None:
     (:meth:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.unbridged_gaps`): the plain
     inputs an operator chooses — a set-point (by name, description or as the file declares
     it), a hand valve, a discrete state (issue 34 item 5: a pasteuriser's new production rate
-    between the learned ones, where a level's bridged answer was wrong and named the pump)."""
+    between the learned ones, where a level's bridged answer was wrong and named the pump).
+
+    Only in a unit that runs in regimes: one with ``[states]`` that learned two or more of
+    their combinations (:class:`~.combos.CombosGuard`). There a gap of an operator's input is
+    where the plant changes regime (the pasteuriser's production rates, 0 and 9.3–11.3 m³/h,
+    and its cleaning flow, 14 m³/h, a different ``MODE``), and the answer between them is not
+    support. A unit of one regime (no states: the 7-tag line of ``tests/line7.py``) holds its
+    set-point and hand valve at a few values for hours within one operating range, where the
+    levels interpolate as the paper's do: none is marked."""
+    guard = getattr(unit, "combos", None)
+    if guard is None or len(guard.seen) < 2:
+        return
     chosen = set_points(unit) | declared_set_points(unit) | hand_valves(unit) | states(unit)
     mapping = unit.file.tags
     for t in unit.tests:

@@ -48,12 +48,14 @@ run, would have put more samples in it than the input's typical occupied set hol
 over its occupied sets, ``M``): ``g·m > M``. A continuous input's sparse tail (edge sets of a
 few samples against a core of thousands) is bridged as before; a value held for hours on both
 sides of an empty run is not. Only the inputs in :attr:`WangMendelRegressor.unbridged` are
-judged so (none by default: the levels answer as before); a unit marks the inputs an operator
-chooses (set-points, hand valves, states), where a gap is an operating point never run, and
-leaves a measured input's bridged (a fault may move it into a gap, and the bridged answer is
-what detects it). A sample whose own fine set of a marked input is in such a gap is
-answered by the fine grid alone (its rules carry at most the neighbouring set's membership, so
-under ``LEVEL_SUPPORT``); an answer of a coarse level there is withdrawn: NaN, reason
+judged so (none by default: the levels answer as before); a unit that runs in regimes (two
+or more learned combinations of its discrete states) marks the inputs an operator chooses
+(set-points, hand valves, states), where a gap is where the plant changes regime (the
+pasteuriser's production rates and its cleaning flow), and leaves a measured input's
+bridged (a fault may move it into a gap, and the bridged answer is what detects it). A
+sample whose own fine set of a marked input is in such a gap is answered by the fine grid
+alone (its rules carry at most the neighbouring set's membership, so under
+``LEVEL_SUPPORT``); an answer of a coarse level there is withdrawn: NaN, reason
 *gap* (:data:`~diag_plugin.models.protocol.REASON_GAP`).
 
 **Past the span, along the data's slope** (:attr:`WangMendelRegressor.trend_`, the
