@@ -220,3 +220,48 @@ def test_a_hole_in_ungridded_rows_is_no_time_held():
     assert held_combos(f, ["A", "B"], 3600.0) == []
     assert held_combos(f, ["A", "B"], 300.0) == []
     assert held_combos(f, ["A", "B"], 120.0) == ["0,1"]
+
+
+def _marked(unit) -> dict[str, list[str]]:
+    """Per test of ``unit`` the inputs its model no level bridges a gap of
+    (:func:`~diag_plugin.diagnose.unittags.unbridge`)."""
+    out = {}
+    for t in unit.tests:
+        m = unit.models[t]
+        got = [m.inputs[k] for k in getattr(m.model, "unbridged", ())]
+        if got:
+            out[t] = got
+    return out
+
+
+def test_a_unit_of_regimes_leaves_its_states_gaps_unbridged_one_regime_none(built, tmp_path):
+    """Issue 34 item 5: a gap of an operator's input is left unbridged only in a unit that runs
+    in regimes (two or more learned combinations of its ``[states]``), where the input's
+    values either side come from different ones (the pasteuriser: production 8.5–11 m³/h
+    only in ``FDV_FORWARD, MODE = 1,1``, the cleaning's 14 only in ``1,2``–``1,4``). The
+    station learned four: the models reading a run feedback have it marked. The same unit
+    file without its ``[states]`` (one regime, as the 7-tag line of ``tests/line7.py``, whose
+    held set-point and hand valve stay bridged): none marked. Fails on main (nothing is
+    marked there)."""
+    import shutil
+
+    import tomlkit
+
+    from diag_plugin.diagnose.unit import Unit
+
+    rb = built[2] / "rb"
+    unit = Unit.load("st", rb)
+    runs = {"RUN1", "RUN2", "RUN3"}
+    reading = {t for t in unit.tests
+               if any(i.split("[")[0] in runs for i in unit.models[t].inputs)}  # fmt: skip
+    assert reading, {t: unit.models[t].inputs for t in unit.tests}
+    marked = _marked(unit)
+    for t in reading:
+        want = [i for i in unit.models[t].inputs if i.split("[")[0] in runs]
+        assert set(want) <= set(marked.get(t, [])), (t, marked)
+    one = tmp_path / "rb"
+    shutil.copytree(rb, one)
+    doc = tomlkit.parse((one / "st.unit.toml").read_text())
+    del doc["states"]
+    (one / "st.unit.toml").write_text(tomlkit.dumps(doc))
+    assert _marked(Unit.load("st", one)) == {}

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from diag_plugin.diagnose.operating import OutsideLearned, Range, model_ranges
+from diag_plugin.diagnose.operating import OutsideLearned, Range, learned_ranges, model_ranges
 from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor
 from diag_plugin.models.linear import LinearRegressor
 
@@ -237,3 +237,36 @@ def test_the_input_that_left_first_is_named_not_the_first_test_in_order():
     ol.transform(f.iloc[:5], unknown[:5], np.ones(5, bool))
     later = ol.transform(f.iloc[5:], unknown[5:], np.ones(4, bool))
     assert later[1] == out[6]
+
+
+def test_a_two_input_tests_set_point_in_a_gap_is_named_with_its_neighbours_and_since():
+    """Issue 34 item 5 (the pasteuriser's new rate, run 171): a test of two inputs,
+    ``FEED_VFD = f(FEED_FLOW_SP, P[k-6])``, learned a set-point at 0, 9.3-11.3 and 14 m³/h
+    only; at 12.7 its model does not bridge the empty sets (unknown) and the sentence names
+    the set-point, its value, the learned values either side and when it entered the gap,
+    carried into the next piece, not "each within …, but not together". Main said
+    ``FEED_FLOW_SP = 12.7, P[k-6] = 2: each within what the unit learned, but not together``
+    (when its model was unknown at all)."""
+    rng = np.random.default_rng(21)
+    held = np.repeat(rng.choice([0.0, 28 / 3, 10.0, 32 / 3, 34 / 3, 14.0], 40), 300)
+    p = rng.uniform(1.5, 2.5, held.size)
+    m = WangMendelRegressor(input_spans=[(0.0, 20.0), (1.0, 3.0)], n_sets=31).fit(
+        np.c_[held, p], 5 * held + 3 * p
+    )
+    m.unbridged = (0,)  # the set-point, as a unit marks it (unittags.unbridge)
+    tm = type("TM", (), {"model": m, "inputs": ["SP[k]", "P[k-6]"]})()
+    ranges = learned_ranges({"pump": tm}, ["pump"])
+    gap = [r for r in ranges if r.gap and r.tag == "SP"]
+    assert [(round(r.near[0], 2), round(r.near[1], 2)) for r in gap] == [(0, 9.33), (11.33, 14)]
+    sp = np.r_[np.full(3, 34 / 3), np.full(4, 12.7)]
+    f = _frame("10s", SP=sp, P=np.full(7, 2.0))
+    x = np.c_[sp, np.full(7, 2.0)]
+    unknown = ~(m.predict_detail(x).support >= 0.9)[:, None]
+    assert not unknown[:3].any() and unknown[3:].all()  # the model itself: no answer at 12.7
+    ol = OutsideLearned(ranges, names={"SP": "FEED_FLOW_SP"}).reset()
+    first = ol.transform(f.iloc[:5], unknown[:5], unknown[:5, 0])
+    t = f.index[3].isoformat()
+    said = f"FEED_FLOW_SP = 12.7: in a gap of what the unit learned (11.33 … 14) since {t}"
+    assert list(first) == ["", "", "", said, said]
+    # the next piece: the entry carried
+    assert list(ol.transform(f.iloc[5:], unknown[5:], unknown[5:, 0])) == [said, said]

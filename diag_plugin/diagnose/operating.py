@@ -13,6 +13,13 @@ value the model reads, the one 595 samples back, and named so (``FLOW[k-595] = �
 needs is carried too. An unknown test whose tags have no value is named by every tag of the unit
 without one and since when (:func:`gone_sentence`): one transmitter lost reads otherwise than the
 whole feed gone.
+
+Inside its range an input may have a gap the model does not bridge
+(:meth:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.input_gaps`: empty fine sets between
+values held for long, a set-point's few rates): its test is unknown there, and the input is named
+as one outside, by a :class:`Range` with ``gap`` set — ``FEED_FLOW_SP = 12.7: in a gap of what the
+unit learned (11.33 … 14) since T``, the learned values on either side and when it entered the gap
+(:func:`model_gaps`).
 """
 
 from __future__ import annotations
@@ -36,6 +43,10 @@ class Range:
     lo: float
     hi: float
     lag: int = 0  # samples back the model reads it
+    #: a gap inside the range (:func:`model_gaps`): the input is off strictly between ``lo``
+    #: and ``hi`` (not outside them), and ``near`` the learned values on either side
+    gap: bool = False
+    near: tuple[float, float] = (0.0, 0.0)
 
     @property
     def key(self) -> tuple[str, int]:
@@ -68,15 +79,39 @@ def model_ranges(model, specs: Sequence[str]) -> list[tuple[str, float, float]]:
     return out
 
 
+def model_gaps(model, specs: Sequence[str]) -> list[tuple[int, str, float, float, float, float]]:
+    """``(input, tag, lo, hi, a, b)`` per gap no level of ``model`` bridges in a plain input
+    (:meth:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.unbridged_gaps`; none for a model
+    without a rule grid): its values strictly between ``lo`` and ``hi`` own a fine set of the
+    empty run, ``a`` and ``b`` the centres of the occupied sets on either side."""
+    gaps = getattr(model, "unbridged_gaps", None)
+    if gaps is None or not getattr(model, "keys_", np.empty(0)).size:
+        return []
+    out = []
+    for j, (spec, g) in enumerate(zip(specs, gaps(), strict=False)):
+        s = InputSpec.parse(spec)
+        if s.fn != "" or not g.size:
+            continue
+        p = model.partitions_[j]
+        for a, b in g.tolist():
+            lo, hi = p.lo + p.step * (a + 0.5), p.lo + p.step * (b - 0.5)
+            out.append((j, s.tags[0], lo, hi, p.lo + p.step * a, p.lo + p.step * b))
+    return out
+
+
 def learned_ranges(models: Mapping[str, object], tests: Sequence[str]) -> list[Range]:
     """Every test's plain inputs with their learned ranges (``models``: test name →
-    :class:`~diag_plugin.diagnose.unit.TestModel`)."""
+    :class:`~diag_plugin.diagnose.unit.TestModel`), and the gaps inside them its model does
+    not bridge (:func:`model_gaps`)."""
     out = []
     for i, name in enumerate(tests):
         m = models[name]
-        lags = [s.lag for s in map(InputSpec.parse, m.inputs) if s.fn == ""]
+        specs = [InputSpec.parse(s) for s in m.inputs]
+        lags = [s.lag for s in specs if s.fn == ""]
         for (tag, lo, hi), lag in zip(model_ranges(m.model, m.inputs), lags, strict=False):
             out.append(Range(i, tag, lo, hi, lag))
+        for j, tag, lo, hi, a, b in model_gaps(m.model, m.inputs):
+            out.append(Range(i, tag, lo, hi, specs[j].lag, gap=True, near=(a, b)))
     return out
 
 
@@ -175,7 +210,7 @@ class OutsideLearned:
             return False
         for r in self.ranges:
             x = value(self.names.get(r.tag, r.tag), r.lag)
-            if x < r.lo or x > r.hi:  # NaN: not outside, as in transform
+            if (r.lo < x < r.hi) if r.gap else (x < r.lo or x > r.hi):  # NaN: not outside
                 return False
             if x != x and r.lag == 0 and r.tag in self.test_tags.get(r.test, ()):
                 return False  # a watched tag without a value: its start is followed
@@ -191,7 +226,14 @@ class OutsideLearned:
         return self.names.get(tag, tag) + (f"[k-{lag}]" if lag else "")
 
     def _parts(self, r: Range) -> tuple[str, str]:
-        """:meth:`sentence` before and after the value, up to the time."""
+        """:meth:`sentence` before and after the value, up to the time (a gap's: ``TAG =
+        value: in a gap of what the unit learned (a … b) since``)."""
+        if r.gap:
+            a, b = r.near
+            return (
+                f"{self.label(r.tag, r.lag)} = ",
+                f": in a gap of what the unit learned ({a:.4g} … {b:.4g}) since ",
+            )
         return (
             f"{self.label(r.tag, r.lag)} = ",
             f" outside what the unit learned ({r.lo:.4g} … {r.hi:.4g}) since ",
@@ -256,7 +298,7 @@ class OutsideLearned:
         at = np.flatnonzero(report)  # the rows to name (CHECK_FUNCTION: few, in most pieces)
         unk = unknown[at]
         gaps = self._gaps(cols, idx, at)
-        judged, keys, col, lo, hi, test = self._judged(cols)
+        judged, keys, col, lo, hi, test, gap = self._judged(cols)
         if not n or not judged:
             self._combination(cols, unk, at, np.ones(at.size, bool), out, gaps)
             return out
@@ -265,12 +307,12 @@ class OutsideLearned:
         # (:meth:`_first_out`)
         end = np.array([_last(cols, key) for key in keys], float)[col]
         with np.errstate(invalid="ignore"):  # NaN: not outside
-            end_off = (end < lo) | (end > hi)
+            end_off = _off(end, lo, hi, gap)
             xa = np.empty((at.size, len(keys)))
             for c, key in enumerate(keys):
                 xa[:, c] = _at(cols, key, at)
             xa = xa[:, col]
-            cand = ((xa < lo) | (xa > hi)) & unk[:, test]
+            cand = _off(xa, lo, hi, gap) & unk[:, test]
         named = cand.any(axis=1)
         by = self._first_out(cols, idx, at, cand, judged)
         hits = {int(p): at[named & (by == p)] for p in np.unique(by[named])}
@@ -281,7 +323,7 @@ class OutsideLearned:
                 self.since[k] = None
                 continue
             carried = self.since.get(k)
-            off = _outside(cols, r.key, r.lo, r.hi)
+            off = _outside(cols, r.key, r.lo, r.hi, r.gap)
             # the row each excursion started at (carried over the piece's start): for an
             # outside row, the last start at or before it
             starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
@@ -332,7 +374,7 @@ class OutsideLearned:
             k = judged[p]
             r = self.ranges[k]
             rows = np.flatnonzero(cand[:, p] & multi)
-            off = _outside(cols, r.key, r.lo, r.hi)
+            off = _outside(cols, r.key, r.lo, r.hi, r.gap)
             starts = np.flatnonzero(off & ~np.r_[False, off[:-1]])
             first = starts[np.searchsorted(starts, at[rows], side="right") - 1]
             t = times[first].astype(float)
@@ -394,8 +436,8 @@ class OutsideLearned:
     def _judged(self, cols: Mapping[tuple[str, int], np.ndarray]) -> tuple:
         """The ranges judged on a piece with the values ``cols`` (:attr:`Range.key` →
         values): their positions in :attr:`ranges`, the keys they read (once each), each
-        one's key among those, its bounds and its test — the same for every piece that has
-        the same keys, so made once for them."""
+        one's key among those, its bounds, its test and whether it is a gap — the same for
+        every piece that has the same keys, so made once for them."""
         have = frozenset(cols)
         cache = self.__dict__.setdefault("_judged_cache", {})
         if have not in cache:
@@ -409,6 +451,7 @@ class OutsideLearned:
                 np.array([self.ranges[k].lo for k in judged], float),
                 np.array([self.ranges[k].hi for k in judged], float),
                 np.array([self.ranges[k].test for k in judged], np.int64),
+                np.array([self.ranges[k].gap for k in judged], bool),
             )
         return cache[have]
 
@@ -554,18 +597,18 @@ class LaggedColumns(Mapping):
         i = len(x) - 1 - (0 if tail is None else lag)
         return float(x[i]) if i >= 0 else float(tail[tail.size + i])
 
-    def outside(self, key: tuple[str, int], lo: float, hi: float) -> np.ndarray:
-        """Per row whether the value is below ``lo`` or above ``hi`` (NaN: not), judged on
-        the tail and the piece apart and joined as booleans (no column of floats made)."""
+    def outside(self, key: tuple[str, int], lo: float, hi: float, gap: bool = False) -> np.ndarray:
+        """Per row whether the value is below ``lo`` or above ``hi`` (``gap``: strictly
+        between them; NaN: not), judged on the tail and the piece apart and joined as
+        booleans (no column of floats made)."""
         t, lag = key
         x = np.asarray(self._cols[t], float)
         tail = self._tails.get(t)
-        with np.errstate(invalid="ignore"):
-            off = (x < lo) | (x > hi)
-            if tail is None or lag == 0:
-                return off
-            d = tail.size
-            before = (tail < lo) | (tail > hi)
+        off = _off(x, lo, hi, gap)
+        if tail is None or lag == 0:
+            return off
+        d = tail.size
+        before = _off(tail, lo, hi, gap)
         return np.concatenate([before, off])[d - lag : d - lag + x.size]
 
     def at(self, key: tuple[str, int], rows: np.ndarray) -> np.ndarray:
@@ -592,14 +635,20 @@ def _last(cols: Mapping, key) -> float:
     return cols.last(key) if isinstance(cols, LaggedColumns) else cols[key][-1]
 
 
-def _outside(cols: Mapping, key, lo: float, hi: float) -> np.ndarray:
-    """Per row whether ``cols[key]`` is outside ``[lo, hi]`` (:meth:`LaggedColumns.outside`;
-    NaN: not outside)."""
+def _outside(cols: Mapping, key, lo: float, hi: float, gap: bool = False) -> np.ndarray:
+    """Per row whether ``cols[key]`` is outside ``[lo, hi]`` (``gap``: strictly inside
+    ``(lo, hi)``; :meth:`LaggedColumns.outside`; NaN: not outside)."""
     if isinstance(cols, LaggedColumns):
-        return cols.outside(key, lo, hi)
-    x = cols[key]
+        return cols.outside(key, lo, hi, gap)
+    return _off(np.asarray(cols[key], float), lo, hi, gap)
+
+
+def _off(x, lo, hi, gap):
+    """Whether ``x`` is off what was learned: below ``lo`` or above ``hi``, or, where
+    ``gap``, strictly between them (a gap inside the range; scalars or arrays, broadcast;
+    NaN: not off)."""
     with np.errstate(invalid="ignore"):
-        return (x < lo) | (x > hi)
+        return np.where(gap, (x > lo) & (x < hi), (x < lo) | (x > hi))
 
 
 def _at(cols: Mapping, key, rows: np.ndarray) -> np.ndarray:

@@ -93,6 +93,7 @@ from diag_plugin.diagnose.unittags import (
     derived_matrix,
     describe_top,
     top_columns_at,
+    unbridge,
     with_ranked,
 )
 from diag_plugin.metrics import residual_pct
@@ -607,6 +608,8 @@ class Unit:
         self.combos: CombosGuard | None = CombosGuard.of(self)
         #: a loop's actuator at its limit named first (:mod:`~.saturation`; None: no loop)
         self.saturation = Saturation.of(self)
+        #: no level bridges a gap of an input an operator chooses (:func:`unbridge`)
+        unbridge(self)
         self.reset()
 
     # ------------------------------------------------------------ loading

@@ -168,6 +168,37 @@ def structure(unit) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
     return keep, outputs, reads
 
 
+def unbridge(unit) -> None:
+    """Mark on each rule-grid model of ``unit`` the inputs whose gaps no level bridges
+    (:meth:`~diag_plugin.fuzzy.wang_mendel.WangMendelRegressor.unbridged_gaps`): the plain
+    inputs an operator chooses — a set-point (by name, description or as the file declares
+    it), a hand valve, a discrete state (issue 34 item 5: a pasteuriser's new production rate
+    between the learned ones, where a level's bridged answer was wrong and named the pump).
+
+    Only in a unit that runs in regimes: one with ``[states]`` that learned two or more of
+    their combinations (:class:`~.combos.CombosGuard`). There a gap of an operator's input is
+    where the plant changes regime (the pasteuriser's production rates, 0 and 9.3–11.3 m³/h,
+    and its cleaning flow, 14 m³/h, a different ``MODE``), and the answer between them is not
+    support. A unit of one regime (no states: the 7-tag line of ``tests/line7.py``) holds its
+    set-point and hand valve at a few values for hours within one operating range, where the
+    levels interpolate as the paper's do: none is marked."""
+    guard = getattr(unit, "combos", None)
+    if guard is None or len(guard.seen) < 2:
+        return
+    chosen = set_points(unit) | declared_set_points(unit) | hand_valves(unit) | states(unit)
+    mapping = unit.file.tags
+    for t in unit.tests:
+        m = unit.models[t]
+        if not hasattr(m.model, "unbridged_gaps"):
+            continue
+        specs = parse_specs(m.inputs)
+        m.model.unbridged = tuple(
+            k for k, s in enumerate(specs)
+            if s.fn == "" and (_tag(s.tags, mapping)[0] in chosen or is_set_point(
+                _tag(s.tags, mapping)[0]))
+        )  # fmt: skip
+
+
 def hand_valves(unit) -> set[str]:
     """The hand valves the unit file declares (``[manual]``, plant names): an operator's
     setting, never a tag at fault (:mod:`~diag_plugin.diagnose.manual`)."""

@@ -8,6 +8,8 @@ compiled loop: the same kernel as :meth:`WangMendelRegressor.predict_detail`
 (:func:`diag_plugin.fuzzy._kernels.infer_levels`: Kościelny et al., eq. 5 conclusions, the
 coarser levels behind the fine grid), so the values, support, reason codes and levels are the
 same. Rules are searched in their sorted keys (no dense tables: 4,000 of them would not fit).
+A coarse level's answer in a gap of an input no level bridges is withdrawn as the model's own
+:meth:`~WangMendelRegressor.predict_detail` withdraws it (reason *gap*).
 """
 
 from __future__ import annotations
@@ -16,7 +18,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from diag_plugin.fuzzy.wang_mendel import WangMendelRegressor, pack, run_kernel
+from diag_plugin.fuzzy.wang_mendel import (
+    WangMendelRegressor,
+    pack,
+    rows_in_gap,
+    run_kernel,
+    withdraw,
+)
 from diag_plugin.models.protocol import Prediction
 
 __all__ = ["WangMendelStack"]
@@ -30,14 +38,23 @@ class WangMendelStack:
     ``models[which[i]]``.
     """
 
-    def __init__(self, packed: tuple):
+    def __init__(self, packed: tuple, gaps: dict[int, list[np.ndarray]] | None = None):
         self.packed = packed
         self.n_inputs = packed[0]
+        #: per stacked model with a gap no level bridges, its gaps per input
+        #: (:meth:`WangMendelRegressor.input_gaps`)
+        self.gaps = dict(gaps or {})
 
     @classmethod
     def from_models(cls, models: Sequence[WangMendelRegressor]) -> WangMendelStack:
         """Stack fitted models (their rules as they are now: rebuild after retraining)."""
-        return cls(pack([mod.inference_grid() for mod in models], dense=False))
+        packed = pack([mod.inference_grid() for mod in models], dense=False)  # fitted ones
+        gaps = {}
+        for i, mod in enumerate(models):
+            g = mod.unbridged_gaps() if mod.keys_.size else []
+            if any(x.size for x in g):
+                gaps[i] = g
+        return cls(packed, gaps)
 
     @staticmethod
     def accepts(model: object) -> bool:
@@ -65,7 +82,22 @@ class WangMendelStack:
             n = X.shape[0]
             e = np.empty(n)
             return Prediction(e, e, np.empty(n, np.int8), np.empty(n, np.int8), e)
-        return run_kernel(self.packed, which, X)
+        det = run_kernel(self.packed, which, X)
+        self._no_bridge(which, X, det)
+        return det
+
+    def _no_bridge(self, which: np.ndarray, X: np.ndarray, det: Prediction) -> None:
+        """Withdraw, in place, a coarse level's answer in a gap of an input of its model."""
+        if not self.gaps:
+            return
+        lo, step, nsets = self.packed[1], self.packed[2], self.packed[4]
+        rows = np.flatnonzero(det.level > 0)  # a coarse level answered: few rows, most calls
+        rows = rows[np.isin(which[rows], list(self.gaps))]
+        for m in np.unique(which[rows]).tolist():
+            mine = rows[which[rows] == m]
+            d = int(self.n_inputs[m])
+            hit = rows_in_gap(X[mine, :d], lo[m, :d], step[m, :d], nsets[m, :d], self.gaps[m])
+            withdraw(det, mine[hit])
 
     def predict(self, which: np.ndarray, X: np.ndarray) -> np.ndarray:
         """Model outputs; NaN where no trained rule covers the row."""

@@ -37,6 +37,27 @@ it the fine grid alone answers. A sample no level's rules reach is
 *unsupported*: NaN, with a reason code. ``levels=0`` is the paper's fine grid
 alone.
 
+**No level bridges a gap in one input** (:meth:`WangMendelRegressor.input_gaps`, issue 34
+item 5). Inside that range an input's marginal occupancy (the fine sets holding data, summed
+over the other inputs) may have a run of empty sets: a set-point held at a few values (a
+pasteuriser's production rates and its cleaning flow), a plant run in two regimes. The coarse
+cells straddle it and fill it by interpolating between values the plant was never seen
+between; the answer there is not support. A run of ``g`` empty sets is such a gap where the
+data, had it kept the density of the thinner of its two edge sets (``m`` samples) across the
+run, would have put more samples in it than the input's typical occupied set holds (the median
+over its occupied sets, ``M``): ``g·m > M``. A continuous input's sparse tail (edge sets of a
+few samples against a core of thousands) is bridged as before; a value held for hours on both
+sides of an empty run is not. Only the inputs in :attr:`WangMendelRegressor.unbridged` are
+judged so (none by default: the levels answer as before); a unit that runs in regimes (two
+or more learned combinations of its discrete states) marks the inputs an operator chooses
+(set-points, hand valves, states), where a gap is where the plant changes regime (the
+pasteuriser's production rates and its cleaning flow), and leaves a measured input's
+bridged (a fault may move it into a gap, and the bridged answer is what detects it). A
+sample whose own fine set of a marked input is in such a gap is answered by the fine grid
+alone (its rules carry at most the neighbouring set's membership, so under
+``LEVEL_SUPPORT``); an answer of a coarse level there is withdrawn: NaN, reason
+*gap* (:data:`~diag_plugin.models.protocol.REASON_GAP`).
+
 **Past the span, along the data's slope** (:attr:`WangMendelRegressor.trend_`, the
 least-squares plane through the fine rules, derived like the levels and never stored). An
 input past its span is clipped to it as before (reason *outside*), and the answer then moves
@@ -66,6 +87,7 @@ from diag_plugin.fuzzy.partition import UniformPartition
 from diag_plugin.models.estimation import observed_span
 from diag_plugin.models.params import ParamsMixin
 from diag_plugin.models.protocol import (  # noqa: F401 - re-exported for callers
+    REASON_GAP,
     REASON_NAN,
     REASON_OK,
     REASON_OUTSIDE,
@@ -105,6 +127,55 @@ class LevelRules(NamedTuple):
     conclusions: np.ndarray
     count: np.ndarray
     sd: np.ndarray
+
+
+def occupancy_gaps(counts: np.ndarray) -> np.ndarray:
+    """The gaps of one input no level bridges (module doc), from its samples per fine set
+    ``counts``: rows ``(a, b)`` of occupied sets with ``g = b - a - 1 > 0`` empty ones between
+    them where ``g · min(counts[a], counts[b])`` exceeds the median count of the occupied
+    sets. A set-point held at a few values leaves gaps between them; a continuous input's
+    sparse tail (a few samples per set at the edge) none."""
+    counts = np.asarray(counts, float)
+    occ = np.flatnonzero(counts > 0)
+    if occ.size < 2:
+        return np.empty((0, 2), np.int64)
+    a, b = occ[:-1], occ[1:]
+    empty = b - a - 1
+    wide = empty * np.minimum(counts[a], counts[b]) > np.median(counts[occ])
+    return np.column_stack([a[wide], b[wide]]).astype(np.int64)
+
+
+def rows_in_gap(
+    X: np.ndarray, lo: np.ndarray, step: np.ndarray, nsets: np.ndarray, gaps: Sequence[np.ndarray]
+) -> np.ndarray:
+    """Rows of ``X`` whose own fine set of some input ``k`` (max membership, the value
+    clipped to the span, as the kernels take it; NaN: none) lies strictly between the two
+    occupied sets of one of ``gaps[k]`` (:func:`occupancy_gaps`)."""
+    out = np.zeros(X.shape[0], bool)
+    for k, g in enumerate(gaps):
+        if not g.size:
+            continue
+        x = X[:, k]
+        hi = lo[k] + step[k] * (nsets[k] - 1)
+        i = np.minimum(np.floor((np.clip(x, lo[k], hi) - lo[k]) / step[k] + 0.5), nsets[k] - 1)
+        at = np.searchsorted(g[:, 0], i, side="left") - 1  # the last gap opening below i
+        ok = (at >= 0) & ~np.isnan(x)
+        out[ok] |= i[ok] < g[at[ok], 1]
+    return out
+
+
+def withdraw(det: Prediction, rows: np.ndarray) -> None:
+    """Withdraw the answers of ``rows`` of ``det`` in place: an input in a gap no level
+    bridges (NaN, support 0, level -1, reason :data:`REASON_GAP`)."""
+    if not rows.size:
+        return
+    det.y[rows] = np.nan
+    det.support[rows] = 0.0
+    det.reason[rows] = REASON_GAP
+    if det.level is not None:
+        det.level[rows] = -1
+    if det.spread is not None:
+        det.spread[rows] = np.nan
 
 
 def level_blocks(nsets: Sequence[int], levels: int | None = None) -> np.ndarray:
@@ -397,6 +468,7 @@ class WangMendelRegressor(ParamsMixin):
         self._grid_base: tuple | None = None
         self._spread_ref: float | None = None
         self._fine_fit: tuple | None = None
+        self._gaps: list[np.ndarray] | None = None
 
     def _arrays(self):
         P = self.partitions_
@@ -875,7 +947,7 @@ class WangMendelRegressor(ParamsMixin):
             # model's inference, :func:`kernels`): every level searched, the same bits
             if X.shape[1] != self.n_features_in_:
                 raise ValueError(f"model has {self.n_features_in_} inputs, X has {X.shape[1]}")
-            return self._predict_levels(X)
+            return self._no_bridge(X, self._predict_levels(X))
         # the fine level of every row through its dense table; only the rows it leaves short
         # of LEVEL_SUPPORT inside the data's range are asked again, level by level
         det, again = got
@@ -907,7 +979,7 @@ class WangMendelRegressor(ParamsMixin):
             if depth == last:
                 break
             rows = rows[(sub.support < LEVEL_SUPPORT) & (sub.reason != 1)]
-        return det
+        return self._no_bridge(X, det)
 
     def _rough_table(self) -> tuple | None:
         """:meth:`_fine_table` with a zero trend and zero spreads (:meth:`predict_fine`'s
@@ -1024,6 +1096,53 @@ class WangMendelRegressor(ParamsMixin):
             lo_i = np.minimum(np.floor(t - 1e-9), nsets[k] - 1)
             ok &= ~((hi_i < idx.min()) | (lo_i > idx.max())) | np.isnan(X[:, k])
         return ok
+
+    def set_counts(self) -> list[np.ndarray]:
+        """Per input the training samples in each of its fine sets (the marginal occupancy
+        of the rule cells, summed over the other inputs)."""
+        cells = self.cell_indices()
+        n = self.count_.astype(float)
+        return [
+            np.bincount(cells[:, k], weights=n, minlength=p.n)
+            for k, p in enumerate(self.partitions_)
+        ]
+
+    def input_gaps(self) -> list[np.ndarray]:
+        """Per input the gaps no level bridges (module doc): rows ``(a, b)``, the occupied
+        fine sets on either side of a run of ``b - a - 1`` empty ones (:func:`occupancy_gaps`);
+        derived from the rules' counts, never stored."""
+        if self.__dict__.get("_gaps") is None:
+            self._gaps = [occupancy_gaps(c) for c in self.set_counts()]
+        return self._gaps
+
+    def unbridged_gaps(self) -> list[np.ndarray]:
+        """:meth:`input_gaps` of the inputs in :attr:`unbridged` (positions; none by default:
+        every level answers as the paper's levels do), the others' left empty. A unit sets it
+        to the inputs an operator chooses — set-points, hand valves, discrete states
+        (:func:`~diag_plugin.diagnose.unittags.unbridge`): there a gap is an operating point
+        never run; a measured input in a gap may be a fault's own move (a meter's bias), where
+        the bridged answer is what detects it."""
+        keep = set(getattr(self, "unbridged", ()))
+        return [g if k in keep else g[:0] for k, g in enumerate(self.input_gaps())]
+
+    def in_gap(self, X) -> np.ndarray:
+        """Rows of ``X`` whose own fine set of some input lies in one of
+        :meth:`unbridged_gaps` (:func:`rows_in_gap`)."""
+        X = _as_2d(X)
+        if not self.keys_.size:
+            return np.zeros(X.shape[0], bool)
+        lo, step, nsets, _, _ = self._arrays()
+        return rows_in_gap(X, lo, step, nsets, self.unbridged_gaps())
+
+    def _no_bridge(self, X: np.ndarray, det: Prediction) -> Prediction:
+        """``det`` with every coarse level's answer in a gap of an input withdrawn (module
+        doc): NaN, support 0, level -1, reason :data:`REASON_GAP`; in place."""
+        if det.level is None or not any(g.size for g in self.unbridged_gaps()):
+            return det
+        rows = np.flatnonzero(det.level > 0)
+        if rows.size:
+            withdraw(det, rows[self.in_gap(X[rows])])
+        return det
 
     def predict(self, X) -> np.ndarray:
         """Model output; NaN where no trained rule covers the sample."""

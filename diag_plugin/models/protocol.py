@@ -13,11 +13,13 @@ REASON_OK = 0
 REASON_NAN = 1
 REASON_UNSUPPORTED = 2
 REASON_OUTSIDE = 3
+REASON_GAP = 4
 REASONS = {
     REASON_OK: "",
     REASON_NAN: "an input is missing (NaN or bad quality)",
     REASON_UNSUPPORTED: "no trained rule covers this operating point",
     REASON_OUTSIDE: "an input is outside its nominal span (clipped to the span)",
+    REASON_GAP: "an input is in a gap of its training data (no level bridges it)",
 }
 
 
