@@ -185,6 +185,48 @@ def test_the_settling_quantile_counts_a_censored_change_until_its_visit_ended():
     assert km_quantile([], [5.0], 0.5) is None
 
 
+def _km_by_hand(times, censored, q):
+    """The product-limit quantile as ``km_quantile`` computed it before scipy's
+    (``scipy.stats.ecdf``): one factor ``1 − 1/n`` per settled change in time order, a
+    censored change at a tied time after the settled ones."""
+    t = np.r_[np.asarray(times, float), np.asarray(censored, float)]
+    d = np.r_[np.ones(len(times), bool), np.zeros(len(censored), bool)]
+    if not d.any():
+        return None
+    order = np.lexsort((~d, t))
+    t, d = t[order], d[order]
+    surv = np.cumprod(np.where(d, 1.0 - 1.0 / (len(t) - np.arange(len(t))), 1.0))
+    hit = np.flatnonzero(d & (1.0 - surv >= q - 1e-12))
+    return float(t[hit[0]]) if hit.size else None
+
+
+def test_the_settling_quantile_is_scipys_product_limit_estimate():
+    """``km_quantile`` is ``scipy.stats.ecdf`` of the censored sample: by hand, settled at 2,
+    2, 4, 5, 5, 7 and censored at 2, 3, 5, 6 (ties: a censoring after the settlings), the
+    estimate 1 − S is 2/10 at 2, then 1 − 8/10 · 5/6 = 1/3 at 4 (6 at risk), 1 − 2/3 · 3/5 =
+    0.6 at 5 (5 at risk), 1 at 7 (1 at risk); the 7 censored at 8 instead, it stops at 0.6.
+    And on random censored samples (times rounded to the sample period, so ties occur) it
+    agrees with the product computed one settled change at a time."""
+    from diag_plugin.unitbuild.loops import km_quantile
+
+    seen, cens = [2.0, 2.0, 4.0, 5.0, 5.0, 7.0], [2.0, 3.0, 5.0, 6.0]
+    for q, want in [(0.2, 2.0), (0.3, 4.0), (0.5, 5.0), (0.6, 5.0), (0.61, 7.0), (0.9, 7.0)]:
+        assert km_quantile(seen, cens, q) == want, q
+    assert km_quantile(seen[:-1], [*cens, 8.0], 0.6) == 5.0
+    assert km_quantile(seen[:-1], [*cens, 8.0], 0.61) is None
+    rng = np.random.default_rng(34)
+    reached = 0
+    for _ in range(400):
+        n, m = rng.integers(0, 25), rng.integers(0, 25)
+        times = np.round(rng.exponential(300.0, n) / 10) * 10
+        censored = np.round(rng.exponential(500.0, m) / 10) * 10
+        for q in (0.5, 0.9):
+            got, want = km_quantile(times, censored, q), _km_by_hand(times, censored, q)
+            assert got == want, (times, censored, q)
+            reached += want is not None
+    assert 200 < reached < 800  # both answers: the quantile reached and not
+
+
 def test_a_step_inside_a_sequence_is_no_state_and_a_short_mode_is():
     """``[states]`` at 1 min, the dwell 20 min: three starts (the mode 0 → 1, the valve
     forward 3 min later: ``0,1`` a step of the start, entered through the mode's change and

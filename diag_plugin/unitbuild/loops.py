@@ -779,22 +779,21 @@ def km_quantile(times, censored, q: float) -> float | None:
     """The ``q`` quantile of a settling time from the ``times`` seen and the ``censored``
     ones (known only to be longer), by Kaplan and Meier's product-limit estimate (J. Amer.
     Statist. Assoc. 53, 1958, eq. 2: ``S(t) = Π_{t_j ≤ t} (1 − d_j / n_j)``, ``n_j`` the
-    changes not settled nor censored before ``t_j``): the first settling time ``t`` with
-    ``1 − S(t) ≥ q`` (an observed one), None where the estimate never reaches ``q`` (the
-    window's visits end before the slowest changes would settle). A censoring at a tied time
-    counts as after the settlings there (the usual convention)."""
+    changes not settled nor censored before ``t_j``), as :func:`scipy.stats.ecdf` of
+    :class:`scipy.stats.CensoredData` computes it: the first settling time ``t`` with
+    ``1 − S(t) ≥ q`` (an observed one: the estimate steps only there), None where the
+    estimate never reaches ``q`` (the window's visits end before the slowest changes would
+    settle) or nothing settled. A censoring at a tied time counts as after the settlings
+    there (the usual convention, scipy's: its ``n_j`` counts every change at ``t_j``)."""
     import numpy as np
+    from scipy import stats
 
-    t = np.r_[np.asarray(times, float), np.asarray(censored, float)]
-    d = np.r_[np.ones(len(times), bool), np.zeros(len(censored), bool)]
-    if not d.any():
+    times = np.asarray(times, float)
+    if not times.size:
         return None
-    order = np.lexsort((~d, t))
-    t, d = t[order], d[order]
-    at_risk = len(t) - np.arange(len(t))
-    surv = np.cumprod(np.where(d, 1.0 - 1.0 / at_risk, 1.0))
-    hit = np.flatnonzero(d & (1.0 - surv >= q - 1e-12))
-    return float(t[hit[0]]) if hit.size else None
+    cdf = stats.ecdf(stats.CensoredData(uncensored=times, right=np.asarray(censored, float))).cdf
+    hit = np.flatnonzero(cdf.probabilities >= q - 1e-12)
+    return float(cdf.quantiles[hit[0]]) if hit.size else None
 
 
 def _window_steps(unit, frame) -> tuple[list, int]:
