@@ -245,3 +245,23 @@ def test_a_step_inside_a_sequence_is_no_state_and_a_short_mode_is():
     assert visited_combos(x, ["VALVE", "MODE"], 1200, 180) == ["1,2"]
     # a switch shorter than the on-delay is no visit
     assert visited_combos(x, ["VALVE", "MODE"], 1200, 660) == []
+
+
+def test_the_states_table_written_is_the_one_the_build_reads():
+    """``put_states`` sets a unit file's ``[states]`` table (what is saved) and its read form
+    (what the settle and the combinations guard read during the build) from one triple, at
+    both of the build's assignments (the window's held combinations, then those visited
+    repeatedly once a state settle is learned): read back, the saved table is the read form."""
+    from types import SimpleNamespace
+
+    import tomlkit
+
+    from diag_plugin.diagnose.combos import read_states
+    from diag_plugin.unitbuild.build import put_states
+
+    uf = SimpleNamespace(doc=tomlkit.document(), states=None)
+    for seen in (["0,0", "1,1"], ["0,0", "1,1", "1,2"]):
+        put_states(uf, ["FDV_FORWARD", "MODE"], seen, 760.0)
+        back = tomlkit.loads(tomlkit.dumps(uf.doc))["states"]
+        assert read_states(back, None, None) == uf.states
+        assert uf.states["seen"] == seen

@@ -415,6 +415,14 @@ def state_combos(
     return states, held_combos(frame, states, held_s), held_s
 
 
+def put_states(uf: Any, tags: list[str], seen: list[str], held_s: float) -> None:
+    """The unit file ``uf``'s ``[states]`` (:func:`state_combos`' ``tags``, ``seen`` and
+    ``held_s``): the table it writes and the one it reads (``uf.states``, what
+    :func:`~diag_plugin.diagnose.combos.read_states` reads back), set together."""
+    uf.doc["states"] = states_table(tags, seen, held_s)
+    uf.states = {"tags": tags, "seen": seen, "held_s": held_s}
+
+
 def short_combos(
     unit: Any, frame: pd.DataFrame, combos: tuple[list[str], list[str], float], state_s
 ) -> list[str]:
@@ -1602,20 +1610,18 @@ def _build_unit(
         )  # fmt: skip
         uf = unit.file  # the unit file as just written and read (learning only reads it)
         uf.set_learned(learned)
-        # the settle after an operator's set-point step, from the window's own steps
-        # (diagnose/settle.py): on the unit with its thresholds
-        # and after a hand valve's move or a state's change (a pump started), from the
-        # window's own
-        # (one pass: the window's steps found once, its residuals replayed at most once)
-        # (the run tag beside the learned rows: its starts are the run condition's changes)
+        # the settles after an operator's set-point step, a hand valve's move and a state's
+        # change (a pump started), from the window's own (diagnose/settle.py), on the unit
+        # with its thresholds: one pass, the window's steps found once, its residuals
+        # replayed at most once; the run tag beside the learned rows (its starts are the
+        # run condition's changes)
         settle_frame = frame if run_col is None else frame.assign(**{rc.tag: run_col})
         # the combinations of the discrete states the window held long enough to teach the
         # models (diagnose/combos.py), their dwell the unit's quiet time: first, so that the
         # states no model reads are watched by the state settle too (settle.unit_combos)
         combos = state_combos(unit, frame, list(doc["build"]["states"]))
         if combos is not None:
-            uf.doc["states"] = states_table(*combos)
-            uf.states = {"tags": combos[0], "seen": combos[1], "held_s": combos[2]}
+            put_states(uf, *combos)
         settle_unit = Unit(uf, unit.models, unit.matrix)
         replay = Replay(settle_unit, settle_frame)  # the window's residuals, replayed once
         settles = settle_bounds(settle_unit, settle_frame, replay)
@@ -1651,8 +1657,7 @@ def _build_unit(
                                  uf.doc["evaluation"].get("state_settle_max_s"))  # fmt: skip
             if visited:
                 combos = (combos[0], sorted({*combos[1], *visited}), combos[2])
-                uf.doc["states"] = states_table(*combos)
-                uf.states = {"tags": combos[0], "seen": combos[1], "held_s": combos[2]}
+                put_states(uf, *combos)
             notes.append(combos_note(unit, *combos, short=visited))
         if any(value > 0 for *_, value, _ in settles) or combos is not None or pieces or envs:
             uf.save()
