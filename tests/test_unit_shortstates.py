@@ -166,8 +166,14 @@ def test_the_narrow_span_note_is_shown_and_written():
     # the rate's set-point held one value: its learned span, its span 0 … 20
     assert narrow["FEED_FLOW_SP"].startswith("FEED_FLOW_SP 10.4 … 10.4 (0.0% of its span 0 … 20")
     assert "FEED_VFD" in narrow and "FEED_FLOW_SP 10.4 … 10.4" in line
-    # a tag over a wide part of its span is not listed (the level's 0 … 100: 48 … 52 is)
-    assert all(float(s.split("(")[1].split("%")[0]) < 5 for s in narrow.values())
+    # the rule is said: held at one value, or few independent values over under half the span
+    assert "held at one value, or at most 7 independent values" in line
+    # the slow raw-milk temperature (about 3 independent values in 67 min) is listed; the
+    # loops' controlled temperatures (0.2 % of 0 … 100, dozens of values) and the level held
+    # at 50 % (3 % of its span, about 25) are not: the window saw their spread (under 5 % of
+    # the span, the rule before, listed 11 inputs, these among them)
+    assert "about 3.0 independent values" in narrow["RAW_TEMP"], narrow
+    assert not {"HOLD_TEMP", "HW_TEMP_SP", "BT_LEVEL", "STEAM_VLV"} & set(narrow), narrow
 
 
 def test_the_settling_quantile_counts_a_censored_change_until_its_visit_ended():
@@ -183,6 +189,33 @@ def test_the_settling_quantile_counts_a_censored_change_until_its_visit_ended():
     assert km_quantile([1.0, 2.0, 3.0], [3.5], 0.75) == 3.0
     assert km_quantile(np.arange(1.0, 11.0), [], 0.9) == 9.0
     assert km_quantile([], [5.0], 0.5) is None
+
+
+def test_an_input_is_narrow_by_its_own_time_scale_not_a_share_of_its_span():
+    """``narrow_spans`` judges an input by the independent values the window holds of it
+    (its own time scale against the window's length), not by a fixed share of its span: a
+    temperature wandering slowly over 20 % of its span (about 2 independent values: half
+    its later values outside) is named; a fast one at 0.3 % of its span (a loop holds it,
+    400 independent values) is not, nor one wandering slowly over most of its span; a
+    set-point held at one value is, whatever its span."""
+    from diag_plugin.unitbuild.build import Step, TestChoice, narrow_spans
+    from historian.taginfo import TagInfo
+
+    rng = np.random.default_rng(3)
+    n = 400
+    frame = pd.DataFrame({
+        "SLOW": 40.0 + 20.0 * np.sin(np.linspace(0, np.pi / 2, n)) + rng.normal(0, 0.02, n),
+        "FAST": 73.2 + rng.normal(0, 0.05, n),
+        "WIDE": 10.0 + 80.0 * np.linspace(0, 1, n) + rng.normal(0, 0.02, n),
+        "SP": np.full(n, 10.4),
+        "Y": rng.normal(0, 1, n),
+    })  # fmt: skip
+    info = {t: TagInfo(t, lo=0.0, hi=100.0) for t in frame.columns}
+    kept = [TestChoice("Y", "Y", 1.0, steps=[Step(f"{t}[k]", 1.0, 1.0) for t in
+                                             ("SLOW", "FAST", "WIDE")])]  # fmt: skip
+    got = {s.split(" ")[0]: s for s in narrow_spans(frame, info, kept, {"SP": "a set-point"})}
+    assert set(got) == {"SLOW", "SP"}, got
+    assert "held at one value" in got["SP"] and "independent values" in got["SLOW"]
 
 
 def _km_by_hand(times, censored, q):

@@ -1963,9 +1963,10 @@ def blind_pair_tests(
 EDGELESS_NAMED = 3
 
 
-#: an input learned over less than this share of its span (the tag's ``lo`` … ``hi``) is
-#: named by the build's narrow-span note (:func:`narrow_spans`)
-NARROW_SHARE = 0.05
+#: an input the window saw at most this many independent values of is named by the build's
+#: narrow-span note (:func:`narrow_spans`): of its later values, at its own pace, a share
+#: ``2 / (n + 1)`` falls outside the window's range, a quarter or more here
+NARROW_INDEPENDENT = 7
 #: how the narrow-span note begins: the CLI prints it whatever the count of notes
 NARROW_SAID = "learned over a narrow part of their span"
 
@@ -1976,15 +1977,33 @@ def narrow_spans(
     kept: Sequence[TestChoice],
     skipped: Mapping[str, str],
 ) -> list[str]:
-    """The unit's inputs whose window covers less than :data:`NARROW_SHARE` of their span
-    (the tag's ``lo`` … ``hi``, as the models scale it): every plain input of a kept test,
-    and the tags left out as a discrete state, a set-point or a constant (kept candidate
-    inputs, read by the unit). One line each: the tag, the span the window shows (its
-    learned span), its span and the share; ``[]`` where none (a tag without ``lo``/``hi``
-    is not judged). The short window of the pasteuriser (400 samples of 10 s, one rate)
-    learned its feed pump's speed at 70.7 or 72 % (a discrete state) and the rate's
-    set-point at 10.6 of 0 … 20 m³/h; its notes were cut at four and this was not on the
-    screen (issue 34 item 5, ``i34-cip``)."""
+    """The unit's inputs the window saw too little of: held at one value, or moving slower
+    than the window shows, so that the plant takes them past what the unit learned in its
+    ordinary operation. Judged by the input's own time scale against the window's length:
+    the window holds ``n`` independent values of it
+    (:func:`~diag_plugin.models.series.effective_samples`, ``n / τ`` with ``τ`` its
+    integrated autocorrelation time), and of ``n`` independent values the smallest and the
+    largest enclose on average a share ``(n − 1) / (n + 1)`` of the values it takes (the
+    order statistics' coverage, distribution-free: Wilks 1941), so ``2 / (n + 1)`` of its
+    later values fall outside the window's range. Named: an input held at one value (a
+    set-point, a mode, a speed the window did not move: every later move falls outside),
+    or one of at most :data:`NARROW_INDEPENDENT` independent values (a quarter or more
+    outside) whose window covers less than half its span (the tag's ``lo`` … ``hi``, as the
+    models scale it; a tag without them is not judged). A fast input the window saw at a
+    small part of its span is not named: the window saw its spread, and a loop holds it
+    there (a controlled temperature at 73.2 °C of 0 … 100, about 80 values).
+
+    Which inputs: every plain input of a kept test, and the tags left out as a discrete
+    state, a set-point or a constant (kept candidate inputs, read by the unit). One line
+    each: the tag, the span the window shows (its learned span), its span and the share,
+    and its independent values; ``[]`` where none. The short window of the pasteuriser
+    (400 samples of 10 s, one rate) learned its feed pump's speed at one value and the
+    rate's set-point at 10.4 of 0 … 20 m³/h; its notes were cut at four and this was not
+    on the screen (issue 34 item 5, ``i34-cip``). Under 5 % of the span, the rule before,
+    it named 11 of its inputs, with the loops' controlled temperatures at 0.2 % (issue 34
+    item 3, ``i34-review``): 7 now."""
+    from diag_plugin.models.series import effective_samples
+
     read = [InputSpec.parse(s).tags[0] for ch in kept for s in ch.inputs
             if InputSpec.parse(s).fn == ""]  # fmt: skip
     left = [t for t, why in skipped.items()
@@ -2000,10 +2019,17 @@ def narrow_spans(
             continue
         lo, hi = float(v.min()), float(v.max())
         share = (hi - lo) / (span[1] - span[0])
-        if share < NARROW_SHARE:
-            why = skipped.get(t, "an input").split(" (")[0]
-            out.append(f"{t} {lo:.4g} … {hi:.4g} ({share:.1%} of its span {span[0]:.4g} … "
-                       f"{span[1]:.4g}; {why})")  # fmt: skip
+        n = effective_samples(v) if hi > lo else 0.0
+        if hi > lo and (n > NARROW_INDEPENDENT or 2 * share >= 1):
+            continue
+        why = skipped.get(t, "an input").split(" (")[0]
+        seen = (
+            "held at one value, every later move outside"
+            if hi == lo
+            else f"about {n:.1f} independent values: {2 / (n + 1):.0%} of later ones outside"
+        )
+        out.append(f"{t} {lo:.4g} … {hi:.4g} ({share:.1%} of its span {span[0]:.4g} … "
+                   f"{span[1]:.4g}; {seen}; {why})")  # fmt: skip
     return out
 
 
@@ -2012,10 +2038,12 @@ def narrow_note(spans: Sequence[str]) -> str:
     if not spans:
         return ""
     return (
-        f"{len(spans)} input(s) {NARROW_SAID} (under {NARROW_SHARE:.0%}): "
-        f"{'; '.join(spans)}: the unit knows the plant only there; where one leaves it the "
-        "unit says so (CHECK_FUNCTION), and a longer window, or `diag unit accept` of a "
-        "period where it moved, teaches it more"
+        f"{len(spans)} input(s) {NARROW_SAID} (held at one value, or at most "
+        f"{NARROW_INDEPENDENT} independent values in the window over under half their span: "
+        "at their own pace a quarter or more of their later values fall outside what the window "
+        f"showed): {'; '.join(spans)}: the unit knows the plant only there; where one leaves "
+        "it the unit says so (CHECK_FUNCTION), and a longer window, or `diag unit accept` of "
+        "a period where it moved, teaches it more"
     )
 
 
