@@ -489,8 +489,9 @@ SETTLE_FACTOR = 2.0
 #: the models read, the residual filter's delay, the on-delay)
 SETTLE_FALLBACK = 4.0
 #: state_settle_max_s: this quantile of the window's own state changes' settling times (a
-#: change that never settled counted longer than any), an observed time (issue 34, items 5/6:
-#: a start's settle ends when its transient is over, so a fault that outlasts it is raised)
+#: change that did not settle before the next one censored, :func:`km_quantile`), an observed
+#: time (issue 34, items 5/6: a start's settle ends when its transient is over, so a fault
+#: that outlasts it is raised)
 STATE_SETTLE_QUANTILE = 0.9
 
 
@@ -546,7 +547,6 @@ def piece_settle_bounds(unit, frame, residuals=None) -> list[tuple[str, float | 
     quantile of those times plus the quiet time (:func:`_quantile_and_how`). ``(name,
     settle_max_s, what it rests on)`` each; ``settle_max_s`` None where no start moved its
     tests or fewer than half settled (the unit's bound kept)."""
-    import numpy as np
 
     from diag_plugin.diagnose.settle import quiet_samples
 
@@ -559,23 +559,8 @@ def piece_settle_bounds(unit, frame, residuals=None) -> list[tuple[str, float | 
     for e, cols in zip(eqs, unit.equipment_tests, strict=True):
         if not cols.size or e.rc.tag not in frame.columns:
             continue
-        runs, starts = piece_starts(e.rc, frame[e.rc.tag].to_numpy(float))
-        stops = np.flatnonzero(~runs)
-        times: list[float] = []
-        moved = 0
-        for i in starts:
-            later = stops[stops > i]
-            end = int(later[0]) if later.size else len(runs)
-            e_all, noise_all = residuals()
-            err, noise = e_all[:, cols], noise_all[cols]
-            peak = np.nanmax(np.abs(err[i : min(i + quiet, end)]), axis=0, initial=0.0)
-            if not (peak > noise).any():
-                continue  # it moved none of its tests beyond their noise
-            moved += 1
-            tol = np.maximum(SETTLE_BAND * peak, noise)
-            at = _settled(~(np.abs(err) > tol).any(axis=1), int(i), end, quiet)
-            if at is not None:
-                times.append(at * unit.period_s)
+        starts, changes = _piece_changes(e.rc, frame[e.rc.tag].to_numpy(float))
+        times, moved = _piece_times(unit, residuals, cols, changes, quiet)
         key = f"[equipment.{e.name}] settle_max_s"
         if not times or 2 * len(times) < moved:
             how = (f"{key} not written: {len(times)} of {e.name}'s {moved} start(s) that "
@@ -753,21 +738,16 @@ def _free_times(unit, kind: str, steps: list, quiet: int, residuals: Replay,
     list to collect, per step that moved a residual but did not settle before the next step
     of its kind (or the window's end), the time it is known not to have settled by (s): its
     visit less the quiet time (a settling time is where the quiet time begins), at least 0."""
-    import numpy as np
-
     times: list[float] = []
     moved = 0  # steps that moved a residual beyond its noise (settled or not)
     for lp, _, _, i, end in steps:
         if lp.kind != kind:
             continue
         e, noise = residuals()
-        # the move's own excursion: the largest within the quiet time after it
-        peak = np.nanmax(np.abs(e[i : min(i + quiet, end)]), axis=0, initial=0.0)
-        if not (peak > noise).any():
+        seen, at = _settling(e, noise, i, end, quiet)
+        if not seen:
             continue  # it moved no residual beyond its noise: tells nothing of a settle
         moved += 1
-        tol = np.maximum(SETTLE_BAND * peak, noise)
-        at = _settled(~(np.abs(e) > tol).any(axis=1), i, end, quiet)
         if at is not None:
             times.append(at * unit.period_s)
         elif censored is not None:
@@ -873,6 +853,21 @@ def _under_band(frame, loops, quiet: int) -> str:
         f"; {n} set-point move(s) within their loop test's band are not steps and open no "
         f"settle: their transients alarm as any change ({'; '.join(named)}{more})"
     )
+
+
+def _settling(err, noise, i: int, end: int, quiet: int) -> tuple[bool, int | None]:
+    """Whether the change at row ``i`` moved a residual of ``err`` (rows × tests, each less
+    its median) beyond its ``noise``, its own excursion the largest within the quiet time
+    after it (before row ``end``), and the samples to its settle (:func:`_settled`: every
+    residual back within :data:`SETTLE_BAND` of its excursion, its noise where wider, for
+    the quiet time before row ``end``; None where not, or where it moved none)."""
+    import numpy as np
+
+    peak = np.nanmax(np.abs(err[i : min(i + quiet, end)]), axis=0, initial=0.0)
+    if not (peak > noise).any():
+        return False, None
+    tol = np.maximum(SETTLE_BAND * peak, noise)
+    return True, _settled(~(np.abs(err) > tol).any(axis=1), int(i), end, quiet)
 
 
 def _settled(ok, i: int, end: int, quiet: int) -> int | None:
@@ -1111,7 +1106,6 @@ def settle_envelopes(
     window's held-out residuals the thresholds were learned from (:class:`HeldOut`; the
     settling times that cut the bins too), so the envelope is judged on residuals the
     models did not see (issue 34: before, the unit replayed on its own window)."""
-    import numpy as np
 
     from diag_plugin.diagnose.envelope import STATE
     from diag_plugin.diagnose.settle import quiet_samples, state_tags
@@ -1132,13 +1126,8 @@ def settle_envelopes(
         hold_s = pieces.get(e.name) or unit_s
         if not cols.size or e.rc.tag not in frame.columns or not hold_s > 0:
             continue
-        runs, starts = piece_starts(e.rc, frame[e.rc.tag].to_numpy(float))
-        stops = np.flatnonzero(~runs)
-        changes = []
-        for i in starts:
-            later = stops[stops > i]
-            changes.append((int(i), int(later[0]) if later.size else len(runs)))
-        times = _piece_times(unit, residuals, cols, changes, quiet)
+        _, changes = _piece_changes(e.rc, frame[e.rc.tag].to_numpy(float))
+        times, _ = _piece_times(unit, residuals, cols, changes, quiet)
         env, how = learn_envelope(residuals.scaled()[:, cols], changes, times,
                                   hold_s, unit.period_s,
                                   [unit.tests[j] for j in cols])  # fmt: skip
@@ -1146,20 +1135,31 @@ def settle_envelopes(
     return out
 
 
-def _piece_times(unit, residuals, cols, changes, quiet: int) -> list[float]:
-    """The settling times (seconds) of a piece's starts ``changes`` on its tests ``cols``
-    (:func:`piece_settle_bounds`'s rule)."""
+def _piece_changes(rc, values) -> tuple:
+    """A piece's starts in the window (:func:`piece_starts` on its run tag's ``values``) and
+    each as ``(row, the row of its next stop or the window's end)``."""
     import numpy as np
 
+    runs, starts = piece_starts(rc, values)
+    stops = np.flatnonzero(~runs)
+    changes = []
+    for i in starts:
+        later = stops[stops > i]
+        changes.append((int(i), int(later[0]) if later.size else len(runs)))
+    return starts, changes
+
+
+def _piece_times(unit, residuals, cols, changes, quiet: int) -> tuple[list[float], int]:
+    """The settling times (seconds) of a piece's starts ``changes`` on its tests ``cols``
+    (:func:`piece_settle_bounds`'s rule, :func:`_settling`) and how many moved a test
+    beyond its noise (settled or not)."""
     e_all, noise_all = residuals()
     err, noise = e_all[:, cols], noise_all[cols]
-    times = []
+    times: list[float] = []
+    moved = 0
     for i, end in changes:
-        peak = np.nanmax(np.abs(err[i : min(i + quiet, end)]), axis=0, initial=0.0)
-        if not (peak > noise).any():
-            continue
-        tol = np.maximum(SETTLE_BAND * peak, noise)
-        at = _settled(~(np.abs(err) > tol).any(axis=1), int(i), end, quiet)
+        seen, at = _settling(err, noise, i, end, quiet)
+        moved += seen  # it moved none of its tests beyond their noise: not counted
         if at is not None:
             times.append(at * unit.period_s)
-    return times
+    return times, moved
