@@ -61,15 +61,43 @@ def test_read_ahead_starts_at_once_and_keeps_order():
             asked.append(i)
             yield i
 
-    with ReadAhead(items()) as r:
+    with ReadAhead(items(), ahead=1) as r:
         assert started.wait(30)
         got = []
         for x in r:
             got.append(x)
             if x < 3:
-                r._next.result()  # the next item is read while this one is used
+                r._next[-1].result()  # the next item is read while this one is used
                 assert asked[-1] == x + 1
     assert got == [0, 1, 2, 3]
+
+
+def test_read_ahead_reads_two_before_the_first_is_taken():
+    """By default two items are read before the caller takes the first (the command's
+    small first piece and the whole second one beside its start-up, issue 34), in order,
+    then one more as each is taken, never more than two ahead, each once."""
+    from diag_plugin.diagnose.readahead import ReadAhead
+
+    asked = []
+    both = threading.Event()
+
+    def items():
+        for i in range(5):
+            asked.append(i)
+            if i == 1:
+                both.set()
+            yield i
+
+    with ReadAhead(items()) as r:
+        assert both.wait(30)
+        r._next[-1].result()
+        assert asked == [0, 1]  # nothing taken yet: two read, no third
+        got = []
+        for x in r:
+            got.append(x)
+            r._next[-1].result()
+            assert asked[-1] == min(x + 2, 4)
+    assert got == [0, 1, 2, 3, 4] and asked == [0, 1, 2, 3, 4]
 
 
 def test_read_ahead_closes_its_items_when_left_early():

@@ -11,25 +11,34 @@ each other before (the read started after the last import).
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 
 class ReadAhead:
-    """Iterate ``items`` while a thread already reads the next one; the first read starts
-    when the reader is made. ``None`` from ``items`` ends it (as a piece never is).
-    :meth:`close` (or the ``with`` block's end) waits for a read under way and closes
-    ``items``: the historian a generator of pieces holds open."""
+    """Iterate ``items`` while a thread already reads the next ones, up to ``ahead`` of them
+    (one at a time, in order); the first read starts when the reader is made. ``None`` from
+    ``items`` ends it (as a piece never is). :meth:`close` (or the ``with`` block's end)
+    waits for a read under way and closes ``items``: the historian a generator of pieces
+    holds open.
 
-    def __init__(self, items: Iterable[Any]) -> None:
+    Two ahead by default (issue 34, "Speed"): with one, the thread read the command's small
+    first piece (:func:`~diag_plugin.diagnose.cli.ramped`) and then waited for the
+    start-up's end (``scipy.special``, numba's registries: ~0.25 CPU s) to be asked for the
+    second, a whole piece, whose read the first replay then waited for; now that read runs
+    beside the start-up, on the other core. One more piece is held (46 tags × 41,680 rows:
+    15 MB)."""
+
+    def __init__(self, items: Iterable[Any], ahead: int = 2) -> None:
         self._items = iter(items)
         self._ex = ThreadPoolExecutor(1, thread_name_prefix="diagnose-read")
-        self._next = self._ex.submit(next, self._items, None)
+        self._next = deque(self._ex.submit(next, self._items, None) for _ in range(max(1, ahead)))
 
     def __iter__(self) -> Iterator[Any]:
-        while (item := self._next.result()) is not None:
-            self._next = self._ex.submit(next, self._items, None)
+        while (item := self._next.popleft().result()) is not None:
+            self._next.append(self._ex.submit(next, self._items, None))
             yield item
 
     def close(self) -> None:
@@ -68,8 +77,7 @@ def blas_alone() -> None:
     """``scipy.linalg.cython_blas`` loaded without ``scipy.linalg`` (issue 34, "Speed"): numba's
     registries import it to check that a BLAS is there, and importing it ran
     ``scipy.linalg``'s package first — ~0.1 CPU s of each ``diag diagnose`` (its modules
-    parse their docstrings, and ``scipy._lib`` imports ``numpy.f2py`` and
-    ``numpy.testing``), for a replay that calls no function of it. The extension module alone
+    parse their docstrings at import), for a replay that calls no function of it. The extension module alone
     is a few ms: the same module object (``sys.modules``), whose function table numba's
     compiled BLAS calls read. A later ``import scipy.linalg`` imports the package as usual,
     which finds the module loaded and holds it as its attribute (:class:`_BlasParent`).
