@@ -77,11 +77,12 @@ def blas_alone() -> None:
     """``scipy.linalg.cython_blas`` loaded without ``scipy.linalg`` (issue 34, "Speed"): numba's
     registries import it to check that a BLAS is there, and importing it ran
     ``scipy.linalg``'s package first — ~0.1 CPU s of each ``diag diagnose`` (its modules
-    parse their docstrings at import), for a replay that calls no function of it. The extension module alone
-    is a few ms: the same module object (``sys.modules``), whose function table numba's
-    compiled BLAS calls read. A later ``import scipy.linalg`` imports the package as usual,
-    which finds the module loaded and holds it as its attribute (:class:`_BlasParent`).
-    Where it cannot be found or loaded alone, nothing is done (numba imports it as before)."""
+    parse their docstrings at import), for a replay that calls no function of it. The
+    extension module alone is a few ms: the same module object (``sys.modules``), whose
+    function table numba's compiled BLAS calls read. A later ``import scipy.linalg`` imports
+    the package as usual, which finds the module loaded and holds it as its attribute
+    (:class:`_BlasParent`). Where it cannot be found or loaded alone, nothing is done (numba
+    imports it as before)."""
     import importlib.util
     import sys
     from importlib.machinery import PathFinder
