@@ -108,6 +108,11 @@ shown; peak RSS unchanged (720 MB, 1.9 GB; 2.0 → 2.1 GB with the CSV); the sam
 (200,000 rows ``804a00c3…``/``31fec695…``; 1,000,000 ``e177ec7b…``/``9ee70412…``). The helper's CPU
 is now in "replay" (it was in "other" before this round's wrapper). Wall seconds at that load
 say nothing of an idle run (35–45 s for 200,000 rows); not measured idle.
+Round ten (branch ``i34-speed``): numba's BLAS check without ``scipy.linalg``, the model
+cache's arrays as one member, the pieces read two ahead. The wrapper now also prints the
+start-up alone, "start-up" (the main thread's CPU until its first replay: imports, the
+unit's load, ``scipy.special``, numba's registries), and "read ahead" (the read's CPU done
+by then, beside the start-up on the other core).
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
@@ -155,7 +160,12 @@ def load_unit(*a, **k):  # the command's imports are done when it loads the unit
     st["imports"] = cpu()
     import diag_plugin.diagnose.unit as du
     import historian.store as hs
-    du.Unit.evaluate = timed(du.Unit.evaluate, "replay", True)
+    evaluate = timed(du.Unit.evaluate, "replay", True)
+    def first(*a, **k):  # the start-up alone: the main thread's CPU until its first replay
+        if "start-up" not in st and threading.current_thread() is threading.main_thread():
+            st["start-up"], st["read ahead"] = time.thread_time(), st["read"]
+        return evaluate(*a, **k)
+    du.Unit.evaluate = first
     lock = threading.Lock()
     def pooled(f):  # the per-tag reads of a window in the historian's reader threads
         def g(*a, **k):
@@ -345,6 +355,9 @@ def split(st: dict) -> dict[str, float]:
            "other": output}  # fmt: skip
     if "main" in st:  # the main thread's own CPU (imports, load, replay, its share of other)
         out["main thread"] = st["main"]
+    for key in ("start-up", "read ahead"):  # not parts of the sum: the main thread's CPU
+        if key in st:  # before its first replay, and the read's CPU done by then
+            out[key] = st[key]
     return out
 
 

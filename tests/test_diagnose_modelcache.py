@@ -179,3 +179,37 @@ def test_the_key_covers_every_module_a_model_is_read_with(station, tmp_path):
     }
     assert used
     assert used <= set(ModelCache.code_files()), sorted(used - set(ModelCache.code_files()))
+
+
+def test_an_entry_keeps_each_array_as_it_was():
+    """An entry's arrays are one byte array and a layout (modelcache.pack: ~900 members of
+    the bench's 45 entries were each opened and parsed): each comes back with its type,
+    shape, memory order and values, its own writable copy; what would need a pickle is not
+    kept, and a layout that does not fit its bytes is refused."""
+    from diag_plugin.diagnose.modelcache import ALIGN, pack, unpack
+
+    rng = np.random.default_rng(3)
+    arrays = {
+        "w": rng.normal(size=(5, 7)),
+        "f": np.asfortranarray(rng.integers(-9, 9, size=(4, 3)).astype(np.int32)),
+        "mask": rng.normal(size=9) > 0,
+        "n": np.int64(41),
+        "none": np.zeros((0, 3), np.float32),
+        "strided": rng.normal(size=(6, 8))[:, ::3],
+        "nan": np.array([np.nan, -0.0, np.inf]),
+    }
+    blob, layout = pack(arrays)
+    assert blob.dtype == np.uint8 and all(at % ALIGN == 0 for *_, at in layout)
+    back = unpack(blob, layout)
+    assert list(back) == list(arrays)
+    for k, a in arrays.items():
+        a = np.asarray(a)
+        b = back[k]
+        assert (b.dtype, b.shape) == (a.dtype, a.shape), k
+        assert b.tobytes(order="A") == np.asarray(a, order="A").tobytes(order="A"), k
+        assert b.flags.writeable and b.flags.owndata, k
+    assert back["f"].flags.f_contiguous and not back["f"].flags.c_contiguous
+    with pytest.raises(ValueError):
+        pack({"text": np.array(["a", "b"])})
+    with pytest.raises(ValueError):
+        unpack(blob[:-8], layout)

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import threading
 
-#: run ``diag`` with the command's read of pieces watched: when ``scipy.linalg`` (what the
-#: replay's first numba dispatch imports) is first imported, was the read of the first piece
+#: run ``diag`` with the command's read of pieces watched: when ``scipy.special`` (what the
+#: replay's combined test imports) is first imported, was the read of the first piece
 #: already under way in its thread? (waits for it, up to 60 s, once the pieces were asked for)
 PROBE = """
 import sys, threading
@@ -27,7 +27,7 @@ def unit_frames(*a, **k):
 cli.unit_frames = unit_frames
 class Watch:
     def find_spec(self, name, path=None, target=None):
-        if name == "scipy.linalg" and not seen:
+        if name == "scipy.special" and not seen:
             seen.append(asked.is_set() and reading.wait(60))
         return None
 sys.meta_path.insert(0, Watch())
@@ -38,9 +38,9 @@ print("RESULT", rc, seen, file=sys.stderr)
 
 
 def test_first_piece_read_before_the_replays_imports(tmp_path):
-    """The first piece is being read when ``scipy.linalg`` is imported (numba's registries
-    and ``scipy.special`` follow it): the read overlaps the rest of the start-up. On ``main``
-    the pieces were asked for only after those imports ([False])."""
+    """The first piece is being read when ``scipy.special`` is imported (numba's registries
+    follow it): the read overlaps the rest of the start-up. Before the read ahead the pieces
+    were asked for only after those imports ([False])."""
     from helpers import probed_valve_diagnose
 
     out, line = probed_valve_diagnose(tmp_path, PROBE, seed=812)
@@ -61,15 +61,43 @@ def test_read_ahead_starts_at_once_and_keeps_order():
             asked.append(i)
             yield i
 
-    with ReadAhead(items()) as r:
+    with ReadAhead(items(), ahead=1) as r:
         assert started.wait(30)
         got = []
         for x in r:
             got.append(x)
             if x < 3:
-                r._next.result()  # the next item is read while this one is used
+                r._next[-1].result()  # the next item is read while this one is used
                 assert asked[-1] == x + 1
     assert got == [0, 1, 2, 3]
+
+
+def test_read_ahead_reads_two_before_the_first_is_taken():
+    """By default two items are read before the caller takes the first (the command's
+    small first piece and the whole second one beside its start-up, issue 34), in order,
+    then one more as each is taken, never more than two ahead, each once."""
+    from diag_plugin.diagnose.readahead import ReadAhead
+
+    asked = []
+    both = threading.Event()
+
+    def items():
+        for i in range(5):
+            asked.append(i)
+            if i == 1:
+                both.set()
+            yield i
+
+    with ReadAhead(items()) as r:
+        assert both.wait(30)
+        r._next[-1].result()
+        assert asked == [0, 1]  # nothing taken yet: two read, no third
+        got = []
+        for x in r:
+            got.append(x)
+            r._next[-1].result()
+            assert asked[-1] == min(x + 2, 4)
+    assert got == [0, 1, 2, 3, 4] and asked == [0, 1, 2, 3, 4]
 
 
 def test_read_ahead_closes_its_items_when_left_early():
@@ -92,3 +120,38 @@ def test_read_ahead_closes_its_items_when_left_early():
     except RuntimeError:
         pass
     assert closed.is_set()
+
+
+#: ``diag diagnose`` in a fresh process; then whether ``scipy.linalg`` was imported, and a
+#: compiled BLAS call and ``scipy.linalg`` imported afterwards
+NO_LINALG = """
+import sys
+from diag_plugin.cli import main
+rc = main(sys.argv[1:])
+imported = "scipy.linalg" in sys.modules
+import numba, numpy as np
+dot = numba.njit(lambda a, b: np.dot(a, b))(np.arange(3.0), np.arange(3.0))
+import scipy.linalg
+from scipy.linalg import cython_blas
+x = scipy.linalg.solve(np.diag([2.0, 4.0]), np.ones(2))
+same = scipy.linalg.cython_blas is cython_blas is sys.modules["scipy.linalg.cython_blas"]
+print("RESULT", rc, imported, dot, x.tolist(), same, file=sys.stderr)
+"""
+
+
+def test_a_replay_does_not_import_scipy_linalg(tmp_path):
+    """numba's registries check for a BLAS by importing ``scipy.linalg.cython_blas``; the
+    command loads that module alone (readahead.blas_alone), so ``scipy.linalg`` is not
+    imported by a replay of a unit whose models come from the model cache (~0.1 CPU s,
+    issue 34; a first load fits the models' coarse levels with ``scipy.sparse.linalg``),
+    and the JSON is the same. Afterwards a compiled BLAS call works, and ``scipy.linalg``
+    imports as usual, holding the module loaded."""
+    from helpers import probed_valve_diagnose
+
+    outs = []
+    for run in ("first", "cached"):
+        (tmp_path / run).mkdir()
+        out, line = probed_valve_diagnose(tmp_path / run, NO_LINALG, seed=812)
+        outs.append(out)
+    assert line == "RESULT 0 False 5.0 [0.5, 0.25] True", line
+    assert '"samples": 8640' in out and outs[0] == outs[1]
