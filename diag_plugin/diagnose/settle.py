@@ -31,9 +31,11 @@ alarm: the unit's judgement goes on.
   or ``settle_max_s`` after the sample the set-point left its hold (the unit file's
   ``[evaluation]``, written by ``diag unit build`` from the window's own steps,
   :func:`~diag_plugin.unitbuild.loops.settle_max`), whichever is first. A fault that
-  persists past it is the unit's alarm again (FAILURE). A step during a settle that has not
-  suppressed anything restarts it (a latched one keeps its end). ``settle_max_s = 0`` (unit
-  files written before it): no guard.
+  persists past it is the unit's alarm again (FAILURE). A step of the same tag during an open
+  settle keeps its end and its age, whether or not it has suppressed anything: one event
+  (before, an open settle that had suppressed nothing restarted, so a start's age hung on
+  whether it had alarmed yet, and the envelope learned on the window could not know it).
+  ``settle_max_s = 0`` (unit files written before it): no guard.
 
 - **A hand valve's move** (its ``[manual]`` span, :mod:`~diag_plugin.diagnose.manual`;
   ``manual_settle_max_s`` > 0): the same step rule on the valve's reading (held within its
@@ -475,7 +477,7 @@ def _settle_kernel(
                 run[j] = 1
                 moved[j] += 1
             prev[j] = x
-        if step >= 0 and g[6] >= quiet_n and not (g[0] == 1 and g[3] == 1):
+        if step >= 0 and g[6] >= quiet_n and g[0] == 0:
             g[0] = 1
             g[1] = s_back  # counted from the sample the set-point left its hold
             g[2] = 0
@@ -487,13 +489,16 @@ def _settle_kernel(
             k += 1
         elif step >= 0 and g[0] == 1 and (step == g[4] or max_n[step] > max_n[g[4]] - g[1]):
             # the tag the settle is for steps again (a filter's backwash 1, then
-            # filter-to-waste 2, then filtering 0) without reopening it (latched, or the unit
-            # in alarm lately): the settle keeps its end, its why names this latest step.
+            # filter-to-waste 2, then filtering 0; a start's diversion valve forward, back,
+            # forward) without reopening it, latched or not: the settle keeps its end and its
+            # age (one event, as the envelope learned it: settle_ages), its why names this
+            # latest step.
             # Another tag whose settle outlasts the open one's rest (a production start's
             # diversion valve forward minutes after the rate's step) carries it on: one event
             if step != g[4]:
                 g[1] = s_back
                 g[4] = step
+            g[2] = 0  # quiet counted from this step: its transient is still to come
             _record(steps, k, step, s_from, s_to, i, s_back, 1)
             cur = k
             k += 1
