@@ -1036,24 +1036,58 @@ def envelope_bound(peaks, n_starts: int | None = None) -> float:
     return float(max(1.0, x.max()) * (1.0 + ENVELOPE_WIDEN / np.sqrt(n)))
 
 
-def learn_envelope(a, changes: list[tuple[int, int]], times: list[float], bound_s: float,
-                   period_s: float, names: list[str]):  # fmt: skip
+def age_events(age):
+    """Per row the event it belongs to (0, 1, …; -1 none) from ``age``, per row the age it is
+    judged at (samples, -1 none; :func:`~diag_plugin.diagnose.settle.settle_ages`): an event
+    begins where a row's age does not continue the row before's by one (a settle opened, or
+    carried on by another tag's step, counts its age afresh)."""
+    import numpy as np
+
+    age = np.asarray(age, np.int64)
+    on = age >= 0
+    prev = np.r_[-2, age[:-1]]
+    first = on & ~((prev >= 0) & (age == prev + 1))
+    out = np.cumsum(first) - 1
+    out[~on] = -1
+    return out
+
+
+def change_ages(changes: list[tuple[int, int]], n: int):
+    """Per row of ``n`` its age (samples) after the change it follows, -1 elsewhere, from
+    ``changes`` (``(row, the row it must end by)`` each, none overlapping: a piece's starts,
+    each to its stop): row ``i`` of a change at ``i`` is at age 0."""
+    import numpy as np
+
+    out = np.full(n, -1, np.int64)
+    for i, end in changes:
+        out[i:end] = np.arange(max(0, end - i))
+    return out
+
+
+def learn_envelope(a, age, times: list[float], bound_s: float, period_s: float,
+                   names: list[str]):  # fmt: skip
     """The envelope (:class:`~diag_plugin.diagnose.envelope.Envelope`) of the window's
-    fault-free ``changes`` (``(row, the row it must end by)`` each) from ``a``, rows × tests
-    (``names``) the residuals in threshold units, and what it rests on in words; None where
-    fewer than :data:`~diag_plugin.diagnose.envelope.MIN_STARTS` changes. Bins: from 0 and
+    fault-free changes from ``a``, rows × tests (``names``) the residuals in threshold
+    units, and ``age``, per row the age (samples) the guard judges it at after its change
+    (-1: none; the events :func:`age_events`, those with no residual known not counted), and
+    what it rests on in words; None where fewer than
+    :data:`~diag_plugin.diagnose.envelope.MIN_STARTS` events. Bins: from 0 and
     from the :data:`ENVELOPE_QUANTILES` of the settling times ``times`` (seconds; fewer than
     :data:`~diag_plugin.diagnose.envelope.MIN_STARTS`: the same shares of the bound), the
     first of them cut in :data:`ENVELOPE_SPLIT` equal spans, up to the settle's bound
-    ``bound_s``; a bin fewer changes reached than that ends the envelope (the last bin
+    ``bound_s``; a bin fewer events reached than that ends the envelope (the last bin
     kept holds from its age on). Per test and bin :func:`envelope_bound`; a bin a test is
     unknown throughout (a spread test's window filling) takes its widest bin's."""
     import numpy as np
 
     from diag_plugin.diagnose.envelope import MIN_STARTS, Envelope
 
-    if len(changes) < MIN_STARTS or not bound_s > 0:
-        return None, f"no envelope: {len(changes)} change(s) (at least {MIN_STARTS} needed)"
+    a = np.abs(np.asarray(a, float))
+    age = np.asarray(age, np.int64)
+    ev = age_events(age)
+    live = np.unique(ev[(ev >= 0) & np.isfinite(a).any(axis=1)])
+    if live.size < MIN_STARTS or not bound_s > 0:
+        return None, f"no envelope: {live.size} change(s) (at least {MIN_STARTS} needed)"
     bound_n = int(np.ceil(bound_s / period_s))
     if len(times) >= MIN_STARTS:
         q = np.quantile(np.asarray(times, float), ENVELOPE_QUANTILES, method="higher")
@@ -1065,15 +1099,16 @@ def learn_envelope(a, changes: list[tuple[int, int]], times: list[float], bound_
     split = [first * k // ENVELOPE_SPLIT for k in range(1, ENVELOPE_SPLIT)]
     edges = sorted({0, *(c for c in split if c > 0), *cuts})
     ends = [*edges[1:], bound_n]
-    a = np.abs(np.asarray(a, float))
-    peaks = []  # per bin: changes × tests
+    mine = np.isin(ev, live)
+    peaks = []  # per bin: events × tests
     for lo, hi in zip(edges, ends, strict=True):
-        got = [np.nanmax(np.where(np.isnan(a[i + lo : min(i + hi, end)]), -np.inf,
-                                  a[i + lo : min(i + hi, end)]), axis=0)
-               for i, end in changes if i + lo < end]  # fmt: skip
-        if len(got) < MIN_STARTS:
+        rows = np.flatnonzero(mine & (age >= lo) & (age < hi))
+        got, inv = np.unique(ev[rows], return_inverse=True)
+        if got.size < MIN_STARTS:
             break
-        peaks.append(np.vstack(got))
+        peak = np.full((got.size, a.shape[1]), -np.inf)
+        np.maximum.at(peak, inv.reshape(-1), np.where(np.isnan(a[rows]), -np.inf, a[rows]))
+        peaks.append(peak)
     edges = edges[: len(peaks)]
     tests = {}
     for t, name in enumerate(names):
@@ -1081,10 +1116,10 @@ def learn_envelope(a, changes: list[tuple[int, int]], times: list[float], bound_
         known = np.isfinite(got)
         if known.any():  # a bin it is unknown in (a spread test's window filling): its widest
             tests[name] = tuple(float(v) for v in np.where(known, got, got[known].max()))
-    env = Envelope(len(changes), tuple(float(e * period_s) for e in edges), tests)
+    env = Envelope(int(live.size), tuple(float(e * period_s) for e in edges), tests)
     widest = max(tests, key=lambda k: tests[k][0], default="")
     how = (
-        f"an envelope from {len(changes)} fault-free change(s), {len(edges)} age bin(s) from "
+        f"an envelope from {live.size} fault-free change(s), {len(edges)} age bin(s) from "
         f"{', '.join(f'{e * period_s:.0f}' for e in edges)} s (0, the quartiles of the "
         f"settling times, the first cut in {ENVELOPE_SPLIT}), per test the largest held-out "
         f"|residual| (threshold units, at least 1) × "
@@ -1108,7 +1143,7 @@ def settle_envelopes(
     models did not see (issue 34: before, the unit replayed on its own window)."""
 
     from diag_plugin.diagnose.envelope import STATE
-    from diag_plugin.diagnose.settle import quiet_samples, state_tags
+    from diag_plugin.diagnose.settle import quiet_samples, settle_ages, state_tags
 
     out = []
     quiet = quiet_samples(unit)
@@ -1116,9 +1151,10 @@ def settle_envelopes(
     unit_s = state_s or float(bounds.get("settle_max_s") or 0.0)
     if state_tags(unit) and state_s > 0:
         steps, _ = _window_steps(unit, frame)
-        changes = [(i, end) for lp, _, _, i, end in steps if lp.kind == "state"]
         times, _ = _free_times(unit, "state", steps, quiet, residuals)
-        env, how = learn_envelope(residuals.scaled(), changes, times, state_s, unit.period_s,
+        # the events and their ages as the guard counts them at run time (one rule)
+        age = settle_ages(unit, frame, bounds)
+        env, how = learn_envelope(residuals.scaled(), age, times, state_s, unit.period_s,
                                   list(unit.tests))  # fmt: skip
         out.append((STATE, env, f"[envelope.{STATE}]: {how}"))
     for e, cols in zip(getattr(unit, "equipment", None) or [], unit.equipment_tests,
@@ -1128,7 +1164,8 @@ def settle_envelopes(
             continue
         _, changes = _piece_changes(e.rc, frame[e.rc.tag].to_numpy(float))
         times, _ = _piece_times(unit, residuals, cols, changes, quiet)
-        env, how = learn_envelope(residuals.scaled()[:, cols], changes, times,
+        env, how = learn_envelope(residuals.scaled()[:, cols],
+                                  change_ages(changes, len(frame)), times,
                                   hold_s, unit.period_s,
                                   [unit.tests[j] for j in cols])  # fmt: skip
         out.append((e.name, env, f"[envelope.{e.name}]: {how}"))
