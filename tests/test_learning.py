@@ -32,7 +32,13 @@ from diag_plugin.examples.rigs import (
     tag_info,
     tank_rig,
 )
-from diag_plugin.learn.budget import calibrate, calibrate_side, episodes, observed_rate
+from diag_plugin.learn.budget import (
+    calibrate,
+    calibrate_side,
+    episodes,
+    observed_rate,
+    rice_parts,
+)
 from diag_plugin.learn.thresholds import LearnError, block_of, learn_thresholds
 from diag_plugin.status import NE107
 from diag_plugin.training.chunked import train
@@ -134,6 +140,39 @@ def test_a_window_of_a_few_hundred_samples_uses_the_gaussian_model():
     side = calibrate_side(x, 400 / 3600, 0.01, 5, 5)
     assert side.method == "gaussian" and not side.supported
     assert np.isfinite(side.threshold) and side.threshold > np.quantile(x, 0.99)
+
+
+def test_rice_parts_are_what_a_short_windows_threshold_rests_on():
+    """The Gaussian threshold's parts (issue 34 H2): calibrate_side's threshold is theirs, and
+    the same window at the same budget gets a larger Student z the fewer independent values
+    it holds, so a slow series' threshold lies further out in its own spreads and scatters
+    from window to window (SKAB's combined T² thresholds: 26-1,431 over 21 units of 400 s)."""
+    hours, rate = 300 / 3600, 0.0005  # SKAB's combined test: 300 held-out samples of 1 s
+    want = rate * hours
+    got = {}
+    for phi in (0.5, 0.97):
+        got[phi] = []
+        for seed in range(1, 6):
+            x = _ar1(300, seed, phi)[:, 0]
+            side, g = calibrate_side(x, hours, rate, 30, 240), rice_parts(x, hours, rate, 30, 240)
+            assert side.method == "gaussian" and side.episodes == g.episodes
+            assert side.threshold == pytest.approx(g.threshold)
+            # Student t at n - 1 degrees of freedom: its density ratio is the budget's
+            nu = g.n_eff - 1.0
+            assert (1.0 + g.z**2 / nu) ** (-(nu + 1.0) / 2.0) == pytest.approx(want / g.episodes)
+            assert g.threshold == pytest.approx(g.mean + g.spread * np.sqrt(1 + 1 / g.n_eff) * g.z)
+            # with as many values as one likes: Rice's normal distance sqrt(2 ln(E(mu) / c*))
+            big = rice_parts(x, hours, rate, 30, 240, n_eff=1e9)
+            assert big.z == pytest.approx(np.sqrt(2 * np.log(g.episodes / want)), rel=1e-4)
+            assert big.threshold <= g.threshold
+            got[phi].append(g)
+    fast, slow = got[0.5], got[0.97]
+    assert max(g.n_eff for g in slow) < min(g.n_eff for g in fast) / 3
+    assert min(g.z for g in slow) > max(g.z for g in fast) + 1.0
+    spread = {
+        phi: max(g.threshold for g in v) / min(g.threshold for g in v) for phi, v in got.items()
+    }
+    assert spread[0.97] > 3.0 > 1.5 > spread[0.5]
 
 
 # ---------------------------------------------------------------- units on the tank rig
