@@ -47,6 +47,7 @@ import numba
 import numpy as np
 import pandas as pd
 
+from diag_plugin.diagnose.beyond import answer_range, bound_residual
 from diag_plugin.diagnose.combos import CombosGuard
 from diag_plugin.diagnose.envelope import scaled
 from diag_plugin.diagnose.equipment import (
@@ -761,6 +762,9 @@ class Unit:
         self.latched = np.zeros(len(self.tests))
         self.held = np.full(len(self.tests), np.nan)  # last known symptom per test
         self.unknown_run = np.zeros(len(self.tests), np.int64)
+        #: per test whether its reading is beyond its model's answers on its own (beyond.py)
+        self.beyond_carry = np.zeros(len(self.tests), bool)
+        self._answers: dict[int, tuple[float, float, float] | None] = {}
         self.isolation = IsolationHold(1, len(self.tests), len(self.faults))
         self.combined_delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
         window = spread_samples(ev["spread_window_s"] or 600.0, self.period)
@@ -811,6 +815,7 @@ class Unit:
             "latched": self.latched.tolist(),
             "held": [None if np.isnan(v) else float(v) for v in self.held],
             "unknown_run": self.unknown_run.tolist(),
+            "beyond": self.beyond_carry.tolist(),
             "isolation": self.isolation.to_state(),
             "combined_delay": self.combined_delay.to_state(),
             "spread": self.spread.to_state(),
@@ -845,6 +850,8 @@ class Unit:
         self.latched = np.asarray(state["latched"], float)
         self.held = np.array([np.nan if v is None else v for v in state["held"]], float)
         self.unknown_run = np.asarray(state["unknown_run"], np.int64)
+        if "beyond" in state:  # a state saved before it: no reading beyond on its own
+            self.beyond_carry = np.asarray(state["beyond"], bool)
         self.seen = int(state.get("seen", 1 << 40))  # states saved before it: warmed up
         if "outside" in state:  # states saved before it: no excursion, no lag history
             self.outside.load_state(state["outside"])
@@ -922,6 +929,7 @@ class Unit:
             d = self.builders[t.name].transform(cols, lean=True)
             if d.positions.size:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
+                self._beyond(out, j, d.positions, t, d.y, cols)
                 if self.manual is not None:  # a hand valve outside its span: unknown
                     self.manual.blank(out, j, d.positions, d.X, moved)
 
@@ -933,6 +941,45 @@ class Unit:
         # copy it filters in place, so no third array of the residuals' size
         raw = pd.DataFrame(out.T, index=frame.index, columns=_names(self.tests), copy=False)
         return raw, off
+
+    def _beyond(
+        self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y, cols: Columns
+    ) -> None:
+        """In place: test ``j``'s unknown residuals at ``at`` where its reading ``y`` is
+        beyond every answer its model can give, having gone there on its own, replaced by the
+        least residual any answer would leave (:mod:`~.beyond`: divided by the greatest level
+        factor and, with ``spread = true``, the greatest local spread, so never more than the
+        residual of any answer); advances its carried state. A spread statistic: none.
+        ``cols``: the piece's columns, whose inputs' values now (not as the model reads them,
+        lagged) say whether the reading left its range before them."""
+        if j not in self._answers:
+            m = self.models[test.name]
+            ok = test.statistic == "level"
+            self._answers[j] = answer_range(m.model, m.out_range) if ok else None
+        rng = self._answers[j]
+        if rng is None:
+            return
+        m = self.models[test.name]
+        scale = test.ymax if self.ev["scale"] == "max" and test.ymax else m.span
+        table = np.asarray(test.levels if test.levels is not None else (1.0,), float)
+        div = float(scale) * float(table.max())
+        if test.spread:
+            div *= max(rng[2], SPREAD_FLOOR)
+        y = np.asarray(y, float)
+        with np.errstate(invalid="ignore"):
+            if not ((y < rng[0]) | (y > rng[1])).any():  # most pieces: nothing beyond
+                self.beyond_carry[j] = False
+                return
+        inside = np.ones(at.size, bool)
+        for rg in self.outside.ranges:
+            if rg.test == j and not rg.gap and rg.tag in cols.columns:
+                x = cols.values(rg.tag)[at]
+                with np.errstate(invalid="ignore"):
+                    inside &= ~((x < rg.lo) | (x > rg.hi))  # NaN: not outside
+        r, self.beyond_carry[j] = bound_residual(
+            out[j, at], y, rng, div, bool(self.beyond_carry[j]), inside
+        )
+        out[j, at] = r
 
     def _residual_into(
         self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y: np.ndarray,
