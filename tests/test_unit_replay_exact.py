@@ -203,6 +203,7 @@ def _ref_inverse(self, pat):  # each pattern's pseudo-inverse, nothing shared wi
 def _ref_raw_residuals(self, frame, cols=None):  # the frame's columns read again, per tag
     frame = self._model_frame(frame)
     every = Columns(frame)
+    fills: dict = {}
     cols = {}
     for j, t in enumerate(self.file.tests):
         d = self.builders[t.name].transform(frame)
@@ -211,8 +212,9 @@ def _ref_raw_residuals(self, frame, cols=None):  # the frame's columns read agai
             pred = self.models[t.name].model.predict_detail(d.X)
             at = frame.index.get_indexer(d.index)
             r[j, at] = self.residual(t, d.y, pred)
-            self._beyond(r, j, at, t, d.y, every)  # a reading beyond its answers (beyond.py)
+            self._beyond(r, j, at, t, d.y, every, fills)  # beyond its answers (beyond.py)
         cols[t.name] = r[j]
+    self._fills = fills  # filled in after the filter (Unit.with_bounds)
     return pd.DataFrame(cols, index=frame.index, columns=self.tests)
 
 

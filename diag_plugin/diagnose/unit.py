@@ -922,6 +922,7 @@ class Unit:
         # column of samples × tests); turned to samples × tests once at the end
         out = np.full((len(self.tests), len(frame)), np.nan)
         moved = self.manual.moved(cols.values) if self.manual is not None else False
+        fills: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # test → rows, bounds (beyond.py)
 
         def row(j: int) -> None:  # test j's row of ``out`` (its own builder and model)
             t = self.file.tests[j]
@@ -929,7 +930,7 @@ class Unit:
             d = self.builders[t.name].transform(cols, lean=True)
             if d.positions.size:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
-                self._beyond(out, j, d.positions, t, d.y, cols)
+                self._beyond(out, j, d.positions, t, d.y, cols, fills)
                 if self.manual is not None:  # a hand valve outside its span: unknown
                     self.manual.blank(out, j, d.positions, d.X, moved)
 
@@ -937,21 +938,63 @@ class Unit:
         off = self._equipment_off(cols, len(frame))
         if off is not None and off[0] is not None:  # a stopped piece's tests: off
             out[off[0].T] = np.nan
+        self._fills = self._kept_fills(fills, moved, None if off is None else off[0])
         # samples × tests as a view of it (column-major): :meth:`filtered` writes the C-ordered
         # copy it filters in place, so no third array of the residuals' size
         raw = pd.DataFrame(out.T, index=frame.index, columns=_names(self.tests), copy=False)
         return raw, off
 
+    def _kept_fills(self, fills: dict, moved, off: np.ndarray | None) -> dict:
+        """``fills`` (:meth:`_beyond`) without the rows where a hand valve is outside its span
+        (``moved``: the operator moved the plant there, item 5) or the test's piece of
+        equipment is stopped (``off``: samples × tests)."""
+        if not fills or (moved is False and off is None):
+            return fills
+        kept = {}
+        for j, (rows, v) in fills.items():
+            keep = np.ones(rows.size, bool)
+            if moved is not False:
+                keep &= ~np.asarray(moved, bool)[rows]
+            if off is not None:
+                keep &= ~off[rows, j]
+            if keep.any():
+                kept[j] = (rows[keep], v[keep])
+        return kept
+
+    def with_bounds(self, r: pd.DataFrame) -> pd.DataFrame:
+        """The filtered residuals ``r`` with the bounds :meth:`_residuals` found for this piece
+        (:mod:`~.beyond`) where a test is unknown: filled after the filter, which holds its
+        state over the unknown samples as before (a bound fed to it would pull the residuals
+        after the gap toward it: it is a least value, not the residual). A test with
+        operating points of its own (``diag unit accept``) gets none."""
+        fills = getattr(self, "_fills", None)
+        if not fills:
+            return r
+        skip = (
+            set() if self.level_points is None else set(np.asarray(self.level_points[0]).tolist())
+        )
+        x = r.to_numpy(float, copy=True)
+        for j, (rows, v) in fills.items():
+            if j in skip:
+                continue
+            col = x[:, j]
+            gap = np.isnan(col[rows])
+            col[rows[gap]] = v[gap]
+        self._fills = {}
+        return pd.DataFrame(x, index=r.index, columns=r.columns, copy=False)
+
     def _beyond(
-        self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y, cols: Columns
-    ) -> None:
-        """In place: test ``j``'s unknown residuals at ``at`` where its reading ``y`` is
-        beyond every answer its model can give, having gone there on its own, replaced by the
-        least residual any answer would leave (:mod:`~.beyond`: divided by the greatest level
-        factor and, with ``spread = true``, the greatest local spread, so never more than the
-        residual of any answer); advances its carried state. A spread statistic: none.
-        ``cols``: the piece's columns, whose inputs' values now (not as the model reads them,
-        lagged) say whether the reading left its range before them."""
+        self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y, cols: Columns,
+        fills: dict,
+    ) -> None:  # fmt: skip
+        """Test ``j``'s bounds (``fills[j]``: rows, values) where it is unknown at ``at``
+        (``out``: tests × samples, its residuals) and its reading ``y`` is beyond every answer
+        its model can give, having gone there on its own: the least residual any answer would
+        leave (:mod:`~.beyond`: divided by the greatest level factor and, with ``spread =
+        true``, the greatest local spread, so never more than the residual of any answer);
+        advances its carried state. A spread statistic: none. ``cols``: the piece's columns,
+        whose inputs' values now (not as the model reads them, lagged) say whether the reading
+        left its range before them. :meth:`with_bounds` fills them in after the filter."""
         if j not in self._answers:
             m = self.models[test.name]
             ok = test.statistic == "level"
@@ -976,10 +1019,13 @@ class Unit:
                 x = cols.values(rg.tag)[at]
                 with np.errstate(invalid="ignore"):
                     inside &= ~((x < rg.lo) | (x > rg.hi))  # NaN: not outside
+        was = out[j, at]
         r, self.beyond_carry[j] = bound_residual(
-            out[j, at], y, rng, div, bool(self.beyond_carry[j]), inside
+            was, y, rng, div, bool(self.beyond_carry[j]), inside
         )
-        out[j, at] = r
+        new = np.isnan(was) & np.isfinite(r)
+        if new.any():
+            fills[j] = (at[new], r[new])
 
     def _residual_into(
         self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y: np.ndarray,
@@ -1224,7 +1270,7 @@ class Unit:
         cols = self.columns(frame)  # read once: the builders and the reasons
         raw, off = self._residuals(frame, cols)  # off: a stopped piece's tests (equipment.py)
         raw = self.at_points(raw, point)
-        r = self.filtered(raw)
+        r = self.with_bounds(self.filtered(raw))
         # what the warm-up reads of the raw residuals, taken now: the raw array is let go
         # before the symptoms and the combined test make theirs (one n × tests array fewer
         # at the replay's peak; a first pass pays the first touch of every new page)
