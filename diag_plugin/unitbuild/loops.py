@@ -1100,16 +1100,21 @@ def learn_envelope(a, age, times: list[float], bound_s: float, period_s: float,
     edges = sorted({0, *(c for c in split if c > 0), *cuts})
     ends = [*edges[1:], bound_n]
     mine = np.isin(ev, live)
-    peaks = []  # per bin: events × tests
+    peaks, kept = [], []  # per bin: events × tests; its first age
     for lo, hi in zip(edges, ends, strict=True):
         rows = np.flatnonzero(mine & (age >= lo) & (age < hi))
+        if not rows.size and not kept:
+            continue  # younger than the guard judges any row (its first is at 1 or more)
         got, inv = np.unique(ev[rows], return_inverse=True)
         if got.size < MIN_STARTS:
             break
         peak = np.full((got.size, a.shape[1]), -np.inf)
         np.maximum.at(peak, inv.reshape(-1), np.where(np.isnan(a[rows]), -np.inf, a[rows]))
         peaks.append(peak)
-    edges = edges[: len(peaks)]
+        kept.append(lo)
+    if not kept:
+        return None, f"no envelope: fewer than {MIN_STARTS} changes reached its first age bin"
+    edges = kept
     tests = {}
     for t, name in enumerate(names):
         got = np.array([envelope_bound(p[:, t]) for p in peaks])
