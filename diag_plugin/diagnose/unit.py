@@ -938,11 +938,31 @@ class Unit:
         off = self._equipment_off(cols, len(frame))
         if off is not None and off[0] is not None:  # a stopped piece's tests: off
             out[off[0].T] = np.nan
+        if fills:  # no bound where an operator moved the plant past what it learned (item 5)
+            moved = moved | self._set_points_outside(cols)
         self._fills = self._kept_fills(fills, moved, None if off is None else off[0])
         # samples × tests as a view of it (column-major): :meth:`filtered` writes the C-ordered
         # copy it filters in place, so no third array of the residuals' size
         raw = pd.DataFrame(out.T, index=frame.index, columns=_names(self.tests), copy=False)
         return raw, off
+
+    def _set_points_outside(self, cols: Columns) -> np.ndarray | bool:
+        """Where a set-point (:func:`~.unittags.declared_set_points`) is outside what a test
+        reading it learned (its value now): the operator moved the plant to a point the unit
+        never learned, and every reading the move carries away is the plant following it —
+        no bound (:mod:`~.beyond`), CHECK_FUNCTION as before (item 5)."""
+        from diag_plugin.diagnose.unittags import declared_set_points
+
+        sps = declared_set_points(self)
+        names = self.outside.names
+        off: np.ndarray | bool = False
+        for rg in self.outside.ranges:
+            if rg.gap or names.get(rg.tag, rg.tag) not in sps or rg.tag not in cols.columns:
+                continue
+            x = cols.values(rg.tag)
+            with np.errstate(invalid="ignore"):
+                off = off | (x < rg.lo) | (x > rg.hi)
+        return off
 
     def _kept_fills(self, fills: dict, moved, off: np.ndarray | None) -> dict:
         """``fills`` (:meth:`_beyond`) without the rows where a hand valve is outside its span
