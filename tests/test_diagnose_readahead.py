@@ -120,38 +120,3 @@ def test_read_ahead_closes_its_items_when_left_early():
     except RuntimeError:
         pass
     assert closed.is_set()
-
-
-#: ``diag diagnose`` in a fresh process; then whether ``scipy.linalg`` was imported, and a
-#: compiled BLAS call and ``scipy.linalg`` imported afterwards
-NO_LINALG = """
-import sys
-from diag_plugin.cli import main
-rc = main(sys.argv[1:])
-imported = "scipy.linalg" in sys.modules
-import numba, numpy as np
-dot = numba.njit(lambda a, b: np.dot(a, b))(np.arange(3.0), np.arange(3.0))
-import scipy.linalg
-from scipy.linalg import cython_blas
-x = scipy.linalg.solve(np.diag([2.0, 4.0]), np.ones(2))
-same = scipy.linalg.cython_blas is cython_blas is sys.modules["scipy.linalg.cython_blas"]
-print("RESULT", rc, imported, dot, x.tolist(), same, file=sys.stderr)
-"""
-
-
-def test_a_replay_does_not_import_scipy_linalg(tmp_path):
-    """numba's registries check for a BLAS by importing ``scipy.linalg.cython_blas``; the
-    command loads that module alone (readahead.blas_alone), so ``scipy.linalg`` is not
-    imported by a replay of a unit whose models come from the model cache (~0.1 CPU s,
-    issue 34; a first load fits the models' coarse levels with ``scipy.sparse.linalg``),
-    and the JSON is the same. Afterwards a compiled BLAS call works, and ``scipy.linalg``
-    imports as usual, holding the module loaded."""
-    from helpers import probed_valve_diagnose
-
-    outs = []
-    for run in ("first", "cached"):
-        (tmp_path / run).mkdir()
-        out, line = probed_valve_diagnose(tmp_path / run, NO_LINALG, seed=812)
-        outs.append(out)
-    assert line == "RESULT 0 False 5.0 [0.5, 0.25] True", line
-    assert '"samples": 8640' in out and outs[0] == outs[1]

@@ -593,10 +593,9 @@ def cmd_diagnose(args) -> int:
 
             from diag_plugin.diagnose.leadin import lead_in
             from diag_plugin.diagnose.pertest import cores
-            from diag_plugin.diagnose.readahead import ReadAhead, blas_alone, numba_ready
+            from diag_plugin.diagnose.readahead import ReadAhead, numba_ready
             from historian.store import Historian  # noqa: F401 - here, not in the reading thread
 
-            blas_alone()  # before any numba dispatch: a unit's first load derives with numba
             unit = load_unit(args, args.name, cached=True)
             unit.workers = cores()  # a piece's tests on every core (pertest: the same bits)
             if args.chunk is None:
@@ -612,12 +611,13 @@ def cmd_diagnose(args) -> int:
             # not shown; the first piece read from here on, while the rest of the start-up runs
             pieces = unit_frames(args, unit, start, end, chunk, lead_in(unit), bounds)
             frames = stack.enter_context(ReadAhead(pieces))
-            # scipy.special: what the first piece's replay imports (the combined test's χ²
-            # levels), here with the collector off (scipy.stats imported it with the unit's
-            # modules before); after the freeze it made one full collection
+            # scipy.linalg and scipy.special: what the first piece's replay imports, here with
+            # the collector off (scipy.stats imported both with the unit's modules before):
+            # numba's first dispatch imports scipy.linalg (its BLAS check), the combined
+            # test's χ² levels scipy.special; after the freeze they made one full collection
             # (tests/test_diagnose_output.py); then numba's registries, which the first
-            # piece's replay loaded (issue 34: ~0.2 CPU s moved beside the first read), their
-            # BLAS check without scipy.linalg (readahead.blas_alone: ~0.1 CPU s less)
+            # piece's replay loaded (issue 34: ~0.2 CPU s moved beside the first read)
+            import scipy.linalg  # noqa: F401
             import scipy.special  # noqa: F401
 
             numba_ready()

@@ -3,8 +3,8 @@ first from the moment the reader is made (issue 34, "Speed": a replay of 200,000
 ~1 s of start-up before the first row).
 
 The command makes its :class:`ReadAhead` as soon as the unit is loaded, then does the rest
-of its start-up — the library only the replay needs (``scipy.special``) and numba's target
-registries (:func:`numba_ready`) — while the first piece is read: the
+of its start-up — the libraries only the replay needs (``scipy.linalg``, ``scipy.special``)
+and numba's target registries (:func:`numba_ready`) — while the first piece is read: the
 historian's SQLite queries run outside the GIL, so the two overlap where they waited for
 each other before (the read started after the last import).
 """
@@ -58,77 +58,9 @@ class ReadAhead:
 def numba_ready() -> None:
     """numba's CPU target with its registries loaded (``BaseContext.refresh``), what the
     first call of a compiled kernel does first: ~0.1 CPU s (it imports ``numba.np.*``,
-    ``numba.cpython.*`` and their typing), here while the first piece is read rather than
-    after it arrived. A later kernel's first call finds them loaded (``refresh`` loads a
-    registry once). Its BLAS check finds ``scipy.linalg.cython_blas`` loaded on its own
-    (:func:`blas_alone`): the replay does not import ``scipy.linalg``."""
+    ``numba.cpython.*``, their typing, and ``scipy.linalg`` for the BLAS check), here while
+    the first piece is read rather than after it arrived. A later kernel's first call finds
+    them loaded (``refresh`` loads a registry once)."""
     from numba.core.registry import cpu_target
 
-    blas_alone()
     cpu_target.target_context.refresh()
-
-
-#: the module numba's BLAS check imports (``numba.np.linalg.ensure_blas``, run when its
-#: registries load ``numba.np.arraymath``)
-CYTHON_BLAS = "scipy.linalg.cython_blas"
-
-
-def blas_alone() -> None:
-    """``scipy.linalg.cython_blas`` loaded without ``scipy.linalg`` (issue 34, "Speed"): numba's
-    registries import it to check that a BLAS is there, and importing it ran
-    ``scipy.linalg``'s package first — ~0.1 CPU s of each ``diag diagnose`` (its modules
-    parse their docstrings at import), for a replay that calls no function of it. The
-    extension module alone is a few ms: the same module object (``sys.modules``), whose
-    function table numba's compiled BLAS calls read. A later ``import scipy.linalg`` imports
-    the package as usual, which finds the module loaded and holds it as its attribute
-    (:class:`_BlasParent`). Where it cannot be found or loaded alone, nothing is done (numba
-    imports it as before)."""
-    import importlib.util
-    import sys
-    from importlib.machinery import PathFinder
-
-    if CYTHON_BLAS in sys.modules or "scipy.linalg" in sys.modules:
-        return
-    try:
-        import scipy
-
-        pkg = PathFinder.find_spec("scipy.linalg", scipy.__path__)
-        spec = pkg and PathFinder.find_spec(CYTHON_BLAS, pkg.submodule_search_locations)
-        if spec is None or spec.loader is None:
-            return
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[CYTHON_BLAS] = module
-        try:
-            spec.loader.exec_module(module)
-        except BaseException:
-            del sys.modules[CYTHON_BLAS]
-            raise
-    except Exception:  # noqa: BLE001 - numba imports it the usual way then
-        return
-    sys.meta_path.insert(0, _BlasParent())
-
-
-class _BlasParent:
-    """The import of ``scipy.linalg`` after :func:`blas_alone`: the package as the path finder
-    finds it, with ``cython_blas`` (loaded already) its attribute before its code runs, as an
-    import of the submodule through the package would have set it. Used once."""
-
-    def find_spec(self, name, path=None, target=None):
-        import sys
-        from importlib.machinery import PathFinder
-
-        if name != "scipy.linalg":
-            return None
-        sys.meta_path.remove(self)
-        spec = PathFinder.find_spec(name, path, target)
-        blas = sys.modules.get(CYTHON_BLAS)
-        if spec is None or spec.loader is None or blas is None:
-            return spec
-        run = spec.loader.exec_module
-
-        def exec_module(module):
-            module.cython_blas = blas
-            run(module)
-
-        spec.loader.exec_module = exec_module
-        return spec
