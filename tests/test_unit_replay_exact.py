@@ -204,19 +204,14 @@ def _ref_inverse(self, pat):  # each pattern's pseudo-inverse, nothing shared wi
 
 def _ref_raw_residuals(self, frame, cols=None):  # the frame's columns read again, per tag
     frame = self._model_frame(frame)
-    every = Columns(frame)
-    fills: dict = {}
     cols = {}
-    for j, t in enumerate(self.file.tests):
+    for t in self.file.tests:
         d = self.builders[t.name].transform(frame)
-        r = np.full((len(self.tests), len(frame)), np.nan)
+        r = np.full(len(frame), np.nan)
         if len(d.index):
             pred = self.models[t.name].model.predict_detail(d.X)
-            at = frame.index.get_indexer(d.index)
-            r[j, at] = self.residual(t, d.y, pred)
-            self._beyond(r, j, at, t, d.y, every, fills)  # beyond its answers (beyond.py)
-        cols[t.name] = r[j]
-    self._fills = fills  # filled in after the filter (Unit.with_bounds)
+            r[frame.index.get_indexer(d.index)] = self.residual(t, d.y, pred)
+        cols[t.name] = r
     return pd.DataFrame(cols, index=frame.index, columns=self.tests)
 
 

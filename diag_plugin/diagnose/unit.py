@@ -47,7 +47,6 @@ import numba
 import numpy as np
 import pandas as pd
 
-from diag_plugin.diagnose.beyond import answer_range, bound_residual
 from diag_plugin.diagnose.combos import CombosGuard
 from diag_plugin.diagnose.envelope import scaled
 from diag_plugin.diagnose.equipment import (
@@ -762,9 +761,6 @@ class Unit:
         self.latched = np.zeros(len(self.tests))
         self.held = np.full(len(self.tests), np.nan)  # last known symptom per test
         self.unknown_run = np.zeros(len(self.tests), np.int64)
-        #: per test whether its reading is beyond its model's answers on its own (beyond.py)
-        self.beyond_carry = np.zeros(len(self.tests), bool)
-        self._answers: dict[int, tuple[float, float, float] | None] = {}
         self.isolation = IsolationHold(1, len(self.tests), len(self.faults))
         self.combined_delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
         window = spread_samples(ev["spread_window_s"] or 600.0, self.period)
@@ -815,7 +811,6 @@ class Unit:
             "latched": self.latched.tolist(),
             "held": [None if np.isnan(v) else float(v) for v in self.held],
             "unknown_run": self.unknown_run.tolist(),
-            "beyond": self.beyond_carry.tolist(),
             "isolation": self.isolation.to_state(),
             "combined_delay": self.combined_delay.to_state(),
             "spread": self.spread.to_state(),
@@ -850,8 +845,6 @@ class Unit:
         self.latched = np.asarray(state["latched"], float)
         self.held = np.array([np.nan if v is None else v for v in state["held"]], float)
         self.unknown_run = np.asarray(state["unknown_run"], np.int64)
-        if "beyond" in state:  # a state saved before it: no reading beyond on its own
-            self.beyond_carry = np.asarray(state["beyond"], bool)
         self.seen = int(state.get("seen", 1 << 40))  # states saved before it: warmed up
         if "outside" in state:  # states saved before it: no excursion, no lag history
             self.outside.load_state(state["outside"])
@@ -922,7 +915,6 @@ class Unit:
         # column of samples × tests); turned to samples × tests once at the end
         out = np.full((len(self.tests), len(frame)), np.nan)
         moved = self.manual.moved(cols.values) if self.manual is not None else False
-        fills: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # test → rows, bounds (beyond.py)
 
         def row(j: int) -> None:  # test j's row of ``out`` (its own builder and model)
             t = self.file.tests[j]
@@ -930,7 +922,6 @@ class Unit:
             d = self.builders[t.name].transform(cols, lean=True)
             if d.positions.size:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
-                self._beyond(out, j, d.positions, t, d.y, cols, fills)
                 if self.manual is not None:  # a hand valve outside its span: unknown
                     self.manual.blank(out, j, d.positions, d.X, moved)
 
@@ -938,114 +929,10 @@ class Unit:
         off = self._equipment_off(cols, len(frame))
         if off is not None and off[0] is not None:  # a stopped piece's tests: off
             out[off[0].T] = np.nan
-        if fills:  # no bound where an operator moved the plant past what it learned (item 5)
-            moved = moved | self._set_points_outside(cols)
-        self._fills = self._kept_fills(fills, moved, None if off is None else off[0])
         # samples × tests as a view of it (column-major): :meth:`filtered` writes the C-ordered
         # copy it filters in place, so no third array of the residuals' size
         raw = pd.DataFrame(out.T, index=frame.index, columns=_names(self.tests), copy=False)
         return raw, off
-
-    def _set_points_outside(self, cols: Columns) -> np.ndarray | bool:
-        """Where a set-point (:func:`~.unittags.declared_set_points`) is outside what a test
-        reading it learned (its value now): the operator moved the plant to a point the unit
-        never learned, and every reading the move carries away is the plant following it —
-        no bound (:mod:`~.beyond`), CHECK_FUNCTION as before (item 5)."""
-        from diag_plugin.diagnose.unittags import declared_set_points
-
-        sps = declared_set_points(self)
-        names = self.outside.names
-        off: np.ndarray | bool = False
-        for rg in self.outside.ranges:
-            if rg.gap or names.get(rg.tag, rg.tag) not in sps or rg.tag not in cols.columns:
-                continue
-            x = cols.values(rg.tag)
-            with np.errstate(invalid="ignore"):
-                off = off | (x < rg.lo) | (x > rg.hi)
-        return off
-
-    def _kept_fills(self, fills: dict, moved, off: np.ndarray | None) -> dict:
-        """``fills`` (:meth:`_beyond`) without the rows where a hand valve is outside its span
-        (``moved``: the operator moved the plant there, item 5) or the test's piece of
-        equipment is stopped (``off``: samples × tests)."""
-        if not fills or (moved is False and off is None):
-            return fills
-        kept = {}
-        for j, (rows, v) in fills.items():
-            keep = np.ones(rows.size, bool)
-            if moved is not False:
-                keep &= ~np.asarray(moved, bool)[rows]
-            if off is not None:
-                keep &= ~off[rows, j]
-            if keep.any():
-                kept[j] = (rows[keep], v[keep])
-        return kept
-
-    def with_bounds(self, r: pd.DataFrame) -> pd.DataFrame:
-        """The filtered residuals ``r`` with the bounds :meth:`_residuals` found for this piece
-        (:mod:`~.beyond`) where a test is unknown: filled after the filter, which holds its
-        state over the unknown samples as before (a bound fed to it would pull the residuals
-        after the gap toward it: it is a least value, not the residual). A test with
-        operating points of its own (``diag unit accept``) gets none."""
-        fills = getattr(self, "_fills", None)
-        if not fills:
-            return r
-        skip = (
-            set() if self.level_points is None else set(np.asarray(self.level_points[0]).tolist())
-        )
-        x = r.to_numpy(float, copy=True)
-        for j, (rows, v) in fills.items():
-            if j in skip:
-                continue
-            col = x[:, j]
-            gap = np.isnan(col[rows])
-            col[rows[gap]] = v[gap]
-        self._fills = {}
-        return pd.DataFrame(x, index=r.index, columns=r.columns, copy=False)
-
-    def _beyond(
-        self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y, cols: Columns,
-        fills: dict,
-    ) -> None:  # fmt: skip
-        """Test ``j``'s bounds (``fills[j]``: rows, values) where it is unknown at ``at``
-        (``out``: tests × samples, its residuals) and its reading ``y`` is beyond every answer
-        its model can give, having gone there on its own: the least residual any answer would
-        leave (:mod:`~.beyond`: divided by the greatest level factor and, with ``spread =
-        true``, the greatest local spread, so never more than the residual of any answer);
-        advances its carried state. A spread statistic: none. ``cols``: the piece's columns,
-        whose inputs' values now (not as the model reads them, lagged) say whether the reading
-        left its range before them. :meth:`with_bounds` fills them in after the filter."""
-        if j not in self._answers:
-            m = self.models[test.name]
-            ok = test.statistic == "level"
-            self._answers[j] = answer_range(m.model, m.out_range) if ok else None
-        rng = self._answers[j]
-        if rng is None:
-            return
-        m = self.models[test.name]
-        scale = test.ymax if self.ev["scale"] == "max" and test.ymax else m.span
-        table = np.asarray(test.levels if test.levels is not None else (1.0,), float)
-        div = float(scale) * float(table.max())
-        if test.spread:
-            div *= max(rng[2], SPREAD_FLOOR)
-        y = np.asarray(y, float)
-        with np.errstate(invalid="ignore"):
-            if not ((y < rng[0]) | (y > rng[1])).any():  # most pieces: nothing beyond
-                self.beyond_carry[j] = False
-                return
-        inside = np.ones(at.size, bool)
-        for rg in self.outside.ranges:
-            if rg.test == j and not rg.gap and rg.tag in cols.columns:
-                x = cols.values(rg.tag)[at]
-                with np.errstate(invalid="ignore"):
-                    inside &= ~((x < rg.lo) | (x > rg.hi))  # NaN: not outside
-        was = out[j, at]
-        r, self.beyond_carry[j] = bound_residual(
-            was, y, rng, div, bool(self.beyond_carry[j]), inside
-        )
-        new = np.isnan(was) & np.isfinite(r)
-        if new.any():
-            fills[j] = (at[new], r[new])
 
     def _residual_into(
         self, out: np.ndarray, j: int, at: np.ndarray, test: TestSpec, y: np.ndarray,
@@ -1290,7 +1177,7 @@ class Unit:
         cols = self.columns(frame)  # read once: the builders and the reasons
         raw, off = self._residuals(frame, cols)  # off: a stopped piece's tests (equipment.py)
         raw = self.at_points(raw, point)
-        r = self.with_bounds(self.filtered(raw))
+        r = self.filtered(raw)
         # what the warm-up reads of the raw residuals, taken now: the raw array is let go
         # before the symptoms and the combined test make theirs (one n × tests array fewer
         # at the replay's peak; a first pass pays the first touch of every new page)
