@@ -381,3 +381,113 @@ def test_the_oscillation_score_applies_the_hold_s_settle_rule_at_every_level():
                 checked += 1
                 held += int(((unit != 0) & (s == 0)).sum())
     assert checked == 1200 and held > 1000 and differs > 500  # the settles changed the hold
+
+
+# ---------------------------------------------------------------- the tag named first, per episode
+
+
+def _named_runs():
+    """Two runs of 40 samples, fault from sample 10, tags W, X, Y, Z, Y at fault; scores 1 in
+    alarm and 0 elsewhere, so any limit matched on all-zero calibration runs is 0. Run 1:
+    an alarm before the onset (not counted) and three episodes after it, Y largest over the
+    first (4 samples), X over the other two (2 + 8 samples): over the run X is named first,
+    Y second; per episode Y, X, X. Run 2: one episode, Y largest throughout."""
+    tags = ["W", "X", "Y", "Z"]
+    s1 = np.zeros(40)
+    s1[[3, 4, *range(12, 16), 20, 21, *range(30, 38)]] = 1.0
+    c1 = np.tile([0.0, 2.0, 1.0, 0.5], (40, 1))  # X, Y, Z: X first
+    c1[12:16] = [0.0, 1.0, 3.0, 0.5]  # Y, X, Z
+    c1[3:5] = [9.0, 0.0, 0.0, 0.0]  # W, before the onset: never named
+    s2 = np.zeros(40)
+    s2[25:33] = 1.0
+    c2 = np.tile([0.1, 1.0, 5.0, 0.5], (40, 1))  # Y, X, Z
+    idx = pd.RangeIndex(40)
+    scored = [Scored(s, pd.DataFrame(c, index=idx, columns=tags)) for s, c in ((s1, c1), (s2, c2))]
+    runs = [FaultRun("f", "r1", 10, ("Y",)), FaultRun("f", "r2", 10, ("Y",))]
+    return runs, scored
+
+
+def test_the_tag_named_first_and_each_episode_s_name_are_counted_per_run_fault_and_method():
+    runs, scored = _named_runs()
+    # a third run without a faulted tag: scored, never counted in the naming
+    runs.append(FaultRun("g", "r3", 10, ()))
+    scored.append(Scored(scored[0].score.copy(), scored[0].contributions))
+    zero = [np.zeros(200)]
+    methods = {"M": {"calibration": zero, "free": [], "faults": scored}}
+    for per, target in (("sample", 0.01), ("hour", 0.5)):
+        out = curve(methods, [target], 60.0, per, runs)
+        m = out["points"][0]["methods"]["M"]
+        assert m["limit"]["limit"] == 0.0
+        f = m["faults"]["f"]
+        r1, r2 = f["per_run"]
+        assert r1["top"] == ["X", "Y", "Z"] and r1["in_top"]  # Y in the top 3, not first
+        assert not r1["first_right"]
+        assert r1["episodes"] == 3 and r1["episode_tags"] == ["Y", "X", "X"]
+        assert r1["episodes_right"] == 1 and r1["episode_share"] == pytest.approx(1 / 3)
+        assert r1["name_changed"]
+        assert r2["top"][0] == "Y" and r2["first_right"]
+        assert r2["episode_tags"] == ["Y"] and r2["episode_share"] == 1.0
+        assert not r2["name_changed"]
+        # the keys the lead's scripts read stay, the new counts beside them
+        assert (f["in_top"], f["named_runs"], f["named_first"]) == (2, 2, 1)
+        assert (f["episodes_right"], f["episodes_named"], f["name_changed_runs"]) == (2, 4, 1)
+        g = m["faults"]["g"]
+        assert g["named_runs"] == 0 and g["named_first"] == 0 and g["episodes_named"] == 0
+        assert not g["per_run"][0]["first_right"] and g["per_run"][0]["episode_tags"]
+        assert (m["in_top"], m["named_runs"], m["named_first"]) == (2, 2, 1)
+        assert (m["episodes_right"], m["episodes_named"], m["name_changed_runs"]) == (2, 4, 1)
+
+
+def test_a_run_without_alarms_or_contributions_names_nothing():
+    runs, scored = _named_runs()
+    quiet = Scored(np.zeros(40), scored[0].contributions)
+    blind = Scored(scored[0].score, None)
+    methods = {"M": {"calibration": [np.zeros(200)], "free": [], "faults": [quiet, blind]}}
+    out = curve(methods, [0.01], 60.0, "sample", runs)
+    f = out["points"][0]["methods"]["M"]["faults"]["f"]
+    for r in f["per_run"]:
+        assert r["top"] == [] and not r["first_right"] and r["episode_tags"] == []
+        assert r["episode_share"] is None and not r["name_changed"]
+    assert f["per_run"][1]["episodes"] == 3  # alarms, but nothing to name them with
+    assert (f["named_first"], f["episodes_named"]) == (0, 0)
+
+
+def test_episode_names_are_ranked_tags_of_each_episode_s_rows_ties_included():
+    """Each episode's name is :func:`ranked_tags`' first tag over that episode's rows alone,
+    ties of count and mean rank broken as it breaks them (small integer contributions with
+    NaN make many)."""
+    from diag_plugin.bench.matched import episode_ids, episode_names, ranked_tags
+
+    rng = np.random.default_rng(3)
+    episodes = ties = 0
+    for trial in range(400):
+        n, m = int(rng.integers(5, 60)), int(rng.integers(2, 9))
+        c = rng.integers(0, 4, (n, m)).astype(float)
+        c[c == 0] = np.nan if trial % 2 else 0.0
+        frame = pd.DataFrame(c, columns=[f"T{i}" for i in rng.permutation(m)])
+        rows = np.flatnonzero(rng.random(n) < 0.6)
+        ep = episode_ids(rows)
+        assert (ep[-1] + 1 if rows.size else 0) == episode_count(np.isin(np.arange(n), rows))
+        got = episode_names(frame, rows, 3)
+        want = [ranked_tags(frame, rows[ep == e], 3) for e in range(ep[-1] + 1 if rows.size else 0)]
+        assert got == [w[0] for w in want]
+        episodes += len(got)
+        ties += sum(len(w) > 1 and len(rows[ep == e]) == 2 for e, w in enumerate(want))
+    assert episodes > 3000 and ties > 300
+
+
+def test_the_page_shows_first_and_episodes_right_beside_top_3():
+    from diag_plugin.bench.publicbench import render_page
+
+    runs, scored = _named_runs()
+    res = curve({"unit": {"calibration": [np.zeros(200)], "free": [], "faults": scored}},
+                [0.01], 60.0, "sample", runs)  # fmt: skip
+    out = {"title": "t", "per": "sample", "period_s": 60.0, "delays": [1, 1], "pca_share": 0.9,
+           "source": "s", "split": [], "methods": ["unit"], "fault_tags": {"f": ["Y"]},
+           "unit": {"rows": 1, "tests": 1, "seconds": 1.0, "commands": []},
+           "curve": res, "curve_hour": None, "fault_info": {}, "seconds": {}}  # fmt: skip
+    text = render_page(out, "diag benchmark")
+    assert "| unit detection | unit top 3 | unit first | unit episodes right |" in text
+    assert "| 2/2 | 1/2 | 2/4; 1 changed |" in text  # the curve's row
+    assert "| top 3 | first | episodes right | named |" in text
+    assert "| 2/2 | 1/2 | 2/4; 1 changed | X, Y, Z |" in text  # the fault's row

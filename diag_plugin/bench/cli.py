@@ -231,8 +231,10 @@ def cmd_matched_benchmark(args) -> int:
         for m in out["methods"]:
             x = p["methods"][m]
             fa = "—" if x["free_share"] is None else f"{x['free_share']:.2%}"
-            parts.append(f"{m} {x['mean_detection']:.0%} (top 3 {x['in_top']}/"
-                         f"{x['named_runs']}, false alarms {fa})")  # fmt: skip
+            n = x["named_runs"]
+            parts.append(f"{m} {x['mean_detection']:.0%} (top 3 {x['in_top']}/{n}, first "
+                         f"{x['named_first']}/{n}, episodes right {x['episodes_right']}/"
+                         f"{x['episodes_named']}, false alarms {fa})")  # fmt: skip
         print(f"at {p['target']:g} {out['per']}: " + "; ".join(parts))
     if page:
         print(f"page: {out['page']}")

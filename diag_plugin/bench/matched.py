@@ -64,6 +64,9 @@ __all__ = [
     "calibrate_leaving_out",
     "delayed_score",
     "episode_count",
+    "episode_ids",
+    "episode_names",
+    "naming",
     "oscillation_score",
     "episode_interval",
     "method_score",
@@ -620,6 +623,84 @@ def ranked_tags(contributions, rows: np.ndarray, k: int = 3) -> list[str]:
     return rank_by_top(top, np.ones(len(top), dtype=bool), k)
 
 
+def episode_ids(rows: np.ndarray) -> np.ndarray:
+    """Per alarm row (sorted sample indices), the number of its alarm episode (0, 1, …): rows
+    one sample apart are one episode, as :func:`episode_count` counts them."""
+    r = np.asarray(rows, np.int64)
+    if not r.size:
+        return np.zeros(0, np.int64)
+    return np.r_[0, np.cumsum(np.diff(r) != 1)]
+
+
+def episode_names(contributions, rows: np.ndarray, k: int = 3) -> list[str]:
+    """Per alarm episode of ``rows`` (:func:`episode_ids`), the tag named first over its rows:
+    :func:`ranked_tags`' first tag with the rows restricted to the episode's, for all episodes
+    at once. The ranking, as :func:`~diag_plugin.bench.plant.rank_by_top` makes it: most often
+    among the per-sample ``top1``…``top<k>``, then the smaller mean rank, then the order it
+    meets the tags in — by ``top1`` first, within one column by its count there, then by
+    first appearance (pandas' stable ``value_counts``). Empty without contributions or rows."""
+    from diag_plugin.bench.plant import top_from_contributions
+
+    rows = np.asarray(rows, np.int64)
+    if contributions is None or not rows.size:
+        return []
+    cols = contributions.columns
+    top = top_from_contributions(contributions.iloc[rows].fillna(-np.inf), k)
+    ep = episode_ids(rows)
+    n_ep, m = int(ep[-1]) + 1, len(cols)
+    cnt = np.zeros(n_ep * m, np.int64)
+    rsum = np.zeros(n_ep * m, np.int64)
+    first_r = np.zeros(n_ep * m, np.int64)  # the first column the tag appears in (0: none)
+    cnt_first = np.zeros(n_ep * m, np.int64)  # its count in that column
+    pos_first = np.zeros(n_ep * m, np.int64)  # its first row in that column
+    for r in range(top.shape[1], 0, -1):  # from the last column, so the first one wins
+        key = ep * m + cols.get_indexer(top[f"top{r}"])
+        c = np.bincount(key, minlength=n_ep * m)
+        cnt += c
+        rsum += r * c
+        seen, at = np.unique(key, return_index=True)
+        first_r[seen] = r
+        cnt_first[seen] = c[seen]
+        pos_first[seen] = at
+    cand = np.flatnonzero(cnt)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mean = rsum[cand] / cnt[cand]  # rank_by_top's float mean rank, ties exactly as there
+    order = np.lexsort((pos_first[cand], -cnt_first[cand], first_r[cand], mean, -cnt[cand],
+                        cand // m))  # fmt: skip
+    best = cand[order]
+    lead = np.r_[True, best[1:] // m != best[:-1] // m]  # each episode's best candidate
+    return [str(t) for t in np.asarray(cols, dtype=object)[best[lead] % m]]
+
+
+def naming(named: Sequence[str], episodes: Sequence[str], tags: Sequence[str]) -> dict:
+    """A run's naming against its faulted ``tags``: ``first_right`` (the tag named first,
+    ``named[0]``, is one), per episode the tag named (``episode_tags``), how many are faulted
+    tags (``episodes_right``) and their share (None without episodes), and whether the name
+    changed between consecutive episodes (``name_changed``: what an operator sees as the
+    method changing its mind)."""
+    right = sum(t in tags for t in episodes)
+    return {
+        "first_right": bool(tags) and bool(named) and named[0] in tags,
+        "episode_tags": list(episodes),
+        "episodes_right": int(right),
+        "episode_share": right / len(episodes) if episodes else None,
+        "name_changed": any(a != b for a, b in zip(episodes[:-1], episodes[1:], strict=True)),
+    }
+
+
+#: the naming counts summed per fault and per method over the runs with a faulted tag
+NAMING_SUMS = ("named_first", "episodes_right", "episodes_named", "name_changed_runs")
+
+
+def _naming_sums(runs: Sequence[dict]) -> dict[str, int]:
+    return {
+        "named_first": sum(r["first_right"] for r in runs),
+        "episodes_right": sum(r["episodes_right"] for r in runs),
+        "episodes_named": sum(len(r["episode_tags"]) for r in runs),
+        "name_changed_runs": sum(r["name_changed"] for r in runs),
+    }
+
+
 def curve(
     methods: dict[str, dict],
     targets: Sequence[float],
@@ -638,7 +719,11 @@ def curve(
     interval of their rate per hour (:func:`episode_interval`), and per fault the mean
     detection rate, median delay, mean episodes after the onset and the runs whose faulted
     tag is among the ``top`` tags named over the samples in alarm after the onset (a run
-    without such an alarm names nothing).
+    without such an alarm names nothing; ``in_top``), those whose tag named first is a
+    faulted tag (``named_first``), and over each alarm episode after the onset the tag named
+    first over its rows (:func:`episode_names`, :func:`naming`): the episodes named right
+    (``episodes_right`` of ``episodes_named``) and the runs whose name changed between
+    episodes (``name_changed_runs``). Naming is counted over the runs with a faulted tag.
     """
     out: dict = {"per": per, "targets": list(targets), "period_s": period_s, "points": []}
     faults = list(dict.fromkeys(f.fault for f in fault_runs))
@@ -666,6 +751,7 @@ def curve(
                     r["top"] = named
                     r["in_top"] = bool(fr.tags) and any(t in named for t in fr.tags)
                     r["named_counted"] = bool(fr.tags)
+                    r.update(naming(named, episode_names(sc.contributions, ar, top), fr.tags))
                     r["run"] = fr.run
                     per_run.append(r)
                 delays = [r["delay_s"] for r in per_run if r["delay_s"] is not None]
@@ -677,6 +763,7 @@ def curve(
                     "episodes": float(np.mean([r["episodes"] for r in per_run])),
                     "in_top": sum(r["in_top"] for r in counted),
                     "named_runs": len(counted),
+                    **_naming_sums(counted),
                     "runs": len(per_run),
                     "per_run": per_run,
                 }
@@ -692,6 +779,7 @@ def curve(
                 "mean_detection": float(np.mean(det)) if det else None,
                 "in_top": sum(r["in_top"] for r in counted),
                 "named_runs": sum(r["named_runs"] for r in counted),
+                **{k: sum(r[k] for r in counted) for k in NAMING_SUMS},
             }
         out["points"].append(point)
     return out

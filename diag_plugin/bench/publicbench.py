@@ -17,7 +17,8 @@
 4. sets each method's limit so its alarm rate on the **calibration runs** equals each target
    (per sample, or episodes per hour), and scores detection, delay, episodes and naming (the
    tag at fault among the three tags most often in the per-sample top three of the
-   contributions, over the samples in alarm after the onset) on the **scoring runs**, and the
+   contributions, over the samples in alarm after the onset; the tag named first; and the
+   tag named first over each alarm episode's own samples) on the **scoring runs**, and the
    false alarms on the fault-free scoring runs;
 5. for a labelled protocol (SKAB) also F1, FAR and MAR per sample as its README defines them.
 
@@ -541,15 +542,23 @@ def _dur(s: float | None) -> str:
     return f"{s / 3600:.1f} h" if s >= 3600 else f"{s / 60:.0f} min" if s >= 60 else f"{s:.0f} s"
 
 
+def _episodes_right(x: dict) -> str:
+    """A fault's or a method's alarm episodes named right (:func:`~diag_plugin.bench.matched.
+    naming`) of those named, and the runs whose name changed between episodes."""
+    if not x["named_runs"]:
+        return "—"
+    return f"{x['episodes_right']}/{x['episodes_named']}; {x['name_changed_runs']} changed"
+
+
 def _summary(pts: list[dict], methods: list[str], per: str) -> list[str]:
     """The curve as a table: per target and method the mean detection, the runs named, the
     false alarms on the fault-free scoring runs and the calibration rate reached."""
     head = "| target | " + " | ".join(
-        f"{m} detection | {m} top 3 | {m} false alarms (share, /h: episodes, 95 %) | "
-        f"{m} calibration"
+        f"{m} detection | {m} top 3 | {m} first | {m} episodes right | "
+        f"{m} false alarms (share, /h: episodes, 95 %) | {m} calibration"
         for m in methods
     )
-    lines = [head + " |", "|" + "---|" * (1 + 4 * len(methods))]
+    lines = [head + " |", "|" + "---|" * (1 + 6 * len(methods))]
     for p in pts:
         cells = [f"{p['target']:g}" + ("" if per == "sample" else "/h")]
         for m in methods:
@@ -566,7 +575,9 @@ def _summary(pts: list[dict], methods: list[str], per: str) -> list[str]:
             cal = f"{_pct(lim['share'], 2)}, {lim['per_hour']:.3g}/h" + (
                 "" if lim["supported"] else " †"
             )
-            cells += [_pct(x["mean_detection"]), f"{x['in_top']}/{x['named_runs']}", fa, cal]
+            n = x["named_runs"]
+            cells += [_pct(x["mean_detection"]), f"{x['in_top']}/{n}",
+                      f"{x['named_first']}/{n}", _episodes_right(x), fa, cal]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
     return [*lines, ""]
 
@@ -607,8 +618,11 @@ def render_page(out: dict, command: str) -> str:
         "",
         "Mean detection rate over the faults (share of samples in alarm from the onset on, "
         "or where a labelled data set marks the fault; unknown samples count as not in "
-        "alarm), the tag at fault in the top three (runs where one is defined), and the "
-        "false alarms on the fault-free scoring runs, per "
+        "alarm), the tag at fault in the top three (runs where one is defined), the runs "
+        "whose tag named first is the tag at fault (*first*), the alarm episodes after the "
+        "onset whose tag named first over the episode's own samples is the tag at fault, of "
+        "the episodes, and the runs whose name changed between episodes (*episodes right*), "
+        "and the false alarms on the fault-free scoring runs, per "
         "target: the share of samples and the alarm episodes per hour, with the episodes "
         "counted and the exact 95 % interval of their rate (an episode's samples are one "
         "event: a rate from a handful of episodes is known to a factor of two or three). "
@@ -647,12 +661,16 @@ def render_page(out: dict, command: str) -> str:
             "",
             "Per fault: detection rate, median delay of the first alarm after the onset, "
             "alarm episodes after the onset (mean per run), the tag at fault in the top three "
-            "(runs), and the three tags named (first run).",
+            "(runs), named first (runs), the episodes named right (of the episodes; runs "
+            "whose name changed between episodes), and the three tags named (first run).",
             "",
             "| fault | tag at fault | "
-            + " | ".join(f"{m} detected | delay | episodes | top 3 | named" for m in methods)
+            + " | ".join(
+                f"{m} detected | delay | episodes | top 3 | first | episodes right | named"
+                for m in methods
+            )
             + " |",
-            "|" + "---|" * (2 + 5 * len(methods)),
+            "|" + "---|" * (2 + 7 * len(methods)),
         ]
         for f in faults:
             tags = out["fault_tags"].get(f) or []
@@ -665,6 +683,8 @@ def render_page(out: dict, command: str) -> str:
                     _dur(x["delay_s"]),
                     f"{x['episodes']:.1f}",
                     f"{x['in_top']}/{x['named_runs']}" if x["named_runs"] else "—",
+                    f"{x['named_first']}/{x['named_runs']}" if x["named_runs"] else "—",
+                    _episodes_right(x),
                     ", ".join(named) or "—",
                 ]
             lines.append("| " + " | ".join(cells) + " |")
