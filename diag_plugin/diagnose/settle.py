@@ -320,13 +320,10 @@ def settle_ages(unit: Any, frame: pd.DataFrame, bounds: Mapping[str, float] | No
     if guard is None:
         return out
     state = np.array([lp.kind == "state" for lp in guard.loops], bool)
-    keep = unit.settle
-    unit.settle = guard
     guard.ages_seen = []
     try:
-        unit.reset().evaluate(frame)
+        unit.reset().evaluate(frame, settle=guard)  # the unit's own guard left as it is
     finally:
-        unit.settle = keep
         unit.reset()
     if not guard.ages_seen:
         return out

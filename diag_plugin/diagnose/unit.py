@@ -1064,19 +1064,23 @@ class Unit:
         x[:, cols] = (x[:, cols] - center[point]) / scale[point]
         return pd.DataFrame(x, index=raw.index, columns=raw.columns, copy=False)
 
-    def evaluate(self, frame: pd.DataFrame) -> Diagnosis:
+    def evaluate(self, frame: pd.DataFrame, settle: SettleGuard | None = None) -> Diagnosis:
         """Diagnose the next piece of data (continues the carried state). A unit with a run
         condition (``[running]``, :mod:`~.running`) judges only the samples where it runs:
         elsewhere its tags are read as missing and its status is CHECK_FUNCTION, not
-        running; at each stop the alarm's carriers start from rest (:meth:`_stopped`)."""
+        running; at each stop the alarm's carriers start from rest (:meth:`_stopped`).
+        ``settle``: a settle guard made for the purpose, read and updated in place of the
+        unit's own (:attr:`settle`, None: that one), which is left untouched: the build
+        replays its window with one (:func:`~.settle.settle_ages`)."""
+        guard = self.settle if settle is None else settle
         rc = self.file.running
         col = None if rc is None else self.file.tags.get(rc.tag, rc.tag)
         if rc is None or col not in frame.columns:
-            return self._evaluate(frame)
+            return self._evaluate(frame, guard)
         runs = rc.runs(frame[col].to_numpy(float))
         if runs.all():
             self.was_running = True
-            return self._evaluate(frame)
+            return self._evaluate(frame, guard)
         masked = frame.copy()
         masked.loc[~runs, [c for c in frame.columns if c != col]] = np.nan
         parts = []
@@ -1084,15 +1088,15 @@ class Unit:
             since = None
             if not on:
                 if self.was_running:  # a stop (not the rest of one a piece began in)
-                    self._stopped()
-                since = None if self.settle is None else int(self.settle.g[6])
-            d = self._evaluate(masked.iloc[a:b])
+                    self._stopped(guard)
+                since = None if guard is None else int(guard.g[6])
+            d = self._evaluate(masked.iloc[a:b], guard)
             if not on:
                 d = not_running(d, rc.whys(frame[col].to_numpy(float)[a:b]))
                 self._last_alarm = None
                 if since is not None:  # the time stopped is no quiet time: an alarm at the
                     # last stop keeps the next start's settle shut (a fault is not hidden)
-                    self.settle.g[6] = since
+                    guard.g[6] = since
             self.was_running = on
             parts.append(d)
         return concat(parts)
@@ -1138,7 +1142,7 @@ class Unit:
             self._quiet = quiet_samples(self)
         return self._quiet
 
-    def _stopped(self) -> None:
+    def _stopped(self, settle: SettleGuard | None) -> None:
         """At a stop: what carries an alarm forward starts from rest (the residual filter,
         the spread tests' window, the tests' and the combined test's on/off delays, the held
         symptoms, the deadband, the unit's off-delay and its last alarm, the isolation and
@@ -1167,12 +1171,12 @@ class Unit:
         if self.saturation is not None:
             self.saturation.reset()
         rc = self.file.running
-        for g in (self.settle, self.transients):
+        for g in (settle, self.transients):
             if g is not None:
                 g.forget_holds(None if rc is None else rc.tag)
 
-    def _evaluate(self, frame: pd.DataFrame) -> Diagnosis:
-        """:meth:`evaluate` of a piece judged throughout."""
+    def _evaluate(self, frame: pd.DataFrame, settle: SettleGuard | None) -> Diagnosis:
+        """:meth:`evaluate` of a piece judged throughout, ``settle`` its settle guard."""
         point = self.cmodel.point_of(frame) if self.cmodel is not None else None
         cols = self.columns(frame)  # read once: the builders and the reasons
         raw, off = self._residuals(frame, cols)  # off: a stopped piece's tests (equipment.py)
@@ -1287,8 +1291,9 @@ class Unit:
                 shown, detected, status, faults, top
             )
         settled = None
-        if self.settle is not None:  # an operator's set-point step: its alarm suppressed
-            settled = self._settle(frame.index, cols, r, active, detected, status, faults)
+        if settle is not None:  # an operator's set-point step: its alarm suppressed
+            settled = self._settle(settle, frame.index, cols, r, active, detected, status,
+                                   faults)  # fmt: skip
         message = ""
         checking = status == NE107.CHECK_FUNCTION
         unknown = np.isnan(s) if off is None else np.isnan(s) & ~off[0]
@@ -1389,10 +1394,9 @@ class Unit:
         warm, left = warm_up(unknown[rows], raw_known[rows], seen, self.test_depth, left_at, test)
         return rows, warm, left
 
-    def _settle(self, index, cols, r, active, detected, status, faults):
-        """The settle guard (:mod:`~diag_plugin.diagnose.settle`) over the piece, in place
-        on ``status`` and ``faults``; returns the suppressed samples and their whys."""
-        g = self.settle
+    def _settle(self, g, index, cols, r, active, detected, status, faults):
+        """The settle guard ``g`` (:mod:`~diag_plugin.diagnose.settle`) over the piece, in
+        place on ``status`` and ``faults``; returns the suppressed samples and their whys."""
         n = len(index)
         sp = np.column_stack(
             [cols.values(lp.sp) if lp.sp in cols.columns else np.full(n, np.nan) for lp in g.loops]
