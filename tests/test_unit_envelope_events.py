@@ -115,6 +115,6 @@ def test_the_replay_judges_with_a_guard_of_its_own(line):
     guard.ages_seen = []
     unit.evaluate(window.iloc[: 3 * 8640], settle=guard)
     assert unit.settle is own and own.to_state() == rest
-    ages = np.concatenate([a[:, 0] for _, a in guard.ages_seen])
+    ages = np.concatenate([a[:, 0] for _, a, _ in guard.ages_seen])
     assert (ages > 0).any()  # the starts' settles were opened on the guard passed
     unit.reset()
