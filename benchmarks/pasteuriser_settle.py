@@ -13,7 +13,7 @@ after a start, and for a faulted run the share in FAILURE after the onset, the h
 first and the share of its alarm samples whose first tag is the right one.
 
 ``--cost N``: the build's CPU seconds (``resource.getrusage`` of a child process) with the
-state envelope's replay of the guard (:func:`~diag_plugin.diagnose.settle.settle_ages`) and
+state envelope's replay of the guard (:func:`~diag_plugin.diagnose.settle.settle_replay`) and
 without it (the replay answered "no settle open" at once: no envelope learned), ``N`` builds
 of each interleaved, their medians, the replay's own CPU seconds inside the first, and the
 load (``uptime``) before and after.
@@ -213,11 +213,15 @@ def judge(folder: Path, g: list[str], period: int, seed: int, tags: Path) -> dic
     return row
 
 
-#: the child that builds without the envelope's replay (settle_ages answering "none")
+#: the child that builds without the envelope's replay (settle_replay answering "none")
 NO_REPLAY = """
 import sys, numpy as np
 import diag_plugin.diagnose.settle as s
-s.settle_ages = lambda unit, frame, bounds=None: np.full(len(frame), -1, np.int64)
+def none(unit, frame, bounds=None, holds=None):
+    n = len(frame)
+    eq = None if holds is None else np.full((n, len(holds)), -1, np.int64)
+    return np.full(n, -1, np.int64), np.zeros(n, bool), eq
+s.settle_replay = none
 from diag_plugin.cli import main
 sys.exit(main(sys.argv[1:]))
 """
@@ -225,14 +229,14 @@ sys.exit(main(sys.argv[1:]))
 TIMED_REPLAY = """
 import sys, time
 import diag_plugin.diagnose.settle as s
-f = s.settle_ages
+f = s.settle_replay
 def timed(*a, **k):
     c = time.process_time()
     try:
         return f(*a, **k)
     finally:
-        print("settle_ages_cpu_s", round(time.process_time() - c, 2), file=sys.stderr)
-s.settle_ages = timed
+        print("settle_replay_cpu_s", round(time.process_time() - c, 2), file=sys.stderr)
+s.settle_replay = timed
 from diag_plugin.cli import main
 sys.exit(main(sys.argv[1:]))
 """
@@ -249,7 +253,7 @@ def build_cpu(g: list[str], argv: list[str], code: str) -> tuple[float, float | 
     if got.returncode:
         raise RuntimeError(got.stdout + got.stderr)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    m = re.findall(r"settle_ages_cpu_s (\S+)", got.stderr)
+    m = re.findall(r"settle_replay_cpu_s (\S+)", got.stderr)
     return cpu, (sum(float(x) for x in m) if m else None)
 
 
@@ -258,7 +262,7 @@ def cost(folder: Path, g: list[str], period: int, tags: Path, n: int) -> dict:
     rb = folder / f"cost{period}"
     rb.mkdir(exist_ok=True)
     gg = [g[0], g[1], "--rulebases", str(rb)]
-    argv = build_argv(period, tags)
+    argv = [*build_argv(period, tags), "--force"]
     argv[2] = "c"
     load = [os.getloadavg()[0]]
     with_s, without_s, replay_s = [], [], []
@@ -280,7 +284,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("folder", type=Path)
     ap.add_argument("--rate", type=int, default=10, choices=sorted(RATES))
-    ap.add_argument("--runs", default=None, help="seeds, comma-separated (default: all)")
+    ap.add_argument("--runs", default=None, help="seeds, comma-separated (default: all; '': none)")
     ap.add_argument("--cost", type=int, default=0, help="builds of each for the CPU cost")
     ap.add_argument("--label", default="", help="the rulebase folder's suffix (another build)")
     a = ap.parse_args()
@@ -296,7 +300,7 @@ def main() -> None:
         print(json.dumps({"period_s": a.rate, key: got and float(got.group(1))}), flush=True)
     default = "101,102,103,141,151,161" if a.rate == 10 else ",".join(
         ["201", "202", "203", *(f"2{i}1" for i in range(1, 7))])  # fmt: skip
-    for seed in (int(s) for s in (a.runs or default).split(",") if s):
+    for seed in (int(s) for s in (default if a.runs is None else a.runs).split(",") if s):
         print(json.dumps(judge(folder, g, a.rate, seed, tags)), flush=True)
     if a.cost:
         print(json.dumps(cost(folder, g, a.rate, tags, a.cost)), flush=True)
