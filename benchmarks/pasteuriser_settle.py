@@ -266,12 +266,15 @@ def cost(folder: Path, g: list[str], period: int, tags: Path, n: int) -> dict:
     argv[2] = "c"
     load = [os.getloadavg()[0]]
     with_s, without_s, replay_s = [], [], []
-    for _ in range(n):
+    for k in range(n):
         cpu, rep = build_cpu(gg, argv, TIMED_REPLAY)
         with_s.append(cpu)
         replay_s.append(rep or 0.0)
         without_s.append(build_cpu(gg, argv, NO_REPLAY)[0])
         load.append(os.getloadavg()[0])
+        print(json.dumps({"pair": k + 1, "cpu_with_s": round(cpu, 2), "replay_s": rep,
+                          "cpu_without_s": round(without_s[-1], 2),
+                          "load_1min": round(load[-1], 1)}), flush=True)  # fmt: skip
     med = statistics.median
     return {"period_s": period, "builds": n, "cpu_with_s": [round(x, 2) for x in with_s],
             "cpu_without_s": [round(x, 2) for x in without_s],
