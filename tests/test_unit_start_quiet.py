@@ -64,12 +64,12 @@ def judged(tmp_path_factory):
                     "2026-03-08T00:00:00Z", "--csv", str(tmp / "d.csv"))  # fmt: skip
     assert rc == 0, text
     d = pd.read_csv(tmp / "d.csv", low_memory=False)
-    return tomllib.loads((tmp / "rb" / "p.unit.toml").read_text()), d
+    return tomllib.loads((tmp / "rb" / "p.unit.toml").read_text()), d, tmp
 
 
 def test_the_build_learns_the_quiet_time_of_its_starts(judged):
     """``[envelope.state] quiet_s``, shorter than the unit's quiet time, and said."""
-    doc, _ = judged
+    doc, *_ = judged
     quiet_s = doc["envelope"]["state"]["quiet_s"]
     note = doc["build"]["envelope"][0]
     assert f"a settle ends {quiet_s:.0f} s without a symptom" in note, note
@@ -81,7 +81,7 @@ def test_a_start_s_settle_ends_soon_after_its_last_symptom(judged):
     """Each start's CHECK_FUNCTION ends within the unit's off-delay hold (240 s) and the learned
     quiet time of its last symptom (main: the unit's quiet time, 760 s, after it), and no
     FAILURE follows an end within that quiet time (a start's transient is not cut short)."""
-    doc, d = judged
+    doc, d, _ = judged
     why = d["why"].fillna("").astype(str)
     held = why.str.contains("settling after a state change").to_numpy()
     held = held & (d["status"].to_numpy() == 2)
@@ -98,3 +98,25 @@ def test_a_start_s_settle_ends_soon_after_its_last_symptom(judged):
     assert not why.str.contains("beyond what").any()
     for i in ends:
         assert not (st[i + 1 : i + 77] == 1).any(), (i, st[i + 1 : i + 77])
+
+
+def test_the_live_plant_ends_a_start_s_settle_as_the_replay(judged):
+    """Through the judged day's first start, from a minute before it to 400 s after its
+    settle ended: the live plant cycle by cycle gives the replay's statuses."""
+    from diag_plugin.diagnose.plant import Plant
+    from diag_plugin.diagnose.unit import Unit
+
+    _, d, tmp = judged
+    held = d["why"].fillna("").astype(str).str.contains("settling after a state change")
+    rows = np.flatnonzero(held.to_numpy() & (d["status"].to_numpy() == 2))
+    a, b = rows[0], rows[np.flatnonzero(np.diff(rows) > 1)[0]] if (np.diff(rows) > 1).any() \
+        else rows[-1]  # fmt: skip
+    x = pd.read_csv(tmp / "r.csv", index_col=0)
+    x.index = pd.to_datetime(x.index, utc=True)
+    x = x.iloc[max(0, a - 60) : b + 40]
+    path = tmp / "rb" / "p.unit.toml"
+    ref = Unit.load(path, path.parent).evaluate(x).status.astype(int).tolist()
+    plant = Plant({"p": Unit.load(path, path.parent)}, {})
+    got = [int(plant.cycle(ts, row.to_dict())[0].status) for ts, row in x.iterrows()]
+    assert got == ref
+    assert 2 in ref and ref[-1] == 0
