@@ -182,6 +182,18 @@ def test_a_bad_envelope_is_an_error_at_its_line(station, tmp_path):
         Unit.load(path, unit.file.path.parent)
 
 
+def test_a_bad_quiet_time_is_an_error_at_its_line(station, tmp_path):
+    """``[envelope.state] quiet_s`` (a settle's learned quiet time) must be seconds > 0."""
+    unit, *_ = station
+    text = unit.file.path.read_text(encoding="utf-8")
+    bad = re.sub(r"(?m)^starts = (\d+)$", r"starts = \1\nquiet_s = -60.0", text)
+    assert bad != text
+    path = tmp_path / unit.file.path.name
+    path.write_text(bad, encoding="utf-8")
+    with pytest.raises(UnitError, match=r"\[envelope\.state\] quiet_s must be a number"):
+        Unit.load(path, unit.file.path.parent)
+
+
 def test_a_piece_s_envelope_in_pieces_and_in_the_live_plant_says_the_same(twin):
     """B's bias present at its start: the replay whole and in pieces of 23 samples from a
     saved state (cut inside the settle and the alarm the envelope raised) say the same,

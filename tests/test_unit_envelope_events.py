@@ -100,3 +100,21 @@ def test_fault_free_starts_of_unseen_seeds_are_within_the_envelope(line, seed):
     d = unit.reset().evaluate(_line(3, seed))
     assert not d.why.str.contains("beyond what").any()
     assert (d.status.to_numpy() == 1).mean() < 0.007
+
+
+def test_the_replay_judges_with_a_guard_of_its_own(line):
+    """The build's replay (``settle_ages``) hands the unit a guard made for it: the unit's
+    own guard is neither swapped nor moved (main swapped ``unit.settle`` for the replay and
+    put it back in ``finally``: a live unit's attribute changed under it meanwhile)."""
+    from diag_plugin.diagnose.settle import settle_guard
+
+    unit, window = line
+    own = unit.reset().settle
+    rest = own.to_state()
+    guard = settle_guard(unit, envelope=False)
+    guard.ages_seen = []
+    unit.evaluate(window.iloc[: 3 * 8640], settle=guard)
+    assert unit.settle is own and own.to_state() == rest
+    ages = np.concatenate([a[:, 0] for _, a, _ in guard.ages_seen])
+    assert (ages > 0).any()  # the starts' settles were opened on the guard passed
+    unit.reset()

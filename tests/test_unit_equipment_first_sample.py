@@ -19,6 +19,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -106,3 +107,28 @@ def test_a_saved_state_from_before_it_is_running_long(station):
     state.pop("equipment")
     d = unit.reset().load_state(state).evaluate(f)
     assert d.equipment.iloc[0].tolist() == [0, 1, 0]
+
+
+def test_a_piece_s_envelope_is_learned_at_the_ages_its_settle_judges(station):
+    """Each piece's start envelope (``[envelope.C1]`` …) is learned at the ages its own settle
+    judges (the guard replayed over the window), not from each start to its stop: every bin
+    it writes was reached by at least ``MIN_STARTS`` of the window's settles of that piece
+    (those starting at a known start), and it counts those starts. On main C3's envelope
+    held bins from 5760 and 8640 s, learned from rows after its settles had ended (its
+    settles of the window end within 48 min)."""
+    from diag_plugin.diagnose.envelope import MIN_STARTS
+
+    sim, unit = station
+    window = _run(sim, "2026-06-01", 14, 2)
+    eq = unit.reset().evaluate(window).equipment
+    unit.reset()
+    for name, env in unit.file.envelope.items():
+        settling = eq[name].to_numpy() == SETTLING
+        runs = window[f"{name}_RUN"].to_numpy() > 0.5
+        known = runs & np.r_[False, ~runs[:-1]]  # started, stopped the sample before
+        begins = np.flatnonzero(settling & ~np.r_[False, settling[:-1]])
+        ends = np.flatnonzero(settling & ~np.r_[settling[1:], False])
+        lengths = [(b - a + 1) * 180 for a, b in zip(begins, ends, strict=True) if known[a]]
+        assert env.starts == len(lengths), (name, env.starts, len(lengths))
+        for age in env.age_s:
+            assert sum(n > age for n in lengths) >= MIN_STARTS, (name, age, sorted(lengths))

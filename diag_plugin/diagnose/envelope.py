@@ -22,6 +22,7 @@ learns the envelope again over every window it learned::
     starts = 14           # the fault-free changes it rests on
     age_s = [0.0, 1200.0, 2400.0, 4800.0]   # each bin's first age (seconds after the change)
     tests = { C2_TD = [4.1, 1.6, 1.0, 1.0], ... }  # per bin, in units of the threshold
+    quiet_s = 60.0        # a settle of these changes ends after this long with no test on
 
 ``state`` is the unit-wide settle's (every ``[build] states`` tag and the run condition
 pooled); ``[envelope.NAME]`` a piece's (``[equipment.NAME]``, its own tests). A bin the
@@ -31,8 +32,13 @@ At run time, during a settle, a test whose filtered residual stays beyond its en
 that age for the on-delay ends the settle: the unit's alarm is raised (FAILURE), its why
 ``C2_TD beyond what 14 starts of C2 showed 20 min after its start (3.2 × its threshold, at
 most 1.9 there)`` (the unit-wide settle's: ``… what 8 state changes showed 12 min after a
-change …``). Without an envelope (old unit files, too few starts) the settle is as
-before.
+change …``). ``quiet_s`` (the unit-wide settle's, where the build wrote it): a settle of
+these changes ends once no test has been on for it and the alarm dropped, not the unit's
+quiet time: the window's changes never paused longer than it before a symptom came back
+(:func:`~diag_plugin.unitbuild.loops.start_quiet`). A piece's envelope is learned at the ages
+its own settle judges (:func:`~diag_plugin.diagnose.equipment.piece_ages`), as the state's
+(:func:`~diag_plugin.diagnose.settle.settle_replay`). Without an envelope (old unit files,
+too few starts) the settle is as before.
 """
 
 from __future__ import annotations
@@ -58,14 +64,20 @@ class Envelope:
     starts: int
     age_s: tuple[float, ...]
     tests: Mapping[str, tuple[float, ...]]
+    #: the quiet time (s) that ends a settle of these changes: learned from their own lulls
+    #: (:func:`~diag_plugin.unitbuild.loops.start_quiet`); None: the unit's quiet time
+    quiet_s: float | None = None
 
     def as_table(self) -> dict[str, object]:
         """The unit file's ``[envelope.KEY]`` row (module doc)."""
-        return {
+        out: dict[str, object] = {
             "starts": int(self.starts),
             "age_s": [float(a) for a in self.age_s],
             "tests": {t: [float(f"{v:.4g}") for v in b] for t, b in self.tests.items()},
         }
+        if self.quiet_s is not None:
+            out["quiet_s"] = float(self.quiet_s)
+        return out
 
     def arrays(self, names: Sequence[str], period_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Each bin's first age in samples, and bins × ``names`` the envelope (inf: none)."""
@@ -100,8 +112,14 @@ def read_envelopes(
             error(line_of(key), f"{what} needs starts (an integer), age_s (ascending seconds) "
                                 "and tests (per test one number > 0 per age)")  # fmt: skip
             continue
+        quiet = row.get("quiet_s")
+        if quiet is not None and (isinstance(quiet, bool) or not isinstance(quiet, int | float)
+                                  or not quiet > 0):  # fmt: skip
+            error(line_of(key), f"{what} quiet_s must be a number of seconds > 0")
+            continue
         bins = {str(t): tuple(float(x) for x in v) for t, v in tests.items()}
-        out[str(key)] = Envelope(int(starts), tuple(float(a) for a in ages), bins)
+        out[str(key)] = Envelope(int(starts), tuple(float(a) for a in ages), bins,
+                                 None if quiet is None else float(quiet))  # fmt: skip
     return out
 
 

@@ -52,7 +52,7 @@ file keeps one table per piece::
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -356,6 +356,31 @@ def settling(
         said.append((held, f"{e.name} started ({e.rc.tag} = {e.rc.run:g}): tests {which} "
                            "off while it settles"))  # fmt: skip
     return off, said, where
+
+
+@dataclass
+class PieceReplay:
+    """What the build's replay of its window hands the unit for its pieces (``evaluate``'s
+    ``pieces``): each piece's hold in samples (the bounds just measured, not yet in the
+    unit's file) and a list collecting, per piece of data, its index and :func:`piece_ages`;
+    the pieces' envelopes unread (what they are learned at)."""
+
+    holds: list[int]
+    seen: list = field(default_factory=list)
+
+
+def piece_ages(starts: Sequence, where: np.ndarray | None, n: int) -> np.ndarray:
+    """Samples × pieces the age (samples since its start, :func:`since_start`) at which each
+    piece's start settle judges the row, -1 where none is open, from :func:`off_mask`'s
+    ``starts`` and :func:`settling`'s ``where``: the ages its envelope is learned at, as the
+    guard counts them (:func:`~diag_plugin.unitbuild.loops.settle_envelopes`)."""
+    out = np.full((n, len(starts)), -1, np.int64)
+    if where is None:
+        return out
+    for k, got in enumerate(starts):
+        if got is not None:
+            out[where[:, k], k] = got[1][where[:, k]]
+    return out
 
 
 def _broke(e, env, names, u, bound, edges, hit, after, state: PieceState, k: int,

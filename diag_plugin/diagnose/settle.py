@@ -53,7 +53,10 @@ alarm: the unit's judgement goes on.
   state's reading (held, a jump beyond :data:`STATE_BAND_SHARE` of the range the models
   learned it in, held again) opens a settle as a hand valve's move does, its why ``PMP3_ON 0
   → 1 at …: settling after a state change``; it ends when no test is on for the quiet time
-  and its alarm dropped, or ``state_settle_max_s`` after the change
+  and its alarm dropped — the quiet time the unit file's ``[envelope.state] quiet_s`` says
+  where the build learned one from the window's own changes (the longest pause of their
+  symptoms before one came back, widened: :func:`~diag_plugin.unitbuild.loops.start_quiet`;
+  the pasteuriser at 10 s: 50 s for 760 s) —, or ``state_settle_max_s`` after the change
   (:func:`~diag_plugin.unitbuild.loops.state_settle_max`): ISA-18.2's state-based alarming
   (a pump's start is not an alarm; a fault that outlasts the settle is). With the unit
   file's ``[envelope.state]`` (:mod:`~.envelope`, learned by the build from the window's own
@@ -80,7 +83,7 @@ statuses: one compiled kernel, row by row, its state carried across pieces.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -89,6 +92,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.envelope import STATE, Envelope, beyond, says
+from diag_plugin.diagnose.equipment import PieceReplay
 from diag_plugin.regressors import parse_specs
 
 #: samples a step may take to leave its held value by more than the band (a historian's
@@ -298,7 +302,17 @@ def settle_guard(
                        None if env is None else (env, unit.tests))  # fmt: skip
 
 
-def settle_ages(unit: Any, frame: pd.DataFrame, bounds: Mapping[str, float] | None = None):
+def settle_ages(
+    unit: Any, frame: pd.DataFrame, bounds: Mapping[str, float] | None = None
+) -> np.ndarray:
+    """The ages of :func:`settle_replay` alone."""
+    return settle_replay(unit, frame, bounds)[0]
+
+
+def settle_replay(
+    unit: Any, frame: pd.DataFrame, bounds: Mapping[str, float] | None = None,
+    holds: Sequence[int] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:  # fmt: skip
     """The events a state change's envelope is learned over and judged in, and their ages
     (issue 34, items 5-6): per row of ``frame`` (models' tag names, the run tag beside) the
     age in samples at which the unit's settle guard judges it against ``[envelope.state]``
@@ -313,30 +327,45 @@ def settle_ages(unit: Any, frame: pd.DataFrame, bounds: Mapping[str, float] | No
     step's age from itself: a production start whose diversion valve steps three times in
     its first minutes (the pasteuriser at 10 s) was learned as four young changes, judged at
     run time as one older settle, and its transient 7 min after the start alarmed
-    (fault-free FAILURE 0 → 3.8-4.3 %)."""
+    (fault-free FAILURE 0 → 3.8-4.3 %). Also per row whether a test or the combined test
+    was on (after its on-delay; False where not judged): what the settle's quiet time is
+    learned from (:func:`~diag_plugin.unitbuild.loops.start_quiet`). With ``holds`` (per
+    piece of equipment its settle's bound in samples), from the same replay, rows × pieces
+    the age at which each piece's start settle judges the row (-1: none;
+    :func:`~.equipment.piece_ages`, its envelope unread), else None."""
     n = len(frame)
     out = np.full(n, -1, np.int64)
+    on = np.zeros(n, bool)
     guard = settle_guard(unit, bounds, envelope=False)
-    if guard is None:
-        return out
-    state = np.array([lp.kind == "state" for lp in guard.loops], bool)
-    keep = unit.settle
-    unit.settle = guard
-    guard.ages_seen = []
-    try:
-        unit.reset().evaluate(frame)
+    if guard is None and holds is None:
+        return out, on, None
+    replay = None if holds is None else PieceReplay(list(holds))
+    if guard is not None:
+        guard.ages_seen = []
+    try:  # the unit's own guard left as it is (the pieces' own, without one: no state)
+        unit.reset().evaluate(frame, settle=guard, pieces=replay)
     finally:
-        unit.settle = keep
         unit.reset()
-    if not guard.ages_seen:
-        return out
-    index = np.concatenate([np.asarray(ix) for ix, _ in guard.ages_seen])
-    got = np.concatenate([a for _, a in guard.ages_seen])
+    eq = None
+    if replay is not None:
+        eq = np.full((n, len(replay.holds)), -1, np.int64)
+        if replay.seen:
+            ix = np.concatenate([np.asarray(i) for i, _ in replay.seen])
+            at = pd.Index(frame.index).get_indexer(ix)
+            got = np.concatenate([a for _, a in replay.seen])
+            eq[at[at >= 0]] = got[at >= 0]
+    if guard is None or not guard.ages_seen:
+        return out, on, eq
+    state = np.array([lp.kind == "state" for lp in guard.loops], bool)
+    index = np.concatenate([np.asarray(ix) for ix, *_ in guard.ages_seen])
+    got = np.concatenate([a for _, a, _ in guard.ages_seen])
+    active = np.concatenate([b for *_, b in guard.ages_seen])
     got = np.where((got[:, 0] >= 0) & state[np.maximum(got[:, 1], 0)], got[:, 0], -1)
     at = pd.Index(frame.index).get_indexer(index)
     ok = at >= 0
     out[at[ok]] = got[ok]
-    return out
+    on[at[ok]] = active[ok]
+    return out, on, eq
 
 
 #: the residual filter's delay: samples its step response takes to reach this share of the
@@ -424,6 +453,7 @@ def _settle_kernel(
     max_n,
     quiet_n,
     begin_n,
+    end_n,
     sup,
     sid,
     steps,
@@ -531,7 +561,9 @@ def _settle_kernel(
                 g[2] = 0
             # quiet: and a latched settle's alarm, held by the unit's off-delay, dropped
             # (at 1 s the hold, 240 s, outlasts a short quiet time: 163 samples)
-            quiet = g[2] >= quiet_n and not (g[3] == 1 and alarm[i])
+            # (end_n: per loop the quiet time that ends its settle; a state's learned from
+            # the window's own starts where its envelope holds one, else quiet_n)
+            quiet = g[2] >= end_n[j] and not (g[3] == 1 and alarm[i])
             if quiet or g[1] >= max_n[j] or (g[3] == 0 and g[1] >= begin_n[j]):
                 g[0] = 0
                 g[3] = 0
@@ -580,9 +612,17 @@ class SettleGuard:
             self.edges, self.env = envelope[0].arrays(envelope[1], period_s)
         else:
             self.edges, self.env = np.zeros(0, np.int64), np.zeros((0, 0))
-        #: a list to collect each piece's (index, per row the settle's age) in, or None
-        #: (:func:`settle_ages`)
-        self.ages_seen: list[tuple[pd.Index, np.ndarray]] | None = None
+        #: per loop the samples without a symptom that end its settle: the quiet time, or
+        #: for a state change the one its envelope learned from the window's own starts
+        #: (``quiet_s``: the longest lull before a symptom came back, widened; not longer)
+        self.end_n = np.full(len(loops), self.quiet_n, np.int64)
+        quiet_s = None if envelope is None else envelope[0].quiet_s
+        if quiet_s is not None:
+            learned = max(1, math.ceil(quiet_s / period_s - 1e-9))
+            self.end_n[self.enveloped] = min(self.quiet_n, learned)
+        #: a list to collect each piece's (index, per row the settle's age and whose, per
+        #: row whether a test or the combined test was on) in, or None (:func:`settle_ages`)
+        self.ages_seen: list[tuple[pd.Index, np.ndarray, np.ndarray]] | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -648,12 +688,12 @@ class SettleGuard:
             self.lo, self.hi, self.band, self.tol, self.s_lo, self.s_hi,
             np.asarray(active, np.bool_), np.asarray(alarm, np.bool_),
             self.prev, self.anchor, self.run, self.moved, self.g,
-            self.max_n, self.quiet_n, self.begin_n, sup, sid, steps,
+            self.max_n, self.quiet_n, self.begin_n, self.end_n, sup, sid, steps,
             np.ascontiguousarray(u, float), self.edges, self.env, self.enveloped, self.over,
             max(1, self.on_delay), hit, after, age,
         )  # fmt: skip
         if self.ages_seen is not None:
-            self.ages_seen.append((index, age))
+            self.ages_seen.append((index, age, np.asarray(active, np.bool_)))
         broke = self._broke(u, hit, after)
         texts = [self.text]
         for q in range(k):
@@ -714,7 +754,7 @@ class SettleGuard:
         k = _settle_kernel(
             np.ascontiguousarray(sp, float).reshape(n, m), np.zeros((n, m)), g.lo, g.hi,
             g.band, g.tol, g.s_lo, g.s_hi, no, no, g.prev, g.anchor, g.run, g.moved, g.g,
-            one, 1, one, sup, sid, out, np.zeros((n, 0)), g.edges, g.env, g.enveloped,
+            one, 1, one, one, sup, sid, out, np.zeros((n, 0)), g.edges, g.env, g.enveloped,
             g.over, 1, np.full((n, 2), -1, np.int64), np.zeros(n, np.bool_),
             np.zeros((n, 2), np.int64),
         )  # fmt: skip
@@ -746,7 +786,7 @@ class SettleGuard:
         k = _settle_kernel(
             np.ascontiguousarray(sp, float).reshape(n, m), np.zeros((n, m)), self.lo, self.hi,
             self.band, self.tol, self.s_lo, self.s_hi, no, no, self.prev, self.anchor,
-            self.run, self.moved, g, one, 1, one, sup, sid, rows, np.zeros((n, 0)),
+            self.run, self.moved, g, one, 1, one, one, sup, sid, rows, np.zeros((n, 0)),
             self.edges, self.env, np.zeros_like(self.enveloped), np.zeros_like(self.over), 1,
             np.full((n, 2), -1, np.int64), np.zeros(n, np.bool_), np.zeros((n, 2), np.int64),
         )  # fmt: skip

@@ -53,9 +53,11 @@ from diag_plugin.diagnose.equipment import (
     DONE,
     SETTLING,
     UNKNOWN_AGE,
+    PieceReplay,
     PieceState,
     members,
     off_mask,
+    piece_ages,
     piece_envelopes,
     settling,
 )
@@ -1064,19 +1066,30 @@ class Unit:
         x[:, cols] = (x[:, cols] - center[point]) / scale[point]
         return pd.DataFrame(x, index=raw.index, columns=raw.columns, copy=False)
 
-    def evaluate(self, frame: pd.DataFrame) -> Diagnosis:
+    def evaluate(
+        self, frame: pd.DataFrame, settle: SettleGuard | None = None,
+        pieces: PieceReplay | None = None,
+    ) -> Diagnosis:  # fmt: skip
         """Diagnose the next piece of data (continues the carried state). A unit with a run
         condition (``[running]``, :mod:`~.running`) judges only the samples where it runs:
         elsewhere its tags are read as missing and its status is CHECK_FUNCTION, not
-        running; at each stop the alarm's carriers start from rest (:meth:`_stopped`)."""
+        running; at each stop the alarm's carriers start from rest (:meth:`_stopped`).
+        ``settle``: a settle guard made for the purpose, read and updated in place of the
+        unit's own (:attr:`settle`, None: that one), which is left untouched: the build
+        replays its window with one (:func:`~.settle.settle_ages`). ``pieces``: the
+        pieces of equipment's holds to judge with and a list to collect, per piece of data,
+        the age each piece's start settle judges each row at, their envelopes unread
+        (:class:`~.equipment.PieceReplay`: the build replays its window so, what a piece's
+        envelope is learned at, :func:`~.settle.settle_replay`); None: the unit's own."""
+        guard = self.settle if settle is None else settle
         rc = self.file.running
         col = None if rc is None else self.file.tags.get(rc.tag, rc.tag)
         if rc is None or col not in frame.columns:
-            return self._evaluate(frame)
+            return self._evaluate(frame, guard, pieces)
         runs = rc.runs(frame[col].to_numpy(float))
         if runs.all():
             self.was_running = True
-            return self._evaluate(frame)
+            return self._evaluate(frame, guard, pieces)
         masked = frame.copy()
         masked.loc[~runs, [c for c in frame.columns if c != col]] = np.nan
         parts = []
@@ -1084,15 +1097,15 @@ class Unit:
             since = None
             if not on:
                 if self.was_running:  # a stop (not the rest of one a piece began in)
-                    self._stopped()
-                since = None if self.settle is None else int(self.settle.g[6])
-            d = self._evaluate(masked.iloc[a:b])
+                    self._stopped(guard)
+                since = None if guard is None else int(guard.g[6])
+            d = self._evaluate(masked.iloc[a:b], guard, pieces)
             if not on:
                 d = not_running(d, rc.whys(frame[col].to_numpy(float)[a:b]))
                 self._last_alarm = None
                 if since is not None:  # the time stopped is no quiet time: an alarm at the
                     # last stop keeps the next start's settle shut (a fault is not hidden)
-                    self.settle.g[6] = since
+                    guard.g[6] = since
             self.was_running = on
             parts.append(d)
         return concat(parts)
@@ -1108,19 +1121,26 @@ class Unit:
                 if e.rc.tag in cols.columns}  # fmt: skip
         return off_mask(self.equipment, self.equipment_tests, runs, self.eq_since, self.tests, n)
 
-    def _equipment_settle(self, eq, s: np.ndarray, r: np.ndarray):
+    def _equipment_settle(self, eq, s: np.ndarray, r: np.ndarray, replay=None, index=None):
         """The stopped pieces' ``eq`` (:meth:`_equipment_off`) with each started piece's tests
         held off while it settles (:func:`~.equipment.settling`, from the symptoms ``s``
         before the hold; advances the pieces' quiet counts): ``(off, said, state)`` or None
-        where nothing is off, and samples × tests where a settle holds a test (None: none)."""
+        where nothing is off, and samples × tests where a settle holds a test (None: none).
+        ``replay``: :meth:`evaluate`'s ``pieces`` (its holds, its envelopes unread; the
+        rows' ages appended to its list, ``index`` theirs)."""
         if eq is None:
             return None, None
         off, said, state, starts = eq
-        u = scaled(r, *self._limits()) if any(self.equipment_envelopes) else None
+        envs, holds = self.equipment_envelopes, self.equipment_holds
+        if replay is not None:
+            envs, holds = [None] * len(self.equipment), replay.holds
+        u = scaled(r, *self._limits()) if any(envs) else None
         held, why, where = settling(self.equipment, self.equipment_tests, starts, _on(s),
-                                    self.equipment_holds, self._quiet_n(), self.eq_quiet,
-                                    self.tests, u, self.equipment_envelopes, self.eq_env,
-                                    int(self.ev["on_delay"]), self.period_s)  # fmt: skip
+                                    holds, self._quiet_n(), self.eq_quiet, self.tests, u,
+                                    envs, self.eq_env, int(self.ev["on_delay"]),
+                                    self.period_s)  # fmt: skip
+        if replay is not None:
+            replay.seen.append((index, piece_ages(starts, where, s.shape[0])))
         if held is None and why:  # only the whys of alarms an envelope raised
             off = np.zeros(s.shape, bool) if off is None else off
             said = [*said, *why]
@@ -1138,7 +1158,7 @@ class Unit:
             self._quiet = quiet_samples(self)
         return self._quiet
 
-    def _stopped(self) -> None:
+    def _stopped(self, settle: SettleGuard | None) -> None:
         """At a stop: what carries an alarm forward starts from rest (the residual filter,
         the spread tests' window, the tests' and the combined test's on/off delays, the held
         symptoms, the deadband, the unit's off-delay and its last alarm, the isolation and
@@ -1167,12 +1187,15 @@ class Unit:
         if self.saturation is not None:
             self.saturation.reset()
         rc = self.file.running
-        for g in (self.settle, self.transients):
+        for g in (settle, self.transients):
             if g is not None:
                 g.forget_holds(None if rc is None else rc.tag)
 
-    def _evaluate(self, frame: pd.DataFrame) -> Diagnosis:
-        """:meth:`evaluate` of a piece judged throughout."""
+    def _evaluate(
+        self, frame: pd.DataFrame, settle: SettleGuard | None, pieces: PieceReplay | None = None
+    ) -> Diagnosis:
+        """:meth:`evaluate` of a piece judged throughout, ``settle`` its settle guard,
+        ``pieces`` :meth:`evaluate`'s."""
         point = self.cmodel.point_of(frame) if self.cmodel is not None else None
         cols = self.columns(frame)  # read once: the builders and the reasons
         raw, off = self._residuals(frame, cols)  # off: a stopped piece's tests (equipment.py)
@@ -1191,7 +1214,7 @@ class Unit:
         n, T = s.shape
         # a started piece's tests held off while it settles (equipment.py): from their
         # symptoms, then off as a stopped piece's (the combined test never reads them)
-        off, held = self._equipment_settle(off, s, r.to_numpy())
+        off, held = self._equipment_settle(off, s, r.to_numpy(), pieces, frame.index)
         if held is not None:
             x = r.to_numpy(float, copy=True)
             x[held] = np.nan
@@ -1287,8 +1310,9 @@ class Unit:
                 shown, detected, status, faults, top
             )
         settled = None
-        if self.settle is not None:  # an operator's set-point step: its alarm suppressed
-            settled = self._settle(frame.index, cols, r, active, detected, status, faults)
+        if settle is not None:  # an operator's set-point step: its alarm suppressed
+            settled = self._settle(settle, frame.index, cols, r, active, detected, status,
+                                   faults)  # fmt: skip
         message = ""
         checking = status == NE107.CHECK_FUNCTION
         unknown = np.isnan(s) if off is None else np.isnan(s) & ~off[0]
@@ -1389,10 +1413,9 @@ class Unit:
         warm, left = warm_up(unknown[rows], raw_known[rows], seen, self.test_depth, left_at, test)
         return rows, warm, left
 
-    def _settle(self, index, cols, r, active, detected, status, faults):
-        """The settle guard (:mod:`~diag_plugin.diagnose.settle`) over the piece, in place
-        on ``status`` and ``faults``; returns the suppressed samples and their whys."""
-        g = self.settle
+    def _settle(self, g, index, cols, r, active, detected, status, faults):
+        """The settle guard ``g`` (:mod:`~diag_plugin.diagnose.settle`) over the piece, in
+        place on ``status`` and ``faults``; returns the suppressed samples and their whys."""
         n = len(index)
         sp = np.column_stack(
             [cols.values(lp.sp) if lp.sp in cols.columns else np.full(n, np.nan) for lp in g.loops]

@@ -1052,16 +1052,67 @@ def age_events(age):
     return out
 
 
-def change_ages(changes: list[tuple[int, int]], n: int):
-    """Per row of ``n`` its age (samples) after the change it follows, -1 elsewhere, from
-    ``changes`` (``(row, the row it must end by)`` each, none overlapping: a piece's starts,
-    each to its stop): row ``i`` of a change at ``i`` is at age 0."""
+def start_quiet(age, on, quiet_n: int, on_delay: int, period_s: float) -> tuple[float | None, str]:
+    """The quiet time (s) that ends a settle of the window's changes, learned from their own
+    lulls (issue 34, items 5/6), and what it rests on in words; None where the unit's quiet
+    time stays (:func:`~diag_plugin.diagnose.settle.quiet_samples`, ``quiet_n`` samples).
+
+    ``age``: per row the age the guard judged it at (:func:`age_events`' events), ``on``: per
+    row whether a test or the combined test was on, both from the guard's own replay of the
+    window (:func:`~diag_plugin.diagnose.settle.settle_replay`). A lull is a run of rows of
+    an event with no test on that a test on follows within the event (from its start, or
+    between two symptoms): a settle ended after it would have raised the start's own
+    transient. The quiet time is the longest lull of the events that had a symptom, plus
+    one, widened as an envelope is (:data:`ENVELOPE_WIDEN` / √n), at least the on-delay;
+    kept only where shorter than ``quiet_n`` (the longest history a test reads, plus the
+    filter's delay and the on-delay: what a settle waits without this), and from at least
+    :data:`~diag_plugin.diagnose.envelope.MIN_STARTS` events. The pasteuriser at 10 s: its
+    starts' tests on from 30 s after the start until the transient is over, without a lull;
+    the unit's quiet time 760 s held every start's CHECK_FUNCTION 13 min after its last
+    symptom."""
     import numpy as np
 
-    out = np.full(n, -1, np.int64)
-    for i, end in changes:
-        out[i:end] = np.arange(max(0, end - i))
-    return out
+    from diag_plugin.diagnose.envelope import MIN_STARTS
+
+    ev = age_events(age)
+    on = np.asarray(on, bool)
+    longest, n = -1, 0
+    for e in np.unique(ev[ev >= 0]):
+        hit = np.flatnonzero(on[ev == e])
+        if not hit.size:
+            continue  # no symptom: it tells nothing of a lull
+        n += 1
+        longest = max(longest, int(hit[0]), int((np.diff(hit) - 1).max(initial=0)))
+    if n < MIN_STARTS:
+        kept = f"the quiet time {quiet_n * period_s:.0f} s kept"
+        return None, f"{kept} ({n} change(s) with a symptom)"
+    q = max(int(on_delay), int(np.ceil((longest + 1) * (1.0 + ENVELOPE_WIDEN / np.sqrt(n)))))
+    if q >= quiet_n:
+        return None, (f"the quiet time {quiet_n * period_s:.0f} s kept (the longest lull of "
+                      f"{n} change(s) {longest * period_s:.0f} s)")  # fmt: skip
+    return q * period_s, (
+        f"a settle ends {q * period_s:.0f} s without a symptom (the longest lull before a "
+        f"symptom of {n} change(s), {longest * period_s:.0f} s, plus a sample, × (1 + "
+        f"{ENVELOPE_WIDEN:g}/√n); the unit's quiet time {quiet_n * period_s:.0f} s)"
+    )
+
+
+def known_starts(age, starts):
+    """``age`` (per row the age a piece's start settle judged it at, -1 none:
+    :func:`~diag_plugin.diagnose.equipment.piece_ages`) with the events that did not begin
+    at one of ``starts`` (:func:`piece_starts`: the run tag known and stopped on the sample
+    before) set to -1: a piece found running on the window's first sample, or started
+    across a historian's gap (the join of ``diag unit accept``'s windows), is judged from
+    there at run time but started at an unknown time, and is not one of the window's
+    starts."""
+    import numpy as np
+
+    age = np.asarray(age, np.int64).copy()
+    ev = age_events(age)
+    first = np.flatnonzero((ev >= 0) & (np.r_[-1, ev[:-1]] != ev))
+    bad = ev[first[~np.isin(first, np.asarray(starts, np.int64))]]
+    age[np.isin(ev, bad)] = -1
+    return age
 
 
 def learn_envelope(a, age, times: list[float], bound_s: float, period_s: float,
@@ -1147,30 +1198,41 @@ def settle_envelopes(
     settling times that cut the bins too), so the envelope is judged on residuals the
     models did not see (issue 34: before, the unit replayed on its own window)."""
 
+    import math
+    from dataclasses import replace
+
     from diag_plugin.diagnose.envelope import STATE
-    from diag_plugin.diagnose.settle import quiet_samples, settle_ages, state_tags
+    from diag_plugin.diagnose.settle import quiet_samples, settle_replay, state_tags
 
     out = []
     quiet = quiet_samples(unit)
     state_s = float(bounds.get("state_settle_max_s") or 0.0)
     unit_s = state_s or float(bounds.get("settle_max_s") or 0.0)
-    if state_tags(unit) and state_s > 0:
+    eqs = list(getattr(unit, "equipment", None) or [])
+    # each piece's start settle's bound (samples), as the unit will hold it
+    holds = [math.ceil((pieces.get(e.name) or unit_s) / unit.period_s - 1e-9) for e in eqs]
+    stated = bool(state_tags(unit)) and state_s > 0
+    # the events and their ages as the guards count them at run time (one rule): the state
+    # guard's and each piece's, from one replay of the window
+    age, on, piece_age = settle_replay(unit, frame, bounds, holds if eqs else None)
+    if stated:
         steps, _ = _window_steps(unit, frame)
         times, _ = _free_times(unit, "state", steps, quiet, residuals)
-        # the events and their ages as the guard counts them at run time (one rule)
-        age = settle_ages(unit, frame, bounds)
         env, how = learn_envelope(residuals.scaled(), age, times, state_s, unit.period_s,
                                   list(unit.tests))  # fmt: skip
+        if env is not None:  # and the quiet time that ends them, from their own lulls
+            q, says = start_quiet(age, on, quiet, int(unit.ev["on_delay"]), unit.period_s)
+            env = replace(env, quiet_s=q)
+            how = f"{how}; {says}"
         out.append((STATE, env, f"[envelope.{STATE}]: {how}"))
-    for e, cols in zip(getattr(unit, "equipment", None) or [], unit.equipment_tests,
-                       strict=True):  # fmt: skip
+    for k, (e, cols) in enumerate(zip(eqs, unit.equipment_tests, strict=True)):
         hold_s = pieces.get(e.name) or unit_s
         if not cols.size or e.rc.tag not in frame.columns or not hold_s > 0:
             continue
-        _, changes = _piece_changes(e.rc, frame[e.rc.tag].to_numpy(float))
+        starts, changes = _piece_changes(e.rc, frame[e.rc.tag].to_numpy(float))
         times, _ = _piece_times(unit, residuals, cols, changes, quiet)
         env, how = learn_envelope(residuals.scaled()[:, cols],
-                                  change_ages(changes, len(frame)), times,
+                                  known_starts(piece_age[:, k], starts), times,
                                   hold_s, unit.period_s,
                                   [unit.tests[j] for j in cols])  # fmt: skip
         out.append((e.name, env, f"[envelope.{e.name}]: {how}"))
