@@ -113,6 +113,13 @@ cache's arrays as one member, the pieces read two ahead. The wrapper now also pr
 start-up alone, "start-up" (the main thread's CPU until its first replay: imports, the
 unit's load, ``scipy.special``, numba's registries), and "read ahead" (the read's CPU done
 by then, beside the start-up on the other core).
+Round eleven (branch ``i34-replay``): the read started from the plan the last run of the unit
+file read (``diagnose/readplan.py``), before the unit's modules are imported and the unit
+loaded, three pieces ahead. "imports" is now the main thread's CPU until the unit's load (a
+remembered read may be under way by then, counted in "read"), and the read's timers are set
+at the first read. 5 pairs against ``main`` (4948dad, a ``git archive`` snapshot) at a load of
+11–15, medians: read ahead 0.22 → 0.63 CPU s, start-up 1.07 → 0.96, CPU 4.58 → 4.49 s; the
+same JSON.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
