@@ -113,6 +113,13 @@ cache's arrays as one member, the pieces read two ahead. The wrapper now also pr
 start-up alone, "start-up" (the main thread's CPU until its first replay: imports, the
 unit's load, ``scipy.special``, numba's registries), and "read ahead" (the read's CPU done
 by then, beside the start-up on the other core).
+Round eleven (branch ``i34-replay``): the read started from the plan the last run of the unit
+file read (``diagnose/readplan.py``), before the unit's modules are imported and the unit
+loaded, three pieces ahead. "imports" is now the main thread's CPU until the unit's load (a
+remembered read may be under way by then, counted in "read"), and the read's timers are set
+at the first read. 5 pairs against ``main`` (4948dad, a ``git archive`` snapshot) at a load of
+11–15, medians: read ahead 0.22 → 0.63 CPU s, start-up 1.07 → 0.96, CPU 4.58 → 4.49 s; the
+same JSON.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
@@ -156,30 +163,15 @@ def timed(f, key, add):
             st[key] = st.get(key, 0.0) * add + time.thread_time() - t
     return g
 orig_load = cli.load_unit
-def load_unit(*a, **k):  # the command's imports are done when it loads the unit
-    st["imports"] = cpu()
+def load_unit(*a, **k):  # the command's imports are done when it loads the unit (the main
+    st["imports"] = time.thread_time()  # thread's: a remembered plan's read may be under way)
     import diag_plugin.diagnose.unit as du
-    import historian.store as hs
     evaluate = timed(du.Unit.evaluate, "replay", True)
     def first(*a, **k):  # the start-up alone: the main thread's CPU until its first replay
         if "start-up" not in st and threading.current_thread() is threading.main_thread():
             st["start-up"], st["read ahead"] = time.thread_time(), st["read"]
         return evaluate(*a, **k)
     du.Unit.evaluate = first
-    lock = threading.Lock()
-    def pooled(f):  # the per-tag reads of a window in the historian's reader threads
-        def g(*a, **k):
-            if not threading.current_thread().name.startswith("historian-read"):
-                return f(*a, **k)
-            t = time.thread_time()
-            try:
-                return f(*a, **k)
-            finally:
-                with lock:
-                    st["read"] += time.thread_time() - t
-        return g
-    hs.Historian._read_pieces = pooled(hs.Historian._read_pieces)
-    hs.align_pieces = pooled(hs.align_pieces)
     try:  # a piece's per-test rows in helper threads too (round nine): their CPU is replay
         import diag_plugin.diagnose.pertest as pt
     except ImportError:
@@ -198,13 +190,34 @@ def load_unit(*a, **k):  # the command's imports are done when it loads the unit
                         st["replay"] += time.thread_time() - t
             return each(timed_row, n, workers)
         pt.each = du.each = each_timed
-    import historian.backends as hb
-    if hasattr(hb.SqliteBulk, "read_grid"):  # a regular series' values alone (round six)
-        hb.SqliteBulk.read_grid = pooled(hb.SqliteBulk.read_grid)
     return timed(orig_load, "load", False)(*a, **k)
 cli.load_unit = load_unit
+lock = threading.Lock()
+def pooled(f):  # the per-tag reads of a window in the historian's reader threads
+    def g(*a, **k):
+        if not threading.current_thread().name.startswith("historian-read"):
+            return f(*a, **k)
+        t = time.thread_time()
+        try:
+            return f(*a, **k)
+        finally:
+            with lock:
+                st["read"] += time.thread_time() - t
+    return g
+patched = []
+def patch_read():  # before the first read (the command has imported the historian by then)
+    import historian.store as hs
+    import historian.backends as hb
+    if patched:
+        return
+    patched.append(True)
+    hs.Historian._read_pieces = pooled(hs.Historian._read_pieces)
+    hs.align_pieces = pooled(hs.align_pieces)
+    if hasattr(hb.SqliteBulk, "read_grid"):  # a regular series' values alone (round six)
+        hb.SqliteBulk.read_grid = pooled(hb.SqliteBulk.read_grid)
 uf = cli.unit_frames
 def unit_frames(*a, **k):
+    patch_read()
     it = uf(*a, **k)
     while True:
         t = time.thread_time()

@@ -194,6 +194,7 @@ from diag_plugin.diagnose.fixed import read_fixed
 from diag_plugin.diagnose.manual import read_manual
 from diag_plugin.diagnose.running import read_running
 from diag_plugin.rulebase.folder import UNIT_SUFFIX
+from diag_plugin.rulebase.folder import unit_path as unit_path  # where it was
 from diag_plugin.status import NE107
 from diag_plugin.tomllines import LinedFile, syntax_error
 from historian.errors import ProblemsError
@@ -397,14 +398,6 @@ class CombinedSpec:
 POINT_KEYS = ("point_tags", "point_at", "point_span", "point_center", "point_scale")
 #: keys of [combined] besides the arrays, what they hold
 COMBINED_NOTES = ("far", "method", "supported", "hours", "hours_needed", "independent", "share")
-
-
-def unit_path(name_or_path: str, folder: str | Path = "rulebases") -> Path:
-    """A unit name (``valve_unit``) or a path to its file."""
-    p = Path(name_or_path)
-    if p.name.endswith(".toml") or p.exists():
-        return p
-    return Path(folder) / f"{name_or_path}{UNIT_SUFFIX}"
 
 
 def _plain(v: Any) -> Any:

@@ -21,6 +21,14 @@ UNIT_SUFFIX = ".unit.toml"
 MATRIX_SUFFIX = ".matrix.toml"
 
 
+def unit_path(name_or_path: str, folder: str | Path = "rulebases") -> Path:
+    """A unit name (``valve_unit``) or a path to its file."""
+    p = Path(name_or_path)
+    if p.name.endswith(".toml") or p.exists():
+        return p
+    return Path(folder) / f"{name_or_path}{UNIT_SUFFIX}"
+
+
 def is_model_file(path: Path) -> bool:
     """Rule-base (model) files are the ``*.toml`` that are neither unit nor matrix files."""
     return not path.name.endswith((UNIT_SUFFIX, MATRIX_SUFFIX))
