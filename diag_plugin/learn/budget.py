@@ -26,6 +26,10 @@ threshold whose episode rate is the budget.
   spread rest on few independent values (:func:`effective_samples`), so the density ratio is
   that of the predictive Student t with ``n − 1`` degrees of freedom, ``(1 + z²/ν)^(−(ν+1)/2)``,
   scaled by ``√(1 + 1/n)``: the fewer values, the wider (the normal case as ``n`` grows).
+  Also in place of the tail fit where the series holds fewer than :data:`FEW_VALUES`
+  independent values and its largest excursion is one a Gaussian series shows
+  (:func:`gaussian_top`): there the tail's top episodes are a handful of excursions of a slow
+  residual, and the tail fit extrapolates their mean excess alone.
 
 Each result says which, how many independent values the series holds
 (:func:`~diag_plugin.models.series.effective_samples`), whether the window *supports* the
@@ -59,6 +63,13 @@ LADDER = 96
 #: an extrapolated threshold is raised where the window shows more episodes above it than
 #: a Poisson count of the budget's reaches but with this probability (:func:`_seen`)
 SEEN_P = 0.01
+#: a side whose window holds fewer independent values than this (and whose largest excursion
+#: a Gaussian series explains, :data:`GAUSS_P`) gets Rice's Gaussian threshold, not a tail fit:
+#: its top :data:`TAIL_EPISODES` episodes are a handful of excursions (:func:`calibrate_side`)
+FEW_VALUES = 100.0
+#: the window's largest excursion is taken as beyond a Gaussian series where Rice's rate gives
+#: it less than this probability (``P(max > z) ≈ E(μ) exp(−z²/2)``)
+GAUSS_P = 0.05
 
 
 @numba.njit(cache=True)
@@ -119,21 +130,77 @@ class SideThreshold:
 
 
 def calibrate_side(
-    x: np.ndarray, hours: float, rate: float, on_delay: int = 1, off_delay: int = 1
+    x: np.ndarray,
+    hours: float,
+    rate: float,
+    on_delay: int = 1,
+    off_delay: int = 1,
+    few: float = 0.0,
 ) -> SideThreshold:
     """The threshold ``K`` of ``x > K`` whose alarm episodes come at ``rate`` per hour, from a
-    fault-free series ``x`` covering ``hours`` of operation (NaN = unknown, skipped)."""
+    fault-free series ``x`` covering ``hours`` of operation (NaN = unknown, skipped).
+
+    ``few``: where the budget asks for rarer alarms than the window shows and the series
+    holds fewer independent values than this, Rice's Gaussian threshold (:func:`rice_parts`)
+    stands in for the tail fit when the window's largest excursion is one a Gaussian series
+    shows (:func:`gaussian_top`): the tail fit's top :data:`TAIL_EPISODES` episodes are then
+    a handful of excursions, and its mean excess, extrapolated ``ln(E(u)/c*)`` ≈ 9 times on a
+    month at the unit's budget, rests on them alone, where the Gaussian one rests on the mean
+    and spread of every value and the episodes at the mean (issue 34: chemplant's analyser
+    test AI101, 37 values in 30 days, 6.6 and 7.7 spreads out by the tail, 5.3 by Rice)."""
     v = x[np.isfinite(x)]
     if v.size < 3 or hours <= 0:
         raise ValueError("too few known values to learn a threshold from")
     want = rate * hours  # episodes the budget allows in this window
     needed = MIN_EPISODES / rate
+    levels = ladder(v)
+    counts = episodes(x, levels, on_delay, off_delay)
+    n_eff = effective_samples(v) if few > 0 and want < MIN_EPISODES else math.inf
+    if n_eff < few:
+        g = rice_parts(x, hours, rate, on_delay, off_delay, n_eff=n_eff)
+        if gaussian_top(v, g):
+            k = _seen(g.threshold, levels, counts, want)
+            return SideThreshold(float(k), rate, "gaussian", g.episodes, False, needed)
+    got = from_counts(levels, counts, want)
+    if got is not None:
+        k, method, seen = got
+        return SideThreshold(k, rate, method, seen, method == "empirical", needed)
+    # too few episodes for a tail: a Gaussian series (Rice)
+    g = rice_parts(x, hours, rate, on_delay, off_delay)
+    k = _seen(g.threshold, levels, counts, want)
+    return SideThreshold(float(k), rate, "gaussian", g.episodes, False, needed)
+
+
+def gaussian_top(v: np.ndarray, g: RiceParts, p: float = GAUSS_P) -> bool:
+    """Whether the largest of the known values ``v`` is one a stationary Gaussian series with
+    :func:`rice_parts` ``g`` shows: by Rice, its maximum passes ``μ + zσ`` with probability
+    about ``E(μ) exp(−z²/2)``, so the window's top, in spreads above the mean, is taken as
+    Gaussian up to ``√(2 ln(E(μ)/p))`` (3.99 at 148 episodes and ``p`` = 0.05; chemplant's
+    LIC102.OUT loop test, 7.7 at 129: a heavier tail, fitted as one)."""
+    if not g.spread > 0:
+        return False
+    top = (float(v.max()) - g.mean) / g.spread
+    return top <= math.sqrt(2.0 * math.log(max(g.episodes / p, 1.0)))
+
+
+def ladder(v: np.ndarray) -> np.ndarray:
+    """The levels :func:`calibrate_side` tries on the known values ``v``: from their median
+    to their largest, closer together near the median."""
     top = float(v.max())
-    # the ladder: from the median to a little above the largest value
     lo = float(np.median(v))
     span = max(top - lo, 1e-12 * max(abs(top), 1.0))
-    levels = lo + span * np.linspace(0.0, 1.0, LADDER) ** 1.5
-    counts = episodes(x, levels, on_delay, off_delay)
+    return lo + span * np.linspace(0.0, 1.0, LADDER) ** 1.5
+
+
+def from_counts(
+    levels: np.ndarray, counts: np.ndarray, want: float
+) -> tuple[float, str, int] | None:
+    """The level at which ``want`` episodes come, from the episode ``counts`` at increasing
+    ``levels``: read off (``"empirical"``) where the window shows at least
+    :data:`MIN_EPISODES` at it, else by the exponential tail fitted above the highest level
+    :data:`TAIL_EPISODES` remain (``"tail"``, raised by :func:`_seen`); None where no level
+    holds so many (the caller's Gaussian model). Returns the level, the method and the
+    episodes it rests on."""
     if want >= MIN_EPISODES:
         # the first level with no more episodes than allowed, interpolated on log counts
         i = int(np.argmax(counts <= want))
@@ -142,7 +209,7 @@ def calibrate_side(
             c0, c1 = math.log(counts[i - 1]), math.log(max(counts[i], 0.5))
             f = (c0 - math.log(want)) / (c0 - c1)
             k = levels[i - 1] + f * (levels[i] - levels[i - 1])
-        return SideThreshold(float(k), rate, "empirical", int(round(want)), True, needed)
+        return float(k), "empirical", int(round(want))
     # the tail: from the highest level where TAIL_EPISODES remain
     many = np.flatnonzero(counts >= TAIL_EPISODES)
     if many.size:
@@ -153,11 +220,8 @@ def calibrate_side(
         beta *= e_u / max(e_u - TAIL_Z * math.sqrt(e_u), 1.0)  # upper confidence bound
         if beta > 0:
             k = _seen(u + beta * math.log(e_u / want), levels, counts, want)
-            return SideThreshold(float(k), rate, "tail", e_u, False, needed)
-    # too few episodes for a tail: a Gaussian series (Rice)
-    g = rice_parts(x, hours, rate, on_delay, off_delay)
-    k = _seen(g.threshold, levels, counts, want)
-    return SideThreshold(float(k), rate, "gaussian", g.episodes, False, needed)
+            return float(k), "tail", e_u
+    return None
 
 
 @dataclass
@@ -295,8 +359,8 @@ def _test_budget(
     x = residuals[name].to_numpy(float)
     known = np.isfinite(x)
     hours = float(known.sum()) * dt_h
-    hi = calibrate_side(x, hours, share, on_delay, off_delay)
-    lo = calibrate_side(-x, hours, share, on_delay, off_delay)
+    hi = calibrate_side(x, hours, share, on_delay, off_delay, FEW_VALUES)
+    lo = calibrate_side(-x, hours, share, on_delay, off_delay, FEW_VALUES)
     both = (hi, lo)
     return TestBudget(
         test=str(name),
