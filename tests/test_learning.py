@@ -194,7 +194,7 @@ def test_a_slow_residual_of_few_values_gets_rices_threshold_not_a_tail_fit_on_it
         cols["slow"] = _ar1(n, 100 * seed + 99, 0.995)[:, 0]
         got = calibrate(pd.DataFrame(cols), "180s", far, on_delay=on, off_delay=on)
         slow = got["slow"]
-        assert slow.independent < FEW_VALUES and slow.method == "gaussian", slow
+        assert slow.independent < FEW_VALUES and slow.method == "rice", slow
         x = cols["slow"]
         assert slow.high == pytest.approx(rice_parts(x, 720.0, share, on, on).threshold)
         assert -slow.low == pytest.approx(rice_parts(-x, 720.0, share, on, on).threshold)

@@ -26,10 +26,10 @@ threshold whose episode rate is the budget.
   spread rest on few independent values (:func:`effective_samples`), so the density ratio is
   that of the predictive Student t with ``n − 1`` degrees of freedom, ``(1 + z²/ν)^(−(ν+1)/2)``,
   scaled by ``√(1 + 1/n)``: the fewer values, the wider (the normal case as ``n`` grows).
-  Also in place of the tail fit where the series holds fewer than :data:`FEW_VALUES`
-  independent values and its largest excursion is one a Gaussian series shows
-  (:func:`gaussian_top`): there the tail's top episodes are a handful of excursions of a slow
-  residual, and the tail fit extrapolates their mean excess alone.
+* **Rice** (the Gaussian model, said ``"rice"``) in place of the tail fit where the series
+  holds fewer than :data:`FEW_VALUES` independent values and its largest excursion is one a
+  Gaussian series shows (:func:`gaussian_top`): there the tail's top episodes are a handful
+  of excursions of a slow residual, and the tail fit extrapolates their mean excess alone.
 
 Each result says which, how many independent values the series holds
 (:func:`~diag_plugin.models.series.effective_samples`), whether the window *supports* the
@@ -119,7 +119,10 @@ class SideThreshold:
     threshold: float
     #: expected false alarms per hour of operation at this threshold (this side)
     rate: float
-    #: "empirical", "tail" or "gaussian" (see the module doc)
+    #: "empirical", "tail" or "gaussian" (see the module doc), or "rice": Rice's Gaussian
+    #: model where a tail could be fitted, on a series of few independent values whose top
+    #: a Gaussian series explains (not "gaussian": the window holds the episodes a tail
+    #: needs, and ``diag unit accept`` keeps such a band as it keeps a tail's)
     method: str
     #: episodes the window shows at the threshold and at the tail's base level
     episodes: int
@@ -160,7 +163,7 @@ def calibrate_side(
         g = rice_parts(x, hours, rate, on_delay, off_delay, n_eff=n_eff)
         if gaussian_top(v, g):
             k = _seen(g.threshold, levels, counts, want)
-            return SideThreshold(float(k), rate, "gaussian", g.episodes, False, needed)
+            return SideThreshold(float(k), rate, "rice", g.episodes, False, needed)
     got = from_counts(levels, counts, want)
     if got is not None:
         k, method, seen = got
