@@ -143,8 +143,8 @@ def calibrate_side(
     """The threshold ``K`` of ``x > K`` whose alarm episodes come at ``rate`` per hour, from a
     fault-free series ``x`` covering ``hours`` of operation (NaN = unknown, skipped).
 
-    ``few``: where the budget asks for rarer alarms than the window shows and the series
-    holds fewer independent values than this, Rice's Gaussian threshold (:func:`rice_parts`)
+    ``few``: where the tail fit would extrapolate and the series holds fewer independent
+    values than this, Rice's Gaussian threshold (:func:`rice_parts`)
     stands in for the tail fit when the window's largest excursion is one a Gaussian series
     shows (:func:`gaussian_top`): the tail fit's top :data:`TAIL_EPISODES` episodes are then
     a handful of excursions, and its mean excess, extrapolated ``ln(E(u)/c*)`` ≈ 9 times on a
@@ -158,13 +158,13 @@ def calibrate_side(
     needed = MIN_EPISODES / rate
     levels = ladder(v)
     counts = episodes(x, levels, on_delay, off_delay)
-    n_eff = effective_samples(v) if few > 0 and want < MIN_EPISODES else math.inf
+    got = from_counts(levels, counts, want)
+    n_eff = effective_samples(v) if few > 0 and got is not None and got[1] == "tail" else math.inf
     if n_eff < few:
         g = rice_parts(x, hours, rate, on_delay, off_delay, n_eff=n_eff)
         if gaussian_top(v, g):
             k = _seen(g.threshold, levels, counts, want)
             return SideThreshold(float(k), rate, "rice", g.episodes, False, needed)
-    got = from_counts(levels, counts, want)
     if got is not None:
         k, method, seen = got
         return SideThreshold(k, rate, method, seen, method == "empirical", needed)
