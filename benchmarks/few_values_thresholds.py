@@ -10,8 +10,8 @@ Rules (``--rules``, comma-separated):
 
 * ``main``: the tail fit wherever 30 episodes remain (``FEW_VALUES`` = 0);
 * ``gauss-N``: a side of fewer than N independent values whose window top a Gaussian series
-  explains takes Rice's threshold (:func:`~diag_plugin.learn.budget.gaussian_top`; the
-  build's rule at N = ``FEW_VALUES``);
+  explains takes Rice's threshold (:func:`~diag_plugin.learn.budget.gaussian_top`;
+  ``calibrate(few=N)``, off in the build: ``FEW_VALUES`` = 0);
 * ``always-N``: the same without the check of the window's top (every side under N values);
 * ``pool-N``: the brief's pooled tail — every side standardised by its mean and spread above
   the mean, the episodes of all sides pooled on one ladder of standardised levels, a side's
@@ -124,14 +124,14 @@ def rule_limits(rule: str, unit, body: pd.DataFrame, far: float) -> dict:
     far_t = far * (1.0 - COMBINED_SHARE) if unit.ev["combined"] else far
     on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
     kind, _, n = rule.partition("-")
-    saved = B.FEW_VALUES, B.gaussian_top
+    few = float(n) if kind in ("gauss", "always") else 0.0
+    saved = B.gaussian_top
     try:
-        B.FEW_VALUES = float(n) if kind in ("gauss", "always") else 0.0
         if kind == "always":
             B.gaussian_top = lambda v, g, p=B.GAUSS_P: True
-        got = B.calibrate(body, unit.period, far_t, on_delay=on, off_delay=off)
+        got = B.calibrate(body, unit.period, far_t, on_delay=on, off_delay=off, few=few)
     finally:
-        B.FEW_VALUES, B.gaussian_top = saved
+        B.gaussian_top = saved
     if kind == "pool":
         dt_h = pd.Timedelta(unit.period) / pd.Timedelta(hours=1)
         pooled(got, body, dt_h, far_t / (2 * body.shape[1]), on, off, float(n))

@@ -184,17 +184,17 @@ def test_a_slow_residual_of_few_values_gets_rices_threshold_not_a_tail_fit_on_it
     months more where the budget allows 11.5); it still holds the budget on 20 months more
     of the same process; the fast residuals' thresholds are the tail fit's, unchanged; and a
     slow residual whose window shows excursions no Gaussian series shows keeps its tail fit."""
-    from diag_plugin.learn.budget import FEW_VALUES, TAIL_EPISODES
+    from diag_plugin.learn.budget import TAIL_EPISODES
 
-    n, far, on = 14400, 0.0005, 3
+    n, far, on, few = 14400, 0.0005, 3, 100.0
     share = far / (2 * 5)
     thresholds, seen, allowed = [], 0, 0.0
     for seed in range(1, 9):
         cols = {f"fast{i}": _ar1(n, 100 * seed + i, 0.9)[:, 0] for i in range(4)}
         cols["slow"] = _ar1(n, 100 * seed + 99, 0.995)[:, 0]
-        got = calibrate(pd.DataFrame(cols), "180s", far, on_delay=on, off_delay=on)
+        got = calibrate(pd.DataFrame(cols), "180s", far, on_delay=on, off_delay=on, few=few)
         slow = got["slow"]
-        assert slow.independent < FEW_VALUES and slow.method == "rice", slow
+        assert slow.independent < few and slow.method == "rice", slow
         x = cols["slow"]
         assert slow.high == pytest.approx(rice_parts(x, 720.0, share, on, on).threshold)
         assert -slow.low == pytest.approx(rice_parts(-x, 720.0, share, on, on).threshold)
@@ -205,7 +205,7 @@ def test_a_slow_residual_of_few_values_gets_rices_threshold_not_a_tail_fit_on_it
         allowed += 2 * share * 720.0 * 20
         for i in range(4):  # the fast ones: as the tail fit alone puts them
             x = cols[f"fast{i}"]
-            assert got[f"fast{i}"].independent > FEW_VALUES
+            assert got[f"fast{i}"].independent > few
             assert got[f"fast{i}"].high == calibrate_side(x, 720.0, share, on, on, few=0).threshold
     # nearer Rice's normal distance (4.5 spreads here) than the tail fits' 5.9, and honest
     assert np.median(thresholds) < 5.2, thresholds
@@ -214,7 +214,7 @@ def test_a_slow_residual_of_few_values_gets_rices_threshold_not_a_tail_fit_on_it
     heavy = _ar1(n, 5, 0.995)[:, 0]
     for at in range(1000, n, 2000):
         heavy[at : at + 40] += 9.0 * np.hanning(40)
-    side = calibrate_side(heavy, 720.0, share, on, on, few=FEW_VALUES)
+    side = calibrate_side(heavy, 720.0, share, on, on, few=few)
     assert side.method == "tail" and side.episodes >= TAIL_EPISODES
 
 

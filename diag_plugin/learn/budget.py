@@ -65,8 +65,11 @@ LADDER = 96
 SEEN_P = 0.01
 #: a side whose window holds fewer independent values than this (and whose largest excursion
 #: a Gaussian series explains, :data:`GAUSS_P`) gets Rice's Gaussian threshold, not a tail fit:
-#: its top :data:`TAIL_EPISODES` episodes are a handful of excursions (:func:`calibrate_side`)
-FEW_VALUES = 100.0
+#: its top :data:`TAIL_EPISODES` episodes are a handful of excursions (:func:`calibrate_side`).
+#: 0, off, by default: at 100 (chemplant's tuning choice) the fan plant's unit judged only in
+#: production alarms in its morning starts (tests/test_unit_running_modes.py); ``calibrate``'s
+#: ``few`` turns it on
+FEW_VALUES = 0.0
 #: the window's largest excursion is taken as beyond a Gaussian series where Rice's rate gives
 #: it less than this probability (``P(max > z) ≈ E(μ) exp(−z²/2)``)
 GAUSS_P = 0.05
@@ -333,6 +336,7 @@ def calibrate(
     on_delay: int = 1,
     off_delay: int = 1,
     mapper: Callable[[Callable[..., Any], Sequence[Any], tuple], list[Any]] | None = None,
+    few: float = FEW_VALUES,
 ) -> dict[str, TestBudget]:
     """Thresholds per test (column) holding the unit's false alarms to ``far`` per hour of
     operation, all tests together: each side of each test gets ``far / (2 T)``.
@@ -340,14 +344,16 @@ def calibrate(
     ``residuals``: the fault-free filtered residuals the unit would threshold (NaN unknown),
     one column per test, one row per sampling ``period``. ``mapper(fn, items, args)``:
     ``[fn(item, *args) for item in items]`` in any number of processes, in order (each
-    test's thresholds are its own; ``diag unit build`` passes its worker pool's).
+    test's thresholds are its own; ``diag unit build`` passes its worker pool's). ``few``:
+    :func:`calibrate_side`'s, Rice's threshold for a side of fewer independent values whose
+    window top a Gaussian series explains (:data:`FEW_VALUES`).
     """
     if not far > 0:
         raise ValueError(f"the false-alarm budget must be > 0 per hour, got {far}")
     dt_h = pd.Timedelta(period) / pd.Timedelta(hours=1)
     share = far / (2 * residuals.shape[1])
     names = list(residuals.columns)
-    args = (residuals, dt_h, share, on_delay, off_delay)
+    args = (residuals, dt_h, share, on_delay, off_delay, few)
     if mapper is None:
         got = [_test_budget(name, *args) for name in names]
     else:
@@ -356,14 +362,20 @@ def calibrate(
 
 
 def _test_budget(
-    name: Any, residuals: pd.DataFrame, dt_h: float, share: float, on_delay: int, off_delay: int
+    name: Any,
+    residuals: pd.DataFrame,
+    dt_h: float,
+    share: float,
+    on_delay: int,
+    off_delay: int,
+    few: float = 0.0,
 ) -> TestBudget:
     """One test's :class:`TestBudget` (:func:`calibrate`'s share of one column)."""
     x = residuals[name].to_numpy(float)
     known = np.isfinite(x)
     hours = float(known.sum()) * dt_h
-    hi = calibrate_side(x, hours, share, on_delay, off_delay, FEW_VALUES)
-    lo = calibrate_side(-x, hours, share, on_delay, off_delay, FEW_VALUES)
+    hi = calibrate_side(x, hours, share, on_delay, off_delay, few)
+    lo = calibrate_side(-x, hours, share, on_delay, off_delay, few)
     both = (hi, lo)
     return TestBudget(
         test=str(name),
