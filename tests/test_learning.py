@@ -175,6 +175,49 @@ def test_rice_parts_are_what_a_short_windows_threshold_rests_on():
     assert spread[0.97] > 3.0 > 1.5 > spread[0.5]
 
 
+def test_a_slow_residual_of_few_values_gets_rices_threshold_not_a_tail_fit_on_its_excursions():
+    """A month at 3 min (14,400 samples) of four fast AR(1) residuals and a slow one (φ =
+    0.995: 13-66 independent values), the unit's budget split over them (issue 34: chemplant's
+    analyser test AI101, 37 values, a tail fit on a handful of excursions 6.6-7.7 spreads
+    out). The slow side takes Rice's Gaussian threshold on the mean and spread of all its
+    values (fails on main: a tail fit, thresholds 4.3-8.0, median 5.9 sd, no alarm in 20
+    months more where the budget allows 11.5); it still holds the budget on 20 months more
+    of the same process; the fast residuals' thresholds are the tail fit's, unchanged; and a
+    slow residual whose window shows excursions no Gaussian series shows keeps its tail fit."""
+    from diag_plugin.learn.budget import TAIL_EPISODES
+
+    n, far, on, few = 14400, 0.0005, 3, 100.0
+    share = far / (2 * 5)
+    thresholds, seen, allowed = [], 0, 0.0
+    for seed in range(1, 9):
+        cols = {f"fast{i}": _ar1(n, 100 * seed + i, 0.9)[:, 0] for i in range(4)}
+        cols["slow"] = _ar1(n, 100 * seed + 99, 0.995)[:, 0]
+        got = calibrate(pd.DataFrame(cols), "180s", far, on_delay=on, off_delay=on, few=few)
+        slow = got["slow"]
+        assert slow.independent < few and slow.method == "rice", slow
+        x = cols["slow"]
+        assert slow.high == pytest.approx(rice_parts(x, 720.0, share, on, on).threshold)
+        assert -slow.low == pytest.approx(rice_parts(-x, 720.0, share, on, on).threshold)
+        thresholds += [slow.high, -slow.low]
+        later = _ar1(20 * n, 7 * seed, 0.995)[:, 0]
+        seen += episodes(later, np.array([slow.high]), on, on)[0]
+        seen += episodes(-later, np.array([-slow.low]), on, on)[0]
+        allowed += 2 * share * 720.0 * 20
+        for i in range(4):  # the fast ones: as the tail fit alone puts them
+            x = cols[f"fast{i}"]
+            assert got[f"fast{i}"].independent > few
+            assert got[f"fast{i}"].high == calibrate_side(x, 720.0, share, on, on, few=0).threshold
+    # nearer Rice's normal distance (4.5 spreads here) than the tail fits' 5.9, and honest
+    assert np.median(thresholds) < 5.2, thresholds
+    assert 0 < seen <= 2 * allowed, (seen, allowed)
+    # a slow residual with excursions of 9 spreads a Gaussian series does not show: a tail
+    heavy = _ar1(n, 5, 0.995)[:, 0]
+    for at in range(1000, n, 2000):
+        heavy[at : at + 40] += 9.0 * np.hanning(40)
+    side = calibrate_side(heavy, 720.0, share, on, on, few=few)
+    assert side.method == "tail" and side.episodes >= TAIL_EPISODES
+
+
 # ---------------------------------------------------------------- units on the tank rig
 TESTS = UNITS["tank"]
 

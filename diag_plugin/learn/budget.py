@@ -26,6 +26,10 @@ threshold whose episode rate is the budget.
   spread rest on few independent values (:func:`effective_samples`), so the density ratio is
   that of the predictive Student t with ``n − 1`` degrees of freedom, ``(1 + z²/ν)^(−(ν+1)/2)``,
   scaled by ``√(1 + 1/n)``: the fewer values, the wider (the normal case as ``n`` grows).
+* **Rice** (the Gaussian model, said ``"rice"``) in place of the tail fit where the series
+  holds fewer than :data:`FEW_VALUES` independent values and its largest excursion is one a
+  Gaussian series shows (:func:`gaussian_top`): there the tail's top episodes are a handful
+  of excursions of a slow residual, and the tail fit extrapolates their mean excess alone.
 
 Each result says which, how many independent values the series holds
 (:func:`~diag_plugin.models.series.effective_samples`), whether the window *supports* the
@@ -59,6 +63,16 @@ LADDER = 96
 #: an extrapolated threshold is raised where the window shows more episodes above it than
 #: a Poisson count of the budget's reaches but with this probability (:func:`_seen`)
 SEEN_P = 0.01
+#: a side whose window holds fewer independent values than this (and whose largest excursion
+#: a Gaussian series explains, :data:`GAUSS_P`) gets Rice's Gaussian threshold, not a tail fit:
+#: its top :data:`TAIL_EPISODES` episodes are a handful of excursions (:func:`calibrate_side`).
+#: 0, off, by default: at 100 (chemplant's tuning choice) the fan plant's unit judged only in
+#: production alarms in its morning starts (tests/test_unit_running_modes.py); ``calibrate``'s
+#: ``few`` turns it on
+FEW_VALUES = 0.0
+#: the window's largest excursion is taken as beyond a Gaussian series where Rice's rate gives
+#: it less than this probability (``P(max > z) ≈ E(μ) exp(−z²/2)``)
+GAUSS_P = 0.05
 
 
 @numba.njit(cache=True)
@@ -108,7 +122,10 @@ class SideThreshold:
     threshold: float
     #: expected false alarms per hour of operation at this threshold (this side)
     rate: float
-    #: "empirical", "tail" or "gaussian" (see the module doc)
+    #: "empirical", "tail" or "gaussian" (see the module doc), or "rice": Rice's Gaussian
+    #: model where a tail could be fitted, on a series of few independent values whose top
+    #: a Gaussian series explains (not "gaussian": the window holds the episodes a tail
+    #: needs, and ``diag unit accept`` keeps such a band as it keeps a tail's)
     method: str
     #: episodes the window shows at the threshold and at the tail's base level
     episodes: int
@@ -119,21 +136,77 @@ class SideThreshold:
 
 
 def calibrate_side(
-    x: np.ndarray, hours: float, rate: float, on_delay: int = 1, off_delay: int = 1
+    x: np.ndarray,
+    hours: float,
+    rate: float,
+    on_delay: int = 1,
+    off_delay: int = 1,
+    few: float = 0.0,
 ) -> SideThreshold:
     """The threshold ``K`` of ``x > K`` whose alarm episodes come at ``rate`` per hour, from a
-    fault-free series ``x`` covering ``hours`` of operation (NaN = unknown, skipped)."""
+    fault-free series ``x`` covering ``hours`` of operation (NaN = unknown, skipped).
+
+    ``few``: where the tail fit would extrapolate and the series holds fewer independent
+    values than this, Rice's Gaussian threshold (:func:`rice_parts`)
+    stands in for the tail fit when the window's largest excursion is one a Gaussian series
+    shows (:func:`gaussian_top`): the tail fit's top :data:`TAIL_EPISODES` episodes are then
+    a handful of excursions, and its mean excess, extrapolated ``ln(E(u)/c*)`` ≈ 9 times on a
+    month at the unit's budget, rests on them alone, where the Gaussian one rests on the mean
+    and spread of every value and the episodes at the mean (issue 34: chemplant's analyser
+    test AI101, 37 values in 30 days, 6.6 and 7.7 spreads out by the tail, 5.3 by Rice)."""
     v = x[np.isfinite(x)]
     if v.size < 3 or hours <= 0:
         raise ValueError("too few known values to learn a threshold from")
     want = rate * hours  # episodes the budget allows in this window
     needed = MIN_EPISODES / rate
+    levels = ladder(v)
+    counts = episodes(x, levels, on_delay, off_delay)
+    got = from_counts(levels, counts, want)
+    n_eff = effective_samples(v) if few > 0 and got is not None and got[1] == "tail" else math.inf
+    if n_eff < few:
+        g = rice_parts(x, hours, rate, on_delay, off_delay, n_eff=n_eff)
+        if gaussian_top(v, g):
+            k = _seen(g.threshold, levels, counts, want)
+            return SideThreshold(float(k), rate, "rice", g.episodes, False, needed)
+    if got is not None:
+        k, method, seen = got
+        return SideThreshold(k, rate, method, seen, method == "empirical", needed)
+    # too few episodes for a tail: a Gaussian series (Rice)
+    g = rice_parts(x, hours, rate, on_delay, off_delay)
+    k = _seen(g.threshold, levels, counts, want)
+    return SideThreshold(float(k), rate, "gaussian", g.episodes, False, needed)
+
+
+def gaussian_top(v: np.ndarray, g: RiceParts, p: float = GAUSS_P) -> bool:
+    """Whether the largest of the known values ``v`` is one a stationary Gaussian series with
+    :func:`rice_parts` ``g`` shows: by Rice, its maximum passes ``μ + zσ`` with probability
+    about ``E(μ) exp(−z²/2)``, so the window's top, in spreads above the mean, is taken as
+    Gaussian up to ``√(2 ln(E(μ)/p))`` (3.99 at 148 episodes and ``p`` = 0.05; chemplant's
+    LIC102.OUT loop test, 7.7 at 129: a heavier tail, fitted as one)."""
+    if not g.spread > 0:
+        return False
+    top = (float(v.max()) - g.mean) / g.spread
+    return top <= math.sqrt(2.0 * math.log(max(g.episodes / p, 1.0)))
+
+
+def ladder(v: np.ndarray) -> np.ndarray:
+    """The levels :func:`calibrate_side` tries on the known values ``v``: from their median
+    to their largest, closer together near the median."""
     top = float(v.max())
-    # the ladder: from the median to a little above the largest value
     lo = float(np.median(v))
     span = max(top - lo, 1e-12 * max(abs(top), 1.0))
-    levels = lo + span * np.linspace(0.0, 1.0, LADDER) ** 1.5
-    counts = episodes(x, levels, on_delay, off_delay)
+    return lo + span * np.linspace(0.0, 1.0, LADDER) ** 1.5
+
+
+def from_counts(
+    levels: np.ndarray, counts: np.ndarray, want: float
+) -> tuple[float, str, int] | None:
+    """The level at which ``want`` episodes come, from the episode ``counts`` at increasing
+    ``levels``: read off (``"empirical"``) where the window shows at least
+    :data:`MIN_EPISODES` at it, else by the exponential tail fitted above the highest level
+    :data:`TAIL_EPISODES` remain (``"tail"``, raised by :func:`_seen`); None where no level
+    holds so many (the caller's Gaussian model). Returns the level, the method and the
+    episodes it rests on."""
     if want >= MIN_EPISODES:
         # the first level with no more episodes than allowed, interpolated on log counts
         i = int(np.argmax(counts <= want))
@@ -142,7 +215,7 @@ def calibrate_side(
             c0, c1 = math.log(counts[i - 1]), math.log(max(counts[i], 0.5))
             f = (c0 - math.log(want)) / (c0 - c1)
             k = levels[i - 1] + f * (levels[i] - levels[i - 1])
-        return SideThreshold(float(k), rate, "empirical", int(round(want)), True, needed)
+        return float(k), "empirical", int(round(want))
     # the tail: from the highest level where TAIL_EPISODES remain
     many = np.flatnonzero(counts >= TAIL_EPISODES)
     if many.size:
@@ -153,11 +226,8 @@ def calibrate_side(
         beta *= e_u / max(e_u - TAIL_Z * math.sqrt(e_u), 1.0)  # upper confidence bound
         if beta > 0:
             k = _seen(u + beta * math.log(e_u / want), levels, counts, want)
-            return SideThreshold(float(k), rate, "tail", e_u, False, needed)
-    # too few episodes for a tail: a Gaussian series (Rice)
-    g = rice_parts(x, hours, rate, on_delay, off_delay)
-    k = _seen(g.threshold, levels, counts, want)
-    return SideThreshold(float(k), rate, "gaussian", g.episodes, False, needed)
+            return float(k), "tail", e_u
+    return None
 
 
 @dataclass
@@ -266,6 +336,7 @@ def calibrate(
     on_delay: int = 1,
     off_delay: int = 1,
     mapper: Callable[[Callable[..., Any], Sequence[Any], tuple], list[Any]] | None = None,
+    few: float = FEW_VALUES,
 ) -> dict[str, TestBudget]:
     """Thresholds per test (column) holding the unit's false alarms to ``far`` per hour of
     operation, all tests together: each side of each test gets ``far / (2 T)``.
@@ -273,14 +344,16 @@ def calibrate(
     ``residuals``: the fault-free filtered residuals the unit would threshold (NaN unknown),
     one column per test, one row per sampling ``period``. ``mapper(fn, items, args)``:
     ``[fn(item, *args) for item in items]`` in any number of processes, in order (each
-    test's thresholds are its own; ``diag unit build`` passes its worker pool's).
+    test's thresholds are its own; ``diag unit build`` passes its worker pool's). ``few``:
+    :func:`calibrate_side`'s, Rice's threshold for a side of fewer independent values whose
+    window top a Gaussian series explains (:data:`FEW_VALUES`).
     """
     if not far > 0:
         raise ValueError(f"the false-alarm budget must be > 0 per hour, got {far}")
     dt_h = pd.Timedelta(period) / pd.Timedelta(hours=1)
     share = far / (2 * residuals.shape[1])
     names = list(residuals.columns)
-    args = (residuals, dt_h, share, on_delay, off_delay)
+    args = (residuals, dt_h, share, on_delay, off_delay, few)
     if mapper is None:
         got = [_test_budget(name, *args) for name in names]
     else:
@@ -289,14 +362,20 @@ def calibrate(
 
 
 def _test_budget(
-    name: Any, residuals: pd.DataFrame, dt_h: float, share: float, on_delay: int, off_delay: int
+    name: Any,
+    residuals: pd.DataFrame,
+    dt_h: float,
+    share: float,
+    on_delay: int,
+    off_delay: int,
+    few: float = 0.0,
 ) -> TestBudget:
     """One test's :class:`TestBudget` (:func:`calibrate`'s share of one column)."""
     x = residuals[name].to_numpy(float)
     known = np.isfinite(x)
     hours = float(known.sum()) * dt_h
-    hi = calibrate_side(x, hours, share, on_delay, off_delay)
-    lo = calibrate_side(-x, hours, share, on_delay, off_delay)
+    hi = calibrate_side(x, hours, share, on_delay, off_delay, few)
+    lo = calibrate_side(-x, hours, share, on_delay, off_delay, few)
     both = (hi, lo)
     return TestBudget(
         test=str(name),

@@ -483,7 +483,9 @@ def never_narrower(learned, before, old: pd.Series | None = None) -> dict[str, d
     (``method`` ``gaussian`` in ``[learned]``: too few episodes for a tail, the band widened
     by the predictive Student t of few independent values — the more evidence, the
     narrower, as a build of a longer window would give: a 400 s build's level test after an
-    hour accepted, tests/test_unit_accept.py), and a level test that gets operating points
+    hour accepted, tests/test_unit_accept.py; not ``rice``, Rice's model chosen where the
+    window held a tail's episodes, :func:`~diag_plugin.learn.budget.calibrate_side`, kept as
+    a tail's band is), and a level test that gets operating points
     in this accept (its residual now centred and scaled at each point, another unit); the
     combined test alike (Gaussian, or its first points).
 
