@@ -76,9 +76,10 @@ contribution is the larger of the two one-dimensional ones (a warmer feed moves 
 read the mixed temperature, not those reading the feed). A loop's own sensor whose bias the
 loop compensates moves its actuator's test and the tests beyond it; where the samples hold
 both moves, each :data:`COMPENSATED_SE` standard errors clear of zero and saying the same bias,
-its contribution is taken over the plane of the two (:meth:`CombinedModel._compensated_rbc`:
-how far the actuator moves per unit of bias no gain fixes), and the actuator's move is not
-left to the actuator. The share
+every test known and no more left unexplained than a fault-free sample leaves
+(:data:`COMPENSATED_REST`), its contribution is taken over the plane of the two
+(:meth:`CombinedModel._compensated_rbc`: how far the actuator moves per unit of bias no gain
+fixes), and the actuator's move is not left to the actuator. The share
 ``RBC_X / T²`` ranks the tags (1: a bias of X alone explains the deviation). Tags touching
 the same tests in the same proportions cannot be told apart and share a rank. Before
 ``diag unit learn`` has written ``[combined]`` the ranking uses ``z = r / high``, ``S = I`` and
@@ -439,6 +440,11 @@ def _balances(unit, outputs: dict[str, str], col: dict[str, int]) -> dict[int, l
 #: ``[combined.responses]`` keeps a set-point's slope (:func:`~diag_plugin.learn.thresholds.
 #: setpoint_responses`)
 COMPENSATED_SE = 3.0
+#: a compensated sensor is credited with its actuator's move only where what its bias leaves
+#: unexplained is what a fault-free sample leaves: ``T² − plane`` at most the χ² quantile of
+#: ``1 − COMPENSATED_REST`` with the known tests less the two fitted (a process fault the
+#: loop holds moves tests the bias does not; :meth:`CombinedModel._compensated_rbc`)
+COMPENSATED_REST = 0.05
 
 
 def compensated_loops(unit, tags: list[str]) -> np.ndarray | None:
@@ -962,7 +968,7 @@ class CombinedModel:
             if self.loop is not None:
                 self._loop_rbc(rbc, mz, m, k)
             if self.compensated is not None and self.process is not None:
-                self._compensated_rbc(rbc, mz, m, k)
+                self._compensated_rbc(rbc, mz, m, k, q)
             rbc /= np.maximum(q, 1e-12)[:, None]
             return np.clip(rbc, 0.0, 1.0, out=rbc)
 
@@ -991,7 +997,7 @@ class CombinedModel:
             np.maximum(rbc[:, c], plane, out=rbc[:, c])
 
     def _compensated_rbc(
-        self, rbc: np.ndarray, mz: np.ndarray, m: np.ndarray, k: np.ndarray
+        self, rbc: np.ndarray, mz: np.ndarray, m: np.ndarray, k: np.ndarray, q: np.ndarray
     ) -> None:
         """In place: a loop's own sensor whose bias the loop compensates, where the samples say
         so (:func:`compensated_loops`). Its compensated direction ``ξ`` (:func:`process_directions`)
@@ -1007,7 +1013,21 @@ class CombinedModel:
         the window's moves, which a valve's characteristic need not follow at the point the
         bias takes it to (the 7-tag line's valve moved twice as far). Elsewhere the sensor
         keeps its one-dimensional contributions: the plane on every sample took a share of
-        every deviation that moved its loop (docs/how-to/unit-loops.md)."""
+        every deviation that moved its loop (docs/how-to/unit-loops.md).
+
+        The two moves alone are not the sensor's: a process fault the loop holds (a fouled
+        cooler, a cooling-water swing) or a stuck valve upstream moves the actuator and some
+        tests beyond it too, and more besides. So the credit is also a test of fit: only
+        where every test of the unit is known at the sample (``k`` all of :attr:`dims`: the
+        tests that would contradict the bias are there) and what the plane leaves, ``q −
+        uᵀG⁻¹u`` (``q = T²``), is at most what a fault-free sample leaves, the χ² quantile of
+        ``1 −`` :data:`COMPENSATED_REST` with ``|k| − 2`` degrees of freedom (the two
+        fitted). Without it the credit took the cooler's loop sensor into the top three of
+        the chemical plant's cooling-water and stuck-steam-valve runs, and named a fault-free
+        alarm of the 7-tag line on its meter (docs/how-to/unit-loops.md)."""
+        if k.size < self.dims:  # a test unknown: the bias's fit cannot be checked
+            return
+        rest = float(chi2_isf(np.array(COMPENSATED_REST), max(k.size - 2, 1)))
         pos = {int(t): i for i, t in enumerate(k)}
         for c, ja in self.compensated:
             j = pos.get(int(ja))
@@ -1035,9 +1055,12 @@ class CombinedModel:
                 & (np.abs(coef[:, 1]) >= COMPENSATED_SE * se[1])
                 & (np.sign(coef[:, 0] / xc[j]) == np.sign(coef[:, 1]))
             )
-            if said.any():
-                plane = np.einsum("ij,jk,ik->i", u[said], gi, u[said])
-                rbc[said, c] = np.maximum(rbc[said, c], plane)
+            if not said.any():
+                continue
+            plane = np.einsum("ij,jk,ik->i", u[said], gi, u[said])
+            fits = q[said] - plane <= rest
+            at = np.flatnonzero(said)[fits]
+            rbc[at, c] = np.maximum(rbc[at, c], plane[fits])
 
 
 class _ScaledRows:
