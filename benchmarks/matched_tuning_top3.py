@@ -1,7 +1,9 @@
 """Detection and naming at matched false alarms on the **tuning** runs only (issue 34): the
 bench's matched protocol (:func:`~diag_plugin.bench.publicbench.run_matched_benchmark`) with
 each plant's tuning runs in place of its scoring runs, per fault the unit's, PCA's and DPCA's
-detection and the runs whose faulted tag is in the top three.
+detection, the runs whose faulted tag is in the top three and the runs whose faulted tag is
+named first (the first of a run's ``top``: a run can hold the right tag in its top three and
+still lead an operator to the wrong one).
 
 * ``--plant chemplant``: the unit built from training seeds 1–3 × 10 days (as the page),
   limits matched on fault-free seeds 150–152, fault-free 153–154, the faults on seeds
@@ -97,6 +99,15 @@ def tep_tuning(studio: bool):
     return plant
 
 
+def named_first(out: dict, point: dict, method: str, fault: str) -> int:
+    """The runs of ``fault`` whose first named tag (the first of the run's ``top``, ranked by
+    :func:`~diag_plugin.bench.matched.ranked_tags`) is one of its faulted tags, at one
+    target of :func:`~diag_plugin.bench.matched.curve` for one method."""
+    tags = set(out["fault_tags"].get(fault) or [])
+    runs = point["methods"][method]["faults"][fault]["per_run"]
+    return sum(bool(r["named_counted"] and r["top"] and r["top"][0] in tags) for r in runs)
+
+
 def main(argv: list[str] | None = None) -> int:
     from diag_plugin.bench.publicbench import run_matched_benchmark
 
@@ -119,23 +130,26 @@ def main(argv: list[str] | None = None) -> int:
     pts = out["curve"]["points"]
     print(f"{plant.name} tuning runs: {len(plant.faults)} fault runs; unit "
           f"{out['unit'].get('tests')} tests")  # fmt: skip
-    print("| target | " + " | ".join(f"{m} det | {m} top 3" for m in methods) + " |")
+    faults = list(pts[0]["methods"][methods[0]]["faults"])
+    print("| target | " + " | ".join(f"{m} det | {m} top 3 | {m} first" for m in methods) + " |")
     for p in pts:
         cells = [f"{p['target']:g}"]
         for m in methods:
             x = p["methods"][m]
-            cells += [f"{100 * x['mean_detection']:.1f} %", f"{x['in_top']}/{x['named_runs']}"]
+            first = sum(named_first(out, p, m, f) for f in faults)
+            cells += [f"{100 * x['mean_detection']:.1f} %", f"{x['in_top']}/{x['named_runs']}",
+                      f"{first}/{x['named_runs']}"]  # fmt: skip
         print("| " + " | ".join(cells) + " |")
     print()
-    faults = list(pts[0]["methods"][methods[0]]["faults"])
-    print("per fault, detection % / top 3 at each target (" + ", ".join(f"{t:g}" for t in targets)
-          + ")")  # fmt: skip
+    print("per fault, detection % / top 3 / named first at each target ("
+          + ", ".join(f"{t:g}" for t in targets) + ")")  # fmt: skip
     for f in faults:
         cells = []
         for m in methods:
             cells.append(m + " " + " ".join(
                 f"{100 * p['methods'][m]['faults'][f]['detection_rate']:.0f}/"
-                f"{p['methods'][m]['faults'][f]['in_top']}" for p in pts))  # fmt: skip
+                f"{p['methods'][m]['faults'][f]['in_top']}/{named_first(out, p, m, f)}"
+                for p in pts))  # fmt: skip
         print(f"{f:24s} " + " | ".join(cells))
     return 0
 

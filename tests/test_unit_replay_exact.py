@@ -164,6 +164,8 @@ def _ref_combined(self, r, point=None, shares=True):  # T² and every sample's s
                 rbc = np.maximum(rbc, _ref_rbc(mz, self.moved[k], den_moved))
             if self.loop is not None:
                 self._loop_rbc(rbc, mz, m, k)
+            if self.compensated is not None and self.process is not None:
+                self._compensated_rbc(rbc, mz, m, k, q)  # a loop's sensor, compensated
             share[rows] = np.clip(rbc / np.maximum(q, 1e-12)[:, None], 0.0, 1.0)
         if k.size < T:
             q = stats.chi2.isf(stats.chi2.sf(q, k.size), T)

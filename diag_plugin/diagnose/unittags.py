@@ -73,7 +73,13 @@ more degree of freedom than the tags it is ranked against, and a share of every 
 that moves its loop's error. A tag outside loops has a second direction, a change of the
 true quantity, which the tags whose models read it follow (:func:`process_directions`): its
 contribution is the larger of the two one-dimensional ones (a warmer feed moves the tests that
-read the mixed temperature, not those reading the feed). The share
+read the mixed temperature, not those reading the feed). A loop's own sensor whose bias the
+loop compensates moves its actuator's test and the tests beyond it; where the samples hold
+both moves, each :data:`COMPENSATED_SE` standard errors clear of zero and saying the same bias,
+every test known and no more left unexplained than a fault-free sample leaves
+(:data:`COMPENSATED_REST`), its contribution is taken over the plane of the two
+(:meth:`CombinedModel._compensated_rbc`: how far the actuator moves per unit of bias no gain
+fixes), and the actuator's move is not left to the actuator. The share
 ``RBC_X / T²`` ranks the tags (1: a bias of X alone explains the deviation). Tags touching
 the same tests in the same proportions cannot be told apart and share a rank. Before
 ``diag unit learn`` has written ``[combined]`` the ranking uses ``z = r / high``, ``S = I`` and
@@ -429,6 +435,45 @@ def _balances(unit, outputs: dict[str, str], col: dict[str, int]) -> dict[int, l
     return out
 
 
+#: standard errors each side of a compensated sensor's evidence must stand clear of zero
+#: (:func:`compensated_loops`): the actuator's move and the move of the tests beyond it, as
+#: ``[combined.responses]`` keeps a set-point's slope (:func:`~diag_plugin.learn.thresholds.
+#: setpoint_responses`)
+COMPENSATED_SE = 3.0
+#: a compensated sensor is credited with its actuator's move only where what its bias leaves
+#: unexplained is what a fault-free sample leaves: ``T² − plane`` at most the χ² quantile of
+#: ``1 − COMPENSATED_REST`` with the known tests less the two fitted (a process fault the
+#: loop holds moves tests the bias does not; :meth:`CombinedModel._compensated_rbc`)
+COMPENSATED_REST = 0.05
+
+
+def compensated_loops(unit, tags: list[str]) -> np.ndarray | None:
+    """Per loop whose own sensor can be at fault and whose actuator has a test of its own
+    (a controller output's test, issue 34 item 7), the sensor's column in ``tags`` and the
+    actuator's test's row (pairs × 2; None for none): where a bias of the sensor is told
+    from a fault of the actuator (:meth:`CombinedModel._compensated_rbc`).
+
+    A loop compensating a bias ``b`` of its sensor moves its actuator, and the true
+    measurement moves by ``−b``, so the tests beyond the actuator move too (the sensor's
+    compensated direction, :func:`process_directions`). A fault of the actuator itself (a
+    biased or sticking valve), a true change of what its model reads (a supply pressure) or a
+    process fault the loop holds (a fouled cooler) moves the actuator's test and leaves the
+    measurement at its set-point: the tests beyond stay. So the actuator's move is the
+    sensor's when the tests beyond it moved too, the way the same ``b`` moves them."""
+    _, outputs, _ = structure(unit)
+    own = {x: j for j, x in enumerate(outputs[t] for t in unit.tests)
+           if not _spread_test(unit, unit.tests[j])}  # fmt: skip
+    col = {x: k for k, x in enumerate(tags)}
+    out = []
+    for t in unit.tests:
+        test = unit.file.test(t)
+        if _spread_test(unit, t) or not test.actuator or test.actuator == outputs[t]:
+            continue
+        if outputs[t] in col and test.actuator in own:
+            out.append((col[outputs[t]], own[test.actuator]))
+    return np.array(sorted(set(out)), np.int64).reshape(-1, 2) if out else None
+
+
 def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray) -> None:
     """In place: a loop's own sensor biased by ``b`` is compensated by its loop, which then
     drives the process as a set-point step of ``−b`` would: every other test whose model
@@ -623,6 +668,8 @@ class CombinedModel:
     process: np.ndarray | None = None
     #: a loop's actuator's third direction, its true move (:func:`moved_directions`)
     moved: np.ndarray | None = None
+    #: per loop the sensor's column and its actuator's test's row (:func:`compensated_loops`)
+    compensated: np.ndarray | None = None
     #: operating points (``[combined] point_*``): each test's centre and scale per point
     #: (points × T), the plant tags placing a sample, their mean per point (points × tags)
     #: and spans
@@ -743,6 +790,7 @@ class CombinedModel:
             loop if (loop >= 0).any() else None,
             process_directions(unit, spec, xi),
             moved=moved if (moved := moved_directions(unit, spec)).any() else None,
+            compensated=compensated_loops(unit, tags),
             outside=outside_tests(unit),
             **points,
         )
@@ -919,6 +967,8 @@ class CombinedModel:
                 np.maximum(rbc, _rbc(mz, self.moved[k], den_moved), out=rbc)
             if self.loop is not None:
                 self._loop_rbc(rbc, mz, m, k)
+            if self.compensated is not None and self.process is not None:
+                self._compensated_rbc(rbc, mz, m, k, q)
             rbc /= np.maximum(q, 1e-12)[:, None]
             return np.clip(rbc, 0.0, 1.0, out=rbc)
 
@@ -945,6 +995,72 @@ class CombinedModel:
                 plane = np.einsum("ij,jk,ik->i", u, np.linalg.inv(g), u)
             # the larger of the plane and its second direction (sticking: the spread alone)
             np.maximum(rbc[:, c], plane, out=rbc[:, c])
+
+    def _compensated_rbc(
+        self, rbc: np.ndarray, mz: np.ndarray, m: np.ndarray, k: np.ndarray, q: np.ndarray
+    ) -> None:
+        """In place: a loop's own sensor whose bias the loop compensates, where the samples say
+        so (:func:`compensated_loops`). Its compensated direction ``ξ`` (:func:`process_directions`)
+        is split into its entry on the actuator's test ``e_a`` and the rest ``ξ_b`` (the tests
+        beyond the actuator), and ``z`` is fitted on both, ``z ≈ α e_a + β ξ_b`` (generalised
+        least squares in ``S⁻¹``: ``(α, β) = G⁻¹ u``, ``G = ΞᵀS⁻¹Ξ``, ``u = ΞᵀS⁻¹z``, ``Ξ =
+        [e_a ξ_b]``, standard errors ``√diag(G⁻¹)``). Where both stand
+        :data:`COMPENSATED_SE` standard errors clear of zero and say the same bias (``β`` and
+        ``α / ξ_a`` of one sign: the tests beyond the actuator moved the way the bias that
+        moved it moves them), the sensor's contribution is taken over the plane ``Ξ`` (Alcala
+        & Qin, 2009, the multidimensional form ``uᵀG⁻¹u``, as an actuator's): how far the
+        actuator moves per unit of bias is its model's gain on the set-point, learned over
+        the window's moves, which a valve's characteristic need not follow at the point the
+        bias takes it to (the 7-tag line's valve moved twice as far). Elsewhere the sensor
+        keeps its one-dimensional contributions: the plane on every sample took a share of
+        every deviation that moved its loop (docs/how-to/unit-loops.md).
+
+        The two moves alone are not the sensor's: a process fault the loop holds (a fouled
+        cooler, a cooling-water swing) or a stuck valve upstream moves the actuator and some
+        tests beyond it too, and more besides. So the credit is also a test of fit: only
+        where every test of the unit is known at the sample (``k`` all of :attr:`dims`: the
+        tests that would contradict the bias are there) and what the plane leaves, ``q −
+        uᵀG⁻¹u`` (``q = T²``), is at most what a fault-free sample leaves, the χ² quantile of
+        ``1 −`` :data:`COMPENSATED_REST` with ``|k| − 2`` degrees of freedom (the two
+        fitted). Without it the credit took the cooler's loop sensor into the top three of
+        the chemical plant's cooling-water and stuck-steam-valve runs, and named a fault-free
+        alarm of the 7-tag line on its meter (docs/how-to/unit-loops.md)."""
+        if k.size < self.dims:  # a test unknown: the bias's fit cannot be checked
+            return
+        rest = float(chi2_isf(np.array(COMPENSATED_REST), max(k.size - 2, 1)))
+        pos = {int(t): i for i, t in enumerate(k)}
+        for c, ja in self.compensated:
+            j = pos.get(int(ja))
+            if j is None:
+                continue
+            xc = self.process[k, c]
+            beyond = xc.copy()
+            beyond[j] = 0.0
+            if not xc[j] or not beyond.any():
+                continue
+            a = np.zeros((len(k), 2))
+            a[j, 0] = 1.0
+            a[:, 1] = beyond
+            g = a.T @ m @ a
+            if not (g[0, 0] > 1e-12 and g[1, 1] > 1e-12):
+                continue
+            if abs(np.linalg.det(g)) <= 1e-9 * g[0, 0] * g[1, 1]:
+                continue
+            gi = np.linalg.inv(g)
+            u = mz @ a
+            coef = u @ gi
+            se = np.sqrt(np.diag(gi))
+            said = (
+                (np.abs(coef[:, 0]) >= COMPENSATED_SE * se[0])
+                & (np.abs(coef[:, 1]) >= COMPENSATED_SE * se[1])
+                & (np.sign(coef[:, 0] / xc[j]) == np.sign(coef[:, 1]))
+            )
+            if not said.any():
+                continue
+            plane = np.einsum("ij,jk,ik->i", u[said], gi, u[said])
+            fits = q[said] - plane <= rest
+            at = np.flatnonzero(said)[fits]
+            rbc[at, c] = np.maximum(rbc[at, c], plane[fits])
 
 
 class _ScaledRows:
