@@ -71,6 +71,34 @@ def run_diag(
     )
 
 
+def read_probe(module: str) -> str:
+    """Python that runs ``diag`` with the command's read of pieces watched: when ``module`` is
+    first imported, was a read of pieces already under way in its thread? (waits for it, up to
+    60 s, once the pieces were asked for). Prints ``RESULT rc [seen]`` to stderr."""
+    return f"""
+import sys, threading
+import diag_plugin.diagnose.cli as cli
+asked, reading, seen = threading.Event(), threading.Event(), []
+uf = cli.unit_frames
+def unit_frames(*a, **k):
+    asked.set()
+    def pieces():
+        reading.set()
+        yield from uf(*a, **k)
+    return pieces()
+cli.unit_frames = unit_frames
+class Watch:
+    def find_spec(self, name, path=None, target=None):
+        if name == {module!r} and not seen:
+            seen.append(asked.is_set() and reading.wait(60))
+        return None
+sys.meta_path.insert(0, Watch())
+from diag_plugin.cli import main
+rc = main(sys.argv[1:])
+print("RESULT", rc, seen, file=sys.stderr)
+"""
+
+
 def probed_valve_diagnose(tmp_path: Path, probe: str, seed: int) -> tuple[str, str]:
     """``diag diagnose valve_unit --json`` on a day of the valve (simulator ``seed``) in a
     fresh process running ``probe`` (Python that runs the command and prints a line

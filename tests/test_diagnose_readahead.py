@@ -10,31 +10,10 @@ from __future__ import annotations
 
 import threading
 
-#: run ``diag`` with the command's read of pieces watched: when ``scipy.special`` (what the
-#: replay's combined test imports) is first imported, was the read of the first piece
-#: already under way in its thread? (waits for it, up to 60 s, once the pieces were asked for)
-PROBE = """
-import sys, threading
-import diag_plugin.diagnose.cli as cli
-asked, reading, seen = threading.Event(), threading.Event(), []
-uf = cli.unit_frames
-def unit_frames(*a, **k):
-    asked.set()
-    def pieces():
-        reading.set()
-        yield from uf(*a, **k)
-    return pieces()
-cli.unit_frames = unit_frames
-class Watch:
-    def find_spec(self, name, path=None, target=None):
-        if name == "scipy.special" and not seen:
-            seen.append(asked.is_set() and reading.wait(60))
-        return None
-sys.meta_path.insert(0, Watch())
-from diag_plugin.cli import main
-rc = main(sys.argv[1:])
-print("RESULT", rc, seen, file=sys.stderr)
-"""
+from helpers import read_probe
+
+#: ``diag`` with its read watched at the first import of scipy.special (helpers.read_probe)
+PROBE = read_probe("scipy.special")
 
 
 def test_first_piece_read_before_the_replays_imports(tmp_path):

@@ -15,32 +15,10 @@ import subprocess
 import sys
 
 import pytest
+from helpers import read_probe
 
-#: run ``diag`` with its read of pieces watched: when numba (which the unit's modules import)
-#: is first imported, was a read of pieces already under way in its thread? (waits for it,
-#: up to 60 s, once the pieces were asked for)
-PROBE = """
-import sys, threading
-import diag_plugin.diagnose.cli as cli
-asked, reading, seen = threading.Event(), threading.Event(), []
-uf = cli.unit_frames
-def unit_frames(*a, **k):
-    asked.set()
-    def pieces():
-        reading.set()
-        yield from uf(*a, **k)
-    return pieces()
-cli.unit_frames = unit_frames
-class Watch:
-    def find_spec(self, name, path=None, target=None):
-        if name == "numba" and not seen:
-            seen.append(asked.is_set() and reading.wait(60))
-        return None
-sys.meta_path.insert(0, Watch())
-from diag_plugin.cli import main
-rc = main(sys.argv[1:])
-print("RESULT", rc, seen, file=sys.stderr)
-"""
+#: ``diag`` with its read watched at the first import of numba (helpers.read_probe)
+PROBE = read_probe("numba")
 
 
 @pytest.fixture()
