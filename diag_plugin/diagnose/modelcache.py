@@ -162,24 +162,30 @@ class ModelCache:
 
         if not self.usable():
             return
-        tmp = None
         try:
             blob, layout = pack(arrays)
             text = json.dumps({**meta, "format": FORMAT, "layout": layout}, allow_nan=True)
             self.folder.mkdir(parents=True, exist_ok=True, mode=0o700)
-            fd, tmp = tempfile.mkstemp(dir=self.folder, suffix=".tmp")
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, meta=np.frombuffer(text.encode("utf-8"), np.uint8), blob=blob)
-            os.replace(tmp, self.folder / f"{self.key(data)}.npz")
-            tmp = None
+            replace_with(self.folder / f"{self.key(data)}.npz", lambda f: np.savez(
+                f, meta=np.frombuffer(text.encode("utf-8"), np.uint8), blob=blob))  # fmt: skip
         except (OSError, ValueError):  # a full disk, a read-only home: not kept, not fatal
             pass
-        finally:
-            if tmp is not None:
-                try:
-                    os.unlink(tmp)
-                except OSError:
-                    pass
+
+
+def replace_with(path: Path, write: Any) -> None:
+    """``write(f)`` into a temporary binary file beside ``path``, then moved over it (a reader
+    sees the old file or the whole new one); the temporary file is removed on any error."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
 
 
 def pack(arrays: dict[str, Any]) -> tuple[Any, list]:

@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -78,7 +76,8 @@ def remembered(unit_file: Path) -> Plan | None:
 def remember(unit_file: Path, plan: Plan) -> None:
     """Keep ``plan`` for this unit file (written whole, then moved in place); errors are
     ignored (a read-only home: the next run reads after the load, as without a plan)."""
-    tmp = None
+    from diag_plugin.diagnose.modelcache import replace_with
+
     try:
         where = _file(unit_file)
         if where is None:
@@ -86,16 +85,6 @@ def remember(unit_file: Path, plan: Plan) -> None:
         text = json.dumps({"format": FORMAT, "name": plan.name, "tags": list(plan.tags),
                            "period": plan.period, "lead": plan.lead})  # fmt: skip
         where.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
-        fd, tmp = tempfile.mkstemp(dir=where.parent, suffix=".tmp")
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, where)
-        tmp = None
+        replace_with(where, lambda f: f.write(text.encode("utf-8")))
     except (OSError, ValueError):
         pass
-    finally:
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
