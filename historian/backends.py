@@ -39,6 +39,16 @@ def _policy(policy: str) -> str:
         raise ValueError(f"policy must be 'ignore' or 'update', not {policy!r}") from None
 
 
+def _off_grid(t0: int, period: int) -> str:
+    """SQL of a sample's distance from the grid ``t0 + k·period`` (µs), 0 on a grid point.
+    An epoch-anchored grid (``t0`` a multiple of the period, as the historian's windows
+    are) needs no subtraction: ``P | ts − t0`` is ``P | ts`` there (SQLite's ``%`` takes
+    the dividend's sign, so 0 on exactly those ``ts``, before the epoch too)."""
+    if int(t0) % int(period) == 0:
+        return f"ts % {int(period)}"
+    return f"(ts - {int(t0)}) % {int(period)}"
+
+
 def _empty():
     return np.empty(0, np.int64), np.empty(0, np.float64), np.empty(0, np.int64)
 
@@ -234,14 +244,17 @@ class SqliteBulk:
         read's cost (issue 34: 1,000,000 rows of one tag 0.21 → 0.15 CPU s). A sample off
         the grid answers +inf, a marker no usable value is (an infinite value is not usable
         either: :func:`~historian.window.align`); then, or with a grid point without a
-        sample (fewer rows than ``n``), None."""
+        sample (fewer rows than ``n``), None. The usable sample on the grid is asked first
+        (the common row: 200,000 rows of one tag 0.031 → 0.027 CPU s against the grid's
+        test first, issue 34), and the grid's distance from the epoch alone where the grid
+        is the epoch's (:func:`_off_grid`)."""
         if n <= 0:
             return None
         half = period // 2
         lo, hi = t0 - half, t0 + n * period - half
         tb = self.fetch(
-            f"SELECT CASE WHEN (ts - {int(t0)}) % {int(period)} THEN 9e999 "
-            f"WHEN quality < {BAD} THEN value END FROM samples "
+            f"SELECT CASE WHEN quality < {BAD} AND {_off_grid(t0, period)} = 0 THEN value "
+            f"WHEN {_off_grid(t0, period)} THEN 9e999 END FROM samples "
             f"WHERE tag_id = {int(tag_id)} AND ts >= {int(lo)} AND ts < {int(hi)} ORDER BY ts"
         )
         if tb.num_rows != n:

@@ -87,3 +87,26 @@ def test_chunked_windows_equal_the_aligned_window(tmp_path, seed, chunk, period)
         shifted = pd.concat(list(parts))
         ref = h.window(tags, late, end, period, hold=hold)
         pd.testing.assert_frame_equal(shifted, ref, check_freq=False)
+
+
+def test_read_grid_before_the_epoch(tmp_path):
+    """An epoch-anchored grid is tested by ``ts % period`` alone (SQLite's ``%`` takes the
+    dividend's sign): across the epoch, a regular series is read and one sample moved off
+    its grid point before the epoch is found (issue 34, the grid's test without ``t0``)."""
+    start = pd.Timestamp("1969-12-31T23:00:00Z")
+    n = 120
+    idx = start + P * np.arange(n)
+    v = pd.DataFrame({"A": np.arange(n, dtype=float), "B": np.arange(n, dtype=float)}, index=idx)
+    with Historian(f"sqlite:///{tmp_path / 'h.db'}") as h:
+        h.write_samples(v[["A"]])
+        moved = v["B"].drop(index=idx[10])
+        h.write_samples(moved.to_frame())
+        h.write_samples(pd.Series([10.0], index=[idx[10] + pd.Timedelta("7s")], name="B"))
+        t0, p = to_us(start), P.value // 1000
+        assert t0 < 0 and t0 % p == 0
+        np.testing.assert_array_equal(h._bulk.read_grid(h._tag("A")[0], t0, p, n), v["A"])
+        assert h._bulk.read_grid(h._tag("B")[0], t0, p, n) is None
+        # past the moved sample: the rest of B on the grid, after the epoch too
+        np.testing.assert_array_equal(
+            h._bulk.read_grid(h._tag("B")[0], t0 + 20 * p, p, n - 20), v["B"].to_numpy()[20:]
+        )
