@@ -598,14 +598,14 @@ def cmd_diagnose(args) -> int:
         with _start_up():  # the imports and the unit's objects: no collections, then frozen
             from diag_plugin.diagnose.pertest import cores
             from diag_plugin.diagnose.readahead import ReadAhead, numba_ready
-            from diag_plugin.diagnose.readplan import Plan, remember, remembered
+            from diag_plugin.diagnose.readplan import Plan, plan_file, remember, remembered
             from historian.store import Historian  # noqa: F401 - here, not in the reading thread
 
             # what the last run of this unit file read, read again from now on, before the
             # unit's modules are imported and the unit is loaded (readplan: a guess, checked
             # against the loaded unit below)
-            path = unit_file_of(args, args.name)
-            guess, early, early_bounds = remembered(path), None, {}
+            kept = plan_file(unit_file_of(args, args.name))
+            guess, early, early_bounds = remembered(kept), None, {}
             if guess is not None:
                 with contextlib.suppress(UserError):  # said below, after the unit's load
                     pieces = _pieces(args, guess, early_bounds)
@@ -625,7 +625,7 @@ def cmd_diagnose(args) -> int:
                 # evaluated, not shown; the first piece read from here on, while the rest of
                 # the start-up runs
                 frames = stack.enter_context(ReadAhead(_pieces(args, plan, bounds), READ_AHEAD))
-                remember(path, plan)
+                remember(kept, plan)
             # scipy.linalg and scipy.special: what the first piece's replay imports, here with
             # the collector off (scipy.stats imported both with the unit's modules before):
             # numba's first dispatch imports scipy.linalg (its BLAS check), the combined

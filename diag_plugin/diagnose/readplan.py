@@ -45,25 +45,30 @@ class Plan:
         return cls(unit.name, tuple(unit.tags), str(unit.period), int(lead_in(unit)))
 
 
-def _file(unit_file: Path) -> Path | None:
-    """Where the plan of ``unit_file`` is kept (None: no cache, or one not to be trusted)."""
+def plan_file(unit_file: Path) -> Path | None:
+    """Where the plan of ``unit_file`` as it is now is kept (None: no cache, one not to be
+    trusted, or the file unreadable): named by its path and bytes, read and hashed once per
+    command (the command asks :func:`remembered` and, where the unit reads otherwise now,
+    :func:`remember` of it; each hashed the file again before)."""
     from diag_plugin.diagnose.modelcache import ModelCache
 
-    store = ModelCache.default()
-    if store is None or not store.usable():
+    try:
+        store = ModelCache.default()
+        if store is None or not store.usable():
+            return None
+        path = Path(unit_file).resolve()
+        key = hashlib.sha256(str(path).encode() + b"\0" + path.read_bytes()).hexdigest()
+    except (OSError, ValueError, KeyError, TypeError):
         return None
-    path = Path(unit_file).resolve()
-    key = hashlib.sha256(str(path).encode() + b"\0" + path.read_bytes()).hexdigest()
     return store.folder / f"plan-{key}.json"
 
 
-def remembered(unit_file: Path) -> Plan | None:
-    """The plan kept by the last :func:`remember` for this unit file as it is now, or None
+def remembered(where: Path | None) -> Plan | None:
+    """The plan kept at ``where`` (:func:`plan_file`) by the last :func:`remember`, or None
     (none kept, unreadable, or another layout)."""
+    if where is None:
+        return None
     try:
-        where = _file(unit_file)
-        if where is None:
-            return None
         got = json.loads(where.read_text("utf-8"))
         if got.get("format") != FORMAT:
             return None
@@ -73,15 +78,15 @@ def remembered(unit_file: Path) -> Plan | None:
         return None
 
 
-def remember(unit_file: Path, plan: Plan) -> None:
-    """Keep ``plan`` for this unit file (written whole, then moved in place); errors are
-    ignored (a read-only home: the next run reads after the load, as without a plan)."""
+def remember(where: Path | None, plan: Plan) -> None:
+    """Keep ``plan`` at ``where`` (:func:`plan_file`; None: nowhere), written whole, then
+    moved in place; errors are ignored (a read-only home: the next run reads after the
+    load, as without a plan)."""
     from diag_plugin.diagnose.modelcache import replace_with
 
+    if where is None:
+        return
     try:
-        where = _file(unit_file)
-        if where is None:
-            return
         text = json.dumps({"format": FORMAT, "name": plan.name, "tags": list(plan.tags),
                            "period": plan.period, "lead": plan.lead})  # fmt: skip
         where.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
