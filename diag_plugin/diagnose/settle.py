@@ -477,6 +477,7 @@ def _settle_kernel(
     n, m = sp.shape
     k = 0
     cur = -2
+    keep_age = age.shape[0] > 0  # asked for (settle_ages): else age is (0, 2), never read
     for i in range(n):
         step = -1
         s_from = 0.0
@@ -532,11 +533,13 @@ def _settle_kernel(
             _record(steps, k, step, s_from, s_to, i, s_back, 1)
             cur = k
             k += 1
-        age[i, 0] = -1
+        if keep_age:
+            age[i, 0] = -1
         if g[0] == 1:
             g[1] += 1
-            age[i, 0] = g[1]  # the age this row is judged at, and whose (settle_ages)
-            age[i, 1] = g[4]
+            if keep_age:  # the age this row is judged at, and whose (settle_ages)
+                age[i, 0] = g[1]
+                age[i, 1] = g[4]
             j = g[4]
             if alarm[i] and (g[3] == 1 or g[1] <= begin_n[j]):
                 g[3] = 1
@@ -676,7 +679,9 @@ class SettleGuard:
         steps = np.zeros((n, 6))
         hit = np.full((n, 2), -1, np.int64)
         after = np.zeros(n, np.bool_)
-        age = np.full((n, 2), -1, np.int64)
+        # per row the settle's age and whose, kept only for a caller who collects them
+        # (settle_ages; a replay's 2 × 8 bytes a row written and dropped before)
+        age = np.full((n if self.ages_seen is not None else 0, 2), -1, np.int64)
         if u is None or self.envelope is None:
             u = np.zeros((n, self.env.shape[1]))
         r = np.asarray(r, float).reshape(n, len(self.loops))
@@ -756,7 +761,7 @@ class SettleGuard:
             g.band, g.tol, g.s_lo, g.s_hi, no, no, g.prev, g.anchor, g.run, g.moved, g.g,
             one, 1, one, one, sup, sid, out, np.zeros((n, 0)), g.edges, g.env, g.enveloped,
             g.over, 1, np.full((n, 2), -1, np.int64), np.zeros(n, np.bool_),
-            np.zeros((n, 2), np.int64),
+            np.zeros((0, 2), np.int64),
         )  # fmt: skip
         for q in range(k):
             if out[q, 5]:
@@ -788,7 +793,7 @@ class SettleGuard:
             self.band, self.tol, self.s_lo, self.s_hi, no, no, self.prev, self.anchor,
             self.run, self.moved, g, one, 1, one, one, sup, sid, rows, np.zeros((n, 0)),
             self.edges, self.env, np.zeros_like(self.enveloped), np.zeros_like(self.over), 1,
-            np.full((n, 2), -1, np.int64), np.zeros(n, np.bool_), np.zeros((n, 2), np.int64),
+            np.full((n, 2), -1, np.int64), np.zeros(n, np.bool_), np.zeros((0, 2), np.int64),
         )  # fmt: skip
         for q in range(k):
             i, j = int(rows[q, 3]), int(rows[q, 0])
