@@ -120,6 +120,13 @@ remembered read may be under way by then, counted in "read"), and the read's tim
 at the first read. 5 pairs against ``main`` (4948dad, a ``git archive`` snapshot) at a load of
 11–15, medians: read ahead 0.22 → 0.63 CPU s, start-up 1.07 → 0.96, CPU 4.58 → 4.49 s; the
 same JSON.
+Round twelve (branch ``i34-speed``: ``read_grid``'s query asks for the usable sample on the
+grid first, without ``t0`` on an epoch-anchored grid; the unit file hashed once; the settle's
+per-row ages only where collected), 5 pairs against ``main`` (d51c042, a ``git archive``
+snapshot) at a load of 16–20, medians: 200,000 rows 6.58 → 6.38 CPU s (30,380 → 31,370 rows
+per CPU s; read 2.49 → 2.39); 1,000,000 rows, 3 pairs at 22–32, 23.68 → 23.09 (42,220 →
+43,310; read 11.44 → 10.92, lower in 3 of 3); the same JSON and CSV. The read's query alone:
+``bench_grid_read.py``.
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
