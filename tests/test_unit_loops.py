@@ -433,6 +433,40 @@ def test_a_compensated_meter_bias_is_named_on_the_meter_not_on_its_valve(line):
         assert share[meter] < 1.0 - 1e-6, dict(zip(cm.tags, share, strict=True))
 
 
+def test_a_meter_bias_its_loop_cannot_take_is_named_on_the_meter(line):
+    """A bias of the loop's meter that the loop takes only in part (its valve at a limit):
+    the tests beyond the valve move the way the bias moves them, the rest of the bias is
+    the loop's error (the reading above its set-point, as the bias says), and the valve's
+    test moves by what the limit left. The meter explains it in full and is named first
+    (main: 0.92 of ``T²``, its one-dimensional directions leave the loop's error and the
+    valve's stop out). A loop error of the other sign (the true flow above its
+    set-point, the tests beyond saying it is below) is not a bias: the meter keeps its
+    one-dimensional contributions there, as with the credit off. Found on the chemical
+    plant's cooler-outlet drift (tuning seed 103: its valve reached 100 %)."""
+    _, unit, _, _ = line
+    cm = unit.cmodel
+    tests = unit.tests
+    valve, meter = cm.tags.index("VALVE_A"), cm.tags.index("FEED_FLOW")
+    va, lp = tests.index("VALVE_A"), tests.index("FEED_FLOW")
+    comp = cm.process[:, meter].copy()
+    assert comp[lp] == 0.0 and comp[va] != 0.0  # compensated: its loop test held at zero
+    beyond = comp.copy()
+    beyond[va] = 0.0
+    z = 8.0 * beyond
+    z[lp] = 6.0  # the part of the bias the loop could not take: the reading above its SP
+    z[va] = 0.5 * 8.0 * comp[va]  # the valve stopped at a limit, half way
+    share = cm.shares_of(z[None, :])[0]
+    assert share[meter] == pytest.approx(1.0, abs=1e-9), dict(zip(cm.tags, share, strict=True))
+    assert rank(share[None, :])[0, 0] == meter
+    assert share[valve] < share[meter]
+    plain = replace(cm, compensated=None)
+    assert plain.shares_of(z[None, :])[0][meter] < 0.95  # its one-dimensional directions
+    other_way = z.copy()
+    other_way[lp] = -6.0
+    share = cm.shares_of(other_way[None, :])[0]
+    assert share[meter] == pytest.approx(plain.shares_of(other_way[None, :])[0][meter], abs=1e-12)
+
+
 #: a flow-meter bias seed the credit's test of fit was not chosen on (chosen on 101–104)
 HELD_OUT = 113
 

@@ -79,7 +79,11 @@ both moves, each :data:`COMPENSATED_SE` standard errors clear of zero and saying
 every test known and no more left unexplained than a fault-free sample leaves
 (:data:`COMPENSATED_REST`), its contribution is taken over the plane of the two
 (:meth:`CombinedModel._compensated_rbc`: how far the actuator moves per unit of bias no gain
-fixes), and the actuator's move is not left to the actuator. The share
+fixes), and the actuator's move is not left to the actuator. A bias the loop takes only
+in part (its actuator at a limit) leaves the rest on its loop test: where the tests beyond
+the actuator and the loop's error say the same bias, the sensor's contribution is taken
+over its beyond-direction, its loop test's axis and its actuator's (what the limit left,
+:meth:`CombinedModel._compensated_rbc`). The share
 ``RBC_X / T²`` ranks the tags (1: a bias of X alone explains the deviation). Tags touching
 the same tests in the same proportions cannot be told apart and share a rank. Before
 ``diag unit learn`` has written ``[combined]`` the ranking uses ``z = r / high``, ``S = I`` and
@@ -449,9 +453,9 @@ COMPENSATED_REST = 0.05
 
 def compensated_loops(unit, tags: list[str]) -> np.ndarray | None:
     """Per loop whose own sensor can be at fault and whose actuator has a test of its own
-    (a controller output's test, issue 34 item 7), the sensor's column in ``tags`` and the
-    actuator's test's row (pairs × 2; None for none): where a bias of the sensor is told
-    from a fault of the actuator (:meth:`CombinedModel._compensated_rbc`).
+    (a controller output's test, issue 34 item 7), the sensor's column in ``tags``, the
+    actuator's test's row and the loop test's row (loops × 3; None for none): where a bias
+    of the sensor is told from a fault of the actuator (:meth:`CombinedModel._compensated_rbc`).
 
     A loop compensating a bias ``b`` of its sensor moves its actuator, and the true
     measurement moves by ``−b``, so the tests beyond the actuator move too (the sensor's
@@ -465,13 +469,13 @@ def compensated_loops(unit, tags: list[str]) -> np.ndarray | None:
            if not _spread_test(unit, unit.tests[j])}  # fmt: skip
     col = {x: k for k, x in enumerate(tags)}
     out = []
-    for t in unit.tests:
+    for j, t in enumerate(unit.tests):
         test = unit.file.test(t)
         if _spread_test(unit, t) or not test.actuator or test.actuator == outputs[t]:
             continue
         if outputs[t] in col and test.actuator in own:
-            out.append((col[outputs[t]], own[test.actuator]))
-    return np.array(sorted(set(out)), np.int64).reshape(-1, 2) if out else None
+            out.append((col[outputs[t]], own[test.actuator], j))
+    return np.array(sorted(set(out)), np.int64).reshape(-1, 3) if out else None
 
 
 def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray) -> None:
@@ -1024,12 +1028,32 @@ class CombinedModel:
         ``1 −`` :data:`COMPENSATED_REST` with ``|k| − 2`` degrees of freedom (the two
         fitted). Without it the credit took the cooler's loop sensor into the top three of
         the chemical plant's cooling-water and stuck-steam-valve runs, and named a fault-free
-        alarm of the 7-tag line on its meter (docs/how-to/unit-loops.md)."""
-        if k.size < self.dims:  # a test unknown: the bias's fit cannot be checked
-            return
-        rest = float(chi2_isf(np.array(COMPENSATED_REST), max(k.size - 2, 1)))
+        alarm of the 7-tag line on its meter (docs/how-to/unit-loops.md).
+
+        A bias the loop cannot wholly take (its actuator at a limit: a drifting cooler-outlet
+        sensor with the cooling-water valve at 100 %) leaves the rest on the loop's error: the
+        reading moves off its set-point the way the bias moves it, while the tests beyond the
+        actuator still move the way the compensated part moves them, and the actuator's test
+        moves by whatever the limit left (its model extrapolating past the window, either
+        sign). There ``z`` is fitted on ``ξ_b``, the loop test's axis and the actuator's,
+        and where the coefficients of ``ξ_b`` and of the loop's error stand
+        :data:`COMPENSATED_SE` standard errors clear of zero with one sign (the reading above
+        its set-point and the tests beyond saying the true value is below it, or both the
+        other way), the contribution is the larger of the sensor's and ``uᵀG⁻¹u`` over the
+        three. A true move of the measurement (a fouled cooler, a stuck valve: the reading
+        and the true value off the set-point together) moves the loop's error and the tests
+        beyond with opposite signs and is not credited. No test of fit and no test need be
+        known beyond the three: an actuator at its limit is a state the window did not hold,
+        and the tests that read it leave their learned range with it (the cooler's
+        cooling-water return). Chemical plant, tuning seeds, cooler-outlet drift: named
+        first 2/3 → 3/3 runs (seed 103, its valve at 100 % for 9 h); the valve faults, the
+        fouled cooler, the cooling-water swing and the fault-free runs keep their names."""
+        # every test known: the tests that would contradict the bias are there, and its fit
+        # can be checked
+        full = k.size >= self.dims
+        rest = float(chi2_isf(np.array(COMPENSATED_REST), max(k.size - 2, 1))) if full else 0.0
         pos = {int(t): i for i, t in enumerate(k)}
-        for c, ja in self.compensated:
+        for c, ja, jl in self.compensated:
             j = pos.get(int(ja))
             if j is None:
                 continue
@@ -1038,29 +1062,60 @@ class CombinedModel:
             beyond[j] = 0.0
             if not xc[j] or not beyond.any():
                 continue
-            a = np.zeros((len(k), 2))
-            a[j, 0] = 1.0
-            a[:, 1] = beyond
-            g = a.T @ m @ a
-            if not (g[0, 0] > 1e-12 and g[1, 1] > 1e-12):
-                continue
-            if abs(np.linalg.det(g)) <= 1e-9 * g[0, 0] * g[1, 1]:
-                continue
-            gi = np.linalg.inv(g)
-            u = mz @ a
-            coef = u @ gi
-            se = np.sqrt(np.diag(gi))
-            said = (
-                (np.abs(coef[:, 0]) >= COMPENSATED_SE * se[0])
-                & (np.abs(coef[:, 1]) >= COMPENSATED_SE * se[1])
-                & (np.sign(coef[:, 0] / xc[j]) == np.sign(coef[:, 1]))
-            )
-            if not said.any():
-                continue
-            plane = np.einsum("ij,jk,ik->i", u[said], gi, u[said])
-            fits = q[said] - plane <= rest
-            at = np.flatnonzero(said)[fits]
-            rbc[at, c] = np.maximum(rbc[at, c], plane[fits])
+            if full:
+                a = np.zeros((len(k), 2))
+                a[j, 0] = 1.0
+                a[:, 1] = beyond
+                _plane_credit(rbc, c, mz, m, a, xc[j], q, rest)
+            i = pos.get(int(jl))
+            if i is not None:
+                # the loop could not take all of the bias (its actuator at a limit): the rest
+                # is its loop's error, the actuator's move is what the limit left
+                a = np.zeros((len(k), 3))
+                a[:, 0] = beyond
+                a[i, 1] = 1.0
+                a[j, 2] = 1.0
+                _plane_credit(rbc, c, mz, m, a, 1.0, q, None)
+
+
+def _plane_credit(
+    rbc: np.ndarray,
+    c: int,
+    mz: np.ndarray,
+    m: np.ndarray,
+    a: np.ndarray,
+    sign: float,
+    q: np.ndarray,
+    rest: float | None,
+) -> None:
+    """In place: tag ``c``'s contribution over the directions ``a`` (known tests × 2 or 3,
+    :meth:`CombinedModel._compensated_rbc`) where the samples say so: ``z`` fitted on them
+    (``coef = G⁻¹ u``, ``G = aᵀS⁻¹a``, ``u = aᵀS⁻¹z``, standard errors ``√diag(G⁻¹)``), the
+    first two coefficients each :data:`COMPENSATED_SE` standard errors clear of zero and of
+    one sign (the first's times ``sign``), and, with ``rest``, what the plane leaves, ``q −
+    uᵀG⁻¹u``, at most ``rest``; there the contribution is the larger of ``rbc``'s and
+    ``uᵀG⁻¹u`` (Alcala & Qin, 2009, the multidimensional form)."""
+    g = a.T @ m @ a
+    d = np.diag(g)
+    if not (d > 1e-12).all():
+        return
+    if abs(np.linalg.det(g)) <= 1e-9 * np.prod(d):
+        return
+    gi = np.linalg.inv(g)
+    u = mz @ a
+    coef = u @ gi
+    se = np.sqrt(np.diag(gi))
+    said = (
+        (np.abs(coef[:, 0]) >= COMPENSATED_SE * se[0])
+        & (np.abs(coef[:, 1]) >= COMPENSATED_SE * se[1])
+        & (np.sign(coef[:, 0] / sign) == np.sign(coef[:, 1]))
+    )
+    if not said.any():
+        return
+    plane = np.einsum("ij,jk,ik->i", u[said], gi, u[said])
+    fits = np.ones(plane.shape, bool) if rest is None else q[said] - plane <= rest
+    at = np.flatnonzero(said)[fits]
+    rbc[at, c] = np.maximum(rbc[at, c], plane[fits])
 
 
 class _ScaledRows:
