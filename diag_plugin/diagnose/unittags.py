@@ -1315,9 +1315,10 @@ class Excursions:
     cycles). The
     learned range of a tag is the narrowest its readers' models learned for it
     (:func:`~diag_plugin.diagnose.operating.learned_ranges`: a rule grid's sets that carry a
-    rule, a linear model's span); a tag no test reads has none and is never a source. Lagged
-    inputs are judged at the value the model reads (``k − d``), unknown for the first ``d``
-    samples of a piece."""
+    rule, a linear model's span); a tag no test reads has none and is never a source. An
+    input is judged at its value at the sample, whatever lag a model reads it at: a live
+    cycle (:class:`~diag_plugin.diagnose.plant.Plant`'s fast path) holds that value only, and
+    a replay names what a live cycle names."""
 
     def __init__(
         self,
@@ -1417,11 +1418,8 @@ class Excursions:
         """The judged value's excess beyond its learned range at ``at`` (0 inside or unknown)
         and that excess as a share of the range."""
         if key not in memo:
-            tag, lag = key
-            x = np.asarray(values(tag), float)
-            if lag:
-                x = np.r_[np.full(min(lag, n), np.nan), x[: max(n - lag, 0)]]
-            x = x[at]
+            tag = key[0]  # its value now, whatever lag a model reads it at (as a live
+            x = np.asarray(values(tag), float)[at]  # cycle has it: one row, no history)
             lo, hi = self.ranges[tag]
             with np.errstate(invalid="ignore"):
                 e = np.where(x > hi, x - hi, np.where(x < lo, x - lo, 0.0))
