@@ -8,10 +8,11 @@ The scoring runs are never simulated.
 
 Rules (``--rules``, comma-separated):
 
-* ``main``: the tail fit wherever 30 episodes remain (``FEW_VALUES`` = 0);
+* ``main``: the tail fit wherever 30 episodes remain (the rule's value before i34-few,
+  ``FEW_VALUES`` = 0; the build now uses 100 with ``budget.SEEN_Z``'s admission);
 * ``gauss-N``: a side of fewer than N independent values whose window top a Gaussian series
   explains takes Rice's threshold (:func:`~diag_plugin.learn.budget.gaussian_top`;
-  ``calibrate(few=N)``, off in the build: ``FEW_VALUES`` = 0);
+  ``calibrate(few=N)``; the build's ``FEW_VALUES`` = 100 adds ``SEEN_Z``'s admission);
 * ``always-N``: the same without the check of the window's top (every side under N values);
 * ``pool-N``: the brief's pooled tail — every side standardised by its mean and spread above
   the mean, the episodes of all sides pooled on one ladder of standardised levels, a side's
