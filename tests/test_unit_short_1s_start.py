@@ -156,3 +156,28 @@ def test_a_mode_of_many_values_steps_by_one(unit):
     mode = next(lp for lp in unit.settle.loops if lp.sp == "MODE")
     assert level_gap(unit, "MODE") == 1.0
     assert mode.band == pytest.approx(0.25)
+
+
+def test_a_bias_that_ends_is_let_go_within_isa_s_off_delay(unit):
+    """ISA-18.2's alarm settings at 1 s (issue 34 item 6, branch ``i34-offdelay``): the
+    unit's off-delay is its tags' (60 s: ISA's for a tag of no flow, pressure or level kind;
+    240 s on main, a floor), and a bias that ends is let go within the residual filter's
+    delay and the two holds of it (a test's off-delay, then the unit's) after the
+    temperature reads right again: 220 s here (main: at least 480 s, its two holds of 240 s
+    past the last symptom). The filtered residual swings back over its threshold 5 min
+    later, one more alarm of 3 min: no more than 3 episodes in 10 minutes. Fails on main."""
+    from diag_plugin.diagnose.settle import filter_samples
+    from diag_plugin.unitbuild.build import CHATTER_WINDOW_S
+
+    assert 15.0 <= unit.ev["off_delay_s"] <= 60.0
+    at, end = 40_000, 41_800  # 30 min of a 2 K bias
+    x = line(1.0, 14)
+    x.iloc[at:end] = line(1.0, 14, bias_at=at).iloc[at:end]
+    f = _judged(unit, x) == FAILURE
+    assert f[at:end].mean() > 0.5
+    let_go = int(np.argmax(~f[end:]))  # the first sample after the fault not in alarm
+    reach = filter_samples(unit.ev["lowpass"], unit.ev["order"]) + 2 * unit.ev["off_delay"]
+    assert 0 < let_go <= reach < 480, (let_go, reach)
+    on = _onsets(f[at - 600 : end + 3600])
+    w = int(CHATTER_WINDOW_S)
+    assert max(((on >= e) & (on < e + w)).sum() for e in on) <= 3

@@ -16,7 +16,7 @@ docs/how-to/unit-short-windows.md). So the build records the combinations the wi
     held_s = 163.0
 
 ``held_s`` is the dwell that makes a combination learned: a run of it at least that long in
-the window. The build takes the unit's quiet time (:func:`~.settle.quiet_samples`: the
+the window. The build takes the unit's quiet time before the hold (:func:`~.settle.quiet_parts`: the
 longest history a test reads, plus the residual filter's delay, plus the on-delay, times the
 period): a combination held that long has at least one sample where every test read only
 it and its residual passed the filter; a shorter one (a start sequence, a changeover) taught

@@ -26,8 +26,9 @@ alarm: the unit's judgement goes on.
 - **It ends** when the loop test's residual has been inside its thresholds with no test (nor
   the combined test) on for the quiet time — the longest history a test reads (its model's
   longest lag; a spread test's window), plus the residual filter's delay (its step response
-  to 95 %: :func:`filter_samples`), plus the on-delay — and the unit's alarm, held by its
-  off-delay (``off_delay_s``, 240 s: longer than a short quiet time at 1 s), has dropped —
+  to 95 %: :func:`filter_samples`), plus the on-delay, at least the unit's hold (its
+  off-delay ``off_delay_s``, :func:`quiet_samples`) — and the unit's alarm, held by it, has
+  dropped —
   or ``settle_max_s`` after the sample the set-point left its hold (the unit file's
   ``[evaluation]``, written by ``diag unit build`` from the window's own steps,
   :func:`~diag_plugin.unitbuild.loops.settle_max`), whichever is first. A fault that
@@ -404,8 +405,20 @@ def quiet_samples(unit: Any) -> int:
     """Samples a settle needs without a symptom to end: the longest history a test reads
     (its model's longest lag; a spread test's window), plus the residual filter's delay
     (:func:`filter_samples`: a residual that moves at the last sample a test reads is
-    filtered up to its threshold that much later), plus the on-delay (at least 1)."""
-    return max(1, sum(quiet_parts(unit)))
+    filtered up to its threshold that much later), plus the on-delay (at least 1) — and at
+    least the unit's hold (:func:`hold_samples`): a settle that has suppressed an alarm
+    ends only once the hold that repeats it has dropped, by its quiet time alone (issue 34
+    item 6: with ISA-18.2's off-delay, 60 s at 1 s, the hold is the shorter, 163 samples
+    against 60; a unit file's longer hold, 1,800 s at 1 min, is the longer: 30 against
+    19)."""
+    return max(1, sum(quiet_parts(unit)), hold_samples(unit))
+
+
+def hold_samples(unit: Any) -> int:
+    """Samples the unit's alarm is held after its last symptom (its off-delay,
+    :class:`~diag_plugin.diagnose.unitloops.AlarmHold`; 0 without the hold, a unit file
+    without ``off_delay_s``)."""
+    return int(unit.ev["off_delay"]) if (unit.ev.get("off_delay_s") or 0) > 0 else 0
 
 
 def quiet_parts(unit: Any) -> tuple[int, int, int]:
@@ -560,9 +573,9 @@ def _settle_kernel(
             else:
                 g[2] = 0
             # quiet: and a latched settle's alarm, held by the unit's off-delay, dropped
-            # (at 1 s the hold, 240 s, outlasts a short quiet time: 163 samples)
             # (end_n: per loop the quiet time that ends its settle; a state's learned from
-            # the window's own starts where its envelope holds one, else quiet_n)
+            # the window's own starts where its envelope holds one, else quiet_n, which is
+            # at least the hold: quiet_samples)
             quiet = g[2] >= end_n[j] and not (g[3] == 1 and alarm[i])
             if quiet or g[1] >= max_n[j] or (g[3] == 0 and g[1] >= begin_n[j]):
                 g[0] = 0

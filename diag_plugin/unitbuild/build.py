@@ -88,6 +88,7 @@ from diag_plugin.selection.scoring import BlockScorer, FrozenRuleBase
 from diag_plugin.selection.sets import SETS_RANGE, sets_for_data
 from diag_plugin.selection.spans import variable_for
 from diag_plugin.unitbuild import short
+from diag_plugin.unitbuild.alarms import ISA_OTHER_S, chatter_note, isa_off_delay
 from diag_plugin.unitbuild.equipment import (
     equipment_conditions,
     equipment_table,
@@ -406,12 +407,13 @@ def state_combos(
     combination held that long has a sample where every test read only it, its residual
     filtered. None without states."""
     from diag_plugin.diagnose.combos import held_combos
-    from diag_plugin.diagnose.settle import quiet_samples
+    from diag_plugin.diagnose.settle import quiet_parts
 
     states = [t for t in states if t in frame.columns]
     if not states:
         return None
-    held_s = float(quiet_samples(unit) * unit.period_s)
+    # the history a test reads, not the settle's hold (quiet_samples: at least the hold)
+    held_s = float(max(1, sum(quiet_parts(unit))) * unit.period_s)
     return states, held_combos(frame, states, held_s), held_s
 
 
@@ -983,11 +985,15 @@ def evaluation_for(period: str) -> dict[str, float | int]:
     return {"lowpass": lowpass, "on_delay": delay, "off_delay": delay}
 
 
-def alarm_settings(period: str, rows: int | None = None) -> dict[str, float]:
+def alarm_settings(
+    period: str, rows: int | None = None, isa_s: float | None = None
+) -> dict[str, float]:
     """ISA-18.2 alarm settings in time for the unit file (:mod:`~diag_plugin.diagnose.
-    unitloops`): the on-delay of :func:`evaluation_for` in seconds; an off-delay of at least
-    :data:`OFF_DELAY_S` (with the on-delay it spaces two alarms of one test by more than a
-    third of :data:`CHATTER_WINDOW_S`, so no fault raises more than 3 episodes in it); a
+    unitloops`): the on-delay of :func:`evaluation_for` in seconds; the off-delay ISA-18.2
+    gives the unit's tags, ``isa_s`` (:func:`~diag_plugin.unitbuild.alarms.isa_off_delay`:
+    15 s for flows and pressures, 60 s for levels, temperatures and the rest; None: 60 s),
+    at least the grid's delay of :func:`evaluation_for` (three samples: 540 s at 3 min, 180 s
+    at 1 min; chatter, :func:`~diag_plugin.unitbuild.alarms.chatter_note`); a
     :data:`DEADBAND` of the threshold; the spread tests' window :data:`SPREAD_WINDOW_S`, at
     least 20 samples; the oscillation hold's window, :data:`OSCILLATION_WINDOWS` spread
     windows (a test that swung there and back, + − +, within two of it stays on until a side
@@ -1000,7 +1006,7 @@ def alarm_settings(period: str, rows: int | None = None) -> dict[str, float]:
     spread = float(max(SPREAD_WINDOW_S, 20 * s))
     return {
         "on_delay_s": float(on_s),
-        "off_delay_s": float(max(ev["off_delay"] * s, OFF_DELAY_S)),
+        "off_delay_s": float(max(ev["off_delay"] * s, ISA_OTHER_S if isa_s is None else isa_s)),
         "deadband": DEADBAND,
         "spread_window_s": spread,
         "oscillation_window_s": min(OSCILLATION_WINDOWS * spread, oscillation_cap(rows, s)),
@@ -1022,8 +1028,9 @@ def oscillation_cap(rows: int | None, period_s: float) -> float:
     return float(math.floor(rows / (FOLDS * OSCILLATION_CHANGES)) * period_s)
 
 
-#: ISA-18.2 settings ``diag unit build`` writes (seconds; a share of the threshold)
-OFF_DELAY_S = 240.0
+#: ISA-18.2 settings ``diag unit build`` writes (seconds; a share of the threshold); the
+#: off-delay is the unit's tags' (:mod:`~diag_plugin.unitbuild.alarms`), no longer a floor of
+#: 240 s (issue 34 item 6: it held a fault's alarm 4 minutes past its end at 1 s)
 DEADBAND = 0.1
 SPREAD_WINDOW_S = 600.0
 #: the oscillation hold's window in spread windows ``W``: the spread test's running MAD sees
@@ -1557,7 +1564,9 @@ def _build_unit(
             doc["tests"][ch.test]["combined"] = False
         if ch.balance:
             doc["tests"][ch.test]["balance"] = True
-    for k, v in {**evaluation_for(period), **alarm_settings(period, rows)}.items():
+    isa_s, kinds = isa_off_delay(dict.fromkeys(ch.tag for ch in kept), info)
+    alarms = alarm_settings(period, rows, isa_s)
+    for k, v in {**evaluation_for(period), **alarms}.items():
         doc["evaluation"][k] = v
     doc["evaluation"]["oscillation_window_s"].comment(
         "4 x spread_window_s (at most a tenth of the window): a test swung there and back"
@@ -1571,6 +1580,11 @@ def _build_unit(
     doc["evaluation"]["combined"] = True
     doc["evaluation"]["isolation"] = "tags"
     doc["build"] = _build_table(kept, skipped, start, end, period, far, plan.max_inputs)
+    grid_s = pd.Timedelta(period).total_seconds()
+    off_note = chatter_note(alarms["off_delay_s"], alarms["on_delay_s"], grid_s, isa_s, kinds,
+                            CHATTER_WINDOW_S)  # fmt: skip
+    doc["build"]["off_delay"] = off_note
+    notes.append(off_note)
     if plan.reasons:
         doc["build"]["plan"] = plan.reasons
     # the window's set-points, as judged here (name or description): the unit never blames

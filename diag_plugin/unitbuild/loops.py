@@ -973,15 +973,21 @@ def _max_and_how(key: str, what: str, times: list[float], judged: int, unit) -> 
     fallback (:data:`SETTLE_FALLBACK` × the quiet time) is used, as with none."""
     import numpy as np
 
-    from diag_plugin.diagnose.settle import quiet_parts
+    from diag_plugin.diagnose.settle import hold_samples, quiet_parts, quiet_samples
 
     depth, lag, delay = quiet_parts(unit)
-    quiet_s = max(1, depth + lag + delay) * unit.period_s
+    quiet_s = quiet_samples(unit) * unit.period_s
+    hold = hold_samples(unit)
+    held = (
+        f"; at least the unit's hold, {hold} samples (its off-delay)"
+        if hold > depth + lag + delay
+        else ""
+    )
     quiet = (
         f"({quiet_s:.0f} s: the longest history a test reads, {depth} samples, plus the "
         f"residual filter's delay, {lag} (its step response to 95 %: order "
         f"{unit.ev['order']}, cut-off {unit.ev['lowpass']:g} of Nyquist), plus the on-delay, "
-        f"{delay})"
+        f"{delay}{held})"
     )
     if times and 2 * len(times) >= judged:
         med = float(np.median(times))
