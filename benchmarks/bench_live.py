@@ -12,8 +12,9 @@ historian's writes. Target (issue 23): p99 under 200 ms.
 
 ``--built`` gives each unit what ``diag unit build`` writes on every unit it builds (issue 34,
 item 6): the ISA-18.2 alarm settings in time of :func:`~diag_plugin.unitbuild.build.
-alarm_settings` at the data's 1 s (on-delay in seconds, the unit's own off-delay of 240 s, a
-deadband of 10 % of the threshold, a 600 s spread window) and a spread test on the valve's
+alarm_settings` at the data's 1 s (on-delay in seconds, the unit's own off-delay: 60 s,
+ISA-18.2's for tags of no known kind, 240 s before 2026-12-01; a deadband of 10 % of the
+threshold, a 600 s spread window) and a spread test on the valve's
 position loop (``r3_spread``: the running spread of r3's residual, as ``unit build`` writes one
 beside each loop's level test), every threshold learned again on the training day.
 
