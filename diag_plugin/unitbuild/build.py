@@ -1584,7 +1584,6 @@ def _build_unit(
     off_note = chatter_note(alarms["off_delay_s"], alarms["on_delay_s"], grid_s, isa_s, kinds,
                             CHATTER_WINDOW_S)  # fmt: skip
     doc["build"]["off_delay"] = off_note
-    notes.append(off_note)
     if plan.reasons:
         doc["build"]["plan"] = plan.reasons
     # the window's set-points, as judged here (name or description): the unit never blames
@@ -1691,6 +1690,7 @@ def _build_unit(
     notes.extend(learned.warnings)
     if edges:  # after what the unit decided (settles, states): the terminal shows four notes
         notes.append(edges)
+    notes.append(off_note)  # last: the alarm settings, after what the unit decided itself
     seconds["learn thresholds"] = time.perf_counter() - t0
     seconds["total"] = time.perf_counter() - t_start
     if progress:
