@@ -111,7 +111,10 @@ def main(argv: list[str] | None = None) -> int:
     from _common import add_scratch_args, scratch
 
     from diag_plugin.bench.matched import (
+        HeldScore,
+        Hold,
         Scored,
+        alarm_at,
         calibrate,
         calibrate_leaving_out,
         method_score,
@@ -168,8 +171,22 @@ def main(argv: list[str] | None = None) -> int:
         "alike; a look at what the held tails after the tuning faults do to the low targets, "
         "issue 34 H2: not the bench's protocol, which takes the unit's)",
     )
+    ap.add_argument(
+        "--no-hold",
+        action="store_true",
+        help="score the unit without its own hold (off-delay and re-alarm hold, "
+        "matched.Hold), as the bench did before issue 34 H1",
+    )
+    ap.add_argument(
+        "--hold",
+        default=None,
+        metavar="OFF,WINDOW,LONG",
+        help="score the unit with this hold (samples) in place of its own (a what-if)",
+    )
     add_scratch_args(ap, "nothing")
     args = ap.parse_args(argv)
+    if args.hold is not None:
+        args.hold = Hold(*(int(v) for v in args.hold.split(",")))
     targets = [float(t) for t in args.targets.split(",")]
 
     plant = load_skab()
@@ -189,6 +206,8 @@ def main(argv: list[str] | None = None) -> int:
             if f"{run.name}|unit" not in raw:
                 _, unit, one = build_run(run, work / f"run{k}", cols)
                 on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
+                h = Hold.of(unit)
+                raw["hold"] = np.array([0, 0, 0] if h is None else [h.off, h.window, h.long])
                 raw.update({f"{run.name}|{key}": v for key, v in one.items()})
                 print(f"{run.name}: built and scored ({len(unit.tests)} tests)", flush=True)
                 raw["delays"] = np.array([on, off])
@@ -200,7 +219,12 @@ def main(argv: list[str] | None = None) -> int:
                     w = args.dpca_t2
                     w = dpca_weight(run, cols, on, off) if w == "budget" else float(w)
                     x = np.c_[x, w * raw[f"{run.name}|DPCA"][:, :1]]
-                scores[m][run.name] = method_score(x, on, off)[run.learn :]
+                s = method_score(x, on, off)
+                if m == "unit" and args.hold is not None:
+                    s = HeldScore(s, args.hold)
+                elif m == "unit" and "hold" in raw and raw["hold"][0] > 0 and not args.no_hold:
+                    s = HeldScore(s, Hold(*(int(v) for v in raw["hold"])))  # the unit's own
+                scores[m][run.name] = s[run.learn :]
     cpu = cpu_seconds() - cpu
     if args.save:
         np.savez_compressed(args.save, **raw)
@@ -210,7 +234,9 @@ def main(argv: list[str] | None = None) -> int:
     tuning = {r.name: r for r in (plant.faults if args.scoring else plant.tuning)}
     what = "scoring" if args.scoring else "tuning"
     print(f"\nSKAB {what} runs ({len(tuning)}), limits matched on {len(plant.calibration)} "
-          f"calibration runs; delays {on}/{off}; CPU {cpu:.0f} s")  # fmt: skip
+          f"calibration runs; delays {on}/{off}; the unit's hold "
+          f"{'none' if args.no_hold or 'hold' not in raw else raw['hold'].tolist()}; "
+          f"CPU {cpu:.0f} s")  # fmt: skip
     print("target | " + " | ".join(f"{m} F1 / FAR / MAR (cal)" for m in scores))
     det_rows = []
     for target in targets:
@@ -242,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
             for n, r in tuning.items():
                 s = by_run[n]
                 act = r.labels[r.learn :] > 0
-                det.setdefault(n, {})[m] = float(np.mean(np.nan_to_num(s[act], nan=-1) > lims[n]))
+                det.setdefault(n, {})[m] = float(np.mean(alarm_at(s, lims[n])[act]))
         print(f"{target:g} | " + " | ".join(cells))
         det_rows.append((target, det))
     for target, det in det_rows:

@@ -99,12 +99,6 @@ def test_an_unseen_fault_free_run_does_not_alarm_more_after_accept(plant):
     )
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 34 item 6, branch i34-offdelay: with the grid's 180 s off-delay at 1 min "
-    "(240 s before) the bias is in alarm on 19.5 % of its second half after the accept (the "
-    "test asks 20 %); a loss, reported",
-)
 def test_a_bias_at_the_old_positions_is_still_detected_after_accept(plant):
     # a marginal bias (59.8 % of its samples before the accept): the cost of the kept band
     # is detection (30.0 % after it, 42.3 % with the narrowed band on main), not none

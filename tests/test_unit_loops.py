@@ -94,19 +94,7 @@ def test_the_declared_loop_is_built_with_its_set_point_actuator_and_spread_test(
 
 
 # ---------------------------------------------------------------- detection and naming
-#: the off-delay ISA-18.2 gives the line's tags (60 s, 4 samples; 240 s, 16 before): the
-#: drift's alarm held less after each of its crossings, seed 102 in alarm on 19.2 % of the
-#: samples after the onset (main 23.9 %; seed 101 20.4 %, main 22.3 %). Not reached (a
-#: loss, branch i34-offdelay): the symptoms are the same, the hold shorter
-SHORTER_HOLD = pytest.mark.xfail(
-    strict=True, reason="issue 34 item 6: ISA's 60 s off-delay holds the drift's alarm less"
-)
-
-
-@pytest.mark.parametrize(
-    "fault",
-    [pytest.param(f, marks=SHORTER_HOLD) if f == "pressure_drift" else f for f in line7.AT_FAULT],
-)
+@pytest.mark.parametrize("fault", list(line7.AT_FAULT))
 def test_each_fault_is_detected_and_its_tag_named_in_the_top_three(line, fault):
     _, _, runs, _ = line
     for seed in SEEDS:
@@ -140,17 +128,7 @@ def test_a_flow_meter_bias_names_the_meter_not_the_manual_valve(line):
         assert "FEED_FLOW" in named and "HAND_VALVE" not in named, named
 
 
-@pytest.mark.parametrize(
-    "seed",
-    [
-        103,
-        # with ISA's 60 s off-delay the alarm rows after the onset are 305 (376 with 240 s),
-        # and the loop's sensor heads them (FEED_FLOW, VALVE_A, OUT_FLOW; main: VALVE_A,
-        # FEED_FLOW, OUT_FLOW): a loss, branch i34-offdelay
-        pytest.param(104, marks=pytest.mark.xfail(
-            strict=True, reason="issue 34 item 6: fewer held rows, the sensor heads them")),
-    ],
-)  # fmt: skip
+@pytest.mark.parametrize("seed", [103, 104])
 def test_the_loops_sensor_does_not_head_a_deviation_it_did_not_cause(line, seed):
     """The manual valve moved to a position never seen: the flow loop holds its meter at the
     set-point, and the meter reads right. Ranked over the plane of its direction and its

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-import pytest
 from helpers import operator_steps
 
 from diag_plugin.diagnose.unit import Unit
@@ -205,12 +204,6 @@ def _tank_and_heater(days: float, seed: int, over=(1e9, 1e9), bias_h: float = 1e
     return f
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 34 item 6, branch i34-offdelay: with the grid's 180 s off-delay at 1 min "
-    "(240 s before) 13 samples name the valve while the sensor's test carries the alarm (the "
-    "test asks 30: most were the held name); not examined further, a loss, reported",
-)
 def test_a_held_at_limit_name_gives_way_to_the_fault_s_own_test_on_a_plant(tmp_path):
     """The tank fed beyond its outlet valve for 2 h (the valve at 100 %, named with its loop),
     and from the second of those hours the heater's outlet sensor reads +3 K: one alarm

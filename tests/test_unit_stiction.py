@@ -43,12 +43,6 @@ def _episodes(alarm: np.ndarray) -> int:
     return int(np.count_nonzero(a & ~np.r_[False, a[:-1]]))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 34 item 6, branch i34-offdelay: with ISA-18.2's 60 s off-delay (4 samples; "
-    "240 s, 16, before) the limit cycle's alarm drops between swings: seed 101 15 unit "
-    "alarm episodes in the day after the onset (main at most 3); a loss, reported",
-)
 def test_a_sticking_valve_is_at_most_3_alarms_a_day_while_it_sticks(vessel):
     for seed in SEEDS:
         d = vessel.reset().evaluate(jacket4.simulate(2.0, seed, "stiction"))

@@ -32,6 +32,16 @@ exactly where ``a > λ``, both sides within ``w`` where ``b > λ``, and ``h(t) >
 where the hold at ``λ`` is armed, so the held alarm is again one threshold on one scalar
 (``K = 1``: the hold of e2ea008, ``min(max_w d⁺, max_w d⁻)`` but for one sample on both).
 
+**The unit's own hold** (its off-delay over all its tests, ``off_delay_s``, and the re-alarm
+hold, ``realarm_window_s`` / ``realarm_off_delay_s``: :class:`~diag_plugin.diagnose.unitloops.
+AlarmHold`) is applied to the unit's alarm at each level, as the unit applies it
+(:class:`Hold`, :class:`HeldScore`): a plain hold is again one threshold on one scalar
+(``delayed_score(u, 1, off)``), but the re-alarm hold is not — an alarm at a lower level may
+join two episodes that a higher level raises apart, and hold the second longer — so a held
+score is judged level by level: its alarm at ``λ`` is the held alarm of ``u > λ`` (over
+the whole run, then the samples counted), and its limit is found by bisection over the
+score's own values (the held rate falls with ``λ`` but for such joins).
+
 Counting, so a method cannot win by being unknown or by alarming more:
 
 * a sample where a method knows nothing (score NaN) is *not in alarm*, and stays in every
@@ -58,6 +68,8 @@ from diag_plugin.diagnose.unittags import side_ratio
 
 __all__ = [
     "MIN_EXPECTED",
+    "Hold",
+    "HeldScore",
     "Limit",
     "TailLevel",
     "calibrate",
@@ -341,6 +353,68 @@ def method_score(
     return out
 
 
+@dataclass(frozen=True)
+class Hold:
+    """A unit's own hold in samples (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`):
+    ``off`` after its last symptom, ``long`` for an alarm raised again within ``window`` of
+    its last end (0: no re-alarm hold)."""
+
+    off: int
+    window: int = 0
+    long: int = 0
+
+    @classmethod
+    def of(cls, unit) -> Hold | None:
+        """The hold of a loaded unit (None: no hold of its own, no ``off_delay_s``)."""
+        ev = unit.ev
+        if not (ev.get("off_delay_s") or 0) > 0:
+            return None
+        return cls(int(ev["off_delay"]), int(ev.get("realarm_window", 0)),
+                   int(ev.get("realarm_off", 0)))  # fmt: skip
+
+    def apply(self, on: np.ndarray) -> np.ndarray:
+        """The held alarm of the alarm ``on`` (one run, from rest)."""
+        from diag_plugin.diagnose.unitloops import AlarmHold
+
+        on = np.asarray(on, bool)
+        if self.off <= 0 or not on.size:
+            return on
+        return on | (AlarmHold(self.off, self.window, self.long).sources(on) != -2)
+
+
+class HeldScore:
+    """One run's score whose alarm at a level is held (:class:`Hold`) over the whole run,
+    then read at the samples counted (``idx``; indexing a :class:`HeldScore` selects them,
+    as an array's would). ``len``: the samples counted."""
+
+    def __init__(self, score: np.ndarray, hold: Hold, idx: np.ndarray | None = None) -> None:
+        self.score = np.asarray(score, float)
+        self.hold = hold
+        self.idx = np.arange(len(self.score)) if idx is None else np.asarray(idx, np.int64)
+
+    def __len__(self) -> int:
+        return len(self.idx)
+
+    def __getitem__(self, item) -> HeldScore:
+        return HeldScore(self.score, self.hold, self.idx[item])
+
+    def values(self) -> np.ndarray:
+        """The score at the samples counted (before the hold)."""
+        return self.score[self.idx]
+
+    def alarm(self, limit: float) -> np.ndarray:
+        """The held alarm at ``limit`` at the samples counted."""
+        return self.hold.apply(_finite(self.score) > limit)[self.idx]
+
+
+def alarm_at(score, limit: float) -> np.ndarray:
+    """A run's alarm at ``limit``: ``score > limit`` (unknown: not in alarm), held as the
+    unit holds it for a :class:`HeldScore`."""
+    if isinstance(score, HeldScore):
+        return score.alarm(limit)
+    return _finite(np.asarray(score, float)) > limit
+
+
 def episode_count(alarm: np.ndarray) -> int:
     """Alarm episodes in one run: samples in alarm whose previous sample was not (the first
     sample counts when in alarm)."""
@@ -394,7 +468,7 @@ def rates(runs: Sequence[np.ndarray], limit: float, period_s: float) -> tuple[fl
     n = sum(len(r) for r in runs)
     if not n:
         return float("nan"), float("nan")
-    on = [_finite(np.asarray(r, float)) > limit for r in runs]
+    on = [alarm_at(r, limit) for r in runs]
     share = sum(int(a.sum()) for a in on) / n
     return share, sum(episode_count(a) for a in on) / (n * period_s / 3600.0)
 
@@ -410,6 +484,8 @@ def calibrate(
         raise ValueError(f"per must be 'sample' or 'hour', not {per!r}")
     if not target > 0 or (per == "sample" and target >= 1):
         raise ValueError(f"target false-alarm rate {target!r} out of range")
+    if any(isinstance(r, HeldScore) for r in runs):
+        return _calibrate_held([r for r in runs if len(r)], target, period_s, per)
     runs = [_finite(np.asarray(r, float)) for r in runs if len(r)]
     n = sum(len(r) for r in runs)
     if not n:
@@ -449,6 +525,42 @@ def calibrate(
         hours=hours,
         supported=bool(expected >= MIN_EXPECTED),
     )
+
+
+def _calibrate_held(runs: Sequence, target: float, period_s: float, per: str) -> Limit:
+    """:func:`calibrate` of held scores (:class:`HeldScore`): the smallest of the scores'
+    own values (or −inf) whose held rate is at most ``target``, by bisection (the held rate
+    falls with the level but where a lower level joins two episodes a higher one holds
+    apart, module doc)."""
+    n = sum(len(r) for r in runs)
+    if not n:
+        raise ValueError("calibration: no samples")
+    hours = n * period_s / 3600.0
+    fin = np.unique(np.concatenate([_finite(r.score if isinstance(r, HeldScore) else
+                                            np.asarray(r, float)) for r in runs]))  # fmt: skip
+    fin = fin[np.isfinite(fin)]
+
+    def ok(level: float) -> bool:
+        share, ph = rates(runs, level, period_s)
+        return (share if per == "sample" else ph) <= target
+
+    if not fin.size:
+        lim = np.inf
+    elif ok(-np.inf):
+        lim = -np.inf
+    else:
+        lo, hi = -1, fin.size - 1  # fin[hi]: nothing above the largest value, no alarm
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if ok(float(fin[mid])):
+                hi = mid
+            else:
+                lo = mid
+        lim = float(fin[hi])
+    share, ph = rates(runs, lim, period_s)
+    expected = target * (n if per == "sample" else hours)
+    return Limit(target=float(target), per=per, limit=float(lim), share=share, per_hour=ph,
+                 samples=n, hours=hours, supported=bool(expected >= MIN_EXPECTED))  # fmt: skip
 
 
 def calibrate_leaving_out(
@@ -598,7 +710,7 @@ def run_at(
     """A faulty run at ``limit``: the share of samples where the fault is present (``active``;
     default from ``onset`` on) in alarm (unknown counts as not), seconds to the first alarm at
     or after the onset, and alarm episodes after it."""
-    on = _finite(np.asarray(score, float)) > limit
+    on = alarm_at(score, limit)
     after = on[onset:]
     hit = np.flatnonzero(after)
     present = after if active is None else on[np.asarray(active, bool)]
@@ -735,8 +847,7 @@ def curve(
             free_ep = free_ci = None
             if m["free"]:  # the episodes behind the rate, and how far chance alone moves it
                 free_h = sum(len(r) for r in m["free"]) * period_s / 3600.0
-                free_ep = sum(episode_count(_finite(np.asarray(r, float)) > lim.limit)
-                              for r in m["free"])  # fmt: skip
+                free_ep = sum(episode_count(alarm_at(r, lim.limit)) for r in m["free"])
                 free_ci = list(episode_interval(free_ep, free_h)) if free_h > 0 else None
             rows = {}
             for f in faults:

@@ -39,7 +39,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from diag_plugin.bench.matched import FaultRun, Scored, curve, method_score, side_ratio
+from diag_plugin.bench.matched import (
+    FaultRun,
+    HeldScore,
+    Hold,
+    Scored,
+    alarm_at,
+    curve,
+    method_score,
+    side_ratio,
+)
 from diag_plugin.bench.pages import provenance
 from diag_plugin.bench.publicplants import PlantRun, PublicPlant
 
@@ -309,6 +318,9 @@ def run_matched_benchmark(
                 u = run_unit(run) if plant.per_run else unit
                 grid = _sample_grid(frame, period) if plant.per_run else frame
                 s, contrib = unit_score(u, grid, on, off)
+                hold = Hold.of(u)  # the unit's own hold, as it applies it (matched.Hold)
+                if hold is not None:
+                    s = HeldScore(s, hold)
             else:
                 stats, contrib = pca_statistics(dets[m], frame)
                 s = method_score(stats, on, off)
@@ -379,6 +391,10 @@ def run_matched_benchmark(
         "per": per,
         "targets": list(targets),
         "delays": [on, off],
+        # the unit's own hold in samples (off, re-alarm window, re-alarm hold; matched.Hold)
+        "unit_hold": None
+        if unit is None or Hold.of(unit) is None
+        else list(vars(Hold.of(unit)).values()),
         "pca_share": share,
         "methods": methods,
         "unit": {k: v for k, v in built.items() if k != "unit"},
@@ -406,7 +422,7 @@ def skab_metrics(
     tp = tn = fp = fn = 0
     limits = np.broadcast_to(np.asarray(limit, float), (len(scores),))
     for s, lab, limit in zip(scores, labels, limits, strict=True):
-        pred = np.where(np.isnan(s.score), -np.inf, s.score) > limit
+        pred = alarm_at(s.score, limit)
         true = lab > 0
         tp += int(np.sum(pred & true))
         tn += int(np.sum(~pred & ~true))

@@ -310,6 +310,12 @@ def cmd_unit_show(args) -> int:
             if ev.get("off_delay_s")
             else ""
         )
+        + (
+            f"; an alarm raised again within {ev['realarm_window_s']:g} s of its last end held"
+            f" {max(ev['realarm_off_delay_s'], ev['off_delay_s']):g} s"
+            if ev.get("realarm_window_s") and ev.get("off_delay_s")
+            else ""
+        )
         + (f"; deadband {ev['deadband']:.0%} of the threshold" if ev.get("deadband") else "")
         + (
             f"; a test swung there and back within 2 x {ev['oscillation_window_s']:g} s stays"

@@ -40,7 +40,8 @@ def lead_in_parts(unit: Any) -> dict[str, int]:
     low-pass filter's settling — the samples after which a cold start's transient is below
     :data:`SETTLED` of it, ``ln(SETTLED) / ln|p|`` for the filter's slowest pole ``p`` (1 150
     samples at the default cut-off 0.01); ``delays``, the on/off delays (with the unit's own
-    off-delay, that once more). State that depends on all history (a latch, a held isolation,
+    off-delay, that once more; with a re-alarm hold, its window and its long hold each
+    time). State that depends on all history (a latch, a held isolation,
     ``dir()`` inputs) starts at the lead-in's start."""
     from diag_plugin.diagnose.butterworth import sos_poles
 
@@ -53,8 +54,13 @@ def lead_in_parts(unit: Any) -> dict[str, int]:
         slowest = float(np.abs(poles).max())
         if 0 < slowest < 1:
             out["filter"] = math.ceil(math.log(SETTLED) / math.log(slowest))
-    alarm = ev["off_delay"] if unit.alarm_hold else 0
-    out["delays"] = ev["on_delay"] + ev["off_delay"] + alarm
+    # the re-alarm hold (unitloops.AlarmHold): an alarm raised again within its window of
+    # the last end is held long, so the window and the long hold before it too
+    off = ev["off_delay"]
+    if ev.get("realarm_window", 0) > 0:
+        off = ev["realarm_window"] + max(off, ev["realarm_off"])
+    alarm = off if unit.alarm_hold else 0
+    out["delays"] = ev["on_delay"] + off + alarm
     return out
 
 

@@ -257,7 +257,16 @@ class Plant:
             ev = units[s.unit].ev
             band = max(float(ev["deadband"] or 0.0), 0.0)
             keys.setdefault(
-                (ev["lowpass"], ev["order"], band, ev["on_delay"], ev["off_delay"]), []
+                (
+                    ev["lowpass"],
+                    ev["order"],
+                    band,
+                    ev["on_delay"],
+                    ev["off_delay"],
+                    ev["realarm_window"],
+                    ev["realarm_off"],
+                ),
+                [],  # fmt: skip
             ).append(i)
         # a spread test's filter restarts after a gap at its value, not at rest (LowPass)
         is_spread = np.array(
@@ -270,13 +279,13 @@ class Plant:
         quiet = [units[ui]._quiet_n() for ui in range(len(units))]
         #: each slot's unit: the group of its column in the holds' settle openings
         self._slot_unit = np.array([s.unit for s in slots], np.intp)
-        for (wn, order, band, on, off), idx in keys.items():
+        for (wn, order, band, on, off, again, long), idx in keys.items():
             self._stages.append(
                 (
                     np.array(idx, np.intp),
                     LowPass(wn, order, steady=is_spread[idx]) if wn > 0 else None,
                     Deadband(band, len(idx)),
-                    OnOffDelay(on, off),
+                    OnOffDelay(on, off, (again, long)),
                     on - 1,
                     OscillationHold(
                         swing[idx], quiet=np.array([quiet[slots[k].unit] for k in idx], np.int64)
@@ -307,7 +316,11 @@ class Plant:
         # the unit's own off-delay (unitloops.AlarmHold): samples since its last alarm sample
         # and that sample's (status, faults, tags)
         self._alarm_hold = AlarmHold(
-            np.array([u.ev["off_delay"] if u.ev["off_delay_s"] > 0 else 0 for u in units], np.int64)
+            np.array(
+                [u.ev["off_delay"] if u.ev["off_delay_s"] > 0 else 0 for u in units], np.int64
+            ),  # fmt: skip
+            np.array([u.ev["realarm_window"] for u in units], np.int64),
+            np.array([u.ev["realarm_off"] for u in units], np.int64),
         )
         self._last_alarm: dict[int, tuple[int, list[str], list[tuple[str, float]]]] = {}
         self._held = np.full(n, np.nan)
@@ -339,7 +352,16 @@ class Plant:
         ]
         # units with a combined test or isolation to tags: (unit, its model, delay, enabled)
         self._multi = [
-            (ui, u.cmodel, OnOffDelay(u.ev["on_delay"], u.ev["off_delay"]), bool(u.ev["combined"]))
+            (
+                ui,
+                u.cmodel,
+                OnOffDelay(
+                    u.ev["on_delay"],
+                    u.ev["off_delay"],
+                    (u.ev["realarm_window"], u.ev["realarm_off"]),
+                ),
+                bool(u.ev["combined"]),
+            )  # fmt: skip
             for ui, u in enumerate(units)
             if u.cmodel is not None
         ]
@@ -511,7 +533,7 @@ class Plant:
             band.state = _array(st["deadband"])
             if "oscillation" in st:  # a state saved before it starts the hold from rest
                 swing.load_state(st["oscillation"])
-            stages.append((idx, lp, band, OnOffDelay.from_state(st["delay"]), hold, swing))
+            stages.append((idx, lp, band, _delay.restored(st["delay"]), hold, swing))
         self._stages = stages
         self._held = _array(state["held"])
         self._run = np.asarray(state["run"], np.int64)
@@ -524,8 +546,8 @@ class Plant:
             for ui, (st, fa, tg) in state["last_alarm"].items()
         }
         self._multi = [
-            (ui, cm, OnOffDelay.from_state(d), en)
-            for (ui, cm, _, en), d in zip(self._multi, state["combined_delays"], strict=True)
+            (ui, cm, delay.restored(d), en)
+            for (ui, cm, delay, en), d in zip(self._multi, state["combined_delays"], strict=True)
         ]
         for ui, st in state["episodes"].items():
             self._holds[int(ui)].load_state(st)

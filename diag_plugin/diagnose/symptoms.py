@@ -229,9 +229,15 @@ def three_valued(
 
 
 @numba.njit(cache=True, nogil=True)
-def _delay_kernel(raw, on_delay, off_delay, state, count, out):  # pragma: no cover - numba
+def _delay_kernel(  # pragma: no cover - numba
+    raw, on_delay, off_delay, window, long, state, count, gone, hold, side, out
+):
     # row by row (memory order); each column's state machine is its own; ``out`` may be
-    # ``raw`` itself (each element read before it is written)
+    # ``raw`` itself (each element read before it is written). gone: samples since the
+    # column's last symptom ended (window: none to count); hold: its current off-delay
+    # (long for a symptom raised again on its side within window samples of its last end);
+    # side: the side of the column's last symptom (a side's own re-alarm: a + then a −, a
+    # transient swinging back, is two alarms, not one raised again)
     n, m = raw.shape
     for i in range(n):
         for j in range(m):
@@ -253,18 +259,24 @@ def _delay_kernel(raw, on_delay, off_delay, state, count, out):  # pragma: no co
                 if abs(c) >= on_delay:
                     s = v
                     c = 0
+                    hold[j] = long if gone[j] < window and side[j] == v else off_delay
+                elif gone[j] < window:
+                    gone[j] += 1
             else:
                 # c counts consecutive samples not equal to the active symptom.
                 if v == s:
                     c = 0
                 else:
                     c += 1
-                    if c >= off_delay:
+                    if c >= hold[j]:
+                        side[j] = s
                         s = 0.0
                         c = int(v)
+                        gone[j] = 0
                         if v != 0.0 and on_delay <= 1:
                             s = v
                             c = 0
+                            hold[j] = long if window > 0 and side[j] == v else off_delay
             out[i, j] = s
             state[j] = s
             count[j] = c
@@ -279,20 +291,35 @@ class OnOffDelay:
     ``off_delay=1`` pass the raw symptom through. Input: raw symptoms −1/0/+1 or 0/1 with NaN
     for :data:`UNKNOWN` (e.g. from :class:`FixedThresholds`); output the same coding. An unknown
     sample outputs :data:`UNKNOWN` and is counted as neither on nor off: the counters skip it.
+
+    ``realarm = (window, long)`` (samples; ``(0, 0)``: none): the re-alarm hold, per column
+    (a test): a symptom raised again on the side it was on within ``window`` samples of its
+    last end turns off after ``long`` samples, not ``off_delay`` (issue 34 item 6;
+    :class:`~diag_plugin.diagnose.unitloops.AlarmHold` holds the unit's alarm likewise).
     """
 
-    def __init__(self, on_delay: int = 1, off_delay: int = 1) -> None:
+    def __init__(
+        self, on_delay: int = 1, off_delay: int = 1, realarm: tuple[int, int] = (0, 0)
+    ) -> None:
         if on_delay < 1 or off_delay < 1:
             raise ValueError("delays are counted in samples and must be ≥ 1")
         self.on_delay = int(on_delay)
         self.off_delay = int(off_delay)
+        self.window = max(0, int(realarm[0]))
+        self.long = max(int(realarm[1]), self.off_delay)
         self.state_: np.ndarray | None = None  # active value per column: -1, 0, +1
         self.count_: np.ndarray | None = None
+        self.gone_: np.ndarray | None = None  # samples since the last symptom ended
+        self.hold_: np.ndarray | None = None  # the current symptom's off-delay
+        self.side_: np.ndarray | None = None  # the side of the last symptom that ended
 
     def reset(self) -> OnOffDelay:
         """Forget the carried state (all symptoms off, counters zero)."""
         self.state_ = None
         self.count_ = None
+        self.gone_ = None
+        self.hold_ = None
+        self.side_ = None
         return self
 
     def transform(self, symptoms: ArrayLike, overwrite: bool = False) -> ArrayLike:
@@ -304,14 +331,20 @@ class OnOffDelay:
         if self.state_ is None:
             self.state_ = np.zeros(m)
             self.count_ = np.zeros(m, dtype=np.int64)
-        elif self.state_.shape[0] != m:
+        if self.gone_ is None or self.gone_.shape[0] != self.state_.shape[0]:
+            self.gone_ = np.full(self.state_.shape[0], self.window, dtype=np.int64)
+            self.hold_ = np.full(self.state_.shape[0], self.off_delay, dtype=np.int64)
+            self.side_ = np.zeros(self.state_.shape[0])
+        if self.state_.shape[0] != m:
             raise ValueError(f"delay state has {self.state_.shape[0]} columns, input has {m}")
         x = np.ascontiguousarray(a)
         inplace = (
             overwrite and x is a and isinstance(symptoms, np.ndarray) and x.ndim == symptoms.ndim
         )
         out = x if inplace else np.empty_like(x)
-        return wrap(_delay_kernel(x, self.on_delay, self.off_delay, self.state_, self.count_, out))
+        args = (self.window, self.long, self.state_, self.count_, self.gone_, self.hold_,
+                self.side_)  # fmt: skip
+        return wrap(_delay_kernel(x, self.on_delay, self.off_delay, *args, out))
 
     def to_state(self) -> dict[str, Any]:
         """Delays and carried state as plain JSON."""
@@ -320,13 +353,38 @@ class OnOffDelay:
             "off_delay": self.off_delay,
             "state": None if self.state_ is None else self.state_.tolist(),
             "count": None if self.count_ is None else self.count_.tolist(),
+            **(
+                {}
+                if not self.window
+                else {
+                    "realarm": [self.window, self.long],
+                    "gone": None if self.gone_ is None else self.gone_.tolist(),
+                    "hold": None if self.hold_ is None else self.hold_.tolist(),
+                    "side": None if self.side_ is None else self.side_.tolist(),
+                }
+            ),
         }
+
+    def restored(self, state: dict[str, Any]) -> OnOffDelay:
+        """:meth:`from_state` with this delay's re-alarm hold (a state saved before it has
+        none; its symptoms then count no last end)."""
+        d = self.from_state(state)
+        d.window, d.long = self.window, self.long
+        if d.state_ is not None and d.gone_ is None:
+            d.gone_ = np.full(d.state_.shape[0], d.window, dtype=np.int64)
+            d.hold_ = np.full(d.state_.shape[0], d.off_delay, dtype=np.int64)
+            d.side_ = np.zeros(d.state_.shape[0])
+        return d
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> OnOffDelay:
         """Rebuild from :meth:`to_state` output."""
-        d = cls(state["on_delay"], state["off_delay"])
+        d = cls(state["on_delay"], state["off_delay"], tuple(state.get("realarm", (0, 0))))
         if state.get("state") is not None:
             d.state_ = np.asarray(state["state"], dtype=float)
             d.count_ = np.asarray(state["count"], dtype=np.int64)
+            if state.get("gone") is not None:
+                d.gone_ = np.asarray(state["gone"], dtype=np.int64)
+                d.hold_ = np.asarray(state["hold"], dtype=np.int64)
+                d.side_ = np.asarray(state["side"], dtype=float)
         return d

@@ -715,6 +715,11 @@ class Unit:
         steady[self.spread_cols] = True
         return steady
 
+    def _realarm(self) -> tuple[int, int]:
+        """The re-alarm hold of the unit's symptoms in samples (window, hold; ``(0, 0)``:
+        none; :class:`~diag_plugin.diagnose.unitloops.AlarmHold`)."""
+        return int(self.ev["realarm_window"]), int(self.ev["realarm_off"])
+
     def _oscillation_hold(self) -> OscillationHold:
         """Every test's symptom held through an oscillation (:class:`OscillationHold`) over
         ``oscillation_window_s``; a window of 0 samples (no key): none held."""
@@ -759,12 +764,12 @@ class Unit:
             if ev["lowpass"] > 0
             else None
         )
-        self.delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
+        self.delay = OnOffDelay(ev["on_delay"], ev["off_delay"], self._realarm())
         self.latched = np.zeros(len(self.tests))
         self.held = np.full(len(self.tests), np.nan)  # last known symptom per test
         self.unknown_run = np.zeros(len(self.tests), np.int64)
         self.isolation = IsolationHold(1, len(self.tests), len(self.faults))
-        self.combined_delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
+        self.combined_delay = OnOffDelay(ev["on_delay"], ev["off_delay"], self._realarm())
         window = spread_samples(ev["spread_window_s"] or 600.0, self.period)
         self.spread = RunningSpread(window, len(self.spread_cols))
         self.deadband = Deadband(ev["deadband"], len(self.tests)) if ev["deadband"] > 0 else None
@@ -772,7 +777,11 @@ class Unit:
         ntags = len(self.cmodel.tags) if self.cmodel is not None else 0
         self.episode = EpisodeHold(ntags)
         self.test_episode = EpisodeHold(ntags)  # the tests on's names (TestNames.fill)
-        self.alarm_hold = AlarmHold(ev["off_delay"]) if ev["off_delay_s"] > 0 else None
+        self.alarm_hold = (
+            AlarmHold(ev["off_delay"], ev["realarm_window"], ev["realarm_off"])
+            if ev["off_delay_s"] > 0
+            else None
+        )
         self._last_alarm: tuple | None = None  # (status, faults, top row) the hold repeats
         self.seen = 0  # samples since the start (the warm-up)
         self.was_running = True  # the last sample's run condition (running.py)
@@ -843,7 +852,7 @@ class Unit:
         if self.lowpass is not None and state.get("lowpass"):
             self.lowpass = LowPass.from_state(state["lowpass"])
             self.lowpass.steady = self._steady()  # a state saved before it has none
-        self.delay = OnOffDelay.from_state(state["delay"])
+        self.delay = self.delay.restored(state["delay"])
         self.latched = np.asarray(state["latched"], float)
         self.held = np.array([np.nan if v is None else v for v in state["held"]], float)
         self.unknown_run = np.asarray(state["unknown_run"], np.int64)
@@ -853,7 +862,7 @@ class Unit:
         if "isolation" in state:  # states saved before it start without a held isolation
             self.isolation = IsolationHold.from_state(state["isolation"])
         if "combined_delay" in state:
-            self.combined_delay = OnOffDelay.from_state(state["combined_delay"])
+            self.combined_delay = self.combined_delay.restored(state["combined_delay"])
         if "spread" in state:  # states saved before issue 34 start these from rest
             self.spread.load_state(state["spread"])
             self.episode.load_state(state["episode"])
@@ -1172,8 +1181,8 @@ class Unit:
             self.lowpass = LowPass(ev["lowpass"], ev["order"], steady=self._steady())
         self.spread = RunningSpread(spread_samples(ev["spread_window_s"] or 600.0, self.period),
                                     len(self.spread_cols))  # fmt: skip
-        self.delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
-        self.combined_delay = OnOffDelay(ev["on_delay"], ev["off_delay"])
+        self.delay = OnOffDelay(ev["on_delay"], ev["off_delay"], self._realarm())
+        self.combined_delay = OnOffDelay(ev["on_delay"], ev["off_delay"], self._realarm())
         self.held[:] = np.nan
         self.unknown_run[:] = 0
         if self.deadband is not None:
@@ -1182,7 +1191,7 @@ class Unit:
         self.isolation = IsolationHold(1, len(self.tests), len(self.faults))
         self.episode = EpisodeHold(len(self.cmodel.tags) if self.cmodel is not None else 0)
         if self.alarm_hold is not None:
-            self.alarm_hold = AlarmHold(ev["off_delay"])
+            self.alarm_hold = AlarmHold(ev["off_delay"], ev["realarm_window"], ev["realarm_off"])
         self._last_alarm = None
         if self.saturation is not None:
             self.saturation.reset()

@@ -124,7 +124,9 @@ loop, editable): the test judges the running standard deviation of its residual 
 stiction, a loop oscillating) instead of its level; the loop's set-point is never a tag at
 fault. The alarm settings in time, ``on_delay_s``, ``off_delay_s`` (seconds, converted at the
 models' period; 0: the sample counts ``on_delay``/``off_delay``), ``deadband`` (a symptom,
-once on, clears only below ``(1 − deadband)`` × its threshold), ``spread_window_s`` (the
+once on, clears only below ``(1 − deadband)`` × its threshold), ``realarm_window_s`` and
+``realarm_off_delay_s`` (the re-alarm hold: an alarm raised again within the window of its
+last end is held the longer off-delay; 0 or absent: none), ``spread_window_s`` (the
 spread tests' window) and ``oscillation_window_s`` (a symptom that swung there and back
 within two of it is held on until a side is quiet for one: an oscillation is one alarm; 0
 or absent: no hold) are described in
@@ -251,6 +253,8 @@ EVALUATION_DEFAULTS: dict[str, Any] = {
     "isolation": "matrix",
     "on_delay_s": 0.0,
     "off_delay_s": 0.0,
+    "realarm_window_s": 0.0,
+    "realarm_off_delay_s": 0.0,
     "deadband": 0.0,
     "spread_window_s": 0.0,
     "oscillation_window_s": 0.0,
@@ -265,6 +269,8 @@ NEW_KEYS = (
     "isolation",
     "on_delay_s",
     "off_delay_s",
+    "realarm_window_s",
+    "realarm_off_delay_s",
     "deadband",
     "spread_window_s",
     "oscillation_window_s",
@@ -293,6 +299,8 @@ _KINDS = {
     "isolation": str,
     "on_delay_s": float,
     "off_delay_s": float,
+    "realarm_window_s": float,
+    "realarm_off_delay_s": float,
     "deadband": float,
     "spread_window_s": float,
     "oscillation_window_s": float,
@@ -598,6 +606,16 @@ class UnitFile(LinedFile):
             ("fuzzy_width", 0.0 <= ev["fuzzy_width"] <= 2.0, "fuzzy_width must be in [0, 2]"),
             ("on_delay_s", ev["on_delay_s"] >= 0, "on_delay_s is seconds, ≥ 0 (0: on_delay)"),
             ("off_delay_s", ev["off_delay_s"] >= 0, "off_delay_s is seconds, ≥ 0 (0: off_delay)"),
+            (
+                "realarm_window_s",
+                ev["realarm_window_s"] >= 0,
+                "realarm_window_s is seconds, ≥ 0 (0: no re-alarm hold)",
+            ),
+            (
+                "realarm_off_delay_s",
+                ev["realarm_off_delay_s"] >= 0,
+                "realarm_off_delay_s is seconds, ≥ 0 (one under off_delay_s: off_delay_s)",
+            ),
             ("deadband", 0.0 <= ev["deadband"] < 1.0, "deadband: share of the threshold, [0, 1)"),
             ("spread_window_s", ev["spread_window_s"] >= 0, "spread_window_s is seconds, ≥ 0"),
             ("oscillation_window_s", ev["oscillation_window_s"] >= 0, "seconds, ≥ 0 (0: off)"),

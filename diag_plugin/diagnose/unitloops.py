@@ -62,7 +62,20 @@ def resolved_evaluation(ev: dict[str, Any], period: str) -> dict[str, Any]:
         sec = float(ev.get(f"{key}_s", 0.0) or 0.0)
         if sec > 0 and s > 0:
             out[key] = max(1, math.ceil(sec / s - 1e-9))
+    out["realarm_window"], out["realarm_off"] = realarm_samples(ev, period)
     return out
+
+
+def realarm_samples(ev: dict[str, Any], period: str) -> tuple[int, int]:
+    """The re-alarm hold in samples at ``period`` (:class:`AlarmHold`): its window and its
+    hold, ``ceil(seconds / period)`` (``(0, 0)``: none, a unit file without
+    ``realarm_window_s`` or without the unit's own off-delay, ``off_delay_s``)."""
+    s = pd.Timedelta(period).total_seconds()
+    win = float(ev.get("realarm_window_s", 0.0) or 0.0)
+    long = float(ev.get("realarm_off_delay_s", 0.0) or 0.0)
+    if not (win > 0 and long > 0 and s > 0 and (ev.get("off_delay_s") or 0) > 0):
+        return 0, 0
+    return max(1, math.ceil(win / s - 1e-9)), max(1, math.ceil(long / s - 1e-9))
 
 
 def oscillation_samples(ev: dict[str, Any], period: str) -> int:
@@ -387,20 +400,70 @@ class EpisodeHold:
         self.count = int(state["count"])
 
 
+@numba.njit(cache=True, nogil=True)
+def _alarm_hold_kernel(act, off, window, long, since, hold, out):  # pragma: no cover - numba
+    # per unit (column) and sample: -2 in alarm or outside any hold, else the row held (-1:
+    # the previous piece's last alarm row). since: samples since the last alarm sample;
+    # hold: the current episode's hold (off, or long for an alarm raised again within
+    # window samples of its last end); both carried across pieces
+    n, m = act.shape
+    for j in range(m):
+        s = since[j]
+        h = hold[j]
+        last = -1
+        for i in range(n):
+            if act[i, j]:
+                if s >= h:  # a new episode: raised again within the window of the last end?
+                    h = long[j] if window[j] > 0 and s - h < window[j] else off[j]
+                s = 0
+                last = i
+                out[i, j] = -2
+            else:
+                if s < NEVER:
+                    s += 1
+                out[i, j] = (last if last >= 0 else -1) if s < h else -2
+        since[j] = s
+        hold[j] = h
+
+
+#: ``AlarmHold.since`` of a unit that has not alarmed (no last end to be raised again after)
+NEVER = 1 << 40
+
+
 class AlarmHold:
     """The unit's own off-delay (ISA-18.2): once the unit alarms, it stays in alarm until
     no test has shown a symptom for ``off`` samples — each test's off-delay spaces its own
     alarms, but tests taking turns would otherwise make the unit's alarm chatter. For each
     sample the row whose diagnosis it repeats (:meth:`sources`).
 
+    **The re-alarm hold** (``realarm_window_s``, ``realarm_off_delay_s``; issue 34 item 6,
+    ISA-18.2's remedy for a chattering alarm, a longer off-delay for it): an alarm raised
+    again within ``window`` samples of its last end is held ``long`` samples, not ``off``,
+    and so is every alarm after it raised again within the window of the one before; each
+    test's symptom is held likewise on its own side (:class:`~diag_plugin.diagnose.symptoms.
+    OnOffDelay`), so a test that comes back keeps the unit's alarm on through its long hold.
+    A first alarm (an isolated spike, a fault that ends) clears ``off`` after its last
+    symptom; a standing fault whose symptoms come and go is one alarm once it has come back.
+    (Counting symptoms that come back *while* the alarm is held as a re-raise was tried: a
+    transient that swings back across the other threshold, + then −, then held its alarm
+    the long hold; the jacketed vessel's sticking valve 2/1/2 episodes against 3/2/3.)
+    ``window`` 0: no re-alarm hold (``long`` unused).
+
     Vectorised over units: ``off`` an array (one off-delay per unit, 0: no hold) holds each
     column of ``active`` on its own — :class:`~diag_plugin.diagnose.plant.Plant` holds all
-    its units with one, a :class:`~diag_plugin.diagnose.unit.Unit` (scalar ``off``) itself."""
+    its units with one, a :class:`~diag_plugin.diagnose.unit.Unit` (scalar ``off``) itself;
+    a numba loop over the samples (the hold of an episode depends on the one before)."""
 
-    def __init__(self, off: int | np.ndarray) -> None:
+    def __init__(
+        self, off: int | np.ndarray, window: int | np.ndarray = 0, long: int | np.ndarray = 0
+    ) -> None:
         self.single = np.ndim(off) == 0
         self.off = np.atleast_1d(np.asarray(off, np.int64)).copy()
-        self.since = self.off.copy()  # samples since the last alarm sample (≥ off: none held)
+        m = len(self.off)
+        self.window = np.broadcast_to(np.asarray(window, np.int64), (m,)).copy()
+        self.long = np.maximum(np.broadcast_to(np.asarray(long, np.int64), (m,)), self.off)
+        self.since = np.full(m, NEVER, np.int64)  # samples since the last alarm sample
+        self.hold = self.off.copy()  # the current (or last) episode's hold
 
     def sources(self, active: np.ndarray) -> np.ndarray:
         """Per sample (and unit: ``active`` samples × units, or samples for a single unit):
@@ -408,22 +471,24 @@ class AlarmHold:
         repeats (≥ 0), or −1 for the previous piece's last alarm row."""
         act = np.asarray(active, bool)
         shape = act.shape
-        act = act.reshape(len(act), len(self.off))
-        n = len(act)
-        idx = np.arange(n)[:, None]
-        last = np.maximum.accumulate(np.where(act, idx, -1), axis=0) if n else act.astype(int)
-        gap = np.where(last >= 0, idx - last, idx + 1 + self.since[None, :])
-        held = ~act & (gap < self.off[None, :])
-        out = np.where(held, np.where(last >= 0, last, -1), -2)
-        if n:
-            self.since = gap[-1].astype(np.int64)  # 0 where the last sample is in alarm
+        act = np.ascontiguousarray(act.reshape(len(act), len(self.off)))
+        out = np.empty(act.shape, np.int64)
+        _alarm_hold_kernel(act, self.off, self.window, self.long, self.since, self.hold, out)
         return out.reshape(shape)
 
     def to_state(self) -> dict[str, Any]:
-        return {"since": int(self.since[0]) if self.single else self.since.tolist()}
+        if self.single:
+            return {"since": int(self.since[0]), "hold": int(self.hold[0])}
+        return {"since": self.since.tolist(), "hold": self.hold.tolist()}
 
     def load_state(self, state: dict[str, Any]) -> None:
-        self.since = np.atleast_1d(np.asarray(state["since"], np.int64)).copy()
+        since = np.atleast_1d(np.asarray(state["since"], np.int64)).copy()
+        if "hold" in state:
+            self.hold = np.atleast_1d(np.asarray(state["hold"], np.int64)).copy()
+        else:  # a state saved before the re-alarm hold: a hold over is no last end to count
+            self.hold = self.off.copy()
+            since = np.where(since >= self.off, NEVER, since)
+        self.since = since
 
 
 def warm_up(

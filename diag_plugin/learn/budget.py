@@ -76,15 +76,19 @@ GAUSS_P = 0.05
 
 
 @numba.njit(cache=True)
-def _episodes(x, levels, on_delay, off_delay):  # pragma: no cover - numba
+def _episodes(x, levels, on_delay, off_delay, window, long):  # pragma: no cover - numba
     """Alarm onsets of ``x > level`` for every level, with on/off delays; NaNs are skipped (an
-    unknown sample counts neither as on nor as off, as :class:`OnOffDelay` does)."""
+    unknown sample counts neither as on nor as off, as :class:`OnOffDelay` does). An onset
+    within ``window`` samples of the last episode's end (0: never) is held ``long`` samples,
+    not ``off_delay`` (the re-alarm hold, :class:`~diag_plugin.diagnose.unitloops.AlarmHold`)."""
     out = np.zeros(levels.shape[0], np.int64)
     for li in range(levels.shape[0]):
         u = levels[li]
         on = False
         c = 0
         k = 0
+        off = off_delay
+        gone = window  # samples since the last episode's end (window: none to count)
         for i in range(x.shape[0]):
             v = x[i]
             if np.isnan(v):
@@ -95,23 +99,38 @@ def _episodes(x, levels, on_delay, off_delay):  # pragma: no cover - numba
                 if c >= on_delay:
                     on = True
                     k += 1
+                    off = long if gone < window else off_delay
                     c = 0
+                elif gone < window:
+                    gone += 1
             else:
                 c = 0 if above else c + 1
-                if c >= off_delay:
+                if c >= off:
                     on = False
                     c = 0
+                    gone = 0
         out[li] = k
     return out
 
 
-def episodes(x: np.ndarray, levels: np.ndarray, on_delay: int = 1, off_delay: int = 1):
-    """Number of alarm episodes of ``x > level`` per level (on/off delays in samples)."""
+def episodes(
+    x: np.ndarray,
+    levels: np.ndarray,
+    on_delay: int = 1,
+    off_delay: int = 1,
+    realarm: tuple[int, int] = (0, 0),
+):
+    """Number of alarm episodes of ``x > level`` per level (on/off delays in samples;
+    ``realarm``: the re-alarm hold's window and hold in samples, ``(0, 0)``: none, an alarm
+    raised again within the window of its last end held the longer hold)."""
+    window, long = realarm
     return _episodes(
         np.ascontiguousarray(x, np.float64),
         np.ascontiguousarray(levels, np.float64),
         int(on_delay),
         int(off_delay),
+        int(window),
+        max(int(long), int(off_delay)),
     )
 
 
@@ -142,6 +161,7 @@ def calibrate_side(
     on_delay: int = 1,
     off_delay: int = 1,
     few: float = 0.0,
+    realarm: tuple[int, int] = (0, 0),
 ) -> SideThreshold:
     """The threshold ``K`` of ``x > K`` whose alarm episodes come at ``rate`` per hour, from a
     fault-free series ``x`` covering ``hours`` of operation (NaN = unknown, skipped).
@@ -160,11 +180,11 @@ def calibrate_side(
     want = rate * hours  # episodes the budget allows in this window
     needed = MIN_EPISODES / rate
     levels = ladder(v)
-    counts = episodes(x, levels, on_delay, off_delay)
+    counts = episodes(x, levels, on_delay, off_delay, realarm)
     got = from_counts(levels, counts, want)
     n_eff = effective_samples(v) if few > 0 and got is not None and got[1] == "tail" else math.inf
     if n_eff < few:
-        g = rice_parts(x, hours, rate, on_delay, off_delay, n_eff=n_eff)
+        g = rice_parts(x, hours, rate, on_delay, off_delay, n_eff=n_eff, realarm=realarm)
         if gaussian_top(v, g):
             k = _seen(g.threshold, levels, counts, want)
             return SideThreshold(float(k), rate, "rice", g.episodes, False, needed)
@@ -172,7 +192,7 @@ def calibrate_side(
         k, method, seen = got
         return SideThreshold(k, rate, method, seen, method == "empirical", needed)
     # too few episodes for a tail: a Gaussian series (Rice)
-    g = rice_parts(x, hours, rate, on_delay, off_delay)
+    g = rice_parts(x, hours, rate, on_delay, off_delay, realarm=realarm)
     k = _seen(g.threshold, levels, counts, want)
     return SideThreshold(float(k), rate, "gaussian", g.episodes, False, needed)
 
@@ -255,6 +275,7 @@ def rice_parts(
     on_delay: int = 1,
     off_delay: int = 1,
     n_eff: float | None = None,
+    realarm: tuple[int, int] = (0, 0),
 ) -> RiceParts:
     """Rice's Gaussian threshold of ``x > K`` at ``rate`` episodes per hour over ``hours``
     (NaN skipped) and its parts: episodes counted at the mean, the spread on this side of it
@@ -266,7 +287,7 @@ def rice_parts(
     independent values to take instead of the series' own (a what-if; None: its own)."""
     v = x[np.isfinite(x)]
     mu = float(v.mean())
-    e_mu = max(int(episodes(x, np.array([mu]), on_delay, off_delay)[0]), 1)
+    e_mu = max(int(episodes(x, np.array([mu]), on_delay, off_delay, realarm)[0]), 1)
     above = v[v > mu] - mu
     sd = float(np.sqrt(np.mean(above**2))) if above.size else float(v.std())
     n_eff = max(effective_samples(v) if n_eff is None else n_eff, 2.0)
@@ -337,6 +358,7 @@ def calibrate(
     off_delay: int = 1,
     mapper: Callable[[Callable[..., Any], Sequence[Any], tuple], list[Any]] | None = None,
     few: float = FEW_VALUES,
+    realarm: tuple[int, int] = (0, 0),
 ) -> dict[str, TestBudget]:
     """Thresholds per test (column) holding the unit's false alarms to ``far`` per hour of
     operation, all tests together: each side of each test gets ``far / (2 T)``.
@@ -346,14 +368,16 @@ def calibrate(
     ``[fn(item, *args) for item in items]`` in any number of processes, in order (each
     test's thresholds are its own; ``diag unit build`` passes its worker pool's). ``few``:
     :func:`calibrate_side`'s, Rice's threshold for a side of fewer independent values whose
-    window top a Gaussian series explains (:data:`FEW_VALUES`).
+    window top a Gaussian series explains (:data:`FEW_VALUES`). ``realarm``: the unit's
+    re-alarm hold (window, hold; samples), so a false alarm raised again within the window
+    is counted as the unit holds it (:func:`episodes`).
     """
     if not far > 0:
         raise ValueError(f"the false-alarm budget must be > 0 per hour, got {far}")
     dt_h = pd.Timedelta(period) / pd.Timedelta(hours=1)
     share = far / (2 * residuals.shape[1])
     names = list(residuals.columns)
-    args = (residuals, dt_h, share, on_delay, off_delay, few)
+    args = (residuals, dt_h, share, on_delay, off_delay, few, tuple(realarm))
     if mapper is None:
         got = [_test_budget(name, *args) for name in names]
     else:
@@ -369,13 +393,14 @@ def _test_budget(
     on_delay: int,
     off_delay: int,
     few: float = 0.0,
+    realarm: tuple[int, int] = (0, 0),
 ) -> TestBudget:
     """One test's :class:`TestBudget` (:func:`calibrate`'s share of one column)."""
     x = residuals[name].to_numpy(float)
     known = np.isfinite(x)
     hours = float(known.sum()) * dt_h
-    hi = calibrate_side(x, hours, share, on_delay, off_delay, few)
-    lo = calibrate_side(-x, hours, share, on_delay, off_delay, few)
+    hi = calibrate_side(x, hours, share, on_delay, off_delay, few, realarm)
+    lo = calibrate_side(-x, hours, share, on_delay, off_delay, few, realarm)
     both = (hi, lo)
     return TestBudget(
         test=str(name),

@@ -630,7 +630,16 @@ def budget_off_delay(unit: Unit) -> int:
     tail fit took over from Rice's Gaussian rate and the 1 s line's temperature threshold
     went from 4.5 to 18.3 (tests/test_unit_short_1s_start.py: a 2 K bias raised on 33 % of
     the rest of its day, then none). A grid of minutes (three samples, 180 s and more) is
-    unchanged at 3 min (540 s) and counts 240 s at 1 min, as before."""
+    unchanged at 3 min (540 s) and counts 240 s at 1 min, as before.
+
+    The re-alarm hold (``realarm_window_s``, ``realarm_off_delay_s``) is not counted here
+    (issue 34 H1): it only ever joins alarms, so at the same off-delay the count without it
+    is the larger. Counted with it (:func:`~diag_plugin.learn.budget.episodes`' ``realarm``:
+    a crossing within the window of the last end held the window's 600 s) the thresholds
+    fell and two tuning tests lost their bars: the accepted pumping unit's marginal bias
+    17.3 % of its second half in alarm (the test asks 20 %) and the station's hold raised
+    near a start (tests/test_unit_statesettle.py); counted at the unit's own 60 s / 180 s
+    with it, they rose and the bias fell to 7.2 %."""
     off = int(unit.ev["off_delay"])
     if (unit.ev.get("off_delay_s") or 0) > 0:
         s = pd.Timedelta(unit.period).total_seconds()

@@ -19,6 +19,9 @@ window (``3 × 2 × off`` under it: at 1 s and 15 s with ISA's delays) chatter i
 out by the delays alone; a residual hovering at its threshold is held by the deadband and a
 swing across both thresholds by the oscillation hold (:mod:`~diag_plugin.diagnose.unitloops`),
 and the tests count the episodes (``tests/test_unit_loops.py``, ``tests/test_unit_offdelay.py``).
+The build also writes the re-alarm hold (issue 34 H1, :func:`~diag_plugin.unitbuild.build.
+realarm_off_delay`): an alarm raised again within the chatter window of its last end is held
+the window, so no alarm raises more than 2 in it, while a first alarm keeps ISA's delay.
 """
 
 from __future__ import annotations
@@ -79,8 +82,10 @@ def chatter_free(off_s: float, window_s: float) -> bool:
 
 
 def chatter_note(off_s: float, on_s: float, grid_s: float, isa_s: float,
-                 kinds: Mapping[str, list[str]], window_s: float) -> str:  # fmt: skip
-    """The build's note on the off-delay it chose (``off_s``) and why."""
+                 kinds: Mapping[str, list[str]], window_s: float,
+                 realarm_s: float = 0.0) -> str:  # fmt: skip
+    """The build's note on the off-delay it chose (``off_s``) and why; ``realarm_s``: the
+    re-alarm hold of an alarm raised again within ``window_s`` of its last end (0: none)."""
     said = "; ".join(
         f"{k} {ISA_OFF_DELAY_S.get(k, ISA_OTHER_S):g} s ({', '.join(v[:4])}"
         f"{', …' if len(v) > 4 else ''})"
@@ -92,7 +97,13 @@ def chatter_note(off_s: float, on_s: float, grid_s: float, isa_s: float,
         else f"the grid's own delay (3 samples of {grid_s:g} s), longer than ISA-18.2's "
         f"{isa_s:g} s for the unit's tags ({said})"
     )
-    if chatter_free(off_s, window_s):
+    if realarm_s >= window_s > 0:
+        chatter = (
+            f"an alarm raised again within {window_s:g} s of its last end is held "
+            f"{realarm_s:g} s (realarm_off_delay_s), so no alarm raises more than 2 in "
+            f"{window_s:g} s"
+        )
+    elif chatter_free(off_s, window_s):
         chatter = (
             f"two alarm episodes begin at least {2 * off_s:g} s apart (the test's off-delay, "
             f"then the unit's), so no fault raises more than 3 in {window_s:g} s"

@@ -1004,13 +1004,31 @@ def alarm_settings(
     ev = evaluation_for(period)
     on_s = ev["on_delay"] * s
     spread = float(max(SPREAD_WINDOW_S, 20 * s))
+    off_s = float(max(ev["off_delay"] * s, ISA_OTHER_S if isa_s is None else isa_s))
     return {
         "on_delay_s": float(on_s),
-        "off_delay_s": float(max(ev["off_delay"] * s, ISA_OTHER_S if isa_s is None else isa_s)),
+        "off_delay_s": off_s,
+        "realarm_window_s": CHATTER_WINDOW_S,
+        "realarm_off_delay_s": realarm_off_delay(off_s, CHATTER_WINDOW_S),
         "deadband": DEADBAND,
         "spread_window_s": spread,
         "oscillation_window_s": min(OSCILLATION_WINDOWS * spread, oscillation_cap(rows, s)),
     }
+
+
+def realarm_off_delay(off_s: float, window_s: float) -> float:
+    """The hold of an alarm raised again within ``window_s`` of its last end (the re-alarm
+    hold, :class:`~diag_plugin.diagnose.unitloops.AlarmHold`, and each test's symptom
+    likewise, :class:`~diag_plugin.diagnose.symptoms.OnOffDelay`; issue 34 item 6): the window
+    itself, at least ``off_s``. An alarm that has come back once clears only after its
+    condition has been gone for the window, so a third episode begins more than ``window_s``
+    after the first — never more than 2 in the window: chatter (more than 3 in
+    :data:`CHATTER_WINDOW_S`) ruled out by construction, whatever the grid, while a first
+    alarm keeps ISA-18.2's short off-delay. Chosen on the jacketed vessel's sticking valve
+    (tests/test_unit_stiction.py): ``window − 2 × off`` (480 s at 15 s), the least that rules
+    chatter out, still let its alarm drop between swings 16 minutes apart (4 episodes in the
+    day after the onset on seed 101; 1–2 with the window)."""
+    return float(max(off_s, window_s))
 
 
 def oscillation_cap(rows: int | None, period_s: float) -> float:
@@ -1568,6 +1586,10 @@ def _build_unit(
     alarms = alarm_settings(period, rows, isa_s)
     for k, v in {**evaluation_for(period), **alarms}.items():
         doc["evaluation"][k] = v
+    doc["evaluation"]["realarm_off_delay_s"].comment(
+        "the off-delay of an alarm (and of a test's symptom) raised again within"
+        " realarm_window_s of its last end: the window, at least off_delay_s"
+    )
     doc["evaluation"]["oscillation_window_s"].comment(
         "4 x spread_window_s (at most a tenth of the window): a test swung there and back"
         " (+ - +) within two of it stays on until a side is quiet for one (a limit cycle,"
@@ -1582,7 +1604,7 @@ def _build_unit(
     doc["build"] = _build_table(kept, skipped, start, end, period, far, plan.max_inputs)
     grid_s = pd.Timedelta(period).total_seconds()
     off_note = chatter_note(alarms["off_delay_s"], alarms["on_delay_s"], grid_s, isa_s, kinds,
-                            CHATTER_WINDOW_S)  # fmt: skip
+                            CHATTER_WINDOW_S, alarms["realarm_off_delay_s"])  # fmt: skip
     doc["build"]["off_delay"] = off_note
     if plan.reasons:
         doc["build"]["plan"] = plan.reasons
