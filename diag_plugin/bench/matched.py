@@ -528,10 +528,13 @@ def calibrate(
 
 
 def _calibrate_held(runs: Sequence, target: float, period_s: float, per: str) -> Limit:
-    """:func:`calibrate` of held scores (:class:`HeldScore`): the smallest of the scores'
-    own values (or −inf) whose held rate is at most ``target``, by bisection (the held rate
-    falls with the level but where a lower level joins two episodes a higher one holds
-    apart, module doc)."""
+    """:func:`calibrate` of held scores (:class:`HeldScore`): per sample the smallest of the
+    scores' own values (or −inf) whose held share is at most ``target``, by bisection (the
+    held share falls with the level but where a lower level joins two episodes a higher one
+    holds apart, module doc); per hour the smallest level above which the rate never again
+    exceeds the target (episodes fall back as a low level joins every alarm into one), read
+    down a ladder of :data:`HELD_LADDER` of the values from the top, then by bisection
+    between the last rung within the target and the first over it."""
     n = sum(len(r) for r in runs)
     if not n:
         raise ValueError("calibration: no samples")
@@ -544,23 +547,36 @@ def _calibrate_held(runs: Sequence, target: float, period_s: float, per: str) ->
         share, ph = rates(runs, level, period_s)
         return (share if per == "sample" else ph) <= target
 
+    lim = np.inf
     if not fin.size:
-        lim = np.inf
-    elif ok(-np.inf):
+        pass
+    elif per == "sample" and ok(-np.inf):
         lim = -np.inf
     else:
         lo, hi = -1, fin.size - 1  # fin[hi]: nothing above the largest value, no alarm
-        while hi - lo > 1:
+        if per == "hour":  # down the ladder from the top to the first rung over the target
+            rungs = np.unique(np.linspace(0, fin.size - 1, HELD_LADDER).round().astype(int))
+            for k in rungs[::-1]:
+                if not ok(float(fin[k])):
+                    lo = int(k)
+                    break
+                hi = int(k)
+        while hi - lo > 1 and lim != -np.inf:
             mid = (lo + hi) // 2
             if ok(float(fin[mid])):
                 hi = mid
             else:
                 lo = mid
-        lim = float(fin[hi])
+        if lim != -np.inf:
+            lim = float(fin[hi])
     share, ph = rates(runs, lim, period_s)
     expected = target * (n if per == "sample" else hours)
     return Limit(target=float(target), per=per, limit=float(lim), share=share, per_hour=ph,
                  samples=n, hours=hours, supported=bool(expected >= MIN_EXPECTED))  # fmt: skip
+
+
+#: rungs of the per-hour search of a held score's limit (:func:`_calibrate_held`)
+HELD_LADDER = 200
 
 
 def calibrate_leaving_out(

@@ -230,14 +230,14 @@ def three_valued(
 
 @numba.njit(cache=True, nogil=True)
 def _delay_kernel(  # pragma: no cover - numba
-    raw, on_delay, off_delay, window, long, state, count, gone, hold, side, out
+    raw, on_delay, off_delay, window, long, state, count, gone, hold, out
 ):
     # row by row (memory order); each column's state machine is its own; ``out`` may be
     # ``raw`` itself (each element read before it is written). gone: samples since the
     # column's last symptom ended (window: none to count); hold: its current off-delay
-    # (long for a symptom raised again on its side within window samples of its last end);
-    # side: the side of the column's last symptom (a side's own re-alarm: a + then a −, a
-    # transient swinging back, is two alarms, not one raised again)
+    # (long for a symptom raised again on its side within window samples of that side's
+    # last end: gone[j, 0] counts the + side's samples since, gone[j, 1] the − side's; a +
+    # then a −, a transient swinging back, is two first alarms, not one raised again)
     n, m = raw.shape
     for i in range(n):
         for j in range(m):
@@ -248,6 +248,9 @@ def _delay_kernel(  # pragma: no cover - numba
             s = state[j]
             c = count[j]
             v = 0.0 if x == 0 else (1.0 if x > 0 else -1.0)
+            for k in range(2):
+                if gone[j, k] < window:
+                    gone[j, k] += 1
             if s == 0.0:
                 # c counts consecutive samples with the same nonzero sign (sign in its sign).
                 if v == 0.0:
@@ -259,9 +262,7 @@ def _delay_kernel(  # pragma: no cover - numba
                 if abs(c) >= on_delay:
                     s = v
                     c = 0
-                    hold[j] = long if gone[j] < window and side[j] == v else off_delay
-                elif gone[j] < window:
-                    gone[j] += 1
+                    hold[j] = long if gone[j, 0 if v > 0 else 1] < window else off_delay
             else:
                 # c counts consecutive samples not equal to the active symptom.
                 if v == s:
@@ -269,14 +270,13 @@ def _delay_kernel(  # pragma: no cover - numba
                 else:
                     c += 1
                     if c >= hold[j]:
-                        side[j] = s
+                        gone[j, 0 if s > 0 else 1] = 0
                         s = 0.0
                         c = int(v)
-                        gone[j] = 0
                         if v != 0.0 and on_delay <= 1:
                             s = v
                             c = 0
-                            hold[j] = long if window > 0 and side[j] == v else off_delay
+                            hold[j] = long if gone[j, 0 if v > 0 else 1] < window else off_delay
             out[i, j] = s
             state[j] = s
             count[j] = c
@@ -293,8 +293,9 @@ class OnOffDelay:
     sample outputs :data:`UNKNOWN` and is counted as neither on nor off: the counters skip it.
 
     ``realarm = (window, long)`` (samples; ``(0, 0)``: none): the re-alarm hold, per column
-    (a test): a symptom raised again on the side it was on within ``window`` samples of its
-    last end turns off after ``long`` samples, not ``off_delay`` (issue 34 item 6;
+    (a test), per side (ISA: a high and a low alarm are two alarms): a symptom raised again on
+    a side within ``window`` samples of that side's last end turns off after ``long``
+    samples, not ``off_delay`` (issue 34 item 6;
     :class:`~diag_plugin.diagnose.unitloops.AlarmHold` holds the unit's alarm likewise).
     """
 
@@ -309,9 +310,8 @@ class OnOffDelay:
         self.long = max(int(realarm[1]), self.off_delay)
         self.state_: np.ndarray | None = None  # active value per column: -1, 0, +1
         self.count_: np.ndarray | None = None
-        self.gone_: np.ndarray | None = None  # samples since the last symptom ended
+        self.gone_: np.ndarray | None = None  # per side, samples since its symptom ended
         self.hold_: np.ndarray | None = None  # the current symptom's off-delay
-        self.side_: np.ndarray | None = None  # the side of the last symptom that ended
 
     def reset(self) -> OnOffDelay:
         """Forget the carried state (all symptoms off, counters zero)."""
@@ -319,7 +319,6 @@ class OnOffDelay:
         self.count_ = None
         self.gone_ = None
         self.hold_ = None
-        self.side_ = None
         return self
 
     def transform(self, symptoms: ArrayLike, overwrite: bool = False) -> ArrayLike:
@@ -331,10 +330,9 @@ class OnOffDelay:
         if self.state_ is None:
             self.state_ = np.zeros(m)
             self.count_ = np.zeros(m, dtype=np.int64)
-        if self.gone_ is None or self.gone_.shape[0] != self.state_.shape[0]:
-            self.gone_ = np.full(self.state_.shape[0], self.window, dtype=np.int64)
+        if self.gone_ is None or self.gone_.shape != (self.state_.shape[0], 2):
+            self.gone_ = np.full((self.state_.shape[0], 2), self.window, dtype=np.int64)
             self.hold_ = np.full(self.state_.shape[0], self.off_delay, dtype=np.int64)
-            self.side_ = np.zeros(self.state_.shape[0])
         if self.state_.shape[0] != m:
             raise ValueError(f"delay state has {self.state_.shape[0]} columns, input has {m}")
         x = np.ascontiguousarray(a)
@@ -342,8 +340,7 @@ class OnOffDelay:
             overwrite and x is a and isinstance(symptoms, np.ndarray) and x.ndim == symptoms.ndim
         )
         out = x if inplace else np.empty_like(x)
-        args = (self.window, self.long, self.state_, self.count_, self.gone_, self.hold_,
-                self.side_)  # fmt: skip
+        args = (self.window, self.long, self.state_, self.count_, self.gone_, self.hold_)
         return wrap(_delay_kernel(x, self.on_delay, self.off_delay, *args, out))
 
     def to_state(self) -> dict[str, Any]:
@@ -360,7 +357,6 @@ class OnOffDelay:
                     "realarm": [self.window, self.long],
                     "gone": None if self.gone_ is None else self.gone_.tolist(),
                     "hold": None if self.hold_ is None else self.hold_.tolist(),
-                    "side": None if self.side_ is None else self.side_.tolist(),
                 }
             ),
         }
@@ -371,9 +367,8 @@ class OnOffDelay:
         d = self.from_state(state)
         d.window, d.long = self.window, self.long
         if d.state_ is not None and d.gone_ is None:
-            d.gone_ = np.full(d.state_.shape[0], d.window, dtype=np.int64)
+            d.gone_ = np.full((d.state_.shape[0], 2), d.window, dtype=np.int64)
             d.hold_ = np.full(d.state_.shape[0], d.off_delay, dtype=np.int64)
-            d.side_ = np.zeros(d.state_.shape[0])
         return d
 
     @classmethod
@@ -386,5 +381,4 @@ class OnOffDelay:
             if state.get("gone") is not None:
                 d.gone_ = np.asarray(state["gone"], dtype=np.int64)
                 d.hold_ = np.asarray(state["hold"], dtype=np.int64)
-                d.side_ = np.asarray(state["side"], dtype=float)
         return d
