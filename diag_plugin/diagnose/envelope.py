@@ -13,8 +13,11 @@ a residual far beyond what the fault-free starts ever showed *at that age*.
 :func:`~diag_plugin.unitbuild.loops.piece_settle_bounds` measure), per test the largest
 ``|residual|`` in units of its threshold (:func:`scaled`) in a few age bins after the change
 (edges: the quartiles of the settling times, the first bin cut in four), widened by a margin
-from the number of starts seen (:func:`~diag_plugin.unitbuild.loops.envelope_bound`), and
-writes it to the unit file. The residuals are the cross-fitted, held-out ones the thresholds
+from the number of starts seen, at least a tolerance bound (a Gumbel law fitted to the
+changes' peaks, its quantile for one fault-free change in a hundred beyond any of the
+envelope's tests × bins, plus its standard error from the number of starts:
+:func:`~diag_plugin.unitbuild.loops.envelope_bound`), and writes it to the unit file.
+The residuals are the cross-fitted, held-out ones the thresholds
 are learned from (:class:`~diag_plugin.unitbuild.loops.HeldOut`), and ``diag unit accept``
 learns the envelope again over every window it learned::
 
@@ -165,7 +168,10 @@ def says(test: str, env: Envelope, age_s: float, u: float, bound: float, what: s
     """The why of a settle an envelope ended (module doc): ``what`` the changes it learned
     from (``state changes``, ``starts of C2``), ``after`` one of them (``a change``, ``its
     start``)."""
+    a, b = f"{u:.2g}", f"{bound:.2g}"
+    if a == b:  # 2.13 beyond 2.08: not "2.1 × its threshold, at most 2.1 there"
+        a, b = f"{u:.3g}", f"{bound:.3g}"
     return (
         f"{test} beyond what {env.starts} {what} showed {age_words(age_s)} after {after} "
-        f"({u:.2g} × its threshold, at most {bound:.2g} there)"
+        f"({a} × its threshold, at most {b} there)"
     )

@@ -678,8 +678,10 @@ class HeldOut(Replay):
     model that did not see it) rather than the unit replayed on the window it was trained on,
     filtered as the unit filters them at run time: centred at each sample's operating point
     (a level test of a unit with several, :meth:`~diag_plugin.diagnose.unit.Unit.at_points`)
-    and each run of the run condition from rest (the unit restarts its filter at every stop,
-    :meth:`~diag_plugin.diagnose.unit.Unit._stopped`). A figure learned from the window is
+    and each run of the run condition after its stop as the unit filters it (its filters
+    restart at every stop, :meth:`~diag_plugin.diagnose.unit.Unit._stopped`, and read the
+    stopped samples as missing: a spread test's filter starts at its first value after a
+    long stop). A figure learned from the window is
     judged on data its models did not see: an envelope read from in-sample residuals is as
     narrow as the models over-fit the starts (issue 34, items 5/6)."""
 
@@ -706,10 +708,18 @@ class HeldOut(Replay):
                     else rc.runs(frame[col].to_numpy(float)))  # fmt: skip
             x, names = x.to_numpy(float), x.columns
             r = np.full(x.shape, np.nan)
+            unit.reset()
             for a, b, on in segments(runs):
-                if on:  # each run filtered from rest, as the unit restarts at a stop
+                if on:
                     part = pd.DataFrame(x[a:b], columns=names)
-                    r[a:b] = unit.reset().filtered(part).to_numpy(float)
+                    r[a:b] = unit.filtered(part).to_numpy(float)
+                else:  # a stop: the filters restart (Unit._stopped) and read the
+                    # stopped samples as missing, as at run time: after a long stop a
+                    # spread test's filter starts at its first value, not from rest (the
+                    # pasteuriser's HW_TEMP_spread: 60 × its threshold 5 min after a start
+                    # at run time, 0 rising to 54 here; its envelope missed every start)
+                    unit.reset().filtered(pd.DataFrame(np.nan, index=range(b - a),
+                                                       columns=names))  # fmt: skip
             unit.reset()
             self.raw = r
             e = r - np.nanmedian(r, axis=0)
@@ -1016,16 +1026,50 @@ ENVELOPE_SPLIT = 4
 ENVELOPE_WIDEN = 3.0
 
 
-def envelope_bound(peaks, n_starts: int | None = None) -> float:
+#: the share of fault-free changes whose settle an envelope may end (some test beyond its
+#: bound at some age): one start in a hundred, spread over the envelope's tests × bins
+#: (:func:`envelope_bound`)
+ENVELOPE_MISS = 0.01
+#: the one-sided confidence (95 %, a normal quantile) that the extrapolated bound is not
+#: below the true quantile, from the changes seen (:func:`envelope_bound`)
+ENVELOPE_CONFIDENCE_Z = 1.645
+
+
+def envelope_bound(peaks, n_starts: int | None = None, cells: int = 1) -> float:
     """One test's envelope in one age bin (threshold units) from ``peaks``, each fault-free
-    change's largest ``|residual|`` there (issue 34, items 5/6): the largest (at least 1, the
-    threshold) widened by :data:`ENVELOPE_WIDEN` / √n of itself, ``n`` the changes seen.
+    change's largest ``|residual|`` there (issue 34, items 5/6): the larger of
+
+    - the largest (at least 1, the threshold) widened by :data:`ENVELOPE_WIDEN` / √n of
+      itself, ``n`` the changes seen; and
+    - a tolerance bound: the per-change peaks are maxima, so a Gumbel law (extreme values of
+      type I) fitted by moments (scale ``s √6 / π``, the peaks' sd ``s``) and its quantile
+      at ``1 − ENVELOPE_MISS / cells`` (``cells``: the envelope's tests × age bins, each a
+      chance for a fault-free change to be beyond its bound: Bonferroni), ``mean + K s``
+      with the frequency factor ``K = √6 / π · (−ln(−ln p) − 0.5772)``, raised by its
+      standard error from ``n`` peaks (``s / √n · √(1 + 1.1396 K + 1.1 K²)``, the method of
+      moments') × :data:`ENVELOPE_CONFIDENCE_Z`: a bound that is a quantile, not the
+      largest of ``n``, which the next change passes with a chance ~1/(n + 1) per test.
 
     The largest of ``n`` draws is a scale known to about 1/√n of itself, and the tail beyond
     it is not known at all from a few: the station's 8 starts (tests/test_unit_statesettle.py)
     peaked at 0.63–1.02 × the pressure test's threshold, an unseen seed's first start at 1.88
     (the spacing of the top peaks, 0.04, said nothing of it). 3 / √n: 8 starts × 2.06, 14 ×
-    1.80, 30 × 1.55: chosen on the tuning seeds 7–14 of that plant."""
+    1.80, 30 × 1.55: chosen on the tuning seeds 7–14 of that plant. With few changes the
+    tolerance bound's error term widens it (126 cells: 5 changes mean + 12.7 s, 8 + 11.5 s,
+    30 + 9.3 s)."""
+    import numpy as np
+
+    x = np.asarray(peaks, float)
+    x = x[np.isfinite(x)]
+    widened = widened_bound(x, n_starts)
+    if x.size < 2:
+        return widened
+    return max(widened, gumbel_bound(x, cells))
+
+
+def widened_bound(peaks, n_starts: int | None = None) -> float:
+    """The first bound of :func:`envelope_bound`: the largest peak (at least 1) widened by
+    :data:`ENVELOPE_WIDEN` / √n of itself (inf: no peak known)."""
     import numpy as np
 
     x = np.asarray(peaks, float)
@@ -1034,6 +1078,18 @@ def envelope_bound(peaks, n_starts: int | None = None) -> float:
         return float("inf")
     n = x.size if n_starts is None else n_starts
     return float(max(1.0, x.max()) * (1.0 + ENVELOPE_WIDEN / np.sqrt(n)))
+
+
+def gumbel_bound(x, cells: int = 1) -> float:
+    """The tolerance bound of :func:`envelope_bound` from the peaks ``x`` (at least two)."""
+    import numpy as np
+
+    n = x.size
+    p = 1.0 - ENVELOPE_MISS / max(1, int(cells))
+    k = np.sqrt(6.0) / np.pi * (-np.log(-np.log(p)) - np.euler_gamma)
+    s = float(np.std(x, ddof=1))
+    se = s / np.sqrt(n) * np.sqrt(1.0 + 1.1396 * k + 1.1 * k * k)
+    return float(np.mean(x) + k * s + ENVELOPE_CONFIDENCE_Z * se)
 
 
 def age_events(age):
@@ -1167,19 +1223,31 @@ def learn_envelope(a, age, times: list[float], bound_s: float, period_s: float,
         return None, f"no envelope: fewer than {MIN_STARTS} changes reached its first age bin"
     edges = kept
     tests = {}
+    # each test and bin a chance for a fault-free change to pass its bound (Bonferroni)
+    judged = sum(bool(np.isfinite(np.concatenate([p[:, t] for p in peaks])).any())
+                 for t in range(len(names)))  # fmt: skip
+    cells = max(1, judged * len(peaks))
+    fitted = 0
     for t, name in enumerate(names):
-        got = np.array([envelope_bound(p[:, t]) for p in peaks])
+        got = np.array([envelope_bound(p[:, t], cells=cells) for p in peaks])
         known = np.isfinite(got)
         if known.any():  # a bin it is unknown in (a spread test's window filling): its widest
             tests[name] = tuple(float(v) for v in np.where(known, got, got[known].max()))
+            plain = [widened_bound(p[:, t]) for p in peaks]
+            fitted += int(sum(a > b for a, b in zip(got, plain, strict=True)))
     env = Envelope(int(live.size), tuple(float(e * period_s) for e in edges), tests)
     widest = max(tests, key=lambda k: tests[k][0], default="")
+    reached = ", ".join(str(p.shape[0]) for p in peaks)
     how = (
         f"an envelope from {live.size} fault-free change(s), {len(edges)} age bin(s) from "
         f"{', '.join(f'{e * period_s:.0f}' for e in edges)} s (0, the quartiles of the "
-        f"settling times, the first cut in {ENVELOPE_SPLIT}), per test the largest held-out "
-        f"|residual| (threshold units, at least 1) × "
-        f"(1 + {ENVELOPE_WIDEN:g}/√n): a test beyond it for the on-delay ends the settle"
+        f"settling times, the first cut in {ENVELOPE_SPLIT}; changes reaching each: "
+        f"{reached}), per test and bin the larger of the largest held-out |residual| "
+        f"(threshold units, at least 1) × (1 + {ENVELOPE_WIDEN:g}/√n) and a tolerance bound "
+        f"(a Gumbel law fitted to the changes' peaks, its 1 − {ENVELOPE_MISS:g}/{cells} "
+        f"quantile, {judged} tests × {len(peaks)} bins, plus {ENVELOPE_CONFIDENCE_Z:g} "
+        f"standard errors from n; the larger in {fitted} of {cells}): a test beyond it for "
+        f"the on-delay ends the settle"
         + (f"; the widest first, {widest} {tests[widest][0]:.3g}" if widest else "")
     )
     return env, how
