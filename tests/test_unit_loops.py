@@ -401,10 +401,7 @@ def test_a_compensated_meter_bias_is_named_on_the_meter_not_on_its_valve(line):
     And the credit is a test of fit: the same two moves with the level's test moved too (a
     deviation the bias does not explain: more than a fault-free sample leaves), or with a
     test unknown (the tests that would contradict the bias not there), are not credited."""
-    _, unit, _, _ = line
-    cm = unit.cmodel
-    tests = unit.tests
-    valve, meter = cm.tags.index("VALVE_A"), cm.tags.index("FEED_FLOW")
+    cm, tests, valve, meter = _meter_and_valve(line)
     va, lv = tests.index("VALVE_A"), tests.index("TANK_LEVEL")
     comp = cm.process[:, meter].copy()
     assert comp[va] != 0.0 and np.count_nonzero(np.delete(comp, va)) >= 1
@@ -433,6 +430,13 @@ def test_a_compensated_meter_bias_is_named_on_the_meter_not_on_its_valve(line):
         assert share[meter] < 1.0 - 1e-6, dict(zip(cm.tags, share, strict=True))
 
 
+def _meter_and_valve(line):
+    """The line's combined model, its tests, and the columns of its hand valve and meter."""
+    unit = line[1]
+    cm = unit.cmodel
+    return cm, unit.tests, cm.tags.index("VALVE_A"), cm.tags.index("FEED_FLOW")
+
+
 def test_a_meter_bias_its_loop_cannot_take_is_named_on_the_meter(line):
     """A bias of the loop's meter that the loop takes only in part (its valve at a limit):
     the tests beyond the valve move the way the bias moves them, the rest of the bias is
@@ -443,10 +447,7 @@ def test_a_meter_bias_its_loop_cannot_take_is_named_on_the_meter(line):
     set-point, the tests beyond saying it is below) is not a bias: the meter keeps its
     one-dimensional contributions there, as with the credit off. Found on the chemical
     plant's cooler-outlet drift (tuning seed 103: its valve reached 100 %)."""
-    _, unit, _, _ = line
-    cm = unit.cmodel
-    tests = unit.tests
-    valve, meter = cm.tags.index("VALVE_A"), cm.tags.index("FEED_FLOW")
+    cm, tests, valve, meter = _meter_and_valve(line)
     va, lp = tests.index("VALVE_A"), tests.index("FEED_FLOW")
     comp = cm.process[:, meter].copy()
     assert comp[lp] == 0.0 and comp[va] != 0.0  # compensated: its loop test held at zero
