@@ -252,9 +252,10 @@ class SqliteBulk:
             return None
         half = period // 2
         lo, hi = t0 - half, t0 + n * period - half
+        off = _off_grid(t0, period)
         tb = self.fetch(
-            f"SELECT CASE WHEN quality < {BAD} AND {_off_grid(t0, period)} = 0 THEN value "
-            f"WHEN {_off_grid(t0, period)} THEN 9e999 END FROM samples "
+            f"SELECT CASE WHEN quality < {BAD} AND {off} = 0 THEN value "
+            f"WHEN {off} THEN 9e999 END FROM samples "
             f"WHERE tag_id = {int(tag_id)} AND ts >= {int(lo)} AND ts < {int(hi)} ORDER BY ts"
         )
         if tb.num_rows != n:
