@@ -350,6 +350,14 @@ class Plant:
             for ui, cm, _, _ in self._multi
             if cm.centers is not None and cm.point_tags
         }  # fmt: skip
+        # per unit with a measured input's excursion rule (unittags.Excursions): the history's
+        # column of each model tag it judges (-1: not read)
+        self._ex_cols = {
+            ui: {t: (self.tag_names.index(p) if (p := units[ui].file.tags.get(t, t))
+                     in self.tag_names else -1) for t in units[ui].excursions.ranges}
+            for ui, _, _, _ in self._multi
+            if units[ui].excursions is not None
+        }  # fmt: skip
         # level tests with operating points of their own (Unit.at_points): per unit its
         # point tags' columns, the tests' slots and their centres and scales per point
         self._level_points = [
@@ -694,6 +702,12 @@ class Plant:
             t2, share = cm.evaluate(r[a:b][None, :], point)
             ru, sr = r[a:b][None, :], s[a:b][None, :]
             share = units[ui].test_names.name(share, ru, sr)  # a kept-out test: its tags
+            if ui in self._ex_cols:  # a measured input beyond what the unit learned
+                ex_cols = self._ex_cols[ui]
+                share = units[ui].excursions.name(
+                    share, ru, sr, lambda t, c=ex_cols: self._hist[0, [c[t]]] if c[t] >= 0
+                    else np.array([np.nan]), np.ones(1, bool),
+                )  # fmt: skip
             on_v = units[ui].test_names.on_values(ru, sr)[0]  # any test on (TestNames.fill)
             s_t2 = np.nan
             if enabled and cm.high is not None:
