@@ -1272,8 +1272,11 @@ class Unit:
             # a kept-out test in alarm names its own tags
             shares.share_at = self.test_names.name(shares.share_at, r_on, s_on)
             if self.excursions is not None:  # an input beyond what the unit learned
-                shares.share_at = self.excursions.name(
-                    shares.share_at, r.to_numpy(), s, cols.values, active
+                before = shares.share_at
+                shares.share_at = self.test_names.fill_named(
+                    self.excursions.name(before, r.to_numpy(), s, cols.values, active),
+                    before,
+                    self.test_names.on_values(r_on, s_on),
                 )
             held = self.episode.transform_at(shares.share_at, active)
             # and any test in alarm where the held shares name none (T² unknown, or 0)

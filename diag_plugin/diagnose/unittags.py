@@ -628,6 +628,26 @@ class TestNames:
         out[empty] = np.where(v > 0, v, np.where(h > 0, 0.0, h))
         return out
 
+    @staticmethod
+    def fill_named(share: np.ndarray, before: np.ndarray, on: np.ndarray) -> np.ndarray:
+        """``share`` (alarm samples × tags, before the episode hold) where ``T²`` was unknown
+        (every share NaN in ``before``) and a tag is named all the same (a measured input's
+        excursion, :class:`Excursions`): the tags the tests on name (``on``,
+        :meth:`on_values`) after it, in their own order, at half the smallest named value
+        scaled by theirs, so that the explicit name does not leave the rest of the ranking
+        empty (as :meth:`fill` gives where nothing is named). A new array where any is."""
+        named = share > NO_SHARE
+        gaps = np.isnan(share) & (on > 0)
+        rest = np.isnan(before).all(axis=1) & named.any(axis=1) & gaps.any(axis=1)
+        if not rest.any():
+            return share
+        out = share.copy()
+        h, v, g = share[rest], on[rest], gaps[rest]
+        low = np.min(np.where(named[rest], h, np.inf), axis=1, keepdims=True)
+        top = np.max(np.where(g, v, 0.0), axis=1, keepdims=True)
+        out[rest] = np.where(g, 0.5 * low * v / top, h)
+        return out
+
 
 def side_ratio(r: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """A two-sided test's statistic over its limit: ``r / high`` above zero, ``r / low`` below
