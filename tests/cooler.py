@@ -12,7 +12,9 @@ outlet answering with a first-order lag: the valve a steady state needs,
 Faults from ``onset`` on: ``valve_capacity`` (the cooling-water supply loses 30 % of its
 pressure: less flow per % of opening; the loop opens the valve further and holds the
 outlet at 45 °C, so only the valve's position shows it), ``stiction`` (the valve moves only
-when the output is 3 % away from its position: the loop cycles).
+when the output is 3 % away from its position: the loop cycles), ``cw_warm`` (a measured
+disturbance, not a fault of the cooler: the cooling-water supply comes 6 °C warmer, beyond
+what a short window saw; the loop opens the valve further and holds the outlet).
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ PERIOD_S = 30.0
 SET_POINT = 45.0
 TAGS = ("F_PROC", "T_IN", "T_CW", "T_OUT", "V_CW")
 LOOP = f"T_OUT={SET_POINT:g}:V_CW"
+#: the cooling-water supply's rise in fault ``cw_warm``, °C
+CW_WARM = 6.0
 
 
 def _ou(rng: np.random.Generator, n: int, sd: float, tau: float) -> np.ndarray:
@@ -51,6 +55,8 @@ def simulate(hours: float, seed: int, fault: str | None = None, onset_h: float =
     f = np.clip(30.0 + _ou(rng, m, 4.0, 3600 / dt), 15.0, 45.0)
     tin = 90.0 + _ou(rng, m, 3.0, 5400 / dt)
     tcw = 20.0 + 2.0 * np.sin(2 * np.pi * np.arange(m) * dt / 86400) + _ou(rng, m, 1.5, 7200 / dt)
+    if fault == "cw_warm":
+        tcw[onset:] += CW_WARM
     k, cap = 1.0, 1.2  # transfer per (t/h of water / t/h of process); water t/h per % open
     kp, ti = 2.0, 300.0  # %/°C, s
     y, pos, integ = SET_POINT, 40.0, 40.0

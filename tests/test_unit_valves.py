@@ -36,7 +36,7 @@ def built(tmp_path_factory):
     unit = Unit.load(res.path, tmp)
     runs = {
         (fault, seed): unit.reset().evaluate(cooler.simulate(6.0, seed, fault))
-        for fault in (None, "valve_capacity", "stiction")
+        for fault in (None, "valve_capacity", "stiction", "cw_warm")
         for seed in SEEDS
     }
     return res, unit, runs
@@ -137,6 +137,24 @@ def test_a_sticking_valve_is_seen_and_named_on_the_valve(built):
         d = runs[("stiction", seed)]
         assert (d.detected.iloc[ONSET:] == 1).mean() > 0.05
         assert _top1(d)[0] == "V_CW"
+
+
+def test_warmer_cooling_water_is_named_on_the_water_not_on_the_valve(built):
+    """Issues 34 items 4/7: the cooling water comes 6 °C warmer than the 5 h window saw; the
+    loop opens the valve and holds the outlet, and the valve's own test fires (its linear
+    model does not know the cooler there). Every test in alarm is explained by the water's
+    excursion beyond what the unit learned (its residual within twice the water's excess
+    times the valve's gain on it), so the water is named, not the valve that absorbs it
+    (``Excursions``); on main the valve was named first on 70 % and 89 % of the alarm
+    samples. The valve's own faults above keep the valve."""
+    res, unit, runs = built
+    for seed in SEEDS:
+        d = runs[("cw_warm", seed)]
+        assert (_after(d, "V_CW") != 0).mean() > 0.5  # the valve's test fires
+        top = d.top_tags["top1"].iloc[ONSET:]
+        top = top[top != ""]
+        assert _top1(d)[0] == "T_CW"
+        assert (top == "T_CW").mean() > 0.7, top.value_counts()
 
 
 def test_the_fixed_set_point_loop_is_built_through_the_commands(tmp_path):

@@ -350,6 +350,14 @@ class Plant:
             for ui, cm, _, _ in self._multi
             if cm.centers is not None and cm.point_tags
         }  # fmt: skip
+        # per unit with a measured input's excursion rule (unittags.Excursions): the history's
+        # column of each model tag it judges (-1: not read)
+        self._ex_cols = {
+            ui: {t: (self.tag_names.index(p) if (p := units[ui].file.tags.get(t, t))
+                     in self.tag_names else -1) for t in units[ui].excursions.ranges}
+            for ui, _, _, _ in self._multi
+            if units[ui].excursions is not None
+        }  # fmt: skip
         # level tests with operating points of their own (Unit.at_points): per unit its
         # point tags' columns, the tests' slots and their centres and scales per point
         self._level_points = [
@@ -694,13 +702,20 @@ class Plant:
             t2, share = cm.evaluate(r[a:b][None, :], point)
             ru, sr = r[a:b][None, :], s[a:b][None, :]
             share = units[ui].test_names.name(share, ru, sr)  # a kept-out test: its tags
-            on_v = units[ui].test_names.on_values(ru, sr)[0]  # any test on (TestNames.fill)
+            on_v = units[ui].test_names.on_values(ru, sr)  # any test on (TestNames.fill)
+            if ui in self._ex_cols:  # a measured input beyond what the unit learned
+                ex_cols = self._ex_cols[ui]
+                named = units[ui].excursions.name(
+                    share, ru, sr, lambda t, c=ex_cols: self._hist[0, [c[t]]] if c[t] >= 0
+                    else np.array([np.nan]), np.ones(1, bool),
+                )  # fmt: skip
+                share = units[ui].test_names.fill_named(named, share, on_v)
             s_t2 = np.nan
             if enabled and cm.high is not None:
                 raw = np.nan if np.isnan(t2[0]) else float(t2[0] > cm.high)
                 s_t2 = float(delay.transform(np.array([[raw]]))[0, 0])
                 c_on[ui] = np.nan_to_num(s_t2) != 0
-            multi[ui] = (t2[0], s_t2, share[0], on_v, cm.tags)
+            multi[ui] = (t2[0], s_t2, share[0], on_v[0], cm.tags)
         active = active | c_on
         status = np.where(
             active, NE107.OFF_SPEC, np.where(all_known, NE107.NORMAL, NE107.CHECK_FUNCTION)

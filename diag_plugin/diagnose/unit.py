@@ -90,6 +90,7 @@ from diag_plugin.diagnose.unitloops import (
 )
 from diag_plugin.diagnose.unittags import (
     CombinedModel,
+    Excursions,
     TestNames,
     Untested,
     derived_matrix,
@@ -588,6 +589,8 @@ class Unit:
         self.test_names = None if self.cmodel is None else TestNames.of(self, self.cmodel.tags)
         #: the inputs no test models, ranked after a tested output that explains as much
         self.untested = None if self.cmodel is None else Untested.of(self, self.cmodel.tags)
+        #: the measured inputs beyond what the unit learned that explain the tests in alarm
+        self.excursions = None if self.cmodel is None else Excursions.of(self, self.cmodel.tags)
         self.level_points = level_points(self)
         #: per test the history its model reads (unknown for that many samples at start): its
         #: longest lag, and a rate's samples (``rate(TAG,L)`` reads L more)
@@ -1268,6 +1271,13 @@ class Unit:
             r_on, s_on = r.to_numpy()[active], s[active]
             # a kept-out test in alarm names its own tags
             shares.share_at = self.test_names.name(shares.share_at, r_on, s_on)
+            if self.excursions is not None:  # an input beyond what the unit learned
+                before = shares.share_at
+                shares.share_at = self.test_names.fill_named(
+                    self.excursions.name(before, r.to_numpy(), s, cols.values, active),
+                    before,
+                    self.test_names.on_values(r_on, s_on),
+                )
             held = self.episode.transform_at(shares.share_at, active)
             # and any test in alarm where the held shares name none (T² unknown, or 0)
             held_on = self.test_episode.transform_at(self.test_names.on_values(r_on, s_on), active)

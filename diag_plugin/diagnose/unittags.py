@@ -89,7 +89,10 @@ the same tests in the same proportions cannot be told apart and share a rank. Be
 ``diag unit learn`` has written ``[combined]`` the ranking uses ``z = r / high``, ``S = I`` and
 the derived matrix's 0/1 columns as directions (rough, sign-blind). A test kept out of ``T²``
 (``combined = false``) adds to no share; in alarm it names its own tags ahead of them
-(:class:`TestNames`); so does any test in alarm where ``T²`` names no tag.
+(:class:`TestNames`); so does any test in alarm where ``T²`` names no tag. And a measured
+input beyond the range the unit learned whose excursion explains every test in alarm (its own
+test, or a test reading it off by no more than its excess times the test's gain on it) is
+named before the shares, not the loop that absorbs it (:class:`Excursions`).
 """
 
 from __future__ import annotations
@@ -623,6 +626,26 @@ class TestNames:
         out = held.copy()
         h, v = held[empty], held_on[empty]
         out[empty] = np.where(v > 0, v, np.where(h > 0, 0.0, h))
+        return out
+
+    @staticmethod
+    def fill_named(share: np.ndarray, before: np.ndarray, on: np.ndarray) -> np.ndarray:
+        """``share`` (alarm samples × tags, before the episode hold) where ``T²`` was unknown
+        (every share NaN in ``before``) and a tag is named all the same (a measured input's
+        excursion, :class:`Excursions`): the tags the tests on name (``on``,
+        :meth:`on_values`) after it, in their own order, at half the smallest named value
+        scaled by theirs, so that the explicit name does not leave the rest of the ranking
+        empty (as :meth:`fill` gives where nothing is named). A new array where any is."""
+        named = share > NO_SHARE
+        gaps = np.isnan(share) & (on > 0)
+        rest = np.isnan(before).all(axis=1) & named.any(axis=1) & gaps.any(axis=1)
+        if not rest.any():
+            return share
+        out = share.copy()
+        h, v, g = share[rest], on[rest], gaps[rest]
+        low = np.min(np.where(named[rest], h, np.inf), axis=1, keepdims=True)
+        top = np.max(np.where(g, v, 0.0), axis=1, keepdims=True)
+        out[rest] = np.where(g, 0.5 * low * v / top, h)
         return out
 
 
@@ -1312,6 +1335,237 @@ class Untested:
                     out = s.copy()
                 # after the output, beyond the tie (TIE) and before any tag below it
                 out[move, k] = best[move] * (1.0 - 10 * TIE) - NO_SHARE
+        return out
+
+
+#: a test in alarm is explained by an input beyond what the unit learned where the move of its
+#: residual from its centre is at most this many times the input's excess (how far it is beyond
+#: the range the unit learned) times the test's gain on it in % of the test's span
+#: (:class:`Excursions`): a model that did not follow the input beyond that range at all
+#: would be off by that much, a valve's characteristic steeper there than where it was
+#: learned twice as far (the 7-tag line's valve moved two to three times its gain,
+#: docs/how-to/unit-loops.md); chosen on ``tests/cooler.py`` (below)
+EXCURSION_EXPLAINS = 2.0
+
+
+class Excursions:
+    """A measured input beyond what the unit learned, named before the tags of the tests it
+    moved (issue 34, items 4 and 7): the loop that absorbs a disturbance is not its cause.
+
+    A loop compensating a measured input that went where the unit never saw it (cooling water
+    warmer than any the learning window held) moves its valve: the valve's own test (the
+    controller output predicted from the loads, item 7) fires, because its model does not
+    know the plant there, and the ranking, reading one test off, names the valve. What tells
+    the disturbance from a valve fault is the input. A test in alarm is **explained** by a
+    tag ``X`` beyond the range the unit learned for it (by ``e``, in its units) where
+
+    - ``X`` is the test's own output (the input's own test fires: it went where nothing the
+      unit reads predicts it), or
+    - the test reads ``X`` and its residual moved from its centre by no more than
+      :data:`EXCURSION_EXPLAINS` times ``X``'s excess times the test's gain on it,
+      ``|r_j − c_j| ≤ EXCURSION_EXPLAINS · |g_jX| · |e| · 100 / span_j`` (eq. 6: a model
+      that did not follow ``X`` beyond its range at all is off by ``|g e|``; a valve's
+      characteristic steeper there than where it was learned, twice as far).
+
+    Each explaining tag is then followed **upstream**: where it has a test of its own and an
+    input of that test is beyond its learned range too, by a larger share of its range, that
+    input is the source instead, and so on (a mixed temperature beyond its range because the
+    feed it mixes is further beyond: the feed); likewise a tag the build found to carry the
+    same measurement (``same_as``: a condensate's temperature that follows the cooling
+    water's, smoothed) beyond by a larger share. Where one source explains **every** test in
+    alarm at a sample, it is named: its value there ``1 +`` its excess as a share of its
+    range, above every share of ``T²`` (at most 1), as a kept-out test's tags are
+    (:class:`TestNames`); of several, the one beyond by the largest share. A biased or losing
+    valve moves its test by more than a small excursion of its loads explains, a sticking one
+    fires its spread test (which reads no input), and while the loads stay inside what the
+    unit learned nothing changes: those samples are ranked as before, as is a sample with no
+    test on (``T²`` alone).
+
+    Candidates are the tags the ranking names that are no loop's measurement or actuator (a
+    loop holds the one and moves the other; set-points, hand valves and states are not
+    ranked at all), nor a tag the models say a loop drives: whose own test reads a loop's
+    measurement, actuator or set-point, or a tag so driven, at any depth (a cooler's water
+    return, modelled from the valve that sets its flow, is beyond its range because the loop
+    moved it; a tank's outflow, modelled from the level a flow loop fills, because the loop
+    cycles). The
+    learned range of a tag is the narrowest its readers' models learned for it
+    (:func:`~diag_plugin.diagnose.operating.learned_ranges`: a rule grid's sets that carry a
+    rule, a linear model's span); a tag no test reads has none and is never a source. An
+    input is judged at its value at the sample, whatever lag a model reads it at: a live
+    cycle (:class:`~diag_plugin.diagnose.plant.Plant`'s fast path) holds that value only, and
+    a replay names what a live cycle names."""
+
+    def __init__(
+        self,
+        reads: list[list[tuple[tuple[str, int], int, float]]],
+        own: np.ndarray,
+        ranges: dict[str, tuple[float, float]],
+        keys: dict[int, str],
+        up: dict[int, list[tuple[tuple[str, int], int]]],
+        center: np.ndarray,
+    ) -> None:
+        #: per test: (the value judged (model tag, lag), its ranking column, ``|g|·100/span``)
+        self.reads = reads
+        #: per test its output's ranking column where a candidate with a range, else −1
+        self.own = own
+        #: per model tag its learned range
+        self.ranges = ranges
+        #: per candidate ranking column its model tag (its own value, lag 0)
+        self.keys = keys
+        #: per ranking column the tags upstream of it (its test's inputs, same_as tags)
+        self.up = up
+        #: per test its residual's centre (``[combined] center``, the unit's tests' order)
+        self.center = center
+
+    @classmethod
+    def of(cls, unit, tags: list[str]) -> Excursions | None:
+        """From the unit file (None without ``[combined]`` or without a candidate)."""
+        from diag_plugin.diagnose.operating import learned_ranges
+
+        spec = unit.file.combined
+        if spec is None:
+            return None
+        _, outputs, reads_all = structure(unit)
+        plant = {m: unit.file.tags.get(m, m) for m in unit.model_tags}
+        model_of = {p: m for m, p in plant.items()}
+        loop = set()
+        for t in unit.tests:
+            test = unit.file.test(t)
+            if test.actuator:
+                loop.add(test.actuator)
+                if not _spread_test(unit, t):
+                    loop.add(outputs[t])
+        # a tag the models say a loop drives: its test reads a loop's tag (its measurement,
+        # actuator or set-point) or a tag so driven, at any depth
+        sets = loop | set_points(unit) | declared_set_points(unit)
+        driven: set[str] = set()
+        grew = True
+        while grew:
+            new = {outputs[t] for t in unit.tests if set(reads_all[t]) & (sets | driven)}
+            grew = bool(new - driven)
+            driven |= new
+        col = {x: k for k, x in enumerate(tags) if x not in loop and x not in driven}
+        ranges: dict[str, tuple[float, float]] = {}
+        for rg in learned_ranges(unit.models, unit.tests):
+            if rg.gap or not (np.isfinite(rg.lo) and np.isfinite(rg.hi) and rg.hi > rg.lo):
+                continue
+            lo, hi = ranges.get(rg.tag, (-np.inf, np.inf))
+            ranges[rg.tag] = (max(lo, rg.lo), min(hi, rg.hi))
+        ranges = {t: v for t, v in ranges.items() if v[1] > v[0]}
+        keys = {k: model_of.get(x, x) for x, k in col.items() if model_of.get(x, x) in ranges}
+        build = (unit.file.build or {}).get("tests") or {}
+        reads: list[list[tuple[tuple[str, int], int, float]]] = []
+        own = np.full(len(unit.tests), -1, np.int64)
+        up: dict[int, list[tuple[tuple[str, int], int]]] = {}
+        for j, t in enumerate(unit.tests):
+            row: list[tuple[tuple[str, int], int, float]] = []
+            reads.append(row)
+            if _spread_test(unit, t):  # a loop's cycling: no input explains it
+                continue
+            test = unit.file.test(t)
+            span = test.ymax if unit.ev["scale"] == "max" and test.ymax else unit.models[t].span
+            for s in parse_specs(unit.models[t].inputs):
+                if s.fn != "" or len(s.tags) != 1 or s.tags[0] not in ranges:
+                    continue
+                k = col.get(plant.get(s.tags[0], s.tags[0]))
+                g = abs(spec.gains.get(t, {}).get(tags[k], 0.0)) if k is not None else 0.0
+                if g > 0 and span:
+                    row.append(((s.tags[0], s.lag), k, g * 100.0 / span))
+            k = col.get(outputs[t])
+            if k is None or k not in keys:
+                continue
+            if not getattr(test, "balance", False):
+                own[j] = k
+            ups = up.setdefault(k, [])
+            ups += [(key, kk) for key, kk, _ in row if (key, kk) not in ups]
+            info = build.get(t) if isinstance(build.get(t), dict) else {}
+            for other in info.get("same_as", []) or []:
+                kk = col.get(other)
+                if kk in keys and ((keys[kk], 0), kk) not in ups:
+                    ups.append(((keys[kk], 0), kk))
+        if not keys or not (any(reads) or (own >= 0).any()):
+            return None
+        order = [spec.tests.index(t) for t in unit.tests]
+        center = np.asarray(spec.center, float)[order]
+        return cls(reads, own, ranges, keys, up, center)
+
+    def _beyond(self, values, key: tuple[str, int], at: np.ndarray, n: int, memo: dict):
+        """The judged value's excess beyond its learned range at ``at`` (0 inside or unknown)
+        and that excess as a share of the range."""
+        if key not in memo:
+            tag = key[0]  # its value now, whatever lag a model reads it at (as a live
+            x = np.asarray(values(tag), float)[at]  # cycle has it: one row, no history)
+            lo, hi = self.ranges[tag]
+            with np.errstate(invalid="ignore"):
+                e = np.where(x > hi, x - hi, np.where(x < lo, x - lo, 0.0))
+            memo[key] = (e, np.abs(e) / (hi - lo))
+        return memo[key]
+
+    def name(
+        self, share: np.ndarray, r: np.ndarray, s: np.ndarray, values, at: np.ndarray
+    ) -> np.ndarray:
+        """``share`` (the alarm samples ``at`` × tags) with the source an excursion explains
+        named (see the class doc): ``r``, ``s`` the piece's filtered residuals and symptoms
+        (n × tests), ``values(tag)`` a model tag's values over the piece's n samples."""
+        at = np.flatnonzero(at)
+        on = _on_any(np.asarray(s, float)[at]) if at.size else np.zeros((0, 0), bool)
+        any_on = on.any(axis=1)
+        if not any_on.any():
+            return share
+        n, m = len(r), share.shape[1]
+        memo: dict = {}
+        # each candidate's source per sample (itself, or upstream) and the source's share
+        src: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        for k, tag in self.keys.items():
+            v = self._beyond(values, (tag, 0), at, n, memo)[1].copy()
+            cur = np.full(at.size, k)
+            for _ in range(len(self.up) + 1):  # a larger share each step: no cycle
+                moved = False
+                for kk in np.unique(cur):
+                    sel = cur == kk
+                    for key, k2 in self.up.get(int(kk), []):
+                        if k2 not in self.keys:
+                            continue
+                        w = self._beyond(values, key, at, n, memo)[1]
+                        go = sel & (w > v)
+                        if go.any():
+                            v[go], cur[go], moved = w[go], k2, True
+                if not moved:
+                    break
+            src[k] = (cur, v)
+        dev = np.abs(np.asarray(r, float)[at] - self.center)
+        rows = np.arange(at.size)
+        ok = np.zeros((at.size, m), bool)
+        ok[any_on] = True
+        for j in np.flatnonzero(on.any(axis=0)):
+            hit = on[:, j] & ok.any(axis=1)
+            if not hit.any():
+                continue
+            by = np.zeros((at.size, m), bool)  # the sources explaining test j
+            k = int(self.own[j])
+            if k >= 0:  # its own output beyond its range
+                e, _ = self._beyond(values, (self.keys[k], 0), at, n, memo)
+                x = hit & (e != 0)
+                by[rows[x], src[k][0][x]] = True
+            for key, k, f in self.reads[j]:
+                if k not in src:
+                    continue
+                e, _ = self._beyond(values, key, at, n, memo)
+                with np.errstate(invalid="ignore"):
+                    x = hit & (e != 0) & (dev[:, j] <= EXCURSION_EXPLAINS * f * np.abs(e))
+                by[rows[x], src[k][0][x]] = True
+            ok[on[:, j]] &= by[on[:, j]]
+        named = ok.any(axis=1)
+        if not named.any():
+            return share
+        val = np.zeros((at.size, m))
+        for cur, v in src.values():
+            val[rows, cur] = np.fmax(val[rows, cur], v)
+        val = np.where(ok, val, -1.0)
+        best = np.argmax(val, axis=1)
+        out = share.copy()
+        i = np.flatnonzero(named)
+        out[i, best[i]] = np.fmax(np.nan_to_num(out[i, best[i]], nan=0.0), 1.0 + val[i, best[i]])
         return out
 
 
