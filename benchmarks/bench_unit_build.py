@@ -26,7 +26,10 @@ worker's — with the same run's PCA fit time. Measured (branch i34-build8, inte
 main d39e220 on this session's faster machine, load 5–10): the busiest choice worker 29.7 →
 21.8 s CPU (medians of three), parent 6.9 → 5.7 s, two idle cores ≈ 45.6 → 37.2 s, under the
 60 s goal by that estimate (docs/how-to/unit-from-history.md; the wall on idle cores was not
-measured: the machine was shared). The first run after a fresh checkout or install compiles
+measured: the machine was shared). Measured wall (2026-12-01, main 88e2349 with i36-disturb,
+three runs at load 1.5–2.6 with other work beside them, cache warm): 27.2, 26.2, 26.5 s for 200
+tags (183 tests), CPU 44.9–46.4 s in all, parent 2.9 s, busiest choice worker 13.4 s — under
+the 60 s goal on that machine. The first run after a fresh checkout or install compiles
 numba's kernels into their cache (the parent's ``warm_kernels``): main 07c9aaa's parent took
 18.8 s CPU in that run against 7.2 s with the cache warm (load 7–12), so run it once before
 measuring. Since branch i34-build (H2) the historian's two reads (the tags' sampling, then the
