@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import sqlite3
 import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -37,6 +38,9 @@ TABLES = frozenset(
     {"tags", "samples", "model_versions", "experiments", "diag_events", "cold_segments", "settings"}
 )
 INDEXES = frozenset({"ix_experiments_model", "ix_diag_events_ts", "ix_diag_events_unit"})
+
+#: tries of a new connection's pragmas while another process makes the file (a lock error)
+CONNECT_TRIES = 8
 
 Query = Callable[[str, Sequence[Any]], list[tuple]]
 
@@ -102,8 +106,17 @@ class SqliteMeta:
         )
         try:
             conn.execute(f"PRAGMA busy_timeout={self.busy_ms}").fetchall()
-            for pragma in self._pragmas:
-                conn.execute(pragma).fetchall()
+            for attempt in range(CONNECT_TRIES):
+                try:
+                    for pragma in self._pragmas:
+                        conn.execute(pragma).fetchall()
+                    break
+                except sqlite3.OperationalError as exc:
+                    # a new file made by another process at once: its switch to WAL is not
+                    # waited for by the busy handler (create_schema retries alike)
+                    if attempt == CONNECT_TRIES - 1 or "locked" not in str(exc).lower():
+                        raise
+                    time.sleep(0.05 * (attempt + 1))
         except BaseException:
             conn.close()
             raise

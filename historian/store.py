@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import sqlite3
 import threading
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -166,8 +167,14 @@ class Historian(ColdMonths, Registry, TagReport):
     def _prepare(self) -> None:
         """The schema of a SQLite file, under its write lock (``attach``): made by
         SQLAlchemy unless the metadata connection finds every table and index there."""
-        if self._meta is None or not self._meta.has_schema():
-            create_schema(self.engine)
+        if self._meta is not None:
+            try:
+                if self._meta.has_schema():
+                    return
+            except sqlite3.OperationalError as exc:  # another process making the file:
+                if "locked" not in str(exc).lower():  # SQLAlchemy's create_schema retries
+                    raise
+        create_schema(self.engine)
 
     def _insert(self, table):
         if self.backend == "sqlite":
