@@ -127,6 +127,17 @@ snapshot) at a load of 16–20, medians: 200,000 rows 6.58 → 6.38 CPU s (30,38
 per CPU s; read 2.49 → 2.39); 1,000,000 rows, 3 pairs at 22–32, 23.68 → 23.09 (42,220 →
 43,310; read 11.44 → 10.92, lower in 3 of 3); the same JSON and CSV. The read's query alone:
 ``bench_grid_read.py``.
+Round thirteen (branch ``i36-replay``: on SQLite the historian's metadata — its schema check,
+the tags, their time range, the rolled months, the cold folder — read through one ``sqlite3``
+connection, ``historian/sqlitemeta.py``, and SQLAlchemy not imported), 5 pairs against
+``main`` (88e2349, a ``git archive`` snapshot), medians, on a quiet machine (load 0.9–1.2):
+200,000 rows ``--no-csv`` 3.08 → 2.87 CPU s (65,040 → 69,640 rows per CPU s; imports 0.33 →
+0.23, start-up 0.75 → 0.59, main thread 1.59 → 1.42; wall 2.06 → 1.86 s, 97,300 → 107,500
+rows/s); with ``--csv`` 3.79 → 3.54 (52,710 → 56,440; wall 2.40 → 2.19); ``--rolled
+--no-csv`` 2.72 → 2.48 (73,510 → 80,730; the read 0.61 → 0.51, the rolled months' list read
+per piece); 1,000,000 rows ``--no-csv``, 3 pairs at a load of 3.1–4.5, 10.09 → 10.13 (99,110
+→ 98,690: the ~0.2 CPU s saved is inside the noise there); the same JSON and CSV (md5
+``804a00c3…``, ``31fec695…``; rolled ``c21a4eba…``; 1,000,000 rows ``e177ec7b…``).
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]

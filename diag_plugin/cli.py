@@ -175,7 +175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _failure(args: argparse.Namespace, exc: Exception) -> int:
     """The message and exit status of an error no command turned into a UserError."""
     first = _first_line(exc)
-    if type(exc).__module__.startswith(("sqlalchemy", "psycopg", "adbc")):
+    if type(exc).__module__.startswith(("sqlalchemy", "psycopg", "adbc", "sqlite3")):
         # an unreachable or broken database: say which, without a traceback
         print(f"diag: database error ({_safe(args.db)}): {first}", file=sys.stderr)
         return EXIT_ENVIRONMENT

@@ -2,7 +2,8 @@
 
 Both classes move plain numpy arrays: ``tag_id`` (int), ``ts`` (int64 µs UTC), ``value``
 (float64, NaN for none) and ``quality`` (int). Metadata goes through SQLAlchemy in
-:mod:`historian.store`; only the hot paths live here.
+:mod:`historian.store` (on SQLite its small reads through :mod:`historian.sqlitemeta`); only
+the hot paths live here.
 """
 
 from __future__ import annotations
@@ -12,14 +13,16 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
-from sqlalchemy.engine import Engine
 
 from .quality import BAD, GOOD
 from .sqlitefile import sqlite_file
+
+if TYPE_CHECKING:
+    from sqlalchemy.engine import Engine
 
 #: ``update`` leaves a row holding the same value and quality alone, so the row count the
 #: database reports is the rows added or changed (``IS DISTINCT FROM`` is NULL-safe; SQLite

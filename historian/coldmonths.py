@@ -12,16 +12,21 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from sqlalchemy import delete, func, insert, select
-from sqlalchemy.exc import IntegrityError
 
-from . import coldstore, schema
+from . import coldstore
+from .lazy import LazyModule
 from .times import now_us, to_us
+
+sa = LazyModule("sqlalchemy")
+schema = LazyModule("historian.schema")
 
 #: times a month is re-read when rows arrived in it while it was being rolled
 ROLL_ATTEMPTS = 3
 #: key of the cold folder in the ``settings`` table
 COLD_DIR_KEY = "cold_dir"
+
+#: the columns of ``cold_segments`` (:data:`historian.schema.cold_segments`), in its order
+SEGMENT_COLUMNS = ("month", "path", "rows", "ts_min", "ts_max", "created_at")
 
 Progress = Callable[[int, int], None]
 
@@ -61,7 +66,8 @@ class MonthMerge:
 
 
 class ColdMonths:
-    """Needs ``self.engine``, ``self._writing()``, ``self._bulk`` (hot reads), ``self.cold_dir``,
+    """Needs ``self.engine``, ``self._meta`` (None: metadata read through the engine),
+    ``self._writing()``, ``self._bulk`` (hot reads), ``self.cold_dir``,
     ``self._default_cold_dir`` and ``self.tags()``."""
 
     def _cold_path(self, name: str) -> Path:
@@ -74,9 +80,13 @@ class ColdMonths:
 
     # -- where the cold folder is ------------------------------------------------------------
     def _recorded_cold_dir(self) -> Path | None:
-        t = schema.settings
-        with self.engine.connect() as c:
-            v = c.execute(select(t.c.value).where(t.c.key == COLD_DIR_KEY)).scalar()
+        if self._meta is not None:
+            found = self._meta.rows("SELECT value FROM settings WHERE key = ?", (COLD_DIR_KEY,))
+            v = found[0][0] if found else None
+        else:
+            t = schema.settings
+            with self.engine.connect() as c:
+                v = c.execute(sa.select(t.c.value).where(t.c.key == COLD_DIR_KEY)).scalar()
         return Path(v) if v else None
 
     def _record_cold_dir(self) -> None:
@@ -93,15 +103,21 @@ class ColdMonths:
             )
         t = schema.settings
         with self._writing() as c:
-            c.execute(delete(t).where(t.c.key == COLD_DIR_KEY))
+            c.execute(sa.delete(t).where(t.c.key == COLD_DIR_KEY))
             if self._default_cold_dir is None or self._default_cold_dir.resolve() != here:
-                c.execute(insert(t).values(key=COLD_DIR_KEY, value=str(here)))
+                c.execute(sa.insert(t).values(key=COLD_DIR_KEY, value=str(here)))
 
     # -- the list of rolled months and their files -------------------------------------------
     def _segments(self, start: int | None, end: int | None) -> list[dict]:
-        t = schema.cold_segments
-        with self.engine.connect() as c:
-            rows = c.execute(select(t).order_by(t.c.month)).mappings().all()
+        if self._meta is not None:
+            found = self._meta.rows(
+                f"SELECT {', '.join(SEGMENT_COLUMNS)} FROM cold_segments ORDER BY month"
+            )
+            rows = [dict(zip(SEGMENT_COLUMNS, r, strict=True)) for r in found]
+        else:
+            t = schema.cold_segments
+            with self.engine.connect() as c:
+                rows = c.execute(sa.select(t).order_by(t.c.month)).mappings().all()
         if start is None:
             return [dict(r) for r in rows]
         out = []
@@ -196,7 +212,8 @@ class ColdMonths:
         months = []
         with self.engine.connect() as c:  # index seeks per tag (a scan without the tag)
             lows = [
-                c.execute(select(func.min(s.c.ts)).where(s.c.tag_id == i)).scalar() for i in ids
+                c.execute(sa.select(sa.func.min(s.c.ts)).where(s.c.tag_id == i)).scalar()
+                for i in ids
             ]
             lo = min((x for x in lows if x is not None), default=None)
             if lo is None:
@@ -205,7 +222,7 @@ class ColdMonths:
                 m0, m1 = coldstore.month_bounds(month)
                 if m1 > limit:
                     break
-                held = select(s.c.ts).where(s.c.tag_id.in_(ids), s.c.ts >= m0, s.c.ts < m1)
+                held = sa.select(s.c.ts).where(s.c.tag_id.in_(ids), s.c.ts >= m0, s.c.ts < m1)
                 if c.execute(held.limit(1)).first() is not None:  # rolled months hold none
                     months.append(month)
         return months
@@ -334,18 +351,18 @@ class ColdMonths:
         try:
             with self._writing() as c:
                 gone = c.execute(
-                    delete(s).where(s.c.tag_id.in_(ids), s.c.ts >= m0, s.c.ts < m1)
+                    sa.delete(s).where(s.c.tag_id.in_(ids), s.c.ts >= m0, s.c.ts < m1)
                 ).rowcount
                 if gone != hot:
                     raise MonthChanged(month)
-                mine = delete(t).where(t.c.month == month)
+                mine = sa.delete(t).where(t.c.month == month)
                 if old:  # the record this file was merged from, still there
                     if c.execute(mine.where(t.c.path == old[0]["path"])).rowcount != 1:
                         raise MonthChanged(month)
-                elif c.execute(select(t.c.path).where(t.c.month == month)).first():
+                elif c.execute(sa.select(t.c.path).where(t.c.month == month)).first():
                     raise MonthChanged(month)
                 c.execute(
-                    insert(t).values(
+                    sa.insert(t).values(
                         month=month,
                         path=name,
                         rows=w.rows,
@@ -354,7 +371,7 @@ class ColdMonths:
                         created_at=now_us(),
                     )
                 )
-        except IntegrityError:  # PostgreSQL: another writer recorded the month meanwhile
+        except sa.exc.IntegrityError:  # PostgreSQL: another writer recorded the month meanwhile
             self._cold_path(name).unlink(missing_ok=True)
             raise MonthChanged(month) from None
         except BaseException:

@@ -23,3 +23,18 @@ def lazy(package: str, table: str) -> tuple[Callable[[str], Any], list[str]]:
         raise AttributeError(f"module {package!r} has no attribute {name!r}")
 
     return __getattr__, sorted(where)
+
+
+class LazyModule:
+    """A module imported on its first attribute's use (``sa = LazyModule("sqlalchemy")``,
+    then ``sa.select(…)``): a module that needs a heavy one on some paths only does not
+    import it with itself (issue 34: SQLAlchemy, on a SQLite historian's replay)."""
+
+    def __init__(self, name: str) -> None:
+        self.__dict__["_name"] = name
+
+    def __getattr__(self, attr: str) -> Any:
+        return getattr(importlib.import_module(self.__dict__["_name"]), attr)
+
+    def __repr__(self) -> str:
+        return f"<LazyModule {self.__dict__['_name']!r}>"

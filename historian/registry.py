@@ -6,11 +6,13 @@ from __future__ import annotations
 import json
 
 import pandas as pd
-from sqlalchemy import insert, select, update
 
-from . import schema
+from .lazy import LazyModule
 from .quality import GOOD
 from .times import from_us, now_us, to_us
+
+sa = LazyModule("sqlalchemy")
+schema = LazyModule("historian.schema")
 
 
 class Registry:
@@ -27,13 +29,13 @@ class Registry:
         at = to_us(created_at) if created_at is not None else now_us()
         with self._writing() as c:
             row = c.execute(
-                select(t.c.id).where(t.c.name == name, t.c.version == str(version))
+                sa.select(t.c.id).where(t.c.name == name, t.c.version == str(version))
             ).first()
             if row is not None:
-                c.execute(update(t).where(t.c.id == row[0]).values(rulebase_text=rulebase_text))
+                c.execute(sa.update(t).where(t.c.id == row[0]).values(rulebase_text=rulebase_text))
                 return int(row[0])
             res = c.execute(
-                insert(t).values(
+                sa.insert(t).values(
                     name=name, version=str(version), rulebase_text=rulebase_text, created_at=at
                 )
             )
@@ -41,7 +43,7 @@ class Registry:
 
     def model_versions(self, name: str | None = None) -> pd.DataFrame:
         t = schema.model_versions
-        q = select(t).order_by(t.c.name, t.c.created_at, t.c.id)
+        q = sa.select(t).order_by(t.c.name, t.c.created_at, t.c.id)
         if name is not None:
             q = q.where(t.c.name == name)
         with self.engine.connect() as c:
@@ -65,7 +67,7 @@ class Registry:
         t = schema.experiments
         with self._writing() as c:
             res = c.execute(
-                insert(t).values(
+                sa.insert(t).values(
                     model=model,
                     version=None if version is None else str(version),
                     inputs=json.dumps(list(inputs)),
@@ -82,7 +84,7 @@ class Registry:
         """Experiments (oldest first): id, model, version, inputs (list), data_from, data_to,
         metrics (dict), notes, created_at."""
         t = schema.experiments
-        q = select(t).order_by(t.c.created_at, t.c.id)
+        q = sa.select(t).order_by(t.c.created_at, t.c.id)
         if model is not None:
             q = q.where(t.c.model == model)
         with self.engine.connect() as c:
@@ -110,7 +112,7 @@ class Registry:
         t = schema.diag_events
         with self._writing() as c:
             res = c.execute(
-                insert(t).values(
+                sa.insert(t).values(
                     ts=to_us(ts),
                     unit=unit,
                     fault=fault,
@@ -125,7 +127,7 @@ class Registry:
 
     def events(self, unit: str | None = None, start=None, end=None) -> pd.DataFrame:
         t = schema.diag_events
-        q = select(t).order_by(t.c.ts, t.c.id)
+        q = sa.select(t).order_by(t.c.ts, t.c.id)
         if unit is not None:
             q = q.where(t.c.unit == unit)
         if start is not None:

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import math
 import os
+import sqlite3
+import threading
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -22,20 +24,25 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import create_engine, event, func, select, update
-from sqlalchemy.engine import make_url
 
-from . import coldstore, schema
+from . import coldstore
 from .backends import SQLITE_PRAGMAS, PostgresBulk, SqliteBulk
 from .coldmonths import ColdMonths
 from .frames import sorted_unique, tag_arrays
+from .lazy import LazyModule
 from .quality import BAD, GOOD
 from .registry import Registry
 from .sampling import SAMPLING_ROWS, Sampling, hold_us, sampling_of, snap_near, snap_up
 from .sqlitefile import SqliteFile
+from .sqlitemeta import SqliteMeta, sqlite_path
 from .tagreport import TagReport
 from .times import from_us, index_us, period_us, to_us, us_index
 from .window import align, align_pieces, summarize, summary_attrs
+
+#: SQLAlchemy and the historian's tables in it, imported on first use: a SQLite historian's
+#: metadata reads need neither (:mod:`historian.sqlitemeta`)
+sa = LazyModule("sqlalchemy")
+schema = LazyModule("historian.schema")
 
 DEFAULT_BATCH_ROWS = 500_000
 #: the most threads of parallel per-tag reads in window(); a window of n tags uses
@@ -72,7 +79,10 @@ class Historian(ColdMonths, Registry, TagReport):
     SQLite: the metadata (SQLAlchemy, the system's SQLite) and the samples (ADBC, its own
     SQLite) are two copies of SQLite in one process; every write transaction of either holds
     the file's in-process write lock and connections close only under it
-    (:mod:`historian.sqlitefile`). The lock is waited for at most the busy timeout.
+    (:mod:`historian.sqlitefile`). The lock is waited for at most the busy timeout. The small
+    metadata reads (tags, time ranges, rolled months, the cold folder) go through one
+    ``sqlite3`` connection (:mod:`historian.sqlitemeta`), and :attr:`engine` is made on its
+    first use, so a reading command does not import SQLAlchemy.
     """
 
     def __init__(
@@ -84,30 +94,40 @@ class Historian(ColdMonths, Registry, TagReport):
         timeout: float | None = None,
     ):
         self.url = str(url)
-        u = make_url(self.url)
         if timeout is not None and not timeout > 0:
             raise ValueError(f"timeout must be a positive number of seconds, not {timeout!r}")
-        if u.get_backend_name() == "sqlite":
-            if not u.database or u.database == ":memory:":
+        self._engine = None
+        self._engine_lock = threading.Lock()
+        self._meta: SqliteMeta | None = None
+        plain = sqlite_path(self.url)  # sqlite:///path, read without SQLAlchemy
+        u = None if plain is not None else _make_url(self.url)
+        if plain is not None or u.get_backend_name() == "sqlite":
+            database = plain if u is None else u.database
+            if not database or database == ":memory:":
                 raise ValueError("the SQLite historian needs a file: sqlite:///path/to/diag.db")
-            path = Path(u.database)
-            self.engine = create_engine(u.set(drivername="sqlite"))
+            path = Path(database)
             if timeout is not None:
                 busy_timeout = min(busy_timeout, timeout)
             busy_ms = max(1, int(busy_timeout * 1000))
             self._bulk = SqliteBulk(path, busy_timeout_ms=busy_ms)
             self._file = self._bulk.file
-            _count_reads(self.engine, self._file, busy_ms)
+            self._busy_ms = busy_ms
             self._lock_s: float | None = busy_ms / 1000
             self._default_cold_dir = path.with_name(path.name + ".cold")
+            if u is None:  # a URL with options (a query) keeps SQLAlchemy's reads
+                self._meta = SqliteMeta(path, self._file, busy_ms, SQLITE_PRAGMAS)
+            else:
+                self.engine  # noqa: B018 - made now, as the URL's options are SQLAlchemy's
         elif u.get_backend_name() == "postgresql":
             args = {}
             if timeout is not None:
                 ms = max(1, int(timeout * 1000))
                 args = {"connect_timeout": max(1, math.ceil(timeout))}
                 args["options"] = f"-c statement_timeout={ms}"
-            self.engine = create_engine(u.set(drivername="postgresql+psycopg"), connect_args=args)
-            self._bulk = PostgresBulk(self.engine)
+            self._engine = sa.create_engine(
+                u.set(drivername="postgresql+psycopg"), connect_args=args
+            )
+            self._bulk = PostgresBulk(self._engine)
             self._file = None
             self._default_cold_dir = None
         else:
@@ -116,7 +136,7 @@ class Historian(ColdMonths, Registry, TagReport):
         if self._file is None:
             create_schema(self.engine)
         else:
-            self._file.attach(lambda: create_schema(self.engine), self._lock_s)
+            self._file.attach(self._prepare, self._lock_s)
         self.cold_dir = (
             Path(cold_dir) if cold_dir else self._recorded_cold_dir() or self._default_cold_dir
         )
@@ -128,6 +148,33 @@ class Historian(ColdMonths, Registry, TagReport):
     @classmethod
     def open(cls, url: str = "sqlite:///diag.db", **kw) -> Historian:
         return cls(url, **kw)
+
+    @property
+    def engine(self):
+        """The SQLAlchemy engine: writes and the registry's reads (on SQLite made on first
+        use, its connections counted as reads of the file like the metadata's own)."""
+        engine = self._engine
+        if engine is not None:
+            return engine
+        with self._engine_lock:
+            if self._engine is None:
+                u = _make_url(self.url)
+                engine = sa.create_engine(u.set(drivername="sqlite"))
+                _count_reads(engine, self._file, self._busy_ms)
+                self._engine = engine
+            return self._engine
+
+    def _prepare(self) -> None:
+        """The schema of a SQLite file, under its write lock (``attach``): made by
+        SQLAlchemy unless the metadata connection finds every table and index there."""
+        if self._meta is not None:
+            try:
+                if self._meta.has_schema():
+                    return
+            except sqlite3.OperationalError as exc:  # another process making the file:
+                if "locked" not in str(exc).lower():  # SQLAlchemy's create_schema retries
+                    raise
+        create_schema(self.engine)
 
     def _insert(self, table):
         if self.backend == "sqlite":
@@ -174,7 +221,17 @@ class Historian(ColdMonths, Registry, TagReport):
             self._bulk.close()
             self.engine.dispose()
         else:  # under the write lock: no close drops the locks of a transaction open
-            self._file.detach(lambda: (self._bulk.close(), self.engine.dispose()))
+            self._file.detach(self._close_own)
+
+    def _close_own(self) -> None:
+        """A SQLite historian's connections (``detach``, under the file's write lock)."""
+        try:
+            self._bulk.close()
+            if self._meta is not None:
+                self._meta.close()
+        finally:
+            if self._engine is not None:
+                self._engine.dispose()
 
     def __enter__(self) -> Historian:
         return self
@@ -203,32 +260,41 @@ class Historian(ColdMonths, Registry, TagReport):
         t = schema.tags
         with self._writing() as c:
             c.execute(self._insert(t).values(name=name).on_conflict_do_nothing())
-            tag_id = c.execute(select(t.c.id).where(t.c.name == name)).scalar_one()
+            tag_id = c.execute(sa.select(t.c.id).where(t.c.name == name)).scalar_one()
             if fields:
-                c.execute(update(t).where(t.c.id == tag_id).values(**fields))
+                c.execute(sa.update(t).where(t.c.id == tag_id).values(**fields))
         self._tags.pop(name, None)
         return int(tag_id)
 
     def tags(self) -> pd.DataFrame:
         """All tags: columns id, name, unit, lo, hi, description, source (ordered by name)."""
+        if self._meta is not None:
+            rows = self._meta.rows(f"SELECT {', '.join(TAG_COLUMNS)} FROM tags ORDER BY name")
+            return pd.DataFrame(rows, columns=list(TAG_COLUMNS))
         t = schema.tags
         with self.engine.connect() as c:
-            rows = c.execute(select(t).order_by(t.c.name)).all()
+            rows = c.execute(sa.select(t).order_by(t.c.name)).all()
         return pd.DataFrame(rows, columns=[col.name for col in t.columns])
 
     def last_sample_tag(self) -> int:
         """The highest tag id holding a sample in the database (0: none), where the
         samples' ``(tag_id, ts)`` key ends; months rolled to the cold store aside."""
+        if self._meta is not None:
+            return int(self._meta.rows("SELECT max(tag_id) FROM samples")[0][0] or 0)
         with self.engine.connect() as c:
-            return int(c.execute(select(func.max(schema.samples.c.tag_id))).scalar() or 0)
+            return int(c.execute(sa.select(sa.func.max(schema.samples.c.tag_id))).scalar() or 0)
 
     def _tag(self, name: str, create: bool = False) -> tuple[int, float | None, float | None]:
         hit = self._tags.get(name)
         if hit is not None:
             return hit
-        t = schema.tags
-        with self.engine.connect() as c:
-            row = c.execute(select(t.c.id, t.c.lo, t.c.hi).where(t.c.name == name)).first()
+        if self._meta is not None:
+            found = self._meta.rows("SELECT id, lo, hi FROM tags WHERE name = ?", (name,))
+            row = found[0] if found else None
+        else:
+            t = schema.tags
+            with self.engine.connect() as c:
+                row = c.execute(sa.select(t.c.id, t.c.lo, t.c.hi).where(t.c.name == name)).first()
         if row is None:
             if not create:
                 raise KeyError(f"unknown tag {name!r}")
@@ -390,18 +456,11 @@ class Historian(ColdMonths, Registry, TagReport):
     def time_range(self, tags: Iterable[str] | None = None):
         """(first, last) sample time over the given tags (all when None); (None, None) if
         there are no samples. Rolled months answer from their files' row-group statistics."""
-        s = schema.samples
         ids = None if tags is None else [self._tag(t)[0] for t in tags]
         lo = hi = None
-        with self.engine.connect() as c:
-            for tid in ids if ids is not None else [None]:
-                base = select(s.c.ts)
-                if tid is not None:
-                    base = base.where(s.c.tag_id == tid)
-                a = c.execute(base.order_by(s.c.ts).limit(1)).scalar()
-                b = c.execute(base.order_by(s.c.ts.desc()).limit(1)).scalar()
-                lo = a if lo is None or (a is not None and a < lo) else lo
-                hi = b if hi is None or (b is not None and b > hi) else hi
+        for a, b in self._hot_bounds(ids):
+            lo = a if lo is None or (a is not None and a < lo) else lo
+            hi = b if hi is None or (b is not None and b > hi) else hi
         segments = self._segments(None, None)
         if ids is None:
             for seg in segments:
@@ -414,6 +473,32 @@ class Historian(ColdMonths, Registry, TagReport):
                     lo = a if lo is None else min(lo, a)
                     hi = b if hi is None else max(hi, b)
         return from_us(lo), from_us(hi)
+
+    def _hot_bounds(self, ids: list[int] | None) -> list[tuple[int | None, int | None]]:
+        """(first, last) time of each tag's database rows (None, None without any); one
+        pair over all tags when ``ids`` is None. Rolled months aside."""
+        out = []
+        if self._meta is not None:
+            with self._meta.reading() as query:
+                for tid in ids if ids is not None else [None]:
+                    where, args = ("", ()) if tid is None else (" WHERE tag_id = ?", (tid,))
+                    ends = []
+                    for order in ("", " DESC"):
+                        sql = f"SELECT ts FROM samples{where} ORDER BY ts{order} LIMIT 1"
+                        found = query(sql, args)
+                        ends.append(found[0][0] if found else None)
+                    out.append((ends[0], ends[1]))
+            return out
+        s = schema.samples
+        with self.engine.connect() as c:
+            for tid in ids if ids is not None else [None]:
+                base = sa.select(s.c.ts)
+                if tid is not None:
+                    base = base.where(s.c.tag_id == tid)
+                a = c.execute(base.order_by(s.c.ts).limit(1)).scalar()
+                b = c.execute(base.order_by(s.c.ts.desc()).limit(1)).scalar()
+                out.append((a, b))
+        return out
 
     def _grid(self, tags, start, end, period):
         """The requested range in µs and its grid: the first grid point at or after the
@@ -612,10 +697,10 @@ class Historian(ColdMonths, Registry, TagReport):
         s, t = schema.samples, schema.tags
         out: dict[int, int] = {}
         with self.engine.connect() as c:
-            known = {int(i) for (i,) in c.execute(select(t.c.id))}
+            known = {int(i) for (i,) in c.execute(sa.select(t.c.id))}
             last = None
             while True:
-                q = select(func.min(s.c.tag_id))
+                q = sa.select(sa.func.min(s.c.tag_id))
                 if last is not None:
                     q = q.where(s.c.tag_id > last)
                 last = c.execute(q).scalar()
@@ -623,7 +708,7 @@ class Historian(ColdMonths, Registry, TagReport):
                     break
                 if int(last) not in known:
                     n = c.execute(
-                        select(func.count()).select_from(s).where(s.c.tag_id == last)
+                        sa.select(sa.func.count()).select_from(s).where(s.c.tag_id == last)
                     ).scalar()
                     out[int(last)] = int(n or 0)
         return out
@@ -668,6 +753,17 @@ class Historian(ColdMonths, Registry, TagReport):
         }
 
 
+#: the columns of ``tags`` (:data:`historian.schema.tags`), in its order
+TAG_COLUMNS = ("id", "name", "unit", "lo", "hi", "description", "source")
+
+
+def _make_url(url: str):
+    """SQLAlchemy's reading of a database URL."""
+    from sqlalchemy.engine import make_url
+
+    return make_url(url)
+
+
 def create_schema(engine, tries: int = 8) -> None:
     """Create the historian's tables and indexes that do not exist yet. Two processes starting
     on a new database at once race between "does it exist?" and CREATE ("table tags already
@@ -709,9 +805,9 @@ def _count_reads(engine, file: SqliteFile, busy_ms: int) -> None:
         if record.record_info.pop("reading", False):
             file.leave_read()
 
-    event.listen(engine, "connect", connect)
-    event.listen(engine, "checkout", checkout)
-    event.listen(engine, "checkin", checkin)
+    sa.event.listen(engine, "connect", connect)
+    sa.event.listen(engine, "checkout", checkout)
+    sa.event.listen(engine, "checkin", checkin)
 
 
 def _sqlite_pragmas(dbapi_conn, busy_ms: int = 60_000) -> None:

@@ -274,11 +274,13 @@ def test_a_read_of_one_library_keeps_its_snapshot_across_a_checkpoint_of_the_oth
     h.close()
 
 
-def test_a_metadata_read_keeps_its_snapshot_across_vacuum(tmp_path):
-    """A SQLAlchemy read of the tag list is open (paused after its first row) while
-    ``vacuum`` (ADBC) rebuilds the file and checkpoints. Before the rule the checkpoint ran
-    under the read, which then read pages of the rebuilt file. The read must finish with
-    every tag, and the vacuum wait for it."""
+@pytest.mark.parametrize("via", ["sqlite3", "sqlalchemy"])
+def test_a_metadata_read_keeps_its_snapshot_across_vacuum(tmp_path, via):
+    """A read of the tag list is open (paused inside its statement) while ``vacuum`` (ADBC)
+    rebuilds the file and checkpoints. Before the rule the checkpoint ran under the read,
+    which then read pages of the rebuilt file. The read must finish with every tag, and the
+    vacuum wait for it: through the historian's ``sqlite3`` metadata connection
+    (``tags()``, :mod:`historian.sqlitemeta`) and through SQLAlchemy's engine alike."""
     url = f"sqlite:///{tmp_path / 'h.db'}"
     h = Historian(url)
     names = [f"T{i:05d}" for i in range(6000)]
@@ -293,25 +295,45 @@ def test_a_metadata_read_keeps_its_snapshot_across_vacuum(tmp_path):
     h = Historian(url)
     inside, go, out = threading.Event(), threading.Event(), {}
 
-    def after(conn, cursor, statement, params, context, executemany):
-        if statement.lstrip().upper().startswith("SELECT TAGS.ID") and not inside.is_set():
+    def pause(*_args):
+        if not inside.is_set():
             inside.set()
             go.wait(60)
+        return 0
 
-    event.listen(h.engine, "after_cursor_execute", after)
+    if via == "sqlite3":
+        assert h._meta is not None
+        h._meta.rows("SELECT 1")  # its connection opened, then paused inside the next read
+        h._meta._conn.set_progress_handler(pause, 1000)
 
-    def read():
+        def read():
+            return list(h.tags()["name"])
+
+    else:
+
+        def after(conn, cursor, statement, params, context, executemany):
+            if statement.lstrip().upper().startswith("SELECT NAME FROM TAGS"):
+                pause()
+
+        event.listen(h.engine, "after_cursor_execute", after)
+
+        def read():
+            with h.engine.connect() as c:
+                return [n for (n,) in c.exec_driver_sql("SELECT name FROM tags ORDER BY name")]
+
+    def run():
         try:
-            out["names"] = list(h.tags()["name"])
+            out["names"] = read()
         except Exception as exc:  # noqa: BLE001 - reported by the test
             out["error"] = exc
 
-    t = threading.Thread(target=read)
+    t = threading.Thread(target=run)
     t.start()
     assert inside.wait(30)
     vac = threading.Thread(target=h.vacuum)
     vac.start()
     vac.join(PASS_S)
+    assert vac.is_alive()  # waits for the open read
     go.set()
     t.join(60)
     vac.join(60)

@@ -271,7 +271,7 @@ def _train_all(args, paths: list[Path], chunk, address: str | None, client) -> i
                 {"rulebase": str(path), "error": str(exc).strip("'\""), "bad_input": True}
             )
         except Exception as exc:  # noqa: BLE001 - one model's failure must not stop the others
-            if type(exc).__module__.startswith(("sqlalchemy", "psycopg", "adbc")):
+            if type(exc).__module__.startswith(("sqlalchemy", "psycopg", "adbc", "sqlite3")):
                 raise  # the database, not this model: diag reports it (exit 3)
             log.debug("training %s failed", path, exc_info=exc)
             failures.append({"rulebase": str(path), "error": f"{type(exc).__name__}: {exc}"})
