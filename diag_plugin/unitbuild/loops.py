@@ -1088,8 +1088,9 @@ def gumbel_bound(x, cells: int = 1) -> float:
 def age_events(age):
     """Per row the event it belongs to (0, 1, …; -1 none) from ``age``, per row the age it is
     judged at (samples, -1 none; :func:`~diag_plugin.diagnose.settle.settle_ages`): an event
-    begins where a row's age does not continue the row before's by one (a settle opened, or
-    carried on by another tag's step, counts its age afresh)."""
+    begins where a row's age does not continue the row before's by one (a settle opened; a
+    step inside an open settle, its own tag's or another's that carries it on, does not
+    restart its age: :mod:`~diag_plugin.diagnose.settle`)."""
     import numpy as np
 
     age = np.asarray(age, np.int64)
