@@ -141,3 +141,59 @@ def test_the_envelope_as_built_raises_no_fault_free_start(judged):
     assert not why.str.contains("beyond what").any(), why[why.str.contains("beyond")].iloc[0]
     alarm = np.isin(d["status"].to_numpy(), [int(NE107.FAILURE), int(NE107.OFF_SPEC)])
     assert not alarm.any(), d.loc[alarm].iloc[0].to_dict()
+
+
+def _two_state_steps(gap: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two states (a run tag ``MODE`` and a diversion valve ``FDV``, settles of 50 samples
+    each) stepping 0 → 1 at sample 10 and ``gap`` samples later, a test on from sample 12 to
+    40: per row the age the guard judges it at (-1: no settle), its suppressed rows, its whys."""
+    from diag_plugin.diagnose.settle import SettleGuard, SettleLoop
+
+    loops = [SettleLoop(t, t, -1, 0.0, 0.0, 0.25, span=(0.0, 1.0), state=True)
+             for t in ("MODE", "FDV")]  # fmt: skip
+    n = 120
+    x = np.zeros((n, 2))
+    x[10:, 0], x[10 + gap :, 1] = 1.0, 1.0
+    active = np.zeros(n, bool)
+    active[12:41] = True
+    g = SettleGuard(loops, [50, 50], 5, 10.0, 1)
+    g.ages_seen = []
+    index = pd.date_range("2026-03-07", periods=n, freq="10s", tz="UTC")
+    sup, why = g.transform(index, x, np.zeros((n, 2)), active, active)
+    return g.ages_seen[0][1][:, 0], sup, why
+
+
+def test_a_state_change_inside_a_start_s_settle_is_the_same_start():
+    """The pasteuriser's every production start is two state changes, the run's (``MODE``
+    0 → 1) and its diversion valve's step 2 min later that carries the start's product on: one
+    start, one settle, one change to learn its envelope from, its age from the start. On main
+    the valve's step aged the settle from 0 again: the build counted 18 changes for 9 starts
+    (34 for 17 at 8 days) and an envelope bin from 0 held both the start's first 2 min and the
+    valve's."""
+    from diag_plugin.unitbuild.loops import age_events
+
+    age, sup, why = _two_state_steps(12)
+    ev = age_events(age)
+    assert set(ev[ev >= 0]) == {0}  # one event (main: two, the second from the valve)
+    rows = np.flatnonzero(age >= 0)
+    # aged from the sample the run tag left its hold (10; the change confirmed held at 11)
+    assert rows[0] == 11 and age[11] == 2 and (np.diff(age[rows]) == 1).all()
+    assert age[23] == 14  # the valve's step confirmed: 13 samples on (main: 2, afresh)
+    # one settle: suppressed from the first alarm on without a break, its why naming both
+    on = np.flatnonzero(sup)
+    assert on[0] == 12 and (np.diff(on) == 1).all()
+    assert why[30] == ("FDV 0 → 1 at 2026-03-07T00:03:40Z: settling after a state change "
+                       "(the settle open since 2026-03-07T00:01:40Z)")  # fmt: skip
+
+
+def test_the_build_counts_each_production_start_once(judged):
+    """The 4-day build's envelope is learned from as many changes as the window has production
+    starts (``MODE`` to 1 from another value), each once (main: 18 for 9, each start's valve
+    step a change of its own)."""
+    doc, _, tmp = judged
+    x = pd.read_csv(tmp / "b.csv", index_col=0)
+    mode = x["MODE"].to_numpy(float)
+    starts = int(((mode[1:] == 1) & (mode[:-1] != 1)).sum())
+    note = doc["build"]["envelope"][0]
+    got = int(note.split("an envelope from ")[1].split(" ")[0])
+    assert got == starts, (got, starts, note[:300])

@@ -73,7 +73,12 @@ alarm: the unit's judgement goes on.
   step, to its bound; its why names it and when the settle opened). The pasteuriser at 1 s on
   one day: the rate's set-point step's 873 s ended while the start's transient was still in
   a spread test's window, on 10 of its 12 fault-free episodes; the state change's bound is
-  3,052 s. It still ends as soon as the unit is quiet.
+  3,052 s. It still ends as soon as the unit is quiet. A step inside the open settle, of its
+  own tag or another, is part of the same event: the settle's **age** (what its envelope is
+  judged at, and what the build counts its changes by, :func:`settle_replay`) goes on from the
+  event's first step; only its bound is counted from a carrying step. Before, the carrying
+  step aged the settle from 0 again: the pasteuriser's every start (its run's, then its
+  diversion valve's 2 min later) was two changes, 34 for 17 starts.
 
 The replay (:meth:`~diag_plugin.diagnose.unit.Unit.evaluate`), the live loop's stacked path
 (:class:`~diag_plugin.diagnose.plant.Plant`) and a restart (the carried state) give the same
@@ -467,8 +472,9 @@ def _settle_kernel(
     after,
     age,
 ):  # pragma: no cover - numba
-    # g: open, elapsed, quiet, latched, loop, last alarm, samples since the unit's last alarm,
-    # an envelope's alarm on (int64); row by row, state in place.
+    # g: open, elapsed (since the step whose bound holds), quiet, latched, loop, last alarm,
+    # samples since the unit's last alarm, an envelope's alarm on, the event's age (since its
+    # first step: what the envelope is judged at; int64); row by row, state in place.
     # an envelope (envelope.py) on a loop ``enveloped``: a test beyond it at the settle's age
     # (``u``: samples × tests, threshold units) for ``on_n`` samples ends the settle; ``hit``
     # that test on the row, ``after`` the rows of the alarm it raised
@@ -511,6 +517,7 @@ def _settle_kernel(
         if step >= 0 and g[6] >= quiet_n and g[0] == 0:
             g[0] = 1
             g[1] = s_back  # counted from the sample the set-point left its hold
+            g[8] = s_back  # the event's age, from the same sample
             g[2] = 0
             g[3] = 0
             g[4] = step
@@ -525,7 +532,11 @@ def _settle_kernel(
             # age (one event, as the envelope learned it: settle_ages), its why names this
             # latest step.
             # Another tag whose settle outlasts the open one's rest (a production start's
-            # diversion valve forward minutes after the rate's step) carries it on: one event
+            # diversion valve forward minutes after the rate's step) carries it on: one event,
+            # its bound from this step (g[1]), its age (g[8]: the envelope's, the count of
+            # changes) still from the event's first step: a consequence of the start is no
+            # start of its own (before, the pasteuriser's every start was two changes, the
+            # run's and its diversion valve's 2 min later, the second aged from 0)
             if step != g[4]:
                 g[1] = s_back
                 g[4] = step
@@ -537,8 +548,9 @@ def _settle_kernel(
             age[i, 0] = -1
         if g[0] == 1:
             g[1] += 1
+            g[8] += 1
             if keep_age:  # the age this row is judged at, and whose (settle_ages)
-                age[i, 0] = g[1]
+                age[i, 0] = g[8]
                 age[i, 1] = g[4]
             j = g[4]
             if alarm[i] and (g[3] == 1 or g[1] <= begin_n[j]):
@@ -546,7 +558,7 @@ def _settle_kernel(
             if g[3] == 1:
                 sup[i] = True
                 sid[i] = cur
-            t = beyond(u[i], edges, env, g[1], over, on_n) if enveloped[j] else -1
+            t = beyond(u[i], edges, env, g[8], over, on_n) if enveloped[j] else -1
             if t >= 0:  # a residual far beyond what the window's changes showed: raised
                 g[0] = 0
                 g[3] = 0
@@ -554,7 +566,7 @@ def _settle_kernel(
                 sup[i] = False
                 sid[i] = -1
                 hit[i, 0] = t
-                hit[i, 1] = g[1]
+                hit[i, 1] = g[8]
             e = r[i, j]
             if g[0] == 0:
                 pass
@@ -635,8 +647,8 @@ class SettleGuard:
         self.run = np.zeros(m, np.int64)
         self.moved = np.zeros(m, np.int64)
         # open, elapsed, quiet, latched, loop, last alarm, samples since the last alarm, an
-        # envelope's alarm on
-        self.g = np.array([0, 0, 0, 0, 0, 0, NEVER, 0], np.int64)
+        # envelope's alarm on, the event's age
+        self.g = np.array([0, 0, 0, 0, 0, 0, NEVER, 0, 0], np.int64)
         self.over = np.zeros(self.env.shape[1], np.int64)  # per test: beyond its envelope
         self.text = ""  # the open settle's why
         self.opened = ""  # when the open settle's step was
@@ -785,7 +797,7 @@ class SettleGuard:
         sup, sid = np.zeros(n, np.bool_), np.full(n, -1, np.int64)
         no = np.zeros(n, np.bool_)
         one = np.ones(m, np.int64)
-        g = np.array([0, 0, 0, 0, 0, 0, NEVER, 0], np.int64)
+        g = np.array([0, 0, 0, 0, 0, 0, NEVER, 0, 0], np.int64)
         # each step opens a settle that closes at once (quiet_n = max_n = 1): every step
         # found; no envelope read (none of the loops enveloped, its counts a copy)
         k = _settle_kernel(
@@ -824,7 +836,9 @@ class SettleGuard:
         self.run = np.asarray(state["run"], np.int64)
         self.moved = np.asarray(state["moved"], np.int64)
         g = np.asarray(state["g"], np.int64)
-        self.g = np.r_[g, np.zeros(8 - g.size, np.int64)]  # states saved before: 7 long
+        # states saved before: 7 long (no envelope's alarm), 8 (the event's age: its
+        # bound's elapsed, as it was counted then)
+        self.g = np.r_[g, np.zeros(max(0, 8 - g.size), np.int64), g[1:2]][:9]
         self.text = str(state["text"])
         over = state.get("over")  # states saved before the envelope: none beyond it
         if over is not None and len(over) == self.over.size:

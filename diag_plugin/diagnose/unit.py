@@ -38,7 +38,7 @@ import itertools
 import logging
 import math
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -1086,8 +1086,8 @@ class Unit:
         envelope is learned at, :func:`~.settle.settle_replay`); None: the unit's own."""
         guard = self.settle if settle is None else settle
         rc = self.file.running
-        col = None if rc is None else self.file.tags.get(rc.tag, rc.tag)
-        if rc is None or col not in frame.columns:
+        col = self.run_column(frame)
+        if rc is None or col is None:
             return self._evaluate(frame, guard, pieces)
         runs = rc.runs(frame[col].to_numpy(float))
         if runs.all():
@@ -1096,12 +1096,8 @@ class Unit:
         masked = frame.copy()
         masked.loc[~runs, [c for c in frame.columns if c != col]] = np.nan
         parts = []
-        for a, b, on in segments(runs):
-            since = None
-            if not on:
-                if self.was_running:  # a stop (not the rest of one a piece began in)
-                    self._stopped(guard)
-                since = None if guard is None else int(guard.g[6])
+        for a, b, on in self.run_segments(runs, guard):
+            since = None if on or guard is None else int(guard.g[6])
             d = self._evaluate(masked.iloc[a:b], guard, pieces)
             if not on:
                 d = not_running(d, rc.whys(frame[col].to_numpy(float)[a:b]))
@@ -1109,9 +1105,45 @@ class Unit:
                 if since is not None:  # the time stopped is no quiet time: an alarm at the
                     # last stop keeps the next start's settle shut (a fault is not hidden)
                     guard.g[6] = since
-            self.was_running = on
             parts.append(d)
         return concat(parts)
+
+    def run_column(self, frame: pd.DataFrame) -> str | None:
+        """The column of ``frame`` that holds the run condition's tag (``[running]``,
+        :mod:`~.running`): its plant name, else its models' name (a build's window, read
+        under the models' names with the run tag beside); None without a run condition or
+        without the tag: the frame is judged throughout."""
+        rc = self.file.running
+        if rc is None:
+            return None
+        have = (self.file.tags.get(rc.tag, rc.tag), rc.tag)
+        return next((c for c in have if c in frame.columns), None)
+
+    def runs_of(self, frame: pd.DataFrame) -> np.ndarray:
+        """Per row of ``frame`` whether the unit runs (:meth:`RunCondition.runs
+        <diag_plugin.diagnose.running.RunCondition.runs>` of :meth:`run_column`; every row
+        without one)."""
+        col = self.run_column(frame)
+        if col is None:
+            return np.ones(len(frame), bool)
+        return self.file.running.runs(frame[col].to_numpy(float))
+
+    def run_segments(
+        self, runs: np.ndarray, settle: SettleGuard | None = None
+    ) -> Iterator[tuple[int, int, bool]]:
+        """The runs of ``runs`` (per sample whether the unit runs), each ``(start, end,
+        running)``, with the unit's carriers restarted as at run time: at each stop (a
+        stretch stopped after one running, not the rest of a stop a piece of data began in)
+        :meth:`_stopped` before it is yielded (``settle``: the guard it lets go of its holds),
+        and :attr:`was_running` set after each. One rule for :meth:`evaluate` and for what
+        is learned from residuals filtered as the unit filters them (the build's
+        :class:`~diag_plugin.unitbuild.loops.HeldOut`: its filters restart at each stop as
+        here, so a spread test's filter starts at its first value after a long stop)."""
+        for a, b, on in segments(runs):
+            if not on and self.was_running:
+                self._stopped(settle)
+            yield a, b, on
+            self.was_running = on
 
     def _equipment_off(self, cols: Columns, n: int) -> tuple | None:
         """Samples × tests where a piece of equipment's tests are off (it is stopped,

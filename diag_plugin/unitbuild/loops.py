@@ -678,10 +678,11 @@ class HeldOut(Replay):
     model that did not see it) rather than the unit replayed on the window it was trained on,
     filtered as the unit filters them at run time: centred at each sample's operating point
     (a level test of a unit with several, :meth:`~diag_plugin.diagnose.unit.Unit.at_points`)
-    and each run of the run condition after its stop as the unit filters it (its filters
-    restart at every stop, :meth:`~diag_plugin.diagnose.unit.Unit._stopped`, and read the
-    stopped samples as missing: a spread test's filter starts at its first value after a
-    long stop). A figure learned from the window is
+    and each run of the run condition after its stop as the unit filters it, by the unit's
+    own rule (:meth:`~diag_plugin.diagnose.unit.Unit.run_segments`: its filters restart at
+    every stop, :meth:`~diag_plugin.diagnose.unit.Unit._stopped`, and read the stopped
+    samples as missing: a spread test's filter starts at its first value after a long
+    stop). A figure learned from the window is
     judged on data its models did not see: an envelope read from in-sample residuals is as
     narrow as the models over-fit the starts (issue 34, items 5/6)."""
 
@@ -693,33 +694,25 @@ class HeldOut(Replay):
         import numpy as np
         import pandas as pd
 
-        from diag_plugin.diagnose.running import segments
-
         if self.got is None:
             unit, frame = self.unit, self.frame
             x = self.held.reindex(index=frame.index, columns=unit.tests)
             if unit.level_points is not None and unit.cmodel is not None:
                 plant = frame.rename(columns=unit.file.tags)
                 x = unit.at_points(x, unit.cmodel.point_of(plant))
-            rc = unit.file.running
-            have = () if rc is None else (rc.tag, unit.file.tags.get(rc.tag))
-            col = next((c for c in have if c in frame.columns), None)
-            runs = (np.ones(len(frame), bool) if col is None
-                    else rc.runs(frame[col].to_numpy(float)))  # fmt: skip
             x, names = x.to_numpy(float), x.columns
             r = np.full(x.shape, np.nan)
             unit.reset()
-            for a, b, on in segments(runs):
-                if on:
-                    part = pd.DataFrame(x[a:b], columns=names)
-                    r[a:b] = unit.filtered(part).to_numpy(float)
-                else:  # a stop: the filters restart (Unit._stopped) and read the
-                    # stopped samples as missing, as at run time: after a long stop a
-                    # spread test's filter starts at its first value, not from rest (the
-                    # pasteuriser's HW_TEMP_spread: 60 × its threshold 5 min after a start
-                    # at run time, 0 rising to 54 here; its envelope missed every start)
-                    unit.reset().filtered(pd.DataFrame(np.nan, index=range(b - a),
-                                                       columns=names))  # fmt: skip
+            # the unit's own rule (Unit.run_segments): at each stop its filters restart
+            # and read the stopped samples as missing, as at run time: after a long stop
+            # a spread test's filter starts at its first value, not from rest (the
+            # pasteuriser's HW_TEMP_spread: 60 x its threshold 5 min after a start at run
+            # time, 0 rising to 54 filtered from rest; its envelope missed every start)
+            for a, b, on in unit.run_segments(unit.runs_of(frame)):
+                part = x[a:b] if on else np.full((b - a, len(names)), np.nan)
+                got = unit.filtered(pd.DataFrame(part, columns=names)).to_numpy(float)
+                if on:  # a stopped row is judged at no residual
+                    r[a:b] = got
             unit.reset()
             self.raw = r
             e = r - np.nanmedian(r, axis=0)
@@ -1095,8 +1088,9 @@ def gumbel_bound(x, cells: int = 1) -> float:
 def age_events(age):
     """Per row the event it belongs to (0, 1, …; -1 none) from ``age``, per row the age it is
     judged at (samples, -1 none; :func:`~diag_plugin.diagnose.settle.settle_ages`): an event
-    begins where a row's age does not continue the row before's by one (a settle opened, or
-    carried on by another tag's step, counts its age afresh)."""
+    begins where a row's age does not continue the row before's by one (a settle opened; a
+    step inside an open settle, its own tag's or another's that carries it on, does not
+    restart its age: :mod:`~diag_plugin.diagnose.settle`)."""
     import numpy as np
 
     age = np.asarray(age, np.int64)
