@@ -4,18 +4,20 @@ protocol (``diag benchmark --plant skab``) with the tuning runs in the scoring r
 Per run a unit (``build_unit`` on the run's first 400 samples, as the bench builds every
 run's), PCA and DPCA (two lags) T² + Q on the same rows; every method one score per sample
 (:mod:`diag_plugin.bench.matched`, the unit's on/off delays); each limit matched on the
-bench's calibration runs (the anomaly-free chunks and the tuning runs' normal samples after
-their first 400) and SKAB's F1 / FAR / MAR on the tuning runs' samples after their first
-400, with the per-fault detection of the unit, PCA and DPCA. The scoring runs are not read.
+bench's calibration runs (the anomaly-free chunks and the tuning runs' samples after their
+first 400 and before their anomaly; ``--recovery``: every label-0 sample after the first
+400, the recovery after the anomaly included, the bench's protocol until 2026-12-02) and
+SKAB's F1 / FAR / MAR on the tuning runs' samples after their first 400, with the per-fault
+detection of the unit, PCA and DPCA. The scoring runs are not read.
 
 ``--leave-out`` scores each tuning run at limits matched without its own normal samples
 (:func:`~diag_plugin.bench.matched.calibrate_leaving_out`), as the scoring runs are scored at
 limits they did not set: with the common limits every target up to 0.01 sits on the largest
 tuning fault's tail (its alarm held into the run's normal samples by the off-delay), which
-leaves every method at F1 0 there and cannot tell two builds apart. ``--drop-held`` leaves
-the off-delay's samples after each tuning fault (the fault's alarm, held) out of the
-calibration — not the bench's protocol, which counts them: a look at what the low targets
-compare.
+leaves every method at F1 0 there and cannot tell two builds apart (with ``--recovery``).
+``--drop-held`` (with ``--recovery``) leaves the off-delay's samples after each tuning fault
+(the fault's alarm, held) out of the calibration: what the bench does since 2026-12-02, as
+the tuning runs end within the off-delay after their fault.
 
 ``--dpca-t2 W`` scores the unit with ``W`` times DPCA's ``T²`` over its limit beside its own
 statistics (a DPCA-like test among the unit's, emulated on the saved statistics; issue 34
@@ -148,8 +150,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--drop-held",
         action="store_true",
-        help="leave the off-delay's samples after each tuning fault out of the calibration "
-        "(a question of the yardstick, for the bench's owner: not the bench's protocol)",
+        help="with --recovery: leave the off-delay's samples after each tuning fault out of "
+        "the calibration",
+    )
+    ap.add_argument(
+        "--recovery",
+        action="store_true",
+        help="calibrate on every label-0 sample of the tuning runs, the recovery after the "
+        "fault included (the bench's protocol until 2026-12-02)",
     )
     ap.add_argument(
         "--dpca-t2",
@@ -221,7 +229,11 @@ def main(argv: list[str] | None = None) -> int:
                 x = by_run[run.name]
                 if run.labels is not None:
                     lab = run.labels[run.learn :]
-                    keep = lab == 0
+                    if args.recovery:  # the label-0 samples after the fault too (before
+                        keep = lab == 0  # 2026-12-02: the bench's protocol then)
+                    else:  # the bench's: a run's samples before its anomaly
+                        hit = np.flatnonzero(lab > 0)
+                        keep = np.arange(lab.size) < (hit[0] if hit.size else lab.size)
                     if args.drop_held:  # the off-delay's hold after a fault: its alarm
                         for e in np.flatnonzero((lab[:-1] > 0) & (lab[1:] == 0)):
                             keep[e + 1 : e + 1 + off] = False

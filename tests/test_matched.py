@@ -283,6 +283,31 @@ def test_a_run_is_scored_at_a_limit_its_own_tail_did_not_set():
     assert both["MAR"] == pytest.approx(50 / 250)  # each run at its own limit: the 3s under 4
 
 
+def test_a_labelled_run_calibrates_with_its_samples_before_the_anomaly_only():
+    """A labelled run's fault-free operation is what precedes its anomaly: the label-0 samples
+    after it are the recovery, where a method that saw the fault still holds its alarm (the
+    off-delay's plateau at the fault's level). Counted as fault-free they set a low target's
+    limit on the largest fault seen to its end (SKAB until 2026-12-02: every method's limit
+    at 0.001–0.02); taken before the onset, the limit is the fault-free scores' and the fault
+    under the old limit is seen."""
+    from diag_plugin.bench.publicbench import before_onset
+
+    rng = np.random.default_rng(5)
+    free = [rng.random(1000) for _ in range(3)]  # fault-free runs: scores under 1
+    x = np.r_[rng.random(300), np.full(200, 40.0), np.full(170, 40.0)]  # the held plateau
+    labels = np.r_[np.zeros(300), np.ones(200), np.zeros(170)]
+    pre = before_onset(x, labels)
+    assert len(pre) == 300 and np.array_equal(pre, x[:300])
+    old = calibrate([*free, x[labels == 0]], 0.01, 1.0).limit
+    new = calibrate([*free, pre], 0.01, 1.0).limit
+    assert old >= 40.0 and new < 1.0  # the plateau no longer sets the limit
+    other = np.r_[rng.random(100), np.full(100, 20.0)]  # another run's smaller fault
+    assert np.mean(other[100:] > old) == 0.0 and np.mean(other[100:] > new) == 1.0
+    # a run with no anomaly is all fault-free; a list of labels works as an array does
+    assert np.array_equal(before_onset(x[:50], np.zeros(50)), x[:50])
+    assert len(before_onset(x, list(labels))) == 300
+
+
 def test_tail_levels_count_a_held_plateau_as_one_value_and_one_episode():
     """A fault's alarm held by the off-delay over a run's normal samples after it is one value
     of the score for all of them: the calibration's largest 2 % are then a handful of such

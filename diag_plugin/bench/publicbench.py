@@ -327,8 +327,8 @@ def run_matched_benchmark(
         for r in runs:
             for m, s in scored(r).items():
                 x = s.score
-                if r.labels is not None:  # a labelled run: its normal samples only
-                    x = x[r.labels[(r.learn if plant.per_run else 0) :] == 0]
+                if r.labels is not None:  # a labelled run: its fault-free samples only
+                    x = before_onset(x, r.labels[(r.learn if plant.per_run else 0) :])
                 per_method[m][role].append(x)
             done += 1
             tick("score fault-free runs", done, total)
@@ -349,10 +349,12 @@ def run_matched_benchmark(
     seconds["score"] = time.perf_counter() - t
 
     if plant.per_run and not plant.free:
-        # SKAB: the fault-free scoring samples are the label-0 samples of the scoring runs
+        # SKAB: the fault-free scoring samples are the scoring runs' samples before their
+        # first labelled anomaly (SKAB's own FAR, every label-0 sample, is its table's)
         for m in methods:
             per_method[m]["free"] = [
-                s.score[lab == 0] for s, lab in zip(per_method[m]["faults"], labels, strict=True)
+                before_onset(s.score, lab)
+                for s, lab in zip(per_method[m]["faults"], labels, strict=True)
             ]
     res = curve(per_method, targets, plant.period_s, per, fault_runs)
     hourly = None
@@ -395,6 +397,18 @@ def run_matched_benchmark(
         "curve_hour": hourly,
         "seconds": {k: round(v, 1) for k, v in seconds.items()},
     }
+
+
+def before_onset(x: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """The samples of a labelled run before its first labelled anomaly: its fault-free
+    operation. The label-0 samples *after* a fault are not: the process is recovering, and
+    every method's alarm that saw the fault is still held there by its off-delay (on SKAB's
+    tuning runs each such tail is one plateau at the fault's own level, 171–173 samples of a
+    run that ends within the off-delay), so counting them as fault-free would set a low
+    target's limit at the level of the largest fault seen to its end rather than of the
+    fault-free scores."""
+    hit = np.flatnonzero(np.asarray(labels) > 0)
+    return x[: int(hit[0])] if hit.size else x
 
 
 def skab_metrics(
