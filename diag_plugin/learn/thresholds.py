@@ -1206,7 +1206,6 @@ def learn_combined(
     ``mapper`` (:data:`Mapper`) computes the whole window's parameters and each held-out
     block's T² (independent of each other) in any number of processes."""
     from diag_plugin.diagnose.unittags import outside_tests
-    from diag_plugin.learn.budget import calibrate_side
 
     x_all = body[unit.tests].to_numpy(float)
     outside = outside_tests(unit)
@@ -1249,14 +1248,7 @@ def learn_combined(
         t2[block == b] = got
     dt_h = pd.Timedelta(unit.period) / pd.Timedelta(hours=1)
     h = float(np.isfinite(t2).sum()) * dt_h
-    on, off = unit.ev["on_delay"], unit.ev["off_delay"]
-    side = calibrate_side(t2, h, far, on, off)
-    high = float(side.threshold)
-    if side.method == "gaussian":
-        # too few episodes for a tail: Rice's Gaussian rate fits the distance √T² (a χ
-        # variable, Gaussian-tailed), not the skewed T² itself
-        side = calibrate_side(np.sqrt(t2), h, far, on, off)
-        high = float(side.threshold) ** 2
+    high, side = combined_threshold(t2, h, far, unit.ev["on_delay"], unit.ev["off_delay"])
     spec.high = high
     spec.notes = {
         "far": float(f"{far:.3g}"),
@@ -1266,6 +1258,43 @@ def learn_combined(
         "hours_needed": float(f"{side.hours_needed:.3g}"),
     }
     return spec
+
+
+#: the few-values rule (:func:`~diag_plugin.learn.budget.calibrate_side`'s ``few``) of the
+#: combined test's T²: off (:func:`combined_threshold`)
+COMBINED_FEW = 0.0
+
+
+def combined_threshold(t2: np.ndarray, hours: float, far: float, on_delay: int,
+                       off_delay: int):  # fmt: skip
+    """The combined test's threshold on its held-out T² (``t2``, NaN unknown; ``hours`` of
+    operation, the budget ``far`` per hour, the unit's delays) and the
+    :class:`~diag_plugin.learn.budget.SideThreshold` it rests on
+    (:func:`~diag_plugin.learn.budget.calibrate_side`): where the window holds too few
+    episodes for a tail, Rice's Gaussian rate fitted to the distance √T² (a χ variable,
+    Gaussian-tailed), not to the skewed T² itself.
+
+    Without the few-values rule (:data:`COMBINED_FEW` = 0; the tests' sides have it,
+    :data:`~diag_plugin.learn.budget.FEW_VALUES`): T² is a sum of squares, its tail an
+    exponential one (a χ² law's), the tail fit's own model; Rice's Gaussian on T² does not
+    describe it, and on T² the rule was on in no window tried (T²'s top is beyond a Gaussian
+    series', :func:`~diag_plugin.learn.budget.gaussian_top`: passing ``FEW_VALUES`` here
+    moves no threshold of the benchmark plants' units nor of the fan plant's and the
+    pasteuriser's in the tests, docs/how-to/unit-short-windows.md, "the few-values rule
+    on"). On √T² it would be, and would move thresholds (a month at 1 min of 5 slow
+    residuals, 49 independent values of T²: the tail fit's 21.4 against Rice's 26.4,
+    ``tests/test_learning_combined_few.py``). So it stays off until a plant shows it is
+    needed."""
+    from diag_plugin.learn.budget import calibrate_side
+
+    side = calibrate_side(t2, hours, far, on_delay, off_delay, COMBINED_FEW)
+    high = float(side.threshold)
+    if side.method == "gaussian":
+        # too few episodes for a tail: Rice's Gaussian rate fits the distance √T² (a χ
+        # variable, Gaussian-tailed), not the skewed T² itself
+        side = calibrate_side(np.sqrt(t2), hours, far, on_delay, off_delay, COMBINED_FEW)
+        high = float(side.threshold) ** 2
+    return high, side
 
 
 #: a set-point's response on a test is kept where it is this many standard errors from zero
