@@ -48,7 +48,9 @@ statistic, at which hour) and ``T²``'s largest in the first 4 hours from the si
 start against the 4 hours from hour 8 with the unit cold there. Found: every run's top is
 ``T²``; in seeds 31–34 it falls in hours 0.3–2.1 (1.18–1.73 times the 1 % limit), where
 the same runs scored cold from hour 8 stay at 0.79–1.02 — the plant settling from the
-simulator's base state, not the unit's cold start; the held-out largest over the
+simulator's base state (XMV1 and XMV2 5.1 and 4.5 training sd below their training means over
+hours 0–2 of every run, printed per run with the tags carrying ``T²``'s early top), not the
+unit's cold start; the held-out largest over the
 calibration's is 1.123 on average for the unit (PCA 1.026, DPCA 1.032), the held-out share at
 0.1 % the same as PCA's (0.19 %, PCA 0.20 %, DPCA 0.12 %).
 
@@ -362,6 +364,9 @@ def _studio(args) -> int:
           "calibration runs; T²'s largest in the first 4 hours from the simulator's start and "
           "in the 4 hours from hour 8, the unit cold there (all empty)")  # fmt: skip
     lim = calibrate([sc["unit"][r.name] for r in plant.calibration], 0.01, period).limit
+    train = np.concatenate([f.to_numpy(float) for f in frames])
+    mu, sd = train.mean(axis=0), train.std(axis=0)
+    sd[sd == 0] = np.inf  # a tag the training holds fixed counts as not moved
     for k, f in runs.items():
         d = np.nan_to_num(delayed_score(unit_statistics(unit, f)[0], on, off), nan=-np.inf)
         i = int(np.argmax(d.max(axis=1)))
@@ -374,6 +379,15 @@ def _studio(args) -> int:
         print(f"  {k}: {names[j]} at hour {i * period / 3600:.1f}; largest per statistic: "
               f"{others}; T² in the first 4 h from rest {early[0]:.2f}, from hour 8 cold "
               f"{early[1]:.2f}")  # fmt: skip
+        contrib = unit_statistics(unit, f)[1]
+        at = int(np.nanargmax(d[:four, -1]))
+        c = contrib.iloc[at].sort_values(ascending=False).iloc[:3]
+        z = (f.iloc[: four // 2].mean().to_numpy(float) - mu) / sd
+        big = np.argsort(-np.abs(z))[:3]
+        print(f"    T²'s top in the first 4 h (hour {at * period / 3600:.1f}) carried by "
+              + ", ".join(f"{t} {v:.2f}" for t, v in c.items())
+              + "; the tags' mean over hours 0–2 against training's, in its sd: "
+              + ", ".join(f"{cols[b]} {z[b]:+.1f}" for b in big))  # fmt: skip
     return 0
 
 
