@@ -30,7 +30,7 @@ pieces each), every piece scored from rest — and prints:
 
 Found (2026-12-02, ``docs/results/index.md``, "At 0.1 % every limit is the calibration's
 largest score"): at 0.1 % every method's limit is ``d00_te``'s largest score and every method
-then alarms about one episode per 48 h held out (unit 0.40 %, PCA 0.34 %, DPCA 0.32 % of the
+then alarms about one episode per 48 h held out (unit 0.40 %, PCA 0.33 %, DPCA 0.30 % of the
 tuning splits' held-out samples); the unit's score goes least far past the calibration's
 largest (1.009 on average, PCA 1.037, DPCA 1.017) with the flattest top, its pieces' tops set
 by one statistic or another (XMEAS3_joint most often: the D feed is 1.2 times as spread in
