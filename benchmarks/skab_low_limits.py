@@ -5,7 +5,13 @@ and the bench's calibration runs only (the scoring runs are not read).
 Per calibration run a unit (``build_unit`` on the run's first 400 samples, as the bench and
 ``skab_matched_tuning.py`` build it), PCA and DPCA (two lags) on the same rows; every method's
 score as the bench takes it (:func:`~diag_plugin.bench.matched.method_score`: each statistic
-over its limit, after the on/off delays, their maximum). Printed:
+over its limit, after the on/off delays, their maximum). The calibration samples are the
+bench's: a labelled run's samples before its anomaly (``--recovery``: every label-0 sample,
+the recovery after the anomaly included, the bench until 2026-12-02; the held plateaus of
+item 1 are those). Since then (2026-12-02, load 6–7): the unit's limit at 0.001–0.02 is 2.80,
+a 240-sample plateau of anomaly-free[3]'s flow level test (0.05: 2.66, anomaly-free[7]'s
+T²); PCA's 11.76 / 10.92 / 6.40 / 6.40 (valve1/12 before its anomaly, anomaly-free[4]).
+Printed:
 
 1. per method and target the matched limit and the calibration share over it; then the
    distinct values of the largest 5 % of calibration samples
@@ -76,6 +82,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--targets", default="0.001,0.005,0.01,0.02,0.05,0.1", help="shares")
     ap.add_argument("--share", type=float, default=0.05, help="the calibration tail listed")
+    ap.add_argument(
+        "--recovery",
+        action="store_true",
+        help="calibrate on every label-0 sample, the recovery after an anomaly included (the "
+        "bench until 2026-12-02); default: a run's samples before its anomaly, as the bench",
+    )
     add_scratch_args(ap, "nothing")
     args = ap.parse_args(argv)
     targets = [float(t) for t in args.targets.split(",")]
@@ -110,8 +122,12 @@ def main(argv: list[str] | None = None) -> int:
     keep = {}
     for r in cal_runs:
         k = np.arange(len(r.frame)) >= r.learn
-        if r.labels is not None:
-            k &= r.labels == 0
+        if r.labels is not None:  # the bench's: before the anomaly (--recovery: every label 0)
+            if args.recovery:
+                k &= r.labels == 0
+            else:
+                hit = np.flatnonzero(r.labels > 0)
+                k &= np.arange(len(r.frame)) < (hit[0] if hit.size else len(r.frame))
         keep[r.name] = k
     scores = {m: {r.name: method_score(stats[r.name][m], on, off) for r in cal_runs}
               for m in ("unit", "PCA", "DPCA")}  # fmt: skip
