@@ -138,6 +138,20 @@ rows/s); with ``--csv`` 3.79 → 3.54 (52,710 → 56,440; wall 2.40 → 2.19); `
 per piece); 1,000,000 rows ``--no-csv``, 3 pairs at a load of 3.1–4.5, 10.09 → 10.13 (99,110
 → 98,690: the ~0.2 CPU s saved is inside the noise there); the same JSON and CSV (md5
 ``804a00c3…``, ``31fec695…``; rolled ``c21a4eba…``; 1,000,000 rows ``e177ec7b…``).
+Round fourteen (branch ``i37-replay``): each run without ``PYTHONDONTWRITEBYTECODE``
+(:func:`child_env`): with it, as in the sessions' shells, a ``git archive`` snapshot compiled
+every module from source in every timed run (200,000 rows, 3 runs each at a load of 7–8:
+9.77 → 9.16 CPU s); the ``--warm`` run now writes the bytecode. Nothing of the command
+changed: ``main`` (0897d86) and the branch, the same code, 5 pairs at a load of 8.0–9.1,
+200,000 rows ``--no-csv`` 7.96 / 8.06 CPU s (25,130 / 24,820 rows per CPU s; read 2.96 /
+3.15, replay 2.52 / 2.61, start-up 1.88 / 1.88), ``--csv`` 3 pairs at 6.4–7.9 10.24 / 10.23;
+1,000,000 rows ``--no-csv``, 3 pairs at 6.0–7.4, 31.42 / 30.93 (31,830 / 32,340; read 14.82 /
+14.55, replay 12.48 / 11.76); the same md5 in both trees (``804a00c3…``, ``31fec695…``;
+1,000,000 rows ``af5a7457…``, which round thirteen's code gives on this session's
+historian too).
+At these loads every figure is ~3× a quiet machine's. Where the rest goes and what was
+tried without gain (batch rows, malloc thresholds, the intervals' pattern, the text
+columns, the residuals' copy): the doc's "Round fourteen".
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
@@ -352,7 +366,7 @@ def run_once(
     csv.unlink(missing_ok=True)
     cmd = [sys.executable, "-c", WRAPPER, "--db", url, "--rulebases", str(rb)]
     cmd += ["diagnose", NAME, "--json", *(["--csv", str(csv)] if csv_too else []), *extra]
-    env = {**os.environ, "PYTHONPATH": str(tree)}
+    env = child_env(tree)
     load0 = os.getloadavg()[0]
     t = time.perf_counter()
     with open(js, "wb") as fo, open(out / "err.txt", "wb") as fe:
@@ -374,6 +388,17 @@ def run_once(
         "md5_json": hashlib.md5(js.read_bytes()).hexdigest(),
         "md5_csv": hashlib.md5(csv.read_bytes()).hexdigest() if csv_too else "-",
     }
+
+
+def child_env(tree: Path) -> dict[str, str]:
+    """The command's environment: this one, the checkout on ``PYTHONPATH``, and without
+    ``PYTHONDONTWRITEBYTECODE`` — with it a checkout that has no bytecode yet (a ``git
+    archive`` snapshot) compiles every module from source in every run (~0.3–0.6 CPU s of a
+    200,000-row run, round fourteen), where an installed package reads its ``.pyc``; the
+    untimed ``--warm`` run writes them."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env["PYTHONPATH"] = str(tree)
+    return env
 
 
 def split(st: dict) -> dict[str, float]:
