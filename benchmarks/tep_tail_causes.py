@@ -72,6 +72,20 @@ from pathlib import Path
 import numpy as np
 
 
+def _unit_of(plant, folder: Path):
+    """The unit built the way a user builds it from ``plant``'s training runs into ``folder``
+    (built when ``folder`` holds none; None, said, when the build refuses)."""
+    from diag_plugin.bench.publicbench import build_unit_as_user
+    from diag_plugin.diagnose.unit import Unit
+
+    if not (folder / "units").exists():
+        built = build_unit_as_user(plant, plant.train, folder)
+        if built["unit"] is None:
+            print(f"the unit was not built: {built['note']}")
+            return None
+    return Unit.load(plant.name, folder / "units")
+
+
 def main(argv: list[str] | None = None) -> int:
     from tep_far_spread import _distinct
     from tep_matched_tuning import QUIET
@@ -85,7 +99,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     from diag_plugin.bench.publicbench import (
         DPCA_LAGS,
-        build_unit_as_user,
         pca_fit,
         pca_statistics,
         unit_score,
@@ -93,7 +106,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     from diag_plugin.bench.publicplants import load_braatz
     from diag_plugin.diagnose.operating import learned_ranges
-    from diag_plugin.diagnose.unit import Unit
     from diag_plugin.models.series import effective_samples
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -107,12 +119,9 @@ def main(argv: list[str] | None = None) -> int:
 
     plant = load_braatz()
     folder = Path(args.unit or "/tmp/tep_tail_causes_unit")
-    if not (folder / "units").exists():
-        built = build_unit_as_user(plant, plant.train, folder)
-        if built["unit"] is None:
-            print(f"the unit was not built: {built['note']}")
-            return 1
-    unit = Unit.load(plant.name, folder / "units")
+    unit = _unit_of(plant, folder)
+    if unit is None:
+        return 1
     on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
     period = plant.period_s
     piece = int(8 * 3600 / period)
@@ -309,23 +318,18 @@ def _studio(args) -> int:
     from diag_plugin.bench.matched import calibrate, delayed_score, method_score, rates
     from diag_plugin.bench.publicbench import (
         DPCA_LAGS,
-        build_unit_as_user,
         pca_fit,
         pca_statistics,
         unit_score,
         unit_statistics,
     )
     from diag_plugin.bench.publicplants import load_tep_studio
-    from diag_plugin.diagnose.unit import Unit
 
     plant = load_tep_studio(need=("train", "calibration"))
     folder = Path(args.unit or "/tmp/tep_tail_causes_studio_unit")
-    if not (folder / "units").exists():
-        built = build_unit_as_user(plant, plant.train, folder)
-        if built["unit"] is None:
-            print(f"the unit was not built: {built['note']}")
-            return 1
-    unit = Unit.load(plant.name, folder / "units")
+    unit = _unit_of(plant, folder)
+    if unit is None:
+        return 1
     on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
     period = plant.period_s
     names = [*unit.tests, "T2"]
