@@ -39,7 +39,7 @@ SPANS = (200, 400, 800, 1600)
 
 def main(argv: list[str] | None = None) -> int:
     from diag_plugin.bench.matched import Scored, calibrate, method_score
-    from diag_plugin.bench.publicbench import skab_metrics
+    from diag_plugin.bench.publicbench import fault_free_mask, skab_metrics
     from diag_plugin.bench.publicplants import load_skab
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -85,11 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     def normal(r) -> np.ndarray:  # the calibration samples of a labelled run
-        lab = r.labels[r.learn :]
-        if args.recovery:
-            return lab == 0
-        hit = np.flatnonzero(lab > 0)
-        return np.arange(lab.size) < (hit[0] if hit.size else lab.size)
+        return fault_free_mask(r.labels[r.learn :], args.recovery)
 
     def report(label: str, by_run: dict[str, np.ndarray]) -> None:
         f1, tail = [], ""

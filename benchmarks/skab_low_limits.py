@@ -77,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     from skab_matched_tuning import build_run, cpu_seconds
 
     from diag_plugin.bench.matched import calibrate, delayed_score, method_score, tail_levels
+    from diag_plugin.bench.publicbench import fault_free_mask
     from diag_plugin.bench.publicplants import load_skab
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -123,11 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     for r in cal_runs:
         k = np.arange(len(r.frame)) >= r.learn
         if r.labels is not None:  # the bench's: before the anomaly (--recovery: every label 0)
-            if args.recovery:
-                k &= r.labels == 0
-            else:
-                hit = np.flatnonzero(r.labels > 0)
-                k &= np.arange(len(r.frame)) < (hit[0] if hit.size else len(r.frame))
+            k &= fault_free_mask(r.labels, args.recovery)
         keep[r.name] = k
     scores = {m: {r.name: method_score(stats[r.name][m], on, off) for r in cal_runs}
               for m in ("unit", "PCA", "DPCA")}  # fmt: skip

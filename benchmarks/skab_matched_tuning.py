@@ -16,8 +16,8 @@ limits they did not set: with the common limits every target up to 0.01 sits on 
 tuning fault's tail (its alarm held into the run's normal samples by the off-delay), which
 leaves every method at F1 0 there and cannot tell two builds apart (with ``--recovery``).
 ``--drop-held`` (with ``--recovery``) leaves the off-delay's samples after each tuning fault
-(the fault's alarm, held) out of the calibration: what the bench does since 2026-12-02, as
-the tuning runs end within the off-delay after their fault.
+(the fault's alarm, held) out of the calibration: near what the bench does since 2026-12-02
+(every sample after the anomaly out), as the tuning runs end within the off-delay after it.
 
 ``--dpca-t2 W`` scores the unit with ``W`` times DPCA's ``T²`` over its limit beside its own
 statistics (a DPCA-like test among the unit's, emulated on the saved statistics; issue 34
@@ -119,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         method_score,
         rates,
     )
-    from diag_plugin.bench.publicbench import skab_metrics
+    from diag_plugin.bench.publicbench import fault_free_mask, skab_metrics
     from diag_plugin.bench.publicplants import load_skab
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -229,11 +229,7 @@ def main(argv: list[str] | None = None) -> int:
                 x = by_run[run.name]
                 if run.labels is not None:
                     lab = run.labels[run.learn :]
-                    if args.recovery:  # the label-0 samples after the fault too (before
-                        keep = lab == 0  # 2026-12-02: the bench's protocol then)
-                    else:  # the bench's: a run's samples before its anomaly
-                        hit = np.flatnonzero(lab > 0)
-                        keep = np.arange(lab.size) < (hit[0] if hit.size else lab.size)
+                    keep = fault_free_mask(lab, args.recovery)
                     if args.drop_held:  # the off-delay's hold after a fault: its alarm
                         for e in np.flatnonzero((lab[:-1] > 0) & (lab[1:] == 0)):
                             keep[e + 1 : e + 1 + off] = False

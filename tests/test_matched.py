@@ -306,6 +306,11 @@ def test_a_labelled_run_calibrates_with_its_samples_before_the_anomaly_only():
     # a run with no anomaly is all fault-free; a list of labels works as an array does
     assert np.array_equal(before_onset(x[:50], np.zeros(50)), x[:50])
     assert len(before_onset(x, list(labels))) == 300
+    # the mask the tuning scripts calibrate with: the same prefix, or every label 0
+    from diag_plugin.bench.publicbench import fault_free_mask
+
+    assert np.array_equal(x[fault_free_mask(labels)], pre)
+    assert np.array_equal(fault_free_mask(labels, recovery=True), labels == 0)
 
 
 def test_tail_levels_count_a_held_plateau_as_one_value_and_one_episode():

@@ -407,8 +407,18 @@ def before_onset(x: np.ndarray, labels: np.ndarray) -> np.ndarray:
     run that ends within the off-delay), so counting them as fault-free would set a low
     target's limit at the level of the largest fault seen to its end rather than of the
     fault-free scores."""
-    hit = np.flatnonzero(np.asarray(labels) > 0)
-    return x[: int(hit[0])] if hit.size else x
+    return x[: fault_free_mask(labels).sum()]
+
+
+def fault_free_mask(labels: np.ndarray, recovery: bool = False) -> np.ndarray:
+    """Which samples of a labelled run are its fault-free operation (:func:`before_onset`):
+    those before its first labelled anomaly; with ``recovery`` every label-0 sample, the
+    recovery after the anomaly included (the SKAB bench's calibration until 2026-12-02)."""
+    lab = np.asarray(labels)
+    if recovery:
+        return lab == 0
+    hit = np.flatnonzero(lab > 0)
+    return np.arange(lab.size) < (hit[0] if hit.size else lab.size)
 
 
 def skab_metrics(
