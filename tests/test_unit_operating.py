@@ -288,7 +288,6 @@ def test_one_input_at_its_learned_edge_is_at_the_edge_not_in_a_gap():
     ranges = learned_ranges({"AIR1": model}, ["AIR1"])
     step = 100.0 / 30
     plain = [r for r in ranges if not r.gap]
-    assert [r.step for r in plain] == pytest.approx([step])
     lo, hi = plain[0].lo, plain[0].hi
     assert (lo, hi) == pytest.approx((step * 5.5, step * 17.5))  # 18.33 … 58.33
     f = _frame("10s", DO1_VLV=[58.1, hi - 1.5 * step, lo + 0.5, 40.0])
@@ -298,6 +297,7 @@ def test_one_input_at_its_learned_edge_is_at_the_edge_not_in_a_gap():
     assert out[1] == f"DO1_VLV = {hi - 1.5 * step:.4g}: in a gap of {said}"
     assert out[2] == f"DO1_VLV = {lo + 0.5:.4g}: at the edge of {said}"
     assert out[3] == f"DO1_VLV = 40: in a gap of {said}"
+    assert [r.step for r in plain] == pytest.approx([step])
     lin = LinearRegressor(input_spans=[(0.0, 100.0)]).fit(x, 56.0 * x[:, 0])
     flat = learned_ranges({"AIR1": type("M", (), {"model": lin, "inputs": ["DO1_VLV[k]"]})()},
                           ["AIR1"])  # fmt: skip
