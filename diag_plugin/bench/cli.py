@@ -33,7 +33,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         type=int,
         action="append",
         dest="seeds",
-        help="simulator seed(s) (--plant: the faulty runs' seeds, default 9101–9103)",
+        help="simulator seed(s) (--plant chemplant without --match-far: the faulty runs' "
+        "seeds, default 9101–9103)",
     )
     p.add_argument(
         "--plant",
@@ -65,16 +66,30 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="--plant tep/tep-studio/skab: where the data are (default: the "
                    "environment variable or cache the docs name)")  # fmt: skip
     p.add_argument(
-        "--period", type=int, default=180, help="--plant: sample period in s (default 180; 1)"
+        "--period",
+        type=int,
+        default=180,
+        help="--plant chemplant without --match-far: sample period, whole s (default 180, e.g. 1)",
     )
     p.add_argument("--free-seed", type=int, action="append", dest="free_seeds",
-                   help="--plant: fault-free scoring seed(s) (default 9151–9153)")  # fmt: skip
+                   help="--plant chemplant without --match-far: fault-free scoring seed(s) "
+                   "(default 9151–9153)")  # fmt: skip
     p.add_argument("--train-seed", type=int, action="append", dest="train_seeds",
-                   help="--plant: fault-free training seed(s) (default 1–3)")  # fmt: skip
-    p.add_argument("--train-days", type=float, help="--plant: days per training seed")
+                   help="--plant chemplant without --match-far: fault-free training seed(s) "
+                   "(default 1–3)")  # fmt: skip
+    p.add_argument(
+        "--train-days",
+        type=float,
+        help="--plant chemplant without --match-far: days per training seed",
+    )
     p.add_argument("--fault", action="append", dest="faults", metavar="NAME[:SIZE]",
-                   help="--plant: a fault to score (default all 15)")  # fmt: skip
-    p.add_argument("--far", type=float, help="--plant: budget, alarms per hour (unit build's)")
+                   help="--plant: a fault to score, repeatable (default all the plant's: chemplant "
+                   "15, tep 21, tep-studio 20; SKAB is scored on all its runs)")  # fmt: skip
+    p.add_argument(
+        "--far",
+        type=float,
+        help="--plant chemplant without --match-far: budget, alarms per hour (unit build's)",
+    )
     p.add_argument("--out", metavar="DIR", help="--plant: keep the built unit in DIR")
     add_json(p)
     p.set_defaults(func=cmd_benchmark)
