@@ -78,6 +78,28 @@ def test_a_training_seed_cannot_score(capfd):
     assert "both train and score" in capfd.readouterr().err
 
 
+@pytest.mark.parametrize("flag", ["--seed", "--period", "--free-seed", "--train-seed",
+                                  "--train-days", "--far"])  # fmt: skip
+@pytest.mark.parametrize(
+    "mode", [["--plant", "chemplant", "--match-far"], ["--plant", "tep"], ["--plant", "skab"]]
+)
+def test_the_matched_mode_refuses_the_budget_options_rather_than_ignore_them(
+    mode, flag, tmp_path, capfd
+):
+    """The matched benchmark fixes its runs and sets its limits from the target rates: an option
+    of the budget-limit benchmark would be ignored silently, so it is refused (exit 2) with a
+    message naming it. An unknown fault and an empty data folder make a run that did not refuse
+    stop at once (with another message) instead of loading a plant."""
+    extra = [] if mode[1] == "skab" else ["--fault", "nope"]
+    argv = ["benchmark", *mode, "--data", str(tmp_path), *extra, flag, "3"]
+    rc = cli.main(argv)
+    err = capfd.readouterr().err
+    assert rc == 2
+    assert f"{flag}: only for --plant chemplant without --match-far" in err
+    assert "matched false-alarm rates" in err
+    assert "Traceback" not in err
+
+
 def _row(fault, kind, per_method):
     """A benchmark row: per method a list of (detection rate, faulted tag named) per run."""
     row = {"fault": fault, "kind": kind}

@@ -67,8 +67,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    "environment variable or cache the docs name)")  # fmt: skip
     p.add_argument(
         "--period",
-        type=int,
-        default=180,
+        type=int,  # no default here: the matched mode must see whether it was given
         help="--plant chemplant without --match-far: sample period, whole s (default 180, e.g. 1)",
     )
     p.add_argument("--free-seed", type=int, action="append", dest="free_seeds",
@@ -193,10 +192,41 @@ def _dur(s: float | None) -> str:
     return f"{s / 3600:.1f} h" if s >= 3600 else f"{s / 60:.0f} min" if s >= 60 else f"{s:.0f} s"
 
 
+#: the options only the budget-limit benchmark (``--plant chemplant`` without ``--match-far``)
+#: reads, by their ``args`` attribute: the matched mode fixes its own runs and sets every
+#: method's limit from the target rate, so it refuses them rather than ignore them
+BUDGET_ONLY = {
+    "seeds": "--seed",
+    "period": "--period",
+    "free_seeds": "--free-seed",
+    "train_seeds": "--train-seed",
+    "train_days": "--train-days",
+    "far": "--far",
+}
+
+
+def refuse_budget_options(args) -> None:
+    """Raise :class:`UserError` naming the first budget-only option given to the matched mode."""
+    for attr, flag in BUDGET_ONLY.items():
+        if getattr(args, attr, None) is not None:
+            mode = "--match-far" if args.plant == "chemplant" else f"--plant {args.plant}"
+            why = (
+                "its limits come from the --match-far rates, not a budget"
+                if attr == "far"
+                else "it scores the plant's own fixed runs"
+            )
+            raise UserError(
+                f"{flag}: only for --plant chemplant without --match-far; {mode} benchmarks "
+                f"at matched false-alarm rates and {why}"
+            )
+
+
 def cmd_matched_benchmark(args) -> int:
     """``diag benchmark --plant P --match-far``: the unit, PCA and DPCA at matched false-alarm
     rates (:func:`~diag_plugin.bench.publicbench.run_matched_benchmark`); the result page
-    written only when ``--page`` names it."""
+    written only when ``--page`` names it. The budget-only options are refused
+    (:func:`refuse_budget_options`) before anything is loaded."""
+    refuse_budget_options(args)
     from rich.console import Console
     from rich.progress import Progress
 
@@ -265,8 +295,9 @@ def cmd_plant_benchmark(args) -> int:
 
     from diag_plugin.bench.plant import run_plant_benchmark
 
-    if args.period < 1:
-        raise UserError(f"--period {args.period}: a whole number of seconds ≥ 1")
+    period = 180 if args.period is None else args.period
+    if period < 1:
+        raise UserError(f"--period {period}: a whole number of seconds ≥ 1")
     if args.far is not None and not args.far > 0:
         raise UserError(f"--far {args.far:g}: the budget must be a positive rate per hour")
     con = Console(stderr=True)
@@ -279,7 +310,7 @@ def cmd_plant_benchmark(args) -> int:
         try:
             out = run_plant_benchmark(
                 args.plant,
-                period_s=args.period,
+                period_s=period,
                 quick=args.quick,
                 fault_seeds=args.seeds,
                 free_seeds=args.free_seeds,
