@@ -60,8 +60,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--page", metavar="FILE",
                    help="write the result page (provenance: command, date, commit, seeds): "
-                   "only when given, e.g. docs/results/damadics.md or, with --plant, "
-                   "docs/results/PLANT.md")  # fmt: skip
+                   "only when given, e.g. docs/results/damadics.md or, with --plant and "
+                   "--match-far, docs/results/PLANT.md")  # fmt: skip
     p.add_argument("--data", metavar="DIR",
                    help="--plant tep/tep-studio/skab: where the data are (default: the "
                    "environment variable or cache the docs name)")  # fmt: skip
@@ -288,13 +288,21 @@ def cmd_matched_benchmark(args) -> int:
 
 def cmd_plant_benchmark(args) -> int:
     """``diag benchmark --plant chemplant``: build a unit on fault-free runs, score it beside
-    PCA and DPCA held to the same budget (:func:`~diag_plugin.bench.plant.run_plant_benchmark`)."""
+    PCA and DPCA held to the same budget (:func:`~diag_plugin.bench.plant.run_plant_benchmark`).
+    The output says first that its figures are at the unit's budget, not at matched
+    false-alarm rates (:func:`~diag_plugin.bench.plant.budget_note`); it writes no page."""
     from rich.console import Console
     from rich.progress import Progress
     from rich.table import Table
 
     from diag_plugin.bench.plant import run_plant_benchmark
 
+    if args.page:
+        raise UserError(
+            "--page: --plant chemplant without --match-far writes no page (its figures are at "
+            "the unit's budget, not at matched false-alarm rates); the result pages are made "
+            "with --match-far"
+        )
     period = 180 if args.period is None else args.period
     if period < 1:
         raise UserError(f"--period {period}: a whole number of seconds ≥ 1")
@@ -326,6 +334,7 @@ def cmd_plant_benchmark(args) -> int:
     if args.json:
         print(json.dumps(out, indent=2, allow_nan=False))
         return 0
+    print(out["note"])
     methods = out["methods"]
     tr, sc = out["training"], out["scoring"]
     t = Table(
