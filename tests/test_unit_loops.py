@@ -168,14 +168,14 @@ def test_no_fault_chatters_more_than_3_episodes_in_10_minutes(line):
     "valve gives 37 / 30 unit alarm episodes in the day after the onset (seeds 101 / 102, at "
     "most 2 in any 10 minutes; detected 71 / 44 % of the samples), the same with the "
     "oscillation hold off. It has nothing to hold: the alarm is carried by T² (47 % of the "
-    "samples after the onset, seed 101) "
-    "and FEED_FLOW_spread (16 %), both one-sided, and by VALVE_A's test, which crosses one "
-    "threshold once a stick-slip cycle (~33 samples) on a side set by the operating point "
-    "for hours; the spread's running MAD misses the slip (a quarter of the cycle), median "
-    "0.4 of its threshold. The evidence lapses for up to 1–3 h (gaps 2–744 samples): a "
-    "one-sided repeat hold at the unit's own window (2400 s) leaves 11–18 a day, ≤ 3 needs a "
-    "window read off these runs (docs/how-to/unit-loops.md, 'The 7-tag line's sticking "
-    "valve').",
+    "samples after the onset, seed 101; not read by the hold) and FEED_FLOW_spread (16 %, "
+    "one-sided), and by VALVE_A's test, which crosses one threshold once a stick-slip cycle "
+    "(~33 samples) on a side set by the operating point for hours; the spread's running MAD "
+    "misses the slip (a quarter of the cycle), median 0.4 of its threshold. The evidence "
+    "lapses for up to 1–3 h (gaps 2–744 samples): a one-sided repeat hold at the unit's own "
+    "window (2400 s) leaves 11–18 a day, ≤ 3 needs a window read off these runs "
+    "(docs/how-to/unit-loops.md, 'The 7-tag line's sticking valve'; "
+    "benchmarks/line7_stiction_holds.py).",
 )
 def test_a_sticking_valve_on_the_line_is_at_most_3_alarms_a_day(line):
     """ISA-18.2: a standing fault is a standing alarm — at most 3 unit alarm episodes a day
