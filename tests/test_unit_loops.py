@@ -419,12 +419,14 @@ def test_accept_reports_a_spread_tests_one_threshold_as_the_file_holds_it(tmp_pa
 def test_a_compensated_meter_bias_is_named_on_the_meter_not_on_its_valve(line):
     """A bias of the loop's meter, compensated: the valve moves and the tests beyond it (the
     outlet flow, modelled from the set-point) move the way the same bias moves them; the
-    valve moved three times as far as its model's gain on the set-point says (its
-    characteristic is steeper away from where it was learned: twice as far in the line's
-    runs). The meter explains it in full and is named first; on its one compensated
-    direction (main) the valve's own axis (the valve, the supply pressure its model reads)
-    explained more, 0.95 against 0.88. A move of the valve alone (a biased valve, a
-    supply pressure change), or tests beyond it moved the other way, stays with the valve.
+    valve moved three times as far as its model's gain on the set-point says. The meter
+    explains it in full and is named first; on its one compensated direction the valve's
+    own axis (the valve, the supply pressure its model reads) explained more, 0.95 against
+    0.88 (with the gain measured over less than a set, 2.18 %/(m³/h) where the valve's
+    characteristic gives 5.1, :func:`~diag_plugin.learn.thresholds.gain_step`). A move of
+    the valve alone (a biased valve, a supply pressure change), or tests beyond it moved the
+    other way, stays with the valve: ranked first, though the meter's compensated direction,
+    the valve's move per unit of bias nearly four times the outlet's, explains most of it.
     And the credit is a test of fit: the same two moves with the level's test moved too (a
     deviation the bias does not explain: more than a fault-free sample leaves), or with a
     test unknown (the tests that would contradict the bias not there), are not credited."""
@@ -440,7 +442,8 @@ def test_a_compensated_meter_bias_is_named_on_the_meter_not_on_its_valve(line):
     alone = np.zeros(len(tests))
     alone[va] = bias[va]
     share = cm.shares_of(alone[None, :])[0]
-    assert share[meter] < share[valve] - 0.1, dict(zip(cm.tags, share, strict=True))
+    assert share[meter] < share[valve], dict(zip(cm.tags, share, strict=True))
+    assert rank(share[None, :])[0, 0] == valve
     other_way = -bias
     other_way[va] = bias[va]
     share = cm.shares_of(other_way[None, :])[0]
@@ -469,11 +472,12 @@ def test_a_meter_bias_its_loop_cannot_take_is_named_on_the_meter(line):
     the tests beyond the valve move the way the bias moves them, the rest of the bias is
     the loop's error (the reading above its set-point, as the bias says), and the valve's
     test moves by what the limit left. The meter explains it in full and is named first
-    (main: 0.92 of ``T²``, its one-dimensional directions leave the loop's error and the
-    valve's stop out). A loop error of the other sign (the true flow above its
-    set-point, the tests beyond saying it is below) is not a bias: the meter keeps its
-    one-dimensional contributions there, as with the credit off. Found on the chemical
-    plant's cooler-outlet drift (tuning seed 103: its valve reached 100 %)."""
+    (without the credit 0.96 of ``T²``, 0.92 with the valve's gain measured over less than
+    a set: its one-dimensional directions leave the loop's error and the valve's stop
+    out). A loop error of the other sign (the true flow above its set-point, the tests
+    beyond saying it is below) is not a bias: the meter keeps its one-dimensional
+    contributions there, as with the credit off. Found on the chemical plant's
+    cooler-outlet drift (tuning seed 103: its valve reached 100 %)."""
     cm, tests, valve, meter = _meter_and_valve(line)
     va, lp = tests.index("VALVE_A"), tests.index("FEED_FLOW")
     comp = cm.process[:, meter].copy()
@@ -488,7 +492,7 @@ def test_a_meter_bias_its_loop_cannot_take_is_named_on_the_meter(line):
     assert rank(share[None, :])[0, 0] == meter
     assert share[valve] < share[meter]
     plain = replace(cm, compensated=None)
-    assert plain.shares_of(z[None, :])[0][meter] < 0.95  # its one-dimensional directions
+    assert plain.shares_of(z[None, :])[0][meter] < 0.98  # its one-dimensional directions
     other_way = z.copy()
     other_way[lp] = -6.0
     share = cm.shares_of(other_way[None, :])[0]
@@ -539,3 +543,59 @@ def test_the_meters_credit_changes_nothing_on_the_fault_free_runs(line):
         assert (d.detected.to_numpy() == 1).any()
         pd.testing.assert_frame_equal(d.top_tags, without.top_tags)
         pd.testing.assert_frame_equal(d.contributions, without.contributions)
+
+
+# ---------------------------------------------------------------- named first (the how-to's table)
+
+#: the seed of the how-to's table (``python -m tests.line7``)
+TABLE_SEED = 101
+
+
+def _held_first(d) -> pd.Series:
+    """The share of the alarm samples after the onset on which each tag is held first."""
+    alarm = (d.detected.to_numpy() == 1)[ONSET:]
+    top1 = d.top_tags["top1"].to_numpy()[ONSET:]
+    return pd.Series(top1[alarm & (top1 != "")]).value_counts(normalize=True)
+
+
+def test_a_flow_meter_bias_is_named_first_on_the_meter(line):
+    """The flow-meter bias is held first on the meter on most of its alarm samples, not on
+    the valve its loop moves (the how-to's table, seed 101: the meter 88 %). With the
+    valve's gain on the set-point measured over less than one of its model's sets (2.18
+    %/(m³/h) where the data's slope is 5.1) the meter's compensated direction said the valve
+    moves half as far as it does, and the valve's own axis took the deviation: main 25 %,
+    the valve 74 % (the audit of issue 34; :func:`~diag_plugin.learn.thresholds.gain_step`)."""
+    _, _, runs, _ = line
+    first = _held_first(runs[("flow_bias", TABLE_SEED)])
+    assert first.get("FEED_FLOW", 0.0) > 0.5, first
+    assert first.index[0] == "FEED_FLOW", first
+
+
+def test_the_valve_model_gain_on_its_set_point_is_the_valves_slope(line):
+    """The gain the directions are built from is the model's slope over its sets, not over a
+    set's flat core: the valve's model's gain on the flow set-point near the data's slope
+    (least squares over the build window, 5.1 %/(m³/h); the valve's characteristic, ``100 /
+    (cv √(p − 1))``, 4.4–6.1 over the window's pressures). Main: 2.18."""
+    _, unit, _, _ = line
+    frame = line7.simulate(TRAIN_DAYS, seed=1)
+    x = np.column_stack([frame["FEED_TARGET"], frame["SUPPLY_P"], np.ones(len(frame))])
+    slope = np.linalg.lstsq(x, frame["VALVE_A"].to_numpy(), rcond=None)[0][0]
+    gain = unit.file.combined.gains["VALVE_A"]["FEED_TARGET"]
+    assert abs(gain - slope) < 0.2 * slope, (gain, slope)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="the supply-pressure drift is held first on VALVE_A on 93 % of its alarm samples "
+    "(seed 101, 2026-12-02; SUPPLY_P 0 %, third of the top three): the drifting pressure "
+    "moves only the valve's test, which the valve's level direction moves alone too (the "
+    "two directions parallel), and the valve's plane with its loop test's axis and the "
+    "ranking's ties go to the valve; docs/how-to/unit-loops.md, 'The 7-tag line'",
+)
+def test_a_pressure_drift_is_named_first_on_the_pressure_transmitter(line):
+    """The supply-pressure transmitter's drift held first on ``SUPPLY_P`` on most of its
+    alarm samples (the how-to's table, seed 101; 77 % before 34b2edd, whose valve direction
+    mixed its level and its spread test)."""
+    _, _, runs, _ = line
+    first = _held_first(runs[("pressure_drift", TABLE_SEED)])
+    assert first.get("SUPPLY_P", 0.0) > 0.5, first
