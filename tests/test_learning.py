@@ -287,6 +287,31 @@ def test_the_note_says_the_runs_held_out_whole_not_five_blocks(tmp_path):
     assert not any("5 time blocks" in s for s in got.sources.values())
 
 
+def test_a_short_window_note_says_what_its_hours_are(tmp_path):
+    """The note that a window shows too few alarms for the budget gave the hours of residual
+    calibrated on as "the window (72 h)" for a 96-h window at 3 min (issue 34; the first
+    quarter of a run under 2,000 samples is left out while the filter settles). It names
+    both now, and what is between them: on the rig's two short runs, 250 samples."""
+    from diag_plugin.diagnose.unitfile import hours
+    from diag_plugin.learn.thresholds import settled
+
+    window = _window((101, 102))
+    unit = _rig_unit(tmp_path, window)
+    got = learn_thresholds(unit, [window], far=0.0005)
+    settling = int((~settled(window.notna().any(axis=1).to_numpy())).sum())
+    assert settling == len(window) - len(got.body) > 0  # a quarter of each run under 2,000 rows
+    notes = {w.split(":")[0]: w for w in got.warnings if "too few alarms" in w}
+    assert set(notes) == {k for k, b in got.budgets.items() if not b.supported} != set()
+    for name, note in notes.items():
+        b = got.budgets[name]
+        assert b.hours < (len(window) - settling) / 3600 + 1e-9
+        assert note.startswith(
+            f"{name}: {hours(b.hours)} of residual — the window's {hours(len(window) / 3600)} "
+            f"less {hours(settling / 3600)} ({settling:,} samples) while the filter settles"
+        ), note
+        assert "the window (" not in note
+
+
 def test_a_unit_learned_on_its_training_window_does_not_alarm_inside_it(tmp_path):
     """Models trained on two runs of a few hundred samples each; thresholds learned on the same
     two runs, cross-fitted: the unit stays quiet over them. In-sample residuals would have

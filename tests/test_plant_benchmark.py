@@ -54,6 +54,31 @@ def test_the_cli_runs_and_prints_json_with_the_expected_keys(result):
         "detection_above_pca", "false_alarms_no_higher", "top3_80pct", "holds"
     }  # fmt: skip
     assert (folder / "chemplant.unit.toml").exists()  # --out keeps the built unit
+    assert "not at matched false-alarm rates" in out["note"]
+    assert "--match-far" in out["note"]
+
+
+def test_the_printed_output_says_first_that_its_rates_are_not_matched(result, monkeypatch, capsys):
+    """The budget-limit figures (unit and PCA false alarms on the scoring runs not matched) are
+    not read as matched ones: the text output's first line says so and points to --match-far.
+    The run is the fixture's (its JSON handed back), only the printing is exercised."""
+    from diag_plugin.bench import plant
+
+    monkeypatch.setattr(plant, "run_plant_benchmark", lambda *a, **k: result[1])
+    assert cli.main(["benchmark", "--plant", "chemplant", "--quick"]) == 0
+    first = capsys.readouterr().out.lstrip().splitlines()[0]
+    assert first.startswith("Figures at the unit's budget")
+    assert "not at matched false-alarm rates" in first
+    assert "diag benchmark --plant chemplant --match-far" in first
+
+
+def test_the_budget_mode_writes_no_page_and_says_so(tmp_path, capfd):
+    page = tmp_path / "chemplant.md"
+    argv = ["benchmark", "--plant", "chemplant", "--fault", "nope", "--page", str(page)]
+    rc = cli.main(argv)  # the unknown fault: a run that did not refuse stops at once
+    assert rc == 2
+    assert "--page: --plant chemplant without --match-far writes no page" in capfd.readouterr().err
+    assert not page.exists()
 
 
 def test_a_big_sensor_bias_is_detected_and_named(result):
@@ -76,6 +101,28 @@ def test_a_training_seed_cannot_score(capfd):
     rc = cli.main(["benchmark", "--plant", "chemplant", "--quick", "--seed", "2"])
     assert rc == 2
     assert "both train and score" in capfd.readouterr().err
+
+
+@pytest.mark.parametrize("flag", ["--seed", "--period", "--free-seed", "--train-seed",
+                                  "--train-days", "--far"])  # fmt: skip
+@pytest.mark.parametrize(
+    "mode", [["--plant", "chemplant", "--match-far"], ["--plant", "tep"], ["--plant", "skab"]]
+)
+def test_the_matched_mode_refuses_the_budget_options_rather_than_ignore_them(
+    mode, flag, tmp_path, capfd
+):
+    """The matched benchmark fixes its runs and sets its limits from the target rates: an option
+    of the budget-limit benchmark would be ignored silently, so it is refused (exit 2) with a
+    message naming it. An unknown fault and an empty data folder make a run that did not refuse
+    stop at once (with another message) instead of loading a plant."""
+    extra = [] if mode[1] == "skab" else ["--fault", "nope"]
+    argv = ["benchmark", *mode, "--data", str(tmp_path), *extra, flag, "3"]
+    rc = cli.main(argv)
+    err = capfd.readouterr().err
+    assert rc == 2
+    assert f"{flag}: only for --plant chemplant without --match-far" in err
+    assert "matched false-alarm rates" in err
+    assert "Traceback" not in err
 
 
 def _row(fault, kind, per_method):

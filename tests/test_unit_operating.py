@@ -270,3 +270,38 @@ def test_a_two_input_tests_set_point_in_a_gap_is_named_with_its_neighbours_and_s
     assert list(first) == ["", "", "", said, said]
     # the next piece: the entry carried
     assert list(ol.transform(f.iloc[5:], unknown[5:], unknown[5:, 0])) == [said, said]
+
+
+def test_one_input_at_its_learned_edge_is_at_the_edge_not_in_a_gap():
+    """Acceptance pass 11 (docs/explanation/acceptance-aeration2.md): a day at 10 s saw the
+    zone 1 air valve at 18–58 %; the next day `AIR1 = f(DO1_VLV[k])` had no answer at 57.7–58.3
+    %, inside the last rule set's outer half, where that rule carries under 90 % of the firing
+    weight, and main said `DO1_VLV = 58.1: in a gap of what the unit learned (18.33 … 58.33)`
+    on 107 samples: no gap, the range printed as if it were one. Within one set width of an end
+    it is the edge; deeper inside it stays a gap; a model without a rule grid (no set width)
+    keeps the gap sentence."""
+    rng = np.random.default_rng(11)
+    x = rng.uniform(19.0, 57.5, (3000, 1))
+    wm = WangMendelRegressor(input_spans=[(0.0, 100.0)], output_span=(0.0, 8000.0), n_sets=31)
+    wm.fit(x, 56.0 * x[:, 0])
+    model = type("TestModel", (), {"model": wm, "inputs": ["DO1_VLV[k]"]})()
+    ranges = learned_ranges({"AIR1": model}, ["AIR1"])
+    step = 100.0 / 30
+    plain = [r for r in ranges if not r.gap]
+    lo, hi = plain[0].lo, plain[0].hi
+    assert (lo, hi) == pytest.approx((step * 5.5, step * 17.5))  # 18.33 … 58.33
+    f = _frame("10s", DO1_VLV=[58.1, hi - 1.5 * step, lo + 0.5, 40.0])
+    out = OutsideLearned(ranges).transform(f, np.ones((4, 1), bool), np.ones(4, bool))
+    said = f"what the unit learned ({lo:.4g} … {hi:.4g})"
+    assert out[0] == f"DO1_VLV = 58.1: at the edge of {said}"
+    assert out[1] == f"DO1_VLV = {hi - 1.5 * step:.4g}: in a gap of {said}"
+    assert out[2] == f"DO1_VLV = {lo + 0.5:.4g}: at the edge of {said}"
+    assert out[3] == f"DO1_VLV = 40: in a gap of {said}"
+    assert [r.step for r in plain] == pytest.approx([step])
+    lin = LinearRegressor(input_spans=[(0.0, 100.0)]).fit(x, 56.0 * x[:, 0])
+    flat = learned_ranges({"AIR1": type("M", (), {"model": lin, "inputs": ["DO1_VLV[k]"]})()},
+                          ["AIR1"])  # fmt: skip
+    assert [r.step for r in flat] == [0.0]
+    out = OutsideLearned(flat).transform(_frame("10s", DO1_VLV=[99.5]), np.ones((1, 1), bool),
+                                         np.ones(1, bool))  # fmt: skip
+    assert out[0] == "DO1_VLV = 99.5: in a gap of what the unit learned (0 … 100)"

@@ -305,10 +305,11 @@ def _ref_combination(self, cols, unknown, todo, out, gone):  # every row, test b
             if not all(np.isfinite(v)) and any(x is not None for x in start[i]):
                 out[i] = _ref_gone(self, watch, start[i])  # a lagged input, and tags now
             elif all(np.isfinite(v)) and len(v) == 1:
-                r = next(r for r in self.ranges if r.test == j and r.key == have[0])
+                r = next(r for r in self.ranges if r.test == j and r.key == have[0] and not r.gap)
+                edge = r.step > 0 and (v[0] - r.lo <= r.step or r.hi - v[0] <= r.step)
                 out[i] = (
-                    f"{names[0]} = {v[0]:.4g}: in a gap of what the unit learned "
-                    f"({r.lo:.4g} … {r.hi:.4g})"
+                    f"{names[0]} = {v[0]:.4g}: {'at the edge of' if edge else 'in a gap of'} "
+                    f"what the unit learned ({r.lo:.4g} … {r.hi:.4g})"
                 )
             elif all(np.isfinite(v)):
                 out[i] = (

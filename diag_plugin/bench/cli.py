@@ -33,7 +33,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         type=int,
         action="append",
         dest="seeds",
-        help="simulator seed(s) (--plant: the faulty runs' seeds, default 9101–9103)",
+        help="simulator seed(s) (--plant chemplant without --match-far: the faulty runs' "
+        "seeds, default 9101–9103)",
     )
     p.add_argument(
         "--plant",
@@ -59,22 +60,35 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--page", metavar="FILE",
                    help="write the result page (provenance: command, date, commit, seeds): "
-                   "only when given, e.g. docs/results/damadics.md or, with --plant, "
-                   "docs/results/PLANT.md")  # fmt: skip
+                   "only when given, e.g. docs/results/damadics.md or, with --plant and "
+                   "--match-far, docs/results/PLANT.md")  # fmt: skip
     p.add_argument("--data", metavar="DIR",
                    help="--plant tep/tep-studio/skab: where the data are (default: the "
                    "environment variable or cache the docs name)")  # fmt: skip
     p.add_argument(
-        "--period", type=int, default=180, help="--plant: sample period in s (default 180; 1)"
+        "--period",
+        type=int,  # no default here: the matched mode must see whether it was given
+        help="--plant chemplant without --match-far: sample period, whole s (default 180, e.g. 1)",
     )
     p.add_argument("--free-seed", type=int, action="append", dest="free_seeds",
-                   help="--plant: fault-free scoring seed(s) (default 9151–9153)")  # fmt: skip
+                   help="--plant chemplant without --match-far: fault-free scoring seed(s) "
+                   "(default 9151–9153)")  # fmt: skip
     p.add_argument("--train-seed", type=int, action="append", dest="train_seeds",
-                   help="--plant: fault-free training seed(s) (default 1–3)")  # fmt: skip
-    p.add_argument("--train-days", type=float, help="--plant: days per training seed")
+                   help="--plant chemplant without --match-far: fault-free training seed(s) "
+                   "(default 1–3)")  # fmt: skip
+    p.add_argument(
+        "--train-days",
+        type=float,
+        help="--plant chemplant without --match-far: days per training seed",
+    )
     p.add_argument("--fault", action="append", dest="faults", metavar="NAME[:SIZE]",
-                   help="--plant: a fault to score (default all 15)")  # fmt: skip
-    p.add_argument("--far", type=float, help="--plant: budget, alarms per hour (unit build's)")
+                   help="--plant: a fault to score, repeatable (default all the plant's: chemplant "
+                   "15, tep 21, tep-studio 20; SKAB is scored on all its runs)")  # fmt: skip
+    p.add_argument(
+        "--far",
+        type=float,
+        help="--plant chemplant without --match-far: budget, alarms per hour (unit build's)",
+    )
     p.add_argument("--out", metavar="DIR", help="--plant: keep the built unit in DIR")
     add_json(p)
     p.set_defaults(func=cmd_benchmark)
@@ -178,10 +192,41 @@ def _dur(s: float | None) -> str:
     return f"{s / 3600:.1f} h" if s >= 3600 else f"{s / 60:.0f} min" if s >= 60 else f"{s:.0f} s"
 
 
+#: the options only the budget-limit benchmark (``--plant chemplant`` without ``--match-far``)
+#: reads, by their ``args`` attribute: the matched mode fixes its own runs and sets every
+#: method's limit from the target rate, so it refuses them rather than ignore them
+BUDGET_ONLY = {
+    "seeds": "--seed",
+    "period": "--period",
+    "free_seeds": "--free-seed",
+    "train_seeds": "--train-seed",
+    "train_days": "--train-days",
+    "far": "--far",
+}
+
+
+def refuse_budget_options(args) -> None:
+    """Raise :class:`UserError` naming the first budget-only option given to the matched mode."""
+    for attr, flag in BUDGET_ONLY.items():
+        if getattr(args, attr, None) is not None:
+            mode = "--match-far" if args.plant == "chemplant" else f"--plant {args.plant}"
+            why = (
+                "its limits come from the --match-far rates, not a budget"
+                if attr == "far"
+                else "it scores the plant's own fixed runs"
+            )
+            raise UserError(
+                f"{flag}: only for --plant chemplant without --match-far; {mode} benchmarks "
+                f"at matched false-alarm rates and {why}"
+            )
+
+
 def cmd_matched_benchmark(args) -> int:
     """``diag benchmark --plant P --match-far``: the unit, PCA and DPCA at matched false-alarm
     rates (:func:`~diag_plugin.bench.publicbench.run_matched_benchmark`); the result page
-    written only when ``--page`` names it."""
+    written only when ``--page`` names it. The budget-only options are refused
+    (:func:`refuse_budget_options`) before anything is loaded."""
+    refuse_budget_options(args)
     from rich.console import Console
     from rich.progress import Progress
 
@@ -243,15 +288,24 @@ def cmd_matched_benchmark(args) -> int:
 
 def cmd_plant_benchmark(args) -> int:
     """``diag benchmark --plant chemplant``: build a unit on fault-free runs, score it beside
-    PCA and DPCA held to the same budget (:func:`~diag_plugin.bench.plant.run_plant_benchmark`)."""
+    PCA and DPCA held to the same budget (:func:`~diag_plugin.bench.plant.run_plant_benchmark`).
+    The output says first that its figures are at the unit's budget, not at matched
+    false-alarm rates (:func:`~diag_plugin.bench.plant.budget_note`); it writes no page."""
     from rich.console import Console
     from rich.progress import Progress
     from rich.table import Table
 
     from diag_plugin.bench.plant import run_plant_benchmark
 
-    if args.period < 1:
-        raise UserError(f"--period {args.period}: a whole number of seconds ≥ 1")
+    if args.page:
+        raise UserError(
+            "--page: --plant chemplant without --match-far writes no page (its figures are at "
+            "the unit's budget, not at matched false-alarm rates); the result pages are made "
+            "with --match-far"
+        )
+    period = 180 if args.period is None else args.period
+    if period < 1:
+        raise UserError(f"--period {period}: a whole number of seconds ≥ 1")
     if args.far is not None and not args.far > 0:
         raise UserError(f"--far {args.far:g}: the budget must be a positive rate per hour")
     con = Console(stderr=True)
@@ -264,7 +318,7 @@ def cmd_plant_benchmark(args) -> int:
         try:
             out = run_plant_benchmark(
                 args.plant,
-                period_s=args.period,
+                period_s=period,
                 quick=args.quick,
                 fault_seeds=args.seeds,
                 free_seeds=args.free_seeds,
@@ -280,6 +334,7 @@ def cmd_plant_benchmark(args) -> int:
     if args.json:
         print(json.dumps(out, indent=2, allow_nan=False))
         return 0
+    print(out["note"])
     methods = out["methods"]
     tr, sc = out["training"], out["scoring"]
     t = Table(

@@ -47,6 +47,10 @@ class Range:
     #: and ``hi`` (not outside them), and ``near`` the learned values on either side
     gap: bool = False
     near: tuple[float, float] = (0.0, 0.0)
+    #: the width of one of the input's fine sets for a rule grid (0 without one): a value
+    #: within one step of ``lo`` or ``hi`` is at the edge of what was learned, where the outer
+    #: set's rule carries too little of the firing weight (:meth:`OutsideLearned._in_a_gap`)
+    step: float = 0.0
 
     @property
     def key(self) -> tuple[str, int]:
@@ -99,17 +103,32 @@ def model_gaps(model, specs: Sequence[str]) -> list[tuple[int, str, float, float
     return out
 
 
+def model_steps(model, specs: Sequence[str]) -> list[float]:
+    """Per plain input of ``model`` (as :func:`model_ranges`) the width of its fine sets for a
+    rule grid, 0.0 for a model without one."""
+    parts = getattr(model, "partitions_", None)
+    grid = parts is not None and getattr(model, "keys_", np.empty(0)).size
+    return [
+        float(parts[j].step) if grid else 0.0
+        for j, spec in enumerate(specs)
+        if InputSpec.parse(spec).fn == ""
+    ]
+
+
 def learned_ranges(models: Mapping[str, object], tests: Sequence[str]) -> list[Range]:
     """Every test's plain inputs with their learned ranges (``models``: test name →
-    :class:`~diag_plugin.diagnose.unit.TestModel`), and the gaps inside them its model does
-    not bridge (:func:`model_gaps`)."""
+    :class:`~diag_plugin.diagnose.unit.TestModel`) and a rule grid's set width, and the gaps
+    inside them its model does not bridge (:func:`model_gaps`)."""
     out = []
     for i, name in enumerate(tests):
         m = models[name]
         specs = [InputSpec.parse(s) for s in m.inputs]
         lags = [s.lag for s in specs if s.fn == ""]
-        for (tag, lo, hi), lag in zip(model_ranges(m.model, m.inputs), lags, strict=False):
-            out.append(Range(i, tag, lo, hi, lag))
+        steps = model_steps(m.model, m.inputs)
+        for (tag, lo, hi), lag, step in zip(
+            model_ranges(m.model, m.inputs), lags, steps, strict=False
+        ):
+            out.append(Range(i, tag, lo, hi, lag, step=step))
         for j, tag, lo, hi, a, b in model_gaps(m.model, m.inputs):
             out.append(Range(i, tag, lo, hi, specs[j].lag, gap=True, near=(a, b)))
     return out
@@ -468,10 +487,20 @@ class OutsideLearned:
         """The sentence of a test of one input that has no rule at the input's value though
         the value is inside its learned range (a gap between the values the window held:
         acceptance pass 10, a pasteuriser's new production rate between the runs' and the
-        cleaning's flows): ``TAG = value: in a gap of what the unit learned (lo … hi)``."""
-        r = next(r for r in self.ranges if r.test == test and r.key == key)
-        tail = f": in a gap of what the unit learned ({r.lo:.4g} … {r.hi:.4g})"
-        return np.array([f"{name} = {v:.4g}{tail}" for v in x.tolist()], dtype=object)
+        cleaning's flows): ``TAG = value: in a gap of what the unit learned (lo … hi)``; within
+        one of a rule grid's set widths of ``lo`` or ``hi`` (:attr:`Range.step`), where the
+        outer set's rule carries too little of the firing weight, ``TAG = value: at the edge of
+        what the unit learned (lo … hi)`` (acceptance pass 11, an aeration basin's air valve at
+        58.1 % against a day's 18.33 … 58.33: no gap there)."""
+        r = next(r for r in self.ranges if r.test == test and r.key == key and not r.gap)
+        span = f"({r.lo:.4g} … {r.hi:.4g})"
+        edge = (x - r.lo <= r.step) | (r.hi - x <= r.step) if r.step > 0 else np.zeros(x.size, bool)
+        return np.array(
+            [f"{name} = {v:.4g}: " + ("at the edge of" if e else "in a gap of")
+             + f" what the unit learned {span}"
+             for v, e in zip(x.tolist(), edge.tolist(), strict=True)],
+            dtype=object,
+        )  # fmt: skip
 
     def _combination(self, cols, unk, rows_left, left, out, gaps) -> None:
         """The rows still unnamed (``rows_left``; ``unk``: the unknown tests at the rows to

@@ -728,12 +728,14 @@ def learn_thresholds(
     window = (idx[0].isoformat(), (idx[-1] + period).isoformat())
     unknown = {name: {k: v / len(frame) for k, v in r.unknown.items()} for name, r in res.items()}
     warnings = []
+    dt_h = period / pd.Timedelta(hours=1)
+    span = (len(frame) * dt_h, len(frame) - len(body), dt_h)  # the window, settling, period
     for name, b in budgets.items():
         if not b.supported:
             warnings.append(
-                f"{name}: the window ({hours(b.hours)}) shows too few alarms to support "
-                f"{far_tests:g} per hour (a window of {hours(b.hours_needed)} would); "
-                f"thresholds extrapolated by a {b.method} fit"
+                f"{name}: {too_few(b.hours, *span)} to support {far_tests:g} per hour (a "
+                f"window of {hours(b.hours_needed)} would); thresholds extrapolated by a "
+                f"{b.method} fit"
             )
     warnings += wide_limits(limits, in_spread, unit.ev["scale"] == "max")
     warnings += one_sided(
@@ -757,9 +759,9 @@ def learn_thresholds(
         n = combined.notes
         if unit.ev["combined"] and not n.get("supported", True):
             warnings.append(
-                f"combined test: the window ({hours(n['hours'])}) shows too few alarms to "
-                f"support {n['far']:g} per hour (a window of {hours(n['hours_needed'])} "
-                f"would); threshold extrapolated by a {n['method']} fit"
+                f"combined test: {too_few(n['hours'], *span)} to support {n['far']:g} per "
+                f"hour (a window of {hours(n['hours_needed'])} would); threshold extrapolated "
+                f"by a {n['method']} fit"
             )
     return Learned(
         limits=limits,
@@ -781,6 +783,24 @@ def learn_thresholds(
         body=body,
         off=off,
         scaled=held,
+    )
+
+
+def too_few(used_h: float, window_h: float, settling: int, dt_h: float) -> str:
+    """What a test's budget was calibrated on, for the note that it is too short: ``used_h``
+    hours of residual with a value (:func:`~diag_plugin.learn.budget.calibrate`'s ``hours``)
+    out of the window's ``window_h`` (its rows × the period ``dt_h``), less ``settling`` rows
+    left out while the filter settles (:func:`settled`: the first :data:`SETTLE_SAMPLES` of
+    each run, a quarter of a shorter run) and the hours without a value (inputs missing or
+    out of range, equipment stopped), said only from 1 % of the window. The figure was
+    called "the window" until 2026-12-02, which read 72 h for a 96-h window at 3 min."""
+    settle_h = settling * dt_h
+    unknown_h = window_h - settle_h - used_h
+    rest = f" and {hours(unknown_h)} without a value" if unknown_h >= 0.01 * window_h else ""
+    return (
+        f"{hours(used_h)} of residual — the window's {hours(window_h)} less "
+        f"{hours(settle_h)} ({settling:,} samples) while the filter settles{rest} — show too "
+        "few alarms"
     )
 
 

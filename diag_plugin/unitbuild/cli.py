@@ -25,8 +25,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="build a unit from a fault-free window: tests, inputs, models and thresholds",
     )
     p.add_argument("name")
-    p.add_argument("--from", dest="start", required=True, metavar="T0")
-    p.add_argument("--to", dest="end", required=True, metavar="T1")
+    p.add_argument("--from", dest="start", required=True, metavar="T0",
+                   help="start of the fault-free window to build from, e.g. 2026-03-01 or "
+                   "2026-03-01T06:00 (ISO 8601; naive times are UTC)")  # fmt: skip
+    p.add_argument("--to", dest="end", required=True, metavar="T1",
+                   help="end of that window (exclusive), the same form as --from")  # fmt: skip
     g = p.add_mutually_exclusive_group()
     g.add_argument(
         "--tags", nargs="+", metavar="TAG", help="the tags to test (default: all that vary)"
@@ -35,7 +38,14 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "--tags-from", metavar="FILE", help="the tags to test, one per line (# comments)"
     )
     add_far(p, "(default 0.001)")
-    p.add_argument("--max-inputs", type=int, default=3, metavar="N", help="inputs per model (3)")
+    p.add_argument(
+        "--max-inputs",
+        type=int,
+        default=3,
+        metavar="N",
+        help="inputs per test (3; a short window's at most 2; a "
+        "controller output's or a flow balance's linear test up to 6)",
+    )
     p.add_argument(
         "--loop",
         action="append",
