@@ -374,13 +374,58 @@ def constant_tags(
     return out
 
 
+def held_set_points(frame: pd.DataFrame, held: Mapping[str, str]) -> list[ManualSpan]:
+    """A ``[fixed]`` row for each set-point held over the window (``held``: set-point → its
+    declared loop's measurement, :meth:`_Context.hold_set_point`, or ``""`` where no loop is
+    declared): its value, and as ``margin`` the largest distance of the measurement from it
+    over the window (without one, the build's test of a constant, :func:`tolerance`: any
+    move is one the window never showed). A declared loop's own test reads the
+    set-point at any value, but every other test learned the plant only where the
+    measurement was held there: read at a set-point an operator has moved beyond the
+    measurement's own excursions, they judge an operating point the window never showed (an
+    aeration basin's dissolved oxygen held at 2.0 mg/l for 14 days, moved to 1.5: the blower's
+    and the other zone's valve tests, reading the oxygen, in alarm on 58-61 % of two
+    fault-free days, naming the probe; acceptance pass 11). There the unit says so:
+    CHECK_FUNCTION naming the set-point, its value and since when
+    (:mod:`~diag_plugin.diagnose.fixed`), until it is back or ``diag unit accept`` learns
+    the new point; a move within the measurement's own excursions is judged as before."""
+    out = []
+    for sp, pv in held.items():
+        x = frame[sp].to_numpy(float)
+        x = x[np.isfinite(x)]
+        if not x.size:
+            continue
+        lo, hi = float(x.min()), float(x.max())
+        y = frame[pv].to_numpy(float) if pv in frame else np.empty(0)
+        y = y[np.isfinite(y)]
+        reach = float(max(np.max(np.abs(y - lo)), np.max(np.abs(y - hi)))) if y.size else 0.0
+        margin = max(float(f"{reach:.10g}"), tolerance(max(abs(lo), abs(hi))))
+        out.append(ManualSpan(str(sp), lo, hi, margin))
+    return out
+
+
 def fixed_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:
     """The unit file's ``[fixed]`` table (docs/reference/units.md)."""
     return span_table(
         spans,
-        "written by `diag unit build`: tags constant over its window, read by no test; "
-        "outside [min - margin, max + margin] for the on-delay the unit is CHECK_FUNCTION "
-        "naming the tag (margin: the build's test of a constant, 1e-9 * max(1, |value|))",
+        "written by `diag unit build`: tags constant over its window, read by no test (a "
+        "held set-point: read by its loop's test only); outside [min - margin, max + margin] "
+        "for the on-delay the unit is CHECK_FUNCTION naming the tag (margin: the build's test "
+        "of a constant, 1e-9 * max(1, |value|); a held set-point's: the farthest its loop's "
+        "measurement went from it over the window)",
+    )
+
+
+def held_note(spans: Sequence[ManualSpan]) -> str:
+    """What the build's note says of the held set-points' ``[fixed]`` rows."""
+    each = ", ".join(f"{s.tag} = {learned_text(s).removesuffix(' over its window')} "
+                     f"± {s.margin:.4g}" for s in spans)  # fmt: skip
+    return (
+        f"{len(spans)} held set-point(s) recorded in [fixed] ({each}: its value, ± the farthest "
+        "its loop's measurement went from it): where an operator moves one further for the "
+        "on-delay the unit is CHECK_FUNCTION naming it (every other test learned the plant "
+        "only there), until it is back for the off-delay; `diag unit accept` of a period "
+        "at the new set-point learns it"
     )
 
 
@@ -1386,8 +1431,10 @@ def _build_unit(
         if ctx.hold_set_point(lp.sp, lp.pv):
             loop_notes.append(
                 f"{lp.pv}: its set-point {lp.sp} did not move over the window: the loop's "
-                f"test reads it as it is (the control error, at any set-point an operator "
-                "enters), with no response time (a window with set-point moves learns it)"
+                "test reads it as it is (the control error), with no response time; every "
+                "other test learned the plant only at it, so moved beyond the farthest "
+                f"{lp.pv} went from it the unit is CHECK_FUNCTION naming it ([fixed]; a "
+                "window with set-point moves, or `diag unit accept` of one, learns it)"
             )
         else:
             loop_notes.append(
@@ -1592,9 +1639,19 @@ def _build_unit(
     # a piece's run tag constant over the window (it ran throughout) is no [fixed] tag
     fixed = constant_tags(judged, info, [lp.sp for lp in loops],
                           [m.tag for m in hand] + [e.rc.tag for e in eqs])  # fmt: skip
+    # a set-point held over the window: its loop's measurement's reach, where declared
+    held_sp = held_set_points(judged, {lp.sp: lp.pv for lp in loops if lp.sp in ctx.fixed_sp})
+    held_sp += held_set_points(
+        judged,
+        {t: "" for t in skipped if skipped[t].startswith(CONSTANT_WHY)
+         and is_set_point(t, info.get(t)) and t not in {lp.sp for lp in loops}},
+    )  # fmt: skip
+    if fixed or held_sp:
+        doc["fixed"] = fixed_table([*fixed, *held_sp])
     if fixed:
-        doc["fixed"] = fixed_table(fixed)
         notes.append(fixed_note(fixed))
+    if held_sp:
+        notes.append(held_note(held_sp))
     narrow = narrow_spans(judged, info, kept, skipped)
     if narrow:  # the inputs learned over a narrow part of their span: said whatever the count
         doc["build"]["narrow"] = narrow
