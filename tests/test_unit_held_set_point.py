@@ -75,27 +75,3 @@ def test_a_move_beyond_the_reach_is_check_function_naming_the_set_point(declared
     assert d.why[moved].str.contains("FEED_TARGET = ").all()
     assert d.why[moved].str.contains("outside what the unit learned").all()
     assert not (st[after & far] == NE107.FAILURE).any()
-
-
-def test_an_undeclared_set_point_held_over_the_window_is_fixed_exactly(tmp_path):
-    """A set-point tag by its name (``FEED.SP``) with no loop declared, held over the window:
-    no test reads it (constant), so it is a ``[fixed]`` row at its value with the build's test
-    of a constant as margin; when the operators move it the unit is CHECK_FUNCTION naming it.
-    On main such a set-point was left out of ``[fixed]`` ("their own handling") and nothing
-    handled it: the unit judged the new point with tests that never saw it."""
-    run, window, moves = _held_window()
-    run = run.rename(columns={"FEED_TARGET": "FEED.SP"})
-    window = window.rename(columns={"FEED_TARGET": "FEED.SP"})
-    build_unit("free", window, folder=tmp_path, period="15s", far=0.01, workers=1)
-    row = UnitFile.load(tmp_path / "free.unit.toml").doc["fixed"]["FEED.SP"]
-    held = float(window["FEED.SP"].iloc[0])
-    assert row["min"] == row["max"] == held and row["margin"] < 1e-6 * max(1.0, abs(held))
-    d = Unit.load("free", tmp_path).evaluate(run)
-    st = d.status.to_numpy()
-    moved = np.abs(run["FEED.SP"].to_numpy(float) - held) > 0
-    steady = np.ones(len(run), bool)
-    for m in moves:
-        steady[m : m + 40] = False
-    assert moved[steady].any()
-    assert (st[moved & steady] == NE107.CHECK_FUNCTION).all()
-    assert d.why[moved & steady].str.contains("FEED.SP = ").all()

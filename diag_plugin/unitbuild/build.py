@@ -375,11 +375,15 @@ def constant_tags(
 
 
 def held_set_points(frame: pd.DataFrame, held: Mapping[str, str]) -> list[ManualSpan]:
-    """A ``[fixed]`` row for each set-point held over the window (``held``: set-point → its
-    declared loop's measurement, :meth:`_Context.hold_set_point`, or ``""`` where no loop is
-    declared): its value, and as ``margin`` the largest distance of the measurement from it
-    over the window (without one, the build's test of a constant, :func:`tolerance`: any
-    move is one the window never showed). A declared loop's own test reads the
+    """A ``[fixed]`` row for each declared loop's set-point held over the window (``held``:
+    set-point → the loop's measurement, :meth:`_Context.hold_set_point`): its value, and as
+    ``margin`` the largest distance of the measurement from it over the window (at least the
+    build's test of a constant, :func:`tolerance`). Only where the loop is declared: then
+    the unit knows which measurement the set-point holds and how far the plant went from it;
+    an undeclared set-point's moves are judged by the tests as before (a tank's 990-sample
+    unit followed its level set-point's later moves with no alarm; a row at the build's test
+    of a constant made it CHECK_FUNCTION on 68 % of the continuation). The loop's own test
+    reads the
     set-point at any value, but every other test learned the plant only where the
     measurement was held there: read at a set-point an operator has moved beyond the
     measurement's own excursions, they judge an operating point the window never showed (an
@@ -1639,13 +1643,8 @@ def _build_unit(
     # a piece's run tag constant over the window (it ran throughout) is no [fixed] tag
     fixed = constant_tags(judged, info, [lp.sp for lp in loops],
                           [m.tag for m in hand] + [e.rc.tag for e in eqs])  # fmt: skip
-    # a set-point held over the window: its loop's measurement's reach, where declared
+    # a declared loop's set-point held over the window: its measurement's reach
     held_sp = held_set_points(judged, {lp.sp: lp.pv for lp in loops if lp.sp in ctx.fixed_sp})
-    held_sp += held_set_points(
-        judged,
-        {t: "" for t in skipped if skipped[t].startswith(CONSTANT_WHY)
-         and is_set_point(t, info.get(t)) and t not in {lp.sp for lp in loops}},
-    )  # fmt: skip
     if fixed or held_sp:
         doc["fixed"] = fixed_table([*fixed, *held_sp])
     if fixed:
