@@ -16,11 +16,14 @@ from typing import Any
 
 
 def commit() -> str:
-    """The checkout's short commit, marked when tracked files have uncommitted changes."""
+    """The checkout's short commit, marked when tracked files have uncommitted changes;
+    the generated pages under ``docs/results/`` are not counted (several benchmarks run at
+    once each rewrite their own page; none reads another's)."""
     try:
         p = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                            text=True, timeout=10, cwd=Path(__file__).parent)  # fmt: skip
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--",
+                                ":(top)", ":(top,exclude)docs/results"],
                                capture_output=True, text=True, timeout=10,
                                cwd=Path(__file__).parent).stdout.strip()  # fmt: skip
         return p.stdout.strip() + (" (with uncommitted changes)" if dirty else "")
