@@ -1410,37 +1410,12 @@ def model_gains(
 ) -> dict[str, dict[str, float]]:
     """Per test, the mean gain ``∂ŷ/∂X`` of its model for each tag ``X`` it reads plainly (any
     lag; a bias moves every lag alike, so the lags' gains add), over the samples of ``frame``
-    the model answers, by a forward difference of 5 % of the tag's standard deviation, and at
-    least one set of a rule grid (:func:`gain_step`); keyed by the plant's tag names. Derived
-    inputs (a rate, a direction) get none: a bias leaves them. ``mapper`` (:data:`Mapper`):
-    the tests' gains in any number of processes."""
+    the model answers, by a forward difference of 5 % of the tag's standard deviation; keyed by
+    the plant's tag names. Derived inputs (a rate, a direction) get none: a bias leaves them.
+    ``mapper`` (:data:`Mapper`): the tests' gains in any number of processes."""
     mf = unit._model_frame(frame)
     got = (mapper or _serial)(_test_gains, list(unit.tests), (unit, mf))
     return dict(zip(unit.tests, got, strict=True))
-
-
-#: the forward difference of :func:`model_gains`, in standard deviations of the input
-GAIN_STEP_SD = 0.05
-
-
-def gain_step(model, cols: list[int], sd: float) -> float:
-    """The step :func:`model_gains` moves an input by: :data:`GAIN_STEP_SD` of its standard
-    deviation ``sd``, and at least the spacing of a rule grid's sets on the columns ``cols``
-    it is read at (``partitions_``, the model's uniform partitions: Kościelny et al., the
-    31 sets of each variable). A rule grid answers by interpolating its rules' conclusions,
-    and a trapezoidal set is flat over half its spacing (its core): a step shorter than the
-    spacing measures where the samples sit on the sets — on a core no slope at all, on a
-    flank twice the rules' — not the relation. Over one spacing the difference is that
-    between neighbouring rules' conclusions, the grid's own slope, wherever the sample sits.
-    An input an operator enters to one decimal sits at the same few places of its sets:
-    the 7-tag line's flow set-point (sets 0.11 m³/h apart, the step 0.04) gave its valve's
-    model a gain of 2.18 %/(m³/h) where the data's slope and the valve's characteristic say
-    5.1 (docs/how-to/unit-loops.md, "The 7-tag line")."""
-    step = GAIN_STEP_SD * sd
-    parts = getattr(model, "partitions_", None)
-    if parts is not None and len(parts) > max(cols):
-        step = max(step, *(float(parts[c].step) for c in cols))
-    return step
 
 
 def _test_gains(t: str, unit: Unit, mf: pd.DataFrame) -> dict[str, float]:
@@ -1459,7 +1434,7 @@ def _test_gains(t: str, unit: Unit, mf: pd.DataFrame) -> dict[str, float]:
         sd = float(np.nanstd(d.X[:, cols[0]]))
         if not sd > 0:
             continue
-        step = gain_step(m.model, cols, sd)
+        step = 0.05 * sd
         X = d.X.copy()
         X[:, cols] += step
         moved = supported(m.model.predict_detail(X), unit.ev["min_support"])
