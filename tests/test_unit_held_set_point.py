@@ -75,3 +75,18 @@ def test_a_move_beyond_the_reach_is_check_function_naming_the_set_point(declared
     assert d.why[moved].str.contains("FEED_TARGET = ").all()
     assert d.why[moved].str.contains("outside what the unit learned").all()
     assert not (st[after & far] == NE107.FAILURE).any()
+
+
+def test_an_undeclared_held_set_point_is_said_not_guarded(tmp_path):
+    """A set-point by its name (``FEED.SP``) held over the window with no loop declared: no
+    ``[fixed]`` row (its measurement is unknown; a row at the build's test of a constant made
+    a tank's units CHECK_FUNCTION where they answered right), and the build says that its
+    moves are judged by the tests and how to have them guarded (declare the loop). On
+    b58dc32 the narrow-inputs note promised CHECK_FUNCTION for it and nothing did it."""
+    run, window, _ = _held_window()
+    window = window.rename(columns={"FEED_TARGET": "FEED.SP"})
+    res = build_unit("free", window, folder=tmp_path, period="15s", far=0.01, workers=1)
+    doc = UnitFile.load(tmp_path / "free.unit.toml").doc
+    assert "FEED.SP" not in doc.get("fixed", {})
+    note = next((n for n in res.notes if "declared in no loop" in n), None)
+    assert note is not None and "FEED.SP" in note and "--loop PV=SP:OUT" in note, res.notes

@@ -420,6 +420,19 @@ def fixed_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:
     )
 
 
+def unguarded_note(tags: Sequence[str]) -> str:
+    """What the build says of the set-points constant over the window that no loop declares:
+    no test reads them and no guard watches them (:func:`held_set_points` is a declared
+    loop's only), so a later move is judged by the tests of the tags it drives."""
+    return (
+        f"{len(tags)} set-point(s) held over the window and declared in no loop "
+        f"({', '.join(tags)}): no test reads them, so where an operator moves one the tests of "
+        "what it drives judge the new point, and the unit does not say it left what it "
+        "learned; declare the loop (`--loop PV=SP:OUT`, or a tags CSV's loop/role columns) "
+        "and such a move is CHECK_FUNCTION naming the set-point"
+    )
+
+
 def held_note(spans: Sequence[ManualSpan]) -> str:
     """What the build's note says of the held set-points' ``[fixed]`` rows."""
     each = ", ".join(f"{s.tag} = {learned_text(s).removesuffix(' over its window')} "
@@ -1651,6 +1664,11 @@ def _build_unit(
         notes.append(fixed_note(fixed))
     if held_sp:
         notes.append(held_note(held_sp))
+    declared_sp = {lp.sp for lp in loops}
+    unguarded = [t for t, why in skipped.items() if why.startswith(CONSTANT_WHY)
+                 and is_set_point(t, info.get(t)) and t not in declared_sp]  # fmt: skip
+    if unguarded:
+        notes.append(unguarded_note(unguarded))
     narrow = narrow_spans(judged, info, kept, skipped)
     if narrow:  # the inputs learned over a narrow part of their span: said whatever the count
         doc["build"]["narrow"] = narrow
