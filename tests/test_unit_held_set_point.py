@@ -51,7 +51,8 @@ def test_a_declared_loops_held_set_point_is_fixed_at_its_measurements_reach(decl
     row = UnitFile.load(folder / "held.unit.toml").doc["fixed"]["FEED_TARGET"]
     assert row["min"] == row["max"] == held
     assert row["margin"] == pytest.approx(reach, rel=1e-9)
-    assert any("held set-point" in n and "FEED_TARGET" in n for n in res.notes), res.notes
+    said = f"FEED_TARGET did not move over the window ({held:.4g} ± {row['margin']:.4g})"
+    assert any(said in n and "CHECK_FUNCTION naming it" in n for n in res.notes), res.notes
 
 
 def test_a_move_beyond_the_reach_is_check_function_naming_the_set_point(declared):

@@ -383,8 +383,7 @@ def held_set_points(frame: pd.DataFrame, held: Mapping[str, str]) -> list[Manual
     an undeclared set-point's moves are judged by the tests as before (a tank's 990-sample
     unit followed its level set-point's later moves with no alarm; a row at the build's test
     of a constant made it CHECK_FUNCTION on 68 % of the continuation). The loop's own test
-    reads the
-    set-point at any value, but every other test learned the plant only where the
+    reads the set-point at any value, but every other test learned the plant only where the
     measurement was held there: read at a set-point an operator has moved beyond the
     measurement's own excursions, they judge an operating point the window never showed (an
     aeration basin's dissolved oxygen held at 2.0 mg/l for 14 days, moved to 1.5: the blower's
@@ -430,19 +429,6 @@ def unguarded_note(tags: Sequence[str]) -> str:
         "what it drives judge the new point, and the unit does not say it left what it "
         "learned; declare the loop (`--loop PV=SP:OUT`, or a tags CSV's loop/role columns) "
         "and such a move is CHECK_FUNCTION naming the set-point"
-    )
-
-
-def held_note(spans: Sequence[ManualSpan]) -> str:
-    """What the build's note says of the held set-points' ``[fixed]`` rows."""
-    each = ", ".join(f"{s.tag} = {learned_text(s).removesuffix(' over its window')} "
-                     f"± {s.margin:.4g}" for s in spans)  # fmt: skip
-    return (
-        f"{len(spans)} held set-point(s) recorded in [fixed] ({each}: its value, ± the farthest "
-        "its loop's measurement went from it): where an operator moves one further for the "
-        "on-delay the unit is CHECK_FUNCTION naming it (every other test learned the plant "
-        "only there), until it is back for the off-delay; `diag unit accept` of a period "
-        "at the new set-point learns it"
     )
 
 
@@ -1442,14 +1428,19 @@ def _build_unit(
         )
     ctx = _Context(frame, info, period)
     loop_notes = []
+    held_sp: list[ManualSpan] = []  # the held set-points' [fixed] rows
     for lp in loops:
         if lp.fixed is not None or lp.sp in ctx.vars or lp.pv not in ctx.vars:
             continue
         if ctx.hold_set_point(lp.sp, lp.pv):
+            here = held_set_points(judged, {lp.sp: lp.pv})
+            held_sp += here
+            at = "".join(f" ({learned_text(r).removesuffix(' over its window')} ± {r.margin:.4g})"
+                         for r in here)  # fmt: skip
             loop_notes.append(
-                f"{lp.pv}: its set-point {lp.sp} did not move over the window: the loop's "
-                "test reads it as it is (the control error), with no response time; every "
-                "other test learned the plant only at it, so moved beyond the farthest "
+                f"{lp.pv}: its set-point {lp.sp} did not move over the window{at}: "
+                "the loop's test reads it as it is (the control error), with no response time; "
+                "every other test learned the plant only there, so moved beyond the farthest "
                 f"{lp.pv} went from it the unit is CHECK_FUNCTION naming it ([fixed]; a "
                 "window with set-point moves, or `diag unit accept` of one, learns it)"
             )
@@ -1656,14 +1647,10 @@ def _build_unit(
     # a piece's run tag constant over the window (it ran throughout) is no [fixed] tag
     fixed = constant_tags(judged, info, [lp.sp for lp in loops],
                           [m.tag for m in hand] + [e.rc.tag for e in eqs])  # fmt: skip
-    # a declared loop's set-point held over the window: its measurement's reach
-    held_sp = held_set_points(judged, {lp.sp: lp.pv for lp in loops if lp.sp in ctx.fixed_sp})
-    if fixed or held_sp:
+    if fixed or held_sp:  # held_sp: a declared loop's held set-point (its loop note says it)
         doc["fixed"] = fixed_table([*fixed, *held_sp])
     if fixed:
         notes.append(fixed_note(fixed))
-    if held_sp:
-        notes.append(held_note(held_sp))
     declared_sp = {lp.sp for lp in loops}
     unguarded = [t for t, why in skipped.items() if why.startswith(CONSTANT_WHY)
                  and is_set_point(t, info.get(t)) and t not in declared_sp]  # fmt: skip
