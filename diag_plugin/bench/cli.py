@@ -125,12 +125,16 @@ def cmd_benchmark(args) -> int:
     with Progress(console=con, transient=True, disable=args.json or not con.is_terminal) as pr:
         n = (38 if args.quick else 76) * len(seeds)
         task = pr.add_task("scenarios", total=n)
-        out = run_benchmark(
-            unit,
-            quick=args.quick,
-            seeds=seeds,
-            progress=lambda sc: pr.update(task, advance=1, description=f"{sc.fault} {sc.mode}"),
-        )
+        pr.update(task, description="PCA / DPCA: fit and match to the unit's false alarms")
+        try:
+            out = run_benchmark(
+                unit,
+                quick=args.quick,
+                seeds=seeds,
+                progress=lambda sc: pr.update(task, advance=1, description=f"{sc.fault} {sc.mode}"),
+            )
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
     if args.page:
         from diag_plugin.bench.pages import render_damadics, write
 
@@ -175,9 +179,33 @@ def cmd_benchmark(args) -> int:
         f"isolated {s['scenarios_isolated']}/{s['scenarios_with_isolation']} scenarios with a "
         f"matrix column: {', '.join(s['faults_isolated']) or '—'}"
     )
+    for line in baseline_lines(out):
+        print(line)
     if args.page:
         print(f"page: {out['page']}")
     return 0
+
+
+def baseline_lines(out: dict) -> list[str]:
+    """The DAMADICS run's PCA and DPCA beside the unit, at its false-alarm rate on the
+    calibration runs, as lines of text (none without baselines)."""
+    b = out.get("baselines")
+    if not b:
+        return []
+    cal, n = b["calibration"], b["calibration"]["samples"]
+    lines = [
+        f"at the unit's false-alarm rate on the fault-free calibration runs (seeds "
+        f"{', '.join(map(str, cal['seeds']))}: unit {cal['unit']['alarms']} of {n} samples, "
+        + ", ".join(f"{m} {cal[m]['alarms']}" for m in b["summary"])
+        + "):"
+    ]
+    for m, s in b["summary"].items():
+        lines.append(
+            f"  {m}: detected {s['scenarios_detected']}/{s['scenarios']} scenarios; faults "
+            f"detected: {', '.join(s['faults_detected']) or '—'}; false detection rate mean "
+            f"{s['mean_false_detection_rate']:.4f}, max {s['max_false_detection_rate']:.4f}"
+        )
+    return lines
 
 
 def _command() -> str:

@@ -25,18 +25,35 @@ isolation decision: the isolated faults include the fault's matrix column):
 
 Faults without a column in the unit's matrix (external process faults f17–f19 for the valve
 unit) are scored on detection only (isolation indexes null).
+
+**Baselines at the unit's false-alarm rate** (issue 34: every detection figure beside PCA and
+DPCA at a matched rate). PCA and DPCA (:data:`~diag_plugin.bench.publicbench.DPCA_LAGS` lags)
+T² + Q, fitted and scored by the code of the ``--match-far`` pages
+(:func:`~diag_plugin.bench.publicbench.pca_fit`, :func:`~diag_plugin.bench.publicbench.
+pca_statistics`, :func:`~diag_plugin.bench.matched.method_score` with the unit's own on/off
+delays), learn from the example unit's own training run (:data:`TRAIN_SEED`, the first
+``train_days``: :func:`fit_baselines`). Their limits are matched
+(:func:`~diag_plugin.bench.matched.calibrate`) on fault-free **calibration runs** none of the
+methods learned from (:data:`CALIBRATION_SEEDS`, after the same warm-up): the unit, at its
+own thresholds, alarms on ``k`` of their ``n`` samples, and each baseline's limit is the
+smallest with at most ``k`` (:func:`calibrate_baselines`). Then every scenario is scored for
+them with the same indexes (detection only: they have no matrix), and their false detection
+rate before the onsets is the held-out check of the match.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.unit import Unit
+
+if TYPE_CHECKING:
+    from diag_plugin.bench.matched import Limit
 
 #: the simulator's f1–f19 (DABLib) → the valve unit's matrix columns (Kościelny et al., Table 4)
 UNIT_FAULT = {
@@ -70,6 +87,18 @@ FAULT_FREE = pd.Timedelta("6h")
 HORIZON = pd.Timedelta("6h")
 RAMP = pd.Timedelta("1h")  # incipient: DABLib "medium" speed, 100 % per hour
 START = pd.Timestamp("2026-01-01", tz="UTC")
+#: the run the example unit learned from (``diag_plugin.examples.build``: SIM_SEED, UNIT_DAYS);
+#: the baselines learn from it too (--quick: its first TRAIN_DAYS_QUICK days)
+TRAIN_SEED = 1
+TRAIN_DAYS = 180.0
+TRAIN_DAYS_QUICK = 30.0
+#: fault-free runs the baselines' limits are matched on: seeds no method learned from and no
+#: scenario or test uses (tests/test_benchmark.py reads 3000–5019), each CALIBRATION_DAYS
+#: after the warm-up
+CALIBRATION_SEEDS = (7101, 7102, 7103)
+CALIBRATION_DAYS = 2.0
+#: the baselines' components: to 90 % of the variance, as on the --match-far pages
+BASELINE_SHARE = 0.9
 
 
 @dataclass(frozen=True)
@@ -163,8 +192,9 @@ def score(
     return out
 
 
-def run_scenario(unit: Unit, sc: Scenario) -> dict[str, Any]:
-    """Simulate one scenario, run the unit over it and score it."""
+def run_scenario(unit: Unit, sc: Scenario, baselines: Baselines | None = None) -> dict[str, Any]:
+    """Simulate one scenario, run the unit over it and score it (with ``baselines``, each
+    baseline's detection indexes too, under ``"baselines"``)."""
     from diag_plugin.simulate import FaultSpec, simulate_valve
 
     t_on = START + WARMUP
@@ -208,7 +238,124 @@ def run_scenario(unit: Unit, sc: Scenario) -> dict[str, Any]:
             theo,
         )
     )
+    if baselines is not None:
+        on = sel.nonzero()[0]
+        row["baselines"] = {
+            name: _detection(alarm[on], onset, period.total_seconds())
+            for name, alarm in baselines.alarms(frame).items()
+        }
     return row
+
+
+_DETECTION_KEYS = ("false_detection_rate", "true_detection_rate", "detected",
+                   "detection_time_s", "unknown_rate_before", "unknown_rate")  # fmt: skip
+
+
+def _detection(alarm: np.ndarray, onset: int, period_s: float) -> dict[str, Any]:
+    """The detection indexes of :func:`score` for a detector without a matrix."""
+    s = score(alarm, np.zeros(len(alarm), dtype=object), None, onset, period_s, None)
+    return {k: s[k] for k in _DETECTION_KEYS}
+
+
+@dataclass
+class Baselines:
+    """PCA and DPCA fitted beside a unit (:func:`fit_baselines`), with the unit's on/off
+    delays, and their limits once matched (:func:`calibrate_baselines`)."""
+
+    detectors: dict[str, Any]
+    on: int
+    off: int
+    train: dict[str, Any]
+    limits: dict[str, Limit] | None = None
+    calibration: dict[str, Any] | None = None
+
+    def scores(self, frame: pd.DataFrame) -> dict[str, np.ndarray]:
+        """Each baseline's one alarm score per sample of ``frame`` (T² and Q over their 1 %
+        limits, each after the delays, then the larger: the ``--match-far`` score)."""
+        from diag_plugin.bench.matched import method_score
+        from diag_plugin.bench.publicbench import pca_statistics
+
+        return {
+            name: method_score(pca_statistics(det, frame)[0], self.on, self.off)
+            for name, det in self.detectors.items()
+        }
+
+    def alarms(self, frame: pd.DataFrame) -> dict[str, np.ndarray]:
+        """Per baseline 1.0 where its score is over its matched limit, 0.0 where not, NaN
+        where it knows nothing (a lag missing): the detection decision of :func:`score`."""
+        if self.limits is None:
+            raise RuntimeError("calibrate_baselines first")
+        out = {}
+        for name, x in self.scores(frame).items():
+            with np.errstate(invalid="ignore"):
+                out[name] = np.where(np.isnan(x), np.nan, (x > self.limits[name].limit) * 1.0)
+        return out
+
+
+def fit_baselines(unit: Unit, days: float = TRAIN_DAYS) -> Baselines:
+    """PCA and DPCA T² + Q on the unit's tags over the first ``days`` of the example unit's
+    training run (:data:`TRAIN_SEED`, at the unit's period), fitted as on the ``--match-far``
+    pages (:func:`~diag_plugin.bench.publicbench.pca_fit`)."""
+    from diag_plugin.bench.publicbench import DPCA_LAGS, pca_fit
+    from diag_plugin.simulate import simulate_valve
+
+    period = pd.Timedelta(unit.period).total_seconds()
+    frame = simulate_valve(days, seed=TRAIN_SEED, period_s=period)
+    cols = list(unit.tags)
+    dets = {n: pca_fit([frame], cols, lags, BASELINE_SHARE)
+            for n, lags in (("PCA", 0), ("DPCA", DPCA_LAGS))}  # fmt: skip
+    ev = unit.ev
+    train = {"seed": TRAIN_SEED, "unit_days": TRAIN_DAYS, "days": days, "samples": len(frame),
+             "tags": cols, "lags": {"PCA": 0, "DPCA": DPCA_LAGS},
+             "components": {n: int(d.n_components_) for n, d in dets.items()}}  # fmt: skip
+    return Baselines(dets, int(ev["on_delay"]), int(ev["off_delay"]), train)
+
+
+def calibrate_baselines(
+    unit: Unit,
+    base: Baselines,
+    seeds: tuple[int, ...] = CALIBRATION_SEEDS,
+    days: float = CALIBRATION_DAYS,
+) -> Baselines:
+    """Match each baseline's limit to the unit's false-alarm rate on fault-free calibration
+    runs (``seeds``, ``days`` each after the warm-up, which no method learned from): the unit
+    at its own thresholds alarms on ``k`` of their ``n`` samples; a baseline's limit is the
+    smallest with at most ``k`` (:func:`~diag_plugin.bench.matched.calibrate` at
+    ``(k + ½)/n``). Unknown samples are no alarm and stay in ``n``. Sets ``base.limits`` and
+    ``base.calibration`` (per method the share and episodes per hour reached)."""
+    from diag_plugin.bench.matched import calibrate, episode_count, rates
+    from diag_plugin.simulate import simulate_valve
+
+    period = pd.Timedelta(unit.period).total_seconds()
+    unit_runs: list[np.ndarray] = []
+    base_runs: dict[str, list[np.ndarray]] = {n: [] for n in base.detectors}
+    for seed in seeds:
+        frame = simulate_valve((WARMUP / pd.Timedelta("1D")) + days, seed=seed, period_s=period)
+        keep = frame.index >= frame.index[0] + WARMUP
+        unit.reset()
+        det = unit.evaluate(frame).detected.to_numpy()[keep]
+        unit_runs.append(np.where(det == 1.0, 1.0, 0.0))
+        for name, x in base.scores(frame).items():
+            base_runs[name].append(x[keep])
+    n = sum(len(r) for r in unit_runs)
+    k = int(sum(r.sum() for r in unit_runs))
+    hours = n * period / 3600.0
+    base.limits = {m: calibrate(r, (k + 0.5) / n, period) for m, r in base_runs.items()}
+    base.calibration = {
+        "seeds": list(seeds),
+        "days": days,
+        "samples": n,
+        "unit": {
+            "alarms": k,
+            "share": k / n,
+            "per_hour": sum(episode_count(r > 0) for r in unit_runs) / hours,
+        },
+    }
+    for m, lim in base.limits.items():
+        share, ph = rates(base_runs[m], lim.limit, period)
+        base.calibration[m] = {"alarms": round(share * n), "share": share, "per_hour": ph,
+                               "limit": lim.as_dict()["limit"]}  # fmt: skip
+    return base
 
 
 def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -238,19 +385,40 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+def baseline_summary(rows: list[dict[str, Any]], name: str) -> dict[str, Any]:
+    """:func:`summary`'s detection totals for the baseline ``name`` over the same scenarios."""
+    mine = [{"fault": r["fault"], "unit_fault": None, "isolated": None, **r["baselines"][name]}
+            for r in rows]  # fmt: skip
+    s = summary(mine)
+    return {k: v for k, v in s.items() if "isolat" not in k}
+
+
 def run_benchmark(
     unit: Unit,
     quick: bool = False,
     seeds: tuple[int, ...] = (11,),
     progress: Callable[[Scenario], None] | None = None,
+    baselines: bool = True,
 ) -> dict[str, Any]:
-    """All scenarios against ``unit``: ``{"scenarios": [...], "summary": {...}, "setup": ...}``."""
+    """All scenarios against ``unit``: ``{"scenarios": [...], "summary": {...}, "setup": ...}``;
+    with ``baselines`` (default) PCA and DPCA at the unit's false-alarm rate beside it
+    (module doc), under ``"baselines"`` and in each scenario."""
+    clash = sorted(set(seeds) & ({TRAIN_SEED} | set(CALIBRATION_SEEDS))) if baselines else []
+    if clash:
+        raise ValueError(
+            f"seed(s) {', '.join(map(str, clash))}: the baselines learn from seed {TRAIN_SEED} "
+            f"and match their limits on {', '.join(map(str, CALIBRATION_SEEDS))}; score others"
+        )
+    base = None
+    if baselines:
+        base = fit_baselines(unit, TRAIN_DAYS_QUICK if quick else TRAIN_DAYS)
+        calibrate_baselines(unit, base)
     rows = []
     for sc in scenarios(quick, seeds):
         if progress is not None:
             progress(sc)
-        rows.append(run_scenario(unit, sc))
-    return {
+        rows.append(run_scenario(unit, sc, base))
+    out = {
         "unit": unit.name,
         "setup": {
             "period_s": pd.Timedelta(unit.period).total_seconds(),
@@ -264,3 +432,12 @@ def run_benchmark(
         "scenarios": rows,
         "summary": summary(rows),
     }
+    if base is not None:
+        out["baselines"] = {
+            "train": base.train,
+            "delays": [base.on, base.off],
+            "calibration": base.calibration,
+            "supported": {m: lim.supported for m, lim in base.limits.items()},
+            "summary": {m: baseline_summary(rows, m) for m in base.detectors},
+        }
+    return out
