@@ -354,8 +354,20 @@ def calibrate_baselines(
     for m, lim in base.limits.items():
         share, ph = rates(base_runs[m], lim.limit, period)
         base.calibration[m] = {"alarms": round(share * n), "share": share, "per_hour": ph,
-                               "limit": lim.as_dict()["limit"]}  # fmt: skip
+                               "limit": lim.as_dict()["limit"],
+                               "next_alarms": _next_alarms(base_runs[m], lim.limit)}  # fmt: skip
     return base
+
+
+def _next_alarms(runs: list[np.ndarray], limit: float) -> int | None:
+    """Samples of ``runs`` over the next lower limit the calibration offers (the largest
+    score value under ``limit``): with the matched limit's own count, what the calibration
+    can resolve — the unit's count lies from the one (included) to this (excluded). None
+    when no known score lies under the limit."""
+    d = np.concatenate(runs)
+    d = d[np.isfinite(d)]
+    below = d[d < limit]
+    return int(np.count_nonzero(d > below.max())) if below.size else None
 
 
 def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:

@@ -156,7 +156,8 @@ def _baseline_head(out: dict[str, Any]) -> list[str]:
     tr, cal = b["train"], b["calibration"]
     n, k = cal["samples"], cal["unit"]["alarms"]
     reached = ", ".join(
-        f"{m} {cal[m]['alarms']} ({cal[m]['share']:.4%}, {cal[m]['per_hour']:.3g}/h)"
+        f"{m} {cal[m]['alarms']} ({cal[m]['share']:.4%}, {cal[m]['per_hour']:.3g}/h; "
+        f"{cal[m]['next_alarms']} at its next lower limit)"
         for m in b["summary"]
     )
     comps = ", ".join(f"{m} {c}" for m, c in tr["components"].items())
