@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from diag_plugin.bench.damadics import score
@@ -140,3 +141,82 @@ def test_the_shipped_unit_is_quiet_on_fault_free_days_of_unseen_seeds():
     shipped = Path(__file__).resolve().parents[1] / "rulebases" / "valve_unit.unit.toml"
     runs, share = fault_free_alarms(shipped, range(5000, 5020))
     assert runs <= 3 and share < 0.001, (runs, share)
+
+
+def test_the_page_carries_pca_and_dpca_at_the_units_matched_rate(quick):
+    """Issue 34: every detection figure beside PCA and DPCA at the same false-alarm rate. The
+    page has their detection per row (the run's own, from --json) and says which runs each
+    method learned from and which matched the limits; the calibration runs are none of the
+    scoring seeds nor the training seed, and each baseline's count on them is the unit's
+    within what the calibration resolves (at most the unit's, and the next lower limit it
+    offers would alarm on more)."""
+    b = quick["baselines"]
+    cal = b["calibration"]
+    assert set(b["summary"]) == {"PCA", "DPCA"}
+    assert not set(cal["seeds"]) & ({b["train"]["seed"]} | set(quick["setup"]["seeds"]))
+    k, n = cal["unit"]["alarms"], cal["samples"]
+    assert cal["unit"]["share"] == pytest.approx(k / n)
+    for m in ("PCA", "DPCA"):
+        assert cal[m]["alarms"] <= k < (cal[m]["next_alarms"] or n + 1), m
+        assert cal[m]["share"] == pytest.approx(cal[m]["alarms"] / n)
+        # the held-out check: the fault-free hours before the onsets, at the matched limit
+        assert b["summary"][m]["max_false_detection_rate"] < 0.05, m
+    text = Path(quick["page"]).read_text(encoding="utf-8")
+    assert f"calibration** — fault-free seeds {', '.join(map(str, cal['seeds']))}" in text
+    assert f"alarms on {k} of their {n} samples" in text
+    head = next(ln for ln in text.splitlines() if ln.startswith("| fault | mode |"))
+    assert head.rstrip(" |").endswith("DPCA detected | DPCA t_dt s | DPCA r_td")
+    rows = [ln for ln in text.splitlines() if ln.startswith("| f") and "| mode |" not in ln]
+    for r, ln in zip(quick["scenarios"], rows, strict=True):
+        cells = [c.strip() for c in ln.strip("|").split("|")]
+        for i, m in ((9, "PCA"), (12, "DPCA")):
+            x = r["baselines"][m]
+            assert cells[i] == f"{int(x['detected'])}/1", (r["fault"], m)
+            assert cells[i + 2] == f"{x['true_detection_rate']:.2f}", (r["fault"], m)
+    for m in ("PCA", "DPCA"):
+        s = b["summary"][m]
+        assert f"- {m} at the unit's rate: detected {s['scenarios_detected']} of 38" in text
+
+
+def test_baselines_match_a_unit_that_alarms_on_the_calibration_runs(tmp_path):
+    """The match where the unit does alarm on the calibration runs (its thresholds scaled to
+    a third, so the count is not the trivial 0): each baseline alarms on at most the unit's
+    count and its next lower limit on more, and the limits' counts are what the alarms give
+    on the same runs again. Seeds and lengths used nowhere else (7201, half a day; PCA from
+    5 days of the training run)."""
+    import re
+    import shutil
+
+    from diag_plugin.bench.damadics import calibrate_baselines, fit_baselines
+    from diag_plugin.diagnose.unit import Unit
+    from diag_plugin.simulate import simulate_valve
+
+    src = Path(__file__).resolve().parents[1] / "rulebases"
+    for f in src.glob("valve_*"):
+        shutil.copy(f, tmp_path / f.name)
+    p = tmp_path / "valve_unit.unit.toml"
+    text = re.sub(r"(high|low) = (-?[0-9.]+)",
+                  lambda m: f"{m[1]} = {float(m[2]) / 3:.4f}", p.read_text())  # fmt: skip
+    p.write_text(re.sub(r", (levels|fuzzy) = \[[^]]*\]", "", text))
+    unit = Unit.load("valve_unit", tmp_path)
+    base = calibrate_baselines(unit, fit_baselines(unit, days=5.0), seeds=(7201,), days=0.5)
+    cal = base.calibration
+    k, n = cal["unit"]["alarms"], cal["samples"]
+    assert 0 < k < n
+    frame = simulate_valve(2 / 24 + 0.5, seed=7201)
+    keep = frame.index >= frame.index[0] + pd.Timedelta("2h")
+    for m, alarm in base.alarms(frame).items():
+        assert cal[m]["alarms"] <= k < cal[m]["next_alarms"], (m, cal[m], k)
+        assert int(np.nansum(alarm[keep])) == cal[m]["alarms"], m
+
+
+def test_a_scoring_seed_the_baselines_learn_or_match_on_is_refused():
+    """A scenario on the training seed or a calibration seed would score the baselines on
+    runs that set them: refused before anything is simulated, naming the seeds."""
+    from diag_plugin.bench.damadics import run_benchmark
+    from diag_plugin.diagnose.unit import Unit
+
+    unit = Unit.load("valve_unit", Path(__file__).resolve().parents[1] / "rulebases")
+    for seed in (1, 7102):
+        with pytest.raises(ValueError, match=f"seed\\(s\\) {seed}: the baselines learn"):
+            run_benchmark(unit, quick=True, seeds=(23, seed))
