@@ -3,7 +3,7 @@ bench's matched protocol (:func:`~diag_plugin.bench.publicbench.run_matched_benc
 each plant's tuning runs in place of its scoring runs, per fault the unit's, PCA's and DPCA's
 detection, the runs whose faulted tag is in the top three and the runs whose faulted tag is
 named first (the first of a run's ``top``: a run can hold the right tag in its top three and
-still lead an operator to the wrong one).
+still lead an operator to the wrong one), and the alarm episodes named right (of the episodes).
 
 * ``--plant chemplant``: the unit built from training seeds 1–3 × 10 days (as the page),
   limits matched on fault-free seeds 150–152, fault-free 153–154, the faults on seeds
@@ -131,14 +131,16 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{plant.name} tuning runs: {len(plant.faults)} fault runs; unit "
           f"{out['unit'].get('tests')} tests")  # fmt: skip
     faults = list(pts[0]["methods"][methods[0]]["faults"])
-    print("| target | " + " | ".join(f"{m} det | {m} top 3 | {m} first" for m in methods) + " |")
+    print("| target | " + " | ".join(f"{m} det | {m} top 3 | {m} first | {m} episodes right"
+                                      for m in methods) + " |")  # fmt: skip
     for p in pts:
         cells = [f"{p['target']:g}"]
         for m in methods:
             x = p["methods"][m]
             first = sum(named_first(out, p, m, f) for f in faults)
             cells += [f"{100 * x['mean_detection']:.1f} %", f"{x['in_top']}/{x['named_runs']}",
-                      f"{first}/{x['named_runs']}"]  # fmt: skip
+                      f"{first}/{x['named_runs']}",
+                      f"{x['episodes_right']}/{x['episodes_named']}"]  # fmt: skip
         print("| " + " | ".join(cells) + " |")
     print()
     print("per fault, detection % / top 3 / named first at each target ("

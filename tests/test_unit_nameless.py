@@ -115,3 +115,27 @@ def test_the_names_are_the_same_in_pieces_and_live(built):
             assert x.faults and x.faults != ["unit"], (ts, x.faults)
         seen += want[:1] == ["F2"]
     assert seen > 300
+
+
+def test_the_bench_names_what_the_unit_names_where_t2_is_unknown(built):
+    """The matched benchmark's naming of the unit (:func:`~diag_plugin.bench.publicbench.
+    unit_score`'s contributions, ranked by :func:`~diag_plugin.bench.matched.ranked_tags`)
+    names, where ``T²`` is unknown, the tags the unit's tests on name: ``F2`` (its test on),
+    then ``F1`` (the tag it reads), as the unit's own ``top`` does. On main every share was
+    unknown there and the bench named the first columns by the sort's tie order."""
+    from diag_plugin.bench.matched import episode_names, ranked_tags
+    from diag_plugin.bench.plant import top_from_contributions
+    from diag_plugin.bench.publicbench import unit_score
+
+    _, unit, frame = built
+    part = frame.iloc[BUILD:]
+    d = unit.reset().evaluate(part)
+    blind = np.flatnonzero(_alarm(d) & np.isnan(d.combined["T2"].to_numpy()))
+    assert blind.size > 300
+    _, contrib = unit_score(unit.reset(), part, 1, 1)
+    top = top_from_contributions(contrib.iloc[blind])
+    on = (np.nan_to_num(d.symptoms.to_numpy()[blind]) != 0).any(axis=1)
+    assert set(top["top1"][on]) == {"F2"} and set(top["top2"][on]) == {"F1"}
+    assert set(top["top1"][~on]) <= {""}  # no test on: no tag named
+    assert ranked_tags(contrib, blind)[:2] == ["F2", "F1"]
+    assert set(episode_names(contrib, blind)) == {"F2"}

@@ -638,7 +638,10 @@ def episode_names(contributions, rows: np.ndarray, k: int = 3) -> list[str]:
     at once. The ranking, as :func:`~diag_plugin.bench.plant.rank_by_top` makes it: most often
     among the per-sample ``top1``…``top<k>``, then the smaller mean rank, then the order it
     meets the tags in — by ``top1`` first, within one column by its count there, then by
-    first appearance (pandas' stable ``value_counts``). Empty without contributions or rows."""
+    first appearance (pandas' stable ``value_counts``). An episode whose rows have no known
+    contribution names ``""`` (no tag: :func:`~diag_plugin.bench.plant.top_from_contributions`
+    names none where a contribution is unknown); it counts among the episodes, not as named
+    right. Empty without contributions or rows."""
     from diag_plugin.bench.plant import top_from_contributions
 
     rows = np.asarray(rows, np.int64)
@@ -654,14 +657,16 @@ def episode_names(contributions, rows: np.ndarray, k: int = 3) -> list[str]:
     cnt_first = np.zeros(n_ep * m, np.int64)  # its count in that column
     pos_first = np.zeros(n_ep * m, np.int64)  # its first row in that column
     for r in range(top.shape[1], 0, -1):  # from the last column, so the first one wins
-        key = ep * m + cols.get_indexer(top[f"top{r}"])
+        col = cols.get_indexer(top[f"top{r}"])
+        named = col >= 0  # "": no tag named there (its contribution unknown)
+        key = ep[named] * m + col[named]
         c = np.bincount(key, minlength=n_ep * m)
         cnt += c
         rsum += r * c
         seen, at = np.unique(key, return_index=True)
         first_r[seen] = r
         cnt_first[seen] = c[seen]
-        pos_first[seen] = at
+        pos_first[seen] = np.flatnonzero(named)[at]
     cand = np.flatnonzero(cnt)
     with np.errstate(divide="ignore", invalid="ignore"):
         mean = rsum[cand] / cnt[cand]  # rank_by_top's float mean rank, ties exactly as there
@@ -669,7 +674,10 @@ def episode_names(contributions, rows: np.ndarray, k: int = 3) -> list[str]:
                         cand // m))  # fmt: skip
     best = cand[order]
     lead = np.r_[True, best[1:] // m != best[:-1] // m]  # each episode's best candidate
-    return [str(t) for t in np.asarray(cols, dtype=object)[best[lead] % m]]
+    out = [""] * n_ep  # an episode with no contribution known names no tag
+    for b in best[lead]:
+        out[b // m] = str(cols[b % m])
+    return out
 
 
 def naming(named: Sequence[str], episodes: Sequence[str], tags: Sequence[str]) -> dict:

@@ -173,7 +173,30 @@ def _unit_parts(unit, frame: pd.DataFrame, on: int, off: int):
     cm = getattr(unit, "cmodel", None)
     if d.combined is not None and cm is not None and cm.high:
         stats = np.c_[stats, d.combined["T2"].to_numpy() / cm.high]
-    return stats, d.contributions, held
+    return stats, _named_by_tests(unit, d), held
+
+
+def _named_by_tests(unit, d) -> pd.DataFrame | None:
+    """The unit's contributions (each tag's share of ``T²``), and where no share is known
+    (``T²`` unknown: fewer than half the tests known, most of them outside what the unit
+    learned) the values its tests in alarm name the tags by, as the unit itself names them
+    there (:meth:`~diag_plugin.diagnose.unittags.TestNames.on_values`: a test on names the tag
+    it models first, then those it reads; :meth:`~diag_plugin.diagnose.unittags.TestNames.
+    fill`); NaN where no test is on either (no tag named, :func:`~diag_plugin.bench.plant.
+    top_from_contributions`). Classic TEP IDV6 (tuning run d06, the A feed lost): the unit's
+    ``T²`` unknown on most of its alarm, its tests on name XMEAS1 and XMV3."""
+    c = d.contributions
+    names = getattr(unit, "test_names", None)
+    if c is None or names is None:
+        return c
+    x = c.to_numpy(dtype=float)
+    blind = ~np.isfinite(x).any(axis=1)
+    if not blind.any():
+        return c
+    on = names.on_values(d.residuals.to_numpy()[blind], d.symptoms.to_numpy()[blind])
+    x = x.copy()
+    x[blind] = np.where(on > 0, on, np.nan)
+    return pd.DataFrame(x, index=c.index, columns=c.columns)
 
 
 def _sample_grid(frame: pd.DataFrame, period: str) -> pd.DataFrame:
