@@ -152,6 +152,19 @@ historian too).
 At these loads every figure is ~3× a quiet machine's. Where the rest goes and what was
 tried without gain (batch rows, malloc thresholds, the intervals' pattern, the text
 columns, the residuals' copy): the doc's "Round fourteen".
+Round fifteen (branch ``i34-diag100k``, 2026-12-02, load 5–15 all session: nothing landed).
+With timestamps (load 5.7): every piece was read 0.2–2 s before its replay asked for it, so
+the main thread is the critical path — 58 % of the run's CPU, of it start-up 40 %
+(imports, the unit, ``scipy.linalg``/``scipy.special``, numba's registries), replay 52 %
+(combined T² 0.36–0.42 s of 1.5–2.2, ~300 new patterns of known tests a piece inverted:
+0.26; the CHECK_FUNCTION texts ~13 % under cProfile), tail 8 % (intervals 115–150 ms, half
+the regex over 13,436 distinct ``why`` texts). With the quiet figures (4.53 CPU s, 2.94 s
+wall) an idle 2-core run cannot go below ~2.2 s by either bound (main thread; CPU / 2):
+100,000 rows/s at 200,000 rows needs the main thread's CPU *and* the total cut 15–20 %,
+not more overlap. Tried, same md5, no gain shown: reading threads at nice +5, the combined
+T²'s blocks shared with the replay's helper thread (≤ 0.03 s a run without the GIL), one
+reading thread instead of two (worse: read 2.50 → 2.69 CPU s). Not tried: the row kernels
+split by columns (~0.1 s idle, estimated).
 Details: docs/how-to/unit-short-windows.md, "Speed".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
