@@ -13,13 +13,15 @@ run, then moved by the operators) is the plant here: written once from its physi
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
 from diag_plugin.diagnose.unit import Unit
 from diag_plugin.diagnose.unitfile import UnitFile
 from diag_plugin.status import NE107
-from diag_plugin.unitbuild.build import build_unit
+from diag_plugin.unitbuild.build import NARROW_SAID, UNWATCHED_SAID, build_unit
 from diag_plugin.unitbuild.loops import Loop
 from tests import line7
 
@@ -83,11 +85,20 @@ def test_an_undeclared_held_set_point_is_said_not_guarded(tmp_path):
     ``[fixed]`` row (its measurement is unknown; a row at the build's test of a constant made
     a tank's units CHECK_FUNCTION where they answered right), and the build says that its
     moves are judged by the tests and how to have them guarded (declare the loop). On
-    b58dc32 the narrow-inputs note promised CHECK_FUNCTION for it and nothing did it."""
+    b58dc32 the narrow-inputs note promised CHECK_FUNCTION for it and nothing did it; on
+    2b47779 its line there (given a span) still read under that promise: now it says it is
+    not watched, and the promise is made with that exception."""
     run, window, _ = _held_window()
     window = window.rename(columns={"FEED_TARGET": "FEED.SP"})
-    res = build_unit("free", window, folder=tmp_path, period="15s", far=0.01, workers=1)
+    info = {"FEED.SP": {"lo": 0.0, "hi": 2 * float(window["FEED.SP"].iloc[0])}}
+    res = build_unit("free", window, folder=tmp_path, period="15s", far=0.01, workers=1,
+                     tag_info=info)  # fmt: skip
     doc = UnitFile.load(tmp_path / "free.unit.toml").doc
     assert "FEED.SP" not in doc.get("fixed", {})
     note = next((n for n in res.notes if "declared in no loop" in n), None)
     assert note is not None and "FEED.SP" in note and "--loop PV=SP:OUT" in note, res.notes
+    narrow = next(n for n in res.notes if NARROW_SAID in n)
+    line = re.search(r"FEED\.SP [^(]*\(([^)]*)\)", narrow)
+    assert line is not None and "held at one value" in line[1], narrow
+    assert line[1].endswith(f"; {UNWATCHED_SAID}"), narrow
+    assert "CHECK_FUNCTION), but for one marked not watched" in narrow

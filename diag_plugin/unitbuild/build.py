@@ -61,7 +61,7 @@ import math
 import os
 import re
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
 from pathlib import Path
@@ -1656,7 +1656,7 @@ def _build_unit(
                  and is_set_point(t, info.get(t)) and t not in declared_sp]  # fmt: skip
     if unguarded:
         notes.append(unguarded_note(unguarded))
-    narrow = narrow_spans(judged, info, kept, skipped)
+    narrow = narrow_spans(judged, info, kept, skipped, unguarded)
     if narrow:  # the inputs learned over a narrow part of their span: said whatever the count
         doc["build"]["narrow"] = narrow
         notes.append(narrow_note(narrow))
@@ -2030,6 +2030,8 @@ EDGELESS_NAMED = 3
 NARROW_INDEPENDENT = 7
 #: how the narrow-span note begins: the CLI prints it whatever the count of notes
 NARROW_SAID = "learned over a narrow part of their span"
+#: a narrow input's line where no guard watches it (:func:`narrow_spans`)
+UNWATCHED_SAID = "not watched: its moves are judged by the tests, declare its loop"
 
 
 def narrow_spans(
@@ -2037,6 +2039,7 @@ def narrow_spans(
     info: Mapping[str, TagInfo],
     kept: Sequence[TestChoice],
     skipped: Mapping[str, str],
+    unwatched: Collection[str] = (),
 ) -> list[str]:
     """The unit's inputs the window saw too little of: held at one value, or moving slower
     than the window shows, so that the plant takes them past what the unit learned in its
@@ -2062,7 +2065,11 @@ def narrow_spans(
     rate's set-point at 10.4 of 0 … 20 m³/h; its notes were cut at four and this was not
     on the screen (issue 34 item 5, ``i34-cip``). Under 5 % of the span, the rule before,
     it named 11 of its inputs, with the loops' controlled temperatures at 0.2 % (issue 34
-    item 3, ``i34-review``): 7 now."""
+    item 3, ``i34-review``): 7 now.
+
+    ``unwatched``: the tags no guard watches (:func:`unguarded_note`: a set-point held over the
+    window that no loop declares), their line saying so: the note's "where one leaves it the
+    unit says so" is not true of them (issue 34, item 5)."""
     from diag_plugin.models.series import effective_samples
 
     read = [InputSpec.parse(s).tags[0] for ch in kept for s in ch.inputs
@@ -2089,6 +2096,8 @@ def narrow_spans(
             if hi == lo
             else f"about {n:.1f} independent values: {2 / (n + 1):.0%} of later ones outside"
         )
+        if t in unwatched:
+            why += f"; {UNWATCHED_SAID}"
         out.append(f"{t} {lo:.4g} … {hi:.4g} ({share:.1%} of its span {span[0]:.4g} … "
                    f"{span[1]:.4g}; {seen}; {why})")  # fmt: skip
     return out
@@ -2098,13 +2107,14 @@ def narrow_note(spans: Sequence[str]) -> str:
     """The build's note of :func:`narrow_spans` (``""``: none)."""
     if not spans:
         return ""
+    but = ", but for one marked not watched" if any(UNWATCHED_SAID in s for s in spans) else ""
     return (
         f"{len(spans)} input(s) {NARROW_SAID} (held at one value, or at most "
         f"{NARROW_INDEPENDENT} independent values in the window over under half their span: "
         "at their own pace a quarter or more of their later values fall outside what the window "
         f"showed): {'; '.join(spans)}: the unit knows the plant only there; where one leaves "
-        "it the unit says so (CHECK_FUNCTION), and a longer window, or `diag unit accept` of "
-        "a period where it moved, teaches it more"
+        f"it the unit says so (CHECK_FUNCTION){but}, and a longer window, or `diag unit accept` "
+        "of a period where it moved, teaches it more"
     )
 
 
