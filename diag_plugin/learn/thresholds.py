@@ -1064,20 +1064,7 @@ def level_points(
         y = mf[tag].to_numpy(float)
         ok = np.isfinite(r.raw) & np.isfinite(y)
         yhat = float(m.model.predict_detail(np.zeros((1, 0))).y[0])
-        mean = np.full(P, yhat)
-        own = np.full(len(y), np.nan)  # each row's point mean, held out as the residuals
-        crossed = "cross-fitted" in r.source
-        for k in range(P):
-            at = ok & (point == k)
-            if at.sum() < 2:
-                continue
-            mean[k] = float(np.mean(y[at]))
-            own[at] = mean[k]
-            if crossed:
-                for b in np.unique(block[at]):
-                    rest = at & (block != b)
-                    if rest.sum() >= 2:
-                        own[at & (block == b)] = float(np.mean(y[rest]))
+        mean, own = _point_means(y, ok, point, P, block, "cross-fitted" in r.source, yhat)
         c = np.array([float(f"{v:.6g}") for v in (mean - yhat) * 100.0 / scale])
         x = np.where(np.isfinite(own), (y - own) * 100.0 / scale, r.raw - c[point])
         x[~np.isfinite(r.raw)] = np.nan
@@ -1104,6 +1091,29 @@ def level_points(
     return out
 
 
+def _point_means(
+    v: np.ndarray, ok: np.ndarray, point: np.ndarray, n_points: int, block: np.ndarray,
+    crossed: bool, base: float,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Each point's mean of ``v`` over its rows ``ok`` (``base`` where it has under two) and
+    each row's point mean, held out as the residuals are (``crossed``: a row's point mean
+    over the other blocks; NaN where the point has under two rows)."""
+    mean = np.full(n_points, base)
+    own = np.full(len(v), np.nan)
+    for k in range(n_points):
+        at = ok & (point == k)
+        if at.sum() < 2:
+            continue
+        mean[k] = float(np.mean(v[at]))
+        own[at] = mean[k]
+        if crossed:
+            for b in np.unique(block[at]):
+                rest = at & (block != b)
+                if rest.sum() >= 2:
+                    own[at & (block == b)] = float(np.mean(v[rest]))
+    return mean, own
+
+
 def _line_points(
     r: TestResiduals, point: np.ndarray, n_points: int, block: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -1112,20 +1122,7 @@ def _line_points(
     cross-fitted test at its point's mean over the other blocks (:func:`level_points`)."""
     raw = r.raw
     ok = np.isfinite(raw)
-    c = np.zeros(n_points)
-    own = np.full(len(raw), np.nan)
-    crossed = "cross-fitted" in r.source
-    for k in range(n_points):
-        at = ok & (point == k)
-        if at.sum() < 2:
-            continue
-        c[k] = float(np.mean(raw[at]))
-        own[at] = c[k]
-        if crossed:
-            for b in np.unique(block[at]):
-                rest = at & (block != b)
-                if rest.sum() >= 2:
-                    own[at & (block == b)] = float(np.mean(raw[rest]))
+    c, own = _point_means(raw, ok, point, n_points, block, "cross-fitted" in r.source, 0.0)
     c = np.array([float(f"{v:.6g}") for v in c])
     x = np.where(np.isfinite(own), raw - own, raw - c[point])
     x[~ok] = np.nan
