@@ -97,3 +97,36 @@ def test_the_allowance_past_the_span_is_a_share_of_the_output_s_learned_range():
             RuleBase(text.replace("[-37.0, -15.0]", bad), "bad.toml")
     with pytest.raises(RuleBaseError, match="takes no option 'learned_input'"):
         RuleBase(text.replace("learned_output", "learned_input"), "o.toml")
+
+
+def test_the_within_merge_is_the_fixed_effects_fit_of_the_points():
+    """``within_merge``: one line over operating points with an intercept each, exact on the
+    QR factors — the slopes of a least-squares fit of every point's rows about its own means,
+    the intercept through the grand means; ``merge`` (one line through every point) bends
+    its slopes to cover an offset between the points that no input carries."""
+    from diag_plugin.models.linear import LinearRegressor, within_merge
+
+    rng = np.random.default_rng(7)
+    spans = [(0.0, 12.0), (0.0, 5.0)]
+
+    def point(n, offset, shift):
+        X = rng.uniform(0, 1, (n, 2)) * [10.0, 5.0]
+        X[:, 0] += shift  # the points also differ in an input: the slopes must not take it
+        y = 2.0 + 1.5 * X[:, 0] - 0.7 * X[:, 1] + offset + rng.normal(0, 0.1, n)
+        return X, y
+
+    parts = [point(400, 0.0, 0.0), point(150, 3.0, 1.5), point(90, -2.0, 0.5)]
+    fits = [LinearRegressor(input_spans=spans).fit(X, y) for X, y in parts]
+    pooled = LinearRegressor(input_spans=spans).fit(
+        np.vstack([X for X, _ in parts]), np.concatenate([y for _, y in parts])
+    )
+    got = within_merge(fits)
+    Xd = np.vstack([X - X.mean(axis=0) for X, _ in parts])
+    yd = np.concatenate([y - y.mean() for _, y in parts])
+    slopes = np.linalg.lstsq(Xd, yd, rcond=None)[0]
+    np.testing.assert_allclose(got.coef_[1:], slopes, rtol=1e-9)
+    X_all = np.vstack([X for X, _ in parts])
+    y_all = np.concatenate([y for _, y in parts])
+    assert got.coef_[0] == pytest.approx(y_all.mean() - slopes @ X_all.mean(axis=0), rel=1e-9)
+    assert got.output_mean_ == pytest.approx(y_all.mean())
+    assert abs(got.coef_[1] - 1.5) < 0.02 and abs(pooled.coef_[1] - 1.5) > 0.1, pooled.coef_

@@ -323,6 +323,7 @@ def test_residuals(
     by_run: bool | str = True,
     runs: np.ndarray | None = None,
     whole: np.ndarray | None = None,
+    point: np.ndarray | None = None,
 ) -> dict[str, TestResiduals]:
     """Raw residuals of every test over ``frame``, each block's from a model that did not see
     that block (see :func:`held_out`); ``cross_fit`` False: the models' own residuals;
@@ -330,10 +331,12 @@ def test_residuals(
     :data:`WITHIN_RUNS`: every run cut into equal time blocks (:func:`block_of`). Each
     test's are independent of the others': ``mapper`` may compute them in several
     processes. ``runs``: each row's run, where the caller knows them; ``whole``: the rows of
-    runs held out whole (:func:`block_of`)."""
+    runs held out whole (:func:`block_of`); ``point``: each row's operating point (``diag
+    unit accept``), a linear test's folds fitted with an intercept per point
+    (:func:`_cross_fitted`)."""
     frame = unit._model_frame(frame)
     names = [t.name for t in unit.file.tests]
-    args = (unit, frame, blocks, cross_fit, by_run, runs, whole)
+    args = (unit, frame, blocks, cross_fit, by_run, runs, whole, point)
     got = (mapper or _serial)(_test_residual, names, args)
     missing = [r for r in got if isinstance(r, str)]
     if missing:
@@ -350,6 +353,7 @@ def _test_residual(
     by_run: bool | str = True,
     given: np.ndarray | None = None,
     whole: np.ndarray | None = None,
+    point: np.ndarray | None = None,
 ) -> TestResiduals | str:
     """One test's residuals for :func:`test_residuals` (a message if the window lacks a tag
     its model reads)."""
@@ -380,6 +384,7 @@ def _test_residual(
         pred, source = held_out(
             RuleBase.load(m.path), m.model, d, block, blocks, t.name, force=bool(cross_fit),
             said=said if by_run else f"{blocks} time blocks",
+            point=point[rows] if point is not None and len(rows) else None,
         )  # fmt: skip
     raw = np.full(len(frame), np.nan)
     raw[rows] = unit.residual(_fine_only(t), d.y, pred)
@@ -433,6 +438,7 @@ def held_out(
     *,
     force: bool = False,
     said: str | None = None,
+    point: np.ndarray | None = None,
 ):
     """Each time block's prediction by the model without that block's samples.
 
@@ -455,7 +461,7 @@ def held_out(
         return model.predict_detail(d.X), "the model's own (trained outside the window)"
     exact = getattr(model, "method", None) == "wm-avg" and hasattr(model, "without")
     if force or trained is None or not exact:
-        return _cross_fitted(rb, d.X, d.y, block, blocks, test), (
+        return _cross_fitted(rb, d.X, d.y, block, blocks, test, point), (
             f"cross-fitted: retrained without each of {said}"
         )
     n = len(d.y)
@@ -503,8 +509,15 @@ def _fine_only(t):
     return replace(t, levels=tuple([1.0] * 64), spread=False)
 
 
-def _cross_fitted(rb, X, y, block, blocks: int, test: str) -> Prediction:
-    """Each block predicted by a model trained from scratch on the other blocks."""
+def _cross_fitted(
+    rb, X, y, block, blocks: int, test: str, point: np.ndarray | None = None
+) -> Prediction:
+    """Each block predicted by a model trained from scratch on the other blocks; a linear
+    test's with an intercept per operating point where ``point`` gives each row's
+    (:func:`~diag_plugin.models.linear.within_merge`, as ``diag unit accept`` merges its
+    windows: each fold is then the line the unit runs, less the block)."""
+    from diag_plugin.unitbuild.accept import is_line
+
     usable = np.isfinite(X).all(axis=1) & np.isfinite(y)
     parts = []
     for b in range(blocks):
@@ -519,9 +532,29 @@ def _cross_fitted(rb, X, y, block, blocks: int, test: str) -> Prediction:
             )
         if held.any():
             model = rb.new_model().fit(X[train], y[train])
+            if point is not None and is_line(model):
+                model = _within_fold(rb, model, X, y, train, point)
             pred = rb.predictor(model).predict_detail(X[held])
             parts.append((held, unseen_inputs(pred, X[train], X[held])))
     return _assemble(len(y), parts)
+
+
+def _within_fold(rb, model, X, y, train: np.ndarray, point: np.ndarray):
+    """A fold's line with an intercept per operating point (:func:`_cross_fitted`): one model
+    per point over its training rows (a point with fewer than :data:`MIN_KNOWN` of them
+    left out), merged by :func:`~diag_plugin.models.linear.within_merge`; ``model`` (the
+    fold's one line) where fewer than two points remain."""
+    from diag_plugin.models.linear import within_merge
+
+    spans = [tuple(v) for v in model.spans_]
+    parts = []
+    for k in np.unique(point[train]):
+        at = train & (point == k)
+        if at.sum() >= MIN_KNOWN:
+            parts.append(rb.new_model().set_params(input_spans=spans).fit(X[at], y[at]))
+    if len(parts) < 2:
+        return model
+    return within_merge(parts)
 
 
 def unseen_inputs(pred: Prediction, seen: np.ndarray, X: np.ndarray) -> Prediction:
@@ -628,6 +661,7 @@ def learn_thresholds(
     points: pd.DataFrame | None = None,
     runs: np.ndarray | None = None,
     whole: np.ndarray | None = None,
+    line_points: bool = False,
 ) -> Learned:
     """Thresholds of every test of ``unit`` from a window the user declares fault-free
     (``frames``: consecutive pieces of it), holding the unit to ``far`` false alarms per hour
@@ -644,7 +678,9 @@ def learn_thresholds(
     (:func:`learn_combined`). ``runs``: each row's run (of the window ``frames`` make), where
     the caller knows them — accept's windows, however close in time — instead of runs found
     from gaps of more than :data:`RUN_GAP` rows; ``whole``: the rows of runs held out whole
-    (:func:`block_of`)."""
+    (:func:`block_of`). ``line_points``: a linear test too is fitted and centred per point
+    (:func:`level_points`; ``diag unit accept`` where a ``[fixed]`` tag moved,
+    :func:`~diag_plugin.unitbuild.accept.moved_fixed`)."""
     if blocks < 0 or blocks == 1:
         raise LearnError([f"blocks must be 0 (no cross-fitting) or at least 2, got {blocks}"])
     frame = _window(frames)
@@ -660,10 +696,6 @@ def learn_thresholds(
                     [f"test {t.name}: the maximum of {out} over the window is not positive"]
                 )
             t.ymax = ymax[t.name] = m
-    res = test_residuals(unit, frame, blocks, cross_fit, mapper, by_run, runs, whole)
-    problems = _check(res, unit)
-    if problems:
-        raise LearnError(problems)
     data = frame.notna().any(axis=1).to_numpy()
     keep = settled(data)
     located = at = None
@@ -674,11 +706,16 @@ def learn_thresholds(
         if found is not None:
             at, fields = found
             located = (at[keep], fields)
+    res = test_residuals(unit, frame, blocks, cross_fit, mapper, by_run, runs, whole,
+                         at if line_points else None)  # fmt: skip
+    problems = _check(res, unit)
+    if problems:
+        raise LearnError(problems)
     lp = {}
     if unit.ev["combined"] or unit.ev["isolation"] == "tags":
         blocked = block_of(frame.index, max(blocks, 1), data if by_run else None,
                            by_run == WITHIN_RUNS, runs if by_run else None, whole)  # fmt: skip
-        lp = level_points(unit, frame, res, at, keep, blocked)
+        lp = level_points(unit, frame, res, at, keep, blocked, line_points)
     # each test's residual, in units of its model's local spread where the model has one,
     # divided by the scale of the level that answered
     scaled, scales, in_spread = {}, {}, {}
@@ -945,6 +982,20 @@ def is_level_test(unit: Unit, name: str) -> bool:
     return not unit.models[name].inputs and getattr(t, "statistic", "level") == "level"
 
 
+def is_line_test(unit: Unit, name: str) -> bool:
+    """A linear test with inputs (:class:`~diag_plugin.models.linear.LinearRegressor`, not a
+    joint test, which learns its points itself: :func:`~diag_plugin.models.joint.add_point`)
+    judged by its level: one set of coefficients over every operating point."""
+    from diag_plugin.models.linear import LinearRegressor
+
+    t, m = unit.file.test(name), unit.models[name]
+    return (
+        bool(m.inputs)
+        and type(m.model) is LinearRegressor
+        and getattr(t, "statistic", "level") == "level"
+    )
+
+
 def level_points(
     unit: Unit,
     frame: pd.DataFrame,
@@ -952,6 +1003,7 @@ def level_points(
     point: np.ndarray | None,
     keep: np.ndarray,
     block: np.ndarray,
+    lines: bool = False,
 ) -> dict[str, tuple[list[float], list[float]]]:
     """Per level test (:func:`is_level_test`) with operating points (``point``: each
     sample's, None: one), each point's centre and relative scale of its raw residual; and
@@ -971,7 +1023,19 @@ def level_points(
     A level test has no input that says where the plant is, so after ``diag unit accept``
     its one mean was the mean over every window and its thresholds spanned the distance
     between the points. A point without two known residuals keeps the model's mean and
-    scale 1."""
+    scale 1.
+
+    With ``lines``, a linear test with inputs (:func:`is_line_test`) is centred the same
+    way, at its point's mean residual ``c_k`` (cross-fitted as above: a row's point mean
+    over the other blocks):
+    one line fitted over every window misses an input that tells the points apart where it
+    was constant over the build window (a set-point the operator moved since, which no test
+    reads: it was constant when the tests were chosen), so each point keeps an offset of its
+    own, and one band held both: an aeration basin's blower and valve tests doubled their
+    bands when a day at a new oxygen set-point was accepted into 14 days at the old one, and
+    the diffuser fouling's detection fell 52.9 → 31.1 % (acceptance pass 11). A per-point
+    offset is what the set-point as an input would add to the line (a term of its own per
+    value it held); a test whose inputs do tell the points apart keeps ``c_k`` near 0."""
     from diag_plugin.diagnose.residuals import LowPass
     from diag_plugin.regressors import InputSpec
 
@@ -982,7 +1046,15 @@ def level_points(
     mf = unit._model_frame(frame)
     names, centred, centres = [], [], {}
     for name, r in res.items():
-        if not is_level_test(unit, name) or np.isfinite(r.raw).sum() < 2:
+        if np.isfinite(r.raw).sum() < 2:
+            continue
+        if lines and is_line_test(unit, name):
+            c, x = _line_points(r, point, P, block)
+            names.append(name)
+            centred.append(x)
+            centres[name] = c
+            continue
+        if not is_level_test(unit, name):
             continue
         t, m = unit.file.test(name), unit.models[name]
         tag = InputSpec.parse(m.output).tags[0]
@@ -992,20 +1064,7 @@ def level_points(
         y = mf[tag].to_numpy(float)
         ok = np.isfinite(r.raw) & np.isfinite(y)
         yhat = float(m.model.predict_detail(np.zeros((1, 0))).y[0])
-        mean = np.full(P, yhat)
-        own = np.full(len(y), np.nan)  # each row's point mean, held out as the residuals
-        crossed = "cross-fitted" in r.source
-        for k in range(P):
-            at = ok & (point == k)
-            if at.sum() < 2:
-                continue
-            mean[k] = float(np.mean(y[at]))
-            own[at] = mean[k]
-            if crossed:
-                for b in np.unique(block[at]):
-                    rest = at & (block != b)
-                    if rest.sum() >= 2:
-                        own[at & (block == b)] = float(np.mean(y[rest]))
+        mean, own = _point_means(y, ok, point, P, block, "cross-fitted" in r.source, yhat)
         c = np.array([float(f"{v:.6g}") for v in (mean - yhat) * 100.0 / scale])
         x = np.where(np.isfinite(own), (y - own) * 100.0 / scale, r.raw - c[point])
         x[~np.isfinite(r.raw)] = np.nan
@@ -1030,6 +1089,44 @@ def level_points(
         res[name].raw = centred[j] / s[point]
         out[name] = (centres[name].tolist(), s.tolist())
     return out
+
+
+def _point_means(
+    v: np.ndarray, ok: np.ndarray, point: np.ndarray, n_points: int, block: np.ndarray,
+    crossed: bool, base: float,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Each point's mean of ``v`` over its rows ``ok`` (``base`` where it has under two) and
+    each row's point mean, held out as the residuals are (``crossed``: a row's point mean
+    over the other blocks; NaN where the point has under two rows)."""
+    mean = np.full(n_points, base)
+    own = np.full(len(v), np.nan)
+    for k in range(n_points):
+        at = ok & (point == k)
+        if at.sum() < 2:
+            continue
+        mean[k] = float(np.mean(v[at]))
+        own[at] = mean[k]
+        if crossed:
+            for b in np.unique(block[at]):
+                rest = at & (block != b)
+                if rest.sum() >= 2:
+                    own[at & (block == b)] = float(np.mean(v[rest]))
+    return mean, own
+
+
+def _line_points(
+    r: TestResiduals, point: np.ndarray, n_points: int, block: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """A linear test's per-point centres ``c_k`` (its mean raw residual at point ``k``, 0
+    where the point has under two) and its raw residuals centred at them, a row of a
+    cross-fitted test at its point's mean over the other blocks (:func:`level_points`)."""
+    raw = r.raw
+    ok = np.isfinite(raw)
+    c, own = _point_means(raw, ok, point, n_points, block, "cross-fitted" in r.source, 0.0)
+    c = np.array([float(f"{v:.6g}") for v in c])
+    x = np.where(np.isfinite(own), raw - own, raw - c[point])
+    x[~ok] = np.nan
+    return c, x
 
 
 #: the smallest residual scale the combined test takes, in % of the span: one count of a

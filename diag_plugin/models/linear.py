@@ -19,6 +19,7 @@ constant and one term per input::
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
@@ -120,6 +121,40 @@ class LinearRegressor(Narmax2Regressor):
         M[1:, 0] = -self._centre / self._half
         M[1:, 1:] = np.diag(1.0 / self._half)
         return M
+
+
+def within_merge(models: Sequence[LinearRegressor]) -> LinearRegressor:
+    """The model of every row of ``models`` (each trained on one operating point, the same
+    spans) with one intercept per point: the *within* (fixed-effects) least squares, its
+    coefficients from each point's rows about that point's own means, pooled. ``merge``
+    fits one line through every point, and where the points differ by something none of
+    the inputs carries (a set-point constant while the inputs were chosen, moved since),
+    the coefficients bend to cover the offset between the points: an aeration basin's
+    blower test, a day at a new oxygen set-point accepted into 14 days at the old one,
+    doubled its band (acceptance pass 11). A point's offset is then its mean residual,
+    which the thresholds take per point (:func:`~diag_plugin.learn.thresholds.level_points`).
+
+    Exact on the QR factors (:class:`~diag_plugin.models.estimation.QRLeastSquares`): each
+    point's rows shifted to the mean of all rows in every column but the constant is
+    ``[Φ | y]·T`` with ``T = I + e₀ δᵀ``, whose factor is ``R·T``: ``R`` with ``R₀₀ · δ``
+    added to its first row (the constant's column of ``R`` is ``R₀₀ e₀``), so the first row
+    becomes ``R₀₀`` times the grand means. The intercept is then the line's through the
+    grand means; the model's rows and their output sum are all the points' (the same
+    ``output_mean_``). The first model is changed in place and returned."""
+    first, rest = models[0], [m for m in models[1:] if getattr(m, "n_samples_seen_", 0)]
+    if not rest:
+        return first
+    parts = [first, *rest]
+    if any(m.qr_ is None or m.qr_.R.shape[0] == 0 for m in parts):
+        raise ValueError("cannot merge a model read from its coefficients")
+    n = np.array([m.qr_.R[0, 0] ** 2 for m in parts])
+    means = np.array([m.qr_.R[0] / m.qr_.R[0, 0] for m in parts])  # Σ column / rows
+    grand = (n[:, None] * means).sum(axis=0) / n.sum()
+    for m in parts:
+        m.qr_.R[0, 1:] = m.qr_.R[0, 0] * grand[1:]
+    for m in rest:
+        first.merge(m)
+    return first
 
 
 class LinearCodec(NarmaxCodec):

@@ -110,6 +110,40 @@ class AcceptResult:
         }
 
 
+def moved_fixed(fixed, frame: pd.DataFrame) -> list[str]:
+    """The ``[fixed]`` tags (constant over the windows the unit learned: a held set-point, a
+    mode) that ``frame`` (an accepted window, the models' tag names) holds beyond their margin.
+    Only then are a linear test's windows merged with an intercept each
+    (:func:`~diag_plugin.models.linear.within_merge`) and its residual taken at each window's
+    point: the points differ by an input none of the tests reads, which one line through them
+    covers by bending its coefficients (an aeration basin's oxygen set-point held at 2.0 for
+    14 days, a day at 1.5 accepted: the blower's band doubled, the diffuser fouling 52.9 →
+    31.1 %; with an intercept each 45.6 %, docs/explanation/acceptance-aeration2.md). Where
+    the points differ in tags the tests read, one line stays: a pump's two accelerometers,
+    each the other's linear test, at 4× the vibration at the accepted point kept their
+    residuals' tight correlation that way, and the combined test its threshold (22; 52 with
+    an intercept each, and a flow bias at the first point then missed)."""
+    out = []
+    for tag, s in (fixed or {}).items():
+        if tag not in frame.columns:
+            continue
+        x = frame[tag].to_numpy(float)
+        x = x[np.isfinite(x)]
+        if x.size and (x.min() < s.min - s.margin or x.max() > s.max + s.margin):
+            out.append(tag)
+    return out
+
+
+def is_line(model) -> bool:
+    """A linear test with inputs (not a joint test, not a level test): its windows are merged
+    with an intercept each (:func:`~diag_plugin.models.linear.within_merge`), and its
+    thresholds taken at each window's point
+    (:func:`~diag_plugin.learn.thresholds.level_points`)."""
+    from diag_plugin.models.linear import LinearRegressor
+
+    return type(model) is LinearRegressor and getattr(model, "n_features_in_", 0) > 0
+
+
 def backup_root(unit_file: Path) -> Path:
     unit_file = Path(unit_file)
     from diag_plugin.rulebase.folder import UNIT_SUFFIX
@@ -270,6 +304,7 @@ def accept(
         LearnError,
         learn_thresholds,
     )
+    from diag_plugin.models.linear import within_merge
     from diag_plugin.rulebase.document import RuleBase
     from diag_plugin.training.chunked import train
 
@@ -309,6 +344,9 @@ def accept(
             f"operating point needs at least {short.MIN_ROWS}, as a build's window does "
             "(confirm a longer period)"
         )
+    # a tag constant over every window learned (a held set-point, [fixed]) moved past its
+    # margin: an input that tells the points apart, which no test reads
+    lines = moved_fixed(uf.fixed, new)
     plans = []
     warnings: list[str] = []
     all_windows: set[tuple[pd.Timestamp, pd.Timestamp]] = {(start, end)}
@@ -347,13 +385,18 @@ def accept(
     res.before = _limits(uf)
     try:
         for t, path, rb, old in plans:
-            model = None
-            for a, b in old:
-                m = train(rb, reader(own(window(a, b), t)), a, b, holdout=0).model
-                model = m if model is None else model.merge(m)
-            before = rb.codec.size(model)
+            parts = [train(rb, reader(own(window(a, b), t)), a, b, holdout=0).model
+                     for a, b in old]  # fmt: skip
             got = train(rb, reader(own(new, t)), start, end, holdout=0)
-            model.merge(got.model)
+            if lines and is_line(parts[0]):  # one line, an intercept per window
+                before = rb.codec.size(parts[0])
+                model = within_merge([*parts, got.model])
+            else:
+                model = parts[0]
+                for m in parts[1:]:
+                    model.merge(m)
+                before = rb.codec.size(model)
+                model.merge(got.model)
             res.samples[t.name] = int(got.samples)
             res.rules[t.name] = (before, rb.codec.size(model))
             wins = sorted([*old, (start, end)])
@@ -386,7 +429,7 @@ def accept(
         try:
             learned = learn_thresholds(
                 fresh, [frame], far=far, by_run=WITHIN_RUNS, points=points, runs=split,
-                whole=whole,
+                whole=whole, line_points=bool(lines),
             )  # fmt: skip
         except LearnError as exc:
             raise UserError(
