@@ -516,7 +516,7 @@ def _cross_fitted(
     test's with an intercept per operating point where ``point`` gives each row's
     (:func:`~diag_plugin.models.linear.within_merge`, as ``diag unit accept`` merges its
     windows: each fold is then the line the unit runs, less the block)."""
-    from diag_plugin.unitbuild.accept import is_line
+    from diag_plugin.models.linear import is_line
 
     usable = np.isfinite(X).all(axis=1) & np.isfinite(y)
     parts = []

@@ -123,6 +123,14 @@ class LinearRegressor(Narmax2Regressor):
         return M
 
 
+def is_line(model) -> bool:
+    """A linear test with inputs (not a joint test, not a level test): ``diag unit accept``
+    merges its windows with an intercept each where a held set-point moved
+    (:func:`within_merge`), and its thresholds are taken at each window's point
+    (:func:`~diag_plugin.learn.thresholds.level_points`)."""
+    return type(model) is LinearRegressor and getattr(model, "n_features_in_", 0) > 0
+
+
 def within_merge(models: Sequence[LinearRegressor]) -> LinearRegressor:
     """The model of every row of ``models`` (each trained on one operating point, the same
     spans) with one intercept per point: the *within* (fixed-effects) least squares, its

@@ -134,16 +134,6 @@ def moved_fixed(fixed, frame: pd.DataFrame) -> list[str]:
     return out
 
 
-def is_line(model) -> bool:
-    """A linear test with inputs (not a joint test, not a level test): its windows are merged
-    with an intercept each (:func:`~diag_plugin.models.linear.within_merge`), and its
-    thresholds taken at each window's point
-    (:func:`~diag_plugin.learn.thresholds.level_points`)."""
-    from diag_plugin.models.linear import LinearRegressor
-
-    return type(model) is LinearRegressor and getattr(model, "n_features_in_", 0) > 0
-
-
 def backup_root(unit_file: Path) -> Path:
     unit_file = Path(unit_file)
     from diag_plugin.rulebase.folder import UNIT_SUFFIX
@@ -304,7 +294,7 @@ def accept(
         LearnError,
         learn_thresholds,
     )
-    from diag_plugin.models.linear import within_merge
+    from diag_plugin.models.linear import is_line, within_merge
     from diag_plugin.rulebase.document import RuleBase
     from diag_plugin.training.chunked import train
 
