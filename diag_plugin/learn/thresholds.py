@@ -983,17 +983,13 @@ def is_level_test(unit: Unit, name: str) -> bool:
 
 
 def is_line_test(unit: Unit, name: str) -> bool:
-    """A linear test with inputs (:class:`~diag_plugin.models.linear.LinearRegressor`, not a
-    joint test, which learns its points itself: :func:`~diag_plugin.models.joint.add_point`)
+    """A linear test with inputs (:func:`~diag_plugin.models.linear.is_line`: not a joint
+    test, which learns its points itself, :func:`~diag_plugin.models.joint.add_point`)
     judged by its level: one set of coefficients over every operating point."""
-    from diag_plugin.models.linear import LinearRegressor
+    from diag_plugin.models.linear import is_line
 
-    t, m = unit.file.test(name), unit.models[name]
-    return (
-        bool(m.inputs)
-        and type(m.model) is LinearRegressor
-        and getattr(t, "statistic", "level") == "level"
-    )
+    t = unit.file.test(name)
+    return is_line(unit.models[name].model) and getattr(t, "statistic", "level") == "level"
 
 
 def level_points(

@@ -129,7 +129,7 @@ def moved_fixed(fixed, frame: pd.DataFrame) -> list[str]:
             continue
         x = frame[tag].to_numpy(float)
         x = x[np.isfinite(x)]
-        if x.size and (x.min() < s.min - s.margin or x.max() > s.max + s.margin):
+        if x.size and (x.min() < s.lo or x.max() > s.hi):
             out.append(tag)
     return out
 
