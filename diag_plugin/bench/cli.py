@@ -107,7 +107,7 @@ def cmd_benchmark(args) -> int:
     from rich.progress import Progress
     from rich.table import Table
 
-    from diag_plugin.bench.damadics import run_benchmark
+    from diag_plugin.bench.damadics import SeedClash, run_benchmark
 
     if args.plant and (args.match_far or args.plant != "chemplant"):
         return cmd_matched_benchmark(args)
@@ -133,7 +133,7 @@ def cmd_benchmark(args) -> int:
                 seeds=seeds,
                 progress=lambda sc: pr.update(task, advance=1, description=f"{sc.fault} {sc.mode}"),
             )
-        except ValueError as exc:
+        except SeedClash as exc:  # only that: any other ValueError is a bug, not the user's
             raise UserError(str(exc)) from None
     if args.page:
         from diag_plugin.bench.pages import render_damadics, write

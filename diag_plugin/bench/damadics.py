@@ -405,6 +405,10 @@ def baseline_summary(rows: list[dict[str, Any]], name: str) -> dict[str, Any]:
     return {k: v for k, v in s.items() if "isolat" not in k}
 
 
+class SeedClash(ValueError):
+    """A scoring seed the baselines learn from or are matched on (:func:`run_benchmark`)."""
+
+
 def run_benchmark(
     unit: Unit,
     quick: bool = False,
@@ -417,7 +421,7 @@ def run_benchmark(
     (module doc), under ``"baselines"`` and in each scenario."""
     clash = sorted(set(seeds) & ({TRAIN_SEED} | set(CALIBRATION_SEEDS))) if baselines else []
     if clash:
-        raise ValueError(
+        raise SeedClash(
             f"seed(s) {', '.join(map(str, clash))}: the baselines learn from seed {TRAIN_SEED} "
             f"and match their limits on {', '.join(map(str, CALIBRATION_SEEDS))}; score others"
         )
