@@ -165,7 +165,11 @@ not more overlap. Tried, same md5, no gain shown: reading threads at nice +5, th
 T²'s blocks shared with the replay's helper thread (≤ 0.03 s a run without the GIL), one
 reading thread instead of two (worse: read 2.50 → 2.69 CPU s). Not tried: the row kernels
 split by columns (~0.1 s idle, estimated).
-Details: docs/how-to/unit-short-windows.md, "Speed".
+Round sixteen (2026-12-02, ``main`` 7d400e2 unchanged, the session's first job, load 1.0–1.5):
+200,000 rows ``--json`` 2.88 s wall (69,400 rows/s; 4.38 CPU s, main thread 2.18),
+``--json --csv`` 3.27 s (61,100); 1,000,000 rows ``--json`` 9.78 s wall (**102,200 rows/s**;
+runs 99,900 / 109,000 / 102,200; 16.21 CPU s: read 7.55, replay 6.05, main thread 6.74).
+Details: docs/how-to/unit-short-windows.md, "Speed" and "Round sixteen".
 
 Run: ``nice -n 10 python benchmarks/bench_diagnose_cli.py --dir /tmp/diagcli [--runs 5]
 [--tree /tmp/main --tree .] [--rolled] [--rows 1000000] [-- --to 2026-06-01T00:03]``.
