@@ -558,44 +558,63 @@ def _held_first(d) -> pd.Series:
     return pd.Series(top1[alarm & (top1 != "")]).value_counts(normalize=True)
 
 
-#: the 7-tag line's meter-bias naming and the valve's gain: not reached (strict xfails)
-GAIN_REVERTED = pytest.mark.xfail(
-    strict=True,
-    reason="reverted 2026-12-02: a rule grid's gain over one set spacing (thresholds.gain_step, "
-    "branch i34-line7name) named the meter first here on 88 % (main 25 %, VALVE_A 74 %), but "
-    "named the AHU fan plant's flow-meter bias on its damper (tests/test_unit_running_modes.py "
-    "flow_bias: FLOW first on 15 % of alarm samples, VAV 72 %; the test asks 60 %); the gain "
-    "is still measured over 5 % of the input's sd (the valve's 2.18 %/(m³/h) against the "
-    "data's 5.1); docs/how-to/unit-loops.md, 'The 7-tag line'",
-)
-
-
-@GAIN_REVERTED
 def test_a_flow_meter_bias_is_named_first_on_the_meter(line):
     """The flow-meter bias is held first on the meter on most of its alarm samples, not on
-    the valve its loop moves (the how-to's table, seed 101: the meter 88 %). With the
-    valve's gain on the set-point measured over less than one of its model's sets (2.18
-    %/(m³/h) where the data's slope is 5.1) the meter's compensated direction said the valve
-    moves half as far as it does, and the valve's own axis took the deviation: main 25 %,
-    the valve 74 % (the audit of issue 34; :func:`~diag_plugin.learn.thresholds.gain_step`)."""
+    the valve its loop moves (seed 101: the meter 88 %, the valve 7 %). With the valve's gain
+    on the set-point measured over less than one of its model's sets (2.18 %/(m³/h) where
+    the data's slope is 5.1) the meter's compensated direction said the valve moves half as
+    far as it does, and the valve's own axis took the deviation: 25 %, the valve 74 % (the
+    audit of issue 34; :func:`~diag_plugin.learn.thresholds.gain_step`,
+    :func:`~diag_plugin.learn.thresholds.judged_weight`)."""
     _, _, runs, _ = line
     first = _held_first(runs[("flow_bias", TABLE_SEED)])
     assert first.get("FEED_FLOW", 0.0) > 0.5, first
     assert first.index[0] == "FEED_FLOW", first
 
 
-@GAIN_REVERTED
-def test_the_valve_model_gain_on_its_set_point_is_the_valves_slope(line):
+def test_the_valve_model_gain_on_its_set_point_is_the_valves_slope_as_judged(line):
     """The gain the directions are built from is the model's slope over its sets, not over a
-    set's flat core: the valve's model's gain on the flow set-point near the data's slope
-    (least squares over the build window, 5.1 %/(m³/h); the valve's characteristic, ``100 /
-    (cv √(p − 1))``, 4.4–6.1 over the window's pressures). Main: 2.18."""
+    set's flat core, in the terms of the residual the unit judges. Two claims:
+
+    * over one set spacing (:func:`~diag_plugin.learn.thresholds.gain_step`), each moved
+      sample weighed alike, the valve's model's gain on the flow set-point is the data's
+      slope within 20 % (least squares over the build window, 5.1 %/(m³/h); the valve's
+      characteristic, ``100 / (cv √(p − 1))``, 4.4–6.1 over the window's pressures; the
+      grid 4.94). Over 5 % of the input's sd, a set's flat core: 2.18.
+    * the gain the unit file holds is that step's move of the valve test's residual *as
+      the unit judges it*, per unit of set-point, in the window's typical divisor: each
+      moved sample's change through :meth:`~diag_plugin.diagnose.unit.Unit.residual` (the
+      sample put on the unmoved prediction, so its residual is the move alone, divided by
+      the answering level's scale and the local spread), times the mean divisor over the
+      window. It is not the raw slope by design (6.32 here against the grid's 4.94 and the
+      data's 5.12): the valve's grid is steepest where its rules' spread is narrowest,
+      which the unit divides by (:func:`~diag_plugin.learn.thresholds.judged_weight`)."""
+    from diag_plugin.diagnose.residuals import supported
+    from diag_plugin.learn.thresholds import gain_step, model_gains
+    from diag_plugin.regressors import DesignBuilder, parse_specs
+
     _, unit, _, _ = line
     frame = line7.simulate(TRAIN_DAYS, seed=1)
     x = np.column_stack([frame["FEED_TARGET"], frame["SUPPLY_P"], np.ones(len(frame))])
     slope = np.linalg.lstsq(x, frame["VALVE_A"].to_numpy(), rcond=None)[0][0]
-    gain = unit.file.combined.gains["VALVE_A"]["FEED_TARGET"]
-    assert abs(gain - slope) < 0.2 * slope, (gain, slope)
+    grid = model_gains(unit, frame)["VALVE_A"]["FEED_TARGET"]
+    assert abs(grid - slope) < 0.2 * slope, (grid, slope)
+
+    test, m = unit.file.test("VALVE_A"), unit.models["VALVE_A"]
+    d = DesignBuilder(m.inputs, m.output, period=m.period).transform(unit._model_frame(frame))
+    cols = [i for i, sp in enumerate(parse_specs(m.inputs)) if sp.tags[0] == "FEED_TARGET"]
+    step = gain_step(m.model, cols, float(np.nanstd(d.X[:, cols[0]])))
+    moved_x = d.X.copy()
+    moved_x[:, cols] += step
+    at, moved = m.model.predict_detail(d.X), m.model.predict_detail(moved_x)
+    y = supported(at, unit.ev["min_support"])  # each sample on its unmoved prediction
+    scale = test.ymax if unit.ev["scale"] == "max" and test.ymax else m.span
+    per_pct = scale / 100.0  # the residual's % of span back in the valve's units
+    judged = -unit.residual(test, y, moved) * per_pct / step  # the move, divided as judged
+    divisor = 1.0 / unit.residual(test, y + per_pct, at)  # 1 % of span, divided as judged
+    typical = float(np.nanmean(divisor[np.isfinite(y)]))
+    held = unit.file.combined.gains["VALVE_A"]["FEED_TARGET"]
+    assert held == pytest.approx(float(np.nanmean(judged)) * typical, rel=0.01), (held, grid)
 
 
 @pytest.mark.xfail(

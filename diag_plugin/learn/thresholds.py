@@ -52,7 +52,7 @@ import numpy as np
 import pandas as pd
 
 from diag_plugin.diagnose.residuals import supported
-from diag_plugin.diagnose.unit import Unit, spread_factor
+from diag_plugin.diagnose.unit import Unit, level_factor, spread_factor
 from diag_plugin.diagnose.unitfile import WHY, CombinedSpec, hours
 from diag_plugin.learn.budget import TestBudget, calibrate
 from diag_plugin.models.protocol import REASON_NAN, REASON_OUTSIDE, Prediction
@@ -786,7 +786,7 @@ def learn_thresholds(
             body,
             block,
             far * COMBINED_SHARE if unit.ev["combined"] else None,
-            model_gains(unit, frame, mapper),
+            model_gains(unit, frame, mapper, scales, in_spread),
             located,
             mapper=mapper,
         )
@@ -1499,20 +1499,90 @@ def _centred(a: np.ndarray, group: np.ndarray | None) -> np.ndarray:
 
 
 def model_gains(
-    unit: Unit, frame: pd.DataFrame, mapper: Mapper | None = None
+    unit: Unit,
+    frame: pd.DataFrame,
+    mapper: Mapper | None = None,
+    levels: dict[str, list[float]] | None = None,
+    spread: dict[str, bool] | None = None,
 ) -> dict[str, dict[str, float]]:
     """Per test, the mean gain ``∂ŷ/∂X`` of its model for each tag ``X`` it reads plainly (any
     lag; a bias moves every lag alike, so the lags' gains add), over the samples of ``frame``
-    the model answers, by a forward difference of 5 % of the tag's standard deviation; keyed by
-    the plant's tag names. Derived inputs (a rate, a direction) get none: a bias leaves them.
-    ``mapper`` (:data:`Mapper`): the tests' gains in any number of processes."""
+    the model answers, by a forward difference of :func:`gain_step` (5 % of the tag's standard
+    deviation, at least one set of a rule grid), each moved sample's change weighed as the
+    unit judges it (:func:`judged_weight`: ``levels``, the tests' learned level scales, and
+    ``spread``, whether a test is judged in units of its local spread, as
+    :func:`learn_thresholds` learned them; none given, every weight 1); keyed by the plant's
+    tag names. Derived inputs (a rate, a direction) get none: a bias leaves them. ``mapper``
+    (:data:`Mapper`): the tests' gains in any number of processes."""
     mf = unit._model_frame(frame)
-    got = (mapper or _serial)(_test_gains, list(unit.tests), (unit, mf))
+    got = (mapper or _serial)(_test_gains, list(unit.tests), (unit, mf, levels, spread))
     return dict(zip(unit.tests, got, strict=True))
 
 
-def _test_gains(t: str, unit: Unit, mf: pd.DataFrame) -> dict[str, float]:
-    """One test's gains for :func:`model_gains` (``mf``: the window under the models' names)."""
+#: the forward difference of :func:`model_gains`, in standard deviations of the input
+GAIN_STEP_SD = 0.05
+
+
+def gain_step(model, cols: list[int], sd: float) -> float:
+    """The step :func:`model_gains` moves an input by: :data:`GAIN_STEP_SD` of its standard
+    deviation ``sd``, and at least the spacing of a rule grid's sets on the columns ``cols``
+    it is read at (``partitions_``, the model's uniform partitions: Kościelny et al., the
+    31 sets of each variable). A rule grid answers by interpolating its rules' conclusions,
+    and a trapezoidal set is flat over half its spacing (its core): a step shorter than the
+    spacing measures where the samples sit on the sets — on a core no slope at all, on a
+    flank twice the rules' — not the relation. Over one spacing the difference is that
+    between neighbouring rules' conclusions, the grid's own slope, wherever the sample sits.
+    An input an operator enters to one decimal sits at the same few places of its sets:
+    the 7-tag line's flow set-point (sets 0.11 m³/h apart, the step 0.04) gave its valve's
+    model a gain of 2.18 %/(m³/h) where the data's slope and the valve's characteristic say
+    5.1 (docs/how-to/unit-loops.md, "The 7-tag line"). Measured alone over one spacing, the
+    gain is the grid's wherever the step lands, also where it leaves the data: weighed by
+    :func:`judged_weight`."""
+    step = GAIN_STEP_SD * sd
+    parts = getattr(model, "partitions_", None)
+    if parts is not None and len(parts) > max(cols):
+        step = max(step, *(float(parts[c].step) for c in cols))
+    return step
+
+
+def judged_factor(pred: Prediction, levels: list[float] | None, spread: bool) -> np.ndarray:
+    """What the unit divides each sample's residual by (:meth:`~diag_plugin.diagnose.unit.
+    Unit.residual`): the answering level's learned scale (:func:`~diag_plugin.diagnose.unit.
+    level_factor`, NaN at a level never calibrated) times, for a test judged in units of its
+    local spread, that spread (:func:`~diag_plugin.diagnose.unit.spread_factor`)."""
+    f = np.broadcast_to(np.asarray(level_factor(levels, pred.level), float), np.shape(pred.y))
+    return f * spread_factor(pred.spread) if spread else f.copy()
+
+
+def judged_weight(
+    moved: Prediction, base: Prediction, answered: np.ndarray, levels, spread: bool
+) -> np.ndarray:
+    """Per sample, the weight of a moved sample's change in :func:`model_gains`: the window's
+    mean factor (:func:`judged_factor` of ``base``, the window as it is, over the samples
+    ``answered``: those the unit judges there) over
+    the factor of the moved sample's answer. A step of one input alone can leave the data
+    (inputs that move together, as a fan's flow and its damper), where coarser rule levels
+    answer and the unit divides their residuals by the level's scale (up to 7.7 on the AHU
+    fan): the raw change there overstates what the judged residual moves (the fan speed's
+    gain on the flow 8.30 %/(m³/s) over a set spacing, the judged residual 4.4–5.4 in the
+    fault, and the fan's flow-meter bias named on its damper). Relative to the window's mean
+    factor, not absolute: the directions put the gain in units of the judged residual's
+    scale learned on the same window (:func:`~diag_plugin.diagnose.unittags.directions`),
+    which holds the window's factors already; taken absolute, every test's gains shrink by
+    its typical factor, and the small changes added up on the AHU filter bank (a
+    neighbouring piece's tag in its fault's top three on 5.04 % of alarm samples, 1.66 %
+    with the unweighed 5 % sd step; docs/how-to/unit-loops.md, branch ``i34-gain3``)."""
+    if levels is None and not spread:
+        return np.ones(np.shape(moved.y))
+    fb = judged_factor(base, levels, spread)
+    ok = np.isfinite(fb) & answered
+    mean = float(fb[ok].mean()) if ok.any() else math.nan
+    return mean / judged_factor(moved, levels, spread)
+
+
+def _test_gains(t: str, unit: Unit, mf: pd.DataFrame, levels=None, spread=None) -> dict[str, float]:
+    """One test's gains for :func:`model_gains` (``mf``: the window under the models' names;
+    ``levels``, ``spread``: per test, as :func:`model_gains` takes them)."""
     from diag_plugin.regressors import DesignBuilder, parse_specs
 
     m = unit.models[t]
@@ -1521,17 +1591,22 @@ def _test_gains(t: str, unit: Unit, mf: pd.DataFrame) -> dict[str, float]:
     g: dict[str, float] = {}
     if not len(d.y):
         return g
-    base = supported(m.model.predict_detail(d.X), unit.ev["min_support"])
+    lv = None if levels is None else levels.get(t)
+    in_spread = bool(spread and spread.get(t))
+    at = m.model.predict_detail(d.X)
+    base = supported(at, unit.ev["min_support"])
     for tag in dict.fromkeys(sp.tags[0] for sp in specs if not sp.fn):
         cols = [i for i, sp in enumerate(specs) if not sp.fn and sp.tags[0] == tag]
         sd = float(np.nanstd(d.X[:, cols[0]]))
         if not sd > 0:
             continue
-        step = 0.05 * sd
+        step = gain_step(m.model, cols, sd)
         X = d.X.copy()
         X[:, cols] += step
-        moved = supported(m.model.predict_detail(X), unit.ev["min_support"])
-        diff = (moved - base) / step
+        pred = m.model.predict_detail(X)
+        moved = supported(pred, unit.ev["min_support"])
+        w = judged_weight(pred, at, np.isfinite(base), lv, in_spread)
+        diff = (moved - base) / step * w
         if np.isfinite(diff).any():
             g[unit.file.tags.get(tag, tag)] = float(np.nanmean(diff))
     return g
