@@ -1393,7 +1393,24 @@ class Excursions:
     rule, a linear model's span); a tag no test reads has none and is never a source. An
     input is judged at its value at the sample, whatever lag a model reads it at: a live
     cycle (:class:`~diag_plugin.diagnose.plant.Plant`'s fast path) holds that value only, and
-    a replay names what a live cycle names."""
+    a replay names what a live cycle names.
+
+    **A relation broken beyond the range** (issue 34 item 4, branch ``i34-feedloss``). A test
+    whose input left its learned range is unknown (its model has no rule there), so a lost
+    feed — the flow at 0 while its controller opens the valve to its limit — leaves no test
+    on at the pair: the flow's test reads the valve, the valve's the flow, and both are
+    unknown; ``T²`` is unknown too (most tests unknown) or spreads over the tags downstream,
+    and no input explains those. What the unknown test still says is the **sign**: its
+    output ``Y`` beyond its range by ``e_Y`` and its inputs beyond theirs by ``e_X``, a model
+    that follows its inputs beyond their ranges in any monotone way moves ``Y`` the way
+    ``d = Σ g_YX · e_X`` says (its gains, ``[combined.gains]``, over the inputs beyond). Where
+    ``e_Y · d < 0`` — the output left its range on the side opposite to where its inputs'
+    excursions take it — no steeper or flatter characteristic explains it: the relation is
+    broken, as a test in alarm would say if it could be evaluated. At such an alarm sample
+    ``Y`` and its candidate inputs beyond are named, each at ``1 +`` its excess as a share of
+    its range, whatever else is on (as a kept-out test's tags are, :class:`TestNames`). A
+    valve and its flow moved together beyond what was learned (an A/C ratio step the A feed's
+    loop follows) keep the sign and are ranked as before."""
 
     def __init__(
         self,
@@ -1403,7 +1420,12 @@ class Excursions:
         keys: dict[int, str],
         up: dict[int, list[tuple[tuple[str, int], int]]],
         center: np.ndarray,
+        broken: list[tuple[int, int, list[tuple[tuple[str, int], int, float]]]] | None = None,
     ) -> None:
+        #: per test whose output is a candidate: (the test, its output's ranking column, its
+        #: inputs with a range and a gain: (value judged, ranking column or −1, signed gain)),
+        #: the relations whose sign is judged beyond the range (class doc)
+        self.broken = broken or []
         #: per test: (the value judged (model tag, lag), its ranking column, ``|g|·100/span``)
         self.reads = reads
         #: per test its output's ranking column where a candidate with a range, else −1
@@ -1457,6 +1479,7 @@ class Excursions:
         reads: list[list[tuple[tuple[str, int], int, float]]] = []
         own = np.full(len(unit.tests), -1, np.int64)
         up: dict[int, list[tuple[tuple[str, int], int]]] = {}
+        broken: list[tuple[int, int, list[tuple[tuple[str, int], int, float]]]] = []
         for j, t in enumerate(unit.tests):
             row: list[tuple[tuple[str, int], int, float]] = []
             reads.append(row)
@@ -1476,6 +1499,17 @@ class Excursions:
                 continue
             if not getattr(test, "balance", False):
                 own[j] = k
+                # the signed gains of every input with a range (a loop's tag too: its
+                # excursion moves the output as much; only candidates are named)
+                signed = [
+                    ((s.tags[0], s.lag), col.get(plant.get(s.tags[0], s.tags[0]), -1), g)
+                    for s in parse_specs(unit.models[t].inputs)
+                    if s.fn == "" and len(s.tags) == 1 and s.tags[0] in ranges
+                    and (g := float(spec.gains.get(t, {}).get(
+                        plant.get(s.tags[0], s.tags[0]), 0.0))) != 0.0
+                ]  # fmt: skip
+                if signed:
+                    broken.append((j, k, signed))
             ups = up.setdefault(k, [])
             ups += [(key, kk) for key, kk, _ in row if (key, kk) not in ups]
             info = build.get(t) if isinstance(build.get(t), dict) else {}
@@ -1487,7 +1521,7 @@ class Excursions:
             return None
         order = [spec.tests.index(t) for t in unit.tests]
         center = np.asarray(spec.center, float)[order]
-        return cls(reads, own, ranges, keys, up, center)
+        return cls(reads, own, ranges, keys, up, center, broken)
 
     def _beyond(self, values, key: tuple[str, int], at: np.ndarray, n: int, memo: dict):
         """The judged value's excess beyond its learned range at ``at`` (0 inside or unknown)
@@ -1510,10 +1544,11 @@ class Excursions:
         at = np.flatnonzero(at)
         on = _on_any(np.asarray(s, float)[at]) if at.size else np.zeros((0, 0), bool)
         any_on = on.any(axis=1)
-        if not any_on.any():
-            return share
         n, m = len(r), share.shape[1]
         memo: dict = {}
+        share = self._name_broken(share, s, values, at, n, memo)
+        if not any_on.any():
+            return share
         # each candidate's source per sample (itself, or upstream) and the source's share
         src: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for k, tag in self.keys.items():
@@ -1567,6 +1602,38 @@ class Excursions:
         i = np.flatnonzero(named)
         out[i, best[i]] = np.fmax(np.nan_to_num(out[i, best[i]], nan=0.0), 1.0 + val[i, best[i]])
         return out
+
+    def _name_broken(self, share: np.ndarray, s, values, at: np.ndarray, n: int, memo: dict):
+        """``share`` with the tags of each relation broken beyond the range named (class doc:
+        a test unknown at an alarm sample ``at`` whose output left its range on the side
+        opposite to ``Σ g·e`` of its inputs beyond theirs); ``s`` the piece's symptoms."""
+        if not self.broken or not at.size:
+            return share
+        unknown = np.isnan(np.asarray(s, float)[at])
+        out = None
+        for j, k, ins in self.broken:
+            if not unknown[:, j].any():
+                continue
+            e_y, w_y = self._beyond(values, (self.keys[k], 0), at, n, memo)
+            d = np.zeros(at.size)
+            for key, _, g in ins:
+                d += g * np.nan_to_num(self._beyond(values, key, at, n, memo)[0])
+            with np.errstate(invalid="ignore"):
+                hit = unknown[:, j] & (e_y * d < 0)
+            if not hit.any():
+                continue
+            if out is None:
+                out = share.copy()
+            i = np.flatnonzero(hit)
+            named = [(k, w_y)] + [
+                (kk, self._beyond(values, key, at, n, memo)[1])
+                for key, kk, _ in ins
+                if kk in self.keys
+            ]
+            for kk, w in named:
+                x = i[np.nan_to_num(w[i]) > 0]
+                out[x, kk] = np.fmax(np.nan_to_num(out[x, kk], nan=0.0), 1.0 + w[x])
+        return share if out is None else out
 
 
 def rank(s: np.ndarray) -> np.ndarray:
