@@ -1400,16 +1400,16 @@ class Excursions:
     feed — the flow at 0 while its controller opens the valve to its limit — leaves no test
     on at the pair: the flow's test reads the valve, the valve's the flow, and both are
     unknown; ``T²`` is unknown too (most tests unknown) or spreads over the tags downstream,
-    and no input explains those. What the unknown test still says is the **sign**: its
-    output ``Y`` beyond its range by ``e_Y`` and its inputs beyond theirs by ``e_X``, a model
-    that follows its inputs beyond their ranges in any monotone way moves ``Y`` the way
-    ``d = Σ g_YX · e_X`` says (its gains, ``[combined.gains]``, over the inputs beyond). Where
-    ``e_Y · d < 0`` — the output left its range on the side opposite to where its inputs'
-    excursions take it — no steeper or flatter characteristic explains it: the relation is
-    broken, as a test in alarm would say if it could be evaluated. At such an alarm sample
-    ``Y`` and its candidate inputs beyond are named, each at ``1 +`` its excess as a share of
-    its range, whatever else is on (as a kept-out test's tags are, :class:`TestNames`). A
-    valve and its flow moved together beyond what was learned (an A/C ratio step the A feed's
+    and no input explains those. What such a test still says is a **sign**: where it reads
+    one input ``X`` alone, a model that follows ``X`` beyond its range in any monotone way
+    moves its output ``Y`` beyond its own range the way ``g_YX · e_X`` says (its gain,
+    ``[combined.gains]``; ``e_X`` the input's excess). Where ``e_Y · g_YX · e_X < 0`` — the
+    output left its range on the side opposite to where its input's excursion takes it — no
+    steeper or flatter characteristic explains it: the relation is broken, as the test would
+    say if it could be evaluated. At such an alarm sample, the test unknown, ``Y`` and ``X``
+    (where a candidate) are named, each at ``1 +`` its excess as a share of its range,
+    whatever else is on (as a kept-out test's tags are, :class:`TestNames`). A valve and its
+    flow moved together beyond what was learned (an A/C ratio step the A feed's
     loop follows) keep the sign and are ranked as before."""
 
     def __init__(
@@ -1499,17 +1499,16 @@ class Excursions:
                 continue
             if not getattr(test, "balance", False):
                 own[j] = k
-                # the signed gains of every input with a range (a loop's tag too: its
-                # excursion moves the output as much; only candidates are named)
-                signed = [
-                    ((s.tags[0], s.lag), col.get(plant.get(s.tags[0], s.tags[0]), -1), g)
-                    for s in parse_specs(unit.models[t].inputs)
-                    if s.fn == "" and len(s.tags) == 1 and s.tags[0] in ranges
-                    and (g := float(spec.gains.get(t, {}).get(
-                        plant.get(s.tags[0], s.tags[0]), 0.0))) != 0.0
-                ]  # fmt: skip
-                if signed:
-                    broken.append((j, k, signed))
+                # a test reading one input alone: the sign of its gain fixes where the
+                # output goes beyond its range (an input inside its range moves it an
+                # unknown way: none here); a loop's tag too, only candidates are named
+                specs = parse_specs(unit.models[t].inputs)
+                s = specs[0] if len(specs) == 1 else None
+                if s is not None and s.fn == "" and len(s.tags) == 1 and s.tags[0] in ranges:
+                    x = plant.get(s.tags[0], s.tags[0])
+                    g = float(spec.gains.get(t, {}).get(x, 0.0))
+                    if g != 0.0:
+                        broken.append((j, k, [((s.tags[0], s.lag), col.get(x, -1), g)]))
             ups = up.setdefault(k, [])
             ups += [(key, kk) for key, kk, _ in row if (key, kk) not in ups]
             info = build.get(t) if isinstance(build.get(t), dict) else {}
@@ -1606,7 +1605,7 @@ class Excursions:
     def _name_broken(self, share: np.ndarray, s, values, at: np.ndarray, n: int, memo: dict):
         """``share`` with the tags of each relation broken beyond the range named (class doc:
         a test unknown at an alarm sample ``at`` whose output left its range on the side
-        opposite to ``Σ g·e`` of its inputs beyond theirs); ``s`` the piece's symptoms."""
+        opposite to ``g·e`` of its one input beyond its own); ``s`` the piece's symptoms."""
         if not self.broken or not at.size:
             return share
         unknown = np.isnan(np.asarray(s, float)[at])
