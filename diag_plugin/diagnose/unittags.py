@@ -92,7 +92,9 @@ the derived matrix's 0/1 columns as directions (rough, sign-blind). A test kept 
 (:class:`TestNames`); so does any test in alarm where ``T²`` names no tag. And a measured
 input beyond the range the unit learned whose excursion explains every test in alarm (its own
 test, or a test reading it off by no more than its excess times the test's gain on it) is
-named before the shares, not the loop that absorbs it (:class:`Excursions`).
+named before the shares, not the loop that absorbs it (:class:`Excursions`); so are a test's
+output and its one input where the test is unknown, both beyond their ranges on the sides its
+gain says cannot go together (a lost feed: the flow at 0, its valve open).
 """
 
 from __future__ import annotations
@@ -1393,7 +1395,24 @@ class Excursions:
     rule, a linear model's span); a tag no test reads has none and is never a source. An
     input is judged at its value at the sample, whatever lag a model reads it at: a live
     cycle (:class:`~diag_plugin.diagnose.plant.Plant`'s fast path) holds that value only, and
-    a replay names what a live cycle names."""
+    a replay names what a live cycle names.
+
+    **A relation broken beyond the range** (issue 34 item 4, branch ``i34-feedloss``). A test
+    whose input left its learned range is unknown (its model has no rule there), so a lost
+    feed — the flow at 0 while its controller opens the valve to its limit — leaves no test
+    on at the pair: the flow's test reads the valve, the valve's the flow, and both are
+    unknown; ``T²`` is unknown too (most tests unknown) or spreads over the tags downstream,
+    and no input explains those. What such a test still says is a **sign**: where it reads
+    one input ``X`` alone, a model that follows ``X`` beyond its range in any monotone way
+    moves its output ``Y`` beyond its own range the way ``g_YX · e_X`` says (its gain,
+    ``[combined.gains]``; ``e_X`` the input's excess). Where ``e_Y · g_YX · e_X < 0`` — the
+    output left its range on the side opposite to where its input's excursion takes it — no
+    steeper or flatter characteristic explains it: the relation is broken, as the test would
+    say if it could be evaluated. At such an alarm sample, the test unknown, ``Y`` and ``X``
+    (where a candidate) are named, each at ``1 +`` its excess as a share of its range,
+    whatever else is on (as a kept-out test's tags are, :class:`TestNames`). A valve and its
+    flow moved together beyond what was learned (an A/C ratio step the A feed's
+    loop follows) keep the sign and are ranked as before."""
 
     def __init__(
         self,
@@ -1403,7 +1422,12 @@ class Excursions:
         keys: dict[int, str],
         up: dict[int, list[tuple[tuple[str, int], int]]],
         center: np.ndarray,
+        broken: list[tuple[int, int, list[tuple[tuple[str, int], int, float]]]] | None = None,
     ) -> None:
+        #: per test whose output is a candidate: (the test, its output's ranking column, its
+        #: inputs with a range and a gain: (value judged, ranking column or −1, signed gain)),
+        #: the relations whose sign is judged beyond the range (class doc)
+        self.broken = broken or []
         #: per test: (the value judged (model tag, lag), its ranking column, ``|g|·100/span``)
         self.reads = reads
         #: per test its output's ranking column where a candidate with a range, else −1
@@ -1457,6 +1481,7 @@ class Excursions:
         reads: list[list[tuple[tuple[str, int], int, float]]] = []
         own = np.full(len(unit.tests), -1, np.int64)
         up: dict[int, list[tuple[tuple[str, int], int]]] = {}
+        broken: list[tuple[int, int, list[tuple[tuple[str, int], int, float]]]] = []
         for j, t in enumerate(unit.tests):
             row: list[tuple[tuple[str, int], int, float]] = []
             reads.append(row)
@@ -1476,6 +1501,16 @@ class Excursions:
                 continue
             if not getattr(test, "balance", False):
                 own[j] = k
+                # a test reading one input alone: the sign of its gain fixes where the
+                # output goes beyond its range (an input inside its range moves it an
+                # unknown way: none here); a loop's tag too, only candidates are named
+                specs = parse_specs(unit.models[t].inputs)
+                s = specs[0] if len(specs) == 1 else None
+                if s is not None and s.fn == "" and len(s.tags) == 1 and s.tags[0] in ranges:
+                    x = plant.get(s.tags[0], s.tags[0])
+                    g = float(spec.gains.get(t, {}).get(x, 0.0))
+                    if g != 0.0:
+                        broken.append((j, k, [((s.tags[0], s.lag), col.get(x, -1), g)]))
             ups = up.setdefault(k, [])
             ups += [(key, kk) for key, kk, _ in row if (key, kk) not in ups]
             info = build.get(t) if isinstance(build.get(t), dict) else {}
@@ -1487,7 +1522,7 @@ class Excursions:
             return None
         order = [spec.tests.index(t) for t in unit.tests]
         center = np.asarray(spec.center, float)[order]
-        return cls(reads, own, ranges, keys, up, center)
+        return cls(reads, own, ranges, keys, up, center, broken)
 
     def _beyond(self, values, key: tuple[str, int], at: np.ndarray, n: int, memo: dict):
         """The judged value's excess beyond its learned range at ``at`` (0 inside or unknown)
@@ -1510,10 +1545,11 @@ class Excursions:
         at = np.flatnonzero(at)
         on = _on_any(np.asarray(s, float)[at]) if at.size else np.zeros((0, 0), bool)
         any_on = on.any(axis=1)
-        if not any_on.any():
-            return share
         n, m = len(r), share.shape[1]
         memo: dict = {}
+        share = self._name_broken(share, s, values, at, n, memo)
+        if not any_on.any():
+            return share
         # each candidate's source per sample (itself, or upstream) and the source's share
         src: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for k, tag in self.keys.items():
@@ -1567,6 +1603,38 @@ class Excursions:
         i = np.flatnonzero(named)
         out[i, best[i]] = np.fmax(np.nan_to_num(out[i, best[i]], nan=0.0), 1.0 + val[i, best[i]])
         return out
+
+    def _name_broken(self, share: np.ndarray, s, values, at: np.ndarray, n: int, memo: dict):
+        """``share`` with the tags of each relation broken beyond the range named (class doc:
+        a test unknown at an alarm sample ``at`` whose output left its range on the side
+        opposite to ``g·e`` of its one input beyond its own); ``s`` the piece's symptoms."""
+        if not self.broken or not at.size:
+            return share
+        unknown = np.isnan(np.asarray(s, float)[at])
+        out = None
+        for j, k, ins in self.broken:
+            if not unknown[:, j].any():
+                continue
+            e_y, w_y = self._beyond(values, (self.keys[k], 0), at, n, memo)
+            d = np.zeros(at.size)
+            for key, _, g in ins:
+                d += g * np.nan_to_num(self._beyond(values, key, at, n, memo)[0])
+            with np.errstate(invalid="ignore"):
+                hit = unknown[:, j] & (e_y * d < 0)
+            if not hit.any():
+                continue
+            if out is None:
+                out = share.copy()
+            i = np.flatnonzero(hit)
+            named = [(k, w_y)] + [
+                (kk, self._beyond(values, key, at, n, memo)[1])
+                for key, kk, _ in ins
+                if kk in self.keys
+            ]
+            for kk, w in named:
+                x = i[np.nan_to_num(w[i]) > 0]
+                out[x, kk] = np.fmax(np.nan_to_num(out[x, kk], nan=0.0), 1.0 + w[x])
+        return share if out is None else out
 
 
 def rank(s: np.ndarray) -> np.ndarray:
