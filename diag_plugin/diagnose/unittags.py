@@ -91,10 +91,11 @@ the derived matrix's 0/1 columns as directions (rough, sign-blind). A test kept 
 (``combined = false``) adds to no share; in alarm it names its own tags ahead of them
 (:class:`TestNames`); so does any test in alarm where ``T²`` names no tag. And a measured
 input beyond the range the unit learned whose excursion explains every test in alarm (its own
-test, or a test reading it off by no more than its excess times the test's gain on it) is
-named before the shares, not the loop that absorbs it (:class:`Excursions`); so are a test's
-output and its one input where the test is unknown, both beyond their ranges on the sides its
-gain says cannot go together (a lost feed: the flow at 0, its valve open).
+test, a test reading it off by no more than its excess times the test's gain on it, or a
+test reading a tag whose own test, reading the input, is unknown) is named before the shares,
+not the loop that absorbs it (:class:`Excursions`); so are a test's output and its one input
+where the test is unknown, both beyond their ranges on the sides its gain says cannot go
+together (a lost feed: the flow at 0, its valve open).
 """
 
 from __future__ import annotations
