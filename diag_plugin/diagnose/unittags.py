@@ -91,10 +91,11 @@ the derived matrix's 0/1 columns as directions (rough, sign-blind). A test kept 
 (``combined = false``) adds to no share; in alarm it names its own tags ahead of them
 (:class:`TestNames`); so does any test in alarm where ``T²`` names no tag. And a measured
 input beyond the range the unit learned whose excursion explains every test in alarm (its own
-test, or a test reading it off by no more than its excess times the test's gain on it) is
-named before the shares, not the loop that absorbs it (:class:`Excursions`); so are a test's
-output and its one input where the test is unknown, both beyond their ranges on the sides its
-gain says cannot go together (a lost feed: the flow at 0, its valve open).
+test, a test reading it off by no more than its excess times the test's gain on it, or a
+test reading a tag whose own test, reading the input, is unknown) is named before the shares,
+not the loop that absorbs it (:class:`Excursions`); so are a test's output and its one input
+where the test is unknown, both beyond their ranges on the sides its gain says cannot go
+together (a lost feed: the flow at 0, its valve open).
 """
 
 from __future__ import annotations
@@ -1367,7 +1368,14 @@ class Excursions:
       :data:`EXCURSION_EXPLAINS` times ``X``'s excess times the test's gain on it,
       ``|r_j − c_j| ≤ EXCURSION_EXPLAINS · |g_jX| · |e| · 100 / span_j`` (eq. 6: a model
       that did not follow ``X`` beyond its range at all is off by ``|g e|``; a valve's
-      characteristic steeper there than where it was learned, twice as far).
+      characteristic steeper there than where it was learned, twice as far), or
+    - the test reads a tag ``X`` whose own test is **unknown** at the sample and reads ``X``'s
+      input ``Z``, beyond its range (issue 34 item 4, branch ``i34-feedtemp``): the unit
+      cannot say ``X`` is where its causes put it (its model has no rule there), and the one
+      cause of ``X`` it sees outside what it learned is ``Z``. No bound on the residual: a
+      model reading ``X`` inside its range learned ``X`` moved by its usual causes, and a
+      new one moves it against the others the way no gain says (a feed's temperature step
+      fired the tests reading the mixed feed at 6–10 times ``2 · |g g| · |e|``).
 
     Each explaining tag is then followed **upstream**: where it has a test of its own and an
     input of that test is beyond its learned range too, by a larger share of its range, that
@@ -1423,7 +1431,12 @@ class Excursions:
         up: dict[int, list[tuple[tuple[str, int], int]]],
         center: np.ndarray,
         broken: list[tuple[int, int, list[tuple[tuple[str, int], int, float]]]] | None = None,
+        via: list[list[tuple[tuple[str, int], int, int]]] | None = None,
     ) -> None:
+        #: per test: the inputs ``Z`` (value judged, ranking column) of the own test ``j_X``
+        #: of a tag ``X`` it reads, and ``j_X`` — ``Z`` explains the test where ``j_X`` is
+        #: unknown and ``Z`` beyond its range (class doc, an input the unit cannot judge)
+        self.via = via or [[] for _ in reads]
         #: per test whose output is a candidate: (the test, its output's ranking column, its
         #: inputs with a range and a gain: (value judged, ranking column or −1, signed gain)),
         #: the relations whose sign is judged beyond the range (class doc)
@@ -1520,9 +1533,33 @@ class Excursions:
                     ups.append(((keys[kk], 0), kk))
         if not keys or not (any(reads) or (own >= 0).any()):
             return None
+        # the tests through which a tag's own test reaches its readers: test j reads X,
+        # X's own test j_X (not a spread or balance test) reads Z, a candidate with a range
+        own_test = {}
+        for j, t in enumerate(unit.tests):
+            if not _spread_test(unit, t) and not getattr(unit.file.test(t), "balance", False):
+                own_test.setdefault(outputs[t], j)
+        via: list[list[tuple[tuple[str, int], int, int]]] = []
+        for j, t in enumerate(unit.tests):
+            row2: list[tuple[tuple[str, int], int, int]] = []
+            via.append(row2)
+            if _spread_test(unit, t):
+                continue
+            for s in parse_specs(unit.models[t].inputs):
+                if s.fn != "" or len(s.tags) != 1:
+                    continue
+                jx = own_test.get(plant.get(s.tags[0], s.tags[0]))
+                if jx is None or jx == j:
+                    continue
+                for z in parse_specs(unit.models[unit.tests[jx]].inputs):
+                    if z.fn != "" or len(z.tags) != 1 or z.tags[0] not in ranges:
+                        continue
+                    kz = col.get(plant.get(z.tags[0], z.tags[0]))
+                    if kz in keys and ((z.tags[0], 0), kz, jx) not in row2:
+                        row2.append(((z.tags[0], 0), kz, jx))
         order = [spec.tests.index(t) for t in unit.tests]
         center = np.asarray(spec.center, float)[order]
-        return cls(reads, own, ranges, keys, up, center, broken)
+        return cls(reads, own, ranges, keys, up, center, broken, via)
 
     def _beyond(self, values, key: tuple[str, int], at: np.ndarray, n: int, memo: dict):
         """The judged value's excess beyond its learned range at ``at`` (0 inside or unknown)
@@ -1570,6 +1607,7 @@ class Excursions:
                     break
             src[k] = (cur, v)
         dev = np.abs(np.asarray(r, float)[at] - self.center)
+        unknown = np.isnan(np.asarray(s, float)[at])
         rows = np.arange(at.size)
         ok = np.zeros((at.size, m), bool)
         ok[any_on] = True
@@ -1589,6 +1627,12 @@ class Excursions:
                 e, _ = self._beyond(values, key, at, n, memo)
                 with np.errstate(invalid="ignore"):
                     x = hit & (e != 0) & (dev[:, j] <= EXCURSION_EXPLAINS * f * np.abs(e))
+                by[rows[x], src[k][0][x]] = True
+            for key, k, jx in self.via[j]:  # X's own test unknown: Z, beyond, moved X
+                if k not in src:
+                    continue
+                e, _ = self._beyond(values, key, at, n, memo)
+                x = hit & (e != 0) & unknown[:, jx]
                 by[rows[x], src[k][0][x]] = True
             ok[on[:, j]] &= by[on[:, j]]
         named = ok.any(axis=1)
