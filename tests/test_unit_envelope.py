@@ -88,7 +88,11 @@ def test_a_fault_through_a_start_is_raised_well_before_the_bound(station, seed):
     """Pump 1's current meter 3 A high from 2 min after each of a run's first three starts:
     FAILURE named ``I1`` within 20 min of the start, the why saying which test left what the
     window's changes showed and when; without the envelope (main) CHECK_FUNCTION until the
-    bound (38 min)."""
+    bound (38 min). Since the models' gains are measured over a rule grid's set and weighed
+    as the unit judges them (i34-gain3, 2026-12-02) one start of seeds 8–12 in 15 (seed 9's
+    second) isolates ``I1|FLOW`` on its first raised sample and ``I1`` alone from the next:
+    the first raised sample names ``I1`` among at most two, and ``I1`` alone holds from the
+    sample after at the latest."""
     unit, plain, _ = station
     bound = unit.ev["state_settle_max_s"] / 60
     for k in _starts(_station(3, seed))[:3]:
@@ -98,7 +102,10 @@ def test_a_fault_through_a_start_is_raised_well_before_the_bound(station, seed):
         first = np.flatnonzero(_raised(st[k:]))[0]
         assert first <= 20 < bound, (k, first, bound)
         assert _raised(st[k + first :]).mean() > 0.9
-        assert d.faults.iloc[k + first] == "I1"
+        named = str(d.faults.iloc[k + first]).split("|")
+        assert "I1" in named and len(named) <= 2, named
+        alone = d.faults.iloc[k + first + (named != ["I1"])]
+        assert alone == "I1", (named, alone)
         said = STATE_SAYS.match(d.why.iloc[k + first])
         assert said and said.group(1) == "8", d.why.iloc[k + first]
         assert float(said.group(3)) > float(said.group(4))
