@@ -1430,16 +1430,16 @@ class Excursions:
         keys: dict[int, str],
         up: dict[int, list[tuple[tuple[str, int], int]]],
         center: np.ndarray,
-        broken: list[tuple[int, int, list[tuple[tuple[str, int], int, float]]]] | None = None,
+        broken: list[tuple[int, int, tuple[str, int], int, float]] | None = None,
         via: list[list[tuple[tuple[str, int], int, int]]] | None = None,
     ) -> None:
         #: per test: the inputs ``Z`` (value judged, ranking column) of the own test ``j_X``
         #: of a tag ``X`` it reads, and ``j_X`` — ``Z`` explains the test where ``j_X`` is
         #: unknown and ``Z`` beyond its range (class doc, an input the unit cannot judge)
         self.via = via or [[] for _ in reads]
-        #: per test whose output is a candidate: (the test, its output's ranking column, its
-        #: inputs with a range and a gain: (value judged, ranking column or −1, signed gain)),
-        #: the relations whose sign is judged beyond the range (class doc)
+        #: per test reading one input alone whose output is a candidate: (the test, its
+        #: output's ranking column, the input's value judged, its ranking column or −1, the
+        #: signed gain), the relations whose sign is judged beyond the range (class doc)
         self.broken = broken or []
         #: per test: (the value judged (model tag, lag), its ranking column, ``|g|·100/span``)
         self.reads = reads
@@ -1494,7 +1494,7 @@ class Excursions:
         reads: list[list[tuple[tuple[str, int], int, float]]] = []
         own = np.full(len(unit.tests), -1, np.int64)
         up: dict[int, list[tuple[tuple[str, int], int]]] = {}
-        broken: list[tuple[int, int, list[tuple[tuple[str, int], int, float]]]] = []
+        broken: list[tuple[int, int, tuple[str, int], int, float]] = []
         for j, t in enumerate(unit.tests):
             row: list[tuple[tuple[str, int], int, float]] = []
             reads.append(row)
@@ -1523,7 +1523,7 @@ class Excursions:
                     x = plant.get(s.tags[0], s.tags[0])
                     g = float(spec.gains.get(t, {}).get(x, 0.0))
                     if g != 0.0:
-                        broken.append((j, k, [((s.tags[0], s.lag), col.get(x, -1), g)]))
+                        broken.append((j, k, (s.tags[0], s.lag), col.get(x, -1), g))
             ups = up.setdefault(k, [])
             ups += [(key, kk) for key, kk, _ in row if (key, kk) not in ups]
             info = build.get(t) if isinstance(build.get(t), dict) else {}
@@ -1584,7 +1584,8 @@ class Excursions:
         any_on = on.any(axis=1)
         n, m = len(r), share.shape[1]
         memo: dict = {}
-        share = self._name_broken(share, s, values, at, n, memo)
+        unknown = np.isnan(np.asarray(s, float)[at])
+        share = self._name_broken(share, unknown, values, at, n, memo)
         if not any_on.any():
             return share
         # each candidate's source per sample (itself, or upstream) and the source's share
@@ -1607,7 +1608,6 @@ class Excursions:
                     break
             src[k] = (cur, v)
         dev = np.abs(np.asarray(r, float)[at] - self.center)
-        unknown = np.isnan(np.asarray(s, float)[at])
         rows = np.arange(at.size)
         ok = np.zeros((at.size, m), bool)
         ok[any_on] = True
@@ -1648,34 +1648,27 @@ class Excursions:
         out[i, best[i]] = np.fmax(np.nan_to_num(out[i, best[i]], nan=0.0), 1.0 + val[i, best[i]])
         return out
 
-    def _name_broken(self, share: np.ndarray, s, values, at: np.ndarray, n: int, memo: dict):
+    def _name_broken(self, share: np.ndarray, unknown: np.ndarray, values, at, n, memo):
         """``share`` with the tags of each relation broken beyond the range named (class doc:
         a test unknown at an alarm sample ``at`` whose output left its range on the side
-        opposite to ``g·e`` of its one input beyond its own); ``s`` the piece's symptoms."""
+        opposite to ``g·e`` of its one input beyond its own); ``unknown`` the tests' unknown
+        symptoms at ``at``."""
         if not self.broken or not at.size:
             return share
-        unknown = np.isnan(np.asarray(s, float)[at])
         out = None
-        for j, k, ins in self.broken:
+        for j, k, key, kx, g in self.broken:
             if not unknown[:, j].any():
                 continue
             e_y, w_y = self._beyond(values, (self.keys[k], 0), at, n, memo)
-            d = np.zeros(at.size)
-            for key, _, g in ins:
-                d += g * np.nan_to_num(self._beyond(values, key, at, n, memo)[0])
+            e_x, w_x = self._beyond(values, key, at, n, memo)
             with np.errstate(invalid="ignore"):
-                hit = unknown[:, j] & (e_y * d < 0)
+                hit = unknown[:, j] & (e_y * g * np.nan_to_num(e_x) < 0)
             if not hit.any():
                 continue
             if out is None:
                 out = share.copy()
             i = np.flatnonzero(hit)
-            named = [(k, w_y)] + [
-                (kk, self._beyond(values, key, at, n, memo)[1])
-                for key, kk, _ in ins
-                if kk in self.keys
-            ]
-            for kk, w in named:
+            for kk, w in [(k, w_y)] + ([(kx, w_x)] if kx in self.keys else []):
                 x = i[np.nan_to_num(w[i]) > 0]
                 out[x, kk] = np.fmax(np.nan_to_num(out[x, kk], nan=0.0), 1.0 + w[x])
         return share if out is None else out
