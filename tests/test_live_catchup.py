@@ -229,6 +229,42 @@ def test_the_restart_gap_begins_after_the_samples_caught_up(tmp_path):
     assert asyncio.run(run(True)) is None
 
 
+def test_a_run_of_one_cycle_leaves_no_false_restart_gap(tmp_path):
+    """The gap is judged on the data's period, never on the cycle: a run that stopped after
+    one cycle (its period unseen; the embedded plant's samples are 10 s apart at a 0.04 s
+    cycle) followed by one going on at the next sample marks no gap and stores no Bad
+    sample between them; going on 60 s later, the gap is marked at the first missed sample
+    on the period the second run's own steps show."""
+    import numpy as np
+
+    from diag_plugin.live.writer import HistorianWriter
+
+    spill = tmp_path / "spill"
+    url = f"sqlite:///{tmp_path / 'h.db'}"
+    one, good = np.ones(1), np.zeros(1, np.uint8)
+
+    async def run(times: list[pd.Timestamp]) -> tuple | None:
+        w = HistorianWriter(url, ["F"], spill_dir=spill, cycle=0.04)
+        await w.start()
+        for ts in times:
+            w.put(ts, one, good)
+        await w.close()
+        return w.restart_gap
+
+    assert asyncio.run(run([T_STOP])) is None
+    assert asyncio.run(run([T_STOP + STEP, T_STOP + 2 * STEP])) is None
+    assert asyncio.run(run([T_STOP + 8 * STEP, T_STOP + 9 * STEP])) == (
+        T_STOP + 3 * STEP,
+        T_STOP + 8 * STEP,
+    )
+    h = Historian.open(url)
+    got = h.read_samples("F")
+    h.close()
+    want = [T_STOP + k * STEP for k in (0, 1, 2, 3, 8, 9)]
+    assert list(got.index) == want, got
+    assert got.isna().tolist() == [False, False, False, True, False, False], got
+
+
 def test_a_gap_without_samples_is_said_and_the_state_kept(unit_dir, db_url):
     pre, gap = scenario(T_STOP, 300)
     plant = stopped_plant(unit_dir, pre)

@@ -178,8 +178,10 @@ class HistorianWriter:
         self.journal = Journal(self.spool.folder, self.tags, self.cycle)
         self._pending: dict[int, int] = {}  # journal file → its cycles not yet durable
         self._journal_ok = True
-        self._prev: tuple[int, int, bool] | None = None  # last ts, period µs, crashed
+        #: the previous run: its last ts, its data's period µs (None: it saw one cycle), crashed
+        self._prev: tuple[int, int | None, bool] | None = None
         self._first_put = True
+        self._gap_first: int | None = None  # the first cycle, while the gap waits for a period
         self._last_ts: int | None = None
         self._steps: deque[int] = deque(maxlen=20)
         #: (start, end) of the restart gap marked at the first cycle, if any
@@ -217,10 +219,16 @@ class HistorianWriter:
     def put(self, ts: pd.Timestamp, values: np.ndarray, quality: np.ndarray) -> None:
         """Queue one cycle's samples (journaled first; never waits on the database)."""
         t = int(ts.value // 1000)
-        if self._first_put:
-            self._first_put = False
-            self._mark_gap(t)
+        first = self._first_put
+        self._first_put = False
         self._queue(t, np.array(values, np.float64), np.array(quality, np.uint8))
+        if first:
+            with contextlib.suppress(OSError):  # this run's own stop will write it again
+                (self.spool.folder / LAST_FILE).unlink(missing_ok=True)
+            self._gap_first = t
+        if self._gap_first is not None and self._gap_period() is not None:
+            first_t, self._gap_first = self._gap_first, None
+            self._mark_gap(first_t)
         self.stats.max_backlog = max(self.stats.max_backlog, self.backlog)
         if len(self._mem) >= self.flush_every or len(self._mem) * len(self.tags) > self.memory_rows:
             self._wake.set()
@@ -232,13 +240,22 @@ class HistorianWriter:
         self._last_ts = t if self._last_ts is None else max(self._last_ts, t)
 
     @property
-    def period_us(self) -> int:
-        """The sampling period seen in the data (median of the last 20 steps, µs; the
-        cycle until two cycles are seen) — the embedded plant's samples are 10 s apart at
-        a 0.25 s cycle, so the gap is judged on the data's own period."""
+    def period_us(self) -> int | None:
+        """The sampling period seen in the data (median of the last 20 steps, µs; until two
+        cycles are seen, the previous run's; None when neither saw two) — the embedded
+        plant's samples are 10 s apart at a 0.04–0.25 s cycle, so the gap is judged on the
+        data's own period, never on the cycle."""
         if self._steps:
             return int(np.median(self._steps))
-        return int(round(self.cycle * 1e6))
+        return None if self._prev is None else self._prev[1]
+
+    def _gap_period(self) -> int | None:
+        """The period the restart gap is judged on: the previous run's, else this run's
+        first step (the gap waits for the second cycle: a run of one cycle whose period
+        nobody saw marks none)."""
+        if self._prev is not None and self._prev[1] is not None:
+            return self._prev[1]
+        return int(np.median(self._steps)) if self._steps else None
 
     def _journal_append(
         self,
@@ -307,14 +324,13 @@ class HistorianWriter:
         self._prev = (max(last, int(ts.value // 1000)), step, crashed)
 
     def _mark_gap(self, t: int) -> None:
-        """The first cycle of this run: mark the time since the previous run's last cycle
-        (one Bad sample per tag at the first missed cycle, and a note)."""
-        with contextlib.suppress(OSError):  # this run's own stop will write it again
-            (self.spool.folder / LAST_FILE).unlink(missing_ok=True)
+        """``t``, the first cycle of this run: mark the time since the previous run's last
+        cycle (one Bad sample per tag at the first missed cycle, and a note)."""
         if self._prev is None:
             return
-        last, step, crashed = self._prev
-        if t - last <= 1.5 * step:
+        last, _, crashed = self._prev
+        step = self._gap_period()
+        if step is None or t - last <= 1.5 * step:
             return
         start = last + step
         n = len(self.tags)
@@ -372,13 +388,15 @@ class HistorianWriter:
         spill segments, stored first; the time of the earlier run's last cycle is kept for
         the restart gap."""
         last: int | None = None
-        period = int(round(self.cycle * 1e6))
+        period: int | None = None  # the data's, from the last file or the journal
         crashed = False
         state = self.spool.folder / LAST_FILE
         if state.is_file():
             try:
                 doc = json.loads(state.read_text(encoding="utf-8"))
-                last, period = int(doc["ts"]), int(doc.get("period_us", period))
+                last = int(doc["ts"])
+                if doc.get("period_us") is not None:
+                    period = max(1, int(doc["period_us"]))
             except (OSError, ValueError, KeyError, TypeError) as exc:
                 log.warning("historian: %s unreadable (%s); no restart gap marked", state, exc)
         else:
@@ -417,7 +435,7 @@ class HistorianWriter:
             torn += r.torn
             path.unlink(missing_ok=True)
         if last is not None:
-            self._prev = (last, max(1, period), crashed and bool(cycles))
+            self._prev = (last, period, crashed and bool(cycles))
         if files and (cycles or events):
             self.stats.recovered += samples
             self._note(
