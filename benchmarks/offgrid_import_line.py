@@ -3,14 +3,17 @@ the plain way a user does it (issue 34, "Lessons"; docs/how-to/unit-loops.md, "T
 imported off the grid").
 
 Each run is the plant's own samples (:mod:`tests.line7` at 15 s; the heater of
-:mod:`tests.heater` simulated at 15 s) or their 1-min means (``resample("1min").mean()``, as
-the docs' "At other rates" paragraph), each row stamped at its grid time ±20 % of the period,
-written as local times with an offset (``+02:00``) and one row repeated
+:mod:`tests.heater` simulated at 15 s) or their means over the rate, stamped at the period's
+end (``resample("1min", label="right", closed="right").mean()``: the docs' "At other rates"
+figures; ``--label left``: pandas' default, stamped at the start), each row stamped at its
+grid time ±20 % of the period, written as local times with an offset (``+02:00``) and one
+row repeated
 (:func:`tests.offgrid.stamps_off_grid`), then ``diag import --duplicates first``, ``diag unit
 build`` from the fault-free training window (``--far 0.01`` and the plant's options: the
 line's loop ``--loop``, the heater's ``--manual STEAM_V``; the period left to the data) and
 ``diag diagnose --csv --json`` of each run. Printed per rate: the period the build chose, the
-fault-free run's (an unseen seed) share of samples alarmed and its alarm episodes, and per
+fault-free run's (an unseen seed) share of samples alarmed, its alarm episodes and its share
+CHECK_FUNCTION, and per
 fault seed the share of alarm samples from day 1 on whose ``top1`` (the CSV's held top tag)
 is the faulted tag and the runner-up (the line: ``FEED_FLOW`` / ``VALVE_A``).
 
@@ -19,7 +22,8 @@ is the faulted tag and the runner-up (the line: ``FEED_FLOW`` / ``VALVE_A``).
 counted by the same function, beside them.
 
 Run: ``python -m benchmarks.offgrid_import_line [--plants line,heater] [--rates 15,60]
-[--seeds 101 105 …] [--api]`` (the line at 15 s: about two minutes of CPU per path).
+[--seeds 101 105 …] [--api] [--label right|left] [--bounds grid|file]`` (the line at 15 s
+and 1 min with ``--api``: about 30 s of wall on 2 cores).
 """
 
 from __future__ import annotations
@@ -85,6 +89,16 @@ PLANTS = {
         "FEED_FLOW",
         "VALVE_A",
         ["--loop", "FEED_FLOW=FEED_TARGET:VALVE_A"],
+    ),
+    # the line with its hand valve declared (an input, never tested)
+    "line-manual": Plant(
+        _line,
+        6.0,
+        101,
+        "flow_bias",
+        "FEED_FLOW",
+        "VALVE_A",
+        ["--loop", "FEED_FLOW=FEED_TARGET:VALVE_A", "--manual", "HAND_VALVE"],
     ),
     "heater": Plant(_heater, 5.0, 101, "steam_bias", "F_STEAM", None, ["--manual", "STEAM_V"]),
 }
