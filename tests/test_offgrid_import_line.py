@@ -69,9 +69,10 @@ def test_the_meter_bias_is_raised_and_held_on_the_meter(imported):
     """From day 1 on the bias is raised on most samples and ``top1`` (the CSV's held top
     tag) is ``FEED_FLOW`` on more than 70 % of the alarm samples. Measured: 4,991 of 5,760
     raised, the meter 88 % and the valve 7 % (the on-grid API's figures, identical); before
-    i34-gain3 the meter had 25 % and the valve 74 %, and a tag misnamed or shifted by the
-    import gives the valve or nothing. 70 %: 18 points under the measured share, above every
-    pre-i34-gain3 figure at 15 s."""
+    i34-gain3 this seed had the meter 25 % and the valve 74 %, and with the meter's and the
+    valve's columns swapped in the export the valve has 100 %. 70 %: 18 points under the
+    measured share, far above 25 %. (A column one sample late passes here: the last test
+    catches it.)"""
     d, *_ = imported
     after = (pd.to_datetime(d["ts"], utc=True) >= pd.to_datetime(d["ts"].iloc[0]) + DAY).to_numpy()
     alarm = (d["detected"] == 1).to_numpy() & after
