@@ -72,3 +72,17 @@ def write_csv(frame: pd.DataFrame, path: Path) -> None:
     out.index = [t.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + OFFSET for t in local]
     out.index.name = "time"
     out.to_csv(path)
+
+
+def stamps_off_grid(frame: pd.DataFrame, seed: int) -> pd.DataFrame:
+    """A regular ``frame``'s rows each stamped at its grid time ±20 % of the spacing (the
+    values those of the grid time: the stamp alone moves), one row repeated — a run that
+    exists only at its own rate (:mod:`tests.line7` at 15 s, its 1-min means) exported as
+    :func:`off_grid` exports a 1 s run."""
+    rng = np.random.default_rng([seed, 21])
+    step = frame.index[1] - frame.index[0]
+    shift = rng.uniform(-JITTER, JITTER, len(frame)) * step.total_seconds()
+    out = frame.copy()
+    out.index = frame.index + pd.to_timedelta(np.round(shift * 1e3).astype(np.int64), unit="ms")
+    k = len(out) // 3
+    return pd.concat([out.iloc[: k + 1], out.iloc[k : k + 1], out.iloc[k + 1 :]])
