@@ -14,6 +14,12 @@ and without it. Then rules that are not in the unit are applied to what the repl
 
 ``W`` is the unit's ``oscillation_window_s`` (2400 s, 160 samples at 15 s) times 1, 2 or 3.
 Episodes are counted in the day after the onset. Fault-free runs are counted over both days.
+
+Beside them, in the same run, PCA and dynamic PCA (2 lags), T² + Q fitted on the unit's
+training run, each statistic over its 1 % limit, with the unit's on/off delays, their limit
+matched to the unit's own share of samples in alarm on two fault-free calibration runs none
+of them learned from (seeds 150 and 151, 2 days each): the baselines' episodes and detection
+at the unit's false-alarm rate (``bench.matched``'s ``calibrate``).
 Run: ``python benchmarks/line7_stiction_holds.py [--seeds 101 102 …]`` (under a minute of CPU
 for the build and five seeds).
 """
@@ -84,6 +90,7 @@ def main() -> None:
     rules += [f"repeat per test, W = {k * w * period:.0f} s" for k in (1, 2)]
     rules += [f"repeat on the unit, W = {k * w * period:.0f} s" for k in (1, 3)]
     got: dict[str, dict[str, list[str]]] = {r: {"stiction": [], "free": []} for r in rules}
+    base = baselines(unit, line7.simulate(6.0, 1), period, onset, args.seeds)
     for seed in args.seeds:
         for fault in ("stiction", None):
             frame = line7.simulate(2.0, seed, fault)
@@ -122,6 +129,42 @@ def main() -> None:
     print("|---|---|---|")
     for rule in rules:
         print(f"| {rule} | {' / '.join(got[rule]['stiction'])} | {' / '.join(got[rule]['free'])} |")
+    for rule, row in base.items():
+        print(f"| {rule} | {' / '.join(row['stiction'])} | {' / '.join(row['free'])} |")
+
+
+def baselines(unit, train, period: float, onset: int, seeds) -> dict[str, dict[str, list[str]]]:
+    """PCA and DPCA beside the unit at its false-alarm rate (module doc): per method its
+    episodes (share of samples in alarm) on each seed's sticking-valve run after the onset
+    and on its fault-free run."""
+    from diag_plugin.bench.matched import calibrate, method_score
+    from diag_plugin.bench.pca import PCADetector
+
+    on = max(1, int(np.ceil(unit.ev["on_delay_s"] / period)))
+    off = max(1, int(np.ceil(unit.ev["off_delay_s"] / period)))
+    cal = [line7.simulate(2.0, s) for s in (150, 151)]
+    unit_share = np.mean(np.concatenate(
+        [unit.reset().evaluate(f).detected.to_numpy() == 1 for f in cal]))  # fmt: skip
+    out: dict[str, dict[str, list[str]]] = {}
+    for name, lags in (("PCA", 0), ("DPCA", 2)):
+        det = PCADetector(lags=lags).fit(train)
+        lt, lq = det.limits(0.01)
+
+        def score(frame, det=det, lt=lt, lq=lq):
+            sc = det.score(frame).reindex(frame.index)
+            return method_score(np.c_[sc["T2"] / lt, sc["Q"] / lq], on, off)
+
+        lim = calibrate([score(f) for f in cal], max(unit_share, 1e-6), period).limit
+        rule = f"{name} T² + Q at the unit's {unit_share:.1%} of calibration samples"
+        row: dict[str, list[str]] = {"stiction": [], "free": []}
+        for seed in seeds:
+            a = np.nan_to_num(score(line7.simulate(2.0, seed, "stiction")), nan=-np.inf) > lim
+            row["stiction"].append(f"{episodes(a[onset:])} ({a[onset:].mean():.0%})")
+            b = np.nan_to_num(score(line7.simulate(2.0, seed)), nan=-np.inf) > lim
+            row["free"].append(f"{episodes(b)} ({b.mean():.1%})")
+        out[rule] = row
+    unit.reset()
+    return out
 
 
 if __name__ == "__main__":
