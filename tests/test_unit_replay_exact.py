@@ -204,15 +204,18 @@ def _ref_inverse(self, pat):  # each pattern's pseudo-inverse, nothing shared wi
 
 def _ref_raw_residuals(self, frame, cols=None):  # the frame's columns read again, per tag
     frame = self._model_frame(frame)
-    cols = {}
-    for t in self.file.tests:
+    out = np.full((len(self.file.tests), len(frame)), np.nan)
+    guard = self.manual  # the hand valves' and [narrow] tags' unknowns (diagnose/manual.py)
+    moved = guard.moved(lambda t: frame[t].to_numpy(float)) if guard is not None else False
+    for j, t in enumerate(self.file.tests):
         d = self.builders[t.name].transform(frame)
-        r = np.full(len(frame), np.nan)
         if len(d.index):
             pred = self.models[t.name].model.predict_detail(d.X)
-            r[frame.index.get_indexer(d.index)] = self.residual(t, d.y, pred)
-        cols[t.name] = r
-    return pd.DataFrame(cols, index=frame.index, columns=self.tests)
+            at = frame.index.get_indexer(d.index)
+            out[j, at] = self.residual(t, d.y, pred)
+            if guard is not None:
+                guard.blank(out, j, at, d.X, moved, d.y)
+    return pd.DataFrame(out.T, index=frame.index, columns=self.tests)
 
 
 def _ref_residuals(self, frame, cols=None):  # Unit._residuals: no equipment on this unit
@@ -394,6 +397,11 @@ def built(request, tmp_path_factory):
 
 def _run(fault: str | None, step: int) -> pd.DataFrame:
     frame = line7.simulate(1.5, seed=101, fault=fault, onset_days=0.5).iloc[::step].copy()
+    if fault is None:  # seed 101's hand valve (54 %) held inside the window's 40–47 %: its
+        # own test's inputs each inside but not together, and tags gone (CHECK_FUNCTION's
+        # reasons of both kinds); the fault runs keep it at 54 %, its own test unknown
+        # there ([narrow], diagnose/manual.py) and the valve named
+        frame["HAND_VALVE"] = frame["HAND_VALVE"].clip(upper=47.0)
     rng = np.random.default_rng(7)
     n = len(frame)
     for _ in range(12):  # gaps: short ones (held symptoms) and long ones (unknown tests)

@@ -118,31 +118,73 @@ def manual_ranges(ranges: Sequence[Range], spans: Mapping[str, ManualSpan]) -> l
     return first + rest
 
 
+def own_spans(
+    models: Mapping, tests: Sequence[str], narrow: Mapping[str, ManualSpan]
+) -> dict[int, ManualSpan]:
+    """Per test position the ``[narrow]`` span of the tag it tests (its output, a plain tag
+    read at lag 0; :func:`~diag_plugin.unitbuild.build.narrow_outputs`); ``{}`` where none."""
+    out = {}
+    for j, name in enumerate(tests):
+        s = parse_specs([models[name].output])[0]
+        if s.fn == "" and s.lag == 0 and s.tags[0] in narrow:
+            out[j] = narrow[s.tags[0]]
+    return out
+
+
+def own_ranges(models: Mapping, tests: Sequence[str], narrow: Mapping[str, ManualSpan]) -> list:
+    """The ``[narrow]`` tags as the ranges of their own tests
+    (:class:`~diag_plugin.diagnose.operating.Range`, lag 0): where one is outside, its test
+    unknown, the unit names it as an input outside what it learned."""
+    return [Range(j, s.tag, s.lo, s.hi) for j, s in own_spans(models, tests, narrow).items()]
+
+
 class ManualGuard:
     """Per test the columns of its design that read a hand valve, and its plain inputs with
     their learned ranges: :meth:`blank` makes the test unknown where a hand valve it reads is
     outside its span, and, while any of the unit's hand valves is outside (:meth:`moved`),
     where an input of its rule grid is outside the cells that carry a rule (the valve's move
     took it there: the grid would answer from its edge; a linear or a loop's test extrapolates
-    and keeps judging). Tests whose inputs stay inside keep judging."""
+    and keeps judging). Tests whose inputs stay inside keep judging.
 
-    def __init__(self, spans: Mapping[str, ManualSpan], cols: dict[int, tuple]):
+    ``own``: per test position the span of the tag the test itself models where the build
+    found it narrow (``[narrow]``, :func:`own_spans`): a rule grid's answer never leaves the
+    values its window showed, so where the tag is outside its span the residual measures the
+    excursion, not a fault, and the test is unknown there, as a test reading a hand valve."""
+
+    def __init__(
+        self,
+        spans: Mapping[str, ManualSpan],
+        cols: dict[int, tuple],
+        own: Mapping[int, ManualSpan] | None = None,
+    ):
         self.spans = dict(spans)
         #: test position → (design columns, lo, hi, whether each is a hand valve's)
         self.cols = cols
+        #: test position → the span of its own tag (``[narrow]``)
+        self.own = dict(own or {})
 
     @classmethod
-    def of(cls, models: Mapping, tests: Sequence[str], spans: Mapping[str, ManualSpan]):
+    def of(
+        cls,
+        models: Mapping,
+        tests: Sequence[str],
+        spans: Mapping[str, ManualSpan],
+        narrow: Mapping[str, ManualSpan] | None = None,
+    ):
         """The guard of a unit's tests (``models``: test → its
         :class:`~diag_plugin.diagnose.unit.TestModel`); None where the unit declares no hand
-        valve or no test reads one (a unit as before)."""
+        valve or no test reads one, and no test models a ``[narrow]`` tag (a unit as
+        before)."""
         from diag_plugin.diagnose.operating import model_ranges
 
         read = {s.tags[0] for name in tests for s in parse_specs(models[name].inputs)
                 if s.fn == ""}  # fmt: skip
         spans = {t: s for t, s in spans.items() if t in read}
-        if not spans:
+        own = own_spans(models, tests, narrow or {})
+        if not spans and not own:
             return None
+        if not spans:
+            return cls({}, {}, own)
         cols = {}
         for j, name in enumerate(tests):
             m = models[name]
@@ -160,7 +202,7 @@ class ManualGuard:
                 k, lo, hi, hand = zip(*rows, strict=True)
                 cols[j] = (np.array(k, np.intp), np.array(lo, float), np.array(hi, float),
                            np.array(hand, bool))  # fmt: skip
-        return cls(spans, cols)
+        return cls(spans, cols, own)
 
     def moved(self, value) -> np.ndarray | bool:
         """Where any hand valve is outside its span now (``value(tag)``: its values at the
@@ -172,11 +214,25 @@ class ManualGuard:
                 off = off | (x < s.lo) | (x > s.hi)
         return off
 
-    def blank(self, out: np.ndarray, j: int, positions: np.ndarray, X: np.ndarray, moved) -> None:
+    def blank(
+        self,
+        out: np.ndarray,
+        j: int,
+        positions: np.ndarray,
+        X: np.ndarray,
+        moved,
+        y: np.ndarray | None = None,
+    ) -> None:
         """Test ``j``'s residuals (row ``j`` of ``out``, tests × samples, at ``positions``,
         its design ``X``; ``moved``: :meth:`moved` over the piece's rows) unknown where a
         hand valve it reads is outside its span, or where a valve moved and an input of it
-        is outside what it learned."""
+        is outside what it learned, or where its own tag (``y``, at ``positions``) is outside
+        its ``[narrow]`` span."""
+        s = self.own.get(j)
+        if s is not None and y is not None and positions.size:
+            with np.errstate(invalid="ignore"):
+                yv = np.asarray(y, float)
+                out[j, positions[(yv < s.lo) | (yv > s.hi)]] = np.nan
         got = self.cols.get(j)
         if got is None or not positions.size:
             return
@@ -188,7 +244,13 @@ class ManualGuard:
             bad |= np.asarray(moved)[positions] & off[:, ~hand].any(axis=1)
         out[j, positions[bad]] = np.nan
 
-    def slots(self, first: int, inputs: Sequence[np.ndarray], column) -> tuple[list, list]:
+    def slots(
+        self,
+        first: int,
+        inputs: Sequence[np.ndarray],
+        column,
+        outputs: Sequence[tuple[int, int]] = (),
+    ) -> tuple[list, list]:
         """The plant's fast path (:class:`~diag_plugin.diagnose.plant.Plant`): per guarded
         test (slot ``first`` + its position, ``inputs[j]`` its ``(lag, column)`` rows) its
         judged inputs ``(slot, lag, column, lo, hi, hand valve?)``, and the valves' ``(column,
@@ -199,6 +261,9 @@ class ManualGuard:
                                   strict=True):  # fmt: skip
                 lag, col = inputs[j][c]
                 rows.append((first + j, int(lag), int(col), a, b, h))
+        for j, s in self.own.items():  # its own tag (``outputs[j]``: its lag, column)
+            lag, col = outputs[j]
+            rows.append((first + j, int(lag), int(col), s.lo, s.hi, True))
         valves = [(column(t), s.lo, s.hi) for t, s in self.spans.items()]
         return rows, valves
 
@@ -213,7 +278,7 @@ class PlantGuard:
         self.lag, self.col = a[:, 1].astype(np.intp), a[:, 2].astype(np.intp)
         self.lo, self.hi, self.hand = a[:, 3], a[:, 4], a[:, 5] > 0
         self.unit = slot_unit[self.slot]  # each judged input's unit
-        v = np.array([(u, c, lo, hi) for u, vs in valves for c, lo, hi in vs], float)
+        v = np.array([(u, c, lo, hi) for u, vs in valves for c, lo, hi in vs], float).reshape(-1, 4)
         self.v_unit, self.v_col = v[:, 0].astype(np.intp), v[:, 1].astype(np.intp)
         self.v_lo, self.v_hi = v[:, 2], v[:, 3]
 

@@ -967,7 +967,8 @@ def _manual_guard(units: list[Unit], slots: list[_Slot], tags: dict[str, int]) -
     for ui, u in enumerate(units):
         if u.manual is not None:
             got, vs = u.manual.slots(first, [s.inputs for s in slots[first:]],
-                                     lambda t, u=u: tags[u.file.tags.get(t, t)])  # fmt: skip
+                                     lambda t, u=u: tags[u.file.tags.get(t, t)],
+                                     [s.output for s in slots[first:]])  # fmt: skip
             rows.extend(got)
             valves.append((ui, vs))
         first += len(u.tests)

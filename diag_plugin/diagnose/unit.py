@@ -64,7 +64,7 @@ from diag_plugin.diagnose.equipment import (
 from diag_plugin.diagnose.fixed import FixedGuard
 from diag_plugin.diagnose.fixed import apply as apply_fixed
 from diag_plugin.diagnose.isolation import IsolationHold
-from diag_plugin.diagnose.manual import ManualGuard, manual_ranges
+from diag_plugin.diagnose.manual import ManualGuard, manual_ranges, own_ranges
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
 from diag_plugin.diagnose.pertest import each
@@ -599,8 +599,9 @@ class Unit:
         spread = np.zeros(len(self.tests), bool)
         spread[self.spread_cols] = True
         self.warm_labels = warm_labels(self.tests, self.test_depth, spread)
-        #: the tests reading a hand valve, unknown where it is outside its span (None: none)
-        self.manual = ManualGuard.of(models, self.tests, file.manual)
+        #: the tests reading a hand valve, unknown where it is outside its span, and the tests
+        #: of a ``[narrow]`` tag, unknown where their own tag is outside its span (None: none)
+        self.manual = ManualGuard.of(models, self.tests, file.manual, file.narrow)
         #: the settle guard after an operator's set-point step (:mod:`~.settle`; None: off)
         self.settle: SettleGuard | None = settle_guard(self)
         #: the same steps found for the oscillation hold (its own state: the hold reads a
@@ -798,7 +799,8 @@ class Unit:
             self.saturation.reset()
         if not hasattr(self, "outside"):
             self.outside = OutsideLearned(
-                manual_ranges(learned_ranges(self.models, self.tests), self.file.manual),
+                manual_ranges(learned_ranges(self.models, self.tests), self.file.manual)
+                + own_ranges(self.models, self.tests, self.file.narrow),
                 self.file.tags,
                 [self.models[t].tags for t in self.tests],
                 period_s=self.period_s,
@@ -928,7 +930,7 @@ class Unit:
             if d.positions.size:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
                 if self.manual is not None:  # a hand valve outside its span: unknown
-                    self.manual.blank(out, j, d.positions, d.X, moved)
+                    self.manual.blank(out, j, d.positions, d.X, moved, d.y)
 
         each(row, len(self.file.tests), self.workers)  # the same rows in any thread (pertest)
         off = self._equipment_off(cols, len(frame))

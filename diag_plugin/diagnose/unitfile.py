@@ -75,6 +75,9 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     [fixed]              # written by `diag unit build`: tags constant over its window
     PMP3_ON = { min = 0.0, max = 0.0, margin = 1e-09 }  # where it moves: CHECK_FUNCTION
 
+    [narrow]             # written by `diag unit build`: tested tags of few independent values
+    HAND_VALVE = { min = 40.0, max = 47.0, margin = 0.1 }  # outside: its own test unknown
+
     [states]             # written by `diag unit build`: the combinations of states learned
     tags = ["PMP1_ON", "PMP2_ON"]
     seen = ["1,0", "1,1"]  # another one held for the on-delay: CHECK_FUNCTION
@@ -98,6 +101,13 @@ value the window held it at and ``margin`` the build's own test of a constant (`
 max(1, |value|)``); no test reads the tag, but the unit does: where it is outside for the
 on-delay, the unit is CHECK_FUNCTION naming it, the value and since when, until it is back
 for the off-delay (:mod:`diag_plugin.diagnose.fixed`). A file without the table: as before.
+
+``[narrow]`` (written by ``diag unit build``, widened by ``diag unit accept``): the same rows,
+for each tag a rule grid tests that the window saw at most ``NARROW_INDEPENDENT`` independent
+values of (:func:`~diag_plugin.unitbuild.build.narrow_outputs`): where it is outside ``[min −
+margin, max + margin]`` its own test is unknown and the unit names it as an input outside what
+it learned (a grid's answer never leaves what its window showed: its residual there measures
+the excursion). A file without the table: as before.
 
 ``[states]`` (written by ``diag unit build`` for a unit with discrete states, extended by
 ``diag unit accept``): ``tags`` the states in order, ``seen`` the combinations of their values
@@ -214,6 +224,7 @@ TABLES = (
     "build",
     "manual",
     "fixed",
+    "narrow",
     "states",
     "running",
     "equipment",
@@ -547,6 +558,9 @@ class UnitFile(LinedFile):
         )
         self.fixed = read_fixed(
             self._table("fixed"), self.error, lambda k: self.line_of("fixed", k)
+        )
+        self.narrow = read_manual(
+            self._table("narrow"), self.error, lambda k: self.line_of("narrow", k), "narrow"
         )
         self.states = read_states(
             self._table("states"), self.error, lambda k: self.line_of("states", k)

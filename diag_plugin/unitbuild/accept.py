@@ -596,6 +596,7 @@ def _thin(note) -> bool:
 
 def widen_manual(path: Path, frame: pd.DataFrame) -> list[str]:
     """The unit file's hand-valve spans (``[manual]``, :mod:`~diag_plugin.diagnose.manual`)
+    and its narrow tested tags' (``[narrow]``, the same rows)
     widened to hold the accepted window ``frame`` (models' tag names): ``min``/``max`` merged
     exactly, the larger margin kept; and its constant tags' (``[fixed]``,
     :mod:`~diag_plugin.diagnose.fixed`) to the values the window held them at, the margin
@@ -608,8 +609,12 @@ def widen_manual(path: Path, frame: pd.DataFrame) -> list[str]:
     uf = UnitFile.load(path)
     said = []
     changed = [
-        ("manual", "hand valve", tag, old, new)
-        for tag, old in uf.manual.items()
+        (table, what, tag, old, new)
+        for table, what, spans in (
+            ("manual", "hand valve", uf.manual),
+            ("narrow", "narrow tag", uf.narrow),
+        )  # fmt: skip
+        for tag, old in spans.items()
         if tag in frame.columns
         and (new := merged(old, learned_span(tag, frame[tag].to_numpy(float)))) != old
     ]

@@ -1660,6 +1660,9 @@ def _build_unit(
     if narrow:  # the inputs learned over a narrow part of their span: said whatever the count
         doc["build"]["narrow"] = narrow
         notes.append(narrow_note(narrow))
+    if own := narrow_outputs(judged, kept):  # their own tests unknown outside (issue 34)
+        doc["narrow"] = narrow_table(own)
+        notes.append(narrow_outputs_note(own))
     path.write_text(tomlkit.dumps(doc), encoding="utf-8")
 
     t0 = time.perf_counter()
@@ -2101,6 +2104,60 @@ def narrow_spans(
         out.append(f"{t} {lo:.4g} … {hi:.4g} ({share:.1%} of its span {span[0]:.4g} … "
                    f"{span[1]:.4g}; {seen}; {why})")  # fmt: skip
     return out
+
+
+def narrow_outputs(frame: pd.DataFrame, kept: Sequence[TestChoice]) -> list[ManualSpan]:
+    """The tags a rule grid tests that the window saw at most :data:`NARROW_INDEPENDENT`
+    independent values of (:func:`narrow_spans`' count, its span not needed: of ``n``
+    independent values a share ``2 / (n + 1)`` of the later ones falls outside the window's
+    range, a quarter or more here), each with the span the window shows it in
+    (:func:`~diag_plugin.diagnose.manual.learned_span`: its extremes, 3 × its noise beyond).
+
+    A rule grid's answer is a weighted mean of its rules' conclusions, values its window
+    showed: where the tag it tests is outside them its residual is at least the distance to
+    them, the excursion itself. For a tag moving faster than the window that is rare and a
+    fault; for one of a few independent values it is ordinary operation (a hand valve no one
+    declared, at a position its window never held: docs/how-to/unit-loops.md, "The line
+    imported off the grid"), so the unit makes that test unknown there and names the tag
+    (:class:`~diag_plugin.diagnose.manual.ManualGuard`), as it does the tests reading it. A
+    linear or a loop's test extrapolates and is not named; a tag held at one value is not
+    tested."""
+    from diag_plugin.models.series import effective_samples
+
+    out: dict[str, ManualSpan] = {}
+    for ch in kept:
+        if not ch.method.startswith("wm") or ch.tag in out or ch.tag not in frame.columns:
+            continue
+        x = frame[ch.tag].to_numpy(float)
+        v = x[np.isfinite(x)]
+        if v.size < 2 or v.min() == v.max() or effective_samples(v) > NARROW_INDEPENDENT:
+            continue
+        span = learned_span(ch.tag, x)
+        if span is not None:
+            out[ch.tag] = span
+    return list(out.values())
+
+
+def narrow_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:
+    """The unit file's ``[narrow]`` table (:func:`narrow_outputs`)."""
+    return span_table(
+        spans,
+        f"written by `diag unit build`: tags a rule grid tests that the window saw at most "
+        f"{NARROW_INDEPENDENT} independent values of; min/max as the window learned them, "
+        f"margin {MARGIN_SAYS}; outside [min - margin, max + margin] the tag's own test is "
+        "unknown (its residual there is the excursion) and the unit names it",
+    )
+
+
+def narrow_outputs_note(spans: Sequence[ManualSpan]) -> str:
+    """The build's note of :func:`narrow_outputs`."""
+    said = "; ".join(f"{s.tag} {s.min:.4g} … {s.max:.4g}" for s in spans)
+    return (
+        f"{len(spans)} tested tag(s) seen at at most {NARROW_INDEPENDENT} independent values in "
+        f"the window ({said}): a quarter or more of their later values fall outside; there "
+        "each one's own test is unknown and the unit names it (CHECK_FUNCTION), and `diag unit "
+        "accept` of a period where it moved teaches it more"
+    )
 
 
 def narrow_note(spans: Sequence[str]) -> str:
