@@ -33,7 +33,7 @@ import json
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -80,26 +80,12 @@ def _heater(days: float, seed: int, fault: str | None = None) -> pd.DataFrame:
         heater.PERIOD_S = p
 
 
+LINE = Plant(_line, 6.0, 101, "flow_bias", "FEED_FLOW", "VALVE_A",
+             ["--loop", "FEED_FLOW=FEED_TARGET:VALVE_A"])  # fmt: skip
 PLANTS = {
-    "line": Plant(
-        _line,
-        6.0,
-        101,
-        "flow_bias",
-        "FEED_FLOW",
-        "VALVE_A",
-        ["--loop", "FEED_FLOW=FEED_TARGET:VALVE_A"],
-    ),
+    "line": LINE,
     # the line with its hand valve declared (an input, never tested)
-    "line-manual": Plant(
-        _line,
-        6.0,
-        101,
-        "flow_bias",
-        "FEED_FLOW",
-        "VALVE_A",
-        ["--loop", "FEED_FLOW=FEED_TARGET:VALVE_A", "--manual", "HAND_VALVE"],
-    ),
+    "line-manual": replace(LINE, opts=[*LINE.opts, "--manual", "HAND_VALVE"]),
     "heater": Plant(_heater, 5.0, 101, "steam_bias", "F_STEAM", None, ["--manual", "STEAM_V"]),
 }
 
