@@ -117,3 +117,23 @@ def test_accept_widens_the_narrow_span(line5, tmp_path):
     j = wider.tests.index("HAND_VALVE")
     r = wider.reset().evaluate(free).residuals.to_numpy()[:, j]
     assert np.isfinite(r[(free["HAND_VALVE"] > 47.0).to_numpy()]).mean() > 0.5
+
+
+def test_the_cli_says_the_narrow_tag_whatever_the_count_of_notes(tmp_path):
+    """``diag unit build`` prints the narrow tested tag as a warning of its own, not as one of
+    the four notes it shows (the line's 5-min build has 11 notes; as a plain note it was the
+    second shown here, and cut to "… more notes" on a build with four notes ahead of it)."""
+    from tests.offgrid import write_csv
+    from tests.test_any_plant_tour import diag
+
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    train = _5min(line7.simulate(6.0, 1))
+    write_csv(train, tmp_path / "train.csv")
+    rc, text = diag(g, "import", str(tmp_path / "train.csv"))
+    assert rc == 0, text
+    end = (train.index[-1] + pd.Timedelta(minutes=5)).strftime("%Y-%m-%dT%H:%M:%SZ")
+    rc, built = diag(g, "unit", "build", "line", "--from", train.index[0].strftime(
+        "%Y-%m-%dT%H:%M:%SZ"), "--to", end, "--loop", line7.LOOP, "--far", "0.01")  # fmt: skip
+    assert rc == 0, built
+    warned = [ln for ln in built.splitlines() if ln.startswith("  ⚠ 1 tested tag(s) seen at")]
+    assert len(warned) == 1 and "HAND_VALVE 40 … 47" in warned[0], built

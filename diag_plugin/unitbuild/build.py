@@ -2149,11 +2149,15 @@ def narrow_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:
     )
 
 
+#: how the narrow-outputs note begins: the CLI prints it whatever the count of notes
+NARROW_OUTPUTS_SAID = "tested tag(s) seen at"
+
+
 def narrow_outputs_note(spans: Sequence[ManualSpan]) -> str:
     """The build's note of :func:`narrow_outputs`."""
     said = "; ".join(f"{s.tag} {s.min:.4g} … {s.max:.4g}" for s in spans)
     return (
-        f"{len(spans)} tested tag(s) seen at at most {NARROW_INDEPENDENT} independent values in "
+        f"{len(spans)} {NARROW_OUTPUTS_SAID} at most {NARROW_INDEPENDENT} independent values in "
         f"the window ({said}): a quarter or more of their later values fall outside; there "
         "each one's own test is unknown and the unit names it (CHECK_FUNCTION), and `diag unit "
         "accept` of a period where it moved teaches it more"
