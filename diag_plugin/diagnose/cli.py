@@ -551,10 +551,33 @@ def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0, bounds=None):
         # no quality summary: diagnose does not read it (it cost a quarter of the read's CPU,
         # 50 tags × 200,000 rows: 3.9 → 3.0 s), and in attrs pandas would copy it into every
         # derived frame
-        for a, b in ramped(t0, t1, unit.period, chunk):
-            yield from h.iter_windows(unit.tags, a, b, unit.period, chunk=chunk, summary=False)
+        pieces = (
+            f
+            for a, b in ramped(t0, t1, unit.period, chunk)
+            for f in h.iter_windows(unit.tags, a, b, unit.period, chunk=chunk, summary=False)
+        )
+        yield from (lead_from_data(pieces, start) if start is not None and lead > 0 else pieces)
     finally:
         h.close()
+
+
+def lead_from_data(pieces, start):
+    """``pieces`` from the lead-in's first row holding a sample on: the leading rows before
+    ``start`` without any sample are dropped (the lead-in began in a gap of the historian:
+    nothing was recorded there, so the unit starts cold at the first sample, as a replay of
+    the same rows through the Python API does; replayed, those empty rows had left the spread
+    test's window and the filter otherwise, the line's off-grid replay, 2026-12-03)."""
+    import numpy as np
+
+    trimming = True
+    for f in pieces:
+        if trimming:
+            keep = np.flatnonzero(f.notna().to_numpy().any(axis=1) | (f.index >= start))
+            if not keep.size:
+                continue
+            f = f.iloc[keep[0] :]
+            trimming = False
+        yield f
 
 
 #: the first and the last piece of a long window are this fraction of a piece (:func:`ramped`)
