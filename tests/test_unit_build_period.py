@@ -35,3 +35,30 @@ def test_unit_build_takes_a_period_and_averages_the_faster_tags_on_it(tmp_path, 
     assert doc["model"]["period"] == "10s", doc["model"]
     assert main([*base, "v", *window, "--period", "ten"]) == 2
     assert "--period 'ten' is not a duration" in capsys.readouterr().err
+
+
+def test_a_to_at_the_last_sample_is_said_to_leave_it_out(tmp_path):
+    """``--to`` is exclusive: typed as the historian's last sample time (an export's last
+    stamp), the window leaves that sample out and the build says so, with the ``--to`` that
+    takes it in; one period later, nothing is said."""
+    from tests.test_any_plant_tour import diag
+
+    db = f"sqlite:///{tmp_path / 'h.db'}"
+    rng = np.random.default_rng(9)
+    n = 2 * 1440  # two days at 1 min
+    ts = T0 + pd.to_timedelta(np.arange(n), unit="min")
+    x = np.sin(np.arange(n) / 90) + np.cumsum(rng.normal(0, 0.01, n))
+    y = np.cos(np.arange(n) / 130) + np.cumsum(rng.normal(0, 0.01, n))
+    with Historian(db) as h:
+        for name, v in (("A", x + y + rng.normal(0, 0.05, n)), ("X", x), ("Y", y)):
+            h.write_samples(pd.Series(v, index=ts, name=name))
+    g = ["--db", db, "--rulebases", str(tmp_path / "rb")]
+    last = ts[-1].strftime("%Y-%m-%dT%H:%M:%SZ")
+    rc, text = diag(g, "unit", "build", "u", "--from", "2026-04-01T00:00", "--to", last)
+    assert rc == 0, text
+    said = "is at or after --to 2026-04-02 23:59:00+00:00, which is exclusive"
+    assert said in text and "--to 2026-04-03 00:00:00+00:00 takes it in" in text, text
+    rc, text = diag(g, "unit", "build", "u", "--from", "2026-04-01T00:00", "--to",
+                    "2026-04-03T00:00Z", "--force")  # fmt: skip
+    assert rc == 0, text
+    assert "which is exclusive" not in text, text
