@@ -14,18 +14,24 @@ from historian import Historian
 T0 = pd.Timestamp("2026-04-01T00:00:00Z")
 
 
+def _history(db: str, n: int, unit: str, seed: int, scales: tuple[int, int]) -> pd.DatetimeIndex:
+    """``n`` samples every one ``unit`` from T0 into the historian ``db``: ``A = X + Y`` and
+    noise, X and Y two slow waves with a walk (``scales``: their periods in samples / 2π)."""
+    rng = np.random.default_rng(seed)
+    ts = T0 + pd.to_timedelta(np.arange(n), unit=unit)
+    x = np.sin(np.arange(n) / scales[0]) + np.cumsum(rng.normal(0, 0.01, n))
+    y = np.cos(np.arange(n) / scales[1]) + np.cumsum(rng.normal(0, 0.01, n))
+    with Historian(db) as h:
+        for name, v in (("A", x + y + rng.normal(0, 0.05, n)), ("X", x), ("Y", y)):
+            h.write_samples(pd.Series(v, index=ts, name=name))
+    return ts
+
+
 def test_unit_build_takes_a_period_and_averages_the_faster_tags_on_it(tmp_path, capsys):
     from diag_plugin.cli import main
 
     db = f"sqlite:///{tmp_path / 'h.db'}"
-    rng = np.random.default_rng(6)
-    n = 4 * 3600  # four hours at 1 s
-    ts = T0 + pd.to_timedelta(np.arange(n), unit="s")
-    x = np.sin(np.arange(n) / 900) + np.cumsum(rng.normal(0, 0.01, n))
-    y = np.cos(np.arange(n) / 1300) + np.cumsum(rng.normal(0, 0.01, n))
-    with Historian(db) as h:
-        for name, v in (("A", x + y + rng.normal(0, 0.05, n)), ("X", x), ("Y", y)):
-            h.write_samples(pd.Series(v, index=ts, name=name))
+    _history(db, 4 * 3600, "s", 6, (900, 1300))  # four hours at 1 s
     base = ["--db", db, "--rulebases", str(tmp_path / "rb"), "unit", "build"]
     window = ["--from", "2026-04-01T00:00", "--to", "2026-04-01T04:00"]
     assert main([*base, "u", *window, "--period", "10s"]) == 0
@@ -44,14 +50,7 @@ def test_a_to_at_the_last_sample_is_said_to_leave_it_out(tmp_path):
     from tests.test_any_plant_tour import diag
 
     db = f"sqlite:///{tmp_path / 'h.db'}"
-    rng = np.random.default_rng(9)
-    n = 2 * 1440  # two days at 1 min
-    ts = T0 + pd.to_timedelta(np.arange(n), unit="min")
-    x = np.sin(np.arange(n) / 90) + np.cumsum(rng.normal(0, 0.01, n))
-    y = np.cos(np.arange(n) / 130) + np.cumsum(rng.normal(0, 0.01, n))
-    with Historian(db) as h:
-        for name, v in (("A", x + y + rng.normal(0, 0.05, n)), ("X", x), ("Y", y)):
-            h.write_samples(pd.Series(v, index=ts, name=name))
+    ts = _history(db, 2 * 1440, "min", 9, (90, 130))  # two days at 1 min
     g = ["--db", db, "--rulebases", str(tmp_path / "rb")]
     last = ts[-1].strftime("%Y-%m-%dT%H:%M:%SZ")
     rc, text = diag(g, "unit", "build", "u", "--from", "2026-04-01T00:00", "--to", last)
