@@ -225,7 +225,7 @@ class HistorianWriter:
         if first:
             with contextlib.suppress(OSError):  # this run's own stop will write it again
                 (self.spool.folder / LAST_FILE).unlink(missing_ok=True)
-            self._gap_first = t
+            self._gap_first = t if self._prev is not None else None
         if self._gap_first is not None and self._gap_period() is not None:
             first_t, self._gap_first = self._gap_first, None
             self._mark_gap(first_t)

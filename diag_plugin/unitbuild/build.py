@@ -2318,6 +2318,7 @@ def build_from_historian(
         raise UserError(f"--to {end} is not after --from {start}")
     with Historian.open(url) as h:
         known = sorted(str(t) for t in h.tags()["name"])
+        last = h.time_range(known)[1] if known else None  # for the note on --to
     if not known:
         raise UserError("the historian holds no tags: diag import a file first")
     if tags is not None:
@@ -2388,21 +2389,17 @@ def build_from_historian(
     res.seconds = {"read": read_s, **res.seconds}
     res.seconds["total"] += read_s
     res.notes.insert(0, f"period {period} {said}")
-    if left := last_left_out(url, known, end, period):
+    if left := last_left_out(last, end, period):
         res.notes.insert(1, left)
     return res
 
 
-def last_left_out(url: str, tags: Sequence[str], end: pd.Timestamp, period: str) -> str:
-    """A note when the historian's last sample of ``tags`` lies at ``end`` or less than a
+def last_left_out(last: pd.Timestamp | None, end: pd.Timestamp, period: str) -> str:
+    """A note when the historian's last sample ``last`` lies at ``end`` or less than a
     period after it: the window ``[start, end)`` leaves it out, as it does when a user types
     an export's last time as ``--to`` (the 7-tag line at 1 min: one row of 8,641 moved the
     combined threshold 218 → 198, docs/how-to/unit-loops.md, "The line imported off the
     grid"); ``""`` otherwise."""
-    from historian.store import Historian
-
-    with Historian.open(url) as h:
-        _, last = h.time_range(tags)
     step = pd.Timedelta(period)
     if last is None or not (end <= last < end + step):
         return ""
