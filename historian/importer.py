@@ -445,6 +445,19 @@ def _localize(t: pd.Series, tz: str) -> pd.Series:
     return inferred
 
 
+#: a time written with its UTC offset: ``…Z``, ``…+01:00``, ``…-0500``
+_OFFSET = r"(?:Z|[+-]\d\d:?\d\d)\s*$"
+
+
+def _is_time(text: object) -> bool:
+    """``text`` reads as a date-time on its own (a naive one pandas could not place among
+    times with a UTC offset)."""
+    try:
+        return pd.Timestamp(str(text).strip()) is not pd.NaT
+    except (ValueError, TypeError):
+        return False
+
+
 def _time_reason(text: object, tz: str) -> str:
     """Why a time in local time ``tz`` was not read: ambiguous, skipped by the clock, or not
     a time at all."""
@@ -522,6 +535,7 @@ def _clean_chunk(
     t = parse_times(raw_t, tz, unit, origin_us, dialect.time_format)
     bad_time = t.isna().to_numpy() & ~blank
     reason: dict[int, str] = {}
+    offset = None  # per row: its time written with a UTC offset (only where a time is bad)
     for i in np.flatnonzero(bad_time):
         rv = raw_t.iloc[i]
         why = "missing time" if pd.isna(rv) else f"unparseable time {str(rv)!r}"
@@ -529,8 +543,16 @@ def _clean_chunk(
             why += f" (--time-unit {unit}: expected a number)"
         elif not pd.isna(rv) and dialect.time_format:
             why += f" (--time-format {dialect.time_format})"
-        elif not pd.isna(rv) and tz != "UTC":
-            why = _time_reason(rv, tz)
+        elif not pd.isna(rv):
+            if offset is None:
+                offset = _texts(raw_t).str.contains(_OFFSET, na=False).to_numpy()
+            if offset.any() and not offset[i] and _is_time(rv):
+                why = (
+                    f"time {str(rv)!r} has no UTC offset, among times that have one (in "
+                    "which zone is it?); write every time with its offset"
+                )
+            elif tz != "UTC":
+                why = _time_reason(rv, tz)
         reason[i] = why
     implausible = ~blank & ~t.isna().to_numpy()  # every row with a time, judged below
     if implausible.any():
@@ -810,6 +832,7 @@ def inspect_file(
                 )
             except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
                 raise FileRefused(_parse_error(path, exc)) from None
+            check_header_once(path, dialect.sep)
             columns = [str(c) for c in sample.columns]
             rows = len(sample.dropna(how="all"))
     except OSError as exc:
@@ -817,6 +840,30 @@ def inspect_file(
     if not rows:
         raise FileRefused(f"{path}: no data rows, only a header ({', '.join(columns)})")
     return parquet, columns, sample, dialect, notes
+
+
+def check_header_once(path: Path, sep: str = ",") -> None:
+    """Refuses a CSV header naming a column twice (pandas would read the second as
+    ``NAME.1``, a tag nobody wrote, or a tags CSV's second ``role`` unread), ``file:1``, the
+    name and the columns' positions."""
+    import csv
+
+    with open(path, encoding="utf-8-sig", newline="") as fh:
+        header = next((row for row in csv.reader(fh, delimiter=sep) if row), [])
+    names = [c.strip() for c in header]
+    seen: dict[str, list[int]] = {}
+    for i, n in enumerate(names, 1):
+        seen.setdefault(n, []).append(i)
+    twice = {n: at for n, at in seen.items() if len(at) > 1}
+    if twice:
+        raise FileRefused(
+            f"{path}:1: the header names "
+            + "; ".join(
+                f"column {n!r} {len(at)} times (columns {', '.join(map(str, at))})"
+                for n, at in twice.items()
+            )
+            + ": name each column once"
+        )
 
 
 #: lines read to detect a CSV file's separator and decimal mark
@@ -1510,8 +1557,13 @@ def read_tags_csv(path: str | Path) -> list[dict]:
 
 def _tags_frame(path: Path) -> tuple[pd.DataFrame, dict[str, str], str]:
     """A tags CSV as text cells, its columns by lower-case name and its name (or tag)
-    column; a file without one raises ValueError ``file:1``."""
-    frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+    column; an empty file, a header naming a column twice or a file without a name column
+    raises ValueError ``file:1``."""
+    try:
+        frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+    except pd.errors.EmptyDataError:
+        raise FileRefused(f"{path}: empty file; a tags CSV needs a header line") from None
+    check_header_once(path)
     cols = {c.strip().lower(): c for c in frame.columns}
     c_name = cols.get("name", cols.get("tag"))
     if c_name is None:

@@ -10,7 +10,7 @@ import argparse
 import json
 import sys
 
-from diag_plugin.cliargs import add_json
+from diag_plugin.cliargs import add_json, check_far
 from diag_plugin.diagnose.cli import load_unit
 from historian.errors import UserError
 
@@ -334,8 +334,8 @@ def cmd_plant_benchmark(args) -> int:
     period = 180 if args.period is None else args.period
     if period < 1:
         raise UserError(f"--period {period}: a whole number of seconds ≥ 1")
-    if args.far is not None and not args.far > 0:
-        raise UserError(f"--far {args.far:g}: the budget must be a positive rate per hour")
+    if args.far is not None:
+        check_far(args.far)
     con = Console(stderr=True)
     with Progress(console=con, transient=True, disable=args.json or not con.is_terminal) as pr:
         task = pr.add_task("simulate", total=None)

@@ -93,13 +93,26 @@ def read_manual(table: Mapping, error, line_of, name: str = "manual") -> dict[st
                 if isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v)
             }  # fmt: skip
         if row is None or set(row) != {"min", "max", "margin"} or len(vals) != 3:
-            error(line_of(tag), f"[{name}] {tag}: must be {{ min = …, max = …, margin = … }}")
+            error(line_of(tag), f"[{name}] {tag}: must be {{ min = …, max = …, margin = … }}"
+                                f" ({_row_problem(row, vals)})")  # fmt: skip
             continue
         if not (vals["min"] <= vals["max"] and vals["margin"] >= 0):
-            error(line_of(tag), f"[{name}] {tag}: needs min ≤ max and margin ≥ 0")
+            got = ", ".join(f"{k} {vals[k]:g}" for k in ("min", "max", "margin"))
+            error(line_of(tag), f"[{name}] {tag}: needs min ≤ max and margin ≥ 0, got {got}")
             continue
         out[str(tag)] = ManualSpan(str(tag), vals["min"], vals["max"], vals["margin"])
     return out
+
+
+def _row_problem(row: dict | None, vals: dict[str, float]) -> str:
+    """What is wrong with a ``[manual]``/``[narrow]`` row, for its message."""
+    if row is None:
+        return "not a table"
+    keys = ("min", "max", "margin")
+    said = [f"{k} missing" for k in keys if k not in row]
+    said += [f"{k} {row[k]!r} is not a finite number" for k in keys if k in row and k not in vals]
+    said += [f"unknown key {k!r}" for k in row if k not in keys]
+    return "; ".join(said) or "not numbers"
 
 
 def manual_ranges(ranges: Sequence[Range], spans: Mapping[str, ManualSpan]) -> list[Range]:

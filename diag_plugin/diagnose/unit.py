@@ -57,6 +57,7 @@ from diag_plugin.diagnose.equipment import (
     PieceState,
     members,
     off_mask,
+    output_tag,
     piece_ages,
     piece_envelopes,
     settling,
@@ -64,7 +65,7 @@ from diag_plugin.diagnose.equipment import (
 from diag_plugin.diagnose.fixed import FixedGuard
 from diag_plugin.diagnose.fixed import apply as apply_fixed
 from diag_plugin.diagnose.isolation import IsolationHold
-from diag_plugin.diagnose.manual import ManualGuard, manual_ranges, own_ranges
+from diag_plugin.diagnose.manual import ManualGuard, manual_ranges, own_ranges, own_spans
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
 from diag_plugin.diagnose.pertest import each
@@ -131,6 +132,30 @@ class TestModel:
     @property
     def tags(self) -> list[str]:
         return list(_needed_tags(tuple(self.inputs), self.output))
+
+
+def _idle_rows(file: UnitFile, models: dict[str, TestModel]) -> list[str]:
+    """``file:line`` of each ``[narrow]`` row naming a tag no test of the unit tests, and of
+    each ``[manual]`` row naming a tag the unit neither reads nor lists in ``[build.skipped]``:
+    a hand edit's typo, a row that would silently do nothing."""
+    names = [t.name for t in file.tests]
+    own = {s.tag for s in own_spans(models, names, file.narrow).values()}
+    tested = sorted({output_tag(m.output) for m in models.values()})
+    out = [
+        f"{file.path}:{file.line_of('narrow', tag)}: [narrow] {tag}: no test of the unit tests "
+        f"it (tested: {', '.join(tested)}); the row would do nothing"
+        for tag in file.narrow
+        if tag not in own
+    ]
+    skipped = file.build.get("skipped", {}) if isinstance(file.build, dict) else {}
+    known = {t for m in models.values() for t in m.tags} | set(skipped or {})
+    out += [
+        f"{file.path}:{file.line_of('manual', tag)}: [manual] {tag}: not a tag of the unit (no "
+        "test reads it); the row would do nothing"
+        for tag in file.manual
+        if tag not in known
+    ]
+    return out
 
 
 @functools.lru_cache(maxsize=4096)
@@ -669,6 +694,8 @@ class Unit:
                         f"{file.path}:{line}: matrix tests {matrix.tests} differ from the "
                         f"unit's tests {[t.name for t in file.tests]}"
                     )
+        if not problems:
+            problems += _idle_rows(file, models)
         if problems:
             raise UnitError(problems)
         return cls(file, models, matrix)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from diag_plugin.cliargs import add_json
+from diag_plugin.cliargs import add_json, check_far
 from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_frames
 from historian.errors import UserError
 
@@ -61,8 +61,7 @@ def cmd_unit_learn(args) -> int:
     unit = load_unit(args, args.name)
     far = DEFAULT_FAR if args.far is None else args.far
     blocks = DEFAULT_BLOCKS if args.blocks is None else args.blocks
-    if not far > 0:
-        raise UserError(f"--far {far:g}: the budget must be a positive rate per hour")
+    check_far(far)
     t0, t1 = parse_time(args.start), parse_time(args.end)
     frames = list(unit_frames(args, unit, t0, t1))
     cross = {"auto": None, "yes": True, "no": False}[args.cross_fit]

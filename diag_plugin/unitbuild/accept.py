@@ -357,8 +357,12 @@ def accept(
         mine = own(new, t)
         out = output_tag(unit.models[t.name].output)
         if out in mine.columns and not mine[out].notna().any():  # its equipment stopped
-            warnings.append(f"{t.name}: its equipment did not run in the window: its model "
-                            "keeps what it learned")  # fmt: skip
+            why = (
+                f"{out} has no value in the period"  # the tag itself missing, not stopped
+                if out not in new.columns or not new[out].notna().any()
+                else "its equipment did not run in the window"
+            )
+            warnings.append(f"{t.name}: {why}: its model keeps what it learned")
             continue
         rb, said = widen_spans(rb, mine)
         if rb.method == short.JOINT:

@@ -71,6 +71,7 @@ import numpy as np
 import pandas as pd
 import tomlkit
 
+from diag_plugin.cliargs import check_far
 from diag_plugin.diagnose.combos import states_table
 from diag_plugin.diagnose.equipment import learnable_for
 from diag_plugin.diagnose.fixed import learned_text, tolerance
@@ -1358,8 +1359,7 @@ def _build_unit(
     from diag_plugin.rulebase.folder import UNIT_SUFFIX
 
     far = DEFAULT_FAR if far is None else far
-    if not far > 0:
-        raise UserError(f"--far {far:g}: the budget must be a positive rate per hour")
+    check_far(far)
     folder = Path(folder)
     path = folder / f"{name}{UNIT_SUFFIX}"
     if path.exists() and not force:
@@ -1430,6 +1430,12 @@ def _build_unit(
     loop_notes = []
     held_sp: list[ManualSpan] = []  # the held set-points' [fixed] rows
     for lp in loops:
+        if lp.pv in frame.columns and not frame[lp.pv].notna().any():
+            # as a hand valve's: the declared loop would vanish, its measurement untested
+            raise UserError(
+                f"{lp.where(lp.pv)}: loop {lp}: its measurement {lp.pv} has no value in the "
+                "window (give a window where it reads)"
+            )
         if lp.fixed is not None or lp.sp in ctx.vars or lp.pv not in ctx.vars:
             continue
         if ctx.hold_set_point(lp.sp, lp.pv):

@@ -11,7 +11,7 @@ import json
 import math
 from pathlib import Path
 
-from diag_plugin.cliargs import add_json
+from diag_plugin.cliargs import add_json, check_far
 from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_frames
 from diag_plugin.learn.cli import add_far
 from diag_plugin.training.dask_connect import add_dask_args, check_timeout
@@ -314,8 +314,8 @@ def cmd_unit_accept(args) -> int:
 
     unit = load_unit(args, args.name)
     t0, t1 = parse_time(args.start), parse_time(args.end)
-    if args.far is not None and not args.far > 0:
-        raise UserError(f"--far {args.far:g}: the budget must be a positive rate per hour")
+    if args.far is not None:
+        check_far(args.far)
     res = accept(unit, lambda a, b: unit_frames(args, unit, a, b), t0, t1, far=args.far)
     if _printed_json(args, res.as_dict()):
         return 0

@@ -1,0 +1,235 @@
+"""A stranger's bad input on the newest user paths of issue 34 (`diag import` with a tags CSV,
+`diag unit build` with its loops, a hand-edited unit file): each case exits 2 with one
+message naming what and where, and leaves the historian and the rule-base folder as they
+were (docs/reference/cli.md, "Bad input"). Each test failed before its mend (branch
+``i34-badinput``)."""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import sqlite3
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from diag_plugin.diagnose.unit import Unit
+from diag_plugin.diagnose.unitfile import UnitError
+from diag_plugin.unitbuild.build import build_unit
+from diag_plugin.unitbuild.loops import parse_loop
+from tests import line7
+from tests.test_any_plant_tour import diag
+
+#: a window of the historian below: 2026-03-02, 6 h (1,440 rows of 15 s)
+WINDOW = ["--from", "2026-03-02T00:00", "--to", "2026-03-02T06:00"]
+
+
+def _state(tmp: Path) -> str:
+    """The historian's rows and every file under ``tmp`` but the inputs: what must not
+    change when a command refuses its input."""
+    h = hashlib.sha256()
+    con = sqlite3.connect(f"file:{tmp / 'h.db'}?mode=ro", uri=True)
+    for line in con.iterdump():
+        h.update(line.encode())
+    con.close()
+    for p in sorted(tmp.rglob("*")):
+        if p.is_file() and p.suffix not in (".db", ".csv") and "-wal" not in p.name:
+            h.update(str(p).encode() + p.read_bytes())
+    return h.hexdigest()
+
+
+@pytest.fixture
+def hist(tmp_path):
+    """A historian holding 6 h of the 7-tag line, imported with its tags CSV."""
+    f = line7.simulate(0.25, seed=1)
+    out = f.copy()
+    out.index = out.index.strftime("%Y-%m-%dT%H:%M:%S")
+    out.index.name = "time"
+    out.to_csv(tmp_path / "line.csv")
+    line7.tags_csv().to_csv(tmp_path / "tags.csv", index=False)
+    (tmp_path / "rb").mkdir()
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(tmp_path / "rb")]
+    rc, text = diag(g, "import", str(tmp_path / "line.csv"), "--tags", str(tmp_path / "tags.csv"))
+    assert rc == 0, text
+    return g, tmp_path, f
+
+
+def _refused(g, tmp, *argv) -> str:
+    before = _state(tmp)
+    rc, text = diag(g, *argv)
+    assert rc == 2, text
+    assert "Traceback" not in text and "internal error" not in text, text
+    assert _state(tmp) == before, "a refused command changed the historian or the rule bases"
+    return text
+
+
+def test_a_header_naming_a_column_twice_is_refused_not_imported_as_name_1(hist):
+    """Before: the second ``FEED_FLOW`` became a tag ``FEED_FLOW.1`` nobody wrote."""
+    g, tmp, f = hist
+    later = f.iloc[:300].copy()
+    later.index = (later.index + pd.Timedelta(days=1)).strftime("%Y-%m-%dT%H:%M:%S")
+    later.index.name = "time"
+    later.insert(3, "AGAIN", later["FEED_FLOW"] + 1.0)
+    text = later.to_csv().replace("AGAIN", "FEED_FLOW", 1)
+    (tmp / "dup.csv").write_text(text)
+    msg = _refused(g, tmp, "import", str(tmp / "dup.csv"))
+    assert "dup.csv:1: the header names column 'FEED_FLOW' 2 times (columns 4, 5)" in msg
+
+
+@pytest.mark.parametrize(
+    "text,said",
+    [
+        ("", "tags.csv: empty file; a tags CSV needs a header line"),
+        ("name,unit,unit\nFEED_FLOW,m3/h,x\n", "tags.csv:1: the header names column 'unit' 2"),
+    ],
+    ids=["empty", "unit-twice"],
+)
+def test_a_tags_csv_empty_or_naming_a_column_twice_is_refused_naming_the_file(hist, text, said):
+    """Before: ``No columns to parse from file`` (which file?), and a second ``unit`` column
+    silently unread."""
+    g, tmp, _ = hist
+    (tmp / "bad").mkdir()
+    (tmp / "bad" / "tags.csv").write_text(text)
+    msg = _refused(g, tmp, "import", str(tmp / "line.csv"), "--tags", str(tmp / "bad/tags.csv"))
+    assert said in msg
+
+
+def test_a_time_without_offset_among_times_with_one_says_so(hist):
+    """Before: ``unparseable time '2026-03-03T00:25:00'`` for a time that parses."""
+    g, tmp, f = hist
+    later = f.iloc[:200].copy()
+    stamps = list((later.index + pd.Timedelta(days=1)).strftime("%Y-%m-%dT%H:%M:%S+00:00"))
+    stamps[100] = stamps[100].removesuffix("+00:00")
+    later.index = pd.Index(stamps, name="time")
+    later.to_csv(tmp / "mixed.csv")
+    rc, text = diag(g, "import", str(tmp / "mixed.csv"))
+    assert rc == 0, text  # a bad row is skipped and said (docs/reference/historian.md)
+    assert "mixed.csv:102: time '2026-03-03T00:25:00' has no UTC offset, among times" in text
+
+
+@pytest.mark.parametrize("far", ["inf", "1000"])
+def test_a_far_budget_that_is_no_budget_is_refused_before_anything_is_read(hist, far):
+    """Before: ``inf`` an internal error (OverflowError), ``1000`` a unit whose limits were
+    ±0.0001 % of span (every sample an alarm)."""
+    g, tmp, _ = hist
+    msg = _refused(g, tmp, "unit", "build", "u", *WINDOW, "--loop", line7.LOOP, "--far", far)
+    assert f"--far {far}: the budget must be a positive rate per hour, at most 6" in msg
+
+
+@pytest.mark.parametrize(
+    "text,said",
+    [
+        (line7.tags_csv().to_csv(index=False, sep=";"), "(separated by ';'? write it comma-"),
+        ("name,loop,role\n", "tags.csv: no rows, only a header: it declares no loop"),
+        ("name,loop,role,role\nFEED_FLOW,feed,pv,sp\n", "tags.csv:1: the header names column"),
+    ],
+    ids=["semicolons", "header-only", "role-twice"],
+)
+def test_a_loops_from_file_that_declares_nothing_is_refused(hist, text, said):
+    """Before: each built a unit without the loop, saying nothing of the file."""
+    g, tmp, _ = hist
+    (tmp / "bad").mkdir()
+    (tmp / "bad" / "tags.csv").write_text(text)
+    msg = _refused(g, tmp, "unit", "build", "u", *WINDOW, "--loops-from", str(tmp / "bad/tags.csv"))
+    assert said in msg
+
+
+def test_a_declared_loops_measurement_without_a_value_in_the_window_is_refused(hist):
+    """As a hand valve without a value is. Before: the unit was built without the loop's
+    test (``not tested: FEED_FLOW: good samples in 0%``)."""
+    g, tmp, f = hist
+    later = f.iloc[:400].copy()
+    later.index = (later.index + pd.Timedelta(days=1)).strftime("%Y-%m-%dT%H:%M:%S")
+    later.index.name = "time"
+    later["FEED_FLOW"] = float("nan")
+    later.to_csv(tmp / "later.csv")
+    assert diag(g, "import", str(tmp / "later.csv"))[0] == 0
+    msg = _refused(g, tmp, "unit", "build", "u", "--from", "2026-03-03", "--to",
+                   "2026-03-03T01:40", "--loop", line7.LOOP)  # fmt: skip
+    assert (
+        f"--loop '{line7.LOOP}': loop {line7.LOOP}: its measurement FEED_FLOW has no value in "
+        "the window" in msg
+    )
+
+
+@pytest.fixture(scope="module")
+def unit5(tmp_path_factory):
+    """The line's units on 5-min means, the loop declared: ``narrow`` (the hand valve not
+    declared: its span in ``[narrow]``) and ``manual`` (declared: in ``[manual]``)."""
+    folder = tmp_path_factory.mktemp("bad34")
+    f = line7.simulate(6.0, 1).resample("5min", label="right", closed="right").mean()
+    for name, manual in (("narrow", []), ("manual", ["HAND_VALVE"])):
+        build_unit(name, f, folder=folder, period="300s", loops=[parse_loop(line7.LOOP)],
+                   manual=manual, far=0.01, force=True)  # fmt: skip
+    return folder
+
+
+@pytest.mark.parametrize("table", ["narrow", "manual"])
+def test_a_hand_edited_row_naming_no_tag_of_the_unit_is_a_file_line_problem(unit5, table):
+    """A typo in a ``[narrow]`` or ``[manual]`` row's tag. Before: ``unit check`` said ok
+    and the row did nothing."""
+    folder = unit5
+    Unit.load(folder / f"{table}.unit.toml", folder)  # the unit as built reads
+    lines = (folder / f"{table}.unit.toml").read_text().splitlines()
+    at = lines.index(f"[{table}]")
+    k = next(i for i in range(at + 1, len(lines)) if " = {min" in lines[i])
+    tag = lines[k].split(" = ")[0]
+    lines[k] = lines[k].replace(tag, tag + "X", 1)
+    p = folder / "typo.unit.toml"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(UnitError) as exc:
+        Unit.load(p, folder)
+    assert f"typo.unit.toml:{k + 1}: [{table}] {tag}X: " in str(exc.value)
+    rc, out = diag(["--rulebases", str(folder)], "unit", "check", str(p))
+    assert rc == 2 and f"typo.unit.toml:{k + 1}: [{table}] {tag}X" in out, out
+
+
+def test_accept_of_a_period_without_a_tests_tag_says_the_tag_has_no_value(unit5, tmp_path):
+    """The unit has no equipment. Before: ``FEED_FLOW: its equipment did not run in the
+    window``."""
+    import shutil
+
+    from diag_plugin.unitbuild.accept import accept
+
+    folder = tmp_path / "rb"
+    shutil.copytree(unit5, folder)
+    five = {"rule": "5min", "label": "right", "closed": "right"}
+    old = line7.simulate(6.0, 1).resample(**five).mean()
+    new = line7.simulate(2.0, 4)
+    new.index = new.index + pd.Timedelta(days=7)
+    new = new.resample(**five).mean()
+    new["FEED_FLOW"] = float("nan")
+    every = pd.concat([old, new])
+    unit = Unit.load(folder / "manual.unit.toml", folder)
+    a, b = new.index[0], new.index[-1]
+    res = accept(unit, lambda t0, t1: [every[(every.index >= t0) & (every.index < t1)]], a, b)
+    said = [w for w in res.warnings if "its model keeps what it learned" in w]
+    assert said == [
+        f"{t}: FEED_FLOW has no value in the period: its model keeps what it learned"
+        for t in ("FEED_FLOW", "FEED_FLOW_spread")
+    ], said
+
+
+@pytest.mark.parametrize(
+    "edit,said",
+    [
+        (lambda r: re.sub(r", max = [^,]+", "", r), "(max missing)"),
+        (lambda r: re.sub(r"min = [^,]+", 'min = "low"', r), "(min 'low' is not a finite number)"),
+        (lambda r: re.sub(r"margin = [^}]+", "margin = -1.0 ", r), "got min 40, max 47, margin -1"),
+    ],
+    ids=["missing-max", "min-text", "negative-margin"],
+)
+def test_a_broken_narrow_row_says_what_is_wrong_at_its_line(unit5, tmp_path, edit, said):
+    """Before: ``must be { min = …, max = …, margin = … }`` whatever was wrong, and
+    ``needs min ≤ max and margin ≥ 0`` without the values."""
+    from diag_plugin.diagnose.unitfile import UnitFile
+
+    lines = (unit5 / "narrow.unit.toml").read_text().splitlines()
+    k = lines.index("[narrow]") + 2  # its comment, then the hand valve's row
+    assert lines[k].startswith("HAND_VALVE = {min = 40.0, max = 47.0"), lines[k]
+    lines[k] = edit(lines[k])
+    with pytest.raises(UnitError) as exc:
+        UnitFile("\n".join(lines) + "\n", tmp_path / "n.unit.toml")
+    assert f"n.unit.toml:{k + 1}: [narrow] HAND_VALVE: " in str(exc.value)
+    assert said in str(exc.value)
