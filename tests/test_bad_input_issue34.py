@@ -233,3 +233,23 @@ def test_a_broken_narrow_row_says_what_is_wrong_at_its_line(unit5, tmp_path, edi
         UnitFile("\n".join(lines) + "\n", tmp_path / "n.unit.toml")
     assert f"n.unit.toml:{k + 1}: [narrow] HAND_VALVE: " in str(exc.value)
     assert said in str(exc.value)
+
+
+@pytest.mark.parametrize("where", ["no/such/folder/out.csv", "."])
+def test_diagnose_csv_into_no_folder_is_refused_before_the_replay(unit5, tmp_path, where):
+    """Before: the whole replay ran, then ``[Errno 2] No such file or directory`` (its result
+    lost), or ``[Errno 21] Is a directory``."""
+    f = line7.simulate(1.0, 4).resample("5min", label="right", closed="right").mean()
+    f.index = f.index + pd.Timedelta(days=7)
+    out = f.copy()
+    out.index = out.index.strftime("%Y-%m-%dT%H:%M:%S")
+    out.index.name = "time"
+    out.to_csv(tmp_path / "day.csv")
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(unit5)]
+    assert diag(g, "import", str(tmp_path / "day.csv"))[0] == 0
+    target = tmp_path / where
+    rc, text = diag(g, "diagnose", "narrow", "--from", "2026-03-09", "--to", "2026-03-10",
+                    "--csv", str(target))  # fmt: skip
+    assert rc == 2, text
+    assert text.startswith(f"diag: error: --csv {target}: "), text
+    assert "timeline" not in text and not (tmp_path / "no").exists()

@@ -617,6 +617,11 @@ def default_chunk(period: str, tags: int):
 
 
 def cmd_diagnose(args) -> int:
+    if args.csv and not Path(args.csv).parent.is_dir():
+        # refused before the replay, whose result would be lost at the write (as it was)
+        raise UserError(f"--csv {args.csv}: no folder {Path(args.csv).parent}")
+    if args.csv and Path(args.csv).is_dir():
+        raise UserError(f"--csv {args.csv}: a folder; name the file to write")
     with contextlib.ExitStack() as stack:
         with _start_up():  # the imports and the unit's objects: no collections, then frozen
             from diag_plugin.diagnose.pertest import cores
