@@ -1567,7 +1567,13 @@ def _tags_frame(path: Path) -> tuple[pd.DataFrame, dict[str, str], str]:
     cols = {c.strip().lower(): c for c in frame.columns}
     c_name = cols.get("name", cols.get("tag"))
     if c_name is None:
-        raise ValueError(f"{path}:1: a tags CSV needs a 'name' (or 'tag') column")
+        header = ",".join(map(str, frame.columns))
+        sep = next((c for c in (";", "\t", "|") if c in header), None)
+        raise ValueError(
+            f"{path}:1: a tags CSV needs a 'name' (or 'tag') column"
+            + (f" (the header reads {header[:80]!r}: separated by {sep!r}? write it "
+               "comma-separated)" if sep else "")
+        )  # fmt: skip
     return frame, cols, c_name
 
 

@@ -82,8 +82,13 @@ def test_a_header_naming_a_column_twice_is_refused_not_imported_as_name_1(hist):
     [
         ("", "tags.csv: empty file; a tags CSV needs a header line"),
         ("name,unit,unit\nFEED_FLOW,m3/h,x\n", "tags.csv:1: the header names column 'unit' 2"),
+        (
+            "name;unit\nFEED_FLOW;m3/h\n",
+            "tags.csv:1: a tags CSV needs a 'name' (or 'tag') "
+            "column (the header reads 'name;unit': separated by ';'?",
+        ),
     ],
-    ids=["empty", "unit-twice"],
+    ids=["empty", "unit-twice", "semicolons"],
 )
 def test_a_tags_csv_empty_or_naming_a_column_twice_is_refused_naming_the_file(hist, text, said):
     """Before: ``No columns to parse from file`` (which file?), and a second ``unit`` column
@@ -185,9 +190,9 @@ def test_a_hand_edited_row_naming_no_tag_of_the_unit_is_a_file_line_problem(unit
     assert rc == 2 and f"typo.unit.toml:{k + 1}: [{table}] {tag}X" in out, out
 
 
-def test_accept_of_a_period_without_a_tests_tag_says_the_tag_has_no_value(unit5, tmp_path):
-    """The unit has no equipment. Before: ``FEED_FLOW: its equipment did not run in the
-    window``."""
+def _accepted(unit5, tmp_path, drop: str | None = None):
+    """A copy of unit ``manual`` that accepted 2 days of seed 4 a week on (``drop``: a tag
+    without a value there); its folder and the accept's result."""
     import shutil
 
     from diag_plugin.unitbuild.accept import accept
@@ -199,11 +204,19 @@ def test_accept_of_a_period_without_a_tests_tag_says_the_tag_has_no_value(unit5,
     new = line7.simulate(2.0, 4)
     new.index = new.index + pd.Timedelta(days=7)
     new = new.resample(**five).mean()
-    new["FEED_FLOW"] = float("nan")
+    if drop:
+        new[drop] = float("nan")
     every = pd.concat([old, new])
     unit = Unit.load(folder / "manual.unit.toml", folder)
     a, b = new.index[0], new.index[-1]
     res = accept(unit, lambda t0, t1: [every[(every.index >= t0) & (every.index < t1)]], a, b)
+    return folder, res
+
+
+def test_accept_of_a_period_without_a_tests_tag_says_the_tag_has_no_value(unit5, tmp_path):
+    """The unit has no equipment. Before: ``FEED_FLOW: its equipment did not run in the
+    window``."""
+    _, res = _accepted(unit5, tmp_path, drop="FEED_FLOW")
     said = [w for w in res.warnings if "its model keeps what it learned" in w]
     assert said == [
         f"{t}: FEED_FLOW has no value in the period: its model keeps what it learned"
@@ -253,3 +266,18 @@ def test_diagnose_csv_into_no_folder_is_refused_before_the_replay(unit5, tmp_pat
     assert rc == 2, text
     assert text.startswith(f"diag: error: --csv {target}: "), text
     assert "timeline" not in text and not (tmp_path / "no").exists()
+
+
+def test_rollback_keeps_the_version_it_replaces(unit5, tmp_path):
+    """A hand edit made after an accept. Before: ``diag unit rollback`` overwrote it, kept
+    nowhere."""
+    folder, _ = _accepted(unit5, tmp_path)
+    unit_file = folder / "manual.unit.toml"
+    edited = unit_file.read_text() + "# my note after the accept\n"
+    unit_file.write_text(edited)
+    rc, text = diag(["--rulebases", str(folder)], "unit", "rollback", "manual")
+    assert rc == 0, text
+    assert "# my note" not in unit_file.read_text()
+    kept = folder / ".unit-backups" / "manual" / "replaced" / "1"
+    assert f"the files it replaced are kept in {kept}" in text, text
+    assert [p.read_text() for p in kept.glob("*_manual.unit.toml")] == [edited]

@@ -171,7 +171,9 @@ def keep_unit_backup(unit, why: dict) -> Path:
 
 def rollback(unit_file: Path) -> dict:
     """Put the newest backup of the unit back (unit file, models, matrix) and remove it;
-    returns its manifest. :class:`UserError` when there is none."""
+    returns its manifest, with ``replaced``: the folder the files it overwrote are kept in
+    (``replaced/N`` beside the backups: a hand edit made since the accept is not lost).
+    :class:`UserError` when there is none."""
     unit_file = Path(unit_file)
     root = backup_root(unit_file)
     have = _numbered(root)
@@ -180,10 +182,16 @@ def rollback(unit_file: Path) -> dict:
     last = have[-1]
     manifest = json.loads((last / "manifest.json").read_text(encoding="utf-8"))
     base = unit_file.parent
+    before = _numbered(root / "replaced")
+    kept = root / "replaced" / str(int(before[-1].name) + 1 if before else 1)
+    kept.mkdir(parents=True)
     for f in manifest["files"]:
         dest = Path(f["to"])
         dest = dest if dest.is_absolute() else base / dest
+        if dest.exists():
+            shutil.copy2(dest, kept / f["copy"])
         shutil.copy2(last / f["copy"], dest)
+    manifest["replaced"] = str(kept)
     shutil.rmtree(last)
     manifest["restored_from"] = str(last)
     manifest["left"] = len(have) - 1

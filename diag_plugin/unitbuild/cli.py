@@ -387,6 +387,7 @@ def cmd_unit_rollback(args) -> int:
     acc = got.get("accepted") or ["?", "?"]
     print(
         f"unit {args.name}: restored the version before accepting {acc[0]} … {acc[1]} "
-        f"({len(got['files'])} files; {got['left']} older backup(s) left)"
+        f"({len(got['files'])} files; {got['left']} older backup(s) left); the files it "
+        f"replaced are kept in {got['replaced']}"
     )
     return 0
