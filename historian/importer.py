@@ -1514,7 +1514,7 @@ def read_tags_csv(path: str | Path) -> list[dict]:
     description, source, as keyword dicts for :meth:`Historian.ensure_tag`. A bad number
     raises ValueError ``file:line``."""
     path = Path(path)
-    frame, cols, c_name = _tags_frame(path)
+    frame, cols, c_name = read_tags_frame(path)
 
     def col(*names):
         for n in names:
@@ -1555,10 +1555,11 @@ def read_tags_csv(path: str | Path) -> list[dict]:
     return out
 
 
-def _tags_frame(path: Path) -> tuple[pd.DataFrame, dict[str, str], str]:
+def read_tags_frame(path: Path) -> tuple[pd.DataFrame, dict[str, str], str]:
     """A tags CSV as text cells, its columns by lower-case name and its name (or tag)
     column; an empty file, a header naming a column twice or a file without a name column
-    raises ValueError ``file:1``."""
+    raises :class:`FileRefused` ``file:1`` (one reader for ``diag import --tags`` and
+    ``unit build --loops-from``); a file pandas cannot parse raises its own error."""
     try:
         frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
     except pd.errors.EmptyDataError:
@@ -1567,13 +1568,14 @@ def _tags_frame(path: Path) -> tuple[pd.DataFrame, dict[str, str], str]:
     cols = {c.strip().lower(): c for c in frame.columns}
     c_name = cols.get("name", cols.get("tag"))
     if c_name is None:
+        # a tags CSV written with ';' reads as one column: it would declare nothing
         header = ",".join(map(str, frame.columns))
         sep = next((c for c in (";", "\t", "|") if c in header), None)
-        raise ValueError(
-            f"{path}:1: a tags CSV needs a 'name' (or 'tag') column"
-            + (f" (the header reads {header[:80]!r}: separated by {sep!r}? write it "
-               "comma-separated)" if sep else "")
-        )  # fmt: skip
+        raise FileRefused(
+            f"{path}:1: a tags CSV needs a 'name' (or 'tag') column; the header reads "
+            f"{header[:80]!r}"
+            + (f" (separated by {sep!r}? write it comma-separated)" if sep else "")
+        )
     return frame, cols, c_name
 
 
@@ -1583,7 +1585,7 @@ def read_state_tags(path: str | Path) -> set[str]:
     ``diag unit build`` reads them; none without a ``role`` column), for ``diag tags --tags``."""
     from .discrete import RUNNING_ROLE, STATE_ROLES
 
-    frame, cols, c_name = _tags_frame(Path(path))
+    frame, cols, c_name = read_tags_frame(Path(path))
     if "role" not in cols:
         return set()
     roles = frame[cols["role"]].str.strip().str.lower()

@@ -85,7 +85,7 @@ def test_a_header_naming_a_column_twice_is_refused_not_imported_as_name_1(hist):
         (
             "name;unit\nFEED_FLOW;m3/h\n",
             "tags.csv:1: a tags CSV needs a 'name' (or 'tag') "
-            "column (the header reads 'name;unit': separated by ';'?",
+            "column; the header reads 'name;unit' (separated by ';'?",
         ),
     ],
     ids=["empty", "unit-twice", "semicolons"],

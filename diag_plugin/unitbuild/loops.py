@@ -143,28 +143,14 @@ def parse_loop(text: str) -> Loop:
 def _tags_csv(path: Path):
     """A tags CSV as text cells, its columns by lower-case name, and its name column (or
     None)."""
-    import pandas as pd
-
-    from historian.importer import check_header_once
+    from historian.importer import read_tags_frame
 
     try:
-        frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
-    except pd.errors.EmptyDataError:
-        raise UserError(f"{path}: empty file; a tags CSV needs a header line") from None
+        frame, cols, name = read_tags_frame(path)
+    except UserError:
+        raise
     except (OSError, ValueError) as exc:
         raise UserError(_tags_csv_error(path, exc)) from None
-    check_header_once(path)
-    cols = {c.strip().lower(): c for c in frame.columns}
-    name = cols.get("name", cols.get("tag"))
-    if name is None:
-        # a tags CSV written with ';' reads as one column: it would declare nothing
-        header = ",".join(map(str, frame.columns))
-        sep = next((c for c in (";", "\t", "|") if c in header), None)
-        raise UserError(
-            f"{path}:1: a tags CSV needs a 'name' (or 'tag') column; the header reads "
-            f"{header[:80]!r}"
-            + (f" (separated by {sep!r}? write it comma-separated)" if sep else "")
-        )
     if frame.empty:
         raise UserError(f"{path}: no rows, only a header: it declares no loop nor any tag's role")
     return frame, cols, name
