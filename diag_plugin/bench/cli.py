@@ -10,9 +10,9 @@ import argparse
 import json
 import sys
 
-from diag_plugin.cliargs import add_json, check_far
+from diag_plugin.cliargs import add_json
 from diag_plugin.diagnose.cli import load_unit
-from historian.errors import UserError
+from historian.errors import UserError, check_far
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:

@@ -8,9 +8,9 @@ from __future__ import annotations
 import argparse
 import json
 
-from diag_plugin.cliargs import add_json, check_far
+from diag_plugin.cliargs import add_json
 from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_frames
-from historian.errors import UserError
+from historian.errors import UserError, check_far
 
 
 def add_far(p: argparse.ArgumentParser, default: str) -> None:

@@ -71,7 +71,6 @@ import numpy as np
 import pandas as pd
 import tomlkit
 
-from diag_plugin.cliargs import check_far
 from diag_plugin.diagnose.combos import states_table
 from diag_plugin.diagnose.equipment import learnable_for
 from diag_plugin.diagnose.fixed import learned_text, tolerance
@@ -120,7 +119,7 @@ from diag_plugin.unitbuild.parallel import DaskPool, default_workers, map_tests,
 from diag_plugin.unitbuild.read import read_sampling, read_window
 from diag_plugin.unitbuild.runlevels import listed, unit_run
 from historian.discrete import DISCRETE_SHARE, discrete_levels, levels_text
-from historian.errors import UserError
+from historian.errors import UserError, check_far
 from historian.taginfo import TagInfo, tag_infos
 
 if TYPE_CHECKING:

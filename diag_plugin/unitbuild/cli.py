@@ -11,11 +11,11 @@ import json
 import math
 from pathlib import Path
 
-from diag_plugin.cliargs import add_json, check_far
+from diag_plugin.cliargs import add_json
 from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_frames
 from diag_plugin.learn.cli import add_far
 from diag_plugin.training.dask_connect import add_dask_args, check_timeout
-from historian.errors import UserError
+from historian.errors import UserError, check_far
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
