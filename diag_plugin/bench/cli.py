@@ -12,7 +12,8 @@ import sys
 
 from diag_plugin.cliargs import add_json
 from diag_plugin.diagnose.cli import load_unit
-from historian.errors import UserError, check_far
+from diag_plugin.learn.far import check_far
+from historian.errors import UserError
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:

@@ -147,8 +147,7 @@ def _idle_rows(file: UnitFile, models: dict[str, TestModel]) -> list[str]:
         for tag in file.narrow
         if tag not in own
     ]
-    skipped = file.build.get("skipped", {}) if isinstance(file.build, dict) else {}
-    known = {t for m in models.values() for t in m.tags} | set(skipped or {})
+    known = {t for m in models.values() for t in m.tags} | set(file.build.get("skipped") or {})
     out += [
         f"{file.path}:{file.line_of('manual', tag)}: [manual] {tag}: not a tag of the unit (no "
         "test reads it); the row would do nothing"

@@ -10,7 +10,8 @@ import json
 
 from diag_plugin.cliargs import add_json
 from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_frames
-from historian.errors import UserError, check_far
+from diag_plugin.learn.far import check_far
+from historian.errors import UserError
 
 
 def add_far(p: argparse.ArgumentParser, default: str) -> None:

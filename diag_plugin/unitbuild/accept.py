@@ -184,14 +184,14 @@ def rollback(unit_file: Path) -> dict:
     base = unit_file.parent
     before = _numbered(root / "replaced")
     kept = root / "replaced" / str(int(before[-1].name) + 1 if before else 1)
-    kept.mkdir(parents=True)
     for f in manifest["files"]:
         dest = Path(f["to"])
         dest = dest if dest.is_absolute() else base / dest
         if dest.exists():
+            kept.mkdir(parents=True, exist_ok=True)
             shutil.copy2(dest, kept / f["copy"])
         shutil.copy2(last / f["copy"], dest)
-    manifest["replaced"] = str(kept)
+    manifest["replaced"] = str(kept) if kept.exists() else None
     shutil.rmtree(last)
     manifest["restored_from"] = str(last)
     manifest["left"] = len(have) - 1

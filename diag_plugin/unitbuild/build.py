@@ -77,6 +77,7 @@ from diag_plugin.diagnose.fixed import learned_text, tolerance
 from diag_plugin.diagnose.manual import MARGIN_SAYS, ManualSpan, learned_span
 from diag_plugin.diagnose.running import RunCondition, learnable
 from diag_plugin.diagnose.unittags import is_set_point
+from diag_plugin.learn.far import check_far
 from diag_plugin.learn.thresholds import DEFAULT_BLOCKS, block_of
 from diag_plugin.models.linear import LEARNED_OUTPUT
 from diag_plugin.models.spec import Variable
@@ -119,7 +120,7 @@ from diag_plugin.unitbuild.parallel import DaskPool, default_workers, map_tests,
 from diag_plugin.unitbuild.read import read_sampling, read_window
 from diag_plugin.unitbuild.runlevels import listed, unit_run
 from historian.discrete import DISCRETE_SHARE, discrete_levels, levels_text
-from historian.errors import UserError, check_far
+from historian.errors import UserError
 from historian.taginfo import TagInfo, tag_infos
 
 if TYPE_CHECKING:

@@ -14,8 +14,9 @@ from pathlib import Path
 from diag_plugin.cliargs import add_json
 from diag_plugin.diagnose.cli import load_unit, parse_time, unit_actions, unit_frames
 from diag_plugin.learn.cli import add_far
+from diag_plugin.learn.far import check_far
 from diag_plugin.training.dask_connect import add_dask_args, check_timeout
-from historian.errors import UserError, check_far
+from historian.errors import UserError
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -387,7 +388,7 @@ def cmd_unit_rollback(args) -> int:
     acc = got.get("accepted") or ["?", "?"]
     print(
         f"unit {args.name}: restored the version before accepting {acc[0]} … {acc[1]} "
-        f"({len(got['files'])} files; {got['left']} older backup(s) left); the files it "
-        f"replaced are kept in {got['replaced']}"
+        f"({len(got['files'])} files; {got['left']} older backup(s) left)"
+        + (f"; the files it replaced are kept in {got['replaced']}" if got["replaced"] else "")
     )
     return 0
