@@ -18,6 +18,20 @@ held-out error is at most :data:`BALANCE_MAX_ERROR_PCT` % of the flow's span. It
 like any other (its own share of the false-alarm budget) and it models the flow, so its alarm
 names the flow's tag.
 
+A flow its own loop holds (the loop's measurement, a flow by :func:`tag_kind`) gets one too:
+its loop test sees a bias of its meter not at all (the loop holds the biased reading at its
+set-point and the true flow moves instead), and the vessel's balance does — the measured
+inflow against the outflows and the level's rate. Its candidates leave out its loop's
+set-point and valve and the pressures the valve's test reads (the loop's relation and the
+valve's equation, which the bias does not break); the level's rate is tried over
+:data:`HELD_RATE_SPANS` samples (a level's change over one fast sample is its noise: the
+7-tag line's tank moves 0.8 mm in 15 s for 1 m³/h, its level reading 7 mm from one sample to
+the next), and it is kept
+where its held-out error is at most :data:`HELD_MAX_ERROR_PCT` % of the flow's span (the only
+test that sees the meter's bias; docs/how-to/unit-loops.md, "A balance for a loop-held flow").
+Its alarm names the flow, whose compensated direction then moves it
+(:func:`~diag_plugin.diagnose.unittags.process_directions`).
+
 What a tag measures (:func:`tag_kind`) is read from its ISA-5.1 name (first letter ``F``,
 ``L``, ``P``), else its description (``flow``, ``level``, ``pressure``), else its unit (a
 quantity per time, a pressure unit); a set-point or a controller output is none of these.
@@ -51,6 +65,10 @@ from historian.taginfo import TagInfo
 BALANCE_MAX_INPUTS = ACTUATOR_MAX_INPUTS
 #: a balance test is kept where its held-out error is at most this share of the flow's span (%)
 BALANCE_MAX_ERROR_PCT = 3.0
+#: a loop-held flow's balance test is kept where its held-out error is at most this (%)
+HELD_MAX_ERROR_PCT = 6.0
+#: the spans (samples) of a level's rate a loop-held flow's balance test tries
+HELD_RATE_SPANS = (1, 2, 4, 8, 16, 32)
 #: the suffix of a balance test's name (``FI109`` → ``FI109_balance``)
 SUFFIX = "_balance"
 
@@ -75,6 +93,7 @@ class BalancePlan:
     test: str
     valves: tuple[str, ...]
     kept_out: frozenset[str]
+    held: bool = False  # a flow its own loop holds (the loop's measurement)
 
 
 def tag_kind(tag: str, info: TagInfo | None = None) -> str | None:
@@ -141,6 +160,29 @@ def balance_plans(
         out.update(t for v in valves for t in loop_of.get(v, ()))
         name = test_name(f"{names[ch.tag]}{SUFFIX}", taken)
         plans.append(BalancePlan(ch.tag, name, valves, frozenset(out)))
+    plans.extend(_held_plans(choices, names, taken, info=info, loop_of=loop_of, same=same))
+    return plans
+
+
+def _held_plans(choices, names, taken, *, info, loop_of, same) -> list[BalancePlan]:
+    """A loop-held flow's balance test (module doc): one per loop test (the level of its
+    error, not the spread) whose measurement is a flow and whose valve is known. Kept out of
+    its candidates: the flow and what is the same measurement, its loop's set-point and
+    valve (the loop's own relation) and the pressures the valve's test reads (the valve's
+    equation, which a meter's bias does not break: the loop moves valve and flow together)."""
+    tests = {ch.tag: ch for ch in choices if not ch.tracks}
+    plans = []
+    for ch in choices:
+        if (not ch.tracks or not ch.actuator or ch.statistic != "level" or ch.balance
+                or tag_kind(ch.tag, info.get(ch.tag)) != "flow"):  # fmt: skip
+            continue
+        valve = tests.get(ch.actuator)
+        read = [t for s in (valve.inputs if valve else ()) for t in InputSpec.parse(s).tags]
+        pressures = {t for t in read if tag_kind(t, info.get(t)) == "pressure"}
+        out = {ch.tag, *same.get(ch.tag, ()), ch.actuator, ch.tracks, *pressures}
+        out.update(loop_of.get(ch.actuator, ()))
+        name = test_name(f"{names[ch.tag]}{SUFFIX}", taken)
+        plans.append(BalancePlan(ch.tag, name, (ch.actuator,), frozenset(out), held=True))
     return plans
 
 
@@ -156,25 +198,29 @@ def choose_balance(bp: BalancePlan, ctx: _Context, sel: _Context, plan) -> TestC
                        method=short.LINEAR)  # fmt: skip
     ch.method, ch.balance = short.LINEAR, True
     if ch.steps:
-        add_level_rates(use, ch)
+        add_level_rates(use, ch, HELD_RATE_SPANS if bp.held else (1,))
     for st in ch.steps:
         st.input = _scaled(st.input, k)
     err = ch.steps[-1].rmse_pct if ch.steps else ch.baseline_rmse_pct
+    what = "a flow its loop holds with" if bp.held else "a manipulated flow, driven by"
     ch.why = (
-        f"the balance of a manipulated flow (driven by {', '.join(bp.valves)}): linear test "
+        f"the balance of {what} ({', '.join(bp.valves)}): linear test "
         f"of {len(ch.steps)} inputs, held-out error {err:.2f} % of span (kept at most "
-        f"{BALANCE_MAX_ERROR_PCT:g} %); kept out: {', '.join(sorted(bp.kept_out - {bp.tag}))}"
+        f"{HELD_MAX_ERROR_PCT if bp.held else BALANCE_MAX_ERROR_PCT:g} %); kept out: "
+        f"{', '.join(sorted(bp.kept_out - {bp.tag}))}"
     )
     return ch
 
 
-def kept(ch: TestChoice) -> bool:
+def kept(ch: TestChoice, held: bool = False) -> bool:
     """A balance test is kept where it has inputs and its held-out error is at most
-    :data:`BALANCE_MAX_ERROR_PCT` % of the flow's span."""
-    return bool(ch.steps) and ch.steps[-1].rmse_pct <= BALANCE_MAX_ERROR_PCT
+    :data:`BALANCE_MAX_ERROR_PCT` % of the flow's span (a loop-held flow's
+    :data:`HELD_MAX_ERROR_PCT`)."""
+    cap = HELD_MAX_ERROR_PCT if held else BALANCE_MAX_ERROR_PCT
+    return bool(ch.steps) and ch.steps[-1].rmse_pct <= cap
 
 
-def add_level_rates(ctx: _Context, ch: TestChoice) -> None:
+def add_level_rates(ctx: _Context, ch: TestChoice, spans: Sequence[int] = (1,)) -> None:
     """Add to ``ch`` (a linear test) the level's change per sample ``rate(L)[k]`` that cuts its
     held-out error most, where it cuts it by more than ``MIN_GAIN``; again while it has fewer
     than :data:`BALANCE_MAX_INPUTS` inputs. The levels: every tag of the window
@@ -188,9 +234,9 @@ def add_level_rates(ctx: _Context, ch: TestChoice) -> None:
     current = ch.steps[-1].rmse_pct
     while len(specs) < BALANCE_MAX_INPUTS:
         best = None
-        for lv in levels:
-            spec = InputSpec("rate", (lv,), 0)
-            if spec in specs:
+        for lv, n in ((lv, n) for lv in levels for n in spans):
+            spec = InputSpec("rate", (lv,), 0, None if n == 1 else float(n))
+            if any(s.fn == "rate" and s.tags == spec.tags for s in specs):
                 continue
             trial = [*specs, spec]
             rmse, cov = scorer.score([ctx.spec_variable(s) for s in trial],

@@ -1912,7 +1912,7 @@ def _balance_tests(kept, names, taken, notes, ctx, sel, plan, *, workers, **plan
     out = []
     for bp, ch in zip(todo, map_tests(balance.choose_balance, todo, (ctx, sel, plan),
                                       workers=workers), strict=True):  # fmt: skip
-        if balance.kept(ch):
+        if balance.kept(ch, bp.held):
             out.append(ch)
         else:
             taken.discard(bp.test)
