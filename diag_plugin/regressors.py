@@ -13,9 +13,6 @@ A model input is written as a *spec* (Kościelny et al., eqs. 7–9:
 ``mean(TAG,L)[k-d]`` the mean of ``TAG[k-L+1] … TAG[k]``: a flow over the samples
                     a ``rate(LEVEL,L)`` spans, so a balance sees both sides through
                     the same window (its integral form)
-``dev(TAG,L)[k-d]``  ``TAG[k] − mean(TAG,L)[k]``: a set-point's departure from its
-                    window's mean (a loop holds its measurement there: the departure
-                    of the measurement from the window a balance reads)
 ``dir(TAG)[k-d]``   direction of the last significant move of TAG: +1, −1
                     (hysteresis, backlash); ``dir(TAG,0.5)`` sets the move
                     threshold in engineering units (default 0.5 % of the
@@ -46,7 +43,7 @@ import pandas as pd
 
 from historian.errors import UserError
 
-FUNCTIONS = {"diff": 2, "rate": 1, "mean": 1, "dev": 1, "dir": 1, "hour": 0, "days": 0, "const": 0,
+FUNCTIONS = {"diff": 2, "rate": 1, "mean": 1, "dir": 1, "hour": 0, "days": 0, "const": 0,
              "share": 2}  # fmt: skip
 #: the functions taking at least, not exactly, their number of tags
 VARIADIC = ("share",)
@@ -184,7 +181,7 @@ class _SpecParser:
             while self.peek() not in (")", ""):
                 if args or param is not None:
                     self.expect(",", "',' between arguments")
-                if (fn in ("dir", "rate", "mean", "dev") and len(args) == 1) or fn == "const":
+                if (fn in ("dir", "rate", "mean") and len(args) == 1) or fn == "const":
                     m = re.compile(r"\s*([-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)").match(
                         self.text, self.i
                     )
@@ -193,11 +190,11 @@ class _SpecParser:
                             "expected the move threshold of dir() as a number"
                             if fn == "dir"
                             else f"expected the samples of {fn}() as a whole number"
-                            if fn in ("rate", "mean", "dev")
+                            if fn in ("rate", "mean")
                             else "expected the value of const() as a number"
                         )
                     param, self.i = float(m.group(1)), m.end()
-                    if fn in ("rate", "mean", "dev") and (param < 1 or param != int(param)):
+                    if fn in ("rate", "mean") and (param < 1 or param != int(param)):
                         self.fail(f"{fn}(TAG,L) takes a whole number of samples L ≥ 1")
                     continue
                 args.append(self.name()[0])
@@ -206,8 +203,8 @@ class _SpecParser:
                 self.fail(f"{fn}() takes at least {FUNCTIONS[fn]} tags, got {len(args)}", fn_at)
             if fn not in VARIADIC and len(args) != FUNCTIONS[fn]:
                 self.fail(f"{fn}() takes {FUNCTIONS[fn]} tag(s), got {len(args)}", fn_at)
-            if fn in ("mean", "dev") and param is None:
-                self.fail(f"{fn}() takes its samples, e.g. {fn}(FLOW,8)[k]", fn_at)
+            if fn == "mean" and param is None:
+                self.fail("mean() takes its samples, e.g. mean(FLOW,8)[k]", fn_at)
             if fn == "const" and param is None:
                 self.fail("const() takes a number, e.g. const(120.4)[k]", fn_at)
         if self.peek() != "[" and not quoted and not fn:
@@ -257,7 +254,7 @@ def history_samples(spec: InputSpec) -> int:
     (1 for ``rate(TAG)``), ``L − 1`` for ``mean(TAG,L)``, none for the others."""
     if spec.fn == "rate":
         return rate_samples(spec)
-    if spec.fn in ("mean", "dev"):
+    if spec.fn == "mean":
         return rate_samples(spec) - 1
     return 0
 
@@ -426,7 +423,7 @@ class _FeatureState:
             lo, hi = spans[spec.tags[0]]
             self.threshold = DIR_THRESHOLD_SHARE * (hi - lo)
         # rate, mean: its last L samples (oldest first); dir: (reference, direction)
-        wide = spec.fn in ("rate", "mean", "dev")
+        wide = spec.fn in ("rate", "mean")
         self.carry = np.full(max(2, rate_samples(spec)) if wide else 2, np.nan)
 
     def compute(self, frame: pd.DataFrame | Columns) -> np.ndarray:
@@ -453,14 +450,14 @@ class _FeatureState:
             out = (xx[n:] - xx[:-n]) / n
             self.carry[-n:] = xx[-n:]
             return out
-        if spec.fn in ("mean", "dev"):
+        if spec.fn == "mean":
             x = _values(frame, spec.tags[0])
             n = rate_samples(spec)
             xx = np.concatenate([self.carry[len(self.carry) - n + 1 :], x])  # L − 1 before x
             out = window_mean(xx, n)
             if n > 1:
                 self.carry[len(self.carry) - n + 1 :] = xx[len(xx) - n + 1 :]
-            return out if spec.fn == "mean" else x - out
+            return out
         if spec.fn == "dir":
             x = _values(frame, spec.tags[0])
             if self.threshold is None:  # frozen at the first piece: the same for all pieces

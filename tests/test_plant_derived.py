@@ -4,8 +4,8 @@ one by one, ``Unit.evaluate`` a cycle each).
 
 Two units of the coupled process with the settings ``diag unit build`` writes (deadband,
 off-delay in seconds, a spread test, combined test, isolation to tags): ``u1`` reads
-``rate(B,3)[k]`` and ``rate(A)[k-1]`` in Wang–Mendel models and ``rate(C)[k]``,
-``mean(D,4)[k]`` and ``dev(A,3)[k]`` in a linear one;
+``rate(B,3)[k]`` and ``rate(A)[k-1]`` in Wang–Mendel models and ``rate(C)[k]`` and
+``mean(D,4)[k]`` in a linear one;
 ``u2`` reads ``diff``, ``const``, ``dir`` with its threshold, ``hour()`` and ``days()``. Cycled
 row by row through the fast path and one by one (``batched=False``), they give the same
 statuses, faults, named tags, messages (the warm-up while a rate has no history yet and
@@ -39,8 +39,7 @@ UNITS = {
         "rD": ("D[k]", ["C[k]", "rate(B,3)[k]"]),
         "rE": ("E[k]", ["D[k]", "rate(A)[k-1]"]),
         # linear (below): the other methods' group; a mean over 4 samples (a balance's flow)
-        # and a departure from one (a set-point's)
-        "rF": ("F[k]", ["E[k]", "rate(C)[k]", "mean(D,4)[k]", "dev(A,3)[k]"]),
+        "rF": ("F[k]", ["E[k]", "rate(C)[k]", "mean(D,4)[k]"]),
     },
     "u2": {
         "rC": ("C[k]", ["diff(A,B)[k]", "B[k]", "const(50)[k-1]"]),

@@ -224,10 +224,3 @@ def test_mean_over_l_samples_is_the_window_a_rate_over_l_spans_across_pieces():
     for lo, hi in ((2, 5), (5, 33), (33, 60)):
         parts.append(c.transform(f.iloc[lo:hi]).X)
     np.testing.assert_allclose(np.vstack(parts)[:, 0], whole.X[:, 0], rtol=1e-12)
-    # dev(TAG,L): the tag's departure from that mean (a set-point's move within the window)
-    d = InputSpec.parse("dev(F,5)[k-1]")
-    assert (d.fn, d.param, str(d)) == ("dev", 5.0, "dev(F,5)[k-1]") and max_lag([d]) == 5
-    with pytest.raises(SpecError, match="dev"):
-        InputSpec.parse("dev(F)[k]")
-    np.testing.assert_allclose(feature(f, InputSpec.parse("dev(F,5)[k]")),
-                               x - f["F"].rolling(5).mean().to_numpy())  # fmt: skip

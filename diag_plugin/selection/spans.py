@@ -60,8 +60,7 @@ def variable_for(
         v = v[np.isfinite(v)]
         if v.size == 0:
             raise ValueError(f"no data for {spec} to take its range from")
-        lo, hi = (np.quantile(v, [0.001, 0.999]) if s.fn in ("rate", "diff", "dev")
-                  else (v.min(), v.max()))  # fmt: skip
+        lo, hi = np.quantile(v, [0.001, 0.999]) if s.fn in ("rate", "diff") else (v.min(), v.max())
         lo, hi = float(lo), float(hi)
         if hi <= lo:
             hi = lo + max(abs(lo), 1.0) * 0.01

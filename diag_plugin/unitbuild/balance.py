@@ -26,12 +26,7 @@ set-point and valve and the pressures the valve's test reads (the loop's relatio
 valve's equation, which the bias does not break); the level's rate is tried over
 :data:`HELD_RATE_SPANS` samples (a level's change over one fast sample is its noise: the
 7-tag line's tank moves 0.8 mm in 15 s for 1 m³/h, its level reading 7 mm from one sample to
-the next). The balance is taken in its integral form (branch ``i34-balance2``): the level's
-change over ``n`` samples is the flows' sum over them, so the flows are read over the same
-window (``mean(F,n)``, :func:`integral_form`), the rate's coefficient is corrected for the
-level's noise (:func:`input_noise`), and the loop's set-point's departure from the window's
-mean (``dev(SP,n)``, :func:`add_set_point_departure`) stands for the reading's, which the
-test's output is. It is kept
+the next), and it is kept
 where its held-out error is at most :data:`HELD_MAX_ERROR_PCT` % of the flow's span (the only
 test that sees the meter's bias; docs/how-to/unit-loops.md, "A balance for a loop-held flow").
 Its alarm names the flow, whose compensated direction then moves it
@@ -101,7 +96,6 @@ class BalancePlan:
     valves: tuple[str, ...]
     kept_out: frozenset[str]
     held: bool = False  # a flow its own loop holds (the loop's measurement)
-    set_point: str | None = None  # that loop's set-point tag
 
 
 def tag_kind(tag: str, info: TagInfo | None = None) -> str | None:
@@ -190,8 +184,7 @@ def _held_plans(choices, names, taken, *, info, loop_of, same) -> list[BalancePl
         out = {ch.tag, *same.get(ch.tag, ()), ch.actuator, ch.tracks, *pressures}
         out.update(loop_of.get(ch.actuator, ()))
         name = test_name(f"{names[ch.tag]}{SUFFIX}", taken)
-        plans.append(BalancePlan(ch.tag, name, (ch.actuator,), frozenset(out), held=True,
-                                 set_point=ch.tracks))  # fmt: skip
+        plans.append(BalancePlan(ch.tag, name, (ch.actuator,), frozenset(out), held=True))
     return plans
 
 
@@ -208,8 +201,6 @@ def choose_balance(bp: BalancePlan, ctx: _Context, sel: _Context, plan) -> TestC
     ch.method, ch.balance = short.LINEAR, True
     if ch.steps:
         add_level_rates(use, ch, HELD_RATE_SPANS if bp.held else (1,), integral=bp.held)
-    if ch.steps and bp.held and bp.set_point in use.vars:
-        add_set_point_departure(use, ch, bp.set_point)
     for st in ch.steps:
         st.input = _scaled(st.input, k)
     err = ch.steps[-1].rmse_pct if ch.steps else ch.baseline_rmse_pct
@@ -275,31 +266,6 @@ def add_level_rates(
         ch.steps.append(Step(str(spec), current, cov))
 
 
-def add_set_point_departure(ctx: _Context, ch: TestChoice, set_point: str) -> None:
-    """Add to a loop-held flow's balance in its integral form (its flows and its level's rate
-    over ``n`` samples) its loop's set-point's departure from its window's mean,
-    ``dev(SP,n)[k] = SP[k] − mean(SP,n)[k]``, where it cuts the held-out error by
-    ``MIN_GAIN``. The test's output is the flow's reading now, the other side the window's
-    mean: after a set-point step ``ΔF`` the two differ by ``ΔF (1 − t/n)`` over the window.
-    The loop holds the reading at its set-point, so the reading's departure from its window
-    is the set-point's (an operator's move, which a meter's bias does not make); the
-    set-point's level, the loop's own relation, stays out."""
-    from diag_plugin.selection.scoring import BlockScorer
-
-    specs = [InputSpec.parse(s) for s in ch.inputs]
-    spans = [rate_samples(s) for s in specs if s.fn == "rate"]
-    if not spans or max(spans) <= 1 or len(specs) >= BALANCE_MAX_INPUTS:
-        return
-    spec = InputSpec("dev", (set_point,), 0, float(max(spans)))
-    rb = _rulebase(ch.test, ctx.vars[ch.tag], [], ctx.period, method=short.LINEAR)
-    scorer = BlockScorer(rb, [], ctx.column(ch.tag), ctx.block)
-    trial = [*specs, spec]
-    rmse, cov = scorer.score([ctx.spec_variable(s) for s in trial],
-                             [ctx.spec_column(s) for s in trial])  # fmt: skip
-    if math.isfinite(rmse) and rmse < ch.steps[-1].rmse_pct * (1 - MIN_GAIN):
-        ch.steps.append(Step(str(spec), rmse, cov))
-
-
 def integral_form(specs: Sequence[InputSpec], n: int) -> list[InputSpec]:
     """``specs`` with each plain input ``F[k-d]`` (or a mean over another span) read as its
     mean over ``n`` samples, ``mean(F,n)[k-d]`` (``F[k-d]`` for ``n = 1``); rates and other
@@ -353,8 +319,8 @@ def _scaled(spec: str, factor: int) -> str:
     if factor <= 1:
         return spec
     s = InputSpec.parse(spec)
-    if s.fn in ("mean", "dev"):  # over n coarse samples: over as many of the data's
-        return str(InputSpec(s.fn, s.tags, s.lag * factor, float(factor * rate_samples(s))))
+    if s.fn == "mean":  # a mean over n coarse samples: over as many of the data's
+        return str(InputSpec("mean", s.tags, s.lag * factor, float(factor * rate_samples(s))))
     if s.fn != "rate":
         return short.scale_lag(spec, factor)
     span = factor * (int(s.param) if s.param is not None else 1)
