@@ -26,7 +26,10 @@ set-point and valve and the pressures the valve's test reads (the loop's relatio
 valve's equation, which the bias does not break); the level's rate is tried over
 :data:`HELD_RATE_SPANS` samples (a level's change over one fast sample is its noise: the
 7-tag line's tank moves 0.8 mm in 15 s for 1 m³/h, its level reading 7 mm from one sample to
-the next), and it is kept
+the next). The balance is taken in its integral form (branch ``i34-balance2``): the level's
+change over ``n`` samples is the flows' sum over them, so the flows are read over the same
+window (``mean(F,n)``, :func:`integral_form`) and the rate's coefficient is corrected for the
+level's noise (:func:`input_noise`). It is kept
 where its held-out error is at most :data:`HELD_MAX_ERROR_PCT` % of the flow's span (the only
 test that sees the meter's bias; docs/how-to/unit-loops.md, "A balance for a loop-held flow").
 Its alarm names the flow, whose compensated direction then moves it
