@@ -60,12 +60,21 @@ class Plant:
     at_fault: str
     other: str | None
     opts: list[str] = field(default_factory=list)
+    #: the plant's tags CSV (units, descriptions), imported with the runs (``diag import
+    #: --tags``) and given to the API as ``tag_info``; None: the export's columns alone
+    tags: Callable[[], pd.DataFrame] | None = None
 
 
 def _line(days: float, seed: int, fault: str | None = None) -> pd.DataFrame:
     from tests import line7
 
     return line7.simulate(days, seed, fault)
+
+
+def _line_tags() -> pd.DataFrame:
+    from tests import line7
+
+    return line7.tags_csv()
 
 
 def _heater(days: float, seed: int, fault: str | None = None) -> pd.DataFrame:
@@ -86,6 +95,8 @@ PLANTS = {
     "line": LINE,
     # the line with its hand valve declared (an input, never tested)
     "line-manual": replace(LINE, opts=[*LINE.opts, "--manual", "HAND_VALVE"]),
+    # the line with its tags CSV imported (what each tag measures: a flow, a level, …)
+    "line-tags": replace(LINE, tags=_line_tags),
     "heater": Plant(_heater, 5.0, 101, "steam_bias", "F_STEAM", None, ["--manual", "STEAM_V"]),
 }
 
@@ -138,12 +149,16 @@ def cli_path(
     folder.mkdir(parents=True, exist_ok=True)
     g = ["--db", f"sqlite:///{folder / 'h.db'}", "--rulebases", str(folder / "rb")]
     spans, typed, out = {}, {}, {}
+    tags = []
+    if plant.tags is not None:
+        plant.tags().to_csv(folder / "tags.csv", index=False)
+        tags = ["--tags", str(folder / "tags.csv")]
     for k, (name, run) in enumerate(runs.items()):
         run = run.copy()
         run.index = run.index + k * 10 * DAY
         path = folder / f"{name}.csv"
         write_csv(stamps_off_grid(run, seed + k), path)
-        rc, text, _ = diag(g, "import", str(path), "--duplicates", "first")
+        rc, text, _ = diag(g, "import", str(path), "--duplicates", "first", *tags)
         assert rc == 0, text
         step = run.index[1] - run.index[0]
         spans[name] = (run.index[0], run.index[-1] + step)
@@ -182,9 +197,13 @@ def api_path(plant: Plant, runs: dict[str, pd.DataFrame], rate_s: int, folder: P
     opts = dict(zip(plant.opts[::2], plant.opts[1::2], strict=True))
     loops = [parse_loop(opts["--loop"])] if "--loop" in opts else []
     manual = [opts["--manual"]] if "--manual" in opts else []
+    info = None
+    if plant.tags is not None:
+        info = {r["name"]: {"unit": r["unit"], "description": r["description"]}
+                for _, r in plant.tags().iterrows()}  # fmt: skip
     c0 = time.process_time()
     res = build_unit("u", runs["train"], folder=folder, period=f"{rate_s}s", loops=loops,
-                     manual=manual, far=0.01, force=True)  # fmt: skip
+                     manual=manual, far=0.01, force=True, tag_info=info)  # fmt: skip
     out: dict = {"build": {"cpu_s": round(time.process_time() - c0, 1)}}
     unit = Unit.load(res.path, folder)
     for name, run in runs.items():

@@ -10,6 +10,9 @@ A model input is written as a *spec* (Kościelny et al., eqs. 7–9:
 ``rate(TAG)[k-d]``  change per sample ``TAG[k] − TAG[k-1]``; ``rate(TAG,L)``
                     over ``L`` samples, ``(TAG[k] − TAG[k-L]) / L`` (a slow
                     tag's rate, judged over its decorrelation time)
+``mean(TAG,L)[k-d]`` the mean of ``TAG[k-L+1] … TAG[k]``: a flow over the samples
+                    a ``rate(LEVEL,L)`` spans, so a balance sees both sides through
+                    the same window (its integral form)
 ``dir(TAG)[k-d]``   direction of the last significant move of TAG: +1, −1
                     (hysteresis, backlash); ``dir(TAG,0.5)`` sets the move
                     threshold in engineering units (default 0.5 % of the
@@ -40,7 +43,8 @@ import pandas as pd
 
 from historian.errors import UserError
 
-FUNCTIONS = {"diff": 2, "rate": 1, "dir": 1, "hour": 0, "days": 0, "const": 0, "share": 2}
+FUNCTIONS = {"diff": 2, "rate": 1, "mean": 1, "dir": 1, "hour": 0, "days": 0, "const": 0,
+             "share": 2}  # fmt: skip
 #: the functions taking at least, not exactly, their number of tags
 VARIADIC = ("share",)
 EPOCH = pd.Timestamp("2000-01-01", tz="UTC")
@@ -105,7 +109,7 @@ class SpecError(UserError, ValueError):
             f"bad input spec {text!r}: {what} (at character {pos + 1})\n"
             f"  {text}\n  {' ' * pos}^\n"
             '  specs: TAG[k], TAG[k-d], "a tag name"[k-d], diff(A,B)[k], rate(TAG)[k-1], '
-            "dir(TAG)[k], dir(TAG,0.5)[k], hour()[k], days()[k], const(120.4)[k], "
+            "mean(TAG,8)[k], dir(TAG)[k], dir(TAG,0.5)[k], hour()[k], days()[k], const(120.4)[k], "
             "share(LOAD,B_RUN)[k]"
         )
 
@@ -177,7 +181,7 @@ class _SpecParser:
             while self.peek() not in (")", ""):
                 if args or param is not None:
                     self.expect(",", "',' between arguments")
-                if (fn in ("dir", "rate") and len(args) == 1) or fn == "const":
+                if (fn in ("dir", "rate", "mean") and len(args) == 1) or fn == "const":
                     m = re.compile(r"\s*([-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)").match(
                         self.text, self.i
                     )
@@ -185,13 +189,13 @@ class _SpecParser:
                         self.fail(
                             "expected the move threshold of dir() as a number"
                             if fn == "dir"
-                            else "expected the samples of rate() as a whole number"
-                            if fn == "rate"
+                            else f"expected the samples of {fn}() as a whole number"
+                            if fn in ("rate", "mean")
                             else "expected the value of const() as a number"
                         )
                     param, self.i = float(m.group(1)), m.end()
-                    if fn == "rate" and (param < 1 or param != int(param)):
-                        self.fail("rate(TAG,L) takes a whole number of samples L ≥ 1")
+                    if fn in ("rate", "mean") and (param < 1 or param != int(param)):
+                        self.fail(f"{fn}(TAG,L) takes a whole number of samples L ≥ 1")
                     continue
                 args.append(self.name()[0])
             self.expect(")", "')' closing the arguments")
@@ -199,6 +203,8 @@ class _SpecParser:
                 self.fail(f"{fn}() takes at least {FUNCTIONS[fn]} tags, got {len(args)}", fn_at)
             if fn not in VARIADIC and len(args) != FUNCTIONS[fn]:
                 self.fail(f"{fn}() takes {FUNCTIONS[fn]} tag(s), got {len(args)}", fn_at)
+            if fn == "mean" and param is None:
+                self.fail("mean() takes its samples, e.g. mean(FLOW,8)[k]", fn_at)
             if fn == "const" and param is None:
                 self.fail("const() takes a number, e.g. const(120.4)[k]", fn_at)
         if self.peek() != "[" and not quoted and not fn:
@@ -239,15 +245,22 @@ def needed_tags(specs: Sequence[str | InputSpec]) -> list[str]:
 
 def max_lag(specs: Sequence[str | InputSpec]) -> int:
     """Samples of history the specs need (``rate(TAG,L)`` needs ``L`` more, ``rate(TAG)``
-    one)."""
-    return max(
-        (s.lag + (rate_samples(s) if s.fn == "rate" else 0) for s in parse_specs(specs)),
-        default=0,
-    )
+    one, ``mean(TAG,L)`` ``L − 1``)."""
+    return max((s.lag + history_samples(s) for s in parse_specs(specs)), default=0)
+
+
+def history_samples(spec: InputSpec) -> int:
+    """The samples before ``k`` one value of ``spec``'s base reads: ``L`` for ``rate(TAG,L)``
+    (1 for ``rate(TAG)``), ``L − 1`` for ``mean(TAG,L)``, none for the others."""
+    if spec.fn == "rate":
+        return rate_samples(spec)
+    if spec.fn == "mean":
+        return rate_samples(spec) - 1
+    return 0
 
 
 def rate_samples(spec: InputSpec) -> int:
-    """The samples ``L`` a ``rate(TAG,L)`` spans (1 for ``rate(TAG)``)."""
+    """The samples ``L`` a ``rate(TAG,L)`` or ``mean(TAG,L)`` spans (1 for ``rate(TAG)``)."""
     return int(spec.param) if spec.param is not None else 1
 
 
@@ -409,8 +422,9 @@ class _FeatureState:
         if spec.fn == "dir" and spec.param is None and spec.tags[0] in (spans or {}):
             lo, hi = spans[spec.tags[0]]
             self.threshold = DIR_THRESHOLD_SHARE * (hi - lo)
-        # rate: its last L samples (oldest first); dir: (reference, direction)
-        self.carry = np.full(max(2, rate_samples(spec)) if spec.fn == "rate" else 2, np.nan)
+        # rate, mean: its last L samples (oldest first); dir: (reference, direction)
+        wide = spec.fn in ("rate", "mean")
+        self.carry = np.full(max(2, rate_samples(spec)) if wide else 2, np.nan)
 
     def compute(self, frame: pd.DataFrame | Columns) -> np.ndarray:
         spec = self.spec
@@ -436,6 +450,14 @@ class _FeatureState:
             out = (xx[n:] - xx[:-n]) / n
             self.carry[-n:] = xx[-n:]
             return out
+        if spec.fn == "mean":
+            x = _values(frame, spec.tags[0])
+            n = rate_samples(spec)
+            xx = np.concatenate([self.carry[len(self.carry) - n + 1 :], x])  # L − 1 before x
+            out = window_mean(xx, n)
+            if n > 1:
+                self.carry[len(self.carry) - n + 1 :] = xx[len(xx) - n + 1 :]
+            return out
         if spec.fn == "dir":
             x = _values(frame, spec.tags[0])
             if self.threshold is None:  # frozen at the first piece: the same for all pieces
@@ -445,6 +467,21 @@ class _FeatureState:
         if spec.fn == "const":
             return np.full(len(frame), float(spec.param))
         return clock(frame.index, spec.fn)
+
+
+def window_mean(x: np.ndarray, n: int) -> np.ndarray:
+    """The mean of each ``n`` consecutive values of ``x`` (``len(x) − n + 1`` of them, the
+    last ending at ``x[-1]``); NaN where the window holds a NaN. Summed oldest first, one
+    sample at a time, as the live plant's fast path sums its history's rows
+    (:class:`~diag_plugin.diagnose.derived.DerivedInputs`): the same numbers bit for bit."""
+    x = np.asarray(x, float)
+    m = x.size - n + 1
+    if m <= 0:
+        return np.empty(0)
+    out = x[:m].copy()
+    for j in range(1, n):
+        out += x[j : j + m]
+    return out / n
 
 
 def shared(x: np.ndarray, runs: Sequence[np.ndarray]) -> np.ndarray:

@@ -130,3 +130,37 @@ def test_the_within_merge_is_the_fixed_effects_fit_of_the_points():
     assert got.coef_[0] == pytest.approx(y_all.mean() - slopes @ X_all.mean(axis=0), rel=1e-9)
     assert got.output_mean_ == pytest.approx(y_all.mean())
     assert abs(got.coef_[1] - 1.5) < 0.02 and abs(pooled.coef_[1] - 1.5) > 0.1, pooled.coef_
+
+
+def test_input_noise_corrects_the_slope_least_squares_shrink():
+    """A noisy input's least-squares slope is shrunk towards 0 by var(x) / (var(x) + σ²)
+    (regression dilution; the 7-tag line's tank rate: 1,069 for its 1,200). Given the
+    input's noise variance (``[rules] input_noise``, one per input), the fit subtracts it
+    from the normal equations and finds the slope; the file carries it, its folds too
+    (``rb.new_model()``), and a variance per input, not negative, is all it takes."""
+    rng = np.random.default_rng(5)
+    n = 20000
+    true = rng.normal(0.0, 1.0, n)
+    z = rng.uniform(0.0, 5.0, n)
+    x = np.column_stack([z, true + rng.normal(0.0, 0.5, n)])  # noise var 0.25: shrink 0.8
+    y = 1.0 + 0.5 * z + 2.0 * true + rng.normal(0.0, 0.05, n)
+    spans = [(0.0, 5.0), (-4.0, 4.0)]
+    ols = LinearRegressor(input_spans=spans).fit(x, y)
+    assert ols.coef_[2] == pytest.approx(1.6, abs=0.05)  # 2 × 1 / 1.25
+    eiv = LinearRegressor(input_spans=spans, input_noise=(0.0, 0.25)).fit(x, y)
+    assert np.allclose(eiv.coef_, [1.0, 0.5, 2.0], atol=0.05)
+    half = LinearRegressor(input_spans=spans, input_noise=(0.0, 0.25)).fit(x[: n // 2], y[: n // 2])
+    rest = LinearRegressor(input_spans=spans, input_noise=(0.0, 0.25)).fit(x[n // 2 :], y[n // 2 :])
+    assert np.allclose(half.merge(rest).coef_, eiv.coef_, rtol=1e-9, atol=1e-9)
+    ins = [Variable("Z[k]", "Z", "", spans[0]), Variable("X[k]", "X", "", spans[1])]
+    rb = RuleBase.new("m", Variable("y[k]", "y", "", (-10, 20)), ins, method="linear")
+    rb.doc["rules"]["input_noise"] = [0.0, 0.25]
+    rb.edited()
+    rb.apply_training(rb.new_model().fit(x, y), {"source": "test"})
+    back = RuleBase(rb.dumps(), "m.toml")
+    assert not back.problems
+    assert np.allclose(back.to_model().coef_, eiv.coef_, rtol=1e-6)
+    assert np.allclose(back.new_model().fit(x, y).coef_, eiv.coef_, rtol=1e-9)
+    bad = back.dumps().replace("input_noise = [0.0, 0.25]", "input_noise = [-1.0, 0.25]")
+    with pytest.raises(Exception, match="input_noise must be one variance"):
+        RuleBase(bad, "bad.toml")

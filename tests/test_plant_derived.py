@@ -4,7 +4,8 @@ one by one, ``Unit.evaluate`` a cycle each).
 
 Two units of the coupled process with the settings ``diag unit build`` writes (deadband,
 off-delay in seconds, a spread test, combined test, isolation to tags): ``u1`` reads
-``rate(B,3)[k]`` and ``rate(A)[k-1]`` in Wang–Mendel models and ``rate(C)[k]`` in a linear one;
+``rate(B,3)[k]`` and ``rate(A)[k-1]`` in Wang–Mendel models and ``rate(C)[k]`` and
+``mean(D,4)[k]`` in a linear one;
 ``u2`` reads ``diff``, ``const``, ``dir`` with its threshold, ``hour()`` and ``days()``. Cycled
 row by row through the fast path and one by one (``batched=False``), they give the same
 statuses, faults, named tags, messages (the warm-up while a rate has no history yet and
@@ -37,7 +38,8 @@ UNITS = {
         "rC": ("C[k]", ["A[k]", "B[k]"]),
         "rD": ("D[k]", ["C[k]", "rate(B,3)[k]"]),
         "rE": ("E[k]", ["D[k]", "rate(A)[k-1]"]),
-        "rF": ("F[k]", ["E[k]", "rate(C)[k]"]),  # linear (below): the other methods' group
+        # linear (below): the other methods' group; a mean over 4 samples (a balance's flow)
+        "rF": ("F[k]", ["E[k]", "rate(C)[k]", "mean(D,4)[k]"]),
     },
     "u2": {
         "rC": ("C[k]", ["diff(A,B)[k]", "B[k]", "const(50)[k-1]"]),

@@ -190,3 +190,37 @@ def test_rate_over_l_samples_is_the_change_over_l_per_sample_across_pieces():
     for lo, hi in ((3, 5), (5, 30), (30, 60)):
         parts.append(c.transform(f.iloc[lo:hi]).X)
     np.testing.assert_array_equal(np.vstack(parts)[:, 0], whole.X[:, 0])
+
+
+def test_mean_over_l_samples_is_the_window_a_rate_over_l_spans_across_pieces():
+    """``mean(TAG,L)[k]`` is the mean of ``TAG[k-L+1] … TAG[k]``: the samples whose changes
+    ``rate(LEVEL,L)[k]`` adds up, so a balance reads its flows and its level's rate over one
+    window (the integral form, docs/how-to/unit-loops.md, branch ``i34-balance2``). It parses
+    and prints back, needs ``L − 1`` samples of history, is unknown where its window holds a
+    gap, and gives the same values fed in pieces shorter than ``L`` (also through a restart
+    from its state) as in one pass; ``L`` is a whole number and must be given."""
+    from diag_plugin.regressors import DesignBuilder, SpecError, feature
+
+    s = InputSpec.parse('mean("F 1",5)[k-2]')
+    assert (s.fn, s.tags, s.lag, s.param) == ("mean", ("F 1",), 2, 5.0)
+    assert InputSpec.parse(str(s)) == s and str(s) == 'mean("F 1",5)[k-2]'
+    assert max_lag(["mean(F,5)[k-2]"]) == 6 and max_lag(["mean(F,1)[k]"]) == 0
+    for bad in ("mean(F)[k]", "mean(F,0)[k]", "mean(F,2.5)[k]"):
+        with pytest.raises(SpecError, match="mean"):
+            InputSpec.parse(bad)
+    rng = np.random.default_rng(4)
+    idx = pd.date_range("2026-01-01", periods=60, freq="1s", tz="UTC")
+    x = rng.normal(10.0, 1.0, 60)
+    x[20] = np.nan
+    f = pd.DataFrame({"F": x, "Y": rng.normal(0, 1, 60)}, index=idx)
+    np.testing.assert_allclose(feature(f, InputSpec.parse("mean(F,5)[k]")),
+                               f["F"].rolling(5).mean().to_numpy())  # fmt: skip
+    whole = DesignBuilder(["mean(F,5)[k]"], "Y[k]").transform(f)
+    assert whole.X.shape[0] == 60 - 4 - 5  # the first 4 rows, and the 5 windows holding x[20]
+    b = DesignBuilder(["mean(F,5)[k]"], "Y[k]")
+    parts = [b.transform(f.iloc[:2]).X]
+    c = DesignBuilder(["mean(F,5)[k]"], "Y[k]")
+    c.load_state(b.to_state())
+    for lo, hi in ((2, 5), (5, 33), (33, 60)):
+        parts.append(c.transform(f.iloc[lo:hi]).X)
+    np.testing.assert_allclose(np.vstack(parts)[:, 0], whole.X[:, 0], rtol=1e-12)

@@ -10,6 +10,7 @@ numbers :class:`~diag_plugin.regressors.DesignBuilder` computes for :meth:`Unit.
 
 =================  =====================================================================
 ``rate(T,L)``      ``(T[k] − T[k−L]) / L`` (``L = 1`` for ``rate(T)``): rows 0 and ``L``
+``mean(T,L)``      ``(T[k] + … + T[k−L+1]) / L``: rows 0 to ``L − 1``
 ``diff(A,B)``      ``A[k] − B[k]``
 ``const(v)``       ``v``
 ``share(X,R…)``    ``X[k] / (1 + n)``, ``n`` the run tags ``R…`` at 1 (:func:`~diag_plugin.
@@ -36,7 +37,7 @@ import pandas as pd
 from diag_plugin.regressors import InputSpec, clock, rate_samples, shared
 
 #: the functions the fast path computes (``dir`` only with its threshold written)
-FUNCTIONS = ("", "rate", "diff", "const", "hour", "days", "dir", "share")
+FUNCTIONS = ("", "rate", "mean", "diff", "const", "hour", "days", "dir", "share")
 
 
 def stackable(spec: InputSpec) -> bool:
@@ -61,8 +62,10 @@ class DerivedInputs:
 
     @property
     def depth(self) -> int:
-        """Rows of history the features read (a ``rate(T,L)`` reads row ``L``)."""
-        return max((_samples(p) for fn, _, p in self.keys if fn == "rate"), default=0)
+        """Rows of history the features read (a ``rate(T,L)`` reads row ``L``, a
+        ``mean(T,L)`` rows to ``L − 1``)."""
+        return max((_samples(p) - (fn == "mean") for fn, _, p in self.keys
+                    if fn in ("rate", "mean")), default=0)  # fmt: skip
 
     def freeze(self, columns: dict[str, int]) -> None:
         """Fix the features' columns after the tags' (``columns``: plant tag → column, every
@@ -81,6 +84,7 @@ class DerivedInputs:
         samples = np.array([_samples(p) for _, _, p in by.get("rate", [])], np.intp)
         self.rate = (dst("rate"), cols("rate"), samples)
         self.rate_div = samples.astype(float)
+        self.mean = [(c, columns[t[0]], _samples(p)) for c, t, p in by.get("mean", [])]
         self.diff = (dst("diff"), cols("diff"), cols("diff", 1))
         self.share = [(c, columns[t[0]], np.array([columns[r] for r in t[1:]], np.intp))
                       for c, t, _ in by.get("share", [])]  # fmt: skip
@@ -100,6 +104,11 @@ class DerivedInputs:
         dst, src, lag = self.rate
         if dst.size:  # (T[k] − T[k−L]) / L, as _FeatureState.compute
             hist[0, dst] = (hist[0, src] - hist[lag, src]) / self.rate_div
+        for c, x, n in self.mean:  # as regressors.window_mean, oldest row first
+            total = hist[n - 1, x]
+            for j in range(n - 2, -1, -1):
+                total += hist[j, x]
+            hist[0, c] = total / n
         dst, a, b = self.diff
         if dst.size:
             hist[0, dst] = hist[0, a] - hist[0, b]

@@ -354,7 +354,9 @@ def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
     direction), and what enters through the flow's line unseen is a loss or gain of the
     vessel its balance reads — that balance's residual alone (``1 / s_j`` on each balance
     test of the flow). A leak of the tank the flow drains then names the flow, not the
-    balance's inflow meter, whose bias moves its own test too (docs/how-to/unit-loops.md)."""
+    balance's inflow meter, whose bias moves its own test too (docs/how-to/unit-loops.md). A
+    flow its own loop holds keeps its compensated direction (above): a bias of its meter is
+    what its balance test sees, the loop holding the reading and the true flow moving."""
     tags, outputs, _ = structure(unit)
     col = {x: k for k, x in enumerate(tags)}
     spread = np.array([_spread_test(unit, t) for t in unit.tests])
@@ -382,6 +384,8 @@ def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
         for j in rows:
             out[j, k] = 1.0 / spec.scale[spec.tests.index(unit.tests[j])]
     for k, rows in _balances(unit, outputs, col).items():  # a loss no meter sees: its balance
+        if k in sensor_of:  # a flow its loop holds: compensated (above), its balance moving
+            continue
         out[:, k] = 0.0
         for j in rows:
             out[j, k] = 1.0 / spec.scale[spec.tests.index(unit.tests[j])]

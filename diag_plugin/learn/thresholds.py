@@ -1506,11 +1506,12 @@ def model_gains(
     spread: dict[str, bool] | None = None,
 ) -> dict[str, dict[str, float]]:
     """Per test, the mean gain ``∂ŷ/∂X`` of its model for each tag ``X`` it reads plainly (any
-    lag; a bias moves every lag alike, so the lags' gains add), over the samples of ``frame``
-    the model answers, by a forward difference of :func:`gain_step` (5 % of the tag's standard
-    deviation, at least one set of a rule grid), each moved sample's change weighed as the
-    unit judges it (:func:`judged_weight`: ``levels``, the tests' learned level scales, and
-    ``spread``, whether a test is judged in units of its local spread, as
+    lag, or its ``mean()``; a bias moves every lag and mean alike, so their gains add), over
+    the samples of ``frame`` the model answers, by a forward difference of :func:`gain_step`
+    (5 % of the tag's standard deviation, at least one set of a rule grid), each moved
+    sample's change weighed as the unit judges it (:func:`judged_weight`: ``levels``, the
+    tests' learned level scales, and ``spread``, whether a test is judged in units of its
+    local spread, as
     :func:`learn_thresholds` learned them; none given, every weight 1); keyed by the plant's
     tag names. Derived inputs (a rate, a direction) get none: a bias leaves them. ``mapper``
     (:data:`Mapper`): the tests' gains in any number of processes."""
@@ -1595,8 +1596,9 @@ def _test_gains(t: str, unit: Unit, mf: pd.DataFrame, levels=None, spread=None) 
     in_spread = bool(spread and spread.get(t))
     at = m.model.predict_detail(d.X)
     base = supported(at, unit.ev["min_support"])
-    for tag in dict.fromkeys(sp.tags[0] for sp in specs if not sp.fn):
-        cols = [i for i, sp in enumerate(specs) if not sp.fn and sp.tags[0] == tag]
+    plain = [not sp.fn or sp.fn == "mean" for sp in specs]  # a bias moves a mean alike
+    for tag in dict.fromkeys(sp.tags[0] for sp, p in zip(specs, plain, strict=True) if p):
+        cols = [i for i, sp in enumerate(specs) if plain[i] and sp.tags[0] == tag]
         sd = float(np.nanstd(d.X[:, cols[0]]))
         if not sd > 0:
             continue

@@ -46,6 +46,13 @@ HEADER = """\
 #: :data:`~diag_plugin.unitbuild.short.MARGIN`, in the output's terms)
 EDGE_MOVE = 0.25
 
+#: the ``[rules]`` option giving, per input, the variance of its measurement noise (engineering
+#: units squared, 0 for none): the fit then corrects the coefficients for it (errors in
+#: variables), where least squares would shrink the coefficient of a noisy input towards 0 (a
+#: level's rate over a window: its noise 2σ²/n² of the level's σ, :mod:`~diag_plugin.
+#: unitbuild.balance`)
+INPUT_NOISE = "input_noise"
+
 #: the ``[rules]`` option giving the output's range the test learned (``[lo, hi]``), where the
 #: output's span is an instrument's (a tags CSV's ``lo``/``hi``): :data:`EDGE_MOVE` is a share
 #: of it, not of all the instrument reads (issue 34, item 3)
@@ -76,7 +83,7 @@ class LinearRegressor(Narmax2Regressor):
     it (a pump's line learned at 74-82 % speed, its power's span the meter's 0-60 kW, moved
     15 kW past the edge before it went unknown: the whole night at 57 %)."""
 
-    _params = (*Narmax2Regressor._params, LEARNED_OUTPUT)
+    _params = (*Narmax2Regressor._params, LEARNED_OUTPUT, INPUT_NOISE)
 
     def __init__(
         self,
@@ -84,8 +91,38 @@ class LinearRegressor(Narmax2Regressor):
         output_span: tuple[float, float] | None = None,
         output_lags: Any = None,
         learned_output: tuple[float, float] | None = None,
+        input_noise: Any = None,
     ) -> None:
         self._keep(locals())
+
+    @property
+    def coef_scaled_(self) -> np.ndarray:
+        """The least-squares coefficients (scaled inputs), corrected for ``input_noise``
+        (:data:`INPUT_NOISE`): the normal equations less the rows' expected noise,
+        ``(ΦᵀΦ − N·Σ) c = Φᵀy`` (Fuller, *Measurement Error Models*, 1987, §2.2). Where the
+        corrected matrix is not positive definite (a noise as large as the input's spread),
+        least squares as they are."""
+        noise = getattr(self, INPUT_NOISE, None)
+        if noise is not None and self.qr_ is not None and self._coef is None:
+            self._check_fitted()
+            self._coef = self._corrected(np.asarray(noise, float))
+        return super().coef_scaled_
+
+    def _corrected(self, noise: np.ndarray) -> np.ndarray:
+        """:attr:`coef_scaled_` of a fit with ``input_noise`` (its docstring)."""
+        p = len(self.terms_)
+        R = self.qr_.R
+        if R.shape[0] < p:
+            return self.qr_.solve()
+        Ra, qb = R[:p, :p], R[:p, p]
+        sigma = np.zeros(p)
+        sigma[1:] = noise / self._half**2
+        A = Ra.T @ Ra - self.qr_.n * np.diag(sigma)
+        try:
+            np.linalg.cholesky(A)
+        except np.linalg.LinAlgError:
+            return self.qr_.solve()
+        return np.linalg.solve(A, Ra.T @ qb)
 
     def predict_detail(self, X: Any) -> Prediction:
         p = super().predict_detail(X)
@@ -181,15 +218,25 @@ class LinearCodec(NarmaxCodec):
         """An untrained model with the spec's spans and its ``[rules] learned_output``."""
         opts = dict(spec.options)
         learned = opts.pop(LEARNED_OUTPUT, None)
+        noise = opts.pop(INPUT_NOISE, None)
         kw = spans_and_lags(replace(spec, options=opts), self.method)
         return self.estimator(
-            **kw, learned_output=None if learned is None else tuple(float(v) for v in learned)
+            **kw,
+            learned_output=None if learned is None else tuple(float(v) for v in learned),
+            input_noise=None if noise is None else tuple(float(v) for v in noise),
         )
 
     def check_options(self, rb: RuleBase) -> None:
-        """``learned_output`` (``[lo, hi]``, ``lo < hi``) is the one key ``[rules]`` takes."""
+        """``learned_output`` (``[lo, hi]``, ``lo < hi``) and ``input_noise`` (one variance
+        ≥ 0 per input) are the keys ``[rules]`` takes."""
         for key, value in rb.options.items():
             line = rb.line_of("rules", key)
+            if key == INPUT_NOISE:
+                ok = isinstance(value, list) and len(value) == len(rb.inputs)
+                ok = ok and all(isinstance(v, int | float) and v >= 0 for v in value)
+                if not ok:
+                    rb.error(line, f"{key} must be one variance ≥ 0 per input, got {value!r}")
+                continue
             if key != LEARNED_OUTPUT:
                 rb.error(line, f"{self.method} takes no option {key!r} in [rules]")
                 continue

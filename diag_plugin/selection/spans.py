@@ -44,12 +44,12 @@ def variable_for(
         span, n_sets = (-1.0, 1.0), 2
     elif s.fn == "hour":
         span, unit, n_sets = (0.0, 24.0), "h", sets or 25
-    elif s.fn == "" or s.fn == "diff":
+    elif s.fn in ("", "diff", "mean"):  # a mean: the tag's unit and span
         tag = info.get(s.tags[0]) or TagInfo(s.tags[0])
         unit = tag.unit
-        if s.fn == "":
+        if s.fn in ("", "mean"):
             span = tag.span
-        if s.fn == "" and span is None and s.tags[0] in (known_spans or {}):
+        if s.fn in ("", "mean") and span is None and s.tags[0] in (known_spans or {}):
             span = tuple(known_spans[s.tags[0]])  # the span the model already uses for it
     if s.fn == "days":
         unit, n_sets = "d", sets or 12

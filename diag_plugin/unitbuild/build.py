@@ -79,7 +79,7 @@ from diag_plugin.diagnose.running import RunCondition, learnable
 from diag_plugin.diagnose.unittags import is_set_point
 from diag_plugin.learn.far import check_far
 from diag_plugin.learn.thresholds import DEFAULT_BLOCKS, block_of
-from diag_plugin.models.linear import LEARNED_OUTPUT
+from diag_plugin.models.linear import INPUT_NOISE, LEARNED_OUTPUT
 from diag_plugin.models.spec import Variable
 from diag_plugin.regressors import InputSpec
 from diag_plugin.rulebase.document import RuleBase
@@ -1154,6 +1154,12 @@ def _fit_test(
     rb.doc["model"]["description"] = (
         f"built by diag unit build {job.name} from {job.start.isoformat()} … {job.end.isoformat()}"
     )
+    if ch.balance and ch.method == short.LINEAR:  # a level's rate: its noise corrected for
+        from diag_plugin.unitbuild.balance import input_noise
+
+        noise = input_noise(specs, ctx)
+        if noise is not None:
+            rb.doc["rules"][INPUT_NOISE] = noise
     if ch.method == short.LINEAR and ins and job.short:
         learned = _learned_output(ch.tag, ctx)
         if learned is not None:
@@ -1912,7 +1918,7 @@ def _balance_tests(kept, names, taken, notes, ctx, sel, plan, *, workers, **plan
     out = []
     for bp, ch in zip(todo, map_tests(balance.choose_balance, todo, (ctx, sel, plan),
                                       workers=workers), strict=True):  # fmt: skip
-        if balance.kept(ch):
+        if balance.kept(ch, bp.held):
             out.append(ch)
         else:
             taken.discard(bp.test)
