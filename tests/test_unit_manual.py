@@ -308,13 +308,15 @@ def test_the_build_says_how_long_a_hand_valves_move_may_settle(line):
 def test_a_hand_valves_move_is_check_function_not_an_alarm(line):
     """Seed 101 (never used to build), no fault: the outlet flow's transient after each move
     of the valve within its span was FAILURE on main; now CHECK_FUNCTION naming the move, and
-    the unit's share of raised samples back below main's before the valve was declared (3.4 %)."""
+    the unit's share of raised samples back below main's before the valve was declared (3.4 %).
+    Without the move's settle the transients are raised (over 4 % of the samples before the
+    loop-held flow's balance, 1.6 % with it, 2026-12-03): the settle raises fewer."""
     _, unit, *_ = line
     x = line7.simulate(2.0, 101)
     d = unit.reset().evaluate(x)
     main = _without_move_settle(unit).evaluate(x)
     st, st0 = d.status.to_numpy(), main.status.to_numpy()
-    assert _raised(st0[ONSET:]).mean() > 0.04  # main: the moves' transients
+    assert _raised(st0[ONSET:]).mean() > _raised(st[ONSET:]).mean()  # the moves' transients
     assert _raised(st[ONSET:]).mean() < 0.034
     why = d.why.to_numpy(dtype=object)
     moving = np.array([bool(MOVE.match(w)) for w in why])
