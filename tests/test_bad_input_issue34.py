@@ -77,6 +77,34 @@ def test_a_header_naming_a_column_twice_is_refused_not_imported_as_name_1(hist):
     assert "dup.csv:1: the header names column 'FEED_FLOW' 2 times (columns 4, 5)" in msg
 
 
+def _later_csv(f, rows: int = 300) -> str:
+    """``rows`` of the line a day after the historian's, as CSV text (time first)."""
+    later = f.iloc[:rows].copy()
+    later.index = (later.index + pd.Timedelta(days=1)).strftime("%Y-%m-%dT%H:%M:%S")
+    later.index.name = "time"
+    return later.to_csv()
+
+
+def test_a_row_short_of_fields_is_refused_at_its_line_an_empty_cell_is_not(hist):
+    """Before: the missing cells of a row with fewer fields than the header were imported
+    as no sample, without a word (a row with more was refused)."""
+    g, tmp, f = hist
+    lines = _later_csv(f).splitlines()
+    n = len(lines[0].split(","))
+    lines[50] = ",".join(lines[50].split(",")[:-1]) + ","  # its last cell empty: a missing value
+    lines[60] = ",".join(lines[60].split(",")[:3] + [""] + lines[60].split(",")[4:])  # a,,c
+    lines[100] = ",".join(lines[100].split(",")[:-2])  # two fields short
+    (tmp / "short.csv").write_text("\n".join(lines) + "\n")
+    msg = _refused(g, tmp, "import", str(tmp / "short.csv"))
+    assert f"short.csv:101: {n - 2} fields, but the header has {n} (a row short of" in msg, msg
+    assert "short.csv:51" not in msg and "short.csv:61" not in msg
+    del lines[100]
+    (tmp / "empty.csv").write_text("\n".join(lines) + "\n")
+    rc, text = diag(g, "import", str(tmp / "empty.csv"))
+    assert rc == 0, text
+    assert f"{299 * (n - 1) - 2} new samples" in text, text
+
+
 @pytest.mark.parametrize(
     "text,said",
     [
