@@ -309,3 +309,30 @@ def test_rollback_keeps_the_version_it_replaces(unit5, tmp_path):
     kept = folder / ".unit-backups" / "manual" / "replaced" / "1"
     assert f"the files it replaced are kept in {kept}" in text, text
     assert [p.read_text() for p in kept.glob("*_manual.unit.toml")] == [edited]
+
+
+@pytest.mark.parametrize("every", ["15min", "1min"])
+def test_diagnose_of_data_coarser_than_the_unit_says_both_periods(unit5, tmp_path, every):
+    """Data every 15 min for a unit of 5 min: each sample held over 3 of its periods. Before:
+    replayed without a word. Data every minute (finer) are averaged onto its grid, as at the
+    build: nothing said."""
+    f = line7.simulate(1.0, 4)
+    f = f.resample(every, label="right", closed="right").mean().iloc[1:]
+    f.index = f.index + pd.Timedelta(days=7)
+    out = f.copy()
+    out.index = out.index.strftime("%Y-%m-%dT%H:%M:%S")
+    out.index.name = "time"
+    out.to_csv(tmp_path / "day.csv")
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(unit5)]
+    assert diag(g, "import", str(tmp_path / "day.csv"))[0] == 0
+    rc, text = diag(g, "diagnose", "narrow", "--from", "2026-03-09", "--to", "2026-03-10")
+    assert rc == 0, text
+    if every == "1min":
+        assert "the data come every" not in text, text
+        return
+    assert re.search(
+        r"⚠ the data come every 15min \(FEED_TARGET, .*\), the unit narrow every (300s|5min): "
+        r"each sample is held over ~3 of the unit's periods.* build a unit at the data's rate "
+        r"\(diag unit build NAME --period 15min …\) or give the data every (300s|5min)",
+        text,
+    ), text
