@@ -747,9 +747,7 @@ class _ShortRows:
         short = rows[(rows < len(counts)) & (counts[np.minimum(rows, len(counts) - 1)] < want)]
         if len(short):
             i = int(short[0])
-            raise ShortRow(
-                f"Expected {want} fields in line {first + i}, saw {int(counts[i])}"
-            )
+            raise ShortRow(f"Expected {want} fields in line {first + i}, saw {int(counts[i])}")
 
     def _lines(self, n: int) -> bytes:
         """The next ``n`` lines' bytes (fewer at the end of the file)."""

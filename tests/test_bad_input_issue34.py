@@ -128,6 +128,30 @@ def test_a_tags_csv_empty_or_naming_a_column_twice_is_refused_naming_the_file(hi
     assert said in msg
 
 
+@pytest.mark.parametrize(
+    "edit,said",
+    [
+        (("feed,out", "feed,valve"), "tags.csv:5: role 'valve' of VALVE_A (loop feed) is not one"),
+        (("feed,sp", "feed,pv"), "tags.csv:4: loop feed has two pv tags (FEED_TARGET on line 3"),
+        (("feed,sp", "feed2,sp"), "tags.csv:3: loop feed2 has no pv tag"),
+        (("drain valve,,", "drain valve,feed,manual"), "tags.csv:7: HAND_VALVE is a hand valve"),
+    ],
+    ids=["role-valve", "two-pv", "no-sp", "manual-in-a-loop"],
+)
+def test_a_tags_csv_at_import_is_checked_as_unit_build_loops_from_checks_it(hist, edit, said):
+    """The same checks (historian.tagroles), before anything is written. Before: imported,
+    the mistake said only at a later ``unit build --loops-from`` of the same file."""
+    g, tmp, _ = hist
+    text = (tmp / "tags.csv").read_text()
+    assert edit[0] in text
+    (tmp / "bad").mkdir()
+    (tmp / "bad" / "tags.csv").write_text(text.replace(edit[0], edit[1], 1))
+    msg = _refused(g, tmp, "import", str(tmp / "line.csv"), "--tags", str(tmp / "bad/tags.csv"))
+    assert said in msg, msg
+    msg = _refused(g, tmp, "unit", "build", "u", *WINDOW, "--loops-from", str(tmp / "bad/tags.csv"))
+    assert said in msg, msg
+
+
 def test_a_time_without_offset_among_times_with_one_says_so(hist):
     """Before: ``unparseable time '2026-03-03T00:25:00'`` for a time that parses."""
     g, tmp, f = hist
