@@ -753,22 +753,26 @@ class _ShortRows:
         """The next ``n`` lines' bytes (fewer at the end of the file)."""
         if self.fh is None:
             self.fh = open(self.path, "rb")  # noqa: SIM115 - closed with the generator
-        while True:
-            ends = np.flatnonzero(np.frombuffer(self.buf, np.uint8) == 10)
-            if len(ends) >= n:
-                cut = int(ends[n - 1]) + 1
-                break
+        parts, have = [self.buf], self.buf.count(b"\n")
+        while have < n:  # each block scanned once for its newlines, then joined
             more = self.fh.read(1 << 22)
             if not more:
-                cut = len(self.buf)
                 break
-            self.buf += more
-        out, self.buf = self.buf[:cut], self.buf[cut:]
+            parts.append(more)
+            have += more.count(b"\n")
+        buf = b"".join(parts)
+        cut = len(buf)
+        if have >= n:
+            cut = int(np.flatnonzero(np.frombuffer(buf, np.uint8) == 10)[n - 1]) + 1
+        out, self.buf = buf[:cut], buf[cut:]
         self.line += n
         return out
 
     def _counts(self, a: int, b: int) -> np.ndarray | None:
-        """Fields per line of lines ``a`` … ``b - 1``; None once the check is off."""
+        """Fields per line of lines ``a`` … ``b - 1``; None once the check is off (or for
+        lines already passed: never asked, the chunks come in file order)."""
+        if self.line > a:
+            return None
         while self.line < a:  # skip the lines of chunks without suspects
             step = min(a - self.line, 200_000)
             if self._odd_quotes(self._lines(step)):
