@@ -549,7 +549,6 @@ def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0, bounds=None):
             t0 = min(t0, max(a, t0 - lead * pd.Timedelta(unit.period)))
         if bounds is not None:
             bounds["end"] = t1
-            bounds["coarser"] = coarser_data(h, unit, judged, t1)
         # no quality summary: diagnose does not read it (it cost a quarter of the read's CPU,
         # 50 tags × 200,000 rows: 3.9 → 3.0 s), and in attrs pandas would copy it into every
         # derived frame
@@ -558,7 +557,11 @@ def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0, bounds=None):
             for a, b in ramped(t0, t1, unit.period, chunk)
             for f in h.iter_windows(unit.tags, a, b, unit.period, chunk=chunk, summary=False)
         )
-        yield from (lead_from_data(pieces, start) if start is not None and lead > 0 else pieces)
+        pieces = lead_from_data(pieces, start) if start is not None and lead > 0 else pieces
+        for k, f in enumerate(pieces):
+            yield f
+            if k == 0 and bounds is not None:  # after the first piece: not on its way
+                bounds["coarser"] = coarser_data(h, unit, judged, t1)
     finally:
         h.close()
 
