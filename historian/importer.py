@@ -736,49 +736,57 @@ class _ShortRows:
         last = chunk.iloc[:, -1].isna().to_numpy()
         if not last.any():
             return
-        rows = np.flatnonzero(last)
-        rows = rows[chunk.iloc[rows].notna().any(axis=1).to_numpy()]
-        if not len(rows):
-            return
-        counts = self._counts(first, first + len(chunk))
+        want = chunk.shape[1]
+        counts = self._counts(first, first + len(chunk), want)
         if counts is None:
             return
-        want = chunk.shape[1]
-        short = rows[(rows < len(counts)) & (counts[np.minimum(rows, len(counts) - 1)] < want)]
-        if len(short):
-            i = int(short[0])
+        rows = np.flatnonzero(last & (counts[: len(last)] < want))
+        if not len(rows):
+            return
+        rows = rows[chunk.iloc[rows].notna().any(axis=1).to_numpy()]  # not a blank line
+        if len(rows):
+            i = int(rows[0])
             raise ShortRow(f"Expected {want} fields in line {first + i}, saw {int(counts[i])}")
 
-    def _lines(self, n: int) -> bytes:
-        """The next ``n`` lines' bytes (fewer at the end of the file)."""
+    def _lines(self, n: int, keep: bool = True) -> bytes:
+        """The next ``n`` lines' bytes (fewer at the end of the file); skipped (``keep``
+        false): ``b""`` unless they hold a quote (for :meth:`_odd_quotes`)."""
         if self.fh is None:
             self.fh = open(self.path, "rb")  # noqa: SIM115 - closed with the generator
-        parts, have = [self.buf], self.buf.count(b"\n")
-        while have < n:  # each block scanned once for its newlines, then joined
-            more = self.fh.read(1 << 22)
-            if not more:
+        parts, have, quoted, block = [], 0, False, self.buf
+        while True:
+            c = block.count(b"\n")
+            quoted = quoted or b'"' in block
+            if have + c >= n:  # the n-th newline in this block
+                pos = int(np.flatnonzero(np.frombuffer(block, np.uint8) == 10)[n - have - 1]) + 1
+                parts.append(block[:pos])
+                self.buf = block[pos:]
                 break
-            parts.append(more)
-            have += more.count(b"\n")
-        buf = b"".join(parts)
-        cut = len(buf)
-        if have >= n:
-            cut = int(np.flatnonzero(np.frombuffer(buf, np.uint8) == 10)[n - 1]) + 1
-        out, self.buf = buf[:cut], buf[cut:]
+            parts.append(block)
+            have += c
+            block = self.fh.read(1 << 22)
+            if not block:
+                self.buf = b""
+                break
         self.line += n
-        return out
+        return b"".join(parts) if keep or quoted else b""
 
-    def _counts(self, a: int, b: int) -> np.ndarray | None:
-        """Fields per line of lines ``a`` … ``b - 1``; None once the check is off (or for
-        lines already passed: never asked, the chunks come in file order)."""
+    def _counts(self, a: int, b: int, want: int) -> np.ndarray | None:
+        """Fields per line of lines ``a`` … ``b - 1`` (lines ``b - a`` long, ``want`` for each
+        when every line has them: the chunk's separators counted first, a row with more
+        being pandas' error); None once the check is off (or for lines already passed:
+        never asked, the chunks come in file order)."""
         if self.line > a:
             return None
         while self.line < a:  # skip the lines of chunks without suspects
-            step = min(a - self.line, 200_000)
-            if self._odd_quotes(self._lines(step)):
+            if self._odd_quotes(self._lines(min(a - self.line, 200_000), keep=False)):
                 return None
         raw = self._lines(b - a)
-        if self._odd_quotes(raw):
+        n = b - a
+        quoted = b'"' in raw
+        if not quoted and raw.count(self.sep.encode()) == n * (want - 1):
+            return np.full(n, want)  # no line short (none longer)
+        if quoted and self._odd_quotes(raw):
             return None
         arr = np.frombuffer(raw, np.uint8)
         ends = np.flatnonzero(arr == 10)
@@ -787,15 +795,15 @@ class _ShortRows:
         starts = np.r_[0, ends[:-1] + 1]
         seps = np.flatnonzero(arr == ord(self.sep))
         counts = 1 + np.searchsorted(seps, ends) - np.searchsorted(seps, starts)
-        quotes = np.flatnonzero(arr == ord('"'))
-        if len(quotes):  # a separator inside quotes is no separator
+        if quoted:  # a separator inside quotes is no separator
             import csv
 
+            quotes = np.flatnonzero(arr == ord('"'))
             has = np.searchsorted(quotes, ends) > np.searchsorted(quotes, starts)
             for k in np.flatnonzero(has):
                 text = raw[starts[k] : ends[k]].decode("utf-8", "replace").rstrip("\r")
                 counts[k] = len(next(csv.reader([text], delimiter=self.sep), []))
-        return counts
+        return np.r_[counts, np.full(max(0, n - len(counts)), want)][:n]
 
     def _odd_quotes(self, raw: bytes) -> bool:
         """A line of ``raw`` with an odd number of quotes: a quoted cell runs over lines,
