@@ -105,6 +105,33 @@ def test_a_row_short_of_fields_is_refused_at_its_line_an_empty_cell_is_not(hist)
     assert f"{299 * (n - 1) - 2} new samples" in text, text
 
 
+@pytest.mark.parametrize("strict", [False, True])
+def test_a_short_row_in_a_later_chunk_is_found_past_chunks_without_suspects(tmp_path, strict):
+    """Chunks of 100 rows, the last column blank in 2 rows of 3, a blank line before the
+    short row: its line found (the lines of the chunks before skipped or counted); without
+    ``--strict`` the chunks before it stored and said, with it nothing."""
+    import numpy as np
+
+    from historian.importer import FileRefused, import_file
+    from historian.store import Historian
+
+    idx = pd.date_range("2026-03-02", periods=1000, freq="15s").strftime("%Y-%m-%dT%H:%M:%S")
+    n = np.arange(1000.0)
+    frame = pd.DataFrame({"a": n, "b": np.where(n % 3, np.nan, 1.0)}, index=idx)
+    lines = frame.rename_axis("time").to_csv().splitlines()
+    lines[700] = lines[700].rsplit(",", 1)[0]
+    lines.insert(400, "")
+    (tmp_path / "x.csv").write_text("\n".join(lines) + "\n")
+    with Historian.open(f"sqlite:///{tmp_path / 'h.db'}") as h:
+        with pytest.raises(FileRefused) as exc:
+            import_file(h, tmp_path / "x.csv", chunk_rows=100, strict=strict)
+        stored = len(h.tags())
+    msg = str(exc.value)
+    assert msg.startswith(f"{tmp_path / 'x.csv'}:702: 2 fields, but the header has 3 (a row"), msg
+    assert ("the rows before it were imported" in msg) is not strict
+    assert stored == (0 if strict else 2)
+
+
 @pytest.mark.parametrize(
     "text,said",
     [
