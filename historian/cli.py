@@ -193,6 +193,13 @@ def cmd_import(args) -> int:
         if side.exists():
             args.tags_csv = str(side)
             print(f"tag metadata from {side}", file=sys.stderr)
+    if args.tags_csv is not None:  # its loops and roles checked as unit build --loops-from
+        from .tagroles import check_tags_csv_declarations
+
+        try:
+            check_tags_csv_declarations(args.tags_csv)
+        except (ValueError, OSError) as exc:
+            raise UserError(str(exc)) from None
     opened = _open(args, cold_dir=args.cold_dir) if args.cold_dir else _open(args)
     with opened as h, Progress(*columns, console=err, disable=not show, transient=True) as bar:
         task = bar.add_task("import", total=None)

@@ -670,6 +670,16 @@ def _csv_chunks(
         # numbers and text pieces (pandas' DtypeWarning)
         low_memory=False,
     )
+    fields = _ShortRows(path, dialect.sep)
+    try:
+        yield from _csv_readers(path, tcol, advance, options, numbers, fields)
+    finally:
+        fields.close()
+
+
+def _csv_readers(path: Path, tcol: str, advance, options: dict, numbers: bool, fields):
+    """:func:`_csv_chunks`' loop: a reader, and a second from where a chunk of times that
+    read as numbers stopped the first."""
     base, as_text = 0, numbers
     while True:
         skipped = base  # rows read before this reader: skipped, and counted in the index
@@ -684,6 +694,7 @@ def _csv_chunks(
                 if not as_text and not _all_text(chunk[tcol]):
                     as_text = True  # times that look like numbers: read again as text
                     break
+                fields.check(chunk, base + 2)
                 if skipped:
                     chunk.index += skipped
                 yield chunk, base + 2  # the header is line 1
@@ -691,6 +702,124 @@ def _csv_chunks(
                 advance(fh.tell())
             else:
                 return
+
+
+class ShortRow(pd.errors.ParserError):
+    """A CSV row with fewer fields than the header (pandas reads the missing cells as
+    blanks), in pandas' words for a row with more (:func:`_parse_error`)."""
+
+
+class _ShortRows:
+    """Rows of a CSV file with fewer fields than its header, which pandas reads without a
+    word (the missing cells as blanks; a row with more is its ParserError).
+
+    Only the rows whose last cell pandas read as blank and whose other cells are not all
+    blank (a blank line is skipped, as documented) are suspects, so a file whose last
+    column is full costs one ``isna`` a chunk. For a chunk with suspects, the chunk's lines
+    are read again as bytes (forward only, from a handle of its own) and their fields
+    counted: separators per line (numpy), the csv module's count for a line with a quote.
+    Rows are lines (as the import's ``file:line`` messages take them); a line whose quotes
+    do not close (a quoted cell over two lines) ends the check for the rest of the file."""
+
+    def __init__(self, path: Path, sep: str):
+        self.path, self.sep = path, sep
+        self.fh = None
+        self.line = 1  # the line ``self.buf`` starts at
+        self.buf = b""
+        self.off = len(sep) != 1  # a separator of more characters: not counted
+
+    def check(self, chunk: pd.DataFrame, first: int) -> None:
+        """Raise :class:`ShortRow` at the first row of ``chunk`` (its first row at line
+        ``first``) with fewer fields than the header."""
+        if self.off or not len(chunk):
+            return
+        last = chunk.iloc[:, -1].isna().to_numpy()
+        if not last.any():
+            return
+        want = chunk.shape[1]
+        counts = self._counts(first, first + len(chunk), want)
+        if counts is None:
+            return
+        rows = np.flatnonzero(last & (counts[: len(last)] < want))
+        if not len(rows):
+            return
+        rows = rows[chunk.iloc[rows].notna().any(axis=1).to_numpy()]  # not a blank line
+        if len(rows):
+            i = int(rows[0])
+            raise ShortRow(f"Expected {want} fields in line {first + i}, saw {int(counts[i])}")
+
+    def _lines(self, n: int, keep: bool = True) -> bytes:
+        """The next ``n`` lines' bytes (fewer at the end of the file); skipped (``keep``
+        false): ``b""`` unless they hold a quote (for :meth:`_odd_quotes`)."""
+        if self.fh is None:
+            self.fh = open(self.path, "rb")  # noqa: SIM115 - closed with the generator
+        parts, have, quoted, block = [], 0, False, self.buf
+        while True:
+            c = block.count(b"\n")
+            quoted = quoted or b'"' in block
+            if have + c >= n:  # the n-th newline in this block
+                pos = int(np.flatnonzero(np.frombuffer(block, np.uint8) == 10)[n - have - 1]) + 1
+                parts.append(block[:pos])
+                self.buf = block[pos:]
+                break
+            parts.append(block)
+            have += c
+            block = self.fh.read(1 << 22)
+            if not block:
+                self.buf = b""
+                break
+        self.line += n
+        return b"".join(parts) if keep or quoted else b""
+
+    def _counts(self, a: int, b: int, want: int) -> np.ndarray | None:
+        """Fields per line of lines ``a`` … ``b - 1`` (lines ``b - a`` long, ``want`` for each
+        when every line has them: the chunk's separators counted first, a row with more
+        being pandas' error); None once the check is off (or for lines already passed:
+        never asked, the chunks come in file order)."""
+        if self.line > a:
+            return None
+        while self.line < a:  # skip the lines of chunks without suspects
+            if self._odd_quotes(self._lines(min(a - self.line, 200_000), keep=False)):
+                return None
+        raw = self._lines(b - a)
+        n = b - a
+        quoted = b'"' in raw
+        if not quoted and raw.count(self.sep.encode()) == n * (want - 1):
+            return np.full(n, want)  # no line short (none longer)
+        if quoted and self._odd_quotes(raw):
+            return None
+        arr = np.frombuffer(raw, np.uint8)
+        ends = np.flatnonzero(arr == 10)
+        if not len(arr) or arr[-1] != 10:
+            ends = np.append(ends, len(arr))
+        starts = np.r_[0, ends[:-1] + 1]
+        seps = np.flatnonzero(arr == ord(self.sep))
+        counts = 1 + np.searchsorted(seps, ends) - np.searchsorted(seps, starts)
+        if quoted:  # a separator inside quotes is no separator
+            import csv
+
+            quotes = np.flatnonzero(arr == ord('"'))
+            has = np.searchsorted(quotes, ends) > np.searchsorted(quotes, starts)
+            for k in np.flatnonzero(has):
+                text = raw[starts[k] : ends[k]].decode("utf-8", "replace").rstrip("\r")
+                counts[k] = len(next(csv.reader([text], delimiter=self.sep), []))
+        return np.r_[counts, np.full(max(0, n - len(counts)), want)][:n]
+
+    def _odd_quotes(self, raw: bytes) -> bool:
+        """A line of ``raw`` with an odd number of quotes: a quoted cell runs over lines,
+        rows are no longer lines, and the check is off from here on."""
+        if b'"' not in raw:
+            return False
+        arr = np.frombuffer(raw, np.uint8)
+        cum = np.cumsum(arr == ord('"'))
+        at_ends = cum[arr == 10]
+        per_line = np.diff(np.r_[0, at_ends, cum[-1]])  # the last: after the last newline
+        self.off = bool(np.any(per_line % 2))
+        return self.off
+
+    def close(self) -> None:
+        if self.fh is not None:
+            self.fh.close()
 
 
 def _all_text(col: pd.Series) -> bool:
@@ -1700,7 +1829,12 @@ def _parse_error(path: Path, exc: Exception) -> str:
     """pandas' parse error as ``file:line: what``."""
     text = _first_line(exc)
     m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
-    return f"{path}:{m[2]}: {m[3]} fields, but the header has {m[1]}" if m else f"{path}: {text}"
+    if m is None:
+        return f"{path}: {text}"
+    msg = f"{path}:{m[2]}: {m[3]} fields, but the header has {m[1]}"
+    if int(m[3]) < int(m[1]):  # an empty cell is written as an empty field: 'a,,c'
+        msg += " (a row short of separators; an empty cell keeps its separator: 1,,3)"
+    return msg
 
 
 class _reading:

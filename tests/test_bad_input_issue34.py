@@ -77,6 +77,61 @@ def test_a_header_naming_a_column_twice_is_refused_not_imported_as_name_1(hist):
     assert "dup.csv:1: the header names column 'FEED_FLOW' 2 times (columns 4, 5)" in msg
 
 
+def _later_csv(f, rows: int = 300) -> str:
+    """``rows`` of the line a day after the historian's, as CSV text (time first)."""
+    later = f.iloc[:rows].copy()
+    later.index = (later.index + pd.Timedelta(days=1)).strftime("%Y-%m-%dT%H:%M:%S")
+    later.index.name = "time"
+    return later.to_csv()
+
+
+def test_a_row_short_of_fields_is_refused_at_its_line_an_empty_cell_is_not(hist):
+    """Before: the missing cells of a row with fewer fields than the header were imported
+    as no sample, without a word (a row with more was refused)."""
+    g, tmp, f = hist
+    lines = _later_csv(f).splitlines()
+    n = len(lines[0].split(","))
+    lines[50] = ",".join(lines[50].split(",")[:-1]) + ","  # its last cell empty: a missing value
+    lines[60] = ",".join(lines[60].split(",")[:3] + [""] + lines[60].split(",")[4:])  # a,,c
+    lines[100] = ",".join(lines[100].split(",")[:-2])  # two fields short
+    (tmp / "short.csv").write_text("\n".join(lines) + "\n")
+    msg = _refused(g, tmp, "import", str(tmp / "short.csv"))
+    assert f"short.csv:101: {n - 2} fields, but the header has {n} (a row short of" in msg, msg
+    assert "short.csv:51" not in msg and "short.csv:61" not in msg
+    del lines[100]
+    (tmp / "empty.csv").write_text("\n".join(lines) + "\n")
+    rc, text = diag(g, "import", str(tmp / "empty.csv"))
+    assert rc == 0, text
+    assert f"{299 * (n - 1) - 2} new samples" in text, text
+
+
+@pytest.mark.parametrize("strict", [False, True])
+def test_a_short_row_in_a_later_chunk_is_found_past_chunks_without_suspects(tmp_path, strict):
+    """Chunks of 100 rows, the last column blank in 2 rows of 3, a blank line before the
+    short row: its line found (the lines of the chunks before skipped or counted); without
+    ``--strict`` the chunks before it stored and said, with it nothing."""
+    import numpy as np
+
+    from historian.importer import FileRefused, import_file
+    from historian.store import Historian
+
+    idx = pd.date_range("2026-03-02", periods=1000, freq="15s").strftime("%Y-%m-%dT%H:%M:%S")
+    n = np.arange(1000.0)
+    frame = pd.DataFrame({"a": n, "b": np.where(n % 3, np.nan, 1.0)}, index=idx)
+    lines = frame.rename_axis("time").to_csv().splitlines()
+    lines[700] = lines[700].rsplit(",", 1)[0]
+    lines.insert(400, "")
+    (tmp_path / "x.csv").write_text("\n".join(lines) + "\n")
+    with Historian.open(f"sqlite:///{tmp_path / 'h.db'}") as h:
+        with pytest.raises(FileRefused) as exc:
+            import_file(h, tmp_path / "x.csv", chunk_rows=100, strict=strict)
+        stored = len(h.tags())
+    msg = str(exc.value)
+    assert msg.startswith(f"{tmp_path / 'x.csv'}:702: 2 fields, but the header has 3 (a row"), msg
+    assert ("the rows before it were imported" in msg) is not strict
+    assert stored == (0 if strict else 2)
+
+
 @pytest.mark.parametrize(
     "text,said",
     [
@@ -98,6 +153,30 @@ def test_a_tags_csv_empty_or_naming_a_column_twice_is_refused_naming_the_file(hi
     (tmp / "bad" / "tags.csv").write_text(text)
     msg = _refused(g, tmp, "import", str(tmp / "line.csv"), "--tags", str(tmp / "bad/tags.csv"))
     assert said in msg
+
+
+@pytest.mark.parametrize(
+    "edit,said",
+    [
+        (("feed,out", "feed,valve"), "tags.csv:5: role 'valve' of VALVE_A (loop feed) is not one"),
+        (("feed,sp", "feed,pv"), "tags.csv:4: loop feed has two pv tags (FEED_TARGET on line 3"),
+        (("feed,sp", "feed2,sp"), "tags.csv:3: loop feed2 has no pv tag"),
+        (("drain valve,,", "drain valve,feed,manual"), "tags.csv:7: HAND_VALVE is a hand valve"),
+    ],
+    ids=["role-valve", "two-pv", "no-sp", "manual-in-a-loop"],
+)
+def test_a_tags_csv_at_import_is_checked_as_unit_build_loops_from_checks_it(hist, edit, said):
+    """The same checks (historian.tagroles), before anything is written. Before: imported,
+    the mistake said only at a later ``unit build --loops-from`` of the same file."""
+    g, tmp, _ = hist
+    text = (tmp / "tags.csv").read_text()
+    assert edit[0] in text
+    (tmp / "bad").mkdir()
+    (tmp / "bad" / "tags.csv").write_text(text.replace(edit[0], edit[1], 1))
+    msg = _refused(g, tmp, "import", str(tmp / "line.csv"), "--tags", str(tmp / "bad/tags.csv"))
+    assert said in msg, msg
+    msg = _refused(g, tmp, "unit", "build", "u", *WINDOW, "--loops-from", str(tmp / "bad/tags.csv"))
+    assert said in msg, msg
 
 
 def test_a_time_without_offset_among_times_with_one_says_so(hist):
@@ -281,3 +360,30 @@ def test_rollback_keeps_the_version_it_replaces(unit5, tmp_path):
     kept = folder / ".unit-backups" / "manual" / "replaced" / "1"
     assert f"the files it replaced are kept in {kept}" in text, text
     assert [p.read_text() for p in kept.glob("*_manual.unit.toml")] == [edited]
+
+
+@pytest.mark.parametrize("every", ["15min", "1min"])
+def test_diagnose_of_data_coarser_than_the_unit_says_both_periods(unit5, tmp_path, every):
+    """Data every 15 min for a unit of 5 min: each sample held over 3 of its periods. Before:
+    replayed without a word. Data every minute (finer) are averaged onto its grid, as at the
+    build: nothing said."""
+    f = line7.simulate(1.0, 4)
+    f = f.resample(every, label="right", closed="right").mean().iloc[1:]
+    f.index = f.index + pd.Timedelta(days=7)
+    out = f.copy()
+    out.index = out.index.strftime("%Y-%m-%dT%H:%M:%S")
+    out.index.name = "time"
+    out.to_csv(tmp_path / "day.csv")
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(unit5)]
+    assert diag(g, "import", str(tmp_path / "day.csv"))[0] == 0
+    rc, text = diag(g, "diagnose", "narrow", "--from", "2026-03-09", "--to", "2026-03-10")
+    assert rc == 0, text
+    if every == "1min":
+        assert "the data come every" not in text, text
+        return
+    assert re.search(
+        r"⚠ the data come every 15min \(FEED_TARGET, .*\), the unit narrow every (300s|5min): "
+        r"each sample is held over ~3 of the unit's periods.* build a unit at the data's rate "
+        r"\(diag unit build NAME --period 15min …\) or give the data every (300s|5min)",
+        text,
+    ), text

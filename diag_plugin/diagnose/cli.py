@@ -544,6 +544,7 @@ def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0, bounds=None):
         t1 = end if end is not None else b + pd.Timedelta(unit.period)
         if t1 <= t0:
             raise UserError(f"--to {t1} is not after --from {t0}")
+        judged = max(t0, a)  # the first time judged (not the lead-in before it)
         if start is not None and lead > 0:  # not before the record: there it starts cold
             t0 = min(t0, max(a, t0 - lead * pd.Timedelta(unit.period)))
         if bounds is not None:
@@ -556,9 +557,52 @@ def unit_frames(args, unit, start, end, chunk="7D", lead: int = 0, bounds=None):
             for a, b in ramped(t0, t1, unit.period, chunk)
             for f in h.iter_windows(unit.tags, a, b, unit.period, chunk=chunk, summary=False)
         )
-        yield from (lead_from_data(pieces, start) if start is not None and lead > 0 else pieces)
+        pieces = lead_from_data(pieces, start) if start is not None and lead > 0 else pieces
+        for k, f in enumerate(pieces):
+            yield f
+            if k == 0 and bounds is not None:  # after the first piece: not on its way
+                bounds["coarser"] = coarser_data(h, unit, judged, t1)
     finally:
         h.close()
+
+
+#: the unit's periods of the window's start over which :func:`coarser_data` measures how
+#: often the data come (a bounded read: 7 tags × 2,000 rows at most)
+SAMPLING_PERIODS = 2000
+
+
+def coarser_data(h, unit, t0, t1) -> str:
+    """A warning when the unit's tags come at a coarser period than the unit's (``""``
+    otherwise): the typical (median) spacing of the regularly sampled tags, measured over the
+    first :data:`SAMPLING_PERIODS` of the unit's periods from ``t0``, above
+    :data:`~historian.sampling.HOLD_WHEN` × the period. The window's reader holds each sample
+    over the grid points up to the next (:func:`historian.sampling.hold_us`), so the unit
+    replays steps, not the process; data at a finer period are averaged onto its grid, as at
+    the build (nothing to say)."""
+    import numpy as np
+    import pandas as pd
+
+    from historian.sampling import HOLD_WHEN, format_period, nice_period_us
+    from historian.times import period_us
+
+    p = period_us(unit.period)
+    end = min(t1, t0 + pd.Timedelta(SAMPLING_PERIODS * p, "us"))
+    got = [s for s in h.sampling(unit.tags, t0, end).values() if s.regular]
+    if not got:
+        return ""
+    typical = float(np.median([s.median_us for s in got]))
+    if typical <= HOLD_WHEN * p:
+        return ""
+    data = format_period(nice_period_us(typical))
+    slow = [s.tag for s in got if s.median_us > HOLD_WHEN * p]
+    shown = ", ".join(slow[:4]) + (f" and {len(slow) - 4} more" if len(slow) > 4 else "")
+    return (
+        f"the data come every {data} ({shown}, from {t0}), the unit {unit.name} every "
+        f"{unit.period}: each sample is held over ~{round(typical / p)} of the unit's periods, "
+        "so its lags, filter and delays read steps, not the process (its tests judged at "
+        f"a rate they did not learn); build a unit at the data's rate (diag unit build NAME "
+        f"--period {data} …) or give the data every {unit.period}"
+    )
 
 
 def lead_from_data(pieces, start):
@@ -721,6 +765,8 @@ def _diagnose(args, unit, frames, start, bounds: dict, chunk) -> int:
                 del p
         if not parts:
             raise UserError("no data in the window")
+        if bounds.get("coarser"):
+            print(f"⚠ {bounds['coarser']}", file=sys.stderr)
         if stream is not None and not stream.close():
             full = _replayed(args, start, bounds["end"], chunk)  # pieces unlike each other
         if full is not None:

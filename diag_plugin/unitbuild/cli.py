@@ -213,14 +213,9 @@ def cmd_unit_build(args) -> int:
     from diag_plugin.unitbuild.loops import (
         Disturbance,
         Manual,
-        disturbances_from_tags_csv,
-        equipment_from_tags_csv,
-        loops_from_tags_csv,
-        manual_from_tags_csv,
+        declared_in_tags_csv,
         parse_loop,
         parse_running,
-        running_from_tags_csv,
-        states_from_tags_csv,
     )
 
     tags = args.tags or (_tags_from(args.tags_from) if args.tags_from else None)
@@ -231,13 +226,14 @@ def cmd_unit_build(args) -> int:
     states = [t.strip() for t in args.state]
     equipment = [r for r in running if r.tags]
     running = [r for r in running if not r.tags]
-    if args.loops_from:
-        manual += manual_from_tags_csv(args.loops_from)  # first: a hand valve in a loop
-        driven += disturbances_from_tags_csv(args.loops_from)
-        running += running_from_tags_csv(args.loops_from)  # a run condition in a loop too
-        equipment += equipment_from_tags_csv(args.loops_from)
-        states += states_from_tags_csv(args.loops_from)
-        loops += loops_from_tags_csv(args.loops_from)
+    if args.loops_from:  # the checks diag import --tags makes of the same file
+        declared = declared_in_tags_csv(args.loops_from)
+        manual += declared.manual
+        driven += declared.disturbances
+        running += declared.running
+        equipment += declared.equipment
+        states += declared.states
+        loops += declared.loops
     if len(running) > 1:
         raise UserError(
             f"{running[1].where}: a second run condition ({running[1].tag}; the first "
