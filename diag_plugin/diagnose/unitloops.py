@@ -36,6 +36,24 @@ residual rarely swings across both thresholds, so the false alarms do not rise (
 the chemical plant's tuning runs). The price: an alarm held by it ends up to the window after
 the oscillation stops, and an oscillation's first swing there and back is alarms of its own.
 
+**A standing stiction alarm is released on the long window** (:class:`ReleaseHold`; issue
+34 item 6, ISA-18.2's deadband/release: an alarm raised on one condition, cleared on
+another). The spread test raises on its window ``W`` as above; once on, its symptom is held
+while the running spread (the same MAD) of the same residual over the longer
+``release_window_s`` stays above the test's ``release`` threshold. ``diag unit build``
+writes the window as the one whose MAD of the loop's fault-free control error rests on
+``(1.166 / 0.2)² = 34`` independent samples (the MAD known to 20 %; the error's
+autocorrelation summed to its first zero) and ``release`` as the largest such spread over
+the build's window: a fault-free run's alarm is extended only where the long spread is
+beyond anything the build saw. The long window never raises (the detection delay, the
+settle's quiet time and the fault-free raising stay the short window's); a limit cycle
+whose short MAD drops under its threshold once a cycle (the 7-tag line's sticking valve:
+one 33-sample cycle in a 40-sample window) stays one alarm. The unit's own alarm is released
+the same way (:meth:`AlarmHold.sources`'s ``keep``): once on, it stays on while a spread
+test's long spread stays above its release without a break, each held sample repeating the
+last alarm sample's diagnosis as the off-delay does (the line's alarm is carried by ``T²``
+and the valve's test for hours before the spread test first fires).
+
 **The named tag held through an episode** (:class:`EpisodeHold`): each tag's share of the
 alarm is averaged over the samples of the current alarm episode, and the tags are ranked by
 that mean, so the tags named do not flicker from sample to sample within one alarm (as the
@@ -333,6 +351,59 @@ class OscillationHold:
         self.ends = ends
 
 
+@numba.njit(cache=True, nogil=True)
+def _release_kernel(s, cols, spread, release, held):  # pragma: no cover - numba
+    # row by row, in place: a spread column on raises its hold; off (0), it is held on while
+    # its long spread is above its release threshold (NaN: not), else the hold drops; an
+    # unknown symptom (NaN) stays unknown and leaves the hold as it is
+    n = s.shape[0]
+    for i in range(n):
+        for k in range(cols.shape[0]):
+            j = cols[k]
+            x = s[i, j]
+            if x > 0:
+                held[k] = True
+            elif x == 0 and held[k]:
+                if spread[i, k] > release[k]:
+                    s[i, j] = 1.0
+                else:
+                    held[k] = False
+    return s
+
+
+class ReleaseHold:
+    """A spread test's symptom, once on, held on while the running spread of its residual
+    over the release window stays above its ``release`` threshold (see module doc); the
+    long window's tail and each column's hold carried across pieces."""
+
+    def __init__(self, window: int, cols: np.ndarray, release: np.ndarray) -> None:
+        self.cols = np.asarray(cols, np.int64)
+        self.release = np.asarray(release, float)
+        self.spread = RunningSpread(window, len(self.cols))
+        self.held = np.zeros(len(self.cols), np.bool_)
+
+    def long_spread(self, raw: np.ndarray) -> np.ndarray:
+        """The long window's running spread of the spread columns' raw residuals
+        (``raw``: samples × the spread columns)."""
+        return self.spread.transform(raw)
+
+    def transform(self, s: np.ndarray, spread: np.ndarray) -> np.ndarray:
+        """``s`` (samples × tests, delayed symptoms; in place when C-ordered float) with the
+        spread columns held; ``spread``: :meth:`long_spread` of the same rows."""
+        a = np.ascontiguousarray(np.asarray(s, float))
+        if not self.cols.size:
+            return a
+        sp = np.ascontiguousarray(np.asarray(spread, float).reshape(len(a), len(self.cols)))
+        return _release_kernel(a, self.cols, sp, self.release, self.held)
+
+    def to_state(self) -> dict[str, Any]:
+        return {"spread": self.spread.to_state(), "held": self.held.tolist()}
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        self.spread.load_state(state["spread"])
+        self.held = np.asarray(state["held"], np.bool_).reshape(len(self.cols))
+
+
 class EpisodeHold:
     """Each tag's share averaged over the current alarm episode (see module doc)."""
 
@@ -401,11 +472,16 @@ class AlarmHold:
         self.single = np.ndim(off) == 0
         self.off = np.atleast_1d(np.asarray(off, np.int64)).copy()
         self.since = self.off.copy()  # samples since the last alarm sample (≥ off: none held)
+        #: per unit: held by ``keep`` (an alarm sample in the run of ``keep`` still going)
+        self.kept = np.zeros(len(self.off), bool)
 
-    def sources(self, active: np.ndarray) -> np.ndarray:
+    def sources(self, active: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
         """Per sample (and unit: ``active`` samples × units, or samples for a single unit):
         itself (−2) when in alarm or outside any hold, the last alarm row of this piece it
-        repeats (≥ 0), or −1 for the previous piece's last alarm row."""
+        repeats (≥ 0), or −1 for the previous piece's last alarm row. ``keep`` (as
+        ``active``; None: nowhere): where the unit's alarm is also held beyond the off-delay,
+        from an alarm sample on which it holds as long as it holds without a break (a
+        spread test's long window above its release, :class:`ReleaseHold`)."""
         act = np.asarray(active, bool)
         shape = act.shape
         act = act.reshape(len(act), len(self.off))
@@ -414,16 +490,28 @@ class AlarmHold:
         last = np.maximum.accumulate(np.where(act, idx, -1), axis=0) if n else act.astype(int)
         gap = np.where(last >= 0, idx - last, idx + 1 + self.since[None, :])
         held = ~act & (gap < self.off[None, :])
+        if keep is not None and n:
+            k = np.asarray(keep, bool).reshape(act.shape)
+            broke = np.maximum.accumulate(np.where(~k, idx, -1), axis=0)  # its last break
+            kept = k & ((last > broke) | ((broke < 0) & (last < 0) & self.kept[None, :]))
+            held |= ~act & kept & (self.off[None, :] > 0)
+            self.kept = kept[-1].copy()
+        elif n:
+            self.kept = np.zeros(len(self.off), bool)
         out = np.where(held, np.where(last >= 0, last, -1), -2)
         if n:
             self.since = gap[-1].astype(np.int64)  # 0 where the last sample is in alarm
         return out.reshape(shape)
 
     def to_state(self) -> dict[str, Any]:
-        return {"since": int(self.since[0]) if self.single else self.since.tolist()}
+        if self.single:
+            return {"since": int(self.since[0]), "kept": bool(self.kept[0])}
+        return {"since": self.since.tolist(), "kept": self.kept.tolist()}
 
     def load_state(self, state: dict[str, Any]) -> None:
         self.since = np.atleast_1d(np.asarray(state["since"], np.int64)).copy()
+        kept = state.get("kept", False)  # a state saved before it: none kept
+        self.kept = np.broadcast_to(np.atleast_1d(np.asarray(kept, bool)), self.off.shape).copy()
 
 
 def warm_up(
