@@ -504,9 +504,12 @@ class AlarmHold:
         return out.reshape(shape)
 
     def to_state(self) -> dict[str, Any]:
-        if self.single:
-            return {"since": int(self.since[0]), "kept": bool(self.kept[0])}
-        return {"since": self.since.tolist(), "kept": self.kept.tolist()}
+        """``since``, and ``kept`` only where some unit's alarm is held by ``keep`` (the
+        state of a hold without it as before)."""
+        out: dict[str, Any] = {"since": int(self.since[0]) if self.single else self.since.tolist()}
+        if self.kept.any():
+            out["kept"] = bool(self.kept[0]) if self.single else self.kept.tolist()
+        return out
 
     def load_state(self, state: dict[str, Any]) -> None:
         self.since = np.atleast_1d(np.asarray(state["since"], np.int64)).copy()
