@@ -977,11 +977,7 @@ class Plant:
         if not has.any():
             return np.zeros(len(has), bool)
         active = active & ~unknown
-        # a spread test's long window above its release holds its unit's alarm on (Unit._keep)
-        with np.errstate(invalid="ignore"):
-            wide = self._long > self._release
-        keep = np.bincount(self._slot_unit, weights=wide, minlength=len(has)) > 0
-        held = self._alarm_hold.sources(active[None, :], keep[None, :])[0] == -1  # one row
+        held = self._alarm_hold.sources(active[None, :])[0] == -1  # one row: the last cycle's
         for ui in np.flatnonzero(held):
             last = self._last_alarm.get(int(ui))
             if last is None:

@@ -1405,7 +1405,7 @@ class Unit:
             for held, _ in guarded:
                 shown = shown & ~held
             detected, status, faults, top, repeated = self._hold_alarm(
-                shown, detected, status, faults, top, self._keep(long)
+                shown, detected, status, faults, top
             )
         settled = None
         if settle is not None:  # an operator's set-point step: its alarm suppressed
@@ -1524,21 +1524,12 @@ class Unit:
         apply_settle(status, faults, sup)
         return sup | (why != ""), why  # and the alarms an envelope raised: their why
 
-    def _keep(self, long: np.ndarray | None) -> np.ndarray | None:
-        """Where the unit's alarm is held beyond its off-delay (:meth:`AlarmHold.sources`'s
-        ``keep``): a spread test's long-window spread above its release (None: no release)."""
-        if long is None or self.release_hold is None:
-            return None
-        with np.errstate(invalid="ignore"):
-            return (long > self.release_hold.release[None, :]).any(axis=1)
-
-    def _hold_alarm(self, active, detected, status, faults, top, keep=None):
+    def _hold_alarm(self, active, detected, status, faults, top):
         """The unit's off-delay (:class:`~diag_plugin.diagnose.unitloops.AlarmHold`): a
         sample within it repeats the last alarm sample's status, faults and tags (``top``:
         the ranking's columns as arrays, :func:`~.unittags.top_columns_at`, edited in
-        place; a column at a time, not rows of a frame of strings); ``keep``: where it is
-        also held past the off-delay (:meth:`_keep`)."""
-        src = self.alarm_hold.sources(active, keep)
+        place; a column at a time, not rows of a frame of strings)."""
+        src = self.alarm_hold.sources(active)
         held = np.flatnonzero(src >= 0)
         repeated = src >= 0
         detected, status, faults = detected.copy(), status.copy(), faults.copy()

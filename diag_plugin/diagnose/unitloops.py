@@ -48,11 +48,9 @@ the build's window: a fault-free run's alarm is extended only where the long spr
 beyond anything the build saw. The long window never raises (the detection delay, the
 settle's quiet time and the fault-free raising stay the short window's); a limit cycle
 whose short MAD drops under its threshold once a cycle (the 7-tag line's sticking valve:
-one 33-sample cycle in a 40-sample window) stays one alarm. The unit's own alarm is released
-the same way (:meth:`AlarmHold.sources`'s ``keep``): once on, it stays on while a spread
-test's long spread stays above its release without a break, each held sample repeating the
-last alarm sample's diagnosis as the off-delay does (the line's alarm is carried by ``T²``
-and the valve's test for hours before the spread test first fires).
+one 33-sample cycle in a 40-sample window) stays one alarm. (:meth:`AlarmHold.sources`
+takes a ``keep`` to release the unit's own alarm the same way; measured, not used: it
+carried an operator's step's alarm past its settle, docs/how-to/unit-loops.md.)
 
 **The named tag held through an episode** (:class:`EpisodeHold`): each tag's share of the
 alarm is averaged over the samples of the current alarm episode, and the tags are ranked by
