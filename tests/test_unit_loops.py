@@ -163,13 +163,21 @@ def test_no_fault_chatters_more_than_3_episodes_in_10_minutes(line):
         assert worst <= 3, (key, worst)
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue 34 item 6, not reached (branch i34-stick2, 2026-12-03): with the spread "
+    "alarm released on a long window (unitloops.ReleaseHold: raised as main, held while the "
+    "loop error's MAD over 34 independent samples, 7212 s, is above the build's largest) the "
+    "sticking valve gives 3 / 4 episodes (seeds 101 / 102; main 37 / 30), 7 / 9 / 4 on "
+    "103 / 104 / 106; the line's alarm is carried by T² and the valve's test for hours before "
+    "the spread test first fires, and a settle's transient must not raise the hold (the 5 s "
+    "heater's step, tests/test_unit_settle.py). docs/how-to/unit-loops.md, 'The spread alarm "
+    "released on a long window'.",
+)
 def test_a_sticking_valve_on_the_line_is_at_most_3_alarms_a_day(line):
     """ISA-18.2: a standing fault is a standing alarm — at most 3 unit alarm episodes a day
     while the valve sticks (as the jacketed vessel in tests/test_unit_stiction.py), with no
-    loss of detection (today's share of samples in alarm after the onset kept). Reached by
-    the spread alarm's release on the long window (unitloops.ReleaseHold; before it 37 / 30
-    episodes, 71 / 44 %: docs/how-to/unit-loops.md, "The spread alarm released on a long
-    window")."""
+    loss of detection (today's share of samples in alarm after the onset kept)."""
     _, _, runs, _ = line
     today = {101: 0.70, 102: 0.43}  # detected after the onset on main (b58dc32)
     for seed in SEEDS:

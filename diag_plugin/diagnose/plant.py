@@ -298,6 +298,7 @@ class Plant:
         # (NaN: none) and hold, a running spread per long window length
         self._release = np.full(n, np.nan)
         self._released = np.zeros(n, np.bool_)
+        self._rel_left = np.zeros(n, np.int64)
         self._longs = []
         by_long: dict[int, list[int]] = {}
         for i, s in enumerate(slots):
@@ -473,6 +474,7 @@ class Plant:
             "spreads": [sp.to_state() for _, sp in self._spreads],
             "longs": [sp.to_state() for _, sp in self._longs],
             "released": self._released.tolist(),
+            "release_left": self._rel_left.tolist(),
             "alarm_hold": self._alarm_hold.to_state(),
             "last_alarm": {
                 str(ui): [st, fa, [[t, v] for t, v in tg]]
@@ -550,6 +552,8 @@ class Plant:
                 sp.load_state(st)
             if len(state.get("released") or []) == len(self._released):
                 self._released = np.asarray(state["released"], np.bool_)
+                left = state.get("release_left") or [0] * len(self._released)
+                self._rel_left = np.asarray(left, np.int64)
         self._alarm_hold.load_state(state["alarm_hold"])
         self._last_alarm = {
             int(ui): (int(st), list(fa), [(str(t), float(v)) for t, v in tg])
@@ -681,10 +685,11 @@ class Plant:
             rel = np.flatnonzero(np.isfinite(self._release[idx]))
             if rel.size:  # a spread test on held while its long window's spread is unusual
                 at = idx[rel]
-                kept = self._released[at]
+                kept, left = self._released[at], self._rel_left[at]
                 d = _release_kernel(np.ascontiguousarray(d, float), rel.astype(np.int64),
-                                    self._long[at][None, :], self._release[at], kept)  # fmt: skip
-                self._released[at] = kept
+                                    self._long[at][None, :], self._release[at], kept, opens,
+                                    self._slot_unit[idx], left)  # fmt: skip
+                self._released[at], self._rel_left[at] = kept, left
             d = swing.transform(d, opens, self._slot_unit[idx])
             held = self._held[idx]
             run = self._run[idx]

@@ -1073,7 +1073,7 @@ class Unit:
         s = self.delay.transform(raw, overwrite=True)
         # a spread test on stays on while its long window's spread is unusual (ReleaseHold)
         if self.release_hold is not None and long is not None:
-            s = self.release_hold.transform(s, long)
+            s = self.release_hold.transform(s, long, opens, group)
         # a swing across both thresholds is one alarm; a settle's transient none
         s = self.oscillation.transform(s, opens, group)
         # a test unknown for fewer samples than the on-delay keeps its last known symptom:

@@ -350,17 +350,26 @@ class OscillationHold:
 
 
 @numba.njit(cache=True, nogil=True)
-def _release_kernel(s, cols, spread, release, held):  # pragma: no cover - numba
+def _release_kernel(s, cols, spread, release, held, opens, group, left):  # pragma: no cover
     # row by row, in place: a spread column on raises its hold; off (0), it is held on while
     # its long spread is above its release threshold (NaN: not), else the hold drops; an
-    # unknown symptom (NaN) stays unknown and leaves the hold as it is
+    # unknown symptom (NaN) stays unknown and leaves the hold as it is. For a settle's bound
+    # after it opens on its group (opens[i, group[j]] > 0: the bound in samples) a symptom on
+    # does not raise the hold (a known transient); one raised before goes on as it was
     n = s.shape[0]
     for i in range(n):
         for k in range(cols.shape[0]):
             j = cols[k]
+            o = opens[i, group[j]]
+            if o > 0:
+                left[k] = max(left[k], o)
+            settling = left[k] > 0
+            if settling:
+                left[k] -= 1
             x = s[i, j]
             if x > 0:
-                held[k] = True
+                if not settling:
+                    held[k] = True
             elif x == 0 and held[k]:
                 if spread[i, k] > release[k]:
                     s[i, j] = 1.0
@@ -379,27 +388,44 @@ class ReleaseHold:
         self.release = np.asarray(release, float)
         self.spread = RunningSpread(window, len(self.cols))
         self.held = np.zeros(len(self.cols), np.bool_)
+        self.left = np.zeros(len(self.cols), np.int64)  # samples of an open settle left
 
     def long_spread(self, raw: np.ndarray) -> np.ndarray:
         """The long window's running spread of the spread columns' raw residuals
         (``raw``: samples × the spread columns)."""
         return self.spread.transform(raw)
 
-    def transform(self, s: np.ndarray, spread: np.ndarray) -> np.ndarray:
+    def transform(
+        self,
+        s: np.ndarray,
+        spread: np.ndarray,
+        opens: np.ndarray | None = None,
+        group: np.ndarray | None = None,
+    ) -> np.ndarray:
         """``s`` (samples × tests, delayed symptoms; in place when C-ordered float) with the
-        spread columns held; ``spread``: :meth:`long_spread` of the same rows."""
+        spread columns held; ``spread``: :meth:`long_spread` of the same rows; ``opens``,
+        ``group``: where a settle opens, as :meth:`OscillationHold.transform` (within its
+        bound a symptom on does not raise the hold; one raised before goes on)."""
         a = np.ascontiguousarray(np.asarray(s, float))
         if not self.cols.size:
             return a
-        sp = np.ascontiguousarray(np.asarray(spread, float).reshape(len(a), len(self.cols)))
-        return _release_kernel(a, self.cols, sp, self.release, self.held)
+        n, m = a.shape
+        sp = np.ascontiguousarray(np.asarray(spread, float).reshape(n, len(self.cols)))
+        if opens is None:
+            opens = np.zeros((n, 1), np.int64)
+        opens = np.ascontiguousarray(np.asarray(opens, np.int64).reshape(n, -1))
+        group = np.zeros(m, np.intp) if group is None else np.asarray(group, np.intp)
+        return _release_kernel(a, self.cols, sp, self.release, self.held, opens, group,
+                               self.left)  # fmt: skip
 
     def to_state(self) -> dict[str, Any]:
-        return {"spread": self.spread.to_state(), "held": self.held.tolist()}
+        return {"spread": self.spread.to_state(), "held": self.held.tolist(),
+                "left": self.left.tolist()}  # fmt: skip
 
     def load_state(self, state: dict[str, Any]) -> None:
         self.spread.load_state(state["spread"])
         self.held = np.asarray(state["held"], np.bool_).reshape(len(self.cols))
+        self.left = np.asarray(state.get("left", np.zeros(len(self.cols))), np.int64)
 
 
 class EpisodeHold:
