@@ -48,9 +48,9 @@ the build's window: a fault-free run's alarm is extended only where the long spr
 beyond anything the build saw. The long window never raises (the detection delay, the
 settle's quiet time and the fault-free raising stay the short window's); a limit cycle
 whose short MAD drops under its threshold once a cycle (the 7-tag line's sticking valve:
-one 33-sample cycle in a 40-sample window) stays one alarm. (:meth:`AlarmHold.sources`
-takes a ``keep`` to release the unit's own alarm the same way; measured, not used: it
-carried an operator's step's alarm past its settle, docs/how-to/unit-loops.md.)
+one 33-sample cycle in a 40-sample window) stays one alarm. (Releasing the unit's own alarm the same
+way was measured and not kept: it carried an operator's step's alarm past its settle,
+docs/how-to/unit-loops.md.)
 
 **The named tag held through an episode** (:class:`EpisodeHold`): each tag's share of the
 alarm is averaged over the samples of the current alarm episode, and the tags are ranked by
@@ -496,16 +496,11 @@ class AlarmHold:
         self.single = np.ndim(off) == 0
         self.off = np.atleast_1d(np.asarray(off, np.int64)).copy()
         self.since = self.off.copy()  # samples since the last alarm sample (≥ off: none held)
-        #: per unit: held by ``keep`` (an alarm sample in the run of ``keep`` still going)
-        self.kept = np.zeros(len(self.off), bool)
 
-    def sources(self, active: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
+    def sources(self, active: np.ndarray) -> np.ndarray:
         """Per sample (and unit: ``active`` samples × units, or samples for a single unit):
         itself (−2) when in alarm or outside any hold, the last alarm row of this piece it
-        repeats (≥ 0), or −1 for the previous piece's last alarm row. ``keep`` (as
-        ``active``; None: nowhere): where the unit's alarm is also held beyond the off-delay,
-        from an alarm sample on which it holds as long as it holds without a break (a
-        spread test's long window above its release, :class:`ReleaseHold`)."""
+        repeats (≥ 0), or −1 for the previous piece's last alarm row."""
         act = np.asarray(active, bool)
         shape = act.shape
         act = act.reshape(len(act), len(self.off))
@@ -514,31 +509,16 @@ class AlarmHold:
         last = np.maximum.accumulate(np.where(act, idx, -1), axis=0) if n else act.astype(int)
         gap = np.where(last >= 0, idx - last, idx + 1 + self.since[None, :])
         held = ~act & (gap < self.off[None, :])
-        if keep is not None and n:
-            k = np.asarray(keep, bool).reshape(act.shape)
-            broke = np.maximum.accumulate(np.where(~k, idx, -1), axis=0)  # its last break
-            kept = k & ((last > broke) | ((broke < 0) & (last < 0) & self.kept[None, :]))
-            held |= ~act & kept & (self.off[None, :] > 0)
-            self.kept = kept[-1].copy()
-        elif n:
-            self.kept = np.zeros(len(self.off), bool)
         out = np.where(held, np.where(last >= 0, last, -1), -2)
         if n:
             self.since = gap[-1].astype(np.int64)  # 0 where the last sample is in alarm
         return out.reshape(shape)
 
     def to_state(self) -> dict[str, Any]:
-        """``since``, and ``kept`` only where some unit's alarm is held by ``keep`` (the
-        state of a hold without it as before)."""
-        out: dict[str, Any] = {"since": int(self.since[0]) if self.single else self.since.tolist()}
-        if self.kept.any():
-            out["kept"] = bool(self.kept[0]) if self.single else self.kept.tolist()
-        return out
+        return {"since": int(self.since[0]) if self.single else self.since.tolist()}
 
     def load_state(self, state: dict[str, Any]) -> None:
         self.since = np.atleast_1d(np.asarray(state["since"], np.int64)).copy()
-        kept = state.get("kept", False)  # a state saved before it: none kept
-        self.kept = np.broadcast_to(np.atleast_1d(np.asarray(kept, bool)), self.off.shape).copy()
 
 
 def warm_up(
