@@ -20,6 +20,7 @@ OTHER = {
     "deadband": 0.1,
     "spread_window_s": 600.0,
     "oscillation_window_s": 2400.0,
+    "release_window_s": 7200.0,
     "settle_max_s": 1800.0,
     "manual_settle_max_s": 3600.0,
     "state_settle_max_s": 1800.0,

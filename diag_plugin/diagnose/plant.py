@@ -67,6 +67,7 @@ from diag_plugin.diagnose.unitloops import (
     EpisodeHold,
     OscillationHold,
     RunningSpread,
+    _release_kernel,
     oscillation_samples,
     spread_samples,
     warm_up,
@@ -293,6 +294,23 @@ class Plant:
                 by_window.setdefault(w, []).append(i)
         for w, idx in by_window.items():
             self._spreads.append((np.array(idx, np.intp), RunningSpread(w, len(idx))))
+        # their release on a long window (unitloops.ReleaseHold): per slot its threshold
+        # (NaN: none) and hold, a running spread per long window length
+        self._release = np.full(n, np.nan)
+        self._released = np.zeros(n, np.bool_)
+        self._rel_left = np.zeros(n, np.int64)
+        self._longs = []
+        by_long: dict[int, list[int]] = {}
+        for i, s in enumerate(slots):
+            u = units[s.unit]
+            if u.release_hold is not None:
+                k = np.flatnonzero(u.release_hold.cols == s.test)
+                if k.size and np.isfinite(u.release_hold.release[k[0]]):
+                    self._release[i] = u.release_hold.release[k[0]]
+                    by_long.setdefault(u.release_hold.spread.window, []).append(i)
+        for w, idx in by_long.items():
+            self._longs.append((np.array(idx, np.intp), RunningSpread(w, len(idx))))
+        self._long = np.full(n, np.nan)
         # the warm-up (unitloops.warm_up): per slot its longest lag, whether it is a spread
         # test, the known samples its spread window still needs and whether its residual was
         # known before the spread; per unit what each test waits for
@@ -454,6 +472,9 @@ class Plant:
             "run": self._run.tolist(),
             "latched": _json(self._latched),
             "spreads": [sp.to_state() for _, sp in self._spreads],
+            "longs": [sp.to_state() for _, sp in self._longs],
+            "released": self._released.tolist(),
+            "release_left": self._rel_left.tolist(),
             "alarm_hold": self._alarm_hold.to_state(),
             "last_alarm": {
                 str(ui): [st, fa, [[t, v] for t, v in tg]]
@@ -526,6 +547,13 @@ class Plant:
         self._latched = _array(state["latched"])
         for (_, sp), st in zip(self._spreads, state["spreads"], strict=True):
             sp.load_state(st)
+        if len(state.get("longs") or []) == len(self._longs):  # saved before it: from rest
+            for (_, sp), st in zip(self._longs, state.get("longs") or [], strict=True):
+                sp.load_state(st)
+            if len(state.get("released") or []) == len(self._released):
+                self._released = np.asarray(state["released"], np.bool_)
+                left = state.get("release_left") or [0] * len(self._released)
+                self._rel_left = np.asarray(left, np.int64)
         self._alarm_hold.load_state(state["alarm_hold"])
         self._last_alarm = {
             int(ui): (int(st), list(fa), [(str(t), float(v)) for t, v in tg])
@@ -638,6 +666,8 @@ class Plant:
                 p = cm.nearest_point(np.where(cols >= 0, self._hist[0, cols], np.nan)[None, :])[0]
             r[idx] = (r[idx] - center[p]) / scale[p]
         s = np.full(n, np.nan)
+        for idx, long in self._longs:  # a spread test's release reads its raw residual
+            self._long[idx] = long.transform(r[idx][None, :])[0]
         for idx, spread in self._spreads:  # a spread test judges its residual's running spread
             self._raw_known[idx] = np.isfinite(r[idx])
             r[idx] = spread.transform(r[idx][None, :])[0]
@@ -651,7 +681,16 @@ class Plant:
             rf[idx] = x[0]
             raw = band.transform(x, self._lo[idx], self._hi[idx])
             raw[:, self._no_th[idx]] = np.nan
-            d = swing.transform(delay.transform(raw), opens, self._slot_unit[idx])
+            d = delay.transform(raw)
+            rel = np.flatnonzero(np.isfinite(self._release[idx]))
+            if rel.size:  # a spread test on held while its long window's spread is unusual
+                at = idx[rel]
+                kept, left = self._released[at], self._rel_left[at]
+                d = _release_kernel(np.ascontiguousarray(d, float), rel.astype(np.int64),
+                                    self._long[at][None, :], self._release[at], kept, opens,
+                                    self._slot_unit[idx], left)  # fmt: skip
+                self._released[at], self._rel_left[at] = kept, left
+            d = swing.transform(d, opens, self._slot_unit[idx])
             held = self._held[idx]
             run = self._run[idx]
             d = _hold_kernel(np.ascontiguousarray(d), hold, held, run)

@@ -81,6 +81,7 @@ from diag_plugin.diagnose.unitloops import (
     Deadband,
     EpisodeHold,
     OscillationHold,
+    ReleaseHold,
     RunningSpread,
     oscillation_samples,
     resolved_evaluation,
@@ -751,6 +752,15 @@ class Unit:
         w = oscillation_samples(self.ev, self.period)
         return OscillationHold(np.full(len(self.tests), w, np.int64), quiet=self._quiet_n())
 
+    def _release_hold(self) -> ReleaseHold | None:
+        """The spread tests' release on the long window (:class:`ReleaseHold`): those with a
+        ``release`` threshold, when the unit file gives ``release_window_s`` (else None)."""
+        sec = float(self.ev.get("release_window_s", 0.0) or 0.0)
+        rel = np.array([self.file.tests[j].release or np.nan for j in self.spread_cols], float)
+        if sec <= 0 or not np.isfinite(rel).any():
+            return None
+        return ReleaseHold(spread_samples(sec, self.period), self.spread_cols, rel)
+
     def _openings(self, cols: Columns, eq) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Where a settle opens in this piece, for the oscillation hold
         (:meth:`OscillationHold.transform`): samples × groups the settle's bound in samples
@@ -799,6 +809,7 @@ class Unit:
         self.spread = RunningSpread(window, len(self.spread_cols))
         self.deadband = Deadband(ev["deadband"], len(self.tests)) if ev["deadband"] > 0 else None
         self.oscillation = self._oscillation_hold()
+        self.release_hold = self._release_hold()
         ntags = len(self.cmodel.tags) if self.cmodel is not None else 0
         self.episode = EpisodeHold(ntags)
         self.test_episode = EpisodeHold(ntags)  # the tests on's names (TestNames.fill)
@@ -849,6 +860,7 @@ class Unit:
             "spread": self.spread.to_state(),
             "deadband": None if self.deadband is None else self.deadband.state.tolist(),
             "oscillation": self.oscillation.to_state(),
+            "release": None if self.release_hold is None else self.release_hold.to_state(),
             "episode": self.episode.to_state(),
             "test_episode": self.test_episode.to_state(),
             "alarm_hold": None if self.alarm_hold is None else self.alarm_hold.to_state(),
@@ -898,6 +910,8 @@ class Unit:
                 self._last_alarm = None if last is None else (last[0], last[1], last[2])
         if "oscillation" in state:  # a state saved before it starts the hold from rest
             self.oscillation.load_state(state["oscillation"])
+        if self.release_hold is not None and state.get("release") is not None:
+            self.release_hold.load_state(state["release"])  # saved before it: from rest
         if self.settle is not None and state.get("settle") is not None:
             self.settle.load_state(state["settle"])  # states saved before it: from rest
         if self.transients is not None and state.get("transients") is not None:
@@ -1031,10 +1045,15 @@ class Unit:
         return tuple(pts)
 
     def symptoms(
-        self, r: np.ndarray, opens: np.ndarray | None = None, group: np.ndarray | None = None
+        self,
+        r: np.ndarray,
+        opens: np.ndarray | None = None,
+        group: np.ndarray | None = None,
+        long: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """Delayed (and latched) symptoms −1/0/+1/NaN, and the fuzzy memberships if fuzzy;
-        ``opens``, ``group``: where a settle opens (:meth:`_openings`)."""
+        ``opens``, ``group``: where a settle opens (:meth:`_openings`); ``long``: the spread
+        tests' long-window spread (:meth:`ReleaseHold.long_spread`; None: no release)."""
         lo, hi = self._limits()
         no_th = np.isnan(hi)
         hi_ = np.where(no_th, 1.0, hi)
@@ -1052,6 +1071,9 @@ class Unit:
         # ``raw`` is this call's own array: delayed, then held, in place (no new array of
         # the symptoms' size for either)
         s = self.delay.transform(raw, overwrite=True)
+        # a spread test on stays on while its long window's spread is unusual (ReleaseHold)
+        if self.release_hold is not None and long is not None:
+            s = self.release_hold.transform(s, long, opens, group)
         # a swing across both thresholds is one alarm; a settle's transient none
         s = self.oscillation.transform(s, opens, group)
         # a test unknown for fewer samples than the on-delay keeps its last known symptom:
@@ -1242,6 +1264,7 @@ class Unit:
         if self.deadband is not None:
             self.deadband = Deadband(ev["deadband"], len(self.tests))
         self.oscillation = self._oscillation_hold()
+        self.release_hold = self._release_hold()
         self.isolation = IsolationHold(1, len(self.tests), len(self.faults))
         self.episode = EpisodeHold(len(self.cmodel.tags) if self.cmodel is not None else 0)
         if self.alarm_hold is not None:
@@ -1263,6 +1286,11 @@ class Unit:
         cols = self.columns(frame)  # read once: the builders and the reasons
         raw, off = self._residuals(frame, cols)  # off: a stopped piece's tests (equipment.py)
         raw = self.at_points(raw, point)
+        # the spread tests' long window (ReleaseHold) reads their raw residuals, as the
+        # short one (filtered) does
+        long = None
+        if self.release_hold is not None:
+            long = self.release_hold.long_spread(raw.to_numpy(float)[:, self.spread_cols])
         r = self.filtered(raw)
         # what the warm-up reads of the raw residuals, taken now: the raw array is let go
         # before the symptoms and the combined test make theirs (one n × tests array fewer
@@ -1273,7 +1301,7 @@ class Unit:
         if self.openings_seen is not None:
             self.openings_seen.append(np.zeros((len(r), len(self.tests)), np.int64)
                                       if opens is None else opens[:, group])  # fmt: skip
-        s, mem = self.symptoms(r.to_numpy(), opens, group)
+        s, mem = self.symptoms(r.to_numpy(), opens, group, long)
         n, T = s.shape
         # a started piece's tests held off while it settles (equipment.py): from their
         # symptoms, then off as a stopped piece's (the combined test never reads them)

@@ -137,7 +137,9 @@ models' period; 0: the sample counts ``on_delay``/``off_delay``), ``deadband`` (
 once on, clears only below ``(1 − deadband)`` × its threshold), ``spread_window_s`` (the
 spread tests' window) and ``oscillation_window_s`` (a symptom that swung there and back
 within two of it is held on until a side is quiet for one: an oscillation is one alarm; 0
-or absent: no hold) are described in
+or absent: no hold) and ``release_window_s`` with a spread test's ``release`` (a spread
+test on stays on while its residual's spread over that window is above ``release``; 0 or
+absent: released as it falls back, as before) are described in
 :mod:`diag_plugin.diagnose.unitloops`;
 ``settle_max_s`` (written by ``diag unit build``; 0 or absent: no guard) bounds the settle
 after an operator's set-point step, during which the unit's alarms are CHECK_FUNCTION
@@ -265,6 +267,7 @@ EVALUATION_DEFAULTS: dict[str, Any] = {
     "deadband": 0.0,
     "spread_window_s": 0.0,
     "oscillation_window_s": 0.0,
+    "release_window_s": 0.0,
     "settle_max_s": 0.0,
     "manual_settle_max_s": 0.0,
     "state_settle_max_s": 0.0,
@@ -279,6 +282,7 @@ NEW_KEYS = (
     "deadband",
     "spread_window_s",
     "oscillation_window_s",
+    "release_window_s",
     "settle_max_s",
     "manual_settle_max_s",
     "state_settle_max_s",
@@ -307,6 +311,7 @@ _KINDS = {
     "deadband": float,
     "spread_window_s": float,
     "oscillation_window_s": float,
+    "release_window_s": float,
     "settle_max_s": float,
     "manual_settle_max_s": float,
     "state_settle_max_s": float,
@@ -363,6 +368,10 @@ class TestSpec:
     #: a manipulated flow's balance test (``diag unit build``, :mod:`~diag_plugin.unitbuild.
     #: balance`): its residual alone names the flow it models (a loss or gain no meter sees)
     balance: bool = False
+    #: a spread test's release threshold (``diag unit build``; None: none): once on, its
+    #: symptom is held while the running spread of its residual over ``release_window_s``
+    #: stays above it (:class:`~diag_plugin.diagnose.unitloops.ReleaseHold`)
+    release: float | None = None
 
     @property
     def limits(self) -> tuple[float, float] | None:
@@ -615,6 +624,7 @@ class UnitFile(LinedFile):
             ("deadband", 0.0 <= ev["deadband"] < 1.0, "deadband: share of the threshold, [0, 1)"),
             ("spread_window_s", ev["spread_window_s"] >= 0, "spread_window_s is seconds, ≥ 0"),
             ("oscillation_window_s", ev["oscillation_window_s"] >= 0, "seconds, ≥ 0 (0: off)"),
+            ("release_window_s", ev["release_window_s"] >= 0, "seconds, ≥ 0 (0: off)"),
             ("settle_max_s", ev["settle_max_s"] >= 0, "settle_max_s is seconds, ≥ 0"),
             ("manual_settle_max_s", ev["manual_settle_max_s"] >= 0, "seconds, ≥ 0"),
             ("state_settle_max_s", ev["state_settle_max_s"] >= 0, "seconds, ≥ 0"),
@@ -634,7 +644,7 @@ class UnitFile(LinedFile):
             v = {k: _plain(x) for k, x in raw.items()}
             known = {"model", "high", "low", "ymax", "levels", "spread", "fuzzy", "actuator",
                      "statistic", "set_point", "point_center", "point_scale",
-                     "combined", "balance"}  # fmt: skip
+                     "combined", "balance", "release"}  # fmt: skip
             for key in sorted(set(v) - known):
                 self.error(line, f"test {name!r}: unknown key {key!r}")
             model = v.get("model")
@@ -642,7 +652,7 @@ class UnitFile(LinedFile):
                 self.error(line, f"test {name!r}: model must name a rule-base file")
                 continue
             nums = {}
-            for key in ("high", "low", "ymax"):
+            for key in ("high", "low", "ymax", "release"):
                 x = v.get(key)
                 if x is None:
                     nums[key] = None
@@ -746,6 +756,7 @@ class UnitFile(LinedFile):
                     scale,
                     combined,
                     balance,
+                    nums["release"],
                 )
             )
         if table and not tests and not self.problems:

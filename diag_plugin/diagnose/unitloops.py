@@ -36,6 +36,22 @@ residual rarely swings across both thresholds, so the false alarms do not rise (
 the chemical plant's tuning runs). The price: an alarm held by it ends up to the window after
 the oscillation stops, and an oscillation's first swing there and back is alarms of its own.
 
+**A standing stiction alarm is released on the long window** (:class:`ReleaseHold`; issue
+34 item 6, ISA-18.2's deadband/release: an alarm raised on one condition, cleared on
+another). The spread test raises on its window ``W`` as above; once on, its symptom is held
+while the running spread (the same MAD) of the same residual over the longer
+``release_window_s`` stays above the test's ``release`` threshold. ``diag unit build``
+writes the window as the one whose MAD of the loop's fault-free control error rests on
+``(1.166 / 0.2)² = 34`` independent samples (the MAD known to 20 %; the error's
+autocorrelation summed to its first zero) and ``release`` as the largest such spread over
+the build's window: a fault-free run's alarm is extended only where the long spread is
+beyond anything the build saw. The long window never raises (the detection delay, the
+settle's quiet time and the fault-free raising stay the short window's); a limit cycle
+whose short MAD drops under its threshold once a cycle (the 7-tag line's sticking valve:
+one 33-sample cycle in a 40-sample window) stays one alarm. (Releasing the unit's own alarm the same
+way was measured and not kept: it carried an operator's step's alarm past its settle,
+docs/how-to/unit-loops.md.)
+
 **The named tag held through an episode** (:class:`EpisodeHold`): each tag's share of the
 alarm is averaged over the samples of the current alarm episode, and the tags are ranked by
 that mean, so the tags named do not flicker from sample to sample within one alarm (as the
@@ -331,6 +347,85 @@ class OscillationHold:
             ends[:, 0] = np.where(self.last > 0, n, np.where(self.last < 0, p, ends[:, 0]))
             self.armed = np.zeros(len(self.window), bool)
         self.ends = ends
+
+
+@numba.njit(cache=True, nogil=True)
+def _release_kernel(s, cols, spread, release, held, opens, group, left):  # pragma: no cover
+    # row by row, in place: a spread column on raises its hold; off (0), it is held on while
+    # its long spread is above its release threshold (NaN: not), else the hold drops; an
+    # unknown symptom (NaN) stays unknown and leaves the hold as it is. For a settle's bound
+    # after it opens on its group (opens[i, group[j]] > 0: the bound in samples) a symptom on
+    # does not raise the hold (a known transient); one raised before goes on as it was
+    n = s.shape[0]
+    for i in range(n):
+        for k in range(cols.shape[0]):
+            j = cols[k]
+            o = opens[i, group[j]]
+            if o > 0:
+                left[k] = max(left[k], o)
+            settling = left[k] > 0
+            if settling:
+                left[k] -= 1
+            x = s[i, j]
+            if x > 0:
+                if not settling:
+                    held[k] = True
+            elif x == 0 and held[k]:
+                if spread[i, k] > release[k]:
+                    s[i, j] = 1.0
+                else:
+                    held[k] = False
+    return s
+
+
+class ReleaseHold:
+    """A spread test's symptom, once on, held on while the running spread of its residual
+    over the release window stays above its ``release`` threshold (see module doc); the
+    long window's tail and each column's hold carried across pieces."""
+
+    def __init__(self, window: int, cols: np.ndarray, release: np.ndarray) -> None:
+        self.cols = np.asarray(cols, np.int64)
+        self.release = np.asarray(release, float)
+        self.spread = RunningSpread(window, len(self.cols))
+        self.held = np.zeros(len(self.cols), np.bool_)
+        self.left = np.zeros(len(self.cols), np.int64)  # samples of an open settle left
+
+    def long_spread(self, raw: np.ndarray) -> np.ndarray:
+        """The long window's running spread of the spread columns' raw residuals
+        (``raw``: samples × the spread columns)."""
+        return self.spread.transform(raw)
+
+    def transform(
+        self,
+        s: np.ndarray,
+        spread: np.ndarray,
+        opens: np.ndarray | None = None,
+        group: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """``s`` (samples × tests, delayed symptoms; in place when C-ordered float) with the
+        spread columns held; ``spread``: :meth:`long_spread` of the same rows; ``opens``,
+        ``group``: where a settle opens, as :meth:`OscillationHold.transform` (within its
+        bound a symptom on does not raise the hold; one raised before goes on)."""
+        a = np.ascontiguousarray(np.asarray(s, float))
+        if not self.cols.size:
+            return a
+        n, m = a.shape
+        sp = np.ascontiguousarray(np.asarray(spread, float).reshape(n, len(self.cols)))
+        if opens is None:
+            opens = np.zeros((n, 1), np.int64)
+        opens = np.ascontiguousarray(np.asarray(opens, np.int64).reshape(n, -1))
+        group = np.zeros(m, np.intp) if group is None else np.asarray(group, np.intp)
+        return _release_kernel(a, self.cols, sp, self.release, self.held, opens, group,
+                               self.left)  # fmt: skip
+
+    def to_state(self) -> dict[str, Any]:
+        return {"spread": self.spread.to_state(), "held": self.held.tolist(),
+                "left": self.left.tolist()}  # fmt: skip
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        self.spread.load_state(state["spread"])
+        self.held = np.asarray(state["held"], np.bool_).reshape(len(self.cols))
+        self.left = np.asarray(state.get("left", np.zeros(len(self.cols))), np.int64)
 
 
 class EpisodeHold:

@@ -1735,7 +1735,23 @@ def _build_unit(
                 combos = (combos[0], sorted({*combos[1], *visited}), combos[2])
                 put_states(uf, *combos)
             notes.append(combos_note(unit, *combos, short=visited))
-        if any(value > 0 for *_, value, _ in settles) or combos is not None or pieces or envs:
+        # the spread tests' release on a long window (diagnose/unitloops.ReleaseHold): after
+        # the settles, which never read it (it never raises)
+        rel_s, rel_how = release_window(
+            frame, [(ch.tag, ch.tracks) for ch in kept if ch.statistic == "spread"],
+            pd.Timedelta(period).total_seconds(),
+        )  # fmt: skip
+        release = release_thresholds(unit, frame, rel_s) if rel_s > 0 else {}
+        if release:
+            uf.doc["evaluation"]["release_window_s"] = rel_s
+            uf.doc["evaluation"]["release_window_s"].comment(
+                "a spread test on stays on while its spread over this window is above its"
+                " release (the build's largest): " + rel_how
+            )
+            for t, v in release.items():
+                uf.doc["tests"][t]["release"] = v
+        if (any(value > 0 for *_, value, _ in settles) or combos is not None or pieces or envs
+                or release):  # fmt: skip
             uf.save()
         else:
             uf.save(as_read=True)  # the text set_learned read back: not dumped again
@@ -2247,6 +2263,64 @@ def spread_tests(kept: Sequence[TestChoice], models: dict[str, str], taken: set[
             name = test_name(f"{ch.test}_spread", taken)
             models[name] = models[ch.test]
             out.append(dc_replace(ch, test=name, statistic="spread", steps=list(ch.steps)))
+    return out
+
+
+#: the relative standard error (one s.e.) the spread release's long window knows the loop
+#: error's MAD to (:func:`release_window`; benchmarks/line7_spread_window.py, fixed before it
+#: was replayed)
+RELEASE_PRECISION = 0.2
+
+
+def release_window(frame: pd.DataFrame, loops: Sequence[tuple[str, str]], period_s: float
+                   ) -> tuple[float, str]:  # fmt: skip
+    """The spread release's window (seconds; :class:`~diag_plugin.diagnose.unitloops.
+    ReleaseHold`): the one whose running MAD of each loop's fault-free control error
+    ``PV − SP`` rests on ``(1.166 / RELEASE_PRECISION)²`` independent samples (the MAD's
+    asymptotic variance ``1.36 σ² / n``), ``n`` samples holding ``n / (1 + 2 Σ ρ_k)``
+    independent ones (``ρ`` the error's autocorrelation, summed to its first zero); the
+    longest over the loops, and how it was got (0: no loop with enough samples)."""
+    n = (1.166 / RELEASE_PRECISION) ** 2
+    best, how = 0.0, ""
+    for pv, sp in loops:
+        if pv not in frame.columns or sp not in frame.columns:
+            continue
+        e = (frame[pv] - frame[sp]).to_numpy(float)
+        e = e[np.isfinite(e)]
+        if e.size < 20:
+            continue
+        e = e - e.mean()
+        f = np.fft.rfft(e, 2 * e.size)
+        ac = np.fft.irfft(f * np.conj(f))[: e.size // 2]
+        if not ac[0] > 0:
+            continue
+        ac = ac / ac[0]
+        zero = int(np.argmax(ac <= 0)) or ac.size
+        factor = float(1.0 + 2.0 * ac[1:zero].sum())
+        if n * factor * period_s > best:
+            best = n * factor * period_s
+            how = (f"{n:.0f} independent samples of {pv} - {sp} x {factor:.1f} samples each "
+                   f"(its autocorrelation to its first zero, lag {zero})")  # fmt: skip
+    return float(f"{best:.6g}"), how
+
+
+def release_thresholds(unit, frame: pd.DataFrame, window_s: float) -> dict[str, float]:
+    """Per spread test the largest running spread (:class:`~diag_plugin.diagnose.unitloops.
+    RunningSpread`) of its raw residual over ``window_s`` on the build's window: a fault-free
+    run's stiction alarm is held past its short window only beyond anything the build saw."""
+    from diag_plugin.diagnose.unitloops import RunningSpread, spread_samples
+
+    cols = unit.spread_cols
+    if not cols.size or window_s <= 0:
+        return {}
+    raw = unit.reset().raw_residuals(frame).to_numpy(float)[:, cols]
+    unit.reset()
+    spread = RunningSpread(spread_samples(window_s, unit.period), len(cols)).transform(raw)
+    out = {}
+    for k, j in enumerate(cols):
+        x = spread[:, k]
+        if np.isfinite(x).any() and np.nanmax(x) > 0:
+            out[unit.tests[j]] = float(f"{np.nanmax(x):.6g}")
     return out
 
 
