@@ -327,18 +327,24 @@ def test_a_broken_narrow_row_says_what_is_wrong_at_its_line(unit5, tmp_path, edi
     assert said in str(exc.value)
 
 
+def _day_imported(unit5, tmp_path, f: pd.DataFrame, every: str, first: int = 0) -> list[str]:
+    """A day of the line as ``every``'s means (from row ``first``), a week on, imported into a
+    SQLite historian through ``diag import``: the global options to diagnose it with."""
+    f = f.resample(every, label="right", closed="right").mean().iloc[first:]
+    f.index = f.index + pd.Timedelta(days=7)
+    f.index = f.index.strftime("%Y-%m-%dT%H:%M:%S")
+    f.index.name = "time"
+    f.to_csv(tmp_path / "day.csv")
+    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(unit5)]
+    assert diag(g, "import", str(tmp_path / "day.csv"))[0] == 0
+    return g
+
+
 @pytest.mark.parametrize("where", ["no/such/folder/out.csv", "."])
 def test_diagnose_csv_into_no_folder_is_refused_before_the_replay(unit5, tmp_path, where):
     """Before: the whole replay ran, then ``[Errno 2] No such file or directory`` (its result
     lost), or ``[Errno 21] Is a directory``."""
-    f = line7.simulate(1.0, 4).resample("5min", label="right", closed="right").mean()
-    f.index = f.index + pd.Timedelta(days=7)
-    out = f.copy()
-    out.index = out.index.strftime("%Y-%m-%dT%H:%M:%S")
-    out.index.name = "time"
-    out.to_csv(tmp_path / "day.csv")
-    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(unit5)]
-    assert diag(g, "import", str(tmp_path / "day.csv"))[0] == 0
+    g = _day_imported(unit5, tmp_path, line7.simulate(1.0, 4), "5min")
     target = tmp_path / where
     rc, text = diag(g, "diagnose", "narrow", "--from", "2026-03-09", "--to", "2026-03-10",
                     "--csv", str(target))  # fmt: skip
@@ -367,15 +373,7 @@ def test_diagnose_of_data_coarser_than_the_unit_says_both_periods(unit5, tmp_pat
     """Data every 15 min for a unit of 5 min: each sample held over 3 of its periods. Before:
     replayed without a word. Data every minute (finer) are averaged onto its grid, as at the
     build: nothing said."""
-    f = line7.simulate(1.0, 4)
-    f = f.resample(every, label="right", closed="right").mean().iloc[1:]
-    f.index = f.index + pd.Timedelta(days=7)
-    out = f.copy()
-    out.index = out.index.strftime("%Y-%m-%dT%H:%M:%S")
-    out.index.name = "time"
-    out.to_csv(tmp_path / "day.csv")
-    g = ["--db", f"sqlite:///{tmp_path / 'h.db'}", "--rulebases", str(unit5)]
-    assert diag(g, "import", str(tmp_path / "day.csv"))[0] == 0
+    g = _day_imported(unit5, tmp_path, line7.simulate(1.0, 4), every, first=1)
     rc, text = diag(g, "diagnose", "narrow", "--from", "2026-03-09", "--to", "2026-03-10")
     assert rc == 0, text
     if every == "1min":
