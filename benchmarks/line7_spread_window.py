@@ -16,7 +16,7 @@ learned for that window) and replays:
   ``tests/test_unit_stiction.py`` replays them.
 
 Variants: main's 600 s; fixed windows (``--windows``); and ``acf``, the window read off each
-unit's own fault-free build data (:func:`loop_spread_window`: enough independent samples of
+unit's own fault-free build data (``unitbuild.build.release_window``: enough independent samples of
 the loop's control error, its autocorrelation summed to its first zero, for its MAD to be
 known to 20 %). Run: ``python benchmarks/line7_spread_window.py [--windows 600 3600 acf]
 [--seeds 101 102 …]`` (about a minute and a half of CPU a variant); ``--statistics``: the
@@ -33,34 +33,6 @@ import numpy as np
 import pandas as pd
 
 from tests import jacket4, line7
-
-#: the relative standard error (one s.e.) the ``acf`` window knows the loop error's MAD to;
-#: fixed before it was replayed (after 3600 s and 4800 s had been)
-PRECISION = 0.2
-
-
-def loop_spread_window(
-    frame: pd.DataFrame, loops: Sequence[tuple[str, str]], period_s: float
-) -> tuple[float, str]:
-    """The window (seconds) whose running MAD of each loop's fault-free control error
-    ``PV − SP`` rests on ``(1.166 / PRECISION)²`` independent samples (the MAD's asymptotic
-    variance ``1.36 σ² / n``), ``n`` samples holding ``n / (1 + 2 Σ ρ_k)`` independent ones
-    (``ρ`` summed to its first zero); the longest over the loops, and how it was got."""
-    n = (1.166 / PRECISION) ** 2
-    best, how = 0.0, ""
-    for pv, sp in loops:
-        e = (frame[pv] - frame[sp]).to_numpy(float)
-        e = e[np.isfinite(e)]
-        e = e - e.mean()
-        f = np.fft.rfft(e, 2 * e.size)
-        ac = np.fft.irfft(f * np.conj(f))[: e.size // 2]
-        ac = ac / ac[0]
-        zero = int(np.argmax(ac <= 0)) or ac.size
-        factor = float(1.0 + 2.0 * ac[1:zero].sum())
-        if n * factor * period_s > best:
-            best = n * factor * period_s
-            how = f"{n:.0f} × {factor:.1f} samples ({pv}, first zero at lag {zero})"
-    return best, how
 
 
 def episodes(alarm: np.ndarray) -> int:
@@ -87,7 +59,7 @@ def build(name: str, frame: pd.DataFrame, loop: str, window: str):
     pv, rest = loop.split("=")
     how = ""
     if window == "acf":
-        b.SPREAD_WINDOW_S, how = loop_spread_window(frame, [(pv, rest.split(":")[0])], 15.0)
+        b.SPREAD_WINDOW_S, how = b.release_window(frame, [(pv, rest.split(":")[0])], 15.0)
     else:
         b.SPREAD_WINDOW_S = float(window)
     try:

@@ -757,9 +757,10 @@ class Unit:
         ``release`` threshold, when the unit file gives ``release_window_s`` (else None)."""
         sec = float(self.ev.get("release_window_s", 0.0) or 0.0)
         rel = np.array([self.file.tests[j].release or np.nan for j in self.spread_cols], float)
-        if sec <= 0 or not np.isfinite(rel).any():
+        has = np.isfinite(rel)  # a spread test without one is not held: not read either
+        if sec <= 0 or not has.any():
             return None
-        return ReleaseHold(spread_samples(sec, self.period), self.spread_cols, rel)
+        return ReleaseHold(spread_samples(sec, self.period), self.spread_cols[has], rel[has])
 
     def _openings(self, cols: Columns, eq) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Where a settle opens in this piece, for the oscillation hold
@@ -1290,7 +1291,9 @@ class Unit:
         # short one (filtered) does
         long = None
         if self.release_hold is not None:
-            long = self.release_hold.long_spread(raw.to_numpy(float)[:, self.spread_cols])
+            long = self.release_hold.long_spread(
+                raw.iloc[:, self.release_hold.cols].to_numpy(float)
+            )
         r = self.filtered(raw)
         # what the warm-up reads of the raw residuals, taken now: the raw array is let go
         # before the symptoms and the combined test make theirs (one n × tests array fewer

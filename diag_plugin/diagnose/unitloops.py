@@ -423,6 +423,10 @@ class ReleaseHold:
                 "left": self.left.tolist()}  # fmt: skip
 
     def load_state(self, state: dict[str, Any]) -> None:
+        """A state of the same columns; one saved over other columns (before a spread test
+        without a ``release`` was left out) starts the hold from rest."""
+        if len(state["held"]) != len(self.cols):
+            return
         self.spread.load_state(state["spread"])
         self.held = np.asarray(state["held"], np.bool_).reshape(len(self.cols))
         self.left = np.asarray(state.get("left", np.zeros(len(self.cols))), np.int64)

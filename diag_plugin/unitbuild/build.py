@@ -2280,6 +2280,8 @@ def release_window(frame: pd.DataFrame, loops: Sequence[tuple[str, str]], period
     asymptotic variance ``1.36 σ² / n``), ``n`` samples holding ``n / (1 + 2 Σ ρ_k)``
     independent ones (``ρ`` the error's autocorrelation, summed to its first zero); the
     longest over the loops, and how it was got (0: no loop with enough samples)."""
+    from diag_plugin.models.series import autocorrelation
+
     n = (1.166 / RELEASE_PRECISION) ** 2
     best, how = 0.0, ""
     for pv, sp in loops:
@@ -2290,13 +2292,10 @@ def release_window(frame: pd.DataFrame, loops: Sequence[tuple[str, str]], period
         if e.size < 20:
             continue
         e = e - e.mean()
-        f = np.fft.rfft(e, 2 * e.size)
-        ac = np.fft.irfft(f * np.conj(f))[: e.size // 2]
-        if not ac[0] > 0:
+        if not np.any(e):
             continue
-        ac = ac / ac[0]
-        zero = int(np.argmax(ac <= 0)) or ac.size
-        factor = float(1.0 + 2.0 * ac[1:zero].sum())
+        rho, zero = autocorrelation(e)
+        factor = max(1.0, 1.0 + 2.0 * float(rho[1:zero].sum()))
         if n * factor * period_s > best:
             best = n * factor * period_s
             how = (f"{n:.0f} independent samples of {pv} - {sp} x {factor:.1f} samples each "
