@@ -1398,6 +1398,9 @@ def import_file(
     for m in pending_meta.values():  # metadata of tags already stored
         if m["name"] in known:
             h.ensure_tag(**m)
+    unused = [name for name in pending_meta if name not in known]
+    if unused:
+        report.notes.append(_unused_tags_note(Path(tags_csv), unused))
     report.tags = tags_seen
     if not report.samples:
         first = (report.bad + report.cells)[:3]
@@ -1682,6 +1685,23 @@ def read_tags_csv(path: str | Path) -> list[dict]:
             }
         )
     return out
+
+
+def _unused_tags_note(path: Path, names: list[str]) -> str:
+    """The note on tags CSV rows naming a tag neither in the file nor in the historian: not
+    stored (a tag is made by its samples), each named with its ``file:line``."""
+    frame, _, c_name = read_tags_frame(path)
+    line = {}
+    for i, name in enumerate(frame[c_name].str.strip()):
+        line.setdefault(name, i + 2)
+    said = [f"{n} ({path}:{line[n]})" if n in line else n for n in names]
+    more = f" and {len(said) - 10} more" if len(said) > 10 else ""
+    head = ", ".join(said[:10]) + more
+    noun = "1 row names a tag" if len(names) == 1 else f"{len(names)} rows name tags"
+    return (
+        f"tags CSV: {noun} neither in this file nor in the historian, not stored: {head} "
+        "(a misspelt name? a tag's metadata is stored when its samples are imported)"
+    )
 
 
 def read_tags_frame(path: Path) -> tuple[pd.DataFrame, dict[str, str], str]:

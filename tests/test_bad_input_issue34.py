@@ -385,3 +385,29 @@ def test_diagnose_of_data_coarser_than_the_unit_says_both_periods(unit5, tmp_pat
         r"\(diag unit build NAME --period 15min …\) or give the data every (300s|5min)",
         text,
     ), text
+
+
+def test_a_tags_csv_row_for_a_tag_neither_imported_nor_stored_is_said_not_dropped(hist):
+    """A misspelt name in the tags CSV (``FEED_FLOWW``): its row matches no column of the file
+    and no stored tag. Before: dropped without a word (the tag the user meant kept no
+    metadata); now the import says which rows at ``file:line`` and stores no such tag. A row
+    for a tag already stored, not in this file, still updates its metadata."""
+    g, tmp, f = hist
+    later = f.iloc[:100, :3].copy()  # three of the line's tags, a day later
+    later.index = (later.index + pd.Timedelta(days=1)).strftime("%Y-%m-%dT%H:%M:%S")
+    later.index.name = "time"
+    later.to_csv(tmp / "later.csv")
+    tags = line7.tags_csv()
+    tags.loc[len(tags)] = tags.iloc[0]
+    tags.loc[len(tags) - 1, "name"] = "FEED_FLOWW"
+    tags.to_csv(tmp / "typo.csv", index=False)
+    rc, text = diag(g, "import", str(tmp / "later.csv"), "--tags", str(tmp / "typo.csv"))
+    assert rc == 0, text
+    line = len(tags) + 1  # the header is line 1
+    said = "tags CSV: 1 row names a tag neither in this file nor in the historian, not stored"
+    assert said in text, text
+    assert f"FEED_FLOWW ({tmp / 'typo.csv'}:{line})" in text, text
+    names = {r[0] for r in sqlite3.connect(tmp / "h.db").execute("SELECT name FROM tags")}
+    assert "FEED_FLOWW" not in names and set(f.columns) <= names
+    rc, text = diag(g, "import", str(tmp / "later.csv"), "--tags", str(tmp / "tags.csv"))
+    assert rc == 0 and "neither in this file" not in text, text  # the others are all stored
