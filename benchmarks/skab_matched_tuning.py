@@ -80,18 +80,10 @@ def cpu_seconds() -> float:
     )  # fmt: skip
 
 
-def build_run(run, folder, cols: list[str]):
-    """One SKAB run as the bench builds and scores it: the unit built on the run's first
-    ``run.learn`` samples (in ``folder``), PCA and DPCA (two lags) on the same rows. Returns
-    the build's result, the unit and the raw statistics (``unit`` with ``unit_names``, ``PCA``,
-    ``DPCA``: each statistic over its limit, per sample of the whole run)."""
-    from diag_plugin.bench.publicbench import (
-        DPCA_LAGS,
-        _sample_grid,
-        pca_fit,
-        pca_statistics,
-        unit_statistics,
-    )
+def build_on_grid(run, folder):
+    """The unit as the bench builds it: on the first ``run.learn`` samples of the run's 1 s
+    grid (in ``folder``). Returns the build's result, the unit and the grid."""
+    from diag_plugin.bench.publicbench import _sample_grid
     from diag_plugin.bench.publicplants import SKAB_TAGS
     from diag_plugin.diagnose.unit import Unit
     from diag_plugin.unitbuild.build import build_unit
@@ -100,13 +92,30 @@ def build_run(run, folder, cols: list[str]):
     grid = _sample_grid(run.frame, "1s")
     res = build_unit("skab", grid.iloc[: run.learn], folder=folder, period="1s", tag_info=info,
                      force=True)  # fmt: skip
-    unit = Unit.load(res.path, folder)
+    return res, Unit.load(res.path, folder), grid
+
+
+def baselines(run, cols: list[str]) -> dict[str, np.ndarray]:
+    """PCA's and DPCA's (two lags) raw statistics over the whole run, fitted on the same
+    first ``run.learn`` rows as the unit."""
+    from diag_plugin.bench.publicbench import DPCA_LAGS, pca_fit, pca_statistics
+
+    head = run.frame.iloc[: run.learn]
+    return {m: pca_statistics(pca_fit([head], cols, lags, 0.85), run.frame)[0]
+            for m, lags in (("PCA", 0), ("DPCA", DPCA_LAGS))}  # fmt: skip
+
+
+def build_run(run, folder, cols: list[str]):
+    """One SKAB run as the bench builds and scores it: the unit built on the run's first
+    ``run.learn`` samples (in ``folder``), PCA and DPCA (two lags) on the same rows. Returns
+    the build's result, the unit and the raw statistics (``unit`` with ``unit_names``, ``PCA``,
+    ``DPCA``: each statistic over its limit, per sample of the whole run)."""
+    from diag_plugin.bench.publicbench import unit_statistics
+
+    res, unit, grid = build_on_grid(run, folder)
     raw = {"unit": unit_statistics(unit, grid)[0],
            "unit_names": np.array(list(unit.tests) + ["T2"])}  # fmt: skip
-    head = run.frame.iloc[: run.learn]
-    for m, lags in (("PCA", 0), ("DPCA", DPCA_LAGS)):
-        raw[m] = pca_statistics(pca_fit([head], cols, lags, 0.85), run.frame)[0]
-    return res, unit, raw
+    return res, unit, raw | baselines(run, cols)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -29,40 +29,19 @@ builds, CPU time printed).
 from __future__ import annotations
 
 import argparse
-import resource
 
 import numpy as np
-
-
-def cpu_seconds() -> float:
-    """CPU seconds so far, the process's and its finished forked workers' (user + system)."""
-    return sum(
-        u.ru_utime + u.ru_stime
-        for u in (resource.getrusage(resource.RUSAGE_SELF),
-                  resource.getrusage(resource.RUSAGE_CHILDREN))
-    )  # fmt: skip
 
 
 def build_run(run, folder, cols: list[str]) -> dict[str, np.ndarray]:
     """One SKAB run as the bench builds and scores it: the unit's statistics (``unit``, with
     ``unit_names``) and its oscillation hold's delayed columns (``held``, NaN without a hold),
     PCA's and DPCA's statistics (``PCA``, ``DPCA``), and the unit's delays (``delays``)."""
-    from diag_plugin.bench.publicbench import (
-        DPCA_LAGS,
-        _sample_grid,
-        _unit_parts,
-        pca_fit,
-        pca_statistics,
-    )
-    from diag_plugin.bench.publicplants import SKAB_TAGS
-    from diag_plugin.diagnose.unit import Unit
-    from diag_plugin.unitbuild.build import build_unit
+    from skab_matched_tuning import baselines, build_on_grid
 
-    info = {t: {"unit": u, "description": d} for t, (u, d) in SKAB_TAGS.items()}
-    grid = _sample_grid(run.frame, "1s")
-    res = build_unit("skab", grid.iloc[: run.learn], folder=folder, period="1s", tag_info=info,
-                     force=True)  # fmt: skip
-    unit = Unit.load(res.path, folder)
+    from diag_plugin.bench.publicbench import _unit_parts
+
+    _, unit, grid = build_on_grid(run, folder)
     on, off = int(unit.ev["on_delay"]), int(unit.ev["off_delay"])
     stats, _, held = _unit_parts(unit, grid, on, off)
     names = list(unit.tests) + (["T2"] if stats.shape[1] > len(unit.tests) else [])
@@ -72,10 +51,7 @@ def build_run(run, folder, cols: list[str]) -> dict[str, np.ndarray]:
         "held": np.full((len(grid), 0), np.nan) if held is None else held,
         "delays": np.array([on, off]),
     }
-    head = run.frame.iloc[: run.learn]
-    for m, lags in (("PCA", 0), ("DPCA", DPCA_LAGS)):
-        out[m] = pca_statistics(pca_fit([head], cols, lags, 0.85), run.frame)[0]
-    return out
+    return out | baselines(run, cols)
 
 
 def released(x: np.ndarray, on: int, off: int, clear: float) -> np.ndarray:
@@ -158,6 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     targets = [float(t) for t in args.targets.split(",")]
+    from skab_matched_tuning import cpu_seconds
 
     plant = load_skab()
     cols = list(plant.tags)
