@@ -1,8 +1,9 @@
 """The 7-tag line's sticking valve, episode by episode (issue 34 item 6; docs/how-to/
 unit-loops.md, "The spread alarm released on a long window"): for each unit alarm episode in
 the day after the onset, the symptoms on at its start and at its last alarm sample (``T2``,
-each test by name), its length and the gap to the next episode; and the line's fault-free
-runs (2 days) per seed: episodes and share of samples in alarm.
+each test by name), its length and the gap to the next episode; per seed the episodes, the
+share of samples in alarm after the onset and the share of those whose first tag is
+``VALVE_A``; and (``--free``) the line's fault-free runs (2 days): episodes and share.
 
 The unit is built as ``benchmarks/line7_spread_window.py`` builds it (``build_unit`` on
 ``line7.simulate(6, 1)``, the loop declared, ``far = 0.01``). Run: ``python
@@ -61,7 +62,10 @@ def main() -> None:
             s = np.c_[s, d.combined["s_T2"].to_numpy()[onset:] == 1]
             names.append("T2")
         eps = runs_of(alarm)
-        line = f"seed {seed}: {len(eps)} episodes, {alarm.mean():.1%} in alarm"
+        top = d.top_tags["top1"].iloc[onset:]
+        top = top[top != ""]
+        line = (f"seed {seed}: {len(eps)} episodes, {alarm.mean():.1%} in alarm, "
+                f"VALVE_A first {(top == 'VALVE_A').mean():.0%}")  # fmt: skip
         if args.free:
             f = unit.reset().evaluate(line7.simulate(2.0, seed)).detected.to_numpy() == 1
             line += f"; fault-free {len(runs_of(f))} episodes ({f.mean():.2%})"

@@ -112,12 +112,6 @@ def _crisp(unit: Unit) -> bool:
     return crisp and not getattr(unit.file, "equipment", None)
 
 
-def _t2_release() -> bool:
-    import os
-
-    return os.environ.get("DIAG_T2_RELEASE", "1") != "0"
-
-
 class Plant:
     """Units evaluated together each cycle (see module doc).
 
@@ -801,7 +795,7 @@ class Plant:
             if enabled and cm.high is not None:
                 raw = np.nan if np.isnan(t2[0]) else float(t2[0] > cm.high)
                 s_t2 = float(delay.transform(np.array([[raw]]))[0, 0])
-                if ui in self._t2_rel and _t2_release():  # as Unit: ReleaseHold.combined
+                if ui in self._t2_rel:  # as Unit: ReleaseHold.combined
                     k = self._t2_rel[ui]
                     with np.errstate(invalid="ignore"):
                         q = self._long[k] / self._release[k]

@@ -767,10 +767,6 @@ class Unit:
         """The spread test ``j``'s loop's own tests, which raise its release hold
         (:class:`ReleaseHold`): the other tests whose model's output is the loop's
         measurement (its level and balance tests) or its actuator (the valve's test)."""
-        import os
-
-        if os.environ.get("DIAG_LOOP_RELEASE", "1") == "0":
-            return np.zeros(0, np.int64)
         t = self.file.tests[j]
         tags = {output_tag(self.models[t.name].output), t.actuator}
         return np.array([i for i, u in enumerate(self.file.tests) if i != j
@@ -1343,11 +1339,8 @@ class Unit:
                 with np.errstate(invalid="ignore"):
                     raw_c = np.where(np.isnan(t2), np.nan, (t2 > self.cmodel.high) * 1.0)
                 s_t2 = self.combined_delay.transform(raw_c[:, None])[:, 0]
-                import os
-
-                if (self.release_hold is not None and long is not None
-                        and os.environ.get("DIAG_T2_RELEASE", "1") != "0"):  # fmt: skip
-                    # held as the loops' tests are while a loop's long spread is unusual
+                if self.release_hold is not None and long is not None:
+                    # once on, held while a loop's long spread is unusual (ReleaseHold)
                     s_t2 = self.release_hold.combined(s_t2, long, opens)
                 c_on = _on(s_t2)
             combined = pd.DataFrame(
