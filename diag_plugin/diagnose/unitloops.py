@@ -48,8 +48,12 @@ the build's window: a fault-free run's alarm is extended only where the long spr
 beyond anything the build saw. The long window never raises (the detection delay, the
 settle's quiet time and the fault-free raising stay the short window's); a limit cycle
 whose short MAD drops under its threshold once a cycle (the 7-tag line's sticking valve:
-one 33-sample cycle in a 40-sample window) stays one alarm. (Releasing the unit's own alarm the same
-way was measured and not kept: it carried an operator's step's alarm past its settle,
+one 33-sample cycle in a 40-sample window) stays one alarm. The hold is raised too by one of
+the loop's own tests (its measurement's, its actuator's) on where the long spread is already
+above ``release`` — the loop's alarm before the short window first fires — and the combined
+test, once on, is held while any loop's long spread is above its release; within a settle's
+bound after an operator's step nothing raises either. (Releasing the unit's own alarm the
+same way was measured and not kept: it carried an operator's step's alarm past its settle,
 docs/how-to/unit-loops.md.)
 
 **The named tag held through an episode** (:class:`EpisodeHold`): each tag's share of the
