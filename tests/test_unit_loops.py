@@ -328,6 +328,36 @@ def test_the_loops_own_tests_keep_the_line_s_sticking_valve_one_alarm(line):
     assert _episodes(after).size <= 2 and after.mean() > 0.9, (_episodes(after), after.mean())
 
 
+def test_the_live_fast_path_carries_the_loops_release_across_a_restart(line):
+    """The stacked path restarted from its saved state (JSON) mid-run through the sticking
+    valve gives the statuses of one uninterrupted run; the combined test was held there
+    (on where T² was under its limit) and the spread test raised by the loop's own tests."""
+    from helpers import plant_statuses, same_status
+
+    from diag_plugin.diagnose.plant import Plant
+
+    _, unit, _, g = line
+    rb = g[g.index("--rulebases") + 1]
+    run = line7.simulate(0.35, 103, "stiction", onset_days=0.05)
+    whole = plant_statuses(Plant.load([unit.file.path], rb), run)["line"]
+    first = Plant.load([unit.file.path], rb)
+    half = len(run) // 2
+    a = plant_statuses(first, run.iloc[:half])["line"]
+    state = json.loads(json.dumps(first.to_state()))
+    b = plant_statuses(Plant.load([unit.file.path], rb).load_state(state), run.iloc[half:])
+    for i, (p, q) in enumerate(zip(whole, a + b["line"], strict=True)):
+        same_status(p, q, i)
+    # the combined test on where T² is under its limit for longer than its off-delay holds
+    high, off = unit.cmodel.high, unit.ev["off_delay"]
+    under = [
+        (m := re.search(r"combined test on \(T² ([-+.0-9e]+)\)", p.message)) is not None
+        and float(m.group(1)) <= high
+        for p in whole
+    ]
+    longest = max(len(r) for r in "".join("x" if u else " " for u in under).split() or [""])
+    assert longest > 4 * off, (longest, off)
+
+
 def test_the_line_writes_a_release_and_an_older_file_without_it_behaves_as_before(line, tmp_path):
     """``diag unit build`` writes the release window (the loop error's 34 independent samples)
     and the spread test's release (the build's largest long-window spread); a unit file
