@@ -574,11 +574,10 @@ class Plant:
             for (_, sp), st in zip(self._longs, state.get("longs") or [], strict=True):
                 sp.load_state(st)
             if len(state.get("released") or []) == len(self._released):
-                # a state saved before the loops' tests were held: theirs 0 (from rest)
                 self._released = np.asarray(state["released"], np.bool_)
                 left = state.get("release_left") or [0] * len(self._released)
                 self._rel_left = np.asarray(left, np.int64)
-            t2 = state.get("release_t2")
+            t2 = state.get("release_t2")  # saved before the combined test's hold: from rest
             if t2 is not None and len(t2[0]) == len(self._t2_held):
                 self._t2_held = np.asarray(t2[0], np.bool_)
                 self._t2_left = np.asarray(t2[1], np.int64)
