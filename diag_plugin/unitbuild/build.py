@@ -746,8 +746,8 @@ def select_inputs(
             if best is None or (rmse, rank) < (best[0], best[-1]):
                 best = (rmse, cov, c, lag, kept, rank)
         if best is None or not best[0] < gain:
-            if len(chosen) + 2 > max_inputs or method == short.LINEAR:
-                break  # a line has no product of two inputs to find
+            if len(chosen) + 2 > max_inputs or method == short.LINEAR or not _a_flow(ctx, tag):
+                break  # a line has no product of two inputs to find; a pair: a flow's
             pair = _pair_step(ctx, scorer, chosen, screened[:SCREENED], current, rows, max_sets)
             if pair is None:
                 break
@@ -769,6 +769,14 @@ def select_inputs(
         scorer = BlockScorer(FrozenRuleBase(base, ins), cols, y, ctx.block, fitted=fits)
         resid = scorer.residual(cols)
     return choice
+
+
+def _a_flow(ctx: _Context, tag: str) -> bool:
+    """``tag`` a flow by its declared kind (:func:`~diag_plugin.unitbuild.balance.tag_kind`):
+    the pair step's product is the valve equation's (an opening times its head)."""
+    from diag_plugin.unitbuild.balance import tag_kind
+
+    return tag_kind(tag, ctx.info.get(tag)) == "flow"
 
 
 def _pair_step(ctx, scorer, chosen, screened, current, rows, max_sets):
