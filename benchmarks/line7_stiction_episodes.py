@@ -88,25 +88,14 @@ def main() -> None:
 
 
 def cli_build(folder: str):
-    """The line's unit built as ``tests/test_unit_loops.py``'s fixture builds it: the CSV
-    and tags CSV imported into SQLite, ``diag unit build --loops-from``."""
+    """The line's unit built as ``tests/test_unit_loops.py``'s fixture builds it
+    (:func:`tests.line7.cli_build`)."""
     from pathlib import Path
 
-    import pandas as pd
-
     from diag_plugin.diagnose.unit import Unit
-    from tests.test_any_plant_tour import diag, fmt, import_csv
 
-    tmp = Path(folder)
-    g = ["--db", f"sqlite:///{tmp / 'h.db'}", "--rulebases", str(tmp / "rb")]
-    frame = line7.simulate(6.0, seed=1)
-    line7.tags_csv().to_csv(tmp / "tags.csv", index=False)
-    import_csv(g, frame, tmp / "line.csv", tags=tmp / "tags.csv")
-    t0, t1 = frame.index[0], frame.index[-1] + pd.Timedelta("15s")
-    rc, text = diag(g, "unit", "build", "line", "--from", fmt(t0), "--to", fmt(t1),
-                    "--loops-from", str(tmp / "tags.csv"), "--far", "0.01", "--json")  # fmt: skip
-    assert rc == 0, text
-    return Unit.load("line", tmp / "rb")
+    line7.cli_build(folder)
+    return Unit.load("line", Path(folder) / "rb")
 
 
 if __name__ == "__main__":

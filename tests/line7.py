@@ -140,6 +140,27 @@ def tags_csv() -> pd.DataFrame:
     return tags_frame(rows)
 
 
+def cli_build(folder, days: float = 6.0) -> tuple[list[str], str]:
+    """The line's unit built as a user builds it: ``simulate(days, 1)`` and the tags CSV
+    imported into SQLite under ``folder`` (a CSV file, ``diag import --tags``), then ``diag
+    unit build line --loops-from tags.csv --far 0.01 --json`` over the whole run. Returns the
+    global arguments (``--db``, ``--rulebases``) and the build's JSON text."""
+    from pathlib import Path
+
+    from tests.test_any_plant_tour import diag, fmt, import_csv
+
+    tmp = Path(folder)
+    g = ["--db", f"sqlite:///{tmp / 'h.db'}", "--rulebases", str(tmp / "rb")]
+    frame = simulate(days, seed=1)
+    tags_csv().to_csv(tmp / "tags.csv", index=False)
+    import_csv(g, frame, tmp / "line.csv", tags=tmp / "tags.csv")
+    t0, t1 = frame.index[0], frame.index[-1] + pd.Timedelta(seconds=PERIOD_S)
+    rc, text = diag(g, "unit", "build", "line", "--from", fmt(t0), "--to", fmt(t1),
+                    "--loops-from", str(tmp / "tags.csv"), "--far", "0.01", "--json")  # fmt: skip
+    assert rc == 0, text
+    return g, text
+
+
 def how_to_table(seed: int = 101, train_days: float = 6.0) -> str:
     """The 7-tag line's table in docs/how-to/unit-loops.md, as markdown rows: the unit built
     through the Python API (``build_unit(…, loops=[parse_loop(LOOP)], far=0.01)`` on

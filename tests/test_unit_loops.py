@@ -42,14 +42,7 @@ SEEDS = (101, 102)
 @pytest.fixture(scope="module")
 def line(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("line7")
-    g = ["--db", f"sqlite:///{tmp / 'h.db'}", "--rulebases", str(tmp / "rb")]
-    frame = line7.simulate(TRAIN_DAYS, seed=1)
-    line7.tags_csv().to_csv(tmp / "tags.csv", index=False)
-    import_csv(g, frame, tmp / "line.csv", tags=tmp / "tags.csv")
-    t0, t1 = frame.index[0], frame.index[-1] + pd.Timedelta("15s")
-    rc, text = diag(g, "unit", "build", "line", "--from", fmt(t0), "--to", fmt(t1),
-                    "--loops-from", str(tmp / "tags.csv"), "--far", "0.01", "--json")  # fmt: skip
-    assert rc == 0, text
+    g, text = line7.cli_build(tmp, TRAIN_DAYS)
     unit = Unit.load("line", tmp / "rb")
     runs = {
         (fault, seed): unit.reset().evaluate(line7.simulate(2.0, seed, fault))

@@ -751,19 +751,15 @@ def select_inputs(
             pair = _pair_step(ctx, scorer, chosen, screened[:SCREENED], current, rows, max_sets)
             if pair is None:
                 break
-            rmse, cov, picked, (ins, cols, fits) = pair
-            for c, lag in picked:
-                chosen.append((c, lag))
-                pool.remove(c)
-                choice.steps.append(Step(str(ctx.spec_of(c, lag)), rmse, cov))
-            current = rmse
-            scorer = BlockScorer(FrozenRuleBase(base, ins), cols, y, ctx.block, fitted=fits)
-            resid = scorer.residual(cols)
-            continue
-        rmse, cov, c, lag, (ins, cols, fits), _ = best
-        chosen.append((c, lag))
-        pool.remove(c)
-        choice.steps.append(Step(str(ctx.spec_of(c, lag)), rmse, cov))
+            rmse, cov, picked, kept = pair
+        else:
+            rmse, cov, c, lag, kept, _ = best
+            picked = [(c, lag)]
+        ins, cols, fits = kept
+        for c, lag in picked:
+            chosen.append((c, lag))
+            pool.remove(c)
+            choice.steps.append(Step(str(ctx.spec_of(c, lag)), rmse, cov))
         current = rmse
         # the winner's block fits as its scoring made them: the next step's base model
         scorer = BlockScorer(FrozenRuleBase(base, ins), cols, y, ctx.block, fitted=fits)
