@@ -1231,7 +1231,11 @@ def import_file(
     dialect.time_format = time_format
     _check_plausible(path, tcol, sample[tcol], tz, unit, origin or 0, time_format)
     numbers = _plain_numbers(sample[tcol])  # times read as text from the first chunk on
-    meta = read_tags_csv(tags_csv) if tags_csv is not None else []
+    tag_rows = tags_csv_rows(tags_csv) if tags_csv is not None else []
+    meta = [m for _, m in tag_rows]
+    meta_line: dict[str, int] = {}
+    for i, m in tag_rows:
+        meta_line.setdefault(m["name"], i)
     dialect.ranges = _ranges(h, names.values(), meta)
     if parquet:
         import pyarrow.parquet as pq
@@ -1400,7 +1404,7 @@ def import_file(
             h.ensure_tag(**m)
     unused = [name for name in pending_meta if name not in known]
     if unused:
-        report.notes.append(_unused_tags_note(Path(tags_csv), unused))
+        report.notes.append(_unused_tags_note(Path(tags_csv), unused, meta_line))
     report.tags = tags_seen
     if not report.samples:
         first = (report.bad + report.cells)[:3]
@@ -1645,6 +1649,11 @@ def read_tags_csv(path: str | Path) -> list[dict]:
     """Tag metadata from a CSV with columns name (or tag), unit, lo (or min), hi (or max),
     description, source, as keyword dicts for :meth:`Historian.ensure_tag`. A bad number
     raises ValueError ``file:line``."""
+    return [m for _, m in tags_csv_rows(path)]
+
+
+def tags_csv_rows(path: str | Path) -> list[tuple[int, dict]]:
+    """:func:`read_tags_csv`'s dicts, each with the line of the file it was read from."""
     path = Path(path)
     frame, cols, c_name = read_tags_frame(path)
 
@@ -1675,25 +1684,25 @@ def read_tags_csv(path: str | Path) -> list[dict]:
         if lo is not None and hi is not None and lo >= hi:
             raise ValueError(f"{line}: range lo {lo} must be below hi {hi}")
         out.append(
-            {
-                "name": name,
-                "unit": (row[c_unit].strip() or None) if c_unit else None,
-                "lo": lo,
-                "hi": hi,
-                "description": (row[c_desc].strip() or None) if c_desc else None,
-                "source": (row[c_src].strip() or None) if c_src else None,
-            }
+            (
+                i + 2,
+                {
+                    "name": name,
+                    "unit": (row[c_unit].strip() or None) if c_unit else None,
+                    "lo": lo,
+                    "hi": hi,
+                    "description": (row[c_desc].strip() or None) if c_desc else None,
+                    "source": (row[c_src].strip() or None) if c_src else None,
+                },
+            )
         )
     return out
 
 
-def _unused_tags_note(path: Path, names: list[str]) -> str:
+def _unused_tags_note(path: Path, names: list[str], line: dict[str, int]) -> str:
     """The note on tags CSV rows naming a tag neither in the file nor in the historian: not
-    stored (a tag is made by its samples), each named with its ``file:line``."""
-    frame, _, c_name = read_tags_frame(path)
-    line = {}
-    for i, name in enumerate(frame[c_name].str.strip()):
-        line.setdefault(name, i + 2)
+    stored (a tag is made by its samples), each named with its ``file:line`` (``line``: the
+    first line naming each tag, :func:`tags_csv_rows`)."""
     said = [f"{n} ({path}:{line[n]})" if n in line else n for n in names]
     more = f" and {len(said) - 10} more" if len(said) > 10 else ""
     head = ", ".join(said[:10]) + more
