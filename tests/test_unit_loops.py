@@ -305,6 +305,54 @@ def test_a_loops_own_test_raises_its_spread_release_and_the_combined_test_is_rel
     assert not h.t2_held.any() and h.held.tolist() == [False]
 
 
+def test_a_pinned_valve_neither_raises_nor_keeps_its_loops_release():
+    """A loop's valve pinned at an edge (the same reading as the sample before, within
+    ``PINNED`` of its span from an edge) makes the loop's long spread unknown until a
+    release window after it last sat there: a hold raised before drops, the loop's own
+    tests raise none, the combined test is not held; a valve that reaches the edge and
+    moves on is not pinned; pieces and a state through JSON give the one pass."""
+    n, w = 40, 10
+    raw = np.random.default_rng(3).normal(0.0, 5.0, (n, 1))  # a wide loop error
+    act = np.full((n, 1), 50.0)
+    act[10:15] = 100.0  # at the edge from row 10, pinned on rows 11-14
+    act[30] = 0.0  # at the other edge once, moving on: never pinned
+    s = np.zeros((n, 3))
+    s[5, 2] = 1.0  # the spread test on at row 5, then off
+    t2_in = np.zeros(n)
+    t2_in[5] = 1.0  # the combined test on at row 5
+    s[16, 0] = s[27, 0] = -1.0  # the loop's level test on at rows 16 and 27
+
+    def run(parts):
+        h = ReleaseHold(w, np.array([2]), np.array([0.3]), [np.array([0])], [("V", 0.0, 100.0)])
+        out, longs, t2 = [], [], []
+        for a, b in parts:
+            if a:  # a restart between pieces: the state through JSON
+                st = json.loads(json.dumps(h.to_state()))
+                h = ReleaseHold(w, np.array([2]), np.array([0.3]), [np.array([0])],
+                                [("V", 0.0, 100.0)])  # fmt: skip
+                h.load_state(st)
+            long = h.long_spread(raw[a:b], act[a:b])
+            longs.append(long)
+            out.append(h.transform(s[a:b].copy(), long))
+            t2.append(h.combined(t2_in[a:b], long))
+        return np.vstack(out), np.vstack(longs), np.concatenate(t2)
+
+    out, long, t2 = run([(0, n)])
+    assert np.isnan(long[11:24, 0]).all() and np.isfinite(long[[9, 10, 24, 30, 31], 0]).all()
+    assert (long[5:11] > 0.3).all() and (long[24:] > 0.3).all()  # wide where known
+    assert out[5:11, 2].tolist() == [1.0] * 6 and (out[11:27, 2] == 0).all()  # dropped at 11
+    assert out[27:, 2].tolist() == [1.0] * (n - 27)  # raised by the level test once known
+    assert t2[5:11].tolist() == [1.0] * 6 and (t2[11:] == 0).all()
+    for parts in ([(0, 7), (7, 13), (13, n)], [(0, 12), (12, 25), (25, n)]):
+        got = run(parts)
+        assert all(
+            np.array_equal(a, b, equal_nan=True) for a, b in zip(got, (out, long, t2), strict=True)
+        )
+    # a unit without its valve's span (None): nothing pinned, the release as before
+    h = ReleaseHold(w, np.array([2]), np.array([0.3]), [np.array([0])], [None])
+    assert np.isfinite(h.long_spread(raw, h.valve_readings(lambda t: act[:, 0], n))[4:]).all()
+
+
 def test_the_loops_own_tests_keep_the_line_s_sticking_valve_one_alarm(line):
     """Seed 102's sticking valve: the valve's and the meter's tests and T² carry the alarm for
     hours before the short spread fires, while the loop error's long spread is already

@@ -66,6 +66,7 @@ from diag_plugin.diagnose.unitloops import (
     Deadband,
     EpisodeHold,
     OscillationHold,
+    PinnedValves,
     RunningSpread,
     _release_kernel,
     combined_release,
@@ -302,6 +303,9 @@ class Plant:
         self._rel_left = np.zeros(n, np.int64)
         self._longs = []
         by_long: dict[int, list[int]] = {}
+        # per slot its loop valve's column (-1: none) and span (unitloops.PinnedValves)
+        valve = np.full(n, -1, np.intp)
+        v_span = np.full((n, 2), np.nan)
         for i, s in enumerate(slots):
             u = units[s.unit]
             if u.release_hold is not None:
@@ -309,8 +313,14 @@ class Plant:
                 if k.size and np.isfinite(u.release_hold.release[k[0]]):
                     self._release[i] = u.release_hold.release[k[0]]
                     by_long.setdefault(u.release_hold.spread.window, []).append(i)
+                    v = u.release_hold.valves[k[0]]
+                    if v is not None and u.file.tags.get(v[0], v[0]) in tags:
+                        valve[i] = tags[u.file.tags.get(v[0], v[0])]
+                        v_span[i] = v[1:]
         for w, idx in by_long.items():
-            self._longs.append((np.array(idx, np.intp), RunningSpread(w, len(idx))))
+            ix = np.array(idx, np.intp)
+            pin = PinnedValves(w, v_span[ix, 0], v_span[ix, 1])
+            self._longs.append((ix, RunningSpread(w, len(idx)), pin, valve[ix]))
         self._long = np.full(n, np.nan)
         # the loops' own tests that raise their spread test's hold (ReleaseHold's
         # followers): per slot that spread test's slot (-1: none), and per unit its spread
@@ -494,7 +504,8 @@ class Plant:
             "run": self._run.tolist(),
             "latched": _json(self._latched),
             "spreads": [sp.to_state() for _, sp in self._spreads],
-            "longs": [sp.to_state() for _, sp in self._longs],
+            "longs": [sp.to_state() for _, sp, _, _ in self._longs],
+            "pinned": [pv.to_state() for _, _, pv, _ in self._longs],
             "released": self._released.tolist(),
             "release_left": self._rel_left.tolist(),
             "release_t2": [self._t2_held.tolist(), self._t2_left.tolist()],
@@ -571,8 +582,12 @@ class Plant:
         for (_, sp), st in zip(self._spreads, state["spreads"], strict=True):
             sp.load_state(st)
         if len(state.get("longs") or []) == len(self._longs):  # saved before it: from rest
-            for (_, sp), st in zip(self._longs, state.get("longs") or [], strict=True):
+            for (_, sp, _, _), st in zip(self._longs, state.get("longs") or [], strict=True):
                 sp.load_state(st)
+            pins = state.get("pinned") or []  # saved before it: at rest
+            pins = pins if len(pins) == len(self._longs) else [None] * len(self._longs)
+            for (_, _, pv, _), st in zip(self._longs, pins, strict=True):
+                pv.load_state(st)
             if len(state.get("released") or []) == len(self._released):
                 self._released = np.asarray(state["released"], np.bool_)
                 left = state.get("release_left") or [0] * len(self._released)
@@ -693,8 +708,10 @@ class Plant:
                 p = cm.nearest_point(np.where(cols >= 0, self._hist[0, cols], np.nan)[None, :])[0]
             r[idx] = (r[idx] - center[p]) / scale[p]
         s = np.full(n, np.nan)
-        for idx, long in self._longs:  # a spread test's release reads its raw residual
-            self._long[idx] = long.transform(r[idx][None, :])[0]
+        for idx, long, pin, valve in self._longs:  # a release reads its raw residual
+            sp = long.transform(r[idx][None, :])
+            act = np.where(valve >= 0, self._hist[0, valve], np.nan)[None, :]
+            self._long[idx] = pin.mask(sp, act)[0]  # unknown where its valve is pinned
         for idx, spread in self._spreads:  # a spread test judges its residual's running spread
             self._raw_known[idx] = np.isfinite(r[idx])
             r[idx] = spread.transform(r[idx][None, :])[0]

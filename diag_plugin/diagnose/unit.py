@@ -760,8 +760,24 @@ class Unit:
         has = np.isfinite(rel)  # a spread test without one is not held: not read either
         if sec <= 0 or not has.any():
             return None
-        return ReleaseHold(spread_samples(sec, self.period), self.spread_cols[has], rel[has],
-                           [self._loop_tests(j) for j in self.spread_cols[has]])  # fmt: skip
+        cols = self.spread_cols[has]
+        return ReleaseHold(spread_samples(sec, self.period), cols, rel[has],
+                           [self._loop_tests(j) for j in cols],
+                           [self._loop_valve(j) for j in cols])  # fmt: skip
+
+    def _loop_valve(self, j: int) -> tuple[str, float, float] | None:
+        """The spread test ``j``'s loop valve as the unit's columns read it, with its span
+        (its own test's output range, as :class:`~.saturation.Saturation` reads it), for
+        :class:`~.unitloops.PinnedValves`; None where the unit has no test of the valve."""
+        act = self.file.tests[j].actuator
+        if not act:
+            return None
+        model_tag = next((k for k, v in self.file.tags.items() if v == act), act)
+        for t in self.tests:
+            m = self.models[t]
+            if output_tag(m.output) == model_tag and m.out_range is not None:
+                return model_tag, *map(float, m.out_range)
+        return None
 
     def _loop_tests(self, j: int) -> np.ndarray:
         """The spread test ``j``'s loop's own tests, which raise its release hold
@@ -1302,9 +1318,9 @@ class Unit:
         # short one (filtered) does
         long = None
         if self.release_hold is not None:
-            long = self.release_hold.long_spread(
-                raw.iloc[:, self.release_hold.cols].to_numpy(float)
-            )
+            rh = self.release_hold
+            long = rh.long_spread(raw.iloc[:, rh.cols].to_numpy(float),
+                                  rh.valve_readings(cols.values, len(raw)))  # fmt: skip
         r = self.filtered(raw)
         # what the warm-up reads of the raw residuals, taken now: the raw array is let go
         # before the symptoms and the combined test make theirs (one n × tests array fewer

@@ -52,9 +52,16 @@ one 33-sample cycle in a 40-sample window) stays one alarm. The hold is raised t
 the loop's own tests (its measurement's, its actuator's) on where the long spread is already
 above ``release`` — the loop's alarm before the short window first fires — and the combined
 test, once on, is held while any loop's long spread is above its release; within a settle's
-bound after an operator's step nothing raises either. (Releasing the unit's own alarm the
-same way was measured and not kept: it carried an operator's step's alarm past its settle,
-docs/how-to/unit-loops.md.)
+bound after an operator's step nothing raises either. A loop whose valve is pinned at an
+edge of its span (:class:`PinnedValves`: the same reading as the sample before, within
+:data:`PINNED` of its span from an edge or past it) cannot act: its error is the process
+running away from a saturated valve, not a cycling one, so its long spread is unknown from
+then until a release window after the valve last sat there — nothing raises the hold, a
+hold raised before drops, and the combined test is not held on that loop (a tank's inflow
+surge with its level valve shut: the saturated loop's error looked like stiction to the long
+window, and the surge was named on the level and the valve instead of the tank,
+tests/test_unit_build.py). (Releasing the unit's own alarm the same way was measured and not
+kept: it carried an operator's step's alarm past its settle, docs/how-to/unit-loops.md.)
 
 **The named tag held through an episode** (:class:`EpisodeHold`): each tag's share of the
 alarm is averaged over the samples of the current alarm episode, and the tags are ranked by
@@ -395,6 +402,61 @@ def _release_kernel(
 
 _NONE = np.zeros(0, np.int64)
 
+#: a valve reads "pinned" within this share of its span from an edge (or past it) with the
+#: same reading as the sample before: a clipped valve at 0 or 100 % of a span learned as
+#: -2 … 102 sits 2/104 of it from the edge
+PINNED = 0.02
+
+
+class PinnedValves:
+    """Per column (a loop's long spread) its valve's span; :meth:`mask` makes the long spread
+    unknown from a sample on which the valve is pinned at an edge (see module doc) until
+    ``window`` samples after the last such. The last reading and the samples left of the
+    window carried across pieces (and the live loop's cycles)."""
+
+    def __init__(self, window: int, lo: np.ndarray, hi: np.ndarray) -> None:
+        self.window = int(window)
+        self.lo = np.asarray(lo, float)
+        self.hi = np.asarray(hi, float)
+        self.last = np.full(len(self.lo), np.nan)  # the valve's previous reading
+        self.left = np.zeros(len(self.lo), np.int64)  # samples the spread stays unknown
+
+    def pinned(self, act: np.ndarray) -> np.ndarray:
+        """Per row and column whether the valve ``act`` (samples × columns) is pinned."""
+        a = np.asarray(act, float).reshape(-1, len(self.lo))
+        prev = np.r_[self.last[None, :], a[:-1]]
+        tol = PINNED * (self.hi - self.lo)
+        with np.errstate(invalid="ignore"):
+            edge = (a <= self.lo + tol) | (a >= self.hi - tol)
+            return edge & (a == prev)
+
+    def mask(self, spread: np.ndarray, act: np.ndarray) -> np.ndarray:
+        """``spread`` (samples × columns, in place) NaN where the valve is or was pinned
+        within the window; advances the carried state."""
+        pin = self.pinned(act)
+        n = len(pin)
+        if not n or not len(self.lo):
+            return spread
+        i = np.arange(n)[:, None]
+        last = np.maximum.accumulate(np.where(pin, i, -self.window - 1), axis=0)
+        unknown = (i - last < self.window) | (i < self.left[None, :])
+        spread[unknown] = np.nan
+        self.left = np.maximum(np.maximum(self.left - n, last[-1] + self.window - n), 0)
+        a = np.asarray(act, float).reshape(n, -1)
+        self.last = a[-1].copy()
+        return spread
+
+    def to_state(self) -> dict[str, Any]:
+        return {"last": [float(v) if np.isfinite(v) else None for v in self.last],
+                "left": self.left.tolist()}  # fmt: skip
+
+    def load_state(self, state: dict[str, Any] | None) -> None:
+        """A state of the same columns; none (saved before it) or another's: from rest."""
+        if not state or len(state.get("left", ())) != len(self.lo):
+            return
+        self.last = np.array([np.nan if v is None else v for v in state["last"]], float)
+        self.left = np.asarray(state["left"], np.int64)
+
 
 class ReleaseHold:
     """A spread test's symptom, once on, held on while the running spread of its residual
@@ -410,9 +472,14 @@ class ReleaseHold:
         cols: np.ndarray,
         release: np.ndarray,
         followers: list[np.ndarray] | None = None,
+        valves: list[tuple[str, float, float] | None] | None = None,
     ) -> None:
         self.cols = np.asarray(cols, np.int64)
         self.release = np.asarray(release, float)
+        #: per column its loop's valve (the tag the unit's columns read, its span), or None
+        self.valves = list(valves or [None] * len(self.cols))
+        spans = np.array([(v[1], v[2]) if v else (np.nan, np.nan) for v in self.valves], float)
+        self.pinned = PinnedValves(window, *spans.reshape(-1, 2).T)
         fol = [np.asarray(f, np.int64) for f in (followers or [])]
         #: the loops' own tests that raise the hold (their columns), and their spread's index
         self.fcols = np.concatenate([_NONE, *fol]).astype(np.int64)
@@ -425,10 +492,21 @@ class ReleaseHold:
         self.t2_held = np.zeros(1, np.bool_)  # the combined test's hold (combined)
         self.t2_left = np.zeros(1, np.int64)
 
-    def long_spread(self, raw: np.ndarray) -> np.ndarray:
+    def valve_readings(self, values, n: int) -> np.ndarray:
+        """Each column's valve reading over ``n`` samples (samples × columns; NaN where it
+        has none): ``values(tag)`` reads a tag's column, as :class:`~.unit.Columns` does."""
+        out = np.full((n, len(self.cols)), np.nan)
+        for k, v in enumerate(self.valves):
+            if v is not None:
+                out[:, k] = np.asarray(values(v[0]), float)
+        return out
+
+    def long_spread(self, raw: np.ndarray, act: np.ndarray | None = None) -> np.ndarray:
         """The long window's running spread of the spread columns' raw residuals
-        (``raw``: samples × the spread columns)."""
-        return self.spread.transform(raw)
+        (``raw``: samples × the spread columns), unknown where a loop's valve (``act``:
+        :meth:`valve_readings` of the same rows) is or was pinned (:class:`PinnedValves`)."""
+        sp = self.spread.transform(raw)
+        return sp if act is None else self.pinned.mask(sp, act)
 
     def transform(
         self,
@@ -473,7 +551,8 @@ class ReleaseHold:
     def to_state(self) -> dict[str, Any]:
         return {"spread": self.spread.to_state(), "held": self.held.tolist(),
                 "left": self.left.tolist(),
-                "t2": [bool(self.t2_held[0]), int(self.t2_left[0])]}  # fmt: skip
+                "t2": [bool(self.t2_held[0]), int(self.t2_left[0])],
+                "pinned": self.pinned.to_state()}  # fmt: skip
 
     def load_state(self, state: dict[str, Any]) -> None:
         """A state of the same columns; one saved over other columns (before a spread test
@@ -487,6 +566,7 @@ class ReleaseHold:
         t2 = state.get("t2") or [False, 0]
         self.t2_held = np.array([bool(t2[0])], np.bool_)
         self.t2_left = np.array([int(t2[1])], np.int64)
+        self.pinned.load_state(state.get("pinned"))
 
 
 def combined_release(
