@@ -171,23 +171,14 @@ def test_no_fault_chatters_more_than_3_episodes_in_10_minutes(line):
         assert worst <= 3, (key, worst)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 34 item 6, not reached (branch i34-stick2, 2026-12-03; i34-stick3, which "
-    "reached it with the pair step, was reverted: it cost the tank's saturated valve its "
-    "naming, tests/test_unit_build.py): with the spread alarm released on a long window "
-    "(unitloops.ReleaseHold: raised as main, held while the loop error's MAD over 34 "
-    "independent samples, 7212 s, is above the build's largest) the "
-    "sticking valve gives 3 / 4 episodes (seeds 101 / 102; main 37 / 30), 7 / 9 / 4 on "
-    "103 / 104 / 106; the line's alarm is carried by T² and the valve's test for hours before "
-    "the spread test first fires, and a settle's transient must not raise the hold (the 5 s "
-    "heater's step, tests/test_unit_settle.py). docs/how-to/unit-loops.md, 'The spread alarm "
-    "released on a long window'.",
-)
 def test_a_sticking_valve_on_the_line_is_at_most_3_alarms_a_day(line):
     """ISA-18.2: a standing fault is a standing alarm — at most 3 unit alarm episodes a day
     while the valve sticks (as the jacketed vessel in tests/test_unit_stiction.py), with no
-    loss of detection (today's share of samples in alarm after the onset kept)."""
+    loss of detection (today's share of samples in alarm after the onset kept). A strict
+    xfail until 2026-12-03: reached with the loop's own tests raising the spread release and
+    T² released on the loops' long spread (i34-stick3: seed 101 still 4) and the pair step
+    on declared flows (i34-pair3: the unit built here from the tags CSV, seed 101 fewer
+    early episodes) together; docs/how-to/unit-loops.md, "Both together"."""
     _, _, runs, _ = line
     today = {101: 0.70, 102: 0.43}  # detected after the onset on main (b58dc32)
     for seed in SEEDS:
@@ -270,6 +261,136 @@ def test_a_spread_alarm_is_released_on_its_long_window():
     # never on: never held, however wide the long window
     assert (ReleaseHold(10, np.array([1]), np.array([2.0])).transform(np.zeros((5, 3)),
             np.full((5, 1), 9.0)) == 0).all()  # fmt: skip
+
+
+def test_a_loops_own_test_raises_its_spread_release_and_the_combined_test_is_released():
+    """One of the loop's own tests on where the loop's long spread is above its release
+    raises the spread test's hold (the spread column held, the test's own symptom as it
+    was); where the long spread is under it, or within a settle's bound, it does not; the
+    combined test, once on, stays on while a loop's long spread is above its release; a
+    state saved before either starts them from rest."""
+    s = np.zeros((12, 3))
+    s[2, 0] = -1.0  # the loop's level test on (column 0), the spread test (column 2) off
+    long = np.full((12, 1), 5.0)
+    long[8:, 0] = 1.0  # back under the release from row 8
+    h = ReleaseHold(10, np.array([2]), np.array([2.0]), [np.array([0])])
+    out = h.transform(s.copy(), long)
+    assert out[2:8, 2].tolist() == [1.0] * 6 and (out[8:, 2] == 0).all() and out[:2, 2].sum() == 0
+    assert out[:, 0].tolist() == s[:, 0].tolist()  # its own symptom not held
+    parts = ReleaseHold(10, np.array([2]), np.array([2.0]), [np.array([0])])
+    got = np.vstack([parts.transform(s[a : a + 5].copy(), long[a : a + 5]) for a in (0, 5, 10)])
+    assert np.array_equal(got, out)
+    # the long spread under the release where the level test is on: not raised
+    low = np.where(np.arange(12)[:, None] < 3, 1.0, 5.0)
+    h = ReleaseHold(10, np.array([2]), np.array([2.0]), [np.array([0])])
+    assert (h.transform(s.copy(), low)[:, 2] == 0).all()
+    # within a settle's bound after it opens: not raised
+    opens = np.zeros((12, 1), np.int64)
+    opens[1, 0] = 4
+    h = ReleaseHold(10, np.array([2]), np.array([2.0]), [np.array([0])])
+    assert (h.transform(s.copy(), long, opens)[:, 2] == 0).all()
+    # a test not of the loop (column 1) raises nothing
+    s1 = np.zeros((12, 3))
+    s1[2, 1] = 1.0
+    h = ReleaseHold(10, np.array([2]), np.array([2.0]), [np.array([0])])
+    assert (h.transform(s1, long)[:, 2] == 0).all()
+    # the combined test: on at rows 1-2, held to row 7
+    t2 = np.zeros(12)
+    t2[1:3] = 1.0
+    h = ReleaseHold(10, np.array([2]), np.array([2.0]), [np.array([0])])
+    assert h.combined(t2, long).tolist() == [0.0] + [1.0] * 7 + [0.0] * 4
+    state = json.loads(json.dumps(h.to_state()))
+    state.pop("t2")  # saved before it
+    h.load_state(state)
+    assert not h.t2_held.any() and h.held.tolist() == [False]
+
+
+def test_a_pinned_valve_neither_raises_nor_keeps_its_loops_release():
+    """A loop's valve pinned at an edge (the same reading as the sample before, within
+    ``PINNED`` of its span from an edge) makes the loop's long spread unknown until a
+    release window after it last sat there: a hold raised before drops, the loop's own
+    tests raise none, the combined test is not held; a valve that reaches the edge and
+    moves on is not pinned; pieces and a state through JSON give the one pass."""
+    n, w = 40, 10
+    raw = np.random.default_rng(3).normal(0.0, 5.0, (n, 1))  # a wide loop error
+    act = np.full((n, 1), 50.0)
+    act[10:15] = 100.0  # at the edge from row 10, pinned on rows 11-14
+    act[30] = 0.0  # at the other edge once, moving on: never pinned
+    s = np.zeros((n, 3))
+    s[5, 2] = 1.0  # the spread test on at row 5, then off
+    t2_in = np.zeros(n)
+    t2_in[5] = 1.0  # the combined test on at row 5
+    s[16, 0] = s[27, 0] = -1.0  # the loop's level test on at rows 16 and 27
+
+    def run(parts):
+        h = ReleaseHold(w, np.array([2]), np.array([0.3]), [np.array([0])], [("V", 0.0, 100.0)])
+        out, longs, t2 = [], [], []
+        for a, b in parts:
+            if a:  # a restart between pieces: the state through JSON
+                st = json.loads(json.dumps(h.to_state()))
+                h = ReleaseHold(w, np.array([2]), np.array([0.3]), [np.array([0])],
+                                [("V", 0.0, 100.0)])  # fmt: skip
+                h.load_state(st)
+            long = h.long_spread(raw[a:b], act[a:b])
+            longs.append(long)
+            out.append(h.transform(s[a:b].copy(), long))
+            t2.append(h.combined(t2_in[a:b], long))
+        return np.vstack(out), np.vstack(longs), np.concatenate(t2)
+
+    out, long, t2 = run([(0, n)])
+    assert np.isnan(long[11:24, 0]).all() and np.isfinite(long[[9, 10, 24, 30, 31], 0]).all()
+    assert (long[5:11] > 0.3).all() and (long[24:] > 0.3).all()  # wide where known
+    assert out[5:11, 2].tolist() == [1.0] * 6 and (out[11:27, 2] == 0).all()  # dropped at 11
+    assert out[27:, 2].tolist() == [1.0] * (n - 27)  # raised by the level test once known
+    assert t2[5:11].tolist() == [1.0] * 6 and (t2[11:] == 0).all()
+    for parts in ([(0, 7), (7, 13), (13, n)], [(0, 12), (12, 25), (25, n)]):
+        got = run(parts)
+        assert all(
+            np.array_equal(a, b, equal_nan=True) for a, b in zip(got, (out, long, t2), strict=True)
+        )
+    # a unit without its valve's span (None): nothing pinned, the release as before
+    h = ReleaseHold(w, np.array([2]), np.array([0.3]), [np.array([0])], [None])
+    assert np.isfinite(h.long_spread(raw, h.valve_readings(lambda t: act[:, 0], n))[4:]).all()
+
+
+def test_the_loops_own_tests_keep_the_line_s_sticking_valve_one_alarm(line):
+    """Seed 102's sticking valve: the valve's and the meter's tests and T² carry the alarm for
+    hours before the short spread fires, while the loop error's long spread is already
+    above its release; held from there, one standing alarm (4 episodes without: 1.81 h, 5.27
+    h, 5.69 h, 6.04 h), and the detection after the onset up (78 % without)."""
+    _, _, runs, _ = line
+    after = runs[("stiction", 102)].detected.to_numpy()[ONSET:] == 1
+    assert _episodes(after).size <= 2 and after.mean() > 0.9, (_episodes(after), after.mean())
+
+
+def test_the_live_fast_path_carries_the_loops_release_across_a_restart(line):
+    """The stacked path restarted from its saved state (JSON) mid-run through the sticking
+    valve gives the statuses of one uninterrupted run; the combined test was held there
+    (on where T² was under its limit) and the spread test raised by the loop's own tests."""
+    from helpers import plant_statuses, same_status
+
+    from diag_plugin.diagnose.plant import Plant
+
+    _, unit, _, g = line
+    rb = g[g.index("--rulebases") + 1]
+    run = line7.simulate(0.35, 103, "stiction", onset_days=0.05)
+    whole = plant_statuses(Plant.load([unit.file.path], rb), run)["line"]
+    first = Plant.load([unit.file.path], rb)
+    half = len(run) // 2
+    a = plant_statuses(first, run.iloc[:half])["line"]
+    state = json.loads(json.dumps(first.to_state()))
+    b = plant_statuses(Plant.load([unit.file.path], rb).load_state(state), run.iloc[half:])
+    for i, (p, q) in enumerate(zip(whole, a + b["line"], strict=True)):
+        same_status(p, q, i)
+    # the combined test on where T² is under its limit for longer than its off-delay holds
+    high, off = unit.cmodel.high, unit.ev["off_delay"]
+    under = [
+        (m := re.search(r"combined test on \(T² ([-+.0-9e]+)\)", p.message)) is not None
+        and float(m.group(1)) <= high
+        for p in whole
+    ]
+    longest = max(len(r) for r in "".join("x" if u else " " for u in under).split() or [""])
+    assert longest > 4 * off, (longest, off)
 
 
 def test_the_line_writes_a_release_and_an_older_file_without_it_behaves_as_before(line, tmp_path):

@@ -66,8 +66,10 @@ from diag_plugin.diagnose.unitloops import (
     Deadband,
     EpisodeHold,
     OscillationHold,
+    PinnedValves,
     RunningSpread,
     _release_kernel,
+    combined_release,
     oscillation_samples,
     spread_samples,
     warm_up,
@@ -301,6 +303,9 @@ class Plant:
         self._rel_left = np.zeros(n, np.int64)
         self._longs = []
         by_long: dict[int, list[int]] = {}
+        # per slot its loop valve's column (-1: none) and span (unitloops.PinnedValves)
+        valve = np.full(n, -1, np.intp)
+        v_span = np.full((n, 2), np.nan)
         for i, s in enumerate(slots):
             u = units[s.unit]
             if u.release_hold is not None:
@@ -308,9 +313,36 @@ class Plant:
                 if k.size and np.isfinite(u.release_hold.release[k[0]]):
                     self._release[i] = u.release_hold.release[k[0]]
                     by_long.setdefault(u.release_hold.spread.window, []).append(i)
+                    v = u.release_hold.valves[k[0]]
+                    if v is not None and u.file.tags.get(v[0], v[0]) in tags:
+                        valve[i] = tags[u.file.tags.get(v[0], v[0])]
+                        v_span[i] = v[1:]
         for w, idx in by_long.items():
-            self._longs.append((np.array(idx, np.intp), RunningSpread(w, len(idx))))
+            ix = np.array(idx, np.intp)
+            pin = PinnedValves(w, v_span[ix, 0], v_span[ix, 1])
+            self._longs.append((ix, RunningSpread(w, len(idx)), pin, valve[ix]))
         self._long = np.full(n, np.nan)
+        # the loops' own tests that raise their spread test's hold (ReleaseHold's
+        # followers): per slot that spread test's slot (-1: none), and per unit its spread
+        # slots, which the combined test's hold reads (ReleaseHold.combined)
+        self._follows = np.full(n, -1, np.intp)
+        self._rel_maps: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        at_slot = {(s.unit, s.test): i for i, s in enumerate(slots)}
+        self._t2_rel: dict[int, np.ndarray] = {}
+        for ui, u in enumerate(units):
+            h = u.release_hold
+            if h is None:
+                continue
+            spread_slots = [at_slot.get((ui, int(c)), -1) for c in h.cols]
+            if all(k >= 0 and np.isfinite(self._release[k]) for k in spread_slots):
+                self._t2_rel[ui] = np.array(spread_slots, np.intp)
+            for j, k in zip(h.fcols, h.fwhich, strict=True):
+                i, src = at_slot.get((ui, int(j)), -1), spread_slots[int(k)]
+                if i >= 0 and src >= 0 and np.isfinite(self._release[src]):
+                    self._follows[i] = src
+        self._t2_held = np.zeros(len(units), np.bool_)
+        self._t2_left = np.zeros(len(units), np.int64)
+        self._opens = np.zeros((1, len(units)), np.int64)
         # the warm-up (unitloops.warm_up): per slot its longest lag, whether it is a spread
         # test, the known samples its spread window still needs and whether its residual was
         # known before the spread; per unit what each test waits for
@@ -472,9 +504,11 @@ class Plant:
             "run": self._run.tolist(),
             "latched": _json(self._latched),
             "spreads": [sp.to_state() for _, sp in self._spreads],
-            "longs": [sp.to_state() for _, sp in self._longs],
+            "longs": [sp.to_state() for _, sp, _, _ in self._longs],
+            "pinned": [pv.to_state() for _, _, pv, _ in self._longs],
             "released": self._released.tolist(),
             "release_left": self._rel_left.tolist(),
+            "release_t2": [self._t2_held.tolist(), self._t2_left.tolist()],
             "alarm_hold": self._alarm_hold.to_state(),
             "last_alarm": {
                 str(ui): [st, fa, [[t, v] for t, v in tg]]
@@ -548,12 +582,20 @@ class Plant:
         for (_, sp), st in zip(self._spreads, state["spreads"], strict=True):
             sp.load_state(st)
         if len(state.get("longs") or []) == len(self._longs):  # saved before it: from rest
-            for (_, sp), st in zip(self._longs, state.get("longs") or [], strict=True):
+            for (_, sp, _, _), st in zip(self._longs, state.get("longs") or [], strict=True):
                 sp.load_state(st)
+            pins = state.get("pinned") or []  # saved before it: at rest
+            pins = pins if len(pins) == len(self._longs) else [None] * len(self._longs)
+            for (_, _, pv, _), st in zip(self._longs, pins, strict=True):
+                pv.load_state(st)
             if len(state.get("released") or []) == len(self._released):
                 self._released = np.asarray(state["released"], np.bool_)
                 left = state.get("release_left") or [0] * len(self._released)
                 self._rel_left = np.asarray(left, np.int64)
+            t2 = state.get("release_t2")  # saved before the combined test's hold: from rest
+            if t2 is not None and len(t2[0]) == len(self._t2_held):
+                self._t2_held = np.asarray(t2[0], np.bool_)
+                self._t2_left = np.asarray(t2[1], np.int64)
         self._alarm_hold.load_state(state["alarm_hold"])
         self._last_alarm = {
             int(ui): (int(st), list(fa), [(str(t), float(v)) for t, v in tg])
@@ -666,14 +708,17 @@ class Plant:
                 p = cm.nearest_point(np.where(cols >= 0, self._hist[0, cols], np.nan)[None, :])[0]
             r[idx] = (r[idx] - center[p]) / scale[p]
         s = np.full(n, np.nan)
-        for idx, long in self._longs:  # a spread test's release reads its raw residual
-            self._long[idx] = long.transform(r[idx][None, :])[0]
+        for idx, long, pin, valve in self._longs:  # a release reads its raw residual
+            sp = long.transform(r[idx][None, :])
+            act = np.where(valve >= 0, self._hist[0, valve], np.nan)[None, :]
+            self._long[idx] = pin.mask(sp, act)[0]  # unknown where its valve is pinned
         for idx, spread in self._spreads:  # a spread test judges its residual's running spread
             self._raw_known[idx] = np.isfinite(r[idx])
             r[idx] = spread.transform(r[idx][None, :])[0]
             self._spread_left[idx] = spread.left_[0]
         rf = r.copy()
         opens = self._openings()
+        self._opens = opens  # the combined test's hold reads them (_statuses)
         for idx, lp, band, delay, hold, swing in self._stages:
             x = r[idx][None, :]
             if lp is not None:
@@ -686,9 +731,10 @@ class Plant:
             if rel.size:  # a spread test on held while its long window's spread is unusual
                 at = idx[rel]
                 kept, left = self._released[at], self._rel_left[at]
+                fcols, fwhich = self._rel_map(idx, at)
                 d = _release_kernel(np.ascontiguousarray(d, float), rel.astype(np.int64),
                                     self._long[at][None, :], self._release[at], kept, opens,
-                                    self._slot_unit[idx], left)  # fmt: skip
+                                    self._slot_unit[idx], left, fcols, fwhich)  # fmt: skip
                 self._released[at], self._rel_left[at] = kept, left
             d = swing.transform(d, opens, self._slot_unit[idx])
             held = self._held[idx]
@@ -701,6 +747,18 @@ class Plant:
             self._latched[on] = s[on]
             s = np.where(self._latch & (self._latched != 0), self._latched, s)
         return self._statuses(ts, rf, s)
+
+    def _rel_map(self, idx: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A stage's followers for the release kernel (cached): the positions in ``idx`` of
+        the slots that raise a spread slot's hold, and that slot's position in ``at``."""
+        key = id(idx)
+        if key not in self._rel_maps:
+            pos = {int(a): k for k, a in enumerate(at)}
+            src = self._follows[idx]
+            f = [(p, pos[int(x)]) for p, x in enumerate(src) if int(x) in pos]
+            self._rel_maps[key] = (np.array([p for p, _ in f], np.int64),
+                                   np.array([k for _, k in f], np.int64))  # fmt: skip
+        return self._rel_maps[key]
 
     def _openings(self) -> np.ndarray:
         """Per unit the bound in samples of a settle a set-point step opens on this cycle
@@ -753,6 +811,15 @@ class Plant:
             if enabled and cm.high is not None:
                 raw = np.nan if np.isnan(t2[0]) else float(t2[0] > cm.high)
                 s_t2 = float(delay.transform(np.array([[raw]]))[0, 0])
+                if ui in self._t2_rel:  # as Unit: ReleaseHold.combined
+                    k = self._t2_rel[ui]
+                    with np.errstate(invalid="ignore"):
+                        q = self._long[k] / self._release[k]
+                    ratio = np.array([np.where(np.isnan(q), -np.inf, q).max()])
+                    held, left = self._t2_held[ui : ui + 1], self._t2_left[ui : ui + 1]
+                    s_t2 = float(combined_release(np.array([[s_t2]]), ratio,
+                                                  np.ascontiguousarray(self._opens[:, ui : ui + 1]),
+                                                  held, left)[0])  # fmt: skip
                 c_on[ui] = np.nan_to_num(s_t2) != 0
             multi[ui] = (t2[0], s_t2, share[0], on_v[0], cm.tags)
         active = active | c_on

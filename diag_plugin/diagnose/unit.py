@@ -760,7 +760,34 @@ class Unit:
         has = np.isfinite(rel)  # a spread test without one is not held: not read either
         if sec <= 0 or not has.any():
             return None
-        return ReleaseHold(spread_samples(sec, self.period), self.spread_cols[has], rel[has])
+        cols = self.spread_cols[has]
+        return ReleaseHold(spread_samples(sec, self.period), cols, rel[has],
+                           [self._loop_tests(j) for j in cols],
+                           [self._loop_valve(j) for j in cols])  # fmt: skip
+
+    def _loop_valve(self, j: int) -> tuple[str, float, float] | None:
+        """The spread test ``j``'s loop valve as the unit's columns read it, with its span
+        (its own test's output range, as :class:`~.saturation.Saturation` reads it), for
+        :class:`~.unitloops.PinnedValves`; None where the unit has no test of the valve."""
+        act = self.file.tests[j].actuator
+        if not act:
+            return None
+        model_tag = next((k for k, v in self.file.tags.items() if v == act), act)
+        for t in self.tests:
+            m = self.models[t]
+            if output_tag(m.output) == model_tag and m.out_range is not None:
+                return model_tag, *map(float, m.out_range)
+        return None
+
+    def _loop_tests(self, j: int) -> np.ndarray:
+        """The spread test ``j``'s loop's own tests, which raise its release hold
+        (:class:`ReleaseHold`): the other tests whose model's output is the loop's
+        measurement (its level and balance tests) or its actuator (the valve's test)."""
+        t = self.file.tests[j]
+        tags = {output_tag(self.models[t.name].output), t.actuator}
+        return np.array([i for i, u in enumerate(self.file.tests) if i != j
+                         and u.statistic != "spread"
+                         and output_tag(self.models[u.name].output) in tags], np.int64)  # fmt: skip
 
     def _openings(self, cols: Columns, eq) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Where a settle opens in this piece, for the oscillation hold
@@ -1291,9 +1318,9 @@ class Unit:
         # short one (filtered) does
         long = None
         if self.release_hold is not None:
-            long = self.release_hold.long_spread(
-                raw.iloc[:, self.release_hold.cols].to_numpy(float)
-            )
+            rh = self.release_hold
+            long = rh.long_spread(raw.iloc[:, rh.cols].to_numpy(float),
+                                  rh.valve_readings(cols.values, len(raw)))  # fmt: skip
         r = self.filtered(raw)
         # what the warm-up reads of the raw residuals, taken now: the raw array is let go
         # before the symptoms and the combined test make theirs (one n × tests array fewer
@@ -1328,6 +1355,9 @@ class Unit:
                 with np.errstate(invalid="ignore"):
                     raw_c = np.where(np.isnan(t2), np.nan, (t2 > self.cmodel.high) * 1.0)
                 s_t2 = self.combined_delay.transform(raw_c[:, None])[:, 0]
+                if self.release_hold is not None and long is not None:
+                    # once on, held while a loop's long spread is unusual (ReleaseHold)
+                    s_t2 = self.release_hold.combined(s_t2, long, opens)
                 c_on = _on(s_t2)
             combined = pd.DataFrame(
                 {"T2": t2, "s_T2": s_t2}, index=frame.index, columns=_names(("T2", "s_T2"))

@@ -48,9 +48,20 @@ the build's window: a fault-free run's alarm is extended only where the long spr
 beyond anything the build saw. The long window never raises (the detection delay, the
 settle's quiet time and the fault-free raising stay the short window's); a limit cycle
 whose short MAD drops under its threshold once a cycle (the 7-tag line's sticking valve:
-one 33-sample cycle in a 40-sample window) stays one alarm. (Releasing the unit's own alarm the same
-way was measured and not kept: it carried an operator's step's alarm past its settle,
-docs/how-to/unit-loops.md.)
+one 33-sample cycle in a 40-sample window) stays one alarm. The hold is raised too by one of
+the loop's own tests (its measurement's, its actuator's) on where the long spread is already
+above ``release`` — the loop's alarm before the short window first fires — and the combined
+test, once on, is held while any loop's long spread is above its release; within a settle's
+bound after an operator's step nothing raises either. A loop whose valve is pinned at an
+edge of its span (:class:`PinnedValves`: the same reading as the sample before, within
+:data:`PINNED` of its span from an edge or past it) cannot act: its error is the process
+running away from a saturated valve, not a cycling one, so its long spread is unknown from
+then until a release window after the valve last sat there — nothing raises the hold, a
+hold raised before drops, and the combined test is not held on that loop (a tank's inflow
+surge with its level valve shut: the saturated loop's error looked like stiction to the long
+window, and the surge was named on the level and the valve instead of the tank,
+tests/test_unit_build.py). (Releasing the unit's own alarm the same way was measured and not
+kept: it carried an operator's step's alarm past its settle, docs/how-to/unit-loops.md.)
 
 **The named tag held through an episode** (:class:`EpisodeHold`): each tag's share of the
 alarm is averaged over the samples of the current alarm episode, and the tags are ranked by
@@ -350,12 +361,16 @@ class OscillationHold:
 
 
 @numba.njit(cache=True, nogil=True)
-def _release_kernel(s, cols, spread, release, held, opens, group, left):  # pragma: no cover
-    # row by row, in place: a spread column on raises its hold; off (0), it is held on while
-    # its long spread is above its release threshold (NaN: not), else the hold drops; an
-    # unknown symptom (NaN) stays unknown and leaves the hold as it is. For a settle's bound
-    # after it opens on its group (opens[i, group[j]] > 0: the bound in samples) a symptom on
-    # does not raise the hold (a known transient); one raised before goes on as it was
+def _release_kernel(
+    s, cols, spread, release, held, opens, group, left, fcols, fwhich
+):  # pragma: no cover
+    # row by row, in place: a spread column on raises its hold, and so does one of its
+    # loop's own tests on (fcols, fwhich: the follower's column and its spread's index in
+    # cols) where the loop's long spread is above its release; off (0), the spread column is
+    # held on while its long spread is above its release threshold (NaN: not), else the
+    # hold drops; an unknown symptom (NaN) stays unknown and leaves the hold as it is. For a
+    # settle's bound after it opens on its group (opens[i, group[j]] > 0: the bound in
+    # samples) nothing raises the hold (a known transient); one raised before goes on
     n = s.shape[0]
     for i in range(n):
         for k in range(cols.shape[0]):
@@ -367,33 +382,131 @@ def _release_kernel(s, cols, spread, release, held, opens, group, left):  # prag
             if settling:
                 left[k] -= 1
             x = s[i, j]
-            if x > 0:
-                if not settling:
-                    held[k] = True
-            elif x == 0 and held[k]:
-                if spread[i, k] > release[k]:
+            wide = spread[i, k] > release[k]
+            arm = x > 0
+            if wide and not arm:
+                for f in range(fcols.shape[0]):
+                    if fwhich[f] == k:
+                        y = s[i, fcols[f]]
+                        if y > 0 or y < 0:
+                            arm = True
+            if arm and not settling:
+                held[k] = True
+            if x == 0 and held[k]:
+                if wide:
                     s[i, j] = 1.0
                 else:
                     held[k] = False
     return s
 
 
+_NONE = np.zeros(0, np.int64)
+
+#: a valve reads "pinned" within this share of its span from an edge (or past it) with the
+#: same reading as the sample before: a clipped valve at 0 or 100 % of a span learned as
+#: -2 … 102 sits 2/104 of it from the edge
+PINNED = 0.02
+
+
+class PinnedValves:
+    """Per column (a loop's long spread) its valve's span; :meth:`mask` makes the long spread
+    unknown from a sample on which the valve is pinned at an edge (see module doc) until
+    ``window`` samples after the last such. The last reading and the samples left of the
+    window carried across pieces (and the live loop's cycles)."""
+
+    def __init__(self, window: int, lo: np.ndarray, hi: np.ndarray) -> None:
+        self.window = int(window)
+        self.lo = np.asarray(lo, float)
+        self.hi = np.asarray(hi, float)
+        self.last = np.full(len(self.lo), np.nan)  # the valve's previous reading
+        self.left = np.zeros(len(self.lo), np.int64)  # samples the spread stays unknown
+
+    def pinned(self, act: np.ndarray) -> np.ndarray:
+        """Per row and column whether the valve ``act`` (samples × columns) is pinned."""
+        a = np.asarray(act, float).reshape(-1, len(self.lo))
+        prev = np.r_[self.last[None, :], a[:-1]]
+        tol = PINNED * (self.hi - self.lo)
+        with np.errstate(invalid="ignore"):
+            edge = (a <= self.lo + tol) | (a >= self.hi - tol)
+            return edge & (a == prev)
+
+    def mask(self, spread: np.ndarray, act: np.ndarray) -> np.ndarray:
+        """``spread`` (samples × columns, in place) NaN where the valve is or was pinned
+        within the window; advances the carried state."""
+        pin = self.pinned(act)
+        n = len(pin)
+        if not n or not len(self.lo):
+            return spread
+        i = np.arange(n)[:, None]
+        last = np.maximum.accumulate(np.where(pin, i, -self.window - 1), axis=0)
+        unknown = (i - last < self.window) | (i < self.left[None, :])
+        spread[unknown] = np.nan
+        self.left = np.maximum(np.maximum(self.left - n, last[-1] + self.window - n), 0)
+        a = np.asarray(act, float).reshape(n, -1)
+        self.last = a[-1].copy()
+        return spread
+
+    def to_state(self) -> dict[str, Any]:
+        return {"last": [float(v) if np.isfinite(v) else None for v in self.last],
+                "left": self.left.tolist()}  # fmt: skip
+
+    def load_state(self, state: dict[str, Any] | None) -> None:
+        """A state of the same columns; none (saved before it) or another's: from rest."""
+        if not state or len(state.get("left", ())) != len(self.lo):
+            return
+        self.last = np.array([np.nan if v is None else v for v in state["last"]], float)
+        self.left = np.asarray(state["left"], np.int64)
+
+
 class ReleaseHold:
     """A spread test's symptom, once on, held on while the running spread of its residual
     over the release window stays above its ``release`` threshold (see module doc); the
-    long window's tail and each column's hold carried across pieces."""
+    hold raised too by one of its loop's own tests (``followers``: the tests of the loop's
+    measurement and actuator) on while that spread is above it; the combined test held the
+    same way (:meth:`combined`). The long window's tail and each column's hold carried
+    across pieces."""
 
-    def __init__(self, window: int, cols: np.ndarray, release: np.ndarray) -> None:
+    def __init__(
+        self,
+        window: int,
+        cols: np.ndarray,
+        release: np.ndarray,
+        followers: list[np.ndarray] | None = None,
+        valves: list[tuple[str, float, float] | None] | None = None,
+    ) -> None:
         self.cols = np.asarray(cols, np.int64)
         self.release = np.asarray(release, float)
+        #: per column its loop's valve (the tag the unit's columns read, its span), or None
+        self.valves = list(valves or [None] * len(self.cols))
+        spans = np.array([(v[1], v[2]) if v else (np.nan, np.nan) for v in self.valves], float)
+        self.pinned = PinnedValves(window, *spans.reshape(-1, 2).T)
+        fol = [np.asarray(f, np.int64) for f in (followers or [])]
+        #: the loops' own tests that raise the hold (their columns), and their spread's index
+        self.fcols = np.concatenate([_NONE, *fol]).astype(np.int64)
+        self.fwhich = np.concatenate(
+            [_NONE, *[np.full(len(f), k, np.int64) for k, f in enumerate(fol)]]
+        ).astype(np.int64)
         self.spread = RunningSpread(window, len(self.cols))
         self.held = np.zeros(len(self.cols), np.bool_)
         self.left = np.zeros(len(self.cols), np.int64)  # samples of an open settle left
+        self.t2_held = np.zeros(1, np.bool_)  # the combined test's hold (combined)
+        self.t2_left = np.zeros(1, np.int64)
 
-    def long_spread(self, raw: np.ndarray) -> np.ndarray:
+    def valve_readings(self, values, n: int) -> np.ndarray:
+        """Each column's valve reading over ``n`` samples (samples × columns; NaN where it
+        has none): ``values(tag)`` reads a tag's column, as :class:`~.unit.Columns` does."""
+        out = np.full((n, len(self.cols)), np.nan)
+        for k, v in enumerate(self.valves):
+            if v is not None:
+                out[:, k] = np.asarray(values(v[0]), float)
+        return out
+
+    def long_spread(self, raw: np.ndarray, act: np.ndarray | None = None) -> np.ndarray:
         """The long window's running spread of the spread columns' raw residuals
-        (``raw``: samples × the spread columns)."""
-        return self.spread.transform(raw)
+        (``raw``: samples × the spread columns), unknown where a loop's valve (``act``:
+        :meth:`valve_readings` of the same rows) is or was pinned (:class:`PinnedValves`)."""
+        sp = self.spread.transform(raw)
+        return sp if act is None else self.pinned.mask(sp, act)
 
     def transform(
         self,
@@ -405,7 +518,7 @@ class ReleaseHold:
         """``s`` (samples × tests, delayed symptoms; in place when C-ordered float) with the
         spread columns held; ``spread``: :meth:`long_spread` of the same rows; ``opens``,
         ``group``: where a settle opens, as :meth:`OscillationHold.transform` (within its
-        bound a symptom on does not raise the hold; one raised before goes on)."""
+        bound nothing raises the hold; one raised before goes on)."""
         a = np.ascontiguousarray(np.asarray(s, float))
         if not self.cols.size:
             return a
@@ -416,20 +529,56 @@ class ReleaseHold:
         opens = np.ascontiguousarray(np.asarray(opens, np.int64).reshape(n, -1))
         group = np.zeros(m, np.intp) if group is None else np.asarray(group, np.intp)
         return _release_kernel(a, self.cols, sp, self.release, self.held, opens, group,
-                               self.left)  # fmt: skip
+                               self.left, self.fcols, self.fwhich)  # fmt: skip
+
+    def combined(
+        self, s_t2: np.ndarray, spread: np.ndarray, opens: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The combined test's symptom ``s_t2`` (samples; a new array) held the same way:
+        once on (outside a settle's bound, group 0 of ``opens``), on while any loop's long
+        spread ``spread`` is above its release."""
+        a = np.ascontiguousarray(np.asarray(s_t2, float).reshape(-1, 1)).copy()
+        n = len(a)
+        if not self.cols.size or not n:
+            return a[:, 0]
+        sp = np.asarray(spread, float).reshape(n, len(self.cols))
+        with np.errstate(invalid="ignore"):
+            ratio = np.where(np.isnan(sp), -np.inf, sp / self.release).max(axis=1)
+        op = np.zeros((n, 1), np.int64) if opens is None else np.asarray(opens, np.int64)
+        op = np.ascontiguousarray(op.reshape(n, -1)[:, :1])
+        return combined_release(a, np.ascontiguousarray(ratio), op, self.t2_held, self.t2_left)
 
     def to_state(self) -> dict[str, Any]:
         return {"spread": self.spread.to_state(), "held": self.held.tolist(),
-                "left": self.left.tolist()}  # fmt: skip
+                "left": self.left.tolist(),
+                "t2": [bool(self.t2_held[0]), int(self.t2_left[0])],
+                "pinned": self.pinned.to_state()}  # fmt: skip
 
     def load_state(self, state: dict[str, Any]) -> None:
         """A state of the same columns; one saved over other columns (before a spread test
-        without a ``release`` was left out) starts the hold from rest."""
+        without a ``release`` was left out) starts the hold from rest; the combined test's
+        hold of a state saved before it, too."""
         if len(state["held"]) != len(self.cols):
             return
         self.spread.load_state(state["spread"])
         self.held = np.asarray(state["held"], np.bool_).reshape(len(self.cols))
         self.left = np.asarray(state.get("left", np.zeros(len(self.cols))), np.int64)
+        t2 = state.get("t2") or [False, 0]
+        self.t2_held = np.array([bool(t2[0])], np.bool_)
+        self.t2_left = np.array([int(t2[1])], np.int64)
+        self.pinned.load_state(state.get("pinned"))
+
+
+def combined_release(
+    s_t2: np.ndarray, ratio: np.ndarray, opens: np.ndarray, held: np.ndarray, left: np.ndarray
+) -> np.ndarray:
+    """The combined test's release (:meth:`ReleaseHold.combined`; the live path's too):
+    ``s_t2`` (samples × 1, in place) held on while ``ratio`` (per sample the largest of the
+    unit's loops' long spread over its release) is above 1; ``opens`` (samples × 1) the
+    unit's settle openings; ``held``, ``left`` (1 each) the carried hold, in place."""
+    n = len(s_t2)
+    return _release_kernel(s_t2, np.zeros(1, np.int64), ratio.reshape(n, 1), np.ones(1), held,
+                           opens, np.zeros(1, np.intp), left, _NONE, _NONE)[:, 0]  # fmt: skip
 
 
 class EpisodeHold:
