@@ -697,14 +697,15 @@ def select_inputs(
         for c in pool:
             corr = corrs[c]
             order = np.argsort(-corr, kind="stable")[:LAGS_RETRAINED]
-            screened.append((float(corr[order[0]]), c, sorted(int(x) for x in order)))
+            screened.append((float(corr[order[0]]), c, sorted(int(x) for x in order),
+                             int(order[0])))  # fmt: skip
         screened.sort(key=lambda s: -s[0])
         best = None  # (rmse, coverage, tag, lag, the variant's inputs, columns and fits)
         base_cols = [ctx.column(t, lag) for t, lag in chosen]
         # each dead time's lower bound of its error from the fine rule level alone
         # (BlockScorer.bound), for every screened candidate before any is finished
         bounded = []
-        for rank, (_, c, lags) in enumerate(screened[:SCREENED]):
+        for rank, (_, c, lags, _) in enumerate(screened[:SCREENED]):
             variants = []
             for lag in lags:
                 cols = [*base_cols, ctx.column(c, lag)]
@@ -745,16 +746,59 @@ def select_inputs(
             if best is None or (rmse, rank) < (best[0], best[-1]):
                 best = (rmse, cov, c, lag, kept, rank)
         if best is None or not best[0] < gain:
-            break
-        rmse, cov, c, lag, (ins, cols, fits), _ = best
-        chosen.append((c, lag))
-        pool.remove(c)
-        choice.steps.append(Step(str(ctx.spec_of(c, lag)), rmse, cov))
+            if len(chosen) + 2 > max_inputs or method == short.LINEAR or not _a_flow(ctx, tag):
+                break  # a line has no product of two inputs to find; a pair: a flow's
+            pair = _pair_step(ctx, scorer, chosen, screened[:SCREENED], current, rows, max_sets)
+            if pair is None:
+                break
+            rmse, cov, picked, kept = pair
+        else:
+            rmse, cov, c, lag, kept, _ = best
+            picked = [(c, lag)]
+        ins, cols, fits = kept
+        for c, lag in picked:
+            chosen.append((c, lag))
+            pool.remove(c)
+            choice.steps.append(Step(str(ctx.spec_of(c, lag)), rmse, cov))
         current = rmse
         # the winner's block fits as its scoring made them: the next step's base model
         scorer = BlockScorer(FrozenRuleBase(base, ins), cols, y, ctx.block, fitted=fits)
         resid = scorer.residual(cols)
     return choice
+
+
+def _a_flow(ctx: _Context, tag: str) -> bool:
+    """``tag`` a flow by its declared kind (:func:`~diag_plugin.unitbuild.balance.tag_kind`):
+    the pair step's product is the valve equation's (an opening times its head)."""
+    from diag_plugin.unitbuild.balance import tag_kind
+
+    return tag_kind(tag, ctx.info.get(tag)) == "flow"
+
+
+def _pair_step(ctx, scorer, chosen, screened, current, rows, max_sets):
+    """Where no single candidate cuts the error by :data:`MIN_GAIN`: the best pair of the
+    step's screened candidates (each at its best-screened dead time), kept where it cuts the
+    error by ``2 × MIN_GAIN`` — two inputs that each alone explain nothing (a tank's level
+    and its drain valve, the out-flow their product). At most ``C(SCREENED, 2)`` pair fits,
+    each skipped where its lower bound cannot beat the best pair or the cut. Returns
+    ``(rmse, coverage, ((tag, lag), (tag, lag)), (inputs, columns, fits))`` or None."""
+    from itertools import combinations
+
+    gain = current * (1 - 2 * MIN_GAIN)
+    base_cols = [ctx.column(t, lag) for t, lag in chosen]
+    best = None
+    for (_, a, _, la), (_, b, _, lb) in combinations(screened, 2):
+        pairs = [*chosen, (a, la), (b, lb)]
+        cols = [*base_cols, ctx.column(a, la), ctx.column(b, lb)]
+        ins = _with_sets([ctx.variable(t, g) for t, g in pairs], cols, rows, max_sets)
+        low, prefit = scorer.bound(ins, cols)
+        reach = gain if best is None or gain < best[0] else best[0]
+        if low > reach * (1 + BOUND_MARGIN):
+            continue
+        rmse, cov = scorer.score(ins, cols, prefit)
+        if math.isfinite(rmse) and rmse < reach:
+            best = (rmse, cov, ((a, la), (b, lb)), (ins, cols, scorer.fitted()))
+    return best
 
 
 def _choose(tag: str, *args) -> TestChoice:
