@@ -37,13 +37,38 @@ def train():
     return line7.simulate(6.0, 1)
 
 
-def _unit(train: pd.DataFrame, rate_s: int, folder) -> Unit:
+def _build(train: pd.DataFrame, rate_s: int, folder, manual=()):
     info = {r["name"]: {"unit": r["unit"], "description": r["description"]}
             for _, r in line7.tags_csv().iterrows()}  # fmt: skip
-    res = build_unit("u", _at(train, rate_s), folder=folder, period=f"{rate_s}s",
-                     loops=[parse_loop(line7.LOOP)], far=0.01, force=True,
-                     tag_info=info)  # fmt: skip
+    return build_unit("u", _at(train, rate_s), folder=folder, period=f"{rate_s}s",
+                      loops=[parse_loop(line7.LOOP)], far=0.01, force=True,
+                      tag_info=info, manual=manual)  # fmt: skip
+
+
+def _unit(train: pd.DataFrame, rate_s: int, folder) -> Unit:
+    res = _build(train, rate_s, folder)
     return Unit.load(res.path, folder)
+
+
+def _pairs(res) -> dict[str, list[tuple[str, str]]]:
+    """Per test the pairs its selection took (two steps of one error: the pair step)."""
+    return {t.test: [(a.input, b.input) for a, b in zip(t.steps, t.steps[1:], strict=False)
+                     if a.rmse_pct == b.rmse_pct] for t in res.tests}  # fmt: skip
+
+
+def test_a_declared_hand_valve_is_in_no_pair(train, tmp_path):
+    """Undeclared, the out-flow's pair is the tank's level and the hand valve (the valve
+    equation); declared a hand valve (``--manual``), the valve is half of no pair: a model
+    reading its opening now follows the operator's move, and the move's settle and its
+    CHECK_FUNCTION outside the learned span would not be seen (tests/test_unit_manual.py).
+    It stays a single candidate (the level's test reads it)."""
+    free = _pairs(_build(train, 15, tmp_path / "free"))
+    assert any("HAND_VALVE" in x for p in free["OUT_FLOW"] for x in p), free
+    res = _build(train, 15, tmp_path / "hand", manual=["HAND_VALVE"])
+    held = _pairs(res)
+    assert not any("HAND_VALVE" in x for ps in held.values() for p in ps for x in p), held
+    steps = {t.test: [s.input for s in t.steps] for t in res.tests}
+    assert any(x.startswith("HAND_VALVE") for x in steps["TANK_LEVEL"]), steps
 
 
 @pytest.mark.parametrize("rate_s", [15, 60])

@@ -582,10 +582,18 @@ def _abs_corr(ranks: bool, X: pd.DataFrame) -> np.ndarray:
 class _Context:
     """Columns, spans and variables of the window, shared by every test's selection."""
 
-    def __init__(self, frame: pd.DataFrame, info: dict[str, TagInfo], period: str):
+    def __init__(
+        self,
+        frame: pd.DataFrame,
+        info: dict[str, TagInfo],
+        period: str,
+        hand: frozenset[str] = frozenset(),
+    ):
         self.frame = frame
         self.info = info
         self.period = period
+        #: the declared hand valves: never half of a pair (:func:`_pair_step`)
+        self.hand = hand
         self.spans: dict[str, tuple[float, float]] = {}
         self.vars: dict[str, Variable] = {}
         #: declared loops' set-point tags constant over the window (:meth:`hold_set_point`)
@@ -780,14 +788,20 @@ def _pair_step(ctx, scorer, chosen, screened, current, rows, max_sets):
     step's screened candidates (each at its best-screened dead time), kept where it cuts the
     error by ``2 × MIN_GAIN`` — two inputs that each alone explain nothing (a tank's level
     and its drain valve, the out-flow their product). At most ``C(SCREENED, 2)`` pair fits,
-    each skipped where its lower bound cannot beat the best pair or the cut. Returns
-    ``(rmse, coverage, ((tag, lag), (tag, lag)), (inputs, columns, fits))`` or None."""
+    each skipped where its lower bound cannot beat the best pair or the cut. A declared hand
+    valve is half of no pair (still a single candidate): a model reading the valve's
+    opening now would follow the operator's move, and the move's settle and its
+    CHECK_FUNCTION outside the learned span (:mod:`~diag_plugin.diagnose.manual`) would no
+    longer be seen. Returns ``(rmse, coverage, ((tag, lag), (tag, lag)), (inputs, columns,
+    fits))`` or None."""
     from itertools import combinations
 
     gain = current * (1 - 2 * MIN_GAIN)
     base_cols = [ctx.column(t, lag) for t, lag in chosen]
     best = None
     for (_, a, _, la), (_, b, _, lb) in combinations(screened, 2):
+        if a in ctx.hand or b in ctx.hand:
+            continue
         pairs = [*chosen, (a, la), (b, lb)]
         cols = [*base_cols, ctx.column(a, la), ctx.column(b, lb)]
         ins = _with_sets([ctx.variable(t, g) for t, g in pairs], cols, rows, max_sets)
@@ -1476,7 +1490,8 @@ def _build_unit(
             + (f" and {len(exist) - 3} more" if len(exist) > 3 else "")
             + " exist (use --force to overwrite, or another unit name)"
         )
-    ctx = _Context(frame, info, period)
+    hand_tags = frozenset(m.tag for m in hand)
+    ctx = _Context(frame, info, period, hand_tags)
     loop_notes = []
     held_sp: list[ManualSpan] = []  # the held set-points' [fixed] rows
     for lp in loops:
@@ -1511,7 +1526,7 @@ def _build_unit(
     # a long fast window: inputs chosen on a coarser grid (short.coarse_frame)
     sel = ctx
     if plan.factor > 1:
-        sel = _Context(short.coarse_frame(frame, plan.factor), info, plan.select_period)
+        sel = _Context(short.coarse_frame(frame, plan.factor), info, plan.select_period, hand_tags)
     short.slow_inputs(plan, list(ctx.vars), ctx.column)
     same = same_measurement(frame, list(ctx.vars), workers)
     warm_kernels()
@@ -1542,14 +1557,14 @@ def _build_unit(
         if shares:
             eq_notes.append(share_note(e, shares))
         f_e = with_shares(f_e, shares)
-        c_e = _Context(f_e, info, period)
+        c_e = _Context(f_e, info, period, hand_tags)
         for lp in loops:  # a loop's held set-point, as the window's
             if lp.sp in ctx.fixed_sp:
                 c_e.fixed_sp[lp.sp] = ctx.fixed_sp[lp.sp]
             elif lp.sp in ctx.vars and lp.sp not in c_e.vars and lp.pv in c_e.vars:
                 c_e.hold_set_point(lp.sp, lp.pv)
         s_e = c_e if plan.factor <= 1 else _Context(short.coarse_frame(f_e, plan.factor), info,
-                                                      plan.select_period)  # fmt: skip
+                                                      plan.select_period, hand_tags)  # fmt: skip
         c_e.derived = s_e.derived = {s.base: s for s in shares}
         ctxs[e.name] = (c_e, s_e, f_e)
 
