@@ -356,7 +356,11 @@ def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
     test of the flow). A leak of the tank the flow drains then names the flow, not the
     balance's inflow meter, whose bias moves its own test too (docs/how-to/unit-loops.md). A
     flow its own loop holds keeps its compensated direction (above): a bias of its meter is
-    what its balance test sees, the loop holding the reading and the true flow moving."""
+    what its balance test sees, the loop holding the reading and the true flow moving. No
+    other tag's true change moves a balance (as an actuator's true move does not,
+    :func:`moved_directions`): the out-flow following a level its model reads moved the
+    feed meter's balance by the level's true change, and the level took the meter's bias
+    (the 7-tag line at 5 min with the pair step; docs/how-to/unit-loops.md)."""
     tags, outputs, _ = structure(unit)
     col = {x: k for k, x in enumerate(tags)}
     spread = np.array([_spread_test(unit, t) for t in unit.tests])
@@ -375,6 +379,11 @@ def process_directions(unit, spec: CombinedSpec, xi: np.ndarray) -> np.ndarray:
             stiction.setdefault(col[test.actuator], []).append(j)
     out = _true_changes(unit, spec, tags, outputs, spread)
     out[spread] = xi[spread]
+    # a true change leaves a balance where it was: the vessel's level and its flows account
+    # for it (as for an actuator's true move, :func:`moved_directions`); the one-step
+    # followers would move one side only (a level the out-flow's model reads: the out-flow
+    # follows, the feed the loop holds does not), and the level took a meter's balance alarm
+    out[[getattr(unit.file.test(t), "balance", False) for t in unit.tests]] = 0.0
     keep = [k for k, x in enumerate(tags) if x in fixed]
     out[:, keep] = xi[:, keep]
     for k, j in sensor_of.items():  # compensated: its loop test held at zero

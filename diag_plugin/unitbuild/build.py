@@ -582,10 +582,18 @@ def _abs_corr(ranks: bool, X: pd.DataFrame) -> np.ndarray:
 class _Context:
     """Columns, spans and variables of the window, shared by every test's selection."""
 
-    def __init__(self, frame: pd.DataFrame, info: dict[str, TagInfo], period: str):
+    def __init__(
+        self,
+        frame: pd.DataFrame,
+        info: dict[str, TagInfo],
+        period: str,
+        hand: frozenset[str] = frozenset(),
+    ):
         self.frame = frame
         self.info = info
         self.period = period
+        #: the declared hand valves: never half of a pair (:func:`_pair_step`)
+        self.hand = hand
         self.spans: dict[str, tuple[float, float]] = {}
         self.vars: dict[str, Variable] = {}
         #: declared loops' set-point tags constant over the window (:meth:`hold_set_point`)
@@ -697,14 +705,15 @@ def select_inputs(
         for c in pool:
             corr = corrs[c]
             order = np.argsort(-corr, kind="stable")[:LAGS_RETRAINED]
-            screened.append((float(corr[order[0]]), c, sorted(int(x) for x in order)))
+            screened.append((float(corr[order[0]]), c, sorted(int(x) for x in order),
+                             int(order[0])))  # fmt: skip
         screened.sort(key=lambda s: -s[0])
         best = None  # (rmse, coverage, tag, lag, the variant's inputs, columns and fits)
         base_cols = [ctx.column(t, lag) for t, lag in chosen]
         # each dead time's lower bound of its error from the fine rule level alone
         # (BlockScorer.bound), for every screened candidate before any is finished
         bounded = []
-        for rank, (_, c, lags) in enumerate(screened[:SCREENED]):
+        for rank, (_, c, lags, _) in enumerate(screened[:SCREENED]):
             variants = []
             for lag in lags:
                 cols = [*base_cols, ctx.column(c, lag)]
@@ -745,16 +754,65 @@ def select_inputs(
             if best is None or (rmse, rank) < (best[0], best[-1]):
                 best = (rmse, cov, c, lag, kept, rank)
         if best is None or not best[0] < gain:
-            break
-        rmse, cov, c, lag, (ins, cols, fits), _ = best
-        chosen.append((c, lag))
-        pool.remove(c)
-        choice.steps.append(Step(str(ctx.spec_of(c, lag)), rmse, cov))
+            if len(chosen) + 2 > max_inputs or method == short.LINEAR or not _a_flow(ctx, tag):
+                break  # a line has no product of two inputs to find; a pair: a flow's
+            pair = _pair_step(ctx, scorer, chosen, screened[:SCREENED], current, rows, max_sets)
+            if pair is None:
+                break
+            rmse, cov, picked, kept = pair
+        else:
+            rmse, cov, c, lag, kept, _ = best
+            picked = [(c, lag)]
+        ins, cols, fits = kept
+        for c, lag in picked:
+            chosen.append((c, lag))
+            pool.remove(c)
+            choice.steps.append(Step(str(ctx.spec_of(c, lag)), rmse, cov))
         current = rmse
         # the winner's block fits as its scoring made them: the next step's base model
         scorer = BlockScorer(FrozenRuleBase(base, ins), cols, y, ctx.block, fitted=fits)
         resid = scorer.residual(cols)
     return choice
+
+
+def _a_flow(ctx: _Context, tag: str) -> bool:
+    """``tag`` a flow by its declared kind (:func:`~diag_plugin.unitbuild.balance.tag_kind`):
+    the pair step's product is the valve equation's (an opening times its head)."""
+    from diag_plugin.unitbuild.balance import tag_kind
+
+    return tag_kind(tag, ctx.info.get(tag)) == "flow"
+
+
+def _pair_step(ctx, scorer, chosen, screened, current, rows, max_sets):
+    """Where no single candidate cuts the error by :data:`MIN_GAIN`: the best pair of the
+    step's screened candidates (each at its best-screened dead time), kept where it cuts the
+    error by ``2 × MIN_GAIN`` — two inputs that each alone explain nothing (a tank's level
+    and its drain valve, the out-flow their product). At most ``C(SCREENED, 2)`` pair fits,
+    each skipped where its lower bound cannot beat the best pair or the cut. A declared hand
+    valve is half of no pair (still a single candidate): a model reading the valve's
+    opening now would follow the operator's move, and the move's settle and its
+    CHECK_FUNCTION outside the learned span (:mod:`~diag_plugin.diagnose.manual`) would no
+    longer be seen. Returns ``(rmse, coverage, ((tag, lag), (tag, lag)), (inputs, columns,
+    fits))`` or None."""
+    from itertools import combinations
+
+    gain = current * (1 - 2 * MIN_GAIN)
+    base_cols = [ctx.column(t, lag) for t, lag in chosen]
+    best = None
+    for (_, a, _, la), (_, b, _, lb) in combinations(screened, 2):
+        if a in ctx.hand or b in ctx.hand:
+            continue
+        pairs = [*chosen, (a, la), (b, lb)]
+        cols = [*base_cols, ctx.column(a, la), ctx.column(b, lb)]
+        ins = _with_sets([ctx.variable(t, g) for t, g in pairs], cols, rows, max_sets)
+        low, prefit = scorer.bound(ins, cols)
+        reach = gain if best is None or gain < best[0] else best[0]
+        if low > reach * (1 + BOUND_MARGIN):
+            continue
+        rmse, cov = scorer.score(ins, cols, prefit)
+        if math.isfinite(rmse) and rmse < reach:
+            best = (rmse, cov, ((a, la), (b, lb)), (ins, cols, scorer.fitted()))
+    return best
 
 
 def _choose(tag: str, *args) -> TestChoice:
@@ -1432,7 +1490,8 @@ def _build_unit(
             + (f" and {len(exist) - 3} more" if len(exist) > 3 else "")
             + " exist (use --force to overwrite, or another unit name)"
         )
-    ctx = _Context(frame, info, period)
+    hand_tags = frozenset(m.tag for m in hand)
+    ctx = _Context(frame, info, period, hand_tags)
     loop_notes = []
     held_sp: list[ManualSpan] = []  # the held set-points' [fixed] rows
     for lp in loops:
@@ -1467,7 +1526,7 @@ def _build_unit(
     # a long fast window: inputs chosen on a coarser grid (short.coarse_frame)
     sel = ctx
     if plan.factor > 1:
-        sel = _Context(short.coarse_frame(frame, plan.factor), info, plan.select_period)
+        sel = _Context(short.coarse_frame(frame, plan.factor), info, plan.select_period, hand_tags)
     short.slow_inputs(plan, list(ctx.vars), ctx.column)
     same = same_measurement(frame, list(ctx.vars), workers)
     warm_kernels()
@@ -1498,14 +1557,14 @@ def _build_unit(
         if shares:
             eq_notes.append(share_note(e, shares))
         f_e = with_shares(f_e, shares)
-        c_e = _Context(f_e, info, period)
+        c_e = _Context(f_e, info, period, hand_tags)
         for lp in loops:  # a loop's held set-point, as the window's
             if lp.sp in ctx.fixed_sp:
                 c_e.fixed_sp[lp.sp] = ctx.fixed_sp[lp.sp]
             elif lp.sp in ctx.vars and lp.sp not in c_e.vars and lp.pv in c_e.vars:
                 c_e.hold_set_point(lp.sp, lp.pv)
         s_e = c_e if plan.factor <= 1 else _Context(short.coarse_frame(f_e, plan.factor), info,
-                                                      plan.select_period)  # fmt: skip
+                                                      plan.select_period, hand_tags)  # fmt: skip
         c_e.derived = s_e.derived = {s.base: s for s in shares}
         ctxs[e.name] = (c_e, s_e, f_e)
 
