@@ -891,3 +891,32 @@ def test_a_pressure_drift_is_named_first_on_the_pressure_transmitter(line):
     _, _, runs, _ = line
     first = _held_first(runs[("pressure_drift", TABLE_SEED)])
     assert first.get("SUPPLY_P", 0.0) > 0.5, first
+
+
+def test_the_live_loop_carries_a_pinned_valve_across_a_restart(tmp_path):
+    """The tank's inflow surge pins its level valve at 100 %: the live plant, restarted from
+    its saved state (JSON) while the valve is pinned, gives the statuses of one uninterrupted
+    run, the replay's too; the state it saved holds the pinned valve's window."""
+    from helpers import plant_statuses, same_status
+
+    from diag_plugin.diagnose.plant import Plant
+    from diag_plugin.unitbuild.build import build_unit
+    from tests.test_unit_build import _tank
+
+    res = build_unit("tank", _tank(6, 1, [40.0, 45.0, 50.0, 55.0]), folder=tmp_path,
+                     period="60s", far=0.01)  # fmt: skip
+    unit = Unit.load(res.path, tmp_path)
+    assert unit.release_hold is not None and unit.release_hold.valves[0] is not None
+    run = _tank(1, 2, [62.0], surge=80.0)
+    whole = plant_statuses(Plant({"tank": unit.reset()}), run)["tank"]
+    d = unit.reset().evaluate(run)
+    assert [p.faults for p in whole] == [d.at(i).faults for i in range(len(run))]
+    cut = int(len(run) * 0.8)  # the valve at 100 % since the surge
+    assert run["LIC101.OUT"].iloc[cut - 5 : cut].eq(100.0).all()
+    first = Plant({"tank": unit.reset()})
+    a = plant_statuses(first, run.iloc[:cut])["tank"]
+    state = json.loads(json.dumps(first.to_state()))
+    assert any(left > 0 for p in state["pinned"] for left in p["left"]), state["pinned"]
+    b = plant_statuses(Plant({"tank": unit.reset()}).load_state(state), run.iloc[cut:])["tank"]
+    for i, (p, q) in enumerate(zip(whole, a + b, strict=True)):
+        same_status(p, q, i)
