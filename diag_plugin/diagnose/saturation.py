@@ -68,6 +68,18 @@ def _sentence(lp: _Loop, value: float, at_limit: bool, tol: float) -> str:
     return f"{lp.actuator} at its limit ({val:.4g}, {span}): loop {lp.pv} cannot hold its set-point"
 
 
+def actuator_span(unit, act: str) -> tuple[str, float, float] | None:
+    """A loop's actuator ``act`` (its plant name) as the unit's models read it, with its
+    span: the output range of the first of the unit's tests that models it (the metadata
+    range, else the build window's); None where no test models it."""
+    model_tag = next((k for k, v in unit.file.tags.items() if v == act), act)
+    for t in unit.tests:
+        m = unit.models[t]
+        if m.output.split("[")[0] == model_tag and m.out_range is not None:
+            return model_tag, *map(float, m.out_range)
+    return None
+
+
 class Saturation:
     """The loops whose actuator's limits the unit knows, and per loop whether the current
     alarm episode has named its actuator (carried across pieces)."""
@@ -81,12 +93,6 @@ class Saturation:
         """The unit's loop tests whose actuator has a test of its own (its span: the output
         variable's); None where there is none."""
         mapping = unit.file.tags
-        out_of = {}
-        for t in unit.tests:
-            m = unit.models[t]
-            tag = m.output.split("[")[0]
-            if m.out_range is not None:
-                out_of.setdefault(tag, m.out_range)
         outs = [unit.models[u].output.split("[")[0] for u in unit.tests]
         loops = []
         for j, t in enumerate(unit.tests):
@@ -96,14 +102,14 @@ class Saturation:
                 continue
             if getattr(spec, "statistic", "level") != "level":
                 continue
-            model_tag = next((k for k, v in mapping.items() if v == act), act)
-            rng = out_of.get(model_tag)
-            if rng is None:
+            span = actuator_span(unit, act)
+            if span is None:
                 continue
+            model_tag, lo, hi = span
             pv = unit.models[t].output.split("[")[0]
             own = tuple(i for i, o in enumerate(outs) if o in (pv, model_tag))
             mine = tuple(i for i, o in enumerate(outs) if o == model_tag)
-            loops.append(_Loop(j, mapping.get(pv, pv), act, model_tag, *map(float, rng), own, mine))
+            loops.append(_Loop(j, mapping.get(pv, pv), act, model_tag, lo, hi, own, mine))
         return cls(loops) if loops else None
 
     def reset(self) -> None:

@@ -71,7 +71,7 @@ from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
 from diag_plugin.diagnose.pertest import each
 from diag_plugin.diagnose.residuals import LowPass, supported
 from diag_plugin.diagnose.running import segments
-from diag_plugin.diagnose.saturation import Saturation
+from diag_plugin.diagnose.saturation import Saturation, actuator_span
 from diag_plugin.diagnose.settle import SettleGuard, prepend, settle_guard
 from diag_plugin.diagnose.settle import apply as apply_settle
 from diag_plugin.diagnose.symptoms import FixedThresholds, OnOffDelay, three_valued
@@ -761,23 +761,11 @@ class Unit:
         if sec <= 0 or not has.any():
             return None
         cols = self.spread_cols[has]
+        # each loop's valve and its span (unitloops.PinnedValves), as Saturation reads it
+        acts = [self.file.tests[j].actuator for j in cols]
         return ReleaseHold(spread_samples(sec, self.period), cols, rel[has],
                            [self._loop_tests(j) for j in cols],
-                           [self._loop_valve(j) for j in cols])  # fmt: skip
-
-    def _loop_valve(self, j: int) -> tuple[str, float, float] | None:
-        """The spread test ``j``'s loop valve as the unit's columns read it, with its span
-        (its own test's output range, as :class:`~.saturation.Saturation` reads it), for
-        :class:`~.unitloops.PinnedValves`; None where the unit has no test of the valve."""
-        act = self.file.tests[j].actuator
-        if not act:
-            return None
-        model_tag = next((k for k, v in self.file.tags.items() if v == act), act)
-        for t in self.tests:
-            m = self.models[t]
-            if output_tag(m.output) == model_tag and m.out_range is not None:
-                return model_tag, *map(float, m.out_range)
-        return None
+                           [actuator_span(self, a) if a else None for a in acts])  # fmt: skip
 
     def _loop_tests(self, j: int) -> np.ndarray:
         """The spread test ``j``'s loop's own tests, which raise its release hold

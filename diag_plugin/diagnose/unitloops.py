@@ -403,8 +403,8 @@ def _release_kernel(
 _NONE = np.zeros(0, np.int64)
 
 #: a valve reads "pinned" within this share of its span from an edge (or past it) with the
-#: same reading as the sample before: a clipped valve at 0 or 100 % of a span learned as
-#: -2 … 102 sits 2/104 of it from the edge
+#: same reading as the sample before: the tank's level valve, clipped at 0 and 100 %, has a
+#: span learned as -1.99 … 101.6 and sits 1.5 % (at 100) and 1.9 % (at 0) of it from the edge
 PINNED = 0.02
 
 
