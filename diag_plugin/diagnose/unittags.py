@@ -45,8 +45,10 @@ whose column allows every symptom on (a small fault of it fires only its tests n
 thresholds), that tag is named too (:func:`with_ranked`). An expert
 matrix file, when given, takes precedence for the faults; the ranking below is still reported.
 A test with an ``actuator`` (a loop's control error, written by ``diag unit build``) has ``1``
-in that controller output's column too; set-points are never columns (an operator's entry has
-no sensor or actuator to fail). A *process* fault (fouling, a leak) has no column: it moves
+in that controller output's column too; a loop's own sensor has ``1`` in every other test
+that reads its loop's set-point (the loop takes the sensor's bias and drives the process as a
+set-point step would: its actuator's test, the tags downstream; :func:`compensating_tests`);
+set-points are never columns (an operator's entry has no sensor or actuator to fail). A *process* fault (fouling, a leak) has no column: it moves
 the tests whose relations it breaks, and shows up as the tags those tests involve, ranked as
 below.
 
@@ -243,8 +245,38 @@ def derived_matrix(unit) -> DiagnosticMatrix:
     """The matrix of a unit without an expert one: tests × tags, ``1`` where the test reads
     the tag (input, any lag) or models it (output), ``0`` elsewhere (see module doc)."""
     tags, outputs, reads = structure(unit)
-    rows = [[_names_tag(unit, t, x, outputs, reads) for x in tags] for t in unit.tests]
+    held = compensating_tests(unit, outputs, reads)
+    rows = [
+        [max(_names_tag(unit, t, x, outputs, reads), int(t in held.get(x, ()))) for x in tags]
+        for t in unit.tests
+    ]
     return DiagnosticMatrix(list(unit.tests), tags, rows, name=f"{unit.name} (derived: tags)")
+
+
+def compensating_tests(
+    unit, outputs: dict[str, str], reads: dict[str, list[str]]
+) -> dict[str, set[str]]:
+    """Per loop's own sensor (plant name) the tests its loop's compensating move reaches: a
+    bias ``b`` of the sensor is taken by the loop, which drives the process as a set-point step
+    of ``−b`` would, so every other test whose model reads the set-point (the actuator's own
+    test, the tags downstream) moves — the structure of the ranking's compensated direction
+    (:func:`_compensated_sensors`) in the derived matrix's column. Without it the column held
+    only the loop test (quiet once the loop has compensated) and the tests reading the sensor:
+    a meter bias on the 7-tag line fired its valve's test alone, whose exact column is the
+    supply pressure's, and the unit reported ``SUPPLY_P`` on 94 % of the alarm samples where
+    its ranking named the meter on 99.6 % (issue 34, item 4)."""
+    out: dict[str, set[str]] = {}
+    for t in unit.tests:
+        test = unit.file.test(t)
+        if _spread_test(unit, t) or not (test.actuator and test.set_point):
+            continue
+        for other in unit.tests:
+            ot = unit.file.test(other)
+            if other == t or _spread_test(unit, other) or ot.set_point == test.set_point:
+                continue
+            if test.set_point in reads[other]:
+                out.setdefault(outputs[t], set()).add(other)
+    return out
 
 
 def _names_tag(unit, t: str, x: str, outputs: dict[str, str], reads: dict[str, list[str]]) -> int:
