@@ -30,6 +30,10 @@ def _score(d, run) -> tuple[int, int, int]:
     return int(alarm.sum()), right, wrong
 
 
+def _pct(s) -> str:
+    return f"{100 * s[1] / max(s[0], 1):5.1f} / {100 * s[2] / max(s[0], 1):5.1f} %"
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--plant", default="chemplant", choices=["chemplant", "tep", "tep-studio"])
@@ -71,12 +75,14 @@ def main() -> None:
             tot[key] += s
             row[key] = s
         n = row["with"][0]
-        pct = lambda s: f"{100 * s[1] / max(s[0], 1):5.1f} / {100 * s[2] / max(s[0], 1):5.1f} %"  # noqa: E731
-        print(f"{run.fault + ' ' + run.name:28s} {n:6d}  {pct(row['with'])}   {pct(row['without'])}")
+        name = f"{run.fault} {run.name}"
+        print(f"{name:28s} {n:6d}  {_pct(row['with'])}   {_pct(row['without'])}")
     unit.matrix = with_cols
     for key, s in tot.items():
-        print(f"all runs, {key:7s}: {s[0]} alarm samples, faults right {100 * s[1] / s[0]:.1f} %, "
-              f"wrong {100 * s[2] / s[0]:.1f} %")
+        print(
+            f"all runs, {key:7s}: {s[0]} alarm samples, faults right {100 * s[1] / s[0]:.1f} %, "
+            f"wrong {100 * s[2] / s[0]:.1f} %"
+        )
 
 
 if __name__ == "__main__":

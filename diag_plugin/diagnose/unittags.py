@@ -48,9 +48,9 @@ A test with an ``actuator`` (a loop's control error, written by ``diag unit buil
 in that controller output's column too; a loop's own sensor has ``1`` in every other test
 that reads its loop's set-point (the loop takes the sensor's bias and drives the process as a
 set-point step would: its actuator's test, the tags downstream; :func:`compensating_tests`);
-set-points are never columns (an operator's entry has no sensor or actuator to fail). A *process* fault (fouling, a leak) has no column: it moves
-the tests whose relations it breaks, and shows up as the tags those tests involve, ranked as
-below.
+set-points are never columns (an operator's entry has no sensor or actuator to fail). A
+*process* fault (fouling, a leak) has no column: it moves the tests whose relations it breaks,
+and shows up as the tags those tests involve, ranked as below.
 
 **Ranking by contribution.** For each tag ``X`` a fault direction ``ξ_X`` in ``z`` space: a
 bias ``b`` of X's sensor moves test ``j``'s residual by ``(1{X is j's output} − g_jX) · b ·
