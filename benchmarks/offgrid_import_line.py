@@ -15,7 +15,8 @@ line's loop ``--loop``, the heater's ``--manual STEAM_V``; the period left to th
 fault-free run's (an unseen seed) share of samples alarmed, its alarm episodes and its share
 CHECK_FUNCTION, and per
 fault seed the share of alarm samples from day 1 on whose ``top1`` (the CSV's held top tag)
-is the faulted tag and the runner-up (the line: ``FEED_FLOW`` / ``VALVE_A``).
+is the faulted tag and the runner-up (the line: ``FEED_FLOW`` / ``VALVE_A``), and the share
+whose isolated ``faults`` (the alarm event's, the HMI's fault tag) hold the faulted tag.
 
 ``--api`` also builds the same on-grid frames through the Python API (``build_unit`` +
 ``Unit.evaluate``, as ``benchmarks/line7_meter_bias.py``) and prints the same figures,
@@ -120,11 +121,18 @@ def plant_runs(plant: Plant, rate_s: int, seeds, label: str = "right") -> dict[s
 
 
 def figures(
-    status: np.ndarray, detected: np.ndarray, top1: np.ndarray, after: np.ndarray, plant: Plant
+    status: np.ndarray,
+    detected: np.ndarray,
+    top1: np.ndarray,
+    after: np.ndarray,
+    plant: Plant,
+    faults: np.ndarray | None = None,
 ) -> dict:
     """What is counted of one run: the share of samples alarmed (``detected`` 1), the alarm
     episodes (rising edges) and the share CHECK_FUNCTION over the run, and of the alarm
-    samples with ``after`` true the share whose top 1 is the faulted tag and the runner-up."""
+    samples with ``after`` true the share whose top 1 is the faulted tag and the runner-up;
+    and, given the isolated ``faults`` (``a|b``), the share of those samples whose faults
+    hold the faulted tag (what the alarm event and the HMI's fault tag say)."""
     alarm, check = detected == 1, status == int(NE107.CHECK_FUNCTION)
     out = {"alarm_pct": round(100 * float(alarm.mean()), 2),
            "episodes": int((alarm & ~np.r_[False, alarm[:-1]]).sum()),
@@ -135,6 +143,9 @@ def figures(
     out |= {"alarm_after": int((alarm & after).sum()),
             "fault_tag_pct": round(100 * float(share.get(plant.at_fault, 0.0))),
             "other": other, "other_pct": round(100 * float(share.get(other, 0.0)))}  # fmt: skip
+    if faults is not None:
+        held = np.array([plant.at_fault in str(f).split("|") for f in faults[alarm & after]])
+        out["faults_pct"] = round(100 * float(held.mean())) if held.size else 0
     return out
 
 
@@ -181,7 +192,8 @@ def cli_path(
         ts = pd.to_datetime(d["ts"], utc=True)
         after = (ts >= a + DAY).to_numpy()
         out[name] = figures(d["status"].to_numpy(int), d["detected"].to_numpy(float),
-                            d["top1"].astype(str).to_numpy(), after, plant)  # fmt: skip
+                            d["top1"].astype(str).to_numpy(), after, plant,
+                            d["faults"].astype(str).to_numpy())  # fmt: skip
         out[name]["rows"] = len(d)
         out[name]["json_detected_share"] = json.loads(text).get("detected_share")
     return out
@@ -213,7 +225,7 @@ def api_path(plant: Plant, runs: dict[str, pd.DataFrame], rate_s: int, folder: P
         after = d.status.index >= run.index[0] + DAY
         top1 = d.top_tags["top1"].to_numpy().astype(str)
         out[name] = figures(d.status.to_numpy(int), d.detected.to_numpy(float), top1,
-                            np.asarray(after), plant)  # fmt: skip
+                            np.asarray(after), plant, d.faults.to_numpy().astype(str))  # fmt: skip
     return out
 
 
@@ -232,10 +244,12 @@ def table(plant: Plant, cli: dict, api: dict | None) -> list[str]:
                         f"{p['check_pct']} %")  # fmt: skip
         else:
             row = (f"seed {name}: {plant.at_fault} {c['fault_tag_pct']} / {c['other']} "
-                   f"{c['other_pct']} % of {c['alarm_after']}")  # fmt: skip
+                   f"{c['other_pct']} % of {c['alarm_after']}, in faults "
+                   f"{c.get('faults_pct', '-')} %")  # fmt: skip
             if p:
                 row += (f"  | on-grid API {p['fault_tag_pct']} / {p['other']} {p['other_pct']} "
-                        f"% of {p['alarm_after']}")  # fmt: skip
+                        f"% of {p['alarm_after']}, in faults "
+                        f"{p.get('faults_pct', '-')} %")  # fmt: skip
         lines.append(row)
     return lines
 
