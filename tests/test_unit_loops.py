@@ -315,8 +315,8 @@ def test_a_loops_own_test_raises_its_spread_release_and_the_combined_test_is_rel
 
 
 def test_a_pinned_valve_neither_raises_nor_keeps_its_loops_release():
-    """A loop's valve pinned at an edge (the same reading as the sample before, within
-    ``PINNED`` of its span from an edge) makes the loop's long spread unknown until a
+    """A loop's valve pinned at an edge (within ``PINNED`` of its span from the same edge
+    on this sample and the one before) makes the loop's long spread unknown until a
     release window after it last sat there: a hold raised before drops, the loop's own
     tests raise none, the combined test is not held; a valve that reaches the edge and
     moves on is not pinned; pieces and a state through JSON give the one pass."""
