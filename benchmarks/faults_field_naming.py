@@ -50,22 +50,12 @@ def _chemplant_tuning(plant) -> list:
     """The chemical plant's fault runs on its tuning seeds 101–103 (3 days, the fault from
     day 1, 3-min means), as :func:`~diag_plugin.bench.publicbench.chemplant_plant` makes the
     scoring ones."""
-    import pandas as pd
+    from diag_plugin.bench.publicbench import chemplant_fault_run
 
-    from diag_plugin.bench.publicplants import PlantRun
-    from diag_plugin.simulate.chemplant import FAULTS, sample, simulate_chemplant
-
-    runs = []
-    for name in dict.fromkeys(r.fault for r in plant.faults):
-        for s in (101, 102, 103):
-            raw = simulate_chemplant(3.0, s, fault=name, onset_s=86400.0)
-            x = sample(raw, 180)
-            onset = pd.Timestamp(raw.attrs["fault"]["onset"])
-            if x.index.tz is not None and onset.tz is None:
-                onset = onset.tz_localize(x.index.tz)
-            k = int(np.searchsorted(x.index, onset))
-            runs.append(PlantRun(f"seed {s}", x, name, k, tuple(FAULTS[name].tags)))
-    return runs
+    names = dict.fromkeys(r.fault for r in plant.faults)
+    return [
+        chemplant_fault_run(n, s, 3.0, 1.0, f"seed {s}") for n in names for s in (101, 102, 103)
+    ]
 
 
 def main() -> None:

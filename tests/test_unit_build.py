@@ -337,13 +337,9 @@ def _tank(days: float, seed: int, set_points, surge: float = 0.0) -> pd.DataFram
     """The tour's tank (level held by LIC101 on the outflow valve) with the operators'
     set-points drawn from ``set_points`` every 4 h; ``surge``: extra inflow (m³/h) over the
     run's second half. 1-min means."""
-    idx = sp._seconds(days, "2026-03-02")
-    n = len(idx)
-    rng = np.random.default_rng([seed, 7])
-    fin = 38.0 + sp._ou(rng, n, 4.0, 2 * 3600.0) + sp._ou(rng, n, 0.8, 20.0)
-    fin[n // 2 :] += surge
-    hold = np.repeat(rng.choice(set_points, n // 14400 + 1), 14400)[:n].astype(float)
-    return sp.tank_run(idx, np.clip(fin, 5, 200), hold, rng).resample("60s").mean()
+    from tests.tank_rates import tank_1s
+
+    return tank_1s(days, seed, set_points, surge).resample("60s").mean()
 
 
 def test_a_controlled_tag_is_tested_against_its_set_point(tmp_path):

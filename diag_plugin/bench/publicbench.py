@@ -495,16 +495,11 @@ def chemplant_plant(quick: bool = False, faults: Sequence[str] | None = None) ->
         start = f.index[-1] + pd.Timedelta("1h")
     cal = [PlantRun(f"seed {s}", sample(simulate_chemplant(run_days, s), 180)) for s in cal_seeds]
     free = [PlantRun(f"seed {s}", sample(simulate_chemplant(run_days, s), 180)) for s in free_seeds]
-    faults = []
-    for name in names:
-        for s in fault_seeds:
-            raw = simulate_chemplant(run_days, s, fault=name, onset_s=onset_days * 86400)
-            x = sample(raw, 180)
-            onset = pd.Timestamp(raw.attrs["fault"]["onset"])
-            if x.index.tz is not None and onset.tz is None:
-                onset = onset.tz_localize(x.index.tz)
-            k = int(np.searchsorted(x.index, onset))
-            faults.append(PlantRun(f"{name} seed {s}", x, name, k, tuple(FAULTS[name].tags)))
+    faults = [
+        chemplant_fault_run(name, s, run_days, onset_days, f"{name} seed {s}")
+        for name in names
+        for s in fault_seeds
+    ]
     loops = chemplant_loops()
     return chemplant_public(
         train,
@@ -524,6 +519,22 @@ def chemplant_plant(quick: bool = False, faults: Sequence[str] | None = None) ->
             + ", ".join(loops),
         ],
     )
+
+
+def chemplant_fault_run(
+    name: str, seed: int, days: float, onset_days: float, label: str
+) -> PlantRun:
+    """One fault run of the chemical plant (3-min means): ``name`` from ``onset_days`` on,
+    with the row of its onset and its tags at fault."""
+    from diag_plugin.simulate.chemplant import FAULTS, sample, simulate_chemplant
+
+    raw = simulate_chemplant(days, seed, fault=name, onset_s=onset_days * 86400)
+    x = sample(raw, 180)
+    onset = pd.Timestamp(raw.attrs["fault"]["onset"])
+    if x.index.tz is not None and onset.tz is None:
+        onset = onset.tz_localize(x.index.tz)
+    k = int(np.searchsorted(x.index, onset))
+    return PlantRun(label, x, name, k, tuple(FAULTS[name].tags))
 
 
 def chemplant_loops() -> list[str]:
