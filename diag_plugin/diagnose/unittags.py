@@ -245,7 +245,9 @@ def derived_matrix(unit) -> DiagnosticMatrix:
     """The matrix of a unit without an expert one: tests × tags, ``1`` where the test reads
     the tag (input, any lag) or models it (output), ``0`` elsewhere (see module doc)."""
     tags, outputs, reads = structure(unit)
-    held = compensating_tests(unit, outputs, reads)
+    held: dict[str, set[str]] = {}
+    for loop, others in compensating_tests(unit, reads).items():
+        held.setdefault(outputs[loop], set()).update(others)
     rows = [
         [max(_names_tag(unit, t, x, outputs, reads), int(t in held.get(x, ()))) for x in tags]
         for t in unit.tests
@@ -253,29 +255,29 @@ def derived_matrix(unit) -> DiagnosticMatrix:
     return DiagnosticMatrix(list(unit.tests), tags, rows, name=f"{unit.name} (derived: tags)")
 
 
-def compensating_tests(
-    unit, outputs: dict[str, str], reads: dict[str, list[str]]
-) -> dict[str, set[str]]:
-    """Per loop's own sensor (plant name) the tests its loop's compensating move reaches: a
-    bias ``b`` of the sensor is taken by the loop, which drives the process as a set-point step
-    of ``−b`` would, so every other test whose model reads the set-point (the actuator's own
-    test, the tags downstream) moves — the structure of the ranking's compensated direction
-    (:func:`_compensated_sensors`) in the derived matrix's column. Without it the column held
+def compensating_tests(unit, reads: dict[str, list[str]]) -> dict[str, list[str]]:
+    """Per loop test (a ``level`` test with an actuator and a set-point) the other tests its
+    loop's compensating move reaches: a bias ``b`` of the loop's sensor is taken by the loop,
+    which drives the process as a set-point step of ``−b`` would, so every other test whose
+    model reads the set-point (the actuator's own test, the tags downstream; not a spread
+    test, nor a test of the same set-point) moves. The ranking's compensated direction puts
+    ``−g · b`` on them (:func:`_compensated_sensors`), the derived matrix a ``1`` in the
+    sensor's column. Without it the column held
     only the loop test (quiet once the loop has compensated) and the tests reading the sensor:
     a meter bias on the 7-tag line fired its valve's test alone, whose exact column is the
     supply pressure's, and the unit reported ``SUPPLY_P`` on 94 % of the alarm samples where
     its ranking named the meter on 99.6 % (issue 34, item 4)."""
-    out: dict[str, set[str]] = {}
+    out: dict[str, list[str]] = {}
     for t in unit.tests:
         test = unit.file.test(t)
         if _spread_test(unit, t) or not (test.actuator and test.set_point):
             continue
-        for other in unit.tests:
-            ot = unit.file.test(other)
-            if other == t or _spread_test(unit, other) or ot.set_point == test.set_point:
-                continue
-            if test.set_point in reads[other]:
-                out.setdefault(outputs[t], set()).add(other)
+        out[t] = [
+            other for other in unit.tests
+            if other != t and not _spread_test(unit, other)
+            and unit.file.test(other).set_point != test.set_point
+            and test.set_point in reads[other]
+        ]  # fmt: skip
     return out
 
 
@@ -326,7 +328,7 @@ def directions(unit, spec: CombinedSpec | None) -> tuple[np.ndarray, np.ndarray]
             g = spec.gains.get(t, {}).get(x, 0.0)
             xi[j, k] = ((1.0 if x == outputs[t] else 0.0) - g) * 100.0 / span / spec.scale[i]
     if spec is not None:
-        _compensated_sensors(unit, spec, tags, outputs, xi)
+        _compensated_sensors(unit, spec, tags, outputs, reads, xi)
     return xi, loop
 
 
@@ -529,7 +531,7 @@ def compensated_loops(unit, tags: list[str]) -> np.ndarray | None:
     return np.array(sorted(set(out)), np.int64).reshape(-1, 3) if out else None
 
 
-def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray) -> None:
+def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, reads, xi: np.ndarray) -> None:
     """In place: a loop's own sensor biased by ``b`` is compensated by its loop, which then
     drives the process as a set-point step of ``−b`` would: every other test whose model
     reads the set-point (the model of the loop's actuator, of the tags downstream) sees a
@@ -540,26 +542,22 @@ def _compensated_sensors(unit, spec: CombinedSpec, tags, outputs, xi: np.ndarray
     ``−β_j`` on each test ``j`` that moved, ``β_j`` its scaled residual's response to a unit
     move of the set-point: the compensated bias moves the true measurement as a set-point move
     of ``−b`` would."""
-    for t in unit.tests:
-        test = unit.file.test(t)
-        if _spread_test(unit, t) or not (test.actuator and test.set_point):
-            continue
+    for t, others in compensating_tests(unit, reads).items():
+        sp = unit.file.test(t).set_point
         pv = outputs[t]
         if pv not in tags:
             continue
         k = tags.index(pv)
-        for other, beta in spec.responses.get(test.set_point, {}).items():
+        for other, beta in spec.responses.get(sp, {}).items():
             if other in unit.tests and other != t:
                 xi[unit.tests.index(other), k] -= beta
-        for j, other in enumerate(unit.tests):
-            ot = unit.file.test(other)
-            if other == t or _spread_test(unit, other) or ot.set_point == test.set_point:
-                continue
-            g = spec.gains.get(other, {}).get(test.set_point)
+        for other in others:
+            g = spec.gains.get(other, {}).get(sp)
             if not g:
                 continue
-            m = unit.models[other]
+            ot, m = unit.file.test(other), unit.models[other]
             span = ot.ymax if unit.ev["scale"] == "max" and ot.ymax else m.span
+            j = unit.tests.index(other)
             xi[j, k] += -g * 100.0 / span / spec.scale[spec.tests.index(other)]
 
 
