@@ -212,7 +212,9 @@ def test_a_held_at_limit_name_gives_way_to_the_fault_s_own_test_on_a_plant(tmp_p
     39 such samples: 29 the held name, 10 the valve at 100 % again in normal running on day 2
     after a feed step); now the sensor is first where the ranking did not put the valve there
     itself (15 of them: the 10 at the limit, 5 held), the valve second with its reason. The
-    valve alone at its limit, before the bias, is first as before."""
+    valve alone at its limit, before the bias, is first as before. Since 2026-12-05 "at its
+    limit" is within 2 % of the span (``saturation.AT_LIMIT``, the pinned rule's share; 0.5 %
+    before): 40 such samples, the sensor first on 16, 12 of them with the valve at 99.26–100 %."""
     build_unit("tank", _tank_and_heater(4, 1), folder=tmp_path, period="60s", far=0.01,
                loops=[Loop("LEVEL", "50", "VALVE")],
                tag_info={"VALVE": {"lo": 0, "hi": 100}}, workers=1)  # fmt: skip
@@ -234,4 +236,6 @@ def test_a_held_at_limit_name_gives_way_to_the_fault_s_own_test_on_a_plant(tmp_p
     # at its limit again in normal running (a feed step on day 2), the sensor's test on
     again = gave & at
     assert again.sum() >= 5
-    assert d["why"][again].str.contains(r"VALVE at its limit \(100").all()
+    # its value in the sentence, within 2 % of its 0 … 100 range (saturation.AT_LIMIT)
+    value = d["why"][again].str.extract(r"VALVE at its limit \(([0-9.]+),")[0].astype(float)
+    assert (value >= 98.0).all(), d["why"][again]

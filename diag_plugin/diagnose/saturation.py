@@ -8,11 +8,12 @@ operator acts on is the valve: ``dist_valve at its limit (100): loop DrumLevel c
 its set-point``.
 
 The rule (:class:`Saturation`): a loop test (``set_point`` and ``actuator`` in the unit file,
-statistic ``level``) whose symptom is on while its actuator reads within
-:data:`AT_LIMIT` of its span from an edge of the span of its own test's output — the tag's
-metadata range where the historian gives one, else the range the build window saw, which it
-never passed — names the actuator first (the ranking's first tag, the isolated fault), held
-to the end of the alarm episode as the other names are (:class:`~.unitloops.EpisodeHold`).
+statistic ``level``) whose symptom is on while its actuator reads within :data:`AT_LIMIT` of
+its span from an edge of the span of its own test's output (or past it) — the tag's metadata
+range where the historian gives one, else the range the build window saw padded 2 % a side,
+so a valve at its window's own extreme is at its limit — names the actuator first (the
+ranking's first tag, the isolated fault), held to the end of the alarm episode as the other
+names are (:class:`~.unitloops.EpisodeHold`).
 Detection is unchanged: only the names and the reason are.
 
 It gives way (issue 34 item 4, branch ``i34-naming``) on a sample on which a test of another
@@ -33,8 +34,17 @@ from typing import Any
 
 import numpy as np
 
-#: an actuator reads "at its limit" within this share of its span from an edge
-AT_LIMIT = 0.005
+from diag_plugin.diagnose.unitloops import PINNED
+
+#: an actuator reads "at its limit" within this share of its span from an edge (or past it):
+#: the pinned-valve rule's share (:data:`~.unitloops.PINNED`), so one valve is at its edge
+#: for both rules. A span the build took from its window is the window's range padded 2 % a
+#: side (``selection/spans.variable_for``): 2 / 104 = 1.92 % of the span, so a valve at the
+#: extreme its window saw (the tank's level valve clipped at 100 %, span -1.99 ... 101.6: 1.5 %
+#: from the edge) is at its limit. At 0.5 % (until 2026-12-05) the rule fired only where a
+#: valve passed its window's range or the tags CSV gave its ``lo``/``hi``: a valve that had
+#: reached its limit while the unit learned was never named at it.
+AT_LIMIT = PINNED
 
 
 @dataclass
