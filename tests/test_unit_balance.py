@@ -10,6 +10,7 @@ holds. The unit is built from 6 fault-free days of seed 1 and scored on seeds 2 
 
 from __future__ import annotations
 
+import tempfile
 import tomllib
 
 import numpy as np
@@ -17,6 +18,7 @@ import pandas as pd
 import pytest
 
 from diag_plugin.diagnose.unit import Unit
+from diag_plugin.regressors import InputSpec
 from diag_plugin.simulate import smallplants as sp
 from diag_plugin.unitbuild.balance import tag_kind
 from diag_plugin.unitbuild.build import build_unit
@@ -131,3 +133,36 @@ def test_no_balance_test_where_no_controller_output_drives_a_flow(tmp_path):
 )
 def test_what_a_tag_measures(tag, info, kind):
     assert tag_kind(tag, info) == kind
+
+
+def test_a_balance_reads_no_set_point_and_no_levels_value():
+    """A balance's terms are flows and a level's change (``rate``): a set-point (an
+    operator's choice) or a level's value (held at one by its loop) relates the flow to what
+    the operators chose over the window, and breaks at their next choices (the chemical plant
+    at 1 s: ``FI102 = f(LI103)`` on 55 % and 100 % of two fault-free tuning runs,
+    docs/explanation/chemplant-benchmark.md "At 1 s"). On its 12 days at 3 min (two seeds)
+    main's balances read set-points in 5 of 9 (``FI102_balance = f(TIC103.SP, AI101)``)."""
+    from diag_plugin.simulate.chemplant import CHEMPLANT_TAGS, sample, simulate_chemplant
+    from diag_plugin.unitbuild.balance import balance_term
+
+    info = {t: TagInfo(t, unit=u, lo=lo, hi=hi, description=d)
+            for t, (u, lo, hi, d, _) in CHEMPLANT_TAGS.items()}  # fmt: skip
+    assert balance_term("FI102", info["FI102"]) and balance_term("TI103", info["TI103"])
+    assert not balance_term("LIC103.SP", info["LIC103.SP"])
+    assert not balance_term("LI103", info["LI103"]) and not balance_term("LT101")
+    runs, start = [], pd.Timestamp("2026-01-01", tz="UTC")
+    for seed in (1, 2):
+        run = sample(simulate_chemplant(6.0, seed, start=start), 180)
+        runs.append(run)
+        start = run.index[-1] + pd.Timedelta("1h")
+    frame = pd.concat(runs)
+    frame = frame.reindex(pd.date_range(frame.index[0], frame.index[-1], freq="180s"))
+    with tempfile.TemporaryDirectory() as tmp:
+        res = build_unit("cp", frame, folder=tmp, period="180s", tag_info=info, workers=1)
+    balances = [t for t in res.tests if t.balance]
+    assert len(balances) >= 6, [t.test for t in balances]
+    for t in balances:
+        terms = [tag for spec in map(InputSpec.parse, t.inputs) if spec.fn != "rate"
+                 for tag in spec.tags]  # fmt: skip
+        assert all(balance_term(tag, info.get(tag)) for tag in terms), (t.test, t.inputs)
+    assert any(i.startswith("rate(") for t in balances for i in t.inputs)

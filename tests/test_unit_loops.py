@@ -430,6 +430,44 @@ def test_the_line_writes_a_release_and_an_older_file_without_it_behaves_as_befor
     assert loose > 10 and held <= loose / 5, (loose, held)
 
 
+def test_the_release_stands_clear_of_a_long_spread_that_hardly_moves(line):
+    """The release is the build's largest long-window spread, and at least its median × 1.6
+    (three of the window's 20 % standard errors): on the line's own window the largest
+    (its loop error's long spread varies, 2.94 against a median of 1.75 at 15 s); on the
+    same window with the loop's measurement replaced by its set-point and white noise (the
+    long spread flatter: a level held at 1 s varies within a per cent or two) the floor,
+    where the largest alone sat a hair above the median and a run at another operating point
+    stayed above it for hours (the chemical plant at 1 s,
+    docs/explanation/chemplant-benchmark.md "At 1 s")."""
+    from diag_plugin.diagnose.unitloops import RunningSpread, spread_samples
+    from diag_plugin.unitbuild.build import RELEASE_PRECISION, RELEASE_SE, release_thresholds
+
+    _, unit, _, _ = line
+    window_s = unit.ev["release_window_s"]
+    frame = line7.simulate(TRAIN_DAYS, seed=1)
+    floor = 1 + RELEASE_SE * RELEASE_PRECISION
+    assert floor == pytest.approx(1.6)
+    j = unit.tests.index("FEED_FLOW_spread")
+
+    def long_spread(f):
+        raw = unit.reset().raw_residuals(f).to_numpy(float)[:, [j]]
+        unit.reset()
+        return RunningSpread(spread_samples(window_s, unit.period), 1).transform(raw)[:, 0]
+
+    got = release_thresholds(unit, frame, window_s)["FEED_FLOW_spread"]
+    x = long_spread(frame)
+    assert got == pytest.approx(np.nanmax(x), rel=1e-5) and np.nanmax(x) > floor * np.nanmedian(x)
+    assert got == pytest.approx(unit.file.test("FEED_FLOW_spread").release, rel=1e-5)
+    flat = frame.copy()
+    noise = np.random.default_rng(5).normal(0.0, 0.05, len(flat))
+    flat["FEED_FLOW"] = flat["FEED_TARGET"] + noise  # the loop's error: white noise alone
+    y = long_spread(flat)
+    # flat: the largest (1.52) under the floor (1.6 × the median 1.29), which binds
+    assert np.nanmedian(y) < np.nanmax(y) < floor * np.nanmedian(y)
+    got = release_thresholds(unit, flat, window_s)["FEED_FLOW_spread"]
+    assert got == pytest.approx(floor * np.nanmedian(y), rel=1e-5)
+
+
 def test_the_live_fast_path_releases_a_spread_alarm_as_the_replay_does(line):
     """The stacked path (one row a cycle) holds the sticking valve's spread alarm on the
     long window as the unit does: the same statuses through the onset and the hold."""

@@ -197,7 +197,7 @@ def choose_balance(bp: BalancePlan, ctx: _Context, sel: _Context, plan) -> TestC
     keeps it where :func:`kept` says so."""
     use = sel if bp.tag in sel.vars else ctx
     k = plan.factor if use is sel else 1
-    cands = [c for c in use.vars if c not in bp.kept_out]
+    cands = [c for c in use.vars if c not in bp.kept_out and balance_term(c, use.info.get(c))]
     cands = short.inputs_for(plan, bp.tag, cands, use.column)
     ch = select_inputs(use, bp.tag, cands, test=bp.test, max_inputs=BALANCE_MAX_INPUTS,
                        method=short.LINEAR)  # fmt: skip
@@ -215,6 +215,18 @@ def choose_balance(bp: BalancePlan, ctx: _Context, sel: _Context, plan) -> TestC
         f"{', '.join(sorted(bp.kept_out - {bp.tag}))}"
     )
     return ch
+
+
+def balance_term(tag: str, info: TagInfo | None = None) -> bool:
+    """Whether ``tag``'s value may be a term of a flow's balance: not a set-point (an
+    operator's choice, not the vessel's state) nor a level (a level enters as its change,
+    :func:`add_level_rates`). Read at its value, either relates the flow to what the
+    operators chose over the window: at 1 s on three days of the chemical plant (three
+    operating points) a loop-held flow's balance was ``FI102 = f(LI103)``, a level another
+    loop holds at its set-point, broken at the next set-points a tuning seed chose (on 55 %
+    and 100 % of two fault-free runs); at 3 min ``FI106_balance`` read ``TIC107.SP`` and
+    ``PIC101.SP``."""
+    return not is_set_point(tag, info) and tag_kind(tag, info) != "level"
 
 
 def kept(ch: TestChoice, held: bool = False) -> bool:

@@ -1805,7 +1805,8 @@ def _build_unit(
             uf.doc["evaluation"]["release_window_s"] = rel_s
             uf.doc["evaluation"]["release_window_s"].comment(
                 "a spread test on stays on while its spread over this window is above its"
-                " release (the build's largest): " + rel_how
+                " release (the build's largest, and at least its median x"
+                f" {1 + RELEASE_SE * RELEASE_PRECISION:g}): " + rel_how
             )
             for t, v in release.items():
                 uf.doc["tests"][t]["release"] = v
@@ -2362,10 +2363,24 @@ def release_window(frame: pd.DataFrame, loops: Sequence[tuple[str, str]], period
     return float(f"{best:.6g}"), how
 
 
+#: the release sits at least this many of the long window's standard errors
+#: (:data:`RELEASE_PRECISION`) above the window's median long spread (:func:`release_thresholds`)
+RELEASE_SE = 3.0
+
+
 def release_thresholds(unit, frame: pd.DataFrame, window_s: float) -> dict[str, float]:
     """Per spread test the largest running spread (:class:`~diag_plugin.diagnose.unitloops.
-    RunningSpread`) of its raw residual over ``window_s`` on the build's window: a fault-free
-    run's stiction alarm is held past its short window only beyond anything the build saw."""
+    RunningSpread`) of its raw residual over ``window_s`` on the build's window, and at least
+    its median × (1 + :data:`RELEASE_SE` × :data:`RELEASE_PRECISION`): a fault-free run's
+    stiction alarm is held past its short window only beyond anything the build saw, and
+    beyond what the long window's own error (:func:`release_window`) puts a fault-free run at.
+
+    The largest alone is an in-sample figure. Where the loop error's long spread hardly
+    moves over the window (a level held at 1 s: 0.2006 median, 0.2025 largest, % of span,
+    over three days of the chemical plant) a run at another operating point sits above it
+    for hours (0.200–0.206 on a tuning seed): each brief symptom of the loop then raised a
+    hold that did not let go (the spread tests of three level and flow loops on 33–74 % of a
+    fault-free run, docs/explanation/chemplant-benchmark.md "At 1 s")."""
     from diag_plugin.diagnose.unitloops import RunningSpread, spread_samples
 
     cols = unit.spread_cols
@@ -2375,10 +2390,11 @@ def release_thresholds(unit, frame: pd.DataFrame, window_s: float) -> dict[str, 
     unit.reset()
     spread = RunningSpread(spread_samples(window_s, unit.period), len(cols)).transform(raw)
     out = {}
+    floor = 1.0 + RELEASE_SE * RELEASE_PRECISION
     for k, j in enumerate(cols):
         x = spread[:, k]
         if np.isfinite(x).any() and np.nanmax(x) > 0:
-            out[unit.tests[j]] = float(f"{np.nanmax(x):.6g}")
+            out[unit.tests[j]] = float(f"{max(np.nanmax(x), floor * np.nanmedian(x)):.6g}")
     return out
 
 
