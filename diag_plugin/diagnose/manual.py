@@ -20,6 +20,19 @@ method, at the lag it reads it) is unknown — the unit CHECK_FUNCTION, naming t
 (:mod:`diag_plugin.diagnose.operating`) — and the tests that do not read it keep judging.
 ``diag unit accept`` of a period at the new position widens the span (``min`` and ``max``
 merged exactly, the larger margin kept; :func:`merged`). Keys are the models' tag names.
+
+A loop's set-point that the window saw at few values (an operator's choice, moved a few times
+a day) gets the same rows in ``[chosen]`` (:func:`~diag_plugin.unitbuild.build.chosen_set_points`)::
+
+    [chosen]
+    "LIC101.SP" = { min = 55.0, max = 60.0, margin = 0.0 }
+
+Where it is outside ``[min − margin, max + margin]`` (its value now), every test that reads
+it, or reads the measurement its loop holds at it, is unknown, but for the loop's own tests
+(those with ``set_point`` = it: the measurement against its set-point, its spread): the plant
+is at a set-point the unit never saw, and a relation learned from the window's few points
+(the recycle valve's line through three of them) is a guess there. The unit names the
+set-point (:func:`chosen_ranges`); ``diag unit accept`` widens the row.
 """
 
 from __future__ import annotations
@@ -131,6 +144,37 @@ def manual_ranges(ranges: Sequence[Range], spans: Mapping[str, ManualSpan]) -> l
     return first + rest
 
 
+def chosen_tests(
+    models: Mapping,
+    tests: Sequence[str],
+    set_points: Sequence[str | None],
+    chosen: Mapping[str, ManualSpan],
+) -> dict[int, list[ManualSpan]]:
+    """Per test position the ``[chosen]`` set-points that guard it (module doc): each one the
+    test reads as a plain input, or whose loop's measurement it reads (the output of a test
+    with ``set_point`` = it), where the test is not one of that loop's own (``set_points[j]``,
+    the test's ``set_point``, is not it). ``{}`` where none."""
+    held: dict[str, set[str]] = {}
+    for j, name in enumerate(tests):
+        sp = set_points[j]
+        if sp in chosen:
+            held.setdefault(sp, set()).add(parse_specs([models[name].output])[0].tags[0])
+    out: dict[int, list[ManualSpan]] = {}
+    for j, name in enumerate(tests):
+        read = {s.tags[0] for s in parse_specs(models[name].inputs) if s.fn == ""}
+        for sp, span in chosen.items():
+            if set_points[j] != sp and (sp in read or read & held.get(sp, set())):
+                out.setdefault(j, []).append(span)
+    return out
+
+
+def chosen_ranges(guarded: Mapping[int, Sequence[ManualSpan]]) -> list[Range]:
+    """The ``[chosen]`` set-points as ranges of the tests they guard (:func:`chosen_tests`;
+    lag 0, the value now): where one is outside, the unit names it as an input outside what
+    it learned."""
+    return [Range(j, s.tag, s.lo, s.hi) for j, spans in guarded.items() for s in spans]
+
+
 def own_spans(
     models: Mapping, tests: Sequence[str], narrow: Mapping[str, ManualSpan]
 ) -> dict[int, ManualSpan]:
@@ -162,19 +206,26 @@ class ManualGuard:
     ``own``: per test position the span of the tag the test itself models where the build
     found it narrow (``[narrow]``, :func:`own_spans`): a rule grid's answer never leaves the
     values its window showed, so where the tag is outside its span the residual measures the
-    excursion, not a fault, and the test is unknown there, as a test reading a hand valve."""
+    excursion, not a fault, and the test is unknown there, as a test reading a hand valve.
+
+    ``chosen``: per test position the ``[chosen]`` set-points that guard it
+    (:func:`chosen_tests`): the test is unknown where one is outside its row (its value
+    now)."""
 
     def __init__(
         self,
         spans: Mapping[str, ManualSpan],
         cols: dict[int, tuple],
         own: Mapping[int, ManualSpan] | None = None,
+        chosen: Mapping[int, Sequence[ManualSpan]] | None = None,
     ):
         self.spans = dict(spans)
         #: test position → (design columns, lo, hi, whether each is a hand valve's)
         self.cols = cols
         #: test position → the span of its own tag (``[narrow]``)
         self.own = dict(own or {})
+        #: test position → the ``[chosen]`` set-points that guard it
+        self.chosen = {j: list(v) for j, v in (chosen or {}).items()}
 
     @classmethod
     def of(
@@ -183,21 +234,26 @@ class ManualGuard:
         tests: Sequence[str],
         spans: Mapping[str, ManualSpan],
         narrow: Mapping[str, ManualSpan] | None = None,
+        chosen: Mapping[str, ManualSpan] | None = None,
+        set_points: Sequence[str | None] = (),
     ):
         """The guard of a unit's tests (``models``: test → its
         :class:`~diag_plugin.diagnose.unit.TestModel`); None where the unit declares no hand
-        valve or no test reads one, and no test models a ``[narrow]`` tag (a unit as
-        before)."""
+        valve or no test reads one, no test models a ``[narrow]`` tag and no ``[chosen]``
+        set-point guards a test (a unit as before). ``set_points``: each test's
+        ``set_point`` (None: none), for :func:`chosen_tests`."""
         from diag_plugin.diagnose.operating import model_ranges
 
         read = {s.tags[0] for name in tests for s in parse_specs(models[name].inputs)
                 if s.fn == ""}  # fmt: skip
         spans = {t: s for t, s in spans.items() if t in read}
         own = own_spans(models, tests, narrow or {})
-        if not spans and not own:
+        sps = list(set_points) or [None] * len(tests)
+        guarded = chosen_tests(models, tests, sps, chosen or {})
+        if not spans and not own and not guarded:
             return None
         if not spans:
-            return cls({}, {}, own)
+            return cls({}, {}, own, guarded)
         cols = {}
         for j, name in enumerate(tests):
             m = models[name]
@@ -215,7 +271,19 @@ class ManualGuard:
                 k, lo, hi, hand = zip(*rows, strict=True)
                 cols[j] = (np.array(k, np.intp), np.array(lo, float), np.array(hi, float),
                            np.array(hand, bool))  # fmt: skip
-        return cls(spans, cols, own)
+        return cls(spans, cols, own, guarded)
+
+    def chosen_off(self, value) -> dict[str, np.ndarray]:
+        """Per ``[chosen]`` set-point that guards a test, where it is outside its row over the
+        piece's rows (``value(tag)``: its values, model tag names; no value: not outside)."""
+        out: dict[str, np.ndarray] = {}
+        for spans in self.chosen.values():
+            for s in spans:
+                if s.tag not in out:
+                    x = np.asarray(value(s.tag), float)
+                    with np.errstate(invalid="ignore"):
+                        out[s.tag] = (x < s.lo) | (x > s.hi)
+        return out
 
     def moved(self, value) -> np.ndarray | bool:
         """Where any hand valve is outside its span now (``value(tag)``: its values at the
@@ -235,12 +303,19 @@ class ManualGuard:
         X: np.ndarray,
         moved,
         y: np.ndarray | None = None,
+        chosen: Mapping[str, np.ndarray] | None = None,
     ) -> None:
         """Test ``j``'s residuals (row ``j`` of ``out``, tests × samples, at ``positions``,
         its design ``X``; ``moved``: :meth:`moved` over the piece's rows) unknown where a
         hand valve it reads is outside its span, or where a valve moved and an input of it
         is outside what it learned, or where its own tag (``y``, at ``positions``) is outside
-        its ``[narrow]`` span."""
+        its ``[narrow]`` span, or where a ``[chosen]`` set-point that guards it is outside
+        (``chosen``: :meth:`chosen_off` over the piece's rows)."""
+        if chosen and positions.size:
+            for sp in self.chosen.get(j, ()):
+                off = chosen.get(sp.tag)
+                if off is not None:
+                    out[j, positions[off[positions]]] = np.nan
         s = self.own.get(j)
         if s is not None and y is not None and positions.size:
             with np.errstate(invalid="ignore"):
@@ -277,6 +352,9 @@ class ManualGuard:
         for j, s in self.own.items():  # its own tag (``outputs[j]``: its lag, column)
             lag, col = outputs[j]
             rows.append((first + j, int(lag), int(col), s.lo, s.hi, True))
+        for j, spans in self.chosen.items():  # its [chosen] set-points, now
+            for s in spans:
+                rows.append((first + j, 0, int(column(s.tag)), s.lo, s.hi, True))
         valves = [(column(t), s.lo, s.hi) for t, s in self.spans.items()]
         return rows, valves
 

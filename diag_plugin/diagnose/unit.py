@@ -65,7 +65,14 @@ from diag_plugin.diagnose.equipment import (
 from diag_plugin.diagnose.fixed import FixedGuard
 from diag_plugin.diagnose.fixed import apply as apply_fixed
 from diag_plugin.diagnose.isolation import IsolationHold
-from diag_plugin.diagnose.manual import ManualGuard, manual_ranges, own_ranges, own_spans
+from diag_plugin.diagnose.manual import (
+    ManualGuard,
+    chosen_ranges,
+    chosen_tests,
+    manual_ranges,
+    own_ranges,
+    own_spans,
+)
 from diag_plugin.diagnose.matrix import DiagnosticMatrix, MatrixError, load_matrix
 from diag_plugin.diagnose.operating import OutsideLearned, learned_ranges
 from diag_plugin.diagnose.pertest import each
@@ -136,9 +143,10 @@ class TestModel:
 
 
 def _idle_rows(file: UnitFile, models: dict[str, TestModel]) -> list[str]:
-    """``file:line`` of each ``[narrow]`` row naming a tag no test of the unit tests, and of
-    each ``[manual]`` row naming a tag the unit neither reads nor lists in ``[build.skipped]``:
-    a hand edit's typo, a row that would silently do nothing."""
+    """``file:line`` of each ``[narrow]`` row naming a tag no test of the unit tests, of each
+    ``[chosen]`` row that guards no test, and of each ``[manual]`` row naming a tag the unit
+    neither reads nor lists in ``[build.skipped]``: a hand edit's typo, a row that would
+    silently do nothing."""
     names = [t.name for t in file.tests]
     own = {s.tag for s in own_spans(models, names, file.narrow).values()}
     tested = sorted({output_tag(m.output) for m in models.values()})
@@ -147,6 +155,14 @@ def _idle_rows(file: UnitFile, models: dict[str, TestModel]) -> list[str]:
         f"it (tested: {', '.join(tested)}); the row would do nothing"
         for tag in file.narrow
         if tag not in own
+    ]
+    sps = [getattr(t, "set_point", None) for t in file.tests]
+    guarded = {s.tag for v in chosen_tests(models, names, sps, file.chosen).values() for s in v}
+    out += [
+        f"{file.path}:{file.line_of('chosen', tag)}: [chosen] {tag}: no test reads it or the "
+        "measurement its loop holds at it, but its loop's own; the row would do nothing"
+        for tag in file.chosen
+        if tag not in guarded
     ]
     known = {t for m in models.values() for t in m.tags} | set(file.build.get("skipped") or {})
     out += [
@@ -624,9 +640,12 @@ class Unit:
         spread = np.zeros(len(self.tests), bool)
         spread[self.spread_cols] = True
         self.warm_labels = warm_labels(self.tests, self.test_depth, spread)
-        #: the tests reading a hand valve, unknown where it is outside its span, and the tests
-        #: of a ``[narrow]`` tag, unknown where their own tag is outside its span (None: none)
-        self.manual = ManualGuard.of(models, self.tests, file.manual, file.narrow)
+        #: the tests reading a hand valve, unknown where it is outside its span, the tests
+        #: of a ``[narrow]`` tag, unknown where their own tag is outside its span, and the
+        #: tests a ``[chosen]`` set-point guards, unknown where it is outside (None: none)
+        self.manual = ManualGuard.of(
+            models, self.tests, file.manual, file.narrow, file.chosen, self._set_points()
+        )
         #: the settle guard after an operator's set-point step (:mod:`~.settle`; None: off)
         self.settle: SettleGuard | None = settle_guard(self)
         #: the same steps found for the oscillation hold (its own state: the hold reads a
@@ -699,6 +718,10 @@ class Unit:
         if problems:
             raise UnitError(problems)
         return cls(file, models, matrix)
+
+    def _set_points(self) -> list[str | None]:
+        """Each test's ``set_point`` (None: none), in test order."""
+        return [getattr(t, "set_point", None) for t in self.file.tests]
 
     @property
     def model_tags(self) -> list[str]:
@@ -851,13 +874,15 @@ class Unit:
         if getattr(self, "saturation", None) is not None:
             self.saturation.reset()
         if not hasattr(self, "outside"):
+            guarded = chosen_tests(self.models, self.tests, self._set_points(), self.file.chosen)
             self.outside = OutsideLearned(
-                manual_ranges(learned_ranges(self.models, self.tests), self.file.manual)
+                chosen_ranges(guarded)
+                + manual_ranges(learned_ranges(self.models, self.tests), self.file.manual)
                 + own_ranges(self.models, self.tests, self.file.narrow),
                 self.file.tags,
                 [self.models[t].tags for t in self.tests],
                 period_s=self.period_s,
-                first=list(self.file.manual or {}),
+                first=[*(self.file.manual or {}), *self.file.chosen],
             )
         self.outside.reset()
         return self
@@ -978,6 +1003,7 @@ class Unit:
         # column of samples × tests); turned to samples × tests once at the end
         out = np.full((len(self.tests), len(frame)), np.nan)
         moved = self.manual.moved(cols.values) if self.manual is not None else False
+        chosen = self.manual.chosen_off(cols.values) if self.manual is not None else None
 
         def row(j: int) -> None:  # test j's row of ``out`` (its own builder and model)
             t = self.file.tests[j]
@@ -986,7 +1012,7 @@ class Unit:
             if d.positions.size:
                 self._residual_into(out, j, d.positions, t, d.y, m.model.predict_detail(d.X))
                 if self.manual is not None:  # a hand valve outside its span: unknown
-                    self.manual.blank(out, j, d.positions, d.X, moved, d.y)
+                    self.manual.blank(out, j, d.positions, d.X, moved, d.y, chosen)
 
         each(row, len(self.file.tests), self.workers)  # the same rows in any thread (pertest)
         off = self._equipment_off(cols, len(frame))

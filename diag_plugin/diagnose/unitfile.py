@@ -78,6 +78,9 @@ named ``NAME.unit.toml``, that an engineer can read and edit::
     [narrow]             # written by `diag unit build`: tested tags of few independent values
     HAND_VALVE = { min = 40.0, max = 47.0, margin = 0.1 }  # outside: its own test unknown
 
+    [chosen]             # written by `diag unit build`: loops' set-points of few values
+    "LIC101.SP" = { min = 55.0, max = 60.0, margin = 0.0 }  # outside: tests reading it unknown
+
     [states]             # written by `diag unit build`: the combinations of states learned
     tags = ["PMP1_ON", "PMP2_ON"]
     seen = ["1,0", "1,1"]  # another one held for the on-delay: CHECK_FUNCTION
@@ -108,6 +111,14 @@ values of (:func:`~diag_plugin.unitbuild.build.narrow_outputs`): where it is out
 margin, max + margin]`` its own test is unknown and the unit names it as an input outside what
 it learned (a grid's answer never leaves what its window showed: its residual there measures
 the excursion). A file without the table: as before.
+
+``[chosen]`` (written by ``diag unit build``, widened by ``diag unit accept``): the same rows,
+for each loop's set-point the window saw at most ``NARROW_INDEPENDENT`` independent values of
+(:func:`~diag_plugin.unitbuild.build.chosen_set_points`): where it is outside ``[min −
+margin, max + margin]`` every test reading it, or the measurement its loop holds at it, is
+unknown — not the loop's own tests (``set_point`` = it) — and the unit names it as an input
+outside what it learned (:mod:`diag_plugin.diagnose.manual`). A file without the table: as
+before.
 
 ``[states]`` (written by ``diag unit build`` for a unit with discrete states, extended by
 ``diag unit accept``): ``tags`` the states in order, ``seen`` the combinations of their values
@@ -227,6 +238,7 @@ TABLES = (
     "manual",
     "fixed",
     "narrow",
+    "chosen",
     "states",
     "running",
     "equipment",
@@ -570,6 +582,9 @@ class UnitFile(LinedFile):
         )
         self.narrow = read_manual(
             self._table("narrow"), self.error, lambda k: self.line_of("narrow", k), "narrow"
+        )
+        self.chosen = read_manual(
+            self._table("chosen"), self.error, lambda k: self.line_of("chosen", k), "chosen"
         )
         self.states = read_states(
             self._table("states"), self.error, lambda k: self.line_of("states", k)

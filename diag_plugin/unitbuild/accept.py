@@ -607,8 +607,9 @@ def _thin(note) -> bool:
 
 
 def widen_manual(path: Path, frame: pd.DataFrame) -> list[str]:
-    """The unit file's hand-valve spans (``[manual]``, :mod:`~diag_plugin.diagnose.manual`)
-    and its narrow tested tags' (``[narrow]``, the same rows)
+    """The unit file's hand-valve spans (``[manual]``, :mod:`~diag_plugin.diagnose.manual`),
+    its narrow tested tags' (``[narrow]``, the same rows) and its few-valued set-points'
+    (``[chosen]``, the same rows)
     widened to hold the accepted window ``frame`` (models' tag names): ``min``/``max`` merged
     exactly, the larger margin kept; and its constant tags' (``[fixed]``,
     :mod:`~diag_plugin.diagnose.fixed`) to the values the window held them at, the margin
@@ -625,6 +626,7 @@ def widen_manual(path: Path, frame: pd.DataFrame) -> list[str]:
         for table, what, spans in (
             ("manual", "hand valve", uf.manual),
             ("narrow", "narrow tag", uf.narrow),
+            ("chosen", "set-point", uf.chosen),
         )  # fmt: skip
         for tag, old in spans.items()
         if tag in frame.columns

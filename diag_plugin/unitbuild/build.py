@@ -1734,6 +1734,9 @@ def _build_unit(
     if own := narrow_outputs(judged, kept):  # their own tests unknown outside (issue 34)
         doc["narrow"] = narrow_table(own)
         notes.append(narrow_outputs_note(own))
+    if chosen := chosen_set_points(judged, kept, outs):  # the tests reading them, unknown
+        doc["chosen"] = chosen_table(chosen)
+        notes.append(chosen_note(chosen))
     path.write_text(tomlkit.dumps(doc), encoding="utf-8")
 
     t0 = time.perf_counter()
@@ -2224,6 +2227,85 @@ def narrow_outputs(frame: pd.DataFrame, kept: Sequence[TestChoice]) -> list[Manu
         if span is not None:
             out[ch.tag] = span
     return list(out.values())
+
+
+#: a ``[chosen]`` set-point's margin is at least this share of its magnitude: a set-point's
+#: value written with fewer digits (a CSV's six, a float32 historian's seven) is no move
+CHOSEN_RESOLUTION = 1e-4
+
+
+def chosen_set_points(
+    frame: pd.DataFrame, kept: Sequence[TestChoice], cascade: Collection[str] = ()
+) -> list[ManualSpan]:
+    """The loops' set-points the window saw at most :data:`NARROW_INDEPENDENT` independent
+    values of (an operator's choice, moved a few times over the window; not held at one
+    value, which ``[fixed]`` and the settle guard cover; not a cascade's inner set-point,
+    ``cascade``, which the outer controller moves and a fault may), each with the span the
+    window shows it in (:func:`~diag_plugin.diagnose.manual.learned_span`), where some test
+    other than its loop's own reads it or the measurement its loop holds at it.
+
+    A test reading such an input learned the plant at the window's few operating points:
+    the chemical plant at 1 s, three days, each loop's set-point at 3.5–7 independent
+    values, predicted its recycle valve by a line through three of them (``FIC102.OUT =
+    f(FI102, LI101, FIC102.SP)``, the level ``LI101`` standing in for the recycle drum's,
+    which had moved with it), and at the next days' set-points that line was off by more
+    than its band on 54–88 % of the samples. The margin is the window's (3 × the set-point's
+    noise, 0 for an operator's entry) but at least :data:`CHOSEN_RESOLUTION` of its
+    magnitude. Where such a set-point is outside what the
+    window showed, the unit makes those tests unknown and names it
+    (:class:`~diag_plugin.diagnose.manual.ManualGuard`, ``[chosen]``); the loop's own tests
+    (its measurement against the set-point, its spread) keep judging."""
+    from diag_plugin.models.series import effective_samples
+
+    held: dict[str, set[str]] = {}
+    for ch in kept:
+        if ch.tracks and ch.tracks in frame.columns and ch.tracks not in cascade:
+            held.setdefault(ch.tracks, set()).add(ch.tag)
+    out = []
+    for sp, pvs in held.items():
+        x = frame[sp].to_numpy(float)
+        v = x[np.isfinite(x)]
+        if v.size < 2 or v.min() == v.max() or effective_samples(v) > NARROW_INDEPENDENT:
+            continue
+        reads = any(
+            ch.tracks != sp and (sp in plain or plain & pvs)
+            for ch in kept
+            for plain in [{InputSpec.parse(i).tags[0] for i in ch.inputs
+                           if InputSpec.parse(i).fn == ""}]
+        )  # fmt: skip
+        span = learned_span(sp, x) if reads else None
+        if span is not None:  # a value written with fewer digits is no move
+            floor = CHOSEN_RESOLUTION * max(1.0, abs(span.min), abs(span.max))
+            out.append(dc_replace(span, margin=max(span.margin, floor)))
+    return out
+
+
+def chosen_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:
+    """The unit file's ``[chosen]`` table (:func:`chosen_set_points`)."""
+    return span_table(
+        spans,
+        f"written by `diag unit build`: loops' set-points the window saw at most "
+        f"{NARROW_INDEPENDENT} independent values of; min/max as the window learned them, "
+        f"margin {MARGIN_SAYS}; outside [min - margin, max + margin] the tests reading one, or "
+        "the measurement its loop holds at it, are unknown (not the loop's own) and the unit "
+        "names it",
+    )
+
+
+#: how the chosen set-points' note begins: the CLI prints it whatever the count of notes
+CHOSEN_SAID = "set-point(s) seen at"
+
+
+def chosen_note(spans: Sequence[ManualSpan]) -> str:
+    """The build's note of :func:`chosen_set_points`."""
+    said = "; ".join(f"{s.tag} {s.min:.4g} … {s.max:.4g}" for s in spans)
+    return (
+        f"{len(spans)} {CHOSEN_SAID} at most {NARROW_INDEPENDENT} independent values in the "
+        f"window ({said}): the tests reading one, or the measurement its loop holds at it, "
+        "learned the plant at those few operating points; where one is outside, they are "
+        "unknown and the unit names it (CHECK_FUNCTION), its loop's own tests judging on, and "
+        "`diag unit accept` of a period at the new set-point teaches it"
+    )
 
 
 def narrow_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:

@@ -277,11 +277,11 @@ def cmd_unit_build(args) -> int:
         if tag not in hand:
             print(f"  not tested: {tag}: {why}")
     from diag_plugin.learn.thresholds import WIDE_SAID
-    from diag_plugin.unitbuild.build import NARROW_OUTPUTS_SAID, NARROW_SAID
+    from diag_plugin.unitbuild.build import CHOSEN_SAID, NARROW_OUTPUTS_SAID, NARROW_SAID
 
     # a test that never alarms, the inputs learned over a narrow span, the tested tags whose
-    # own test goes unknown outside it: each said, not counted
-    said = (WIDE_SAID, NARROW_SAID, NARROW_OUTPUTS_SAID)
+    # own test goes unknown outside it, the set-points whose readers do: each said, not counted
+    said = (WIDE_SAID, NARROW_SAID, NARROW_OUTPUTS_SAID, CHOSEN_SAID)
     wide = [n for n in res.notes if any(k in n for k in said)]
     for n in wide:
         print(f"  ⚠ {n}")
