@@ -19,8 +19,9 @@ of each interleaved, their medians, the replay's own CPU seconds inside the firs
 load (``uptime``) before and after.
 
 Run: ``python -m benchmarks.pasteuriser_settle FOLDER [--rate 10|1] [--runs 101,102]
-[--cost N] [--sim]`` (FOLDER: where the simulator's CSVs are, or are written with
-``--sim``; a database and rulebase folder are made there per rate).
+[--cost N] [--label L]`` (FOLDER: where the simulator's CSVs are, written there when
+missing; a database and rulebase folder are made there per rate, ``rb<rate><L>``: a unit
+already in it is judged as it is, so a copy edited by hand is judged beside the built one).
 """
 
 from __future__ import annotations

@@ -51,9 +51,12 @@ def _load(res, folder, guarded: bool = True) -> Unit:
 
 
 def _guarded(unit: Unit) -> list[int]:
-    """The positions of the tests that read HEAT_TGT or TEMP and are not TEMP's loop's."""
+    """The positions of the tests that read HEAT_TGT or TEMP and are neither TEMP's loop's nor
+    a rule grid."""
     out = []
     for j, t in enumerate(unit.file.tests):
+        if getattr(unit.models[t.name].model, "partitions_", None) is not None:
+            continue
         read = {s.tags[0] for s in parse_specs(unit.models[t.name].inputs) if s.fn == ""}
         if t.set_point != "HEAT_TGT" and read & {"HEAT_TGT", "TEMP"}:
             out.append(j)

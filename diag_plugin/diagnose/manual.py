@@ -29,10 +29,12 @@ a day) gets the same rows in ``[chosen]`` (:func:`~diag_plugin.unitbuild.build.c
 
 Where it is outside ``[min − margin, max + margin]`` (its value now), every test that reads
 it, or reads the measurement its loop holds at it, is unknown, but for the loop's own tests
-(those with ``set_point`` = it: the measurement against its set-point, its spread): the plant
-is at a set-point the unit never saw, and a relation learned from the window's few points
-(the recycle valve's line through three of them) is a guess there. The unit names the
-set-point (:func:`chosen_ranges`); ``diag unit accept`` widens the row.
+(those with ``set_point`` = it: the measurement against its set-point, its spread) and the
+rule grids (no rule where the window had no sample, Kościelny et al., eq. 5: unknown past the
+set-points they learned already): the plant is at a set-point the unit never saw, and a line
+learned from the window's few points (the recycle valve's, through three of them) is a guess
+there. The unit names the set-point (:func:`chosen_ranges`); ``diag unit accept`` widens the
+row.
 """
 
 from __future__ import annotations
@@ -153,7 +155,7 @@ def chosen_tests(
     """Per test position the ``[chosen]`` set-points that guard it (module doc): each one the
     test reads as a plain input, or whose loop's measurement it reads (the output of a test
     with ``set_point`` = it), where the test is not one of that loop's own (``set_points[j]``,
-    the test's ``set_point``, is not it). ``{}`` where none."""
+    the test's ``set_point``, is not it) nor a rule grid. ``{}`` where none."""
     held: dict[str, set[str]] = {}
     for j, name in enumerate(tests):
         sp = set_points[j]
@@ -161,6 +163,8 @@ def chosen_tests(
             held.setdefault(sp, set()).add(parse_specs([models[name].output])[0].tags[0])
     out: dict[int, list[ManualSpan]] = {}
     for j, name in enumerate(tests):
+        if getattr(models[name].model, "partitions_", None) is not None:
+            continue  # a rule grid: no rule where the window had no sample (eq. 5)
         read = {s.tags[0] for s in parse_specs(models[name].inputs) if s.fn == ""}
         for sp, span in chosen.items():
             if set_points[j] != sp and (sp in read or read & held.get(sp, set())):

@@ -116,9 +116,9 @@ the excursion). A file without the table: as before.
 for each loop's set-point the window saw at most ``NARROW_INDEPENDENT`` independent values of
 (:func:`~diag_plugin.unitbuild.build.chosen_set_points`): where it is outside ``[min −
 margin, max + margin]`` every test reading it, or the measurement its loop holds at it, is
-unknown — not the loop's own tests (``set_point`` = it) — and the unit names it as an input
-outside what it learned (:mod:`diag_plugin.diagnose.manual`). A file without the table: as
-before.
+unknown — not the loop's own tests (``set_point`` = it), nor a rule grid — and the unit names
+it as an input outside what it learned (:mod:`diag_plugin.diagnose.manual`). A file without
+the table: as before.
 
 ``[states]`` (written by ``diag unit build`` for a unit with discrete states, extended by
 ``diag unit accept``): ``tags`` the states in order, ``seen`` the combinations of their values

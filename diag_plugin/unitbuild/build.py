@@ -2242,7 +2242,9 @@ def chosen_set_points(
     value, which ``[fixed]`` and the settle guard cover; not a cascade's inner set-point,
     ``cascade``, which the outer controller moves and a fault may), each with the span the
     window shows it in (:func:`~diag_plugin.diagnose.manual.learned_span`), where some test
-    other than its loop's own reads it or the measurement its loop holds at it.
+    that is not a rule grid, nor its loop's own, reads it or the measurement its loop holds at
+    it (a rule grid has no rule where the window had no sample, Kościelny et al., eq. 5, and
+    is unknown past the set-points it learned already; a line answers everywhere).
 
     A test reading such an input learned the plant at the window's few operating points:
     the chemical plant at 1 s, three days, each loop's set-point at 3.5–7 independent
@@ -2268,7 +2270,7 @@ def chosen_set_points(
         if v.size < 2 or v.min() == v.max() or effective_samples(v) > NARROW_INDEPENDENT:
             continue
         reads = any(
-            ch.tracks != sp and (sp in plain or plain & pvs)
+            ch.tracks != sp and not ch.method.startswith("wm") and (sp in plain or plain & pvs)
             for ch in kept
             for plain in [{InputSpec.parse(i).tags[0] for i in ch.inputs
                            if InputSpec.parse(i).fn == ""}]
