@@ -51,14 +51,14 @@ def _load(res, folder, guarded: bool = True) -> Unit:
 
 
 def _guarded(unit: Unit) -> list[int]:
-    """The positions of the tests that read HEAT_TGT or TEMP and are neither TEMP's loop's nor
-    a rule grid."""
+    """The positions of the lines that read HEAT_TGT or TEMP (neither a loop's own test nor a
+    rule grid)."""
     out = []
     for j, t in enumerate(unit.file.tests):
         if getattr(unit.models[t.name].model, "partitions_", None) is not None:
             continue
         read = {s.tags[0] for s in parse_specs(unit.models[t.name].inputs) if s.fn == ""}
-        if t.set_point != "HEAT_TGT" and read & {"HEAT_TGT", "TEMP"}:
+        if t.set_point is None and read & {"HEAT_TGT", "TEMP"}:
             out.append(j)
     return out
 
@@ -176,7 +176,9 @@ def test_a_row_that_guards_nothing_or_is_broken_is_said_where(heater, tmp_path):
     with pytest.raises(UnitError) as e:
         Unit.load(p, work)
     line = next(i for i, s in enumerate(idle.splitlines(), 1) if s.startswith("HEAT_TGTX = {"))
-    assert f"heater.unit.toml:{line}: [chosen] HEAT_TGTX: no test reads it" in str(e.value)
+    assert f"heater.unit.toml:{line}: [chosen] HEAT_TGTX: not the set-point of a loop test" in str(
+        e.value
+    )
     broken = re.sub(r"(?m)^HEAT_TGT = \{.*\}$", "HEAT_TGT = { min = 70.0 }", text)
     assert broken != text
     p.write_text(broken)

@@ -27,14 +27,16 @@ a day) gets the same rows in ``[chosen]`` (:func:`~diag_plugin.unitbuild.build.c
     [chosen]
     "LIC101.SP" = { min = 55.0, max = 60.0, margin = 0.0 }
 
-Where it is outside ``[min − margin, max + margin]`` (its value now), every test that reads
-it, or reads the measurement its loop holds at it, is unknown, but for the loop's own tests
-(those with ``set_point`` = it: the measurement against its set-point, its spread) and the
-rule grids (no rule where the window had no sample, Kościelny et al., eq. 5: unknown past the
-set-points they learned already): the plant is at a set-point the unit never saw, and a line
-learned from the window's few points (the recycle valve's, through three of them) is a guess
-there. The unit names the set-point (:func:`chosen_ranges`); ``diag unit accept`` widens the
-row.
+Where one is outside ``[min − margin, max + margin]`` (its value now), every line (a test that
+is not a rule grid nor a loop's own) that reads any of them, or the measurement a loop holds
+at one, is unknown: the plant is at an operating point the window never held, and a line
+learned across the window's few points (the recycle valve's, through three of them, the
+reactor's level standing in for the recycle drum's, whose set-points the operators had moved
+together) is a guess there. The loops' own tests (those with a ``set_point``: the
+measurement against its set-point, its spread) judge at any set-point; a rule grid has no
+rule where the window had no sample (Kościelny et al., eq. 5) and is unknown past the
+set-points it learned already. The unit names the set-point (:func:`chosen_ranges`);
+``diag unit accept`` widens the row.
 """
 
 from __future__ import annotations
@@ -152,23 +154,27 @@ def chosen_tests(
     set_points: Sequence[str | None],
     chosen: Mapping[str, ManualSpan],
 ) -> dict[int, list[ManualSpan]]:
-    """Per test position the ``[chosen]`` set-points that guard it (module doc): each one the
-    test reads as a plain input, or whose loop's measurement it reads (the output of a test
-    with ``set_point`` = it), where the test is not one of that loop's own (``set_points[j]``,
-    the test's ``set_point``, is not it) nor a rule grid. ``{}`` where none."""
+    """Per test position the ``[chosen]`` set-points that guard it (module doc): every one of
+    them, for each line that reads one as a plain input or reads the measurement a loop
+    holds at one (the output of a test with ``set_point`` = it): the line was fitted across
+    the window's few operating points, which the operators set together, so a move of any of
+    them past what the window showed is a point it never saw. Not a loop's own test (one
+    with a ``set_point``: its residual is the control error at any set-point), not a rule
+    grid (no rule where the window had no sample). ``{}`` where none."""
     held: dict[str, set[str]] = {}
     for j, name in enumerate(tests):
         sp = set_points[j]
         if sp in chosen:
             held.setdefault(sp, set()).add(parse_specs([models[name].output])[0].tags[0])
+    spans = list(chosen.values())
     out: dict[int, list[ManualSpan]] = {}
     for j, name in enumerate(tests):
-        if getattr(models[name].model, "partitions_", None) is not None:
-            continue  # a rule grid: no rule where the window had no sample (eq. 5)
+        grid = getattr(models[name].model, "partitions_", None) is not None
+        if set_points[j] is not None or grid:
+            continue
         read = {s.tags[0] for s in parse_specs(models[name].inputs) if s.fn == ""}
-        for sp, span in chosen.items():
-            if set_points[j] != sp and (sp in read or read & held.get(sp, set())):
-                out.setdefault(j, []).append(span)
+        if any(sp in read or read & held.get(sp, set()) for sp in chosen):
+            out[j] = spans
     return out
 
 
@@ -213,8 +219,8 @@ class ManualGuard:
     excursion, not a fault, and the test is unknown there, as a test reading a hand valve.
 
     ``chosen``: per test position the ``[chosen]`` set-points that guard it
-    (:func:`chosen_tests`): the test is unknown where one is outside its row (its value
-    now)."""
+    (:func:`chosen_tests`): the test is unknown where one of them is outside its row (its
+    value now)."""
 
     def __init__(
         self,

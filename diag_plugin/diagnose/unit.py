@@ -157,13 +157,16 @@ def _idle_rows(file: UnitFile, models: dict[str, TestModel]) -> list[str]:
         if tag not in own
     ]
     sps = [getattr(t, "set_point", None) for t in file.tests]
-    guarded = {s.tag for v in chosen_tests(models, names, sps, file.chosen).values() for s in v}
+    guarded = chosen_tests(models, names, sps, file.chosen)
+    loops = ", ".join(sorted({s for s in sps if s}))
     out += [
-        f"{file.path}:{file.line_of('chosen', tag)}: [chosen] {tag}: no test reads it or the "
-        "measurement its loop holds at it, but its loop's own; the row would do nothing"
+        f"{file.path}:{file.line_of('chosen', tag)}: [chosen] {tag}: "
+        + (f"not the set-point of a loop test of the unit ({loops or 'none'})" if tag not in sps
+           else "no line reads a [chosen] set-point or the measurement a loop holds at one")
+        + "; the row would do nothing"
         for tag in file.chosen
-        if tag not in guarded
-    ]
+        if tag not in sps or not guarded
+    ]  # fmt: skip
     known = {t for m in models.values() for t in m.tags} | set(file.build.get("skipped") or {})
     out += [
         f"{file.path}:{file.line_of('manual', tag)}: [manual] {tag}: not a tag of the unit (no "

@@ -114,10 +114,10 @@ the excursion). A file without the table: as before.
 
 ``[chosen]`` (written by ``diag unit build``, widened by ``diag unit accept``): the same rows,
 for each loop's set-point the window saw at most ``NARROW_INDEPENDENT`` independent values of
-(:func:`~diag_plugin.unitbuild.build.chosen_set_points`): where it is outside ``[min −
-margin, max + margin]`` every test reading it, or the measurement its loop holds at it, is
-unknown — not the loop's own tests (``set_point`` = it), nor a rule grid — and the unit names
-it as an input outside what it learned (:mod:`diag_plugin.diagnose.manual`). A file without
+(:func:`~diag_plugin.unitbuild.build.chosen_set_points`): where one is outside ``[min −
+margin, max + margin]`` every line reading any of them, or a measurement a loop holds at one,
+is unknown — not a loop's own test (one with a ``set_point``), nor a rule grid — and the unit
+names it as an input outside what it learned (:mod:`diag_plugin.diagnose.manual`). A file without
 the table: as before.
 
 ``[states]`` (written by ``diag unit build`` for a unit with discrete states, extended by

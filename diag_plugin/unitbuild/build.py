@@ -2241,10 +2241,11 @@ def chosen_set_points(
     values of (an operator's choice, moved a few times over the window; not held at one
     value, which ``[fixed]`` and the settle guard cover; not a cascade's inner set-point,
     ``cascade``, which the outer controller moves and a fault may), each with the span the
-    window shows it in (:func:`~diag_plugin.diagnose.manual.learned_span`), where some test
-    that is not a rule grid, nor its loop's own, reads it or the measurement its loop holds at
-    it (a rule grid has no rule where the window had no sample, Kościelny et al., eq. 5, and
-    is unknown past the set-points it learned already; a line answers everywhere).
+    window shows it in (:func:`~diag_plugin.diagnose.manual.learned_span`); none where no line
+    (a test that is not a rule grid nor a loop's own) reads one of them or the measurement a
+    loop holds at one (a rule grid has no rule where the window had no sample, Kościelny et
+    al., eq. 5, and is unknown past the set-points it learned already; a line answers
+    everywhere).
 
     A test reading such an input learned the plant at the window's few operating points:
     the chemical plant at 1 s, three days, each loop's set-point at 3.5–7 independent
@@ -2254,9 +2255,10 @@ def chosen_set_points(
     than its band on 54–88 % of the samples. The margin is the window's (3 × the set-point's
     noise, 0 for an operator's entry) but at least :data:`CHOSEN_RESOLUTION` of its
     magnitude. Where such a set-point is outside what the
-    window showed, the unit makes those tests unknown and names it
-    (:class:`~diag_plugin.diagnose.manual.ManualGuard`, ``[chosen]``); the loop's own tests
-    (its measurement against the set-point, its spread) keep judging."""
+    window showed, the unit makes every such line unknown (the operators set the window's
+    points together: a move of any is a point the lines never saw) and names it
+    (:class:`~diag_plugin.diagnose.manual.ManualGuard`, ``[chosen]``); the loops' own tests
+    (the measurement against its set-point, its spread) keep judging."""
     from diag_plugin.models.series import effective_samples
 
     held: dict[str, set[str]] = {}
@@ -2264,21 +2266,23 @@ def chosen_set_points(
         if ch.tracks and ch.tracks in frame.columns and ch.tracks not in cascade:
             held.setdefault(ch.tracks, set()).add(ch.tag)
     out = []
-    for sp, pvs in held.items():
+    for sp in held:
         x = frame[sp].to_numpy(float)
         v = x[np.isfinite(x)]
         if v.size < 2 or v.min() == v.max() or effective_samples(v) > NARROW_INDEPENDENT:
             continue
-        reads = any(
-            ch.tracks != sp and not ch.method.startswith("wm") and (sp in plain or plain & pvs)
-            for ch in kept
-            for plain in [{InputSpec.parse(i).tags[0] for i in ch.inputs
-                           if InputSpec.parse(i).fn == ""}]
-        )  # fmt: skip
-        span = learned_span(sp, x) if reads else None
+        span = learned_span(sp, x)
         if span is not None:  # a value written with fewer digits is no move
             floor = CHOSEN_RESOLUTION * max(1.0, abs(span.min), abs(span.max))
             out.append(dc_replace(span, margin=max(span.margin, floor)))
+    pvs = {t for s in out for t in held[s.tag]}
+    lines = [
+        {InputSpec.parse(i).tags[0] for i in ch.inputs if InputSpec.parse(i).fn == ""}
+        for ch in kept
+        if not ch.tracks and not ch.method.startswith("wm")
+    ]
+    if not any(plain & ({s.tag for s in out} | pvs) for plain in lines):
+        return []  # no line reads one: the rows would guard nothing
     return out
 
 
@@ -2288,9 +2292,9 @@ def chosen_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:
         spans,
         f"written by `diag unit build`: loops' set-points the window saw at most "
         f"{NARROW_INDEPENDENT} independent values of; min/max as the window learned them, "
-        f"margin {MARGIN_SAYS}; outside [min - margin, max + margin] the tests reading one, or "
-        "the measurement its loop holds at it, are unknown (not the loop's own) and the unit "
-        "names it",
+        f"margin {MARGIN_SAYS}; where one is outside [min - margin, max + margin] the lines "
+        "reading any of them, or a measurement a loop holds at one, are unknown (not the loops' "
+        "own tests, nor the rule grids) and the unit names it",
     )
 
 
@@ -2303,9 +2307,9 @@ def chosen_note(spans: Sequence[ManualSpan]) -> str:
     said = "; ".join(f"{s.tag} {s.min:.4g} … {s.max:.4g}" for s in spans)
     return (
         f"{len(spans)} {CHOSEN_SAID} at most {NARROW_INDEPENDENT} independent values in the "
-        f"window ({said}): the tests reading one, or the measurement its loop holds at it, "
-        "learned the plant at those few operating points; where one is outside, they are "
-        "unknown and the unit names it (CHECK_FUNCTION), its loop's own tests judging on, and "
+        f"window ({said}): the lines reading one, or a measurement a loop holds at one, "
+        "learned the plant at those few operating points; where any one is outside, they are "
+        "unknown and the unit names it (CHECK_FUNCTION), the loops' own tests judging on, and "
         "`diag unit accept` of a period at the new set-point teaches it"
     )
 
