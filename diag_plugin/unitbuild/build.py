@@ -2302,15 +2302,21 @@ def chosen_table(spans: Sequence[ManualSpan]) -> tomlkit.items.Table:
 CHOSEN_SAID = "set-point(s) seen at"
 
 
+def spans_said(spans: Sequence[ManualSpan]) -> str:
+    """``N <what> at most 7 independent values in the window (TAG lo … hi; …)`` without the
+    what: the head of the notes of :func:`chosen_note` and :func:`narrow_outputs_note`."""
+    said = "; ".join(f"{s.tag} {s.min:.4g} … {s.max:.4g}" for s in spans)
+    return f"at most {NARROW_INDEPENDENT} independent values in the window ({said})"
+
+
 def chosen_note(spans: Sequence[ManualSpan]) -> str:
     """The build's note of :func:`chosen_set_points`."""
-    said = "; ".join(f"{s.tag} {s.min:.4g} … {s.max:.4g}" for s in spans)
     return (
-        f"{len(spans)} {CHOSEN_SAID} at most {NARROW_INDEPENDENT} independent values in the "
-        f"window ({said}): the lines reading one, or a measurement a loop holds at one, "
-        "learned the plant at those few operating points; where any one is outside, they are "
-        "unknown and the unit names it (CHECK_FUNCTION), the loops' own tests judging on, and "
-        "`diag unit accept` of a period at the new set-point teaches it"
+        f"{len(spans)} {CHOSEN_SAID} {spans_said(spans)}: the lines reading one, or a "
+        "measurement a loop holds at one, learned the plant at those few operating points; "
+        "where any one is outside, they are unknown and the unit names it (CHECK_FUNCTION), "
+        "the loops' own tests judging on, and `diag unit accept` of a period at the new "
+        "set-point teaches it"
     )
 
 
@@ -2331,12 +2337,10 @@ NARROW_OUTPUTS_SAID = "tested tag(s) seen at"
 
 def narrow_outputs_note(spans: Sequence[ManualSpan]) -> str:
     """The build's note of :func:`narrow_outputs`."""
-    said = "; ".join(f"{s.tag} {s.min:.4g} … {s.max:.4g}" for s in spans)
     return (
-        f"{len(spans)} {NARROW_OUTPUTS_SAID} at most {NARROW_INDEPENDENT} independent values in "
-        f"the window ({said}): a quarter or more of their later values fall outside; there "
-        "each one's own test is unknown and the unit names it (CHECK_FUNCTION), and `diag unit "
-        "accept` of a period where it moved teaches it more"
+        f"{len(spans)} {NARROW_OUTPUTS_SAID} {spans_said(spans)}: a quarter or more of their "
+        "later values fall outside; there each one's own test is unknown and the unit names "
+        "it (CHECK_FUNCTION), and `diag unit accept` of a period where it moved teaches it more"
     )
 
 
