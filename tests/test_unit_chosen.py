@@ -133,8 +133,18 @@ def test_accept_at_the_new_target_widens_the_row_and_the_tests_answer(heater, tm
     lines = [t.name for t in after.file.tests
              if isinstance(after.models[t.name].model, LinearRegressor)
              and t.name in [after.file.tests[j].name for j in _guarded(after)]]  # fmt: skip
+    assert lines, "no line reads the target: nothing to answer"
     for t in lines:  # the line answers at 75 °C now
         assert np.isfinite(raw[t].to_numpy()[late]).mean() > 0.99, t
+
+
+def test_a_piece_without_the_set_point_names_the_missing_tag(heater):
+    """The guard reads the set-point before the models do: a piece without it is the models'
+    error naming the tag, not a bare lookup failure."""
+    period, _, res, folder = heater
+    x = sp.at_period(sp.simulate(0.2, 5, steps=NEW), period).drop(columns=["HEAT_TGT"])
+    with pytest.raises(KeyError, match="tag.s. HEAT_TGT needed by the model are not in the data"):
+        _load(res, folder).reset().evaluate(x)
 
 
 def test_the_live_loop_and_a_restart_agree_with_the_replay(heater):

@@ -877,7 +877,7 @@ class Unit:
         if getattr(self, "saturation", None) is not None:
             self.saturation.reset()
         if not hasattr(self, "outside"):
-            guarded = chosen_tests(self.models, self.tests, self._set_points(), self.file.chosen)
+            guarded = self.manual.chosen if self.manual is not None else {}
             self.outside = OutsideLearned(
                 chosen_ranges(guarded)
                 + manual_ranges(learned_ranges(self.models, self.tests), self.file.manual)
@@ -1005,8 +1005,15 @@ class Unit:
         # a test's residuals are one row of tests × samples (written in memory order, not a
         # column of samples × tests); turned to samples × tests once at the end
         out = np.full((len(self.tests), len(frame)), np.nan)
-        moved = self.manual.moved(cols.values) if self.manual is not None else False
-        chosen = self.manual.chosen_off(cols.values) if self.manual is not None else None
+        moved, chosen = False, None
+        if self.manual is not None:  # a tag missing from the piece: not outside (the models'
+            # builders say which tag is missing, with its name)
+            nan = np.full(len(frame), np.nan)
+
+            def value(t: str) -> np.ndarray:
+                return cols.values(t) if t in cols.columns else nan
+
+            moved, chosen = self.manual.moved(value), self.manual.chosen_off(value)
 
         def row(j: int) -> None:  # test j's row of ``out`` (its own builder and model)
             t = self.file.tests[j]
